@@ -1,0 +1,259 @@
+//! The run driver: one reference orbit, and around it every scheme's deviation sets.
+//!
+//! The engine is sans-io: callers pull [`Sample`]s one renormalization time at a time and decide
+//! what to do with them (publish on the bus, analyze in process, compare in a test).
+//!
+//! Determinism: every (scheme, set) task is a serial computation on its own data; rayon only
+//! decides which core runs it, and results are gathered in (scheme, set) order. The output is
+//! therefore bit-identical for any thread count. The reference orbit is integrated once; each
+//! variational task also carries its own copy (the tangent map needs the orbit's stage positions)
+//! stepped by the same code, so the copies agree with the reference bit for bit.
+
+use rayon::prelude::*;
+
+use crate::integrator::{Integrator, TangentError, Workspace};
+use crate::renormalization::{self, RenormalizationError};
+use crate::spec::{Method, RunSpec};
+
+/// Everything known at one renormalization time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sample {
+    /// 0, 1, 2, ... without gaps: receivers use it to prove nothing was lost.
+    pub seq: u64,
+    /// Integration step; `t = step * h`.
+    pub step: u64,
+    pub t: f64,
+    /// Reference state `(q, p)`.
+    pub state: Vec<f64>,
+    /// Energy of the reference state.
+    pub energy: f64,
+    /// The schemes renormalized at this step, ordered by (scheme, set).
+    pub schemes: Vec<SchemeSample>,
+}
+
+/// One set of one scheme at a renormalization.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SchemeSample {
+    pub scheme: u32,
+    pub set: u32,
+    /// `k` separation vectors of length `2N`, one after the other, before renormalization.
+    pub separations: Vec<f64>,
+    /// Stretching factor of each vector since the previous renormalization (`|d|/d0`, or
+    /// `|R_ii|` in QR mode).
+    pub stretch: Vec<f64>,
+}
+
+/// A run that could not go on.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RunError {
+    #[error("the reference orbit escaped or became non-finite at t = {t} (|x| = {norm:e})")]
+    Escaped { t: f64, norm: f64 },
+    #[error("scheme '{scheme}', set {set}, t = {t}: {source}")]
+    Renormalization { scheme: String, set: u32, t: f64, source: RenormalizationError },
+    #[error(transparent)]
+    Tangent(#[from] TangentError),
+}
+
+/// Beyond this norm a state is treated as escaped: polynomial forces overflow soon after.
+const ESCAPE_NORM: f64 = 1e100;
+
+#[derive(Debug, Clone)]
+enum Deviations {
+    /// Tangent vectors and the task's own copy of the reference orbit.
+    Variational { orbit: Vec<f64>, vectors: Vec<f64> },
+    /// The `k` nearby orbits themselves.
+    MultiParticle { orbits: Vec<f64> },
+}
+
+/// One scheme's evolution of one set of deviation vectors: a `DeviationSet`.
+#[derive(Debug, Clone)]
+struct DeviationSet {
+    scheme: usize,
+    set: usize,
+    deviations: Deviations,
+    work: Workspace,
+}
+
+pub struct Engine {
+    spec: RunSpec,
+    reference: Vec<f64>,
+    work: Workspace,
+    tasks: Vec<DeviationSet>,
+    step: u64,
+    next_seq: u64,
+}
+
+impl Engine {
+    pub fn new(spec: RunSpec) -> Self {
+        let dim = spec.dim;
+        let mut tasks = Vec::with_capacity(spec.schemes.len() * spec.sets());
+        for (si, scheme) in spec.schemes.iter().enumerate() {
+            for (set, dirs) in spec.directions.iter().enumerate() {
+                let scaled: Vec<f64> = dirs.vectors.iter().map(|u| scheme.d0 * u).collect();
+                let deviations = match scheme.method {
+                    Method::Vm => Deviations::Variational { orbit: spec.x0.clone(), vectors: scaled },
+                    Method::Mpm => Deviations::MultiParticle {
+                        orbits: scaled.chunks_exact(dim).flat_map(|d| spec.x0.iter().zip(d).map(|(x, d)| x + d)).collect(),
+                    },
+                };
+                tasks.push(DeviationSet { scheme: si, set, deviations, work: Workspace::new() });
+            }
+        }
+        Self { reference: spec.x0.clone(), spec, work: Workspace::new(), tasks, step: 0, next_seq: 0 }
+    }
+
+    pub fn spec(&self) -> &RunSpec {
+        &self.spec
+    }
+
+    pub fn total_steps(&self) -> u64 {
+        self.spec.total_steps
+    }
+
+    pub fn current_step(&self) -> u64 {
+        self.step
+    }
+
+    /// The reference state now.
+    pub fn state(&self) -> &[f64] {
+        &self.reference
+    }
+
+    /// The step of the next renormalization of any scheme (the run's last step at the latest).
+    fn next_stop(&self) -> u64 {
+        self.spec
+            .schemes
+            .iter()
+            .map(|s| (self.step / s.tau_steps + 1) * s.tau_steps)
+            .min()
+            .unwrap_or(self.spec.total_steps)
+            .min(self.spec.total_steps)
+    }
+
+    fn renormalizes_at(&self, scheme: usize, step: u64) -> bool {
+        step % self.spec.schemes[scheme].tau_steps == 0 || step == self.spec.total_steps
+    }
+
+    /// Advance to the next renormalization time and return what it produced; `Ok(None)` once the
+    /// run is complete. The first call returns the initial state (seq 0, t = 0) with every
+    /// scheme's initial vectors and unit stretching.
+    pub fn next_sample(&mut self) -> Result<Option<Sample>, RunError> {
+        if self.next_seq == 0 {
+            return Ok(Some(self.initial_sample()));
+        }
+        if self.step >= self.spec.total_steps {
+            return Ok(None);
+        }
+        let target = self.next_stop();
+        let n_steps = target - self.step;
+        let spec = &self.spec;
+        let model = spec.model.as_ref();
+        for _ in 0..n_steps {
+            spec.integrator.step(model, &mut self.reference, spec.h, &mut self.work);
+        }
+        let t = spec.time_of(target);
+        let norm = self.reference.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if !(norm < ESCAPE_NORM) {
+            return Err(RunError::Escaped { t, norm });
+        }
+
+        let reference = &self.reference;
+        let renorm: Vec<bool> = (0..spec.schemes.len()).map(|s| self.renormalizes_at(s, target)).collect();
+        let results: Vec<Result<Option<SchemeSample>, RunError>> = self
+            .tasks
+            .par_iter_mut()
+            .map(|task| task.advance(spec, reference, n_steps, renorm[task.scheme], t))
+            .collect();
+        let mut schemes = Vec::new();
+        for r in results {
+            if let Some(s) = r? {
+                schemes.push(s);
+            }
+        }
+        self.step = target;
+        let energy = model.energy(&self.reference);
+        let seq = self.next_seq;
+        self.next_seq += 1;
+        Ok(Some(Sample { seq, step: target, t, state: self.reference.clone(), energy, schemes }))
+    }
+
+    fn initial_sample(&mut self) -> Sample {
+        self.next_seq = 1;
+        let schemes = self
+            .tasks
+            .iter()
+            .map(|task| {
+                let d0 = self.spec.schemes[task.scheme].d0;
+                SchemeSample {
+                    scheme: task.scheme as u32,
+                    set: task.set as u32,
+                    separations: self.spec.directions[task.set].vectors.iter().map(|u| d0 * u).collect(),
+                    stretch: vec![1.0; self.spec.k],
+                }
+            })
+            .collect();
+        Sample { seq: 0, step: 0, t: 0.0, state: self.reference.clone(), energy: self.spec.e0, schemes }
+    }
+
+    /// Run to the end, handing every sample to `sink`.
+    pub fn run(mut self, mut sink: impl FnMut(Sample)) -> Result<(), RunError> {
+        while let Some(s) = self.next_sample()? {
+            sink(s);
+        }
+        Ok(())
+    }
+}
+
+impl DeviationSet {
+    fn advance(
+        &mut self,
+        spec: &RunSpec,
+        reference: &[f64],
+        n_steps: u64,
+        renormalize: bool,
+        t: f64,
+    ) -> Result<Option<SchemeSample>, RunError> {
+        let model = spec.model.as_ref();
+        let dim = spec.dim;
+        let scheme = &spec.schemes[self.scheme];
+        let mut separations = match &mut self.deviations {
+            Deviations::Variational { orbit, vectors } => {
+                for _ in 0..n_steps {
+                    spec.integrator.step_tangent(model, orbit, vectors, spec.h, &mut self.work)?;
+                }
+                debug_assert_eq!(orbit.as_slice(), reference, "variational copy of the orbit diverged");
+                if !renormalize {
+                    return Ok(None);
+                }
+                vectors.clone()
+            }
+            Deviations::MultiParticle { orbits } => {
+                for y in orbits.chunks_exact_mut(dim) {
+                    for _ in 0..n_steps {
+                        spec.integrator.step(model, y, spec.h, &mut self.work);
+                    }
+                }
+                if !renormalize {
+                    return Ok(None);
+                }
+                orbits.chunks_exact(dim).flat_map(|y| y.iter().zip(reference).map(|(a, b)| a - b)).collect()
+            }
+        };
+        let raw = separations.clone();
+        let mut stretch = vec![0.0; spec.k];
+        renormalization::renormalize(&mut separations, dim, scheme.d0, scheme.orthonormalize, &mut stretch).map_err(
+            |source| RunError::Renormalization { scheme: scheme.name.clone(), set: self.set as u32, t, source },
+        )?;
+        match &mut self.deviations {
+            Deviations::Variational { vectors, .. } => vectors.copy_from_slice(&separations),
+            Deviations::MultiParticle { orbits } => {
+                for (y, d) in orbits.chunks_exact_mut(dim).zip(separations.chunks_exact(dim)) {
+                    for ((yi, di), xi) in y.iter_mut().zip(d).zip(reference) {
+                        *yi = xi + di;
+                    }
+                }
+            }
+        }
+        Ok(Some(SchemeSample { scheme: self.scheme as u32, set: self.set as u32, separations: raw, stretch }))
+    }
+}

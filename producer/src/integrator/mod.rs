@@ -1,0 +1,68 @@
+//! Fixed-step integrators.
+//!
+//! One trait, [`Integrator`], generic over the system it advances: symplectic splittings
+//! ([`Splitting`]) implement it for separable Hamiltonians ([`Model`]); Runge-Kutta methods for
+//! general vector fields will implement it for their own system trait without touching this one.
+//! An integrator may also advance deviation vectors with its own tangent map (the variational
+//! method); one that cannot says so and only the multi-particle method is offered.
+
+mod splitting;
+
+pub use splitting::{Splitting, SplittingKind};
+
+use crate::model::Model;
+
+/// Scratch buffers reused across steps so the inner loop never allocates. One per thread.
+#[derive(Debug, Default, Clone)]
+pub struct Workspace {
+    pub(crate) force: Vec<f64>,
+}
+
+impl Workspace {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    pub(crate) fn force(&mut self, n: usize) -> &mut [f64] {
+        if self.force.len() < n {
+            self.force.resize(n, 0.0);
+        }
+        &mut self.force[..n]
+    }
+}
+
+/// Why a tangent-map step could not be taken.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TangentError {
+    #[error("model '{0}' has no Hessian-vector product: use the multi-particle method (mpm)")]
+    NoHessian(String),
+}
+
+/// A fixed-step integrator for systems of type `S`.
+pub trait Integrator<S: ?Sized>: Send + Sync {
+    /// Name as written in configs (`"aba864"`).
+    fn name(&self) -> &str;
+
+    /// Order of the global error in `h` for a general system.
+    fn order(&self) -> u32;
+
+    /// Advance the phase-space point `x` by one step `h`.
+    fn step(&self, system: &S, x: &mut [f64], h: f64, work: &mut Workspace);
+
+    /// Advance `x` and `k` deviation vectors stored one after the other in `w` (each of the
+    /// phase-space dimension) by one step of the integrator's own tangent map.
+    fn step_tangent(
+        &self,
+        system: &S,
+        x: &mut [f64],
+        w: &mut [f64],
+        h: f64,
+        work: &mut Workspace,
+    ) -> Result<(), TangentError>;
+}
+
+/// Relative energy error `|H - H0| / |H0|` (absolute when `H0 = 0`).
+pub fn relative_energy_error(model: &dyn Model, x: &[f64], e0: f64) -> f64 {
+    let e = model.energy(x);
+    if e0 == 0.0 { (e - e0).abs() } else { ((e - e0) / e0).abs() }
+}

@@ -1,0 +1,207 @@
+//! Symplectic splitting methods `A B A ... B A` for `H = A(p) + B(q)`.
+//!
+//! A drift `A(c)` moves positions `q += c h p`; a kick `B(d)` moves momenta
+//! `p -= d h dV/dq(q)`. The tangent map applies the derivative of each split flow exactly:
+//! drift `dq += c h dp`, kick `dp -= d h Hess V(q) dq` with `q` the orbit's position at that
+//! stage, so the variational method shares the integrator's splitting and order.
+//!
+//! Steps are never merged across step boundaries (the trailing drift of one step with the
+//! leading drift of the next): outputs are full steps and the reference orbit is bit-identical
+//! whatever the sampling or renormalization period.
+
+use super::{Integrator, TangentError, Workspace};
+use crate::model::Model;
+
+/// The splittings chaoscope ships.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum SplittingKind {
+    /// Second-order Stormer-Verlet, `A(1/2) B(1) A(1/2)`.
+    Leapfrog,
+    /// Laskar-Robutel SABA2, order 2 (4 for small perturbations).
+    Saba2,
+    /// Yoshida's fourth-order triple jump of the leapfrog.
+    Yoshida4,
+    /// Blanes, Casas, Farres, Laskar, Makazaga, Murua (2013), order (8,6,4).
+    Aba864,
+}
+
+impl SplittingKind {
+    pub const ALL: [SplittingKind; 4] =
+        [SplittingKind::Leapfrog, SplittingKind::Saba2, SplittingKind::Yoshida4, SplittingKind::Aba864];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            SplittingKind::Leapfrog => "leapfrog",
+            SplittingKind::Saba2 => "saba2",
+            SplittingKind::Yoshida4 => "yoshida4",
+            SplittingKind::Aba864 => "aba864",
+        }
+    }
+
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.name() == name)
+    }
+}
+
+/// A palindromic splitting `A(a_1) B(b_1) A(a_2) ... B(b_m) A(a_{m+1})`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Splitting {
+    kind: SplittingKind,
+    order: u32,
+    drifts: Vec<f64>,
+    kicks: Vec<f64>,
+}
+
+// ABA864 coefficients, full precision as published (numerics.md; REBOUND `lf8_6_4_a/b`).
+#[allow(clippy::excessive_precision)]
+const ABA864_A: [f64; 4] = [
+    0.0711334264982231177779387300061549964174,
+    0.241153427956640098736487795326289649618,
+    0.521411761772814789212136078067994229991,
+    -0.333698616227678005726562603400438876027,
+];
+#[allow(clippy::excessive_precision)]
+const ABA864_B: [f64; 4] = [
+    0.183083687472197221961703757166430291072,
+    0.310782859898574869507522291054262796375,
+    -0.0265646185119588006972121379164987592663,
+    0.0653961422823734184559721793911134363710,
+];
+
+impl Splitting {
+    pub fn new(kind: SplittingKind) -> Self {
+        let (order, drifts, kicks) = match kind {
+            SplittingKind::Leapfrog => (2, vec![0.5, 0.5], vec![1.0]),
+            SplittingKind::Saba2 => {
+                let a1 = 0.5 - 3f64.sqrt() / 6.0;
+                let a2 = 3f64.sqrt() / 3.0;
+                (2, vec![a1, a2, a1], vec![0.5, 0.5])
+            }
+            SplittingKind::Yoshida4 => {
+                let cbrt2 = 2f64.cbrt();
+                let w1 = 1.0 / (2.0 - cbrt2);
+                let w0 = -cbrt2 / (2.0 - cbrt2);
+                (4, vec![w1 / 2.0, (w0 + w1) / 2.0, (w0 + w1) / 2.0, w1 / 2.0], vec![w1, w0, w1])
+            }
+            SplittingKind::Aba864 => {
+                let [a1, a2, a3, a4] = ABA864_A;
+                let [b1, b2, b3, b4] = ABA864_B;
+                (4, vec![a1, a2, a3, a4, a4, a3, a2, a1], vec![b1, b2, b3, b4, b3, b2, b1])
+            }
+        };
+        debug_assert_eq!(drifts.len(), kicks.len() + 1);
+        Self { kind, order, drifts, kicks }
+    }
+
+    pub fn kind(&self) -> SplittingKind {
+        self.kind
+    }
+
+    /// Drift coefficients `a_i` (one more than kicks).
+    pub fn drifts(&self) -> &[f64] {
+        &self.drifts
+    }
+
+    /// Kick coefficients `b_i`.
+    pub fn kicks(&self) -> &[f64] {
+        &self.kicks
+    }
+
+    #[inline(always)]
+    fn drift(x: &mut [f64], n: usize, ch: f64) {
+        let (q, p) = x.split_at_mut(n);
+        for (qi, pi) in q.iter_mut().zip(p.iter()) {
+            *qi += ch * pi;
+        }
+    }
+
+    #[inline(always)]
+    fn kick<M: Model + ?Sized>(model: &M, x: &mut [f64], n: usize, dh: f64, force: &mut [f64]) {
+        let (q, p) = x.split_at_mut(n);
+        model.gradient(q, force);
+        for (pi, fi) in p.iter_mut().zip(force.iter()) {
+            *pi -= dh * fi;
+        }
+    }
+}
+
+impl<M: Model + ?Sized> Integrator<M> for Splitting {
+    fn name(&self) -> &str {
+        self.kind.name()
+    }
+
+    fn order(&self) -> u32 {
+        self.order
+    }
+
+    fn step(&self, model: &M, x: &mut [f64], h: f64, work: &mut Workspace) {
+        let n = model.dof();
+        let force = work.force(n);
+        for (i, &d) in self.kicks.iter().enumerate() {
+            Self::drift(x, n, self.drifts[i] * h);
+            Self::kick(model, x, n, d * h, force);
+        }
+        Self::drift(x, n, self.drifts[self.kicks.len()] * h);
+    }
+
+    fn step_tangent(
+        &self,
+        model: &M,
+        x: &mut [f64],
+        w: &mut [f64],
+        h: f64,
+        work: &mut Workspace,
+    ) -> Result<(), TangentError> {
+        if !model.has_hessian() {
+            return Err(TangentError::NoHessian(model.name().to_string()));
+        }
+        let n = model.dof();
+        let dim = 2 * n;
+        let force = work.force(n);
+        let drift_all = |x: &mut [f64], w: &mut [f64], ch: f64| {
+            Self::drift(x, n, ch);
+            for v in w.chunks_exact_mut(dim) {
+                Self::drift(v, n, ch);
+            }
+        };
+        for (i, &d) in self.kicks.iter().enumerate() {
+            drift_all(x, w, self.drifts[i] * h);
+            let dh = d * h;
+            // Tangent kicks use the position before the orbit's own kick (same stage).
+            for v in w.chunks_exact_mut(dim) {
+                let (dq, dp) = v.split_at_mut(n);
+                model.hessian_vector(&x[..n], dq, force);
+                for (pi, fi) in dp.iter_mut().zip(force.iter()) {
+                    *pi -= dh * fi;
+                }
+            }
+            Self::kick(model, x, n, dh, force);
+        }
+        drift_all(x, w, self.drifts[self.kicks.len()] * h);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn coefficients_are_consistent() {
+        for kind in SplittingKind::ALL {
+            let s = Splitting::new(kind);
+            let sa: f64 = s.drifts().iter().sum();
+            let sb: f64 = s.kicks().iter().sum();
+            assert!((sa - 1.0).abs() < 1e-15, "{kind:?} drifts sum {sa}");
+            assert!((sb - 1.0).abs() < 1e-15, "{kind:?} kicks sum {sb}");
+            let n = s.drifts().len();
+            for i in 0..n {
+                assert_eq!(s.drifts()[i], s.drifts()[n - 1 - i], "{kind:?} not palindromic");
+            }
+        }
+        let a = ABA864_A;
+        let b = ABA864_B;
+        assert!((2.0 * (a[0] + a[1] + a[2] + a[3]) - 1.0).abs() < 1e-15);
+        assert!((2.0 * (b[0] + b[1] + b[2]) + b[3] - 1.0).abs() < 1e-15);
+    }
+}

@@ -1,0 +1,12 @@
+//! chaoscope-producer: the numerical core (models, integrators, deviation dynamics, indicators,
+//! the run engine) and the producer process that publishes a run on the bus.
+//!
+//! Every module except the process wrapper is pure computation with no I/O.
+
+pub mod deviation;
+pub mod engine;
+pub mod indicators;
+pub mod integrator;
+pub mod model;
+pub mod renormalization;
+pub mod spec;

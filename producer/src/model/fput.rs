@@ -1,0 +1,165 @@
+//! The beta-Fermi-Pasta-Ulam-Tsingou chain with fixed ends (`x_0 = x_{N+1} = 0`):
+//! `H = sum p_i^2/2 + sum_{i=0..N} [ r_i^2/2 + beta r_i^4/4 ]`, `r_i = x_{i+1} - x_i`.
+
+use super::Model;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FputBeta {
+    n: usize,
+    beta: f64,
+}
+
+impl FputBeta {
+    /// A chain of `n >= 1` moving particles with quartic coupling `beta` (finite).
+    pub fn new(n: usize, beta: f64) -> Result<Self, String> {
+        if n == 0 {
+            return Err("fput-beta needs n >= 1 particles".into());
+        }
+        if !beta.is_finite() {
+            return Err(format!("fput-beta needs a finite beta, got {beta}"));
+        }
+        Ok(Self { n, beta })
+    }
+
+    pub fn beta(&self) -> f64 {
+        self.beta
+    }
+
+    /// Displacement of site `i` in `0..=N+1`, with the fixed ends.
+    #[inline(always)]
+    fn site(q: &[f64], i: usize, n: usize) -> f64 {
+        if i == 0 || i == n + 1 { 0.0 } else { q[i - 1] }
+    }
+
+    /// Amplitude `A` of the SPO1 orbit at energy `h` (`H = (N+1)(A^2/2 + beta A^4/4)`), for odd
+    /// `N`. Returns `None` when no real amplitude exists (e.g. `beta < 0` beyond the maximum).
+    pub fn spo1_amplitude(&self, energy: f64) -> Option<f64> {
+        let e = energy / (self.n as f64 + 1.0);
+        if !(e >= 0.0) {
+            return None;
+        }
+        if self.beta == 0.0 {
+            return Some((2.0 * e).sqrt());
+        }
+        // beta/4 A^4 + 1/2 A^2 - e = 0  =>  A^2 = (-1/2 + sqrt(1/4 + beta e)) / (beta/2)
+        let disc = 0.25 + self.beta * e;
+        if disc < 0.0 {
+            return None;
+        }
+        // Written in the cancellation-free form A^2 = 2e / (1/2 + sqrt(disc)).
+        let a2 = 2.0 * e / (0.5 + disc.sqrt());
+        (a2 >= 0.0 && a2.is_finite()).then(|| a2.sqrt())
+    }
+
+    /// The SPO1 initial condition (`x_{2j} = 0`, `x_{2j-1} = -x_{2j+1} = A`, `p = 0`) at the
+    /// given energy; odd `N` only.
+    pub fn spo1(&self, energy: f64) -> Result<Vec<f64>, String> {
+        if self.n % 2 == 0 {
+            return Err(format!("SPO1 exists for odd N only, got N = {}", self.n));
+        }
+        let a = self
+            .spo1_amplitude(energy)
+            .ok_or_else(|| format!("no real SPO1 amplitude at energy {energy} (beta = {})", self.beta))?;
+        let mut x = vec![0.0; 2 * self.n];
+        for i in 0..self.n {
+            // site i+1: odd sites alternate +A, -A, ...
+            if i % 2 == 0 {
+                x[i] = if (i / 2) % 2 == 0 { a } else { -a };
+            }
+        }
+        Ok(x)
+    }
+}
+
+impl Model for FputBeta {
+    fn name(&self) -> &str {
+        "fput-beta"
+    }
+
+    fn dof(&self) -> usize {
+        self.n
+    }
+
+    fn potential(&self, q: &[f64]) -> f64 {
+        let n = self.n;
+        let mut v = 0.0;
+        for i in 0..=n {
+            let r = Self::site(q, i + 1, n) - Self::site(q, i, n);
+            let r2 = r * r;
+            v += 0.5 * r2 + 0.25 * self.beta * r2 * r2;
+        }
+        v
+    }
+
+    #[inline]
+    fn gradient(&self, q: &[f64], out: &mut [f64]) {
+        // dV/dq_i = f(r_{i-1}) - f(r_i) with f(r) = r + beta r^3, r_i = x_{i+1} - x_i.
+        let n = self.n;
+        let beta = self.beta;
+        let mut f_left = {
+            let r = q[0];
+            r + beta * r * r * r
+        };
+        for i in 0..n {
+            let next = if i + 1 < n { q[i + 1] } else { 0.0 };
+            let r = next - q[i];
+            let f_right = r + beta * r * r * r;
+            out[i] = f_left - f_right;
+            f_left = f_right;
+        }
+    }
+
+    #[inline]
+    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+        // Each bond contributes f'(r) = 1 + 3 beta r^2 times the bond's stretch of v.
+        let n = self.n;
+        let beta = self.beta;
+        let mut g_left = (1.0 + 3.0 * beta * q[0] * q[0]) * v[0];
+        for i in 0..n {
+            let (qn, vn) = if i + 1 < n { (q[i + 1], v[i + 1]) } else { (0.0, 0.0) };
+            let r = qn - q[i];
+            let g_right = (1.0 + 3.0 * beta * r * r) * (vn - v[i]);
+            out[i] = g_left - g_right;
+            g_left = g_right;
+        }
+        true
+    }
+
+    fn has_hessian(&self) -> bool {
+        true
+    }
+
+    fn preset(&self, name: &str, energy: f64) -> Option<Result<Vec<f64>, String>> {
+        (name == "spo1").then(|| self.spo1(energy))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::check;
+
+    #[test]
+    fn derivatives_agree_with_potential() {
+        for n in [1, 2, 5, 11] {
+            let m = FputBeta::new(n, 1.3).unwrap();
+            let q: Vec<f64> = (0..n).map(|i| 0.3 * ((i as f64) * 1.7).sin()).collect();
+            let v: Vec<f64> = (0..n).map(|i| ((i as f64) * 0.9).cos()).collect();
+            check::gradient_matches_potential(&m, &q);
+            check::hessian_matches_gradient(&m, &q, &v);
+        }
+    }
+
+    #[test]
+    fn spo1_has_the_requested_energy() {
+        for (n, e) in [(5, 7.4), (11, 1.98), (101, 1.515)] {
+            let m = FputBeta::new(n, 1.0).unwrap();
+            let x = m.spo1(e).unwrap();
+            assert!((m.energy(&x) - e).abs() < 1e-13 * e, "N = {n}");
+            assert_eq!(x[1], 0.0);
+            assert_eq!(x[0], -x[2]);
+        }
+        assert!(FputBeta::new(4, 1.0).unwrap().spo1(1.0).is_err());
+        assert!(FputBeta::new(5, -1.0).unwrap().spo1(100.0).is_err());
+    }
+}

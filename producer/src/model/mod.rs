@@ -1,0 +1,96 @@
+//! Models: the Hamiltonians chaoscope integrates.
+//!
+//! One trait, [`Model`], for separable Hamiltonians `H = |p|^2/2 + V(q)`: that is what the
+//! symplectic splittings and their tangent maps need. A model states which derivatives it has:
+//! the Hessian-vector product is optional, and a model without it (a non-smooth or empirical
+//! potential) can still be studied with the multi-particle method, never with the variational
+//! one. Non-Hamiltonian vector fields (for Runge-Kutta integrators) will get a sibling trait; the
+//! integrator trait is generic over the system so both fit.
+//!
+//! Every method is pure and allocation-free: models are called in the innermost loop.
+
+mod fput;
+mod henon_heiles;
+
+pub use fput::FputBeta;
+pub use henon_heiles::HenonHeiles;
+
+/// A separable Hamiltonian `H(q, p) = |p|^2 / 2 + V(q)` with `N` degrees of freedom.
+///
+/// Phase-space vectors are ordered `x = (q1..qN, p1..pN)`.
+pub trait Model: Send + Sync {
+    /// Short machine name, as written in configs (`"henon-heiles"`).
+    fn name(&self) -> &str;
+
+    /// Degrees of freedom `N`; the phase space has dimension `2N`.
+    fn dof(&self) -> usize;
+
+    /// Potential energy `V(q)`.
+    fn potential(&self, q: &[f64]) -> f64;
+
+    /// `out = dV/dq (q)`.
+    fn gradient(&self, q: &[f64], out: &mut [f64]);
+
+    /// `out = Hess V(q) * v`, or `false` (with `out` untouched) when the model has no second
+    /// derivatives and only the multi-particle method applies.
+    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool;
+
+    /// Whether [`Model::hessian_vector`] is available (the variational method needs it).
+    fn has_hessian(&self) -> bool;
+
+    /// Kinetic energy; `|p|^2 / 2` for every model of this trait.
+    fn kinetic(&self, p: &[f64]) -> f64 {
+        0.5 * p.iter().map(|v| v * v).sum::<f64>()
+    }
+
+    /// A named initial condition of this model at the given energy (e.g. the FPUT chain's
+    /// `"spo1"`): `None` when the model has no preset of that name.
+    fn preset(&self, _name: &str, _energy: f64) -> Option<Result<Vec<f64>, String>> {
+        None
+    }
+
+    /// Total energy of a phase-space point `x = (q, p)`.
+    fn energy(&self, x: &[f64]) -> f64 {
+        let n = self.dof();
+        self.kinetic(&x[n..]) + self.potential(&x[..n])
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod check {
+    //! Finite-difference checks shared by the model tests: a model's derivatives must agree
+    //! with its own potential.
+    use super::Model;
+
+    pub fn gradient_matches_potential(m: &dyn Model, q: &[f64]) {
+        let n = m.dof();
+        let mut g = vec![0.0; n];
+        m.gradient(q, &mut g);
+        for i in 0..n {
+            let eps = 1e-6;
+            let mut qp = q.to_vec();
+            let mut qm = q.to_vec();
+            qp[i] += eps;
+            qm[i] -= eps;
+            let fd = (m.potential(&qp) - m.potential(&qm)) / (2.0 * eps);
+            // Central differences: error ~ eps^2 * V''' plus rounding ~ 1e-16 / eps.
+            assert!((fd - g[i]).abs() < 1e-8 * (1.0 + g[i].abs()), "dV/dq{i}: fd {fd} vs {}", g[i]);
+        }
+    }
+
+    pub fn hessian_matches_gradient(m: &dyn Model, q: &[f64], v: &[f64]) {
+        let n = m.dof();
+        let mut hv = vec![0.0; n];
+        assert!(m.hessian_vector(q, v, &mut hv));
+        let eps = 1e-6;
+        let qp: Vec<f64> = q.iter().zip(v).map(|(a, b)| a + eps * b).collect();
+        let qm: Vec<f64> = q.iter().zip(v).map(|(a, b)| a - eps * b).collect();
+        let (mut gp, mut gm) = (vec![0.0; n], vec![0.0; n]);
+        m.gradient(&qp, &mut gp);
+        m.gradient(&qm, &mut gm);
+        for i in 0..n {
+            let fd = (gp[i] - gm[i]) / (2.0 * eps);
+            assert!((fd - hv[i]).abs() < 1e-7 * (1.0 + hv[i].abs()), "Hv[{i}]: fd {fd} vs {}", hv[i]);
+        }
+    }
+}

@@ -1,0 +1,428 @@
+//! A validated run: the numerics' view of a [`RunConfig`].
+//!
+//! Everything a user can write is checked here, once, with an error that names the key and the
+//! problem; past this point the engine only meets consistent input.
+
+use std::sync::Arc;
+
+use chaoscope_schemas::config::{OrbitConfig, RunConfig};
+
+use crate::deviation::{self, DirectionError, Directions};
+use crate::integrator::{Splitting, SplittingKind};
+use crate::model::{FputBeta, HenonHeiles, Model};
+use crate::renormalization::Orthonormalization;
+
+/// How deviation vectors are evolved.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Method {
+    /// Variational method: the integrator's tangent map.
+    Vm,
+    /// Multi-particle method: nearby orbits integrated with the full equations of motion.
+    Mpm,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Vm => "vm",
+            Method::Mpm => "mpm",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<Self> {
+        match s {
+            "vm" => Some(Method::Vm),
+            "mpm" => Some(Method::Mpm),
+            _ => None,
+        }
+    }
+}
+
+/// One renormalization scheme evolved around the shared reference orbit.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SchemeSpec {
+    pub name: String,
+    pub method: Method,
+    /// Norm of every deviation vector right after a renormalization.
+    pub d0: f64,
+    /// Renormalization period, an exact multiple of the time step.
+    pub tau: f64,
+    /// `tau / h`.
+    pub tau_steps: u64,
+    pub orthonormalize: Orthonormalization,
+}
+
+/// A problem with the configuration, naming the key.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{key}: {message}")]
+pub struct SpecError {
+    pub key: String,
+    pub message: String,
+}
+
+impl SpecError {
+    pub fn new(key: impl Into<String>, message: impl Into<String>) -> Self {
+        Self { key: key.into(), message: message.into() }
+    }
+}
+
+/// Longest run accepted, in steps: beyond this `step * h` loses integer exactness in f64.
+const MAX_STEPS: u64 = 1 << 52;
+
+/// A validated run.
+#[derive(Clone)]
+pub struct RunSpec {
+    pub model: Arc<dyn Model>,
+    pub integrator: Splitting,
+    pub h: f64,
+    pub total_steps: u64,
+    /// Initial reference state `(q, p)`.
+    pub x0: Vec<f64>,
+    /// Energy of `x0`.
+    pub e0: f64,
+    /// Phase-space dimension `2N`.
+    pub dim: usize,
+    /// Deviation vectors per set.
+    pub k: usize,
+    /// Initial directions, one entry per set, shared by every scheme.
+    pub directions: Vec<Directions>,
+    pub schemes: Vec<SchemeSpec>,
+    pub seed: u64,
+}
+
+impl std::fmt::Debug for RunSpec {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RunSpec")
+            .field("model", &self.model.name())
+            .field("dof", &self.model.dof())
+            .field("integrator", &self.integrator.kind())
+            .field("h", &self.h)
+            .field("total_steps", &self.total_steps)
+            .field("x0", &self.x0)
+            .field("k", &self.k)
+            .field("sets", &self.directions.len())
+            .field("schemes", &self.schemes)
+            .finish()
+    }
+}
+
+fn finite_positive(key: &str, v: f64) -> Result<f64, SpecError> {
+    if v.is_finite() && v > 0.0 { Ok(v) } else { Err(SpecError::new(key, format!("must be a finite positive number, got {v}"))) }
+}
+
+/// `round(t / h)` when `t` is a whole number of steps `h` (to rounding), else an error.
+pub fn whole_steps(key: &str, t: f64, h: f64) -> Result<u64, SpecError> {
+    let ratio = t / h;
+    let n = ratio.round();
+    if !(n >= 1.0) || n > MAX_STEPS as f64 || (ratio - n).abs() > 1e-9 * n.max(1.0) {
+        return Err(SpecError::new(key, format!("{t} is not a positive whole number of time steps h = {h}")));
+    }
+    Ok(n as u64)
+}
+
+/// Build the model named in the config.
+pub fn model_from_config(cfg: &chaoscope_schemas::config::ModelConfig) -> Result<Arc<dyn Model>, SpecError> {
+    match cfg.name.as_str() {
+        "henon-heiles" => {
+            if let Some(n) = cfg.n.filter(|&n| n != 2) {
+                return Err(SpecError::new("model.n", format!("henon-heiles has 2 degrees of freedom, got n = {n}")));
+            }
+            if cfg.beta.is_some() {
+                return Err(SpecError::new("model.beta", "henon-heiles has no parameter beta"));
+            }
+            Ok(Arc::new(HenonHeiles))
+        }
+        "fput-beta" => {
+            let n = cfg.n.ok_or_else(|| SpecError::new("model.n", "fput-beta needs the number of particles n"))?;
+            if n == 0 || n > 1_000_000 {
+                return Err(SpecError::new("model.n", format!("must be between 1 and 1000000, got {n}")));
+            }
+            let beta = cfg.beta.unwrap_or(1.0);
+            FputBeta::new(n, beta).map(|m| Arc::new(m) as Arc<dyn Model>).map_err(|e| SpecError::new("model.beta", e))
+        }
+        other => Err(SpecError::new("model.name", format!("unknown model '{other}' (known: henon-heiles, fput-beta)"))),
+    }
+}
+
+/// Parse a coordinate name `q3` / `p1` into (is_momentum, zero-based index) for `n` dof.
+pub fn parse_coordinate(name: &str, n: usize) -> Option<(bool, usize)> {
+    let (momentum, digits) = match name.as_bytes().first()? {
+        b'q' | b'x' => (false, &name[1..]),
+        b'p' => (true, &name[1..]),
+        _ => return None,
+    };
+    let i: usize = digits.parse().ok()?;
+    (1..=n).contains(&i).then_some((momentum, i - 1))
+}
+
+/// Solve momentum `p_j` (positive root) so that `H(q, p) = energy`.
+pub fn solve_momentum(model: &dyn Model, x: &mut [f64], j: usize, energy: f64) -> Result<(), SpecError> {
+    let n = model.dof();
+    x[n + j] = 0.0;
+    let rest = model.energy(x);
+    let twice_kinetic = 2.0 * (energy - rest);
+    if !twice_kinetic.is_finite() || twice_kinetic < 0.0 {
+        return Err(SpecError::new(
+            "orbit.energy",
+            format!(
+                "no real p{} exists: the other coordinates already have energy {rest} > {energy} \
+                 (the initial condition lies outside the energy surface)",
+                j + 1
+            ),
+        ));
+    }
+    x[n + j] = twice_kinetic.sqrt();
+    Ok(())
+}
+
+/// Initial state from the `[orbit]` section.
+pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>, SpecError> {
+    let n = model.dof();
+    let mut x = vec![0.0; 2 * n];
+    if let Some(preset) = &orbit.preset {
+        let e = orbit.energy.ok_or_else(|| SpecError::new("orbit.energy", format!("preset {preset} needs an energy")))?;
+        x = model
+            .preset(preset, e)
+            .ok_or_else(|| SpecError::new("orbit.preset", format!("model {} has no preset '{preset}'", model.name())))?
+            .map_err(|m| SpecError::new("orbit.preset", m))?;
+        if !orbit.q.is_empty() || !orbit.p.is_empty() || orbit.solve_for.is_some() {
+            return Err(SpecError::new("orbit", "give either a preset or q/p/solve_for, not both"));
+        }
+        return Ok(x);
+    }
+    if orbit.q.len() != n {
+        return Err(SpecError::new("orbit.q", format!("needs {n} positions, got {}", orbit.q.len())));
+    }
+    if orbit.p.len() != n {
+        return Err(SpecError::new("orbit.p", format!("needs {n} momenta, got {}", orbit.p.len())));
+    }
+    x[..n].copy_from_slice(&orbit.q);
+    x[n..].copy_from_slice(&orbit.p);
+    if let Some(i) = x.iter().position(|v| !v.is_finite()) {
+        let key = if i < n { "orbit.q" } else { "orbit.p" };
+        return Err(SpecError::new(key, format!("entry {} is not finite", i % n + 1)));
+    }
+    match (&orbit.solve_for, orbit.energy) {
+        (Some(name), Some(e)) => {
+            if !e.is_finite() {
+                return Err(SpecError::new("orbit.energy", format!("must be finite, got {e}")));
+            }
+            match parse_coordinate(name, n) {
+                Some((true, j)) => solve_momentum(model, &mut x, j, e)?,
+                _ => {
+                    return Err(SpecError::new("orbit.solve_for", format!("must name a momentum p1..p{n}, got '{name}'")));
+                }
+            }
+        }
+        (Some(_), None) => return Err(SpecError::new("orbit.solve_for", "needs orbit.energy")),
+        (None, Some(_)) => {
+            return Err(SpecError::new("orbit.energy", "needs orbit.solve_for (which momentum to solve) or a preset"));
+        }
+        (None, None) => {}
+    }
+    if !model.energy(&x).is_finite() {
+        return Err(SpecError::new("orbit", "the initial energy is not finite"));
+    }
+    Ok(x)
+}
+
+impl RunSpec {
+    /// Validate a configuration into a run.
+    pub fn from_config(cfg: &RunConfig) -> Result<Self, SpecError> {
+        let model = model_from_config(&cfg.model)?;
+        let n = model.dof();
+        let dim = 2 * n;
+        let kind = SplittingKind::from_name(&cfg.integrator.method).ok_or_else(|| {
+            SpecError::new(
+                "integrator.method",
+                format!("unknown method '{}' (known: aba864, leapfrog, saba2, yoshida4)", cfg.integrator.method),
+            )
+        })?;
+        let h = finite_positive("integrator.h", cfg.integrator.h)?;
+        let t_final = finite_positive("integrator.t_final", cfg.integrator.t_final)?;
+        let total_steps = whole_steps("integrator.t_final", t_final, h)?;
+        let x0 = initial_state(model.as_ref(), &cfg.orbit)?;
+        let e0 = model.energy(&x0);
+
+        let dev = &cfg.deviations;
+        if dev.k == 0 || dev.k > dim {
+            return Err(SpecError::new("deviations.k", format!("must be between 1 and 2N = {dim}, got {}", dev.k)));
+        }
+        let dir_err = |e: DirectionError| SpecError::new("deviations.vectors", e.to_string());
+        let directions = match &dev.vectors {
+            Some(rows) => {
+                if dev.sets != 1 {
+                    return Err(SpecError::new("deviations.sets", "explicit vectors define exactly one set"));
+                }
+                if rows.len() != dev.k {
+                    return Err(SpecError::new(
+                        "deviations.vectors",
+                        format!("k = {} but {} vectors are given", dev.k, rows.len()),
+                    ));
+                }
+                vec![deviation::explicit_directions(rows, dim).map_err(dir_err)?]
+            }
+            None => {
+                if dev.sets == 0 || dev.sets > 1_000_000 {
+                    return Err(SpecError::new("deviations.sets", format!("must be between 1 and 1000000, got {}", dev.sets)));
+                }
+                (0..dev.sets as u64)
+                    .map(|s| deviation::random_directions(dev.seed, s, dim, dev.k).map_err(dir_err))
+                    .collect::<Result<_, _>>()?
+            }
+        };
+
+        if cfg.schemes.is_empty() {
+            return Err(SpecError::new("scheme", "at least one [[scheme]] is needed"));
+        }
+        let mut schemes = Vec::with_capacity(cfg.schemes.len());
+        for (i, s) in cfg.schemes.iter().enumerate() {
+            let key = |k: &str| format!("scheme[{i}].{k}");
+            if s.name.is_empty() || !s.name.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c)) {
+                return Err(SpecError::new(key("name"), format!("'{}' must be non-empty letters, digits, '-', '_' or '.'", s.name)));
+            }
+            if schemes.iter().any(|o: &SchemeSpec| o.name == s.name) {
+                return Err(SpecError::new(key("name"), format!("'{}' is used twice", s.name)));
+            }
+            let method = Method::from_name(&s.method)
+                .ok_or_else(|| SpecError::new(key("method"), format!("'{}' is not vm or mpm", s.method)))?;
+            if method == Method::Vm && !model.has_hessian() {
+                return Err(SpecError::new(key("method"), format!("model '{}' has no Hessian: only mpm applies", model.name())));
+            }
+            let d0 = finite_positive(&key("d0"), s.d0)?;
+            let tau = finite_positive(&key("tau"), s.tau)?;
+            let tau_steps = whole_steps(&key("tau"), tau, h)?;
+            let orthonormalize = Orthonormalization::from_name(&s.orthonormalize)
+                .ok_or_else(|| SpecError::new(key("orthonormalize"), format!("'{}' is not rescale or qr", s.orthonormalize)))?;
+            schemes.push(SchemeSpec { name: s.name.clone(), method, d0, tau, tau_steps, orthonormalize });
+        }
+
+        Ok(RunSpec {
+            model,
+            integrator: Splitting::new(kind),
+            h,
+            total_steps,
+            x0,
+            e0,
+            dim,
+            k: dev.k,
+            directions,
+            schemes,
+            seed: dev.seed,
+        })
+    }
+
+    pub fn sets(&self) -> usize {
+        self.directions.len()
+    }
+
+    /// Time of step `step` (computed, never accumulated, so it carries no drift).
+    pub fn time_of(&self, step: u64) -> f64 {
+        step as f64 * self.h
+    }
+
+    pub fn t_final(&self) -> f64 {
+        self.time_of(self.total_steps)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    pub(crate) fn hh_config(extra: &str) -> String {
+        format!(
+            r#"
+[model]
+name = "henon-heiles"
+[orbit]
+q = [0.0, -0.25]
+p = [0.0, 0.0]
+energy = 0.125
+solve_for = "p1"
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = 10.0
+[deviations]
+k = 4
+sets = 2
+seed = 1
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1.0
+{extra}"#
+        )
+    }
+
+    fn spec(text: &str) -> Result<RunSpec, SpecError> {
+        RunSpec::from_config(&RunConfig::from_toml(text).unwrap())
+    }
+
+    #[test]
+    fn paper_hh_chaotic_initial_condition() {
+        let s = spec(&hh_config("")).unwrap();
+        // numerics.md: p1 = 0.42081270576508656.
+        assert!((s.x0[2] - 0.42081270576508656).abs() < 1e-16, "{}", s.x0[2]);
+        assert_eq!(s.total_steps, 1000);
+        assert_eq!(s.schemes[0].tau_steps, 100);
+    }
+
+    #[test]
+    fn impossible_energy_is_a_clear_error() {
+        let text = hh_config("").replace("q = [0.0, -0.25]", "q = [0.0, 0.9]");
+        let e = spec(&text).unwrap_err();
+        assert_eq!(e.key, "orbit.energy");
+        assert!(e.message.contains("no real p1"), "{e}");
+    }
+
+    #[test]
+    fn bad_values_name_their_key() {
+        let cases = [
+            (hh_config("").replace("h = 0.01", "h = -1.0"), "integrator.h"),
+            (hh_config("").replace("tau = 1.0", "tau = 0.015"), "scheme[0].tau"),
+            (hh_config("").replace("k = 4", "k = 5"), "deviations.k"),
+            (hh_config("").replace("d0 = 1e-8", "d0 = nan"), "scheme[0].d0"),
+            (hh_config("").replace("aba864", "rk4"), "integrator.method"),
+            (hh_config("").replace("\"vm\"\nd0", "\"xm\"\nd0"), "scheme[0].method"),
+            (hh_config("[[scheme]]\nname = \"vm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 1.0\n"), "scheme[1].name"),
+            (hh_config("").replace("solve_for = \"p1\"", "solve_for = \"q1\""), "orbit.solve_for"),
+            (hh_config("").replace("t_final = 10.0", "t_final = 10.005"), "integrator.t_final"),
+        ];
+        for (text, key) in cases {
+            let e = spec(&text).unwrap_err();
+            assert_eq!(e.key, key, "{e}");
+        }
+    }
+
+    #[test]
+    fn fput_spo1_preset_and_explicit_vectors() {
+        let text = r#"
+[model]
+name = "fput-beta"
+n = 5
+beta = 1.0
+[orbit]
+preset = "spo1"
+energy = 5.0
+[integrator]
+method = "aba864"
+h = 0.05
+t_final = 1.0
+[deviations]
+k = 2
+vectors = [[1,0,0,0,0,0,0,0,0,0],[1,1,0,0,0,0,0,0,0,0]]
+[[scheme]]
+name = "m"
+method = "mpm"
+d0 = 1e-8
+tau = 0.5
+"#;
+        let s = spec(text).unwrap();
+        assert!((s.e0 - 5.0).abs() < 1e-13);
+        assert_eq!(s.directions.len(), 1);
+        assert!((s.directions[0].vector(1)[1] - 1.0).abs() < 1e-15);
+    }
+}

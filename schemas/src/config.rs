@@ -1,0 +1,210 @@
+//! The run configuration: what a user writes in a TOML file.
+//!
+//! These types are the contract of the config file (key names are public API: scripts rely on
+//! them). They only describe and syntactically validate; turning a config into numerics (solving
+//! an initial condition from the energy, drawing directions) is the producer's job.
+
+use serde::{Deserialize, Serialize};
+
+/// Top level of a run configuration file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunConfig {
+    /// Optional human name of the run; the bus service names derive from it.
+    #[serde(default)]
+    pub run: RunSection,
+    pub model: ModelConfig,
+    pub orbit: OrbitConfig,
+    pub integrator: IntegratorConfig,
+    pub deviations: DeviationsConfig,
+    /// One or more renormalization schemes evolved around the same reference orbit.
+    #[serde(rename = "scheme", default)]
+    pub schemes: Vec<SchemeConfig>,
+    /// Present only for `chaoscope map`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub map: Option<MapConfig>,
+}
+
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RunSection {
+    /// Run name (letters, digits, `-`, `_`); default derived from the process id and time.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name: Option<String>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelConfig {
+    /// `"henon-heiles"` or `"fput-beta"`.
+    pub name: String,
+    /// Number of degrees of freedom (lattice sites); fixed to 2 for Henon-Heiles.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub n: Option<usize>,
+    /// Quartic coupling of the beta-FPUT chain.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub beta: Option<f64>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OrbitConfig {
+    /// Positions q1..qN. May be omitted when `preset` gives them.
+    #[serde(default)]
+    pub q: Vec<f64>,
+    /// Momenta p1..pN. The entry named by `solve_for` is ignored (solved from `energy`).
+    #[serde(default)]
+    pub p: Vec<f64>,
+    /// Target energy; requires `solve_for`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub energy: Option<f64>,
+    /// Momentum solved from `energy`, e.g. `"p1"` (the positive root is taken).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub solve_for: Option<String>,
+    /// Named initial condition generator, e.g. `"spo1"` for the FPUT chain (uses `energy`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub preset: Option<String>,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IntegratorConfig {
+    /// `"aba864"`, `"leapfrog"` or `"saba2"`.
+    pub method: String,
+    /// Fixed time step.
+    pub h: f64,
+    /// Final time (the horizon of a map).
+    pub t_final: f64,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DeviationsConfig {
+    /// Number of deviation vectors per set, 2..=2N.
+    pub k: usize,
+    /// Number of independent random sets.
+    #[serde(default = "default_sets")]
+    pub sets: usize,
+    /// Seed of the direction generator.
+    #[serde(default)]
+    pub seed: u64,
+    /// Explicit directions (k rows of length 2N, order q1..qN, p1..pN); replaces the random
+    /// draw and implies `sets = 1`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vectors: Option<Vec<Vec<f64>>>,
+}
+
+fn default_sets() -> usize {
+    1
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SchemeConfig {
+    pub name: String,
+    /// `"vm"` or `"mpm"`.
+    pub method: String,
+    /// Norm of the deviation vectors after each renormalization.
+    pub d0: f64,
+    /// Renormalization period (a multiple of `h`); also the sample period.
+    pub tau: f64,
+    /// `"rescale"` (per-vector, for GALI/SALI) or `"qr"` (Lyapunov spectrum).
+    #[serde(default = "default_orthonormalize")]
+    pub orthonormalize: String,
+}
+
+fn default_orthonormalize() -> String {
+    "rescale".to_string()
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MapAxis {
+    /// Coordinate name such as `"q2"` or `"p2"`.
+    pub coord: String,
+    pub min: f64,
+    pub max: f64,
+    pub n: usize,
+}
+
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MapConfig {
+    pub x: MapAxis,
+    pub y: MapAxis,
+    /// `"gali"`, `"gali-time"` or `"mle"`.
+    pub indicator: String,
+    /// Order of the GALI (for `gali` and `gali-time`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub k: Option<usize>,
+    /// Threshold under which `gali-time` stops an orbit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threshold: Option<f64>,
+}
+
+/// A config that failed to parse; the message names the offending key and line.
+#[derive(Debug, thiserror::Error)]
+#[error("invalid run configuration: {0}")]
+pub struct ConfigParseError(pub String);
+
+impl RunConfig {
+    /// Parse a TOML document. Unknown keys are errors (a typo must not silently fall back to a
+    /// default).
+    pub fn from_toml(text: &str) -> Result<Self, ConfigParseError> {
+        toml::from_str(text).map_err(|e| ConfigParseError(e.to_string()))
+    }
+
+    /// Canonical TOML text (stored in recordings so a run can be replayed).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a RunConfig always serializes")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn issue_keys_parse_and_round_trip() {
+        let text = r#"
+[model]
+name = "henon-heiles"
+[orbit]
+q = [0.0, -0.25]
+p = [0.0, 0.0]
+energy = 0.125
+solve_for = "p1"
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = 1000.0
+[deviations]
+k = 4
+sets = 3
+seed = 7
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1.0
+orthonormalize = "rescale"
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-8
+tau = 1.0
+"#;
+        let c = RunConfig::from_toml(text).unwrap();
+        assert_eq!(c.schemes.len(), 2);
+        assert_eq!(c.schemes[1].orthonormalize, "rescale");
+        assert_eq!(c.deviations.sets, 3);
+        let again = RunConfig::from_toml(&c.to_toml()).unwrap();
+        assert_eq!(c, again);
+    }
+
+    #[test]
+    fn unknown_key_is_named() {
+        let err = RunConfig::from_toml("[model]\nname='henon-heiles'\nbta=1\n").unwrap_err();
+        assert!(err.to_string().contains("bta"), "{err}");
+    }
+}

@@ -137,10 +137,11 @@ impl RunSubscription {
                 })?;
                 return Ok(Some(header));
             }
+            // A producer that is not there yet may still come; one that was there and left
+            // without a header never will.
             match self.producer_liveness() {
                 Liveness::Alive => seen_alive = true,
-                // Give a starting producer a moment to register its node.
-                _ if seen_alive || start.elapsed() > Duration::from_secs(5) => {
+                _ if seen_alive => {
                     return Err(SubscribeError::NoHeader {
                         run: self.run.clone(),
                     });

@@ -78,6 +78,7 @@ pub fn create_node(name: &str) -> Result<Node<ipc::Service>, BusError> {
 /// Removes the shared memory and registrations of every dead node (a process killed with
 /// SIGKILL cannot clean up after itself). Returns how many dead nodes were removed.
 pub fn cleanup_dead_nodes() -> usize {
+    quiet_logging();
     let mut dead = Vec::new();
     let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
         if let NodeState::Dead(view) = state {
@@ -102,6 +103,7 @@ pub enum Liveness {
 
 /// Liveness of the node named `name`.
 pub fn node_liveness(name: &str) -> Liveness {
+    quiet_logging();
     let mut result = Liveness::Absent;
     let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
         let (liveness, details) = match &state {
@@ -181,6 +183,7 @@ pub fn data_ready_service(node: &Node<ipc::Service>, run: &str) -> Result<EventS
 
 /// Names of the runs whose header service currently exists on this machine.
 pub fn list_runs() -> Vec<String> {
+    quiet_logging();
     let mut runs = Vec::new();
     let _ = ipc::Service::list(Config::global_config(), |details| {
         if let Some(run) = names::run_of_header_service(details.static_details.name().as_str()) {

@@ -49,7 +49,12 @@ pub enum RunError {
     #[error("the reference orbit escaped or became non-finite at t = {t} (|x| = {norm:e})")]
     Escaped { t: f64, norm: f64 },
     #[error("scheme '{scheme}', set {set}, t = {t}: {source}")]
-    Renormalization { scheme: String, set: u32, t: f64, source: RenormalizationError },
+    Renormalization {
+        scheme: String,
+        set: u32,
+        t: f64,
+        source: RenormalizationError,
+    },
     #[error(transparent)]
     Tangent(#[from] TangentError),
 }
@@ -91,15 +96,33 @@ impl Engine {
             for (set, dirs) in spec.directions.iter().enumerate() {
                 let scaled: Vec<f64> = dirs.vectors.iter().map(|u| scheme.d0 * u).collect();
                 let deviations = match scheme.method {
-                    Method::Vm => Deviations::Variational { orbit: spec.x0.clone(), vectors: scaled },
+                    Method::Vm => Deviations::Variational {
+                        orbit: spec.x0.clone(),
+                        vectors: scaled,
+                    },
                     Method::Mpm => Deviations::MultiParticle {
-                        orbits: scaled.chunks_exact(dim).flat_map(|d| spec.x0.iter().zip(d).map(|(x, d)| x + d)).collect(),
+                        orbits: scaled
+                            .chunks_exact(dim)
+                            .flat_map(|d| spec.x0.iter().zip(d).map(|(x, d)| x + d))
+                            .collect(),
                     },
                 };
-                tasks.push(DeviationSet { scheme: si, set, deviations, work: Workspace::new() });
+                tasks.push(DeviationSet {
+                    scheme: si,
+                    set,
+                    deviations,
+                    work: Workspace::new(),
+                });
             }
         }
-        Self { reference: spec.x0.clone(), spec, work: Workspace::new(), tasks, step: 0, next_seq: 0 }
+        Self {
+            reference: spec.x0.clone(),
+            spec,
+            work: Workspace::new(),
+            tasks,
+            step: 0,
+            next_seq: 0,
+        }
     }
 
     pub fn spec(&self) -> &RunSpec {
@@ -131,7 +154,7 @@ impl Engine {
     }
 
     fn renormalizes_at(&self, scheme: usize, step: u64) -> bool {
-        step % self.spec.schemes[scheme].tau_steps == 0 || step == self.spec.total_steps
+        step.is_multiple_of(self.spec.schemes[scheme].tau_steps) || step == self.spec.total_steps
     }
 
     /// Advance to the next renormalization time and return what it produced; `Ok(None)` once the
@@ -149,16 +172,20 @@ impl Engine {
         let spec = &self.spec;
         let model = spec.model.as_ref();
         for _ in 0..n_steps {
-            spec.integrator.step(model, &mut self.reference, spec.h, &mut self.work);
+            spec.integrator
+                .step(model, &mut self.reference, spec.h, &mut self.work);
         }
         let t = spec.time_of(target);
         let norm = self.reference.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if !(norm < ESCAPE_NORM) {
+        // A NaN norm counts as escaped too.
+        if norm.is_nan() || norm >= ESCAPE_NORM {
             return Err(RunError::Escaped { t, norm });
         }
 
         let reference = &self.reference;
-        let renorm: Vec<bool> = (0..spec.schemes.len()).map(|s| self.renormalizes_at(s, target)).collect();
+        let renorm: Vec<bool> = (0..spec.schemes.len())
+            .map(|s| self.renormalizes_at(s, target))
+            .collect();
         let results: Vec<Result<Option<SchemeSample>, RunError>> = self
             .tasks
             .par_iter_mut()
@@ -174,7 +201,14 @@ impl Engine {
         let energy = model.energy(&self.reference);
         let seq = self.next_seq;
         self.next_seq += 1;
-        Ok(Some(Sample { seq, step: target, t, state: self.reference.clone(), energy, schemes }))
+        Ok(Some(Sample {
+            seq,
+            step: target,
+            t,
+            state: self.reference.clone(),
+            energy,
+            schemes,
+        }))
     }
 
     fn initial_sample(&mut self) -> Sample {
@@ -187,12 +221,23 @@ impl Engine {
                 SchemeSample {
                     scheme: task.scheme as u32,
                     set: task.set as u32,
-                    separations: self.spec.directions[task.set].vectors.iter().map(|u| d0 * u).collect(),
+                    separations: self.spec.directions[task.set]
+                        .vectors
+                        .iter()
+                        .map(|u| d0 * u)
+                        .collect(),
                     stretch: vec![1.0; self.spec.k],
                 }
             })
             .collect();
-        Sample { seq: 0, step: 0, t: 0.0, state: self.reference.clone(), energy: self.spec.e0, schemes }
+        Sample {
+            seq: 0,
+            step: 0,
+            t: 0.0,
+            state: self.reference.clone(),
+            energy: self.spec.e0,
+            schemes,
+        }
     }
 
     /// Run to the end, handing every sample to `sink`.
@@ -219,9 +264,14 @@ impl DeviationSet {
         let mut separations = match &mut self.deviations {
             Deviations::Variational { orbit, vectors } => {
                 for _ in 0..n_steps {
-                    spec.integrator.step_tangent(model, orbit, vectors, spec.h, &mut self.work)?;
+                    spec.integrator
+                        .step_tangent(model, orbit, vectors, spec.h, &mut self.work)?;
                 }
-                debug_assert_eq!(orbit.as_slice(), reference, "variational copy of the orbit diverged");
+                debug_assert_eq!(
+                    orbit.as_slice(),
+                    reference,
+                    "variational copy of the orbit diverged"
+                );
                 if !renormalize {
                     return Ok(None);
                 }
@@ -236,24 +286,155 @@ impl DeviationSet {
                 if !renormalize {
                     return Ok(None);
                 }
-                orbits.chunks_exact(dim).flat_map(|y| y.iter().zip(reference).map(|(a, b)| a - b)).collect()
+                orbits
+                    .chunks_exact(dim)
+                    .flat_map(|y| y.iter().zip(reference).map(|(a, b)| a - b))
+                    .collect()
             }
         };
         let raw = separations.clone();
         let mut stretch = vec![0.0; spec.k];
-        renormalization::renormalize(&mut separations, dim, scheme.d0, scheme.orthonormalize, &mut stretch).map_err(
-            |source| RunError::Renormalization { scheme: scheme.name.clone(), set: self.set as u32, t, source },
-        )?;
+        renormalization::renormalize(
+            &mut separations,
+            dim,
+            scheme.d0,
+            scheme.orthonormalize,
+            &mut stretch,
+        )
+        .map_err(|source| RunError::Renormalization {
+            scheme: scheme.name.clone(),
+            set: self.set as u32,
+            t,
+            source,
+        })?;
         match &mut self.deviations {
             Deviations::Variational { vectors, .. } => vectors.copy_from_slice(&separations),
             Deviations::MultiParticle { orbits } => {
-                for (y, d) in orbits.chunks_exact_mut(dim).zip(separations.chunks_exact(dim)) {
+                for (y, d) in orbits
+                    .chunks_exact_mut(dim)
+                    .zip(separations.chunks_exact(dim))
+                {
                     for ((yi, di), xi) in y.iter_mut().zip(d).zip(reference) {
                         *yi = xi + di;
                     }
                 }
             }
         }
-        Ok(Some(SchemeSample { scheme: self.scheme as u32, set: self.set as u32, separations: raw, stretch }))
+        Ok(Some(SchemeSample {
+            scheme: self.scheme as u32,
+            set: self.set as u32,
+            separations: raw,
+            stretch,
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::integrator::Integrator;
+    use chaoscope_schemas::config::RunConfig;
+
+    fn spec(schemes: &str, energy: f64, t_final: f64) -> RunSpec {
+        let text = format!(
+            "[model]\nname = \"henon-heiles\"\n[orbit]\nq = [0.0, -0.25]\np = [0.0, 0.0]\nenergy = {energy}\n\
+             solve_for = \"p1\"\n[integrator]\nmethod = \"aba864\"\nh = 0.01\nt_final = {t_final}\n\
+             [deviations]\nk = 3\nsets = 2\nseed = 4\n{schemes}"
+        );
+        RunSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap()
+    }
+
+    fn scheme(name: &str, method: &str, tau: f64) -> String {
+        format!("[[scheme]]\nname = \"{name}\"\nmethod = \"{method}\"\nd0 = 1e-8\ntau = {tau}\n")
+    }
+
+    #[test]
+    fn reference_orbit_does_not_depend_on_the_schemes() {
+        // Replay relies on this: other tau / d0 / methods, the very same trajectory bits.
+        let collect = |s: RunSpec| {
+            let mut states = std::collections::BTreeMap::new();
+            Engine::new(s)
+                .run(|x| drop(states.insert(x.step, x.state)))
+                .unwrap();
+            states
+        };
+        let a = collect(spec(&scheme("a", "vm", 1.0), 0.125, 20.0));
+        let b = collect(spec(
+            &(scheme("b", "mpm", 0.1) + &scheme("c", "vm", 2.5)),
+            0.125,
+            20.0,
+        ));
+        assert_eq!(a.len(), 21);
+        // Multiples of 0.1 include those of 2.5.
+        assert_eq!(b.len(), 201);
+        for (step, state) in &a {
+            assert_eq!(state, &b[step], "step {step}");
+        }
+        // And it is the plain integration of the initial condition.
+        let s = spec(&scheme("a", "vm", 1.0), 0.125, 20.0);
+        let mut x = s.x0.clone();
+        let mut w = Workspace::new();
+        for _ in 0..2000 {
+            s.integrator.step(s.model.as_ref(), &mut x, s.h, &mut w);
+        }
+        assert_eq!(x, a[&2000]);
+    }
+
+    #[test]
+    fn sample_stream_is_gapless_and_ends() {
+        let mut e = Engine::new(spec(
+            &(scheme("a", "vm", 0.3) + &scheme("b", "mpm", 0.5)),
+            0.125,
+            1.0,
+        ));
+        let mut seen = Vec::new();
+        while let Some(s) = e.next_sample().unwrap() {
+            seen.push((
+                s.seq,
+                s.step,
+                s.schemes.iter().map(|d| d.scheme).collect::<Vec<_>>(),
+            ));
+        }
+        // Renormalizations at 30, 50, 60, 90 (a), 50, 100 (b), and the final step 100 for both.
+        let steps: Vec<u64> = seen.iter().map(|s| s.1).collect();
+        assert_eq!(steps, vec![0, 30, 50, 60, 90, 100]);
+        assert!(seen.iter().enumerate().all(|(i, s)| s.0 == i as u64));
+        assert_eq!(seen[2].2, vec![1, 1]);
+        assert_eq!(seen[5].2, vec![0, 0, 1, 1]);
+        assert!(e.next_sample().unwrap().is_none());
+    }
+
+    #[test]
+    fn escaping_orbit_is_an_error_naming_the_time() {
+        // Above H = 1/6 the Henon-Heiles potential opens and this orbit leaves for infinity.
+        let mut e = Engine::new(spec(&scheme("a", "mpm", 1.0), 0.3, 1000.0));
+        let err = loop {
+            match e.next_sample() {
+                Ok(Some(_)) => continue,
+                Ok(None) => panic!("an orbit at H = 0.3 should escape"),
+                Err(err) => break err,
+            }
+        };
+        assert!(
+            matches!(err, RunError::Escaped { t, .. } if t > 0.0 && t < 1000.0),
+            "{err}"
+        );
+        assert!(err.to_string().contains("escaped"), "{err}");
+    }
+
+    #[test]
+    fn vm_and_mpm_start_from_the_same_directions() {
+        let mut e = Engine::new(spec(
+            &(scheme("v", "vm", 1.0) + &scheme("m", "mpm", 1.0)),
+            0.125,
+            1.0,
+        ));
+        let s0 = e.next_sample().unwrap().unwrap();
+        assert_eq!(s0.schemes.len(), 4);
+        for set in 0..2 {
+            let (v, m) = (&s0.schemes[set], &s0.schemes[2 + set]);
+            assert_eq!(v.separations, m.separations);
+            assert_eq!(v.stretch, vec![1.0; 3]);
+        }
     }
 }

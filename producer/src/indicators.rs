@@ -5,10 +5,12 @@
 
 use nalgebra::DMatrix;
 
-/// Smallest singular value taken into a GALI product. A singular value that is exactly zero
-/// (vectors collapsed onto each other in floating point) would give `log10 = -inf`; it is floored
-/// at the smallest normal double instead, so downstream files never carry infinities.
-const SIGMA_FLOOR: f64 = f64::MIN_POSITIVE;
+/// Smallest singular value taken into a GALI product. The unit vectors carry rounding errors of
+/// order machine epsilon, so a singular value below it is not resolved: once chaotic deviation
+/// vectors have aligned to the last bit a singular value becomes exactly zero (`log10 = -inf`).
+/// Such values are reported as epsilon, meaning "at or below double precision"; a GALI at
+/// `eps^m` says that `m` directions have collapsed.
+pub const SIGMA_FLOOR: f64 = f64::EPSILON;
 
 /// `log10 GALI_j` for `j = 2..=k`, where `GALI_j` is the volume spanned by the first `j` of the
 /// `k` vectors (each normalized to unit length first), computed as the product of the singular
@@ -19,7 +21,10 @@ pub fn gali_log10(vectors: &[f64], dim: usize) -> Vec<f64> {
     (2..=k)
         .map(|j| {
             let m = units.columns(0, j).clone_owned();
-            m.singular_values().iter().map(|s| s.max(SIGMA_FLOOR).log10()).sum()
+            m.singular_values()
+                .iter()
+                .map(|s| s.max(SIGMA_FLOOR).log10())
+                .sum()
         })
         .collect()
 }
@@ -59,7 +64,10 @@ pub struct StretchSums {
 
 impl StretchSums {
     pub fn new(k: usize) -> Self {
-        Self { log_sums: vec![0.0; k], renormalizations: 0 }
+        Self {
+            log_sums: vec![0.0; k],
+            renormalizations: 0,
+        }
     }
 
     /// Add one renormalization's stretching factors (`|d(t_j)| / d0`, or `|R_ii|`).
@@ -86,7 +94,10 @@ impl StretchSums {
 
     /// Finite-time exponents `lambda_i(t) = (1/t) sum ln |R_ii|` (meaningful for QR schemes).
     pub fn spectrum(&self, t: f64) -> Vec<f64> {
-        self.log_sums.iter().map(|s| if t > 0.0 { s / t } else { 0.0 }).collect()
+        self.log_sums
+            .iter()
+            .map(|s| if t > 0.0 { s / t } else { 0.0 })
+            .collect()
     }
 }
 
@@ -113,13 +124,19 @@ mod tests {
     #[test]
     fn gali_equals_product_of_qr_diagonal() {
         // The volume is basis independent: prod sigma_i = prod |R_ii| of the unit-vector matrix.
-        let v: Vec<f64> = (0..24).map(|i| ((i * 7 % 11) as f64 - 5.0) / 3.0 + 0.1 * i as f64).collect();
+        let v: Vec<f64> = (0..24)
+            .map(|i| ((i * 7 % 11) as f64 - 5.0) / 3.0 + 0.1 * i as f64)
+            .collect();
         let g = gali_log10(&v, 6);
         let u = unit_columns(&v, 6);
         for j in 2..=4 {
             let r = u.columns(0, j).clone_owned().qr().r();
             let want: f64 = (0..j).map(|i| r[(i, i)].abs().log10()).sum();
-            assert!((g[j - 2] - want).abs() < 1e-12, "GALI_{j}: {} vs {want}", g[j - 2]);
+            assert!(
+                (g[j - 2] - want).abs() < 1e-12,
+                "GALI_{j}: {} vs {want}",
+                g[j - 2]
+            );
         }
     }
 

@@ -62,7 +62,10 @@ pub struct SpecError {
 
 impl SpecError {
     pub fn new(key: impl Into<String>, message: impl Into<String>) -> Self {
-        Self { key: key.into(), message: message.into() }
+        Self {
+            key: key.into(),
+            message: message.into(),
+        }
     }
 }
 
@@ -107,40 +110,68 @@ impl std::fmt::Debug for RunSpec {
 }
 
 fn finite_positive(key: &str, v: f64) -> Result<f64, SpecError> {
-    if v.is_finite() && v > 0.0 { Ok(v) } else { Err(SpecError::new(key, format!("must be a finite positive number, got {v}"))) }
+    if v.is_finite() && v > 0.0 {
+        Ok(v)
+    } else {
+        Err(SpecError::new(
+            key,
+            format!("must be a finite positive number, got {v}"),
+        ))
+    }
 }
 
 /// `round(t / h)` when `t` is a whole number of steps `h` (to rounding), else an error.
 pub fn whole_steps(key: &str, t: f64, h: f64) -> Result<u64, SpecError> {
     let ratio = t / h;
     let n = ratio.round();
-    if !(n >= 1.0) || n > MAX_STEPS as f64 || (ratio - n).abs() > 1e-9 * n.max(1.0) {
-        return Err(SpecError::new(key, format!("{t} is not a positive whole number of time steps h = {h}")));
+    if n.is_nan() || n < 1.0 || n > MAX_STEPS as f64 || (ratio - n).abs() > 1e-9 * n.max(1.0) {
+        return Err(SpecError::new(
+            key,
+            format!("{t} is not a positive whole number of time steps h = {h}"),
+        ));
     }
     Ok(n as u64)
 }
 
 /// Build the model named in the config.
-pub fn model_from_config(cfg: &chaoscope_schemas::config::ModelConfig) -> Result<Arc<dyn Model>, SpecError> {
+pub fn model_from_config(
+    cfg: &chaoscope_schemas::config::ModelConfig,
+) -> Result<Arc<dyn Model>, SpecError> {
     match cfg.name.as_str() {
         "henon-heiles" => {
             if let Some(n) = cfg.n.filter(|&n| n != 2) {
-                return Err(SpecError::new("model.n", format!("henon-heiles has 2 degrees of freedom, got n = {n}")));
+                return Err(SpecError::new(
+                    "model.n",
+                    format!("henon-heiles has 2 degrees of freedom, got n = {n}"),
+                ));
             }
             if cfg.beta.is_some() {
-                return Err(SpecError::new("model.beta", "henon-heiles has no parameter beta"));
+                return Err(SpecError::new(
+                    "model.beta",
+                    "henon-heiles has no parameter beta",
+                ));
             }
             Ok(Arc::new(HenonHeiles))
         }
         "fput-beta" => {
-            let n = cfg.n.ok_or_else(|| SpecError::new("model.n", "fput-beta needs the number of particles n"))?;
+            let n = cfg.n.ok_or_else(|| {
+                SpecError::new("model.n", "fput-beta needs the number of particles n")
+            })?;
             if n == 0 || n > 1_000_000 {
-                return Err(SpecError::new("model.n", format!("must be between 1 and 1000000, got {n}")));
+                return Err(SpecError::new(
+                    "model.n",
+                    format!("must be between 1 and 1000000, got {n}"),
+                ));
             }
             let beta = cfg.beta.unwrap_or(1.0);
-            FputBeta::new(n, beta).map(|m| Arc::new(m) as Arc<dyn Model>).map_err(|e| SpecError::new("model.beta", e))
+            FputBeta::new(n, beta)
+                .map(|m| Arc::new(m) as Arc<dyn Model>)
+                .map_err(|e| SpecError::new("model.beta", e))
         }
-        other => Err(SpecError::new("model.name", format!("unknown model '{other}' (known: henon-heiles, fput-beta)"))),
+        other => Err(SpecError::new(
+            "model.name",
+            format!("unknown model '{other}' (known: henon-heiles, fput-beta)"),
+        )),
     }
 }
 
@@ -156,7 +187,12 @@ pub fn parse_coordinate(name: &str, n: usize) -> Option<(bool, usize)> {
 }
 
 /// Solve momentum `p_j` (positive root) so that `H(q, p) = energy`.
-pub fn solve_momentum(model: &dyn Model, x: &mut [f64], j: usize, energy: f64) -> Result<(), SpecError> {
+pub fn solve_momentum(
+    model: &dyn Model,
+    x: &mut [f64],
+    j: usize,
+    energy: f64,
+) -> Result<(), SpecError> {
     let n = model.dof();
     x[n + j] = 0.0;
     let rest = model.energy(x);
@@ -180,43 +216,71 @@ pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>,
     let n = model.dof();
     let mut x = vec![0.0; 2 * n];
     if let Some(preset) = &orbit.preset {
-        let e = orbit.energy.ok_or_else(|| SpecError::new("orbit.energy", format!("preset {preset} needs an energy")))?;
+        let e = orbit.energy.ok_or_else(|| {
+            SpecError::new("orbit.energy", format!("preset {preset} needs an energy"))
+        })?;
         x = model
             .preset(preset, e)
-            .ok_or_else(|| SpecError::new("orbit.preset", format!("model {} has no preset '{preset}'", model.name())))?
+            .ok_or_else(|| {
+                SpecError::new(
+                    "orbit.preset",
+                    format!("model {} has no preset '{preset}'", model.name()),
+                )
+            })?
             .map_err(|m| SpecError::new("orbit.preset", m))?;
         if !orbit.q.is_empty() || !orbit.p.is_empty() || orbit.solve_for.is_some() {
-            return Err(SpecError::new("orbit", "give either a preset or q/p/solve_for, not both"));
+            return Err(SpecError::new(
+                "orbit",
+                "give either a preset or q/p/solve_for, not both",
+            ));
         }
         return Ok(x);
     }
     if orbit.q.len() != n {
-        return Err(SpecError::new("orbit.q", format!("needs {n} positions, got {}", orbit.q.len())));
+        return Err(SpecError::new(
+            "orbit.q",
+            format!("needs {n} positions, got {}", orbit.q.len()),
+        ));
     }
     if orbit.p.len() != n {
-        return Err(SpecError::new("orbit.p", format!("needs {n} momenta, got {}", orbit.p.len())));
+        return Err(SpecError::new(
+            "orbit.p",
+            format!("needs {n} momenta, got {}", orbit.p.len()),
+        ));
     }
     x[..n].copy_from_slice(&orbit.q);
     x[n..].copy_from_slice(&orbit.p);
     if let Some(i) = x.iter().position(|v| !v.is_finite()) {
         let key = if i < n { "orbit.q" } else { "orbit.p" };
-        return Err(SpecError::new(key, format!("entry {} is not finite", i % n + 1)));
+        return Err(SpecError::new(
+            key,
+            format!("entry {} is not finite", i % n + 1),
+        ));
     }
     match (&orbit.solve_for, orbit.energy) {
         (Some(name), Some(e)) => {
             if !e.is_finite() {
-                return Err(SpecError::new("orbit.energy", format!("must be finite, got {e}")));
+                return Err(SpecError::new(
+                    "orbit.energy",
+                    format!("must be finite, got {e}"),
+                ));
             }
             match parse_coordinate(name, n) {
                 Some((true, j)) => solve_momentum(model, &mut x, j, e)?,
                 _ => {
-                    return Err(SpecError::new("orbit.solve_for", format!("must name a momentum p1..p{n}, got '{name}'")));
+                    return Err(SpecError::new(
+                        "orbit.solve_for",
+                        format!("must name a momentum p1..p{n}, got '{name}'"),
+                    ));
                 }
             }
         }
         (Some(_), None) => return Err(SpecError::new("orbit.solve_for", "needs orbit.energy")),
         (None, Some(_)) => {
-            return Err(SpecError::new("orbit.energy", "needs orbit.solve_for (which momentum to solve) or a preset"));
+            return Err(SpecError::new(
+                "orbit.energy",
+                "needs orbit.solve_for (which momentum to solve) or a preset",
+            ));
         }
         (None, None) => {}
     }
@@ -235,7 +299,10 @@ impl RunSpec {
         let kind = SplittingKind::from_name(&cfg.integrator.method).ok_or_else(|| {
             SpecError::new(
                 "integrator.method",
-                format!("unknown method '{}' (known: aba864, leapfrog, saba2, yoshida4)", cfg.integrator.method),
+                format!(
+                    "unknown method '{}' (known: aba864, leapfrog, saba2, yoshida4)",
+                    cfg.integrator.method
+                ),
             )
         })?;
         let h = finite_positive("integrator.h", cfg.integrator.h)?;
@@ -246,13 +313,19 @@ impl RunSpec {
 
         let dev = &cfg.deviations;
         if dev.k == 0 || dev.k > dim {
-            return Err(SpecError::new("deviations.k", format!("must be between 1 and 2N = {dim}, got {}", dev.k)));
+            return Err(SpecError::new(
+                "deviations.k",
+                format!("must be between 1 and 2N = {dim}, got {}", dev.k),
+            ));
         }
         let dir_err = |e: DirectionError| SpecError::new("deviations.vectors", e.to_string());
         let directions = match &dev.vectors {
             Some(rows) => {
                 if dev.sets != 1 {
-                    return Err(SpecError::new("deviations.sets", "explicit vectors define exactly one set"));
+                    return Err(SpecError::new(
+                        "deviations.sets",
+                        "explicit vectors define exactly one set",
+                    ));
                 }
                 if rows.len() != dev.k {
                     return Err(SpecError::new(
@@ -264,7 +337,10 @@ impl RunSpec {
             }
             None => {
                 if dev.sets == 0 || dev.sets > 1_000_000 {
-                    return Err(SpecError::new("deviations.sets", format!("must be between 1 and 1000000, got {}", dev.sets)));
+                    return Err(SpecError::new(
+                        "deviations.sets",
+                        format!("must be between 1 and 1000000, got {}", dev.sets),
+                    ));
                 }
                 (0..dev.sets as u64)
                     .map(|s| deviation::random_directions(dev.seed, s, dim, dev.k).map_err(dir_err))
@@ -273,28 +349,61 @@ impl RunSpec {
         };
 
         if cfg.schemes.is_empty() {
-            return Err(SpecError::new("scheme", "at least one [[scheme]] is needed"));
+            return Err(SpecError::new(
+                "scheme",
+                "at least one [[scheme]] is needed",
+            ));
         }
         let mut schemes = Vec::with_capacity(cfg.schemes.len());
         for (i, s) in cfg.schemes.iter().enumerate() {
             let key = |k: &str| format!("scheme[{i}].{k}");
-            if s.name.is_empty() || !s.name.chars().all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c)) {
-                return Err(SpecError::new(key("name"), format!("'{}' must be non-empty letters, digits, '-', '_' or '.'", s.name)));
+            if s.name.is_empty()
+                || !s
+                    .name
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+            {
+                return Err(SpecError::new(
+                    key("name"),
+                    format!(
+                        "'{}' must be non-empty letters, digits, '-', '_' or '.'",
+                        s.name
+                    ),
+                ));
             }
             if schemes.iter().any(|o: &SchemeSpec| o.name == s.name) {
-                return Err(SpecError::new(key("name"), format!("'{}' is used twice", s.name)));
+                return Err(SpecError::new(
+                    key("name"),
+                    format!("'{}' is used twice", s.name),
+                ));
             }
-            let method = Method::from_name(&s.method)
-                .ok_or_else(|| SpecError::new(key("method"), format!("'{}' is not vm or mpm", s.method)))?;
+            let method = Method::from_name(&s.method).ok_or_else(|| {
+                SpecError::new(key("method"), format!("'{}' is not vm or mpm", s.method))
+            })?;
             if method == Method::Vm && !model.has_hessian() {
-                return Err(SpecError::new(key("method"), format!("model '{}' has no Hessian: only mpm applies", model.name())));
+                return Err(SpecError::new(
+                    key("method"),
+                    format!("model '{}' has no Hessian: only mpm applies", model.name()),
+                ));
             }
             let d0 = finite_positive(&key("d0"), s.d0)?;
             let tau = finite_positive(&key("tau"), s.tau)?;
             let tau_steps = whole_steps(&key("tau"), tau, h)?;
-            let orthonormalize = Orthonormalization::from_name(&s.orthonormalize)
-                .ok_or_else(|| SpecError::new(key("orthonormalize"), format!("'{}' is not rescale or qr", s.orthonormalize)))?;
-            schemes.push(SchemeSpec { name: s.name.clone(), method, d0, tau, tau_steps, orthonormalize });
+            let orthonormalize =
+                Orthonormalization::from_name(&s.orthonormalize).ok_or_else(|| {
+                    SpecError::new(
+                        key("orthonormalize"),
+                        format!("'{}' is not rescale or qr", s.orthonormalize),
+                    )
+                })?;
+            schemes.push(SchemeSpec {
+                name: s.name.clone(),
+                method,
+                d0,
+                tau,
+                tau_steps,
+                orthonormalize,
+            });
         }
 
         Ok(RunSpec {
@@ -381,15 +490,36 @@ tau = 1.0
     #[test]
     fn bad_values_name_their_key() {
         let cases = [
-            (hh_config("").replace("h = 0.01", "h = -1.0"), "integrator.h"),
-            (hh_config("").replace("tau = 1.0", "tau = 0.015"), "scheme[0].tau"),
+            (
+                hh_config("").replace("h = 0.01", "h = -1.0"),
+                "integrator.h",
+            ),
+            (
+                hh_config("").replace("tau = 1.0", "tau = 0.015"),
+                "scheme[0].tau",
+            ),
             (hh_config("").replace("k = 4", "k = 5"), "deviations.k"),
-            (hh_config("").replace("d0 = 1e-8", "d0 = nan"), "scheme[0].d0"),
+            (
+                hh_config("").replace("d0 = 1e-8", "d0 = nan"),
+                "scheme[0].d0",
+            ),
             (hh_config("").replace("aba864", "rk4"), "integrator.method"),
-            (hh_config("").replace("\"vm\"\nd0", "\"xm\"\nd0"), "scheme[0].method"),
-            (hh_config("[[scheme]]\nname = \"vm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 1.0\n"), "scheme[1].name"),
-            (hh_config("").replace("solve_for = \"p1\"", "solve_for = \"q1\""), "orbit.solve_for"),
-            (hh_config("").replace("t_final = 10.0", "t_final = 10.005"), "integrator.t_final"),
+            (
+                hh_config("").replace("\"vm\"\nd0", "\"xm\"\nd0"),
+                "scheme[0].method",
+            ),
+            (
+                hh_config("[[scheme]]\nname = \"vm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 1.0\n"),
+                "scheme[1].name",
+            ),
+            (
+                hh_config("").replace("solve_for = \"p1\"", "solve_for = \"q1\""),
+                "orbit.solve_for",
+            ),
+            (
+                hh_config("").replace("t_final = 10.0", "t_final = 10.005"),
+                "integrator.t_final",
+            ),
         ];
         for (text, key) in cases {
             let e = spec(&text).unwrap_err();

@@ -64,5 +64,9 @@ pub trait Integrator<S: ?Sized>: Send + Sync {
 /// Relative energy error `|H - H0| / |H0|` (absolute when `H0 = 0`).
 pub fn relative_energy_error(model: &dyn Model, x: &[f64], e0: f64) -> f64 {
     let e = model.energy(x);
-    if e0 == 0.0 { (e - e0).abs() } else { ((e - e0) / e0).abs() }
+    if e0 == 0.0 {
+        (e - e0).abs()
+    } else {
+        ((e - e0) / e0).abs()
+    }
 }

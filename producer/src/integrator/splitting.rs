@@ -26,8 +26,12 @@ pub enum SplittingKind {
 }
 
 impl SplittingKind {
-    pub const ALL: [SplittingKind; 4] =
-        [SplittingKind::Leapfrog, SplittingKind::Saba2, SplittingKind::Yoshida4, SplittingKind::Aba864];
+    pub const ALL: [SplittingKind; 4] = [
+        SplittingKind::Leapfrog,
+        SplittingKind::Saba2,
+        SplittingKind::Yoshida4,
+        SplittingKind::Aba864,
+    ];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -81,16 +85,29 @@ impl Splitting {
                 let cbrt2 = 2f64.cbrt();
                 let w1 = 1.0 / (2.0 - cbrt2);
                 let w0 = -cbrt2 / (2.0 - cbrt2);
-                (4, vec![w1 / 2.0, (w0 + w1) / 2.0, (w0 + w1) / 2.0, w1 / 2.0], vec![w1, w0, w1])
+                (
+                    4,
+                    vec![w1 / 2.0, (w0 + w1) / 2.0, (w0 + w1) / 2.0, w1 / 2.0],
+                    vec![w1, w0, w1],
+                )
             }
             SplittingKind::Aba864 => {
                 let [a1, a2, a3, a4] = ABA864_A;
                 let [b1, b2, b3, b4] = ABA864_B;
-                (4, vec![a1, a2, a3, a4, a4, a3, a2, a1], vec![b1, b2, b3, b4, b3, b2, b1])
+                (
+                    4,
+                    vec![a1, a2, a3, a4, a4, a3, a2, a1],
+                    vec![b1, b2, b3, b4, b3, b2, b1],
+                )
             }
         };
         debug_assert_eq!(drifts.len(), kicks.len() + 1);
-        Self { kind, order, drifts, kicks }
+        Self {
+            kind,
+            order,
+            drifts,
+            kicks,
+        }
     }
 
     pub fn kind(&self) -> SplittingKind {
@@ -196,7 +213,11 @@ mod tests {
             assert!((sb - 1.0).abs() < 1e-15, "{kind:?} kicks sum {sb}");
             let n = s.drifts().len();
             for i in 0..n {
-                assert_eq!(s.drifts()[i], s.drifts()[n - 1 - i], "{kind:?} not palindromic");
+                assert_eq!(
+                    s.drifts()[i],
+                    s.drifts()[n - 1 - i],
+                    "{kind:?} not palindromic"
+                );
             }
         }
         let a = ABA864_A;

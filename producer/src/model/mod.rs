@@ -74,7 +74,11 @@ pub(crate) mod check {
             qm[i] -= eps;
             let fd = (m.potential(&qp) - m.potential(&qm)) / (2.0 * eps);
             // Central differences: error ~ eps^2 * V''' plus rounding ~ 1e-16 / eps.
-            assert!((fd - g[i]).abs() < 1e-8 * (1.0 + g[i].abs()), "dV/dq{i}: fd {fd} vs {}", g[i]);
+            assert!(
+                (fd - g[i]).abs() < 1e-8 * (1.0 + g[i].abs()),
+                "dV/dq{i}: fd {fd} vs {}",
+                g[i]
+            );
         }
     }
 
@@ -90,7 +94,11 @@ pub(crate) mod check {
         m.gradient(&qm, &mut gm);
         for i in 0..n {
             let fd = (gp[i] - gm[i]) / (2.0 * eps);
-            assert!((fd - hv[i]).abs() < 1e-7 * (1.0 + hv[i].abs()), "Hv[{i}]: fd {fd} vs {}", hv[i]);
+            assert!(
+                (fd - hv[i]).abs() < 1e-7 * (1.0 + hv[i].abs()),
+                "Hv[{i}]: fd {fd} vs {}",
+                hv[i]
+            );
         }
     }
 }

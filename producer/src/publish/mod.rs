@@ -209,7 +209,7 @@ impl RunPublisher<'_> {
         run: &str,
     ) -> Result<bool, PublishError> {
         let start = Instant::now();
-        while self.ports.data_subscribers() < options.recorders {
+        while self.ports.ready_receivers() < options.recorders {
             self.ports.refresh_connections();
             if termination.requested() {
                 return Ok(false);

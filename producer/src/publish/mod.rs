@@ -295,7 +295,7 @@ impl RunPublisher<'_> {
             );
             self.ports.send(h, &[&s.separations, &s.stretch])?;
             self.frame += 1;
-            if self.frame % NOTIFY_EVERY == 0 {
+            if self.frame.is_multiple_of(NOTIFY_EVERY) {
                 self.ports.notify();
             }
         }

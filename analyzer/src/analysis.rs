@@ -281,7 +281,7 @@ impl Analysis {
         Some(SetValues {
             t: run.time_of(step),
             gali_log10: indicators::gali_log10(&st.separations, dim),
-            sali: (run.k >= 2).then(|| indicators::sali(&st.separations, dim)),
+            sali: indicators::sali(&st.separations, dim),
             exponents: Self::set_exponents(run, st),
         })
     }

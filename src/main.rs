@@ -26,6 +26,8 @@ enum Command {
     Produce(cli::produce::Args),
     /// Record a run from the bus into an MCAP file.
     Record(cli::record::Args),
+    /// Analyze a recording: GALI, SALI, Lyapunov exponents, energy error (table, JSON, CSV, plots).
+    Analyze(cli::analyze::Args),
     /// Salvage an MCAP file whose writer was killed.
     Recover(cli::recover::Args),
 }
@@ -36,6 +38,7 @@ fn main() -> ExitCode {
         Command::Produce(args) => cli::produce::main(args),
         Command::Record(args) => cli::record::main(args),
         Command::Recover(args) => cli::recover::main(args),
+        Command::Analyze(args) => cli::analyze::main(args),
     };
     result.unwrap_or_else(|e| {
         eprintln!("chaoscope: error: {e:#}");

@@ -7,7 +7,10 @@
 
 pub mod analysis;
 pub mod assemble;
+pub mod chart;
+pub mod csv;
 pub mod inprocess;
+pub mod plot;
 pub mod recording;
 pub mod report;
 pub mod run_info;

@@ -1,5 +1,6 @@
 //! One module per subcommand, plus helpers they share.
 
+pub mod analyze;
 pub mod produce;
 pub mod record;
 pub mod recover;

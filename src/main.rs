@@ -28,6 +28,8 @@ enum Command {
     Record(cli::record::Args),
     /// Analyze a recording: GALI, SALI, Lyapunov exponents, energy error (table, JSON, CSV, plots).
     Analyze(cli::analyze::Args),
+    /// Re-run a recording with other tau/d0 on the bit-identical reference orbit.
+    Replay(cli::replay::Args),
     /// Salvage an MCAP file whose writer was killed.
     Recover(cli::recover::Args),
 }
@@ -39,6 +41,7 @@ fn main() -> ExitCode {
         Command::Record(args) => cli::record::main(args),
         Command::Recover(args) => cli::recover::main(args),
         Command::Analyze(args) => cli::analyze::main(args),
+        Command::Replay(args) => cli::replay::main(args),
     };
     result.unwrap_or_else(|e| {
         eprintln!("chaoscope: error: {e:#}");

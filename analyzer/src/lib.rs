@@ -12,11 +12,13 @@ pub mod csv;
 pub mod inprocess;
 pub mod plot;
 pub mod recording;
+pub mod replay;
 pub mod report;
 pub mod run_info;
 pub mod series;
 pub mod stats;
 pub mod summary;
+pub mod write;
 
 pub use analysis::{Analysis, AnalysisOptions};
 pub use report::Report;

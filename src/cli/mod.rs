@@ -4,6 +4,7 @@ pub mod analyze;
 pub mod produce;
 pub mod record;
 pub mod recover;
+pub mod replay;
 pub mod run;
 
 use std::io::Read;

@@ -28,6 +28,8 @@ enum Command {
     Record(cli::record::Args),
     /// Analyze a recording: GALI, SALI, Lyapunov exponents, energy error (table, JSON, CSV, plots).
     Analyze(cli::analyze::Args),
+    /// Follow a running producer live (terminal view or --json-lines), never slowing it.
+    Monitor(cli::monitor::Args),
     /// Re-run a recording with other tau/d0 on the bit-identical reference orbit.
     Replay(cli::replay::Args),
     /// Salvage an MCAP file whose writer was killed.
@@ -42,6 +44,7 @@ fn main() -> ExitCode {
         Command::Recover(args) => cli::recover::main(args),
         Command::Analyze(args) => cli::analyze::main(args),
         Command::Replay(args) => cli::replay::main(args),
+        Command::Monitor(args) => cli::monitor::main(args),
     };
     result.unwrap_or_else(|e| {
         eprintln!("chaoscope: error: {e:#}");

@@ -1,6 +1,8 @@
 //! One module per subcommand, plus helpers they share.
 
 pub mod analyze;
+pub mod monitor;
+mod monitor_view;
 pub mod produce;
 pub mod record;
 pub mod recover;

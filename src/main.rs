@@ -26,6 +26,12 @@ enum Command {
     Produce(cli::produce::Args),
     /// Record a run from the bus into an MCAP file.
     Record(cli::record::Args),
+    /// Analyze a recording: GALI, SALI, Lyapunov exponents, energy error (table, JSON, CSV, plots).
+    Analyze(cli::analyze::Args),
+    /// Follow a running producer live (terminal view or --json-lines), never slowing it.
+    Monitor(cli::monitor::Args),
+    /// Re-run a recording with other tau/d0 on the bit-identical reference orbit.
+    Replay(cli::replay::Args),
     /// Salvage an MCAP file whose writer was killed.
     Recover(cli::recover::Args),
 }
@@ -36,6 +42,9 @@ fn main() -> ExitCode {
         Command::Produce(args) => cli::produce::main(args),
         Command::Record(args) => cli::record::main(args),
         Command::Recover(args) => cli::recover::main(args),
+        Command::Analyze(args) => cli::analyze::main(args),
+        Command::Replay(args) => cli::replay::main(args),
+        Command::Monitor(args) => cli::monitor::main(args),
     };
     result.unwrap_or_else(|e| {
         eprintln!("chaoscope: error: {e:#}");

@@ -1,17 +1,13 @@
 //! The end-of-run summary printed by `chaoscope run`: per scheme and set, the final GALI_k, SALI
 //! and maximal Lyapunov exponent, read back from the recording.
 //!
-//! Deliberately small; the full analysis (time series, thresholds, plots) grows elsewhere in this
-//! crate.
+//! A thin view of the streaming analysis core ([`crate::analysis`]), per set.
 
-use std::collections::BTreeMap;
 use std::fmt;
 use std::path::Path;
 
-use chaoscope_producer::indicators::{self, StretchSums};
-use chaoscope_schemas::names::topic;
-use chaoscope_schemas::proto::{EndOfRun, RecordingSummary, RunHeader, SeparationSet};
-use prost::Message;
+use crate::analysis::AnalysisOptions;
+use crate::recording::analyze_file;
 
 /// Final indicators of one (scheme, set).
 #[derive(Debug, Clone, PartialEq)]
@@ -37,110 +33,38 @@ pub struct RunSummary {
     pub sets: Vec<SetSummary>,
 }
 
-#[derive(Debug, thiserror::Error)]
-pub enum SummaryError {
-    #[error("{path}: {source}")]
-    Io {
-        path: String,
-        source: std::io::Error,
-    },
-    #[error("{path}: not a readable MCAP file: {source}")]
-    Mcap {
-        path: String,
-        source: mcap::McapError,
-    },
-    #[error("{path}: message on {topic} is not valid protobuf: {source}")]
-    Decode {
-        path: String,
-        topic: String,
-        source: prost::DecodeError,
-    },
-    #[error("{path}: no run header; is it a chaoscope recording?")]
-    NoHeader { path: String },
-}
+/// A recording that could not be summarized.
+pub type SummaryError = crate::recording::ReadError;
 
-struct Accumulator {
-    last: SeparationSet,
-    stretch: StretchSums,
-}
-
-/// Reads a recording and computes its summary.
+/// Reads a recording (streaming, through the analysis core) and computes its summary.
 pub fn summarize(path: &Path) -> Result<RunSummary, SummaryError> {
-    let p = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| SummaryError::Io {
-        path: p.clone(),
-        source,
-    })?;
-    let mut header: Option<RunHeader> = None;
-    let mut summary = RunSummary::default();
-    let mut sets: BTreeMap<(u32, u32), Accumulator> = BTreeMap::new();
-    let stream = mcap::MessageStream::new(&bytes).map_err(|source| SummaryError::Mcap {
-        path: p.clone(),
-        source,
-    })?;
-    for message in stream {
-        let message = message.map_err(|source| SummaryError::Mcap {
-            path: p.clone(),
-            source,
-        })?;
-        let topic_name = message.channel.topic.as_str();
-        let decode_err = |source| SummaryError::Decode {
-            path: p.clone(),
-            topic: topic_name.to_string(),
-            source,
-        };
-        match topic_name {
-            topic::RUN => header = Some(RunHeader::decode(&message.data[..]).map_err(decode_err)?),
-            topic::END => {
-                summary.samples = EndOfRun::decode(&message.data[..])
-                    .map_err(decode_err)?
-                    .samples
-            }
-            topic::RECORDING => {
-                let r = RecordingSummary::decode(&message.data[..]).map_err(decode_err)?;
-                summary.run_status = r.run_status;
-                summary.finalized_by = r.finalized_by;
-                summary.frames_missing = r.frames_missing;
-            }
-            t if t.starts_with("/chaoscope/separations/") => {
-                let s = SeparationSet::decode(&message.data[..]).map_err(decode_err)?;
-                let acc = sets
-                    .entry((s.scheme, s.set))
-                    .or_insert_with(|| Accumulator {
-                        last: s.clone(),
-                        stretch: StretchSums::new(s.k as usize),
-                    });
-                acc.stretch.add(&s.stretch);
-                acc.last = s;
-            }
-            _ => {}
-        }
+    let (analysis, info) = analyze_file(path, &AnalysisOptions::default())?;
+    let run = analysis.run();
+    let mut summary = RunSummary {
+        run_name: run.header.run_name.clone(),
+        model: run.header.model.clone(),
+        samples: info.end.as_ref().map_or(analysis.samples(), |e| e.samples),
+        ..Default::default()
+    };
+    if let Some(r) = &info.summary {
+        summary.run_status = r.run_status.clone();
+        summary.finalized_by = r.finalized_by.clone();
+        summary.frames_missing = r.frames_missing;
     }
-    let header = header.ok_or(SummaryError::NoHeader { path: p })?;
-    summary.run_name = header.run_name.clone();
-    summary.model = header.model.clone();
-    for ((scheme, set), acc) in sets {
-        let dim = acc.last.dim.max(1) as usize;
-        let v = &acc.last.separations;
-        // A hostile or damaged file must not crash the summary.
-        let well_formed = v.len() >= 2 * dim && v.len() % dim == 0;
-        let gali = if well_formed {
-            indicators::gali_log10(v, dim).last().copied()
-        } else {
-            None
-        };
-        summary.sets.push(SetSummary {
-            scheme: header
-                .schemes
-                .get(scheme as usize)
-                .map(|s| s.name.clone())
-                .unwrap_or_else(|| scheme.to_string()),
-            set,
-            t: acc.last.t,
-            gali_k_log10: gali,
-            sali: well_formed.then(|| indicators::sali(v, dim)).flatten(),
-            mle: acc.stretch.mle(acc.last.t),
-        });
+    for scheme in &run.schemes {
+        for set in 0..run.sets {
+            let Some(v) = analysis.set_values(scheme.index, set) else {
+                continue;
+            };
+            summary.sets.push(SetSummary {
+                scheme: scheme.name.clone(),
+                set: set as u32,
+                t: v.t,
+                gali_k_log10: v.gali_log10.last().copied(),
+                sali: v.sali,
+                mle: v.exponents.first().copied().unwrap_or(0.0),
+            });
+        }
     }
     Ok(summary)
 }

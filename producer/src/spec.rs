@@ -297,6 +297,11 @@ pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>,
 impl RunSpec {
     /// Validate a configuration into a run.
     pub fn from_config(cfg: &RunConfig) -> Result<Self, SpecError> {
+        // `[[sweep]]` ranges are shorthand for schemes: expand them before anything is checked.
+        let expanded = cfg
+            .with_sweeps_expanded()
+            .map_err(|e| SpecError::new(e.key, e.message))?;
+        let cfg = &expanded;
         let model = model_from_config(&cfg.model)?;
         let n = model.dof();
         let dim = 2 * n;

@@ -23,8 +23,21 @@ use crate::names::{self, stream};
 
 /// Frames a data subscriber can hold before the producer waits.
 pub const DATA_BUFFER: usize = 64;
-/// Frames a monitor subscriber holds (older ones are overwritten).
+/// Fewest frames a monitor subscriber holds (older ones are overwritten); the producer sizes
+/// the monitor service for whole samples with [`monitor_buffer_for`].
 pub const MONITOR_BUFFER: usize = 8;
+/// Shared memory the monitor stream may take (all monitors together), in bytes.
+pub const MONITOR_MEMORY: usize = 64 << 20;
+
+/// Monitor buffer for a run whose samples have `frames_per_sample` frames of at most
+/// `max_payload` f64 values: two whole samples, so a monitor that keeps up with the producer
+/// loses nothing even though the producer publishes a sample in one burst; bounded by
+/// [`MONITOR_MEMORY`] (large systems then lose frames, which monitors detect and report).
+pub fn monitor_buffer_for(frames_per_sample: usize, max_payload: usize) -> usize {
+    let frame_bytes = max_payload.max(1) * size_of::<f64>() + size_of::<FrameHeader>();
+    let cap = MONITOR_MEMORY / (frame_bytes * MAX_MONITORS);
+    (2 * frames_per_sample).min(cap).max(MONITOR_BUFFER)
+}
 /// Lossless subscribers (recorders, checkers) one run can have.
 pub const MAX_DATA_SUBSCRIBERS: usize = 8;
 /// Monitors one run can have.
@@ -143,14 +156,19 @@ pub fn data_service(node: &Node<ipc::Service>, run: &str) -> Result<DataService,
         .map_err(|e| BusError::new(format!("open data service of run {run:?}"), e))
 }
 
-/// The lossy monitor stream of `run`.
-pub fn monitor_service(node: &Node<ipc::Service>, run: &str) -> Result<DataService, BusError> {
+/// The lossy monitor stream of `run`; `buffer` is the per-subscriber buffer when creating it
+/// (the producer), a minimum when opening it (monitors get the service's size).
+pub fn monitor_service(
+    node: &Node<ipc::Service>,
+    run: &str,
+    buffer: usize,
+) -> Result<DataService, BusError> {
     node.service_builder(&service_name(run, stream::MONITOR)?)
         .publish_subscribe::<[f64]>()
         .user_header::<FrameHeader>()
         .enable_safe_overflow(true)
         .history_size(1)
-        .subscriber_max_buffer_size(MONITOR_BUFFER)
+        .subscriber_max_buffer_size(buffer.max(MONITOR_BUFFER))
         .max_subscribers(MAX_MONITORS)
         .max_publishers(1)
         .open_or_create()

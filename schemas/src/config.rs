@@ -20,6 +20,9 @@ pub struct RunConfig {
     /// One or more renormalization schemes evolved around the same reference orbit.
     #[serde(rename = "scheme", default)]
     pub schemes: Vec<SchemeConfig>,
+    /// Ranges of schemes (see [`crate::sweep`]), expanded after the explicit schemes.
+    #[serde(rename = "sweep", default, skip_serializing_if = "Vec::is_empty")]
+    pub sweeps: Vec<crate::sweep::SweepConfig>,
     /// Present only for `chaoscope map`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub map: Option<MapConfig>,

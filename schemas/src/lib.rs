@@ -6,6 +6,7 @@
 //! - [`names`]: run, service, node and topic names.
 //! - [`bus`]: how every process opens the services (one place, so QoS cannot drift).
 //! - [`convert`]: bus frames to protobuf messages.
+//! - [`sweep`]: `[[sweep]]` ranges expanded into schemes.
 
 pub mod bus;
 pub mod config;
@@ -13,6 +14,7 @@ pub mod convert;
 pub mod frame;
 pub mod names;
 pub mod proto;
+pub mod sweep;
 
 /// Version of the bus and file formats. Bumped on any incompatible change; both the bus headers
 /// and the recordings carry it, and readers refuse versions they do not know.

@@ -1,8 +1,12 @@
 //! One module per subcommand, plus helpers they share.
 
+pub mod analyze;
+pub mod monitor;
+mod monitor_view;
 pub mod produce;
 pub mod record;
 pub mod recover;
+pub mod replay;
 pub mod run;
 
 use std::io::Read;

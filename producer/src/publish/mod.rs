@@ -142,7 +142,16 @@ pub fn publish(
     }
     let header = run_header(&run, config, &spec);
     let termination = Termination::new();
-    let mut ports = Ports::open(&node_name, &run, max_payload(&spec), &termination)?;
+    // Monitors hold two whole samples (reference + every scheme x set frame), memory permitting.
+    let frames_per_sample = 1 + spec.schemes.len() * spec.sets();
+    let monitor_buffer = bus::monitor_buffer_for(frames_per_sample, max_payload(&spec));
+    let mut ports = Ports::open(
+        &node_name,
+        &run,
+        max_payload(&spec),
+        monitor_buffer,
+        &termination,
+    )?;
     ports.announce(&header)?;
 
     let start = Instant::now();

@@ -68,17 +68,19 @@ fn backpressure_handler(
 }
 
 impl Ports {
-    /// Creates the node and every service of `run`; `max_payload` is the longest frame payload.
+    /// Creates the node and every service of `run`; `max_payload` is the longest frame payload,
+    /// `monitor_buffer` the frames each monitor can hold.
     pub fn open(
         node_name: &str,
         run: &str,
         max_payload: usize,
+        monitor_buffer: usize,
         termination: &Termination,
     ) -> Result<Self, BusError> {
         let node = bus::create_node(node_name)?;
         let header_service = bus::header_service(&node, run)?;
         let data_service = bus::data_service(&node, run)?;
-        let monitor_service = bus::monitor_service(&node, run)?;
+        let monitor_service = bus::monitor_service(&node, run, monitor_buffer)?;
         let event_service = bus::data_ready_service(&node, run)?;
         let ready_service = bus::ready_service(&node, run)?;
         let header = header_service

@@ -1,0 +1,501 @@
+//! The streaming analysis core, sans-io: fed with a run header and samples (from the engine in
+//! process, from an MCAP file, or from the bus), it keeps O(schemes x sets x k x 2N) state plus
+//! bounded time series, so memory does not depend on the length of the run.
+//!
+//! Per (scheme, set) it keeps the accumulated logarithmic stretching (Lyapunov exponents) and the
+//! latest separation vectors; GALI and SALI are computed from those only when a value is asked
+//! for (a series point, a report), since they are instantaneous functions of the vectors.
+
+use chaoscope_producer::engine::{Sample, SchemeSample};
+use chaoscope_producer::indicators::{self, SIGMA_FLOOR, StretchSums};
+use chaoscope_producer::renormalization::Orthonormalization;
+use chaoscope_producer::spec::Method;
+
+use crate::report::{ByOrder, DeltaLog, Report, RunReport, SchemeReport, VsVm, exponent_stats};
+use crate::run_info::RunInfo;
+use crate::series::Series;
+use crate::stats::{LogStat, Stat};
+
+/// Resolution of the stored time series.
+#[derive(Debug, Clone)]
+pub struct AnalysisOptions {
+    /// Evenly spaced points kept per series.
+    pub series_capacity: usize,
+    /// Log-spaced points per decade of time.
+    pub per_decade: usize,
+    /// Times at which to keep a full report ("values at time T").
+    pub at: Vec<f64>,
+}
+
+impl Default for AnalysisOptions {
+    fn default() -> Self {
+        Self {
+            series_capacity: 2000,
+            per_decade: 40,
+            at: Vec::new(),
+        }
+    }
+}
+
+/// Means over the sets of one scheme at one time: a point of a plotted curve.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SchemePoint {
+    /// `[j - 2]`: mean over sets of log10 GALI_j.
+    pub gali_log10_mean: Vec<f64>,
+    /// `[j - 2]`: log10 of the arithmetic mean of GALI_j.
+    pub gali_log10_of_mean: Vec<f64>,
+    pub sali_log10_mean: Option<f64>,
+    /// Mean over sets of the finite-time exponents (one per vector).
+    pub lyapunov: Vec<f64>,
+    /// `[j - 2]`: mean over sets of |log10 GALI_j - log10 GALI_j(VM)|, for MPM schemes.
+    pub vs_vm_abs_delta: Option<Vec<f64>>,
+}
+
+/// The values of one set at its latest renormalization.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SetValues {
+    pub t: f64,
+    /// `[j - 2]` = log10 GALI_j.
+    pub gali_log10: Vec<f64>,
+    pub sali: Option<f64>,
+    /// Finite-time exponent per vector.
+    pub exponents: Vec<f64>,
+}
+
+#[derive(Debug, Clone)]
+struct SetState {
+    sums: StretchSums,
+    /// Steps covered by the stretching factors received (equals the step when none was missed).
+    covered_steps: u64,
+    /// Step of the latest separations.
+    step: Option<u64>,
+    separations: Vec<f64>,
+}
+
+#[derive(Debug, Clone)]
+struct SchemeState {
+    sets: Vec<SetState>,
+    step: Option<u64>,
+    /// The VM scheme with the same renormalization steps, for MPM schemes.
+    vm_partner: Option<usize>,
+    series: Series<SchemePoint>,
+}
+
+#[derive(Debug, Clone)]
+struct Capture {
+    step: u64,
+    report: Option<Report>,
+}
+
+/// Streaming analysis of one run.
+#[derive(Debug, Clone)]
+pub struct Analysis {
+    run: RunInfo,
+    schemes: Vec<SchemeState>,
+    energy_error_max: f64,
+    energy_series: Series<f64>,
+    step: u64,
+    t: f64,
+    samples: u64,
+    /// Some stretching factor was never seen (late attach, lost frames).
+    gaps: bool,
+    captures: Vec<Capture>,
+}
+
+/// Relative energy error (absolute when `E0 = 0`).
+fn energy_error(e: f64, e0: f64) -> f64 {
+    if e0 != 0.0 {
+        ((e - e0) / e0).abs()
+    } else {
+        e.abs()
+    }
+}
+
+impl Analysis {
+    pub fn new(run: RunInfo, options: &AnalysisOptions) -> Self {
+        let k = run.k;
+        let schemes = run
+            .schemes
+            .iter()
+            .map(|s| SchemeState {
+                sets: vec![
+                    SetState {
+                        sums: StretchSums::new(k),
+                        covered_steps: 0,
+                        step: None,
+                        separations: Vec::new(),
+                    };
+                    run.sets
+                ],
+                step: None,
+                vm_partner: (s.method == Method::Mpm)
+                    .then(|| {
+                        let same = |o: &&crate::run_info::SchemeInfo| {
+                            o.method == Method::Vm && o.tau_steps == s.tau_steps
+                        };
+                        // Prefer the same orthonormalization, else any VM with the same tau.
+                        run.schemes
+                            .iter()
+                            .filter(same)
+                            .find(|o| o.orthonormalize == s.orthonormalize)
+                            .or_else(|| run.schemes.iter().find(same))
+                            .map(|o| o.index)
+                    })
+                    .flatten(),
+                series: Series::new(options.series_capacity, options.per_decade),
+            })
+            .collect();
+        let captures = options
+            .at
+            .iter()
+            .map(|&t| Capture {
+                // "As of time T": every renormalization at t <= T (to rounding) counts.
+                step: (t / run.h + 1e-6).floor().max(0.0) as u64,
+                report: None,
+            })
+            .collect();
+        Self {
+            schemes,
+            energy_error_max: 0.0,
+            energy_series: Series::new(options.series_capacity, options.per_decade),
+            step: 0,
+            t: 0.0,
+            samples: 0,
+            gaps: false,
+            captures,
+            run,
+        }
+    }
+
+    pub fn run(&self) -> &RunInfo {
+        &self.run
+    }
+
+    pub fn t(&self) -> f64 {
+        self.t
+    }
+
+    pub fn step(&self) -> u64 {
+        self.step
+    }
+
+    pub fn samples(&self) -> u64 {
+        self.samples
+    }
+
+    /// Whether every stretching factor since t = 0 was seen.
+    pub fn complete(&self) -> bool {
+        !self.gaps
+    }
+
+    /// Marks the analysis as incomplete (a reader that knows frames were lost).
+    pub fn mark_gap(&mut self) {
+        self.gaps = true;
+    }
+
+    /// Feeds the next sample. Samples must come in increasing step order; sets or the reference
+    /// state may be missing (a lossy live stream): what arrives is used.
+    pub fn feed(&mut self, sample: &Sample) {
+        for c in &mut self.captures {
+            if c.report.is_none() && sample.step > c.step && self.samples > 0 {
+                c.report = Some(Self::report_of(
+                    &self.run,
+                    &self.schemes,
+                    self.energy_error_max,
+                    self.samples,
+                    self.t,
+                    self.gaps,
+                ));
+            }
+        }
+        self.samples += 1;
+        self.step = sample.step;
+        self.t = sample.t;
+        if !sample.state.is_empty() {
+            let err = energy_error(sample.energy, self.run.header.energy0);
+            self.energy_error_max = self.energy_error_max.max(err);
+            self.energy_series.offer(sample.t, || err);
+        }
+        let mut touched = Vec::new();
+        for s in &sample.schemes {
+            if self.apply(sample.step, s) && touched.last() != Some(&(s.scheme as usize)) {
+                touched.push(s.scheme as usize);
+            }
+        }
+        for si in touched {
+            let t = sample.t;
+            if self.schemes[si].series.wants(t) {
+                let point = self.point(si);
+                self.schemes[si].series.offer(t, || point);
+            } else {
+                self.schemes[si]
+                    .series
+                    .offer(t, || unreachable!("not wanted"));
+            }
+        }
+    }
+
+    /// Applies one set's separations; false if it does not fit the header (ignored).
+    fn apply(&mut self, step: u64, s: &SchemeSample) -> bool {
+        let (si, set) = (s.scheme as usize, s.set as usize);
+        let (k, dim) = (self.run.k, self.run.dim);
+        if si >= self.schemes.len()
+            || set >= self.run.sets
+            || s.separations.len() != k * dim
+            || s.stretch.len() != k
+        {
+            return false;
+        }
+        let prev = self.run.previous_renormalization(si, step);
+        let st = &mut self.schemes[si].sets[set];
+        // A stretching factor covers the interval since the scheme's previous renormalization;
+        // if that one was not seen, the sum has a hole.
+        let expected_prev = st.step.unwrap_or(0);
+        if step > 0 && expected_prev != prev {
+            self.gaps = true;
+        }
+        if step > 0 {
+            st.sums.add(&s.stretch);
+            st.covered_steps += step - prev;
+        }
+        st.step = Some(step);
+        st.separations.clear();
+        st.separations.extend_from_slice(&s.separations);
+        let scheme = &mut self.schemes[si];
+        scheme.step = Some(scheme.step.map_or(step, |x| x.max(step)));
+        true
+    }
+
+    fn set_exponents(run: &RunInfo, st: &SetState) -> Vec<f64> {
+        let covered = run.time_of(st.covered_steps);
+        st.sums
+            .log_sums()
+            .iter()
+            .map(|s| if covered > 0.0 { s / covered } else { 0.0 })
+            .collect()
+    }
+
+    fn set_values_of(run: &RunInfo, st: &SetState) -> Option<SetValues> {
+        let step = st.step?;
+        let dim = run.dim;
+        Some(SetValues {
+            t: run.time_of(step),
+            gali_log10: indicators::gali_log10(&st.separations, dim),
+            sali: indicators::sali(&st.separations, dim),
+            exponents: Self::set_exponents(run, st),
+        })
+    }
+
+    /// The latest values of one set (`None` before its first sample).
+    pub fn set_values(&self, scheme: usize, set: usize) -> Option<SetValues> {
+        Self::set_values_of(&self.run, &self.schemes[scheme].sets[set])
+    }
+
+    /// The sets of scheme `si` at its latest step, with their values.
+    fn current_sets(run: &RunInfo, scheme: &SchemeState) -> Vec<(usize, SetValues)> {
+        let Some(step) = scheme.step else {
+            return Vec::new();
+        };
+        scheme
+            .sets
+            .iter()
+            .enumerate()
+            .filter(|(_, st)| st.step == Some(step))
+            .filter_map(|(i, st)| Self::set_values_of(run, st).map(|v| (i, v)))
+            .collect()
+    }
+
+    fn point(&self, si: usize) -> SchemePoint {
+        let sets = Self::current_sets(&self.run, &self.schemes[si]);
+        let orders = self.run.k.saturating_sub(1);
+        let gali: Vec<LogStat> = (0..orders)
+            .filter_map(|o| LogStat::from_log10(sets.iter().map(|(_, v)| v.gali_log10[o])))
+            .collect();
+        let exps: Vec<Vec<f64>> = sets.iter().map(|(_, v)| v.exponents.clone()).collect();
+        let (lyapunov, _) = exponent_stats(&exps);
+        SchemePoint {
+            gali_log10_mean: gali.iter().map(|g| g.log10_mean).collect(),
+            gali_log10_of_mean: gali.iter().map(|g| g.mean.log10()).collect(),
+            sali_log10_mean: LogStat::from_log10(
+                sets.iter()
+                    .filter_map(|(_, v)| v.sali.map(|s| s.max(SIGMA_FLOOR).log10())),
+            )
+            .map(|s| s.log10_mean),
+            lyapunov,
+            vs_vm_abs_delta: Self::vs_vm_of(&self.run, &self.schemes, si).map(|d| {
+                d.gali
+                    .0
+                    .iter()
+                    .map(|(_, x)| x.mean_abs_delta_log10)
+                    .collect()
+            }),
+        }
+    }
+
+    fn vs_vm_of(run: &RunInfo, schemes: &[SchemeState], si: usize) -> Option<VsVm> {
+        let vi = schemes[si].vm_partner?;
+        let (mpm, vm) = (&schemes[si], &schemes[vi]);
+        let step = mpm.step?;
+        let pairs: Vec<(SetValues, SetValues)> = mpm
+            .sets
+            .iter()
+            .zip(&vm.sets)
+            .filter(|(a, b)| a.step == Some(step) && b.step == Some(step))
+            .filter_map(|(a, b)| Some((Self::set_values_of(run, a)?, Self::set_values_of(run, b)?)))
+            .collect();
+        if pairs.is_empty() {
+            return None;
+        }
+        let n = pairs.len() as f64;
+        let gali = (0..run.k.saturating_sub(1))
+            .map(|o| {
+                let d: Vec<f64> = pairs
+                    .iter()
+                    .map(|(a, b)| a.gali_log10[o] - b.gali_log10[o])
+                    .collect();
+                (
+                    o + 2,
+                    DeltaLog {
+                        mean_delta_log10: d.iter().sum::<f64>() / n,
+                        mean_abs_delta_log10: d.iter().map(|x| x.abs()).sum::<f64>() / n,
+                    },
+                )
+            })
+            .collect();
+        let mle_delta = pairs
+            .iter()
+            .map(|(a, b)| a.exponents[0] - b.exponents[0])
+            .sum::<f64>()
+            / n;
+        Some(VsVm {
+            scheme: run.schemes[vi].name.clone(),
+            t: run.time_of(step),
+            sets: pairs.len(),
+            gali: ByOrder(gali),
+            mle_delta,
+        })
+    }
+
+    fn report_of(
+        run: &RunInfo,
+        schemes: &[SchemeState],
+        energy_error_max: f64,
+        samples: u64,
+        t: f64,
+        gaps: bool,
+    ) -> Report {
+        let h = &run.header;
+        let scheme_reports = run
+            .schemes
+            .iter()
+            .zip(schemes)
+            .map(|(info, state)| {
+                let sets = Self::current_sets(run, state);
+                let gali = ByOrder(
+                    (0..run.k.saturating_sub(1))
+                        .filter_map(|o| {
+                            LogStat::from_log10(sets.iter().map(|(_, v)| v.gali_log10[o]))
+                                .map(|s| (o + 2, s))
+                        })
+                        .collect(),
+                );
+                let sali = LogStat::from_log10(
+                    sets.iter()
+                        .filter_map(|(_, v)| v.sali.map(|s| s.max(SIGMA_FLOOR).log10())),
+                );
+                let exps: Vec<Vec<f64>> = sets.iter().map(|(_, v)| v.exponents.clone()).collect();
+                let (mut lyapunov, mut lyapunov_std) = exponent_stats(&exps);
+                if info.orthonormalize == Orthonormalization::Rescale {
+                    // Every rescaled vector estimates the MLE; the first is the reported one.
+                    lyapunov.truncate(1);
+                    lyapunov_std.truncate(1);
+                }
+                SchemeReport {
+                    name: info.name.clone(),
+                    method: info.method.name().to_string(),
+                    orthonormalize: info.orthonormalize.name().to_string(),
+                    k: run.k,
+                    d0: info.d0,
+                    tau: info.tau,
+                    sets: sets.len(),
+                    t: state.step.map_or(0.0, |s| run.time_of(s)),
+                    gali,
+                    sali,
+                    mle: lyapunov.first().copied().unwrap_or(0.0),
+                    lyapunov,
+                    lyapunov_std,
+                    energy_error_max,
+                    vs_vm: Self::vs_vm_of(run, schemes, info.index),
+                }
+            })
+            .collect();
+        Report {
+            run: RunReport {
+                name: h.run_name.clone(),
+                model: h.model.clone(),
+                n: run.dim / 2,
+                k: run.k,
+                sets: run.sets,
+                integrator: h.integrator.clone(),
+                h: run.h,
+                t_final: h.t_final,
+                total_steps: h.total_steps,
+                seed: h.seed,
+                energy0: h.energy0,
+                samples,
+                t,
+                energy_error_max,
+                complete: !gaps,
+            },
+            schemes: scheme_reports,
+        }
+    }
+
+    /// Values now (at the latest sample).
+    pub fn report(&self) -> Report {
+        Self::report_of(
+            &self.run,
+            &self.schemes,
+            self.energy_error_max,
+            self.samples,
+            self.t,
+            self.gaps,
+        )
+    }
+
+    /// Values as of time `t`, if `t` was among [`AnalysisOptions::at`]. Before the stream has
+    /// passed `t` (or if it ended earlier) this is the latest report.
+    pub fn report_at(&self, t: f64) -> Option<Report> {
+        let step = (t / self.run.h + 1e-6).floor().max(0.0) as u64;
+        let c = self.captures.iter().find(|c| c.step == step)?;
+        Some(c.report.clone().unwrap_or_else(|| self.report()))
+    }
+
+    /// Whether every requested time has been captured (a reader may stop early).
+    pub fn captures_done(&self) -> bool {
+        !self.captures.is_empty() && self.captures.iter().all(|c| c.report.is_some())
+    }
+
+    /// The stored curve of scheme `si`.
+    /// Ends with the latest sample, whether the thinning kept it or not.
+    pub fn series(&self, si: usize) -> Vec<(f64, SchemePoint)> {
+        let mut points = self.schemes[si].series.points();
+        if let Some(step) = self.schemes[si].step {
+            let t = self.run.time_of(step);
+            if points.last().is_none_or(|p| p.0 < t) {
+                points.push((t, self.point(si)));
+            }
+        }
+        points
+    }
+
+    /// Relative energy error of the reference orbit over time.
+    pub fn energy_series(&self) -> Vec<(f64, f64)> {
+        self.energy_series.points()
+    }
+}
+
+/// Mean over sets of signed values (convenience for readers of [`SetValues`]).
+pub fn mean(values: impl IntoIterator<Item = f64>) -> f64 {
+    Stat::from_values(values).map_or(f64::NAN, |s| s.mean)
+}

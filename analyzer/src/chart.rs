@@ -1,0 +1,190 @@
+//! A small description of a 2-D chart and its rendering to PNG and SVG with `plotters`.
+//!
+//! Axes are linear in whatever is given; log scales are drawn by passing `log10` values and
+//! saying so in the label (as the paper does: "log10 t", "log10 GALI_k"), which keeps values
+//! like 1e-300 as plottable as 1.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use plotters::coord::Shift;
+use plotters::prelude::*;
+use plotters::style::FontStyle;
+
+/// How a line is drawn.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stroke {
+    Solid,
+    /// Reference laws (slopes).
+    Dashed,
+    /// Unconnected dots (Poincare sections, sweeps).
+    Dots,
+}
+
+#[derive(Debug, Clone)]
+pub struct Line {
+    pub label: String,
+    pub points: Vec<(f64, f64)>,
+    pub stroke: Stroke,
+    /// Index into the palette; lines sharing a color belong together.
+    pub color: usize,
+}
+
+#[derive(Debug, Clone, Default)]
+pub struct Chart {
+    pub title: String,
+    pub x_label: String,
+    pub y_label: String,
+    pub lines: Vec<Line>,
+    /// Fixed axis ranges (else from the data).
+    pub x_range: Option<(f64, f64)>,
+    pub y_range: Option<(f64, f64)>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ChartError {
+    #[error(
+        "no TrueType font found for chart text; set CHAOSCOPE_FONT to a .ttf file (e.g. DejaVuSans.ttf)"
+    )]
+    NoFont,
+    #[error("{path}: {message}")]
+    Draw { path: PathBuf, message: String },
+}
+
+const FONT_CANDIDATES: &[&str] = &[
+    "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/TTF/DejaVuSans.ttf",
+    "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+    "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
+    "/usr/share/fonts/liberation/LiberationSans-Regular.ttf",
+    "/System/Library/Fonts/Supplemental/Arial.ttf",
+];
+
+/// Registers a system font once (plotters' pure-Rust text rendering needs one).
+fn ensure_font() -> Result<(), ChartError> {
+    static FONT: OnceLock<bool> = OnceLock::new();
+    let ok = *FONT.get_or_init(|| {
+        let env = std::env::var("CHAOSCOPE_FONT").ok();
+        let bytes = env
+            .iter()
+            .map(String::as_str)
+            .chain(FONT_CANDIDATES.iter().copied())
+            .find_map(|p| std::fs::read(p).ok());
+        let Some(bytes) = bytes else { return false };
+        // The registry wants 'static bytes: a font is loaded once per process.
+        let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+        plotters::style::register_font("sans-serif", FontStyle::Normal, bytes).is_ok()
+    });
+    if ok { Ok(()) } else { Err(ChartError::NoFont) }
+}
+
+fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
+    if !lo.is_finite() {
+        return (0.0, 1.0);
+    }
+    let pad = if hi > lo { 0.04 * (hi - lo) } else { 0.5 };
+    (lo - pad, hi + pad)
+}
+
+fn palette(i: usize) -> RGBColor {
+    const COLORS: [RGBColor; 8] = [
+        RGBColor(0, 0, 0),
+        RGBColor(213, 94, 0),
+        RGBColor(0, 114, 178),
+        RGBColor(0, 158, 115),
+        RGBColor(204, 121, 167),
+        RGBColor(230, 159, 0),
+        RGBColor(86, 180, 233),
+        RGBColor(120, 120, 120),
+    ];
+    COLORS[i % COLORS.len()]
+}
+
+fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, chart: &Chart) -> Result<(), String>
+where
+    DB::ErrorType: 'static,
+{
+    root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let xr = chart.x_range.unwrap_or_else(|| {
+        range(
+            chart
+                .lines
+                .iter()
+                .flat_map(|l| l.points.iter().map(|p| p.0)),
+        )
+    });
+    let yr = chart.y_range.unwrap_or_else(|| {
+        range(
+            chart
+                .lines
+                .iter()
+                .flat_map(|l| l.points.iter().map(|p| p.1)),
+        )
+    });
+    let mut ctx = ChartBuilder::on(&root)
+        .caption(&chart.title, ("sans-serif", 20))
+        .margin(12)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1)
+        .map_err(|e| e.to_string())?;
+    ctx.configure_mesh()
+        .x_desc(&chart.x_label)
+        .y_desc(&chart.y_label)
+        .label_style(("sans-serif", 14))
+        .light_line_style(WHITE.mix(0.0))
+        .draw()
+        .map_err(|e| e.to_string())?;
+    let in_range = |p: &&(f64, f64)| p.0.is_finite() && p.1.is_finite();
+    for line in &chart.lines {
+        let color = palette(line.color);
+        let pts: Vec<(f64, f64)> = line.points.iter().filter(in_range).copied().collect();
+        let series = match line.stroke {
+            Stroke::Solid => ctx.draw_series(LineSeries::new(pts, color.stroke_width(2))),
+            Stroke::Dashed => {
+                ctx.draw_series(DashedLineSeries::new(pts, 8, 6, color.stroke_width(1)))
+            }
+            Stroke::Dots => ctx.draw_series(
+                pts.into_iter()
+                    .map(|p| Circle::new(p, 1, color.filled()))
+                    .collect::<Vec<_>>(),
+            ),
+        }
+        .map_err(|e| e.to_string())?;
+        if !line.label.is_empty() {
+            series
+                .label(&line.label)
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color));
+        }
+    }
+    if chart.lines.iter().any(|l| !l.label.is_empty()) {
+        ctx.configure_series_labels()
+            .background_style(WHITE.mix(0.85))
+            .border_style(BLACK)
+            .label_font(("sans-serif", 13))
+            .position(SeriesLabelPosition::UpperRight)
+            .draw()
+            .map_err(|e| e.to_string())?;
+    }
+    root.present().map_err(|e| e.to_string())
+}
+
+/// Writes `<stem>.png` and `<stem>.svg`.
+pub fn render(chart: &Chart, stem: &Path) -> Result<Vec<PathBuf>, ChartError> {
+    ensure_font()?;
+    let size = (800, 560);
+    let png = stem.with_extension("png");
+    let svg = stem.with_extension("svg");
+    let err = |path: &Path, message: String| ChartError::Draw {
+        path: path.to_path_buf(),
+        message,
+    };
+    draw(BitMapBackend::new(&png, size).into_drawing_area(), chart).map_err(|m| err(&png, m))?;
+    draw(SVGBackend::new(&svg, size).into_drawing_area(), chart).map_err(|m| err(&svg, m))?;
+    Ok(vec![png, svg])
+}

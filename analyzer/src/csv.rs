@@ -1,0 +1,56 @@
+//! The stored curves as CSV, one file per scheme plus the energy error (for other tools).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use crate::analysis::Analysis;
+
+/// Writes `<dir>/<scheme>.csv` and `<dir>/energy.csv`; returns the files written.
+pub fn write_csv(analysis: &Analysis, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(dir)?;
+    let run = analysis.run();
+    let k = run.k;
+    let mut files = Vec::new();
+    for s in &run.schemes {
+        let path = dir.join(format!("{}.csv", s.name));
+        let mut f = std::io::BufWriter::new(std::fs::File::create(&path)?);
+        let mut head = vec!["t".to_string()];
+        for j in 2..=k {
+            head.push(format!("gali{j}_log10_mean"));
+        }
+        for j in 2..=k {
+            head.push(format!("gali{j}_log10_of_mean"));
+        }
+        head.push("sali_log10_mean".into());
+        for i in 1..=k {
+            head.push(format!("lyapunov{i}"));
+        }
+        for j in 2..=k {
+            head.push(format!("gali{j}_vs_vm_mean_abs_delta_log10"));
+        }
+        writeln!(f, "{}", head.join(","))?;
+        for (t, p) in analysis.series(s.index) {
+            let mut row = vec![t.to_string()];
+            row.extend(p.gali_log10_mean.iter().map(f64::to_string));
+            row.extend(p.gali_log10_of_mean.iter().map(f64::to_string));
+            row.push(p.sali_log10_mean.map_or(String::new(), |v| v.to_string()));
+            row.extend(p.lyapunov.iter().map(f64::to_string));
+            match &p.vs_vm_abs_delta {
+                Some(d) => row.extend(d.iter().map(f64::to_string)),
+                None => row.extend((2..=k).map(|_| String::new())),
+            }
+            writeln!(f, "{}", row.join(","))?;
+        }
+        f.flush()?;
+        files.push(path);
+    }
+    let path = dir.join("energy.csv");
+    let mut f = std::io::BufWriter::new(std::fs::File::create(&path)?);
+    writeln!(f, "t,relative_energy_error")?;
+    for (t, e) in analysis.energy_series() {
+        writeln!(f, "{t},{e}")?;
+    }
+    f.flush()?;
+    files.push(path);
+    Ok(files)
+}

@@ -1,0 +1,40 @@
+//! Analysis of a run computed in this process by the engine (tests, sweeps, the paper script's
+//! quick paths): no bus, no file.
+
+use chaoscope_producer::engine::{Engine, RunError, Sample};
+use chaoscope_producer::publish::run_header;
+use chaoscope_producer::spec::{RunSpec, SpecError};
+use chaoscope_schemas::config::RunConfig;
+
+use crate::analysis::{Analysis, AnalysisOptions};
+use crate::run_info::RunInfo;
+
+#[derive(Debug, thiserror::Error)]
+pub enum InProcessError {
+    #[error("invalid configuration: {0}")]
+    Spec(#[from] SpecError),
+    #[error(transparent)]
+    Run(#[from] RunError),
+}
+
+/// The analysis' view of a validated config.
+pub fn run_info(name: &str, config: &RunConfig, spec: &RunSpec) -> RunInfo {
+    RunInfo::from_header(run_header(name, config, spec))
+        .expect("a validated spec has a valid header")
+}
+
+/// Runs `config` to the end, feeding every sample to an analysis and to `each`.
+pub fn analyze_config(
+    config: &RunConfig,
+    options: &AnalysisOptions,
+    mut each: impl FnMut(&Sample),
+) -> Result<Analysis, InProcessError> {
+    let spec = RunSpec::from_config(config)?;
+    let mut analysis = Analysis::new(run_info("in-process", config, &spec), options);
+    let mut engine = Engine::new(spec);
+    while let Some(sample) = engine.next_sample()? {
+        analysis.feed(&sample);
+        each(&sample);
+    }
+    Ok(analysis)
+}

@@ -1,0 +1,233 @@
+//! The bus side of `chaoscope monitor`: a subscriber on the run's lossy monitor stream.
+//!
+//! The monitor stream has safe overflow on: when a monitor falls behind, the oldest frames in
+//! its buffer are overwritten and the producer never waits. Frame sequence numbers tell the
+//! monitor what it missed (late attach, overflow), and the analysis marks its results
+//! incomplete accordingly. Wakes on the producer's data-ready event, and at least every
+//! `tick` for display refreshes and producer liveness checks.
+
+use std::cell::Cell;
+use std::ops::ControlFlow;
+use std::time::{Duration, Instant};
+
+use chaoscope_schemas::FORMAT_VERSION;
+use chaoscope_schemas::bus::{self, BusError, DataService, EventService, HeaderService, Liveness};
+use chaoscope_schemas::convert::{self, DataMessage};
+use chaoscope_schemas::frame::{FrameHeader, RunAnnouncement};
+use chaoscope_schemas::names;
+use chaoscope_schemas::proto::RunHeader;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::waitset::WaitSetRunResult;
+use prost::Message;
+
+#[derive(Debug, thiserror::Error)]
+pub enum LiveError {
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    #[error("run {run:?}: the run header is not valid protobuf: {source}")]
+    Header {
+        run: String,
+        source: prost::DecodeError,
+    },
+    #[error("run {run:?} uses format version {found}; this build reads version {FORMAT_VERSION}")]
+    Version { run: String, found: u32 },
+    #[error("run {run:?}: no run header within {timeout:?} (is the run producing?)")]
+    NoHeader { run: String, timeout: Duration },
+}
+
+/// What the monitor loop sees.
+#[derive(Debug)]
+pub enum LiveEvent {
+    Message(DataMessage),
+    /// Periodic wake-up (refresh the display).
+    Tick,
+}
+
+/// Why [`LiveRun::receive`] returned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LiveEnded {
+    Stopped,
+    Signal,
+    ProducerGone,
+}
+
+/// A monitor's subscription to one run.
+pub struct LiveRun {
+    run: String,
+    node: Node<ipc::Service>,
+    monitor: Subscriber<ipc::Service, [f64], FrameHeader>,
+    header: Subscriber<ipc::Service, [u8], RunAnnouncement>,
+    listener: Listener<ipc::Service>,
+    _services: (DataService, HeaderService, EventService),
+    /// Next frame sequence number expected.
+    next_frame: Cell<Option<u64>>,
+    /// Frames known to be missed (gaps in the sequence, frames before attaching).
+    frames_lost: Cell<u64>,
+    frames_received: Cell<u64>,
+}
+
+impl LiveRun {
+    pub fn open(run: &str) -> Result<Self, LiveError> {
+        let node_name = format!("chaoscope-monitor/{run}/{}", std::process::id());
+        let node = bus::create_node(&node_name)?;
+        let monitor_service = bus::monitor_service(&node, run, bus::MONITOR_BUFFER)?;
+        let header_service = bus::header_service(&node, run)?;
+        let event_service = bus::data_ready_service(&node, run)?;
+        // No buffer size given: the subscriber takes the service's, sized by the producer.
+        let monitor = monitor_service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| BusError::new("create monitor subscriber", e))?;
+        let header = header_service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| BusError::new("create header subscriber", e))?;
+        let listener = event_service
+            .listener_builder()
+            .create()
+            .map_err(|e| BusError::new("create listener", e))?;
+        Ok(Self {
+            run: run.to_string(),
+            node,
+            monitor,
+            header,
+            listener,
+            _services: (monitor_service, header_service, event_service),
+            next_frame: Cell::new(None),
+            frames_lost: Cell::new(0),
+            frames_received: Cell::new(0),
+        })
+    }
+
+    pub fn run(&self) -> &str {
+        &self.run
+    }
+
+    /// Frames known to be missed so far (before attaching, or overwritten while behind).
+    pub fn frames_lost(&self) -> u64 {
+        self.frames_lost.get()
+    }
+
+    pub fn frames_received(&self) -> u64 {
+        self.frames_received.get()
+    }
+
+    fn producer_alive(&self) -> bool {
+        bus::node_liveness(&names::producer_node_name(&self.run)) == Liveness::Alive
+    }
+
+    /// The run header (kept as history, so it reaches late monitors too). `Ok(None)` on a
+    /// termination signal.
+    pub fn wait_header(&self, timeout: Duration) -> Result<Option<RunHeader>, LiveError> {
+        let start = Instant::now();
+        loop {
+            let received = self
+                .header
+                .receive()
+                .map_err(|e| BusError::new("receive run header", e))?;
+            if let Some(sample) = received {
+                let found = sample.user_header().format_version;
+                if found != FORMAT_VERSION {
+                    return Err(LiveError::Version {
+                        run: self.run.clone(),
+                        found,
+                    });
+                }
+                return RunHeader::decode(sample.payload())
+                    .map(Some)
+                    .map_err(|source| LiveError::Header {
+                        run: self.run.clone(),
+                        source,
+                    });
+            }
+            if start.elapsed() > timeout {
+                return Err(LiveError::NoHeader {
+                    run: self.run.clone(),
+                    timeout,
+                });
+            }
+            if self.node.wait(bus::POLL_INTERVAL).is_err() {
+                return Ok(None);
+            }
+        }
+    }
+
+    /// Takes everything buffered now; returns whether `f` asked to stop.
+    fn drain(&self, f: &mut impl FnMut(LiveEvent) -> ControlFlow<()>) -> Result<bool, BusError> {
+        loop {
+            let Some(sample) = self
+                .monitor
+                .receive()
+                .map_err(|e| BusError::new("receive monitor frame", e))?
+            else {
+                return Ok(false);
+            };
+            let h = *sample.user_header();
+            let expected = self.next_frame.get().unwrap_or(0);
+            if h.frame_seq > expected {
+                self.frames_lost
+                    .set(self.frames_lost.get() + h.frame_seq - expected);
+            }
+            self.next_frame.set(Some(h.frame_seq + 1));
+            self.frames_received.set(self.frames_received.get() + 1);
+            let decoded = convert::decode_frame(&h, sample.payload());
+            drop(sample);
+            // A frame that breaks the layout counts as lost.
+            let Ok(m) = decoded else {
+                self.frames_lost.set(self.frames_lost.get() + 1);
+                continue;
+            };
+            if f(LiveEvent::Message(m)).is_break() {
+                return Ok(true);
+            }
+        }
+    }
+
+    /// Delivers frames to `f` until it breaks, a signal arrives or the producer is gone.
+    pub fn receive(
+        &self,
+        tick: Duration,
+        mut f: impl FnMut(LiveEvent) -> ControlFlow<()>,
+    ) -> Result<LiveEnded, LiveError> {
+        let waitset = WaitSetBuilder::new()
+            .create::<ipc::Service>()
+            .map_err(|e| BusError::new("create waitset", e))?;
+        let _event_guard = waitset
+            .attach_notification(&self.listener)
+            .map_err(|e| BusError::new("attach listener", e))?;
+        let _tick_guard = waitset
+            .attach_interval(tick)
+            .map_err(|e| BusError::new("attach interval", e))?;
+        let mut last_liveness = Instant::now();
+        loop {
+            let result = waitset
+                .wait_and_process_once(|_| CallbackProgression::Stop)
+                .map_err(|e| BusError::new("wait", e))?;
+            if matches!(
+                result,
+                WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt
+            ) {
+                return Ok(LiveEnded::Signal);
+            }
+            let _ = self.listener.try_wait(|_| {});
+            if self.drain(&mut f)? {
+                return Ok(LiveEnded::Stopped);
+            }
+            if f(LiveEvent::Tick).is_break() {
+                return Ok(LiveEnded::Stopped);
+            }
+            if last_liveness.elapsed() >= bus::POLL_INTERVAL {
+                last_liveness = Instant::now();
+                if !self.producer_alive() {
+                    // What it delivered before going is still buffered: take it first.
+                    if self.drain(&mut f)? {
+                        return Ok(LiveEnded::Stopped);
+                    }
+                    return Ok(LiveEnded::ProducerGone);
+                }
+            }
+        }
+    }
+}

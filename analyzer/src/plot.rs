@@ -1,0 +1,379 @@
+//! The analysis drawn with the paper's axes: GALI_k against t (log10 GALI; log10 t for regular
+//! orbits, linear t for chaotic ones) with the expected laws as dashed reference lines, the MLE
+//! against t on log-log axes, the energy error, MPM-VM distances, and for sweeps GALI against d0
+//! and tau.
+
+use std::path::{Path, PathBuf};
+
+use chaoscope_producer::renormalization::Orthonormalization;
+use chaoscope_producer::spec::Method;
+
+use crate::analysis::{Analysis, SchemePoint};
+use crate::chart::{Chart, ChartError, Line, Stroke, render};
+use crate::report::Report;
+
+/// Time axis of GALI plots.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TimeAxis {
+    /// log10 t for regular orbits, t for chaotic ones (decided from the MLE).
+    Auto,
+    Log,
+    Linear,
+}
+
+/// A chaotic orbit has stretched its deviations by far more than a power law could:
+/// `lambda_1 t > 20` (e^20 ~ 5e8), while a regular orbit's finite-time MLE falls like ln t / t.
+pub fn looks_chaotic(mle: f64, t: f64) -> bool {
+    mle * t > 20.0
+}
+
+/// Rates of `GALI_j ~ exp(-rate_j t)` from a Lyapunov spectrum: `sum_{i=2..j} (l1 - l_i)`.
+pub fn chaotic_rates(spectrum: &[f64], k: usize) -> Vec<f64> {
+    (2..=k)
+        .map(|j| {
+            (1..j.min(spectrum.len()))
+                .map(|i| spectrum[0] - spectrum[i])
+                .sum()
+        })
+        .collect()
+}
+
+/// The Lyapunov spectrum used for reference slopes: a QR scheme's with all 2N exponents if the
+/// run has one, else for two degrees of freedom the Hamiltonian form (l1, 0, 0, -l1).
+fn reference_spectrum(report: &Report, n: usize, mle: f64) -> Option<Vec<f64>> {
+    if let Some(qr) = report
+        .schemes
+        .iter()
+        .find(|s| s.orthonormalize == "qr" && s.lyapunov.len() == 2 * n)
+    {
+        return Some(qr.lyapunov.clone());
+    }
+    (n == 2).then(|| vec![mle, 0.0, 0.0, -mle])
+}
+
+fn lg(x: f64) -> f64 {
+    x.log10()
+}
+
+fn gali_chart(analysis: &Analysis, report: &Report, si: usize, axis: TimeAxis) -> Chart {
+    let run = analysis.run();
+    let scheme = &report.schemes[si];
+    let series: Vec<(f64, SchemePoint)> = analysis
+        .series(si)
+        .into_iter()
+        .filter(|(t, _)| *t > 0.0)
+        .collect();
+    let t_end = scheme.t;
+    let chaotic = looks_chaotic(scheme.mle, t_end);
+    let log_t = match axis {
+        TimeAxis::Auto => !chaotic,
+        TimeAxis::Log => true,
+        TimeAxis::Linear => false,
+    };
+    let x = |t: f64| if log_t { lg(t) } else { t };
+    let n = run.dim / 2;
+    let mut lines = Vec::new();
+    for j in 2..=run.k {
+        let pts: Vec<(f64, f64)> = series
+            .iter()
+            .map(|(t, p)| (x(*t), p.gali_log10_mean[j - 2]))
+            .collect();
+        lines.push(Line {
+            label: format!("GALI_{j}"),
+            points: pts,
+            stroke: Stroke::Solid,
+            color: j - 1,
+        });
+    }
+    // Reference laws, anchored on each curve.
+    let anchor = |j: usize, t_a: f64| -> Option<f64> {
+        series
+            .iter()
+            .find(|(t, _)| *t >= t_a)
+            .map(|(_, p)| p.gali_log10_mean[j - 2])
+    };
+    if chaotic {
+        if let Some(spec) = reference_spectrum(report, n, scheme.mle) {
+            let rates = chaotic_rates(&spec, run.k);
+            let t_a = (0.05 * t_end).max(run.h);
+            for j in 2..=run.k {
+                let (Some(g_a), rate) = (anchor(j, t_a), rates[j - 2]) else {
+                    continue;
+                };
+                // Down to the double-precision floor only.
+                let t_b = (t_a + (g_a + 16.0 * (j - 1) as f64) * std::f64::consts::LN_10 / rate)
+                    .min(t_end);
+                if !(rate > 0.0 && t_b > t_a) {
+                    continue;
+                }
+                let g = |t: f64| g_a - rate * (t - t_a) / std::f64::consts::LN_10;
+                lines.push(Line {
+                    label: if j == 2 {
+                        "exp(-sum(l1-li) t)".into()
+                    } else {
+                        String::new()
+                    },
+                    points: vec![(x(t_a), g(t_a)), (x(t_b), g(t_b))],
+                    stroke: Stroke::Dashed,
+                    color: j - 1,
+                });
+            }
+        }
+    } else {
+        // Regular orbit on an N-torus: constant for j <= N, t^(-2(j-N)) beyond.
+        let t_a = 10f64.powf(0.5 * (lg(t_end) + lg(series.first().map_or(1.0, |p| p.0.max(1.0)))));
+        for j in 2..=run.k {
+            let Some(g_a) = anchor(j, t_a) else { continue };
+            let slope = -2.0 * j.saturating_sub(n) as f64;
+            let g = |t: f64| g_a + slope * (lg(t) - lg(t_a));
+            lines.push(Line {
+                label: if j == run.k {
+                    "t^-2(k-N)".into()
+                } else {
+                    String::new()
+                },
+                points: vec![(x(t_a), g(t_a)), (x(t_end), g(t_end))],
+                stroke: Stroke::Dashed,
+                color: j - 1,
+            });
+        }
+    }
+    Chart {
+        title: format!(
+            "{} {}: GALI_k ({} d0={:e} tau={}, {} sets, geometric mean)",
+            run.header.model, scheme.name, scheme.method, scheme.d0, scheme.tau, scheme.sets
+        ),
+        x_label: if log_t { "log10 t" } else { "t" }.into(),
+        y_label: "log10 GALI_k".into(),
+        lines,
+        ..Default::default()
+    }
+}
+
+fn mle_chart(analysis: &Analysis, report: &Report, schemes: &[usize]) -> Chart {
+    let mut lines = Vec::new();
+    for (c, &si) in schemes.iter().enumerate() {
+        let pts = analysis
+            .series(si)
+            .into_iter()
+            .filter(|(t, p)| *t > 0.0 && p.lyapunov.first().is_some_and(|l| *l > 0.0))
+            .map(|(t, p)| (lg(t), lg(p.lyapunov[0])))
+            .collect();
+        lines.push(Line {
+            label: report.schemes[si].name.clone(),
+            points: pts,
+            stroke: Stroke::Solid,
+            color: c,
+        });
+    }
+    // A regular orbit's finite-time MLE decays like 1/t (slope -1).
+    if let Some(l) = lines.first().and_then(|l| l.points.first().copied()) {
+        let end = lines[0].points.last().unwrap().0;
+        lines.push(Line {
+            label: "t^-1".into(),
+            points: vec![l, (end, l.1 - (end - l.0))],
+            stroke: Stroke::Dashed,
+            color: 7,
+        });
+    }
+    Chart {
+        title: format!("{}: maximal Lyapunov exponent", analysis.run().header.model),
+        x_label: "log10 t".into(),
+        y_label: "log10 l1".into(),
+        lines,
+        ..Default::default()
+    }
+}
+
+fn spectrum_chart(analysis: &Analysis, report: &Report, si: usize) -> Chart {
+    let series = analysis.series(si);
+    let k = analysis.run().k;
+    let lines = (0..k)
+        .map(|i| Line {
+            label: format!("l{}", i + 1),
+            points: series
+                .iter()
+                .filter(|(t, _)| *t > 0.0)
+                .map(|(t, p)| (lg(*t), p.lyapunov[i]))
+                .collect(),
+            stroke: Stroke::Solid,
+            color: i,
+        })
+        .collect();
+    Chart {
+        title: format!("{}: Lyapunov spectrum (QR)", report.schemes[si].name),
+        x_label: "log10 t".into(),
+        y_label: "l_i".into(),
+        lines,
+        ..Default::default()
+    }
+}
+
+fn energy_chart(analysis: &Analysis) -> Chart {
+    let pts = analysis
+        .energy_series()
+        .into_iter()
+        .filter(|(t, e)| *t > 0.0 && *e > 0.0)
+        .map(|(t, e)| (lg(t), lg(e)))
+        .collect();
+    Chart {
+        title: format!("{}: relative energy error", analysis.run().header.model),
+        x_label: "log10 t".into(),
+        y_label: "log10 E_r".into(),
+        lines: vec![Line {
+            label: String::new(),
+            points: pts,
+            stroke: Stroke::Solid,
+            color: 0,
+        }],
+        ..Default::default()
+    }
+}
+
+fn vs_vm_chart(analysis: &Analysis, report: &Report, si: usize) -> Option<Chart> {
+    let series = analysis.series(si);
+    let k = analysis.run().k;
+    let vm = report.schemes[si].vs_vm.as_ref()?;
+    let lines = (2..=k)
+        .map(|j| Line {
+            label: format!("GALI_{j}"),
+            points: series
+                .iter()
+                .filter_map(|(t, p)| {
+                    let d = p.vs_vm_abs_delta.as_ref()?[j - 2];
+                    (*t > 0.0).then(|| (*t, lg(d.max(1e-16))))
+                })
+                .collect(),
+            stroke: Stroke::Solid,
+            color: j - 1,
+        })
+        .collect();
+    Some(Chart {
+        title: format!(
+            "{} vs {}: mean |log10 GALI_MPM - log10 GALI_VM|",
+            report.schemes[si].name, vm.scheme
+        ),
+        x_label: "t".into(),
+        y_label: "log10 |delta log10 GALI|".into(),
+        lines,
+        ..Default::default()
+    })
+}
+
+/// GALI_j at the end against `log10 d0` (one curve per order; schemes grouped by tau) or
+/// against `log10 tau` (grouped by d0), with the VM value as a dashed line.
+fn sweep_charts(report: &Report) -> Vec<(String, Chart)> {
+    let mpm: Vec<_> = report
+        .schemes
+        .iter()
+        .filter(|s| s.method == "mpm")
+        .collect();
+    let mut out = Vec::new();
+    for (param, other) in [("d0", "tau"), ("tau", "d0")] {
+        let value = |s: &crate::report::SchemeReport, p: &str| if p == "d0" { s.d0 } else { s.tau };
+        let mut groups: Vec<f64> = mpm.iter().map(|s| value(s, other)).collect();
+        groups.sort_by(f64::total_cmp);
+        groups.dedup();
+        for g in groups {
+            let mut members: Vec<_> = mpm.iter().filter(|s| value(s, other) == g).collect();
+            members.sort_by(|a, b| value(a, param).total_cmp(&value(b, param)));
+            let distinct = {
+                let mut v: Vec<f64> = members.iter().map(|s| value(s, param)).collect();
+                v.dedup();
+                v.len()
+            };
+            if distinct < 3 {
+                continue;
+            }
+            let k = members[0].k;
+            let mut lines = Vec::new();
+            for j in 2..=k {
+                lines.push(Line {
+                    label: format!("GALI_{j}"),
+                    points: members
+                        .iter()
+                        .filter_map(|s| Some((lg(value(s, param)), lg(s.gali.get(j)?.mean))))
+                        .collect(),
+                    stroke: Stroke::Solid,
+                    color: j - 1,
+                });
+                // The VM partner (d0-independent) as reference.
+                if let Some(vm) = members[0]
+                    .vs_vm
+                    .as_ref()
+                    .and_then(|v| report.scheme(&v.scheme))
+                    .and_then(|vm| vm.gali.get(j))
+                {
+                    let x0 = lg(value(members[0], param));
+                    let x1 = lg(value(members.last().unwrap(), param));
+                    lines.push(Line {
+                        label: if j == 2 { "VM".into() } else { String::new() },
+                        points: vec![(x0, lg(vm.mean)), (x1, lg(vm.mean))],
+                        stroke: Stroke::Dashed,
+                        color: j - 1,
+                    });
+                }
+            }
+            let t = members[0].t;
+            out.push((
+                format!("sweep_gali_vs_{param}_{other}{g:e}"),
+                Chart {
+                    title: format!(
+                        "GALI_k at t = {t} against {param} ({other} = {g}, arithmetic mean)"
+                    ),
+                    x_label: format!("log10 {param}"),
+                    y_label: "log10 GALI_k".into(),
+                    lines,
+                    ..Default::default()
+                },
+            ));
+        }
+    }
+    out
+}
+
+/// Draws every chart of `analysis` into `dir` (PNG and SVG); returns the files written.
+pub fn plot_all(
+    analysis: &Analysis,
+    report: &Report,
+    dir: &Path,
+    axis: TimeAxis,
+) -> Result<Vec<PathBuf>, ChartError> {
+    std::fs::create_dir_all(dir).map_err(|e| ChartError::Draw {
+        path: dir.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let run = analysis.run();
+    let mut files = Vec::new();
+    // Per-scheme time plots only for a readable number of schemes (sweeps get sweep charts).
+    let time_schemes: Vec<usize> = (0..run.schemes.len()).take(12).collect();
+    for &si in &time_schemes {
+        let name = &run.schemes[si].name;
+        if run.k >= 2 {
+            files.extend(render(
+                &gali_chart(analysis, report, si, axis),
+                &dir.join(format!("gali_{name}")),
+            )?);
+        }
+        if run.schemes[si].orthonormalize == Orthonormalization::Qr {
+            files.extend(render(
+                &spectrum_chart(analysis, report, si),
+                &dir.join(format!("spectrum_{name}")),
+            )?);
+        }
+        if run.schemes[si].method == Method::Mpm
+            && let Some(c) = vs_vm_chart(analysis, report, si)
+        {
+            files.extend(render(&c, &dir.join(format!("vs_vm_{name}")))?);
+        }
+    }
+    files.extend(render(
+        &mle_chart(analysis, report, &time_schemes[..time_schemes.len().min(8)]),
+        &dir.join("mle"),
+    )?);
+    files.extend(render(&energy_chart(analysis), &dir.join("energy_error"))?);
+    for (name, chart) in sweep_charts(report) {
+        files.extend(render(&chart, &dir.join(name))?);
+    }
+    Ok(files)
+}

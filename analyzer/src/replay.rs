@@ -1,0 +1,225 @@
+//! Replay: re-run a recorded configuration with the schemes' renormalization settings replaced
+//! (other `tau`, other `d0`), on the same reference orbit and the same initial directions, and
+//! prove it by comparing every recorded reference state bit for bit with the replay.
+//!
+//! The reference orbit cannot depend on `tau` or `d0` (integrator steps are never merged across
+//! step boundaries; ARCHITECTURE.md), so any difference is a bug or a different build, and the
+//! replay says so. By default the original schemes are re-run too: then every recorded sample
+//! time is also a replay sample time (every reference state is compared), the original
+//! separation vectors are compared bit for bit as well, and `analyze` shows original and
+//! replayed schemes side by side.
+
+use std::path::Path;
+
+use chaoscope_producer::engine::{Engine, RunError, Sample};
+use chaoscope_producer::publish::run_header;
+use chaoscope_producer::spec::{RunSpec, SpecError};
+use chaoscope_schemas::config::{RunConfig, SchemeConfig};
+
+use crate::recording::{ReadError, RecordingReader};
+use crate::write::SampleWriter;
+
+#[derive(Debug, Clone, Default)]
+pub struct ReplayOptions {
+    /// New renormalization periods (each original scheme is replayed with each).
+    pub taus: Vec<f64>,
+    /// New distances d0 (likewise).
+    pub d0s: Vec<f64>,
+    /// Leave the original schemes out of the replay.
+    pub without_original: bool,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    #[error("the recording's configuration does not parse: {0}")]
+    Config(String),
+    #[error("replay configuration: {0}")]
+    Spec(#[from] SpecError),
+    #[error(transparent)]
+    Run(#[from] RunError),
+    #[error("{path}: writing the replay: {source}")]
+    Write {
+        path: String,
+        source: mcap::McapError,
+    },
+    #[error("nothing to replay: give --tau and/or --d0")]
+    Nothing,
+}
+
+/// What the comparison with the recording found.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize)]
+pub struct ReplayOutcome {
+    pub schemes: Vec<String>,
+    /// Recorded reference states compared with the replay (every one, unless
+    /// `without_original` left some recorded times out of the replay).
+    pub reference_states_compared: u64,
+    pub reference_states_identical: u64,
+    /// Recorded times the replay did not sample (only with `without_original`).
+    pub reference_states_not_sampled: u64,
+    /// Recorded separation sets of the original schemes compared bit for bit.
+    pub separation_sets_compared: u64,
+    pub separation_sets_identical: u64,
+    /// Step of the first difference, if any.
+    pub first_difference_step: Option<u64>,
+    pub replay_samples: u64,
+}
+
+impl ReplayOutcome {
+    pub fn identical(&self) -> bool {
+        self.reference_states_compared > 0
+            && self.reference_states_compared == self.reference_states_identical
+            && self.separation_sets_compared == self.separation_sets_identical
+    }
+}
+
+fn short(v: f64) -> String {
+    let plain = format!("{v}");
+    let sci = format!("{v:e}");
+    if plain.len() <= sci.len() { plain } else { sci }
+}
+
+/// The replay's schemes: the originals (unless left out), then every original scheme with every
+/// requested `tau` x `d0` (the unchanged setting when one list is empty), skipping duplicates.
+pub fn replay_schemes(original: &[SchemeConfig], options: &ReplayOptions) -> Vec<SchemeConfig> {
+    let mut out: Vec<SchemeConfig> = if options.without_original {
+        Vec::new()
+    } else {
+        original.to_vec()
+    };
+    for s in original {
+        let taus = if options.taus.is_empty() {
+            vec![s.tau]
+        } else {
+            options.taus.clone()
+        };
+        let d0s = if options.d0s.is_empty() {
+            vec![s.d0]
+        } else {
+            options.d0s.clone()
+        };
+        for &tau in &taus {
+            for &d0 in &d0s {
+                if !options.without_original && tau == s.tau && d0 == s.d0 {
+                    continue;
+                }
+                let mut name = s.name.clone();
+                if !options.taus.is_empty() {
+                    name += &format!("-tau{}", short(tau));
+                }
+                if !options.d0s.is_empty() {
+                    name += &format!("-d0{}", short(d0));
+                }
+                if out.iter().any(|o| o.name == name) {
+                    continue;
+                }
+                out.push(SchemeConfig {
+                    name,
+                    tau,
+                    d0,
+                    ..s.clone()
+                });
+            }
+        }
+    }
+    out
+}
+
+fn bits_equal(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len() && a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits())
+}
+
+/// Replays `input` into `output`.
+pub fn replay(
+    input: &Path,
+    output: &Path,
+    options: &ReplayOptions,
+) -> Result<ReplayOutcome, ReplayError> {
+    if options.taus.is_empty() && options.d0s.is_empty() {
+        return Err(ReplayError::Nothing);
+    }
+    let mut recorded = RecordingReader::open(input)?;
+    let header = recorded.header().clone();
+    let config = RunConfig::from_toml(&header.config_toml)
+        .map_err(|e| ReplayError::Config(e.to_string()))?
+        .with_sweeps_expanded()
+        .map_err(|e| ReplayError::Config(e.to_string()))?;
+    let original_schemes = config.schemes.len();
+    let mut new_config = config.clone();
+    new_config.schemes = replay_schemes(&config.schemes, options);
+    let name = format!("{}-replay", header.run_name);
+    new_config.run.name = Some(name.clone());
+    let spec = RunSpec::from_config(&new_config)?;
+    let new_header = run_header(&name, &new_config, &spec);
+    let werr = |source| ReplayError::Write {
+        path: output.display().to_string(),
+        source,
+    };
+    let mut writer = SampleWriter::create(output, &new_header).map_err(werr)?;
+    let mut outcome = ReplayOutcome {
+        schemes: new_config.schemes.iter().map(|s| s.name.clone()).collect(),
+        ..Default::default()
+    };
+    let mut engine = Engine::new(spec);
+    let mut pending: Option<Sample> = recorded.next_sample()?;
+    while let Some(sample) = engine.next_sample()? {
+        writer.write(&sample).map_err(werr)?;
+        outcome.replay_samples += 1;
+        while let Some(r) = pending.as_ref().filter(|r| r.step <= sample.step) {
+            if r.step < sample.step {
+                outcome.reference_states_not_sampled += 1;
+            } else {
+                compare(r, &sample, original_schemes, options, &mut outcome);
+            }
+            pending = recorded.next_sample()?;
+        }
+    }
+    // Recorded samples beyond the replay's end would mean a different run length.
+    while pending.is_some() {
+        outcome.reference_states_not_sampled += 1;
+        pending = recorded.next_sample()?;
+    }
+    writer.finish("replay").map_err(werr)?;
+    Ok(outcome)
+}
+
+fn compare(
+    recorded: &Sample,
+    replayed: &Sample,
+    original_schemes: usize,
+    options: &ReplayOptions,
+    outcome: &mut ReplayOutcome,
+) {
+    let mut same = !recorded.state.is_empty();
+    outcome.reference_states_compared += 1;
+    same &= bits_equal(&recorded.state, &replayed.state)
+        && recorded.energy.to_bits() == replayed.energy.to_bits();
+    if same {
+        outcome.reference_states_identical += 1;
+    }
+    let mut all = same;
+    if !options.without_original {
+        // The originals come first in the replay, with the same indices.
+        for r in &recorded.schemes {
+            if (r.scheme as usize) >= original_schemes {
+                continue;
+            }
+            outcome.separation_sets_compared += 1;
+            let ok = replayed
+                .schemes
+                .iter()
+                .find(|p| p.scheme == r.scheme && p.set == r.set)
+                .is_some_and(|p| {
+                    bits_equal(&p.separations, &r.separations) && bits_equal(&p.stretch, &r.stretch)
+                });
+            if ok {
+                outcome.separation_sets_identical += 1;
+            }
+            all &= ok;
+        }
+    }
+    if !all && outcome.first_difference_step.is_none() {
+        outcome.first_difference_step = Some(recorded.step);
+    }
+}

@@ -1,0 +1,124 @@
+//! The analysis results as data: what `analyze --json` prints and `monitor --json-lines`
+//! streams. Field names are a public contract (scripts read them).
+
+use serde::ser::SerializeMap;
+use serde::{Serialize, Serializer};
+
+use crate::stats::{LogStat, Stat};
+
+/// Values keyed by GALI order, serialized as a JSON object `{"2": ..., "3": ...}` in order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ByOrder<V>(pub Vec<(usize, V)>);
+
+impl<V> ByOrder<V> {
+    pub fn get(&self, j: usize) -> Option<&V> {
+        self.0.iter().find(|(o, _)| *o == j).map(|(_, v)| v)
+    }
+}
+
+impl<V: Serialize> Serialize for ByOrder<V> {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let mut m = s.serialize_map(Some(self.0.len()))?;
+        for (j, v) in &self.0 {
+            m.serialize_entry(&j.to_string(), v)?;
+        }
+        m.end()
+    }
+}
+
+/// The run as a whole.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunReport {
+    pub name: String,
+    pub model: String,
+    /// Degrees of freedom N (phase space has 2N dimensions).
+    pub n: usize,
+    pub k: usize,
+    pub sets: usize,
+    pub integrator: String,
+    pub h: f64,
+    pub t_final: f64,
+    pub total_steps: u64,
+    pub seed: u64,
+    pub energy0: f64,
+    /// Samples analyzed (renormalization times, including t = 0).
+    pub samples: u64,
+    /// Time of the latest sample analyzed.
+    pub t: f64,
+    /// Largest relative energy error `|E - E0| / |E0|` of the reference orbit so far.
+    pub energy_error_max: f64,
+    /// True when every stretching factor from t = 0 on was seen (always for a complete
+    /// recording; a live monitor that attached late or lost frames reports false, and its
+    /// Lyapunov exponents are then averages over the intervals it saw).
+    pub complete: bool,
+}
+
+/// Difference of an MPM scheme from the VM scheme with the same `tau`, over the sets both have
+/// at the same time (same initial directions, so set by set).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct VsVm {
+    pub scheme: String,
+    pub t: f64,
+    pub sets: usize,
+    /// Per order: mean over sets of `log10 GALI_mpm - log10 GALI_vm`, and of its absolute value.
+    pub gali: ByOrder<DeltaLog>,
+    /// `MLE_mpm - MLE_vm`, mean over sets.
+    pub mle_delta: f64,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct DeltaLog {
+    pub mean_delta_log10: f64,
+    pub mean_abs_delta_log10: f64,
+}
+
+/// One scheme, averaged over its sets.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct SchemeReport {
+    pub name: String,
+    pub method: String,
+    pub orthonormalize: String,
+    pub k: usize,
+    pub d0: f64,
+    pub tau: f64,
+    /// Sets contributing to the values (all of them unless frames were lost).
+    pub sets: usize,
+    /// Time of the scheme's latest renormalization.
+    pub t: f64,
+    /// GALI_j, j = 2..k, over sets: `mean` (arithmetic), `log10_mean` (geometric), spread.
+    pub gali: ByOrder<LogStat>,
+    pub sali: Option<LogStat>,
+    /// Finite-time maximal Lyapunov exponent, mean over sets.
+    pub mle: f64,
+    /// Finite-time exponents, mean over sets: the spectrum lambda_1..lambda_k for QR schemes;
+    /// for rescaled schemes the MLE estimate of each vector.
+    pub lyapunov: Vec<f64>,
+    pub lyapunov_std: Vec<f64>,
+    pub energy_error_max: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vs_vm: Option<VsVm>,
+}
+
+/// Everything, at one time.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Report {
+    pub run: RunReport,
+    pub schemes: Vec<SchemeReport>,
+}
+
+impl Report {
+    pub fn scheme(&self, name: &str) -> Option<&SchemeReport> {
+        self.schemes.iter().find(|s| s.name == name)
+    }
+}
+
+/// Mean over sets of per-vector exponents, as (means, stds).
+pub(crate) fn exponent_stats(per_set: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
+    let k = per_set.first().map_or(0, |v| v.len());
+    (0..k)
+        .map(|i| {
+            let s = Stat::from_values(per_set.iter().map(|v| v[i])).expect("non-empty");
+            (s.mean, s.std)
+        })
+        .unzip()
+}

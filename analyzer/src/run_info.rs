@@ -1,0 +1,101 @@
+//! What the analysis needs to know about a run, read from its header (the protobuf `RunHeader`
+//! of the recording or the bus, or built in process from a `RunSpec`).
+
+use chaoscope_producer::renormalization::Orthonormalization;
+use chaoscope_producer::spec::Method;
+use chaoscope_schemas::proto::RunHeader;
+
+/// One scheme as the analysis sees it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SchemeInfo {
+    pub index: usize,
+    pub name: String,
+    pub method: Method,
+    pub d0: f64,
+    pub tau: f64,
+    pub tau_steps: u64,
+    pub orthonormalize: Orthonormalization,
+}
+
+/// A header that cannot describe a run the analysis can follow.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("run header: {0}")]
+pub struct HeaderError(pub String);
+
+/// The run being analyzed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunInfo {
+    pub header: RunHeader,
+    pub dim: usize,
+    pub k: usize,
+    pub sets: usize,
+    pub h: f64,
+    pub schemes: Vec<SchemeInfo>,
+}
+
+impl RunInfo {
+    pub fn from_header(header: RunHeader) -> Result<Self, HeaderError> {
+        let err = |m: String| HeaderError(m);
+        if header.dim == 0 || header.k == 0 || header.sets == 0 {
+            return Err(err(format!(
+                "dim = {}, k = {}, sets = {} must all be positive",
+                header.dim, header.k, header.sets
+            )));
+        }
+        if !(header.h.is_finite() && header.h > 0.0) {
+            return Err(err(format!("time step h = {} is not positive", header.h)));
+        }
+        let mut schemes = Vec::with_capacity(header.schemes.len());
+        for (i, s) in header.schemes.iter().enumerate() {
+            let method = Method::from_name(&s.method)
+                .ok_or_else(|| err(format!("scheme {}: unknown method {:?}", s.name, s.method)))?;
+            let orthonormalize =
+                Orthonormalization::from_name(&s.orthonormalize).ok_or_else(|| {
+                    err(format!(
+                        "scheme {}: unknown orthonormalization {:?}",
+                        s.name, s.orthonormalize
+                    ))
+                })?;
+            if s.tau_steps == 0 {
+                return Err(err(format!("scheme {}: tau_steps = 0", s.name)));
+            }
+            schemes.push(SchemeInfo {
+                index: i,
+                name: s.name.clone(),
+                method,
+                d0: s.d0,
+                tau: s.tau,
+                tau_steps: s.tau_steps,
+                orthonormalize,
+            });
+        }
+        Ok(Self {
+            dim: header.dim as usize,
+            k: header.k as usize,
+            sets: header.sets as usize,
+            h: header.h,
+            schemes,
+            header,
+        })
+    }
+
+    /// Time of step `step`, computed as the producer does (`step * h`, never accumulated).
+    pub fn time_of(&self, step: u64) -> f64 {
+        step as f64 * self.h
+    }
+
+    /// Step of the renormalization of `scheme` preceding the one at `step`.
+    pub fn previous_renormalization(&self, scheme: usize, step: u64) -> u64 {
+        let tau = self.schemes[scheme].tau_steps;
+        if step == 0 {
+            0
+        } else {
+            // The last renormalization may fall at t_final, off the tau grid.
+            ((step - 1) / tau) * tau
+        }
+    }
+
+    pub fn scheme_index(&self, name: &str) -> Option<usize> {
+        self.schemes.iter().position(|s| s.name == name)
+    }
+}

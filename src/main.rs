@@ -1,1 +1,44 @@
-fn main() {}
+//! `chaoscope`: the front door. Each subcommand lives in `cli/<command>.rs` with an `Args`
+//! struct and a `main(args) -> anyhow::Result<ExitCode>`; this file only dispatches.
+
+mod cli;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser)]
+#[command(
+    name = "chaoscope",
+    version,
+    about = "Chaos indicators (GALI, SALI, Lyapunov exponents) streamed to MCAP"
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run producer and recorder as separate processes, then print the analysis summary.
+    Run(cli::run::Args),
+    /// Integrate a run and publish it on the iceoryx2 bus.
+    Produce(cli::produce::Args),
+    /// Record a run from the bus into an MCAP file.
+    Record(cli::record::Args),
+    /// Salvage an MCAP file whose writer was killed.
+    Recover(cli::recover::Args),
+}
+
+fn main() -> ExitCode {
+    let result = match Cli::parse().command {
+        Command::Run(args) => cli::run::main(args),
+        Command::Produce(args) => cli::produce::main(args),
+        Command::Record(args) => cli::record::main(args),
+        Command::Recover(args) => cli::recover::main(args),
+    };
+    result.unwrap_or_else(|e| {
+        eprintln!("chaoscope: error: {e:#}");
+        ExitCode::FAILURE
+    })
+}

@@ -1,1 +1,2 @@
 //! chaoscope-analyzer
+pub mod summary;

@@ -8,5 +8,6 @@ pub mod engine;
 pub mod indicators;
 pub mod integrator;
 pub mod model;
+pub mod publish;
 pub mod renormalization;
 pub mod spec;

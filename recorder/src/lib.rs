@@ -1,1 +1,23 @@
-//! chaoscope-recorder
+//! chaoscope-recorder: subscribes to a run on the iceoryx2 bus and writes it to MCAP.
+//!
+//! Sans-io core and I/O shell:
+//! - [`sequence`]: gap and duplicate accounting of frame sequence numbers (pure).
+//! - [`file`]: the MCAP layout of a recording (schemas, channels, metadata) over any
+//!   `Write + Seek` (pure of the bus).
+//! - [`recording`]: what a recorder does with each bus message and how it finalizes (pure).
+//! - [`subscription`]: the bus side, waking on iceoryx2 events and watching the producer's
+//!   node liveness.
+//! - [`discover`]: finding a run to record.
+//! - [`record`]: the recorder process loop gluing the above.
+//! - [`recover`]: salvaging a file whose writer was killed.
+
+pub mod discover;
+pub mod file;
+pub mod record;
+pub mod recording;
+pub mod recover;
+pub mod sequence;
+pub mod subscription;
+
+pub use record::{RecordOptions, RecordOutcome, record};
+pub use recover::{RecoverReport, recover};

@@ -1,0 +1,49 @@
+//! The run header a producer announces: the validated run plus its configuration text.
+
+use chaoscope_schemas::FORMAT_VERSION;
+use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::proto::{RunHeader, Scheme};
+
+use crate::renormalization::Orthonormalization;
+use crate::spec::RunSpec;
+
+/// Describes `spec` (validated from `config`) as the protobuf header of run `run_name`.
+pub fn run_header(run_name: &str, config: &RunConfig, spec: &RunSpec) -> RunHeader {
+    let schemes = spec
+        .schemes
+        .iter()
+        .enumerate()
+        .map(|(i, s)| Scheme {
+            index: i as u32,
+            name: s.name.clone(),
+            method: s.method.name().to_string(),
+            d0: s.d0,
+            tau: s.tau,
+            tau_steps: s.tau_steps,
+            orthonormalize: match s.orthonormalize {
+                Orthonormalization::Rescale => "rescale",
+                Orthonormalization::Qr => "qr",
+            }
+            .to_string(),
+        })
+        .collect();
+    RunHeader {
+        format_version: FORMAT_VERSION,
+        run_name: run_name.to_string(),
+        config_toml: config.to_toml(),
+        model: config.model.name.clone(),
+        n: (spec.dim / 2) as u32,
+        dim: spec.dim as u32,
+        k: spec.k as u32,
+        sets: spec.sets() as u32,
+        integrator: config.integrator.method.clone(),
+        h: spec.h,
+        t_final: spec.t_final(),
+        total_steps: spec.total_steps,
+        energy0: spec.e0,
+        x0: spec.x0.clone(),
+        schemes,
+        seed: spec.seed,
+        producer_version: env!("CARGO_PKG_VERSION").to_string(),
+    }
+}

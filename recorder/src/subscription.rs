@@ -1,0 +1,265 @@
+//! The bus side of a receiver: subscribe to a run, wait for its header, then receive its data
+//! frames, waking on the producer's iceoryx2 events (no busy polling) and watching the
+//! producer's node liveness.
+//!
+//! Used by the recorder and by anything else that must receive every frame (a checker).
+
+use std::cell::{Cell, RefCell};
+use std::ops::ControlFlow;
+use std::time::{Duration, Instant};
+
+use chaoscope_schemas::FORMAT_VERSION;
+use chaoscope_schemas::bus::{self, BusError, DataService, EventService, HeaderService, Liveness};
+use chaoscope_schemas::convert::{self, DataMessage, FrameError};
+use chaoscope_schemas::frame::{FrameHeader, RunAnnouncement};
+use chaoscope_schemas::names;
+use chaoscope_schemas::proto::RunHeader;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::prelude::*;
+use iceoryx2::waitset::WaitSetRunResult;
+use prost::Message;
+
+/// What a receiver sees.
+#[derive(Debug)]
+pub enum BusEvent {
+    Message(DataMessage),
+    /// A frame that breaks the layout; it is skipped (the sequence numbers show the hole).
+    Invalid(FrameError),
+    /// Periodic wake-up while no data flows ([`bus::POLL_INTERVAL`]).
+    Tick,
+}
+
+/// Why [`RunSubscription::receive`] returned.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Ended {
+    /// The callback asked to stop.
+    Stopped,
+    /// SIGINT or SIGTERM.
+    Signal,
+    /// The producer's node died or vanished; every frame it had delivered was received first.
+    ProducerGone,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum SubscribeError {
+    #[error(transparent)]
+    Bus(#[from] BusError),
+    #[error("run {run:?}: the run header is not valid protobuf: {source}")]
+    Header {
+        run: String,
+        source: prost::DecodeError,
+    },
+    #[error("run {run:?} uses format version {found}; this build reads version {FORMAT_VERSION}")]
+    Version { run: String, found: u32 },
+    #[error("run {run:?}: the producer went away before publishing its run header")]
+    NoHeader { run: String },
+    #[error("run {run:?}: no run header within {0:?}", .timeout)]
+    HeaderTimeout { run: String, timeout: Duration },
+}
+
+/// A subscription to one run.
+pub struct RunSubscription {
+    run: String,
+    node: Node<ipc::Service>,
+    data: Subscriber<ipc::Service, [f64], FrameHeader>,
+    header: Subscriber<ipc::Service, [u8], RunAnnouncement>,
+    listener: Listener<ipc::Service>,
+    _services: (DataService, HeaderService, EventService),
+}
+
+impl RunSubscription {
+    /// Subscribes to `run` as the node `node_name`. Subscribe before the producer starts
+    /// publishing data: a producer waits for its recorders, but frames sent before a subscriber
+    /// exists are not replayed.
+    pub fn open(run: &str, node_name: &str) -> Result<Self, SubscribeError> {
+        let node = bus::create_node(node_name)?;
+        let data_service = bus::data_service(&node, run)?;
+        let header_service = bus::header_service(&node, run)?;
+        let event_service = bus::data_ready_service(&node, run)?;
+        let data = data_service
+            .subscriber_builder()
+            .buffer_size(bus::DATA_BUFFER)
+            .create()
+            .map_err(|e| BusError::new("create data subscriber", e))?;
+        let header = header_service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| BusError::new("create header subscriber", e))?;
+        let listener = event_service
+            .listener_builder()
+            .create()
+            .map_err(|e| BusError::new("create listener", e))?;
+        Ok(Self {
+            run: run.to_string(),
+            node,
+            data,
+            header,
+            listener,
+            _services: (data_service, header_service, event_service),
+        })
+    }
+
+    pub fn run(&self) -> &str {
+        &self.run
+    }
+
+    fn producer_liveness(&self) -> Liveness {
+        bus::node_liveness(&names::producer_node_name(&self.run))
+    }
+
+    /// Waits for the run header (it is kept as history, so it also reaches late subscribers).
+    /// `Ok(None)` means a termination signal arrived first.
+    pub fn wait_header(
+        &self,
+        timeout: Option<Duration>,
+    ) -> Result<Option<RunHeader>, SubscribeError> {
+        let start = Instant::now();
+        let mut seen_alive = false;
+        loop {
+            let received = self
+                .header
+                .receive()
+                .map_err(|e| BusError::new("receive run header", e))?;
+            if let Some(sample) = received {
+                let found = sample.user_header().format_version;
+                if found != FORMAT_VERSION {
+                    return Err(SubscribeError::Version {
+                        run: self.run.clone(),
+                        found,
+                    });
+                }
+                let header = RunHeader::decode(sample.payload()).map_err(|source| {
+                    SubscribeError::Header {
+                        run: self.run.clone(),
+                        source,
+                    }
+                })?;
+                return Ok(Some(header));
+            }
+            // A producer that is not there yet may still come; one that was there and left
+            // without a header never will.
+            match self.producer_liveness() {
+                Liveness::Alive => seen_alive = true,
+                _ if seen_alive => {
+                    return Err(SubscribeError::NoHeader {
+                        run: self.run.clone(),
+                    });
+                }
+                _ => {}
+            }
+            if let Some(timeout) = timeout
+                && start.elapsed() > timeout
+            {
+                return Err(SubscribeError::HeaderTimeout {
+                    run: self.run.clone(),
+                    timeout,
+                });
+            }
+            if self.node.wait(bus::POLL_INTERVAL).is_err() {
+                return Ok(None);
+            }
+        }
+    }
+
+    /// Receives up to one buffer of frames; returns how many arrived and whether `f` stopped.
+    fn drain(
+        &self,
+        f: &mut impl FnMut(BusEvent) -> ControlFlow<()>,
+    ) -> Result<(usize, bool), BusError> {
+        let mut count = 0;
+        while count < bus::DATA_BUFFER {
+            let Some(sample) = self
+                .data
+                .receive()
+                .map_err(|e| BusError::new("receive data", e))?
+            else {
+                break;
+            };
+            count += 1;
+            let event = match convert::decode_frame(sample.user_header(), sample.payload()) {
+                Ok(m) => BusEvent::Message(m),
+                Err(e) => BusEvent::Invalid(e),
+            };
+            // Release the shared-memory sample before the (possibly slow) callback.
+            drop(sample);
+            if f(event).is_break() {
+                return Ok((count, true));
+            }
+        }
+        Ok((count, false))
+    }
+
+    /// Delivers every data frame to `f` until `f` breaks, a signal arrives, or the producer is
+    /// gone. Sleeps in a WaitSet on the producer's data-ready event and a liveness interval.
+    pub fn receive(
+        &self,
+        mut f: impl FnMut(BusEvent) -> ControlFlow<()>,
+    ) -> Result<Ended, SubscribeError> {
+        let waitset = WaitSetBuilder::new()
+            .create::<ipc::Service>()
+            .map_err(|e| BusError::new("create waitset", e))?;
+        let _event_guard = waitset
+            .attach_notification(&self.listener)
+            .map_err(|e| BusError::new("attach listener", e))?;
+        let _tick_guard = waitset
+            .attach_interval(bus::POLL_INTERVAL)
+            .map_err(|e| BusError::new("attach interval", e))?;
+
+        // Results of the wake-up callback, read by the loop between calls.
+        let ended = Cell::new(None);
+        let failure = RefCell::new(None);
+        let mut on_wake = |_id: WaitSetAttachmentId<ipc::Service>| {
+            let _ = self.listener.try_wait(|_| {});
+            let mut idle = true;
+            loop {
+                match self.drain(&mut f) {
+                    Err(e) => *failure.borrow_mut() = Some(e),
+                    Ok((_, true)) => ended.set(Some(Ended::Stopped)),
+                    Ok((0, false)) => break,
+                    Ok((_, false)) => {
+                        idle = false;
+                        continue;
+                    }
+                }
+                return CallbackProgression::Stop;
+            }
+            if idle {
+                if f(BusEvent::Tick).is_break() {
+                    ended.set(Some(Ended::Stopped));
+                    return CallbackProgression::Stop;
+                }
+                if self.producer_liveness() != Liveness::Alive {
+                    // Frames it delivered before dying are still in our buffer: take them first.
+                    loop {
+                        match self.drain(&mut f) {
+                            Err(e) => *failure.borrow_mut() = Some(e),
+                            Ok((_, true)) => ended.set(Some(Ended::Stopped)),
+                            Ok((0, false)) => ended.set(Some(Ended::ProducerGone)),
+                            Ok((_, false)) => continue,
+                        }
+                        return CallbackProgression::Stop;
+                    }
+                }
+            }
+            CallbackProgression::Continue
+        };
+        loop {
+            let result = waitset
+                .wait_and_process_once(&mut on_wake)
+                .map_err(|e| BusError::new("wait", e))?;
+            if let Some(e) = failure.borrow_mut().take() {
+                return Err(e.into());
+            }
+            if let Some(ended) = ended.get() {
+                return Ok(ended);
+            }
+            if matches!(
+                result,
+                WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt
+            ) {
+                return Ok(Ended::Signal);
+            }
+        }
+    }
+}

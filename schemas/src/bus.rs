@@ -1,0 +1,197 @@
+//! How every chaoscope process opens the iceoryx2 services of a run.
+//!
+//! Producer, recorders, checkers and monitors all go through these functions, so service QoS
+//! (buffer sizes, overflow policy) cannot drift between them: iceoryx2 refuses to connect ports
+//! whose service settings or header `type_name`s disagree.
+//!
+//! Delivery guarantees:
+//! - `data`: safe overflow OFF. With the producer's publisher on
+//!   `BackpressureStrategy::RetryUntilDelivered`, a full subscriber buffer makes the producer wait
+//!   instead of dropping: recorders are lossless.
+//! - `monitor`: safe overflow ON, so the oldest sample is overwritten for a slow monitor and the
+//!   producer never waits for it.
+//! - `header`: history 1, so a subscriber that arrives late still gets the run header.
+
+use std::time::Duration;
+
+use iceoryx2::node::NodeView;
+use iceoryx2::prelude::*;
+use iceoryx2::service::port_factory::{event, publish_subscribe};
+
+use crate::frame::{FrameHeader, RunAnnouncement};
+use crate::names::{self, stream};
+
+/// Frames a data subscriber can hold before the producer waits.
+pub const DATA_BUFFER: usize = 64;
+/// Frames a monitor subscriber holds (older ones are overwritten).
+pub const MONITOR_BUFFER: usize = 8;
+/// Lossless subscribers (recorders, checkers) one run can have.
+pub const MAX_DATA_SUBSCRIBERS: usize = 8;
+/// Monitors one run can have.
+pub const MAX_MONITORS: usize = 8;
+/// Period at which waiting loops re-check liveness and signals.
+pub const POLL_INTERVAL: Duration = Duration::from_millis(50);
+
+pub type DataService = publish_subscribe::PortFactory<ipc::Service, [f64], FrameHeader>;
+pub type HeaderService = publish_subscribe::PortFactory<ipc::Service, [u8], RunAnnouncement>;
+pub type EventService = event::PortFactory<ipc::Service>;
+
+/// A bus failure, with what was being done.
+#[derive(Debug, thiserror::Error)]
+#[error("iceoryx2: {what}: {detail}")]
+pub struct BusError {
+    pub what: String,
+    pub detail: String,
+}
+
+impl BusError {
+    pub fn new(what: impl Into<String>, detail: impl std::fmt::Debug) -> Self {
+        Self {
+            what: what.into(),
+            detail: format!("{detail:?}"),
+        }
+    }
+}
+
+/// Quiets iceoryx2's logger (it warns about a missing config file in every process); errors
+/// still show. Call once at process start.
+pub fn quiet_logging() {
+    set_log_level(LogLevel::Error);
+}
+
+/// Creates a node named `name` after removing stale resources left by crashed processes.
+///
+/// iceoryx2 handles SIGINT/SIGTERM for the node: waiting calls then report a termination
+/// request, which every chaoscope loop honours.
+pub fn create_node(name: &str) -> Result<Node<ipc::Service>, BusError> {
+    quiet_logging();
+    cleanup_dead_nodes();
+    let node_name: NodeName = name
+        .try_into()
+        .map_err(|e| BusError::new(format!("node name {name:?}"), e))?;
+    NodeBuilder::new()
+        .name(&node_name)
+        .create::<ipc::Service>()
+        .map_err(|e| BusError::new(format!("create node {name:?}"), e))
+}
+
+/// Removes the shared memory and registrations of every dead node (a process killed with
+/// SIGKILL cannot clean up after itself). Returns how many dead nodes were removed.
+pub fn cleanup_dead_nodes() -> usize {
+    quiet_logging();
+    let mut dead = Vec::new();
+    let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
+        if let NodeState::Dead(view) = state {
+            dead.push(view);
+        }
+        CallbackProgression::Continue
+    });
+    dead.into_iter()
+        .filter(|view| view.clone().try_remove_stale_resources().is_ok())
+        .count()
+}
+
+/// Liveness of a node, found by name among all nodes of the machine.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Liveness {
+    Alive,
+    /// The process died without cleaning up (crash, `kill -9`).
+    Dead,
+    /// No node of that name exists (never started, exited, or already cleaned up).
+    Absent,
+}
+
+/// Liveness of the node named `name`.
+pub fn node_liveness(name: &str) -> Liveness {
+    quiet_logging();
+    let mut result = Liveness::Absent;
+    let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
+        let (liveness, details) = match &state {
+            NodeState::Alive(v) => (Liveness::Alive, v.details()),
+            NodeState::Dead(v) => (Liveness::Dead, v.details()),
+            _ => return CallbackProgression::Continue,
+        };
+        if details.as_ref().is_some_and(|d| d.name().as_str() == name) {
+            result = liveness;
+            if liveness == Liveness::Alive {
+                return CallbackProgression::Stop;
+            }
+        }
+        CallbackProgression::Continue
+    });
+    result
+}
+
+fn service_name(run: &str, stream: &str) -> Result<ServiceName, BusError> {
+    let name = names::service_name(run, stream);
+    name.as_str()
+        .try_into()
+        .map_err(|e| BusError::new(format!("service name {name:?}"), e))
+}
+
+/// The lossless data stream of `run`.
+pub fn data_service(node: &Node<ipc::Service>, run: &str) -> Result<DataService, BusError> {
+    node.service_builder(&service_name(run, stream::DATA)?)
+        .publish_subscribe::<[f64]>()
+        .user_header::<FrameHeader>()
+        .enable_safe_overflow(false)
+        .history_size(0)
+        .subscriber_max_buffer_size(DATA_BUFFER)
+        .max_subscribers(MAX_DATA_SUBSCRIBERS)
+        .max_publishers(1)
+        .open_or_create()
+        .map_err(|e| BusError::new(format!("open data service of run {run:?}"), e))
+}
+
+/// The lossy monitor stream of `run`.
+pub fn monitor_service(node: &Node<ipc::Service>, run: &str) -> Result<DataService, BusError> {
+    node.service_builder(&service_name(run, stream::MONITOR)?)
+        .publish_subscribe::<[f64]>()
+        .user_header::<FrameHeader>()
+        .enable_safe_overflow(true)
+        .history_size(1)
+        .subscriber_max_buffer_size(MONITOR_BUFFER)
+        .max_subscribers(MAX_MONITORS)
+        .max_publishers(1)
+        .open_or_create()
+        .map_err(|e| BusError::new(format!("open monitor service of run {run:?}"), e))
+}
+
+/// The run-header stream of `run` (history 1 for late subscribers).
+pub fn header_service(node: &Node<ipc::Service>, run: &str) -> Result<HeaderService, BusError> {
+    node.service_builder(&service_name(run, stream::HEADER)?)
+        .publish_subscribe::<[u8]>()
+        .user_header::<RunAnnouncement>()
+        .enable_safe_overflow(true)
+        .history_size(1)
+        .subscriber_max_buffer_size(2)
+        .max_subscribers(MAX_DATA_SUBSCRIBERS + MAX_MONITORS)
+        .max_publishers(1)
+        .open_or_create()
+        .map_err(|e| BusError::new(format!("open header service of run {run:?}"), e))
+}
+
+/// The wake-up event the producer notifies after publishing data.
+pub fn data_ready_service(node: &Node<ipc::Service>, run: &str) -> Result<EventService, BusError> {
+    node.service_builder(&service_name(run, stream::DATA_READY)?)
+        .event()
+        .max_notifiers(2)
+        .max_listeners(MAX_DATA_SUBSCRIBERS + MAX_MONITORS)
+        .open_or_create()
+        .map_err(|e| BusError::new(format!("open event service of run {run:?}"), e))
+}
+
+/// Names of the runs whose header service currently exists on this machine.
+pub fn list_runs() -> Vec<String> {
+    quiet_logging();
+    let mut runs = Vec::new();
+    let _ = ipc::Service::list(Config::global_config(), |details| {
+        if let Some(run) = names::run_of_header_service(details.static_details.name().as_str()) {
+            runs.push(run.to_string());
+        }
+        CallbackProgression::Continue
+    });
+    runs.sort();
+    runs.dedup();
+    runs
+}

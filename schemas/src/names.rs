@@ -1,0 +1,110 @@
+//! Names shared by every process: run names, iceoryx2 service and node names, MCAP topics and
+//! metadata keys.
+
+/// Prefix of every chaoscope service; discovery looks for `<prefix><run>/<stream>`.
+pub const SERVICE_PREFIX: &str = "chaoscope/run/";
+
+/// Longest accepted run name (service names are limited to 255 bytes by iceoryx2).
+pub const MAX_RUN_NAME_LEN: usize = 64;
+
+/// The streams of a run on the bus.
+pub mod stream {
+    /// Run header (protobuf `RunHeader` bytes), kept as history for late subscribers.
+    pub const HEADER: &str = "header";
+    /// Lossless data stream: reference states, separation sets, end of run.
+    pub const DATA: &str = "data";
+    /// Event service the producer notifies after publishing data.
+    pub const DATA_READY: &str = "data-ready";
+    /// Lossy copy of the data stream for live monitors; never slows the producer.
+    pub const MONITOR: &str = "monitor";
+}
+
+/// A run name is a service-name component: letters, digits, `-`, `_`, 1..=64 bytes.
+pub fn validate_run_name(name: &str) -> Result<(), String> {
+    if name.is_empty() || name.len() > MAX_RUN_NAME_LEN {
+        return Err(format!(
+            "run name must have 1 to {MAX_RUN_NAME_LEN} characters, got {}",
+            name.len()
+        ));
+    }
+    if let Some(c) = name
+        .chars()
+        .find(|c| !(c.is_ascii_alphanumeric() || *c == '-' || *c == '_'))
+    {
+        return Err(format!(
+            "run name {name:?} contains {c:?}; use letters, digits, '-' and '_'"
+        ));
+    }
+    Ok(())
+}
+
+/// iceoryx2 service name of one stream of a run.
+pub fn service_name(run: &str, stream: &str) -> String {
+    format!("{SERVICE_PREFIX}{run}/{stream}")
+}
+
+/// The run of a service name of the form `<prefix><run>/header`, if it is one.
+pub fn run_of_header_service(service: &str) -> Option<&str> {
+    let run = service
+        .strip_prefix(SERVICE_PREFIX)?
+        .strip_suffix(&format!("/{}", stream::HEADER))?;
+    validate_run_name(run).ok().map(|_| run)
+}
+
+/// Node name of the producer of a run; recorders watch its liveness.
+pub fn producer_node_name(run: &str) -> String {
+    format!("chaoscope-producer/{run}")
+}
+
+/// Node name of a recorder of a run.
+pub fn recorder_node_name(run: &str) -> String {
+    format!("chaoscope-recorder/{run}")
+}
+
+/// MCAP topics.
+pub mod topic {
+    pub const RUN: &str = "/chaoscope/run";
+    pub const REFERENCE: &str = "/chaoscope/reference";
+    pub const END: &str = "/chaoscope/end";
+    pub const RECORDING: &str = "/chaoscope/recording";
+
+    /// One channel per scheme: `/chaoscope/separations/<scheme name>`.
+    pub fn separations(scheme_name: &str) -> String {
+        format!("/chaoscope/separations/{scheme_name}")
+    }
+}
+
+/// MCAP metadata record names and keys.
+pub mod metadata {
+    /// Run description: keys `format_version`, `run_name`, `config_toml`.
+    pub const RUN: &str = "chaoscope.run";
+    /// How the recording ended: keys `finalized_by`, `run_status`, `frames_received`,
+    /// `frames_missing`.
+    pub const RECORDING: &str = "chaoscope.recording";
+    /// Added by `chaoscope recover`: keys `source`, `records_salvaged`, `stopped_at`.
+    pub const RECOVERY: &str = "chaoscope.recovery";
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn run_names_are_checked() {
+        assert!(validate_run_name("hh-chaotic_1").is_ok());
+        assert!(validate_run_name("").is_err());
+        assert!(validate_run_name("a/b").unwrap_err().contains("'/'"));
+        assert!(validate_run_name(&"x".repeat(65)).is_err());
+    }
+
+    #[test]
+    fn header_service_round_trips_the_run() {
+        let s = service_name("r1", stream::HEADER);
+        assert_eq!(run_of_header_service(&s), Some("r1"));
+        assert_eq!(
+            run_of_header_service(&service_name("r1", stream::DATA)),
+            None
+        );
+        assert_eq!(run_of_header_service("other/r1/header"), None);
+    }
+}

@@ -1,0 +1,65 @@
+//! `chaoscope produce CONFIG`: integrate a run and publish it on the bus.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use chaoscope_producer::publish::{self, PublishOptions, RunStatus};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Run configuration (TOML); `-` reads it from stdin.
+    pub config: PathBuf,
+    /// Run name (bus service names derive from it); default: `[run] name` or generated.
+    #[arg(long)]
+    pub run: Option<String>,
+    /// Lossless subscribers (recorders) to wait for before the first sample; 0 starts at once.
+    #[arg(long, default_value_t = 1)]
+    pub recorders: usize,
+    /// Give up if the recorders have not subscribed after this many seconds.
+    #[arg(long, value_parser = super::parse_seconds)]
+    pub wait_timeout: Option<Duration>,
+    /// No progress bar.
+    #[arg(long)]
+    pub no_progress: bool,
+}
+
+pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    let (config, _) = super::load_config(&args.config)?;
+    let options = PublishOptions {
+        run_name: args.run,
+        recorders: args.recorders,
+        wait_timeout: args.wait_timeout,
+        progress: !args.no_progress,
+        ..PublishOptions::default()
+    };
+    let outcome = publish::publish(&config, &options)?;
+    let (status, reason) = match &outcome.status {
+        RunStatus::Completed => ("completed", ""),
+        RunStatus::Interrupted => ("interrupted", ""),
+        RunStatus::Failed(r) => ("failed", r.as_str()),
+    };
+    let secs = outcome.elapsed.as_secs_f64();
+    // One JSON line on stdout: `chaoscope run` and the benchmarks read it.
+    println!(
+        "{}",
+        serde_json::json!({
+            "role": "producer",
+            "run": outcome.run,
+            "status": status,
+            "reason": reason,
+            "samples": outcome.samples,
+            "frames": outcome.frames,
+            "payload_bytes": outcome.payload_bytes,
+            "seconds": secs,
+        })
+    );
+    Ok(match outcome.status {
+        RunStatus::Completed => ExitCode::SUCCESS,
+        RunStatus::Interrupted => super::exit_interrupted(),
+        RunStatus::Failed(reason) => {
+            eprintln!("chaoscope produce: run {} failed: {reason}", outcome.run);
+            ExitCode::from(3)
+        }
+    })
+}

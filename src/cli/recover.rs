@@ -1,0 +1,38 @@
+//! `chaoscope recover BROKEN.mcap --out FIXED.mcap`: salvage a file whose writer was killed.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// The damaged MCAP file.
+    pub input: PathBuf,
+    /// Where to write the salvaged file.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Replace the output file if it exists.
+    #[arg(long)]
+    pub force: bool,
+}
+
+pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    let report = chaoscope_recorder::recover(&args.input, &args.out, args.force)?;
+    eprintln!(
+        "chaoscope recover: {} messages from {} chunks salvaged into {} ({})",
+        report.messages,
+        report.chunks,
+        args.out.display(),
+        report.stopped_at.as_deref().unwrap_or("input was complete")
+    );
+    println!(
+        "{}",
+        serde_json::json!({
+            "messages": report.messages,
+            "chunks": report.chunks,
+            "metadata": report.metadata,
+            "attachments": report.attachments,
+            "stopped_at": report.stopped_at,
+        })
+    );
+    Ok(ExitCode::SUCCESS)
+}

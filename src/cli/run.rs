@@ -1,0 +1,170 @@
+//! `chaoscope run [CONFIG] [--out FILE.mcap]`: the producer and the recorder as two OS
+//! processes (this executable's `produce` and `record`), connected only over iceoryx2; waits
+//! for both, then prints the analysis summary of the recording.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitCode, Stdio};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use anyhow::{Context, bail};
+use chaoscope_producer::publish::resolve_run_name;
+use chaoscope_schemas::config::RunConfig;
+
+/// The paper's chaotic Henon-Heiles orbit, run when no CONFIG is given.
+pub const DEFAULT_CONFIG: &str = include_str!("hh_chaotic.toml");
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Run configuration (TOML); default: the paper's chaotic Henon-Heiles orbit.
+    pub config: Option<PathBuf>,
+    /// Output MCAP file; default: `runs/<run name>.mcap`.
+    #[arg(long)]
+    pub out: Option<PathBuf>,
+    /// Run name; default: `[run] name` of the config, or generated.
+    #[arg(long)]
+    pub run: Option<String>,
+    /// Replace the output file if it exists.
+    #[arg(long)]
+    pub force: bool,
+}
+
+/// A child process that is signalled and reaped if we bail out early.
+struct Role {
+    name: &'static str,
+    child: Child,
+    status: Option<std::process::ExitStatus>,
+}
+
+impl Role {
+    fn spawn(name: &'static str, mut command: Command) -> anyhow::Result<Self> {
+        let child = command
+            .spawn()
+            .with_context(|| format!("starting the {name} process"))?;
+        Ok(Self {
+            name,
+            child,
+            status: None,
+        })
+    }
+
+    fn signal(&self, signal: i32) {
+        if self.status.is_none() {
+            // SAFETY: kill(2) on the pid of our own, not yet reaped, child.
+            unsafe { libc::kill(self.child.id() as i32, signal) };
+        }
+    }
+
+    fn poll(&mut self) -> anyhow::Result<bool> {
+        if self.status.is_none() {
+            self.status = self
+                .child
+                .try_wait()
+                .with_context(|| format!("waiting for the {}", self.name))?;
+        }
+        Ok(self.status.is_some())
+    }
+}
+
+impl Drop for Role {
+    fn drop(&mut self) {
+        if self.status.is_none() {
+            self.signal(libc::SIGTERM);
+            let _ = self.child.wait();
+        }
+    }
+}
+
+fn child_command(subcommand: &str) -> anyhow::Result<Command> {
+    let exe = std::env::current_exe().context("locating the chaoscope executable")?;
+    let mut command = Command::new(exe);
+    command.arg(subcommand).stdout(Stdio::piped());
+    Ok(command)
+}
+
+pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    let (config, text) = match &args.config {
+        Some(path) => super::load_config(path)?,
+        None => (
+            RunConfig::from_toml(DEFAULT_CONFIG)?,
+            DEFAULT_CONFIG.to_string(),
+        ),
+    };
+    // Fail on a bad config here, before any process starts.
+    chaoscope_producer::spec::RunSpec::from_config(&config).context("invalid run configuration")?;
+    let run = resolve_run_name(&config, args.run.as_deref())?;
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| Path::new("runs").join(format!("{run}.mcap")));
+    if out.exists() && !args.force {
+        bail!(
+            "{} already exists (pass --force to replace it)",
+            out.display()
+        );
+    }
+
+    // Ctrl+C reaches the whole process group; SIGTERM (or a SIGINT sent to us alone) is
+    // forwarded to both children, which finalize cleanly.
+    let stop = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
+        signal_hook::flag::register(signal, Arc::clone(&stop))
+            .context("installing signal handlers")?;
+    }
+
+    let mut record = child_command("record")?;
+    record.args(["--run", &run, "--out"]).arg(&out);
+    if args.force {
+        record.arg("--force");
+    }
+    let mut recorder = Role::spawn("recorder", record)?;
+
+    let mut produce = child_command("produce")?;
+    produce
+        .args(["-", "--run", &run, "--recorders", "1"])
+        .stdin(Stdio::piped());
+    let mut producer = Role::spawn("producer", produce)?;
+    {
+        let mut stdin = producer.child.stdin.take().context("producer stdin")?;
+        stdin
+            .write_all(text.as_bytes())
+            .context("sending the configuration to the producer")?;
+    }
+
+    let mut forwarded = false;
+    loop {
+        let done = producer.poll()? & recorder.poll()?;
+        if done {
+            break;
+        }
+        if stop.load(Ordering::Relaxed) && !forwarded {
+            producer.signal(libc::SIGINT);
+            recorder.signal(libc::SIGINT);
+            forwarded = true;
+        }
+        // Recorder alone after the producer failed before streaming: do not wait forever.
+        if producer.status.is_some_and(|s| !s.success()) && recorder.status.is_none() && !forwarded
+        {
+            std::thread::sleep(Duration::from_secs(2));
+            recorder.signal(libc::SIGINT);
+            forwarded = true;
+        }
+        std::thread::sleep(Duration::from_millis(50));
+    }
+
+    let producer_status = producer.status.expect("reaped");
+    let recorder_status = recorder.status.expect("reaped");
+    if !recorder_status.success() {
+        bail!("the recorder failed ({recorder_status}); see its messages above");
+    }
+    let summary = chaoscope_analyzer::summary::summarize(&out)?;
+    println!("recording: {}", out.display());
+    print!("{summary}");
+    Ok(match producer_status.code() {
+        Some(0) => ExitCode::SUCCESS,
+        Some(code) => ExitCode::from(code as u8),
+        None => ExitCode::FAILURE,
+    })
+}

@@ -3,6 +3,7 @@
 //!
 //! Every module except the process wrapper is pure computation with no I/O.
 
+pub mod batch;
 pub mod deviation;
 pub mod engine;
 pub mod indicators;

@@ -8,6 +8,7 @@ pub mod deviation;
 pub mod engine;
 pub mod indicators;
 pub mod integrator;
+pub mod map;
 pub mod model;
 pub mod publish;
 pub mod renormalization;

@@ -28,6 +28,12 @@ enum Command {
     Record(cli::record::Args),
     /// Salvage an MCAP file whose writer was killed.
     Recover(cli::recover::Args),
+    /// Compute a phase-space map (one chaos indicator per grid point) into MCAP and PNG.
+    Map(cli::map::Args),
+    /// Join the shard recordings of `map --shard i/n` into one map.
+    Merge(cli::merge::Args),
+    /// Throughput of the batched kernel and the paper's GALI_2 map workload, as JSON.
+    Bench(cli::bench::Args),
 }
 
 fn main() -> ExitCode {
@@ -36,6 +42,9 @@ fn main() -> ExitCode {
         Command::Produce(args) => cli::produce::main(args),
         Command::Record(args) => cli::record::main(args),
         Command::Recover(args) => cli::recover::main(args),
+        Command::Map(args) => cli::map::main(args),
+        Command::Merge(args) => cli::merge::main(args),
+        Command::Bench(args) => cli::bench::main(args),
     };
     result.unwrap_or_else(|e| {
         eprintln!("chaoscope: error: {e:#}");

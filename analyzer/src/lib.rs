@@ -1,2 +1,3 @@
 //! chaoscope-analyzer
 pub mod summary;
+pub mod map_png;

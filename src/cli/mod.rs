@@ -1,5 +1,8 @@
 //! One module per subcommand, plus helpers they share.
 
+pub mod bench;
+pub mod map;
+pub mod merge;
 pub mod produce;
 pub mod record;
 pub mod recover;

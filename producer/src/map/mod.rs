@@ -18,6 +18,7 @@ pub mod indicator;
 pub mod mpm;
 pub mod one_orbit;
 pub mod point;
+pub mod record;
 pub mod schedule;
 pub mod spec;
 pub mod vm;

@@ -34,6 +34,12 @@ enum Command {
     Replay(cli::replay::Args),
     /// Salvage an MCAP file whose writer was killed.
     Recover(cli::recover::Args),
+    /// Compute a phase-space map (one chaos indicator per grid point) into MCAP and PNG.
+    Map(cli::map::Args),
+    /// Join the shard recordings of `map --shard i/n` into one map.
+    Merge(cli::merge::Args),
+    /// Throughput of the batched kernel and the paper's GALI_2 map workload, as JSON.
+    Bench(cli::bench::Args),
 }
 
 fn main() -> ExitCode {
@@ -45,6 +51,9 @@ fn main() -> ExitCode {
         Command::Analyze(args) => cli::analyze::main(args),
         Command::Replay(args) => cli::replay::main(args),
         Command::Monitor(args) => cli::monitor::main(args),
+        Command::Map(args) => cli::map::main(args),
+        Command::Merge(args) => cli::merge::main(args),
+        Command::Bench(args) => cli::bench::main(args),
     };
     result.unwrap_or_else(|e| {
         eprintln!("chaoscope: error: {e:#}");

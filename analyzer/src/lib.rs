@@ -25,3 +25,4 @@ pub mod write;
 pub use analysis::{Analysis, AnalysisOptions};
 pub use report::Report;
 pub use run_info::RunInfo;
+pub mod map_png;

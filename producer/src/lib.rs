@@ -3,10 +3,12 @@
 //!
 //! Every module except the process wrapper is pure computation with no I/O.
 
+pub mod batch;
 pub mod deviation;
 pub mod engine;
 pub mod indicators;
 pub mod integrator;
+pub mod map;
 pub mod model;
 pub mod publish;
 pub mod renormalization;

@@ -13,6 +13,7 @@
 
 pub mod discover;
 pub mod file;
+pub mod map_file;
 pub mod record;
 pub mod recording;
 pub mod recover;

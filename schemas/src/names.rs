@@ -71,6 +71,9 @@ pub mod topic {
     pub const REFERENCE: &str = "/chaoscope/reference";
     pub const END: &str = "/chaoscope/end";
     pub const RECORDING: &str = "/chaoscope/recording";
+    /// Map recordings (`chaoscope map`): the grid description, then one message per point.
+    pub const MAP_HEADER: &str = "/chaoscope/map/header";
+    pub const MAP_POINTS: &str = "/chaoscope/map/points";
 
     /// One channel per scheme: `/chaoscope/separations/<scheme name>`.
     pub fn separations(scheme_name: &str) -> String {
@@ -87,6 +90,8 @@ pub mod metadata {
     pub const RECORDING: &str = "chaoscope.recording";
     /// Added by `chaoscope recover`: keys `source`, `records_salvaged`, `stopped_at`.
     pub const RECOVERY: &str = "chaoscope.recovery";
+    /// Map description: keys `format_version`, `config_toml`, `shard`.
+    pub const MAP: &str = "chaoscope.map";
 }
 
 #[cfg(test)]

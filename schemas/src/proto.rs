@@ -21,6 +21,8 @@ pub mod schema_name {
     pub const SEPARATION_SET: &str = "chaoscope.v1.SeparationSet";
     pub const END_OF_RUN: &str = "chaoscope.v1.EndOfRun";
     pub const RECORDING_SUMMARY: &str = "chaoscope.v1.RecordingSummary";
+    pub const MAP_HEADER: &str = "chaoscope.v1.MapHeader";
+    pub const MAP_POINT: &str = "chaoscope.v1.MapPoint";
 }
 
 impl end_of_run::Status {
@@ -49,6 +51,8 @@ mod tests {
             "SeparationSet",
             "EndOfRun",
             "RecordingSummary",
+            "MapHeader",
+            "MapPoint",
         ] {
             assert!(
                 text.contains(name),

@@ -3,6 +3,9 @@
 pub mod analyze;
 pub mod monitor;
 mod monitor_view;
+pub mod bench;
+pub mod map;
+pub mod merge;
 pub mod produce;
 pub mod record;
 pub mod recover;

@@ -1,0 +1,197 @@
+//! PNG colour maps of a map recording, in the style of the paper's Fig. 9: one cell per grid
+//! point, viridis colours (yellow = regular, purple = chaotic, for every indicator), a colour
+//! bar, GALI and MLE on a log10 scale. Points outside the energy surface are white, escaped
+//! ones grey.
+//!
+//! Text needs a TrueType font, looked up at run time (`CHAOSCOPE_FONT`, then DejaVu Sans /
+//! Liberation Sans in the usual places); without one the image is drawn without labels.
+
+use std::path::Path;
+use std::sync::OnceLock;
+
+use chaoscope_schemas::proto::{MapHeader, MapPoint, map_point};
+use plotters::prelude::*;
+use plotters::style::colors::colormaps::ViridisRGB;
+
+const FONT: &str = "sans-serif";
+
+/// Registers a system font with plotters once; false when none was found.
+fn font_available() -> bool {
+    static FOUND: OnceLock<bool> = OnceLock::new();
+    *FOUND.get_or_init(|| {
+        let mut candidates: Vec<String> = std::env::var("CHAOSCOPE_FONT").into_iter().collect();
+        candidates.extend(
+            [
+                "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
+                "/usr/share/fonts/TTF/DejaVuSans.ttf",
+                "/usr/share/fonts/dejavu/DejaVuSans.ttf",
+                "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
+                "/System/Library/Fonts/Supplemental/Arial.ttf",
+                "C:\\Windows\\Fonts\\arial.ttf",
+            ]
+            .map(String::from),
+        );
+        for path in candidates {
+            if let Ok(bytes) = std::fs::read(&path) {
+                // Fonts are registered for the life of the process.
+                let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
+                if plotters::style::register_font(FONT, FontStyle::Normal, bytes).is_ok() {
+                    return true;
+                }
+            }
+        }
+        false
+    })
+}
+
+/// How a point's value is coloured.
+struct Scale {
+    label: String,
+    /// Map a value to the plotted number (e.g. log10); `None` for unplottable values.
+    transform: fn(f64) -> Option<f64>,
+    /// Large plotted numbers mean chaos (drawn purple).
+    chaotic_high: bool,
+}
+
+fn scale_of(h: &MapHeader) -> Scale {
+    let log = |v: f64| (v > 0.0 && v.is_finite()).then(|| v.log10());
+    let lin = |v: f64| v.is_finite().then_some(v);
+    match h.indicator.as_str() {
+        "gali" => Scale {
+            label: format!("log10 GALI_{} (t = {})", h.k, h.t_final),
+            transform: log,
+            chaotic_high: false,
+        },
+        "gali-time" => Scale {
+            label: format!("t (GALI_{} < {:e})", h.k, h.threshold),
+            transform: lin,
+            chaotic_high: false,
+        },
+        _ => Scale {
+            label: format!("log10 MLE (t = {})", h.t_final),
+            transform: log,
+            chaotic_high: true,
+        },
+    }
+}
+
+fn colour(v: f64, lo: f64, hi: f64, chaotic_high: bool) -> RGBColor {
+    let v = if chaotic_high { lo + hi - v } else { v };
+    ViridisRGB.get_color_normalized(v as f32, lo as f32, hi as f32)
+}
+
+/// Renders `points` of the map described by `header` to a PNG file.
+pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Result<(), String> {
+    let (xa, ya) = match (&header.x, &header.y) {
+        (Some(x), Some(y)) => (x.clone(), y.clone()),
+        _ => return Err("map header without axes".into()),
+    };
+    let (nx, ny) = (xa.n.max(1) as i32, ya.n.max(1) as i32);
+    let scale = scale_of(header);
+    let values: Vec<f64> = points
+        .iter()
+        .filter(|p| p.status() == map_point::Status::Ok)
+        .filter_map(|p| (scale.transform)(p.value))
+        .collect();
+    let (mut lo, mut hi) = values
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
+    if header.indicator == "gali-time" {
+        (lo, hi) = (0.0, header.t_final);
+    }
+    if !(lo.is_finite() && hi.is_finite()) {
+        (lo, hi) = (0.0, 1.0);
+    }
+    if hi <= lo {
+        hi = lo + 1.0;
+    }
+    let cell = (600 / nx.max(ny)).clamp(1, 16) as u32;
+    let (pw, ph) = (cell * nx as u32, cell * ny as u32);
+    let text = font_available();
+    let (margin, bar) = (if text { 70 } else { 10 }, if text { 130 } else { 40 });
+    let (w, h) = (pw + margin + bar + 20, ph + margin + if text { 40 } else { 10 });
+    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+
+    let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| err(&e))?;
+    let (plot_area, bar_area) = root.split_horizontally(pw + margin + 20);
+    let (x0, x1) = (xa.min, xa.max.max(xa.min + f64::EPSILON));
+    let (y0, y1) = (ya.min, ya.max.max(ya.min + f64::EPSILON));
+    let dx = if nx > 1 { (x1 - x0) / (nx - 1) as f64 } else { 1.0 };
+    let dy = if ny > 1 { (y1 - y0) / (ny - 1) as f64 } else { 1.0 };
+    let (xr, yr) = (
+        (x0 - dx / 2.0)..(x0 + dx * (nx as f64 - 0.5)),
+        (y0 - dy / 2.0)..(y0 + dy * (ny as f64 - 0.5)),
+    );
+    let mut builder = ChartBuilder::on(&plot_area);
+    builder.margin(10);
+    if text {
+        builder
+            .caption(&scale.label, (FONT, 18))
+            .x_label_area_size(40)
+            .y_label_area_size(55);
+    }
+    let mut chart = builder
+        .build_cartesian_2d(xr, yr)
+        .map_err(|e| err(&e))?;
+    if text {
+        chart
+            .configure_mesh()
+            .disable_mesh()
+            .x_desc(&xa.coord)
+            .y_desc(&ya.coord)
+            .label_style((FONT, 14))
+            .draw()
+            .map_err(|e| err(&e))?;
+    }
+    chart
+        .draw_series(points.iter().map(|p| {
+            let fill = match p.status() {
+                map_point::Status::Ok => match (scale.transform)(p.value) {
+                    Some(v) => colour(v.clamp(lo, hi), lo, hi, scale.chaotic_high),
+                    None => colour(lo, lo, hi, scale.chaotic_high),
+                },
+                map_point::Status::Escaped => RGBColor(140, 140, 140),
+                _ => WHITE,
+            };
+            let (cx, cy) = (p.x, p.y);
+            Rectangle::new(
+                [(cx - dx / 2.0, cy - dy / 2.0), (cx + dx / 2.0, cy + dy / 2.0)],
+                fill.filled(),
+            )
+        }))
+        .map_err(|e| err(&e))?;
+
+    // The colour bar.
+    let mut bar_builder = ChartBuilder::on(&bar_area);
+    bar_builder.margin_top(if text { 38 } else { 10 }).margin_bottom(if text { 50 } else { 10 });
+    bar_builder.margin_right(if text { 60 } else { 10 });
+    if text {
+        bar_builder.y_label_area_size(0).right_y_label_area_size(50);
+    }
+    let mut bar_chart = bar_builder
+        .build_cartesian_2d(0.0..1.0, lo..hi)
+        .map_err(|e| err(&e))?;
+    if text {
+        bar_chart
+            .configure_mesh()
+            .disable_mesh()
+            .disable_x_axis()
+            .label_style((FONT, 13))
+            .draw()
+            .map_err(|e| err(&e))?;
+    }
+    let steps = 200;
+    bar_chart
+        .draw_series((0..steps).map(|i| {
+            let a = lo + (hi - lo) * i as f64 / steps as f64;
+            let b = lo + (hi - lo) * (i + 1) as f64 / steps as f64;
+            Rectangle::new(
+                [(0.0, a), (1.0, b)],
+                colour((a + b) / 2.0, lo, hi, scale.chaotic_high).filled(),
+            )
+        }))
+        .map_err(|e| err(&e))?;
+    root.present().map_err(|e| err(&e))?;
+    Ok(())
+}

@@ -1,0 +1,167 @@
+//! Run-time choice of the instruction set: the same generic kernel compiled for AVX-512, AVX2
+//! and baseline x86-64 (or whatever the target has), picked by CPU detection.
+//!
+//! The chunk width `L` (lanes processed together) grows with the register file: wide enough
+//! for several independent vectors in flight (the step is one long dependency chain per lane),
+//! small enough that the state of a Henon-Heiles chunk stays in registers.
+
+use super::lanes::{LaneModel, StepCoeffs};
+use super::soa::{LANE_QUANTUM, Soa};
+
+/// An instruction set the kernel is compiled for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Isa {
+    Avx512,
+    Avx2,
+    /// The compilation target's baseline (SSE2 on x86-64).
+    Portable,
+}
+
+impl Isa {
+    pub const ALL: [Isa; 3] = [Isa::Avx512, Isa::Avx2, Isa::Portable];
+
+    /// The widest instruction set this CPU supports.
+    pub fn detect() -> Self {
+        Self::ALL
+            .into_iter()
+            .find(|i| i.available())
+            .unwrap_or(Isa::Portable)
+    }
+
+    pub fn available(self) -> bool {
+        match self {
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => std::arch::is_x86_feature_detected!("avx512f"),
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => {
+                std::arch::is_x86_feature_detected!("avx2")
+                    && std::arch::is_x86_feature_detected!("fma")
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            Isa::Avx512 | Isa::Avx2 => false,
+            Isa::Portable => true,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Isa::Avx512 => "avx512",
+            Isa::Avx2 => "avx2",
+            Isa::Portable => "portable",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|i| i.name() == s)
+    }
+}
+
+/// Every lane of `x`, chunk by chunk: `L` lanes at a time, the remainder by `LANE_QUANTUM`.
+#[inline(always)]
+fn orbit_chunks<M: LaneModel, const L: usize>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+    let mut o = 0;
+    if L > LANE_QUANTUM {
+        let mut buf = vec![[0.0; L]; x.rows()];
+        let mut force = vec![[0.0; L]; m.dof()];
+        while o + L <= x.lanes() {
+            x.gather(o, &mut buf);
+            m.orbit_steps(c, &mut buf, &mut force, n);
+            x.scatter(o, &buf);
+            o += L;
+        }
+    }
+    let mut buf = vec![[0.0; LANE_QUANTUM]; x.rows()];
+    let mut force = vec![[0.0; LANE_QUANTUM]; m.dof()];
+    while o < x.lanes() {
+        x.gather(o, &mut buf);
+        m.orbit_steps(c, &mut buf, &mut force, n);
+        x.scatter(o, &buf);
+        o += LANE_QUANTUM;
+    }
+}
+
+#[inline(always)]
+fn tangent_chunks<M: LaneModel, const L: usize>(
+    m: &M,
+    c: &StepCoeffs,
+    stages: &[f64],
+    v: &mut Soa,
+    n: u64,
+) {
+    let mut o = 0;
+    if L > LANE_QUANTUM {
+        let mut buf = vec![[0.0; L]; v.rows()];
+        let mut force = vec![[0.0; L]; m.dof()];
+        while o + L <= v.lanes() {
+            v.gather(o, &mut buf);
+            m.tangent_steps(c, stages, &mut buf, &mut force, n);
+            v.scatter(o, &buf);
+            o += L;
+        }
+    }
+    let mut buf = vec![[0.0; LANE_QUANTUM]; v.rows()];
+    let mut force = vec![[0.0; LANE_QUANTUM]; m.dof()];
+    while o < v.lanes() {
+        v.gather(o, &mut buf);
+        m.tangent_steps(c, stages, &mut buf, &mut force, n);
+        v.scatter(o, &buf);
+        o += LANE_QUANTUM;
+    }
+}
+
+// The instantiations. `fma` is enabled with AVX2 because every AVX2 CPU has it; it changes
+// nothing here, since Rust never fuses a separate multiply and add.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn orbits_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+    orbit_chunks::<M, 64>(m, c, x, n)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn orbits_avx2<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+    orbit_chunks::<M, 32>(m, c, x, n)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn tangents_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, s: &[f64], v: &mut Soa, n: u64) {
+    tangent_chunks::<M, 64>(m, c, s, v, n)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn tangents_avx2<M: LaneModel>(m: &M, c: &StepCoeffs, s: &[f64], v: &mut Soa, n: u64) {
+    tangent_chunks::<M, 32>(m, c, s, v, n)
+}
+
+pub(super) fn dispatch_orbits<M: LaneModel>(isa: Isa, m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+    assert!(isa.available(), "{} is not supported by this CPU", isa.name());
+    match isa {
+        // SAFETY: the CPU supports the instruction set (checked above).
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { orbits_avx512(m, c, x, n) },
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { orbits_avx2(m, c, x, n) },
+        _ => orbit_chunks::<M, LANE_QUANTUM>(m, c, x, n),
+    }
+}
+
+pub(super) fn dispatch_tangents<M: LaneModel>(
+    isa: Isa,
+    m: &M,
+    c: &StepCoeffs,
+    stages: &[f64],
+    v: &mut Soa,
+    n: u64,
+) {
+    assert!(isa.available(), "{} is not supported by this CPU", isa.name());
+    match isa {
+        // SAFETY: the CPU supports the instruction set (checked above).
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { tangents_avx512(m, c, stages, v, n) },
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { tangents_avx2(m, c, stages, v, n) },
+        _ => tangent_chunks::<M, LANE_QUANTUM>(m, c, stages, v, n),
+    }
+}

@@ -1,0 +1,153 @@
+//! The lane-wise view of a model: derivatives over `L` independent lanes at once, and the step
+//! loops built from them.
+//!
+//! Every expression here repeats, lane by lane, the expression of the one-orbit code it replaces
+//! (`Splitting::step`, `Splitting::step_tangent`, the model's `gradient` / `hessian_vector`): same
+//! operations, same order, no fused multiply-add. That is what makes the batch bit-identical.
+
+use crate::integrator::Splitting;
+use crate::model::Model;
+
+/// One step of a splitting with its coefficients already multiplied by `h`: the very products
+/// `a_i * h`, `b_i * h` that `Splitting::step` forms at each stage.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StepCoeffs {
+    /// `a_i h`, one more than kicks.
+    pub drift: Vec<f64>,
+    /// `b_i h`.
+    pub kick: Vec<f64>,
+}
+
+impl StepCoeffs {
+    pub fn new(splitting: &Splitting, h: f64) -> Self {
+        Self {
+            drift: splitting.drifts().iter().map(|a| a * h).collect(),
+            kick: splitting.kicks().iter().map(|b| b * h).collect(),
+        }
+    }
+
+    pub fn kicks(&self) -> usize {
+        self.kick.len()
+    }
+
+    /// The last drift (after the last kick).
+    #[inline(always)]
+    pub fn last_drift(&self) -> f64 {
+        self.drift[self.kick.len()]
+    }
+}
+
+#[inline(always)]
+fn drift_rows<const L: usize>(q: &mut [[f64; L]], p: &[[f64; L]], ch: f64) {
+    for (qr, pr) in q.iter_mut().zip(p) {
+        for l in 0..L {
+            qr[l] += ch * pr[l];
+        }
+    }
+}
+
+#[inline(always)]
+fn kick_rows<const L: usize>(p: &mut [[f64; L]], force: &[[f64; L]], dh: f64) {
+    for (pr, fr) in p.iter_mut().zip(force) {
+        for l in 0..L {
+            pr[l] -= dh * fr[l];
+        }
+    }
+}
+
+/// A model whose derivatives can be evaluated over `L` lanes (structure of arrays).
+///
+/// Implementations must give, lane by lane, exactly the bits of the model's scalar `gradient`
+/// and `hessian_vector`. The step loops have generic implementations; a model with few degrees
+/// of freedom overrides them to keep the whole state in registers for many steps.
+pub trait LaneModel: Model {
+    /// `out[i][l] = dV/dq_i` of lane `l`; `q` and `out` have `N` rows.
+    fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]);
+
+    /// `out[.][l] = Hess V(q) v[.][l]` at one shared position `q` (the reference orbit).
+    fn hessian_vector_lanes<const L: usize>(
+        &self,
+        q: &[f64],
+        v: &[[f64; L]],
+        out: &mut [[f64; L]],
+    );
+
+    /// `n_steps` steps of the splitting for `L` orbits; `x` has `2N` rows, `force` `N` rows.
+    #[inline(always)]
+    fn orbit_steps<const L: usize>(
+        &self,
+        c: &StepCoeffs,
+        x: &mut [[f64; L]],
+        force: &mut [[f64; L]],
+        n_steps: u64,
+    ) {
+        let n = self.dof();
+        let (q, p) = x.split_at_mut(n);
+        for _ in 0..n_steps {
+            for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
+                drift_rows(q, p, ch);
+                self.gradient_lanes(q, force);
+                kick_rows(p, force, dh);
+            }
+            drift_rows(q, p, c.last_drift());
+        }
+    }
+
+    /// `n_steps` steps of the tangent map for `L` deviation vectors around one reference orbit
+    /// whose positions before each kick are `stages[(step * kicks + i) * N ..][..N]`.
+    #[inline(always)]
+    fn tangent_steps<const L: usize>(
+        &self,
+        c: &StepCoeffs,
+        stages: &[f64],
+        v: &mut [[f64; L]],
+        force: &mut [[f64; L]],
+        n_steps: u64,
+    ) {
+        let n = self.dof();
+        let (dq, dp) = v.split_at_mut(n);
+        let mut stage = stages.chunks_exact(n);
+        for _ in 0..n_steps {
+            for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
+                drift_rows(dq, dp, ch);
+                let q = stage.next().expect("one recorded position per kick");
+                self.hessian_vector_lanes(q, dq, force);
+                kick_rows(dp, force, dh);
+            }
+            drift_rows(dq, dp, c.last_drift());
+        }
+    }
+}
+
+/// Advance one reference orbit `x` by `n_steps` steps exactly as `Splitting::step` does, writing
+/// its position before every kick to `stages` (`n_steps * kicks * N` numbers): what the tangent
+/// map of all the point's deviation vectors needs.
+pub fn record_reference_stages<M: Model + ?Sized>(
+    model: &M,
+    c: &StepCoeffs,
+    x: &mut [f64],
+    n_steps: u64,
+    stages: &mut Vec<f64>,
+    force: &mut [f64],
+) {
+    let n = model.dof();
+    stages.clear();
+    let drift = |x: &mut [f64], ch: f64| {
+        let (q, p) = x.split_at_mut(n);
+        for (qi, pi) in q.iter_mut().zip(p.iter()) {
+            *qi += ch * pi;
+        }
+    };
+    for _ in 0..n_steps {
+        for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
+            drift(x, ch);
+            stages.extend_from_slice(&x[..n]);
+            let (q, p) = x.split_at_mut(n);
+            model.gradient(q, force);
+            for (pi, fi) in p.iter_mut().zip(force.iter()) {
+                *pi -= dh * fi;
+            }
+        }
+        drift(x, c.last_drift());
+    }
+}

@@ -1,0 +1,47 @@
+//! The batched kernel: many independent orbits (or deviation vectors) advanced at once.
+//!
+//! Layout: structure of arrays ([`Soa`]): row `c` holds coordinate `c` of every lane, so one
+//! arithmetic expression applied across a row is a plain loop the compiler turns into SIMD.
+//! The kernel is compiled three times (AVX-512, AVX2, portable SSE2) and the widest one the CPU
+//! supports is picked at run time ([`Isa`]), so one binary runs everywhere.
+//!
+//! Bit-exactness with the one-orbit path ([`crate::integrator::Splitting`]): every lane performs
+//! exactly the floating-point operations of `Splitting::step` / `step_tangent` in the same order,
+//! written without fused multiply-add (Rust never contracts `a * b + c`), so a SIMD lane rounds
+//! exactly as the scalar code does. Lanes never interact, hence results do not depend on the ISA,
+//! on which lanes share a vector, or on the thread that runs them.
+
+mod isa;
+mod lanes;
+mod models;
+mod soa;
+
+pub use isa::Isa;
+pub use lanes::{LaneModel, StepCoeffs, record_reference_stages};
+pub use models::{AnyLaneModel, DynLanes};
+pub use soa::Soa;
+
+/// Advance every lane of `x` (rows `0..2N` = q, p) by `n_steps` steps of the splitting.
+pub fn orbit_steps<M: LaneModel>(
+    isa: Isa,
+    model: &M,
+    coeffs: &StepCoeffs,
+    x: &mut Soa,
+    n_steps: u64,
+) {
+    isa::dispatch_orbits(isa, model, coeffs, x, n_steps)
+}
+
+/// Advance every lane of `v` (deviation vectors, rows = dq, dp) by `n_steps` steps of the tangent
+/// map around one shared reference orbit, whose positions before each kick are in `stages`
+/// (`n_steps * kicks * N` numbers, from [`record_reference_stages`]).
+pub fn tangent_steps<M: LaneModel>(
+    isa: Isa,
+    model: &M,
+    coeffs: &StepCoeffs,
+    stages: &[f64],
+    v: &mut Soa,
+    n_steps: u64,
+) {
+    isa::dispatch_tangents(isa, model, coeffs, stages, v, n_steps)
+}

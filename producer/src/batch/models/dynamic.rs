@@ -1,0 +1,78 @@
+//! Any [`Model`] over lanes through its scalar methods: the fallback for models without a lane
+//! implementation. Bit-identical by construction (it calls the very same code), not fast.
+
+use std::sync::Arc;
+
+use crate::batch::lanes::LaneModel;
+use crate::model::Model;
+
+#[derive(Clone)]
+pub struct DynLanes(Arc<dyn Model>);
+
+impl DynLanes {
+    pub fn new(model: Arc<dyn Model>) -> Self {
+        Self(model)
+    }
+}
+
+impl Model for DynLanes {
+    fn name(&self) -> &str {
+        self.0.name()
+    }
+    fn dof(&self) -> usize {
+        self.0.dof()
+    }
+    fn potential(&self, q: &[f64]) -> f64 {
+        self.0.potential(q)
+    }
+    fn gradient(&self, q: &[f64], out: &mut [f64]) {
+        self.0.gradient(q, out)
+    }
+    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+        self.0.hessian_vector(q, v, out)
+    }
+    fn has_hessian(&self) -> bool {
+        self.0.has_hessian()
+    }
+    fn kinetic(&self, p: &[f64]) -> f64 {
+        self.0.kinetic(p)
+    }
+    fn energy(&self, x: &[f64]) -> f64 {
+        self.0.energy(x)
+    }
+}
+
+impl LaneModel for DynLanes {
+    fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]) {
+        let n = self.dof();
+        let (mut ql, mut ol) = (vec![0.0; n], vec![0.0; n]);
+        for l in 0..L {
+            for i in 0..n {
+                ql[i] = q[i][l];
+            }
+            self.0.gradient(&ql, &mut ol);
+            for i in 0..n {
+                out[i][l] = ol[i];
+            }
+        }
+    }
+
+    fn hessian_vector_lanes<const L: usize>(
+        &self,
+        q: &[f64],
+        v: &[[f64; L]],
+        out: &mut [[f64; L]],
+    ) {
+        let n = self.dof();
+        let (mut vl, mut ol) = (vec![0.0; n], vec![0.0; n]);
+        for l in 0..L {
+            for i in 0..n {
+                vl[i] = v[i][l];
+            }
+            self.0.hessian_vector(q, &vl, &mut ol);
+            for i in 0..n {
+                out[i][l] = ol[i];
+            }
+        }
+    }
+}

@@ -1,0 +1,96 @@
+//! Henon-Heiles over lanes, with register-resident step loops: the whole state of `L` orbits
+//! (4 rows) stays in vector registers for all the steps between two renormalizations.
+
+use crate::batch::lanes::{LaneModel, StepCoeffs};
+use crate::model::HenonHeiles;
+
+impl LaneModel for HenonHeiles {
+    #[inline(always)]
+    fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]) {
+        let (x1, x2) = (&q[0], &q[1]);
+        for l in 0..L {
+            // HenonHeiles::gradient, lane by lane.
+            out[0][l] = x1[l] + 2.0 * x1[l] * x2[l];
+            out[1][l] = x2[l] + x1[l] * x1[l] - x2[l] * x2[l];
+        }
+    }
+
+    #[inline(always)]
+    fn hessian_vector_lanes<const L: usize>(
+        &self,
+        q: &[f64],
+        v: &[[f64; L]],
+        out: &mut [[f64; L]],
+    ) {
+        let (x1, x2) = (q[0], q[1]);
+        for l in 0..L {
+            out[0][l] = (1.0 + 2.0 * x2) * v[0][l] + 2.0 * x1 * v[1][l];
+            out[1][l] = 2.0 * x1 * v[0][l] + (1.0 - 2.0 * x2) * v[1][l];
+        }
+    }
+
+    #[inline(always)]
+    fn orbit_steps<const L: usize>(
+        &self,
+        c: &StepCoeffs,
+        x: &mut [[f64; L]],
+        _force: &mut [[f64; L]],
+        n_steps: u64,
+    ) {
+        let (mut q1, mut q2, mut p1, mut p2) = (x[0], x[1], x[2], x[3]);
+        let last = c.last_drift();
+        for _ in 0..n_steps {
+            for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
+                for l in 0..L {
+                    q1[l] += ch * p1[l];
+                    q2[l] += ch * p2[l];
+                    let (a, b) = (q1[l], q2[l]);
+                    let g0 = a + 2.0 * a * b;
+                    let g1 = b + a * a - b * b;
+                    p1[l] -= dh * g0;
+                    p2[l] -= dh * g1;
+                }
+            }
+            for l in 0..L {
+                q1[l] += last * p1[l];
+                q2[l] += last * p2[l];
+            }
+        }
+        (x[0], x[1], x[2], x[3]) = (q1, q2, p1, p2);
+    }
+
+    #[inline(always)]
+    fn tangent_steps<const L: usize>(
+        &self,
+        c: &StepCoeffs,
+        stages: &[f64],
+        v: &mut [[f64; L]],
+        _force: &mut [[f64; L]],
+        n_steps: u64,
+    ) {
+        let (mut u1, mut u2, mut w1, mut w2) = (v[0], v[1], v[2], v[3]);
+        let last = c.last_drift();
+        let mut stage = stages.chunks_exact(2);
+        for _ in 0..n_steps {
+            for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
+                let q = stage.next().expect("one recorded position per kick");
+                let (x1, x2) = (q[0], q[1]);
+                // The Hessian entries, formed as in HenonHeiles::hessian_vector.
+                let (h11, h12, h22) = (1.0 + 2.0 * x2, 2.0 * x1, 1.0 - 2.0 * x2);
+                for l in 0..L {
+                    u1[l] += ch * w1[l];
+                    u2[l] += ch * w2[l];
+                    let f0 = h11 * u1[l] + h12 * u2[l];
+                    let f1 = h12 * u1[l] + h22 * u2[l];
+                    w1[l] -= dh * f0;
+                    w2[l] -= dh * f1;
+                }
+            }
+            for l in 0..L {
+                u1[l] += last * w1[l];
+                u2[l] += last * w2[l];
+            }
+        }
+        (v[0], v[1], v[2], v[3]) = (u1, u2, w1, w2);
+    }
+}

@@ -1,0 +1,48 @@
+//! Lane implementations of the models, and the choice of one for a run.
+
+mod dynamic;
+mod fput;
+mod henon_heiles;
+
+use std::sync::Arc;
+
+pub use dynamic::DynLanes;
+
+use crate::model::{FputBeta, HenonHeiles, Model};
+
+/// A model with its lane implementation, chosen once per run so the kernel is monomorphic
+/// (inlined into the SIMD instantiations) for the models chaoscope ships.
+#[derive(Clone)]
+pub enum AnyLaneModel {
+    HenonHeiles(HenonHeiles),
+    Fput(FputBeta),
+    /// Any other model: lane by lane through the scalar trait methods (correct, not fast).
+    Other(DynLanes),
+}
+
+impl AnyLaneModel {
+    /// The lane implementation for `model`, identified by its name and degrees of freedom.
+    /// `beta` is needed to rebuild the FPUT chain (the trait object does not expose it).
+    pub fn new(model: Arc<dyn Model>, fput_beta: Option<f64>) -> Self {
+        match (model.name(), fput_beta) {
+            ("henon-heiles", _) => Self::HenonHeiles(HenonHeiles),
+            ("fput-beta", Some(beta)) => match FputBeta::new(model.dof(), beta) {
+                Ok(m) => Self::Fput(m),
+                Err(_) => Self::Other(DynLanes::new(model)),
+            },
+            _ => Self::Other(DynLanes::new(model)),
+        }
+    }
+}
+
+/// Calls `$body` with `$m` bound to the concrete lane model.
+#[macro_export]
+macro_rules! with_lane_model {
+    ($any:expr, |$m:ident| $body:expr) => {
+        match $any {
+            $crate::batch::AnyLaneModel::HenonHeiles($m) => $body,
+            $crate::batch::AnyLaneModel::Fput($m) => $body,
+            $crate::batch::AnyLaneModel::Other($m) => $body,
+        }
+    };
+}

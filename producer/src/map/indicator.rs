@@ -1,0 +1,207 @@
+//! The indicator of a map: what each deviation set accumulates at its renormalizations, when it
+//! may stop, and how the sets' numbers make the point's value.
+
+use chaoscope_schemas::config::MapConfig;
+
+use super::gali::log10_gali;
+use super::point::{PointResult, PointStatus};
+use crate::spec::SpecError;
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Indicator {
+    /// `GALI_k` at `t_final`.
+    Gali { k: usize },
+    /// First renormalization time at which `GALI_k < threshold`; the set stops there.
+    GaliTime { k: usize, threshold: f64 },
+    /// Finite-time maximal Lyapunov exponent at `t_final` (from the first vector of each set).
+    Mle,
+}
+
+impl Indicator {
+    pub fn from_config(map: &MapConfig, k: usize) -> Result<Self, SpecError> {
+        let need_k = |name: &str| {
+            if k < 2 {
+                Err(SpecError::new(
+                    "map.k",
+                    format!("{name} needs k >= 2 deviation vectors, got {k}"),
+                ))
+            } else {
+                Ok(k)
+            }
+        };
+        let ind = match map.indicator.as_str() {
+            "gali" => Indicator::Gali { k: need_k("gali")? },
+            "gali-time" => {
+                let threshold = map.threshold.ok_or_else(|| {
+                    SpecError::new("map.threshold", "gali-time needs a threshold")
+                })?;
+                if !(threshold.is_finite() && threshold > 0.0 && threshold < 1.0) {
+                    return Err(SpecError::new(
+                        "map.threshold",
+                        format!("must be between 0 and 1, got {threshold}"),
+                    ));
+                }
+                Indicator::GaliTime {
+                    k: need_k("gali-time")?,
+                    threshold,
+                }
+            }
+            "mle" => Indicator::Mle,
+            other => {
+                return Err(SpecError::new(
+                    "map.indicator",
+                    format!("'{other}' is not gali, gali-time or mle"),
+                ));
+            }
+        };
+        if map.threshold.is_some() && !matches!(ind, Indicator::GaliTime { .. }) {
+            return Err(SpecError::new(
+                "map.threshold",
+                "only gali-time uses a threshold",
+            ));
+        }
+        Ok(ind)
+    }
+
+    pub fn name(&self) -> &'static str {
+        match self {
+            Indicator::Gali { .. } => "gali",
+            Indicator::GaliTime { .. } => "gali-time",
+            Indicator::Mle => "mle",
+        }
+    }
+
+    pub fn threshold(&self) -> f64 {
+        match self {
+            Indicator::GaliTime { threshold, .. } => *threshold,
+            _ => 0.0,
+        }
+    }
+}
+
+/// What one deviation set has accumulated.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct SetAccumulator {
+    /// `sum ln(stretch of vector 1)` (for the MLE).
+    log_sum: f64,
+    /// The set's number once known (its final value, or its stopping time).
+    value: Option<f64>,
+}
+
+/// Per-point bookkeeping shared by the batched and the one-orbit paths, so both form the result
+/// with the very same operations.
+#[derive(Debug, Clone)]
+pub struct PointAccumulator {
+    indicator: Indicator,
+    dim: usize,
+    t_final: f64,
+    sets: Vec<SetAccumulator>,
+    scratch: Vec<f64>,
+    /// Latest stopping time of any set (for `t_end`).
+    last_stop: f64,
+}
+
+impl PointAccumulator {
+    pub fn new(indicator: Indicator, dim: usize, sets: usize, t_final: f64) -> Self {
+        Self {
+            indicator,
+            dim,
+            t_final,
+            sets: vec![SetAccumulator::default(); sets],
+            scratch: Vec::new(),
+            last_stop: 0.0,
+        }
+    }
+
+    pub fn is_stopped(&self, set: usize) -> bool {
+        self.sets[set].value.is_some()
+    }
+
+    /// Every set has its number.
+    pub fn is_done(&self) -> bool {
+        self.sets.iter().all(|s| s.value.is_some())
+    }
+
+    /// One renormalization of `set` at time `t`: its separation vectors before renormalization
+    /// and their stretching factors. `last` marks the final step of the run. Returns true when
+    /// the set is finished (stopped early or at the end).
+    pub fn observe(
+        &mut self,
+        set: usize,
+        t: f64,
+        separations: &[f64],
+        stretch: &[f64],
+        last: bool,
+    ) -> bool {
+        let acc = &mut self.sets[set];
+        if acc.value.is_some() {
+            return true;
+        }
+        match self.indicator {
+            Indicator::Gali { k } => {
+                if last {
+                    acc.value = Some(log10_gali(separations, self.dim, k, &mut self.scratch));
+                }
+            }
+            Indicator::GaliTime { k, threshold } => {
+                let g = log10_gali(separations, self.dim, k, &mut self.scratch);
+                if g < threshold.log10() {
+                    acc.value = Some(t);
+                    self.last_stop = self.last_stop.max(t);
+                } else if last {
+                    // Never crossed: censored at the horizon.
+                    acc.value = Some(self.t_final);
+                }
+            }
+            Indicator::Mle => {
+                acc.log_sum += stretch[0].ln();
+                if last {
+                    acc.value = Some(acc.log_sum / t);
+                }
+            }
+        }
+        if last {
+            self.last_stop = self.t_final;
+        }
+        acc.value.is_some()
+    }
+
+    /// The point's result (status `Ok`); every set must be finished.
+    pub fn finish(&self, base: PointResult) -> PointResult {
+        let per_set: Vec<f64> = self
+            .sets
+            .iter()
+            .map(|s| s.value.expect("every set finished"))
+            .collect();
+        let m = per_set.len() as f64;
+        let (value, mean_log10) = match self.indicator {
+            Indicator::Gali { .. } => (
+                per_set.iter().map(|g| 10f64.powf(*g)).sum::<f64>() / m,
+                per_set.iter().sum::<f64>() / m,
+            ),
+            _ => (per_set.iter().sum::<f64>() / m, 0.0),
+        };
+        PointResult {
+            status: PointStatus::Ok,
+            value,
+            per_set,
+            mean_log10,
+            t_end: self.last_stop,
+            reason: String::new(),
+            ..base
+        }
+    }
+}
+
+/// A point that was not integrated to a value.
+pub fn failed(base: PointResult, status: PointStatus, t_end: f64, reason: String) -> PointResult {
+    PointResult {
+        status,
+        value: f64::NAN,
+        per_set: Vec::new(),
+        mean_log10: 0.0,
+        t_end,
+        reason,
+        ..base
+    }
+}

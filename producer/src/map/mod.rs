@@ -1,0 +1,30 @@
+//! Phase-space maps: a grid of initial conditions over two coordinates, one chaos indicator per
+//! point (`chaoscope map`).
+//!
+//! - [`spec`]: the validated `[map]` section, the grid, shards, each point's initial condition.
+//! - [`gali`]: the GALI of a set of separation vectors, allocation-free.
+//! - [`indicator`]: what is accumulated per deviation set and how a point's value is formed.
+//! - [`point`]: a point's result.
+//! - [`mpm`], [`vm`]: the batched computation of points (sharing the [`crate::batch`] kernel).
+//! - [`one_orbit`]: the same point computed by the one-orbit [`crate::engine::Engine`]; the
+//!   batched path must agree with it bit for bit (tests).
+//! - [`schedule`]: rayon across points, results streamed to a sink as they complete.
+//!
+//! Every point is a deterministic function of the configuration and its grid index alone, so
+//! results are identical for any thread count, batch grouping, shard split or resumption.
+
+pub mod gali;
+pub mod indicator;
+pub mod mpm;
+pub mod one_orbit;
+pub mod point;
+pub mod record;
+pub mod schedule;
+pub mod spec;
+pub mod vm;
+mod window;
+
+pub use indicator::Indicator;
+pub use point::{PointResult, PointStatus};
+pub use schedule::{MapOptions, run_map};
+pub use spec::{MapSpec, Shard};

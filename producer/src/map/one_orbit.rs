@@ -1,0 +1,58 @@
+//! A map point computed by the one-orbit [`Engine`]: the definition the batched kernel must
+//! reproduce bit for bit. Slow (every set runs to `t_final`, one orbit at a time); used by tests
+//! and available for cross-checks.
+
+use super::indicator::{PointAccumulator, failed};
+use super::point::{PointResult, PointStatus};
+use super::spec::MapSpec;
+use crate::engine::{Engine, RunError};
+
+pub fn point(spec: &MapSpec, index: u64) -> PointResult {
+    let base = spec.base_result(index);
+    let x0 = match spec.initial_state(index) {
+        Ok(x0) => x0,
+        Err(reason) => return failed(base, PointStatus::OutsideEnergySurface, 0.0, reason),
+    };
+    let base = PointResult {
+        x0: x0.clone(),
+        ..base
+    };
+    let run = spec.point_run(&x0);
+    let total = run.total_steps;
+    let t_final = run.t_final();
+    let mut acc = PointAccumulator::new(spec.indicator, run.dim, run.sets(), t_final);
+    let mut engine = Engine::new(run);
+    let mut steps = 0;
+    loop {
+        match engine.next_sample() {
+            Ok(Some(sample)) => {
+                steps = sample.step;
+                if sample.seq == 0 {
+                    continue;
+                }
+                for s in &sample.schemes {
+                    acc.observe(
+                        s.set as usize,
+                        sample.t,
+                        &s.separations,
+                        &s.stretch,
+                        sample.step == total,
+                    );
+                }
+            }
+            Ok(None) => break,
+            Err(e) => {
+                let t = match &e {
+                    RunError::Escaped { t, .. } | RunError::Renormalization { t, .. } => *t,
+                    RunError::Tangent(_) => 0.0,
+                };
+                return failed(base, PointStatus::Escaped, t, e.to_string());
+            }
+        }
+    }
+    let done = acc.finish(base);
+    PointResult {
+        orbit_steps: steps * (1 + (spec.sets() * spec.run.k) as u64),
+        ..done
+    }
+}

@@ -1,0 +1,87 @@
+//! Rayon across points; results are handed to a sink on the calling thread as they complete.
+
+use std::sync::mpsc;
+
+use rayon::prelude::*;
+
+use super::point::PointResult;
+use super::spec::MapSpec;
+use super::{mpm, vm};
+use crate::batch::Isa;
+use crate::spec::Method;
+
+#[derive(Debug, Clone)]
+pub struct MapOptions {
+    /// Worker threads (`None`: rayon's default, one per core).
+    pub threads: Option<usize>,
+    pub isa: Isa,
+    /// MPM points integrated together in one lane array. Larger batches amortize the
+    /// per-window bookkeeping; smaller ones balance the threads better.
+    pub mpm_points_per_batch: usize,
+}
+
+impl Default for MapOptions {
+    fn default() -> Self {
+        Self {
+            threads: None,
+            isa: Isa::detect(),
+            mpm_points_per_batch: 8,
+        }
+    }
+}
+
+/// Computes `points` (grid indices) and calls `sink` with each result, on this thread, in
+/// completion order. Returns early (with the points finished so far delivered) when `sink`
+/// returns `false`.
+pub fn run_map(
+    spec: &MapSpec,
+    points: &[u64],
+    options: &MapOptions,
+    mut sink: impl FnMut(PointResult) -> bool,
+) -> Result<(), rayon::ThreadPoolBuildError> {
+    let mut builder = rayon::ThreadPoolBuilder::new();
+    if let Some(n) = options.threads {
+        builder = builder.num_threads(n);
+    }
+    let pool = builder.build()?;
+    let per_batch = match spec.run.schemes[0].method {
+        Method::Mpm => options.mpm_points_per_batch.max(1),
+        Method::Vm => 1,
+    };
+    let (tx, rx) = mpsc::channel::<PointResult>();
+    let stop = std::sync::atomic::AtomicBool::new(false);
+    std::thread::scope(|scope| {
+        let stop = &stop;
+        scope.spawn(move || {
+            pool.install(|| {
+                points
+                    .par_chunks(per_batch)
+                    .for_each_with(tx, |tx, chunk| {
+                        if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                            return;
+                        }
+                        let results = match spec.run.schemes[0].method {
+                            Method::Mpm => mpm::compute(spec, options.isa, chunk),
+                            Method::Vm => chunk
+                                .iter()
+                                .map(|&i| vm::compute(spec, options.isa, i))
+                                .collect(),
+                        };
+                        for r in results {
+                            // The receiver hung up: the caller stopped.
+                            if tx.send(r).is_err() {
+                                return;
+                            }
+                        }
+                    })
+            });
+        });
+        for r in rx.iter() {
+            if !sink(r) {
+                stop.store(true, std::sync::atomic::Ordering::Relaxed);
+                break;
+            }
+        }
+    });
+    Ok(())
+}

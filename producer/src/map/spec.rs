@@ -1,0 +1,258 @@
+//! The validated map: grid, indicator, the run every point shares, shards.
+
+use chaoscope_schemas::config::{MapAxis, RunConfig};
+
+use super::indicator::Indicator;
+use crate::batch::{AnyLaneModel, StepCoeffs};
+use crate::renormalization::Orthonormalization;
+use crate::spec::{RunSpec, SpecError, parse_coordinate, solve_momentum};
+
+/// One grid axis.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Axis {
+    pub coord: String,
+    /// Index into the phase-space vector `(q, p)`.
+    pub slot: usize,
+    pub min: f64,
+    pub max: f64,
+    pub n: usize,
+}
+
+impl Axis {
+    /// Value of grid line `i` (computed, never accumulated).
+    pub fn value(&self, i: usize) -> f64 {
+        if self.n == 1 {
+            self.min
+        } else {
+            self.min + (self.max - self.min) * i as f64 / (self.n - 1) as f64
+        }
+    }
+
+    fn from_config(key: &str, a: &MapAxis, n_dof: usize) -> Result<Self, SpecError> {
+        let (momentum, i) = parse_coordinate(&a.coord, n_dof).ok_or_else(|| {
+            SpecError::new(
+                format!("{key}.coord"),
+                format!("'{}' is not a coordinate q1..q{n_dof} / p1..p{n_dof}", a.coord),
+            )
+        })?;
+        if !(a.min.is_finite() && a.max.is_finite() && a.min <= a.max) {
+            return Err(SpecError::new(
+                format!("{key}.min"),
+                format!("need finite min <= max, got {} .. {}", a.min, a.max),
+            ));
+        }
+        if a.n == 0 || a.n > 100_000 {
+            return Err(SpecError::new(
+                format!("{key}.n"),
+                format!("must be between 1 and 100000, got {}", a.n),
+            ));
+        }
+        Ok(Self {
+            coord: a.coord.clone(),
+            slot: if momentum { n_dof + i } else { i },
+            min: a.min,
+            max: a.max,
+            n: a.n,
+        })
+    }
+}
+
+/// `--shard i/n`: the points with `index % n == i`. Interleaved rather than contiguous so every
+/// shard gets a fair share of regular (slow) and chaotic (fast-stopping) regions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Shard {
+    pub index: u32,
+    pub count: u32,
+}
+
+impl Shard {
+    pub const WHOLE: Shard = Shard { index: 0, count: 1 };
+
+    pub fn contains(&self, point: u64) -> bool {
+        point % self.count as u64 == self.index as u64
+    }
+}
+
+impl std::str::FromStr for Shard {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (i, n) = s
+            .split_once('/')
+            .ok_or_else(|| format!("{s:?} is not of the form i/n"))?;
+        let index: u32 = i.trim().parse().map_err(|_| format!("bad shard index {i:?}"))?;
+        let count: u32 = n.trim().parse().map_err(|_| format!("bad shard count {n:?}"))?;
+        if count == 0 || index >= count {
+            return Err(format!("shard {index}/{count}: need 0 <= i < n"));
+        }
+        Ok(Self { index, count })
+    }
+}
+
+impl std::fmt::Display for Shard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+/// A validated map.
+#[derive(Clone)]
+pub struct MapSpec {
+    /// The run shared by every point; its `x0` is the base state the grid coordinates overwrite.
+    pub run: RunSpec,
+    pub lanes: AnyLaneModel,
+    pub coeffs: StepCoeffs,
+    pub x: Axis,
+    pub y: Axis,
+    pub indicator: Indicator,
+    /// Momentum index solved from `energy` per point, if any.
+    pub solve_for: Option<usize>,
+    pub energy: Option<f64>,
+    /// The canonical configuration text (stored in recordings; resume and merge compare it).
+    pub config_toml: String,
+}
+
+impl MapSpec {
+    pub fn from_config(cfg: &RunConfig) -> Result<Self, SpecError> {
+        let map = cfg
+            .map
+            .as_ref()
+            .ok_or_else(|| SpecError::new("map", "a map needs a [map] section"))?;
+        // Each point's state is built here; the shared run is validated with the base state
+        // taken as given (it may well lie outside the energy surface itself).
+        let mut base = cfg.clone();
+        base.map = None;
+        base.orbit.solve_for = None;
+        base.orbit.energy = None;
+        if cfg.orbit.preset.is_some() {
+            return Err(SpecError::new(
+                "orbit.preset",
+                "a map takes its fixed coordinates from [orbit] q and p, not a preset",
+            ));
+        }
+        let k = map.k.unwrap_or(cfg.deviations.k);
+        base.deviations.k = k;
+        if cfg.schemes.len() != 1 {
+            return Err(SpecError::new(
+                "scheme",
+                format!("a map uses exactly one [[scheme]], got {}", cfg.schemes.len()),
+            ));
+        }
+        let run = RunSpec::from_config(&base)?;
+        let n = run.model.dof();
+        if run.schemes[0].orthonormalize != Orthonormalization::Rescale {
+            return Err(SpecError::new(
+                "scheme[0].orthonormalize",
+                "maps renormalize each vector separately: use \"rescale\"",
+            ));
+        }
+        let indicator = Indicator::from_config(map, k)?;
+        let x = Axis::from_config("map.x", &map.x, n)?;
+        let y = Axis::from_config("map.y", &map.y, n)?;
+        if x.slot == y.slot {
+            return Err(SpecError::new("map.y.coord", "x and y are the same coordinate"));
+        }
+        let solve_for = match (&cfg.orbit.solve_for, cfg.orbit.energy) {
+            (Some(name), Some(e)) => {
+                if !e.is_finite() {
+                    return Err(SpecError::new("orbit.energy", format!("must be finite, got {e}")));
+                }
+                match parse_coordinate(name, n) {
+                    Some((true, j)) if n + j == x.slot || n + j == y.slot => {
+                        return Err(SpecError::new(
+                            "orbit.solve_for",
+                            format!("{name} is a grid axis; it cannot also be solved for"),
+                        ));
+                    }
+                    Some((true, j)) => Some(j),
+                    _ => {
+                        return Err(SpecError::new(
+                            "orbit.solve_for",
+                            format!("'{name}' is not a momentum p1..p{n}"),
+                        ));
+                    }
+                }
+            }
+            (None, None) => None,
+            (Some(_), None) => {
+                return Err(SpecError::new("orbit.energy", "solve_for needs an energy"));
+            }
+            (None, Some(_)) => {
+                return Err(SpecError::new("orbit.solve_for", "energy needs solve_for"));
+            }
+        };
+        let lanes = AnyLaneModel::new(run.model.clone(), cfg.model.beta.or(Some(1.0)));
+        let coeffs = StepCoeffs::new(&run.integrator, run.h);
+        Ok(Self {
+            lanes,
+            coeffs,
+            x,
+            y,
+            indicator,
+            solve_for,
+            energy: cfg.orbit.energy,
+            run,
+            config_toml: cfg.to_toml(),
+        })
+    }
+
+    pub fn grid_points(&self) -> u64 {
+        (self.x.n * self.y.n) as u64
+    }
+
+    pub fn sets(&self) -> usize {
+        self.run.sets()
+    }
+
+    /// `(ix, iy)` of a point index.
+    pub fn cell(&self, index: u64) -> (usize, usize) {
+        let i = index as usize;
+        (i % self.x.n, i / self.x.n)
+    }
+
+    /// The initial condition of a point, or why it has none (outside the energy surface).
+    pub fn initial_state(&self, index: u64) -> Result<Vec<f64>, String> {
+        let (ix, iy) = self.cell(index);
+        let mut x = self.run.x0.clone();
+        x[self.x.slot] = self.x.value(ix);
+        x[self.y.slot] = self.y.value(iy);
+        if let (Some(j), Some(e)) = (self.solve_for, self.energy) {
+            solve_momentum(self.run.model.as_ref(), &mut x, j, e).map_err(|e| e.message)?;
+        }
+        Ok(x)
+    }
+
+    /// The one-orbit run of a point (what the [`crate::engine::Engine`] integrates).
+    pub fn point_run(&self, x0: &[f64]) -> RunSpec {
+        let mut run = self.run.clone();
+        run.x0 = x0.to_vec();
+        run.e0 = run.model.energy(x0);
+        run
+    }
+
+    /// Points of `shard`, in index order.
+    pub fn shard_points(&self, shard: Shard) -> impl Iterator<Item = u64> + '_ {
+        (0..self.grid_points()).filter(move |&i| shard.contains(i))
+    }
+}
+
+impl MapSpec {
+    /// A point's identity, before any number is known.
+    pub fn base_result(&self, index: u64) -> super::PointResult {
+        let (ix, iy) = self.cell(index);
+        super::PointResult {
+            index,
+            ix: ix as u32,
+            iy: iy as u32,
+            x: self.x.value(ix),
+            y: self.y.value(iy),
+            status: super::PointStatus::Ok,
+            value: f64::NAN,
+            per_set: Vec::new(),
+            mean_log10: 0.0,
+            t_end: 0.0,
+            orbit_steps: 0,
+            reason: String::new(),
+            x0: Vec::new(),
+        }
+    }
+}

@@ -1,0 +1,113 @@
+//! Batched variational method: one point at a time, its reference orbit integrated once (with
+//! its position before every kick recorded) and the `sets * k` tangent vectors of all its sets
+//! advanced as lanes by the tangent-map kernel around it.
+
+use super::indicator::{PointAccumulator, failed};
+use super::point::{PointResult, PointStatus};
+use super::spec::MapSpec;
+use super::window::{ESCAPE_NORM, Windows, norm};
+use crate::batch::{self, Isa, LaneModel, Soa, record_reference_stages};
+use crate::engine::RunError;
+use crate::renormalization::{self, Orthonormalization};
+use crate::with_lane_model;
+
+pub fn compute(spec: &MapSpec, isa: Isa, index: u64) -> PointResult {
+    with_lane_model!(&spec.lanes, |m| compute_with(m, spec, isa, index))
+}
+
+fn compute_with<M: LaneModel>(model: &M, spec: &MapSpec, isa: Isa, index: u64) -> PointResult {
+    let run = &spec.run;
+    let (dim, k, d0) = (run.dim, run.k, run.schemes[0].d0);
+    let base = spec.base_result(index);
+    let mut x = match spec.initial_state(index) {
+        Ok(x0) => x0,
+        Err(reason) => return failed(base, PointStatus::OutsideEnergySurface, 0.0, reason),
+    };
+    let base = PointResult {
+        x0: x.clone(),
+        ..base
+    };
+    let mut acc = PointAccumulator::new(spec.indicator, dim, run.sets(), run.t_final());
+    // Active sets: (set index, first lane of its k vectors).
+    let mut sets: Vec<(usize, usize)> = (0..run.sets()).map(|s| (s, s * k)).collect();
+    let mut soa = Soa::new(dim, run.sets() * k);
+    for (s, dirs) in run.directions.iter().enumerate() {
+        for (i, u) in dirs.vectors.chunks_exact(dim).enumerate() {
+            let scaled: Vec<f64> = u.iter().map(|u| d0 * u).collect();
+            soa.write_lane(s * k + i, &scaled);
+        }
+    }
+    let (mut stages, mut force) = (Vec::new(), vec![0.0; model.dof()]);
+    let mut vectors = vec![0.0; k * dim];
+    let mut raw = vec![0.0; k * dim];
+    let mut stretch = vec![0.0; k];
+    let mut orbit_steps = 0;
+    for w in Windows::new(run) {
+        orbit_steps += w.steps * (1 + (sets.len() * k) as u64);
+        record_reference_stages(model, &spec.coeffs, &mut x, w.steps, &mut stages, &mut force);
+        batch::tangent_steps(isa, model, &spec.coeffs, &stages, &mut soa, w.steps);
+        let rn = norm(&x);
+        if rn.is_nan() || rn >= ESCAPE_NORM {
+            let e = RunError::Escaped { t: w.t, norm: rn };
+            let r = failed(base, PointStatus::Escaped, w.t, e.to_string());
+            return PointResult { orbit_steps, ..r };
+        }
+        let before = sets.len();
+        let mut error = None;
+        sets.retain(|&(set, lane)| {
+            if error.is_some() {
+                return true;
+            }
+            for i in 0..k {
+                soa.read_lane(lane + i, &mut vectors[i * dim..(i + 1) * dim]);
+            }
+            raw.copy_from_slice(&vectors);
+            if let Err(source) = renormalization::renormalize(
+                &mut vectors,
+                dim,
+                d0,
+                Orthonormalization::Rescale,
+                &mut stretch,
+            ) {
+                error = Some(RunError::Renormalization {
+                    scheme: run.schemes[0].name.clone(),
+                    set: set as u32,
+                    t: w.t,
+                    source,
+                });
+                return true;
+            }
+            if acc.observe(set, w.t, &raw, &stretch, w.last) {
+                return false;
+            }
+            for i in 0..k {
+                soa.write_lane(lane + i, &vectors[i * dim..(i + 1) * dim]);
+            }
+            true
+        });
+        if let Some(e) = error {
+            let r = failed(base, PointStatus::Escaped, w.t, e.to_string());
+            return PointResult { orbit_steps, ..r };
+        }
+        if acc.is_done() {
+            break;
+        }
+        if sets.len() != before {
+            // Stopped sets leave: their lanes are compacted away.
+            let mut packed = Soa::new(dim, sets.len() * k);
+            let mut buf = vec![0.0; dim];
+            for (j, (_, lane)) in sets.iter_mut().enumerate() {
+                for i in 0..k {
+                    soa.read_lane(*lane + i, &mut buf);
+                    packed.write_lane(j * k + i, &buf);
+                }
+                *lane = j * k;
+            }
+            soa = packed;
+        }
+    }
+    PointResult {
+        orbit_steps,
+        ..acc.finish(base)
+    }
+}

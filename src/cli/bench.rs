@@ -1,0 +1,231 @@
+//! `chaoscope bench`: throughput of the batched kernel and the paper's GALI_2 map workload,
+//! printed as one JSON object.
+//!
+//! - `kernel`: orbit-steps per CPU-second of one thread for Henon-Heiles and the FPUT chain
+//!   (N = 5, 101, 501), MPM (independent orbits) and VM (tangent vectors around a shared
+//!   reference orbit, the reference included in the count), on the detected instruction set.
+//! - `gali2_map`: the paper's Fig. 9(b) settings (HH, H = 0.125, x1 = 0 section, ABA864,
+//!   h = 0.01, tau = 1, d0 = 1e-8, 50 sets, t = 500, MPM) on a reduced grid over the same
+//!   region, with 1 and 2 threads; CPU time extrapolated to 700 x 600 points.
+//!
+//! Times are CPU times of this process/thread (per-core figures stay meaningful on a shared
+//! machine); the thread speed-up is a wall-clock ratio.
+
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::Context;
+use chaoscope_producer::batch::{
+    self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages,
+};
+use chaoscope_producer::integrator::{Splitting, SplittingKind};
+use chaoscope_producer::map::{MapOptions, MapSpec, run_map};
+use chaoscope_producer::model::{FputBeta, HenonHeiles};
+use chaoscope_schemas::config::RunConfig;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Reduced grid of the map workload, NXxNY over the paper's region (700x600 is the paper).
+    #[arg(long, default_value = "35x30")]
+    pub grid: String,
+    /// Final time of the map workload (the paper: 500).
+    #[arg(long, default_value_t = 500.0)]
+    pub t_final: f64,
+    /// Seconds of CPU time per kernel case (at least).
+    #[arg(long, default_value_t = 1.0)]
+    pub kernel_seconds: f64,
+    /// Force the instruction set (avx512, avx2, portable).
+    #[arg(long)]
+    pub isa: Option<String>,
+    /// Kept for symmetry with other commands: the output is always JSON.
+    #[arg(long)]
+    pub json: bool,
+}
+
+/// CPU time of the whole process, in seconds.
+pub fn process_cpu_seconds() -> f64 {
+    cpu_seconds(libc::CLOCK_PROCESS_CPUTIME_ID)
+}
+
+fn thread_cpu_seconds() -> f64 {
+    cpu_seconds(libc::CLOCK_THREAD_CPUTIME_ID)
+}
+
+fn cpu_seconds(clock: libc::clockid_t) -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid timespec to write into; the clock ids are POSIX constants.
+    let rc = unsafe { libc::clock_gettime(clock, &mut ts) };
+    if rc != 0 {
+        return f64::NAN;
+    }
+    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+}
+
+/// Orbit-steps per thread-CPU-second of `method` for `lanes` orbits / vectors.
+fn kernel_case<M: LaneModel>(
+    isa: Isa,
+    model: &M,
+    method: &str,
+    lanes: usize,
+    seconds: f64,
+) -> serde_json::Value {
+    let dim = 2 * model.dof();
+    let coeffs = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), 0.01);
+    // Renormalization windows of tau = 1 (100 steps), as in the paper's maps.
+    let window = 100u64;
+    let mut soa = Soa::new(dim, lanes);
+    let mut x = vec![0.0; dim];
+    for l in 0..soa.lanes() {
+        for r in 0..dim {
+            // Small bounded states (HH: well inside the energy surface).
+            let v = 0.05 * (((l * 31 + r * 17) % 13) as f64 / 13.0 - 0.5);
+            soa.set(r, l, if method == "vm" { 1e-8 * v } else { v });
+            x[r] = 0.02 * (r as f64 + 1.0);
+        }
+    }
+    let (mut stages, mut force) = (Vec::new(), vec![0.0; model.dof()]);
+    let start = thread_cpu_seconds();
+    let mut windows = 0u64;
+    while thread_cpu_seconds() - start < seconds || windows == 0 {
+        if method == "vm" {
+            record_reference_stages(model, &coeffs, &mut x, window, &mut stages, &mut force);
+            batch::tangent_steps(isa, model, &coeffs, &stages, &mut soa, window);
+        } else {
+            batch::orbit_steps(isa, model, &coeffs, &mut soa, window);
+        }
+        windows += 1;
+    }
+    let cpu = thread_cpu_seconds() - start;
+    // VM counts the shared reference orbit as one more orbit-step per step.
+    let orbits = lanes + usize::from(method == "vm");
+    let orbit_steps = (orbits as u64 * window * windows) as f64;
+    serde_json::json!({
+        "model": model_name(model.dof(), model.name()),
+        "method": method,
+        "lanes": lanes,
+        "orbit_steps": orbit_steps,
+        "cpu_seconds": cpu,
+        "orbit_steps_per_second_per_core": orbit_steps / cpu,
+    })
+}
+
+fn model_name(dof: usize, name: &str) -> String {
+    if name == "fput-beta" {
+        format!("fput-beta N={dof}")
+    } else {
+        name.to_string()
+    }
+}
+
+fn paper_gali2_config(nx: usize, ny: usize, t_final: f64) -> String {
+    format!(
+        r#"
+[model]
+name = "henon-heiles"
+[orbit]
+q = [0.0, 0.0]
+p = [0.0, 0.0]
+energy = 0.125
+solve_for = "p1"
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = {t_final}
+[deviations]
+k = 2
+sets = 50
+seed = 1
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-8
+tau = 1.0
+[map]
+x = {{ coord = "q2", min = -0.45, max = 0.65, n = {nx} }}
+y = {{ coord = "p2", min = -0.45, max = 0.45, n = {ny} }}
+indicator = "gali"
+k = 2
+"#
+    )
+}
+
+fn map_case(spec: &MapSpec, isa: Isa, threads: usize) -> anyhow::Result<(f64, f64, u64, usize)> {
+    let points: Vec<u64> = (0..spec.grid_points()).collect();
+    let options = MapOptions {
+        threads: Some(threads),
+        isa,
+        ..MapOptions::default()
+    };
+    let (wall, cpu) = (Instant::now(), process_cpu_seconds());
+    let (mut steps, mut integrated) = (0u64, 0usize);
+    run_map(spec, &points, &options, |r| {
+        steps += r.orbit_steps;
+        integrated += usize::from(r.orbit_steps > 0);
+        true
+    })?;
+    Ok((
+        wall.elapsed().as_secs_f64(),
+        process_cpu_seconds() - cpu,
+        steps,
+        integrated,
+    ))
+}
+
+pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    let isa = match &args.isa {
+        None => Isa::detect(),
+        Some(n) => Isa::from_name(n)
+            .filter(|i| i.available())
+            .with_context(|| format!("instruction set {n:?} unknown or unsupported"))?,
+    };
+    let (nx, ny) = args
+        .grid
+        .split_once('x')
+        .and_then(|(a, b)| Some((a.parse::<usize>().ok()?, b.parse::<usize>().ok()?)))
+        .context("--grid must be NXxNY, e.g. 35x30")?;
+    let s = args.kernel_seconds;
+    let mut kernel = Vec::new();
+    for method in ["mpm", "vm"] {
+        kernel.push(kernel_case(isa, &HenonHeiles, method, 1024, s));
+        for (n, lanes) in [(5, 512), (101, 64), (501, 64)] {
+            let m = FputBeta::new(n, 1.0).map_err(anyhow::Error::msg)?;
+            kernel.push(kernel_case(isa, &m, method, lanes, s));
+        }
+    }
+
+    let text = paper_gali2_config(nx, ny, args.t_final);
+    let spec = MapSpec::from_config(&RunConfig::from_toml(&text)?)?;
+    let (wall1, cpu1, steps, integrated) = map_case(&spec, isa, 1)?;
+    let (wall2, cpu2, _, _) = map_case(&spec, isa, 2)?;
+    let full_points = 700.0 * 600.0;
+    let reduced = spec.grid_points() as f64;
+    let cpu_hours = cpu1 * full_points / reduced / 3600.0;
+    let paper_hours = 28.2;
+    println!(
+        "{}",
+        serde_json::to_string_pretty(&serde_json::json!({
+            "isa": isa.name(),
+            "kernel": kernel,
+            "gali2_map": {
+                "settings": "HH H=0.125 x1=0 section, q2 in [-0.45,0.65], p2 in [-0.45,0.45], ABA864 h=0.01, MPM tau=1 d0=1e-8, k=2, 50 sets",
+                "t_final": args.t_final,
+                "grid": [nx, ny],
+                "points": spec.grid_points(),
+                "points_integrated": integrated,
+                "orbit_steps": steps,
+                "one_thread": { "wall_seconds": wall1, "cpu_seconds": cpu1 },
+                "two_threads": { "wall_seconds": wall2, "cpu_seconds": cpu2 },
+                "speedup_1_to_2_threads": wall1 / wall2,
+                "orbit_steps_per_cpu_second": steps as f64 / cpu1,
+                "extrapolated_cpu_hours_700x600": cpu_hours,
+                "paper_cpu_hours": paper_hours,
+                "target_cpu_hours": paper_hours / 10.0,
+                "meets_target": cpu_hours <= paper_hours / 10.0,
+            },
+        }))?
+    );
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,273 @@
+//! `chaoscope map CONFIG --out FILE.mcap [--png FILE.png] [--threads N] [--json] [--shard i/n]`:
+//! a phase-space map, one chaos indicator per grid point, recorded to MCAP as points complete.
+//!
+//! Resuming: when FILE.mcap exists (finished, interrupted by Ctrl-C, or truncated by a kill)
+//! and was made from the same configuration and shard, its points are kept and only the missing
+//! ones are computed. The old file is renamed to FILE.mcap.prev while its points are copied
+//! into the new one, so an interruption at any moment loses nothing that was on disk.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{Context, bail};
+use chaoscope_analyzer::map_png;
+use chaoscope_producer::batch::Isa;
+use chaoscope_producer::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
+use chaoscope_producer::publish::Termination;
+use chaoscope_recorder::file::{Compression, FileOptions};
+use chaoscope_recorder::map_file::{MapFile, read_map};
+use chaoscope_schemas::proto::{MapHeader, MapPoint};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Run configuration (TOML) with a [map] section; `-` reads it from stdin.
+    pub config: PathBuf,
+    /// Output MCAP file; resumed when it exists (same config and shard).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also render the map as a PNG colour map.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Worker threads (default: one per core).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    /// Print a JSON summary on stdout.
+    #[arg(long)]
+    pub json: bool,
+    /// Compute only the points with index % n == i (for job arrays; join with `merge`).
+    #[arg(long, default_value = "0/1")]
+    pub shard: Shard,
+    /// Discard an existing output file instead of resuming it.
+    #[arg(long)]
+    pub restart: bool,
+    /// No progress bar.
+    #[arg(long)]
+    pub no_progress: bool,
+    /// Force the kernel's instruction set (avx512, avx2, portable); default: detected.
+    #[arg(long)]
+    pub isa: Option<String>,
+    /// Close the open MCAP chunk at least this often, in seconds (what a kill can lose).
+    #[arg(long, default_value = "2", value_parser = super::parse_seconds)]
+    pub flush_interval: Duration,
+    /// Stop as if interrupted after this many new points (tests of resuming).
+    #[arg(long, hide = true)]
+    pub stop_after: Option<u64>,
+}
+
+pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    let (config, _) = super::load_config(&args.config)?;
+    let spec = MapSpec::from_config(&config).context("invalid map configuration")?;
+    let isa = match &args.isa {
+        None => Isa::detect(),
+        Some(name) => {
+            let isa = Isa::from_name(name)
+                .with_context(|| format!("unknown --isa {name:?} (avx512, avx2, portable)"))?;
+            if !isa.available() {
+                bail!("this CPU does not support {name}");
+            }
+            isa
+        }
+    };
+    let header = spec.header(args.shard);
+    let termination = Termination::new();
+    // Installs the SIGINT/SIGTERM handler before the long computation starts.
+    let _ = termination.requested();
+
+    let recorded = if args.restart {
+        BTreeMap::new()
+    } else {
+        previous_points(&args.out, &header)?
+    };
+    let prev = prev_path(&args.out);
+    if args.out.exists() {
+        std::fs::rename(&args.out, &prev)
+            .with_context(|| format!("moving {} aside", args.out.display()))?;
+    }
+    let options = FileOptions {
+        compression: Compression::Zstd,
+        chunk_size: 1 << 20,
+    };
+    let out = File::create(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let mut file = MapFile::create(out, &header, &options)?;
+    for p in recorded.values() {
+        file.write_point(p)?;
+    }
+    file.close_chunk()?;
+    if prev.exists() {
+        std::fs::remove_file(&prev).with_context(|| format!("removing {}", prev.display()))?;
+    }
+
+    let todo: Vec<u64> = spec
+        .shard_points(args.shard)
+        .filter(|i| !recorded.contains_key(i))
+        .collect();
+    let bar = if args.no_progress {
+        indicatif::ProgressBar::hidden()
+    } else {
+        indicatif::ProgressBar::new(todo.len() as u64)
+    };
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} [{elapsed_precise}] {wide_bar} {pos}/{len} points ({per_sec}, ETA {eta})",
+        )
+        .expect("valid template"),
+    );
+    let map_options = MapOptions {
+        threads: args.threads,
+        isa,
+        ..MapOptions::default()
+    };
+    let start = Instant::now();
+    let cpu_start = super::bench::process_cpu_seconds();
+    let mut last_flush = Instant::now();
+    let (mut computed, mut orbit_steps) = (0u64, 0u64);
+    let mut new_points = Vec::new();
+    let mut write_error = None;
+    let mut interrupted = false;
+    run_map(&spec, &todo, &map_options, |r| {
+        let message = MapPoint::from(&r);
+        if let Err(e) = file.write_point(&message) {
+            write_error = Some(e);
+            return false;
+        }
+        computed += 1;
+        orbit_steps += r.orbit_steps;
+        new_points.push(message);
+        bar.inc(1);
+        if last_flush.elapsed() >= args.flush_interval {
+            if let Err(e) = file.close_chunk() {
+                write_error = Some(e);
+                return false;
+            }
+            last_flush = Instant::now();
+        }
+        if termination.requested() || args.stop_after.is_some_and(|n| computed >= n) {
+            interrupted = true;
+            return false;
+        }
+        true
+    })?;
+    bar.finish_and_clear();
+    if let Some(e) = write_error {
+        return Err(e).context(format!("writing {}", args.out.display()));
+    }
+    file.close_chunk()?;
+    file.finish()?;
+    let seconds = start.elapsed().as_secs_f64();
+    let cpu_seconds = super::bench::process_cpu_seconds() - cpu_start;
+
+    let mut all: Vec<MapPoint> = recorded.into_values().chain(new_points).collect();
+    all.sort_by_key(|p| p.index);
+    let count = |s: PointStatus| {
+        all.iter()
+            .filter(|p| p.status == MapPoint::from_status(s))
+            .count()
+    };
+    let expected = spec.shard_points(args.shard).count();
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "out": args.out,
+                "shard": args.shard.to_string(),
+                "indicator": spec.indicator.name(),
+                "method": header.method,
+                "points": all.len(),
+                "points_expected": expected,
+                "computed": computed,
+                "resumed": all.len() as u64 - computed,
+                "outside_energy_surface": count(PointStatus::OutsideEnergySurface),
+                "escaped": count(PointStatus::Escaped),
+                "complete": all.len() == expected,
+                "interrupted": interrupted,
+                "isa": isa.name(),
+                "threads": args.threads.unwrap_or_else(rayon_threads),
+                "seconds": seconds,
+                "cpu_seconds": cpu_seconds,
+                "orbit_steps": orbit_steps,
+                "orbit_steps_per_cpu_second": orbit_steps as f64 / cpu_seconds.max(1e-9),
+            })
+        );
+    }
+    if interrupted {
+        eprintln!(
+            "chaoscope map: interrupted with {} of {expected} points in {}; run the same \
+             command again to resume",
+            all.len(),
+            args.out.display()
+        );
+        return Ok(super::exit_interrupted());
+    }
+    if let Some(png) = &args.png {
+        map_png::render_png(&header, &all, png).map_err(anyhow::Error::msg)?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn rayon_threads() -> usize {
+    std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1)
+}
+
+fn prev_path(out: &Path) -> PathBuf {
+    let mut s = out.as_os_str().to_owned();
+    s.push(".prev");
+    PathBuf::from(s)
+}
+
+/// Points already recorded for this map and shard, from the output file and from a `.prev`
+/// file left by an interrupted resume.
+fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u64, MapPoint>> {
+    let mut points = BTreeMap::new();
+    for path in [prev_path(out), out.to_path_buf()] {
+        if !path.exists() {
+            continue;
+        }
+        let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
+        let contents = read_map(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        let Some(h) = contents.header else {
+            // Killed before its header reached the disk: nothing to keep.
+            continue;
+        };
+        if h.config_toml != header.config_toml
+            || (h.shard_index, h.shard_count) != (header.shard_index, header.shard_count)
+        {
+            bail!(
+                "{} holds a different map (configuration or shard differ); pass --restart to \
+                 overwrite it or choose another --out",
+                path.display()
+            );
+        }
+        if let Some(d) = &contents.damaged {
+            eprintln!(
+                "chaoscope map: {} was cut short ({d}); resuming from its {} complete points",
+                path.display(),
+                contents.points.len()
+            );
+        }
+        for p in contents.points {
+            points.insert(p.index, p);
+        }
+    }
+    Ok(points)
+}
+
+/// Protobuf status of a point status.
+trait FromStatus {
+    fn from_status(s: PointStatus) -> i32;
+}
+
+impl FromStatus for MapPoint {
+    fn from_status(s: PointStatus) -> i32 {
+        use chaoscope_schemas::proto::map_point::Status;
+        (match s {
+            PointStatus::Ok => Status::Ok,
+            PointStatus::OutsideEnergySurface => Status::OutsideEnergySurface,
+            PointStatus::Escaped => Status::Escaped,
+        }) as i32
+    }
+}

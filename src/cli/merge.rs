@@ -1,0 +1,131 @@
+//! `chaoscope merge SHARD.mcap... --out FILE.mcap [--png FILE.png]`: join the recordings of
+//! `chaoscope map --shard i/n` (i = 0..n-1) into the recording of the whole map.
+//!
+//! The shards must come from the same configuration, cover every shard index once and, unless
+//! `--allow-incomplete`, every grid point. The merged file holds the points in index order with
+//! the header of shard 0/1: exactly what an unsharded run would have computed.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, bail};
+use chaoscope_analyzer::map_png;
+use chaoscope_recorder::file::{Compression, FileOptions};
+use chaoscope_recorder::map_file::{MapFile, read_map};
+use chaoscope_schemas::proto::{MapHeader, MapPoint};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Shard recordings (from `chaoscope map --shard i/n`).
+    #[arg(required = true)]
+    pub shards: Vec<PathBuf>,
+    /// Merged MCAP file.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Also render the merged map as a PNG.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    /// Replace the output file if it exists.
+    #[arg(long)]
+    pub force: bool,
+    /// Write the merge even if grid points are missing (they stay blank in the PNG).
+    #[arg(long)]
+    pub allow_incomplete: bool,
+    /// Print a JSON summary on stdout.
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    if args.out.exists() && !args.force {
+        bail!("{} exists (pass --force to replace it)", args.out.display());
+    }
+    let mut header: Option<MapHeader> = None;
+    let mut seen_shards = BTreeMap::new();
+    let mut points: BTreeMap<u64, MapPoint> = BTreeMap::new();
+    for path in &args.shards {
+        let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+        let contents = read_map(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        let h = contents
+            .header
+            .with_context(|| format!("{} has no map header", path.display()))?;
+        if let Some(d) = contents.damaged {
+            bail!(
+                "{} is cut short ({d}); resume it with the same `chaoscope map` command first",
+                path.display()
+            );
+        }
+        if let Some(first) = &header {
+            if first.config_toml != h.config_toml || first.shard_count != h.shard_count {
+                bail!(
+                    "{} belongs to a different map or shard split than {}",
+                    path.display(),
+                    args.shards[0].display()
+                );
+            }
+        }
+        if let Some(other) = seen_shards.insert(h.shard_index, path.clone()) {
+            bail!(
+                "shard {}/{} given twice: {} and {}",
+                h.shard_index,
+                h.shard_count,
+                other.display(),
+                path.display()
+            );
+        }
+        for p in contents.points {
+            if p.index % h.shard_count as u64 != h.shard_index as u64 || p.index >= h.grid_points
+            {
+                bail!("{}: point {} is not in its shard", path.display(), p.index);
+            }
+            points.insert(p.index, p);
+        }
+        header = Some(h);
+    }
+    let mut header = header.expect("at least one shard");
+    let missing_shards: Vec<u32> = (0..header.shard_count)
+        .filter(|i| !seen_shards.contains_key(i))
+        .collect();
+    let missing = header.grid_points - points.len() as u64;
+    if (!missing_shards.is_empty() || missing > 0) && !args.allow_incomplete {
+        bail!(
+            "incomplete map: {missing} of {} points missing (shards missing: {missing_shards:?}); \
+             finish the shards or pass --allow-incomplete",
+            header.grid_points
+        );
+    }
+    header.shard_index = 0;
+    header.shard_count = 1;
+    let out = File::create(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let mut file = MapFile::create(
+        out,
+        &header,
+        &FileOptions {
+            compression: Compression::Zstd,
+            chunk_size: 1 << 20,
+        },
+    )?;
+    for p in points.values() {
+        file.write_point(p)?;
+    }
+    file.finish()?;
+    let all: Vec<MapPoint> = points.into_values().collect();
+    if let Some(png) = &args.png {
+        map_png::render_png(&header, &all, png).map_err(anyhow::Error::msg)?;
+    }
+    if args.json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "out": args.out,
+                "shards": seen_shards.len(),
+                "points": all.len(),
+                "grid_points": header.grid_points,
+                "missing": missing,
+            })
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,140 @@
+//! `chaoscope map` / `merge` end to end: shards merged equal the unsharded map exactly, and an
+//! interrupted (or killed and truncated) map resumes to the same result.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::Command;
+
+use chaoscope_recorder::map_file::read_map;
+use prost::Message;
+
+const CONFIG: &str = r#"
+[model]
+name = "henon-heiles"
+[orbit]
+q = [0.0, 0.0]
+p = [0.0, 0.0]
+energy = 0.125
+solve_for = "p1"
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = 20.0
+[deviations]
+k = 3
+sets = 3
+seed = 5
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-8
+tau = 1.0
+[map]
+x = { coord = "q2", min = -0.45, max = 0.65, n = 9 }
+y = { coord = "p2", min = -0.45, max = 0.45, n = 7 }
+indicator = "gali-time"
+k = 3
+threshold = 0.05
+"#;
+
+fn dir() -> tempfile::TempDir {
+    let d = tempfile::tempdir().unwrap();
+    std::fs::write(d.path().join("map.toml"), CONFIG).unwrap();
+    d
+}
+
+fn chaoscope(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_chaoscope"))
+        .args(args)
+        .output()
+        .expect("chaoscope runs")
+}
+
+fn ok(args: &[&str]) {
+    let out = chaoscope(args);
+    assert!(
+        out.status.success(),
+        "chaoscope {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// The map's points by index, each as its exact protobuf bytes (NaN-safe equality).
+fn points(path: &Path) -> BTreeMap<u64, Vec<u8>> {
+    let contents = read_map(&std::fs::read(path).unwrap()).unwrap();
+    assert!(contents.damaged.is_none());
+    let mut map = BTreeMap::new();
+    for p in contents.points {
+        assert!(map.insert(p.index, p.encode_to_vec()).is_none(), "point twice");
+    }
+    map
+}
+
+#[test]
+fn merged_shards_equal_the_unsharded_map() {
+    let tmp = dir();
+    let d = tmp.path();
+    let cfg = d.join("map.toml");
+    let whole = d.join("whole.mcap");
+    ok(&["map", s(&cfg), "--out", s(&whole), "--threads", "2", "--no-progress"]);
+    let mut shards = Vec::new();
+    for i in 0..4 {
+        let out = d.join(format!("shard{i}.mcap"));
+        let threads = if i % 2 == 0 { "1" } else { "2" };
+        let shard = format!("{i}/4");
+        ok(&["map", s(&cfg), "--out", s(&out), "--shard", &shard, "--threads", threads, "--no-progress"]);
+        shards.push(out);
+    }
+    let merged = d.join("merged.mcap");
+    let png = d.join("merged.png");
+    let mut args = vec!["merge", "--out", s(&merged), "--png", s(&png)];
+    args.extend(shards.iter().map(|p| s(p)));
+    ok(&args);
+    let want = points(&whole);
+    assert_eq!(want.len(), 63);
+    assert_eq!(points(&merged), want);
+    assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+    // A missing shard is refused.
+    let out = chaoscope(&["merge", "--out", s(&d.join("bad.mcap")), s(&shards[0]), s(&shards[1])]);
+    assert!(!out.status.success());
+}
+
+#[test]
+fn interrupted_and_killed_maps_resume() {
+    let tmp = dir();
+    let d = tmp.path();
+    let cfg = d.join("map.toml");
+    let whole = d.join("whole.mcap");
+    ok(&["map", s(&cfg), "--out", s(&whole), "--no-progress"]);
+    let want = points(&whole);
+
+    // Interrupted (as by Ctrl-C) after 10 points, then resumed.
+    let out = d.join("interrupted.mcap");
+    let first = chaoscope(&["map", s(&cfg), "--out", s(&out), "--no-progress", "--stop-after", "10"]);
+    assert_eq!(first.status.code(), Some(130));
+    let partial = points(&out).len();
+    assert!((10..63).contains(&partial), "{partial} points after the interruption");
+    let second = chaoscope(&["map", s(&cfg), "--out", s(&out), "--no-progress", "--json"]);
+    assert!(second.status.success());
+    let summary: serde_json::Value = serde_json::from_slice(&second.stdout).unwrap();
+    assert_eq!(summary["resumed"], partial as u64);
+    assert_eq!(points(&out), want);
+
+    // Killed mid-write: the file is cut inside a chunk; the complete chunks are kept.
+    let killed = d.join("killed.mcap");
+    ok(&["map", s(&cfg), "--out", s(&killed), "--no-progress", "--flush-interval", "0"]);
+    let bytes = std::fs::read(&killed).unwrap();
+    std::fs::write(&killed, &bytes[..bytes.len() * 2 / 3]).unwrap();
+    ok(&["map", s(&cfg), "--out", s(&killed), "--no-progress"]);
+    assert_eq!(points(&killed), want);
+
+    // Another configuration never silently mixes with an existing recording.
+    std::fs::write(&cfg, CONFIG.replace("seed = 5", "seed = 6")).unwrap();
+    let other = chaoscope(&["map", s(&cfg), "--out", s(&out), "--no-progress"]);
+    assert!(!other.status.success());
+    assert!(String::from_utf8_lossy(&other.stderr).contains("--restart"));
+}

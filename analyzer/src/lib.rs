@@ -1,3 +1,3 @@
 //! chaoscope-analyzer
-pub mod summary;
 pub mod map_png;
+pub mod summary;

@@ -84,26 +84,46 @@ fn check_against_engine(spec: &MapSpec) {
 
 #[test]
 fn mpm_points_equal_the_engine() {
-    check_against_engine(&hh_map("mpm", &format!("{GRID}\nindicator = \"gali\""), 30.0, 3));
+    check_against_engine(&hh_map(
+        "mpm",
+        &format!("{GRID}\nindicator = \"gali\""),
+        30.0,
+        3,
+    ));
     check_against_engine(&hh_map(
         "mpm",
         &format!("{GRID}\nindicator = \"gali-time\"\nk = 3\nthreshold = 0.05"),
         30.0,
         3,
     ));
-    check_against_engine(&hh_map("mpm", &format!("{GRID}\nindicator = \"mle\""), 20.0, 2));
+    check_against_engine(&hh_map(
+        "mpm",
+        &format!("{GRID}\nindicator = \"mle\""),
+        20.0,
+        2,
+    ));
 }
 
 #[test]
 fn vm_points_equal_the_engine() {
-    check_against_engine(&hh_map("vm", &format!("{GRID}\nindicator = \"gali\""), 30.0, 3));
+    check_against_engine(&hh_map(
+        "vm",
+        &format!("{GRID}\nindicator = \"gali\""),
+        30.0,
+        3,
+    ));
     check_against_engine(&hh_map(
         "vm",
         &format!("{GRID}\nindicator = \"gali-time\"\nk = 3\nthreshold = 0.05"),
         30.0,
         3,
     ));
-    check_against_engine(&hh_map("vm", &format!("{GRID}\nindicator = \"mle\""), 20.0, 2));
+    check_against_engine(&hh_map(
+        "vm",
+        &format!("{GRID}\nindicator = \"mle\""),
+        20.0,
+        2,
+    ));
 }
 
 #[test]
@@ -159,6 +179,13 @@ y = { coord = "p2", min = 0.0, max = 0.0, n = 1 }"#;
         2,
         Isa::detect(),
     );
-    assert!(time[0].value < 250.0, "chaotic decay time {}", time[0].value);
-    assert_eq!(time[1].value, 300.0, "regular orbit never decays below 1e-8");
+    assert!(
+        time[0].value < 250.0,
+        "chaotic decay time {}",
+        time[0].value
+    );
+    assert_eq!(
+        time[1].value, 300.0,
+        "regular orbit never decays below 1e-8"
+    );
 }

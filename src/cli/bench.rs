@@ -15,9 +15,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::Context;
-use chaoscope_producer::batch::{
-    self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages,
-};
+use chaoscope_producer::batch::{self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages};
 use chaoscope_producer::integrator::{Splitting, SplittingKind};
 use chaoscope_producer::map::{MapOptions, MapSpec, run_map};
 use chaoscope_producer::model::{FputBeta, HenonHeiles};

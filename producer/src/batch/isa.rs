@@ -136,7 +136,11 @@ fn tangents_avx2<M: LaneModel>(m: &M, c: &StepCoeffs, s: &[f64], v: &mut Soa, n:
 }
 
 pub(super) fn dispatch_orbits<M: LaneModel>(isa: Isa, m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
-    assert!(isa.available(), "{} is not supported by this CPU", isa.name());
+    assert!(
+        isa.available(),
+        "{} is not supported by this CPU",
+        isa.name()
+    );
     match isa {
         // SAFETY: the CPU supports the instruction set (checked above).
         #[cfg(target_arch = "x86_64")]
@@ -155,7 +159,11 @@ pub(super) fn dispatch_tangents<M: LaneModel>(
     v: &mut Soa,
     n: u64,
 ) {
-    assert!(isa.available(), "{} is not supported by this CPU", isa.name());
+    assert!(
+        isa.available(),
+        "{} is not supported by this CPU",
+        isa.name()
+    );
     match isa {
         // SAFETY: the CPU supports the instruction set (checked above).
         #[cfg(target_arch = "x86_64")]

@@ -65,12 +65,7 @@ pub trait LaneModel: Model {
     fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]);
 
     /// `out[.][l] = Hess V(q) v[.][l]` at one shared position `q` (the reference orbit).
-    fn hessian_vector_lanes<const L: usize>(
-        &self,
-        q: &[f64],
-        v: &[[f64; L]],
-        out: &mut [[f64; L]],
-    );
+    fn hessian_vector_lanes<const L: usize>(&self, q: &[f64], v: &[[f64; L]], out: &mut [[f64; L]]);
 
     /// `n_steps` steps of the splitting for `L` orbits; `x` has `2N` rows, `force` `N` rows.
     #[inline(always)]

@@ -138,7 +138,7 @@ pub fn summarize(path: &Path) -> Result<RunSummary, SummaryError> {
             set,
             t: acc.last.t,
             gali_k_log10: gali,
-            sali: well_formed.then(|| indicators::sali(v, dim)),
+            sali: well_formed.then(|| indicators::sali(v, dim)).flatten(),
             mle: acc.stretch.mle(acc.last.t),
         });
     }

@@ -328,3 +328,113 @@ impl DeviationSet {
         }))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::integrator::Integrator;
+    use chaoscope_schemas::config::RunConfig;
+
+    fn spec(schemes: &str, energy: f64, t_final: f64) -> RunSpec {
+        let text = format!(
+            "[model]\nname = \"henon-heiles\"\n[orbit]\nq = [0.0, -0.25]\np = [0.0, 0.0]\nenergy = {energy}\n\
+             solve_for = \"p1\"\n[integrator]\nmethod = \"aba864\"\nh = 0.01\nt_final = {t_final}\n\
+             [deviations]\nk = 3\nsets = 2\nseed = 4\n{schemes}"
+        );
+        RunSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap()
+    }
+
+    fn scheme(name: &str, method: &str, tau: f64) -> String {
+        format!("[[scheme]]\nname = \"{name}\"\nmethod = \"{method}\"\nd0 = 1e-8\ntau = {tau}\n")
+    }
+
+    #[test]
+    fn reference_orbit_does_not_depend_on_the_schemes() {
+        // Replay relies on this: other tau / d0 / methods, the very same trajectory bits.
+        let collect = |s: RunSpec| {
+            let mut states = std::collections::BTreeMap::new();
+            Engine::new(s)
+                .run(|x| drop(states.insert(x.step, x.state)))
+                .unwrap();
+            states
+        };
+        let a = collect(spec(&scheme("a", "vm", 1.0), 0.125, 20.0));
+        let b = collect(spec(
+            &(scheme("b", "mpm", 0.1) + &scheme("c", "vm", 2.5)),
+            0.125,
+            20.0,
+        ));
+        assert_eq!(a.len(), 21);
+        // Multiples of 0.1 include those of 2.5.
+        assert_eq!(b.len(), 201);
+        for (step, state) in &a {
+            assert_eq!(state, &b[step], "step {step}");
+        }
+        // And it is the plain integration of the initial condition.
+        let s = spec(&scheme("a", "vm", 1.0), 0.125, 20.0);
+        let mut x = s.x0.clone();
+        let mut w = Workspace::new();
+        for _ in 0..2000 {
+            s.integrator.step(s.model.as_ref(), &mut x, s.h, &mut w);
+        }
+        assert_eq!(x, a[&2000]);
+    }
+
+    #[test]
+    fn sample_stream_is_gapless_and_ends() {
+        let mut e = Engine::new(spec(
+            &(scheme("a", "vm", 0.3) + &scheme("b", "mpm", 0.5)),
+            0.125,
+            1.0,
+        ));
+        let mut seen = Vec::new();
+        while let Some(s) = e.next_sample().unwrap() {
+            seen.push((
+                s.seq,
+                s.step,
+                s.schemes.iter().map(|d| d.scheme).collect::<Vec<_>>(),
+            ));
+        }
+        // Renormalizations at 30, 50, 60, 90 (a), 50, 100 (b), and the final step 100 for both.
+        let steps: Vec<u64> = seen.iter().map(|s| s.1).collect();
+        assert_eq!(steps, vec![0, 30, 50, 60, 90, 100]);
+        assert!(seen.iter().enumerate().all(|(i, s)| s.0 == i as u64));
+        assert_eq!(seen[2].2, vec![1, 1]);
+        assert_eq!(seen[5].2, vec![0, 0, 1, 1]);
+        assert!(e.next_sample().unwrap().is_none());
+    }
+
+    #[test]
+    fn escaping_orbit_is_an_error_naming_the_time() {
+        // Above H = 1/6 the Henon-Heiles potential opens and this orbit leaves for infinity.
+        let mut e = Engine::new(spec(&scheme("a", "mpm", 1.0), 0.3, 1000.0));
+        let err = loop {
+            match e.next_sample() {
+                Ok(Some(_)) => continue,
+                Ok(None) => panic!("an orbit at H = 0.3 should escape"),
+                Err(err) => break err,
+            }
+        };
+        assert!(
+            matches!(err, RunError::Escaped { t, .. } if t > 0.0 && t < 1000.0),
+            "{err}"
+        );
+        assert!(err.to_string().contains("escaped"), "{err}");
+    }
+
+    #[test]
+    fn vm_and_mpm_start_from_the_same_directions() {
+        let mut e = Engine::new(spec(
+            &(scheme("v", "vm", 1.0) + &scheme("m", "mpm", 1.0)),
+            0.125,
+            1.0,
+        ));
+        let s0 = e.next_sample().unwrap().unwrap();
+        assert_eq!(s0.schemes.len(), 4);
+        for set in 0..2 {
+            let (v, m) = (&s0.schemes[set], &s0.schemes[2 + set]);
+            assert_eq!(v.separations, m.separations);
+            assert_eq!(v.stretch, vec![1.0; 3]);
+        }
+    }
+}

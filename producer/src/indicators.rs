@@ -44,11 +44,15 @@ pub fn unit_columns(vectors: &[f64], dim: usize) -> DMatrix<f64> {
 
 /// Smaller Alignment Index of the first two vectors: `min(|u1 + u2|, |u1 - u2|)` of the unit
 /// vectors. Equals `GALI_2` up to a factor between 1 and 2 (`GALI_2 = |u1 + u2| |u1 - u2| / 2`).
-pub fn sali(vectors: &[f64], dim: usize) -> f64 {
+/// `None` when fewer than two vectors are given.
+pub fn sali(vectors: &[f64], dim: usize) -> Option<f64> {
+    if vectors.len() < 2 * dim {
+        return None;
+    }
     let u = unit_columns(&vectors[..2 * dim], dim);
     let plus = (u.column(0) + u.column(1)).norm();
     let minus = (u.column(0) - u.column(1)).norm();
-    plus.min(minus)
+    Some(plus.min(minus))
 }
 
 /// Accumulated logarithmic stretching of `k` vectors: the finite-time Lyapunov exponents.
@@ -117,8 +121,9 @@ mod tests {
         let g2 = 10f64.powf(gali_log10(&v, 2)[0]);
         assert!((g2 - th.sin()).abs() < 1e-12, "{g2}");
         // SALI = 2 sin(theta/2) for the nearly parallel pair, and GALI_2 = SALI * |u1+u2| / 2.
-        let s = sali(&v, 2);
+        let s = sali(&v, 2).unwrap();
         assert!((s - 2.0 * (th / 2.0).sin()).abs() < 1e-15);
+        assert_eq!(sali(&v[..2], 2), None);
     }
 
     #[test]

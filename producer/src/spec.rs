@@ -72,6 +72,10 @@ impl SpecError {
 /// Longest run accepted, in steps: beyond this `step * h` loses integer exactness in f64.
 const MAX_STEPS: u64 = 1 << 52;
 
+/// Most numbers of deviation state a run may hold (2^30 doubles = 8 GiB): a typo such as
+/// `sets = 1000000` with a long chain must be refused with a message, not abort on allocation.
+pub const MAX_STATE_VALUES: u128 = 1 << 30;
+
 /// A validated run.
 #[derive(Clone)]
 pub struct RunSpec {
@@ -316,6 +320,24 @@ impl RunSpec {
             return Err(SpecError::new(
                 "deviations.k",
                 format!("must be between 1 and 2N = {dim}, got {}", dev.k),
+            ));
+        }
+        let state_values = (cfg.schemes.len().max(1) as u128 + 1)
+            * dev.sets.max(1) as u128
+            * dev.k as u128
+            * dim as u128;
+        if state_values > MAX_STATE_VALUES {
+            return Err(SpecError::new(
+                "deviations.sets",
+                format!(
+                    "{} schemes x {} sets x k = {} x 2N = {dim} needs {:.1} GiB of deviation state \
+                     (limit {} GiB); use fewer sets or schemes, or split the run",
+                    cfg.schemes.len(),
+                    dev.sets,
+                    dev.k,
+                    state_values as f64 * 8.0 / (1u64 << 30) as f64,
+                    (MAX_STATE_VALUES * 8) >> 30
+                ),
             ));
         }
         let dir_err = |e: DirectionError| SpecError::new("deviations.vectors", e.to_string());

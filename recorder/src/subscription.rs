@@ -16,6 +16,7 @@ use chaoscope_schemas::names;
 use chaoscope_schemas::proto::RunHeader;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
+use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 use prost::Message;
@@ -65,6 +66,9 @@ pub struct RunSubscription {
     data: Subscriber<ipc::Service, [f64], FrameHeader>,
     header: Subscriber<ipc::Service, [u8], RunAnnouncement>,
     listener: Listener<ipc::Service>,
+    ready_service: EventService,
+    /// Held once the data connection is up; tells the producer this receiver is ready.
+    ready: std::cell::OnceCell<Listener<ipc::Service>>,
     _services: (DataService, HeaderService, EventService),
 }
 
@@ -77,15 +81,18 @@ impl RunSubscription {
         let data_service = bus::data_service(&node, run)?;
         let header_service = bus::header_service(&node, run)?;
         let event_service = bus::data_ready_service(&node, run)?;
+        // Header subscriber first: a producer starts streaming as soon as it sees the data
+        // subscriber, and hands out the header history to the subscribers that exist then.
+        let header = header_service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| BusError::new("create header subscriber", e))?;
         let data = data_service
             .subscriber_builder()
             .buffer_size(bus::DATA_BUFFER)
             .create()
             .map_err(|e| BusError::new("create data subscriber", e))?;
-        let header = header_service
-            .subscriber_builder()
-            .create()
-            .map_err(|e| BusError::new("create header subscriber", e))?;
+        let ready_service = bus::ready_service(&node, run)?;
         let listener = event_service
             .listener_builder()
             .create()
@@ -96,6 +103,8 @@ impl RunSubscription {
             data,
             header,
             listener,
+            ready_service,
+            ready: std::cell::OnceCell::new(),
             _services: (data_service, header_service, event_service),
         })
     }
@@ -135,6 +144,7 @@ impl RunSubscription {
                         source,
                     }
                 })?;
+                self.declare_ready()?;
                 return Ok(Some(header));
             }
             // A producer that is not there yet may still come; one that was there and left
@@ -160,6 +170,23 @@ impl RunSubscription {
                 return Ok(None);
             }
         }
+    }
+
+    /// Connects the receiving side of the data stream (the producer exists: it sent the
+    /// header), then tells the producer so by holding a listener on the ready service.
+    fn declare_ready(&self) -> Result<(), BusError> {
+        self.data
+            .update_connections()
+            .map_err(|e| BusError::new("connect to the data stream", e))?;
+        if self.ready.get().is_none() {
+            let listener = self
+                .ready_service
+                .listener_builder()
+                .create()
+                .map_err(|e| BusError::new("create ready listener", e))?;
+            let _ = self.ready.set(listener);
+        }
+        Ok(())
     }
 
     /// Receives up to one buffer of frames; returns how many arrived and whether `f` stopped.

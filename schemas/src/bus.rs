@@ -181,6 +181,16 @@ pub fn data_ready_service(node: &Node<ipc::Service>, run: &str) -> Result<EventS
         .map_err(|e| BusError::new(format!("open event service of run {run:?}"), e))
 }
 
+/// The readiness service of `run` (see [`names::stream::READY`]).
+pub fn ready_service(node: &Node<ipc::Service>, run: &str) -> Result<EventService, BusError> {
+    node.service_builder(&service_name(run, stream::READY)?)
+        .event()
+        .max_notifiers(2)
+        .max_listeners(MAX_DATA_SUBSCRIBERS)
+        .open_or_create()
+        .map_err(|e| BusError::new(format!("open ready service of run {run:?}"), e))
+}
+
 /// Names of the runs whose header service currently exists on this machine.
 pub fn list_runs() -> Vec<String> {
     quiet_logging();

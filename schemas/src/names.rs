@@ -15,6 +15,10 @@ pub mod stream {
     pub const DATA: &str = "data";
     /// Event service the producer notifies after publishing data.
     pub const DATA_READY: &str = "data-ready";
+    /// Event service on which each lossless receiver holds a listener once its data
+    /// connection is up: the producer counts them before streaming (a frame sent before a
+    /// receiver is connected could be lost once its buffer is full).
+    pub const READY: &str = "ready";
     /// Lossy copy of the data stream for live monitors; never slows the producer.
     pub const MONITOR: &str = "monitor";
 }

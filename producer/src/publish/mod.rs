@@ -209,7 +209,7 @@ impl RunPublisher<'_> {
         run: &str,
     ) -> Result<bool, PublishError> {
         let start = Instant::now();
-        while self.ports.data_subscribers() < options.recorders {
+        while self.ports.ready_receivers() < options.recorders {
             self.ports.refresh_connections();
             if termination.requested() {
                 return Ok(false);
@@ -295,7 +295,7 @@ impl RunPublisher<'_> {
             );
             self.ports.send(h, &[&s.separations, &s.stretch])?;
             self.frame += 1;
-            if self.frame % NOTIFY_EVERY == 0 {
+            if self.frame.is_multiple_of(NOTIFY_EVERY) {
                 self.ports.notify();
             }
         }

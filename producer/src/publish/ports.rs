@@ -29,6 +29,7 @@ pub struct Ports {
     data_service: DataService,
     monitor_service: DataService,
     _event_service: EventService,
+    ready_service: EventService,
     _header_service: HeaderService,
     header: Publisher<ipc::Service, [u8], RunAnnouncement>,
     data: Publisher<ipc::Service, [f64], FrameHeader>,
@@ -79,6 +80,7 @@ impl Ports {
         let data_service = bus::data_service(&node, run)?;
         let monitor_service = bus::monitor_service(&node, run)?;
         let event_service = bus::data_ready_service(&node, run)?;
+        let ready_service = bus::ready_service(&node, run)?;
         let header = header_service
             .publisher_builder()
             .initial_max_slice_len(4096)
@@ -109,6 +111,7 @@ impl Ports {
             data_service,
             monitor_service,
             _event_service: event_service,
+            ready_service,
             _header_service: header_service,
             header,
             data,
@@ -140,6 +143,11 @@ impl Ports {
     pub fn refresh_connections(&self) {
         let _ = self.header.update_connections();
         let _ = self.data.update_connections();
+    }
+
+    /// Lossless receivers that declared their data connection up (see `stream::READY`).
+    pub fn ready_receivers(&self) -> usize {
+        self.ready_service.dynamic_config().number_of_listeners()
     }
 
     /// Lossless subscribers (recorders, checkers) currently connected to the data stream.

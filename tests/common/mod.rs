@@ -1,0 +1,255 @@
+//! Helpers shared by the multi-process pipeline tests: configs, child processes, reading a
+//! recording back and recomputing it in process.
+
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, ExitStatus, Stdio};
+use std::time::{Duration, Instant};
+
+use chaoscope_producer::engine::{Engine, Sample};
+use chaoscope_producer::spec::RunSpec;
+use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::names::topic;
+use chaoscope_schemas::proto::{
+    EndOfRun, RecordingSummary, ReferenceState, RunHeader, SeparationSet,
+};
+use prost::Message;
+
+pub const CHAOSCOPE: &str = env!("CARGO_BIN_EXE_chaoscope");
+
+/// A short Henon-Heiles run with two schemes and two sets (t_final, tau as given).
+pub fn hh_config(t_final: f64, tau: f64) -> String {
+    format!(
+        r#"
+[model]
+name = "henon-heiles"
+[orbit]
+q = [0.0, -0.25]
+p = [0.0, 0.0]
+energy = 0.125
+solve_for = "p1"
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = {t_final}
+[deviations]
+k = 3
+sets = 2
+seed = 11
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = {tau}
+[[scheme]]
+name = "mpm-qr"
+method = "mpm"
+d0 = 1e-8
+tau = {tau}
+orthonormalize = "qr"
+"#
+    )
+}
+
+/// A run name no other test (or concurrent test run) uses.
+pub fn unique_run(tag: &str) -> String {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .subsec_nanos();
+    format!("test-{tag}-{}-{nanos}", std::process::id())
+}
+
+pub fn chaoscope(args: &[&str]) -> Command {
+    let mut c = Command::new(CHAOSCOPE);
+    c.args(args).stdout(Stdio::piped()).stderr(Stdio::inherit());
+    c
+}
+
+/// A child process killed if the test fails before reaping it.
+pub struct Proc(pub Child);
+
+impl Proc {
+    pub fn spawn(mut c: Command) -> Self {
+        Self(c.spawn().expect("spawn"))
+    }
+
+    pub fn pid(&self) -> i32 {
+        self.0.id() as i32
+    }
+
+    pub fn signal(&self, signal: i32) {
+        // SAFETY: kill(2) on our own child.
+        unsafe { libc::kill(self.pid(), signal) };
+    }
+
+    /// Waits up to `limit`; panics (after killing the child) if it does not exit.
+    pub fn wait(&mut self, limit: Duration) -> ExitStatus {
+        let start = Instant::now();
+        loop {
+            if let Some(status) = self.0.try_wait().unwrap() {
+                return status;
+            }
+            if start.elapsed() > limit {
+                let _ = self.0.kill();
+                panic!("process {} did not exit within {limit:?}", self.pid());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    pub fn stdout(&mut self) -> String {
+        let mut s = String::new();
+        if let Some(mut out) = self.0.stdout.take() {
+            std::io::Read::read_to_string(&mut out, &mut s).unwrap();
+        }
+        s
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        if let Ok(None) = self.0.try_wait() {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+}
+
+/// Everything a recording holds, decoded.
+#[derive(Debug, Default)]
+pub struct Recorded {
+    pub header: Option<RunHeader>,
+    /// (frame, message) in file order.
+    pub references: Vec<ReferenceState>,
+    pub separations: Vec<SeparationSet>,
+    pub end: Option<EndOfRun>,
+    pub recording: Option<RecordingSummary>,
+    /// Frame numbers of data messages in file order.
+    pub frames: Vec<u64>,
+}
+
+/// Reads a recording; `lenient` accepts a missing end (salvage input).
+pub fn read_recording(path: &Path) -> Recorded {
+    let bytes = std::fs::read(path).unwrap();
+    let mut r = Recorded::default();
+    for m in mcap::MessageStream::new(&bytes).expect("valid MCAP") {
+        let m = m.expect("readable message");
+        let data = &m.data[..];
+        match m.channel.topic.as_str() {
+            topic::RUN => r.header = Some(RunHeader::decode(data).unwrap()),
+            topic::REFERENCE => {
+                let s = ReferenceState::decode(data).unwrap();
+                r.frames.push(s.frame);
+                r.references.push(s);
+            }
+            topic::END => {
+                let s = EndOfRun::decode(data).unwrap();
+                r.frames.push(s.frame);
+                r.end = Some(s);
+            }
+            topic::RECORDING => r.recording = Some(RecordingSummary::decode(data).unwrap()),
+            t if t.starts_with("/chaoscope/separations/") => {
+                let s = SeparationSet::decode(data).unwrap();
+                r.frames.push(s.frame);
+                r.separations.push(s);
+            }
+            other => panic!("unexpected topic {other}"),
+        }
+    }
+    r
+}
+
+/// The in-process computation of `config_toml`, all samples.
+pub fn compute(config_toml: &str, limit: Option<usize>) -> Vec<Sample> {
+    let cfg = RunConfig::from_toml(config_toml).unwrap();
+    let mut engine = Engine::new(RunSpec::from_config(&cfg).unwrap());
+    let mut out = Vec::new();
+    while let Some(s) = engine.next_sample().unwrap() {
+        out.push(s);
+        if limit.is_some_and(|l| out.len() >= l) {
+            break;
+        }
+    }
+    out
+}
+
+pub fn bits(v: &[f64]) -> Vec<u64> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+/// Asserts that the recorded references and separation sets are exactly `expected[..n]`
+/// (n = number of recorded reference states), bit for bit, each exactly once.
+pub fn assert_bit_identical(rec: &Recorded, expected: &[Sample]) {
+    let n = rec.references.len();
+    assert!(
+        n <= expected.len(),
+        "more samples recorded ({n}) than computed ({})",
+        expected.len()
+    );
+    let mut seps = rec.separations.iter();
+    for (i, (got, want)) in rec.references.iter().zip(expected).enumerate() {
+        assert_eq!(
+            got.seq, i as u64,
+            "sample {i} recorded out of order or twice"
+        );
+        assert_eq!(
+            (got.seq, got.step, got.t.to_bits()),
+            (want.seq, want.step, want.t.to_bits())
+        );
+        assert_eq!(bits(&got.state), bits(&want.state), "state of sample {i}");
+        assert_eq!(
+            got.energy.to_bits(),
+            want.energy.to_bits(),
+            "energy of sample {i}"
+        );
+        for ws in &want.schemes {
+            let Some(gs) = seps.next() else {
+                // A salvaged file may end inside a sample.
+                return;
+            };
+            assert_eq!(
+                (gs.seq, gs.scheme, gs.set),
+                (want.seq, ws.scheme, ws.set),
+                "separation order at sample {i}"
+            );
+            assert_eq!(
+                bits(&gs.separations),
+                bits(&ws.separations),
+                "separations at sample {i}"
+            );
+            assert_eq!(
+                bits(&gs.stretch),
+                bits(&ws.stretch),
+                "stretch at sample {i}"
+            );
+        }
+    }
+}
+
+/// Frames are 0, 1, 2, ... with no gap and no repeat.
+pub fn assert_contiguous(frames: &[u64]) {
+    for (i, f) in frames.iter().enumerate() {
+        assert_eq!(*f, i as u64, "frame {i} is {f}: gap or duplicate");
+    }
+}
+
+pub fn write_config(dir: &Path, text: &str) -> PathBuf {
+    let p = dir.join("run.toml");
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+/// Python checks run unless CHAOSCOPE_SKIP_PYTHON=1 (CI installs the packages).
+pub fn python_checks_enabled() -> bool {
+    std::env::var("CHAOSCOPE_SKIP_PYTHON")
+        .map(|v| v != "1")
+        .unwrap_or(true)
+}
+
+pub fn python_script(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/python")
+        .join(name)
+}

@@ -57,14 +57,14 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 path.display()
             );
         }
-        if let Some(first) = &header {
-            if first.config_toml != h.config_toml || first.shard_count != h.shard_count {
-                bail!(
-                    "{} belongs to a different map or shard split than {}",
-                    path.display(),
-                    args.shards[0].display()
-                );
-            }
+        if let Some(first) = &header
+            && (first.config_toml != h.config_toml || first.shard_count != h.shard_count)
+        {
+            bail!(
+                "{} belongs to a different map or shard split than {}",
+                path.display(),
+                args.shards[0].display()
+            );
         }
         if let Some(other) = seen_shards.insert(h.shard_index, path.clone()) {
             bail!(

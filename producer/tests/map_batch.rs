@@ -189,3 +189,22 @@ y = { coord = "p2", min = 0.0, max = 0.0, n = 1 }"#;
         "regular orbit never decays below 1e-8"
     );
 }
+
+#[test]
+fn escaping_orbits_are_marked_not_fatal() {
+    // Above the escape energy 1/6 many orbits leave the potential well and blow up.
+    let text = hh_map("mpm", &format!("{GRID}\nindicator = \"gali\""), 100.0, 2)
+        .config_toml
+        .replace("energy = 0.125", "energy = 0.3");
+    let spec = MapSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap();
+    let got = batched(&spec, 2, Isa::detect());
+    let escaped: Vec<&PointResult> = got
+        .iter()
+        .filter(|r| r.status == PointStatus::Escaped)
+        .collect();
+    assert!(!escaped.is_empty(), "{got:?}");
+    assert!(escaped.iter().all(|r| r.value.is_nan() && r.t_end < 100.0));
+    for r in &got {
+        assert!(r.same_numbers(&map::one_orbit::point(&spec, r.index)), "{r:?}");
+    }
+}

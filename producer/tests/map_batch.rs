@@ -205,6 +205,9 @@ fn escaping_orbits_are_marked_not_fatal() {
     assert!(!escaped.is_empty(), "{got:?}");
     assert!(escaped.iter().all(|r| r.value.is_nan() && r.t_end < 100.0));
     for r in &got {
-        assert!(r.same_numbers(&map::one_orbit::point(&spec, r.index)), "{r:?}");
+        assert!(
+            r.same_numbers(&map::one_orbit::point(&spec, r.index)),
+            "{r:?}"
+        );
     }
 }

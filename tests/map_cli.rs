@@ -69,7 +69,10 @@ fn points(path: &Path) -> BTreeMap<u64, Vec<u8>> {
     assert!(contents.damaged.is_none());
     let mut map = BTreeMap::new();
     for p in contents.points {
-        assert!(map.insert(p.index, p.encode_to_vec()).is_none(), "point twice");
+        assert!(
+            map.insert(p.index, p.encode_to_vec()).is_none(),
+            "point twice"
+        );
     }
     map
 }
@@ -80,13 +83,31 @@ fn merged_shards_equal_the_unsharded_map() {
     let d = tmp.path();
     let cfg = d.join("map.toml");
     let whole = d.join("whole.mcap");
-    ok(&["map", s(&cfg), "--out", s(&whole), "--threads", "2", "--no-progress"]);
+    ok(&[
+        "map",
+        s(&cfg),
+        "--out",
+        s(&whole),
+        "--threads",
+        "2",
+        "--no-progress",
+    ]);
     let mut shards = Vec::new();
     for i in 0..4 {
         let out = d.join(format!("shard{i}.mcap"));
         let threads = if i % 2 == 0 { "1" } else { "2" };
         let shard = format!("{i}/4");
-        ok(&["map", s(&cfg), "--out", s(&out), "--shard", &shard, "--threads", threads, "--no-progress"]);
+        ok(&[
+            "map",
+            s(&cfg),
+            "--out",
+            s(&out),
+            "--shard",
+            &shard,
+            "--threads",
+            threads,
+            "--no-progress",
+        ]);
         shards.push(out);
     }
     let merged = d.join("merged.mcap");
@@ -99,7 +120,13 @@ fn merged_shards_equal_the_unsharded_map() {
     assert_eq!(points(&merged), want);
     assert!(std::fs::metadata(&png).unwrap().len() > 1000);
     // A missing shard is refused.
-    let out = chaoscope(&["merge", "--out", s(&d.join("bad.mcap")), s(&shards[0]), s(&shards[1])]);
+    let out = chaoscope(&[
+        "merge",
+        "--out",
+        s(&d.join("bad.mcap")),
+        s(&shards[0]),
+        s(&shards[1]),
+    ]);
     assert!(!out.status.success());
 }
 
@@ -114,10 +141,21 @@ fn interrupted_and_killed_maps_resume() {
 
     // Interrupted (as by Ctrl-C) after 10 points, then resumed.
     let out = d.join("interrupted.mcap");
-    let first = chaoscope(&["map", s(&cfg), "--out", s(&out), "--no-progress", "--stop-after", "10"]);
+    let first = chaoscope(&[
+        "map",
+        s(&cfg),
+        "--out",
+        s(&out),
+        "--no-progress",
+        "--stop-after",
+        "10",
+    ]);
     assert_eq!(first.status.code(), Some(130));
     let partial = points(&out).len();
-    assert!((10..63).contains(&partial), "{partial} points after the interruption");
+    assert!(
+        (10..63).contains(&partial),
+        "{partial} points after the interruption"
+    );
     let second = chaoscope(&["map", s(&cfg), "--out", s(&out), "--no-progress", "--json"]);
     assert!(second.status.success());
     let summary: serde_json::Value = serde_json::from_slice(&second.stdout).unwrap();
@@ -126,7 +164,15 @@ fn interrupted_and_killed_maps_resume() {
 
     // Killed mid-write: the file is cut inside a chunk; the complete chunks are kept.
     let killed = d.join("killed.mcap");
-    ok(&["map", s(&cfg), "--out", s(&killed), "--no-progress", "--flush-interval", "0"]);
+    ok(&[
+        "map",
+        s(&cfg),
+        "--out",
+        s(&killed),
+        "--no-progress",
+        "--flush-interval",
+        "0",
+    ]);
     let bytes = std::fs::read(&killed).unwrap();
     std::fs::write(&killed, &bytes[..bytes.len() * 2 / 3]).unwrap();
     ok(&["map", s(&cfg), "--out", s(&killed), "--no-progress"]);

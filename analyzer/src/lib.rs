@@ -26,3 +26,4 @@ pub use analysis::{Analysis, AnalysisOptions};
 pub use report::Report;
 pub use run_info::RunInfo;
 pub mod map_png;
+pub mod summary;

@@ -95,7 +95,9 @@ pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Resul
         .collect();
     let (mut lo, mut hi) = values
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(*v), b.max(*v)));
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(*v), b.max(*v))
+        });
     if header.indicator == "gali-time" {
         (lo, hi) = (0.0, header.t_final);
     }
@@ -109,7 +111,10 @@ pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Resul
     let (pw, ph) = (cell * nx as u32, cell * ny as u32);
     let text = font_available();
     let (margin, bar) = (if text { 70 } else { 10 }, if text { 130 } else { 40 });
-    let (w, h) = (pw + margin + bar + 20, ph + margin + if text { 40 } else { 10 });
+    let (w, h) = (
+        pw + margin + bar + 20,
+        ph + margin + if text { 40 } else { 10 },
+    );
     let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
 
     let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
@@ -117,8 +122,16 @@ pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Resul
     let (plot_area, bar_area) = root.split_horizontally(pw + margin + 20);
     let (x0, x1) = (xa.min, xa.max.max(xa.min + f64::EPSILON));
     let (y0, y1) = (ya.min, ya.max.max(ya.min + f64::EPSILON));
-    let dx = if nx > 1 { (x1 - x0) / (nx - 1) as f64 } else { 1.0 };
-    let dy = if ny > 1 { (y1 - y0) / (ny - 1) as f64 } else { 1.0 };
+    let dx = if nx > 1 {
+        (x1 - x0) / (nx - 1) as f64
+    } else {
+        1.0
+    };
+    let dy = if ny > 1 {
+        (y1 - y0) / (ny - 1) as f64
+    } else {
+        1.0
+    };
     let (xr, yr) = (
         (x0 - dx / 2.0)..(x0 + dx * (nx as f64 - 0.5)),
         (y0 - dy / 2.0)..(y0 + dy * (ny as f64 - 0.5)),
@@ -131,9 +144,7 @@ pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Resul
             .x_label_area_size(40)
             .y_label_area_size(55);
     }
-    let mut chart = builder
-        .build_cartesian_2d(xr, yr)
-        .map_err(|e| err(&e))?;
+    let mut chart = builder.build_cartesian_2d(xr, yr).map_err(|e| err(&e))?;
     if text {
         chart
             .configure_mesh()
@@ -156,7 +167,10 @@ pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Resul
             };
             let (cx, cy) = (p.x, p.y);
             Rectangle::new(
-                [(cx - dx / 2.0, cy - dy / 2.0), (cx + dx / 2.0, cy + dy / 2.0)],
+                [
+                    (cx - dx / 2.0, cy - dy / 2.0),
+                    (cx + dx / 2.0, cy + dy / 2.0),
+                ],
                 fill.filled(),
             )
         }))
@@ -164,7 +178,9 @@ pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Resul
 
     // The colour bar.
     let mut bar_builder = ChartBuilder::on(&bar_area);
-    bar_builder.margin_top(if text { 38 } else { 10 }).margin_bottom(if text { 50 } else { 10 });
+    bar_builder
+        .margin_top(if text { 38 } else { 10 })
+        .margin_bottom(if text { 50 } else { 10 });
     bar_builder.margin_right(if text { 60 } else { 10 });
     if text {
         bar_builder.y_label_area_size(0).right_y_label_area_size(50);

@@ -54,7 +54,13 @@ fn check_orbits<M: LaneModel>(model: &M, lanes: usize, scale: f64, n_steps: u64)
         let mut got = vec![0.0; dim];
         for (l, w) in want.iter().enumerate() {
             soa.read_lane(l, &mut got);
-            assert_eq!(bits(&got), bits(w), "{} lane {l} on {}", model.name(), isa.name());
+            assert_eq!(
+                bits(&got),
+                bits(w),
+                "{} lane {l} on {}",
+                model.name(),
+                isa.name()
+            );
         }
     }
 }
@@ -71,7 +77,9 @@ fn check_tangents<M: LaneModel>(model: &M, lanes: usize, scale: f64, n_steps: u6
     let mut work = Workspace::new();
     let (mut x, mut w) = (x0.clone(), vectors.clone());
     for _ in 0..n_steps {
-        split.step_tangent(model, &mut x, &mut w, h, &mut work).unwrap();
+        split
+            .step_tangent(model, &mut x, &mut w, h, &mut work)
+            .unwrap();
     }
     for isa in Isa::ALL.into_iter().filter(|i| i.available()) {
         let mut soa = Soa::new(dim, lanes);
@@ -80,13 +88,31 @@ fn check_tangents<M: LaneModel>(model: &M, lanes: usize, scale: f64, n_steps: u6
         }
         let mut reference = x0.clone();
         let (mut stages, mut force) = (Vec::new(), vec![0.0; n]);
-        record_reference_stages(model, &coeffs, &mut reference, n_steps, &mut stages, &mut force);
-        assert_eq!(bits(&reference), bits(&x), "reference orbit on {}", isa.name());
+        record_reference_stages(
+            model,
+            &coeffs,
+            &mut reference,
+            n_steps,
+            &mut stages,
+            &mut force,
+        );
+        assert_eq!(
+            bits(&reference),
+            bits(&x),
+            "reference orbit on {}",
+            isa.name()
+        );
         batch::tangent_steps(isa, model, &coeffs, &stages, &mut soa, n_steps);
         let mut got = vec![0.0; dim];
         for (l, want) in w.chunks_exact(dim).enumerate() {
             soa.read_lane(l, &mut got);
-            assert_eq!(bits(&got), bits(want), "{} vector {l} on {}", model.name(), isa.name());
+            assert_eq!(
+                bits(&got),
+                bits(want),
+                "{} vector {l} on {}",
+                model.name(),
+                isa.name()
+            );
         }
     }
 }

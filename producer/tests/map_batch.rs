@@ -84,26 +84,46 @@ fn check_against_engine(spec: &MapSpec) {
 
 #[test]
 fn mpm_points_equal_the_engine() {
-    check_against_engine(&hh_map("mpm", &format!("{GRID}\nindicator = \"gali\""), 30.0, 3));
+    check_against_engine(&hh_map(
+        "mpm",
+        &format!("{GRID}\nindicator = \"gali\""),
+        30.0,
+        3,
+    ));
     check_against_engine(&hh_map(
         "mpm",
         &format!("{GRID}\nindicator = \"gali-time\"\nk = 3\nthreshold = 0.05"),
         30.0,
         3,
     ));
-    check_against_engine(&hh_map("mpm", &format!("{GRID}\nindicator = \"mle\""), 20.0, 2));
+    check_against_engine(&hh_map(
+        "mpm",
+        &format!("{GRID}\nindicator = \"mle\""),
+        20.0,
+        2,
+    ));
 }
 
 #[test]
 fn vm_points_equal_the_engine() {
-    check_against_engine(&hh_map("vm", &format!("{GRID}\nindicator = \"gali\""), 30.0, 3));
+    check_against_engine(&hh_map(
+        "vm",
+        &format!("{GRID}\nindicator = \"gali\""),
+        30.0,
+        3,
+    ));
     check_against_engine(&hh_map(
         "vm",
         &format!("{GRID}\nindicator = \"gali-time\"\nk = 3\nthreshold = 0.05"),
         30.0,
         3,
     ));
-    check_against_engine(&hh_map("vm", &format!("{GRID}\nindicator = \"mle\""), 20.0, 2));
+    check_against_engine(&hh_map(
+        "vm",
+        &format!("{GRID}\nindicator = \"mle\""),
+        20.0,
+        2,
+    ));
 }
 
 #[test]
@@ -159,6 +179,35 @@ y = { coord = "p2", min = 0.0, max = 0.0, n = 1 }"#;
         2,
         Isa::detect(),
     );
-    assert!(time[0].value < 250.0, "chaotic decay time {}", time[0].value);
-    assert_eq!(time[1].value, 300.0, "regular orbit never decays below 1e-8");
+    assert!(
+        time[0].value < 250.0,
+        "chaotic decay time {}",
+        time[0].value
+    );
+    assert_eq!(
+        time[1].value, 300.0,
+        "regular orbit never decays below 1e-8"
+    );
+}
+
+#[test]
+fn escaping_orbits_are_marked_not_fatal() {
+    // Above the escape energy 1/6 many orbits leave the potential well and blow up.
+    let text = hh_map("mpm", &format!("{GRID}\nindicator = \"gali\""), 100.0, 2)
+        .config_toml
+        .replace("energy = 0.125", "energy = 0.3");
+    let spec = MapSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap();
+    let got = batched(&spec, 2, Isa::detect());
+    let escaped: Vec<&PointResult> = got
+        .iter()
+        .filter(|r| r.status == PointStatus::Escaped)
+        .collect();
+    assert!(!escaped.is_empty(), "{got:?}");
+    assert!(escaped.iter().all(|r| r.value.is_nan() && r.t_end < 100.0));
+    for r in &got {
+        assert!(
+            r.same_numbers(&map::one_orbit::point(&spec, r.index)),
+            "{r:?}"
+        );
+    }
 }

@@ -15,9 +15,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::Context;
-use chaoscope_producer::batch::{
-    self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages,
-};
+use chaoscope_producer::batch::{self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages};
 use chaoscope_producer::integrator::{Splitting, SplittingKind};
 use chaoscope_producer::map::{MapOptions, MapSpec, run_map};
 use chaoscope_producer::model::{FputBeta, HenonHeiles};
@@ -77,13 +75,13 @@ fn kernel_case<M: LaneModel>(
     // Renormalization windows of tau = 1 (100 steps), as in the paper's maps.
     let window = 100u64;
     let mut soa = Soa::new(dim, lanes);
-    let mut x = vec![0.0; dim];
+    // The VM reference orbit: a small bounded state.
+    let mut x: Vec<f64> = (0..dim).map(|r| 0.02 * (r as f64 + 1.0)).collect();
     for l in 0..soa.lanes() {
         for r in 0..dim {
             // Small bounded states (HH: well inside the energy surface).
             let v = 0.05 * (((l * 31 + r * 17) % 13) as f64 / 13.0 - 0.5);
             soa.set(r, l, if method == "vm" { 1e-8 * v } else { v });
-            x[r] = 0.02 * (r as f64 + 1.0);
         }
     }
     let (mut stages, mut force) = (Vec::new(), vec![0.0; model.dof()]);

@@ -90,7 +90,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         compression: Compression::Zstd,
         chunk_size: 1 << 20,
     };
-    let out = File::create(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let out =
+        File::create(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let mut file = MapFile::create(out, &header, &options)?;
     for p in recorded.values() {
         file.write_point(p)?;

@@ -57,14 +57,14 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 path.display()
             );
         }
-        if let Some(first) = &header {
-            if first.config_toml != h.config_toml || first.shard_count != h.shard_count {
-                bail!(
-                    "{} belongs to a different map or shard split than {}",
-                    path.display(),
-                    args.shards[0].display()
-                );
-            }
+        if let Some(first) = &header
+            && (first.config_toml != h.config_toml || first.shard_count != h.shard_count)
+        {
+            bail!(
+                "{} belongs to a different map or shard split than {}",
+                path.display(),
+                args.shards[0].display()
+            );
         }
         if let Some(other) = seen_shards.insert(h.shard_index, path.clone()) {
             bail!(
@@ -76,8 +76,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             );
         }
         for p in contents.points {
-            if p.index % h.shard_count as u64 != h.shard_index as u64 || p.index >= h.grid_points
-            {
+            if p.index % h.shard_count as u64 != h.shard_index as u64 || p.index >= h.grid_points {
                 bail!("{}: point {} is not in its shard", path.display(), p.index);
             }
             points.insert(p.index, p);
@@ -98,7 +97,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     }
     header.shard_index = 0;
     header.shard_count = 1;
-    let out = File::create(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let out =
+        File::create(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let mut file = MapFile::create(
         out,
         &header,

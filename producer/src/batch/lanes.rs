@@ -61,16 +61,15 @@ fn kick_rows<const L: usize>(p: &mut [[f64; L]], force: &[[f64; L]], dh: f64) {
 /// and `hessian_vector`. The step loops have generic implementations; a model with few degrees
 /// of freedom overrides them to keep the whole state in registers for many steps.
 pub trait LaneModel: Model {
+    /// The whole state of a chunk of lanes fits the vector registers during the step loops
+    /// (few degrees of freedom): the kernel then uses wide chunks.
+    const REGISTER_RESIDENT: bool = false;
+
     /// `out[i][l] = dV/dq_i` of lane `l`; `q` and `out` have `N` rows.
     fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]);
 
     /// `out[.][l] = Hess V(q) v[.][l]` at one shared position `q` (the reference orbit).
-    fn hessian_vector_lanes<const L: usize>(
-        &self,
-        q: &[f64],
-        v: &[[f64; L]],
-        out: &mut [[f64; L]],
-    );
+    fn hessian_vector_lanes<const L: usize>(&self, q: &[f64], v: &[[f64; L]], out: &mut [[f64; L]]);
 
     /// `n_steps` steps of the splitting for `L` orbits; `x` has `2N` rows, `force` `N` rows.
     #[inline(always)]

@@ -54,10 +54,22 @@ mod tests {
         // Well conditioned and nearly dependent sets, k = 2..4 in dim 4.
         for eps in [1.0, 1e-3, 1e-6, 1e-9] {
             let v = [
-                0.3, -0.2, 0.7, 0.1, //
-                0.3 + eps, -0.2, 0.7, 0.1 - eps, //
-                0.3, -0.2 + 2.0 * eps, 0.7 + eps, 0.1, //
-                -0.5, 0.4, 0.2 * eps, 0.9,
+                0.3,
+                -0.2,
+                0.7,
+                0.1, //
+                0.3 + eps,
+                -0.2,
+                0.7,
+                0.1 - eps, //
+                0.3,
+                -0.2 + 2.0 * eps,
+                0.7 + eps,
+                0.1, //
+                -0.5,
+                0.4,
+                0.2 * eps,
+                0.9,
             ];
             let svd = gali_log10(&v, 4);
             for k in 2..=4 {

@@ -54,26 +54,24 @@ pub fn run_map(
         let stop = &stop;
         scope.spawn(move || {
             pool.install(|| {
-                points
-                    .par_chunks(per_batch)
-                    .for_each_with(tx, |tx, chunk| {
-                        if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                points.par_chunks(per_batch).for_each_with(tx, |tx, chunk| {
+                    if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        return;
+                    }
+                    let results = match spec.run.schemes[0].method {
+                        Method::Mpm => mpm::compute(spec, options.isa, chunk),
+                        Method::Vm => chunk
+                            .iter()
+                            .map(|&i| vm::compute(spec, options.isa, i))
+                            .collect(),
+                    };
+                    for r in results {
+                        // The receiver hung up: the caller stopped.
+                        if tx.send(r).is_err() {
                             return;
                         }
-                        let results = match spec.run.schemes[0].method {
-                            Method::Mpm => mpm::compute(spec, options.isa, chunk),
-                            Method::Vm => chunk
-                                .iter()
-                                .map(|&i| vm::compute(spec, options.isa, i))
-                                .collect(),
-                        };
-                        for r in results {
-                            // The receiver hung up: the caller stopped.
-                            if tx.send(r).is_err() {
-                                return;
-                            }
-                        }
-                    })
+                    }
+                })
             });
         });
         for r in rx.iter() {

@@ -32,7 +32,10 @@ impl Axis {
         let (momentum, i) = parse_coordinate(&a.coord, n_dof).ok_or_else(|| {
             SpecError::new(
                 format!("{key}.coord"),
-                format!("'{}' is not a coordinate q1..q{n_dof} / p1..p{n_dof}", a.coord),
+                format!(
+                    "'{}' is not a coordinate q1..q{n_dof} / p1..p{n_dof}",
+                    a.coord
+                ),
             )
         })?;
         if !(a.min.is_finite() && a.max.is_finite() && a.min <= a.max) {
@@ -79,8 +82,14 @@ impl std::str::FromStr for Shard {
         let (i, n) = s
             .split_once('/')
             .ok_or_else(|| format!("{s:?} is not of the form i/n"))?;
-        let index: u32 = i.trim().parse().map_err(|_| format!("bad shard index {i:?}"))?;
-        let count: u32 = n.trim().parse().map_err(|_| format!("bad shard count {n:?}"))?;
+        let index: u32 = i
+            .trim()
+            .parse()
+            .map_err(|_| format!("bad shard index {i:?}"))?;
+        let count: u32 = n
+            .trim()
+            .parse()
+            .map_err(|_| format!("bad shard count {n:?}"))?;
         if count == 0 || index >= count {
             return Err(format!("shard {index}/{count}: need 0 <= i < n"));
         }
@@ -134,7 +143,10 @@ impl MapSpec {
         if cfg.schemes.len() != 1 {
             return Err(SpecError::new(
                 "scheme",
-                format!("a map uses exactly one [[scheme]], got {}", cfg.schemes.len()),
+                format!(
+                    "a map uses exactly one [[scheme]], got {}",
+                    cfg.schemes.len()
+                ),
             ));
         }
         let run = RunSpec::from_config(&base)?;
@@ -149,12 +161,18 @@ impl MapSpec {
         let x = Axis::from_config("map.x", &map.x, n)?;
         let y = Axis::from_config("map.y", &map.y, n)?;
         if x.slot == y.slot {
-            return Err(SpecError::new("map.y.coord", "x and y are the same coordinate"));
+            return Err(SpecError::new(
+                "map.y.coord",
+                "x and y are the same coordinate",
+            ));
         }
         let solve_for = match (&cfg.orbit.solve_for, cfg.orbit.energy) {
             (Some(name), Some(e)) => {
                 if !e.is_finite() {
-                    return Err(SpecError::new("orbit.energy", format!("must be finite, got {e}")));
+                    return Err(SpecError::new(
+                        "orbit.energy",
+                        format!("must be finite, got {e}"),
+                    ));
                 }
                 match parse_coordinate(name, n) {
                     Some((true, j)) if n + j == x.slot || n + j == y.slot => {

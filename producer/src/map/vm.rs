@@ -44,7 +44,14 @@ fn compute_with<M: LaneModel>(model: &M, spec: &MapSpec, isa: Isa, index: u64) -
     let mut orbit_steps = 0;
     for w in Windows::new(run) {
         orbit_steps += w.steps * (1 + (sets.len() * k) as u64);
-        record_reference_stages(model, &spec.coeffs, &mut x, w.steps, &mut stages, &mut force);
+        record_reference_stages(
+            model,
+            &spec.coeffs,
+            &mut x,
+            w.steps,
+            &mut stages,
+            &mut force,
+        );
         batch::tangent_steps(isa, model, &spec.coeffs, &stages, &mut soa, w.steps);
         let rn = norm(&x);
         if rn.is_nan() || rn >= ESCAPE_NORM {

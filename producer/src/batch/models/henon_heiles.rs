@@ -5,6 +5,8 @@ use crate::batch::lanes::{LaneModel, StepCoeffs};
 use crate::model::HenonHeiles;
 
 impl LaneModel for HenonHeiles {
+    const REGISTER_RESIDENT: bool = true;
+
     #[inline(always)]
     fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]) {
         let (x1, x2) = (&q[0], &q[1]);

@@ -20,6 +20,7 @@ pub mod run_info;
 pub mod series;
 pub mod stats;
 pub mod summary;
+pub mod vshape;
 pub mod write;
 
 pub use analysis::{Analysis, AnalysisOptions};

@@ -30,6 +30,8 @@ enum Command {
     Analyze(cli::analyze::Args),
     /// Follow a running producer live (terminal view or --json-lines), never slowing it.
     Monitor(cli::monitor::Args),
+    /// Poincare surface of section of many orbits of one energy.
+    Section(cli::section::Args),
     /// Re-run a recording with other tau/d0 on the bit-identical reference orbit.
     Replay(cli::replay::Args),
     /// Salvage an MCAP file whose writer was killed.
@@ -45,6 +47,7 @@ fn main() -> ExitCode {
         Command::Analyze(args) => cli::analyze::main(args),
         Command::Replay(args) => cli::replay::main(args),
         Command::Monitor(args) => cli::monitor::main(args),
+        Command::Section(args) => cli::section::main(args),
     };
     result.unwrap_or_else(|e| {
         eprintln!("chaoscope: error: {e:#}");

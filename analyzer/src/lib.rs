@@ -17,6 +17,7 @@ pub mod recording;
 pub mod replay;
 pub mod report;
 pub mod run_info;
+pub mod section;
 pub mod series;
 pub mod stats;
 pub mod summary;

@@ -8,6 +8,7 @@ pub mod record;
 pub mod recover;
 pub mod replay;
 pub mod run;
+pub mod section;
 
 use std::io::Read;
 use std::path::Path;

@@ -32,6 +32,8 @@ enum Command {
     Monitor(cli::monitor::Args),
     /// Poincare surface of section of many orbits of one energy.
     Section(cli::section::Args),
+    /// Draw a chart described in JSON (PNG and SVG).
+    Chart(cli::chart::Args),
     /// Re-run a recording with other tau/d0 on the bit-identical reference orbit.
     Replay(cli::replay::Args),
     /// Salvage an MCAP file whose writer was killed.
@@ -48,6 +50,7 @@ fn main() -> ExitCode {
         Command::Replay(args) => cli::replay::main(args),
         Command::Monitor(args) => cli::monitor::main(args),
         Command::Section(args) => cli::section::main(args),
+        Command::Chart(args) => cli::chart::main(args),
     };
     result.unwrap_or_else(|e| {
         eprintln!("chaoscope: error: {e:#}");

@@ -12,7 +12,8 @@ use plotters::prelude::*;
 use plotters::style::FontStyle;
 
 /// How a line is drawn.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Stroke {
     Solid,
     /// Reference laws (slopes).
@@ -21,16 +22,27 @@ pub enum Stroke {
     Dots,
 }
 
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Deserialize)]
 pub struct Line {
+    #[serde(default)]
     pub label: String,
     pub points: Vec<(f64, f64)>,
+    #[serde(default = "solid")]
     pub stroke: Stroke,
     /// Index into the palette; lines sharing a color belong together.
+    #[serde(default)]
     pub color: usize,
 }
 
-#[derive(Debug, Clone, Default)]
+fn solid() -> Stroke {
+    Stroke::Solid
+}
+
+/// Also read from JSON by `chaoscope chart` (scripts draw derived figures with it), e.g.
+/// `{"title": "...", "x_label": "log10 h", "y_label": "log10 E_r",
+///   "lines": [{"label": "ABA864", "points": [[-2, -11.3], [-1, -7.4]], "stroke": "solid", "color": 1}]}`.
+#[derive(Debug, Clone, Default, serde::Deserialize)]
+#[serde(default)]
 pub struct Chart {
     pub title: String,
     pub x_label: String,

@@ -1,6 +1,7 @@
 //! One module per subcommand, plus helpers they share.
 
 pub mod analyze;
+pub mod chart;
 pub mod monitor;
 mod monitor_view;
 pub mod produce;

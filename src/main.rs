@@ -30,6 +30,10 @@ enum Command {
     Analyze(cli::analyze::Args),
     /// Follow a running producer live (terminal view or --json-lines), never slowing it.
     Monitor(cli::monitor::Args),
+    /// Poincare surface of section of many orbits of one energy.
+    Section(cli::section::Args),
+    /// Draw a chart described in JSON (PNG and SVG).
+    Chart(cli::chart::Args),
     /// Re-run a recording with other tau/d0 on the bit-identical reference orbit.
     Replay(cli::replay::Args),
     /// Salvage an MCAP file whose writer was killed.
@@ -54,6 +58,8 @@ fn main() -> ExitCode {
         Command::Map(args) => cli::map::main(args),
         Command::Merge(args) => cli::merge::main(args),
         Command::Bench(args) => cli::bench::main(args),
+        Command::Section(args) => cli::section::main(args),
+        Command::Chart(args) => cli::chart::main(args),
     };
     result.unwrap_or_else(|e| {
         eprintln!("chaoscope: error: {e:#}");

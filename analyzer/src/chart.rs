@@ -12,7 +12,8 @@ use plotters::prelude::*;
 use plotters::style::FontStyle;
 
 /// How a line is drawn.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Stroke {
     Solid,
     /// Reference laws (slopes).
@@ -21,16 +22,27 @@ pub enum Stroke {
     Dots,
 }
 
-#[derive(Debug, Clone)]
+#[derive(Debug, Clone, serde::Deserialize)]
 pub struct Line {
+    #[serde(default)]
     pub label: String,
     pub points: Vec<(f64, f64)>,
+    #[serde(default = "solid")]
     pub stroke: Stroke,
     /// Index into the palette; lines sharing a color belong together.
+    #[serde(default)]
     pub color: usize,
 }
 
-#[derive(Debug, Clone, Default)]
+fn solid() -> Stroke {
+    Stroke::Solid
+}
+
+/// Also read from JSON by `chaoscope chart` (scripts draw derived figures with it), e.g.
+/// `{"title": "...", "x_label": "log10 h", "y_label": "log10 E_r",
+///   "lines": [{"label": "ABA864", "points": [[-2, -11.3], [-1, -7.4]], "stroke": "solid", "color": 1}]}`.
+#[derive(Debug, Clone, Default, serde::Deserialize)]
+#[serde(default)]
 pub struct Chart {
     pub title: String,
     pub x_label: String,
@@ -62,8 +74,12 @@ const FONT_CANDIDATES: &[&str] = &[
 
 /// Registers a system font once (plotters' pure-Rust text rendering needs one).
 fn ensure_font() -> Result<(), ChartError> {
+    font_available().then_some(()).ok_or(ChartError::NoFont)
+}
+
+fn font_available() -> bool {
     static FONT: OnceLock<bool> = OnceLock::new();
-    let ok = *FONT.get_or_init(|| {
+    *FONT.get_or_init(|| {
         let env = std::env::var("CHAOSCOPE_FONT").ok();
         let bytes = env
             .iter()
@@ -74,8 +90,7 @@ fn ensure_font() -> Result<(), ChartError> {
         // The registry wants 'static bytes: a font is loaded once per process.
         let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
         plotters::style::register_font("sans-serif", FontStyle::Normal, bytes).is_ok()
-    });
-    if ok { Ok(()) } else { Err(ChartError::NoFont) }
+    })
 }
 
 fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
@@ -105,7 +120,12 @@ fn palette(i: usize) -> RGBColor {
     COLORS[i % COLORS.len()]
 }
 
-fn draw<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, chart: &Chart) -> Result<(), String>
+/// Draws `chart`; without a font (`text` false) the curves and grid are drawn without any text.
+fn draw<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    chart: &Chart,
+    text: bool,
+) -> Result<(), String>
 where
     DB::ErrorType: 'static,
 {
@@ -126,20 +146,27 @@ where
                 .flat_map(|l| l.points.iter().map(|p| p.1)),
         )
     });
-    let mut ctx = ChartBuilder::on(&root)
-        .caption(&chart.title, ("sans-serif", 20))
-        .margin(12)
-        .x_label_area_size(40)
-        .y_label_area_size(60)
+    let mut builder = ChartBuilder::on(&root);
+    builder.margin(12);
+    if text {
+        builder
+            .caption(&chart.title, ("sans-serif", 20))
+            .x_label_area_size(40)
+            .y_label_area_size(60);
+    }
+    let mut ctx = builder
         .build_cartesian_2d(xr.0..xr.1, yr.0..yr.1)
         .map_err(|e| e.to_string())?;
-    ctx.configure_mesh()
-        .x_desc(&chart.x_label)
-        .y_desc(&chart.y_label)
-        .label_style(("sans-serif", 14))
-        .light_line_style(WHITE.mix(0.0))
-        .draw()
-        .map_err(|e| e.to_string())?;
+    let mut mesh = ctx.configure_mesh();
+    mesh.light_line_style(WHITE.mix(0.0));
+    if text {
+        mesh.x_desc(&chart.x_label)
+            .y_desc(&chart.y_label)
+            .label_style(("sans-serif", 14));
+    } else {
+        mesh.x_labels(0).y_labels(0);
+    }
+    mesh.draw().map_err(|e| e.to_string())?;
     let in_range = |p: &&(f64, f64)| p.0.is_finite() && p.1.is_finite();
     for line in &chart.lines {
         let color = palette(line.color);
@@ -162,7 +189,7 @@ where
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color));
         }
     }
-    if chart.lines.iter().any(|l| !l.label.is_empty()) {
+    if text && chart.lines.iter().any(|l| !l.label.is_empty()) {
         ctx.configure_series_labels()
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK)
@@ -174,9 +201,19 @@ where
     root.present().map_err(|e| e.to_string())
 }
 
-/// Writes `<stem>.png` and `<stem>.svg`.
+/// Writes `<stem>.png` and `<stem>.svg`. Without any TrueType font on the machine the charts
+/// are drawn without text (a warning says so once) rather than not at all.
 pub fn render(chart: &Chart, stem: &Path) -> Result<Vec<PathBuf>, ChartError> {
-    ensure_font()?;
+    let text = ensure_font().is_ok();
+    static WARNED: OnceLock<()> = OnceLock::new();
+    if !text {
+        WARNED.get_or_init(|| {
+            eprintln!(
+                "chaoscope: warning: {}; charts have no text",
+                ChartError::NoFont
+            )
+        });
+    }
     let size = (800, 560);
     let png = stem.with_extension("png");
     let svg = stem.with_extension("svg");
@@ -184,7 +221,60 @@ pub fn render(chart: &Chart, stem: &Path) -> Result<Vec<PathBuf>, ChartError> {
         path: path.to_path_buf(),
         message,
     };
-    draw(BitMapBackend::new(&png, size).into_drawing_area(), chart).map_err(|m| err(&png, m))?;
-    draw(SVGBackend::new(&svg, size).into_drawing_area(), chart).map_err(|m| err(&svg, m))?;
+    draw(
+        BitMapBackend::new(&png, size).into_drawing_area(),
+        chart,
+        text,
+    )
+    .map_err(|m| err(&png, m))?;
+    draw(SVGBackend::new(&svg, size).into_drawing_area(), chart, text).map_err(|m| err(&svg, m))?;
     Ok(vec![png, svg])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn chart() -> Chart {
+        Chart {
+            title: "t".into(),
+            x_label: "x".into(),
+            y_label: "y".into(),
+            lines: vec![
+                Line {
+                    label: "a".into(),
+                    points: vec![(0.0, 1.0), (1.0, f64::NAN), (2.0, -3.0)],
+                    stroke: Stroke::Solid,
+                    color: 1,
+                },
+                Line {
+                    label: String::new(),
+                    points: vec![(0.0, 0.0), (2.0, -2.0)],
+                    stroke: Stroke::Dashed,
+                    color: 2,
+                },
+            ],
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn draws_without_a_font_and_skips_non_finite_points() {
+        // Machines without any TrueType font still get the curves (no text at all).
+        let mut buf = vec![0u8; 200 * 150 * 3];
+        let root = BitMapBackend::with_buffer(&mut buf, (200, 150)).into_drawing_area();
+        draw(root, &chart(), false).unwrap();
+        // Something other than white was drawn.
+        assert!(buf.iter().any(|&b| b != 255));
+    }
+
+    #[test]
+    fn chart_specs_parse_from_json() {
+        let c: Chart = serde_json::from_str(
+            r#"{"title": "E", "lines": [{"points": [[1, 2], [3, 4]], "stroke": "dashed"}]}"#,
+        )
+        .unwrap();
+        assert_eq!(c.lines[0].stroke, Stroke::Dashed);
+        assert_eq!(c.lines[0].points[1], (3.0, 4.0));
+    }
 }

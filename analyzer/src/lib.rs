@@ -18,9 +18,11 @@ pub mod recording;
 pub mod replay;
 pub mod report;
 pub mod run_info;
+pub mod section;
 pub mod series;
 pub mod stats;
 pub mod summary;
+pub mod vshape;
 pub mod write;
 
 pub use analysis::{Analysis, AnalysisOptions};

@@ -56,9 +56,10 @@ pub enum LiveEnded {
 /// A monitor's subscription to one run.
 pub struct LiveRun {
     run: String,
-    node: Node<ipc::Service>,
+    /// The ports live as long as their node.
+    _node: Node<ipc::Service>,
     monitor: Subscriber<ipc::Service, [f64], FrameHeader>,
-    header: Subscriber<ipc::Service, [u8], RunAnnouncement>,
+    _header: Subscriber<ipc::Service, [u8], RunAnnouncement>,
     listener: Listener<ipc::Service>,
     _services: (DataService, HeaderService, EventService),
     /// Next frame sequence number expected.
@@ -69,36 +70,47 @@ pub struct LiveRun {
 }
 
 impl LiveRun {
-    pub fn open(run: &str) -> Result<Self, LiveError> {
+    /// Subscribes to `run` and waits for its header (kept as history, so it also reaches late
+    /// monitors). The data side is opened only after the header arrived: the producer creates
+    /// every service before announcing, and the monitor stream's size is the producer's to
+    /// choose, so a monitor must never be the one creating it. `Ok(None)` on a termination
+    /// signal.
+    pub fn connect(run: &str, timeout: Duration) -> Result<Option<(Self, RunHeader)>, LiveError> {
         let node_name = format!("chaoscope-monitor/{run}/{}", std::process::id());
         let node = bus::create_node(&node_name)?;
-        let monitor_service = bus::monitor_service(&node, run, bus::MONITOR_BUFFER)?;
         let header_service = bus::header_service(&node, run)?;
+        let header = header_service
+            .subscriber_builder()
+            .create()
+            .map_err(|e| BusError::new("create header subscriber", e))?;
+        let Some(run_header) = wait_header(&node, &header, run, timeout)? else {
+            return Ok(None);
+        };
+        let monitor_service = bus::monitor_service(&node, run, bus::MONITOR_BUFFER)?;
         let event_service = bus::data_ready_service(&node, run)?;
         // No buffer size given: the subscriber takes the service's, sized by the producer.
         let monitor = monitor_service
             .subscriber_builder()
             .create()
             .map_err(|e| BusError::new("create monitor subscriber", e))?;
-        let header = header_service
-            .subscriber_builder()
-            .create()
-            .map_err(|e| BusError::new("create header subscriber", e))?;
         let listener = event_service
             .listener_builder()
             .create()
             .map_err(|e| BusError::new("create listener", e))?;
-        Ok(Self {
-            run: run.to_string(),
-            node,
-            monitor,
-            header,
-            listener,
-            _services: (monitor_service, header_service, event_service),
-            next_frame: Cell::new(None),
-            frames_lost: Cell::new(0),
-            frames_received: Cell::new(0),
-        })
+        Ok(Some((
+            Self {
+                run: run.to_string(),
+                _node: node,
+                monitor,
+                _header: header,
+                listener,
+                _services: (monitor_service, header_service, event_service),
+                next_frame: Cell::new(None),
+                frames_lost: Cell::new(0),
+                frames_received: Cell::new(0),
+            },
+            run_header,
+        )))
     }
 
     pub fn run(&self) -> &str {
@@ -116,42 +128,6 @@ impl LiveRun {
 
     fn producer_alive(&self) -> bool {
         bus::node_liveness(&names::producer_node_name(&self.run)) == Liveness::Alive
-    }
-
-    /// The run header (kept as history, so it reaches late monitors too). `Ok(None)` on a
-    /// termination signal.
-    pub fn wait_header(&self, timeout: Duration) -> Result<Option<RunHeader>, LiveError> {
-        let start = Instant::now();
-        loop {
-            let received = self
-                .header
-                .receive()
-                .map_err(|e| BusError::new("receive run header", e))?;
-            if let Some(sample) = received {
-                let found = sample.user_header().format_version;
-                if found != FORMAT_VERSION {
-                    return Err(LiveError::Version {
-                        run: self.run.clone(),
-                        found,
-                    });
-                }
-                return RunHeader::decode(sample.payload())
-                    .map(Some)
-                    .map_err(|source| LiveError::Header {
-                        run: self.run.clone(),
-                        source,
-                    });
-            }
-            if start.elapsed() > timeout {
-                return Err(LiveError::NoHeader {
-                    run: self.run.clone(),
-                    timeout,
-                });
-            }
-            if self.node.wait(bus::POLL_INTERVAL).is_err() {
-                return Ok(None);
-            }
-        }
     }
 
     /// Takes everything buffered now; returns whether `f` asked to stop.
@@ -228,6 +204,45 @@ impl LiveRun {
                     return Ok(LiveEnded::ProducerGone);
                 }
             }
+        }
+    }
+}
+
+/// Waits for the run header on `header`.
+fn wait_header(
+    node: &Node<ipc::Service>,
+    header: &Subscriber<ipc::Service, [u8], RunAnnouncement>,
+    run: &str,
+    timeout: Duration,
+) -> Result<Option<RunHeader>, LiveError> {
+    let start = Instant::now();
+    loop {
+        let received = header
+            .receive()
+            .map_err(|e| BusError::new("receive run header", e))?;
+        if let Some(sample) = received {
+            let found = sample.user_header().format_version;
+            if found != FORMAT_VERSION {
+                return Err(LiveError::Version {
+                    run: run.to_string(),
+                    found,
+                });
+            }
+            return RunHeader::decode(sample.payload())
+                .map(Some)
+                .map_err(|source| LiveError::Header {
+                    run: run.to_string(),
+                    source,
+                });
+        }
+        if start.elapsed() > timeout {
+            return Err(LiveError::NoHeader {
+                run: run.to_string(),
+                timeout,
+            });
+        }
+        if node.wait(bus::POLL_INTERVAL).is_err() {
+            return Ok(None);
         }
     }
 }

@@ -29,14 +29,21 @@ pub const MONITOR_BUFFER: usize = 8;
 /// Shared memory the monitor stream may take (all monitors together), in bytes.
 pub const MONITOR_MEMORY: usize = 64 << 20;
 
+/// Frames a monitor buffer aims to hold when memory allows: a few hundred samples of a small
+/// system, so a monitor descheduled for a moment on a busy machine still loses nothing.
+pub const MONITOR_TARGET_FRAMES: usize = 4096;
+
 /// Monitor buffer for a run whose samples have `frames_per_sample` frames of at most
-/// `max_payload` f64 values: two whole samples, so a monitor that keeps up with the producer
-/// loses nothing even though the producer publishes a sample in one burst; bounded by
-/// [`MONITOR_MEMORY`] (large systems then lose frames, which monitors detect and report).
+/// `max_payload` f64 values: at least two whole samples (the producer publishes a sample in one
+/// burst) and [`MONITOR_TARGET_FRAMES`], bounded by [`MONITOR_MEMORY`] (large systems then
+/// lose frames when a monitor falls behind, which monitors detect and report).
 pub fn monitor_buffer_for(frames_per_sample: usize, max_payload: usize) -> usize {
     let frame_bytes = max_payload.max(1) * size_of::<f64>() + size_of::<FrameHeader>();
     let cap = MONITOR_MEMORY / (frame_bytes * MAX_MONITORS);
-    (2 * frames_per_sample).min(cap).max(MONITOR_BUFFER)
+    (2 * frames_per_sample)
+        .max(MONITOR_TARGET_FRAMES)
+        .min(cap)
+        .max(MONITOR_BUFFER)
 }
 /// Lossless subscribers (recorders, checkers) one run can have.
 pub const MAX_DATA_SUBSCRIBERS: usize = 8;
@@ -222,4 +229,22 @@ pub fn list_runs() -> Vec<String> {
     runs.sort();
     runs.dedup();
     runs
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn monitor_buffer_holds_whole_samples_within_the_memory_bound() {
+        // Henon-Heiles, k = 4: small frames, the target applies.
+        assert_eq!(monitor_buffer_for(13, 20), MONITOR_TARGET_FRAMES);
+        // Many sets: two whole samples.
+        assert_eq!(monitor_buffer_for(5001, 20), 10_002);
+        // FPUT N = 501, k = 8: 8 kdoubles per frame; memory bounds it, never below the minimum.
+        let b = monitor_buffer_for(3, 8 * 1002 + 8);
+        assert!(b * (8 * 1002 + 8) * 8 * MAX_MONITORS <= MONITOR_MEMORY + (1 << 20));
+        assert!(b >= MONITOR_BUFFER);
+        assert_eq!(monitor_buffer_for(3, 10_000_000), MONITOR_BUFFER);
+    }
 }

@@ -1,6 +1,7 @@
 //! One module per subcommand, plus helpers they share.
 
 pub mod analyze;
+pub mod chart;
 pub mod monitor;
 mod monitor_view;
 pub mod bench;
@@ -11,6 +12,7 @@ pub mod record;
 pub mod recover;
 pub mod replay;
 pub mod run;
+pub mod section;
 
 use std::io::Read;
 use std::path::Path;

@@ -123,8 +123,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         Some(r) => r,
         None => find_run(args.wait_timeout)?,
     };
-    let live = LiveRun::open(&run)?;
-    let Some(header) = live.wait_header(args.wait_timeout)? else {
+    let Some((live, header)) = LiveRun::connect(&run, args.wait_timeout)? else {
         return Ok(super::exit_interrupted());
     };
     let info = RunInfo::from_header(header).context("run header")?;

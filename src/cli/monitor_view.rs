@@ -22,6 +22,9 @@ const COLORS: [Color; 6] = [
     Color::Blue,
 ];
 
+/// A named, colored curve of (t, log10 GALI) points.
+type Curve = (String, Color, Vec<(f64, f64)>);
+
 pub struct TerminalView {
     terminal: DefaultTerminal,
 }
@@ -57,7 +60,7 @@ impl TerminalView {
         let report = analysis.report();
         let step = analysis.step();
         // Curves: GALI_j of every scheme (first 6), log10 against t.
-        let mut data: Vec<(String, Color, Vec<(f64, f64)>)> = Vec::new();
+        let mut data: Vec<Curve> = Vec::new();
         for (c, s) in run.schemes.iter().take(COLORS.len()).enumerate() {
             let series = analysis.series(s.index);
             for j in 2..=run.k {

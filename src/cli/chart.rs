@@ -1,0 +1,33 @@
+//! `chaoscope chart SPEC.json --out STEM`: draw a chart described in JSON (title, axis labels,
+//! lines of points) as STEM.png and STEM.svg, with the same renderer as `analyze --plot`.
+//! Scripts use it for derived figures (GALI against h, E_r against h).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::Context;
+use chaoscope_analyzer::chart::{Chart, render};
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// Chart description (JSON); `-` reads stdin.
+    pub spec: PathBuf,
+    /// Output path without extension.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    let text = if args.spec.as_os_str() == "-" {
+        std::io::read_to_string(std::io::stdin())?
+    } else {
+        std::fs::read_to_string(&args.spec)
+            .with_context(|| format!("reading {}", args.spec.display()))?
+    };
+    let chart: Chart = serde_json::from_str(&text).context("chart description")?;
+    if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)?;
+    }
+    render(&chart, &args.out)?;
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,12 +1,12 @@
 //! One module per subcommand, plus helpers they share.
 
 pub mod analyze;
-pub mod chart;
-pub mod monitor;
-mod monitor_view;
 pub mod bench;
+pub mod chart;
 pub mod map;
 pub mod merge;
+pub mod monitor;
+mod monitor_view;
 pub mod produce;
 pub mod record;
 pub mod recover;

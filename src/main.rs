@@ -40,6 +40,8 @@ enum Command {
     Recover(cli::recover::Args),
     /// Compute a phase-space map (one chaos indicator per grid point) into MCAP and PNG.
     Map(cli::map::Args),
+    /// Follow a running `map` live, one line per finished point (or --json-lines).
+    MapWatch(cli::map_watch::Args),
     /// Join the shard recordings of `map --shard i/n` into one map.
     Merge(cli::merge::Args),
     /// Throughput of the batched kernel and the paper's GALI_2 map workload, as JSON.
@@ -56,6 +58,7 @@ fn main() -> ExitCode {
         Command::Replay(args) => cli::replay::main(args),
         Command::Monitor(args) => cli::monitor::main(args),
         Command::Map(args) => cli::map::main(args),
+        Command::MapWatch(args) => cli::map_watch::main(args),
         Command::Merge(args) => cli::merge::main(args),
         Command::Bench(args) => cli::bench::main(args),
         Command::Section(args) => cli::section::main(args),

@@ -11,6 +11,8 @@
 //! - `monitor`: safe overflow ON, so the oldest sample is overwritten for a slow monitor and the
 //!   producer never waits for it.
 //! - `header`: history 1, so a subscriber that arrives late still gets the run header.
+//! - map `points`: safe overflow ON (a slow watcher loses the oldest points, `chaoscope map`
+//!   never waits); map `header`: history 1.
 
 use std::time::Duration;
 
@@ -18,8 +20,8 @@ use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 
-use crate::frame::{FrameHeader, RunAnnouncement};
-use crate::names::{self, stream};
+use crate::frame::{FrameHeader, MapFrameHeader, RunAnnouncement};
+use crate::names::{self, map_stream, stream};
 
 /// Frames a data subscriber can hold before the producer waits.
 pub const DATA_BUFFER: usize = 64;
@@ -55,6 +57,12 @@ pub const POLL_INTERVAL: Duration = Duration::from_millis(50);
 pub type DataService = publish_subscribe::PortFactory<ipc::Service, [f64], FrameHeader>;
 pub type HeaderService = publish_subscribe::PortFactory<ipc::Service, [u8], RunAnnouncement>;
 pub type EventService = event::PortFactory<ipc::Service>;
+pub type MapService = publish_subscribe::PortFactory<ipc::Service, [u8], MapFrameHeader>;
+
+/// Watchers one map can have.
+pub const MAX_MAP_WATCHERS: usize = 4;
+/// Points a map watcher holds before the oldest are overwritten.
+pub const MAP_POINTS_BUFFER: usize = 1024;
 
 /// A bus failure, with what was being done.
 #[derive(Debug, thiserror::Error)]
@@ -214,6 +222,56 @@ pub fn ready_service(node: &Node<ipc::Service>, run: &str) -> Result<EventServic
         .max_listeners(MAX_DATA_SUBSCRIBERS)
         .open_or_create()
         .map_err(|e| BusError::new(format!("open ready service of run {run:?}"), e))
+}
+
+fn map_service_name(map: &str, stream: &str) -> Result<ServiceName, BusError> {
+    let name = names::map_service_name(map, stream);
+    name.as_str()
+        .try_into()
+        .map_err(|e| BusError::new(format!("service name {name:?}"), e))
+}
+
+/// The header stream of map `map` (history 1 for late watchers).
+pub fn map_header_service(node: &Node<ipc::Service>, map: &str) -> Result<MapService, BusError> {
+    node.service_builder(&map_service_name(map, map_stream::HEADER)?)
+        .publish_subscribe::<[u8]>()
+        .user_header::<MapFrameHeader>()
+        .enable_safe_overflow(true)
+        .history_size(1)
+        .subscriber_max_buffer_size(2)
+        .max_subscribers(MAX_MAP_WATCHERS)
+        .max_publishers(1)
+        .open_or_create()
+        .map_err(|e| BusError::new(format!("open header service of map {map:?}"), e))
+}
+
+/// The lossy point stream of map `map`.
+pub fn map_points_service(node: &Node<ipc::Service>, map: &str) -> Result<MapService, BusError> {
+    node.service_builder(&map_service_name(map, map_stream::POINTS)?)
+        .publish_subscribe::<[u8]>()
+        .user_header::<MapFrameHeader>()
+        .enable_safe_overflow(true)
+        .history_size(0)
+        .subscriber_max_buffer_size(MAP_POINTS_BUFFER)
+        .max_subscribers(MAX_MAP_WATCHERS)
+        .max_publishers(1)
+        .open_or_create()
+        .map_err(|e| BusError::new(format!("open point service of map {map:?}"), e))
+}
+
+/// Names of the maps whose header service currently exists on this machine.
+pub fn list_maps() -> Vec<String> {
+    quiet_logging();
+    let mut maps = Vec::new();
+    let _ = ipc::Service::list(Config::global_config(), |details| {
+        if let Some(map) = names::map_of_header_service(details.static_details.name().as_str()) {
+            maps.push(map.to_string());
+        }
+        CallbackProgression::Continue
+    });
+    maps.sort();
+    maps.dedup();
+    maps
 }
 
 /// Names of the runs whose header service currently exists on this machine.

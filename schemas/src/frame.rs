@@ -9,6 +9,19 @@
 //! | `Reference`   | state q1..qN, p1..pN (`dim` values)                   |
 //! | `Separations` | `k` vectors of `dim` values, then `k` stretch factors |
 //! | `End`         | empty; status and reason are in the header            |
+//!
+//! Maps (`chaoscope map`) publish on their own services (`chaoscope/map/<name>/...`, see
+//! [`crate::names`]), with payload `[u8]` and user header [`MapFrameHeader`]:
+//!
+//! | service  | kind     | payload (bytes)                                        |
+//! |----------|----------|--------------------------------------------------------|
+//! | `header` | `Header` | protobuf `MapHeader` (history 1, for late subscribers) |
+//! | `points` | `Point`  | protobuf `MapPoint`, exactly as recorded to MCAP        |
+//! | `points` | `End`    | empty; `seq` = points published, `status` as [`status`] |
+//!
+//! The point stream is lossy (a slow watcher loses the oldest points, the map never waits):
+//! `seq` counts the points published from 0, so a watcher counts what it missed as
+//! `end.seq - received`.
 
 use iceoryx2::prelude::*;
 
@@ -202,6 +215,70 @@ impl Default for RunAnnouncement {
             format_version: FORMAT_VERSION,
             producer_pid: 0,
         }
+    }
+}
+
+/// What a map frame contains.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u32)]
+pub enum MapFrameKind {
+    Header = 1,
+    Point = 2,
+    End = 3,
+}
+
+impl MapFrameKind {
+    pub fn from_u32(v: u32) -> Option<Self> {
+        match v {
+            1 => Some(Self::Header),
+            2 => Some(Self::Point),
+            3 => Some(Self::End),
+            _ => None,
+        }
+    }
+}
+
+/// User header of the map services (payload: protobuf bytes, see the module docs).
+#[derive(Debug, Clone, Copy, ZeroCopySend)]
+#[repr(C)]
+#[type_name("chaoscope.v1.MapFrameHeader")]
+pub struct MapFrameHeader {
+    pub format_version: u32,
+    /// A [`MapFrameKind`] as u32.
+    pub kind: u32,
+    /// `Point`: its number among the points published, from 0. `End`: points published.
+    pub seq: u64,
+    /// End-of-map status (`End` only), see [`status`].
+    pub status: u32,
+    /// Process id of the map process (informational).
+    pub producer_pid: u32,
+}
+
+impl Default for MapFrameHeader {
+    fn default() -> Self {
+        Self {
+            format_version: FORMAT_VERSION,
+            kind: 0,
+            seq: 0,
+            status: 0,
+            producer_pid: 0,
+        }
+    }
+}
+
+impl MapFrameHeader {
+    pub fn new(kind: MapFrameKind, seq: u64, status: u32) -> Self {
+        Self {
+            format_version: FORMAT_VERSION,
+            kind: kind as u32,
+            seq,
+            status,
+            producer_pid: std::process::id(),
+        }
+    }
+
+    pub fn kind(&self) -> Option<MapFrameKind> {
+        MapFrameKind::from_u32(self.kind)
     }
 }
 

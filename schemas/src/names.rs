@@ -23,6 +23,17 @@ pub mod stream {
     pub const MONITOR: &str = "monitor";
 }
 
+/// Prefix of the services of a map (`chaoscope map`): `<prefix><map name>/<map_stream>`.
+pub const MAP_SERVICE_PREFIX: &str = "chaoscope/map/";
+
+/// The streams of a map on the bus (names follow the run rules, [`validate_run_name`]).
+pub mod map_stream {
+    /// Map header (protobuf `MapHeader` bytes), kept as history for late subscribers.
+    pub const HEADER: &str = "header";
+    /// Lossy stream of finished points (protobuf `MapPoint` bytes), then an end record.
+    pub const POINTS: &str = "points";
+}
+
 /// A run name is a service-name component: letters, digits, `-`, `_`, 1..=64 bytes.
 pub fn validate_run_name(name: &str) -> Result<(), String> {
     if name.is_empty() || name.len() > MAX_RUN_NAME_LEN {
@@ -53,6 +64,29 @@ pub fn run_of_header_service(service: &str) -> Option<&str> {
         .strip_prefix(SERVICE_PREFIX)?
         .strip_suffix(&format!("/{}", stream::HEADER))?;
     validate_run_name(run).ok().map(|_| run)
+}
+
+/// iceoryx2 service name of one stream of a map.
+pub fn map_service_name(map: &str, stream: &str) -> String {
+    format!("{MAP_SERVICE_PREFIX}{map}/{stream}")
+}
+
+/// The map of a service name of the form `<map prefix><map>/header`, if it is one.
+pub fn map_of_header_service(service: &str) -> Option<&str> {
+    let map = service
+        .strip_prefix(MAP_SERVICE_PREFIX)?
+        .strip_suffix(&format!("/{}", map_stream::HEADER))?;
+    validate_run_name(map).ok().map(|_| map)
+}
+
+/// Node name of the `chaoscope map` process publishing map `map`; watchers watch its liveness.
+pub fn map_node_name(map: &str) -> String {
+    format!("chaoscope-map/{map}")
+}
+
+/// Node name of a map watcher.
+pub fn map_watcher_node_name(map: &str) -> String {
+    format!("chaoscope-map-watch/{map}")
 }
 
 /// Node name of the producer of a run; recorders watch its liveness.
@@ -115,5 +149,9 @@ mod tests {
             None
         );
         assert_eq!(run_of_header_service("other/r1/header"), None);
+        let m = map_service_name("m1", map_stream::HEADER);
+        assert_eq!(map_of_header_service(&m), Some("m1"));
+        assert_eq!(run_of_header_service(&m), None);
+        assert_eq!(map_of_header_service(&s), None);
     }
 }

@@ -5,6 +5,10 @@
 //! and was made from the same configuration and shard, its points are kept and only the missing
 //! ones are computed. The old file is renamed to FILE.mcap.prev while its points are copied
 //! into the new one, so an interruption at any moment loses nothing that was on disk.
+//!
+//! Live: every point (resumed ones first) is also published on the iceoryx2 bus under the map's
+//! name (`--name`, default: the output file's stem), for `chaoscope map-watch`. That stream is
+//! lossy and never slows the map; if it cannot be opened the map runs without it.
 
 use std::collections::BTreeMap;
 use std::fs::File;
@@ -17,9 +21,14 @@ use chaoscope_analyzer::map_png;
 use chaoscope_producer::batch::Isa;
 use chaoscope_producer::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
 use chaoscope_producer::publish::Termination;
+use chaoscope_producer::publish::map::{MapPublisher, default_map_name};
 use chaoscope_recorder::file::{Compression, FileOptions};
 use chaoscope_recorder::map_file::{MapFile, read_map};
+use chaoscope_schemas::frame::status;
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
+
+/// Longest wait, once the map is done, for live watchers to read its last points.
+const LIVE_LINGER: Duration = Duration::from_secs(1);
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -52,6 +61,10 @@ pub struct Args {
     /// Close the open MCAP chunk at least this often, in seconds (what a kill can lose).
     #[arg(long, default_value = "2", value_parser = super::parse_seconds)]
     pub flush_interval: Duration,
+    /// Name of the map's live stream on the bus (default: the output file's stem, plus the
+    /// shard); follow it with `chaoscope map-watch NAME`.
+    #[arg(long)]
+    pub name: Option<String>,
     /// Stop as if interrupted after this many new points (tests of resuming).
     #[arg(long, hide = true)]
     pub stop_after: Option<u64>,
@@ -81,6 +94,18 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     } else {
         previous_points(&args.out, &header)?
     };
+    let name = args
+        .name
+        .clone()
+        .unwrap_or_else(|| default_map_name(&args.out, args.shard));
+    let mut live = match MapPublisher::open(&name, &header) {
+        Ok(p) => Some(p),
+        Err(e) => {
+            eprintln!("chaoscope map: no live stream ({e}); computing the map anyway");
+            None
+        }
+    };
+
     let prev = prev_path(&args.out);
     if args.out.exists() {
         std::fs::rename(&args.out, &prev)
@@ -95,6 +120,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let mut file = MapFile::create(out, &header, &options)?;
     for p in recorded.values() {
         file.write_point(p)?;
+        if let Some(live) = &mut live {
+            live.publish(p);
+        }
     }
     file.close_chunk()?;
     if prev.exists() {
@@ -136,6 +164,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         }
         computed += 1;
         orbit_steps += r.orbit_steps;
+        if let Some(live) = &mut live {
+            live.publish(&message);
+        }
         new_points.push(message);
         bar.inc(1);
         if last_flush.elapsed() >= args.flush_interval {
@@ -152,11 +183,28 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         true
     })?;
     bar.finish_and_clear();
-    if let Some(e) = write_error {
-        return Err(e).context(format!("writing {}", args.out.display()));
+    let finished = match write_error {
+        Some(e) => Err(anyhow::Error::from(e).context(format!("writing {}", args.out.display()))),
+        None => file
+            .close_chunk()
+            .and_then(|()| file.finish().map(drop))
+            .map_err(anyhow::Error::from),
+    };
+    if let Some(live) = &mut live {
+        let code = match (&finished, interrupted) {
+            (Err(_), _) => status::FAILED,
+            (Ok(()), true) => status::INTERRUPTED,
+            (Ok(()), false) => status::COMPLETED,
+        };
+        // Watchers get a moment to read the last points, unless Ctrl-C asked to stop now.
+        let linger = if termination.requested() {
+            Duration::ZERO
+        } else {
+            LIVE_LINGER
+        };
+        live.end(code, linger);
     }
-    file.close_chunk()?;
-    file.finish()?;
+    finished?;
     let seconds = start.elapsed().as_secs_f64();
     let cpu_seconds = super::bench::process_cpu_seconds() - cpu_start;
 
@@ -190,6 +238,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "cpu_seconds": cpu_seconds,
                 "orbit_steps": orbit_steps,
                 "orbit_steps_per_cpu_second": orbit_steps as f64 / cpu_seconds.max(1e-9),
+                "live_stream": live.as_ref().map(|l| l.name()),
             })
         );
     }

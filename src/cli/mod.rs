@@ -4,6 +4,7 @@ pub mod analyze;
 pub mod bench;
 pub mod chart;
 pub mod map;
+pub mod map_watch;
 pub mod merge;
 pub mod monitor;
 mod monitor_view;

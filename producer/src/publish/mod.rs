@@ -3,8 +3,11 @@
 //!
 //! Recorders are lossless: the producer waits for them to subscribe before it starts, and waits
 //! for them whenever their buffer is full. Monitors get a lossy copy and never slow it down.
+//!
+//! [`map`] is the live stream of `chaoscope map` (header, points, end record; lossy).
 
 mod header;
+pub mod map;
 mod ports;
 mod termination;
 

@@ -1,0 +1,240 @@
+//! `chaoscope map` publishes its points live: a `chaoscope map-watch` process started before
+//! the map receives the header, the points (bit-identical to the MCAP recording) and the end
+//! record, with sequence numbers accounting for every point published.
+
+use std::collections::BTreeMap;
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use chaoscope_recorder::map_file::read_map;
+use chaoscope_schemas::bus;
+use chaoscope_schemas::proto::MapPoint;
+
+const CHAOSCOPE: &str = env!("CARGO_BIN_EXE_chaoscope");
+
+const CONFIG: &str = r#"
+[model]
+name = "henon-heiles"
+[orbit]
+q = [0.0, 0.0]
+p = [0.0, 0.0]
+energy = 0.125
+solve_for = "p1"
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = 20.0
+[deviations]
+k = 3
+sets = 3
+seed = 5
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-8
+tau = 1.0
+[map]
+x = { coord = "q2", min = -0.45, max = 0.65, n = 9 }
+y = { coord = "p2", min = -0.45, max = 0.45, n = 7 }
+indicator = "gali-time"
+k = 3
+threshold = 0.05
+"#;
+
+const GRID: u64 = 63;
+
+fn unique(tag: &str) -> String {
+    let nanos = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .unwrap()
+        .subsec_nanos();
+    format!("t-{tag}-{}-{nanos}", std::process::id())
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A watcher of map `name`, started and subscribed (its stderr says so) before this returns.
+struct Watcher {
+    child: Child,
+    stdout: std::thread::JoinHandle<Vec<serde_json::Value>>,
+}
+
+impl Watcher {
+    fn start(name: &str) -> Self {
+        let mut child = Command::new(CHAOSCOPE)
+            .args(["map-watch", name, "--json-lines", "--wait-timeout", "60"])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("map-watch starts");
+        let stdout = child.stdout.take().unwrap();
+        let stdout = std::thread::spawn(move || {
+            BufReader::new(stdout)
+                .lines()
+                .map(|l| serde_json::from_str(&l.unwrap()).expect("a JSON line"))
+                .collect()
+        });
+        let (tx, rx) = mpsc::channel();
+        let stderr = child.stderr.take().unwrap();
+        std::thread::spawn(move || {
+            for line in BufReader::new(stderr).lines().map_while(Result::ok) {
+                eprintln!("watcher: {line}");
+                if line.contains("following map") {
+                    let _ = tx.send(());
+                }
+            }
+        });
+        rx.recv_timeout(Duration::from_secs(30))
+            .expect("the watcher subscribes");
+        Self { child, stdout }
+    }
+
+    /// The watcher's JSON lines, once it exited by itself (after the end record).
+    fn finish(mut self) -> Vec<serde_json::Value> {
+        let start = Instant::now();
+        let status = loop {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                break status;
+            }
+            if start.elapsed() > Duration::from_secs(30) {
+                let _ = self.child.kill();
+                panic!("the watcher did not end after the map");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        assert!(status.success(), "map-watch exited with {status}");
+        self.stdout.join().unwrap()
+    }
+}
+
+fn map(args: &[&str]) -> std::process::Output {
+    Command::new(CHAOSCOPE)
+        .arg("map")
+        .args(args)
+        .output()
+        .expect("chaoscope map runs")
+}
+
+fn recorded(path: &Path) -> BTreeMap<u64, MapPoint> {
+    let contents = read_map(&std::fs::read(path).unwrap()).unwrap();
+    contents.points.into_iter().map(|p| (p.index, p)).collect()
+}
+
+/// Checks the watcher's lines against the recording; returns the end line.
+fn check_stream(lines: &[serde_json::Value], file: &BTreeMap<u64, MapPoint>) -> serde_json::Value {
+    assert_eq!(lines[0]["type"], "header", "first line: {}", lines[0]);
+    assert_eq!(lines[0]["grid_points"], GRID);
+    assert_eq!(lines[0]["indicator"], "gali-time");
+    let end = lines.last().unwrap().clone();
+    assert_eq!(end["type"], "end");
+    let points: Vec<_> = lines.iter().filter(|l| l["type"] == "point").collect();
+    assert_eq!(points.len() + 2, lines.len());
+    let mut seqs = std::collections::BTreeSet::new();
+    for p in &points {
+        let seq = p["seq"].as_u64().unwrap();
+        assert!(seqs.insert(seq), "seq {seq} twice");
+        let index = p["index"].as_u64().unwrap();
+        let want = file
+            .get(&index)
+            .unwrap_or_else(|| panic!("point {index} not in the file"));
+        assert_eq!(
+            p["status"],
+            want.status().as_str_name().to_ascii_lowercase()
+        );
+        match p["value"].as_f64() {
+            Some(v) => assert_eq!(v.to_bits(), want.value.to_bits(), "point {index}"),
+            None => assert!(
+                want.value.is_nan(),
+                "point {index}: null for {}",
+                want.value
+            ),
+        }
+        assert_eq!(p["x"].as_f64().unwrap().to_bits(), want.x.to_bits());
+        assert_eq!(p["y"].as_f64().unwrap().to_bits(), want.y.to_bits());
+    }
+    let published = end["published"].as_u64().unwrap();
+    let received = end["received"].as_u64().unwrap();
+    let missed = end["missed"].as_u64().unwrap();
+    assert_eq!(received, points.len() as u64);
+    assert_eq!(received + missed, published, "{end}");
+    assert!(seqs.iter().all(|&s| s < published));
+    // Lossy by design, but an idle 63-point stream into a 1024-point buffer loses little.
+    assert!(received * 2 > published, "{end}");
+    end
+}
+
+#[test]
+fn a_watcher_follows_a_map_live() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let cfg = d.join("map.toml");
+    std::fs::write(&cfg, CONFIG).unwrap();
+
+    // A whole map: every point published once, values as in the file.
+    let name = unique("map");
+    let watcher = Watcher::start(&name);
+    let out = d.join("whole.mcap");
+    let run = map(&[
+        s(&cfg),
+        "--out",
+        s(&out),
+        "--name",
+        &name,
+        "--threads",
+        "2",
+        "--no-progress",
+    ]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let lines = watcher.finish();
+    let file = recorded(&out);
+    assert_eq!(file.len() as u64, GRID);
+    let end = check_stream(&lines, &file);
+    assert_eq!(end["status"], "completed");
+    assert_eq!(end["published"], GRID);
+
+    // Interrupted after 10 points, then resumed: the resumed run publishes the recorded points
+    // first, then the new ones, and the union is the whole map.
+    let out = d.join("resumed.mcap");
+    let watcher = Watcher::start(&name);
+    let first = map(&[
+        s(&cfg),
+        "--out",
+        s(&out),
+        "--name",
+        &name,
+        "--no-progress",
+        "--stop-after",
+        "10",
+    ]);
+    assert_eq!(first.status.code(), Some(130));
+    let lines = watcher.finish();
+    let partial = recorded(&out);
+    let end = check_stream(&lines, &partial);
+    assert_eq!(end["status"], "interrupted");
+    assert_eq!(end["published"].as_u64().unwrap(), partial.len() as u64);
+
+    let watcher = Watcher::start(&name);
+    let second = map(&[s(&cfg), "--out", s(&out), "--name", &name, "--no-progress"]);
+    assert!(second.status.success());
+    let lines = watcher.finish();
+    let end = check_stream(&lines, &recorded(&out));
+    assert_eq!(end["status"], "completed");
+    assert_eq!(end["published"], GRID);
+
+    // Nothing of the map is left on the bus once its processes are gone.
+    std::thread::sleep(Duration::from_millis(200));
+    assert!(
+        !bus::list_maps().contains(&name),
+        "map services left behind: {:?}",
+        bus::list_maps()
+    );
+}

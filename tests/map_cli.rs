@@ -8,34 +8,8 @@ use std::process::Command;
 use chaoscope_recorder::map_file::read_map;
 use prost::Message;
 
-const CONFIG: &str = r#"
-[model]
-name = "henon-heiles"
-[orbit]
-q = [0.0, 0.0]
-p = [0.0, 0.0]
-energy = 0.125
-solve_for = "p1"
-[integrator]
-method = "aba864"
-h = 0.01
-t_final = 20.0
-[deviations]
-k = 3
-sets = 3
-seed = 5
-[[scheme]]
-name = "mpm"
-method = "mpm"
-d0 = 1e-8
-tau = 1.0
-[map]
-x = { coord = "q2", min = -0.45, max = 0.65, n = 9 }
-y = { coord = "p2", min = -0.45, max = 0.45, n = 7 }
-indicator = "gali-time"
-k = 3
-threshold = 0.05
-"#;
+/// A small HH map (9 x 7 points, t = 20) shared by the map tests.
+const CONFIG: &str = include_str!("data/hh-map-small.toml");
 
 fn dir() -> tempfile::TempDir {
     let d = tempfile::tempdir().unwrap();

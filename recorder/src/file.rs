@@ -47,6 +47,27 @@ pub struct FileOptions {
     pub chunk_size: u64,
 }
 
+impl FileOptions {
+    /// The one place an MCAP writer of chaoscope is configured: chunked, compressed as chosen,
+    /// streaming (no seeking back), and compressing on the writing thread only, since the cores
+    /// belong to the integrator.
+    pub fn writer<W: Write + Seek>(&self, out: W) -> mcap::McapResult<mcap::Writer<W>> {
+        let compression = match self.compression {
+            Compression::Zstd => Some(mcap::Compression::Zstd),
+            Compression::Lz4 => Some(mcap::Compression::Lz4),
+            Compression::None => None,
+        };
+        mcap::WriteOptions::new()
+            .profile("")
+            .library(format!("chaoscope-recorder {}", env!("CARGO_PKG_VERSION")))
+            .compression(compression)
+            .compression_threads(0)
+            .chunk_size(Some(self.chunk_size))
+            .disable_seeking(true)
+            .create(out)
+    }
+}
+
 impl Default for FileOptions {
     fn default() -> Self {
         Self {
@@ -87,20 +108,7 @@ fn wall_clock_ns() -> u64 {
 impl<W: Write + Seek> RecordingFile<W> {
     /// Starts a recording of the run described by `header`.
     pub fn create(out: W, header: &RunHeader, options: &FileOptions) -> mcap::McapResult<Self> {
-        let compression = match options.compression {
-            Compression::Zstd => Some(mcap::Compression::Zstd),
-            Compression::Lz4 => Some(mcap::Compression::Lz4),
-            Compression::None => None,
-        };
-        let mut writer = mcap::WriteOptions::new()
-            .profile("")
-            .library(format!("chaoscope-recorder {}", env!("CARGO_PKG_VERSION")))
-            .compression(compression)
-            // One thread: the cores belong to the integrator.
-            .compression_threads(0)
-            .chunk_size(Some(options.chunk_size))
-            .disable_seeking(true)
-            .create(out)?;
+        let mut writer = options.writer(out)?;
 
         writer.write_metadata(&Metadata {
             name: metadata::RUN.into(),

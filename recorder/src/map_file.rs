@@ -16,7 +16,7 @@ use mcap::read::{ChunkReader, LinearReader, Options};
 use mcap::records::{MessageHeader, Metadata, Record};
 use prost::Message;
 
-use crate::file::{Compression, FileOptions};
+use crate::file::FileOptions;
 
 /// A map recording being written.
 pub struct MapFile<W: Write + Seek> {
@@ -28,19 +28,7 @@ pub struct MapFile<W: Write + Seek> {
 
 impl<W: Write + Seek> MapFile<W> {
     pub fn create(out: W, header: &MapHeader, options: &FileOptions) -> mcap::McapResult<Self> {
-        let compression = match options.compression {
-            Compression::Zstd => Some(mcap::Compression::Zstd),
-            Compression::Lz4 => Some(mcap::Compression::Lz4),
-            Compression::None => None,
-        };
-        let mut writer = mcap::WriteOptions::new()
-            .profile("")
-            .library(format!("chaoscope {}", env!("CARGO_PKG_VERSION")))
-            .compression(compression)
-            .compression_threads(0)
-            .chunk_size(Some(options.chunk_size))
-            .disable_seeking(true)
-            .create(out)?;
+        let mut writer = options.writer(out)?;
         writer.write_metadata(&Metadata {
             name: metadata::MAP.into(),
             metadata: BTreeMap::from([
@@ -176,6 +164,7 @@ fn visit(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::file::Compression;
     use std::io::Cursor;
 
     #[test]

@@ -159,9 +159,21 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     if !recorder_status.success() {
         bail!("the recorder failed ({recorder_status}); see its messages above");
     }
+    // How the recording ended, then the same analysis table as `chaoscope analyze` (one
+    // renderer for both commands).
     let summary = chaoscope_analyzer::summary::summarize(&out)?;
-    println!("recording: {}", out.display());
-    print!("{summary}");
+    println!(
+        "recording: {} (status {}, finalized by {}, {} frames missing)",
+        out.display(),
+        summary.run_status,
+        summary.finalized_by,
+        summary.frames_missing
+    );
+    let (analysis, _info) = chaoscope_analyzer::recording::analyze_file(
+        &out,
+        &chaoscope_analyzer::AnalysisOptions::default(),
+    )?;
+    super::analyze::print_table(&analysis.report());
     Ok(match producer_status.code() {
         Some(0) => ExitCode::SUCCESS,
         Some(code) => ExitCode::from(code as u8),

@@ -10,9 +10,8 @@ use std::cell::Cell;
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::FORMAT_VERSION;
 use chaoscope_schemas::bus::{self, BusError, DataService, EventService, HeaderService, Liveness};
-use chaoscope_schemas::convert::{self, DataMessage};
+use chaoscope_schemas::convert::{self, DataMessage, HeaderError};
 use chaoscope_schemas::frame::{FrameHeader, RunAnnouncement};
 use chaoscope_schemas::names;
 use chaoscope_schemas::proto::RunHeader;
@@ -20,19 +19,13 @@ use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
-use prost::Message;
 
 #[derive(Debug, thiserror::Error)]
 pub enum LiveError {
     #[error(transparent)]
     Bus(#[from] BusError),
-    #[error("run {run:?}: the run header is not valid protobuf: {source}")]
-    Header {
-        run: String,
-        source: prost::DecodeError,
-    },
-    #[error("run {run:?} uses format version {found}; this build reads version {FORMAT_VERSION}")]
-    Version { run: String, found: u32 },
+    #[error(transparent)]
+    Header(#[from] HeaderError),
     #[error("run {run:?}: no run header within {timeout:?} (is the run producing?)")]
     NoHeader { run: String, timeout: Duration },
 }
@@ -221,19 +214,11 @@ fn wait_header(
             .receive()
             .map_err(|e| BusError::new("receive run header", e))?;
         if let Some(sample) = received {
-            let found = sample.user_header().format_version;
-            if found != FORMAT_VERSION {
-                return Err(LiveError::Version {
-                    run: run.to_string(),
-                    found,
-                });
-            }
-            return RunHeader::decode(sample.payload())
-                .map(Some)
-                .map_err(|source| LiveError::Header {
-                    run: run.to_string(),
-                    source,
-                });
+            return Ok(Some(convert::decode_run_header(
+                run,
+                sample.user_header(),
+                sample.payload(),
+            )?));
         }
         if start.elapsed() > timeout {
             return Err(LiveError::NoHeader {

@@ -8,9 +8,8 @@ use std::cell::{Cell, RefCell};
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::FORMAT_VERSION;
 use chaoscope_schemas::bus::{self, BusError, DataService, EventService, HeaderService, Liveness};
-use chaoscope_schemas::convert::{self, DataMessage, FrameError};
+use chaoscope_schemas::convert::{self, DataMessage, FrameError, HeaderError};
 use chaoscope_schemas::frame::{FrameHeader, RunAnnouncement};
 use chaoscope_schemas::names;
 use chaoscope_schemas::proto::RunHeader;
@@ -19,7 +18,6 @@ use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
-use prost::Message;
 
 /// What a receiver sees.
 #[derive(Debug)]
@@ -46,13 +44,8 @@ pub enum Ended {
 pub enum SubscribeError {
     #[error(transparent)]
     Bus(#[from] BusError),
-    #[error("run {run:?}: the run header is not valid protobuf: {source}")]
-    Header {
-        run: String,
-        source: prost::DecodeError,
-    },
-    #[error("run {run:?} uses format version {found}; this build reads version {FORMAT_VERSION}")]
-    Version { run: String, found: u32 },
+    #[error(transparent)]
+    Header(#[from] HeaderError),
     #[error("run {run:?}: the producer went away before publishing its run header")]
     NoHeader { run: String },
     #[error("run {run:?}: no run header within {0:?}", .timeout)]
@@ -131,19 +124,8 @@ impl RunSubscription {
                 .receive()
                 .map_err(|e| BusError::new("receive run header", e))?;
             if let Some(sample) = received {
-                let found = sample.user_header().format_version;
-                if found != FORMAT_VERSION {
-                    return Err(SubscribeError::Version {
-                        run: self.run.clone(),
-                        found,
-                    });
-                }
-                let header = RunHeader::decode(sample.payload()).map_err(|source| {
-                    SubscribeError::Header {
-                        run: self.run.clone(),
-                        source,
-                    }
-                })?;
+                let header =
+                    convert::decode_run_header(&self.run, sample.user_header(), sample.payload())?;
                 self.declare_ready()?;
                 return Ok(Some(header));
             }

@@ -1,8 +1,41 @@
 //! Bus frames to the protobuf messages stored in MCAP (the recorder's one translation step).
 
+use prost::Message;
+
 use crate::FORMAT_VERSION;
-use crate::frame::{FrameHeader, FrameKind, status};
-use crate::proto::{EndOfRun, ReferenceState, SeparationSet, end_of_run};
+use crate::frame::{FrameHeader, FrameKind, RunAnnouncement, status};
+use crate::proto::{EndOfRun, ReferenceState, RunHeader, SeparationSet, end_of_run};
+
+/// A run header announcement that this build cannot read.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum HeaderError {
+    #[error("run {run:?} uses format version {found}; this build reads version {FORMAT_VERSION}")]
+    Version { run: String, found: u32 },
+    #[error("run {run:?}: the run header is not valid protobuf: {source}")]
+    Decode {
+        run: String,
+        source: prost::DecodeError,
+    },
+}
+
+/// Checks the format version of a run announcement and decodes its header: the one place every
+/// receiver (recorder, checker, monitor) reads a run header from the bus.
+pub fn decode_run_header(
+    run: &str,
+    announcement: &RunAnnouncement,
+    payload: &[u8],
+) -> Result<RunHeader, HeaderError> {
+    if announcement.format_version != FORMAT_VERSION {
+        return Err(HeaderError::Version {
+            run: run.to_string(),
+            found: announcement.format_version,
+        });
+    }
+    RunHeader::decode(payload).map_err(|source| HeaderError::Decode {
+        run: run.to_string(),
+        source,
+    })
+}
 
 /// A frame that does not follow the layout of [`crate::frame`].
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -131,5 +164,32 @@ mod tests {
         };
         assert_eq!(m.status(), end_of_run::Status::Failed);
         assert_eq!(m.reason, "energy drift");
+    }
+}
+
+#[cfg(test)]
+mod run_header_tests {
+    use super::*;
+
+    #[test]
+    fn run_header_is_decoded_once_checked() {
+        let header = RunHeader {
+            run_name: "r".into(),
+            format_version: FORMAT_VERSION,
+            ..Default::default()
+        };
+        let bytes = header.encode_to_vec();
+        let ok = RunAnnouncement::default();
+        assert_eq!(decode_run_header("r", &ok, &bytes).unwrap(), header);
+        let old = RunAnnouncement {
+            format_version: FORMAT_VERSION + 1,
+            ..Default::default()
+        };
+        assert!(matches!(
+            decode_run_header("r", &old, &bytes),
+            Err(HeaderError::Version { found, .. }) if found == FORMAT_VERSION + 1
+        ));
+        let err = decode_run_header("r", &ok, &[0xff, 0xff, 0xff]).unwrap_err();
+        assert!(err.to_string().contains("not valid protobuf"), "{err}");
     }
 }

@@ -7,9 +7,17 @@
 //! - `gali2_map`: the paper's Fig. 9(b) settings (HH, H = 0.125, x1 = 0 section, ABA864,
 //!   h = 0.01, tau = 1, d0 = 1e-8, 50 sets, t = 500, MPM) on a reduced grid over the same
 //!   region, with 1 and 2 threads; CPU time extrapolated to 700 x 600 points.
+//! - `machine_ceiling`: the same 1-vs-2-thread wall-clock ratio for a loop that does nothing
+//!   but independent floating-point multiply-adds on the same instruction set. It is the best
+//!   any compute-bound code can scale on this machine at this moment: on a virtual machine the
+//!   two vCPUs share the host's cores and FP ports with other tenants, and we measured this
+//!   ceiling anywhere between 1.66x and 2.0x from one minute to the next.
 //!
 //! Times are CPU times of this process/thread (per-core figures stay meaningful on a shared
-//! machine); the thread speed-up is a wall-clock ratio.
+//! machine); the thread speed-up is a wall-clock ratio. The map workload runs as `--pairs`
+//! interleaved (1 thread, 2 threads) pairs, each followed by a ceiling measurement, so that a
+//! burst of foreign load hits one pair rather than one side of every ratio; the reported
+//! speed-up is the median pair.
 
 use std::process::ExitCode;
 use std::time::Instant;
@@ -32,6 +40,9 @@ pub struct Args {
     /// Seconds of CPU time per kernel case (at least).
     #[arg(long, default_value_t = 1.0)]
     pub kernel_seconds: f64,
+    /// Interleaved (1-thread, 2-thread) runs of the map workload; the median ratio is reported.
+    #[arg(long, default_value_t = 3)]
+    pub pairs: usize,
     /// Force the instruction set (avx512, avx2, portable).
     #[arg(long)]
     pub isa: Option<String>,
@@ -194,10 +205,32 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         }
     }
 
+    anyhow::ensure!(args.pairs >= 1, "--pairs must be at least 1");
     let text = paper_gali2_config(nx, ny, args.t_final);
     let spec = MapSpec::from_config(&RunConfig::from_toml(&text)?)?;
-    let (wall1, cpu1, steps, integrated) = map_case(&spec, isa, 1)?;
-    let (wall2, cpu2, _, _) = map_case(&spec, isa, 2)?;
+    let mut pairs = Vec::with_capacity(args.pairs);
+    let (mut steps, mut integrated) = (0, 0);
+    for _ in 0..args.pairs {
+        let (wall1, cpu1, s1, i1) = map_case(&spec, isa, 1)?;
+        let (wall2, cpu2, _, _) = map_case(&spec, isa, 2)?;
+        (steps, integrated) = (s1, i1);
+        pairs.push(MapPair {
+            wall1,
+            cpu1,
+            wall2,
+            cpu2,
+            ceiling: ceiling::speedup(isa),
+        });
+    }
+    // The median pair by speed-up (the upper one of two middles for an even count).
+    let mut by_speedup: Vec<&MapPair> = pairs.iter().collect();
+    by_speedup.sort_by(|a, b| a.speedup().total_cmp(&b.speedup()));
+    let median = by_speedup[by_speedup.len() / 2];
+    let mut ceilings: Vec<f64> = pairs.iter().map(|p| p.ceiling).collect();
+    ceilings.sort_by(f64::total_cmp);
+    let median_ceiling = ceilings[ceilings.len() / 2];
+    // CPU time is what extrapolates; take the least disturbed one-thread run.
+    let cpu1 = pairs.iter().map(|p| p.cpu1).fold(f64::INFINITY, f64::min);
     let full_points = 700.0 * 600.0;
     let reduced = spec.grid_points() as f64;
     let cpu_hours = cpu1 * full_points / reduced / 3600.0;
@@ -214,9 +247,15 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "points": spec.grid_points(),
                 "points_integrated": integrated,
                 "orbit_steps": steps,
-                "one_thread": { "wall_seconds": wall1, "cpu_seconds": cpu1 },
-                "two_threads": { "wall_seconds": wall2, "cpu_seconds": cpu2 },
-                "speedup_1_to_2_threads": wall1 / wall2,
+                "one_thread": { "wall_seconds": median.wall1, "cpu_seconds": median.cpu1 },
+                "two_threads": { "wall_seconds": median.wall2, "cpu_seconds": median.cpu2 },
+                "speedup_1_to_2_threads": median.speedup(),
+                "speedup_pairs": pairs.iter().map(MapPair::json).collect::<Vec<_>>(),
+                "speedup_min": by_speedup[0].speedup(),
+                "speedup_max": by_speedup[by_speedup.len() - 1].speedup(),
+                "target_speedup": 1.9,
+                "machine_ceiling_1_to_2_threads": median_ceiling,
+                "speedup_over_ceiling": median.speedup() / median_ceiling,
                 "orbit_steps_per_cpu_second": steps as f64 / cpu1,
                 "extrapolated_cpu_hours_700x600": cpu_hours,
                 "paper_cpu_hours": paper_hours,
@@ -226,4 +265,103 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         }))?
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// One interleaved measurement of the map workload and of the machine's ceiling.
+struct MapPair {
+    wall1: f64,
+    cpu1: f64,
+    wall2: f64,
+    cpu2: f64,
+    ceiling: f64,
+}
+
+impl MapPair {
+    fn speedup(&self) -> f64 {
+        self.wall1 / self.wall2
+    }
+
+    fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "one_thread": { "wall_seconds": self.wall1, "cpu_seconds": self.cpu1 },
+            "two_threads": { "wall_seconds": self.wall2, "cpu_seconds": self.cpu2 },
+            "speedup": self.speedup(),
+            "machine_ceiling": self.ceiling,
+        })
+    }
+}
+
+/// The machine's own 1 -> 2 thread scaling for compute-bound floating-point work.
+mod ceiling {
+    use std::hint::black_box;
+    use std::time::Instant;
+
+    use chaoscope_producer::batch::Isa;
+
+    /// Independent multiply-add chains: enough of them to keep every FP port busy (latency 4
+    /// cycles x 2 ports x 2 ops), no memory traffic, no FMA (the kernel uses none either).
+    const CHAINS: usize = 64;
+    /// Seconds of work per thread in one measurement.
+    const SECONDS: f64 = 0.7;
+
+    #[inline(always)]
+    fn spin(rounds: u64) -> f64 {
+        let mut x = [0.0f64; CHAINS];
+        for (i, v) in x.iter_mut().enumerate() {
+            *v = i as f64;
+        }
+        let (m, c) = (black_box(0.999_999), black_box(1e-7));
+        for _ in 0..rounds {
+            for v in x.iter_mut() {
+                *v = *v * m + c;
+            }
+        }
+        x.iter().sum()
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx512f")]
+    fn spin_avx512(rounds: u64) -> f64 {
+        spin(rounds)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn spin_avx2(rounds: u64) -> f64 {
+        spin(rounds)
+    }
+
+    fn spin_on(isa: Isa, rounds: u64) -> f64 {
+        match isa {
+            // SAFETY: the guard checks at run time that the CPU has the instruction set.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 if isa.available() => unsafe { spin_avx512(rounds) },
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 if isa.available() => unsafe { spin_avx2(rounds) },
+            _ => spin(rounds),
+        }
+    }
+
+    fn timed(isa: Isa, rounds: u64) -> f64 {
+        let start = Instant::now();
+        black_box(spin_on(isa, black_box(rounds)));
+        start.elapsed().as_secs_f64()
+    }
+
+    /// Wall-clock ratio: one thread doing the loop once, against two threads doing it once
+    /// each at the same time (perfect scaling gives 2.0).
+    pub fn speedup(isa: Isa) -> f64 {
+        // Size the work to about SECONDS on this machine and instruction set.
+        let probe = 1_000_000;
+        let rounds = (probe as f64 * SECONDS / timed(isa, probe).max(1e-6)).max(1.0) as u64;
+        let one = timed(isa, rounds);
+        let start = Instant::now();
+        std::thread::scope(|s| {
+            let a = s.spawn(|| black_box(spin_on(isa, rounds)));
+            black_box(spin_on(isa, rounds));
+            let _ = a.join();
+        });
+        let two = start.elapsed().as_secs_f64();
+        2.0 * one / two
+    }
 }

@@ -9,7 +9,7 @@
 use chaoscope_producer::engine::{Sample, SchemeSample};
 use chaoscope_producer::indicators::{self, SIGMA_FLOOR, StretchSums};
 use chaoscope_producer::renormalization::Orthonormalization;
-use chaoscope_producer::spec::Method;
+use chaoscope_producer::spec::{Method, SchemeSpec};
 
 use crate::report::{ByOrder, DeltaLog, Report, RunReport, SchemeReport, VsVm, exponent_stats};
 use crate::run_info::RunInfo;
@@ -130,16 +130,13 @@ impl Analysis {
                 step: None,
                 vm_partner: (s.method == Method::Mpm)
                     .then(|| {
-                        let same = |o: &&crate::run_info::SchemeInfo| {
-                            o.method == Method::Vm && o.tau_steps == s.tau_steps
-                        };
+                        let same =
+                            |o: &SchemeSpec| o.method == Method::Vm && o.tau_steps == s.tau_steps;
                         // Prefer the same orthonormalization, else any VM with the same tau.
                         run.schemes
                             .iter()
-                            .filter(same)
-                            .find(|o| o.orthonormalize == s.orthonormalize)
-                            .or_else(|| run.schemes.iter().find(same))
-                            .map(|o| o.index)
+                            .position(|o| same(o) && o.orthonormalize == s.orthonormalize)
+                            .or_else(|| run.schemes.iter().position(same))
                     })
                     .flatten(),
                 series: Series::new(options.series_capacity, options.per_decade),
@@ -389,7 +386,8 @@ impl Analysis {
             .schemes
             .iter()
             .zip(schemes)
-            .map(|(info, state)| {
+            .enumerate()
+            .map(|(si, (info, state))| {
                 let sets = Self::current_sets(run, state);
                 let gali = ByOrder(
                     (0..run.k.saturating_sub(1))
@@ -425,7 +423,7 @@ impl Analysis {
                     lyapunov,
                     lyapunov_std,
                     energy_error_max,
-                    vs_vm: Self::vs_vm_of(run, schemes, info.index),
+                    vs_vm: Self::vs_vm_of(run, schemes, si),
                 }
             })
             .collect();

@@ -193,16 +193,12 @@ impl Analysis {
     /// Feeds the next sample. Samples must come in increasing step order; sets or the reference
     /// state may be missing (a lossy live stream): what arrives is used.
     pub fn feed(&mut self, sample: &Sample) {
-        for c in &mut self.captures {
-            if c.report.is_none() && sample.step > c.step && self.samples > 0 {
-                c.report = Some(Self::report_of(
-                    &self.run,
-                    &self.schemes,
-                    self.energy_error_max,
-                    self.samples,
-                    self.t,
-                    self.gaps,
-                ));
+        // The captures this sample passes get the values as of the previous one.
+        let due = |c: &Capture| c.report.is_none() && sample.step > c.step;
+        if self.samples > 0 && self.captures.iter().any(due) {
+            let report = self.report();
+            for c in self.captures.iter_mut().filter(|c| due(c)) {
+                c.report = Some(report.clone());
             }
         }
         self.samples += 1;
@@ -373,14 +369,11 @@ impl Analysis {
         })
     }
 
-    fn report_of(
-        run: &RunInfo,
-        schemes: &[SchemeState],
-        energy_error_max: f64,
-        samples: u64,
-        t: f64,
-        gaps: bool,
-    ) -> Report {
+    /// Values now (at the latest sample).
+    pub fn report(&self) -> Report {
+        let (run, schemes) = (&self.run, &self.schemes[..]);
+        let (energy_error_max, samples, t, gaps) =
+            (self.energy_error_max, self.samples, self.t, self.gaps);
         let h = &run.header;
         let scheme_reports = run
             .schemes
@@ -447,18 +440,6 @@ impl Analysis {
             },
             schemes: scheme_reports,
         }
-    }
-
-    /// Values now (at the latest sample).
-    pub fn report(&self) -> Report {
-        Self::report_of(
-            &self.run,
-            &self.schemes,
-            self.energy_error_max,
-            self.samples,
-            self.t,
-            self.gaps,
-        )
     }
 
     /// Values as of time `t`, if `t` was among [`AnalysisOptions::at`]. Before the stream has

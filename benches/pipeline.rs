@@ -14,14 +14,8 @@ use chaoscope_schemas::convert::DataMessage;
 use chaoscope_schemas::proto::{ReferenceState, RunHeader, Scheme, SeparationSet};
 use serde_json::{Value, json};
 
-const CHAOSCOPE: &str = env!("CARGO_BIN_EXE_chaoscope");
-
-fn scale() -> f64 {
-    std::env::var("CHAOSCOPE_BENCH_SCALE")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1.0)
-}
+mod common;
+use common::{CHAOSCOPE, scale};
 
 /// FPUT-beta N = 501, k = 8, renormalized (and sampled) every step.
 fn fput_config(t_final: f64) -> String {

@@ -68,13 +68,7 @@ fn monitor_json_lines_final_values_equal_offline_analyze() {
     let mut line = String::new();
     err.read_line(&mut line).unwrap();
     assert!(line.contains("attached"), "monitor said: {line}");
-    let mut recorder = Proc::spawn(chaoscope(&[
-        "record",
-        "--run",
-        &run,
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+    let mut recorder = Proc::spawn(record_cmd(&run, &out, &[]));
     assert!(recorder.wait(LIMIT).success());
     assert!(producer.wait(LIMIT).success());
     assert!(monitor.wait(LIMIT).success());

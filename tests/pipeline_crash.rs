@@ -24,12 +24,6 @@ fn wait_for_size(path: &Path, bytes: u64) {
     }
 }
 
-fn record_cmd(run: &str, out: &Path, extra: &[&str]) -> std::process::Command {
-    let mut args = vec!["record", "--run", run, "--out", out.to_str().unwrap()];
-    args.extend_from_slice(extra);
-    chaoscope(&args)
-}
-
 fn produce_cmd(run: &str, config: &Path) -> std::process::Command {
     chaoscope(&[
         "produce",

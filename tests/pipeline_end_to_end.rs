@@ -99,13 +99,7 @@ fn producer_recorder_checker_record_every_sample_bit_identical() {
     let out = dir.path().join("run.mcap");
     let run = unique_run("e2e");
 
-    let mut recorder = Proc::spawn(chaoscope(&[
-        "record",
-        "--run",
-        &run,
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+    let mut recorder = Proc::spawn(record_cmd(&run, &out, &[]));
     let mut checker_cmd = Command::new(std::env::current_exe().unwrap());
     checker_cmd
         .args([

@@ -47,6 +47,13 @@ pub fn chaoscope(args: &[&str]) -> Command {
     c
 }
 
+/// `chaoscope record` of `run` into `out`, with `extra` arguments.
+pub fn record_cmd(run: &str, out: &Path, extra: &[&str]) -> Command {
+    let mut args = vec!["record", "--run", run, "--out", out.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    chaoscope(&args)
+}
+
 /// A child process killed if the test fails before reaping it.
 pub struct Proc(pub Child);
 

@@ -15,14 +15,8 @@ use chaoscope_producer::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 use serde_json::json;
 
-const CHAOSCOPE: &str = env!("CARGO_BIN_EXE_chaoscope");
-
-fn scale() -> f64 {
-    std::env::var("CHAOSCOPE_BENCH_SCALE")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1.0)
-}
+mod common;
+use common::{CHAOSCOPE, scale};
 
 /// FPUT-beta N = 31, k = 8, VM and MPM, 32 sets, renormalized every step: 64 frames of
 /// 8 x 62 + 8 doubles (4 kB) per sample, ~270 kB per sample.

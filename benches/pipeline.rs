@@ -9,18 +9,13 @@ use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use chaoscope_recorder::file::{FileOptions, RecordingFile};
+use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 use chaoscope_schemas::convert::DataMessage;
 use chaoscope_schemas::proto::{ReferenceState, RunHeader, Scheme, SeparationSet};
 use serde_json::{Value, json};
 
-const CHAOSCOPE: &str = env!("CARGO_BIN_EXE_chaoscope");
-
-fn scale() -> f64 {
-    std::env::var("CHAOSCOPE_BENCH_SCALE")
-        .ok()
-        .and_then(|s| s.parse().ok())
-        .unwrap_or(1.0)
-}
+mod common;
+use common::{CHAOSCOPE, scale};
 
 /// FPUT-beta N = 501, k = 8, renormalized (and sampled) every step.
 fn fput_config(t_final: f64) -> String {
@@ -46,13 +41,17 @@ fn fput_config(t_final: f64) -> String {
 
 /// The paper's HH orbit, VM and MPM, k = 4, sampled at every step (tau = h).
 fn hh_config(t_final: f64) -> String {
-    format!(
-        "[model]\nname = \"henon-heiles\"\n[orbit]\nq = [0.0, -0.25]\np = [0.0, 0.0]\nenergy = 0.125\nsolve_for = \"p1\"\n\
-         [integrator]\nmethod = \"aba864\"\nh = 0.01\nt_final = {t_final}\n\
-         [deviations]\nk = 4\nsets = 1\nseed = 1\n\
-         [[scheme]]\nname = \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 0.01\n\
-         [[scheme]]\nname = \"mpm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 0.01\n"
+    let tau = paper::HH_STEP;
+    paper::henon_heiles(
+        paper::HH_CHAOTIC_Q2,
+        t_final,
+        DeviationsConfig::random(4, 1, 1),
+        vec![
+            SchemeConfig::new("vm", "vm", 1e-8, tau),
+            SchemeConfig::new("mpm", "mpm", 1e-8, tau),
+        ],
     )
+    .to_toml()
 }
 
 fn last_json_line(bytes: &[u8]) -> Value {

@@ -8,49 +8,26 @@ use std::io::{BufRead, BufReader};
 use std::process::Stdio;
 use std::time::Duration;
 
+use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 use common::*;
 use serde_json::Value;
 
 const LIMIT: Duration = Duration::from_secs(120);
 
+/// The paper's chaotic Henon-Heiles run named `run`: VM and MPM at `d0`, and a QR scheme.
 fn hh_run(run: &str, t_final: f64, sets: usize, d0: f64) -> String {
-    format!(
-        r#"
-[run]
-name = "{run}"
-[model]
-name = "henon-heiles"
-[orbit]
-q = [0.0, -0.25]
-p = [0.0, 0.0]
-energy = 0.125
-solve_for = "p1"
-[integrator]
-method = "aba864"
-h = 0.01
-t_final = {t_final}
-[deviations]
-k = 4
-sets = {sets}
-seed = 4
-[[scheme]]
-name = "vm"
-method = "vm"
-d0 = {d0:e}
-tau = 1.0
-[[scheme]]
-name = "mpm"
-method = "mpm"
-d0 = {d0:e}
-tau = 1.0
-[[scheme]]
-name = "qr"
-method = "vm"
-d0 = 1.0
-tau = 1.0
-orthonormalize = "qr"
-"#
-    )
+    let mut config = paper::henon_heiles(
+        paper::HH_CHAOTIC_Q2,
+        t_final,
+        DeviationsConfig::random(4, sets, 4),
+        vec![
+            SchemeConfig::new("vm", "vm", d0, 1.0),
+            SchemeConfig::new("mpm", "mpm", d0, 1.0),
+            SchemeConfig::new("qr", "vm", 1.0, 1.0).with_orthonormalize("qr"),
+        ],
+    );
+    config.run.name = Some(run.to_string());
+    config.to_toml()
 }
 
 fn json_stdout(args: &[&str]) -> Value {
@@ -91,13 +68,7 @@ fn monitor_json_lines_final_values_equal_offline_analyze() {
     let mut line = String::new();
     err.read_line(&mut line).unwrap();
     assert!(line.contains("attached"), "monitor said: {line}");
-    let mut recorder = Proc::spawn(chaoscope(&[
-        "record",
-        "--run",
-        &run,
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+    let mut recorder = Proc::spawn(record_cmd(&run, &out, &[]));
     assert!(recorder.wait(LIMIT).success());
     assert!(producer.wait(LIMIT).success());
     assert!(monitor.wait(LIMIT).success());

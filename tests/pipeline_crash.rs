@@ -24,12 +24,6 @@ fn wait_for_size(path: &Path, bytes: u64) {
     }
 }
 
-fn record_cmd(run: &str, out: &Path, extra: &[&str]) -> std::process::Command {
-    let mut args = vec!["record", "--run", run, "--out", out.to_str().unwrap()];
-    args.extend_from_slice(extra);
-    chaoscope(&args)
-}
-
 fn produce_cmd(run: &str, config: &Path) -> std::process::Command {
     chaoscope(&[
         "produce",
@@ -45,7 +39,7 @@ fn produce_cmd(run: &str, config: &Path) -> std::process::Command {
 #[test]
 fn kill_9_of_the_recorder_keeps_every_completed_chunk_and_recover_salvages_it() {
     let dir = tempfile::tempdir().unwrap();
-    let text = hh_config(1e5, 0.01); // far longer than the test lasts
+    let text = hh_config(1e5, 0.01).to_toml(); // far longer than the test lasts
     let config = write_config(dir.path(), &text);
     let broken = dir.path().join("broken.mcap");
     let run = unique_run("kill-recorder");
@@ -106,7 +100,7 @@ fn kill_9_of_the_recorder_keeps_every_completed_chunk_and_recover_salvages_it() 
 #[test]
 fn kill_9_of_the_producer_makes_the_recorder_finalize_an_interrupted_file() {
     let dir = tempfile::tempdir().unwrap();
-    let text = hh_config(1e5, 0.01);
+    let text = hh_config(1e5, 0.01).to_toml();
     let config = write_config(dir.path(), &text);
     let out = dir.path().join("run.mcap");
     let run = unique_run("kill-producer");
@@ -139,7 +133,7 @@ fn kill_9_of_the_producer_makes_the_recorder_finalize_an_interrupted_file() {
 #[test]
 fn sigint_to_chaoscope_run_ends_both_processes_with_a_valid_file() {
     let dir = tempfile::tempdir().unwrap();
-    let config = write_config(dir.path(), &hh_config(1e5, 0.01));
+    let config = write_config(dir.path(), &hh_config(1e5, 0.01).to_toml());
     let out = dir.path().join("run.mcap");
     let run = unique_run("sigint");
     let mut front = Proc::spawn(chaoscope(&[
@@ -179,7 +173,7 @@ fn sigint_to_chaoscope_run_ends_both_processes_with_a_valid_file() {
 #[test]
 fn a_slow_recorder_loses_nothing_because_the_producer_waits() {
     let dir = tempfile::tempdir().unwrap();
-    let text = hh_config(10.0, 0.01); // 1001 samples, 5005 frames
+    let text = hh_config(10.0, 0.01).to_toml(); // 1001 samples, 5005 frames
     let config = write_config(dir.path(), &text);
     let out = dir.path().join("slow.mcap");
     let run = unique_run("slow");

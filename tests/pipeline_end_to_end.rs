@@ -94,18 +94,12 @@ fn checker_process() {
 #[test]
 fn producer_recorder_checker_record_every_sample_bit_identical() {
     let dir = tempfile::tempdir().unwrap();
-    let text = hh_config(20.0, 0.05);
+    let text = hh_config(20.0, 0.05).to_toml();
     let config = write_config(dir.path(), &text);
     let out = dir.path().join("run.mcap");
     let run = unique_run("e2e");
 
-    let mut recorder = Proc::spawn(chaoscope(&[
-        "record",
-        "--run",
-        &run,
-        "--out",
-        out.to_str().unwrap(),
-    ]));
+    let mut recorder = Proc::spawn(record_cmd(&run, &out, &[]));
     let mut checker_cmd = Command::new(std::env::current_exe().unwrap());
     checker_cmd
         .args([
@@ -192,16 +186,14 @@ fn producer_recorder_checker_record_every_sample_bit_identical() {
 #[test]
 fn bad_config_is_a_clear_error_not_a_panic() {
     let dir = tempfile::tempdir().unwrap();
+    let mut unknown_method = hh_config(10.0, 0.05);
+    unknown_method.integrator.method = "rk4".to_string();
+    let mut negative_step = hh_config(10.0, 0.05);
+    negative_step.integrator.h = -1.0;
     let cases = [
         ("[model]\nname = 'henon-heiles'\n", "orbit"),
-        (
-            &hh_config(10.0, 0.05).replace("aba864", "rk4") as &str,
-            "rk4",
-        ),
-        (
-            &hh_config(10.0, 0.05).replace("h = 0.01", "h = -1.0") as &str,
-            "h",
-        ),
+        (&unknown_method.to_toml() as &str, "rk4"),
+        (&negative_step.to_toml() as &str, "h"),
         ("not toml at all [", "invalid"),
     ];
     for (text, needle) in cases {

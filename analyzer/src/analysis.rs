@@ -9,7 +9,7 @@
 use chaoscope_producer::engine::{Sample, SchemeSample};
 use chaoscope_producer::indicators::{self, SIGMA_FLOOR, StretchSums};
 use chaoscope_producer::renormalization::Orthonormalization;
-use chaoscope_producer::spec::Method;
+use chaoscope_producer::spec::{Method, SchemeSpec};
 
 use crate::report::{ByOrder, DeltaLog, Report, RunReport, SchemeReport, VsVm, exponent_stats};
 use crate::run_info::RunInfo;
@@ -130,16 +130,13 @@ impl Analysis {
                 step: None,
                 vm_partner: (s.method == Method::Mpm)
                     .then(|| {
-                        let same = |o: &&crate::run_info::SchemeInfo| {
-                            o.method == Method::Vm && o.tau_steps == s.tau_steps
-                        };
+                        let same =
+                            |o: &SchemeSpec| o.method == Method::Vm && o.tau_steps == s.tau_steps;
                         // Prefer the same orthonormalization, else any VM with the same tau.
                         run.schemes
                             .iter()
-                            .filter(same)
-                            .find(|o| o.orthonormalize == s.orthonormalize)
-                            .or_else(|| run.schemes.iter().find(same))
-                            .map(|o| o.index)
+                            .position(|o| same(o) && o.orthonormalize == s.orthonormalize)
+                            .or_else(|| run.schemes.iter().position(same))
                     })
                     .flatten(),
                 series: Series::new(options.series_capacity, options.per_decade),
@@ -196,16 +193,12 @@ impl Analysis {
     /// Feeds the next sample. Samples must come in increasing step order; sets or the reference
     /// state may be missing (a lossy live stream): what arrives is used.
     pub fn feed(&mut self, sample: &Sample) {
-        for c in &mut self.captures {
-            if c.report.is_none() && sample.step > c.step && self.samples > 0 {
-                c.report = Some(Self::report_of(
-                    &self.run,
-                    &self.schemes,
-                    self.energy_error_max,
-                    self.samples,
-                    self.t,
-                    self.gaps,
-                ));
+        // The captures this sample passes get the values as of the previous one.
+        let due = |c: &Capture| c.report.is_none() && sample.step > c.step;
+        if self.samples > 0 && self.captures.iter().any(due) {
+            let report = self.report();
+            for c in self.captures.iter_mut().filter(|c| due(c)) {
+                c.report = Some(report.clone());
             }
         }
         self.samples += 1;
@@ -376,20 +369,18 @@ impl Analysis {
         })
     }
 
-    fn report_of(
-        run: &RunInfo,
-        schemes: &[SchemeState],
-        energy_error_max: f64,
-        samples: u64,
-        t: f64,
-        gaps: bool,
-    ) -> Report {
+    /// Values now (at the latest sample).
+    pub fn report(&self) -> Report {
+        let (run, schemes) = (&self.run, &self.schemes[..]);
+        let (energy_error_max, samples, t, gaps) =
+            (self.energy_error_max, self.samples, self.t, self.gaps);
         let h = &run.header;
         let scheme_reports = run
             .schemes
             .iter()
             .zip(schemes)
-            .map(|(info, state)| {
+            .enumerate()
+            .map(|(si, (info, state))| {
                 let sets = Self::current_sets(run, state);
                 let gali = ByOrder(
                     (0..run.k.saturating_sub(1))
@@ -425,7 +416,7 @@ impl Analysis {
                     lyapunov,
                     lyapunov_std,
                     energy_error_max,
-                    vs_vm: Self::vs_vm_of(run, schemes, info.index),
+                    vs_vm: Self::vs_vm_of(run, schemes, si),
                 }
             })
             .collect();
@@ -449,18 +440,6 @@ impl Analysis {
             },
             schemes: scheme_reports,
         }
-    }
-
-    /// Values now (at the latest sample).
-    pub fn report(&self) -> Report {
-        Self::report_of(
-            &self.run,
-            &self.schemes,
-            self.energy_error_max,
-            self.samples,
-            self.t,
-            self.gaps,
-        )
     }
 
     /// Values as of time `t`, if `t` was among [`AnalysisOptions::at`]. Before the stream has

@@ -11,7 +11,7 @@ pub fn write_csv(analysis: &Analysis, dir: &Path) -> std::io::Result<Vec<PathBuf
     let run = analysis.run();
     let k = run.k;
     let mut files = Vec::new();
-    for s in &run.schemes {
+    for (si, s) in run.schemes.iter().enumerate() {
         let path = dir.join(format!("{}.csv", s.name));
         let mut f = std::io::BufWriter::new(std::fs::File::create(&path)?);
         let mut head = vec!["t".to_string()];
@@ -29,7 +29,7 @@ pub fn write_csv(analysis: &Analysis, dir: &Path) -> std::io::Result<Vec<PathBuf
             head.push(format!("gali{j}_vs_vm_mean_abs_delta_log10"));
         }
         writeln!(f, "{}", head.join(","))?;
-        for (t, p) in analysis.series(s.index) {
+        for (t, p) in analysis.series(si) {
             let mut row = vec![t.to_string()];
             row.extend(p.gali_log10_mean.iter().map(f64::to_string));
             row.extend(p.gali_log10_of_mean.iter().map(f64::to_string));

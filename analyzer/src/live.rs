@@ -10,9 +10,11 @@ use std::cell::Cell;
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{self, BusError, DataService, EventService, HeaderService, Liveness};
+use chaoscope_schemas::bus::{
+    self, BusError, DataService, EventService, HeaderService, HeaderSubscriber, Liveness,
+};
 use chaoscope_schemas::convert::{self, DataMessage, HeaderError};
-use chaoscope_schemas::frame::{FrameHeader, RunAnnouncement};
+use chaoscope_schemas::frame::FrameHeader;
 use chaoscope_schemas::names;
 use chaoscope_schemas::proto::RunHeader;
 use iceoryx2::port::listener::Listener;
@@ -52,7 +54,7 @@ pub struct LiveRun {
     /// The ports live as long as their node.
     _node: Node<ipc::Service>,
     monitor: Subscriber<ipc::Service, [f64], FrameHeader>,
-    _header: Subscriber<ipc::Service, [u8], RunAnnouncement>,
+    _header: HeaderSubscriber,
     listener: Listener<ipc::Service>,
     _services: (DataService, HeaderService, EventService),
     /// Next frame sequence number expected.
@@ -72,10 +74,7 @@ impl LiveRun {
         let node_name = format!("chaoscope-monitor/{run}/{}", std::process::id());
         let node = bus::create_node(&node_name)?;
         let header_service = bus::header_service(&node, run)?;
-        let header = header_service
-            .subscriber_builder()
-            .create()
-            .map_err(|e| BusError::new("create header subscriber", e))?;
+        let header = bus::header_subscriber(&header_service)?;
         let Some(run_header) = wait_header(&node, &header, run, timeout)? else {
             return Ok(None);
         };
@@ -160,65 +159,51 @@ impl LiveRun {
         tick: Duration,
         mut f: impl FnMut(LiveEvent) -> ControlFlow<()>,
     ) -> Result<LiveEnded, LiveError> {
-        let waitset = WaitSetBuilder::new()
-            .create::<ipc::Service>()
-            .map_err(|e| BusError::new("create waitset", e))?;
-        let _event_guard = waitset
-            .attach_notification(&self.listener)
-            .map_err(|e| BusError::new("attach listener", e))?;
-        let _tick_guard = waitset
-            .attach_interval(tick)
-            .map_err(|e| BusError::new("attach interval", e))?;
-        let mut last_liveness = Instant::now();
-        loop {
-            let result = waitset
-                .wait_and_process_once(|_| CallbackProgression::Stop)
-                .map_err(|e| BusError::new("wait", e))?;
-            if matches!(
-                result,
-                WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt
-            ) {
-                return Ok(LiveEnded::Signal);
-            }
-            let _ = self.listener.try_wait(|_| {});
-            if self.drain(&mut f)? {
-                return Ok(LiveEnded::Stopped);
-            }
-            if f(LiveEvent::Tick).is_break() {
-                return Ok(LiveEnded::Stopped);
-            }
-            if last_liveness.elapsed() >= bus::POLL_INTERVAL {
-                last_liveness = Instant::now();
-                if !self.producer_alive() {
-                    // What it delivered before going is still buffered: take it first.
-                    if self.drain(&mut f)? {
-                        return Ok(LiveEnded::Stopped);
+        bus::with_data_waitset(&self.listener, tick, |waitset| {
+            let mut last_liveness = Instant::now();
+            loop {
+                let result = waitset
+                    .wait_and_process_once(|_| CallbackProgression::Stop)
+                    .map_err(|e| BusError::new("wait", e))?;
+                if matches!(
+                    result,
+                    WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt
+                ) {
+                    return Ok(LiveEnded::Signal);
+                }
+                let _ = self.listener.try_wait(|_| {});
+                if self.drain(&mut f)? {
+                    return Ok(LiveEnded::Stopped);
+                }
+                if f(LiveEvent::Tick).is_break() {
+                    return Ok(LiveEnded::Stopped);
+                }
+                if last_liveness.elapsed() >= bus::POLL_INTERVAL {
+                    last_liveness = Instant::now();
+                    if !self.producer_alive() {
+                        // What it delivered before going is still buffered: take it first.
+                        if self.drain(&mut f)? {
+                            return Ok(LiveEnded::Stopped);
+                        }
+                        return Ok(LiveEnded::ProducerGone);
                     }
-                    return Ok(LiveEnded::ProducerGone);
                 }
             }
-        }
+        })
     }
 }
 
 /// Waits for the run header on `header`.
 fn wait_header(
     node: &Node<ipc::Service>,
-    header: &Subscriber<ipc::Service, [u8], RunAnnouncement>,
+    header: &HeaderSubscriber,
     run: &str,
     timeout: Duration,
 ) -> Result<Option<RunHeader>, LiveError> {
     let start = Instant::now();
     loop {
-        let received = header
-            .receive()
-            .map_err(|e| BusError::new("receive run header", e))?;
-        if let Some(sample) = received {
-            return Ok(Some(convert::decode_run_header(
-                run,
-                sample.user_header(),
-                sample.payload(),
-            )?));
+        if let Some(run_header) = bus::try_receive_run_header::<LiveError>(header, run)? {
+            return Ok(Some(run_header));
         }
         if start.elapsed() > timeout {
             return Err(LiveError::NoHeader {

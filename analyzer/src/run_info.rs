@@ -2,20 +2,8 @@
 //! of the recording or the bus, or built in process from a `RunSpec`).
 
 use chaoscope_producer::renormalization::Orthonormalization;
-use chaoscope_producer::spec::Method;
+use chaoscope_producer::spec::{Method, SchemeSpec};
 use chaoscope_schemas::proto::RunHeader;
-
-/// One scheme as the analysis sees it.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SchemeInfo {
-    pub index: usize,
-    pub name: String,
-    pub method: Method,
-    pub d0: f64,
-    pub tau: f64,
-    pub tau_steps: u64,
-    pub orthonormalize: Orthonormalization,
-}
 
 /// A header that cannot describe a run the analysis can follow.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -30,7 +18,8 @@ pub struct RunInfo {
     pub k: usize,
     pub sets: usize,
     pub h: f64,
-    pub schemes: Vec<SchemeInfo>,
+    /// The run's schemes, in header order (a scheme's index is its position).
+    pub schemes: Vec<SchemeSpec>,
 }
 
 impl RunInfo {
@@ -46,7 +35,7 @@ impl RunInfo {
             return Err(err(format!("time step h = {} is not positive", header.h)));
         }
         let mut schemes = Vec::with_capacity(header.schemes.len());
-        for (i, s) in header.schemes.iter().enumerate() {
+        for s in &header.schemes {
             let method = Method::from_name(&s.method)
                 .ok_or_else(|| err(format!("scheme {}: unknown method {:?}", s.name, s.method)))?;
             let orthonormalize =
@@ -59,8 +48,7 @@ impl RunInfo {
             if s.tau_steps == 0 {
                 return Err(err(format!("scheme {}: tau_steps = 0", s.name)));
             }
-            schemes.push(SchemeInfo {
-                index: i,
+            schemes.push(SchemeSpec {
                 name: s.name.clone(),
                 method,
                 d0: s.d0,

@@ -80,33 +80,16 @@ pub fn crossings(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use chaoscope_schemas::config::RunConfig;
+    use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 
     #[test]
     fn henon_heiles_crossings_lie_on_the_energy_surface_and_the_plane() {
-        let cfg = RunConfig::from_toml(
-            r#"
-[model]
-name = "henon-heiles"
-[orbit]
-q = [0.0, 0.558]
-p = [0.0, 0.0]
-energy = 0.125
-solve_for = "p1"
-[integrator]
-method = "aba864"
-h = 0.01
-t_final = 1.0
-[deviations]
-k = 1
-[[scheme]]
-name = "vm"
-method = "vm"
-d0 = 1e-8
-tau = 1.0
-"#,
-        )
-        .unwrap();
+        let cfg = paper::henon_heiles(
+            paper::HH_REGULAR_Q2,
+            1.0,
+            DeviationsConfig::random(1, 1, 0),
+            vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
+        );
         let spec = RunSpec::from_config(&cfg).unwrap();
         let pts = crossings(&spec, &spec.x0, 0, 200_000, 200);
         assert!(pts.len() > 100, "{} crossings", pts.len());
@@ -115,7 +98,7 @@ tau = 1.0
             // the energy surface to integrator plus interpolation error.
             assert!(p[0].abs() < 1e-8, "q1 = {}", p[0]);
             assert!(p[2] > 0.0);
-            assert!((spec.model.energy(p) - 0.125).abs() < 1e-7);
+            assert!((spec.model.energy(p) - paper::HH_ENERGY).abs() < 1e-7);
         }
         // A regular orbit (x2 = 0.558 is the paper's regular one): its section points lie on
         // a closed curve, here well inside the allowed region |q2| < 0.7.

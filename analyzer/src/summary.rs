@@ -51,9 +51,9 @@ pub fn summarize(path: &Path) -> Result<RunSummary, SummaryError> {
         summary.finalized_by = r.finalized_by.clone();
         summary.frames_missing = r.frames_missing;
     }
-    for scheme in &run.schemes {
+    for (si, scheme) in run.schemes.iter().enumerate() {
         for set in 0..run.sets {
-            let Some(v) = analysis.set_values(scheme.index, set) else {
+            let Some(v) = analysis.set_values(si, set) else {
                 continue;
             };
             summary.sets.push(SetSummary {

@@ -6,34 +6,15 @@ use chaoscope_analyzer::inprocess::{analyze_config, run_info};
 use chaoscope_producer::engine::{Engine, Sample};
 use chaoscope_producer::indicators::{StretchSums, gali_log10};
 use chaoscope_producer::spec::RunSpec;
-use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 
-fn hh(t_final: f64, sets: usize, seed: u64, schemes: &str) -> RunConfig {
-    RunConfig::from_toml(&format!(
-        r#"
-[model]
-name = "henon-heiles"
-[orbit]
-q = [0.0, -0.25]
-p = [0.0, 0.0]
-energy = 0.125
-solve_for = "p1"
-[integrator]
-method = "aba864"
-h = 0.01
-t_final = {t_final}
-[deviations]
-k = 4
-sets = {sets}
-seed = {seed}
-{schemes}"#
-    ))
-    .unwrap()
-}
-
-fn scheme(name: &str, method: &str, d0: f64, tau: f64, ortho: &str) -> String {
-    format!(
-        "[[scheme]]\nname = \"{name}\"\nmethod = \"{method}\"\nd0 = {d0:e}\ntau = {tau}\northonormalize = \"{ortho}\"\n"
+/// The paper's chaotic Henon-Heiles orbit with `sets` sets of k = 4 directions.
+fn hh(t_final: f64, sets: usize, seed: u64, schemes: Vec<SchemeConfig>) -> RunConfig {
+    paper::henon_heiles(
+        paper::HH_CHAOTIC_Q2,
+        t_final,
+        DeviationsConfig::random(4, sets, seed),
+        schemes,
     )
 }
 
@@ -43,7 +24,10 @@ fn report_equals_direct_computation_on_the_last_sample() {
         50.0,
         3,
         1,
-        &(scheme("vm", "vm", 1e-8, 1.0, "rescale") + &scheme("qr", "vm", 1.0, 0.5, "qr")),
+        vec![
+            SchemeConfig::new("vm", "vm", 1e-8, 1.0),
+            SchemeConfig::new("qr", "vm", 1.0, 0.5).with_orthonormalize("qr"),
+        ],
     );
     let mut last: Option<Sample> = None;
     let mut sums = vec![vec![StretchSums::new(4); 3]; 2];
@@ -100,7 +84,10 @@ fn hh_chaotic_gali_at_200_matches_the_reference_geometric_means() {
         200.0,
         30,
         11,
-        &(scheme("vm", "vm", 1e-8, 1.0, "rescale") + &scheme("mpm", "mpm", 1e-8, 1.0, "rescale")),
+        vec![
+            SchemeConfig::new("vm", "vm", 1e-8, 1.0),
+            SchemeConfig::new("mpm", "mpm", 1e-8, 1.0),
+        ],
     );
     let a = analyze_config(&cfg, &AnalysisOptions::default(), |_| {}).unwrap();
     let r = a.report();
@@ -130,7 +117,12 @@ fn hh_chaotic_gali_at_200_matches_the_reference_geometric_means() {
 #[test]
 fn series_memory_is_bounded_for_long_runs() {
     // 1e5 renormalizations; the stored curve keeps a bounded number of points.
-    let cfg = hh(1000.0, 1, 1, &scheme("vm", "vm", 1e-8, 0.01, "rescale"));
+    let cfg = hh(
+        1000.0,
+        1,
+        1,
+        vec![SchemeConfig::new("vm", "vm", 1e-8, 0.01)],
+    );
     let options = AnalysisOptions {
         series_capacity: 500,
         per_decade: 20,
@@ -147,15 +139,17 @@ fn series_memory_is_bounded_for_long_runs() {
 
 #[test]
 fn values_at_time_t_equal_a_run_stopped_at_t() {
-    let schemes =
-        scheme("vm", "vm", 1e-8, 1.0, "rescale") + &scheme("mpm", "mpm", 1e-7, 2.0, "rescale");
+    let schemes = vec![
+        SchemeConfig::new("vm", "vm", 1e-8, 1.0),
+        SchemeConfig::new("mpm", "mpm", 1e-7, 2.0),
+    ];
     let options = AnalysisOptions {
         at: vec![100.0],
         ..Default::default()
     };
-    let long = analyze_config(&hh(150.0, 2, 3, &schemes), &options, |_| {}).unwrap();
+    let long = analyze_config(&hh(150.0, 2, 3, schemes.clone()), &options, |_| {}).unwrap();
     let short = analyze_config(
-        &hh(100.0, 2, 3, &schemes),
+        &hh(100.0, 2, 3, schemes),
         &AnalysisOptions::default(),
         |_| {},
     )
@@ -168,7 +162,7 @@ fn values_at_time_t_equal_a_run_stopped_at_t() {
 #[test]
 fn lost_samples_are_flagged_and_the_mle_averages_the_intervals_seen() {
     // Feed the analysis with every third sample missing (a lossy live stream).
-    let cfg = hh(2000.0, 2, 5, &scheme("vm", "vm", 1e-8, 1.0, "rescale"));
+    let cfg = hh(2000.0, 2, 5, vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)]);
     let spec = RunSpec::from_config(&cfg).unwrap();
     let mut full = Analysis::new(run_info("t", &cfg, &spec), &AnalysisOptions::default());
     let mut lossy = full.clone();

@@ -8,14 +8,15 @@
 use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::inprocess::analyze_config;
 use chaoscope_analyzer::vshape::v_shapes;
-use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 
+/// The VM scheme the MPM sweep is measured against.
+fn vm() -> Vec<SchemeConfig> {
+    vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)]
+}
+
+/// The MPM d0 sweep, as a user writes it after a run's other tables.
 const SWEEP: &str = r#"
-[[scheme]]
-name = "vm"
-method = "vm"
-d0 = 1e-8
-tau = 1.0
 [[sweep]]
 method = "mpm"
 d0 = { from = 1e-14, to = 1e-2, per_decade = 1 }
@@ -68,26 +69,13 @@ fn check(name: &str, config: &str, t: f64) {
 
 #[test]
 fn hh_chaotic_d0_sweep_is_v_shaped_around_1e_8() {
-    let config = format!(
-        r#"
-[model]
-name = "henon-heiles"
-[orbit]
-q = [0.0, -0.25]
-p = [0.0, 0.0]
-energy = 0.125
-solve_for = "p1"
-[integrator]
-method = "aba864"
-h = 0.01
-t_final = 200.0
-[deviations]
-k = 4
-sets = 100
-seed = 21
-{SWEEP}"#
+    let run = paper::henon_heiles(
+        paper::HH_CHAOTIC_Q2,
+        200.0,
+        DeviationsConfig::random(4, 100, 21),
+        vm(),
     );
-    check("HH", &config, 200.0);
+    check("HH", &(run.to_toml() + SWEEP), 200.0);
 }
 
 #[test]
@@ -97,24 +85,13 @@ fn fput_n5_chaotic_d0_sweep_is_v_shaped_around_1e_8() {
     // orbit (finite-time MLE ~ 0.15 up to t = 200) VM GALI_2 is ~1e-11 by then, below every
     // MPM rounding floor, and the MPM values only fall with d0 (no V; examples/paper/RESULTS.md
     // shows the minimum moving from 1e-7 at t <= 80 to 1e-6 at t = 100 and to 1e-2 at t = 200).
-    let config = format!(
-        r#"
-[model]
-name = "fput-beta"
-n = 5
-beta = 1.0
-[orbit]
-q = [-1.151344372237934177, -0.000000000000007443, 1.151344372237925295, 0.000000000000006056, -1.151344372237918634]
-p = [1.502757415151290132, 0.000000000000014786, -1.502757415151279696, -0.000000000000017280, 1.502757415151272147]
-[integrator]
-method = "aba864"
-h = 0.02
-t_final = 50.0
-[deviations]
-k = 10
-sets = 100
-seed = 22
-{SWEEP}"#
+    let run = paper::fput_beta(
+        &paper::FPUT_N5_CHAOTIC_Q,
+        &paper::FPUT_N5_CHAOTIC_P,
+        0.02,
+        50.0,
+        DeviationsConfig::random(10, 100, 22),
+        vm(),
     );
-    check("FPUT N=5", &config, 50.0);
+    check("FPUT N=5", &(run.to_toml() + SWEEP), 50.0);
 }

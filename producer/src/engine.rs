@@ -333,19 +333,23 @@ impl DeviationSet {
 mod tests {
     use super::*;
     use crate::integrator::Integrator;
-    use chaoscope_schemas::config::RunConfig;
+    use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 
-    fn spec(schemes: &str, energy: f64, t_final: f64) -> RunSpec {
-        let text = format!(
-            "[model]\nname = \"henon-heiles\"\n[orbit]\nq = [0.0, -0.25]\np = [0.0, 0.0]\nenergy = {energy}\n\
-             solve_for = \"p1\"\n[integrator]\nmethod = \"aba864\"\nh = 0.01\nt_final = {t_final}\n\
-             [deviations]\nk = 3\nsets = 2\nseed = 4\n{schemes}"
+    /// Henon-Heiles from the paper's chaotic starting point `q = (0, -0.25)`, with `p1` solved
+    /// from `energy`; k = 3, two sets.
+    fn spec(schemes: Vec<SchemeConfig>, energy: f64, t_final: f64) -> RunSpec {
+        let mut config = paper::henon_heiles(
+            paper::HH_CHAOTIC_Q2,
+            t_final,
+            DeviationsConfig::random(3, 2, 4),
+            schemes,
         );
-        RunSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap()
+        config.orbit.energy = Some(energy);
+        RunSpec::from_config(&config).unwrap()
     }
 
-    fn scheme(name: &str, method: &str, tau: f64) -> String {
-        format!("[[scheme]]\nname = \"{name}\"\nmethod = \"{method}\"\nd0 = 1e-8\ntau = {tau}\n")
+    fn scheme(name: &str, method: &str, tau: f64) -> SchemeConfig {
+        SchemeConfig::new(name, method, 1e-8, tau)
     }
 
     #[test]
@@ -358,9 +362,9 @@ mod tests {
                 .unwrap();
             states
         };
-        let a = collect(spec(&scheme("a", "vm", 1.0), 0.125, 20.0));
+        let a = collect(spec(vec![scheme("a", "vm", 1.0)], 0.125, 20.0));
         let b = collect(spec(
-            &(scheme("b", "mpm", 0.1) + &scheme("c", "vm", 2.5)),
+            vec![scheme("b", "mpm", 0.1), scheme("c", "vm", 2.5)],
             0.125,
             20.0,
         ));
@@ -371,7 +375,7 @@ mod tests {
             assert_eq!(state, &b[step], "step {step}");
         }
         // And it is the plain integration of the initial condition.
-        let s = spec(&scheme("a", "vm", 1.0), 0.125, 20.0);
+        let s = spec(vec![scheme("a", "vm", 1.0)], 0.125, 20.0);
         let mut x = s.x0.clone();
         let mut w = Workspace::new();
         for _ in 0..2000 {
@@ -383,7 +387,7 @@ mod tests {
     #[test]
     fn sample_stream_is_gapless_and_ends() {
         let mut e = Engine::new(spec(
-            &(scheme("a", "vm", 0.3) + &scheme("b", "mpm", 0.5)),
+            vec![scheme("a", "vm", 0.3), scheme("b", "mpm", 0.5)],
             0.125,
             1.0,
         ));
@@ -407,7 +411,7 @@ mod tests {
     #[test]
     fn escaping_orbit_is_an_error_naming_the_time() {
         // Above H = 1/6 the Henon-Heiles potential opens and this orbit leaves for infinity.
-        let mut e = Engine::new(spec(&scheme("a", "mpm", 1.0), 0.3, 1000.0));
+        let mut e = Engine::new(spec(vec![scheme("a", "mpm", 1.0)], 0.3, 1000.0));
         let err = loop {
             match e.next_sample() {
                 Ok(Some(_)) => continue,
@@ -425,7 +429,7 @@ mod tests {
     #[test]
     fn vm_and_mpm_start_from_the_same_directions() {
         let mut e = Engine::new(spec(
-            &(scheme("v", "vm", 1.0) + &scheme("m", "mpm", 1.0)),
+            vec![scheme("v", "vm", 1.0), scheme("m", "mpm", 1.0)],
             0.125,
             1.0,
         ));

@@ -466,30 +466,15 @@ impl RunSpec {
 mod tests {
     use super::*;
 
-    pub(crate) fn hh_config(extra: &str) -> String {
-        format!(
-            r#"
-[model]
-name = "henon-heiles"
-[orbit]
-q = [0.0, -0.25]
-p = [0.0, 0.0]
-energy = 0.125
-solve_for = "p1"
-[integrator]
-method = "aba864"
-h = 0.01
-t_final = 10.0
-[deviations]
-k = 4
-sets = 2
-seed = 1
-[[scheme]]
-name = "vm"
-method = "vm"
-d0 = 1e-8
-tau = 1.0
-{extra}"#
+    use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
+
+    /// The paper's chaotic Henon-Heiles orbit up to t = 10 with one VM scheme.
+    fn hh_config() -> RunConfig {
+        paper::henon_heiles(
+            paper::HH_CHAOTIC_Q2,
+            10.0,
+            DeviationsConfig::random(4, 2, 1),
+            vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
         )
     }
 
@@ -499,57 +484,45 @@ tau = 1.0
 
     #[test]
     fn paper_hh_chaotic_initial_condition() {
-        let s = spec(&hh_config("")).unwrap();
+        let s = RunSpec::from_config(&hh_config()).unwrap();
         // numerics.md: p1 = 0.42081270576508656.
         assert!((s.x0[2] - 0.42081270576508656).abs() < 1e-16, "{}", s.x0[2]);
+        // t_final = 10 and tau = 1 in steps of h = 0.01.
         assert_eq!(s.total_steps, 1000);
         assert_eq!(s.schemes[0].tau_steps, 100);
     }
 
     #[test]
     fn impossible_energy_is_a_clear_error() {
-        let text = hh_config("").replace("q = [0.0, -0.25]", "q = [0.0, 0.9]");
-        let e = spec(&text).unwrap_err();
+        let mut config = hh_config();
+        config.orbit.q = vec![0.0, 0.9];
+        let e = RunSpec::from_config(&config).unwrap_err();
         assert_eq!(e.key, "orbit.energy");
         assert!(e.message.contains("no real p1"), "{e}");
     }
 
     #[test]
     fn bad_values_name_their_key() {
-        let cases = [
+        // Each case spoils one value of a valid config.
+        type Spoil = fn(&mut RunConfig);
+        let cases: [(Spoil, &str); 9] = [
+            (|c| c.integrator.h = -1.0, "integrator.h"),
+            (|c| c.schemes[0].tau = 0.015, "scheme[0].tau"),
+            (|c| c.deviations.k = 5, "deviations.k"),
+            (|c| c.schemes[0].d0 = f64::NAN, "scheme[0].d0"),
+            (|c| c.integrator.method = "rk4".into(), "integrator.method"),
+            (|c| c.schemes[0].method = "xm".into(), "scheme[0].method"),
             (
-                hh_config("").replace("h = 0.01", "h = -1.0"),
-                "integrator.h",
-            ),
-            (
-                hh_config("").replace("tau = 1.0", "tau = 0.015"),
-                "scheme[0].tau",
-            ),
-            (hh_config("").replace("k = 4", "k = 5"), "deviations.k"),
-            (
-                hh_config("").replace("d0 = 1e-8", "d0 = nan"),
-                "scheme[0].d0",
-            ),
-            (hh_config("").replace("aba864", "rk4"), "integrator.method"),
-            (
-                hh_config("").replace("\"vm\"\nd0", "\"xm\"\nd0"),
-                "scheme[0].method",
-            ),
-            (
-                hh_config("[[scheme]]\nname = \"vm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 1.0\n"),
+                |c| c.schemes.push(SchemeConfig::new("vm", "mpm", 1e-8, 1.0)),
                 "scheme[1].name",
             ),
-            (
-                hh_config("").replace("solve_for = \"p1\"", "solve_for = \"q1\""),
-                "orbit.solve_for",
-            ),
-            (
-                hh_config("").replace("t_final = 10.0", "t_final = 10.005"),
-                "integrator.t_final",
-            ),
+            (|c| c.orbit.solve_for = Some("q1".into()), "orbit.solve_for"),
+            (|c| c.integrator.t_final = 10.005, "integrator.t_final"),
         ];
-        for (text, key) in cases {
-            let e = spec(&text).unwrap_err();
+        for (spoil, key) in cases {
+            let mut config = hh_config();
+            spoil(&mut config);
+            let e = RunSpec::from_config(&config).unwrap_err();
             assert_eq!(e.key, key, "{e}");
         }
     }

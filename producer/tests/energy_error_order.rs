@@ -4,20 +4,20 @@ use chaoscope_producer::integrator::{
     Integrator, Splitting, SplittingKind, Workspace, relative_energy_error,
 };
 use chaoscope_producer::model::{HenonHeiles, Model};
+use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 
 mod common;
 
 /// Maximum relative energy error along the HH chaotic orbit up to t = 200.
 fn max_energy_error(kind: SplittingKind, h: f64) -> f64 {
-    let spec = common::spec(&common::hh(
-        -0.25,
-        h,
+    let mut config = paper::henon_heiles(
+        paper::HH_CHAOTIC_Q2,
         200.0,
-        2,
-        1,
-        0,
-        &common::scheme("v", "vm", 1e-8, 200.0, "rescale"),
-    ));
+        DeviationsConfig::random(2, 1, 0),
+        vec![SchemeConfig::new("v", "vm", 1e-8, 200.0)],
+    );
+    config.integrator.h = h;
+    let spec = common::spec(&config);
     let model = HenonHeiles;
     let integ = Splitting::new(kind);
     let mut x = spec.x0.clone();

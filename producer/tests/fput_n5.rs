@@ -1,40 +1,36 @@
 //! Must-show 5: the beta-FPUT chain with N = 5, both orbits of the paper (Appendix B).
 
+use chaoscope_schemas::config::paper::{
+    FPUT_N5_CHAOTIC_P, FPUT_N5_CHAOTIC_Q, FPUT_N5_REGULAR_P, FPUT_N5_REGULAR_Q, fput_beta,
+};
+use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig};
+
 mod common;
-use common::scheme;
 
-const REGULAR_Q: &str = "[1.03003, 0.0, -1.04003, 0.0, 1.04003]";
-const REGULAR_P: &str = "[0.29284, 0.0, 0.0, 0.0, 0.0]";
-const CHAOTIC_Q: &str = "[-1.151344372237934177, -0.000000000000007443, 1.151344372237925295, 0.000000000000006056, -1.151344372237918634]";
-const CHAOTIC_P: &str = "[1.502757415151290132, 0.000000000000014786, -1.502757415151279696, -0.000000000000017280, 1.502757415151272147]";
-
-fn fput(q: &str, p: &str, h: f64, t_final: f64, k: usize, sets: usize, schemes: &str) -> String {
-    format!(
-        r#"
-[model]
-name = "fput-beta"
-n = 5
-beta = 1.0
-[orbit]
-q = {q}
-p = {p}
-[integrator]
-method = "aba864"
-h = {h}
-t_final = {t_final}
-[deviations]
-k = {k}
-sets = {sets}
-seed = 2
-{schemes}"#
-    )
+/// The directions of every run here: `sets` sets of `k`, seed 2.
+fn deviations(k: usize, sets: usize) -> DeviationsConfig {
+    DeviationsConfig::random(k, sets, 2)
 }
 
 #[test]
 fn energies_of_the_paper_orbits() {
-    let vm = scheme("vm", "vm", 1e-8, 1.0, "rescale");
-    let reg = common::spec(&fput(REGULAR_Q, REGULAR_P, 0.01, 1.0, 2, 1, &vm));
-    let cha = common::spec(&fput(CHAOTIC_Q, CHAOTIC_P, 0.01, 1.0, 2, 1, &vm));
+    let vm = vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)];
+    let reg = common::spec(&fput_beta(
+        &FPUT_N5_REGULAR_Q,
+        &FPUT_N5_REGULAR_P,
+        0.01,
+        1.0,
+        deviations(2, 1),
+        vm.clone(),
+    ));
+    let cha = common::spec(&fput_beta(
+        &FPUT_N5_CHAOTIC_Q,
+        &FPUT_N5_CHAOTIC_P,
+        0.01,
+        1.0,
+        deviations(2, 1),
+        vm,
+    ));
     // The paper's "5" and "10" are rounded; numerics.md gives the values to 1e-10 relative.
     assert!(
         (reg.e0 / 4.9999777565 - 1.0).abs() < 1e-10,
@@ -66,14 +62,13 @@ fn regular_orbit_gali_laws_and_chaotic_mle() {
     //   slopes over [1e4, 1e5]: GALI_2 -0.01, GALI_4 -0.05, GALI_6 -1.94, GALI_8 -6.01, GALI_10 -9.99
     // and GALI_4 levels off near 1e-7 (GALI_2 near 1e-1). The laws of the paper are therefore
     // checked where they hold, on [1e4, 1e5]; on [1e2, 1e4] only GALI_8 and GALI_10 already follow.
-    let rec = common::run(&fput(
-        REGULAR_Q,
-        REGULAR_P,
+    let rec = common::run(&fput_beta(
+        &FPUT_N5_REGULAR_Q,
+        &FPUT_N5_REGULAR_P,
         0.02,
         1e5,
-        10,
-        4,
-        &scheme("vm", "vm", 1e-8, 1.0, "rescale"),
+        deviations(10, 4),
+        vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
     ));
     let pts = rec.scheme("vm");
     let g2_min = pts
@@ -107,14 +102,13 @@ fn regular_orbit_gali_laws_and_chaotic_mle() {
     }
     let mle_regular = pts.last().unwrap().mean_exponent(0);
 
-    let chaotic = common::run(&fput(
-        CHAOTIC_Q,
-        CHAOTIC_P,
+    let chaotic = common::run(&fput_beta(
+        &FPUT_N5_CHAOTIC_Q,
+        &FPUT_N5_CHAOTIC_P,
         0.02,
         1e4,
-        2,
-        1,
-        &scheme("vm", "vm", 1e-8, 1.0, "rescale"),
+        deviations(2, 1),
+        vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
     ));
     let mle = chaotic.scheme("vm").last().unwrap().mean_exponent(0);
     let mle_1e3 = chaotic

@@ -1,9 +1,26 @@
 //! Must-shows 3, 4 and 6 on the Henon-Heiles chaotic orbit (x2 = -0.25, H = 0.125).
 
 use chaoscope_producer::spec::RunSpec;
+use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 
 mod common;
-use common::{Point, scheme};
+use common::Point;
+
+/// The paper's chaotic orbit up to `t_final` with `sets` sets of `k` directions.
+fn chaotic(
+    t_final: f64,
+    k: usize,
+    sets: usize,
+    seed: u64,
+    schemes: Vec<SchemeConfig>,
+) -> RunConfig {
+    paper::henon_heiles(
+        paper::HH_CHAOTIC_Q2,
+        t_final,
+        DeviationsConfig::random(k, sets, seed),
+        schemes,
+    )
+}
 
 /// Mean log10 GALI_j at the sample nearest t.
 fn at(pts: &[Point], t: f64, j: usize) -> f64 {
@@ -15,10 +32,12 @@ fn at(pts: &[Point], t: f64, j: usize) -> f64 {
 
 #[test]
 fn chaotic_mle_and_gali_decay_rates() {
-    let schemes = scheme("vm", "vm", 1e-8, 1.0, "rescale")
-        + &scheme("mpm", "mpm", 1e-8, 1.0, "rescale")
-        + &scheme("qr", "vm", 1.0, 1.0, "qr");
-    let rec = common::run(&common::hh(-0.25, 0.01, 1e4, 4, 4, 3, &schemes));
+    let schemes = vec![
+        SchemeConfig::new("vm", "vm", 1e-8, 1.0),
+        SchemeConfig::new("mpm", "mpm", 1e-8, 1.0),
+        SchemeConfig::new("qr", "vm", 1.0, 1.0).with_orthonormalize("qr"),
+    ];
+    let rec = common::run(&chaotic(1e4, 4, 4, 3, schemes));
     for name in ["vm", "mpm"] {
         let last = rec.scheme(name).last().unwrap();
         let mle = last.mean_exponent(0);
@@ -92,9 +111,11 @@ fn chaotic_mle_and_gali_decay_rates() {
 fn mpm_follows_vm_within_the_double_precision_limits() {
     // Same 20 sets of initial directions for both methods; numerics.md: MPM departs from VM at
     // t ~ 170 for GALI_3 and t ~ 115 for GALI_4 because of rounding in the k + 1 orbits.
-    let schemes =
-        scheme("vm", "vm", 1e-8, 1.0, "rescale") + &scheme("mpm", "mpm", 1e-8, 1.0, "rescale");
-    let rec = common::run(&common::hh(-0.25, 0.01, 200.0, 4, 20, 5, &schemes));
+    let schemes = vec![
+        SchemeConfig::new("vm", "vm", 1e-8, 1.0),
+        SchemeConfig::new("mpm", "mpm", 1e-8, 1.0),
+    ];
+    let rec = common::run(&chaotic(200.0, 4, 20, 5, schemes));
     let (vm, mpm) = (rec.scheme("vm"), rec.scheme("mpm"));
     for (j, t_max) in [(2usize, 200.0), (3, 150.0), (4, 100.0)] {
         let mut worst: f64 = 0.0;
@@ -130,14 +151,12 @@ fn mpm_follows_vm_within_the_double_precision_limits() {
 
 #[test]
 fn lyapunov_spectrum_is_symmetric() {
-    let rec = common::run(&common::hh(
-        -0.25,
-        0.01,
+    let rec = common::run(&chaotic(
         1e4,
         4,
         1,
         9,
-        &scheme("qr", "vm", 1.0, 1.0, "qr"),
+        vec![SchemeConfig::new("qr", "vm", 1.0, 1.0).with_orthonormalize("qr")],
     ));
     let last = rec.scheme("qr").last().unwrap();
     let l = &last.exponents[0];
@@ -160,11 +179,16 @@ fn mpm_distance_to_vm_is_v_shaped_in_d0() {
     // One VM scheme and MPM schemes for d0 = 1e-14 ... 1e-2, all around the same orbit with the
     // same 10 sets of directions. Too small d0: rounding of x + d dominates; too large: the
     // nearby orbits leave the linear regime. The minimum sits in between (paper Fig. 6).
-    let mut schemes = scheme("vm", "vm", 1e-8, 1.0, "rescale");
+    let mut schemes = vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)];
     for e in -14..=-2 {
-        schemes += &scheme(&format!("mpm{e}"), "mpm", 10f64.powi(e), 1.0, "rescale");
+        schemes.push(SchemeConfig::new(
+            &format!("mpm{e}"),
+            "mpm",
+            10f64.powi(e),
+            1.0,
+        ));
     }
-    let rec = common::run(&common::hh(-0.25, 0.01, 200.0, 2, 10, 21, &schemes));
+    let rec = common::run(&chaotic(200.0, 2, 10, 21, schemes));
     let vm = at(rec.scheme("vm"), 200.0, 2);
     let dist: Vec<(i32, f64)> = (-14..=-2)
         .map(|e| (e, (at(rec.scheme(&format!("mpm{e}")), 200.0, 2) - vm).abs()))
@@ -182,14 +206,17 @@ fn mpm_distance_to_vm_is_v_shaped_in_d0() {
 
 #[test]
 fn same_seed_is_bit_identical_on_any_thread_count() {
-    let schemes = scheme("vm", "vm", 1e-8, 1.0, "rescale") + &scheme("mpm", "mpm", 1e-8, 0.5, "qr");
-    let text = common::hh(-0.25, 0.01, 50.0, 4, 6, 77, &schemes);
+    let schemes = vec![
+        SchemeConfig::new("vm", "vm", 1e-8, 1.0),
+        SchemeConfig::new("mpm", "mpm", 1e-8, 0.5).with_orthonormalize("qr"),
+    ];
+    let config = chaotic(50.0, 4, 6, 77, schemes);
     let collect = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
             .build()
             .unwrap();
-        let spec: RunSpec = common::spec(&text);
+        let spec: RunSpec = common::spec(&config);
         pool.install(|| {
             let mut out = Vec::new();
             chaoscope_producer::engine::Engine::new(spec)
@@ -219,6 +246,10 @@ fn same_seed_is_bit_identical_on_any_thread_count() {
     assert_eq!(bits(&one), bits(&two));
     assert_eq!(bits(&one), bits(&four));
     // A different seed gives different directions (the test above can fail).
-    let other = common::spec(&text.replace("seed = 77", "seed = 78"));
-    assert_ne!(other.directions, common::spec(&text).directions);
+    let mut other = config.clone();
+    other.deviations.seed = 78;
+    assert_ne!(
+        common::spec(&other).directions,
+        common::spec(&config).directions
+    );
 }

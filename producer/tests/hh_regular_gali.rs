@@ -1,18 +1,17 @@
 //! Must-show 2: on a regular orbit of a 2-dof system (a 2-torus) GALI_2 stays constant and
 //! GALI_3, GALI_4 fall as t^-2 and t^-4 (Skokos et al. 2007), computed with the variational method.
 
+use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
+
 mod common;
 
 #[test]
 fn hh_regular_orbit_gali_power_laws() {
-    let rec = common::run(&common::hh(
-        0.558,
-        0.01,
+    let rec = common::run(&paper::henon_heiles(
+        paper::HH_REGULAR_Q2,
         1e4,
-        4,
-        3,
-        11,
-        &common::scheme("vm", "vm", 1e-8, 1.0, "rescale"),
+        DeviationsConfig::random(4, 3, 11),
+        vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
     ));
     let pts = rec.scheme("vm");
     // The power laws are asymptotic: they set in once the linear shear along the torus dominates

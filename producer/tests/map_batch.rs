@@ -4,41 +4,40 @@
 
 use chaoscope_producer::batch::Isa;
 use chaoscope_producer::map::{self, MapOptions, MapSpec, PointResult, PointStatus};
-use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::config::{
+    DeviationsConfig, MapAxis, MapConfig, RunConfig, SchemeConfig, paper,
+};
 
-fn hh_map(method: &str, map: &str, t_final: f64, sets: usize) -> MapSpec {
-    let text = format!(
-        r#"
-[model]
-name = "henon-heiles"
-[orbit]
-q = [0.0, 0.0]
-p = [0.0, 0.0]
-energy = 0.125
-solve_for = "p1"
-[integrator]
-method = "aba864"
-h = 0.01
-t_final = {t_final}
-[deviations]
-k = 2
-sets = {sets}
-seed = 3
-[[scheme]]
-name = "s"
-method = "{method}"
-d0 = 1e-8
-tau = 1.0
-[map]
-{map}
-"#
+/// A map of the paper's Henon-Heiles section (k = 2, one scheme of `method`).
+fn hh_map(method: &str, map: MapConfig, t_final: f64, sets: usize) -> MapSpec {
+    MapSpec::from_config(&hh_map_config(method, map, t_final, sets)).unwrap()
+}
+
+fn hh_map_config(method: &str, map: MapConfig, t_final: f64, sets: usize) -> RunConfig {
+    // q2 and p2 come from the grid; p1 is solved per point.
+    let mut config = paper::henon_heiles(
+        0.0,
+        t_final,
+        DeviationsConfig::random(2, sets, 3),
+        vec![SchemeConfig::new("s", method, 1e-8, 1.0)],
     );
-    MapSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap()
+    config.map = Some(map);
+    config
 }
 
 /// A 4 x 3 grid over the section: chaotic, regular and outside-the-surface points.
-const GRID: &str = r#"x = { coord = "q2", min = -0.45, max = 0.65, n = 4 }
-y = { coord = "p2", min = -0.45, max = 0.45, n = 3 }"#;
+fn grid(indicator: &str) -> MapConfig {
+    paper::hh_section_map(4, 3, indicator)
+}
+
+/// `gali-time` of GALI_3 with the given threshold.
+fn gali3_time(threshold: f64) -> MapConfig {
+    MapConfig {
+        k: Some(3),
+        threshold: Some(threshold),
+        ..grid("gali-time")
+    }
+}
 
 fn batched(spec: &MapSpec, threads: usize, isa: Isa) -> Vec<PointResult> {
     let points: Vec<u64> = (0..spec.grid_points()).collect();
@@ -84,56 +83,21 @@ fn check_against_engine(spec: &MapSpec) {
 
 #[test]
 fn mpm_points_equal_the_engine() {
-    check_against_engine(&hh_map(
-        "mpm",
-        &format!("{GRID}\nindicator = \"gali\""),
-        30.0,
-        3,
-    ));
-    check_against_engine(&hh_map(
-        "mpm",
-        &format!("{GRID}\nindicator = \"gali-time\"\nk = 3\nthreshold = 0.05"),
-        30.0,
-        3,
-    ));
-    check_against_engine(&hh_map(
-        "mpm",
-        &format!("{GRID}\nindicator = \"mle\""),
-        20.0,
-        2,
-    ));
+    check_against_engine(&hh_map("mpm", grid("gali"), 30.0, 3));
+    check_against_engine(&hh_map("mpm", gali3_time(0.05), 30.0, 3));
+    check_against_engine(&hh_map("mpm", grid("mle"), 20.0, 2));
 }
 
 #[test]
 fn vm_points_equal_the_engine() {
-    check_against_engine(&hh_map(
-        "vm",
-        &format!("{GRID}\nindicator = \"gali\""),
-        30.0,
-        3,
-    ));
-    check_against_engine(&hh_map(
-        "vm",
-        &format!("{GRID}\nindicator = \"gali-time\"\nk = 3\nthreshold = 0.05"),
-        30.0,
-        3,
-    ));
-    check_against_engine(&hh_map(
-        "vm",
-        &format!("{GRID}\nindicator = \"mle\""),
-        20.0,
-        2,
-    ));
+    check_against_engine(&hh_map("vm", grid("gali"), 30.0, 3));
+    check_against_engine(&hh_map("vm", gali3_time(0.05), 30.0, 3));
+    check_against_engine(&hh_map("vm", grid("mle"), 20.0, 2));
 }
 
 #[test]
 fn gali_time_stops_sets_early() {
-    let spec = hh_map(
-        "mpm",
-        &format!("{GRID}\nindicator = \"gali-time\"\nk = 3\nthreshold = 0.05"),
-        30.0,
-        3,
-    );
+    let spec = hh_map("mpm", gali3_time(0.05), 30.0, 3);
     let got = batched(&spec, 2, Isa::detect());
     let full = 3000 * (1 + 3 * 3);
     assert!(
@@ -149,30 +113,31 @@ fn gali_time_stops_sets_early() {
 
 #[test]
 fn islands_and_the_chaotic_sea() {
-    // The paper's regular (x2 = 0.558) and chaotic (x2 = -0.25) orbits, p2 = 0.
-    let axes = r#"x = { coord = "q2", min = -0.25, max = 0.558, n = 2 }
-y = { coord = "p2", min = 0.0, max = 0.0, n = 1 }"#;
-    let gali = batched(
-        &hh_map("mpm", &format!("{axes}\nindicator = \"gali\""), 300.0, 10),
-        2,
-        Isa::detect(),
-    );
+    // Two points: the paper's chaotic and regular orbits (p2 = 0).
+    let orbits = |indicator: &str| {
+        MapConfig::new(
+            MapAxis::new("q2", paper::HH_CHAOTIC_Q2, paper::HH_REGULAR_Q2, 2),
+            MapAxis::new("p2", 0.0, 0.0, 1),
+            indicator,
+        )
+    };
+    let gali = batched(&hh_map("mpm", orbits("gali"), 300.0, 10), 2, Isa::detect());
     let (chaotic, regular) = (&gali[0], &gali[1]);
     assert!(regular.mean_log10 > -2.0, "regular GALI_2 {regular:?}");
     assert!(chaotic.mean_log10 < -4.0, "chaotic GALI_2 {chaotic:?}");
 
-    let mle = batched(
-        &hh_map("vm", &format!("{axes}\nindicator = \"mle\""), 300.0, 4),
-        2,
-        Isa::detect(),
-    );
+    let mle = batched(&hh_map("vm", orbits("mle"), 300.0, 4), 2, Isa::detect());
     assert!(mle[0].value > 0.03, "chaotic MLE {}", mle[0].value);
     assert!(mle[1].value < 0.02, "regular MLE {}", mle[1].value);
 
     let time = batched(
         &hh_map(
             "mpm",
-            &format!("{axes}\nindicator = \"gali-time\"\nk = 3\nthreshold = 1e-8"),
+            MapConfig {
+                k: Some(3),
+                threshold: Some(1e-8),
+                ..orbits("gali-time")
+            },
             300.0,
             10,
         ),
@@ -193,10 +158,9 @@ y = { coord = "p2", min = 0.0, max = 0.0, n = 1 }"#;
 #[test]
 fn escaping_orbits_are_marked_not_fatal() {
     // Above the escape energy 1/6 many orbits leave the potential well and blow up.
-    let text = hh_map("mpm", &format!("{GRID}\nindicator = \"gali\""), 100.0, 2)
-        .config_toml
-        .replace("energy = 0.125", "energy = 0.3");
-    let spec = MapSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap();
+    let mut config = hh_map_config("mpm", grid("gali"), 100.0, 2);
+    config.orbit.energy = Some(0.3);
+    let spec = MapSpec::from_config(&config).unwrap();
     let got = batched(&spec, 2, Isa::detect());
     let escaped: Vec<&PointResult> = got
         .iter()

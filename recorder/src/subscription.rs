@@ -8,9 +8,11 @@ use std::cell::{Cell, RefCell};
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{self, BusError, DataService, EventService, HeaderService, Liveness};
+use chaoscope_schemas::bus::{
+    self, BusError, DataService, EventService, HeaderService, HeaderSubscriber, Liveness,
+};
 use chaoscope_schemas::convert::{self, DataMessage, FrameError, HeaderError};
-use chaoscope_schemas::frame::{FrameHeader, RunAnnouncement};
+use chaoscope_schemas::frame::FrameHeader;
 use chaoscope_schemas::names;
 use chaoscope_schemas::proto::RunHeader;
 use iceoryx2::port::listener::Listener;
@@ -57,7 +59,7 @@ pub struct RunSubscription {
     run: String,
     node: Node<ipc::Service>,
     data: Subscriber<ipc::Service, [f64], FrameHeader>,
-    header: Subscriber<ipc::Service, [u8], RunAnnouncement>,
+    header: HeaderSubscriber,
     listener: Listener<ipc::Service>,
     ready_service: EventService,
     /// Held once the data connection is up; tells the producer this receiver is ready.
@@ -76,10 +78,7 @@ impl RunSubscription {
         let event_service = bus::data_ready_service(&node, run)?;
         // Header subscriber first: a producer starts streaming as soon as it sees the data
         // subscriber, and hands out the header history to the subscribers that exist then.
-        let header = header_service
-            .subscriber_builder()
-            .create()
-            .map_err(|e| BusError::new("create header subscriber", e))?;
+        let header = bus::header_subscriber(&header_service)?;
         let data = data_service
             .subscriber_builder()
             .buffer_size(bus::DATA_BUFFER)
@@ -119,13 +118,9 @@ impl RunSubscription {
         let start = Instant::now();
         let mut seen_alive = false;
         loop {
-            let received = self
-                .header
-                .receive()
-                .map_err(|e| BusError::new("receive run header", e))?;
-            if let Some(sample) = received {
-                let header =
-                    convert::decode_run_header(&self.run, sample.user_header(), sample.payload())?;
+            if let Some(header) =
+                bus::try_receive_run_header::<SubscribeError>(&self.header, &self.run)?
+            {
                 self.declare_ready()?;
                 return Ok(Some(header));
             }
@@ -205,16 +200,6 @@ impl RunSubscription {
         &self,
         mut f: impl FnMut(BusEvent) -> ControlFlow<()>,
     ) -> Result<Ended, SubscribeError> {
-        let waitset = WaitSetBuilder::new()
-            .create::<ipc::Service>()
-            .map_err(|e| BusError::new("create waitset", e))?;
-        let _event_guard = waitset
-            .attach_notification(&self.listener)
-            .map_err(|e| BusError::new("attach listener", e))?;
-        let _tick_guard = waitset
-            .attach_interval(bus::POLL_INTERVAL)
-            .map_err(|e| BusError::new("attach interval", e))?;
-
         // Results of the wake-up callback, read by the loop between calls.
         let ended = Cell::new(None);
         let failure = RefCell::new(None);
@@ -253,22 +238,24 @@ impl RunSubscription {
             }
             CallbackProgression::Continue
         };
-        loop {
-            let result = waitset
-                .wait_and_process_once(&mut on_wake)
-                .map_err(|e| BusError::new("wait", e))?;
-            if let Some(e) = failure.borrow_mut().take() {
-                return Err(e.into());
+        bus::with_data_waitset(&self.listener, bus::POLL_INTERVAL, |waitset| {
+            loop {
+                let result = waitset
+                    .wait_and_process_once(&mut on_wake)
+                    .map_err(|e| BusError::new("wait", e))?;
+                if let Some(e) = failure.borrow_mut().take() {
+                    return Err(e.into());
+                }
+                if let Some(ended) = ended.get() {
+                    return Ok(ended);
+                }
+                if matches!(
+                    result,
+                    WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt
+                ) {
+                    return Ok(Ended::Signal);
+                }
             }
-            if let Some(ended) = ended.get() {
-                return Ok(ended);
-            }
-            if matches!(
-                result,
-                WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt
-            ) {
-                return Ok(Ended::Signal);
-            }
-        }
+        })
     }
 }

@@ -17,11 +17,15 @@
 use std::time::Duration;
 
 use iceoryx2::node::NodeView;
+use iceoryx2::port::listener::Listener;
+use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 
+use crate::convert::{self, HeaderError};
 use crate::frame::{FrameHeader, MapFrameHeader, RunAnnouncement};
 use crate::names::{self, map_stream, stream};
+use crate::proto::RunHeader;
 
 /// Frames a data subscriber can hold before the producer waits.
 pub const DATA_BUFFER: usize = 64;
@@ -222,6 +226,56 @@ pub fn ready_service(node: &Node<ipc::Service>, run: &str) -> Result<EventServic
         .max_listeners(MAX_DATA_SUBSCRIBERS)
         .open_or_create()
         .map_err(|e| BusError::new(format!("open ready service of run {run:?}"), e))
+}
+
+/// A receiver's subscription to the run-header stream.
+pub type HeaderSubscriber = Subscriber<ipc::Service, [u8], RunAnnouncement>;
+
+/// Subscribes to the run-header stream of `service`.
+pub fn header_subscriber(service: &HeaderService) -> Result<HeaderSubscriber, BusError> {
+    service
+        .subscriber_builder()
+        .create()
+        .map_err(|e| BusError::new("create header subscriber", e))
+}
+
+/// The run header of `run` if it has arrived (it is kept as history, so it also reaches late
+/// subscribers), its format version checked.
+pub fn try_receive_run_header<E: From<BusError> + From<HeaderError>>(
+    header: &HeaderSubscriber,
+    run: &str,
+) -> Result<Option<RunHeader>, E> {
+    let received = header
+        .receive()
+        .map_err(|e| BusError::new("receive run header", e))?;
+    let Some(sample) = received else {
+        return Ok(None);
+    };
+    Ok(Some(convert::decode_run_header(
+        run,
+        sample.user_header(),
+        sample.payload(),
+    )?))
+}
+
+/// Runs `wait_loop` with a WaitSet that wakes a receiver when the producer notifies new data on
+/// `listener` (its data-ready event), and at least every `interval` (liveness checks, display
+/// refreshes). The attachments last as long as the loop.
+pub fn with_data_waitset<T, E: From<BusError>>(
+    listener: &Listener<ipc::Service>,
+    interval: Duration,
+    wait_loop: impl FnOnce(&WaitSet<ipc::Service>) -> Result<T, E>,
+) -> Result<T, E> {
+    let waitset = WaitSetBuilder::new()
+        .create::<ipc::Service>()
+        .map_err(|e| BusError::new("create waitset", e))?;
+    let _data_ready = waitset
+        .attach_notification(listener)
+        .map_err(|e| BusError::new("attach listener", e))?;
+    let _interval = waitset
+        .attach_interval(interval)
+        .map_err(|e| BusError::new("attach interval", e))?;
+    wait_loop(&waitset)
 }
 
 fn map_service_name(map: &str, stream: &str) -> Result<ServiceName, BusError> {

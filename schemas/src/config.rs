@@ -6,6 +6,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub mod paper;
+
 /// Top level of a run configuration file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -101,6 +103,18 @@ fn default_sets() -> usize {
     1
 }
 
+impl DeviationsConfig {
+    /// `sets` sets of `k` Haar-random directions drawn from `seed`.
+    pub fn random(k: usize, sets: usize, seed: u64) -> Self {
+        Self {
+            k,
+            sets,
+            seed,
+            vectors: None,
+        }
+    }
+}
+
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SchemeConfig {
@@ -118,6 +132,27 @@ pub struct SchemeConfig {
 
 fn default_orthonormalize() -> String {
     "rescale".to_string()
+}
+
+impl SchemeConfig {
+    /// A scheme with per-vector rescaling (the default `orthonormalize`).
+    pub fn new(name: &str, method: &str, d0: f64, tau: f64) -> Self {
+        Self {
+            name: name.to_string(),
+            method: method.to_string(),
+            d0,
+            tau,
+            orthonormalize: default_orthonormalize(),
+        }
+    }
+
+    /// The same scheme with `orthonormalize = how` (`"qr"` for the Lyapunov spectrum).
+    pub fn with_orthonormalize(self, how: &str) -> Self {
+        Self {
+            orthonormalize: how.to_string(),
+            ..self
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -143,6 +178,30 @@ pub struct MapConfig {
     /// Threshold under which `gali-time` stops an orbit.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threshold: Option<f64>,
+}
+
+impl MapAxis {
+    pub fn new(coord: &str, min: f64, max: f64, n: usize) -> Self {
+        Self {
+            coord: coord.to_string(),
+            min,
+            max,
+            n,
+        }
+    }
+}
+
+impl MapConfig {
+    /// A map of `indicator` over the grid `x` by `y`, without `k` or `threshold`.
+    pub fn new(x: MapAxis, y: MapAxis, indicator: &str) -> Self {
+        Self {
+            x,
+            y,
+            indicator: indicator.to_string(),
+            k: None,
+            threshold: None,
+        }
+    }
 }
 
 /// A config that failed to parse; the message names the offending key and line.
@@ -203,6 +262,17 @@ tau = 1.0
         assert_eq!(c.deviations.sets, 3);
         let again = RunConfig::from_toml(&c.to_toml()).unwrap();
         assert_eq!(c, again);
+        // The typed paper run is this very config.
+        let typed = paper::henon_heiles(
+            paper::HH_CHAOTIC_Q2,
+            1000.0,
+            DeviationsConfig::random(4, 3, 7),
+            vec![
+                SchemeConfig::new("vm", "vm", 1e-8, 1.0),
+                SchemeConfig::new("mpm", "mpm", 1e-8, 1.0),
+            ],
+        );
+        assert_eq!(c, typed);
     }
 
     #[test]

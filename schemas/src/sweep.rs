@@ -188,29 +188,17 @@ impl RunConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::{DeviationsConfig, paper};
 
+    /// The paper's Henon-Heiles run with one VM scheme and `sweeps` as a user writes them.
     fn config(sweeps: &str) -> RunConfig {
-        RunConfig::from_toml(&format!(
-            r#"
-[model]
-name = "henon-heiles"
-[orbit]
-q = [0.0, -0.25]
-p = [0.0, 0.0]
-[integrator]
-method = "aba864"
-h = 0.01
-t_final = 10.0
-[deviations]
-k = 2
-[[scheme]]
-name = "vm"
-method = "vm"
-d0 = 1e-8
-tau = 1.0
-{sweeps}"#
-        ))
-        .unwrap()
+        let base = paper::henon_heiles(
+            paper::HH_CHAOTIC_Q2,
+            10.0,
+            DeviationsConfig::random(2, 1, 0),
+            vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
+        );
+        RunConfig::from_toml(&(base.to_toml() + sweeps)).unwrap()
     }
 
     #[test]

@@ -27,7 +27,7 @@ use chaoscope_producer::batch::{self, Isa, LaneModel, Soa, StepCoeffs, record_re
 use chaoscope_producer::integrator::{Splitting, SplittingKind};
 use chaoscope_producer::map::{MapOptions, MapSpec, run_map};
 use chaoscope_producer::model::{FputBeta, HenonHeiles};
-use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::config::{DeviationsConfig, MapConfig, RunConfig, SchemeConfig, paper};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -129,36 +129,20 @@ fn model_name(dof: usize, name: &str) -> String {
     }
 }
 
-fn paper_gali2_config(nx: usize, ny: usize, t_final: f64) -> String {
-    format!(
-        r#"
-[model]
-name = "henon-heiles"
-[orbit]
-q = [0.0, 0.0]
-p = [0.0, 0.0]
-energy = 0.125
-solve_for = "p1"
-[integrator]
-method = "aba864"
-h = 0.01
-t_final = {t_final}
-[deviations]
-k = 2
-sets = 50
-seed = 1
-[[scheme]]
-name = "mpm"
-method = "mpm"
-d0 = 1e-8
-tau = 1.0
-[map]
-x = {{ coord = "q2", min = -0.45, max = 0.65, n = {nx} }}
-y = {{ coord = "p2", min = -0.45, max = 0.45, n = {ny} }}
-indicator = "gali"
-k = 2
-"#
-    )
+/// The paper's GALI_2 map (MPM, d0 = 1e-8, tau = 1, 50 sets) on an `nx` by `ny` grid.
+fn paper_gali2_config(nx: usize, ny: usize, t_final: f64) -> RunConfig {
+    // q2 and p2 come from the grid; p1 is solved per point.
+    let mut config = paper::henon_heiles(
+        0.0,
+        t_final,
+        DeviationsConfig::random(2, 50, 1),
+        vec![SchemeConfig::new("mpm", "mpm", 1e-8, 1.0)],
+    );
+    config.map = Some(MapConfig {
+        k: Some(2),
+        ..paper::hh_section_map(nx, ny, "gali")
+    });
+    config
 }
 
 fn map_case(spec: &MapSpec, isa: Isa, threads: usize) -> anyhow::Result<(f64, f64, u64, usize)> {
@@ -206,8 +190,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     }
 
     anyhow::ensure!(args.pairs >= 1, "--pairs must be at least 1");
-    let text = paper_gali2_config(nx, ny, args.t_final);
-    let spec = MapSpec::from_config(&RunConfig::from_toml(&text)?)?;
+    let spec = MapSpec::from_config(&paper_gali2_config(nx, ny, args.t_final))?;
     let mut pairs = Vec::with_capacity(args.pairs);
     let (mut steps, mut integrated) = (0, 0);
     for _ in 0..args.pairs {

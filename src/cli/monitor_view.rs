@@ -61,15 +61,15 @@ impl TerminalView {
         let step = analysis.step();
         // Curves: GALI_j of every scheme (first 6), log10 against t.
         let mut data: Vec<Curve> = Vec::new();
-        for (c, s) in run.schemes.iter().take(COLORS.len()).enumerate() {
-            let series = analysis.series(s.index);
+        for (si, s) in run.schemes.iter().take(COLORS.len()).enumerate() {
+            let series = analysis.series(si);
             for j in 2..=run.k {
                 let pts: Vec<(f64, f64)> = series
                     .iter()
                     .filter(|(t, _)| *t > 0.0)
                     .map(|(t, p)| (*t, p.gali_log10_mean[j - 2]))
                     .collect();
-                data.push((format!("{} G{j}", s.name), COLORS[c], pts));
+                data.push((format!("{} G{j}", s.name), COLORS[si], pts));
             }
         }
         let (mut ymin, mut ymax) = (0.0f64, 0.0f64);

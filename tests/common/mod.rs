@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 
 use chaoscope_producer::engine::{Engine, Sample};
 use chaoscope_producer::spec::RunSpec;
-use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 use chaoscope_schemas::names::topic;
 use chaoscope_schemas::proto::{
     EndOfRun, RecordingSummary, ReferenceState, RunHeader, SeparationSet,
@@ -18,37 +18,17 @@ use prost::Message;
 
 pub const CHAOSCOPE: &str = env!("CARGO_BIN_EXE_chaoscope");
 
-/// A short Henon-Heiles run with two schemes and two sets (t_final, tau as given).
-pub fn hh_config(t_final: f64, tau: f64) -> String {
-    format!(
-        r#"
-[model]
-name = "henon-heiles"
-[orbit]
-q = [0.0, -0.25]
-p = [0.0, 0.0]
-energy = 0.125
-solve_for = "p1"
-[integrator]
-method = "aba864"
-h = 0.01
-t_final = {t_final}
-[deviations]
-k = 3
-sets = 2
-seed = 11
-[[scheme]]
-name = "vm"
-method = "vm"
-d0 = 1e-8
-tau = {tau}
-[[scheme]]
-name = "mpm-qr"
-method = "mpm"
-d0 = 1e-8
-tau = {tau}
-orthonormalize = "qr"
-"#
+/// A short run on the paper's chaotic Henon-Heiles orbit: k = 3, two sets, VM and MPM with QR
+/// (t_final, tau as given).
+pub fn hh_config(t_final: f64, tau: f64) -> RunConfig {
+    paper::henon_heiles(
+        paper::HH_CHAOTIC_Q2,
+        t_final,
+        DeviationsConfig::random(3, 2, 11),
+        vec![
+            SchemeConfig::new("vm", "vm", 1e-8, tau),
+            SchemeConfig::new("mpm-qr", "mpm", 1e-8, tau).with_orthonormalize("qr"),
+        ],
     )
 }
 
@@ -65,6 +45,13 @@ pub fn chaoscope(args: &[&str]) -> Command {
     let mut c = Command::new(CHAOSCOPE);
     c.args(args).stdout(Stdio::piped()).stderr(Stdio::inherit());
     c
+}
+
+/// `chaoscope record` of `run` into `out`, with `extra` arguments.
+pub fn record_cmd(run: &str, out: &Path, extra: &[&str]) -> Command {
+    let mut args = vec!["record", "--run", run, "--out", out.to_str().unwrap()];
+    args.extend_from_slice(extra);
+    chaoscope(&args)
 }
 
 /// A child process killed if the test fails before reaping it.

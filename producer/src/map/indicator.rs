@@ -5,6 +5,7 @@ use chaoscope_schemas::config::MapConfig;
 
 use super::gali::log10_gali;
 use super::point::{PointResult, PointStatus};
+use crate::engine::RunError;
 use crate::spec::SpecError;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -203,5 +204,14 @@ pub fn failed(base: PointResult, status: PointStatus, t_end: f64, reason: String
         t_end,
         reason,
         ..base
+    }
+}
+
+/// A point whose integration broke off at `t` (an orbit escaped or a renormalization failed),
+/// after `orbit_steps` orbit-steps of work.
+pub fn broke_off(base: PointResult, t: f64, error: &RunError, orbit_steps: u64) -> PointResult {
+    PointResult {
+        orbit_steps,
+        ..failed(base, PointStatus::Escaped, t, error.to_string())
     }
 }

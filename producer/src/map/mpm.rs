@@ -3,13 +3,11 @@
 //! Sets that stop (`gali-time`) and finished points leave the batch: the lanes are compacted so
 //! the kernel never integrates a finished orbit.
 
-use super::indicator::{PointAccumulator, failed};
+use super::indicator::{PointAccumulator, broke_off, failed};
 use super::point::{PointResult, PointStatus};
 use super::spec::MapSpec;
-use super::window::{ESCAPE_NORM, Windows, norm};
+use super::window::{SetRenormalization, Windows, check_escape, retain_sets};
 use crate::batch::{self, Isa, LaneModel, Soa};
-use crate::engine::RunError;
-use crate::renormalization::{self, Orthonormalization};
 use crate::with_lane_model;
 
 struct Live {
@@ -69,9 +67,7 @@ fn compute_with<M: LaneModel>(
     }
 
     let (mut x, mut y) = (vec![0.0; dim], vec![0.0; dim]);
-    let mut separations = vec![0.0; k * dim];
-    let mut raw = vec![0.0; k * dim];
-    let mut stretch = vec![0.0; k];
+    let mut renormalization = SetRenormalization::new(run);
     let mut windows = Windows::new(run);
     while !live.is_empty() {
         let Some(w) = windows.next() else { break };
@@ -81,22 +77,14 @@ fn compute_with<M: LaneModel>(
         for mut p in live.drain(..) {
             p.orbit_steps += w.steps * (1 + (p.sets.len() * k) as u64);
             soa.read_lane(p.ref_lane, &mut x);
-            let rn = norm(&x);
-            if rn.is_nan() || rn >= ESCAPE_NORM {
-                let e = RunError::Escaped { t: w.t, norm: rn };
-                out.push(PointResult {
-                    orbit_steps: p.orbit_steps,
-                    ..failed(p.base, PointStatus::Escaped, w.t, e.to_string())
-                });
+            if let Err(e) = check_escape(&x, w.t) {
+                out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
                 changed = true;
                 continue;
             }
-            let mut error = None;
             let before = p.sets.len();
-            p.sets.retain(|&(set, lane)| {
-                if error.is_some() {
-                    return true;
-                }
+            let stepped = retain_sets(&mut p.sets, |set, lane| {
+                let separations = &mut renormalization.separations;
                 for i in 0..k {
                     soa.read_lane(lane + i, &mut y);
                     for ((d, a), b) in separations[i * dim..(i + 1) * dim]
@@ -107,39 +95,20 @@ fn compute_with<M: LaneModel>(
                         *d = a - b;
                     }
                 }
-                raw.copy_from_slice(&separations);
-                if let Err(source) = renormalization::renormalize(
-                    &mut separations,
-                    dim,
-                    d0,
-                    Orthonormalization::Rescale,
-                    &mut stretch,
-                ) {
-                    error = Some(RunError::Renormalization {
-                        scheme: run.schemes[0].name.clone(),
-                        set: set as u32,
-                        t: w.t,
-                        source,
-                    });
-                    return true;
-                }
-                if p.acc.observe(set, w.t, &raw, &stretch, w.last) {
-                    return false;
-                }
-                for i in 0..k {
-                    let d = &separations[i * dim..(i + 1) * dim];
-                    for (yi, (xi, di)) in y.iter_mut().zip(x.iter().zip(d)) {
-                        *yi = xi + di;
+                let goes_on = renormalization.apply(&mut p.acc, set, &w)?;
+                if goes_on {
+                    for i in 0..k {
+                        let d = &renormalization.separations[i * dim..(i + 1) * dim];
+                        for (yi, (xi, di)) in y.iter_mut().zip(x.iter().zip(d)) {
+                            *yi = xi + di;
+                        }
+                        soa.write_lane(lane + i, &y);
                     }
-                    soa.write_lane(lane + i, &y);
                 }
-                true
+                Ok(goes_on)
             });
-            if let Some(e) = error {
-                out.push(PointResult {
-                    orbit_steps: p.orbit_steps,
-                    ..failed(p.base, PointStatus::Escaped, w.t, e.to_string())
-                });
+            if let Err(e) = stepped {
+                out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
                 changed = true;
                 continue;
             }

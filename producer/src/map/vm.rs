@@ -2,13 +2,11 @@
 //! its position before every kick recorded) and the `sets * k` tangent vectors of all its sets
 //! advanced as lanes by the tangent-map kernel around it.
 
-use super::indicator::{PointAccumulator, failed};
+use super::indicator::{PointAccumulator, broke_off, failed};
 use super::point::{PointResult, PointStatus};
 use super::spec::MapSpec;
-use super::window::{ESCAPE_NORM, Windows, norm};
+use super::window::{SetRenormalization, Windows, check_escape, retain_sets};
 use crate::batch::{self, Isa, LaneModel, Soa, record_reference_stages};
-use crate::engine::RunError;
-use crate::renormalization::{self, Orthonormalization};
 use crate::with_lane_model;
 
 pub fn compute(spec: &MapSpec, isa: Isa, index: u64) -> PointResult {
@@ -38,9 +36,7 @@ fn compute_with<M: LaneModel>(model: &M, spec: &MapSpec, isa: Isa, index: u64) -
         }
     }
     let (mut stages, mut force) = (Vec::new(), vec![0.0; model.dof()]);
-    let mut vectors = vec![0.0; k * dim];
-    let mut raw = vec![0.0; k * dim];
-    let mut stretch = vec![0.0; k];
+    let mut renormalization = SetRenormalization::new(run);
     let mut orbit_steps = 0;
     for w in Windows::new(run) {
         orbit_steps += w.steps * (1 + (sets.len() * k) as u64);
@@ -53,48 +49,26 @@ fn compute_with<M: LaneModel>(model: &M, spec: &MapSpec, isa: Isa, index: u64) -
             &mut force,
         );
         batch::tangent_steps(isa, model, &spec.coeffs, &stages, &mut soa, w.steps);
-        let rn = norm(&x);
-        if rn.is_nan() || rn >= ESCAPE_NORM {
-            let e = RunError::Escaped { t: w.t, norm: rn };
-            let r = failed(base, PointStatus::Escaped, w.t, e.to_string());
-            return PointResult { orbit_steps, ..r };
+        if let Err(e) = check_escape(&x, w.t) {
+            return broke_off(base, w.t, &e, orbit_steps);
         }
         let before = sets.len();
-        let mut error = None;
-        sets.retain(|&(set, lane)| {
-            if error.is_some() {
-                return true;
-            }
+        let stepped = retain_sets(&mut sets, |set, lane| {
+            let vectors = &mut renormalization.separations;
             for i in 0..k {
                 soa.read_lane(lane + i, &mut vectors[i * dim..(i + 1) * dim]);
             }
-            raw.copy_from_slice(&vectors);
-            if let Err(source) = renormalization::renormalize(
-                &mut vectors,
-                dim,
-                d0,
-                Orthonormalization::Rescale,
-                &mut stretch,
-            ) {
-                error = Some(RunError::Renormalization {
-                    scheme: run.schemes[0].name.clone(),
-                    set: set as u32,
-                    t: w.t,
-                    source,
-                });
-                return true;
+            let goes_on = renormalization.apply(&mut acc, set, &w)?;
+            if goes_on {
+                let vectors = &renormalization.separations;
+                for i in 0..k {
+                    soa.write_lane(lane + i, &vectors[i * dim..(i + 1) * dim]);
+                }
             }
-            if acc.observe(set, w.t, &raw, &stretch, w.last) {
-                return false;
-            }
-            for i in 0..k {
-                soa.write_lane(lane + i, &vectors[i * dim..(i + 1) * dim]);
-            }
-            true
+            Ok(goes_on)
         });
-        if let Some(e) = error {
-            let r = failed(base, PointStatus::Escaped, w.t, e.to_string());
-            return PointResult { orbit_steps, ..r };
+        if let Err(e) = stepped {
+            return broke_off(base, w.t, &e, orbit_steps);
         }
         if acc.is_done() {
             break;

@@ -1,12 +1,27 @@
-//! Renormalization windows of a map point, exactly as the engine schedules them.
+//! Renormalization windows of a map point, exactly as the engine schedules them, and what both
+//! batched methods do at the end of a window: the escape test of the reference orbit and each
+//! set's renormalization.
 
+use super::indicator::PointAccumulator;
+use crate::engine::RunError;
+use crate::renormalization::{self, Orthonormalization};
 use crate::spec::RunSpec;
 
 /// Beyond this norm a state counts as escaped (the engine's criterion).
-pub const ESCAPE_NORM: f64 = 1e100;
+const ESCAPE_NORM: f64 = 1e100;
 
-pub fn norm(v: &[f64]) -> f64 {
+fn norm(v: &[f64]) -> f64 {
     v.iter().map(|v| v * v).sum::<f64>().sqrt()
+}
+
+/// The engine's escape test of the reference state `x` at time `t`.
+pub fn check_escape(x: &[f64], t: f64) -> Result<(), RunError> {
+    let norm = norm(x);
+    if norm.is_nan() || norm >= ESCAPE_NORM {
+        Err(RunError::Escaped { t, norm })
+    } else {
+        Ok(())
+    }
 }
 
 /// One window: advance `steps` steps, then renormalize at time `t`.
@@ -48,4 +63,73 @@ impl Iterator for Windows<'_> {
         self.step = target;
         Some(w)
     }
+}
+
+/// The renormalization of one deviation set at the end of a window, with its scratch space.
+pub struct SetRenormalization<'a> {
+    run: &'a RunSpec,
+    /// The set's `k` separation vectors (rows of `dim`): the caller fills them before
+    /// [`Self::apply`] and, if the set goes on, takes them back renormalized to `d0`.
+    pub separations: Vec<f64>,
+    /// The separations before renormalization (what the indicator sees).
+    raw: Vec<f64>,
+    stretch: Vec<f64>,
+}
+
+impl<'a> SetRenormalization<'a> {
+    pub fn new(run: &'a RunSpec) -> Self {
+        Self {
+            run,
+            separations: vec![0.0; run.k * run.dim],
+            raw: vec![0.0; run.k * run.dim],
+            stretch: vec![0.0; run.k],
+        }
+    }
+
+    /// Rescales every separation vector of `set` to `d0`, as the engine does, and hands the
+    /// vectors before it and their stretching factors to `acc`. `Ok(true)` when the set goes
+    /// on, `Ok(false)` when it has finished.
+    pub fn apply(
+        &mut self,
+        acc: &mut PointAccumulator,
+        set: usize,
+        w: &Window,
+    ) -> Result<bool, RunError> {
+        let scheme = &self.run.schemes[0];
+        self.raw.copy_from_slice(&self.separations);
+        renormalization::renormalize(
+            &mut self.separations,
+            self.run.dim,
+            scheme.d0,
+            Orthonormalization::Rescale,
+            &mut self.stretch,
+        )
+        .map_err(|source| RunError::Renormalization {
+            scheme: scheme.name.clone(),
+            set: set as u32,
+            t: w.t,
+            source,
+        })?;
+        Ok(!acc.observe(set, w.t, &self.raw, &self.stretch, w.last))
+    }
+}
+
+/// Keeps the active sets `(set, first lane)` for which `step` returns `Ok(true)`. The first
+/// error ends the stepping (the point has failed; the sets after it are kept untouched) and is
+/// returned.
+pub fn retain_sets(
+    sets: &mut Vec<(usize, usize)>,
+    mut step: impl FnMut(usize, usize) -> Result<bool, RunError>,
+) -> Result<(), RunError> {
+    let mut error = None;
+    sets.retain(|&(set, lane)| {
+        if error.is_some() {
+            return true;
+        }
+        step(set, lane).unwrap_or_else(|e| {
+            error = Some(e);
+            true
+        })
+    });
+    error.map_or(Ok(()), Err)
 }

@@ -4,7 +4,6 @@ use chaoscope_schemas::FORMAT_VERSION;
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::proto::{RunHeader, Scheme};
 
-use crate::renormalization::Orthonormalization;
 use crate::spec::RunSpec;
 
 /// Describes `spec` (validated from `config`) as the protobuf header of run `run_name`.
@@ -20,11 +19,7 @@ pub fn run_header(run_name: &str, config: &RunConfig, spec: &RunSpec) -> RunHead
             d0: s.d0,
             tau: s.tau,
             tau_steps: s.tau_steps,
-            orthonormalize: match s.orthonormalize {
-                Orthonormalization::Rescale => "rescale",
-                Orthonormalization::Qr => "qr",
-            }
-            .to_string(),
+            orthonormalize: s.orthonormalize.name().to_string(),
         })
         .collect();
     RunHeader {

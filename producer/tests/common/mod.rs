@@ -47,13 +47,12 @@ impl Recorded {
     }
 }
 
-pub fn spec(toml: &str) -> RunSpec {
-    RunSpec::from_config(&RunConfig::from_toml(toml).expect("config parses"))
-        .expect("config is valid")
+pub fn spec(config: &RunConfig) -> RunSpec {
+    RunSpec::from_config(config).expect("config is valid")
 }
 
-pub fn run(toml: &str) -> Recorded {
-    run_spec(spec(toml))
+pub fn run(config: &RunConfig) -> Recorded {
+    run_spec(spec(config))
 }
 
 pub fn run_spec(spec: RunSpec) -> Recorded {
@@ -100,41 +99,4 @@ pub fn slope(x: &[f64], y: &[f64]) -> f64 {
     let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
     let sxx: f64 = x.iter().map(|a| (a - mx) * (a - mx)).sum();
     sxy / sxx
-}
-
-/// The Henon-Heiles chaotic orbit of the paper (x2 = -0.25 on the x1 = 0 section, H = 0.125).
-pub fn hh(
-    q2: f64,
-    h: f64,
-    t_final: f64,
-    k: usize,
-    sets: usize,
-    seed: u64,
-    schemes: &str,
-) -> String {
-    format!(
-        r#"
-[model]
-name = "henon-heiles"
-[orbit]
-q = [0.0, {q2}]
-p = [0.0, 0.0]
-energy = 0.125
-solve_for = "p1"
-[integrator]
-method = "aba864"
-h = {h}
-t_final = {t_final}
-[deviations]
-k = {k}
-sets = {sets}
-seed = {seed}
-{schemes}"#
-    )
-}
-
-pub fn scheme(name: &str, method: &str, d0: f64, tau: f64, ortho: &str) -> String {
-    format!(
-        "[[scheme]]\nname = \"{name}\"\nmethod = \"{method}\"\nd0 = {d0:e}\ntau = {tau}\northonormalize = \"{ortho}\"\n"
-    )
 }

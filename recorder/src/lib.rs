@@ -9,7 +9,7 @@
 //!   node liveness.
 //! - [`discover`]: finding a run to record.
 //! - [`record`]: the recorder process loop gluing the above.
-//! - [`recover`]: salvaging a file whose writer was killed.
+//! - [`recover`]: salvaging a file whose writer was killed, streamed through [`scan`].
 
 pub mod discover;
 pub mod file;
@@ -17,6 +17,7 @@ pub mod map_file;
 pub mod record;
 pub mod recording;
 pub mod recover;
+pub mod scan;
 pub mod sequence;
 pub mod subscription;
 

@@ -1,14 +1,18 @@
 //! Salvaging an MCAP file whose writer died (`kill -9`, power loss): every record up to the
 //! first damaged one is copied into a new, properly indexed and summarized file.
+//!
+//! The input is streamed ([`crate::scan`]): memory stays at about one chunk whatever the size of
+//! the file, and a damaged chunk is dropped whole.
 
 use std::collections::{BTreeMap, HashMap};
 use std::fs::File;
-use std::io::BufWriter;
+use std::io::{BufReader, BufWriter};
 use std::path::{Path, PathBuf};
 
 use chaoscope_schemas::names::metadata;
-use mcap::read::{ChunkReader, LinearReader, Options};
 use mcap::records::{Metadata, Record};
+
+use crate::scan::{Scanner, Visit};
 
 /// What a recovery salvaged.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -30,6 +34,10 @@ pub enum RecoverError {
     },
     #[error("{path} is not an MCAP file (no MCAP magic at the start)")]
     NotMcap { path: PathBuf },
+    #[error(
+        "{path} is the input file: recover never writes over its input (choose another output)"
+    )]
+    SameFile { path: PathBuf },
     #[error("{path} already exists (pass --force to replace it)")]
     Exists { path: PathBuf },
     #[error("{path}: MCAP: {source}")]
@@ -41,12 +49,21 @@ pub enum RecoverError {
 
 /// Copies the readable records of `input` into a new file at `output`.
 pub fn recover(input: &Path, output: &Path, force: bool) -> Result<RecoverReport, RecoverError> {
-    let bytes = std::fs::read(input).map_err(|source| RecoverError::Io {
+    let input_err = |source| RecoverError::Io {
         path: input.into(),
         source,
-    })?;
-    if !bytes.starts_with(mcap::MAGIC) {
-        return Err(RecoverError::NotMcap { path: input.into() });
+    };
+    let file = File::open(input).map_err(input_err)?;
+    let identity = file.metadata().map_err(input_err)?;
+    // A pipe or device has no length to bound records by.
+    let len = identity.is_file().then_some(identity.len());
+    let scanner = Scanner::open(BufReader::with_capacity(1 << 20, file), len)
+        .map_err(input_err)?
+        .ok_or_else(|| RecoverError::NotMcap { path: input.into() })?;
+    if same_file(&identity, input, output) {
+        return Err(RecoverError::SameFile {
+            path: output.into(),
+        });
     }
     if output.exists() && !force {
         return Err(RecoverError::Exists {
@@ -57,6 +74,39 @@ pub fn recover(input: &Path, output: &Path, force: bool) -> Result<RecoverReport
         path: output.into(),
         source,
     })?;
+    let result = salvage(scanner, out, input, output);
+    if result.is_err() {
+        // A half-written salvage is no use; the error says what went wrong.
+        let _ = std::fs::remove_file(output);
+    }
+    result
+}
+
+/// Whether `output` is the file `input` is (opened, with metadata `identity`): the same path
+/// spelled otherwise, a symbolic or a hard link.
+#[cfg(unix)]
+fn same_file(identity: &std::fs::Metadata, _input: &Path, output: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    std::fs::metadata(output)
+        .is_ok_and(|out| (out.dev(), out.ino()) == (identity.dev(), identity.ino()))
+}
+
+/// Whether `output` is the file `input` is: the same canonical path.
+#[cfg(not(unix))]
+fn same_file(_identity: &std::fs::Metadata, input: &Path, output: &Path) -> bool {
+    matches!(
+        (std::fs::canonicalize(input), std::fs::canonicalize(output)),
+        (Ok(a), Ok(b)) if a == b
+    )
+}
+
+/// Streams the records `scanner` reads into a new MCAP file on `out`.
+fn salvage(
+    scanner: Scanner<BufReader<File>>,
+    out: File,
+    input: &Path,
+    output: &Path,
+) -> Result<RecoverReport, RecoverError> {
     let mcap_err = |source| RecoverError::Mcap {
         path: output.into(),
         source,
@@ -73,16 +123,14 @@ pub fn recover(input: &Path, output: &Path, force: bool) -> Result<RecoverReport
         channels: HashMap::new(),
         report: RecoverReport::default(),
     };
-    let records =
-        LinearReader::new_with_options(&bytes, Options::IgnoreEndMagic.into()).map_err(mcap_err)?;
-    for (index, record) in records.enumerate() {
-        let result = record.and_then(|r| copier.copy(r));
-        if let Err(e) = result {
-            copier.report.stopped_at = Some(format!("record {index}: {e}"));
-            break;
-        }
-    }
-    let report = copier.report;
+    let scan = scanner
+        .run(&mut copier)
+        .map_err(|source| RecoverError::Io {
+            path: input.into(),
+            source,
+        })?;
+    let mut report = copier.report;
+    report.stopped_at = scan.stopped_at;
     writer
         .write_metadata(&Metadata {
             name: metadata::RECOVERY.into(),
@@ -122,8 +170,8 @@ struct Copier<'w, W: std::io::Write + std::io::Seek> {
     report: RecoverReport,
 }
 
-impl<W: std::io::Write + std::io::Seek> Copier<'_, W> {
-    fn copy(&mut self, record: Record<'_>) -> mcap::McapResult<()> {
+impl<W: std::io::Write + std::io::Seek> Visit for Copier<'_, W> {
+    fn record(&mut self, record: Record<'_>) -> mcap::McapResult<()> {
         match record {
             Record::Schema { header, data } => {
                 let id = self
@@ -149,16 +197,6 @@ impl<W: std::io::Write + std::io::Seek> Copier<'_, W> {
                     self.report.messages += 1;
                 }
             }
-            Record::Chunk { header, data } => {
-                // Decompress and validate the whole chunk before copying any of it, so a damaged
-                // chunk is dropped whole rather than half copied.
-                let records =
-                    ChunkReader::new(header, &data)?.collect::<mcap::McapResult<Vec<_>>>()?;
-                for r in records {
-                    self.copy(r)?;
-                }
-                self.report.chunks += 1;
-            }
             Record::Metadata(m) => {
                 self.writer.write_metadata(&m)?;
                 self.report.metadata += 1;
@@ -173,9 +211,15 @@ impl<W: std::io::Write + std::io::Seek> Copier<'_, W> {
                 })?;
                 self.report.attachments += 1;
             }
-            // Indexes, statistics and the summary are rebuilt by the writer.
+            // Chunks come as their records; indexes, statistics and the summary are rebuilt by
+            // the writer.
             _ => {}
         }
+        Ok(())
+    }
+
+    fn chunk_done(&mut self) -> mcap::McapResult<()> {
+        self.report.chunks += 1;
         Ok(())
     }
 }

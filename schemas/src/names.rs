@@ -122,7 +122,7 @@ pub mod metadata {
     /// How the recording ended: keys `finalized_by`, `run_status`, `frames_received`,
     /// `frames_missing`.
     pub const RECORDING: &str = "chaoscope.recording";
-    /// Added by `chaoscope recover`: keys `source`, `records_salvaged`, `stopped_at`.
+    /// Added by `chaoscope recover`: keys `source`, `messages_salvaged`, `stopped_at`.
     pub const RECOVERY: &str = "chaoscope.recovery";
     /// Map description: keys `format_version`, `config_toml`, `shard`.
     pub const MAP: &str = "chaoscope.map";

@@ -7,7 +7,7 @@ use std::process::ExitCode;
 pub struct Args {
     /// The damaged MCAP file.
     pub input: PathBuf,
-    /// Where to write the salvaged file.
+    /// Where to write the salvaged file (never the input itself).
     #[arg(long)]
     pub out: PathBuf,
     /// Replace the output file if it exists.

@@ -1,0 +1,374 @@
+//! `chaoscope recover` on damaged files: truncated anywhere, followed by zeros or garbage,
+//! corrupted inside a chunk, and on arbitrary bytes. What it salvages is always an exact prefix
+//! of the original messages: every chunk that ends before the damage, nothing after it.
+
+#[path = "common/synthetic.rs"]
+mod synthetic;
+
+use std::io::Cursor;
+use std::path::{Path, PathBuf};
+
+use chaoscope_recorder::file::{Compression, FileOptions};
+use chaoscope_recorder::recover::{RecoverError, RecoverReport, recover};
+use synthetic::{Noise, Shape};
+
+/// A message as a reader sees it: topic, sequence, log and publish time, payload.
+type Message = (String, u32, u64, u64, Vec<u8>);
+
+fn messages(bytes: &[u8]) -> Vec<Message> {
+    mcap::MessageStream::new(bytes)
+        .unwrap()
+        .map(|m| {
+            let m = m.unwrap();
+            (
+                m.channel.topic.clone(),
+                m.sequence,
+                m.log_time,
+                m.publish_time,
+                m.data.into_owned(),
+            )
+        })
+        .collect()
+}
+
+/// A small recording of about 15 chunks (the recorder's layout), its messages, and its chunks.
+struct Original {
+    bytes: Vec<u8>,
+    messages: Vec<Message>,
+    chunks: Vec<Chunk>,
+}
+
+struct Chunk {
+    start: u64,
+    end: u64,
+    messages: usize,
+}
+
+impl Original {
+    fn new(compression: Compression) -> Self {
+        let shape = Shape {
+            dim: 4,
+            k: 2,
+            sets: 3,
+            samples: 60,
+        };
+        let options = FileOptions {
+            compression,
+            chunk_size: 2048,
+        };
+        let bytes = synthetic::write_run(Cursor::new(Vec::new()), &shape, &options, 7)
+            .unwrap()
+            .into_inner();
+        let messages = messages(&bytes);
+        let summary = mcap::Summary::read(&bytes).unwrap().expect("summary");
+        let chunks: Vec<Chunk> = summary
+            .chunk_indexes
+            .iter()
+            .map(|c| Chunk {
+                start: c.chunk_start_offset,
+                end: c.chunk_start_offset + c.chunk_length,
+                messages: summary.stream_chunk(&bytes, c).unwrap().count(),
+            })
+            .collect();
+        assert!(chunks.len() > 8, "{} chunks", chunks.len());
+        assert_eq!(
+            chunks.iter().map(|c| c.messages).sum::<usize>(),
+            messages.len(),
+            "every message is in a chunk"
+        );
+        Self {
+            bytes,
+            messages,
+            chunks,
+        }
+    }
+
+    /// Messages in the chunks that end at or before byte `cut`.
+    fn salvageable(&self, cut: usize) -> usize {
+        self.chunks
+            .iter()
+            .filter(|c| c.end <= cut as u64)
+            .map(|c| c.messages)
+            .sum()
+    }
+}
+
+struct Files {
+    _dir: tempfile::TempDir,
+    input: PathBuf,
+    output: PathBuf,
+}
+
+impl Files {
+    fn new() -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("broken.mcap");
+        let output = dir.path().join("fixed.mcap");
+        Self {
+            _dir: dir,
+            input,
+            output,
+        }
+    }
+
+    /// Recovers `bytes` (with --force) and returns the report and the salvaged messages.
+    fn recover(&self, bytes: &[u8]) -> (RecoverReport, Vec<Message>) {
+        std::fs::write(&self.input, bytes).unwrap();
+        let report = recover(&self.input, &self.output, true).unwrap();
+        let out = std::fs::read(&self.output).unwrap();
+        assert!(
+            mcap::Summary::read(&out).unwrap().is_some(),
+            "the salvaged file is indexed"
+        );
+        let salvaged = messages(&out);
+        assert_eq!(salvaged.len() as u64, report.messages);
+        (report, salvaged)
+    }
+}
+
+#[test]
+fn a_complete_file_is_copied_whole() {
+    let original = Original::new(Compression::Zstd);
+    let files = Files::new();
+    let (report, salvaged) = files.recover(&original.bytes);
+    assert_eq!(report.stopped_at, None);
+    assert_eq!(salvaged, original.messages);
+    assert_eq!(report.chunks as usize, original.chunks.len());
+    assert_eq!(report.metadata, 2, "chaoscope.run and chaoscope.recording");
+}
+
+#[test]
+fn a_file_cut_anywhere_keeps_exactly_the_chunks_before_the_cut() {
+    for compression in [Compression::Zstd, Compression::None] {
+        let original = Original::new(compression);
+        let files = Files::new();
+        let len = original.bytes.len();
+        // Every byte through the magic, header and first chunk, every 29th byte after, and a
+        // few bytes either side of every chunk end.
+        let mut cuts: Vec<usize> = (0..400.min(len)).chain((400..len).step_by(29)).collect();
+        for chunk in &original.chunks {
+            let end = chunk.end as usize;
+            cuts.extend(end.saturating_sub(2)..(end + 3).min(len + 1));
+        }
+        cuts.sort_unstable();
+        cuts.dedup();
+        let mut previous = 0;
+        let mut partial = 0;
+        for cut in cuts {
+            std::fs::write(&files.input, &original.bytes[..cut]).unwrap();
+            let result = recover(&files.input, &files.output, true);
+            if cut < mcap::MAGIC.len() {
+                assert!(
+                    matches!(result, Err(RecoverError::NotMcap { .. })),
+                    "cut {cut}: {result:?}"
+                );
+                continue;
+            }
+            let report = result.unwrap_or_else(|e| panic!("cut {cut}: {e}"));
+            let salvaged = messages(&std::fs::read(&files.output).unwrap());
+            let n = salvaged.len();
+            assert_eq!(n as u64, report.messages);
+            assert_eq!(n, original.salvageable(cut), "cut {cut}: {report:?}");
+            assert!(n >= previous, "cut {cut}: {n} < {previous}");
+            assert!(
+                salvaged[..] == original.messages[..n],
+                "cut {cut}: not a prefix"
+            );
+            if cut as u64 <= original.chunks.last().unwrap().end {
+                assert!(report.stopped_at.is_some(), "cut {cut} is damage");
+            }
+            previous = n;
+            partial += usize::from(0 < n && n < original.messages.len());
+        }
+        assert!(partial > 100, "{partial} cuts with a partial salvage");
+    }
+}
+
+#[test]
+fn where_and_why_it_stopped_is_named() {
+    let original = Original::new(Compression::Zstd);
+    let files = Files::new();
+    let (first_end, first) = (original.chunks[0].end, original.chunks[0].messages);
+    let second = &original.chunks[1];
+    // Exactly after the first chunk: nothing damaged, but no data end record.
+    let (report, salvaged) = files.recover(&original.bytes[..first_end as usize]);
+    assert_eq!(salvaged.len(), first);
+    let stopped = report.stopped_at.unwrap();
+    assert!(
+        stopped.contains(&format!("at byte {first_end}")) && stopped.contains("data end"),
+        "{stopped}"
+    );
+    // Inside the second chunk: the cut chunk is named by its offset.
+    let mid = (second.start + second.end) as usize / 2;
+    let (report, _) = files.recover(&original.bytes[..mid]);
+    let stopped = report.stopped_at.unwrap();
+    assert!(
+        stopped.contains("record") && stopped.contains("at byte"),
+        "{stopped}"
+    );
+}
+
+#[test]
+fn zeros_or_garbage_after_a_valid_prefix_are_not_salvaged() {
+    let original = Original::new(Compression::Zstd);
+    let files = Files::new();
+    let boundary = original.chunks[3].end as usize;
+    let inside = (original.chunks[4].start + original.chunks[4].end) as usize / 2;
+    for cut in [boundary, inside] {
+        let expected = original.salvageable(cut);
+        let mut tails = vec![("zeros", vec![0u8; 64 << 10])];
+        for seed in 0..16 {
+            tails.push((
+                "garbage",
+                Noise::new(seed).bytes(1 + (seed as usize * 997) % 5000),
+            ));
+        }
+        for (what, tail) in tails {
+            let mut bytes = original.bytes[..cut].to_vec();
+            bytes.extend_from_slice(&tail);
+            let (report, salvaged) = files.recover(&bytes);
+            assert!(
+                salvaged[..] == original.messages[..expected],
+                "{what} after byte {cut}: {} messages, expected {expected}",
+                salvaged.len()
+            );
+            let stopped = report.stopped_at.expect("damage is reported");
+            if what == "zeros" && cut == boundary {
+                assert!(stopped.contains("0x00"), "{stopped}");
+            }
+        }
+    }
+}
+
+#[test]
+fn a_corrupted_chunk_is_dropped_whole_and_reading_stops_there() {
+    for compression in [Compression::Zstd, Compression::None] {
+        let original = Original::new(compression);
+        let files = Files::new();
+        let (start, end) = (original.chunks[5].start, original.chunks[5].end);
+        // In the compressed data, the middle, the last bytes.
+        for at in [start + 60, (start + end) / 2, end - 5] {
+            let mut bytes = original.bytes.clone();
+            bytes[at as usize] ^= 0x40;
+            let (report, salvaged) = files.recover(&bytes);
+            let expected = original.salvageable(start as usize);
+            assert!(
+                salvaged[..] == original.messages[..expected],
+                "flip at {at}: {} messages, expected {expected}",
+                salvaged.len()
+            );
+            assert!(report.stopped_at.is_some());
+        }
+    }
+}
+
+#[test]
+fn any_single_corrupted_byte_leaves_an_exact_prefix() {
+    let original = Original::new(Compression::Zstd);
+    let files = Files::new();
+    let mut noise = Noise::new(99);
+    for _ in 0..300 {
+        let at = (noise.next_u64() % original.bytes.len() as u64) as usize;
+        let mut bytes = original.bytes.clone();
+        bytes[at] ^= 1 << (noise.next_u64() % 8);
+        std::fs::write(&files.input, &bytes).unwrap();
+        match recover(&files.input, &files.output, true) {
+            Ok(_) => {
+                let salvaged = messages(&std::fs::read(&files.output).unwrap());
+                let n = salvaged.len();
+                assert!(salvaged[..] == original.messages[..n], "flip at {at}");
+            }
+            Err(RecoverError::NotMcap { .. }) => assert!(at < mcap::MAGIC.len()),
+            Err(e) => panic!("flip at {at}: {e}"),
+        }
+    }
+}
+
+#[test]
+fn arbitrary_bytes_after_the_magic_never_panic() {
+    let files = Files::new();
+    let mut noise = Noise::new(3);
+    for case in 0..400 {
+        let mut bytes = mcap::MAGIC.to_vec();
+        // Records with plausible opcodes and short lengths, so the parsers get to run.
+        for _ in 0..(noise.next_u64() % 6) {
+            let opcode = (noise.next_u64() % 18) as u8;
+            let len = noise.next_u64() % 80;
+            bytes.push(opcode);
+            bytes.extend_from_slice(&len.to_le_bytes());
+            let body = len + noise.next_u64() % 3; // sometimes short of its length
+            bytes.extend(noise.bytes(body as usize));
+        }
+        std::fs::write(&files.input, &bytes).unwrap();
+        if let Err(e) = recover(&files.input, &files.output, true) {
+            panic!("case {case}: {e}");
+        }
+    }
+}
+
+#[test]
+fn a_short_attachment_record_is_damage_not_a_panic() {
+    // log time, create time, empty name and media type, data length: no data and no CRC.
+    let body = [0u8; 8 + 8 + 4 + 4 + 8];
+    let mut bytes = mcap::MAGIC.to_vec();
+    bytes.push(mcap::records::op::ATTACHMENT);
+    bytes.extend_from_slice(&(body.len() as u64).to_le_bytes());
+    bytes.extend_from_slice(&body);
+    let files = Files::new();
+    let (report, salvaged) = files.recover(&bytes);
+    assert!(salvaged.is_empty());
+    assert!(report.stopped_at.unwrap().contains("attachment"));
+}
+
+#[test]
+fn the_output_is_never_the_input() {
+    let original = Original::new(Compression::Zstd);
+    let files = Files::new();
+    let cut = &original.bytes[..original.bytes.len() / 2];
+    std::fs::write(&files.input, cut).unwrap();
+    let dir = files.input.parent().unwrap();
+    let link = dir.join("link.mcap");
+    std::os::unix::fs::symlink(&files.input, &link).unwrap();
+    let hard = dir.join("hard.mcap");
+    std::fs::hard_link(&files.input, &hard).unwrap();
+    let spelled = dir.join(".").join("broken.mcap");
+    for output in [&files.input, &link, &hard, &spelled] {
+        for force in [false, true] {
+            let result = recover(&files.input, output, force);
+            assert!(
+                matches!(&result, Err(RecoverError::SameFile { .. })),
+                "{}: {result:?}",
+                output.display()
+            );
+            let message = result.unwrap_err().to_string();
+            assert!(message.contains("input"), "{message}");
+        }
+    }
+    assert_eq!(std::fs::read(&files.input).unwrap(), cut, "input untouched");
+}
+
+#[test]
+fn existing_output_needs_force_and_other_inputs_are_refused() {
+    let original = Original::new(Compression::Zstd);
+    let files = Files::new();
+    std::fs::write(&files.input, &original.bytes).unwrap();
+    std::fs::write(&files.output, b"keep me").unwrap();
+    assert!(matches!(
+        recover(&files.input, &files.output, false),
+        Err(RecoverError::Exists { .. })
+    ));
+    assert_eq!(std::fs::read(&files.output).unwrap(), b"keep me");
+    assert!(recover(&files.input, &files.output, true).is_ok());
+
+    let text = files.input.with_file_name("notes.txt");
+    std::fs::write(&text, "not an mcap file at all").unwrap();
+    assert!(matches!(
+        recover(&text, &files.output, true),
+        Err(RecoverError::NotMcap { .. })
+    ));
+    let missing = Path::new("/nonexistent/chaoscope/broken.mcap");
+    assert!(matches!(
+        recover(missing, &files.output, true),
+        Err(RecoverError::Io { .. })
+    ));
+}

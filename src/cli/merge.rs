@@ -13,7 +13,7 @@ use std::process::ExitCode;
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
 use chaoscope_recorder::file::{Compression, FileOptions};
-use chaoscope_recorder::map_file::{MapFile, read_map};
+use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 
 #[derive(clap::Args)]
@@ -46,17 +46,17 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let mut seen_shards = BTreeMap::new();
     let mut points: BTreeMap<u64, MapPoint> = BTreeMap::new();
     for path in &args.shards {
-        let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-        let contents = read_map(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        let h = contents
-            .header
-            .with_context(|| format!("{} has no map header", path.display()))?;
+        let contents = read_map_file(path)?;
         if let Some(d) = contents.damaged {
             bail!(
-                "{} is cut short ({d}); resume it with the same `chaoscope map` command first",
+                "{} is damaged or cut short ({d}); if its `chaoscope map` was interrupted, resume \
+                 it with the same command first",
                 path.display()
             );
         }
+        let h = contents
+            .header
+            .with_context(|| format!("{} has no map header", path.display()))?;
         if let Some(first) = &header
             && (first.config_toml != h.config_toml || first.shard_count != h.shard_count)
         {

@@ -300,6 +300,10 @@ fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u6
             );
         }
         for p in contents.points {
+            let shard = (u64::from(header.shard_index), u64::from(header.shard_count));
+            if p.index >= header.grid_points || p.index % shard.1 != shard.0 {
+                bail!("{}: point {} is not in its shard", path.display(), p.index);
+            }
             points.insert(p.index, p);
         }
     }

@@ -9,7 +9,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use chaoscope_recorder::map_file::read_map;
+use chaoscope_recorder::map_file::read_map_file;
 use chaoscope_schemas::bus;
 use chaoscope_schemas::proto::MapPoint;
 
@@ -95,7 +95,7 @@ fn map(args: &[&str]) -> std::process::Output {
 }
 
 fn recorded(path: &Path) -> BTreeMap<u64, MapPoint> {
-    let contents = read_map(&std::fs::read(path).unwrap()).unwrap();
+    let contents = read_map_file(path).unwrap();
     contents.points.into_iter().map(|p| (p.index, p)).collect()
 }
 

@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
 
-use chaoscope_recorder::map_file::read_map;
+use chaoscope_recorder::map_file::read_map_file;
 use prost::Message;
 
 /// A small HH map (9 x 7 points, t = 20) shared by the map tests.
@@ -39,7 +39,7 @@ fn s(p: &Path) -> &str {
 
 /// The map's points by index, each as its exact protobuf bytes (NaN-safe equality).
 fn points(path: &Path) -> BTreeMap<u64, Vec<u8>> {
-    let contents = read_map(&std::fs::read(path).unwrap()).unwrap();
+    let contents = read_map_file(path).unwrap();
     assert!(contents.damaged.is_none());
     let mut map = BTreeMap::new();
     for p in contents.points {

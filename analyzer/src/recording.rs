@@ -1,9 +1,16 @@
 //! Streaming reader of chaoscope MCAP recordings: messages are decoded one at a time from a
 //! buffered file, so memory does not depend on the size of the file.
+//!
+//! The file is read through the recorder's damage-tolerant scanner ([`chaoscope_recorder::scan`]):
+//! each chunk is checked whole before any of its messages is used, and a damaged or truncated
+//! file is an error naming the file and where and why it is damaged, after the messages before
+//! the damage (an analysis is of a whole recording or of none).
 
 use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
+
+use chaoscope_recorder::scan::{self, FileError, Messages, Scanner};
 
 use chaoscope_producer::engine::Sample;
 use chaoscope_schemas::convert::DataMessage;
@@ -19,16 +26,13 @@ use crate::run_info::{HeaderError, RunInfo};
 
 #[derive(Debug, thiserror::Error)]
 pub enum ReadError {
-    #[error("{path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("{path}: not a readable MCAP file: {source}")]
-    Mcap {
-        path: PathBuf,
-        source: mcap::McapError,
-    },
+    #[error(transparent)]
+    File(#[from] FileError),
+    #[error(
+        "{path} is damaged or truncated: {why} (`chaoscope recover` salvages the complete \
+         chunks before the damage)"
+    )]
+    Damaged { path: PathBuf, why: String },
     #[error("{path}: message on {topic} is not valid protobuf: {source}")]
     Decode {
         path: PathBuf,
@@ -53,7 +57,7 @@ pub struct RecordingInfo {
 /// An open recording, positioned after its run header.
 pub struct RecordingReader {
     path: PathBuf,
-    messages: mcap::io::MessageReader<BufReader<File>>,
+    messages: Messages<BufReader<File>>,
     header: RunHeader,
     assembler: SampleAssembler,
     pub info: RecordingInfo,
@@ -61,24 +65,16 @@ pub struct RecordingReader {
 
 impl RecordingReader {
     pub fn open(path: &Path) -> Result<Self, ReadError> {
-        let file = File::open(path).map_err(|source| ReadError::Io {
-            path: path.to_path_buf(),
-            source,
-        })?;
-        let bytes = file.metadata().map(|m| m.len()).unwrap_or(0);
-        let mut messages = mcap::io::MessageReader::new(BufReader::with_capacity(1 << 20, file));
+        let (scanner, meta) = Scanner::open_file(path)?;
+        let mut messages = Messages::new(scanner);
         // The run header is the first message of every recording.
         let header = loop {
-            let Some(m) = messages.next() else {
+            let Some(m) = next(&mut messages, path)? else {
                 return Err(ReadError::NoHeader {
                     path: path.to_path_buf(),
                 });
             };
-            let m = m.map_err(|source| ReadError::Mcap {
-                path: path.to_path_buf(),
-                source,
-            })?;
-            if m.channel.topic == topic::RUN {
+            if &*m.topic == topic::RUN {
                 break RunHeader::decode(&m.data[..]).map_err(|source| ReadError::Decode {
                     path: path.to_path_buf(),
                     topic: topic::RUN.into(),
@@ -92,7 +88,7 @@ impl RecordingReader {
             header,
             assembler: SampleAssembler::new(),
             info: RecordingInfo {
-                bytes,
+                bytes: meta.len(),
                 ..Default::default()
             },
         })
@@ -110,14 +106,10 @@ impl RecordingReader {
     /// end of the file. Recording summaries are collected into [`RecordingReader::info`].
     pub fn next_message(&mut self) -> Result<Option<DataMessage>, ReadError> {
         loop {
-            let Some(m) = self.messages.next() else {
+            let Some(m) = next(&mut self.messages, &self.path)? else {
                 return Ok(None);
             };
-            let m = m.map_err(|source| ReadError::Mcap {
-                path: self.path.clone(),
-                source,
-            })?;
-            let t = m.channel.topic.as_str();
+            let t = &*m.topic;
             let path = &self.path;
             let decode = |source| ReadError::Decode {
                 path: path.clone(),
@@ -161,6 +153,23 @@ impl RecordingReader {
     pub fn drain(&mut self) -> Result<(), ReadError> {
         while self.next_message()?.is_some() {}
         Ok(())
+    }
+}
+
+/// The next message of the file at `path`; `None` at its end, an error if it is damaged.
+fn next(
+    messages: &mut Messages<BufReader<File>>,
+    path: &Path,
+) -> Result<Option<scan::Message>, ReadError> {
+    let m = messages
+        .next_message()
+        .map_err(|e| FileError::io(path, e))?;
+    match (m, &messages.scan().stopped_at) {
+        (None, Some(why)) => Err(ReadError::Damaged {
+            path: path.to_path_buf(),
+            why: why.clone(),
+        }),
+        (m, _) => Ok(m),
     }
 }
 

@@ -162,25 +162,34 @@ pub fn replay(
         ..Default::default()
     };
     let mut engine = Engine::new(spec);
-    let mut pending: Option<Sample> = recorded.next_sample()?;
-    while let Some(sample) = engine.next_sample()? {
-        writer.write(&sample).map_err(werr)?;
-        outcome.replay_samples += 1;
-        while let Some(r) = pending.as_ref().filter(|r| r.step <= sample.step) {
-            if r.step < sample.step {
-                outcome.reference_states_not_sampled += 1;
-            } else {
-                compare(r, &sample, original_schemes, options, &mut outcome);
+    let mut replayed = || -> Result<(), ReplayError> {
+        let mut pending: Option<Sample> = recorded.next_sample()?;
+        while let Some(sample) = engine.next_sample()? {
+            writer.write(&sample).map_err(werr)?;
+            outcome.replay_samples += 1;
+            while let Some(r) = pending.as_ref().filter(|r| r.step <= sample.step) {
+                if r.step < sample.step {
+                    outcome.reference_states_not_sampled += 1;
+                } else {
+                    compare(r, &sample, original_schemes, options, &mut outcome);
+                }
+                pending = recorded.next_sample()?;
             }
+        }
+        // Recorded samples beyond the replay's end would mean a different run length.
+        while pending.is_some() {
+            outcome.reference_states_not_sampled += 1;
             pending = recorded.next_sample()?;
         }
+        Ok(())
+    };
+    let result = replayed().and_then(|()| writer.finish("replay").map_err(werr));
+    if let Err(e) = result {
+        // A half-written replay is no use (a damaged recording, a full disk); the error says
+        // what went wrong.
+        let _ = std::fs::remove_file(output);
+        return Err(e);
     }
-    // Recorded samples beyond the replay's end would mean a different run length.
-    while pending.is_some() {
-        outcome.reference_states_not_sampled += 1;
-        pending = recorded.next_sample()?;
-    }
-    writer.finish("replay").map_err(werr)?;
     Ok(outcome)
 }
 

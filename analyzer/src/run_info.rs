@@ -2,7 +2,7 @@
 //! of the recording or the bus, or built in process from a `RunSpec`).
 
 use chaoscope_producer::renormalization::Orthonormalization;
-use chaoscope_producer::spec::{Method, SchemeSpec};
+use chaoscope_producer::spec::{MAX_STATE_VALUES, Method, SchemeSpec};
 use chaoscope_schemas::proto::RunHeader;
 
 /// A header that cannot describe a run the analysis can follow.
@@ -29,6 +29,27 @@ impl RunInfo {
             return Err(err(format!(
                 "dim = {}, k = {}, sets = {} must all be positive",
                 header.dim, header.k, header.sets
+            )));
+        }
+        if header.k > header.dim {
+            return Err(err(format!(
+                "k = {} deviation vectors exceed the dimension 2N = {}",
+                header.k, header.dim
+            )));
+        }
+        // What the producer accepts (`spec`): a header claiming more state than any run holds
+        // is refused here rather than aborting the analysis on allocation.
+        let state_values = (header.schemes.len().max(1) as u128 + 1)
+            * u128::from(header.sets)
+            * u128::from(header.k)
+            * u128::from(header.dim);
+        if state_values > MAX_STATE_VALUES {
+            return Err(err(format!(
+                "{} schemes x {} sets x k = {} x 2N = {} exceed the deviation state any run holds",
+                header.schemes.len(),
+                header.sets,
+                header.k,
+                header.dim
             )));
         }
         if !(header.h.is_finite() && header.h > 0.0) {

@@ -8,10 +8,6 @@
 //! `cargo bench -p chaoscope-recorder --bench recover_memory` (CHAOSCOPE_BENCH_SCALE=0.1 for a
 //! ~100 MB quick run). Not part of CI: it writes two gigabytes.
 
-#[allow(dead_code)]
-#[path = "../tests/common/synthetic.rs"]
-mod synthetic;
-
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
@@ -19,6 +15,7 @@ use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use chaoscope_recorder::file::FileOptions;
+use chaoscope_recorder::testing as synthetic;
 use mcap::records::Record;
 use serde_json::{Value, json};
 

@@ -10,6 +10,7 @@
 //! - [`discover`]: finding a run to record.
 //! - [`record`]: the recorder process loop gluing the above.
 //! - [`recover`]: salvaging a file whose writer was killed, streamed through [`scan`].
+//! - [`testing`]: synthetic recordings and hostile variants of files, for tests and benches.
 
 pub mod discover;
 pub mod file;
@@ -20,6 +21,7 @@ pub mod recover;
 pub mod scan;
 pub mod sequence;
 pub mod subscription;
+pub mod testing;
 
 pub use record::{RecordOptions, RecordOutcome, record};
 pub use recover::{RecoverReport, recover};

@@ -3,20 +3,22 @@
 //! Two channels: `/chaoscope/map/header` (one `MapHeader`, first) and `/chaoscope/map/points`
 //! (one `MapPoint` per grid point, in completion order). The configuration is also stored as
 //! the metadata record `chaoscope.map`. Chunks are written whole, as in run recordings, so a
-//! killed map loses at most its open chunk, and [`read_map`] reads every complete chunk of a
-//! truncated file: that is what resuming builds on.
+//! killed map loses at most its open chunk, and [`read_map_file`] reads every complete chunk of a
+//! truncated or damaged file (streaming, through [`crate::scan`]): that is what resuming builds
+//! on.
 
 use std::collections::BTreeMap;
-use std::io::{Seek, Write};
+use std::io::{Read, Seek, Write};
+use std::path::Path;
 
 use chaoscope_schemas::FORMAT_VERSION;
 use chaoscope_schemas::names::{metadata, topic};
 use chaoscope_schemas::proto::{self, MapHeader, MapPoint, schema_name};
-use mcap::read::{ChunkReader, LinearReader, Options};
-use mcap::records::{MessageHeader, Metadata, Record};
+use mcap::records::{MessageHeader, Metadata};
 use prost::Message;
 
 use crate::file::FileOptions;
+use crate::scan::{FileError, Messages, Scanner};
 
 /// A map recording being written.
 pub struct MapFile<W: Write + Seek> {
@@ -97,109 +99,61 @@ impl<W: Write + Seek> MapFile<W> {
 pub struct MapContents {
     pub header: Option<MapHeader>,
     pub points: Vec<MapPoint>,
-    /// Where reading stopped in a damaged (e.g. killed) file; `None` when it was complete.
+    /// Where and why reading stopped in a damaged (e.g. killed) file; `None` when it was
+    /// complete.
     pub damaged: Option<String>,
 }
 
-/// Reads a map recording, tolerating a truncated tail (every complete chunk is read).
-pub fn read_map(bytes: &[u8]) -> Result<MapContents, String> {
-    if !bytes.starts_with(mcap::MAGIC) {
-        return Err("not an MCAP file".into());
-    }
-    let mut contents = MapContents::default();
-    let mut topics: BTreeMap<u16, String> = BTreeMap::new();
-    let records = LinearReader::new_with_options(bytes, Options::IgnoreEndMagic.into())
-        .map_err(|e| e.to_string())?;
-    for (index, record) in records.enumerate() {
-        let result = record.and_then(|r| visit(r, &mut topics, &mut contents));
-        if let Err(e) = result {
-            contents.damaged = Some(format!("record {index}: {e}"));
-            break;
-        }
-    }
-    Ok(contents)
+/// Reads the map recording at `path`, streaming (memory of about one chunk besides the
+/// points), tolerating a damaged or truncated tail: every complete chunk before the damage is
+/// read, and [`MapContents::damaged`] says where and why reading stopped.
+pub fn read_map_file(path: &Path) -> Result<MapContents, FileError> {
+    let (scanner, _) = Scanner::open_file(path)?;
+    read_messages(Messages::new(scanner)).map_err(|e| FileError::io(path, e))
 }
 
-fn visit(
-    record: Record<'_>,
-    topics: &mut BTreeMap<u16, String>,
-    contents: &mut MapContents,
-) -> mcap::McapResult<()> {
-    match record {
-        Record::Channel(c) => {
-            topics.insert(c.id, c.topic.clone());
-        }
-        Record::Message { header, data } => {
-            let decode_err = |e: prost::DecodeError| {
-                mcap::McapError::UnexpectedEof.to_string() + &format!(" ({e})")
-            };
-            match topics.get(&header.channel_id).map(String::as_str) {
-                Some(topic::MAP_HEADER) => {
-                    let h = MapHeader::decode(&data[..]).map_err(|e| {
-                        mcap::McapError::UnknownSchema(decode_err(e), header.channel_id)
-                    })?;
-                    contents.header = Some(h);
-                }
-                Some(topic::MAP_POINTS) => {
-                    let p = MapPoint::decode(&data[..]).map_err(|e| {
-                        mcap::McapError::UnknownSchema(decode_err(e), header.channel_id)
-                    })?;
-                    contents.points.push(p);
-                }
-                _ => {}
-            }
-        }
-        Record::Chunk { header, data } => {
-            // A damaged chunk is dropped whole.
-            let records = ChunkReader::new(header, &data)?.collect::<mcap::McapResult<Vec<_>>>()?;
-            for r in records {
-                visit(r, topics, contents)?;
-            }
-        }
-        _ => {}
+/// Reads a map recording from `source` (of length `len`, if known) as [`read_map_file`] does;
+/// `Ok(None)` if it is not MCAP. Only a failure of `source` itself is an error.
+pub fn read_map(source: impl Read, len: Option<u64>) -> std::io::Result<Option<MapContents>> {
+    match Scanner::open(source, len)? {
+        Some(scanner) => read_messages(Messages::new(scanner)).map(Some),
+        None => Ok(None),
     }
-    Ok(())
+}
+
+fn read_messages(mut messages: Messages<impl Read>) -> std::io::Result<MapContents> {
+    let mut contents = MapContents::default();
+    while let Some(m) = messages.next_message()? {
+        let decoded = match &*m.topic {
+            topic::MAP_HEADER => MapHeader::decode(&m.data[..]).map(|h| contents.header = Some(h)),
+            topic::MAP_POINTS => MapPoint::decode(&m.data[..]).map(|p| contents.points.push(p)),
+            _ => Ok(()),
+        };
+        if let Err(e) = decoded {
+            messages.stop(format!("message on {} is not valid protobuf: {e}", m.topic));
+        }
+    }
+    contents.damaged = messages.scan().stopped_at.clone();
+    Ok(contents)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::file::Compression;
-    use std::io::Cursor;
 
     #[test]
     fn points_survive_truncation_of_the_open_chunk() {
-        let header = MapHeader {
-            config_toml: "x".into(),
-            shard_count: 1,
-            ..Default::default()
-        };
-        let options = FileOptions {
-            compression: Compression::Zstd,
-            chunk_size: 1 << 20,
-        };
-        let mut f = MapFile::create(Cursor::new(Vec::new()), &header, &options).unwrap();
-        for i in 0..10 {
-            f.write_point(&MapPoint {
-                index: i,
-                value: i as f64,
-                ..Default::default()
-            })
-            .unwrap();
-            if i == 5 {
-                f.close_chunk().unwrap();
-            }
-        }
-        f.close_chunk().unwrap();
-        let bytes = f.finish().unwrap().into_inner();
-        let full = read_map(&bytes).unwrap();
-        assert_eq!(full.header.unwrap().config_toml, "x");
+        // Chunks of six points and four.
+        let (bytes, header, _) = crate::testing::small_map(10, 6, Compression::Zstd);
+        let full = read_map(&bytes[..], None).unwrap().unwrap();
+        assert_eq!(full.header.unwrap(), header);
         assert_eq!(full.points.len(), 10);
         assert!(full.damaged.is_none());
         // Every cut keeps whole chunks only: 0, 6 (the first chunk) or all 10 points.
         let mut seen_first_chunk_only = false;
         for cut in 8..bytes.len() {
-            let part = read_map(&bytes[..cut]).unwrap();
+            let part = read_map(&bytes[..cut], None).unwrap().unwrap();
             let n = part.points.len();
             assert!([0, 6, 10].contains(&n), "cut {cut}: {n} points");
             seen_first_chunk_only |= n == 6 && part.damaged.is_some();

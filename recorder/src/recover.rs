@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use chaoscope_schemas::names::metadata;
 use mcap::records::{Metadata, Record};
 
-use crate::scan::{Scanner, Visit};
+use crate::scan::{Entry, FileError, Scanner};
 
 /// What a recovery salvaged.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -49,17 +49,10 @@ pub enum RecoverError {
 
 /// Copies the readable records of `input` into a new file at `output`.
 pub fn recover(input: &Path, output: &Path, force: bool) -> Result<RecoverReport, RecoverError> {
-    let input_err = |source| RecoverError::Io {
-        path: input.into(),
-        source,
-    };
-    let file = File::open(input).map_err(input_err)?;
-    let identity = file.metadata().map_err(input_err)?;
-    // A pipe or device has no length to bound records by.
-    let len = identity.is_file().then_some(identity.len());
-    let scanner = Scanner::open(BufReader::with_capacity(1 << 20, file), len)
-        .map_err(input_err)?
-        .ok_or_else(|| RecoverError::NotMcap { path: input.into() })?;
+    let (scanner, identity) = Scanner::open_file(input).map_err(|e| match e {
+        FileError::Io { path, source } => RecoverError::Io { path, source },
+        FileError::NotMcap { path } => RecoverError::NotMcap { path },
+    })?;
     if same_file(&identity, input, output) {
         return Err(RecoverError::SameFile {
             path: output.into(),
@@ -102,7 +95,7 @@ fn same_file(_identity: &std::fs::Metadata, input: &Path, output: &Path) -> bool
 
 /// Streams the records `scanner` reads into a new MCAP file on `out`.
 fn salvage(
-    scanner: Scanner<BufReader<File>>,
+    mut scanner: Scanner<BufReader<File>>,
     out: File,
     input: &Path,
     output: &Path,
@@ -123,14 +116,24 @@ fn salvage(
         channels: HashMap::new(),
         report: RecoverReport::default(),
     };
-    let scan = scanner
-        .run(&mut copier)
-        .map_err(|source| RecoverError::Io {
-            path: input.into(),
-            source,
-        })?;
+    let input_err = |source| RecoverError::Io {
+        path: input.into(),
+        source,
+    };
+    while let Some(entry) = scanner.next().map_err(input_err)? {
+        let copied = match entry {
+            Entry::Record(record) => copier.copy(record),
+            Entry::Chunk(records) => records
+                .into_iter()
+                .try_for_each(|record| copier.copy(record))
+                .map(|()| copier.report.chunks += 1),
+        };
+        if let Err(e) = copied {
+            scanner.stop(e);
+        }
+    }
     let mut report = copier.report;
-    report.stopped_at = scan.stopped_at;
+    report.stopped_at = scanner.scan().stopped_at.clone();
     writer
         .write_metadata(&Metadata {
             name: metadata::RECOVERY.into(),
@@ -170,8 +173,10 @@ struct Copier<'w, W: std::io::Write + std::io::Seek> {
     report: RecoverReport,
 }
 
-impl<W: std::io::Write + std::io::Seek> Visit for Copier<'_, W> {
-    fn record(&mut self, record: Record<'_>) -> mcap::McapResult<()> {
+impl<W: std::io::Write + std::io::Seek> Copier<'_, W> {
+    /// Copies one record; chunks come as their records, and indexes, statistics and the summary
+    /// are rebuilt by the writer.
+    fn copy(&mut self, record: Record<'_>) -> mcap::McapResult<()> {
         match record {
             Record::Schema { header, data } => {
                 let id = self
@@ -211,15 +216,8 @@ impl<W: std::io::Write + std::io::Seek> Visit for Copier<'_, W> {
                 })?;
                 self.report.attachments += 1;
             }
-            // Chunks come as their records; indexes, statistics and the summary are rebuilt by
-            // the writer.
             _ => {}
         }
-        Ok(())
-    }
-
-    fn chunk_done(&mut self) -> mcap::McapResult<()> {
-        self.report.chunks += 1;
         Ok(())
     }
 }

@@ -1,17 +1,32 @@
-//! Streaming, damage-tolerant reading of an MCAP file's records, for salvaging files whose writer
-//! died.
+//! Streaming, damage-tolerant reading of MCAP files: the one way chaoscope reads an MCAP file
+//! (`recover`, map files, `analyze` and `replay`), because every input file is hostile.
 //!
 //! The records are read in file order through the mcap crate's sans-io reader, fed from any
 //! [`Read`] (a `BufReader<File>`), so memory is bounded by the largest record (about one chunk),
 //! never by the file. Each chunk is decompressed and checked whole (every record parsed, the CRC
 //! compared) before any of its records is handed out, so a damaged chunk is dropped whole rather
-//! than half copied. Reading stops at the first damaged record and says where and why. No input
-//! makes it panic, and no length field makes it buffer more than [`MAX_RECORD_LEN`] bytes.
+//! than half read. Reading stops at the first damaged record and says where and why. No input
+//! makes it panic, and no length field makes it buffer more than [`MAX_RECORD_LEN`] bytes (nor
+//! more than the file's length).
+//!
+//! Damage is also what would otherwise lose data silently: a record of a type chaoscope files
+//! never hold, or in the wrong section, a channel or message index record longer than its fields
+//! (a chunk whose opcode was hit reads as one of these), a chunk record longer than its data, and
+//! a summary that disagrees with the data (a chunk not read where the chunk index says, other
+//! message or chunk counts than the statistics).
+//!
+//! [`Scanner`] hands out records and whole chunks; [`Messages`] on top of it hands out messages
+//! with their topics.
 
-use std::io::{self, Read};
+use std::collections::HashMap;
+use std::fmt::Display;
+use std::fs::File;
+use std::io::{self, BufReader, Read};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use mcap::McapError;
-use mcap::records::{Record, op};
+use mcap::records::{MessageHeader, Record, op};
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
 
 /// The longest record accepted. Chunks are about the writer's chunk size (4 MiB by default);
@@ -23,17 +38,6 @@ const READ_STEP: usize = 1 << 20;
 
 /// Opcode and length prefix of every record.
 const PREFIX_LEN: u64 = 1 + 8;
-
-/// Receives the records that survive, in file order.
-pub trait Visit {
-    /// A record outside chunks, or one of a chunk's records once the whole chunk was checked.
-    /// An error stops the scan there, and is reported as where and why it stopped.
-    fn record(&mut self, record: Record<'_>) -> mcap::McapResult<()>;
-    /// Called after the records of one chunk.
-    fn chunk_done(&mut self) -> mcap::McapResult<()> {
-        Ok(())
-    }
-}
 
 /// How far a scan got.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -47,6 +51,34 @@ pub struct Scan {
     pub stopped_at: Option<String>,
 }
 
+/// What [`Scanner::next`] hands out.
+#[derive(Debug)]
+pub enum Entry {
+    /// A record outside chunks.
+    Record(Record<'static>),
+    /// The records of a chunk, checked whole, in order.
+    Chunk(Vec<Record<'static>>),
+}
+
+/// A file that cannot be read at all (as opposed to damage, which [`Scan::stopped_at`] reports).
+#[derive(Debug, thiserror::Error)]
+pub enum FileError {
+    #[error("{path}: {source}")]
+    Io { path: PathBuf, source: io::Error },
+    #[error("{path} is not an MCAP file (no MCAP magic at the start)")]
+    NotMcap { path: PathBuf },
+}
+
+impl FileError {
+    /// `source`, a failure to read the file at `path`.
+    pub fn io(path: &Path, source: io::Error) -> Self {
+        Self::Io {
+            path: path.into(),
+            source,
+        }
+    }
+}
+
 /// Why reading stopped at a record.
 #[derive(Debug, thiserror::Error)]
 enum Damage {
@@ -56,6 +88,26 @@ enum Damage {
     ZeroOpcode,
     #[error("attachment record shorter than its own fields")]
     ShortAttachment,
+    #[error("unknown record type 0x{0:02x} (chaoscope files hold none)")]
+    UnknownOpcode(u8),
+    #[error("a {record} record cannot be in the {section} section")]
+    Misplaced {
+        record: &'static str,
+        section: &'static str,
+    },
+    #[error("a {0} record longer than its fields")]
+    Overlong(&'static str),
+    #[error("chunk record {0} bytes longer than its data")]
+    ChunkPadding(usize),
+    #[error("the summary does not match the data: {0}")]
+    Summary(String),
+    #[error(
+        "a record of {len} bytes, but the file ends {left} bytes on (cut short, or a damaged \
+         length)"
+    )]
+    PastEnd { len: u64, left: u64 },
+    #[error("a record of {0} bytes, longer than any chaoscope writes (a damaged length)")]
+    TooLong(u64),
 }
 
 /// The reader's failure to produce a record: the source failed, or the bytes are damaged.
@@ -64,12 +116,135 @@ enum Failure {
     Damage(Damage),
 }
 
+/// What the records read so far say the rest of the file may hold.
+#[derive(Default)]
+struct Layout {
+    /// Past the data end record: in the summary section.
+    summary: bool,
+    /// Start and length of every chunk record read.
+    chunks: Vec<(u64, u64)>,
+    /// Chunk index records read.
+    indexed: usize,
+    /// Message records read (in and outside chunks).
+    messages: u64,
+}
+
+impl Layout {
+    /// Checks and parses the record with `opcode` and `body` at byte `at`.
+    fn entry(&mut self, at: u64, opcode: u8, body: &[u8]) -> Result<Entry, Damage> {
+        self.check_place(at, opcode)?;
+        if opcode == op::CHUNK {
+            let records = check_chunk(body)?;
+            self.messages += records
+                .iter()
+                .filter(|r| matches!(r, Record::Message { .. }))
+                .count() as u64;
+            self.chunks.push((at, PREFIX_LEN + body.len() as u64));
+            return Ok(Entry::Chunk(records));
+        }
+        let record = parse(opcode, body)?.into_owned();
+        match &record {
+            // What a chunk whose opcode was hit can parse as (its times read as lengths).
+            Record::MessageIndex(index) if body.len() != 2 + 4 + 16 * index.records.len() => {
+                return Err(Damage::Overlong("message index"));
+            }
+            Record::Channel(c) if body.len() != channel_len(c) => {
+                return Err(Damage::Overlong("channel"));
+            }
+            Record::Message { .. } => self.messages += 1,
+            Record::DataEnd(_) => self.summary = true,
+            Record::ChunkIndex(index) => {
+                let read = self.chunks.get(self.indexed).copied();
+                let indexed = (index.chunk_start_offset, index.chunk_length);
+                if read != Some(indexed) {
+                    return Err(Damage::Summary(format!(
+                        "chunk index {} has the chunk at byte {} ({} bytes), but {}",
+                        self.indexed,
+                        indexed.0,
+                        indexed.1,
+                        match read {
+                            Some((start, len)) =>
+                                format!("it was read at byte {start} ({len} bytes)"),
+                            None => format!("only {} chunks were read", self.chunks.len()),
+                        }
+                    )));
+                }
+                self.indexed += 1;
+            }
+            Record::Statistics(s) => {
+                let counted = (s.message_count, u64::from(s.chunk_count));
+                let read = (self.messages, self.chunks.len() as u64);
+                if counted != read {
+                    return Err(Damage::Summary(format!(
+                        "the statistics count {} messages in {} chunks, {} messages in {} chunks \
+                         were read",
+                        counted.0, counted.1, read.0, read.1
+                    )));
+                }
+            }
+            Record::Footer(_) if self.indexed > 0 && self.indexed != self.chunks.len() => {
+                return Err(Damage::Summary(format!(
+                    "{} chunks are indexed, {} were read",
+                    self.indexed,
+                    self.chunks.len()
+                )));
+            }
+            _ => {}
+        }
+        Ok(Entry::Record(record))
+    }
+
+    /// Whether a record with `opcode` may stand at byte `at`, in the current section.
+    fn check_place(&self, at: u64, opcode: u8) -> Result<(), Damage> {
+        let (record, data, summary) = match opcode {
+            0 => return Err(Damage::ZeroOpcode),
+            op::HEADER => ("header", at == mcap::MAGIC.len() as u64, false),
+            op::SCHEMA => ("schema", true, true),
+            op::CHANNEL => ("channel", true, true),
+            op::MESSAGE => ("message", true, false),
+            op::CHUNK => ("chunk", true, false),
+            op::MESSAGE_INDEX => ("message index", true, false),
+            op::ATTACHMENT => ("attachment", true, false),
+            op::METADATA => ("metadata", true, false),
+            op::DATA_END => ("data end", true, false),
+            op::CHUNK_INDEX => ("chunk index", false, true),
+            op::ATTACHMENT_INDEX => ("attachment index", false, true),
+            op::METADATA_INDEX => ("metadata index", false, true),
+            op::STATISTICS => ("statistics", false, true),
+            op::SUMMARY_OFFSET => ("summary offset", false, true),
+            op::FOOTER => ("footer", false, true),
+            opcode => return Err(Damage::UnknownOpcode(opcode)),
+        };
+        match (self.summary, data, summary) {
+            (false, true, _) | (true, _, true) => Ok(()),
+            (false, false, _) if opcode == op::HEADER => Err(Damage::Misplaced {
+                record,
+                section: "data (after its first record)",
+            }),
+            (false, ..) => Err(Damage::Misplaced {
+                record,
+                section: "data",
+            }),
+            (true, ..) => Err(Damage::Misplaced {
+                record,
+                section: "summary",
+            }),
+        }
+    }
+}
+
 /// An MCAP file being read, positioned after its magic.
 pub struct Scanner<R> {
     source: R,
+    /// Length of the file, if known.
+    len: Option<u64>,
     reader: LinearReader,
-    /// Records of the chunk being checked, reused from chunk to chunk.
-    chunk: Vec<Record<'static>>,
+    layout: Layout,
+    scan: Scan,
+    /// Length of the entry handed out last, counted into `scan` when the next one is asked for.
+    pending: Option<u64>,
+    /// The end of the file was reached, or reading failed.
+    done: bool,
 }
 
 impl<R: Read> Scanner<R> {
@@ -101,58 +276,113 @@ impl<R: Read> Scanner<R> {
         );
         Ok(Some(Self {
             source,
+            len,
             reader,
-            chunk: Vec::new(),
+            layout: Layout::default(),
+            scan: Scan {
+                records: 0,
+                bytes: mcap::MAGIC.len() as u64,
+                stopped_at: None,
+            },
+            pending: None,
+            done: false,
         }))
     }
 
-    /// Reads records into `visit` to the end of the file (its footer) or up to the first damaged
-    /// record. Only a failure of the source itself is an error.
-    pub fn run(mut self, visit: &mut impl Visit) -> io::Result<Scan> {
-        let mut scan = Scan {
-            records: 0,
-            bytes: mcap::MAGIC.len() as u64,
-            stopped_at: None,
-        };
-        let mut data_end = false;
-        let chunk = &mut self.chunk;
-        let damage = loop {
-            let step = next_record(&mut self.reader, &mut self.source, |opcode, body| {
-                let result = if opcode == op::CHUNK {
-                    check_chunk(body, chunk).and_then(|()| {
-                        for record in chunk.drain(..) {
-                            visit.record(record)?;
-                        }
-                        Ok(visit.chunk_done()?)
-                    })
-                } else {
-                    parse(opcode, body).and_then(|r| Ok(visit.record(r)?))
-                };
-                (opcode, PREFIX_LEN + body.len() as u64, result)
-            });
-            match step {
-                Ok(Some((opcode, len, Ok(())))) => {
-                    scan.records += 1;
-                    scan.bytes += len;
-                    data_end |= opcode == op::DATA_END;
-                }
-                Ok(Some((_, _, Err(damage)))) | Err(Failure::Damage(damage)) => {
-                    break damage.to_string();
-                }
-                Err(Failure::Io(e)) => return Err(e),
-                Ok(None) if data_end => return Ok(scan),
-                Ok(None) => {
-                    break "the file ends here, before its data end record (its writer did not \
-                           finish it)"
-                        .to_string();
-                }
+    /// The next record outside chunks, or the next chunk's records; `None` at the end of the
+    /// file or at the first damaged record ([`Scanner::scan`] says which). Only a failure of the
+    /// source itself is an error.
+    #[allow(clippy::should_implement_trait)] // fallible, so not an Iterator
+    pub fn next(&mut self) -> io::Result<Option<Entry>> {
+        if let Some(len) = self.pending.take() {
+            self.scan.records += 1;
+            self.scan.bytes += len;
+        }
+        if self.done {
+            return Ok(None);
+        }
+        let (layout, at) = (&mut self.layout, self.scan.bytes);
+        let step = next_record(&mut self.reader, &mut self.source, |opcode, body| {
+            let entry = layout.entry(at, opcode, body);
+            (PREFIX_LEN + body.len() as u64, entry)
+        });
+        match step {
+            Ok(Some((len, Ok(entry)))) => {
+                self.pending = Some(len);
+                Ok(Some(entry))
             }
-        };
-        scan.stopped_at = Some(format!(
-            "record {} at byte {}: {damage}",
-            scan.records, scan.bytes
+            Ok(Some((_, Err(damage)))) => {
+                self.stop(damage);
+                Ok(None)
+            }
+            // The reader refused a record's length: past the end of the file, or past any
+            // bound; its own words would only say "exceeds limit".
+            Err(Failure::Damage(Damage::Mcap(McapError::RecordTooLarge { len, .. }))) => {
+                let body_at = at + PREFIX_LEN;
+                let damage = match self.len {
+                    Some(file) if len <= MAX_RECORD_LEN as u64 && body_at <= file => {
+                        Damage::PastEnd {
+                            len,
+                            left: file - body_at,
+                        }
+                    }
+                    _ => Damage::TooLong(len),
+                };
+                self.stop(damage);
+                Ok(None)
+            }
+            Err(Failure::Damage(damage)) => {
+                self.stop(damage);
+                Ok(None)
+            }
+            Err(Failure::Io(e)) => {
+                self.done = true;
+                Err(e)
+            }
+            Ok(None) if self.layout.summary => {
+                self.done = true;
+                Ok(None)
+            }
+            Ok(None) => {
+                self.stop(
+                    "the file ends here, before its data end record (its writer did not finish \
+                     it)",
+                );
+                Ok(None)
+            }
+        }
+    }
+
+    /// Stops reading at the entry handed out last (or, at the start, at the next record): the
+    /// caller found it unusable for the reason `why`, which [`Scan::stopped_at`] reports with
+    /// its place.
+    pub fn stop(&mut self, why: impl Display) {
+        self.pending = None;
+        self.done = true;
+        self.scan.stopped_at = Some(format!(
+            "record {} at byte {}: {why}",
+            self.scan.records, self.scan.bytes
         ));
-        Ok(scan)
+    }
+
+    /// How far reading got: complete once [`Scanner::next`] has returned `None`.
+    pub fn scan(&self) -> &Scan {
+        &self.scan
+    }
+}
+
+impl Scanner<BufReader<File>> {
+    /// Opens the file at `path` for scanning, buffered, no record longer than the file (if it
+    /// is a regular file; a pipe or device has no length to bound records by). Also returns
+    /// the opened file's metadata.
+    pub fn open_file(path: &Path) -> Result<(Self, std::fs::Metadata), FileError> {
+        let file = File::open(path).map_err(|e| FileError::io(path, e))?;
+        let meta = file.metadata().map_err(|e| FileError::io(path, e))?;
+        let len = meta.is_file().then_some(meta.len());
+        let scanner = Self::open(BufReader::with_capacity(1 << 20, file), len)
+            .map_err(|e| FileError::io(path, e))?
+            .ok_or_else(|| FileError::NotMcap { path: path.into() })?;
+        Ok((scanner, meta))
     }
 }
 
@@ -184,24 +414,26 @@ fn next_record<T>(
     }
 }
 
-/// Decompresses and parses every record of a chunk (its record body) into `records` and checks
-/// its CRC; on damage `records` is left empty.
-fn check_chunk(body: &[u8], records: &mut Vec<Record<'static>>) -> Result<(), Damage> {
-    records.clear();
+/// Decompresses and parses every record of a chunk (its record body) and checks its CRC.
+fn check_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, Damage> {
     let (header, data) = match parse(op::CHUNK, body)? {
         Record::Chunk { header, data } => (header, data),
         // parse_record makes a chunk of every chunk record.
         _ => return Err(McapError::UnexpectedEoc.into()),
     };
-    // The chunk alone, as a record stream without any padding after its data, read by a reader
-    // of its own (a sans-io reader enters chunks only from a record stream). Fields before the
-    // data: start and end time, uncompressed size and CRC, compression (length-prefixed),
-    // compressed size.
+    // The chunk alone, as a record stream, read by a reader of its own (a sans-io reader enters
+    // chunks only from a record stream). Fields before the data: start and end time,
+    // uncompressed size and CRC, compression (length-prefixed), compressed size.
     let chunk_len = 8 + 8 + 8 + 4 + 4 + header.compression.len() + 8 + data.len();
     let chunk = body.get(..chunk_len).ok_or(McapError::BadChunkLength {
         header: chunk_len as u64,
         available: body.len() as u64,
     })?;
+    // Writers put nothing after the data; bytes there are a damaged length that swallowed
+    // what follows.
+    if body.len() > chunk_len {
+        return Err(Damage::ChunkPadding(body.len() - chunk_len));
+    }
     let mut prefix = [op::CHUNK; PREFIX_LEN as usize];
     prefix[1..].copy_from_slice(&(chunk_len as u64).to_le_bytes());
     let mut source = prefix.as_slice().chain(chunk);
@@ -215,21 +447,29 @@ fn check_chunk(body: &[u8], records: &mut Vec<Record<'static>>) -> Result<(), Da
             .with_validate_chunk_crcs(true)
             .with_record_length_limit(limit),
     );
-    let result = loop {
+    let mut records = Vec::new();
+    loop {
         let step = next_record(&mut reader, &mut source, |opcode, body| {
             parse(opcode, body).map(Record::into_owned)
         });
         match step {
             Ok(Some(Ok(record))) => records.push(record),
-            Ok(Some(Err(damage))) | Err(Failure::Damage(damage)) => break Err(damage),
-            Err(Failure::Io(e)) => break Err(McapError::Io(e).into()),
-            Ok(None) => break Ok(()),
+            Ok(Some(Err(damage))) | Err(Failure::Damage(damage)) => return Err(damage),
+            Err(Failure::Io(e)) => return Err(McapError::Io(e).into()),
+            Ok(None) => return Ok(records),
         }
-    };
-    if result.is_err() {
-        records.clear();
     }
-    result
+}
+
+/// The length of a channel record's body: id, schema id, topic and message encoding
+/// (length-prefixed), metadata (byte length, then length-prefixed keys and values).
+fn channel_len(c: &mcap::records::Channel) -> usize {
+    let metadata: usize = c
+        .metadata
+        .iter()
+        .map(|(k, v)| 4 + k.len() + 4 + v.len())
+        .sum();
+    2 + 2 + 4 + c.topic.len() + 4 + c.message_encoding.len() + 4 + metadata
 }
 
 /// `mcap::parse_record`, refusing what it would mishandle: opcode 0 (never valid; what zeroed
@@ -256,4 +496,93 @@ fn attachment_fits(body: &[u8]) -> bool {
         .and_then(|media| u32_at(media).and_then(|n| (media + 4).checked_add(n)))
         .and_then(|data_len| data_len.checked_add(8 + 4));
     fields_end.is_some_and(|end| end <= body.len())
+}
+
+/// A message as [`Messages`] reads it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Message {
+    /// Its channel's topic.
+    pub topic: Arc<str>,
+    pub header: MessageHeader,
+    pub data: Vec<u8>,
+}
+
+/// The messages of an MCAP file in file order, with their channels' topics, read by a
+/// [`Scanner`]: each chunk checked whole before any of its messages is handed out, reading
+/// stopped at the first damage. A message on a channel not defined before it, or a channel
+/// redefined with another topic, is damage too.
+pub struct Messages<R> {
+    scanner: Scanner<R>,
+    topics: HashMap<u16, Arc<str>>,
+    /// The rest of the chunk being handed out.
+    chunk: std::vec::IntoIter<Record<'static>>,
+}
+
+impl<R: Read> Messages<R> {
+    pub fn new(scanner: Scanner<R>) -> Self {
+        Self {
+            scanner,
+            topics: HashMap::new(),
+            chunk: Vec::new().into_iter(),
+        }
+    }
+
+    /// The next message; `None` at the end of the file or at the first damage
+    /// ([`Messages::scan`] says which). Only a failure of the source itself is an error.
+    pub fn next_message(&mut self) -> io::Result<Option<Message>> {
+        loop {
+            let record = match self.chunk.next() {
+                Some(record) => record,
+                None => match self.scanner.next()? {
+                    None => return Ok(None),
+                    Some(Entry::Chunk(records)) => {
+                        self.chunk = records.into_iter();
+                        continue;
+                    }
+                    Some(Entry::Record(record)) => record,
+                },
+            };
+            match record {
+                Record::Channel(channel) => match self.topics.get(&channel.id) {
+                    Some(topic) if **topic != *channel.topic => {
+                        let why = format!(
+                            "channel {} redefined from {topic} to {}",
+                            channel.id, channel.topic
+                        );
+                        self.stop(why);
+                        return Ok(None);
+                    }
+                    Some(_) => {}
+                    None => {
+                        self.topics.insert(channel.id, channel.topic.into());
+                    }
+                },
+                Record::Message { header, data } => {
+                    let Some(topic) = self.topics.get(&header.channel_id) else {
+                        let why = format!("message on undefined channel {}", header.channel_id);
+                        self.stop(why);
+                        return Ok(None);
+                    };
+                    return Ok(Some(Message {
+                        topic: topic.clone(),
+                        header,
+                        data: data.into_owned(),
+                    }));
+                }
+                _ => {}
+            }
+        }
+    }
+
+    /// Stops reading at the message handed out last (its record, or its chunk): the caller
+    /// found it unusable for the reason `why` (e.g. not the protobuf message its topic carries).
+    pub fn stop(&mut self, why: impl Display) {
+        self.chunk = Vec::new().into_iter();
+        self.scanner.stop(why);
+    }
+
+    /// How far reading got: complete once [`Messages::next_message`] has returned `None`.
+    pub fn scan(&self) -> &Scan {
+        self.scanner.scan()
+    }
 }

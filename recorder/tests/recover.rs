@@ -2,34 +2,11 @@
 //! corrupted inside a chunk, and on arbitrary bytes. What it salvages is always an exact prefix
 //! of the original messages: every chunk that ends before the damage, nothing after it.
 
-#[path = "common/synthetic.rs"]
-mod synthetic;
-
-use std::io::Cursor;
 use std::path::{Path, PathBuf};
 
-use chaoscope_recorder::file::{Compression, FileOptions};
+use chaoscope_recorder::file::Compression;
 use chaoscope_recorder::recover::{RecoverError, RecoverReport, recover};
-use synthetic::{Noise, Shape};
-
-/// A message as a reader sees it: topic, sequence, log and publish time, payload.
-type Message = (String, u32, u64, u64, Vec<u8>);
-
-fn messages(bytes: &[u8]) -> Vec<Message> {
-    mcap::MessageStream::new(bytes)
-        .unwrap()
-        .map(|m| {
-            let m = m.unwrap();
-            (
-                m.channel.topic.clone(),
-                m.sequence,
-                m.log_time,
-                m.publish_time,
-                m.data.into_owned(),
-            )
-        })
-        .collect()
-}
+use chaoscope_recorder::testing::{self as synthetic, Message, Noise, mcap_messages as messages};
 
 /// A small recording of about 15 chunks (the recorder's layout), its messages, and its chunks.
 struct Original {
@@ -46,19 +23,7 @@ struct Chunk {
 
 impl Original {
     fn new(compression: Compression) -> Self {
-        let shape = Shape {
-            dim: 4,
-            k: 2,
-            sets: 3,
-            samples: 60,
-        };
-        let options = FileOptions {
-            compression,
-            chunk_size: 2048,
-        };
-        let bytes = synthetic::write_run(Cursor::new(Vec::new()), &shape, &options, 7)
-            .unwrap()
-            .into_inner();
+        let bytes = synthetic::small_run(compression);
         let messages = messages(&bytes);
         let summary = mcap::Summary::read(&bytes).unwrap().expect("summary");
         let chunks: Vec<Chunk> = summary
@@ -263,23 +228,84 @@ fn a_corrupted_chunk_is_dropped_whole_and_reading_stops_there() {
 }
 
 #[test]
+fn a_chunk_whose_opcode_is_hit_stops_the_salvage_there() {
+    // Every single bit flip of a chunk's opcode: unknown record types, summary records, a
+    // footer, a channel, a message index; none may make the chunk vanish silently.
+    for compression in [Compression::Zstd, Compression::None] {
+        let original = Original::new(compression);
+        let files = Files::new();
+        // The first chunk starts at time 0: its fields read as the fewest entries.
+        for (chunk, bit) in [&original.chunks[0], &original.chunks[5]]
+            .into_iter()
+            .flat_map(|chunk| (0..8).map(move |bit| (chunk, bit)))
+        {
+            let mut bytes = original.bytes.clone();
+            bytes[chunk.start as usize] ^= 1 << bit;
+            let (report, salvaged) = files.recover(&bytes);
+            let expected = original.salvageable(chunk.start as usize);
+            assert!(
+                salvaged[..] == original.messages[..expected],
+                "{compression:?}, opcode 0x{:02x}: {} messages, expected {expected}",
+                bytes[chunk.start as usize],
+                salvaged.len()
+            );
+            let stopped = report.stopped_at.expect("damage is reported");
+            assert!(
+                stopped.contains(&format!("at byte {}", chunk.start)),
+                "{stopped}"
+            );
+        }
+    }
+}
+
+#[test]
 fn any_single_corrupted_byte_leaves_an_exact_prefix() {
     let original = Original::new(Compression::Zstd);
     let files = Files::new();
-    let mut noise = Noise::new(99);
-    for _ in 0..300 {
-        let at = (noise.next_u64() % original.bytes.len() as u64) as usize;
-        let mut bytes = original.bytes.clone();
-        bytes[at] ^= 1 << (noise.next_u64() % 8);
-        std::fs::write(&files.input, &bytes).unwrap();
+    for damaged in synthetic::flips(&original.bytes, 300, 99) {
+        std::fs::write(&files.input, &damaged.bytes).unwrap();
+        let what = &damaged.what;
         match recover(&files.input, &files.output, true) {
             Ok(_) => {
                 let salvaged = messages(&std::fs::read(&files.output).unwrap());
                 let n = salvaged.len();
-                assert!(salvaged[..] == original.messages[..n], "flip at {at}");
+                assert!(salvaged[..] == original.messages[..n], "{what}");
             }
-            Err(RecoverError::NotMcap { .. }) => assert!(at < mcap::MAGIC.len()),
-            Err(e) => panic!("flip at {at}: {e}"),
+            Err(RecoverError::NotMcap { .. }) => assert!(!damaged.bytes.starts_with(mcap::MAGIC)),
+            Err(e) => panic!("{what}: {e}"),
+        }
+    }
+}
+
+#[test]
+fn every_kind_of_damage_leaves_an_exact_prefix() {
+    for compression in [Compression::Zstd, Compression::None] {
+        let original = Original::new(compression);
+        let files = Files::new();
+        for damaged in synthetic::hostile(&original.bytes, 1) {
+            std::fs::write(&files.input, &damaged.bytes).unwrap();
+            let what = format!("{compression:?}, {}", damaged.what);
+            match recover(&files.input, &files.output, true) {
+                Ok(report) => {
+                    let salvaged = messages(&std::fs::read(&files.output).unwrap());
+                    let n = salvaged.len();
+                    assert_eq!(n as u64, report.messages, "{what}");
+                    if damaged.what.starts_with("random records") {
+                        continue; // not the original's bytes
+                    }
+                    assert!(
+                        salvaged[..] == original.messages[..n],
+                        "{what}: not a prefix"
+                    );
+                    if report.stopped_at.is_none() {
+                        assert_eq!(n, original.messages.len(), "{what}: complete, but short");
+                    }
+                }
+                Err(RecoverError::NotMcap { .. }) => {
+                    assert!(!damaged.bytes.starts_with(mcap::MAGIC), "{what}")
+                }
+                Err(e) => panic!("{what}: {e}"),
+            }
         }
     }
 }
@@ -287,33 +313,18 @@ fn any_single_corrupted_byte_leaves_an_exact_prefix() {
 #[test]
 fn arbitrary_bytes_after_the_magic_never_panic() {
     let files = Files::new();
-    let mut noise = Noise::new(3);
-    for case in 0..400 {
-        let mut bytes = mcap::MAGIC.to_vec();
-        // Records with plausible opcodes and short lengths, so the parsers get to run.
-        for _ in 0..(noise.next_u64() % 6) {
-            let opcode = (noise.next_u64() % 18) as u8;
-            let len = noise.next_u64() % 80;
-            bytes.push(opcode);
-            bytes.extend_from_slice(&len.to_le_bytes());
-            let body = len + noise.next_u64() % 3; // sometimes short of its length
-            bytes.extend(noise.bytes(body as usize));
-        }
-        std::fs::write(&files.input, &bytes).unwrap();
+    for damaged in synthetic::random_records(400, 3) {
+        std::fs::write(&files.input, &damaged.bytes).unwrap();
         if let Err(e) = recover(&files.input, &files.output, true) {
-            panic!("case {case}: {e}");
+            panic!("{}: {e}", damaged.what);
         }
     }
 }
 
 #[test]
 fn a_short_attachment_record_is_damage_not_a_panic() {
-    // log time, create time, empty name and media type, data length: no data and no CRC.
-    let body = [0u8; 8 + 8 + 4 + 4 + 8];
     let mut bytes = mcap::MAGIC.to_vec();
-    bytes.push(mcap::records::op::ATTACHMENT);
-    bytes.extend_from_slice(&(body.len() as u64).to_le_bytes());
-    bytes.extend_from_slice(&body);
+    bytes.extend(synthetic::short_attachment());
     let files = Files::new();
     let (report, salvaged) = files.recover(&bytes);
     assert!(salvaged.is_empty());

@@ -23,7 +23,7 @@ use chaoscope_producer::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
 use chaoscope_producer::publish::Termination;
 use chaoscope_producer::publish::map::{MapPublisher, default_map_name};
 use chaoscope_recorder::file::{Compression, FileOptions};
-use chaoscope_recorder::map_file::{MapFile, read_map};
+use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_schemas::frame::status;
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 
@@ -277,8 +277,7 @@ fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u6
         if !path.exists() {
             continue;
         }
-        let bytes = std::fs::read(&path).with_context(|| format!("reading {}", path.display()))?;
-        let contents = read_map(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        let contents = read_map_file(&path)?;
         let Some(h) = contents.header else {
             // Killed before its header reached the disk: nothing to keep.
             continue;
@@ -294,12 +293,17 @@ fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u6
         }
         if let Some(d) = &contents.damaged {
             eprintln!(
-                "chaoscope map: {} was cut short ({d}); resuming from its {} complete points",
+                "chaoscope map: {} is damaged or cut short ({d}); resuming from its {} points \
+                 before that",
                 path.display(),
                 contents.points.len()
             );
         }
         for p in contents.points {
+            let shard = (u64::from(header.shard_index), u64::from(header.shard_count));
+            if p.index >= header.grid_points || p.index % shard.1 != shard.0 {
+                bail!("{}: point {} is not in its shard", path.display(), p.index);
+            }
             points.insert(p.index, p);
         }
     }

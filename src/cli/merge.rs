@@ -13,8 +13,11 @@ use std::process::ExitCode;
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
 use chaoscope_recorder::file::{Compression, FileOptions};
-use chaoscope_recorder::map_file::{MapFile, read_map};
+use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
+
+/// Missing shards named in the error of an incomplete merge.
+const MISSING_SHARDS_LISTED: usize = 32;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -46,19 +49,29 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let mut seen_shards = BTreeMap::new();
     let mut points: BTreeMap<u64, MapPoint> = BTreeMap::new();
     for path in &args.shards {
-        let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-        let contents = read_map(&bytes).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-        let h = contents
-            .header
-            .with_context(|| format!("{} has no map header", path.display()))?;
+        let contents = read_map_file(path)?;
         if let Some(d) = contents.damaged {
             bail!(
-                "{} is cut short ({d}); resume it with the same `chaoscope map` command first",
+                "{} is damaged or cut short ({d}); if its `chaoscope map` was interrupted, resume \
+                 it with the same command first",
                 path.display()
             );
         }
+        let h = contents
+            .header
+            .with_context(|| format!("{} has no map header", path.display()))?;
+        if h.shard_count == 0 || h.shard_index >= h.shard_count {
+            bail!(
+                "{}: its header says shard {}/{}, which no `chaoscope map --shard` writes",
+                path.display(),
+                h.shard_index,
+                h.shard_count
+            );
+        }
         if let Some(first) = &header
-            && (first.config_toml != h.config_toml || first.shard_count != h.shard_count)
+            && (first.config_toml != h.config_toml
+                || first.shard_count != h.shard_count
+                || first.grid_points != h.grid_points)
         {
             bail!(
                 "{} belongs to a different map or shard split than {}",
@@ -84,14 +97,22 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         header = Some(h);
     }
     let mut header = header.expect("at least one shard");
+    // The first few (a header may claim billions of shards).
     let missing_shards: Vec<u32> = (0..header.shard_count)
         .filter(|i| !seen_shards.contains_key(i))
+        .take(MISSING_SHARDS_LISTED)
         .collect();
+    let more_shards =
+        (header.shard_count as usize - seen_shards.len()).saturating_sub(missing_shards.len());
     let missing = header.grid_points - points.len() as u64;
     if (!missing_shards.is_empty() || missing > 0) && !args.allow_incomplete {
+        let more = match more_shards {
+            0 => String::new(),
+            n => format!(" and {n} more"),
+        };
         bail!(
-            "incomplete map: {missing} of {} points missing (shards missing: {missing_shards:?}); \
-             finish the shards or pass --allow-incomplete",
+            "incomplete map: {missing} of {} points missing (shards missing: \
+             {missing_shards:?}{more}); finish the shards or pass --allow-incomplete",
             header.grid_points
         );
     }

@@ -1,0 +1,253 @@
+//! Every input file is hostile: the recording reader behind `analyze`, `replay` and the run
+//! summary never panics (nor aborts on a huge allocation) on a damaged file. It reads the file
+//! whole, or fails with an error naming the file and where and why it is damaged; an analysis is
+//! never of part of the data or of damaged data.
+//!
+//! The damage is [`testing::hostile`]'s: cuts, single bit flips, random records after the magic,
+//! a short attachment, huge length fields, zero-filled tails.
+
+use std::io::Cursor;
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::path::Path;
+
+use chaoscope_analyzer::analysis::AnalysisOptions;
+use chaoscope_analyzer::recording::{ReadError, analyze_file};
+use chaoscope_analyzer::replay::{ReplayOptions, replay};
+use chaoscope_analyzer::write::SampleWriter;
+use chaoscope_producer::engine::Engine;
+use chaoscope_producer::publish::run_header;
+use chaoscope_producer::spec::RunSpec;
+use chaoscope_recorder::file::{Compression, FileOptions};
+use chaoscope_recorder::recording::{FinalizedBy, Recording};
+use chaoscope_recorder::scan::FileError;
+use chaoscope_recorder::testing::{self, Noise};
+use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::convert::DataMessage;
+use chaoscope_schemas::proto::{EndOfRun, ReferenceState, RunHeader, Scheme, SeparationSet};
+
+/// The analysis report as JSON, or the error.
+fn analyze(path: &Path) -> Result<String, ReadError> {
+    analyze_file(path, &AnalysisOptions::default())
+        .map(|(analysis, _)| serde_json::to_string(&analysis.report()).unwrap())
+}
+
+/// The panic's message.
+fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
+    payload
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| payload.downcast_ref::<String>().cloned())
+        .unwrap_or_default()
+}
+
+#[test]
+fn damaged_recordings_are_analyzed_whole_or_refused_with_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("damaged.mcap");
+    let name = path.to_str().unwrap();
+    let mut panics = Vec::new();
+    for compression in [Compression::Zstd, Compression::None] {
+        let bytes = testing::small_run(compression);
+        std::fs::write(&path, &bytes).unwrap();
+        let whole = analyze(&path).expect("the undamaged file");
+        let (mut refused, mut read) = (0, 0);
+        for damaged in testing::hostile(&bytes, 5) {
+            std::fs::write(&path, &damaged.bytes).unwrap();
+            let what = format!("{compression:?}, {}", damaged.what);
+            match catch_unwind(AssertUnwindSafe(|| analyze(&path))) {
+                Err(payload) => panics.push(format!("{what}: {}", panic_text(&*payload))),
+                Ok(Ok(report)) => {
+                    read += 1;
+                    assert!(report == whole, "{what}: analyzed, differently");
+                }
+                Ok(Err(e)) => {
+                    refused += 1;
+                    let message = e.to_string();
+                    assert!(message.contains(name), "{what}: {message}");
+                    match e {
+                        ReadError::Damaged { why, .. } => assert!(
+                            why.starts_with("record ") && why.contains(" at byte "),
+                            "{what}: {why}"
+                        ),
+                        ReadError::File(FileError::NotMcap { .. }) => {
+                            assert!(!damaged.bytes.starts_with(mcap::MAGIC), "{what}")
+                        }
+                        // The records before the damage hold no run header (a cut or random
+                        // records), or it is not one.
+                        ReadError::NoHeader { .. }
+                        | ReadError::Header { .. }
+                        | ReadError::Decode { .. } => {}
+                        ReadError::File(FileError::Io { .. }) => panic!("{what}: {message}"),
+                    }
+                }
+            }
+        }
+        eprintln!("{compression:?}: {refused} damaged files refused, {read} read whole");
+        assert!(refused > 3000 && read > 0, "{refused} refused, {read} read");
+    }
+    assert!(
+        panics.is_empty(),
+        "{} panics:\n{}",
+        panics.len(),
+        panics.join("\n")
+    );
+}
+
+/// A real run (the paper's chaotic Henon-Heiles orbit to t = 10), written as `replay` writes
+/// its output.
+fn real_recording(path: &Path) {
+    let paper = include_str!("../../examples/paper/configs/hh_chaotic.toml");
+    let mut config = RunConfig::from_toml(paper).unwrap();
+    config.integrator.t_final = 10.0;
+    let spec = RunSpec::from_config(&config).unwrap();
+    let mut writer = SampleWriter::create(path, &run_header("hostile", &config, &spec)).unwrap();
+    let mut engine = Engine::new(spec);
+    while let Some(sample) = engine.next_sample().unwrap() {
+        writer.write(&sample).unwrap();
+    }
+    writer.finish("test").unwrap();
+}
+
+#[test]
+fn replay_of_a_damaged_recording_fails_clearly_and_leaves_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let original = dir.path().join("run.mcap");
+    real_recording(&original);
+    let bytes = std::fs::read(&original).unwrap();
+    let path = dir.path().join("damaged.mcap");
+    let out = dir.path().join("replay.mcap");
+    let options = ReplayOptions {
+        taus: vec![0.2],
+        ..Default::default()
+    };
+    let whole = replay(&original, &out, &options).unwrap();
+    assert!(whole.identical());
+    let damage = testing::cuts(&bytes, 0, bytes.len() / 40)
+        .chain(testing::flips(&bytes, 40, 17))
+        .chain(testing::huge_lengths(&bytes).step_by(7))
+        .chain(testing::zero_tails(&bytes));
+    let mut refused = 0;
+    for damaged in damage {
+        std::fs::write(&path, &damaged.bytes).unwrap();
+        let _ = std::fs::remove_file(&out);
+        let what = &damaged.what;
+        let result = catch_unwind(AssertUnwindSafe(|| replay(&path, &out, &options)))
+            .unwrap_or_else(|payload| panic!("{what}: panicked: {}", panic_text(&*payload)));
+        match result {
+            Ok(outcome) => assert_eq!(outcome, whole, "{what}"),
+            Err(e) => {
+                refused += 1;
+                let message = e.to_string();
+                assert!(
+                    message.contains(path.to_str().unwrap()),
+                    "{what}: {message}"
+                );
+                assert!(!out.exists(), "{what}: a half-written replay is left");
+            }
+        }
+    }
+    assert!(refused > 40, "{refused} refused");
+}
+
+/// A recording whose messages are valid protobuf with hostile values: header sizes, indices,
+/// vector lengths, steps and times no producer writes.
+fn hostile_content(header: &RunHeader, noise: &mut Noise) -> Vec<u8> {
+    let mut recording = Recording::start(Cursor::new(Vec::new()), header, &FileOptions::default())
+        .expect("recording");
+    let pick = |noise: &mut Noise, values: &[u64]| {
+        values[(noise.next_u64() % values.len() as u64) as usize]
+    };
+    let steps = [0, 1, 2, 3, 10, 7, u64::MAX, u64::MAX - 1, 1 << 53];
+    let lens = [0, 1, 2, 3, 4, 8, 9, 100];
+    let times = [
+        0.0,
+        0.01,
+        -1.0,
+        f64::NAN,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        1e308,
+    ];
+    for frame in 0..40 {
+        let step = pick(noise, &steps);
+        let t = times[(noise.next_u64() % times.len() as u64) as usize];
+        let message = match noise.next_u64() % 5 {
+            0 | 1 => DataMessage::Reference(ReferenceState {
+                frame,
+                seq: pick(noise, &steps),
+                step,
+                t,
+                energy: times[(noise.next_u64() % times.len() as u64) as usize],
+                state: vec![noise.next_f64(1.0); pick(noise, &lens) as usize],
+            }),
+            2 | 3 => DataMessage::Separations(SeparationSet {
+                frame,
+                seq: pick(noise, &steps),
+                step,
+                t,
+                scheme: 0,
+                set: pick(noise, &[0, 1, 2, 1000, u32::MAX as u64]) as u32,
+                k: pick(noise, &lens) as u32,
+                dim: pick(noise, &lens) as u32,
+                separations: vec![noise.next_f64(1e-8); pick(noise, &lens) as usize],
+                stretch: vec![pick(noise, &[0, 1, 2]) as f64; pick(noise, &lens) as usize],
+            }),
+            _ => DataMessage::End(EndOfRun {
+                frame,
+                samples: pick(noise, &steps),
+                last_step: step,
+                t,
+                ..Default::default()
+            }),
+        };
+        recording.on_message(&message).expect("message");
+    }
+    recording
+        .finish(FinalizedBy::EndOfRun)
+        .expect("finish")
+        .0
+        .into_inner()
+}
+
+#[test]
+fn valid_files_with_hostile_values_never_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("hostile.mcap");
+    let mut noise = Noise::new(23);
+    let scheme = |tau_steps| Scheme {
+        index: 0,
+        name: "mpm".into(),
+        method: "mpm".into(),
+        d0: 1e-8,
+        tau: 0.01,
+        tau_steps,
+        orthonormalize: "rescale".into(),
+    };
+    let mut refused_headers = 0;
+    for case in 0..300 {
+        let pick = |noise: &mut Noise, values: &[u32]| {
+            values[(noise.next_u64() % values.len() as u64) as usize]
+        };
+        let header = RunHeader {
+            run_name: "hostile".into(),
+            dim: pick(&mut noise, &[0, 1, 2, 4, 1 << 20, u32::MAX]),
+            k: pick(&mut noise, &[0, 1, 2, 3, 5, u32::MAX]),
+            sets: pick(&mut noise, &[0, 1, 3, 1 << 20, u32::MAX]),
+            h: [0.01, 0.0, -1.0, f64::NAN, 1e-300][case % 5],
+            energy0: [0.125, 0.0, f64::NAN][case % 3],
+            schemes: vec![scheme(u64::from(pick(&mut noise, &[0, 1, 3, u32::MAX])))],
+            ..Default::default()
+        };
+        std::fs::write(&path, hostile_content(&header, &mut noise)).unwrap();
+        let result = catch_unwind(AssertUnwindSafe(|| analyze(&path)))
+            .unwrap_or_else(|payload| panic!("case {case} {header:?}: {}", panic_text(&*payload)));
+        if let Err(e) = result {
+            assert!(matches!(e, ReadError::Header { .. }), "case {case}: {e}");
+            refused_headers += 1;
+        }
+    }
+    assert!(
+        (50..300).contains(&refused_headers),
+        "{refused_headers} headers refused"
+    );
+}

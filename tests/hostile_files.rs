@@ -1,0 +1,226 @@
+//! Every input file is hostile, end to end: `chaoscope analyze` and `chaoscope merge` on
+//! damaged files exit with status 1 and an error naming the file and the damage, never a panic;
+//! `chaoscope map` resumes a damaged map to the same map, and refuses one that is not its own.
+
+mod common;
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::Command;
+
+use chaoscope_recorder::file::{Compression, FileOptions};
+use chaoscope_recorder::map_file::{MapFile, read_map_file};
+use chaoscope_recorder::testing;
+use chaoscope_schemas::proto::{MapHeader, MapPoint};
+use common::{CHAOSCOPE, chaoscope};
+use prost::Message;
+
+/// Damaged copies of `bytes` (a file of several chunks), each with what its error must say.
+fn damage(bytes: &[u8]) -> Vec<(&'static str, Vec<u8>, &'static str)> {
+    let third = testing::chunk_offsets(bytes)[2];
+    let mut flipped = bytes.to_vec();
+    flipped[third + 60] ^= 0x10;
+    let mut attachment = bytes[..third].to_vec();
+    attachment.extend(testing::short_attachment());
+    let mut huge = bytes.to_vec();
+    huge[third + 1..third + 9].copy_from_slice(&(1u64 << 40).to_le_bytes());
+    let mut zeros = bytes[..third].to_vec();
+    zeros.resize(third + 4096, 0);
+    vec![
+        (
+            "cut",
+            bytes[..third + 30].to_vec(),
+            "MCAP file ended in the middle",
+        ),
+        ("flip", flipped, ""),
+        (
+            "attachment",
+            attachment,
+            "attachment record shorter than its own fields",
+        ),
+        (
+            "huge",
+            huge,
+            "a record of 1099511627776 bytes, longer than any",
+        ),
+        ("zeros", zeros, "invalid opcode 0x00"),
+    ]
+}
+
+/// Runs `chaoscope args`; asserts it failed with status 1, and that stderr names `file` and
+/// the damage (`at byte` of the third chunk, `problem`) without panic text. Returns stderr.
+fn assert_refused(args: &[&str], file: &Path, at: usize, problem: &str, what: &str) -> String {
+    let out = Command::new(CHAOSCOPE).args(args).output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert_eq!(out.status.code(), Some(1), "{what}: {args:?}: {stderr}");
+    assert!(!stderr.contains("panicked"), "{what}: {stderr}");
+    assert!(stderr.contains(file.to_str().unwrap()), "{what}: {stderr}");
+    assert!(
+        stderr.contains(&format!("at byte {at}")),
+        "{what}: {stderr}"
+    );
+    assert!(stderr.contains(problem), "{what}: {stderr}");
+    stderr
+}
+
+#[test]
+fn analyze_refuses_a_damaged_recording_with_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let bytes = testing::small_run(Compression::Zstd);
+    let good = dir.path().join("good.mcap");
+    std::fs::write(&good, &bytes).unwrap();
+    let status = chaoscope(&["analyze", good.to_str().unwrap(), "--json"])
+        .status()
+        .unwrap();
+    assert!(status.success());
+
+    let at = testing::chunk_offsets(&bytes)[2];
+    for (what, damaged, problem) in damage(&bytes) {
+        let path = dir.path().join(format!("{what}.mcap"));
+        std::fs::write(&path, damaged).unwrap();
+        let file = path.to_str().unwrap();
+        for args in [["analyze", file].as_slice(), &["analyze", file, "--json"]] {
+            let stderr = assert_refused(args, &path, at, problem, what);
+            assert!(stderr.contains("damaged or truncated"), "{what}: {stderr}");
+        }
+    }
+}
+
+#[test]
+fn merge_refuses_a_damaged_shard_with_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let (bytes, _, _) = testing::small_map(40, 8, Compression::Zstd);
+    let at = testing::chunk_offsets(&bytes)[2];
+    let out = dir.path().join("merged.mcap");
+    for (what, damaged, problem) in damage(&bytes) {
+        let path = dir.path().join(format!("{what}.mcap"));
+        std::fs::write(&path, damaged).unwrap();
+        let args = [
+            "merge",
+            path.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        let stderr = assert_refused(&args, &path, at, problem, what);
+        assert!(stderr.contains("damaged or cut short"), "{what}: {stderr}");
+        assert!(!out.exists(), "{what}: merged anyway");
+    }
+}
+
+/// A complete map file whose header says `shard_index / shard_count` of `grid_points`.
+fn shard(dir: &Path, name: &str, shard_index: u32, shard_count: u32, grid_points: u64) -> String {
+    let header = MapHeader {
+        config_toml: "[map]".into(),
+        grid_points,
+        shard_index,
+        shard_count,
+        ..Default::default()
+    };
+    let path = dir.join(name);
+    let out = std::fs::File::create(&path).unwrap();
+    let mut file = MapFile::create(out, &header, &FileOptions::default()).unwrap();
+    for index in 0..4 {
+        let point = MapPoint {
+            index,
+            ..Default::default()
+        };
+        file.write_point(&point).unwrap();
+    }
+    file.finish().unwrap();
+    path.to_str().unwrap().to_string()
+}
+
+#[test]
+fn merge_refuses_impossible_shard_headers_without_panicking() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let out = d.join("merged.mcap");
+    let out = out.to_str().unwrap();
+    let cases = [
+        vec![shard(d, "zero.mcap", 0, 0, 4)],
+        vec![shard(d, "index.mcap", 3, 2, 4)],
+        // Same configuration, other grids: more points than the last one's grid.
+        vec![shard(d, "a.mcap", 0, 1, 4), shard(d, "b.mcap", 0, 1, 2)],
+    ];
+    for shards in cases {
+        let mut args = vec!["merge"];
+        args.extend(shards.iter().map(String::as_str));
+        args.extend(["--out", out, "--force"]);
+        let result = Command::new(CHAOSCOPE).args(&args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        assert_eq!(result.status.code(), Some(1), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+        assert!(
+            stderr.contains(shards.last().unwrap()),
+            "{args:?}: {stderr}"
+        );
+    }
+}
+
+/// A map's points by index, as their exact protobuf bytes.
+fn map_points(path: &Path) -> BTreeMap<u64, Vec<u8>> {
+    let contents = read_map_file(path).unwrap();
+    assert!(contents.damaged.is_none(), "{:?}", contents.damaged);
+    contents
+        .points
+        .iter()
+        .map(|p| (p.index, p.encode_to_vec()))
+        .collect()
+}
+
+#[test]
+fn a_damaged_map_resumes_to_the_same_map_and_foreign_points_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let cfg = d.join("map.toml");
+    std::fs::write(&cfg, include_str!("data/hh-map-small.toml")).unwrap();
+    let map = |out: &Path| {
+        let args = ["map", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()];
+        Command::new(CHAOSCOPE)
+            .args(args)
+            .args(["--no-progress", "--flush-interval", "0"])
+            .output()
+            .unwrap()
+    };
+    let whole = d.join("whole.mcap");
+    assert!(map(&whole).status.success());
+    let want = map_points(&whole);
+
+    // A bit flipped in a middle chunk: the points before it are kept, the rest recomputed.
+    let mut bytes = std::fs::read(&whole).unwrap();
+    let chunks = testing::chunk_offsets(&bytes);
+    assert!(chunks.len() > 4, "{} chunks", chunks.len());
+    let hit = chunks[chunks.len() / 2];
+    bytes[hit + 40] ^= 0x04;
+    let damaged = d.join("damaged.mcap");
+    std::fs::write(&damaged, &bytes).unwrap();
+    let out = map(&damaged);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("is damaged or cut short (record")
+            && stderr.contains(&format!("at byte {hit}")),
+        "{stderr}"
+    );
+    assert_eq!(map_points(&damaged), want);
+
+    // The same map's header, with a point that is not in it.
+    let header = read_map_file(&whole).unwrap().header.unwrap();
+    let foreign = d.join("foreign.mcap");
+    let file = std::fs::File::create(&foreign).unwrap();
+    let mut file = MapFile::create(file, &header, &FileOptions::default()).unwrap();
+    let point = MapPoint {
+        index: header.grid_points + 5,
+        ..Default::default()
+    };
+    file.write_point(&point).unwrap();
+    file.finish().unwrap();
+    let out = map(&foreign);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(
+        stderr.contains(foreign.to_str().unwrap()) && stderr.contains("not in its shard"),
+        "{stderr}"
+    );
+}

@@ -43,6 +43,10 @@ pub struct Args {
     /// Interleaved (1-thread, 2-thread) runs of the map workload; the median ratio is reported.
     #[arg(long, default_value_t = 3)]
     pub pairs: usize,
+    /// Only measure the machine's 1 -> 2 thread ceiling this many times (with the scalar,
+    /// AVX2 and AVX-512 builds of the loop) and print their distribution; no kernel or map.
+    #[arg(long, value_name = "N")]
+    pub ceiling_only: Option<usize>,
     /// Force the instruction set (avx512, avx2, portable).
     #[arg(long)]
     pub isa: Option<String>,
@@ -174,6 +178,31 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             .filter(|i| i.available())
             .with_context(|| format!("instruction set {n:?} unknown or unsupported"))?,
     };
+    if let Some(n) = args.ceiling_only {
+        anyhow::ensure!(n >= 1, "--ceiling-only needs at least 1 measurement");
+        let mut by_isa = serde_json::Map::new();
+        for isa in Isa::ALL.into_iter().filter(|i| i.available()) {
+            let mut runs: Vec<f64> = (0..n).map(|_| ceiling::speedup(isa)).collect();
+            let in_order = runs.clone();
+            runs.sort_by(f64::total_cmp);
+            let share_below = |x: f64| runs.iter().filter(|&&r| r < x).count() as f64 / n as f64;
+            by_isa.insert(
+                isa.name().to_string(),
+                serde_json::json!({
+                    "speedups": in_order,
+                    "min": runs[0],
+                    "median": runs[n / 2],
+                    "max": runs[n - 1],
+                    "share_below_1_9": share_below(1.9),
+                }),
+            );
+        }
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&serde_json::json!({ "machine_ceiling": by_isa }))?
+        );
+        return Ok(ExitCode::SUCCESS);
+    }
     let (nx, ny) = args
         .grid
         .split_once('x')

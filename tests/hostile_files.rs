@@ -168,20 +168,30 @@ fn map_points(path: &Path) -> BTreeMap<u64, Vec<u8>> {
         .collect()
 }
 
+/// A temporary directory with the small map's configuration, and that file.
+fn map_dir() -> (tempfile::TempDir, std::path::PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("map.toml");
+    std::fs::write(&cfg, include_str!("data/hh-map-small.toml")).unwrap();
+    (dir, cfg)
+}
+
+/// `chaoscope map CONFIG --out OUT`, a chunk per point, with `extra` arguments.
+fn map_run(cfg: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    let args = ["map", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    Command::new(CHAOSCOPE)
+        .args(args)
+        .args(["--no-progress", "--flush-interval", "0"])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn a_damaged_map_resumes_to_the_same_map_and_foreign_points_are_refused() {
-    let dir = tempfile::tempdir().unwrap();
+    let (dir, cfg) = map_dir();
     let d = dir.path();
-    let cfg = d.join("map.toml");
-    std::fs::write(&cfg, include_str!("data/hh-map-small.toml")).unwrap();
-    let map = |out: &Path| {
-        let args = ["map", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()];
-        Command::new(CHAOSCOPE)
-            .args(args)
-            .args(["--no-progress", "--flush-interval", "0"])
-            .output()
-            .unwrap()
-    };
+    let map = |out: &Path| map_run(&cfg, out, &[]);
     let whole = d.join("whole.mcap");
     assert!(map(&whole).status.success());
     let want = map_points(&whole);
@@ -227,19 +237,9 @@ fn a_damaged_map_resumes_to_the_same_map_and_foreign_points_are_refused() {
 
 #[test]
 fn map_refuses_and_keeps_a_file_it_cannot_read_as_its_map_unless_restarted() {
-    let dir = tempfile::tempdir().unwrap();
+    let (dir, cfg) = map_dir();
     let d = dir.path();
-    let cfg = d.join("map.toml");
-    std::fs::write(&cfg, include_str!("data/hh-map-small.toml")).unwrap();
-    let map = |out: &Path, extra: &[&str]| {
-        let args = ["map", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()];
-        Command::new(CHAOSCOPE)
-            .args(args)
-            .args(["--no-progress", "--flush-interval", "0"])
-            .args(extra)
-            .output()
-            .unwrap()
-    };
+    let map = |out: &Path, extra: &[&str]| map_run(&cfg, out, extra);
     let whole = d.join("whole.mcap");
     assert!(map(&whole, &[]).status.success());
     let want = map_points(&whole);

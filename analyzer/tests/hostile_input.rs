@@ -97,7 +97,22 @@ macro_rules! ignore {
     };
 }
 
-impl<'a> serde::Serializer for &'a mut FloatWalk {
+/// Enum variants with fields: their fields are walked as a sequence's or a struct's.
+macro_rules! variants {
+    ($($method:ident),*) => {
+        $(fn $method(
+            self,
+            _: &'static str,
+            _: u32,
+            _: &'static str,
+            _: usize,
+        ) -> Result<Self, WalkError> {
+            self.serialize_seq(None)
+        })*
+    };
+}
+
+impl serde::Serializer for &mut FloatWalk {
     type Ok = ();
     type Error = WalkError;
     type SerializeSeq = Self;
@@ -162,15 +177,6 @@ impl<'a> serde::Serializer for &'a mut FloatWalk {
     fn serialize_tuple_struct(self, _: &'static str, _: usize) -> Result<Self, WalkError> {
         self.serialize_seq(None)
     }
-    fn serialize_tuple_variant(
-        self,
-        _: &'static str,
-        _: u32,
-        _: &'static str,
-        _: usize,
-    ) -> Result<Self, WalkError> {
-        self.serialize_seq(None)
-    }
     fn serialize_map(self, _: Option<usize>) -> Result<Self, WalkError> {
         self.index.push(0);
         Ok(self)
@@ -179,70 +185,55 @@ impl<'a> serde::Serializer for &'a mut FloatWalk {
         self.index.push(0);
         Ok(self)
     }
-    fn serialize_struct_variant(
-        self,
-        _: &'static str,
-        _: u32,
-        _: &'static str,
-        _: usize,
-    ) -> Result<Self, WalkError> {
-        self.serialize_struct("", 0)
-    }
+    variants!(serialize_tuple_variant, serialize_struct_variant);
 }
 
-macro_rules! sequence {
-    ($($trait:ident: $method:ident),*) => {
-        $(impl serde::ser::$trait for &mut FloatWalk {
+/// The serde container traits, each with its own methods and the same `end`.
+macro_rules! containers {
+    (@impl $trait:ident { $($item:tt)* }) => {
+        impl serde::ser::$trait for &mut FloatWalk {
             type Ok = ();
             type Error = WalkError;
-            fn $method<T: serde::Serialize + ?Sized>(&mut self, v: &T) -> Result<(), WalkError> {
-                self.element(v)
-            }
+            $($item)*
             fn end(self) -> Result<(), WalkError> {
                 self.index.pop();
                 Ok(())
             }
-        })*
+        }
+    };
+    () => {};
+    ([] $body:tt $($more:tt)*) => {
+        containers!($($more)*);
+    };
+    ([$first:ident $(, $rest:ident)*] $body:tt $($more:tt)*) => {
+        containers!(@impl $first $body);
+        containers!([$($rest),*] $body $($more)*);
     };
 }
 
-sequence!(SerializeSeq: serialize_element, SerializeTuple: serialize_element,
-    SerializeTupleStruct: serialize_field, SerializeTupleVariant: serialize_field);
-
-macro_rules! fields {
-    ($($trait:ident),*) => {
-        $(impl serde::ser::$trait for &mut FloatWalk {
-            type Ok = ();
-            type Error = WalkError;
-            fn serialize_field<T: serde::Serialize + ?Sized>(
-                &mut self,
-                key: &'static str,
-                v: &T,
-            ) -> Result<(), WalkError> {
-                self.field(key.into(), v)
-            }
-            fn end(self) -> Result<(), WalkError> {
-                self.index.pop();
-                Ok(())
-            }
-        })*
-    };
-}
-
-fields!(SerializeStruct, SerializeStructVariant);
-
-impl serde::ser::SerializeMap for &mut FloatWalk {
-    type Ok = ();
-    type Error = WalkError;
-    fn serialize_key<T: serde::Serialize + ?Sized>(&mut self, _: &T) -> Result<(), WalkError> {
-        Ok(())
+containers! {
+    [SerializeSeq, SerializeTuple] {
+        fn serialize_element<T: serde::Serialize + ?Sized>(&mut self, v: &T) -> Result<(), WalkError> {
+            self.element(v)
+        }
     }
-    fn serialize_value<T: serde::Serialize + ?Sized>(&mut self, v: &T) -> Result<(), WalkError> {
-        self.element(v)
+    [SerializeTupleStruct, SerializeTupleVariant] {
+        fn serialize_field<T: serde::Serialize + ?Sized>(&mut self, v: &T) -> Result<(), WalkError> {
+            self.element(v)
+        }
     }
-    fn end(self) -> Result<(), WalkError> {
-        self.index.pop();
-        Ok(())
+    [SerializeStruct, SerializeStructVariant] {
+        fn serialize_field<T: serde::Serialize + ?Sized>(&mut self, key: &'static str, v: &T) -> Result<(), WalkError> {
+            self.field(key.into(), v)
+        }
+    }
+    [SerializeMap] {
+        fn serialize_key<T: serde::Serialize + ?Sized>(&mut self, _: &T) -> Result<(), WalkError> {
+            Ok(())
+        }
+        fn serialize_value<T: serde::Serialize + ?Sized>(&mut self, v: &T) -> Result<(), WalkError> {
+            self.element(v)
+        }
     }
 }
 

@@ -168,20 +168,30 @@ fn map_points(path: &Path) -> BTreeMap<u64, Vec<u8>> {
         .collect()
 }
 
+/// A temporary directory with the small map's configuration, and that file.
+fn map_dir() -> (tempfile::TempDir, std::path::PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let cfg = dir.path().join("map.toml");
+    std::fs::write(&cfg, include_str!("data/hh-map-small.toml")).unwrap();
+    (dir, cfg)
+}
+
+/// `chaoscope map CONFIG --out OUT`, a chunk per point, with `extra` arguments.
+fn map_run(cfg: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    let args = ["map", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()];
+    Command::new(CHAOSCOPE)
+        .args(args)
+        .args(["--no-progress", "--flush-interval", "0"])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
 #[test]
 fn a_damaged_map_resumes_to_the_same_map_and_foreign_points_are_refused() {
-    let dir = tempfile::tempdir().unwrap();
+    let (dir, cfg) = map_dir();
     let d = dir.path();
-    let cfg = d.join("map.toml");
-    std::fs::write(&cfg, include_str!("data/hh-map-small.toml")).unwrap();
-    let map = |out: &Path| {
-        let args = ["map", cfg.to_str().unwrap(), "--out", out.to_str().unwrap()];
-        Command::new(CHAOSCOPE)
-            .args(args)
-            .args(["--no-progress", "--flush-interval", "0"])
-            .output()
-            .unwrap()
-    };
+    let map = |out: &Path| map_run(&cfg, out, &[]);
     let whole = d.join("whole.mcap");
     assert!(map(&whole).status.success());
     let want = map_points(&whole);
@@ -223,4 +233,59 @@ fn a_damaged_map_resumes_to_the_same_map_and_foreign_points_are_refused() {
         stderr.contains(foreign.to_str().unwrap()) && stderr.contains("not in its shard"),
         "{stderr}"
     );
+}
+
+#[test]
+fn map_refuses_and_keeps_a_file_it_cannot_read_as_its_map_unless_restarted() {
+    let (dir, cfg) = map_dir();
+    let d = dir.path();
+    let map = |out: &Path, extra: &[&str]| map_run(&cfg, out, extra);
+    let whole = d.join("whole.mcap");
+    assert!(map(&whole, &[]).status.success());
+    let want = map_points(&whole);
+
+    // (a) The first chunk, which holds the header, damaged: intact later chunks must survive.
+    let mut bytes = std::fs::read(&whole).unwrap();
+    let chunks = testing::chunk_offsets(&bytes);
+    assert!(chunks.len() > 2, "{} chunks", chunks.len());
+    bytes[chunks[0] + 40] ^= 0x04;
+    let headless = d.join("headless.mcap");
+    std::fs::write(&headless, &bytes).unwrap();
+    assert!(read_map_file(&headless).unwrap().header.is_none());
+    // (b) An MCAP file that is not a map at all.
+    let foreign = d.join("foreign.mcap");
+    std::fs::write(&foreign, testing::small_run(Compression::Zstd)).unwrap();
+    for file in [&headless, &foreign] {
+        let before = std::fs::read(file).unwrap();
+        let out = map(file, &[]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{stderr}");
+        assert!(
+            stderr.contains(file.to_str().unwrap())
+                && stderr.contains("no readable map header")
+                && stderr.contains("--restart"),
+            "{stderr}"
+        );
+        assert_eq!(
+            std::fs::read(file).unwrap(),
+            before,
+            "{} changed",
+            file.display()
+        );
+        let mut prev = file.as_os_str().to_owned();
+        prev.push(".prev");
+        assert!(!Path::new(&prev).exists());
+        // (c) --restart replaces it.
+        let out = map(file, &["--restart"]);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        assert_eq!(map_points(file), want);
+    }
+    // The damage of a header chunk is reported.
+    std::fs::write(&headless, &bytes).unwrap();
+    let stderr = String::from_utf8_lossy(&map(&headless, &[]).stderr).into_owned();
+    assert!(stderr.contains("is damaged or cut short"), "{stderr}");
 }

@@ -102,13 +102,15 @@ pub struct Analysis {
     captures: Vec<Capture>,
 }
 
-/// Relative energy error (absolute when `E0 = 0`).
+/// Relative energy error (absolute when `E0 = 0`), of finite energies (the reader refuses
+/// others). An error beyond the range of f64 is reported as `f64::MAX`, never as infinity.
 fn energy_error(e: f64, e0: f64) -> f64 {
-    if e0 != 0.0 {
+    let error = if e0 != 0.0 {
         ((e - e0) / e0).abs()
     } else {
         e.abs()
-    }
+    };
+    error.min(f64::MAX)
 }
 
 impl Analysis {

@@ -39,6 +39,14 @@ pub enum ReadError {
         topic: String,
         source: prost::DecodeError,
     },
+    /// A value no producer writes (a time or energy that is not finite): refused rather than
+    /// carried into outputs as NaN or infinity.
+    #[error("{path}: message on {topic} holds {what}, which no producer writes")]
+    Value {
+        path: PathBuf,
+        topic: String,
+        what: String,
+    },
     #[error("{path}: no run header; is it a chaoscope recording?")]
     NoHeader { path: PathBuf },
     #[error("{path}: {source}")]
@@ -116,17 +124,30 @@ impl RecordingReader {
                 topic: t.to_string(),
                 source,
             };
+            let finite = |name: &str, v: f64| {
+                if v.is_finite() {
+                    Ok(())
+                } else {
+                    Err(ReadError::Value {
+                        path: path.clone(),
+                        topic: t.to_string(),
+                        what: format!("{name} = {v}"),
+                    })
+                }
+            };
             let data = &m.data[..];
             if t == topic::REFERENCE {
-                return Ok(Some(DataMessage::Reference(
-                    ReferenceState::decode(data).map_err(decode)?,
-                )));
+                let r = ReferenceState::decode(data).map_err(decode)?;
+                finite("t", r.t)?;
+                finite("energy", r.energy)?;
+                return Ok(Some(DataMessage::Reference(r)));
             } else if t.starts_with("/chaoscope/separations/") {
-                return Ok(Some(DataMessage::Separations(
-                    SeparationSet::decode(data).map_err(decode)?,
-                )));
+                let s = SeparationSet::decode(data).map_err(decode)?;
+                finite("t", s.t)?;
+                return Ok(Some(DataMessage::Separations(s)));
             } else if t == topic::END {
                 let e = EndOfRun::decode(data).map_err(decode)?;
+                finite("t", e.t)?;
                 self.info.end = Some(e.clone());
                 return Ok(Some(DataMessage::End(e)));
             } else if t == topic::RECORDING {

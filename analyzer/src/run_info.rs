@@ -2,7 +2,7 @@
 //! of the recording or the bus, or built in process from a `RunSpec`).
 
 use chaoscope_producer::renormalization::Orthonormalization;
-use chaoscope_producer::spec::{MAX_STATE_VALUES, Method, SchemeSpec};
+use chaoscope_producer::spec::{MAX_STATE_VALUES, Method, SchemeSpec, deviation_state_values};
 use chaoscope_schemas::proto::RunHeader;
 
 /// A header that cannot describe a run the analysis can follow.
@@ -39,10 +39,12 @@ impl RunInfo {
         }
         // What the producer accepts (`spec`): a header claiming more state than any run holds
         // is refused here rather than aborting the analysis on allocation.
-        let state_values = (header.schemes.len().max(1) as u128 + 1)
-            * u128::from(header.sets)
-            * u128::from(header.k)
-            * u128::from(header.dim);
+        let state_values = deviation_state_values(
+            header.schemes.len(),
+            header.sets.into(),
+            header.k.into(),
+            header.dim.into(),
+        );
         if state_values > MAX_STATE_VALUES {
             return Err(err(format!(
                 "{} schemes x {} sets x k = {} x 2N = {} exceed the deviation state any run holds",
@@ -50,6 +52,12 @@ impl RunInfo {
                 header.sets,
                 header.k,
                 header.dim
+            )));
+        }
+        if !header.energy0.is_finite() {
+            return Err(err(format!(
+                "initial energy E0 = {} is not finite",
+                header.energy0
             )));
         }
         if !(header.h.is_finite() && header.h > 0.0) {

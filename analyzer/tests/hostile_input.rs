@@ -11,6 +11,7 @@ use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
+use chaoscope_analyzer::csv::write_csv;
 use chaoscope_analyzer::recording::{ReadError, analyze_file};
 use chaoscope_analyzer::replay::{ReplayOptions, replay};
 use chaoscope_analyzer::write::SampleWriter;
@@ -29,6 +30,211 @@ use chaoscope_schemas::proto::{EndOfRun, ReferenceState, RunHeader, Scheme, Sepa
 fn analyze(path: &Path) -> Result<String, ReadError> {
     analyze_file(path, &AnalysisOptions::default())
         .map(|(analysis, _)| serde_json::to_string(&analysis.report()).unwrap())
+}
+
+/// The non-finite floats in `value` once serialized, as paths (`schemes.0.mle`): serde_json
+/// writes NaN and infinities as `null`, so comparing JSON text cannot find them.
+fn non_finite_floats(value: &impl serde::Serialize) -> Vec<String> {
+    let mut walk = FloatWalk::default();
+    value.serialize(&mut walk).expect("walks any value");
+    walk.found
+}
+
+#[derive(Default)]
+struct FloatWalk {
+    path: Vec<String>,
+    found: Vec<String>,
+    index: Vec<usize>,
+}
+
+#[derive(Debug)]
+struct WalkError(String);
+
+impl std::fmt::Display for WalkError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for WalkError {}
+
+impl serde::ser::Error for WalkError {
+    fn custom<T: std::fmt::Display>(msg: T) -> Self {
+        WalkError(msg.to_string())
+    }
+}
+
+impl FloatWalk {
+    fn float(&mut self, v: f64) -> Result<(), WalkError> {
+        if !v.is_finite() {
+            self.found.push(format!("{} = {v}", self.path.join(".")));
+        }
+        Ok(())
+    }
+
+    fn field<T: serde::Serialize + ?Sized>(
+        &mut self,
+        name: String,
+        value: &T,
+    ) -> Result<(), WalkError> {
+        self.path.push(name);
+        value.serialize(&mut *self)?;
+        self.path.pop();
+        Ok(())
+    }
+
+    fn element<T: serde::Serialize + ?Sized>(&mut self, value: &T) -> Result<(), WalkError> {
+        let i = self.index.last_mut().expect("inside a sequence");
+        let name = i.to_string();
+        *i += 1;
+        self.field(name, value)
+    }
+}
+
+macro_rules! ignore {
+    ($($f:ident: $t:ty),*) => {
+        $(fn $f(self, _: $t) -> Result<(), WalkError> { Ok(()) })*
+    };
+}
+
+/// Enum variants with fields: their fields are walked as a sequence's or a struct's.
+macro_rules! variants {
+    ($($method:ident),*) => {
+        $(fn $method(
+            self,
+            _: &'static str,
+            _: u32,
+            _: &'static str,
+            _: usize,
+        ) -> Result<Self, WalkError> {
+            self.serialize_seq(None)
+        })*
+    };
+}
+
+impl serde::Serializer for &mut FloatWalk {
+    type Ok = ();
+    type Error = WalkError;
+    type SerializeSeq = Self;
+    type SerializeTuple = Self;
+    type SerializeTupleStruct = Self;
+    type SerializeTupleVariant = Self;
+    type SerializeMap = Self;
+    type SerializeStruct = Self;
+    type SerializeStructVariant = Self;
+
+    ignore!(serialize_bool: bool, serialize_i8: i8, serialize_i16: i16, serialize_i32: i32,
+        serialize_i64: i64, serialize_u8: u8, serialize_u16: u16, serialize_u32: u32,
+        serialize_u64: u64, serialize_char: char, serialize_str: &str, serialize_bytes: &[u8],
+        serialize_unit_struct: &'static str);
+
+    fn serialize_f32(self, v: f32) -> Result<(), WalkError> {
+        self.float(v.into())
+    }
+    fn serialize_f64(self, v: f64) -> Result<(), WalkError> {
+        self.float(v)
+    }
+    fn serialize_none(self) -> Result<(), WalkError> {
+        Ok(())
+    }
+    fn serialize_some<T: serde::Serialize + ?Sized>(self, v: &T) -> Result<(), WalkError> {
+        v.serialize(self)
+    }
+    fn serialize_unit(self) -> Result<(), WalkError> {
+        Ok(())
+    }
+    fn serialize_unit_variant(
+        self,
+        _: &'static str,
+        _: u32,
+        _: &'static str,
+    ) -> Result<(), WalkError> {
+        Ok(())
+    }
+    fn serialize_newtype_struct<T: serde::Serialize + ?Sized>(
+        self,
+        _: &'static str,
+        v: &T,
+    ) -> Result<(), WalkError> {
+        v.serialize(self)
+    }
+    fn serialize_newtype_variant<T: serde::Serialize + ?Sized>(
+        self,
+        _: &'static str,
+        _: u32,
+        variant: &'static str,
+        v: &T,
+    ) -> Result<(), WalkError> {
+        self.field(variant.into(), v)
+    }
+    fn serialize_seq(self, _: Option<usize>) -> Result<Self, WalkError> {
+        self.index.push(0);
+        Ok(self)
+    }
+    fn serialize_tuple(self, _: usize) -> Result<Self, WalkError> {
+        self.serialize_seq(None)
+    }
+    fn serialize_tuple_struct(self, _: &'static str, _: usize) -> Result<Self, WalkError> {
+        self.serialize_seq(None)
+    }
+    fn serialize_map(self, _: Option<usize>) -> Result<Self, WalkError> {
+        self.index.push(0);
+        Ok(self)
+    }
+    fn serialize_struct(self, _: &'static str, _: usize) -> Result<Self, WalkError> {
+        self.index.push(0);
+        Ok(self)
+    }
+    variants!(serialize_tuple_variant, serialize_struct_variant);
+}
+
+/// The serde container traits, each with its own methods and the same `end`.
+macro_rules! containers {
+    (@impl $trait:ident { $($item:tt)* }) => {
+        impl serde::ser::$trait for &mut FloatWalk {
+            type Ok = ();
+            type Error = WalkError;
+            $($item)*
+            fn end(self) -> Result<(), WalkError> {
+                self.index.pop();
+                Ok(())
+            }
+        }
+    };
+    () => {};
+    ([] $body:tt $($more:tt)*) => {
+        containers!($($more)*);
+    };
+    ([$first:ident $(, $rest:ident)*] $body:tt $($more:tt)*) => {
+        containers!(@impl $first $body);
+        containers!([$($rest),*] $body $($more)*);
+    };
+}
+
+containers! {
+    [SerializeSeq, SerializeTuple] {
+        fn serialize_element<T: serde::Serialize + ?Sized>(&mut self, v: &T) -> Result<(), WalkError> {
+            self.element(v)
+        }
+    }
+    [SerializeTupleStruct, SerializeTupleVariant] {
+        fn serialize_field<T: serde::Serialize + ?Sized>(&mut self, v: &T) -> Result<(), WalkError> {
+            self.element(v)
+        }
+    }
+    [SerializeStruct, SerializeStructVariant] {
+        fn serialize_field<T: serde::Serialize + ?Sized>(&mut self, key: &'static str, v: &T) -> Result<(), WalkError> {
+            self.field(key.into(), v)
+        }
+    }
+    [SerializeMap] {
+        fn serialize_key<T: serde::Serialize + ?Sized>(&mut self, _: &T) -> Result<(), WalkError> {
+            Ok(())
+        }
+        fn serialize_value<T: serde::Serialize + ?Sized>(&mut self, v: &T) -> Result<(), WalkError> {
+            self.element(v)
+        }
+    }
 }
 
 /// The panic's message.
@@ -50,6 +256,8 @@ fn damaged_recordings_are_analyzed_whole_or_refused_with_a_clear_error() {
         let bytes = testing::small_run(compression);
         std::fs::write(&path, &bytes).unwrap();
         let whole = analyze(&path).expect("the undamaged file");
+        let (analysis, _) = analyze_file(&path, &AnalysisOptions::default()).unwrap();
+        assert_eq!(non_finite_floats(&analysis.report()), Vec::<String>::new());
         let (mut refused, mut read) = (0, 0);
         for damaged in testing::hostile(&bytes, 5) {
             std::fs::write(&path, &damaged.bytes).unwrap();
@@ -76,7 +284,8 @@ fn damaged_recordings_are_analyzed_whole_or_refused_with_a_clear_error() {
                         // records), or it is not one.
                         ReadError::NoHeader { .. }
                         | ReadError::Header { .. }
-                        | ReadError::Decode { .. } => {}
+                        | ReadError::Decode { .. }
+                        | ReadError::Value { .. } => {}
                         ReadError::File(FileError::Io { .. }) => panic!("{what}: {message}"),
                     }
                 }
@@ -151,7 +360,8 @@ fn replay_of_a_damaged_recording_fails_clearly_and_leaves_no_output() {
 
 /// A recording whose messages are valid protobuf with hostile values: header sizes, indices,
 /// vector lengths, steps and times no producer writes.
-fn hostile_content(header: &RunHeader, noise: &mut Noise) -> Vec<u8> {
+/// Times and energies that are not finite (refused by the reader) only if `non_finite`.
+fn hostile_content(header: &RunHeader, noise: &mut Noise, non_finite: bool) -> Vec<u8> {
     let mut recording = Recording::start(Cursor::new(Vec::new()), header, &FileOptions::default())
         .expect("recording");
     let pick = |noise: &mut Noise, values: &[u64]| {
@@ -168,6 +378,10 @@ fn hostile_content(header: &RunHeader, noise: &mut Noise) -> Vec<u8> {
         f64::NEG_INFINITY,
         1e308,
     ];
+    let times: Vec<f64> = times
+        .into_iter()
+        .filter(|t| non_finite || t.is_finite())
+        .collect();
     for frame in 0..40 {
         let step = pick(noise, &steps);
         let t = times[(noise.next_u64() % times.len() as u64) as usize];
@@ -223,7 +437,7 @@ fn valid_files_with_hostile_values_never_panic() {
         tau_steps,
         orthonormalize: "rescale".into(),
     };
-    let mut refused_headers = 0;
+    let (mut refused_headers, mut refused_values, mut analyzed) = (0, 0, 0);
     for case in 0..300 {
         let pick = |noise: &mut Noise, values: &[u32]| {
             values[(noise.next_u64() % values.len() as u64) as usize]
@@ -238,16 +452,42 @@ fn valid_files_with_hostile_values_never_panic() {
             schemes: vec![scheme(u64::from(pick(&mut noise, &[0, 1, 3, u32::MAX])))],
             ..Default::default()
         };
-        std::fs::write(&path, hostile_content(&header, &mut noise)).unwrap();
-        let result = catch_unwind(AssertUnwindSafe(|| analyze(&path)))
-            .unwrap_or_else(|payload| panic!("case {case} {header:?}: {}", panic_text(&*payload)));
-        if let Err(e) = result {
-            assert!(matches!(e, ReadError::Header { .. }), "case {case}: {e}");
-            refused_headers += 1;
+        std::fs::write(&path, hostile_content(&header, &mut noise, case % 2 == 1)).unwrap();
+        let result = catch_unwind(AssertUnwindSafe(|| {
+            analyze_file(&path, &AnalysisOptions::default()).map(|(analysis, _)| {
+                let csv = dir.path().join(format!("csv{case}"));
+                let files = write_csv(&analysis, &csv).expect("CSV written");
+                (analysis.report(), files)
+            })
+        }))
+        .unwrap_or_else(|payload| panic!("case {case} {header:?}: {}", panic_text(&*payload)));
+        match result {
+            Ok((report, files)) => {
+                let bad = non_finite_floats(&report);
+                assert!(bad.is_empty(), "case {case} {header:?}: report has {bad:?}");
+                for file in files {
+                    let text = std::fs::read_to_string(&file).unwrap().to_lowercase();
+                    assert!(
+                        !text.contains("nan") && !text.contains("inf"),
+                        "case {case} {header:?}: {}:\n{text}",
+                        file.display()
+                    );
+                }
+                analyzed += 1;
+            }
+            Err(e) => match e {
+                ReadError::Header { .. } => refused_headers += 1,
+                ReadError::Value { .. } => refused_values += 1,
+                _ => panic!("case {case}: {e}"),
+            },
         }
     }
     assert!(
         (50..300).contains(&refused_headers),
         "{refused_headers} headers refused"
+    );
+    assert!(
+        refused_values > 0 && analyzed > 0,
+        "{refused_values} refused, {analyzed} analyzed"
     );
 }

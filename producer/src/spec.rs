@@ -76,6 +76,12 @@ const MAX_STEPS: u64 = 1 << 52;
 /// `sets = 1000000` with a long chain must be refused with a message, not abort on allocation.
 pub const MAX_STATE_VALUES: u128 = 1 << 30;
 
+/// Deviation state values (f64) a run holds: `sets` sets of `k` deviation vectors of dimension
+/// `dim`, per scheme (at least one) plus the reference; compare with [`MAX_STATE_VALUES`].
+pub fn deviation_state_values(schemes: usize, sets: u64, k: u64, dim: u64) -> u128 {
+    (schemes.max(1) as u128 + 1) * u128::from(sets) * u128::from(k) * u128::from(dim)
+}
+
 /// A validated run.
 #[derive(Clone)]
 pub struct RunSpec {
@@ -327,10 +333,12 @@ impl RunSpec {
                 format!("must be between 1 and 2N = {dim}, got {}", dev.k),
             ));
         }
-        let state_values = (cfg.schemes.len().max(1) as u128 + 1)
-            * dev.sets.max(1) as u128
-            * dev.k as u128
-            * dim as u128;
+        let state_values = deviation_state_values(
+            cfg.schemes.len(),
+            dev.sets.max(1) as u64,
+            dev.k as u64,
+            dim as u64,
+        );
         if state_values > MAX_STATE_VALUES {
             return Err(SpecError::new(
                 "deviations.sets",

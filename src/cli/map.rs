@@ -4,7 +4,9 @@
 //! Resuming: when FILE.mcap exists (finished, interrupted by Ctrl-C, or truncated by a kill)
 //! and was made from the same configuration and shard, its points are kept and only the missing
 //! ones are computed. The old file is renamed to FILE.mcap.prev while its points are copied
-//! into the new one, so an interruption at any moment loses nothing that was on disk.
+//! into the new one, so an interruption at any moment loses nothing that was on disk. An
+//! existing FILE.mcap that cannot be read as a map of this configuration and shard is refused
+//! and left as it is, unless `--restart` says to discard it.
 //!
 //! Live: every point (resumed ones first) is also published on the iceoryx2 bus under the map's
 //! name (`--name`, default: the output file's stem), for `chaoscope map-watch`. That stream is
@@ -49,7 +51,9 @@ pub struct Args {
     /// Compute only the points with index % n == i (for job arrays; join with `merge`).
     #[arg(long, default_value = "0/1")]
     pub shard: Shard,
-    /// Discard an existing output file instead of resuming it.
+    /// Discard an existing output file instead of resuming it. Without it, an output file that
+    /// is not a readable map of this config and shard (another map, another MCAP file, a
+    /// damaged first chunk) is refused and left untouched.
     #[arg(long)]
     pub restart: bool,
     /// No progress bar.
@@ -107,7 +111,15 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     };
 
     let prev = prev_path(&args.out);
-    if args.out.exists() {
+    if prev.exists() {
+        // An interrupted resume: the `.prev` file holds every point of the output file (which
+        // was being rewritten from it), so the output file goes and `.prev` stays until the
+        // points are safe in the new one.
+        if args.out.exists() {
+            std::fs::remove_file(&args.out)
+                .with_context(|| format!("removing {}", args.out.display()))?;
+        }
+    } else if args.out.exists() {
         std::fs::rename(&args.out, &prev)
             .with_context(|| format!("moving {} aside", args.out.display()))?;
     }
@@ -270,17 +282,40 @@ fn prev_path(out: &Path) -> PathBuf {
 }
 
 /// Points already recorded for this map and shard, from the output file and from a `.prev`
-/// file left by an interrupted resume.
+/// file left by an interrupted resume. A file that cannot be read as a map of this
+/// configuration and shard is refused, never discarded (that takes `--restart`).
 fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u64, MapPoint>> {
+    let shard = Shard {
+        index: header.shard_index,
+        count: header.shard_count,
+    };
     let mut points = BTreeMap::new();
-    for path in [prev_path(out), out.to_path_buf()] {
+    let mut prev_is_this_map = false;
+    for (path, is_prev) in [(prev_path(out), true), (out.to_path_buf(), false)] {
         if !path.exists() {
             continue;
         }
         let contents = read_map_file(&path)?;
+        if let Some(d) = &contents.damaged {
+            eprintln!(
+                "chaoscope map: {} is damaged or cut short ({d}); {} points before that are \
+                 readable",
+                path.display(),
+                contents.points.len()
+            );
+        }
         let Some(h) = contents.header else {
-            // Killed before its header reached the disk: nothing to keep.
-            continue;
+            if !is_prev && prev_is_this_map {
+                // A resume was interrupted before it wrote the header of the new file: all of
+                // its points are still in the `.prev` file.
+                continue;
+            }
+            bail!(
+                "{} holds no readable map header (not a `chaoscope map` recording, or its first \
+                 chunk is damaged); it was left untouched. Pass --restart to overwrite it or \
+                 choose another --out",
+                path.display()
+            );
         };
         if h.config_toml != header.config_toml
             || (h.shard_index, h.shard_count) != (header.shard_index, header.shard_count)
@@ -291,21 +326,13 @@ fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u6
                 path.display()
             );
         }
-        if let Some(d) = &contents.damaged {
-            eprintln!(
-                "chaoscope map: {} is damaged or cut short ({d}); resuming from its {} points \
-                 before that",
-                path.display(),
-                contents.points.len()
-            );
-        }
         for p in contents.points {
-            let shard = (u64::from(header.shard_index), u64::from(header.shard_count));
-            if p.index >= header.grid_points || p.index % shard.1 != shard.0 {
+            if p.index >= header.grid_points || !shard.contains(p.index) {
                 bail!("{}: point {} is not in its shard", path.display(), p.index);
             }
             points.insert(p.index, p);
         }
+        prev_is_this_map |= is_prev;
     }
     Ok(points)
 }

@@ -12,6 +12,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
+use chaoscope_producer::map::Shard;
 use chaoscope_recorder::file::{Compression, FileOptions};
 use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
@@ -88,8 +89,12 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 path.display()
             );
         }
+        let shard = Shard {
+            index: h.shard_index,
+            count: h.shard_count,
+        };
         for p in contents.points {
-            if p.index % h.shard_count as u64 != h.shard_index as u64 || p.index >= h.grid_points {
+            if !shard.contains(p.index) || p.index >= h.grid_points {
                 bail!("{}: point {} is not in its shard", path.display(), p.index);
             }
             points.insert(p.index, p);

@@ -20,6 +20,9 @@ fn damage(bytes: &[u8]) -> Vec<(&'static str, Vec<u8>, &'static str)> {
     let third = testing::chunk_offsets(bytes)[2];
     let mut flipped = bytes.to_vec();
     flipped[third + 60] ^= 0x10;
+    // A bit of the third chunk's CRC (after its opcode, length, times and uncompressed size).
+    let mut crc = bytes.to_vec();
+    crc[third + 9 + 24] ^= 0x10;
     let mut attachment = bytes[..third].to_vec();
     attachment.extend(testing::short_attachment());
     let mut huge = bytes.to_vec();
@@ -32,7 +35,9 @@ fn damage(bytes: &[u8]) -> Vec<(&'static str, Vec<u8>, &'static str)> {
             bytes[..third + 30].to_vec(),
             "MCAP file ended in the middle",
         ),
-        ("flip", flipped, ""),
+        // A bit of its zstd data.
+        ("flip", flipped, "Error during decompression"),
+        ("crc", crc, "Chunk CRC failed"),
         (
             "attachment",
             attachment,

@@ -10,7 +10,8 @@
 //! - [`discover`]: finding a run to record.
 //! - [`record`]: the recorder process loop gluing the above.
 //! - [`recover`]: salvaging a file whose writer was killed, streamed through [`scan`].
-//! - [`testing`]: synthetic recordings and hostile variants of files, for tests and benches.
+//! - `testing` (feature `testing`): synthetic recordings and hostile variants of files, for tests
+//!   and benches.
 
 pub mod discover;
 pub mod file;
@@ -21,6 +22,7 @@ pub mod recover;
 pub mod scan;
 pub mod sequence;
 pub mod subscription;
+#[cfg(any(test, feature = "testing"))]
 pub mod testing;
 
 pub use record::{RecordOptions, RecordOutcome, record};

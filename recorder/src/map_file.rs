@@ -123,16 +123,27 @@ pub fn read_map(source: impl Read, len: Option<u64>) -> std::io::Result<Option<M
 
 fn read_messages(mut messages: Messages<impl Read>) -> std::io::Result<MapContents> {
     let mut contents = MapContents::default();
+    // What the chunk (or record) being read holds, kept only once it is read whole: a message
+    // that does not decode drops its chunk.
+    let (mut header, mut points, mut entry) = (None, Vec::new(), 0);
     while let Some(m) = messages.next_message()? {
+        if messages.entry() != entry {
+            entry = messages.entry();
+            contents.header = header.take().or(contents.header.take());
+            contents.points.append(&mut points);
+        }
         let decoded = match &*m.topic {
-            topic::MAP_HEADER => MapHeader::decode(&m.data[..]).map(|h| contents.header = Some(h)),
-            topic::MAP_POINTS => MapPoint::decode(&m.data[..]).map(|p| contents.points.push(p)),
+            topic::MAP_HEADER => MapHeader::decode(&m.data[..]).map(|h| header = Some(h)),
+            topic::MAP_POINTS => MapPoint::decode(&m.data[..]).map(|p| points.push(p)),
             _ => Ok(()),
         };
         if let Err(e) = decoded {
+            (header, points) = (None, Vec::new());
             messages.stop(format!("message on {} is not valid protobuf: {e}", m.topic));
         }
     }
+    contents.header = header.or(contents.header);
+    contents.points.append(&mut points);
     contents.damaged = messages.scan().stopped_at.clone();
     Ok(contents)
 }
@@ -159,5 +170,35 @@ mod tests {
             seen_first_chunk_only |= n == 6 && part.damaged.is_some();
         }
         assert!(seen_first_chunk_only);
+    }
+
+    #[test]
+    fn a_point_that_does_not_decode_drops_its_whole_chunk() {
+        // Chunks of six points and four, uncompressed.
+        let (mut bytes, header, points) = crate::testing::small_map(10, 6, Compression::None);
+        let second = crate::testing::chunk_offsets(&bytes)[1];
+        let body = second + 9;
+        // No CRC, so the chunk's records are read as they are.
+        bytes[body + 24..body + 28].fill(0);
+        // Its records: after start and end time, uncompressed size and CRC, compression (empty)
+        // and compressed size.
+        let compressed = u64::from_le_bytes(bytes[body + 32..body + 40].try_into().unwrap());
+        let (mut at, end) = (body + 40, body + 40 + compressed as usize);
+        let mut messages = Vec::new();
+        while at < end {
+            let len = u64::from_le_bytes(bytes[at + 1..at + 9].try_into().unwrap()) as usize;
+            if bytes[at] == mcap::records::op::MESSAGE {
+                messages.push(at);
+            }
+            at += 9 + len;
+        }
+        assert_eq!(messages.len(), 4);
+        // The second point's payload starts with wire type 7, which protobuf does not have.
+        bytes[messages[1] + 9 + 22] = 0xff;
+        let read = read_map(&bytes[..], None).unwrap().unwrap();
+        assert_eq!(read.header.unwrap(), header);
+        assert_eq!(read.points, points[..6]);
+        let damaged = read.damaged.unwrap();
+        assert!(damaged.contains("not valid protobuf"), "{damaged}");
     }
 }

@@ -128,9 +128,8 @@ fn salvage(
                 .try_for_each(|record| copier.copy(record))
                 .map(|()| copier.report.chunks += 1),
         };
-        if let Err(e) = copied {
-            scanner.stop(e);
-        }
+        // The writer failed: the output, not the input (the caller removes the output).
+        copied.map_err(mcap_err)?;
     }
     let mut report = copier.report;
     report.stopped_at = scanner.scan().stopped_at.clone();

@@ -2,18 +2,20 @@
 //! (`recover`, map files, `analyze` and `replay`), because every input file is hostile.
 //!
 //! The records are read in file order through the mcap crate's sans-io reader, fed from any
-//! [`Read`] (a `BufReader<File>`), so memory is bounded by the largest record (about one chunk),
-//! never by the file. Each chunk is decompressed and checked whole (every record parsed, the CRC
-//! compared) before any of its records is handed out, so a damaged chunk is dropped whole rather
-//! than half read. Reading stops at the first damaged record and says where and why. No input
-//! makes it panic, and no length field makes it buffer more than [`MAX_RECORD_LEN`] bytes (nor
-//! more than the file's length).
+//! [`Read`] (a `BufReader<File>`), so memory is bounded by the largest record (about one chunk
+//! in a valid file), not by the file. Each chunk is decompressed and checked whole (the CRC
+//! compared, where the writer put one, then every record parsed) before any of its records is
+//! handed out, so a damaged chunk is dropped whole rather than half read. Reading stops at the
+//! first damaged record and says where and why. No input makes it panic, and no length field
+//! makes it buffer more than [`MAX_RECORD_LEN`] bytes (nor more than the file's length): record
+//! lengths are bounded by the reader, and every string, array and map length is checked against
+//! its record before the record is parsed.
 //!
-//! Damage is also what would otherwise lose data silently: a record of a type chaoscope files
-//! never hold, or in the wrong section, a channel or message index record longer than its fields
-//! (a chunk whose opcode was hit reads as one of these), a chunk record longer than its data, and
-//! a summary that disagrees with the data (a chunk not read where the chunk index says, other
-//! message or chunk counts than the statistics).
+//! Damage is also what would otherwise lose data silently: a first record other than the header,
+//! a record of a type chaoscope files never hold, or in the wrong section, a channel or message
+//! index record longer than its fields (a chunk whose opcode was hit reads as one of these), a
+//! chunk record longer than its data, and a summary that disagrees with the data (a chunk not
+//! read where the chunk index says, other message or chunk counts than the statistics).
 //!
 //! [`Scanner`] hands out records and whole chunks; [`Messages`] on top of it hands out messages
 //! with their topics.
@@ -28,6 +30,10 @@ use std::sync::Arc;
 use mcap::McapError;
 use mcap::records::{MessageHeader, Record, op};
 use mcap::sans_io::{LinearReadEvent, LinearReader, LinearReaderOptions};
+
+/// How many times its compressed size a compressed chunk may decompress to: above zstd's
+/// bound (an RLE block of 128 KiB takes 4 bytes) and lz4's (about 255).
+const MAX_RATIO: u64 = 1 << 15;
 
 /// The longest record accepted. Chunks are about the writer's chunk size (4 MiB by default);
 /// a longer length field is taken as damage, so a corrupted length cannot exhaust memory.
@@ -86,8 +92,10 @@ enum Damage {
     Mcap(#[from] McapError),
     #[error("invalid opcode 0x00 (zero-filled or overwritten bytes)")]
     ZeroOpcode,
-    #[error("attachment record shorter than its own fields")]
-    ShortAttachment,
+    #[error("{0} record shorter than its own fields")]
+    Short(&'static str),
+    #[error("the file does not start with a header record")]
+    NoHeader,
     #[error("unknown record type 0x{0:02x} (chaoscope files hold none)")]
     UnknownOpcode(u8),
     #[error("a {record} record cannot be in the {section} section")]
@@ -198,6 +206,9 @@ impl Layout {
     fn check_place(&self, at: u64, opcode: u8) -> Result<(), Damage> {
         let (record, data, summary) = match opcode {
             0 => return Err(Damage::ZeroOpcode),
+            _ if at == mcap::MAGIC.len() as u64 && opcode != op::HEADER => {
+                return Err(Damage::NoHeader);
+            }
             op::HEADER => ("header", at == mcap::MAGIC.len() as u64, false),
             op::SCHEMA => ("schema", true, true),
             op::CHANNEL => ("channel", true, true),
@@ -437,14 +448,27 @@ fn check_chunk(body: &[u8]) -> Result<Vec<Record<'static>>, Damage> {
     let mut prefix = [op::CHUNK; PREFIX_LEN as usize];
     prefix[1..].copy_from_slice(&(chunk_len as u64).to_le_bytes());
     let mut source = prefix.as_slice().chain(chunk);
-    let limit = usize::try_from(header.uncompressed_size.max(header.compressed_size))
+    // The limit bounds the chunk record itself (it passes through the reader), its
+    // decompressed data and each record in it. A compressed chunk decompresses to at most
+    // MAX_RATIO times its compressed size, so a damaged uncompressed size beyond that is refused
+    // before anything is decompressed.
+    let uncompressed = if header.compression.is_empty() {
+        header.uncompressed_size
+    } else {
+        header
+            .uncompressed_size
+            .min(header.compressed_size.saturating_mul(MAX_RATIO))
+    };
+    let limit = usize::try_from(uncompressed.max(PREFIX_LEN + chunk_len as u64))
         .unwrap_or(usize::MAX)
         .min(MAX_RECORD_LEN);
+    // The CRC (where the writer put one: non-zero) is checked over the whole decompressed data
+    // before any record in it is parsed.
     let mut reader = LinearReader::new_with_options(
         LinearReaderOptions::default()
             .with_skip_start_magic(true)
             .with_skip_end_magic(true)
-            .with_validate_chunk_crcs(true)
+            .with_prevalidate_chunk_crcs(true)
             .with_record_length_limit(limit),
     );
     let mut records = Vec::new();
@@ -473,29 +497,98 @@ fn channel_len(c: &mcap::records::Channel) -> usize {
 }
 
 /// `mcap::parse_record`, refusing what it would mishandle: opcode 0 (never valid; what zeroed
-/// bytes read as) and attachments too short for their fields (mcap 0.26 slices those by their own
-/// lengths and panics).
+/// bytes read as) and records whose length-prefixed fields run past their end (mcap 0.26 reserves
+/// memory for a string's whole length before reading it, up to 4 GiB for a damaged length, and
+/// slices attachments by their own lengths and panics).
 fn parse(opcode: u8, body: &[u8]) -> Result<Record<'_>, Damage> {
+    if opcode == 0 {
+        return Err(Damage::ZeroOpcode);
+    }
+    let (record, fields) = fields(opcode);
+    if !fields_fit(fields, body) {
+        return Err(Damage::Short(record));
+    }
+    Ok(mcap::parse_record(opcode, body)?)
+}
+
+/// A field of a record body, as the MCAP spec lays it out.
+#[derive(Clone, Copy)]
+enum Field {
+    /// This many bytes.
+    Fixed(usize),
+    /// A u32 length, then that many bytes: a string or byte array.
+    Bytes,
+    /// A u32 byte length, then that many bytes of fixed-width entries: an array or integer map.
+    Array,
+    /// A u32 byte length, then pairs of strings within it: a string map.
+    StringMap,
+}
+
+/// The name of the record with `opcode` and its fields up to its last length-prefixed one (or,
+/// for an attachment, up to its CRC, which mcap slices from the end); the fixed fields after
+/// them are left to `parse_record`, which reads them without allocating.
+fn fields(opcode: u8) -> (&'static str, &'static [Field]) {
+    use Field::*;
     match opcode {
-        0 => Err(Damage::ZeroOpcode),
-        op::ATTACHMENT if !attachment_fits(body) => Err(Damage::ShortAttachment),
-        _ => Ok(mcap::parse_record(opcode, body)?),
+        op::HEADER => ("header", &[Bytes, Bytes]),
+        // id; name, encoding, data
+        op::SCHEMA => ("schema", &[Fixed(2), Bytes, Bytes, Bytes]),
+        // id, schema id; topic, message encoding, metadata
+        op::CHANNEL => ("channel", &[Fixed(4), Bytes, Bytes, StringMap]),
+        // start and end time, uncompressed size and CRC; compression
+        op::CHUNK => ("chunk", &[Fixed(28), Bytes]),
+        // channel id; records
+        op::MESSAGE_INDEX => ("message index", &[Fixed(2), Array]),
+        // start and end time, chunk start and length; message index offsets, message index
+        // length, compression
+        op::CHUNK_INDEX => ("chunk index", &[Fixed(32), Array, Fixed(8), Bytes]),
+        // log and create time; name, media type, data length and CRC
+        op::ATTACHMENT => ("attachment", &[Fixed(16), Bytes, Bytes, Fixed(8 + 4)]),
+        // offset, length, log and create time, data size; name, media type
+        op::ATTACHMENT_INDEX => ("attachment index", &[Fixed(40), Bytes, Bytes]),
+        // message count, schema count, channel, attachment, metadata and chunk counts, start and
+        // end time; channel message counts
+        op::STATISTICS => ("statistics", &[Fixed(8 + 2 + 4 * 4 + 8 + 8), Array]),
+        // name, metadata
+        op::METADATA => ("metadata", &[Bytes, StringMap]),
+        // offset, length; name
+        op::METADATA_INDEX => ("metadata index", &[Fixed(16), Bytes]),
+        // message, footer, summary offset, data end: fixed fields only; unknown: not parsed
+        _ => ("", &[]),
     }
 }
 
-/// Whether an attachment body holds its fixed fields and CRC: log and create time, name and
-/// media type (length-prefixed), data length, ..., CRC.
-fn attachment_fits(body: &[u8]) -> bool {
-    let u32_at = |at: usize| -> Option<usize> {
+/// Whether `fields` fit in `body`: every length-prefixed field (and every string in a string
+/// map) within it.
+fn fields_fit(fields: &[Field], body: &[u8]) -> bool {
+    // The end of the field of length prefix at `at` that must end by `end`.
+    let prefixed = |at: usize, end: usize| -> Option<usize> {
         let bytes = body.get(at..at.checked_add(4)?)?;
-        Some(u32::from_le_bytes(bytes.try_into().ok()?) as usize)
+        let to = (at + 4).checked_add(u32::from_le_bytes(bytes.try_into().ok()?) as usize)?;
+        (to <= end).then_some(to)
     };
-    let name = 16;
-    let fields_end = u32_at(name)
-        .and_then(|n| (name + 4).checked_add(n))
-        .and_then(|media| u32_at(media).and_then(|n| (media + 4).checked_add(n)))
-        .and_then(|data_len| data_len.checked_add(8 + 4));
-    fields_end.is_some_and(|end| end <= body.len())
+    let mut at = 0usize;
+    for field in fields {
+        let next = match *field {
+            Field::Fixed(n) => at.checked_add(n).filter(|&to| to <= body.len()),
+            Field::Bytes | Field::Array => prefixed(at, body.len()),
+            Field::StringMap => prefixed(at, body.len()).filter(|&end| {
+                let mut entry = at + 4;
+                while entry < end {
+                    match prefixed(entry, end).and_then(|value| prefixed(value, end)) {
+                        Some(next) => entry = next,
+                        None => return false,
+                    }
+                }
+                true
+            }),
+        };
+        match next {
+            Some(next) => at = next,
+            None => return false,
+        }
+    }
+    true
 }
 
 /// A message as [`Messages`] reads it.
@@ -516,6 +609,8 @@ pub struct Messages<R> {
     topics: HashMap<u16, Arc<str>>,
     /// The rest of the chunk being handed out.
     chunk: std::vec::IntoIter<Record<'static>>,
+    /// Entries (records and chunks) read from the scanner.
+    entries: u64,
 }
 
 impl<R: Read> Messages<R> {
@@ -524,7 +619,14 @@ impl<R: Read> Messages<R> {
             scanner,
             topics: HashMap::new(),
             chunk: Vec::new().into_iter(),
+            entries: 0,
         }
+    }
+
+    /// Which entry of the file (record or chunk, counted from 1) the message handed out last
+    /// came from: messages of one chunk share it.
+    pub fn entry(&self) -> u64 {
+        self.entries
     }
 
     /// The next message; `None` at the end of the file or at the first damage
@@ -533,7 +635,7 @@ impl<R: Read> Messages<R> {
         loop {
             let record = match self.chunk.next() {
                 Some(record) => record,
-                None => match self.scanner.next()? {
+                None => match self.scanner.next()?.inspect(|_| self.entries += 1) {
                     None => return Ok(None),
                     Some(Entry::Chunk(records)) => {
                         self.chunk = records.into_iter();

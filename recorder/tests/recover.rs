@@ -324,6 +324,10 @@ fn arbitrary_bytes_after_the_magic_never_panic() {
 #[test]
 fn a_short_attachment_record_is_damage_not_a_panic() {
     let mut bytes = mcap::MAGIC.to_vec();
+    // A header record (empty profile and library), then the attachment.
+    bytes.push(mcap::records::op::HEADER);
+    bytes.extend(8u64.to_le_bytes());
+    bytes.extend([0; 8]);
     bytes.extend(synthetic::short_attachment());
     let files = Files::new();
     let (report, salvaged) = files.recover(&bytes);

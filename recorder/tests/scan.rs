@@ -66,3 +66,61 @@ fn a_length_past_the_end_or_past_any_bound_is_named_as_such() {
         "{huge}"
     );
 }
+
+/// `body` as a record with `opcode`.
+fn record(opcode: u8, body: &[u8]) -> Vec<u8> {
+    let mut bytes = vec![opcode];
+    bytes.extend((body.len() as u64).to_le_bytes());
+    bytes.extend(body);
+    bytes
+}
+
+/// An uncompressed chunk record of `records`, without CRC.
+fn chunk(records: &[u8]) -> Vec<u8> {
+    let mut body = [0u64, 0, records.len() as u64]
+        .map(u64::to_le_bytes)
+        .concat();
+    body.extend([0; 4 + 4]); // CRC, compression
+    body.extend((records.len() as u64).to_le_bytes());
+    body.extend(records);
+    record(mcap::records::op::CHUNK, &body)
+}
+
+#[test]
+fn empty_and_tiny_chunks_are_valid() {
+    use chaoscope_recorder::scan::Entry;
+    use mcap::records::{Record, op};
+    // A schema of id 1, empty name, encoding and data.
+    let schema = record(op::SCHEMA, &[1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);
+    let mut bytes = mcap::MAGIC.to_vec();
+    bytes.extend(record(op::HEADER, &[0; 8]));
+    bytes.extend(chunk(&[]));
+    bytes.extend(chunk(&schema));
+    bytes.extend(record(op::DATA_END, &[0; 4]));
+    let mut scanner = Scanner::open(&bytes[..], Some(bytes.len() as u64))
+        .unwrap()
+        .unwrap();
+    let mut chunks = Vec::new();
+    while let Some(entry) = scanner.next().unwrap() {
+        if let Entry::Chunk(records) = entry {
+            chunks.push(records);
+        }
+    }
+    assert_eq!(scanner.scan().stopped_at, None);
+    assert_eq!(chunks.len(), 2);
+    assert!(chunks[0].is_empty());
+    assert!(matches!(&chunks[1][..], [Record::Schema { header, .. }] if header.id == 1));
+}
+
+#[test]
+fn a_file_without_a_header_is_damage() {
+    let bytes = testing::small_run(Compression::Zstd);
+    let first = testing::record_offsets(&bytes)[1];
+    let mut headless = bytes[..8].to_vec();
+    headless.extend(&bytes[first..]);
+    let stopped = stopped_at(&headless);
+    assert!(
+        stopped.contains("at byte 8: the file does not start with a header record"),
+        "{stopped}"
+    );
+}

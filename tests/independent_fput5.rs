@@ -14,7 +14,7 @@
 //! other numpy, scipy or LAPACK builds, and is still five orders of magnitude below the
 //! disagreement the check is about (GALI_4 near 1e-2 or 1e-6; slopes differing by ~1).
 
-use std::process::Command;
+mod common;
 
 use serde_json::Value;
 
@@ -23,24 +23,9 @@ const TOLERANCE_LOG10: f64 = 1e-6;
 #[test]
 fn scipy_dop853_and_chaoscope_vm_agree_on_gali_of_the_regular_fput5_orbit() {
     let dir = tempfile::tempdir().unwrap();
-    let script = concat!(
-        env!("CARGO_MANIFEST_DIR"),
-        "/examples/paper/independent/fput5_regular_scipy.py"
-    );
-    let status = Command::new("python3")
-        .args([
-            script,
-            "--reduced",
-            "--chaoscope",
-            env!("CARGO_BIN_EXE_chaoscope"),
-            "--out",
-        ])
-        .arg(dir.path())
-        .status()
-        .expect("python3 runs the independent FPUT script (numpy and scipy from tests/python/requirements.txt)");
-    assert!(
-        status.success(),
-        "fput5_regular_scipy.py --reduced failed: {status}"
+    common::run_reduced_example(
+        "examples/paper/independent/fput5_regular_scipy.py",
+        dir.path(),
     );
     let text = std::fs::read_to_string(dir.path().join("comparison.json")).unwrap();
     let c: Value = serde_json::from_str(&text).unwrap();

@@ -240,3 +240,18 @@ pub fn python_script(name: &str) -> PathBuf {
         .join("tests/python")
         .join(name)
 }
+
+/// Runs an example script (path relative to the repository) in its `--reduced` mode against this
+/// build of chaoscope, writing into `out`; panics with the script's name if it fails.
+pub fn run_reduced_example(script: &str, out: &Path) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(script);
+    let status = Command::new("python3")
+        .arg(&path)
+        .args(["--reduced", "--chaoscope", CHAOSCOPE, "--out"])
+        .arg(out)
+        .status()
+        .unwrap_or_else(|e| {
+            panic!("python3 {script}: {e} (packages: tests/python/requirements.txt)")
+        });
+    assert!(status.success(), "{script} --reduced failed: {status}");
+}

@@ -189,9 +189,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             None => Isa::ALL.into_iter().filter(|i| i.available()).collect(),
         };
         for isa in isas {
-            let mut runs: Vec<f64> = (0..n).map(|_| ceiling::speedup(isa)).collect();
-            let in_order = runs.clone();
-            runs.sort_by(f64::total_cmp);
+            let in_order: Vec<f64> = (0..n).map(|_| ceiling::speedup(isa)).collect();
+            let runs = sorted(in_order.iter().copied());
             let share_below = |x: f64| runs.iter().filter(|&&r| r < x).count() as f64 / n as f64;
             by_isa.insert(
                 isa.name().to_string(),
@@ -244,13 +243,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     // The median pair by speed-up (the upper one of two middles for an even count).
     let mut by_speedup: Vec<&MapPair> = pairs.iter().collect();
     by_speedup.sort_by(|a, b| a.speedup().total_cmp(&b.speedup()));
-    let median = by_speedup[by_speedup.len() / 2];
-    let mut ceilings: Vec<f64> = pairs.iter().map(|p| p.ceiling).collect();
-    ceilings.sort_by(f64::total_cmp);
-    let median_ceiling = ceilings[ceilings.len() / 2];
-    let mut over: Vec<f64> = pairs.iter().map(|p| p.speedup() / p.ceiling).collect();
-    over.sort_by(f64::total_cmp);
-    let median_over_ceiling = over[over.len() / 2];
+    let median_pair = by_speedup[by_speedup.len() / 2];
+    let median_ceiling = median(pairs.iter().map(|p| p.ceiling));
+    let median_over_ceiling = median(pairs.iter().map(|p| p.speedup() / p.ceiling));
     // CPU time is what extrapolates; take the least disturbed one-thread run.
     let cpu1 = pairs.iter().map(|p| p.cpu1).fold(f64::INFINITY, f64::min);
     let full_points = 700.0 * 600.0;
@@ -269,9 +264,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "points": spec.grid_points(),
                 "points_integrated": integrated,
                 "orbit_steps": steps,
-                "one_thread": { "wall_seconds": median.wall1, "cpu_seconds": median.cpu1 },
-                "two_threads": { "wall_seconds": median.wall2, "cpu_seconds": median.cpu2 },
-                "speedup_1_to_2_threads": median.speedup(),
+                "one_thread": { "wall_seconds": median_pair.wall1, "cpu_seconds": median_pair.cpu1 },
+                "two_threads": { "wall_seconds": median_pair.wall2, "cpu_seconds": median_pair.cpu2 },
+                "speedup_1_to_2_threads": median_pair.speedup(),
                 "speedup_pairs": pairs.iter().map(MapPair::json).collect::<Vec<_>>(),
                 "speedup_min": by_speedup[0].speedup(),
                 "speedup_max": by_speedup[by_speedup.len() - 1].speedup(),
@@ -287,6 +282,19 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         }))?
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// The values in increasing order.
+fn sorted(values: impl Iterator<Item = f64>) -> Vec<f64> {
+    let mut v: Vec<f64> = values.collect();
+    v.sort_by(f64::total_cmp);
+    v
+}
+
+/// The median (the upper one of two middles for an even count); `values` is not empty.
+fn median(values: impl Iterator<Item = f64>) -> f64 {
+    let v = sorted(values);
+    v[v.len() / 2]
 }
 
 /// One interleaved measurement of the map workload and of the machine's ceiling.

@@ -11,7 +11,7 @@
 
 use rayon::prelude::*;
 
-use crate::integrator::{Integrator, TangentError, Workspace};
+use crate::integrator::{TangentError, Workspace};
 use crate::renormalization::{self, RenormalizationError};
 use crate::spec::{Method, RunSpec};
 
@@ -46,8 +46,14 @@ pub struct SchemeSample {
 /// A run that could not go on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RunError {
-    #[error("the reference orbit escaped or became non-finite at t = {t} (|x| = {norm:e})")]
-    Escaped { t: f64, norm: f64 },
+    #[error("the reference orbit escaped or became non-finite at t = {t} (|x| = {norm:e}){}",
+        cause.as_ref().map(|c| format!(": {c}")).unwrap_or_default())]
+    Escaped {
+        t: f64,
+        norm: f64,
+        /// The operation that produced a non-finite value, where the system knows it.
+        cause: Option<String>,
+    },
     #[error("scheme '{scheme}', set {set}, t = {t}: {source}")]
     Renormalization {
         scheme: String,
@@ -170,16 +176,16 @@ impl Engine {
         let target = self.next_stop();
         let n_steps = target - self.step;
         let spec = &self.spec;
-        let model = spec.model.as_ref();
+        let system = spec.system.as_ref();
+        let last_good = self.reference.clone();
         for _ in 0..n_steps {
-            spec.integrator
-                .step(model, &mut self.reference, spec.h, &mut self.work);
+            system.step(&mut self.reference, &mut self.work);
         }
         let t = spec.time_of(target);
         let norm = self.reference.iter().map(|v| v * v).sum::<f64>().sqrt();
         // A NaN norm counts as escaped too.
         if norm.is_nan() || norm >= ESCAPE_NORM {
-            return Err(RunError::Escaped { t, norm });
+            return Err(self.escaped(last_good, target, norm));
         }
 
         let reference = &self.reference;
@@ -198,7 +204,8 @@ impl Engine {
             }
         }
         self.step = target;
-        let energy = model.energy(&self.reference);
+        // Systems without a conserved quantity report 0 (never NaN in an output).
+        let energy = system.invariant(&self.reference).unwrap_or(0.0);
         let seq = self.next_seq;
         self.next_seq += 1;
         Ok(Some(Sample {
@@ -240,6 +247,29 @@ impl Engine {
         }
     }
 
+    /// The error for an orbit found non-finite or escaped at `t`: steps again from the last
+    /// finite state to the first step that leaves it, and asks the system what failed there.
+    fn escaped(&self, last_good: Vec<f64>, target: u64, norm: f64) -> RunError {
+        let t = self.spec.time_of(target);
+        let system = self.spec.system.as_ref();
+        let mut x = last_good;
+        let mut work = Workspace::new();
+        let mut cause = None;
+        let mut step = self.step;
+        while step < target {
+            let before = x.clone();
+            system.step(&mut x, &mut work);
+            step += 1;
+            if x.iter().any(|v| !v.is_finite()) {
+                cause = system
+                    .diagnose_non_finite(&before)
+                    .map(|c| format!("{c} in the step to t = {}", self.spec.time_of(step)));
+                break;
+            }
+        }
+        RunError::Escaped { t, norm, cause }
+    }
+
     /// Run to the end, handing every sample to `sink`.
     pub fn run(mut self, mut sink: impl FnMut(Sample)) -> Result<(), RunError> {
         while let Some(s) = self.next_sample()? {
@@ -258,14 +288,13 @@ impl DeviationSet {
         renormalize: bool,
         t: f64,
     ) -> Result<Option<SchemeSample>, RunError> {
-        let model = spec.model.as_ref();
+        let system = spec.system.as_ref();
         let dim = spec.dim;
         let scheme = &spec.schemes[self.scheme];
         let mut separations = match &mut self.deviations {
             Deviations::Variational { orbit, vectors } => {
                 for _ in 0..n_steps {
-                    spec.integrator
-                        .step_tangent(model, orbit, vectors, spec.h, &mut self.work)?;
+                    system.step_tangent(orbit, vectors, &mut self.work)?;
                 }
                 debug_assert_eq!(
                     orbit.as_slice(),
@@ -280,7 +309,7 @@ impl DeviationSet {
             Deviations::MultiParticle { orbits } => {
                 for y in orbits.chunks_exact_mut(dim) {
                     for _ in 0..n_steps {
-                        spec.integrator.step(model, y, spec.h, &mut self.work);
+                        system.step(y, &mut self.work);
                     }
                 }
                 if !renormalize {

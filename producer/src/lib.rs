@@ -13,3 +13,4 @@ pub mod model;
 pub mod publish;
 pub mod renormalization;
 pub mod spec;
+pub mod system;

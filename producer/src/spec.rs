@@ -11,6 +11,11 @@ use crate::deviation::{self, DirectionError, Directions};
 use crate::integrator::{Splitting, SplittingKind};
 use crate::model::{FputBeta, HenonHeiles, Model};
 use crate::renormalization::Orthonormalization;
+use crate::system::{DynamicalSystem, SplitHamiltonian};
+
+mod potential;
+
+pub use potential::{TableDigest, pin_tables};
 
 /// How deviation vectors are evolved.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -85,6 +90,10 @@ pub fn deviation_state_values(schemes: usize, sets: u64, k: u64, dim: u64) -> u1
 /// A validated run.
 #[derive(Clone)]
 pub struct RunSpec {
+    /// What the engine steps: the model with its integrator and time step.
+    pub system: Arc<dyn DynamicalSystem>,
+    /// The Hamiltonian's parts, for what is specific to it (energy surfaces, the batched
+    /// splitting kernel of maps, sections).
     pub model: Arc<dyn Model>,
     pub integrator: Splitting,
     pub h: f64,
@@ -101,6 +110,8 @@ pub struct RunSpec {
     pub directions: Vec<Directions>,
     pub schemes: Vec<SchemeSpec>,
     pub seed: u64,
+    /// The tables the model read, with their digests (see [`RunSpec::pinned_config`]).
+    pub tables: Vec<TableDigest>,
 }
 
 impl std::fmt::Debug for RunSpec {
@@ -143,10 +154,19 @@ pub fn whole_steps(key: &str, t: f64, h: f64) -> Result<u64, SpecError> {
     Ok(n as u64)
 }
 
-/// Build the model named in the config.
+/// Build the model named in the config, with the digests of the tables it read.
 pub fn model_from_config(
     cfg: &chaoscope_schemas::config::ModelConfig,
-) -> Result<Arc<dyn Model>, SpecError> {
+) -> Result<(Arc<dyn Model>, Vec<TableDigest>), SpecError> {
+    let builtin = |model: Arc<dyn Model>| {
+        if let Some(key) = builtin_extra_key(cfg) {
+            return Err(SpecError::new(
+                format!("model.{key}"),
+                format!("applies to name = \"potential\", not to the built-in '{}'", cfg.name),
+            ));
+        }
+        Ok((model, Vec::new()))
+    };
     match cfg.name.as_str() {
         "henon-heiles" => {
             if let Some(n) = cfg.n.filter(|&n| n != 2) {
@@ -161,7 +181,7 @@ pub fn model_from_config(
                     "henon-heiles has no parameter beta",
                 ));
             }
-            Ok(Arc::new(HenonHeiles))
+            builtin(Arc::new(HenonHeiles))
         }
         "fput-beta" => {
             let n = cfg.n.ok_or_else(|| {
@@ -174,15 +194,31 @@ pub fn model_from_config(
                 ));
             }
             let beta = cfg.beta.unwrap_or(1.0);
-            FputBeta::new(n, beta)
-                .map(|m| Arc::new(m) as Arc<dyn Model>)
-                .map_err(|e| SpecError::new("model.beta", e))
+            builtin(
+                FputBeta::new(n, beta)
+                    .map(|m| Arc::new(m) as Arc<dyn Model>)
+                    .map_err(|e| SpecError::new("model.beta", e))?,
+            )
         }
+        "potential" => potential::potential_model(cfg),
         other => Err(SpecError::new(
             "model.name",
-            format!("unknown model '{other}' (known: henon-heiles, fput-beta)"),
+            format!("unknown model '{other}' (known: henon-heiles, fput-beta, potential)"),
         )),
     }
+}
+
+/// A key of the `potential` model given to a built-in one (a likely mix-up worth naming).
+fn builtin_extra_key(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<&'static str> {
+    [
+        ("potential", cfg.potential.is_some()),
+        ("params", !cfg.params.is_empty()),
+        ("masses", cfg.masses.is_some()),
+        ("boundary", cfg.boundary.is_some()),
+        ("tables", !cfg.tables.is_empty()),
+    ]
+    .into_iter()
+    .find_map(|(k, present)| present.then_some(k))
 }
 
 /// Parse a coordinate name `q3` / `p1` into (is_momentum, zero-based index) for `n` dof.
@@ -217,7 +253,11 @@ pub fn solve_momentum(
             ),
         ));
     }
-    x[n + j] = twice_kinetic.sqrt();
+    // p_j^2 / (2 m_j) = E - rest; with unit masses exactly the mass-free formula.
+    x[n + j] = match model.inverse_masses() {
+        None => twice_kinetic.sqrt(),
+        Some(w) => (twice_kinetic / w[j]).sqrt(),
+    };
     Ok(())
 }
 
@@ -307,8 +347,25 @@ impl RunSpec {
         let expanded = cfg
             .with_sweeps_expanded()
             .map_err(|e| SpecError::new(e.key, e.message))?;
-        let cfg = &expanded;
-        let model = model_from_config(&cfg.model)?;
+        let (model, tables) = model_from_config(&expanded.model)?;
+        Self::build(&expanded, model, tables)
+    }
+
+    /// A run of a model built in code rather than named in the config (the library route for
+    /// hand-written models, `examples/custom-model/`): everything but `[model]` is validated as
+    /// usual; `cfg.model.name` is the name recordings carry.
+    pub fn with_model(cfg: &RunConfig, model: Arc<dyn Model>) -> Result<Self, SpecError> {
+        let expanded = cfg
+            .with_sweeps_expanded()
+            .map_err(|e| SpecError::new(e.key, e.message))?;
+        Self::build(&expanded, model, Vec::new())
+    }
+
+    fn build(
+        cfg: &RunConfig,
+        model: Arc<dyn Model>,
+        tables: Vec<TableDigest>,
+    ) -> Result<Self, SpecError> {
         let n = model.dof();
         let dim = 2 * n;
         let kind = SplittingKind::from_name(&cfg.integrator.method).ok_or_else(|| {
@@ -415,11 +472,10 @@ impl RunSpec {
             let method = Method::from_name(&s.method).ok_or_else(|| {
                 SpecError::new(key("method"), format!("'{}' is not vm or mpm", s.method))
             })?;
-            if method == Method::Vm && !model.has_hessian() {
-                return Err(SpecError::new(
-                    key("method"),
-                    format!("model '{}' has no Hessian: only mpm applies", model.name()),
-                ));
+            if method == Method::Vm
+                && let Some(reason) = model.no_hessian_reason()
+            {
+                return Err(SpecError::new(key("method"), format!("vm refused: {reason}")));
             }
             let d0 = finite_positive(&key("d0"), s.d0)?;
             let tau = finite_positive(&key("tau"), s.tau)?;
@@ -441,9 +497,16 @@ impl RunSpec {
             });
         }
 
+        let integrator = Splitting::new(kind);
+        let system = Arc::new(SplitHamiltonian {
+            model: model.clone(),
+            splitting: integrator.clone(),
+            h,
+        });
         Ok(RunSpec {
+            system,
             model,
-            integrator: Splitting::new(kind),
+            integrator,
             h,
             total_steps,
             x0,
@@ -453,7 +516,17 @@ impl RunSpec {
             directions,
             schemes,
             seed: dev.seed,
+            tables,
         })
+    }
+
+    /// `cfg` (the config this run was validated from) with the digest of every table it read
+    /// filled in: what recordings and map files carry, so a replay or a resume elsewhere
+    /// refuses a table that differs.
+    pub fn pinned_config(&self, cfg: &RunConfig) -> RunConfig {
+        let mut pinned = cfg.clone();
+        pinned.model = pin_tables(&cfg.model, &self.tables);
+        pinned
     }
 
     pub fn sets(&self) -> usize {

@@ -29,7 +29,8 @@ pub fn exit_interrupted() -> ExitCode {
     ExitCode::from(EXIT_INTERRUPTED)
 }
 
-/// Reads a run configuration from a TOML file, or from stdin when `path` is `-`.
+/// Reads a run configuration from a TOML file, or from stdin when `path` is `-`; returns it
+/// with its canonical TOML text.
 pub fn load_config(path: &Path) -> anyhow::Result<(RunConfig, String)> {
     let text = if path == Path::new("-") {
         let mut text = String::new();
@@ -41,7 +42,11 @@ pub fn load_config(path: &Path) -> anyhow::Result<(RunConfig, String)> {
         std::fs::read_to_string(path)
             .with_context(|| format!("reading run configuration {}", path.display()))?
     };
-    let config = RunConfig::from_toml(&text).with_context(|| format!("in {}", path.display()))?;
+    let config = RunConfig::from_file_text(&text, path)
+        .with_context(|| format!("in {}", path.display()))?;
+    // The canonical text, with table paths joined to the config's directory: the producer
+    // child reads it from stdin, where the file's own directory is unknown.
+    let text = config.to_toml();
     Ok((config, text))
 }
 

@@ -37,11 +37,18 @@ impl StepCoeffs {
     }
 }
 
+/// `q += c h M^-1 p` row by row, as `Splitting::drift` forms it (`ch * w_i` first).
 #[inline(always)]
-fn drift_rows<const L: usize>(q: &mut [[f64; L]], p: &[[f64; L]], ch: f64) {
-    for (qr, pr) in q.iter_mut().zip(p) {
+fn drift_rows<const L: usize>(
+    q: &mut [[f64; L]],
+    p: &[[f64; L]],
+    ch: f64,
+    inverse_masses: Option<&[f64]>,
+) {
+    for (i, (qr, pr)) in q.iter_mut().zip(p).enumerate() {
+        let c = inverse_masses.map_or(ch, |w| ch * w[i]);
         for l in 0..L {
-            qr[l] += ch * pr[l];
+            qr[l] += c * pr[l];
         }
     }
 }
@@ -81,14 +88,15 @@ pub trait LaneModel: Model {
         n_steps: u64,
     ) {
         let n = self.dof();
+        let w = self.inverse_masses();
         let (q, p) = x.split_at_mut(n);
         for _ in 0..n_steps {
             for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
-                drift_rows(q, p, ch);
+                drift_rows(q, p, ch, w);
                 self.gradient_lanes(q, force);
                 kick_rows(p, force, dh);
             }
-            drift_rows(q, p, c.last_drift());
+            drift_rows(q, p, c.last_drift(), w);
         }
     }
 
@@ -104,16 +112,17 @@ pub trait LaneModel: Model {
         n_steps: u64,
     ) {
         let n = self.dof();
+        let w = self.inverse_masses();
         let (dq, dp) = v.split_at_mut(n);
         let mut stage = stages.chunks_exact(n);
         for _ in 0..n_steps {
             for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
-                drift_rows(dq, dp, ch);
+                drift_rows(dq, dp, ch, w);
                 let q = stage.next().expect("one recorded position per kick");
                 self.hessian_vector_lanes(q, dq, force);
                 kick_rows(dp, force, dh);
             }
-            drift_rows(dq, dp, c.last_drift());
+            drift_rows(dq, dp, c.last_drift(), w);
         }
     }
 }
@@ -130,13 +139,9 @@ pub fn record_reference_stages<M: Model + ?Sized>(
     force: &mut [f64],
 ) {
     let n = model.dof();
+    let w = model.inverse_masses();
     stages.clear();
-    let drift = |x: &mut [f64], ch: f64| {
-        let (q, p) = x.split_at_mut(n);
-        for (qi, pi) in q.iter_mut().zip(p.iter()) {
-            *qi += ch * pi;
-        }
-    };
+    let drift = |x: &mut [f64], ch: f64| Splitting::drift(x, n, ch, w);
     for _ in 0..n_steps {
         for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
             drift(x, ch);

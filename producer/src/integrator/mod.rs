@@ -34,7 +34,7 @@ impl Workspace {
 /// Why a tangent-map step could not be taken.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TangentError {
-    #[error("model '{0}' has no Hessian-vector product: use the multi-particle method (mpm)")]
+    #[error("{0}: the variational method needs second derivatives; use the multi-particle method (mpm)")]
     NoHessian(String),
 }
 

@@ -124,11 +124,22 @@ impl Splitting {
         &self.kicks
     }
 
+    /// `q += c h M^-1 p`. With masses the coefficient of site `i` is `(c h) / m_i` formed first
+    /// (`ch * w_i`), so unit masses give exactly the bits of the mass-free drift.
     #[inline(always)]
-    fn drift(x: &mut [f64], n: usize, ch: f64) {
+    pub(crate) fn drift(x: &mut [f64], n: usize, ch: f64, inverse_masses: Option<&[f64]>) {
         let (q, p) = x.split_at_mut(n);
-        for (qi, pi) in q.iter_mut().zip(p.iter()) {
-            *qi += ch * pi;
+        match inverse_masses {
+            None => {
+                for (qi, pi) in q.iter_mut().zip(p.iter()) {
+                    *qi += ch * pi;
+                }
+            }
+            Some(w) => {
+                for ((qi, pi), wi) in q.iter_mut().zip(p.iter()).zip(w) {
+                    *qi += (ch * wi) * pi;
+                }
+            }
         }
     }
 
@@ -153,12 +164,13 @@ impl<M: Model + ?Sized> Integrator<M> for Splitting {
 
     fn step(&self, model: &M, x: &mut [f64], h: f64, work: &mut Workspace) {
         let n = model.dof();
+        let w = model.inverse_masses();
         let force = work.force(n);
         for (i, &d) in self.kicks.iter().enumerate() {
-            Self::drift(x, n, self.drifts[i] * h);
+            Self::drift(x, n, self.drifts[i] * h, w);
             Self::kick(model, x, n, d * h, force);
         }
-        Self::drift(x, n, self.drifts[self.kicks.len()] * h);
+        Self::drift(x, n, self.drifts[self.kicks.len()] * h, w);
     }
 
     fn step_tangent(
@@ -169,16 +181,17 @@ impl<M: Model + ?Sized> Integrator<M> for Splitting {
         h: f64,
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
-        if !model.has_hessian() {
-            return Err(TangentError::NoHessian(model.name().to_string()));
+        if let Some(reason) = model.no_hessian_reason() {
+            return Err(TangentError::NoHessian(reason));
         }
         let n = model.dof();
         let dim = 2 * n;
+        let masses = model.inverse_masses();
         let force = work.force(n);
         let drift_all = |x: &mut [f64], w: &mut [f64], ch: f64| {
-            Self::drift(x, n, ch);
+            Self::drift(x, n, ch, masses);
             for v in w.chunks_exact_mut(dim) {
-                Self::drift(v, n, ch);
+                Self::drift(v, n, ch, masses);
             }
         };
         for (i, &d) in self.kicks.iter().enumerate() {

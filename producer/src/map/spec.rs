@@ -200,6 +200,7 @@ impl MapSpec {
         };
         let lanes = AnyLaneModel::new(run.model.clone(), cfg.model.beta.or(Some(1.0)));
         let coeffs = StepCoeffs::new(&run.integrator, run.h);
+        let config_toml = run.pinned_config(cfg).to_toml();
         Ok(Self {
             lanes,
             coeffs,
@@ -209,7 +210,7 @@ impl MapSpec {
             solve_for,
             energy: cfg.orbit.energy,
             run,
-            config_toml: cfg.to_toml(),
+            config_toml,
         })
     }
 

@@ -18,7 +18,11 @@ fn norm(v: &[f64]) -> f64 {
 pub fn check_escape(x: &[f64], t: f64) -> Result<(), RunError> {
     let norm = norm(x);
     if norm.is_nan() || norm >= ESCAPE_NORM {
-        Err(RunError::Escaped { t, norm })
+        Err(RunError::Escaped {
+            t,
+            norm,
+            cause: None,
+        })
     } else {
         Ok(())
     }

@@ -1,6 +1,6 @@
 //! Models: the Hamiltonians chaoscope integrates.
 //!
-//! One trait, [`Model`], for separable Hamiltonians `H = |p|^2/2 + V(q)`: that is what the
+//! One trait, [`Model`], for separable Hamiltonians `H = sum p_i^2/(2 m_i) + V(q)`: that is what the
 //! symplectic splittings and their tangent maps need. A model states which derivatives it has:
 //! the Hessian-vector product is optional, and a model without it (a non-smooth or empirical
 //! potential) can still be studied with the multi-particle method, never with the variational
@@ -9,16 +9,18 @@
 //!
 //! Every method is pure and allocation-free: models are called in the innermost loop.
 
+mod expression;
 mod fput;
 mod henon_heiles;
 
+pub use expression::{ExpressionModel, PotentialDefinition, PotentialError};
 pub use fput::FputBeta;
 pub use henon_heiles::HenonHeiles;
 
-/// A separable Hamiltonian `H(q, p) = |p|^2 / 2 + V(q)` with `N` degrees of freedom.
+/// A separable Hamiltonian `H(q, p) = sum p_i^2 / (2 m_i) + V(q)` with `N` degrees of freedom.
 ///
 /// Phase-space vectors are ordered `x = (q1..qN, p1..pN)`.
-pub trait Model: Send + Sync {
+pub trait Model: std::any::Any + Send + Sync {
     /// Short machine name, as written in configs (`"henon-heiles"`).
     fn name(&self) -> &str;
 
@@ -38,9 +40,31 @@ pub trait Model: Send + Sync {
     /// Whether [`Model::hessian_vector`] is available (the variational method needs it).
     fn has_hessian(&self) -> bool;
 
-    /// Kinetic energy; `|p|^2 / 2` for every model of this trait.
+    /// `1 / m_i` for each degree of freedom, or `None` for unit masses (the built-in models:
+    /// their code paths then stay exactly as they were).
+    fn inverse_masses(&self) -> Option<&[f64]> {
+        None
+    }
+
+    /// Kinetic energy `sum p_i^2 / (2 m_i)`.
     fn kinetic(&self, p: &[f64]) -> f64 {
-        0.5 * p.iter().map(|v| v * v).sum::<f64>()
+        match self.inverse_masses() {
+            None => 0.5 * p.iter().map(|v| v * v).sum::<f64>(),
+            Some(w) => 0.5 * p.iter().zip(w).map(|(v, w)| v * v * w).sum::<f64>(),
+        }
+    }
+
+    /// Why the variational method cannot be used, naming the operation that lacks second
+    /// derivatives (when the model knows it); `None` when it can.
+    fn no_hessian_reason(&self) -> Option<String> {
+        (!self.has_hessian()).then(|| format!("model '{}' has no Hessian", self.name()))
+    }
+
+    /// Where a non-finite value arises when the forces are evaluated at `q`, e.g. "'log' at
+    /// line 1, column 9 gave NaN"; `None` when unknown or everything is finite. Called only
+    /// after a run has failed, off the hot path.
+    fn diagnose_non_finite(&self, _q: &[f64]) -> Option<String> {
+        None
     }
 
     /// A named initial condition of this model at the given energy (e.g. the FPUT chain's

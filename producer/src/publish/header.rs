@@ -25,7 +25,7 @@ pub fn run_header(run_name: &str, config: &RunConfig, spec: &RunSpec) -> RunHead
     RunHeader {
         format_version: FORMAT_VERSION,
         run_name: run_name.to_string(),
-        config_toml: config.to_toml(),
+        config_toml: spec.pinned_config(config).to_toml(),
         model: config.model.name.clone(),
         n: (spec.dim / 2) as u32,
         dim: spec.dim as u32,

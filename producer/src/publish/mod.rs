@@ -136,7 +136,16 @@ pub fn publish(
     config: &RunConfig,
     options: &PublishOptions,
 ) -> Result<PublishOutcome, PublishError> {
-    let spec = RunSpec::from_config(config)?;
+    publish_spec(config, RunSpec::from_config(config)?, options)
+}
+
+/// [`publish`] for a run already validated, e.g. one with a hand-written model
+/// ([`RunSpec::with_model`]); `config` is what the run header records.
+pub fn publish_spec(
+    config: &RunConfig,
+    spec: RunSpec,
+    options: &PublishOptions,
+) -> Result<PublishOutcome, PublishError> {
     let run = resolve_run_name(config, options.run_name.as_deref())?;
     let node_name = names::producer_node_name(&run);
     bus::cleanup_dead_nodes();

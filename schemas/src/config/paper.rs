@@ -28,11 +28,7 @@ pub fn henon_heiles(
     deviations: DeviationsConfig,
     schemes: Vec<SchemeConfig>,
 ) -> RunConfig {
-    let model = ModelConfig {
-        name: "henon-heiles".to_string(),
-        n: None,
-        beta: None,
-    };
+    let model = ModelConfig::named("henon-heiles");
     let orbit = OrbitConfig {
         q: vec![0.0, q2],
         p: vec![0.0, 0.0],
@@ -86,9 +82,9 @@ pub fn fput_beta(
     schemes: Vec<SchemeConfig>,
 ) -> RunConfig {
     let model = ModelConfig {
-        name: "fput-beta".to_string(),
         n: Some(q.len()),
         beta: Some(1.0),
+        ..ModelConfig::named("fput-beta")
     };
     let orbit = OrbitConfig {
         q: q.to_vec(),

@@ -37,6 +37,12 @@ impl Model for DynLanes {
     fn kinetic(&self, p: &[f64]) -> f64 {
         self.0.kinetic(p)
     }
+    fn inverse_masses(&self) -> Option<&[f64]> {
+        self.0.inverse_masses()
+    }
+    fn no_hessian_reason(&self) -> Option<String> {
+        self.0.no_hessian_reason()
+    }
     fn energy(&self, x: &[f64]) -> f64 {
         self.0.energy(x)
     }

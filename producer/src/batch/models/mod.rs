@@ -1,6 +1,7 @@
 //! Lane implementations of the models, and the choice of one for a run.
 
 mod dynamic;
+mod expression;
 mod fput;
 mod henon_heiles;
 
@@ -8,7 +9,7 @@ use std::sync::Arc;
 
 pub use dynamic::DynLanes;
 
-use crate::model::{FputBeta, HenonHeiles, Model};
+use crate::model::{ExpressionModel, FputBeta, HenonHeiles, Model};
 
 /// A model with its lane implementation, chosen once per run so the kernel is monomorphic
 /// (inlined into the SIMD instantiations) for the models chaoscope ships.
@@ -16,6 +17,8 @@ use crate::model::{FputBeta, HenonHeiles, Model};
 pub enum AnyLaneModel {
     HenonHeiles(HenonHeiles),
     Fput(FputBeta),
+    /// A user-written potential: its compiled lane functions.
+    Expression(ExpressionModel),
     /// Any other model: lane by lane through the scalar trait methods (correct, not fast).
     Other(DynLanes),
 }
@@ -24,6 +27,10 @@ impl AnyLaneModel {
     /// The lane implementation for `model`, identified by its name and degrees of freedom.
     /// `beta` is needed to rebuild the FPUT chain (the trait object does not expose it).
     pub fn new(model: Arc<dyn Model>, fput_beta: Option<f64>) -> Self {
+        let any: &dyn std::any::Any = model.as_ref();
+        if let Some(m) = any.downcast_ref::<ExpressionModel>() {
+            return Self::Expression(m.clone());
+        }
         match (model.name(), fput_beta) {
             ("henon-heiles", _) => Self::HenonHeiles(HenonHeiles),
             ("fput-beta", Some(beta)) => match FputBeta::new(model.dof(), beta) {
@@ -42,6 +49,7 @@ macro_rules! with_lane_model {
         match $any {
             $crate::batch::AnyLaneModel::HenonHeiles($m) => $body,
             $crate::batch::AnyLaneModel::Fput($m) => $body,
+            $crate::batch::AnyLaneModel::Expression($m) => $body,
             $crate::batch::AnyLaneModel::Other($m) => $body,
         }
     };

@@ -1,0 +1,286 @@
+//! `[model] name = "potential"`: a separable Hamiltonian whose potential the user writes as an
+//! expression, compiled once to native code with its gradient and Hessian-vector product
+//! derived symbolically.
+//!
+//! The expression is lowered to a DAG (`chaoscope_expr`), differentiated there (reverse mode for
+//! the gradient, forward mode over the gradient for `Hess V v`), and the potential, gradient and
+//! Hessian-vector product are compiled by Cranelift, once per run, both as scalar functions (the
+//! one-orbit engine) and over structure-of-arrays lanes (the batched kernel). The compiled code
+//! performs exactly the reference evaluator's operations, so every path gives the same bits.
+
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
+use std::time::Duration;
+
+use chaoscope_expr::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
+use chaoscope_expr::jit::{Compiled, FunctionSpec, Layout};
+use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope};
+use chaoscope_expr::smooth::Smoothness;
+use chaoscope_expr::{Span, diff, eval, jit, lower};
+
+use super::Model;
+
+/// Everything that defines a potential model, validated except for the expression itself.
+#[derive(Debug, Clone)]
+pub struct PotentialDefinition {
+    /// Degrees of freedom `N`.
+    pub n: usize,
+    /// The expression of `V(q)`.
+    pub potential: String,
+    pub params: BTreeMap<String, ParamValue>,
+    /// `1 / m_i`, or `None` for unit masses.
+    pub inverse_masses: Option<Vec<f64>>,
+    pub boundary: Boundary,
+    /// Tabulated functions by the name the expression calls them.
+    pub tables: Vec<(String, Arc<dyn Tabulated>)>,
+}
+
+/// Why a potential could not be built: the expression (with line, column and caret) or the
+/// compiler.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct PotentialError(pub String);
+
+// Function indices in the compiled module.
+const POTENTIAL: usize = 0;
+const GRADIENT: usize = 1;
+const HESSIAN_VECTOR: usize = 2;
+const GRADIENT_LANES: usize = 3;
+const HESSIAN_VECTOR_LANES: usize = 4;
+
+/// Argument arrays of the compiled functions: positions, and the direction of `Hess V v`.
+const ARG_Q: u8 = 0;
+const ARG_V: u8 = 1;
+
+struct Inner {
+    definition: PotentialDefinition,
+    graph: Graph,
+    origins: HashMap<NodeId, Span>,
+    potential: NodeId,
+    gradient: Vec<NodeId>,
+    smoothness: Smoothness,
+    compiled: Compiled,
+    build_time: Duration,
+}
+
+/// A compiled potential model. Cheap to clone (shared compiled code).
+#[derive(Clone)]
+pub struct ExpressionModel(Arc<Inner>);
+
+impl std::fmt::Debug for ExpressionModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ExpressionModel")
+            .field("n", &self.0.definition.n)
+            .field("potential", &self.0.definition.potential)
+            .field("nodes", &self.0.graph.len())
+            .finish()
+    }
+}
+
+impl ExpressionModel {
+    /// Parse, differentiate and compile.
+    pub fn new(definition: PotentialDefinition) -> Result<Self, PotentialError> {
+        let started = std::time::Instant::now();
+        let n = definition.n;
+        let mut graph = Graph::new();
+        let tables: Vec<(String, u32)> = definition
+            .tables
+            .iter()
+            .map(|(name, t)| (name.clone(), graph.add_table(t.clone())))
+            .collect();
+        let families = [Family {
+            name: "q".to_string(),
+            len: n,
+            arg: ARG_Q,
+        }];
+        let scope = Scope {
+            families: &families,
+            params: &definition.params,
+            tables: &tables,
+            n,
+            boundary: definition.boundary,
+        };
+        let lowered = lower::lower(&definition.potential, &scope, &mut graph)
+            .map_err(|e| PotentialError(e.to_string()))?;
+        let potential = lowered.root;
+        let gradient = diff::gradient(&mut graph, potential, ARG_Q, n)
+            .map_err(|e| PotentialError(e.to_string()))?;
+        // Second derivatives only where they exist: a potential that is not C^2 is refused
+        // for VM anyway, and its Hessian-vector product is not compiled.
+        let c2 = lowered.smoothness.require(2, "vm").is_ok();
+        let hessian_vector = if c2 {
+            diff::directional(&mut graph, &gradient, ARG_Q, ARG_V)
+                .map_err(|e| PotentialError(e.to_string()))?
+        } else {
+            vec![graph.constant(0.0); n]
+        };
+        let specs = [
+            FunctionSpec {
+                args: vec![Layout::Scalar],
+                outputs: vec![potential],
+            },
+            FunctionSpec {
+                args: vec![Layout::Scalar],
+                outputs: gradient.clone(),
+            },
+            FunctionSpec {
+                args: vec![Layout::Scalar, Layout::Scalar],
+                outputs: hessian_vector.clone(),
+            },
+            FunctionSpec {
+                args: vec![Layout::Lanes],
+                outputs: gradient.clone(),
+            },
+            FunctionSpec {
+                args: vec![Layout::Scalar, Layout::Lanes],
+                outputs: hessian_vector,
+            },
+        ];
+        let compiled = jit::compile(&graph, &specs)
+            .map_err(|e| PotentialError(format!("compiling the potential: {e}")))?;
+        Ok(Self(Arc::new(Inner {
+            origins: lowered.origins,
+            smoothness: lowered.smoothness,
+            definition,
+            graph,
+            potential,
+            gradient,
+            compiled,
+            build_time: started.elapsed(),
+        })))
+    }
+
+    pub fn definition(&self) -> &PotentialDefinition {
+        &self.0.definition
+    }
+
+    /// Parse, differentiate and compile time of this model.
+    pub fn build_time(&self) -> Duration {
+        self.0.build_time
+    }
+
+    /// Nodes of the expression DAG (potential, gradient, Hessian-vector product).
+    pub fn graph_nodes(&self) -> usize {
+        self.0.graph.len()
+    }
+
+    pub fn smoothness(&self) -> &Smoothness {
+        &self.0.smoothness
+    }
+
+    /// The gradient over `L` lanes in SoA rows (`q[i][l]`), by the compiled lane function.
+    #[inline]
+    pub fn gradient_soa(&self, q: &[f64], out: &mut [f64], lanes: usize) {
+        self.0
+            .compiled
+            .call_lanes(GRADIENT_LANES, &[q], out, lanes)
+    }
+
+    /// `Hess V(q) v` over `L` lanes of `v` at one shared position `q`.
+    #[inline]
+    pub fn hessian_vector_soa(&self, q: &[f64], v: &[f64], out: &mut [f64], lanes: usize) {
+        self.0
+            .compiled
+            .call_lanes(HESSIAN_VECTOR_LANES, &[q, v], out, lanes)
+    }
+
+    /// A readable name of a node's operation for messages.
+    fn operation(node: &Node) -> String {
+        match node {
+            Node::Unary(u, _) => match u {
+                Unary::Neg => "unary -".into(),
+                other => format!("{other:?}").to_lowercase(),
+            },
+            Node::Binary(b, _, _) => match b {
+                Binary::Add => "+".into(),
+                Binary::Sub => "-".into(),
+                Binary::Mul => "*".into(),
+                Binary::Div => "/".into(),
+                Binary::Pow => "^".into(),
+                other => format!("{other:?}").to_lowercase(),
+            },
+            Node::Powi(_, n) => format!("^{n}"),
+            Node::Select { .. } => "if".into(),
+            Node::Table { table, .. } => format!("table {table}"),
+            Node::Const(_) | Node::Input { .. } => "value".into(),
+        }
+    }
+
+    fn describe(&self, id: NodeId, q: &[f64], what: &str) -> String {
+        let node = self.0.graph.node(id);
+        let mut value = [0.0];
+        eval::Evaluator::new().eval(&self.0.graph, &[q], &[id], &mut value);
+        let op = match node {
+            Node::Table { table, .. } => {
+                format!("table '{}'", self.0.graph.tables()[*table as usize].name())
+            }
+            other => format!("'{}'", Self::operation(other)),
+        };
+        match self.0.origins.get(&id) {
+            Some(span) => {
+                let (line, column) = span.line_column(&self.0.definition.potential);
+                format!("{op} at line {line}, column {column} of the potential gave {} ({what})", value[0])
+            }
+            None => format!("{op} gave {} ({what})", value[0]),
+        }
+    }
+}
+
+impl Model for ExpressionModel {
+    fn name(&self) -> &str {
+        "potential"
+    }
+
+    fn dof(&self) -> usize {
+        self.0.definition.n
+    }
+
+    #[inline]
+    fn potential(&self, q: &[f64]) -> f64 {
+        let mut v = [0.0];
+        self.0.compiled.call(POTENTIAL, &[q], &mut v);
+        v[0]
+    }
+
+    #[inline]
+    fn gradient(&self, q: &[f64], out: &mut [f64]) {
+        self.0.compiled.call(GRADIENT, &[q], out)
+    }
+
+    #[inline]
+    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+        if !self.has_hessian() {
+            return false;
+        }
+        self.0.compiled.call(HESSIAN_VECTOR, &[q, v], out);
+        true
+    }
+
+    fn has_hessian(&self) -> bool {
+        self.0.smoothness.require(2, "vm").is_ok()
+    }
+
+    fn no_hessian_reason(&self) -> Option<String> {
+        self.0
+            .smoothness
+            .require(2, "the variational method (vm)")
+            .err()
+    }
+
+    fn inverse_masses(&self) -> Option<&[f64]> {
+        self.0.definition.inverse_masses.as_deref()
+    }
+
+    fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {
+        let g = &self.0.graph;
+        if let Some(id) = eval::first_non_finite(g, &[q], self.0.potential) {
+            return Some(self.describe(id, q, "in the potential"));
+        }
+        for (i, &out) in self.0.gradient.iter().enumerate() {
+            if let Some(id) = eval::first_non_finite(g, &[q], out) {
+                return Some(self.describe(id, q, &format!("in dV/dq{}", i + 1)));
+            }
+        }
+        None
+    }
+}

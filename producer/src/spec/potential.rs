@@ -1,0 +1,193 @@
+//! `[model] name = "potential"`: the config keys of a user-written potential, checked and
+//! turned into a compiled [`ExpressionModel`].
+//!
+//! The one place in the validation that reads files: the tables a config names. Their SHA-256
+//! digests are returned so the recording's configuration pins them (replay and map resume on
+//! another machine then refuse a table that differs).
+
+use std::sync::Arc;
+
+use chaoscope_expr::lower::{Boundary, ParamValue};
+use chaoscope_expr::table::{self, Spline, SplineKind};
+use chaoscope_schemas::config::{self, ModelConfig, TableConfig};
+
+use super::SpecError;
+use crate::model::{ExpressionModel, Model, PotentialDefinition};
+
+/// Most degrees of freedom of a potential model (the straight-line compiled code grows with N).
+pub const MAX_SITES: usize = 100_000;
+
+/// A table as loaded: its name in the expression and the digest of the file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TableDigest {
+    pub name: String,
+    pub sha256: String,
+}
+
+fn param_value(key: &str, v: &config::ParamValue, n: usize) -> Result<ParamValue, SpecError> {
+    match v {
+        config::ParamValue::Scalar(x) if x.is_finite() => Ok(ParamValue::Scalar(*x)),
+        config::ParamValue::Scalar(x) => Err(SpecError::new(key, format!("must be finite, got {x}"))),
+        config::ParamValue::Array(xs) => {
+            if xs.len() != n {
+                return Err(SpecError::new(
+                    key,
+                    format!("has {} entries but the model has n = {n} sites", xs.len()),
+                ));
+            }
+            if let Some(i) = xs.iter().position(|x| !x.is_finite()) {
+                return Err(SpecError::new(
+                    key,
+                    format!("entry {} is not finite ({})", i + 1, xs[i]),
+                ));
+            }
+            Ok(ParamValue::Array(xs.clone()))
+        }
+    }
+}
+
+fn inverse_masses(m: &config::ParamValue, n: usize) -> Result<Option<Vec<f64>>, SpecError> {
+    let masses = match param_value("model.masses", m, n)? {
+        ParamValue::Scalar(m) => vec![m; n],
+        ParamValue::Array(ms) => ms,
+    };
+    if let Some(i) = masses.iter().position(|&m| m <= 0.0) {
+        return Err(SpecError::new(
+            "model.masses",
+            format!("mass {} must be positive, got {}", i + 1, masses[i]),
+        ));
+    }
+    // Unit masses keep the mass-free code paths (bit-identical to the built-in models).
+    Ok(if masses.iter().all(|&m| m == 1.0) {
+        None
+    } else {
+        Some(masses.iter().map(|m| 1.0 / m).collect())
+    })
+}
+
+fn load_table(name: &str, cfg: &TableConfig) -> Result<(Arc<Spline>, TableDigest), SpecError> {
+    let key = format!("model.tables.{name}");
+    let spec = cfg.spec();
+    let data = table::read_csv(std::path::Path::new(&spec.file))
+        .map_err(|e| SpecError::new(&key, e.to_string()))?;
+    let digest = data.digest_hex();
+    if let Some(pinned) = &spec.sha256
+        && !pinned.eq_ignore_ascii_case(&digest)
+    {
+        return Err(SpecError::new(
+            format!("{key}.sha256"),
+            format!(
+                "{} has SHA-256 {digest}, but this run was made with {pinned}: the table \
+                 differs from the one recorded",
+                spec.file
+            ),
+        ));
+    }
+    let kind = match (spec.spline.as_deref().unwrap_or("natural"), spec.slopes) {
+        ("natural", None) => SplineKind::Natural,
+        ("natural", Some(_)) => {
+            return Err(SpecError::new(
+                format!("{key}.slopes"),
+                "slopes apply to spline = \"clamped\"",
+            ));
+        }
+        ("clamped", Some([left, right])) if left.is_finite() && right.is_finite() => {
+            SplineKind::Clamped { left, right }
+        }
+        ("clamped", _) => {
+            return Err(SpecError::new(
+                format!("{key}.slopes"),
+                "a clamped spline needs finite slopes = [f'(x_first), f'(x_last)]",
+            ));
+        }
+        (other, _) => {
+            return Err(SpecError::new(
+                format!("{key}.spline"),
+                format!("'{other}' is not natural or clamped"),
+            ));
+        }
+    };
+    let spline = Spline::new(name, &data.xs, &data.ys, kind)
+        .map_err(|e| SpecError::new(&key, e.to_string()))?;
+    Ok((
+        Arc::new(spline),
+        TableDigest {
+            name: name.to_string(),
+            sha256: digest,
+        },
+    ))
+}
+
+/// Check the keys of a `potential` model, load its tables and compile it.
+pub fn potential_model(
+    cfg: &ModelConfig,
+) -> Result<(Arc<dyn Model>, Vec<TableDigest>), SpecError> {
+    let n = cfg
+        .n
+        .ok_or_else(|| SpecError::new("model.n", "a potential model needs the number of sites n"))?;
+    if n == 0 || n > MAX_SITES {
+        return Err(SpecError::new(
+            "model.n",
+            format!("must be between 1 and {MAX_SITES}, got {n}"),
+        ));
+    }
+    if cfg.beta.is_some() {
+        return Err(SpecError::new(
+            "model.beta",
+            "a potential model takes its constants from params, e.g. params = { beta = 1.0 }",
+        ));
+    }
+    let potential = cfg
+        .potential
+        .as_ref()
+        .ok_or_else(|| SpecError::new("model.potential", "a potential model needs potential = \"...\""))?;
+    let mut params = std::collections::BTreeMap::new();
+    for (name, v) in &cfg.params {
+        params.insert(name.clone(), param_value(&format!("model.params.{name}"), v, n)?);
+    }
+    let inverse_masses = match &cfg.masses {
+        Some(m) => inverse_masses(m, n)?,
+        None => None,
+    };
+    let boundary = match cfg.boundary.as_deref().unwrap_or("fixed") {
+        "fixed" => Boundary::Fixed,
+        "periodic" => Boundary::Periodic,
+        "free" => Boundary::Free,
+        other => {
+            return Err(SpecError::new(
+                "model.boundary",
+                format!("'{other}' is not fixed, periodic or free"),
+            ));
+        }
+    };
+    let mut tables = Vec::new();
+    let mut digests = Vec::new();
+    for (name, t) in &cfg.tables {
+        let (spline, digest) = load_table(name, t)?;
+        tables.push((name.clone(), spline as Arc<dyn chaoscope_expr::graph::Tabulated>));
+        digests.push(digest);
+    }
+    let model = ExpressionModel::new(PotentialDefinition {
+        n,
+        potential: potential.clone(),
+        params,
+        inverse_masses,
+        boundary,
+        tables,
+    })
+    .map_err(|e| SpecError::new("model.potential", e.0))?;
+    Ok((Arc::new(model), digests))
+}
+
+/// `cfg` with every table's `sha256` filled in from `digests` (what recordings carry).
+pub fn pin_tables(cfg: &ModelConfig, digests: &[TableDigest]) -> ModelConfig {
+    let mut cfg = cfg.clone();
+    for d in digests {
+        if let Some(t) = cfg.tables.get_mut(&d.name) {
+            let mut spec = t.spec();
+            spec.sha256 = Some(d.sha256.clone());
+            *t = TableConfig::Detailed(spec);
+        }
+    }
+    cfg
+}

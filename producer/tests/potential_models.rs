@@ -1,0 +1,330 @@
+//! `[model] name = "potential"`: user-written potentials against the built-in models they
+//! restate, the integrable Toda lattice's GALI laws, a tabulated bond against the analytic one,
+//! and the refusals (VM on a non-smooth potential, bad expressions, run-time NaN).
+
+use chaoscope_producer::engine::{Engine, RunError};
+use chaoscope_producer::indicators::{StretchSums, gali_log10, sali};
+use chaoscope_producer::model::{FputBeta, Model};
+use chaoscope_producer::spec::RunSpec;
+use chaoscope_schemas::config::{
+    DeviationsConfig, ModelConfig, ParamValue, RunConfig, SchemeConfig, TableConfig, TableSpec,
+    paper,
+};
+
+mod common;
+
+const HH_POTENTIAL: &str = "(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3";
+const FPUT_POTENTIAL: &str = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
+
+fn vm_and_mpm() -> Vec<SchemeConfig> {
+    vec![
+        SchemeConfig::new("vm", "vm", 1e-8, 1.0),
+        SchemeConfig::new("mpm", "mpm", 1e-8, 1.0),
+    ]
+}
+
+/// Everything the indicators are computed from, at the end of a run, per (scheme, set):
+/// log10 GALI_2..k, SALI, MLE.
+#[derive(Debug, Clone, PartialEq)]
+struct Final {
+    state: Vec<f64>,
+    gali: Vec<Vec<f64>>,
+    sali: Vec<f64>,
+    mle: Vec<f64>,
+}
+
+fn final_indicators(spec: RunSpec) -> Final {
+    let dim = spec.dim;
+    let n_tasks = spec.schemes.len() * spec.sets();
+    let mut sums = vec![StretchSums::new(spec.k); n_tasks];
+    let mut last = None;
+    Engine::new(spec)
+        .run(|s| {
+            if s.seq > 0 {
+                for (i, d) in s.schemes.iter().enumerate() {
+                    sums[i].add(&d.stretch);
+                }
+            }
+            last = Some(s);
+        })
+        .expect("the run completes");
+    let s = last.unwrap();
+    Final {
+        gali: s
+            .schemes
+            .iter()
+            .map(|d| gali_log10(&d.separations, dim))
+            .collect(),
+        sali: s
+            .schemes
+            .iter()
+            .map(|d| sali(&d.separations, dim).unwrap_or(f64::NAN))
+            .collect(),
+        mle: sums.iter().map(|m| m.mle(s.t)).collect(),
+        state: s.state,
+    }
+}
+
+/// Largest relative difference over every number of two results, and whether all bits agree.
+fn compare(a: &Final, b: &Final) -> (f64, bool) {
+    let pairs = a
+        .state
+        .iter()
+        .zip(&b.state)
+        .chain(a.gali.iter().flatten().zip(b.gali.iter().flatten()))
+        .chain(a.sali.iter().zip(&b.sali))
+        .chain(a.mle.iter().zip(&b.mle));
+    let mut worst: f64 = 0.0;
+    let mut identical = true;
+    for (x, y) in pairs {
+        identical &= x.to_bits() == y.to_bits();
+        worst = worst.max((x - y).abs() / x.abs().max(1e-300));
+    }
+    (worst, identical)
+}
+
+fn with_model(mut config: RunConfig, model: ModelConfig) -> RunConfig {
+    config.model = model;
+    config
+}
+
+fn hh_expression() -> ModelConfig {
+    ModelConfig::potential(2, HH_POTENTIAL)
+}
+
+#[test]
+fn henon_heiles_as_an_expression_matches_the_built_in_model() {
+    // Regular orbit to t = 1000, chaotic to t = 200 (must-show 1). A last-bit difference in the
+    // forces would grow linearly on the regular orbit and like exp(l1 t) ~ e^(0.05 * 200) ~ 2e4
+    // on the chaotic one: 1e-9 relative leaves room for either. What we get is stated below.
+    for (q2, t_final) in [(paper::HH_REGULAR_Q2, 1000.0), (paper::HH_CHAOTIC_Q2, 200.0)] {
+        let builtin = paper::henon_heiles(q2, t_final, DeviationsConfig::random(4, 2, 5), vm_and_mpm());
+        let expression = with_model(builtin.clone(), hh_expression());
+        let a = final_indicators(RunSpec::from_config(&builtin).unwrap());
+        let b = final_indicators(RunSpec::from_config(&expression).unwrap());
+        let (worst, identical) = compare(&a, &b);
+        eprintln!(
+            "HH x2 = {q2}, t = {t_final}: largest relative difference {worst:.2e}, bit-identical: {identical}"
+        );
+        assert!(worst <= 1e-9, "x2 = {q2}: {worst:e}");
+    }
+}
+
+/// The paper's FPUT-beta N = 5 regular orbit, or a low-amplitude lowest mode for other N.
+fn fput_orbit(n: usize) -> (Vec<f64>, Vec<f64>) {
+    if n == 5 {
+        return (
+            paper::FPUT_N5_REGULAR_Q.to_vec(),
+            paper::FPUT_N5_REGULAR_P.to_vec(),
+        );
+    }
+    let q = (1..=n)
+        .map(|i| 0.5 * (std::f64::consts::PI * i as f64 / (n + 1) as f64).sin())
+        .collect();
+    (q, vec![0.0; n])
+}
+
+fn fput_expression(n: usize) -> ModelConfig {
+    let mut m = ModelConfig::potential(n, FPUT_POTENTIAL);
+    m.params.insert("beta".into(), ParamValue::Scalar(1.0));
+    m
+}
+
+#[test]
+fn fput_chain_as_a_lattice_sum_matches_the_built_in_chain() {
+    // Must-show 2: N = 101, a regular low-energy orbit (the lowest normal mode), t = 200.
+    let n = 101;
+    let (q, p) = fput_orbit(n);
+    let builtin = paper::fput_beta(&q, &p, 0.02, 200.0, DeviationsConfig::random(4, 2, 9), vm_and_mpm());
+    let expression = with_model(builtin.clone(), fput_expression(n));
+    let a = final_indicators(RunSpec::from_config(&builtin).unwrap());
+    let b = final_indicators(RunSpec::from_config(&expression).unwrap());
+    let (worst, identical) = compare(&a, &b);
+    eprintln!("FPUT N = {n}, t = 200: largest relative difference {worst:.2e}, bit-identical: {identical}");
+    assert!(worst <= 1e-9, "{worst:e}");
+}
+
+#[test]
+fn fput_chain_of_1001_sites_compiles_quickly() {
+    // Must-show 2: compile time for N = 1001 (the timing itself is reported, and measured again
+    // by `chaoscope bench`; here only that it builds and agrees with the built-in forces).
+    let n = 1001;
+    let (model, _) = chaoscope_producer::spec::model_from_config(&fput_expression(n)).unwrap();
+    let builtin = FputBeta::new(n, 1.0).unwrap();
+    let any: &dyn std::any::Any = model.as_ref();
+    let compiled = any
+        .downcast_ref::<chaoscope_producer::model::ExpressionModel>()
+        .unwrap();
+    eprintln!(
+        "FPUT N = 1001: {} graph nodes, parse + differentiate + compile {:.3} s",
+        compiled.graph_nodes(),
+        compiled.build_time().as_secs_f64()
+    );
+    let q: Vec<f64> = (0..n).map(|i| 0.3 * (i as f64 * 0.7).sin()).collect();
+    let (mut g1, mut g2) = (vec![0.0; n], vec![0.0; n]);
+    model.gradient(&q, &mut g1);
+    builtin.gradient(&q, &mut g2);
+    for i in 0..n {
+        assert!((g1[i] - g2[i]).abs() <= 1e-14 * (1.0 + g2[i].abs()), "site {i}: {} vs {}", g1[i], g2[i]);
+    }
+}
+
+#[test]
+fn toda_lattice_gali_follows_the_torus_laws() {
+    // Must-show 4. The periodic Toda lattice is integrable: an orbit lies on an N-torus, so
+    // GALI_k tends to a constant for k <= N and decays as t^-2(k-N) for k > N. N = 3 keeps
+    // the test fast. The laws are asymptotic: the deviation vectors need many periods to
+    // align with the torus (the frequencies here are O(1), periods ~ 5), so the slopes are
+    // fitted over the last decade [1e3, 1e4].
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../examples/models/toda.toml"
+    ))
+    .unwrap();
+    let config = RunConfig::from_toml(&text).unwrap();
+    let rec = common::run(&config);
+    let vm = rec.scheme("vm");
+    let n = 3;
+    let window: Vec<&common::Point> = vm.iter().filter(|p| p.t >= 1e3).collect();
+    let x: Vec<f64> = window.iter().map(|p| p.t.log10()).collect();
+    for k in 2..=2 * n {
+        let y: Vec<f64> = window.iter().map(|p| p.mean_log_gali(k)).collect();
+        let slope = common::slope(&x, &y);
+        let expected = if k <= n { 0.0 } else { -2.0 * (k - n) as f64 };
+        eprintln!("Toda N = 3: GALI_{k} slope over [1e3, 1e4] = {slope:.3} (law {expected})");
+        assert!((slope - expected).abs() <= 0.25, "GALI_{k}: {slope}");
+    }
+    // Energy conserved by the symplectic scheme (bounded error, no drift).
+    let worst = vm.iter().map(|p| p.energy_error).fold(0.0, f64::max);
+    assert!(worst < 1e-8, "energy error {worst:e}");
+}
+
+/// The FPUT bond `r^2/2 + r^4/4` sampled every `dx` on [-3, 3] into a CSV file.
+fn write_fput_bond(dir: &std::path::Path, dx: f64) -> std::path::PathBuf {
+    let n = (6.0 / dx).round() as usize;
+    let mut text = String::from("r,U\n");
+    for j in 0..=n {
+        let r = -3.0 + j as f64 * dx;
+        text.push_str(&format!("{r:e},{:e}\n", r * r / 2.0 + r.powi(4) / 4.0));
+    }
+    let path = dir.join("bond.csv");
+    std::fs::write(&path, text).unwrap();
+    path
+}
+
+#[test]
+fn tabulated_bond_reproduces_the_analytic_chain() {
+    // Must-show 4, second part. A clamped cubic spline through samples of U(r) = r^2/2 + r^4/4
+    // at spacing dx has force error |U' - s'| <= (1/24) max|U''''| dx^3 = (1/24) 6 dx^3
+    // (Hall & Meyer 1976): 2.5e-10 for dx = 1e-3. On a regular orbit a force error eps moves
+    // the trajectory by ~ eps t^2 / 2 at worst (secular drift of the phases, ~ eps * t for the
+    // actions): 2.5e-10 * 1e6 / 2 ~ 1e-4 in the worst case, and in practice much less since
+    // the error averages over the orbit. GALI_k and the MLE estimate are smooth functions of
+    // the orbit and the directions on a regular orbit, so they agree to that order too. We
+    // assert 1e-3 relative on GALI and the state and 1e-3 absolute on the MLE estimates.
+    let dir = tempfile::tempdir().unwrap();
+    let csv = write_fput_bond(dir.path(), 1e-3);
+    let analytic = paper::fput_beta(
+        &paper::FPUT_N5_REGULAR_Q,
+        &paper::FPUT_N5_REGULAR_P,
+        0.01,
+        1000.0,
+        DeviationsConfig::random(4, 2, 1),
+        vm_and_mpm(),
+    );
+    let mut model = ModelConfig::potential(5, "sum(i = 0..N, U(q[i+1] - q[i]))");
+    model.tables.insert(
+        "U".into(),
+        TableConfig::Detailed(TableSpec {
+            file: csv.to_string_lossy().into_owned(),
+            spline: Some("clamped".into()),
+            slopes: Some([-30.0, 30.0]),
+            sha256: None,
+        }),
+    );
+    let tabulated = with_model(analytic.clone(), model);
+    let a = final_indicators(RunSpec::from_config(&analytic).unwrap());
+    let b = final_indicators(RunSpec::from_config(&tabulated).unwrap());
+    let state = a.state.iter().zip(&b.state).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    let gali = a
+        .gali
+        .iter()
+        .flatten()
+        .zip(b.gali.iter().flatten())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
+    let mle = a.mle.iter().zip(&b.mle).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    eprintln!("tabulated vs analytic FPUT N = 5 at t = 1000: |dx| {state:.2e}, |d log10 GALI| {gali:.2e}, |d MLE| {mle:.2e}");
+    assert!(state < 1e-3, "{state:e}");
+    // log10 GALI differences of 4.3e-4 are 1e-3 relative in GALI.
+    assert!(gali < 4.3e-4, "{gali:e}");
+    assert!(mle < 1e-3, "{mle:e}");
+}
+
+#[test]
+fn non_smooth_potential_is_refused_for_vm_naming_the_operation() {
+    let mut config = paper::henon_heiles(paper::HH_CHAOTIC_Q2, 10.0, DeviationsConfig::random(2, 1, 1), vm_and_mpm());
+    config.model = ModelConfig::potential(2, "(q1^2 + q2^2)/2 + abs(q1)*q2^2");
+    let err = RunSpec::from_config(&config).unwrap_err();
+    eprintln!("{err}");
+    assert_eq!(err.key, "scheme[0].method");
+    assert!(err.message.contains("'abs'"), "{err}");
+    assert!(err.message.contains("column 19"), "{err}");
+    // MPM runs it.
+    config.schemes.remove(0);
+    let spec = RunSpec::from_config(&config).unwrap();
+    Engine::new(spec).run(|_| {}).unwrap();
+}
+
+#[test]
+fn hertz_contact_allows_vm() {
+    // max(0, d)^(5/2): a kink at zero raised to 5/2 has continuous second derivatives.
+    let text = std::fs::read_to_string(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../examples/models/hertz-chain.toml"
+    ))
+    .unwrap();
+    let mut config = RunConfig::from_toml(&text).unwrap();
+    config.integrator.t_final = 10.0;
+    config.sweeps.clear();
+    RunSpec::from_config(&config).expect("vm is allowed for the Hertz chain");
+}
+
+#[test]
+fn bad_expressions_name_line_and_column() {
+    let cases: [(&str, &str); 6] = [
+        ("q1^2 + sinn(q2)", "column 8"),
+        ("q1^2 + r", "unknown"),
+        ("max(q1)", "max"),
+        ("q1 + (q2", "column"),
+        ("q1 +\n  q3", "line 2"),
+        ("beta*q1^2 + q2^2", "beta"),
+    ];
+    for (potential, needle) in cases {
+        let mut config = paper::henon_heiles(paper::HH_CHAOTIC_Q2, 10.0, DeviationsConfig::random(2, 1, 1), vm_and_mpm());
+        config.model = ModelConfig::potential(2, potential);
+        let err = RunSpec::from_config(&config).unwrap_err();
+        eprintln!("{err}");
+        assert_eq!(err.key, "model.potential", "{potential}: {err}");
+        assert!(err.message.contains(needle), "{potential}: {err}");
+        assert!(err.message.contains('^'), "{potential}: a caret under the place: {err}");
+    }
+}
+
+#[test]
+fn nan_at_run_time_names_the_time_and_the_operation() {
+    // log(1 + q2) is fine until q2 reaches -1: this orbit at H = 0.125 does not, but one
+    // started at q2 = -0.9 with momentum towards -1 does.
+    let mut config = paper::henon_heiles(-0.9, 50.0, DeviationsConfig::random(2, 1, 1), vec![SchemeConfig::new("mpm", "mpm", 1e-8, 1.0)]);
+    config.model = ModelConfig::potential(2, "(q1^2 + q2^2)/2 + log(1 + q2)");
+    config.orbit.energy = None;
+    config.orbit.solve_for = None;
+    config.orbit.p = vec![0.0, -1.0];
+    let spec = RunSpec::from_config(&config).unwrap();
+    let err = Engine::new(spec).run(|_| {}).unwrap_err();
+    eprintln!("{err}");
+    assert!(matches!(err, RunError::Escaped { .. }), "{err}");
+    let text = err.to_string();
+    assert!(text.contains("t = "), "{text}");
+    assert!(text.contains("'log'") || text.contains("'/'"), "{text}");
+}

@@ -16,6 +16,10 @@
 //!
 //! No I/O except `table`'s reading of the CSV file a config names.
 
+pub mod diff;
+pub mod eval;
 pub mod graph;
 
+pub use diff::{DiffError, directional, gradient};
+pub use eval::{Evaluator, first_non_finite};
 pub use graph::{Binary, Cmp, Graph, Node, NodeId, Unary};

@@ -188,7 +188,10 @@ pub fn parse_csv(text: &str, name: &str) -> Result<TableData, TableError> {
     let mut xs = Vec::new();
     let mut ys = Vec::new();
     let mut seen_data_line = false;
-    for (k, raw) in text.split('\n').enumerate() {
+    // A byte-order mark (spreadsheet exports) is not part of the first field; the digest
+    // still covers it.
+    let body = text.strip_prefix('\u{feff}').unwrap_or(text);
+    for (k, raw) in body.split('\n').enumerate() {
         let line = k + 1;
         let content = raw.split('#').next().unwrap_or("").trim();
         if content.is_empty() {
@@ -794,6 +797,7 @@ mod tests {
             "# a table\n\nx;V\n0;1\n0.5;-2 # inline comment\n\n1.0;3e-3\n1.5;+4",
             "0 1\r\n0.5\t-2\r\n  1.0   3e-3\r\n1.5 4\r\n",
             "r,potential\n0,1\n0.5,-2\n1.0,0.003\n1.5,4.0\n#end\n",
+            "\u{feff}0,1\n0.5,-2\n1.0,0.003\n1.5,4.0\n",
         ] {
             let d = parse_csv(text, "pot.csv").unwrap();
             assert_eq!((&d.xs, &d.ys), (&want.xs, &want.ys), "{text:?}");

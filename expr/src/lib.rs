@@ -16,6 +16,15 @@
 //!
 //! No I/O except `table`'s reading of the CSV file a config names.
 
+pub mod diff;
+pub mod eval;
 pub mod graph;
+pub mod table;
 
+pub use diff::{DiffError, directional, gradient};
+pub use eval::{Evaluator, first_non_finite};
 pub use graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
+pub use table::{
+    ErrorBound, Spline, SplineKind, TableData, TableError, interpolation_error_bound, parse_csv,
+    read_csv,
+};

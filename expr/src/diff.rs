@@ -1,0 +1,1109 @@
+//! Symbolic derivatives as new nodes of the same [`Graph`]: the gradient of a potential by
+//! reverse accumulation, and Jacobian-vector products (the Hessian-vector product of the
+//! variational equations) by forward accumulation.
+//!
+//! Both sweeps visit each node once, so the derivative costs `O(graph)` nodes, not
+//! `O(n * graph)`; hash-consing shares the pieces the gradient and the Hessian-vector product
+//! have in common with the function itself (the bond `q[i+1] - q[i]`, `sqrt(u)` reused by its
+//! own derivative).
+//!
+//! # How the gradient stays simple
+//!
+//! A node's adjoint is kept as a short sum of scaled terms `Σ c_k t_k` (`c_k` a number, `t_k`
+//! a node, `1` standing for "no node") rather than as one node, so that
+//! - constant factors meet and fold: `-(q2^3 / 3)` contributes `(-1/3) · 3 q2^2 = -q2^2`, not
+//!   `-0.333… * (3 * q2 * q2)`;
+//! - an adjoint of the form `c0 + c1 t` is distributed over the local derivative `d` as
+//!   `c0 d + c1 (t d)` (never more nodes than `(c0 + c1 t) d`), which turns the adjoint of
+//!   `q1^2` in Henon-Heiles, `1/2 + q2`, into the hand-written `q1 + 2 q1 q2` instead of
+//!   `(1/2 + q2) (2 q1)`.
+//!
+//! Every other adjoint is summed into one node before it is used (so a bond's `f'(r)` is built
+//! once and shared by both ends: a site's force is one subtraction `f'(r_{i-1}) - f'(r_i)`).
+//! Sums are built in a fixed order (the first positive term, then the constant, then by
+//! increasing node id, negative coefficients as subtractions), so the output depends only on
+//! the graph: no hash-map iteration order reaches it. With these rules the Henon-Heiles
+//! gradient is bit-identical to the hand-written `q1 + 2 q1 q2`, `q2 + q1^2 - q2^2` (tested).
+//!
+//! # Non-smooth operations
+//!
+//! `abs`, `max`, `min`, `step`, `sign` and `select` get their one-sided derivatives (`abs' =
+//! sign`, `max' = ` the derivative of the selected operand, `step' = sign' = 0`); where they
+//! matter (a kink crossed by a trajectory) is the smoothness check's business, not this one's.
+//! In reverse mode the derivative of the branch not taken is multiplied by `0`, so an infinite
+//! derivative there (`max(x, sqrt(x))` at `x = 0`) gives NaN where forward mode would not.
+
+use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
+
+/// What cannot be differentiated.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum DiffError {
+    /// Tables carry their value and three derivatives; a fourth would be needed.
+    #[error(
+        "table `{table}` would need its derivative {deriv}, but tables provide derivatives 0 to 3 only \
+         (a cubic spline has no continuous derivative beyond the second): use the table in an \
+         expression that is differentiated fewer times"
+    )]
+    TableDerivative { table: String, deriv: u8 },
+}
+
+/// The highest derivative a [`Node::Table`] provides.
+const MAX_TABLE_DERIV: u8 = 3;
+
+/// `c · t`, with `t = None` meaning the number `c` alone.
+type Term = (f64, Option<NodeId>);
+
+/// The local derivative of a one-operand operation, in a form that lets coefficients fold.
+#[derive(Debug, Clone, Copy)]
+enum Local {
+    /// `c · d`
+    Mul(f64, Option<NodeId>),
+    /// `c / d`
+    Div(f64, NodeId),
+}
+
+/// `a * b` with the operands in id order, so `x * y` and `y * x` are one node.
+fn mul_sorted(g: &mut Graph, a: NodeId, b: NodeId) -> NodeId {
+    if a <= b { g.mul(a, b) } else { g.mul(b, a) }
+}
+
+/// `t · d` where either may be absent (the number one).
+fn mul_opt(g: &mut Graph, t: Option<NodeId>, d: Option<NodeId>) -> Option<NodeId> {
+    match (t, d) {
+        (None, x) | (x, None) => x,
+        (Some(a), Some(b)) => Some(mul_sorted(g, a, b)),
+    }
+}
+
+/// A node seen as a term: constants become coefficients, `-x` and `c * x` expose their factor.
+fn as_term(g: &Graph, n: NodeId) -> Term {
+    match *g.node(n) {
+        Node::Const(c) => (c, None),
+        Node::Unary(Unary::Neg, x) => (-1.0, Some(x)),
+        Node::Binary(Binary::Mul, a, b) => match (g.as_const(a), g.as_const(b)) {
+            (Some(c), _) => (c, Some(b)),
+            (_, Some(c)) => (c, Some(a)),
+            _ => (1.0, Some(n)),
+        },
+        _ => (1.0, Some(n)),
+    }
+}
+
+/// A term applied to a local derivative.
+fn apply_local(g: &mut Graph, (c, t): Term, local: Local) -> Term {
+    match local {
+        Local::Mul(cl, d) => (c * cl, mul_opt(g, t, d)),
+        Local::Div(cl, d) => {
+            let num = match t {
+                Some(t) => t,
+                None => g.constant(1.0),
+            };
+            (c * cl, Some(g.div(num, d)))
+        }
+    }
+}
+
+/// `c · t` as one node.
+fn scaled(g: &mut Graph, (c, t): Term) -> NodeId {
+    match t {
+        None => g.constant(c),
+        Some(t) if c == 1.0 => t,
+        Some(t) if c == -1.0 => g.neg(t),
+        Some(t) => {
+            let k = g.constant(c);
+            g.mul(k, t)
+        }
+    }
+}
+
+/// Merge terms on the same node and order them: the constant first, then by node id. Terms
+/// with a zero coefficient vanish (as `0 * x` does in [`Graph::add`]).
+fn normalize(terms: &mut Vec<Term>) {
+    // `None < Some(_)`: the constant sorts first.
+    terms.sort_by_key(|&(_, t)| t);
+    let mut merged: Vec<Term> = Vec::with_capacity(terms.len());
+    for &(c, t) in terms.iter() {
+        match merged.last_mut() {
+            Some((lc, lt)) if *lt == t => *lc += c,
+            _ => merged.push((c, t)),
+        }
+    }
+    merged.retain(|&(c, _)| c != 0.0);
+    *terms = merged;
+}
+
+/// The sum of the terms as one node, negative coefficients as subtractions. The first
+/// positive term leads, so `-a + b` is built as `b - a` (one node, not a negation and a sum).
+fn materialize(g: &mut Graph, terms: &[Term]) -> NodeId {
+    if terms.is_empty() {
+        return g.constant(0.0);
+    }
+    let lead = terms.iter().position(|&(c, _)| c > 0.0).unwrap_or(0);
+    let mut acc = scaled(g, terms[lead]);
+    for &(c, t) in terms[..lead].iter().chain(&terms[lead + 1..]) {
+        acc = if c < 0.0 {
+            let s = scaled(g, (-c, t));
+            g.sub(acc, s)
+        } else {
+            let s = scaled(g, (c, t));
+            g.add2(acc, s)
+        };
+    }
+    acc
+}
+
+fn table_deriv(g: &mut Graph, table: u32, deriv: u8, arg: NodeId) -> Result<NodeId, DiffError> {
+    if deriv >= MAX_TABLE_DERIV {
+        return Err(DiffError::TableDerivative {
+            table: g.tables()[table as usize].name().to_string(),
+            deriv: deriv + 1,
+        });
+    }
+    Ok(g.add(Node::Table {
+        table,
+        deriv: deriv + 1,
+        arg,
+    }))
+}
+
+/// `d v / d u` for `v = op(u)`; `None` when it is zero.
+fn unary_local(g: &mut Graph, op: Unary, u: NodeId, v: NodeId) -> Option<Local> {
+    Some(match op {
+        Unary::Neg => Local::Mul(-1.0, None),
+        // (sqrt u)' = 1 / (2 sqrt u), written 0.5 / v: exact scaling, and the node v is reused.
+        Unary::Sqrt => Local::Div(0.5, v),
+        Unary::Exp => Local::Mul(1.0, Some(v)),
+        Unary::Log => Local::Div(1.0, u),
+        Unary::Sin => Local::Mul(1.0, Some(g.unary(Unary::Cos, u))),
+        Unary::Cos => Local::Mul(-1.0, Some(g.unary(Unary::Sin, u))),
+        // 1 + tan^2 reuses the tan node (no cos, no division).
+        Unary::Tan => {
+            let one = g.constant(1.0);
+            let v2 = g.powi(v, 2);
+            Local::Mul(1.0, Some(g.add2(one, v2)))
+        }
+        Unary::Atan => {
+            let one = g.constant(1.0);
+            let u2 = g.powi(u, 2);
+            Local::Div(1.0, g.add2(one, u2))
+        }
+        Unary::Tanh => {
+            let one = g.constant(1.0);
+            let v2 = g.powi(v, 2);
+            Local::Mul(1.0, Some(g.sub(one, v2)))
+        }
+        Unary::Cosh => Local::Mul(1.0, Some(g.unary(Unary::Sinh, u))),
+        Unary::Sinh => Local::Mul(1.0, Some(g.unary(Unary::Cosh, u))),
+        Unary::Abs => Local::Mul(1.0, Some(g.unary(Unary::Sign, u))),
+        Unary::Step | Unary::Sign => return None,
+    })
+}
+
+/// `d u^n / d u = n u^(n-1)`, as `Powi` (so `(u^2)' = 2 u`).
+fn powi_local(g: &mut Graph, u: NodeId, n: i32) -> Local {
+    let p = g.powi(u, n - 1);
+    match g.as_const(p) {
+        Some(1.0) => Local::Mul(n as f64, None),
+        _ => Local::Mul(n as f64, Some(p)),
+    }
+}
+
+/// `d u^c / d u = c u^(c-1)` for a constant `c`: `Powi` when `c - 1` is whole.
+fn pow_const_local(g: &mut Graph, u: NodeId, c: f64) -> Local {
+    let e = c - 1.0;
+    let p = if e == e.trunc() && e.abs() <= i32::MAX as f64 {
+        g.powi(u, e as i32)
+    } else {
+        let k = g.constant(e);
+        g.binary(Binary::Pow, u, k)
+    };
+    match g.as_const(p) {
+        Some(1.0) => Local::Mul(c, None),
+        _ => Local::Mul(c, Some(p)),
+    }
+}
+
+/// Whether an adjoint can be pushed through a one-operand local derivative term by term
+/// without creating more nodes than summing it first: at most one term carries a node.
+fn distributable(terms: &[Term], local: Local) -> bool {
+    match local {
+        Local::Mul(_, None) => true,
+        _ => terms.iter().filter(|(_, t)| t.is_some()).count() <= 1,
+    }
+}
+
+/// d root / d Input{arg, i} for i in 0..n, by reverse accumulation over the DAG (cost O(graph),
+/// not O(n * graph)): the adjoints are new nodes of the same graph.
+///
+/// Inputs of other arguments, and indices `>= n`, are treated as constants. An input the root
+/// does not depend on gets the constant `0`.
+pub fn gradient(g: &mut Graph, root: NodeId, arg: u8, n: usize) -> Result<Vec<NodeId>, DiffError> {
+    let len = root as usize + 1;
+    let mut adj: Vec<Vec<Term>> = vec![Vec::new(); len];
+    let mut input_ids: Vec<Option<NodeId>> = vec![None; n];
+    adj[root as usize].push((1.0, None));
+
+    for v in (0..=root).rev() {
+        let node = *g.node(v);
+        if let Node::Input { arg: a, index } = node {
+            if a == arg && (index as usize) < n {
+                input_ids[index as usize] = Some(v);
+            }
+            continue;
+        }
+        let mut terms = std::mem::take(&mut adj[v as usize]);
+        normalize(&mut terms);
+        if terms.is_empty() || matches!(node, Node::Const(_)) {
+            continue;
+        }
+        // Push `terms · local` to operand `u` (a constant operand needs no adjoint).
+        let push =
+            |g: &mut Graph, adj: &mut Vec<Vec<Term>>, terms: &[Term], u: NodeId, local: Local| {
+                if g.as_const(u).is_some() {
+                    return;
+                }
+                for &t in terms {
+                    let r = apply_local(g, t, local);
+                    adj[u as usize].push(r);
+                }
+            };
+        match node {
+            Node::Const(_) | Node::Input { .. } => unreachable!(),
+            Node::Unary(op, u) => {
+                if let Some(local) = unary_local(g, op, u, v) {
+                    let terms = through(g, terms, local);
+                    push(g, &mut adj, &terms, u, local);
+                }
+            }
+            Node::Powi(u, k) => {
+                let local = powi_local(g, u, k);
+                let terms = through(g, terms, local);
+                push(g, &mut adj, &terms, u, local);
+            }
+            Node::Table {
+                table,
+                deriv,
+                arg: u,
+            } => {
+                if g.as_const(u).is_none() {
+                    let d = table_deriv(g, table, deriv, u)?;
+                    let local = Local::Mul(1.0, Some(d));
+                    let terms = through(g, terms, local);
+                    push(g, &mut adj, &terms, u, local);
+                }
+            }
+            Node::Binary(op, a, b) => {
+                let (ca, cb) = (g.as_const(a), g.as_const(b));
+                // With two varying operands the adjoint is summed once and shared.
+                let shared = ca.is_none() && cb.is_none();
+                let factor = |c: Option<f64>, other: NodeId| match c {
+                    Some(c) => Local::Mul(c, None),
+                    None => Local::Mul(1.0, Some(other)),
+                };
+                let locals = match op {
+                    Binary::Add => [Local::Mul(1.0, None), Local::Mul(1.0, None)],
+                    Binary::Sub => [Local::Mul(1.0, None), Local::Mul(-1.0, None)],
+                    Binary::Mul => [factor(cb, b), factor(ca, a)],
+                    _ => [Local::Mul(0.0, None); 2],
+                };
+                match op {
+                    Binary::Add | Binary::Sub | Binary::Mul => {
+                        let distribute = !shared && {
+                            let l = if ca.is_none() { locals[0] } else { locals[1] };
+                            distributable(&terms, l)
+                        };
+                        let terms = single_if(g, terms, !distribute);
+                        push(g, &mut adj, &terms, a, locals[0]);
+                        push(g, &mut adj, &terms, b, locals[1]);
+                    }
+                    Binary::Div => {
+                        if let Some(c) = cb {
+                            // x / c: the coefficient folds into the adjoint's constants, as a
+                            // division (`x / 3` gives `adj / 3`, not `adj * 0.333…`).
+                            // Divide each coefficient by c rather than multiply by 1/c.
+                            if ca.is_none() {
+                                for &(k, t) in &terms {
+                                    adj[a as usize].push((k / c, t));
+                                }
+                            }
+                        } else {
+                            // a / b: da = 1 / b, db = -(a / b) / b, reusing the quotient v.
+                            let s = single(g, &terms);
+                            if ca.is_none() {
+                                let r = g.div(s, b);
+                                adj[a as usize].push((1.0, Some(r)));
+                            }
+                            let sv = mul_sorted(g, s, v);
+                            let r = g.div(sv, b);
+                            adj[b as usize].push((-1.0, Some(r)));
+                        }
+                    }
+                    Binary::Pow => {
+                        if let Some(c) = cb {
+                            let local = pow_const_local(g, a, c);
+                            let terms = through(g, terms, local);
+                            push(g, &mut adj, &terms, a, local);
+                        } else {
+                            // v = a^b: da = b v / a, db = v ln a.
+                            let s = single(g, &terms);
+                            if ca.is_none() {
+                                let bv = mul_sorted(g, b, v);
+                                let sbv = mul_sorted(g, s, bv);
+                                let r = g.div(sbv, a);
+                                adj[a as usize].push((1.0, Some(r)));
+                            }
+                            let ln = g.unary(Unary::Log, a);
+                            let (lc, lt) = as_term(g, ln);
+                            let vl = mul_opt(g, Some(v), lt);
+                            let r = mul_opt(g, Some(s), vl);
+                            adj[b as usize].push((lc, r));
+                        }
+                    }
+                    Binary::Atan2 => {
+                        // atan2(a, b): da = b / (a^2 + b^2), db = -a / (a^2 + b^2).
+                        let s = single(g, &terms);
+                        let a2 = g.powi(a, 2);
+                        let b2 = g.powi(b, 2);
+                        let den = g.add2(a2, b2);
+                        if ca.is_none() {
+                            let sb = mul_sorted(g, s, b);
+                            let r = g.div(sb, den);
+                            adj[a as usize].push((1.0, Some(r)));
+                        }
+                        if cb.is_none() {
+                            let sa = mul_sorted(g, s, a);
+                            let r = g.div(sa, den);
+                            adj[b as usize].push((-1.0, Some(r)));
+                        }
+                    }
+                    Binary::Max | Binary::Min => {
+                        let cmp = if op == Binary::Max { Cmp::Ge } else { Cmp::Le };
+                        let s = single(g, &terms);
+                        let zero = g.constant(0.0);
+                        if ca.is_none() {
+                            let r = select(g, cmp, a, b, s, zero);
+                            adj[a as usize].push((1.0, Some(r)));
+                        }
+                        if cb.is_none() {
+                            let r = select(g, cmp, a, b, zero, s);
+                            adj[b as usize].push((1.0, Some(r)));
+                        }
+                    }
+                }
+            }
+            Node::Select {
+                cmp,
+                a,
+                b,
+                then,
+                otherwise,
+            } => {
+                let s = single(g, &terms);
+                let zero = g.constant(0.0);
+                if g.as_const(then).is_none() {
+                    let r = select(g, cmp, a, b, s, zero);
+                    adj[then as usize].push((1.0, Some(r)));
+                }
+                if g.as_const(otherwise).is_none() {
+                    let r = select(g, cmp, a, b, zero, s);
+                    adj[otherwise as usize].push((1.0, Some(r)));
+                }
+            }
+        }
+    }
+
+    let mut out = Vec::with_capacity(n);
+    for id in input_ids {
+        out.push(match id {
+            Some(id) => {
+                let mut terms = std::mem::take(&mut adj[id as usize]);
+                normalize(&mut terms);
+                materialize(g, &terms)
+            }
+            None => g.constant(0.0),
+        });
+    }
+    Ok(out)
+}
+
+fn select(
+    g: &mut Graph,
+    cmp: Cmp,
+    a: NodeId,
+    b: NodeId,
+    then: NodeId,
+    otherwise: NodeId,
+) -> NodeId {
+    g.add(Node::Select {
+        cmp,
+        a,
+        b,
+        then,
+        otherwise,
+    })
+}
+
+/// The adjoint as one node.
+fn single(g: &mut Graph, terms: &[Term]) -> NodeId {
+    materialize(g, terms)
+}
+
+/// The terms ready to pass through `local`: as they are when that costs no extra nodes, else
+/// summed into one.
+fn through(g: &mut Graph, terms: Vec<Term>, local: Local) -> Vec<Term> {
+    let collapse = !distributable(&terms, local);
+    single_if(g, terms, collapse)
+}
+
+/// The terms, summed into one term when `collapse` is set (and there is more than one).
+fn single_if(g: &mut Graph, terms: Vec<Term>, collapse: bool) -> Vec<Term> {
+    if collapse && terms.len() > 1 {
+        let s = materialize(g, &terms);
+        vec![as_term(g, s)]
+    } else {
+        terms
+    }
+}
+
+/// `local · du` as one node. A product local derivative is built whole (`2 x`, `-sin x`) and
+/// then multiplied by `du`, so it is the same node the gradient or another tangent uses.
+fn apply_local_node(g: &mut Graph, local: Local, du: NodeId) -> NodeId {
+    match local {
+        Local::Mul(c, Some(d)) => {
+            let l = scaled(g, (c, Some(d)));
+            mul_sorted(g, l, du)
+        }
+        _ => {
+            let term = apply_local(g, (1.0, Some(du)), local);
+            scaled(g, term)
+        }
+    }
+}
+
+fn add_opt(g: &mut Graph, a: Option<NodeId>, b: Option<NodeId>) -> Option<NodeId> {
+    match (a, b) {
+        (None, x) | (x, None) => x,
+        (Some(a), Some(b)) => Some(g.add2(a, b)),
+    }
+}
+
+fn sub_opt(g: &mut Graph, a: Option<NodeId>, b: Option<NodeId>) -> Option<NodeId> {
+    match (a, b) {
+        (x, None) => x,
+        (None, Some(b)) => Some(g.neg(b)),
+        (Some(a), Some(b)) => Some(g.sub(a, b)),
+    }
+}
+
+/// Forward mode: for each output o, sum_j d o / d Input{arg, j} * Input{dir_arg, j} (a
+/// Jacobian-vector product; applied to the gradient it is the Hessian-vector product). Cost
+/// O(graph).
+///
+/// Only the nodes the outputs depend on get a tangent. An output that does not depend on
+/// `arg` gets the constant `0`.
+pub fn directional(
+    g: &mut Graph,
+    outputs: &[NodeId],
+    arg: u8,
+    dir_arg: u8,
+) -> Result<Vec<NodeId>, DiffError> {
+    let mut need = Vec::new();
+    crate::eval::mark_needed(g, outputs, &mut need);
+    let mut tan: Vec<Option<NodeId>> = vec![None; need.len()];
+    for v in 0..need.len() as NodeId {
+        if !need[v as usize] {
+            continue;
+        }
+        let t = |u: NodeId| tan[u as usize];
+        let node = *g.node(v);
+        let d = match node {
+            Node::Const(_) => None,
+            Node::Input { arg: a, index } => (a == arg).then(|| g.input(dir_arg, index)),
+            Node::Unary(op, u) => match (t(u), unary_local(g, op, u, v)) {
+                (Some(du), Some(local)) => Some(apply_local_node(g, local, du)),
+                _ => None,
+            },
+            Node::Powi(u, k) => t(u).map(|du| {
+                let local = powi_local(g, u, k);
+                apply_local_node(g, local, du)
+            }),
+            Node::Table {
+                table,
+                deriv,
+                arg: u,
+            } => match t(u) {
+                Some(du) => {
+                    let d = table_deriv(g, table, deriv, u)?;
+                    Some(mul_sorted(g, d, du))
+                }
+                None => None,
+            },
+            Node::Binary(op, a, b) => {
+                let (da, db) = (t(a), t(b));
+                if da.is_none() && db.is_none() {
+                    None
+                } else {
+                    binary_tangent(g, op, a, b, v, da, db)
+                }
+            }
+            Node::Select {
+                cmp,
+                a,
+                b,
+                then,
+                otherwise,
+            } => match (t(then), t(otherwise)) {
+                (None, None) => None,
+                (dt, dof) => {
+                    let zero = g.constant(0.0);
+                    Some(select(
+                        g,
+                        cmp,
+                        a,
+                        b,
+                        dt.unwrap_or(zero),
+                        dof.unwrap_or(zero),
+                    ))
+                }
+            },
+        };
+        tan[v as usize] = d;
+    }
+    Ok(outputs
+        .iter()
+        .map(|&o| match tan[o as usize] {
+            Some(d) => d,
+            None => g.constant(0.0),
+        })
+        .collect())
+}
+
+/// The tangent of `v = op(a, b)` given the operands' tangents (at least one present).
+fn binary_tangent(
+    g: &mut Graph,
+    op: Binary,
+    a: NodeId,
+    b: NodeId,
+    v: NodeId,
+    da: Option<NodeId>,
+    db: Option<NodeId>,
+) -> Option<NodeId> {
+    match op {
+        Binary::Add => add_opt(g, da, db),
+        Binary::Sub => sub_opt(g, da, db),
+        Binary::Mul => {
+            let x = da.map(|da| mul_sorted(g, da, b));
+            let y = db.map(|db| mul_sorted(g, a, db));
+            add_opt(g, x, y)
+        }
+        Binary::Div => match db {
+            // a / b with b constant: a' / b.
+            None => da.map(|da| g.div(da, b)),
+            // (a' - v b') / b, reusing the quotient v.
+            Some(db) => {
+                let vdb = mul_sorted(g, v, db);
+                let num = sub_opt(g, da, Some(vdb)).expect("present");
+                Some(g.div(num, b))
+            }
+        },
+        Binary::Pow => {
+            if let (Some(c), Some(da)) = (g.as_const(b), da) {
+                let local = pow_const_local(g, a, c);
+                return Some(apply_local_node(g, local, da));
+            }
+            // v (b' ln a + b a' / a)
+            let x = db.map(|db| {
+                let ln = g.unary(Unary::Log, a);
+                mul_sorted(g, db, ln)
+            });
+            let y = da.map(|da| {
+                let bda = mul_sorted(g, b, da);
+                g.div(bda, a)
+            });
+            let s = add_opt(g, x, y).expect("present");
+            Some(mul_sorted(g, v, s))
+        }
+        Binary::Atan2 => {
+            // (b a' - a b') / (a^2 + b^2)
+            let x = da.map(|da| mul_sorted(g, b, da));
+            let y = db.map(|db| mul_sorted(g, a, db));
+            let num = sub_opt(g, x, y).expect("present");
+            let a2 = g.powi(a, 2);
+            let b2 = g.powi(b, 2);
+            let den = g.add2(a2, b2);
+            Some(g.div(num, den))
+        }
+        Binary::Max | Binary::Min => {
+            let cmp = if op == Binary::Max { Cmp::Ge } else { Cmp::Le };
+            let zero = g.constant(0.0);
+            Some(select(g, cmp, a, b, da.unwrap_or(zero), db.unwrap_or(zero)))
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::Evaluator;
+    use crate::graph::Tabulated;
+    use std::sync::Arc;
+
+    /// Henon-Heiles as the lowering writes `(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3`.
+    fn henon_heiles(g: &mut Graph) -> NodeId {
+        let q1 = g.input(0, 0);
+        let q2 = g.input(0, 1);
+        let q1s = g.powi(q1, 2);
+        let q2s = g.powi(q2, 2);
+        let s = g.add2(q1s, q2s);
+        let two = g.constant(2.0);
+        let a = g.div(s, two);
+        let b = g.mul(q1s, q2);
+        let ab = g.add2(a, b);
+        let q2c = g.powi(q2, 3);
+        let three = g.constant(3.0);
+        let c = g.div(q2c, three);
+        g.sub(ab, c)
+    }
+
+    fn henon_heiles_by_reciprocal(g: &mut Graph) -> NodeId {
+        let q1 = g.input(0, 0);
+        let q2 = g.input(0, 1);
+        let q1s = g.powi(q1, 2);
+        let q2s = g.powi(q2, 2);
+        let s = g.add2(q1s, q2s);
+        let half = g.constant(0.5);
+        let a = g.mul(s, half);
+        let b = g.mul(q1s, q2);
+        let ab = g.add2(a, b);
+        let q2c = g.powi(q2, 3);
+        let third = g.constant(1.0 / 3.0);
+        let c = g.mul(q2c, third);
+        g.sub(ab, c)
+    }
+
+    /// Deterministic pseudo-random numbers in [-1, 1) (splitmix64).
+    fn points(n: usize, seed: u64) -> Vec<f64> {
+        let mut s = seed;
+        (0..n)
+            .map(|_| {
+                s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
+                let mut z = s;
+                z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+                z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+                z ^= z >> 31;
+                (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+            })
+            .collect()
+    }
+
+    fn eval1(g: &Graph, args: &[&[f64]], out: &[NodeId]) -> Vec<f64> {
+        let mut r = vec![0.0; out.len()];
+        Evaluator::new().eval(g, args, out, &mut r);
+        r
+    }
+
+    #[test]
+    fn henon_heiles_gradient_is_bit_identical_to_the_hand_written_one() {
+        for by_reciprocal in [false, true] {
+            henon_heiles_gradient_bits(by_reciprocal);
+        }
+    }
+
+    /// `by_reciprocal`: a lowering that writes `x / 2` as `x * 0.5` and `x / 3` as
+    /// `x * (1/3)` gets the same gradient.
+    fn henon_heiles_gradient_bits(by_reciprocal: bool) {
+        let mut g = Graph::new();
+        let v = if by_reciprocal {
+            henon_heiles_by_reciprocal(&mut g)
+        } else {
+            henon_heiles(&mut g)
+        };
+        let before = g.len();
+        let grad = gradient(&mut g, v, 0, 2).unwrap();
+        // q1 + 2 q1 q2: a product, a doubling, a sum; q2 + q1^2 - q2^2 reuses q1^2 and q2^2.
+        let new_ops = g.nodes()[before..]
+            .iter()
+            .filter(|n| !matches!(n, Node::Const(_)))
+            .count();
+        assert_eq!(new_ops, 5, "{:?}", &g.nodes()[before..]);
+        let mut ev = Evaluator::new();
+        let mut out = [0.0; 2];
+        let mut scales = vec![1e-300, 1e-8, 1.0, 3.0, 1e5, 1e150];
+        scales.extend(points(20, 7).iter().map(|x| 10f64.powf(40.0 * x)));
+        for (k, &scale) in scales.iter().enumerate() {
+            // 26 scales x 50 000 points.
+            let p = points(100_000, k as u64);
+            for pair in p.chunks(2) {
+                let (q1, q2) = (pair[0] * scale, pair[1] * scale);
+                ev.eval(&g, &[&[q1, q2]], &grad, &mut out);
+                let hand = [q1 + 2.0 * q1 * q2, q2 + q1 * q1 - q2 * q2];
+                assert_eq!(
+                    out[0].to_bits(),
+                    hand[0].to_bits(),
+                    "dV/dq1 at ({q1}, {q2})"
+                );
+                assert_eq!(
+                    out[1].to_bits(),
+                    hand[1].to_bits(),
+                    "dV/dq2 at ({q1}, {q2})"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn henon_heiles_hessian_vector_product() {
+        let mut g = Graph::new();
+        let v = henon_heiles(&mut g);
+        let grad = gradient(&mut g, v, 0, 2).unwrap();
+        let hv = directional(&mut g, &grad, 0, 1).unwrap();
+        for pt in points(4000, 3).chunks(4) {
+            let (q1, q2, v1, v2) = (pt[0], pt[1], pt[2], pt[3]);
+            let r = eval1(&g, &[&[q1, q2], &[v1, v2]], &hv);
+            let hand = [
+                (1.0 + 2.0 * q2) * v1 + 2.0 * q1 * v2,
+                2.0 * q1 * v1 + (1.0 - 2.0 * q2) * v2,
+            ];
+            for k in 0..2 {
+                assert!(
+                    (r[k] - hand[k]).abs() <= 1e-15 * (1.0 + hand[k].abs()),
+                    "{r:?} vs {hand:?}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn square_gives_a_doubling_not_a_power() {
+        let mut g = Graph::new();
+        let x = g.input(0, 0);
+        let x2 = g.powi(x, 2);
+        let d = gradient(&mut g, x2, 0, 1).unwrap()[0];
+        let two = g.constant(2.0);
+        assert_eq!(*g.node(d), Node::Binary(Binary::Mul, two, x));
+        let t = directional(&mut g, &[x2], 0, 1).unwrap()[0];
+        // (2 x) * v
+        let v = g.input(1, 0);
+        let tx = g.mul(two, x);
+        assert_eq!(t, mul_sorted(&mut g, tx, v));
+    }
+
+    #[derive(Debug)]
+    struct Cubic;
+    impl Tabulated for Cubic {
+        fn eval(&self, deriv: u8, x: f64) -> f64 {
+            match deriv {
+                0 => x * x * x,
+                1 => 3.0 * x * x,
+                2 => 6.0 * x,
+                3 => 6.0,
+                _ => panic!(),
+            }
+        }
+        fn name(&self) -> &str {
+            "cubic"
+        }
+    }
+
+    type Build = fn(&mut Graph, NodeId, NodeId) -> NodeId;
+
+    /// Every operation against central differences, in both modes, at points where it is
+    /// smooth.
+    #[test]
+    fn every_operation_matches_finite_differences() {
+        let cases: Vec<(&str, Build, [f64; 2])> = vec![
+            ("neg", |g, x, _| g.neg(x), [0.3, 0.2]),
+            ("add", |g, x, y| g.add2(x, y), [0.3, 0.2]),
+            ("sub", |g, x, y| g.sub(x, y), [0.3, 0.2]),
+            ("mul", |g, x, y| g.mul(x, y), [0.3, 0.2]),
+            ("mul self", |g, x, _| g.mul(x, x), [0.3, 0.2]),
+            ("div", |g, x, y| g.div(x, y), [0.3, 0.7]),
+            (
+                "div const",
+                |g, x, _| {
+                    let c = g.constant(3.0);
+                    g.div(x, c)
+                },
+                [0.3, 0.7],
+            ),
+            (
+                "const div",
+                |g, x, _| {
+                    let c = g.constant(3.0);
+                    g.div(c, x)
+                },
+                [0.3, 0.7],
+            ),
+            ("powi 3", |g, x, _| g.powi(x, 3), [0.7, 0.0]),
+            ("powi -2", |g, x, _| g.powi(x, -2), [0.7, 0.0]),
+            (
+                "pow 2.5",
+                |g, x, _| {
+                    let c = g.constant(2.5);
+                    g.binary(Binary::Pow, x, c)
+                },
+                [0.7, 0.0],
+            ),
+            (
+                "pow 3.0",
+                |g, x, _| {
+                    let c = g.constant(3.0);
+                    g.binary(Binary::Pow, x, c)
+                },
+                [0.7, 0.0],
+            ),
+            ("pow xy", |g, x, y| g.binary(Binary::Pow, x, y), [0.7, 1.3]),
+            (
+                "pow 2^y",
+                |g, _, y| {
+                    let c = g.constant(2.0);
+                    g.binary(Binary::Pow, c, y)
+                },
+                [0.7, 1.3],
+            ),
+            ("sqrt", |g, x, _| g.unary(Unary::Sqrt, x), [0.7, 0.0]),
+            ("exp", |g, x, _| g.unary(Unary::Exp, x), [0.7, 0.0]),
+            ("log", |g, x, _| g.unary(Unary::Log, x), [0.7, 0.0]),
+            ("sin", |g, x, _| g.unary(Unary::Sin, x), [0.7, 0.0]),
+            ("cos", |g, x, _| g.unary(Unary::Cos, x), [0.7, 0.0]),
+            ("tan", |g, x, _| g.unary(Unary::Tan, x), [0.7, 0.0]),
+            ("atan", |g, x, _| g.unary(Unary::Atan, x), [0.7, 0.0]),
+            ("tanh", |g, x, _| g.unary(Unary::Tanh, x), [0.7, 0.0]),
+            ("cosh", |g, x, _| g.unary(Unary::Cosh, x), [0.7, 0.0]),
+            ("sinh", |g, x, _| g.unary(Unary::Sinh, x), [0.7, 0.0]),
+            ("abs", |g, x, _| g.unary(Unary::Abs, x), [-0.7, 0.0]),
+            (
+                "step",
+                |g, x, y| {
+                    let s = g.unary(Unary::Step, x);
+                    g.mul(s, y)
+                },
+                [-0.7, 0.4],
+            ),
+            (
+                "sign",
+                |g, x, y| {
+                    let s = g.unary(Unary::Sign, x);
+                    g.mul(s, y)
+                },
+                [0.7, 0.4],
+            ),
+            (
+                "atan2",
+                |g, x, y| g.binary(Binary::Atan2, x, y),
+                [0.7, -0.4],
+            ),
+            ("max a", |g, x, y| g.binary(Binary::Max, x, y), [0.7, -0.4]),
+            ("max b", |g, x, y| g.binary(Binary::Max, x, y), [-0.7, -0.4]),
+            ("min a", |g, x, y| g.binary(Binary::Min, x, y), [-0.7, -0.4]),
+            ("min b", |g, x, y| g.binary(Binary::Min, x, y), [0.7, -0.4]),
+            (
+                "select",
+                |g, x, y| {
+                    let s = g.unary(Unary::Sin, x);
+                    let c = g.unary(Unary::Cos, y);
+                    g.add(Node::Select {
+                        cmp: Cmp::Lt,
+                        a: x,
+                        b: y,
+                        then: s,
+                        otherwise: c,
+                    })
+                },
+                [0.7, -0.4],
+            ),
+            (
+                "select other",
+                |g, x, y| {
+                    let s = g.unary(Unary::Sin, x);
+                    let c = g.mul(x, y);
+                    g.add(Node::Select {
+                        cmp: Cmp::Gt,
+                        a: x,
+                        b: y,
+                        then: c,
+                        otherwise: s,
+                    })
+                },
+                [-0.7, 0.4],
+            ),
+            (
+                "table",
+                |g, x, _| {
+                    g.add(Node::Table {
+                        table: 0,
+                        deriv: 0,
+                        arg: x,
+                    })
+                },
+                [0.7, 0.0],
+            ),
+            (
+                "table'",
+                |g, x, _| {
+                    g.add(Node::Table {
+                        table: 0,
+                        deriv: 1,
+                        arg: x,
+                    })
+                },
+                [0.7, 0.0],
+            ),
+            (
+                "composite",
+                |g, x, y| {
+                    let s = g.unary(Unary::Sin, x);
+                    let e = g.mul(s, y);
+                    let l = g.unary(Unary::Exp, e);
+                    let q = g.powi(x, 2);
+                    let d = g.div(l, q);
+                    g.mul(d, s)
+                },
+                [0.7, -0.4],
+            ),
+        ];
+        for (name, build, at) in cases {
+            let mut g = Graph::new();
+            g.add_table(Arc::new(Cubic));
+            let x = g.input(0, 0);
+            let y = g.input(0, 1);
+            let f = build(&mut g, x, y);
+            let grad = gradient(&mut g, f, 0, 2).unwrap();
+            let jv = directional(&mut g, &[f], 0, 1).unwrap();
+            let dir = [0.6, -0.8];
+            let r = eval1(&g, &[&at, &dir], &grad);
+            let rjv = eval1(&g, &[&at, &dir], &jv)[0];
+            let h = 1e-6;
+            let mut fd = [0.0; 2];
+            for k in 0..2 {
+                let (mut p, mut m) = (at, at);
+                p[k] += h;
+                m[k] -= h;
+                fd[k] = (eval1(&g, &[&p], &[f])[0] - eval1(&g, &[&m], &[f])[0]) / (2.0 * h);
+                assert!(
+                    (r[k] - fd[k]).abs() < 1e-7 * (1.0 + fd[k].abs()),
+                    "{name}: d/dx{k} = {} vs {}",
+                    r[k],
+                    fd[k]
+                );
+            }
+            let want = fd[0] * dir[0] + fd[1] * dir[1];
+            assert!(
+                (rjv - want).abs() < 1e-7 * (1.0 + want.abs()),
+                "{name}: directional {rjv} vs {want}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_fourth_table_derivative_is_an_error_naming_the_table() {
+        let mut g = Graph::new();
+        let t = g.add_table(Arc::new(Cubic));
+        let x = g.input(0, 0);
+        let f = g.add(Node::Table {
+            table: t,
+            deriv: 3,
+            arg: x,
+        });
+        let e = gradient(&mut g, f, 0, 1).unwrap_err();
+        assert_eq!(
+            e,
+            DiffError::TableDerivative {
+                table: "cubic".into(),
+                deriv: 4
+            }
+        );
+        assert!(e.to_string().contains("table `cubic`"));
+        assert!(directional(&mut g, &[f], 0, 1).is_err());
+        // Two derivatives of the value are fine.
+        let f0 = g.add(Node::Table {
+            table: t,
+            deriv: 0,
+            arg: x,
+        });
+        let d = gradient(&mut g, f0, 0, 1).unwrap();
+        assert!(directional(&mut g, &d, 0, 1).is_ok());
+    }
+
+    /// `sum over bonds of f(q[i+1] - q[i])` with an FPUT bond.
+    fn chain(g: &mut Graph, n: u32) -> NodeId {
+        let mut acc = g.constant(0.0);
+        let (two, four) = (g.constant(2.0), g.constant(4.0));
+        for i in 0..n - 1 {
+            let a = g.input(0, i + 1);
+            let b = g.input(0, i);
+            let r = g.sub(a, b);
+            let r2 = g.powi(r, 2);
+            let r4 = g.powi(r, 4);
+            let t2 = g.div(r2, two);
+            let t4 = g.div(r4, four);
+            let f = g.add2(t2, t4);
+            acc = g.add2(acc, f);
+        }
+        acc
+    }
+
+    #[test]
+    fn chain_gradient_stays_linear_in_the_length() {
+        let mut sizes = Vec::new();
+        for n in [101u32, 1001] {
+            let mut g = Graph::new();
+            let v = chain(&mut g, n);
+            let before = g.len();
+            let grad = gradient(&mut g, v, 0, n as usize).unwrap();
+            let mid = g.len();
+            directional(&mut g, &grad, 0, 1).unwrap();
+            sizes.push((n, before, mid - before, g.len() - mid));
+            // Interior sites: f'(r_{i-1}) - f'(r_i), with f'(r) = r + r^3 shared by both ends.
+            let q: Vec<f64> = points(n as usize, 11);
+            let r = eval1(&g, &[&q], &grad);
+            let fp = |r: f64| r + r * r * r;
+            for i in 1..n as usize - 1 {
+                let want = fp(q[i] - q[i - 1]) - fp(q[i + 1] - q[i]);
+                assert_eq!(r[i].to_bits(), want.to_bits(), "site {i}");
+            }
+        }
+        let (n0, _, g0, h0) = sizes[0];
+        let (n1, _, g1, h1) = sizes[1];
+        let ratio = (n1 - 1) as f64 / (n0 - 1) as f64;
+        assert!((g1 as f64 / g0 as f64) < 1.05 * ratio, "{sizes:?}");
+        assert!((h1 as f64 / h0 as f64) < 1.05 * ratio, "{sizes:?}");
+        // Three nodes per bond: r^3, r + r^3, and one subtraction per site.
+        assert!(g1 <= 3 * n1 as usize, "{sizes:?}");
+    }
+
+    #[test]
+    fn derivatives_are_deterministic() {
+        let build = || {
+            let mut g = Graph::new();
+            let v = chain(&mut g, 50);
+            let hh = henon_heiles(&mut g);
+            let s = g.add2(v, hh);
+            let e = g.unary(Unary::Exp, s);
+            let grad = gradient(&mut g, e, 0, 50).unwrap();
+            let hv = directional(&mut g, &grad, 0, 1).unwrap();
+            (g.nodes().to_vec(), grad, hv)
+        };
+        let a = build();
+        let b = build();
+        assert_eq!(a.1, b.1);
+        assert_eq!(a.2, b.2);
+        assert_eq!(a.0.len(), b.0.len());
+        for (x, y) in a.0.iter().zip(&b.0) {
+            // Node's PartialEq compares constants by value; NaN-free here.
+            assert_eq!(x, y);
+        }
+    }
+
+    #[test]
+    fn inputs_not_reached_get_zero() {
+        let mut g = Graph::new();
+        let x = g.input(0, 0);
+        let y = g.input(1, 0);
+        let f = g.mul(x, y);
+        let grad = gradient(&mut g, f, 0, 3).unwrap();
+        assert_eq!(grad[0], y);
+        assert_eq!(g.as_const(grad[1]), Some(0.0));
+        assert_eq!(g.as_const(grad[2]), Some(0.0));
+    }
+}

@@ -83,7 +83,10 @@ pub enum Node {
     Const(f64),
     /// Entry `index` of the function's argument array `arg` (for a potential, `arg 0` is `q`;
     /// for a Hessian-vector product `arg 1` is the direction `v`; see the producer of the graph).
-    Input { arg: u8, index: u32 },
+    Input {
+        arg: u8,
+        index: u32,
+    },
     Unary(Unary, NodeId),
     Binary(Binary, NodeId, NodeId),
     /// `x^n` for a whole `n`: `x * x * ... * x` (n factors, multiplied left to right) for
@@ -99,7 +102,11 @@ pub enum Node {
         otherwise: NodeId,
     },
     /// Derivative `deriv` (0 to 3) of tabulated function `table` at `arg`.
-    Table { table: u32, deriv: u8, arg: NodeId },
+    Table {
+        table: u32,
+        deriv: u8,
+        arg: NodeId,
+    },
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -294,9 +301,7 @@ impl Graph {
                         }
                         Binary::Mul if self.is_const(b, 1.0) => return Ok(a),
                         Binary::Mul if self.is_const(a, 1.0) => return Ok(b),
-                        Binary::Mul if self.is_const(a, 0.0) || self.is_const(b, 0.0) => {
-                            Some(0.0)
-                        }
+                        Binary::Mul if self.is_const(a, 0.0) || self.is_const(b, 0.0) => Some(0.0),
                         Binary::Div if self.is_const(b, 1.0) => return Ok(a),
                         Binary::Div if self.is_const(a, 0.0) => Some(0.0),
                         _ => None,
@@ -466,7 +471,10 @@ mod tests {
     fn powi_is_a_left_to_right_product() {
         let x = 1.1_f64;
         assert_eq!(Graph::apply_powi(x, 3).to_bits(), (x * x * x).to_bits());
-        assert_eq!(Graph::apply_powi(x, -2).to_bits(), (1.0 / (x * x)).to_bits());
+        assert_eq!(
+            Graph::apply_powi(x, -2).to_bits(),
+            (1.0 / (x * x)).to_bits()
+        );
         assert_eq!(Graph::apply_powi(x, 0), 1.0);
     }
 

@@ -4,6 +4,10 @@
 //! - `kernel`: orbit-steps per CPU-second of one thread for Henon-Heiles and the FPUT chain
 //!   (N = 5, 101, 501), MPM (independent orbits) and VM (tangent vectors around a shared
 //!   reference orbit, the reference included in the count), on the detected instruction set.
+//! - `expression_models`: the same models written as expressions (`[model] name =
+//!   "potential"`) against the built-in ones, side by side: batched kernel, one-orbit engine,
+//!   and parse + differentiate + compile time (FPUT N = 1001 too); `--expressions-only` runs
+//!   just this part.
 //! - `gali2_map`: the paper's Fig. 9(b) settings (HH, H = 0.125, x1 = 0 section, ABA864,
 //!   h = 0.01, tau = 1, d0 = 1e-8, 50 sets, t = 500, MPM) on a reduced grid over the same
 //!   region, with 1 and 2 threads; CPU time extrapolated to 700 x 600 points.
@@ -53,6 +57,10 @@ pub struct Args {
     /// Force the instruction set (avx512, avx2, portable).
     #[arg(long)]
     pub isa: Option<String>,
+    /// Only the user-written (expression) models beside the built-in ones: kernel, one-orbit
+    /// engine and compile times; no map workload.
+    #[arg(long)]
+    pub expressions_only: bool,
     /// Kept for symmetry with other commands: the output is always JSON.
     #[arg(long)]
     pub json: bool,
@@ -215,6 +223,12 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         .and_then(|(a, b)| Some((a.parse::<usize>().ok()?, b.parse::<usize>().ok()?)))
         .context("--grid must be NXxNY, e.g. 35x30")?;
     let s = args.kernel_seconds;
+    if args.expressions_only {
+        let report = expressions::compare(isa, s)?;
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(ExitCode::SUCCESS);
+    }
+    let expression_models = expressions::compare(isa, s)?;
     let mut kernel = Vec::new();
     for method in ["mpm", "vm"] {
         kernel.push(kernel_case(isa, &HenonHeiles, method, 1024, s));
@@ -256,7 +270,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         "{}",
         serde_json::to_string_pretty(&serde_json::json!({
             "isa": isa.name(),
+            "cpu": expressions::cpu_model(),
             "kernel": kernel,
+            "expression_models": expression_models,
             "gali2_map": {
                 "settings": "HH H=0.125 x1=0 section, q2 in [-0.45,0.65], p2 in [-0.45,0.45], ABA864 h=0.01, MPM tau=1 d0=1e-8, k=2, 50 sets",
                 "t_final": args.t_final,
@@ -318,6 +334,163 @@ impl MapPair {
             "speedup": self.speedup(),
             "machine_ceiling": self.ceiling,
         })
+    }
+}
+
+/// User-written potentials (`[model] name = "potential"`) against the built-in models they
+/// restate, measured side by side in this run: the batched kernel, the one-orbit engine, and
+/// the time to parse, differentiate and compile.
+mod expressions {
+    use std::time::Instant;
+
+    use chaoscope_producer::batch::{Isa, LaneModel};
+    use chaoscope_producer::engine::Engine;
+    use chaoscope_producer::model::{ExpressionModel, FputBeta, HenonHeiles};
+    use chaoscope_producer::spec::{RunSpec, model_from_config};
+    use chaoscope_schemas::config::{
+        DeviationsConfig, ModelConfig, ParamValue, RunConfig, SchemeConfig, paper,
+    };
+
+    use super::{kernel_case, thread_cpu_seconds};
+
+    const HH: &str = "(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3";
+    const FPUT: &str = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
+
+    /// The CPU's model name (from /proc/cpuinfo), printed beside every speed figure.
+    pub fn cpu_model() -> String {
+        std::fs::read_to_string("/proc/cpuinfo")
+            .ok()
+            .and_then(|t| {
+                t.lines()
+                    .find(|l| l.starts_with("model name"))
+                    .and_then(|l| l.split_once(':'))
+                    .map(|(_, v)| v.trim().to_string())
+            })
+            .unwrap_or_else(|| "unknown".into())
+    }
+
+    fn fput_config(n: usize) -> ModelConfig {
+        let mut m = ModelConfig::potential(n, FPUT);
+        m.params.insert("beta".into(), ParamValue::Scalar(1.0));
+        m
+    }
+
+    fn compiled(cfg: &ModelConfig) -> anyhow::Result<ExpressionModel> {
+        let (model, _) = model_from_config(cfg)?;
+        let any: &dyn std::any::Any = model.as_ref();
+        Ok(any
+            .downcast_ref::<ExpressionModel>()
+            .expect("a potential model compiles to an ExpressionModel")
+            .clone())
+    }
+
+    /// Orbit-steps per thread-CPU-second through the one-orbit engine (reference orbit, one VM
+    /// and one MPM scheme, `k` vectors, one set) for `seconds` at least.
+    fn engine_rate(config: &RunConfig, seconds: f64) -> anyhow::Result<f64> {
+        let spec = RunSpec::from_config(config)?;
+        let k = spec.k as f64;
+        let start = thread_cpu_seconds();
+        let mut steps = 0u64;
+        while thread_cpu_seconds() - start < seconds || steps == 0 {
+            let mut engine = Engine::new(spec.clone());
+            while engine.next_sample()?.is_some() {}
+            steps += spec.total_steps;
+        }
+        // Reference orbit + the VM copy and its k vectors + k MPM orbits.
+        let orbits = 1.0 + (1.0 + k) + k;
+        Ok(orbits * steps as f64 / (thread_cpu_seconds() - start))
+    }
+
+    fn pair(
+        isa: Isa,
+        builtin: &impl LaneModel,
+        expression: &ExpressionModel,
+        lanes: usize,
+        seconds: f64,
+    ) -> Vec<serde_json::Value> {
+        ["mpm", "vm"]
+            .into_iter()
+            .map(|method| {
+                let b = kernel_case(isa, builtin, method, lanes, seconds);
+                let e = kernel_case(isa, expression, method, lanes, seconds);
+                let rate = |v: &serde_json::Value| v["orbit_steps_per_second_per_core"].as_f64().unwrap_or(f64::NAN);
+                serde_json::json!({
+                    "method": method,
+                    "lanes": lanes,
+                    "builtin_orbit_steps_per_second": rate(&b),
+                    "expression_orbit_steps_per_second": rate(&e),
+                    "builtin_over_expression": rate(&b) / rate(&e),
+                })
+            })
+            .collect()
+    }
+
+    pub fn compare(isa: Isa, seconds: f64) -> anyhow::Result<serde_json::Value> {
+        let hh = compiled(&ModelConfig::potential(2, HH))?;
+        let fput101 = compiled(&fput_config(101))?;
+        let started = Instant::now();
+        let fput1001 = compiled(&fput_config(1001))?;
+        let wall1001 = started.elapsed().as_secs_f64();
+        let fput_builtin = FputBeta::new(101, 1.0).map_err(anyhow::Error::msg)?;
+
+        let hh_run = paper::henon_heiles(
+            paper::HH_CHAOTIC_Q2,
+            100.0,
+            DeviationsConfig::random(4, 1, 1),
+            vec![
+                SchemeConfig::new("vm", "vm", 1e-8, 1.0),
+                SchemeConfig::new("mpm", "mpm", 1e-8, 1.0),
+            ],
+        );
+        let mut hh_expr_run = hh_run.clone();
+        hh_expr_run.model = ModelConfig::potential(2, HH);
+        let q: Vec<f64> = (1..=101)
+            .map(|i| 0.5 * (std::f64::consts::PI * i as f64 / 102.0).sin())
+            .collect();
+        let fput_run = paper::fput_beta(
+            &q,
+            &[0.0; 101],
+            0.02,
+            10.0,
+            DeviationsConfig::random(4, 1, 1),
+            vec![
+                SchemeConfig::new("vm", "vm", 1e-8, 1.0),
+                SchemeConfig::new("mpm", "mpm", 1e-8, 1.0),
+            ],
+        );
+        let mut fput_expr_run = fput_run.clone();
+        fput_expr_run.model = fput_config(101);
+        let engine = |b: &RunConfig, e: &RunConfig| -> anyhow::Result<serde_json::Value> {
+            let (rb, re) = (engine_rate(b, seconds)?, engine_rate(e, seconds)?);
+            Ok(serde_json::json!({
+                "builtin_orbit_steps_per_second": rb,
+                "expression_orbit_steps_per_second": re,
+                "builtin_over_expression": rb / re,
+            }))
+        };
+        Ok(serde_json::json!({
+            "cpu": cpu_model(),
+            "isa": isa.name(),
+            "target_builtin_over_expression": 1.5,
+            "henon_heiles": {
+                "potential": HH,
+                "build_seconds": hh.build_time().as_secs_f64(),
+                "kernel": pair(isa, &HenonHeiles, &hh, 1024, seconds),
+                "engine": engine(&hh_run, &hh_expr_run)?,
+            },
+            "fput_beta_101": {
+                "potential": FPUT,
+                "build_seconds": fput101.build_time().as_secs_f64(),
+                "kernel": pair(isa, &fput_builtin, &fput101, 64, seconds),
+                "engine": engine(&fput_run, &fput_expr_run)?,
+            },
+            "fput_beta_1001_build": {
+                "graph_nodes": fput1001.graph_nodes(),
+                "build_seconds": fput1001.build_time().as_secs_f64(),
+                "wall_seconds_with_validation": wall1001,
+                "target_seconds": 1.0,
+            },
+        }))
     }
 }
 

@@ -16,6 +16,16 @@
 //!
 //! No I/O except `table`'s reading of the CSV file a config names.
 
+pub mod ast;
+pub mod error;
 pub mod graph;
+mod lexer;
+pub mod lower;
+pub mod parser;
+pub mod smooth;
 
+pub use error::{ExprError, Span};
 pub use graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
+pub use lower::{Boundary, Family, Lowered, ParamValue, Scope, lower};
+pub use parser::parse;
+pub use smooth::{Limit, Smoothness};

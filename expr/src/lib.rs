@@ -16,14 +16,24 @@
 //!
 //! No I/O except `table`'s reading of the CSV file a config names.
 
+pub mod ast;
 pub mod diff;
+pub mod error;
 pub mod eval;
 pub mod graph;
+mod lexer;
+pub mod lower;
+pub mod parser;
+pub mod smooth;
 pub mod table;
 
 pub use diff::{DiffError, directional, gradient};
+pub use error::{ExprError, Span};
 pub use eval::{Evaluator, first_non_finite};
 pub use graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
+pub use lower::{Boundary, Family, Lowered, ParamValue, Scope, lower};
+pub use parser::parse;
+pub use smooth::{Limit, Smoothness};
 pub use table::{
     ErrorBound, Spline, SplineKind, TableData, TableError, interpolation_error_bound, parse_csv,
     read_csv,

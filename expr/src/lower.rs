@@ -1,0 +1,1773 @@
+//! Syntax tree plus parameters, lattice size and boundary condition to [`Graph`] nodes.
+//!
+//! Everything that is known before the run is resolved here, so the graph holds only
+//! arithmetic on the variables: parameters become constants, `N` and sum indices become
+//! numbers, lattice sums are expanded term by term (a left fold, in index order), and the
+//! boundary condition decides what a site beyond the ends means. The smoothness of the result
+//! ([`crate::smooth`]) is computed alongside, on the same walk, where parameter values are
+//! known.
+//!
+//! Lowering never panics: every failure is an [`ExprError`] pointing into the source. On an
+//! error, the nodes created so far stay in the graph, unreferenced.
+
+use std::collections::{BTreeMap, BTreeSet, HashMap};
+
+use crate::ast::{BinOp, Expr, ExprKind};
+use crate::error::{ExprError, Span};
+use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
+use crate::parser::parse;
+use crate::smooth::{self, Info, LimitKind, Signs, Smoothness};
+
+/// Refuse expressions that expand to more graph nodes than this (a lattice sum over a huge
+/// range, nested sums): the graph, its derivatives and the compiled code would not fit.
+pub const MAX_NODES: usize = 10_000_000;
+
+/// Refuse expressions whose expansion takes more steps than this, even if constant folding
+/// keeps the graph small (`sum(i = 1..10^12, 0)` must not run for hours).
+pub const MAX_STEPS: u64 = 50_000_000;
+
+/// Whole exponents up to this size become [`Node::Powi`] (an exact product, as written by
+/// hand); larger ones use `powf`, whose single rounding is then more accurate than a long
+/// chain of products.
+const MAX_POWI: f64 = 64.0;
+
+/// What a site index outside `1..N` means.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Boundary {
+    /// Walls: every variable beyond the ends is 0 (`q[0] = q[N+1] = 0`). An array parameter
+    /// has no value there (an error).
+    Fixed,
+    /// A ring: `q[N+1] = q[1]`, `q[0] = q[N]`; array parameters wrap alike.
+    Periodic,
+    /// Open ends: a term of a sum that refers to a site beyond the ends is left out (a bond to
+    /// nothing does not exist); outside a sum such a reference is an error.
+    Free,
+}
+
+impl Boundary {
+    /// From a config's spelling: `fixed`, `periodic` or `free`.
+    pub fn from_name(name: &str) -> Result<Self, String> {
+        match name {
+            "fixed" => Ok(Boundary::Fixed),
+            "periodic" => Ok(Boundary::Periodic),
+            "free" => Ok(Boundary::Free),
+            _ => Err(format!(
+                "unknown boundary condition '{name}' (known: fixed, periodic, free)"
+            )),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Boundary::Fixed => "fixed",
+            Boundary::Periodic => "periodic",
+            Boundary::Free => "free",
+        }
+    }
+}
+
+/// A parameter's value from the config.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ParamValue {
+    Scalar(f64),
+    /// One entry per site (`k[1]` is the first); must have exactly `N` entries.
+    Array(Vec<f64>),
+}
+
+/// A family of variables: `q1..qN` and `q[i]` are entries of the function's argument `arg`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Family {
+    pub name: String,
+    pub len: usize,
+    pub arg: u8,
+}
+
+/// Everything names in an expression can refer to.
+#[derive(Debug, Clone, Copy)]
+pub struct Scope<'a> {
+    pub families: &'a [Family],
+    pub params: &'a BTreeMap<String, ParamValue>,
+    /// Table name and its index, already registered in the graph ([`Graph::add_table`]).
+    pub tables: &'a [(String, u32)],
+    /// The value of `N` (number of sites or dimension).
+    pub n: usize,
+    pub boundary: Boundary,
+}
+
+/// The result of [`lower`].
+#[derive(Debug, Clone)]
+pub struct Lowered {
+    pub root: NodeId,
+    pub smoothness: Smoothness,
+    /// For each node created by this lowering, the source span of the operation that first
+    /// created it (for messages such as "log of a negative number at line 1, column 7").
+    pub origins: HashMap<NodeId, Span>,
+}
+
+const UNARY: &[(&str, Unary)] = &[
+    ("sqrt", Unary::Sqrt),
+    ("exp", Unary::Exp),
+    ("log", Unary::Log),
+    ("sin", Unary::Sin),
+    ("cos", Unary::Cos),
+    ("tan", Unary::Tan),
+    ("atan", Unary::Atan),
+    ("tanh", Unary::Tanh),
+    ("cosh", Unary::Cosh),
+    ("sinh", Unary::Sinh),
+    ("abs", Unary::Abs),
+    ("step", Unary::Step),
+    ("sign", Unary::Sign),
+];
+
+const BINARY: &[(&str, Binary)] = &[
+    ("atan2", Binary::Atan2),
+    ("min", Binary::Min),
+    ("max", Binary::Max),
+];
+
+/// Every built-in function, for "unknown function" messages.
+const KNOWN: &str = "sqrt, exp, log, sin, cos, tan, atan, tanh, cosh, sinh, abs, step, sign, \
+                     atan2, min, max, if, piecewise, sum";
+
+fn is_function(name: &str) -> bool {
+    UNARY.iter().any(|(n, _)| *n == name)
+        || BINARY.iter().any(|(n, _)| *n == name)
+        || matches!(name, "if" | "piecewise" | "sum")
+}
+
+/// Parse `source` and lower it into `graph`.
+pub fn lower(source: &str, scope: &Scope, graph: &mut Graph) -> Result<Lowered, ExprError> {
+    lower_limited(source, scope, graph, MAX_NODES, MAX_STEPS)
+}
+
+/// [`lower`] with other size limits (tests reach them without building ten million nodes).
+fn lower_limited(
+    source: &str,
+    scope: &Scope,
+    graph: &mut Graph,
+    max_nodes: usize,
+    max_steps: u64,
+) -> Result<Lowered, ExprError> {
+    let ast = parse(source)?;
+    let start_len = graph.len();
+    let mut l = Lowerer {
+        src: source,
+        scope,
+        graph,
+        sums: Vec::new(),
+        origins: HashMap::new(),
+        start_len,
+        steps: 0,
+        max_nodes,
+        max_steps,
+    };
+    let (root, info) = l.root(&ast).map_err(|e| *e)?;
+    let tables = scope.tables;
+    let smoothness = smooth::finish(&info, source, |t| {
+        tables
+            .iter()
+            .find(|(_, i)| *i == t)
+            .map_or_else(|| format!("table {t}"), |(n, _)| n.clone())
+    });
+    Ok(Lowered {
+        root,
+        smoothness,
+        origins: l.origins,
+    })
+}
+
+type R<T> = Result<T, Box<ExprError>>;
+
+/// What a name refers to.
+enum Meaning<'a> {
+    SumIndex(i64),
+    N,
+    Pi,
+    Param(&'a ParamValue),
+    /// A numbered variable `q3`: its family and number (not yet checked against the length).
+    Var(&'a Family, u64),
+    Family(&'a Family),
+    Table(u32),
+    Function,
+    Unknown,
+}
+
+struct Lowerer<'a> {
+    src: &'a str,
+    scope: &'a Scope<'a>,
+    graph: &'a mut Graph,
+    /// The enclosing sums' indices and their current values, innermost last.
+    sums: Vec<(&'a str, i64)>,
+    origins: HashMap<NodeId, Span>,
+    start_len: usize,
+    steps: u64,
+    max_nodes: usize,
+    max_steps: u64,
+}
+
+impl<'a> Lowerer<'a> {
+    fn err(&self, span: Span, msg: impl Into<String>) -> Box<ExprError> {
+        Box::new(ExprError::new(self.src, span, msg))
+    }
+
+    fn root(&mut self, ast: &'a Expr) -> R<(NodeId, Info)> {
+        let mut checked = BTreeSet::new();
+        self.check_params(ast, &mut checked)?;
+        self.value(ast)
+    }
+
+    /// Add a node, recording where it came from and refusing runaway expansions.
+    fn emit(&mut self, node: Node, span: Span) -> R<NodeId> {
+        if let Node::Table { table, .. } = node
+            && table as usize >= self.graph.tables().len()
+        {
+            return Err(self.err(
+                span,
+                format!("table index {table} is not registered in the graph"),
+            ));
+        }
+        let before = self.graph.len();
+        let id = self.graph.add(node);
+        let after = self.graph.len();
+        if after > before {
+            for k in before..after {
+                self.origins.entry(k as NodeId).or_insert(span);
+            }
+            if after - self.start_len > self.max_nodes {
+                return Err(self.err(
+                    span,
+                    format!(
+                        "the expression expands to more than {} graph nodes (lattice sums over too many sites?)",
+                        self.max_nodes
+                    ),
+                ));
+            }
+        }
+        Ok(id)
+    }
+
+    fn constant(&mut self, c: f64, span: Span) -> R<(NodeId, Info)> {
+        Ok((self.emit(Node::Const(c), span)?, Info::constant(c)))
+    }
+
+    /// The facts of a freshly built node: a node that folded to a constant is smooth whatever
+    /// operations it was written with (`abs(beta)`, `step(N - 2)`).
+    fn settle(&self, id: NodeId, info: Info) -> Info {
+        match self.graph.as_const(id) {
+            Some(c) => Info::constant(c),
+            None => info,
+        }
+    }
+
+    fn tick(&mut self, span: Span) -> R<()> {
+        self.steps += 1;
+        if self.steps > self.max_steps {
+            return Err(self.err(
+                span,
+                format!(
+                    "the expression expands to more than {} operations (lattice sums over too many sites?)",
+                    self.max_steps
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    fn numbered(&self, name: &str) -> Option<(&'a Family, u64)> {
+        self.scope.families.iter().find_map(|f| {
+            let rest = name.strip_prefix(f.name.as_str())?;
+            (!rest.is_empty() && rest.bytes().all(|b| b.is_ascii_digit()))
+                .then(|| (f, rest.parse::<u64>().unwrap_or(u64::MAX)))
+        })
+    }
+
+    fn meaning(&self, name: &str) -> Meaning<'a> {
+        if let Some(&(_, i)) = self.sums.iter().rev().find(|(n, _)| *n == name) {
+            return Meaning::SumIndex(i);
+        }
+        match name {
+            "N" => return Meaning::N,
+            "pi" => return Meaning::Pi,
+            _ => {}
+        }
+        if let Some(p) = self.scope.params.get(name) {
+            return Meaning::Param(p);
+        }
+        if let Some((f, k)) = self.numbered(name) {
+            return Meaning::Var(f, k);
+        }
+        if let Some(f) = self.scope.families.iter().find(|f| f.name == name) {
+            return Meaning::Family(f);
+        }
+        if let Some(&(_, t)) = self.scope.tables.iter().find(|(n, _)| n == name) {
+            return Meaning::Table(t);
+        }
+        if is_function(name) {
+            return Meaning::Function;
+        }
+        Meaning::Unknown
+    }
+
+    /// `unknown name 'r' (variables: q1..q5 or q[i]; parameters: beta, k)`.
+    fn unknown(&self, name: &str, span: Span) -> Box<ExprError> {
+        let vars: Vec<String> = self
+            .scope
+            .families
+            .iter()
+            .map(|f| match f.len {
+                0 => format!("{} (none)", f.name),
+                1 => format!("{n}1 or {n}[i]", n = f.name),
+                len => format!("{n}1..{n}{len} or {n}[i]", n = f.name),
+            })
+            .collect();
+        let vars = if vars.is_empty() {
+            "none".to_string()
+        } else {
+            vars.join(", ")
+        };
+        let params: Vec<&str> = self.scope.params.keys().map(String::as_str).collect();
+        let params = if params.is_empty() {
+            "none".to_string()
+        } else {
+            params.join(", ")
+        };
+        let mut msg = format!("unknown name '{name}' (variables: {vars}; parameters: {params}");
+        if !self.sums.is_empty() {
+            let idx: Vec<&str> = self.sums.iter().map(|(n, _)| *n).collect();
+            msg += &format!("; sum indices: {}", idx.join(", "));
+        }
+        if !self.scope.tables.is_empty() {
+            let t: Vec<&str> = self.scope.tables.iter().map(|(n, _)| n.as_str()).collect();
+            msg += &format!("; tables: {}", t.join(", "));
+        }
+        msg.push(')');
+        self.err(span, msg)
+    }
+
+    /// Every parameter the expression names: finite values, arrays of exactly `N` entries,
+    /// and a name that does not hide a built-in, a variable or a function. Checked once per
+    /// name, before lowering, so the error names the first use whatever the sums do.
+    fn check_params(&self, e: &'a Expr, checked: &mut BTreeSet<&'a str>) -> R<()> {
+        let (name, span) = match &e.kind {
+            ExprKind::Name(n) => (Some(n.as_str()), e.span),
+            ExprKind::Index {
+                name, name_span, ..
+            }
+            | ExprKind::Call {
+                name, name_span, ..
+            } => (Some(name.as_str()), *name_span),
+            _ => (None, e.span),
+        };
+        if let Some(name) = name
+            && let Some(value) = self.scope.params.get(name)
+            && checked.insert(name)
+        {
+            self.check_param(name, value, span)?;
+        }
+        for c in e.children() {
+            self.check_params(c, checked)?;
+        }
+        Ok(())
+    }
+
+    fn check_param(&self, name: &str, value: &ParamValue, span: Span) -> R<()> {
+        let clash = if matches!(name, "N" | "pi") {
+            Some("the built-in")
+        } else if self.numbered(name).is_some()
+            || self.scope.families.iter().any(|f| f.name == name)
+        {
+            Some("a variable")
+        } else if is_function(name) {
+            Some("a function")
+        } else if self.scope.tables.iter().any(|(n, _)| n == name) {
+            Some("a table")
+        } else {
+            None
+        };
+        if let Some(what) = clash {
+            return Err(self.err(
+                span,
+                format!("parameter '{name}' has the name of {what} '{name}'; rename the parameter"),
+            ));
+        }
+        match value {
+            ParamValue::Scalar(v) if !v.is_finite() => Err(self.err(
+                span,
+                format!("parameter '{name}' is not a finite number ({v})"),
+            )),
+            ParamValue::Array(v) if v.len() != self.scope.n => Err(self.err(
+                span,
+                format!(
+                    "parameter '{name}' has {} entries but N = {}",
+                    v.len(),
+                    self.scope.n
+                ),
+            )),
+            ParamValue::Array(v) => match v.iter().position(|x| !x.is_finite()) {
+                Some(k) => Err(self.err(
+                    span,
+                    format!(
+                        "parameter '{name}' entry {} is not a finite number ({})",
+                        k + 1,
+                        v[k]
+                    ),
+                )),
+                None => Ok(()),
+            },
+            ParamValue::Scalar(_) => Ok(()),
+        }
+    }
+
+    fn value(&mut self, e: &'a Expr) -> R<(NodeId, Info)> {
+        self.tick(e.span)?;
+        match &e.kind {
+            ExprKind::Number(v) => self.constant(*v, e.span),
+            ExprKind::Name(n) => self.name(n, e.span),
+            ExprKind::Index {
+                name,
+                name_span,
+                index,
+            } => self.indexed(e, name, *name_span, index),
+            ExprKind::Neg { op_span, arg } => {
+                let (a, ai) = self.value(arg)?;
+                let id = self.emit(Node::Unary(Unary::Neg, a), *op_span)?;
+                Ok((id, self.settle(id, ai.neg())))
+            }
+            ExprKind::Chain { first, rest } => {
+                let (mut acc, mut info) = self.value(first)?;
+                for (op, op_span, x) in rest {
+                    let (b, bi) = self.value(x)?;
+                    let (bin, combined) = match op {
+                        BinOp::Add => (Binary::Add, info.add(bi)),
+                        BinOp::Sub => (Binary::Sub, info.sub(bi)),
+                        BinOp::Mul => (Binary::Mul, info.mul(bi)),
+                        BinOp::Div => (Binary::Div, info.div(bi)),
+                    };
+                    acc = self.emit(Node::Binary(bin, acc, b), *op_span)?;
+                    info = self.settle(acc, combined);
+                }
+                Ok((acc, info))
+            }
+            ExprKind::Pow { op_span, base, exp } => self.power(base, exp, *op_span),
+            ExprKind::Call {
+                name,
+                name_span,
+                args,
+            } => self.call(e, name, *name_span, args),
+            ExprKind::Compare { op, op_span, .. } => Err(self.err(
+                *op_span,
+                format!(
+                    "a comparison ('{}') is only allowed as the condition of if or piecewise",
+                    cmp_symbol(*op)
+                ),
+            )),
+            ExprKind::Sum {
+                index,
+                index_span,
+                from,
+                to,
+                body,
+            } => self.sum(e, index, *index_span, from, to, body),
+        }
+    }
+
+    fn name(&mut self, n: &str, span: Span) -> R<(NodeId, Info)> {
+        match self.meaning(n) {
+            Meaning::SumIndex(i) => self.constant(i as f64, span),
+            Meaning::N => self.constant(self.scope.n as f64, span),
+            Meaning::Pi => self.constant(std::f64::consts::PI, span),
+            Meaning::Param(ParamValue::Scalar(v)) => self.constant(*v, span),
+            Meaning::Param(ParamValue::Array(_)) => Err(self.err(
+                span,
+                format!("parameter '{n}' is an array (one entry per site): write {n}[i]"),
+            )),
+            Meaning::Var(f, k) => {
+                if k >= 1 && k <= f.len as u64 {
+                    let id = self.emit(
+                        Node::Input {
+                            arg: f.arg,
+                            index: (k - 1) as u32,
+                        },
+                        span,
+                    )?;
+                    Ok((id, Info::variable()))
+                } else {
+                    let size = if f.len == self.scope.n {
+                        format!("N = {}", f.len)
+                    } else {
+                        format!("'{}' has {} entries", f.name, f.len)
+                    };
+                    Err(self.err(
+                        span,
+                        format!(
+                            "variable '{n}' does not exist: {size} ({m}1..{m}{}); boundary conditions apply to indexed variables such as {m}[i+1] only",
+                            f.len,
+                            m = f.name
+                        ),
+                    ))
+                }
+            }
+            Meaning::Family(f) => Err(self.err(
+                span,
+                format!(
+                    "'{n}' is a family of variables: write {n}1..{n}{} or {n}[i]",
+                    f.len
+                ),
+            )),
+            Meaning::Table(_) => {
+                Err(self.err(span, format!("'{n}' is a tabulated function: write {n}(x)")))
+            }
+            Meaning::Function if n == "sum" => {
+                Err(self.err(span, "'sum' needs a range and a term: sum(i = 1..N, term)"))
+            }
+            Meaning::Function => {
+                Err(self.err(span, format!("'{n}' is a function: write {n}(...)")))
+            }
+            Meaning::Unknown => Err(self.unknown(n, span)),
+        }
+    }
+
+    fn indexed(
+        &mut self,
+        e: &'a Expr,
+        name: &str,
+        name_span: Span,
+        index: &'a Expr,
+    ) -> R<(NodeId, Info)> {
+        match self.meaning(name) {
+            Meaning::Family(f) => {
+                let k = self.int(index)?;
+                match self.site(k, f.len, name, false, e.span)? {
+                    Some(j) => {
+                        let id = self.emit(
+                            Node::Input {
+                                arg: f.arg,
+                                index: j as u32,
+                            },
+                            e.span,
+                        )?;
+                        Ok((id, Info::variable()))
+                    }
+                    // A wall.
+                    None => self.constant(0.0, e.span),
+                }
+            }
+            Meaning::Param(ParamValue::Array(v)) => {
+                let k = self.int(index)?;
+                match self.site(k, v.len(), name, true, e.span)? {
+                    Some(j) => self.constant(v[j], e.span),
+                    None => Err(self.err(e.span, format!("{name}[{k}] does not exist"))),
+                }
+            }
+            Meaning::Param(ParamValue::Scalar(_)) => Err(self.err(
+                name_span,
+                format!("'{name}' is a scalar parameter, not an array: write {name}"),
+            )),
+            Meaning::SumIndex(_) => {
+                Err(self.err(name_span, format!("'{name}' is a sum index, not an array")))
+            }
+            Meaning::Var(f, _) => Err(self.err(
+                name_span,
+                format!(
+                    "'{name}' is a single variable; an indexed variable is written {}[i]",
+                    f.name
+                ),
+            )),
+            Meaning::N | Meaning::Pi => {
+                Err(self.err(name_span, format!("'{name}' is a number, not an array")))
+            }
+            Meaning::Table(_) => Err(self.err(
+                name_span,
+                format!("'{name}' is a tabulated function: write {name}(x)"),
+            )),
+            Meaning::Function => Err(self.err(
+                name_span,
+                format!("'{name}' is a function: write {name}(...)"),
+            )),
+            Meaning::Unknown => Err(self.unknown(name, name_span)),
+        }
+    }
+
+    /// The 0-based entry for site `k` of something with `len` sites, `None` for a wall.
+    fn site(&self, k: i64, len: usize, name: &str, is_param: bool, span: Span) -> R<Option<usize>> {
+        let n = len as i128;
+        let k = i128::from(k);
+        if (1..=n).contains(&k) {
+            return Ok(Some((k - 1) as usize));
+        }
+        let msg = match self.scope.boundary {
+            Boundary::Periodic if n > 0 => return Ok(Some((k - 1).rem_euclid(n) as usize)),
+            Boundary::Periodic => format!("{name}[{k}]: '{name}' has no entries"),
+            Boundary::Fixed if !is_param => return Ok(None),
+            Boundary::Fixed => format!(
+                "index {k} of the array parameter '{name}' is outside 1..{n}: with fixed ends there are no parameters beyond the walls"
+            ),
+            Boundary::Free => format!(
+                "index {k} of '{name}' is outside 1..{n}: with free ends there is no site there (inside a sum, a term that refers to one is left out)"
+            ),
+        };
+        Err(self.err(span, msg))
+    }
+
+    /// The value of an index or sum-bound expression: whole numbers, sum indices, `N`,
+    /// `+ - *` and parentheses.
+    fn int(&self, e: &Expr) -> R<i64> {
+        const RULE: &str = "index expressions may only contain whole numbers, sum indices, N, + - * and parentheses";
+        let overflow = || self.err(e.span, "index expression overflows a 64-bit integer");
+        let text = &self.src[e.span.start..e.span.end];
+        match &e.kind {
+            ExprKind::Number(v) => {
+                if v.fract() == 0.0 && v.abs() <= 9.0e15 {
+                    Ok(*v as i64)
+                } else if v.fract() == 0.0 {
+                    Err(self.err(e.span, format!("index '{text}' is too large")))
+                } else {
+                    Err(self.err(
+                        e.span,
+                        format!("index expression is not an integer: '{text}' ({RULE})"),
+                    ))
+                }
+            }
+            ExprKind::Name(n) => match self.meaning(n) {
+                Meaning::SumIndex(i) => Ok(i),
+                Meaning::N => i64::try_from(self.scope.n).map_err(|_| overflow()),
+                Meaning::Unknown => Err(self.unknown(n, e.span)),
+                Meaning::Param(_) => Err(self.err(
+                    e.span,
+                    format!("index expression is not an integer: '{n}' is a parameter ({RULE})"),
+                )),
+                Meaning::Var(..) | Meaning::Family(_) => Err(self.err(
+                    e.span,
+                    format!("index expression is not an integer: '{n}' is a variable ({RULE})"),
+                )),
+                _ => Err(self.err(
+                    e.span,
+                    format!("index expression is not an integer: '{n}' ({RULE})"),
+                )),
+            },
+            ExprKind::Neg { arg, .. } => self.int(arg)?.checked_neg().ok_or_else(overflow),
+            ExprKind::Chain { first, rest } => {
+                let mut acc = self.int(first)?;
+                for (op, op_span, x) in rest {
+                    let v = self.int(x)?;
+                    acc = match op {
+                        BinOp::Add => acc.checked_add(v),
+                        BinOp::Sub => acc.checked_sub(v),
+                        BinOp::Mul => acc.checked_mul(v),
+                        BinOp::Div => {
+                            return Err(self.err(
+                                *op_span,
+                                format!("'/' is not allowed in an index ({RULE})"),
+                            ));
+                        }
+                    }
+                    .ok_or_else(overflow)?;
+                }
+                Ok(acc)
+            }
+            ExprKind::Pow { op_span, .. } => {
+                Err(self.err(*op_span, format!("'^' is not allowed in an index ({RULE})")))
+            }
+            _ => Err(self.err(
+                e.span,
+                format!("index expression is not an integer: '{text}' ({RULE})"),
+            )),
+        }
+    }
+
+    fn power(&mut self, base: &'a Expr, exp: &'a Expr, op_span: Span) -> R<(NodeId, Info)> {
+        let (b, bi) = self.value(base)?;
+        let (x, xi) = self.value(exp)?;
+        let (id, info) = match self.graph.as_const(x) {
+            Some(a) if a.fract() == 0.0 && a.abs() <= MAX_POWI => (
+                self.emit(Node::Powi(b, a as i32), op_span)?,
+                bi.power(a, op_span, false),
+            ),
+            Some(a) => (
+                self.emit(Node::Binary(Binary::Pow, b, x), op_span)?,
+                bi.power(a, op_span, false),
+            ),
+            None => (
+                self.emit(Node::Binary(Binary::Pow, b, x), op_span)?,
+                bi.power_var(xi, op_span),
+            ),
+        };
+        Ok((id, self.settle(id, info)))
+    }
+
+    fn arity(&self, name: &str, args: &[Expr], want: usize, span: Span) -> R<()> {
+        if args.len() == want {
+            return Ok(());
+        }
+        let s = if want == 1 { "" } else { "s" };
+        Err(self.err(
+            span,
+            format!("{name} takes {want} argument{s}, got {}", args.len()),
+        ))
+    }
+
+    /// The comparison of an `if` or `piecewise` condition, lowered.
+    fn condition(&mut self, c: &'a Expr, of: &str) -> R<(Cmp, NodeId, NodeId)> {
+        let ExprKind::Compare { op, lhs, rhs, .. } = &c.kind else {
+            return Err(self.err(
+                c.span,
+                format!(
+                    "a condition of {of} must be a comparison such as q1 < 0 (with <, <=, > or >=)"
+                ),
+            ));
+        };
+        let (a, _) = self.value(lhs)?;
+        let (b, _) = self.value(rhs)?;
+        Ok((*op, a, b))
+    }
+
+    /// `cmp(a, b) ? then : otherwise`, with the facts of the branch that was kept when the
+    /// select folded away.
+    fn select(
+        &mut self,
+        (cmp, a, b): (Cmp, NodeId, NodeId),
+        (then, ti): (NodeId, Info),
+        (otherwise, oi): (NodeId, Info),
+        kind: LimitKind,
+        name_span: Span,
+        span: Span,
+    ) -> R<(NodeId, Info)> {
+        let id = self.emit(
+            Node::Select {
+                cmp,
+                a,
+                b,
+                then,
+                otherwise,
+            },
+            span,
+        )?;
+        let info = if id == then {
+            ti
+        } else if id == otherwise {
+            oi
+        } else {
+            Info::select(kind, name_span, &[ti, oi])
+        };
+        Ok((id, self.settle(id, info)))
+    }
+
+    fn call(
+        &mut self,
+        e: &'a Expr,
+        name: &str,
+        name_span: Span,
+        args: &'a [Expr],
+    ) -> R<(NodeId, Info)> {
+        let span = e.span;
+        if let Some(&(_, op)) = UNARY.iter().find(|(n, _)| *n == name) {
+            self.arity(name, args, 1, span)?;
+            let (a, ai) = self.value(&args[0])?;
+            let id = self.emit(Node::Unary(op, a), span)?;
+            let info = match op {
+                Unary::Sqrt => ai.power(0.5, name_span, true),
+                Unary::Abs => ai.abs(name_span),
+                Unary::Step => Info::jump(LimitKind::Step, name_span, &[ai], Signs::NONNEG),
+                Unary::Sign => Info::jump(LimitKind::Sign, name_span, &[ai], ai.signs),
+                _ => ai.smooth_fn(op),
+            };
+            return Ok((id, self.settle(id, info)));
+        }
+        if let Some(&(_, op)) = BINARY.iter().find(|(n, _)| *n == name) {
+            self.arity(name, args, 2, span)?;
+            let (a, ai) = self.value(&args[0])?;
+            let (b, bi) = self.value(&args[1])?;
+            let id = self.emit(Node::Binary(op, a, b), span)?;
+            let info = match op {
+                Binary::Atan2 => Info::jump(LimitKind::Atan2, name_span, &[ai, bi], Signs::ALL),
+                _ => Info::min_max(
+                    op == Binary::Max,
+                    name_span,
+                    ai,
+                    bi,
+                    self.graph.as_const(a) == Some(0.0),
+                    self.graph.as_const(b) == Some(0.0),
+                ),
+            };
+            return Ok((id, self.settle(id, info)));
+        }
+        match name {
+            "if" => {
+                if args.len() != 3 {
+                    return Err(self.err(
+                        span,
+                        format!(
+                            "if takes 3 arguments (condition, value if true, value otherwise), got {}",
+                            args.len()
+                        ),
+                    ));
+                }
+                let cond = self.condition(&args[0], "if")?;
+                let then = self.value(&args[1])?;
+                let otherwise = self.value(&args[2])?;
+                return self.select(cond, then, otherwise, LimitKind::If, name_span, span);
+            }
+            "piecewise" => {
+                if args.len() < 3 || args.len().is_multiple_of(2) {
+                    return Err(self.err(
+                        span,
+                        format!(
+                            "piecewise takes pairs of condition and value, then a default: piecewise(c1, v1, c2, v2, ..., default); got {} argument{}",
+                            args.len(),
+                            if args.len() == 1 { "" } else { "s" }
+                        ),
+                    ));
+                }
+                // Lowered in source order (so node origins follow the text), nested from the
+                // end: piecewise(c1, v1, c2, v2, d) = if(c1, v1, if(c2, v2, d)).
+                let mut pairs = Vec::with_capacity(args.len() / 2);
+                for pair in args.chunks_exact(2) {
+                    let cond = self.condition(&pair[0], "piecewise")?;
+                    let v = self.value(&pair[1])?;
+                    pairs.push((cond, v));
+                }
+                let mut acc = self.value(&args[args.len() - 1])?;
+                for (cond, v) in pairs.into_iter().rev() {
+                    acc = self.select(cond, v, acc, LimitKind::Piecewise, name_span, span)?;
+                }
+                return Ok(acc);
+            }
+            _ => {}
+        }
+        match self.meaning(name) {
+            Meaning::Table(t) => {
+                self.arity(name, args, 1, span)?;
+                let (a, ai) = self.value(&args[0])?;
+                let id = self.emit(
+                    Node::Table {
+                        table: t,
+                        deriv: 0,
+                        arg: a,
+                    },
+                    span,
+                )?;
+                Ok((id, self.settle(id, ai.table(t, name_span))))
+            }
+            Meaning::Param(_)
+            | Meaning::Var(..)
+            | Meaning::SumIndex(_)
+            | Meaning::N
+            | Meaning::Pi => Err(self.err(
+                name_span,
+                format!("'{name}' is not a function (for a product write {name}*(...))"),
+            )),
+            _ => {
+                let mut known = KNOWN.to_string();
+                if !self.scope.tables.is_empty() {
+                    let t: Vec<&str> = self.scope.tables.iter().map(|(n, _)| n.as_str()).collect();
+                    known += &format!("; tables: {}", t.join(", "));
+                }
+                Err(self.err(
+                    name_span,
+                    format!("unknown function '{name}' (known: {known})"),
+                ))
+            }
+        }
+    }
+
+    fn sum(
+        &mut self,
+        e: &'a Expr,
+        index: &'a str,
+        index_span: Span,
+        from: &'a Expr,
+        to: &'a Expr,
+        body: &'a Expr,
+    ) -> R<(NodeId, Info)> {
+        let clash = match self.meaning(index) {
+            Meaning::Unknown => None,
+            Meaning::SumIndex(_) => Some("the index of an enclosing sum".to_string()),
+            Meaning::N | Meaning::Pi => Some(format!("the built-in '{index}'")),
+            Meaning::Param(_) => Some(format!("the parameter '{index}'")),
+            Meaning::Var(..) => Some(format!("the variable '{index}'")),
+            Meaning::Family(_) => Some(format!("the variables '{index}'")),
+            Meaning::Table(_) => Some(format!("the table '{index}'")),
+            Meaning::Function => Some(format!("the function '{index}'")),
+        };
+        if let Some(what) = clash {
+            return Err(self.err(
+                index_span,
+                format!("sum index '{index}' shadows {what}; choose another name"),
+            ));
+        }
+        let a = self.int(from)?;
+        let b = self.int(to)?;
+        let free = self.scope.boundary == Boundary::Free;
+        let mut acc: Option<(NodeId, Info)> = None;
+        let mut i = a;
+        while i <= b {
+            self.tick(e.span)?;
+            self.sums.push((index, i));
+            let exists = !free || self.term_exists(body);
+            let term = if exists { Some(self.value(body)) } else { None };
+            self.sums.pop();
+            if let Some(term) = term {
+                let (t, ti) = term?;
+                acc = Some(match acc {
+                    None => (t, ti),
+                    Some((s, si)) => {
+                        let id = self.emit(Node::Binary(Binary::Add, s, t), e.span)?;
+                        (id, self.settle(id, si.add(ti)))
+                    }
+                });
+            }
+            if i == i64::MAX {
+                break;
+            }
+            i += 1;
+        }
+        match acc {
+            Some(x) => Ok(x),
+            None => self.constant(0.0, e.span),
+        }
+    }
+
+    /// With free ends: whether the current term of the innermost sum refers only to sites
+    /// inside `1..N` (else the term is left out). Checked before lowering the term, so a
+    /// left-out term leaves no dead nodes in the graph. Inner sums decide for their own terms;
+    /// an index that does not evaluate is left for lowering to report.
+    fn term_exists(&self, e: &'a Expr) -> bool {
+        match &e.kind {
+            ExprKind::Sum { .. } => true,
+            ExprKind::Index { name, index, .. } => {
+                let len = match self.meaning(name) {
+                    Meaning::Family(f) => f.len,
+                    Meaning::Param(ParamValue::Array(v)) => v.len(),
+                    _ => return true,
+                };
+                match self.int(index) {
+                    Ok(k) => k >= 1 && (k as u64) <= len as u64,
+                    Err(_) => true,
+                }
+            }
+            _ => e.children().all(|c| self.term_exists(c)),
+        }
+    }
+}
+
+fn cmp_symbol(c: Cmp) -> &'static str {
+    match c {
+        Cmp::Lt => "<",
+        Cmp::Le => "<=",
+        Cmp::Gt => ">",
+        Cmp::Ge => ">=",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::graph::Tabulated;
+    use std::sync::Arc;
+
+    /// `U(x) = x^2/2 + x^3`, defined everywhere (a stand-in for a spline).
+    #[derive(Debug)]
+    struct Cubic;
+
+    impl Tabulated for Cubic {
+        fn eval(&self, deriv: u8, x: f64) -> f64 {
+            match deriv {
+                0 => x * x / 2.0 + x * x * x,
+                1 => x + 3.0 * x * x,
+                2 => 1.0 + 6.0 * x,
+                _ => 6.0,
+            }
+        }
+        fn name(&self) -> &str {
+            "U"
+        }
+    }
+
+    /// A reference evaluation of the graph, with the graph's own operation definitions.
+    fn eval(g: &Graph, root: NodeId, q: &[f64]) -> f64 {
+        let mut v = vec![0.0; g.len()];
+        for (k, node) in g.nodes().iter().enumerate() {
+            v[k] = match *node {
+                Node::Const(c) => c,
+                Node::Input { index, .. } => q[index as usize],
+                Node::Unary(op, a) => Graph::apply_unary(op, v[a as usize]),
+                Node::Binary(op, a, b) => Graph::apply_binary(op, v[a as usize], v[b as usize]),
+                Node::Powi(a, n) => Graph::apply_powi(v[a as usize], n),
+                Node::Select {
+                    cmp,
+                    a,
+                    b,
+                    then,
+                    otherwise,
+                } => {
+                    if cmp.holds(v[a as usize], v[b as usize]) {
+                        v[then as usize]
+                    } else {
+                        v[otherwise as usize]
+                    }
+                }
+                Node::Table { table, deriv, arg } => {
+                    g.tables()[table as usize].eval(deriv, v[arg as usize])
+                }
+            };
+        }
+        v[root as usize]
+    }
+
+    /// Everything a test needs to lower: the family `q` of length `n`, parameters, the table
+    /// `U` registered in the graph.
+    struct Setup {
+        families: Vec<Family>,
+        params: BTreeMap<String, ParamValue>,
+        tables: Vec<(String, u32)>,
+        graph: Graph,
+        n: usize,
+        boundary: Boundary,
+    }
+
+    impl Setup {
+        fn new(n: usize, boundary: Boundary) -> Self {
+            let mut graph = Graph::new();
+            let u = graph.add_table(Arc::new(Cubic));
+            Self {
+                families: vec![Family {
+                    name: "q".into(),
+                    len: n,
+                    arg: 0,
+                }],
+                params: BTreeMap::new(),
+                tables: vec![("U".into(), u)],
+                graph,
+                n,
+                boundary,
+            }
+        }
+
+        fn param(mut self, name: &str, v: f64) -> Self {
+            self.params.insert(name.into(), ParamValue::Scalar(v));
+            self
+        }
+
+        fn array(mut self, name: &str, v: Vec<f64>) -> Self {
+            self.params.insert(name.into(), ParamValue::Array(v));
+            self
+        }
+
+        fn lower(&mut self, src: &str) -> Result<Lowered, ExprError> {
+            let scope = Scope {
+                families: &self.families,
+                params: &self.params,
+                tables: &self.tables,
+                n: self.n,
+                boundary: self.boundary,
+            };
+            lower(src, &scope, &mut self.graph)
+        }
+
+        fn ok(&mut self, src: &str) -> Lowered {
+            self.lower(src).unwrap_or_else(|e| panic!("{src}:\n{e}"))
+        }
+
+        fn err(&mut self, src: &str) -> ExprError {
+            match self.lower(src) {
+                Ok(_) => panic!("{src} lowered without error"),
+                Err(e) => e,
+            }
+        }
+    }
+
+    /// Test coordinates: distinct, irregular, of both signs.
+    fn coords(n: usize) -> Vec<f64> {
+        (0..n)
+            .map(|k| 0.3 * (k as f64 + 1.0).sin() + 0.01 * k as f64)
+            .collect()
+    }
+
+    fn same(a: f64, b: f64, what: &str) {
+        assert_eq!(a.to_bits(), b.to_bits(), "{what}: {a} vs {b}");
+    }
+
+    #[test]
+    fn henon_heiles_is_the_hand_written_formula() {
+        let mut s = Setup::new(2, Boundary::Free);
+        let l = s.ok("(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3");
+        let [x, y] = [0.3, -0.7];
+        let want = (x * x + y * y) / 2.0 + x * x * y - y * y * y / 3.0;
+        same(eval(&s.graph, l.root, &[x, y]), want, "HH");
+        assert!(l.smoothness.is_smooth());
+        // q2^3 is a Powi node, exactly q2*q2*q2.
+        assert!(
+            s.graph
+                .nodes()
+                .contains(&Node::Powi(s.graph.clone().input(0, 1), 3))
+        );
+    }
+
+    #[test]
+    fn fput_beta_fixed_ends() {
+        let n = 6;
+        let beta = 1.3;
+        let mut s = Setup::new(n, Boundary::Fixed).param("beta", beta);
+        let l = s.ok("sum(i = 0..N, (q[i+1]-q[i])^2/2 + beta/4*(q[i+1]-q[i])^4)");
+        let q = coords(n);
+        let at = |k: usize| if (1..=n).contains(&k) { q[k - 1] } else { 0.0 };
+        let mut want = 0.0;
+        for i in 0..=n {
+            let d = at(i + 1) - at(i);
+            let t = d * d / 2.0 + beta / 4.0 * (d * d * d * d);
+            want = if i == 0 { t } else { want + t };
+        }
+        same(eval(&s.graph, l.root, &q), want, "FPUT");
+        assert!(l.smoothness.is_smooth());
+    }
+
+    #[test]
+    fn klein_gordon_free_ends_leaves_out_the_missing_bond() {
+        let n = 5;
+        let k = vec![1.1, 0.9, 1.4, 0.7, 1.2];
+        let w = 4.0;
+        let mut s = Setup::new(n, Boundary::Free)
+            .array("k", k.clone())
+            .param("W", w);
+        let l = s.ok(
+            "sum(i = 1..N, k[i]/2*q[i]^2 + q[i]^4/4)\n  + sum(i = 1..N, (q[i+1]-q[i])^2/(2*W))",
+        );
+        let q = coords(n);
+        let mut onsite = 0.0;
+        for i in 0..n {
+            let t = k[i] / 2.0 * (q[i] * q[i]) + q[i] * q[i] * q[i] * q[i] / 4.0;
+            onsite = if i == 0 { t } else { onsite + t };
+        }
+        let mut bonds = 0.0;
+        for i in 0..n - 1 {
+            let d = q[i + 1] - q[i];
+            let t = d * d / (2.0 * w);
+            bonds = if i == 0 { t } else { bonds + t };
+        }
+        same(eval(&s.graph, l.root, &q), onsite + bonds, "KG");
+        // No dead nodes: the left-out term i = N was never lowered.
+        let q_n1 = s
+            .graph
+            .nodes()
+            .iter()
+            .filter(|n| matches!(n, Node::Input { index, .. } if *index as usize >= n_usize(5)))
+            .count();
+        assert_eq!(q_n1, 0);
+    }
+
+    fn n_usize(n: usize) -> usize {
+        n
+    }
+
+    #[test]
+    fn toda_periodic_wraps() {
+        let n = 4;
+        let mut s = Setup::new(n, Boundary::Periodic);
+        let l = s.ok("sum(i = 1..N, exp(q[i+1]-q[i]) - (q[i+1]-q[i]) - 1)");
+        let q = coords(n);
+        let mut want = 0.0;
+        for i in 0..n {
+            let d = q[(i + 1) % n] - q[i];
+            let t = d.exp() - d - 1.0;
+            want = if i == 0 { t } else { want + t };
+        }
+        same(eval(&s.graph, l.root, &q), want, "Toda");
+        assert!(l.smoothness.is_smooth());
+        // q[0] is q[N], array parameters wrap too.
+        let mut s = Setup::new(3, Boundary::Periodic).array("m", vec![1.0, 2.0, 3.0]);
+        let l = s.ok("q[0] * m[4] + m[-3]");
+        same(
+            eval(&s.graph, l.root, &[5.0, 6.0, 7.0]),
+            7.0 * 1.0 + 3.0,
+            "wrap",
+        );
+    }
+
+    #[test]
+    fn morse_chain() {
+        let n = 5;
+        let (d0, a) = (2.0, 0.8);
+        let mut s = Setup::new(n, Boundary::Fixed).param("D", d0).param("a", a);
+        let l = s.ok("sum(i = 1..N-1, D*(1 - exp(-a*(q[i+1]-q[i])))^2)");
+        let q = coords(n);
+        let mut want = 0.0;
+        for i in 0..n - 1 {
+            let e = 1.0 - (-a * (q[i + 1] - q[i])).exp();
+            let t = d0 * (e * e);
+            want = if i == 0 { t } else { want + t };
+        }
+        same(eval(&s.graph, l.root, &q), want, "Morse");
+        assert!(l.smoothness.is_smooth());
+    }
+
+    #[test]
+    fn hertz_chain_is_c2_and_passes_the_variational_method() {
+        let n = 5;
+        let (amp, delta0) = (1.5, 0.2);
+        let mut s = Setup::new(n, Boundary::Fixed)
+            .param("A", amp)
+            .param("delta0", delta0);
+        let src = "sum(i = 0..N, A*max(0, delta0 - (q[i+1]-q[i]))^(5/2))";
+        let l = s.ok(src);
+        let q = coords(n);
+        let at = |k: usize| if (1..=n).contains(&k) { q[k - 1] } else { 0.0 };
+        let mut want = 0.0;
+        for i in 0..=n {
+            let d = Graph::apply_binary(Binary::Max, 0.0, delta0 - (at(i + 1) - at(i)));
+            let t = amp * d.powf(2.5);
+            want = if i == 0 { t } else { want + t };
+        }
+        same(eval(&s.graph, l.root, &q), want, "Hertz");
+        assert!(
+            s.graph
+                .nodes()
+                .iter()
+                .any(|n| matches!(n, Node::Binary(Binary::Pow, _, _)))
+        );
+        let sm = &l.smoothness;
+        assert_eq!(sm.order, 2);
+        let lim = sm.limited_by.as_ref().unwrap();
+        assert_eq!(lim.operation, "^ 2.5");
+        assert_eq!((lim.line, lim.column), (1, src.find('^').unwrap() + 1));
+        sm.require(2, "the variational method (vm)").unwrap();
+        let e = sm.require(3, "a third-order method").unwrap_err();
+        assert!(e.contains("'^ 2.5' at line 1, column 47"), "{e}");
+    }
+
+    #[test]
+    fn tabulated_bond() {
+        let n = 4;
+        let mut s = Setup::new(n, Boundary::Fixed);
+        let src = "sum(i = 0..N, U(q[i+1]-q[i]))";
+        let l = s.ok(src);
+        let q = coords(n);
+        let at = |k: usize| if (1..=n).contains(&k) { q[k - 1] } else { 0.0 };
+        let mut want = 0.0;
+        for i in 0..=n {
+            let t = Cubic.eval(0, at(i + 1) - at(i));
+            want = if i == 0 { t } else { want + t };
+        }
+        same(eval(&s.graph, l.root, &q), want, "table");
+        let lim = l.smoothness.limited_by.as_ref().unwrap();
+        assert_eq!((l.smoothness.order, lim.operation.as_str()), (2, "U"));
+        assert_eq!((lim.line, lim.column, lim.order), (1, 15, 2));
+        assert!(lim.reason.contains("cubic spline"));
+        l.smoothness.require(2, "vm").unwrap();
+    }
+
+    #[test]
+    fn rounding_order_and_node_kinds() {
+        let mut s = Setup::new(3, Boundary::Fixed);
+        let q = [0.1, 0.2, 0.3];
+        let l = s.ok("q1 + q2 + q3");
+        same(eval(&s.graph, l.root, &q), (0.1 + 0.2) + 0.3, "left fold");
+        let l = s.ok("q1 * q2 * q3 / q2");
+        same(
+            eval(&s.graph, l.root, &q),
+            ((0.1 * 0.2) * 0.3) / 0.2,
+            "left fold *",
+        );
+        let l = s.ok("2^3^2");
+        assert_eq!(s.graph.as_const(l.root), Some(512.0));
+        let l = s.ok("-q1^2");
+        same(eval(&s.graph, l.root, &q), -(0.1 * 0.1), "-x^2");
+        let l = s.ok("q1**(4/2) + q2^N + q3^-1");
+        same(
+            eval(&s.graph, l.root, &q),
+            0.1 * 0.1 + 0.2 * 0.2 * 0.2 + 1.0 / 0.3,
+            "whole powers",
+        );
+        let l = s.ok("q1^0.5");
+        assert!(matches!(
+            s.graph.node(l.root),
+            Node::Binary(Binary::Pow, _, _)
+        ));
+        let l = s.ok("sum(i = 1..N, i*q[i]^2) + pi + sum(i = 3..1, q[i])");
+        same(
+            eval(&s.graph, l.root, &q),
+            ((1.0 * (0.1 * 0.1) + 2.0 * (0.2 * 0.2)) + 3.0 * (0.3 * 0.3)) + std::f64::consts::PI,
+            "index as a number, empty sum",
+        );
+        let l = s.ok("sum(i = 1..2, sum(j = i..N, q[i]*q[j]))");
+        same(
+            eval(&s.graph, l.root, &q),
+            ((0.1 * 0.1 + 0.1 * 0.2) + 0.1 * 0.3) + (0.2 * 0.2 + 0.2 * 0.3),
+            "nested sums",
+        );
+        let l = s.ok("q[2*2-1] + q[N] + q[N+1] + q[0]");
+        same(
+            eval(&s.graph, l.root, &q),
+            0.3 + 0.3,
+            "index arithmetic, walls",
+        );
+        let l =
+            s.ok("if(q1 < q2, atan2(q1, q2), min(q1, q3)) + piecewise(q1 > 1, 1, q1 >= 0, 2, 3)");
+        same(
+            eval(&s.graph, l.root, &q),
+            0.1f64.atan2(0.2) + 2.0,
+            "if, piecewise",
+        );
+        let l = s.ok("sqrt(q1) + exp(q1) + log(q1) + sin(q1) + cos(q1) + tan(q1) + atan(q1) + tanh(q1) + cosh(q1) + sinh(q1) + abs(q1) + step(q1) + sign(q1) + max(q1, q2)");
+        let x: f64 = 0.1;
+        let want = x.sqrt()
+            + x.exp()
+            + x.ln()
+            + x.sin()
+            + x.cos()
+            + x.tan()
+            + x.atan()
+            + x.tanh()
+            + x.cosh()
+            + x.sinh()
+            + x.abs()
+            + 1.0
+            + 1.0
+            + 0.2;
+        same(eval(&s.graph, l.root, &q), want, "functions");
+    }
+
+    #[test]
+    fn origins_point_at_the_operation() {
+        let mut s = Setup::new(2, Boundary::Fixed);
+        let src = "q1 + 2 *\n  log(q2 - 3)";
+        let l = s.ok(src);
+        let log = s
+            .graph
+            .nodes()
+            .iter()
+            .position(|n| matches!(n, Node::Unary(Unary::Log, _)))
+            .unwrap() as NodeId;
+        let span = l.origins[&log];
+        let e = ExprError::new(src, span, "log of a negative number");
+        assert_eq!((e.line, e.column), (2, 3));
+        assert_eq!(&src[span.start..span.end], "log(q2 - 3)");
+        assert_eq!(l.origins.len(), s.graph.len(), "every node has an origin");
+    }
+
+    /// (source, expected message part, line, column)
+    fn check_errors(s: &mut Setup, cases: &[(&str, &str, usize, usize)]) {
+        let mut wrong = Vec::new();
+        for &(src, msg, line, column) in cases {
+            let e = s.err(src);
+            if !e.message.contains(msg) || (e.line, e.column) != (line, column) {
+                wrong.push(format!("{src:?}: want {line}:{column} {msg:?}, got {e}"));
+            }
+            assert!(e.to_string().starts_with(&e.one_line()));
+        }
+        assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+    }
+
+    #[test]
+    fn name_errors() {
+        let mut s = Setup::new(5, Boundary::Fixed)
+            .param("beta", 1.0)
+            .array("k", vec![1.0; 5]);
+        check_errors(
+            &mut s,
+            &[
+                (
+                    "q1 + r",
+                    "unknown name 'r' (variables: q1..q5 or q[i]; parameters: beta, k; tables: U)",
+                    1,
+                    6,
+                ),
+                (
+                    "1 + sinn(q1)",
+                    "unknown function 'sinn' (known: sqrt, exp,",
+                    1,
+                    5,
+                ),
+                ("max(q1)", "max takes 2 arguments, got 1", 1, 1),
+                ("q1 + sin(q1, q2)", "sin takes 1 argument, got 2", 1, 6),
+                ("U(q1, q2)", "U takes 1 argument, got 2", 1, 1),
+                ("if(q1 < 0, 1)", "if takes 3 arguments", 1, 1),
+                ("piecewise(q1 < 0, 1, 2, 3)", "piecewise takes pairs", 1, 1),
+                ("if(q1, 1, 2)", "must be a comparison", 1, 4),
+                (
+                    "q1 + (q2 < 1)",
+                    "only allowed as the condition of if",
+                    1,
+                    10,
+                ),
+                (
+                    "max(q1 < 1, 2)",
+                    "only allowed as the condition of if",
+                    1,
+                    8,
+                ),
+                ("q7", "variable 'q7' does not exist: N = 5 (q1..q5)", 1, 1),
+                ("q0", "variable 'q0' does not exist", 1, 1),
+                ("2 * q", "'q' is a family of variables", 1, 5),
+                ("k", "parameter 'k' is an array", 1, 1),
+                ("beta[1]", "'beta' is a scalar parameter", 1, 1),
+                (
+                    "k[6]",
+                    "index 6 of the array parameter 'k' is outside 1..5",
+                    1,
+                    1,
+                ),
+                ("sum(i = 1..N, k[i+1])", "outside 1..5", 1, 15),
+                ("q[1.5]", "index expression is not an integer: '1.5'", 1, 3),
+                ("q[beta]", "'beta' is a parameter", 1, 3),
+                ("q[N/2]", "'/' is not allowed in an index", 1, 4),
+                (
+                    "sum(i = 1..N/2, q[i])",
+                    "'/' is not allowed in an index",
+                    1,
+                    13,
+                ),
+                (
+                    "sum(beta = 1..N, q[beta])",
+                    "sum index 'beta' shadows the parameter",
+                    1,
+                    5,
+                ),
+                (
+                    "sum(i = 1..N, sum(i = 1..N, q[i]))",
+                    "shadows the index of an enclosing",
+                    1,
+                    19,
+                ),
+                ("sum(q = 1..N, 1)", "shadows the variables 'q'", 1, 5),
+                ("sum(N = 1..3, 1)", "shadows the built-in 'N'", 1, 5),
+                ("i + sum(i = 1..N, q[i])", "unknown name 'i'", 1, 1),
+                (
+                    "sum(i = 1..N,\n    q[i] * j)",
+                    "unknown name 'j' (variables: q1..q5 or q[i]; parameters: beta, k; sum indices: i",
+                    2,
+                    12,
+                ),
+                (
+                    "beta(q1 + q2)",
+                    "'beta' is not a function (for a product write beta*(...))",
+                    1,
+                    1,
+                ),
+                ("sin", "'sin' is a function", 1, 1),
+                ("U", "'U' is a tabulated function", 1, 1),
+                ("sum + 1", "'sum' needs a range", 1, 1),
+                ("q[3000000000 * 3000000000 * 3]", "overflows", 1, 3),
+                ("q[1e300]", "index '1e300' is too large", 1, 3),
+                (
+                    "q1 +\n   q2 +\n      sinn(q3)",
+                    "unknown function 'sinn'",
+                    3,
+                    7,
+                ),
+            ],
+        );
+    }
+
+    #[test]
+    fn boundary_errors_and_free_ends() {
+        let mut free = Setup::new(3, Boundary::Free).array("m", vec![1.0, 2.0, 3.0]);
+        check_errors(
+            &mut free,
+            &[
+                ("q[4]", "with free ends there is no site there", 1, 1),
+                ("q1 + m[0]", "index 0 of 'm' is outside 1..3", 1, 6),
+            ],
+        );
+        // Every term refers outside: the sum is 0; parameters drop out like variables.
+        let l = free.ok("sum(i = 3..5, q[i+1]) + sum(i = 1..N, m[i+1]*q[i])");
+        same(
+            eval(&free.graph, l.root, &[1.0, 10.0, 100.0]),
+            2.0 * 1.0 + 3.0 * 10.0,
+            "free",
+        );
+        // Only the innermost sum's term is left out.
+        let l = free.ok("sum(i = 1..N, q[i] * (1 + sum(j = 1..1, q[i+1])))");
+        let q = [1.0, 10.0, 100.0];
+        same(
+            eval(&free.graph, l.root, &q),
+            (1.0 * (1.0 + 10.0) + 10.0 * (1.0 + 100.0)) + 100.0 * 1.0,
+            "innermost",
+        );
+        let mut periodic = Setup::new(0, Boundary::Periodic);
+        check_errors(&mut periodic, &[("q[1]", "'q' has no entries", 1, 1)]);
+    }
+
+    #[test]
+    fn parameter_checks() {
+        let mut s = Setup::new(5, Boundary::Fixed)
+            .array("k", vec![1.0; 4])
+            .array("m", vec![1.0, 2.0, f64::NAN, 4.0, 5.0])
+            .param("g", f64::INFINITY)
+            .param("q2", 1.0)
+            .param("ok", 1.0);
+        check_errors(
+            &mut s,
+            &[
+                (
+                    "q1 + sum(i = 1..N, k[i])",
+                    "parameter 'k' has 4 entries but N = 5",
+                    1,
+                    20,
+                ),
+                (
+                    "m[1]",
+                    "parameter 'm' entry 3 is not a finite number (NaN)",
+                    1,
+                    1,
+                ),
+                ("ok * g", "parameter 'g' is not a finite number (inf)", 1, 6),
+                ("q2", "parameter 'q2' has the name of a variable", 1, 1),
+            ],
+        );
+        // Unused parameters are not checked.
+        s.ok("ok * q1");
+        let mut s = Setup::new(5, Boundary::Fixed).param("N", 3.0);
+        check_errors(
+            &mut s,
+            &[("q1 * N", "parameter 'N' has the name of the built-in", 1, 6)],
+        );
+    }
+
+    #[test]
+    fn size_limits() {
+        let limited = |boundary, src: &str| {
+            let mut s = Setup::new(5, boundary);
+            let scope = Scope {
+                families: &s.families,
+                params: &s.params,
+                tables: &s.tables,
+                n: s.n,
+                boundary: s.boundary,
+            };
+            lower_limited(src, &scope, &mut s.graph, 10_000, 50_000).unwrap_err()
+        };
+        let e = limited(
+            Boundary::Fixed,
+            "sum(i = 1..100000, sum(j = 1..1000, q1*i*j))",
+        );
+        assert!(e.message.contains("more than 10000 graph nodes"), "{e}");
+        assert_eq!((e.line, e.column), (1, 41), "the product that overflowed");
+        let e = limited(Boundary::Fixed, "sum(i = 1..1000000000000, 0)");
+        assert!(e.message.contains("more than 50000 operations"), "{e}");
+        let e = limited(Boundary::Free, "sum(i = 10..9000000000000000, q[i])");
+        assert!(e.message.contains("operations"), "{e}");
+    }
+
+    #[test]
+    fn fput_with_a_thousand_sites_stays_small() {
+        let n = 1001;
+        let mut s = Setup::new(n, Boundary::Fixed).param("beta", 1.0);
+        let l = s.ok("sum(i = 0..N, (q[i+1]-q[i])^2/2 + beta/4*(q[i+1]-q[i])^4)");
+        // Per bond: the difference, its square, /2, its fourth power, *beta/4, the term's
+        // sum, and the fold's add; the input; plus a few constants.
+        let nodes = s.graph.len();
+        assert!(nodes > 6 * n && nodes < 9 * n, "{nodes} nodes");
+        let q = coords(n);
+        assert!(eval(&s.graph, l.root, &q).is_finite());
+    }
+
+    #[test]
+    fn smoothness_rules() {
+        let mut s = Setup::new(3, Boundary::Fixed)
+            .param("d0", 0.5)
+            .param("p", 2.0);
+        // Order (i64::MAX when smooth), and the limiting operation and its column.
+        type Expect = (i64, Option<(String, usize)>);
+        let order = |s: &mut Setup, src: &str| -> Expect {
+            let l = s.ok(src);
+            let sm = l.smoothness;
+            match sm.limited_by {
+                None => {
+                    assert_eq!(sm.order, u32::MAX);
+                    (i64::MAX, None)
+                }
+                Some(l) => {
+                    assert_eq!(sm.order, u32::try_from(l.order).unwrap_or(0));
+                    (i64::from(l.order), Some((l.operation, l.column)))
+                }
+            }
+        };
+        let smooth = (i64::MAX, None);
+        let at = |k: i64, op: &str, col: usize| (k, Some((op.to_string(), col)));
+        let cases: Vec<(&str, Expect)> = vec![
+            (
+                "q1^2 + exp(q2) * sin(q3) / cosh(q1) - atan(q2) + tanh(q3) + sinh(q1) + cos(q2)",
+                smooth.clone(),
+            ),
+            ("abs(q1)", at(0, "abs", 1)),
+            ("q2 + abs(q1)", at(0, "abs", 6)),
+            ("step(q1)", at(-1, "step", 1)),
+            ("sign(q1) + abs(q2)", at(-1, "sign", 1)),
+            ("abs(q2) + step(q1)", at(-1, "step", 11)),
+            ("abs(q1) + max(q1, q2)", at(0, "abs", 1)),
+            ("if(q1 < 0, q1, q2)", at(-1, "if", 1)),
+            (
+                "piecewise(q1 < 0, q1, q2 > 1, 1, q2)",
+                at(-1, "piecewise", 1),
+            ),
+            ("sqrt(q1^2+q2^2)", at(0, "sqrt", 1)),
+            ("sqrt(1+q1^2)", smooth.clone()),
+            ("(q1^2 + d0)^0.5", smooth.clone()),
+            ("(exp(q1) + q2^2)^(1/3)", smooth.clone()),
+            ("max(0, d0 - q1)^(5/2)", at(2, "^ 2.5", 16)),
+            ("max(0, d0 - q1)^2", at(1, "^ 2", 16)),
+            ("(d0*min(q1 - d0, 0))^3", at(2, "^ 3", 21)),
+            ("abs(q1)^p", at(1, "^ 2", 8)),
+            ("max(q1, q2)^2", at(0, "max", 1)),
+            ("max(0, abs(q1))^2", at(0, "max", 1)),
+            ("(q1^2 + q2^2)^(3/2)", at(1, "^ 1.5", 14)),
+            ("q1^(1/2)", at(0, "^ 0.5", 3)),
+            (
+                "1/q1 + log(q2) + q3^-2 + q1^(-1/2) + tan(q1)",
+                smooth.clone(),
+            ),
+            ("q1^q2", at(0, "^", 3)),
+            ("exp(q1)^q2", smooth.clone()),
+            ("U(q1) + abs(q2)", at(0, "abs", 9)),
+            ("U(q1)", at(2, "U", 1)),
+            ("atan2(q1, q2)", at(-1, "atan2", 1)),
+            (
+                "abs(d0) + step(d0 - 1) + if(N > 2, q1, abs(q1))",
+                smooth.clone(),
+            ),
+            ("if(q1 < 0, q2, q2)", smooth.clone()),
+            ("sqrt(abs(q1))", at(0, "sqrt", 1)),
+            ("sqrt(step(q1))", at(-1, "step", 6)),
+        ];
+        let wrong: Vec<String> = cases
+            .into_iter()
+            .filter_map(|(src, want)| {
+                let got = order(&mut s, src);
+                (got != want).then(|| format!("{src}: got {got:?}, want {want:?}"))
+            })
+            .collect();
+        assert!(wrong.is_empty(), "{}", wrong.join("\n"));
+        let l = s.ok("q2 + abs(q1)");
+        assert_eq!(
+            l.smoothness
+                .require(2, "the variational method (vm)")
+                .unwrap_err(),
+            "the variational method (vm) needs continuous second derivatives, but 'abs' at line 1, column 6 has a kink (continuous, first derivative jumps); use mpm"
+        );
+        l.smoothness.require(0, "x").unwrap();
+        let l = s.ok("step(q1)");
+        let e = l.smoothness.require(1, "the forces").unwrap_err();
+        assert!(e.contains("'step' at line 1, column 1 jumps"), "{e}");
+        assert!(!e.contains("mpm"));
+        assert!(l.smoothness.require(0, "x").is_err());
+    }
+
+    /// A small deterministic generator (no dependency for one test).
+    struct Rng(u64);
+
+    impl Rng {
+        fn next(&mut self) -> u64 {
+            self.0 ^= self.0 << 13;
+            self.0 ^= self.0 >> 7;
+            self.0 ^= self.0 << 17;
+            self.0
+        }
+        fn below(&mut self, n: usize) -> usize {
+            (self.next() % n as u64) as usize
+        }
+    }
+
+    #[test]
+    fn garbage_never_panics() {
+        let seeds = [
+            "(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3",
+            "sum(i = 0..N, (q[i+1]-q[i])^2/2 + beta/4*(q[i+1]-q[i])^4)",
+            "sum(i = 1..N, k[i]/2*q[i]^2 + q[i]^4/4) + sum(i = 1..N, (q[i+1]-q[i])^2/(2*W))",
+            "sum(i = 1..N-1, D*(1 - exp(-a*(q[i+1]-q[i])))^2)",
+            "sum(i = 0..N, A*max(0, delta0 - (q[i+1]-q[i]))^(5/2))",
+            "piecewise(q1 < 0, U(q2), q2 >= 1e-3, atan2(q1, .5), if(q1 <= q2, -pi, N))",
+        ];
+        let pieces = [
+            "q1",
+            "q[",
+            "]",
+            "(",
+            ")",
+            "+",
+            "-",
+            "*",
+            "/",
+            "^",
+            "**",
+            ",",
+            "..",
+            "=",
+            "<",
+            ">=",
+            "sum(",
+            "i",
+            "N",
+            "pi",
+            "1",
+            "0",
+            "2.5",
+            "1e",
+            ".",
+            "k[i]",
+            "beta",
+            "max(",
+            "if(",
+            "piecewise(",
+            "U(",
+            "sqrt(",
+            "\n",
+            " ",
+            "é",
+            "$",
+            "q99",
+            "q[i+1]",
+            "sum(i = 1..N, ",
+        ];
+        let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+        for round in 0..20_000 {
+            let src: String = if round % 2 == 0 {
+                let mut b: Vec<char> = seeds[rng.below(seeds.len())].chars().collect();
+                for _ in 0..1 + rng.below(4) {
+                    let at = rng.below(b.len() + 1);
+                    match rng.below(3) {
+                        0 if at < b.len() => {
+                            b.remove(at);
+                        }
+                        1 => {
+                            let p = pieces[rng.below(pieces.len())];
+                            for (j, c) in p.chars().enumerate() {
+                                b.insert(at + j, c);
+                            }
+                        }
+                        _ if at < b.len() => {
+                            b[at] = "()[]+-*/^,.=<>0129qiNé "
+                                .chars()
+                                .nth(rng.below(23))
+                                .unwrap_or(' ')
+                        }
+                        _ => {}
+                    }
+                }
+                b.into_iter().collect()
+            } else {
+                (0..rng.below(30))
+                    .map(|_| pieces[rng.below(pieces.len())])
+                    .collect()
+            };
+            let _ = parse(&src);
+            for boundary in [Boundary::Fixed, Boundary::Periodic, Boundary::Free] {
+                let mut s = Setup::new(4, boundary)
+                    .param("beta", 1.0)
+                    .param("W", 2.0)
+                    .param("D", 1.0)
+                    .param("a", 1.0)
+                    .param("A", 1.0)
+                    .param("delta0", 0.1)
+                    .array("k", vec![1.0; 4]);
+                if let Err(e) = s.lower(&src) {
+                    // Every error renders, and its position is inside the source.
+                    let _ = e.to_string();
+                    assert!(e.span.start <= src.len(), "{src:?}");
+                } else if let Ok(l) = s.lower(&src) {
+                    let _ = l.smoothness.require(2, "vm");
+                }
+            }
+        }
+    }
+}

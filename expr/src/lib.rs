@@ -17,5 +17,7 @@
 //! No I/O except `table`'s reading of the CSV file a config names.
 
 pub mod graph;
+pub mod jit;
 
 pub use graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
+pub use jit::{Compiled, FunctionSpec, JitError, Layout};

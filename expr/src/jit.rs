@@ -1,0 +1,1121 @@
+//! Native code for a [`Graph`]'s outputs, compiled once at start with Cranelift.
+//!
+//! Each [`FunctionSpec`] becomes two machine-code functions:
+//! - a *scalar* function: one evaluation, every argument a plain array;
+//! - a *lane* function: `lanes` independent evaluations in structure-of-arrays layout (entry
+//!   `i` of lane `l` at `[i * lanes + l]`), as the batched integrators store their particles.
+//!
+//! Both perform exactly the IEEE operations [`Graph::apply_unary`], [`Graph::apply_binary`]
+//! and [`Graph::apply_powi`] define, in the same order, so they agree with the reference
+//! evaluator bit for bit (NaN payloads aside: IEEE 754 and Rust leave them unspecified, and the
+//! hardware picks one operand's payload). Transcendental functions (and powf, atan2, tables)
+//! are calls back into Rust functions that call those very definitions; `sqrt` is an IEEE
+//! operation and is emitted inline. No fused multiply-add is ever emitted: Cranelift only emits
+//! `fma` for an explicit `fma` instruction, which this module never creates.
+//!
+//! Lane functions:
+//! - *uniform hoisting*: every node that depends only on constants and `Layout::Scalar`
+//!   arguments (the stiffness at a shared reference position, say) is computed once, in scalar
+//!   code, before the lane loop, and broadcast;
+//! - the loop handles two lanes per iteration in `F64X2` registers (Cranelift's x86-64 back
+//!   end has 128-bit vectors only). Arithmetic, `sqrt`, `neg`, `abs` are the packed forms of the
+//!   same IEEE operations; `step`, `sign`, `max`, `min` and `select` are packed compares and
+//!   bit selects whose results match the scalar definitions including NaN and signed zeros;
+//!   transcendental operations extract both lanes and call the scalar callback;
+//! - an odd lane count is finished by one more two-lane iteration that *overlaps* the previous
+//!   one (lanes `lanes - 2` and `lanes - 1`): the overlapped lane is recomputed to the same bits,
+//!   so no separate scalar copy of the (possibly 30k-instruction) body is needed, which halves
+//!   code size and compile time. `lanes == 1` calls the scalar function (same layout).
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use cranelift_codegen::Context;
+use cranelift_codegen::ir::condcodes::{FloatCC, IntCC};
+use cranelift_codegen::ir::types::{F64, F64X2, I64};
+use cranelift_codegen::ir::{
+    AbiParam, BlockArg, Endianness, InstBuilder, MemFlagsData, SigRef, Signature, UserFuncName,
+    Value,
+};
+use cranelift_codegen::settings::{self, Configurable};
+use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
+use cranelift_jit::{JITBuilder, JITModule};
+use cranelift_module::{FuncId, Linkage, Module};
+
+use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
+
+/// How a function reads one argument array (or writes its output).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Layout {
+    /// One value per entry, shared by all lanes of a lane call.
+    Scalar,
+    /// Structure of arrays: entry `i` of lane `l` at `[i * lanes + l]` in a lane call (plain in
+    /// a scalar call).
+    Lanes,
+}
+
+/// One function to compile: `args[a]` is the layout of argument array `a`
+/// (`Node::Input { arg: a, .. }`), `outputs` the nodes written, in order, to the output array.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct FunctionSpec {
+    pub args: Vec<Layout>,
+    pub outputs: Vec<NodeId>,
+}
+
+/// Cranelift's optimization level.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OptLevel {
+    /// No mid-end optimization: fastest compilation.
+    None,
+    /// E-graph mid-end (GVN, LICM, simplification) and better instruction selection.
+    Speed,
+}
+
+/// Code generation options; [`compile`] uses [`Options::default`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Options {
+    pub opt_level: OptLevel,
+}
+
+impl Default for Options {
+    /// `opt_level = speed`: measured (see `benches/jit.rs`) to cost little extra compile time on
+    /// the straight-line code the graphs produce.
+    fn default() -> Self {
+        Options {
+            opt_level: OptLevel::Speed,
+        }
+    }
+}
+
+/// Why a graph could not be compiled. Every refusal of the code generator lands here; nothing
+/// in [`compile`] panics on a valid [`Graph`].
+#[derive(Debug, thiserror::Error)]
+pub enum JitError {
+    #[error("native compilation is not supported on this host: {0}")]
+    Host(String),
+    #[error("function {function}: output {output} is node {node}, but the graph has {len} nodes")]
+    NoSuchNode {
+        function: usize,
+        output: usize,
+        node: NodeId,
+        len: usize,
+    },
+    #[error(
+        "function {function}: node {node} reads argument {arg}, but the function declares {declared} argument(s)"
+    )]
+    MissingArgument {
+        function: usize,
+        node: NodeId,
+        arg: u8,
+        declared: usize,
+    },
+    #[error(
+        "function {function}: node {node} reads table {table}, but the graph has {len} table(s)"
+    )]
+    NoSuchTable {
+        function: usize,
+        node: NodeId,
+        table: u32,
+        len: usize,
+    },
+    #[error("function {function}: an array offset overflows (entry {index} of {count})")]
+    TooLarge {
+        function: usize,
+        index: u64,
+        count: u64,
+    },
+    #[error("code generation failed for function {function} ({variant}): {message}")]
+    Codegen {
+        function: usize,
+        variant: &'static str,
+        message: String,
+    },
+    #[error("linking the compiled functions failed: {0}")]
+    Link(String),
+}
+
+/// A compiled scalar function.
+///
+/// # Safety contract
+/// `args` points to as many pointers as the function's spec has arguments; `args[a]` points to
+/// at least [`Compiled::arg_len`]`(f, a)` readable `f64`s; `out` points to
+/// [`Compiled::output_len`]`(f)` writable `f64`s that overlap no argument. The tables the graph
+/// references are kept alive by the [`Compiled`] the pointer came from, which must outlive every
+/// call.
+pub type ScalarFnPtr = unsafe extern "C" fn(args: *const *const f64, out: *mut f64);
+
+/// A compiled lane function.
+///
+/// # Safety contract
+/// As [`ScalarFnPtr`], with `lanes` evaluations: a `Layout::Lanes` argument `a` holds at least
+/// `arg_len(f, a) * lanes` values (`[i * lanes + l]`), a `Layout::Scalar` one `arg_len(f, a)`
+/// values, and `out` holds `output_len(f) * lanes` values (`[j * lanes + l]`) overlapping no
+/// argument (an odd lane count recomputes lane `lanes - 2` from the arguments after having
+/// written it). `lanes == 0` does nothing.
+pub type LanesFnPtr = unsafe extern "C" fn(args: *const *const f64, out: *mut f64, lanes: usize);
+
+struct FnInfo {
+    layouts: Vec<Layout>,
+    arg_len: Vec<usize>,
+    n_out: usize,
+    scalar: ScalarFnPtr,
+    lanes: LanesFnPtr,
+}
+
+/// The compiled functions of one [`compile`] call. Owns the executable memory (freed on drop)
+/// and the tables the code calls into.
+///
+/// `Send + Sync` without any `unsafe impl`: the JIT module (which holds a `RefCell` and so is
+/// not `Sync`) sits in a `Mutex` that is only locked on drop; calls use plain function pointers
+/// to immutable code, and the tables are `Arc<dyn Tabulated>` (`Send + Sync` by the trait's
+/// bounds).
+pub struct Compiled {
+    module: Mutex<Option<JITModule>>,
+    fns: Vec<FnInfo>,
+    /// Read by the compiled code through `*const Arc<dyn Tabulated>` pointers into this boxed
+    /// slice, which never moves or changes after compilation.
+    _tables: Box<[Arc<dyn Tabulated>]>,
+    compile_time: Duration,
+    isa: String,
+}
+
+impl Drop for Compiled {
+    fn drop(&mut self) {
+        let module = match self.module.get_mut() {
+            Ok(m) => m.take(),
+            Err(poisoned) => poisoned.into_inner().take(),
+        };
+        if let Some(module) = module {
+            // SAFETY: the function pointers handed out by `raw_scalar`/`raw_lanes` are documented
+            // to be valid only while this `Compiled` lives, and `&self` calls cannot be running
+            // while it is being dropped.
+            unsafe { module.free_memory() };
+        }
+    }
+}
+
+impl std::fmt::Debug for Compiled {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Compiled")
+            .field("functions", &self.fns.len())
+            .field("compile_time", &self.compile_time)
+            .field("isa", &self.isa)
+            .finish()
+    }
+}
+
+impl Compiled {
+    /// Number of compiled functions (one per spec).
+    pub fn len(&self) -> usize {
+        self.fns.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.fns.is_empty()
+    }
+
+    /// Entries of argument `a` function `f` reads (largest `Input` index + 1): the minimal length
+    /// of a scalar argument, or of one lane's row count in a lane call.
+    pub fn arg_len(&self, f: usize, a: usize) -> usize {
+        self.fns[f].arg_len[a]
+    }
+
+    /// Number of values function `f` writes per evaluation.
+    pub fn output_len(&self, f: usize) -> usize {
+        self.fns[f].n_out
+    }
+
+    /// Wall time of [`compile`] (code generation of every function and linking).
+    pub fn compile_time(&self) -> Duration {
+        self.compile_time
+    }
+
+    /// The target the code was generated for (triple and the ISA flags Cranelift detected).
+    pub fn isa(&self) -> &str {
+        &self.isa
+    }
+
+    /// Scalar call: every argument array is plain (`args[a][i]` = entry `i`); writes
+    /// `output_len(f)` values.
+    ///
+    /// # Panics
+    /// If the number of arguments, an argument's length (shorter than [`Self::arg_len`]) or the
+    /// output length (not exactly [`Self::output_len`]) is wrong.
+    pub fn call(&self, f: usize, args: &[&[f64]], out: &mut [f64]) {
+        let info = &self.fns[f];
+        check_args(f, info, args, 1, false);
+        assert!(
+            out.len() == info.n_out,
+            "jit function {f}: output has {} entries, expected {}",
+            out.len(),
+            info.n_out
+        );
+        with_pointers(args, |ptrs| {
+            // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument; the
+            // code lives as long as `self`.
+            unsafe { (info.scalar)(ptrs, out.as_mut_ptr()) }
+        });
+    }
+
+    /// Lane call over `lanes` independent evaluations in structure-of-arrays layout: an argument
+    /// with `Layout::Lanes` holds entry `i` of lane `l` at `[i * lanes + l]`; `Layout::Scalar`
+    /// arguments are shared by all lanes; the output is written as `out[j * lanes + l]`.
+    ///
+    /// # Panics
+    /// On a wrong number of arguments, a `Lanes` argument whose length is not a multiple of
+    /// `lanes` or has fewer than [`Self::arg_len`] rows, a short `Scalar` argument, or an output
+    /// that is not exactly `output_len(f) * lanes` long.
+    pub fn call_lanes(&self, f: usize, args: &[&[f64]], out: &mut [f64], lanes: usize) {
+        let info = &self.fns[f];
+        check_args(f, info, args, lanes, true);
+        assert!(
+            Some(out.len()) == info.n_out.checked_mul(lanes),
+            "jit function {f}: output has {} entries, expected {} outputs x {lanes} lanes",
+            out.len(),
+            info.n_out
+        );
+        if lanes == 0 {
+            return;
+        }
+        with_pointers(args, |ptrs| {
+            // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument.
+            unsafe { (info.lanes)(ptrs, out.as_mut_ptr(), lanes) }
+        });
+    }
+
+    /// The scalar function's machine code, for hot loops that check lengths once outside. See
+    /// [`ScalarFnPtr`] for the contract; valid while `self` lives.
+    pub fn raw_scalar(&self, f: usize) -> ScalarFnPtr {
+        self.fns[f].scalar
+    }
+
+    /// The lane function's machine code; see [`LanesFnPtr`]; valid while `self` lives.
+    pub fn raw_lanes(&self, f: usize) -> LanesFnPtr {
+        self.fns[f].lanes
+    }
+}
+
+fn check_args(f: usize, info: &FnInfo, args: &[&[f64]], lanes: usize, lane_call: bool) {
+    assert!(
+        args.len() == info.layouts.len(),
+        "jit function {f}: {} argument arrays given, expected {}",
+        args.len(),
+        info.layouts.len()
+    );
+    for (a, (arg, (&layout, &need))) in args
+        .iter()
+        .zip(info.layouts.iter().zip(&info.arg_len))
+        .enumerate()
+    {
+        if lane_call && layout == Layout::Lanes {
+            if lanes == 0 {
+                continue;
+            }
+            assert!(
+                arg.len() % lanes == 0 && arg.len() / lanes >= need,
+                "jit function {f}: lane argument {a} has {} entries, expected a multiple of \
+                 {lanes} lanes with at least {need} rows",
+                arg.len()
+            );
+        } else {
+            assert!(
+                arg.len() >= need,
+                "jit function {f}: argument {a} has {} entries, expected at least {need}",
+                arg.len()
+            );
+        }
+    }
+}
+
+/// Calls `body` with a pointer to the arguments' base pointers, without allocating for the
+/// common small argument counts.
+fn with_pointers<R>(args: &[&[f64]], body: impl FnOnce(*const *const f64) -> R) -> R {
+    const SMALL: usize = 8;
+    if args.len() <= SMALL {
+        let mut ptrs = [std::ptr::null::<f64>(); SMALL];
+        for (p, a) in ptrs.iter_mut().zip(args) {
+            *p = a.as_ptr();
+        }
+        body(ptrs.as_ptr())
+    } else {
+        let ptrs: Vec<*const f64> = args.iter().map(|a| a.as_ptr()).collect();
+        body(ptrs.as_ptr())
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Callbacks: the compiled code calls these for every operation that is not a single IEEE
+// instruction, so the result is by construction the one `Graph` defines.
+
+macro_rules! unary_callbacks {
+    ($($name:ident => $op:ident),* $(,)?) => {
+        $(extern "C" fn $name(x: f64) -> f64 {
+            Graph::apply_unary(Unary::$op, x)
+        })*
+        fn unary_callback(op: Unary) -> Option<usize> {
+            match op {
+                $(Unary::$op => Some($name as *const () as usize),)*
+                _ => None,
+            }
+        }
+    };
+}
+
+unary_callbacks! {
+    cb_exp => Exp,
+    cb_log => Log,
+    cb_sin => Sin,
+    cb_cos => Cos,
+    cb_tan => Tan,
+    cb_atan => Atan,
+    cb_tanh => Tanh,
+    cb_cosh => Cosh,
+    cb_sinh => Sinh,
+}
+
+extern "C" fn cb_pow(a: f64, b: f64) -> f64 {
+    Graph::apply_binary(Binary::Pow, a, b)
+}
+
+extern "C" fn cb_atan2(a: f64, b: f64) -> f64 {
+    Graph::apply_binary(Binary::Atan2, a, b)
+}
+
+/// `table` points into `Compiled::_tables`. A panic inside `Tabulated::eval` aborts the process
+/// (it cannot unwind through the compiled frames); `table::Spline` returns NaN instead.
+extern "C" fn cb_table(table: *const Arc<dyn Tabulated>, deriv: u64, x: f64) -> f64 {
+    // SAFETY: the pointer was taken from the boxed table slice owned by the `Compiled` whose
+    // code is running, so it is valid and immutable for the duration of the call.
+    let table = unsafe { &*table };
+    table.eval(deriv as u8, x)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Compilation.
+
+/// Compiles every spec with the default [`Options`].
+pub fn compile(graph: &Graph, specs: &[FunctionSpec]) -> Result<Compiled, JitError> {
+    compile_with(graph, specs, &Options::default())
+}
+
+/// Compiles every spec (a scalar and a lane function each) into one block of executable
+/// memory.
+pub fn compile_with(
+    graph: &Graph,
+    specs: &[FunctionSpec],
+    options: &Options,
+) -> Result<Compiled, JitError> {
+    let start = Instant::now();
+    let mut flags = settings::builder();
+    let opt = match options.opt_level {
+        OptLevel::None => "none",
+        OptLevel::Speed => "speed",
+    };
+    let set = |flags: &mut settings::Builder, k: &str, v: &str| {
+        flags
+            .set(k, v)
+            .map_err(|e| JitError::Host(format!("setting {k}={v}: {e}")))
+    };
+    set(&mut flags, "opt_level", opt)?;
+    set(&mut flags, "use_colocated_libcalls", "false")?;
+    set(&mut flags, "is_pic", "false")?;
+    // The IR verifier costs compile time; this module's IR is checked by the tests (debug).
+    set(
+        &mut flags,
+        "enable_verifier",
+        if cfg!(debug_assertions) {
+            "true"
+        } else {
+            "false"
+        },
+    )?;
+    let isa_builder = cranelift_native::builder().map_err(|e| JitError::Host(e.to_string()))?;
+    let isa = isa_builder
+        .finish(settings::Flags::new(flags))
+        .map_err(|e| JitError::Host(e.to_string()))?;
+    let features: Vec<&str> = isa
+        .isa_flags()
+        .iter()
+        .filter(|v| v.as_bool() == Some(true))
+        .map(|v| v.name)
+        .collect();
+    let isa_name = format!("{} [{}]", isa.triple(), features.join(","));
+    let mut module = JITModule::new(JITBuilder::with_isa(
+        isa,
+        cranelift_module::default_libcall_names(),
+    ));
+
+    let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
+    let mut ctx = module.make_context();
+    let mut fctx = FunctionBuilderContext::new();
+    let mut ids = Vec::with_capacity(specs.len());
+    let mut infos = Vec::with_capacity(specs.len());
+    for (f, spec) in specs.iter().enumerate() {
+        let plan = Plan::new(graph, spec, f)?;
+        let ptr = module.target_config().pointer_type();
+        let mut sig_s = module.make_signature();
+        sig_s.params.push(AbiParam::new(ptr));
+        sig_s.params.push(AbiParam::new(ptr));
+        let mut sig_l = sig_s.clone();
+        sig_l.params.push(AbiParam::new(ptr));
+        let codegen = |variant: &'static str| {
+            move |e: cranelift_module::ModuleError| JitError::Codegen {
+                function: f,
+                variant,
+                message: format!("{e:?}"),
+            }
+        };
+        let id_s = module
+            .declare_function(&format!("f{f}_scalar"), Linkage::Local, &sig_s)
+            .map_err(codegen("scalar"))?;
+        let id_l = module
+            .declare_function(&format!("f{f}_lanes"), Linkage::Local, &sig_l)
+            .map_err(codegen("lanes"))?;
+
+        module.clear_context(&mut ctx);
+        ctx.func.signature = sig_s;
+        ctx.func.name = UserFuncName::user(0, id_s.as_u32());
+        build_scalar(&mut ctx, &mut fctx, &module, graph, &plan, &tables, f)?;
+        module
+            .define_function(id_s, &mut ctx)
+            .map_err(codegen("scalar"))?;
+
+        module.clear_context(&mut ctx);
+        ctx.func.signature = sig_l;
+        ctx.func.name = UserFuncName::user(0, id_l.as_u32());
+        build_lanes(
+            &mut ctx,
+            &mut fctx,
+            &mut module,
+            graph,
+            &plan,
+            &tables,
+            f,
+            id_s,
+        )?;
+        module
+            .define_function(id_l, &mut ctx)
+            .map_err(codegen("lanes"))?;
+        ids.push((id_s, id_l));
+        infos.push((spec.args.clone(), plan.arg_len.clone(), spec.outputs.len()));
+    }
+    module.clear_context(&mut ctx);
+    module
+        .finalize_definitions()
+        .map_err(|e| JitError::Link(format!("{e:?}")))?;
+    let fns = ids
+        .into_iter()
+        .zip(infos)
+        .map(|((id_s, id_l), (layouts, arg_len, n_out))| {
+            let ps = module.get_finalized_function(id_s);
+            let pl = module.get_finalized_function(id_l);
+            // SAFETY: both were defined above with exactly these signatures (two or three
+            // pointer-sized integer parameters, no results, the host's C calling convention).
+            let (scalar, lanes) = unsafe {
+                (
+                    std::mem::transmute::<*const u8, ScalarFnPtr>(ps),
+                    std::mem::transmute::<*const u8, LanesFnPtr>(pl),
+                )
+            };
+            FnInfo {
+                layouts,
+                arg_len,
+                n_out,
+                scalar,
+                lanes,
+            }
+        })
+        .collect();
+    Ok(Compiled {
+        module: Mutex::new(Some(module)),
+        fns,
+        _tables: tables,
+        compile_time: start.elapsed(),
+        isa: isa_name,
+    })
+}
+
+/// What one function needs from the graph.
+struct Plan {
+    /// Nodes the outputs depend on, in evaluation (node) order.
+    order: Vec<NodeId>,
+    /// Per node: depends only on constants and `Layout::Scalar` arguments.
+    uniform: Vec<bool>,
+    /// Per node: a uniform node read by a varying node or written as an output (must be
+    /// broadcast before the lane loop).
+    broadcast: Vec<bool>,
+    arg_len: Vec<usize>,
+    layouts: Vec<Layout>,
+    outputs: Vec<NodeId>,
+}
+
+impl Plan {
+    fn new(graph: &Graph, spec: &FunctionSpec, f: usize) -> Result<Plan, JitError> {
+        let n = graph.len();
+        let mut needed = vec![false; n];
+        for (j, &o) in spec.outputs.iter().enumerate() {
+            if o as usize >= n {
+                return Err(JitError::NoSuchNode {
+                    function: f,
+                    output: j,
+                    node: o,
+                    len: n,
+                });
+            }
+            needed[o as usize] = true;
+        }
+        for id in (0..n).rev() {
+            if needed[id] {
+                for op in graph.nodes()[id].operands() {
+                    needed[op as usize] = true;
+                }
+            }
+        }
+        let order: Vec<NodeId> = (0..n as NodeId).filter(|&i| needed[i as usize]).collect();
+        let mut uniform = vec![false; n];
+        let mut broadcast = vec![false; n];
+        let mut arg_len = vec![0usize; spec.args.len()];
+        for &id in &order {
+            let node = graph.node(id);
+            uniform[id as usize] = match *node {
+                Node::Const(_) => true,
+                Node::Input { arg, index } => {
+                    let Some(&layout) = spec.args.get(arg as usize) else {
+                        return Err(JitError::MissingArgument {
+                            function: f,
+                            node: id,
+                            arg,
+                            declared: spec.args.len(),
+                        });
+                    };
+                    let len = &mut arg_len[arg as usize];
+                    *len = (*len).max(index as usize + 1);
+                    layout == Layout::Scalar
+                }
+                Node::Table { table, .. } if table as usize >= graph.tables().len() => {
+                    return Err(JitError::NoSuchTable {
+                        function: f,
+                        node: id,
+                        table,
+                        len: graph.tables().len(),
+                    });
+                }
+                _ => node.operands().all(|o| uniform[o as usize]),
+            };
+            if !uniform[id as usize] {
+                for o in node.operands() {
+                    if uniform[o as usize] {
+                        broadcast[o as usize] = true;
+                    }
+                }
+            }
+        }
+        for &o in &spec.outputs {
+            if uniform[o as usize] {
+                broadcast[o as usize] = true;
+            }
+        }
+        // Offsets are `i32` immediates or 64-bit products; refuse arrays whose byte offsets
+        // cannot be formed.
+        for (a, &len) in arg_len.iter().enumerate() {
+            if len as u64 * 8 > i32::MAX as u64 {
+                return Err(JitError::TooLarge {
+                    function: f,
+                    index: a as u64,
+                    count: len as u64,
+                });
+            }
+        }
+        if spec.outputs.len() as u64 * 8 > i32::MAX as u64 {
+            return Err(JitError::TooLarge {
+                function: f,
+                index: 0,
+                count: spec.outputs.len() as u64,
+            });
+        }
+        Ok(Plan {
+            order,
+            uniform,
+            broadcast,
+            arg_len,
+            layouts: spec.args.clone(),
+            outputs: spec.outputs.clone(),
+        })
+    }
+}
+
+/// Imported callback signatures of one function.
+struct Sigs {
+    unary: SigRef,
+    binary: SigRef,
+    table: SigRef,
+}
+
+impl Sigs {
+    fn new(b: &mut FunctionBuilder, module: &JITModule) -> Sigs {
+        let cc = module.target_config().default_call_conv;
+        let mut unary = Signature::new(cc);
+        unary.params.push(AbiParam::new(F64));
+        unary.returns.push(AbiParam::new(F64));
+        let mut binary = unary.clone();
+        binary.params.push(AbiParam::new(F64));
+        let mut table = Signature::new(cc);
+        table.params.push(AbiParam::new(I64));
+        table.params.push(AbiParam::new(I64));
+        table.params.push(AbiParam::new(F64));
+        table.returns.push(AbiParam::new(F64));
+        Sigs {
+            unary: b.import_signature(unary),
+            binary: b.import_signature(binary),
+            table: b.import_signature(table),
+        }
+    }
+}
+
+fn flags() -> MemFlagsData {
+    // Never traps (the caller guarantees the lengths); no alignment beyond `f64`'s is promised.
+    MemFlagsData::new().with_notrap()
+}
+
+fn call1(b: &mut FunctionBuilder, sig: SigRef, addr: usize, args: &[Value]) -> Value {
+    let callee = b.ins().iconst(I64, addr as i64);
+    let inst = b.ins().call_indirect(sig, callee, args);
+    b.inst_results(inst)[0]
+}
+
+/// Scalar code for node `id` given its operands' scalar values.
+fn emit_scalar(
+    b: &mut FunctionBuilder,
+    sigs: &Sigs,
+    tables: &[Arc<dyn Tabulated>],
+    node: &Node,
+    v: &dyn Fn(NodeId) -> Value,
+    load_input: &mut dyn FnMut(&mut FunctionBuilder, u8, u32) -> Value,
+) -> Value {
+    match *node {
+        Node::Const(c) => b.ins().f64const(c),
+        Node::Input { arg, index } => load_input(b, arg, index),
+        Node::Unary(op, a) => {
+            let x = v(a);
+            match op {
+                Unary::Neg => b.ins().fneg(x),
+                Unary::Abs => b.ins().fabs(x),
+                Unary::Sqrt => b.ins().sqrt(x),
+                Unary::Step => {
+                    let zero = b.ins().f64const(0.0);
+                    let one = b.ins().f64const(1.0);
+                    let gt = b.ins().fcmp(FloatCC::GreaterThan, x, zero);
+                    let r = b.ins().select(gt, one, zero);
+                    let nan = b.ins().fcmp(FloatCC::Unordered, x, x);
+                    b.ins().select(nan, x, r)
+                }
+                Unary::Sign => {
+                    let zero = b.ins().f64const(0.0);
+                    let one = b.ins().f64const(1.0);
+                    let m_one = b.ins().f64const(-1.0);
+                    let lt = b.ins().fcmp(FloatCC::LessThan, x, zero);
+                    let r = b.ins().select(lt, m_one, zero);
+                    let gt = b.ins().fcmp(FloatCC::GreaterThan, x, zero);
+                    let r = b.ins().select(gt, one, r);
+                    let nan = b.ins().fcmp(FloatCC::Unordered, x, x);
+                    b.ins().select(nan, x, r)
+                }
+                _ => {
+                    let addr = unary_callback(op).expect("every other unary op has a callback");
+                    call1(b, sigs.unary, addr, &[x])
+                }
+            }
+        }
+        Node::Binary(op, a, c) => {
+            let (x, y) = (v(a), v(c));
+            match op {
+                Binary::Add => b.ins().fadd(x, y),
+                Binary::Sub => b.ins().fsub(x, y),
+                Binary::Mul => b.ins().fmul(x, y),
+                Binary::Div => b.ins().fdiv(x, y),
+                Binary::Pow => call1(b, sigs.binary, cb_pow as *const () as usize, &[x, y]),
+                Binary::Atan2 => call1(b, sigs.binary, cb_atan2 as *const () as usize, &[x, y]),
+                Binary::Max | Binary::Min => {
+                    let cc = if op == Binary::Max {
+                        FloatCC::GreaterThanOrEqual
+                    } else {
+                        FloatCC::LessThanOrEqual
+                    };
+                    let keep = b.ins().fcmp(cc, x, y);
+                    let r = b.ins().select(keep, x, y);
+                    let nan = b.ins().fcmp(FloatCC::Unordered, x, y);
+                    let qnan = b.ins().f64const(f64::NAN);
+                    b.ins().select(nan, qnan, r)
+                }
+            }
+        }
+        Node::Powi(a, n) => {
+            let x = v(a);
+            if n == 0 {
+                return b.ins().f64const(1.0);
+            }
+            let mut acc = x;
+            for _ in 1..n.unsigned_abs() {
+                acc = b.ins().fmul(acc, x);
+            }
+            if n < 0 {
+                let one = b.ins().f64const(1.0);
+                acc = b.ins().fdiv(one, acc);
+            }
+            acc
+        }
+        Node::Select {
+            cmp,
+            a,
+            b: c,
+            then,
+            otherwise,
+        } => {
+            let cond = b.ins().fcmp(float_cc(cmp), v(a), v(c));
+            b.ins().select(cond, v(then), v(otherwise))
+        }
+        Node::Table { table, deriv, arg } => {
+            let x = v(arg);
+            let t = b.ins().iconst(
+                I64,
+                &tables[table as usize] as *const Arc<dyn Tabulated> as i64,
+            );
+            let d = b.ins().iconst(I64, deriv as i64);
+            call1(b, sigs.table, cb_table as *const () as usize, &[t, d, x])
+        }
+    }
+}
+
+/// IEEE (ordered) comparisons: false when either side is NaN, as `Cmp::holds`.
+fn float_cc(cmp: Cmp) -> FloatCC {
+    match cmp {
+        Cmp::Lt => FloatCC::LessThan,
+        Cmp::Le => FloatCC::LessThanOrEqual,
+        Cmp::Gt => FloatCC::GreaterThan,
+        Cmp::Ge => FloatCC::GreaterThanOrEqual,
+    }
+}
+
+/// Constants a vector body needs, broadcast once before the loop.
+struct VConsts {
+    zero: Value,
+    one: Value,
+    m_one: Value,
+    nan: Value,
+}
+
+fn mask(b: &mut FunctionBuilder, cc: FloatCC, x: Value, y: Value) -> Value {
+    let m = b.ins().fcmp(cc, x, y);
+    b.ins().bitcast(
+        F64X2,
+        MemFlagsData::new().with_endianness(Endianness::Little),
+        m,
+    )
+}
+
+/// Two-lane code for a varying node given its operands' `F64X2` values.
+#[allow(clippy::too_many_arguments)]
+fn emit_vector(
+    b: &mut FunctionBuilder,
+    sigs: &Sigs,
+    tables: &[Arc<dyn Tabulated>],
+    k: &VConsts,
+    node: &Node,
+    v: &dyn Fn(NodeId) -> Value,
+    load_input: &mut dyn FnMut(&mut FunctionBuilder, u8, u32) -> Value,
+) -> Value {
+    // A scalar callback applied to each lane.
+    let per_lane =
+        |b: &mut FunctionBuilder, sig: SigRef, addr: usize, pre: &[Value], xs: &[Value]| {
+            let mut lanes = [None; 2];
+            for (l, slot) in lanes.iter_mut().enumerate() {
+                let mut args: Vec<Value> = pre.to_vec();
+                for &x in xs {
+                    args.push(b.ins().extractlane(x, l as u8));
+                }
+                *slot = Some(call1(b, sig, addr, &args));
+            }
+            let [Some(r0), Some(r1)] = lanes else {
+                unreachable!()
+            };
+            let r = b.ins().scalar_to_vector(F64X2, r0);
+            b.ins().insertlane(r, r1, 1)
+        };
+    match *node {
+        Node::Const(_) => unreachable!("constants are uniform"),
+        Node::Input { arg, index } => load_input(b, arg, index),
+        Node::Unary(op, a) => {
+            let x = v(a);
+            match op {
+                Unary::Neg => b.ins().fneg(x),
+                Unary::Abs => b.ins().fabs(x),
+                Unary::Sqrt => b.ins().sqrt(x),
+                Unary::Step => {
+                    let gt = mask(b, FloatCC::GreaterThan, x, k.zero);
+                    let r = b.ins().bitselect(gt, k.one, k.zero);
+                    let nan = mask(b, FloatCC::Unordered, x, x);
+                    b.ins().bitselect(nan, x, r)
+                }
+                Unary::Sign => {
+                    let lt = mask(b, FloatCC::LessThan, x, k.zero);
+                    let r = b.ins().bitselect(lt, k.m_one, k.zero);
+                    let gt = mask(b, FloatCC::GreaterThan, x, k.zero);
+                    let r = b.ins().bitselect(gt, k.one, r);
+                    let nan = mask(b, FloatCC::Unordered, x, x);
+                    b.ins().bitselect(nan, x, r)
+                }
+                _ => {
+                    let addr = unary_callback(op).expect("every other unary op has a callback");
+                    per_lane(b, sigs.unary, addr, &[], &[x])
+                }
+            }
+        }
+        Node::Binary(op, a, c) => {
+            let (x, y) = (v(a), v(c));
+            match op {
+                Binary::Add => b.ins().fadd(x, y),
+                Binary::Sub => b.ins().fsub(x, y),
+                Binary::Mul => b.ins().fmul(x, y),
+                Binary::Div => b.ins().fdiv(x, y),
+                Binary::Pow => per_lane(b, sigs.binary, cb_pow as *const () as usize, &[], &[x, y]),
+                Binary::Atan2 => {
+                    per_lane(b, sigs.binary, cb_atan2 as *const () as usize, &[], &[x, y])
+                }
+                Binary::Max | Binary::Min => {
+                    // `a >= b ? a : b` (not `maxpd`, which returns `b` for equal zeros).
+                    let cc = if op == Binary::Max {
+                        FloatCC::GreaterThanOrEqual
+                    } else {
+                        FloatCC::LessThanOrEqual
+                    };
+                    let keep = mask(b, cc, x, y);
+                    let r = b.ins().bitselect(keep, x, y);
+                    let nan = mask(b, FloatCC::Unordered, x, y);
+                    b.ins().bitselect(nan, k.nan, r)
+                }
+            }
+        }
+        Node::Powi(a, n) => {
+            let x = v(a);
+            if n == 0 {
+                return k.one;
+            }
+            let mut acc = x;
+            for _ in 1..n.unsigned_abs() {
+                acc = b.ins().fmul(acc, x);
+            }
+            if n < 0 {
+                acc = b.ins().fdiv(k.one, acc);
+            }
+            acc
+        }
+        Node::Select {
+            cmp,
+            a,
+            b: c,
+            then,
+            otherwise,
+        } => {
+            let cond = mask(b, float_cc(cmp), v(a), v(c));
+            b.ins().bitselect(cond, v(then), v(otherwise))
+        }
+        Node::Table { table, deriv, arg } => {
+            let x = v(arg);
+            let t = b.ins().iconst(
+                I64,
+                &tables[table as usize] as *const Arc<dyn Tabulated> as i64,
+            );
+            let d = b.ins().iconst(I64, deriv as i64);
+            per_lane(b, sigs.table, cb_table as *const () as usize, &[t, d], &[x])
+        }
+    }
+}
+
+/// Loads the base pointers of the argument arrays (only those the function reads).
+fn arg_pointers(b: &mut FunctionBuilder, args: Value, plan: &Plan) -> Vec<Option<Value>> {
+    plan.arg_len
+        .iter()
+        .enumerate()
+        .map(|(a, &len)| (len > 0).then(|| b.ins().load(I64, flags(), args, (a * 8) as i32)))
+        .collect()
+}
+
+fn build_scalar(
+    ctx: &mut Context,
+    fctx: &mut FunctionBuilderContext,
+    module: &JITModule,
+    graph: &Graph,
+    plan: &Plan,
+    tables: &[Arc<dyn Tabulated>],
+    _f: usize,
+) -> Result<(), JitError> {
+    let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
+    let entry = b.create_block();
+    b.append_block_params_for_function_params(entry);
+    b.switch_to_block(entry);
+    let (args, out) = (b.block_params(entry)[0], b.block_params(entry)[1]);
+    let sigs = Sigs::new(&mut b, module);
+    let ptrs = arg_pointers(&mut b, args, plan);
+    let mut vals: Vec<Option<Value>> = vec![None; graph.len()];
+    for &id in &plan.order {
+        let node = graph.node(id);
+        let val = {
+            let get = |o: NodeId| vals[o as usize].expect("operands come first");
+            let mut load = |b: &mut FunctionBuilder, arg: u8, index: u32| {
+                let p = ptrs[arg as usize].expect("argument read");
+                b.ins().load(F64, flags(), p, (index as usize * 8) as i32)
+            };
+            emit_scalar(&mut b, &sigs, tables, node, &get, &mut load)
+        };
+        vals[id as usize] = Some(val);
+    }
+    for (j, &o) in plan.outputs.iter().enumerate() {
+        let v = vals[o as usize].expect("outputs are computed");
+        b.ins().store(flags(), v, out, (j * 8) as i32);
+    }
+    b.ins().return_(&[]);
+    b.seal_all_blocks();
+    b.finalize(module.target_config());
+    Ok(())
+}
+
+#[allow(clippy::too_many_arguments)]
+fn build_lanes(
+    ctx: &mut Context,
+    fctx: &mut FunctionBuilderContext,
+    module: &mut JITModule,
+    graph: &Graph,
+    plan: &Plan,
+    tables: &[Arc<dyn Tabulated>],
+    _f: usize,
+    scalar: FuncId,
+) -> Result<(), JitError> {
+    let scalar_ref = module.declare_func_in_func(scalar, &mut ctx.func);
+    let config = module.target_config();
+    let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
+    let entry = b.create_block();
+    let single = b.create_block();
+    let pre = b.create_block();
+    let body = b.create_block();
+    let exit = b.create_block();
+    b.append_block_params_for_function_params(entry);
+    let l = b.append_block_param(body, I64);
+
+    // entry: lanes < 2 -> `single` (lanes == 0: nothing; lanes == 1: the scalar function, whose
+    // layout is the same).
+    b.switch_to_block(entry);
+    let (args, out, lanes) = (
+        b.block_params(entry)[0],
+        b.block_params(entry)[1],
+        b.block_params(entry)[2],
+    );
+    let few = b.ins().icmp_imm_u(IntCC::UnsignedLessThan, lanes, 2);
+    b.ins().brif(few, single, &[], pre, &[]);
+
+    b.switch_to_block(single);
+    let one_lane = b.ins().icmp_imm_u(IntCC::Equal, lanes, 1);
+    let call_block = b.create_block();
+    b.ins().brif(one_lane, call_block, &[], exit, &[]);
+    b.switch_to_block(call_block);
+    b.ins().call(scalar_ref, &[args, out]);
+    b.ins().jump(exit, &[]);
+
+    // pre: argument pointers, uniform nodes in scalar code, their broadcasts.
+    b.switch_to_block(pre);
+    let sigs = Sigs::new(&mut b, module);
+    let ptrs = arg_pointers(&mut b, args, plan);
+    let stride = b.ins().ishl_imm_u(lanes, 3);
+    let mut svals: Vec<Option<Value>> = vec![None; graph.len()];
+    let mut vvals: Vec<Option<Value>> = vec![None; graph.len()];
+    for &id in &plan.order {
+        if !plan.uniform[id as usize] {
+            continue;
+        }
+        let node = graph.node(id);
+        let val = {
+            let get = |o: NodeId| svals[o as usize].expect("operands come first");
+            let mut load = |b: &mut FunctionBuilder, arg: u8, index: u32| {
+                let p = ptrs[arg as usize].expect("argument read");
+                b.ins().load(F64, flags(), p, (index as usize * 8) as i32)
+            };
+            emit_scalar(&mut b, &sigs, tables, node, &get, &mut load)
+        };
+        svals[id as usize] = Some(val);
+        if plan.broadcast[id as usize] {
+            vvals[id as usize] = Some(b.ins().splat(F64X2, val));
+        }
+    }
+    let k = {
+        let mut sp = |c: f64| {
+            let s = b.ins().f64const(c);
+            b.ins().splat(F64X2, s)
+        };
+        VConsts {
+            zero: sp(0.0),
+            one: sp(1.0),
+            m_one: sp(-1.0),
+            nan: sp(f64::NAN),
+        }
+    };
+    let last = b.ins().iadd_imm_s(lanes, -2);
+    let zero = b.ins().iconst(I64, 0);
+    b.ins().jump(body, &[BlockArg::Value(zero)]);
+
+    // body(l): lanes l and l + 1.
+    b.switch_to_block(body);
+    let loff = b.ins().ishl_imm_u(l, 3);
+    let rows: Vec<Option<Value>> = ptrs
+        .iter()
+        .zip(&plan.layouts)
+        .map(|(p, &layout)| match (p, layout) {
+            (Some(p), Layout::Lanes) => Some(b.ins().iadd(*p, loff)),
+            _ => None,
+        })
+        .collect();
+    for &id in &plan.order {
+        if plan.uniform[id as usize] {
+            continue;
+        }
+        let node = graph.node(id);
+        let val = {
+            let get = |o: NodeId| vvals[o as usize].expect("operands come first");
+            let mut load = |b: &mut FunctionBuilder, arg: u8, index: u32| {
+                let row = rows[arg as usize].expect("lane argument read");
+                let p = if index == 0 {
+                    row
+                } else {
+                    let off = b.ins().imul_imm_s(stride, index as i64);
+                    b.ins().iadd(row, off)
+                };
+                b.ins().load(F64X2, flags(), p, 0)
+            };
+            emit_vector(&mut b, &sigs, tables, &k, node, &get, &mut load)
+        };
+        vvals[id as usize] = Some(val);
+    }
+    let orow = b.ins().iadd(out, loff);
+    for (j, &o) in plan.outputs.iter().enumerate() {
+        let v = vvals[o as usize].expect("outputs are computed");
+        let p = if j == 0 {
+            orow
+        } else {
+            let off = b.ins().imul_imm_s(stride, j as i64);
+            b.ins().iadd(orow, off)
+        };
+        b.ins().store(flags(), v, p, 0);
+    }
+    // Next pair; the last pair of an odd count overlaps the previous one.
+    let next = b.ins().iadd_imm_s(l, 2);
+    let done = b.ins().icmp(IntCC::UnsignedGreaterThanOrEqual, next, lanes);
+    let next = b.ins().umin(next, last);
+    let cont = b.create_block();
+    b.ins().brif(done, exit, &[], cont, &[]);
+    b.switch_to_block(cont);
+    b.ins().jump(body, &[BlockArg::Value(next)]);
+
+    b.switch_to_block(exit);
+    b.ins().return_(&[]);
+    b.seal_all_blocks();
+    b.finalize(config);
+    Ok(())
+}

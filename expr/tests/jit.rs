@@ -1,0 +1,606 @@
+//! The compiled code against a reference evaluation of the same graph: bit for bit, in scalar
+//! calls, in lane calls of several lane counts, with and without uniform (shared) arguments,
+//! over random and special inputs (zeros of both signs, NaN, infinities, subnormals, huge).
+
+use std::sync::Arc;
+
+use chaoscope_expr::graph::Tabulated;
+use chaoscope_expr::jit::{self, FunctionSpec, Layout, OptLevel, Options};
+use chaoscope_expr::{Binary, Cmp, Graph, Node, NodeId, Unary};
+
+// ----------------------------------------------------------------------------------------------
+// Reference evaluator: walks the nodes in order with the `Graph::apply_*` definitions.
+
+fn reference(g: &Graph, args: &[&[f64]], outputs: &[NodeId]) -> Vec<f64> {
+    let mut v = vec![0.0; g.len()];
+    for (i, node) in g.nodes().iter().enumerate() {
+        v[i] = match *node {
+            Node::Const(c) => c,
+            Node::Input { arg, index } => args
+                .get(arg as usize)
+                .and_then(|a| a.get(index as usize))
+                .copied()
+                .unwrap_or(f64::NAN),
+            Node::Unary(op, a) => Graph::apply_unary(op, v[a as usize]),
+            Node::Binary(op, a, b) => Graph::apply_binary(op, v[a as usize], v[b as usize]),
+            Node::Powi(a, n) => Graph::apply_powi(v[a as usize], n),
+            Node::Select {
+                cmp,
+                a,
+                b,
+                then,
+                otherwise,
+            } => {
+                if cmp.holds(v[a as usize], v[b as usize]) {
+                    v[then as usize]
+                } else {
+                    v[otherwise as usize]
+                }
+            }
+            Node::Table { table, deriv, arg } => {
+                g.tables()[table as usize].eval(deriv, v[arg as usize])
+            }
+        };
+    }
+    outputs.iter().map(|&o| v[o as usize]).collect()
+}
+
+/// Bit-identical, except that any NaN matches any NaN: IEEE 754 (and Rust) leave the payload
+/// and sign of a NaN result unspecified, and which operand's payload x86 propagates depends on
+/// the operand order the compiler (of the reference too) picks for a commutative operation.
+fn same(a: f64, b: f64) -> bool {
+    a.to_bits() == b.to_bits() || (a.is_nan() && b.is_nan())
+}
+
+fn assert_same(what: &str, got: &[f64], want: &[f64], inputs: &dyn std::fmt::Debug) {
+    assert_eq!(got.len(), want.len(), "{what}: length");
+    for (j, (&x, &y)) in got.iter().zip(want).enumerate() {
+        assert!(
+            same(x, y),
+            "{what}: output {j}: got {x:e} ({:#018x}), want {y:e} ({:#018x}); inputs {inputs:?}",
+            x.to_bits(),
+            y.to_bits()
+        );
+    }
+}
+
+// ----------------------------------------------------------------------------------------------
+// Inputs.
+
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        // splitmix64
+        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+        z ^ (z >> 31)
+    }
+
+    fn uniform(&mut self) -> f64 {
+        (self.next() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Mostly moderate values, often a special one.
+    fn value(&mut self) -> f64 {
+        const SPECIAL: [f64; 16] = [
+            0.0,
+            -0.0,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            5e-324,
+            -2.2e-310,
+            f64::MIN_POSITIVE,
+            1e300,
+            -1e308,
+            f64::MAX,
+            1.0,
+            -1.0,
+            0.5,
+            2.0,
+            -3.0,
+        ];
+        match self.next() % 8 {
+            0 => SPECIAL[(self.next() % SPECIAL.len() as u64) as usize],
+            1 => f64::from_bits(self.next()), // any bit pattern, NaNs included
+            2 => (self.uniform() - 0.5) * 1e6,
+            _ => (self.uniform() - 0.5) * 4.0,
+        }
+    }
+
+    /// Moderate values only (for large chains, where one NaN would make every output NaN).
+    fn moderate(&mut self) -> f64 {
+        (self.uniform() - 0.5) * 2.0
+    }
+}
+
+// ----------------------------------------------------------------------------------------------
+// The harness: every spec, scalar and lanes (several lane counts), against the reference.
+
+const LANE_COUNTS: [usize; 5] = [1, 2, 3, 8, 17];
+
+/// `arg_lens[a]` entries per argument; `gen` draws one value.
+fn check(
+    g: &Graph,
+    specs: &[FunctionSpec],
+    arg_lens: &[usize],
+    samples: usize,
+    seed: u64,
+    draw: fn(&mut Rng) -> f64,
+) {
+    for opt in [OptLevel::None, OptLevel::Speed] {
+        let c = jit::compile_with(g, specs, &Options { opt_level: opt }).expect("compiles");
+        let mut rng = Rng(seed);
+        for (f, spec) in specs.iter().enumerate() {
+            let n_out = spec.outputs.len();
+            for _ in 0..samples {
+                // Scalar calls.
+                let args: Vec<Vec<f64>> = arg_lens
+                    .iter()
+                    .map(|&n| (0..n).map(|_| draw(&mut rng)).collect())
+                    .collect();
+                let refs: Vec<&[f64]> = args.iter().map(|a| a.as_slice()).collect();
+                let want = reference(g, &refs, &spec.outputs);
+                let mut out = vec![0.0; n_out];
+                c.call(f, &refs, &mut out);
+                assert_same(&format!("{opt:?} f{f} scalar"), &out, &want, &args);
+            }
+            for &lanes in &LANE_COUNTS {
+                for _ in 0..samples.div_ceil(lanes).max(2) {
+                    // Per lane inputs; `Scalar` arguments shared by every lane.
+                    let shared: Vec<Vec<f64>> = arg_lens
+                        .iter()
+                        .map(|&n| (0..n).map(|_| draw(&mut rng)).collect())
+                        .collect();
+                    let per_lane: Vec<Vec<Vec<f64>>> = (0..lanes)
+                        .map(|_| {
+                            arg_lens
+                                .iter()
+                                .zip(&spec.args)
+                                .zip(&shared)
+                                .map(|((&n, &layout), s)| match layout {
+                                    Layout::Scalar => s.clone(),
+                                    Layout::Lanes => (0..n).map(|_| draw(&mut rng)).collect(),
+                                })
+                                .collect()
+                        })
+                        .collect();
+                    let soa: Vec<Vec<f64>> = arg_lens
+                        .iter()
+                        .enumerate()
+                        .map(|(a, &n)| match spec.args[a] {
+                            Layout::Scalar => shared[a].clone(),
+                            Layout::Lanes => (0..n * lanes)
+                                .map(|k| per_lane[k % lanes][a][k / lanes])
+                                .collect(),
+                        })
+                        .collect();
+                    let refs: Vec<&[f64]> = soa.iter().map(|a| a.as_slice()).collect();
+                    let mut out = vec![f64::from_bits(0x7ff4_dead_beef_0000); n_out * lanes];
+                    c.call_lanes(f, &refs, &mut out, lanes);
+                    for (l, lane_args) in per_lane.iter().enumerate() {
+                        let lane_refs: Vec<&[f64]> =
+                            lane_args.iter().map(|a| a.as_slice()).collect();
+                        let want = reference(g, &lane_refs, &spec.outputs);
+                        let got: Vec<f64> = (0..n_out).map(|j| out[j * lanes + l]).collect();
+                        assert_same(
+                            &format!("{opt:?} f{f} lanes={lanes} lane {l}"),
+                            &got,
+                            &want,
+                            lane_args,
+                        );
+                        let mut scalar = vec![0.0; n_out];
+                        c.call(f, &lane_refs, &mut scalar);
+                        for (x, y) in got.iter().zip(&scalar) {
+                            assert!(same(*x, *y), "lane and scalar call differ");
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+// ----------------------------------------------------------------------------------------------
+// Graphs.
+
+/// Hénon–Heiles: gradient `[q1 + 2 q1 q2, q2 + q1^2 - q2^2]` (arg 0 = q) and Hessian-vector
+/// product `[(1 + 2 q2) v1 + 2 q1 v2, 2 q1 v1 + (1 - 2 q2) v2]` (arg 1 = v).
+fn henon_heiles(g: &mut Graph) -> (Vec<NodeId>, Vec<NodeId>) {
+    let q1 = g.input(0, 0);
+    let q2 = g.input(0, 1);
+    let v1 = g.input(1, 0);
+    let v2 = g.input(1, 1);
+    let two = g.constant(2.0);
+    let one = g.constant(1.0);
+    let t = g.mul(two, q1);
+    let t = g.mul(t, q2);
+    let g1 = g.add2(q1, t);
+    let q1s = g.powi(q1, 2);
+    let q2s = g.powi(q2, 2);
+    let a = g.add2(q2, q1s);
+    let g2 = g.sub(a, q2s);
+    let tq2 = g.mul(two, q2);
+    let tq1 = g.mul(two, q1);
+    let h11 = g.add2(one, tq2);
+    let h22 = g.sub(one, tq2);
+    let a = g.mul(h11, v1);
+    let b = g.mul(tq1, v2);
+    let hv1 = g.add2(a, b);
+    let a = g.mul(tq1, v1);
+    let b = g.mul(h22, v2);
+    let hv2 = g.add2(a, b);
+    (vec![g1, g2], vec![hv1, hv2])
+}
+
+/// FPUT-beta chain with fixed ends, `n` sites (arg 0 = q, arg 1 = v): gradient
+/// `f(r_{i-1}) - f(r_i)` with `r_i = q_{i+1} - q_i`, `f(r) = r + beta r^3`, and the
+/// Hessian-vector product `k(r_{i-1}) (v_i - v_{i-1}) - k(r_i) (v_{i+1} - v_i)`,
+/// `k(r) = 1 + 3 beta r^2`.
+fn fput(g: &mut Graph, n: u32, beta: f64) -> (Vec<NodeId>, Vec<NodeId>) {
+    let zero = g.constant(0.0);
+    let one = g.constant(1.0);
+    let b = g.constant(beta);
+    let b3 = g.constant(3.0 * beta);
+    let q: Vec<NodeId> = (0..n).map(|i| g.input(0, i)).collect();
+    let v: Vec<NodeId> = (0..n).map(|i| g.input(1, i)).collect();
+    let at = |x: &[NodeId], i: i64| {
+        if i < 0 || i >= n as i64 {
+            zero
+        } else {
+            x[i as usize]
+        }
+    };
+    // Bond i joins site i-1 and site i (sites -1 and n are the fixed walls).
+    let mut force = Vec::new();
+    let mut stiff = Vec::new();
+    let mut dv = Vec::new();
+    for i in 0..=n as i64 {
+        let r = g.sub(at(&q, i), at(&q, i - 1));
+        let r3 = g.powi(r, 3);
+        let br3 = g.mul(b, r3);
+        force.push(g.add2(r, br3));
+        let r2 = g.powi(r, 2);
+        let k = g.mul(b3, r2);
+        stiff.push(g.add2(one, k));
+        dv.push(g.sub(at(&v, i), at(&v, i - 1)));
+    }
+    let mut grad = Vec::new();
+    let mut hvp = Vec::new();
+    for i in 0..n as usize {
+        grad.push(g.sub(force[i], force[i + 1]));
+        let a = g.mul(stiff[i], dv[i]);
+        let c = g.mul(stiff[i + 1], dv[i + 1]);
+        hvp.push(g.sub(a, c));
+    }
+    (grad, hvp)
+}
+
+#[derive(Debug)]
+struct Cubic;
+
+impl Tabulated for Cubic {
+    fn eval(&self, deriv: u8, x: f64) -> f64 {
+        if !(-10.0..=10.0).contains(&x) {
+            return f64::NAN;
+        }
+        match deriv {
+            0 => x * x * x - x,
+            1 => 3.0 * x * x - 1.0,
+            2 => 6.0 * x,
+            _ => 6.0,
+        }
+    }
+
+    fn name(&self) -> &str {
+        "cubic"
+    }
+}
+
+const UNARY: [Unary; 14] = [
+    Unary::Neg,
+    Unary::Sqrt,
+    Unary::Exp,
+    Unary::Log,
+    Unary::Sin,
+    Unary::Cos,
+    Unary::Tan,
+    Unary::Atan,
+    Unary::Tanh,
+    Unary::Cosh,
+    Unary::Sinh,
+    Unary::Abs,
+    Unary::Step,
+    Unary::Sign,
+];
+
+const BINARY: [Binary; 8] = [
+    Binary::Add,
+    Binary::Sub,
+    Binary::Mul,
+    Binary::Div,
+    Binary::Pow,
+    Binary::Atan2,
+    Binary::Max,
+    Binary::Min,
+];
+
+/// Every operation on inputs `a = arg0[0]`, `b = arg1[0]`, `c = arg0[1]`, `d = arg1[1]`.
+fn all_ops(g: &mut Graph) -> Vec<NodeId> {
+    let table = g.add_table(Arc::new(Cubic));
+    let a = g.input(0, 0);
+    let b = g.input(1, 0);
+    let c = g.input(0, 1);
+    let d = g.input(1, 1);
+    let mut out = Vec::new();
+    for op in UNARY {
+        out.push(g.unary(op, a));
+        out.push(g.unary(op, b));
+        let s = g.add2(a, b);
+        out.push(g.unary(op, s));
+    }
+    for op in BINARY {
+        out.push(g.binary(op, a, b));
+        out.push(g.binary(op, b, a));
+        out.push(g.binary(op, a, a));
+        let k = g.constant(-0.0);
+        out.push(g.binary(op, a, k));
+        out.push(g.binary(op, k, b));
+    }
+    for n in -3..=5 {
+        out.push(g.powi(a, n));
+        out.push(g.powi(b, n));
+    }
+    for cmp in [Cmp::Lt, Cmp::Le, Cmp::Gt, Cmp::Ge] {
+        out.push(g.add(Node::Select {
+            cmp,
+            a,
+            b,
+            then: c,
+            otherwise: d,
+        }));
+        out.push(g.add(Node::Select {
+            cmp,
+            a: c,
+            b: a,
+            then: b,
+            otherwise: d,
+        }));
+    }
+    for deriv in 0..4 {
+        out.push(g.add(Node::Table {
+            table,
+            deriv,
+            arg: a,
+        }));
+        out.push(g.add(Node::Table {
+            table,
+            deriv,
+            arg: b,
+        }));
+    }
+    // A few compositions (transcendental results feeding vector ops and back).
+    let s = g.unary(Unary::Sin, a);
+    let e = g.binary(Binary::Mul, s, b);
+    let m = g.binary(Binary::Max, e, c);
+    let t = g.add(Node::Table {
+        table,
+        deriv: 1,
+        arg: m,
+    });
+    let p = g.binary(Binary::Pow, t, d);
+    out.push(p);
+    // Constant and input outputs.
+    let k = g.constant(3.5);
+    out.push(k);
+    out.push(a);
+    out.push(b);
+    out
+}
+
+const ALL_LAYOUTS: [[Layout; 2]; 4] = [
+    [Layout::Lanes, Layout::Lanes],
+    [Layout::Scalar, Layout::Lanes],
+    [Layout::Lanes, Layout::Scalar],
+    [Layout::Scalar, Layout::Scalar],
+];
+
+fn specs(outputs: &[NodeId]) -> Vec<FunctionSpec> {
+    ALL_LAYOUTS
+        .iter()
+        .map(|l| FunctionSpec {
+            args: l.to_vec(),
+            outputs: outputs.to_vec(),
+        })
+        .collect()
+}
+
+// ----------------------------------------------------------------------------------------------
+// Tests.
+
+#[test]
+fn every_operation_is_bit_identical() {
+    let mut g = Graph::new();
+    let out = all_ops(&mut g);
+    check(&g, &specs(&out), &[2, 2], 400, 1, Rng::value);
+}
+
+#[test]
+fn henon_heiles_gradient_and_hvp() {
+    let mut g = Graph::new();
+    let (grad, hvp) = henon_heiles(&mut g);
+    let mut all = specs(&grad);
+    all.extend(specs(&hvp));
+    check(&g, &all, &[2, 2], 300, 2, Rng::value);
+    check(&g, &all, &[2, 2], 300, 3, Rng::moderate);
+}
+
+#[test]
+fn fput_chain_n5() {
+    let mut g = Graph::new();
+    let (grad, hvp) = fput(&mut g, 5, 0.7);
+    let mut all = specs(&grad);
+    all.extend(specs(&hvp));
+    check(&g, &all, &[5, 5], 200, 4, Rng::value);
+    check(&g, &all, &[5, 5], 200, 5, Rng::moderate);
+}
+
+#[test]
+fn fput_chain_n1001() {
+    let mut g = Graph::new();
+    let (grad, hvp) = fput(&mut g, 1001, 0.7);
+    let all = vec![
+        FunctionSpec {
+            args: vec![Layout::Lanes, Layout::Scalar],
+            outputs: grad.clone(),
+        },
+        FunctionSpec {
+            args: vec![Layout::Lanes, Layout::Lanes],
+            outputs: hvp.clone(),
+        },
+        FunctionSpec {
+            args: vec![Layout::Scalar, Layout::Lanes],
+            outputs: hvp.clone(),
+        },
+    ];
+    check(&g, &all, &[1001, 1001], 6, 6, Rng::moderate);
+    check(&g, &all, &[1001, 1001], 3, 7, Rng::value);
+}
+
+/// The HVP at a shared reference position (`q` a `Scalar` argument: the stiffnesses are computed
+/// once before the lane loop) gives the same bits as the same position replicated in every lane.
+#[test]
+fn uniform_hoisting_gives_the_same_bits() {
+    let mut g = Graph::new();
+    let (_, hvp) = fput(&mut g, 37, 1.3);
+    let spec = |q| FunctionSpec {
+        args: vec![q, Layout::Lanes],
+        outputs: hvp.clone(),
+    };
+    let c = jit::compile(&g, &[spec(Layout::Scalar), spec(Layout::Lanes)]).unwrap();
+    let mut rng = Rng(8);
+    for lanes in [1, 2, 3, 8, 17, 64] {
+        let q: Vec<f64> = (0..37).map(|_| rng.moderate()).collect();
+        let v: Vec<f64> = (0..37 * lanes).map(|_| rng.moderate()).collect();
+        let q_rep: Vec<f64> = (0..37 * lanes).map(|k| q[k / lanes]).collect();
+        let mut hoisted = vec![0.0; 37 * lanes];
+        let mut replicated = vec![0.0; 37 * lanes];
+        c.call_lanes(0, &[&q, &v], &mut hoisted, lanes);
+        c.call_lanes(1, &[&q_rep, &v], &mut replicated, lanes);
+        for (x, y) in hoisted.iter().zip(&replicated) {
+            assert_eq!(x.to_bits(), y.to_bits());
+        }
+    }
+}
+
+#[test]
+fn compiled_functions_are_send_sync_and_usable_across_threads() {
+    fn assert_send_sync<T: Send + Sync>() {}
+    assert_send_sync::<jit::Compiled>();
+    let mut g = Graph::new();
+    let (grad, _) = henon_heiles(&mut g);
+    let c = jit::compile(
+        &g,
+        &[FunctionSpec {
+            args: vec![Layout::Lanes],
+            outputs: grad,
+        }],
+    )
+    .unwrap();
+    std::thread::scope(|s| {
+        for t in 0..2 {
+            let c = &c;
+            s.spawn(move || {
+                let q = [0.1 * t as f64, 0.2];
+                let mut out = [0.0; 2];
+                c.call(0, &[&q], &mut out);
+                assert_eq!(out[0], q[0] + 2.0 * q[0] * q[1]);
+            });
+        }
+    });
+}
+
+#[test]
+fn errors_not_panics() {
+    let mut g = Graph::new();
+    let x = g.input(2, 0);
+    let e = jit::compile(
+        &g,
+        &[FunctionSpec {
+            args: vec![Layout::Scalar],
+            outputs: vec![x],
+        }],
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("argument 2"), "{e}");
+    let e = jit::compile(
+        &g,
+        &[FunctionSpec {
+            args: vec![],
+            outputs: vec![99],
+        }],
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("node 99"), "{e}");
+}
+
+#[test]
+#[should_panic(expected = "output has 3 entries, expected 2")]
+fn wrong_output_length_panics() {
+    let mut g = Graph::new();
+    let (grad, _) = henon_heiles(&mut g);
+    let c = jit::compile(
+        &g,
+        &[FunctionSpec {
+            args: vec![Layout::Lanes],
+            outputs: grad,
+        }],
+    )
+    .unwrap();
+    c.call(0, &[&[1.0, 2.0]], &mut [0.0; 3]);
+}
+
+#[test]
+#[should_panic(expected = "lane argument 0 has 5 entries")]
+fn wrong_lane_argument_length_panics() {
+    let mut g = Graph::new();
+    let (grad, _) = henon_heiles(&mut g);
+    let c = jit::compile(
+        &g,
+        &[FunctionSpec {
+            args: vec![Layout::Lanes],
+            outputs: grad,
+        }],
+    )
+    .unwrap();
+    c.call_lanes(0, &[&[1.0; 5]], &mut [0.0; 6], 3);
+}
+
+#[test]
+fn zero_lanes_and_empty_functions() {
+    let mut g = Graph::new();
+    let k = g.constant(2.5);
+    let c = jit::compile(
+        &g,
+        &[
+            FunctionSpec {
+                args: vec![],
+                outputs: vec![k],
+            },
+            FunctionSpec {
+                args: vec![Layout::Lanes],
+                outputs: vec![],
+            },
+        ],
+    )
+    .unwrap();
+    let mut out = [0.0; 3];
+    c.call_lanes(0, &[], &mut out, 3);
+    assert_eq!(out, [2.5; 3]);
+    c.call_lanes(0, &[], &mut [], 0);
+    c.call(1, &[&[]], &mut []);
+    c.call_lanes(1, &[&[0.0; 4]], &mut [], 4);
+}

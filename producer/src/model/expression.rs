@@ -218,7 +218,8 @@ impl ExpressionModel {
         };
         match self.0.origins.get(&id) {
             Some(span) => {
-                let (line, column) = span.line_column(&self.0.definition.potential);
+                let at = chaoscope_expr::ExprError::new(&self.0.definition.potential, *span, "");
+                let (line, column) = (at.line, at.column);
                 format!("{op} at line {line}, column {column} of the potential gave {} ({what})", value[0])
             }
             None => format!("{op} gave {} ({what})", value[0]),

@@ -15,7 +15,7 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use crate::ast::{BinOp, Expr, ExprKind};
 use crate::error::{ExprError, Span};
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
-use crate::parser::parse;
+use crate::parser::{on_big_stack, parse_here};
 use crate::smooth::{self, Info, LimitKind, Signs, Smoothness};
 
 /// Refuse expressions that expand to more graph nodes than this (a lattice sum over a huge
@@ -138,7 +138,7 @@ fn is_function(name: &str) -> bool {
 
 /// Parse `source` and lower it into `graph`.
 pub fn lower(source: &str, scope: &Scope, graph: &mut Graph) -> Result<Lowered, ExprError> {
-    lower_limited(source, scope, graph, MAX_NODES, MAX_STEPS)
+    on_big_stack(|| lower_limited(source, scope, graph, MAX_NODES, MAX_STEPS))
 }
 
 /// [`lower`] with other size limits (tests reach them without building ten million nodes).
@@ -149,7 +149,7 @@ fn lower_limited(
     max_nodes: usize,
     max_steps: u64,
 ) -> Result<Lowered, ExprError> {
-    let ast = parse(source)?;
+    let ast = parse_here(source)?;
     let start_len = graph.len();
     let mut l = Lowerer {
         src: source,
@@ -1535,7 +1535,7 @@ mod tests {
                 n: s.n,
                 boundary: s.boundary,
             };
-            lower_limited(src, &scope, &mut s.graph, 10_000, 50_000).unwrap_err()
+            on_big_stack(|| lower_limited(src, &scope, &mut s.graph, 10_000, 50_000)).unwrap_err()
         };
         let e = limited(
             Boundary::Fixed,
@@ -1719,6 +1719,11 @@ mod tests {
             "q[i+1]",
             "sum(i = 1..N, ",
         ];
+        // One thread with a big stack for all rounds (as `parse` and `lower` do per call).
+        on_big_stack(|| fuzz_rounds(&seeds, &pieces));
+    }
+
+    fn fuzz_rounds(seeds: &[&str], pieces: &[&str]) {
         let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
         for round in 0..20_000 {
             let src: String = if round % 2 == 0 {
@@ -1750,7 +1755,7 @@ mod tests {
                     .map(|_| pieces[rng.below(pieces.len())])
                     .collect()
             };
-            let _ = parse(&src);
+            let _ = crate::parser::parse_here(&src);
             for boundary in [Boundary::Fixed, Boundary::Periodic, Boundary::Free] {
                 let mut s = Setup::new(4, boundary)
                     .param("beta", 1.0)
@@ -1760,14 +1765,85 @@ mod tests {
                     .param("A", 1.0)
                     .param("delta0", 0.1)
                     .array("k", vec![1.0; 4]);
-                if let Err(e) = s.lower(&src) {
+                let scope = Scope {
+                    families: &s.families,
+                    params: &s.params,
+                    tables: &s.tables,
+                    n: s.n,
+                    boundary: s.boundary,
+                };
+                match lower_limited(&src, &scope, &mut s.graph, MAX_NODES, MAX_STEPS) {
                     // Every error renders, and its position is inside the source.
-                    let _ = e.to_string();
-                    assert!(e.span.start <= src.len(), "{src:?}");
-                } else if let Ok(l) = s.lower(&src) {
-                    let _ = l.smoothness.require(2, "vm");
+                    Err(e) => {
+                        let _ = e.to_string();
+                        assert!(e.span.start <= src.len(), "{src:?}");
+                    }
+                    Ok(l) => {
+                        let _ = l.smoothness.require(2, "vm");
+                    }
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod deep {
+    use super::*;
+
+    /// The deepest expressions the parser accepts also lower, even when called from a thread
+    /// with a small stack (recursion in every pass is bounded by the parser's nesting limit,
+    /// and runs on a thread of its own with a big stack).
+    #[test]
+    fn deepest_allowed_expressions_lower_on_a_small_stack() {
+        let run = || {
+            let d = crate::parser::MAX_DEPTH;
+            let families = [Family {
+                name: "q".into(),
+                len: 3,
+                arg: 0,
+            }];
+            let params = BTreeMap::new();
+            let scope = Scope {
+                families: &families,
+                params: &params,
+                tables: &[],
+                n: 3,
+                boundary: Boundary::Free,
+            };
+            let shapes = [
+                format!("{}q1{}", "(q1 + q1*".repeat(d - 1), ")".repeat(d - 1)),
+                format!(
+                    "{}q1{}",
+                    "q1^(q1 + q1*".repeat(d / 2 - 1),
+                    ")".repeat(d / 2 - 1)
+                ),
+                format!("{}q1{}", "sin(q1 + q1*".repeat(d - 1), ")".repeat(d - 1)),
+                format!("{}q1{}", "-q1 - q1*".repeat(d - 1), ""),
+                format!(
+                    "{}q[i1]{}",
+                    (0..d - 1)
+                        .map(|k| format!("sum(i{k} = 1..1, q1 + q1*"))
+                        .collect::<String>(),
+                    ")".repeat(d - 1)
+                ),
+                format!(
+                    "{}q1{}",
+                    "if(q1 < 0, q1 + q1*".repeat(d - 1),
+                    ", 0)".repeat(d - 1)
+                ),
+            ];
+            for src in shapes {
+                crate::parser::parse(&src).unwrap_or_else(|e| panic!("{e}"));
+                let mut g = Graph::new();
+                lower(&src, &scope, &mut g).unwrap_or_else(|e| panic!("{e}"));
+            }
+        };
+        std::thread::Builder::new()
+            .stack_size(256 << 10)
+            .spawn(run)
+            .unwrap()
+            .join()
+            .unwrap();
     }
 }

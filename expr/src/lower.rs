@@ -10,6 +10,7 @@
 //! Lowering never panics: every failure is an [`ExprError`] pointing into the source. On an
 //! error, the nodes created so far stay in the graph, unreferenced.
 
+use std::cell::Cell;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use crate::ast::{BinOp, Expr, ExprKind};
@@ -156,9 +157,9 @@ fn lower_limited(
         scope,
         graph,
         sums: Vec::new(),
-        origins: HashMap::new(),
+        origins: Vec::new(),
         start_len,
-        steps: 0,
+        steps: Cell::new(0),
         max_nodes,
         max_steps,
     };
@@ -173,7 +174,10 @@ fn lower_limited(
     Ok(Lowered {
         root,
         smoothness,
-        origins: l.origins,
+        origins: (l.start_len..)
+            .zip(l.origins)
+            .map(|(id, span)| (id as NodeId, span))
+            .collect(),
     })
 }
 
@@ -199,9 +203,12 @@ struct Lowerer<'a> {
     graph: &'a mut Graph,
     /// The enclosing sums' indices and their current values, innermost last.
     sums: Vec<(&'a str, i64)>,
-    origins: HashMap<NodeId, Span>,
+    /// The origin of each node created here: new nodes are appended to the graph, so node
+    /// `start_len + k` has `origins[k]` (a vector while lowering, a map for the caller).
+    origins: Vec<Span>,
     start_len: usize,
-    steps: u64,
+    /// Every pass over a tree node counts (`Cell`: the read-only passes count too).
+    steps: Cell<u64>,
     max_nodes: usize,
     max_steps: u64,
 }
@@ -231,9 +238,7 @@ impl<'a> Lowerer<'a> {
         let id = self.graph.add(node);
         let after = self.graph.len();
         if after > before {
-            for k in before..after {
-                self.origins.entry(k as NodeId).or_insert(span);
-            }
+            self.origins.resize(after - self.start_len, span);
             if after - self.start_len > self.max_nodes {
                 return Err(self.err(
                     span,
@@ -260,9 +265,9 @@ impl<'a> Lowerer<'a> {
         }
     }
 
-    fn tick(&mut self, span: Span) -> R<()> {
-        self.steps += 1;
-        if self.steps > self.max_steps {
+    fn tick(&self, span: Span) -> R<()> {
+        self.steps.set(self.steps.get() + 1);
+        if self.steps.get() > self.max_steps {
             return Err(self.err(
                 span,
                 format!(
@@ -613,6 +618,7 @@ impl<'a> Lowerer<'a> {
     /// The value of an index or sum-bound expression: whole numbers, sum indices, `N`,
     /// `+ - *` and parentheses.
     fn int(&self, e: &Expr) -> R<i64> {
+        self.tick(e.span)?;
         const RULE: &str = "index expressions may only contain whole numbers, sum indices, N, + - * and parentheses";
         let overflow = || self.err(e.span, "index expression overflows a 64-bit integer");
         let text = &self.src[e.span.start..e.span.end];
@@ -904,11 +910,15 @@ impl<'a> Lowerer<'a> {
         while i <= b {
             self.tick(e.span)?;
             self.sums.push((index, i));
-            let exists = !free || self.term_exists(body);
-            let term = if exists { Some(self.value(body)) } else { None };
+            // An error ends the whole lowering, so the index need not be popped on that path.
+            let exists = !free || self.term_exists(body)?;
+            let term = if exists {
+                Some(self.value(body)?)
+            } else {
+                None
+            };
             self.sums.pop();
-            if let Some(term) = term {
-                let (t, ti) = term?;
+            if let Some((t, ti)) = term {
                 acc = Some(match acc {
                     None => (t, ti),
                     Some((s, si)) => {
@@ -932,21 +942,29 @@ impl<'a> Lowerer<'a> {
     /// inside `1..N` (else the term is left out). Checked before lowering the term, so a
     /// left-out term leaves no dead nodes in the graph. Inner sums decide for their own terms;
     /// an index that does not evaluate is left for lowering to report.
-    fn term_exists(&self, e: &'a Expr) -> bool {
+    fn term_exists(&self, e: &'a Expr) -> R<bool> {
+        self.tick(e.span)?;
         match &e.kind {
-            ExprKind::Sum { .. } => true,
+            ExprKind::Sum { .. } => Ok(true),
             ExprKind::Index { name, index, .. } => {
                 let len = match self.meaning(name) {
                     Meaning::Family(f) => f.len,
                     Meaning::Param(ParamValue::Array(v)) => v.len(),
-                    _ => return true,
+                    _ => return Ok(true),
                 };
                 match self.int(index) {
-                    Ok(k) => k >= 1 && (k as u64) <= len as u64,
-                    Err(_) => true,
+                    Ok(k) => Ok(k >= 1 && (k as u64) <= len as u64),
+                    Err(_) => Ok(true),
                 }
             }
-            _ => e.children().all(|c| self.term_exists(c)),
+            _ => {
+                for c in e.children() {
+                    if !self.term_exists(c)? {
+                        return Ok(false);
+                    }
+                }
+                Ok(true)
+            }
         }
     }
 }
@@ -1546,6 +1564,13 @@ mod tests {
         let e = limited(Boundary::Fixed, "sum(i = 1..1000000000000, 0)");
         assert!(e.message.contains("more than 50000 operations"), "{e}");
         let e = limited(Boundary::Free, "sum(i = 10..9000000000000000, q[i])");
+        assert!(e.message.contains("operations"), "{e}");
+        // Checking whether a term exists and evaluating indices count too.
+        let long = "q1 + ".repeat(1000);
+        let e = limited(Boundary::Free, &format!("sum(i = 10..1000, {long}q[i])"));
+        assert!(e.message.contains("operations"), "{e}");
+        let long = vec!["1"; 1000].join(" + ");
+        let e = limited(Boundary::Fixed, &format!("sum(i = 10..1000, q[{long}])"));
         assert!(e.message.contains("operations"), "{e}");
     }
 

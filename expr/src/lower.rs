@@ -767,6 +767,12 @@ impl<'a> Lowerer<'a> {
         args: &'a [Expr],
     ) -> R<(NodeId, Info)> {
         let span = e.span;
+        if is_function(name) && self.scope.tables.iter().any(|(n, _)| n == name) {
+            return Err(self.err(
+                name_span,
+                format!("table '{name}' has the name of a built-in function; rename the table"),
+            ));
+        }
         if let Some(&(_, op)) = UNARY.iter().find(|(n, _)| *n == name) {
             self.arity(name, args, 1, span)?;
             let (a, ai) = self.value(&args[0])?;
@@ -1504,6 +1510,37 @@ mod tests {
         );
         let mut periodic = Setup::new(0, Boundary::Periodic);
         check_errors(&mut periodic, &[("q[1]", "'q' has no entries", 1, 1)]);
+    }
+
+    #[test]
+    fn boundary_names_and_table_clashes() {
+        assert_eq!(Boundary::from_name("free"), Ok(Boundary::Free));
+        assert_eq!(Boundary::from_name("periodic"), Ok(Boundary::Periodic));
+        assert_eq!(
+            Boundary::from_name("fixed").map(Boundary::name),
+            Ok("fixed")
+        );
+        assert!(
+            Boundary::from_name("open")
+                .unwrap_err()
+                .contains("fixed, periodic, free")
+        );
+        let mut s = Setup::new(2, Boundary::Fixed);
+        s.tables.push(("exp".into(), 0));
+        check_errors(
+            &mut s,
+            &[(
+                "q1 + exp(q2)",
+                "table 'exp' has the name of a built-in",
+                1,
+                6,
+            )],
+        );
+        s.tables.push(("V".into(), 7));
+        check_errors(
+            &mut s,
+            &[("V(q1)", "table index 7 is not registered", 1, 1)],
+        );
     }
 
     #[test]

@@ -638,6 +638,12 @@ impl<'a> Lowerer<'a> {
             ExprKind::Name(n) => match self.meaning(n) {
                 Meaning::SumIndex(i) => Ok(i),
                 Meaning::N => i64::try_from(self.scope.n).map_err(|_| overflow()),
+                Meaning::Unknown if self.sums.is_empty() => Err(self.err(
+                    e.span,
+                    format!(
+                        "unknown name '{n}' in an index (a sum index exists only inside sum({n} = a..b, term))"
+                    ),
+                )),
                 Meaning::Unknown => Err(self.unknown(n, e.span)),
                 Meaning::Param(_) => Err(self.err(
                     e.span,
@@ -1456,6 +1462,12 @@ mod tests {
                 ("sum(q = 1..N, 1)", "shadows the variables 'q'", 1, 5),
                 ("sum(N = 1..3, 1)", "shadows the built-in 'N'", 1, 5),
                 ("i + sum(i = 1..N, q[i])", "unknown name 'i'", 1, 1),
+                (
+                    "q[i] + 1",
+                    "a sum index exists only inside sum(i = a..b, term)",
+                    1,
+                    3,
+                ),
                 (
                     "sum(i = 1..N,\n    q[i] * j)",
                     "unknown name 'j' (variables: q1..q5 or q[i]; parameters: beta, k; sum indices: i",

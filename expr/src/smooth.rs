@@ -522,13 +522,12 @@ pub(crate) fn finish(info: &Info, source: &str, table_name: impl Fn(u32) -> Stri
                 format!("^ {exp}")
             },
             if l.order == 0 {
-                "has an infinite first derivative where its base reaches 0 (continuous only)"
-                    .to_string()
+                "is not differentiable where its base reaches 0 (continuous only)".to_string()
             } else {
                 format!(
-                    "has an infinite derivative of order {} where its base reaches 0 (continuous up to order {})",
-                    i64::from(l.order) + 1,
-                    l.order
+                    "has continuous derivatives only up to order {} where its base reaches 0 (derivative {} is infinite or jumps there)",
+                    l.order,
+                    i64::from(l.order) + 1
                 )
             },
         ),

@@ -9,6 +9,21 @@
 //!
 //! Lowering never panics: every failure is an [`ExprError`] pointing into the source. On an
 //! error, the nodes created so far stay in the graph, unreferenced.
+//!
+//! Decisions a config author may notice:
+//! - Boundary conditions apply to indexed references (`q[i+1]`, `k[i]`) only. A numbered
+//!   variable (`q7`) names one variable directly and must lie in `1..len`, whatever the
+//!   boundary (`q7` with `N = 5` is a typo, not a wall or a wrap).
+//! - Under `Fixed`, every site beyond the ends is a wall (`q[N+2]` is 0 too); under `Free`,
+//!   the check whether a term exists runs before the term is lowered, so a left-out term
+//!   leaves no dead nodes; only the innermost enclosing sum's term is left out.
+//! - A constant whole exponent up to 64 in size becomes [`Node::Powi`], also when it
+//!   is computed (`^(4/2)`, `^N`, a parameter); any other exponent becomes [`Binary::Pow`].
+//! - Parameters may not reuse the name of a built-in (`N`, `pi`), a variable (`q`, `q3`), a
+//!   function or a table; a sum index may not shadow any name in scope, including an
+//!   enclosing sum's index.
+//! - Index expressions and sum bounds are evaluated exactly in 64-bit integers (overflow is
+//!   an error); parameters are not allowed in them, even whole-valued ones.
 
 use std::cell::Cell;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
@@ -101,7 +116,10 @@ pub struct Lowered {
     pub root: NodeId,
     pub smoothness: Smoothness,
     /// For each node created by this lowering, the source span of the operation that first
-    /// created it (for messages such as "log of a negative number at line 1, column 7").
+    /// created it (for messages such as "log of a negative number at line 1, column 7"): a
+    /// call's whole text (`log(q2 - 3)`), an operator's symbol (`/`, `^`), a name or number,
+    /// the whole `sum(...)` for the additions of its fold. Nodes that already existed in the
+    /// graph are not included.
     pub origins: HashMap<NodeId, Span>,
 }
 

@@ -6,7 +6,7 @@
 //! smoothness on the syntax tree (where parameter values are known, so `max(0, d)^(5/2)` is
 //! recognised as C^2) and the caller refuses the method with a message naming the operation.
 //!
-//! Per subexpression we track: the lowest-order operation that limits it ([`LimitAt`]), the
+//! Per subexpression we track: the lowest-order operation that limits it (`LimitAt`), the
 //! set of signs it can take (to know that `1 + q^2` never reaches 0, so its square root is
 //! smooth), and whether it is a "zero kink": Lipschitz and equal to 0 exactly where it is not
 //! smooth (`abs(u)`, `max(0, u)`, `min(u, 0)` with a smooth `u`, and constant or smooth

@@ -140,6 +140,11 @@ pub fn lex(src: &str) -> Result<Vec<Token>, ExprError> {
             }
             _ => {
                 let c = src[i..].chars().next().unwrap_or('?');
+                // Other whitespace (a no-break space pasted from a paper or a web page).
+                if c.is_whitespace() {
+                    i += c.len_utf8();
+                    continue;
+                }
                 let what = if c == '.' {
                     "unexpected '.' (a number needs a digit after its decimal point, a range is a..b)"
                         .to_string()
@@ -266,6 +271,10 @@ mod tests {
             let e = lex(s).unwrap_err();
             assert!(e.message.contains(msg), "{s}: {}", e.message);
         }
+        assert_eq!(
+            toks("a\u{a0}+\tb"),
+            vec![Tok::Ident, Tok::Plus, Tok::Ident, Tok::Eof]
+        );
         let e = lex("1 + 2x").unwrap_err();
         assert_eq!((e.column, e.span), (5, Span::new(4, 6)));
     }

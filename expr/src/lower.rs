@@ -9,13 +9,29 @@
 //!
 //! Lowering never panics: every failure is an [`ExprError`] pointing into the source. On an
 //! error, the nodes created so far stay in the graph, unreferenced.
+//!
+//! Decisions a config author may notice:
+//! - Boundary conditions apply to indexed references (`q[i+1]`, `k[i]`) only. A numbered
+//!   variable (`q7`) names one variable directly and must lie in `1..len`, whatever the
+//!   boundary (`q7` with `N = 5` is a typo, not a wall or a wrap).
+//! - Under `Fixed`, every site beyond the ends is a wall (`q[N+2]` is 0 too); under `Free`,
+//!   the check whether a term exists runs before the term is lowered, so a left-out term
+//!   leaves no dead nodes; only the innermost enclosing sum's term is left out.
+//! - A constant whole exponent up to 64 in size becomes [`Node::Powi`], also when it
+//!   is computed (`^(4/2)`, `^N`, a parameter); any other exponent becomes [`Binary::Pow`].
+//! - Parameters may not reuse the name of a built-in (`N`, `pi`), a variable (`q`, `q3`), a
+//!   function or a table; a sum index may not shadow any name in scope, including an
+//!   enclosing sum's index.
+//! - Index expressions and sum bounds are evaluated exactly in 64-bit integers (overflow is
+//!   an error); parameters are not allowed in them, even whole-valued ones.
 
+use std::cell::Cell;
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use crate::ast::{BinOp, Expr, ExprKind};
 use crate::error::{ExprError, Span};
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
-use crate::parser::parse;
+use crate::parser::{on_big_stack, parse_here};
 use crate::smooth::{self, Info, LimitKind, Signs, Smoothness};
 
 /// Refuse expressions that expand to more graph nodes than this (a lattice sum over a huge
@@ -100,7 +116,10 @@ pub struct Lowered {
     pub root: NodeId,
     pub smoothness: Smoothness,
     /// For each node created by this lowering, the source span of the operation that first
-    /// created it (for messages such as "log of a negative number at line 1, column 7").
+    /// created it (for messages such as "log of a negative number at line 1, column 7"): a
+    /// call's whole text (`log(q2 - 3)`), an operator's symbol (`/`, `^`), a name or number,
+    /// the whole `sum(...)` for the additions of its fold. Nodes that already existed in the
+    /// graph are not included.
     pub origins: HashMap<NodeId, Span>,
 }
 
@@ -138,7 +157,7 @@ fn is_function(name: &str) -> bool {
 
 /// Parse `source` and lower it into `graph`.
 pub fn lower(source: &str, scope: &Scope, graph: &mut Graph) -> Result<Lowered, ExprError> {
-    lower_limited(source, scope, graph, MAX_NODES, MAX_STEPS)
+    on_big_stack(|| lower_limited(source, scope, graph, MAX_NODES, MAX_STEPS))
 }
 
 /// [`lower`] with other size limits (tests reach them without building ten million nodes).
@@ -149,16 +168,16 @@ fn lower_limited(
     max_nodes: usize,
     max_steps: u64,
 ) -> Result<Lowered, ExprError> {
-    let ast = parse(source)?;
+    let ast = parse_here(source)?;
     let start_len = graph.len();
     let mut l = Lowerer {
         src: source,
         scope,
         graph,
         sums: Vec::new(),
-        origins: HashMap::new(),
+        origins: Vec::new(),
         start_len,
-        steps: 0,
+        steps: Cell::new(0),
         max_nodes,
         max_steps,
     };
@@ -173,7 +192,10 @@ fn lower_limited(
     Ok(Lowered {
         root,
         smoothness,
-        origins: l.origins,
+        origins: (l.start_len..)
+            .zip(l.origins)
+            .map(|(id, span)| (id as NodeId, span))
+            .collect(),
     })
 }
 
@@ -199,9 +221,12 @@ struct Lowerer<'a> {
     graph: &'a mut Graph,
     /// The enclosing sums' indices and their current values, innermost last.
     sums: Vec<(&'a str, i64)>,
-    origins: HashMap<NodeId, Span>,
+    /// The origin of each node created here: new nodes are appended to the graph, so node
+    /// `start_len + k` has `origins[k]` (a vector while lowering, a map for the caller).
+    origins: Vec<Span>,
     start_len: usize,
-    steps: u64,
+    /// Every pass over a tree node counts (`Cell`: the read-only passes count too).
+    steps: Cell<u64>,
     max_nodes: usize,
     max_steps: u64,
 }
@@ -231,9 +256,7 @@ impl<'a> Lowerer<'a> {
         let id = self.graph.add(node);
         let after = self.graph.len();
         if after > before {
-            for k in before..after {
-                self.origins.entry(k as NodeId).or_insert(span);
-            }
+            self.origins.resize(after - self.start_len, span);
             if after - self.start_len > self.max_nodes {
                 return Err(self.err(
                     span,
@@ -260,9 +283,9 @@ impl<'a> Lowerer<'a> {
         }
     }
 
-    fn tick(&mut self, span: Span) -> R<()> {
-        self.steps += 1;
-        if self.steps > self.max_steps {
+    fn tick(&self, span: Span) -> R<()> {
+        self.steps.set(self.steps.get() + 1);
+        if self.steps.get() > self.max_steps {
             return Err(self.err(
                 span,
                 format!(
@@ -613,6 +636,7 @@ impl<'a> Lowerer<'a> {
     /// The value of an index or sum-bound expression: whole numbers, sum indices, `N`,
     /// `+ - *` and parentheses.
     fn int(&self, e: &Expr) -> R<i64> {
+        self.tick(e.span)?;
         const RULE: &str = "index expressions may only contain whole numbers, sum indices, N, + - * and parentheses";
         let overflow = || self.err(e.span, "index expression overflows a 64-bit integer");
         let text = &self.src[e.span.start..e.span.end];
@@ -632,6 +656,12 @@ impl<'a> Lowerer<'a> {
             ExprKind::Name(n) => match self.meaning(n) {
                 Meaning::SumIndex(i) => Ok(i),
                 Meaning::N => i64::try_from(self.scope.n).map_err(|_| overflow()),
+                Meaning::Unknown if self.sums.is_empty() => Err(self.err(
+                    e.span,
+                    format!(
+                        "unknown name '{n}' in an index (a sum index exists only inside sum({n} = a..b, term))"
+                    ),
+                )),
                 Meaning::Unknown => Err(self.unknown(n, e.span)),
                 Meaning::Param(_) => Err(self.err(
                     e.span,
@@ -761,6 +791,12 @@ impl<'a> Lowerer<'a> {
         args: &'a [Expr],
     ) -> R<(NodeId, Info)> {
         let span = e.span;
+        if is_function(name) && self.scope.tables.iter().any(|(n, _)| n == name) {
+            return Err(self.err(
+                name_span,
+                format!("table '{name}' has the name of a built-in function; rename the table"),
+            ));
+        }
         if let Some(&(_, op)) = UNARY.iter().find(|(n, _)| *n == name) {
             self.arity(name, args, 1, span)?;
             let (a, ai) = self.value(&args[0])?;
@@ -904,11 +940,15 @@ impl<'a> Lowerer<'a> {
         while i <= b {
             self.tick(e.span)?;
             self.sums.push((index, i));
-            let exists = !free || self.term_exists(body);
-            let term = if exists { Some(self.value(body)) } else { None };
+            // An error ends the whole lowering, so the index need not be popped on that path.
+            let exists = !free || self.term_exists(body)?;
+            let term = if exists {
+                Some(self.value(body)?)
+            } else {
+                None
+            };
             self.sums.pop();
-            if let Some(term) = term {
-                let (t, ti) = term?;
+            if let Some((t, ti)) = term {
                 acc = Some(match acc {
                     None => (t, ti),
                     Some((s, si)) => {
@@ -932,21 +972,29 @@ impl<'a> Lowerer<'a> {
     /// inside `1..N` (else the term is left out). Checked before lowering the term, so a
     /// left-out term leaves no dead nodes in the graph. Inner sums decide for their own terms;
     /// an index that does not evaluate is left for lowering to report.
-    fn term_exists(&self, e: &'a Expr) -> bool {
+    fn term_exists(&self, e: &'a Expr) -> R<bool> {
+        self.tick(e.span)?;
         match &e.kind {
-            ExprKind::Sum { .. } => true,
+            ExprKind::Sum { .. } => Ok(true),
             ExprKind::Index { name, index, .. } => {
                 let len = match self.meaning(name) {
                     Meaning::Family(f) => f.len,
                     Meaning::Param(ParamValue::Array(v)) => v.len(),
-                    _ => return true,
+                    _ => return Ok(true),
                 };
                 match self.int(index) {
-                    Ok(k) => k >= 1 && (k as u64) <= len as u64,
-                    Err(_) => true,
+                    Ok(k) => Ok(k >= 1 && (k as u64) <= len as u64),
+                    Err(_) => Ok(true),
                 }
             }
-            _ => e.children().all(|c| self.term_exists(c)),
+            _ => {
+                for c in e.children() {
+                    if !self.term_exists(c)? {
+                        return Ok(false);
+                    }
+                }
+                Ok(true)
+            }
         }
     }
 }
@@ -1120,6 +1168,7 @@ mod tests {
         }
         same(eval(&s.graph, l.root, &q), want, "FPUT");
         assert!(l.smoothness.is_smooth());
+        assert_eq!(dead_operations(&s.graph, l.root), 0);
     }
 
     #[test]
@@ -1146,18 +1195,26 @@ mod tests {
             bonds = if i == 0 { t } else { bonds + t };
         }
         same(eval(&s.graph, l.root, &q), onsite + bonds, "KG");
-        // No dead nodes: the left-out term i = N was never lowered.
-        let q_n1 = s
-            .graph
-            .nodes()
-            .iter()
-            .filter(|n| matches!(n, Node::Input { index, .. } if *index as usize >= n_usize(5)))
-            .count();
-        assert_eq!(q_n1, 0);
+        // The left-out term i = N was never lowered: every operation is used.
+        assert_eq!(dead_operations(&s.graph, l.root), 0);
     }
 
-    fn n_usize(n: usize) -> usize {
-        n
+    /// Non-constant nodes the root does not depend on (constants folded away are expected).
+    fn dead_operations(g: &Graph, root: NodeId) -> usize {
+        let mut live = vec![false; g.len()];
+        live[root as usize] = true;
+        for k in (0..g.len()).rev() {
+            if live[k] {
+                for o in g.node(k as NodeId).operands() {
+                    live[o as usize] = true;
+                }
+            }
+        }
+        g.nodes()
+            .iter()
+            .zip(&live)
+            .filter(|(n, l)| !**l && !matches!(n, Node::Const(_)))
+            .count()
     }
 
     #[test]
@@ -1433,6 +1490,12 @@ mod tests {
                 ("sum(N = 1..3, 1)", "shadows the built-in 'N'", 1, 5),
                 ("i + sum(i = 1..N, q[i])", "unknown name 'i'", 1, 1),
                 (
+                    "q[i] + 1",
+                    "a sum index exists only inside sum(i = a..b, term)",
+                    1,
+                    3,
+                ),
+                (
                     "sum(i = 1..N,\n    q[i] * j)",
                     "unknown name 'j' (variables: q1..q5 or q[i]; parameters: beta, k; sum indices: i",
                     2,
@@ -1489,6 +1552,37 @@ mod tests {
     }
 
     #[test]
+    fn boundary_names_and_table_clashes() {
+        assert_eq!(Boundary::from_name("free"), Ok(Boundary::Free));
+        assert_eq!(Boundary::from_name("periodic"), Ok(Boundary::Periodic));
+        assert_eq!(
+            Boundary::from_name("fixed").map(Boundary::name),
+            Ok("fixed")
+        );
+        assert!(
+            Boundary::from_name("open")
+                .unwrap_err()
+                .contains("fixed, periodic, free")
+        );
+        let mut s = Setup::new(2, Boundary::Fixed);
+        s.tables.push(("exp".into(), 0));
+        check_errors(
+            &mut s,
+            &[(
+                "q1 + exp(q2)",
+                "table 'exp' has the name of a built-in",
+                1,
+                6,
+            )],
+        );
+        s.tables.push(("V".into(), 7));
+        check_errors(
+            &mut s,
+            &[("V(q1)", "table index 7 is not registered", 1, 1)],
+        );
+    }
+
+    #[test]
     fn parameter_checks() {
         let mut s = Setup::new(5, Boundary::Fixed)
             .array("k", vec![1.0; 4])
@@ -1535,7 +1629,7 @@ mod tests {
                 n: s.n,
                 boundary: s.boundary,
             };
-            lower_limited(src, &scope, &mut s.graph, 10_000, 50_000).unwrap_err()
+            on_big_stack(|| lower_limited(src, &scope, &mut s.graph, 10_000, 50_000)).unwrap_err()
         };
         let e = limited(
             Boundary::Fixed,
@@ -1546,6 +1640,13 @@ mod tests {
         let e = limited(Boundary::Fixed, "sum(i = 1..1000000000000, 0)");
         assert!(e.message.contains("more than 50000 operations"), "{e}");
         let e = limited(Boundary::Free, "sum(i = 10..9000000000000000, q[i])");
+        assert!(e.message.contains("operations"), "{e}");
+        // Checking whether a term exists and evaluating indices count too.
+        let long = "q1 + ".repeat(1000);
+        let e = limited(Boundary::Free, &format!("sum(i = 10..1000, {long}q[i])"));
+        assert!(e.message.contains("operations"), "{e}");
+        let long = vec!["1"; 1000].join(" + ");
+        let e = limited(Boundary::Fixed, &format!("sum(i = 10..1000, q[{long}])"));
         assert!(e.message.contains("operations"), "{e}");
     }
 
@@ -1719,6 +1820,11 @@ mod tests {
             "q[i+1]",
             "sum(i = 1..N, ",
         ];
+        // One thread with a big stack for all rounds (as `parse` and `lower` do per call).
+        on_big_stack(|| fuzz_rounds(&seeds, &pieces));
+    }
+
+    fn fuzz_rounds(seeds: &[&str], pieces: &[&str]) {
         let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
         for round in 0..20_000 {
             let src: String = if round % 2 == 0 {
@@ -1750,7 +1856,7 @@ mod tests {
                     .map(|_| pieces[rng.below(pieces.len())])
                     .collect()
             };
-            let _ = parse(&src);
+            let _ = crate::parser::parse_here(&src);
             for boundary in [Boundary::Fixed, Boundary::Periodic, Boundary::Free] {
                 let mut s = Setup::new(4, boundary)
                     .param("beta", 1.0)
@@ -1760,14 +1866,85 @@ mod tests {
                     .param("A", 1.0)
                     .param("delta0", 0.1)
                     .array("k", vec![1.0; 4]);
-                if let Err(e) = s.lower(&src) {
+                let scope = Scope {
+                    families: &s.families,
+                    params: &s.params,
+                    tables: &s.tables,
+                    n: s.n,
+                    boundary: s.boundary,
+                };
+                match lower_limited(&src, &scope, &mut s.graph, MAX_NODES, MAX_STEPS) {
                     // Every error renders, and its position is inside the source.
-                    let _ = e.to_string();
-                    assert!(e.span.start <= src.len(), "{src:?}");
-                } else if let Ok(l) = s.lower(&src) {
-                    let _ = l.smoothness.require(2, "vm");
+                    Err(e) => {
+                        let _ = e.to_string();
+                        assert!(e.span.start <= src.len(), "{src:?}");
+                    }
+                    Ok(l) => {
+                        let _ = l.smoothness.require(2, "vm");
+                    }
                 }
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod deep {
+    use super::*;
+
+    /// The deepest expressions the parser accepts also lower, even when called from a thread
+    /// with a small stack (recursion in every pass is bounded by the parser's nesting limit,
+    /// and runs on a thread of its own with a big stack).
+    #[test]
+    fn deepest_allowed_expressions_lower_on_a_small_stack() {
+        let run = || {
+            let d = crate::parser::MAX_DEPTH;
+            let families = [Family {
+                name: "q".into(),
+                len: 3,
+                arg: 0,
+            }];
+            let params = BTreeMap::new();
+            let scope = Scope {
+                families: &families,
+                params: &params,
+                tables: &[],
+                n: 3,
+                boundary: Boundary::Free,
+            };
+            let shapes = [
+                format!("{}q1{}", "(q1 + q1*".repeat(d - 1), ")".repeat(d - 1)),
+                format!(
+                    "{}q1{}",
+                    "q1^(q1 + q1*".repeat(d / 2 - 1),
+                    ")".repeat(d / 2 - 1)
+                ),
+                format!("{}q1{}", "sin(q1 + q1*".repeat(d - 1), ")".repeat(d - 1)),
+                format!("{}q1{}", "-q1 - q1*".repeat(d - 1), ""),
+                format!(
+                    "{}q[i1]{}",
+                    (0..d - 1)
+                        .map(|k| format!("sum(i{k} = 1..1, q1 + q1*"))
+                        .collect::<String>(),
+                    ")".repeat(d - 1)
+                ),
+                format!(
+                    "{}q1{}",
+                    "if(q1 < 0, q1 + q1*".repeat(d - 1),
+                    ", 0)".repeat(d - 1)
+                ),
+            ];
+            for src in shapes {
+                crate::parser::parse(&src).unwrap_or_else(|e| panic!("{e}"));
+                let mut g = Graph::new();
+                lower(&src, &scope, &mut g).unwrap_or_else(|e| panic!("{e}"));
+            }
+        };
+        std::thread::Builder::new()
+            .stack_size(256 << 10)
+            .spawn(run)
+            .unwrap()
+            .join()
+            .unwrap();
     }
 }

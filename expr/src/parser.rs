@@ -21,8 +21,40 @@ use crate::lexer::{Tok, Token, lex};
 /// overflowing the stack here or in the recursive passes over the tree.
 pub const MAX_DEPTH: usize = 200;
 
+/// Stack for parsing and lowering. The passes recurse once per nesting level; at
+/// [`MAX_DEPTH`] an unoptimized build needs a few MB, more than a worker thread may have (2 MB
+/// by default). Only the pages actually used are committed.
+const STACK_BYTES: usize = 64 << 20;
+
+/// Run `f` on a thread of its own with a stack of [`STACK_BYTES`], so the depth limit is safe
+/// whatever thread the caller is on (a rayon worker, a test thread). Costs one thread spawn,
+/// negligible next to lowering a system. If no thread can be spawned, runs `f` here.
+pub(crate) fn on_big_stack<T: Send, F: FnOnce() -> T + Send>(f: F) -> T {
+    let mut slot = Some(f);
+    let ran = std::thread::scope(|s| {
+        std::thread::Builder::new()
+            .name("chaoscope-expr".into())
+            .stack_size(STACK_BYTES)
+            .spawn_scoped(s, || slot.take().map(|f| f()))
+            .ok()
+            .and_then(|h| h.join().unwrap_or_else(|p| std::panic::resume_unwind(p)))
+    });
+    match (ran, slot.take()) {
+        (Some(v), _) => v,
+        (None, Some(f)) => f(),
+        // The closure either ran (and returned `Some`) or was dropped unrun with the failed
+        // spawn (leaving `f` in the slot).
+        (None, None) => unreachable!("the parse closure neither ran nor stayed in its slot"),
+    }
+}
+
 /// Parse `source` into a syntax tree (syntax only: names are not resolved).
 pub fn parse(source: &str) -> Result<Expr, ExprError> {
+    on_big_stack(|| parse_here(source))
+}
+
+/// [`parse`] on the current thread's stack (the caller provides a big enough one).
+pub(crate) fn parse_here(source: &str) -> Result<Expr, ExprError> {
     let tokens = lex(source)?;
     let mut p = Parser {
         src: source,

@@ -6,7 +6,7 @@
 //! smoothness on the syntax tree (where parameter values are known, so `max(0, d)^(5/2)` is
 //! recognised as C^2) and the caller refuses the method with a message naming the operation.
 //!
-//! Per subexpression we track: the lowest-order operation that limits it ([`LimitAt`]), the
+//! Per subexpression we track: the lowest-order operation that limits it (`LimitAt`), the
 //! set of signs it can take (to know that `1 + q^2` never reaches 0, so its square root is
 //! smooth), and whether it is a "zero kink": Lipschitz and equal to 0 exactly where it is not
 //! smooth (`abs(u)`, `max(0, u)`, `min(u, 0)` with a smooth `u`, and constant or smooth
@@ -522,13 +522,12 @@ pub(crate) fn finish(info: &Info, source: &str, table_name: impl Fn(u32) -> Stri
                 format!("^ {exp}")
             },
             if l.order == 0 {
-                "has an infinite first derivative where its base reaches 0 (continuous only)"
-                    .to_string()
+                "is not differentiable where its base reaches 0 (continuous only)".to_string()
             } else {
                 format!(
-                    "has an infinite derivative of order {} where its base reaches 0 (continuous up to order {})",
-                    i64::from(l.order) + 1,
-                    l.order
+                    "has continuous derivatives only up to order {} where its base reaches 0 (derivative {} is infinite or jumps there)",
+                    l.order,
+                    i64::from(l.order) + 1
                 )
             },
         ),

@@ -70,7 +70,11 @@ fn hertz_chain_records_analyzes_replays_and_maps() {
     for (d0, dist) in &v {
         eprintln!("Hertz chain, t = 200: d0 = {d0:e}: |dlog10 GALI_2| = {dist:.3e}");
     }
-    let (best_d0, best) = v.iter().copied().min_by(|a, b| a.1.total_cmp(&b.1)).unwrap();
+    let (best_d0, best) = v
+        .iter()
+        .copied()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap();
     assert!(
         (1e-11..=1e-5).contains(&best_d0),
         "the closest MPM is at d0 = {best_d0:e}"
@@ -178,8 +182,5 @@ fn replay_refuses_a_changed_table() {
     .unwrap();
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(
-        err.contains("sha256") && err.contains("differs"),
-        "{err}"
-    );
+    assert!(err.contains("sha256") && err.contains("differs"), "{err}");
 }

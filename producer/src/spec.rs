@@ -162,7 +162,10 @@ pub fn model_from_config(
         if let Some(key) = builtin_extra_key(cfg) {
             return Err(SpecError::new(
                 format!("model.{key}"),
-                format!("applies to name = \"potential\", not to the built-in '{}'", cfg.name),
+                format!(
+                    "applies to name = \"potential\", not to the built-in '{}'",
+                    cfg.name
+                ),
             ));
         }
         Ok((model, Vec::new()))
@@ -475,7 +478,10 @@ impl RunSpec {
             if method == Method::Vm
                 && let Some(reason) = model.no_hessian_reason()
             {
-                return Err(SpecError::new(key("method"), format!("vm refused: {reason}")));
+                return Err(SpecError::new(
+                    key("method"),
+                    format!("vm refused: {reason}"),
+                ));
             }
             let d0 = finite_positive(&key("d0"), s.d0)?;
             let tau = finite_positive(&key("tau"), s.tau)?;

@@ -97,8 +97,12 @@ fn henon_heiles_as_an_expression_matches_the_built_in_model() {
     // Regular orbit to t = 1000, chaotic to t = 200 (must-show 1). A last-bit difference in the
     // forces would grow linearly on the regular orbit and like exp(l1 t) ~ e^(0.05 * 200) ~ 2e4
     // on the chaotic one: 1e-9 relative leaves room for either. What we get is stated below.
-    for (q2, t_final) in [(paper::HH_REGULAR_Q2, 1000.0), (paper::HH_CHAOTIC_Q2, 200.0)] {
-        let builtin = paper::henon_heiles(q2, t_final, DeviationsConfig::random(4, 2, 5), vm_and_mpm());
+    for (q2, t_final) in [
+        (paper::HH_REGULAR_Q2, 1000.0),
+        (paper::HH_CHAOTIC_Q2, 200.0),
+    ] {
+        let builtin =
+            paper::henon_heiles(q2, t_final, DeviationsConfig::random(4, 2, 5), vm_and_mpm());
         let expression = with_model(builtin.clone(), hh_expression());
         let a = final_indicators(RunSpec::from_config(&builtin).unwrap());
         let b = final_indicators(RunSpec::from_config(&expression).unwrap());
@@ -135,12 +139,21 @@ fn fput_chain_as_a_lattice_sum_matches_the_built_in_chain() {
     // Must-show 2: N = 101, a regular low-energy orbit (the lowest normal mode), t = 200.
     let n = 101;
     let (q, p) = fput_orbit(n);
-    let builtin = paper::fput_beta(&q, &p, 0.02, 200.0, DeviationsConfig::random(4, 2, 9), vm_and_mpm());
+    let builtin = paper::fput_beta(
+        &q,
+        &p,
+        0.02,
+        200.0,
+        DeviationsConfig::random(4, 2, 9),
+        vm_and_mpm(),
+    );
     let expression = with_model(builtin.clone(), fput_expression(n));
     let a = final_indicators(RunSpec::from_config(&builtin).unwrap());
     let b = final_indicators(RunSpec::from_config(&expression).unwrap());
     let (worst, identical) = compare(&a, &b);
-    eprintln!("FPUT N = {n}, t = 200: largest relative difference {worst:.2e}, bit-identical: {identical}");
+    eprintln!(
+        "FPUT N = {n}, t = 200: largest relative difference {worst:.2e}, bit-identical: {identical}"
+    );
     assert!(worst <= 1e-9, "{worst:e}");
 }
 
@@ -165,7 +178,12 @@ fn fput_chain_of_1001_sites_compiles_quickly() {
     model.gradient(&q, &mut g1);
     builtin.gradient(&q, &mut g2);
     for i in 0..n {
-        assert!((g1[i] - g2[i]).abs() <= 1e-14 * (1.0 + g2[i].abs()), "site {i}: {} vs {}", g1[i], g2[i]);
+        assert!(
+            (g1[i] - g2[i]).abs() <= 1e-14 * (1.0 + g2[i].abs()),
+            "site {i}: {} vs {}",
+            g1[i],
+            g2[i]
+        );
     }
 }
 
@@ -245,7 +263,12 @@ fn tabulated_bond_reproduces_the_analytic_chain() {
     let tabulated = with_model(analytic.clone(), model);
     let a = final_indicators(RunSpec::from_config(&analytic).unwrap());
     let b = final_indicators(RunSpec::from_config(&tabulated).unwrap());
-    let state = a.state.iter().zip(&b.state).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
+    let state = a
+        .state
+        .iter()
+        .zip(&b.state)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
     let gali = a
         .gali
         .iter()
@@ -253,8 +276,15 @@ fn tabulated_bond_reproduces_the_analytic_chain() {
         .zip(b.gali.iter().flatten())
         .map(|(x, y)| (x - y).abs())
         .fold(0.0, f64::max);
-    let mle = a.mle.iter().zip(&b.mle).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max);
-    eprintln!("tabulated vs analytic FPUT N = 5 at t = 1000: |dx| {state:.2e}, |d log10 GALI| {gali:.2e}, |d MLE| {mle:.2e}");
+    let mle = a
+        .mle
+        .iter()
+        .zip(&b.mle)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max);
+    eprintln!(
+        "tabulated vs analytic FPUT N = 5 at t = 1000: |dx| {state:.2e}, |d log10 GALI| {gali:.2e}, |d MLE| {mle:.2e}"
+    );
     assert!(state < 1e-3, "{state:e}");
     // log10 GALI differences of 4.3e-4 are 1e-3 relative in GALI.
     assert!(gali < 4.3e-4, "{gali:e}");
@@ -263,7 +293,12 @@ fn tabulated_bond_reproduces_the_analytic_chain() {
 
 #[test]
 fn non_smooth_potential_is_refused_for_vm_naming_the_operation() {
-    let mut config = paper::henon_heiles(paper::HH_CHAOTIC_Q2, 10.0, DeviationsConfig::random(2, 1, 1), vm_and_mpm());
+    let mut config = paper::henon_heiles(
+        paper::HH_CHAOTIC_Q2,
+        10.0,
+        DeviationsConfig::random(2, 1, 1),
+        vm_and_mpm(),
+    );
     config.model = ModelConfig::potential(2, "(q1^2 + q2^2)/2 + abs(q1)*q2^2");
     let err = RunSpec::from_config(&config).unwrap_err();
     eprintln!("{err}");
@@ -301,13 +336,21 @@ fn bad_expressions_name_line_and_column() {
         ("beta*q1^2 + q2^2", "beta"),
     ];
     for (potential, needle) in cases {
-        let mut config = paper::henon_heiles(paper::HH_CHAOTIC_Q2, 10.0, DeviationsConfig::random(2, 1, 1), vm_and_mpm());
+        let mut config = paper::henon_heiles(
+            paper::HH_CHAOTIC_Q2,
+            10.0,
+            DeviationsConfig::random(2, 1, 1),
+            vm_and_mpm(),
+        );
         config.model = ModelConfig::potential(2, potential);
         let err = RunSpec::from_config(&config).unwrap_err();
         eprintln!("{err}");
         assert_eq!(err.key, "model.potential", "{potential}: {err}");
         assert!(err.message.contains(needle), "{potential}: {err}");
-        assert!(err.message.contains('^'), "{potential}: a caret under the place: {err}");
+        assert!(
+            err.message.contains('^'),
+            "{potential}: a caret under the place: {err}"
+        );
     }
 }
 
@@ -315,7 +358,12 @@ fn bad_expressions_name_line_and_column() {
 fn nan_at_run_time_names_the_time_and_the_operation() {
     // log(1 + q2) is fine until q2 reaches -1: this orbit at H = 0.125 does not, but one
     // started at q2 = -0.9 with momentum towards -1 does.
-    let mut config = paper::henon_heiles(-0.9, 50.0, DeviationsConfig::random(2, 1, 1), vec![SchemeConfig::new("mpm", "mpm", 1e-8, 1.0)]);
+    let mut config = paper::henon_heiles(
+        -0.9,
+        50.0,
+        DeviationsConfig::random(2, 1, 1),
+        vec![SchemeConfig::new("mpm", "mpm", 1e-8, 1.0)],
+    );
     config.model = ModelConfig::potential(2, "(q1^2 + q2^2)/2 + log(1 + q2)");
     config.orbit.energy = None;
     config.orbit.solve_for = None;

@@ -413,7 +413,11 @@ mod expressions {
             .map(|method| {
                 let b = kernel_case(isa, builtin, method, lanes, seconds);
                 let e = kernel_case(isa, expression, method, lanes, seconds);
-                let rate = |v: &serde_json::Value| v["orbit_steps_per_second_per_core"].as_f64().unwrap_or(f64::NAN);
+                let rate = |v: &serde_json::Value| {
+                    v["orbit_steps_per_second_per_core"]
+                        .as_f64()
+                        .unwrap_or(f64::NAN)
+                };
                 serde_json::json!({
                     "method": method,
                     "lanes": lanes,

@@ -42,8 +42,8 @@ pub fn load_config(path: &Path) -> anyhow::Result<(RunConfig, String)> {
         std::fs::read_to_string(path)
             .with_context(|| format!("reading run configuration {}", path.display()))?
     };
-    let config = RunConfig::from_file_text(&text, path)
-        .with_context(|| format!("in {}", path.display()))?;
+    let config =
+        RunConfig::from_file_text(&text, path).with_context(|| format!("in {}", path.display()))?;
     // The canonical text, with table paths joined to the config's directory: the producer
     // child reads it from stdin, where the file's own directory is unknown.
     let text = config.to_toml();

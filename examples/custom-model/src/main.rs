@@ -11,7 +11,10 @@ fn main() -> anyhow::Result<()> {
     let (config, spec) = run_spec(CONFIG)?;
     if args.iter().any(|a| a == "--publish") {
         let outcome = publish(&config, spec)?;
-        println!("{} samples published, status {:?}", outcome.samples, outcome.status);
+        println!(
+            "{} samples published, status {:?}",
+            outcome.samples, outcome.status
+        );
         return Ok(());
     }
     let out = args
@@ -23,6 +26,10 @@ fn main() -> anyhow::Result<()> {
     }
     let report = record(&config, spec, &out)?;
     println!("{}", serde_json::to_string_pretty(&report)?);
-    eprintln!("recorded {}; `chaoscope analyze {}` reads it", out.display(), out.display());
+    eprintln!(
+        "recorded {}; `chaoscope analyze {}` reads it",
+        out.display(),
+        out.display()
+    );
     Ok(())
 }

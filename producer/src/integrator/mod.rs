@@ -34,7 +34,9 @@ impl Workspace {
 /// Why a tangent-map step could not be taken.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum TangentError {
-    #[error("{0}: the variational method needs second derivatives; use the multi-particle method (mpm)")]
+    #[error(
+        "{0}: the variational method needs second derivatives; use the multi-particle method (mpm)"
+    )]
     NoHessian(String),
 }
 

@@ -171,9 +171,7 @@ impl ExpressionModel {
     /// The gradient over `L` lanes in SoA rows (`q[i][l]`), by the compiled lane function.
     #[inline]
     pub fn gradient_soa(&self, q: &[f64], out: &mut [f64], lanes: usize) {
-        self.0
-            .compiled
-            .call_lanes(GRADIENT_LANES, &[q], out, lanes)
+        self.0.compiled.call_lanes(GRADIENT_LANES, &[q], out, lanes)
     }
 
     /// `Hess V(q) v` over `L` lanes of `v` at one shared position `q`.
@@ -220,7 +218,10 @@ impl ExpressionModel {
             Some(span) => {
                 let at = chaoscope_expr::ExprError::new(&self.0.definition.potential, *span, "");
                 let (line, column) = (at.line, at.column);
-                format!("{op} at line {line}, column {column} of the potential gave {} ({what})", value[0])
+                format!(
+                    "{op} at line {line}, column {column} of the potential gave {} ({what})",
+                    value[0]
+                )
             }
             None => format!("{op} gave {} ({what})", value[0]),
         }

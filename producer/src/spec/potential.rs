@@ -27,7 +27,9 @@ pub struct TableDigest {
 fn param_value(key: &str, v: &config::ParamValue, n: usize) -> Result<ParamValue, SpecError> {
     match v {
         config::ParamValue::Scalar(x) if x.is_finite() => Ok(ParamValue::Scalar(*x)),
-        config::ParamValue::Scalar(x) => Err(SpecError::new(key, format!("must be finite, got {x}"))),
+        config::ParamValue::Scalar(x) => {
+            Err(SpecError::new(key, format!("must be finite, got {x}")))
+        }
         config::ParamValue::Array(xs) => {
             if xs.len() != n {
                 return Err(SpecError::new(
@@ -119,12 +121,10 @@ fn load_table(name: &str, cfg: &TableConfig) -> Result<(Arc<Spline>, TableDigest
 }
 
 /// Check the keys of a `potential` model, load its tables and compile it.
-pub fn potential_model(
-    cfg: &ModelConfig,
-) -> Result<(Arc<dyn Model>, Vec<TableDigest>), SpecError> {
-    let n = cfg
-        .n
-        .ok_or_else(|| SpecError::new("model.n", "a potential model needs the number of sites n"))?;
+pub fn potential_model(cfg: &ModelConfig) -> Result<(Arc<dyn Model>, Vec<TableDigest>), SpecError> {
+    let n = cfg.n.ok_or_else(|| {
+        SpecError::new("model.n", "a potential model needs the number of sites n")
+    })?;
     if n == 0 || n > MAX_SITES {
         return Err(SpecError::new(
             "model.n",
@@ -137,13 +137,18 @@ pub fn potential_model(
             "a potential model takes its constants from params, e.g. params = { beta = 1.0 }",
         ));
     }
-    let potential = cfg
-        .potential
-        .as_ref()
-        .ok_or_else(|| SpecError::new("model.potential", "a potential model needs potential = \"...\""))?;
+    let potential = cfg.potential.as_ref().ok_or_else(|| {
+        SpecError::new(
+            "model.potential",
+            "a potential model needs potential = \"...\"",
+        )
+    })?;
     let mut params = std::collections::BTreeMap::new();
     for (name, v) in &cfg.params {
-        params.insert(name.clone(), param_value(&format!("model.params.{name}"), v, n)?);
+        params.insert(
+            name.clone(),
+            param_value(&format!("model.params.{name}"), v, n)?,
+        );
     }
     let inverse_masses = match &cfg.masses {
         Some(m) => inverse_masses(m, n)?,
@@ -164,7 +169,10 @@ pub fn potential_model(
     let mut digests = Vec::new();
     for (name, t) in &cfg.tables {
         let (spline, digest) = load_table(name, t)?;
-        tables.push((name.clone(), spline as Arc<dyn chaoscope_expr::graph::Tabulated>));
+        tables.push((
+            name.clone(),
+            spline as Arc<dyn chaoscope_expr::graph::Tabulated>,
+        ));
         digests.push(digest);
     }
     let model = ExpressionModel::new(PotentialDefinition {

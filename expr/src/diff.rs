@@ -225,11 +225,13 @@ fn pow_const_local(g: &mut Graph, u: NodeId, c: f64) -> Local {
 
 /// Whether an adjoint can be pushed through a one-operand local derivative term by term
 /// without creating more nodes than summing it first: at most one term carries a node.
-fn distributable(terms: &[Term], local: Local) -> bool {
-    match local {
-        Local::Mul(_, None) => true,
-        _ => terms.iter().filter(|(_, t)| t.is_some()).count() <= 1,
-    }
+///
+/// A sum is never distributed, even over a constant factor (`-1` of a subtraction or a
+/// negation): the adjoint of a bond `r` stays one node `f'(r)`, used whole by both its sites,
+/// so a chain's force `f'(r_{i-1}) - f'(r_i)` comes out in the order a hand-written one has
+/// (and the end sites, whose bond to a wall is `q_1 - 0` or `0 - q_N`, too).
+fn distributable(terms: &[Term], _local: Local) -> bool {
+    terms.iter().filter(|(_, t)| t.is_some()).count() <= 1
 }
 
 /// d root / d Input{arg, i} for i in 0..n, by reverse accumulation over the DAG (cost O(graph),
@@ -510,70 +512,194 @@ pub fn directional(
     let mut need = Vec::new();
     crate::eval::mark_needed(g, outputs, &mut need);
     let mut tan: Vec<Option<NodeId>> = vec![None; need.len()];
+    let seed = |g: &mut Graph, a: u8, index: u32| (a == arg).then(|| g.input(dir_arg, index));
     for v in 0..need.len() as NodeId {
-        if !need[v as usize] {
-            continue;
+        if need[v as usize] {
+            tan[v as usize] = node_tangent(g, v, &tan, &seed)?;
         }
-        let t = |u: NodeId| tan[u as usize];
-        let node = *g.node(v);
-        let d = match node {
-            Node::Const(_) => None,
-            Node::Input { arg: a, index } => (a == arg).then(|| g.input(dir_arg, index)),
-            Node::Unary(op, u) => match (t(u), unary_local(g, op, u, v)) {
-                (Some(du), Some(local)) => Some(apply_local_node(g, local, du)),
-                _ => None,
-            },
-            Node::Powi(u, k) => t(u).map(|du| {
-                let local = powi_local(g, u, k);
-                apply_local_node(g, local, du)
-            }),
-            Node::Table {
-                table,
-                deriv,
-                arg: u,
-            } => match t(u) {
-                Some(du) => {
-                    let d = table_deriv(g, table, deriv, u)?;
-                    Some(mul_sorted(g, d, du))
-                }
-                None => None,
-            },
-            Node::Binary(op, a, b) => {
-                let (da, db) = (t(a), t(b));
-                if da.is_none() && db.is_none() {
-                    None
-                } else {
-                    binary_tangent(g, op, a, b, v, da, db)
-                }
-            }
-            Node::Select {
-                cmp,
-                a,
-                b,
-                then,
-                otherwise,
-            } => match (t(then), t(otherwise)) {
-                (None, None) => None,
-                (dt, dof) => {
-                    let zero = g.constant(0.0);
-                    Some(select(
-                        g,
-                        cmp,
-                        a,
-                        b,
-                        dt.unwrap_or(zero),
-                        dof.unwrap_or(zero),
-                    ))
-                }
-            },
-        };
-        tan[v as usize] = d;
     }
     Ok(outputs
         .iter()
         .map(|&o| match tan[o as usize] {
             Some(d) => d,
             None => g.constant(0.0),
+        })
+        .collect())
+}
+
+/// The tangent of node `v` from its operands' tangents `tan` (`None`: zero), with the inputs'
+/// own tangents given by `seed` (argument array, index).
+fn node_tangent(
+    g: &mut Graph,
+    v: NodeId,
+    tan: &[Option<NodeId>],
+    seed: &dyn Fn(&mut Graph, u8, u32) -> Option<NodeId>,
+) -> Result<Option<NodeId>, DiffError> {
+    let t = |u: NodeId| tan[u as usize];
+    let node = *g.node(v);
+    Ok(match node {
+        Node::Const(_) => None,
+        Node::Input { arg: a, index } => seed(g, a, index),
+        Node::Unary(op, u) => match (t(u), unary_local(g, op, u, v)) {
+            (Some(du), Some(local)) => Some(apply_local_node(g, local, du)),
+            _ => None,
+        },
+        Node::Powi(u, k) => t(u).map(|du| {
+            let local = powi_local(g, u, k);
+            apply_local_node(g, local, du)
+        }),
+        Node::Table {
+            table,
+            deriv,
+            arg: u,
+        } => match t(u) {
+            Some(du) => {
+                let d = table_deriv(g, table, deriv, u)?;
+                Some(mul_sorted(g, d, du))
+            }
+            None => None,
+        },
+        Node::Binary(op, a, b) => {
+            let (da, db) = (t(a), t(b));
+            if da.is_none() && db.is_none() {
+                None
+            } else {
+                binary_tangent(g, op, a, b, v, da, db)
+            }
+        }
+        Node::Select {
+            cmp,
+            a,
+            b,
+            then,
+            otherwise,
+        } => match (t(then), t(otherwise)) {
+            (None, None) => None,
+            (dt, dof) => {
+                let zero = g.constant(0.0);
+                Some(select(
+                    g,
+                    cmp,
+                    a,
+                    b,
+                    dt.unwrap_or(zero),
+                    dof.unwrap_or(zero),
+                ))
+            }
+        },
+    })
+}
+
+/// Most (output, input) dependency pairs [`jacobian`] tracks before it gives up (dense
+/// couplings of many sites: the sparse form would be no better than forward mode).
+pub const MAX_JACOBIAN_ENTRIES: usize = 20_000_000;
+
+/// The Jacobian of `outputs` with respect to `Input{arg, 0..}`, as sparse rows of symbolic
+/// partial derivatives: `rows[i]` lists `(j, dO_i/dq_j)` for every input `j` output `i` depends
+/// on, in increasing `j`. Each column is one forward pass seeded with `dq_j = 1` over the nodes
+/// that depend on `q_j`, so a lattice with local couplings costs O(N). `None` when the
+/// dependencies exceed [`MAX_JACOBIAN_ENTRIES`].
+pub fn jacobian(
+    g: &mut Graph,
+    outputs: &[NodeId],
+    arg: u8,
+) -> Result<Option<Vec<Vec<(u32, NodeId)>>>, DiffError> {
+    let mut need = Vec::new();
+    crate::eval::mark_needed(g, outputs, &mut need);
+    let len = need.len();
+    // The inputs each needed node depends on, sorted.
+    let mut deps: Vec<Vec<u32>> = vec![Vec::new(); len];
+    let mut entries = 0usize;
+    for v in 0..len {
+        if !need[v] {
+            continue;
+        }
+        let node = *g.node(v as NodeId);
+        let mut d: Vec<u32> = match node {
+            Node::Input { arg: a, index } if a == arg => vec![index],
+            _ => Vec::new(),
+        };
+        for o in node.operands() {
+            d.extend_from_slice(&deps[o as usize]);
+        }
+        d.sort_unstable();
+        d.dedup();
+        entries += d.len();
+        if entries > MAX_JACOBIAN_ENTRIES {
+            return Ok(None);
+        }
+        deps[v] = d;
+    }
+    // Nodes by the input they depend on, in evaluation order.
+    let n_inputs = deps
+        .iter()
+        .flatten()
+        .map(|&j| j as usize + 1)
+        .max()
+        .unwrap_or(0);
+    let mut by_input: Vec<Vec<NodeId>> = vec![Vec::new(); n_inputs];
+    for (v, d) in deps.iter().enumerate() {
+        for &j in d {
+            by_input[j as usize].push(v as NodeId);
+        }
+    }
+    let mut rows: Vec<Vec<(u32, NodeId)>> = vec![Vec::new(); outputs.len()];
+    // Which outputs a node is (an output may be listed twice).
+    let mut output_of: std::collections::BTreeMap<NodeId, Vec<usize>> = Default::default();
+    for (i, &o) in outputs.iter().enumerate() {
+        output_of.entry(o).or_default().push(i);
+    }
+    let mut tan: Vec<Option<NodeId>> = vec![None; len];
+    for (j, nodes) in by_input.iter().enumerate() {
+        let j = j as u32;
+        let seed =
+            |g: &mut Graph, a: u8, index: u32| (a == arg && index == j).then(|| g.constant(1.0));
+        for &v in nodes {
+            tan[v as usize] = node_tangent(g, v, &tan, &seed)?;
+        }
+        for &v in nodes {
+            let Some(d) = tan[v as usize].filter(|&d| g.as_const(d) != Some(0.0)) else {
+                continue;
+            };
+            for &i in output_of.get(&v).map(Vec::as_slice).unwrap_or(&[]) {
+                rows[i].push((j, d));
+            }
+        }
+        for &v in nodes {
+            tan[v as usize] = None;
+        }
+    }
+    Ok(Some(rows))
+}
+
+/// `sum_j J_ij v_j` for each output, with the Jacobian's entries as coefficients (they depend on
+/// `arg` only) times `Input{dir_arg, j}`, summed left to right in increasing `j`. For a
+/// gradient this is the Hessian-vector product in the form written by hand (`(1 + 2 q2) v1 +
+/// 2 q1 v2` for Henon-Heiles, bit for bit), and in the batched kernel the coefficients are
+/// formed once per reference position while only the products and sums run per lane. Falls
+/// back to [`directional`] when the dependencies are dense (see [`jacobian`]).
+pub fn jacobian_vector(
+    g: &mut Graph,
+    outputs: &[NodeId],
+    arg: u8,
+    dir_arg: u8,
+) -> Result<Vec<NodeId>, DiffError> {
+    let Some(rows) = jacobian(g, outputs, arg)? else {
+        return directional(g, outputs, arg, dir_arg);
+    };
+    Ok(rows
+        .into_iter()
+        .map(|row| {
+            let mut acc: Option<NodeId> = None;
+            for (j, c) in row {
+                let v = g.input(dir_arg, j);
+                let term = g.mul(c, v);
+                acc = Some(match acc {
+                    None => term,
+                    Some(a) => g.add2(a, term),
+                });
+            }
+            acc.unwrap_or_else(|| g.constant(0.0))
         })
         .collect())
 }
@@ -770,6 +896,55 @@ mod tests {
                     "{r:?} vs {hand:?}"
                 );
             }
+        }
+    }
+
+    #[test]
+    fn henon_heiles_jacobian_vector_is_the_hand_written_hessian_vector_product() {
+        let mut g = Graph::new();
+        let v = henon_heiles(&mut g);
+        let grad = gradient(&mut g, v, 0, 2).unwrap();
+        let hv = jacobian_vector(&mut g, &grad, 0, 1).unwrap();
+        for (i, q) in points(2000, 3).chunks(2).enumerate() {
+            let d = [((i * 7) % 11) as f64 - 5.3, 0.7 - (i % 5) as f64];
+            let got = eval1(&g, &[q, &d], &hv);
+            let (x1, x2) = (q[0], q[1]);
+            let want = [
+                (1.0 + 2.0 * x2) * d[0] + 2.0 * x1 * d[1],
+                2.0 * x1 * d[0] + (1.0 - 2.0 * x2) * d[1],
+            ];
+            for k in 0..2 {
+                assert_eq!(got[k].to_bits(), want[k].to_bits(), "q = {q:?}, v = {d:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn chain_jacobian_is_tridiagonal() {
+        let mut g = Graph::new();
+        let v = chain(&mut g, 50);
+        let grad = gradient(&mut g, v, 0, 50).unwrap();
+        let rows = jacobian(&mut g, &grad, 0).unwrap().unwrap();
+        for (i, row) in rows.iter().enumerate() {
+            let cols: Vec<u32> = row.iter().map(|(j, _)| *j).collect();
+            let want: Vec<u32> = (i.saturating_sub(1)..(i + 2).min(50))
+                .map(|j| j as u32)
+                .collect();
+            assert_eq!(cols, want, "row {i}");
+        }
+        // The same product as forward mode, to rounding.
+        let a = jacobian_vector(&mut g, &grad, 0, 1).unwrap();
+        let b = directional(&mut g, &grad, 0, 1).unwrap();
+        let q: Vec<f64> = (0..50).map(|i| 0.1 * (i as f64).sin()).collect();
+        let d: Vec<f64> = (0..50).map(|i| (i as f64 * 0.3).cos()).collect();
+        let (x, y) = (eval1(&g, &[&q, &d], &a), eval1(&g, &[&q, &d], &b));
+        for i in 0..50 {
+            assert!(
+                (x[i] - y[i]).abs() <= 1e-14 * (1.0 + y[i].abs()),
+                "{i}: {} {}",
+                x[i],
+                y[i]
+            );
         }
     }
 

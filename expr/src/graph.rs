@@ -207,8 +207,10 @@ impl Graph {
 
     /// The node's id, creating it if it is new. Constant operands are folded (the same IEEE
     /// operation the evaluator would perform), and a few exact identities are applied
-    /// (`x + 0`, `x * 1`, `x - 0`, `x / 1`, `0 * x` and `x * 0`, `-(-x)`, `x^1`): derivatives
-    /// produce many of them.
+    /// (`x + 0`, `x * 1`, `x / 1`, `0 * x` and `x * 0`, `0 - x` as `-x`, `-(-x)`, `x^1`):
+    /// derivatives produce many of them. `x - 0` stays a node of its own: it is how a lattice
+    /// sum writes the bond to a wall, and as a separate node its adjoint is that bond's force
+    /// as a whole (see `diff`).
     pub fn add(&mut self, node: Node) -> NodeId {
         let node = match self.simplify(node) {
             Ok(id) => return id,
@@ -295,7 +297,6 @@ impl Graph {
                     match op {
                         Binary::Add if self.is_const(b, 0.0) => return Ok(a),
                         Binary::Add if self.is_const(a, 0.0) => return Ok(b),
-                        Binary::Sub if self.is_const(b, 0.0) => return Ok(a),
                         Binary::Sub if self.is_const(a, 0.0) => {
                             return Ok(self.add(Node::Unary(Unary::Neg, b)));
                         }

@@ -28,7 +28,7 @@ pub mod parser;
 pub mod smooth;
 pub mod table;
 
-pub use diff::{DiffError, directional, gradient};
+pub use diff::{DiffError, directional, gradient, jacobian, jacobian_vector};
 pub use error::{ExprError, Span};
 pub use eval::{Evaluator, first_non_finite};
 pub use graph::{Binary, Cmp, Graph, Node, NodeId, Unary};

@@ -46,7 +46,7 @@ pub struct SchemeSample {
 /// A run that could not go on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RunError {
-    #[error("the reference orbit escaped or became non-finite at t = {t} (|x| = {norm:e}){}",
+    #[error("the reference orbit escaped or became non-finite by t = {t} (|x| = {norm:e}){}",
         cause.as_ref().map(|c| format!(": {c}")).unwrap_or_default())]
     Escaped {
         t: f64,
@@ -181,12 +181,16 @@ impl Engine {
         for _ in 0..n_steps {
             system.step(&mut self.reference, &mut self.work);
         }
-        let t = spec.time_of(target);
         let norm = self.reference.iter().map(|v| v * v).sum::<f64>().sqrt();
-        // A NaN norm counts as escaped too.
-        if norm.is_nan() || norm >= ESCAPE_NORM {
+        // A NaN norm counts as escaped too, and so does a state whose energy is not finite
+        // (a potential undefined there: no NaN may reach an output).
+        let invariant_finite = system
+            .invariant(&self.reference)
+            .is_none_or(|e| e.is_finite());
+        if norm.is_nan() || norm >= ESCAPE_NORM || !invariant_finite {
             return Err(self.escaped(last_good, target, norm));
         }
+        let t = spec.time_of(target);
 
         let reference = &self.reference;
         let renorm: Vec<bool> = (0..spec.schemes.len())
@@ -260,10 +264,13 @@ impl Engine {
             let before = x.clone();
             system.step(&mut x, &mut work);
             step += 1;
+            let at = |c: String| format!("{c} in the step to t = {}", self.spec.time_of(step));
             if x.iter().any(|v| !v.is_finite()) {
-                cause = system
-                    .diagnose_non_finite(&before)
-                    .map(|c| format!("{c} in the step to t = {}", self.spec.time_of(step)));
+                cause = system.diagnose_non_finite(&before).map(at);
+                break;
+            }
+            if system.invariant(&x).is_some_and(|e| !e.is_finite()) {
+                cause = system.diagnose_non_finite(&x).map(at);
                 break;
             }
         }

@@ -109,7 +109,7 @@ impl ExpressionModel {
         // for VM anyway, and its Hessian-vector product is not compiled.
         let c2 = lowered.smoothness.require(2, "vm").is_ok();
         let hessian_vector = if c2 {
-            diff::directional(&mut graph, &gradient, ARG_Q, ARG_V)
+            diff::jacobian_vector(&mut graph, &gradient, ARG_Q, ARG_V)
                 .map_err(|e| PotentialError(e.to_string()))?
         } else {
             vec![graph.constant(0.0); n]

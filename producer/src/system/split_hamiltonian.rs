@@ -53,9 +53,13 @@ impl DynamicalSystem for SplitHamiltonian {
     }
 
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
-        // Replay the step stage by stage and ask the model about the first position whose
-        // forces are not finite.
         let n = self.model.dof();
+        // The potential itself undefined at x (the energy is what the run checks), ...
+        if x.iter().all(|v| v.is_finite()) && !self.model.potential(&x[..n]).is_finite() {
+            return self.model.diagnose_non_finite(&x[..n]);
+        }
+        // ... or the step from x: replay it stage by stage and ask the model about the first
+        // position whose forces are not finite.
         let w = self.model.inverse_masses();
         let mut x = x.to_vec();
         let mut force = vec![0.0; n];

@@ -34,8 +34,8 @@ use cranelift_codegen::Context;
 use cranelift_codegen::ir::condcodes::{FloatCC, IntCC};
 use cranelift_codegen::ir::types::{F64, F64X2, I64};
 use cranelift_codegen::ir::{
-    AbiParam, BlockArg, Endianness, InstBuilder, MemFlagsData, SigRef, Signature, UserFuncName,
-    Value,
+    AbiParam, BlockArg, Endianness, InstBuilder, MemFlagsData, SigRef, Signature, StackSlot,
+    StackSlotData, StackSlotKind, UserFuncName, Value,
 };
 use cranelift_codegen::settings::{self, Configurable};
 use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
@@ -71,10 +71,21 @@ pub enum OptLevel {
     Speed,
 }
 
+/// Cranelift's register allocator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Regalloc {
+    /// Backtracking with live-range splitting: better code.
+    Backtracking,
+    /// One pass: several times faster to compile, but measured 2-3x slower code on small
+    /// gradients (many more spills and moves); for very large graphs only.
+    SinglePass,
+}
+
 /// Code generation options; [`compile`] uses [`Options::default`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Options {
     pub opt_level: OptLevel,
+    pub regalloc: Regalloc,
 }
 
 impl Default for Options {
@@ -83,6 +94,7 @@ impl Default for Options {
     fn default() -> Self {
         Options {
             opt_level: OptLevel::Speed,
+            regalloc: Regalloc::Backtracking,
         }
     }
 }
@@ -419,6 +431,18 @@ pub fn compile_with(
     set(&mut flags, "opt_level", opt)?;
     set(&mut flags, "use_colocated_libcalls", "false")?;
     set(&mut flags, "is_pic", "false")?;
+    // Frames beyond a page (thousands of spill slots or uniform values) touch every page on
+    // entry, so a deep frame hits the guard page instead of jumping over it.
+    set(&mut flags, "enable_probestack", "true")?;
+    set(&mut flags, "probestack_strategy", "inline")?;
+    set(
+        &mut flags,
+        "regalloc_algorithm",
+        match options.regalloc {
+            Regalloc::Backtracking => "backtracking",
+            Regalloc::SinglePass => "single_pass",
+        },
+    )?;
     // The IR verifier costs compile time; this module's IR is checked by the tests (debug).
     set(
         &mut flags,
@@ -475,7 +499,7 @@ pub fn compile_with(
         module.clear_context(&mut ctx);
         ctx.func.signature = sig_s;
         ctx.func.name = UserFuncName::user(0, id_s.as_u32());
-        build_scalar(&mut ctx, &mut fctx, &module, graph, &plan, &tables, f)?;
+        build_scalar(&mut ctx, &mut fctx, &module, graph, &plan, &tables);
         module
             .define_function(id_s, &mut ctx)
             .map_err(codegen("scalar"))?;
@@ -490,9 +514,8 @@ pub fn compile_with(
             graph,
             &plan,
             &tables,
-            f,
             id_s,
-        )?;
+        );
         module
             .define_function(id_l, &mut ctx)
             .map_err(codegen("lanes"))?;
@@ -537,8 +560,12 @@ pub fn compile_with(
 
 /// What one function needs from the graph.
 struct Plan {
-    /// Nodes the outputs depend on, in evaluation (node) order.
-    order: Vec<NodeId>,
+    /// Non-leaf nodes of the scalar function in emission order (see [`schedule`]).
+    scalar_order: Vec<NodeId>,
+    /// Non-leaf uniform nodes the lane loop reads, in emission order (before the loop).
+    uniform_order: Vec<NodeId>,
+    /// Non-leaf varying nodes, in emission order (the loop body).
+    varying_order: Vec<NodeId>,
     /// Per node: depends only on constants and `Layout::Scalar` arguments.
     uniform: Vec<bool>,
     /// Per node: a uniform node read by a varying node or written as an output (must be
@@ -604,14 +631,14 @@ impl Plan {
             };
             if !uniform[id as usize] {
                 for o in node.operands() {
-                    if uniform[o as usize] {
+                    if uniform[o as usize] && !is_leaf(graph.node(o)) {
                         broadcast[o as usize] = true;
                     }
                 }
             }
         }
         for &o in &spec.outputs {
-            if uniform[o as usize] {
+            if uniform[o as usize] && !is_leaf(graph.node(o)) {
                 broadcast[o as usize] = true;
             }
         }
@@ -633,8 +660,21 @@ impl Plan {
                 count: spec.outputs.len() as u64,
             });
         }
+        let non_leaf = |id: NodeId| !is_leaf(graph.node(id));
+        let scalar_order = schedule(graph, &spec.outputs, non_leaf);
+        let roots: Vec<NodeId> = order
+            .iter()
+            .copied()
+            .filter(|&id| broadcast[id as usize])
+            .collect();
+        let uniform_order = schedule(graph, &roots, |id| non_leaf(id) && uniform[id as usize]);
+        let varying_order = schedule(graph, &spec.outputs, |id| {
+            non_leaf(id) && !uniform[id as usize]
+        });
         Ok(Plan {
-            order,
+            scalar_order,
+            uniform_order,
+            varying_order,
             uniform,
             broadcast,
             arg_len,
@@ -642,6 +682,44 @@ impl Plan {
             outputs: spec.outputs.clone(),
         })
     }
+}
+
+/// Emission order: each root's not yet emitted dependencies (those `include` accepts) in
+/// post-order, root by root. A valid evaluation order (operands first) in which a value is
+/// computed just before its first use: the graph's own order computes, say, every bond's
+/// stiffness of a chain before the first product that reads one, which keeps a thousand values
+/// live at once and made register allocation take most of a second. The order of independent
+/// operations does not change any result.
+fn schedule(graph: &Graph, roots: &[NodeId], include: impl Fn(NodeId) -> bool) -> Vec<NodeId> {
+    let mut done = vec![false; graph.len()];
+    let mut order = Vec::new();
+    // (node, operands already pushed)
+    let mut stack: Vec<(NodeId, bool)> = Vec::new();
+    for &root in roots {
+        if done[root as usize] || !include(root) {
+            continue;
+        }
+        stack.push((root, false));
+        while let Some((id, expanded)) = stack.pop() {
+            if done[id as usize] {
+                continue;
+            }
+            if expanded {
+                done[id as usize] = true;
+                order.push(id);
+                continue;
+            }
+            stack.push((id, true));
+            let ops: Vec<NodeId> = graph.node(id).operands().collect();
+            // Reversed, so the first operand is emitted first.
+            for &o in ops.iter().rev() {
+                if !done[o as usize] && include(o) {
+                    stack.push((o, false));
+                }
+            }
+        }
+    }
+    order
 }
 
 /// Imported callback signatures of one function.
@@ -689,14 +767,12 @@ fn emit_scalar(
     sigs: &Sigs,
     tables: &[Arc<dyn Tabulated>],
     node: &Node,
-    v: &dyn Fn(NodeId) -> Value,
-    load_input: &mut dyn FnMut(&mut FunctionBuilder, u8, u32) -> Value,
+    v: &mut dyn FnMut(&mut FunctionBuilder, NodeId) -> Value,
 ) -> Value {
     match *node {
-        Node::Const(c) => b.ins().f64const(c),
-        Node::Input { arg, index } => load_input(b, arg, index),
+        Node::Const(_) | Node::Input { .. } => unreachable!("leaves are emitted at each use"),
         Node::Unary(op, a) => {
-            let x = v(a);
+            let x = v(b, a);
             match op {
                 Unary::Neg => b.ins().fneg(x),
                 Unary::Abs => b.ins().fabs(x),
@@ -727,7 +803,7 @@ fn emit_scalar(
             }
         }
         Node::Binary(op, a, c) => {
-            let (x, y) = (v(a), v(c));
+            let (x, y) = (v(b, a), v(b, c));
             match op {
                 Binary::Add => b.ins().fadd(x, y),
                 Binary::Sub => b.ins().fsub(x, y),
@@ -750,7 +826,7 @@ fn emit_scalar(
             }
         }
         Node::Powi(a, n) => {
-            let x = v(a);
+            let x = v(b, a);
             if n == 0 {
                 return b.ins().f64const(1.0);
             }
@@ -771,11 +847,13 @@ fn emit_scalar(
             then,
             otherwise,
         } => {
-            let cond = b.ins().fcmp(float_cc(cmp), v(a), v(c));
-            b.ins().select(cond, v(then), v(otherwise))
+            let (x, y) = (v(b, a), v(b, c));
+            let cond = b.ins().fcmp(float_cc(cmp), x, y);
+            let (t, e) = (v(b, then), v(b, otherwise));
+            b.ins().select(cond, t, e)
         }
         Node::Table { table, deriv, arg } => {
-            let x = v(arg);
+            let x = v(b, arg);
             let t = b.ins().iconst(
                 I64,
                 &tables[table as usize] as *const Arc<dyn Tabulated> as i64,
@@ -821,8 +899,7 @@ fn emit_vector(
     tables: &[Arc<dyn Tabulated>],
     k: &VConsts,
     node: &Node,
-    v: &dyn Fn(NodeId) -> Value,
-    load_input: &mut dyn FnMut(&mut FunctionBuilder, u8, u32) -> Value,
+    v: &mut dyn FnMut(&mut FunctionBuilder, NodeId) -> Value,
 ) -> Value {
     // A scalar callback applied to each lane.
     let per_lane =
@@ -842,10 +919,9 @@ fn emit_vector(
             b.ins().insertlane(r, r1, 1)
         };
     match *node {
-        Node::Const(_) => unreachable!("constants are uniform"),
-        Node::Input { arg, index } => load_input(b, arg, index),
+        Node::Const(_) | Node::Input { .. } => unreachable!("leaves are emitted at each use"),
         Node::Unary(op, a) => {
-            let x = v(a);
+            let x = v(b, a);
             match op {
                 Unary::Neg => b.ins().fneg(x),
                 Unary::Abs => b.ins().fabs(x),
@@ -871,7 +947,7 @@ fn emit_vector(
             }
         }
         Node::Binary(op, a, c) => {
-            let (x, y) = (v(a), v(c));
+            let (x, y) = (v(b, a), v(b, c));
             match op {
                 Binary::Add => b.ins().fadd(x, y),
                 Binary::Sub => b.ins().fsub(x, y),
@@ -896,7 +972,7 @@ fn emit_vector(
             }
         }
         Node::Powi(a, n) => {
-            let x = v(a);
+            let x = v(b, a);
             if n == 0 {
                 return k.one;
             }
@@ -916,11 +992,13 @@ fn emit_vector(
             then,
             otherwise,
         } => {
-            let cond = mask(b, float_cc(cmp), v(a), v(c));
-            b.ins().bitselect(cond, v(then), v(otherwise))
+            let (x, y) = (v(b, a), v(b, c));
+            let cond = mask(b, float_cc(cmp), x, y);
+            let (t, e) = (v(b, then), v(b, otherwise));
+            b.ins().bitselect(cond, t, e)
         }
         Node::Table { table, deriv, arg } => {
-            let x = v(arg);
+            let x = v(b, arg);
             let t = b.ins().iconst(
                 I64,
                 &tables[table as usize] as *const Arc<dyn Tabulated> as i64,
@@ -940,6 +1018,41 @@ fn arg_pointers(b: &mut FunctionBuilder, args: Value, plan: &Plan) -> Vec<Option
         .collect()
 }
 
+fn is_leaf(node: &Node) -> bool {
+    matches!(node, Node::Const(_) | Node::Input { .. })
+}
+
+/// For each node, the output slots it is written to.
+fn outputs_by_node(plan: &Plan, n: usize) -> Vec<Vec<usize>> {
+    let mut outs = vec![Vec::new(); n];
+    for (j, &o) in plan.outputs.iter().enumerate() {
+        outs[o as usize].push(j);
+    }
+    outs
+}
+
+/// A scalar operand. Leaves (constants, argument entries) are emitted afresh at every use
+/// rather than once at their place in the node order: graphs list all inputs and constants
+/// first, and keeping thousands of them live across a straight-line function made register
+/// allocation superlinear (seconds for a 1001-site chain). A reload is one load, as cheap as a
+/// spill reload.
+fn operand_scalar(
+    b: &mut FunctionBuilder,
+    graph: &Graph,
+    ptrs: &[Option<Value>],
+    vals: &[Option<Value>],
+    id: NodeId,
+) -> Value {
+    match *graph.node(id) {
+        Node::Const(c) => b.ins().f64const(c),
+        Node::Input { arg, index } => {
+            let p = ptrs[arg as usize].expect("argument read");
+            b.ins().load(F64, flags(), p, (index as usize * 8) as i32)
+        }
+        _ => vals[id as usize].expect("operands come first"),
+    }
+}
+
 fn build_scalar(
     ctx: &mut Context,
     fctx: &mut FunctionBuilderContext,
@@ -947,8 +1060,7 @@ fn build_scalar(
     graph: &Graph,
     plan: &Plan,
     tables: &[Arc<dyn Tabulated>],
-    _f: usize,
-) -> Result<(), JitError> {
+) {
     let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
     let entry = b.create_block();
     b.append_block_params_for_function_params(entry);
@@ -956,30 +1068,82 @@ fn build_scalar(
     let (args, out) = (b.block_params(entry)[0], b.block_params(entry)[1]);
     let sigs = Sigs::new(&mut b, module);
     let ptrs = arg_pointers(&mut b, args, plan);
+    let outs = outputs_by_node(plan, graph.len());
     let mut vals: Vec<Option<Value>> = vec![None; graph.len()];
-    for &id in &plan.order {
+    for &id in &plan.scalar_order {
         let node = graph.node(id);
         let val = {
-            let get = |o: NodeId| vals[o as usize].expect("operands come first");
-            let mut load = |b: &mut FunctionBuilder, arg: u8, index: u32| {
-                let p = ptrs[arg as usize].expect("argument read");
-                b.ins().load(F64, flags(), p, (index as usize * 8) as i32)
-            };
-            emit_scalar(&mut b, &sigs, tables, node, &get, &mut load)
+            let mut get = |b: &mut FunctionBuilder, o| operand_scalar(b, graph, &ptrs, &vals, o);
+            emit_scalar(&mut b, &sigs, tables, node, &mut get)
         };
         vals[id as usize] = Some(val);
+        // Stored as soon as computed, so outputs do not stay live to the end.
+        for &j in &outs[id as usize] {
+            b.ins().store(flags(), val, out, (j * 8) as i32);
+        }
     }
     for (j, &o) in plan.outputs.iter().enumerate() {
-        let v = vals[o as usize].expect("outputs are computed");
-        b.ins().store(flags(), v, out, (j * 8) as i32);
+        if is_leaf(graph.node(o)) {
+            let v = operand_scalar(&mut b, graph, &ptrs, &vals, o);
+            b.ins().store(flags(), v, out, (j * 8) as i32);
+        }
     }
     b.ins().return_(&[]);
     b.seal_all_blocks();
     b.finalize(module.target_config());
-    Ok(())
 }
 
-#[allow(clippy::too_many_arguments)]
+/// Where the lane loop body finds its operands.
+struct LaneBody<'a> {
+    graph: &'a Graph,
+    plan: &'a Plan,
+    ptrs: &'a [Option<Value>],
+    /// `ptrs[a] + 8 l` for `Lanes` arguments: entry 0 of lane `l`.
+    rows: &'a [Option<Value>],
+    /// The stack slot holding the broadcast uniform values, and each node's offset in it.
+    uniforms: StackSlot,
+    uniform_offset: &'a [u32],
+    /// `8 * lanes`, as a loop block parameter (so the per-entry offsets `index * stride` stay in
+    /// the loop instead of being hoisted into thousands of loop-invariant spilled values).
+    stride: Value,
+}
+
+impl LaneBody<'_> {
+    /// A two-lane operand: leaves afresh at each use (a `Lanes` entry is one unaligned 16-byte
+    /// load, a shared entry or a constant a load and broadcast), other nodes as computed.
+    fn operand(&self, b: &mut FunctionBuilder, vvals: &[Option<Value>], id: NodeId) -> Value {
+        match *self.graph.node(id) {
+            Node::Const(c) => {
+                let s = b.ins().f64const(c);
+                b.ins().splat(F64X2, s)
+            }
+            Node::Input { arg, index } => match self.plan.layouts[arg as usize] {
+                Layout::Scalar => {
+                    let p = self.ptrs[arg as usize].expect("argument read");
+                    let s = b.ins().load(F64, flags(), p, (index as usize * 8) as i32);
+                    b.ins().splat(F64X2, s)
+                }
+                Layout::Lanes => {
+                    let row = self.rows[arg as usize].expect("lane argument read");
+                    let p = if index == 0 {
+                        row
+                    } else {
+                        let off = b.ins().imul_imm_s(self.stride, index as i64);
+                        b.ins().iadd(row, off)
+                    };
+                    b.ins().load(F64X2, flags(), p, 0)
+                }
+            },
+            _ if self.plan.uniform[id as usize] => {
+                let off = self.uniform_offset[id as usize] as i32;
+                let s = b.ins().stack_load(I64, F64, self.uniforms, off);
+                b.ins().splat(F64X2, s)
+            }
+            _ => vvals[id as usize].expect("operands come first"),
+        }
+    }
+}
+
 fn build_lanes(
     ctx: &mut Context,
     fctx: &mut FunctionBuilderContext,
@@ -987,22 +1151,24 @@ fn build_lanes(
     graph: &Graph,
     plan: &Plan,
     tables: &[Arc<dyn Tabulated>],
-    _f: usize,
     scalar: FuncId,
-) -> Result<(), JitError> {
+) {
     let scalar_ref = module.declare_func_in_func(scalar, &mut ctx.func);
     let config = module.target_config();
     let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
     let entry = b.create_block();
     let single = b.create_block();
+    let call_block = b.create_block();
     let pre = b.create_block();
     let body = b.create_block();
+    let cont = b.create_block();
     let exit = b.create_block();
     b.append_block_params_for_function_params(entry);
     let l = b.append_block_param(body, I64);
+    let stride = b.append_block_param(body, I64);
 
-    // entry: lanes < 2 -> `single` (lanes == 0: nothing; lanes == 1: the scalar function, whose
-    // layout is the same).
+    // entry: fewer than two lanes -> `single` (0: nothing; 1: the scalar function, whose layout
+    // is the same).
     b.switch_to_block(entry);
     let (args, out, lanes) = (
         b.block_params(entry)[0],
@@ -1014,35 +1180,39 @@ fn build_lanes(
 
     b.switch_to_block(single);
     let one_lane = b.ins().icmp_imm_u(IntCC::Equal, lanes, 1);
-    let call_block = b.create_block();
     b.ins().brif(one_lane, call_block, &[], exit, &[]);
     b.switch_to_block(call_block);
     b.ins().call(scalar_ref, &[args, out]);
     b.ins().jump(exit, &[]);
 
-    // pre: argument pointers, uniform nodes in scalar code, their broadcasts.
+    // pre: argument pointers; uniform nodes once, in scalar code, broadcast for the loop.
     b.switch_to_block(pre);
     let sigs = Sigs::new(&mut b, module);
     let ptrs = arg_pointers(&mut b, args, plan);
-    let stride = b.ins().ishl_imm_u(lanes, 3);
+    // Uniform values the loop reads go to a stack array (8 bytes each) and are reloaded and
+    // broadcast at each use: as SSA values live across the loop, a thousand of them (the
+    // stiffnesses of a chain's HVP at a shared position) cost the register allocator a second.
+    let n_uniform = plan.uniform_order.len();
+    let uniforms = b.create_sized_stack_slot(StackSlotData::new(
+        StackSlotKind::ExplicitSlot,
+        (n_uniform.max(1) * 8) as u32,
+        4,
+    ));
+    let mut uniform_offset = vec![0u32; graph.len()];
     let mut svals: Vec<Option<Value>> = vec![None; graph.len()];
     let mut vvals: Vec<Option<Value>> = vec![None; graph.len()];
-    for &id in &plan.order {
-        if !plan.uniform[id as usize] {
-            continue;
-        }
+    let mut next_offset = 0u32;
+    for &id in &plan.uniform_order {
         let node = graph.node(id);
         let val = {
-            let get = |o: NodeId| svals[o as usize].expect("operands come first");
-            let mut load = |b: &mut FunctionBuilder, arg: u8, index: u32| {
-                let p = ptrs[arg as usize].expect("argument read");
-                b.ins().load(F64, flags(), p, (index as usize * 8) as i32)
-            };
-            emit_scalar(&mut b, &sigs, tables, node, &get, &mut load)
+            let mut get = |b: &mut FunctionBuilder, o| operand_scalar(b, graph, &ptrs, &svals, o);
+            emit_scalar(&mut b, &sigs, tables, node, &mut get)
         };
         svals[id as usize] = Some(val);
         if plan.broadcast[id as usize] {
-            vvals[id as usize] = Some(b.ins().splat(F64X2, val));
+            uniform_offset[id as usize] = next_offset;
+            b.ins().stack_store(I64, val, uniforms, next_offset as i32);
+            next_offset += 8;
         }
     }
     let k = {
@@ -1058,10 +1228,12 @@ fn build_lanes(
         }
     };
     let last = b.ins().iadd_imm_s(lanes, -2);
+    let stride0 = b.ins().ishl_imm_u(lanes, 3);
     let zero = b.ins().iconst(I64, 0);
-    b.ins().jump(body, &[BlockArg::Value(zero)]);
+    b.ins()
+        .jump(body, &[BlockArg::Value(zero), BlockArg::Value(stride0)]);
 
-    // body(l): lanes l and l + 1.
+    // body(l, stride): lanes l and l + 1.
     b.switch_to_block(body);
     let loff = b.ins().ishl_imm_u(l, 3);
     let rows: Vec<Option<Value>> = ptrs
@@ -1072,30 +1244,18 @@ fn build_lanes(
             _ => None,
         })
         .collect();
-    for &id in &plan.order {
-        if plan.uniform[id as usize] {
-            continue;
-        }
-        let node = graph.node(id);
-        let val = {
-            let get = |o: NodeId| vvals[o as usize].expect("operands come first");
-            let mut load = |b: &mut FunctionBuilder, arg: u8, index: u32| {
-                let row = rows[arg as usize].expect("lane argument read");
-                let p = if index == 0 {
-                    row
-                } else {
-                    let off = b.ins().imul_imm_s(stride, index as i64);
-                    b.ins().iadd(row, off)
-                };
-                b.ins().load(F64X2, flags(), p, 0)
-            };
-            emit_vector(&mut b, &sigs, tables, &k, node, &get, &mut load)
-        };
-        vvals[id as usize] = Some(val);
-    }
     let orow = b.ins().iadd(out, loff);
-    for (j, &o) in plan.outputs.iter().enumerate() {
-        let v = vvals[o as usize].expect("outputs are computed");
+    let lb = LaneBody {
+        graph,
+        plan,
+        ptrs: &ptrs,
+        rows: &rows,
+        uniforms,
+        uniform_offset: &uniform_offset,
+        stride,
+    };
+    let outs = outputs_by_node(plan, graph.len());
+    let store = |b: &mut FunctionBuilder, v: Value, j: usize| {
         let p = if j == 0 {
             orow
         } else {
@@ -1103,19 +1263,35 @@ fn build_lanes(
             b.ins().iadd(orow, off)
         };
         b.ins().store(flags(), v, p, 0);
+    };
+    for &id in &plan.varying_order {
+        let node = graph.node(id);
+        let val = {
+            let mut get = |b: &mut FunctionBuilder, o| lb.operand(b, &vvals, o);
+            emit_vector(&mut b, &sigs, tables, &k, node, &mut get)
+        };
+        vvals[id as usize] = Some(val);
+        for &j in &outs[id as usize] {
+            store(&mut b, val, j);
+        }
+    }
+    for (j, &o) in plan.outputs.iter().enumerate() {
+        if plan.uniform[o as usize] || is_leaf(graph.node(o)) {
+            let v = lb.operand(&mut b, &vvals, o);
+            store(&mut b, v, j);
+        }
     }
     // Next pair; the last pair of an odd count overlaps the previous one.
     let next = b.ins().iadd_imm_s(l, 2);
     let done = b.ins().icmp(IntCC::UnsignedGreaterThanOrEqual, next, lanes);
-    let next = b.ins().umin(next, last);
-    let cont = b.create_block();
     b.ins().brif(done, exit, &[], cont, &[]);
     b.switch_to_block(cont);
-    b.ins().jump(body, &[BlockArg::Value(next)]);
+    let next = b.ins().umin(next, last);
+    b.ins()
+        .jump(body, &[BlockArg::Value(next), BlockArg::Value(stride)]);
 
     b.switch_to_block(exit);
     b.ins().return_(&[]);
     b.seal_all_blocks();
     b.finalize(config);
-    Ok(())
 }

@@ -132,7 +132,15 @@ fn check(
     draw: fn(&mut Rng) -> f64,
 ) {
     for opt in [OptLevel::None, OptLevel::Speed] {
-        let c = jit::compile_with(g, specs, &Options { opt_level: opt }).expect("compiles");
+        let c = jit::compile_with(
+            g,
+            specs,
+            &Options {
+                opt_level: opt,
+                ..Options::default()
+            },
+        )
+        .expect("compiles");
         let mut rng = Rng(seed);
         for (f, spec) in specs.iter().enumerate() {
             let n_out = spec.outputs.len();

@@ -188,29 +188,44 @@ fn fput_grad_soa(q: &[f64], out: &mut [f64], n: usize, lanes: usize, beta: f64, 
 // ----------------------------------------------------------------------------------------------
 // Timing.
 
-/// Median over `runs` of the time per call of `f`, each run at least `min_run` long.
-fn time_per_call(mut f: impl FnMut(), min_run: Duration, runs: usize) -> f64 {
+/// Time per call of `a` and of `b`, measured in alternating short runs so that both see the
+/// same interference (this machine is shared): the minimum over runs of each (the least
+/// disturbed estimate) and the median of the per-round ratio `a / b`.
+fn time_pair(
+    mut a: impl FnMut(),
+    mut b: impl FnMut(),
+    min_run: Duration,
+    rounds: usize,
+) -> (f64, f64, f64) {
     let mut iters = 1u64;
     loop {
         let t = Instant::now();
         for _ in 0..iters {
-            f();
+            a();
         }
-        if t.elapsed() >= min_run / 4 {
+        if t.elapsed() >= min_run {
             break;
         }
         iters *= 2;
     }
-    let mut per = Vec::with_capacity(runs);
-    for _ in 0..runs {
+    let run = |f: &mut dyn FnMut()| {
         let t = Instant::now();
-        for _ in 0..iters * 4 {
+        for _ in 0..iters {
             f();
         }
-        per.push(t.elapsed().as_secs_f64() / (iters * 4) as f64);
+        t.elapsed().as_secs_f64() / iters as f64
+    };
+    let (mut ta, mut tb, mut ratio) = (Vec::new(), Vec::new(), Vec::new());
+    for _ in 0..rounds {
+        let x = run(&mut a);
+        let y = run(&mut b);
+        ta.push(x);
+        tb.push(y);
+        ratio.push(x / y);
     }
-    per.sort_by(f64::total_cmp);
-    per[runs / 2]
+    ratio.sort_by(f64::total_cmp);
+    let min = |v: &[f64]| v.iter().copied().fold(f64::INFINITY, f64::min);
+    (min(&ta), min(&tb), ratio[rounds / 2])
 }
 
 /// The hot-path call: the raw lane function with argument pointers prepared once, as the
@@ -222,12 +237,22 @@ fn lanes_call(c: &Compiled, f: usize, ptrs: &[*const f64], out: &mut [f64], lane
     unsafe { raw(ptrs.as_ptr(), out.as_mut_ptr(), lanes) }
 }
 
+/// (opt_level, its name, lanes per loop iteration, size threshold) measured: each setting on
+/// every function, then the defaults (`speed`, 4 lanes, but `none` and 2 lanes above 2000
+/// operations).
+const CONFIGS: [(OptLevel, &str, usize, usize); 4] = [
+    (OptLevel::None, "none", 2, usize::MAX),
+    (OptLevel::Speed, "speed", 2, usize::MAX),
+    (OptLevel::Speed, "speed", 4, usize::MAX),
+    (OptLevel::Speed, "default", 4, 2000),
+];
+
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
     let (min_run, runs) = if quick {
-        (Duration::from_millis(10), 3)
+        (Duration::from_millis(2), 9)
     } else {
-        (Duration::from_millis(40), 7)
+        (Duration::from_millis(5), 41)
     };
     let probe = {
         let mut g = Graph::new();
@@ -248,7 +273,7 @@ fn main() {
         } else {
             fput(&mut g, n, 0.7)
         };
-        for (opt, label) in [(OptLevel::None, "none"), (OptLevel::Speed, "speed")] {
+        for (opt, label, lane_block, large_function) in CONFIGS {
             let mut times: Vec<f64> = (0..if quick { 1 } else { 3 })
                 .map(|_| {
                     jit::compile_with(
@@ -256,6 +281,8 @@ fn main() {
                         &specs(&gr, &hv),
                         &Options {
                             opt_level: opt,
+                            lane_block,
+                            large_function,
                             ..Options::default()
                         },
                     )
@@ -271,6 +298,8 @@ fn main() {
                     &[spec],
                     &Options {
                         opt_level: opt,
+                        lane_block,
+                        large_function,
                         ..Options::default()
                     },
                 )
@@ -284,7 +313,7 @@ fn main() {
             let (t_grad, t_hvp) = (one(grad_spec), one(hvp_spec));
             env.line(&format!(
                 "\"bench\":\"compile\",\"system\":\"{name}\",\"n\":{n},\"graph_nodes\":{},\
-                 \"functions\":\"grad+hvp (scalar+lanes each)\",\"opt_level\":\"{label}\",\
+                 \"functions\":\"grad+hvp (scalar+lanes each)\",\"opt_level\":\"{label}\",\"lane_block\":{lane_block},\
                  \"compile_ms\":{:.3},\"grad_only_ms\":{t_grad:.3},\"hvp_only_ms\":{t_hvp:.3}",
                 g.len(),
                 times[times.len() / 2] * 1e3
@@ -295,12 +324,14 @@ fn main() {
     // Throughput: HH gradient.
     let mut g = Graph::new();
     let (gr, hv) = henon_heiles(&mut g);
-    for (opt, label) in [(OptLevel::None, "none"), (OptLevel::Speed, "speed")] {
+    for (opt, label, lane_block, large_function) in CONFIGS {
         let c = jit::compile_with(
             &g,
             &specs(&gr, &hv),
             &Options {
                 opt_level: opt,
+                lane_block,
+                large_function,
                 ..Options::default()
             },
         )
@@ -317,21 +348,17 @@ fn main() {
                     .all(|(a, b)| a.to_bits() == b.to_bits())
             );
             let ptrs = [q.as_ptr()];
-            let t_jit = time_per_call(
+            let (t_jit, t_hand, ratio) = time_pair(
                 || lanes_call(&c, 0, black_box(&ptrs), black_box(&mut out), lanes),
-                min_run,
-                runs,
-            );
-            let t_hand = time_per_call(
                 || hh_grad_soa(black_box(&q), black_box(&mut hand), lanes),
                 min_run,
                 runs,
             );
             env.line(&format!(
                 "\"bench\":\"eval\",\"system\":\"henon_heiles\",\"function\":\"grad\",\
-                 \"opt_level\":\"{label}\",\"lanes\":{lanes},\"jit_ns_per_call\":{:.2},\
+                 \"opt_level\":\"{label}\",\"lane_block\":{lane_block},\"lanes\":{lanes},\"jit_ns_per_call\":{:.2},\
                  \"hand_ns_per_call\":{:.2},\"jit_ns_per_lane\":{:.3},\"hand_ns_per_lane\":{:.3},\
-                 \"jit_over_hand\":{:.3}",
+                 \"jit_over_hand_min\":{:.3},\"jit_over_hand_median_round\":{ratio:.3}",
                 t_jit * 1e9,
                 t_hand * 1e9,
                 t_jit * 1e9 / lanes as f64,
@@ -346,12 +373,14 @@ fn main() {
         let beta = 0.7;
         let mut g = Graph::new();
         let (gr, hv) = fput(&mut g, n as u32, beta);
-        for (opt, label) in [(OptLevel::None, "none"), (OptLevel::Speed, "speed")] {
+        for (opt, label, lane_block, large_function) in CONFIGS {
             let c = jit::compile_with(
                 &g,
                 &specs(&gr, &hv),
                 &Options {
                     opt_level: opt,
+                    lane_block,
+                    large_function,
                     ..Options::default()
                 },
             )
@@ -371,21 +400,17 @@ fn main() {
                         .all(|(a, b)| a.to_bits() == b.to_bits())
                 );
                 let ptrs = [q.as_ptr()];
-                let t_jit = time_per_call(
+                let (t_jit, t_hand, ratio) = time_pair(
                     || lanes_call(&c, 0, black_box(&ptrs), black_box(&mut out), lanes),
-                    min_run,
-                    runs,
-                );
-                let t_hand = time_per_call(
                     || fput_grad_soa(black_box(&q), black_box(&mut hand), n, lanes, beta, &zero),
                     min_run,
                     runs,
                 );
                 env.line(&format!(
                     "\"bench\":\"eval\",\"system\":\"fput\",\"n\":{n},\"function\":\"grad\",\
-                     \"opt_level\":\"{label}\",\"lanes\":{lanes},\"jit_ns_per_call\":{:.1},\
+                     \"opt_level\":\"{label}\",\"lane_block\":{lane_block},\"lanes\":{lanes},\"jit_ns_per_call\":{:.1},\
                      \"hand_ns_per_call\":{:.1},\"jit_ns_per_site_lane\":{:.3},\
-                     \"hand_ns_per_site_lane\":{:.3},\"jit_over_hand\":{:.3}",
+                     \"hand_ns_per_site_lane\":{:.3},\"jit_over_hand_min\":{:.3},\"jit_over_hand_median_round\":{ratio:.3}",
                     t_jit * 1e9,
                     t_hand * 1e9,
                     t_jit * 1e9 / (n * lanes) as f64,

@@ -34,7 +34,7 @@ use cranelift_codegen::Context;
 use cranelift_codegen::ir::condcodes::{FloatCC, IntCC};
 use cranelift_codegen::ir::types::{F64, F64X2, I64};
 use cranelift_codegen::ir::{
-    AbiParam, BlockArg, Endianness, InstBuilder, MemFlagsData, SigRef, Signature, StackSlot,
+    AbiParam, Block, BlockArg, Endianness, InstBuilder, MemFlagsData, SigRef, Signature, StackSlot,
     StackSlotData, StackSlotKind, UserFuncName, Value,
 };
 use cranelift_codegen::settings::{self, Configurable};
@@ -86,15 +86,27 @@ pub enum Regalloc {
 pub struct Options {
     pub opt_level: OptLevel,
     pub regalloc: Regalloc,
+    /// Lanes per loop iteration: 2 (one `F64X2` per value) or 4 (two independent `F64X2`
+    /// chains; lane counts 2 and 3 then use a second, two-lane copy of the loop).
+    pub lane_block: usize,
+    /// Functions with more operations than this are compiled with `OptLevel::None` and two-lane
+    /// blocks whatever the two fields above say: Cranelift's optimizer and a second loop body
+    /// cost compile time in proportion to size (an FPUT chain of 1001 sites: 0.2 s instead of
+    /// 0.6-1.4 s for gradient and HVP), for a measured gain of 0-15% on such functions.
+    pub large_function: usize,
 }
 
 impl Default for Options {
-    /// `opt_level = speed`: measured (see `benches/jit.rs`) to cost little extra compile time on
-    /// the straight-line code the graphs produce.
+    /// Chosen by measurement (`benches/jit.rs`): `speed` and four lanes per iteration make the
+    /// small functions (a Henon-Heiles gradient) up to 2x faster than `none` and two lanes, at
+    /// a compile cost that only matters for large functions, which `large_function` sends to
+    /// `none` and two lanes (an FPUT chain of 1001 sites: gradient and HVP in about 0.2 s).
     fn default() -> Self {
         Options {
             opt_level: OptLevel::Speed,
             regalloc: Regalloc::Backtracking,
+            lane_block: 4,
+            large_function: 2000,
         }
     }
 }
@@ -182,7 +194,7 @@ struct FnInfo {
 /// to immutable code, and the tables are `Arc<dyn Tabulated>` (`Send + Sync` by the trait's
 /// bounds).
 pub struct Compiled {
-    module: Mutex<Option<JITModule>>,
+    modules: Mutex<Vec<JITModule>>,
     fns: Vec<FnInfo>,
     /// Read by the compiled code through `*const Arc<dyn Tabulated>` pointers into this boxed
     /// slice, which never moves or changes after compilation.
@@ -193,11 +205,11 @@ pub struct Compiled {
 
 impl Drop for Compiled {
     fn drop(&mut self) {
-        let module = match self.module.get_mut() {
-            Ok(m) => m.take(),
-            Err(poisoned) => poisoned.into_inner().take(),
+        let modules = match self.modules.get_mut() {
+            Ok(m) => std::mem::take(m),
+            Err(poisoned) => std::mem::take(poisoned.into_inner()),
         };
-        if let Some(module) = module {
+        for module in modules {
             // SAFETY: the function pointers handed out by `raw_scalar`/`raw_lanes` are documented
             // to be valid only while this `Compiled` lives, and `&self` calls cannot be running
             // while it is being dropped.
@@ -418,64 +430,37 @@ pub fn compile_with(
     options: &Options,
 ) -> Result<Compiled, JitError> {
     let start = Instant::now();
-    let mut flags = settings::builder();
-    let opt = match options.opt_level {
-        OptLevel::None => "none",
-        OptLevel::Speed => "speed",
-    };
-    let set = |flags: &mut settings::Builder, k: &str, v: &str| {
-        flags
-            .set(k, v)
-            .map_err(|e| JitError::Host(format!("setting {k}={v}: {e}")))
-    };
-    set(&mut flags, "opt_level", opt)?;
-    set(&mut flags, "use_colocated_libcalls", "false")?;
-    set(&mut flags, "is_pic", "false")?;
-    // Frames beyond a page (thousands of spill slots or uniform values) touch every page on
-    // entry, so a deep frame hits the guard page instead of jumping over it.
-    set(&mut flags, "enable_probestack", "true")?;
-    set(&mut flags, "probestack_strategy", "inline")?;
-    set(
-        &mut flags,
-        "regalloc_algorithm",
-        match options.regalloc {
-            Regalloc::Backtracking => "backtracking",
-            Regalloc::SinglePass => "single_pass",
-        },
-    )?;
-    // The IR verifier costs compile time; this module's IR is checked by the tests (debug).
-    set(
-        &mut flags,
-        "enable_verifier",
-        if cfg!(debug_assertions) {
-            "true"
-        } else {
-            "false"
-        },
-    )?;
-    let isa_builder = cranelift_native::builder().map_err(|e| JitError::Host(e.to_string()))?;
-    let isa = isa_builder
-        .finish(settings::Flags::new(flags))
-        .map_err(|e| JitError::Host(e.to_string()))?;
-    let features: Vec<&str> = isa
-        .isa_flags()
-        .iter()
-        .filter(|v| v.as_bool() == Some(true))
-        .map(|v| v.name)
-        .collect();
-    let isa_name = format!("{} [{}]", isa.triple(), features.join(","));
-    let mut module = JITModule::new(JITBuilder::with_isa(
-        isa,
-        cranelift_module::default_libcall_names(),
-    ));
-
+    if options.lane_block != 2 && options.lane_block != 4 {
+        return Err(JitError::Host(format!(
+            "lane_block must be 2 or 4, not {}",
+            options.lane_block
+        )));
+    }
+    // One module per optimization level actually used (Cranelift's level is a per-ISA flag).
+    let mut modules: Vec<(OptLevel, JITModule)> = Vec::new();
+    let mut isa_name = String::new();
     let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
-    let mut ctx = module.make_context();
+    let mut ctx = Context::new();
     let mut fctx = FunctionBuilderContext::new();
-    let mut ids = Vec::with_capacity(specs.len());
-    let mut infos = Vec::with_capacity(specs.len());
+    let mut defined = Vec::with_capacity(specs.len());
     for (f, spec) in specs.iter().enumerate() {
         let plan = Plan::new(graph, spec, f)?;
+        let large = plan.scalar_order.len() > options.large_function;
+        let (opt, lane_block) = if large {
+            (OptLevel::None, 2)
+        } else {
+            (options.opt_level, options.lane_block)
+        };
+        let m = match modules.iter().position(|(o, _)| *o == opt) {
+            Some(m) => m,
+            None => {
+                let (module, name) = new_module(opt, options.regalloc)?;
+                isa_name = name;
+                modules.push((opt, module));
+                modules.len() - 1
+            }
+        };
+        let module = &mut modules[m].1;
         let ptr = module.target_config().pointer_type();
         let mut sig_s = module.make_signature();
         sig_s.params.push(AbiParam::new(ptr));
@@ -499,37 +484,38 @@ pub fn compile_with(
         module.clear_context(&mut ctx);
         ctx.func.signature = sig_s;
         ctx.func.name = UserFuncName::user(0, id_s.as_u32());
-        build_scalar(&mut ctx, &mut fctx, &module, graph, &plan, &tables);
-        module
-            .define_function(id_s, &mut ctx)
+        let mut emit = Emit {
+            graph,
+            plan: &plan,
+            tables: &tables,
+            module,
+            ctx: &mut ctx,
+            fctx: &mut fctx,
+        };
+        emit.scalar();
+        emit.module
+            .define_function(id_s, emit.ctx)
             .map_err(codegen("scalar"))?;
 
-        module.clear_context(&mut ctx);
-        ctx.func.signature = sig_l;
-        ctx.func.name = UserFuncName::user(0, id_l.as_u32());
-        build_lanes(
-            &mut ctx,
-            &mut fctx,
-            &mut module,
-            graph,
-            &plan,
-            &tables,
-            id_s,
-        );
-        module
-            .define_function(id_l, &mut ctx)
+        emit.module.clear_context(emit.ctx);
+        emit.ctx.func.signature = sig_l;
+        emit.ctx.func.name = UserFuncName::user(0, id_l.as_u32());
+        emit.lanes(id_s, lane_block / 2);
+        emit.module
+            .define_function(id_l, emit.ctx)
             .map_err(codegen("lanes"))?;
-        ids.push((id_s, id_l));
-        infos.push((spec.args.clone(), plan.arg_len.clone(), spec.outputs.len()));
+        defined.push((m, id_s, id_l, spec.args.clone(), plan.arg_len.clone()));
     }
-    module.clear_context(&mut ctx);
-    module
-        .finalize_definitions()
-        .map_err(|e| JitError::Link(format!("{e:?}")))?;
-    let fns = ids
+    for (_, module) in &mut modules {
+        module
+            .finalize_definitions()
+            .map_err(|e| JitError::Link(format!("{e:?}")))?;
+    }
+    let fns = defined
         .into_iter()
-        .zip(infos)
-        .map(|((id_s, id_l), (layouts, arg_len, n_out))| {
+        .zip(specs)
+        .map(|((m, id_s, id_l, layouts, arg_len), spec)| {
+            let module = &modules[m].1;
             let ps = module.get_finalized_function(id_s);
             let pl = module.get_finalized_function(id_l);
             // SAFETY: both were defined above with exactly these signatures (two or three
@@ -543,19 +529,71 @@ pub fn compile_with(
             FnInfo {
                 layouts,
                 arg_len,
-                n_out,
+                n_out: spec.outputs.len(),
                 scalar,
                 lanes,
             }
         })
         .collect();
+    if isa_name.is_empty() {
+        isa_name = new_module(options.opt_level, options.regalloc)?.1;
+    }
     Ok(Compiled {
-        module: Mutex::new(Some(module)),
+        modules: Mutex::new(modules.into_iter().map(|(_, m)| m).collect()),
         fns,
         _tables: tables,
         compile_time: start.elapsed(),
         isa: isa_name,
     })
+}
+
+/// A JIT module for the host at one optimization level, and a description of the target.
+fn new_module(opt: OptLevel, regalloc: Regalloc) -> Result<(JITModule, String), JitError> {
+    let mut flags = settings::builder();
+    let set = |flags: &mut settings::Builder, k: &str, v: &str| {
+        flags
+            .set(k, v)
+            .map_err(|e| JitError::Host(format!("setting {k}={v}: {e}")))
+    };
+    let opt = match opt {
+        OptLevel::None => "none",
+        OptLevel::Speed => "speed",
+    };
+    set(&mut flags, "opt_level", opt)?;
+    set(&mut flags, "use_colocated_libcalls", "false")?;
+    set(&mut flags, "is_pic", "false")?;
+    // Frames beyond a page (thousands of spill slots or uniform values) touch every page on
+    // entry, so a deep frame hits the guard page instead of jumping over it.
+    set(&mut flags, "enable_probestack", "true")?;
+    set(&mut flags, "probestack_strategy", "inline")?;
+    let regalloc = match regalloc {
+        Regalloc::Backtracking => "backtracking",
+        Regalloc::SinglePass => "single_pass",
+    };
+    set(&mut flags, "regalloc_algorithm", regalloc)?;
+    // The IR verifier costs compile time; this module's IR is checked by the tests (debug).
+    let verify = if cfg!(debug_assertions) {
+        "true"
+    } else {
+        "false"
+    };
+    set(&mut flags, "enable_verifier", verify)?;
+    let isa_builder = cranelift_native::builder().map_err(|e| JitError::Host(e.to_string()))?;
+    let isa = isa_builder
+        .finish(settings::Flags::new(flags))
+        .map_err(|e| JitError::Host(e.to_string()))?;
+    let features: Vec<&str> = isa
+        .isa_flags()
+        .iter()
+        .filter(|v| v.as_bool() == Some(true))
+        .map(|v| v.name)
+        .collect();
+    let name = format!("{} [{}]", isa.triple(), features.join(","));
+    let module = JITModule::new(JITBuilder::with_isa(
+        isa,
+        cranelift_module::default_libcall_names(),
+    ));
+    Ok((module, name))
 }
 
 /// What one function needs from the graph.
@@ -1053,6 +1091,33 @@ fn operand_scalar(
     }
 }
 
+/// One function being generated.
+struct Emit<'a> {
+    graph: &'a Graph,
+    plan: &'a Plan,
+    tables: &'a [Arc<dyn Tabulated>],
+    module: &'a mut JITModule,
+    ctx: &'a mut Context,
+    fctx: &'a mut FunctionBuilderContext,
+}
+
+impl Emit<'_> {
+    fn scalar(&mut self) {
+        build_scalar(
+            self.ctx,
+            self.fctx,
+            self.module,
+            self.graph,
+            self.plan,
+            self.tables,
+        );
+    }
+
+    fn lanes(&mut self, scalar: FuncId, units: usize) {
+        build_lanes(self, scalar, units);
+    }
+}
+
 fn build_scalar(
     ctx: &mut Context,
     fctx: &mut FunctionBuilderContext,
@@ -1111,7 +1176,13 @@ struct LaneBody<'a> {
 impl LaneBody<'_> {
     /// A two-lane operand: leaves afresh at each use (a `Lanes` entry is one unaligned 16-byte
     /// load, a shared entry or a constant a load and broadcast), other nodes as computed.
-    fn operand(&self, b: &mut FunctionBuilder, vvals: &[Option<Value>], id: NodeId) -> Value {
+    fn operand(
+        &self,
+        b: &mut FunctionBuilder,
+        vvals: &[Option<[Value; 2]>],
+        id: NodeId,
+        unit: usize,
+    ) -> Value {
         match *self.graph.node(id) {
             Node::Const(c) => {
                 let s = b.ins().f64const(c);
@@ -1131,7 +1202,7 @@ impl LaneBody<'_> {
                         let off = b.ins().imul_imm_s(self.stride, index as i64);
                         b.ins().iadd(row, off)
                     };
-                    b.ins().load(F64X2, flags(), p, 0)
+                    b.ins().load(F64X2, flags(), p, 16 * unit as i32)
                 }
             },
             _ if self.plan.uniform[id as usize] => {
@@ -1139,20 +1210,14 @@ impl LaneBody<'_> {
                 let s = b.ins().stack_load(I64, F64, self.uniforms, off);
                 b.ins().splat(F64X2, s)
             }
-            _ => vvals[id as usize].expect("operands come first"),
+            _ => vvals[id as usize].expect("operands come first")[unit],
         }
     }
 }
 
-fn build_lanes(
-    ctx: &mut Context,
-    fctx: &mut FunctionBuilderContext,
-    module: &mut JITModule,
-    graph: &Graph,
-    plan: &Plan,
-    tables: &[Arc<dyn Tabulated>],
-    scalar: FuncId,
-) {
+fn build_lanes(e: &mut Emit, scalar: FuncId, units: usize) {
+    let (graph, plan, tables) = (e.graph, e.plan, e.tables);
+    let (ctx, fctx, module) = (&mut *e.ctx, &mut *e.fctx, &mut *e.module);
     let scalar_ref = module.declare_func_in_func(scalar, &mut ctx.func);
     let config = module.target_config();
     let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
@@ -1200,7 +1265,6 @@ fn build_lanes(
     ));
     let mut uniform_offset = vec![0u32; graph.len()];
     let mut svals: Vec<Option<Value>> = vec![None; graph.len()];
-    let mut vvals: Vec<Option<Value>> = vec![None; graph.len()];
     let mut next_offset = 0u32;
     for &id in &plan.uniform_order {
         let node = graph.node(id);
@@ -1227,68 +1291,103 @@ fn build_lanes(
             nan: sp(f64::NAN),
         }
     };
-    let last = b.ins().iadd_imm_s(lanes, -2);
     let stride0 = b.ins().ishl_imm_u(lanes, 3);
     let zero = b.ins().iconst(I64, 0);
-    b.ins()
-        .jump(body, &[BlockArg::Value(zero), BlockArg::Value(stride0)]);
 
-    // body(l, stride): lanes l and l + 1.
-    b.switch_to_block(body);
-    let loff = b.ins().ishl_imm_u(l, 3);
-    let rows: Vec<Option<Value>> = ptrs
-        .iter()
-        .zip(&plan.layouts)
-        .map(|(p, &layout)| match (p, layout) {
-            (Some(p), Layout::Lanes) => Some(b.ins().iadd(*p, loff)),
-            _ => None,
-        })
-        .collect();
-    let orow = b.ins().iadd(out, loff);
-    let lb = LaneBody {
-        graph,
-        plan,
-        ptrs: &ptrs,
-        rows: &rows,
-        uniforms,
-        uniform_offset: &uniform_offset,
-        stride,
+    let body_pair = b.create_block();
+    let cont_pair = b.create_block();
+    let lp = b.append_block_param(body_pair, I64);
+    let stride_p = b.append_block_param(body_pair, I64);
+    let bodies: Vec<(usize, Block, Block, Value, Value)> = if units == 2 {
+        vec![
+            (2, body, cont, l, stride),
+            (1, body_pair, cont_pair, lp, stride_p),
+        ]
+    } else {
+        vec![(1, body, cont, l, stride)]
     };
+    if units == 2 {
+        // Fewer lanes than one block: the two-lane loop.
+        let small = b.ins().icmp_imm_u(IntCC::UnsignedLessThan, lanes, 4);
+        b.ins().brif(
+            small,
+            body_pair,
+            &[BlockArg::Value(zero), BlockArg::Value(stride0)],
+            body,
+            &[BlockArg::Value(zero), BlockArg::Value(stride0)],
+        );
+    } else {
+        b.ins()
+            .jump(body, &[BlockArg::Value(zero), BlockArg::Value(stride0)]);
+    }
     let outs = outputs_by_node(plan, graph.len());
-    let store = |b: &mut FunctionBuilder, v: Value, j: usize| {
-        let p = if j == 0 {
-            orow
-        } else {
-            let off = b.ins().imul_imm_s(stride, j as i64);
-            b.ins().iadd(orow, off)
+    for (units, body, cont, l, stride) in bodies {
+        // body(l, stride): lanes l .. l + 2 units.
+        b.switch_to_block(body);
+        let loff = b.ins().ishl_imm_u(l, 3);
+        let rows: Vec<Option<Value>> = ptrs
+            .iter()
+            .zip(&plan.layouts)
+            .map(|(p, &layout)| match (p, layout) {
+                (Some(p), Layout::Lanes) => Some(b.ins().iadd(*p, loff)),
+                _ => None,
+            })
+            .collect();
+        let orow = b.ins().iadd(out, loff);
+        let lb = LaneBody {
+            graph,
+            plan,
+            ptrs: &ptrs,
+            rows: &rows,
+            uniforms,
+            uniform_offset: &uniform_offset,
+            stride,
         };
-        b.ins().store(flags(), v, p, 0);
-    };
-    for &id in &plan.varying_order {
-        let node = graph.node(id);
-        let val = {
-            let mut get = |b: &mut FunctionBuilder, o| lb.operand(b, &vvals, o);
-            emit_vector(&mut b, &sigs, tables, &k, node, &mut get)
+        let store = |b: &mut FunctionBuilder, v: Value, j: usize, unit: usize| {
+            let p = if j == 0 {
+                orow
+            } else {
+                let off = b.ins().imul_imm_s(stride, j as i64);
+                b.ins().iadd(orow, off)
+            };
+            b.ins().store(flags(), v, p, 16 * unit as i32);
         };
-        vvals[id as usize] = Some(val);
-        for &j in &outs[id as usize] {
-            store(&mut b, val, j);
+        let mut vvals: Vec<Option<[Value; 2]>> = vec![None; graph.len()];
+        for &id in &plan.varying_order {
+            let node = graph.node(id);
+            let mut emitted = [None; 2];
+            for (unit, slot) in emitted.iter_mut().enumerate().take(units) {
+                let mut get = |b: &mut FunctionBuilder, o| lb.operand(b, &vvals, o, unit);
+                *slot = Some(emit_vector(&mut b, &sigs, tables, &k, node, &mut get));
+            }
+            let v0 = emitted[0].expect("at least one unit");
+            let val = [v0, emitted[1].unwrap_or(v0)];
+            vvals[id as usize] = Some(val);
+            for &j in &outs[id as usize] {
+                for (unit, &v) in val.iter().enumerate().take(units) {
+                    store(&mut b, v, j, unit);
+                }
+            }
         }
-    }
-    for (j, &o) in plan.outputs.iter().enumerate() {
-        if plan.uniform[o as usize] || is_leaf(graph.node(o)) {
-            let v = lb.operand(&mut b, &vvals, o);
-            store(&mut b, v, j);
+        for (j, &o) in plan.outputs.iter().enumerate() {
+            if plan.uniform[o as usize] || is_leaf(graph.node(o)) {
+                for unit in 0..units {
+                    let v = lb.operand(&mut b, &vvals, o, unit);
+                    store(&mut b, v, j, unit);
+                }
+            }
         }
+        // Next block; the last block of a count that is not a multiple overlaps the previous.
+        let width = 2 * units as i64;
+        let next = b.ins().iadd_imm_s(l, width);
+        let done = b.ins().icmp(IntCC::UnsignedGreaterThanOrEqual, next, lanes);
+        b.ins().brif(done, exit, &[], cont, &[]);
+        b.switch_to_block(cont);
+        let last = b.ins().iadd_imm_s(lanes, -width);
+        let next = b.ins().umin(next, last);
+        b.ins()
+            .jump(body, &[BlockArg::Value(next), BlockArg::Value(stride)]);
     }
-    // Next pair; the last pair of an odd count overlaps the previous one.
-    let next = b.ins().iadd_imm_s(l, 2);
-    let done = b.ins().icmp(IntCC::UnsignedGreaterThanOrEqual, next, lanes);
-    b.ins().brif(done, exit, &[], cont, &[]);
-    b.switch_to_block(cont);
-    let next = b.ins().umin(next, last);
-    b.ins()
-        .jump(body, &[BlockArg::Value(next), BlockArg::Value(stride)]);
 
     b.switch_to_block(exit);
     b.ins().return_(&[]);

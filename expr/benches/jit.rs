@@ -229,19 +229,20 @@ fn time_pair(
 }
 
 /// The hot-path call: the raw lane function with argument pointers prepared once, as the
-/// batched kernel will call it.
+/// batched kernel will call it (one call over all lanes, `stride == lanes`).
 fn lanes_call(c: &Compiled, f: usize, ptrs: &[*const f64], out: &mut [f64], lanes: usize) {
     let raw = c.raw_lanes(f);
     // SAFETY: the arrays behind `ptrs` and `out` have the sizes `call_lanes` checked once on the
     // same arrays before timing.
-    unsafe { raw(ptrs.as_ptr(), out.as_mut_ptr(), lanes) }
+    unsafe { raw(ptrs.as_ptr(), out.as_mut_ptr(), lanes, lanes) }
 }
 
 /// (opt_level, its name, lanes per loop iteration, size threshold) measured: each setting on
 /// every function, then the defaults (`speed`, 4 lanes, but `none` and 2 lanes above 2000
 /// operations).
-const CONFIGS: [(OptLevel, &str, usize, usize); 4] = [
+const CONFIGS: [(OptLevel, &str, usize, usize); 5] = [
     (OptLevel::None, "none", 2, usize::MAX),
+    (OptLevel::None, "none", 4, usize::MAX),
     (OptLevel::Speed, "speed", 2, usize::MAX),
     (OptLevel::Speed, "speed", 4, usize::MAX),
     (OptLevel::Speed, "default", 4, 2000),
@@ -249,6 +250,17 @@ const CONFIGS: [(OptLevel, &str, usize, usize); 4] = [
 
 fn main() {
     let quick = std::env::args().any(|a| a == "--quick");
+    // Optional filters (e.g. `compile`, `eval`, `fput1001`, `henon_heiles`): a case runs if every
+    // filter matches its kind or its system name (`fput` + N).
+    let filters: Vec<String> = std::env::args()
+        .skip(1)
+        .filter(|a| !a.starts_with("--"))
+        .collect();
+    let wanted = |kind: &str, system: &str| {
+        filters
+            .iter()
+            .all(|f| f == kind || system.contains(f.as_str()))
+    };
     let (min_run, runs) = if quick {
         (Duration::from_millis(2), 9)
     } else {
@@ -267,6 +279,14 @@ fn main() {
 
     // Compile times.
     for (name, n) in [("henon_heiles", 0u32), ("fput", 101), ("fput", 1001)] {
+        let system = if n == 0 {
+            name.to_string()
+        } else {
+            format!("{name}{n}")
+        };
+        if !wanted("compile", &system) {
+            continue;
+        }
         let mut g = Graph::new();
         let (gr, hv) = if n == 0 {
             henon_heiles(&mut g)
@@ -322,39 +342,40 @@ fn main() {
     }
 
     // Throughput: HH gradient.
-    let mut g = Graph::new();
-    let (gr, hv) = henon_heiles(&mut g);
-    for (opt, label, lane_block, large_function) in CONFIGS {
-        let c = jit::compile_with(
-            &g,
-            &specs(&gr, &hv),
-            &Options {
-                opt_level: opt,
-                lane_block,
-                large_function,
-                ..Options::default()
-            },
-        )
-        .unwrap();
-        for lanes in [8usize, 16, 64, 256] {
-            let q: Vec<f64> = (0..2 * lanes).map(|k| 0.01 * k as f64 - 0.3).collect();
-            let mut out = vec![0.0; 2 * lanes];
-            let mut hand = vec![0.0; 2 * lanes];
-            c.call_lanes(0, &[&q], &mut out, lanes);
-            hh_grad_soa(&q, &mut hand, lanes);
-            assert!(
-                out.iter()
-                    .zip(&hand)
-                    .all(|(a, b)| a.to_bits() == b.to_bits())
-            );
-            let ptrs = [q.as_ptr()];
-            let (t_jit, t_hand, ratio) = time_pair(
-                || lanes_call(&c, 0, black_box(&ptrs), black_box(&mut out), lanes),
-                || hh_grad_soa(black_box(&q), black_box(&mut hand), lanes),
-                min_run,
-                runs,
-            );
-            env.line(&format!(
+    if wanted("eval", "henon_heiles") {
+        let mut g = Graph::new();
+        let (gr, hv) = henon_heiles(&mut g);
+        for (opt, label, lane_block, large_function) in CONFIGS {
+            let c = jit::compile_with(
+                &g,
+                &specs(&gr, &hv),
+                &Options {
+                    opt_level: opt,
+                    lane_block,
+                    large_function,
+                    ..Options::default()
+                },
+            )
+            .unwrap();
+            for lanes in [8usize, 16, 64, 256] {
+                let q: Vec<f64> = (0..2 * lanes).map(|k| 0.01 * k as f64 - 0.3).collect();
+                let mut out = vec![0.0; 2 * lanes];
+                let mut hand = vec![0.0; 2 * lanes];
+                c.call_lanes(0, &[&q], &mut out, lanes);
+                hh_grad_soa(&q, &mut hand, lanes);
+                assert!(
+                    out.iter()
+                        .zip(&hand)
+                        .all(|(a, b)| a.to_bits() == b.to_bits())
+                );
+                let ptrs = [q.as_ptr()];
+                let (t_jit, t_hand, ratio) = time_pair(
+                    || lanes_call(&c, 0, black_box(&ptrs), black_box(&mut out), lanes),
+                    || hh_grad_soa(black_box(&q), black_box(&mut hand), lanes),
+                    min_run,
+                    runs,
+                );
+                env.line(&format!(
                 "\"bench\":\"eval\",\"system\":\"henon_heiles\",\"function\":\"grad\",\
                  \"opt_level\":\"{label}\",\"lane_block\":{lane_block},\"lanes\":{lanes},\"jit_ns_per_call\":{:.2},\
                  \"hand_ns_per_call\":{:.2},\"jit_ns_per_lane\":{:.3},\"hand_ns_per_lane\":{:.3},\
@@ -365,11 +386,15 @@ fn main() {
                 t_hand * 1e9 / lanes as f64,
                 t_jit / t_hand
             ));
+            }
         }
     }
 
     // Throughput: FPUT gradient.
     for n in [101usize, 1001] {
+        if !wanted("eval", &format!("fput{n}")) {
+            continue;
+        }
         let beta = 0.7;
         let mut g = Graph::new();
         let (gr, hv) = fput(&mut g, n as u32, beta);
@@ -400,17 +425,26 @@ fn main() {
                         .all(|(a, b)| a.to_bits() == b.to_bits())
                 );
                 let ptrs = [q.as_ptr()];
-                let (t_jit, t_hand, ratio) = time_pair(
+                let (t_single, _, ratio_single) = time_pair(
                     || lanes_call(&c, 0, black_box(&ptrs), black_box(&mut out), lanes),
+                    || fput_grad_soa(black_box(&q), black_box(&mut hand), n, lanes, beta, &zero),
+                    min_run,
+                    runs,
+                );
+                // `call_lanes`: checked, and split into 8-lane groups when the arrays are large.
+                let (t_jit, t_hand, ratio) = time_pair(
+                    || c.call_lanes(0, &[black_box(&q)], black_box(&mut out), lanes),
                     || fput_grad_soa(black_box(&q), black_box(&mut hand), n, lanes, beta, &zero),
                     min_run,
                     runs,
                 );
                 env.line(&format!(
                     "\"bench\":\"eval\",\"system\":\"fput\",\"n\":{n},\"function\":\"grad\",\
+                     \"single_call_ns_per_site_lane\":{:.3},\"single_call_over_hand_median_round\":{ratio_single:.3},\
                      \"opt_level\":\"{label}\",\"lane_block\":{lane_block},\"lanes\":{lanes},\"jit_ns_per_call\":{:.1},\
                      \"hand_ns_per_call\":{:.1},\"jit_ns_per_site_lane\":{:.3},\
                      \"hand_ns_per_site_lane\":{:.3},\"jit_over_hand_min\":{:.3},\"jit_over_hand_median_round\":{ratio:.3}",
+                    t_single * 1e9 / (n * lanes) as f64,
                     t_jit * 1e9,
                     t_hand * 1e9,
                     t_jit * 1e9 / (n * lanes) as f64,

@@ -6,26 +6,34 @@
 //!   `i` of lane `l` at `[i * lanes + l]`), as the batched integrators store their particles.
 //!
 //! Both perform exactly the IEEE operations [`Graph::apply_unary`], [`Graph::apply_binary`]
-//! and [`Graph::apply_powi`] define, in the same order, so they agree with the reference
-//! evaluator bit for bit (NaN payloads aside: IEEE 754 and Rust leave them unspecified, and the
-//! hardware picks one operand's payload). Transcendental functions (and powf, atan2, tables)
-//! are calls back into Rust functions that call those very definitions; `sqrt` is an IEEE
-//! operation and is emitted inline. No fused multiply-add is ever emitted: Cranelift only emits
-//! `fma` for an explicit `fma` instruction, which this module never creates.
+//! and [`Graph::apply_powi`] define, on the same operands in the same order, so they agree with
+//! the reference evaluator bit for bit (the tests find even NaN payloads equal, though IEEE 754
+//! leaves them unspecified). Transcendental functions (and powf, atan2, tables) are calls back
+//! into Rust functions that call those very definitions; `sqrt` is an IEEE operation and is
+//! emitted inline. No fused multiply-add is ever emitted: Cranelift only emits `fma` for an
+//! explicit `fma` instruction, which this module never creates.
 //!
 //! Lane functions:
 //! - *uniform hoisting*: every node that depends only on constants and `Layout::Scalar`
 //!   arguments (the stiffness at a shared reference position, say) is computed once, in scalar
-//!   code, before the lane loop, and broadcast;
-//! - the loop handles two lanes per iteration in `F64X2` registers (Cranelift's x86-64 back
-//!   end has 128-bit vectors only). Arithmetic, `sqrt`, `neg`, `abs` are the packed forms of the
-//!   same IEEE operations; `step`, `sign`, `max`, `min` and `select` are packed compares and
-//!   bit selects whose results match the scalar definitions including NaN and signed zeros;
-//!   transcendental operations extract both lanes and call the scalar callback;
-//! - an odd lane count is finished by one more two-lane iteration that *overlaps* the previous
-//!   one (lanes `lanes - 2` and `lanes - 1`): the overlapped lane is recomputed to the same bits,
-//!   so no separate scalar copy of the (possibly 30k-instruction) body is needed, which halves
-//!   code size and compile time. `lanes == 1` calls the scalar function (same layout).
+//!   code, before the lane loop, into a stack array the loop reads (and broadcasts) at each use;
+//! - the loop handles two or four lanes per iteration as one or two `F64X2` values per node
+//!   (Cranelift's x86-64 back end has 128-bit vectors only). Arithmetic, `sqrt`, `neg`, `abs`
+//!   are the packed forms of the same IEEE operations; `step`, `sign`, `max`, `min` and
+//!   `select` are packed compares and bit selects whose results match the scalar definitions
+//!   including NaN and signed zeros (`max` is not `maxpd`, which differs on `max(-0, +0)`);
+//!   transcendental operations extract the lanes and call the scalar callback for each;
+//! - a lane count that is not a multiple of the block is finished by one more block that
+//!   *overlaps* the previous one (lanes `lanes - block ..`): the overlapped lanes are recomputed
+//!   to the same bits, so no scalar copy of the (possibly 30k-instruction) body is needed.
+//!   `lanes == 1` calls the scalar function (same layout); with four-lane blocks, 2 and 3 lanes
+//!   use a second, two-lane copy of the loop.
+//!
+//! Code generation for large graphs (chains of a thousand sites give 10-30k operations per
+//! function) is kept linear: nodes are emitted just before their first use (not in the graph's
+//! order, which computes e.g. all bond stiffnesses first), constants and argument loads are
+//! re-emitted at each use, and outputs are stored as soon as computed, so few values are live
+//! at any point; large functions skip Cranelift's optimizer ([`Options::large_function`]).
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -35,7 +43,7 @@ use cranelift_codegen::ir::condcodes::{FloatCC, IntCC};
 use cranelift_codegen::ir::types::{F64, F64X2, I64};
 use cranelift_codegen::ir::{
     AbiParam, Block, BlockArg, Endianness, InstBuilder, MemFlagsData, SigRef, Signature, StackSlot,
-    StackSlotData, StackSlotKind, UserFuncName, Value,
+    StackSlotData, StackSlotKind, TrapCode, UserFuncName, Value,
 };
 use cranelift_codegen::settings::{self, Configurable};
 use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
@@ -168,15 +176,19 @@ pub enum JitError {
 /// call.
 pub type ScalarFnPtr = unsafe extern "C" fn(args: *const *const f64, out: *mut f64);
 
-/// A compiled lane function.
+/// A compiled lane function: `lanes` evaluations whose entry `i` of lane `l` is at
+/// `[i * stride + l]` (`stride == lanes` for a whole SoA array; `stride > lanes` evaluates a
+/// group of consecutive lanes of a wider array, the pointers offset to its first lane).
 ///
 /// # Safety contract
-/// As [`ScalarFnPtr`], with `lanes` evaluations: a `Layout::Lanes` argument `a` holds at least
-/// `arg_len(f, a) * lanes` values (`[i * lanes + l]`), a `Layout::Scalar` one `arg_len(f, a)`
-/// values, and `out` holds `output_len(f) * lanes` values (`[j * lanes + l]`) overlapping no
-/// argument (an odd lane count recomputes lane `lanes - 2` from the arguments after having
-/// written it). `lanes == 0` does nothing.
-pub type LanesFnPtr = unsafe extern "C" fn(args: *const *const f64, out: *mut f64, lanes: usize);
+/// As [`ScalarFnPtr`], with: a `Layout::Lanes` argument `a` readable at `[i * stride + l]` for
+/// `i < arg_len(f, a)`, `l < lanes`; a `Layout::Scalar` one holds `arg_len(f, a)` values; `out`
+/// writable at `[j * stride + l]` for `j < output_len(f)`, `l < lanes`, overlapping no argument
+/// (a lane count that is not a multiple of the block recomputes some lanes from the arguments
+/// after having written them); `lanes <= stride`. `lanes == 0` does nothing; `lanes == 1`
+/// requires `stride == 1` (it runs the scalar function) and traps otherwise.
+pub type LanesFnPtr =
+    unsafe extern "C" fn(args: *const *const f64, out: *mut f64, lanes: usize, stride: usize);
 
 struct FnInfo {
     layouts: Vec<Layout>,
@@ -185,6 +197,15 @@ struct FnInfo {
     scalar: ScalarFnPtr,
     lanes: LanesFnPtr,
 }
+
+/// Lanes per group when [`Compiled::call_lanes`] splits a large call: 8 `f64`, one cache line of
+/// each row.
+const LANE_GROUP: usize = 8;
+
+/// [`Compiled::call_lanes`] splits calls whose lane data exceed this many bytes (half a typical
+/// L2 cache): measured on an FPUT chain of 1001 sites, 64 lanes in one call ran 2-4x slower per
+/// lane than 8, the rows' cache lines being evicted between the blocks of lanes that share them.
+const GROUP_ABOVE_BYTES: usize = 256 * 1024;
 
 /// The compiled functions of one [`compile`] call. Owns the executable memory (freed on drop)
 /// and the tables the code calls into.
@@ -301,10 +322,54 @@ impl Compiled {
         if lanes == 0 {
             return;
         }
-        with_pointers(args, |ptrs| {
-            // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument.
-            unsafe { (info.lanes)(ptrs, out.as_mut_ptr(), lanes) }
-        });
+        // Rows of lane data touched per call (lane arguments and the output).
+        let rows: usize = info.n_out
+            + info
+                .layouts
+                .iter()
+                .zip(&info.arg_len)
+                .filter(|(l, _)| **l == Layout::Lanes)
+                .map(|(_, n)| n)
+                .sum::<usize>();
+        if lanes < 2 * LANE_GROUP || rows * lanes * 8 <= GROUP_ABOVE_BYTES {
+            with_pointers(args, |ptrs| {
+                // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument;
+                // `stride == lanes`.
+                unsafe { (info.lanes)(ptrs, out.as_mut_ptr(), lanes, lanes) }
+            });
+            return;
+        }
+        // Large arrays: groups of LANE_GROUP consecutive lanes (one cache line per row), the
+        // last group taking the remainder, so each cache line is used completely while it is
+        // in L1 instead of being fetched again for every block of lanes.
+        let mut small = [std::ptr::null::<f64>(); 8];
+        let mut heap = Vec::new();
+        let ptrs: &mut [*const f64] = if args.len() <= small.len() {
+            &mut small[..args.len()]
+        } else {
+            heap.resize(args.len(), std::ptr::null());
+            &mut heap
+        };
+        for (p, a) in ptrs.iter_mut().zip(args) {
+            *p = a.as_ptr();
+        }
+        let groups = lanes / LANE_GROUP;
+        for g in 0..groups {
+            let first = g * LANE_GROUP;
+            let count = if g + 1 == groups {
+                lanes - first
+            } else {
+                LANE_GROUP
+            };
+            for ((p, a), layout) in ptrs.iter_mut().zip(args).zip(&info.layouts) {
+                if *layout == Layout::Lanes {
+                    *p = a.as_ptr().wrapping_add(first);
+                }
+            }
+            // SAFETY: lengths checked above for `lanes` lanes; lanes `first .. first + count`
+            // (at least 2) of the same arrays, stride `lanes`, lie within them.
+            unsafe { (info.lanes)(ptrs.as_ptr(), out.as_mut_ptr().add(first), count, lanes) }
+        }
     }
 
     /// The scalar function's machine code, for hot loops that check lengths once outside. See
@@ -467,6 +532,7 @@ pub fn compile_with(
         sig_s.params.push(AbiParam::new(ptr));
         let mut sig_l = sig_s.clone();
         sig_l.params.push(AbiParam::new(ptr));
+        sig_l.params.push(AbiParam::new(ptr));
         let codegen = |variant: &'static str| {
             move |e: cranelift_module::ModuleError| JitError::Codegen {
                 function: f,
@@ -518,7 +584,7 @@ pub fn compile_with(
             let module = &modules[m].1;
             let ps = module.get_finalized_function(id_s);
             let pl = module.get_finalized_function(id_l);
-            // SAFETY: both were defined above with exactly these signatures (two or three
+            // SAFETY: both were defined above with exactly these signatures (two or four
             // pointer-sized integer parameters, no results, the host's C calling convention).
             let (scalar, lanes) = unsafe {
                 (
@@ -1235,10 +1301,11 @@ fn build_lanes(e: &mut Emit, scalar: FuncId, units: usize) {
     // entry: fewer than two lanes -> `single` (0: nothing; 1: the scalar function, whose layout
     // is the same).
     b.switch_to_block(entry);
-    let (args, out, lanes) = (
+    let (args, out, lanes, stride_elems) = (
         b.block_params(entry)[0],
         b.block_params(entry)[1],
         b.block_params(entry)[2],
+        b.block_params(entry)[3],
     );
     let few = b.ins().icmp_imm_u(IntCC::UnsignedLessThan, lanes, 2);
     b.ins().brif(few, single, &[], pre, &[]);
@@ -1247,6 +1314,13 @@ fn build_lanes(e: &mut Emit, scalar: FuncId, units: usize) {
     let one_lane = b.ins().icmp_imm_u(IntCC::Equal, lanes, 1);
     b.ins().brif(one_lane, call_block, &[], exit, &[]);
     b.switch_to_block(call_block);
+    let contiguous = b.ins().icmp_imm_u(IntCC::Equal, stride_elems, 1);
+    let call_scalar = b.create_block();
+    let misuse = b.create_block();
+    b.ins().brif(contiguous, call_scalar, &[], misuse, &[]);
+    b.switch_to_block(misuse);
+    b.ins().trap(TrapCode::unwrap_user(1));
+    b.switch_to_block(call_scalar);
     b.ins().call(scalar_ref, &[args, out]);
     b.ins().jump(exit, &[]);
 
@@ -1291,7 +1365,7 @@ fn build_lanes(e: &mut Emit, scalar: FuncId, units: usize) {
             nan: sp(f64::NAN),
         }
     };
-    let stride0 = b.ins().ishl_imm_u(lanes, 3);
+    let stride0 = b.ins().ishl_imm_u(stride_elems, 3);
     let zero = b.ins().iconst(I64, 0);
 
     let body_pair = b.create_block();

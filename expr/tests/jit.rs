@@ -642,7 +642,8 @@ fn small_and_large_functions_in_one_compile() {
     ];
     let c = jit::compile(&g2, &specs).unwrap();
     let mut rng = Rng(9);
-    for lanes in [1, 3, 8] {
+    // 33 lanes: split by `call_lanes` into groups of 8, 8, 8 and 9 lanes.
+    for lanes in [1, 3, 8, 33] {
         let args: Vec<Vec<f64>> = (0..2)
             .map(|_| (0..1001 * lanes).map(|_| rng.moderate()).collect())
             .collect();

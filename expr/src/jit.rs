@@ -6,26 +6,34 @@
 //!   `i` of lane `l` at `[i * lanes + l]`), as the batched integrators store their particles.
 //!
 //! Both perform exactly the IEEE operations [`Graph::apply_unary`], [`Graph::apply_binary`]
-//! and [`Graph::apply_powi`] define, in the same order, so they agree with the reference
-//! evaluator bit for bit (NaN payloads aside: IEEE 754 and Rust leave them unspecified, and the
-//! hardware picks one operand's payload). Transcendental functions (and powf, atan2, tables)
-//! are calls back into Rust functions that call those very definitions; `sqrt` is an IEEE
-//! operation and is emitted inline. No fused multiply-add is ever emitted: Cranelift only emits
-//! `fma` for an explicit `fma` instruction, which this module never creates.
+//! and [`Graph::apply_powi`] define, on the same operands in the same order, so they agree with
+//! the reference evaluator bit for bit (the tests find even NaN payloads equal, though IEEE 754
+//! leaves them unspecified). Transcendental functions (and powf, atan2, tables) are calls back
+//! into Rust functions that call those very definitions; `sqrt` is an IEEE operation and is
+//! emitted inline. No fused multiply-add is ever emitted: Cranelift only emits `fma` for an
+//! explicit `fma` instruction, which this module never creates.
 //!
 //! Lane functions:
 //! - *uniform hoisting*: every node that depends only on constants and `Layout::Scalar`
 //!   arguments (the stiffness at a shared reference position, say) is computed once, in scalar
-//!   code, before the lane loop, and broadcast;
-//! - the loop handles two lanes per iteration in `F64X2` registers (Cranelift's x86-64 back
-//!   end has 128-bit vectors only). Arithmetic, `sqrt`, `neg`, `abs` are the packed forms of the
-//!   same IEEE operations; `step`, `sign`, `max`, `min` and `select` are packed compares and
-//!   bit selects whose results match the scalar definitions including NaN and signed zeros;
-//!   transcendental operations extract both lanes and call the scalar callback;
-//! - an odd lane count is finished by one more two-lane iteration that *overlaps* the previous
-//!   one (lanes `lanes - 2` and `lanes - 1`): the overlapped lane is recomputed to the same bits,
-//!   so no separate scalar copy of the (possibly 30k-instruction) body is needed, which halves
-//!   code size and compile time. `lanes == 1` calls the scalar function (same layout).
+//!   code, before the lane loop, into a stack array the loop reads (and broadcasts) at each use;
+//! - the loop handles two or four lanes per iteration as one or two `F64X2` values per node
+//!   (Cranelift's x86-64 back end has 128-bit vectors only). Arithmetic, `sqrt`, `neg`, `abs`
+//!   are the packed forms of the same IEEE operations; `step`, `sign`, `max`, `min` and
+//!   `select` are packed compares and bit selects whose results match the scalar definitions
+//!   including NaN and signed zeros (`max` is not `maxpd`, which differs on `max(-0, +0)`);
+//!   transcendental operations extract the lanes and call the scalar callback for each;
+//! - a lane count that is not a multiple of the block is finished by one more block that
+//!   *overlaps* the previous one (lanes `lanes - block ..`): the overlapped lanes are recomputed
+//!   to the same bits, so no scalar copy of the (possibly 30k-instruction) body is needed.
+//!   `lanes == 1` calls the scalar function (same layout); with four-lane blocks, 2 and 3 lanes
+//!   use a second, two-lane copy of the loop.
+//!
+//! Code generation for large graphs (chains of a thousand sites give 10-30k operations per
+//! function) is kept linear: nodes are emitted just before their first use (not in the graph's
+//! order, which computes e.g. all bond stiffnesses first), constants and argument loads are
+//! re-emitted at each use, and outputs are stored as soon as computed, so few values are live
+//! at any point; large functions skip Cranelift's optimizer ([`Options::large_function`]).
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -34,8 +42,8 @@ use cranelift_codegen::Context;
 use cranelift_codegen::ir::condcodes::{FloatCC, IntCC};
 use cranelift_codegen::ir::types::{F64, F64X2, I64};
 use cranelift_codegen::ir::{
-    AbiParam, BlockArg, Endianness, InstBuilder, MemFlagsData, SigRef, Signature, UserFuncName,
-    Value,
+    AbiParam, Block, BlockArg, Endianness, InstBuilder, MemFlagsData, SigRef, Signature, StackSlot,
+    StackSlotData, StackSlotKind, TrapCode, UserFuncName, Value,
 };
 use cranelift_codegen::settings::{self, Configurable};
 use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
@@ -71,18 +79,42 @@ pub enum OptLevel {
     Speed,
 }
 
+/// Cranelift's register allocator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Regalloc {
+    /// Backtracking with live-range splitting: better code.
+    Backtracking,
+    /// One pass: several times faster to compile, but measured 2-3x slower code on small
+    /// gradients (many more spills and moves); for very large graphs only.
+    SinglePass,
+}
+
 /// Code generation options; [`compile`] uses [`Options::default`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Options {
     pub opt_level: OptLevel,
+    pub regalloc: Regalloc,
+    /// Lanes per loop iteration: 2 (one `F64X2` per value) or 4 (two independent `F64X2`
+    /// chains; lane counts 2 and 3 then use a second, two-lane copy of the loop).
+    pub lane_block: usize,
+    /// Functions with more operations than this are compiled with `OptLevel::None` and two-lane
+    /// blocks whatever the two fields above say: Cranelift's optimizer and a second loop body
+    /// cost compile time in proportion to size (an FPUT chain of 1001 sites: 0.2 s instead of
+    /// 0.6-1.4 s for gradient and HVP), for a measured gain of 0-15% on such functions.
+    pub large_function: usize,
 }
 
 impl Default for Options {
-    /// `opt_level = speed`: measured (see `benches/jit.rs`) to cost little extra compile time on
-    /// the straight-line code the graphs produce.
+    /// Chosen by measurement (`benches/jit.rs`): `speed` and four lanes per iteration make the
+    /// small functions (a Henon-Heiles gradient) up to 2x faster than `none` and two lanes, at
+    /// a compile cost that only matters for large functions, which `large_function` sends to
+    /// `none` and two lanes (an FPUT chain of 1001 sites: gradient and HVP in about 0.2 s).
     fn default() -> Self {
         Options {
             opt_level: OptLevel::Speed,
+            regalloc: Regalloc::Backtracking,
+            lane_block: 4,
+            large_function: 2000,
         }
     }
 }
@@ -144,15 +176,19 @@ pub enum JitError {
 /// call.
 pub type ScalarFnPtr = unsafe extern "C" fn(args: *const *const f64, out: *mut f64);
 
-/// A compiled lane function.
+/// A compiled lane function: `lanes` evaluations whose entry `i` of lane `l` is at
+/// `[i * stride + l]` (`stride == lanes` for a whole SoA array; `stride > lanes` evaluates a
+/// group of consecutive lanes of a wider array, the pointers offset to its first lane).
 ///
 /// # Safety contract
-/// As [`ScalarFnPtr`], with `lanes` evaluations: a `Layout::Lanes` argument `a` holds at least
-/// `arg_len(f, a) * lanes` values (`[i * lanes + l]`), a `Layout::Scalar` one `arg_len(f, a)`
-/// values, and `out` holds `output_len(f) * lanes` values (`[j * lanes + l]`) overlapping no
-/// argument (an odd lane count recomputes lane `lanes - 2` from the arguments after having
-/// written it). `lanes == 0` does nothing.
-pub type LanesFnPtr = unsafe extern "C" fn(args: *const *const f64, out: *mut f64, lanes: usize);
+/// As [`ScalarFnPtr`], with: a `Layout::Lanes` argument `a` readable at `[i * stride + l]` for
+/// `i < arg_len(f, a)`, `l < lanes`; a `Layout::Scalar` one holds `arg_len(f, a)` values; `out`
+/// writable at `[j * stride + l]` for `j < output_len(f)`, `l < lanes`, overlapping no argument
+/// (a lane count that is not a multiple of the block recomputes some lanes from the arguments
+/// after having written them); `lanes <= stride`. `lanes == 0` does nothing; `lanes == 1`
+/// requires `stride == 1` (it runs the scalar function) and traps otherwise.
+pub type LanesFnPtr =
+    unsafe extern "C" fn(args: *const *const f64, out: *mut f64, lanes: usize, stride: usize);
 
 struct FnInfo {
     layouts: Vec<Layout>,
@@ -162,6 +198,15 @@ struct FnInfo {
     lanes: LanesFnPtr,
 }
 
+/// Lanes per group when [`Compiled::call_lanes`] splits a large call: 8 `f64`, one cache line of
+/// each row.
+const LANE_GROUP: usize = 8;
+
+/// [`Compiled::call_lanes`] splits calls whose lane data exceed this many bytes (half a typical
+/// L2 cache): measured on an FPUT chain of 1001 sites, 64 lanes in one call ran 2-4x slower per
+/// lane than 8, the rows' cache lines being evicted between the blocks of lanes that share them.
+const GROUP_ABOVE_BYTES: usize = 256 * 1024;
+
 /// The compiled functions of one [`compile`] call. Owns the executable memory (freed on drop)
 /// and the tables the code calls into.
 ///
@@ -170,7 +215,7 @@ struct FnInfo {
 /// to immutable code, and the tables are `Arc<dyn Tabulated>` (`Send + Sync` by the trait's
 /// bounds).
 pub struct Compiled {
-    module: Mutex<Option<JITModule>>,
+    modules: Mutex<Vec<JITModule>>,
     fns: Vec<FnInfo>,
     /// Read by the compiled code through `*const Arc<dyn Tabulated>` pointers into this boxed
     /// slice, which never moves or changes after compilation.
@@ -181,11 +226,11 @@ pub struct Compiled {
 
 impl Drop for Compiled {
     fn drop(&mut self) {
-        let module = match self.module.get_mut() {
-            Ok(m) => m.take(),
-            Err(poisoned) => poisoned.into_inner().take(),
+        let modules = match self.modules.get_mut() {
+            Ok(m) => std::mem::take(m),
+            Err(poisoned) => std::mem::take(poisoned.into_inner()),
         };
-        if let Some(module) = module {
+        for module in modules {
             // SAFETY: the function pointers handed out by `raw_scalar`/`raw_lanes` are documented
             // to be valid only while this `Compiled` lives, and `&self` calls cannot be running
             // while it is being dropped.
@@ -277,10 +322,54 @@ impl Compiled {
         if lanes == 0 {
             return;
         }
-        with_pointers(args, |ptrs| {
-            // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument.
-            unsafe { (info.lanes)(ptrs, out.as_mut_ptr(), lanes) }
-        });
+        // Rows of lane data touched per call (lane arguments and the output).
+        let rows: usize = info.n_out
+            + info
+                .layouts
+                .iter()
+                .zip(&info.arg_len)
+                .filter(|(l, _)| **l == Layout::Lanes)
+                .map(|(_, n)| n)
+                .sum::<usize>();
+        if lanes < 2 * LANE_GROUP || rows * lanes * 8 <= GROUP_ABOVE_BYTES {
+            with_pointers(args, |ptrs| {
+                // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument;
+                // `stride == lanes`.
+                unsafe { (info.lanes)(ptrs, out.as_mut_ptr(), lanes, lanes) }
+            });
+            return;
+        }
+        // Large arrays: groups of LANE_GROUP consecutive lanes (one cache line per row), the
+        // last group taking the remainder, so each cache line is used completely while it is
+        // in L1 instead of being fetched again for every block of lanes.
+        let mut small = [std::ptr::null::<f64>(); 8];
+        let mut heap = Vec::new();
+        let ptrs: &mut [*const f64] = if args.len() <= small.len() {
+            &mut small[..args.len()]
+        } else {
+            heap.resize(args.len(), std::ptr::null());
+            &mut heap
+        };
+        for (p, a) in ptrs.iter_mut().zip(args) {
+            *p = a.as_ptr();
+        }
+        let groups = lanes / LANE_GROUP;
+        for g in 0..groups {
+            let first = g * LANE_GROUP;
+            let count = if g + 1 == groups {
+                lanes - first
+            } else {
+                LANE_GROUP
+            };
+            for ((p, a), layout) in ptrs.iter_mut().zip(args).zip(&info.layouts) {
+                if *layout == Layout::Lanes {
+                    *p = a.as_ptr().wrapping_add(first);
+                }
+            }
+            // SAFETY: lengths checked above for `lanes` lanes; lanes `first .. first + count`
+            // (at least 2) of the same arrays, stride `lanes`, lie within them.
+            unsafe { (info.lanes)(ptrs.as_ptr(), out.as_mut_ptr().add(first), count, lanes) }
+        }
     }
 
     /// The scalar function's machine code, for hot loops that check lengths once outside. See
@@ -406,57 +495,43 @@ pub fn compile_with(
     options: &Options,
 ) -> Result<Compiled, JitError> {
     let start = Instant::now();
-    let mut flags = settings::builder();
-    let opt = match options.opt_level {
-        OptLevel::None => "none",
-        OptLevel::Speed => "speed",
-    };
-    let set = |flags: &mut settings::Builder, k: &str, v: &str| {
-        flags
-            .set(k, v)
-            .map_err(|e| JitError::Host(format!("setting {k}={v}: {e}")))
-    };
-    set(&mut flags, "opt_level", opt)?;
-    set(&mut flags, "use_colocated_libcalls", "false")?;
-    set(&mut flags, "is_pic", "false")?;
-    // The IR verifier costs compile time; this module's IR is checked by the tests (debug).
-    set(
-        &mut flags,
-        "enable_verifier",
-        if cfg!(debug_assertions) {
-            "true"
-        } else {
-            "false"
-        },
-    )?;
-    let isa_builder = cranelift_native::builder().map_err(|e| JitError::Host(e.to_string()))?;
-    let isa = isa_builder
-        .finish(settings::Flags::new(flags))
-        .map_err(|e| JitError::Host(e.to_string()))?;
-    let features: Vec<&str> = isa
-        .isa_flags()
-        .iter()
-        .filter(|v| v.as_bool() == Some(true))
-        .map(|v| v.name)
-        .collect();
-    let isa_name = format!("{} [{}]", isa.triple(), features.join(","));
-    let mut module = JITModule::new(JITBuilder::with_isa(
-        isa,
-        cranelift_module::default_libcall_names(),
-    ));
-
+    if options.lane_block != 2 && options.lane_block != 4 {
+        return Err(JitError::Host(format!(
+            "lane_block must be 2 or 4, not {}",
+            options.lane_block
+        )));
+    }
+    // One module per optimization level actually used (Cranelift's level is a per-ISA flag).
+    let mut modules: Vec<(OptLevel, JITModule)> = Vec::new();
+    let mut isa_name = String::new();
     let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
-    let mut ctx = module.make_context();
+    let mut ctx = Context::new();
     let mut fctx = FunctionBuilderContext::new();
-    let mut ids = Vec::with_capacity(specs.len());
-    let mut infos = Vec::with_capacity(specs.len());
+    let mut defined = Vec::with_capacity(specs.len());
     for (f, spec) in specs.iter().enumerate() {
         let plan = Plan::new(graph, spec, f)?;
+        let large = plan.scalar_order.len() > options.large_function;
+        let (opt, lane_block) = if large {
+            (OptLevel::None, 2)
+        } else {
+            (options.opt_level, options.lane_block)
+        };
+        let m = match modules.iter().position(|(o, _)| *o == opt) {
+            Some(m) => m,
+            None => {
+                let (module, name) = new_module(opt, options.regalloc)?;
+                isa_name = name;
+                modules.push((opt, module));
+                modules.len() - 1
+            }
+        };
+        let module = &mut modules[m].1;
         let ptr = module.target_config().pointer_type();
         let mut sig_s = module.make_signature();
         sig_s.params.push(AbiParam::new(ptr));
         sig_s.params.push(AbiParam::new(ptr));
         let mut sig_l = sig_s.clone();
+        sig_l.params.push(AbiParam::new(ptr));
         sig_l.params.push(AbiParam::new(ptr));
         let codegen = |variant: &'static str| {
             move |e: cranelift_module::ModuleError| JitError::Codegen {
@@ -475,41 +550,41 @@ pub fn compile_with(
         module.clear_context(&mut ctx);
         ctx.func.signature = sig_s;
         ctx.func.name = UserFuncName::user(0, id_s.as_u32());
-        build_scalar(&mut ctx, &mut fctx, &module, graph, &plan, &tables, f)?;
-        module
-            .define_function(id_s, &mut ctx)
+        let mut emit = Emit {
+            graph,
+            plan: &plan,
+            tables: &tables,
+            module,
+            ctx: &mut ctx,
+            fctx: &mut fctx,
+        };
+        emit.scalar();
+        emit.module
+            .define_function(id_s, emit.ctx)
             .map_err(codegen("scalar"))?;
 
-        module.clear_context(&mut ctx);
-        ctx.func.signature = sig_l;
-        ctx.func.name = UserFuncName::user(0, id_l.as_u32());
-        build_lanes(
-            &mut ctx,
-            &mut fctx,
-            &mut module,
-            graph,
-            &plan,
-            &tables,
-            f,
-            id_s,
-        )?;
-        module
-            .define_function(id_l, &mut ctx)
+        emit.module.clear_context(emit.ctx);
+        emit.ctx.func.signature = sig_l;
+        emit.ctx.func.name = UserFuncName::user(0, id_l.as_u32());
+        emit.lanes(id_s, lane_block / 2);
+        emit.module
+            .define_function(id_l, emit.ctx)
             .map_err(codegen("lanes"))?;
-        ids.push((id_s, id_l));
-        infos.push((spec.args.clone(), plan.arg_len.clone(), spec.outputs.len()));
+        defined.push((m, id_s, id_l, spec.args.clone(), plan.arg_len.clone()));
     }
-    module.clear_context(&mut ctx);
-    module
-        .finalize_definitions()
-        .map_err(|e| JitError::Link(format!("{e:?}")))?;
-    let fns = ids
+    for (_, module) in &mut modules {
+        module
+            .finalize_definitions()
+            .map_err(|e| JitError::Link(format!("{e:?}")))?;
+    }
+    let fns = defined
         .into_iter()
-        .zip(infos)
-        .map(|((id_s, id_l), (layouts, arg_len, n_out))| {
+        .zip(specs)
+        .map(|((m, id_s, id_l, layouts, arg_len), spec)| {
+            let module = &modules[m].1;
             let ps = module.get_finalized_function(id_s);
             let pl = module.get_finalized_function(id_l);
-            // SAFETY: both were defined above with exactly these signatures (two or three
+            // SAFETY: both were defined above with exactly these signatures (two or four
             // pointer-sized integer parameters, no results, the host's C calling convention).
             let (scalar, lanes) = unsafe {
                 (
@@ -520,14 +595,17 @@ pub fn compile_with(
             FnInfo {
                 layouts,
                 arg_len,
-                n_out,
+                n_out: spec.outputs.len(),
                 scalar,
                 lanes,
             }
         })
         .collect();
+    if isa_name.is_empty() {
+        isa_name = new_module(options.opt_level, options.regalloc)?.1;
+    }
     Ok(Compiled {
-        module: Mutex::new(Some(module)),
+        modules: Mutex::new(modules.into_iter().map(|(_, m)| m).collect()),
         fns,
         _tables: tables,
         compile_time: start.elapsed(),
@@ -535,10 +613,63 @@ pub fn compile_with(
     })
 }
 
+/// A JIT module for the host at one optimization level, and a description of the target.
+fn new_module(opt: OptLevel, regalloc: Regalloc) -> Result<(JITModule, String), JitError> {
+    let mut flags = settings::builder();
+    let set = |flags: &mut settings::Builder, k: &str, v: &str| {
+        flags
+            .set(k, v)
+            .map_err(|e| JitError::Host(format!("setting {k}={v}: {e}")))
+    };
+    let opt = match opt {
+        OptLevel::None => "none",
+        OptLevel::Speed => "speed",
+    };
+    set(&mut flags, "opt_level", opt)?;
+    set(&mut flags, "use_colocated_libcalls", "false")?;
+    set(&mut flags, "is_pic", "false")?;
+    // Frames beyond a page (thousands of spill slots or uniform values) touch every page on
+    // entry, so a deep frame hits the guard page instead of jumping over it.
+    set(&mut flags, "enable_probestack", "true")?;
+    set(&mut flags, "probestack_strategy", "inline")?;
+    let regalloc = match regalloc {
+        Regalloc::Backtracking => "backtracking",
+        Regalloc::SinglePass => "single_pass",
+    };
+    set(&mut flags, "regalloc_algorithm", regalloc)?;
+    // The IR verifier costs compile time; this module's IR is checked by the tests (debug).
+    let verify = if cfg!(debug_assertions) {
+        "true"
+    } else {
+        "false"
+    };
+    set(&mut flags, "enable_verifier", verify)?;
+    let isa_builder = cranelift_native::builder().map_err(|e| JitError::Host(e.to_string()))?;
+    let isa = isa_builder
+        .finish(settings::Flags::new(flags))
+        .map_err(|e| JitError::Host(e.to_string()))?;
+    let features: Vec<&str> = isa
+        .isa_flags()
+        .iter()
+        .filter(|v| v.as_bool() == Some(true))
+        .map(|v| v.name)
+        .collect();
+    let name = format!("{} [{}]", isa.triple(), features.join(","));
+    let module = JITModule::new(JITBuilder::with_isa(
+        isa,
+        cranelift_module::default_libcall_names(),
+    ));
+    Ok((module, name))
+}
+
 /// What one function needs from the graph.
 struct Plan {
-    /// Nodes the outputs depend on, in evaluation (node) order.
-    order: Vec<NodeId>,
+    /// Non-leaf nodes of the scalar function in emission order (see [`schedule`]).
+    scalar_order: Vec<NodeId>,
+    /// Non-leaf uniform nodes the lane loop reads, in emission order (before the loop).
+    uniform_order: Vec<NodeId>,
+    /// Non-leaf varying nodes, in emission order (the loop body).
+    varying_order: Vec<NodeId>,
     /// Per node: depends only on constants and `Layout::Scalar` arguments.
     uniform: Vec<bool>,
     /// Per node: a uniform node read by a varying node or written as an output (must be
@@ -604,14 +735,14 @@ impl Plan {
             };
             if !uniform[id as usize] {
                 for o in node.operands() {
-                    if uniform[o as usize] {
+                    if uniform[o as usize] && !is_leaf(graph.node(o)) {
                         broadcast[o as usize] = true;
                     }
                 }
             }
         }
         for &o in &spec.outputs {
-            if uniform[o as usize] {
+            if uniform[o as usize] && !is_leaf(graph.node(o)) {
                 broadcast[o as usize] = true;
             }
         }
@@ -633,8 +764,21 @@ impl Plan {
                 count: spec.outputs.len() as u64,
             });
         }
+        let non_leaf = |id: NodeId| !is_leaf(graph.node(id));
+        let scalar_order = schedule(graph, &spec.outputs, non_leaf);
+        let roots: Vec<NodeId> = order
+            .iter()
+            .copied()
+            .filter(|&id| broadcast[id as usize])
+            .collect();
+        let uniform_order = schedule(graph, &roots, |id| non_leaf(id) && uniform[id as usize]);
+        let varying_order = schedule(graph, &spec.outputs, |id| {
+            non_leaf(id) && !uniform[id as usize]
+        });
         Ok(Plan {
-            order,
+            scalar_order,
+            uniform_order,
+            varying_order,
             uniform,
             broadcast,
             arg_len,
@@ -642,6 +786,44 @@ impl Plan {
             outputs: spec.outputs.clone(),
         })
     }
+}
+
+/// Emission order: each root's not yet emitted dependencies (those `include` accepts) in
+/// post-order, root by root. A valid evaluation order (operands first) in which a value is
+/// computed just before its first use: the graph's own order computes, say, every bond's
+/// stiffness of a chain before the first product that reads one, which keeps a thousand values
+/// live at once and made register allocation take most of a second. The order of independent
+/// operations does not change any result.
+fn schedule(graph: &Graph, roots: &[NodeId], include: impl Fn(NodeId) -> bool) -> Vec<NodeId> {
+    let mut done = vec![false; graph.len()];
+    let mut order = Vec::new();
+    // (node, operands already pushed)
+    let mut stack: Vec<(NodeId, bool)> = Vec::new();
+    for &root in roots {
+        if done[root as usize] || !include(root) {
+            continue;
+        }
+        stack.push((root, false));
+        while let Some((id, expanded)) = stack.pop() {
+            if done[id as usize] {
+                continue;
+            }
+            if expanded {
+                done[id as usize] = true;
+                order.push(id);
+                continue;
+            }
+            stack.push((id, true));
+            let ops: Vec<NodeId> = graph.node(id).operands().collect();
+            // Reversed, so the first operand is emitted first.
+            for &o in ops.iter().rev() {
+                if !done[o as usize] && include(o) {
+                    stack.push((o, false));
+                }
+            }
+        }
+    }
+    order
 }
 
 /// Imported callback signatures of one function.
@@ -689,14 +871,12 @@ fn emit_scalar(
     sigs: &Sigs,
     tables: &[Arc<dyn Tabulated>],
     node: &Node,
-    v: &dyn Fn(NodeId) -> Value,
-    load_input: &mut dyn FnMut(&mut FunctionBuilder, u8, u32) -> Value,
+    v: &mut dyn FnMut(&mut FunctionBuilder, NodeId) -> Value,
 ) -> Value {
     match *node {
-        Node::Const(c) => b.ins().f64const(c),
-        Node::Input { arg, index } => load_input(b, arg, index),
+        Node::Const(_) | Node::Input { .. } => unreachable!("leaves are emitted at each use"),
         Node::Unary(op, a) => {
-            let x = v(a);
+            let x = v(b, a);
             match op {
                 Unary::Neg => b.ins().fneg(x),
                 Unary::Abs => b.ins().fabs(x),
@@ -727,7 +907,7 @@ fn emit_scalar(
             }
         }
         Node::Binary(op, a, c) => {
-            let (x, y) = (v(a), v(c));
+            let (x, y) = (v(b, a), v(b, c));
             match op {
                 Binary::Add => b.ins().fadd(x, y),
                 Binary::Sub => b.ins().fsub(x, y),
@@ -750,7 +930,7 @@ fn emit_scalar(
             }
         }
         Node::Powi(a, n) => {
-            let x = v(a);
+            let x = v(b, a);
             if n == 0 {
                 return b.ins().f64const(1.0);
             }
@@ -771,11 +951,13 @@ fn emit_scalar(
             then,
             otherwise,
         } => {
-            let cond = b.ins().fcmp(float_cc(cmp), v(a), v(c));
-            b.ins().select(cond, v(then), v(otherwise))
+            let (x, y) = (v(b, a), v(b, c));
+            let cond = b.ins().fcmp(float_cc(cmp), x, y);
+            let (t, e) = (v(b, then), v(b, otherwise));
+            b.ins().select(cond, t, e)
         }
         Node::Table { table, deriv, arg } => {
-            let x = v(arg);
+            let x = v(b, arg);
             let t = b.ins().iconst(
                 I64,
                 &tables[table as usize] as *const Arc<dyn Tabulated> as i64,
@@ -821,8 +1003,7 @@ fn emit_vector(
     tables: &[Arc<dyn Tabulated>],
     k: &VConsts,
     node: &Node,
-    v: &dyn Fn(NodeId) -> Value,
-    load_input: &mut dyn FnMut(&mut FunctionBuilder, u8, u32) -> Value,
+    v: &mut dyn FnMut(&mut FunctionBuilder, NodeId) -> Value,
 ) -> Value {
     // A scalar callback applied to each lane.
     let per_lane =
@@ -842,10 +1023,9 @@ fn emit_vector(
             b.ins().insertlane(r, r1, 1)
         };
     match *node {
-        Node::Const(_) => unreachable!("constants are uniform"),
-        Node::Input { arg, index } => load_input(b, arg, index),
+        Node::Const(_) | Node::Input { .. } => unreachable!("leaves are emitted at each use"),
         Node::Unary(op, a) => {
-            let x = v(a);
+            let x = v(b, a);
             match op {
                 Unary::Neg => b.ins().fneg(x),
                 Unary::Abs => b.ins().fabs(x),
@@ -871,7 +1051,7 @@ fn emit_vector(
             }
         }
         Node::Binary(op, a, c) => {
-            let (x, y) = (v(a), v(c));
+            let (x, y) = (v(b, a), v(b, c));
             match op {
                 Binary::Add => b.ins().fadd(x, y),
                 Binary::Sub => b.ins().fsub(x, y),
@@ -896,7 +1076,7 @@ fn emit_vector(
             }
         }
         Node::Powi(a, n) => {
-            let x = v(a);
+            let x = v(b, a);
             if n == 0 {
                 return k.one;
             }
@@ -916,11 +1096,13 @@ fn emit_vector(
             then,
             otherwise,
         } => {
-            let cond = mask(b, float_cc(cmp), v(a), v(c));
-            b.ins().bitselect(cond, v(then), v(otherwise))
+            let (x, y) = (v(b, a), v(b, c));
+            let cond = mask(b, float_cc(cmp), x, y);
+            let (t, e) = (v(b, then), v(b, otherwise));
+            b.ins().bitselect(cond, t, e)
         }
         Node::Table { table, deriv, arg } => {
-            let x = v(arg);
+            let x = v(b, arg);
             let t = b.ins().iconst(
                 I64,
                 &tables[table as usize] as *const Arc<dyn Tabulated> as i64,
@@ -940,6 +1122,68 @@ fn arg_pointers(b: &mut FunctionBuilder, args: Value, plan: &Plan) -> Vec<Option
         .collect()
 }
 
+fn is_leaf(node: &Node) -> bool {
+    matches!(node, Node::Const(_) | Node::Input { .. })
+}
+
+/// For each node, the output slots it is written to.
+fn outputs_by_node(plan: &Plan, n: usize) -> Vec<Vec<usize>> {
+    let mut outs = vec![Vec::new(); n];
+    for (j, &o) in plan.outputs.iter().enumerate() {
+        outs[o as usize].push(j);
+    }
+    outs
+}
+
+/// A scalar operand. Leaves (constants, argument entries) are emitted afresh at every use
+/// rather than once at their place in the node order: graphs list all inputs and constants
+/// first, and keeping thousands of them live across a straight-line function made register
+/// allocation superlinear (seconds for a 1001-site chain). A reload is one load, as cheap as a
+/// spill reload.
+fn operand_scalar(
+    b: &mut FunctionBuilder,
+    graph: &Graph,
+    ptrs: &[Option<Value>],
+    vals: &[Option<Value>],
+    id: NodeId,
+) -> Value {
+    match *graph.node(id) {
+        Node::Const(c) => b.ins().f64const(c),
+        Node::Input { arg, index } => {
+            let p = ptrs[arg as usize].expect("argument read");
+            b.ins().load(F64, flags(), p, (index as usize * 8) as i32)
+        }
+        _ => vals[id as usize].expect("operands come first"),
+    }
+}
+
+/// One function being generated.
+struct Emit<'a> {
+    graph: &'a Graph,
+    plan: &'a Plan,
+    tables: &'a [Arc<dyn Tabulated>],
+    module: &'a mut JITModule,
+    ctx: &'a mut Context,
+    fctx: &'a mut FunctionBuilderContext,
+}
+
+impl Emit<'_> {
+    fn scalar(&mut self) {
+        build_scalar(
+            self.ctx,
+            self.fctx,
+            self.module,
+            self.graph,
+            self.plan,
+            self.tables,
+        );
+    }
+
+    fn lanes(&mut self, scalar: FuncId, units: usize) {
+        build_lanes(self, scalar, units);
+    }
+}
+
 fn build_scalar(
     ctx: &mut Context,
     fctx: &mut FunctionBuilderContext,
@@ -947,8 +1191,7 @@ fn build_scalar(
     graph: &Graph,
     plan: &Plan,
     tables: &[Arc<dyn Tabulated>],
-    _f: usize,
-) -> Result<(), JitError> {
+) {
     let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
     let entry = b.create_block();
     b.append_block_params_for_function_params(entry);
@@ -956,93 +1199,158 @@ fn build_scalar(
     let (args, out) = (b.block_params(entry)[0], b.block_params(entry)[1]);
     let sigs = Sigs::new(&mut b, module);
     let ptrs = arg_pointers(&mut b, args, plan);
+    let outs = outputs_by_node(plan, graph.len());
     let mut vals: Vec<Option<Value>> = vec![None; graph.len()];
-    for &id in &plan.order {
+    for &id in &plan.scalar_order {
         let node = graph.node(id);
         let val = {
-            let get = |o: NodeId| vals[o as usize].expect("operands come first");
-            let mut load = |b: &mut FunctionBuilder, arg: u8, index: u32| {
-                let p = ptrs[arg as usize].expect("argument read");
-                b.ins().load(F64, flags(), p, (index as usize * 8) as i32)
-            };
-            emit_scalar(&mut b, &sigs, tables, node, &get, &mut load)
+            let mut get = |b: &mut FunctionBuilder, o| operand_scalar(b, graph, &ptrs, &vals, o);
+            emit_scalar(&mut b, &sigs, tables, node, &mut get)
         };
         vals[id as usize] = Some(val);
+        // Stored as soon as computed, so outputs do not stay live to the end.
+        for &j in &outs[id as usize] {
+            b.ins().store(flags(), val, out, (j * 8) as i32);
+        }
     }
     for (j, &o) in plan.outputs.iter().enumerate() {
-        let v = vals[o as usize].expect("outputs are computed");
-        b.ins().store(flags(), v, out, (j * 8) as i32);
+        if is_leaf(graph.node(o)) {
+            let v = operand_scalar(&mut b, graph, &ptrs, &vals, o);
+            b.ins().store(flags(), v, out, (j * 8) as i32);
+        }
     }
     b.ins().return_(&[]);
     b.seal_all_blocks();
     b.finalize(module.target_config());
-    Ok(())
 }
 
-#[allow(clippy::too_many_arguments)]
-fn build_lanes(
-    ctx: &mut Context,
-    fctx: &mut FunctionBuilderContext,
-    module: &mut JITModule,
-    graph: &Graph,
-    plan: &Plan,
-    tables: &[Arc<dyn Tabulated>],
-    _f: usize,
-    scalar: FuncId,
-) -> Result<(), JitError> {
+/// Where the lane loop body finds its operands.
+struct LaneBody<'a> {
+    graph: &'a Graph,
+    plan: &'a Plan,
+    ptrs: &'a [Option<Value>],
+    /// `ptrs[a] + 8 l` for `Lanes` arguments: entry 0 of lane `l`.
+    rows: &'a [Option<Value>],
+    /// The stack slot holding the broadcast uniform values, and each node's offset in it.
+    uniforms: StackSlot,
+    uniform_offset: &'a [u32],
+    /// `8 * lanes`, as a loop block parameter (so the per-entry offsets `index * stride` stay in
+    /// the loop instead of being hoisted into thousands of loop-invariant spilled values).
+    stride: Value,
+}
+
+impl LaneBody<'_> {
+    /// A two-lane operand: leaves afresh at each use (a `Lanes` entry is one unaligned 16-byte
+    /// load, a shared entry or a constant a load and broadcast), other nodes as computed.
+    fn operand(
+        &self,
+        b: &mut FunctionBuilder,
+        vvals: &[Option<[Value; 2]>],
+        id: NodeId,
+        unit: usize,
+    ) -> Value {
+        match *self.graph.node(id) {
+            Node::Const(c) => {
+                let s = b.ins().f64const(c);
+                b.ins().splat(F64X2, s)
+            }
+            Node::Input { arg, index } => match self.plan.layouts[arg as usize] {
+                Layout::Scalar => {
+                    let p = self.ptrs[arg as usize].expect("argument read");
+                    let s = b.ins().load(F64, flags(), p, (index as usize * 8) as i32);
+                    b.ins().splat(F64X2, s)
+                }
+                Layout::Lanes => {
+                    let row = self.rows[arg as usize].expect("lane argument read");
+                    let p = if index == 0 {
+                        row
+                    } else {
+                        let off = b.ins().imul_imm_s(self.stride, index as i64);
+                        b.ins().iadd(row, off)
+                    };
+                    b.ins().load(F64X2, flags(), p, 16 * unit as i32)
+                }
+            },
+            _ if self.plan.uniform[id as usize] => {
+                let off = self.uniform_offset[id as usize] as i32;
+                let s = b.ins().stack_load(I64, F64, self.uniforms, off);
+                b.ins().splat(F64X2, s)
+            }
+            _ => vvals[id as usize].expect("operands come first")[unit],
+        }
+    }
+}
+
+fn build_lanes(e: &mut Emit, scalar: FuncId, units: usize) {
+    let (graph, plan, tables) = (e.graph, e.plan, e.tables);
+    let (ctx, fctx, module) = (&mut *e.ctx, &mut *e.fctx, &mut *e.module);
     let scalar_ref = module.declare_func_in_func(scalar, &mut ctx.func);
     let config = module.target_config();
     let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
     let entry = b.create_block();
     let single = b.create_block();
+    let call_block = b.create_block();
     let pre = b.create_block();
     let body = b.create_block();
+    let cont = b.create_block();
     let exit = b.create_block();
     b.append_block_params_for_function_params(entry);
     let l = b.append_block_param(body, I64);
+    let stride = b.append_block_param(body, I64);
 
-    // entry: lanes < 2 -> `single` (lanes == 0: nothing; lanes == 1: the scalar function, whose
-    // layout is the same).
+    // entry: fewer than two lanes -> `single` (0: nothing; 1: the scalar function, whose layout
+    // is the same).
     b.switch_to_block(entry);
-    let (args, out, lanes) = (
+    let (args, out, lanes, stride_elems) = (
         b.block_params(entry)[0],
         b.block_params(entry)[1],
         b.block_params(entry)[2],
+        b.block_params(entry)[3],
     );
     let few = b.ins().icmp_imm_u(IntCC::UnsignedLessThan, lanes, 2);
     b.ins().brif(few, single, &[], pre, &[]);
 
     b.switch_to_block(single);
     let one_lane = b.ins().icmp_imm_u(IntCC::Equal, lanes, 1);
-    let call_block = b.create_block();
     b.ins().brif(one_lane, call_block, &[], exit, &[]);
     b.switch_to_block(call_block);
+    let contiguous = b.ins().icmp_imm_u(IntCC::Equal, stride_elems, 1);
+    let call_scalar = b.create_block();
+    let misuse = b.create_block();
+    b.ins().brif(contiguous, call_scalar, &[], misuse, &[]);
+    b.switch_to_block(misuse);
+    b.ins().trap(TrapCode::unwrap_user(1));
+    b.switch_to_block(call_scalar);
     b.ins().call(scalar_ref, &[args, out]);
     b.ins().jump(exit, &[]);
 
-    // pre: argument pointers, uniform nodes in scalar code, their broadcasts.
+    // pre: argument pointers; uniform nodes once, in scalar code, broadcast for the loop.
     b.switch_to_block(pre);
     let sigs = Sigs::new(&mut b, module);
     let ptrs = arg_pointers(&mut b, args, plan);
-    let stride = b.ins().ishl_imm_u(lanes, 3);
+    // Uniform values the loop reads go to a stack array (8 bytes each) and are reloaded and
+    // broadcast at each use: as SSA values live across the loop, a thousand of them (the
+    // stiffnesses of a chain's HVP at a shared position) cost the register allocator a second.
+    let n_uniform = plan.uniform_order.len();
+    let uniforms = b.create_sized_stack_slot(StackSlotData::new(
+        StackSlotKind::ExplicitSlot,
+        (n_uniform.max(1) * 8) as u32,
+        4,
+    ));
+    let mut uniform_offset = vec![0u32; graph.len()];
     let mut svals: Vec<Option<Value>> = vec![None; graph.len()];
-    let mut vvals: Vec<Option<Value>> = vec![None; graph.len()];
-    for &id in &plan.order {
-        if !plan.uniform[id as usize] {
-            continue;
-        }
+    let mut next_offset = 0u32;
+    for &id in &plan.uniform_order {
         let node = graph.node(id);
         let val = {
-            let get = |o: NodeId| svals[o as usize].expect("operands come first");
-            let mut load = |b: &mut FunctionBuilder, arg: u8, index: u32| {
-                let p = ptrs[arg as usize].expect("argument read");
-                b.ins().load(F64, flags(), p, (index as usize * 8) as i32)
-            };
-            emit_scalar(&mut b, &sigs, tables, node, &get, &mut load)
+            let mut get = |b: &mut FunctionBuilder, o| operand_scalar(b, graph, &ptrs, &svals, o);
+            emit_scalar(&mut b, &sigs, tables, node, &mut get)
         };
         svals[id as usize] = Some(val);
         if plan.broadcast[id as usize] {
-            vvals[id as usize] = Some(b.ins().splat(F64X2, val));
+            uniform_offset[id as usize] = next_offset;
+            b.ins().stack_store(I64, val, uniforms, next_offset as i32);
+            next_offset += 8;
         }
     }
     let k = {
@@ -1057,65 +1365,106 @@ fn build_lanes(
             nan: sp(f64::NAN),
         }
     };
-    let last = b.ins().iadd_imm_s(lanes, -2);
+    let stride0 = b.ins().ishl_imm_u(stride_elems, 3);
     let zero = b.ins().iconst(I64, 0);
-    b.ins().jump(body, &[BlockArg::Value(zero)]);
 
-    // body(l): lanes l and l + 1.
-    b.switch_to_block(body);
-    let loff = b.ins().ishl_imm_u(l, 3);
-    let rows: Vec<Option<Value>> = ptrs
-        .iter()
-        .zip(&plan.layouts)
-        .map(|(p, &layout)| match (p, layout) {
-            (Some(p), Layout::Lanes) => Some(b.ins().iadd(*p, loff)),
-            _ => None,
-        })
-        .collect();
-    for &id in &plan.order {
-        if plan.uniform[id as usize] {
-            continue;
-        }
-        let node = graph.node(id);
-        let val = {
-            let get = |o: NodeId| vvals[o as usize].expect("operands come first");
-            let mut load = |b: &mut FunctionBuilder, arg: u8, index: u32| {
-                let row = rows[arg as usize].expect("lane argument read");
-                let p = if index == 0 {
-                    row
-                } else {
-                    let off = b.ins().imul_imm_s(stride, index as i64);
-                    b.ins().iadd(row, off)
-                };
-                b.ins().load(F64X2, flags(), p, 0)
+    let body_pair = b.create_block();
+    let cont_pair = b.create_block();
+    let lp = b.append_block_param(body_pair, I64);
+    let stride_p = b.append_block_param(body_pair, I64);
+    let bodies: Vec<(usize, Block, Block, Value, Value)> = if units == 2 {
+        vec![
+            (2, body, cont, l, stride),
+            (1, body_pair, cont_pair, lp, stride_p),
+        ]
+    } else {
+        vec![(1, body, cont, l, stride)]
+    };
+    if units == 2 {
+        // Fewer lanes than one block: the two-lane loop.
+        let small = b.ins().icmp_imm_u(IntCC::UnsignedLessThan, lanes, 4);
+        b.ins().brif(
+            small,
+            body_pair,
+            &[BlockArg::Value(zero), BlockArg::Value(stride0)],
+            body,
+            &[BlockArg::Value(zero), BlockArg::Value(stride0)],
+        );
+    } else {
+        b.ins()
+            .jump(body, &[BlockArg::Value(zero), BlockArg::Value(stride0)]);
+    }
+    let outs = outputs_by_node(plan, graph.len());
+    for (units, body, cont, l, stride) in bodies {
+        // body(l, stride): lanes l .. l + 2 units.
+        b.switch_to_block(body);
+        let loff = b.ins().ishl_imm_u(l, 3);
+        let rows: Vec<Option<Value>> = ptrs
+            .iter()
+            .zip(&plan.layouts)
+            .map(|(p, &layout)| match (p, layout) {
+                (Some(p), Layout::Lanes) => Some(b.ins().iadd(*p, loff)),
+                _ => None,
+            })
+            .collect();
+        let orow = b.ins().iadd(out, loff);
+        let lb = LaneBody {
+            graph,
+            plan,
+            ptrs: &ptrs,
+            rows: &rows,
+            uniforms,
+            uniform_offset: &uniform_offset,
+            stride,
+        };
+        let store = |b: &mut FunctionBuilder, v: Value, j: usize, unit: usize| {
+            let p = if j == 0 {
+                orow
+            } else {
+                let off = b.ins().imul_imm_s(stride, j as i64);
+                b.ins().iadd(orow, off)
             };
-            emit_vector(&mut b, &sigs, tables, &k, node, &get, &mut load)
+            b.ins().store(flags(), v, p, 16 * unit as i32);
         };
-        vvals[id as usize] = Some(val);
+        let mut vvals: Vec<Option<[Value; 2]>> = vec![None; graph.len()];
+        for &id in &plan.varying_order {
+            let node = graph.node(id);
+            let mut emitted = [None; 2];
+            for (unit, slot) in emitted.iter_mut().enumerate().take(units) {
+                let mut get = |b: &mut FunctionBuilder, o| lb.operand(b, &vvals, o, unit);
+                *slot = Some(emit_vector(&mut b, &sigs, tables, &k, node, &mut get));
+            }
+            let v0 = emitted[0].expect("at least one unit");
+            let val = [v0, emitted[1].unwrap_or(v0)];
+            vvals[id as usize] = Some(val);
+            for &j in &outs[id as usize] {
+                for (unit, &v) in val.iter().enumerate().take(units) {
+                    store(&mut b, v, j, unit);
+                }
+            }
+        }
+        for (j, &o) in plan.outputs.iter().enumerate() {
+            if plan.uniform[o as usize] || is_leaf(graph.node(o)) {
+                for unit in 0..units {
+                    let v = lb.operand(&mut b, &vvals, o, unit);
+                    store(&mut b, v, j, unit);
+                }
+            }
+        }
+        // Next block; the last block of a count that is not a multiple overlaps the previous.
+        let width = 2 * units as i64;
+        let next = b.ins().iadd_imm_s(l, width);
+        let done = b.ins().icmp(IntCC::UnsignedGreaterThanOrEqual, next, lanes);
+        b.ins().brif(done, exit, &[], cont, &[]);
+        b.switch_to_block(cont);
+        let last = b.ins().iadd_imm_s(lanes, -width);
+        let next = b.ins().umin(next, last);
+        b.ins()
+            .jump(body, &[BlockArg::Value(next), BlockArg::Value(stride)]);
     }
-    let orow = b.ins().iadd(out, loff);
-    for (j, &o) in plan.outputs.iter().enumerate() {
-        let v = vvals[o as usize].expect("outputs are computed");
-        let p = if j == 0 {
-            orow
-        } else {
-            let off = b.ins().imul_imm_s(stride, j as i64);
-            b.ins().iadd(orow, off)
-        };
-        b.ins().store(flags(), v, p, 0);
-    }
-    // Next pair; the last pair of an odd count overlaps the previous one.
-    let next = b.ins().iadd_imm_s(l, 2);
-    let done = b.ins().icmp(IntCC::UnsignedGreaterThanOrEqual, next, lanes);
-    let next = b.ins().umin(next, last);
-    let cont = b.create_block();
-    b.ins().brif(done, exit, &[], cont, &[]);
-    b.switch_to_block(cont);
-    b.ins().jump(body, &[BlockArg::Value(next)]);
 
     b.switch_to_block(exit);
     b.ins().return_(&[]);
     b.seal_all_blocks();
     b.finalize(config);
-    Ok(())
 }

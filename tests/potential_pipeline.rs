@@ -9,7 +9,12 @@ mod common;
 use std::path::Path;
 
 use chaoscope_schemas::config::{MapAxis, MapConfig, RunConfig};
-use common::chaoscope;
+/// `chaoscope ARGS` with stdout and stderr captured.
+fn chaoscope(args: &[&str]) -> std::process::Command {
+    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_chaoscope"));
+    c.args(args);
+    c
+}
 use serde_json::Value;
 
 fn models_dir() -> std::path::PathBuf {
@@ -130,7 +135,9 @@ fn abs_is_refused_for_vm_and_runs_by_mpm() {
     let dir = tempfile::tempdir().unwrap();
     let mut config = hertz(10.0);
     config.sweeps.clear();
-    config.model.potential = Some("sum(i = 0..N, A*abs(q[i+1] - q[i])^3)".into());
+    // A kink: no continuous first derivative where a bond length crosses zero.
+    config.model.potential =
+        Some("sum(i = 0..N, A*(q[i+1] - q[i])^2 + delta0*abs(q[i+1] - q[i]))".into());
     let cfg = dir.path().join("abs.toml");
     std::fs::write(&cfg, config.to_toml()).unwrap();
     let rec = dir.path().join("abs.mcap");

@@ -12,9 +12,17 @@ use crate::run_info::RunInfo;
 #[derive(Debug, thiserror::Error)]
 pub enum InProcessError {
     #[error("invalid configuration: {0}")]
-    Spec(#[from] SpecError),
+    // Not `#[from]`: that would also make it the error's source, and the message (which
+    // already includes it) would print twice in an error chain.
+    Spec(SpecError),
     #[error(transparent)]
     Run(#[from] RunError),
+}
+
+impl From<SpecError> for InProcessError {
+    fn from(e: SpecError) -> Self {
+        Self::Spec(e)
+    }
 }
 
 /// The analysis' view of a validated config.

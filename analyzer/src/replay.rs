@@ -36,7 +36,9 @@ pub enum ReplayError {
     #[error("the recording's configuration does not parse: {0}")]
     Config(String),
     #[error("replay configuration: {0}")]
-    Spec(#[from] SpecError),
+    // Not `#[from]`: that would also make it the error's source, and the message (which
+    // already includes it) would print twice in an error chain.
+    Spec(SpecError),
     #[error(transparent)]
     Run(#[from] RunError),
     #[error("{path}: writing the replay: {source}")]
@@ -46,6 +48,12 @@ pub enum ReplayError {
     },
     #[error("nothing to replay: give --tau and/or --d0")]
     Nothing,
+}
+
+impl From<SpecError> for ReplayError {
+    fn from(e: SpecError) -> Self {
+        Self::Spec(e)
+    }
 }
 
 /// What the comparison with the recording found.

@@ -590,6 +590,9 @@ fn node_tangent(
     })
 }
 
+/// A sparse Jacobian: per output, `(input index, partial derivative node)` by increasing index.
+pub type SparseRows = Vec<Vec<(u32, NodeId)>>;
+
 /// Most (output, input) dependency pairs [`jacobian`] tracks before it gives up (dense
 /// couplings of many sites: the sparse form would be no better than forward mode).
 pub const MAX_JACOBIAN_ENTRIES: usize = 20_000_000;
@@ -603,7 +606,7 @@ pub fn jacobian(
     g: &mut Graph,
     outputs: &[NodeId],
     arg: u8,
-) -> Result<Option<Vec<Vec<(u32, NodeId)>>>, DiffError> {
+) -> Result<Option<SparseRows>, DiffError> {
     let mut need = Vec::new();
     crate::eval::mark_needed(g, outputs, &mut need);
     let len = need.len();

@@ -73,7 +73,9 @@ pub struct PublishOutcome {
 #[derive(Debug, thiserror::Error)]
 pub enum PublishError {
     #[error("invalid configuration: {0}")]
-    Spec(#[from] SpecError),
+    // Not `#[from]`: that would also make it the error's source, and the message (which
+    // already includes it) would print twice in an error chain.
+    Spec(SpecError),
     #[error("invalid run name: {0}")]
     RunName(String),
     #[error("run {0:?} is already being produced by a live process")]
@@ -82,6 +84,12 @@ pub enum PublishError {
     NoRecorder { run: String, timeout: Duration },
     #[error(transparent)]
     Bus(#[from] BusError),
+}
+
+impl From<SpecError> for PublishError {
+    fn from(e: SpecError) -> Self {
+        Self::Spec(e)
+    }
 }
 
 /// The run name: explicit option, else the config's `[run] name`, else generated.

@@ -238,8 +238,7 @@ fn lanes_call(c: &Compiled, f: usize, ptrs: &[*const f64], out: &mut [f64], lane
 }
 
 /// (opt_level, its name, lanes per loop iteration, size threshold) measured: each setting on
-/// every function, then the defaults (`speed`, 4 lanes, but `none` and 2 lanes above 2000
-/// operations).
+/// every function, then the defaults (`speed`, 4 lanes, but `none` above 2000 operations).
 const CONFIGS: [(OptLevel, &str, usize, usize); 5] = [
     (OptLevel::None, "none", 2, usize::MAX),
     (OptLevel::None, "none", 4, usize::MAX),

@@ -97,10 +97,10 @@ pub struct Options {
     /// Lanes per loop iteration: 2 (one `F64X2` per value) or 4 (two independent `F64X2`
     /// chains; lane counts 2 and 3 then use a second, two-lane copy of the loop).
     pub lane_block: usize,
-    /// Functions with more operations than this are compiled with `OptLevel::None` and two-lane
-    /// blocks whatever the two fields above say: Cranelift's optimizer and a second loop body
-    /// cost compile time in proportion to size (an FPUT chain of 1001 sites: 0.2 s instead of
-    /// 0.6-1.4 s for gradient and HVP), for a measured gain of 0-15% on such functions.
+    /// Functions with more operations than this are compiled with `OptLevel::None` whatever
+    /// `opt_level` says: Cranelift's optimizer costs compile time in proportion to size (an FPUT
+    /// chain of 1001 sites, gradient and HVP with four-lane blocks: 0.44 s instead of 1.4 s)
+    /// for a measured 0-40% on such functions.
     pub large_function: usize,
 }
 
@@ -108,7 +108,8 @@ impl Default for Options {
     /// Chosen by measurement (`benches/jit.rs`): `speed` and four lanes per iteration make the
     /// small functions (a Henon-Heiles gradient) up to 2x faster than `none` and two lanes, at
     /// a compile cost that only matters for large functions, which `large_function` sends to
-    /// `none` and two lanes (an FPUT chain of 1001 sites: gradient and HVP in about 0.2 s).
+    /// `none` (an FPUT chain of 1001 sites: gradient and HVP in about 0.45 s, 0.23 s with
+    /// two-lane blocks, which are 20-30% slower).
     fn default() -> Self {
         Options {
             opt_level: OptLevel::Speed,
@@ -305,6 +306,8 @@ impl Compiled {
     /// Lane call over `lanes` independent evaluations in structure-of-arrays layout: an argument
     /// with `Layout::Lanes` holds entry `i` of lane `l` at `[i * lanes + l]`; `Layout::Scalar`
     /// arguments are shared by all lanes; the output is written as `out[j * lanes + l]`.
+    /// Large arrays (lane data beyond 256 KiB) are evaluated in groups of 8 lanes, one call of
+    /// the lane function each, for cache locality; the results are the same bits.
     ///
     /// # Panics
     /// On a wrong number of arguments, a `Lanes` argument whose length is not a multiple of
@@ -331,7 +334,9 @@ impl Compiled {
                 .filter(|(l, _)| **l == Layout::Lanes)
                 .map(|(_, n)| n)
                 .sum::<usize>();
-        if lanes < 2 * LANE_GROUP || rows * lanes * 8 <= GROUP_ABOVE_BYTES {
+        if lanes < 2 * LANE_GROUP
+            || rows.saturating_mul(lanes).saturating_mul(8) <= GROUP_ABOVE_BYTES
+        {
             with_pointers(args, |ptrs| {
                 // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument;
                 // `stride == lanes`.
@@ -512,7 +517,7 @@ pub fn compile_with(
         let plan = Plan::new(graph, spec, f)?;
         let large = plan.scalar_order.len() > options.large_function;
         let (opt, lane_block) = if large {
-            (OptLevel::None, 2)
+            (OptLevel::None, options.lane_block)
         } else {
             (options.opt_level, options.lane_block)
         };

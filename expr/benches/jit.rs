@@ -424,26 +424,17 @@ fn main() {
                         .all(|(a, b)| a.to_bits() == b.to_bits())
                 );
                 let ptrs = [q.as_ptr()];
-                let (t_single, _, ratio_single) = time_pair(
-                    || lanes_call(&c, 0, black_box(&ptrs), black_box(&mut out), lanes),
-                    || fput_grad_soa(black_box(&q), black_box(&mut hand), n, lanes, beta, &zero),
-                    min_run,
-                    runs,
-                );
-                // `call_lanes`: checked, and split into 8-lane groups when the arrays are large.
                 let (t_jit, t_hand, ratio) = time_pair(
-                    || c.call_lanes(0, &[black_box(&q)], black_box(&mut out), lanes),
+                    || lanes_call(&c, 0, black_box(&ptrs), black_box(&mut out), lanes),
                     || fput_grad_soa(black_box(&q), black_box(&mut hand), n, lanes, beta, &zero),
                     min_run,
                     runs,
                 );
                 env.line(&format!(
                     "\"bench\":\"eval\",\"system\":\"fput\",\"n\":{n},\"function\":\"grad\",\
-                     \"single_call_ns_per_site_lane\":{:.3},\"single_call_over_hand_median_round\":{ratio_single:.3},\
                      \"opt_level\":\"{label}\",\"lane_block\":{lane_block},\"lanes\":{lanes},\"jit_ns_per_call\":{:.1},\
                      \"hand_ns_per_call\":{:.1},\"jit_ns_per_site_lane\":{:.3},\
                      \"hand_ns_per_site_lane\":{:.3},\"jit_over_hand_min\":{:.3},\"jit_over_hand_median_round\":{ratio:.3}",
-                    t_single * 1e9 / (n * lanes) as f64,
                     t_jit * 1e9,
                     t_hand * 1e9,
                     t_jit * 1e9 / (n * lanes) as f64,

@@ -199,15 +199,6 @@ struct FnInfo {
     lanes: LanesFnPtr,
 }
 
-/// Lanes per group when [`Compiled::call_lanes`] splits a large call: 8 `f64`, one cache line of
-/// each row.
-const LANE_GROUP: usize = 8;
-
-/// [`Compiled::call_lanes`] splits calls whose lane data exceed this many bytes (half a typical
-/// L2 cache): measured on an FPUT chain of 1001 sites, 64 lanes in one call ran 2-4x slower per
-/// lane than 8, the rows' cache lines being evicted between the blocks of lanes that share them.
-const GROUP_ABOVE_BYTES: usize = 256 * 1024;
-
 /// The compiled functions of one [`compile`] call. Owns the executable memory (freed on drop)
 /// and the tables the code calls into.
 ///
@@ -306,8 +297,6 @@ impl Compiled {
     /// Lane call over `lanes` independent evaluations in structure-of-arrays layout: an argument
     /// with `Layout::Lanes` holds entry `i` of lane `l` at `[i * lanes + l]`; `Layout::Scalar`
     /// arguments are shared by all lanes; the output is written as `out[j * lanes + l]`.
-    /// Large arrays (lane data beyond 256 KiB) are evaluated in groups of 8 lanes, one call of
-    /// the lane function each, for cache locality; the results are the same bits.
     ///
     /// # Panics
     /// On a wrong number of arguments, a `Lanes` argument whose length is not a multiple of
@@ -325,56 +314,11 @@ impl Compiled {
         if lanes == 0 {
             return;
         }
-        // Rows of lane data touched per call (lane arguments and the output).
-        let rows: usize = info.n_out
-            + info
-                .layouts
-                .iter()
-                .zip(&info.arg_len)
-                .filter(|(l, _)| **l == Layout::Lanes)
-                .map(|(_, n)| n)
-                .sum::<usize>();
-        if lanes < 2 * LANE_GROUP
-            || rows.saturating_mul(lanes).saturating_mul(8) <= GROUP_ABOVE_BYTES
-        {
-            with_pointers(args, |ptrs| {
-                // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument;
-                // `stride == lanes`.
-                unsafe { (info.lanes)(ptrs, out.as_mut_ptr(), lanes, lanes) }
-            });
-            return;
-        }
-        // Large arrays: groups of LANE_GROUP consecutive lanes (one cache line per row), the
-        // last group taking the remainder, so each cache line is used completely while it is
-        // in L1 instead of being fetched again for every block of lanes.
-        let mut small = [std::ptr::null::<f64>(); 8];
-        let mut heap = Vec::new();
-        let ptrs: &mut [*const f64] = if args.len() <= small.len() {
-            &mut small[..args.len()]
-        } else {
-            heap.resize(args.len(), std::ptr::null());
-            &mut heap
-        };
-        for (p, a) in ptrs.iter_mut().zip(args) {
-            *p = a.as_ptr();
-        }
-        let groups = lanes / LANE_GROUP;
-        for g in 0..groups {
-            let first = g * LANE_GROUP;
-            let count = if g + 1 == groups {
-                lanes - first
-            } else {
-                LANE_GROUP
-            };
-            for ((p, a), layout) in ptrs.iter_mut().zip(args).zip(&info.layouts) {
-                if *layout == Layout::Lanes {
-                    *p = a.as_ptr().wrapping_add(first);
-                }
-            }
-            // SAFETY: lengths checked above for `lanes` lanes; lanes `first .. first + count`
-            // (at least 2) of the same arrays, stride `lanes`, lie within them.
-            unsafe { (info.lanes)(ptrs.as_ptr(), out.as_mut_ptr().add(first), count, lanes) }
-        }
+        with_pointers(args, |ptrs| {
+            // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument;
+            // `stride == lanes`.
+            unsafe { (info.lanes)(ptrs, out.as_mut_ptr(), lanes, lanes) }
+        });
     }
 
     /// The scalar function's machine code, for hot loops that check lengths once outside. See

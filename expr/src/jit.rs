@@ -1280,7 +1280,11 @@ fn build_lanes(e: &mut Emit, scalar: FuncId, units: usize) {
     // Uniform values the loop reads go to a stack array (8 bytes each) and are reloaded and
     // broadcast at each use: as SSA values live across the loop, a thousand of them (the
     // stiffnesses of a chain's HVP at a shared position) cost the register allocator a second.
-    let n_uniform = plan.uniform_order.len();
+    let n_uniform = plan
+        .uniform_order
+        .iter()
+        .filter(|&&id| plan.broadcast[id as usize])
+        .count();
     let uniforms = b.create_sized_stack_slot(StackSlotData::new(
         StackSlotKind::ExplicitSlot,
         (n_uniform.max(1) * 8) as u32,

@@ -238,8 +238,7 @@ fn lanes_call(c: &Compiled, f: usize, ptrs: &[*const f64], out: &mut [f64], lane
 }
 
 /// (opt_level, its name, lanes per loop iteration, size threshold) measured: each setting on
-/// every function, then the defaults (`speed`, 4 lanes, but `none` and 2 lanes above 2000
-/// operations).
+/// every function, then the defaults (`speed`, 4 lanes, but `none` above 2000 operations).
 const CONFIGS: [(OptLevel, &str, usize, usize); 5] = [
     (OptLevel::None, "none", 2, usize::MAX),
     (OptLevel::None, "none", 4, usize::MAX),
@@ -425,26 +424,17 @@ fn main() {
                         .all(|(a, b)| a.to_bits() == b.to_bits())
                 );
                 let ptrs = [q.as_ptr()];
-                let (t_single, _, ratio_single) = time_pair(
-                    || lanes_call(&c, 0, black_box(&ptrs), black_box(&mut out), lanes),
-                    || fput_grad_soa(black_box(&q), black_box(&mut hand), n, lanes, beta, &zero),
-                    min_run,
-                    runs,
-                );
-                // `call_lanes`: checked, and split into 8-lane groups when the arrays are large.
                 let (t_jit, t_hand, ratio) = time_pair(
-                    || c.call_lanes(0, &[black_box(&q)], black_box(&mut out), lanes),
+                    || lanes_call(&c, 0, black_box(&ptrs), black_box(&mut out), lanes),
                     || fput_grad_soa(black_box(&q), black_box(&mut hand), n, lanes, beta, &zero),
                     min_run,
                     runs,
                 );
                 env.line(&format!(
                     "\"bench\":\"eval\",\"system\":\"fput\",\"n\":{n},\"function\":\"grad\",\
-                     \"single_call_ns_per_site_lane\":{:.3},\"single_call_over_hand_median_round\":{ratio_single:.3},\
                      \"opt_level\":\"{label}\",\"lane_block\":{lane_block},\"lanes\":{lanes},\"jit_ns_per_call\":{:.1},\
                      \"hand_ns_per_call\":{:.1},\"jit_ns_per_site_lane\":{:.3},\
                      \"hand_ns_per_site_lane\":{:.3},\"jit_over_hand_min\":{:.3},\"jit_over_hand_median_round\":{ratio:.3}",
-                    t_single * 1e9 / (n * lanes) as f64,
                     t_jit * 1e9,
                     t_hand * 1e9,
                     t_jit * 1e9 / (n * lanes) as f64,

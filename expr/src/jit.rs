@@ -97,10 +97,10 @@ pub struct Options {
     /// Lanes per loop iteration: 2 (one `F64X2` per value) or 4 (two independent `F64X2`
     /// chains; lane counts 2 and 3 then use a second, two-lane copy of the loop).
     pub lane_block: usize,
-    /// Functions with more operations than this are compiled with `OptLevel::None` and two-lane
-    /// blocks whatever the two fields above say: Cranelift's optimizer and a second loop body
-    /// cost compile time in proportion to size (an FPUT chain of 1001 sites: 0.2 s instead of
-    /// 0.6-1.4 s for gradient and HVP), for a measured gain of 0-15% on such functions.
+    /// Functions with more operations than this are compiled with `OptLevel::None` whatever
+    /// `opt_level` says: Cranelift's optimizer costs compile time in proportion to size (an FPUT
+    /// chain of 1001 sites, gradient and HVP with four-lane blocks: 0.44 s instead of 1.4 s)
+    /// for a measured 0-40% on such functions.
     pub large_function: usize,
 }
 
@@ -108,7 +108,8 @@ impl Default for Options {
     /// Chosen by measurement (`benches/jit.rs`): `speed` and four lanes per iteration make the
     /// small functions (a Henon-Heiles gradient) up to 2x faster than `none` and two lanes, at
     /// a compile cost that only matters for large functions, which `large_function` sends to
-    /// `none` and two lanes (an FPUT chain of 1001 sites: gradient and HVP in about 0.2 s).
+    /// `none` (an FPUT chain of 1001 sites: gradient and HVP in about 0.45 s, 0.23 s with
+    /// two-lane blocks, which are 20-30% slower).
     fn default() -> Self {
         Options {
             opt_level: OptLevel::Speed,
@@ -197,15 +198,6 @@ struct FnInfo {
     scalar: ScalarFnPtr,
     lanes: LanesFnPtr,
 }
-
-/// Lanes per group when [`Compiled::call_lanes`] splits a large call: 8 `f64`, one cache line of
-/// each row.
-const LANE_GROUP: usize = 8;
-
-/// [`Compiled::call_lanes`] splits calls whose lane data exceed this many bytes (half a typical
-/// L2 cache): measured on an FPUT chain of 1001 sites, 64 lanes in one call ran 2-4x slower per
-/// lane than 8, the rows' cache lines being evicted between the blocks of lanes that share them.
-const GROUP_ABOVE_BYTES: usize = 256 * 1024;
 
 /// The compiled functions of one [`compile`] call. Owns the executable memory (freed on drop)
 /// and the tables the code calls into.
@@ -322,54 +314,11 @@ impl Compiled {
         if lanes == 0 {
             return;
         }
-        // Rows of lane data touched per call (lane arguments and the output).
-        let rows: usize = info.n_out
-            + info
-                .layouts
-                .iter()
-                .zip(&info.arg_len)
-                .filter(|(l, _)| **l == Layout::Lanes)
-                .map(|(_, n)| n)
-                .sum::<usize>();
-        if lanes < 2 * LANE_GROUP || rows * lanes * 8 <= GROUP_ABOVE_BYTES {
-            with_pointers(args, |ptrs| {
-                // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument;
-                // `stride == lanes`.
-                unsafe { (info.lanes)(ptrs, out.as_mut_ptr(), lanes, lanes) }
-            });
-            return;
-        }
-        // Large arrays: groups of LANE_GROUP consecutive lanes (one cache line per row), the
-        // last group taking the remainder, so each cache line is used completely while it is
-        // in L1 instead of being fetched again for every block of lanes.
-        let mut small = [std::ptr::null::<f64>(); 8];
-        let mut heap = Vec::new();
-        let ptrs: &mut [*const f64] = if args.len() <= small.len() {
-            &mut small[..args.len()]
-        } else {
-            heap.resize(args.len(), std::ptr::null());
-            &mut heap
-        };
-        for (p, a) in ptrs.iter_mut().zip(args) {
-            *p = a.as_ptr();
-        }
-        let groups = lanes / LANE_GROUP;
-        for g in 0..groups {
-            let first = g * LANE_GROUP;
-            let count = if g + 1 == groups {
-                lanes - first
-            } else {
-                LANE_GROUP
-            };
-            for ((p, a), layout) in ptrs.iter_mut().zip(args).zip(&info.layouts) {
-                if *layout == Layout::Lanes {
-                    *p = a.as_ptr().wrapping_add(first);
-                }
-            }
-            // SAFETY: lengths checked above for `lanes` lanes; lanes `first .. first + count`
-            // (at least 2) of the same arrays, stride `lanes`, lie within them.
-            unsafe { (info.lanes)(ptrs.as_ptr(), out.as_mut_ptr().add(first), count, lanes) }
-        }
+        with_pointers(args, |ptrs| {
+            // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument;
+            // `stride == lanes`.
+            unsafe { (info.lanes)(ptrs, out.as_mut_ptr(), lanes, lanes) }
+        });
     }
 
     /// The scalar function's machine code, for hot loops that check lengths once outside. See
@@ -512,7 +461,7 @@ pub fn compile_with(
         let plan = Plan::new(graph, spec, f)?;
         let large = plan.scalar_order.len() > options.large_function;
         let (opt, lane_block) = if large {
-            (OptLevel::None, 2)
+            (OptLevel::None, options.lane_block)
         } else {
             (options.opt_level, options.lane_block)
         };
@@ -1331,7 +1280,11 @@ fn build_lanes(e: &mut Emit, scalar: FuncId, units: usize) {
     // Uniform values the loop reads go to a stack array (8 bytes each) and are reloaded and
     // broadcast at each use: as SSA values live across the loop, a thousand of them (the
     // stiffnesses of a chain's HVP at a shared position) cost the register allocator a second.
-    let n_uniform = plan.uniform_order.len();
+    let n_uniform = plan
+        .uniform_order
+        .iter()
+        .filter(|&&id| plan.broadcast[id as usize])
+        .count();
     let uniforms = b.create_sized_stack_slot(StackSlotData::new(
         StackSlotKind::ExplicitSlot,
         (n_uniform.max(1) * 8) as u32,

@@ -642,7 +642,6 @@ fn small_and_large_functions_in_one_compile() {
     ];
     let c = jit::compile(&g2, &specs).unwrap();
     let mut rng = Rng(9);
-    // 33 lanes: split by `call_lanes` into groups of 8, 8, 8 and 9 lanes.
     for lanes in [1, 3, 8, 33] {
         let args: Vec<Vec<f64>> = (0..2)
             .map(|_| (0..1001 * lanes).map(|_| rng.moderate()).collect())
@@ -661,6 +660,58 @@ fn small_and_large_functions_in_one_compile() {
                 let want = reference(&g2, &lane_refs, &spec.outputs);
                 let got: Vec<f64> = (0..n_out).map(|j| out[j * lanes + l]).collect();
                 assert_same(&format!("f{f} lanes={lanes} lane {l}"), &got, &want, &"");
+            }
+        }
+    }
+}
+
+/// The raw lane function over groups of consecutive lanes of a wider array (`stride > lanes`)
+/// gives the same bits as one call over all lanes.
+#[test]
+fn lane_groups_with_a_stride() {
+    let mut g = Graph::new();
+    let (grad, hvp) = fput(&mut g, 37, 0.9);
+    let specs = [
+        FunctionSpec {
+            args: vec![Layout::Lanes, Layout::Lanes],
+            outputs: grad,
+        },
+        FunctionSpec {
+            args: vec![Layout::Scalar, Layout::Lanes],
+            outputs: hvp,
+        },
+    ];
+    for lane_block in [2, 4] {
+        let options = Options {
+            lane_block,
+            ..Options::default()
+        };
+        let c = jit::compile_with(&g, &specs, &options).unwrap();
+        let mut rng = Rng(10);
+        let total = 23;
+        for f in 0..2 {
+            let q: Vec<f64> = (0..37 * total).map(|_| rng.moderate()).collect();
+            let v: Vec<f64> = (0..37 * total).map(|_| rng.moderate()).collect();
+            let mut whole = vec![0.0; 37 * total];
+            c.call_lanes(f, &[&q, &v], &mut whole, total);
+            let mut grouped = vec![f64::NAN; 37 * total];
+            let raw = c.raw_lanes(f);
+            let mut first = 0;
+            for count in [2, 3, 5, 4, 9] {
+                let q_ptr = if f == 0 {
+                    q[first..].as_ptr()
+                } else {
+                    q.as_ptr()
+                };
+                let ptrs = [q_ptr, v[first..].as_ptr()];
+                // SAFETY: lanes `first .. first + count` of arrays of 37 rows x `total` lanes,
+                // stride `total`; the output does not overlap the arguments.
+                unsafe { raw(ptrs.as_ptr(), grouped[first..].as_mut_ptr(), count, total) };
+                first += count;
+            }
+            assert_eq!(first, total);
+            for (x, y) in whole.iter().zip(&grouped) {
+                assert_eq!(x.to_bits(), y.to_bits());
             }
         }
     }

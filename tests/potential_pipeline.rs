@@ -191,3 +191,40 @@ fn replay_refuses_a_changed_table() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("sha256") && err.contains("differs"), "{err}");
 }
+
+#[test]
+fn map_resume_refuses_a_changed_table() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::copy(models_dir().join("fput-bond.csv"), d.join("fput-bond.csv")).unwrap();
+    let text = std::fs::read_to_string(models_dir().join("tabulated-bond.toml")).unwrap();
+    let mut config = RunConfig::from_toml(&text).unwrap();
+    config.integrator.t_final = 2.0;
+    config.schemes.retain(|s| s.method == "mpm");
+    config.map = Some(MapConfig {
+        k: Some(2),
+        ..MapConfig::new(
+            MapAxis::new("q2", -0.2, 0.2, 3),
+            MapAxis::new("p2", -0.2, 0.2, 2),
+            "gali",
+        )
+    });
+    let cfg = d.join("map.toml");
+    std::fs::write(&cfg, config.to_toml()).unwrap();
+    let map = d.join("map.mcap");
+    run_ok(&["map", s(&cfg), "--out", s(&map)]);
+    let before = std::fs::read(&map).unwrap();
+
+    let csv = d.join("fput-bond.csv");
+    let changed = std::fs::read_to_string(&csv)
+        .unwrap()
+        .replacen("-3,24.75", "-3,24.76", 1);
+    std::fs::write(&csv, changed).unwrap();
+    let out = chaoscope(&["map", s(&cfg), "--out", s(&map)])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("another table") && err.contains("'U'"), "{err}");
+    assert_eq!(std::fs::read(&map).unwrap(), before, "the map file is left untouched");
+}

@@ -317,6 +317,13 @@ fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u6
                 path.display()
             );
         };
+        if let Some(why) = table_difference(&h.config_toml, &header.config_toml) {
+            bail!(
+                "{} was computed with another table: {why}; pass --restart to recompute it \
+                 with the table as it is now, or restore the table",
+                path.display()
+            );
+        }
         if h.config_toml != header.config_toml
             || (h.shard_index, h.shard_count) != (header.shard_index, header.shard_count)
         {
@@ -335,6 +342,23 @@ fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u6
         prev_is_this_map |= is_prev;
     }
     Ok(points)
+}
+
+/// A table whose content differs between a map file's recorded configuration and this one
+/// (both carry each table's SHA-256), described for the user; `None` if every table agrees.
+fn table_difference(recorded: &str, now: &str) -> Option<String> {
+    let recorded = chaoscope_schemas::config::RunConfig::from_toml(recorded).ok()?;
+    let now = chaoscope_schemas::config::RunConfig::from_toml(now).ok()?;
+    now.model.tables.iter().find_map(|(name, table)| {
+        let (was, is) = (recorded.model.tables.get(name)?.spec(), table.spec());
+        match (&was.sha256, &is.sha256) {
+            (Some(a), Some(b)) if a != b => Some(format!(
+                "table '{name}' ({}) has SHA-256 {b}, the map was made with {a}",
+                is.file
+            )),
+            _ => None,
+        }
+    })
 }
 
 /// Protobuf status of a point status.

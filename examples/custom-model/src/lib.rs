@@ -73,7 +73,7 @@ name = "barbanis"
 [model]
 name = "barbanis"
 [orbit]
-q = [0.0, 0.5]
+q = [0.0, 0.2]
 p = [0.0, 0.0]
 energy = 0.06
 solve_for = "p1"

@@ -269,18 +269,23 @@ pub fn gradient(g: &mut Graph, root: NodeId, arg: u8, n: usize) -> Result<Vec<No
                     adj[u as usize].push(r);
                 }
             };
+        // The same through a one-operand local derivative, summing the terms first where
+        // distributing them would cost nodes.
+        let push_through =
+            |g: &mut Graph, adj: &mut Vec<Vec<Term>>, terms: Vec<Term>, u: NodeId, local: Local| {
+                let terms = through(g, terms, local);
+                push(g, adj, &terms, u, local);
+            };
         match node {
             Node::Const(_) | Node::Input { .. } => unreachable!(),
             Node::Unary(op, u) => {
                 if let Some(local) = unary_local(g, op, u, v) {
-                    let terms = through(g, terms, local);
-                    push(g, &mut adj, &terms, u, local);
+                    push_through(g, &mut adj, terms, u, local);
                 }
             }
             Node::Powi(u, k) => {
                 let local = powi_local(g, u, k);
-                let terms = through(g, terms, local);
-                push(g, &mut adj, &terms, u, local);
+                push_through(g, &mut adj, terms, u, local);
             }
             Node::Table {
                 table,
@@ -290,8 +295,7 @@ pub fn gradient(g: &mut Graph, root: NodeId, arg: u8, n: usize) -> Result<Vec<No
                 if g.as_const(u).is_none() {
                     let d = table_deriv(g, table, deriv, u)?;
                     let local = Local::Mul(1.0, Some(d));
-                    let terms = through(g, terms, local);
-                    push(g, &mut adj, &terms, u, local);
+                    push_through(g, &mut adj, terms, u, local);
                 }
             }
             Node::Binary(op, a, b) => {
@@ -343,8 +347,7 @@ pub fn gradient(g: &mut Graph, root: NodeId, arg: u8, n: usize) -> Result<Vec<No
                     Binary::Pow => {
                         if let Some(c) = cb {
                             let local = pow_const_local(g, a, c);
-                            let terms = through(g, terms, local);
-                            push(g, &mut adj, &terms, a, local);
+                            push_through(g, &mut adj, terms, a, local);
                         } else {
                             // v = a^b: da = b v / a, db = v ln a.
                             let s = single(g, &terms);
@@ -379,17 +382,8 @@ pub fn gradient(g: &mut Graph, root: NodeId, arg: u8, n: usize) -> Result<Vec<No
                         }
                     }
                     Binary::Max | Binary::Min => {
-                        let cmp = if op == Binary::Max { Cmp::Ge } else { Cmp::Le };
-                        let s = single(g, &terms);
-                        let zero = g.constant(0.0);
-                        if ca.is_none() {
-                            let r = select(g, cmp, a, b, s, zero);
-                            adj[a as usize].push((1.0, Some(r)));
-                        }
-                        if cb.is_none() {
-                            let r = select(g, cmp, a, b, zero, s);
-                            adj[b as usize].push((1.0, Some(r)));
-                        }
+                        let cmp = max_min_cmp(op);
+                        push_selected(g, &mut adj, &terms, (cmp, a, b), [a, b]);
                     }
                 }
             }
@@ -399,18 +393,7 @@ pub fn gradient(g: &mut Graph, root: NodeId, arg: u8, n: usize) -> Result<Vec<No
                 b,
                 then,
                 otherwise,
-            } => {
-                let s = single(g, &terms);
-                let zero = g.constant(0.0);
-                if g.as_const(then).is_none() {
-                    let r = select(g, cmp, a, b, s, zero);
-                    adj[then as usize].push((1.0, Some(r)));
-                }
-                if g.as_const(otherwise).is_none() {
-                    let r = select(g, cmp, a, b, zero, s);
-                    adj[otherwise as usize].push((1.0, Some(r)));
-                }
-            }
+            } => push_selected(g, &mut adj, &terms, (cmp, a, b), [then, otherwise]),
         }
     }
 
@@ -443,6 +426,53 @@ fn select(
         then,
         otherwise,
     })
+}
+
+/// The condition under which `max` (`min`) selects its first operand: `a >= b` (`a <= b`).
+fn max_min_cmp(op: Binary) -> Cmp {
+    if op == Binary::Max { Cmp::Ge } else { Cmp::Le }
+}
+
+/// Pushes the adjoint `terms` of `cond ? then : otherwise` (a `select`, or `max`/`min` of its
+/// operands) to each branch that is not constant, as the adjoint where the branch is taken
+/// and zero elsewhere.
+fn push_selected(
+    g: &mut Graph,
+    adj: &mut [Vec<Term>],
+    terms: &[Term],
+    (cmp, a, b): (Cmp, NodeId, NodeId),
+    [then, otherwise]: [NodeId; 2],
+) {
+    let s = single(g, terms);
+    let zero = g.constant(0.0);
+    if g.as_const(then).is_none() {
+        let r = select(g, cmp, a, b, s, zero);
+        adj[then as usize].push((1.0, Some(r)));
+    }
+    if g.as_const(otherwise).is_none() {
+        let r = select(g, cmp, a, b, zero, s);
+        adj[otherwise as usize].push((1.0, Some(r)));
+    }
+}
+
+/// The tangent of `cmp(a, b) ? then : otherwise` from the branches' tangents (`None`: zero).
+fn select_tangent(
+    g: &mut Graph,
+    (cmp, a, b): (Cmp, NodeId, NodeId),
+    [then, otherwise]: [Option<NodeId>; 2],
+) -> Option<NodeId> {
+    if then.is_none() && otherwise.is_none() {
+        return None;
+    }
+    let zero = g.constant(0.0);
+    Some(select(
+        g,
+        cmp,
+        a,
+        b,
+        then.unwrap_or(zero),
+        otherwise.unwrap_or(zero),
+    ))
 }
 
 /// The adjoint as one node.
@@ -573,20 +603,7 @@ fn node_tangent(
             b,
             then,
             otherwise,
-        } => match (t(then), t(otherwise)) {
-            (None, None) => None,
-            (dt, dof) => {
-                let zero = g.constant(0.0);
-                Some(select(
-                    g,
-                    cmp,
-                    a,
-                    b,
-                    dt.unwrap_or(zero),
-                    dof.unwrap_or(zero),
-                ))
-            }
-        },
+        } => select_tangent(g, (cmp, a, b), [t(then), t(otherwise)]),
     })
 }
 
@@ -762,11 +779,7 @@ fn binary_tangent(
             let den = g.add2(a2, b2);
             Some(g.div(num, den))
         }
-        Binary::Max | Binary::Min => {
-            let cmp = if op == Binary::Max { Cmp::Ge } else { Cmp::Le };
-            let zero = g.constant(0.0);
-            Some(select(g, cmp, a, b, da.unwrap_or(zero), db.unwrap_or(zero)))
-        }
+        Binary::Max | Binary::Min => select_tangent(g, (max_min_cmp(op), a, b), [da, db]),
     }
 }
 
@@ -775,60 +788,42 @@ mod tests {
     use super::*;
     use crate::eval::Evaluator;
     use crate::graph::Tabulated;
+    use crate::testing::{eval1, uniform01};
     use std::sync::Arc;
 
     /// Henon-Heiles as the lowering writes `(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3`.
     fn henon_heiles(g: &mut Graph) -> NodeId {
+        henon_heiles_written(g, false)
+    }
+
+    /// Henon-Heiles, with `x / 2` and `x / 3` written as `x * 0.5` and `x * (1/3)` when
+    /// `by_reciprocal`.
+    fn henon_heiles_written(g: &mut Graph, by_reciprocal: bool) -> NodeId {
+        let over = |g: &mut Graph, x: NodeId, d: f64| {
+            if by_reciprocal {
+                let c = g.constant(1.0 / d);
+                g.mul(x, c)
+            } else {
+                let c = g.constant(d);
+                g.div(x, c)
+            }
+        };
         let q1 = g.input(0, 0);
         let q2 = g.input(0, 1);
         let q1s = g.powi(q1, 2);
         let q2s = g.powi(q2, 2);
         let s = g.add2(q1s, q2s);
-        let two = g.constant(2.0);
-        let a = g.div(s, two);
+        let a = over(g, s, 2.0);
         let b = g.mul(q1s, q2);
         let ab = g.add2(a, b);
         let q2c = g.powi(q2, 3);
-        let three = g.constant(3.0);
-        let c = g.div(q2c, three);
+        let c = over(g, q2c, 3.0);
         g.sub(ab, c)
     }
 
-    fn henon_heiles_by_reciprocal(g: &mut Graph) -> NodeId {
-        let q1 = g.input(0, 0);
-        let q2 = g.input(0, 1);
-        let q1s = g.powi(q1, 2);
-        let q2s = g.powi(q2, 2);
-        let s = g.add2(q1s, q2s);
-        let half = g.constant(0.5);
-        let a = g.mul(s, half);
-        let b = g.mul(q1s, q2);
-        let ab = g.add2(a, b);
-        let q2c = g.powi(q2, 3);
-        let third = g.constant(1.0 / 3.0);
-        let c = g.mul(q2c, third);
-        g.sub(ab, c)
-    }
-
-    /// Deterministic pseudo-random numbers in [-1, 1) (splitmix64).
+    /// Deterministic pseudo-random numbers in [-1, 1).
     fn points(n: usize, seed: u64) -> Vec<f64> {
-        let mut s = seed;
-        (0..n)
-            .map(|_| {
-                s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-                let mut z = s;
-                z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-                z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-                z ^= z >> 31;
-                (z >> 11) as f64 / (1u64 << 52) as f64 - 1.0
-            })
-            .collect()
-    }
-
-    fn eval1(g: &Graph, args: &[&[f64]], out: &[NodeId]) -> Vec<f64> {
-        let mut r = vec![0.0; out.len()];
-        Evaluator::new().eval(g, args, out, &mut r);
-        r
+        uniform01(n, seed).iter().map(|u| 2.0 * u - 1.0).collect()
     }
 
     #[test]
@@ -842,11 +837,7 @@ mod tests {
     /// `x * (1/3)` gets the same gradient.
     fn henon_heiles_gradient_bits(by_reciprocal: bool) {
         let mut g = Graph::new();
-        let v = if by_reciprocal {
-            henon_heiles_by_reciprocal(&mut g)
-        } else {
-            henon_heiles(&mut g)
-        };
+        let v = henon_heiles_written(&mut g, by_reciprocal);
         let before = g.len();
         let grad = gradient(&mut g, v, 0, 2).unwrap();
         // q1 + 2 q1 q2: a product, a doubling, a sum; q2 + q1^2 - q2^2 reuses q1^2 and q2^2.
@@ -880,19 +871,35 @@ mod tests {
         }
     }
 
-    #[test]
-    fn henon_heiles_hessian_vector_product() {
+    /// A product of the Jacobian of outputs with a vector ([`directional`], [`jacobian_vector`]).
+    type Product = fn(&mut Graph, &[NodeId], u8, u8) -> Result<Vec<NodeId>, DiffError>;
+
+    /// The Henon-Heiles Hessian-vector product built by `product` from the gradient
+    /// (positions in argument 0, the vector in argument 1).
+    fn henon_heiles_hvp(product: Product) -> (Graph, Vec<NodeId>) {
         let mut g = Graph::new();
         let v = henon_heiles(&mut g);
         let grad = gradient(&mut g, v, 0, 2).unwrap();
-        let hv = directional(&mut g, &grad, 0, 1).unwrap();
+        let hv = product(&mut g, &grad, 0, 1).unwrap();
+        (g, hv)
+    }
+
+    /// The hand-written Henon-Heiles Hessian-vector product at `q` along `v`.
+    fn henon_heiles_hvp_by_hand(q: &[f64], v: &[f64]) -> [f64; 2] {
+        let (q1, q2, v1, v2) = (q[0], q[1], v[0], v[1]);
+        [
+            (1.0 + 2.0 * q2) * v1 + 2.0 * q1 * v2,
+            2.0 * q1 * v1 + (1.0 - 2.0 * q2) * v2,
+        ]
+    }
+
+    #[test]
+    fn henon_heiles_hessian_vector_product() {
+        let (g, hv) = henon_heiles_hvp(directional);
         for pt in points(4000, 3).chunks(4) {
-            let (q1, q2, v1, v2) = (pt[0], pt[1], pt[2], pt[3]);
-            let r = eval1(&g, &[&[q1, q2], &[v1, v2]], &hv);
-            let hand = [
-                (1.0 + 2.0 * q2) * v1 + 2.0 * q1 * v2,
-                2.0 * q1 * v1 + (1.0 - 2.0 * q2) * v2,
-            ];
+            let (q, v) = pt.split_at(2);
+            let r = eval1(&g, &[q, v], &hv);
+            let hand = henon_heiles_hvp_by_hand(q, v);
             for k in 0..2 {
                 assert!(
                     (r[k] - hand[k]).abs() <= 1e-15 * (1.0 + hand[k].abs()),
@@ -904,18 +911,11 @@ mod tests {
 
     #[test]
     fn henon_heiles_jacobian_vector_is_the_hand_written_hessian_vector_product() {
-        let mut g = Graph::new();
-        let v = henon_heiles(&mut g);
-        let grad = gradient(&mut g, v, 0, 2).unwrap();
-        let hv = jacobian_vector(&mut g, &grad, 0, 1).unwrap();
+        let (g, hv) = henon_heiles_hvp(jacobian_vector);
         for (i, q) in points(2000, 3).chunks(2).enumerate() {
             let d = [((i * 7) % 11) as f64 - 5.3, 0.7 - (i % 5) as f64];
             let got = eval1(&g, &[q, &d], &hv);
-            let (x1, x2) = (q[0], q[1]);
-            let want = [
-                (1.0 + 2.0 * x2) * d[0] + 2.0 * x1 * d[1],
-                2.0 * x1 * d[0] + (1.0 - 2.0 * x2) * d[1],
-            ];
+            let want = henon_heiles_hvp_by_hand(q, &d);
             for k in 0..2 {
                 assert_eq!(got[k].to_bits(), want[k].to_bits(), "q = {q:?}, v = {d:?}");
             }

@@ -36,11 +36,7 @@ impl Evaluator {
         if self.values.len() < len {
             self.values.resize(len, 0.0);
         }
-        for v in 0..len {
-            if self.need[v] {
-                self.values[v] = eval_node(g, g.node(v as NodeId), &self.values, args);
-            }
-        }
+        eval_needed(g, &self.need, &mut self.values, args, |_, _, _| false);
         for (o, &id) in out.iter_mut().zip(outputs) {
             *o = self.values[id as usize];
         }
@@ -63,6 +59,27 @@ pub(crate) fn mark_needed(g: &Graph, outputs: &[NodeId], need: &mut Vec<bool>) {
             }
         }
     }
+}
+
+/// Evaluates the nodes marked in `need`, in order, into `values`; stops at the first node for
+/// which `stop(node, its value, the values so far)` holds, and returns it.
+#[inline]
+fn eval_needed(
+    g: &Graph,
+    need: &[bool],
+    values: &mut [f64],
+    args: &[&[f64]],
+    mut stop: impl FnMut(&Node, f64, &[f64]) -> bool,
+) -> Option<NodeId> {
+    for v in (0..need.len()).filter(|&v| need[v]) {
+        let node = g.node(v as NodeId);
+        let x = eval_node(g, node, values, args);
+        values[v] = x;
+        if stop(node, x, values) {
+            return Some(v as NodeId);
+        }
+    }
+    None
 }
 
 /// One node's value from its operands' values.
@@ -102,18 +119,9 @@ pub fn first_non_finite(g: &Graph, args: &[&[f64]], root: NodeId) -> Option<Node
     let mut need = Vec::new();
     mark_needed(g, &[root], &mut need);
     let mut values = vec![0.0; need.len()];
-    for v in 0..need.len() {
-        if !need[v] {
-            continue;
-        }
-        let node = g.node(v as NodeId);
-        let x = eval_node(g, node, &values, args);
-        values[v] = x;
-        if !x.is_finite() && node.operands().all(|o| values[o as usize].is_finite()) {
-            return Some(v as NodeId);
-        }
-    }
-    None
+    eval_needed(g, &need, &mut values, args, |node, x, values| {
+        !x.is_finite() && node.operands().all(|o| values[o as usize].is_finite())
+    })
 }
 
 #[cfg(test)]

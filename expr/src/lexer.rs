@@ -32,6 +32,28 @@ pub struct Token {
     pub span: Span,
 }
 
+/// The operators and punctuation, each a fixed text; where one is a prefix of another, the
+/// longer comes first (`**` before `*`, `<=` before `<`).
+const PUNCTUATION: &[(&str, Tok)] = &[
+    ("..", Tok::DotDot),
+    ("+", Tok::Plus),
+    ("-", Tok::Minus),
+    ("**", Tok::Caret),
+    ("*", Tok::Star),
+    ("/", Tok::Slash),
+    ("^", Tok::Caret),
+    ("(", Tok::LParen),
+    (")", Tok::RParen),
+    ("[", Tok::LBracket),
+    ("]", Tok::RBracket),
+    (",", Tok::Comma),
+    ("<=", Tok::Cmp(Cmp::Le)),
+    ("<", Tok::Cmp(Cmp::Lt)),
+    (">=", Tok::Cmp(Cmp::Ge)),
+    (">", Tok::Cmp(Cmp::Gt)),
+    ("=", Tok::Assign),
+];
+
 /// All tokens of `src`, ending with [`Tok::Eof`] (whose span is the empty span at the end).
 pub fn lex(src: &str) -> Result<Vec<Token>, ExprError> {
     let b = src.as_bytes();
@@ -45,19 +67,10 @@ pub fn lex(src: &str) -> Result<Vec<Token>, ExprError> {
                 i += 1;
                 continue;
             }
-            b'0'..=b'9' => {
+            c if c.is_ascii_digit() || (c == b'.' && at(i + 1).is_ascii_digit()) => {
                 let (v, end) = number(src, i)?;
                 i = end;
                 Tok::Num(v)
-            }
-            b'.' if at(i + 1).is_ascii_digit() => {
-                let (v, end) = number(src, i)?;
-                i = end;
-                Tok::Num(v)
-            }
-            b'.' if at(i + 1) == b'.' => {
-                i += 2;
-                Tok::DotDot
             }
             c if c.is_ascii_alphabetic() || c == b'_' => {
                 while at(i).is_ascii_alphanumeric() || at(i) == b'_' {
@@ -65,94 +78,40 @@ pub fn lex(src: &str) -> Result<Vec<Token>, ExprError> {
                 }
                 Tok::Ident
             }
-            b'+' => {
-                i += 1;
-                Tok::Plus
-            }
-            b'-' => {
-                i += 1;
-                Tok::Minus
-            }
-            b'*' if at(i + 1) == b'*' => {
-                i += 2;
-                Tok::Caret
-            }
-            b'*' => {
-                i += 1;
-                Tok::Star
-            }
-            b'/' => {
-                i += 1;
-                Tok::Slash
-            }
-            b'^' => {
-                i += 1;
-                Tok::Caret
-            }
-            b'(' => {
-                i += 1;
-                Tok::LParen
-            }
-            b')' => {
-                i += 1;
-                Tok::RParen
-            }
-            b'[' => {
-                i += 1;
-                Tok::LBracket
-            }
-            b']' => {
-                i += 1;
-                Tok::RBracket
-            }
-            b',' => {
-                i += 1;
-                Tok::Comma
-            }
-            b'<' | b'>' => {
-                let lt = b[i] == b'<';
-                let eq = at(i + 1) == b'=';
-                i += if eq { 2 } else { 1 };
-                Tok::Cmp(match (lt, eq) {
-                    (true, false) => Cmp::Lt,
-                    (true, true) => Cmp::Le,
-                    (false, false) => Cmp::Gt,
-                    (false, true) => Cmp::Ge,
-                })
-            }
-            b'=' if at(i + 1) == b'=' => {
+            b'=' | b'!' if at(i + 1) == b'=' => {
                 return Err(ExprError::new(
                     src,
                     Span::new(i, i + 2),
-                    "'==' is not supported: conditions of if compare with <, <=, > or >=",
+                    format!(
+                        "'{}' is not supported: conditions of if compare with <, <=, > or >=",
+                        &src[i..i + 2]
+                    ),
                 ));
             }
-            b'=' => {
-                i += 1;
-                Tok::Assign
-            }
-            b'!' if at(i + 1) == b'=' => {
-                return Err(ExprError::new(
-                    src,
-                    Span::new(i, i + 2),
-                    "'!=' is not supported: conditions of if compare with <, <=, > or >=",
-                ));
-            }
-            _ => {
-                let c = src[i..].chars().next().unwrap_or('?');
-                // Other whitespace (a no-break space pasted from a paper or a web page).
-                if c.is_whitespace() {
-                    i += c.len_utf8();
-                    continue;
+            _ => match PUNCTUATION
+                .iter()
+                .find(|(text, _)| b[i..].starts_with(text.as_bytes()))
+            {
+                Some(&(text, tok)) => {
+                    i += text.len();
+                    tok
                 }
-                let what = if c == '.' {
-                    "unexpected '.' (a number needs a digit after its decimal point, a range is a..b)"
-                        .to_string()
-                } else {
-                    format!("unexpected character '{c}'")
-                };
-                return Err(ExprError::new(src, Span::new(i, i + c.len_utf8()), what));
-            }
+                None => {
+                    let c = src[i..].chars().next().unwrap_or('?');
+                    // Other whitespace (a no-break space pasted from a paper or a web page).
+                    if c.is_whitespace() {
+                        i += c.len_utf8();
+                        continue;
+                    }
+                    let what = if c == '.' {
+                        "unexpected '.' (a number needs a digit after its decimal point, a range is a..b)"
+                            .to_string()
+                    } else {
+                        format!("unexpected character '{c}'")
+                    };
+                    return Err(ExprError::new(src, Span::new(i, i + c.len_utf8()), what));
+                }
+            },
         };
         out.push(Token {
             tok,

@@ -27,6 +27,8 @@ pub mod lower;
 pub mod parser;
 pub mod smooth;
 pub mod table;
+#[cfg(test)]
+mod testing;
 
 pub use diff::{DiffError, directional, gradient, jacobian, jacobian_vector};
 pub use error::{ExprError, Span};

@@ -274,6 +274,15 @@ impl<'a> Lowerer<'a> {
         Ok((self.emit(Node::Const(c), span)?, Info::constant(c)))
     }
 
+    /// Variable `j` (0-based) of family `f`.
+    fn input(&mut self, f: &Family, j: usize, span: Span) -> R<(NodeId, Info)> {
+        let node = Node::Input {
+            arg: f.arg,
+            index: j as u32,
+        };
+        Ok((self.emit(node, span)?, Info::variable()))
+    }
+
     /// The facts of a freshly built node: a node that folded to a constant is smooth whatever
     /// operations it was written with (`abs(beta)`, `step(N - 2)`).
     fn settle(&self, id: NodeId, info: Info) -> Info {
@@ -344,28 +353,28 @@ impl<'a> Lowerer<'a> {
                 len => format!("{n}1..{n}{len} or {n}[i]", n = f.name),
             })
             .collect();
-        let vars = if vars.is_empty() {
-            "none".to_string()
-        } else {
-            vars.join(", ")
-        };
         let params: Vec<&str> = self.scope.params.keys().map(String::as_str).collect();
-        let params = if params.is_empty() {
-            "none".to_string()
-        } else {
-            params.join(", ")
-        };
-        let mut msg = format!("unknown name '{name}' (variables: {vars}; parameters: {params}");
+        let mut msg = format!(
+            "unknown name '{name}' (variables: {}; parameters: {}",
+            list_or_none(&vars),
+            list_or_none(&params)
+        );
         if !self.sums.is_empty() {
             let idx: Vec<&str> = self.sums.iter().map(|(n, _)| *n).collect();
             msg += &format!("; sum indices: {}", idx.join(", "));
         }
-        if !self.scope.tables.is_empty() {
-            let t: Vec<&str> = self.scope.tables.iter().map(|(n, _)| n.as_str()).collect();
-            msg += &format!("; tables: {}", t.join(", "));
-        }
+        msg += &self.tables_note();
         msg.push(')');
         self.err(span, msg)
+    }
+
+    /// `; tables: U, V` for messages that list the names in scope (empty without tables).
+    fn tables_note(&self) -> String {
+        if self.scope.tables.is_empty() {
+            return String::new();
+        }
+        let t: Vec<&str> = self.scope.tables.iter().map(|(n, _)| n.as_str()).collect();
+        format!("; tables: {}", t.join(", "))
     }
 
     /// Every parameter the expression names: finite values, arrays of exactly `N` entries,
@@ -507,14 +516,7 @@ impl<'a> Lowerer<'a> {
             )),
             Meaning::Var(f, k) => {
                 if k >= 1 && k <= f.len as u64 {
-                    let id = self.emit(
-                        Node::Input {
-                            arg: f.arg,
-                            index: (k - 1) as u32,
-                        },
-                        span,
-                    )?;
-                    Ok((id, Info::variable()))
+                    self.input(f, (k - 1) as usize, span)
                 } else {
                     let size = if f.len == self.scope.n {
                         format!("N = {}", f.len)
@@ -538,16 +540,27 @@ impl<'a> Lowerer<'a> {
                     f.len
                 ),
             )),
-            Meaning::Table(_) => {
-                Err(self.err(span, format!("'{n}' is a tabulated function: write {n}(x)")))
-            }
             Meaning::Function if n == "sum" => {
                 Err(self.err(span, "'sum' needs a range and a term: sum(i = 1..N, term)"))
             }
-            Meaning::Function => {
-                Err(self.err(span, format!("'{n}' is a function: write {n}(...)")))
+            m @ (Meaning::Table(_) | Meaning::Function | Meaning::Unknown) => {
+                Err(self.not_a_value(m, n, span))
             }
-            Meaning::Unknown => Err(self.unknown(n, span)),
+        }
+    }
+
+    /// The error for `name` where a value is wanted, when it means a table, a function or
+    /// nothing.
+    fn not_a_value(&self, meaning: Meaning<'a>, name: &str, span: Span) -> Box<ExprError> {
+        match meaning {
+            Meaning::Table(_) => self.err(
+                span,
+                format!("'{name}' is a tabulated function: write {name}(x)"),
+            ),
+            Meaning::Function => {
+                self.err(span, format!("'{name}' is a function: write {name}(...)"))
+            }
+            _ => self.unknown(name, span),
         }
     }
 
@@ -562,16 +575,7 @@ impl<'a> Lowerer<'a> {
             Meaning::Family(f) => {
                 let k = self.int(index)?;
                 match self.site(k, f.len, name, false, e.span)? {
-                    Some(j) => {
-                        let id = self.emit(
-                            Node::Input {
-                                arg: f.arg,
-                                index: j as u32,
-                            },
-                            e.span,
-                        )?;
-                        Ok((id, Info::variable()))
-                    }
+                    Some(j) => self.input(f, j, e.span),
                     // A wall.
                     None => self.constant(0.0, e.span),
                 }
@@ -600,15 +604,9 @@ impl<'a> Lowerer<'a> {
             Meaning::N | Meaning::Pi => {
                 Err(self.err(name_span, format!("'{name}' is a number, not an array")))
             }
-            Meaning::Table(_) => Err(self.err(
-                name_span,
-                format!("'{name}' is a tabulated function: write {name}(x)"),
-            )),
-            Meaning::Function => Err(self.err(
-                name_span,
-                format!("'{name}' is a function: write {name}(...)"),
-            )),
-            Meaning::Unknown => Err(self.unknown(name, name_span)),
+            m @ (Meaning::Table(_) | Meaning::Function | Meaning::Unknown) => {
+                Err(self.not_a_value(m, name, name_span))
+            }
         }
     }
 
@@ -893,17 +891,13 @@ impl<'a> Lowerer<'a> {
                 name_span,
                 format!("'{name}' is not a function (for a product write {name}*(...))"),
             )),
-            _ => {
-                let mut known = KNOWN.to_string();
-                if !self.scope.tables.is_empty() {
-                    let t: Vec<&str> = self.scope.tables.iter().map(|(n, _)| n.as_str()).collect();
-                    known += &format!("; tables: {}", t.join(", "));
-                }
-                Err(self.err(
-                    name_span,
-                    format!("unknown function '{name}' (known: {known})"),
-                ))
-            }
+            _ => Err(self.err(
+                name_span,
+                format!(
+                    "unknown function '{name}' (known: {KNOWN}{})",
+                    self.tables_note()
+                ),
+            )),
         }
     }
 
@@ -999,6 +993,15 @@ impl<'a> Lowerer<'a> {
     }
 }
 
+/// `a, b, c`, or `none`.
+fn list_or_none<S: std::borrow::Borrow<str>>(items: &[S]) -> String {
+    if items.is_empty() {
+        "none".to_string()
+    } else {
+        items.join(", ")
+    }
+}
+
 fn cmp_symbol(c: Cmp) -> &'static str {
     match c {
         Cmp::Lt => "<",
@@ -1012,6 +1015,7 @@ fn cmp_symbol(c: Cmp) -> &'static str {
 mod tests {
     use super::*;
     use crate::graph::Tabulated;
+    use crate::testing::eval1;
     use std::sync::Arc;
 
     /// `U(x) = x^2/2 + x^3`, defined everywhere (a stand-in for a spline).
@@ -1032,35 +1036,23 @@ mod tests {
         }
     }
 
-    /// A reference evaluation of the graph, with the graph's own operation definitions.
+    /// The value of `root` with the family `q` (argument 0) at `q`.
     fn eval(g: &Graph, root: NodeId, q: &[f64]) -> f64 {
-        let mut v = vec![0.0; g.len()];
-        for (k, node) in g.nodes().iter().enumerate() {
-            v[k] = match *node {
-                Node::Const(c) => c,
-                Node::Input { index, .. } => q[index as usize],
-                Node::Unary(op, a) => Graph::apply_unary(op, v[a as usize]),
-                Node::Binary(op, a, b) => Graph::apply_binary(op, v[a as usize], v[b as usize]),
-                Node::Powi(a, n) => Graph::apply_powi(v[a as usize], n),
-                Node::Select {
-                    cmp,
-                    a,
-                    b,
-                    then,
-                    otherwise,
-                } => {
-                    if cmp.holds(v[a as usize], v[b as usize]) {
-                        v[then as usize]
-                    } else {
-                        v[otherwise as usize]
-                    }
-                }
-                Node::Table { table, deriv, arg } => {
-                    g.tables()[table as usize].eval(deriv, v[arg as usize])
-                }
-            };
+        eval1(g, &[q], &[root])[0]
+    }
+
+    /// `t_0 + t_1 + ...` summed left to right, as a lattice sum is lowered (0 when empty).
+    fn left_sum(terms: impl IntoIterator<Item = f64>) -> f64 {
+        terms.into_iter().reduce(|acc, t| acc + t).unwrap_or(0.0)
+    }
+
+    /// Site `k` (1-based) of `q` with fixed ends: 0 at the walls beyond `1..=q.len()`.
+    fn walled(q: &[f64], k: usize) -> f64 {
+        if (1..=q.len()).contains(&k) {
+            q[k - 1]
+        } else {
+            0.0
         }
-        v[root as usize]
     }
 
     /// Everything a test needs to lower: the family `q` of length `n`, parameters, the table
@@ -1102,7 +1094,8 @@ mod tests {
             self
         }
 
-        fn lower(&mut self, src: &str) -> Result<Lowered, ExprError> {
+        /// The scope to lower in, and the graph to lower into.
+        fn parts(&mut self) -> (Scope<'_>, &mut Graph) {
             let scope = Scope {
                 families: &self.families,
                 params: &self.params,
@@ -1110,7 +1103,12 @@ mod tests {
                 n: self.n,
                 boundary: self.boundary,
             };
-            lower(src, &scope, &mut self.graph)
+            (scope, &mut self.graph)
+        }
+
+        fn lower(&mut self, src: &str) -> Result<Lowered, ExprError> {
+            let (scope, graph) = self.parts();
+            lower(src, &scope, graph)
         }
 
         fn ok(&mut self, src: &str) -> Lowered {
@@ -1159,13 +1157,10 @@ mod tests {
         let mut s = Setup::new(n, Boundary::Fixed).param("beta", beta);
         let l = s.ok("sum(i = 0..N, (q[i+1]-q[i])^2/2 + beta/4*(q[i+1]-q[i])^4)");
         let q = coords(n);
-        let at = |k: usize| if (1..=n).contains(&k) { q[k - 1] } else { 0.0 };
-        let mut want = 0.0;
-        for i in 0..=n {
-            let d = at(i + 1) - at(i);
-            let t = d * d / 2.0 + beta / 4.0 * (d * d * d * d);
-            want = if i == 0 { t } else { want + t };
-        }
+        let want = left_sum((0..=n).map(|i| {
+            let d = walled(&q, i + 1) - walled(&q, i);
+            d * d / 2.0 + beta / 4.0 * (d * d * d * d)
+        }));
         same(eval(&s.graph, l.root, &q), want, "FPUT");
         assert!(l.smoothness.is_smooth());
         assert_eq!(dead_operations(&s.graph, l.root), 0);
@@ -1183,17 +1178,12 @@ mod tests {
             "sum(i = 1..N, k[i]/2*q[i]^2 + q[i]^4/4)\n  + sum(i = 1..N, (q[i+1]-q[i])^2/(2*W))",
         );
         let q = coords(n);
-        let mut onsite = 0.0;
-        for i in 0..n {
-            let t = k[i] / 2.0 * (q[i] * q[i]) + q[i] * q[i] * q[i] * q[i] / 4.0;
-            onsite = if i == 0 { t } else { onsite + t };
-        }
-        let mut bonds = 0.0;
-        for i in 0..n - 1 {
+        let onsite =
+            left_sum((0..n).map(|i| k[i] / 2.0 * (q[i] * q[i]) + q[i] * q[i] * q[i] * q[i] / 4.0));
+        let bonds = left_sum((0..n - 1).map(|i| {
             let d = q[i + 1] - q[i];
-            let t = d * d / (2.0 * w);
-            bonds = if i == 0 { t } else { bonds + t };
-        }
+            d * d / (2.0 * w)
+        }));
         same(eval(&s.graph, l.root, &q), onsite + bonds, "KG");
         // The left-out term i = N was never lowered: every operation is used.
         assert_eq!(dead_operations(&s.graph, l.root), 0);
@@ -1223,12 +1213,10 @@ mod tests {
         let mut s = Setup::new(n, Boundary::Periodic);
         let l = s.ok("sum(i = 1..N, exp(q[i+1]-q[i]) - (q[i+1]-q[i]) - 1)");
         let q = coords(n);
-        let mut want = 0.0;
-        for i in 0..n {
+        let want = left_sum((0..n).map(|i| {
             let d = q[(i + 1) % n] - q[i];
-            let t = d.exp() - d - 1.0;
-            want = if i == 0 { t } else { want + t };
-        }
+            d.exp() - d - 1.0
+        }));
         same(eval(&s.graph, l.root, &q), want, "Toda");
         assert!(l.smoothness.is_smooth());
         // q[0] is q[N], array parameters wrap too.
@@ -1248,12 +1236,10 @@ mod tests {
         let mut s = Setup::new(n, Boundary::Fixed).param("D", d0).param("a", a);
         let l = s.ok("sum(i = 1..N-1, D*(1 - exp(-a*(q[i+1]-q[i])))^2)");
         let q = coords(n);
-        let mut want = 0.0;
-        for i in 0..n - 1 {
+        let want = left_sum((0..n - 1).map(|i| {
             let e = 1.0 - (-a * (q[i + 1] - q[i])).exp();
-            let t = d0 * (e * e);
-            want = if i == 0 { t } else { want + t };
-        }
+            d0 * (e * e)
+        }));
         same(eval(&s.graph, l.root, &q), want, "Morse");
         assert!(l.smoothness.is_smooth());
     }
@@ -1268,13 +1254,14 @@ mod tests {
         let src = "sum(i = 0..N, A*max(0, delta0 - (q[i+1]-q[i]))^(5/2))";
         let l = s.ok(src);
         let q = coords(n);
-        let at = |k: usize| if (1..=n).contains(&k) { q[k - 1] } else { 0.0 };
-        let mut want = 0.0;
-        for i in 0..=n {
-            let d = Graph::apply_binary(Binary::Max, 0.0, delta0 - (at(i + 1) - at(i)));
-            let t = amp * d.powf(2.5);
-            want = if i == 0 { t } else { want + t };
-        }
+        let want = left_sum((0..=n).map(|i| {
+            let d = Graph::apply_binary(
+                Binary::Max,
+                0.0,
+                delta0 - (walled(&q, i + 1) - walled(&q, i)),
+            );
+            amp * d.powf(2.5)
+        }));
         same(eval(&s.graph, l.root, &q), want, "Hertz");
         assert!(
             s.graph
@@ -1299,12 +1286,7 @@ mod tests {
         let src = "sum(i = 0..N, U(q[i+1]-q[i]))";
         let l = s.ok(src);
         let q = coords(n);
-        let at = |k: usize| if (1..=n).contains(&k) { q[k - 1] } else { 0.0 };
-        let mut want = 0.0;
-        for i in 0..=n {
-            let t = Cubic.eval(0, at(i + 1) - at(i));
-            want = if i == 0 { t } else { want + t };
-        }
+        let want = left_sum((0..=n).map(|i| Cubic.eval(0, walled(&q, i + 1) - walled(&q, i))));
         same(eval(&s.graph, l.root, &q), want, "table");
         let lim = l.smoothness.limited_by.as_ref().unwrap();
         assert_eq!((l.smoothness.order, lim.operation.as_str()), (2, "U"));
@@ -1622,14 +1604,8 @@ mod tests {
     fn size_limits() {
         let limited = |boundary, src: &str| {
             let mut s = Setup::new(5, boundary);
-            let scope = Scope {
-                families: &s.families,
-                params: &s.params,
-                tables: &s.tables,
-                n: s.n,
-                boundary: s.boundary,
-            };
-            on_big_stack(|| lower_limited(src, &scope, &mut s.graph, 10_000, 50_000)).unwrap_err()
+            let (scope, graph) = s.parts();
+            on_big_stack(|| lower_limited(src, &scope, graph, 10_000, 50_000)).unwrap_err()
         };
         let e = limited(
             Boundary::Fixed,
@@ -1866,14 +1842,8 @@ mod tests {
                     .param("A", 1.0)
                     .param("delta0", 0.1)
                     .array("k", vec![1.0; 4]);
-                let scope = Scope {
-                    families: &s.families,
-                    params: &s.params,
-                    tables: &s.tables,
-                    n: s.n,
-                    boundary: s.boundary,
-                };
-                match lower_limited(&src, &scope, &mut s.graph, MAX_NODES, MAX_STEPS) {
+                let (scope, graph) = s.parts();
+                match lower_limited(&src, &scope, graph, MAX_NODES, MAX_STEPS) {
                     // Every error renders, and its position is inside the source.
                     Err(e) => {
                         let _ = e.to_string();

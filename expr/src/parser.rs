@@ -96,6 +96,21 @@ struct Parser<'s> {
 
 type R<T> = Result<T, ExprError>;
 
+/// The left-associative binary operator `t` stands for, with its precedence level: `+ -` bind
+/// loosest (0), `* /` tightest ([`TIGHTEST`]).
+fn binary_op(t: Tok) -> Option<(usize, BinOp)> {
+    match t {
+        Tok::Plus => Some((0, BinOp::Add)),
+        Tok::Minus => Some((0, BinOp::Sub)),
+        Tok::Star => Some((TIGHTEST, BinOp::Mul)),
+        Tok::Slash => Some((TIGHTEST, BinOp::Div)),
+        _ => None,
+    }
+}
+
+/// The precedence level of the operators that bind tightest ([`binary_op`]).
+const TIGHTEST: usize = 1;
+
 impl<'s> Parser<'s> {
     fn peek(&self) -> Token {
         self.tokens[self.pos.min(self.tokens.len() - 1)]
@@ -146,12 +161,12 @@ impl<'s> Parser<'s> {
     }
 
     fn expr(&mut self) -> R<Expr> {
-        let lhs = self.additive()?;
+        let lhs = self.chain(0)?;
         let Tok::Cmp(op) = self.peek().tok else {
             return Ok(lhs);
         };
         let op_span = self.next().span;
-        let rhs = self.additive()?;
+        let rhs = self.chain(0)?;
         if let Tok::Cmp(_) = self.peek().tok {
             let t = self.peek();
             return Err(self.err(
@@ -171,15 +186,21 @@ impl<'s> Parser<'s> {
         })
     }
 
-    /// A left-associative chain of operators of one precedence level.
-    fn chain(
-        &mut self,
-        ops: fn(Tok) -> Option<BinOp>,
-        operand: fn(&mut Self) -> R<Expr>,
-    ) -> R<Expr> {
+    /// A left-associative chain of the operators of precedence `level` (see [`binary_op`]),
+    /// whose operands are chains of the next level, or unary expressions above the last.
+    fn chain(&mut self, level: usize) -> R<Expr> {
+        let operand = |p: &mut Self| {
+            if level == TIGHTEST {
+                p.unary()
+            } else {
+                p.chain(level + 1)
+            }
+        };
         let first = operand(self)?;
         let mut rest = Vec::new();
-        while let Some(op) = ops(self.peek().tok) {
+        while let Some((l, op)) = binary_op(self.peek().tok)
+            && l == level
+        {
             let op_span = self.next().span;
             rest.push((op, op_span, operand(self)?));
         }
@@ -196,28 +217,6 @@ impl<'s> Parser<'s> {
             },
             span,
         })
-    }
-
-    fn additive(&mut self) -> R<Expr> {
-        self.chain(
-            |t| match t {
-                Tok::Plus => Some(BinOp::Add),
-                Tok::Minus => Some(BinOp::Sub),
-                _ => None,
-            },
-            Self::term,
-        )
-    }
-
-    fn term(&mut self) -> R<Expr> {
-        self.chain(
-            |t| match t {
-                Tok::Star => Some(BinOp::Mul),
-                Tok::Slash => Some(BinOp::Div),
-                _ => None,
-            },
-            Self::unary,
-        )
     }
 
     fn unary(&mut self) -> R<Expr> {
@@ -290,6 +289,15 @@ impl<'s> Parser<'s> {
         ))
     }
 
+    /// One expression inside the bracket `open`, and the closing `close`.
+    fn bracketed(&mut self, open: Token, close: Tok, what: &str) -> R<(Expr, Token)> {
+        self.enter(open.span)?;
+        let e = self.expr()?;
+        let end = self.close(close, open, what)?;
+        self.leave();
+        Ok((e, end))
+    }
+
     fn primary(&mut self) -> R<Expr> {
         let t = self.next();
         match t.tok {
@@ -298,10 +306,7 @@ impl<'s> Parser<'s> {
                 span: t.span,
             }),
             Tok::LParen => {
-                self.enter(t.span)?;
-                let e = self.expr()?;
-                self.close(Tok::RParen, t, "")?;
-                self.leave();
+                let (e, _) = self.bracketed(t, Tok::RParen, "")?;
                 // The inner span is kept: carets point at the content, and an error in `(a)`
                 // reads the same as in `a`.
                 Ok(e)
@@ -313,10 +318,8 @@ impl<'s> Parser<'s> {
                     Tok::LParen => self.call(name, t),
                     Tok::LBracket => {
                         let open = self.next();
-                        self.enter(open.span)?;
-                        let index = self.expr()?;
-                        let end = self.close(Tok::RBracket, open, &format!(" of '{name}['"))?;
-                        self.leave();
+                        let what = format!(" of '{name}['");
+                        let (index, end) = self.bracketed(open, Tok::RBracket, &what)?;
                         Ok(Expr {
                             kind: ExprKind::Index {
                                 name,
@@ -390,53 +393,31 @@ impl<'s> Parser<'s> {
         })
     }
 
+    /// The next token, which must be `tok` (`what` describes it) inside a sum.
+    fn expect(&mut self, tok: Tok, what: &str) -> R<Token> {
+        let t = self.next();
+        if t.tok == tok {
+            return Ok(t);
+        }
+        Err(self.err(
+            t.span,
+            format!(
+                "expected {what}, found {} (write sum(i = 1..N, term))",
+                self.found(t)
+            ),
+        ))
+    }
+
     /// `sum(i = a..b, term)`; `sum` and `(` are next.
     fn sum(&mut self, sum_tok: Token) -> R<Expr> {
-        const FORM: &str = "sum(i = 1..N, term)";
         let open = self.next();
         self.enter(open.span)?;
-        let index_tok = self.next();
-        if index_tok.tok != Tok::Ident {
-            return Err(self.err(
-                index_tok.span,
-                format!(
-                    "expected the name of the sum's index, found {} (write {FORM})",
-                    self.found(index_tok)
-                ),
-            ));
-        }
-        let t = self.next();
-        if t.tok != Tok::Assign {
-            return Err(self.err(
-                t.span,
-                format!(
-                    "expected '=' after the sum's index, found {} (write {FORM})",
-                    self.found(t)
-                ),
-            ));
-        }
+        let index_tok = self.expect(Tok::Ident, "the name of the sum's index")?;
+        self.expect(Tok::Assign, "'=' after the sum's index")?;
         let from = self.expr()?;
-        let t = self.next();
-        if t.tok != Tok::DotDot {
-            return Err(self.err(
-                t.span,
-                format!(
-                    "expected '..' in the range of the sum, found {} (write {FORM})",
-                    self.found(t)
-                ),
-            ));
-        }
+        self.expect(Tok::DotDot, "'..' in the range of the sum")?;
         let to = self.expr()?;
-        let t = self.next();
-        if t.tok != Tok::Comma {
-            return Err(self.err(
-                t.span,
-                format!(
-                    "expected ',' after the range of the sum, found {} (write {FORM})",
-                    self.found(t)
-                ),
-            ));
-        }
+        self.expect(Tok::Comma, "',' after the range of the sum")?;
         let body = self.expr()?;
         let end = self.close(Tok::RParen, open, " of 'sum('")?;
         self.leave();

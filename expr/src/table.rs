@@ -132,23 +132,17 @@ impl TableData {
 pub fn read_csv(path: impl AsRef<Path>) -> Result<TableData, TableError> {
     let path = path.as_ref();
     let name = path.display().to_string();
-    let file = std::fs::File::open(path).map_err(|e| match e.kind() {
-        std::io::ErrorKind::NotFound => TableError::NotFound { name: name.clone() },
-        _ => TableError::Unreadable {
-            name: name.clone(),
-            source: e,
-        },
-    })?;
     let unreadable = |e| TableError::Unreadable {
         name: name.clone(),
         source: e,
     };
+    let file = std::fs::File::open(path).map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound => TableError::NotFound { name: name.clone() },
+        _ => unreadable(e),
+    })?;
     let len = file.metadata().map_err(unreadable)?.len();
     if len > MAX_FILE_BYTES {
-        return Err(TableError::TooLarge {
-            name,
-            limit: MAX_FILE_BYTES,
-        });
+        return Err(too_large(&name));
     }
     // Read at most one byte past the limit, in case the file grows while being read.
     let mut bytes = Vec::with_capacity(len as usize);
@@ -156,10 +150,7 @@ pub fn read_csv(path: impl AsRef<Path>) -> Result<TableData, TableError> {
         .read_to_end(&mut bytes)
         .map_err(unreadable)?;
     if bytes.len() as u64 > MAX_FILE_BYTES {
-        return Err(TableError::TooLarge {
-            name,
-            limit: MAX_FILE_BYTES,
-        });
+        return Err(too_large(&name));
     }
     let text = std::str::from_utf8(&bytes).map_err(|e| TableError::NotText {
         name: name.clone(),
@@ -171,6 +162,13 @@ pub fn read_csv(path: impl AsRef<Path>) -> Result<TableData, TableError> {
     parse_csv(text, &name)
 }
 
+fn too_large(name: &str) -> TableError {
+    TableError::TooLarge {
+        name: name.to_string(),
+        limit: MAX_FILE_BYTES,
+    }
+}
+
 /// Parses table text: two numeric columns `x, V` per line, separated by a comma, a semicolon
 /// or whitespace; `#` starts a comment; blank lines are skipped; the first data line may be a
 /// header of non-numeric names (`x, V`). `x` must be strictly increasing (a table is a
@@ -179,10 +177,7 @@ pub fn read_csv(path: impl AsRef<Path>) -> Result<TableData, TableError> {
 /// `text`'s bytes.
 pub fn parse_csv(text: &str, name: &str) -> Result<TableData, TableError> {
     if text.len() as u64 > MAX_FILE_BYTES {
-        return Err(TableError::TooLarge {
-            name: name.to_string(),
-            limit: MAX_FILE_BYTES,
-        });
+        return Err(too_large(name));
     }
     let name_s = || name.to_string();
     let mut xs = Vec::new();
@@ -206,24 +201,18 @@ pub fn parse_csv(text: &str, name: &str) -> Result<TableData, TableError> {
         };
         let first = !seen_data_line;
         seen_data_line = true;
-        let parsed: Vec<Option<f64>> = fields.iter().map(|f| f.parse::<f64>().ok()).collect();
-        if first && parsed.iter().all(Option::is_none) && fields.iter().all(|f| !f.is_empty()) {
-            // A header of names; it must still have the two columns.
-            if fields.len() != 2 {
-                return Err(TableError::Columns {
-                    name: name_s(),
-                    line,
-                    found: fields.len(),
-                });
-            }
-            continue;
-        }
+        // Data and a header alike have the two columns.
         if fields.len() != 2 {
             return Err(TableError::Columns {
                 name: name_s(),
                 line,
                 found: fields.len(),
             });
+        }
+        let parsed: Vec<Option<f64>> = fields.iter().map(|f| f.parse::<f64>().ok()).collect();
+        if first && parsed.iter().all(Option::is_none) && fields.iter().all(|f| !f.is_empty()) {
+            // A header of names.
+            continue;
         }
         let mut vals = [0.0; 2];
         for (c, (f, p)) in fields.iter().zip(&parsed).enumerate() {
@@ -537,21 +526,7 @@ pub fn interpolation_error_bound(max_fourth_derivative: f64, max_spacing: f64) -
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// Deterministic pseudo-random numbers in [0, 1) (splitmix64).
-    fn uniform01(n: usize, seed: u64) -> Vec<f64> {
-        let mut s = seed;
-        (0..n)
-            .map(|_| {
-                s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
-                let mut z = s;
-                z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-                z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-                z ^= z >> 31;
-                (z >> 11) as f64 / (1u64 << 53) as f64
-            })
-            .collect()
-    }
+    use crate::testing::uniform01;
 
     fn uniform_knots(a: f64, b: f64, n: usize) -> Vec<f64> {
         (0..n)

@@ -225,6 +225,13 @@ fn map_resume_refuses_a_changed_table() {
         .unwrap();
     assert!(!out.status.success());
     let err = String::from_utf8_lossy(&out.stderr);
-    assert!(err.contains("another table") && err.contains("'U'"), "{err}");
-    assert_eq!(std::fs::read(&map).unwrap(), before, "the map file is left untouched");
+    assert!(
+        err.contains("another table") && err.contains("'U'"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read(&map).unwrap(),
+        before,
+        "the map file is left untouched"
+    );
 }

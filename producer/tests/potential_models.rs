@@ -398,3 +398,95 @@ fn nan_at_run_time_names_the_time_and_the_operation() {
     assert!(text.contains("t = "), "{text}");
     assert!(text.contains("'log'") || text.contains("'/'"), "{text}");
 }
+
+#[test]
+fn bad_parameters_and_tables_name_their_key() {
+    let base = || {
+        paper::henon_heiles(
+            paper::HH_CHAOTIC_Q2,
+            10.0,
+            DeviationsConfig::random(2, 1, 1),
+            vm_and_mpm(),
+        )
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let unsorted = dir.path().join("unsorted.csv");
+    std::fs::write(&unsorted, "x,U\n0,0\n1,1\n0.5,2\n2,3\n3,4\n").unwrap();
+    let non_finite = dir.path().join("nan.csv");
+    std::fs::write(&non_finite, "x,U\n0,0\n1,nan\n2,3\n3,4\n").unwrap();
+    type Spoil = Box<dyn Fn(&mut ModelConfig)>;
+    let table = |path: std::path::PathBuf| -> Spoil {
+        Box::new(move |m: &mut ModelConfig| {
+            m.potential = Some("U(q1) + q2^2".into());
+            m.tables.insert(
+                "U".into(),
+                TableConfig::File(path.to_string_lossy().into_owned()),
+            );
+        })
+    };
+    let cases: Vec<(Spoil, &str, &str)> = vec![
+        (
+            Box::new(|m| {
+                m.potential = Some("sum(i = 1..N, k[i]*q[i]^2)".into());
+                m.params
+                    .insert("k".into(), ParamValue::Array(vec![1.0, 2.0, 3.0]));
+            }),
+            "model.params.k",
+            "3 entries",
+        ),
+        (
+            Box::new(|m| {
+                m.params.insert("beta".into(), ParamValue::Scalar(f64::NAN));
+            }),
+            "model.params.beta",
+            "finite",
+        ),
+        (
+            Box::new(|m| m.masses = Some(ParamValue::Array(vec![1.0, -1.0]))),
+            "model.masses",
+            "positive",
+        ),
+        (
+            Box::new(|m| m.boundary = Some("circular".into())),
+            "model.boundary",
+            "circular",
+        ),
+        (table(dir.path().join("missing.csv")), "model.tables.U", "missing.csv"),
+        (table(unsorted), "model.tables.U", "line 4"),
+        (table(non_finite), "model.tables.U", "line 3"),
+    ];
+    for (spoil, key, needle) in cases {
+        let mut config = base();
+        config.model = hh_expression();
+        spoil(&mut config.model);
+        let err = RunSpec::from_config(&config).unwrap_err();
+        eprintln!("{err}");
+        assert_eq!(err.key, key, "{err}");
+        assert!(err.message.contains(needle), "{err}");
+    }
+}
+
+#[test]
+fn every_example_model_validates_and_runs() {
+    // Each config under examples/models/ as a user would run it, shortened to a few samples.
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models");
+    let mut seen = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "toml") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).unwrap();
+        let mut config = RunConfig::from_file_text(&text, &path).unwrap();
+        let tau = config.schemes[0].tau;
+        config.integrator.t_final = 3.0 * tau;
+        config.sweeps.clear();
+        let spec = RunSpec::from_config(&config)
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        Engine::new(spec)
+            .run(|_| {})
+            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        seen += 1;
+    }
+    assert!(seen >= 6, "{seen} example models");
+}

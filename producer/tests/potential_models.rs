@@ -451,7 +451,11 @@ fn bad_parameters_and_tables_name_their_key() {
             "model.boundary",
             "circular",
         ),
-        (table(dir.path().join("missing.csv")), "model.tables.U", "missing.csv"),
+        (
+            table(dir.path().join("missing.csv")),
+            "model.tables.U",
+            "missing.csv",
+        ),
         (table(unsorted), "model.tables.U", "line 4"),
         (table(non_finite), "model.tables.U", "line 3"),
     ];
@@ -481,8 +485,8 @@ fn every_example_model_validates_and_runs() {
         let tau = config.schemes[0].tau;
         config.integrator.t_final = 3.0 * tau;
         config.sweeps.clear();
-        let spec = RunSpec::from_config(&config)
-            .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let spec =
+            RunSpec::from_config(&config).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
         Engine::new(spec)
             .run(|_| {})
             .unwrap_or_else(|e| panic!("{}: {e}", path.display()));

@@ -345,6 +345,7 @@ mod expressions {
 
     use chaoscope_producer::batch::{Isa, LaneModel};
     use chaoscope_producer::engine::Engine;
+    use chaoscope_producer::map::MapSpec;
     use chaoscope_producer::model::{ExpressionModel, FputBeta, HenonHeiles};
     use chaoscope_producer::spec::{RunSpec, model_from_config};
     use chaoscope_schemas::config::{
@@ -429,6 +430,28 @@ mod expressions {
             .collect()
     }
 
+    /// The paper's GALI_2 map workload (MPM, 50 sets) on a 12 x 10 grid to t = 100 with one
+    /// thread, built-in Henon-Heiles against the same potential as an expression: what a map
+    /// of a user's own system costs.
+    fn map_pair(isa: Isa) -> anyhow::Result<serde_json::Value> {
+        let builtin = super::paper_gali2_config(12, 10, 100.0);
+        let mut expression = builtin.clone();
+        expression.model = ModelConfig::potential(2, HH);
+        let rate = |config: &RunConfig| -> anyhow::Result<f64> {
+            let spec = MapSpec::from_config(config)?;
+            let (_, cpu, steps, _) = super::map_case(&spec, isa, 1)?;
+            Ok(steps as f64 / cpu)
+        };
+        let (rb, re) = (rate(&builtin)?, rate(&expression)?);
+        Ok(serde_json::json!({
+            "grid": [12, 10],
+            "t_final": 100.0,
+            "builtin_orbit_steps_per_cpu_second": rb,
+            "expression_orbit_steps_per_cpu_second": re,
+            "builtin_over_expression": rb / re,
+        }))
+    }
+
     pub fn compare(isa: Isa, seconds: f64) -> anyhow::Result<serde_json::Value> {
         let hh = compiled(&ModelConfig::potential(2, HH))?;
         let fput101 = compiled(&fput_config(101))?;
@@ -481,6 +504,7 @@ mod expressions {
                 "build_seconds": hh.build_time().as_secs_f64(),
                 "kernel": pair(isa, &HenonHeiles, &hh, 1024, seconds),
                 "engine": engine(&hh_run, &hh_expr_run)?,
+                "gali2_map": map_pair(isa)?,
             },
             "fput_beta_101": {
                 "potential": FPUT,

@@ -52,6 +52,10 @@ use cranelift_module::{FuncId, Linkage, Module};
 
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
 
+mod step;
+
+pub use step::{OrbitStepsFnPtr, StepKernels, StepSpec, TangentStepsFnPtr, compile_steps};
+
 /// How a function reads one argument array (or writes its output).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Layout {

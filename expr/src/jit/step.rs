@@ -101,7 +101,8 @@ pub type TangentStepsFnPtr = unsafe extern "C" fn(
 pub struct StepKernels {
     modules: Mutex<Vec<JITModule>>,
     n: usize,
-    block: usize,
+    /// Lanes per block of each kernel (orbit, tangent).
+    blocks: [usize; 2],
     orbit: OrbitStepsFnPtr,
     tangent: Option<TangentStepsFnPtr>,
     _tables: Box<[Arc<dyn Tabulated>]>,
@@ -126,7 +127,7 @@ impl std::fmt::Debug for StepKernels {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("StepKernels")
             .field("n", &self.n)
-            .field("block", &self.block)
+            .field("blocks", &self.blocks)
             .field("tangent", &self.tangent.is_some())
             .field("compile_time", &self.compile_time)
             .finish()
@@ -139,10 +140,15 @@ impl StepKernels {
         self.n
     }
 
-    /// Lanes per block of the compiled loops (2 or 4): the raw functions only step whole
+    /// Lanes per block of the orbit kernel (2 or 4): the raw function only steps whole
     /// blocks.
     pub fn block_lanes(&self) -> usize {
-        self.block
+        self.blocks[0]
+    }
+
+    /// Lanes per block of the tangent kernel (2 or 4).
+    pub fn tangent_block_lanes(&self) -> usize {
+        self.blocks[1]
     }
 
     pub fn has_tangent(&self) -> bool {
@@ -209,9 +215,9 @@ impl StepKernels {
         x: &mut [f64],
         stride: usize,
         lanes: usize,
+        block: usize,
         mut kernel: impl FnMut(*mut f64, usize, usize),
     ) {
-        let block = self.block;
         let full = lanes - lanes % block;
         if full > 0 {
             kernel(x.as_mut_ptr(), stride, full);
@@ -255,7 +261,7 @@ impl StepKernels {
         self.check(x, stride, lanes, drift, kick, inverse_masses);
         let w = inverse_masses.map_or(std::ptr::null(), |w| w.as_ptr());
         let f = self.orbit;
-        self.by_blocks(x, stride, lanes, |p, stride, lanes| {
+        self.by_blocks(x, stride, lanes, self.blocks[0], |p, stride, lanes| {
             // SAFETY: lengths checked above (the padded copy has `2N` rows of `block` lanes);
             // `lanes` is a multiple of the block; the code lives as long as `self`.
             unsafe {
@@ -305,7 +311,7 @@ impl StepKernels {
             stages.len()
         );
         let w = inverse_masses.map_or(std::ptr::null(), |w| w.as_ptr());
-        self.by_blocks(v, stride, lanes, |p, stride, lanes| {
+        self.by_blocks(v, stride, lanes, self.blocks[1], |p, stride, lanes| {
             // SAFETY: as in `orbit_steps`, and `stages` holds every position the steps read.
             unsafe {
                 f(
@@ -326,7 +332,9 @@ impl StepKernels {
 
 /// Compiles the orbit kernel (and the tangent kernel if `spec` has a Hessian-vector product).
 /// `options.lane_block` is the block width; a force with more operations than
-/// `options.large_function` is compiled without Cranelift's optimizer.
+/// `options.large_function` is compiled without Cranelift's optimizer and with two-lane blocks
+/// (half the code: an FPUT chain of 1001 sites compiles both kernels in about 0.25 s instead
+/// of 0.7 s).
 pub fn compile_steps(
     graph: &Graph,
     spec: &StepSpec,
@@ -376,12 +384,16 @@ pub fn compile_steps(
     let mut ctx = Context::new();
     let mut fctx = FunctionBuilderContext::new();
     let mut defined = Vec::new();
+    let mut blocks = [options.lane_block; 2];
     for (f, plan, lane_arg, tangent) in &kernels {
-        let opt = if plan.varying_order.len() > options.large_function {
+        let large = plan.varying_order.len() > options.large_function;
+        let opt = if large {
             OptLevel::None
         } else {
             options.opt_level
         };
+        let block = if large { 2 } else { options.lane_block };
+        blocks[usize::from(*tangent)] = block;
         let m = match modules.iter().position(|(o, _)| *o == opt) {
             Some(m) => m,
             None => {
@@ -418,7 +430,7 @@ pub fn compile_steps(
             n,
             *lane_arg,
             *tangent,
-            options.lane_block / 2,
+            block / 2,
         );
         module.define_function(id, &mut ctx).map_err(codegen)?;
         defined.push((m, id, *tangent));
@@ -445,7 +457,7 @@ pub fn compile_steps(
     Ok(StepKernels {
         modules: Mutex::new(modules.into_iter().map(|(_, m)| m).collect()),
         n,
-        block: options.lane_block,
+        blocks,
         orbit: orbit.expect("the orbit kernel is always compiled"),
         tangent,
         _tables: tables,

@@ -481,6 +481,11 @@ struct Block<'a> {
     uniform_offset: &'a [u32],
     /// The stage's drift coefficients `ch * w_j` (or `ch`), one per row.
     coef: StackSlot,
+    /// When few: the coefficients and broadcast uniform values splatted once per stage (kept
+    /// in registers across the block loop instead of a load and a shuffle at each use); empty
+    /// otherwise.
+    hoisted_coef: Vec<Value>,
+    hoisted_uniform: Vec<Option<Value>>,
     /// Lane 0 of row 0 of this block, and the row stride in bytes.
     base: Value,
     stride: Value,
@@ -498,8 +503,13 @@ impl Block<'_> {
 
     /// `q_j += c_j p_j` for every unit, stored back; returns the new `q_j`.
     fn drift_row(&self, b: &mut FunctionBuilder, j: usize) -> [Value; 2] {
-        let c = b.ins().stack_load(I64, F64, self.coef, (j * 8) as i32);
-        let c = b.ins().splat(F64X2, c);
+        let c = match self.hoisted_coef.get(j) {
+            Some(&c) => c,
+            None => {
+                let c = b.ins().stack_load(I64, F64, self.coef, (j * 8) as i32);
+                b.ins().splat(F64X2, c)
+            }
+        };
         let (qa, pa) = (self.row(b, j), self.row(b, self.n + j));
         let mut out = [c; 2];
         for (unit, slot) in out.iter_mut().enumerate().take(self.units) {
@@ -555,6 +565,9 @@ impl Block<'_> {
                     .expect("only the tangent kernel has a shared argument");
                 let s = b.ins().load(F64, flags(), p, (index as usize * 8) as i32);
                 b.ins().splat(F64X2, s)
+            }
+            _ if self.plan.uniform[id as usize] && !self.hoisted_uniform.is_empty() => {
+                self.hoisted_uniform[id as usize].expect("broadcast uniform value")
             }
             _ if self.plan.uniform[id as usize] => {
                 let off = self.uniform_offset[id as usize] as i32;
@@ -665,6 +678,19 @@ fn fill_coefficients(b: &mut FunctionBuilder, coef: StackSlot, n: usize, ch: Val
         b.ins().brif(more, block, &[BlockArg::Value(j1)], cont, &[]);
     }
     b.switch_to_block(cont);
+}
+
+/// At most this many drift coefficients and uniform values are kept in registers across the
+/// block loop (16 XMM registers, the body needs the rest).
+const HOIST: usize = 8;
+
+fn hoist_coefficients(b: &mut FunctionBuilder, coef: StackSlot, n: usize) -> Vec<Value> {
+    (0..n)
+        .map(|j| {
+            let c = b.ins().stack_load(I64, F64, coef, (j * 8) as i32);
+            b.ins().splat(F64X2, c)
+        })
+        .collect()
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -800,6 +826,23 @@ fn build_kernel(
     }
     let dhv = b.ins().splat(F64X2, dh);
     fill_coefficients(&mut b, coef, n, ch, w);
+    let hoist = n + n_uniform <= HOIST;
+    let hoisted_coef = if hoist {
+        hoist_coefficients(&mut b, coef, n)
+    } else {
+        Vec::new()
+    };
+    let mut hoisted_uniform = Vec::new();
+    if hoist {
+        hoisted_uniform = vec![None; graph.len()];
+        for &id in &plan.uniform_order {
+            if plan.broadcast[id as usize] {
+                let off = uniform_offset[id as usize] as i32;
+                let v = b.ins().stack_load(I64, F64, uniforms, off);
+                hoisted_uniform[id as usize] = Some(b.ins().splat(F64X2, v));
+            }
+        }
+    }
     b.ins().jump(blk, &[BlockArg::Value(zero)]);
 
     // blk(off): one block of lanes (byte offset `off` of its first lane).
@@ -819,6 +862,8 @@ fn build_kernel(
         uniforms,
         uniform_offset: &uniform_offset,
         coef,
+        hoisted_coef,
+        hoisted_uniform,
         base,
         stride: sb,
     };
@@ -838,6 +883,11 @@ fn build_kernel(
     let lp = b.ins().iadd(drift, loff);
     let ch_last = b.ins().load(F64, flags(), lp, 0);
     fill_coefficients(&mut b, coef, n, ch_last, w);
+    block.hoisted_coef = if hoist {
+        hoist_coefficients(&mut b, coef, n)
+    } else {
+        Vec::new()
+    };
     b.ins().jump(last_blk, &[BlockArg::Value(zero)]);
 
     b.switch_to_block(last_blk);

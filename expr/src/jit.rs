@@ -174,6 +174,9 @@ pub enum JitError {
     },
     #[error("linking the compiled functions failed: {0}")]
     Link(String),
+    /// A [`StepSpec`] that does not describe `N` degrees of freedom.
+    #[error("step kernels: {0}")]
+    Steps(String),
 }
 
 /// A compiled scalar function.

@@ -290,3 +290,27 @@ fn no_lanes_or_steps_do_nothing() {
     k.orbit_steps(&mut x, 4, 4, 0, &dr, &ki, None);
     assert!(x.iter().all(|&v| v == 1.0));
 }
+
+#[test]
+fn specs_that_are_not_n_degrees_of_freedom_are_refused() {
+    let s = fput(5);
+    let refuse = |n: usize, gradient: Vec<NodeId>| {
+        let e = jit::compile_steps(
+            &s.graph,
+            &StepSpec {
+                n,
+                gradient,
+                hessian_vector: None,
+            },
+            &Options::default(),
+        )
+        .unwrap_err();
+        assert!(matches!(e, jit::JitError::Steps(_)), "{e}");
+    };
+    // Four forces for five sites; five for four; four forces of which the last reads q5,
+    // declared as four sites; nothing.
+    refuse(5, s.gradient[..4].to_vec());
+    refuse(4, s.gradient.clone());
+    refuse(4, s.gradient[..4].to_vec());
+    refuse(0, Vec::new());
+}

@@ -352,8 +352,8 @@ pub fn compile_steps(
     let mut kernels: Vec<(usize, Plan, u8, bool)> = Vec::new();
     let check = |f: usize, outputs: &[NodeId], args: Vec<Layout>| {
         if outputs.len() != n || n == 0 {
-            return Err(JitError::Host(format!(
-                "step kernel {f}: {} outputs for {n} degrees of freedom",
+            return Err(JitError::Steps(format!(
+                "kernel {f}: {} outputs for {n} degrees of freedom",
                 outputs.len()
             )));
         }
@@ -366,8 +366,8 @@ pub fn compile_steps(
             f,
         )?;
         if let Some(a) = plan.arg_len.iter().position(|&len| len > n) {
-            return Err(JitError::Host(format!(
-                "step kernel {f}: argument {a} is read at entry {}, beyond N = {n}",
+            return Err(JitError::Steps(format!(
+                "kernel {f}: argument {a} is read at entry {}, beyond N = {n}",
                 plan.arg_len[a] - 1
             )));
         }

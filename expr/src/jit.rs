@@ -52,6 +52,10 @@ use cranelift_module::{FuncId, Linkage, Module};
 
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
 
+mod step;
+
+pub use step::{OrbitStepsFnPtr, StepKernels, StepSpec, TangentStepsFnPtr, compile_steps};
+
 /// How a function reads one argument array (or writes its output).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Layout {
@@ -102,6 +106,10 @@ pub struct Options {
     /// chain of 1001 sites, gradient and HVP with four-lane blocks: 0.44 s instead of 1.4 s)
     /// for a measured 0-40% on such functions.
     pub large_function: usize,
+    /// Compile each spec's lane function beside its scalar one. A caller that steps its lanes
+    /// with the step kernels ([`compile_steps`]) needs only the scalar functions and halves
+    /// the compile time with `false`; [`Compiled::call_lanes`] then panics.
+    pub lane_functions: bool,
 }
 
 impl Default for Options {
@@ -116,6 +124,7 @@ impl Default for Options {
             regalloc: Regalloc::Backtracking,
             lane_block: 4,
             large_function: 2000,
+            lane_functions: true,
         }
     }
 }
@@ -165,6 +174,9 @@ pub enum JitError {
     },
     #[error("linking the compiled functions failed: {0}")]
     Link(String),
+    /// A [`StepSpec`] that does not describe `N` degrees of freedom.
+    #[error("step kernels: {0}")]
+    Steps(String),
 }
 
 /// A compiled scalar function.
@@ -196,7 +208,7 @@ struct FnInfo {
     arg_len: Vec<usize>,
     n_out: usize,
     scalar: ScalarFnPtr,
-    lanes: LanesFnPtr,
+    lanes: Option<LanesFnPtr>,
 }
 
 /// The compiled functions of one [`compile`] call. Owns the executable memory (freed on drop)
@@ -314,10 +326,11 @@ impl Compiled {
         if lanes == 0 {
             return;
         }
+        let f = self.raw_lanes(f);
         with_pointers(args, |ptrs| {
             // SAFETY: lengths checked above; `out` is a `&mut` so it overlaps no argument;
             // `stride == lanes`.
-            unsafe { (info.lanes)(ptrs, out.as_mut_ptr(), lanes, lanes) }
+            unsafe { f(ptrs, out.as_mut_ptr(), lanes, lanes) }
         });
     }
 
@@ -328,8 +341,13 @@ impl Compiled {
     }
 
     /// The lane function's machine code; see [`LanesFnPtr`]; valid while `self` lives.
+    ///
+    /// # Panics
+    /// If compiled without lane functions ([`Options::lane_functions`]).
     pub fn raw_lanes(&self, f: usize) -> LanesFnPtr {
-        self.fns[f].lanes
+        self.fns[f]
+            .lanes
+            .expect("compiled without lane functions (Options::lane_functions)")
     }
 }
 
@@ -492,9 +510,15 @@ pub fn compile_with(
         let id_s = module
             .declare_function(&format!("f{f}_scalar"), Linkage::Local, &sig_s)
             .map_err(codegen("scalar"))?;
-        let id_l = module
-            .declare_function(&format!("f{f}_lanes"), Linkage::Local, &sig_l)
-            .map_err(codegen("lanes"))?;
+        let id_l = if options.lane_functions {
+            Some(
+                module
+                    .declare_function(&format!("f{f}_lanes"), Linkage::Local, &sig_l)
+                    .map_err(codegen("lanes"))?,
+            )
+        } else {
+            None
+        };
 
         module.clear_context(&mut ctx);
         ctx.func.signature = sig_s;
@@ -512,13 +536,15 @@ pub fn compile_with(
             .define_function(id_s, emit.ctx)
             .map_err(codegen("scalar"))?;
 
-        emit.module.clear_context(emit.ctx);
-        emit.ctx.func.signature = sig_l;
-        emit.ctx.func.name = UserFuncName::user(0, id_l.as_u32());
-        emit.lanes(id_s, lane_block / 2);
-        emit.module
-            .define_function(id_l, emit.ctx)
-            .map_err(codegen("lanes"))?;
+        if let Some(id_l) = id_l {
+            emit.module.clear_context(emit.ctx);
+            emit.ctx.func.signature = sig_l;
+            emit.ctx.func.name = UserFuncName::user(0, id_l.as_u32());
+            emit.lanes(id_s, lane_block / 2);
+            emit.module
+                .define_function(id_l, emit.ctx)
+                .map_err(codegen("lanes"))?;
+        }
         defined.push((m, id_s, id_l, spec.args.clone(), plan.arg_len.clone()));
     }
     for (_, module) in &mut modules {
@@ -532,13 +558,13 @@ pub fn compile_with(
         .map(|((m, id_s, id_l, layouts, arg_len), spec)| {
             let module = &modules[m].1;
             let ps = module.get_finalized_function(id_s);
-            let pl = module.get_finalized_function(id_l);
+            let pl = id_l.map(|id| module.get_finalized_function(id));
             // SAFETY: both were defined above with exactly these signatures (two or four
             // pointer-sized integer parameters, no results, the host's C calling convention).
             let (scalar, lanes) = unsafe {
                 (
                     std::mem::transmute::<*const u8, ScalarFnPtr>(ps),
-                    std::mem::transmute::<*const u8, LanesFnPtr>(pl),
+                    pl.map(|pl| std::mem::transmute::<*const u8, LanesFnPtr>(pl)),
                 )
             };
             FnInfo {

@@ -1,5 +1,6 @@
 //! The batched kernel against the one-orbit integrator: bit for bit, on every instruction set
-//! this CPU has, for Henon-Heiles, the FPUT chain and the generic fallback.
+//! this CPU has, for Henon-Heiles, the FPUT chain, the same models written as expressions
+//! (compiled step kernels) and the generic fallback.
 
 use std::sync::Arc;
 
@@ -7,8 +8,9 @@ use chaoscope_producer::batch::{
     self, AnyLaneModel, DynLanes, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages,
 };
 use chaoscope_producer::integrator::{Integrator, Splitting, SplittingKind, Workspace};
-use chaoscope_producer::model::{FputBeta, HenonHeiles};
+use chaoscope_producer::model::{ExpressionModel, FputBeta, HenonHeiles};
 use chaoscope_producer::with_lane_model;
+use chaoscope_schemas::config::{ModelConfig, ParamValue};
 
 /// Deterministic pseudo-random numbers in [-1, 1) (no dependency needed).
 fn noise(seed: u64, i: usize) -> f64 {
@@ -140,5 +142,42 @@ fn generic_fallback_equals_one_orbit_steps() {
     check_tangents(&m, 9, 0.8, 23);
     // The dispatcher picks the concrete implementations for the shipped models.
     let any = AnyLaneModel::new(Arc::new(HenonHeiles), None);
+    with_lane_model!(&any, |m| check_orbits(m, 8, 0.3, 11));
+}
+
+fn expression(config: &ModelConfig) -> ExpressionModel {
+    let (model, _) = chaoscope_producer::spec::model_from_config(config).unwrap();
+    let any: &dyn std::any::Any = model.as_ref();
+    any.downcast_ref::<ExpressionModel>()
+        .expect("a potential compiles to an ExpressionModel")
+        .clone()
+}
+
+#[test]
+fn compiled_expression_lanes_equal_one_orbit_steps() {
+    // The step kernels (drift, inline force and kick in native code) against the one-orbit
+    // engine, which runs the scalar compiled gradient and Hessian-vector product.
+    let hh = expression(&ModelConfig::potential(
+        2,
+        "(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3",
+    ));
+    check_orbits(&hh, 45, 0.3, 301);
+    check_tangents(&hh, 45, 0.3, 301);
+    let mut fput = ModelConfig::potential(
+        5,
+        "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)",
+    );
+    fput.params.insert("beta".into(), ParamValue::Scalar(1.0));
+    let m = expression(&fput);
+    check_orbits(&m, 19, 0.8, 57);
+    check_tangents(&m, 19, 0.8, 57);
+    // Unequal masses: the drift's `(ch / m_i) * p` per row.
+    fput.masses = Some(ParamValue::Array(vec![1.0, 2.0, 0.5, 3.0, 1.5]));
+    let m = expression(&fput);
+    check_orbits(&m, 19, 0.8, 57);
+    check_tangents(&m, 19, 0.8, 57);
+    // Through the dispatcher, as the map kernels pick it.
+    let any = AnyLaneModel::new(Arc::new(hh), None);
+    assert!(matches!(any, AnyLaneModel::Expression(_)));
     with_lane_model!(&any, |m| check_orbits(m, 8, 0.3, 11));
 }

@@ -117,7 +117,7 @@ fn tangent_chunks<M: LaneModel, const L: usize>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 fn orbits_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
-    if M::REGISTER_RESIDENT {
+    if m.register_resident() {
         orbit_chunks::<M, 64>(m, c, x, n)
     } else {
         orbit_chunks::<M, 16>(m, c, x, n)
@@ -127,7 +127,7 @@ fn orbits_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn orbits_avx2<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
-    if M::REGISTER_RESIDENT {
+    if m.register_resident() {
         orbit_chunks::<M, 32>(m, c, x, n)
     } else {
         orbit_chunks::<M, 8>(m, c, x, n)

@@ -72,6 +72,14 @@ pub trait LaneModel: Model {
     /// (few degrees of freedom): the kernel then uses wide chunks.
     const REGISTER_RESIDENT: bool = false;
 
+    /// [`Self::REGISTER_RESIDENT`] decided at run time, for models whose size is known only
+    /// then (a compiled expression): the kernel takes wide chunks when this holds. The default
+    /// is the constant, so the built-in models' dispatch folds as before.
+    #[inline(always)]
+    fn register_resident(&self) -> bool {
+        Self::REGISTER_RESIDENT
+    }
+
     /// `out[i][l] = dV/dq_i` of lane `l`; `q` and `out` have `N` rows.
     fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]);
 

@@ -4,16 +4,17 @@
 //!
 //! The expression is lowered to a DAG (`chaoscope_expr`), differentiated there (reverse mode for
 //! the gradient, forward mode over the gradient for `Hess V v`), and the potential, gradient and
-//! Hessian-vector product are compiled by Cranelift, once per run, both as scalar functions (the
-//! one-orbit engine) and over structure-of-arrays lanes (the batched kernel). The compiled code
-//! performs exactly the reference evaluator's operations, so every path gives the same bits.
+//! Hessian-vector product are compiled by Cranelift, once per run: as scalar functions (the
+//! one-orbit engine), and as whole splitting steps over structure-of-arrays lanes, orbits and
+//! tangent vectors, with the force inline (the batched kernel). The compiled code performs
+//! exactly the reference evaluator's operations, so every path gives the same bits.
 
 use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 use std::time::Duration;
 
 use chaoscope_expr::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
-use chaoscope_expr::jit::{Compiled, FunctionSpec, Layout};
+use chaoscope_expr::jit::{Compiled, FunctionSpec, Layout, StepKernels, StepSpec};
 use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope};
 use chaoscope_expr::smooth::Smoothness;
 use chaoscope_expr::{Span, diff, eval, jit, lower};
@@ -45,8 +46,6 @@ pub struct PotentialError(pub String);
 const POTENTIAL: usize = 0;
 const GRADIENT: usize = 1;
 const HESSIAN_VECTOR: usize = 2;
-const GRADIENT_LANES: usize = 3;
-const HESSIAN_VECTOR_LANES: usize = 4;
 
 /// Argument arrays of the compiled functions: positions, and the direction of `Hess V v`.
 const ARG_Q: u8 = 0;
@@ -60,6 +59,8 @@ struct Inner {
     gradient: Vec<NodeId>,
     smoothness: Smoothness,
     compiled: Compiled,
+    /// Whole splitting steps over lanes (the batched kernel).
+    steps: StepKernels,
     build_time: Duration,
 }
 
@@ -127,17 +128,24 @@ impl ExpressionModel {
                 args: vec![Layout::Scalar, Layout::Scalar],
                 outputs: hessian_vector.clone(),
             },
-            FunctionSpec {
-                args: vec![Layout::Lanes],
-                outputs: gradient.clone(),
-            },
-            FunctionSpec {
-                args: vec![Layout::Scalar, Layout::Lanes],
-                outputs: hessian_vector,
-            },
         ];
-        let compiled = jit::compile(&graph, &specs)
+        // Scalar functions only: the batched kernel runs the step kernels below.
+        let options = jit::Options {
+            lane_functions: false,
+            ..jit::Options::default()
+        };
+        let compiled = jit::compile_with(&graph, &specs, &options)
             .map_err(|e| PotentialError(format!("compiling the potential: {e}")))?;
+        let steps = jit::compile_steps(
+            &graph,
+            &StepSpec {
+                n,
+                gradient: gradient.clone(),
+                hessian_vector: Some(hessian_vector),
+            },
+            &jit::Options::default(),
+        )
+        .map_err(|e| PotentialError(format!("compiling the step kernels: {e}")))?;
         Ok(Self(Arc::new(Inner {
             origins: lowered.origins,
             smoothness: lowered.smoothness,
@@ -146,6 +154,7 @@ impl ExpressionModel {
             potential,
             gradient,
             compiled,
+            steps,
             build_time: started.elapsed(),
         })))
     }
@@ -168,18 +177,10 @@ impl ExpressionModel {
         &self.0.smoothness
     }
 
-    /// The gradient over `L` lanes in SoA rows (`q[i][l]`), by the compiled lane function.
-    #[inline]
-    pub fn gradient_soa(&self, q: &[f64], out: &mut [f64], lanes: usize) {
-        self.0.compiled.call_lanes(GRADIENT_LANES, &[q], out, lanes)
-    }
-
-    /// `Hess V(q) v` over `L` lanes of `v` at one shared position `q`.
-    #[inline]
-    pub fn hessian_vector_soa(&self, q: &[f64], v: &[f64], out: &mut [f64], lanes: usize) {
-        self.0
-            .compiled
-            .call_lanes(HESSIAN_VECTOR_LANES, &[q, v], out, lanes)
+    /// The compiled splitting steps over structure-of-arrays lanes (orbits and tangent
+    /// vectors), what the batched kernel runs.
+    pub fn step_kernels(&self) -> &StepKernels {
+        &self.0.steps
     }
 
     /// A readable name of a node's operation for messages.

@@ -1,23 +1,95 @@
-//! A user-written potential over lanes: the compiled lane functions take the rows of the
-//! structure of arrays as they are (`[[f64; L]]` flattened is row-major with stride `L`, the
-//! layout the compiler's lane functions read), so all lanes go through native code in one call.
+//! A user-written potential over lanes: the compiled step kernels run whole steps of the
+//! splitting on the chunk's rows as they are (`[[f64; L]]` flattened is row-major with stride
+//! `L`, the layout the kernels read), drift, force and kick fused per block of lanes, the step
+//! and stage loops in native code.
 
-use crate::batch::lanes::LaneModel;
-use crate::model::ExpressionModel;
+use crate::batch::lanes::{LaneModel, StepCoeffs};
+use crate::model::{ExpressionModel, Model};
 
 impl LaneModel for ExpressionModel {
-    #[inline(always)]
-    fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]) {
-        self.gradient_soa(q.as_flattened(), out.as_flattened_mut(), L)
+    /// Wide chunks while a 32-lane chunk's rows fit in half of L1 (16 KiB: `N <= 32`): the
+    /// kernel streams each stage over the chunk's blocks, which are independent dependency
+    /// chains the CPU overlaps; a model with few rows (Henon-Heiles) needs many of them to
+    /// hide the latency of one block's drift-force-kick chain. Longer chains have that
+    /// parallelism across their sites and keep narrow chunks in cache.
+    #[inline]
+    fn register_resident(&self) -> bool {
+        2 * self.dof() * 32 * 8 <= 16 * 1024
     }
 
-    #[inline(always)]
+    /// Lane by lane through the scalar compiled function: only the generic step loops call
+    /// this, and this model replaces both of them.
+    fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]) {
+        let n = self.dof();
+        let (mut ql, mut g) = (vec![0.0; n], vec![0.0; n]);
+        for l in 0..L {
+            for (qi, row) in ql.iter_mut().zip(q) {
+                *qi = row[l];
+            }
+            self.gradient(&ql, &mut g);
+            for (row, gi) in out.iter_mut().zip(&g) {
+                row[l] = *gi;
+            }
+        }
+    }
+
+    /// As [`Self::gradient_lanes`], lane by lane.
     fn hessian_vector_lanes<const L: usize>(
         &self,
         q: &[f64],
         v: &[[f64; L]],
         out: &mut [[f64; L]],
     ) {
-        self.hessian_vector_soa(q, v.as_flattened(), out.as_flattened_mut(), L)
+        let n = self.dof();
+        let (mut vl, mut h) = (vec![0.0; n], vec![0.0; n]);
+        for l in 0..L {
+            for (vi, row) in vl.iter_mut().zip(v) {
+                *vi = row[l];
+            }
+            self.hessian_vector(q, &vl, &mut h);
+            for (row, hi) in out.iter_mut().zip(&h) {
+                row[l] = *hi;
+            }
+        }
+    }
+
+    #[inline(always)]
+    fn orbit_steps<const L: usize>(
+        &self,
+        c: &StepCoeffs,
+        x: &mut [[f64; L]],
+        _force: &mut [[f64; L]],
+        n_steps: u64,
+    ) {
+        self.step_kernels().orbit_steps(
+            x.as_flattened_mut(),
+            L,
+            L,
+            n_steps,
+            &c.drift,
+            &c.kick,
+            self.inverse_masses(),
+        )
+    }
+
+    #[inline(always)]
+    fn tangent_steps<const L: usize>(
+        &self,
+        c: &StepCoeffs,
+        stages: &[f64],
+        v: &mut [[f64; L]],
+        _force: &mut [[f64; L]],
+        n_steps: u64,
+    ) {
+        self.step_kernels().tangent_steps(
+            stages,
+            v.as_flattened_mut(),
+            L,
+            L,
+            n_steps,
+            &c.drift,
+            &c.kick,
+            self.inverse_masses(),
+        )
     }
 }

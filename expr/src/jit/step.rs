@@ -1,0 +1,915 @@
+//! Splitting step kernels: whole steps of a symplectic splitting of a separable Hamiltonian
+//! `H = sum_j w_j p_j^2 / 2 + V(q)` in native code, with the force (or the tangent force
+//! `Hess V(q) dq`) emitted inline from the graph.
+//!
+//! The lane functions of the parent module cost one call and a round trip of every row through
+//! memory per stage; these kernels run the step and stage loops themselves:
+//!
+//! ```text
+//! for step in 0..n_steps
+//!     for i in 0..n_kicks                     (stage loop)
+//!         [tangent: the uniform part of Hess V at the stage's reference position, once]
+//!         for each block of 2 or 4 lanes      (block loop)
+//!             drift  q_j += (drift[i] w_j) p_j     (row j drifted just before its first use)
+//!             force  g = grad V(q)                 (the graph's nodes, inline)
+//!             kick   p_j -= kick[i] g_j            (as soon as g_j is known)
+//!     for each block: q_j += (drift[n_kicks] w_j) p_j
+//! ```
+//!
+//! Stage-outer, block-inner: the blocks of one stage are independent dependency chains that the
+//! CPU overlaps (a block's own drift-force-kick chain is long, and Cranelift's x86-64 vectors
+//! have two lanes), the tangent kernel's per-stage coefficients are computed once for all
+//! lanes, and the state stays in the caller's rows (a chunk sized for L1), so nothing is live
+//! across the loops but a few pointers and coefficients whatever `N` is (an FPUT chain of 1001
+//! sites compiles as fast as its gradient).
+//!
+//! Every lane performs exactly the operations of the generic `LaneModel::orbit_steps` /
+//! `tangent_steps` loops: `q + ch * p` (unit masses) or `q + (ch * w_j) * p`, the graph's
+//! operations as [`super::emit_vector`] emits them, and `p - dh * g`; so the kernels are
+//! bit-identical to `Graph::apply_*` step by step, and never emit a fused multiply-add.
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use cranelift_codegen::Context;
+use cranelift_codegen::ir::condcodes::IntCC;
+use cranelift_codegen::ir::types::{F64, F64X2, I64};
+use cranelift_codegen::ir::{AbiParam, BlockArg, InstBuilder, StackSlotData, StackSlotKind};
+use cranelift_codegen::ir::{StackSlot, UserFuncName, Value};
+use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
+use cranelift_jit::JITModule;
+use cranelift_module::{Linkage, Module};
+
+use super::{
+    FunctionSpec, JitError, Layout, OptLevel, Options, Plan, Sigs, VConsts, emit_scalar,
+    emit_vector, flags, is_leaf, new_module, operand_scalar, outputs_by_node,
+};
+use crate::graph::{Graph, Node, NodeId, Tabulated};
+
+/// The derivatives of a separable Hamiltonian's potential as nodes of one [`Graph`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct StepSpec {
+    /// Degrees of freedom `N`.
+    pub n: usize,
+    /// `dV/dq_j`, `N` nodes reading `q` as argument 0.
+    pub gradient: Vec<NodeId>,
+    /// `(Hess V(q) v)_j`, `N` nodes reading `q` as argument 0 and `v` as argument 1; `None`
+    /// compiles no tangent kernel.
+    pub hessian_vector: Option<Vec<NodeId>>,
+}
+
+/// `n_steps` steps of the splitting for `lanes` orbits whose row `r` (`q_1..q_N, p_1..p_N`) of
+/// lane `l` is `x[r * stride + l]`; `drift` holds `n_kicks + 1` coefficients (already times the
+/// step), `kick` `n_kicks`; `inverse_masses` is null (unit masses) or holds `N` values.
+///
+/// # Safety contract
+/// `x` readable and writable at `[r * stride + l]` for `r < 2N`, `l < lanes`; `lanes` a multiple
+/// of [`StepKernels::block_lanes`] (other lanes are not touched); `drift`, `kick`,
+/// `inverse_masses` readable as stated and not overlapping `x`; the [`StepKernels`] it came from
+/// alive.
+pub type OrbitStepsFnPtr = unsafe extern "C" fn(
+    x: *mut f64,
+    stride: usize,
+    lanes: usize,
+    n_steps: u64,
+    drift: *const f64,
+    kick: *const f64,
+    n_kicks: usize,
+    inverse_masses: *const f64,
+);
+
+/// `n_steps` steps of the splitting's tangent map for `lanes` deviation vectors (rows `dq, dp`,
+/// as [`OrbitStepsFnPtr`]'s `x`) around one reference orbit whose position before kick `i` of
+/// step `s` is `stages[(s * n_kicks + i) * N ..][..N]`.
+///
+/// # Safety contract
+/// As [`OrbitStepsFnPtr`], and `stages` readable for `n_steps * n_kicks * N` values.
+pub type TangentStepsFnPtr = unsafe extern "C" fn(
+    stages: *const f64,
+    v: *mut f64,
+    stride: usize,
+    lanes: usize,
+    n_steps: u64,
+    drift: *const f64,
+    kick: *const f64,
+    n_kicks: usize,
+    inverse_masses: *const f64,
+);
+
+/// The compiled step kernels of one [`compile_steps`] call (owns the code and the tables it
+/// calls into). `Send + Sync` for the same reasons as [`super::Compiled`].
+pub struct StepKernels {
+    modules: Mutex<Vec<JITModule>>,
+    n: usize,
+    /// Lanes per block of each kernel (orbit, tangent).
+    blocks: [usize; 2],
+    orbit: OrbitStepsFnPtr,
+    tangent: Option<TangentStepsFnPtr>,
+    _tables: Box<[Arc<dyn Tabulated>]>,
+    compile_time: Duration,
+}
+
+impl Drop for StepKernels {
+    fn drop(&mut self) {
+        let modules = match self.modules.get_mut() {
+            Ok(m) => std::mem::take(m),
+            Err(poisoned) => std::mem::take(poisoned.into_inner()),
+        };
+        for module in modules {
+            // SAFETY: the raw pointers handed out are documented to be valid only while this
+            // value lives, and no `&self` call can run while it is dropped.
+            unsafe { module.free_memory() };
+        }
+    }
+}
+
+impl std::fmt::Debug for StepKernels {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StepKernels")
+            .field("n", &self.n)
+            .field("blocks", &self.blocks)
+            .field("tangent", &self.tangent.is_some())
+            .field("compile_time", &self.compile_time)
+            .finish()
+    }
+}
+
+impl StepKernels {
+    /// Degrees of freedom `N` (the state has `2N` rows).
+    pub fn dof(&self) -> usize {
+        self.n
+    }
+
+    /// Lanes per block of the orbit kernel (2 or 4): the raw function only steps whole
+    /// blocks.
+    pub fn block_lanes(&self) -> usize {
+        self.blocks[0]
+    }
+
+    /// Lanes per block of the tangent kernel (2 or 4).
+    pub fn tangent_block_lanes(&self) -> usize {
+        self.blocks[1]
+    }
+
+    pub fn has_tangent(&self) -> bool {
+        self.tangent.is_some()
+    }
+
+    pub fn compile_time(&self) -> Duration {
+        self.compile_time
+    }
+
+    /// The orbit kernel's machine code; see [`OrbitStepsFnPtr`]; valid while `self` lives.
+    pub fn raw_orbit(&self) -> OrbitStepsFnPtr {
+        self.orbit
+    }
+
+    /// The tangent kernel's machine code, if compiled; see [`TangentStepsFnPtr`].
+    pub fn raw_tangent(&self) -> Option<TangentStepsFnPtr> {
+        self.tangent
+    }
+
+    fn check(
+        &self,
+        x: &[f64],
+        stride: usize,
+        lanes: usize,
+        drift: &[f64],
+        kick: &[f64],
+        inverse_masses: Option<&[f64]>,
+    ) {
+        assert!(
+            drift.len() == kick.len() + 1,
+            "step kernels: {} drift coefficients for {} kicks (one more drift than kicks)",
+            drift.len(),
+            kick.len()
+        );
+        if let Some(w) = inverse_masses {
+            assert!(
+                w.len() >= self.n,
+                "step kernels: {} inverse masses for {} degrees of freedom",
+                w.len(),
+                self.n
+            );
+        }
+        assert!(
+            lanes <= stride,
+            "step kernels: {lanes} lanes wider than the stride {stride}"
+        );
+        let need = (2 * self.n - 1)
+            .checked_mul(stride)
+            .and_then(|v| v.checked_add(lanes));
+        assert!(
+            need.is_some_and(|need| x.len() >= need),
+            "step kernels: {} values hold fewer than {} rows of stride {stride}",
+            x.len(),
+            2 * self.n
+        );
+    }
+
+    /// Runs `kernel` on the whole blocks of `x`, and on the remaining `lanes % block` lanes
+    /// through a padded copy (lanes never interact, so the padding's copies of the last lane are
+    /// harmless and the real lanes get the same bits).
+    fn by_blocks(
+        &self,
+        x: &mut [f64],
+        stride: usize,
+        lanes: usize,
+        block: usize,
+        mut kernel: impl FnMut(*mut f64, usize, usize),
+    ) {
+        let full = lanes - lanes % block;
+        if full > 0 {
+            kernel(x.as_mut_ptr(), stride, full);
+        }
+        let rest = lanes - full;
+        if rest > 0 {
+            let rows = 2 * self.n;
+            let mut pad = vec![0.0; rows * block];
+            for r in 0..rows {
+                for l in 0..block {
+                    pad[r * block + l] = x[r * stride + full + l.min(rest - 1)];
+                }
+            }
+            kernel(pad.as_mut_ptr(), block, block);
+            for r in 0..rows {
+                x[r * stride + full..][..rest].copy_from_slice(&pad[r * block..][..rest]);
+            }
+        }
+    }
+
+    /// `n_steps` steps of the splitting for `lanes` orbits in `x` (row `r` of lane `l` at
+    /// `x[r * stride + l]`, rows `q_1..q_N, p_1..p_N`), any lane count.
+    ///
+    /// # Panics
+    /// If `drift` does not hold one more value than `kick`, `inverse_masses` has fewer than `N`
+    /// values, `lanes > stride`, or `x` is too short.
+    #[allow(clippy::too_many_arguments)]
+    pub fn orbit_steps(
+        &self,
+        x: &mut [f64],
+        stride: usize,
+        lanes: usize,
+        n_steps: u64,
+        drift: &[f64],
+        kick: &[f64],
+        inverse_masses: Option<&[f64]>,
+    ) {
+        if lanes == 0 || n_steps == 0 {
+            return;
+        }
+        self.check(x, stride, lanes, drift, kick, inverse_masses);
+        let w = inverse_masses.map_or(std::ptr::null(), |w| w.as_ptr());
+        let f = self.orbit;
+        self.by_blocks(x, stride, lanes, self.blocks[0], |p, stride, lanes| {
+            // SAFETY: lengths checked above (the padded copy has `2N` rows of `block` lanes);
+            // `lanes` is a multiple of the block; the code lives as long as `self`.
+            unsafe {
+                f(
+                    p,
+                    stride,
+                    lanes,
+                    n_steps,
+                    drift.as_ptr(),
+                    kick.as_ptr(),
+                    kick.len(),
+                    w,
+                )
+            }
+        });
+    }
+
+    /// `n_steps` steps of the tangent map for `lanes` deviation vectors in `v` (rows `dq, dp`)
+    /// around the reference positions `stages` (`n_steps * kicks * N` values: the position
+    /// before each kick).
+    ///
+    /// # Panics
+    /// As [`Self::orbit_steps`]; also if no tangent kernel was compiled or `stages` is short.
+    #[allow(clippy::too_many_arguments)]
+    pub fn tangent_steps(
+        &self,
+        stages: &[f64],
+        v: &mut [f64],
+        stride: usize,
+        lanes: usize,
+        n_steps: u64,
+        drift: &[f64],
+        kick: &[f64],
+        inverse_masses: Option<&[f64]>,
+    ) {
+        let f = self
+            .tangent
+            .expect("step kernels: no tangent kernel was compiled");
+        if lanes == 0 || n_steps == 0 {
+            return;
+        }
+        self.check(v, stride, lanes, drift, kick, inverse_masses);
+        let need = (n_steps as u128) * (kick.len() as u128) * (self.n as u128);
+        assert!(
+            (stages.len() as u128) >= need,
+            "step kernels: {} stage positions, {need} needed",
+            stages.len()
+        );
+        let w = inverse_masses.map_or(std::ptr::null(), |w| w.as_ptr());
+        self.by_blocks(v, stride, lanes, self.blocks[1], |p, stride, lanes| {
+            // SAFETY: as in `orbit_steps`, and `stages` holds every position the steps read.
+            unsafe {
+                f(
+                    stages.as_ptr(),
+                    p,
+                    stride,
+                    lanes,
+                    n_steps,
+                    drift.as_ptr(),
+                    kick.as_ptr(),
+                    kick.len(),
+                    w,
+                )
+            }
+        });
+    }
+}
+
+/// Compiles the orbit kernel (and the tangent kernel if `spec` has a Hessian-vector product).
+/// `options.lane_block` is the block width; a force with more operations than
+/// `options.large_function` is compiled without Cranelift's optimizer and with two-lane blocks
+/// (half the code: an FPUT chain of 1001 sites compiles both kernels in about 0.25 s instead
+/// of 0.7 s).
+pub fn compile_steps(
+    graph: &Graph,
+    spec: &StepSpec,
+    options: &Options,
+) -> Result<StepKernels, JitError> {
+    let start = Instant::now();
+    if options.lane_block != 2 && options.lane_block != 4 {
+        return Err(JitError::Host(format!(
+            "lane_block must be 2 or 4, not {}",
+            options.lane_block
+        )));
+    }
+    let n = spec.n;
+    let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
+    let mut kernels: Vec<(usize, Plan, u8, bool)> = Vec::new();
+    let check = |f: usize, outputs: &[NodeId], args: Vec<Layout>| {
+        if outputs.len() != n || n == 0 {
+            return Err(JitError::Steps(format!(
+                "kernel {f}: {} outputs for {n} degrees of freedom",
+                outputs.len()
+            )));
+        }
+        let plan = Plan::new(
+            graph,
+            &FunctionSpec {
+                args,
+                outputs: outputs.to_vec(),
+            },
+            f,
+        )?;
+        if let Some(a) = plan.arg_len.iter().position(|&len| len > n) {
+            return Err(JitError::Steps(format!(
+                "kernel {f}: argument {a} is read at entry {}, beyond N = {n}",
+                plan.arg_len[a] - 1
+            )));
+        }
+        Ok(plan)
+    };
+    let orbit_plan = check(0, &spec.gradient, vec![Layout::Lanes])?;
+    kernels.push((0, orbit_plan, 0, false));
+    if let Some(hv) = &spec.hessian_vector {
+        let plan = check(1, hv, vec![Layout::Scalar, Layout::Lanes])?;
+        kernels.push((1, plan, 1, true));
+    }
+
+    let mut modules: Vec<(OptLevel, JITModule)> = Vec::new();
+    let mut ctx = Context::new();
+    let mut fctx = FunctionBuilderContext::new();
+    let mut defined = Vec::new();
+    let mut blocks = [options.lane_block; 2];
+    for (f, plan, lane_arg, tangent) in &kernels {
+        let large = plan.varying_order.len() > options.large_function;
+        let opt = if large {
+            OptLevel::None
+        } else {
+            options.opt_level
+        };
+        let block = if large { 2 } else { options.lane_block };
+        blocks[usize::from(*tangent)] = block;
+        let m = match modules.iter().position(|(o, _)| *o == opt) {
+            Some(m) => m,
+            None => {
+                modules.push((opt, new_module(opt, options.regalloc)?.0));
+                modules.len() - 1
+            }
+        };
+        let module = &mut modules[m].1;
+        let ptr = module.target_config().pointer_type();
+        let mut sig = module.make_signature();
+        let params = if *tangent { 9 } else { 8 };
+        for _ in 0..params {
+            sig.params.push(AbiParam::new(ptr));
+        }
+        let variant = if *tangent { "tangent" } else { "orbit" };
+        let codegen = |e: cranelift_module::ModuleError| JitError::Codegen {
+            function: *f,
+            variant,
+            message: format!("{e:?}"),
+        };
+        let id = module
+            .declare_function(&format!("steps_{variant}"), Linkage::Local, &sig)
+            .map_err(codegen)?;
+        module.clear_context(&mut ctx);
+        ctx.func.signature = sig;
+        ctx.func.name = UserFuncName::user(0, id.as_u32());
+        build_kernel(
+            &mut ctx,
+            &mut fctx,
+            module,
+            graph,
+            plan,
+            &tables,
+            n,
+            *lane_arg,
+            *tangent,
+            block / 2,
+        );
+        module.define_function(id, &mut ctx).map_err(codegen)?;
+        defined.push((m, id, *tangent));
+    }
+    for (_, module) in &mut modules {
+        module
+            .finalize_definitions()
+            .map_err(|e| JitError::Link(format!("{e:?}")))?;
+    }
+    let mut orbit = None;
+    let mut tangent = None;
+    for (m, id, is_tangent) in defined {
+        let code = modules[m].1.get_finalized_function(id);
+        // SAFETY: defined above with exactly these signatures (eight or nine pointer-sized
+        // integer parameters, no results, the host's C calling convention).
+        unsafe {
+            if is_tangent {
+                tangent = Some(std::mem::transmute::<*const u8, TangentStepsFnPtr>(code));
+            } else {
+                orbit = Some(std::mem::transmute::<*const u8, OrbitStepsFnPtr>(code));
+            }
+        }
+    }
+    Ok(StepKernels {
+        modules: Mutex::new(modules.into_iter().map(|(_, m)| m).collect()),
+        n,
+        blocks,
+        orbit: orbit.expect("the orbit kernel is always compiled"),
+        tangent,
+        _tables: tables,
+        compile_time: start.elapsed(),
+    })
+}
+
+/// The code of one block of lanes within a stage.
+struct Block<'a> {
+    graph: &'a Graph,
+    plan: &'a Plan,
+    tables: &'a [Arc<dyn Tabulated>],
+    sigs: &'a Sigs,
+    n: usize,
+    units: usize,
+    /// The argument the lane rows stand for (0: positions of the orbit; 1: `dq` of the tangent).
+    lane_arg: u8,
+    /// Argument 0 of the tangent kernel: the stage's shared reference position.
+    shared: Option<Value>,
+    uniforms: StackSlot,
+    uniform_offset: &'a [u32],
+    /// The stage's drift coefficients `ch * w_j` (or `ch`), one per row.
+    coef: StackSlot,
+    /// When few: the coefficients and broadcast uniform values splatted once per stage (kept
+    /// in registers across the block loop instead of a load and a shuffle at each use); empty
+    /// otherwise.
+    hoisted_coef: Vec<Value>,
+    hoisted_uniform: Vec<Option<Value>>,
+    /// Lane 0 of row 0 of this block, and the row stride in bytes.
+    base: Value,
+    stride: Value,
+}
+
+impl Block<'_> {
+    fn row(&self, b: &mut FunctionBuilder, r: usize) -> Value {
+        if r == 0 {
+            self.base
+        } else {
+            let off = b.ins().imul_imm_s(self.stride, r as i64);
+            b.ins().iadd(self.base, off)
+        }
+    }
+
+    /// `q_j += c_j p_j` for every unit, stored back; returns the new `q_j`.
+    fn drift_row(&self, b: &mut FunctionBuilder, j: usize) -> [Value; 2] {
+        let c = match self.hoisted_coef.get(j) {
+            Some(&c) => c,
+            None => {
+                let c = b.ins().stack_load(I64, F64, self.coef, (j * 8) as i32);
+                b.ins().splat(F64X2, c)
+            }
+        };
+        let (qa, pa) = (self.row(b, j), self.row(b, self.n + j));
+        let mut out = [c; 2];
+        for (unit, slot) in out.iter_mut().enumerate().take(self.units) {
+            let off = 16 * unit as i32;
+            let q = b.ins().load(F64X2, flags(), qa, off);
+            let p = b.ins().load(F64X2, flags(), pa, off);
+            let cp = b.ins().fmul(c, p);
+            let q = b.ins().fadd(q, cp);
+            b.ins().store(flags(), q, qa, off);
+            *slot = q;
+        }
+        if self.units == 1 {
+            out[1] = out[0];
+        }
+        out
+    }
+
+    fn drifted(
+        &self,
+        b: &mut FunctionBuilder,
+        rows: &mut [Option<[Value; 2]>],
+        j: usize,
+    ) -> [Value; 2] {
+        match rows[j] {
+            Some(v) => v,
+            None => {
+                let v = self.drift_row(b, j);
+                rows[j] = Some(v);
+                v
+            }
+        }
+    }
+
+    fn operand(
+        &self,
+        b: &mut FunctionBuilder,
+        rows: &mut [Option<[Value; 2]>],
+        vvals: &[Option<[Value; 2]>],
+        id: NodeId,
+        unit: usize,
+    ) -> Value {
+        match *self.graph.node(id) {
+            Node::Const(c) => {
+                let s = b.ins().f64const(c);
+                b.ins().splat(F64X2, s)
+            }
+            Node::Input { arg, index } if arg == self.lane_arg => {
+                self.drifted(b, rows, index as usize)[unit]
+            }
+            Node::Input { index, .. } => {
+                let p = self
+                    .shared
+                    .expect("only the tangent kernel has a shared argument");
+                let s = b.ins().load(F64, flags(), p, (index as usize * 8) as i32);
+                b.ins().splat(F64X2, s)
+            }
+            _ if self.plan.uniform[id as usize] && !self.hoisted_uniform.is_empty() => {
+                self.hoisted_uniform[id as usize].expect("broadcast uniform value")
+            }
+            _ if self.plan.uniform[id as usize] => {
+                let off = self.uniform_offset[id as usize] as i32;
+                let s = b.ins().stack_load(I64, F64, self.uniforms, off);
+                b.ins().splat(F64X2, s)
+            }
+            _ => vvals[id as usize].expect("operands come first")[unit],
+        }
+    }
+
+    /// `p_j -= dh * f_j` for every unit.
+    fn kick_row(&self, b: &mut FunctionBuilder, j: usize, dh: Value, f: [Value; 2]) {
+        let pa = self.row(b, self.n + j);
+        for (unit, &f) in f.iter().enumerate().take(self.units) {
+            let off = 16 * unit as i32;
+            let p = b.ins().load(F64X2, flags(), pa, off);
+            let df = b.ins().fmul(dh, f);
+            let p = b.ins().fsub(p, df);
+            b.ins().store(flags(), p, pa, off);
+        }
+    }
+
+    /// Drift, force and kick of one stage. Rows are drifted on first use; a row's kick comes
+    /// after its drift (forced if the force never read that row), so every drift reads the
+    /// momentum before this stage's kick, as the separate drift and kick passes do.
+    fn stage(&self, b: &mut FunctionBuilder, k: &VConsts, dh: Value) {
+        let (graph, plan) = (self.graph, self.plan);
+        let outs = outputs_by_node(plan, graph.len());
+        let mut rows: Vec<Option<[Value; 2]>> = vec![None; self.n];
+        let mut vvals: Vec<Option<[Value; 2]>> = vec![None; graph.len()];
+        for &id in &plan.varying_order {
+            let node = graph.node(id);
+            let mut emitted = [None; 2];
+            for (unit, slot) in emitted.iter_mut().enumerate().take(self.units) {
+                let mut get =
+                    |b: &mut FunctionBuilder, o| self.operand(b, &mut rows, &vvals, o, unit);
+                *slot = Some(emit_vector(b, self.sigs, self.tables, k, node, &mut get));
+            }
+            let v0 = emitted[0].expect("at least one unit");
+            let val = [v0, emitted[1].unwrap_or(v0)];
+            vvals[id as usize] = Some(val);
+            for &j in &outs[id as usize] {
+                self.drifted(b, &mut rows, j);
+                self.kick_row(b, j, dh, val);
+            }
+        }
+        for (j, &o) in plan.outputs.iter().enumerate() {
+            if plan.uniform[o as usize] || is_leaf(graph.node(o)) {
+                self.drifted(b, &mut rows, j);
+                let mut val = [dh; 2];
+                for (unit, slot) in val.iter_mut().enumerate().take(self.units) {
+                    *slot = self.operand(b, &mut rows, &vvals, o, unit);
+                }
+                self.kick_row(b, j, dh, val);
+            }
+        }
+        for j in 0..self.n {
+            self.drifted(b, &mut rows, j);
+        }
+    }
+}
+
+fn vconsts(b: &mut FunctionBuilder) -> VConsts {
+    let mut sp = |c: f64| {
+        let s = b.ins().f64const(c);
+        b.ins().splat(F64X2, s)
+    };
+    VConsts {
+        zero: sp(0.0),
+        one: sp(1.0),
+        m_one: sp(-1.0),
+        nan: sp(f64::NAN),
+    }
+}
+
+/// Fills the coefficient array with `ch * w_j` (or `ch` where `w` is null: unit masses, the
+/// mass-free drift's own coefficient), then continues in a new block.
+fn fill_coefficients(b: &mut FunctionBuilder, coef: StackSlot, n: usize, ch: Value, w: Value) {
+    let unit = b.create_block();
+    let masses = b.create_block();
+    let cont = b.create_block();
+    let ju = b.append_block_param(unit, I64);
+    let jm = b.append_block_param(masses, I64);
+    let zero = b.ins().iconst(I64, 0);
+    let base = b.ins().stack_addr(I64, coef, 0);
+    let null = b.ins().icmp_imm_u(IntCC::Equal, w, 0);
+    b.ins().brif(
+        null,
+        unit,
+        &[BlockArg::Value(zero)],
+        masses,
+        &[BlockArg::Value(zero)],
+    );
+    for (block, j, with_masses) in [(unit, ju, false), (masses, jm, true)] {
+        b.switch_to_block(block);
+        let off = b.ins().ishl_imm_u(j, 3);
+        let c = if with_masses {
+            let wp = b.ins().iadd(w, off);
+            let wj = b.ins().load(F64, flags(), wp, 0);
+            b.ins().fmul(ch, wj)
+        } else {
+            ch
+        };
+        let at = b.ins().iadd(base, off);
+        b.ins().store(flags(), c, at, 0);
+        let j1 = b.ins().iadd_imm_s(j, 1);
+        let more = b.ins().icmp_imm_u(IntCC::UnsignedLessThan, j1, n as i64);
+        b.ins().brif(more, block, &[BlockArg::Value(j1)], cont, &[]);
+    }
+    b.switch_to_block(cont);
+}
+
+/// At most this many drift coefficients and uniform values are kept in registers across the
+/// block loop (16 XMM registers, the body needs the rest).
+const HOIST: usize = 8;
+
+fn hoist_coefficients(b: &mut FunctionBuilder, coef: StackSlot, n: usize) -> Vec<Value> {
+    (0..n)
+        .map(|j| {
+            let c = b.ins().stack_load(I64, F64, coef, (j * 8) as i32);
+            b.ins().splat(F64X2, c)
+        })
+        .collect()
+}
+
+#[allow(clippy::too_many_arguments)]
+fn build_kernel(
+    ctx: &mut Context,
+    fctx: &mut FunctionBuilderContext,
+    module: &JITModule,
+    graph: &Graph,
+    plan: &Plan,
+    tables: &[Arc<dyn Tabulated>],
+    n: usize,
+    lane_arg: u8,
+    tangent: bool,
+    units: usize,
+) {
+    let config = module.target_config();
+    let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
+    let entry = b.create_block();
+    let run = b.create_block();
+    let step_head = b.create_block();
+    let stage_head = b.create_block();
+    let stage_body = b.create_block();
+    let blk = b.create_block();
+    let stage_next = b.create_block();
+    let last = b.create_block();
+    let last_blk = b.create_block();
+    let step_next = b.create_block();
+    let exit = b.create_block();
+    b.append_block_params_for_function_params(entry);
+    let s = b.append_block_param(step_head, I64);
+    let i = b.append_block_param(stage_head, I64);
+    let off = b.append_block_param(blk, I64);
+    let last_off = b.append_block_param(last_blk, I64);
+
+    b.switch_to_block(entry);
+    let params = b.block_params(entry).to_vec();
+    let (stages, rest) = if tangent {
+        (Some(params[0]), &params[1..])
+    } else {
+        (None, &params[..])
+    };
+    let (x, stride, lanes, n_steps, drift, kick, n_kicks, w) = (
+        rest[0], rest[1], rest[2], rest[3], rest[4], rest[5], rest[6], rest[7],
+    );
+    let sigs = Sigs::new(&mut b, module);
+    // The row stride in bytes, reloaded in each block: a load is not loop-invariant code, so
+    // the optimizer keeps the row offsets of a long chain inside the loop instead of hoisting
+    // them all out into spilled values.
+    let stride_slot =
+        b.create_sized_stack_slot(StackSlotData::new(StackSlotKind::ExplicitSlot, 8, 3));
+    let stride_bytes = b.ins().ishl_imm_u(stride, 3);
+    b.ins().stack_store(I64, stride_bytes, stride_slot, 0);
+    let block_lanes = 2 * units as i64;
+    let whole = b.ins().band_imm_s(lanes, !(block_lanes - 1));
+    let end = b.ins().ishl_imm_u(whole, 3);
+    let no_lanes = b.ins().icmp_imm_u(IntCC::Equal, end, 0);
+    let no_steps = b.ins().icmp_imm_u(IntCC::Equal, n_steps, 0);
+    let nothing = b.ins().bor(no_lanes, no_steps);
+    b.ins().brif(nothing, exit, &[], run, &[]);
+
+    // run: the arrays of uniform values and drift coefficients; the orbit kernel's uniform
+    // (constant) subexpressions once, the tangent kernel's per stage.
+    b.switch_to_block(run);
+    let n_uniform = plan
+        .uniform_order
+        .iter()
+        .filter(|&&id| plan.broadcast[id as usize])
+        .count();
+    let uniforms = b.create_sized_stack_slot(StackSlotData::new(
+        StackSlotKind::ExplicitSlot,
+        (n_uniform.max(1) * 8) as u32,
+        4,
+    ));
+    let coef = b.create_sized_stack_slot(StackSlotData::new(
+        StackSlotKind::ExplicitSlot,
+        (n * 8) as u32,
+        4,
+    ));
+    let mut uniform_offset = vec![0u32; graph.len()];
+    let emit_uniforms = |b: &mut FunctionBuilder, shared: Option<Value>, offsets: &mut [u32]| {
+        let ptrs: Vec<Option<Value>> = (0..plan.layouts.len())
+            .map(|a| if a as u8 == lane_arg { None } else { shared })
+            .collect();
+        let mut svals: Vec<Option<Value>> = vec![None; graph.len()];
+        let mut next = 0u32;
+        for &id in &plan.uniform_order {
+            let node = graph.node(id);
+            let val = {
+                let mut get =
+                    |b: &mut FunctionBuilder, o| operand_scalar(b, graph, &ptrs, &svals, o);
+                emit_scalar(b, &sigs, tables, node, &mut get)
+            };
+            svals[id as usize] = Some(val);
+            if plan.broadcast[id as usize] {
+                offsets[id as usize] = next;
+                b.ins().stack_store(I64, val, uniforms, next as i32);
+                next += 8;
+            }
+        }
+    };
+    if !tangent {
+        emit_uniforms(&mut b, None, &mut uniform_offset);
+    }
+    let zero = b.ins().iconst(I64, 0);
+    b.ins().jump(step_head, &[BlockArg::Value(zero)]);
+
+    // step_head(s): the stage loop from its first stage.
+    b.switch_to_block(step_head);
+    b.ins().jump(stage_head, &[BlockArg::Value(zero)]);
+
+    // stage_head(i): i < n_kicks -> stage i; else the last drift.
+    b.switch_to_block(stage_head);
+    let more = b.ins().icmp(IntCC::UnsignedLessThan, i, n_kicks);
+    b.ins().brif(more, stage_body, &[], last, &[]);
+
+    // stage_body: the coefficients of stage i (and the tangent's uniform values), then the
+    // blocks.
+    b.switch_to_block(stage_body);
+    let ioff = b.ins().ishl_imm_u(i, 3);
+    let dp = b.ins().iadd(drift, ioff);
+    let ch = b.ins().load(F64, flags(), dp, 0);
+    let kp = b.ins().iadd(kick, ioff);
+    let dh = b.ins().load(F64, flags(), kp, 0);
+    let shared = stages.map(|st| {
+        // stages + (s * n_kicks + i) * N * 8
+        let si = b.ins().imul(s, n_kicks);
+        let si = b.ins().iadd(si, i);
+        let byte = b.ins().imul_imm_s(si, (n * 8) as i64);
+        b.ins().iadd(st, byte)
+    });
+    if tangent {
+        emit_uniforms(&mut b, shared, &mut uniform_offset);
+    }
+    let dhv = b.ins().splat(F64X2, dh);
+    fill_coefficients(&mut b, coef, n, ch, w);
+    let hoist = n + n_uniform <= HOIST;
+    let hoisted_coef = if hoist {
+        hoist_coefficients(&mut b, coef, n)
+    } else {
+        Vec::new()
+    };
+    let mut hoisted_uniform = Vec::new();
+    if hoist {
+        hoisted_uniform = vec![None; graph.len()];
+        for &id in &plan.uniform_order {
+            if plan.broadcast[id as usize] {
+                let off = uniform_offset[id as usize] as i32;
+                let v = b.ins().stack_load(I64, F64, uniforms, off);
+                hoisted_uniform[id as usize] = Some(b.ins().splat(F64X2, v));
+            }
+        }
+    }
+    b.ins().jump(blk, &[BlockArg::Value(zero)]);
+
+    // blk(off): one block of lanes (byte offset `off` of its first lane).
+    b.switch_to_block(blk);
+    let sb = b.ins().stack_load(I64, I64, stride_slot, 0);
+    let base = b.ins().iadd(x, off);
+    let k = vconsts(&mut b);
+    let mut block = Block {
+        graph,
+        plan,
+        tables,
+        sigs: &sigs,
+        n,
+        units,
+        lane_arg,
+        shared,
+        uniforms,
+        uniform_offset: &uniform_offset,
+        coef,
+        hoisted_coef,
+        hoisted_uniform,
+        base,
+        stride: sb,
+    };
+    block.stage(&mut b, &k, dhv);
+    let next = b.ins().iadd_imm_s(off, 8 * block_lanes);
+    let more = b.ins().icmp(IntCC::UnsignedLessThan, next, end);
+    b.ins()
+        .brif(more, blk, &[BlockArg::Value(next)], stage_next, &[]);
+
+    b.switch_to_block(stage_next);
+    let i1 = b.ins().iadd_imm_s(i, 1);
+    b.ins().jump(stage_head, &[BlockArg::Value(i1)]);
+
+    // last: the drift after the last kick, over every block.
+    b.switch_to_block(last);
+    let loff = b.ins().ishl_imm_u(n_kicks, 3);
+    let lp = b.ins().iadd(drift, loff);
+    let ch_last = b.ins().load(F64, flags(), lp, 0);
+    fill_coefficients(&mut b, coef, n, ch_last, w);
+    block.hoisted_coef = if hoist {
+        hoist_coefficients(&mut b, coef, n)
+    } else {
+        Vec::new()
+    };
+    b.ins().jump(last_blk, &[BlockArg::Value(zero)]);
+
+    b.switch_to_block(last_blk);
+    block.stride = b.ins().stack_load(I64, I64, stride_slot, 0);
+    block.base = b.ins().iadd(x, last_off);
+    block.shared = None;
+    for j in 0..n {
+        block.drift_row(&mut b, j);
+    }
+    let next = b.ins().iadd_imm_s(last_off, 8 * block_lanes);
+    let more = b.ins().icmp(IntCC::UnsignedLessThan, next, end);
+    b.ins()
+        .brif(more, last_blk, &[BlockArg::Value(next)], step_next, &[]);
+
+    b.switch_to_block(step_next);
+    let s1 = b.ins().iadd_imm_s(s, 1);
+    let more = b.ins().icmp(IntCC::UnsignedLessThan, s1, n_steps);
+    b.ins()
+        .brif(more, step_head, &[BlockArg::Value(s1)], exit, &[]);
+
+    b.switch_to_block(exit);
+    b.ins().return_(&[]);
+    b.seal_all_blocks();
+    b.finalize(config);
+}

@@ -1,0 +1,316 @@
+//! The compiled splitting step kernels against a plain Rust loop over the reference evaluator:
+//! drift `q += (ch w) p`, force from `eval`, kick `p -= dh g`, lane by lane, bit for bit, for
+//! Henon-Heiles and FPUT chains, several lane counts (whole blocks, a remainder, one lane, a
+//! stride wider than the lanes), with and without masses, both block widths.
+
+use std::collections::BTreeMap;
+
+use chaoscope_expr::jit::{self, Options, StepKernels, StepSpec};
+use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope};
+use chaoscope_expr::{Evaluator, Graph, NodeId, diff, lower};
+
+/// Any fixed 8-drift / 7-kick splitting (symmetric, like ABA864), times a step of 0.01.
+const DRIFT: [f64; 8] = [
+    0.0711, 0.2411, 0.0933, 0.0945, 0.0945, 0.0933, 0.2411, 0.0711,
+];
+const KICK: [f64; 7] = [0.1839, 0.1212, 0.1737, 0.0424, 0.1737, 0.1212, 0.1839];
+const H: f64 = 0.01;
+
+struct System {
+    n: usize,
+    graph: Graph,
+    gradient: Vec<NodeId>,
+    hessian_vector: Vec<NodeId>,
+}
+
+fn system(n: usize, potential: &str) -> System {
+    let mut graph = Graph::new();
+    let mut params = BTreeMap::new();
+    params.insert("beta".to_string(), ParamValue::Scalar(1.0));
+    let families = [Family {
+        name: "q".into(),
+        len: n,
+        arg: 0,
+    }];
+    let scope = Scope {
+        families: &families,
+        params: &params,
+        tables: &[],
+        n,
+        boundary: Boundary::Fixed,
+    };
+    let root = lower(potential, &scope, &mut graph).unwrap().root;
+    let gradient = diff::gradient(&mut graph, root, 0, n).unwrap();
+    let hessian_vector = diff::jacobian_vector(&mut graph, &gradient, 0, 1).unwrap();
+    System {
+        n,
+        graph,
+        gradient,
+        hessian_vector,
+    }
+}
+
+fn henon_heiles() -> System {
+    system(2, "(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3")
+}
+
+fn fput(n: usize) -> System {
+    system(
+        n,
+        "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)",
+    )
+}
+
+fn coeffs() -> (Vec<f64>, Vec<f64>) {
+    (
+        DRIFT.iter().map(|a| a * H).collect(),
+        KICK.iter().map(|b| b * H).collect(),
+    )
+}
+
+fn drift(q: &mut [f64], p: &[f64], ch: f64, w: Option<&[f64]>) {
+    for (i, (qi, pi)) in q.iter_mut().zip(p).enumerate() {
+        match w {
+            None => *qi += ch * pi,
+            Some(w) => *qi += (ch * w[i]) * pi,
+        }
+    }
+}
+
+/// One orbit, `n_steps` steps, positions before each kick appended to `stages`.
+fn reference_orbit(
+    s: &System,
+    x: &mut [f64],
+    n_steps: u64,
+    w: Option<&[f64]>,
+    stages: &mut Vec<f64>,
+) {
+    let (dr, ki) = coeffs();
+    let n = s.n;
+    let mut ev = Evaluator::new();
+    let mut g = vec![0.0; n];
+    for _ in 0..n_steps {
+        for (&ch, &dh) in dr.iter().zip(&ki) {
+            let (q, p) = x.split_at_mut(n);
+            drift(q, p, ch, w);
+            stages.extend_from_slice(q);
+            ev.eval(&s.graph, &[q], &s.gradient, &mut g);
+            for (pi, gi) in p.iter_mut().zip(&g) {
+                *pi -= dh * gi;
+            }
+        }
+        let (q, p) = x.split_at_mut(n);
+        drift(q, p, dr[KICK.len()], w);
+    }
+}
+
+fn reference_tangent(s: &System, v: &mut [f64], n_steps: u64, w: Option<&[f64]>, stages: &[f64]) {
+    let (dr, ki) = coeffs();
+    let n = s.n;
+    let mut ev = Evaluator::new();
+    let mut f = vec![0.0; n];
+    let mut stage = stages.chunks_exact(n);
+    for _ in 0..n_steps {
+        for (&ch, &dh) in dr.iter().zip(&ki) {
+            let (dq, dp) = v.split_at_mut(n);
+            drift(dq, dp, ch, w);
+            let q = stage.next().unwrap();
+            ev.eval(&s.graph, &[q, dq], &s.hessian_vector, &mut f);
+            for (pi, fi) in dp.iter_mut().zip(&f) {
+                *pi -= dh * fi;
+            }
+        }
+        let (dq, dp) = v.split_at_mut(n);
+        drift(dq, dp, dr[KICK.len()], w);
+    }
+}
+
+fn compile(s: &System, lane_block: usize) -> StepKernels {
+    let options = Options {
+        lane_block,
+        ..Options::default()
+    };
+    jit::compile_steps(
+        &s.graph,
+        &StepSpec {
+            n: s.n,
+            gradient: s.gradient.clone(),
+            hessian_vector: Some(s.hessian_vector.clone()),
+        },
+        &options,
+    )
+    .unwrap()
+}
+
+/// Lane `l`'s state: small, different per lane and row.
+fn state(n: usize, l: usize, scale: f64) -> Vec<f64> {
+    (0..2 * n)
+        .map(|r| scale * (0.11 * ((l * 7 + r * 13) % 17) as f64 / 17.0 - 0.05 + 0.001 * l as f64))
+        .collect()
+}
+
+fn check(name: &str, s: &System, k: &StepKernels) {
+    let n = s.n;
+    let rows = 2 * n;
+    let (dr, ki) = coeffs();
+    let masses: Vec<f64> = (0..n).map(|i| 1.0 / (1.0 + 0.37 * i as f64)).collect();
+    for w in [None, Some(&masses[..])] {
+        for lanes in [1usize, 3, 4, 8, 17] {
+            for n_steps in [1u64, 3, 10] {
+                for extra in [0usize, 3] {
+                    let stride = lanes + extra;
+                    // Orbits.
+                    let mut x = vec![f64::NAN; rows * stride];
+                    let mut want = Vec::new();
+                    let mut stages0 = Vec::new();
+                    for l in 0..lanes {
+                        let mut xl = state(n, l, 1.0);
+                        for r in 0..rows {
+                            x[r * stride + l] = xl[r];
+                        }
+                        let mut st = Vec::new();
+                        reference_orbit(s, &mut xl, n_steps, w, &mut st);
+                        if l == 0 {
+                            stages0 = st;
+                        }
+                        want.push(xl);
+                    }
+                    k.orbit_steps(&mut x, stride, lanes, n_steps, &dr, &ki, w);
+                    for r in 0..rows {
+                        for c in 0..stride {
+                            let got = x[r * stride + c];
+                            if c < lanes {
+                                assert_eq!(
+                                    got.to_bits(),
+                                    want[c][r].to_bits(),
+                                    "{name} orbit: masses {}, lanes {lanes}, stride {stride}, \
+                                     steps {n_steps}, row {r}, lane {c}: {got} vs {}",
+                                    w.is_some(),
+                                    want[c][r]
+                                );
+                            } else {
+                                assert!(got.is_nan(), "{name}: padding column {c} written");
+                            }
+                        }
+                    }
+                    // Tangent vectors around lane 0's orbit.
+                    let mut v = vec![f64::NAN; rows * stride];
+                    let mut want = Vec::new();
+                    for l in 0..lanes {
+                        let mut vl = state(n, l + 5, 1e-3);
+                        for r in 0..rows {
+                            v[r * stride + l] = vl[r];
+                        }
+                        reference_tangent(s, &mut vl, n_steps, w, &stages0);
+                        want.push(vl);
+                    }
+                    k.tangent_steps(&stages0, &mut v, stride, lanes, n_steps, &dr, &ki, w);
+                    for r in 0..rows {
+                        for c in 0..stride {
+                            let got = v[r * stride + c];
+                            if c < lanes {
+                                assert_eq!(
+                                    got.to_bits(),
+                                    want[c][r].to_bits(),
+                                    "{name} tangent: masses {}, lanes {lanes}, stride \
+                                     {stride}, steps {n_steps}, row {r}, lane {c}",
+                                    w.is_some(),
+                                );
+                            } else {
+                                assert!(got.is_nan(), "{name}: padding column {c} written");
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn henon_heiles_steps_are_bit_identical() {
+    let s = henon_heiles();
+    for block in [2, 4] {
+        check("HH", &s, &compile(&s, block));
+    }
+}
+
+#[test]
+fn fput_5_steps_are_bit_identical() {
+    let s = fput(5);
+    for block in [2, 4] {
+        check("FPUT-5", &s, &compile(&s, block));
+    }
+}
+
+#[test]
+fn fput_101_steps_are_bit_identical() {
+    let s = fput(101);
+    check("FPUT-101", &s, &compile(&s, 4));
+}
+
+#[test]
+fn unoptimized_large_functions_are_bit_identical() {
+    // The code path of large graphs (no optimizer) on a small one.
+    let s = fput(5);
+    let options = Options {
+        large_function: 0,
+        ..Options::default()
+    };
+    let k = jit::compile_steps(
+        &s.graph,
+        &StepSpec {
+            n: s.n,
+            gradient: s.gradient.clone(),
+            hessian_vector: Some(s.hessian_vector.clone()),
+        },
+        &options,
+    )
+    .unwrap();
+    check("FPUT-5 unoptimized", &s, &k);
+}
+
+#[test]
+fn potentials_whose_force_skips_rows_and_reads_constants() {
+    // dV/dq1 = q2 and dV/dq2 = q1 (each force reads the other row only, so a kick must not
+    // precede the drift of its own row), a constant force (q3: linear potential) and a free
+    // coordinate (q4: no force at all).
+    let s = system(4, "q1*q2 + 2.5*q3 + sin(q1)");
+    check("coupled", &s, &compile(&s, 4));
+    check("coupled", &s, &compile(&s, 2));
+}
+
+#[test]
+fn no_lanes_or_steps_do_nothing() {
+    let s = henon_heiles();
+    let k = compile(&s, 4);
+    let (dr, ki) = coeffs();
+    let mut x = vec![1.0; 4 * 4];
+    k.orbit_steps(&mut x, 4, 0, 10, &dr, &ki, None);
+    k.orbit_steps(&mut x, 4, 4, 0, &dr, &ki, None);
+    assert!(x.iter().all(|&v| v == 1.0));
+}
+
+#[test]
+fn specs_that_are_not_n_degrees_of_freedom_are_refused() {
+    let s = fput(5);
+    let refuse = |n: usize, gradient: Vec<NodeId>| {
+        let e = jit::compile_steps(
+            &s.graph,
+            &StepSpec {
+                n,
+                gradient,
+                hessian_vector: None,
+            },
+            &Options::default(),
+        )
+        .unwrap_err();
+        assert!(matches!(e, jit::JitError::Steps(_)), "{e}");
+    };
+    // Four forces for five sites; five for four; four forces of which the last reads q5,
+    // declared as four sites; nothing.
+    refuse(5, s.gradient[..4].to_vec());
+    refuse(4, s.gradient.clone());
+    refuse(4, s.gradient[..4].to_vec());
+    refuse(0, Vec::new());
+}

@@ -72,8 +72,9 @@ pub struct PublishOutcome {
 
 #[derive(Debug, thiserror::Error)]
 pub enum PublishError {
+    /// Not a `#[source]`: the message already holds it, and error chains would repeat it.
     #[error("invalid configuration: {0}")]
-    Spec(#[from] SpecError),
+    Spec(SpecError),
     #[error("invalid run name: {0}")]
     RunName(String),
     #[error("run {0:?} is already being produced by a live process")]
@@ -82,6 +83,12 @@ pub enum PublishError {
     NoRecorder { run: String, timeout: Duration },
     #[error(transparent)]
     Bus(#[from] BusError),
+}
+
+impl From<SpecError> for PublishError {
+    fn from(e: SpecError) -> Self {
+        PublishError::Spec(e)
+    }
 }
 
 /// The run name: explicit option, else the config's `[run] name`, else generated.
@@ -99,7 +106,14 @@ pub fn resolve_run_name(
             format!("run-{secs}-{}", std::process::id())
         }
     };
-    names::validate_run_name(&name).map_err(PublishError::RunName)?;
+    names::validate_run_name(&name).map_err(|e| {
+        let key = if explicit.is_some() {
+            "--run"
+        } else {
+            "run.name"
+        };
+        PublishError::RunName(format!("{key}: {e}"))
+    })?;
     Ok(name)
 }
 

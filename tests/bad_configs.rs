@@ -237,6 +237,7 @@ fn cases() -> Vec<Case> {
         run("seed negative", "seed = 1", "seed = -1", "deviations.seed", "invalid value"),
         // Unknown names and keys.
         run("unknown model", "\"henon-heiles\"", "\"henon-heils\"", "model.name", "unknown model"),
+        run("model name with a newline", "\"henon-heiles\"", "\"henon\\nheiles\"", "model.name", "unknown model 'henon\\nheiles'"),
         run("unknown integrator", "\"aba864\"", "\"rk4\"", "integrator.method", "unknown method"),
         run("unknown method", "method = \"vm\"", "method = \"lyapunov\"", "scheme[0].method", "not vm or mpm"),
         run("unknown orthonormalization", "\"rescale\"", "\"gram-schmidt\"", "scheme[0].orthonormalize", "not rescale or qr"),
@@ -257,6 +258,7 @@ fn cases() -> Vec<Case> {
         run("energy infinite", "energy = 0.125", "energy = inf", "orbit.energy", "finite"),
         run("energy no momentum reaches", "energy = 0.125", "energy = -0.5", "orbit.energy", "no real p1"),
         run("solve_for a position", "solve_for = \"p1\"", "solve_for = \"q1\"", "orbit.solve_for", "momentum"),
+        run("solve_for p0", "solve_for = \"p1\"", "solve_for = \"p0\"", "orbit.solve_for", "momentum"),
         run("solve_for beyond N", "solve_for = \"p1\"", "solve_for = \"p3\"", "orbit.solve_for", "momentum"),
         run("energy without solve_for", "solve_for = \"p1\"\n", "", "orbit.energy", "solve_for"),
         explicit("explicit vector too short", "[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]", "[1.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]", "deviations.vectors", "length"),

@@ -61,10 +61,28 @@ pub struct SpecError {
 }
 
 impl SpecError {
+    /// The message is kept on one line: control characters (a newline in a name the message
+    /// quotes back) are written as escapes.
     pub fn new(key: impl Into<String>, message: impl Into<String>) -> Self {
+        let message: String = message.into();
+        let message = if message.chars().any(char::is_control) {
+            message
+                .chars()
+                .flat_map(|c| {
+                    let escaped: Vec<char> = if c.is_control() {
+                        c.escape_default().collect()
+                    } else {
+                        vec![c]
+                    };
+                    escaped
+                })
+                .collect()
+        } else {
+            message
+        };
         Self {
             key: key.into(),
-            message: message.into(),
+            message,
         }
     }
 }
@@ -225,7 +243,8 @@ pub fn parse_coordinate(name: &str, n: usize) -> Option<(bool, usize)> {
         _ => return None,
     };
     let i: usize = digits.parse().ok()?;
-    (1..=n).contains(&i).then_some((momentum, i - 1))
+    // `then`, not `then_some`: `i - 1` must not be evaluated for `p0` (it would overflow).
+    (1..=n).contains(&i).then(|| (momentum, i - 1))
 }
 
 /// Solve momentum `p_j` (positive root) so that `H(q, p) = energy`.

@@ -104,9 +104,11 @@ fn keys_before(line: &str, col: usize) -> Vec<&str> {
     let mut rest = head.get(first_eq + 1..).unwrap_or("");
     while let Some(eq) = rest.find('=') {
         let before = rest[..eq].trim_end();
+        // Past the last character that cannot be in a key (which may be several bytes long).
         let start = before
-            .rfind(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '"'))
-            .map_or(0, |i| i + 1);
+            .char_indices()
+            .rfind(|&(_, c)| !(c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '"'))
+            .map_or(0, |(i, c)| i + c.len_utf8());
         let key = before[start..].trim_matches('"');
         if !key.is_empty() {
             keys.push(key);
@@ -204,6 +206,14 @@ mod tests {
             let e = error(from, to);
             assert!(!e.contains('\n'), "{e}");
             assert!(e.starts_with(want), "{e:?} does not start with {want:?}");
+        }
+        // Multi-byte characters before a key or a value (found by fuzzing: a slice inside '充').
+        for text in [
+            "[model]\nname = { \"充\" = 1 }\n",
+            "[model]\n\u{85}n = \"x\" = 2\n",
+        ] {
+            let e = RunConfig::from_toml(text).unwrap_err().0;
+            assert!(!e.contains('\n'), "{e}");
         }
         let empty = RunConfig::from_toml("").unwrap_err().0;
         assert!(empty.starts_with("model"), "{empty}");

@@ -49,9 +49,18 @@ fn main() {
         samples: 3,
     };
     let mut seeds: Vec<(String, Vec<u8>)> = vec![
-        ("run-plain".into(), without_crcs(run(&tiny, Compression::None, 256))),
-        ("run-zstd".into(), without_crcs(run(&tiny, Compression::Zstd, 256))),
-        ("run-lz4".into(), without_crcs(run(&tiny, Compression::Lz4, 256))),
+        (
+            "run-plain".into(),
+            without_crcs(run(&tiny, Compression::None, 256)),
+        ),
+        (
+            "run-zstd".into(),
+            without_crcs(run(&tiny, Compression::Zstd, 256)),
+        ),
+        (
+            "run-lz4".into(),
+            without_crcs(run(&tiny, Compression::Lz4, 256)),
+        ),
         ("run-crc".into(), run(&tiny, Compression::None, 1 << 20)),
         (
             "map-plain".into(),

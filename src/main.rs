@@ -49,6 +49,11 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // A write past RLIMIT_FSIZE (a file-size quota) must fail with EFBIG, reported with the file
+    // it was for and handled like any failed write (complete chunks kept), instead of killing
+    // the process with SIGXFSZ and no message.
+    // SAFETY: setting a signal's disposition to SIG_IGN before any thread starts.
+    unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
     let result = match Cli::parse().command {
         Command::Run(args) => cli::run::main(args),
         Command::Produce(args) => cli::produce::main(args),

@@ -6,6 +6,7 @@
 pub mod batch;
 pub mod deviation;
 pub mod engine;
+pub mod estimate;
 pub mod indicators;
 pub mod integrator;
 pub mod map;

@@ -66,10 +66,28 @@ pub struct SpecError {
 }
 
 impl SpecError {
+    /// The message is kept on one line: control characters (a newline in a name the message
+    /// quotes back) are written as escapes.
     pub fn new(key: impl Into<String>, message: impl Into<String>) -> Self {
+        let message: String = message.into();
+        let message = if message.chars().any(char::is_control) {
+            message
+                .chars()
+                .flat_map(|c| {
+                    let escaped: Vec<char> = if c.is_control() {
+                        c.escape_default().collect()
+                    } else {
+                        vec![c]
+                    };
+                    escaped
+                })
+                .collect()
+        } else {
+            message
+        };
         Self {
             key: key.into(),
-            message: message.into(),
+            message,
         }
     }
 }
@@ -81,11 +99,18 @@ const MAX_STEPS: u64 = 1 << 52;
 /// `sets = 1000000` with a long chain must be refused with a message, not abort on allocation.
 pub const MAX_STATE_VALUES: u128 = 1 << 30;
 
+/// Most random sets of directions one run may draw.
+pub const MAX_SETS: usize = 1_000_000;
+
 /// Deviation state values (f64) a run holds: `sets` sets of `k` deviation vectors of dimension
 /// `dim`, per scheme (at least one) plus the reference; compare with [`MAX_STATE_VALUES`].
 pub fn deviation_state_values(schemes: usize, sets: u64, k: u64, dim: u64) -> u128 {
     (schemes.max(1) as u128 + 1) * u128::from(sets) * u128::from(k) * u128::from(dim)
 }
+
+/// Most schemes one run may have, explicit and swept together: each is a channel of the
+/// recording and a task of every sample (the limit of one `[[sweep]]`).
+pub const MAX_SCHEMES: usize = chaoscope_schemas::sweep::MAX_SWEEP_SCHEMES;
 
 /// A validated run.
 #[derive(Clone)]
@@ -136,22 +161,57 @@ fn finite_positive(key: &str, v: f64) -> Result<f64, SpecError> {
     } else {
         Err(SpecError::new(
             key,
-            format!("must be a finite positive number, got {v}"),
+            format!("must be a finite positive number, got {}", num(v)),
         ))
     }
+}
+
+/// A number as the user would write it: `1e-300` rather than three hundred zeros.
+fn num(v: f64) -> String {
+    let plain = format!("{v}");
+    let sci = format!("{v:e}");
+    if plain.len() <= sci.len() { plain } else { sci }
 }
 
 /// `round(t / h)` when `t` is a whole number of steps `h` (to rounding), else an error.
 pub fn whole_steps(key: &str, t: f64, h: f64) -> Result<u64, SpecError> {
     let ratio = t / h;
     let n = ratio.round();
-    if n.is_nan() || n < 1.0 || n > MAX_STEPS as f64 || (ratio - n).abs() > 1e-9 * n.max(1.0) {
-        return Err(SpecError::new(
-            key,
-            format!("{t} is not a positive whole number of time steps h = {h}"),
-        ));
+    let message = if n.is_nan() {
+        format!(
+            "{} is not a whole number of time steps h = {}",
+            num(t),
+            num(h)
+        )
+    } else if n < 1.0 {
+        format!("{} is shorter than one step h = {}", num(t), num(h))
+    } else if n > MAX_STEPS as f64 {
+        format!(
+            "{} is {ratio:.3e} steps of h = {}, more than the limit of 2^52 steps (beyond it \
+             step * h is no longer exact)",
+            num(t),
+            num(h)
+        )
+    } else if (ratio - n).abs() > 1e-9 * n.max(1.0) {
+        format!(
+            "{} is not a whole number of time steps h = {} ({ratio} steps)",
+            num(t),
+            num(h)
+        )
+    } else {
+        return Ok(n as u64);
+    };
+    Err(SpecError::new(key, message))
+}
+
+/// Degrees of freedom of the model a config names, without building it (`None` when the config
+/// does not say; validation then names the problem).
+pub fn model_dof(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<usize> {
+    match cfg.name.as_str() {
+        "henon-heiles" => Some(2),
+        "fput-beta" | "potential" => cfg.n.filter(|&n| n > 0),
+        _ => None,
     }
-    Ok(n as u64)
 }
 
 /// Build the model named in the config, with the digests of the tables it read.
@@ -232,7 +292,8 @@ pub fn parse_coordinate(name: &str, n: usize) -> Option<(bool, usize)> {
         _ => return None,
     };
     let i: usize = digits.parse().ok()?;
-    (1..=n).contains(&i).then_some((momentum, i - 1))
+    // `then`, not `then_some`: `i - 1` must not be evaluated for `p0` (it would overflow).
+    (1..=n).contains(&i).then(|| (momentum, i - 1))
 }
 
 /// Solve momentum `p_j` (positive root) so that `H(q, p) = energy`.
@@ -431,10 +492,10 @@ impl RunSpec {
                 vec![deviation::explicit_directions(rows, dim).map_err(dir_err)?]
             }
             None => {
-                if dev.sets == 0 || dev.sets > 1_000_000 {
+                if dev.sets == 0 || dev.sets > MAX_SETS {
                     return Err(SpecError::new(
                         "deviations.sets",
-                        format!("must be between 1 and 1000000, got {}", dev.sets),
+                        format!("must be between 1 and {MAX_SETS}, got {}", dev.sets),
                     ));
                 }
                 (0..dev.sets as u64)
@@ -447,6 +508,16 @@ impl RunSpec {
             return Err(SpecError::new(
                 "scheme",
                 "at least one [[scheme]] is needed",
+            ));
+        }
+        if cfg.schemes.len() > MAX_SCHEMES {
+            return Err(SpecError::new(
+                "scheme",
+                format!(
+                    "{} schemes ([[scheme]] and [[sweep]] together) exceed the limit of \
+                     {MAX_SCHEMES}; split the run",
+                    cfg.schemes.len()
+                ),
             ));
         }
         let mut schemes = Vec::with_capacity(cfg.schemes.len());
@@ -486,6 +557,15 @@ impl RunSpec {
             let d0 = finite_positive(&key("d0"), s.d0)?;
             let tau = finite_positive(&key("tau"), s.tau)?;
             let tau_steps = whole_steps(&key("tau"), tau, h)?;
+            if tau_steps > total_steps {
+                return Err(SpecError::new(
+                    key("tau"),
+                    format!(
+                        "{tau} is longer than the run (t_final = {t_final}): it would never be \
+                         sampled"
+                    ),
+                ));
+            }
             let orthonormalize =
                 Orthonormalization::from_name(&s.orthonormalize).ok_or_else(|| {
                     SpecError::new(

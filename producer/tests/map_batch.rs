@@ -45,6 +45,7 @@ fn batched(spec: &MapSpec, threads: usize, isa: Isa) -> Vec<PointResult> {
         threads: Some(threads),
         isa,
         mpm_points_per_batch: 5,
+        termination: None,
     };
     let mut out = Vec::new();
     map::run_map(spec, &points, &options, |r| {

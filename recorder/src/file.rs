@@ -224,3 +224,19 @@ impl<W: Write + Seek> RecordingFile<W> {
         Ok(self.writer.into_inner())
     }
 }
+
+/// `error` and its sources, joined by ": " (the mcap crate's I/O errors keep the OS error, such
+/// as "File too large", as their source).
+pub fn error_chain(error: &dyn std::error::Error) -> String {
+    let mut text = error.to_string();
+    let mut source = error.source();
+    while let Some(e) = source {
+        let more = e.to_string();
+        if !text.ends_with(&more) {
+            text.push_str(": ");
+            text.push_str(&more);
+        }
+        source = e.source();
+    }
+    text
+}

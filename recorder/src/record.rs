@@ -69,10 +69,12 @@ pub enum RecordError {
     },
     #[error("{path} already exists (pass --force to replace it)")]
     Exists { path: PathBuf },
-    #[error("{path}: MCAP: {source}")]
+    /// The whole cause in the message (`...: File too large`) and no error source, so that a
+    /// chain printer does not repeat it.
+    #[error("{path}: MCAP: {}", crate::file::error_chain(error))]
     Mcap {
         path: PathBuf,
-        source: mcap::McapError,
+        error: mcap::McapError,
     },
     #[error("interrupted before any run started")]
     InterruptedBeforeRun,
@@ -119,9 +121,9 @@ pub fn record(options: &RecordOptions) -> Result<RecordOutcome, RecordError> {
     };
 
     let path = options.out.clone();
-    let mcap_err = |source| RecordError::Mcap {
+    let mcap_err = |error| RecordError::Mcap {
         path: path.clone(),
-        source,
+        error,
     };
     let file = create_output(&path, options.force)?;
     let mut recording = Recording::start(file, &header, &options.file).map_err(mcap_err)?;

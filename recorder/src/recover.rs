@@ -40,10 +40,12 @@ pub enum RecoverError {
     SameFile { path: PathBuf },
     #[error("{path} already exists (pass --force to replace it)")]
     Exists { path: PathBuf },
-    #[error("{path}: MCAP: {source}")]
+    /// The whole cause in the message (`...: File too large`) and no error source, so that a
+    /// chain printer does not repeat it.
+    #[error("{path}: MCAP: {}", crate::file::error_chain(error))]
     Mcap {
         path: PathBuf,
-        source: mcap::McapError,
+        error: mcap::McapError,
     },
 }
 
@@ -100,9 +102,9 @@ fn salvage(
     input: &Path,
     output: &Path,
 ) -> Result<RecoverReport, RecoverError> {
-    let mcap_err = |source| RecoverError::Mcap {
+    let mcap_err = |error| RecoverError::Mcap {
         path: output.into(),
-        source,
+        error,
     };
     let mut writer = mcap::WriteOptions::new()
         .library(format!("chaoscope recover {}", env!("CARGO_PKG_VERSION")))

@@ -10,6 +10,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 pub mod paper;
+mod parse_error;
 
 /// Top level of a run configuration file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -296,7 +297,7 @@ impl MapConfig {
     }
 }
 
-/// A config that failed to parse; the message names the offending key and line.
+/// A config that failed to parse; one line naming the offending key, line and column.
 #[derive(Debug, thiserror::Error)]
 #[error("invalid run configuration: {0}")]
 pub struct ConfigParseError(pub String);
@@ -305,7 +306,7 @@ impl RunConfig {
     /// Parse a TOML document. Unknown keys are errors (a typo must not silently fall back to a
     /// default).
     pub fn from_toml(text: &str) -> Result<Self, ConfigParseError> {
-        toml::from_str(text).map_err(|e| ConfigParseError(e.to_string()))
+        toml::from_str(text).map_err(|e| ConfigParseError(parse_error::describe(text, &e)))
     }
 
     /// Read a config file; relative table paths are taken from the file's directory (so a

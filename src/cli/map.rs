@@ -59,6 +59,9 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     pub no_progress: bool,
+    /// Start even a map estimated to take more than a day or more memory than the machine has.
+    #[arg(long)]
+    pub force: bool,
     /// Force the kernel's instruction set (avx512, avx2, portable); default: detected.
     #[arg(long)]
     pub isa: Option<String>,
@@ -77,6 +80,12 @@ pub struct Args {
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let (config, _) = super::load_config(&args.config)?;
     let spec = MapSpec::from_config(&config).context("invalid map configuration")?;
+    let machine = super::machine();
+    let threads = args.threads.unwrap_or(machine.cores);
+    let (total, count) = (spec.grid_points(), u64::from(args.shard.count));
+    let points = total / count + u64::from(total % count > u64::from(args.shard.index));
+    let estimate = chaoscope_producer::estimate::map(&spec, points, threads);
+    super::check_estimate(Some(&estimate), &machine, args.force, "map")?;
     let isa = match &args.isa {
         None => Isa::detect(),
         Some(name) => {
@@ -159,6 +168,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let map_options = MapOptions {
         threads: args.threads,
         isa,
+        termination: Some(termination.clone()),
         ..MapOptions::default()
     };
     let start = Instant::now();
@@ -194,6 +204,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         }
         true
     })?;
+    // A signal stops the workers within a window, dropping the points in progress.
+    interrupted |= termination.requested();
     bar.finish_and_clear();
     let finished = match write_error {
         Some(e) => Err(anyhow::Error::from(e).context(format!("writing {}", args.out.display()))),

@@ -22,10 +22,16 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     pub no_progress: bool,
+    /// Start even a run estimated to take more than a day or more memory than the machine has.
+    #[arg(long)]
+    pub force: bool,
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let (config, _) = super::load_config(&args.config)?;
+    let machine = super::machine();
+    let estimate = chaoscope_producer::estimate::run(&config, &machine);
+    super::check_estimate(estimate.as_ref(), &machine, args.force, "produce")?;
     let options = PublishOptions {
         run_name: args.run,
         recorders: args.recorders,

@@ -26,7 +26,8 @@ pub struct Args {
     /// Run name; default: `[run] name` of the config, or generated.
     #[arg(long)]
     pub run: Option<String>,
-    /// Replace the output file if it exists.
+    /// Replace the output file if it exists, and start even a run estimated to take more than a
+    /// day or more memory than the machine has.
     #[arg(long)]
     pub force: bool,
 }
@@ -92,7 +93,12 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             DEFAULT_CONFIG.to_string(),
         ),
     };
-    // Fail on a bad config here, before any process starts.
+    // Fail on a bad config or one beyond the machine here, before any process starts (the
+    // estimate first: validation draws every set's directions, which for an absurd size is
+    // itself slow).
+    let machine = super::machine();
+    let estimate = chaoscope_producer::estimate::run(&config, &machine);
+    super::check_estimate(estimate.as_ref(), &machine, args.force, "run")?;
     chaoscope_producer::spec::RunSpec::from_config(&config).context("invalid run configuration")?;
     let run = resolve_run_name(&config, args.run.as_deref())?;
     let out = args
@@ -125,6 +131,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     produce
         .args(["-", "--run", &run, "--recorders", "1"])
         .stdin(Stdio::piped());
+    if args.force {
+        produce.arg("--force");
+    }
     let mut producer = Role::spawn("producer", produce)?;
     {
         let mut stdin = producer.child.stdin.take().context("producer stdin")?;

@@ -19,9 +19,15 @@ struct Live {
     orbit_steps: u64,
 }
 
-/// Computes the points `indices` together; results in no particular order.
-pub fn compute(spec: &MapSpec, isa: Isa, indices: &[u64]) -> Vec<PointResult> {
-    with_lane_model!(&spec.lanes, |m| compute_with(m, spec, isa, indices))
+/// Computes the points `indices` together; results in no particular order. Once `stop()` (asked
+/// at every window) is true, returns the points finished so far.
+pub fn compute(
+    spec: &MapSpec,
+    isa: Isa,
+    indices: &[u64],
+    stop: &dyn Fn() -> bool,
+) -> Vec<PointResult> {
+    with_lane_model!(&spec.lanes, |m| compute_with(m, spec, isa, indices, stop))
 }
 
 fn compute_with<M: LaneModel>(
@@ -29,6 +35,7 @@ fn compute_with<M: LaneModel>(
     spec: &MapSpec,
     isa: Isa,
     indices: &[u64],
+    stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
     let run = &spec.run;
     let (dim, k, d0) = (run.dim, run.k, run.schemes[0].d0);
@@ -70,6 +77,9 @@ fn compute_with<M: LaneModel>(
     let mut renormalization = SetRenormalization::new(run);
     let mut windows = Windows::new(run);
     while !live.is_empty() {
+        if stop() {
+            break;
+        }
         let Some(w) = windows.next() else { break };
         batch::orbit_steps(isa, model, &spec.coeffs, &mut soa, w.steps);
         let mut changed = false;

@@ -8,6 +8,7 @@ use super::point::PointResult;
 use super::spec::MapSpec;
 use super::{mpm, vm};
 use crate::batch::Isa;
+use crate::publish::Termination;
 use crate::spec::Method;
 
 #[derive(Debug, Clone)]
@@ -18,6 +19,10 @@ pub struct MapOptions {
     /// MPM points integrated together in one lane array. Larger batches amortize the
     /// per-window bookkeeping; smaller ones balance the threads better.
     pub mpm_points_per_batch: usize,
+    /// Checked at every renormalization window: once it is requested, points in progress are
+    /// dropped (a resumed map computes them again) and `run_map` returns, so SIGINT/SIGTERM stop
+    /// a map of long orbits within a window rather than after a whole batch of points.
+    pub termination: Option<Termination>,
 }
 
 impl Default for MapOptions {
@@ -26,6 +31,7 @@ impl Default for MapOptions {
             threads: None,
             isa: Isa::detect(),
             mpm_points_per_batch: 8,
+            termination: None,
         }
     }
 }
@@ -52,17 +58,21 @@ pub fn run_map(
     let stop = std::sync::atomic::AtomicBool::new(false);
     std::thread::scope(|scope| {
         let stop = &stop;
+        let stopped = move || {
+            stop.load(std::sync::atomic::Ordering::Relaxed)
+                || options.termination.as_ref().is_some_and(|t| t.requested())
+        };
         scope.spawn(move || {
             pool.install(|| {
                 points.par_chunks(per_batch).for_each_with(tx, |tx, chunk| {
-                    if stop.load(std::sync::atomic::Ordering::Relaxed) {
+                    if stopped() {
                         return;
                     }
                     let results = match spec.run.schemes[0].method {
-                        Method::Mpm => mpm::compute(spec, options.isa, chunk),
+                        Method::Mpm => mpm::compute(spec, options.isa, chunk, &stopped),
                         Method::Vm => chunk
                             .iter()
-                            .map(|&i| vm::compute(spec, options.isa, i))
+                            .map_while(|&i| vm::compute(spec, options.isa, i, &stopped))
                             .collect(),
                     };
                     for r in results {

@@ -149,7 +149,11 @@ impl MapSpec {
                 ),
             ));
         }
-        let run = RunSpec::from_config(&base)?;
+        let run = RunSpec::from_config(&base).map_err(|e| match map.k {
+            // The order the user wrote is [map] k, which overrides [deviations] k.
+            Some(_) if e.key == "deviations.k" => SpecError::new("map.k", e.message),
+            _ => e,
+        })?;
         let n = run.model.dof();
         if run.schemes[0].orthonormalize != Orthonormalization::Rescale {
             return Err(SpecError::new(

@@ -9,17 +9,31 @@ use super::window::{SetRenormalization, Windows, check_escape, retain_sets};
 use crate::batch::{self, Isa, LaneModel, Soa, record_reference_stages};
 use crate::with_lane_model;
 
-pub fn compute(spec: &MapSpec, isa: Isa, index: u64) -> PointResult {
-    with_lane_model!(&spec.lanes, |m| compute_with(m, spec, isa, index))
+/// The point `index`, or `None` if `stop()` (asked at every window) became true first.
+pub fn compute(
+    spec: &MapSpec,
+    isa: Isa,
+    index: u64,
+    stop: &dyn Fn() -> bool,
+) -> Option<PointResult> {
+    with_lane_model!(&spec.lanes, |m| compute_with(m, spec, isa, index, stop))
 }
 
-fn compute_with<M: LaneModel>(model: &M, spec: &MapSpec, isa: Isa, index: u64) -> PointResult {
+fn compute_with<M: LaneModel>(
+    model: &M,
+    spec: &MapSpec,
+    isa: Isa,
+    index: u64,
+    stop: &dyn Fn() -> bool,
+) -> Option<PointResult> {
     let run = &spec.run;
     let (dim, k, d0) = (run.dim, run.k, run.schemes[0].d0);
     let base = spec.base_result(index);
     let mut x = match spec.initial_state(index) {
         Ok(x0) => x0,
-        Err(reason) => return failed(base, PointStatus::OutsideEnergySurface, 0.0, reason),
+        Err(reason) => {
+            return Some(failed(base, PointStatus::OutsideEnergySurface, 0.0, reason));
+        }
     };
     let base = PointResult {
         x0: x.clone(),
@@ -39,6 +53,9 @@ fn compute_with<M: LaneModel>(model: &M, spec: &MapSpec, isa: Isa, index: u64) -
     let mut renormalization = SetRenormalization::new(run);
     let mut orbit_steps = 0;
     for w in Windows::new(run) {
+        if stop() {
+            return None;
+        }
         orbit_steps += w.steps * (1 + (sets.len() * k) as u64);
         record_reference_stages(
             model,
@@ -50,7 +67,7 @@ fn compute_with<M: LaneModel>(model: &M, spec: &MapSpec, isa: Isa, index: u64) -
         );
         batch::tangent_steps(isa, model, &spec.coeffs, &stages, &mut soa, w.steps);
         if let Err(e) = check_escape(&x, w.t) {
-            return broke_off(base, w.t, &e, orbit_steps);
+            return Some(broke_off(base, w.t, &e, orbit_steps));
         }
         let before = sets.len();
         let stepped = retain_sets(&mut sets, |set, lane| {
@@ -68,7 +85,7 @@ fn compute_with<M: LaneModel>(model: &M, spec: &MapSpec, isa: Isa, index: u64) -
             Ok(goes_on)
         });
         if let Err(e) = stepped {
-            return broke_off(base, w.t, &e, orbit_steps);
+            return Some(broke_off(base, w.t, &e, orbit_steps));
         }
         if acc.is_done() {
             break;
@@ -87,8 +104,8 @@ fn compute_with<M: LaneModel>(model: &M, spec: &MapSpec, isa: Isa, index: u64) -
             soa = packed;
         }
     }
-    PointResult {
+    Some(PointResult {
         orbit_steps,
         ..acc.finish(base)
-    }
+    })
 }

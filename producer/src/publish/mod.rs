@@ -72,9 +72,8 @@ pub struct PublishOutcome {
 
 #[derive(Debug, thiserror::Error)]
 pub enum PublishError {
+    /// Not a `#[source]`: the message already holds it, and error chains would repeat it.
     #[error("invalid configuration: {0}")]
-    // Not `#[from]`: that would also make it the error's source, and the message (which
-    // already includes it) would print twice in an error chain.
     Spec(SpecError),
     #[error("invalid run name: {0}")]
     RunName(String),
@@ -107,7 +106,14 @@ pub fn resolve_run_name(
             format!("run-{secs}-{}", std::process::id())
         }
     };
-    names::validate_run_name(&name).map_err(PublishError::RunName)?;
+    names::validate_run_name(&name).map_err(|e| {
+        let key = if explicit.is_some() {
+            "--run"
+        } else {
+            "run.name"
+        };
+        PublishError::RunName(format!("{key}: {e}"))
+    })?;
     Ok(name)
 }
 

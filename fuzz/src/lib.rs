@@ -1,0 +1,142 @@
+//! The fuzz targets: one function per reader of hostile input, taking arbitrary bytes. A target
+//! passes if it returns; a panic, an abort (an allocation the input should not cause) or a hang
+//! is a finding.
+//!
+//! Used twice: by the AFL binaries in `src/bin/` (`cargo afl build`), and by the root test
+//! `tests/fuzz_corpus.rs`, which includes this very file and replays `fuzz/corpus/<target>/` and
+//! `fuzz/regressions/<target>/` through it, so CI exercises every input found without AFL.
+//! Only workspace crates are used here (no AFL), for that second use.
+//!
+//! Targets:
+//! - [`mcap`]: the MCAP scanner in memory (records and messages), the map reader, and through a
+//!   file the analyzer's recording reader and analysis, `summary`, the map file reader and
+//!   `recover`.
+//! - [`config`]: `RunConfig::from_toml`, the resource estimate, then `RunSpec::from_config` or
+//!   `MapSpec::from_config`, as `chaoscope run`/`map` call them.
+//! - `expr` (to come with the expression models' crate): the expression parser. Add
+//!   `pub fn expr(data: &[u8])` here, a `src/bin/expr.rs` like the others, `corpus/expr/` and
+//!   `regressions/expr/`, and a line in `tests/fuzz_corpus.rs`.
+
+use std::io::Cursor;
+use std::path::PathBuf;
+
+use chaoscope_producer::estimate::{self, Machine};
+use chaoscope_producer::map::MapSpec;
+use chaoscope_producer::spec::RunSpec;
+use chaoscope_recorder::scan::{Entry, Messages, Scanner};
+use chaoscope_schemas::config::RunConfig;
+
+/// Where the `mcap` target writes its input for the readers that take a path: one directory per
+/// process, reused for every input.
+fn scratch() -> &'static PathBuf {
+    static DIR: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
+    DIR.get_or_init(|| {
+        let dir = std::env::temp_dir().join(format!("chaoscope-fuzz-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("scratch directory");
+        dir
+    })
+}
+
+/// Every MCAP reader over `data`.
+pub fn mcap(data: &[u8]) {
+    let len = Some(data.len() as u64);
+    // The scanner: records and whole chunks, then messages with their topics.
+    if let Ok(Some(mut scanner)) = Scanner::open(Cursor::new(data), len) {
+        let mut records = 0usize;
+        while let Ok(Some(entry)) = scanner.next() {
+            if let Entry::Chunk(inside) = entry {
+                records += inside.len();
+            }
+        }
+        let _ = (records, scanner.scan());
+    }
+    if let Ok(Some(scanner)) = Scanner::open(Cursor::new(data), len) {
+        let mut messages = Messages::new(scanner);
+        while let Ok(Some(m)) = messages.next_message() {
+            let _ = (m.topic.len(), m.data.len());
+        }
+    }
+    let _ = chaoscope_recorder::map_file::read_map(Cursor::new(data), len);
+
+    // The readers that open a path.
+    let dir = scratch();
+    let input = dir.join("input.mcap");
+    let output = dir.join("recovered.mcap");
+    if std::fs::write(&input, data).is_err() {
+        return;
+    }
+    let _ = chaoscope_analyzer::recording::analyze_file(
+        &input,
+        &chaoscope_analyzer::AnalysisOptions::default(),
+    )
+    .map(|(analysis, _)| analysis.report());
+    let _ = chaoscope_analyzer::summary::summarize(&input);
+    let _ = chaoscope_recorder::map_file::read_map_file(&input);
+    if chaoscope_recorder::recover::recover(&input, &output, true).is_ok() {
+        // What recover writes must read back without damage.
+        let again = chaoscope_recorder::scan::Scanner::open_file(&output).map(|(scanner, _)| {
+            let mut messages = Messages::new(scanner);
+            while let Ok(Some(_)) = messages.next_message() {}
+            messages.scan().stopped_at.clone()
+        });
+        assert!(
+            matches!(again, Ok(None)),
+            "recover wrote a file that does not read back: {again:?}"
+        );
+    }
+}
+
+/// Largest deviation state (sets x k x 2N values) the `config` target validates: drawing more
+/// directions is legitimately slow (a valid config, not a finding), and would only make the
+/// fuzzer report hangs.
+const MAX_FUZZ_STATE: u128 = 1 << 16;
+
+/// The configuration parser and validators over `data`.
+pub fn config(data: &[u8]) {
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    let cfg = match RunConfig::from_toml(text) {
+        Ok(cfg) => cfg,
+        Err(e) => {
+            assert!(!e.0.contains('\n'), "a parse error of several lines: {e}");
+            return;
+        }
+    };
+    let _ = cfg.to_toml();
+    let machine = Machine {
+        cores: 2,
+        memory_bytes: Some(24 << 30),
+    };
+    if estimate::run(&cfg, &machine).is_some_and(|e| e.refusal(&machine).is_some()) {
+        return;
+    }
+    let schemes = cfg.expanded_schemes().map_or(1, |s| s.len().max(1));
+    let dim = cfg.model.n.unwrap_or(2).saturating_mul(2) as u128;
+    let state = schemes as u128 * cfg.deviations.sets.max(1) as u128 * cfg.deviations.k as u128;
+    if state.saturating_mul(dim) > MAX_FUZZ_STATE {
+        return;
+    }
+    let checked = |e: &chaoscope_producer::spec::SpecError| {
+        assert!(
+            !e.key.is_empty() && !e.message.is_empty() && !e.to_string().contains('\n'),
+            "an error without key or message, or of several lines: {e:?}"
+        );
+    };
+    if cfg.map.is_some() {
+        match MapSpec::from_config(&cfg) {
+            Ok(spec) => {
+                let e = estimate::map(&spec, spec.grid_points(), 2);
+                let _ = e.refusal(&machine);
+            }
+            Err(e) => checked(&e),
+        }
+    } else {
+        match RunSpec::from_config(&cfg) {
+            Ok(spec) => {
+                let _ = estimate::run_spec(&spec, &machine).refusal(&machine);
+            }
+            Err(e) => checked(&e),
+        }
+    }
+}

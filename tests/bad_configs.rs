@@ -1,0 +1,704 @@
+//! Bad configurations, written from a user's mistakes, through the real binary.
+//!
+//! Every case runs `chaoscope run`, `produce` or `map` on one spoiled config, with its output
+//! pointed into an empty directory and its working directory in another, and must give:
+//! a non-zero exit that is not a panic (exit 101, "panicked"), exactly one line on stderr that
+//! names the key and the problem, and no file left behind in either directory.
+//!
+//! The resource estimate (a run longer than a day or larger than the machine's memory is
+//! refused before it starts; `--force` runs it anyway) is tested at the end.
+
+mod common;
+
+use std::path::Path;
+use std::process::{Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{CHAOSCOPE, unique_run};
+
+/// A short valid run (the paper's chaotic Henon-Heiles orbit to t = 1).
+const RUN: &str = r#"
+[model]
+name = "henon-heiles"
+
+[orbit]
+q = [0.0, -0.25]
+p = [0.0, 0.0]
+energy = 0.125
+solve_for = "p1"
+
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = 1.0
+
+[deviations]
+k = 4
+sets = 2
+seed = 1
+
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 0.5
+orthonormalize = "rescale"
+"#;
+
+/// The same run with explicit deviation vectors instead of random sets.
+const EXPLICIT: &str = r#"
+[model]
+name = "henon-heiles"
+
+[orbit]
+q = [0.0, -0.25]
+p = [0.0, 0.0]
+energy = 0.125
+solve_for = "p1"
+
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = 1.0
+
+[deviations]
+k = 2
+vectors = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]]
+
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 0.5
+"#;
+
+/// A small FPUT chain (model keys other than Henon-Heiles').
+const FPUT: &str = r#"
+[model]
+name = "fput-beta"
+n = 3
+beta = 1.0
+
+[orbit]
+q = [0.1, -0.2, 0.3]
+p = [0.0, 0.1, 0.0]
+
+[integrator]
+method = "aba864"
+h = 0.05
+t_final = 1.0
+
+[deviations]
+k = 2
+sets = 1
+
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-8
+tau = 0.5
+"#;
+
+/// A small valid map (3 x 2 points of the paper's section).
+const MAP: &str = r#"
+[model]
+name = "henon-heiles"
+
+[orbit]
+q = [0.0, 0.0]
+p = [0.0, 0.0]
+energy = 0.125
+solve_for = "p1"
+
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = 1.0
+
+[deviations]
+k = 2
+sets = 2
+seed = 1
+
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-8
+tau = 0.5
+
+[map]
+x = { coord = "q2", min = -0.4, max = 0.6, n = 3 }
+y = { coord = "p2", min = -0.4, max = 0.4, n = 2 }
+indicator = "gali"
+"#;
+
+/// A `[[sweep]]` of 20000 schemes, before the base config's own scheme.
+const MANY_SWEPT: &str = "[[sweep]]\nname = \"mpm\"\nmethod = \"mpm\"\n\
+    d0 = { from = 1e-14, to = 1e-2, count = 20000 }\ntau = 0.5\n\n[[scheme]]";
+
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Cmd {
+    Run,
+    Produce,
+    Map,
+}
+
+struct Case {
+    name: &'static str,
+    cmd: Cmd,
+    config: Vec<u8>,
+    /// The key the one-line message must name.
+    key: &'static str,
+    /// A fragment of the problem the message must state (case-insensitive).
+    problem: &'static str,
+}
+
+/// `base` with `from` (which must occur exactly once) replaced by `to`.
+fn spoil(base: &str, from: &str, to: &str) -> Vec<u8> {
+    assert_eq!(
+        base.matches(from).count(),
+        1,
+        "{from:?} must occur exactly once in the base config"
+    );
+    base.replacen(from, to, 1).into_bytes()
+}
+
+fn case(
+    name: &'static str,
+    cmd: Cmd,
+    config: Vec<u8>,
+    key: &'static str,
+    problem: &'static str,
+) -> Case {
+    Case {
+        name,
+        cmd,
+        config,
+        key,
+        problem,
+    }
+}
+
+#[rustfmt::skip]
+fn cases() -> Vec<Case> {
+    use Cmd::*;
+    let run = |name, from, to, key, problem| case(name, Run, spoil(RUN, from, to), key, problem);
+    let explicit =
+        |name, from, to, key, problem| case(name, Run, spoil(EXPLICIT, from, to), key, problem);
+    let fput = |name, from, to, key, problem| case(name, Run, spoil(FPUT, from, to), key, problem);
+    let map = |name, from, to, key, problem| case(name, Map, spoil(MAP, from, to), key, problem);
+    let many_schemes = {
+        let mut text = RUN.to_string();
+        for i in 0..12_000 {
+            text.push_str(&format!(
+                "[[scheme]]\nname = \"s{i}\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 0.5\n"
+            ));
+        }
+        text.into_bytes()
+    };
+    let binary: Vec<u8> = (0..4096u32)
+        .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+        .collect();
+    vec![
+        // The time step.
+        run("h zero", "h = 0.01", "h = 0.0", "integrator.h", "finite positive"),
+        run("h negative", "h = 0.01", "h = -0.01", "integrator.h", "finite positive"),
+        run("h NaN", "h = 0.01", "h = nan", "integrator.h", "finite positive"),
+        run("h infinite", "h = 0.01", "h = inf", "integrator.h", "finite positive"),
+        run("h absurdly small", "h = 0.01", "h = 1e-300", "integrator.t_final", "steps"),
+        run("h longer than the run", "h = 0.01", "h = 5.0", "integrator.t_final", "shorter than one step"),
+        run("h a string", "h = 0.01", "h = \"0.01\"", "integrator.h", "invalid type"),
+        run("h missing", "h = 0.01\n", "", "integrator.h", "missing"),
+        // The horizon.
+        run("t_final zero", "t_final = 1.0", "t_final = 0.0", "integrator.t_final", "finite positive"),
+        run("t_final negative", "t_final = 1.0", "t_final = -1.0", "integrator.t_final", "finite positive"),
+        run("t_final NaN", "t_final = 1.0", "t_final = nan", "integrator.t_final", "finite positive"),
+        run("t_final infinite", "t_final = 1.0", "t_final = inf", "integrator.t_final", "finite positive"),
+        run("t_final not a multiple of h", "t_final = 1.0", "t_final = 1.005", "integrator.t_final", "whole number"),
+        run("t_final absurd", "t_final = 1.0", "t_final = 1e300", "integrator.t_final", "steps"),
+        // The renormalization period.
+        run("tau not a multiple of h", "tau = 0.5", "tau = 0.015", "scheme[0].tau", "whole number"),
+        run("tau smaller than h", "tau = 0.5", "tau = 0.001", "scheme[0].tau", "shorter than one step"),
+        run("tau zero", "tau = 0.5", "tau = 0.0", "scheme[0].tau", "finite positive"),
+        run("tau negative", "tau = 0.5", "tau = -0.5", "scheme[0].tau", "finite positive"),
+        run("tau NaN", "tau = 0.5", "tau = nan", "scheme[0].tau", "finite positive"),
+        run("tau longer than the run", "tau = 0.5", "tau = 2.0", "scheme[0].tau", "longer than the run"),
+        // d0.
+        run("d0 zero", "d0 = 1e-8", "d0 = 0.0", "scheme[0].d0", "finite positive"),
+        run("d0 negative", "d0 = 1e-8", "d0 = -1e-8", "scheme[0].d0", "finite positive"),
+        run("d0 NaN", "d0 = 1e-8", "d0 = nan", "scheme[0].d0", "finite positive"),
+        run("d0 infinite", "d0 = 1e-8", "d0 = inf", "scheme[0].d0", "finite positive"),
+        // k and sets.
+        run("k zero", "k = 4", "k = 0", "deviations.k", "between 1 and 2n"),
+        run("k above 2N", "k = 4", "k = 5", "deviations.k", "between 1 and 2n"),
+        run("k negative", "k = 4", "k = -1", "deviations.k", "invalid value"),
+        run("sets zero", "sets = 2", "sets = 0", "deviations.sets", "between 1 and"),
+        run("sets absurd", "sets = 2", "sets = 1000000000", "deviations.sets", "gib"),
+        run("seed negative", "seed = 1", "seed = -1", "deviations.seed", "invalid value"),
+        // Unknown names and keys.
+        run("unknown model", "\"henon-heiles\"", "\"henon-heils\"", "model.name", "unknown model"),
+        run("model name with a newline", "\"henon-heiles\"", "\"henon\\nheiles\"", "model.name", "unknown model 'henon\\nheiles'"),
+        run("unknown integrator", "\"aba864\"", "\"rk4\"", "integrator.method", "unknown method"),
+        run("unknown method", "method = \"vm\"", "method = \"lyapunov\"", "scheme[0].method", "not vm or mpm"),
+        run("unknown orthonormalization", "\"rescale\"", "\"gram-schmidt\"", "scheme[0].orthonormalize", "not rescale or qr"),
+        run("unknown key", "h = 0.01", "h = 0.01\ndt = 0.01", "integrator.dt", "unknown field"),
+        run("unknown table", "[deviations]", "[output]\ndir = \"x\"\n\n[deviations]", "output", "unknown field"),
+        run("misspelled scheme table", "[[scheme]]", "[[schemes]]", "schemes", "unknown field"),
+        run("duplicate key", "h = 0.01", "h = 0.01\nh = 0.02", "integrator.h", "duplicate key"),
+        run("key without value", "h = 0.01", "h =", "integrator.h", "expected"),
+        run("duplicate scheme name", "orthonormalize = \"rescale\"", "orthonormalize = \"rescale\"\n[[scheme]]\nname = \"vm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 0.5", "scheme[1].name", "used twice"),
+        run("no scheme", "[[scheme]]\nname = \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 0.5\northonormalize = \"rescale\"\n", "", "scheme", "at least one"),
+        run("bad run name", "[model]", "[run]\nname = \"../x\"\n\n[model]", "run.name", "letters"),
+        // Vectors and initial conditions.
+        run("q too short", "q = [0.0, -0.25]", "q = [0.0]", "orbit.q", "needs 2 positions"),
+        run("p too long", "p = [0.0, 0.0]", "p = [0.0, 0.0, 0.0]", "orbit.p", "needs 2 momenta"),
+        run("q NaN", "q = [0.0, -0.25]", "q = [nan, -0.25]", "orbit.q", "not finite"),
+        run("p infinite", "p = [0.0, 0.0]", "p = [0.0, inf]", "orbit.p", "not finite"),
+        run("energy NaN", "energy = 0.125", "energy = nan", "orbit.energy", "finite"),
+        run("energy infinite", "energy = 0.125", "energy = inf", "orbit.energy", "finite"),
+        run("energy no momentum reaches", "energy = 0.125", "energy = -0.5", "orbit.energy", "no real p1"),
+        run("solve_for a position", "solve_for = \"p1\"", "solve_for = \"q1\"", "orbit.solve_for", "momentum"),
+        run("solve_for p0", "solve_for = \"p1\"", "solve_for = \"p0\"", "orbit.solve_for", "momentum"),
+        run("solve_for beyond N", "solve_for = \"p1\"", "solve_for = \"p3\"", "orbit.solve_for", "momentum"),
+        run("energy without solve_for", "solve_for = \"p1\"\n", "", "orbit.energy", "solve_for"),
+        explicit("explicit vector too short", "[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]", "[1.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0]", "deviations.vectors", "length"),
+        explicit("explicit vectors dependent", "[0.0, 1.0, 0.0, 0.0]]", "[-2.0, 0.0, 0.0, 0.0]]", "deviations.vectors", "combination"),
+        explicit("explicit zero vector", "[0.0, 1.0, 0.0, 0.0]]", "[0.0, 0.0, 0.0, 0.0]]", "deviations.vectors", "combination"),
+        explicit("explicit vector NaN", "[0.0, 1.0, 0.0, 0.0]]", "[0.0, nan, 0.0, 0.0]]", "deviations.vectors", "not finite"),
+        explicit("explicit vectors fewer than k", "k = 2", "k = 3", "deviations.vectors", "k = 3 but 2 vectors"),
+        explicit("explicit vectors with sets", "k = 2", "k = 2\nsets = 4", "deviations.sets", "exactly one set"),
+        // Models.
+        fput("fput n zero", "n = 3", "n = 0", "model.n", "between 1 and"),
+        fput("fput n absurd", "n = 3", "n = 100000000", "model.n", "between 1 and"),
+        fput("fput n missing", "n = 3\n", "", "model.n", "needs the number"),
+        fput("fput beta NaN", "beta = 1.0", "beta = nan", "model.beta", "finite"),
+        fput("fput unknown preset", "q = [0.1, -0.2, 0.3]\np = [0.0, 0.1, 0.0]", "preset = \"spo9\"\nenergy = 1.0", "orbit.preset", "no preset"),
+        run("henon-heiles with n", "name = \"henon-heiles\"", "name = \"henon-heiles\"\nn = 3", "model.n", "2 degrees of freedom"),
+        // Files.
+        case("empty file", Run, Vec::new(), "model", "missing field"),
+        case("binary file", Run, binary.clone(), "run.toml", "not a text file"),
+        case("huge file", Run, huge_config(), "run.toml", "larger than"),
+        case("twelve thousand schemes", Run, many_schemes, "scheme", "exceed the limit"),
+        run("sweep of 20000 schemes", "[[scheme]]", MANY_SWEPT, "sweep[0].d0", "too many"),
+        run("sweep with an empty range", "[[scheme]]", "[[sweep]]\nname = \"m\"\nmethod = \"mpm\"\nd0 = { from = 1e-8, to = 1e-9, count = 3 }\ntau = 0.5\n\n[[scheme]]", "sweep[0].d0", "from"),
+        // The producer alone, from a file and from stdin.
+        case("produce: h zero", Produce, spoil(RUN, "h = 0.01", "h = 0.0"), "integrator.h", "finite positive"),
+        case("produce: binary stdin", Produce, binary, "stdin", "not a text file"),
+        case("produce: unknown key", Produce, spoil(RUN, "k = 4", "k = 4\nvector = 1"), "deviations.vector", "unknown field"),
+        // Maps.
+        map("map grid of zero points", "n = 3 }", "n = 0 }", "map.x.n", "between 1 and"),
+        map("map grid absurdly fine", "n = 3 }", "n = 10000000 }", "map.x.n", "between 1 and"),
+        map("map unknown coordinate", "coord = \"q2\"", "coord = \"q3\"", "map.x.coord", "not a coordinate"),
+        map("map coordinate not a name", "coord = \"p2\"", "coord = \"z\"", "map.y.coord", "not a coordinate"),
+        map("map same coordinate twice", "coord = \"p2\"", "coord = \"q2\"", "map.y.coord", "same coordinate"),
+        map("map min above max", "min = -0.4, max = 0.6", "min = 0.6, max = -0.4", "map.x.min", "min <= max"),
+        map("map min NaN", "min = -0.4, max = 0.4", "min = nan, max = 0.4", "map.y.min", "finite"),
+        map("map unknown indicator", "indicator = \"gali\"", "indicator = \"fli\"", "map.indicator", "is not gali"),
+        map("map k above 2N", "indicator = \"gali\"", "indicator = \"gali\"\nk = 5", "map.k", "2n"),
+        map("map threshold negative", "indicator = \"gali\"", "indicator = \"gali-time\"\nthreshold = -1.0", "map.threshold", "threshold"),
+        map("map two schemes", "[map]", "[[scheme]]\nname = \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 0.5\n\n[map]", "scheme", "exactly one"),
+        map("map solves for a grid axis", "solve_for = \"p1\"", "solve_for = \"p2\"", "orbit.solve_for", "grid axis"),
+        map("map unknown key", "indicator = \"gali\"", "indicator = \"gali\"\nresolution = 3", "map.resolution", "unknown field"),
+        map("map h zero", "h = 0.01", "h = 0.0", "integrator.h", "finite positive"),
+        case("map without [map]", Map, RUN.as_bytes().to_vec(), "map", "[map] section"),
+    ]
+}
+
+/// A config of 20 MiB (a valid one followed by comment lines): beyond the size limit.
+fn huge_config() -> Vec<u8> {
+    let mut text = RUN.as_bytes().to_vec();
+    let line = b"# padding padding padding padding padding padding padding padding\n";
+    while text.len() < 20 << 20 {
+        text.extend_from_slice(line);
+    }
+    text
+}
+
+/// Runs one case in fresh directories; returns (exit code, stderr, files left behind).
+fn run_case(c: &Case, dir: &Path) -> (Option<i32>, String, Vec<String>) {
+    let cwd = dir.join("cwd");
+    let out = dir.join("out");
+    let cfg_dir = dir.join("cfg");
+    for d in [&cwd, &out, &cfg_dir] {
+        std::fs::create_dir_all(d).unwrap();
+    }
+    let config = cfg_dir.join("run.toml");
+    std::fs::write(&config, &c.config).unwrap();
+    let out_file = out.join("out.mcap");
+    let mut command = Command::new(CHAOSCOPE);
+    command
+        .current_dir(&cwd)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    let stdin_config = c.name.contains("stdin");
+    let config_arg = if stdin_config {
+        "-".to_string()
+    } else {
+        config.to_str().unwrap().to_string()
+    };
+    match c.cmd {
+        Cmd::Run => {
+            command.args(["run", &config_arg, "--out", out_file.to_str().unwrap()]);
+        }
+        Cmd::Produce => {
+            command.args([
+                "produce",
+                &config_arg,
+                "--run",
+                &unique_run("badcfg"),
+                "--recorders",
+                "0",
+                "--no-progress",
+            ]);
+        }
+        Cmd::Map => {
+            command.args([
+                "map",
+                &config_arg,
+                "--out",
+                out_file.to_str().unwrap(),
+                "--no-progress",
+                "--threads",
+                "1",
+            ]);
+        }
+    }
+    if stdin_config {
+        command.stdin(Stdio::piped());
+    }
+    let mut child = command.spawn().expect("spawn chaoscope");
+    if stdin_config {
+        use std::io::Write;
+        let mut stdin = child.stdin.take().unwrap();
+        // The process may refuse the input before reading all of it.
+        let _ = stdin.write_all(&c.config);
+    }
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(60) {
+            let _ = child.kill();
+            panic!("{}: still running after 60 s", c.name);
+        }
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+    let left = [&cwd, &out]
+        .iter()
+        .flat_map(|d| std::fs::read_dir(d).unwrap())
+        .map(|e| e.unwrap().path().display().to_string())
+        .collect();
+    (status.code(), stderr, left)
+}
+
+#[test]
+fn the_base_configs_are_valid() {
+    // A spoiled copy of a config that was already bad would prove nothing.
+    use chaoscope_producer::map::MapSpec;
+    use chaoscope_producer::spec::RunSpec;
+    use chaoscope_schemas::config::RunConfig;
+    for base in [RUN, EXPLICIT, FPUT] {
+        RunSpec::from_config(&RunConfig::from_toml(base).unwrap()).unwrap();
+    }
+    MapSpec::from_config(&RunConfig::from_toml(MAP).unwrap()).unwrap();
+}
+
+#[test]
+fn every_bad_config_is_one_line_naming_the_key_and_leaves_nothing() {
+    let cases = cases();
+    assert!(cases.len() >= 40, "{} cases", cases.len());
+    let tmp = tempfile::tempdir().unwrap();
+    let mut failures = Vec::new();
+    for (i, c) in cases.iter().enumerate() {
+        let dir = tmp.path().join(i.to_string());
+        let (code, stderr, left) = run_case(c, &dir);
+        let lines: Vec<&str> = stderr.lines().filter(|l| !l.trim().is_empty()).collect();
+        let line = lines.first().copied().unwrap_or("");
+        let lower = line.to_lowercase();
+        let mut problems = Vec::new();
+        if code == Some(0) {
+            problems.push("exit status 0".to_string());
+        }
+        if code == Some(101) || code.is_none() || stderr.contains("panicked") {
+            problems.push(format!("panic or signal (exit {code:?})"));
+        }
+        if !left.is_empty() {
+            problems.push(format!("files left behind: {left:?}"));
+        }
+        if lines.len() != 1 {
+            problems.push(format!("{} lines on stderr", lines.len()));
+        }
+        if !line.contains(c.key) {
+            problems.push(format!("does not name {}", c.key));
+        }
+        if !lower.contains(&c.problem.to_lowercase()) {
+            problems.push(format!("does not say {:?}", c.problem));
+        }
+        if !problems.is_empty() {
+            failures.push(format!(
+                "{}: {}\n  stderr: {stderr}",
+                c.name,
+                problems.join("; ")
+            ));
+        }
+        eprintln!("{:>3} {:<40} exit {code:?}: {line}", i, c.name);
+    }
+    assert!(
+        failures.is_empty(),
+        "{} of {} cases failed:\n{}",
+        failures.len(),
+        cases.len(),
+        failures.join("\n")
+    );
+}
+
+/// FPUT N = 501 for 10^9 time units: days of computing.
+const LONG_CHAIN: &str = r#"
+[model]
+name = "fput-beta"
+n = 501
+
+[orbit]
+preset = "spo1"
+energy = 50.0
+
+[integrator]
+method = "aba864"
+h = 0.05
+t_final = 1e9
+
+[deviations]
+k = 2
+
+[[scheme]]
+name = "m"
+method = "mpm"
+d0 = 1e-8
+tau = 1.0
+"#;
+
+/// 200 vectors of a 10^6-dimensional chain: about 100 GiB of frames in flight alone.
+const WIDE_CHAIN: &str = r#"
+[model]
+name = "fput-beta"
+n = 500000
+
+[orbit]
+preset = "spo1"
+energy = 50.0
+
+[integrator]
+method = "aba864"
+h = 0.05
+t_final = 0.05
+
+[deviations]
+k = 200
+
+[[scheme]]
+name = "m"
+method = "mpm"
+d0 = 1e-8
+tau = 0.05
+"#;
+
+fn text_case(
+    name: &'static str,
+    cmd: Cmd,
+    text: &str,
+    key: &'static str,
+    problem: &'static str,
+) -> Case {
+    case(name, cmd, text.as_bytes().to_vec(), key, problem)
+}
+
+#[rustfmt::skip]
+#[test]
+fn runs_beyond_a_day_or_the_memory_are_refused_before_they_start() {
+    let huge_map = spoil(
+        &String::from_utf8(spoil(MAP, "n = 3 }", "n = 100000 }")).unwrap(),
+        "n = 2 }",
+        "n = 100000 }",
+    );
+    let long_map = spoil(
+        &String::from_utf8(spoil(MAP, "t_final = 1.0", "t_final = 1e9")).unwrap(),
+        "n = 3 }",
+        "n = 1000 }",
+    );
+    let cases = [
+        text_case("run: FPUT 501 to 1e9", Cmd::Run, LONG_CHAIN, "integrator.t_final", "days"),
+        text_case("produce: FPUT 501 to 1e9", Cmd::Produce, LONG_CHAIN, "integrator.t_final", "days"),
+        text_case("run: 10^6-dimensional, k = 200", Cmd::Run, WIDE_CHAIN, "deviations.k", "memory"),
+        case("map: 10^10 points", Cmd::Map, huge_map, "map.x.n", "memory"),
+        case("map: 2000 points to 1e9", Cmd::Map, long_map, "integrator.t_final", "days"),
+    ];
+    let tmp = tempfile::tempdir().unwrap();
+    for (i, c) in cases.iter().enumerate() {
+        let start = Instant::now();
+        let (code, stderr, left) = run_case(c, &tmp.path().join(i.to_string()));
+        eprintln!(
+            "{}: exit {code:?} in {:?}: {stderr}",
+            c.name,
+            start.elapsed()
+        );
+        assert_eq!(code, Some(1), "{}: {stderr}", c.name);
+        assert_eq!(stderr.lines().count(), 1, "{}: {stderr}", c.name);
+        assert!(
+            stderr.contains(&format!("error: {}: this would", c.key)),
+            "{}: {stderr}",
+            c.name
+        );
+        assert!(
+            stderr.contains(c.problem) && stderr.contains("--force"),
+            "{}: {stderr}",
+            c.name
+        );
+        assert!(left.is_empty(), "{}: {left:?}", c.name);
+        // Refused from the estimate, not after drawing directions or allocating.
+        assert!(start.elapsed() < Duration::from_secs(5), "{}", c.name);
+    }
+}
+
+/// Starts `args` (with `--force`), checks that it is still running after a while, interrupts it
+/// and returns its exit code and stderr.
+fn forced(args: &[&str], dir: &Path) -> (Option<i32>, String) {
+    let mut child = Command::new(CHAOSCOPE)
+        .args(args)
+        .current_dir(dir)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(Duration::from_secs(3));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "{args:?} stopped although forced"
+    );
+    // SAFETY: kill(2) on our own child.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    let start = Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > Duration::from_secs(60) {
+            let _ = child.kill();
+            panic!("{args:?} did not stop on SIGINT");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let mut stderr = String::new();
+    std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut stderr).unwrap();
+    (status.code(), stderr)
+}
+
+#[test]
+fn force_starts_what_the_estimate_refuses() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    std::fs::write(dir.join("long.toml"), LONG_CHAIN).unwrap();
+    let long_map = spoil(MAP, "t_final = 1.0", "t_final = 1e9");
+    let long_map = spoil(
+        std::str::from_utf8(&long_map).unwrap(),
+        "n = 3 }",
+        "n = 1000 }",
+    );
+    std::fs::write(dir.join("map.toml"), long_map).unwrap();
+    let run = unique_run("force");
+
+    let (code, stderr) = forced(
+        &[
+            "produce",
+            "long.toml",
+            "--force",
+            "--recorders",
+            "0",
+            "--no-progress",
+            "--run",
+            &run,
+        ],
+        dir,
+    );
+    assert_eq!(code, Some(130), "{stderr}");
+    assert!(
+        stderr.contains("--force: starting although integrator.t_final"),
+        "{stderr}"
+    );
+
+    let (code, stderr) = forced(&["run", "long.toml", "--force", "--out", "long.mcap"], dir);
+    assert_eq!(code, Some(130), "{stderr}");
+    assert!(stderr.contains("--force: starting although"), "{stderr}");
+    let summary = chaoscope_analyzer::summary::summarize(&dir.join("long.mcap")).unwrap();
+    assert_eq!(summary.run_status, "interrupted", "{summary:?}");
+
+    let (code, stderr) = forced(
+        &[
+            "map",
+            "map.toml",
+            "--force",
+            "--out",
+            "map.mcap",
+            "--no-progress",
+            "--threads",
+            "1",
+        ],
+        dir,
+    );
+    assert_eq!(code, Some(130), "{stderr}");
+    assert!(stderr.contains("--force: starting although"), "{stderr}");
+    assert!(dir.join("map.mcap").exists());
+}
+
+#[test]
+fn the_estimate_refuses_no_example_and_no_test_run() {
+    use chaoscope_producer::estimate::{self, Machine};
+    use chaoscope_producer::map::MapSpec;
+    use chaoscope_producer::spec::RunSpec;
+    use chaoscope_schemas::config::RunConfig;
+    // The smallest machine the project runs on (CI: 2 cores, 24 GiB), with 8 GiB to spare.
+    let machine = Machine {
+        cores: 2,
+        memory_bytes: Some(8 << 30),
+    };
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut configs = vec![(
+        "chaoscope run's default".to_string(),
+        std::fs::read_to_string(root.join("src/cli/hh_chaotic.toml")).unwrap(),
+    )];
+    for dir in ["examples/paper/configs", "examples/maps"] {
+        for e in std::fs::read_dir(root.join(dir)).unwrap() {
+            let p = e.unwrap().path();
+            if p.extension().is_some_and(|x| x == "toml") {
+                configs.push((
+                    p.display().to_string(),
+                    std::fs::read_to_string(&p).unwrap(),
+                ));
+            }
+        }
+    }
+    configs.extend([RUN, EXPLICIT, FPUT, MAP].map(|t| ("a test base".to_string(), t.to_string())));
+    for (name, text) in &configs {
+        let cfg = RunConfig::from_toml(text).unwrap();
+        let e = if cfg.map.is_some() {
+            let spec = MapSpec::from_config(&cfg).unwrap();
+            estimate::map(&spec, spec.grid_points(), machine.cores)
+        } else {
+            estimate::run(&cfg, &machine).unwrap()
+        };
+        assert_eq!(e.refusal(&machine), None, "{name}: {e:?}");
+        eprintln!(
+            "{name}: {:.0} s, {:.0} MiB",
+            e.seconds,
+            e.bytes / (1 << 20) as f64
+        );
+    }
+    // Every run of the test suite is a `RunConfig` from these helpers, the paper presets or
+    // the configs above; the longest are the paper's runs (`examples/paper`).
+    let spec = RunSpec::from_config(&common::hh_config(1000.0, 1.0)).unwrap();
+    assert_eq!(estimate::run_spec(&spec, &machine).refusal(&machine), None);
+}

@@ -1,0 +1,262 @@
+//! Full disk and failing writes: the writer runs under `RLIMIT_FSIZE` (set in the child before
+//! exec), so its output file cannot grow past a few hundred KiB, as on a full disk or a quota.
+//! The recorder and `map` stop with one clear message naming the file and the cause, exit
+//! non-zero, and keep every complete chunk; the producer is not left waiting for the dead
+//! recorder; `recover` with an output it cannot write says so and leaves no partial file.
+//!
+//! `chaoscope run` starts `record` and `produce` as separate processes; the limit is put on the
+//! recorder alone, since it also bounds the shared-memory files of the bus.
+
+mod common;
+
+use std::os::unix::process::CommandExt;
+use std::path::Path;
+use std::process::{Command, Output, Stdio};
+use std::time::Duration;
+
+use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
+use common::{CHAOSCOPE, Proc, assert_bit_identical, compute, read_recording, unique_run};
+
+/// `command` with its file size limited to `bytes` (and SIGXFSZ at its default, as a user's
+/// shell leaves it: chaoscope itself must ignore it to report the failed write).
+fn limited(mut command: Command, bytes: u64) -> Command {
+    // SAFETY: only async-signal-safe calls (setrlimit, signal) between fork and exec.
+    unsafe {
+        command.pre_exec(move || {
+            let limit = libc::rlimit {
+                rlim_cur: bytes,
+                rlim_max: bytes,
+            };
+            if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            libc::signal(libc::SIGXFSZ, libc::SIG_DFL);
+            Ok(())
+        });
+    }
+    command
+}
+
+fn stderr_of(p: &mut Proc) -> String {
+    let mut s = String::new();
+    if let Some(mut e) = p.0.stderr.take() {
+        std::io::Read::read_to_string(&mut e, &mut s).unwrap();
+    }
+    s
+}
+
+fn output(mut command: Command) -> Output {
+    command.stdin(Stdio::null()).output().unwrap()
+}
+
+/// A run that writes about 10 MB: the paper's chaotic HH orbit, 50 sets sampled every step.
+fn big_run() -> String {
+    paper::henon_heiles(
+        paper::HH_CHAOTIC_Q2,
+        20.0,
+        DeviationsConfig::random(4, 50, 5),
+        vec![SchemeConfig::new("mpm", "mpm", 1e-8, 0.01)],
+    )
+    .to_toml()
+}
+
+#[test]
+fn a_recorder_hitting_a_full_disk_stops_clearly_and_keeps_its_complete_chunks() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let config = dir.join("run.toml");
+    let text = big_run();
+    std::fs::write(&config, &text).unwrap();
+    let out = dir.join("out.mcap");
+    let run = unique_run("fulldisk");
+
+    let mut record = Command::new(CHAOSCOPE);
+    record
+        .args(["record", "--run", &run, "--chunk-size", "32768", "--out"])
+        .arg(&out)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    let mut recorder = Proc::spawn(limited(record, 300_000));
+    let mut produce = Command::new(CHAOSCOPE);
+    produce
+        .args([
+            "produce",
+            config.to_str().unwrap(),
+            "--run",
+            &run,
+            "--no-progress",
+        ])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped());
+    let mut producer = Proc::spawn(produce);
+
+    let recorder_status = recorder.wait(Duration::from_secs(60));
+    let recorder_err = stderr_of(&mut recorder);
+    // The producer notices the dead recorder and ends: it is not blocked forever.
+    let producer_status = producer.wait(Duration::from_secs(60));
+    let producer_err = stderr_of(&mut producer);
+    eprintln!(
+        "recorder {recorder_status}: {recorder_err}producer {producer_status}: {producer_err}"
+    );
+    assert!(!recorder_status.success(), "{recorder_err}");
+    assert_eq!(recorder_status.code(), Some(1), "{recorder_err}");
+    let line = recorder_err.lines().last().unwrap_or("");
+    assert!(
+        line.contains(out.to_str().unwrap()) && line.contains("File too large"),
+        "the error names neither the file nor the cause: {recorder_err}"
+    );
+    assert!(!recorder_err.contains("panicked"), "{recorder_err}");
+    let size = std::fs::metadata(&out).unwrap().len();
+    assert!(size <= 300_000, "{size} bytes");
+
+    // Every complete chunk is kept: recover salvages them, and they are exactly the start of
+    // the run.
+    let fixed = dir.join("fixed.mcap");
+    let r = output({
+        let mut c = Command::new(CHAOSCOPE);
+        c.args([
+            "recover",
+            out.to_str().unwrap(),
+            "--out",
+            fixed.to_str().unwrap(),
+        ]);
+        c
+    });
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let rec = read_recording(&fixed);
+    let expected = compute(&text, Some(rec.references.len() + 1));
+    assert!(
+        rec.references.len() >= 5,
+        "{} samples kept",
+        rec.references.len()
+    );
+    assert_bit_identical(&rec, &expected);
+    eprintln!(
+        "{size} bytes written, {} complete samples salvaged",
+        rec.references.len()
+    );
+}
+
+/// A 40 x 30 Henon-Heiles map, t = 20, a chunk closed after every point.
+const MAP: &str = r#"
+[model]
+name = "henon-heiles"
+[orbit]
+q = [0.0, 0.0]
+p = [0.0, 0.0]
+energy = 0.125
+solve_for = "p1"
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = 20.0
+[deviations]
+k = 2
+sets = 4
+seed = 1
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-8
+tau = 1.0
+[map]
+x = { coord = "q2", min = -0.4, max = 0.6, n = 40 }
+y = { coord = "p2", min = -0.4, max = 0.4, n = 30 }
+indicator = "gali"
+"#;
+
+fn map_cmd(dir: &Path, out: &str) -> Command {
+    let mut c = Command::new(CHAOSCOPE);
+    c.current_dir(dir)
+        .args(["map", "map.toml", "--out", out, "--json", "--no-progress"])
+        .args(["--threads", "1", "--flush-interval", "0"]);
+    c
+}
+
+#[test]
+fn a_map_hitting_a_full_disk_stops_clearly_and_resumes_to_the_same_map() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    std::fs::write(dir.join("map.toml"), MAP).unwrap();
+
+    let full = output(limited(map_cmd(dir, "map.mcap"), 40_000));
+    let err = String::from_utf8_lossy(&full.stderr);
+    eprintln!("{err}");
+    assert_eq!(full.status.code(), Some(1), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    let line = err.lines().last().unwrap_or("");
+    assert!(
+        line.contains("map.mcap") && line.contains("File too large"),
+        "the error names neither the file nor the cause: {err}"
+    );
+
+    // Resumed without the limit, it keeps what was written and completes the same map as an
+    // uninterrupted one.
+    let resumed = output(map_cmd(dir, "map.mcap"));
+    assert!(
+        resumed.status.success(),
+        "{}",
+        String::from_utf8_lossy(&resumed.stderr)
+    );
+    let summary: serde_json::Value = serde_json::from_slice(&resumed.stdout).unwrap();
+    assert!(summary["resumed"].as_u64().unwrap() > 10, "{summary}");
+    assert_eq!(summary["complete"], true);
+    let fresh = output(map_cmd(dir, "fresh.mcap"));
+    assert!(fresh.status.success());
+    let points = |name: &str| {
+        chaoscope_recorder::map_file::read_map_file(&dir.join(name))
+            .unwrap()
+            .points
+            .into_iter()
+            .map(|p| {
+                let per_set: Vec<u64> = p.per_set.iter().map(|v| v.to_bits()).collect();
+                (p.index, (p.value.to_bits(), per_set))
+            })
+            .collect::<std::collections::BTreeMap<_, _>>()
+    };
+    assert_eq!(points("map.mcap"), points("fresh.mcap"));
+    eprintln!("resumed {} points", summary["resumed"]);
+}
+
+#[test]
+fn recover_to_an_output_it_cannot_write_fails_clearly_and_leaves_nothing() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let input = dir.join("in.mcap");
+    std::fs::write(
+        &input,
+        chaoscope_recorder::testing::small_run(chaoscope_recorder::file::Compression::Zstd),
+    )
+    .unwrap();
+    let recover = |out: &Path| {
+        let mut c = Command::new(CHAOSCOPE);
+        c.args([
+            "recover",
+            input.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        c
+    };
+    // A directory that does not exist.
+    let missing = dir.join("no-such-dir/out.mcap");
+    let r = output(recover(&missing));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains(missing.to_str().unwrap()) && err.contains("No such file"),
+        "{err}"
+    );
+    // A disk that fills up after 1000 bytes.
+    let out = dir.join("out.mcap");
+    let r = output(limited(recover(&out), 1000));
+    let err = String::from_utf8_lossy(&r.stderr);
+    eprintln!("{err}");
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains(out.to_str().unwrap()) && err.contains("File too large"),
+        "{err}"
+    );
+    assert!(!out.exists(), "a partial output was left behind");
+}

@@ -204,12 +204,16 @@ pub fn whole_steps(key: &str, t: f64, h: f64) -> Result<u64, SpecError> {
     Err(SpecError::new(key, message))
 }
 
+/// Most particles of the built-in FPUT chain.
+const MAX_FPUT_SITES: usize = 1_000_000;
+
 /// Degrees of freedom of the model a config names, without building it (`None` when the config
 /// does not say; validation then names the problem).
 pub fn model_dof(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<usize> {
     match cfg.name.as_str() {
         "henon-heiles" => Some(2),
-        "fput-beta" | "potential" => cfg.n.filter(|&n| n > 0),
+        "fput-beta" => cfg.n.filter(|&n| (1..=MAX_FPUT_SITES).contains(&n)),
+        "potential" => cfg.n.filter(|&n| (1..=potential::MAX_SITES).contains(&n)),
         _ => None,
     }
 }
@@ -250,7 +254,7 @@ pub fn model_from_config(
             let n = cfg.n.ok_or_else(|| {
                 SpecError::new("model.n", "fput-beta needs the number of particles n")
             })?;
-            if n == 0 || n > 1_000_000 {
+            if n == 0 || n > MAX_FPUT_SITES {
                 return Err(SpecError::new(
                     "model.n",
                     format!("must be between 1 and 1000000, got {n}"),

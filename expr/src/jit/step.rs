@@ -28,6 +28,7 @@
 //! operations as [`super::emit_vector`] emits them, and `p - dh * g`; so the kernels are
 //! bit-identical to `Graph::apply_*` step by step, and never emit a fused multiply-add.
 
+use std::cell::{Cell, RefCell};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -465,6 +466,9 @@ pub fn compile_steps(
     })
 }
 
+/// A drifted row: the new `q_j` and the `p_j` it was drifted with, per unit.
+type Row = ([Value; 2], [Value; 2]);
+
 /// The code of one block of lanes within a stage.
 struct Block<'a> {
     graph: &'a Graph,
@@ -489,20 +493,48 @@ struct Block<'a> {
     /// Lane 0 of row 0 of this block, and the row stride in bytes.
     base: Value,
     stride: Value,
+    /// Row addresses already formed in the current basic block (row `r` from row `r - 1`
+    /// with one add, `p_j` from `q_j`), and `N * stride`.
+    addr: RefCell<Vec<Option<Value>>>,
+    half: Cell<Option<Value>>,
 }
 
 impl Block<'_> {
+    /// Forget the row addresses (a new basic block, or a new base).
+    fn reset(&self) {
+        self.addr.borrow_mut().iter_mut().for_each(|a| *a = None);
+        self.half.set(None);
+    }
+
     fn row(&self, b: &mut FunctionBuilder, r: usize) -> Value {
-        if r == 0 {
+        if let Some(a) = self.addr.borrow()[r] {
+            return a;
+        }
+        let a = if r == 0 {
             self.base
+        } else if r >= self.n {
+            let q = self.row(b, r - self.n);
+            let half = match self.half.get() {
+                Some(h) => h,
+                None => {
+                    let h = b.ins().imul_imm_s(self.stride, self.n as i64);
+                    self.half.set(Some(h));
+                    h
+                }
+            };
+            b.ins().iadd(q, half)
+        } else if let Some(prev) = self.addr.borrow()[r - 1] {
+            b.ins().iadd(prev, self.stride)
         } else {
             let off = b.ins().imul_imm_s(self.stride, r as i64);
             b.ins().iadd(self.base, off)
-        }
+        };
+        self.addr.borrow_mut()[r] = Some(a);
+        a
     }
 
-    /// `q_j += c_j p_j` for every unit, stored back; returns the new `q_j`.
-    fn drift_row(&self, b: &mut FunctionBuilder, j: usize) -> [Value; 2] {
+    /// `q_j += c_j p_j` for every unit, stored back; returns the new `q_j` and `p_j`.
+    fn drift_row(&self, b: &mut FunctionBuilder, j: usize) -> ([Value; 2], [Value; 2]) {
         let c = match self.hoisted_coef.get(j) {
             Some(&c) => c,
             None => {
@@ -511,28 +543,26 @@ impl Block<'_> {
             }
         };
         let (qa, pa) = (self.row(b, j), self.row(b, self.n + j));
-        let mut out = [c; 2];
-        for (unit, slot) in out.iter_mut().enumerate().take(self.units) {
+        let (mut out, mut ps) = ([c; 2], [c; 2]);
+        for unit in 0..self.units {
             let off = 16 * unit as i32;
             let q = b.ins().load(F64X2, flags(), qa, off);
             let p = b.ins().load(F64X2, flags(), pa, off);
             let cp = b.ins().fmul(c, p);
             let q = b.ins().fadd(q, cp);
             b.ins().store(flags(), q, qa, off);
-            *slot = q;
+            out[unit] = q;
+            ps[unit] = p;
         }
         if self.units == 1 {
             out[1] = out[0];
+            ps[1] = ps[0];
         }
-        out
+        (out, ps)
     }
 
-    fn drifted(
-        &self,
-        b: &mut FunctionBuilder,
-        rows: &mut [Option<[Value; 2]>],
-        j: usize,
-    ) -> [Value; 2] {
+    /// The drifted `q_j` (drifting row `j` on first use) and the `p_j` it was drifted with.
+    fn drifted(&self, b: &mut FunctionBuilder, rows: &mut [Option<Row>], j: usize) -> Row {
         match rows[j] {
             Some(v) => v,
             None => {
@@ -546,7 +576,7 @@ impl Block<'_> {
     fn operand(
         &self,
         b: &mut FunctionBuilder,
-        rows: &mut [Option<[Value; 2]>],
+        rows: &mut [Option<Row>],
         vvals: &[Option<[Value; 2]>],
         id: NodeId,
         unit: usize,
@@ -557,7 +587,7 @@ impl Block<'_> {
                 b.ins().splat(F64X2, s)
             }
             Node::Input { arg, index } if arg == self.lane_arg => {
-                self.drifted(b, rows, index as usize)[unit]
+                self.drifted(b, rows, index as usize).0[unit]
             }
             Node::Input { index, .. } => {
                 let p = self
@@ -578,12 +608,11 @@ impl Block<'_> {
         }
     }
 
-    /// `p_j -= dh * f_j` for every unit.
-    fn kick_row(&self, b: &mut FunctionBuilder, j: usize, dh: Value, f: [Value; 2]) {
+    /// `p_j -= dh * f_j` for every unit (`p`: the momentum the drift read, not changed since).
+    fn kick_row(&self, b: &mut FunctionBuilder, j: usize, dh: Value, f: [Value; 2], p: [Value; 2]) {
         let pa = self.row(b, self.n + j);
-        for (unit, &f) in f.iter().enumerate().take(self.units) {
+        for (unit, (&f, &p)) in f.iter().zip(&p).enumerate().take(self.units) {
             let off = 16 * unit as i32;
-            let p = b.ins().load(F64X2, flags(), pa, off);
             let df = b.ins().fmul(dh, f);
             let p = b.ins().fsub(p, df);
             b.ins().store(flags(), p, pa, off);
@@ -596,7 +625,8 @@ impl Block<'_> {
     fn stage(&self, b: &mut FunctionBuilder, k: &VConsts, dh: Value) {
         let (graph, plan) = (self.graph, self.plan);
         let outs = outputs_by_node(plan, graph.len());
-        let mut rows: Vec<Option<[Value; 2]>> = vec![None; self.n];
+        self.reset();
+        let mut rows: Vec<Option<Row>> = vec![None; self.n];
         let mut vvals: Vec<Option<[Value; 2]>> = vec![None; graph.len()];
         for &id in &plan.varying_order {
             let node = graph.node(id);
@@ -610,18 +640,18 @@ impl Block<'_> {
             let val = [v0, emitted[1].unwrap_or(v0)];
             vvals[id as usize] = Some(val);
             for &j in &outs[id as usize] {
-                self.drifted(b, &mut rows, j);
-                self.kick_row(b, j, dh, val);
+                let (_, p) = self.drifted(b, &mut rows, j);
+                self.kick_row(b, j, dh, val, p);
             }
         }
         for (j, &o) in plan.outputs.iter().enumerate() {
             if plan.uniform[o as usize] || is_leaf(graph.node(o)) {
-                self.drifted(b, &mut rows, j);
+                let (_, p) = self.drifted(b, &mut rows, j);
                 let mut val = [dh; 2];
                 for (unit, slot) in val.iter_mut().enumerate().take(self.units) {
                     *slot = self.operand(b, &mut rows, &vvals, o, unit);
                 }
-                self.kick_row(b, j, dh, val);
+                self.kick_row(b, j, dh, val, p);
             }
         }
         for j in 0..self.n {
@@ -866,6 +896,8 @@ fn build_kernel(
         hoisted_uniform,
         base,
         stride: sb,
+        addr: RefCell::new(vec![None; 2 * n]),
+        half: Cell::new(None),
     };
     block.stage(&mut b, &k, dhv);
     let next = b.ins().iadd_imm_s(off, 8 * block_lanes);
@@ -894,6 +926,7 @@ fn build_kernel(
     block.stride = b.ins().stack_load(I64, I64, stride_slot, 0);
     block.base = b.ins().iadd(x, last_off);
     block.shared = None;
+    block.reset();
     for j in 0..n {
         block.drift_row(&mut b, j);
     }

@@ -15,6 +15,7 @@ use crate::report::{ByOrder, DeltaLog, Report, RunReport, SchemeReport, VsVm, ex
 use crate::run_info::RunInfo;
 use crate::series::Series;
 use crate::stats::{LogStat, Stat};
+use crate::verdict;
 
 /// Resolution of the stored time series.
 #[derive(Debug, Clone)]
@@ -403,6 +404,24 @@ impl Analysis {
                     lyapunov.truncate(1);
                     lyapunov_std.truncate(1);
                 }
+                let latest;
+                let mut curve = state.series.points_ref();
+                if let Some(step) = state.step {
+                    let t = run.time_of(step);
+                    if curve.last().is_none_or(|p| p.0 < t) {
+                        latest = self.point(si);
+                        curve.push((t, &latest));
+                    }
+                }
+                let settings = verdict::Settings {
+                    method: info.method,
+                    orthonormalize: info.orthonormalize,
+                    d0: info.d0,
+                    tau: info.tau,
+                    dof: run.dim / 2,
+                    k: run.k,
+                };
+                let (verdict, warnings) = verdict::assess(&settings, &curve, energy_error_max);
                 SchemeReport {
                     name: info.name.clone(),
                     method: info.method.name().to_string(),
@@ -419,6 +438,8 @@ impl Analysis {
                     lyapunov_std,
                     energy_error_max,
                     vs_vm: Self::vs_vm_of(run, schemes, si),
+                    verdict,
+                    warnings,
                 }
             })
             .collect();

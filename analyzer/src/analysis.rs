@@ -80,6 +80,10 @@ struct SchemeState {
     /// The VM scheme with the same renormalization steps, for MPM schemes.
     vm_partner: Option<usize>,
     series: Series<SchemePoint>,
+    /// The curve the verdict reads: log-spaced at a fixed resolution, so every reader of the
+    /// same samples (analyze, monitor, run) reaches the same verdict whatever its display
+    /// resolution.
+    verdict_series: Series<SchemePoint>,
 }
 
 #[derive(Debug, Clone)]
@@ -143,6 +147,7 @@ impl Analysis {
                     })
                     .flatten(),
                 series: Series::new(options.series_capacity, options.per_decade),
+                verdict_series: Series::new(2, verdict::PER_DECADE),
             })
             .collect();
         let captures = options
@@ -220,14 +225,16 @@ impl Analysis {
         }
         for si in touched {
             let t = sample.t;
-            if self.schemes[si].series.wants(t) {
-                let point = self.point(si);
-                self.schemes[si].series.offer(t, || point);
-            } else {
-                self.schemes[si]
-                    .series
-                    .offer(t, || unreachable!("not wanted"));
-            }
+            let scheme = &self.schemes[si];
+            let point =
+                (scheme.series.wants(t) || scheme.verdict_series.wants(t)).then(|| self.point(si));
+            let scheme = &mut self.schemes[si];
+            scheme
+                .series
+                .offer(t, || point.clone().expect("a wanted point"));
+            scheme
+                .verdict_series
+                .offer(t, || point.expect("a wanted point"));
         }
     }
 
@@ -405,7 +412,7 @@ impl Analysis {
                     lyapunov_std.truncate(1);
                 }
                 let latest;
-                let mut curve = state.series.points_ref();
+                let mut curve = state.verdict_series.points_ref();
                 if let Some(step) = state.step {
                     let t = run.time_of(step);
                     if curve.last().is_none_or(|p| p.0 < t) {

@@ -218,6 +218,9 @@ pub fn torus_exponent(j: usize, s: usize, n: usize) -> usize {
     }
 }
 
+/// Log-spaced points per decade of the curve the analysis keeps for the verdict.
+pub const PER_DECADE: usize = 40;
+
 /// The curve thinned to about 40 points per decade (always keeping the latest), positive times.
 fn thin<'a>(curve: &[(f64, &'a SchemePoint)]) -> Vec<Pt<'a>> {
     let mut out: Vec<Pt<'a>> = Vec::new();

@@ -259,6 +259,12 @@ fn usable_top(pts: &[Pt], floor: f64) -> usize {
     pts.iter().map(|p| p.top_usable(floor)).min().unwrap_or(1)
 }
 
+/// A time for the criterion text: up to three decimals, trailing zeros dropped.
+fn time(t: f64) -> String {
+    let s = format!("{t:.3}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
 fn confidence(x: f64) -> f64 {
     1.0 - 0.5 / x.clamp(1.0, 10.0)
 }
@@ -292,9 +298,10 @@ pub fn verdict(settings: &Settings, curve: &[(f64, &SchemePoint)]) -> Verdict {
     let mle_window = stretch_growth(&pts, chaos_stretch);
     if let Some((ds, t_mle)) = mle_window {
         let mle_text = format!(
-            "the deviation grew by e^{ds:.1} over [{:.4}, {t_mle:.4}] (now MLE {mle:.3e}; a \
-             regular orbit grows linearly, e^0.7 per doubling of time, its MLE decays ~ ln(t)/t)",
-            t_mle / 2.0
+            "the deviation grew by e^{ds:.1} over [{}, {}] (now MLE {mle:.3e}; a regular orbit \
+             grows linearly, e^0.7 per doubling of time, its MLE decays ~ ln(t)/t)",
+            time(t_mle / 2.0),
+            time(t_mle)
         );
         if qr {
             return Verdict {
@@ -311,9 +318,9 @@ pub fn verdict(settings: &Settings, curve: &[(f64, &SchemePoint)]) -> Verdict {
                 torus_dimension: None,
                 criterion: format!(
                     "{mle_text}; GALI_{j} decayed faster than any power law of a regular orbit \
-                     (log-log slope -{p:.1} over [{:.4}, {t_end:.4}], regular orbits at most \
-                     -{})",
-                    t_end / 2.0,
+                     (log-log slope -{p:.1} over [{}, {}], regular orbits at most -{})",
+                    time(t_end / 2.0),
+                    time(t_end),
                     2 * (j - 1)
                 ),
                 confidence: confidence(x),
@@ -548,12 +555,16 @@ pub fn warnings(
         let top = pt.top_usable(settings.floor_log10());
         let k = p.gali_log10_mean.len() + 1;
         if top < k {
+            let orders = if top + 1 == k {
+                format!("GALI_{k} is")
+            } else {
+                format!("GALI_{}..{k} are", top + 1)
+            };
             out.push(Warning {
                 code: GALI_AT_ROUNDING_FLOOR.into(),
                 message: format!(
-                    "GALI_{}..{k} are at the rounding floor (a factor below {:.0e}, the \
-                     {} precision of a separation): their values are not meaningful",
-                    top + 1,
+                    "{orders} at the rounding floor (a factor below {:.0e}, the {} precision of \
+                     a separation): their values are not meaningful",
                     10f64.powf(settings.floor_log10()),
                     match settings.method {
                         Method::Vm => "eps",

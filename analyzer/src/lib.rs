@@ -22,6 +22,7 @@ pub mod section;
 pub mod series;
 pub mod stats;
 pub mod summary;
+pub mod verdict;
 pub mod vshape;
 pub mod write;
 

@@ -5,6 +5,7 @@ use serde::ser::SerializeMap;
 use serde::{Serialize, Serializer};
 
 use crate::stats::{LogStat, Stat};
+use crate::verdict::{Verdict, Warning};
 
 /// Values keyed by GALI order, serialized as a JSON object `{"2": ..., "3": ...}` in order.
 #[derive(Debug, Clone, PartialEq)]
@@ -97,6 +98,10 @@ pub struct SchemeReport {
     pub energy_error_max: f64,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vs_vm: Option<VsVm>,
+    /// Chaotic, regular or undecided at this time, with the criterion and a confidence.
+    pub verdict: Verdict,
+    /// Settings or values outside the region where the indicators are reliable.
+    pub warnings: Vec<Warning>,
 }
 
 /// Everything, at one time.

@@ -82,6 +82,19 @@ impl<P: Clone> Series<P> {
         all
     }
 
+    /// Every kept point in time order, each time once, by reference.
+    pub fn points_ref(&self) -> Vec<(f64, &P)> {
+        let mut all: Vec<(f64, &P)> = self
+            .log_points
+            .iter()
+            .map(|(t, p)| (*t, p))
+            .chain(self.even_points.iter().map(|(_, t, p)| (*t, p)))
+            .collect();
+        all.sort_by(|a, b| a.0.total_cmp(&b.0));
+        all.dedup_by(|a, b| a.0 == b.0);
+        all
+    }
+
     pub fn len_bound(&self) -> usize {
         self.log_points.len() + self.even_points.len()
     }

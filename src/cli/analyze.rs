@@ -96,6 +96,20 @@ pub fn print_table(report: &Report) {
         }
         println!("{line}");
     }
+    for s in &report.schemes {
+        let v = &s.verdict;
+        let class = match v.torus_dimension {
+            Some(d) => format!("{} (on a {d}-torus)", v.class.word()),
+            None => v.class.word().to_string(),
+        };
+        println!(
+            "{}: {class}, confidence {:.2}: {}",
+            s.name, v.confidence, v.criterion
+        );
+        for w in &s.warnings {
+            println!("{}: warning {}: {}", s.name, w.code, w.message);
+        }
+    }
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {

@@ -14,7 +14,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use chaoscope_expr::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
-use chaoscope_expr::jit::{Compiled, FunctionSpec, Layout, StepKernels, StepSpec};
+use chaoscope_expr::jit::{Compiled, FunctionSpec, Layout, ScalarFnPtr, StepKernels, StepSpec};
 use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope};
 use chaoscope_expr::smooth::Smoothness;
 use chaoscope_expr::{Span, diff, eval, jit, lower};
@@ -61,6 +61,13 @@ struct Inner {
     compiled: Compiled,
     /// Whole splitting steps over lanes (the batched kernel).
     steps: StepKernels,
+    /// The one-orbit hot path calls the machine code directly: the checked `Compiled::call`
+    /// costs as much as the Henon-Heiles forces themselves. `new` checks that these read at
+    /// most `N` entries of each argument, so slices of length `N` are enough.
+    gradient_fn: ScalarFnPtr,
+    hessian_vector_fn: ScalarFnPtr,
+    /// Continuous second derivatives (the variational method applies).
+    c2: bool,
     build_time: Duration,
 }
 
@@ -146,7 +153,20 @@ impl ExpressionModel {
             &jit::Options::default(),
         )
         .map_err(|e| PotentialError(format!("compiling the step kernels: {e}")))?;
+        for (f, args) in [(GRADIENT, 1), (HESSIAN_VECTOR, 2)] {
+            for a in 0..args {
+                if compiled.arg_len(f, a) > n {
+                    return Err(PotentialError(format!(
+                        "compiled function {f} reads {} entries of argument {a}, more than N = {n}",
+                        compiled.arg_len(f, a)
+                    )));
+                }
+            }
+        }
         Ok(Self(Arc::new(Inner {
+            gradient_fn: compiled.raw_scalar(GRADIENT),
+            hessian_vector_fn: compiled.raw_scalar(HESSIAN_VECTOR),
+            c2,
             origins: lowered.origins,
             smoothness: lowered.smoothness,
             definition,
@@ -247,20 +267,33 @@ impl Model for ExpressionModel {
 
     #[inline]
     fn gradient(&self, q: &[f64], out: &mut [f64]) {
-        self.0.compiled.call(GRADIENT, &[q], out)
+        let n = self.0.definition.n;
+        assert!(q.len() == n && out.len() == n, "gradient of {n} sites");
+        let args = [q.as_ptr()];
+        // SAFETY: the function reads at most N entries of `q` (checked in `new`) and writes N
+        // outputs; both slices have N entries; `out` is a `&mut`, so it overlaps nothing; the
+        // code lives as long as `self.0.compiled`.
+        unsafe { (self.0.gradient_fn)(args.as_ptr(), out.as_mut_ptr()) }
     }
 
     #[inline]
     fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
-        if !self.has_hessian() {
+        if !self.0.c2 {
             return false;
         }
-        self.0.compiled.call(HESSIAN_VECTOR, &[q, v], out);
+        let n = self.0.definition.n;
+        assert!(
+            q.len() == n && v.len() == n && out.len() == n,
+            "Hessian-vector product of {n} sites"
+        );
+        let args = [q.as_ptr(), v.as_ptr()];
+        // SAFETY: as in `gradient`, for the two arguments `q` and `v`.
+        unsafe { (self.0.hessian_vector_fn)(args.as_ptr(), out.as_mut_ptr()) }
         true
     }
 
     fn has_hessian(&self) -> bool {
-        self.0.smoothness.require(2, "vm").is_ok()
+        self.0.c2
     }
 
     fn no_hessian_reason(&self) -> Option<String> {

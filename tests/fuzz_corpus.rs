@@ -56,3 +56,8 @@ fn mcap_corpus_and_regressions_replay() {
 fn config_corpus_and_regressions_replay() {
     replay("config", targets::config);
 }
+
+#[test]
+fn expr_corpus_and_regressions_replay() {
+    replay("expr", targets::expr);
+}

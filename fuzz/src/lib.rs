@@ -13,9 +13,10 @@
 //!   `recover`.
 //! - [`config`]: `RunConfig::from_toml`, the resource estimate, then `RunSpec::from_config` or
 //!   `MapSpec::from_config`, as `chaoscope run`/`map` call them.
-//! - `expr` (to come with the expression models' crate): the expression parser. Add
-//!   `pub fn expr(data: &[u8])` here, a `src/bin/expr.rs` like the others, `corpus/expr/` and
-//!   `regressions/expr/`, and a line in `tests/fuzz_corpus.rs`.
+//! - [`expr`]: the expression language of user-written potentials: parsing, lowering under
+//!   each boundary condition (parameters, an array parameter, a table), smoothness, the
+//!   symbolic gradient and Hessian-vector product, the reference evaluator, and, for graphs of
+//!   modest size, native compilation.
 
 use std::io::Cursor;
 use std::path::PathBuf;
@@ -137,6 +138,75 @@ pub fn config(data: &[u8]) {
                 let _ = estimate::run_spec(&spec, &machine).refusal(&machine);
             }
             Err(e) => checked(&e),
+        }
+    }
+}
+
+/// The expression language over `data` read as text: what `[model] potential` goes through.
+pub fn expr(data: &[u8]) {
+    use chaoscope_expr::graph::Tabulated;
+    use chaoscope_expr::jit::{self, FunctionSpec, Layout};
+    use chaoscope_expr::{Boundary, Family, Graph, ParamValue, Scope, Spline, SplineKind};
+    use std::collections::BTreeMap;
+    use std::sync::Arc;
+
+    let Ok(text) = std::str::from_utf8(data) else {
+        return;
+    };
+    let _ = chaoscope_expr::parse(text);
+    let n = 4;
+    let families = [Family {
+        name: "q".to_string(),
+        len: n,
+        arg: 0,
+    }];
+    let mut params = BTreeMap::new();
+    params.insert("beta".to_string(), ParamValue::Scalar(1.5));
+    params.insert("k".to_string(), ParamValue::Array(vec![1.0, 2.0, 0.5, -1.0]));
+    let xs = [-2.0, -1.0, 0.0, 1.0, 2.0];
+    let ys = [4.0, 1.0, 0.0, 1.0, 4.0];
+    let spline = Spline::new("U", &xs, &ys, SplineKind::Natural).expect("a valid table");
+    for boundary in [Boundary::Fixed, Boundary::Periodic, Boundary::Free] {
+        let mut g = Graph::new();
+        let table = g.add_table(Arc::new(spline.clone()) as Arc<dyn Tabulated>);
+        let tables = [("U".to_string(), table)];
+        let scope = Scope {
+            families: &families,
+            params: &params,
+            tables: &tables,
+            n,
+            boundary,
+        };
+        let Ok(lowered) = chaoscope_expr::lower(text, &scope, &mut g) else {
+            continue;
+        };
+        let _ = lowered.smoothness.require(2, "vm");
+        let Ok(gradient) = chaoscope_expr::gradient(&mut g, lowered.root, 0, n) else {
+            continue;
+        };
+        let Ok(hv) = chaoscope_expr::jacobian_vector(&mut g, &gradient, 0, 1) else {
+            continue;
+        };
+        let q = [0.3, -0.2, 0.1, 0.05];
+        let v = [1.0, 0.5, -0.25, 0.125];
+        let mut out = vec![0.0; n];
+        chaoscope_expr::Evaluator::new().eval(&g, &[&q, &v], &hv, &mut out);
+        let _ = chaoscope_expr::first_non_finite(&g, &[&q], lowered.root);
+        if g.len() <= 2000 {
+            let specs = [
+                FunctionSpec {
+                    args: vec![Layout::Scalar],
+                    outputs: gradient.clone(),
+                },
+                FunctionSpec {
+                    args: vec![Layout::Scalar, Layout::Lanes],
+                    outputs: hv.clone(),
+                },
+            ];
+            if let Ok(compiled) = jit::compile(&g, &specs) {
+                let mut grad = vec![0.0; n];
+                compiled.call(0, &[&q], &mut grad);
+            }
         }
     }
 }

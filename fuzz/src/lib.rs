@@ -162,7 +162,10 @@ pub fn expr(data: &[u8]) {
     }];
     let mut params = BTreeMap::new();
     params.insert("beta".to_string(), ParamValue::Scalar(1.5));
-    params.insert("k".to_string(), ParamValue::Array(vec![1.0, 2.0, 0.5, -1.0]));
+    params.insert(
+        "k".to_string(),
+        ParamValue::Array(vec![1.0, 2.0, 0.5, -1.0]),
+    );
     let xs = [-2.0, -1.0, 0.0, 1.0, 2.0];
     let ys = [4.0, 1.0, 0.0, 1.0, 4.0];
     let spline = Spline::new("U", &xs, &ys, SplineKind::Natural).expect("a valid table");

@@ -14,6 +14,10 @@
 use std::collections::HashMap;
 use std::sync::Arc;
 
+/// Largest `|n|` of a [`Node::Powi`]; a larger whole power is built as `powf` (see
+/// [`Graph::add`]).
+pub const MAX_POWI: u32 = 64;
+
 /// Index of a node in its [`Graph`].
 pub type NodeId = u32;
 
@@ -310,6 +314,12 @@ impl Graph {
                 }
             }
             Node::Powi(a, n) => {
+                if n.unsigned_abs() > MAX_POWI {
+                    // A product of thousands of factors would be as many instructions in the
+                    // compiled code (and as many multiplications per evaluation): `powf` instead.
+                    let c = self.insert_const(f64::from(n));
+                    return Ok(self.add(Node::Binary(Binary::Pow, a, c)));
+                }
                 if n == 1 {
                     return Ok(a);
                 }

@@ -228,18 +228,29 @@ pub struct Compiled {
     isa: String,
 }
 
+/// Frees the machine code of `modules`; the one teardown of every owner of compiled code
+/// (`Compiled`, `StepKernels`).
+///
+/// # Safety
+/// No function pointer into these modules may be called afterwards: their owners hand out raw
+/// pointers documented to be valid only while the owner lives, and call this from `Drop`,
+/// when no `&self` call can be running.
+pub(crate) unsafe fn free_modules(modules: &mut Mutex<Vec<JITModule>>) {
+    let modules = match modules.get_mut() {
+        Ok(m) => std::mem::take(m),
+        Err(poisoned) => std::mem::take(poisoned.into_inner()),
+    };
+    for module in modules {
+        // SAFETY: see the function's contract.
+        unsafe { module.free_memory() };
+    }
+}
+
 impl Drop for Compiled {
     fn drop(&mut self) {
-        let modules = match self.modules.get_mut() {
-            Ok(m) => std::mem::take(m),
-            Err(poisoned) => std::mem::take(poisoned.into_inner()),
-        };
-        for module in modules {
-            // SAFETY: the function pointers handed out by `raw_scalar`/`raw_lanes` are documented
-            // to be valid only while this `Compiled` lives, and `&self` calls cannot be running
-            // while it is being dropped.
-            unsafe { module.free_memory() };
-        }
+        // SAFETY: dropping; the pointers from `raw_scalar`/`raw_lanes` live only as long as
+        // `self`.
+        unsafe { free_modules(&mut self.modules) }
     }
 }
 

@@ -112,15 +112,8 @@ pub struct StepKernels {
 
 impl Drop for StepKernels {
     fn drop(&mut self) {
-        let modules = match self.modules.get_mut() {
-            Ok(m) => std::mem::take(m),
-            Err(poisoned) => std::mem::take(poisoned.into_inner()),
-        };
-        for module in modules {
-            // SAFETY: the raw pointers handed out are documented to be valid only while this
-            // value lives, and no `&self` call can run while it is dropped.
-            unsafe { module.free_memory() };
-        }
+        // SAFETY: dropping; the raw pointers handed out live only as long as `self`.
+        unsafe { super::free_modules(&mut self.modules) }
     }
 }
 

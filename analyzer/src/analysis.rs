@@ -10,6 +10,7 @@ use chaoscope_producer::engine::{Sample, SchemeSample};
 use chaoscope_producer::indicators::{self, SIGMA_FLOOR, StretchSums};
 use chaoscope_producer::renormalization::Orthonormalization;
 use chaoscope_producer::spec::{Method, SchemeSpec};
+use chaoscope_producer::system::SystemKind;
 
 use crate::report::{ByOrder, DeltaLog, Report, RunReport, SchemeReport, VsVm, exponent_stats};
 use crate::run_info::RunInfo;
@@ -99,6 +100,9 @@ pub struct Analysis {
     schemes: Vec<SchemeState>,
     energy_error_max: f64,
     energy_series: Series<f64>,
+    /// The latest mean divergence of the reference orbit (cumulative from t = 0 in the
+    /// producer, so a late reader still gets the whole orbit's).
+    mean_divergence: f64,
     step: u64,
     t: f64,
     samples: u64,
@@ -163,6 +167,7 @@ impl Analysis {
             schemes,
             energy_error_max: 0.0,
             energy_series: Series::new(options.series_capacity, options.per_decade),
+            mean_divergence: 0.0,
             step: 0,
             t: 0.0,
             samples: 0,
@@ -213,9 +218,13 @@ impl Analysis {
         self.step = sample.step;
         self.t = sample.t;
         if !sample.state.is_empty() {
-            let err = energy_error(sample.energy, self.run.header.energy0);
-            self.energy_error_max = self.energy_error_max.max(err);
-            self.energy_series.offer(sample.t, || err);
+            if self.run.kind == SystemKind::Hamiltonian {
+                let err = energy_error(sample.energy, self.run.header.energy0);
+                self.energy_error_max = self.energy_error_max.max(err);
+                self.energy_series.offer(sample.t, || err);
+            } else {
+                self.mean_divergence = sample.mean_divergence;
+            }
         }
         let mut touched = Vec::new();
         for s in &sample.schemes {
@@ -384,6 +393,8 @@ impl Analysis {
         let (run, schemes) = (&self.run, &self.schemes[..]);
         let (energy_error_max, samples, t, gaps) =
             (self.energy_error_max, self.samples, self.t, self.gaps);
+        let hamiltonian = run.kind == SystemKind::Hamiltonian;
+        let reported_energy_error = hamiltonian.then_some(energy_error_max);
         let h = &run.header;
         let scheme_reports = run
             .schemes
@@ -428,7 +439,8 @@ impl Analysis {
                     dof: run.dim / 2,
                     k: run.k,
                 };
-                let (verdict, warnings) = verdict::assess(&settings, &curve, energy_error_max);
+                let (verdict, warnings) =
+                    verdict::assess(&settings, &curve, reported_energy_error.unwrap_or(0.0));
                 SchemeReport {
                     name: info.name.clone(),
                     method: info.method.name().to_string(),
@@ -441,9 +453,13 @@ impl Analysis {
                     gali,
                     sali,
                     mle: lyapunov.first().copied().unwrap_or(0.0),
+                    lyapunov_sum: (info.orthonormalize == Orthonormalization::Qr
+                        && run.k == run.dim
+                        && !lyapunov.is_empty())
+                    .then(|| lyapunov.iter().sum()),
                     lyapunov,
                     lyapunov_std,
-                    energy_error_max,
+                    energy_error_max: reported_energy_error,
                     vs_vm: Self::vs_vm_of(run, schemes, si),
                     verdict,
                     warnings,
@@ -454,7 +470,14 @@ impl Analysis {
             run: RunReport {
                 name: h.run_name.clone(),
                 model: h.model.clone(),
-                n: run.dim / 2,
+                kind: run.kind.name().to_string(),
+                time: if h.time.is_empty() {
+                    "continuous".to_string()
+                } else {
+                    h.time.clone()
+                },
+                n: if hamiltonian { run.dim / 2 } else { 0 },
+                dim: run.dim,
                 k: run.k,
                 sets: run.sets,
                 integrator: h.integrator.clone(),
@@ -465,7 +488,8 @@ impl Analysis {
                 energy0: h.energy0,
                 samples,
                 t,
-                energy_error_max,
+                energy_error_max: reported_energy_error,
+                mean_divergence: (!hamiltonian).then_some(self.mean_divergence),
                 complete: !gaps,
             },
             schemes: scheme_reports,

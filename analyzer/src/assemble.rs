@@ -18,6 +18,7 @@ fn empty_sample(seq: u64, step: u64, t: f64) -> Sample {
         t,
         state: Vec::new(),
         energy: f64::NAN,
+        mean_divergence: f64::NAN,
         schemes: Vec::new(),
     }
 }
@@ -36,6 +37,7 @@ impl SampleAssembler {
             t: m.t,
             state: m.state,
             energy: m.energy,
+            mean_divergence: m.mean_divergence,
             schemes: Vec::new(),
         });
         done

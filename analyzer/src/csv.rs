@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 
 use crate::analysis::Analysis;
 
-/// Writes `<dir>/<scheme>.csv` and `<dir>/energy.csv`; returns the files written.
+/// Writes `<dir>/<scheme>.csv` and, for Hamiltonians, `<dir>/energy.csv`; returns the files
+/// written.
 pub fn write_csv(analysis: &Analysis, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir)?;
     let run = analysis.run();
@@ -43,6 +44,10 @@ pub fn write_csv(analysis: &Analysis, dir: &Path) -> std::io::Result<Vec<PathBuf
         }
         f.flush()?;
         files.push(path);
+    }
+    if analysis.run().kind != chaoscope_producer::system::SystemKind::Hamiltonian {
+        // No energy to follow.
+        return Ok(files);
     }
     let path = dir.join("energy.csv");
     let mut f = std::io::BufWriter::new(std::fs::File::create(&path)?);

@@ -35,9 +35,20 @@ pub fn run_info(name: &str, config: &RunConfig, spec: &RunSpec) -> RunInfo {
 pub fn analyze_config(
     config: &RunConfig,
     options: &AnalysisOptions,
-    mut each: impl FnMut(&Sample),
+    each: impl FnMut(&Sample),
 ) -> Result<Analysis, InProcessError> {
     let spec = RunSpec::from_config(config)?;
+    analyze_spec(config, spec, options, each)
+}
+
+/// Runs `spec` (validated from `config`, or built around a system in code with
+/// [`RunSpec::with_system`]) to the end, feeding every sample to an analysis and to `each`.
+pub fn analyze_spec(
+    config: &RunConfig,
+    spec: RunSpec,
+    options: &AnalysisOptions,
+    mut each: impl FnMut(&Sample),
+) -> Result<Analysis, InProcessError> {
     let mut analysis = Analysis::new(run_info("in-process", config, &spec), options);
     let mut engine = Engine::new(spec);
     while let Some(sample) = engine.next_sample()? {

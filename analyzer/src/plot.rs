@@ -371,7 +371,9 @@ pub fn plot_all(
         &mle_chart(analysis, report, &time_schemes[..time_schemes.len().min(8)]),
         &dir.join("mle"),
     )?);
-    files.extend(render(&energy_chart(analysis), &dir.join("energy_error"))?);
+    if analysis.run().kind == chaoscope_producer::system::SystemKind::Hamiltonian {
+        files.extend(render(&energy_chart(analysis), &dir.join("energy_error"))?);
+    }
     for (name, chart) in sweep_charts(report) {
         files.extend(render(&chart, &dir.join(name))?);
     }

@@ -140,6 +140,7 @@ impl RecordingReader {
                 let r = ReferenceState::decode(data).map_err(decode)?;
                 finite("t", r.t)?;
                 finite("energy", r.energy)?;
+                finite("mean_divergence", r.mean_divergence)?;
                 return Ok(Some(DataMessage::Reference(r)));
             } else if t.starts_with("/chaoscope/separations/") {
                 let s = SeparationSet::decode(data).map_err(decode)?;

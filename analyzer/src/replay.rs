@@ -211,7 +211,8 @@ fn compare(
     let mut same = !recorded.state.is_empty();
     outcome.reference_states_compared += 1;
     same &= bits_equal(&recorded.state, &replayed.state)
-        && recorded.energy.to_bits() == replayed.energy.to_bits();
+        && recorded.energy.to_bits() == replayed.energy.to_bits()
+        && recorded.mean_divergence.to_bits() == replayed.mean_divergence.to_bits();
     if same {
         outcome.reference_states_identical += 1;
     }

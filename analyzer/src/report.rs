@@ -32,8 +32,14 @@ impl<V: Serialize> Serialize for ByOrder<V> {
 pub struct RunReport {
     pub name: String,
     pub model: String,
-    /// Degrees of freedom N (phase space has 2N dimensions).
+    /// `"hamiltonian"`, `"flow"` or `"map"`.
+    pub kind: String,
+    /// `"continuous"` or `"discrete"` (t counts iterations).
+    pub time: String,
+    /// Degrees of freedom N of a Hamiltonian (phase space has 2N dimensions); 0 otherwise.
     pub n: usize,
+    /// Dimension D of the state.
+    pub dim: usize,
     pub k: usize,
     pub sets: usize,
     pub integrator: String,
@@ -46,8 +52,16 @@ pub struct RunReport {
     pub samples: u64,
     /// Time of the latest sample analyzed.
     pub t: f64,
-    /// Largest relative energy error `|E - E0| / |E0|` of the reference orbit so far.
-    pub energy_error_max: f64,
+    /// Largest relative energy error `|E - E0| / |E0|` of the reference orbit so far
+    /// (Hamiltonians only: absent for systems without an energy).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub energy_error_max: Option<f64>,
+    /// Phase-space contraction rate: the mean of `div f` along the reference orbit from t = 0
+    /// (flows), the mean of `ln |det DF|` per iteration (maps); compare with the sum of the
+    /// Lyapunov exponents of a QR scheme with k = D (`lyapunov_sum`). Absent for Hamiltonians,
+    /// whose volume is conserved.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_divergence: Option<f64>,
     /// True when every stretching factor from t = 0 on was seen (always for a complete
     /// recording; a live monitor that attached late or lost frames reports false, and its
     /// Lyapunov exponents are then averages over the intervals it saw).
@@ -95,7 +109,12 @@ pub struct SchemeReport {
     /// for rescaled schemes the MLE estimate of each vector.
     pub lyapunov: Vec<f64>,
     pub lyapunov_std: Vec<f64>,
-    pub energy_error_max: f64,
+    /// Sum of the spectrum of a QR scheme with k = D: the rate of phase-space volume change the
+    /// exponents measure (compare `run.mean_divergence`). Absent otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lyapunov_sum: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub energy_error_max: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vs_vm: Option<VsVm>,
     /// Chaotic, regular or undecided at this time, with the criterion and a confidence.

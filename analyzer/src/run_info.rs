@@ -3,6 +3,7 @@
 
 use chaoscope_producer::renormalization::Orthonormalization;
 use chaoscope_producer::spec::{MAX_STATE_VALUES, Method, SchemeSpec, deviation_state_values};
+use chaoscope_producer::system::SystemKind;
 use chaoscope_schemas::proto::RunHeader;
 
 /// A header that cannot describe a run the analysis can follow.
@@ -14,6 +15,8 @@ pub struct HeaderError(pub String);
 #[derive(Debug, Clone, PartialEq)]
 pub struct RunInfo {
     pub header: RunHeader,
+    /// What kind of system (an empty header field: a Hamiltonian, recorded before flows).
+    pub kind: SystemKind,
     pub dim: usize,
     pub k: usize,
     pub sets: usize,
@@ -25,6 +28,11 @@ pub struct RunInfo {
 impl RunInfo {
     pub fn from_header(header: RunHeader) -> Result<Self, HeaderError> {
         let err = |m: String| HeaderError(m);
+        let kind = SystemKind::from_name(&header.kind)
+            .ok_or_else(|| err(format!("unknown kind of system {:?}", header.kind)))?;
+        if !matches!(header.time.as_str(), "" | "continuous" | "discrete") {
+            return Err(err(format!("unknown kind of time {:?}", header.time)));
+        }
         if header.dim == 0 || header.k == 0 || header.sets == 0 {
             return Err(err(format!(
                 "dim = {}, k = {}, sets = {} must all be positive",
@@ -33,7 +41,7 @@ impl RunInfo {
         }
         if header.k > header.dim {
             return Err(err(format!(
-                "k = {} deviation vectors exceed the dimension 2N = {}",
+                "k = {} deviation vectors exceed the dimension {}",
                 header.k, header.dim
             )));
         }
@@ -47,7 +55,8 @@ impl RunInfo {
         );
         if state_values > MAX_STATE_VALUES {
             return Err(err(format!(
-                "{} schemes x {} sets x k = {} x 2N = {} exceed the deviation state any run holds",
+                "{} schemes x {} sets x k = {} x dimension {} exceed the deviation state any run \
+                 holds",
                 header.schemes.len(),
                 header.sets,
                 header.k,
@@ -87,6 +96,7 @@ impl RunInfo {
             });
         }
         Ok(Self {
+            kind,
             dim: header.dim as usize,
             k: header.k as usize,
             sets: header.sets as usize,

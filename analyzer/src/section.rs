@@ -29,6 +29,7 @@ fn hermite(y0: f64, d0: f64, y1: f64, d1: f64, h: f64, s: f64) -> f64 {
 
 /// States at the crossings of `q_plane = 0` with `p_plane > 0`, for the orbit starting at `x0`,
 /// integrated with the run's integrator and step for `steps` steps (at most `max` crossings).
+/// Sections are drawn for separable Hamiltonians; other systems have none here.
 pub fn crossings(
     spec: &RunSpec,
     x0: &[f64],
@@ -36,7 +37,10 @@ pub fn crossings(
     steps: u64,
     max: usize,
 ) -> Vec<Vec<f64>> {
-    let model = spec.model.as_ref();
+    let Some(hamiltonian) = spec.hamiltonian.as_ref() else {
+        return Vec::new();
+    };
+    let model = hamiltonian.model.as_ref();
     let dim = x0.len();
     let mut x = x0.to_vec();
     let mut prev = x.clone();
@@ -46,7 +50,7 @@ pub fn crossings(
     let h = spec.h;
     for _ in 0..steps {
         prev.copy_from_slice(&x);
-        spec.integrator.step(model, &mut x, h, &mut work);
+        hamiltonian.splitting.step(model, &mut x, h, &mut work);
         if !x.iter().all(|v| v.is_finite()) {
             break;
         }
@@ -98,7 +102,8 @@ mod tests {
             // the energy surface to integrator plus interpolation error.
             assert!(p[0].abs() < 1e-8, "q1 = {}", p[0]);
             assert!(p[2] > 0.0);
-            assert!((spec.model.energy(p) - paper::HH_ENERGY).abs() < 1e-7);
+            let model = &spec.hamiltonian.as_ref().unwrap().model;
+            assert!((model.energy(p) - paper::HH_ENERGY).abs() < 1e-7);
         }
         // A regular orbit (x2 = 0.558 is the paper's regular one): its section points lie on
         // a closed curve, here well inside the allowed region |q2| < 0.7.

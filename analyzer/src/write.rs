@@ -44,6 +44,7 @@ impl SampleWriter {
             t: s.t,
             energy: s.energy,
             state: s.state.clone(),
+            mean_divergence: s.mean_divergence,
         }))?;
         self.frame += 1;
         for set in &s.schemes {

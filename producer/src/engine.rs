@@ -25,8 +25,12 @@ pub struct Sample {
     pub t: f64,
     /// Reference state `(q, p)`.
     pub state: Vec<f64>,
-    /// Energy of the reference state.
+    /// Energy of the reference state (0 for systems without an invariant).
     pub energy: f64,
+    /// Mean of the system's divergence along the reference orbit from t = 0 to `t` (its value
+    /// at the initial state for t = 0; 0 for systems that conserve volume), see
+    /// [`crate::system::DynamicalSystem::divergence`].
+    pub mean_divergence: f64,
     /// The schemes renormalized at this step, ordered by (scheme, set).
     pub schemes: Vec<SchemeSample>,
 }
@@ -92,6 +96,13 @@ pub struct Engine {
     tasks: Vec<DeviationSet>,
     step: u64,
     next_seq: u64,
+    /// The divergence at the reference state now, and its integral (flows: trapezoidal over
+    /// the steps) or sum (maps) from t = 0; `None` for systems that conserve volume.
+    divergence: Option<(f64, f64)>,
+    /// Substeps the reference took in the current window (adaptive systems), flat, with the
+    /// bounds of each step's share: what the deviation sets follow.
+    plan: Vec<f64>,
+    plan_bounds: Vec<usize>,
 }
 
 impl Engine {
@@ -121,6 +132,7 @@ impl Engine {
                 });
             }
         }
+        let divergence = spec.system.divergence(&spec.x0).map(|d| (d, 0.0));
         Self {
             reference: spec.x0.clone(),
             spec,
@@ -128,6 +140,18 @@ impl Engine {
             tasks,
             step: 0,
             next_seq: 0,
+            divergence,
+            plan: Vec::new(),
+            plan_bounds: Vec::new(),
+        }
+    }
+
+    /// The mean divergence from t = 0 to step `step` (see [`Sample::mean_divergence`]).
+    fn mean_divergence(&self, step: u64) -> f64 {
+        match self.divergence {
+            None => 0.0,
+            Some((now, _)) if step == 0 => now,
+            Some((_, integral)) => integral / self.spec.time_of(step),
         }
     }
 
@@ -178,16 +202,36 @@ impl Engine {
         let spec = &self.spec;
         let system = spec.system.as_ref();
         let last_good = self.reference.clone();
+        let divergence_before = self.divergence;
+        self.plan.clear();
+        self.plan_bounds.clear();
+        self.plan_bounds.push(0);
         for _ in 0..n_steps {
-            system.step(&mut self.reference, &mut self.work);
+            system.step_reference(&mut self.reference, &mut self.plan, &mut self.work);
+            self.plan_bounds.push(self.plan.len());
+            if let Some((before, integral)) = &mut self.divergence {
+                // Non-finite values are caught below, once per window.
+                let after = system.divergence(&self.reference).unwrap_or(f64::NAN);
+                *integral += match system.time() {
+                    // The trapezoidal rule over the step: the mean of div f along the orbit.
+                    crate::system::Time::Continuous { h } => 0.5 * h * (*before + after),
+                    // ln |det DF| at the state the iteration starts from.
+                    crate::system::Time::Discrete => *before,
+                };
+                *before = after;
+            }
         }
         let norm = self.reference.iter().map(|v| v * v).sum::<f64>().sqrt();
-        // A NaN norm counts as escaped too, and so does a state whose energy is not finite
-        // (a potential undefined there: no NaN may reach an output).
+        // A NaN norm counts as escaped too, and so does a state whose energy or divergence is
+        // not finite (a potential or vector field undefined there: no NaN may reach an output).
         let invariant_finite = system
             .invariant(&self.reference)
-            .is_none_or(|e| e.is_finite());
+            .is_none_or(|e| e.is_finite())
+            && self
+                .divergence
+                .is_none_or(|(d, integral)| d.is_finite() && integral.is_finite());
         if norm.is_nan() || norm >= ESCAPE_NORM || !invariant_finite {
+            self.divergence = divergence_before;
             return Err(self.escaped(last_good, target, norm));
         }
         let t = spec.time_of(target);
@@ -196,10 +240,14 @@ impl Engine {
         let renorm: Vec<bool> = (0..spec.schemes.len())
             .map(|s| self.renormalizes_at(s, target))
             .collect();
+        let plan = Plan {
+            substeps: &self.plan,
+            bounds: &self.plan_bounds,
+        };
         let results: Vec<Result<Option<SchemeSample>, RunError>> = self
             .tasks
             .par_iter_mut()
-            .map(|task| task.advance(spec, reference, n_steps, renorm[task.scheme], t))
+            .map(|task| task.advance(spec, reference, &plan, renorm[task.scheme], t))
             .collect();
         let mut schemes = Vec::new();
         for r in results {
@@ -218,6 +266,7 @@ impl Engine {
             t,
             state: self.reference.clone(),
             energy,
+            mean_divergence: self.mean_divergence(target),
             schemes,
         }))
     }
@@ -247,6 +296,7 @@ impl Engine {
             t: 0.0,
             state: self.reference.clone(),
             energy: self.spec.e0,
+            mean_divergence: self.mean_divergence(0),
             schemes,
         }
     }
@@ -260,16 +310,19 @@ impl Engine {
         let mut work = Workspace::new();
         let mut cause = None;
         let mut step = self.step;
+        let mut plan = Vec::new();
         while step < target {
             let before = x.clone();
-            system.step(&mut x, &mut work);
+            system.step_reference(&mut x, &mut plan, &mut work);
             step += 1;
             let at = |c: String| format!("{c} in the step to t = {}", self.spec.time_of(step));
             if x.iter().any(|v| !v.is_finite()) {
                 cause = system.diagnose_non_finite(&before).map(at);
                 break;
             }
-            if system.invariant(&x).is_some_and(|e| !e.is_finite()) {
+            if system.invariant(&x).is_some_and(|e| !e.is_finite())
+                || system.divergence(&x).is_some_and(|d| !d.is_finite())
+            {
                 cause = system.diagnose_non_finite(&x).map(at);
                 break;
             }
@@ -286,12 +339,27 @@ impl Engine {
     }
 }
 
+/// The substeps the reference orbit took in a window, step by step (empty for fixed-step
+/// systems): `substeps[bounds[i]..bounds[i + 1]]` belong to step `i`.
+struct Plan<'a> {
+    substeps: &'a [f64],
+    bounds: &'a [usize],
+}
+
+impl Plan<'_> {
+    fn steps(&self) -> impl Iterator<Item = &[f64]> + '_ {
+        self.bounds
+            .windows(2)
+            .map(|b| &self.substeps[b[0]..b[1]])
+    }
+}
+
 impl DeviationSet {
     fn advance(
         &mut self,
         spec: &RunSpec,
         reference: &[f64],
-        n_steps: u64,
+        plan: &Plan<'_>,
         renormalize: bool,
         t: f64,
     ) -> Result<Option<SchemeSample>, RunError> {
@@ -300,8 +368,8 @@ impl DeviationSet {
         let scheme = &spec.schemes[self.scheme];
         let mut separations = match &mut self.deviations {
             Deviations::Variational { orbit, vectors } => {
-                for _ in 0..n_steps {
-                    system.step_tangent(orbit, vectors, &mut self.work)?;
+                for substeps in plan.steps() {
+                    system.step_tangent_along(orbit, vectors, substeps, &mut self.work)?;
                 }
                 debug_assert_eq!(
                     orbit.as_slice(),
@@ -315,8 +383,8 @@ impl DeviationSet {
             }
             Deviations::MultiParticle { orbits } => {
                 for y in orbits.chunks_exact_mut(dim) {
-                    for _ in 0..n_steps {
-                        system.step(y, &mut self.work);
+                    for substeps in plan.steps() {
+                        system.step_along(y, substeps, &mut self.work);
                     }
                 }
                 if !renormalize {
@@ -414,8 +482,11 @@ mod tests {
         let s = spec(vec![scheme("a", "vm", 1.0)], 0.125, 20.0);
         let mut x = s.x0.clone();
         let mut w = Workspace::new();
+        let hamiltonian = s.hamiltonian.as_ref().unwrap();
         for _ in 0..2000 {
-            s.integrator.step(s.model.as_ref(), &mut x, s.h, &mut w);
+            hamiltonian
+                .splitting
+                .step(hamiltonian.model.as_ref(), &mut x, s.h, &mut w);
         }
         assert_eq!(x, a[&2000]);
     }

@@ -11,7 +11,7 @@ use crate::deviation::{self, DirectionError, Directions};
 use crate::integrator::{Splitting, SplittingKind};
 use crate::model::{FputBeta, HenonHeiles, Model};
 use crate::renormalization::Orthonormalization;
-use crate::system::{DynamicalSystem, SplitHamiltonian};
+use crate::system::{DynamicalSystem, SplitHamiltonian, Time};
 
 mod potential;
 
@@ -112,22 +112,29 @@ pub fn deviation_state_values(schemes: usize, sets: u64, k: u64, dim: u64) -> u1
 /// recording and a task of every sample (the limit of one `[[sweep]]`).
 pub const MAX_SCHEMES: usize = chaoscope_schemas::sweep::MAX_SWEEP_SCHEMES;
 
+/// The parts of a separable Hamiltonian run, for what is specific to it (energy surfaces, the
+/// batched splitting kernel of maps, sections).
+#[derive(Clone)]
+pub struct HamiltonianParts {
+    pub model: Arc<dyn Model>,
+    pub splitting: Splitting,
+}
+
 /// A validated run.
 #[derive(Clone)]
 pub struct RunSpec {
     /// What the engine steps: the model with its integrator and time step.
     pub system: Arc<dyn DynamicalSystem>,
-    /// The Hamiltonian's parts, for what is specific to it (energy surfaces, the batched
-    /// splitting kernel of maps, sections).
-    pub model: Arc<dyn Model>,
-    pub integrator: Splitting,
+    /// `Some` for separable Hamiltonians (`SplitHamiltonian`), `None` for every other kind.
+    pub hamiltonian: Option<HamiltonianParts>,
+    /// Time step (1 for maps: a step is an iteration).
     pub h: f64,
     pub total_steps: u64,
-    /// Initial reference state `(q, p)`.
+    /// Initial reference state: `(q, p)` of a Hamiltonian, `x` of any other system.
     pub x0: Vec<f64>,
-    /// Energy of `x0`.
+    /// The invariant of `x0` (a Hamiltonian's energy); 0 for systems without one.
     pub e0: f64,
-    /// Phase-space dimension `2N`.
+    /// Dimension `D` of the state (`2N` for a Hamiltonian).
     pub dim: usize,
     /// Deviation vectors per set.
     pub k: usize,
@@ -142,9 +149,9 @@ pub struct RunSpec {
 impl std::fmt::Debug for RunSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("RunSpec")
-            .field("model", &self.model.name())
-            .field("dof", &self.model.dof())
-            .field("integrator", &self.integrator.kind())
+            .field("system", &self.system.name())
+            .field("kind", &self.system.kind())
+            .field("dim", &self.dim)
             .field("h", &self.h)
             .field("total_steps", &self.total_steps)
             .field("x0", &self.x0)
@@ -218,6 +225,33 @@ pub fn model_dof(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<usize> 
     }
 }
 
+/// Dimension `D` of the state of the system a config names, without building it (`None` when
+/// the config does not say; validation then names the problem).
+pub fn state_dim(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<usize> {
+    match SystemFamily::of(&cfg.name)? {
+        SystemFamily::Hamiltonian => model_dof(cfg).map(|n| 2 * n),
+    }
+}
+
+/// The families of `[model] name`: the one place names are dispatched to kinds of system.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SystemFamily {
+    /// A separable Hamiltonian with a splitting: the built-in models and `potential`.
+    Hamiltonian,
+}
+
+/// Every `[model] name`, as error messages list them.
+const KNOWN_MODELS: &str = "henon-heiles, fput-beta, potential";
+
+impl SystemFamily {
+    fn of(name: &str) -> Option<Self> {
+        match name {
+            "henon-heiles" | "fput-beta" | "potential" => Some(Self::Hamiltonian),
+            _ => None,
+        }
+    }
+}
+
 /// Build the model named in the config, with the digests of the tables it read.
 pub fn model_from_config(
     cfg: &chaoscope_schemas::config::ModelConfig,
@@ -270,7 +304,10 @@ pub fn model_from_config(
         "potential" => potential::potential_model(cfg),
         other => Err(SpecError::new(
             "model.name",
-            format!("unknown model '{other}' (known: henon-heiles, fput-beta, potential)"),
+            match SystemFamily::of(other) {
+                Some(_) => format!("'{other}' is not a separable Hamiltonian model"),
+                None => format!("unknown model '{other}' (known: {KNOWN_MODELS})"),
+            },
         )),
     }
 }
@@ -283,6 +320,7 @@ fn builtin_extra_key(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<&'s
         ("masses", cfg.masses.is_some()),
         ("boundary", cfg.boundary.is_some()),
         ("tables", !cfg.tables.is_empty()),
+        ("rhs", cfg.rhs.is_some()),
     ]
     .into_iter()
     .find_map(|(k, present)| present.then_some(k))
@@ -298,6 +336,12 @@ pub fn parse_coordinate(name: &str, n: usize) -> Option<(bool, usize)> {
     let i: usize = digits.parse().ok()?;
     // `then`, not `then_some`: `i - 1` must not be evaluated for `p0` (it would overflow).
     (1..=n).contains(&i).then(|| (momentum, i - 1))
+}
+
+/// Parse a coordinate name `x3` of a `dim`-dimensional state into its zero-based index.
+pub fn state_coordinate(name: &str, dim: usize) -> Option<usize> {
+    let i: usize = name.strip_prefix('x')?.parse().ok()?;
+    (1..=dim).contains(&i).then(|| i - 1)
 }
 
 /// Solve momentum `p_j` (positive root) so that `H(q, p) = energy`.
@@ -415,8 +459,24 @@ impl RunSpec {
         let expanded = cfg
             .with_sweeps_expanded()
             .map_err(|e| SpecError::new(e.key, e.message))?;
-        let (model, tables) = model_from_config(&expanded.model)?;
-        Self::build(&expanded, model, tables)
+        match SystemFamily::of(&expanded.model.name) {
+            // An unknown name is reported by the Hamiltonian dispatch, with the list of all.
+            Some(SystemFamily::Hamiltonian) | None => {
+                let (model, tables) = model_from_config(&expanded.model)?;
+                Self::build(&expanded, model, tables)
+            }
+        }
+    }
+
+    /// A run of a system built in code (any [`DynamicalSystem`]: a flow, a map, ...): `[orbit]
+    /// x` is its initial state, `[integrator] h` and `t_final` its time grid (`h` must be the
+    /// system's own step), everything else is validated as usual; `cfg.model.name` is the name
+    /// recordings carry.
+    pub fn with_system(cfg: &RunConfig, system: Arc<dyn DynamicalSystem>) -> Result<Self, SpecError> {
+        let expanded = cfg
+            .with_sweeps_expanded()
+            .map_err(|e| SpecError::new(e.key, e.message))?;
+        Self::build_general(&expanded, system, Vec::new())
     }
 
     /// A run of a model built in code rather than named in the config (the library route for
@@ -429,33 +489,145 @@ impl RunSpec {
         Self::build(&expanded, model, Vec::new())
     }
 
+    /// A separable Hamiltonian with a splitting.
     fn build(
         cfg: &RunConfig,
         model: Arc<dyn Model>,
         tables: Vec<TableDigest>,
     ) -> Result<Self, SpecError> {
-        let n = model.dof();
-        let dim = 2 * n;
         let kind = SplittingKind::from_name(&cfg.integrator.method).ok_or_else(|| {
             SpecError::new(
                 "integrator.method",
                 format!(
-                    "unknown method '{}' (known: aba864, leapfrog, saba2, yoshida4)",
+                    "unknown method '{}' for a separable Hamiltonian (known: aba864, leapfrog, \
+                     saba2, yoshida4)",
                     cfg.integrator.method
                 ),
             )
         })?;
+        for (key, present) in [
+            ("integrator.rtol", cfg.integrator.rtol.is_some()),
+            ("integrator.atol", cfg.integrator.atol.is_some()),
+        ] {
+            if present {
+                return Err(SpecError::new(
+                    key,
+                    "splittings take a fixed step; tolerances apply to adaptive dop853",
+                ));
+            }
+        }
+        if !cfg.orbit.x.is_empty() {
+            return Err(SpecError::new(
+                "orbit.x",
+                "a Hamiltonian's initial state is q and p (x is for flows and maps)",
+            ));
+        }
         let h = finite_positive("integrator.h", cfg.integrator.h)?;
+        let x0 = initial_state(model.as_ref(), &cfg.orbit)?;
+        let splitting = Splitting::new(kind);
+        let system = Arc::new(SplitHamiltonian {
+            model: model.clone(),
+            splitting: splitting.clone(),
+            h,
+        });
+        let hamiltonian = HamiltonianParts { model, splitting };
+        Self::validated(cfg, system, Some(hamiltonian), x0, tables)
+    }
+
+    /// Any other system: the initial state is `[orbit] x`.
+    fn build_general(
+        cfg: &RunConfig,
+        system: Arc<dyn DynamicalSystem>,
+        tables: Vec<TableDigest>,
+    ) -> Result<Self, SpecError> {
+        let dim = system.dim();
+        let orbit = &cfg.orbit;
+        for (key, present) in [
+            ("orbit.q", !orbit.q.is_empty()),
+            ("orbit.p", !orbit.p.is_empty()),
+            ("orbit.energy", orbit.energy.is_some()),
+            ("orbit.solve_for", orbit.solve_for.is_some()),
+            ("orbit.preset", orbit.preset.is_some()),
+        ] {
+            if present {
+                return Err(SpecError::new(
+                    key,
+                    format!(
+                        "applies to Hamiltonians; the initial state of '{}' is x = [x1, ..., x{dim}]",
+                        cfg.model.name
+                    ),
+                ));
+            }
+        }
+        if orbit.x.len() != dim {
+            return Err(SpecError::new(
+                "orbit.x",
+                format!("needs {dim} values x1..x{dim}, got {}", orbit.x.len()),
+            ));
+        }
+        if let Some(i) = orbit.x.iter().position(|v| !v.is_finite()) {
+            return Err(SpecError::new(
+                "orbit.x",
+                format!("entry {} is not finite", i + 1),
+            ));
+        }
+        let x0 = orbit.x.clone();
+        if system.invariant(&x0).is_some_and(|e| !e.is_finite())
+            || system.divergence(&x0).is_some_and(|d| !d.is_finite())
+        {
+            return Err(SpecError::new(
+                "orbit.x",
+                format!(
+                    "the system is not defined at the initial state{}",
+                    system
+                        .diagnose_non_finite(&x0)
+                        .map(|c| format!(": {c}"))
+                        .unwrap_or_default()
+                ),
+            ));
+        }
+        Self::validated(cfg, system, None, x0, tables)
+    }
+
+    /// What every kind shares: the time grid, deviations and schemes.
+    fn validated(
+        cfg: &RunConfig,
+        system: Arc<dyn DynamicalSystem>,
+        hamiltonian: Option<HamiltonianParts>,
+        x0: Vec<f64>,
+        tables: Vec<TableDigest>,
+    ) -> Result<Self, SpecError> {
+        let dim = system.dim();
+        let h = match system.time() {
+            Time::Continuous { h } => h,
+            Time::Discrete => 1.0,
+        };
+        if matches!(system.time(), Time::Continuous { .. })
+            && h.to_bits() != cfg.integrator.h.to_bits()
+        {
+            return Err(SpecError::new(
+                "integrator.h",
+                format!(
+                    "{} differs from the system's own step {}",
+                    num(cfg.integrator.h),
+                    num(h)
+                ),
+            ));
+        }
+        let h = finite_positive("integrator.h", h)?;
         let t_final = finite_positive("integrator.t_final", cfg.integrator.t_final)?;
         let total_steps = whole_steps("integrator.t_final", t_final, h)?;
-        let x0 = initial_state(model.as_ref(), &cfg.orbit)?;
-        let e0 = model.energy(&x0);
+        let e0 = system.invariant(&x0).unwrap_or(0.0);
 
         let dev = &cfg.deviations;
         if dev.k == 0 || dev.k > dim {
             return Err(SpecError::new(
                 "deviations.k",
-                format!("must be between 1 and 2N = {dim}, got {}", dev.k),
+                format!(
+                    "must be between 1 and the dimension {} = {dim}, got {}",
+                    if hamiltonian.is_some() { "2N" } else { "D" },
+                    dev.k
+                ),
             ));
         }
         let state_values = deviation_state_values(
@@ -468,7 +640,7 @@ impl RunSpec {
             return Err(SpecError::new(
                 "deviations.sets",
                 format!(
-                    "{} schemes x {} sets x k = {} x 2N = {dim} needs {:.1} GiB of deviation state \
+                    "{} schemes x {} sets x k = {} x dimension {dim} needs {:.1} GiB of deviation state \
                      (limit {} GiB); use fewer sets or schemes, or split the run",
                     cfg.schemes.len(),
                     dev.sets,
@@ -551,7 +723,7 @@ impl RunSpec {
                 SpecError::new(key("method"), format!("'{}' is not vm or mpm", s.method))
             })?;
             if method == Method::Vm
-                && let Some(reason) = model.no_hessian_reason()
+                && let Some(reason) = system.no_tangent_reason()
             {
                 return Err(SpecError::new(
                     key("method"),
@@ -587,16 +759,9 @@ impl RunSpec {
             });
         }
 
-        let integrator = Splitting::new(kind);
-        let system = Arc::new(SplitHamiltonian {
-            model: model.clone(),
-            splitting: integrator.clone(),
-            h,
-        });
         Ok(RunSpec {
             system,
-            model,
-            integrator,
+            hamiltonian,
             h,
             total_steps,
             x0,

@@ -91,6 +91,7 @@ pub fn write_run<W: Write + Seek>(
             t,
             energy: 1.0 + noise.next_f64(1e-12),
             state,
+            mean_divergence: 0.0,
         }))?;
         frame += 1;
         for set in 0..shape.sets {

@@ -45,8 +45,10 @@ pub struct RunSection {
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ModelConfig {
-    /// `"henon-heiles"`, `"fput-beta"`, or `"potential"` (a separable Hamiltonian
-    /// `H = sum p_i^2 / (2 m_i) + V(q)` with `V` written in `potential`).
+    /// The system's kind and, for built-in ones, the model. Hamiltonians: `"henon-heiles"`,
+    /// `"fput-beta"`, or `"potential"` (a separable Hamiltonian `H = sum p_i^2 / (2 m_i) + V(q)`
+    /// with `V` written in `potential`). Flows: `"ode"` (`dx/dt = f(x)` with `f` written in
+    /// `rhs`).
     pub name: String,
     /// Number of degrees of freedom (lattice sites); fixed to 2 for Henon-Heiles.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -71,6 +73,10 @@ pub struct ModelConfig {
     /// Tabulated functions the expression may call by name, e.g. `U = "bond.csv"`.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub tables: BTreeMap<String, TableConfig>,
+    /// `"ode"` only: the right-hand side `f_1(x), ..., f_D(x)` of `dx/dt = f(x)`, one expression
+    /// per coordinate over `x1..xD` (or `x[i]`) and `params`; `D` is the number of entries.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rhs: Option<Vec<String>>,
 }
 
 impl ModelConfig {
@@ -144,14 +150,17 @@ impl TableConfig {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OrbitConfig {
+    /// The initial state `x1..xD` of a general (non-Hamiltonian) system.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub x: Vec<f64>,
     /// Positions q1..qN. May be omitted when `preset` gives them.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub q: Vec<f64>,
     /// Momenta p1..pN. The entry named by `solve_for` is ignored (solved from `energy`).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub p: Vec<f64>,
     /// Target energy; requires `solve_for`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -167,12 +176,34 @@ pub struct OrbitConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct IntegratorConfig {
-    /// `"aba864"`, `"leapfrog"` or `"saba2"`.
+    /// Splittings of separable Hamiltonians: `"aba864"`, `"leapfrog"`, `"saba2"`, `"yoshida4"`.
+    /// Runge-Kutta methods of flows: `"rk4"`, `"dop853"`.
     pub method: String,
-    /// Fixed time step.
+    /// Time step. Fixed-step methods take exactly this step; adaptive `dop853` (with `rtol` /
+    /// `atol`) lands every accepted step on the grid of multiples of `h`, so `h` is the time
+    /// grid that `tau` and `t_final` are multiples of.
     pub h: f64,
     /// Final time (the horizon of a map).
     pub t_final: f64,
+    /// Relative tolerance of adaptive `dop853` (error control on; needs `atol` too).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rtol: Option<f64>,
+    /// Absolute tolerance of adaptive `dop853`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub atol: Option<f64>,
+}
+
+impl IntegratorConfig {
+    /// A fixed-step method with step `h` up to `t_final`.
+    pub fn fixed(method: &str, h: f64, t_final: f64) -> Self {
+        Self {
+            method: method.to_string(),
+            h,
+            t_final,
+            rtol: None,
+            atol: None,
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

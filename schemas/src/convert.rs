@@ -89,6 +89,7 @@ pub fn decode_frame(h: &FrameHeader, payload: &[f64]) -> Result<DataMessage, Fra
             t: h.t,
             energy: h.energy,
             state: payload.to_vec(),
+            mean_divergence: h.mean_divergence,
         }),
         FrameKind::Separations => {
             let split = h.k as usize * h.dim as usize;
@@ -144,7 +145,7 @@ mod tests {
 
     #[test]
     fn wrong_payload_length_is_an_error() {
-        let h = FrameHeader::reference(0, 0, 0, 0.0, 0.1, 4);
+        let h = FrameHeader::reference(0, 0, 0, 0.0, 0.1, 0.0, 4);
         let err = decode_frame(&h, &[0.0; 3]).unwrap_err();
         assert_eq!(
             err,

@@ -73,6 +73,9 @@ pub struct FrameHeader {
     pub t: f64,
     /// Energy of the reference state (`Reference` only).
     pub energy: f64,
+    /// Mean divergence along the reference orbit up to `t` (`Reference` only; see the
+    /// `ReferenceState` message).
+    pub mean_divergence: f64,
     /// Scheme index and set (`Separations` only).
     pub scheme: u32,
     pub set: u32,
@@ -95,6 +98,7 @@ impl Default for FrameHeader {
             step: 0,
             t: 0.0,
             energy: 0.0,
+            mean_divergence: 0.0,
             scheme: 0,
             set: 0,
             k: 0,
@@ -127,12 +131,14 @@ impl FrameHeader {
     }
 
     /// Header of a reference-state frame (payload: the `dim` state values).
+    #[allow(clippy::too_many_arguments)]
     pub fn reference(
         frame_seq: u64,
         sample_seq: u64,
         step: u64,
         t: f64,
         energy: f64,
+        mean_divergence: f64,
         dim: usize,
     ) -> Self {
         Self {
@@ -142,6 +148,7 @@ impl FrameHeader {
             step,
             t,
             energy,
+            mean_divergence,
             dim: dim as u32,
             ..Self::default()
         }

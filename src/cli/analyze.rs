@@ -38,12 +38,22 @@ pub struct Args {
 /// The human-readable table.
 pub fn print_table(report: &Report) {
     let r = &report.run;
+    let size = if r.kind == "hamiltonian" {
+        format!("N = {}", r.n)
+    } else {
+        format!("{}, D = {}", r.kind, r.dim)
+    };
+    // What applies: the energy error of a Hamiltonian, the contraction rate of anything else.
+    let conserved = match (r.energy_error_max, r.mean_divergence) {
+        (Some(e), _) => format!("max energy error {e:.2e}"),
+        (None, Some(d)) => format!("mean divergence {d:.6}"),
+        (None, None) => String::new(),
+    };
     println!(
-        "run {} ({}, N = {}, {} with h = {}): t = {} of {}, {} samples, k = {}, {} sets, \
-         max energy error {:.2e}{}",
+        "run {} ({}, {size}, {} with h = {}): t = {} of {}, {} samples, k = {}, {} sets, \
+         {conserved}{}",
         r.name,
         r.model,
-        r.n,
         r.integrator,
         r.h,
         r.t,
@@ -51,7 +61,6 @@ pub fn print_table(report: &Report) {
         r.samples,
         r.k,
         r.sets,
-        r.energy_error_max,
         if r.complete {
             ""
         } else {
@@ -93,6 +102,9 @@ pub fn print_table(report: &Report) {
         if s.lyapunov.len() > 1 {
             let l: Vec<String> = s.lyapunov.iter().map(|l| format!("{l:.6}")).collect();
             line += &format!("  spectrum: {}", l.join(" "));
+        }
+        if let Some(sum) = s.lyapunov_sum {
+            line += &format!(" (sum {sum:.6})");
         }
         println!("{line}");
     }

@@ -43,6 +43,12 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         "the config needs orbit.solve_for (the momentum crossing the plane) and orbit.energy",
     )?;
     let base = RunSpec::from_config(&config).context("invalid run configuration")?;
+    if base.hamiltonian.is_none() {
+        bail!(
+            "model.name: sections are drawn for separable Hamiltonians, not for '{}'",
+            config.model.name
+        );
+    }
     let n = base.dim / 2;
     let Some((true, plane)) = parse_coordinate(&solve, n) else {
         bail!("orbit.solve_for must be a momentum, got {solve}");

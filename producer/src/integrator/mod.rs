@@ -1,13 +1,16 @@
-//! Fixed-step integrators.
+//! Integrators, one file each.
 //!
 //! One trait, [`Integrator`], generic over the system it advances: symplectic splittings
-//! ([`Splitting`]) implement it for separable Hamiltonians ([`Model`]); Runge-Kutta methods for
-//! general vector fields will implement it for their own system trait without touching this one.
+//! ([`Splitting`]) implement it for separable Hamiltonians ([`Model`]); the explicit Runge-Kutta
+//! methods ([`RungeKutta`]: rk4, dop853 with or without error control) implement it for vector
+//! fields ([`crate::system::VectorField`]).
 //! An integrator may also advance deviation vectors with its own tangent map (the variational
 //! method); one that cannot says so and only the multi-particle method is offered.
 
+pub mod runge_kutta;
 mod splitting;
 
+pub use runge_kutta::{RungeKutta, RungeKuttaKind};
 pub use splitting::{Splitting, SplittingKind};
 
 use crate::model::Model;
@@ -16,6 +19,8 @@ use crate::model::Model;
 #[derive(Debug, Default, Clone)]
 pub struct Workspace {
     pub(crate) force: Vec<f64>,
+    /// Stages of a Runge-Kutta step and the adaptive controller's proposal.
+    pub(crate) rk: runge_kutta::RkScratch,
 }
 
 impl Workspace {

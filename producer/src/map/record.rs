@@ -21,7 +21,7 @@ impl MapSpec {
         MapHeader {
             format_version: FORMAT_VERSION,
             config_toml: self.config_toml.clone(),
-            model: self.run.model.name().to_string(),
+            model: self.run.system.name().to_string(),
             indicator: self.indicator.name().to_string(),
             k: self.run.k as u32,
             threshold: self.indicator.threshold(),

@@ -5,7 +5,7 @@ use chaoscope_schemas::config::{MapAxis, RunConfig};
 use super::indicator::Indicator;
 use crate::batch::{AnyLaneModel, StepCoeffs};
 use crate::renormalization::Orthonormalization;
-use crate::spec::{RunSpec, SpecError, parse_coordinate, solve_momentum};
+use crate::spec::{RunSpec, SpecError, parse_coordinate, solve_momentum, state_coordinate};
 
 /// One grid axis.
 #[derive(Debug, Clone, PartialEq)]
@@ -28,16 +28,33 @@ impl Axis {
         }
     }
 
-    fn from_config(key: &str, a: &MapAxis, n_dof: usize) -> Result<Self, SpecError> {
-        let (momentum, i) = parse_coordinate(&a.coord, n_dof).ok_or_else(|| {
-            SpecError::new(
-                format!("{key}.coord"),
-                format!(
-                    "'{}' is not a coordinate q1..q{n_dof} / p1..p{n_dof}",
-                    a.coord
-                ),
-            )
-        })?;
+    /// `hamiltonian`: coordinates are `q1..qN` / `p1..pN` of `dim = 2N`; otherwise `x1..xD`.
+    fn from_config(
+        key: &str,
+        a: &MapAxis,
+        dim: usize,
+        hamiltonian: bool,
+    ) -> Result<Self, SpecError> {
+        let slot = if hamiltonian {
+            let n_dof = dim / 2;
+            let (momentum, i) = parse_coordinate(&a.coord, n_dof).ok_or_else(|| {
+                SpecError::new(
+                    format!("{key}.coord"),
+                    format!(
+                        "'{}' is not a coordinate q1..q{n_dof} / p1..p{n_dof}",
+                        a.coord
+                    ),
+                )
+            })?;
+            if momentum { n_dof + i } else { i }
+        } else {
+            state_coordinate(&a.coord, dim).ok_or_else(|| {
+                SpecError::new(
+                    format!("{key}.coord"),
+                    format!("'{}' is not a coordinate x1..x{dim}", a.coord),
+                )
+            })?
+        };
         if !(a.min.is_finite() && a.max.is_finite() && a.min <= a.max) {
             return Err(SpecError::new(
                 format!("{key}.min"),
@@ -52,7 +69,7 @@ impl Axis {
         }
         Ok(Self {
             coord: a.coord.clone(),
-            slot: if momentum { n_dof + i } else { i },
+            slot,
             min: a.min,
             max: a.max,
             n: a.n,
@@ -103,13 +120,21 @@ impl std::fmt::Display for Shard {
     }
 }
 
+/// The batched splitting kernel's view of a separable Hamiltonian.
+#[derive(Clone)]
+pub struct Batched {
+    pub lanes: AnyLaneModel,
+    pub coeffs: StepCoeffs,
+}
+
 /// A validated map.
 #[derive(Clone)]
 pub struct MapSpec {
     /// The run shared by every point; its `x0` is the base state the grid coordinates overwrite.
     pub run: RunSpec,
-    pub lanes: AnyLaneModel,
-    pub coeffs: StepCoeffs,
+    /// The batched kernel, for separable Hamiltonians; `None` for other systems, whose points
+    /// run through the one-orbit engine ([`super::one_orbit`]).
+    pub batched: Option<Batched>,
     pub x: Axis,
     pub y: Axis,
     pub indicator: Indicator,
@@ -154,7 +179,8 @@ impl MapSpec {
             Some(_) if e.key == "deviations.k" => SpecError::new("map.k", e.message),
             _ => e,
         })?;
-        let n = run.model.dof();
+        let hamiltonian = run.hamiltonian.clone();
+        let n = run.dim / 2;
         if run.schemes[0].orthonormalize != Orthonormalization::Rescale {
             return Err(SpecError::new(
                 "scheme[0].orthonormalize",
@@ -162,13 +188,23 @@ impl MapSpec {
             ));
         }
         let indicator = Indicator::from_config(map, k)?;
-        let x = Axis::from_config("map.x", &map.x, n)?;
-        let y = Axis::from_config("map.y", &map.y, n)?;
+        let x = Axis::from_config("map.x", &map.x, run.dim, hamiltonian.is_some())?;
+        let y = Axis::from_config("map.y", &map.y, run.dim, hamiltonian.is_some())?;
         if x.slot == y.slot {
             return Err(SpecError::new(
                 "map.y.coord",
                 "x and y are the same coordinate",
             ));
+        }
+        if hamiltonian.is_none() {
+            for (key, present) in [
+                ("orbit.solve_for", cfg.orbit.solve_for.is_some()),
+                ("orbit.energy", cfg.orbit.energy.is_some()),
+            ] {
+                if present {
+                    return Err(SpecError::new(key, "applies to Hamiltonians"));
+                }
+            }
         }
         let solve_for = match (&cfg.orbit.solve_for, cfg.orbit.energy) {
             (Some(name), Some(e)) => {
@@ -202,12 +238,13 @@ impl MapSpec {
                 return Err(SpecError::new("orbit.solve_for", "energy needs solve_for"));
             }
         };
-        let lanes = AnyLaneModel::new(run.model.clone(), cfg.model.beta.or(Some(1.0)));
-        let coeffs = StepCoeffs::new(&run.integrator, run.h);
+        let batched = hamiltonian.map(|parts| Batched {
+            lanes: AnyLaneModel::new(parts.model.clone(), cfg.model.beta.or(Some(1.0))),
+            coeffs: StepCoeffs::new(&parts.splitting, run.h),
+        });
         let config_toml = run.pinned_config(cfg).to_toml();
         Ok(Self {
-            lanes,
-            coeffs,
+            batched,
             x,
             y,
             indicator,
@@ -238,8 +275,10 @@ impl MapSpec {
         let mut x = self.run.x0.clone();
         x[self.x.slot] = self.x.value(ix);
         x[self.y.slot] = self.y.value(iy);
-        if let (Some(j), Some(e)) = (self.solve_for, self.energy) {
-            solve_momentum(self.run.model.as_ref(), &mut x, j, e).map_err(|e| e.message)?;
+        if let (Some(j), Some(e), Some(parts)) =
+            (self.solve_for, self.energy, self.run.hamiltonian.as_ref())
+        {
+            solve_momentum(parts.model.as_ref(), &mut x, j, e).map_err(|e| e.message)?;
         }
         Ok(x)
     }
@@ -248,7 +287,7 @@ impl MapSpec {
     pub fn point_run(&self, x0: &[f64]) -> RunSpec {
         let mut run = self.run.clone();
         run.x0 = x0.to_vec();
-        run.e0 = run.model.energy(x0);
+        run.e0 = run.system.invariant(x0).unwrap_or(0.0);
         run
     }
 

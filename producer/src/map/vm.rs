@@ -16,7 +16,8 @@ pub fn compute(
     index: u64,
     stop: &dyn Fn() -> bool,
 ) -> Option<PointResult> {
-    with_lane_model!(&spec.lanes, |m| compute_with(m, spec, isa, index, stop))
+    let batched = spec.batched.as_ref().expect("the batched kernel runs Hamiltonian maps");
+    with_lane_model!(&batched.lanes, |m| compute_with(m, spec, isa, index, stop))
 }
 
 fn compute_with<M: LaneModel>(
@@ -59,13 +60,13 @@ fn compute_with<M: LaneModel>(
         orbit_steps += w.steps * (1 + (sets.len() * k) as u64);
         record_reference_stages(
             model,
-            &spec.coeffs,
+            &spec.batched.as_ref().expect("checked in compute").coeffs,
             &mut x,
             w.steps,
             &mut stages,
             &mut force,
         );
-        batch::tangent_steps(isa, model, &spec.coeffs, &stages, &mut soa, w.steps);
+        batch::tangent_steps(isa, model, &spec.batched.as_ref().expect("checked in compute").coeffs, &stages, &mut soa, w.steps);
         if let Err(e) = check_escape(&x, w.t) {
             return Some(broke_off(base, w.t, &e, orbit_steps));
         }

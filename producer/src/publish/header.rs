@@ -27,7 +27,11 @@ pub fn run_header(run_name: &str, config: &RunConfig, spec: &RunSpec) -> RunHead
         run_name: run_name.to_string(),
         config_toml: spec.pinned_config(config).to_toml(),
         model: config.model.name.clone(),
-        n: (spec.dim / 2) as u32,
+        n: if spec.hamiltonian.is_some() {
+            (spec.dim / 2) as u32
+        } else {
+            0
+        },
         dim: spec.dim as u32,
         k: spec.k as u32,
         sets: spec.sets() as u32,
@@ -40,5 +44,7 @@ pub fn run_header(run_name: &str, config: &RunConfig, spec: &RunSpec) -> RunHead
         schemes,
         seed: spec.seed,
         producer_version: env!("CARGO_PKG_VERSION").to_string(),
+        kind: spec.system.kind().name().to_string(),
+        time: spec.system.time().name().to_string(),
     }
 }

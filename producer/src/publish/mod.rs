@@ -312,6 +312,7 @@ impl RunPublisher<'_> {
             sample.step,
             sample.t,
             sample.energy,
+            sample.mean_divergence,
             dim,
         );
         self.ports.send(reference, &[&sample.state])?;

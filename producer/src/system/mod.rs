@@ -11,13 +11,15 @@
 //! Kinds, one file each:
 //! - [`SplitHamiltonian`]: a separable Hamiltonian [`Model`] with a symplectic [`Splitting`]
 //!   (built-in models and `[model] name = "potential"`);
-//! - later, beside it: a vector field `dx/dt = f(x)` with a Runge-Kutta tableau (its tangent map
-//!   is the derivative of the Runge-Kutta step, by the expression compiler's automatic
-//!   derivatives), a non-separable Hamiltonian with an implicit Gauss-Legendre method, and a
-//!   discrete map `x -> F(x)` (`Time::Discrete`, `tau` counted in iterations).
+//! - [`RkFlow`]: a vector field `dx/dt = f(x)` with a Runge-Kutta method (its tangent map is the
+//!   derivative of the Runge-Kutta step, from the field's Jacobian-vector product);
+//! - later, beside them: a non-separable Hamiltonian with an implicit Gauss-Legendre method,
+//!   and a discrete map `x -> F(x)` (`Time::Discrete`, `tau` counted in iterations).
 
+mod rk_flow;
 mod split_hamiltonian;
 
+pub use rk_flow::{RkFlow, VectorField};
 pub use split_hamiltonian::SplitHamiltonian;
 
 use crate::integrator::{TangentError, Workspace};
@@ -31,10 +33,56 @@ pub enum Time {
     Discrete,
 }
 
+impl Time {
+    /// As recordings name it (`RunHeader.time`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Time::Continuous { .. } => "continuous",
+            Time::Discrete => "discrete",
+        }
+    }
+}
+
+/// What kind of system a run integrates: decides what the report carries beside the
+/// indicators (the energy error of a Hamiltonian, the mean divergence of a flow or map).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SystemKind {
+    /// Conserves its energy and phase-space volume.
+    Hamiltonian,
+    /// `dx/dt = f(x)`, in general neither.
+    Flow,
+    /// `x -> F(x)`.
+    Map,
+}
+
+impl SystemKind {
+    /// As recordings name it (`RunHeader.kind`).
+    pub fn name(self) -> &'static str {
+        match self {
+            SystemKind::Hamiltonian => "hamiltonian",
+            SystemKind::Flow => "flow",
+            SystemKind::Map => "map",
+        }
+    }
+
+    /// The kind a recording names; an empty name is a recording from before flows and maps,
+    /// all of which were Hamiltonian.
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "" | "hamiltonian" => Some(SystemKind::Hamiltonian),
+            "flow" => Some(SystemKind::Flow),
+            "map" => Some(SystemKind::Map),
+            _ => None,
+        }
+    }
+}
+
 /// One interface for every system the engine runs.
 pub trait DynamicalSystem: Send + Sync {
     /// The model's name as written in configs.
     fn name(&self) -> &str;
+
+    fn kind(&self) -> SystemKind;
 
     /// Dimension `D` of the state (and of every deviation vector).
     fn dim(&self) -> usize;
@@ -53,12 +101,46 @@ pub trait DynamicalSystem: Send + Sync {
         work: &mut Workspace,
     ) -> Result<(), TangentError>;
 
+    /// Advance the reference orbit by one step, appending to `plan` the substeps it took when
+    /// the state chose them (adaptive step-size control), so that the deviation sets follow
+    /// the very same substeps ([`DynamicalSystem::step_along`]) and every scheme sees one
+    /// trajectory. Fixed-step systems leave `plan` alone.
+    fn step_reference(&self, x: &mut [f64], plan: &mut Vec<f64>, work: &mut Workspace) {
+        let _ = plan;
+        self.step(x, work)
+    }
+
+    /// Advance `x` by one step along the substeps `plan` the reference took in it (empty for
+    /// fixed-step systems).
+    fn step_along(&self, x: &mut [f64], plan: &[f64], work: &mut Workspace) {
+        let _ = plan;
+        self.step(x, work)
+    }
+
+    /// [`DynamicalSystem::step_tangent`] along the substeps `plan` the reference took.
+    fn step_tangent_along(
+        &self,
+        x: &mut [f64],
+        w: &mut [f64],
+        plan: &[f64],
+        work: &mut Workspace,
+    ) -> Result<(), TangentError> {
+        let _ = plan;
+        self.step_tangent(x, w, work)
+    }
+
     /// Why the variational method cannot be used (a derivative the system lacks, naming the
     /// operation); `None` when it can.
     fn no_tangent_reason(&self) -> Option<String>;
 
     /// The conserved quantity reported beside the indicators (a Hamiltonian's energy), if any.
     fn invariant(&self, x: &[f64]) -> Option<f64>;
+
+    /// The local rate of phase-space volume change at `x`, whose average along the orbit the
+    /// report carries beside the sum of the Lyapunov exponents: `div f(x)` (the trace of the
+    /// Jacobian) for a flow, `ln |det DF(x)|` per iteration for a map. `None` for systems that
+    /// conserve volume by construction (Hamiltonians).
+    fn divergence(&self, x: &[f64]) -> Option<f64>;
 
     /// What made a state non-finite when stepped from `x` (the last finite state), naming the
     /// operation where the system knows it. Off the hot path: called after a failure.

@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use super::{DynamicalSystem, Time};
+use super::{DynamicalSystem, SystemKind, Time};
 use crate::integrator::{Integrator, Splitting, TangentError, Workspace};
 use crate::model::Model;
 
@@ -18,6 +18,10 @@ pub struct SplitHamiltonian {
 impl DynamicalSystem for SplitHamiltonian {
     fn name(&self) -> &str {
         self.model.name()
+    }
+
+    fn kind(&self) -> SystemKind {
+        SystemKind::Hamiltonian
     }
 
     fn dim(&self) -> usize {
@@ -50,6 +54,10 @@ impl DynamicalSystem for SplitHamiltonian {
 
     fn invariant(&self, x: &[f64]) -> Option<f64> {
         Some(self.model.energy(x))
+    }
+
+    fn divergence(&self, _x: &[f64]) -> Option<f64> {
+        None
     }
 
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {

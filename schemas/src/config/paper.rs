@@ -34,7 +34,7 @@ pub fn henon_heiles(
         p: vec![0.0, 0.0],
         energy: Some(HH_ENERGY),
         solve_for: Some("p1".to_string()),
-        preset: None,
+        ..OrbitConfig::default()
     };
     aba864_run(model, orbit, HH_STEP, t_final, deviations, schemes)
 }
@@ -89,9 +89,7 @@ pub fn fput_beta(
     let orbit = OrbitConfig {
         q: q.to_vec(),
         p: p.to_vec(),
-        energy: None,
-        solve_for: None,
-        preset: None,
+        ..OrbitConfig::default()
     };
     aba864_run(model, orbit, h, t_final, deviations, schemes)
 }
@@ -109,11 +107,7 @@ fn aba864_run(
         run: RunSection::default(),
         model,
         orbit,
-        integrator: IntegratorConfig {
-            method: "aba864".to_string(),
-            h,
-            t_final,
-        },
+        integrator: IntegratorConfig::fixed("aba864", h, t_final),
         deviations,
         schemes,
         sweeps: Vec::new(),

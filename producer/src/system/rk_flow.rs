@@ -1,0 +1,199 @@
+//! A flow `dx/dt = f(x)` advanced by an explicit Runge-Kutta method.
+//!
+//! With a fixed step every engine step is one Runge-Kutta step of size `h`. With error control
+//! (adaptive `dop853`) an engine step spans one interval of the time grid (multiples of `h`):
+//! the reference orbit chooses its substeps there and lands exactly on the grid point, and the
+//! deviation sets (VM's tangent vectors, MPM's nearby orbits) take the very same substeps
+//! ([`DynamicalSystem::step_along`]), so every scheme sees one trajectory, whatever `tau`.
+
+use std::sync::Arc;
+
+use super::{DynamicalSystem, SystemKind, Time};
+use crate::integrator::runge_kutta::{RungeKutta, Tolerances};
+use crate::integrator::{TangentError, Workspace};
+
+/// A vector field `f: R^D -> R^D` with its Jacobian-vector product, what a Runge-Kutta flow
+/// needs (the compiled expressions of `[model] name = "ode"` implement it).
+pub trait VectorField: Send + Sync {
+    /// Dimension `D`.
+    fn dim(&self) -> usize;
+
+    /// `out = f(x)`.
+    fn value(&self, x: &[f64], out: &mut [f64]);
+
+    /// `out = J(x) v`, the derivative of `f` at `x` in direction `v`.
+    fn tangent(&self, x: &[f64], v: &[f64], out: &mut [f64]);
+
+    /// `div f(x)`, the trace of the Jacobian.
+    fn divergence(&self, x: &[f64]) -> f64;
+
+    /// Why `J` is not available (a kink or jump of `f`, naming the operation); `None` when it is.
+    fn no_tangent_reason(&self) -> Option<String>;
+
+    /// The operation that makes `f` non-finite at `x`, if known.
+    fn diagnose_non_finite(&self, x: &[f64]) -> Option<String>;
+}
+
+/// `dx/dt = f(x)` with a Runge-Kutta method of step `h` (or grid `h`, with error control).
+#[derive(Clone)]
+pub struct RkFlow {
+    /// The name recordings carry (`"ode"`).
+    pub name: String,
+    pub field: Arc<dyn VectorField>,
+    pub method: RungeKutta,
+    pub h: f64,
+    /// `Some` for adaptive steps (dop853 only).
+    pub tolerances: Option<Tolerances>,
+}
+
+impl RkFlow {
+    fn substeps<'a>(&'a self, plan: &'a [f64]) -> impl Iterator<Item = f64> + 'a {
+        // A fixed-step flow follows no plan: its one substep is `h`.
+        let fixed = self.tolerances.is_none().then_some(self.h);
+        fixed.into_iter().chain(plan.iter().copied())
+    }
+}
+
+impl DynamicalSystem for RkFlow {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn kind(&self) -> SystemKind {
+        SystemKind::Flow
+    }
+
+    fn dim(&self) -> usize {
+        self.field.dim()
+    }
+
+    fn time(&self) -> Time {
+        Time::Continuous { h: self.h }
+    }
+
+    fn step(&self, x: &mut [f64], work: &mut Workspace) {
+        match self.tolerances {
+            None => self
+                .method
+                .advance(self.field.as_ref(), x, self.h, &mut work.rk),
+            Some(_) => {
+                let mut plan = Vec::new();
+                self.step_reference(x, &mut plan, work);
+            }
+        }
+    }
+
+    fn step_tangent(
+        &self,
+        x: &mut [f64],
+        w: &mut [f64],
+        work: &mut Workspace,
+    ) -> Result<(), TangentError> {
+        match self.tolerances {
+            None => self
+                .method
+                .advance_tangent(self.field.as_ref(), x, w, self.h, &mut work.rk),
+            Some(_) => {
+                // Choose the substeps as the reference does, then follow them.
+                let mut plan = Vec::new();
+                let mut probe = x.to_vec();
+                self.step_reference(&mut probe, &mut plan, work);
+                self.step_tangent_along(x, w, &plan, work)
+            }
+        }
+    }
+
+    fn step_reference(&self, x: &mut [f64], plan: &mut Vec<f64>, work: &mut Workspace) {
+        let Some(tol) = self.tolerances else {
+            return self.step(x, work);
+        };
+        let field = self.field.as_ref();
+        if self
+            .method
+            .step_adaptive(field, x, self.h, tol, plan, &mut work.rk)
+            .is_err()
+        {
+            // The engine stops the run at a non-finite state and asks `diagnose_non_finite`
+            // why; no state past the failure is ever published.
+            x.fill(f64::NAN);
+        }
+    }
+
+    fn step_along(&self, x: &mut [f64], plan: &[f64], work: &mut Workspace) {
+        for h in self.substeps(plan) {
+            self.method.advance(self.field.as_ref(), x, h, &mut work.rk);
+        }
+    }
+
+    fn step_tangent_along(
+        &self,
+        x: &mut [f64],
+        w: &mut [f64],
+        plan: &[f64],
+        work: &mut Workspace,
+    ) -> Result<(), TangentError> {
+        for h in self.substeps(plan) {
+            self.method
+                .advance_tangent(self.field.as_ref(), x, w, h, &mut work.rk)?;
+        }
+        Ok(())
+    }
+
+    fn no_tangent_reason(&self) -> Option<String> {
+        self.field.no_tangent_reason()
+    }
+
+    fn invariant(&self, _x: &[f64]) -> Option<f64> {
+        None
+    }
+
+    fn divergence(&self, x: &[f64]) -> Option<f64> {
+        Some(self.field.divergence(x))
+    }
+
+    fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
+        let field = self.field.as_ref();
+        if let Some(cause) = field.diagnose_non_finite(x) {
+            return Some(cause);
+        }
+        if let Some(tol) = self.tolerances {
+            let mut y = x.to_vec();
+            let mut scratch = Workspace::new();
+            let mut plan = Vec::new();
+            if let Err(e) =
+                self.method
+                    .step_adaptive(field, &mut y, self.h, tol, &mut plan, &mut scratch.rk)
+            {
+                return Some(e.to_string());
+            }
+        }
+        // Replay the step stage by stage: the first stage state where f is not finite.
+        let tableau = self.method.kind.tableau();
+        let dim = x.len();
+        let mut k = vec![0.0; tableau.stages() * dim];
+        let mut xi = vec![0.0; dim];
+        for i in 0..tableau.stages() {
+            for d in 0..dim {
+                let sum: f64 = (0..i).map(|j| tableau.a[i][j] * k[j * dim + d]).sum();
+                xi[d] = x[d] + self.h * sum;
+            }
+            if xi.iter().any(|v| !v.is_finite()) {
+                return Some(format!(
+                    "the Runge-Kutta stage {} overflowed (the solution blows up)",
+                    i + 1
+                ));
+            }
+            let (_, rest) = k.split_at_mut(i * dim);
+            field.value(&xi, &mut rest[..dim]);
+            if rest[..dim].iter().any(|v| !v.is_finite()) {
+                return Some(field.diagnose_non_finite(&xi).unwrap_or_else(|| {
+                    format!(
+                        "f is not finite at the Runge-Kutta stage {} (the solution blows up)",
+                        i + 1
+                    )
+                }));
+            }
+        }
+        None
+    }
+}

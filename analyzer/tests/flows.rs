@@ -87,7 +87,10 @@ fn trajectory(kind: RungeKuttaKind, h: f64, t: f64) -> Vec<f64> {
 }
 
 fn error(a: &[f64], b: &[f64]) -> f64 {
-    a.iter().zip(b).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max)
 }
 
 #[test]
@@ -106,8 +109,20 @@ fn rk4_and_dop853_converge_with_their_orders() {
     // 1 to 3 and fails.
     // (rk4 over t = 1: the error at t = 2 of these steps happens to pass near a cancellation.)
     for (kind, t, steps, order, slack) in [
-        (RungeKuttaKind::Rk4, 1.0, &[0.0025, 0.00125, 0.000625][..], 4.0, 0.3),
-        (RungeKuttaKind::Dop853, 2.0, &[0.05, 0.04, 0.03125, 0.025, 0.02][..], 8.0, 0.5),
+        (
+            RungeKuttaKind::Rk4,
+            1.0,
+            &[0.0025, 0.00125, 0.000625][..],
+            4.0,
+            0.3,
+        ),
+        (
+            RungeKuttaKind::Dop853,
+            2.0,
+            &[0.05, 0.04, 0.03125, 0.025, 0.02][..],
+            8.0,
+            0.5,
+        ),
     ] {
         let reference = trajectory(RungeKuttaKind::Dop853, 0.001, t);
         let errors: Vec<f64> = steps
@@ -120,7 +135,11 @@ fn rk4_and_dop853_converge_with_their_orders() {
         for (w, h) in errors.windows(2).zip(steps.windows(2)) {
             let measured = (w[0] / w[1]).ln() / (h[0] / h[1]).ln();
             eprintln!("{kind:?}: measured order {measured:.3}");
-            let high = if kind == RungeKuttaKind::Dop853 { 11.0 } else { order + slack };
+            let high = if kind == RungeKuttaKind::Dop853 {
+                11.0
+            } else {
+                order + slack
+            };
             assert!(
                 measured > order - slack && measured < high,
                 "{kind:?}: measured order {measured} from errors {errors:?}"
@@ -130,11 +149,7 @@ fn rk4_and_dop853_converge_with_their_orders() {
 }
 
 /// Lorenz by VM and MPM (QR, k = 3) with dop853 at h = 0.01 up to `t_final`.
-fn lorenz_spectrum(
-    flow: Arc<RkFlow>,
-    h: f64,
-    t_final: f64,
-) -> chaoscope_analyzer::report::Report {
+fn lorenz_spectrum(flow: Arc<RkFlow>, h: f64, t_final: f64) -> chaoscope_analyzer::report::Report {
     let config = lorenz_config(
         h,
         t_final,
@@ -188,7 +203,10 @@ fn lorenz_spectrum_with_adaptive_dop853() {
         rtol: 1e-10,
         atol: 1e-10,
     };
-    let report = lorenz_spectrum(lorenz_flow(RungeKuttaKind::Dop853, 0.5, Some(tol)), 0.5, 1e4);
+    let report = lorenz_spectrum(
+        lorenz_flow(RungeKuttaKind::Dop853, 0.5, Some(tol)),
+        0.5,
+        1e4,
+    );
     check_lorenz_spectrum(&report);
 }
-

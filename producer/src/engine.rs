@@ -348,9 +348,7 @@ struct Plan<'a> {
 
 impl Plan<'_> {
     fn steps(&self) -> impl Iterator<Item = &[f64]> + '_ {
-        self.bounds
-            .windows(2)
-            .map(|b| &self.substeps[b[0]..b[1]])
+        self.bounds.windows(2).map(|b| &self.substeps[b[0]..b[1]])
     }
 }
 

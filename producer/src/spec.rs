@@ -472,7 +472,10 @@ impl RunSpec {
     /// x` is its initial state, `[integrator] h` and `t_final` its time grid (`h` must be the
     /// system's own step), everything else is validated as usual; `cfg.model.name` is the name
     /// recordings carry.
-    pub fn with_system(cfg: &RunConfig, system: Arc<dyn DynamicalSystem>) -> Result<Self, SpecError> {
+    pub fn with_system(
+        cfg: &RunConfig,
+        system: Arc<dyn DynamicalSystem>,
+    ) -> Result<Self, SpecError> {
         let expanded = cfg
             .with_sweeps_expanded()
             .map_err(|e| SpecError::new(e.key, e.message))?;

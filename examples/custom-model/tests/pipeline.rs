@@ -47,7 +47,10 @@ fn records_and_analyzes_like_a_built_in_model() {
     assert_eq!(report.run.model, "barbanis");
     assert_eq!(report.run.t, 500.0);
     // ABA864 with h = 0.01 on a smooth bounded orbit: energy error at the 1e-10 level.
-    let energy_error = report.run.energy_error_max.expect("a Hamiltonian's energy error");
+    let energy_error = report
+        .run
+        .energy_error_max
+        .expect("a Hamiltonian's energy error");
     assert!(energy_error < 1e-8, "{energy_error}");
     let vm = report.scheme("vm").unwrap();
     let mpm = report.scheme("mpm").unwrap();

@@ -27,8 +27,13 @@ pub fn compute(
     indices: &[u64],
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
-    let batched = spec.batched.as_ref().expect("the batched kernel runs Hamiltonian maps");
-    with_lane_model!(&batched.lanes, |m| compute_with(m, spec, isa, indices, stop))
+    let batched = spec
+        .batched
+        .as_ref()
+        .expect("the batched kernel runs Hamiltonian maps");
+    with_lane_model!(&batched.lanes, |m| compute_with(
+        m, spec, isa, indices, stop
+    ))
 }
 
 fn compute_with<M: LaneModel>(
@@ -82,7 +87,13 @@ fn compute_with<M: LaneModel>(
             break;
         }
         let Some(w) = windows.next() else { break };
-        batch::orbit_steps(isa, model, &spec.batched.as_ref().expect("checked in compute").coeffs, &mut soa, w.steps);
+        batch::orbit_steps(
+            isa,
+            model,
+            &spec.batched.as_ref().expect("checked in compute").coeffs,
+            &mut soa,
+            w.steps,
+        );
         let mut changed = false;
         let mut keep = Vec::with_capacity(live.len());
         for mut p in live.drain(..) {

@@ -16,7 +16,10 @@ pub fn compute(
     index: u64,
     stop: &dyn Fn() -> bool,
 ) -> Option<PointResult> {
-    let batched = spec.batched.as_ref().expect("the batched kernel runs Hamiltonian maps");
+    let batched = spec
+        .batched
+        .as_ref()
+        .expect("the batched kernel runs Hamiltonian maps");
     with_lane_model!(&batched.lanes, |m| compute_with(m, spec, isa, index, stop))
 }
 
@@ -66,7 +69,14 @@ fn compute_with<M: LaneModel>(
             &mut stages,
             &mut force,
         );
-        batch::tangent_steps(isa, model, &spec.batched.as_ref().expect("checked in compute").coeffs, &stages, &mut soa, w.steps);
+        batch::tangent_steps(
+            isa,
+            model,
+            &spec.batched.as_ref().expect("checked in compute").coeffs,
+            &stages,
+            &mut soa,
+            w.steps,
+        );
         if let Err(e) = check_escape(&x, w.t) {
             return Some(broke_off(base, w.t, &e, orbit_steps));
         }

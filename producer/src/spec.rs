@@ -627,7 +627,7 @@ impl RunSpec {
             return Err(SpecError::new(
                 "deviations.k",
                 format!(
-                    "must be between 1 and the dimension {} = {dim}, got {}",
+                    "must be between 1 and {} = {dim} (the dimension), got {}",
                     if hamiltonian.is_some() { "2N" } else { "D" },
                     dev.k
                 ),

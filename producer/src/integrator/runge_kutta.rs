@@ -9,6 +9,10 @@
 //! computed by one function for both, so a tangent step moves its copy of the orbit to exactly
 //! the bits of a plain step.
 
+// The stage loops index several arrays (stage rows, the state, the tableau) by the same
+// coordinate; iterators over one of them would hide that symmetry.
+#![allow(clippy::needless_range_loop)]
+
 use super::{Integrator, TangentError, Workspace};
 use crate::system::VectorField;
 
@@ -435,7 +439,7 @@ impl RungeKutta {
             // Within 1 % of the end, land on it: never leave a sliver of a step behind.
             let last = proposal * 1.01 >= remaining;
             let h = if last { remaining } else { proposal };
-            if !(h > span * 1e-14) {
+            if h.is_nan() || h <= span * 1e-14 {
                 return Err(AdaptiveError::StepUnderflow { h, at: done });
             }
             self.stages(f, x, h, s);

@@ -343,7 +343,6 @@ impl MapPair {
 mod expressions {
     use std::time::Instant;
 
-    use chaoscope_expr::jit::StepBackend;
     use chaoscope_producer::batch::{Isa, LaneModel};
     use chaoscope_producer::engine::Engine;
     use chaoscope_producer::map::MapSpec;
@@ -461,7 +460,7 @@ mod expressions {
         let wall = started.elapsed().as_secs_f64();
         match c {
             Ok(k) => {
-                let cached = matches!(k.backend(), StepBackend::C { cached: true, .. });
+                let cached = model.c_step_kernels_cached(k);
                 serde_json::json!({
                     "backend": "c",
                     "loaded_from_cache": cached,

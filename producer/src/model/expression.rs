@@ -212,6 +212,11 @@ impl ExpressionModel {
         self.c_step_kernels().unwrap_or(&self.0.steps)
     }
 
+    /// Whether the C kernels `k` were loaded from the kernel cache rather than compiled.
+    pub fn c_step_kernels_cached(&self, k: &StepKernels) -> bool {
+        matches!(k.backend(), jit::StepBackend::C { cached: true, .. })
+    }
+
     /// The Cranelift step kernels (compiled with the model).
     pub fn cranelift_step_kernels(&self) -> &StepKernels {
         &self.0.steps

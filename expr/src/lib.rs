@@ -29,9 +29,9 @@ pub mod lower;
 pub mod parser;
 pub mod smooth;
 pub mod table;
-pub mod vector;
 #[cfg(test)]
 mod testing;
+pub mod vector;
 
 pub use diff::{DiffError, directional, gradient, jacobian, jacobian_vector};
 pub use error::{ExprError, Span};

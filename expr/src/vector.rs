@@ -200,9 +200,8 @@ impl VectorFunction {
                 outputs: vec![divergence],
             },
         ];
-        let compiled = jit::compile(&graph, &specs).map_err(|e| {
-            VectorError::Other(format!("compiling {}: {e}", definition.key))
-        })?;
+        let compiled = jit::compile(&graph, &specs)
+            .map_err(|e| VectorError::Other(format!("compiling {}: {e}", definition.key)))?;
         for (f, args) in [(VALUE, 1), (TANGENT, 2), (DIVERGENCE, 1)] {
             for a in 0..args {
                 if compiled.arg_len(f, a) > d {

@@ -4,7 +4,9 @@
 
 use std::collections::BTreeMap;
 
-use chaoscope_expr::{Boundary, Evaluator, ParamValue, VectorDefinition, VectorError, VectorFunction};
+use chaoscope_expr::{
+    Boundary, Evaluator, ParamValue, VectorDefinition, VectorError, VectorFunction,
+};
 
 fn definition(key: &str, components: &[&str], params: &[(&str, ParamValue)]) -> VectorDefinition {
     VectorDefinition {
@@ -22,7 +24,11 @@ fn definition(key: &str, components: &[&str], params: &[(&str, ParamValue)]) -> 
 fn lorenz() -> VectorFunction {
     VectorFunction::new(definition(
         "rhs",
-        &["sigma * (x2 - x1)", "x1 * (rho - x3) - x2", "x1 * x2 - beta * x3"],
+        &[
+            "sigma * (x2 - x1)",
+            "x1 * (rho - x3) - x2",
+            "x1 * x2 - beta * x3",
+        ],
         &[
             ("sigma", ParamValue::Scalar(10.0)),
             ("rho", ParamValue::Scalar(28.0)),
@@ -157,7 +163,10 @@ fn henon_map_jacobian() {
     let f = VectorFunction::new(definition(
         "next",
         &["1 - a * x1^2 + x2", "b * x1"],
-        &[("a", ParamValue::Scalar(1.4)), ("b", ParamValue::Scalar(0.3))],
+        &[
+            ("a", ParamValue::Scalar(1.4)),
+            ("b", ParamValue::Scalar(0.3)),
+        ],
     ))
     .unwrap();
     for seed in 0..10 {
@@ -175,8 +184,8 @@ fn henon_map_jacobian() {
 
 #[test]
 fn errors_name_the_component_with_line_column_and_caret() {
-    let e = VectorFunction::new(definition("next", &["x1 + x2", "x1 +\n  sinn(x2)"], &[]))
-        .unwrap_err();
+    let e =
+        VectorFunction::new(definition("next", &["x1 + x2", "x1 +\n  sinn(x2)"], &[])).unwrap_err();
     let VectorError::Component {
         component, error, ..
     } = &e
@@ -193,7 +202,10 @@ fn errors_name_the_component_with_line_column_and_caret() {
 
     // A variable beyond the dimension is a typo, named with the component.
     let e = VectorFunction::new(definition("rhs", &["x3", "x1"], &[])).unwrap_err();
-    assert!(e.to_string().starts_with("rhs[1]: line 1, column 1:"), "{e}");
+    assert!(
+        e.to_string().starts_with("rhs[1]: line 1, column 1:"),
+        "{e}"
+    );
     assert!(e.to_string().contains("x3"), "{e}");
 
     let e = VectorFunction::new(definition("rhs", &[], &[])).unwrap_err();

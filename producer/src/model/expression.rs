@@ -13,7 +13,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 use std::time::Duration;
 
-use chaoscope_expr::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
+use chaoscope_expr::graph::{Graph, NodeId, Tabulated};
 use chaoscope_expr::jit::{Compiled, FunctionSpec, Layout, ScalarFnPtr, StepKernels, StepSpec};
 use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope};
 use chaoscope_expr::smooth::Smoothness;

@@ -44,10 +44,7 @@ impl Map {
                 modulo.len()
             ));
         }
-        if let Some(i) = modulo
-            .iter()
-            .position(|p| !(p.is_finite() && *p >= 0.0))
-        {
+        if let Some(i) = modulo.iter().position(|p| !(p.is_finite() && *p >= 0.0)) {
             return Err(format!(
                 "entry {} must be a period > 0 or 0 for none, got {}",
                 i + 1,
@@ -246,18 +243,33 @@ mod tests {
     #[test]
     fn wrap_lands_in_the_period() {
         let p = std::f64::consts::TAU;
-        for x in [0.0, -0.0, 1.0, p, -1e-300, -1e-17, 7.0 * p + 0.5, -3.0 * p - 0.25] {
+        for x in [
+            0.0,
+            -0.0,
+            1.0,
+            p,
+            -1e-300,
+            -1e-17,
+            7.0 * p + 0.5,
+            -3.0 * p - 0.25,
+        ] {
             let r = wrap_coordinate(x, p);
             assert!((0.0..p).contains(&r), "{x} -> {r}");
         }
         assert_eq!(wrap_coordinate(-1e-17, p), 0.0);
-        assert!(wrap_coordinate(f64::NAN, p).is_nan() && wrap_coordinate(f64::INFINITY, p).is_nan());
+        assert!(
+            wrap_coordinate(f64::NAN, p).is_nan() && wrap_coordinate(f64::INFINITY, p).is_nan()
+        );
     }
 
     #[test]
     fn standard_map_wraps_and_measures_separations_on_the_torus() {
         let p = std::f64::consts::TAU;
-        let m = map(&["x1 + x2 + K * sin(x1)", "x2 + K * sin(x1)"], &[("K", 1.0)], vec![p, p]);
+        let m = map(
+            &["x1 + x2 + K * sin(x1)", "x2 + K * sin(x1)"],
+            &[("K", 1.0)],
+            vec![p, p],
+        );
         let mut x = vec![6.0, 6.2];
         let mut w = Workspace::new();
         for _ in 0..100 {
@@ -269,14 +281,21 @@ mod tests {
         m.separation(&[1e-9, 3.0], &[p - 9e-9, 3.0], &mut d);
         assert!((d[0] - 1e-8).abs() < 1e-15, "{d:?}");
         m.separation(&[p - 9e-9, 3.0], &[1e-9, 3.0 + 1e-8], &mut d);
-        assert!((d[0] + 1e-8).abs() < 1e-15 && (d[1] + 1e-8).abs() < 1e-15, "{d:?}");
+        assert!(
+            (d[0] + 1e-8).abs() < 1e-15 && (d[1] + 1e-8).abs() < 1e-15,
+            "{d:?}"
+        );
         // Area-preserving: ln |det J| = 0 to rounding.
         assert!(m.log_abs_det_jacobian(&x).unwrap().abs() < 1e-15);
     }
 
     #[test]
     fn henon_tangent_and_determinant() {
-        let m = map(&["1 - a * x1^2 + x2", "b * x1"], &[("a", 1.4), ("b", 0.3)], vec![]);
+        let m = map(
+            &["1 - a * x1^2 + x2", "b * x1"],
+            &[("a", 1.4), ("b", 0.3)],
+            vec![],
+        );
         let mut x = vec![0.1, 0.2];
         let mut v = vec![1.0, 0.0, 0.0, 1.0];
         let mut w = Workspace::new();
@@ -297,7 +316,15 @@ mod tests {
     fn bad_modulo_is_refused() {
         let f = map(&["x1", "x2"], &[], vec![]).function().clone();
         assert!(Map::new(f.clone(), vec![1.0]).unwrap_err().contains("2"));
-        assert!(Map::new(f.clone(), vec![1.0, -1.0]).unwrap_err().contains("entry 2"));
-        assert!(Map::new(f, vec![f64::NAN, 0.0]).unwrap_err().contains("entry 1"));
+        assert!(
+            Map::new(f.clone(), vec![1.0, -1.0])
+                .unwrap_err()
+                .contains("entry 2")
+        );
+        assert!(
+            Map::new(f, vec![f64::NAN, 0.0])
+                .unwrap_err()
+                .contains("entry 1")
+        );
     }
 }

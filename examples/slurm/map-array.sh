@@ -11,8 +11,9 @@
 # A task that is preempted or hits its time limit is simply resubmitted (Slurm's --requeue, or
 # by hand: `sbatch --array=<i> ...`): `chaoscope map` resumes from its shard's recording.
 #
-# Environment: CHAOSCOPE (path of the binary, default: `chaoscope` on PATH), and the usual
-# sbatch settings (SBATCH_PARTITION, SBATCH_ACCOUNT, ...). Adjust the resources below.
+# Environment: CHAOSCOPE (path of the binary, default: `chaoscope` on PATH); the resources of
+# each array task: CPUS_PER_TASK (default 4), MEM_PER_CPU (500M), TIME_LIMIT (02:00:00); and the
+# usual sbatch settings (SBATCH_PARTITION, SBATCH_ACCOUNT, ...).
 set -euo pipefail
 
 if [[ $# -lt 2 ]]; then
@@ -30,9 +31,9 @@ mkdir -p "$OUT/logs"
 array_job=$(sbatch --parsable \
     --job-name=chaoscope-map \
     --array=0-$((SHARDS - 1)) \
-    --cpus-per-task=4 \
-    --mem-per-cpu=500M \
-    --time=02:00:00 \
+    --cpus-per-task="${CPUS_PER_TASK:-4}" \
+    --mem-per-cpu="${MEM_PER_CPU:-500M}" \
+    --time="${TIME_LIMIT:-02:00:00}" \
     --requeue \
     --output="$OUT/logs/shard-%a.out" \
     --wrap="'$CHAOSCOPE' map '$CONFIG' --shard \$SLURM_ARRAY_TASK_ID/$SHARDS \
@@ -49,4 +50,5 @@ merge_job=$(sbatch --parsable \
     --wrap="'$CHAOSCOPE' merge '$OUT'/shard-*.mcap --out '$OUT'/map.mcap --png '$OUT'/map.png --force --json")
 
 echo "submitted array job $array_job ($SHARDS shards) and merge job $merge_job"
+echo "array_job=$array_job merge_job=$merge_job"
 echo "results: $OUT/map.mcap, $OUT/map.png"

@@ -322,10 +322,15 @@ impl DeviationSet {
                 if !renormalize {
                     return Ok(None);
                 }
-                orbits
-                    .chunks_exact(dim)
-                    .flat_map(|y| y.iter().zip(reference).map(|(a, b)| a - b))
-                    .collect()
+                // Measured as the system measures separations (on the torus for angles).
+                let mut separations = vec![0.0; orbits.len()];
+                for (d, y) in separations
+                    .chunks_exact_mut(dim)
+                    .zip(orbits.chunks_exact(dim))
+                {
+                    system.separation(y, reference, d);
+                }
+                separations
             }
         };
         let raw = separations.clone();

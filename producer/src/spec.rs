@@ -14,6 +14,7 @@ use crate::renormalization::Orthonormalization;
 use crate::system::{DynamicalSystem, SplitHamiltonian};
 
 mod potential;
+pub mod vector;
 
 pub use potential::{TableDigest, pin_tables};
 

@@ -13,7 +13,7 @@ use std::collections::{BTreeMap, HashMap};
 use std::sync::Arc;
 use std::time::Duration;
 
-use chaoscope_expr::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
+use chaoscope_expr::graph::{Graph, NodeId, Tabulated};
 use chaoscope_expr::jit::{Compiled, FunctionSpec, Layout, ScalarFnPtr, StepKernels, StepSpec};
 use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope};
 use chaoscope_expr::smooth::Smoothness;
@@ -203,38 +203,10 @@ impl ExpressionModel {
         &self.0.steps
     }
 
-    /// A readable name of a node's operation for messages.
-    fn operation(node: &Node) -> String {
-        match node {
-            Node::Unary(u, _) => match u {
-                Unary::Neg => "unary -".into(),
-                other => format!("{other:?}").to_lowercase(),
-            },
-            Node::Binary(b, _, _) => match b {
-                Binary::Add => "+".into(),
-                Binary::Sub => "-".into(),
-                Binary::Mul => "*".into(),
-                Binary::Div => "/".into(),
-                Binary::Pow => "^".into(),
-                other => format!("{other:?}").to_lowercase(),
-            },
-            Node::Powi(_, n) => format!("^{n}"),
-            Node::Select { .. } => "if".into(),
-            Node::Table { table, .. } => format!("table {table}"),
-            Node::Const(_) | Node::Input { .. } => "value".into(),
-        }
-    }
-
     fn describe(&self, id: NodeId, q: &[f64], what: &str) -> String {
-        let node = self.0.graph.node(id);
         let mut value = [0.0];
         eval::Evaluator::new().eval(&self.0.graph, &[q], &[id], &mut value);
-        let op = match node {
-            Node::Table { table, .. } => {
-                format!("table '{}'", self.0.graph.tables()[*table as usize].name())
-            }
-            other => format!("'{}'", Self::operation(other)),
-        };
+        let op = self.0.graph.operation_name(id);
         match self.0.origins.get(&id) {
             Some(span) => {
                 let at = chaoscope_expr::ExprError::new(&self.0.definition.potential, *span, "");

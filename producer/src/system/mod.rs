@@ -13,11 +13,14 @@
 //!   (built-in models and `[model] name = "potential"`);
 //! - later, beside it: a vector field `dx/dt = f(x)` with a Runge-Kutta tableau (its tangent map
 //!   is the derivative of the Runge-Kutta step, by the expression compiler's automatic
-//!   derivatives), a non-separable Hamiltonian with an implicit Gauss-Legendre method, and a
-//!   discrete map `x -> F(x)` (`Time::Discrete`, `tau` counted in iterations).
+//!   derivatives), and a non-separable Hamiltonian with an implicit Gauss-Legendre method;
+//! - [`Map`]: a discrete map `x -> F(x)` (`[model] name = "map"`, `Time::Discrete`, `tau`
+//!   counted in iterations), angles taken modulo their period.
 
+mod map;
 mod split_hamiltonian;
 
+pub use map::{Map, wrap_coordinate};
 pub use split_hamiltonian::SplitHamiltonian;
 
 use crate::integrator::{TangentError, Workspace};
@@ -63,4 +66,14 @@ pub trait DynamicalSystem: Send + Sync {
     /// What made a state non-finite when stepped from `x` (the last finite state), naming the
     /// operation where the system knows it. Off the hot path: called after a failure.
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String>;
+
+    /// The separation `out = y - x` of a nearby state `y` from the reference `x`, as the
+    /// multi-particle method measures it: the plain difference, except on a system with
+    /// periodic coordinates (a map's angles), whose separations are taken on the torus.
+    #[inline]
+    fn separation(&self, y: &[f64], x: &[f64], out: &mut [f64]) {
+        for ((o, a), b) in out.iter_mut().zip(y).zip(x) {
+            *o = a - b;
+        }
+    }
 }

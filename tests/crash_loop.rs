@@ -199,7 +199,11 @@ impl Bus {
             .filter(|rel| rel.components().count() > 1)
             .map(|rel| rel.components().next().unwrap().as_os_str().to_owned())
             .collect();
-        assert_eq!(node_dirs.len(), 1, "node records of more than one node: {files:#?}");
+        assert_eq!(
+            node_dirs.len(),
+            1,
+            "node records of more than one node: {files:#?}"
+        );
         if let Some(base) = baseline {
             assert_eq!(
                 counts,
@@ -235,7 +239,11 @@ fn read_or_recover(file: &Path, dir: &Path, i: usize) -> Option<(Recorded, bool)
         .unwrap();
     if meta.len() < 8 {
         // Killed before the magic was written: recover must say so, not salvage garbage.
-        assert!(!out.status.success(), "recover accepted a {}-byte file", meta.len());
+        assert!(
+            !out.status.success(),
+            "recover accepted a {}-byte file",
+            meta.len()
+        );
         return None;
     }
     assert!(
@@ -351,7 +359,11 @@ fn killing_any_process_at_any_moment_loses_nothing_but_the_tail_and_leaves_no_st
                 (summary.run_status.as_str(), summary.frames_missing),
                 ("completed", 0)
             );
-            assert_eq!(rec.references.len(), expected.len(), "stopped recorder lost samples");
+            assert_eq!(
+                rec.references.len(),
+                expected.len(),
+                "stopped recorder lost samples"
+            );
             assert_contiguous(&rec.frames);
             assert_bit_identical(&rec, &expected);
             eprintln!("crash loop {i}: recorder stopped {STOP_FOR:?}: complete, identical");
@@ -407,7 +419,10 @@ fn killing_any_process_at_any_moment_loses_nothing_but_the_tail_and_leaves_no_st
                 "killed before the two met; the survivor waited, stopped by SIGINT"
             } else {
                 let status = survivor.wait(LIMIT);
-                assert!(status.success(), "run {i}: the survivor of a {what}: {status}");
+                assert!(
+                    status.success(),
+                    "run {i}: the survivor of a {what}: {status}"
+                );
                 what
             }
         };
@@ -422,7 +437,10 @@ fn killing_any_process_at_any_moment_loses_nothing_but_the_tail_and_leaves_no_st
             }
             Some((rec, recovered)) => {
                 if waited_for_peer {
-                    assert!(rec.frames.is_empty(), "run {i}: data recorded, yet a peer waited");
+                    assert!(
+                        rec.frames.is_empty(),
+                        "run {i}: data recorded, yet a peer waited"
+                    );
                 }
                 if victim == Victim::Producer && !stop_run && !waited_for_peer {
                     let s = rec.recording.as_ref().expect("finalized by the recorder");
@@ -443,7 +461,10 @@ fn killing_any_process_at_any_moment_loses_nothing_but_the_tail_and_leaves_no_st
             eprintln!(
                 "crash loop {i}: {outcome} after {:.3} s: {checked}, {} samples",
                 delay.as_secs_f64(),
-                salvaged.last().filter(|_| checked != "no file").unwrap_or(&0)
+                salvaged
+                    .last()
+                    .filter(|_| checked != "no file")
+                    .unwrap_or(&0)
             );
             *tally.entry((victim, checked)).or_default() += 1;
         }

@@ -95,7 +95,10 @@ fn command(job: &Job, out: &Path, bus: &Path) -> Command {
 fn four_runs_and_two_maps_at_once_with_monitors_coming_and_going_match_runs_made_alone() {
     let started = Instant::now();
     let work = tempfile::tempdir().unwrap();
-    let bus = tempfile::Builder::new().prefix("load-bus").tempdir().unwrap();
+    let bus = tempfile::Builder::new()
+        .prefix("load-bus")
+        .tempdir()
+        .unwrap();
     let tag = unique_run("load");
     let mut jobs = Vec::new();
     // Four different runs (orbit length, tau, sets): distinct services, distinct data.

@@ -39,7 +39,12 @@ impl OtherUser {
     fn create() -> Self {
         let name = format!("csother{}", std::process::id());
         let out = Command::new("useradd")
-            .args(["--system", "--no-create-home", "--shell", "/usr/sbin/nologin"])
+            .args([
+                "--system",
+                "--no-create-home",
+                "--shell",
+                "/usr/sbin/nologin",
+            ])
             .arg(&name)
             .output()
             .expect("useradd (package passwd) must be installed");
@@ -77,7 +82,11 @@ impl Drop for OtherUser {
         // What chaoscope made for that user: its bus directory and its node counter segment.
         let _ = std::fs::remove_dir_all(format!("/tmp/chaoscope-bus-{}", self.uid));
         let mine = format!("cs{}_", self.uid);
-        for e in std::fs::read_dir("/dev/shm").into_iter().flatten().flatten() {
+        for e in std::fs::read_dir("/dev/shm")
+            .into_iter()
+            .flatten()
+            .flatten()
+        {
             if e.file_name().to_string_lossy().starts_with(&mine) {
                 let _ = std::fs::remove_file(e.path());
             }
@@ -124,7 +133,11 @@ fn another_local_user_cannot_read_inject_or_delete_a_run() {
     );
     let domain = bus::domain().expect("the bus directory");
     let meta = std::fs::symlink_metadata(&domain.root).unwrap();
-    assert_eq!(meta.permissions().mode() & 0o777, 0o700, "bus directory mode");
+    assert_eq!(
+        meta.permissions().mode() & 0o777,
+        0o700,
+        "bus directory mode"
+    );
     assert_eq!(meta.uid(), euid);
 
     let work = tempfile::tempdir().unwrap();
@@ -177,10 +190,17 @@ fn another_local_user_cannot_read_inject_or_delete_a_run() {
 
     let spec = format!("{}|{}|{run}", domain.root.display(), domain.prefix);
     let probe = |cmd: &mut Command| -> Output {
-        cmd.args(["--exact", "probe", "--ignored", "--nocapture", "--test-threads", "1"])
-            .env(PROBE_ENV, &spec)
-            .output()
-            .unwrap()
+        cmd.args([
+            "--exact",
+            "probe",
+            "--ignored",
+            "--nocapture",
+            "--test-threads",
+            "1",
+        ])
+        .env(PROBE_ENV, &spec)
+        .output()
+        .unwrap()
     };
 
     // The victim's own probe can do everything (it deletes nothing): the refusals below are the
@@ -202,7 +222,10 @@ fn another_local_user_cannot_read_inject_or_delete_a_run() {
             text(&own)
         );
     }
-    assert_eq!(own_results.get("segments_read_denied").map(String::as_str), Some("0"));
+    assert_eq!(
+        own_results.get("segments_read_denied").map(String::as_str),
+        Some("0")
+    );
 
     // The other user, with a hostile program of their own.
     let attack = probe(&mut other.command(&probe_exe));
@@ -239,7 +262,15 @@ fn another_local_user_cannot_read_inject_or_delete_a_run() {
     // ... and the victim's directory is refused, not used.
     let mut record = other.command(&chaoscope_exe);
     record
-        .args(["record", "--run", &run, "--wait-timeout", "1", "--out", "/tmp/x.mcap"])
+        .args([
+            "record",
+            "--run",
+            &run,
+            "--wait-timeout",
+            "1",
+            "--out",
+            "/tmp/x.mcap",
+        ])
         .env(BUS_DIR_ENV, &domain.root);
     let m = record.output().unwrap();
     let said = text(&m);
@@ -293,9 +324,7 @@ fn probe() {
         .global
         .set_root_path(&iceoryx2::prelude::Path::new(format!("{root}/").as_bytes()).unwrap());
     config.global.prefix = FileName::new(prefix.as_bytes()).unwrap();
-    let node = NodeBuilder::new()
-        .config(&config)
-        .create::<ipc::Service>();
+    let node = NodeBuilder::new().config(&config).create::<ipc::Service>();
     say("create_node", &denied(node.is_ok()));
     let mut opened = 0;
     let mut subscribed = false;
@@ -316,10 +345,11 @@ fn probe() {
             stream::MONITOR,
         ] {
             let name: ServiceName = service_name(run, s).as_str().try_into().unwrap();
-            let exists = ipc::Service::does_exist(&name, &config, MessagingPattern::PublishSubscribe)
-                .unwrap_or(false)
-                || ipc::Service::does_exist(&name, &config, MessagingPattern::Event)
-                    .unwrap_or(false);
+            let exists =
+                ipc::Service::does_exist(&name, &config, MessagingPattern::PublishSubscribe)
+                    .unwrap_or(false)
+                    || ipc::Service::does_exist(&name, &config, MessagingPattern::Event)
+                        .unwrap_or(false);
             opened += usize::from(exists);
         }
         if let Ok(monitor) = bus::monitor_service(node, run, bus::MONITOR_BUFFER)

@@ -89,11 +89,17 @@ impl Place {
         let parent = self.root.path().parent().unwrap();
         for e in std::fs::read_dir(parent).unwrap().flatten() {
             let name = e.file_name().to_string_lossy().into_owned();
-            assert!(!name.starts_with("escaped"), "{args:?} wrote {name} beside the root");
+            assert!(
+                !name.starts_with("escaped"),
+                "{args:?} wrote {name} beside the root"
+            );
         }
         out
     }
 }
+
+/// A change to a recording's run header.
+type HeaderEdit = Box<dyn Fn(&mut chaoscope_schemas::proto::RunHeader)>;
 
 fn recording_with(path: &Path, edit: impl FnOnce(&mut chaoscope_schemas::proto::RunHeader)) {
     let shape = Shape {
@@ -146,22 +152,35 @@ fn analyze_writes_csv_and_plots_only_into_the_directories_given() {
         ],
         &allowed,
     );
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert!(csv.join("mpm.csv").exists());
     assert!(plot.join("gali_mpm.png").exists() || plot.join("gali_mpm.svg").exists());
     std::fs::remove_dir_all(&csv).unwrap();
     std::fs::remove_dir_all(&plot).unwrap();
 
-    let hostile: Vec<(&str, Box<dyn Fn(&mut chaoscope_schemas::proto::RunHeader)>)> = vec![
-        ("dot-dot", Box::new(|h| h.schemes[0].name = "../../escaped".into())),
+    let hostile: Vec<(&str, HeaderEdit)> = vec![
+        (
+            "dot-dot",
+            Box::new(|h| h.schemes[0].name = "../../escaped".into()),
+        ),
         ("absolute", {
             let o = outside.clone();
             Box::new(move |h| h.schemes[0].name = o.clone())
         }),
         ("slash", Box::new(|h| h.schemes[0].name = "a/b".into())),
-        ("newline", Box::new(|h| h.schemes[0].name = "x\n../../escaped".into())),
+        (
+            "newline",
+            Box::new(|h| h.schemes[0].name = "x\n../../escaped".into()),
+        ),
         ("empty", Box::new(|h| h.schemes[0].name = String::new())),
-        ("long", Box::new(|h| h.schemes[0].name = "a".repeat(100_000))),
+        (
+            "long",
+            Box::new(|h| h.schemes[0].name = "a".repeat(100_000)),
+        ),
         (
             "duplicate",
             Box::new(|h| {
@@ -189,7 +208,11 @@ fn analyze_writes_csv_and_plots_only_into_the_directories_given() {
         assert_eq!(out.status.code(), Some(1), "{what}: {stderr}");
         assert_eq!(stderr.trim_end().lines().count(), 1, "{what}: {stderr}");
         assert!(stderr.contains("scheme name"), "{what}: {stderr}");
-        assert!(stderr.len() < 500, "{what}: {} bytes of error", stderr.len());
+        assert!(
+            stderr.len() < 500,
+            "{what}: {} bytes of error",
+            stderr.len()
+        );
         assert!(!csv.exists() && !plot.exists(), "{what}: directories made");
     }
 }
@@ -224,7 +247,7 @@ fn replay_writes_only_its_output_whatever_the_recorded_config_names() {
                 "--out",
                 new.to_str().unwrap(),
             ],
-            &[new.clone()],
+            std::slice::from_ref(&new),
         );
         let stderr = String::from_utf8_lossy(&out.stderr);
         eprintln!("replay {i}: {:?}: {}", out.status.code(), stderr.trim());
@@ -252,7 +275,8 @@ fn resuming_a_foreign_map_writes_nothing_and_leaves_it_untouched() {
         ),
         (
             "climbing names",
-            include_str!("data/hh-map-small.toml").replace("name = \"mpm\"", "name = \"../../escaped\""),
+            include_str!("data/hh-map-small.toml")
+                .replace("name = \"mpm\"", "name = \"../../escaped\""),
         ),
     ] {
         let header = MapHeader {
@@ -288,6 +312,10 @@ fn resuming_a_foreign_map_writes_nothing_and_leaves_it_untouched() {
         );
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(1), "{what}: {stderr}");
-        assert_eq!(std::fs::read(&map).unwrap(), bytes, "{what}: the map was changed");
+        assert_eq!(
+            std::fs::read(&map).unwrap(),
+            bytes,
+            "{what}: the map was changed"
+        );
     }
 }

@@ -179,8 +179,8 @@ fn make_domain(root: PathBuf) -> Result<Domain, String> {
         Err(e) => return Err(format!("creating {}: {e}", root.display())),
     }
     // lstat: a symbolic link planted by someone else is refused, not followed.
-    let meta = std::fs::symlink_metadata(&root)
-        .map_err(|e| format!("reading {}: {e}", root.display()))?;
+    let meta =
+        std::fs::symlink_metadata(&root).map_err(|e| format!("reading {}: {e}", root.display()))?;
     if !meta.file_type().is_dir() {
         return Err(format!(
             "{} is not a directory (a link or file someone else may have planted); remove it",
@@ -202,7 +202,10 @@ fn make_domain(root: PathBuf) -> Result<Domain, String> {
     }
     // The user and the directory in every segment name: users never collide in /dev/shm, and
     // neither do two bus directories of one user (separate domains, e.g. per batch job).
-    let prefix = format!("cs{uid}_{:08x}_", fnv1a(root.as_os_str().as_encoded_bytes()));
+    let prefix = format!(
+        "cs{uid}_{:08x}_",
+        fnv1a(root.as_os_str().as_encoded_bytes())
+    );
     let mut config = Config::default();
     let mut root_text = root.to_string_lossy().into_owned();
     if !root_text.ends_with('/') {

@@ -4,7 +4,7 @@
 use serde::ser::SerializeMap;
 use serde::{Serialize, Serializer};
 
-use crate::stats::{LogStat, Stat};
+use crate::stats::LogStat;
 use crate::verdict::{Verdict, Warning};
 
 /// Values keyed by GALI order, serialized as a JSON object `{"2": ..., "3": ...}` in order.
@@ -115,15 +115,4 @@ impl Report {
     pub fn scheme(&self, name: &str) -> Option<&SchemeReport> {
         self.schemes.iter().find(|s| s.name == name)
     }
-}
-
-/// Mean over sets of per-vector exponents, as (means, stds).
-pub(crate) fn exponent_stats(per_set: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
-    let k = per_set.first().map_or(0, |v| v.len());
-    (0..k)
-        .map(|i| {
-            let s = Stat::from_values(per_set.iter().map(|v| v[i])).expect("non-empty");
-            (s.mean, s.std)
-        })
-        .unzip()
 }

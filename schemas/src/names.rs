@@ -139,6 +139,12 @@ pub mod topic {
     pub fn separations(scheme_name: &str) -> String {
         format!("/chaoscope/separations/{scheme_name}")
     }
+
+    /// One channel per scheme: `/chaoscope/indicators/<scheme name>` (GALI, SALI, exponents
+    /// averaged over the sets, at each of the scheme's renormalizations).
+    pub fn indicators(scheme_name: &str) -> String {
+        format!("/chaoscope/indicators/{scheme_name}")
+    }
 }
 
 /// MCAP metadata record names and keys.

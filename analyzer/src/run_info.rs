@@ -64,8 +64,15 @@ impl RunInfo {
         if !(header.h.is_finite() && header.h > 0.0) {
             return Err(err(format!("time step h = {} is not positive", header.h)));
         }
-        let mut schemes = Vec::with_capacity(header.schemes.len());
+        let mut schemes: Vec<SchemeSpec> = Vec::with_capacity(header.schemes.len());
         for s in &header.schemes {
+            // Scheme names become file names (`analyze --csv/--plot`): a recording from anyone
+            // must not name a path out of the user's directory.
+            chaoscope_schemas::names::validate_scheme_name(&s.name)
+                .map_err(|problem| err(format!("scheme name {problem}")))?;
+            if schemes.iter().any(|o| o.name == s.name) {
+                return Err(err(format!("scheme name '{}' is used twice", s.name)));
+            }
             let method = Method::from_name(&s.method)
                 .ok_or_else(|| err(format!("scheme {}: unknown method {:?}", s.name, s.method)))?;
             let orthonormalize =

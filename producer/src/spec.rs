@@ -528,20 +528,8 @@ impl RunSpec {
         let mut schemes = Vec::with_capacity(cfg.schemes.len());
         for (i, s) in cfg.schemes.iter().enumerate() {
             let key = |k: &str| format!("scheme[{i}].{k}");
-            if s.name.is_empty()
-                || !s
-                    .name
-                    .chars()
-                    .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
-            {
-                return Err(SpecError::new(
-                    key("name"),
-                    format!(
-                        "'{}' must be non-empty letters, digits, '-', '_' or '.'",
-                        s.name
-                    ),
-                ));
-            }
+            chaoscope_schemas::names::validate_scheme_name(&s.name)
+                .map_err(|problem| SpecError::new(key("name"), problem))?;
             if schemes.iter().any(|o: &SchemeSpec| o.name == s.name) {
                 return Err(SpecError::new(
                     key("name"),

@@ -42,11 +42,11 @@ use std::time::{Duration, Instant};
 
 use sha2::{Digest, Sha256};
 
-use super::{FunctionSpec, JitError, Layout, Plan, cb_atan2, cb_pow, cb_table, is_leaf};
+use super::{JitError, Layout, Plan, cb_atan2, cb_pow, cb_table, is_leaf};
 use super::{outputs_by_node, unary_callback};
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
 
-use super::step::StepSpec;
+use super::step::{StepSpec, kernel_plan};
 
 /// Lanes per block of the C kernels: one value is two 4-lane vectors (two AVX2 registers, or
 /// four SSE2 ones), two independent dependency chains per operation. The batched kernel's chunks (8 or 32 lanes on
@@ -220,29 +220,8 @@ pub(super) struct CKernels {
 /// Writes the C source of the kernels of `spec`.
 pub(super) fn source(graph: &Graph, spec: &StepSpec) -> Result<String, JitError> {
     let n = spec.n;
-    let check = |f: usize, outputs: &[NodeId], args: Vec<Layout>| {
-        if outputs.len() != n || n == 0 {
-            return Err(JitError::Steps(format!(
-                "kernel {f}: {} outputs for {n} degrees of freedom",
-                outputs.len()
-            )));
-        }
-        let plan = Plan::new(
-            graph,
-            &FunctionSpec {
-                args,
-                outputs: outputs.to_vec(),
-            },
-            f,
-        )?;
-        if let Some(a) = plan.arg_len.iter().position(|&len| len > n) {
-            return Err(JitError::Steps(format!(
-                "kernel {f}: argument {a} is read at entry {}, beyond N = {n}",
-                plan.arg_len[a] - 1
-            )));
-        }
-        Ok(plan)
-    };
+    let check =
+        |f: usize, outputs: &[NodeId], args: Vec<Layout>| kernel_plan(graph, n, f, outputs, args);
     let mut src = String::with_capacity(64 * graph.len() + 4096);
     let _ = write!(src, "{PRELUDE}");
     let orbit = check(0, &spec.gradient, vec![Layout::Lanes])?;

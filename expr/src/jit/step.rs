@@ -380,29 +380,8 @@ pub fn compile_steps(
     let n = spec.n;
     let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
     let mut kernels: Vec<(usize, Plan, u8, bool)> = Vec::new();
-    let check = |f: usize, outputs: &[NodeId], args: Vec<Layout>| {
-        if outputs.len() != n || n == 0 {
-            return Err(JitError::Steps(format!(
-                "kernel {f}: {} outputs for {n} degrees of freedom",
-                outputs.len()
-            )));
-        }
-        let plan = Plan::new(
-            graph,
-            &FunctionSpec {
-                args,
-                outputs: outputs.to_vec(),
-            },
-            f,
-        )?;
-        if let Some(a) = plan.arg_len.iter().position(|&len| len > n) {
-            return Err(JitError::Steps(format!(
-                "kernel {f}: argument {a} is read at entry {}, beyond N = {n}",
-                plan.arg_len[a] - 1
-            )));
-        }
-        Ok(plan)
-    };
+    let check =
+        |f: usize, outputs: &[NodeId], args: Vec<Layout>| kernel_plan(graph, n, f, outputs, args);
     let orbit_plan = check(0, &spec.gradient, vec![Layout::Lanes])?;
     kernels.push((0, orbit_plan, 0, false));
     if let Some(hv) = &spec.hessian_vector {
@@ -998,4 +977,37 @@ fn build_kernel(
     b.ins().return_(&[]);
     b.seal_all_blocks();
     b.finalize(config);
+}
+
+/// The plan of step kernel `f` (gradient or Hessian-vector product), checked against the step's
+/// shape: one output per degree of freedom, and no argument read beyond entry `N`. Shared by the
+/// Cranelift and the C generators, which must accept exactly the same kernels.
+pub(super) fn kernel_plan(
+    graph: &Graph,
+    n: usize,
+    f: usize,
+    outputs: &[NodeId],
+    args: Vec<Layout>,
+) -> Result<Plan, JitError> {
+    if outputs.len() != n || n == 0 {
+        return Err(JitError::Steps(format!(
+            "kernel {f}: {} outputs for {n} degrees of freedom",
+            outputs.len()
+        )));
+    }
+    let plan = Plan::new(
+        graph,
+        &FunctionSpec {
+            args,
+            outputs: outputs.to_vec(),
+        },
+        f,
+    )?;
+    if let Some(a) = plan.arg_len.iter().position(|&len| len > n) {
+        return Err(JitError::Steps(format!(
+            "kernel {f}: argument {a} is read at entry {}, beyond N = {n}",
+            plan.arg_len[a] - 1
+        )));
+    }
+    Ok(plan)
 }

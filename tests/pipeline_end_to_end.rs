@@ -159,7 +159,8 @@ fn producer_recorder_checker_record_every_sample_bit_identical() {
     );
 
     if python_checks_enabled() {
-        let total = 1 + rec.frames.len() + 1; // header + data frames (incl. end) + summary
+        // header + data frames (incl. end) + indicators + summary
+        let total = 1 + rec.frames.len() + rec.indicators.len() + 1;
         let status = Command::new("python3")
             .arg(python_script("check_mcap.py"))
             .arg(&out)

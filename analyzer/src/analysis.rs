@@ -2,20 +2,24 @@
 //! process, from an MCAP file, or from the bus), it keeps O(schemes x sets x k x 2N) state plus
 //! bounded time series, so memory does not depend on the length of the run.
 //!
-//! Per (scheme, set) it keeps the accumulated logarithmic stretching (Lyapunov exponents) and the
-//! latest separation vectors; GALI and SALI are computed from those only when a value is asked
-//! for (a series point, a report), since they are instantaneous functions of the vectors.
+//! Per (scheme, set) the indicator tracker of `chaoscope-indicators` keeps the accumulated
+//! logarithmic stretching (Lyapunov exponents) and the latest separation vectors; GALI and SALI
+//! are computed from those only when a value is asked for (a series point, a report), since they
+//! are instantaneous functions of the vectors. The recorder writes the indicators channel of
+//! every recording with the same tracker, so the values agree to the last bit.
 
+use chaoscope_indicators::{SchemeIndicators, Tracker};
 use chaoscope_producer::engine::{Sample, SchemeSample};
-use chaoscope_producer::indicators::{self, SIGMA_FLOOR, StretchSums};
 use chaoscope_producer::renormalization::Orthonormalization;
 use chaoscope_producer::spec::{Method, SchemeSpec};
 use chaoscope_producer::system::SystemKind;
 
-use crate::report::{ByOrder, DeltaLog, Report, RunReport, SchemeReport, VsVm, exponent_stats};
+pub use chaoscope_indicators::SetValues;
+
+use crate::report::{ByOrder, DeltaLog, Report, RunReport, SchemeReport, VsVm};
 use crate::run_info::RunInfo;
 use crate::series::Series;
-use crate::stats::{LogStat, Stat};
+use crate::stats::Stat;
 use crate::verdict;
 
 /// Resolution of the stored time series.
@@ -53,31 +57,8 @@ pub struct SchemePoint {
     pub vs_vm_abs_delta: Option<Vec<f64>>,
 }
 
-/// The values of one set at its latest renormalization.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SetValues {
-    pub t: f64,
-    /// `[j - 2]` = log10 GALI_j.
-    pub gali_log10: Vec<f64>,
-    pub sali: Option<f64>,
-    /// Finite-time exponent per vector.
-    pub exponents: Vec<f64>,
-}
-
-#[derive(Debug, Clone)]
-struct SetState {
-    sums: StretchSums,
-    /// Steps covered by the stretching factors received (equals the step when none was missed).
-    covered_steps: u64,
-    /// Step of the latest separations.
-    step: Option<u64>,
-    separations: Vec<f64>,
-}
-
 #[derive(Debug, Clone)]
 struct SchemeState {
-    sets: Vec<SetState>,
-    step: Option<u64>,
     /// The VM scheme with the same renormalization steps, for MPM schemes.
     vm_partner: Option<usize>,
     series: Series<SchemePoint>,
@@ -97,6 +78,7 @@ struct Capture {
 #[derive(Debug, Clone)]
 pub struct Analysis {
     run: RunInfo,
+    tracker: Tracker,
     schemes: Vec<SchemeState>,
     energy_error_max: f64,
     energy_series: Series<f64>,
@@ -106,7 +88,7 @@ pub struct Analysis {
     step: u64,
     t: f64,
     samples: u64,
-    /// Some stretching factor was never seen (late attach, lost frames).
+    /// A reader knows frames were lost (besides the gaps the tracker sees).
     gaps: bool,
     captures: Vec<Capture>,
 }
@@ -124,21 +106,10 @@ fn energy_error(e: f64, e0: f64) -> f64 {
 
 impl Analysis {
     pub fn new(run: RunInfo, options: &AnalysisOptions) -> Self {
-        let k = run.k;
         let schemes = run
             .schemes
             .iter()
             .map(|s| SchemeState {
-                sets: vec![
-                    SetState {
-                        sums: StretchSums::new(k),
-                        covered_steps: 0,
-                        step: None,
-                        separations: Vec::new(),
-                    };
-                    run.sets
-                ],
-                step: None,
                 vm_partner: (s.method == Method::Mpm)
                     .then(|| {
                         let same =
@@ -164,6 +135,7 @@ impl Analysis {
             })
             .collect();
         Self {
+            tracker: Tracker::new(run.layout()),
             schemes,
             energy_error_max: 0.0,
             energy_series: Series::new(options.series_capacity, options.per_decade),
@@ -195,7 +167,7 @@ impl Analysis {
 
     /// Whether every stretching factor since t = 0 was seen.
     pub fn complete(&self) -> bool {
-        !self.gaps
+        !self.gaps && self.tracker.complete()
     }
 
     /// Marks the analysis as incomplete (a reader that knows frames were lost).
@@ -249,92 +221,34 @@ impl Analysis {
 
     /// Applies one set's separations; false if it does not fit the header (ignored).
     fn apply(&mut self, step: u64, s: &SchemeSample) -> bool {
-        let (si, set) = (s.scheme as usize, s.set as usize);
-        let (k, dim) = (self.run.k, self.run.dim);
-        if si >= self.schemes.len()
-            || set >= self.run.sets
-            || s.separations.len() != k * dim
-            || s.stretch.len() != k
-        {
-            return false;
-        }
-        let prev = self.run.previous_renormalization(si, step);
-        let st = &mut self.schemes[si].sets[set];
-        // A stretching factor covers the interval since the scheme's previous renormalization;
-        // if that one was not seen, the sum has a hole.
-        let expected_prev = st.step.unwrap_or(0);
-        if step > 0 && expected_prev != prev {
-            self.gaps = true;
-        }
-        if step > 0 {
-            st.sums.add(&s.stretch);
-            st.covered_steps += step - prev;
-        }
-        st.step = Some(step);
-        st.separations.clear();
-        st.separations.extend_from_slice(&s.separations);
-        let scheme = &mut self.schemes[si];
-        scheme.step = Some(scheme.step.map_or(step, |x| x.max(step)));
-        true
-    }
-
-    fn set_exponents(run: &RunInfo, st: &SetState) -> Vec<f64> {
-        let covered = run.time_of(st.covered_steps);
-        st.sums
-            .log_sums()
-            .iter()
-            .map(|s| if covered > 0.0 { s / covered } else { 0.0 })
-            .collect()
-    }
-
-    fn set_values_of(run: &RunInfo, st: &SetState) -> Option<SetValues> {
-        let step = st.step?;
-        let dim = run.dim;
-        Some(SetValues {
-            t: run.time_of(step),
-            gali_log10: indicators::gali_log10(&st.separations, dim),
-            sali: indicators::sali(&st.separations, dim),
-            exponents: Self::set_exponents(run, st),
-        })
+        self.tracker.apply(
+            s.scheme as usize,
+            s.set as usize,
+            step,
+            &s.separations,
+            &s.stretch,
+        )
     }
 
     /// The latest values of one set (`None` before its first sample).
     pub fn set_values(&self, scheme: usize, set: usize) -> Option<SetValues> {
-        Self::set_values_of(&self.run, &self.schemes[scheme].sets[set])
+        self.tracker.set_values(scheme, set)
     }
 
-    /// The sets of scheme `si` at its latest step, with their values.
-    fn current_sets(run: &RunInfo, scheme: &SchemeState) -> Vec<(usize, SetValues)> {
-        let Some(step) = scheme.step else {
-            return Vec::new();
-        };
-        scheme
-            .sets
-            .iter()
-            .enumerate()
-            .filter(|(_, st)| st.step == Some(step))
-            .filter_map(|(i, st)| Self::set_values_of(run, st).map(|v| (i, v)))
-            .collect()
+    /// The indicators of scheme `si` at its latest renormalization, averaged over its sets: what
+    /// the report and the recording's indicators channel carry.
+    pub fn indicators(&self, si: usize) -> SchemeIndicators {
+        self.tracker.indicators(si)
     }
 
     fn point(&self, si: usize) -> SchemePoint {
-        let sets = Self::current_sets(&self.run, &self.schemes[si]);
-        let orders = self.run.k.saturating_sub(1);
-        let gali: Vec<LogStat> = (0..orders)
-            .filter_map(|o| LogStat::from_log10(sets.iter().map(|(_, v)| v.gali_log10[o])))
-            .collect();
-        let exps: Vec<Vec<f64>> = sets.iter().map(|(_, v)| v.exponents.clone()).collect();
-        let (lyapunov, _) = exponent_stats(&exps);
+        let ind = self.tracker.indicators(si);
         SchemePoint {
-            gali_log10_mean: gali.iter().map(|g| g.log10_mean).collect(),
-            gali_log10_of_mean: gali.iter().map(|g| g.mean.log10()).collect(),
-            sali_log10_mean: LogStat::from_log10(
-                sets.iter()
-                    .filter_map(|(_, v)| v.sali.map(|s| s.max(SIGMA_FLOOR).log10())),
-            )
-            .map(|s| s.log10_mean),
-            lyapunov,
-            vs_vm_abs_delta: Self::vs_vm_of(&self.run, &self.schemes, si).map(|d| {
+            gali_log10_mean: ind.gali.iter().map(|g| g.log10_mean).collect(),
+            gali_log10_of_mean: ind.gali.iter().map(|g| g.mean.log10()).collect(),
+            sali_log10_mean: ind.sali.map(|s| s.log10_mean),
+            lyapunov: ind.exponents.iter().map(|e| e.mean).collect(),
+            vs_vm_abs_delta: self.vs_vm_of(si).map(|d| {
                 d.gali
                     .0
                     .iter()
@@ -344,16 +258,15 @@ impl Analysis {
         }
     }
 
-    fn vs_vm_of(run: &RunInfo, schemes: &[SchemeState], si: usize) -> Option<VsVm> {
-        let vi = schemes[si].vm_partner?;
-        let (mpm, vm) = (&schemes[si], &schemes[vi]);
-        let step = mpm.step?;
-        let pairs: Vec<(SetValues, SetValues)> = mpm
-            .sets
-            .iter()
-            .zip(&vm.sets)
-            .filter(|(a, b)| a.step == Some(step) && b.step == Some(step))
-            .filter_map(|(a, b)| Some((Self::set_values_of(run, a)?, Self::set_values_of(run, b)?)))
+    fn vs_vm_of(&self, si: usize) -> Option<VsVm> {
+        let (run, tracker) = (&self.run, &self.tracker);
+        let vi = self.schemes[si].vm_partner?;
+        let step = tracker.scheme_step(si)?;
+        let pairs: Vec<(SetValues, SetValues)> = (0..run.sets)
+            .filter(|&set| {
+                tracker.set_step(si, set) == Some(step) && tracker.set_step(vi, set) == Some(step)
+            })
+            .filter_map(|set| Some((tracker.set_values(si, set)?, tracker.set_values(vi, set)?)))
             .collect();
         if pairs.is_empty() {
             return None;
@@ -390,9 +303,9 @@ impl Analysis {
 
     /// Values now (at the latest sample).
     pub fn report(&self) -> Report {
-        let (run, schemes) = (&self.run, &self.schemes[..]);
-        let (energy_error_max, samples, t, gaps) =
-            (self.energy_error_max, self.samples, self.t, self.gaps);
+        let (run, schemes, tracker) = (&self.run, &self.schemes[..], &self.tracker);
+        let (energy_error_max, samples, t, complete) =
+            (self.energy_error_max, self.samples, self.t, self.complete());
         let hamiltonian = run.kind == SystemKind::Hamiltonian;
         let reported_energy_error = hamiltonian.then_some(energy_error_max);
         let h = &run.header;
@@ -402,21 +315,17 @@ impl Analysis {
             .zip(schemes)
             .enumerate()
             .map(|(si, (info, state))| {
-                let sets = Self::current_sets(run, state);
+                let ind = tracker.indicators(si);
+                let scheme_step = tracker.scheme_step(si);
                 let gali = ByOrder(
-                    (0..run.k.saturating_sub(1))
-                        .filter_map(|o| {
-                            LogStat::from_log10(sets.iter().map(|(_, v)| v.gali_log10[o]))
-                                .map(|s| (o + 2, s))
-                        })
+                    ind.gali
+                        .iter()
+                        .enumerate()
+                        .map(|(o, s)| (o + 2, *s))
                         .collect(),
                 );
-                let sali = LogStat::from_log10(
-                    sets.iter()
-                        .filter_map(|(_, v)| v.sali.map(|s| s.max(SIGMA_FLOOR).log10())),
-                );
-                let exps: Vec<Vec<f64>> = sets.iter().map(|(_, v)| v.exponents.clone()).collect();
-                let (mut lyapunov, mut lyapunov_std) = exponent_stats(&exps);
+                let (mut lyapunov, mut lyapunov_std): (Vec<f64>, Vec<f64>) =
+                    ind.exponents.iter().map(|e| (e.mean, e.std)).unzip();
                 if info.orthonormalize == Orthonormalization::Rescale {
                     // Every rescaled vector estimates the MLE; the first is the reported one.
                     lyapunov.truncate(1);
@@ -424,7 +333,7 @@ impl Analysis {
                 }
                 let latest;
                 let mut curve = state.verdict_series.points_ref();
-                if let Some(step) = state.step {
+                if let Some(step) = scheme_step {
                     let t = run.time_of(step);
                     if curve.last().is_none_or(|p| p.0 < t) {
                         latest = self.point(si);
@@ -448,10 +357,10 @@ impl Analysis {
                     k: run.k,
                     d0: info.d0,
                     tau: info.tau,
-                    sets: sets.len(),
-                    t: state.step.map_or(0.0, |s| run.time_of(s)),
+                    sets: ind.sets,
+                    t: scheme_step.map_or(0.0, |s| run.time_of(s)),
                     gali,
-                    sali,
+                    sali: ind.sali,
                     mle: lyapunov.first().copied().unwrap_or(0.0),
                     lyapunov_sum: (info.orthonormalize == Orthonormalization::Qr
                         && run.k == run.dim
@@ -460,7 +369,7 @@ impl Analysis {
                     lyapunov,
                     lyapunov_std,
                     energy_error_max: reported_energy_error,
-                    vs_vm: Self::vs_vm_of(run, schemes, si),
+                    vs_vm: self.vs_vm_of(si),
                     verdict,
                     warnings,
                 }
@@ -490,7 +399,8 @@ impl Analysis {
                 t,
                 energy_error_max: reported_energy_error,
                 mean_divergence: (!hamiltonian).then_some(self.mean_divergence),
-                complete: !gaps,
+                complete,
+                end: None,
             },
             schemes: scheme_reports,
         }
@@ -513,7 +423,7 @@ impl Analysis {
     /// Ends with the latest sample, whether the thinning kept it or not.
     pub fn series(&self, si: usize) -> Vec<(f64, SchemePoint)> {
         let mut points = self.schemes[si].series.points();
-        if let Some(step) = self.schemes[si].step {
+        if let Some(step) = self.tracker.scheme_step(si) {
             let t = self.run.time_of(step);
             if points.last().is_none_or(|p| p.0 < t) {
                 points.push((t, self.point(si)));

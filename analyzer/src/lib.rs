@@ -20,7 +20,8 @@ pub mod report;
 pub mod run_info;
 pub mod section;
 pub mod series;
-pub mod stats;
+/// Averages over sets, shared with the recorder (re-exported from `chaoscope-indicators`).
+pub use chaoscope_indicators::stats;
 pub mod summary;
 pub mod verdict;
 pub mod vshape;

@@ -62,6 +62,11 @@ fn scale_of(h: &MapHeader) -> Scale {
             transform: log,
             chaotic_high: false,
         },
+        "sali" => Scale {
+            label: format!("log10 SALI (t = {})", h.t_final),
+            transform: log,
+            chaotic_high: false,
+        },
         "gali-time" => Scale {
             label: format!("t (GALI_{} < {:e})", h.k, h.threshold),
             transform: lin,

@@ -4,7 +4,7 @@
 use serde::ser::SerializeMap;
 use serde::{Serialize, Serializer};
 
-use crate::stats::{LogStat, Stat};
+use crate::stats::LogStat;
 use crate::verdict::{Verdict, Warning};
 
 /// Values keyed by GALI order, serialized as a JSON object `{"2": ..., "3": ...}` in order.
@@ -66,6 +66,40 @@ pub struct RunReport {
     /// recording; a live monitor that attached late or lost frames reports false, and its
     /// Lyapunov exponents are then averages over the intervals it saw).
     pub complete: bool,
+    /// How the producer ended the run, when the recording holds its last message (`analyze` of
+    /// a file; absent live and for files cut before the end).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub end: Option<EndReport>,
+}
+
+/// The producer's last message: `status` is `"completed"`, `"interrupted"` or `"failed"`;
+/// `reason` says why a run did not complete (a failed orbit names its time or iteration).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EndReport {
+    pub status: String,
+    pub reason: String,
+    /// Samples the producer published.
+    pub samples: u64,
+    /// Time of the last sample published.
+    pub t: f64,
+}
+
+impl EndReport {
+    pub fn from_message(end: &chaoscope_schemas::proto::EndOfRun) -> Self {
+        use chaoscope_schemas::proto::end_of_run::Status;
+        let status = match Status::try_from(end.status).unwrap_or(Status::Unspecified) {
+            Status::Completed => "completed",
+            Status::Interrupted => "interrupted",
+            Status::Failed => "failed",
+            Status::Unspecified => "unspecified",
+        };
+        Self {
+            status: status.to_string(),
+            reason: end.reason.clone(),
+            samples: end.samples,
+            t: if end.t.is_finite() { end.t } else { 0.0 },
+        }
+    }
 }
 
 /// Difference of an MPM scheme from the VM scheme with the same `tau`, over the sets both have
@@ -134,15 +168,4 @@ impl Report {
     pub fn scheme(&self, name: &str) -> Option<&SchemeReport> {
         self.schemes.iter().find(|s| s.name == name)
     }
-}
-
-/// Mean over sets of per-vector exponents, as (means, stds).
-pub(crate) fn exponent_stats(per_set: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
-    let k = per_set.first().map_or(0, |v| v.len());
-    (0..k)
-        .map(|i| {
-            let s = Stat::from_values(per_set.iter().map(|v| v[i])).expect("non-empty");
-            (s.mean, s.std)
-        })
-        .unzip()
 }

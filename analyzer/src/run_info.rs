@@ -1,6 +1,7 @@
 //! What the analysis needs to know about a run, read from its header (the protobuf `RunHeader`
 //! of the recording or the bus, or built in process from a `RunSpec`).
 
+use chaoscope_indicators::Layout;
 use chaoscope_producer::renormalization::Orthonormalization;
 use chaoscope_producer::spec::{MAX_STATE_VALUES, Method, SchemeSpec, deviation_state_values};
 use chaoscope_producer::system::SystemKind;
@@ -72,8 +73,15 @@ impl RunInfo {
         if !(header.h.is_finite() && header.h > 0.0) {
             return Err(err(format!("time step h = {} is not positive", header.h)));
         }
-        let mut schemes = Vec::with_capacity(header.schemes.len());
+        let mut schemes: Vec<SchemeSpec> = Vec::with_capacity(header.schemes.len());
         for s in &header.schemes {
+            // Scheme names become file names (`analyze --csv/--plot`): a recording from anyone
+            // must not name a path out of the user's directory.
+            chaoscope_schemas::names::validate_scheme_name(&s.name)
+                .map_err(|problem| err(format!("scheme name {problem}")))?;
+            if schemes.iter().any(|o| o.name == s.name) {
+                return Err(err(format!("scheme name '{}' is used twice", s.name)));
+            }
             let method = Method::from_name(&s.method)
                 .ok_or_else(|| err(format!("scheme {}: unknown method {:?}", s.name, s.method)))?;
             let orthonormalize =
@@ -111,15 +119,17 @@ impl RunInfo {
         step as f64 * self.h
     }
 
-    /// Step of the renormalization of `scheme` preceding the one at `step`.
-    pub fn previous_renormalization(&self, scheme: usize, step: u64) -> u64 {
-        let tau = self.schemes[scheme].tau_steps;
-        if step == 0 {
-            0
-        } else {
-            // The last renormalization may fall at t_final, off the tau grid.
-            ((step - 1) / tau) * tau
-        }
+    /// The run's shape for the indicator tracker (valid: `from_header` checked every field it
+    /// reads).
+    pub fn layout(&self) -> Layout {
+        Layout::new(
+            self.dim,
+            self.k,
+            self.sets,
+            self.h,
+            self.schemes.iter().map(|s| s.tau_steps).collect(),
+        )
+        .expect("a validated header has a valid layout")
     }
 
     pub fn scheme_index(&self, name: &str) -> Option<usize> {

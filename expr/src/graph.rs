@@ -279,6 +279,32 @@ impl Graph {
         }
     }
 
+    /// The operation of a node as messages quote it: `'log'`, `'/'`, `'^3'`, `'unary -'`,
+    /// `table 'U'` (what produced a non-finite value, say).
+    pub fn operation_name(&self, id: NodeId) -> String {
+        let op = match self.nodes[id as usize] {
+            Node::Unary(u, _) => match u {
+                Unary::Neg => "unary -".into(),
+                other => format!("{other:?}").to_lowercase(),
+            },
+            Node::Binary(b, _, _) => match b {
+                Binary::Add => "+".into(),
+                Binary::Sub => "-".into(),
+                Binary::Mul => "*".into(),
+                Binary::Div => "/".into(),
+                Binary::Pow => "^".into(),
+                other => format!("{other:?}").to_lowercase(),
+            },
+            Node::Powi(_, n) => format!("^{n}"),
+            Node::Select { .. } => "if".into(),
+            Node::Table { table, .. } => {
+                return format!("table '{}'", self.tables[table as usize].name());
+            }
+            Node::Const(_) | Node::Input { .. } => "value".into(),
+        };
+        format!("'{op}'")
+    }
+
     fn is_const(&self, id: NodeId, v: f64) -> bool {
         self.as_const(id).is_some_and(|c| c == v)
     }

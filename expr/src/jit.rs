@@ -52,9 +52,14 @@ use cranelift_module::{FuncId, Linkage, Module};
 
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
 
+mod c_step;
 mod step;
 
-pub use step::{OrbitStepsFnPtr, StepKernels, StepSpec, TangentStepsFnPtr, compile_steps};
+pub use c_step::{C_BLOCK_LANES, CCompiler};
+pub use step::{
+    OrbitStepsFnPtr, StepBackend, StepKernels, StepSpec, TangentStepsFnPtr, compile_steps,
+    compile_steps_c,
+};
 
 /// How a function reads one argument array (or writes its output).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -177,6 +182,10 @@ pub enum JitError {
     /// A [`StepSpec`] that does not describe `N` degrees of freedom.
     #[error("step kernels: {0}")]
     Steps(String),
+    /// The C step kernels could not be built or loaded (no compiler, a compiler error, the
+    /// cache directory); [`compile_steps`] is the fallback.
+    #[error("C step kernels: {0}")]
+    CCompiler(String),
 }
 
 /// A compiled scalar function.

@@ -12,7 +12,9 @@
 //! - `eval`: a reference evaluator of the graph (tests, diagnosis of a non-finite value);
 //! - `jit`: native code for the graph's outputs (Cranelift), scalar and over SoA lanes,
 //!   bit-identical to `eval`;
-//! - `table`: tabulated functions (CSV samples, cubic spline with its derivatives).
+//! - `table`: tabulated functions (CSV samples, cubic spline with its derivatives);
+//! - `vector`: a vector function `F: R^D -> R^D` (a flow's right-hand side, a map) from `D`
+//!   expressions, compiled with its Jacobian-vector product and divergence.
 //!
 //! No I/O except `table`'s reading of the CSV file a config names.
 
@@ -29,6 +31,7 @@ pub mod smooth;
 pub mod table;
 #[cfg(test)]
 mod testing;
+pub mod vector;
 
 pub use diff::{DiffError, directional, gradient, jacobian, jacobian_vector};
 pub use error::{ExprError, Span};
@@ -42,3 +45,4 @@ pub use table::{
     ErrorBound, Spline, SplineKind, TableData, TableError, interpolation_error_bound, parse_csv,
     read_csv,
 };
+pub use vector::{VectorDefinition, VectorError, VectorFunction};

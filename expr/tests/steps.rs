@@ -1,12 +1,18 @@
 //! The compiled splitting step kernels against a plain Rust loop over the reference evaluator:
 //! drift `q += (ch w) p`, force from `eval`, kick `p -= dh g`, lane by lane, bit for bit, for
 //! Henon-Heiles and FPUT chains, several lane counts (whole blocks, a remainder, one lane, a
-//! stride wider than the lanes), with and without masses, both block widths.
+//! stride wider than the lanes), with and without masses, both block widths; and the same for
+//! the C kernels the system C compiler builds (every operation of the language, tables, the
+//! cache, compiler failures).
 
 use std::collections::BTreeMap;
 
-use chaoscope_expr::jit::{self, Options, StepKernels, StepSpec};
+use std::sync::Arc;
+
+use chaoscope_expr::graph::Tabulated;
+use chaoscope_expr::jit::{self, CCompiler, Options, StepBackend, StepKernels, StepSpec};
 use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope};
+use chaoscope_expr::table::{Spline, SplineKind};
 use chaoscope_expr::{Evaluator, Graph, NodeId, diff, lower};
 
 /// Any fixed 8-drift / 7-kick splitting (symmetric, like ABA864), times a step of 0.01.
@@ -24,7 +30,15 @@ struct System {
 }
 
 fn system(n: usize, potential: &str) -> System {
+    system_with_tables(n, potential, &[])
+}
+
+fn system_with_tables(n: usize, potential: &str, tables: &[(&str, Arc<dyn Tabulated>)]) -> System {
     let mut graph = Graph::new();
+    let tables: Vec<(String, u32)> = tables
+        .iter()
+        .map(|(name, t)| (name.to_string(), graph.add_table(t.clone())))
+        .collect();
     let mut params = BTreeMap::new();
     params.insert("beta".to_string(), ParamValue::Scalar(1.0));
     let families = [Family {
@@ -35,7 +49,7 @@ fn system(n: usize, potential: &str) -> System {
     let scope = Scope {
         families: &families,
         params: &params,
-        tables: &[],
+        tables: &tables,
         n,
         boundary: Boundary::Fixed,
     };
@@ -313,4 +327,144 @@ fn specs_that_are_not_n_degrees_of_freedom_are_refused() {
     refuse(4, s.gradient.clone());
     refuse(4, s.gradient[..4].to_vec());
     refuse(0, Vec::new());
+}
+
+/// The C kernels, built by the system C compiler (`cc`, or `CHAOSCOPE_CC`) into `cache`. CI
+/// has gcc: a missing compiler fails these tests instead of skipping them.
+fn compile_c(s: &System, cache: &std::path::Path) -> StepKernels {
+    let program = CCompiler::from_env().map_or_else(|| "cc".into(), |c| c.program);
+    let cc = CCompiler {
+        program,
+        cache_dir: cache.to_path_buf(),
+    };
+    let k = jit::compile_steps_c(
+        &s.graph,
+        &StepSpec {
+            n: s.n,
+            gradient: s.gradient.clone(),
+            hessian_vector: Some(s.hessian_vector.clone()),
+        },
+        &cc,
+    )
+    .unwrap_or_else(|e| panic!("{e}"));
+    assert!(matches!(k.backend(), StepBackend::C { .. }));
+    k
+}
+
+#[test]
+fn c_steps_are_bit_identical() {
+    let cache = tempfile::tempdir().unwrap();
+    for (name, s) in [
+        ("HH", henon_heiles()),
+        ("FPUT-5", fput(5)),
+        ("FPUT-101", fput(101)),
+        ("coupled", system(4, "q1*q2 + 2.5*q3 + sin(q1)")),
+    ] {
+        check(&format!("C {name}"), &s, &compile_c(&s, cache.path()));
+    }
+}
+
+#[test]
+fn c_steps_of_every_operation_and_a_table_are_bit_identical() {
+    // Every unary and binary operation, whole and real powers (negative too), `if` with each
+    // comparison, and a tabulated function: the callbacks, the compares and bit selects (NaN
+    // and signed-zero rules), the constants written by their bits.
+    let xs: Vec<f64> = (0..41).map(|i| -2.0 + 0.1 * i as f64).collect();
+    let ys: Vec<f64> = xs.iter().map(|x| (1.0 + x * x).ln()).collect();
+    let table: Arc<dyn Tabulated> =
+        Arc::new(Spline::new("U", &xs, &ys, SplineKind::Natural).unwrap());
+    let s = system_with_tables(
+        3,
+        "exp(q1/4)*sin(q2) + log(3 + cos(q3)) + tan(q1/3) + atan(q2) + tanh(q1*q2) \
+         + cosh(q2)/4 + sinh(q3)/5 + atan2(q1, 2 + q2) + sqrt(2 + q1^2) + abs(q2)^3 \
+         + max(q1, q3)^3 + min(q2, -0.01)^3 + (1 + q1^2)^1.5 + q3^-2/1000 + step(q1)*q1^4 \
+         + if(q2 < q3, q2^2, q3^2) + if(q1 >= 0, q1^3, 0) + if(q2 <= q1, 0, q2^4) \
+         + if(q3 > 0.01, q3^3, 0.1) + U(q3 - q1) + 0.1/(2 + q2^2)",
+        &[("U", table)],
+    );
+    let cache = tempfile::tempdir().unwrap();
+    check("C every operation", &s, &compile_c(&s, cache.path()));
+    check("Cranelift every operation", &s, &compile(&s, 4));
+}
+
+#[test]
+fn c_steps_come_from_the_cache_the_second_time() {
+    let cache = tempfile::tempdir().unwrap();
+    let s = henon_heiles();
+    let first = compile_c(&s, cache.path());
+    let second = compile_c(&s, cache.path());
+    assert!(matches!(
+        first.backend(),
+        StepBackend::C { cached: false, .. }
+    ));
+    let StepBackend::C {
+        cached: true,
+        library,
+    } = second.backend()
+    else {
+        panic!(
+            "the second build was not a cache hit: {:?}",
+            second.backend()
+        );
+    };
+    assert!(library.starts_with(cache.path()));
+    // A damaged cache file is rebuilt, not loaded (unloaded first: writing into a mapped
+    // library would pull the code from under it; the builder itself only ever renames).
+    drop((first, second));
+    std::fs::write(&library, b"not a library").unwrap();
+    let third = compile_c(&s, cache.path());
+    assert!(matches!(
+        third.backend(),
+        StepBackend::C { cached: false, .. }
+    ));
+    check("C HH after a damaged cache", &s, &third);
+}
+
+#[test]
+fn c_compiler_failures_are_errors_naming_the_cause() {
+    let s = henon_heiles();
+    let cache = tempfile::tempdir().unwrap();
+    let spec = StepSpec {
+        n: s.n,
+        gradient: s.gradient.clone(),
+        hessian_vector: Some(s.hessian_vector.clone()),
+    };
+    let build = |program: &str| {
+        jit::compile_steps_c(
+            &s.graph,
+            &spec,
+            &CCompiler {
+                program: program.into(),
+                cache_dir: cache.path().to_path_buf(),
+            },
+        )
+        .unwrap_err()
+        .to_string()
+    };
+    let missing = build("/nonexistent/cc");
+    assert!(
+        missing.contains("cannot run the C compiler '/nonexistent/cc'"),
+        "{missing}"
+    );
+    // `false` runs and fails: the error names it.
+    let failing = build("false");
+    assert!(
+        failing.contains("the C compiler 'false' failed"),
+        "{failing}"
+    );
+    // An unwritable cache directory (a file in its place).
+    let file = cache.path().join("a-file");
+    std::fs::write(&file, b"").unwrap();
+    let program = CCompiler::from_env().map_or_else(|| "cc".into(), |c| c.program);
+    let e = jit::compile_steps_c(
+        &s.graph,
+        &spec,
+        &CCompiler {
+            program,
+            cache_dir: file.join("kernels"),
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("cannot create the kernel cache"), "{e}");
 }

@@ -50,7 +50,7 @@ pub struct SchemeSample {
 /// A run that could not go on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RunError {
-    #[error("the reference orbit escaped or became non-finite by t = {t} (|x| = {norm:e}){}",
+    #[error("the reference orbit escaped or became non-finite at t = {t} (|x| = {norm:e}){}",
         cause.as_ref().map(|c| format!(": {c}")).unwrap_or_default())]
     Escaped {
         t: f64,
@@ -301,33 +301,46 @@ impl Engine {
         }
     }
 
-    /// The error for an orbit found non-finite or escaped at `t`: steps again from the last
-    /// finite state to the first step that leaves it, and asks the system what failed there.
+    /// The error for an orbit found non-finite or escaped by step `target`: steps again from
+    /// the last finite state to the first step that leaves it (so the error names the very time
+    /// or iteration, not the end of the window), and asks the system what failed there.
     fn escaped(&self, last_good: Vec<f64>, target: u64, norm: f64) -> RunError {
-        let t = self.spec.time_of(target);
         let system = self.spec.system.as_ref();
         let mut x = last_good;
         let mut work = Workspace::new();
         let mut cause = None;
         let mut step = self.step;
         let mut plan = Vec::new();
+        let mut norm_at = norm;
         while step < target {
             let before = x.clone();
+            plan.clear();
             system.step_reference(&mut x, &mut plan, &mut work);
             step += 1;
             let at = |c: String| format!("{c} in the step to t = {}", self.spec.time_of(step));
             if x.iter().any(|v| !v.is_finite()) {
                 cause = system.diagnose_non_finite(&before).map(at);
+                norm_at = f64::NAN;
                 break;
             }
             if system.invariant(&x).is_some_and(|e| !e.is_finite())
                 || system.divergence(&x).is_some_and(|d| !d.is_finite())
             {
                 cause = system.diagnose_non_finite(&x).map(at);
+                norm_at = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+                break;
+            }
+            let n = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+            if n >= ESCAPE_NORM {
+                norm_at = n;
                 break;
             }
         }
-        RunError::Escaped { t, norm, cause }
+        RunError::Escaped {
+            t: self.spec.time_of(step),
+            norm: norm_at,
+            cause,
+        }
     }
 
     /// Run to the end, handing every sample to `sink`.
@@ -388,10 +401,15 @@ impl DeviationSet {
                 if !renormalize {
                     return Ok(None);
                 }
-                orbits
-                    .chunks_exact(dim)
-                    .flat_map(|y| y.iter().zip(reference).map(|(a, b)| a - b))
-                    .collect()
+                // Measured as the system measures separations (on the torus for angles).
+                let mut separations = vec![0.0; orbits.len()];
+                for (d, y) in separations
+                    .chunks_exact_mut(dim)
+                    .zip(orbits.chunks_exact(dim))
+                {
+                    system.separation(y, reference, d);
+                }
+                separations
             }
         };
         let raw = separations.clone();

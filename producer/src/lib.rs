@@ -7,7 +7,6 @@ pub mod batch;
 pub mod deviation;
 pub mod engine;
 pub mod estimate;
-pub mod indicators;
 pub mod integrator;
 pub mod map;
 pub mod model;
@@ -15,3 +14,7 @@ pub mod publish;
 pub mod renormalization;
 pub mod spec;
 pub mod system;
+
+/// GALI, SALI and the finite-time exponents live in their own crate (the recorder computes them
+/// too, and must not depend on the producer); re-exported under their old path.
+pub use chaoscope_indicators as indicators;

@@ -8,12 +8,14 @@ use std::sync::Arc;
 use chaoscope_schemas::config::{OrbitConfig, RunConfig};
 
 use crate::deviation::{self, DirectionError, Directions};
+use crate::integrator::runge_kutta::{RungeKutta, RungeKuttaKind, Tolerances};
 use crate::integrator::{Splitting, SplittingKind};
 use crate::model::{FputBeta, HenonHeiles, Model};
 use crate::renormalization::Orthonormalization;
-use crate::system::{DynamicalSystem, SplitHamiltonian, Time};
+use crate::system::{DynamicalSystem, Map, RkFlow, SplitHamiltonian, Time};
 
 mod potential;
+pub mod vector;
 
 pub use potential::{TableDigest, pin_tables};
 
@@ -230,6 +232,8 @@ pub fn model_dof(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<usize> 
 pub fn state_dim(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<usize> {
     match SystemFamily::of(&cfg.name)? {
         SystemFamily::Hamiltonian => model_dof(cfg).map(|n| 2 * n),
+        SystemFamily::Flow => cfg.rhs.as_ref().map(Vec::len),
+        SystemFamily::Map => cfg.next.as_ref().map(Vec::len),
     }
 }
 
@@ -238,17 +242,79 @@ pub fn state_dim(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<usize> 
 enum SystemFamily {
     /// A separable Hamiltonian with a splitting: the built-in models and `potential`.
     Hamiltonian,
+    /// `ode`: `dx/dt = f(x)` with a Runge-Kutta method (`system::RkFlow`).
+    Flow,
+    /// `map`: `x -> F(x)` (`system::Map`).
+    Map,
 }
 
 /// Every `[model] name`, as error messages list them.
-const KNOWN_MODELS: &str = "henon-heiles, fput-beta, potential";
+const KNOWN_MODELS: &str = "henon-heiles, fput-beta, potential, ode, map";
 
 impl SystemFamily {
     fn of(name: &str) -> Option<Self> {
         match name {
             "henon-heiles" | "fput-beta" | "potential" => Some(Self::Hamiltonian),
+            "ode" => Some(Self::Flow),
+            "map" => Some(Self::Map),
             _ => None,
         }
+    }
+
+    /// The `[model]` keys this family reads besides `name`; any other key given is a mistake
+    /// worth naming (a `potential` under `ode`, an `rhs` under `map`).
+    fn keys(self) -> &'static [&'static str] {
+        match self {
+            Self::Hamiltonian => &[
+                "n",
+                "beta",
+                "potential",
+                "params",
+                "masses",
+                "boundary",
+                "tables",
+            ],
+            Self::Flow => &["rhs", "params", "boundary"],
+            Self::Map => &["next", "params", "boundary", "modulo"],
+        }
+    }
+}
+
+/// The `[model]` keys that are set, by name.
+fn model_keys_present(cfg: &chaoscope_schemas::config::ModelConfig) -> [(&'static str, bool); 10] {
+    [
+        ("n", cfg.n.is_some()),
+        ("beta", cfg.beta.is_some()),
+        ("potential", cfg.potential.is_some()),
+        ("params", !cfg.params.is_empty()),
+        ("masses", cfg.masses.is_some()),
+        ("boundary", cfg.boundary.is_some()),
+        ("tables", !cfg.tables.is_empty()),
+        ("rhs", cfg.rhs.is_some()),
+        ("next", cfg.next.is_some()),
+        ("modulo", cfg.modulo.is_some()),
+    ]
+}
+
+/// A `[model]` key that the named family does not read.
+fn foreign_model_key(
+    cfg: &chaoscope_schemas::config::ModelConfig,
+    family: SystemFamily,
+) -> Result<(), SpecError> {
+    let used = family.keys();
+    match model_keys_present(cfg)
+        .into_iter()
+        .find(|(k, present)| *present && !used.contains(k))
+    {
+        Some((key, _)) => Err(SpecError::new(
+            format!("model.{key}"),
+            format!(
+                "does not apply to name = \"{}\" (its keys: {})",
+                cfg.name,
+                used.join(", ")
+            ),
+        )),
+        None => Ok(()),
     }
 }
 
@@ -321,6 +387,8 @@ fn builtin_extra_key(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<&'s
         ("boundary", cfg.boundary.is_some()),
         ("tables", !cfg.tables.is_empty()),
         ("rhs", cfg.rhs.is_some()),
+        ("next", cfg.next.is_some()),
+        ("modulo", cfg.modulo.is_some()),
     ]
     .into_iter()
     .find_map(|(k, present)| present.then_some(k))
@@ -452,6 +520,124 @@ pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>,
     Ok(x)
 }
 
+/// `[model] name = "ode"`: the compiled right-hand side with the Runge-Kutta method of
+/// `[integrator]`, fixed step `h`, or adaptive `dop853` landing on the grid of `h` when `rtol`
+/// and `atol` are given.
+fn flow_from_config(cfg: &RunConfig) -> Result<Arc<dyn DynamicalSystem>, SpecError> {
+    let model = &cfg.model;
+    let rhs = model.rhs.as_ref().ok_or_else(|| {
+        SpecError::new(
+            "model.rhs",
+            "ode needs the right-hand side, e.g. rhs = [\"sigma * (x2 - x1)\", ...]",
+        )
+    })?;
+    let field = vector::vector_function("rhs", rhs, &model.params, model.boundary.as_deref())?;
+    let integrator = &cfg.integrator;
+    let kind = RungeKuttaKind::from_name(&integrator.method).ok_or_else(|| {
+        SpecError::new(
+            "integrator.method",
+            format!(
+                "unknown method '{}' for a flow (known: rk4, dop853)",
+                integrator.method
+            ),
+        )
+    })?;
+    let h = finite_positive("integrator.h", integrator.h)?;
+    let tolerances = match (integrator.rtol, integrator.atol) {
+        (None, None) => None,
+        (Some(rtol), Some(atol)) => {
+            if kind != RungeKuttaKind::Dop853 {
+                return Err(SpecError::new(
+                    "integrator.rtol",
+                    format!("error control is offered by dop853, not {}", kind.name()),
+                ));
+            }
+            for (key, v) in [("integrator.rtol", rtol), ("integrator.atol", atol)] {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(SpecError::new(
+                        key,
+                        format!("must be finite and >= 0, got {}", num(v)),
+                    ));
+                }
+            }
+            if rtol == 0.0 && atol == 0.0 {
+                return Err(SpecError::new(
+                    "integrator.rtol",
+                    "rtol and atol cannot both be 0 (no step would ever be accepted)",
+                ));
+            }
+            // Below about 100 eps relative the controller chases rounding and shrinks the step
+            // without end.
+            if rtol > 0.0 && rtol < 100.0 * f64::EPSILON {
+                return Err(SpecError::new(
+                    "integrator.rtol",
+                    format!(
+                        "{} is below what double precision resolves (use >= 2.3e-14)",
+                        num(rtol)
+                    ),
+                ));
+            }
+            Some(Tolerances { rtol, atol })
+        }
+        (Some(_), None) => {
+            return Err(SpecError::new("integrator.atol", "rtol needs atol as well"));
+        }
+        (None, Some(_)) => {
+            return Err(SpecError::new("integrator.rtol", "atol needs rtol as well"));
+        }
+    };
+    Ok(Arc::new(RkFlow {
+        name: model.name.clone(),
+        field: Arc::new(field),
+        method: RungeKutta::new(kind),
+        h,
+        tolerances,
+    }))
+}
+
+/// `[model] name = "map"`: the compiled map with its periods. Time counts iterations: `h` is 1,
+/// `t_final` and every `tau` are whole numbers of iterations.
+fn map_from_config(cfg: &RunConfig) -> Result<Arc<dyn DynamicalSystem>, SpecError> {
+    let model = &cfg.model;
+    let next = model.next.as_ref().ok_or_else(|| {
+        SpecError::new(
+            "model.next",
+            "map needs the image of every coordinate, e.g. next = [\"1 - a * x1^2 + x2\", \"b * x1\"]",
+        )
+    })?;
+    let function = vector::vector_function("next", next, &model.params, model.boundary.as_deref())?;
+    let integrator = &cfg.integrator;
+    if !integrator.method.is_empty() && integrator.method != "iterate" {
+        return Err(SpecError::new(
+            "integrator.method",
+            format!(
+                "a map is iterated: method = \"iterate\" (or leave it out), got '{}'",
+                integrator.method
+            ),
+        ));
+    }
+    if integrator.h.to_bits() != 1.0f64.to_bits() {
+        return Err(SpecError::new(
+            "integrator.h",
+            format!(
+                "a map's time counts iterations: h = 1, got {}",
+                num(integrator.h)
+            ),
+        ));
+    }
+    for (key, present) in [
+        ("integrator.rtol", integrator.rtol.is_some()),
+        ("integrator.atol", integrator.atol.is_some()),
+    ] {
+        if present {
+            return Err(SpecError::new(key, "a map has no step size to control"));
+        }
+    }
+    let modulo = model.modulo.clone().unwrap_or_default();
+    let map = Map::new(function, modulo).map_err(|e| SpecError::new("model.modulo", e))?;
+    Ok(Arc::new(map))
+}
+
 impl RunSpec {
     /// Validate a configuration into a run.
     pub fn from_config(cfg: &RunConfig) -> Result<Self, SpecError> {
@@ -459,11 +645,24 @@ impl RunSpec {
         let expanded = cfg
             .with_sweeps_expanded()
             .map_err(|e| SpecError::new(e.key, e.message))?;
-        match SystemFamily::of(&expanded.model.name) {
+        let model = &expanded.model;
+        let family = SystemFamily::of(&model.name);
+        if let Some(family) = family {
+            foreign_model_key(model, family)?;
+        }
+        match family {
             // An unknown name is reported by the Hamiltonian dispatch, with the list of all.
             Some(SystemFamily::Hamiltonian) | None => {
-                let (model, tables) = model_from_config(&expanded.model)?;
+                let (model, tables) = model_from_config(model)?;
                 Self::build(&expanded, model, tables)
+            }
+            Some(SystemFamily::Flow) => {
+                let system = flow_from_config(&expanded)?;
+                Self::build_general(&expanded, system, Vec::new())
+            }
+            Some(SystemFamily::Map) => {
+                let system = map_from_config(&expanded)?;
+                Self::build_general(&expanded, system, Vec::new())
             }
         }
     }
@@ -702,20 +901,8 @@ impl RunSpec {
         let mut schemes = Vec::with_capacity(cfg.schemes.len());
         for (i, s) in cfg.schemes.iter().enumerate() {
             let key = |k: &str| format!("scheme[{i}].{k}");
-            if s.name.is_empty()
-                || !s
-                    .name
-                    .chars()
-                    .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
-            {
-                return Err(SpecError::new(
-                    key("name"),
-                    format!(
-                        "'{}' must be non-empty letters, digits, '-', '_' or '.'",
-                        s.name
-                    ),
-                ));
-            }
+            chaoscope_schemas::names::validate_scheme_name(&s.name)
+                .map_err(|problem| SpecError::new(key("name"), problem))?;
             if schemes.iter().any(|o: &SchemeSpec| o.name == s.name) {
                 return Err(SpecError::new(
                     key("name"),

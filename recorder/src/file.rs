@@ -1,7 +1,9 @@
 //! The MCAP layout of a recording, independent of where messages come from.
 //!
 //! One channel per stream: `/chaoscope/run` (the run header), `/chaoscope/reference`, one
-//! `/chaoscope/separations/<scheme>` per scheme, `/chaoscope/end` and `/chaoscope/recording`.
+//! `/chaoscope/separations/<scheme>` per scheme, `/chaoscope/end` and `/chaoscope/recording`,
+//! and one `/chaoscope/indicators/<scheme>` per scheme, written from the separations (after
+//! each sample's last set, [`crate::indicators`]).
 //! The run configuration is also stored as the metadata record `chaoscope.run`, and how the file
 //! was finalized as `chaoscope.recording`.
 //!
@@ -18,6 +20,8 @@ use chaoscope_schemas::names::{metadata, topic};
 use chaoscope_schemas::proto::{self, RecordingSummary, RunHeader, schema_name};
 use mcap::records::{MessageHeader, Metadata};
 use prost::Message;
+
+use crate::indicators::IndicatorStream;
 
 /// Compression of MCAP chunks.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -83,6 +87,9 @@ pub struct RecordingFile<W: Write + Seek> {
     reference: u16,
     /// Channel of each scheme, by scheme index.
     separations: Vec<u16>,
+    /// Indicator channel of each scheme, by scheme index.
+    indicator_channels: Vec<u16>,
+    indicators: IndicatorStream,
     end: u16,
     recording: u16,
     encoded: Vec<u8>,
@@ -136,6 +143,14 @@ impl<W: Write + Seek> RecordingFile<W> {
                 &topic::separations(&s.name),
             )?);
         }
+        let mut indicator_channels = Vec::new();
+        for s in &header.schemes {
+            indicator_channels.push(channel(
+                &mut writer,
+                schema_name::INDICATORS,
+                &topic::indicators(&s.name),
+            )?);
+        }
         let end = channel(&mut writer, schema_name::END_OF_RUN, topic::END)?;
         let recording = channel(
             &mut writer,
@@ -147,6 +162,8 @@ impl<W: Write + Seek> RecordingFile<W> {
             writer,
             reference,
             separations,
+            indicator_channels,
+            indicators: IndicatorStream::new(header),
             end,
             recording,
             encoded: Vec::new(),
@@ -181,15 +198,33 @@ impl<W: Write + Seek> RecordingFile<W> {
     /// announced the schemes).
     pub fn write(&mut self, message: &DataMessage) -> mcap::McapResult<()> {
         match message {
-            DataMessage::Reference(m) => self.put(self.reference, m.frame, log_time_of(m.t), m),
+            DataMessage::Reference(m) => {
+                self.write_indicators()?;
+                self.put(self.reference, m.frame, log_time_of(m.t), m)
+            }
             DataMessage::Separations(m) => {
                 let channel = *self.separations.get(m.scheme as usize).ok_or_else(|| {
                     mcap::McapError::UnknownChannel(m.frame as u32, m.scheme as u16)
                 })?;
-                self.put(channel, m.frame, log_time_of(m.t), m)
+                self.put(channel, m.frame, log_time_of(m.t), m)?;
+                self.indicators.observe(m);
+                Ok(())
             }
-            DataMessage::End(m) => self.put(self.end, m.frame, log_time_of(m.t), m),
+            DataMessage::End(m) => {
+                self.write_indicators()?;
+                self.put(self.end, m.frame, log_time_of(m.t), m)
+            }
         }
+    }
+
+    /// Writes the indicators of the schemes whose sample is complete: a sample's messages end
+    /// where the next reference state, the end of the run or the end of the file begins.
+    fn write_indicators(&mut self) -> mcap::McapResult<()> {
+        for m in self.indicators.take() {
+            let channel = self.indicator_channels[m.scheme as usize];
+            self.put(channel, m.seq, log_time_of(m.t), &m)?;
+        }
+        Ok(())
     }
 
     /// Closes the open chunk so it is on disk whole (bounds what a crash can lose).
@@ -199,6 +234,7 @@ impl<W: Write + Seek> RecordingFile<W> {
 
     /// Writes the recording summary message and metadata, then the MCAP summary and footer.
     pub fn finish(mut self, summary: &RecordingSummary) -> mcap::McapResult<W> {
+        self.write_indicators()?;
         self.put(
             self.recording,
             summary.last_frame,

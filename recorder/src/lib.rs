@@ -4,6 +4,8 @@
 //! - [`sequence`]: gap and duplicate accounting of frame sequence numbers (pure).
 //! - [`file`]: the MCAP layout of a recording (schemas, channels, metadata) over any
 //!   `Write + Seek` (pure of the bus).
+//! - [`indicators`]: the indicators channel (GALI, SALI, exponents per scheme and sample), from
+//!   the same tracker as `chaoscope analyze`.
 //! - [`recording`]: what a recorder does with each bus message and how it finalizes (pure).
 //! - [`subscription`]: the bus side, waking on iceoryx2 events and watching the producer's
 //!   node liveness.
@@ -15,6 +17,7 @@
 
 pub mod discover;
 pub mod file;
+pub mod indicators;
 pub mod map_file;
 pub mod record;
 pub mod recording;

@@ -105,9 +105,12 @@ mod tests {
             run_name: "t".into(),
             dim: 2,
             k: 1,
+            sets: 1,
+            h: 0.01,
             schemes: vec![Scheme {
                 index: 0,
                 name: "vm".into(),
+                tau_steps: 1,
                 ..Default::default()
             }],
             ..Default::default()
@@ -154,6 +157,8 @@ mod tests {
                 "/chaoscope/run",
                 "/chaoscope/reference",
                 "/chaoscope/separations/vm",
+                // The sample's indicators, written when the file ends after its last set.
+                "/chaoscope/indicators/vm",
                 "/chaoscope/recording"
             ]
         );

@@ -59,7 +59,18 @@ pub fn write_run<W: Write + Seek>(
     options: &FileOptions,
     seed: u64,
 ) -> mcap::McapResult<W> {
-    let header = RunHeader {
+    write_run_with(out, shape, options, seed, |_| {})
+}
+
+/// [`write_run`] with the run header changed by `edit` first (hostile headers: names, configs).
+pub fn write_run_with<W: Write + Seek>(
+    out: W,
+    shape: &Shape,
+    options: &FileOptions,
+    seed: u64,
+    edit: impl FnOnce(&mut RunHeader),
+) -> mcap::McapResult<W> {
+    let mut header = RunHeader {
         run_name: "synthetic".into(),
         model: "fput-beta".into(),
         n: shape.dim / 2,
@@ -78,6 +89,7 @@ pub fn write_run<W: Write + Seek>(
         }],
         ..Default::default()
     };
+    edit(&mut header);
     let mut noise = Noise::new(seed);
     let mut recording = Recording::start(out, &header, options)?;
     let mut frame = 0;

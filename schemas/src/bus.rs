@@ -14,6 +14,9 @@
 //! - map `points`: safe overflow ON (a slow watcher loses the oldest points, `chaoscope map`
 //!   never waits); map `header`: history 1.
 
+use std::os::unix::fs::{DirBuilderExt, MetadataExt, PermissionsExt};
+use std::path::PathBuf;
+use std::sync::OnceLock;
 use std::time::Duration;
 
 use iceoryx2::node::NodeView;
@@ -83,6 +86,14 @@ impl BusError {
             detail: format!("{detail:?}"),
         }
     }
+
+    /// The bus directory cannot be used (the message says why).
+    fn directory(message: &str) -> Self {
+        Self {
+            what: "bus directory".into(),
+            detail: message.into(),
+        }
+    }
 }
 
 /// Quiets iceoryx2's logger (it warns about a missing config file in every process); errors
@@ -91,28 +102,185 @@ pub fn quiet_logging() {
     set_log_level(LogLevel::Error);
 }
 
+/// Environment variable naming the bus directory instead of `/tmp/chaoscope-bus-<uid>`.
+pub const BUS_DIR_ENV: &str = "CHAOSCOPE_BUS_DIR";
+
+/// Where and under which names this user's chaoscope processes meet on the bus.
+///
+/// iceoryx2's default domain (`/tmp/iceoryx2/`, shared-memory names `iox2_*`) is one for all
+/// users: whoever creates `/tmp/iceoryx2` first owns it (another user can then delete or
+/// replace everyone's service files, or, if it is root's, nobody else can use the bus), and two
+/// users' runs of the same name collide in `/dev/shm`. chaoscope therefore gives each user a
+/// domain of their own:
+/// - the root directory (service and node files, event sockets) is `/tmp/chaoscope-bus-<uid>`
+///   (or `$CHAOSCOPE_BUS_DIR`), created mode 0700 and refused unless it is a real directory
+///   owned by this user with no group or other permissions, so nobody else can list, read,
+///   create or delete anything in it;
+/// - shared-memory segments are named `cs<uid>_<tag of the directory>_*` in `/dev/shm` and created by iceoryx2 mode
+///   0600 (built without its `dev_permissions` feature), which the sticky bit of `/dev/shm`
+///   keeps other users from deleting; the one segment iceoryx2 makes world-writable (a node
+///   counter, `*.global_mgmt`) is narrowed to 0600 by [`create_node`].
+///
+/// Every process of the same user (producer, recorders, monitors, map watchers) computes the
+/// same domain, so they still meet; a process of another user computes its own.
+#[derive(Debug, Clone)]
+pub struct Domain {
+    /// The iceoryx2 root directory.
+    pub root: PathBuf,
+    /// Prefix of every file and shared-memory segment iceoryx2 creates.
+    pub prefix: String,
+    config: Config,
+}
+
+impl Domain {
+    /// The iceoryx2 configuration with this domain's root and prefix.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+}
+
+/// This process's domain: computed (and its directory created and checked) once.
+pub fn domain() -> Result<&'static Domain, BusError> {
+    static DOMAIN: OnceLock<Result<Domain, String>> = OnceLock::new();
+    DOMAIN
+        .get_or_init(|| {
+            // SAFETY: geteuid(2) cannot fail.
+            let uid = unsafe { libc::geteuid() };
+            let root = match std::env::var_os(BUS_DIR_ENV) {
+                Some(dir) => PathBuf::from(dir),
+                // Fixed, not $TMPDIR: every process of the user must find the same directory.
+                None => PathBuf::from(format!("/tmp/chaoscope-bus-{uid}")),
+            };
+            make_domain(root)
+        })
+        .as_ref()
+        .map_err(|e| BusError::directory(e))
+}
+
+/// The domain of the bus directory `root` (what processes started with `CHAOSCOPE_BUS_DIR=root`
+/// use), its directory created and checked like [`domain`]'s.
+pub fn domain_at(root: &std::path::Path) -> Result<Domain, BusError> {
+    make_domain(root.to_path_buf()).map_err(|e| BusError::directory(&e))
+}
+
+fn make_domain(root: PathBuf) -> Result<Domain, String> {
+    // SAFETY: geteuid(2) cannot fail.
+    let uid = unsafe { libc::geteuid() };
+    if !root.is_absolute() {
+        return Err(format!(
+            "{} = {} must be an absolute path",
+            BUS_DIR_ENV,
+            root.display()
+        ));
+    }
+    match std::fs::DirBuilder::new().mode(0o700).create(&root) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+        Err(e) => return Err(format!("creating {}: {e}", root.display())),
+    }
+    // lstat: a symbolic link planted by someone else is refused, not followed.
+    let meta =
+        std::fs::symlink_metadata(&root).map_err(|e| format!("reading {}: {e}", root.display()))?;
+    if !meta.file_type().is_dir() {
+        return Err(format!(
+            "{} is not a directory (a link or file someone else may have planted); remove it",
+            root.display()
+        ));
+    }
+    if meta.uid() != uid {
+        return Err(format!(
+            "{} belongs to uid {}, not to you (uid {uid}): another user could read or change \
+             your runs through it; remove it or set {BUS_DIR_ENV} to a directory of yours",
+            root.display(),
+            meta.uid()
+        ));
+    }
+    if meta.permissions().mode() & 0o077 != 0 {
+        // Ours, but open to others (made by hand or by an older umask): close it.
+        std::fs::set_permissions(&root, std::fs::Permissions::from_mode(0o700))
+            .map_err(|e| format!("making {} private: {e}", root.display()))?;
+    }
+    // The user and the directory in every segment name: users never collide in /dev/shm, and
+    // neither do two bus directories of one user (separate domains, e.g. per batch job).
+    let prefix = format!(
+        "cs{uid}_{:08x}_",
+        fnv1a(root.as_os_str().as_encoded_bytes())
+    );
+    let mut config = Config::default();
+    let mut root_text = root.to_string_lossy().into_owned();
+    if !root_text.ends_with('/') {
+        root_text.push('/');
+    }
+    let root_path = Path::new(root_text.as_bytes())
+        .map_err(|e| format!("{} as an iceoryx2 path: {e:?}", root.display()))?;
+    config.global.set_root_path(&root_path);
+    config.global.prefix = FileName::new(prefix.as_bytes())
+        .map_err(|e| format!("{prefix} as an iceoryx2 prefix: {e:?}"))?;
+    Ok(Domain {
+        root,
+        prefix,
+        config,
+    })
+}
+
+/// 32-bit FNV-1a: a short, stable tag of the bus directory for segment names.
+fn fnv1a(bytes: &[u8]) -> u32 {
+    bytes.iter().fold(0x811c_9dc5, |h, &b| {
+        (h ^ u32::from(b)).wrapping_mul(0x0100_0193)
+    })
+}
+
+/// Narrows this user's node-counter segments (which iceoryx2 creates world-writable) to 0600.
+fn close_global_segments(domain: &Domain) {
+    let Ok(entries) = std::fs::read_dir("/dev/shm") else {
+        return;
+    };
+    // SAFETY: geteuid(2) cannot fail.
+    let uid = unsafe { libc::geteuid() };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let name = name.to_string_lossy();
+        if !(name.starts_with(&domain.prefix) && name.ends_with(".global_mgmt")) {
+            continue;
+        }
+        if let Ok(meta) = entry.metadata()
+            && meta.uid() == uid
+            && meta.permissions().mode() & 0o077 != 0
+        {
+            let _ = std::fs::set_permissions(entry.path(), std::fs::Permissions::from_mode(0o600));
+        }
+    }
+}
+
 /// Creates a node named `name` after removing stale resources left by crashed processes.
 ///
 /// iceoryx2 handles SIGINT/SIGTERM for the node: waiting calls then report a termination
 /// request, which every chaoscope loop honours.
 pub fn create_node(name: &str) -> Result<Node<ipc::Service>, BusError> {
     quiet_logging();
+    let domain = domain()?;
     cleanup_dead_nodes();
     let node_name: NodeName = name
         .try_into()
         .map_err(|e| BusError::new(format!("node name {name:?}"), e))?;
-    NodeBuilder::new()
+    let node = NodeBuilder::new()
         .name(&node_name)
+        .config(domain.config())
         .create::<ipc::Service>()
-        .map_err(|e| BusError::new(format!("create node {name:?}"), e))
+        .map_err(|e| BusError::new(format!("create node {name:?}"), e))?;
+    close_global_segments(domain);
+    Ok(node)
 }
 
 /// Removes the shared memory and registrations of every dead node (a process killed with
 /// SIGKILL cannot clean up after itself). Returns how many dead nodes were removed.
 pub fn cleanup_dead_nodes() -> usize {
     quiet_logging();
+    let Ok(domain) = domain() else {
+        return 0;
+    };
     let mut dead = Vec::new();
-    let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
+    let _ = Node::<ipc::Service>::list(domain.config(), |state| {
         if let NodeState::Dead(view) = state {
             dead.push(view);
         }
@@ -137,7 +305,10 @@ pub enum Liveness {
 pub fn node_liveness(name: &str) -> Liveness {
     quiet_logging();
     let mut result = Liveness::Absent;
-    let _ = Node::<ipc::Service>::list(Config::global_config(), |state| {
+    let Ok(domain) = domain() else {
+        return result;
+    };
+    let _ = Node::<ipc::Service>::list(domain.config(), |state| {
         let (liveness, details) = match &state {
             NodeState::Alive(v) => (Liveness::Alive, v.details()),
             NodeState::Dead(v) => (Liveness::Dead, v.details()),
@@ -317,7 +488,10 @@ pub fn map_points_service(node: &Node<ipc::Service>, map: &str) -> Result<MapSer
 pub fn list_maps() -> Vec<String> {
     quiet_logging();
     let mut maps = Vec::new();
-    let _ = ipc::Service::list(Config::global_config(), |details| {
+    let Ok(domain) = domain() else {
+        return maps;
+    };
+    let _ = ipc::Service::list(domain.config(), |details| {
         if let Some(map) = names::map_of_header_service(details.static_details.name().as_str()) {
             maps.push(map.to_string());
         }
@@ -332,7 +506,10 @@ pub fn list_maps() -> Vec<String> {
 pub fn list_runs() -> Vec<String> {
     quiet_logging();
     let mut runs = Vec::new();
-    let _ = ipc::Service::list(Config::global_config(), |details| {
+    let Ok(domain) = domain() else {
+        return runs;
+    };
+    let _ = ipc::Service::list(domain.config(), |details| {
         if let Some(run) = names::run_of_header_service(details.static_details.name().as_str()) {
             runs.push(run.to_string());
         }

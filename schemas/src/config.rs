@@ -48,7 +48,7 @@ pub struct ModelConfig {
     /// The system's kind and, for built-in ones, the model. Hamiltonians: `"henon-heiles"`,
     /// `"fput-beta"`, or `"potential"` (a separable Hamiltonian `H = sum p_i^2 / (2 m_i) + V(q)`
     /// with `V` written in `potential`). Flows: `"ode"` (`dx/dt = f(x)` with `f` written in
-    /// `rhs`).
+    /// `rhs`). Maps: `"map"` (`x -> F(x)` with `F` written in `next`).
     pub name: String,
     /// Number of degrees of freedom (lattice sites); fixed to 2 for Henon-Heiles.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -77,6 +77,15 @@ pub struct ModelConfig {
     /// per coordinate over `x1..xD` (or `x[i]`) and `params`; `D` is the number of entries.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rhs: Option<Vec<String>>,
+    /// `"map"` only: the map `x -> F(x)`, one expression `F_i(x)` per coordinate over `x1..xD`
+    /// (or `x[i]`) and `params`; `D` is the number of entries.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub next: Option<Vec<String>>,
+    /// `"map"` only: per coordinate, the period it is taken modulo (e.g. `6.283185307179586`
+    /// for an angle), or 0 for a coordinate that is not wrapped. Separations of nearby orbits
+    /// are measured on the torus (the minimal image).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub modulo: Option<Vec<f64>>,
 }
 
 impl ModelConfig {
@@ -177,7 +186,8 @@ pub struct OrbitConfig {
 #[serde(deny_unknown_fields)]
 pub struct IntegratorConfig {
     /// Splittings of separable Hamiltonians: `"aba864"`, `"leapfrog"`, `"saba2"`, `"yoshida4"`.
-    /// Runge-Kutta methods of flows: `"rk4"`, `"dop853"`.
+    /// Runge-Kutta methods of flows: `"rk4"`, `"dop853"`. Maps: `"iterate"` or left out.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
     pub method: String,
     /// Time step. Fixed-step methods take exactly this step; adaptive `dop853` (with `rtol` /
     /// `atol`) lands every accepted step on the grid of multiples of `h`, so `h` is the time
@@ -294,7 +304,7 @@ pub struct MapAxis {
 pub struct MapConfig {
     pub x: MapAxis,
     pub y: MapAxis,
-    /// `"gali"`, `"gali-time"` or `"mle"`.
+    /// `"gali"`, `"gali-time"`, `"sali"` or `"mle"`.
     pub indicator: String,
     /// Order of the GALI (for `gali` and `gali-time`).
     #[serde(default, skip_serializing_if = "Option::is_none")]

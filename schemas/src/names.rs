@@ -53,6 +53,32 @@ pub fn validate_run_name(name: &str) -> Result<(), String> {
     Ok(())
 }
 
+/// A scheme name: 1 to [`MAX_SCHEME_NAME_LEN`] letters, digits, `-`, `_` or `.`. It is a topic
+/// component (`/chaoscope/separations/<name>`) and part of the file names `analyze --csv` and
+/// `--plot` write, so it can hold no `/` and nothing that climbs out of the directory the user
+/// gave. Configs are checked with it, and so are the headers of recordings, which may come from
+/// anyone.
+pub fn validate_scheme_name(name: &str) -> Result<(), String> {
+    if name.is_empty()
+        || name.len() > MAX_SCHEME_NAME_LEN
+        || !name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || "-_.".contains(c))
+    {
+        // Quoted with escapes and cut short: the name may be anything a file holds.
+        let shown: String = name.chars().take(80).collect();
+        let more = if shown.len() < name.len() { "..." } else { "" };
+        return Err(format!(
+            "'{}{more}' must be 1 to {MAX_SCHEME_NAME_LEN} letters, digits, '-', '_' or '.'",
+            shown.escape_debug()
+        ));
+    }
+    Ok(())
+}
+
+/// Longest scheme name (a file name component of `analyze --csv/--plot`).
+pub const MAX_SCHEME_NAME_LEN: usize = 200;
+
 /// iceoryx2 service name of one stream of a run.
 pub fn service_name(run: &str, stream: &str) -> String {
     format!("{SERVICE_PREFIX}{run}/{stream}")
@@ -112,6 +138,12 @@ pub mod topic {
     /// One channel per scheme: `/chaoscope/separations/<scheme name>`.
     pub fn separations(scheme_name: &str) -> String {
         format!("/chaoscope/separations/{scheme_name}")
+    }
+
+    /// One channel per scheme: `/chaoscope/indicators/<scheme name>` (GALI, SALI, exponents
+    /// averaged over the sets, at each of the scheme's renormalizations).
+    pub fn indicators(scheme_name: &str) -> String {
+        format!("/chaoscope/indicators/{scheme_name}")
     }
 }
 

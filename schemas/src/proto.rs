@@ -21,6 +21,7 @@ pub mod schema_name {
     pub const SEPARATION_SET: &str = "chaoscope.v1.SeparationSet";
     pub const END_OF_RUN: &str = "chaoscope.v1.EndOfRun";
     pub const RECORDING_SUMMARY: &str = "chaoscope.v1.RecordingSummary";
+    pub const INDICATORS: &str = "chaoscope.v1.Indicators";
     pub const MAP_HEADER: &str = "chaoscope.v1.MapHeader";
     pub const MAP_POINT: &str = "chaoscope.v1.MapPoint";
 }
@@ -51,6 +52,7 @@ mod tests {
             "SeparationSet",
             "EndOfRun",
             "RecordingSummary",
+            "Indicators",
             "MapHeader",
             "MapPoint",
         ] {

@@ -9,7 +9,7 @@ use anyhow::Context;
 use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::plot::{TimeAxis, plot_all};
 use chaoscope_analyzer::recording::analyze_file;
-use chaoscope_analyzer::report::Report;
+use chaoscope_analyzer::report::{EndReport, Report};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -67,6 +67,9 @@ pub fn print_table(report: &Report) {
             " (INCOMPLETE: frames missing)"
         }
     );
+    if let Some(end) = r.end.as_ref().filter(|e| e.status != "completed") {
+        println!("the run {}: {}", end.status, end.reason);
+    }
     let k = r.k;
     let mut head = format!(
         "{:<22} {:>4} {:>8} {:>7} {:>5} {:>9}",
@@ -136,10 +139,14 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         at: args.at.into_iter().collect(),
         ..Default::default()
     };
-    let (analysis, _info) = analyze_file(&args.file, &options)?;
+    let (analysis, info) = analyze_file(&args.file, &options)?;
     let report = match args.at {
         Some(t) => analysis.report_at(t).expect("requested time is captured"),
-        None => analysis.report(),
+        None => {
+            let mut report = analysis.report();
+            report.run.end = info.end.as_ref().map(EndReport::from_message);
+            report
+        }
     };
     if args.json {
         use std::io::Write;

@@ -7,6 +7,7 @@ pub mod map;
 pub mod map_watch;
 pub mod merge;
 pub mod monitor;
+mod monitor_foxglove;
 mod monitor_view;
 pub mod produce;
 pub mod record;

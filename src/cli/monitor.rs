@@ -6,8 +6,12 @@
 //! missed are counted and make its results "incomplete" (Lyapunov exponents then average the
 //! intervals it saw; GALI and SALI are instantaneous and exact whenever the latest sample
 //! arrived).
+//!
+//! `--foxglove [ADDR]` also serves the run over the Foxglove WebSocket protocol
+//! ([`super::monitor_foxglove`]).
 
 use std::io::{IsTerminal, Write};
+use std::net::SocketAddr;
 use std::ops::ControlFlow;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -22,6 +26,7 @@ use chaoscope_schemas::bus::{self, Liveness};
 use chaoscope_schemas::names;
 use chaoscope_schemas::proto::EndOfRun;
 
+use super::monitor_foxglove::{self, FoxgloveServer};
 use super::monitor_view::TerminalView;
 
 #[derive(clap::Args)]
@@ -40,6 +45,11 @@ pub struct Args {
     /// Plain text lines even on a terminal (no full-screen view).
     #[arg(long)]
     pub plain: bool,
+    /// Also serve the run over the Foxglove WebSocket protocol on ADDR (default
+    /// 127.0.0.1:8765; port 0 picks a free one): open it in Foxglove or Lichtblick.
+    #[arg(long, value_name = "ADDR", num_args = 0..=1,
+          default_missing_value = monitor_foxglove::DEFAULT_ADDR)]
+    pub foxglove: Option<SocketAddr>,
 }
 
 fn find_run(timeout: Duration) -> anyhow::Result<String> {
@@ -119,12 +129,18 @@ fn plain_line(analysis: &Analysis, progress: &Progress, live: &LiveRun) -> Strin
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    // Serving before the run appears, so a client can connect and wait for its channels.
+    let foxglove = args.foxglove.map(FoxgloveServer::start).transpose()?;
     let run = match args.run {
         Some(r) => r,
         None => find_run(args.wait_timeout)?,
     };
     let Some((live, header)) = LiveRun::connect(&run, args.wait_timeout)? else {
         return Ok(super::exit_interrupted());
+    };
+    let mut channels = match &foxglove {
+        Some(server) => Some(server.channels(&header)?),
+        None => None,
     };
     let info = RunInfo::from_header(header).context("run header")?;
     let total_steps = info.header.total_steps;
@@ -154,6 +170,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let tick = args.interval.min(Duration::from_millis(100));
     let ended = live.receive(tick, |event| {
         if let LiveEvent::Message(m) = event {
+            if let Some(c) = &mut channels {
+                c.on_message(&m);
+            }
             let (sample, e) = assembler.push(m);
             if let Some(s) = sample {
                 analysis.feed(&s);
@@ -203,6 +222,12 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     }
     if let View::Terminal(t) = view {
         t.stop()?;
+    }
+    if let Some(c) = &mut channels {
+        c.finish();
+    }
+    if let Some(server) = foxglove {
+        server.stop();
     }
     if let Some(e) = out_error
         && e.kind() != std::io::ErrorKind::BrokenPipe

@@ -3,6 +3,7 @@
 //! for both, then prints the analysis summary of the recording.
 
 use std::io::Write;
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, Stdio};
 use std::sync::Arc;
@@ -82,6 +83,22 @@ fn child_command(subcommand: &str) -> anyhow::Result<Command> {
     let exe = std::env::current_exe().context("locating the chaoscope executable")?;
     let mut command = Command::new(exe);
     command.arg(subcommand).stdout(Stdio::piped());
+    // If this process is killed (SIGKILL cannot be forwarded), the children get SIGTERM from
+    // the kernel and finalize their files as on Ctrl-C, instead of running on as orphans.
+    let parent = std::process::id();
+    // SAFETY: only async-signal-safe calls (prctl, getppid, raise) between fork and exec.
+    unsafe {
+        command.pre_exec(move || {
+            if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
+                return Err(std::io::Error::last_os_error());
+            }
+            // The parent died before prctl took effect: act as if the signal came.
+            if libc::getppid() as u32 != parent {
+                libc::raise(libc::SIGTERM);
+            }
+            Ok(())
+        });
+    }
     Ok(command)
 }
 

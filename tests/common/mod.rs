@@ -12,7 +12,7 @@ use chaoscope_producer::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 use chaoscope_schemas::names::topic;
 use chaoscope_schemas::proto::{
-    EndOfRun, RecordingSummary, ReferenceState, RunHeader, SeparationSet,
+    EndOfRun, Indicators, RecordingSummary, ReferenceState, RunHeader, SeparationSet,
 };
 use prost::Message;
 
@@ -113,6 +113,8 @@ pub struct Recorded {
     pub separations: Vec<SeparationSet>,
     pub end: Option<EndOfRun>,
     pub recording: Option<RecordingSummary>,
+    /// (topic, message) of the indicator channels, in file order.
+    pub indicators: Vec<(String, Indicators)>,
     /// Frame numbers of data messages in file order.
     pub frames: Vec<u64>,
 }
@@ -142,6 +144,9 @@ pub fn read_recording(path: &Path) -> Recorded {
                 r.frames.push(s.frame);
                 r.separations.push(s);
             }
+            t if t.starts_with("/chaoscope/indicators/") => r
+                .indicators
+                .push((t.to_string(), Indicators::decode(data).unwrap())),
             other => panic!("unexpected topic {other}"),
         }
     }

@@ -29,6 +29,7 @@
 //! bit-identical to `Graph::apply_*` step by step, and never emit a fused multiply-add.
 
 use std::cell::{Cell, RefCell};
+use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -41,6 +42,7 @@ use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::JITModule;
 use cranelift_module::{Linkage, Module};
 
+use super::c_step::{self, C_BLOCK_LANES, CCompiler, CKernels};
 use super::{
     FunctionSpec, JitError, Layout, OptLevel, Options, Plan, Sigs, VConsts, emit_scalar,
     emit_vector, flags, is_leaf, new_module, operand_scalar, outputs_by_node,
@@ -97,23 +99,50 @@ pub type TangentStepsFnPtr = unsafe extern "C" fn(
     inverse_masses: *const f64,
 );
 
-/// The compiled step kernels of one [`compile_steps`] call (owns the code and the tables it
-/// calls into). `Send + Sync` for the same reasons as [`super::Compiled`].
+/// The compiled step kernels of one [`compile_steps`] or [`compile_steps_c`] call (owns the
+/// code and the tables it calls into). `Send + Sync` for the same reasons as
+/// [`super::Compiled`]; a loaded C library is `Send + Sync` too.
 pub struct StepKernels {
-    modules: Mutex<Vec<JITModule>>,
+    code: Code,
     n: usize,
     /// Lanes per block of each kernel (orbit, tangent).
     blocks: [usize; 2],
-    orbit: OrbitStepsFnPtr,
-    tangent: Option<TangentStepsFnPtr>,
     _tables: Box<[Arc<dyn Tabulated>]>,
     compile_time: Duration,
 }
 
+/// Who generated the machine code.
+enum Code {
+    Cranelift {
+        modules: Mutex<Vec<JITModule>>,
+        orbit: OrbitStepsFnPtr,
+        tangent: Option<TangentStepsFnPtr>,
+    },
+    /// The system C compiler ([`super::c_step`]); `env` is the callback table the code reads
+    /// (pointers to the Rust callbacks and into `_tables`).
+    C {
+        kernels: CKernels,
+        env: Box<[usize]>,
+    },
+}
+
+/// Which code generator built a [`StepKernels`].
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum StepBackend {
+    Cranelift,
+    /// Compiled by the system C compiler, or loaded from its cache (`cached`).
+    C {
+        cached: bool,
+        library: PathBuf,
+    },
+}
+
 impl Drop for StepKernels {
     fn drop(&mut self) {
-        // SAFETY: dropping; the raw pointers handed out live only as long as `self`.
-        unsafe { super::free_modules(&mut self.modules) }
+        if let Code::Cranelift { modules, .. } = &mut self.code {
+            // SAFETY: dropping; the raw pointers handed out live only as long as `self`.
+            unsafe { super::free_modules(modules) }
+        }
     }
 }
 
@@ -122,7 +151,8 @@ impl std::fmt::Debug for StepKernels {
         f.debug_struct("StepKernels")
             .field("n", &self.n)
             .field("blocks", &self.blocks)
-            .field("tangent", &self.tangent.is_some())
+            .field("tangent", &self.has_tangent())
+            .field("backend", &self.backend())
             .field("compile_time", &self.compile_time)
             .finish()
     }
@@ -146,21 +176,25 @@ impl StepKernels {
     }
 
     pub fn has_tangent(&self) -> bool {
-        self.tangent.is_some()
+        match &self.code {
+            Code::Cranelift { tangent, .. } => tangent.is_some(),
+            Code::C { kernels, .. } => kernels.tangent.is_some(),
+        }
     }
 
+    /// Code generation (and, for C, compilation or cache lookup) and linking time.
     pub fn compile_time(&self) -> Duration {
         self.compile_time
     }
 
-    /// The orbit kernel's machine code; see [`OrbitStepsFnPtr`]; valid while `self` lives.
-    pub fn raw_orbit(&self) -> OrbitStepsFnPtr {
-        self.orbit
-    }
-
-    /// The tangent kernel's machine code, if compiled; see [`TangentStepsFnPtr`].
-    pub fn raw_tangent(&self) -> Option<TangentStepsFnPtr> {
-        self.tangent
+    pub fn backend(&self) -> StepBackend {
+        match &self.code {
+            Code::Cranelift { .. } => StepBackend::Cranelift,
+            Code::C { kernels, .. } => StepBackend::C {
+                cached: kernels.cached,
+                library: kernels.path.clone(),
+            },
+        }
     }
 
     fn check(
@@ -254,21 +288,18 @@ impl StepKernels {
         }
         self.check(x, stride, lanes, drift, kick, inverse_masses);
         let w = inverse_masses.map_or(std::ptr::null(), |w| w.as_ptr());
-        let f = self.orbit;
+        let (d, k, nk) = (drift.as_ptr(), kick.as_ptr(), kick.len());
         self.by_blocks(x, stride, lanes, self.blocks[0], |p, stride, lanes| {
             // SAFETY: lengths checked above (the padded copy has `2N` rows of `block` lanes);
-            // `lanes` is a multiple of the block; the code lives as long as `self`.
+            // `lanes` is a multiple of the block; the code (and the tables and callbacks `env`
+            // points to) lives as long as `self`.
             unsafe {
-                f(
-                    p,
-                    stride,
-                    lanes,
-                    n_steps,
-                    drift.as_ptr(),
-                    kick.as_ptr(),
-                    kick.len(),
-                    w,
-                )
+                match &self.code {
+                    Code::Cranelift { orbit, .. } => orbit(p, stride, lanes, n_steps, d, k, nk, w),
+                    Code::C { kernels, env } => {
+                        (kernels.orbit)(p, stride, lanes, n_steps, d, k, nk, w, env.as_ptr())
+                    }
+                }
             }
         });
     }
@@ -291,9 +322,10 @@ impl StepKernels {
         kick: &[f64],
         inverse_masses: Option<&[f64]>,
     ) {
-        let f = self
-            .tangent
-            .expect("step kernels: no tangent kernel was compiled");
+        assert!(
+            self.has_tangent(),
+            "step kernels: no tangent kernel was compiled"
+        );
         if lanes == 0 || n_steps == 0 {
             return;
         }
@@ -305,20 +337,24 @@ impl StepKernels {
             stages.len()
         );
         let w = inverse_masses.map_or(std::ptr::null(), |w| w.as_ptr());
+        let (st, d, k, nk) = (stages.as_ptr(), drift.as_ptr(), kick.as_ptr(), kick.len());
         self.by_blocks(v, stride, lanes, self.blocks[1], |p, stride, lanes| {
-            // SAFETY: as in `orbit_steps`, and `stages` holds every position the steps read.
+            // SAFETY: as in `orbit_steps`, and `stages` holds every position the steps read;
+            // the tangent kernel exists (asserted above).
             unsafe {
-                f(
-                    stages.as_ptr(),
-                    p,
-                    stride,
-                    lanes,
-                    n_steps,
-                    drift.as_ptr(),
-                    kick.as_ptr(),
-                    kick.len(),
-                    w,
-                )
+                match &self.code {
+                    Code::Cranelift {
+                        tangent: Some(f), ..
+                    } => f(st, p, stride, lanes, n_steps, d, k, nk, w),
+                    Code::C {
+                        kernels:
+                            CKernels {
+                                tangent: Some(f), ..
+                            },
+                        env,
+                    } => f(st, p, stride, lanes, n_steps, d, k, nk, w, env.as_ptr()),
+                    _ => unreachable!("has_tangent checked above"),
+                }
             }
         });
     }
@@ -344,29 +380,8 @@ pub fn compile_steps(
     let n = spec.n;
     let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
     let mut kernels: Vec<(usize, Plan, u8, bool)> = Vec::new();
-    let check = |f: usize, outputs: &[NodeId], args: Vec<Layout>| {
-        if outputs.len() != n || n == 0 {
-            return Err(JitError::Steps(format!(
-                "kernel {f}: {} outputs for {n} degrees of freedom",
-                outputs.len()
-            )));
-        }
-        let plan = Plan::new(
-            graph,
-            &FunctionSpec {
-                args,
-                outputs: outputs.to_vec(),
-            },
-            f,
-        )?;
-        if let Some(a) = plan.arg_len.iter().position(|&len| len > n) {
-            return Err(JitError::Steps(format!(
-                "kernel {f}: argument {a} is read at entry {}, beyond N = {n}",
-                plan.arg_len[a] - 1
-            )));
-        }
-        Ok(plan)
-    };
+    let check =
+        |f: usize, outputs: &[NodeId], args: Vec<Layout>| kernel_plan(graph, n, f, outputs, args);
     let orbit_plan = check(0, &spec.gradient, vec![Layout::Lanes])?;
     kernels.push((0, orbit_plan, 0, false));
     if let Some(hv) = &spec.hessian_vector {
@@ -449,13 +464,37 @@ pub fn compile_steps(
         }
     }
     Ok(StepKernels {
-        modules: Mutex::new(modules.into_iter().map(|(_, m)| m).collect()),
+        code: Code::Cranelift {
+            modules: Mutex::new(modules.into_iter().map(|(_, m)| m).collect()),
+            orbit: orbit.expect("the orbit kernel is always compiled"),
+            tangent,
+        },
         n,
         blocks,
-        orbit: orbit.expect("the orbit kernel is always compiled"),
-        tangent,
         _tables: tables,
         compile_time: start.elapsed(),
+    })
+}
+
+/// The same kernels as [`compile_steps`], written as C and compiled by `cc` (or loaded from its
+/// cache): [`C_BLOCK_LANES`] lanes per block in the host's widest vectors. Bit-identical to the
+/// Cranelift kernels and to the generic step loops (see the `c_step` module). Any failure (no
+/// compiler, a compiler error, an unwritable cache) is a [`JitError::CCompiler`] naming the
+/// cause; the caller falls back to [`compile_steps`].
+pub fn compile_steps_c(
+    graph: &Graph,
+    spec: &StepSpec,
+    cc: &CCompiler,
+) -> Result<StepKernels, JitError> {
+    let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
+    let (kernels, compile_time) = c_step::build(graph, spec, cc)?;
+    let env = c_step::env(&tables);
+    Ok(StepKernels {
+        code: Code::C { kernels, env },
+        n: spec.n,
+        blocks: [C_BLOCK_LANES; 2],
+        _tables: tables,
+        compile_time,
     })
 }
 
@@ -938,4 +977,37 @@ fn build_kernel(
     b.ins().return_(&[]);
     b.seal_all_blocks();
     b.finalize(config);
+}
+
+/// The plan of step kernel `f` (gradient or Hessian-vector product), checked against the step's
+/// shape: one output per degree of freedom, and no argument read beyond entry `N`. Shared by the
+/// Cranelift and the C generators, which must accept exactly the same kernels.
+pub(super) fn kernel_plan(
+    graph: &Graph,
+    n: usize,
+    f: usize,
+    outputs: &[NodeId],
+    args: Vec<Layout>,
+) -> Result<Plan, JitError> {
+    if outputs.len() != n || n == 0 {
+        return Err(JitError::Steps(format!(
+            "kernel {f}: {} outputs for {n} degrees of freedom",
+            outputs.len()
+        )));
+    }
+    let plan = Plan::new(
+        graph,
+        &FunctionSpec {
+            args,
+            outputs: outputs.to_vec(),
+        },
+        f,
+    )?;
+    if let Some(a) = plan.arg_len.iter().position(|&len| len > n) {
+        return Err(JitError::Steps(format!(
+            "kernel {f}: argument {a} is read at entry {}, beyond N = {n}",
+            plan.arg_len[a] - 1
+        )));
+    }
+    Ok(plan)
 }

@@ -13,11 +13,13 @@
 
 mod isa;
 mod lanes;
+mod map_lanes;
 mod models;
 mod soa;
 
 pub use isa::Isa;
 pub use lanes::{LaneModel, StepCoeffs, record_reference_stages};
+pub use map_lanes::{map_orbit_steps, map_tangent_steps, record_map_reference};
 pub use models::{AnyLaneModel, DynLanes};
 pub use soa::Soa;
 

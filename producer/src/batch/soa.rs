@@ -56,6 +56,16 @@ impl Soa {
         }
     }
 
+    /// The whole storage, `data[row * lanes + lane]` (padding lanes included): what a compiled
+    /// lane function reads with `lanes == stride == self.lanes()`.
+    pub(crate) fn data(&self) -> &[f64] {
+        &self.data
+    }
+
+    pub(crate) fn data_mut(&mut self) -> &mut [f64] {
+        &mut self.data
+    }
+
     /// Lanes `offset..offset + L` of every row, copied into `out` (one array per row).
     #[inline(always)]
     pub(crate) fn gather<const L: usize>(&self, offset: usize, out: &mut [[f64; L]]) {

@@ -3,6 +3,8 @@
 
 use chaoscope_schemas::config::MapConfig;
 
+use chaoscope_indicators::sali;
+
 use super::gali::log10_gali;
 use super::point::{PointResult, PointStatus};
 use crate::engine::RunError;
@@ -14,6 +16,8 @@ pub enum Indicator {
     Gali { k: usize },
     /// First renormalization time at which `GALI_k < threshold`; the set stops there.
     GaliTime { k: usize, threshold: f64 },
+    /// log10 of the Smaller Alignment Index of the first two vectors at `t_final`.
+    Sali,
     /// Finite-time maximal Lyapunov exponent at `t_final` (from the first vector of each set).
     Mle,
 }
@@ -32,6 +36,10 @@ impl Indicator {
         };
         let ind = match map.indicator.as_str() {
             "gali" => Indicator::Gali { k: need_k("gali")? },
+            "sali" => {
+                need_k("sali")?;
+                Indicator::Sali
+            }
             "gali-time" => {
                 let threshold = map.threshold.ok_or_else(|| {
                     SpecError::new("map.threshold", "gali-time needs a threshold")
@@ -51,7 +59,7 @@ impl Indicator {
             other => {
                 return Err(SpecError::new(
                     "map.indicator",
-                    format!("'{other}' is not gali, gali-time or mle"),
+                    format!("'{other}' is not gali, gali-time, sali or mle"),
                 ));
             }
         };
@@ -68,6 +76,7 @@ impl Indicator {
         match self {
             Indicator::Gali { .. } => "gali",
             Indicator::GaliTime { .. } => "gali-time",
+            Indicator::Sali => "sali",
             Indicator::Mle => "mle",
         }
     }
@@ -154,6 +163,14 @@ impl PointAccumulator {
                     acc.value = Some(self.t_final);
                 }
             }
+            Indicator::Sali => {
+                if last {
+                    // Floored at eps like GALI's singular values: below it the two directions
+                    // are not resolved in double precision (and log10 0 is no number).
+                    let sali = sali(separations, self.dim).unwrap_or(0.0);
+                    acc.value = Some(sali.max(f64::EPSILON).log10());
+                }
+            }
             Indicator::Mle => {
                 acc.log_sum += stretch[0].ln();
                 if last {
@@ -176,7 +193,7 @@ impl PointAccumulator {
             .collect();
         let m = per_set.len() as f64;
         let (value, mean_log10) = match self.indicator {
-            Indicator::Gali { .. } => (
+            Indicator::Gali { .. } | Indicator::Sali => (
                 per_set.iter().map(|g| 10f64.powf(*g)).sum::<f64>() / m,
                 per_set.iter().sum::<f64>() / m,
             ),

@@ -10,10 +10,10 @@
 //! exactly the reference evaluator's operations, so every path gives the same bits.
 
 use std::collections::{BTreeMap, HashMap};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 use std::time::Duration;
 
-use chaoscope_expr::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
+use chaoscope_expr::graph::{Graph, NodeId, Tabulated};
 use chaoscope_expr::jit::{Compiled, FunctionSpec, Layout, ScalarFnPtr, StepKernels, StepSpec};
 use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope};
 use chaoscope_expr::smooth::Smoothness;
@@ -59,8 +59,13 @@ struct Inner {
     gradient: Vec<NodeId>,
     smoothness: Smoothness,
     compiled: Compiled,
-    /// Whole splitting steps over lanes (the batched kernel).
+    hessian_vector: Vec<NodeId>,
+    /// Whole splitting steps over lanes by Cranelift: compiled with the model, the batched
+    /// kernel's fallback.
     steps: StepKernels,
+    /// The same steps in C (host-width vectors), built on the batched kernel's first call (a
+    /// `run` never pays for it) or loaded from the kernel cache; the error if none could be.
+    c_steps: OnceLock<Result<StepKernels, String>>,
     /// The one-orbit hot path calls the machine code directly: the checked `Compiled::call`
     /// costs as much as the Henon-Heiles forces themselves. `new` checks that these read at
     /// most `N` entries of each argument, so slices of length `N` are enough.
@@ -148,7 +153,7 @@ impl ExpressionModel {
             &StepSpec {
                 n,
                 gradient: gradient.clone(),
-                hessian_vector: Some(hessian_vector),
+                hessian_vector: Some(hessian_vector.clone()),
             },
             &jit::Options::default(),
         )
@@ -174,7 +179,9 @@ impl ExpressionModel {
             potential,
             gradient,
             compiled,
+            hessian_vector,
             steps,
+            c_steps: OnceLock::new(),
             build_time: started.elapsed(),
         })))
     }
@@ -198,43 +205,46 @@ impl ExpressionModel {
     }
 
     /// The compiled splitting steps over structure-of-arrays lanes (orbits and tangent
-    /// vectors), what the batched kernel runs.
+    /// vectors), what the batched kernel runs: the C kernels when the system C compiler built
+    /// them (built on the first call, see [`Self::c_step_kernels`]), else the Cranelift ones.
+    /// Both give the same bits.
     pub fn step_kernels(&self) -> &StepKernels {
+        self.c_step_kernels().unwrap_or(&self.0.steps)
+    }
+
+    /// Whether the C kernels `k` were loaded from the kernel cache rather than compiled.
+    pub fn c_step_kernels_cached(&self, k: &StepKernels) -> bool {
+        matches!(k.backend(), jit::StepBackend::C { cached: true, .. })
+    }
+
+    /// The Cranelift step kernels (compiled with the model).
+    pub fn cranelift_step_kernels(&self) -> &StepKernels {
         &self.0.steps
     }
 
-    /// A readable name of a node's operation for messages.
-    fn operation(node: &Node) -> String {
-        match node {
-            Node::Unary(u, _) => match u {
-                Unary::Neg => "unary -".into(),
-                other => format!("{other:?}").to_lowercase(),
-            },
-            Node::Binary(b, _, _) => match b {
-                Binary::Add => "+".into(),
-                Binary::Sub => "-".into(),
-                Binary::Mul => "*".into(),
-                Binary::Div => "/".into(),
-                Binary::Pow => "^".into(),
-                other => format!("{other:?}").to_lowercase(),
-            },
-            Node::Powi(_, n) => format!("^{n}"),
-            Node::Select { .. } => "if".into(),
-            Node::Table { table, .. } => format!("table {table}"),
-            Node::Const(_) | Node::Input { .. } => "value".into(),
-        }
+    /// The C step kernels, compiled (or loaded from the cache) on the first call by the
+    /// compiler `CHAOSCOPE_CC` names (default `cc`; `none` switches them off); why there are
+    /// none otherwise. A failure is not an error of the run: the Cranelift kernels compute the
+    /// same bits, more slowly.
+    pub fn c_step_kernels(&self) -> Result<&StepKernels, &str> {
+        let built = self.0.c_steps.get_or_init(|| {
+            let Some(cc) = jit::CCompiler::from_env() else {
+                return Err("C kernels switched off (CHAOSCOPE_CC=none)".into());
+            };
+            let spec = StepSpec {
+                n: self.0.definition.n,
+                gradient: self.0.gradient.clone(),
+                hessian_vector: Some(self.0.hessian_vector.clone()),
+            };
+            jit::compile_steps_c(&self.0.graph, &spec, &cc).map_err(|e| e.to_string())
+        });
+        built.as_ref().map_err(String::as_str)
     }
 
     fn describe(&self, id: NodeId, q: &[f64], what: &str) -> String {
-        let node = self.0.graph.node(id);
         let mut value = [0.0];
         eval::Evaluator::new().eval(&self.0.graph, &[q], &[id], &mut value);
-        let op = match node {
-            Node::Table { table, .. } => {
-                format!("table '{}'", self.0.graph.tables()[*table as usize].name())
-            }
-            other => format!("'{}'", Self::operation(other)),
-        };
+        let op = self.0.graph.operation_name(id);
         match self.0.origins.get(&id) {
             Some(span) => {
                 let at = chaoscope_expr::ExprError::new(&self.0.definition.potential, *span, "");

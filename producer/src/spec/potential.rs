@@ -24,7 +24,14 @@ pub struct TableDigest {
     pub sha256: String,
 }
 
-fn param_value(key: &str, v: &config::ParamValue, n: usize) -> Result<ParamValue, SpecError> {
+/// A parameter's value from the config: finite, and an array has one entry per site (`n`,
+/// described as `size` in the message: "the model has n = 5 sites").
+pub(super) fn param_value(
+    key: &str,
+    v: &config::ParamValue,
+    n: usize,
+    size: &str,
+) -> Result<ParamValue, SpecError> {
     match v {
         config::ParamValue::Scalar(x) if x.is_finite() => Ok(ParamValue::Scalar(*x)),
         config::ParamValue::Scalar(x) => {
@@ -34,7 +41,7 @@ fn param_value(key: &str, v: &config::ParamValue, n: usize) -> Result<ParamValue
             if xs.len() != n {
                 return Err(SpecError::new(
                     key,
-                    format!("has {} entries but the model has n = {n} sites", xs.len()),
+                    format!("has {} entries but {size}", xs.len()),
                 ));
             }
             if let Some(i) = xs.iter().position(|x| !x.is_finite()) {
@@ -48,8 +55,12 @@ fn param_value(key: &str, v: &config::ParamValue, n: usize) -> Result<ParamValue
     }
 }
 
+fn sites(n: usize) -> String {
+    format!("the model has n = {n} sites")
+}
+
 fn inverse_masses(m: &config::ParamValue, n: usize) -> Result<Option<Vec<f64>>, SpecError> {
-    let masses = match param_value("model.masses", m, n)? {
+    let masses = match param_value("model.masses", m, n, &sites(n))? {
         ParamValue::Scalar(m) => vec![m; n],
         ParamValue::Array(ms) => ms,
     };
@@ -147,7 +158,7 @@ pub fn potential_model(cfg: &ModelConfig) -> Result<(Arc<dyn Model>, Vec<TableDi
     for (name, v) in &cfg.params {
         params.insert(
             name.clone(),
-            param_value(&format!("model.params.{name}"), v, n)?,
+            param_value(&format!("model.params.{name}"), v, n, &sites(n))?,
         );
     }
     let inverse_masses = match &cfg.masses {

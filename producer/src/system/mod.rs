@@ -13,12 +13,15 @@
 //!   (built-in models and `[model] name = "potential"`);
 //! - [`RkFlow`]: a vector field `dx/dt = f(x)` with a Runge-Kutta method (its tangent map is the
 //!   derivative of the Runge-Kutta step, from the field's Jacobian-vector product);
-//! - later, beside them: a non-separable Hamiltonian with an implicit Gauss-Legendre method,
-//!   and a discrete map `x -> F(x)` (`Time::Discrete`, `tau` counted in iterations).
+//! - [`Map`]: a discrete map `x -> F(x)` (`[model] name = "map"`, `Time::Discrete`, `tau`
+//!   counted in iterations), angles taken modulo their period;
+//! - later, beside them: a non-separable Hamiltonian with an implicit Gauss-Legendre method.
 
+mod map;
 mod rk_flow;
 mod split_hamiltonian;
 
+pub use map::{Map, wrap_coordinate};
 pub use rk_flow::{RkFlow, VectorField};
 pub use split_hamiltonian::SplitHamiltonian;
 
@@ -145,4 +148,14 @@ pub trait DynamicalSystem: Send + Sync {
     /// What made a state non-finite when stepped from `x` (the last finite state), naming the
     /// operation where the system knows it. Off the hot path: called after a failure.
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String>;
+
+    /// The separation `out = y - x` of a nearby state `y` from the reference `x`, as the
+    /// multi-particle method measures it: the plain difference, except on a system with
+    /// periodic coordinates (a map's angles), whose separations are taken on the torus.
+    #[inline]
+    fn separation(&self, y: &[f64], x: &[f64], out: &mut [f64]) {
+        for ((o, a), b) in out.iter_mut().zip(y).zip(x) {
+            *o = a - b;
+        }
+    }
 }

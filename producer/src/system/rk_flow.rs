@@ -34,6 +34,41 @@ pub trait VectorField: Send + Sync {
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String>;
 }
 
+/// The right-hand side of `[model] name = "ode"`: the compiled expressions and their automatic
+/// derivatives.
+impl VectorField for chaoscope_expr::VectorFunction {
+    fn dim(&self) -> usize {
+        chaoscope_expr::VectorFunction::dim(self)
+    }
+
+    #[inline]
+    fn value(&self, x: &[f64], out: &mut [f64]) {
+        chaoscope_expr::VectorFunction::value(self, x, out)
+    }
+
+    #[inline]
+    fn tangent(&self, x: &[f64], v: &[f64], out: &mut [f64]) {
+        // Validation refuses VM for a field without a tangent (`no_tangent_reason`), so this is
+        // not reached there; were it reached, NaN stops the run with an error naming the time
+        // rather than continuing with a wrong tangent.
+        if !chaoscope_expr::VectorFunction::tangent(self, x, v, out) {
+            out.fill(f64::NAN);
+        }
+    }
+
+    fn divergence(&self, x: &[f64]) -> f64 {
+        chaoscope_expr::VectorFunction::divergence(self, x)
+    }
+
+    fn no_tangent_reason(&self) -> Option<String> {
+        chaoscope_expr::VectorFunction::no_tangent_reason(self)
+    }
+
+    fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
+        chaoscope_expr::VectorFunction::diagnose_non_finite(self, x)
+    }
+}
+
 /// `dx/dt = f(x)` with a Runge-Kutta method of step `h` (or grid `h`, with error control).
 #[derive(Clone)]
 pub struct RkFlow {

@@ -1,7 +1,4 @@
-//! Chaos indicators computed from deviation vectors: GALI, SALI, finite-time Lyapunov exponents.
-//!
-//! Pure functions of the separation vectors and stretching factors that a run publishes, so the
-//! producer, the live monitor and the offline analyzer share one implementation.
+//! Alignment indices of deviation vectors: GALI (the volume of the unit vectors) and SALI.
 
 use nalgebra::DMatrix;
 
@@ -55,56 +52,6 @@ pub fn sali(vectors: &[f64], dim: usize) -> Option<f64> {
     Some(plus.min(minus))
 }
 
-/// Accumulated logarithmic stretching of `k` vectors: the finite-time Lyapunov exponents.
-///
-/// With per-vector rescaling every vector's sum estimates the maximal exponent (the first one is
-/// reported, as in the standard single-vector method); with QR the sums give the spectrum
-/// (Benettin et al. 1980).
-#[derive(Debug, Clone, PartialEq)]
-pub struct StretchSums {
-    log_sums: Vec<f64>,
-    renormalizations: u64,
-}
-
-impl StretchSums {
-    pub fn new(k: usize) -> Self {
-        Self {
-            log_sums: vec![0.0; k],
-            renormalizations: 0,
-        }
-    }
-
-    /// Add one renormalization's stretching factors (`|d(t_j)| / d0`, or `|R_ii|`).
-    pub fn add(&mut self, stretch: &[f64]) {
-        for (s, f) in self.log_sums.iter_mut().zip(stretch) {
-            *s += f.ln();
-        }
-        self.renormalizations += 1;
-    }
-
-    /// `sum ln(stretch_i)` so far, one per vector.
-    pub fn log_sums(&self) -> &[f64] {
-        &self.log_sums
-    }
-
-    pub fn renormalizations(&self) -> u64 {
-        self.renormalizations
-    }
-
-    /// Finite-time maximal Lyapunov exponent `lambda_1(t)` (0 at `t = 0`).
-    pub fn mle(&self, t: f64) -> f64 {
-        if t > 0.0 { self.log_sums[0] / t } else { 0.0 }
-    }
-
-    /// Finite-time exponents `lambda_i(t) = (1/t) sum ln |R_ii|` (meaningful for QR schemes).
-    pub fn spectrum(&self, t: f64) -> Vec<f64> {
-        self.log_sums
-            .iter()
-            .map(|s| if t > 0.0 { s / t } else { 0.0 })
-            .collect()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -143,16 +90,5 @@ mod tests {
                 g[j - 2]
             );
         }
-    }
-
-    #[test]
-    fn stretch_sums_give_rates() {
-        let mut s = StretchSums::new(2);
-        for _ in 0..10 {
-            s.add(&[std::f64::consts::E, 1.0 / std::f64::consts::E]);
-        }
-        let sp = s.spectrum(10.0);
-        assert!((sp[0] - 1.0).abs() < 1e-14 && (sp[1] + 1.0).abs() < 1e-14);
-        assert_eq!(s.renormalizations(), 10);
     }
 }

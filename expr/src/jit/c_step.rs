@@ -1,0 +1,695 @@
+//! The splitting step kernels of [`super::step`] written as C and compiled by the system C
+//! compiler: the same loops and the same operations in the same order, over vectors as wide as
+//! the host has (`-march=native`: four `f64` lanes with AVX2, where Cranelift's x86-64 back end
+//! has two).
+//!
+//! Why a second code generator: the step kernels are throughput-bound on packed floating-point
+//! work (the profile of Henon-Heiles and FPUT chains shows the packed multiplies and adds of the
+//! force and the drift and kick, not calls, spills or address arithmetic), and at two lanes per
+//! instruction they ran 1.6-2.6x behind the built-in models' AVX2 kernels. The same graph as
+//! C, each value two 4-lane vectors (two AVX2 registers, two independent chains), closes most
+//! of that (see the README's speed paragraph for the figures).
+//!
+//! What keeps the bits those of [`crate::eval`]:
+//! - every value is a GCC vector (`vector_size`), whose `+ - * /` are the IEEE operations lane
+//!   by lane; the compiler is run with `-ffp-contract=off` (no fused multiply-add; GNU C
+//!   contracts by default) and without any fast-math flag (no reassociation, NaN and signed
+//!   zeros kept); `-fno-math-errno` only lets `sqrt` be the bare instruction;
+//! - constants are written as their bit patterns, so no decimal round trip;
+//! - `max`, `min`, `step`, `sign`, `if` are compares and bit selects with the scalar
+//!   definitions' NaN and signed-zero behaviour (as the Cranelift lane code);
+//! - transcendental functions, `powf`, `atan2` and tables are calls, lane by lane, through a
+//!   table of pointers the caller passes in (`env`), to the very Rust callbacks the Cranelift
+//!   code calls (`Graph::apply_*`), not to the C library's own functions;
+//! - whole powers are left-to-right products, kicks `p - dh * f`, drifts `q + c * p`, as the
+//!   generic step loops.
+//!
+//! The source holds only numbers and identifiers of this module (no user text), so its content
+//! hash names the compiled library in a cache directory; a later run with the same kernel, the
+//! same compiler and the same CPU features loads it without compiling. The compiler, its flags,
+//! its version and the CPU features it targets (`-march=native`'s predefined macros) are part of
+//! the hash, so a cache shared by machines with different CPUs never hands one the other's code.
+//!
+//! I/O: this module runs the C compiler and reads and writes its cache directory; it is the
+//! second exception (after `table`) to the crate's no-I/O rule, and only the batched kernel's
+//! lazy construction calls it.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::{Arc, OnceLock};
+use std::time::{Duration, Instant};
+
+use sha2::{Digest, Sha256};
+
+use super::{JitError, Layout, Plan, cb_atan2, cb_pow, cb_table, is_leaf};
+use super::{outputs_by_node, unary_callback};
+use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
+
+use super::step::{StepSpec, kernel_plan};
+
+/// Lanes per block of the C kernels: one value is two 4-lane vectors (two AVX2 registers, or
+/// four SSE2 ones), two independent dependency chains per operation. The batched kernel's chunks (8 or 32 lanes on
+/// AVX2) are whole blocks.
+pub const C_BLOCK_LANES: usize = 8;
+
+/// The orbit kernel's C signature: [`super::OrbitStepsFnPtr`] plus the callback table.
+pub(super) type COrbitFn = unsafe extern "C" fn(
+    x: *mut f64,
+    stride: usize,
+    lanes: usize,
+    n_steps: u64,
+    drift: *const f64,
+    kick: *const f64,
+    n_kicks: usize,
+    inverse_masses: *const f64,
+    env: *const usize,
+);
+
+/// The tangent kernel's C signature: [`super::TangentStepsFnPtr`] plus the callback table.
+pub(super) type CTangentFn = unsafe extern "C" fn(
+    stages: *const f64,
+    v: *mut f64,
+    stride: usize,
+    lanes: usize,
+    n_steps: u64,
+    drift: *const f64,
+    kick: *const f64,
+    n_kicks: usize,
+    inverse_masses: *const f64,
+    env: *const usize,
+);
+
+/// Unary operations called back, in the order of their `env` slots.
+const UNARY_CALLED: [Unary; 9] = [
+    Unary::Exp,
+    Unary::Log,
+    Unary::Sin,
+    Unary::Cos,
+    Unary::Tan,
+    Unary::Atan,
+    Unary::Tanh,
+    Unary::Cosh,
+    Unary::Sinh,
+];
+const ENV_POW: usize = UNARY_CALLED.len();
+const ENV_ATAN2: usize = ENV_POW + 1;
+const ENV_TABLE: usize = ENV_ATAN2 + 1;
+/// `env[ENV_TABLES + t]` is table `t` (a `*const Arc<dyn Tabulated>`).
+const ENV_TABLES: usize = ENV_TABLE + 1;
+
+/// The callback table the kernels read: the Rust callbacks, then the table pointers (into
+/// `tables`, which must outlive every call).
+pub(super) fn env(tables: &[Arc<dyn Tabulated>]) -> Box<[usize]> {
+    let mut env: Vec<usize> = UNARY_CALLED
+        .iter()
+        .map(|&op| unary_callback(op).expect("a called-back unary operation"))
+        .collect();
+    env.push(cb_pow as *const () as usize);
+    env.push(cb_atan2 as *const () as usize);
+    env.push(cb_table as *const () as usize);
+    for t in tables {
+        env.push(t as *const Arc<dyn Tabulated> as usize);
+    }
+    env.into_boxed_slice()
+}
+
+/// Which C compiler builds the kernels, and where their cache lives.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct CCompiler {
+    /// The compiler program (`cc`, `gcc`, `clang`, or a path).
+    pub program: PathBuf,
+    /// Where compiled kernels are kept by content hash.
+    pub cache_dir: PathBuf,
+}
+
+/// The compiler's flags (part of the cache key). `-O2`: the body is straight-line code, which
+/// `-O3` does not improve; `-march=native`: the host's vector width; `-ffp-contract=off`: no
+/// fused multiply-add; `-fno-math-errno`: `sqrt` without the `errno` branch (same result).
+const FLAGS: [&str; 8] = [
+    "-O2",
+    "-march=native",
+    "-ffp-contract=off",
+    "-fno-math-errno",
+    "-fno-strict-aliasing",
+    "-fPIC",
+    "-shared",
+    "-w",
+];
+
+impl CCompiler {
+    /// From the environment: `CHAOSCOPE_CC` names the compiler (`none` or empty: no C
+    /// kernels, Cranelift's are used), else `cc`; `CHAOSCOPE_KERNEL_CACHE` the cache directory,
+    /// else `$XDG_CACHE_HOME/chaoscope/kernels`, `$HOME/.cache/chaoscope/kernels`, or the
+    /// temporary directory. `None` when C kernels are switched off.
+    pub fn from_env() -> Option<CCompiler> {
+        let program = match std::env::var_os("CHAOSCOPE_CC") {
+            Some(p) if p.is_empty() || p == "none" => return None,
+            Some(p) => PathBuf::from(p),
+            None => PathBuf::from("cc"),
+        };
+        let cache_dir = if let Some(d) = std::env::var_os("CHAOSCOPE_KERNEL_CACHE") {
+            PathBuf::from(d)
+        } else if let Some(d) = std::env::var_os("XDG_CACHE_HOME").filter(|d| !d.is_empty()) {
+            PathBuf::from(d).join("chaoscope").join("kernels")
+        } else if let Some(d) = std::env::var_os("HOME").filter(|d| !d.is_empty()) {
+            PathBuf::from(d)
+                .join(".cache")
+                .join("chaoscope")
+                .join("kernels")
+        } else {
+            std::env::temp_dir().join("chaoscope-kernels")
+        };
+        Some(CCompiler { program, cache_dir })
+    }
+
+    /// What the compiler and these flags target: its predefined macros (version, ISA
+    /// features of `-march=native`), hashed into every cache key. Runs the compiler once.
+    fn target_identity(&self) -> Result<String, JitError> {
+        let out = Command::new(&self.program)
+            .args(["-march=native", "-ffp-contract=off", "-E", "-dM", "-x", "c"])
+            .arg("/dev/null")
+            .output()
+            .map_err(|e| {
+                JitError::CCompiler(format!(
+                    "cannot run the C compiler '{}': {e}",
+                    self.program.display()
+                ))
+            })?;
+        if !out.status.success() {
+            return Err(JitError::CCompiler(format!(
+                "the C compiler '{}' failed to report its target: {}",
+                self.program.display(),
+                first_lines(&out.stderr)
+            )));
+        }
+        let mut macros: Vec<&str> = std::str::from_utf8(&out.stdout)
+            .unwrap_or_default()
+            .lines()
+            .collect();
+        macros.sort_unstable();
+        Ok(macros.join("\n"))
+    }
+}
+
+fn first_lines(bytes: &[u8]) -> String {
+    let text = String::from_utf8_lossy(bytes);
+    let lines: Vec<&str> = text
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .take(3)
+        .collect();
+    if lines.is_empty() {
+        "no message".into()
+    } else {
+        lines.join(" | ")
+    }
+}
+
+/// A loaded C kernel library.
+pub(super) struct CKernels {
+    /// Keeps the code mapped while the function pointers are in use.
+    pub _library: libloading::Library,
+    pub orbit: COrbitFn,
+    pub tangent: Option<CTangentFn>,
+    /// Whether the library came from the cache (no compilation in this call).
+    pub cached: bool,
+    pub path: PathBuf,
+}
+
+/// Writes the C source of the kernels of `spec`.
+pub(super) fn source(graph: &Graph, spec: &StepSpec) -> Result<String, JitError> {
+    let n = spec.n;
+    let check =
+        |f: usize, outputs: &[NodeId], args: Vec<Layout>| kernel_plan(graph, n, f, outputs, args);
+    let mut src = String::with_capacity(64 * graph.len() + 4096);
+    let _ = write!(src, "{PRELUDE}");
+    let orbit = check(0, &spec.gradient, vec![Layout::Lanes])?;
+    Kernel {
+        graph,
+        plan: &orbit,
+        n,
+        tangent: false,
+    }
+    .write(&mut src);
+    if let Some(hv) = &spec.hessian_vector {
+        let plan = check(1, hv, vec![Layout::Scalar, Layout::Lanes])?;
+        Kernel {
+            graph,
+            plan: &plan,
+            n,
+            tangent: true,
+        }
+        .write(&mut src);
+    }
+    Ok(src)
+}
+
+/// Compiles (or loads from the cache) the C kernels of `spec`.
+pub(super) fn build(
+    graph: &Graph,
+    spec: &StepSpec,
+    cc: &CCompiler,
+) -> Result<(CKernels, Duration), JitError> {
+    let start = Instant::now();
+    let src = source(graph, spec)?;
+    // The compiler's identity is the same for the whole process: asked once.
+    static IDENTITY: OnceLock<std::sync::Mutex<Vec<(CCompiler, String)>>> = OnceLock::new();
+    let identity = {
+        let known = IDENTITY.get_or_init(Default::default);
+        let found = known
+            .lock()
+            .ok()
+            .and_then(|k| k.iter().find(|(c, _)| c == cc).map(|(_, id)| id.clone()));
+        match found {
+            Some(id) => id,
+            None => {
+                let id = cc.target_identity()?;
+                if let Ok(mut k) = known.lock() {
+                    k.push((cc.clone(), id.clone()));
+                }
+                id
+            }
+        }
+    };
+    let mut h = Sha256::new();
+    h.update(cc.program.to_string_lossy().as_bytes());
+    h.update([0]);
+    h.update(FLAGS.join(" ").as_bytes());
+    h.update([0]);
+    h.update(identity.as_bytes());
+    h.update([0]);
+    h.update(src.as_bytes());
+    let hash: String = h
+        .finalize()
+        .iter()
+        .take(20)
+        .map(|b| format!("{b:02x}"))
+        .collect();
+    let io = |what: &str, path: &Path, e: std::io::Error| {
+        JitError::CCompiler(format!("{what} {}: {e}", path.display()))
+    };
+    std::fs::create_dir_all(&cc.cache_dir)
+        .map_err(|e| io("cannot create the kernel cache", &cc.cache_dir, e))?;
+    let lib_path = cc.cache_dir.join(format!("steps-{hash}.so"));
+    let tangent = spec.hessian_vector.is_some();
+    if lib_path.exists()
+        && let Ok(k) = load(&lib_path, &hash, tangent, true)
+    {
+        return Ok((k, start.elapsed()));
+    }
+    // Compiled under names of this process, then renamed into place: a concurrent run that
+    // builds the same kernel, or reads it, never sees a half-written file.
+    let unique = format!("{}-{:?}", std::process::id(), std::thread::current().id())
+        .replace(|c: char| !c.is_ascii_alphanumeric(), "");
+    let src_path = cc.cache_dir.join(format!("steps-{hash}-{unique}.c"));
+    let tmp_path = cc.cache_dir.join(format!("steps-{hash}-{unique}.so.tmp"));
+    let src = src.replace("@HASH@", &hash);
+    std::fs::write(&src_path, &src).map_err(|e| io("cannot write", &src_path, e))?;
+    let out = Command::new(&cc.program)
+        .args(FLAGS)
+        .arg("-o")
+        .arg(&tmp_path)
+        .arg(&src_path)
+        .output();
+    let _ = std::fs::remove_file(&src_path);
+    let out = out.map_err(|e| {
+        JitError::CCompiler(format!(
+            "cannot run the C compiler '{}': {e}",
+            cc.program.display()
+        ))
+    })?;
+    if !out.status.success() {
+        let _ = std::fs::remove_file(&tmp_path);
+        return Err(JitError::CCompiler(format!(
+            "the C compiler '{}' failed on the step kernels: {}",
+            cc.program.display(),
+            first_lines(&out.stderr)
+        )));
+    }
+    std::fs::rename(&tmp_path, &lib_path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp_path);
+        io("cannot move the compiled kernels to", &lib_path, e)
+    })?;
+    let k = load(&lib_path, &hash, tangent, false)?;
+    Ok((k, start.elapsed()))
+}
+
+/// Loads a compiled library and checks that it is the one its name says (it carries its hash).
+fn load(path: &Path, hash: &str, tangent: bool, cached: bool) -> Result<CKernels, JitError> {
+    let fail = |e: String| {
+        JitError::CCompiler(format!(
+            "cannot load the compiled kernels {}: {e}",
+            path.display()
+        ))
+    };
+    // SAFETY: a library this module compiled from its own source: no constructors, no global
+    // state; its symbols are checked below before any is called.
+    let library = unsafe { libloading::Library::new(path) }.map_err(|e| fail(e.to_string()))?;
+    // SAFETY: the symbol is a NUL-terminated `char` array in the generated source.
+    let stamp = unsafe { library.get::<*const std::ffi::c_char>(b"chaoscope_kernel_hash\0") }
+        .map_err(|e| fail(e.to_string()))?;
+    // SAFETY: `get` on a data symbol yields its address, a NUL-terminated array.
+    let stamp = unsafe { std::ffi::CStr::from_ptr(*stamp) };
+    if stamp.to_bytes() != hash.as_bytes() {
+        return Err(fail("it was compiled from another source".into()));
+    }
+    // SAFETY: the generated source defines these functions with exactly these signatures.
+    let orbit = *unsafe { library.get::<COrbitFn>(b"chaoscope_orbit_steps\0") }
+        .map_err(|e| fail(e.to_string()))?;
+    let tangent = if tangent {
+        // SAFETY: as above.
+        Some(
+            *unsafe { library.get::<CTangentFn>(b"chaoscope_tangent_steps\0") }
+                .map_err(|e| fail(e.to_string()))?,
+        )
+    } else {
+        None
+    };
+    Ok(CKernels {
+        _library: library,
+        orbit,
+        tangent,
+        cached,
+        path: path.to_path_buf(),
+    })
+}
+
+/// Helpers of every generated file. `vd` is one vector of `LANES` lanes (a block is two); compares give `vi`
+/// masks (all ones where true, false when either side is NaN).
+const PRELUDE: &str = r#"/* chaoscope step kernels, generated; see expr/src/jit/c_step.rs. */
+#include <stddef.h>
+#include <stdint.h>
+#include <string.h>
+#define LANES 4
+#define BLOCK 8
+typedef double vd __attribute__((vector_size(LANES * 8)));
+typedef int64_t vi __attribute__((vector_size(LANES * 8)));
+typedef double (*fn1)(double);
+typedef double (*fn2)(double, double);
+typedef double (*fntab)(uintptr_t, uint64_t, double);
+const char chaoscope_kernel_hash[] = "@HASH@";
+static inline double K(uint64_t bits) { double d; memcpy(&d, &bits, 8); return d; }
+static inline vd B(double x) { return (vd){x, x, x, x}; }
+static inline vd LD(const double *p) { vd r; memcpy(&r, p, sizeof r); return r; }
+static inline void ST(double *p, vd v) { memcpy(p, &v, sizeof v); }
+static inline vd SEL(vi m, vd t, vd e) { return (vd)((m & (vi)t) | (~m & (vi)e)); }
+static inline vd VABS(vd a) { vi m; for (int l = 0; l < LANES; l++) m[l] = INT64_MAX; return (vd)((vi)a & m); }
+static inline vd VSQRT(vd a) { vd r; for (int l = 0; l < LANES; l++) r[l] = __builtin_sqrt(a[l]); return r; }
+static inline vd VSTEP(vd x) { vd r = SEL(x > B(0.0), B(1.0), B(0.0)); return SEL(x != x, x, r); }
+static inline vd VSIGN(vd x) { vd r = SEL(x < B(0.0), B(-1.0), B(0.0)); r = SEL(x > B(0.0), B(1.0), r); return SEL(x != x, x, r); }
+static inline vd VMAX(vd a, vd b) { vd r = SEL(a >= b, a, b); return SEL((a != a) | (b != b), B(K(0x7ff8000000000000ull)), r); }
+static inline vd VMIN(vd a, vd b) { vd r = SEL(a <= b, a, b); return SEL((a != a) | (b != b), B(K(0x7ff8000000000000ull)), r); }
+static inline vd V1(uintptr_t f, vd a) { vd r; for (int l = 0; l < LANES; l++) r[l] = ((fn1)f)(a[l]); return r; }
+static inline vd V2(uintptr_t f, vd a, vd b) { vd r; for (int l = 0; l < LANES; l++) r[l] = ((fn2)f)(a[l], b[l]); return r; }
+static inline vd VT(uintptr_t f, uintptr_t t, uint64_t d, vd a) { vd r; for (int l = 0; l < LANES; l++) r[l] = ((fntab)f)(t, d, a[l]); return r; }
+static inline double SABS(double a) { uint64_t b; memcpy(&b, &a, 8); b &= 0x7fffffffffffffffull; memcpy(&a, &b, 8); return a; }
+static inline double SSTEP(double x) { return x != x ? x : (x > 0.0 ? 1.0 : 0.0); }
+static inline double SSIGN(double x) { return x != x ? x : (x > 0.0 ? 1.0 : (x < 0.0 ? -1.0 : 0.0)); }
+static inline double SMAX(double a, double b) { return (a != a || b != b) ? K(0x7ff8000000000000ull) : (a >= b ? a : b); }
+static inline double SMIN(double a, double b) { return (a != a || b != b) ? K(0x7ff8000000000000ull) : (a <= b ? a : b); }
+"#;
+
+/// One kernel (orbit or tangent) being written.
+struct Kernel<'a> {
+    graph: &'a Graph,
+    plan: &'a Plan,
+    n: usize,
+    tangent: bool,
+}
+
+fn cmp_op(cmp: Cmp) -> &'static str {
+    match cmp {
+        Cmp::Lt => "<",
+        Cmp::Le => "<=",
+        Cmp::Gt => ">",
+        Cmp::Ge => ">=",
+    }
+}
+
+fn unary_slot(op: Unary) -> usize {
+    UNARY_CALLED
+        .iter()
+        .position(|&u| u == op)
+        .expect("a called-back unary operation")
+}
+
+/// A constant by its bits (no decimal round trip; NaN payloads and signed zeros kept).
+fn konst(c: f64) -> String {
+    format!("K(0x{:016x}ull)", c.to_bits())
+}
+
+/// `x^n` as [`Graph::apply_powi`]: a left-to-right product (C's `*` is left-associative).
+fn powi(x: &str, n: i32, one: &str) -> String {
+    if n == 0 {
+        return one.to_string();
+    }
+    let product = vec![x; n.unsigned_abs() as usize].join(" * ");
+    if n < 0 {
+        format!("{one} / ({product})")
+    } else {
+        format!("({product})")
+    }
+}
+
+impl Kernel<'_> {
+    /// The lane argument: the orbit's positions (0) or the tangent's `dq` (1).
+    fn lane_arg(&self) -> u8 {
+        u8::from(self.tangent)
+    }
+
+    /// A scalar operand in the uniform code (computed once per call or per stage).
+    fn scalar_operand(&self, id: NodeId) -> String {
+        match *self.graph.node(id) {
+            Node::Const(c) => konst(c),
+            Node::Input { index, .. } => format!("qs[{index}]"),
+            _ => format!("u{id}"),
+        }
+    }
+
+    fn scalar_node(&self, node: &Node) -> String {
+        let o = |id| self.scalar_operand(id);
+        match *node {
+            Node::Const(_) | Node::Input { .. } => unreachable!("leaves are operands"),
+            Node::Unary(op, a) => {
+                let a = o(a);
+                match op {
+                    Unary::Neg => format!("-{a}"),
+                    Unary::Abs => format!("SABS({a})"),
+                    Unary::Sqrt => format!("__builtin_sqrt({a})"),
+                    Unary::Step => format!("SSTEP({a})"),
+                    Unary::Sign => format!("SSIGN({a})"),
+                    _ => format!("((fn1)env[{}])({a})", unary_slot(op)),
+                }
+            }
+            Node::Binary(op, a, b) => {
+                let (a, b) = (o(a), o(b));
+                match op {
+                    Binary::Add => format!("{a} + {b}"),
+                    Binary::Sub => format!("{a} - {b}"),
+                    Binary::Mul => format!("{a} * {b}"),
+                    Binary::Div => format!("{a} / {b}"),
+                    Binary::Pow => format!("((fn2)env[{ENV_POW}])({a}, {b})"),
+                    Binary::Atan2 => format!("((fn2)env[{ENV_ATAN2}])({a}, {b})"),
+                    Binary::Max => format!("SMAX({a}, {b})"),
+                    Binary::Min => format!("SMIN({a}, {b})"),
+                }
+            }
+            Node::Powi(a, n) => powi(&o(a), n, "1.0"),
+            Node::Select {
+                cmp,
+                a,
+                b,
+                then,
+                otherwise,
+            } => format!(
+                "({} {} {}) ? {} : {}",
+                o(a),
+                cmp_op(cmp),
+                o(b),
+                o(then),
+                o(otherwise)
+            ),
+            Node::Table { table, deriv, arg } => format!(
+                "((fntab)env[{ENV_TABLE}])(env[{}], {deriv}, {})",
+                ENV_TABLES + table as usize,
+                o(arg)
+            ),
+        }
+    }
+
+    /// A vector operand in the block code; drifts row `j` on its first use.
+    fn operand(&self, out: &mut String, drifted: &mut [bool], id: NodeId) -> String {
+        match *self.graph.node(id) {
+            Node::Const(c) => format!("B({})", konst(c)),
+            Node::Input { arg, index } if arg == self.lane_arg() => {
+                self.drift(out, drifted, index as usize);
+                format!("q{index}_@")
+            }
+            Node::Input { index, .. } => format!("B(qs[{index}])"),
+            _ if self.plan.uniform[id as usize] => format!("B(u{id})"),
+            _ => format!("v{id}_@"),
+        }
+    }
+
+    /// `q_j += c_j p_j` in the block, once per stage (`p_j` kept for the kick).
+    fn drift(&self, out: &mut String, drifted: &mut [bool], j: usize) {
+        if drifted[j] {
+            return;
+        }
+        drifted[j] = true;
+        let n = self.n;
+        let _ = writeln!(
+            out,
+            "  vd p{j}_@ = LD(xb + {p} * stride + @O); vd q{j}_@ = LD(xb + {j} * stride + @O) + B(c[{j}]) * p{j}_@; ST(xb + {j} * stride + @O, q{j}_@);",
+            p = n + j
+        );
+    }
+
+    fn kick(&self, out: &mut String, drifted: &mut [bool], j: usize, f: &str) {
+        self.drift(out, drifted, j);
+        let _ = writeln!(
+            out,
+            "  ST(xb + {} * stride + @O, p{j}_@ - dh * {f});",
+            self.n + j
+        );
+    }
+
+    fn vector_node(&self, out: &mut String, drifted: &mut [bool], node: &Node) -> String {
+        let mut o = |id| self.operand(out, drifted, id);
+        match *node {
+            Node::Const(_) | Node::Input { .. } => unreachable!("leaves are operands"),
+            Node::Unary(op, a) => {
+                let a = o(a);
+                match op {
+                    Unary::Neg => format!("-{a}"),
+                    Unary::Abs => format!("VABS({a})"),
+                    Unary::Sqrt => format!("VSQRT({a})"),
+                    Unary::Step => format!("VSTEP({a})"),
+                    Unary::Sign => format!("VSIGN({a})"),
+                    _ => format!("V1(env[{}], {a})", unary_slot(op)),
+                }
+            }
+            Node::Binary(op, a, b) => {
+                let (a, b) = (o(a), o(b));
+                match op {
+                    Binary::Add => format!("{a} + {b}"),
+                    Binary::Sub => format!("{a} - {b}"),
+                    Binary::Mul => format!("{a} * {b}"),
+                    Binary::Div => format!("{a} / {b}"),
+                    Binary::Pow => format!("V2(env[{ENV_POW}], {a}, {b})"),
+                    Binary::Atan2 => format!("V2(env[{ENV_ATAN2}], {a}, {b})"),
+                    Binary::Max => format!("VMAX({a}, {b})"),
+                    Binary::Min => format!("VMIN({a}, {b})"),
+                }
+            }
+            Node::Powi(a, n) => powi(&o(a), n, "B(1.0)"),
+            Node::Select {
+                cmp,
+                a,
+                b,
+                then,
+                otherwise,
+            } => {
+                let (a, b) = (o(a), o(b));
+                let (t, e) = (o(then), o(otherwise));
+                format!("SEL({a} {} {b}, {t}, {e})", cmp_op(cmp))
+            }
+            Node::Table { table, deriv, arg } => format!(
+                "VT(env[{ENV_TABLE}], env[{}], {deriv}, {})",
+                ENV_TABLES + table as usize,
+                o(arg)
+            ),
+        }
+    }
+
+    /// The uniform values: scalar code, once per call (orbit) or per stage (tangent).
+    fn uniforms(&self, out: &mut String) {
+        for &id in &self.plan.uniform_order {
+            let e = self.scalar_node(self.graph.node(id));
+            let _ = writeln!(out, "      const double u{id} = {e};");
+        }
+    }
+
+    /// Drift, force and kick of one block within one stage, in the Cranelift kernel's order
+    /// (rows drifted on first use, each row's kick after its drift).
+    ///
+    /// A block is two units of `LANES` lanes (two vectors per value, independent chains):
+    /// each statement is written once with the placeholders `_@` (name suffix) and `@O` (lane
+    /// offset) and emitted once per unit, interleaved.
+    fn block(&self, out: &mut String) {
+        let mut body = String::new();
+        self.block_statements(&mut body);
+        for line in body.lines() {
+            for (suffix, offset) in [("_0", "0"), ("_1", "LANES")] {
+                let _ = writeln!(out, "{}", line.replace("_@", suffix).replace("@O", offset));
+            }
+        }
+    }
+
+    fn block_statements(&self, out: &mut String) {
+        let (graph, plan) = (self.graph, self.plan);
+        let outs = outputs_by_node(plan, graph.len());
+        let mut drifted = vec![false; self.n];
+        for &id in &plan.varying_order {
+            let e = self.vector_node(out, &mut drifted, graph.node(id));
+            let _ = writeln!(out, "  const vd v{id}_@ = {e};");
+            for &j in &outs[id as usize] {
+                self.kick(out, &mut drifted, j, &format!("v{id}_@"));
+            }
+        }
+        for (j, &o) in plan.outputs.iter().enumerate() {
+            if plan.uniform[o as usize] || is_leaf(graph.node(o)) {
+                self.drift(out, &mut drifted, j);
+                let f = self.operand(out, &mut drifted, o);
+                self.kick(out, &mut drifted, j, &f);
+            }
+        }
+        for j in 0..self.n {
+            self.drift(out, &mut drifted, j);
+        }
+    }
+
+    fn write(&self, out: &mut String) {
+        let n = self.n;
+        let (name, lead) = if self.tangent {
+            ("chaoscope_tangent_steps", "const double *stages, ")
+        } else {
+            ("chaoscope_orbit_steps", "")
+        };
+        let _ = writeln!(
+            out,
+            "void {name}({lead}double *restrict x, size_t stride, size_t lanes, uint64_t n_steps, \
+             const double *drift, const double *kick, size_t n_kicks, const double *w, \
+             const uintptr_t *env) {{"
+        );
+        let _ = writeln!(
+            out,
+            "  const size_t end = lanes - lanes % BLOCK;\n  if (end == 0 || n_steps == 0) return;\n  double c[{n}];"
+        );
+        if !self.tangent {
+            let _ = writeln!(out, "  const double *qs = 0; (void)qs;");
+            self.uniforms(out);
+        }
+        let _ = writeln!(
+            out,
+            "  for (uint64_t s = 0; s < n_steps; s++) {{\n    for (size_t i = 0; i < n_kicks; i++) {{\n      const double ch = drift[i];\n      const vd dh = B(kick[i]);\n      if (w) {{ for (size_t j = 0; j < {n}; j++) c[j] = ch * w[j]; }} else {{ for (size_t j = 0; j < {n}; j++) c[j] = ch; }}"
+        );
+        if self.tangent {
+            let _ = writeln!(
+                out,
+                "      const double *qs = stages + (s * n_kicks + i) * {n}; (void)qs;"
+            );
+            self.uniforms(out);
+        }
+        let _ = writeln!(
+            out,
+            "      for (size_t o = 0; o < end; o += BLOCK) {{\n  double *xb = x + o; (void)dh;"
+        );
+        self.block(out);
+        let _ = writeln!(
+            out,
+            "      }}\n    }}\n    {{\n      const double ch = drift[n_kicks];\n      if (w) {{ for (size_t j = 0; j < {n}; j++) c[j] = ch * w[j]; }} else {{ for (size_t j = 0; j < {n}; j++) c[j] = ch; }}\n      for (size_t o = 0; o < end; o += LANES) {{\n        double *xb = x + o;\n        for (size_t j = 0; j < {n}; j++) ST(xb + j * stride, LD(xb + j * stride) + B(c[j]) * LD(xb + ({n} + j) * stride));\n      }}\n    }}\n  }}\n}}"
+        );
+    }
+}

@@ -1,0 +1,413 @@
+//! A vector function `F: R^D -> R^D` written as `D` expressions over `x1..xD` (and `x[i]`):
+//! the right-hand side `dx/dt = F(x)` of a flow (`rhs`) or the map `x -> F(x)` (`next`),
+//! compiled once, with its derivatives.
+//!
+//! The `D` components are lowered into one graph (hash-consing shares what they have in common),
+//! differentiated there, and compiled by Cranelift into three functions, each in scalar and lane
+//! (structure-of-arrays) form:
+//! - `F(x)`, all `D` components;
+//! - the Jacobian-vector product `J(x) v` ([`crate::diff::jacobian_vector`]: the Jacobian's
+//!   entries as coefficients that depend on `x` only, so in a lane call around one shared
+//!   reference state they are formed once and only the products and sums run per lane); only for
+//!   a function with continuous first derivatives (the tangent map of a system is wrong at every
+//!   crossing of a kink), see [`VectorFunction::no_tangent_reason`];
+//! - the divergence `tr J(x) = sum_i dF_i/dx_i` (summed left to right in `i`): a flow's phase-space
+//!   contraction rate. Defined wherever `F` is differentiable (one-sided derivatives at a kink).
+//!
+//! Every compiled function performs exactly the operations of [`crate::eval`] on the same graph,
+//! so the scalar calls, the lane calls and the reference evaluator agree bit for bit.
+//!
+//! Components are numbered from 1, as the variables are: component `i` is `F_i`, written
+//! `<key>[i]` in messages (`next[2]` is the map's second component, the new `x2`).
+
+use std::collections::{BTreeMap, HashMap};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use crate::error::{ExprError, Span};
+use crate::eval::{self, Evaluator};
+use crate::graph::{Graph, NodeId, Tabulated};
+use crate::jit::{self, Compiled, FunctionSpec, Layout, ScalarFnPtr};
+use crate::lower::{self, Boundary, Family, ParamValue, Scope};
+use crate::smooth::Smoothness;
+
+/// Everything that defines a vector function.
+#[derive(Debug, Clone)]
+pub struct VectorDefinition {
+    /// The config key the components come from (`"rhs"`, `"next"`), for messages.
+    pub key: String,
+    /// `F_1 .. F_D`; the dimension `D` is their number (and the value of `N` in them).
+    pub components: Vec<String>,
+    /// Parameters: a number, or an array of `D` entries (`k[i]`).
+    pub params: BTreeMap<String, ParamValue>,
+    /// What `x[i]` beyond `1..D` means in indexed references.
+    pub boundary: Boundary,
+    /// Tabulated functions by the name the expressions call them.
+    pub tables: Vec<(String, Arc<dyn Tabulated>)>,
+}
+
+/// Why a vector function could not be built.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum VectorError {
+    /// A component's expression (1-based `component`), with line, column and caret.
+    #[error("{key}[{component}]: {error}")]
+    Component {
+        key: String,
+        component: usize,
+        error: ExprError,
+    },
+    /// Anything else (no components, the compiler), one line.
+    #[error("{0}")]
+    Other(String),
+}
+
+/// Function indices in the compiled module.
+const VALUE: usize = 0;
+const TANGENT: usize = 1;
+const DIVERGENCE: usize = 2;
+
+/// Argument arrays: the state, and the direction of `J v`.
+const ARG_X: u8 = 0;
+const ARG_V: u8 = 1;
+
+/// Most components of a vector function (the straight-line code grows with `D`).
+pub const MAX_DIM: usize = 100_000;
+
+struct Inner {
+    definition: VectorDefinition,
+    graph: Graph,
+    /// Each node's first creator: (0-based component, span in that component's source).
+    origins: HashMap<NodeId, (usize, Span)>,
+    values: Vec<NodeId>,
+    tangent: Vec<NodeId>,
+    divergence: NodeId,
+    smoothness: Vec<Smoothness>,
+    /// Continuous first derivatives in every component (the variational method applies).
+    c1: bool,
+    compiled: Compiled,
+    value_fn: ScalarFnPtr,
+    tangent_fn: ScalarFnPtr,
+    divergence_fn: ScalarFnPtr,
+    build_time: Duration,
+}
+
+/// A compiled vector function. Cheap to clone (shared compiled code).
+#[derive(Clone)]
+pub struct VectorFunction(Arc<Inner>);
+
+impl std::fmt::Debug for VectorFunction {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("VectorFunction")
+            .field("key", &self.0.definition.key)
+            .field("components", &self.0.definition.components)
+            .field("nodes", &self.0.graph.len())
+            .finish()
+    }
+}
+
+impl VectorFunction {
+    /// Parse every component, differentiate and compile.
+    pub fn new(definition: VectorDefinition) -> Result<Self, VectorError> {
+        let started = Instant::now();
+        let d = definition.components.len();
+        if d == 0 {
+            return Err(VectorError::Other(format!(
+                "{} needs at least one component",
+                definition.key
+            )));
+        }
+        if d > MAX_DIM {
+            return Err(VectorError::Other(format!(
+                "{} has {d} components, more than {MAX_DIM}",
+                definition.key
+            )));
+        }
+        let mut graph = Graph::new();
+        let tables: Vec<(String, u32)> = definition
+            .tables
+            .iter()
+            .map(|(name, t)| (name.clone(), graph.add_table(t.clone())))
+            .collect();
+        let families = [Family {
+            name: "x".to_string(),
+            len: d,
+            arg: ARG_X,
+        }];
+        let scope = Scope {
+            families: &families,
+            params: &definition.params,
+            tables: &tables,
+            n: d,
+            boundary: definition.boundary,
+        };
+        let mut values = Vec::with_capacity(d);
+        let mut smoothness = Vec::with_capacity(d);
+        let mut origins = HashMap::new();
+        for (i, source) in definition.components.iter().enumerate() {
+            let lowered = lower::lower(source, &scope, &mut graph).map_err(|error| {
+                VectorError::Component {
+                    key: definition.key.clone(),
+                    component: i + 1,
+                    error,
+                }
+            })?;
+            values.push(lowered.root);
+            smoothness.push(lowered.smoothness);
+            for (id, span) in lowered.origins {
+                origins.entry(id).or_insert((i, span));
+            }
+        }
+        let c1 = smoothness.iter().all(|s| s.require(1, "").is_ok());
+        let other = |e: crate::diff::DiffError| VectorError::Other(e.to_string());
+        // The tangent only where it means something (as the Hessian-vector product of a
+        // potential that is not C^2 is not compiled): VM is refused for such a function.
+        let tangent = if c1 {
+            crate::diff::jacobian_vector(&mut graph, &values, ARG_X, ARG_V).map_err(other)?
+        } else {
+            vec![graph.constant(0.0); d]
+        };
+        let rows = crate::diff::jacobian(&mut graph, &values, ARG_X)
+            .map_err(other)?
+            .ok_or_else(|| {
+                VectorError::Other(format!(
+                    "{}: the Jacobian has more than {} nonzero entries (too densely coupled \
+                     for its divergence)",
+                    definition.key,
+                    crate::diff::MAX_JACOBIAN_ENTRIES
+                ))
+            })?;
+        let mut divergence: Option<NodeId> = None;
+        for (i, row) in rows.iter().enumerate() {
+            if let Some(&(_, dii)) = row.iter().find(|(j, _)| *j as usize == i) {
+                divergence = Some(match divergence {
+                    None => dii,
+                    Some(acc) => graph.add2(acc, dii),
+                });
+            }
+        }
+        let divergence = divergence.unwrap_or_else(|| graph.constant(0.0));
+        let specs = [
+            FunctionSpec {
+                args: vec![Layout::Lanes],
+                outputs: values.clone(),
+            },
+            FunctionSpec {
+                args: vec![Layout::Scalar, Layout::Lanes],
+                outputs: tangent.clone(),
+            },
+            FunctionSpec {
+                args: vec![Layout::Lanes],
+                outputs: vec![divergence],
+            },
+        ];
+        let compiled = jit::compile(&graph, &specs)
+            .map_err(|e| VectorError::Other(format!("compiling {}: {e}", definition.key)))?;
+        for (f, args) in [(VALUE, 1), (TANGENT, 2), (DIVERGENCE, 1)] {
+            for a in 0..args {
+                if compiled.arg_len(f, a) > d {
+                    return Err(VectorError::Other(format!(
+                        "compiled function {f} reads {} entries of argument {a}, more than D = {d}",
+                        compiled.arg_len(f, a)
+                    )));
+                }
+            }
+        }
+        Ok(Self(Arc::new(Inner {
+            value_fn: compiled.raw_scalar(VALUE),
+            tangent_fn: compiled.raw_scalar(TANGENT),
+            divergence_fn: compiled.raw_scalar(DIVERGENCE),
+            definition,
+            graph,
+            origins,
+            values,
+            tangent,
+            divergence,
+            smoothness,
+            c1,
+            compiled,
+            build_time: started.elapsed(),
+        })))
+    }
+
+    /// The dimension `D`.
+    #[inline]
+    pub fn dim(&self) -> usize {
+        self.0.values.len()
+    }
+
+    pub fn definition(&self) -> &VectorDefinition {
+        &self.0.definition
+    }
+
+    /// Parse, differentiate and compile time.
+    pub fn build_time(&self) -> Duration {
+        self.0.build_time
+    }
+
+    /// Nodes of the graph (components, Jacobian-vector product, divergence).
+    pub fn graph_nodes(&self) -> usize {
+        self.0.graph.len()
+    }
+
+    /// The graph and its outputs `F`, `J v`, `tr J`: what the reference evaluator
+    /// ([`crate::eval`]) computes the compiled functions' bits from.
+    pub fn graph(&self) -> (&Graph, &[NodeId], &[NodeId], NodeId) {
+        (
+            &self.0.graph,
+            &self.0.values,
+            &self.0.tangent,
+            self.0.divergence,
+        )
+    }
+
+    /// The smoothness of each component (0-based).
+    pub fn smoothness(&self) -> &[Smoothness] {
+        &self.0.smoothness
+    }
+
+    /// Continuous first derivatives everywhere: [`Self::tangent`] is compiled.
+    pub fn has_tangent(&self) -> bool {
+        self.0.c1
+    }
+
+    /// Why the variational method cannot be used: the first component whose first derivatives
+    /// are not continuous, naming the operation and its position, e.g. `the variational method
+    /// (vm) needs continuous first derivatives, but 'abs' at line 1, column 5 of next[2] has a
+    /// kink (continuous, first derivative jumps); use mpm`. `None` when it can.
+    pub fn no_tangent_reason(&self) -> Option<String> {
+        let key = &self.0.definition.key;
+        self.0.smoothness.iter().enumerate().find_map(|(i, s)| {
+            let limit = s.limited_by.as_ref().filter(|l| l.order < 1)?;
+            Some(format!(
+                "the variational method (vm) needs continuous first derivatives, but '{}' at \
+                 line {}, column {} of {key}[{}] {}; use mpm",
+                limit.operation,
+                limit.line,
+                limit.column,
+                i + 1,
+                limit.reason
+            ))
+        })
+    }
+
+    /// `out = F(x)`.
+    ///
+    /// # Panics
+    /// If `x` or `out` does not have `D` entries.
+    #[inline]
+    pub fn value(&self, x: &[f64], out: &mut [f64]) {
+        let d = self.dim();
+        assert!(x.len() == d && out.len() == d, "{d} components");
+        let args = [x.as_ptr()];
+        // SAFETY: the function reads at most D entries of `x` (checked in `new`) and writes D
+        // outputs; both slices have D entries; `out` is a `&mut`, so it overlaps nothing; the
+        // code lives as long as `self.0.compiled`.
+        unsafe { (self.0.value_fn)(args.as_ptr(), out.as_mut_ptr()) }
+    }
+
+    /// `out = J(x) v`; `false` (and `out` untouched) when the function has no continuous first
+    /// derivatives ([`Self::no_tangent_reason`]).
+    ///
+    /// # Panics
+    /// If `x`, `v` or `out` does not have `D` entries.
+    #[inline]
+    pub fn tangent(&self, x: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+        if !self.0.c1 {
+            return false;
+        }
+        let d = self.dim();
+        assert!(
+            x.len() == d && v.len() == d && out.len() == d,
+            "Jacobian-vector product of {d} components"
+        );
+        let args = [x.as_ptr(), v.as_ptr()];
+        // SAFETY: as in `value`, for the two arguments `x` and `v`.
+        unsafe { (self.0.tangent_fn)(args.as_ptr(), out.as_mut_ptr()) }
+        true
+    }
+
+    /// `tr J(x)`.
+    ///
+    /// # Panics
+    /// If `x` does not have `D` entries.
+    #[inline]
+    pub fn divergence(&self, x: &[f64]) -> f64 {
+        let d = self.dim();
+        assert!(x.len() == d, "divergence of {d} components");
+        let args = [x.as_ptr()];
+        let mut out = [0.0];
+        // SAFETY: as in `value`; one output.
+        unsafe { (self.0.divergence_fn)(args.as_ptr(), out.as_mut_ptr()) }
+        out[0]
+    }
+
+    /// `F` over `lanes` states in structure-of-arrays layout: `x[i * lanes + l]` is `x_i` of
+    /// lane `l`, `out[i * lanes + l]` its `F_i`. Lane by lane the bits of [`Self::value`].
+    ///
+    /// # Panics
+    /// If `x` or `out` does not have `D * lanes` entries.
+    pub fn value_lanes(&self, x: &[f64], out: &mut [f64], lanes: usize) {
+        let d = self.dim();
+        assert_eq!(x.len(), d * lanes, "{d} rows of {lanes} lanes");
+        self.0.compiled.call_lanes(VALUE, &[x], out, lanes)
+    }
+
+    /// `J(x) v` at one shared state `x` (the reference orbit) for `lanes` directions in
+    /// structure-of-arrays layout (`v[i * lanes + l]`); `false` as [`Self::tangent`].
+    ///
+    /// # Panics
+    /// If `x` does not have `D` entries, or `v` or `out` not `D * lanes`.
+    pub fn tangent_lanes(&self, x: &[f64], v: &[f64], out: &mut [f64], lanes: usize) -> bool {
+        if !self.0.c1 {
+            return false;
+        }
+        let d = self.dim();
+        assert!(
+            x.len() == d && v.len() == d * lanes,
+            "a state of {d} and {d} rows of {lanes} lanes"
+        );
+        self.0.compiled.call_lanes(TANGENT, &[x, v], out, lanes);
+        true
+    }
+
+    /// The divergence over `lanes` states in structure-of-arrays layout; `out` has `lanes`
+    /// entries.
+    pub fn divergence_lanes(&self, x: &[f64], out: &mut [f64], lanes: usize) {
+        let d = self.dim();
+        assert_eq!(x.len(), d * lanes, "{d} rows of {lanes} lanes");
+        self.0.compiled.call_lanes(DIVERGENCE, &[x], out, lanes)
+    }
+
+    /// What made `F(x)` non-finite: the first operation, in component order and evaluation
+    /// order, whose value is NaN or infinite while its operands are finite, e.g. `'log' at line
+    /// 1, column 3 of next[2] gave NaN (x = [0.5, -1])`. `None` when `F(x)` is finite. Off the
+    /// hot path: called after a run met a non-finite state.
+    pub fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
+        let g = &self.0.graph;
+        let key = &self.0.definition.key;
+        let state = format!("{x:?}");
+        for (i, &root) in self.0.values.iter().enumerate() {
+            let Some(id) = eval::first_non_finite(g, &[x], root) else {
+                continue;
+            };
+            let mut value = [0.0];
+            Evaluator::new().eval(g, &[x], &[id], &mut value);
+            let op = g.operation_name(id);
+            return Some(match self.0.origins.get(&id) {
+                Some(&(c, span)) => {
+                    let at = ExprError::new(&self.0.definition.components[c], span, "");
+                    format!(
+                        "{op} at line {}, column {} of {key}[{}] gave {} in {key}[{}] (x = {state})",
+                        at.line,
+                        at.column,
+                        c + 1,
+                        value[0],
+                        i + 1
+                    )
+                }
+                None => format!("{op} gave {} in {key}[{}] (x = {state})", value[0], i + 1),
+            });
+        }
+        None
+    }
+}

@@ -1,0 +1,246 @@
+//! The compiled vector function (a flow's `rhs`, a map's `next`) against the reference evaluator
+//! of its own graph (bit for bit, scalar and lanes) and against derivatives written by hand
+//! (Lorenz, Henon map, the standard map: exact formulas, so the tolerance is rounding only).
+
+use std::collections::BTreeMap;
+
+use chaoscope_expr::{
+    Boundary, Evaluator, ParamValue, VectorDefinition, VectorError, VectorFunction,
+};
+
+fn definition(key: &str, components: &[&str], params: &[(&str, ParamValue)]) -> VectorDefinition {
+    VectorDefinition {
+        key: key.to_string(),
+        components: components.iter().map(|c| c.to_string()).collect(),
+        params: params
+            .iter()
+            .map(|(n, v)| (n.to_string(), v.clone()))
+            .collect::<BTreeMap<_, _>>(),
+        boundary: Boundary::Fixed,
+        tables: Vec::new(),
+    }
+}
+
+fn lorenz() -> VectorFunction {
+    VectorFunction::new(definition(
+        "rhs",
+        &[
+            "sigma * (x2 - x1)",
+            "x1 * (rho - x3) - x2",
+            "x1 * x2 - beta * x3",
+        ],
+        &[
+            ("sigma", ParamValue::Scalar(10.0)),
+            ("rho", ParamValue::Scalar(28.0)),
+            ("beta", ParamValue::Scalar(8.0 / 3.0)),
+        ],
+    ))
+    .unwrap()
+}
+
+/// Deterministic pseudo-random numbers in [-1, 1) (splitmix64).
+fn uniform(n: usize, seed: u64) -> Vec<f64> {
+    let mut s = seed;
+    (0..n)
+        .map(|_| {
+            s = s.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = s;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^= z >> 31;
+            2.0 * ((z >> 11) as f64 / (1u64 << 53) as f64) - 1.0
+        })
+        .collect()
+}
+
+fn bits(v: &[f64]) -> Vec<u64> {
+    v.iter().map(|x| x.to_bits()).collect()
+}
+
+/// Every compiled form (scalar, lanes for several lane counts, shared reference for `J v`)
+/// gives the reference evaluator's bits.
+fn check_bit_identical(f: &VectorFunction, scale: f64) {
+    let d = f.dim();
+    let (g, values, tangent, divergence) = f.graph();
+    let mut ev = Evaluator::new();
+    for lanes in [1usize, 2, 3, 4, 5, 8, 13] {
+        let xs: Vec<Vec<f64>> = (0..lanes)
+            .map(|l| uniform(d, 7 + l as u64).iter().map(|u| scale * u).collect())
+            .collect();
+        let vs: Vec<Vec<f64>> = (0..lanes).map(|l| uniform(d, 99 + l as u64)).collect();
+        let soa = |rows: &[Vec<f64>]| -> Vec<f64> {
+            (0..d)
+                .flat_map(|i| rows.iter().map(move |r| r[i]))
+                .collect()
+        };
+        let (x_soa, v_soa) = (soa(&xs), soa(&vs));
+        let mut f_lanes = vec![0.0; d * lanes];
+        f.value_lanes(&x_soa, &mut f_lanes, lanes);
+        let mut div_lanes = vec![0.0; lanes];
+        f.divergence_lanes(&x_soa, &mut div_lanes, lanes);
+        // J v around the first lane's state, shared by every direction.
+        let mut jv_lanes = vec![0.0; d * lanes];
+        assert!(f.tangent_lanes(&xs[0], &v_soa, &mut jv_lanes, lanes));
+        for l in 0..lanes {
+            let mut want = vec![0.0; d];
+            ev.eval(g, &[&xs[l]], values, &mut want);
+            let mut got = vec![0.0; d];
+            f.value(&xs[l], &mut got);
+            assert_eq!(bits(&got), bits(&want), "F scalar, lane {l}");
+            let lane: Vec<f64> = (0..d).map(|i| f_lanes[i * lanes + l]).collect();
+            assert_eq!(bits(&lane), bits(&want), "F lanes {lanes}, lane {l}");
+
+            let mut want_div = [0.0];
+            ev.eval(g, &[&xs[l]], &[divergence], &mut want_div);
+            assert_eq!(f.divergence(&xs[l]).to_bits(), want_div[0].to_bits());
+            assert_eq!(div_lanes[l].to_bits(), want_div[0].to_bits());
+
+            ev.eval(g, &[&xs[0], &vs[l]], tangent, &mut want);
+            assert!(f.tangent(&xs[0], &vs[l], &mut got));
+            assert_eq!(bits(&got), bits(&want), "J v scalar, lane {l}");
+            let lane: Vec<f64> = (0..d).map(|i| jv_lanes[i * lanes + l]).collect();
+            assert_eq!(bits(&lane), bits(&want), "J v lanes {lanes}, lane {l}");
+        }
+    }
+}
+
+#[test]
+fn compiled_forms_match_the_reference_evaluator_bit_for_bit() {
+    check_bit_identical(&lorenz(), 20.0);
+    // Transcendental calls, parameters per component, a lattice sum and a coupling through x[i].
+    let chain = VectorFunction::new(definition(
+        "next",
+        &[
+            "x1 + k[1] * sin(x2) / (2 * pi)",
+            "x2 + x1 + exp(-x3^2) * cos(x4)",
+            "x3 + sum(i = 1..N, tanh(x[i])) / N",
+            "x4 + atan(x1 / (1 + x2^2)) - log(2 + x3^2)",
+        ],
+        &[("k", ParamValue::Array(vec![1.0, 2.0, 3.0, 0.5]))],
+    ))
+    .unwrap();
+    check_bit_identical(&chain, 3.0);
+}
+
+/// Lorenz: `J` and `tr J = -(sigma + 1 + beta)` written by hand. The Jacobian's entries are
+/// single products (`x1 * v2`, `(rho - x3) * v1`), so they agree to rounding of a few
+/// operations: 4 ulp of the largest term.
+#[test]
+fn lorenz_jacobian_and_divergence_by_hand() {
+    let f = lorenz();
+    assert_eq!(f.dim(), 3);
+    assert!(f.has_tangent() && f.no_tangent_reason().is_none());
+    let (s, r, b) = (10.0, 28.0, 8.0 / 3.0);
+    for seed in 0..20 {
+        let x: Vec<f64> = uniform(3, seed).iter().map(|u| 30.0 * u).collect();
+        let v = uniform(3, seed + 1000);
+        let mut jv = [0.0; 3];
+        assert!(f.tangent(&x, &v, &mut jv));
+        let want = [
+            s * (v[1] - v[0]),
+            (r - x[2]) * v[0] - v[1] - x[0] * v[2],
+            x[1] * v[0] + x[0] * v[1] - b * v[2],
+        ];
+        for i in 0..3 {
+            assert!(
+                (jv[i] - want[i]).abs() <= 4.0 * f64::EPSILON * 30.0 * 30.0,
+                "J v [{i}]: {} vs {}",
+                jv[i],
+                want[i]
+            );
+        }
+        // The diagonal is constant: -sigma, -1, -beta, summed in that order.
+        assert_eq!(f.divergence(&x), (-s - 1.0) - b);
+        let mut fx = [0.0; 3];
+        f.value(&x, &mut fx);
+        assert_eq!(fx[0], s * (x[1] - x[0]));
+    }
+}
+
+/// Henon map: `det J = -b` everywhere; the divergence is `-2 a x1` (the trace).
+#[test]
+fn henon_map_jacobian() {
+    let f = VectorFunction::new(definition(
+        "next",
+        &["1 - a * x1^2 + x2", "b * x1"],
+        &[
+            ("a", ParamValue::Scalar(1.4)),
+            ("b", ParamValue::Scalar(0.3)),
+        ],
+    ))
+    .unwrap();
+    for seed in 0..10 {
+        let x = uniform(2, seed);
+        let mut c1 = [0.0; 2];
+        let mut c2 = [0.0; 2];
+        assert!(f.tangent(&x, &[1.0, 0.0], &mut c1));
+        assert!(f.tangent(&x, &[0.0, 1.0], &mut c2));
+        assert_eq!(c1, [-2.8 * x[0], 0.3]);
+        assert_eq!(c2, [1.0, 0.0]);
+        assert_eq!(c1[0] * c2[1] - c2[0] * c1[1], -0.3);
+        assert_eq!(f.divergence(&x), -2.8 * x[0]);
+    }
+}
+
+#[test]
+fn errors_name_the_component_with_line_column_and_caret() {
+    let e =
+        VectorFunction::new(definition("next", &["x1 + x2", "x1 +\n  sinn(x2)"], &[])).unwrap_err();
+    let VectorError::Component {
+        component, error, ..
+    } = &e
+    else {
+        panic!("{e}")
+    };
+    assert_eq!((*component, error.line, error.column), (2, 2, 3));
+    let text = e.to_string();
+    assert!(
+        text.starts_with("next[2]: line 2, column 3: unknown function 'sinn'"),
+        "{text}"
+    );
+    assert!(text.ends_with("    sinn(x2)\n    ^^^^"), "{text}");
+
+    // A variable beyond the dimension is a typo, named with the component.
+    let e = VectorFunction::new(definition("rhs", &["x3", "x1"], &[])).unwrap_err();
+    assert!(
+        e.to_string().starts_with("rhs[1]: line 1, column 1:"),
+        "{e}"
+    );
+    assert!(e.to_string().contains("x3"), "{e}");
+
+    let e = VectorFunction::new(definition("rhs", &[], &[])).unwrap_err();
+    assert_eq!(e.to_string(), "rhs needs at least one component");
+}
+
+#[test]
+fn no_tangent_names_operation_position_and_component() {
+    let f = VectorFunction::new(definition("next", &["x1 + x2", "x2 - abs(x1)"], &[])).unwrap();
+    assert!(!f.has_tangent());
+    let reason = f.no_tangent_reason().unwrap();
+    assert_eq!(
+        reason,
+        "the variational method (vm) needs continuous first derivatives, but 'abs' at line 1, \
+         column 6 of next[2] has a kink (continuous, first derivative jumps); use mpm"
+    );
+    let mut out = [7.0; 2];
+    assert!(!f.tangent(&[0.0, 0.0], &[1.0, 0.0], &mut out));
+    assert_eq!(out, [7.0; 2]);
+    // A map is still a map: F evaluates, and the divergence is defined off the kink.
+    let mut fx = [0.0; 2];
+    f.value(&[-2.0, 1.0], &mut fx);
+    assert_eq!(fx, [-1.0, -1.0]);
+    assert_eq!(f.divergence(&[-2.0, 1.0]), 2.0);
+    // Smooth per component: the first has no limit.
+    assert!(f.smoothness()[0].is_smooth() && !f.smoothness()[1].is_smooth());
+}
+
+#[test]
+fn diagnosis_names_the_operation_and_component() {
+    let f = VectorFunction::new(definition("next", &["x1 + 1", "log(x1) + x2"], &[])).unwrap();
+    assert_eq!(f.diagnose_non_finite(&[1.0, 2.0]), None);
+    let d = f.diagnose_non_finite(&[-1.0, 2.0]).unwrap();
+    assert_eq!(
+        d,
+        "'log' at line 1, column 1 of next[2] gave NaN in next[2] (x = [-1.0, 2.0])"
+    );
+}

@@ -1,0 +1,24 @@
+//! chaoscope-indicators: the chaos indicators of a run as pure functions of the separation
+//! vectors and stretching factors it publishes, with no I/O and no knowledge of the bus or the
+//! file formats.
+//!
+//! One implementation for every reader: the producer (maps), the analyzer (`analyze`, `monitor`,
+//! `run`'s summary) and the recorder (the `/chaoscope/indicators/<scheme>` channel of every
+//! recording) all compute GALI, SALI and the finite-time Lyapunov exponents here, so a value in
+//! a file equals the value `analyze` reports to the last bit.
+//!
+//! - [`alignment`]: GALI (volume of the unit vectors, from singular values) and SALI.
+//! - [`stretch`]: accumulated logarithmic stretching, the finite-time exponents.
+//! - [`stats`]: averages over the random sets of a scheme.
+//! - [`tracker`]: the streaming state of a run (per scheme and set: stretching sums and latest
+//!   vectors) and a scheme's indicators averaged over its sets at its latest renormalization.
+
+pub mod alignment;
+pub mod stats;
+pub mod stretch;
+pub mod tracker;
+
+pub use alignment::{SIGMA_FLOOR, gali_log10, sali, unit_columns};
+pub use stats::{LogStat, Stat};
+pub use stretch::StretchSums;
+pub use tracker::{Layout, SchemeIndicators, SetValues, Tracker};

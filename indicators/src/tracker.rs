@@ -1,0 +1,317 @@
+//! The streaming indicator state of a run, fed one separation set at a time.
+//!
+//! Per (scheme, set) it keeps the accumulated logarithmic stretching and the latest separation
+//! vectors; a scheme's indicators (GALI_2..k, SALI, exponents, averaged over the sets that
+//! reached its latest renormalization) are computed from those when asked for, since they are
+//! instantaneous functions of the vectors. Memory is O(schemes x sets x k x 2N), independent of
+//! the length of the run.
+
+use crate::alignment::{SIGMA_FLOOR, gali_log10, sali};
+use crate::stats::{LogStat, Stat};
+use crate::stretch::StretchSums;
+
+/// The shape of a run, as its header states it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Layout {
+    /// Phase-space dimension 2N (entries per vector).
+    pub dim: usize,
+    /// Deviation vectors per set.
+    pub k: usize,
+    pub sets: usize,
+    /// Time step: the time of step `n` is `n * h`.
+    pub h: f64,
+    /// Renormalization period of each scheme in steps, in header order.
+    pub tau_steps: Vec<u64>,
+}
+
+impl Layout {
+    /// A layout the indicators can be computed for: positive sizes, `k <= dim`, a positive
+    /// finite step, no zero period. `None` otherwise.
+    pub fn new(dim: usize, k: usize, sets: usize, h: f64, tau_steps: Vec<u64>) -> Option<Self> {
+        let ok = dim > 0
+            && k > 0
+            && k <= dim
+            && sets > 0
+            && h.is_finite()
+            && h > 0.0
+            && tau_steps.iter().all(|&t| t > 0);
+        ok.then_some(Self {
+            dim,
+            k,
+            sets,
+            h,
+            tau_steps,
+        })
+    }
+
+    /// Time of step `step`, computed as the producer does (`step * h`, never accumulated).
+    pub fn time_of(&self, step: u64) -> f64 {
+        step as f64 * self.h
+    }
+
+    /// Step of the renormalization of `scheme` preceding the one at `step`.
+    pub fn previous_renormalization(&self, scheme: usize, step: u64) -> u64 {
+        let tau = self.tau_steps[scheme];
+        if step == 0 {
+            0
+        } else {
+            // The last renormalization may fall at t_final, off the tau grid.
+            ((step - 1) / tau) * tau
+        }
+    }
+}
+
+/// The values of one set at its latest renormalization.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SetValues {
+    pub t: f64,
+    /// `[j - 2]` = log10 GALI_j.
+    pub gali_log10: Vec<f64>,
+    pub sali: Option<f64>,
+    /// Finite-time exponent per vector.
+    pub exponents: Vec<f64>,
+}
+
+/// One scheme's indicators averaged over the sets at its latest renormalization.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SchemeIndicators {
+    /// Step and time of the scheme's latest renormalization (0 before any).
+    pub step: u64,
+    pub t: f64,
+    /// Sets contributing (all of them unless frames were lost).
+    pub sets: usize,
+    /// `[j - 2]`: GALI_j over the sets, j = 2..k (empty when no set contributes).
+    pub gali: Vec<LogStat>,
+    /// SALI (floored at [`SIGMA_FLOOR`]) over the sets; `None` for k < 2 or no set.
+    pub sali: Option<LogStat>,
+    /// Finite-time exponent of each vector, mean and spread over the sets: the spectrum for QR
+    /// schemes, an estimate of the maximal exponent per vector for rescaled ones.
+    pub exponents: Vec<Stat>,
+}
+
+impl SchemeIndicators {
+    /// The finite-time maximal Lyapunov exponent (of the first vector), mean over the sets; 0
+    /// when no set contributes.
+    pub fn mle(&self) -> f64 {
+        self.exponents.first().map_or(0.0, |s| s.mean)
+    }
+}
+
+#[derive(Debug, Clone)]
+struct SetState {
+    sums: StretchSums,
+    /// Steps covered by the stretching factors received (equals the step when none was missed).
+    covered_steps: u64,
+    /// Step of the latest separations.
+    step: Option<u64>,
+    separations: Vec<f64>,
+}
+
+#[derive(Debug, Clone)]
+struct SchemeState {
+    /// Grown as sets arrive (up to the layout's count), so a header's claim allocates nothing.
+    sets: Vec<SetState>,
+    step: Option<u64>,
+}
+
+/// The indicator state of one run.
+#[derive(Debug, Clone)]
+pub struct Tracker {
+    layout: Layout,
+    schemes: Vec<SchemeState>,
+    /// Some stretching factor was never seen (late attach, lost frames).
+    gaps: bool,
+}
+
+impl Tracker {
+    pub fn new(layout: Layout) -> Self {
+        let schemes = layout
+            .tau_steps
+            .iter()
+            .map(|_| SchemeState {
+                sets: Vec::new(),
+                step: None,
+            })
+            .collect();
+        Self {
+            layout,
+            schemes,
+            gaps: false,
+        }
+    }
+
+    pub fn layout(&self) -> &Layout {
+        &self.layout
+    }
+
+    /// Whether every stretching factor since t = 0 was seen.
+    pub fn complete(&self) -> bool {
+        !self.gaps
+    }
+
+    /// Applies one set's separations (the `k` vectors of `dim` entries one after another) and
+    /// stretching factors at `step`. False, and nothing changed, if they do not fit the layout.
+    /// Steps of one (scheme, set) must increase; a missed renormalization is a gap.
+    pub fn apply(
+        &mut self,
+        scheme: usize,
+        set: usize,
+        step: u64,
+        separations: &[f64],
+        stretch: &[f64],
+    ) -> bool {
+        let (k, dim) = (self.layout.k, self.layout.dim);
+        if scheme >= self.schemes.len()
+            || set >= self.layout.sets
+            || separations.len() != k * dim
+            || stretch.len() != k
+        {
+            return false;
+        }
+        let prev = self.layout.previous_renormalization(scheme, step);
+        let sets = &mut self.schemes[scheme].sets;
+        if set >= sets.len() {
+            sets.resize(
+                set + 1,
+                SetState {
+                    sums: StretchSums::new(k),
+                    covered_steps: 0,
+                    step: None,
+                    separations: Vec::new(),
+                },
+            );
+        }
+        let st = &mut sets[set];
+        // A stretching factor covers the interval since the scheme's previous renormalization;
+        // if that one was not seen, the sum has a hole.
+        let expected_prev = st.step.unwrap_or(0);
+        if step > 0 && expected_prev != prev {
+            self.gaps = true;
+        }
+        if step > 0 {
+            st.sums.add(stretch);
+            st.covered_steps += step - prev;
+        }
+        st.step = Some(step);
+        st.separations.clear();
+        st.separations.extend_from_slice(separations);
+        let state = &mut self.schemes[scheme];
+        state.step = Some(state.step.map_or(step, |x| x.max(step)));
+        true
+    }
+
+    /// Step of the latest renormalization of `scheme` seen (`None` before any).
+    pub fn scheme_step(&self, scheme: usize) -> Option<u64> {
+        self.schemes[scheme].step
+    }
+
+    /// Step of the latest separations of one set (`None` before any).
+    pub fn set_step(&self, scheme: usize, set: usize) -> Option<u64> {
+        self.schemes[scheme].sets.get(set)?.step
+    }
+
+    fn values_of(&self, st: &SetState) -> Option<SetValues> {
+        let step = st.step?;
+        let covered = self.layout.time_of(st.covered_steps);
+        Some(SetValues {
+            t: self.layout.time_of(step),
+            gali_log10: gali_log10(&st.separations, self.layout.dim),
+            sali: sali(&st.separations, self.layout.dim),
+            exponents: st
+                .sums
+                .log_sums()
+                .iter()
+                .map(|s| if covered > 0.0 { s / covered } else { 0.0 })
+                .collect(),
+        })
+    }
+
+    /// The latest values of one set (`None` before its first sample).
+    pub fn set_values(&self, scheme: usize, set: usize) -> Option<SetValues> {
+        self.values_of(self.schemes[scheme].sets.get(set)?)
+    }
+
+    /// The sets of `scheme` at its latest step, with their values, in set order.
+    pub fn current_sets(&self, scheme: usize) -> Vec<(usize, SetValues)> {
+        let state = &self.schemes[scheme];
+        let Some(step) = state.step else {
+            return Vec::new();
+        };
+        state
+            .sets
+            .iter()
+            .enumerate()
+            .filter(|(_, st)| st.step == Some(step))
+            .filter_map(|(i, st)| self.values_of(st).map(|v| (i, v)))
+            .collect()
+    }
+
+    /// The indicators of `scheme` at its latest renormalization, averaged over its sets there.
+    pub fn indicators(&self, scheme: usize) -> SchemeIndicators {
+        let sets = self.current_sets(scheme);
+        let step = self.schemes[scheme].step.unwrap_or(0);
+        let gali = (0..self.layout.k.saturating_sub(1))
+            .filter_map(|o| LogStat::from_log10(sets.iter().map(|(_, v)| v.gali_log10[o])))
+            .collect();
+        let sali = LogStat::from_log10(
+            sets.iter()
+                .filter_map(|(_, v)| v.sali.map(|s| s.max(SIGMA_FLOOR).log10())),
+        );
+        let exponents = (0..sets.first().map_or(0, |(_, v)| v.exponents.len()))
+            .filter_map(|i| Stat::from_values(sets.iter().map(|(_, v)| v.exponents[i])))
+            .collect();
+        SchemeIndicators {
+            step,
+            t: self.layout.time_of(step),
+            sets: sets.len(),
+            gali,
+            sali,
+            exponents,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn layout() -> Layout {
+        Layout::new(2, 2, 2, 0.5, vec![2]).unwrap()
+    }
+
+    #[test]
+    fn layouts_that_cannot_be_tracked_are_refused() {
+        assert!(Layout::new(0, 1, 1, 0.1, vec![1]).is_none());
+        assert!(Layout::new(2, 3, 1, 0.1, vec![1]).is_none());
+        assert!(Layout::new(2, 2, 0, 0.1, vec![1]).is_none());
+        assert!(Layout::new(2, 2, 1, f64::NAN, vec![1]).is_none());
+        assert!(Layout::new(2, 2, 1, 0.1, vec![1, 0]).is_none());
+    }
+
+    #[test]
+    fn averages_the_sets_at_the_latest_step_and_counts_gaps() {
+        let mut t = Tracker::new(layout());
+        let e = std::f64::consts::E;
+        // Set 0: orthogonal vectors (GALI_2 = 1), stretched by e per tau = 1 (two steps of 0.5).
+        assert!(t.apply(0, 0, 0, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0]));
+        assert!(t.apply(0, 0, 2, &[2.0, 0.0, 0.0, 3.0], &[e, e]));
+        // Set 1 at the same step: vectors at 90 degrees too, stretched by e^3.
+        assert!(t.apply(0, 1, 0, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0]));
+        assert!(t.apply(0, 1, 2, &[1.0, 1.0, 1.0, -1.0], &[e * e * e, 1.0]));
+        let ind = t.indicators(0);
+        assert_eq!((ind.step, ind.t, ind.sets), (2, 1.0, 2));
+        assert!(ind.gali[0].log10_mean.abs() < 1e-15);
+        // Mean of the exponents 1 and 3 (ln e / 1 and ln e^3 / 1), to rounding of ln.
+        assert!((ind.mle() - 2.0).abs() < 1e-15, "{}", ind.mle());
+        assert!(t.complete());
+        // Set 0 skips the renormalization at step 4: the sum has a hole.
+        assert!(t.apply(0, 0, 6, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0]));
+        assert!(!t.complete());
+        // Only set 0 is at step 6 now.
+        assert_eq!(t.indicators(0).sets, 1);
+        // Frames that do not fit are ignored.
+        assert!(!t.apply(1, 0, 2, &[0.0; 4], &[1.0, 1.0]));
+        assert!(!t.apply(0, 2, 2, &[0.0; 4], &[1.0, 1.0]));
+        assert!(!t.apply(0, 0, 8, &[0.0; 3], &[1.0, 1.0]));
+    }
+}

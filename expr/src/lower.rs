@@ -96,6 +96,9 @@ pub struct Family {
     pub name: String,
     pub len: usize,
     pub arg: u8,
+    /// Index of the family's first variable in its argument array: a Hamiltonian's `q` and
+    /// `p` share one state array, `q` at 0 and `p` at `N`.
+    pub offset: usize,
 }
 
 /// Everything names in an expression can refer to.
@@ -278,7 +281,7 @@ impl<'a> Lowerer<'a> {
     fn input(&mut self, f: &Family, j: usize, span: Span) -> R<(NodeId, Info)> {
         let node = Node::Input {
             arg: f.arg,
-            index: j as u32,
+            index: (f.offset + j) as u32,
         };
         Ok((self.emit(node, span)?, Info::variable()))
     }
@@ -1075,6 +1078,7 @@ mod tests {
                     name: "q".into(),
                     len: n,
                     arg: 0,
+                    offset: 0,
                 }],
                 params: BTreeMap::new(),
                 tables: vec![("U".into(), u)],
@@ -1873,6 +1877,7 @@ mod deep {
                 name: "q".into(),
                 len: 3,
                 arg: 0,
+                offset: 0,
             }];
             let params = BTreeMap::new();
             let scope = Scope {

@@ -65,6 +65,7 @@ pub enum VectorError {
 const VALUE: usize = 0;
 const TANGENT: usize = 1;
 const DIVERGENCE: usize = 2;
+const ENERGY: usize = 3;
 
 /// Argument arrays: the state, and the direction of `J v`.
 const ARG_X: u8 = 0;
@@ -84,11 +85,33 @@ struct Inner {
     smoothness: Vec<Smoothness>,
     /// Continuous first derivatives in every component (the variational method applies).
     c1: bool,
+    /// Why the variational method is refused (`None` when `c1`).
+    tangent_refusal: Option<String>,
+    /// A Hamiltonian vector field's `H` (see [`VectorFunction::hamiltonian`]).
+    energy: Option<NodeId>,
     compiled: Compiled,
     value_fn: ScalarFnPtr,
     tangent_fn: ScalarFnPtr,
     divergence_fn: ScalarFnPtr,
+    energy_fn: Option<ScalarFnPtr>,
     build_time: Duration,
+}
+
+/// A Hamiltonian `H(q, p)` written as one expression over `q1..qN`, `p1..pN` (and `q[i]`,
+/// `p[i]`): the vector field `dq/dt = dH/dp`, `dp/dt = -dH/dq` on the state `(q1..qN,
+/// p1..pN)`.
+#[derive(Debug, Clone)]
+pub struct HamiltonianDefinition {
+    /// The config key `H` comes from (`"hamiltonian"`), for messages.
+    pub key: String,
+    /// Degrees of freedom `N` (the value of `N` in the expression).
+    pub n: usize,
+    pub source: String,
+    /// Parameters: a number, or an array of `N` entries.
+    pub params: BTreeMap<String, ParamValue>,
+    /// What `q[i]`, `p[i]` beyond `1..N` mean in lattice sums.
+    pub boundary: Boundary,
+    pub tables: Vec<(String, Arc<dyn Tabulated>)>,
 }
 
 /// A compiled vector function. Cheap to clone (shared compiled code).
@@ -132,6 +155,7 @@ impl VectorFunction {
             name: "x".to_string(),
             len: d,
             arg: ARG_X,
+            offset: 0,
         }];
         let scope = Scope {
             families: &families,
@@ -157,7 +181,143 @@ impl VectorFunction {
                 origins.entry(id).or_insert((i, span));
             }
         }
-        let c1 = smoothness.iter().all(|s| s.require(1, "").is_ok());
+        let key = definition.key.clone();
+        let tangent_refusal = smoothness.iter().enumerate().find_map(|(i, s)| {
+            let limit = s.limited_by.as_ref().filter(|l| l.order < 1)?;
+            Some(format!(
+                "the variational method (vm) needs continuous first derivatives, but '{}' at \
+                 line {}, column {} of {key}[{}] {}; use mpm",
+                limit.operation,
+                limit.line,
+                limit.column,
+                i + 1,
+                limit.reason
+            ))
+        });
+        Self::finish(
+            definition,
+            graph,
+            origins,
+            values,
+            smoothness,
+            tangent_refusal,
+            None,
+            started,
+        )
+    }
+
+    /// The vector field of a Hamiltonian, `F = (dH/dp, -dH/dq)` on the state `(q, p)`, its
+    /// gradient taken symbolically (reverse mode over the graph) and then compiled like any
+    /// vector function, with `H` itself as [`Self::energy`]. The variational method needs `F`
+    /// continuously differentiable, so `H` with continuous second derivatives; otherwise it is
+    /// refused naming the operation of `H` that lacks them.
+    pub fn hamiltonian(h: HamiltonianDefinition) -> Result<Self, VectorError> {
+        let started = Instant::now();
+        let n = h.n;
+        if n == 0 || 2 * n > MAX_DIM {
+            return Err(VectorError::Other(format!(
+                "{} needs between 1 and {} degrees of freedom, got {n}",
+                h.key,
+                MAX_DIM / 2
+            )));
+        }
+        let mut graph = Graph::new();
+        let tables: Vec<(String, u32)> = h
+            .tables
+            .iter()
+            .map(|(name, t)| (name.clone(), graph.add_table(t.clone())))
+            .collect();
+        let families = [
+            Family {
+                name: "q".to_string(),
+                len: n,
+                arg: ARG_X,
+                offset: 0,
+            },
+            Family {
+                name: "p".to_string(),
+                len: n,
+                arg: ARG_X,
+                offset: n,
+            },
+        ];
+        let scope = Scope {
+            families: &families,
+            params: &h.params,
+            tables: &tables,
+            n,
+            boundary: h.boundary,
+        };
+        let lowered = lower::lower(&h.source, &scope, &mut graph).map_err(|error| {
+            VectorError::Component {
+                key: h.key.clone(),
+                component: 1,
+                error,
+            }
+        })?;
+        let root = lowered.root;
+        let grad = crate::diff::gradient(&mut graph, root, ARG_X, 2 * n)
+            .map_err(|e| VectorError::Other(e.to_string()))?;
+        let mut values = Vec::with_capacity(2 * n);
+        values.extend_from_slice(&grad[n..]);
+        for &g in &grad[..n] {
+            let minus = graph.neg(g);
+            values.push(minus);
+        }
+        let tangent_refusal = lowered
+            .smoothness
+            .require(2, "the variational method (vm)")
+            .err()
+            .map(|m| format!("{m} (of {})", h.key));
+        // Each component is one order less smooth than H; what limits H limits them all.
+        let component = match &lowered.smoothness.limited_by {
+            None => Smoothness::smooth(),
+            Some(limit) => Smoothness {
+                order: lowered.smoothness.order.saturating_sub(1),
+                limited_by: Some(crate::smooth::Limit {
+                    order: limit.order - 1,
+                    ..limit.clone()
+                }),
+            },
+        };
+        let origins = lowered
+            .origins
+            .into_iter()
+            .map(|(id, span)| (id, (0, span)))
+            .collect();
+        let definition = VectorDefinition {
+            key: h.key,
+            components: vec![h.source],
+            params: h.params,
+            boundary: h.boundary,
+            tables: h.tables,
+        };
+        Self::finish(
+            definition,
+            graph,
+            origins,
+            values,
+            vec![component; 2 * n],
+            tangent_refusal,
+            Some(root),
+            started,
+        )
+    }
+
+    /// Differentiate (`J v`, `tr J`) and compile: what every kind of vector function shares.
+    #[allow(clippy::too_many_arguments)]
+    fn finish(
+        definition: VectorDefinition,
+        mut graph: Graph,
+        origins: HashMap<NodeId, (usize, Span)>,
+        values: Vec<NodeId>,
+        smoothness: Vec<Smoothness>,
+        tangent_refusal: Option<String>,
+        energy: Option<NodeId>,
+        started: Instant,
+    ) -> Result<Self, VectorError> {
+        let d = values.len();
+        let c1 = tangent_refusal.is_none();
         let other = |e: crate::diff::DiffError| VectorError::Other(e.to_string());
         // The tangent only where it means something (as the Hessian-vector product of a
         // potential that is not C^2 is not compiled): VM is refused for such a function.
@@ -186,7 +346,7 @@ impl VectorFunction {
             }
         }
         let divergence = divergence.unwrap_or_else(|| graph.constant(0.0));
-        let specs = [
+        let mut specs = vec![
             FunctionSpec {
                 args: vec![Layout::Lanes],
                 outputs: values.clone(),
@@ -200,9 +360,19 @@ impl VectorFunction {
                 outputs: vec![divergence],
             },
         ];
+        if let Some(h) = energy {
+            specs.push(FunctionSpec {
+                args: vec![Layout::Lanes],
+                outputs: vec![h],
+            });
+        }
         let compiled = jit::compile(&graph, &specs)
             .map_err(|e| VectorError::Other(format!("compiling {}: {e}", definition.key)))?;
-        for (f, args) in [(VALUE, 1), (TANGENT, 2), (DIVERGENCE, 1)] {
+        let energy_fn = energy.map(|_| (ENERGY, 1));
+        for (f, args) in [(VALUE, 1), (TANGENT, 2), (DIVERGENCE, 1)]
+            .into_iter()
+            .chain(energy_fn)
+        {
             for a in 0..args {
                 if compiled.arg_len(f, a) > d {
                     return Err(VectorError::Other(format!(
@@ -216,6 +386,9 @@ impl VectorFunction {
             value_fn: compiled.raw_scalar(VALUE),
             tangent_fn: compiled.raw_scalar(TANGENT),
             divergence_fn: compiled.raw_scalar(DIVERGENCE),
+            energy_fn: energy.map(|_| compiled.raw_scalar(ENERGY)),
+            energy,
+            tangent_refusal,
             definition,
             graph,
             origins,
@@ -275,19 +448,28 @@ impl VectorFunction {
     /// (vm) needs continuous first derivatives, but 'abs' at line 1, column 5 of next[2] has a
     /// kink (continuous, first derivative jumps); use mpm`. `None` when it can.
     pub fn no_tangent_reason(&self) -> Option<String> {
-        let key = &self.0.definition.key;
-        self.0.smoothness.iter().enumerate().find_map(|(i, s)| {
-            let limit = s.limited_by.as_ref().filter(|l| l.order < 1)?;
-            Some(format!(
-                "the variational method (vm) needs continuous first derivatives, but '{}' at \
-                 line {}, column {} of {key}[{}] {}; use mpm",
-                limit.operation,
-                limit.line,
-                limit.column,
-                i + 1,
-                limit.reason
-            ))
-        })
+        self.0.tangent_refusal.clone()
+    }
+
+    /// `H(x)` of a Hamiltonian vector field ([`Self::hamiltonian`]); `None` for others.
+    ///
+    /// # Panics
+    /// If `x` does not have `D` entries.
+    #[inline]
+    pub fn energy(&self, x: &[f64]) -> Option<f64> {
+        let f = self.0.energy_fn?;
+        let d = self.dim();
+        assert!(x.len() == d, "energy of {d} coordinates");
+        let args = [x.as_ptr()];
+        let mut out = [0.0];
+        // SAFETY: as in `value`; one output.
+        unsafe { f(args.as_ptr(), out.as_mut_ptr()) }
+        Some(out[0])
+    }
+
+    /// Whether this is the vector field of a Hamiltonian.
+    pub fn is_hamiltonian(&self) -> bool {
+        self.0.energy.is_some()
     }
 
     /// `out = F(x)`.

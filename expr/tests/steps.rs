@@ -45,6 +45,7 @@ fn system_with_tables(n: usize, potential: &str, tables: &[(&str, Arc<dyn Tabula
         name: "q".into(),
         len: n,
         arg: 0,
+        offset: 0,
     }];
     let scope = Scope {
         families: &families,

@@ -159,6 +159,7 @@ pub fn expr(data: &[u8]) {
         name: "q".to_string(),
         len: n,
         arg: 0,
+        offset: 0,
     }];
     let mut params = BTreeMap::new();
     params.insert("beta".to_string(), ParamValue::Scalar(1.5));

@@ -50,7 +50,7 @@ pub struct SchemeSample {
 /// A run that could not go on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RunError {
-    #[error("the reference orbit escaped or became non-finite at t = {t} (|x| = {norm:e}){}",
+    #[error("the reference orbit escaped or became non-finite by t = {t} (|x| = {norm:e}){}",
         cause.as_ref().map(|c| format!(": {c}")).unwrap_or_default())]
     Escaped {
         t: f64,
@@ -301,9 +301,10 @@ impl Engine {
         }
     }
 
-    /// The error for an orbit found non-finite or escaped by step `target`: steps again from
-    /// the last finite state to the first step that leaves it (so the error names the very time
-    /// or iteration, not the end of the window), and asks the system what failed there.
+    /// The error for an orbit found non-finite or escaped by step `target` (the end of the
+    /// window, which is what the batched map kernel, testing once per window, reports too):
+    /// steps again from the last finite state to the first step that leaves it, and names that
+    /// step's time or iteration and, where the system knows it, the operation that failed.
     fn escaped(&self, last_good: Vec<f64>, target: u64, norm: f64) -> RunError {
         let system = self.spec.system.as_ref();
         let mut x = last_good;
@@ -311,34 +312,43 @@ impl Engine {
         let mut cause = None;
         let mut step = self.step;
         let mut plan = Vec::new();
-        let mut norm_at = norm;
         while step < target {
             let before = x.clone();
             plan.clear();
             system.step_reference(&mut x, &mut plan, &mut work);
             step += 1;
-            let at = |c: String| format!("{c} in the step to t = {}", self.spec.time_of(step));
+            let at = format!("in the step to t = {}", self.spec.time_of(step));
             if x.iter().any(|v| !v.is_finite()) {
-                cause = system.diagnose_non_finite(&before).map(at);
-                norm_at = f64::NAN;
+                cause = Some(
+                    system
+                        .diagnose_non_finite(&before)
+                        .map_or(format!("the state became non-finite {at}"), |c| {
+                            format!("{c} {at}")
+                        }),
+                );
                 break;
             }
             if system.invariant(&x).is_some_and(|e| !e.is_finite())
                 || system.divergence(&x).is_some_and(|d| !d.is_finite())
             {
-                cause = system.diagnose_non_finite(&x).map(at);
-                norm_at = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+                cause = Some(
+                    system
+                        .diagnose_non_finite(&x)
+                        .map_or(format!("the system is not defined {at}"), |c| {
+                            format!("{c} {at}")
+                        }),
+                );
                 break;
             }
             let n = x.iter().map(|v| v * v).sum::<f64>().sqrt();
             if n >= ESCAPE_NORM {
-                norm_at = n;
+                cause = Some(format!("|x| passed {ESCAPE_NORM:e} {at}"));
                 break;
             }
         }
         RunError::Escaped {
-            t: self.spec.time_of(step),
-            norm: norm_at,
+            t: self.spec.time_of(target),
+            norm,
             cause,
         }
     }

@@ -234,6 +234,10 @@ pub fn state_dim(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<usize> 
         SystemFamily::Hamiltonian => model_dof(cfg).map(|n| 2 * n),
         SystemFamily::Flow => cfg.rhs.as_ref().map(Vec::len),
         SystemFamily::Map => cfg.next.as_ref().map(Vec::len),
+        SystemFamily::GeneralHamiltonian => cfg
+            .n
+            .filter(|&n| (1..=chaoscope_expr::vector::MAX_DIM / 2).contains(&n))
+            .map(|n| 2 * n),
     }
 }
 
@@ -246,10 +250,13 @@ enum SystemFamily {
     Flow,
     /// `map`: `x -> F(x)` (`system::Map`).
     Map,
+    /// `hamiltonian`: any `H(q, p)`, its vector field integrated by a Runge-Kutta method
+    /// (`system::RkFlow`), the symplectic Gauss-Legendre ones among them.
+    GeneralHamiltonian,
 }
 
 /// Every `[model] name`, as error messages list them.
-const KNOWN_MODELS: &str = "henon-heiles, fput-beta, potential, ode, map";
+const KNOWN_MODELS: &str = "henon-heiles, fput-beta, potential, hamiltonian, ode, map";
 
 impl SystemFamily {
     fn of(name: &str) -> Option<Self> {
@@ -257,6 +264,7 @@ impl SystemFamily {
             "henon-heiles" | "fput-beta" | "potential" => Some(Self::Hamiltonian),
             "ode" => Some(Self::Flow),
             "map" => Some(Self::Map),
+            "hamiltonian" => Some(Self::GeneralHamiltonian),
             _ => None,
         }
     }
@@ -276,12 +284,13 @@ impl SystemFamily {
             ],
             Self::Flow => &["rhs", "params", "boundary"],
             Self::Map => &["next", "params", "boundary", "modulo"],
+            Self::GeneralHamiltonian => &["n", "hamiltonian", "params", "boundary"],
         }
     }
 }
 
 /// The `[model]` keys that are set, by name.
-fn model_keys_present(cfg: &chaoscope_schemas::config::ModelConfig) -> [(&'static str, bool); 10] {
+fn model_keys_present(cfg: &chaoscope_schemas::config::ModelConfig) -> [(&'static str, bool); 11] {
     [
         ("n", cfg.n.is_some()),
         ("beta", cfg.beta.is_some()),
@@ -293,6 +302,7 @@ fn model_keys_present(cfg: &chaoscope_schemas::config::ModelConfig) -> [(&'stati
         ("rhs", cfg.rhs.is_some()),
         ("next", cfg.next.is_some()),
         ("modulo", cfg.modulo.is_some()),
+        ("hamiltonian", cfg.hamiltonian.is_some()),
     ]
 }
 
@@ -389,6 +399,7 @@ fn builtin_extra_key(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<&'s
         ("rhs", cfg.rhs.is_some()),
         ("next", cfg.next.is_some()),
         ("modulo", cfg.modulo.is_some()),
+        ("hamiltonian", cfg.hamiltonian.is_some()),
     ]
     .into_iter()
     .find_map(|(k, present)| present.then_some(k))
@@ -532,12 +543,97 @@ fn flow_from_config(cfg: &RunConfig) -> Result<Arc<dyn DynamicalSystem>, SpecErr
         )
     })?;
     let field = vector::vector_function("rhs", rhs, &model.params, model.boundary.as_deref())?;
+    runge_kutta_system(cfg, Arc::new(field))
+}
+
+/// `[model] name = "hamiltonian"`: the vector field of `H(q, p)` (derivatives taken
+/// symbolically) with a Runge-Kutta method; `gl4` and `gl6` are symplectic.
+fn general_hamiltonian_from_config(cfg: &RunConfig) -> Result<Arc<dyn DynamicalSystem>, SpecError> {
+    let model = &cfg.model;
+    let source = model.hamiltonian.as_ref().ok_or_else(|| {
+        SpecError::new(
+            "model.hamiltonian",
+            "needs H(q, p), e.g. hamiltonian = \"(p1^2 + p2^2)/2 + (q1^2 + q2^2)/2\"",
+        )
+    })?;
+    let max = chaoscope_expr::vector::MAX_DIM / 2;
+    let n = model
+        .n
+        .ok_or_else(|| SpecError::new("model.n", "needs the number of degrees of freedom n"))?;
+    if n == 0 || n > max {
+        return Err(SpecError::new(
+            "model.n",
+            format!("must be between 1 and {max}, got {n}"),
+        ));
+    }
+    let field = vector::hamiltonian_function(source, n, &model.params, model.boundary.as_deref())?;
+    runge_kutta_system(cfg, Arc::new(field))
+}
+
+/// `[orbit] q` and `p` (or `x`) of a Hamiltonian given as an expression, as the state `x =
+/// (q, p)`.
+fn state_of_q_and_p(orbit: &OrbitConfig, n: usize) -> Result<OrbitConfig, SpecError> {
+    for (key, present) in [
+        ("orbit.energy", orbit.energy.is_some()),
+        ("orbit.solve_for", orbit.solve_for.is_some()),
+        ("orbit.preset", orbit.preset.is_some()),
+    ] {
+        if present {
+            return Err(SpecError::new(
+                key,
+                "solving the energy for a momentum and presets are offered for separable \
+                 Hamiltonians; give q and p",
+            ));
+        }
+    }
+    let x = match (orbit.q.is_empty() && orbit.p.is_empty(), orbit.x.is_empty()) {
+        (false, true) => {
+            for (key, v) in [("orbit.q", &orbit.q), ("orbit.p", &orbit.p)] {
+                if v.len() != n {
+                    return Err(SpecError::new(
+                        key,
+                        format!(
+                            "needs {n} values (one per degree of freedom), got {}",
+                            v.len()
+                        ),
+                    ));
+                }
+            }
+            orbit.q.iter().chain(&orbit.p).copied().collect()
+        }
+        (true, false) => orbit.x.clone(),
+        (false, false) => {
+            return Err(SpecError::new(
+                "orbit.x",
+                "give either q and p or x = [q1..qN, p1..pN], not both",
+            ));
+        }
+        (true, true) => {
+            return Err(SpecError::new(
+                "orbit.q",
+                "needs q and p (the initial state)",
+            ));
+        }
+    };
+    Ok(OrbitConfig {
+        x,
+        ..OrbitConfig::default()
+    })
+}
+
+/// A vector field with the Runge-Kutta method of `[integrator]`: fixed step `h`, or adaptive
+/// `dop853` landing on the grid of `h` when `rtol` and `atol` are given.
+fn runge_kutta_system(
+    cfg: &RunConfig,
+    field: Arc<dyn crate::system::VectorField>,
+) -> Result<Arc<dyn DynamicalSystem>, SpecError> {
+    let model = &cfg.model;
     let integrator = &cfg.integrator;
     let kind = RungeKuttaKind::from_name(&integrator.method).ok_or_else(|| {
         SpecError::new(
             "integrator.method",
             format!(
-                "unknown method '{}' for a flow (known: rk4, dop853)",
+                "unknown method '{}' for a flow (known: rk4, dop853, gl4, gl6)",
                 integrator.method
             ),
         )
@@ -588,7 +684,7 @@ fn flow_from_config(cfg: &RunConfig) -> Result<Arc<dyn DynamicalSystem>, SpecErr
     };
     Ok(Arc::new(RkFlow {
         name: model.name.clone(),
-        field: Arc::new(field),
+        field,
         method: RungeKutta::new(kind),
         h,
         tolerances,
@@ -663,6 +759,13 @@ impl RunSpec {
             Some(SystemFamily::Map) => {
                 let system = map_from_config(&expanded)?;
                 Self::build_general(&expanded, system, Vec::new())
+            }
+            Some(SystemFamily::GeneralHamiltonian) => {
+                let system = general_hamiltonian_from_config(&expanded)?;
+                // The initial state is q and p, as for every Hamiltonian; inside, x = (q, p).
+                let mut with_x = expanded.clone();
+                with_x.orbit = state_of_q_and_p(&expanded.orbit, system.dim() / 2)?;
+                Self::build_general(&with_x, system, Vec::new())
             }
         }
     }

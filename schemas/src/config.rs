@@ -48,7 +48,8 @@ pub struct ModelConfig {
     /// The system's kind and, for built-in ones, the model. Hamiltonians: `"henon-heiles"`,
     /// `"fput-beta"`, or `"potential"` (a separable Hamiltonian `H = sum p_i^2 / (2 m_i) + V(q)`
     /// with `V` written in `potential`). Flows: `"ode"` (`dx/dt = f(x)` with `f` written in
-    /// `rhs`). Maps: `"map"` (`x -> F(x)` with `F` written in `next`).
+    /// `rhs`). Maps: `"map"` (`x -> F(x)` with `F` written in `next`). Any Hamiltonian:
+    /// `"hamiltonian"` (`H(q, p)` written in `hamiltonian`).
     pub name: String,
     /// Number of degrees of freedom (lattice sites); fixed to 2 for Henon-Heiles.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -86,6 +87,10 @@ pub struct ModelConfig {
     /// are measured on the torus (the minimal image).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub modulo: Option<Vec<f64>>,
+    /// `"hamiltonian"` only: `H(q, p)` in the expression language over `q1..qN`, `p1..pN` (and
+    /// `q[i]`, `p[i]`), any Hamiltonian, separable or not; `n` is `N`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub hamiltonian: Option<String>,
 }
 
 impl ModelConfig {

@@ -13,6 +13,7 @@
 // coordinate; iterators over one of them would hide that symmetry.
 #![allow(clippy::needless_range_loop)]
 
+use super::gauss_legendre::{self, ImplicitScratch, ImplicitTableau};
 use super::{Integrator, TangentError, Workspace};
 use crate::system::VectorField;
 
@@ -23,6 +24,10 @@ pub enum RungeKuttaKind {
     Rk4,
     /// Dormand-Prince 8(5,3): 12 stages, order 8, embedded error estimates of orders 5 and 3.
     Dop853,
+    /// Gauss-Legendre, 2 stages, order 4, implicit and symplectic ([`super::gauss_legendre`]).
+    Gl4,
+    /// Gauss-Legendre, 3 stages, order 6, implicit and symplectic.
+    Gl6,
 }
 
 impl RungeKuttaKind {
@@ -30,6 +35,8 @@ impl RungeKuttaKind {
         match name {
             "rk4" => Some(Self::Rk4),
             "dop853" => Some(Self::Dop853),
+            "gl4" => Some(Self::Gl4),
+            "gl6" => Some(Self::Gl6),
             _ => None,
         }
     }
@@ -38,6 +45,8 @@ impl RungeKuttaKind {
         match self {
             Self::Rk4 => "rk4",
             Self::Dop853 => "dop853",
+            Self::Gl4 => "gl4",
+            Self::Gl6 => "gl6",
         }
     }
 
@@ -45,14 +54,32 @@ impl RungeKuttaKind {
         match self {
             Self::Rk4 => 4,
             Self::Dop853 => 8,
+            Self::Gl4 => 4,
+            Self::Gl6 => 6,
         }
     }
 
-    pub fn tableau(self) -> &'static Tableau {
+    /// The tableau of an explicit method; `None` for the implicit ones.
+    pub fn tableau(self) -> Option<&'static Tableau> {
         match self {
-            Self::Rk4 => &RK4,
-            Self::Dop853 => &DOP853,
+            Self::Rk4 => Some(&RK4),
+            Self::Dop853 => Some(&DOP853),
+            Self::Gl4 | Self::Gl6 => None,
         }
+    }
+
+    /// The tableau of an implicit (Gauss-Legendre) method.
+    pub fn implicit_tableau(self) -> Option<&'static ImplicitTableau> {
+        match self {
+            Self::Gl4 => Some(&gauss_legendre::GL4),
+            Self::Gl6 => Some(&gauss_legendre::GL6),
+            Self::Rk4 | Self::Dop853 => None,
+        }
+    }
+
+    /// Symplectic: the Gauss-Legendre methods.
+    pub fn is_symplectic(self) -> bool {
+        self.implicit_tableau().is_some()
     }
 }
 
@@ -256,6 +283,8 @@ pub struct RkScratch {
     next: Vec<f64>,
     /// The step size the controller proposes next (adaptive only); `None` before the first.
     pub(crate) proposal: Option<f64>,
+    /// The stages of the implicit methods.
+    implicit: ImplicitScratch,
 }
 
 impl RkScratch {
@@ -304,7 +333,7 @@ impl RungeKutta {
     /// Stages from `x` with step `h`: stage states into `xs`, derivatives into `k`, the new
     /// state into `next`. The one definition of the arithmetic of a step.
     fn stages(&self, f: &dyn VectorField, x: &[f64], h: f64, s: &mut RkScratch) {
-        let t = self.kind.tableau();
+        let t = self.kind.tableau().expect("an explicit method");
         let dim = x.len();
         s.ensure(t.stages(), dim);
         for i in 0..t.stages() {
@@ -334,9 +363,28 @@ impl RungeKutta {
     }
 
     /// One step of size `h`.
+    ///
+    /// An implicit step whose stages do not converge leaves `x` NaN: the engine stops the run
+    /// there and asks the system why (`RkFlow::diagnose_non_finite` names the solver).
     pub fn advance(&self, f: &dyn VectorField, x: &mut [f64], h: f64, s: &mut RkScratch) {
+        if let Some(t) = self.kind.implicit_tableau() {
+            if gauss_legendre::advance(t, f, x, h, &mut s.implicit).is_err() {
+                x.fill(f64::NAN);
+            }
+            return;
+        }
         self.stages(f, x, h, s);
         x.copy_from_slice(&s.next[..x.len()]);
+    }
+
+    /// Whether one implicit step from `x` fails to converge (for diagnosis; `false` for the
+    /// explicit methods).
+    pub fn implicit_step_fails(&self, f: &dyn VectorField, x: &[f64], h: f64) -> Option<String> {
+        let t = self.kind.implicit_tableau()?;
+        let mut y = x.to_vec();
+        gauss_legendre::advance(t, f, &mut y, h, &mut ImplicitScratch::default())
+            .err()
+            .map(|e| e.to_string())
     }
 
     /// One step of `x` and of the deviation vectors in `w` (one after the other) by the exact
@@ -352,7 +400,15 @@ impl RungeKutta {
         if let Some(reason) = f.no_tangent_reason() {
             return Err(TangentError::NoHessian(reason));
         }
-        let t = self.kind.tableau();
+        if let Some(t) = self.kind.implicit_tableau() {
+            if gauss_legendre::advance_tangent(t, f, x, w, h, &mut s.implicit).is_err() {
+                // As in `advance`: the engine stops at the non-finite state.
+                x.fill(f64::NAN);
+                w.fill(f64::NAN);
+            }
+            return Ok(());
+        }
+        let t = self.kind.tableau().expect("an explicit method");
         let dim = x.len();
         self.stages(f, x, h, s);
         for v in w.chunks_exact_mut(dim) {
@@ -390,7 +446,7 @@ impl RungeKutta {
     /// The scaled error norm of the step just computed by `stages` (Hairer's DOP853 estimate:
     /// the 5th-order error damped by the 3rd-order one); `<= 1` accepts the step.
     fn error_norm(&self, x: &[f64], h: f64, tol: Tolerances, s: &RkScratch) -> f64 {
-        let t = self.kind.tableau();
+        let t = self.kind.tableau().expect("an explicit method");
         let (Some(e5), Some(e3)) = (t.e5, t.e3) else {
             return 0.0;
         };

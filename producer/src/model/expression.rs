@@ -105,6 +105,7 @@ impl ExpressionModel {
             name: "q".to_string(),
             len: n,
             arg: ARG_Q,
+            offset: 0,
         }];
         let scope = Scope {
             families: &families,

@@ -5,6 +5,7 @@
 use std::collections::BTreeMap;
 
 use chaoscope_expr::lower::Boundary;
+use chaoscope_expr::vector::HamiltonianDefinition;
 use chaoscope_expr::{VectorDefinition, VectorError, VectorFunction};
 use chaoscope_schemas::config;
 
@@ -57,5 +58,40 @@ pub fn vector_function(
     .map_err(|e| match e {
         VectorError::Component { .. } => SpecError::new(&model_key, e.to_string()),
         VectorError::Other(m) => SpecError::new(&model_key, m),
+    })
+}
+
+/// `[model] hamiltonian = "<H(q, p)>"` on `n` degrees of freedom: its vector field
+/// `(dH/dp, -dH/dq)` compiled with `H` as the energy. Errors are reported under
+/// `model.hamiltonian` with line, column and caret.
+pub fn hamiltonian_function(
+    source: &str,
+    n: usize,
+    params: &BTreeMap<String, config::ParamValue>,
+    boundary: Option<&str>,
+) -> Result<VectorFunction, SpecError> {
+    let key = "model.hamiltonian";
+    let size = format!("the system has {n} degrees of freedom");
+    let mut values = BTreeMap::new();
+    for (name, v) in params {
+        values.insert(
+            name.clone(),
+            param_value(&format!("model.params.{name}"), v, n, &size)?,
+        );
+    }
+    let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
+        .map_err(|e| SpecError::new("model.boundary", e))?;
+    VectorFunction::hamiltonian(HamiltonianDefinition {
+        key: "hamiltonian".to_string(),
+        n,
+        source: source.to_string(),
+        params: values,
+        boundary,
+        tables: Vec::new(),
+    })
+    .map_err(|e| match e {
+        // One expression: "hamiltonian[1]: ..." says nothing the key does not.
+        VectorError::Component { error, .. } => SpecError::new(key, error.to_string()),
+        VectorError::Other(m) => SpecError::new(key, m),
     })
 }

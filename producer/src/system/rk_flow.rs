@@ -32,6 +32,17 @@ pub trait VectorField: Send + Sync {
 
     /// The operation that makes `f` non-finite at `x`, if known.
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String>;
+
+    /// `H(x)` when `f` is the vector field of a Hamiltonian `H` (`dq/dt = dH/dp`, `dp/dt =
+    /// -dH/dq` on `x = (q, p)`): the energy the report follows; `None` otherwise.
+    fn energy(&self, _x: &[f64]) -> Option<f64> {
+        None
+    }
+
+    /// Whether `f` is a Hamiltonian vector field (then [`VectorField::energy`] is `Some`).
+    fn is_hamiltonian(&self) -> bool {
+        false
+    }
 }
 
 /// The right-hand side of `[model] name = "ode"`: the compiled expressions and their automatic
@@ -67,6 +78,14 @@ impl VectorField for chaoscope_expr::VectorFunction {
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
         chaoscope_expr::VectorFunction::diagnose_non_finite(self, x)
     }
+
+    fn energy(&self, x: &[f64]) -> Option<f64> {
+        chaoscope_expr::VectorFunction::energy(self, x)
+    }
+
+    fn is_hamiltonian(&self) -> bool {
+        chaoscope_expr::VectorFunction::is_hamiltonian(self)
+    }
 }
 
 /// `dx/dt = f(x)` with a Runge-Kutta method of step `h` (or grid `h`, with error control).
@@ -94,8 +113,14 @@ impl DynamicalSystem for RkFlow {
         &self.name
     }
 
+    /// A Hamiltonian vector field is reported as a Hamiltonian (its energy error), whatever
+    /// the method; any other field as a flow.
     fn kind(&self) -> SystemKind {
-        SystemKind::Flow
+        if self.field.is_hamiltonian() {
+            SystemKind::Hamiltonian
+        } else {
+            SystemKind::Flow
+        }
     }
 
     fn dim(&self) -> usize {
@@ -178,12 +203,13 @@ impl DynamicalSystem for RkFlow {
         self.field.no_tangent_reason()
     }
 
-    fn invariant(&self, _x: &[f64]) -> Option<f64> {
-        None
+    fn invariant(&self, x: &[f64]) -> Option<f64> {
+        self.field.energy(x)
     }
 
+    /// `None` for a Hamiltonian field: its flow conserves volume (`div f = 0` identically).
     fn divergence(&self, x: &[f64]) -> Option<f64> {
-        Some(self.field.divergence(x))
+        (!self.field.is_hamiltonian()).then(|| self.field.divergence(x))
     }
 
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
@@ -202,8 +228,11 @@ impl DynamicalSystem for RkFlow {
                 return Some(e.to_string());
             }
         }
+        if let Some(why) = self.method.implicit_step_fails(field, x, self.h) {
+            return Some(format!("{why} (h = {})", self.h));
+        }
         // Replay the step stage by stage: the first stage state where f is not finite.
-        let tableau = self.method.kind.tableau();
+        let tableau = self.method.kind.tableau()?;
         let dim = x.len();
         let mut k = vec![0.0; tableau.stages() * dim];
         let mut xi = vec![0.0; dim];

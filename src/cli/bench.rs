@@ -441,7 +441,7 @@ mod expressions {
         let mut used = serde_json::Value::Null;
         let mut rate = |config: &RunConfig| -> anyhow::Result<f64> {
             let spec = MapSpec::from_config(config)?;
-            if let AnyLaneModel::Expression(m) = &spec.lanes {
+            if let Some(AnyLaneModel::Expression(m)) = spec.batched.as_ref().map(|b| &b.lanes) {
                 // The map's own model: its C kernels come from the cache (built for the kernel
                 // comparison above), awaited here so the timed map runs them from its start.
                 let _ = m.c_step_kernels();

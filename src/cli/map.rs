@@ -287,7 +287,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
 /// the first batched call the C kernels were ready, and the kernel calls (windows times
 /// batches) each backend ran. `null` for the built-in models.
 fn expression_kernels(spec: &MapSpec) -> serde_json::Value {
-    let AnyLaneModel::Expression(model) = &spec.lanes else {
+    let Some(AnyLaneModel::Expression(model)) = spec.batched.as_ref().map(|b| &b.lanes) else {
         return serde_json::Value::Null;
     };
     let status = model.c_step_status();

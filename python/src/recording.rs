@@ -302,12 +302,17 @@ impl Recording {
 
     /// The indicators of scheme `scheme` at each of its renormalizations, computed by the same
     /// analysis core as `chaoscope analyze` (so the last row equals `analyze --json`, and the
-    /// row at time T equals `analyze --json --at T`, to the last bit).
+    /// row at time T equals `analyze --json --at T`, to the last bit). Streams the file with the
+    /// GIL released; Ctrl-C stops it.
     fn indicators(&self, py: Python<'_>, scheme: &str) -> PyResult<Indicators> {
         let si = self.scheme_index(scheme)?;
-        let series = py
-            .detach(|| read_series(&self.path, si))
-            .map_err(crate::message)?;
+        let stop = AtomicBool::new(false);
+        let series = interruptible(
+            py,
+            || stop.store(true, Ordering::Relaxed),
+            || read_series(&self.path, si, &stop),
+        )?
+        .map_err(crate::message)?;
         Indicators::new(py, &self.header, si, series)
     }
 
@@ -393,7 +398,8 @@ struct Series {
 
 /// Streams the recording through the analysis core (the reader and feed of
 /// `chaoscope analyze`) and keeps scheme `si`'s values after each of its samples.
-fn read_series(path: &Path, si: usize) -> Result<Series, String> {
+/// Returns early (the caller raises the pending `KeyboardInterrupt`) once `stop` is set.
+fn read_series(path: &Path, si: usize, stop: &AtomicBool) -> Result<Series, String> {
     let mut reader = RecordingReader::open(path).map_err(|e| error_text(&e))?;
     let run = RunInfo::from_header(reader.header().clone())
         .map_err(|e| format!("{}: {}", path.display(), error_text(&e)))?;
@@ -417,6 +423,9 @@ fn read_series(path: &Path, si: usize) -> Result<Series, String> {
         energy_error: Vec::new(),
     };
     while let Some(sample) = reader.next_sample().map_err(|e| error_text(&e))? {
+        if stop.load(Ordering::Relaxed) {
+            return Err("interrupted".into());
+        }
         analysis.feed(&sample);
         if !sample.schemes.iter().any(|x| x.scheme as usize == si) {
             continue;

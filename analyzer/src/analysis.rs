@@ -91,7 +91,7 @@ pub struct Analysis {
 
 /// Relative energy error (absolute when `E0 = 0`), of finite energies (the reader refuses
 /// others). An error beyond the range of f64 is reported as `f64::MAX`, never as infinity.
-fn energy_error(e: f64, e0: f64) -> f64 {
+pub fn energy_error(e: f64, e0: f64) -> f64 {
     let error = if e0 != 0.0 {
         ((e - e0) / e0).abs()
     } else {

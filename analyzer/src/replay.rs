@@ -10,6 +10,8 @@
 //! replayed schemes side by side.
 
 use std::path::Path;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use chaoscope_producer::engine::{Engine, RunError, Sample};
 use chaoscope_producer::publish::run_header;
@@ -27,6 +29,9 @@ pub struct ReplayOptions {
     pub d0s: Vec<f64>,
     /// Leave the original schemes out of the replay.
     pub without_original: bool,
+    /// Set from another thread to stop the replay (the output file is then removed); the
+    /// Python binding sets it on Ctrl-C.
+    pub stop: Option<Arc<AtomicBool>>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -48,6 +53,8 @@ pub enum ReplayError {
     },
     #[error("nothing to replay: give --tau and/or --d0")]
     Nothing,
+    #[error("replay interrupted")]
+    Interrupted,
 }
 
 impl From<SpecError> for ReplayError {
@@ -173,6 +180,13 @@ pub fn replay(
     let mut replayed = || -> Result<(), ReplayError> {
         let mut pending: Option<Sample> = recorded.next_sample()?;
         while let Some(sample) = engine.next_sample()? {
+            if options
+                .stop
+                .as_ref()
+                .is_some_and(|s| s.load(Ordering::Relaxed))
+            {
+                return Err(ReplayError::Interrupted);
+            }
             writer.write(&sample).map_err(werr)?;
             outcome.replay_samples += 1;
             while let Some(r) = pending.as_ref().filter(|r| r.step <= sample.step) {

@@ -66,19 +66,31 @@ impl SampleWriter {
         Ok(())
     }
 
-    /// Writes the end-of-run record and the summary (`finalized_by` says who wrote the file).
-    pub fn finish(mut self, finalized_by: &str) -> mcap::McapResult<()> {
+    /// Writes the end-of-run record of a completed run and the summary (`finalized_by` says
+    /// who wrote the file).
+    pub fn finish(self, finalized_by: &str) -> mcap::McapResult<()> {
+        self.finish_with(finalized_by, end_of_run::Status::Completed, "")
+    }
+
+    /// Writes the end-of-run record with the run's `status` (and the `reason` of a failure), and
+    /// the summary: a run stopped early still leaves a valid file saying how it ended.
+    pub fn finish_with(
+        mut self,
+        finalized_by: &str,
+        status: end_of_run::Status,
+        reason: &str,
+    ) -> mcap::McapResult<()> {
         self.file.write(&DataMessage::End(EndOfRun {
             frame: self.frame,
-            status: end_of_run::Status::Completed as i32,
-            reason: String::new(),
+            status: status as i32,
+            reason: reason.to_string(),
             samples: self.samples,
             last_step: self.last.0,
             t: self.last.1,
         }))?;
         let summary = RecordingSummary {
             finalized_by: finalized_by.to_string(),
-            run_status: "completed".into(),
+            run_status: status.word().into(),
             frames_received: self.frame + 1,
             frames_missing: 0,
             first_frame: 0,

@@ -58,7 +58,7 @@ mod step;
 pub use c_step::{C_BLOCK_LANES, CCompiler};
 pub use step::{
     OrbitStepsFnPtr, StepBackend, StepKernels, StepSpec, TangentStepsFnPtr, compile_steps,
-    compile_steps_c,
+    compile_steps_c, compile_steps_c_cancellable,
 };
 
 /// How a function reads one argument array (or writes its output).
@@ -186,6 +186,9 @@ pub enum JitError {
     /// cache directory); [`compile_steps`] is the fallback.
     #[error("C step kernels: {0}")]
     CCompiler(String),
+    /// The C build was cancelled by its caller (the compiler stopped, its files removed).
+    #[error("C step kernels: the build was cancelled")]
+    Cancelled,
 }
 
 /// A compiled scalar function.

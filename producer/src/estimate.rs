@@ -39,6 +39,21 @@ pub struct Machine {
     pub memory_bytes: Option<u64>,
 }
 
+impl Machine {
+    /// This machine: the cores available to this process and `MemTotal` of /proc/meminfo.
+    pub fn this_host() -> Self {
+        let memory_bytes = std::fs::read_to_string("/proc/meminfo").ok().and_then(|m| {
+            let line = m.lines().find(|l| l.starts_with("MemTotal:"))?;
+            let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+            kib.checked_mul(1024)
+        });
+        Self {
+            cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            memory_bytes,
+        }
+    }
+}
+
 /// An estimate, with the keys to name when it is refused.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Estimate {

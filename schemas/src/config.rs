@@ -9,8 +9,13 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+mod load;
 pub mod paper;
 mod parse_error;
+
+pub use load::{
+    ConfigLoadError, MAX_CONFIG_BYTES, parse_config_bytes, read_bounded, read_config_file,
+};
 
 /// Top level of a run configuration file.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -20,7 +20,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
-use chaoscope_producer::batch::Isa;
+use chaoscope_producer::batch::{AnyLaneModel, Isa};
 use chaoscope_producer::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
 use chaoscope_producer::publish::Termination;
 use chaoscope_producer::publish::map::{MapPublisher, default_map_name};
@@ -263,6 +263,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "orbit_steps": orbit_steps,
                 "orbit_steps_per_cpu_second": orbit_steps as f64 / cpu_seconds.max(1e-9),
                 "live_stream": live.as_ref().map(|l| l.name()),
+                "expression_kernels": expression_kernels(&spec),
             })
         );
     }
@@ -279,6 +280,24 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         map_png::render_png(&header, &all, png).map_err(anyhow::Error::msg)?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// For a user-written potential, which step kernels the batched kernel ran: the C build's state
+/// when the map ended (a build still running is cancelled as the map exits), how long after
+/// the first batched call the C kernels were ready, and the kernel calls (windows times
+/// batches) each backend ran. `null` for the built-in models.
+fn expression_kernels(spec: &MapSpec) -> serde_json::Value {
+    let AnyLaneModel::Expression(model) = &spec.lanes else {
+        return serde_json::Value::Null;
+    };
+    let status = model.c_step_status();
+    serde_json::json!({
+        "c_build": status.state.name(),
+        "c_unavailable": status.reason,
+        "c_ready_after_seconds": status.ready_after.map(|d| d.as_secs_f64()),
+        "cranelift_calls": status.cranelift_calls,
+        "c_calls": status.c_calls,
+    })
 }
 
 fn rayon_threads() -> usize {

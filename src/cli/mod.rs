@@ -16,7 +16,6 @@ pub mod replay;
 pub mod run;
 pub mod section;
 
-use std::io::Read;
 use std::path::Path;
 use std::process::ExitCode;
 
@@ -39,59 +38,25 @@ pub fn exit_interrupted() -> ExitCode {
     ExitCode::from(EXIT_INTERRUPTED)
 }
 
-/// Largest configuration file read: far above any real config (a 10000-scheme config is about
-/// 1 MiB), far below what would strain memory when a wrong file is given by mistake.
-pub const MAX_CONFIG_BYTES: u64 = 16 << 20;
-
 /// Reads a run configuration from a TOML file, or from stdin when `path` is `-`; returns it
 /// with its canonical TOML text.
 pub fn load_config(path: &Path) -> anyhow::Result<(RunConfig, String)> {
-    let (name, bytes) = if path == Path::new("-") {
-        let mut bytes = Vec::new();
-        std::io::stdin()
-            .take(MAX_CONFIG_BYTES + 1)
-            .read_to_end(&mut bytes)
+    let config = if path == Path::new("-") {
+        let bytes = chaoscope_schemas::config::read_bounded(std::io::stdin())
             .context("reading the run configuration from stdin")?;
-        ("stdin".to_string(), bytes)
+        chaoscope_schemas::config::parse_config_bytes("stdin", bytes, path)?
     } else {
-        let file = std::fs::File::open(path)
-            .with_context(|| format!("reading run configuration {}", path.display()))?;
-        let mut bytes = Vec::new();
-        file.take(MAX_CONFIG_BYTES + 1)
-            .read_to_end(&mut bytes)
-            .with_context(|| format!("reading run configuration {}", path.display()))?;
-        (path.display().to_string(), bytes)
+        chaoscope_schemas::config::read_config_file(path)?
     };
-    if bytes.len() as u64 > MAX_CONFIG_BYTES {
-        anyhow::bail!(
-            "{name}: larger than {} MiB, which no run configuration is (is it the right file?)",
-            MAX_CONFIG_BYTES >> 20
-        );
-    }
-    let text = String::from_utf8(bytes).map_err(|e| {
-        anyhow::anyhow!(
-            "{name}: not a text file (invalid UTF-8 at byte {}); a run configuration is TOML",
-            e.utf8_error().valid_up_to()
-        )
-    })?;
-    let config = RunConfig::from_file_text(&text, path).with_context(|| format!("in {name}"))?;
     // The canonical text, with table paths joined to the config's directory: the producer
     // child reads it from stdin, where the file's own directory is unknown.
     let text = config.to_toml();
     Ok((config, text))
 }
 
-/// This machine's cores and memory (`MemTotal` of /proc/meminfo), for the resource estimate.
+/// This machine's cores and memory, for the resource estimate.
 pub fn machine() -> Machine {
-    let memory_bytes = std::fs::read_to_string("/proc/meminfo").ok().and_then(|m| {
-        let line = m.lines().find(|l| l.starts_with("MemTotal:"))?;
-        let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-        kib.checked_mul(1024)
-    });
-    Machine {
-        cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        memory_bytes,
-    }
+    Machine::this_host()
 }
 
 /// Refuses, before it starts, work estimated to take more than a day or more memory than the

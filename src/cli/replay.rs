@@ -47,6 +47,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         taus: args.taus,
         d0s: args.d0s,
         without_original: args.without_original,
+        stop: None,
     };
     let outcome = replay(&args.file, &args.out, &options)?;
     if args.json {

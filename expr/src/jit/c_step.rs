@@ -36,7 +36,8 @@
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::process::Command;
+use std::process::{Command, Stdio};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
@@ -245,11 +246,13 @@ pub(super) fn source(graph: &Graph, spec: &StepSpec) -> Result<String, JitError>
     Ok(src)
 }
 
-/// Compiles (or loads from the cache) the C kernels of `spec`.
+/// Compiles (or loads from the cache) the C kernels of `spec`; stops the compiler and returns
+/// [`JitError::Cancelled`] once `cancel` is set.
 pub(super) fn build(
     graph: &Graph,
     spec: &StepSpec,
     cc: &CCompiler,
+    cancel: &AtomicBool,
 ) -> Result<(CKernels, Duration), JitError> {
     let start = Instant::now();
     let src = source(graph, spec)?;
@@ -298,41 +301,150 @@ pub(super) fn build(
     {
         return Ok((k, start.elapsed()));
     }
-    // Compiled under names of this process, then renamed into place: a concurrent run that
-    // builds the same kernel, or reads it, never sees a half-written file.
-    let unique = format!("{}-{:?}", std::process::id(), std::thread::current().id())
-        .replace(|c: char| !c.is_ascii_alphanumeric(), "");
-    let src_path = cc.cache_dir.join(format!("steps-{hash}-{unique}.c"));
-    let tmp_path = cc.cache_dir.join(format!("steps-{hash}-{unique}.so.tmp"));
+    if cancel.load(Ordering::Relaxed) {
+        return Err(JitError::Cancelled);
+    }
+    remove_abandoned_builds(&cc.cache_dir);
+    // Everything of this build (the source, the compiler's own temporary files through
+    // `TMPDIR`, its messages, the library before its rename) lives in one directory of this
+    // process, removed when the build ends however it ends; the library is renamed into place,
+    // so a concurrent run that builds or reads the same kernel never sees a half-written file.
+    let work = WorkDir::new(&cc.cache_dir)?;
+    let src_path = work.0.join("steps.c");
+    let tmp_path = work.0.join("steps.so");
+    let log_path = work.0.join("messages");
     let src = src.replace("@HASH@", &hash);
     std::fs::write(&src_path, &src).map_err(|e| io("cannot write", &src_path, e))?;
-    let out = Command::new(&cc.program)
+    let log = std::fs::File::create(&log_path).map_err(|e| io("cannot write", &log_path, e))?;
+    let mut command = Command::new(&cc.program);
+    command
         .args(FLAGS)
         .arg("-o")
         .arg(&tmp_path)
         .arg(&src_path)
-        .output();
-    let _ = std::fs::remove_file(&src_path);
-    let out = out.map_err(|e| {
+        .env("TMPDIR", &work.0)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(log);
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::CommandExt;
+        // Its own process group: a cancel kills the driver and all it started, and a Ctrl-C
+        // meant for chaoscope does not reach it (chaoscope decides what happens to it).
+        command.process_group(0);
+    }
+    let mut child = command.spawn().map_err(|e| {
         JitError::CCompiler(format!(
             "cannot run the C compiler '{}': {e}",
             cc.program.display()
         ))
     })?;
-    if !out.status.success() {
-        let _ = std::fs::remove_file(&tmp_path);
+    let status = loop {
+        match child.try_wait() {
+            Ok(Some(status)) => break status,
+            Ok(None) if cancel.load(Ordering::Relaxed) => {
+                kill_group(&mut child);
+                return Err(JitError::Cancelled);
+            }
+            Ok(None) => std::thread::sleep(Duration::from_millis(10)),
+            Err(e) => {
+                kill_group(&mut child);
+                return Err(JitError::CCompiler(format!(
+                    "waiting for the C compiler '{}': {e}",
+                    cc.program.display()
+                )));
+            }
+        }
+    };
+    if !status.success() {
+        let messages = std::fs::read(&log_path).unwrap_or_default();
         return Err(JitError::CCompiler(format!(
-            "the C compiler '{}' failed on the step kernels: {}",
+            "the C compiler '{}' failed on the step kernels ({status}): {}",
             cc.program.display(),
-            first_lines(&out.stderr)
+            first_lines(&messages)
         )));
     }
-    std::fs::rename(&tmp_path, &lib_path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp_path);
-        io("cannot move the compiled kernels to", &lib_path, e)
-    })?;
+    std::fs::rename(&tmp_path, &lib_path)
+        .map_err(|e| io("cannot move the compiled kernels to", &lib_path, e))?;
+    drop(work);
     let k = load(&lib_path, &hash, tangent, false)?;
     Ok((k, start.elapsed()))
+}
+
+/// Prefix of the build directories in the cache: `build-<pid>-<n>`.
+const BUILD_DIR: &str = "build-";
+
+/// A build directory of this process, removed with its contents when dropped.
+struct WorkDir(PathBuf);
+
+impl WorkDir {
+    fn new(cache_dir: &Path) -> Result<WorkDir, JitError> {
+        static NEXT: AtomicU64 = AtomicU64::new(0);
+        let n = NEXT.fetch_add(1, Ordering::Relaxed);
+        let path = cache_dir.join(format!("{BUILD_DIR}{}-{n}", std::process::id()));
+        // A directory of this name can only be left by an earlier process of the same pid.
+        let _ = std::fs::remove_dir_all(&path);
+        std::fs::create_dir(&path)
+            .map_err(|e| JitError::CCompiler(format!("cannot create {}: {e}", path.display())))?;
+        Ok(WorkDir(path))
+    }
+}
+
+impl Drop for WorkDir {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+/// Kills the compiler's process group (the driver and the compiler passes, assembler and
+/// linker it started) and reaps the driver.
+fn kill_group(child: &mut std::process::Child) {
+    #[cfg(unix)]
+    if let Ok(pid) = libc::pid_t::try_from(child.id()) {
+        // SAFETY: a plain system call on the group this module created for the child (its
+        // pid is the group id and stays reserved until the `wait` below reaps it).
+        unsafe {
+            libc::kill(-pid, libc::SIGKILL);
+        }
+    }
+    let _ = child.kill();
+    let _ = child.wait();
+}
+
+/// Removes build directories whose process no longer exists (a chaoscope killed by SIGKILL
+/// cannot clean up after itself; the next build does).
+fn remove_abandoned_builds(cache_dir: &Path) {
+    let Ok(entries) = std::fs::read_dir(cache_dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let name = entry.file_name();
+        let Some(pid) = name
+            .to_str()
+            .and_then(|n| n.strip_prefix(BUILD_DIR))
+            .and_then(|n| n.split('-').next())
+            .and_then(|p| p.parse::<i32>().ok())
+        else {
+            continue;
+        };
+        if pid != std::process::id() as i32 && !process_exists(pid) {
+            let _ = std::fs::remove_dir_all(entry.path());
+        }
+    }
+}
+
+fn process_exists(pid: i32) -> bool {
+    #[cfg(unix)]
+    {
+        // SAFETY: signal 0 only checks that the process exists (no signal is sent).
+        let r = unsafe { libc::kill(pid, 0) };
+        r == 0 || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM)
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = pid;
+        true
+    }
 }
 
 /// Loads a compiled library and checks that it is the one its name says (it carries its hash).

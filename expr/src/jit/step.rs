@@ -30,6 +30,7 @@
 
 use std::cell::{Cell, RefCell};
 use std::path::PathBuf;
+use std::sync::atomic::AtomicBool;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -486,8 +487,21 @@ pub fn compile_steps_c(
     spec: &StepSpec,
     cc: &CCompiler,
 ) -> Result<StepKernels, JitError> {
+    compile_steps_c_cancellable(graph, spec, cc, &AtomicBool::new(false))
+}
+
+/// [`compile_steps_c`] that gives up once `cancel` is set (it is read while the compiler runs,
+/// every few milliseconds): the compiler and everything it started are killed and its files
+/// removed before this returns [`JitError::Cancelled`]. For a build on a background thread
+/// whose result may no longer be wanted.
+pub fn compile_steps_c_cancellable(
+    graph: &Graph,
+    spec: &StepSpec,
+    cc: &CCompiler,
+    cancel: &AtomicBool,
+) -> Result<StepKernels, JitError> {
     let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
-    let (kernels, compile_time) = c_step::build(graph, spec, cc)?;
+    let (kernels, compile_time) = c_step::build(graph, spec, cc, cancel)?;
     let env = c_step::env(&tables);
     Ok(StepKernels {
         code: Code::C { kernels, env },

@@ -10,8 +10,10 @@
 //! exactly the reference evaluator's operations, so every path gives the same bits.
 
 use std::collections::{BTreeMap, HashMap};
-use std::sync::{Arc, OnceLock};
-use std::time::Duration;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, Once, OnceLock, PoisonError};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
 
 use chaoscope_expr::graph::{Graph, NodeId, Tabulated};
 use chaoscope_expr::jit::{Compiled, FunctionSpec, Layout, ScalarFnPtr, StepKernels, StepSpec};
@@ -53,7 +55,8 @@ const ARG_V: u8 = 1;
 
 struct Inner {
     definition: PotentialDefinition,
-    graph: Graph,
+    /// Shared with the background C build.
+    graph: Arc<Graph>,
     origins: HashMap<NodeId, Span>,
     potential: NodeId,
     gradient: Vec<NodeId>,
@@ -63,9 +66,10 @@ struct Inner {
     /// Whole splitting steps over lanes by Cranelift: compiled with the model, the batched
     /// kernel's fallback.
     steps: StepKernels,
-    /// The same steps in C (host-width vectors), built on the batched kernel's first call (a
-    /// `run` never pays for it) or loaded from the kernel cache; the error if none could be.
-    c_steps: OnceLock<Result<StepKernels, String>>,
+    /// The same steps in C (host-width vectors), built on a background thread from the
+    /// batched kernel's first call (a `run` never pays for it) or loaded from the kernel
+    /// cache.
+    c_steps: Arc<CSteps>,
     /// The one-orbit hot path calls the machine code directly: the checked `Compiled::call`
     /// costs as much as the Henon-Heiles forces themselves. `new` checks that these read at
     /// most `N` entries of each argument, so slices of length `N` are enough.
@@ -74,6 +78,141 @@ struct Inner {
     /// Continuous second derivatives (the variational method applies).
     c2: bool,
     build_time: Duration,
+}
+
+impl Drop for Inner {
+    /// The last handle to the model is gone: a C build still running is not wanted any more.
+    /// It is cancelled (the compiler killed, its files removed) rather than awaited, so a map
+    /// that ends, or is interrupted, before the build never waits for a compiler; the next map
+    /// of the same potential starts it again (a build that finished is in the cache).
+    fn drop(&mut self) {
+        self.c_steps.cancel.store(true, Ordering::Relaxed);
+        self.c_steps.join();
+    }
+}
+
+/// Where the C step kernels stand.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum CStepState {
+    /// No batched kernel call yet.
+    NotStarted,
+    /// Compiling on the background thread.
+    Building,
+    /// Built (`cached`: loaded from the kernel cache) and in use.
+    Ready { cached: bool },
+    /// Switched off (`CHAOSCOPE_CC=none`).
+    Off,
+    /// The compiler is missing or failed; the Cranelift kernels run.
+    Failed,
+    /// Cancelled (the model was dropped during the build).
+    Cancelled,
+}
+
+impl CStepState {
+    pub fn name(&self) -> &'static str {
+        match self {
+            CStepState::NotStarted => "not-started",
+            CStepState::Building => "building",
+            CStepState::Ready { cached: false } => "compiled",
+            CStepState::Ready { cached: true } => "loaded-from-cache",
+            CStepState::Off => "off",
+            CStepState::Failed => "failed",
+            CStepState::Cancelled => "cancelled",
+        }
+    }
+}
+
+/// [`ExpressionModel::c_step_status`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct CStepStatus {
+    pub state: CStepState,
+    /// Why there are no C kernels (off, failed, cancelled).
+    pub reason: Option<String>,
+    /// From the batched kernel's first call to the C kernels being ready.
+    pub ready_after: Option<Duration>,
+    /// Batched kernel calls (one per window and batch) that ran each backend.
+    pub cranelift_calls: u64,
+    pub c_calls: u64,
+}
+
+/// Why there are no C step kernels.
+#[derive(Debug)]
+struct CUnavailable {
+    kind: CStepState,
+    reason: String,
+}
+
+/// The background build of the C step kernels, shared by the model and the build's thread.
+struct CSteps {
+    started: Once,
+    started_at: OnceLock<Instant>,
+    /// Set once, by the build thread (or by `start_c_build` when there is no thread).
+    result: OnceLock<Result<StepKernels, CUnavailable>>,
+    ready_after: OnceLock<Duration>,
+    /// Set when the model is dropped: stops the compiler.
+    cancel: AtomicBool,
+    /// Joined by whoever waits for the result (under the lock, so a second waiter blocks
+    /// until the first has joined and the result is set).
+    worker: Mutex<Option<JoinHandle<()>>>,
+    /// The test hook of [`ExpressionModel::step_kernels`].
+    switch_after_calls: Option<u64>,
+    calls: AtomicU64,
+    cranelift_calls: AtomicU64,
+    c_calls: AtomicU64,
+}
+
+impl CSteps {
+    fn new(switch_after_calls: Option<u64>) -> Self {
+        Self {
+            started: Once::new(),
+            started_at: OnceLock::new(),
+            result: OnceLock::new(),
+            ready_after: OnceLock::new(),
+            cancel: AtomicBool::new(false),
+            worker: Mutex::new(None),
+            switch_after_calls,
+            calls: AtomicU64::new(0),
+            cranelift_calls: AtomicU64::new(0),
+            c_calls: AtomicU64::new(0),
+        }
+    }
+
+    /// The build thread's body. A failure (not a cancel) is said once on stderr, in one line
+    /// naming the cause: the run goes on with the Cranelift kernels, which give the same
+    /// results more slowly, and the user should know why it is slower than it could be.
+    fn build(&self, graph: &Graph, spec: &StepSpec, cc: &jit::CCompiler) {
+        let built = jit::compile_steps_c_cancellable(graph, spec, cc, &self.cancel);
+        let result = match built {
+            Ok(k) => {
+                if let Some(t0) = self.started_at.get() {
+                    let _ = self.ready_after.set(t0.elapsed());
+                }
+                Ok(k)
+            }
+            Err(jit::JitError::Cancelled) => Err(CUnavailable {
+                kind: CStepState::Cancelled,
+                reason: "the C kernel build was cancelled".into(),
+            }),
+            Err(e) => {
+                eprintln!(
+                    "chaoscope: {e}; the batched kernel runs the Cranelift kernels instead \
+                     (the same results, more slowly)"
+                );
+                Err(CUnavailable {
+                    kind: CStepState::Failed,
+                    reason: e.to_string(),
+                })
+            }
+        };
+        let _ = self.result.set(result);
+    }
+
+    fn join(&self) {
+        let mut worker = self.worker.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(handle) = worker.take() {
+            let _ = handle.join();
+        }
+    }
 }
 
 /// A compiled potential model. Cheap to clone (shared compiled code).
@@ -168,6 +307,9 @@ impl ExpressionModel {
                 }
             }
         }
+        let switch_after_calls = std::env::var("CHAOSCOPE_C_KERNELS_AFTER_CALLS")
+            .ok()
+            .and_then(|v| v.trim().parse().ok());
         Ok(Self(Arc::new(Inner {
             gradient_fn: compiled.raw_scalar(GRADIENT),
             hessian_vector_fn: compiled.raw_scalar(HESSIAN_VECTOR),
@@ -175,13 +317,13 @@ impl ExpressionModel {
             origins: lowered.origins,
             smoothness: lowered.smoothness,
             definition,
-            graph,
+            graph: Arc::new(graph),
             potential,
             gradient,
             compiled,
             hessian_vector,
             steps,
-            c_steps: OnceLock::new(),
+            c_steps: Arc::new(CSteps::new(switch_after_calls)),
             build_time: started.elapsed(),
         })))
     }
@@ -205,11 +347,33 @@ impl ExpressionModel {
     }
 
     /// The compiled splitting steps over structure-of-arrays lanes (orbits and tangent
-    /// vectors), what the batched kernel runs: the C kernels when the system C compiler built
-    /// them (built on the first call, see [`Self::c_step_kernels`]), else the Cranelift ones.
-    /// Both give the same bits.
+    /// vectors) that the batched kernel's next call runs. The first call starts building the
+    /// C kernels on a background thread and returns the Cranelift ones; every call returns the
+    /// C kernels once they are ready (the switch happens between two kernel calls, at a window
+    /// or batch boundary), else the Cranelift ones. Both give the same bits, step by step, so
+    /// the results do not depend on when (or whether) the switch happens.
+    ///
+    /// Test hook: `CHAOSCOPE_C_KERNELS_AFTER_CALLS=k` (read when the model is built) makes the
+    /// first `k` calls run the Cranelift kernels and every later call wait for the C build,
+    /// so a test can place the switch where it wants (`0`: only the C kernels).
     pub fn step_kernels(&self) -> &StepKernels {
-        self.c_step_kernels().unwrap_or(&self.0.steps)
+        let c = &self.0.c_steps;
+        self.start_c_build();
+        let ready = match c.switch_after_calls {
+            None => c.result.get(),
+            Some(k) if c.calls.fetch_add(1, Ordering::Relaxed) < k => None,
+            Some(_) => Some(self.wait_c_build()),
+        };
+        match ready {
+            Some(Ok(k)) => {
+                c.c_calls.fetch_add(1, Ordering::Relaxed);
+                k
+            }
+            _ => {
+                c.cranelift_calls.fetch_add(1, Ordering::Relaxed);
+                &self.0.steps
+            }
+        }
     }
 
     /// Whether the C kernels `k` were loaded from the kernel cache rather than compiled.
@@ -222,23 +386,107 @@ impl ExpressionModel {
         &self.0.steps
     }
 
-    /// The C step kernels, compiled (or loaded from the cache) on the first call by the
-    /// compiler `CHAOSCOPE_CC` names (default `cc`; `none` switches them off); why there are
-    /// none otherwise. A failure is not an error of the run: the Cranelift kernels compute the
-    /// same bits, more slowly.
+    /// The C step kernels, waiting for their build (started here if it was not): compiled or
+    /// loaded from the cache by the compiler `CHAOSCOPE_CC` names (default `cc`; `none`
+    /// switches them off); why there are none otherwise. A failure is not an error of the run:
+    /// the Cranelift kernels compute the same bits, more slowly.
     pub fn c_step_kernels(&self) -> Result<&StepKernels, &str> {
-        let built = self.0.c_steps.get_or_init(|| {
+        self.start_c_build();
+        match self.wait_c_build() {
+            Ok(k) => Ok(k),
+            Err(e) => Err(&e.reason),
+        }
+    }
+
+    /// Where the background C build stands, and how many batched kernel calls each backend ran.
+    pub fn c_step_status(&self) -> CStepStatus {
+        let c = &self.0.c_steps;
+        let state = match c.result.get() {
+            _ if !c.started.is_completed() => CStepState::NotStarted,
+            None => CStepState::Building,
+            Some(Ok(k)) => CStepState::Ready {
+                cached: self.c_step_kernels_cached(k),
+            },
+            Some(Err(e)) => e.kind.clone(),
+        };
+        CStepStatus {
+            state,
+            reason: c
+                .result
+                .get()
+                .and_then(|r| r.as_ref().err())
+                .map(|e| e.reason.clone()),
+            ready_after: c.ready_after.get().copied(),
+            cranelift_calls: c.cranelift_calls.load(Ordering::Relaxed),
+            c_calls: c.c_calls.load(Ordering::Relaxed),
+        }
+    }
+
+    /// A build of the C step kernels apart from the model's own, by the compiler of the
+    /// environment (as [`Self::c_step_kernels`]) into the cache directory `cache_dir`: what
+    /// `bench` times (an empty directory gives a full compilation).
+    pub fn build_c_step_kernels(&self, cache_dir: &std::path::Path) -> Result<StepKernels, String> {
+        let Some(cc) = jit::CCompiler::from_env() else {
+            return Err("C kernels switched off (CHAOSCOPE_CC=none)".into());
+        };
+        let cc = jit::CCompiler {
+            cache_dir: cache_dir.to_path_buf(),
+            ..cc
+        };
+        jit::compile_steps_c(&self.0.graph, &self.step_spec(), &cc).map_err(|e| e.to_string())
+    }
+
+    fn step_spec(&self) -> StepSpec {
+        StepSpec {
+            n: self.0.definition.n,
+            gradient: self.0.gradient.clone(),
+            hessian_vector: Some(self.0.hessian_vector.clone()),
+        }
+    }
+
+    /// Starts the background C build once (or records why there is none).
+    fn start_c_build(&self) {
+        let c = &self.0.c_steps;
+        c.started.call_once(|| {
+            let _ = c.started_at.set(Instant::now());
             let Some(cc) = jit::CCompiler::from_env() else {
-                return Err("C kernels switched off (CHAOSCOPE_CC=none)".into());
+                let _ = c.result.set(Err(CUnavailable {
+                    kind: CStepState::Off,
+                    reason: "C kernels switched off (CHAOSCOPE_CC=none)".into(),
+                }));
+                return;
             };
-            let spec = StepSpec {
-                n: self.0.definition.n,
-                gradient: self.0.gradient.clone(),
-                hessian_vector: Some(self.0.hessian_vector.clone()),
-            };
-            jit::compile_steps_c(&self.0.graph, &spec, &cc).map_err(|e| e.to_string())
+            let (graph, spec, shared) = (self.0.graph.clone(), self.step_spec(), c.clone());
+            let worker = std::thread::Builder::new()
+                .name("c-step-kernels".into())
+                .spawn(move || shared.build(&graph, &spec, &cc));
+            match worker {
+                Ok(handle) => {
+                    *c.worker.lock().unwrap_or_else(PoisonError::into_inner) = Some(handle)
+                }
+                Err(e) => {
+                    let _ = c.result.set(Err(CUnavailable {
+                        kind: CStepState::Failed,
+                        reason: format!("cannot start the C kernel build thread: {e}"),
+                    }));
+                }
+            }
         });
-        built.as_ref().map_err(String::as_str)
+    }
+
+    /// The build's outcome, waiting for it (the build must have been started).
+    fn wait_c_build(&self) -> &Result<StepKernels, CUnavailable> {
+        let c = &self.0.c_steps;
+        if let Some(r) = c.result.get() {
+            return r;
+        }
+        c.join();
+        c.result.get_or_init(|| {
+            Err(CUnavailable {
+                kind: CStepState::Failed,
+                reason: "the C kernel build stopped without a result".into(),
+            })
+        })
     }
 
     fn describe(&self, id: NodeId, q: &[f64], what: &str) -> String {

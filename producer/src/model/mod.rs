@@ -13,7 +13,9 @@ mod expression;
 mod fput;
 mod henon_heiles;
 
-pub use expression::{ExpressionModel, PotentialDefinition, PotentialError};
+pub use expression::{
+    CStepState, CStepStatus, ExpressionModel, PotentialDefinition, PotentialError,
+};
 pub use fput::FputBeta;
 pub use henon_heiles::HenonHeiles;
 

@@ -123,7 +123,7 @@ fn max_payload(spec: &RunSpec) -> usize {
 }
 
 /// The first non-finite value of a sample, described (NaN never goes on the bus or into files).
-fn non_finite(sample: &Sample) -> Option<String> {
+pub fn non_finite(sample: &Sample) -> Option<String> {
     if !sample.state.iter().all(|v| v.is_finite()) || !sample.energy.is_finite() {
         return Some(format!("non-finite reference state at t = {}", sample.t));
     }

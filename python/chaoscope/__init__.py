@@ -1,0 +1,48 @@
+"""chaoscope: tell chaotic orbits from regular ones with GALI, SALI and Lyapunov exponents.
+
+A thin layer over the chaoscope Rust crates (the same engine, file format and analysis as the
+``chaoscope`` command):
+
+- ``run(config, out=...)`` integrates a run and records it to an MCAP file -> ``Recording``
+- ``open(path)`` opens a recording -> ``Recording``
+- ``Recording.indicators(scheme)`` -> ``Indicators`` (numpy arrays of t, GALI_2..k per set and
+  averaged, SALI, the finite-time exponents, the energy error), equal to
+  ``chaoscope analyze --json`` to the last bit
+- ``Recording.report(at=None)`` -> the dict ``chaoscope analyze --json`` prints (with the verdict)
+- ``Recording.replay(tau=..., d0=...)`` -> a new ``Recording`` on the bit-identical orbit
+- ``map(config, out=...)`` / ``open_map(path)`` -> ``Map`` (numpy grids of a phase-space map)
+- ``monitor(run)`` -> an iterator of ``LiveSample`` from a running producer (lossy, with its
+  gap count)
+
+Configurations are a dict, a TOML string or a path, exactly as the ``chaoscope`` command reads
+them (README.md: "Run configuration"). Errors raise ``ChaoscopeError`` with the command's
+one-line message; long calls release the GIL and stop on Ctrl-C (``KeyboardInterrupt``).
+"""
+
+from ._chaoscope import (
+    ChaoscopeError,
+    Indicators,
+    LiveSample,
+    Map,
+    Monitor,
+    Recording,
+    map,
+    monitor,
+    open,
+    open_map,
+    run,
+)
+
+__all__ = [
+    "ChaoscopeError",
+    "Indicators",
+    "LiveSample",
+    "Map",
+    "Monitor",
+    "Recording",
+    "map",
+    "monitor",
+    "open",
+    "open_map",
+    "run",
+]

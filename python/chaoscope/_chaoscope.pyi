@@ -1,0 +1,176 @@
+"""Type stubs of the compiled module chaoscope._chaoscope (see chaoscope/__init__.py)."""
+
+import os
+import pathlib
+from types import TracebackType
+from typing import Any, Dict, Iterator, List, Mapping, Optional, Sequence, Union
+
+import numpy as np
+import numpy.typing as npt
+
+Config = Union[Mapping[str, Any], str, "os.PathLike[str]"]
+FloatArray = npt.NDArray[np.float64]
+
+class ChaoscopeError(Exception):
+    """An error reported by chaoscope, with the same one-line message as the command."""
+
+class Indicators:
+    """One scheme's indicators, one row per renormalization; column j - 2 is GALI_j."""
+
+    scheme: str
+    method: str
+    orthonormalize: str
+    d0: float
+    tau: float
+    orders: List[int]
+    t: FloatArray
+    """Times, shape (n,)."""
+    sets: npt.NDArray[np.uint64]
+    """Sets contributing at each time, shape (n,)."""
+    gali: FloatArray
+    """Arithmetic mean over the sets of GALI_j, shape (n, k - 1)."""
+    gali_log10_mean: FloatArray
+    """Mean over the sets of log10 GALI_j, shape (n, k - 1)."""
+    gali_log10_sets: FloatArray
+    """log10 GALI_j of each set, shape (n, sets, k - 1)."""
+    sali: FloatArray
+    """Mean SALI, shape (n,)."""
+    sali_log10_mean: FloatArray
+    sali_sets: FloatArray
+    """SALI of each set, shape (n, sets)."""
+    exponents: FloatArray
+    """Finite-time exponent of each vector, mean over the sets, shape (n, k)."""
+    exponents_sets: FloatArray
+    """The same per set, shape (n, sets, k)."""
+    mle: FloatArray
+    """Finite-time maximal Lyapunov exponent, shape (n,)."""
+    energy_error: FloatArray
+    """Relative energy error of the reference orbit, shape (n,)."""
+
+class Recording:
+    """A chaoscope recording (MCAP file)."""
+
+    @property
+    def path(self) -> pathlib.Path: ...
+    @property
+    def run_name(self) -> str: ...
+    @property
+    def config(self) -> str:
+        """The run configuration as canonical TOML."""
+    @property
+    def schemes(self) -> List[str]: ...
+    @property
+    def model(self) -> str: ...
+    @property
+    def n(self) -> int:
+        """Degrees of freedom."""
+    @property
+    def k(self) -> int: ...
+    @property
+    def sets(self) -> int: ...
+    @property
+    def t_final(self) -> float: ...
+    @property
+    def energy0(self) -> float: ...
+    @property
+    def status(self) -> str:
+        """"completed", "interrupted", "failed" or "unknown"."""
+    @property
+    def finalized_by(self) -> str: ...
+    @property
+    def frames_missing(self) -> int: ...
+    def report(self, at: Optional[float] = None) -> Dict[str, Any]:
+        """What `chaoscope analyze --json [--at T]` prints, as a dict."""
+    def indicators(self, scheme: str) -> Indicators:
+        """The indicators of `scheme` at each of its renormalizations."""
+    def replay(
+        self,
+        *,
+        tau: Union[float, Sequence[float], None] = None,
+        d0: Union[float, Sequence[float], None] = None,
+        out: Union[str, "os.PathLike[str]", None] = None,
+        without_original: bool = False,
+        force: bool = False,
+    ) -> "Recording":
+        """Re-run with other tau / d0 on the bit-identical reference orbit."""
+
+class Map:
+    """A phase-space map; grids are indexed [iy, ix]."""
+
+    path: pathlib.Path
+    indicator: str
+    method: str
+    k: int
+    sets: int
+    t_final: float
+    x_coord: str
+    y_coord: str
+    x: FloatArray
+    y: FloatArray
+    value: FloatArray
+    mean_log10: FloatArray
+    status: npt.NDArray[np.int32]
+    """1 integrated, 2 outside the energy surface, 3 escaped, 0 not computed."""
+    per_set: FloatArray
+    points: int
+
+class LiveSample:
+    """One renormalization received live."""
+
+    t: float
+    step: int
+    energy: Optional[float]
+    state: FloatArray
+    frames_received: int
+    frames_lost: int
+    indicators: Dict[str, Dict[str, Any]]
+
+class Monitor(Iterator[LiveSample]):
+    """Live samples of a running producer."""
+
+    def __iter__(self) -> "Monitor": ...
+    def __next__(self) -> LiveSample: ...
+    def close(self) -> None: ...
+    def __enter__(self) -> "Monitor": ...
+    def __exit__(
+        self,
+        exc_type: Optional[type],
+        exc: Optional[BaseException],
+        tb: Optional[TracebackType],
+    ) -> None: ...
+    @property
+    def run(self) -> str: ...
+    @property
+    def status(self) -> Optional[str]: ...
+    @property
+    def frames_received(self) -> int: ...
+    @property
+    def frames_lost(self) -> int: ...
+    def report(self) -> Optional[Dict[str, Any]]: ...
+
+def run(
+    config: Config,
+    *,
+    out: Union[str, "os.PathLike[str]", None] = None,
+    run: Optional[str] = None,
+    force: bool = False,
+) -> Recording:
+    """Integrate and record a run (like `chaoscope run`)."""
+
+def open(path: Union[str, "os.PathLike[str]"]) -> Recording:
+    """Open a recording."""
+
+def map(
+    config: Config,
+    *,
+    out: Union[str, "os.PathLike[str]", None] = None,
+    threads: Optional[int] = None,
+    force: bool = False,
+) -> Map:
+    """Compute and record a phase-space map (like `chaoscope map`)."""
+
+def open_map(path: Union[str, "os.PathLike[str]"]) -> Map:
+    """Read a map file."""
+
+def monitor(run: str, *, timeout: float = 30.0) -> Monitor:
+    """Follow a running producer live from the bus."""

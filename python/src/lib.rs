@@ -1,0 +1,49 @@
+//! `chaoscope._chaoscope`: the Python module, a thin layer over the workspace crates. Every
+//! number comes from the same library functions the `chaoscope` command calls (the engine, the
+//! recorder's file layout, the analysis core, replay, the map scheduler, the live reader); this
+//! crate only converts arguments and results and keeps Python responsive: long calls run on a
+//! worker thread with the GIL released while the calling thread watches for Ctrl-C
+//! ([`interrupt`]).
+
+mod config;
+mod interrupt;
+mod map;
+mod monitor;
+mod recording;
+mod signals;
+
+use pyo3::prelude::*;
+
+pyo3::create_exception!(
+    _chaoscope,
+    ChaoscopeError,
+    pyo3::exceptions::PyException,
+    "An error reported by chaoscope, with the same one-line message as the `chaoscope` command."
+);
+
+/// A Python exception carrying `error` and its sources joined by ": ", as the command prints it.
+pub(crate) fn error(e: &(dyn std::error::Error + 'static)) -> PyErr {
+    ChaoscopeError::new_err(chaoscope_recorder::file::error_chain(e))
+}
+
+/// A Python exception with a message.
+pub(crate) fn message(text: impl Into<String>) -> PyErr {
+    ChaoscopeError::new_err(text.into())
+}
+
+#[pymodule]
+fn _chaoscope(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    signals::keep_python_handlers();
+    m.add("ChaoscopeError", m.py().get_type::<ChaoscopeError>())?;
+    m.add_class::<recording::Recording>()?;
+    m.add_class::<recording::Indicators>()?;
+    m.add_class::<map::Map>()?;
+    m.add_class::<monitor::Monitor>()?;
+    m.add_class::<monitor::LiveSample>()?;
+    m.add_function(wrap_pyfunction!(recording::run, m)?)?;
+    m.add_function(wrap_pyfunction!(recording::open, m)?)?;
+    m.add_function(wrap_pyfunction!(map::map, m)?)?;
+    m.add_function(wrap_pyfunction!(map::open_map, m)?)?;
+    m.add_function(wrap_pyfunction!(monitor::monitor, m)?)?;
+    Ok(())
+}

@@ -1,0 +1,240 @@
+//! `map` and `open_map`: a phase-space map computed by the map scheduler of `chaoscope map`,
+//! recorded in its file format, returned as numpy grids.
+
+use std::fs::File;
+use std::path::{Path, PathBuf};
+
+use chaoscope_producer::batch::Isa;
+use chaoscope_producer::estimate::{self, Machine};
+use chaoscope_producer::map::{MapOptions, MapSpec, Shard, run_map};
+use chaoscope_producer::publish::Termination;
+use chaoscope_recorder::file::{Compression, FileOptions};
+use chaoscope_recorder::map_file::{MapFile, read_map_file};
+use chaoscope_schemas::proto::{MapHeader, MapPoint};
+use numpy::{PyArray1, PyArrayMethods};
+use pyo3::prelude::*;
+
+use crate::interrupt::interruptible;
+
+/// A phase-space map: one indicator value per grid point (numpy arrays indexed [iy, ix]).
+#[pyclass(module = "chaoscope", frozen, get_all)]
+pub struct Map {
+    /// The map file.
+    path: PathBuf,
+    /// "gali", "gali-time" or "mle".
+    indicator: String,
+    /// "vm" or "mpm".
+    method: String,
+    /// GALI order (or vectors per set for "mle").
+    k: u32,
+    sets: u32,
+    t_final: f64,
+    /// Coordinates of the axes, e.g. "q2" and "p2".
+    x_coord: String,
+    y_coord: String,
+    /// Grid coordinates, shapes (nx,) and (ny,).
+    x: Py<PyAny>,
+    y: Py<PyAny>,
+    /// The indicator (mean over the sets), shape (ny, nx); NaN where no point was integrated
+    /// (outside the energy surface, escaped) or the map is incomplete.
+    value: Py<PyAny>,
+    /// Mean over the sets of log10 GALI_k ("gali"), shape (ny, nx).
+    mean_log10: Py<PyAny>,
+    /// Per point: 1 integrated, 2 outside the energy surface, 3 escaped, 0 not computed.
+    status: Py<PyAny>,
+    /// Per point and set: log10 GALI_k, the stopping time or the MLE, shape (ny, nx, sets).
+    per_set: Py<PyAny>,
+    /// Points present.
+    points: usize,
+}
+
+impl Map {
+    fn new(
+        py: Python<'_>,
+        path: PathBuf,
+        header: &MapHeader,
+        points: &[MapPoint],
+    ) -> PyResult<Self> {
+        let (xa, ya) = (
+            header.x.clone().unwrap_or_default(),
+            header.y.clone().unwrap_or_default(),
+        );
+        let (nx, ny, sets) = (xa.n as usize, ya.n as usize, header.sets as usize);
+        let mut x = vec![f64::NAN; nx];
+        let mut y = vec![f64::NAN; ny];
+        let mut value = vec![f64::NAN; nx * ny];
+        let mut mean_log10 = vec![f64::NAN; nx * ny];
+        let mut status = vec![0i32; nx * ny];
+        let mut per_set = vec![f64::NAN; nx * ny * sets];
+        for p in points {
+            let (ix, iy) = (p.ix as usize, p.iy as usize);
+            if ix >= nx || iy >= ny {
+                continue;
+            }
+            x[ix] = p.x;
+            y[iy] = p.y;
+            let i = iy * nx + ix;
+            value[i] = p.value;
+            mean_log10[i] = p.mean_log10;
+            status[i] = p.status;
+            for (s, v) in p.per_set.iter().take(sets).enumerate() {
+                per_set[i * sets + s] = *v;
+            }
+        }
+        let grid = |v: Vec<f64>, shape: &[usize]| -> PyResult<Py<PyAny>> {
+            Ok(PyArray1::from_vec(py, v)
+                .reshape(shape)?
+                .into_any()
+                .unbind())
+        };
+        Ok(Self {
+            path,
+            indicator: header.indicator.clone(),
+            method: header.method.clone(),
+            k: header.k,
+            sets: header.sets,
+            t_final: header.t_final,
+            x_coord: xa.coord.clone(),
+            y_coord: ya.coord.clone(),
+            x: grid(x, &[nx])?,
+            y: grid(y, &[ny])?,
+            value: grid(value, &[ny, nx])?,
+            mean_log10: grid(mean_log10, &[ny, nx])?,
+            status: PyArray1::from_vec(py, status)
+                .reshape([ny, nx])?
+                .into_any()
+                .unbind(),
+            per_set: grid(per_set, &[ny, nx, sets])?,
+            points: points.len(),
+        })
+    }
+}
+
+#[pymethods]
+impl Map {
+    fn __repr__(&self) -> String {
+        format!(
+            "Map({:?}, indicator={:?}, {} x {}, points={})",
+            self.path.display().to_string(),
+            self.indicator,
+            self.x_coord,
+            self.y_coord,
+            self.points
+        )
+    }
+}
+
+/// Computes the phase-space map described by `config` (a run configuration with a `[map]`
+/// section: a dict, a TOML string or a path) with the batched kernel and the scheduler of
+/// `chaoscope map`, records it to `out` (default `maps/<run name or "map">.mcap`), and returns
+/// the grid. `threads` defaults to one per core. The GIL is released while it runs; Ctrl-C
+/// stops it within a renormalization window, leaves a valid file with the points finished so
+/// far (`chaoscope map` resumes it), and raises `KeyboardInterrupt`.
+#[pyfunction]
+#[pyo3(signature = (config, *, out = None, threads = None, force = false))]
+pub fn map(
+    py: Python<'_>,
+    config: &Bound<'_, PyAny>,
+    out: Option<PathBuf>,
+    threads: Option<usize>,
+    force: bool,
+) -> PyResult<Map> {
+    let config = crate::config::run_config(config)?;
+    let spec = MapSpec::from_config(&config)
+        .map_err(|e| crate::message(format!("invalid map configuration: {e}")))?;
+    let machine = Machine::this_host();
+    let whole = Shard { index: 0, count: 1 };
+    let estimate = estimate::map(&spec, spec.grid_points(), threads.unwrap_or(machine.cores));
+    if let Some(why) = estimate.refusal(&machine)
+        && !force
+    {
+        return Err(crate::message(why));
+    }
+    let out = out.unwrap_or_else(|| {
+        let name = config.run.name.clone().unwrap_or_else(|| "map".into());
+        Path::new("maps").join(format!("{name}.mcap"))
+    });
+    if out.exists() && !force {
+        return Err(crate::message(format!(
+            "{} already exists (pass force=True to replace it, or resume it with `chaoscope map`)",
+            out.display()
+        )));
+    }
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| crate::message(format!("{}: {e}", dir.display())))?;
+    }
+    let header = spec.header(whole);
+    let termination = Termination::new();
+    let options = MapOptions {
+        threads,
+        isa: Isa::detect(),
+        termination: Some(termination.clone()),
+        ..MapOptions::default()
+    };
+    let todo: Vec<u64> = spec.shard_points(whole).collect();
+    let computed = interruptible(
+        py,
+        || termination.request(),
+        || -> Result<Vec<MapPoint>, String> {
+            let write_error = |e: &(dyn std::error::Error + 'static)| {
+                format!(
+                    "writing {}: {}",
+                    out.display(),
+                    chaoscope_recorder::file::error_chain(e)
+                )
+            };
+            let file = File::create(&out).map_err(|e| write_error(&e))?;
+            let file_options = FileOptions {
+                compression: Compression::Zstd,
+                chunk_size: 1 << 20,
+            };
+            let mut file =
+                MapFile::create(file, &header, &file_options).map_err(|e| write_error(&e))?;
+            let mut points = Vec::with_capacity(todo.len());
+            let mut failed = None;
+            run_map(&spec, &todo, &options, |r| {
+                let message = MapPoint::from(&r);
+                if let Err(e) = file.write_point(&message) {
+                    failed = Some(write_error(&e));
+                    return false;
+                }
+                points.push(message);
+                !termination.requested()
+            })
+            .map_err(|e| e.to_string())?;
+            if let Some(e) = failed {
+                return Err(e);
+            }
+            file.close_chunk()
+                .and_then(|()| file.finish().map(drop))
+                .map_err(|e| write_error(&e))?;
+            Ok(points)
+        },
+    )?;
+    let mut points = computed.map_err(crate::message)?;
+    points.sort_by_key(|p| p.index);
+    Map::new(py, out, &header, &points)
+}
+
+/// Reads a map file written by `chaoscope map`, `chaoscope merge` or `chaoscope.map`; a
+/// damaged file raises `ChaoscopeError` naming where it is damaged.
+#[pyfunction]
+pub fn open_map(py: Python<'_>, path: PathBuf) -> PyResult<Map> {
+    let contents = py
+        .detach(|| read_map_file(&path))
+        .map_err(|e| crate::error(&e))?;
+    if let Some(why) = &contents.damaged {
+        return Err(crate::message(format!(
+            "{}: damaged or cut short ({why}); `chaoscope map` resumes it",
+            path.display()
+        )));
+    }
+    let header = contents.header.ok_or_else(|| {
+        crate::message(format!(
+            "{} holds no readable map header (not a `chaoscope map` recording?)",
+            path.display()
+        ))
+    })?;
+    Map::new(py, path, &header, &contents.points)
+}

@@ -1,0 +1,564 @@
+//! `run`, `open`, `Recording` (its indicators, its analysis report, `replay`).
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions, energy_error};
+use chaoscope_analyzer::recording::{RecordingReader, analyze_file};
+use chaoscope_analyzer::replay::{ReplayError, ReplayOptions};
+use chaoscope_analyzer::run_info::RunInfo;
+use chaoscope_analyzer::write::SampleWriter;
+use chaoscope_producer::engine::Engine;
+use chaoscope_producer::estimate::{self, Machine};
+use chaoscope_producer::publish::{non_finite, resolve_run_name, run_header};
+use chaoscope_producer::spec::RunSpec;
+use chaoscope_schemas::proto::{RunHeader, end_of_run};
+use numpy::{PyArray1, PyArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::PyAny;
+
+use crate::interrupt::interruptible;
+
+/// `{} already exists` as the command says it, with the keyword argument instead of `--force`.
+fn exists_error(path: &Path) -> PyErr {
+    crate::message(format!(
+        "{} already exists (pass force=True to replace it)",
+        path.display()
+    ))
+}
+
+/// A chaoscope recording (an MCAP file): its run header, how it ended, and readers of its
+/// indicators.
+#[pyclass(module = "chaoscope", frozen)]
+pub struct Recording {
+    path: PathBuf,
+    header: RunHeader,
+    status: String,
+    finalized_by: String,
+    frames_missing: u64,
+}
+
+impl Recording {
+    fn open_path(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
+        let (header, summary) = py
+            .detach(|| -> Result<_, chaoscope_analyzer::recording::ReadError> {
+                let header = RecordingReader::open(&path)?.header().clone();
+                let summary = chaoscope_analyzer::summary::summarize(&path)?;
+                Ok((header, summary))
+            })
+            .map_err(|e| crate::error(&e))?;
+        Ok(Self {
+            path,
+            header,
+            status: summary.run_status,
+            finalized_by: summary.finalized_by,
+            frames_missing: summary.frames_missing,
+        })
+    }
+
+    fn scheme_index(&self, name: &str) -> PyResult<usize> {
+        self.header
+            .schemes
+            .iter()
+            .position(|s| s.name == name)
+            .ok_or_else(|| {
+                let names: Vec<&str> = self.header.schemes.iter().map(|s| &s.name[..]).collect();
+                crate::message(format!(
+                    "{}: no scheme '{name}' (schemes: {})",
+                    self.path.display(),
+                    names.join(", ")
+                ))
+            })
+    }
+}
+
+/// Opens a recording written by `chaoscope run`, `chaoscope record`, `chaoscope replay` or
+/// `chaoscope.run`. A damaged or truncated file raises `ChaoscopeError` naming where and why.
+#[pyfunction]
+pub fn open(py: Python<'_>, path: PathBuf) -> PyResult<Recording> {
+    Recording::open_path(py, path)
+}
+
+/// Integrates the run described by `config` (a dict, a TOML string or a path) and records it to
+/// `out` (default `runs/<run name>.mcap`), with the engine and the file layout of
+/// `chaoscope run`; returns the `Recording`.
+///
+/// The configuration is checked first (one line naming the key on error), then the resource
+/// estimate (work beyond a day or the machine's memory is refused unless `force=True`). The GIL
+/// is released while it runs; Ctrl-C stops it at the next renormalization, leaves a valid file
+/// whose status is "interrupted", and raises `KeyboardInterrupt`.
+#[pyfunction]
+#[pyo3(signature = (config, *, out = None, run = None, force = false))]
+pub fn run(
+    py: Python<'_>,
+    config: &Bound<'_, PyAny>,
+    out: Option<PathBuf>,
+    run: Option<String>,
+    force: bool,
+) -> PyResult<Recording> {
+    let config = crate::config::run_config(config)?;
+    let machine = Machine::this_host();
+    if let Some(why) = estimate::run(&config, &machine).and_then(|e| e.refusal(&machine))
+        && !force
+    {
+        return Err(crate::message(why));
+    }
+    let spec = RunSpec::from_config(&config)
+        .map_err(|e| crate::message(format!("invalid run configuration: {e}")))?;
+    let name = resolve_run_name(&config, run.as_deref()).map_err(|e| crate::error(&e))?;
+    let out = out.unwrap_or_else(|| Path::new("runs").join(format!("{name}.mcap")));
+    if out.exists() && !force {
+        return Err(exists_error(&out));
+    }
+    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)
+            .map_err(|e| crate::message(format!("{}: {e}", dir.display())))?;
+    }
+    let header = run_header(&name, &config, &spec);
+    let stop = AtomicBool::new(false);
+    let failure = interruptible(
+        py,
+        || stop.store(true, Ordering::Relaxed),
+        || record_run(&out, &header, spec, &stop),
+    )?;
+    if let Some(why) = failure {
+        return Err(crate::message(why));
+    }
+    Recording::open_path(py, out)
+}
+
+/// Integrates and writes the run; `Some(message)` if it failed (the file then says so too, as
+/// the recorder's file of a failed run does). A write error removes the half-written file.
+fn record_run(out: &Path, header: &RunHeader, spec: RunSpec, stop: &AtomicBool) -> Option<String> {
+    let written = |e: mcap::McapError| {
+        let _ = std::fs::remove_file(out);
+        Some(format!(
+            "{}: MCAP: {}",
+            out.display(),
+            chaoscope_recorder::file::error_chain(&e)
+        ))
+    };
+    let mut writer = match SampleWriter::create(out, header) {
+        Ok(w) => w,
+        Err(e) => return written(e),
+    };
+    let mut engine = Engine::new(spec);
+    let (status, reason) = loop {
+        if stop.load(Ordering::Relaxed) {
+            break (end_of_run::Status::Interrupted, "interrupted".to_string());
+        }
+        match engine.next_sample() {
+            Ok(Some(sample)) => {
+                // NaN never goes into a file: the run fails at the first non-finite value.
+                if let Some(why) = non_finite(&sample) {
+                    break (end_of_run::Status::Failed, why);
+                }
+                if let Err(e) = writer.write(&sample) {
+                    return written(e);
+                }
+            }
+            Ok(None) => break (end_of_run::Status::Completed, String::new()),
+            Err(e) => break (end_of_run::Status::Failed, e.to_string()),
+        }
+    };
+    let finalized_by = match status {
+        end_of_run::Status::Interrupted => "signal",
+        _ => "end-of-run",
+    };
+    if let Err(e) = writer.finish_with(finalized_by, status, &reason) {
+        return written(e);
+    }
+    (status == end_of_run::Status::Failed)
+        .then(|| format!("run {} failed: {reason}", header.run_name))
+}
+
+/// A float or a list of floats, as `tau=` and `d0=` take them.
+#[derive(FromPyObject)]
+pub enum Floats {
+    One(f64),
+    Many(Vec<f64>),
+}
+
+impl Floats {
+    fn into_vec(self) -> Vec<f64> {
+        match self {
+            Floats::One(v) => vec![v],
+            Floats::Many(v) => v,
+        }
+    }
+}
+
+#[pymethods]
+impl Recording {
+    /// Path of the file.
+    #[getter]
+    fn path(&self) -> PathBuf {
+        self.path.clone()
+    }
+
+    /// The run's name.
+    #[getter]
+    fn run_name(&self) -> &str {
+        &self.header.run_name
+    }
+
+    /// The run configuration, as canonical TOML (sweeps expanded).
+    #[getter]
+    fn config(&self) -> &str {
+        &self.header.config_toml
+    }
+
+    /// Scheme names, in the file's order.
+    #[getter]
+    fn schemes(&self) -> Vec<String> {
+        self.header.schemes.iter().map(|s| s.name.clone()).collect()
+    }
+
+    #[getter]
+    fn model(&self) -> &str {
+        &self.header.model
+    }
+
+    /// Degrees of freedom N (phase space has 2N dimensions).
+    #[getter]
+    fn n(&self) -> u32 {
+        self.header.dim / 2
+    }
+
+    /// Deviation vectors per set.
+    #[getter]
+    fn k(&self) -> u32 {
+        self.header.k
+    }
+
+    /// Independent sets of deviation vectors.
+    #[getter]
+    fn sets(&self) -> u32 {
+        self.header.sets
+    }
+
+    #[getter]
+    fn t_final(&self) -> f64 {
+        self.header.t_final
+    }
+
+    /// Energy of the initial condition.
+    #[getter]
+    fn energy0(&self) -> f64 {
+        self.header.energy0
+    }
+
+    /// How the run ended: "completed", "interrupted", "failed", or "unknown".
+    #[getter]
+    fn status(&self) -> &str {
+        &self.status
+    }
+
+    /// Who finalized the file: "end-of-run", "signal", "producer-died", "replay", ...
+    #[getter]
+    fn finalized_by(&self) -> &str {
+        &self.finalized_by
+    }
+
+    /// Frames the recorder missed (zero unless a process was killed).
+    #[getter]
+    fn frames_missing(&self) -> u64 {
+        self.frames_missing
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "Recording({:?}, run={:?}, schemes={:?}, status={:?})",
+            self.path.display().to_string(),
+            self.header.run_name,
+            self.schemes(),
+            self.status
+        )
+    }
+
+    /// The analysis of the whole recording, or as of time `at`: the object that
+    /// `chaoscope analyze --json [--at T]` prints (GALI, SALI, exponents, energy error, the
+    /// verdict and the warnings of every scheme), as a dict.
+    #[pyo3(signature = (at = None))]
+    fn report<'py>(&self, py: Python<'py>, at: Option<f64>) -> PyResult<Bound<'py, PyAny>> {
+        let options = AnalysisOptions {
+            at: at.into_iter().collect(),
+            ..Default::default()
+        };
+        let json = py
+            .detach(|| -> Result<String, String> {
+                let (analysis, _info) =
+                    analyze_file(&self.path, &options).map_err(|e| error_text(&e))?;
+                let report = match at {
+                    Some(t) => analysis.report_at(t).expect("requested time is captured"),
+                    None => analysis.report(),
+                };
+                serde_json::to_string(&report).map_err(|e| e.to_string())
+            })
+            .map_err(crate::message)?;
+        py.import("json")?.call_method1("loads", (json,))
+    }
+
+    /// The indicators of scheme `scheme` at each of its renormalizations, computed by the same
+    /// analysis core as `chaoscope analyze` (so the last row equals `analyze --json`, and the
+    /// row at time T equals `analyze --json --at T`, to the last bit). Streams the file with the
+    /// GIL released; Ctrl-C stops it.
+    fn indicators(&self, py: Python<'_>, scheme: &str) -> PyResult<Indicators> {
+        let si = self.scheme_index(scheme)?;
+        let stop = AtomicBool::new(false);
+        let series = interruptible(
+            py,
+            || stop.store(true, Ordering::Relaxed),
+            || read_series(&self.path, si, &stop),
+        )?
+        .map_err(crate::message)?;
+        Indicators::new(py, &self.header, si, series)
+    }
+
+    /// Re-runs the recorded configuration with other renormalization periods `tau` and/or
+    /// distances `d0` (a number or a list each) on the bit-identical reference orbit, like
+    /// `chaoscope replay`, into `out` (default: `<stem>-replay.mcap` beside this file). The
+    /// original schemes are re-run too unless `without_original=True`; the new schemes are
+    /// named `<scheme>-tau<T>` / `-d0<D>`. Raises `ChaoscopeError` if the replayed orbit differs
+    /// from the recorded one in any bit.
+    #[pyo3(signature = (*, tau = None, d0 = None, out = None, without_original = false, force = false))]
+    fn replay(
+        &self,
+        py: Python<'_>,
+        tau: Option<Floats>,
+        d0: Option<Floats>,
+        out: Option<PathBuf>,
+        without_original: bool,
+        force: bool,
+    ) -> PyResult<Recording> {
+        let out = out.unwrap_or_else(|| {
+            let stem = self
+                .path
+                .file_stem()
+                .map_or("recording".into(), |s| s.to_string_lossy().into_owned());
+            self.path.with_file_name(format!("{stem}-replay.mcap"))
+        });
+        if out.exists() && !force {
+            return Err(exists_error(&out));
+        }
+        if out.exists() && out.canonicalize().ok() == self.path.canonicalize().ok() {
+            return Err(crate::message("out must differ from the input recording"));
+        }
+        let stop = Arc::new(AtomicBool::new(false));
+        let options = ReplayOptions {
+            taus: tau.map(Floats::into_vec).unwrap_or_default(),
+            d0s: d0.map(Floats::into_vec).unwrap_or_default(),
+            without_original,
+            stop: Some(Arc::clone(&stop)),
+        };
+        let outcome = interruptible(
+            py,
+            || stop.store(true, Ordering::Relaxed),
+            || chaoscope_analyzer::replay::replay(&self.path, &out, &options),
+        )?;
+        let outcome = match outcome {
+            Ok(o) => o,
+            Err(ReplayError::Nothing) => {
+                return Err(crate::message("nothing to replay: give tau and/or d0"));
+            }
+            Err(e) => return Err(crate::error(&e)),
+        };
+        if !outcome.identical() {
+            return Err(crate::message(format!(
+                "the replay DIFFERS from the recording (first at step {:?})",
+                outcome.first_difference_step
+            )));
+        }
+        Recording::open_path(py, out)
+    }
+}
+
+fn error_text(e: &(dyn std::error::Error + 'static)) -> String {
+    chaoscope_recorder::file::error_chain(e)
+}
+
+/// One scheme's indicators at each of its renormalizations, row by row.
+struct Series {
+    sets: usize,
+    orders: usize,
+    vectors: usize,
+    t: Vec<f64>,
+    contributing: Vec<u64>,
+    gali: Vec<f64>,
+    gali_log10_mean: Vec<f64>,
+    gali_log10_sets: Vec<f64>,
+    sali: Vec<f64>,
+    sali_log10_mean: Vec<f64>,
+    sali_sets: Vec<f64>,
+    exponents: Vec<f64>,
+    exponents_sets: Vec<f64>,
+    energy_error: Vec<f64>,
+}
+
+/// Streams the recording through the analysis core (the reader and feed of
+/// `chaoscope analyze`) and keeps scheme `si`'s values after each of its samples.
+/// Returns early (the caller raises the pending `KeyboardInterrupt`) once `stop` is set.
+fn read_series(path: &Path, si: usize, stop: &AtomicBool) -> Result<Series, String> {
+    let mut reader = RecordingReader::open(path).map_err(|e| error_text(&e))?;
+    let run = RunInfo::from_header(reader.header().clone())
+        .map_err(|e| format!("{}: {}", path.display(), error_text(&e)))?;
+    let (sets, k, energy0) = (run.sets, run.k, run.header.energy0);
+    let orders = k.saturating_sub(1);
+    let mut analysis = Analysis::new(run, &AnalysisOptions::default());
+    let mut s = Series {
+        sets,
+        orders,
+        vectors: k,
+        t: Vec::new(),
+        contributing: Vec::new(),
+        gali: Vec::new(),
+        gali_log10_mean: Vec::new(),
+        gali_log10_sets: Vec::new(),
+        sali: Vec::new(),
+        sali_log10_mean: Vec::new(),
+        sali_sets: Vec::new(),
+        exponents: Vec::new(),
+        exponents_sets: Vec::new(),
+        energy_error: Vec::new(),
+    };
+    while let Some(sample) = reader.next_sample().map_err(|e| error_text(&e))? {
+        if stop.load(Ordering::Relaxed) {
+            return Err("interrupted".into());
+        }
+        analysis.feed(&sample);
+        if !sample.schemes.iter().any(|x| x.scheme as usize == si) {
+            continue;
+        }
+        let ind = analysis.indicators(si);
+        s.t.push(ind.t);
+        s.contributing.push(ind.sets as u64);
+        for o in 0..orders {
+            let g = ind.gali.get(o);
+            s.gali.push(g.map_or(f64::NAN, |g| g.mean));
+            s.gali_log10_mean.push(g.map_or(f64::NAN, |g| g.log10_mean));
+        }
+        s.sali.push(ind.sali.map_or(f64::NAN, |v| v.mean));
+        s.sali_log10_mean
+            .push(ind.sali.map_or(f64::NAN, |v| v.log10_mean));
+        for i in 0..k {
+            s.exponents
+                .push(ind.exponents.get(i).map_or(f64::NAN, |e| e.mean));
+        }
+        for set in 0..sets {
+            // A set whose latest values are not of this sample (lost frames) is missing here.
+            let v = analysis
+                .set_values(si, set)
+                .filter(|v| v.t.to_bits() == ind.t.to_bits());
+            for o in 0..orders {
+                s.gali_log10_sets.push(
+                    v.as_ref()
+                        .and_then(|v| v.gali_log10.get(o).copied())
+                        .unwrap_or(f64::NAN),
+                );
+            }
+            s.sali_sets
+                .push(v.as_ref().and_then(|v| v.sali).unwrap_or(f64::NAN));
+            for i in 0..k {
+                s.exponents_sets.push(
+                    v.as_ref()
+                        .and_then(|v| v.exponents.get(i).copied())
+                        .unwrap_or(f64::NAN),
+                );
+            }
+        }
+        s.energy_error.push(if sample.state.is_empty() {
+            f64::NAN
+        } else {
+            energy_error(sample.energy, energy0)
+        });
+    }
+    Ok(s)
+}
+
+/// The indicators of one scheme, one row per renormalization (numpy arrays). Column `j - 2` of
+/// the GALI arrays is GALI_j, j = 2..k. Averages are over the sets present at that time.
+#[pyclass(module = "chaoscope", frozen, get_all)]
+pub struct Indicators {
+    /// Scheme name.
+    scheme: String,
+    /// "vm" or "mpm".
+    method: String,
+    /// "rescale" or "qr" (Lyapunov spectrum).
+    orthonormalize: String,
+    d0: f64,
+    tau: f64,
+    /// GALI orders of the columns: [2, ..., k].
+    orders: Vec<usize>,
+    /// Times of the renormalizations, shape (n,).
+    t: Py<PyAny>,
+    /// Sets contributing at each time, shape (n,).
+    sets: Py<PyAny>,
+    /// Arithmetic mean of GALI_j over the sets, shape (n, k - 1).
+    gali: Py<PyAny>,
+    /// Mean over the sets of log10 GALI_j (log10 of the geometric mean), shape (n, k - 1).
+    gali_log10_mean: Py<PyAny>,
+    /// log10 GALI_j of each set, shape (n, sets, k - 1).
+    gali_log10_sets: Py<PyAny>,
+    /// Arithmetic mean of SALI over the sets, shape (n,).
+    sali: Py<PyAny>,
+    /// Mean over the sets of log10 SALI, shape (n,).
+    sali_log10_mean: Py<PyAny>,
+    /// SALI of each set, shape (n, sets).
+    sali_sets: Py<PyAny>,
+    /// Finite-time exponent of each vector, mean over the sets, shape (n, k): the spectrum for
+    /// QR schemes, the MLE estimate of each vector for rescaled ones.
+    exponents: Py<PyAny>,
+    /// The same per set, shape (n, sets, k).
+    exponents_sets: Py<PyAny>,
+    /// Finite-time maximal Lyapunov exponent (the first vector's), shape (n,).
+    mle: Py<PyAny>,
+    /// Relative energy error of the reference orbit at each time, shape (n,).
+    energy_error: Py<PyAny>,
+}
+
+fn array(py: Python<'_>, data: Vec<f64>, shape: &[usize]) -> PyResult<Py<PyAny>> {
+    Ok(PyArray1::from_vec(py, data)
+        .reshape(shape)?
+        .into_any()
+        .unbind())
+}
+
+impl Indicators {
+    fn new(py: Python<'_>, header: &RunHeader, si: usize, s: Series) -> PyResult<Self> {
+        let info = &header.schemes[si];
+        let n = s.t.len();
+        let mle: Vec<f64> = (0..n).map(|r| s.exponents[r * s.vectors]).collect();
+        Ok(Self {
+            scheme: info.name.clone(),
+            method: info.method.clone(),
+            orthonormalize: info.orthonormalize.clone(),
+            d0: info.d0,
+            tau: info.tau,
+            orders: (2..s.orders + 2).collect(),
+            t: array(py, s.t, &[n])?,
+            sets: PyArray1::from_vec(py, s.contributing).into_any().unbind(),
+            gali: array(py, s.gali, &[n, s.orders])?,
+            gali_log10_mean: array(py, s.gali_log10_mean, &[n, s.orders])?,
+            gali_log10_sets: array(py, s.gali_log10_sets, &[n, s.sets, s.orders])?,
+            sali: array(py, s.sali, &[n])?,
+            sali_log10_mean: array(py, s.sali_log10_mean, &[n])?,
+            sali_sets: array(py, s.sali_sets, &[n, s.sets])?,
+            exponents: array(py, s.exponents, &[n, s.vectors])?,
+            exponents_sets: array(py, s.exponents_sets, &[n, s.sets, s.vectors])?,
+            mle: array(py, mle, &[n])?,
+            energy_error: array(py, s.energy_error, &[n])?,
+        })
+    }
+}
+
+#[pymethods]
+impl Indicators {
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        let n = self.t.bind(py).len()?;
+        Ok(format!(
+            "Indicators(scheme={:?}, method={:?}, rows={n}, orders={:?})",
+            self.scheme, self.method, self.orders
+        ))
+    }
+}

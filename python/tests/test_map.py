@@ -1,0 +1,65 @@
+"""map() and open_map(): the grid of `chaoscope map`, as numpy arrays."""
+
+import numpy as np
+import pytest
+
+import chaoscope
+from conftest import to_toml
+
+
+def hh_map(n=(9, 7), t_final=200.0):
+    """The paper's Fig. 9(b) map of the HH section (GALI_2, MPM d0 = 1e-8), coarse and short."""
+    return {
+        "model": {"name": "henon-heiles"},
+        "orbit": {"q": [0.0, 0.0], "p": [0.0, 0.0], "energy": 0.125, "solve_for": "p1"},
+        "integrator": {"method": "aba864", "h": 0.01, "t_final": t_final},
+        "deviations": {"k": 2, "sets": 2, "seed": 1},
+        "scheme": [{"name": "mpm", "method": "mpm", "d0": 1e-8, "tau": 1.0}],
+        "map": {
+            "x": {"coord": "q2", "min": -0.45, "max": 0.65, "n": n[0]},
+            "y": {"coord": "p2", "min": -0.45, "max": 0.45, "n": n[1]},
+            "indicator": "gali",
+            "k": 2,
+        },
+    }
+
+
+def test_map_grid_equals_the_command(tmp_path, cli):
+    config = hh_map()
+    m = chaoscope.map(config, out=tmp_path / "py.mcap", threads=2)
+    assert (m.indicator, m.method, m.k, m.sets, m.x_coord, m.y_coord) == \
+        ("gali", "mpm", 2, 2, "q2", "p2")
+    assert m.x.shape == (9,) and m.y.shape == (7,)
+    assert m.value.shape == (7, 9) and m.per_set.shape == (7, 9, 2) and m.points == 63
+    assert np.allclose(m.x, np.linspace(-0.45, 0.65, 9)) and np.allclose(m.y, np.linspace(-0.45, 0.45, 7))
+    ok, outside = m.status == 1, m.status == 2
+    assert ok.any() and outside.any() and np.all(ok | outside)
+    # Outside the energy surface nothing is integrated; inside GALI_2 is in (0, 1].
+    assert np.all(np.isnan(m.value[outside]))
+    assert np.all((m.value[ok] > 0) & (m.value[ok] <= 1))
+    # Physics: the corners (q2, p2) = (+-0.45, +-0.45) need H > 1/8 already, so they are
+    # outside; the point q2 = p2 = 0 has the most kinetic energy and is inside.
+    assert outside[0, 0] and outside[-1, -1] and ok[3, np.argmin(abs(m.x))]
+
+    path = tmp_path / "map.toml"
+    path.write_text(to_toml(config))
+    done = cli("map", path, "--out", tmp_path / "cli.mcap", "--threads", 1, "--no-progress")
+    assert done.returncode == 0, done.stderr
+    theirs = chaoscope.open_map(tmp_path / "cli.mcap")
+    # Same scheduler and kernel on 2 threads and on 1: bit-identical (determinism).
+    assert m.value.tobytes() == theirs.value.tobytes()
+    assert m.per_set.tobytes() == theirs.per_set.tobytes()
+    assert m.status.tobytes() == theirs.status.tobytes()
+    again = chaoscope.open_map(m.path)
+    assert again.value.tobytes() == m.value.tobytes()
+
+
+def test_map_errors(tmp_path):
+    config = hh_map()
+    del config["map"]
+    with pytest.raises(chaoscope.ChaoscopeError, match=r"invalid map configuration: .*\[map\]"):
+        chaoscope.map(config, out=tmp_path / "x.mcap")
+    assert not (tmp_path / "x.mcap").exists()
+    chaoscope.map(hh_map(n=(2, 2), t_final=2.0), out=tmp_path / "y.mcap")
+    with pytest.raises(chaoscope.ChaoscopeError, match="already exists"):
+        chaoscope.map(hh_map(n=(2, 2), t_final=2.0), out=tmp_path / "y.mcap")

@@ -1,0 +1,97 @@
+"""run() and open(): a recording made through the bindings is the command's recording."""
+
+import numpy as np
+import pytest
+
+import chaoscope
+from conftest import hh_config, to_toml
+
+
+def same_bits(a, b):
+    a, b = np.asarray(a), np.asarray(b)
+    return a.shape == b.shape and a.tobytes() == b.tobytes()
+
+
+def test_run_records_and_open_reads_it(tmp_path):
+    out = tmp_path / "hh.mcap"
+    rec = chaoscope.run(hh_config(), out=out)
+    assert isinstance(rec, chaoscope.Recording)
+    assert rec.schemes == ["vm", "mpm", "qr"]
+    assert (rec.status, rec.finalized_by, rec.frames_missing) == ("completed", "end-of-run", 0)
+    assert (rec.model, rec.n, rec.k, rec.sets, rec.t_final) == ("henon-heiles", 2, 4, 3, 200.0)
+    again = chaoscope.open(str(out))
+    assert again.run_name == rec.run_name == "py-hh"
+    assert again.config == rec.config
+    ind = again.indicators("vm")
+    # tau = 1 over t = 200: the renormalizations at t = 1, 2, ..., 200 (and t = 0).
+    assert ind.t[-1] == 200.0 and len(ind.t) in (200, 201)
+    assert ind.gali.shape == (len(ind.t), 3) and ind.gali_log10_sets.shape == (len(ind.t), 3, 3)
+
+
+def test_dict_toml_string_and_path_give_the_same_bits(tmp_path):
+    config = hh_config(t_final=50.0)
+    path = tmp_path / "hh.toml"
+    path.write_text(to_toml(config))
+    recs = [
+        chaoscope.run(config, out=tmp_path / "a.mcap"),
+        chaoscope.run(to_toml(config), out=tmp_path / "b.mcap"),
+        chaoscope.run(path, out=tmp_path / "c.mcap"),
+        chaoscope.run(str(path), out=tmp_path / "d.mcap"),
+    ]
+    first = recs[0].indicators("mpm")
+    for rec in recs[1:]:
+        other = rec.indicators("mpm")
+        for field in ("t", "gali", "gali_log10_sets", "sali", "exponents", "energy_error"):
+            assert same_bits(getattr(first, field), getattr(other, field)), field
+
+
+def test_run_equals_the_command_bit_for_bit(tmp_path, cli):
+    # Same engine, same config and seed: the numbers cannot differ by one bit (determinism),
+    # although the command integrates in a producer process and records over the bus.
+    config = hh_config(t_final=100.0)
+    path = tmp_path / "hh.toml"
+    path.write_text(to_toml(config))
+    done = cli("run", path, "--out", tmp_path / "cli.mcap", "--run", "py-hh-cli")
+    assert done.returncode == 0, done.stderr
+    ours = chaoscope.run(path, out=tmp_path / "py.mcap")
+    theirs = chaoscope.open(tmp_path / "cli.mcap")
+    for scheme in ours.schemes:
+        a, b = ours.indicators(scheme), theirs.indicators(scheme)
+        for field in ("t", "gali", "gali_log10_sets", "sali_sets", "exponents_sets", "energy_error"):
+            assert same_bits(getattr(a, field), getattr(b, field)), (scheme, field)
+
+
+def test_errors_carry_the_commands_message(tmp_path, cli):
+    bad = to_toml(hh_config()).replace("h = 0.01", 'h = "0.01"')
+    path = tmp_path / "bad.toml"
+    path.write_text(bad)
+    done = cli("run", path, "--out", tmp_path / "x.mcap")
+    assert done.returncode == 1
+    line = done.stderr.strip().splitlines()[-1]
+    assert line.startswith("chaoscope: error: ")
+    with pytest.raises(chaoscope.ChaoscopeError) as e:
+        chaoscope.run(path, out=tmp_path / "y.mcap")
+    assert str(e.value) == line.removeprefix("chaoscope: error: ")
+    assert "integrator.h" in str(e.value)
+    assert not (tmp_path / "y.mcap").exists()
+
+    config = hh_config()
+    config["integrator"]["h"] = "0.01"
+    with pytest.raises(chaoscope.ChaoscopeError, match=r"integrator\.h .*expected f64"):
+        chaoscope.run(config, out=tmp_path / "z.mcap")
+    config = hh_config()
+    config["deviations"]["typo"] = 1
+    with pytest.raises(chaoscope.ChaoscopeError, match="typo"):
+        chaoscope.run(config, out=tmp_path / "z.mcap")
+    with pytest.raises(chaoscope.ChaoscopeError, match="reading run configuration"):
+        chaoscope.run(tmp_path / "missing.toml", out=tmp_path / "z.mcap")
+    assert not (tmp_path / "z.mcap").exists()
+
+    rec = chaoscope.run(hh_config(t_final=5.0), out=tmp_path / "ok.mcap")
+    with pytest.raises(chaoscope.ChaoscopeError, match="already exists"):
+        chaoscope.run(hh_config(t_final=5.0), out=tmp_path / "ok.mcap")
+    with pytest.raises(chaoscope.ChaoscopeError, match="no scheme 'nope'"):
+        rec.indicators("nope")
+    (tmp_path / "junk.mcap").write_bytes(b"not an mcap file")
+    with pytest.raises(chaoscope.ChaoscopeError, match="junk.mcap"):
+        chaoscope.open(tmp_path / "junk.mcap")

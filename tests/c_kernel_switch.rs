@@ -1,0 +1,339 @@
+//! The batched kernel of a user-written potential starts on the Cranelift step kernels and
+//! switches to the C ones when their background build is ready (issue "bring your own
+//! Hamiltonian", must-show 2: a 1001-site chain must not wait a minute for its compiler).
+//!
+//! - The map is the same, point for point and bit for bit, whatever call the switch happens
+//!   at: all Cranelift, all C, and switches placed at several calls by the test hook
+//!   `CHAOSCOPE_C_KERNELS_AFTER_CALLS`, on one and two threads, for MPM (orbit kernel) and VM
+//!   (tangent kernel). Each run's JSON says how many calls each backend ran, so a run that
+//!   never switched cannot pass for one that did.
+//! - A C build that fails (no compiler, a compile error) is said once, in one line naming the
+//!   cause, and the map goes on with the Cranelift kernels.
+//! - A map that ends, or is interrupted by SIGINT, while the compiler is still running leaves
+//!   no compiler process and no file behind (the build is cancelled: see `Inner::drop` in
+//!   `producer/src/model/expression.rs` for why).
+
+use std::collections::BTreeMap;
+use std::path::Path;
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+use chaoscope_recorder::map_file::read_map_file;
+use prost::Message;
+use serde_json::Value;
+
+/// Henon-Heiles written as an expression over the small map of the map tests (9 x 7 points).
+fn hh_map(method: &str, indicator: &str) -> String {
+    include_str!("data/hh-map-small.toml")
+        .replace(
+            "name = \"henon-heiles\"\n",
+            "name = \"potential\"\nn = 2\npotential = \"(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3\"\n",
+        )
+        .replace("method = \"mpm\"", &format!("method = \"{method}\""))
+        .replace(
+            "indicator = \"gali-time\"",
+            &format!("indicator = \"{indicator}\""),
+        )
+        .replace(
+            "threshold = 0.05\n",
+            if indicator == "gali-time" {
+                "threshold = 0.05\n"
+            } else {
+                ""
+            },
+        )
+}
+
+/// The FPUT-beta chain of `n` sites (lowest mode, amplitude 0.5) mapped over (q1, q2) on a
+/// `grid` x `grid` grid to `t_final`.
+fn fput_map(n: usize, grid: usize, t_final: f64) -> String {
+    let q: Vec<String> = (1..=n)
+        .map(|i| {
+            format!(
+                "{}",
+                0.5 * (std::f64::consts::PI * i as f64 / (n + 1) as f64).sin()
+            )
+        })
+        .collect();
+    let p = vec!["0.0"; n].join(", ");
+    format!(
+        "[model]\nname = \"potential\"\nn = {n}\nboundary = \"fixed\"\nparams = {{ beta = 1.0 }}\n\
+         potential = \"sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)\"\n\
+         [orbit]\nq = [{}]\np = [{p}]\n\
+         [integrator]\nmethod = \"aba864\"\nh = 0.02\nt_final = {t_final}\n\
+         [deviations]\nk = 2\nsets = 1\nseed = 3\n\
+         [[scheme]]\nname = \"mpm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 1.0\n\
+         [map]\nx = {{ coord = \"q1\", min = -0.1, max = 0.1, n = {grid} }}\n\
+         y = {{ coord = \"q2\", min = -0.1, max = 0.1, n = {grid} }}\nindicator = \"gali\"\nk = 2\n",
+        q.join(", ")
+    )
+}
+
+/// `chaoscope map CONFIG --out OUT --json` with the given environment; the kernel cache is
+/// always the test's own.
+fn map_command(config: &Path, out: &Path, threads: usize, env: &[(&str, &str)]) -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_chaoscope"));
+    c.args(["map", s(config), "--out", s(out), "--json", "--no-progress"])
+        .args(["--threads", &threads.to_string()])
+        .env_remove("CHAOSCOPE_CC")
+        .env_remove("CHAOSCOPE_C_KERNELS_AFTER_CALLS");
+    for (k, v) in env {
+        c.env(k, v);
+    }
+    c
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Runs a map to completion: its points by index (exact protobuf bytes), its JSON summary and
+/// its stderr.
+fn map(
+    config: &Path,
+    out: &Path,
+    threads: usize,
+    env: &[(&str, &str)],
+) -> (BTreeMap<u64, Vec<u8>>, Value, String) {
+    let _ = std::fs::remove_file(out);
+    let o: Output = map_command(config, out, threads, env).output().unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+    assert!(o.status.success(), "map {env:?}: {stderr}");
+    let json: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(json["complete"], true, "{json}");
+    let contents = read_map_file(out).unwrap();
+    assert!(contents.damaged.is_none());
+    let points = contents
+        .points
+        .into_iter()
+        .map(|p| (p.index, p.encode_to_vec()))
+        .collect();
+    (points, json, stderr)
+}
+
+fn calls(json: &Value) -> (u64, u64) {
+    let k = &json["expression_kernels"];
+    (
+        k["cranelift_calls"].as_u64().unwrap(),
+        k["c_calls"].as_u64().unwrap(),
+    )
+}
+
+#[test]
+fn the_map_is_the_same_whatever_call_the_c_kernels_arrive_at() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("kernels");
+    let cache_env = ("CHAOSCOPE_KERNEL_CACHE", s(&cache));
+    for (method, indicator) in [("mpm", "gali-time"), ("vm", "gali")] {
+        let config = dir.path().join(format!("{method}.toml"));
+        std::fs::write(&config, hh_map(method, indicator)).unwrap();
+        let out = dir.path().join(format!("{method}.mcap"));
+
+        // All Cranelift: the C kernels switched off.
+        let (cranelift, json, _) = map(&config, &out, 2, &[cache_env, ("CHAOSCOPE_CC", "none")]);
+        assert_eq!(json["expression_kernels"]["c_build"], "off");
+        let (_, total) = {
+            let (cl, c) = calls(&json);
+            assert_eq!(c, 0, "{method}: C kernels ran although switched off");
+            (cl, cl + c)
+        };
+        assert_eq!(cranelift.len(), 63, "{method}: every grid point recorded");
+        // Enough kernel calls to place switches early, in the middle and late.
+        assert!(total > 100, "{method}: only {total} kernel calls");
+
+        // All C (the first call waits for the build), then switches at chosen calls, on one
+        // and two threads, and the untouched background switch.
+        let runs: [(Option<u64>, usize); 6] = [
+            (Some(0), 1),
+            (Some(1), 2),
+            (Some(total / 3), 1),
+            (Some(total / 2), 2),
+            (Some(total - 5), 2),
+            (None, 2),
+        ];
+        for (after, threads) in runs {
+            let after_text = after.map(|a| a.to_string());
+            let mut env = vec![cache_env];
+            if let Some(a) = &after_text {
+                env.push(("CHAOSCOPE_C_KERNELS_AFTER_CALLS", a));
+            }
+            let (points, json, _) = map(&config, &out, threads, &env);
+            let (cl, c) = calls(&json);
+            if let Some(a) = after {
+                assert_eq!(
+                    (cl, c > 0),
+                    (a, true),
+                    "{method}, switch after {a} calls, {threads} threads: {json}"
+                );
+            }
+            assert_eq!(cl + c, total, "{method}: the same work in every run");
+            assert!(
+                points == cranelift,
+                "{method}: switching to C after {after:?} calls on {threads} threads changed \
+                 the map"
+            );
+        }
+    }
+}
+
+#[test]
+fn a_failed_c_build_is_said_once_and_the_map_goes_on() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("kernels");
+    let config = dir.path().join("map.toml");
+    std::fs::write(&config, hh_map("mpm", "gali-time")).unwrap();
+    let out = dir.path().join("map.mcap");
+    let cache_env = ("CHAOSCOPE_KERNEL_CACHE", s(&cache));
+    let (reference, _, _) = map(&config, &out, 2, &[cache_env, ("CHAOSCOPE_CC", "none")]);
+
+    // A compiler that answers for its target but fails on the kernels, as a compile error.
+    let failing = dir.path().join("failing-cc");
+    std::fs::write(
+        &failing,
+        "#!/bin/sh\ncase \" $* \" in *\" -shared \"*) echo 'steps.c:1:1: error: simulated' >&2; \
+         exit 1;; esac\nexec cc \"$@\"\n",
+    )
+    .unwrap();
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&failing, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+    for (compiler, cause) in [
+        (
+            "/nonexistent/cc",
+            "cannot run the C compiler '/nonexistent/cc'",
+        ),
+        (s(&failing), "error: simulated"),
+    ] {
+        // Switch after 3 calls: the map waits for the build's outcome there, so the failure
+        // is met during the map rather than cancelled at its end.
+        let (points, json, stderr) = map(
+            &config,
+            &out,
+            2,
+            &[
+                cache_env,
+                ("CHAOSCOPE_CC", compiler),
+                ("CHAOSCOPE_C_KERNELS_AFTER_CALLS", "3"),
+            ],
+        );
+        let said: Vec<&str> = stderr
+            .lines()
+            .filter(|l| l.contains("C step kernels"))
+            .collect();
+        assert_eq!(said.len(), 1, "{compiler}: said once: {stderr}");
+        assert!(
+            said[0].contains(cause) && said[0].contains("Cranelift"),
+            "{compiler}: the line names the cause and the fallback: {}",
+            said[0]
+        );
+        assert_eq!(json["expression_kernels"]["c_build"], "failed");
+        assert_eq!(calls(&json).1, 0);
+        assert!(
+            points == reference,
+            "{compiler}: the fallback changed the map"
+        );
+    }
+}
+
+/// Processes whose command line mentions `path` (the compiler driver, cc1, as and ld of a
+/// build in that cache all do: the source, the output and `TMPDIR` are inside it).
+fn processes_mentioning(path: &Path) -> Vec<String> {
+    let needle = path.to_str().unwrap().as_bytes();
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        if !entry
+            .file_name()
+            .to_str()
+            .is_some_and(|n| n.bytes().all(|b| b.is_ascii_digit()))
+        {
+            continue;
+        }
+        if let Ok(cmdline) = std::fs::read(entry.path().join("cmdline"))
+            && cmdline.windows(needle.len()).any(|w| w == needle)
+        {
+            found.push(String::from_utf8_lossy(&cmdline).replace('\0', " "));
+        }
+    }
+    found
+}
+
+fn files_under(dir: &Path) -> Vec<String> {
+    let mut files = Vec::new();
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for e in entries.flatten() {
+            files.push(e.path().display().to_string());
+            if e.path().is_dir() {
+                files.extend(files_under(&e.path()));
+            }
+        }
+    }
+    files
+}
+
+/// Waits up to `limit` for `done`.
+fn wait_for(limit: Duration, mut done: impl FnMut() -> bool) -> bool {
+    let start = Instant::now();
+    while start.elapsed() < limit {
+        if done() {
+            return true;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    false
+}
+
+#[test]
+fn a_map_ended_or_interrupted_during_the_c_build_leaves_no_compiler_and_no_files() {
+    // A 1001-site chain: its C build takes tens of seconds, its Cranelift kernels a fraction of
+    // one, so the map computes while the compiler runs.
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("kernels");
+    let cache_env = ("CHAOSCOPE_KERNEL_CACHE", s(&cache));
+
+    // Ends first: four short orbits.
+    let small = dir.path().join("small.toml");
+    std::fs::write(&small, fput_map(1001, 2, 2.0)).unwrap();
+    let (points, json, _) = map(&small, &dir.path().join("small.mcap"), 2, &[cache_env]);
+    assert_eq!(points.len(), 4);
+    assert_eq!(
+        json["expression_kernels"]["c_build"], "building",
+        "the map must end while the compiler runs: {json}"
+    );
+    assert_eq!(processes_mentioning(&cache), Vec::<String>::new());
+    assert_eq!(files_under(&cache), Vec::<String>::new());
+
+    // Interrupted: SIGINT once the compiler is running.
+    let large = dir.path().join("large.toml");
+    std::fs::write(&large, fput_map(1001, 20, 100.0)).unwrap();
+    let mut child = map_command(&large, &dir.path().join("large.mcap"), 2, &[cache_env])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let compiling = wait_for(Duration::from_secs(60), || {
+        !processes_mentioning(&cache).is_empty()
+    });
+    // SAFETY: sends a signal to the child this test started.
+    unsafe { libc::kill(child.id() as i32, libc::SIGINT) };
+    assert!(compiling, "the C compiler never started");
+    let exited = wait_for(Duration::from_secs(30), || {
+        child.try_wait().unwrap().is_some()
+    });
+    if !exited {
+        let _ = child.kill();
+    }
+    let o = child.wait_with_output().unwrap();
+    assert!(exited, "the map did not stop on SIGINT");
+    assert_eq!(
+        o.status.code(),
+        Some(130),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let json: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(json["interrupted"], true);
+    assert_eq!(json["expression_kernels"]["c_build"], "building", "{json}");
+    assert_eq!(processes_mentioning(&cache), Vec::<String>::new());
+    assert_eq!(files_under(&cache), Vec::<String>::new());
+}

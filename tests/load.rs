@@ -90,8 +90,6 @@ fn command(job: &Job, out: &Path, bus: &Path) -> Command {
 }
 
 #[test]
-#[ignore = "fails: a monitor killed while it creates a run's services makes that run's \
-            recorder fail with HangsInCreation (see RELIABILITY.md)"]
 fn four_runs_and_two_maps_at_once_with_monitors_coming_and_going_match_runs_made_alone() {
     let started = Instant::now();
     let work = tempfile::tempdir().unwrap();

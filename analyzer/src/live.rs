@@ -66,20 +66,38 @@ pub struct LiveRun {
 
 impl LiveRun {
     /// Subscribes to `run` and waits for its header (kept as history, so it also reaches late
-    /// monitors). The data side is opened only after the header arrived: the producer creates
-    /// every service before announcing, and the monitor stream's size is the producer's to
-    /// choose, so a monitor must never be the one creating it. `Ok(None)` on a termination
-    /// signal.
+    /// monitors). A monitor never creates a run's services: it waits until the run's producer
+    /// (or recorder) has created them, so a monitor killed at any moment cannot leave a service
+    /// half-created for the run's own processes, and the monitor stream's size stays the
+    /// producer's to choose. The data side is opened only after the header arrived (the
+    /// producer creates every service before announcing). `Ok(None)` on a termination signal;
+    /// an error when nothing arrived within `timeout`.
     pub fn connect(run: &str, timeout: Duration) -> Result<Option<(Self, RunHeader)>, LiveError> {
         let node_name = format!("chaoscope-monitor/{run}/{}", std::process::id());
         let node = bus::create_node(&node_name)?;
-        let header_service = bus::header_service(&node, run)?;
-        let header = bus::header_subscriber(&header_service)?;
-        let Some(run_header) = wait_header(&node, &header, run, timeout)? else {
+        let start = Instant::now();
+        let Some(header_service) = wait_for(&node, run, start, timeout, &|| {
+            bus::open_header_service(&node, run)
+        })?
+        else {
             return Ok(None);
         };
-        let monitor_service = bus::monitor_service(&node, run, bus::MONITOR_BUFFER)?;
-        let event_service = bus::data_ready_service(&node, run)?;
+        let header = bus::header_subscriber(&header_service)?;
+        let Some(run_header) = wait_header(&node, &header, run, start, timeout)? else {
+            return Ok(None);
+        };
+        let Some(monitor_service) = wait_for(&node, run, start, timeout, &|| {
+            bus::open_monitor_service(&node, run)
+        })?
+        else {
+            return Ok(None);
+        };
+        let Some(event_service) = wait_for(&node, run, start, timeout, &|| {
+            bus::open_data_ready_service(&node, run)
+        })?
+        else {
+            return Ok(None);
+        };
         // No buffer size given: the subscriber takes the service's, sized by the producer.
         let monitor = monitor_service
             .subscriber_builder()
@@ -165,10 +183,9 @@ impl LiveRun {
                 let result = waitset
                     .wait_and_process_once(|_| CallbackProgression::Stop)
                     .map_err(|e| BusError::new("wait", e))?;
-                if matches!(
-                    result,
-                    WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt
-                ) {
+                // `Interrupt` is any interrupted wait, also a monitor resumed by SIGCONT after
+                // SIGSTOP: a SIGINT or SIGTERM is reported as `TerminationRequest` next.
+                if result == WaitSetRunResult::TerminationRequest {
                     return Ok(LiveEnded::Signal);
                 }
                 let _ = self.listener.try_wait(|_| {});
@@ -193,14 +210,39 @@ impl LiveRun {
     }
 }
 
+/// Opens a service of `run` with `open` until the run has created it. `Ok(None)` on a
+/// termination signal.
+fn wait_for<T>(
+    node: &Node<ipc::Service>,
+    run: &str,
+    start: Instant,
+    timeout: Duration,
+    open: &dyn Fn() -> Result<Option<T>, BusError>,
+) -> Result<Option<T>, LiveError> {
+    loop {
+        if let Some(service) = open()? {
+            return Ok(Some(service));
+        }
+        if start.elapsed() > timeout {
+            return Err(LiveError::NoHeader {
+                run: run.to_string(),
+                timeout,
+            });
+        }
+        if node.wait(bus::POLL_INTERVAL).is_err() {
+            return Ok(None);
+        }
+    }
+}
+
 /// Waits for the run header on `header`.
 fn wait_header(
     node: &Node<ipc::Service>,
     header: &HeaderSubscriber,
     run: &str,
+    start: Instant,
     timeout: Duration,
 ) -> Result<Option<RunHeader>, LiveError> {
-    let start = Instant::now();
     loop {
         if let Some(run_header) = bus::try_receive_run_header::<LiveError>(header, run)? {
             return Ok(Some(run_header));

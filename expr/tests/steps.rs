@@ -468,3 +468,52 @@ fn c_compiler_failures_are_errors_naming_the_cause() {
     .to_string();
     assert!(e.contains("cannot create the kernel cache"), "{e}");
 }
+
+#[test]
+fn c_builds_clean_up_after_dead_processes_and_cancels() {
+    let cache = tempfile::tempdir().unwrap();
+    // The build directory of a process that no longer exists (a chaoscope killed by SIGKILL
+    // during its build): the next build removes it. A live process's directory is kept.
+    let mut gone = std::process::Command::new("true").spawn().unwrap();
+    let dead_pid = gone.id();
+    gone.wait().unwrap();
+    let abandoned = cache.path().join(format!("build-{dead_pid}-0"));
+    let alive = cache.path().join("build-1-0");
+    for d in [&abandoned, &alive] {
+        std::fs::create_dir(d).unwrap();
+        std::fs::write(d.join("steps.c"), "half a source").unwrap();
+    }
+    let s = henon_heiles();
+    let spec = StepSpec {
+        n: s.n,
+        gradient: s.gradient.clone(),
+        hessian_vector: Some(s.hessian_vector.clone()),
+    };
+    let program = CCompiler::from_env().map_or_else(|| "cc".into(), |c| c.program);
+    let cc = CCompiler {
+        program,
+        cache_dir: cache.path().to_path_buf(),
+    };
+    // Cancelled before it starts: no compiler run, nothing written.
+    let cancel = std::sync::atomic::AtomicBool::new(true);
+    let e = jit::compile_steps_c_cancellable(&s.graph, &spec, &cc, &cancel).unwrap_err();
+    assert!(matches!(e, jit::JitError::Cancelled), "{e}");
+    assert!(abandoned.exists(), "a cancelled build touches nothing");
+    let k = jit::compile_steps_c(&s.graph, &spec, &cc).unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        !abandoned.exists(),
+        "the dead process's build directory was removed"
+    );
+    assert!(
+        alive.exists(),
+        "a live process's (pid 1) build directory was kept"
+    );
+    let mut left: Vec<String> = std::fs::read_dir(cache.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left.len(), 2, "{left:?}");
+    assert!(left[0] == "build-1-0" && left[1].starts_with("steps-") && left[1].ends_with(".so"));
+    check("C HH after the clean-up", &s, &k);
+}

@@ -249,10 +249,10 @@ impl RunSubscription {
                 if let Some(ended) = ended.get() {
                     return Ok(ended);
                 }
-                if matches!(
-                    result,
-                    WaitSetRunResult::TerminationRequest | WaitSetRunResult::Interrupt
-                ) {
+                // `Interrupt` is any interrupted wait, also a process resumed by SIGCONT after
+                // SIGSTOP (epoll returns EINTR then): waiting again is right, since a SIGINT or
+                // SIGTERM is reported as `TerminationRequest` by the next wait.
+                if result == WaitSetRunResult::TerminationRequest {
                     return Ok(Ended::Signal);
                 }
             }

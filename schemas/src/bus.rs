@@ -19,16 +19,25 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 use std::time::Duration;
 
-use iceoryx2::node::NodeView;
+use iceoryx2::node::{DeadNodeView, NodeDetails, NodeView};
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
 use iceoryx2::prelude::*;
+use iceoryx2::service::builder::event::{
+    Builder as EventBuilder, EventCreateError, EventOpenError, EventOpenOrCreateError,
+};
+use iceoryx2::service::builder::publish_subscribe::{
+    Builder as PubSubBuilder, PublishSubscribeCreateError, PublishSubscribeOpenError,
+    PublishSubscribeOpenOrCreateError,
+};
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 
 use crate::convert::{self, HeaderError};
 use crate::frame::{FrameHeader, MapFrameHeader, RunAnnouncement};
 use crate::names::{self, map_stream, stream};
 use crate::proto::RunHeader;
+
+mod stale;
 
 /// Frames a data subscriber can hold before the producer waits.
 pub const DATA_BUFFER: usize = 64;
@@ -273,22 +282,50 @@ pub fn create_node(name: &str) -> Result<Node<ipc::Service>, BusError> {
 }
 
 /// Removes the shared memory and registrations of every dead node (a process killed with
-/// SIGKILL cannot clean up after itself). Returns how many dead nodes were removed.
+/// SIGKILL cannot clean up after itself), and what iceoryx2's own cleanup leaves of processes
+/// killed while they created or cleaned up nodes and services (see [`stale`]). Returns how many
+/// dead nodes were removed.
 pub fn cleanup_dead_nodes() -> usize {
     quiet_logging();
     let Ok(domain) = domain() else {
         return 0;
     };
+    cleanup_dead_nodes_in(domain.config())
+}
+
+/// [`cleanup_dead_nodes`] in the domain of `config`.
+pub fn cleanup_dead_nodes_in(config: &Config) -> usize {
+    let layout = stale::Layout::of(config);
+    // First what would make iceoryx2's cleanup of a dead node fail every time.
+    layout.remove_unfinished_records();
     let mut dead = Vec::new();
-    let _ = Node::<ipc::Service>::list(domain.config(), |state| {
+    let _ = Node::<ipc::Service>::list(config, |state| {
         if let NodeState::Dead(view) = state {
             dead.push(view);
         }
         CallbackProgression::Continue
     });
-    dead.into_iter()
-        .filter(|view| view.clone().try_remove_stale_resources().is_ok())
-        .count()
+    let mut removed = dead
+        .into_iter()
+        .filter(|view| {
+            if view.details().is_some() {
+                return view.clone().try_remove_stale_resources().is_ok();
+            }
+            // Its details file is gone (its cleaner, or the node dropping itself, was killed
+            // after removing it). iceoryx2 would then clean it up with the global configuration
+            // (`/tmp/iceoryx2`), not ours, and never find it: give it our domain's. Only the
+            // configuration of these details is used; the cleaner lock still refuses a node
+            // whose owner is alive.
+            DeadNodeView::<ipc::Service>::__internal_try_remove_stale_resources(
+                *view.id(),
+                NodeDetails::__internal_new(&None, config),
+            )
+            .is_ok()
+        })
+        .count();
+    removed += layout.remove_dead_node_remnants();
+    layout.remove_abandoned_creations();
+    removed
 }
 
 /// Liveness of a node, found by name among all nodes of the machine.
@@ -332,9 +369,111 @@ fn service_name(run: &str, stream: &str) -> Result<ServiceName, BusError> {
         .map_err(|e| BusError::new(format!("service name {name:?}"), e))
 }
 
-/// The lossless data stream of `run`.
-pub fn data_service(node: &Node<ipc::Service>, run: &str) -> Result<DataService, BusError> {
-    node.service_builder(&service_name(run, stream::DATA)?)
+/// How long a run's participant keeps repairing and retrying a service that hangs in creation
+/// (each attempt first waits iceoryx2's creation timeout, 1 s).
+const CREATION_REPAIR_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Opens or creates a service of a run's participant (producer, recorder; for maps also the
+/// watchers, which must be subscribed before a short map's first point): the one of them that
+/// comes first creates it. A process killed while creating a service leaves it "hanging in
+/// creation" (iceoryx2 waits 1 s for it, then fails with `HangsInCreation`): the participant
+/// then removes what dead processes left (a half-created service only once no live process
+/// holds it, see [`stale`]) and tries again, for up to [`CREATION_REPAIR_TIMEOUT`].
+fn open_or_create<T, E: std::fmt::Debug>(
+    node: &Node<ipc::Service>,
+    what: impl Fn() -> String,
+    hangs: impl Fn(&E) -> bool,
+    mut attempt: impl FnMut() -> Result<T, E>,
+) -> Result<T, BusError> {
+    let start = std::time::Instant::now();
+    loop {
+        match attempt() {
+            Ok(service) => return Ok(service),
+            Err(e) if hangs(&e) && start.elapsed() < CREATION_REPAIR_TIMEOUT => {
+                cleanup_dead_nodes_in(node.config());
+            }
+            Err(e) => return Err(BusError::new(what(), e)),
+        }
+    }
+}
+
+/// Opens a service of a run for a monitor: monitors never create a run's services (the
+/// producer sizes them, and a monitor killed while creating one would leave it hanging in
+/// creation for the run's own processes). `Ok(None)` while the service does
+/// not exist or is still being created: the caller waits and tries again.
+fn open_existing<T, E: std::fmt::Debug>(
+    node: &Node<ipc::Service>,
+    what: impl Fn() -> String,
+    absent: impl Fn(&E) -> bool,
+    hangs: impl Fn(&E) -> bool,
+    open: impl FnOnce() -> Result<T, E>,
+) -> Result<Option<T>, BusError> {
+    match open() {
+        Ok(service) => Ok(Some(service)),
+        Err(e) if absent(&e) => Ok(None),
+        Err(e) if hangs(&e) => {
+            // Its creator may have been killed: let the next attempt find it repaired.
+            cleanup_dead_nodes_in(node.config());
+            Ok(None)
+        }
+        Err(e) => Err(BusError::new(what(), e)),
+    }
+}
+
+fn pubsub_hangs(e: &PublishSubscribeOpenOrCreateError) -> bool {
+    matches!(
+        e,
+        PublishSubscribeOpenOrCreateError::PublishSubscribeOpenError(
+            PublishSubscribeOpenError::HangsInCreation
+        ) | PublishSubscribeOpenOrCreateError::PublishSubscribeCreateError(
+            PublishSubscribeCreateError::HangsInCreation
+                | PublishSubscribeCreateError::IsBeingCreatedByAnotherInstance
+        ) | PublishSubscribeOpenOrCreateError::SystemInFlux
+    )
+}
+
+fn event_hangs(e: &EventOpenOrCreateError) -> bool {
+    matches!(
+        e,
+        EventOpenOrCreateError::EventOpenError(EventOpenError::HangsInCreation)
+            | EventOpenOrCreateError::EventCreateError(
+                EventCreateError::IsBeingCreatedByAnotherInstance
+            )
+            | EventOpenOrCreateError::SystemInFlux
+    )
+}
+
+fn pubsub_absent(e: &PublishSubscribeOpenError) -> bool {
+    matches!(
+        e,
+        PublishSubscribeOpenError::DoesNotExist | PublishSubscribeOpenError::IsMarkedForDestruction
+    )
+}
+
+fn pubsub_open_hangs(e: &PublishSubscribeOpenError) -> bool {
+    matches!(e, PublishSubscribeOpenError::HangsInCreation)
+}
+
+fn event_absent(e: &EventOpenError) -> bool {
+    matches!(
+        e,
+        EventOpenError::DoesNotExist | EventOpenError::IsMarkedForDestruction
+    )
+}
+
+fn event_open_hangs(e: &EventOpenError) -> bool {
+    matches!(e, EventOpenError::HangsInCreation)
+}
+
+type DataBuilder = PubSubBuilder<[f64], FrameHeader, ipc::Service>;
+type HeaderBuilder = PubSubBuilder<[u8], RunAnnouncement, ipc::Service>;
+type MapBuilder = PubSubBuilder<[u8], MapFrameHeader, ipc::Service>;
+
+// The settings of each service, in one place: the process creating a service sets them, the
+// processes opening it require them.
+
+fn data_builder(node: &Node<ipc::Service>, name: &ServiceName) -> DataBuilder {
+    node.service_builder(name)
         .publish_subscribe::<[f64]>()
         .user_header::<FrameHeader>()
         .enable_safe_overflow(false)
@@ -342,18 +481,10 @@ pub fn data_service(node: &Node<ipc::Service>, run: &str) -> Result<DataService,
         .subscriber_max_buffer_size(DATA_BUFFER)
         .max_subscribers(MAX_DATA_SUBSCRIBERS)
         .max_publishers(1)
-        .open_or_create()
-        .map_err(|e| BusError::new(format!("open data service of run {run:?}"), e))
 }
 
-/// The lossy monitor stream of `run`; `buffer` is the per-subscriber buffer when creating it
-/// (the producer), a minimum when opening it (monitors get the service's size).
-pub fn monitor_service(
-    node: &Node<ipc::Service>,
-    run: &str,
-    buffer: usize,
-) -> Result<DataService, BusError> {
-    node.service_builder(&service_name(run, stream::MONITOR)?)
+fn monitor_builder(node: &Node<ipc::Service>, name: &ServiceName, buffer: usize) -> DataBuilder {
+    node.service_builder(name)
         .publish_subscribe::<[f64]>()
         .user_header::<FrameHeader>()
         .enable_safe_overflow(true)
@@ -361,13 +492,10 @@ pub fn monitor_service(
         .subscriber_max_buffer_size(buffer.max(MONITOR_BUFFER))
         .max_subscribers(MAX_MONITORS)
         .max_publishers(1)
-        .open_or_create()
-        .map_err(|e| BusError::new(format!("open monitor service of run {run:?}"), e))
 }
 
-/// The run-header stream of `run` (history 1 for late subscribers).
-pub fn header_service(node: &Node<ipc::Service>, run: &str) -> Result<HeaderService, BusError> {
-    node.service_builder(&service_name(run, stream::HEADER)?)
+fn header_builder(node: &Node<ipc::Service>, name: &ServiceName) -> HeaderBuilder {
+    node.service_builder(name)
         .publish_subscribe::<[u8]>()
         .user_header::<RunAnnouncement>()
         .enable_safe_overflow(true)
@@ -375,28 +503,148 @@ pub fn header_service(node: &Node<ipc::Service>, run: &str) -> Result<HeaderServ
         .subscriber_max_buffer_size(2)
         .max_subscribers(MAX_DATA_SUBSCRIBERS + MAX_MONITORS)
         .max_publishers(1)
-        .open_or_create()
-        .map_err(|e| BusError::new(format!("open header service of run {run:?}"), e))
+}
+
+fn data_ready_builder(node: &Node<ipc::Service>, name: &ServiceName) -> EventBuilder<ipc::Service> {
+    node.service_builder(name)
+        .event()
+        .max_notifiers(2)
+        .max_listeners(MAX_DATA_SUBSCRIBERS + MAX_MONITORS)
+}
+
+fn ready_builder(node: &Node<ipc::Service>, name: &ServiceName) -> EventBuilder<ipc::Service> {
+    node.service_builder(name)
+        .event()
+        .max_notifiers(2)
+        .max_listeners(MAX_DATA_SUBSCRIBERS)
+}
+
+fn map_header_builder(node: &Node<ipc::Service>, name: &ServiceName) -> MapBuilder {
+    node.service_builder(name)
+        .publish_subscribe::<[u8]>()
+        .user_header::<MapFrameHeader>()
+        .enable_safe_overflow(true)
+        .history_size(1)
+        .subscriber_max_buffer_size(2)
+        .max_subscribers(MAX_MAP_WATCHERS)
+        .max_publishers(1)
+}
+
+fn map_points_builder(node: &Node<ipc::Service>, name: &ServiceName) -> MapBuilder {
+    node.service_builder(name)
+        .publish_subscribe::<[u8]>()
+        .user_header::<MapFrameHeader>()
+        .enable_safe_overflow(true)
+        .history_size(0)
+        .subscriber_max_buffer_size(MAP_POINTS_BUFFER)
+        .max_subscribers(MAX_MAP_WATCHERS)
+        .max_publishers(1)
+}
+
+/// The lossless data stream of `run`.
+pub fn data_service(node: &Node<ipc::Service>, run: &str) -> Result<DataService, BusError> {
+    let name = service_name(run, stream::DATA)?;
+    open_or_create(
+        node,
+        || format!("open data service of run {run:?}"),
+        pubsub_hangs,
+        || data_builder(node, &name).open_or_create(),
+    )
+}
+
+/// The lossy monitor stream of `run`, for its producer, which sizes it: `buffer` frames per
+/// monitor.
+pub fn monitor_service(
+    node: &Node<ipc::Service>,
+    run: &str,
+    buffer: usize,
+) -> Result<DataService, BusError> {
+    let name = service_name(run, stream::MONITOR)?;
+    open_or_create(
+        node,
+        || format!("open monitor service of run {run:?}"),
+        pubsub_hangs,
+        || monitor_builder(node, &name, buffer).open_or_create(),
+    )
+}
+
+/// The monitor stream of `run` if its producer has created it (monitors get the buffer size
+/// the producer chose, at least [`MONITOR_BUFFER`]).
+pub fn open_monitor_service(
+    node: &Node<ipc::Service>,
+    run: &str,
+) -> Result<Option<DataService>, BusError> {
+    let name = service_name(run, stream::MONITOR)?;
+    open_existing(
+        node,
+        || format!("open monitor service of run {run:?}"),
+        pubsub_absent,
+        pubsub_open_hangs,
+        || monitor_builder(node, &name, MONITOR_BUFFER).open(),
+    )
+}
+
+/// The run-header stream of `run` (history 1 for late subscribers).
+pub fn header_service(node: &Node<ipc::Service>, run: &str) -> Result<HeaderService, BusError> {
+    let name = service_name(run, stream::HEADER)?;
+    open_or_create(
+        node,
+        || format!("open header service of run {run:?}"),
+        pubsub_hangs,
+        || header_builder(node, &name).open_or_create(),
+    )
+}
+
+/// The run-header stream of `run` if its producer (or recorder) has created it.
+pub fn open_header_service(
+    node: &Node<ipc::Service>,
+    run: &str,
+) -> Result<Option<HeaderService>, BusError> {
+    let name = service_name(run, stream::HEADER)?;
+    open_existing(
+        node,
+        || format!("open header service of run {run:?}"),
+        pubsub_absent,
+        pubsub_open_hangs,
+        || header_builder(node, &name).open(),
+    )
 }
 
 /// The wake-up event the producer notifies after publishing data.
 pub fn data_ready_service(node: &Node<ipc::Service>, run: &str) -> Result<EventService, BusError> {
-    node.service_builder(&service_name(run, stream::DATA_READY)?)
-        .event()
-        .max_notifiers(2)
-        .max_listeners(MAX_DATA_SUBSCRIBERS + MAX_MONITORS)
-        .open_or_create()
-        .map_err(|e| BusError::new(format!("open event service of run {run:?}"), e))
+    let name = service_name(run, stream::DATA_READY)?;
+    open_or_create(
+        node,
+        || format!("open event service of run {run:?}"),
+        event_hangs,
+        || data_ready_builder(node, &name).open_or_create(),
+    )
+}
+
+/// The data-ready event of `run` if its producer (or recorder) has created it.
+pub fn open_data_ready_service(
+    node: &Node<ipc::Service>,
+    run: &str,
+) -> Result<Option<EventService>, BusError> {
+    let name = service_name(run, stream::DATA_READY)?;
+    open_existing(
+        node,
+        || format!("open event service of run {run:?}"),
+        event_absent,
+        event_open_hangs,
+        || data_ready_builder(node, &name).open(),
+    )
 }
 
 /// The readiness service of `run` (see [`names::stream::READY`]).
 pub fn ready_service(node: &Node<ipc::Service>, run: &str) -> Result<EventService, BusError> {
-    node.service_builder(&service_name(run, stream::READY)?)
-        .event()
-        .max_notifiers(2)
-        .max_listeners(MAX_DATA_SUBSCRIBERS)
-        .open_or_create()
-        .map_err(|e| BusError::new(format!("open ready service of run {run:?}"), e))
+    let name = service_name(run, stream::READY)?;
+    open_or_create(
+        node,
+        || format!("open ready service of run {run:?}"),
+        event_hangs,
+        || ready_builder(node, &name).open_or_create(),
+    )
 }
 
 /// A receiver's subscription to the run-header stream.
@@ -458,30 +706,24 @@ fn map_service_name(map: &str, stream: &str) -> Result<ServiceName, BusError> {
 
 /// The header stream of map `map` (history 1 for late watchers).
 pub fn map_header_service(node: &Node<ipc::Service>, map: &str) -> Result<MapService, BusError> {
-    node.service_builder(&map_service_name(map, map_stream::HEADER)?)
-        .publish_subscribe::<[u8]>()
-        .user_header::<MapFrameHeader>()
-        .enable_safe_overflow(true)
-        .history_size(1)
-        .subscriber_max_buffer_size(2)
-        .max_subscribers(MAX_MAP_WATCHERS)
-        .max_publishers(1)
-        .open_or_create()
-        .map_err(|e| BusError::new(format!("open header service of map {map:?}"), e))
+    let name = map_service_name(map, map_stream::HEADER)?;
+    open_or_create(
+        node,
+        || format!("open header service of map {map:?}"),
+        pubsub_hangs,
+        || map_header_builder(node, &name).open_or_create(),
+    )
 }
 
 /// The lossy point stream of map `map`.
 pub fn map_points_service(node: &Node<ipc::Service>, map: &str) -> Result<MapService, BusError> {
-    node.service_builder(&map_service_name(map, map_stream::POINTS)?)
-        .publish_subscribe::<[u8]>()
-        .user_header::<MapFrameHeader>()
-        .enable_safe_overflow(true)
-        .history_size(0)
-        .subscriber_max_buffer_size(MAP_POINTS_BUFFER)
-        .max_subscribers(MAX_MAP_WATCHERS)
-        .max_publishers(1)
-        .open_or_create()
-        .map_err(|e| BusError::new(format!("open point service of map {map:?}"), e))
+    let name = map_service_name(map, map_stream::POINTS)?;
+    open_or_create(
+        node,
+        || format!("open point service of map {map:?}"),
+        pubsub_hangs,
+        || map_points_builder(node, &name).open_or_create(),
+    )
 }
 
 /// Names of the maps whose header service currently exists on this machine.

@@ -6,8 +6,10 @@
 //!   reference orbit, the reference included in the count), on the detected instruction set.
 //! - `expression_models`: the same models written as expressions (`[model] name =
 //!   "potential"`) against the built-in ones, side by side: batched kernel, one-orbit engine,
-//!   and parse + differentiate + compile time (FPUT N = 1001 too); `--expressions-only` runs
-//!   just this part.
+//!   and parse + differentiate + compile time (for FPUT N = 1001: the time to a usable Cranelift
+//!   kernel, and apart from it a fresh C build, which maps run in the background); each
+//!   comparison names the step kernel backend it timed; `--expressions-only` runs just this
+//!   part.
 //! - `gali2_map`: the paper's Fig. 9(b) settings (HH, H = 0.125, x1 = 0 section, ABA864,
 //!   h = 0.01, tau = 1, d0 = 1e-8, 50 sets, t = 500, MPM) on a reduced grid over the same
 //!   region, with 1 and 2 threads; CPU time extrapolated to 700 x 600 points.

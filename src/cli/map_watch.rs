@@ -104,6 +104,11 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         None => find_map(args.wait_timeout)?,
     };
     let node = bus::create_node(&names::map_watcher_node_name(&name))?;
+    // Unlike monitors, a watcher started before its map creates the map's services, so that it
+    // receives every point from the first (the map's points are not kept as history, and a
+    // small map is over in a fraction of a second). A watcher killed while creating them leaves
+    // them hanging in creation: `chaoscope map` then removes them once it finds the watcher
+    // dead, and creates them anew (`bus::map_header_service`, `tests/load.rs`).
     let header_service = bus::map_header_service(&node, &name)?;
     let points_service = bus::map_points_service(&node, &name)?;
     let header_sub = header_service

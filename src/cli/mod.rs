@@ -26,6 +26,14 @@ use chaoscope_schemas::config::RunConfig;
 /// Exit code of a run stopped by SIGINT/SIGTERM (128 + SIGINT, the shell convention).
 pub const EXIT_INTERRUPTED: u8 = 130;
 
+/// Writes the one JSON summary line of `produce` and `record` to stdout. Its reader (`chaoscope
+/// run`) may have been killed: the run's files are complete by then, so a closed pipe is not an
+/// error of this process (and `println!` would panic on it).
+pub fn print_summary(line: &serde_json::Value) {
+    use std::io::Write;
+    let _ = writeln!(std::io::stdout().lock(), "{line}");
+}
+
 pub fn exit_interrupted() -> ExitCode {
     ExitCode::from(EXIT_INTERRUPTED)
 }

@@ -47,19 +47,16 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     };
     let secs = outcome.elapsed.as_secs_f64();
     // One JSON line on stdout: `chaoscope run` and the benchmarks read it.
-    println!(
-        "{}",
-        serde_json::json!({
-            "role": "producer",
-            "run": outcome.run,
-            "status": status,
-            "reason": reason,
-            "samples": outcome.samples,
-            "frames": outcome.frames,
-            "payload_bytes": outcome.payload_bytes,
-            "seconds": secs,
-        })
-    );
+    super::print_summary(&serde_json::json!({
+        "role": "producer",
+        "run": outcome.run,
+        "status": status,
+        "reason": reason,
+        "samples": outcome.samples,
+        "frames": outcome.frames,
+        "payload_bytes": outcome.payload_bytes,
+        "seconds": secs,
+    }));
     Ok(match outcome.status {
         RunStatus::Completed => ExitCode::SUCCESS,
         RunStatus::Interrupted => super::exit_interrupted(),

@@ -60,18 +60,15 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         s.finalized_by,
         s.run_status
     );
-    println!(
-        "{}",
-        serde_json::json!({
-            "role": "recorder",
-            "run": outcome.run,
-            "out": outcome.out,
-            "finalized_by": s.finalized_by,
-            "run_status": s.run_status,
-            "frames_received": s.frames_received,
-            "frames_missing": s.frames_missing,
-            "invalid_frames": outcome.invalid_frames,
-        })
-    );
+    super::print_summary(&serde_json::json!({
+        "role": "recorder",
+        "run": outcome.run,
+        "out": outcome.out,
+        "finalized_by": s.finalized_by,
+        "run_status": s.run_status,
+        "frames_received": s.frames_received,
+        "frames_missing": s.frames_missing,
+        "invalid_frames": outcome.invalid_frames,
+    }));
     Ok(ExitCode::SUCCESS)
 }

@@ -288,11 +288,19 @@ impl Recording {
         };
         let json = py
             .detach(|| -> Result<String, String> {
-                let (analysis, _info) =
+                let (analysis, info) =
                     analyze_file(&self.path, &options).map_err(|e| error_text(&e))?;
+                // As `chaoscope analyze --json`: the final report says how the run ended.
                 let report = match at {
                     Some(t) => analysis.report_at(t).expect("requested time is captured"),
-                    None => analysis.report(),
+                    None => {
+                        let mut report = analysis.report();
+                        report.run.end = info
+                            .end
+                            .as_ref()
+                            .map(chaoscope_analyzer::report::EndReport::from_message);
+                        report
+                    }
                 };
                 serde_json::to_string(&report).map_err(|e| e.to_string())
             })

@@ -406,6 +406,14 @@ impl Analysis {
         }
     }
 
+    /// [`Analysis::report`] with how the producer ended the run (`run.end`), for a stream whose
+    /// end-of-run record was seen (a finished recording, a monitor at the end).
+    pub fn report_ended(&self, end: Option<&chaoscope_schemas::proto::EndOfRun>) -> Report {
+        let mut report = self.report();
+        report.run.end = end.map(crate::report::EndReport::from_message);
+        report
+    }
+
     /// Values as of time `t`, if `t` was among [`AnalysisOptions::at`]. Before the stream has
     /// passed `t` (or if it ended earlier) this is the latest report.
     pub fn report_at(&self, t: f64) -> Option<Report> {

@@ -390,19 +390,9 @@ pub fn model_from_config(
 
 /// A key of the `potential` model given to a built-in one (a likely mix-up worth naming).
 fn builtin_extra_key(cfg: &chaoscope_schemas::config::ModelConfig) -> Option<&'static str> {
-    [
-        ("potential", cfg.potential.is_some()),
-        ("params", !cfg.params.is_empty()),
-        ("masses", cfg.masses.is_some()),
-        ("boundary", cfg.boundary.is_some()),
-        ("tables", !cfg.tables.is_empty()),
-        ("rhs", cfg.rhs.is_some()),
-        ("next", cfg.next.is_some()),
-        ("modulo", cfg.modulo.is_some()),
-        ("hamiltonian", cfg.hamiltonian.is_some()),
-    ]
-    .into_iter()
-    .find_map(|(k, present)| present.then_some(k))
+    model_keys_present(cfg)
+        .into_iter()
+        .find_map(|(k, present)| (present && !matches!(k, "n" | "beta")).then_some(k))
 }
 
 /// Parse a coordinate name `q3` / `p1` into (is_momentum, zero-based index) for `n` dof.

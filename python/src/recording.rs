@@ -293,14 +293,7 @@ impl Recording {
                 // As `chaoscope analyze --json`: the final report says how the run ended.
                 let report = match at {
                     Some(t) => analysis.report_at(t).expect("requested time is captured"),
-                    None => {
-                        let mut report = analysis.report();
-                        report.run.end = info
-                            .end
-                            .as_ref()
-                            .map(chaoscope_analyzer::report::EndReport::from_message);
-                        report
-                    }
+                    None => analysis.report_ended(info.end.as_ref()),
                 };
                 serde_json::to_string(&report).map_err(|e| e.to_string())
             })

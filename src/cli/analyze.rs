@@ -9,7 +9,7 @@ use anyhow::Context;
 use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::plot::{TimeAxis, plot_all};
 use chaoscope_analyzer::recording::analyze_file;
-use chaoscope_analyzer::report::{EndReport, Report};
+use chaoscope_analyzer::report::Report;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -142,11 +142,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let (analysis, info) = analyze_file(&args.file, &options)?;
     let report = match args.at {
         Some(t) => analysis.report_at(t).expect("requested time is captured"),
-        None => {
-            let mut report = analysis.report();
-            report.run.end = info.end.as_ref().map(EndReport::from_message);
-            report
-        }
+        None => analysis.report_ended(info.end.as_ref()),
     };
     if args.json {
         use std::io::Write;

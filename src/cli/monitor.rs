@@ -21,7 +21,6 @@ use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
 use chaoscope_analyzer::assemble::SampleAssembler;
 use chaoscope_analyzer::live::{LiveEnded, LiveEvent, LiveRun};
 use chaoscope_analyzer::progress::Progress;
-use chaoscope_analyzer::report::EndReport;
 use chaoscope_analyzer::run_info::RunInfo;
 use chaoscope_schemas::bus::{self, Liveness};
 use chaoscope_schemas::names;
@@ -84,10 +83,8 @@ fn json_line(
     is_final: bool,
     end: Option<&EndOfRun>,
 ) -> serde_json::Value {
-    let mut report = analysis.report();
     // As `analyze` reports a finished recording: how the producer ended the run.
-    report.run.end = end.map(EndReport::from_message);
-    let mut v = serde_json::to_value(report).expect("reports serialize");
+    let mut v = serde_json::to_value(analysis.report_ended(end)).expect("reports serialize");
     let step = analysis.step();
     let obj = v.as_object_mut().expect("a report is an object");
     obj.insert("final".into(), is_final.into());

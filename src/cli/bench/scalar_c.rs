@@ -36,7 +36,7 @@ fn input(spec: &MapSpec, coeffs: &StepCoeffs, points: &[Vec<f64>]) -> anyhow::Re
     );
     let tau = run.schemes[0].tau_steps;
     anyhow::ensure!(
-        run.total_steps % tau == 0,
+        run.total_steps.is_multiple_of(tau),
         "the C yardstick needs whole renormalization windows"
     );
     let mut s = String::new();

@@ -10,6 +10,7 @@ pub mod estimate;
 pub mod integrator;
 pub mod map;
 pub mod model;
+pub mod propagator;
 pub mod publish;
 pub mod renormalization;
 pub mod spec;

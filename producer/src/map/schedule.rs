@@ -52,7 +52,7 @@ pub fn run_map(
     let pool = builder.build()?;
     let per_batch = match spec.run.schemes[0].method {
         // Systems without a batched kernel: one point at a time through the one-orbit engine.
-        _ if spec.batched.is_none() => 1,
+        _ if !spec.has_batched_kernel() => 1,
         Method::Mpm => options.mpm_points_per_batch.max(1),
         Method::Vm => 1,
     };
@@ -71,11 +71,6 @@ pub fn run_map(
                         return;
                     }
                     let results = match spec.run.schemes[0].method {
-                        _ if spec.batched.is_none() => chunk
-                            .iter()
-                            .take_while(|_| !stopped())
-                            .map(|&i| super::one_orbit::point(spec, i))
-                            .collect(),
                         Method::Mpm => mpm::compute(spec, options.isa, chunk, &stopped),
                         Method::Vm => chunk
                             .iter()

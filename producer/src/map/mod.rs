@@ -6,6 +6,7 @@
 //! - [`indicator`]: what is accumulated per deviation set and how a point's value is formed.
 //! - [`point`]: a point's result.
 //! - [`mpm`], [`vm`]: the batched computation of points (sharing the [`crate::batch`] kernel).
+//! - [`propagator`]: `route = "propagator"`: every set from one evolved basis per point.
 //! - [`one_orbit`]: the same point computed by the one-orbit [`crate::engine::Engine`]; the
 //!   batched path must agree with it bit for bit (tests).
 //! - [`schedule`]: rayon across points, results streamed to a sink as they complete.
@@ -18,6 +19,7 @@ pub mod indicator;
 pub mod mpm;
 pub mod one_orbit;
 pub mod point;
+pub mod propagator;
 pub mod record;
 pub mod schedule;
 pub mod spec;
@@ -27,4 +29,4 @@ mod window;
 pub use indicator::Indicator;
 pub use point::{PointResult, PointStatus};
 pub use schedule::{MapOptions, run_map};
-pub use spec::{MapSpec, Shard};
+pub use spec::{MapSpec, Route, Shard};

@@ -34,6 +34,9 @@
 //! speed-up is the median pair, and `speedup_over_ceiling` the median of each pair's speed-up over
 //! the ceiling measured right after it.
 
+mod plain_loop;
+mod scalar_c;
+
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -43,6 +46,7 @@ use chaoscope_producer::integrator::{Splitting, SplittingKind};
 use chaoscope_producer::map::{MapOptions, MapSpec, PointResult, run_map};
 use chaoscope_producer::model::{FputBeta, HenonHeiles};
 use chaoscope_schemas::config::{DeviationsConfig, MapConfig, RunConfig, SchemeConfig, paper};
+use plain_loop::{PlainModel, PlainState};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -79,6 +83,14 @@ pub struct Args {
     /// d0 of the route comparison's MPM maps (the paper: 1e-8).
     #[arg(long, default_value_t = 1e-8)]
     pub routes_d0: f64,
+    /// Initial conditions of the map workload timed through the scalar C yardstick (each costs
+    /// it about 0.1 s per 1e7 orbit-steps; taken evenly across the grid).
+    #[arg(long, default_value_t = 8)]
+    pub scalar_c_points: usize,
+    /// Only the kernel cases beside their plain-loop yardsticks (for profiling); no expression
+    /// models and no map workload.
+    #[arg(long)]
+    pub kernel_only: bool,
     /// Kept for symmetry with other commands: the output is always JSON.
     #[arg(long)]
     pub json: bool,
@@ -106,6 +118,69 @@ fn cpu_seconds(clock: libc::clockid_t) -> f64 {
     ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
 }
 
+/// The start of a kernel case: `lanes` small bounded states (HH: well inside the energy
+/// surface), or for VM deviation vectors of size ~1e-8, and the VM reference orbit.
+fn case_start(dim: usize, lanes: usize, vm: bool) -> (Soa, Vec<f64>) {
+    let mut soa = Soa::new(dim, lanes);
+    let x: Vec<f64> = (0..dim).map(|r| 0.02 * (r as f64 + 1.0)).collect();
+    for l in 0..soa.lanes() {
+        for r in 0..dim {
+            let v = 0.05 * (((l * 31 + r * 17) % 13) as f64 / 13.0 - 0.5);
+            soa.set(r, l, if vm { 1e-8 * v } else { v });
+        }
+    }
+    (soa, x)
+}
+
+/// Runs `window` at least once and until `seconds` of this thread's CPU time have passed:
+/// (windows run, CPU seconds).
+fn time_windows(seconds: f64, mut window: impl FnMut()) -> (u64, f64) {
+    let start = thread_cpu_seconds();
+    let mut windows = 0u64;
+    while thread_cpu_seconds() - start < seconds || windows == 0 {
+        window();
+        windows += 1;
+    }
+    (windows, thread_cpu_seconds() - start)
+}
+
+/// Renormalization windows of tau = 1 (100 steps of h = 0.01), as in the paper's maps.
+const WINDOW: u64 = 100;
+
+/// What the batched kernel advances in a kernel case: the lanes, and for VM the reference orbit
+/// with its recorded stage positions.
+#[derive(Clone)]
+struct KernelState {
+    soa: Soa,
+    x: Vec<f64>,
+    stages: Vec<f64>,
+    force: Vec<f64>,
+}
+
+impl KernelState {
+    fn new(dof: usize, lanes: usize, vm: bool) -> Self {
+        let (soa, x) = case_start(2 * dof, lanes, vm);
+        Self {
+            soa,
+            x,
+            stages: Vec::new(),
+            force: vec![0.0; dof],
+        }
+    }
+
+    /// One window: MPM orbits, or the VM reference recorded and the tangent vectors advanced
+    /// around it.
+    fn window<M: LaneModel>(&mut self, isa: Isa, model: &M, coeffs: &StepCoeffs, vm: bool) {
+        if vm {
+            let (x, stages, force) = (&mut self.x, &mut self.stages, &mut self.force);
+            record_reference_stages(model, coeffs, x, WINDOW, stages, force);
+            batch::tangent_steps(isa, model, coeffs, stages, &mut self.soa, WINDOW);
+        } else {
+            batch::orbit_steps(isa, model, coeffs, &mut self.soa, WINDOW);
+        }
+    }
+}
+
 /// Orbit-steps per thread-CPU-second of `method` for `lanes` orbits / vectors.
 fn kernel_case<M: LaneModel>(
     isa: Isa,
@@ -114,36 +189,13 @@ fn kernel_case<M: LaneModel>(
     lanes: usize,
     seconds: f64,
 ) -> serde_json::Value {
-    let dim = 2 * model.dof();
+    let vm = method == "vm";
     let coeffs = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), 0.01);
-    // Renormalization windows of tau = 1 (100 steps), as in the paper's maps.
-    let window = 100u64;
-    let mut soa = Soa::new(dim, lanes);
-    // The VM reference orbit: a small bounded state.
-    let mut x: Vec<f64> = (0..dim).map(|r| 0.02 * (r as f64 + 1.0)).collect();
-    for l in 0..soa.lanes() {
-        for r in 0..dim {
-            // Small bounded states (HH: well inside the energy surface).
-            let v = 0.05 * (((l * 31 + r * 17) % 13) as f64 / 13.0 - 0.5);
-            soa.set(r, l, if method == "vm" { 1e-8 * v } else { v });
-        }
-    }
-    let (mut stages, mut force) = (Vec::new(), vec![0.0; model.dof()]);
-    let start = thread_cpu_seconds();
-    let mut windows = 0u64;
-    while thread_cpu_seconds() - start < seconds || windows == 0 {
-        if method == "vm" {
-            record_reference_stages(model, &coeffs, &mut x, window, &mut stages, &mut force);
-            batch::tangent_steps(isa, model, &coeffs, &stages, &mut soa, window);
-        } else {
-            batch::orbit_steps(isa, model, &coeffs, &mut soa, window);
-        }
-        windows += 1;
-    }
-    let cpu = thread_cpu_seconds() - start;
+    let mut state = KernelState::new(model.dof(), lanes, vm);
+    let (windows, cpu) = time_windows(seconds, || state.window(isa, model, &coeffs, vm));
     // VM counts the shared reference orbit as one more orbit-step per step.
-    let orbits = lanes + usize::from(method == "vm");
-    let orbit_steps = (orbits as u64 * window * windows) as f64;
+    let orbits = lanes + usize::from(vm);
+    let orbit_steps = (orbits as u64 * WINDOW * windows) as f64;
     serde_json::json!({
         "model": model_name(model.dof(), model.name()),
         "method": method,
@@ -151,6 +203,88 @@ fn kernel_case<M: LaneModel>(
         "orbit_steps": orbit_steps,
         "cpu_seconds": cpu,
         "orbit_steps_per_second_per_core": orbit_steps / cpu,
+    })
+}
+
+/// Rounds of (kernel, plain loop, plain FMA loop) in a kernel case: each variant runs a third
+/// of its time in each round, so a burst of foreign load on the shared machine hits all three.
+const YARDSTICK_ROUNDS: usize = 3;
+
+/// A kernel case beside its plain-loop yardsticks ([`plain_loop`]), measured interleaved in
+/// this run: every round restarts all three from the same state, so they integrate the same
+/// trajectories (the no-FMA loop bit for bit) and a VM vector never grows past its round.
+fn kernel_vs_plain<M: LaneModel>(
+    isa: Isa,
+    model: &M,
+    plain: PlainModel,
+    method: &str,
+    lanes: usize,
+    seconds: f64,
+) -> serde_json::Value {
+    let (dim, vm) = (2 * model.dof(), method == "vm");
+    let coeffs = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), 0.01);
+    let start = KernelState::new(model.dof(), lanes, vm);
+    let (soa0, x0) = (&start.soa, &start.x);
+    let lanes = soa0.lanes();
+    let mut flat = vec![0.0; dim * lanes];
+    for r in 0..dim {
+        for l in 0..lanes {
+            flat[r * lanes + l] = soa0.get(r, l);
+        }
+    }
+    let plain0 = PlainState::new(plain, lanes, flat, x0.clone());
+    let fused = plain_loop::has_fused(isa);
+    let share = seconds / YARDSTICK_ROUNDS as f64;
+    let (mut kernel, mut plain_t, mut fused_t) = ((0, 0.0), (0, 0.0), (0, 0.0));
+    let add = |acc: &mut (u64, f64), t: (u64, f64)| {
+        acc.0 += t.0;
+        acc.1 += t.1;
+    };
+    let mut finite = true;
+    for _ in 0..YARDSTICK_ROUNDS {
+        let mut state = start.clone();
+        add(
+            &mut kernel,
+            time_windows(share, || state.window(isa, model, &coeffs, vm)),
+        );
+        finite &= (0..lanes).all(|l| (0..dim).all(|r| state.soa.get(r, l).is_finite()));
+        let mut st = plain0.clone();
+        add(
+            &mut plain_t,
+            time_windows(share, || {
+                plain_loop::steps(isa, false, plain, vm, &coeffs, &mut st, WINDOW)
+            }),
+        );
+        if fused {
+            let mut st = plain0.clone();
+            add(
+                &mut fused_t,
+                time_windows(share, || {
+                    plain_loop::steps(isa, true, plain, vm, &coeffs, &mut st, WINDOW)
+                }),
+            );
+        }
+    }
+    // VM counts the shared reference orbit as one more orbit-step per step.
+    let orbits = (lanes + usize::from(vm)) as f64;
+    let rate = |(windows, cpu): (u64, f64)| orbits * (WINDOW * windows) as f64 / cpu;
+    let (k, p) = (rate(kernel), rate(plain_t));
+    let f = fused.then(|| rate(fused_t));
+    serde_json::json!({
+        "model": model_name(model.dof(), model.name()),
+        "method": method,
+        "lanes": lanes,
+        "orbit_steps": orbits * (WINDOW * kernel.0) as f64,
+        "cpu_seconds": kernel.1,
+        "orbit_steps_per_second_per_core": k,
+        "plain_loop_orbit_steps_per_second": p,
+        "plain_fma_loop_orbit_steps_per_second": f,
+        "kernel_over_plain_loop": k / p,
+        "kernel_over_plain_fma_loop": f.map(|f| k / f),
+        "plain_fma_loop_over_plain_loop": f.map(|f| f / p),
+        "target_kernel_over_plain_loop": 0.9,
+        "meets_target": k / p >= 0.9,
+        "states_finite": finite,
     })
 }
 
@@ -420,16 +554,31 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         println!("{}", serde_json::to_string_pretty(&report)?);
         return Ok(ExitCode::SUCCESS);
     }
-    let expression_models = expressions::compare(isa, s)?;
+    let expression_models = if args.kernel_only {
+        serde_json::Value::Null
+    } else {
+        expressions::compare(isa, s)?
+    };
     let mut kernel = Vec::new();
     for method in ["mpm", "vm"] {
-        kernel.push(kernel_case(isa, &HenonHeiles, method, 1024, s));
+        let hh = PlainModel::HenonHeiles;
+        kernel.push(kernel_vs_plain(isa, &HenonHeiles, hh, method, 1024, s));
         for (n, lanes) in [(5, 512), (101, 64), (501, 64)] {
             let m = FputBeta::new(n, 1.0).map_err(anyhow::Error::msg)?;
-            kernel.push(kernel_case(isa, &m, method, lanes, s));
+            let plain = PlainModel::Fput { n, beta: 1.0 };
+            kernel.push(kernel_vs_plain(isa, &m, plain, method, lanes, s));
         }
     }
 
+    if args.kernel_only {
+        let report = serde_json::json!({
+            "isa": isa.name(),
+            "cpu": expressions::cpu_model(),
+            "kernel": kernel,
+        });
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(ExitCode::SUCCESS);
+    }
     anyhow::ensure!(args.pairs >= 1, "--pairs must be at least 1");
     let propagator_routes = routes(isa, rx, ry, args.t_final, args.routes_d0)?;
     let spec = MapSpec::from_config(&paper_gali2_config(nx, ny, args.t_final))?;
@@ -459,6 +608,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let reduced = spec.grid_points() as f64;
     let cpu_hours = cpu1 * full_points / reduced / 3600.0;
     let paper_hours = 28.2;
+    let scalar_c = scalar_c_case(&spec, isa, args.scalar_c_points, cpu1 / integrated as f64);
     println!(
         "{}",
         serde_json::to_string_pretty(&serde_json::json!({
@@ -487,11 +637,86 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "paper_cpu_hours": paper_hours,
                 "target_cpu_hours": paper_hours / 10.0,
                 "meets_target": cpu_hours <= paper_hours / 10.0,
+                "scalar_c": scalar_c,
             },
             "propagator_routes": propagator_routes,
         }))?
     );
     Ok(ExitCode::SUCCESS)
+}
+
+/// The map workload per initial condition against the scalar C yardstick ([`scalar_c`]) on
+/// `count` integrated points of the grid, evenly spread; `map_cpu_per_point` is this run's
+/// one-thread CPU time per integrated point of the whole map. The same points also go through
+/// our map once more, so the JSON shows both programs' GALI_2 side by side (they agree where
+/// the orbit is regular; chaos amplifies rounding differences elsewhere).
+fn scalar_c_case(
+    spec: &MapSpec,
+    isa: Isa,
+    count: usize,
+    map_cpu_per_point: f64,
+) -> serde_json::Value {
+    let valid: Vec<u64> = (0..spec.grid_points())
+        .filter(|&i| spec.initial_state(i).is_ok())
+        .collect();
+    if count == 0 || valid.is_empty() {
+        return serde_json::json!({ "unavailable": "no initial condition asked for or on the grid" });
+    }
+    let chosen: Vec<u64> = (0..count.min(valid.len()))
+        .map(|j| valid[j * valid.len() / count.min(valid.len())])
+        .collect();
+    let states: Vec<Vec<f64>> = chosen
+        .iter()
+        .filter_map(|&i| spec.initial_state(i).ok())
+        .collect();
+    let coeffs = &spec.batched.as_ref().expect("HH maps run batched").coeffs;
+    let builds = match scalar_c::measure(spec, coeffs, &states) {
+        Ok(b) => b,
+        Err(e) => return serde_json::json!({ "unavailable": format!("{e:#}") }),
+    };
+    let mut ours = vec![f64::NAN; chosen.len()];
+    let options = MapOptions {
+        threads: Some(1),
+        isa,
+        ..MapOptions::default()
+    };
+    let _ = run_map(spec, &chosen, &options, |r| {
+        if let Some(j) = chosen.iter().position(|&i| i == r.index) {
+            ours[j] = r.mean_log10;
+        }
+        true
+    });
+    let run = &spec.run;
+    // The pseudo-code integrates the reference again beside every set's k nearby orbits.
+    let steps_per_point = (run.sets() * (1 + run.k)) as f64 * run.total_steps as f64;
+    let mut out = serde_json::json!({
+        "program": "the paper's Appendix A pseudo-code, HH, k = 2, reference integrated once per set",
+        "compiler": scalar_c::compiler(),
+        "flags": "-O3 -march=native",
+        "points": chosen.len(),
+        "orbit_steps_per_point": steps_per_point,
+        "map_cpu_seconds_per_point": map_cpu_per_point,
+        "chaoscope_mean_log10_gali2": ours,
+        "target_per_initial_condition_speedup": 6.0,
+    });
+    for (name, flag, t) in builds {
+        let per_point = t.cpu_seconds / chosen.len() as f64;
+        out[name] = serde_json::json!({
+            "flag": flag,
+            "cpu_seconds": t.cpu_seconds,
+            "cpu_seconds_per_point": per_point,
+            "orbit_steps_per_cpu_second": steps_per_point / per_point,
+            "mean_log10_gali2": t.mean_log10_gali2,
+        });
+        if name == "no_contraction" {
+            out["per_initial_condition_speedup_over_scalar_c"] =
+                (per_point / map_cpu_per_point).into();
+        } else {
+            out["per_initial_condition_speedup_over_scalar_c_with_contraction"] =
+                (per_point / map_cpu_per_point).into();
+        }
+    }
+    out
 }
 
 /// The values in increasing order.

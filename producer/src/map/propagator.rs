@@ -16,14 +16,14 @@
 //! [`PointAccumulator`], so a point's numbers mean what they mean on the per-set route.
 
 use super::indicator::{PointAccumulator, broke_off, failed};
+use super::kernel::PointKernel;
 use super::point::{PointResult, PointStatus};
 use super::spec::MapSpec;
 use super::window::{Window, Windows, check_escape};
-use crate::batch::{self, Isa, LaneModel, Soa, record_reference_stages};
+use crate::batch::{Isa, Soa};
 use crate::engine::RunError;
 use crate::propagator::{Propagator, SetImage};
 use crate::spec::RunSpec;
-use crate::with_lane_model;
 
 /// The sets of one point as the propagator gives them.
 struct Sets {
@@ -96,23 +96,22 @@ pub fn compute_vm(
     index: u64,
     stop: &dyn Fn() -> bool,
 ) -> Option<PointResult> {
-    let batched = spec
-        .batched
-        .as_ref()
-        .expect("the propagator route runs Hamiltonian maps");
-    with_lane_model!(&batched.lanes, |m| vm_with(m, spec, isa, index, stop))
+    crate::with_point_kernel!(
+        spec,
+        isa,
+        |k| vm_with(k, spec, index, stop),
+        unreachable!("validation keeps the propagator route to systems with a batched kernel")
+    )
 }
 
-fn vm_with<M: LaneModel>(
-    model: &M,
+fn vm_with<K: PointKernel>(
+    kernel: &mut K,
     spec: &MapSpec,
-    isa: Isa,
     index: u64,
     stop: &dyn Fn() -> bool,
 ) -> Option<PointResult> {
     let run = &spec.run;
     let dim = run.dim;
-    let coeffs = &spec.batched.as_ref().expect("checked in compute_vm").coeffs;
     let base = spec.base_result(index);
     let mut x = match spec.initial_state(index) {
         Ok(x0) => x0,
@@ -127,7 +126,6 @@ fn vm_with<M: LaneModel>(
     let mut soa = Soa::new(dim, dim);
     let mut evolved = vec![0.0; dim * dim];
     let mut sets = Sets::new(run);
-    let (mut stages, mut force) = (Vec::new(), vec![0.0; model.dof()]);
     let mut orbit_steps = 0;
     for w in Windows::new(run) {
         if stop() {
@@ -137,8 +135,10 @@ fn vm_with<M: LaneModel>(
             soa.write_lane(j, q);
         }
         orbit_steps += w.steps * (1 + dim as u64);
-        record_reference_stages(model, coeffs, &mut x, w.steps, &mut stages, &mut force);
-        batch::tangent_steps(isa, model, coeffs, &stages, &mut soa, w.steps);
+        kernel.reference_steps(&mut x, w.steps);
+        if let Err(e) = kernel.tangent_steps(&mut soa, w.steps) {
+            return Some(broke_off(base, w.t, &e, orbit_steps));
+        }
         if let Err(e) = check_escape(&x, w.t) {
             return Some(broke_off(base, w.t, &e, orbit_steps));
         }
@@ -178,27 +178,22 @@ pub fn compute_mpm(
     indices: &[u64],
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
-    let batched = spec
-        .batched
-        .as_ref()
-        .expect("the propagator route runs Hamiltonian maps");
-    with_lane_model!(&batched.lanes, |m| mpm_with(m, spec, isa, indices, stop))
+    crate::with_point_kernel!(
+        spec,
+        isa,
+        |k| mpm_with(k, spec, indices, stop),
+        unreachable!("validation keeps the propagator route to systems with a batched kernel")
+    )
 }
 
-fn mpm_with<M: LaneModel>(
-    model: &M,
+fn mpm_with<K: PointKernel>(
+    kernel: &mut K,
     spec: &MapSpec,
-    isa: Isa,
     indices: &[u64],
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
     let run = &spec.run;
     let (dim, d0) = (run.dim, run.schemes[0].d0);
-    let coeffs = &spec
-        .batched
-        .as_ref()
-        .expect("checked in compute_mpm")
-        .coeffs;
     let mut out = Vec::with_capacity(indices.len());
     let mut live = Vec::new();
     let mut lanes: Vec<Vec<f64>> = Vec::new();
@@ -236,7 +231,7 @@ fn mpm_with<M: LaneModel>(
             break;
         }
         let Some(w) = windows.next() else { break };
-        batch::orbit_steps(isa, model, coeffs, &mut soa, w.steps);
+        kernel.orbit_steps(&mut soa, w.steps);
         let before = live.len();
         let mut keep = Vec::with_capacity(before);
         for mut p in live.drain(..) {
@@ -248,9 +243,7 @@ fn mpm_with<M: LaneModel>(
             }
             for (j, d) in separations.chunks_exact_mut(dim).enumerate() {
                 soa.read_lane(p.lane + 1 + j, &mut y);
-                for ((d, a), b) in d.iter_mut().zip(&y).zip(&x) {
-                    *d = a - b;
-                }
+                kernel.separation(&y, &x, d);
             }
             if let Err(e) = p.prop.renormalize(&separations, d0) {
                 out.push(broke_off(

@@ -57,7 +57,7 @@ pub fn run_map(
     let pool = builder.build()?;
     let per_batch = match spec.run.schemes[0].method {
         // Systems without a batched kernel: one point at a time through the one-orbit engine.
-        _ if spec.batched.is_none() => 1,
+        _ if !spec.has_batched_kernel() => 1,
         // Each point has 1 + 2N lanes instead of 1 + sets * k: more points fill the kernel's
         // chunks as well.
         Method::Mpm if spec.route == Route::Propagator => {
@@ -81,11 +81,6 @@ pub fn run_map(
                         return;
                     }
                     let results = match spec.run.schemes[0].method {
-                        _ if spec.batched.is_none() => chunk
-                            .iter()
-                            .take_while(|_| !stopped())
-                            .map(|&i| super::one_orbit::point(spec, i))
-                            .collect(),
                         Method::Mpm if spec.route == Route::Propagator => {
                             propagator::compute_mpm(spec, options.isa, chunk, &stopped)
                         }

@@ -157,8 +157,9 @@ pub struct Batched {
 pub struct MapSpec {
     /// The run shared by every point; its `x0` is the base state the grid coordinates overwrite.
     pub run: RunSpec,
-    /// The batched kernel, for separable Hamiltonians; `None` for other systems, whose points
-    /// run through the one-orbit engine ([`super::one_orbit`]).
+    /// The batched splitting kernel, for separable Hamiltonians; `None` for other systems
+    /// (discrete maps have their own batched form, [`super::kernel::MapKernel`]; the rest run
+    /// through the one-orbit engine, [`super::one_orbit`]).
     pub batched: Option<Batched>,
     pub x: Axis,
     pub y: Axis,
@@ -225,11 +226,11 @@ impl MapSpec {
             }
         };
         if route == Route::Propagator {
-            if hamiltonian.is_none() {
+            if hamiltonian.is_none() && run.system.as_discrete_map().is_none() {
                 return Err(SpecError::new(
                     "map.route",
-                    "the propagator route runs on the batched kernel of separable Hamiltonians; \
-                     use \"per-set\"",
+                    "the propagator route runs on the batched kernel (separable Hamiltonians and \
+                     discrete maps); use \"per-set\"",
                 ));
             }
             let d0 = run.schemes[0].d0;
@@ -310,6 +311,12 @@ impl MapSpec {
             run,
             config_toml,
         })
+    }
+
+    /// Whether the points run on the batched kernel ([`super::kernel`]): separable
+    /// Hamiltonians and discrete maps; every other system runs through the one-orbit engine.
+    pub fn has_batched_kernel(&self) -> bool {
+        self.batched.is_some() || self.run.system.as_discrete_map().is_some()
     }
 
     pub fn grid_points(&self) -> u64 {

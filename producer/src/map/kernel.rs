@@ -7,17 +7,23 @@
 //!   kernel ([`crate::batch::orbit_steps`] / [`crate::batch::tangent_steps`]).
 //! - [`MapKernel`]: a discrete map's compiled lane functions ([`crate::batch::map_orbit_steps`]
 //!   / [`crate::batch::map_tangent_steps`]); separations on the torus for wrapped coordinates.
+//! - [`FlowKernel`]: a flow's compiled right-hand side (an `ode`'s `rhs`, or the vector field of
+//!   a `hamiltonian`) stepped by a fixed-step explicit Runge-Kutta method
+//!   ([`crate::batch::flow_orbit_steps`] / [`crate::batch::flow_tangent_steps`]).
 //!
 //! Both are lane by lane the bits of the one-orbit system's `step` / `step_tangent`, so `mpm.rs`
 //! and `vm.rs` compute one point the same way for either and the batched map equals the engine
-//! (`producer/tests/map_batch.rs`, `producer/tests/discrete_maps.rs`). Systems without a
-//! batched form (flows, non-separable Hamiltonians) run their points through the engine
-//! ([`super::one_orbit`]).
+//! (`producer/tests/map_batch.rs`). Systems without a batched form (adaptive or implicit
+//! Runge-Kutta steps, whose substeps or stage iterations differ per orbit, and hand-written
+//! vector fields) run their points through the engine ([`super::one_orbit`]).
 
-use crate::batch::{self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages};
+use chaoscope_expr::VectorFunction;
+
+use crate::batch::{self, FlowScratch, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages};
 use crate::engine::RunError;
 use crate::integrator::TangentError;
-use crate::system::{DynamicalSystem, Map};
+use crate::integrator::runge_kutta::Tableau;
+use crate::system::{DynamicalSystem, Map, RkFlow};
 
 /// A system's batched steps, as the map's MPM and VM kernels use them.
 pub trait PointKernel {
@@ -136,6 +142,83 @@ impl PointKernel for MapKernel<'_> {
     }
 }
 
+/// A flow with a fixed-step explicit Runge-Kutta method and a compiled right-hand side.
+pub struct FlowKernel<'a> {
+    tableau: &'static Tableau,
+    f: &'a VectorFunction,
+    h: f64,
+    /// Stage states of every step of the last reference steps.
+    stages: Vec<f64>,
+    scratch: FlowScratch,
+}
+
+impl<'a> FlowKernel<'a> {
+    /// `None` when the flow has no batched form: adaptive steps (every orbit would choose its
+    /// own substeps), implicit methods (per-orbit stage iterations), a hand-written field.
+    pub fn new(flow: &'a RkFlow) -> Option<Self> {
+        if flow.tolerances.is_some() {
+            return None;
+        }
+        Some(Self {
+            tableau: flow.method.kind.tableau()?,
+            f: flow.field.compiled()?,
+            h: flow.h,
+            stages: Vec::new(),
+            scratch: FlowScratch::default(),
+        })
+    }
+}
+
+impl PointKernel for FlowKernel<'_> {
+    fn orbit_steps(&mut self, x: &mut Soa, steps: u64) {
+        batch::flow_orbit_steps(self.tableau, self.f, self.h, x, steps, &mut self.scratch);
+    }
+
+    fn reference_steps(&mut self, x: &mut [f64], steps: u64) {
+        batch::record_flow_reference(
+            self.tableau,
+            self.f,
+            self.h,
+            x,
+            steps,
+            &mut self.stages,
+            &mut self.scratch,
+        );
+    }
+
+    fn tangent_steps(&mut self, v: &mut Soa, steps: u64) -> Result<(), RunError> {
+        if batch::flow_tangent_steps(
+            self.tableau,
+            self.f,
+            self.h,
+            &self.stages,
+            v,
+            steps,
+            &mut self.scratch,
+        ) {
+            Ok(())
+        } else {
+            Err(RunError::Tangent(TangentError::NoHessian(
+                self.f
+                    .no_tangent_reason()
+                    .unwrap_or_else(|| "the right-hand side's Jacobian".into()),
+            )))
+        }
+    }
+
+    #[inline]
+    fn separation(&self, y: &[f64], x: &[f64], out: &mut [f64]) {
+        for ((o, a), b) in out.iter_mut().zip(y).zip(x) {
+            *o = a - b;
+        }
+    }
+}
+
+/// Whether the system of `run` has a batched form here (see the module's list).
+pub fn has_batched_form(system: &dyn DynamicalSystem) -> bool {
+    system.as_discrete_map().is_some() || system.as_rk_flow().and_then(FlowKernel::new).is_some()
+}
+
 /// Runs `$body` with `$k` bound to the point kernel of `$spec`'s system on `$isa`, or evaluates
 /// `$none` when the system has no batched form.
 #[macro_export]
@@ -151,6 +234,14 @@ macro_rules! with_point_kernel {
             })
         } else if let Some(map) = spec.run.system.as_discrete_map() {
             let mut kernel = $crate::map::kernel::MapKernel::new(map);
+            let $k = &mut kernel;
+            $body
+        } else if let Some(mut kernel) = spec
+            .run
+            .system
+            .as_rk_flow()
+            .and_then($crate::map::kernel::FlowKernel::new)
+        {
             let $k = &mut kernel;
             $body
         } else {

@@ -6,6 +6,7 @@ use super::indicator::Indicator;
 use crate::batch::{AnyLaneModel, StepCoeffs};
 use crate::renormalization::Orthonormalization;
 use crate::spec::{RunSpec, SpecError, parse_coordinate, solve_momentum, state_coordinate};
+use crate::system::SystemKind;
 
 /// One grid axis.
 #[derive(Debug, Clone, PartialEq)]
@@ -158,8 +159,8 @@ pub struct MapSpec {
     /// The run shared by every point; its `x0` is the base state the grid coordinates overwrite.
     pub run: RunSpec,
     /// The batched splitting kernel, for separable Hamiltonians; `None` for other systems
-    /// (discrete maps have their own batched form, [`super::kernel::MapKernel`]; the rest run
-    /// through the one-orbit engine, [`super::one_orbit`]).
+    /// (discrete maps and fixed-step explicit flows have their own batched forms,
+    /// [`super::kernel`]; the rest run through the one-orbit engine, [`super::one_orbit`]).
     pub batched: Option<Batched>,
     pub x: Axis,
     pub y: Axis,
@@ -226,11 +227,11 @@ impl MapSpec {
             }
         };
         if route == Route::Propagator {
-            if hamiltonian.is_none() && run.system.as_discrete_map().is_none() {
+            if hamiltonian.is_none() && !super::kernel::has_batched_form(run.system.as_ref()) {
                 return Err(SpecError::new(
                     "map.route",
-                    "the propagator route runs on the batched kernel (separable Hamiltonians and \
-                     discrete maps); use \"per-set\"",
+                    "the propagator route runs on the batched kernel (separable Hamiltonians, \
+                     discrete maps, fixed-step explicit Runge-Kutta flows); use \"per-set\"",
                 ));
             }
             let d0 = run.schemes[0].d0;
@@ -245,8 +246,10 @@ impl MapSpec {
                 ));
             }
         }
-        let x = Axis::from_config("map.x", &map.x, run.dim, hamiltonian.is_some())?;
-        let y = Axis::from_config("map.y", &map.y, run.dim, hamiltonian.is_some())?;
+        // Any Hamiltonian (separable or written as `H(q, p)`) names its axes q1..qN / p1..pN.
+        let canonical = run.system.kind() == SystemKind::Hamiltonian;
+        let x = Axis::from_config("map.x", &map.x, run.dim, canonical)?;
+        let y = Axis::from_config("map.y", &map.y, run.dim, canonical)?;
         if x.slot == y.slot {
             return Err(SpecError::new(
                 "map.y.coord",
@@ -314,9 +317,10 @@ impl MapSpec {
     }
 
     /// Whether the points run on the batched kernel ([`super::kernel`]): separable
-    /// Hamiltonians and discrete maps; every other system runs through the one-orbit engine.
+    /// Hamiltonians, discrete maps and fixed-step explicit Runge-Kutta flows of compiled
+    /// expressions; every other system runs through the one-orbit engine.
     pub fn has_batched_kernel(&self) -> bool {
-        self.batched.is_some() || self.run.system.as_discrete_map().is_some()
+        self.batched.is_some() || super::kernel::has_batched_form(self.run.system.as_ref())
     }
 
     pub fn grid_points(&self) -> u64 {

@@ -155,6 +155,13 @@ pub trait DynamicalSystem: Send + Sync {
         None
     }
 
+    /// The Runge-Kutta flow behind this system, for the batched kernel of phase-space maps
+    /// (`crate::map::kernel::FlowKernel`, fixed-step explicit methods); `None` for every other
+    /// kind.
+    fn as_rk_flow(&self) -> Option<&RkFlow> {
+        None
+    }
+
     /// The separation `out = y - x` of a nearby state `y` from the reference `x`, as the
     /// multi-particle method measures it: the plain difference, except on a system with
     /// periodic coordinates (a map's angles), whose separations are taken on the torus.

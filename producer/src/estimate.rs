@@ -149,11 +149,14 @@ fn run_estimate(
     // and stretches), and the frames in flight in shared memory (a recorder's buffer and the
     // monitors' bounded share).
     let frame = kf * dimf + kf;
+    // A bus frame gathers records up to a target size (small systems) or holds one.
+    let bus_frame =
+        bus::max_frame_words(k * dim + k + chaoscope_schemas::frame::RECORD_HEADER_WORDS) as f64;
     let tasks = schemes as f64 * setsf;
     let values = setsf * kf * dimf
         + tasks * (kf + 1.0) * dimf
         + 2.0 * tasks * frame
-        + (bus::DATA_BUFFER as f64 + 2.0) * frame;
+        + (bus::DATA_BUFFER as f64 + 2.0) * bus_frame;
     let bytes = 8.0 * values + bus::MONITOR_MEMORY as f64;
     // The frames in flight depend on k and 2N alone; the rest grows with the sets.
     let memory_key = if bus::DATA_BUFFER as f64 * frame > setsf * (schemes as f64 + 1.0) * frame {

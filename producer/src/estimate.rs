@@ -180,12 +180,16 @@ fn run_estimate(
 }
 
 /// Estimate of a validated map: `points` grid points (the shard's share), each the reference
-/// orbit and every set's `k` vectors to the horizon (an upper bound for points that stop early:
+/// orbit and every set's `k` vectors (the propagator route: `dim` basis vectors) to the horizon (an upper bound for points that stop early:
 /// outside the energy surface, escaped, or `gali-time` below its threshold).
 pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
     let run = &spec.run;
     let (dimf, setsf) = (run.dim as f64, run.sets() as f64);
-    let per_point = 1.0 + setsf * run.k as f64;
+    let per_point = match spec.route {
+        crate::map::Route::PerSet => 1.0 + setsf * run.k as f64,
+        // One basis of dim tangent vectors or nearby orbits per point.
+        crate::map::Route::Propagator => 1.0 + dimf,
+    };
     let steps = run.total_steps as f64;
     let pointsf = points as f64;
     let orbit_steps = pointsf * per_point * steps;

@@ -8,6 +8,7 @@
 //! - [`kernel`]: what the batched methods need from a system (`PointKernel`): a separable
 //!   Hamiltonian's splitting or a discrete map's compiled lane functions.
 //! - [`mpm`], [`vm`]: the batched computation of points over a [`kernel::PointKernel`].
+//! - [`propagator`]: `route = "propagator"`: every set from one evolved basis per point.
 //! - [`one_orbit`]: the same point computed by the one-orbit [`crate::engine::Engine`]; the
 //!   batched path must agree with it bit for bit (tests).
 //! - [`schedule`]: rayon across points, results streamed to a sink as they complete.
@@ -21,6 +22,7 @@ pub mod kernel;
 pub mod mpm;
 pub mod one_orbit;
 pub mod point;
+pub mod propagator;
 pub mod record;
 pub mod schedule;
 pub mod spec;
@@ -30,4 +32,4 @@ mod window;
 pub use indicator::Indicator;
 pub use point::{PointResult, PointStatus};
 pub use schedule::{MapOptions, run_map};
-pub use spec::{MapSpec, Shard};
+pub use spec::{MapSpec, Route, Shard};

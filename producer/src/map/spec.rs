@@ -121,6 +121,31 @@ impl std::fmt::Display for Shard {
     }
 }
 
+/// How a map evolves its deviation sets (`[map] route`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Route {
+    /// Every set's own `k` tangent vectors or nearby orbits (the reference).
+    PerSet,
+    /// One basis of `2N` tangent vectors (VM) or nearby orbits (MPM) per point, every set's
+    /// vectors formed from it ([`super::propagator`]).
+    Propagator,
+}
+
+impl Route {
+    pub fn name(self) -> &'static str {
+        match self {
+            Route::PerSet => "per-set",
+            Route::Propagator => "propagator",
+        }
+    }
+}
+
+/// The `d0` range of the MPM propagator route: there its maps agree with per-set MPM within the
+/// per-set MPM-VM distance (`chaoscope bench --routes`, examples/paper/RESULTS.md). Outside it
+/// the finite-difference basis carries the nonlinear terms (large `d0`) or the rounding of
+/// `x + d0 q` (small `d0`) into every set at once.
+pub const MPM_PROPAGATOR_D0: (f64, f64) = (1e-10, 1e-6);
+
 /// The batched splitting kernel's view of a separable Hamiltonian.
 #[derive(Clone)]
 pub struct Batched {
@@ -140,6 +165,7 @@ pub struct MapSpec {
     pub x: Axis,
     pub y: Axis,
     pub indicator: Indicator,
+    pub route: Route,
     /// Momentum index solved from `energy` per point, if any.
     pub solve_for: Option<usize>,
     pub energy: Option<f64>,
@@ -190,6 +216,36 @@ impl MapSpec {
             ));
         }
         let indicator = Indicator::from_config(map, k)?;
+        let route = match map.route.as_deref() {
+            None | Some("per-set") => Route::PerSet,
+            Some("propagator") => Route::Propagator,
+            Some(other) => {
+                return Err(SpecError::new(
+                    "map.route",
+                    format!("'{other}' is not per-set or propagator"),
+                ));
+            }
+        };
+        if route == Route::Propagator {
+            if hamiltonian.is_none() && !super::kernel::has_batched_form(run.system.as_ref()) {
+                return Err(SpecError::new(
+                    "map.route",
+                    "the propagator route runs on the batched kernel (separable Hamiltonians, \
+                     discrete maps, fixed-step explicit Runge-Kutta flows); use \"per-set\"",
+                ));
+            }
+            let d0 = run.schemes[0].d0;
+            let (lo, hi) = MPM_PROPAGATOR_D0;
+            if run.schemes[0].method == crate::spec::Method::Mpm && !(lo..=hi).contains(&d0) {
+                return Err(SpecError::new(
+                    "map.route",
+                    format!(
+                        "the MPM propagator route is valid for {lo:e} <= d0 <= {hi:e} \
+                         (scheme d0 = {d0:e}); use \"per-set\""
+                    ),
+                ));
+            }
+        }
         // Any Hamiltonian (separable or written as `H(q, p)`) names its axes q1..qN / p1..pN.
         let canonical = run.system.kind() == SystemKind::Hamiltonian;
         let x = Axis::from_config("map.x", &map.x, run.dim, canonical)?;
@@ -252,6 +308,7 @@ impl MapSpec {
             x,
             y,
             indicator,
+            route,
             solve_for,
             energy: cfg.orbit.energy,
             run,

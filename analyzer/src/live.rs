@@ -53,7 +53,7 @@ pub struct LiveRun {
     run: String,
     /// The ports live as long as their node.
     _node: Node<ipc::Service>,
-    monitor: Subscriber<ipc::Service, [f64], FrameHeader>,
+    monitor: Subscriber<ipc::Service, [u64], FrameHeader>,
     _header: HeaderSubscriber,
     listener: Listener<ipc::Service>,
     _services: (DataService, HeaderService, EventService),
@@ -142,6 +142,7 @@ impl LiveRun {
 
     /// Takes everything buffered now; returns whether `f` asked to stop.
     fn drain(&self, f: &mut impl FnMut(LiveEvent) -> ControlFlow<()>) -> Result<bool, BusError> {
+        let mut messages = Vec::new();
         loop {
             let Some(sample) = self
                 .monitor
@@ -151,22 +152,31 @@ impl LiveRun {
                 return Ok(false);
             };
             let h = *sample.user_header();
+            // Frames and their counts come from another process: saturating arithmetic.
             let expected = self.next_frame.get().unwrap_or(0);
             if h.frame_seq > expected {
-                self.frames_lost
-                    .set(self.frames_lost.get() + h.frame_seq - expected);
+                self.frames_lost.set(
+                    self.frames_lost
+                        .get()
+                        .saturating_add(h.frame_seq - expected),
+                );
             }
-            self.next_frame.set(Some(h.frame_seq + 1));
-            self.frames_received.set(self.frames_received.get() + 1);
-            let decoded = convert::decode_frame(&h, sample.payload());
+            self.next_frame
+                .set(Some(h.frame_seq.saturating_add(h.records)));
+            let decoded = convert::decode_frame(&h, sample.payload(), &mut messages);
             drop(sample);
-            // A frame that breaks the layout counts as lost.
-            let Ok(m) = decoded else {
-                self.frames_lost.set(self.frames_lost.get() + 1);
+            // A frame that breaks the layout counts as lost, all its records.
+            if decoded.is_err() {
+                self.frames_lost
+                    .set(self.frames_lost.get().saturating_add(h.records));
                 continue;
-            };
-            if f(LiveEvent::Message(m)).is_break() {
-                return Ok(true);
+            }
+            self.frames_received
+                .set(self.frames_received.get() + messages.len() as u64);
+            for m in messages.drain(..) {
+                if f(LiveEvent::Message(m)).is_break() {
+                    return Ok(true);
+                }
             }
         }
     }

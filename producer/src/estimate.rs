@@ -149,11 +149,14 @@ fn run_estimate(
     // and stretches), and the frames in flight in shared memory (a recorder's buffer and the
     // monitors' bounded share).
     let frame = kf * dimf + kf;
+    // A bus frame gathers records up to a target size (small systems) or holds one.
+    let bus_frame =
+        bus::max_frame_words(k * dim + k + chaoscope_schemas::frame::RECORD_HEADER_WORDS) as f64;
     let tasks = schemes as f64 * setsf;
     let values = setsf * kf * dimf
         + tasks * (kf + 1.0) * dimf
         + 2.0 * tasks * frame
-        + (bus::DATA_BUFFER as f64 + 2.0) * frame;
+        + (bus::DATA_BUFFER as f64 + 2.0) * bus_frame;
     let bytes = 8.0 * values + bus::MONITOR_MEMORY as f64;
     // The frames in flight depend on k and 2N alone; the rest grows with the sets.
     let memory_key = if bus::DATA_BUFFER as f64 * frame > setsf * (schemes as f64 + 1.0) * frame {
@@ -177,12 +180,16 @@ fn run_estimate(
 }
 
 /// Estimate of a validated map: `points` grid points (the shard's share), each the reference
-/// orbit and every set's `k` vectors to the horizon (an upper bound for points that stop early:
+/// orbit and every set's `k` vectors (the propagator route: `dim` basis vectors) to the horizon (an upper bound for points that stop early:
 /// outside the energy surface, escaped, or `gali-time` below its threshold).
 pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
     let run = &spec.run;
     let (dimf, setsf) = (run.dim as f64, run.sets() as f64);
-    let per_point = 1.0 + setsf * run.k as f64;
+    let per_point = match spec.route {
+        crate::map::Route::PerSet => 1.0 + setsf * run.k as f64,
+        // One basis of dim tangent vectors or nearby orbits per point.
+        crate::map::Route::Propagator => 1.0 + dimf,
+    };
     let steps = run.total_steps as f64;
     let pointsf = points as f64;
     let orbit_steps = pointsf * per_point * steps;

@@ -58,7 +58,7 @@ pub enum SubscribeError {
 pub struct RunSubscription {
     run: String,
     node: Node<ipc::Service>,
-    data: Subscriber<ipc::Service, [f64], FrameHeader>,
+    data: Subscriber<ipc::Service, [u64], FrameHeader>,
     header: HeaderSubscriber,
     listener: Listener<ipc::Service>,
     ready_service: EventService,
@@ -172,6 +172,7 @@ impl RunSubscription {
         f: &mut impl FnMut(BusEvent) -> ControlFlow<()>,
     ) -> Result<(usize, bool), BusError> {
         let mut count = 0;
+        let mut messages = Vec::new();
         while count < bus::DATA_BUFFER {
             let Some(sample) = self
                 .data
@@ -181,14 +182,19 @@ impl RunSubscription {
                 break;
             };
             count += 1;
-            let event = match convert::decode_frame(sample.user_header(), sample.payload()) {
-                Ok(m) => BusEvent::Message(m),
-                Err(e) => BusEvent::Invalid(e),
-            };
+            let decoded =
+                convert::decode_frame(sample.user_header(), sample.payload(), &mut messages);
             // Release the shared-memory sample before the (possibly slow) callback.
             drop(sample);
-            if f(event).is_break() {
+            if let Err(e) = decoded
+                && f(BusEvent::Invalid(e)).is_break()
+            {
                 return Ok((count, true));
+            }
+            for m in messages.drain(..) {
+                if f(BusEvent::Message(m)).is_break() {
+                    return Ok((count, true));
+                }
             }
         }
         Ok((count, false))

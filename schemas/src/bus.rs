@@ -41,6 +41,15 @@ mod stale;
 
 /// Frames a data subscriber can hold before the producer waits.
 pub const DATA_BUFFER: usize = 64;
+/// Payload words up to which a producer gathers records into one frame (8 KiB: a few dozen
+/// samples of a small system, so the per-frame cost is shared by many; a record longer than
+/// this travels in a frame of its own).
+pub const FRAME_TARGET_WORDS: usize = 1024;
+
+/// Longest frame payload of a run whose longest record has `longest_record` words.
+pub fn max_frame_words(longest_record: usize) -> usize {
+    longest_record.max(FRAME_TARGET_WORDS)
+}
 /// Fewest frames a monitor subscriber holds (older ones are overwritten); the producer sizes
 /// the monitor service for whole samples with [`monitor_buffer_for`].
 pub const MONITOR_BUFFER: usize = 8;
@@ -51,12 +60,12 @@ pub const MONITOR_MEMORY: usize = 64 << 20;
 /// system, so a monitor descheduled for a moment on a busy machine still loses nothing.
 pub const MONITOR_TARGET_FRAMES: usize = 4096;
 
-/// Monitor buffer for a run whose samples have `frames_per_sample` frames of at most
-/// `max_payload` f64 values: at least two whole samples (the producer publishes a sample in one
+/// Monitor buffer for a run whose samples take at most `frames_per_sample` frames of at most
+/// `max_payload` words: at least two whole samples (the producer publishes a sample in one
 /// burst) and [`MONITOR_TARGET_FRAMES`], bounded by [`MONITOR_MEMORY`] (large systems then
 /// lose frames when a monitor falls behind, which monitors detect and report).
 pub fn monitor_buffer_for(frames_per_sample: usize, max_payload: usize) -> usize {
-    let frame_bytes = max_payload.max(1) * size_of::<f64>() + size_of::<FrameHeader>();
+    let frame_bytes = max_payload.max(1) * size_of::<u64>() + size_of::<FrameHeader>();
     let cap = MONITOR_MEMORY / (frame_bytes * MAX_MONITORS);
     (2 * frames_per_sample)
         .max(MONITOR_TARGET_FRAMES)
@@ -70,7 +79,7 @@ pub const MAX_MONITORS: usize = 8;
 /// Period at which waiting loops re-check liveness and signals.
 pub const POLL_INTERVAL: Duration = Duration::from_millis(50);
 
-pub type DataService = publish_subscribe::PortFactory<ipc::Service, [f64], FrameHeader>;
+pub type DataService = publish_subscribe::PortFactory<ipc::Service, [u64], FrameHeader>;
 pub type HeaderService = publish_subscribe::PortFactory<ipc::Service, [u8], RunAnnouncement>;
 pub type EventService = event::PortFactory<ipc::Service>;
 pub type MapService = publish_subscribe::PortFactory<ipc::Service, [u8], MapFrameHeader>;
@@ -465,7 +474,7 @@ fn event_open_hangs(e: &EventOpenError) -> bool {
     matches!(e, EventOpenError::HangsInCreation)
 }
 
-type DataBuilder = PubSubBuilder<[f64], FrameHeader, ipc::Service>;
+type DataBuilder = PubSubBuilder<[u64], FrameHeader, ipc::Service>;
 type HeaderBuilder = PubSubBuilder<[u8], RunAnnouncement, ipc::Service>;
 type MapBuilder = PubSubBuilder<[u8], MapFrameHeader, ipc::Service>;
 
@@ -474,7 +483,7 @@ type MapBuilder = PubSubBuilder<[u8], MapFrameHeader, ipc::Service>;
 
 fn data_builder(node: &Node<ipc::Service>, name: &ServiceName) -> DataBuilder {
     node.service_builder(name)
-        .publish_subscribe::<[f64]>()
+        .publish_subscribe::<[u64]>()
         .user_header::<FrameHeader>()
         .enable_safe_overflow(false)
         .history_size(0)
@@ -485,7 +494,7 @@ fn data_builder(node: &Node<ipc::Service>, name: &ServiceName) -> DataBuilder {
 
 fn monitor_builder(node: &Node<ipc::Service>, name: &ServiceName, buffer: usize) -> DataBuilder {
     node.service_builder(name)
-        .publish_subscribe::<[f64]>()
+        .publish_subscribe::<[u64]>()
         .user_header::<FrameHeader>()
         .enable_safe_overflow(true)
         .history_size(1)
@@ -768,10 +777,14 @@ mod tests {
 
     #[test]
     fn monitor_buffer_holds_whole_samples_within_the_memory_bound() {
-        // Henon-Heiles, k = 4: small frames, the target applies.
+        // Small frames: the target applies.
         assert_eq!(monitor_buffer_for(13, 20), MONITOR_TARGET_FRAMES);
         // Many sets: two whole samples.
         assert_eq!(monitor_buffer_for(5001, 20), 10_002);
+        // Henon-Heiles in frames of many records: memory bounds it.
+        let b = monitor_buffer_for(3, max_frame_words(28));
+        assert!(b * FRAME_TARGET_WORDS * 8 * MAX_MONITORS <= MONITOR_MEMORY);
+        assert!(b >= 2 * 3);
         // FPUT N = 501, k = 8: 8 kdoubles per frame; memory bounds it, never below the minimum.
         let b = monitor_buffer_for(3, 8 * 1002 + 8);
         assert!(b * (8 * 1002 + 8) * 8 * MAX_MONITORS <= MONITOR_MEMORY + (1 << 20));

@@ -322,6 +322,11 @@ pub struct MapConfig {
     /// Threshold under which `gali-time` stops an orbit.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threshold: Option<f64>,
+    /// How the sets are evolved: `"per-set"` (default, the reference: every set's `k` vectors
+    /// or nearby orbits) or `"propagator"` (one basis of `2N` tangent vectors (VM) or nearby
+    /// orbits (MPM) per point, every set's vectors formed from it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub route: Option<String>,
 }
 
 impl MapAxis {
@@ -344,6 +349,7 @@ impl MapConfig {
             indicator: indicator.to_string(),
             k: None,
             threshold: None,
+            route: None,
         }
     }
 }

@@ -3,7 +3,9 @@
 use prost::Message;
 
 use crate::FORMAT_VERSION;
-use crate::frame::{FrameHeader, FrameKind, RunAnnouncement, status};
+use crate::frame::{
+    FrameHeader, FrameKind, RECORD_HEADER_WORDS, RecordKind, RunAnnouncement, status,
+};
 use crate::proto::{EndOfRun, ReferenceState, RunHeader, SeparationSet, end_of_run};
 
 /// A run header announcement that this build cannot read.
@@ -43,16 +45,12 @@ pub enum FrameError {
     #[error("frame {frame}: format version {found}, this build reads version {FORMAT_VERSION}")]
     Version { frame: u64, found: u32 },
     #[error("frame {frame}: unknown kind {kind}")]
-    Kind { frame: u64, kind: u32 },
-    #[error("frame {frame}: payload has {found} values, the header announces {expected}")]
-    PayloadLength {
-        frame: u64,
-        expected: usize,
-        found: usize,
-    },
+    Kind { frame: u64, kind: u64 },
+    #[error("frame {frame}: {problem}")]
+    Layout { frame: u64, problem: String },
 }
 
-/// A validated data frame as a protobuf message.
+/// A validated record as a protobuf message.
 #[derive(Debug, Clone, PartialEq)]
 pub enum DataMessage {
     Reference(ReferenceState),
@@ -60,8 +58,29 @@ pub enum DataMessage {
     End(EndOfRun),
 }
 
-/// Checks a frame against the layout and converts it.
-pub fn decode_frame(h: &FrameHeader, payload: &[f64]) -> Result<DataMessage, FrameError> {
+impl DataMessage {
+    /// The record's number (`frame_seq`), the recorded `frame` field.
+    pub fn frame(&self) -> u64 {
+        match self {
+            Self::Reference(m) => m.frame,
+            Self::Separations(m) => m.frame,
+            Self::End(m) => m.frame,
+        }
+    }
+}
+
+fn f64s(words: &[u64]) -> Vec<f64> {
+    words.iter().map(|w| f64::from_bits(*w)).collect()
+}
+
+/// Checks a frame against the layout and converts its records, in order, into `out`. A frame
+/// that breaks the layout anywhere is refused whole (nothing is added to `out`): its records
+/// then show as a gap in the numbering.
+pub fn decode_frame(
+    h: &FrameHeader,
+    payload: &[u64],
+    out: &mut Vec<DataMessage>,
+) -> Result<(), FrameError> {
     let frame = h.frame_seq;
     if h.format_version != FORMAT_VERSION {
         return Err(FrameError::Version {
@@ -69,52 +88,120 @@ pub fn decode_frame(h: &FrameHeader, payload: &[f64]) -> Result<DataMessage, Fra
             found: h.format_version,
         });
     }
-    let kind = h.kind().ok_or(FrameError::Kind {
-        frame,
-        kind: h.kind,
-    })?;
-    let expected = h.expected_payload_len().unwrap_or(0);
-    if payload.len() != expected {
-        return Err(FrameError::PayloadLength {
+    let layout = |problem: String| FrameError::Layout { frame, problem };
+    match h.kind() {
+        Some(FrameKind::End) => {
+            if !payload.is_empty() || h.records != 1 {
+                return Err(layout(format!(
+                    "end of run with {} records and {} payload words",
+                    h.records,
+                    payload.len()
+                )));
+            }
+            out.push(DataMessage::End(EndOfRun {
+                frame,
+                status: end_status(h.status) as i32,
+                reason: h.reason(),
+                samples: h.sample_seq,
+                last_step: h.step,
+                t: h.t,
+            }));
+            Ok(())
+        }
+        Some(FrameKind::Records) => {
+            let start = out.len();
+            let result = decode_records(h, payload, out);
+            if result.is_err() {
+                out.truncate(start);
+            }
+            result
+        }
+        None => Err(FrameError::Kind {
             frame,
-            expected,
-            found: payload.len(),
-        });
-    }
-    Ok(match kind {
-        FrameKind::Reference => DataMessage::Reference(ReferenceState {
-            frame,
-            seq: h.sample_seq,
-            step: h.step,
-            t: h.t,
-            energy: h.energy,
-            state: payload.to_vec(),
-            mean_divergence: h.mean_divergence,
+            kind: h.kind as u64,
         }),
-        FrameKind::Separations => {
-            let split = h.k as usize * h.dim as usize;
+    }
+}
+
+fn decode_records(
+    h: &FrameHeader,
+    payload: &[u64],
+    out: &mut Vec<DataMessage>,
+) -> Result<(), FrameError> {
+    let layout = |problem: String| FrameError::Layout {
+        frame: h.frame_seq,
+        problem,
+    };
+    let mut rest = payload;
+    for i in 0..h.records {
+        let frame = h.frame_seq.wrapping_add(i);
+        let Some((head, values)) = rest.split_first_chunk::<RECORD_HEADER_WORDS>() else {
+            return Err(layout(format!(
+                "record {i} of {} is cut short ({} words left)",
+                h.records,
+                rest.len()
+            )));
+        };
+        let [kind, seq, step, t, a, b, k, dim] = *head;
+        let t = f64::from_bits(t);
+        // Sizes from another process are checked before they size anything.
+        let len = match kind {
+            1 => Some(dim),
+            2 => k.checked_mul(dim).and_then(|n| n.checked_add(k)),
+            _ => return Err(FrameError::Kind { frame, kind }),
+        };
+        let Some(len) = len
+            .filter(|&n| n <= values.len() as u64)
+            .map(|n| n as usize)
+        else {
+            return Err(layout(format!(
+                "record {i} announces more values than the frame holds (k = {k}, dim = {dim})"
+            )));
+        };
+        let (body, next) = values.split_at(len);
+        rest = next;
+        out.push(if kind == RecordKind::Reference as u64 {
+            DataMessage::Reference(ReferenceState {
+                frame,
+                seq,
+                step,
+                t,
+                energy: f64::from_bits(a),
+                state: f64s(body),
+                mean_divergence: f64::from_bits(b),
+            })
+        } else {
+            let (Ok(scheme), Ok(set), Ok(k32), Ok(dim32)) = (
+                u32::try_from(a),
+                u32::try_from(b),
+                u32::try_from(k),
+                u32::try_from(dim),
+            ) else {
+                return Err(layout(format!("record {i}: a field beyond 32 bits")));
+            };
+            let (separations, stretch) = body.split_at(len - k as usize);
             DataMessage::Separations(SeparationSet {
                 frame,
-                seq: h.sample_seq,
-                step: h.step,
-                t: h.t,
-                scheme: h.scheme,
-                set: h.set,
-                k: h.k,
-                dim: h.dim,
-                separations: payload[..split].to_vec(),
-                stretch: payload[split..].to_vec(),
+                seq,
+                step,
+                t,
+                scheme,
+                set,
+                k: k32,
+                dim: dim32,
+                separations: f64s(separations),
+                stretch: f64s(stretch),
             })
-        }
-        FrameKind::End => DataMessage::End(EndOfRun {
-            frame,
-            status: end_status(h.status) as i32,
-            reason: h.reason(),
-            samples: h.sample_seq,
-            last_step: h.step,
-            t: h.t,
-        }),
-    })
+        });
+    }
+    if !rest.is_empty() {
+        return Err(layout(format!(
+            "{} words after the {} records",
+            rest.len(),
+            h.records
+        )));
+    }
+    Ok(())
 }
 
 /// Protobuf status of a bus status code (unknown codes map to `Unspecified`).
@@ -131,40 +218,88 @@ pub fn end_status(code: u32) -> end_of_run::Status {
 mod tests {
     use super::*;
 
+    use crate::frame::RecordBatch;
+
+    fn decode(h: &FrameHeader, words: &[u64]) -> Result<Vec<DataMessage>, FrameError> {
+        let mut out = vec![DataMessage::End(EndOfRun::default())];
+        let r = decode_frame(h, words, &mut out);
+        // What was in `out` stays; a refused frame adds nothing.
+        assert_eq!(out.remove(0), DataMessage::End(EndOfRun::default()));
+        r.map(|_| out)
+    }
+
     #[test]
-    fn separations_split_vectors_and_stretch() {
-        let h = FrameHeader::separations(7, 3, 300, 3.0, 1, 0, 2, 2);
-        let payload = [1.0, 2.0, 3.0, 4.0, 0.5, 0.25];
-        let DataMessage::Separations(m) = decode_frame(&h, &payload).unwrap() else {
+    fn records_come_back_numbered_with_every_bit() {
+        let mut b = RecordBatch::new(7);
+        // Values whose bits a conversion through decimal or arithmetic could change.
+        let state = [-0.0, f64::MIN_POSITIVE / 4.0, 1.0 / 3.0, -2.5e300];
+        b.push_reference(3, 300, 3.0, 0.125, -1e-17, &state);
+        b.push_separations(3, 300, 3.0, 1, 2, 2, &[1.0, 2.0, 3.0, 4.0], &[0.5, 0.25]);
+        let out = decode(&b.header(), b.words()).unwrap();
+        let DataMessage::Reference(r) = &out[0] else {
+            panic!()
+        };
+        assert_eq!((r.frame, r.seq, r.step, r.t), (7, 3, 300, 3.0));
+        assert_eq!((r.energy, r.mean_divergence), (0.125, -1e-17));
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&r.state), bits(&state));
+        let DataMessage::Separations(m) = &out[1] else {
             panic!()
         };
         assert_eq!(m.separations, vec![1.0, 2.0, 3.0, 4.0]);
         assert_eq!(m.stretch, vec![0.5, 0.25]);
-        assert_eq!((m.frame, m.seq, m.scheme), (7, 3, 1));
+        assert_eq!(
+            (m.frame, m.seq, m.scheme, m.set, m.k, m.dim),
+            (8, 3, 1, 2, 2, 2)
+        );
+        assert_eq!(
+            out.iter().map(DataMessage::frame).collect::<Vec<_>>(),
+            [7, 8]
+        );
     }
 
     #[test]
-    fn wrong_payload_length_is_an_error() {
-        let h = FrameHeader::reference(0, 0, 0, 0.0, 0.1, 0.0, 4);
-        let err = decode_frame(&h, &[0.0; 3]).unwrap_err();
-        assert_eq!(
-            err,
-            FrameError::PayloadLength {
-                frame: 0,
-                expected: 4,
-                found: 3
-            }
-        );
+    fn a_frame_breaking_the_layout_is_refused_whole() {
+        let mut b = RecordBatch::new(0);
+        b.push_reference(0, 0, 0.0, 0.1, 0.0, &[1.0; 4]);
+        b.push_separations(0, 0, 0.0, 0, 0, 2, &[1.0; 4], &[1.0; 2]);
+        let words = b.words().to_vec();
+        let h = b.header();
+        // Cut short, one word too many, more records announced than sent, fewer.
+        assert!(decode(&h, &words[..words.len() - 1]).is_err());
+        let mut long = words.clone();
+        long.push(0);
+        assert!(decode(&h, &long).is_err());
+        assert!(decode(&FrameHeader::records(0, 3), &words).is_err());
+        assert!(decode(&FrameHeader::records(0, 1), &words).is_err());
+        // Sizes that overflow, and an unknown record kind.
+        let mut huge = words.clone();
+        huge[RECORD_HEADER_WORDS + 4 + 6] = u64::MAX;
+        assert!(decode(&h, &huge).is_err());
+        let mut kind = words.clone();
+        kind[0] = 9;
+        assert!(matches!(
+            decode(&h, &kind),
+            Err(FrameError::Kind { kind: 9, .. })
+        ));
+        let bad = FrameHeader { kind: 99, ..h };
+        assert!(decode(&bad, &words).is_err());
+        assert_eq!(decode(&h, &words).unwrap().len(), 2);
     }
 
     #[test]
     fn end_carries_status_and_reason() {
         let h = FrameHeader::end(9, 5, 500, 5.0, status::FAILED, "energy drift");
-        let DataMessage::End(m) = decode_frame(&h, &[]).unwrap() else {
+        let out = decode(&h, &[]).unwrap();
+        let DataMessage::End(m) = &out[0] else {
             panic!()
         };
         assert_eq!(m.status(), end_of_run::Status::Failed);
-        assert_eq!(m.reason, "energy drift");
+        assert_eq!(
+            (m.reason.as_str(), m.frame, m.samples),
+            ("energy drift", 9, 5)
+        );
+        assert!(decode(&h, &[0]).is_err());
     }
 }
 

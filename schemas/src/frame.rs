@@ -1,14 +1,35 @@
 //! What travels on the iceoryx2 bus: `#[repr(C)]` user headers and the payload layout.
 //!
-//! The data stream is a publish-subscribe service with payload `[f64]` and user header
-//! [`FrameHeader`]. Every frame carries `frame_seq`, counting all frames of the run from 0, so a
-//! receiver proves there is no gap by checking it increments by one. Payload layout per kind:
+//! The data stream is a publish-subscribe service with payload `[u64]` (words) and user header
+//! [`FrameHeader`]. What a run publishes is a sequence of *records* (a reference state, a
+//! separation set, the end of the run), each numbered by `frame_seq` counting every record of the
+//! run from 0, so a receiver proves there is no gap by checking it increments by one; these
+//! numbers are the `frame` fields of the recorded messages. A bus frame carries several records
+//! (the per-frame cost of the bus, a loan, a send, a wake-up and a receive, is then paid once for
+//! many small samples): `frame_seq` is the number of its first record and `records` how many it
+//! holds, numbered consecutively.
 //!
-//! | kind          | payload (f64)                                         |
-//! |---------------|-------------------------------------------------------|
-//! | `Reference`   | state q1..qN, p1..pN (`dim` values)                   |
-//! | `Separations` | `k` vectors of `dim` values, then `k` stretch factors |
-//! | `End`         | empty; status and reason are in the header            |
+//! | kind      | payload (u64 words)                                              |
+//! |-----------|------------------------------------------------------------------|
+//! | `Records` | `records` records, one after another (layout below)              |
+//! | `End`     | empty, one record; samples, step, t, status and reason in the header |
+//!
+//! A record is [`RECORD_HEADER_WORDS`] words, then its values (f64 as their bits):
+//!
+//! | word | `Reference` record             | `Separations` record                   |
+//! |------|--------------------------------|----------------------------------------|
+//! | 0    | kind 1                         | kind 2                                 |
+//! | 1    | sample number                  | sample number                          |
+//! | 2    | step                           | step                                   |
+//! | 3    | t                              | t                                      |
+//! | 4    | energy                         | scheme index                           |
+//! | 5    | mean divergence                | set                                    |
+//! | 6    | 0                              | `k`, vectors per set                   |
+//! | 7    | `dim`                          | `dim`                                  |
+//! | then | the state (`dim` values)       | `k` vectors of `dim`, `k` stretches    |
+//!
+//! The layout is the bus protocol [`BUS_PROTOCOL`]; it is part of the header's type name, so
+//! processes built with another layout refuse to connect instead of misreading frames.
 //!
 //! Maps (`chaoscope map`) publish on their own services (`chaoscope/map/<name>/...`, see
 //! [`crate::names`]), with payload `[u8]` and user header [`MapFrameHeader`]:
@@ -27,27 +48,40 @@ use iceoryx2::prelude::*;
 
 use crate::FORMAT_VERSION;
 
+/// Version of the data frames' layout on the bus (not of the files: [`FORMAT_VERSION`]).
+/// 2: several records per frame, payload in words.
+pub const BUS_PROTOCOL: u32 = 2;
+
 /// Longest end-of-run reason carried on the bus (longer reasons are cut at a char boundary).
 pub const MAX_REASON_LEN: usize = 240;
+
+/// Words of a record's header (see the module docs).
+pub const RECORD_HEADER_WORDS: usize = 8;
 
 /// What a data frame contains.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u32)]
 pub enum FrameKind {
-    Reference = 1,
-    Separations = 2,
+    Records = 1,
     End = 3,
 }
 
 impl FrameKind {
     pub fn from_u32(v: u32) -> Option<Self> {
         match v {
-            1 => Some(Self::Reference),
-            2 => Some(Self::Separations),
+            1 => Some(Self::Records),
             3 => Some(Self::End),
             _ => None,
         }
     }
+}
+
+/// What a record of a `Records` frame is (word 0 of its header).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u64)]
+pub enum RecordKind {
+    Reference = 1,
+    Separations = 2,
 }
 
 /// End-of-run status codes (same numbers as `proto::end_of_run::Status`).
@@ -60,28 +94,19 @@ pub mod status {
 /// User header of every frame of the data and monitor streams.
 #[derive(Debug, Clone, Copy, ZeroCopySend)]
 #[repr(C)]
-#[type_name("chaoscope.v1.FrameHeader")]
+#[type_name("chaoscope.bus2.FrameHeader")]
 pub struct FrameHeader {
     pub format_version: u32,
     /// A [`FrameKind`] as u32.
     pub kind: u32,
-    /// Counts every frame of the run from 0 (gap detection).
+    /// Number of the frame's first record, counting every record of the run from 0.
     pub frame_seq: u64,
-    /// Sample number (0 = initial state); for `End`, the number of samples published.
+    /// Records in this frame, numbered `frame_seq..frame_seq + records` (1 for `End`).
+    pub records: u64,
+    /// `End` only: the number of samples published, and the step and time of the last.
     pub sample_seq: u64,
     pub step: u64,
     pub t: f64,
-    /// Energy of the reference state (`Reference` only).
-    pub energy: f64,
-    /// Mean divergence along the reference orbit up to `t` (`Reference` only; see the
-    /// `ReferenceState` message).
-    pub mean_divergence: f64,
-    /// Scheme index and set (`Separations` only).
-    pub scheme: u32,
-    pub set: u32,
-    /// Vectors per set and their dimension 2N.
-    pub k: u32,
-    pub dim: u32,
     /// End-of-run status (`End` only), see [`status`].
     pub status: u32,
     pub reason_len: u32,
@@ -94,15 +119,10 @@ impl Default for FrameHeader {
             format_version: FORMAT_VERSION,
             kind: 0,
             frame_seq: 0,
+            records: 0,
             sample_seq: 0,
             step: 0,
             t: 0.0,
-            energy: 0.0,
-            mean_divergence: 0.0,
-            scheme: 0,
-            set: 0,
-            k: 0,
-            dim: 0,
             status: 0,
             reason_len: 0,
             reason: [0; MAX_REASON_LEN],
@@ -130,52 +150,12 @@ impl FrameHeader {
         String::from_utf8_lossy(&self.reason[..len]).into_owned()
     }
 
-    /// Header of a reference-state frame (payload: the `dim` state values).
-    #[allow(clippy::too_many_arguments)]
-    pub fn reference(
-        frame_seq: u64,
-        sample_seq: u64,
-        step: u64,
-        t: f64,
-        energy: f64,
-        mean_divergence: f64,
-        dim: usize,
-    ) -> Self {
+    /// Header of a frame of `records` records, the first numbered `frame_seq`.
+    pub fn records(frame_seq: u64, records: u64) -> Self {
         Self {
-            kind: FrameKind::Reference as u32,
+            kind: FrameKind::Records as u32,
             frame_seq,
-            sample_seq,
-            step,
-            t,
-            energy,
-            mean_divergence,
-            dim: dim as u32,
-            ..Self::default()
-        }
-    }
-
-    /// Header of a separation-set frame (payload: `k * dim` separations, then `k` stretches).
-    #[allow(clippy::too_many_arguments)]
-    pub fn separations(
-        frame_seq: u64,
-        sample_seq: u64,
-        step: u64,
-        t: f64,
-        scheme: u32,
-        set: u32,
-        k: usize,
-        dim: usize,
-    ) -> Self {
-        Self {
-            kind: FrameKind::Separations as u32,
-            frame_seq,
-            sample_seq,
-            step,
-            t,
-            scheme,
-            set,
-            k: k as u32,
-            dim: dim as u32,
+            records,
             ..Self::default()
         }
     }
@@ -185,6 +165,7 @@ impl FrameHeader {
         let mut h = Self {
             kind: FrameKind::End as u32,
             frame_seq,
+            records: 1,
             sample_seq: samples,
             step,
             t,
@@ -194,15 +175,125 @@ impl FrameHeader {
         h.set_reason(reason);
         h
     }
+}
 
-    /// Number of f64 values the payload of this frame must have.
-    pub fn expected_payload_len(&self) -> Option<usize> {
-        let (k, dim) = (self.k as usize, self.dim as usize);
-        match self.kind()? {
-            FrameKind::Reference => Some(dim),
-            FrameKind::Separations => Some(k * dim + k),
-            FrameKind::End => Some(0),
+/// Words of a separation-set record of `k` vectors of `dim` values.
+pub fn separations_record_words(k: usize, dim: usize) -> usize {
+    RECORD_HEADER_WORDS + k * dim + k
+}
+
+/// Words of a reference-state record of dimension `dim`.
+pub fn reference_record_words(dim: usize) -> usize {
+    RECORD_HEADER_WORDS + dim
+}
+
+/// Records of one frame being assembled by a producer: the payload of a `Records` frame.
+#[derive(Debug, Clone, Default)]
+pub struct RecordBatch {
+    words: Vec<u64>,
+    first: u64,
+    records: u64,
+    /// Words of values (not of record headers).
+    value_words: usize,
+}
+
+impl RecordBatch {
+    /// An empty batch whose first record will be number `first`.
+    pub fn new(first: u64) -> Self {
+        Self {
+            first,
+            ..Self::default()
         }
+    }
+
+    /// Empties the batch (keeping its memory); the next record is number `first`.
+    pub fn reset(&mut self, first: u64) {
+        self.words.clear();
+        self.first = first;
+        self.records = 0;
+        self.value_words = 0;
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.records == 0
+    }
+
+    /// Number the next record pushed gets.
+    pub fn next_frame(&self) -> u64 {
+        self.first + self.records
+    }
+
+    /// The payload so far.
+    pub fn words(&self) -> &[u64] {
+        &self.words
+    }
+
+    /// Words of values (f64) in the batch, record headers not counted.
+    pub fn value_words(&self) -> usize {
+        self.value_words
+    }
+
+    /// The user header of the frame carrying this batch.
+    pub fn header(&self) -> FrameHeader {
+        FrameHeader::records(self.first, self.records)
+    }
+
+    fn push_record(&mut self, head: [u64; RECORD_HEADER_WORDS], parts: &[&[f64]]) {
+        self.words.extend_from_slice(&head);
+        for part in parts {
+            self.words.extend(part.iter().map(|v| v.to_bits()));
+            self.value_words += part.len();
+        }
+        self.records += 1;
+    }
+
+    /// Appends a reference-state record.
+    pub fn push_reference(
+        &mut self,
+        sample_seq: u64,
+        step: u64,
+        t: f64,
+        energy: f64,
+        mean_divergence: f64,
+        state: &[f64],
+    ) {
+        let head = [
+            RecordKind::Reference as u64,
+            sample_seq,
+            step,
+            t.to_bits(),
+            energy.to_bits(),
+            mean_divergence.to_bits(),
+            0,
+            state.len() as u64,
+        ];
+        self.push_record(head, &[state]);
+    }
+
+    /// Appends a separation-set record: `separations` are `stretch.len()` vectors of `dim`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn push_separations(
+        &mut self,
+        sample_seq: u64,
+        step: u64,
+        t: f64,
+        scheme: u32,
+        set: u32,
+        dim: usize,
+        separations: &[f64],
+        stretch: &[f64],
+    ) {
+        let head = [
+            RecordKind::Separations as u64,
+            sample_seq,
+            step,
+            t.to_bits(),
+            scheme as u64,
+            set as u64,
+            stretch.len() as u64,
+            dim as u64,
+        ];
+        self.push_record(head, &[separations, stretch]);
     }
 }
 
@@ -302,18 +393,23 @@ mod tests {
     }
 
     #[test]
-    fn payload_lengths_follow_the_layout() {
-        let h = FrameHeader {
-            kind: FrameKind::Separations as u32,
-            k: 4,
-            dim: 4,
-            ..Default::default()
-        };
-        assert_eq!(h.expected_payload_len(), Some(20));
-        let bad = FrameHeader {
-            kind: 99,
-            ..Default::default()
-        };
-        assert_eq!(bad.expected_payload_len(), None);
+    fn a_batch_numbers_its_records_from_its_first() {
+        let mut b = RecordBatch::new(5);
+        assert!(b.is_empty());
+        b.push_reference(0, 0, 0.0, 0.125, 0.0, &[1.0, 2.0]);
+        b.push_separations(0, 0, 0.0, 1, 0, 2, &[0.5, 0.25], &[1.0]);
+        assert_eq!((b.next_frame(), b.value_words()), (7, 5));
+        assert_eq!(
+            b.words().len(),
+            reference_record_words(2) + separations_record_words(1, 2)
+        );
+        let h = b.header();
+        assert_eq!(
+            (h.kind(), h.frame_seq, h.records),
+            (Some(FrameKind::Records), 5, 2)
+        );
+        b.reset(7);
+        assert!(b.is_empty() && b.words().is_empty());
+        assert_eq!(b.next_frame(), 7);
     }
 }

@@ -13,6 +13,12 @@
 //! - `gali2_map`: the paper's Fig. 9(b) settings (HH, H = 0.125, x1 = 0 section, ABA864,
 //!   h = 0.01, tau = 1, d0 = 1e-8, 50 sets, t = 500, MPM) on a reduced grid over the same
 //!   region, with 1 and 2 threads; CPU time extrapolated to 700 x 600 points.
+//! - `propagator_routes`: the same workload on a smaller grid (`--routes-grid`) by per-set VM,
+//!   the VM propagator route, per-set MPM and the MPM propagator route (`[map] route`), one
+//!   thread each: CPU time, points per CPU-second, extrapolated CPU hours for 700 x 600, the
+//!   routes' speed-ups and the distributions over the points of the route-vs-per-set distance
+//!   and per-set MPM's distance to VM (mean over sets of |delta log10 GALI_2|, the paper's
+//!   MPM-VM distance); `--routes-only` runs just this part.
 //! - `machine_ceiling`: the same 1-vs-2-thread wall-clock ratio for a loop that does nothing
 //!   but independent floating-point multiplies and adds on the same instruction set, enough of
 //!   them to saturate the FP ports, with no memory traffic and no synchronization. It shows how
@@ -37,7 +43,7 @@ use std::time::Instant;
 use anyhow::Context;
 use chaoscope_producer::batch::{self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages};
 use chaoscope_producer::integrator::{Splitting, SplittingKind};
-use chaoscope_producer::map::{MapOptions, MapSpec, run_map};
+use chaoscope_producer::map::{MapOptions, MapSpec, PointResult, run_map};
 use chaoscope_producer::model::{FputBeta, HenonHeiles};
 use chaoscope_schemas::config::{DeviationsConfig, MapConfig, RunConfig, SchemeConfig, paper};
 use plain_loop::{PlainModel, PlainState};
@@ -67,6 +73,16 @@ pub struct Args {
     /// engine and compile times; no map workload.
     #[arg(long)]
     pub expressions_only: bool,
+    /// Only the route comparison of the map workload (per-set VM / MPM against the propagator
+    /// route, one thread, with the must-show distributions); no kernel or thread figures.
+    #[arg(long)]
+    pub routes_only: bool,
+    /// Grid of the route comparison, NXxNY over the paper's region.
+    #[arg(long, default_value = "14x12")]
+    pub routes_grid: String,
+    /// d0 of the route comparison's MPM maps (the paper: 1e-8).
+    #[arg(long, default_value_t = 1e-8)]
+    pub routes_d0: f64,
     /// Initial conditions of the map workload timed through the scalar C yardstick (each costs
     /// it about 0.1 s per 1e7 orbit-steps; taken evenly across the grid).
     #[arg(long, default_value_t = 8)]
@@ -296,6 +312,174 @@ fn paper_gali2_config(nx: usize, ny: usize, t_final: f64) -> RunConfig {
     config
 }
 
+/// Parses `NXxNY`.
+fn parse_grid(grid: &str) -> anyhow::Result<(usize, usize)> {
+    grid.split_once('x')
+        .and_then(|(a, b)| Some((a.parse::<usize>().ok()?, b.parse::<usize>().ok()?)))
+        .with_context(|| format!("grid {grid:?} must be NXxNY, e.g. 35x30"))
+}
+
+/// One thread over every point of `spec`: CPU seconds and the results in index order.
+fn map_results(spec: &MapSpec, isa: Isa) -> anyhow::Result<(f64, Vec<PointResult>)> {
+    let points: Vec<u64> = (0..spec.grid_points()).collect();
+    let options = MapOptions {
+        threads: Some(1),
+        isa,
+        ..MapOptions::default()
+    };
+    let cpu = process_cpu_seconds();
+    let mut results = Vec::with_capacity(points.len());
+    run_map(spec, &points, &options, |r| {
+        results.push(r);
+        true
+    })?;
+    let cpu = process_cpu_seconds() - cpu;
+    results.sort_by_key(|r| r.index);
+    Ok((cpu, results))
+}
+
+/// Quantiles (50, 90, 95, 99 %, max) of `values`.
+fn quantiles(values: impl Iterator<Item = f64>) -> serde_json::Value {
+    let v = sorted(values);
+    if v.is_empty() {
+        return serde_json::Value::Null;
+    }
+    let q = |p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+    serde_json::json!({ "p50": q(0.5), "p90": q(0.9), "p95": q(0.95), "p99": q(0.99), "max": v[v.len() - 1] })
+}
+
+/// Mean over the sets of |a - b| (log10 GALI_2 set by set: the paper's MPM-VM distance).
+fn set_distance(a: &PointResult, b: &PointResult) -> f64 {
+    let n = a.per_set.len() as f64;
+    a.per_set
+        .iter()
+        .zip(&b.per_set)
+        .map(|(x, y)| (x - y).abs())
+        .sum::<f64>()
+        / n
+}
+
+/// The paper's GALI_2 map workload by both routes of VM and MPM on an `nx` by `ny` grid, one
+/// thread each: CPU time, points per CPU-second, the extrapolated CPU hours of 700 x 600, the
+/// speed-ups, and how the routes' numbers compare (must-shows 2 and 3 of issue #12).
+fn routes(
+    isa: Isa,
+    nx: usize,
+    ny: usize,
+    t_final: f64,
+    d0: f64,
+) -> anyhow::Result<serde_json::Value> {
+    let full_points = 700.0 * 600.0;
+    let mut runs = Vec::new();
+    for (method, route) in [
+        ("vm", "per-set"),
+        ("vm", "propagator"),
+        ("mpm", "per-set"),
+        ("mpm", "propagator"),
+    ] {
+        let mut config = paper_gali2_config(nx, ny, t_final);
+        config.schemes = vec![SchemeConfig::new(method, method, d0, 1.0)];
+        if let Some(map) = config.map.as_mut() {
+            map.route = Some(route.to_string());
+        }
+        let spec = MapSpec::from_config(&config)?;
+        let (cpu, results) = map_results(&spec, isa)?;
+        runs.push((method, route, cpu, results));
+    }
+    let points = (nx * ny) as f64;
+    let figures: Vec<serde_json::Value> = runs
+        .iter()
+        .map(|(method, route, cpu, results)| {
+            serde_json::json!({
+                "method": method,
+                "route": route,
+                "cpu_seconds": cpu,
+                "points_per_cpu_second": points / cpu,
+                "orbit_steps": results.iter().map(|r| r.orbit_steps).sum::<u64>(),
+                "extrapolated_cpu_hours_700x600": cpu * full_points / points / 3600.0,
+            })
+        })
+        .collect();
+    let (vm, vm_route, mpm, mpm_route) = (&runs[0].3, &runs[1].3, &runs[2].3, &runs[3].3);
+    let ok = |i: usize| {
+        [vm, vm_route, mpm, mpm_route]
+            .iter()
+            .all(|r| r[i].status == chaoscope_producer::map::PointStatus::Ok)
+    };
+    let both: Vec<usize> = (0..vm.len()).filter(|&i| ok(i)).collect();
+    // Must-show 2 on the map: the VM routes' per-set values (GALI_2 at t_final), where per-set
+    // VM resolves them (log10 GALI_2 > -7, producer/tests/propagator_vm.rs) and below.
+    let (mut resolved, mut unresolved) = (Vec::new(), Vec::new());
+    for &i in &both {
+        for (r, p) in vm_route[i].per_set.iter().zip(&vm[i].per_set) {
+            if *p > -7.0 {
+                resolved.push((r - p).abs());
+            } else {
+                unresolved.push((r - p).abs());
+            }
+        }
+    }
+    let route_vm: Vec<f64> = both
+        .iter()
+        .map(|&i| set_distance(&mpm_route[i], &vm[i]))
+        .collect();
+    // Must-show 3: per point, the route's distance to per-set MPM against per-set MPM's
+    // distance to VM (both set by set, mean over the sets), and the same for the points' mean
+    // log10 GALI_2.
+    let route_mpm: Vec<f64> = both
+        .iter()
+        .map(|&i| set_distance(&mpm_route[i], &mpm[i]))
+        .collect();
+    let mpm_vm: Vec<f64> = both
+        .iter()
+        .map(|&i| set_distance(&mpm[i], &vm[i]))
+        .collect();
+    let within = route_mpm
+        .iter()
+        .zip(&mpm_vm)
+        .filter(|(a, b)| a <= b)
+        .count();
+    let mean_route_mpm: Vec<f64> = both
+        .iter()
+        .map(|&i| (mpm_route[i].mean_log10 - mpm[i].mean_log10).abs())
+        .collect();
+    let mean_mpm_vm: Vec<f64> = both
+        .iter()
+        .map(|&i| (mpm[i].mean_log10 - vm[i].mean_log10).abs())
+        .collect();
+    let mean_within = mean_route_mpm
+        .iter()
+        .zip(&mean_mpm_vm)
+        .filter(|(a, b)| a <= b)
+        .count();
+    let n = both.len().max(1) as f64;
+    Ok(serde_json::json!({
+        "settings": format!("HH H=0.125 x1=0 section, q2 in [-0.45,0.65], p2 in [-0.45,0.45], ABA864 h=0.01, tau=1, d0={d0:e}, k=2, 50 sets, one thread"),
+        "grid": [nx, ny],
+        "t_final": t_final,
+        "points_compared": both.len(),
+        "runs": figures,
+        "vm_propagator_speedup": runs[0].2 / runs[1].2,
+        "mpm_propagator_speedup": runs[2].2 / runs[3].2,
+        "vm_route_vs_per_set_decades": {
+            "where_per_set_resolves": quantiles(resolved.iter().copied()),
+            "sets_resolved": resolved.len(),
+            "below_per_set_resolution": quantiles(unresolved.iter().copied()),
+            "sets_unresolved": unresolved.len(),
+        },
+        "mpm_route_vs_vm_decades": quantiles(route_vm.iter().copied()),
+        "share_route_vm_within_mpm_vm_distance": route_vm.iter().zip(&mpm_vm).filter(|(a, b)| a <= b).count() as f64 / n,
+        "mpm_route_vs_per_set_decades": quantiles(route_mpm.iter().copied()),
+        "mpm_per_set_vs_vm_decades": quantiles(mpm_vm.iter().copied()),
+        "share_within_mpm_vm_distance": within as f64 / n,
+        "mean_log10": {
+            "mpm_route_vs_per_set": quantiles(mean_route_mpm.iter().copied()),
+            "mpm_per_set_vs_vm": quantiles(mean_mpm_vm.iter().copied()),
+            "share_within_mpm_vm_distance": mean_within as f64 / n,
+        },
+    }))
+}
+
 fn map_case(spec: &MapSpec, isa: Isa, threads: usize) -> anyhow::Result<(f64, f64, u64, usize)> {
     let points: Vec<u64> = (0..spec.grid_points()).collect();
     let options = MapOptions {
@@ -353,11 +537,17 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         );
         return Ok(ExitCode::SUCCESS);
     }
-    let (nx, ny) = args
-        .grid
-        .split_once('x')
-        .and_then(|(a, b)| Some((a.parse::<usize>().ok()?, b.parse::<usize>().ok()?)))
-        .context("--grid must be NXxNY, e.g. 35x30")?;
+    let (nx, ny) = parse_grid(&args.grid).context("--grid")?;
+    let (rx, ry) = parse_grid(&args.routes_grid).context("--routes-grid")?;
+    if args.routes_only {
+        let report = serde_json::json!({
+            "isa": isa.name(),
+            "cpu": expressions::cpu_model(),
+            "propagator_routes": routes(isa, rx, ry, args.t_final, args.routes_d0)?,
+        });
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(ExitCode::SUCCESS);
+    }
     let s = args.kernel_seconds;
     if args.expressions_only {
         let report = expressions::compare(isa, s)?;
@@ -390,6 +580,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     anyhow::ensure!(args.pairs >= 1, "--pairs must be at least 1");
+    let propagator_routes = routes(isa, rx, ry, args.t_final, args.routes_d0)?;
     let spec = MapSpec::from_config(&paper_gali2_config(nx, ny, args.t_final))?;
     let mut pairs = Vec::with_capacity(args.pairs);
     let (mut steps, mut integrated) = (0, 0);
@@ -448,6 +639,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "meets_target": cpu_hours <= paper_hours / 10.0,
                 "scalar_c": scalar_c,
             },
+            "propagator_routes": propagator_routes,
         }))?
     );
     Ok(ExitCode::SUCCESS)

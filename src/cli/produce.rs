@@ -56,6 +56,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         "frames": outcome.frames,
         "payload_bytes": outcome.payload_bytes,
         "seconds": secs,
+        "streaming_seconds": outcome.streaming.as_secs_f64(),
     }));
     Ok(match outcome.status {
         RunStatus::Completed => ExitCode::SUCCESS,

@@ -11,12 +11,14 @@
 //! exactly as the scalar code does. Lanes never interact, hence results do not depend on the ISA,
 //! on which lanes share a vector, or on the thread that runs them.
 
+mod flow_lanes;
 mod isa;
 mod lanes;
 mod map_lanes;
 mod models;
 mod soa;
 
+pub use flow_lanes::{FlowScratch, flow_orbit_steps, flow_tangent_steps, record_flow_reference};
 pub use isa::Isa;
 pub use lanes::{LaneModel, StepCoeffs, record_reference_stages};
 pub use map_lanes::{map_orbit_steps, map_tangent_steps, record_map_reference};

@@ -123,6 +123,12 @@ impl PointAccumulator {
         }
     }
 
+    /// The indicator reads the sets at every renormalization (`gali-time`, `mle`), not only at
+    /// the last one.
+    pub fn observes_every_window(&self) -> bool {
+        matches!(self.indicator, Indicator::GaliTime { .. } | Indicator::Mle)
+    }
+
     pub fn is_stopped(&self, set: usize) -> bool {
         self.sets[set].value.is_some()
     }

@@ -5,7 +5,10 @@
 //! - [`gali`]: the GALI of a set of separation vectors, allocation-free.
 //! - [`indicator`]: what is accumulated per deviation set and how a point's value is formed.
 //! - [`point`]: a point's result.
-//! - [`mpm`], [`vm`]: the batched computation of points (sharing the [`crate::batch`] kernel).
+//! - [`kernel`]: what the batched methods need from a system (`PointKernel`): a separable
+//!   Hamiltonian's splitting or a discrete map's compiled lane functions.
+//! - [`mpm`], [`vm`]: the batched computation of points over a [`kernel::PointKernel`].
+//! - [`propagator`]: `route = "propagator"`: every set from one evolved basis per point.
 //! - [`one_orbit`]: the same point computed by the one-orbit [`crate::engine::Engine`]; the
 //!   batched path must agree with it bit for bit (tests).
 //! - [`schedule`]: rayon across points, results streamed to a sink as they complete.
@@ -15,9 +18,11 @@
 
 pub mod gali;
 pub mod indicator;
+pub mod kernel;
 pub mod mpm;
 pub mod one_orbit;
 pub mod point;
+pub mod propagator;
 pub mod record;
 pub mod schedule;
 pub mod spec;
@@ -27,4 +32,4 @@ mod window;
 pub use indicator::Indicator;
 pub use point::{PointResult, PointStatus};
 pub use schedule::{MapOptions, run_map};
-pub use spec::{MapSpec, Shard};
+pub use spec::{MapSpec, Route, Shard};

@@ -4,11 +4,11 @@
 //! the kernel never integrates a finished orbit.
 
 use super::indicator::{PointAccumulator, broke_off, failed};
+use super::kernel::PointKernel;
 use super::point::{PointResult, PointStatus};
 use super::spec::MapSpec;
 use super::window::{SetRenormalization, Windows, check_escape, retain_sets};
-use crate::batch::{self, Isa, LaneModel, Soa};
-use crate::with_lane_model;
+use crate::batch::{Isa, Soa};
 
 struct Live {
     base: PointResult,
@@ -20,26 +20,29 @@ struct Live {
 }
 
 /// Computes the points `indices` together; results in no particular order. Once `stop()` (asked
-/// at every window) is true, returns the points finished so far.
+/// at every window) is true, returns the points finished so far. Systems without a batched form
+/// are computed one point at a time by the one-orbit engine.
 pub fn compute(
     spec: &MapSpec,
     isa: Isa,
     indices: &[u64],
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
-    let batched = spec
-        .batched
-        .as_ref()
-        .expect("the batched kernel runs Hamiltonian maps");
-    with_lane_model!(&batched.lanes, |m| compute_with(
-        m, spec, isa, indices, stop
-    ))
+    crate::with_point_kernel!(
+        spec,
+        isa,
+        |k| compute_with(k, spec, indices, stop),
+        indices
+            .iter()
+            .take_while(|_| !stop())
+            .map(|&i| super::one_orbit::point(spec, i))
+            .collect()
+    )
 }
 
-fn compute_with<M: LaneModel>(
-    model: &M,
+fn compute_with<K: PointKernel>(
+    kernel: &mut K,
     spec: &MapSpec,
-    isa: Isa,
     indices: &[u64],
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
@@ -87,13 +90,7 @@ fn compute_with<M: LaneModel>(
             break;
         }
         let Some(w) = windows.next() else { break };
-        batch::orbit_steps(
-            isa,
-            model,
-            &spec.batched.as_ref().expect("checked in compute").coeffs,
-            &mut soa,
-            w.steps,
-        );
+        kernel.orbit_steps(&mut soa, w.steps);
         let mut changed = false;
         let mut keep = Vec::with_capacity(live.len());
         for mut p in live.drain(..) {
@@ -109,13 +106,7 @@ fn compute_with<M: LaneModel>(
                 let separations = &mut renormalization.separations;
                 for i in 0..k {
                     soa.read_lane(lane + i, &mut y);
-                    for ((d, a), b) in separations[i * dim..(i + 1) * dim]
-                        .iter_mut()
-                        .zip(&y)
-                        .zip(&x)
-                    {
-                        *d = a - b;
-                    }
+                    kernel.separation(&y, &x, &mut separations[i * dim..(i + 1) * dim]);
                 }
                 let goes_on = renormalization.apply(&mut p.acc, set, &w)?;
                 if goes_on {

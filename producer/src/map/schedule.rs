@@ -6,10 +6,15 @@ use rayon::prelude::*;
 
 use super::point::PointResult;
 use super::spec::MapSpec;
-use super::{mpm, vm};
+use super::spec::Route;
+use super::{mpm, propagator, vm};
 use crate::batch::Isa;
 use crate::publish::Termination;
 use crate::spec::Method;
+
+/// MPM points per batch on the propagator route, in units of
+/// [`MapOptions::mpm_points_per_batch`].
+const ROUTE_BATCH_FACTOR: usize = 8;
 
 #[derive(Debug, Clone)]
 pub struct MapOptions {
@@ -52,7 +57,12 @@ pub fn run_map(
     let pool = builder.build()?;
     let per_batch = match spec.run.schemes[0].method {
         // Systems without a batched kernel: one point at a time through the one-orbit engine.
-        _ if spec.batched.is_none() => 1,
+        _ if !spec.has_batched_kernel() => 1,
+        // Each point has 1 + 2N lanes instead of 1 + sets * k: more points fill the kernel's
+        // chunks as well.
+        Method::Mpm if spec.route == Route::Propagator => {
+            options.mpm_points_per_batch.max(1) * ROUTE_BATCH_FACTOR
+        }
         Method::Mpm => options.mpm_points_per_batch.max(1),
         Method::Vm => 1,
     };
@@ -71,10 +81,12 @@ pub fn run_map(
                         return;
                     }
                     let results = match spec.run.schemes[0].method {
-                        _ if spec.batched.is_none() => chunk
+                        Method::Mpm if spec.route == Route::Propagator => {
+                            propagator::compute_mpm(spec, options.isa, chunk, &stopped)
+                        }
+                        Method::Vm if spec.route == Route::Propagator => chunk
                             .iter()
-                            .take_while(|_| !stopped())
-                            .map(|&i| super::one_orbit::point(spec, i))
+                            .map_while(|&i| propagator::compute_vm(spec, options.isa, i, &stopped))
                             .collect(),
                         Method::Mpm => mpm::compute(spec, options.isa, chunk, &stopped),
                         Method::Vm => chunk

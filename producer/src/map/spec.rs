@@ -6,6 +6,7 @@ use super::indicator::Indicator;
 use crate::batch::{AnyLaneModel, StepCoeffs};
 use crate::renormalization::Orthonormalization;
 use crate::spec::{RunSpec, SpecError, parse_coordinate, solve_momentum, state_coordinate};
+use crate::system::SystemKind;
 
 /// One grid axis.
 #[derive(Debug, Clone, PartialEq)]
@@ -120,6 +121,31 @@ impl std::fmt::Display for Shard {
     }
 }
 
+/// How a map evolves its deviation sets (`[map] route`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Route {
+    /// Every set's own `k` tangent vectors or nearby orbits (the reference).
+    PerSet,
+    /// One basis of `2N` tangent vectors (VM) or nearby orbits (MPM) per point, every set's
+    /// vectors formed from it ([`super::propagator`]).
+    Propagator,
+}
+
+impl Route {
+    pub fn name(self) -> &'static str {
+        match self {
+            Route::PerSet => "per-set",
+            Route::Propagator => "propagator",
+        }
+    }
+}
+
+/// The `d0` range of the MPM propagator route: there its maps agree with per-set MPM within the
+/// per-set MPM-VM distance (`chaoscope bench --routes`, examples/paper/RESULTS.md). Outside it
+/// the finite-difference basis carries the nonlinear terms (large `d0`) or the rounding of
+/// `x + d0 q` (small `d0`) into every set at once.
+pub const MPM_PROPAGATOR_D0: (f64, f64) = (1e-10, 1e-6);
+
 /// The batched splitting kernel's view of a separable Hamiltonian.
 #[derive(Clone)]
 pub struct Batched {
@@ -132,12 +158,14 @@ pub struct Batched {
 pub struct MapSpec {
     /// The run shared by every point; its `x0` is the base state the grid coordinates overwrite.
     pub run: RunSpec,
-    /// The batched kernel, for separable Hamiltonians; `None` for other systems, whose points
-    /// run through the one-orbit engine ([`super::one_orbit`]).
+    /// The batched splitting kernel, for separable Hamiltonians; `None` for other systems
+    /// (discrete maps and fixed-step explicit flows have their own batched forms,
+    /// [`super::kernel`]; the rest run through the one-orbit engine, [`super::one_orbit`]).
     pub batched: Option<Batched>,
     pub x: Axis,
     pub y: Axis,
     pub indicator: Indicator,
+    pub route: Route,
     /// Momentum index solved from `energy` per point, if any.
     pub solve_for: Option<usize>,
     pub energy: Option<f64>,
@@ -188,8 +216,40 @@ impl MapSpec {
             ));
         }
         let indicator = Indicator::from_config(map, k)?;
-        let x = Axis::from_config("map.x", &map.x, run.dim, hamiltonian.is_some())?;
-        let y = Axis::from_config("map.y", &map.y, run.dim, hamiltonian.is_some())?;
+        let route = match map.route.as_deref() {
+            None | Some("per-set") => Route::PerSet,
+            Some("propagator") => Route::Propagator,
+            Some(other) => {
+                return Err(SpecError::new(
+                    "map.route",
+                    format!("'{other}' is not per-set or propagator"),
+                ));
+            }
+        };
+        if route == Route::Propagator {
+            if hamiltonian.is_none() && !super::kernel::has_batched_form(run.system.as_ref()) {
+                return Err(SpecError::new(
+                    "map.route",
+                    "the propagator route runs on the batched kernel (separable Hamiltonians, \
+                     discrete maps, fixed-step explicit Runge-Kutta flows); use \"per-set\"",
+                ));
+            }
+            let d0 = run.schemes[0].d0;
+            let (lo, hi) = MPM_PROPAGATOR_D0;
+            if run.schemes[0].method == crate::spec::Method::Mpm && !(lo..=hi).contains(&d0) {
+                return Err(SpecError::new(
+                    "map.route",
+                    format!(
+                        "the MPM propagator route is valid for {lo:e} <= d0 <= {hi:e} \
+                         (scheme d0 = {d0:e}); use \"per-set\""
+                    ),
+                ));
+            }
+        }
+        // Any Hamiltonian (separable or written as `H(q, p)`) names its axes q1..qN / p1..pN.
+        let canonical = run.system.kind() == SystemKind::Hamiltonian;
+        let x = Axis::from_config("map.x", &map.x, run.dim, canonical)?;
+        let y = Axis::from_config("map.y", &map.y, run.dim, canonical)?;
         if x.slot == y.slot {
             return Err(SpecError::new(
                 "map.y.coord",
@@ -248,11 +308,19 @@ impl MapSpec {
             x,
             y,
             indicator,
+            route,
             solve_for,
             energy: cfg.orbit.energy,
             run,
             config_toml,
         })
+    }
+
+    /// Whether the points run on the batched kernel ([`super::kernel`]): separable
+    /// Hamiltonians, discrete maps and fixed-step explicit Runge-Kutta flows of compiled
+    /// expressions; every other system runs through the one-orbit engine.
+    pub fn has_batched_kernel(&self) -> bool {
+        self.batched.is_some() || super::kernel::has_batched_form(self.run.system.as_ref())
     }
 
     pub fn grid_points(&self) -> u64 {

@@ -1,32 +1,33 @@
 //! Batched variational method: one point at a time, its reference orbit integrated once (with
-//! its position before every kick recorded) and the `sets * k` tangent vectors of all its sets
-//! advanced as lanes by the tangent-map kernel around it.
+//! where each step's tangent map is taken recorded) and the `sets * k` tangent vectors of all
+//! its sets advanced as lanes by the system's tangent kernel around it.
 
 use super::indicator::{PointAccumulator, broke_off, failed};
+use super::kernel::PointKernel;
 use super::point::{PointResult, PointStatus};
 use super::spec::MapSpec;
 use super::window::{SetRenormalization, Windows, check_escape, retain_sets};
-use crate::batch::{self, Isa, LaneModel, Soa, record_reference_stages};
-use crate::with_lane_model;
+use crate::batch::{Isa, Soa};
 
-/// The point `index`, or `None` if `stop()` (asked at every window) became true first.
+/// The point `index`, or `None` if `stop()` (asked at every window) became true first. Systems
+/// without a batched form are computed by the one-orbit engine.
 pub fn compute(
     spec: &MapSpec,
     isa: Isa,
     index: u64,
     stop: &dyn Fn() -> bool,
 ) -> Option<PointResult> {
-    let batched = spec
-        .batched
-        .as_ref()
-        .expect("the batched kernel runs Hamiltonian maps");
-    with_lane_model!(&batched.lanes, |m| compute_with(m, spec, isa, index, stop))
+    crate::with_point_kernel!(
+        spec,
+        isa,
+        |k| compute_with(k, spec, index, stop),
+        (!stop()).then(|| super::one_orbit::point(spec, index))
+    )
 }
 
-fn compute_with<M: LaneModel>(
-    model: &M,
+fn compute_with<K: PointKernel>(
+    kernel: &mut K,
     spec: &MapSpec,
-    isa: Isa,
     index: u64,
     stop: &dyn Fn() -> bool,
 ) -> Option<PointResult> {
@@ -53,7 +54,6 @@ fn compute_with<M: LaneModel>(
             soa.write_lane(s * k + i, &scaled);
         }
     }
-    let (mut stages, mut force) = (Vec::new(), vec![0.0; model.dof()]);
     let mut renormalization = SetRenormalization::new(run);
     let mut orbit_steps = 0;
     for w in Windows::new(run) {
@@ -61,22 +61,10 @@ fn compute_with<M: LaneModel>(
             return None;
         }
         orbit_steps += w.steps * (1 + (sets.len() * k) as u64);
-        record_reference_stages(
-            model,
-            &spec.batched.as_ref().expect("checked in compute").coeffs,
-            &mut x,
-            w.steps,
-            &mut stages,
-            &mut force,
-        );
-        batch::tangent_steps(
-            isa,
-            model,
-            &spec.batched.as_ref().expect("checked in compute").coeffs,
-            &stages,
-            &mut soa,
-            w.steps,
-        );
+        kernel.reference_steps(&mut x, w.steps);
+        if let Err(e) = kernel.tangent_steps(&mut soa, w.steps) {
+            return Some(broke_off(base, w.t, &e, orbit_steps));
+        }
         if let Err(e) = check_escape(&x, w.t) {
             return Some(broke_off(base, w.t, &e, orbit_steps));
         }

@@ -15,7 +15,9 @@ use std::time::{Duration, Instant};
 
 use chaoscope_schemas::bus::{self, BusError, Liveness};
 use chaoscope_schemas::config::RunConfig;
-use chaoscope_schemas::frame::{FrameHeader, status};
+use chaoscope_schemas::frame::{
+    FrameHeader, RecordBatch, reference_record_words, separations_record_words, status,
+};
 use chaoscope_schemas::names;
 
 use crate::engine::{Engine, RunError, Sample};
@@ -68,6 +70,9 @@ pub struct PublishOutcome {
     pub frames: u64,
     pub payload_bytes: u64,
     pub elapsed: Duration,
+    /// From the recorders' readiness to their leaving after the end-of-run record (the
+    /// sustained part of the run, without process start-up).
+    pub streaming: Duration,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -117,9 +122,9 @@ pub fn resolve_run_name(
     Ok(name)
 }
 
-/// Longest frame payload of a run (a separation set: k vectors plus k stretches).
-fn max_payload(spec: &RunSpec) -> usize {
-    spec.dim.max(spec.k * spec.dim + spec.k)
+/// Longest record of a run, in words (a separation set: k vectors plus k stretches).
+fn longest_record(spec: &RunSpec) -> usize {
+    reference_record_words(spec.dim).max(separations_record_words(spec.k, spec.dim))
 }
 
 /// The first non-finite value of a sample, described (NaN never goes on the bus or into files).
@@ -168,27 +173,28 @@ pub fn publish_spec(
     }
     let header = run_header(&run, config, &spec);
     let termination = Termination::new();
-    // Monitors hold two whole samples (reference + every scheme x set frame), memory permitting.
+    // Monitors hold two whole samples (a sample's records take at most one frame each),
+    // memory permitting.
     let frames_per_sample = 1 + spec.schemes.len() * spec.sets();
-    let monitor_buffer = bus::monitor_buffer_for(frames_per_sample, max_payload(&spec));
-    let mut ports = Ports::open(
-        &node_name,
-        &run,
-        max_payload(&spec),
-        monitor_buffer,
-        &termination,
-    )?;
+    let max_frame = bus::max_frame_words(longest_record(&spec));
+    let monitor_buffer = bus::monitor_buffer_for(frames_per_sample, max_frame);
+    let mut ports = Ports::open(&node_name, &run, max_frame, monitor_buffer, &termination)?;
     ports.announce(&header)?;
 
     let start = Instant::now();
     let mut publisher = RunPublisher {
         ports: &mut ports,
-        frame: 0,
+        batch: RecordBatch::new(0),
+        batch_opened: start,
+        last_sample: start,
+        payload_bytes: 0,
         samples: 0,
         last_step: 0,
         last_t: 0.0,
     };
-    let status = if !publisher.wait_for_recorders(options, &termination, &run)? {
+    let ready = publisher.wait_for_recorders(options, &termination, &run)?;
+    let streaming_start = Instant::now();
+    let status = if !ready {
         RunStatus::Interrupted
     } else {
         publisher.stream(Engine::new(spec), options, &termination)?
@@ -199,15 +205,17 @@ pub fn publish_spec(
         RunStatus::Failed(r) => (status::FAILED, r.clone()),
     };
     publisher.send_end(code, &reason)?;
-    let (frames, samples) = (publisher.frame, publisher.samples);
+    let (frames, samples) = (publisher.batch.next_frame(), publisher.samples);
+    let payload_bytes = publisher.payload_bytes;
     linger(&ports, options.linger, &termination);
     Ok(PublishOutcome {
         run,
         status,
         samples,
         frames,
-        payload_bytes: ports.payload_bytes,
+        payload_bytes,
         elapsed: start.elapsed(),
+        streaming: streaming_start.elapsed(),
     })
 }
 
@@ -224,16 +232,22 @@ fn linger(ports: &Ports, limit: Duration, termination: &Termination) {
 
 struct RunPublisher<'p> {
     ports: &'p mut Ports,
-    /// Next frame sequence number.
-    frame: u64,
+    /// Records not sent yet; its next record number is the run's next `frame_seq`.
+    batch: RecordBatch,
+    /// When the batch's first record was added, and when the latest sample was.
+    batch_opened: Instant,
+    last_sample: Instant,
+    /// Bytes of values (state, separations, stretches) sent on the data stream.
+    payload_bytes: u64,
     samples: u64,
     last_step: u64,
     last_t: f64,
 }
 
-/// Notify subscribers at least every this many frames, so a large sample does not fill their
-/// buffer before they are woken.
-const NOTIFY_EVERY: u64 = (bus::DATA_BUFFER / 4) as u64;
+/// Longest a complete sample waits in a batch for more samples. Samples that come faster than
+/// this share frames (a monitor sees them at most this late); a sample that took longer to
+/// compute is sent as soon as it is complete, so slow runs are not delayed at all.
+const MAX_BATCH_AGE: Duration = Duration::from_millis(2);
 
 impl RunPublisher<'_> {
     /// Returns false if a signal arrived first.
@@ -304,47 +318,77 @@ impl RunPublisher<'_> {
         Ok(status)
     }
 
+    /// Adds a sample's records to the batch, sending frames as they fill, and the batch itself
+    /// unless more samples are coming soon (see [`MAX_BATCH_AGE`]).
     fn send_sample(&mut self, sample: &Sample) -> Result<(), BusError> {
         let dim = sample.state.len();
-        let reference = FrameHeader::reference(
-            self.frame,
+        self.make_room(reference_record_words(dim))?;
+        self.batch.push_reference(
             sample.seq,
             sample.step,
             sample.t,
             sample.energy,
             sample.mean_divergence,
-            dim,
+            &sample.state,
         );
-        self.ports.send(reference, &[&sample.state])?;
-        self.frame += 1;
         for s in &sample.schemes {
-            let k = s.stretch.len();
-            let h = FrameHeader::separations(
-                self.frame,
+            self.make_room(separations_record_words(s.stretch.len(), dim))?;
+            self.batch.push_separations(
                 sample.seq,
                 sample.step,
                 sample.t,
                 s.scheme,
                 s.set,
-                k,
                 dim,
+                &s.separations,
+                &s.stretch,
             );
-            self.ports.send(h, &[&s.separations, &s.stretch])?;
-            self.frame += 1;
-            if self.frame.is_multiple_of(NOTIFY_EVERY) {
-                self.ports.notify();
-            }
         }
-        self.ports.notify();
         self.samples = sample.seq + 1;
         self.last_step = sample.step;
         self.last_t = sample.t;
+        let now = Instant::now();
+        let slow = now - self.last_sample >= MAX_BATCH_AGE;
+        self.last_sample = now;
+        if slow || now - self.batch_opened >= MAX_BATCH_AGE {
+            self.flush()?;
+        }
         Ok(())
     }
 
+    /// Sends the batch first if a record of `words` would take it beyond a frame's target.
+    fn make_room(&mut self, words: usize) -> Result<(), BusError> {
+        if self.batch.is_empty() {
+            self.batch_opened = Instant::now();
+        } else if self.batch.words().len() + words > bus::FRAME_TARGET_WORDS {
+            self.flush()?;
+            self.batch_opened = Instant::now();
+        }
+        Ok(())
+    }
+
+    /// Sends the batch (if any) as one frame and wakes the subscribers.
+    fn flush(&mut self) -> Result<(), BusError> {
+        if self.batch.is_empty() {
+            return Ok(());
+        }
+        self.ports.send(self.batch.header(), self.batch.words())?;
+        self.payload_bytes += (self.batch.value_words() * size_of::<f64>()) as u64;
+        self.ports.notify();
+        self.batch.reset(self.batch.next_frame());
+        Ok(())
+    }
+
+    /// Sends what is batched, then the end-of-run record. Records that cannot be sent (a
+    /// recorder stuck past the drain grace of a signal) are given up, their numbers left as a
+    /// gap, and the end of the run is still sent.
     fn send_end(&mut self, code: u32, reason: &str) -> Result<(), BusError> {
+        let flushed = self.flush();
+        if flushed.is_err() {
+            self.batch.reset(self.batch.next_frame());
+        }
         let h = FrameHeader::end(
-            self.frame,
+            self.batch.next_frame(),
             self.samples,
             self.last_step,
             self.last_t,
@@ -352,9 +396,9 @@ impl RunPublisher<'_> {
             reason,
         );
         self.ports.send(h, &[])?;
-        self.frame += 1;
+        self.batch.reset(self.batch.next_frame() + 1);
         self.ports.notify();
-        Ok(())
+        flushed
     }
 }
 

@@ -1,7 +1,6 @@
 //! The producer's side of the bus: header, lossless data and lossy monitor publishers, and the
 //! data-ready notifier.
 
-use std::mem::MaybeUninit;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
@@ -32,11 +31,9 @@ pub struct Ports {
     ready_service: EventService,
     _header_service: HeaderService,
     header: Publisher<ipc::Service, [u8], RunAnnouncement>,
-    data: Publisher<ipc::Service, [f64], FrameHeader>,
-    monitor: Publisher<ipc::Service, [f64], FrameHeader>,
+    data: Publisher<ipc::Service, [u64], FrameHeader>,
+    monitor: Publisher<ipc::Service, [u64], FrameHeader>,
     notifier: Notifier<ipc::Service>,
-    /// Bytes of payload sent on the data stream.
-    pub payload_bytes: u64,
 }
 
 /// Waits on a recorder whose buffer is full, but gives up on dead ones (their stale resources
@@ -68,8 +65,8 @@ fn backpressure_handler(
 }
 
 impl Ports {
-    /// Creates the node and every service of `run`; `max_payload` is the longest frame payload,
-    /// `monitor_buffer` the frames each monitor can hold.
+    /// Creates the node and every service of `run`; `max_payload` is the longest frame payload
+    /// in words, `monitor_buffer` the frames each monitor can hold.
     pub fn open(
         node_name: &str,
         run: &str,
@@ -119,7 +116,6 @@ impl Ports {
             data,
             monitor,
             notifier,
-            payload_bytes: 0,
         })
     }
 
@@ -163,15 +159,13 @@ impl Ports {
             .number_of_subscribers()
     }
 
-    /// Sends one frame whose payload is `parts` concatenated, to the recorders (waiting if they
-    /// are behind) and to the monitors (never waiting).
-    pub fn send(&mut self, header: FrameHeader, parts: &[&[f64]]) -> Result<(), BusError> {
-        let len = parts.iter().map(|p| p.len()).sum();
-        send_on(&self.data, header, parts, len).map_err(|e| BusError::new("send data frame", e))?;
-        self.payload_bytes += (len * size_of::<f64>()) as u64;
+    /// Sends one frame, to the recorders (waiting if they are behind) and to the monitors
+    /// (never waiting).
+    pub fn send(&mut self, header: FrameHeader, payload: &[u64]) -> Result<(), BusError> {
+        send_on(&self.data, header, payload).map_err(|e| BusError::new("send data frame", e))?;
         if self.monitors() > 0 {
             // A monitor that cannot keep up just misses frames.
-            let _ = send_on(&self.monitor, header, parts, len);
+            let _ = send_on(&self.monitor, header, payload);
         }
         Ok(())
     }
@@ -183,23 +177,12 @@ impl Ports {
 }
 
 fn send_on(
-    publisher: &Publisher<ipc::Service, [f64], FrameHeader>,
+    publisher: &Publisher<ipc::Service, [u64], FrameHeader>,
     header: FrameHeader,
-    parts: &[&[f64]],
-    len: usize,
+    payload: &[u64],
 ) -> Result<(), Box<dyn std::error::Error>> {
-    let mut sample = publisher.loan_slice_uninit(len)?;
+    let mut sample = publisher.loan_slice_uninit(payload.len())?;
     *sample.user_header_mut() = header;
-    let mut dst: &mut [MaybeUninit<f64>] = sample.payload_mut();
-    for part in parts {
-        let (head, rest) = dst.split_at_mut(part.len());
-        for (d, s) in head.iter_mut().zip(part.iter()) {
-            d.write(*s);
-        }
-        dst = rest;
-    }
-    // SAFETY: the loop above wrote all `len` elements.
-    let sample = unsafe { sample.assume_init() };
-    sample.send()?;
+    sample.write_from_slice(payload).send()?;
     Ok(())
 }

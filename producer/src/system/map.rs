@@ -162,6 +162,10 @@ impl DynamicalSystem for Map {
         Time::Discrete
     }
 
+    fn as_discrete_map(&self) -> Option<&Map> {
+        Some(self)
+    }
+
     #[inline]
     fn step(&self, x: &mut [f64], work: &mut Workspace) {
         let d = x.len();

@@ -149,6 +149,19 @@ pub trait DynamicalSystem: Send + Sync {
     /// operation where the system knows it. Off the hot path: called after a failure.
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String>;
 
+    /// The discrete map behind this system, for the batched kernel of phase-space maps (its
+    /// compiled lane functions, `crate::map::kernel::MapKernel`); `None` for every other kind.
+    fn as_discrete_map(&self) -> Option<&Map> {
+        None
+    }
+
+    /// The Runge-Kutta flow behind this system, for the batched kernel of phase-space maps
+    /// (`crate::map::kernel::FlowKernel`, fixed-step explicit methods); `None` for every other
+    /// kind.
+    fn as_rk_flow(&self) -> Option<&RkFlow> {
+        None
+    }
+
     /// The separation `out = y - x` of a nearby state `y` from the reference `x`, as the
     /// multi-particle method measures it: the plain difference, except on a system with
     /// periodic coordinates (a map's angles), whose separations are taken on the torus.

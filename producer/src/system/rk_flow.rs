@@ -43,6 +43,13 @@ pub trait VectorField: Send + Sync {
     fn is_hamiltonian(&self) -> bool {
         false
     }
+
+    /// The compiled function behind `f`, whose lane functions the batched kernel of
+    /// phase-space maps steps many orbits with (`crate::batch::flow_orbit_steps`); `None` for a
+    /// hand-written field, whose points run through the engine.
+    fn compiled(&self) -> Option<&chaoscope_expr::VectorFunction> {
+        None
+    }
 }
 
 /// The right-hand side of `[model] name = "ode"`: the compiled expressions and their automatic
@@ -85,6 +92,10 @@ impl VectorField for chaoscope_expr::VectorFunction {
 
     fn is_hamiltonian(&self) -> bool {
         chaoscope_expr::VectorFunction::is_hamiltonian(self)
+    }
+
+    fn compiled(&self) -> Option<&chaoscope_expr::VectorFunction> {
+        Some(self)
     }
 }
 
@@ -129,6 +140,10 @@ impl DynamicalSystem for RkFlow {
 
     fn time(&self) -> Time {
         Time::Continuous { h: self.h }
+    }
+
+    fn as_rk_flow(&self) -> Option<&RkFlow> {
+        Some(self)
     }
 
     fn step(&self, x: &mut [f64], work: &mut Workspace) {

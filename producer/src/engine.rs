@@ -15,6 +15,13 @@ use crate::integrator::{TangentError, Workspace};
 use crate::renormalization::{self, RenormalizationError};
 use crate::spec::{Method, RunSpec};
 
+/// Below this many state values stepped in a window (steps x dimension x orbits, over every
+/// task), the tasks of the window run one after another on the calling thread: waking rayon's
+/// workers and gathering them again costs microseconds, more than such a window's work (a
+/// Henon-Heiles run sampled at every step: 40), and the idle workers' spinning takes the core
+/// a recorder needs. The bits are the same either way: each task is serial on its own data.
+const PARALLEL_MIN_WORK: u64 = 1024;
+
 /// Everything known at one renormalization time.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Sample {
@@ -103,6 +110,8 @@ pub struct Engine {
     /// bounds of each step's share: what the deviation sets follow.
     plan: Vec<f64>,
     plan_bounds: Vec<usize>,
+    /// [`PARALLEL_MIN_WORK`]; tests move it to take either path.
+    parallel_min_work: u64,
 }
 
 impl Engine {
@@ -143,6 +152,7 @@ impl Engine {
             divergence,
             plan: Vec::new(),
             plan_bounds: Vec::new(),
+            parallel_min_work: PARALLEL_MIN_WORK,
         }
     }
 
@@ -244,11 +254,18 @@ impl Engine {
             substeps: &self.plan,
             bounds: &self.plan_bounds,
         };
-        let results: Vec<Result<Option<SchemeSample>, RunError>> = self
-            .tasks
-            .par_iter_mut()
-            .map(|task| task.advance(spec, reference, &plan, renorm[task.scheme], t))
-            .collect();
+        let advance =
+            |task: &mut DeviationSet| task.advance(spec, reference, &plan, renorm[task.scheme], t);
+        // Work of this window: state values stepped, over every task's orbits.
+        let work = n_steps
+            .saturating_mul((spec.k as u64 + 1) * spec.dim as u64)
+            .saturating_mul(self.tasks.len() as u64);
+        let results: Vec<Result<Option<SchemeSample>, RunError>> = if work < self.parallel_min_work
+        {
+            self.tasks.iter_mut().map(advance).collect()
+        } else {
+            self.tasks.par_iter_mut().map(advance).collect()
+        };
         let mut schemes = Vec::new();
         for r in results {
             if let Some(s) = r? {
@@ -480,6 +497,37 @@ mod tests {
 
     fn scheme(name: &str, method: &str, tau: f64) -> SchemeConfig {
         SchemeConfig::new(name, method, 1e-8, tau)
+    }
+
+    #[test]
+    fn small_windows_run_serially_to_the_same_bits() {
+        // Sampled at every step (work 1 x 4 x 4 x 4 = 64, serial by default) and forced onto
+        // rayon: each task is serial on its own data, so every value must match bit for bit.
+        let run = |parallel_min_work| {
+            let s = spec(
+                vec![scheme("vm", "vm", 0.01), scheme("mpm", "mpm", 0.01)],
+                0.125,
+                2.0,
+            );
+            let mut engine = Engine::new(s);
+            engine.parallel_min_work = parallel_min_work;
+            let mut samples = Vec::new();
+            engine.run(|x| samples.push(x)).unwrap();
+            samples
+        };
+        let (serial, parallel) = (run(u64::MAX), run(0));
+        assert_eq!(serial.len(), 201);
+        assert_eq!(serial.len(), parallel.len());
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for (a, b) in serial.iter().zip(&parallel) {
+            assert_eq!(bits(&a.state), bits(&b.state));
+            assert_eq!(a.schemes.len(), 4);
+            for (x, y) in a.schemes.iter().zip(&b.schemes) {
+                assert_eq!((x.scheme, x.set), (y.scheme, y.set));
+                assert_eq!(bits(&x.separations), bits(&y.separations));
+                assert_eq!(bits(&x.stretch), bits(&y.stretch));
+            }
+        }
     }
 
     #[test]

@@ -73,6 +73,7 @@ pub struct Propagator {
     u: Vec<f64>,
     r: Vec<f64>,
     u_new: Vec<f64>,
+    row: Vec<f64>,
 }
 
 impl Propagator {
@@ -89,6 +90,7 @@ impl Propagator {
             u: eye,
             r: vec![0.0; dim * dim],
             u_new: vec![0.0; dim * dim],
+            row: vec![0.0; dim],
         }
     }
 
@@ -141,15 +143,18 @@ impl Propagator {
             v.iter_mut().for_each(|x| *x /= rjj);
         }
         // U_new = (D_old^-1 R~ D_old) U_old with R~ = D_m^-1 R_m unit upper triangular.
+        // Row i's factors (R_m[i][l] / R_m[i][i]) e^{s_l - s_i}, l > i, formed once per row
+        // (the exponentials are most of a small basis' renormalization cost).
         let s = &self.log_scales;
         for i in 0..d {
             let rii = self.r[i * d + i];
+            for l in i + 1..d {
+                self.row[l] = (self.r[i * d + l] / rii) * (s[l] - s[i]).exp();
+            }
             for j in i..d {
-                let mut acc = 0.0;
-                for l in i..=j {
-                    let rt = if l == i { 1.0 } else { self.r[i * d + l] / rii };
-                    let w = if l == i { 1.0 } else { (s[l] - s[i]).exp() };
-                    acc += rt * w * self.u[l * d + j];
+                let mut acc = self.u[i * d + j];
+                for l in i + 1..=j {
+                    acc += self.row[l] * self.u[l * d + j];
                 }
                 self.u_new[i * d + j] = acc;
             }
@@ -382,6 +387,7 @@ mod tests {
             u: vec![0.0; D * D],
             r: Vec::new(),
             u_new: Vec::new(),
+            row: Vec::new(),
         };
         let mut img = SetImage {
             k,

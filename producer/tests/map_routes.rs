@@ -110,3 +110,17 @@ fn route_mistakes_name_the_key() {
     // VM is linear: any d0 is the same propagator.
     assert!(MapSpec::from_config(&config("vm", "propagator", 1e-4)).is_ok());
 }
+
+#[test]
+fn batched_vm_route_is_the_per_point_vm_route_bit_for_bit() {
+    // run_map takes separable Hamiltonians' VM route through the many-points kernel (one lane
+    // per point: orbit and basis); compute_vm integrates one point with its recorded reference.
+    let spec = MapSpec::from_config(&config("vm", "propagator", 1e-8)).unwrap();
+    let batched = map("vm", "propagator");
+    let isa = chaoscope_producer::batch::Isa::detect();
+    for r in &batched {
+        let one = chaoscope_producer::map::propagator::compute_vm(&spec, isa, r.index, &|| false)
+            .unwrap();
+        assert!(r.same_numbers(&one), "point {}: {r:?} vs {one:?}", r.index);
+    }
+}

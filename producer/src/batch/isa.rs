@@ -8,7 +8,7 @@
 //! Measured on AVX-512: HH 64 lanes 3.9e8 vs 16 lanes 2.3e8 orbit-steps/s; FPUT N = 101
 //! 16 lanes 4.2e6 vs 64 lanes 0.9e6.
 
-use super::lanes::{LaneModel, StepCoeffs};
+use super::lanes::{LaneModel, StepCoeffs, orbit_tangent_steps};
 use super::soa::{LANE_QUANTUM, Soa};
 
 /// An instruction set the kernel is compiled for.
@@ -197,5 +197,54 @@ pub(super) fn dispatch_tangents<M: LaneModel>(
         #[cfg(target_arch = "x86_64")]
         Isa::Avx2 => unsafe { tangents_avx2(m, c, stages, v, n) },
         _ => tangent_chunks::<M, LANE_QUANTUM>(m, c, stages, v, n),
+    }
+}
+
+/// Every lane of `x` (orbit and tangent vectors, [`orbit_tangent_steps`]), `LANE_QUANTUM` lanes
+/// at a time.
+#[inline(always)]
+fn orbit_tangent_chunks<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+    let mut buf = vec![[0.0; LANE_QUANTUM]; x.rows()];
+    let mut force = vec![[0.0; LANE_QUANTUM]; m.dof()];
+    let mut o = 0;
+    while o < x.lanes() {
+        x.gather(o, &mut buf);
+        orbit_tangent_steps(m, c, &mut buf, &mut force, n);
+        x.scatter(o, &buf);
+        o += LANE_QUANTUM;
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn orbit_tangents_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+    orbit_tangent_chunks(m, c, x, n)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn orbit_tangents_avx2<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+    orbit_tangent_chunks(m, c, x, n)
+}
+
+pub(super) fn dispatch_orbit_tangents<M: LaneModel>(
+    isa: Isa,
+    m: &M,
+    c: &StepCoeffs,
+    x: &mut Soa,
+    n: u64,
+) {
+    assert!(
+        isa.available(),
+        "{} is not supported by this CPU",
+        isa.name()
+    );
+    match isa {
+        // SAFETY: the CPU supports the instruction set (checked above).
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => unsafe { orbit_tangents_avx512(m, c, x, n) },
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx2 => unsafe { orbit_tangents_avx2(m, c, x, n) },
+        _ => orbit_tangent_chunks(m, c, x, n),
     }
 }

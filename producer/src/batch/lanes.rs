@@ -86,6 +86,30 @@ pub trait LaneModel: Model {
     /// `out[.][l] = Hess V(q) v[.][l]` at one shared position `q` (the reference orbit).
     fn hessian_vector_lanes<const L: usize>(&self, q: &[f64], v: &[[f64; L]], out: &mut [[f64; L]]);
 
+    /// `out[.][l] = Hess V(q[.][l]) v[.][l]`, each lane at its own position (`q`, `v`, `out`
+    /// have `N` rows): the tangent maps of many orbits at once. The default is the scalar
+    /// `hessian_vector` lane by lane (the bits every implementation must give).
+    #[inline(always)]
+    fn hessian_vector_each_lane<const L: usize>(
+        &self,
+        q: &[[f64; L]],
+        v: &[[f64; L]],
+        out: &mut [[f64; L]],
+    ) {
+        let n = self.dof();
+        let (mut ql, mut vl, mut ol) = (vec![0.0; n], vec![0.0; n], vec![0.0; n]);
+        for l in 0..L {
+            for i in 0..n {
+                ql[i] = q[i][l];
+                vl[i] = v[i][l];
+            }
+            self.hessian_vector(&ql, &vl, &mut ol);
+            for i in 0..n {
+                out[i][l] = ol[i];
+            }
+        }
+    }
+
     /// `n_steps` steps of the splitting for `L` orbits; `x` has `2N` rows, `force` `N` rows.
     #[inline(always)]
     fn orbit_steps<const L: usize>(
@@ -161,5 +185,43 @@ pub fn record_reference_stages<M: Model + ?Sized>(
             }
         }
         drift(x, c.last_drift());
+    }
+}
+
+/// `n_steps` steps of the splitting for `L` orbits, each with `vectors` tangent vectors around
+/// itself: `x` has `2N` rows of orbit, then `2N` rows per tangent vector; `force` has `N` rows.
+/// Lane by lane the bits of [`record_reference_stages`] followed by
+/// [`LaneModel::tangent_steps`]: the tangent map of a kick is taken at the position the orbit
+/// has before it, as the recorded stages hold it.
+#[inline(always)]
+pub(super) fn orbit_tangent_steps<M: LaneModel, const L: usize>(
+    m: &M,
+    c: &StepCoeffs,
+    x: &mut [[f64; L]],
+    force: &mut [[f64; L]],
+    n_steps: u64,
+) {
+    let n = m.dof();
+    let w = m.inverse_masses();
+    let (orbit, tangents) = x.split_at_mut(2 * n);
+    for _ in 0..n_steps {
+        for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
+            let (q, p) = orbit.split_at_mut(n);
+            drift_rows(q, p, ch, w);
+            for v in tangents.chunks_exact_mut(2 * n) {
+                let (dq, dp) = v.split_at_mut(n);
+                drift_rows(dq, dp, ch, w);
+                m.hessian_vector_each_lane(q, dq, force);
+                kick_rows(dp, force, dh);
+            }
+            m.gradient_lanes(q, force);
+            kick_rows(p, force, dh);
+        }
+        let (q, p) = orbit.split_at_mut(n);
+        drift_rows(q, p, c.last_drift(), w);
+        for v in tangents.chunks_exact_mut(2 * n) {
+            let (dq, dp) = v.split_at_mut(n);
+            drift_rows(dq, dp, c.last_drift(), w);
+        }
     }
 }

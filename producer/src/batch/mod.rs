@@ -49,3 +49,17 @@ pub fn tangent_steps<M: LaneModel>(
 ) {
     isa::dispatch_tangents(isa, model, coeffs, stages, v, n_steps)
 }
+
+/// Advance every lane of `x` by `n_steps` steps: rows `0..2N` are an orbit, each further `2N`
+/// rows a tangent vector around that lane's own orbit (the variational equations of many
+/// points at once, for the map's VM propagator route). Lane by lane the bits of
+/// [`record_reference_stages`] + [`tangent_steps`].
+pub fn orbit_tangent_steps<M: LaneModel>(
+    isa: Isa,
+    model: &M,
+    coeffs: &StepCoeffs,
+    x: &mut Soa,
+    n_steps: u64,
+) {
+    isa::dispatch_orbit_tangents(isa, model, coeffs, x, n_steps)
+}

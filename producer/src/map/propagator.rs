@@ -159,6 +159,131 @@ fn vm_with<K: PointKernel>(
     })
 }
 
+/// VM of separable Hamiltonians, many points at once: one lane per point holding its orbit and
+/// its `D` basis vectors ([`crate::batch::orbit_tangent_steps`]), so the reference orbits share
+/// the SIMD lanes too; the same numbers as [`compute_vm`] bit for bit (the kernel repeats
+/// the reference's recorded stages and the tangent steps lane by lane).
+pub fn compute_vm_batch(
+    spec: &MapSpec,
+    isa: Isa,
+    indices: &[u64],
+    stop: &dyn Fn() -> bool,
+) -> Vec<PointResult> {
+    let batched = spec
+        .batched
+        .as_ref()
+        .expect("the batched VM route runs separable Hamiltonians");
+    crate::with_lane_model!(&batched.lanes, |m| vm_batch_with(
+        m,
+        &batched.coeffs,
+        isa,
+        spec,
+        indices,
+        stop
+    ))
+}
+
+struct LiveVm {
+    base: PointResult,
+    acc: PointAccumulator,
+    prop: Propagator,
+    sets: Sets,
+    lane: usize,
+    orbit_steps: u64,
+}
+
+fn vm_batch_with<M: crate::batch::LaneModel>(
+    model: &M,
+    coeffs: &crate::batch::StepCoeffs,
+    isa: Isa,
+    spec: &MapSpec,
+    indices: &[u64],
+    stop: &dyn Fn() -> bool,
+) -> Vec<PointResult> {
+    let run = &spec.run;
+    let dim = run.dim;
+    let rows = dim * (1 + dim);
+    let mut out = Vec::with_capacity(indices.len());
+    let mut live = Vec::new();
+    let mut columns: Vec<Vec<f64>> = Vec::new();
+    for &index in indices {
+        let base = spec.base_result(index);
+        match spec.initial_state(index) {
+            Err(reason) => out.push(failed(base, PointStatus::OutsideEnergySurface, 0.0, reason)),
+            Ok(x0) => {
+                let prop = Propagator::new(dim);
+                let mut column = x0.clone();
+                column.extend_from_slice(prop.basis());
+                live.push(LiveVm {
+                    base: PointResult { x0, ..base },
+                    acc: PointAccumulator::new(spec.indicator, dim, run.sets(), run.t_final()),
+                    prop,
+                    sets: Sets::new(run),
+                    lane: columns.len(),
+                    orbit_steps: 0,
+                });
+                columns.push(column);
+            }
+        }
+    }
+    let mut soa = Soa::new(rows, columns.len());
+    for (l, c) in columns.iter().enumerate() {
+        soa.write_lane(l, c);
+    }
+    let mut column = vec![0.0; rows];
+    let mut windows = Windows::new(run);
+    while !live.is_empty() {
+        if stop() {
+            break;
+        }
+        let Some(w) = windows.next() else { break };
+        crate::batch::orbit_tangent_steps(isa, model, coeffs, &mut soa, w.steps);
+        let before = live.len();
+        let mut keep = Vec::with_capacity(before);
+        for mut p in live.drain(..) {
+            p.orbit_steps += w.steps * (1 + dim as u64);
+            soa.read_lane(p.lane, &mut column);
+            let (x, evolved) = column.split_at_mut(dim);
+            if let Err(e) = check_escape(x, w.t) {
+                out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
+                continue;
+            }
+            if let Err(e) = p.prop.renormalize(evolved, 1.0) {
+                out.push(broke_off(
+                    p.base,
+                    w.t,
+                    &basis_error(run, &w, e),
+                    p.orbit_steps,
+                ));
+                continue;
+            }
+            evolved.copy_from_slice(p.prop.basis());
+            soa.write_lane(p.lane, &column);
+            p.sets.observe(run, &p.prop, &mut p.acc, &w);
+            if p.acc.is_done() {
+                let r = p.acc.finish(p.base.clone());
+                out.push(PointResult {
+                    orbit_steps: p.orbit_steps,
+                    ..r
+                });
+                continue;
+            }
+            keep.push(p);
+        }
+        if keep.len() != before {
+            let mut packed = Soa::new(rows, keep.len());
+            for (i, p) in keep.iter_mut().enumerate() {
+                soa.read_lane(p.lane, &mut column);
+                packed.write_lane(i, &column);
+                p.lane = i;
+            }
+            soa = packed;
+        }
+        live = keep;
+    }
+    out
+}
+
 struct Live {
     base: PointResult,
     acc: PointAccumulator,

@@ -63,6 +63,10 @@ pub fn run_map(
         Method::Mpm if spec.route == Route::Propagator => {
             options.mpm_points_per_batch.max(1) * ROUTE_BATCH_FACTOR
         }
+        // One lane per point (its orbit and basis): the points fill the kernel's chunks.
+        Method::Vm if spec.route == Route::Propagator && spec.batched.is_some() => {
+            options.mpm_points_per_batch.max(1) * ROUTE_BATCH_FACTOR
+        }
         Method::Mpm => options.mpm_points_per_batch.max(1),
         Method::Vm => 1,
     };
@@ -83,6 +87,9 @@ pub fn run_map(
                     let results = match spec.run.schemes[0].method {
                         Method::Mpm if spec.route == Route::Propagator => {
                             propagator::compute_mpm(spec, options.isa, chunk, &stopped)
+                        }
+                        Method::Vm if spec.route == Route::Propagator && spec.batched.is_some() => {
+                            propagator::compute_vm_batch(spec, options.isa, chunk, &stopped)
                         }
                         Method::Vm if spec.route == Route::Propagator => chunk
                             .iter()

@@ -32,6 +32,20 @@ impl LaneModel for HenonHeiles {
     }
 
     #[inline(always)]
+    fn hessian_vector_each_lane<const L: usize>(
+        &self,
+        q: &[[f64; L]],
+        v: &[[f64; L]],
+        out: &mut [[f64; L]],
+    ) {
+        for l in 0..L {
+            let (x1, x2) = (q[0][l], q[1][l]);
+            out[0][l] = (1.0 + 2.0 * x2) * v[0][l] + 2.0 * x1 * v[1][l];
+            out[1][l] = 2.0 * x1 * v[0][l] + (1.0 - 2.0 * x2) * v[1][l];
+        }
+    }
+
+    #[inline(always)]
     fn orbit_steps<const L: usize>(
         &self,
         c: &StepCoeffs,

@@ -3,7 +3,11 @@
 //!
 //! - `kernel`: orbit-steps per CPU-second of one thread for Henon-Heiles and the FPUT chain
 //!   (N = 5, 101, 501), MPM (independent orbits) and VM (tangent vectors around a shared
-//!   reference orbit, the reference included in the count), on the detected instruction set.
+//!   reference orbit, the reference included in the count), on the detected instruction set,
+//!   each beside its yardsticks measured interleaved in the same run (`plain_loop`): the same
+//!   step as a plain structure-of-arrays loop without FMA (`kernel_over_plain_loop`, target
+//!   0.9) and with FMA (`kernel_over_plain_fma_loop`, `plain_fma_loop_over_plain_loop`: what
+//!   the no-FMA invariant costs). `--kernel-only` runs just these cases.
 //! - `expression_models`: the same models written as expressions (`[model] name =
 //!   "potential"`) against the built-in ones, side by side: batched kernel, one-orbit engine,
 //!   and parse + differentiate + compile time (for FPUT N = 1001: the time to a usable Cranelift
@@ -12,7 +16,10 @@
 //!   part.
 //! - `gali2_map`: the paper's Fig. 9(b) settings (HH, H = 0.125, x1 = 0 section, ABA864,
 //!   h = 0.01, tau = 1, d0 = 1e-8, 50 sets, t = 500, MPM) on a reduced grid over the same
-//!   region, with 1 and 2 threads; CPU time extrapolated to 700 x 600 points.
+//!   region, with 1 and 2 threads; CPU time extrapolated to 700 x 600 points. `scalar_c`: the
+//!   paper's Appendix A pseudo-code in scalar C (`scalar_c`) on `--scalar-c-points` points of
+//!   the grid, per initial condition against this map
+//!   (`per_initial_condition_speedup_over_scalar_c`, target 6).
 //! - `propagator_routes`: the same workload on a smaller grid (`--routes-grid`) by per-set VM,
 //!   the VM propagator route, per-set MPM and the MPM propagator route (`[map] route`), one
 //!   thread each: CPU time, points per CPU-second, extrapolated CPU hours for 700 x 600, the

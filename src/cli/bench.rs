@@ -232,7 +232,7 @@ fn kernel_vs_plain<M: LaneModel>(
             flat[r * lanes + l] = soa0.get(r, l);
         }
     }
-    let plain0 = PlainState::new(plain, lanes, flat, x0.clone());
+    let plain0 = PlainState::new(plain, lanes, &flat, x0.clone());
     let fused = plain_loop::has_fused(isa);
     let share = seconds / YARDSTICK_ROUNDS as f64;
     let (mut kernel, mut plain_t, mut fused_t) = ((0, 0.0), (0, 0.0), (0, 0.0));

@@ -119,10 +119,21 @@ fn tangent_chunks<M: LaneModel, const L: usize>(
 fn orbits_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
     if m.register_resident() {
         orbit_chunks::<M, 64>(m, c, x, n)
-    } else {
+    } else if m.dof() < LONG_CHAIN {
         orbit_chunks::<M, 16>(m, c, x, n)
+    } else {
+        orbit_chunks::<M, 8>(m, c, x, n)
     }
 }
+
+/// From this many degrees of freedom on, a streamed model's AVX-512 orbit chunks are one
+/// vector wide: the sites of one stage already give the out-of-order core enough independent
+/// vectors, and the narrower chunk halves what each stage streams. A short chain needs two
+/// vectors per row to hide the latency of a stage (drift, force, kick). Measured on Zen 5
+/// (a loaded 2-core VM; `chaoscope bench --kernel-only --isa avx512`), FPUT kernel over the
+/// plain loop: N = 5: 16 lanes 2.07, 8 lanes 0.36; N = 101: 16 lanes 0.77, 8 lanes 2.3;
+/// N = 501: 1.48 and 1.14.
+const LONG_CHAIN: usize = 32;
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]

@@ -34,12 +34,20 @@ impl PlainModel {
     }
 }
 
-/// The state of one plain-loop case: `rows x lanes` numbers, `data[row * lanes + lane]` (the
-/// layout of `Soa`), and for VM the reference orbit with its recorded stage positions.
+/// Padding of every row, in numbers: one cache line. Rows of a power-of-two number of lanes
+/// would otherwise sit a multiple of 4 KiB apart, and the CPU would take a store to one row
+/// for a store to the next row's load at the same index (4K aliasing), stalling the loop on
+/// false dependencies: the yardstick must not be slowed by its layout.
+const ROW_PAD: usize = 8;
+
+/// The state of one plain-loop case: `rows` rows of `lanes` numbers, `data[row * stride +
+/// lane]` with `stride = lanes + ROW_PAD`, and for VM the reference orbit with its recorded
+/// stage positions.
 #[derive(Debug, Clone)]
 pub struct PlainState {
     pub lanes: usize,
-    pub data: Vec<f64>,
+    stride: usize,
+    data: Vec<f64>,
     /// The VM reference orbit (`2N` numbers); unused by MPM.
     pub reference: Vec<f64>,
     stages: Vec<f64>,
@@ -47,22 +55,55 @@ pub struct PlainState {
 }
 
 impl PlainState {
-    pub fn new(model: PlainModel, lanes: usize, data: Vec<f64>, reference: Vec<f64>) -> Self {
+    /// `rows` is `data[row * lanes + lane]` (the layout of `Soa`), `2N` rows.
+    pub fn new(model: PlainModel, lanes: usize, rows: &[f64], reference: Vec<f64>) -> Self {
         let n = model.dof();
-        assert_eq!(data.len(), 2 * n * lanes, "2N rows of `lanes` numbers");
+        assert_eq!(rows.len(), 2 * n * lanes, "2N rows of `lanes` numbers");
+        let stride = lanes + ROW_PAD;
+        let mut data = vec![0.0; 2 * n * stride];
+        for (d, r) in data.chunks_exact_mut(stride).zip(rows.chunks_exact(lanes)) {
+            d[..lanes].copy_from_slice(r);
+        }
         assert!(
             matches!(model, PlainModel::HenonHeiles) || n >= 2,
             "the plain FPUT loop needs N >= 2"
         );
         Self {
             lanes,
+            stride,
             data,
             reference,
             stages: Vec::new(),
             // FPUT: the N + 1 bond forces of every lane.
-            scratch: vec![0.0; (n + 1) * lanes],
+            scratch: vec![0.0; (n + 1) * stride],
         }
     }
+
+    /// The state as `data[row * lanes + lane]`.
+    #[cfg(test)]
+    pub fn rows(&self) -> Vec<f64> {
+        let rows = self.data.chunks_exact(self.stride);
+        rows.flat_map(|r| r[..self.lanes].iter().copied()).collect()
+    }
+}
+
+/// The first `lanes` numbers of every row of `stride` numbers.
+#[inline(always)]
+fn rows_mut(x: &mut [f64], lanes: usize, stride: usize) -> impl Iterator<Item = &mut [f64]> {
+    x.chunks_exact_mut(stride).map(move |r| &mut r[..lanes])
+}
+
+#[inline(always)]
+fn rows(x: &[f64], lanes: usize, stride: usize) -> impl Iterator<Item = &[f64]> {
+    x.chunks_exact(stride).map(move |r| &r[..lanes])
+}
+
+/// The four rows of a Henon-Heiles state.
+#[inline(always)]
+fn four_rows(x: &mut [f64], lanes: usize, stride: usize) -> [&mut [f64]; 4] {
+    let mut r = rows_mut(x, lanes, stride);
+    let mut next = || r.next().expect("four rows");
+    [next(), next(), next(), next()]
 }
 
 /// `a * b + c`, rounded once (`FMA`) or twice (the kernel's arithmetic).
@@ -81,17 +122,22 @@ fn run<const FMA: bool>(
     n_steps: u64,
 ) {
     match (model, tangent) {
-        (PlainModel::HenonHeiles, false) => hh_orbits::<FMA>(c, &mut st.data, st.lanes, n_steps),
+        (PlainModel::HenonHeiles, false) => {
+            hh_orbits::<FMA>(c, four_rows(&mut st.data, st.lanes, st.stride), n_steps)
+        }
         (PlainModel::HenonHeiles, true) => {
             hh_reference::<FMA>(c, &mut st.reference, &mut st.stages, n_steps);
-            hh_tangents::<FMA>(c, &st.stages, &mut st.data, st.lanes, n_steps)
+            let v = four_rows(&mut st.data, st.lanes, st.stride);
+            hh_tangents::<FMA>(c, &st.stages, v, n_steps)
         }
         (PlainModel::Fput { n, beta }, false) => {
-            fput_orbits::<FMA>(n, beta, c, &mut st.data, &mut st.scratch, st.lanes, n_steps)
+            let x = (&mut st.data[..], &mut st.scratch[..], st.lanes, st.stride);
+            fput_orbits::<FMA>(n, beta, c, x, n_steps)
         }
         (PlainModel::Fput { n, beta }, true) => {
             fput_reference::<FMA>(n, beta, c, &mut st.reference, &mut st.stages, n_steps);
-            fput_tangents::<FMA>(n, beta, c, &st.stages, &mut st.data, st.lanes, n_steps)
+            let v = (&mut st.data[..], st.lanes, st.stride);
+            fput_tangents::<FMA>(n, beta, c, &st.stages, v, n_steps)
         }
     }
 }
@@ -154,10 +200,8 @@ pub fn steps(
 
 /// Henon-Heiles orbits: rows q1, q2, p1, p2.
 #[inline(always)]
-fn hh_orbits<const FMA: bool>(c: &StepCoeffs, x: &mut [f64], lanes: usize, n_steps: u64) {
-    let (q, p) = x.split_at_mut(2 * lanes);
-    let (q1, q2) = q.split_at_mut(lanes);
-    let (p1, p2) = p.split_at_mut(lanes);
+fn hh_orbits<const FMA: bool>(c: &StepCoeffs, x: [&mut [f64]; 4], n_steps: u64) {
+    let [q1, q2, p1, p2] = x;
     let last = c.last_drift();
     for _ in 0..n_steps {
         for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
@@ -217,16 +261,8 @@ fn hh_reference<const FMA: bool>(
 
 /// Henon-Heiles tangent vectors (rows dq1, dq2, dp1, dp2) around the recorded reference.
 #[inline(always)]
-fn hh_tangents<const FMA: bool>(
-    c: &StepCoeffs,
-    stages: &[f64],
-    v: &mut [f64],
-    lanes: usize,
-    n_steps: u64,
-) {
-    let (dq, dp) = v.split_at_mut(2 * lanes);
-    let (u1, u2) = dq.split_at_mut(lanes);
-    let (w1, w2) = dp.split_at_mut(lanes);
+fn hh_tangents<const FMA: bool>(c: &StepCoeffs, stages: &[f64], v: [&mut [f64]; 4], n_steps: u64) {
+    let [u1, u2, w1, w2] = v;
     let last = c.last_drift();
     let mut stage = stages.chunks_exact(2);
     for _ in 0..n_steps {
@@ -271,11 +307,13 @@ fn stiffness<const FMA: bool>(beta: f64, r: f64) -> f64 {
     madd::<FMA>(3.0 * beta * r, r, 1.0)
 }
 
-/// `q += c p` over whole rows (q and p are the two halves of the state).
+/// `q += c p` row by row (q and p are the two halves of the state).
 #[inline(always)]
-fn drift<const FMA: bool>(q: &mut [f64], p: &[f64], ch: f64) {
-    for (a, u) in q.iter_mut().zip(p) {
-        *a = madd::<FMA>(ch, *u, *a);
+fn drift<const FMA: bool>(q: &mut [f64], p: &[f64], ch: f64, lanes: usize, stride: usize) {
+    for (qr, pr) in rows_mut(q, lanes, stride).zip(rows(p, lanes, stride)) {
+        for (a, u) in qr.iter_mut().zip(pr) {
+            *a = madd::<FMA>(ch, *u, *a);
+        }
     }
 }
 
@@ -285,45 +323,39 @@ fn fput_orbits<const FMA: bool>(
     n: usize,
     beta: f64,
     c: &StepCoeffs,
-    x: &mut [f64],
-    bonds: &mut [f64],
-    lanes: usize,
+    (x, bonds, lanes, stride): (&mut [f64], &mut [f64], usize, usize),
     n_steps: u64,
 ) {
-    let (q, p) = x.split_at_mut(n * lanes);
+    let (q, p) = x.split_at_mut(n * stride);
     for _ in 0..n_steps {
         for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
-            drift::<FMA>(q, p, ch);
+            drift::<FMA>(q, p, ch, lanes, stride);
             // Bond j joins sites j - 1 and j (site -1 and site N are the fixed ends).
-            let (first, rest) = bonds.split_at_mut(lanes);
+            let mut b = rows_mut(bonds, lanes, stride);
+            let first = b.next().expect("N + 1 bonds");
             for (b, a) in first.iter_mut().zip(&q[..lanes]) {
                 *b = bond::<FMA>(beta, *a);
             }
-            let (inner, end) = rest.split_at_mut((n - 1) * lanes);
-            for ((b, lo), hi) in inner
-                .chunks_exact_mut(lanes)
-                .zip(q.chunks_exact(lanes))
-                .zip(q[lanes..].chunks_exact(lanes))
-            {
+            let pairs = rows(q, lanes, stride).zip(rows(&q[stride..], lanes, stride));
+            for (b, (lo, hi)) in b.by_ref().take(n - 1).zip(pairs) {
                 for ((b, a), c) in b.iter_mut().zip(lo).zip(hi) {
                     *b = bond::<FMA>(beta, c - a);
                 }
             }
-            for (b, a) in end.iter_mut().zip(&q[(n - 1) * lanes..]) {
+            let end = b.next().expect("N + 1 bonds");
+            for (b, a) in end.iter_mut().zip(&q[(n - 1) * stride..][..lanes]) {
                 *b = bond::<FMA>(beta, -a);
             }
+            drop(b);
             // Kick: dV/dq_i = f(bond i) - f(bond i + 1).
-            for ((pr, left), right) in p
-                .chunks_exact_mut(lanes)
-                .zip(bonds.chunks_exact(lanes))
-                .zip(bonds[lanes..].chunks_exact(lanes))
-            {
+            let pairs = rows(bonds, lanes, stride).zip(rows(&bonds[stride..], lanes, stride));
+            for (pr, (left, right)) in rows_mut(p, lanes, stride).zip(pairs) {
                 for ((u, l), r) in pr.iter_mut().zip(left).zip(right) {
                     *u = madd::<FMA>(-dh, l - r, *u);
                 }
             }
         }
-        drift::<FMA>(q, p, c.last_drift());
+        drift::<FMA>(q, p, c.last_drift(), lanes, stride);
     }
 }
 
@@ -342,7 +374,7 @@ fn fput_reference<const FMA: bool>(
     let (q, p) = x.split_at_mut(n);
     for _ in 0..n_steps {
         for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
-            drift::<FMA>(q, p, ch);
+            drift::<FMA>(q, p, ch, n, n);
             stages.extend_from_slice(q);
             for i in 0..n {
                 let left = if i == 0 { q[0] } else { q[i] - q[i - 1] };
@@ -351,7 +383,7 @@ fn fput_reference<const FMA: bool>(
                 p[i] = madd::<FMA>(-dh, g, p[i]);
             }
         }
-        drift::<FMA>(q, p, c.last_drift());
+        drift::<FMA>(q, p, c.last_drift(), n, n);
     }
 }
 
@@ -363,29 +395,29 @@ fn fput_tangents<const FMA: bool>(
     beta: f64,
     c: &StepCoeffs,
     stages: &[f64],
-    v: &mut [f64],
-    lanes: usize,
+    (v, lanes, stride): (&mut [f64], usize, usize),
     n_steps: u64,
 ) {
-    let (dq, dp) = v.split_at_mut(n * lanes);
+    let (dq, dp) = v.split_at_mut(n * stride);
     let mut k = vec![0.0; n + 1];
     let mut stage = stages.chunks_exact(n);
     for _ in 0..n_steps {
         for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
-            drift::<FMA>(dq, dp, ch);
+            drift::<FMA>(dq, dp, ch, lanes, stride);
             let q = stage.next().expect("one recorded position per kick");
             k[0] = stiffness::<FMA>(beta, q[0]);
             for j in 1..n {
                 k[j] = stiffness::<FMA>(beta, q[j] - q[j - 1]);
             }
             k[n] = stiffness::<FMA>(beta, -q[n - 1]);
-            let row = |i: usize| &dq[i * lanes..(i + 1) * lanes];
-            let (w, rest) = dp.split_at_mut(lanes);
-            for ((w, a), b) in w.iter_mut().zip(row(0)).zip(row(1)) {
+            let row = |i: usize| &dq[i * stride..][..lanes];
+            let mut w = rows_mut(dp, lanes, stride);
+            let first = w.next().expect("N rows");
+            for ((w, a), b) in first.iter_mut().zip(row(0)).zip(row(1)) {
                 let f = madd::<FMA>(-k[1], b - a, k[0] * a);
                 *w = madd::<FMA>(-dh, f, *w);
             }
-            for (i, w) in rest.chunks_exact_mut(lanes).take(n - 2).enumerate() {
+            for (i, w) in w.by_ref().take(n - 2).enumerate() {
                 let i = i + 1;
                 let (left, right) = (k[i], k[i + 1]);
                 for (((w, a), b), c) in w.iter_mut().zip(row(i - 1)).zip(row(i)).zip(row(i + 1)) {
@@ -393,13 +425,13 @@ fn fput_tangents<const FMA: bool>(
                     *w = madd::<FMA>(-dh, f, *w);
                 }
             }
-            let w = &mut rest[(n - 2) * lanes..];
-            for ((w, a), b) in w.iter_mut().zip(row(n - 2)).zip(row(n - 1)) {
+            let last = w.next().expect("N rows");
+            for ((w, a), b) in last.iter_mut().zip(row(n - 2)).zip(row(n - 1)) {
                 let f = madd::<FMA>(-k[n], -b, k[n - 1] * (b - a));
                 *w = madd::<FMA>(-dh, f, *w);
             }
         }
-        drift::<FMA>(dq, dp, c.last_drift());
+        drift::<FMA>(dq, dp, c.last_drift(), lanes, stride);
     }
 }
 
@@ -440,7 +472,7 @@ mod tests {
             }
         }
         let (mut x, mut stages, mut force) = (x0.clone(), Vec::new(), vec![0.0; model.dof()]);
-        let mut st = PlainState::new(plain, lanes, data, x0);
+        let mut st = PlainState::new(plain, lanes, &data, x0);
         let mut fused = has_fused(isa).then(|| st.clone());
         for _ in 0..windows {
             if tangent {
@@ -475,7 +507,7 @@ mod tests {
     fn check<M: LaneModel>(model: &M, plain: PlainModel, tangent: bool, lanes: usize, scale: f64) {
         for isa in Isa::ALL.into_iter().filter(|i| i.available()) {
             let (kernel, x, st, fused) = both(isa, model, plain, tangent, lanes, scale, 3);
-            assert_eq!(bits(&kernel), bits(&st.data), "{} {tangent}", isa.name());
+            assert_eq!(bits(&kernel), bits(&st.rows()), "{} {tangent}", isa.name());
             if tangent {
                 assert_eq!(bits(&x), bits(&st.reference), "{} reference", isa.name());
             }
@@ -483,7 +515,7 @@ mod tests {
                 let size = kernel.iter().fold(0.0f64, |m, v| m.max(v.abs()));
                 let diff = kernel
                     .iter()
-                    .zip(&f.data)
+                    .zip(&f.rows())
                     .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
                 assert!(
                     diff <= 1e-9 * size,

@@ -8,7 +8,7 @@
 //! Measured on AVX-512: HH 64 lanes 3.9e8 vs 16 lanes 2.3e8 orbit-steps/s; FPUT N = 101
 //! 16 lanes 4.2e6 vs 64 lanes 0.9e6.
 
-use super::lanes::{LaneModel, StepCoeffs, orbit_tangent_steps};
+use super::lanes::{LaneModel, StepCoeffs};
 use super::soa::{LANE_QUANTUM, Soa};
 
 /// An instruction set the kernel is compiled for.
@@ -200,7 +200,7 @@ pub(super) fn dispatch_tangents<M: LaneModel>(
     }
 }
 
-/// Every lane of `x` (orbit and tangent vectors, [`orbit_tangent_steps`]), `LANE_QUANTUM` lanes
+/// Every lane of `x` (orbit and tangent vectors, [`LaneModel::orbit_tangent_steps`]), `LANE_QUANTUM` lanes
 /// at a time.
 #[inline(always)]
 fn orbit_tangent_chunks<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
@@ -209,7 +209,7 @@ fn orbit_tangent_chunks<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64
     let mut o = 0;
     while o < x.lanes() {
         x.gather(o, &mut buf);
-        orbit_tangent_steps(m, c, &mut buf, &mut force, n);
+        m.orbit_tangent_steps(c, &mut buf, &mut force, n);
         x.scatter(o, &buf);
         o += LANE_QUANTUM;
     }

@@ -110,6 +110,21 @@ pub trait LaneModel: Model {
         }
     }
 
+    /// [`orbit_tangent_steps`]: `L` orbits each with tangent vectors around itself. A model
+    /// with few degrees of freedom overrides it to keep the state in registers.
+    #[inline(always)]
+    fn orbit_tangent_steps<const L: usize>(
+        &self,
+        c: &StepCoeffs,
+        x: &mut [[f64; L]],
+        force: &mut [[f64; L]],
+        n_steps: u64,
+    ) where
+        Self: Sized,
+    {
+        orbit_tangent_steps_generic(self, c, x, force, n_steps)
+    }
+
     /// `n_steps` steps of the splitting for `L` orbits; `x` has `2N` rows, `force` `N` rows.
     #[inline(always)]
     fn orbit_steps<const L: usize>(
@@ -194,7 +209,7 @@ pub fn record_reference_stages<M: Model + ?Sized>(
 /// [`LaneModel::tangent_steps`]: the tangent map of a kick is taken at the position the orbit
 /// has before it, as the recorded stages hold it.
 #[inline(always)]
-pub(super) fn orbit_tangent_steps<M: LaneModel, const L: usize>(
+pub(super) fn orbit_tangent_steps_generic<M: LaneModel, const L: usize>(
     m: &M,
     c: &StepCoeffs,
     x: &mut [[f64; L]],

@@ -45,6 +45,56 @@ impl LaneModel for HenonHeiles {
         }
     }
 
+    // The lane index runs across rows of the state: an index loop is the layout, not a habit.
+    #[allow(clippy::needless_range_loop)]
+    #[inline(always)]
+    fn orbit_tangent_steps<const L: usize>(
+        &self,
+        c: &StepCoeffs,
+        x: &mut [[f64; L]],
+        force: &mut [[f64; L]],
+        n_steps: u64,
+    ) {
+        // The propagator route's shape (orbit + 4 tangent vectors, 20 rows) in registers; the
+        // operations of orbit_steps and hessian_vector_each_lane, in the generic order.
+        if x.len() != 20 {
+            return super::super::lanes::orbit_tangent_steps_generic(self, c, x, force, n_steps);
+        }
+        let mut r: [[f64; L]; 20] = [[0.0; L]; 20];
+        r.copy_from_slice(x);
+        let last = c.last_drift();
+        for _ in 0..n_steps {
+            for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
+                for l in 0..L {
+                    r[0][l] += ch * r[2][l];
+                    r[1][l] += ch * r[3][l];
+                    let (a, b) = (r[0][l], r[1][l]);
+                    for v in 0..4 {
+                        let o = 4 + 4 * v;
+                        r[o][l] += ch * r[o + 2][l];
+                        r[o + 1][l] += ch * r[o + 3][l];
+                        let (v0, v1) = (r[o][l], r[o + 1][l]);
+                        let h0 = (1.0 + 2.0 * b) * v0 + 2.0 * a * v1;
+                        let h1 = 2.0 * a * v0 + (1.0 - 2.0 * b) * v1;
+                        r[o + 2][l] -= dh * h0;
+                        r[o + 3][l] -= dh * h1;
+                    }
+                    let g0 = a + 2.0 * a * b;
+                    let g1 = b + a * a - b * b;
+                    r[2][l] -= dh * g0;
+                    r[3][l] -= dh * g1;
+                }
+            }
+            for l in 0..L {
+                for o in [0, 4, 8, 12, 16] {
+                    r[o][l] += last * r[o + 2][l];
+                    r[o + 1][l] += last * r[o + 3][l];
+                }
+            }
+        }
+        x.copy_from_slice(&r);
+    }
+
     #[inline(always)]
     fn orbit_steps<const L: usize>(
         &self,

@@ -218,18 +218,6 @@ fn raw_file_rate(raw: &Value, indicators: bool) -> f64 {
         .unwrap_or(f64::NAN)
 }
 
-fn cpu_model() -> String {
-    std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("model name"))
-                .and_then(|l| l.split(':').nth(1))
-                .map(|m| m.trim().to_string())
-        })
-        .unwrap_or_else(|| "unknown".into())
-}
-
 fn dd(dir: &Path) -> Value {
     let of = dir.join("dd.bin");
     let out = Command::new("dd")
@@ -272,7 +260,7 @@ fn main() {
     let lost: Option<u64> = hh_runs.iter().map(|r| r["lost_messages"].as_u64()).sum();
     let target = json!({
         "case": "hh-every-step (median of 3 runs) vs the raw MCAP writer to a file, same run",
-        "cpu": cpu_model(),
+        "cpu": chaoscope_producer::estimate::Machine::cpu_model(),
         "isa": chaoscope_producer::batch::Isa::detect().name(),
         "pipeline_messages_per_s": median,
         "raw_writer_messages_per_s": raw_file_rate(&raw_hh, false),

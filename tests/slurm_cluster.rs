@@ -19,7 +19,9 @@ use chaoscope_recorder::map_file::read_map_file;
 use prost::Message;
 
 /// The paper's Henon-Heiles GALI_2 map at a size where each of two shards computes for about
-/// ten seconds on one core: long enough to requeue a task after its first chunk is on disk.
+/// ten seconds on one core of a quiet Zen 5 (t = 2000; at t = 500 a shard ended 2-3 s after
+/// its first chunk, before the test could requeue it): long enough to requeue a task after its
+/// first chunk is on disk (written after `--flush-interval`, 2 s).
 const CONFIG: &str = r#"
 [model]
 name = "henon-heiles"
@@ -33,7 +35,7 @@ solve_for = "p1"
 [integrator]
 method = "aba864"
 h = 0.01
-t_final = 500.0
+t_final = 2000.0
 
 [deviations]
 k = 2

@@ -6,6 +6,7 @@
 //! `cargo bench -p chaoscope-producer --bench expression_maps`
 
 use chaoscope_producer::batch::Isa;
+use chaoscope_producer::estimate::Machine;
 use chaoscope_producer::map::{self, MapOptions, MapSpec};
 use chaoscope_schemas::config::RunConfig;
 
@@ -104,20 +105,8 @@ fn case(name: &str, text: &str) -> serde_json::Value {
         "engine_over_batched": engine_cpu / batched_cpu,
         "bit_identical": identical,
         "isa": Isa::detect().name(),
-        "cpu": cpu_model(),
+        "cpu": Machine::cpu_model(),
     })
-}
-
-fn cpu_model() -> String {
-    std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|t| {
-            t.lines()
-                .find(|l| l.starts_with("model name"))
-                .and_then(|l| l.split_once(':'))
-                .map(|(_, v)| v.trim().to_string())
-        })
-        .unwrap_or_else(|| "unknown".into())
 }
 
 fn main() {

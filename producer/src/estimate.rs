@@ -52,6 +52,20 @@ impl Machine {
             memory_bytes,
         }
     }
+
+    /// This machine's CPU model name (`model name` of /proc/cpuinfo, `"unknown"` without it):
+    /// what every speed figure of the benches is quoted beside.
+    pub fn cpu_model() -> String {
+        std::fs::read_to_string("/proc/cpuinfo")
+            .ok()
+            .and_then(|t| {
+                t.lines()
+                    .find(|l| l.starts_with("model name"))
+                    .and_then(|l| l.split_once(':'))
+                    .map(|(_, v)| v.trim().to_string())
+            })
+            .unwrap_or_else(|| "unknown".into())
+    }
 }
 
 /// An estimate, with the keys to name when it is refused.

@@ -49,6 +49,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use chaoscope_producer::batch::{self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages};
+use chaoscope_producer::estimate::Machine;
 use chaoscope_producer::integrator::{Splitting, SplittingKind};
 use chaoscope_producer::map::{MapOptions, MapSpec, PointResult, run_map};
 use chaoscope_producer::model::{FputBeta, HenonHeiles};
@@ -549,7 +550,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     if args.routes_only {
         let report = serde_json::json!({
             "isa": isa.name(),
-            "cpu": expressions::cpu_model(),
+            "cpu": Machine::cpu_model(),
             "propagator_routes": routes(isa, rx, ry, args.t_final, args.routes_d0)?,
         });
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -580,7 +581,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     if args.kernel_only {
         let report = serde_json::json!({
             "isa": isa.name(),
-            "cpu": expressions::cpu_model(),
+            "cpu": Machine::cpu_model(),
             "kernel": kernel,
         });
         println!("{}", serde_json::to_string_pretty(&report)?);
@@ -620,7 +621,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         "{}",
         serde_json::to_string_pretty(&serde_json::json!({
             "isa": isa.name(),
-            "cpu": expressions::cpu_model(),
+            "cpu": Machine::cpu_model(),
             "kernel": kernel,
             "expression_models": expression_models,
             "gali2_map": {
@@ -771,6 +772,7 @@ mod expressions {
 
     use chaoscope_producer::batch::{AnyLaneModel, Isa, LaneModel};
     use chaoscope_producer::engine::Engine;
+    use chaoscope_producer::estimate::Machine;
     use chaoscope_producer::map::MapSpec;
     use chaoscope_producer::model::{CStepState, ExpressionModel, FputBeta, HenonHeiles};
     use chaoscope_producer::spec::{RunSpec, model_from_config};
@@ -782,19 +784,6 @@ mod expressions {
 
     const HH: &str = "(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3";
     const FPUT: &str = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
-
-    /// The CPU's model name (from /proc/cpuinfo), printed beside every speed figure.
-    pub fn cpu_model() -> String {
-        std::fs::read_to_string("/proc/cpuinfo")
-            .ok()
-            .and_then(|t| {
-                t.lines()
-                    .find(|l| l.starts_with("model name"))
-                    .and_then(|l| l.split_once(':'))
-                    .map(|(_, v)| v.trim().to_string())
-            })
-            .unwrap_or_else(|| "unknown".into())
-    }
 
     fn fput_config(n: usize) -> ModelConfig {
         let mut m = ModelConfig::potential(n, FPUT);
@@ -998,7 +987,7 @@ mod expressions {
             }))
         };
         Ok(serde_json::json!({
-            "cpu": cpu_model(),
+            "cpu": Machine::cpu_model(),
             "isa": isa.name(),
             "target_builtin_over_expression": 1.5,
             "henon_heiles": {

@@ -1,7 +1,8 @@
 """Shared fixtures: the `chaoscope` command the bindings are compared with, and small configs.
 
 The bindings must give what the command gives, so the tests run the real binary (built by
-`cargo test --release --workspace` or `cargo build --release`; `CHAOSCOPE_BIN` overrides).
+`cargo test --release --workspace` or `cargo build --release` into `$CARGO_TARGET_DIR` or
+`target/`; `CHAOSCOPE_BIN` overrides).
 """
 
 import json
@@ -16,7 +17,9 @@ REPO = pathlib.Path(__file__).resolve().parents[2]
 
 @pytest.fixture(scope="session")
 def chaoscope_bin():
-    path = pathlib.Path(os.environ.get("CHAOSCOPE_BIN", REPO / "target" / "release" / "chaoscope"))
+    # Where cargo put the build: its target directory, as cargo itself chooses it.
+    target = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target"))
+    path = pathlib.Path(os.environ.get("CHAOSCOPE_BIN", target / "release" / "chaoscope"))
     if not path.is_file():
         pytest.fail(f"{path} not found: build it first with `cargo build --release`")
     return str(path)

@@ -13,11 +13,7 @@ use std::path::Path;
 use chaoscope_schemas::config::{MapAxis, MapConfig, RunConfig};
 use serde_json::Value;
 
-fn chaoscope(args: &[&str]) -> std::process::Command {
-    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_chaoscope"));
-    c.args(args);
-    c
-}
+use common::{chaoscope_captured as chaoscope, run_ok};
 
 fn example(name: &str) -> RunConfig {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))
@@ -27,16 +23,6 @@ fn example(name: &str) -> RunConfig {
     let mut config = RunConfig::from_file_text(&text, &path).unwrap();
     config.run.name = Some(common::unique_run(name.trim_end_matches(".toml")));
     config
-}
-
-fn run_ok(args: &[&str]) -> String {
-    let out = chaoscope(args).output().expect("chaoscope runs");
-    assert!(
-        out.status.success(),
-        "chaoscope {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).unwrap()
 }
 
 fn s(p: &Path) -> &str {

@@ -9,12 +9,7 @@ mod common;
 use std::path::Path;
 
 use chaoscope_schemas::config::{MapAxis, MapConfig, RunConfig};
-/// `chaoscope ARGS` with stdout and stderr captured.
-fn chaoscope(args: &[&str]) -> std::process::Command {
-    let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_chaoscope"));
-    c.args(args);
-    c
-}
+use common::{chaoscope_captured as chaoscope, run_ok};
 use serde_json::Value;
 
 fn models_dir() -> std::path::PathBuf {
@@ -27,16 +22,6 @@ fn hertz(t_final: f64) -> RunConfig {
     config.integrator.t_final = t_final;
     config.run.name = Some(common::unique_run("hertz"));
     config
-}
-
-fn run_ok(args: &[&str]) -> String {
-    let out = chaoscope(args).output().expect("chaoscope runs");
-    assert!(
-        out.status.success(),
-        "chaoscope {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).unwrap()
 }
 
 fn s(p: &Path) -> &str {

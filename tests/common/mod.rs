@@ -47,6 +47,24 @@ pub fn chaoscope(args: &[&str]) -> Command {
     c
 }
 
+/// `chaoscope ARGS` with stdout and stderr captured (for `output()`).
+pub fn chaoscope_captured(args: &[&str]) -> Command {
+    let mut c = Command::new(CHAOSCOPE);
+    c.args(args);
+    c
+}
+
+/// `chaoscope ARGS` run to success; its stdout (a failure panics with its stderr).
+pub fn run_ok(args: &[&str]) -> String {
+    let out = chaoscope_captured(args).output().expect("chaoscope runs");
+    assert!(
+        out.status.success(),
+        "chaoscope {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
 /// `chaoscope record` of `run` into `out`, with `extra` arguments.
 pub fn record_cmd(run: &str, out: &Path, extra: &[&str]) -> Command {
     let mut args = vec!["record", "--run", run, "--out", out.to_str().unwrap()];

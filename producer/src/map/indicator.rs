@@ -190,8 +190,9 @@ impl PointAccumulator {
         acc.value.is_some()
     }
 
-    /// The point's result (status `Ok`); every set must be finished.
-    pub fn finish(&self, base: PointResult) -> PointResult {
+    /// The point's result (status `Ok`) after `orbit_steps` orbit-steps of work; every set must
+    /// be finished.
+    pub fn finish(&self, base: PointResult, orbit_steps: u64) -> PointResult {
         let per_set: Vec<f64> = self
             .sets
             .iter()
@@ -211,6 +212,7 @@ impl PointAccumulator {
             per_set,
             mean_log10,
             t_end: self.last_stop,
+            orbit_steps,
             reason: String::new(),
             ..base
         }

@@ -39,8 +39,14 @@ pub trait PointKernel {
     fn tangent_steps(&mut self, v: &mut Soa, steps: u64) -> Result<(), RunError>;
 
     /// The separation `out = y - x` of a nearby orbit from the reference, as the system's
-    /// [`DynamicalSystem::separation`] measures it.
-    fn separation(&self, y: &[f64], x: &[f64], out: &mut [f64]);
+    /// [`DynamicalSystem::separation`] measures it: the plain difference unless the system has
+    /// periodic coordinates.
+    #[inline]
+    fn separation(&self, y: &[f64], x: &[f64], out: &mut [f64]) {
+        for ((o, a), b) in out.iter_mut().zip(y).zip(x) {
+            *o = a - b;
+        }
+    }
 }
 
 /// A separable Hamiltonian's splitting over the lane kernel of the instruction set `isa`.
@@ -84,13 +90,6 @@ impl<M: LaneModel> PointKernel for SplittingKernel<'_, M> {
     fn tangent_steps(&mut self, v: &mut Soa, steps: u64) -> Result<(), RunError> {
         batch::tangent_steps(self.isa, self.model, self.coeffs, &self.stages, v, steps);
         Ok(())
-    }
-
-    #[inline]
-    fn separation(&self, y: &[f64], x: &[f64], out: &mut [f64]) {
-        for ((o, a), b) in out.iter_mut().zip(y).zip(x) {
-            *o = a - b;
-        }
     }
 }
 
@@ -205,16 +204,9 @@ impl PointKernel for FlowKernel<'_> {
             )))
         }
     }
-
-    #[inline]
-    fn separation(&self, y: &[f64], x: &[f64], out: &mut [f64]) {
-        for ((o, a), b) in out.iter_mut().zip(y).zip(x) {
-            *o = a - b;
-        }
-    }
 }
 
-/// Whether the system of `run` has a batched form here (see the module's list).
+/// Whether `system` has a batched form here (see the module's list).
 pub fn has_batched_form(system: &dyn DynamicalSystem) -> bool {
     system.as_discrete_map().is_some() || system.as_rk_flow().and_then(FlowKernel::new).is_some()
 }

@@ -3,9 +3,9 @@
 //! Sets that stop (`gali-time`) and finished points leave the batch: the lanes are compacted so
 //! the kernel never integrates a finished orbit.
 
-use super::indicator::{PointAccumulator, broke_off, failed};
+use super::indicator::{PointAccumulator, broke_off};
 use super::kernel::PointKernel;
-use super::point::{PointResult, PointStatus};
+use super::point::PointResult;
 use super::spec::MapSpec;
 use super::window::{SetRenormalization, Windows, check_escape, retain_sets};
 use crate::batch::{Isa, Soa};
@@ -52,10 +52,9 @@ fn compute_with<K: PointKernel>(
     let mut live = Vec::new();
     let mut lanes: Vec<Vec<f64>> = Vec::new();
     for &index in indices {
-        let base = spec.base_result(index);
-        match spec.initial_state(index) {
-            Err(reason) => out.push(failed(base, PointStatus::OutsideEnergySurface, 0.0, reason)),
-            Ok(x0) => {
+        match spec.start_point(index) {
+            Err(outside) => out.push(*outside),
+            Ok((base, x0)) => {
                 let ref_lane = lanes.len();
                 lanes.push(x0.clone());
                 let mut sets = Vec::with_capacity(run.sets());
@@ -68,8 +67,8 @@ fn compute_with<K: PointKernel>(
                     }
                 }
                 live.push(Live {
-                    base: PointResult { x0, ..base },
-                    acc: PointAccumulator::new(spec.indicator, dim, run.sets(), run.t_final()),
+                    base,
+                    acc: spec.accumulator(),
                     ref_lane,
                     sets,
                     orbit_steps: 0,
@@ -127,11 +126,7 @@ fn compute_with<K: PointKernel>(
             }
             changed |= p.sets.len() != before;
             if p.acc.is_done() {
-                let r = p.acc.finish(p.base.clone());
-                out.push(PointResult {
-                    orbit_steps: p.orbit_steps,
-                    ..r
-                });
+                out.push(p.acc.finish(p.base, p.orbit_steps));
                 changed = true;
                 continue;
             }

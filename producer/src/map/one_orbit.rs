@@ -2,25 +2,19 @@
 //! reproduce bit for bit. Slow (every set runs to `t_final`, one orbit at a time); used by tests
 //! and available for cross-checks.
 
-use super::indicator::{PointAccumulator, failed};
+use super::indicator::failed;
 use super::point::{PointResult, PointStatus};
 use super::spec::MapSpec;
 use crate::engine::{Engine, RunError};
 
 pub fn point(spec: &MapSpec, index: u64) -> PointResult {
-    let base = spec.base_result(index);
-    let x0 = match spec.initial_state(index) {
-        Ok(x0) => x0,
-        Err(reason) => return failed(base, PointStatus::OutsideEnergySurface, 0.0, reason),
-    };
-    let base = PointResult {
-        x0: x0.clone(),
-        ..base
+    let (base, x0) = match spec.start_point(index) {
+        Ok(start) => start,
+        Err(outside) => return *outside,
     };
     let run = spec.point_run(&x0);
     let total = run.total_steps;
-    let t_final = run.t_final();
-    let mut acc = PointAccumulator::new(spec.indicator, run.dim, run.sets(), t_final);
+    let mut acc = spec.accumulator();
     let mut engine = Engine::new(run);
     let mut steps = 0;
     loop {
@@ -50,9 +44,5 @@ pub fn point(spec: &MapSpec, index: u64) -> PointResult {
             }
         }
     }
-    let done = acc.finish(base);
-    PointResult {
-        orbit_steps: steps * (1 + (spec.sets() * spec.run.k) as u64),
-        ..done
-    }
+    acc.finish(base, steps * (1 + (spec.sets() * spec.run.k) as u64))
 }

@@ -15,9 +15,9 @@
 //! computed in logs: exactly what per-vector rescaling holds, handed to the same
 //! [`PointAccumulator`], so a point's numbers mean what they mean on the per-set route.
 
-use super::indicator::{PointAccumulator, broke_off, failed};
+use super::indicator::{PointAccumulator, broke_off};
 use super::kernel::PointKernel;
-use super::point::{PointResult, PointStatus};
+use super::point::PointResult;
 use super::spec::MapSpec;
 use super::window::{Window, Windows, check_escape};
 use crate::batch::{Isa, Soa};
@@ -112,16 +112,11 @@ fn vm_with<K: PointKernel>(
 ) -> Option<PointResult> {
     let run = &spec.run;
     let dim = run.dim;
-    let base = spec.base_result(index);
-    let mut x = match spec.initial_state(index) {
-        Ok(x0) => x0,
-        Err(reason) => return Some(failed(base, PointStatus::OutsideEnergySurface, 0.0, reason)),
+    let (base, mut x) = match spec.start_point(index) {
+        Ok(start) => start,
+        Err(outside) => return Some(*outside),
     };
-    let base = PointResult {
-        x0: x.clone(),
-        ..base
-    };
-    let mut acc = PointAccumulator::new(spec.indicator, dim, run.sets(), run.t_final());
+    let mut acc = spec.accumulator();
     let mut prop = Propagator::new(dim);
     let mut soa = Soa::new(dim, dim);
     let mut evolved = vec![0.0; dim * dim];
@@ -153,10 +148,7 @@ fn vm_with<K: PointKernel>(
             break;
         }
     }
-    Some(PointResult {
-        orbit_steps,
-        ..acc.finish(base)
-    })
+    Some(acc.finish(base, orbit_steps))
 }
 
 /// VM of separable Hamiltonians, many points at once: one lane per point holding its orbit and
@@ -207,16 +199,15 @@ fn vm_batch_with<M: crate::batch::LaneModel>(
     let mut live = Vec::new();
     let mut columns: Vec<Vec<f64>> = Vec::new();
     for &index in indices {
-        let base = spec.base_result(index);
-        match spec.initial_state(index) {
-            Err(reason) => out.push(failed(base, PointStatus::OutsideEnergySurface, 0.0, reason)),
-            Ok(x0) => {
+        match spec.start_point(index) {
+            Err(outside) => out.push(*outside),
+            Ok((base, x0)) => {
                 let prop = Propagator::new(dim);
                 let mut column = x0.clone();
                 column.extend_from_slice(prop.basis());
                 live.push(LiveVm {
-                    base: PointResult { x0, ..base },
-                    acc: PointAccumulator::new(spec.indicator, dim, run.sets(), run.t_final()),
+                    base,
+                    acc: spec.accumulator(),
                     prop,
                     sets: Sets::new(run),
                     lane: columns.len(),
@@ -261,11 +252,7 @@ fn vm_batch_with<M: crate::batch::LaneModel>(
             soa.write_lane(p.lane, &column);
             p.sets.observe(run, &p.prop, &mut p.acc, &w);
             if p.acc.is_done() {
-                let r = p.acc.finish(p.base.clone());
-                out.push(PointResult {
-                    orbit_steps: p.orbit_steps,
-                    ..r
-                });
+                out.push(p.acc.finish(p.base, p.orbit_steps));
                 continue;
             }
             keep.push(p);
@@ -323,10 +310,9 @@ fn mpm_with<K: PointKernel>(
     let mut live = Vec::new();
     let mut lanes: Vec<Vec<f64>> = Vec::new();
     for &index in indices {
-        let base = spec.base_result(index);
-        match spec.initial_state(index) {
-            Err(reason) => out.push(failed(base, PointStatus::OutsideEnergySurface, 0.0, reason)),
-            Ok(x0) => {
+        match spec.start_point(index) {
+            Err(outside) => out.push(*outside),
+            Ok((base, x0)) => {
                 let prop = Propagator::new(dim);
                 let lane = lanes.len();
                 lanes.push(x0.clone());
@@ -334,8 +320,8 @@ fn mpm_with<K: PointKernel>(
                     lanes.push(x0.iter().zip(q).map(|(x, q)| x + d0 * q).collect());
                 }
                 live.push(Live {
-                    base: PointResult { x0, ..base },
-                    acc: PointAccumulator::new(spec.indicator, dim, run.sets(), run.t_final()),
+                    base,
+                    acc: spec.accumulator(),
                     prop,
                     sets: Sets::new(run),
                     lane,
@@ -387,11 +373,7 @@ fn mpm_with<K: PointKernel>(
             }
             p.sets.observe(run, &p.prop, &mut p.acc, &w);
             if p.acc.is_done() {
-                let r = p.acc.finish(p.base.clone());
-                out.push(PointResult {
-                    orbit_steps: p.orbit_steps,
-                    ..r
-                });
+                out.push(p.acc.finish(p.base, p.orbit_steps));
                 continue;
             }
             keep.push(p);

@@ -2,7 +2,8 @@
 
 use chaoscope_schemas::config::{MapAxis, RunConfig};
 
-use super::indicator::Indicator;
+use super::indicator::{Indicator, PointAccumulator, failed};
+use super::point::{PointResult, PointStatus};
 use crate::batch::{AnyLaneModel, StepCoeffs};
 use crate::renormalization::Orthonormalization;
 use crate::spec::{RunSpec, SpecError, parse_coordinate, solve_momentum, state_coordinate};
@@ -367,6 +368,38 @@ impl MapSpec {
 
 impl MapSpec {
     /// A point's identity, before any number is known.
+    /// Where every way of computing point `index` starts: its result so far (grid cell, `x0`)
+    /// and its initial state, or, for a point outside the energy surface, its final result
+    /// (boxed: the rare path).
+    pub fn start_point(&self, index: u64) -> Result<(PointResult, Vec<f64>), Box<PointResult>> {
+        let base = self.base_result(index);
+        match self.initial_state(index) {
+            Ok(x0) => Ok((
+                PointResult {
+                    x0: x0.clone(),
+                    ..base
+                },
+                x0,
+            )),
+            Err(reason) => Err(Box::new(failed(
+                base,
+                PointStatus::OutsideEnergySurface,
+                0.0,
+                reason,
+            ))),
+        }
+    }
+
+    /// A point's accumulator of the indicator over its sets.
+    pub fn accumulator(&self) -> PointAccumulator {
+        PointAccumulator::new(
+            self.indicator,
+            self.run.dim,
+            self.run.sets(),
+            self.run.t_final(),
+        )
+    }
+
     pub fn base_result(&self, index: u64) -> super::PointResult {
         let (ix, iy) = self.cell(index);
         super::PointResult {

@@ -2,9 +2,9 @@
 //! where each step's tangent map is taken recorded) and the `sets * k` tangent vectors of all
 //! its sets advanced as lanes by the system's tangent kernel around it.
 
-use super::indicator::{PointAccumulator, broke_off, failed};
+use super::indicator::broke_off;
 use super::kernel::PointKernel;
-use super::point::{PointResult, PointStatus};
+use super::point::PointResult;
 use super::spec::MapSpec;
 use super::window::{SetRenormalization, Windows, check_escape, retain_sets};
 use crate::batch::{Isa, Soa};
@@ -33,18 +33,11 @@ fn compute_with<K: PointKernel>(
 ) -> Option<PointResult> {
     let run = &spec.run;
     let (dim, k, d0) = (run.dim, run.k, run.schemes[0].d0);
-    let base = spec.base_result(index);
-    let mut x = match spec.initial_state(index) {
-        Ok(x0) => x0,
-        Err(reason) => {
-            return Some(failed(base, PointStatus::OutsideEnergySurface, 0.0, reason));
-        }
+    let (base, mut x) = match spec.start_point(index) {
+        Ok(start) => start,
+        Err(outside) => return Some(*outside),
     };
-    let base = PointResult {
-        x0: x.clone(),
-        ..base
-    };
-    let mut acc = PointAccumulator::new(spec.indicator, dim, run.sets(), run.t_final());
+    let mut acc = spec.accumulator();
     // Active sets: (set index, first lane of its k vectors).
     let mut sets: Vec<(usize, usize)> = (0..run.sets()).map(|s| (s, s * k)).collect();
     let mut soa = Soa::new(dim, run.sets() * k);
@@ -103,8 +96,5 @@ fn compute_with<K: PointKernel>(
             soa = packed;
         }
     }
-    Some(PointResult {
-        orbit_steps,
-        ..acc.finish(base)
-    })
+    Some(acc.finish(base, orbit_steps))
 }

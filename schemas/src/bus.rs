@@ -334,7 +334,52 @@ pub fn cleanup_dead_nodes_in(config: &Config) -> usize {
         .count();
     removed += layout.remove_dead_node_remnants();
     layout.remove_abandoned_creations();
+    remove_orphaned_services(config, &layout);
     removed
+}
+
+/// Removes every service nobody holds (see [`stale`]): no node, alive or dead, holds a tag for
+/// it, and no live process is registered in its dynamic configuration. Returns how many.
+///
+/// Every process that creates or opens a service makes its tag first and removes it only after
+/// deregistering, so a service that some process is creating, opening or using always has a
+/// tag; a dead node's tags are left to iceoryx2's dead-node cleanup (run just before). The
+/// candidates are listed before the tags are read, and a creator cannot start a service whose
+/// configuration still exists, so no creation that starts in between can be mistaken for one.
+fn remove_orphaned_services(config: &Config, layout: &stale::Layout) -> usize {
+    use iceoryx2::service::internal::ServiceInternal;
+    let mut candidates = Vec::new();
+    let _ = ipc::Service::list(config, |details| {
+        let registered_alive = details.dynamic_details.as_ref().is_some_and(|d| {
+            d.nodes.iter().any(|n| {
+                let id = match n {
+                    NodeState::Alive(v) => v.id(),
+                    NodeState::Dead(v) => v.id(),
+                    // Someone else's, or unreadable: leave it.
+                    NodeState::Inaccessible(_) | NodeState::Undefined(_) => return true,
+                };
+                // A node of a live process that has no record left has dropped itself.
+                stale::process_alive(stale::node_owner_pid(id.value()))
+                    && layout.has_records(id.value())
+            })
+        });
+        if !registered_alive {
+            candidates.push(details.static_details);
+        }
+        CallbackProgression::Continue
+    });
+    if candidates.is_empty() {
+        return 0;
+    }
+    let tagged = layout.tagged_hashes(|_| true);
+    candidates
+        .into_iter()
+        .filter(|service| !tagged.contains(service.service_hash().as_str()))
+        .filter(|service| {
+            // SAFETY: no process uses the service: none holds its tag or is registered alive.
+            unsafe { ipc::Service::__internal_remove_service(service, config) }.is_ok()
+        })
+        .count()
 }
 
 /// Liveness of a node, found by name among all nodes of the machine.

@@ -27,6 +27,12 @@
 //!   configuration and removes only its tag; the service hangs in creation forever, and the run
 //!   of that name can never start again.
 //!
+//! - a service whose last holder was killed in its `ServiceState::drop` after deregistering
+//!   from the service and removing its tag, but before its storage handles dropped (they remove
+//!   the dynamic and then the static configuration): complete, held by nobody, never looked at
+//!   again. Seen in the crash loop: a producer SIGKILLed during its end-of-run cleanup left
+//!   `chaoscope/run/<run>/header` for good.
+//!
 //! [`remove_stale`] removes these, and only when the owner is gone: a node's owner is the
 //! process whose pid is part of the node id (iceoryx2's `UniqueSystemId`: seconds, nanoseconds,
 //! pid, counter); it is alive while `kill(pid, 0)` finds it (a zombie counts as dead), and as in
@@ -165,6 +171,15 @@ impl Layout {
             .collect()
     }
 
+    /// Whether node `id` has any record left (a live node always has its monitor files; a node
+    /// that dropped itself has none).
+    pub(crate) fn has_records(&self, id: u128) -> bool {
+        self.nodes.join(id.to_string()).exists()
+            || MONITOR_FILES
+                .iter()
+                .any(|s| self.monitor_file(id, s).exists())
+    }
+
     /// Whether node `id` may still be used: its owner runs, holds its state lock, or a cleaner
     /// is at work on it.
     fn in_use(&self, id: u128) -> bool {
@@ -231,9 +246,14 @@ impl Layout {
 
     /// Service hashes some node of a live process holds a tag for.
     fn hashes_in_use(&self) -> BTreeSet<String> {
+        self.tagged_hashes(|id| self.in_use(id))
+    }
+
+    /// Service hashes some node `counts` holds a tag for.
+    pub(crate) fn tagged_hashes(&self, counts: impl Fn(u128) -> bool) -> BTreeSet<String> {
         let mut hashes = BTreeSet::new();
         for id in self.node_ids() {
-            if !self.in_use(id) {
+            if !counts(id) {
                 continue;
             }
             for record in self.node_records(id) {
@@ -552,6 +572,101 @@ mod tests {
             .permissions()
             .mode();
         assert_eq!(mode & 0o777, 0o400, "created anew and complete");
+        drop((subscriber, service, holder));
+    }
+
+    /// A service whose last holder was killed after removing its tag but before its storages
+    /// (the last steps of iceoryx2's `ServiceState::drop`): complete, registered by nobody alive,
+    /// tagged by nobody. Without the repair nothing ever removes it (seen in the crash loop).
+    #[test]
+    fn a_service_nobody_holds_is_removed() {
+        let d = TestDomain::new("orphan");
+        let l = d.layout();
+        let shm = || -> BTreeSet<String> {
+            d.files(Path::new("/dev/shm"))
+                .into_iter()
+                .filter(|f| f.starts_with(&d.0.prefix))
+                .collect()
+        };
+        let before = shm();
+        let snapshot = |dir: &Path, names: &BTreeSet<String>| -> Vec<(PathBuf, Vec<u8>, u32)> {
+            names
+                .iter()
+                .map(|n| {
+                    let path = dir.join(n);
+                    let mode = std::fs::metadata(&path).unwrap().permissions().mode() & 0o777;
+                    (path.clone(), std::fs::read(&path).unwrap(), mode)
+                })
+                .collect()
+        };
+        // The files of a real service, taken while its creator holds it, then the service gone.
+        let files = {
+            let node = d.node("creator");
+            let _service = bus::data_service(&node, "orphan").unwrap();
+            let statics: BTreeSet<String> = d.files(&l.services).into_iter().collect();
+            // The service's dynamic configuration (the first node also made the domain's
+            // management segment, which is not the service's).
+            let dynamics: BTreeSet<String> = shm()
+                .difference(&before)
+                .filter(|f| f.ends_with(".dynamic"))
+                .cloned()
+                .collect();
+            assert_eq!((statics.len(), dynamics.len()), (1, 1), "{statics:?} {dynamics:?}");
+            let mut files = snapshot(&l.services, &statics);
+            files.extend(snapshot(Path::new("/dev/shm"), &dynamics));
+            files
+        };
+        assert!(d.files(&l.services).is_empty());
+        let restore = || {
+            for (path, bytes, mode) in &files {
+                write(path, bytes, *mode);
+            }
+        };
+        let services = || {
+            let mut n = 0;
+            <ipc::Service as iceoryx2::service::Service>::list(d.0.config(), |_| {
+                n += 1;
+                CallbackProgression::Continue
+            })
+            .unwrap();
+            n
+        };
+        restore();
+        assert_eq!(services(), 1, "the orphan is listed");
+
+        // While a live node holds its tag, it stays.
+        let holder = d.node("holder");
+        let hash = d.files(&l.services)[0]
+            .strip_prefix(&d.0.prefix)
+            .and_then(|n| n.strip_suffix(SERVICE))
+            .unwrap()
+            .to_string();
+        let tag = l
+            .nodes
+            .join(holder.id().value().to_string())
+            .join(format!("{}{hash}{SERVICE_TAG}", d.0.prefix));
+        write(&tag, b"", 0o400);
+        bus::cleanup_dead_nodes_in(d.0.config());
+        assert_eq!(services(), 1, "held by a live node's tag");
+        std::fs::remove_file(&tag).unwrap();
+
+        // Nobody holds it: removed, the dynamic configuration's segment with it.
+        bus::cleanup_dead_nodes_in(d.0.config());
+        assert_eq!(services(), 0);
+        assert!(d.files(&l.services).is_empty(), "{:?}", d.files(&l.services));
+        assert!(
+            !shm().contains(files[1].0.file_name().unwrap().to_str().unwrap()),
+            "{:?}",
+            shm()
+        );
+
+        // Only the static configuration left: removed as well, and the run's service works.
+        write(&files[0].0, &files[0].1, files[0].2);
+        bus::cleanup_dead_nodes_in(d.0.config());
+        assert!(d.files(&l.services).is_empty(), "{:?}", d.files(&l.services));
+        let node = d.node("next");
+        let service = bus::data_service(&node, "orphan").unwrap();
+        let subscriber = service.subscriber_builder().create().unwrap();
         drop((subscriber, service, holder));
     }
 

@@ -274,9 +274,6 @@ fn read_or_recover(file: &Path, dir: &Path, i: usize) -> Option<(Recorded, bool)
 }
 
 #[test]
-#[ignore = "failed in 4 runs of 8 on 2026-11-23: a producer killed as its run ends can \
-            leave its service record, or one more shared-memory segment, that no later cleanup \
-            removes (RELIABILITY.md); run with --ignored"]
 fn killing_any_process_at_any_moment_loses_nothing_but_the_tail_and_leaves_no_stale_resource() {
     let started = Instant::now();
     let seed: u64 = std::env::var("CHAOSCOPE_CRASH_SEED")

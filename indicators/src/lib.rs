@@ -7,7 +7,7 @@
 //! recording) all compute GALI, SALI and the finite-time Lyapunov exponents here, so a value in
 //! a file equals the value `analyze` reports to the last bit.
 //!
-//! - [`alignment`]: GALI (volume of the unit vectors, from singular values) and SALI.
+//! - [`alignment`]: GALI (volume of the unit vectors, from a QR factorization) and SALI.
 //! - [`stretch`]: accumulated logarithmic stretching, the finite-time exponents.
 //! - [`stats`]: averages over the random sets of a scheme.
 //! - [`tracker`]: the streaming state of a run (per scheme and set: stretching sums and latest
@@ -18,7 +18,9 @@ pub mod stats;
 pub mod stretch;
 pub mod tracker;
 
-pub use alignment::{SIGMA_FLOOR, gali_log10, sali, unit_columns};
+pub use alignment::{
+    SIGMA_FLOOR, gali_log10, sali, unit_columns, volume_log10, volume_log10_prefixes,
+};
 pub use stats::{LogStat, Stat};
 pub use stretch::StretchSums;
 pub use tracker::{Layout, SchemeIndicators, SetValues, Tracker};

@@ -4,7 +4,7 @@
 //! Both are computed in one pass over one reference orbit: the tangent vectors of every set and
 //! the propagator's basis are advanced by the same tangent steps, so the only difference is the
 //! route. Per-set VM rescales each vector every `tau` and forms GALI_k from the unit vectors
-//! (`map::gali::log10_gali`). Its error is the rounding its vectors carry across the slow
+//! (`indicators::volume_log10`). Its error is the rounding its vectors carry across the slow
 //! directions: every step adds about `eps |v|` there, and along a direction that does not
 //! contract (the chaotic orbit's zero exponents) it stays, while the true transverse component
 //! is `GALI |v|`; summed over the last `1 / (lambda_1 h)` steps that is a relative error of about
@@ -15,8 +15,8 @@
 //! 1e-12 decades far below that, `propagator.rs`). So per-set VM resolves GALI_k to 1e-6 decades
 //! while `log10 GALI_k > -7`, and that is where the two are compared.
 
+use chaoscope_producer::indicators::volume_log10 as log10_gali;
 use chaoscope_producer::integrator::Workspace;
-use chaoscope_producer::map::gali::log10_gali;
 use chaoscope_producer::propagator::{Propagator, SetImage};
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_schemas::config::paper::{self, FPUT_N5_REGULAR_P, FPUT_N5_REGULAR_Q, fput_beta};

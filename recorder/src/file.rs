@@ -17,7 +17,7 @@ use std::io::{Seek, Write};
 use chaoscope_schemas::FORMAT_VERSION;
 use chaoscope_schemas::convert::DataMessage;
 use chaoscope_schemas::names::{metadata, topic};
-use chaoscope_schemas::proto::{self, RecordingSummary, RunHeader, schema_name};
+use chaoscope_schemas::proto::{self, Indicators, RecordingSummary, RunHeader, schema_name};
 use mcap::records::{MessageHeader, Metadata};
 use prost::Message;
 
@@ -194,35 +194,49 @@ impl<W: Write + Seek> RecordingFile<W> {
         self.writer.write_to_known_channel(&header, &self.encoded)
     }
 
-    /// Appends one data message. A separation set of an unknown scheme is an error (the header
-    /// announced the schemes).
+    /// Appends one data message, preceded by the indicators of the sample it completes. A
+    /// separation set of an unknown scheme is an error (the header announced the schemes).
     pub fn write(&mut self, message: &DataMessage) -> mcap::McapResult<()> {
+        self.write_after(&[], message)
+    }
+
+    /// Takes the indicator computation out of the file, for a recorder that runs it on another
+    /// thread: from now on the file writes only the indicator messages given to
+    /// [`Self::write_after`] and [`Self::finish_after`], which the returned stream computes
+    /// (`IndicatorStream::before`, then `take` at the end), so the file is the same.
+    pub fn detach_indicators(&mut self) -> IndicatorStream {
+        std::mem::replace(&mut self.indicators, IndicatorStream::disabled())
+    }
+
+    /// Appends `indicators` (computed by a detached stream for this message), the indicators of
+    /// the file's own stream if it has one, then `message`.
+    pub fn write_after(
+        &mut self,
+        indicators: &[Indicators],
+        message: &DataMessage,
+    ) -> mcap::McapResult<()> {
+        let own = self.indicators.before(message);
+        self.put_indicators(indicators)?;
+        self.put_indicators(&own)?;
         match message {
-            DataMessage::Reference(m) => {
-                self.write_indicators()?;
-                self.put(self.reference, m.frame, log_time_of(m.t), m)
-            }
+            DataMessage::Reference(m) => self.put(self.reference, m.frame, log_time_of(m.t), m),
             DataMessage::Separations(m) => {
                 let channel = *self.separations.get(m.scheme as usize).ok_or_else(|| {
                     mcap::McapError::UnknownChannel(m.frame as u32, m.scheme as u16)
                 })?;
-                self.put(channel, m.frame, log_time_of(m.t), m)?;
-                self.indicators.observe(m);
-                Ok(())
+                self.put(channel, m.frame, log_time_of(m.t), m)
             }
-            DataMessage::End(m) => {
-                self.write_indicators()?;
-                self.put(self.end, m.frame, log_time_of(m.t), m)
-            }
+            DataMessage::End(m) => self.put(self.end, m.frame, log_time_of(m.t), m),
         }
     }
 
-    /// Writes the indicators of the schemes whose sample is complete: a sample's messages end
-    /// where the next reference state, the end of the run or the end of the file begins.
-    fn write_indicators(&mut self) -> mcap::McapResult<()> {
-        for m in self.indicators.take() {
-            let channel = self.indicator_channels[m.scheme as usize];
-            self.put(channel, m.seq, log_time_of(m.t), &m)?;
+    fn put_indicators(&mut self, indicators: &[Indicators]) -> mcap::McapResult<()> {
+        for m in indicators {
+            let channel = *self
+                .indicator_channels
+                .get(m.scheme as usize)
+                .ok_or_else(|| mcap::McapError::UnknownChannel(m.seq as u32, m.scheme as u16))?;
+            self.put(channel, m.seq, log_time_of(m.t), m)?;
         }
         Ok(())
     }
@@ -233,8 +247,19 @@ impl<W: Write + Seek> RecordingFile<W> {
     }
 
     /// Writes the recording summary message and metadata, then the MCAP summary and footer.
-    pub fn finish(mut self, summary: &RecordingSummary) -> mcap::McapResult<W> {
-        self.write_indicators()?;
+    pub fn finish(self, summary: &RecordingSummary) -> mcap::McapResult<W> {
+        self.finish_after(&[], summary)
+    }
+
+    /// [`Self::finish`] after `indicators`, the last ones of a detached stream.
+    pub fn finish_after(
+        mut self,
+        indicators: &[Indicators],
+        summary: &RecordingSummary,
+    ) -> mcap::McapResult<W> {
+        self.put_indicators(indicators)?;
+        let own = self.indicators.take();
+        self.put_indicators(&own)?;
         self.put(
             self.recording,
             summary.last_frame,

@@ -8,6 +8,7 @@
 //! is complete, and `chaoscope monitor --foxglove` streams them live.
 
 use chaoscope_indicators::{Layout, LogStat, SchemeIndicators, Tracker};
+use chaoscope_schemas::convert::DataMessage;
 use chaoscope_schemas::proto::{Indicators, MeanOverSets, RunHeader, SeparationSet};
 
 /// The indicator state of one run and the schemes whose indicators are due.
@@ -40,6 +41,29 @@ impl IndicatorStream {
                 .map(|s| s.orthonormalize == "qr")
                 .collect(),
             pending: Vec::new(),
+        }
+    }
+
+    /// A stream that computes nothing (the indicators are computed elsewhere).
+    pub fn disabled() -> Self {
+        Self {
+            tracker: None,
+            spectrum: Vec::new(),
+            pending: Vec::new(),
+        }
+    }
+
+    /// The indicator messages to be written just before `message` (those of the sample it
+    /// completes: a sample's messages end where the next reference state or the end of the run
+    /// begins), and `message` taken into the state. This is the one place that decides where
+    /// indicators go in a file, whichever thread computes them.
+    pub fn before(&mut self, message: &DataMessage) -> Vec<Indicators> {
+        match message {
+            DataMessage::Reference(_) | DataMessage::End(_) => self.take(),
+            DataMessage::Separations(m) => {
+                self.observe(m);
+                Vec::new()
+            }
         }
     }
 

@@ -10,6 +10,8 @@
 //! - [`subscription`]: the bus side, waking on iceoryx2 events and watching the producer's
 //!   node liveness.
 //! - [`discover`]: finding a run to record.
+//! - [`write_thread`]: a recording written on a thread of its own, the indicators computed on
+//!   the caller's (the recorder's two cores).
 //! - [`record`]: the recorder process loop gluing the above.
 //! - [`recover`]: salvaging a file whose writer was killed, streamed through [`scan`].
 //! - `testing` (feature `testing`): synthetic recordings and hostile variants of files, for tests
@@ -27,6 +29,7 @@ pub mod sequence;
 pub mod subscription;
 #[cfg(any(test, feature = "testing"))]
 pub mod testing;
+pub mod write_thread;
 
 pub use record::{RecordOptions, RecordOutcome, record};
 pub use recover::{RecoverReport, recover};

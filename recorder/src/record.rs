@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use chaoscope_schemas::bus;
+use chaoscope_schemas::convert::DataMessage;
 use chaoscope_schemas::names;
 use chaoscope_schemas::proto::RecordingSummary;
 
@@ -14,6 +15,7 @@ use crate::discover::{self, Discovery};
 use crate::file::FileOptions;
 use crate::recording::{FinalizedBy, Recording};
 use crate::subscription::{BusEvent, Ended, RunSubscription, SubscribeError};
+use crate::write_thread::WriteThread;
 
 #[derive(Debug, Clone)]
 pub struct RecordOptions {
@@ -126,53 +128,57 @@ pub fn record(options: &RecordOptions) -> Result<RecordOutcome, RecordError> {
         error,
     };
     let file = create_output(&path, options.force)?;
-    let mut recording = Recording::start(file, &header, &options.file).map_err(mcap_err)?;
+    let recording = Recording::start(file, &header, &options.file).map_err(mcap_err)?;
+    // Encoding, compression and writing on a thread of their own (see `write_thread`).
+    let mut recording = WriteThread::start(recording).map_err(|source| RecordError::Io {
+        path: path.clone(),
+        source,
+    })?;
 
-    let mut write_error = None;
     let mut invalid_frames = 0;
     let mut last_chunk_close = Instant::now();
+    let mut writer_stopped = false;
     let ended = subscription.receive(|event| {
-        let result = match event {
+        let mut done = false;
+        let alive = match event {
             BusEvent::Message(m) => {
                 if !options.throttle.is_zero() {
                     std::thread::sleep(options.throttle);
                 }
-                recording.on_message(&m)
+                done = matches!(m, DataMessage::End(_));
+                recording.push(m) && (!done || recording.flush())
             }
             BusEvent::Invalid(e) => {
                 eprintln!("chaoscope record: skipping invalid frame: {e}");
                 invalid_frames += 1;
-                Ok(false)
+                true
             }
-            BusEvent::Tick => Ok(false),
+            // Idle: let the file catch up with the run.
+            BusEvent::Tick => recording.flush(),
         };
-        let result = result.and_then(|done| {
-            if !done && last_chunk_close.elapsed() >= options.flush_interval {
+        let alive = alive
+            && (done || last_chunk_close.elapsed() < options.flush_interval || {
                 last_chunk_close = Instant::now();
-                recording.close_chunk()?;
-            }
-            Ok(done)
-        });
-        match result {
-            Ok(false) => ControlFlow::Continue(()),
-            Ok(true) => ControlFlow::Break(()),
-            Err(e) => {
-                write_error = Some(e);
-                ControlFlow::Break(())
-            }
+                recording.close_chunk()
+            });
+        if !alive {
+            // A write failed; `finish` returns the error.
+            writer_stopped = true;
+        }
+        if done || !alive {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
         }
     })?;
     drop(subscription);
-    if let Some(e) = write_error {
-        // Still try to leave a readable file behind.
-        let _ = recording.finish(FinalizedBy::Signal);
-        return Err(mcap_err(e));
-    }
     let reason = match ended {
+        _ if writer_stopped => FinalizedBy::Signal,
         Ended::Stopped => FinalizedBy::EndOfRun,
         Ended::Signal => FinalizedBy::Signal,
         Ended::ProducerGone => FinalizedBy::ProducerDied,
     };
+    // On a write error this still leaves a readable file behind, and returns the error.
     let (file, summary) = recording.finish(reason).map_err(mcap_err)?;
     file.sync_all().map_err(|source| RecordError::Io {
         path: path.clone(),

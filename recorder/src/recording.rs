@@ -3,9 +3,10 @@
 use std::io::{Seek, Write};
 
 use chaoscope_schemas::convert::DataMessage;
-use chaoscope_schemas::proto::{EndOfRun, RecordingSummary, RunHeader, end_of_run};
+use chaoscope_schemas::proto::{EndOfRun, Indicators, RecordingSummary, RunHeader, end_of_run};
 
 use crate::file::{FileOptions, RecordingFile};
+use crate::indicators::IndicatorStream;
 use crate::sequence::SequenceTracker;
 
 /// Why the recorder finalized the file.
@@ -47,13 +48,27 @@ impl<W: Write + Seek> Recording<W> {
 
     /// Records one message; returns true once the end-of-run record has been recorded.
     pub fn on_message(&mut self, message: &DataMessage) -> mcap::McapResult<bool> {
+        self.on_message_after(&[], message)
+    }
+
+    /// Takes the indicator computation out of the file ([`RecordingFile::detach_indicators`]).
+    pub fn detach_indicators(&mut self) -> IndicatorStream {
+        self.file.detach_indicators()
+    }
+
+    /// [`Self::on_message`] with the indicators a detached stream computed for `message`.
+    pub fn on_message_after(
+        &mut self,
+        indicators: &[Indicators],
+        message: &DataMessage,
+    ) -> mcap::McapResult<bool> {
         let frame = match message {
             DataMessage::Reference(m) => m.frame,
             DataMessage::Separations(m) => m.frame,
             DataMessage::End(m) => m.frame,
         };
         self.sequence.observe(frame);
-        self.file.write(message)?;
+        self.file.write_after(indicators, message)?;
         if let DataMessage::End(m) = message {
             self.end = Some(m.clone());
         }
@@ -88,8 +103,17 @@ impl<W: Write + Seek> Recording<W> {
 
     /// Writes the summary and closes the file.
     pub fn finish(self, reason: FinalizedBy) -> mcap::McapResult<(W, RecordingSummary)> {
+        self.finish_after(&[], reason)
+    }
+
+    /// [`Self::finish`] after `indicators`, the last ones of a detached stream.
+    pub fn finish_after(
+        self,
+        indicators: &[Indicators],
+        reason: FinalizedBy,
+    ) -> mcap::McapResult<(W, RecordingSummary)> {
         let summary = self.summary(reason);
-        let out = self.file.finish(&summary)?;
+        let out = self.file.finish_after(indicators, &summary)?;
         Ok((out, summary))
     }
 }

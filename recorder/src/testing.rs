@@ -70,6 +70,24 @@ pub fn write_run_with<W: Write + Seek>(
     seed: u64,
     edit: impl FnOnce(&mut RunHeader),
 ) -> mcap::McapResult<W> {
+    let (header, messages) = run_messages_with(shape, seed, edit);
+    let mut recording = Recording::start(out, &header, options)?;
+    for m in &messages {
+        recording.on_message(m)?;
+    }
+    Ok(recording.finish(FinalizedBy::EndOfRun)?.0)
+}
+
+/// The header and messages [`write_run`] writes.
+pub fn run_messages(shape: &Shape, seed: u64) -> (RunHeader, Vec<DataMessage>) {
+    run_messages_with(shape, seed, |_| {})
+}
+
+fn run_messages_with(
+    shape: &Shape,
+    seed: u64,
+    edit: impl FnOnce(&mut RunHeader),
+) -> (RunHeader, Vec<DataMessage>) {
     let mut header = RunHeader {
         run_name: "synthetic".into(),
         model: "fput-beta".into(),
@@ -91,12 +109,12 @@ pub fn write_run_with<W: Write + Seek>(
     };
     edit(&mut header);
     let mut noise = Noise::new(seed);
-    let mut recording = Recording::start(out, &header, options)?;
+    let mut messages = Vec::new();
     let mut frame = 0;
     for step in 0..shape.samples {
         let t = step as f64 * 0.01;
         let state = (0..shape.dim).map(|_| noise.next_f64(1.0)).collect();
-        recording.on_message(&DataMessage::Reference(ReferenceState {
+        messages.push(DataMessage::Reference(ReferenceState {
             frame,
             seq: step,
             step,
@@ -104,14 +122,14 @@ pub fn write_run_with<W: Write + Seek>(
             energy: 1.0 + noise.next_f64(1e-12),
             state,
             mean_divergence: 0.0,
-        }))?;
+        }));
         frame += 1;
         for set in 0..shape.sets {
             let separations = (0..shape.k * shape.dim)
                 .map(|_| noise.next_f64(1e-8))
                 .collect();
             let stretch = (0..shape.k).map(|_| 1.0 + noise.next_f64(1e-3)).collect();
-            recording.on_message(&DataMessage::Separations(SeparationSet {
+            messages.push(DataMessage::Separations(SeparationSet {
                 frame,
                 seq: step,
                 step,
@@ -122,17 +140,17 @@ pub fn write_run_with<W: Write + Seek>(
                 dim: shape.dim,
                 separations,
                 stretch,
-            }))?;
+            }));
             frame += 1;
         }
     }
-    recording.on_message(&DataMessage::End(EndOfRun {
+    messages.push(DataMessage::End(EndOfRun {
         frame,
         status: end_of_run::Status::Completed as i32,
         samples: shape.samples,
         ..Default::default()
-    }))?;
-    Ok(recording.finish(FinalizedBy::EndOfRun)?.0)
+    }));
+    (header, messages)
 }
 
 /// A small recording of about 15 chunks (dim 4, k = 2, three sets, 60 samples, chunks of

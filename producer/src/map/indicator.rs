@@ -5,9 +5,9 @@ use chaoscope_schemas::config::MapConfig;
 
 use chaoscope_indicators::sali;
 
-use super::gali::log10_gali;
 use super::point::{PointResult, PointStatus};
 use crate::engine::RunError;
+use crate::indicators::volume_log10 as log10_gali;
 use crate::spec::SpecError;
 
 #[derive(Debug, Clone, Copy, PartialEq)]

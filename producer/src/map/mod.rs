@@ -2,7 +2,6 @@
 //! point (`chaoscope map`).
 //!
 //! - [`spec`]: the validated `[map]` section, the grid, shards, each point's initial condition.
-//! - [`gali`]: the GALI of a set of separation vectors, allocation-free.
 //! - [`indicator`]: what is accumulated per deviation set and how a point's value is formed.
 //! - [`point`]: a point's result.
 //! - [`kernel`]: what the batched methods need from a system (`PointKernel`): a separable
@@ -16,7 +15,6 @@
 //! Every point is a deterministic function of the configuration and its grid index alone, so
 //! results are identical for any thread count, batch grouping, shard split or resumption.
 
-pub mod gali;
 pub mod indicator;
 pub mod kernel;
 pub mod mpm;

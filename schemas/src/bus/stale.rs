@@ -611,7 +611,11 @@ mod tests {
                 .filter(|f| f.ends_with(".dynamic"))
                 .cloned()
                 .collect();
-            assert_eq!((statics.len(), dynamics.len()), (1, 1), "{statics:?} {dynamics:?}");
+            assert_eq!(
+                (statics.len(), dynamics.len()),
+                (1, 1),
+                "{statics:?} {dynamics:?}"
+            );
             let mut files = snapshot(&l.services, &statics);
             files.extend(snapshot(Path::new("/dev/shm"), &dynamics));
             files
@@ -653,7 +657,11 @@ mod tests {
         // Nobody holds it: removed, the dynamic configuration's segment with it.
         bus::cleanup_dead_nodes_in(d.0.config());
         assert_eq!(services(), 0);
-        assert!(d.files(&l.services).is_empty(), "{:?}", d.files(&l.services));
+        assert!(
+            d.files(&l.services).is_empty(),
+            "{:?}",
+            d.files(&l.services)
+        );
         assert!(
             !shm().contains(files[1].0.file_name().unwrap().to_str().unwrap()),
             "{:?}",
@@ -663,7 +671,11 @@ mod tests {
         // Only the static configuration left: removed as well, and the run's service works.
         write(&files[0].0, &files[0].1, files[0].2);
         bus::cleanup_dead_nodes_in(d.0.config());
-        assert!(d.files(&l.services).is_empty(), "{:?}", d.files(&l.services));
+        assert!(
+            d.files(&l.services).is_empty(),
+            "{:?}",
+            d.files(&l.services)
+        );
         let node = d.node("next");
         let service = bus::data_service(&node, "orphan").unwrap();
         let subscriber = service.subscriber_builder().create().unwrap();

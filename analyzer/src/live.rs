@@ -239,7 +239,7 @@ fn wait_for<T>(
                 timeout,
             });
         }
-        if node.wait(bus::POLL_INTERVAL).is_err() {
+        if !bus::poll_wait(node) {
             return Ok(None);
         }
     }
@@ -263,7 +263,7 @@ fn wait_header(
                 timeout,
             });
         }
-        if node.wait(bus::POLL_INTERVAL).is_err() {
+        if !bus::poll_wait(node) {
             return Ok(None);
         }
     }

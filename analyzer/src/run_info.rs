@@ -3,7 +3,9 @@
 
 use chaoscope_indicators::Layout;
 use chaoscope_producer::renormalization::Orthonormalization;
-use chaoscope_producer::spec::{MAX_STATE_VALUES, Method, SchemeSpec, deviation_state_values};
+use chaoscope_producer::spec::{
+    MAX_STATE_VALUES, Method, Route, SchemeSpec, deviation_state_values,
+};
 use chaoscope_producer::system::SystemKind;
 use chaoscope_schemas::proto::RunHeader;
 
@@ -101,6 +103,9 @@ impl RunInfo {
                 tau: s.tau,
                 tau_steps: s.tau_steps,
                 orthonormalize,
+                // The header does not say; the separations it holds are the same quantity
+                // either way (replay reruns the recorded configuration, which says).
+                route: Route::PerSet,
             });
         }
         Ok(Self {

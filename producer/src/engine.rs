@@ -13,7 +13,7 @@ use rayon::prelude::*;
 
 use crate::integrator::{TangentError, Workspace};
 use crate::renormalization::{self, RenormalizationError};
-use crate::spec::{Method, RunSpec};
+use crate::spec::{Method, Route, RunSpec};
 
 /// Below this many state values stepped in a window (steps x dimension x orbits, over every
 /// task), the tasks of the window run one after another on the calling thread: waking rayon's
@@ -85,12 +85,30 @@ enum Deviations {
     Variational { orbit: Vec<f64>, vectors: Vec<f64> },
     /// The `k` nearby orbits themselves.
     MultiParticle { orbits: Vec<f64> },
+    /// A `route = "propagator"` VM scheme, every set at once: the images of the `2N` unit
+    /// vectors under the tangent map since the scheme's last renormalization (column `j` is
+    /// the image of `e_j`), the task's copy of the reference orbit, and each set's `k` vectors
+    /// (`sets[s]`, updated only at renormalizations, as `M w` then renormalized).
+    Propagated {
+        orbit: Vec<f64>,
+        basis: Vec<f64>,
+        sets: Vec<Vec<f64>>,
+    },
 }
 
-/// One scheme's evolution of one set of deviation vectors: a `DeviationSet`.
+/// The `dim x dim` identity, column by column.
+fn identity(dim: usize) -> Vec<f64> {
+    let mut m = vec![0.0; dim * dim];
+    m.iter_mut().step_by(dim + 1).for_each(|v| *v = 1.0);
+    m
+}
+
+/// One scheme's evolution of one set of deviation vectors (of every set, for the propagator
+/// route): a `DeviationSet`.
 #[derive(Debug, Clone)]
 struct DeviationSet {
     scheme: usize,
+    /// The set (the first one, for the propagator route).
     set: usize,
     deviations: Deviations,
     work: Workspace,
@@ -119,6 +137,23 @@ impl Engine {
         let dim = spec.dim;
         let mut tasks = Vec::with_capacity(spec.schemes.len() * spec.sets());
         for (si, scheme) in spec.schemes.iter().enumerate() {
+            if scheme.route == Route::Propagator {
+                tasks.push(DeviationSet {
+                    scheme: si,
+                    set: 0,
+                    deviations: Deviations::Propagated {
+                        orbit: spec.x0.clone(),
+                        basis: identity(dim),
+                        sets: spec
+                            .directions
+                            .iter()
+                            .map(|d| d.vectors.iter().map(|u| scheme.d0 * u).collect())
+                            .collect(),
+                    },
+                    work: Workspace::new(),
+                });
+                continue;
+            }
             for (set, dirs) in spec.directions.iter().enumerate() {
                 let scaled: Vec<f64> = dirs.vectors.iter().map(|u| scheme.d0 * u).collect();
                 let deviations = match scheme.method {
@@ -260,17 +295,14 @@ impl Engine {
         let work = n_steps
             .saturating_mul((spec.k as u64 + 1) * spec.dim as u64)
             .saturating_mul(self.tasks.len() as u64);
-        let results: Vec<Result<Option<SchemeSample>, RunError>> = if work < self.parallel_min_work
-        {
+        let results: Vec<Result<Vec<SchemeSample>, RunError>> = if work < self.parallel_min_work {
             self.tasks.iter_mut().map(advance).collect()
         } else {
             self.tasks.par_iter_mut().map(advance).collect()
         };
         let mut schemes = Vec::new();
         for r in results {
-            if let Some(s) = r? {
-                schemes.push(s);
-            }
+            schemes.extend(r?);
         }
         self.step = target;
         // Systems without a conserved quantity report 0 (never NaN in an output).
@@ -290,21 +322,21 @@ impl Engine {
 
     fn initial_sample(&mut self) -> Sample {
         self.next_seq = 1;
-        let schemes = self
-            .tasks
+        let spec = &self.spec;
+        let schemes = spec
+            .schemes
             .iter()
-            .map(|task| {
-                let d0 = self.spec.schemes[task.scheme].d0;
-                SchemeSample {
-                    scheme: task.scheme as u32,
-                    set: task.set as u32,
-                    separations: self.spec.directions[task.set]
-                        .vectors
-                        .iter()
-                        .map(|u| d0 * u)
-                        .collect(),
-                    stretch: vec![1.0; self.spec.k],
-                }
+            .enumerate()
+            .flat_map(|(si, scheme)| {
+                spec.directions
+                    .iter()
+                    .enumerate()
+                    .map(move |(set, dirs)| SchemeSample {
+                        scheme: si as u32,
+                        set: set as u32,
+                        separations: dirs.vectors.iter().map(|u| scheme.d0 * u).collect(),
+                        stretch: vec![1.0; spec.k],
+                    })
             })
             .collect();
         Sample {
@@ -400,11 +432,44 @@ impl DeviationSet {
         plan: &Plan<'_>,
         renormalize: bool,
         t: f64,
-    ) -> Result<Option<SchemeSample>, RunError> {
+    ) -> Result<Vec<SchemeSample>, RunError> {
         let system = spec.system.as_ref();
         let dim = spec.dim;
-        let scheme = &spec.schemes[self.scheme];
         let mut separations = match &mut self.deviations {
+            Deviations::Propagated { orbit, basis, sets } => {
+                for substeps in plan.steps() {
+                    system.step_tangent_along(orbit, basis, substeps, &mut self.work)?;
+                }
+                debug_assert_eq!(orbit.as_slice(), reference);
+                if !renormalize {
+                    return Ok(Vec::new());
+                }
+                let mut samples = Vec::with_capacity(sets.len());
+                for (set, vectors) in sets.iter_mut().enumerate() {
+                    // M w, column by column of M: the same tangent map applied to w.
+                    let mut separations = vec![0.0; vectors.len()];
+                    for (image, w) in separations
+                        .chunks_exact_mut(dim)
+                        .zip(vectors.chunks_exact(dim))
+                    {
+                        for (column, wj) in basis.chunks_exact(dim).zip(w) {
+                            for (x, m) in image.iter_mut().zip(column) {
+                                *x += m * wj;
+                            }
+                        }
+                    }
+                    samples.push(renormalized(
+                        spec,
+                        self.scheme,
+                        set,
+                        separations,
+                        t,
+                        vectors,
+                    )?);
+                }
+                *basis = identity(dim);
+                return Ok(samples);
+            }
             Deviations::Variational { orbit, vectors } => {
                 for substeps in plan.steps() {
                     system.step_tangent_along(orbit, vectors, substeps, &mut self.work)?;
@@ -415,7 +480,7 @@ impl DeviationSet {
                     "variational copy of the orbit diverged"
                 );
                 if !renormalize {
-                    return Ok(None);
+                    return Ok(Vec::new());
                 }
                 vectors.clone()
             }
@@ -426,7 +491,7 @@ impl DeviationSet {
                     }
                 }
                 if !renormalize {
-                    return Ok(None);
+                    return Ok(Vec::new());
                 }
                 // Measured as the system measures separations (on the torus for angles).
                 let mut separations = vec![0.0; orbits.len()];
@@ -439,41 +504,62 @@ impl DeviationSet {
                 separations
             }
         };
-        let raw = separations.clone();
-        let mut stretch = vec![0.0; spec.k];
-        renormalization::renormalize(
-            &mut separations,
-            dim,
-            scheme.d0,
-            scheme.orthonormalize,
-            &mut stretch,
-        )
-        .map_err(|source| RunError::Renormalization {
-            scheme: scheme.name.clone(),
-            set: self.set as u32,
+        let mut renormalized_vectors = vec![0.0; separations.len()];
+        let sample = renormalized(
+            spec,
+            self.scheme,
+            self.set,
+            std::mem::take(&mut separations),
             t,
-            source,
-        })?;
+            &mut renormalized_vectors,
+        )?;
         match &mut self.deviations {
-            Deviations::Variational { vectors, .. } => vectors.copy_from_slice(&separations),
+            Deviations::Variational { vectors, .. } => {
+                vectors.copy_from_slice(&renormalized_vectors)
+            }
             Deviations::MultiParticle { orbits } => {
                 for (y, d) in orbits
                     .chunks_exact_mut(dim)
-                    .zip(separations.chunks_exact(dim))
+                    .zip(renormalized_vectors.chunks_exact(dim))
                 {
                     for ((yi, di), xi) in y.iter_mut().zip(d).zip(reference) {
                         *yi = xi + di;
                     }
                 }
             }
+            Deviations::Propagated { .. } => unreachable!("returned above"),
         }
-        Ok(Some(SchemeSample {
-            scheme: self.scheme as u32,
-            set: self.set as u32,
-            separations: raw,
-            stretch,
-        }))
+        Ok(vec![sample])
     }
+}
+
+/// The sample of set `set` of scheme `scheme` at a renormalization: `separations` (before
+/// renormalization) and the stretching factors; the renormalized vectors go to `vectors`.
+fn renormalized(
+    spec: &RunSpec,
+    scheme: usize,
+    set: usize,
+    separations: Vec<f64>,
+    t: f64,
+    vectors: &mut [f64],
+) -> Result<SchemeSample, RunError> {
+    let s = &spec.schemes[scheme];
+    vectors.copy_from_slice(&separations);
+    let mut stretch = vec![0.0; spec.k];
+    renormalization::renormalize(vectors, spec.dim, s.d0, s.orthonormalize, &mut stretch).map_err(
+        |source| RunError::Renormalization {
+            scheme: s.name.clone(),
+            set: set as u32,
+            t,
+            source,
+        },
+    )?;
+    Ok(SchemeSample {
+        scheme: scheme as u32,
+        set: set as u32,
+        separations,
+        stretch,
+    })
 }
 
 #[cfg(test)]

@@ -57,6 +57,40 @@ pub struct SchemeSpec {
     /// `tau / h`.
     pub tau_steps: u64,
     pub orthonormalize: Orthonormalization,
+    pub route: Route,
+}
+
+/// How deviation sets are evolved (`[[scheme]] route` of a VM scheme, `[map] route`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Route {
+    /// Every set's own `k` tangent vectors or nearby orbits (the reference).
+    PerSet,
+    /// One basis of `2N` tangent vectors (VM) or nearby orbits (MPM, maps only), every set's
+    /// vectors formed from it: in a run the basis starts as the identity at every
+    /// renormalization of the scheme and its image, the tangent propagator of the window, is
+    /// applied to every set ([`crate::engine`]); in a map see [`crate::map::propagator`].
+    Propagator,
+}
+
+impl Route {
+    pub fn name(self) -> &'static str {
+        match self {
+            Route::PerSet => "per-set",
+            Route::Propagator => "propagator",
+        }
+    }
+
+    /// The route a configuration names at `key` (absent: per-set).
+    pub fn from_config(key: &str, value: Option<&str>) -> Result<Self, SpecError> {
+        match value {
+            None | Some("per-set") => Ok(Route::PerSet),
+            Some("propagator") => Ok(Route::Propagator),
+            Some(other) => Err(SpecError::new(
+                key,
+                format!("'{other}' is not per-set or propagator"),
+            )),
+        }
+    }
 }
 
 /// A problem with the configuration, naming the key.
@@ -1032,6 +1066,28 @@ impl RunSpec {
                         format!("'{}' is not rescale or qr", s.orthonormalize),
                     )
                 })?;
+            let route = Route::from_config(&key("route"), s.route.as_deref())?;
+            if route == Route::Propagator {
+                if method != Method::Vm {
+                    return Err(SpecError::new(
+                        key("route"),
+                        "the propagator route of a run is for vm schemes (maps also offer it \
+                         for mpm: [map] route)",
+                    ));
+                }
+                // It integrates 2N tangent vectors where the per-set route integrates sets x k,
+                // and applies a 2N x 2N matrix to each set's vectors: no gain otherwise.
+                let per_set = directions.len() * dev.k;
+                if dim >= per_set {
+                    return Err(SpecError::new(
+                        key("route"),
+                        format!(
+                            "the propagator integrates 2N = {dim} tangent vectors, the per-set \
+                             route sets x k = {per_set}: use \"per-set\""
+                        ),
+                    ));
+                }
+            }
             schemes.push(SchemeSpec {
                 name: s.name.clone(),
                 method,
@@ -1039,6 +1095,7 @@ impl RunSpec {
                 tau,
                 tau_steps,
                 orthonormalize,
+                route,
             });
         }
 

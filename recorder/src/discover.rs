@@ -29,7 +29,7 @@ pub fn wait_for_run(timeout: Option<Duration>) -> Result<Discovery, BusError> {
         if timeout.is_some_and(|t| start.elapsed() > t) {
             return Ok(Discovery::TimedOut);
         }
-        if node.wait(bus::POLL_INTERVAL).is_err() {
+        if !bus::poll_wait(&node) {
             return Ok(Discovery::Signal);
         }
     }

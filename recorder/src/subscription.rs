@@ -143,7 +143,7 @@ impl RunSubscription {
                     timeout,
                 });
             }
-            if self.node.wait(bus::POLL_INTERVAL).is_err() {
+            if !bus::poll_wait(&self.node) {
                 return Ok(None);
             }
         }

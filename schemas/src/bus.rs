@@ -79,6 +79,17 @@ pub const MAX_MONITORS: usize = 8;
 /// Period at which waiting loops re-check liveness and signals.
 pub const POLL_INTERVAL: Duration = Duration::from_millis(50);
 
+/// Sleeps one [`POLL_INTERVAL`] on `node`; `false` once SIGINT or SIGTERM asked the process to
+/// end. Any other interrupted sleep (SIGCONT after SIGSTOP, SIGCHLD) is not a request to end:
+/// a recorder stopped and continued before its run started took it for Ctrl+C and quit, and its
+/// producer waited in vain for it (found by `tests/crash_loop.rs`, seed 35).
+pub fn poll_wait(node: &Node<ipc::Service>) -> bool {
+    !matches!(
+        node.wait(POLL_INTERVAL),
+        Err(iceoryx2::node::NodeWaitFailure::TerminationRequest)
+    )
+}
+
 pub type DataService = publish_subscribe::PortFactory<ipc::Service, [u64], FrameHeader>;
 pub type HeaderService = publish_subscribe::PortFactory<ipc::Service, [u8], RunAnnouncement>;
 pub type EventService = event::PortFactory<ipc::Service>;

@@ -272,6 +272,11 @@ pub struct SchemeConfig {
     /// `"rescale"` (per-vector, for GALI/SALI) or `"qr"` (Lyapunov spectrum).
     #[serde(default = "default_orthonormalize")]
     pub orthonormalize: String,
+    /// How a `vm` scheme evolves its sets: `"per-set"` (default, the reference: every set's
+    /// `k` tangent vectors) or `"propagator"` (the `2N` tangent vectors of a basis, once per
+    /// renormalization window, applied to every set).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub route: Option<String>,
 }
 
 fn default_orthonormalize() -> String {
@@ -287,6 +292,7 @@ impl SchemeConfig {
             d0,
             tau,
             orthonormalize: default_orthonormalize(),
+            route: None,
         }
     }
 

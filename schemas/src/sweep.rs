@@ -159,6 +159,7 @@ impl SweepConfig {
                         .orthonormalize
                         .clone()
                         .unwrap_or_else(|| "rescale".into()),
+                    route: None,
                 });
             }
         }

@@ -122,24 +122,8 @@ impl std::fmt::Display for Shard {
     }
 }
 
-/// How a map evolves its deviation sets (`[map] route`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Route {
-    /// Every set's own `k` tangent vectors or nearby orbits (the reference).
-    PerSet,
-    /// One basis of `2N` tangent vectors (VM) or nearby orbits (MPM) per point, every set's
-    /// vectors formed from it ([`super::propagator`]).
-    Propagator,
-}
-
-impl Route {
-    pub fn name(self) -> &'static str {
-        match self {
-            Route::PerSet => "per-set",
-            Route::Propagator => "propagator",
-        }
-    }
-}
+/// How a map evolves its deviation sets (`[map] route`), as VM schemes of a run do.
+pub use crate::spec::Route;
 
 /// The `d0` range of the MPM propagator route: there its maps agree with per-set MPM within the
 /// per-set MPM-VM distance (`chaoscope bench --routes`, examples/paper/RESULTS.md). Outside it
@@ -217,16 +201,7 @@ impl MapSpec {
             ));
         }
         let indicator = Indicator::from_config(map, k)?;
-        let route = match map.route.as_deref() {
-            None | Some("per-set") => Route::PerSet,
-            Some("propagator") => Route::Propagator,
-            Some(other) => {
-                return Err(SpecError::new(
-                    "map.route",
-                    format!("'{other}' is not per-set or propagator"),
-                ));
-            }
-        };
+        let route = Route::from_config("map.route", map.route.as_deref())?;
         if route == Route::Propagator {
             if hamiltonian.is_none() && !super::kernel::has_batched_form(run.system.as_ref()) {
                 return Err(SpecError::new(

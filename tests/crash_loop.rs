@@ -13,7 +13,7 @@
 
 mod common;
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -156,13 +156,35 @@ impl Bus {
         self.nodes().0.contains(&name)
     }
 
-    /// Waits until no node of `run` is alive (a killed `chaoscope run`'s children finalize).
+    /// Waits until no node of `run` is alive and every process owning a node record has
+    /// exited (a killed `chaoscope run`'s children finalize). iceoryx2 stops listing a node
+    /// once its monitor files are gone, while its owner may still be removing the rest of its
+    /// records: checking the bus then would blame a process for what it is still cleaning up.
     fn wait_nodes_gone(&self, run: &str) {
         let start = Instant::now();
-        while self.nodes().0.iter().any(|n| n.contains(run)) {
+        while self.nodes().0.iter().any(|n| n.contains(run))
+            || self.record_owners().into_iter().any(running)
+        {
             assert!(start.elapsed() < LIMIT, "nodes of {run} still alive");
             std::thread::sleep(Duration::from_millis(20));
         }
+    }
+
+    /// Pids of the owners of the domain's node records (directories and monitor files), from
+    /// the node ids: iceoryx2's `UniqueSystemId` is `{ seconds, nanoseconds, pid, counter }` as
+    /// four native-endian u32 in a u128.
+    fn record_owners(&self) -> BTreeSet<u32> {
+        std::fs::read_dir(self.dir.path().join("nodes"))
+            .into_iter()
+            .flatten()
+            .flatten()
+            .filter_map(|e| {
+                let name = e.file_name().into_string().ok()?;
+                let id: u128 = name.split('.').next()?.rsplit('_').next()?.parse().ok()?;
+                let b = id.to_ne_bytes();
+                Some(u32::from_ne_bytes([b[8], b[9], b[10], b[11]]))
+            })
+            .collect()
     }
 
     /// The producer of `run` is up and waiting for its recorder: the domain holds exactly what a
@@ -175,7 +197,10 @@ impl Bus {
         let mut stable = 0;
         let counts = loop {
             let counts = self.segments().len();
-            if counts == last && self.services().len() == names_per_run() {
+            // A producer slow to create its ports (a loaded machine) can pause for more than
+            // the settling time with fewer segments than a fresh one holds: wait for them all.
+            let complete = baseline.is_none_or(|b| counts >= b);
+            if counts == last && complete && self.services().len() == names_per_run() {
                 stable += 1;
                 if stable == 3 {
                     break counts;
@@ -525,4 +550,17 @@ fn killing_any_process_at_any_moment_loses_nothing_but_the_tail_and_leaves_no_st
         salvaged.iter().max().unwrap_or(&0),
         started.elapsed().as_secs_f64()
     );
+}
+
+/// Whether process `pid` runs (a zombie does not: it holds nothing any more).
+fn running(pid: u32) -> bool {
+    // SAFETY: signal 0 only checks for existence.
+    if unsafe { libc::kill(pid as libc::pid_t, 0) } != 0 {
+        return false;
+    }
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|stat| {
+        !stat
+            .rsplit_once(')')
+            .is_some_and(|(_, rest)| rest.trim_start().starts_with(['Z', 'X']))
+    })
 }

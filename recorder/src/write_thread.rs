@@ -141,19 +141,12 @@ mod tests {
     use crate::testing;
     use std::io::Cursor;
 
-    /// (topic, sequence, log time, payload) of every message of a file, in file order.
+    /// (topic, sequence, log time, payload) of every message of a file, in file order: all but
+    /// the publish time, the wall-clock time of writing.
     fn messages(bytes: &[u8]) -> Vec<(String, u32, u64, Vec<u8>)> {
-        mcap::MessageStream::new(bytes)
-            .unwrap()
-            .map(|m| {
-                let m = m.unwrap();
-                (
-                    m.channel.topic.clone(),
-                    m.sequence,
-                    m.log_time,
-                    m.data.into_owned(),
-                )
-            })
+        testing::mcap_messages(bytes)
+            .into_iter()
+            .map(|(topic, sequence, log_time, _, data)| (topic, sequence, log_time, data))
             .collect()
     }
 

@@ -346,6 +346,7 @@ pub fn cleanup_dead_nodes_in(config: &Config) -> usize {
     removed += layout.remove_dead_node_remnants();
     layout.remove_abandoned_creations();
     remove_orphaned_services(config, &layout);
+    layout.remove_orphaned_port_segments();
     removed
 }
 

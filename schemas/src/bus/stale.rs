@@ -104,6 +104,8 @@ fn locked(path: &Path) -> bool {
 pub(crate) struct Layout {
     nodes: PathBuf,
     services: PathBuf,
+    /// Where POSIX shared memory lives (`shm_open` names are files there on Linux).
+    shm: PathBuf,
     prefix: String,
 }
 
@@ -130,6 +132,7 @@ impl Layout {
         Self {
             nodes: path(config.global.node_dir()),
             services: path(config.global.service_dir()),
+            shm: PathBuf::from("/dev/shm"),
             prefix: String::from_utf8_lossy(config.global.prefix.as_bytes()).into_owned(),
         }
     }
@@ -242,6 +245,61 @@ impl Layout {
             removed += 1;
         }
         removed
+    }
+
+    /// Ids of every port some node record holds a tag for, whatever the node's state.
+    fn tagged_ports(&self) -> BTreeSet<u128> {
+        let mut ports = BTreeSet::new();
+        for id in self.node_ids() {
+            for record in self.node_records(id) {
+                let name = record.file_name().and_then(|n| n.to_str()).unwrap_or("");
+                ports.extend(
+                    name.strip_prefix(self.prefix.as_str())
+                        .and_then(|n| n.strip_suffix(PORT_TAG))
+                        .and_then(|n| n.parse::<u128>().ok()),
+                );
+            }
+        }
+        ports
+    }
+
+    /// Removes the shared memory of ports (a publisher's data segments, a listener's event
+    /// segment, named `<prefix><hash>_<port id>...`) whose owner is gone and that no node
+    /// holds a port tag for. iceoryx2 finds a dead process's port resources through the port
+    /// tags and the service's registration; a process killed between creating a port's
+    /// segment and registering the port (or a cleaner killed between removing the port tag and
+    /// the segment) leaves a segment nothing points to. Seen in the crash loop as one extra
+    /// `.event_mgmt` segment after a run whose processes were killed while starting. A port id
+    /// is a `UniqueSystemId` like a node id, so it names its owner's pid. Returns how many.
+    pub(crate) fn remove_orphaned_port_segments(&self) -> usize {
+        let port_of = |name: &str| -> Option<u128> {
+            let rest = name.strip_prefix(self.prefix.as_str())?;
+            let rest = rest
+                .strip_suffix(".event_mgmt")
+                .or_else(|| rest.strip_suffix("__mgmt.data"))
+                .or_else(|| {
+                    let (head, segment) = rest.strip_suffix(".data")?.rsplit_once("__")?;
+                    segment.parse::<u64>().ok().map(|_| head)
+                })?;
+            rest.rsplit_once('_')?.1.parse().ok()
+        };
+        let candidates: Vec<(u128, PathBuf)> = std::fs::read_dir(&self.shm)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .filter_map(|e| {
+                let port = port_of(e.file_name().to_str()?)?;
+                (!process_alive(node_owner_pid(port))).then(|| (port, e.path()))
+            })
+            .collect();
+        if candidates.is_empty() {
+            return 0;
+        }
+        let tagged = self.tagged_ports();
+        candidates
+            .into_iter()
+            .filter(|(port, path)| !tagged.contains(port) && std::fs::remove_file(path).is_ok())
+            .count()
     }
 
     /// Service hashes some node of a live process holds a tag for.
@@ -680,6 +738,44 @@ mod tests {
         let service = bus::data_service(&node, "orphan").unwrap();
         let subscriber = service.subscriber_builder().create().unwrap();
         drop((subscriber, service, holder));
+    }
+
+    /// A port segment whose owner is dead and that no node tags is removed; one of a live
+    /// owner, or one a node still tags (iceoryx2's dead-node cleanup finds it), stays.
+    #[test]
+    fn port_segments_nobody_can_find_are_removed() {
+        let d = TestDomain::new("portsegments");
+        let l = d.layout();
+        let _live = d.node("live");
+        let hash = "33c1ac61b54bf6edd0a0a8390f0c2fd7cf74d745";
+        let segment =
+            |port: u128, suffix: &str| l.shm.join(format!("{}{hash}_{port}{suffix}", d.0.prefix));
+        let dead = dead_pid();
+        let orphans = [
+            segment(node_id(dead, 1), ".event_mgmt"),
+            segment(node_id(dead, 2), "__0.data"),
+            segment(node_id(dead, 2), "__mgmt.data"),
+        ];
+        let mine = segment(node_id(std::process::id(), 3), ".event_mgmt");
+        let tagged_port = node_id(dead, 4);
+        let tagged = segment(tagged_port, ".event_mgmt");
+        for path in orphans.iter().chain([&mine, &tagged]) {
+            write(path, b"segment", 0o600);
+        }
+        // The tag of the last one, in a dead node's directory (left to iceoryx2's cleanup).
+        let node_dir = l.nodes.join(node_id(dead, 9).to_string());
+        std::fs::create_dir_all(&node_dir).unwrap();
+        write(
+            &node_dir.join(format!("{}{tagged_port}{PORT_TAG}", d.0.prefix)),
+            b"",
+            0o400,
+        );
+        assert_eq!(l.remove_orphaned_port_segments(), 3);
+        assert!(orphans.iter().all(|p| !p.exists()));
+        assert!(mine.exists() && tagged.exists());
+        for path in [mine, tagged] {
+            std::fs::remove_file(path).unwrap();
+        }
     }
 
     /// iceoryx2 waits 1 s for a hanging creation before the repair runs; one repair suffices.

@@ -316,7 +316,8 @@ pub fn cleanup_dead_nodes() -> usize {
 /// [`cleanup_dead_nodes`] in the domain of `config`.
 pub fn cleanup_dead_nodes_in(config: &Config) -> usize {
     let layout = stale::Layout::of(config);
-    // First what would make iceoryx2's cleanup of a dead node fail every time.
+    // First what would make iceoryx2's cleanup of a dead node fail every time, or hang.
+    layout.remove_unsized_segments();
     layout.remove_unfinished_records();
     let mut dead = Vec::new();
     let _ = Node::<ipc::Service>::list(config, |state| {

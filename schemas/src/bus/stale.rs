@@ -247,6 +247,44 @@ impl Layout {
         removed
     }
 
+    /// This domain's shared-memory segments: (file name, path).
+    fn segments(&self) -> impl Iterator<Item = (String, PathBuf)> + '_ {
+        std::fs::read_dir(&self.shm)
+            .into_iter()
+            .flatten()
+            .flatten()
+            .filter_map(|e| {
+                let name = e.file_name().into_string().ok()?;
+                name.starts_with(self.prefix.as_str())
+                    .then(|| (name, e.path()))
+            })
+    }
+
+    /// The id a segment is named after (`<prefix><hash>_<id>[__<n>].<kind>`): a service's id
+    /// for its dynamic configuration, a port's for the port's segments. Both are
+    /// `UniqueSystemId`s, so they name the pid of the process that created the segment.
+    fn segment_id(&self, name: &str) -> Option<u128> {
+        let stem = name.strip_prefix(self.prefix.as_str())?.split('.').next()?;
+        let stem = stem.split("__").next()?;
+        stem.rsplit_once('_')?.1.parse().ok()
+    }
+
+    /// Removes segments of size zero whose creator is gone: it was killed between creating the
+    /// segment and sizing it. iceoryx2 waits for such a segment to get its size, with no time
+    /// limit: every later cleanup of the dead node that used its service hung there, and so did
+    /// every process starting on the bus (seen in the crash loop: a producer stuck in its
+    /// start-up cleanup on a `.dynamic` segment of 0 bytes, mode 0200). Returns how many.
+    pub(crate) fn remove_unsized_segments(&self) -> usize {
+        self.segments()
+            .filter(|(_, path)| std::fs::metadata(path).is_ok_and(|m| m.len() == 0))
+            .filter(|(name, _)| {
+                self.segment_id(name)
+                    .is_some_and(|id| !process_alive(node_owner_pid(id)))
+            })
+            .filter(|(_, path)| std::fs::remove_file(path).is_ok())
+            .count()
+    }
+
     /// Ids of every port some node record holds a tag for, whatever the node's state.
     fn tagged_ports(&self) -> BTreeSet<u128> {
         let mut ports = BTreeSet::new();
@@ -268,29 +306,42 @@ impl Layout {
     /// holds a port tag for. iceoryx2 finds a dead process's port resources through the port
     /// tags and the service's registration; a process killed between creating a port's
     /// segment and registering the port (or a cleaner killed between removing the port tag and
-    /// the segment) leaves a segment nothing points to. Seen in the crash loop as one extra
+    /// the segment) leaves a segment nothing points to, and a listener its wake-up socket. Seen in the crash loop as one extra
     /// `.event_mgmt` segment after a run whose processes were killed while starting. A port id
     /// is a `UniqueSystemId` like a node id, so it names its owner's pid. Returns how many.
     pub(crate) fn remove_orphaned_port_segments(&self) -> usize {
-        let port_of = |name: &str| -> Option<u128> {
-            let rest = name.strip_prefix(self.prefix.as_str())?;
-            let rest = rest
-                .strip_suffix(".event_mgmt")
-                .or_else(|| rest.strip_suffix("__mgmt.data"))
-                .or_else(|| {
-                    let (head, segment) = rest.strip_suffix(".data")?.rsplit_once("__")?;
-                    segment.parse::<u64>().ok().map(|_| head)
-                })?;
-            rest.rsplit_once('_')?.1.parse().ok()
+        let is_port = |name: &str| {
+            name.ends_with(".event_mgmt") || name.ends_with("__mgmt.data") || {
+                name.strip_suffix(".data")
+                    .and_then(|n| n.rsplit_once("__"))
+                    .is_some_and(|(_, segment)| segment.parse::<u64>().is_ok())
+            }
         };
-        let candidates: Vec<(u128, PathBuf)> = std::fs::read_dir(&self.shm)
+        // A listener's wake-up socket, `<root>/<prefix><port id>.event`, goes with its segment.
+        let root = self
+            .nodes
+            .parent()
+            .map(Path::to_path_buf)
+            .unwrap_or_default();
+        let sockets = std::fs::read_dir(&root)
             .into_iter()
             .flatten()
             .flatten()
             .filter_map(|e| {
-                let port = port_of(e.file_name().to_str()?)?;
-                (!process_alive(node_owner_pid(port))).then(|| (port, e.path()))
-            })
+                let name = e.file_name().into_string().ok()?;
+                let id = name
+                    .strip_prefix(self.prefix.as_str())?
+                    .strip_suffix(".event")?
+                    .parse()
+                    .ok()?;
+                Some((id, e.path()))
+            });
+        let candidates: Vec<(u128, PathBuf)> = self
+            .segments()
+            .filter(|(name, _)| is_port(name))
+            .filter_map(|(name, path)| Some((self.segment_id(&name)?, path)))
+            .chain(sockets)
+            .filter(|(port, _)| !process_alive(node_owner_pid(*port)))
             .collect();
         if candidates.is_empty() {
             return 0;
@@ -756,6 +807,12 @@ mod tests {
             segment(node_id(dead, 2), "__0.data"),
             segment(node_id(dead, 2), "__mgmt.data"),
         ];
+        let socket =
+            l.nodes
+                .parent()
+                .unwrap()
+                .join(format!("{}{}.event", d.0.prefix, node_id(dead, 1)));
+        write(&socket, b"", 0o600);
         let mine = segment(node_id(std::process::id(), 3), ".event_mgmt");
         let tagged_port = node_id(dead, 4);
         let tagged = segment(tagged_port, ".event_mgmt");
@@ -770,10 +827,34 @@ mod tests {
             b"",
             0o400,
         );
-        assert_eq!(l.remove_orphaned_port_segments(), 3);
-        assert!(orphans.iter().all(|p| !p.exists()));
+        assert_eq!(l.remove_orphaned_port_segments(), 4);
+        assert!(orphans.iter().all(|p| !p.exists()) && !socket.exists());
         assert!(mine.exists() && tagged.exists());
         for path in [mine, tagged] {
+            std::fs::remove_file(path).unwrap();
+        }
+    }
+
+    /// A segment of size zero left by a dead creator is removed before anything opens it; one
+    /// of a live creator (still sizing it), or one with contents, stays.
+    #[test]
+    fn unsized_segments_of_dead_creators_are_removed() {
+        let d = TestDomain::new("unsized");
+        let l = d.layout();
+        let hash = "112437a14a36c452eeea7e2aefc2af954fc5a3f2";
+        let segment = |id: u128| l.shm.join(format!("{}{hash}_{id}.dynamic", d.0.prefix));
+        let dead = dead_pid();
+        let (unsized_dead, unsized_mine, sized_dead) = (
+            segment(node_id(dead, 1)),
+            segment(node_id(std::process::id(), 2)),
+            segment(node_id(dead, 3)),
+        );
+        write(&unsized_dead, b"", 0o200);
+        write(&unsized_mine, b"", 0o200);
+        write(&sized_dead, b"configuration", 0o600);
+        assert_eq!(l.remove_unsized_segments(), 1);
+        assert!(!unsized_dead.exists() && unsized_mine.exists() && sized_dead.exists());
+        for path in [unsized_mine, sized_dead] {
             std::fs::remove_file(path).unwrap();
         }
     }

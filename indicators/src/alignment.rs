@@ -11,42 +11,34 @@ pub const SIGMA_FLOOR: f64 = f64::EPSILON;
 
 /// `log10 GALI_j` for `j = 2..=k`, where `GALI_j` is the volume spanned by the first `j` of the
 /// `k` vectors (each normalized to unit length first). Returns `k - 1` values (empty for
-/// `k < 2`). One QR factorization gives them all ([`volume_log10_prefixes`]).
+/// `k < 2`). One QR factorization gives them all ([`volume_log10_each`]).
 pub fn gali_log10(vectors: &[f64], dim: usize) -> Vec<f64> {
     let k = vectors.len() / dim;
     if k < 2 {
         return Vec::new();
     }
-    let mut prefixes = vec![0.0; k];
-    volume_log10_prefixes(vectors, dim, k, &mut Vec::new(), &mut prefixes);
-    prefixes.split_off(1)
+    let mut gali = Vec::with_capacity(k - 1);
+    volume_log10_each(vectors, dim, k, &mut Vec::new(), |j, log| {
+        if j > 0 {
+            gali.push(log);
+        }
+    });
+    gali
 }
 
-/// `out[j - 1] = log10` of the volume spanned by the first `j` of the `k` vectors of length `dim`
-/// in `vectors`, each normalized to unit length first, for `j = 1..=k` (so `out[j - 1]` is
-/// `log10 GALI_j`). The volume is `prod |R_ii|` of their QR factorization, computed by modified
-/// Gram-Schmidt with one re-orthogonalization pass, which keeps `R` accurate down to nearly
-/// parallel vectors: the product of the singular values to rounding (tested against the SVD
-/// below), at a fraction of its cost and without allocating once `scratch` has grown. Each
-/// `|R_ii|` is floored at [`SIGMA_FLOOR`]: below it nothing is resolved.
-pub fn volume_log10_prefixes(
-    vectors: &[f64],
-    dim: usize,
-    k: usize,
-    scratch: &mut Vec<f64>,
-    out: &mut [f64],
-) {
-    volume_log10_each(vectors, dim, k, scratch, |j, log| out[j] = log);
-}
-
-/// `log10` of the volume spanned by the `k` unit vectors, as [`volume_log10_prefixes`] computes
-/// it (`log10 GALI_k`), bit for bit.
+/// `log10 GALI_k`: the volume spanned by the `k` unit vectors of length `dim` in `vectors`, as
+/// [`gali_log10`] computes it, bit for bit, without allocating once `scratch` has grown (the
+/// maps evaluate it at every renormalization of every set of every point).
 pub fn volume_log10(vectors: &[f64], dim: usize, k: usize, scratch: &mut Vec<f64>) -> f64 {
     volume_log10_each(vectors, dim, k, scratch, |_, _| {})
 }
 
-/// The factorization behind both: calls `each(j, log10 volume of the first j + 1)`, returns the
-/// whole volume's.
+/// Calls `each(j, log10 of the volume spanned by the first j + 1 vectors)` for `j = 0..k` and
+/// returns the whole volume's, the vectors (of length `dim`) normalized to unit length first.
+/// The volume is `prod |R_ii|` of their QR factorization, computed by modified Gram-Schmidt
+/// with one re-orthogonalization pass, which keeps `R` accurate down to nearly parallel vectors:
+/// the product of the singular values to rounding (tested against the SVD below), at a fraction
+/// of its cost. Each `|R_ii|` is floored at [`SIGMA_FLOOR`]: below it nothing is resolved.
 fn volume_log10_each(
     vectors: &[f64],
     dim: usize,

@@ -18,9 +18,7 @@ pub mod stats;
 pub mod stretch;
 pub mod tracker;
 
-pub use alignment::{
-    SIGMA_FLOOR, gali_log10, sali, unit_columns, volume_log10, volume_log10_prefixes,
-};
+pub use alignment::{SIGMA_FLOOR, gali_log10, sali, unit_columns, volume_log10};
 pub use stats::{LogStat, Stat};
 pub use stretch::StretchSums;
 pub use tracker::{Layout, SchemeIndicators, SetValues, Tracker};

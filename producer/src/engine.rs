@@ -99,8 +99,14 @@ enum Deviations {
 /// The `dim x dim` identity, column by column.
 fn identity(dim: usize) -> Vec<f64> {
     let mut m = vec![0.0; dim * dim];
-    m.iter_mut().step_by(dim + 1).for_each(|v| *v = 1.0);
+    set_identity(&mut m, dim);
     m
+}
+
+/// Makes `m` (`dim x dim`) the identity, in place.
+fn set_identity(m: &mut [f64], dim: usize) {
+    m.fill(0.0);
+    m.iter_mut().step_by(dim + 1).for_each(|v| *v = 1.0);
 }
 
 /// One scheme's evolution of one set of deviation vectors (of every set, for the propagator
@@ -435,7 +441,7 @@ impl DeviationSet {
     ) -> Result<Vec<SchemeSample>, RunError> {
         let system = spec.system.as_ref();
         let dim = spec.dim;
-        let mut separations = match &mut self.deviations {
+        match &mut self.deviations {
             Deviations::Propagated { orbit, basis, sets } => {
                 for substeps in plan.steps() {
                     system.step_tangent_along(orbit, basis, substeps, &mut self.work)?;
@@ -467,8 +473,8 @@ impl DeviationSet {
                         vectors,
                     )?);
                 }
-                *basis = identity(dim);
-                return Ok(samples);
+                set_identity(basis, dim);
+                Ok(samples)
             }
             Deviations::Variational { orbit, vectors } => {
                 for substeps in plan.steps() {
@@ -482,7 +488,9 @@ impl DeviationSet {
                 if !renormalize {
                     return Ok(Vec::new());
                 }
-                vectors.clone()
+                let separations = vectors.clone();
+                let sample = renormalized(spec, self.scheme, self.set, separations, t, vectors)?;
+                Ok(vec![sample])
             }
             Deviations::MultiParticle { orbits } => {
                 for y in orbits.chunks_exact_mut(dim) {
@@ -501,23 +509,15 @@ impl DeviationSet {
                 {
                     system.separation(y, reference, d);
                 }
-                separations
-            }
-        };
-        let mut renormalized_vectors = vec![0.0; separations.len()];
-        let sample = renormalized(
-            spec,
-            self.scheme,
-            self.set,
-            std::mem::take(&mut separations),
-            t,
-            &mut renormalized_vectors,
-        )?;
-        match &mut self.deviations {
-            Deviations::Variational { vectors, .. } => {
-                vectors.copy_from_slice(&renormalized_vectors)
-            }
-            Deviations::MultiParticle { orbits } => {
+                let mut renormalized_vectors = vec![0.0; separations.len()];
+                let sample = renormalized(
+                    spec,
+                    self.scheme,
+                    self.set,
+                    separations,
+                    t,
+                    &mut renormalized_vectors,
+                )?;
                 for (y, d) in orbits
                     .chunks_exact_mut(dim)
                     .zip(renormalized_vectors.chunks_exact(dim))
@@ -526,10 +526,9 @@ impl DeviationSet {
                         *yi = xi + di;
                     }
                 }
+                Ok(vec![sample])
             }
-            Deviations::Propagated { .. } => unreachable!("returned above"),
         }
-        Ok(vec![sample])
     }
 }
 

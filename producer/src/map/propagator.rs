@@ -258,13 +258,7 @@ fn vm_batch_with<M: crate::batch::LaneModel>(
             keep.push(p);
         }
         if keep.len() != before {
-            let mut packed = Soa::new(rows, keep.len());
-            for (i, p) in keep.iter_mut().enumerate() {
-                soa.read_lane(p.lane, &mut column);
-                packed.write_lane(i, &column);
-                p.lane = i;
-            }
-            soa = packed;
+            soa = compact(&soa, rows, 1, keep.iter_mut().map(|p| &mut p.lane));
         }
         live = keep;
     }
@@ -379,24 +373,30 @@ fn mpm_with<K: PointKernel>(
             keep.push(p);
         }
         if keep.len() != before {
-            soa = compact(&soa, &mut keep, dim);
+            soa = compact(&soa, dim, 1 + dim, keep.iter_mut().map(|p| &mut p.lane));
         }
         live = keep;
     }
     out
 }
 
-/// A new lane array holding only the lanes of `live` points (finished ones leave the batch).
-fn compact(old: &Soa, live: &mut [Live], dim: usize) -> Soa {
-    let mut soa = Soa::new(dim, live.len() * (1 + dim));
-    let mut buf = vec![0.0; dim];
-    for (i, p) in live.iter_mut().enumerate() {
-        let to = i * (1 + dim);
-        for j in 0..=dim {
-            old.read_lane(p.lane + j, &mut buf);
+/// A new lane array (of `rows` rows) holding only the lanes of the points still live (finished
+/// ones leave the batch): `per_point` lanes from each point's first lane, which is updated.
+fn compact<'a>(
+    old: &Soa,
+    rows: usize,
+    per_point: usize,
+    first_lanes: impl ExactSizeIterator<Item = &'a mut usize>,
+) -> Soa {
+    let mut soa = Soa::new(rows, first_lanes.len() * per_point);
+    let mut buf = vec![0.0; rows];
+    for (i, lane) in first_lanes.enumerate() {
+        let to = i * per_point;
+        for j in 0..per_point {
+            old.read_lane(*lane + j, &mut buf);
             soa.write_lane(to + j, &buf);
         }
-        p.lane = to;
+        *lane = to;
     }
     soa
 }

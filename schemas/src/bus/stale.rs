@@ -247,25 +247,48 @@ impl Layout {
         removed
     }
 
-    /// This domain's shared-memory segments: (file name, path).
-    fn segments(&self) -> impl Iterator<Item = (String, PathBuf)> + '_ {
-        std::fs::read_dir(&self.shm)
+    /// Files in `dir` named `<prefix><stem><suffix>`, as (stem, path).
+    fn named<'a>(
+        &'a self,
+        dir: &Path,
+        suffix: &'a str,
+    ) -> impl Iterator<Item = (String, PathBuf)> + 'a {
+        std::fs::read_dir(dir)
             .into_iter()
             .flatten()
             .flatten()
-            .filter_map(|e| {
+            .filter_map(move |e| {
                 let name = e.file_name().into_string().ok()?;
-                name.starts_with(self.prefix.as_str())
-                    .then(|| (name, e.path()))
+                let stem = name
+                    .strip_prefix(self.prefix.as_str())?
+                    .strip_suffix(suffix)?;
+                Some((stem.to_string(), e.path()))
             })
     }
 
-    /// The id a segment is named after (`<prefix><hash>_<id>[__<n>].<kind>`): a service's id
+    /// Stems of the tags named `<prefix><stem><suffix>` that the nodes `counts` hold.
+    fn tagged(&self, suffix: &str, counts: impl Fn(u128) -> bool) -> BTreeSet<String> {
+        self.node_ids()
+            .into_iter()
+            .filter(|&id| counts(id))
+            .flat_map(|id| {
+                self.named(&self.nodes.join(id.to_string()), suffix)
+                    .map(|(stem, _)| stem)
+                    .collect::<Vec<_>>()
+            })
+            .collect()
+    }
+
+    /// This domain's shared-memory segments: (file name without the prefix, path).
+    fn segments(&self) -> impl Iterator<Item = (String, PathBuf)> + '_ {
+        self.named(&self.shm, "")
+    }
+
+    /// The id a segment is named after (`<hash>_<id>[__<n>].<kind>` after the prefix): a service's id
     /// for its dynamic configuration, a port's for the port's segments. Both are
     /// `UniqueSystemId`s, so they name the pid of the process that created the segment.
-    fn segment_id(&self, name: &str) -> Option<u128> {
-        let stem = name.strip_prefix(self.prefix.as_str())?.split('.').next()?;
-        let stem = stem.split("__").next()?;
+    fn segment_id(name: &str) -> Option<u128> {
+        let stem = name.split('.').next()?.split("__").next()?;
         stem.rsplit_once('_')?.1.parse().ok()
     }
 
@@ -278,8 +301,7 @@ impl Layout {
         self.segments()
             .filter(|(_, path)| std::fs::metadata(path).is_ok_and(|m| m.len() == 0))
             .filter(|(name, _)| {
-                self.segment_id(name)
-                    .is_some_and(|id| !process_alive(node_owner_pid(id)))
+                Self::segment_id(name).is_some_and(|id| !process_alive(node_owner_pid(id)))
             })
             .filter(|(_, path)| std::fs::remove_file(path).is_ok())
             .count()
@@ -287,18 +309,10 @@ impl Layout {
 
     /// Ids of every port some node record holds a tag for, whatever the node's state.
     fn tagged_ports(&self) -> BTreeSet<u128> {
-        let mut ports = BTreeSet::new();
-        for id in self.node_ids() {
-            for record in self.node_records(id) {
-                let name = record.file_name().and_then(|n| n.to_str()).unwrap_or("");
-                ports.extend(
-                    name.strip_prefix(self.prefix.as_str())
-                        .and_then(|n| n.strip_suffix(PORT_TAG))
-                        .and_then(|n| n.parse::<u128>().ok()),
-                );
-            }
-        }
-        ports
+        self.tagged(PORT_TAG, |_| true)
+            .iter()
+            .filter_map(|stem| stem.parse().ok())
+            .collect()
     }
 
     /// Removes the shared memory of ports (a publisher's data segments, a listener's event
@@ -323,23 +337,13 @@ impl Layout {
             .parent()
             .map(Path::to_path_buf)
             .unwrap_or_default();
-        let sockets = std::fs::read_dir(&root)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .filter_map(|e| {
-                let name = e.file_name().into_string().ok()?;
-                let id = name
-                    .strip_prefix(self.prefix.as_str())?
-                    .strip_suffix(".event")?
-                    .parse()
-                    .ok()?;
-                Some((id, e.path()))
-            });
+        let sockets = self
+            .named(&root, ".event")
+            .filter_map(|(stem, path)| Some((stem.parse().ok()?, path)));
         let candidates: Vec<(u128, PathBuf)> = self
             .segments()
             .filter(|(name, _)| is_port(name))
-            .filter_map(|(name, path)| Some((self.segment_id(&name)?, path)))
+            .filter_map(|(name, path)| Some((Self::segment_id(&name)?, path)))
             .chain(sockets)
             .filter(|(port, _)| !process_alive(node_owner_pid(*port)))
             .collect();
@@ -360,24 +364,7 @@ impl Layout {
 
     /// Service hashes some node `counts` holds a tag for.
     pub(crate) fn tagged_hashes(&self, counts: impl Fn(u128) -> bool) -> BTreeSet<String> {
-        let mut hashes = BTreeSet::new();
-        for id in self.node_ids() {
-            if !counts(id) {
-                continue;
-            }
-            for record in self.node_records(id) {
-                let Some(name) = record.file_name().and_then(|n| n.to_str()) else {
-                    continue;
-                };
-                if let Some(hash) = name
-                    .strip_prefix(self.prefix.as_str())
-                    .and_then(|n| n.strip_suffix(SERVICE_TAG))
-                {
-                    hashes.insert(hash.to_string());
-                }
-            }
-        }
-        hashes
+        self.tagged(SERVICE_TAG, counts)
     }
 
     /// Removes the static configuration of every service left half-created by a creator that is
@@ -388,17 +375,8 @@ impl Layout {
                 m.file_type().is_file() && m.permissions().mode() & 0o777 == STATIC_BEING_CREATED
             })
         };
-        let candidates: Vec<(String, PathBuf)> = std::fs::read_dir(&self.services)
-            .into_iter()
-            .flatten()
-            .flatten()
-            .filter_map(|e| {
-                let name = e.file_name().into_string().ok()?;
-                let hash = name
-                    .strip_prefix(self.prefix.as_str())?
-                    .strip_suffix(SERVICE)?;
-                Some((hash.to_string(), e.path()))
-            })
+        let candidates: Vec<(String, PathBuf)> = self
+            .named(&self.services, SERVICE)
             .filter(|(_, path)| being_created(path))
             .collect();
         if candidates.is_empty() {

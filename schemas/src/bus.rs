@@ -7,7 +7,8 @@
 //! Delivery guarantees:
 //! - `data`: safe overflow OFF. With the producer's publisher on
 //!   `BackpressureStrategy::RetryUntilDelivered`, a full subscriber buffer makes the producer wait
-//!   instead of dropping: recorders are lossless.
+//!   instead of dropping: recorders are lossless. (It waits asleep after a few quick retries:
+//!   the producer's backpressure handler.)
 //! - `monitor`: safe overflow ON, so the oldest sample is overwritten for a slow monitor and the
 //!   producer never waits for it.
 //! - `header`: history 1, so a subscriber that arrives late still gets the run header.

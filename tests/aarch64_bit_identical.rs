@@ -22,9 +22,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
-use chaoscope_recorder::map_file::read_map_file;
 use chaoscope_schemas::config::RunConfig;
-use prost::Message;
+mod common;
+use common::{map_points, run_command};
 
 const TARGET: &str = "aarch64-unknown-linux-gnu";
 
@@ -74,20 +74,6 @@ fn arm_binary() -> PathBuf {
     bin
 }
 
-fn run_to_success(mut cmd: Command, what: &str) -> String {
-    let out = cmd
-        .stdin(Stdio::null())
-        .output()
-        .unwrap_or_else(|e| panic!("{what}: {e}"));
-    assert!(
-        out.status.success(),
-        "{what} failed: {}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
 /// `config` produced and recorded over the bus by `machine`'s processes into `out`.
 fn record(machine: Machine, config: &Path, out: &Path, run: &str) {
     let mut recorder = machine.command();
@@ -102,7 +88,7 @@ fn record(machine: Machine, config: &Path, out: &Path, run: &str) {
         .arg("produce")
         .arg(config)
         .args(["--run", run, "--no-progress"]);
-    run_to_success(producer, &format!("produce on {}", machine.name()));
+    run_command(producer.stdin(Stdio::null()));
     let recorded = recorder.wait_with_output().unwrap();
     assert!(
         recorded.status.success(),
@@ -126,17 +112,6 @@ fn messages(path: &Path) -> BTreeMap<String, Vec<(u32, u64, Vec<u8>)>> {
         ));
     }
     topics
-}
-
-/// The map's points by grid index, each as its exact protobuf bytes.
-fn points(path: &Path) -> BTreeMap<u64, Vec<u8>> {
-    let contents = read_map_file(path).unwrap();
-    assert!(contents.damaged.is_none(), "{} is damaged", path.display());
-    contents
-        .points
-        .into_iter()
-        .map(|p| (p.index, p.encode_to_vec()))
-        .collect()
 }
 
 /// `config` shortened to `t_final` (runs under emulation are about 50x slower).
@@ -185,7 +160,7 @@ fn same_recording(dir: &Path, name: &str, config: &str) -> usize {
     let analyze = |machine: Machine, file: &Path| {
         let mut c = machine.command();
         c.arg("analyze").arg(file).arg("--json");
-        run_to_success(c, &format!("analyze {name} on {}", machine.name()))
+        run_command(&mut c)
     };
     let (a, b) = (analyze(Machine::X86, &x86), analyze(Machine::Arm, &arm));
     assert!(a.contains("\"verdict\""), "{name}: analyze printed {a}");
@@ -312,9 +287,9 @@ fn maps_through_the_batched_kernel_are_the_same_bits_on_aarch64() {
             if let Some(isa) = isa {
                 c.args(["--isa", isa]);
             }
-            let json = run_to_success(c, &format!("map {name} on {}", machine.name()));
+            let json = run_command(&mut c);
             let json: serde_json::Value = serde_json::from_str(json.trim()).unwrap();
-            (points(&out), json)
+            (map_points(&out), json)
         };
         let (want, json) = map(Machine::X86, None);
         assert!(!want.is_empty(), "{name}: no points");

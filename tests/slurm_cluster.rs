@@ -16,7 +16,9 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use chaoscope_recorder::map_file::read_map_file;
-use prost::Message;
+
+mod common;
+use common::{map_points, run_command as run};
 
 /// The paper's Henon-Heiles GALI_2 map at a size where each of two shards computes for about
 /// ten seconds on one core of a quiet Zen 5 (t = 2000; at t = 500 a shard ended 2-3 s after
@@ -56,28 +58,6 @@ k = 2
 "#;
 
 const SHARDS: usize = 2;
-
-fn run(cmd: &mut Command) -> String {
-    let out = cmd.output().unwrap_or_else(|e| panic!("{cmd:?}: {e}"));
-    assert!(
-        out.status.success(),
-        "{cmd:?} failed: {}{}",
-        String::from_utf8_lossy(&out.stdout),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-/// The map's points by grid index, each as its exact protobuf bytes.
-fn points(path: &Path) -> BTreeMap<u64, Vec<u8>> {
-    let contents = read_map_file(path).unwrap();
-    assert!(contents.damaged.is_none(), "{} is damaged", path.display());
-    contents
-        .points
-        .into_iter()
-        .map(|p| (p.index, p.encode_to_vec()))
-        .collect()
-}
 
 /// Points already on disk in a shard that is being written (complete chunks only).
 fn points_on_disk(path: &Path) -> usize {
@@ -136,7 +116,7 @@ fn map_array_under_slurm_requeues_a_task_resumes_it_and_merges_bit_identically()
         .args(["map", "--no-progress", "--threads", "2", "--out"])
         .arg(&whole)
         .arg(&cfg));
-    let want = points(&whole);
+    let want = map_points(&whole);
     assert_eq!(want.len(), 24 * 16);
 
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/slurm/map-array.sh");
@@ -227,6 +207,6 @@ fn map_array_under_slurm_requeues_a_task_resumes_it_and_merges_bit_identically()
     );
 
     // The merged map is the unsharded map, bit for bit.
-    assert_eq!(points(&out_dir.join("map.mcap")), want);
+    assert_eq!(map_points(&out_dir.join("map.mcap")), want);
     assert!(std::fs::metadata(out_dir.join("map.png")).unwrap().len() > 1000);
 }

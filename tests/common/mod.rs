@@ -278,3 +278,28 @@ pub fn run_reduced_example(script: &str, out: &Path) {
         });
     assert!(status.success(), "{script} --reduced failed: {status}");
 }
+
+/// A map recording's points by grid index, each as its exact protobuf bytes (a damaged file
+/// fails the test).
+pub fn map_points(path: &Path) -> std::collections::BTreeMap<u64, Vec<u8>> {
+    let contents = chaoscope_recorder::map_file::read_map_file(path).unwrap();
+    assert!(contents.damaged.is_none(), "{} is damaged", path.display());
+    contents
+        .points
+        .into_iter()
+        .map(|p| (p.index, p.encode_to_vec()))
+        .collect()
+}
+
+/// Runs `cmd` to success and returns its stdout; a failure panics with the command and its
+/// output.
+pub fn run_command(cmd: &mut Command) -> String {
+    let out = cmd.output().unwrap_or_else(|e| panic!("{cmd:?}: {e}"));
+    assert!(
+        out.status.success(),
+        "{cmd:?} failed: {}{}",
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}

@@ -78,16 +78,21 @@ fn arm_binary() -> PathBuf {
 fn record(machine: Machine, config: &Path, out: &Path, run: &str) {
     let mut recorder = machine.command();
     recorder
-        .args(["record", "--run", run, "--out"])
+        // Neither waits for ever for a partner that did not start (under QEMU a start takes
+        // about a second).
+        .args(["record", "--wait-timeout", "120", "--run", run, "--out"])
         .arg(out)
         .stdout(Stdio::null())
         .stderr(Stdio::piped());
     let recorder = recorder.spawn().expect("the recorder starts");
     let mut producer = machine.command();
-    producer
-        .arg("produce")
-        .arg(config)
-        .args(["--run", run, "--no-progress"]);
+    producer.arg("produce").arg(config).args([
+        "--run",
+        run,
+        "--no-progress",
+        "--wait-timeout",
+        "120",
+    ]);
     run_command(producer.stdin(Stdio::null()));
     let recorded = recorder.wait_with_output().unwrap();
     assert!(

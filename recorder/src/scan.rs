@@ -105,6 +105,11 @@ enum Damage {
     },
     #[error("a {0} record longer than its fields")]
     Overlong(&'static str),
+    #[error(
+        "a message record outside the chunks, after a chunk (chaoscope writes every message into \
+         a chunk: a damaged opcode, such as a message index's 0x07 read as 0x05)"
+    )]
+    MessageAfterChunks,
     #[error("chunk record {0} bytes longer than its data")]
     ChunkPadding(usize),
     #[error("the summary does not match the data: {0}")]
@@ -158,6 +163,12 @@ impl Layout {
             }
             Record::Channel(c) if body.len() != channel_len(c) => {
                 return Err(Damage::Overlong("channel"));
+            }
+            // A message index whose opcode lost one bit parses as a well-formed message of a
+            // real channel (its channel id, then its times and offsets as sequence, times and
+            // data): copied, it would add a message the file never had.
+            Record::Message { .. } if !self.chunks.is_empty() => {
+                return Err(Damage::MessageAfterChunks);
             }
             Record::Message { .. } => self.messages += 1,
             Record::DataEnd(_) => self.summary = true,

@@ -259,6 +259,41 @@ fn a_chunk_whose_opcode_is_hit_stops_the_salvage_there() {
 }
 
 #[test]
+fn a_message_index_read_as_a_message_is_damage_not_a_message() {
+    // 0x07 with bit 1 flipped is 0x05: the message index after a chunk then parses as a
+    // well-formed message of a real channel. Every message index of both layouts, one at a
+    // time: the salvage stops there and keeps exactly the chunks before it. (Seen once in CI,
+    // where the randomly placed flips of `every_kind_of_damage_leaves_an_exact_prefix` fall
+    // on other bytes from one run to the next: the file holds wall-clock publish times.)
+    for compression in [Compression::Zstd, Compression::None] {
+        let original = Original::new(compression);
+        let files = Files::new();
+        let indexes: Vec<usize> = synthetic::record_offsets(&original.bytes)
+            .into_iter()
+            .filter(|&at| original.bytes[at] == mcap::records::op::MESSAGE_INDEX)
+            .collect();
+        assert!(indexes.len() >= original.chunks.len(), "{compression:?}");
+        for at in indexes {
+            let mut bytes = original.bytes.clone();
+            bytes[at] = mcap::records::op::MESSAGE;
+            let (report, salvaged) = files.recover(&bytes);
+            let expected = original.salvageable(at);
+            assert!(
+                salvaged[..] == original.messages[..expected],
+                "{compression:?}, message index at byte {at}: {} messages, expected {expected}",
+                salvaged.len()
+            );
+            let stopped = report.stopped_at.expect("damage is reported");
+            assert!(
+                stopped.contains(&format!("at byte {at}"))
+                    && stopped.contains("outside the chunks"),
+                "{stopped}"
+            );
+        }
+    }
+}
+
+#[test]
 fn any_single_corrupted_byte_leaves_an_exact_prefix() {
     let original = Original::new(Compression::Zstd);
     let files = Files::new();
@@ -294,8 +329,9 @@ fn every_kind_of_damage_leaves_an_exact_prefix() {
                         continue; // not the original's bytes
                     }
                     assert!(
-                        salvaged[..] == original.messages[..n],
-                        "{what}: not a prefix"
+                        n <= original.messages.len() && salvaged[..] == original.messages[..n],
+                        "{what}: not a prefix ({n} messages of {})",
+                        original.messages.len()
                     );
                     if report.stopped_at.is_none() {
                         assert_eq!(n, original.messages.len(), "{what}: complete, but short");

@@ -286,21 +286,18 @@ fn main() {
     let raw_fput = raw_writer("fput-n501-k8", &header, &messages, dir.path());
     let (header, messages) = run_messages(&hh_text);
     let raw_hh = raw_writer("hh-every-step", &header, &messages, dir.path());
-    let rate = |v: &Value| v["messages_per_s"].as_f64().unwrap_or(f64::NAN);
-    let mut rates: Vec<f64> = hh_runs.iter().map(rate).collect();
-    rates.sort_by(f64::total_cmp);
-    let median = rates[rates.len() / 2];
+    let median_of = |key: &str| {
+        let mut v: Vec<f64> = hh_runs.iter().filter_map(|r| r[key].as_f64()).collect();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+    };
+    let median = median_of("messages_per_s");
     let ratio = median / raw_file_rate(&raw_hh, false);
     let lost: Option<u64> = hh_runs.iter().map(|r| r["lost_messages"].as_u64()).sum();
     // What the cores allow: the recorder must at least do what the writer of the same file
     // does, and the producer must at least run the engine; spread perfectly over all cores,
     // that bounds the ratio to the data-only writer. The processes' own CPU times (start-up
     // included, median of the three runs) are printed beside it.
-    let median_of = |key: &str| {
-        let mut v: Vec<f64> = hh_runs.iter().filter_map(|r| r[key].as_f64()).collect();
-        v.sort_by(f64::total_cmp);
-        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
-    };
     let messages = hh_runs[0]["frames"].as_f64().unwrap_or(f64::NAN);
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
     let raw_data_cpu = messages / raw_file_rate(&raw_hh, false);

@@ -22,6 +22,11 @@ impl Directions {
     pub fn vector(&self, i: usize) -> &[f64] {
         &self.vectors[i * self.dim..(i + 1) * self.dim]
     }
+
+    /// The vectors scaled to length `d0`: a scheme's initial deviations.
+    pub fn scaled(&self, d0: f64) -> Vec<f64> {
+        self.vectors.iter().map(|u| d0 * u).collect()
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -153,7 +153,7 @@ impl Engine {
                         sets: spec
                             .directions
                             .iter()
-                            .map(|d| d.vectors.iter().map(|u| scheme.d0 * u).collect())
+                            .map(|d| d.scaled(scheme.d0))
                             .collect(),
                     },
                     work: Workspace::new(),
@@ -161,7 +161,7 @@ impl Engine {
                 continue;
             }
             for (set, dirs) in spec.directions.iter().enumerate() {
-                let scaled: Vec<f64> = dirs.vectors.iter().map(|u| scheme.d0 * u).collect();
+                let scaled = dirs.scaled(scheme.d0);
                 let deviations = match scheme.method {
                     Method::Vm => Deviations::Variational {
                         orbit: spec.x0.clone(),
@@ -340,7 +340,7 @@ impl Engine {
                     .map(move |(set, dirs)| SchemeSample {
                         scheme: si as u32,
                         set: set as u32,
-                        separations: dirs.vectors.iter().map(|u| scheme.d0 * u).collect(),
+                        separations: dirs.scaled(scheme.d0),
                         stretch: vec![1.0; spec.k],
                     })
             })
@@ -453,25 +453,16 @@ impl DeviationSet {
                 let mut samples = Vec::with_capacity(sets.len());
                 for (set, vectors) in sets.iter_mut().enumerate() {
                     // M w, column by column of M: the same tangent map applied to w.
-                    let mut separations = vec![0.0; vectors.len()];
-                    for (image, w) in separations
-                        .chunks_exact_mut(dim)
-                        .zip(vectors.chunks_exact(dim))
-                    {
+                    let mut images = vec![0.0; vectors.len()];
+                    for (image, w) in images.chunks_exact_mut(dim).zip(vectors.chunks_exact(dim)) {
                         for (column, wj) in basis.chunks_exact(dim).zip(w) {
                             for (x, m) in image.iter_mut().zip(column) {
                                 *x += m * wj;
                             }
                         }
                     }
-                    samples.push(renormalized(
-                        spec,
-                        self.scheme,
-                        set,
-                        separations,
-                        t,
-                        vectors,
-                    )?);
+                    *vectors = images;
+                    samples.push(renormalized(spec, self.scheme, set, vectors, t)?);
                 }
                 set_identity(basis, dim);
                 Ok(samples)
@@ -488,9 +479,7 @@ impl DeviationSet {
                 if !renormalize {
                     return Ok(Vec::new());
                 }
-                let separations = vectors.clone();
-                let sample = renormalized(spec, self.scheme, self.set, separations, t, vectors)?;
-                Ok(vec![sample])
+                Ok(vec![renormalized(spec, self.scheme, self.set, vectors, t)?])
             }
             Deviations::MultiParticle { orbits } => {
                 for y in orbits.chunks_exact_mut(dim) {
@@ -509,18 +498,10 @@ impl DeviationSet {
                 {
                     system.separation(y, reference, d);
                 }
-                let mut renormalized_vectors = vec![0.0; separations.len()];
-                let sample = renormalized(
-                    spec,
-                    self.scheme,
-                    self.set,
-                    separations,
-                    t,
-                    &mut renormalized_vectors,
-                )?;
+                let sample = renormalized(spec, self.scheme, self.set, &mut separations, t)?;
                 for (y, d) in orbits
                     .chunks_exact_mut(dim)
-                    .zip(renormalized_vectors.chunks_exact(dim))
+                    .zip(separations.chunks_exact(dim))
                 {
                     for ((yi, di), xi) in y.iter_mut().zip(d).zip(reference) {
                         *yi = xi + di;
@@ -532,18 +513,17 @@ impl DeviationSet {
     }
 }
 
-/// The sample of set `set` of scheme `scheme` at a renormalization: `separations` (before
-/// renormalization) and the stretching factors; the renormalized vectors go to `vectors`.
+/// Renormalizes the deviation vectors of set `set` of scheme `scheme` in place; returns their
+/// sample: the vectors as they were (the separations) and the stretching factors.
 fn renormalized(
     spec: &RunSpec,
     scheme: usize,
     set: usize,
-    separations: Vec<f64>,
-    t: f64,
     vectors: &mut [f64],
+    t: f64,
 ) -> Result<SchemeSample, RunError> {
     let s = &spec.schemes[scheme];
-    vectors.copy_from_slice(&separations);
+    let separations = vectors.to_vec();
     let mut stretch = vec![0.0; spec.k];
     renormalization::renormalize(vectors, spec.dim, s.d0, s.orthonormalize, &mut stretch).map_err(
         |source| RunError::Renormalization {

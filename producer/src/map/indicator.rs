@@ -7,7 +7,7 @@ use chaoscope_indicators::sali;
 
 use super::point::{PointResult, PointStatus};
 use crate::engine::RunError;
-use crate::indicators::volume_log10 as log10_gali;
+use crate::indicators::volume_log10;
 use crate::spec::SpecError;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -156,11 +156,11 @@ impl PointAccumulator {
         match self.indicator {
             Indicator::Gali { k } => {
                 if last {
-                    acc.value = Some(log10_gali(separations, self.dim, k, &mut self.scratch));
+                    acc.value = Some(volume_log10(separations, self.dim, k, &mut self.scratch));
                 }
             }
             Indicator::GaliTime { k, threshold } => {
-                let g = log10_gali(separations, self.dim, k, &mut self.scratch);
+                let g = volume_log10(separations, self.dim, k, &mut self.scratch);
                 if g < threshold.log10() {
                     acc.value = Some(t);
                     self.last_stop = self.last_stop.max(t);

@@ -84,16 +84,125 @@ impl Default for FileOptions {
 /// An MCAP recording being written.
 pub struct RecordingFile<W: Write + Seek> {
     writer: mcap::Writer<W>,
+    encoder: Encoder,
+    indicators: IndicatorStream,
+    recording: u16,
+    encoded: Vec<u8>,
+    /// The messages of one [`Self::write_after`], encoded.
+    batch: EncodedMessages,
+    last_log_time: u64,
+}
+
+/// The channels of a recording by what they carry: all that encoding a message for the file
+/// needs. Encoding is apart from writing so that a recorder can encode on one thread while
+/// another compresses and writes ([`crate::write_thread`]); both paths encode here.
+#[derive(Debug, Clone)]
+pub struct Encoder {
     reference: u16,
     /// Channel of each scheme, by scheme index.
     separations: Vec<u16>,
     /// Indicator channel of each scheme, by scheme index.
-    indicator_channels: Vec<u16>,
-    indicators: IndicatorStream,
+    indicators: Vec<u16>,
     end: u16,
-    recording: u16,
-    encoded: Vec<u8>,
-    last_log_time: u64,
+}
+
+/// One message of an [`EncodedMessages`].
+#[derive(Debug, Clone, Copy)]
+struct EncodedMessage {
+    channel: u16,
+    sequence: u32,
+    log_time: u64,
+    /// Where its bytes end in the batch's buffer (they start where the previous one's bytes end).
+    end: usize,
+    /// The run's frame number, for a data message (not for indicators).
+    frame: Option<u64>,
+}
+
+/// Messages encoded for the file, in file order, all bytes in one buffer (one allocation for a
+/// whole batch, not one per message).
+#[derive(Debug, Clone, Default)]
+pub struct EncodedMessages {
+    bytes: Vec<u8>,
+    messages: Vec<EncodedMessage>,
+}
+
+impl EncodedMessages {
+    pub fn is_empty(&self) -> bool {
+        self.messages.is_empty()
+    }
+
+    /// An empty batch with room for as much as this one holds (the next batch of a stream is
+    /// about as large, and grows without copying).
+    pub fn empty_like(&self) -> Self {
+        Self {
+            bytes: Vec::with_capacity(self.bytes.len()),
+            messages: Vec::with_capacity(self.messages.len()),
+        }
+    }
+
+    pub fn clear(&mut self) {
+        self.bytes.clear();
+        self.messages.clear();
+    }
+
+    fn push(&mut self, channel: u16, sequence: u64, t: f64, frame: Option<u64>, m: &impl Message) {
+        m.encode(&mut self.bytes).expect("a Vec grows as needed");
+        self.messages.push(EncodedMessage {
+            channel,
+            // MCAP's sequence is 32 bits; the frame number modulo 2^32 (the payload keeps all 64).
+            sequence: sequence as u32,
+            log_time: log_time_of(t),
+            end: self.bytes.len(),
+            frame,
+        });
+    }
+
+    /// The messages with their bytes.
+    fn iter(&self) -> impl Iterator<Item = (&EncodedMessage, &[u8])> {
+        let starts = std::iter::once(0).chain(self.messages.iter().map(|m| m.end));
+        self.messages
+            .iter()
+            .zip(starts)
+            .map(|(m, start)| (m, &self.bytes[start..m.end]))
+    }
+}
+
+impl Encoder {
+    /// Appends the indicator messages `indicators` to `out`.
+    pub fn indicators(
+        &self,
+        indicators: &[Indicators],
+        out: &mut EncodedMessages,
+    ) -> mcap::McapResult<()> {
+        for m in indicators {
+            let channel = *self
+                .indicators
+                .get(m.scheme as usize)
+                .ok_or_else(|| mcap::McapError::UnknownChannel(m.seq as u32, m.scheme as u16))?;
+            out.push(channel, m.seq, m.t, None, m);
+        }
+        Ok(())
+    }
+
+    /// Appends the data message `message` to `out`. A separation set of an unknown scheme is an
+    /// error (the header announced the schemes).
+    pub fn message(
+        &self,
+        message: &DataMessage,
+        out: &mut EncodedMessages,
+    ) -> mcap::McapResult<()> {
+        match message {
+            DataMessage::Reference(m) => out.push(self.reference, m.frame, m.t, Some(m.frame), m),
+            DataMessage::Separations(m) => {
+                let channel = *self.separations.get(m.scheme as usize).ok_or_else(|| {
+                    mcap::McapError::UnknownChannel(m.frame as u32, m.scheme as u16)
+                })?;
+                out.push(channel, m.frame, m.t, Some(m.frame), m)
+            }
+            DataMessage::End(m) => out.push(self.end, m.frame, m.t, Some(m.frame), m),
+        }
+        Ok(())
+    }
 }
 
 /// Simulation time in nanoseconds, the MCAP log time (so tools plot against t).
@@ -160,13 +269,16 @@ impl<W: Write + Seek> RecordingFile<W> {
 
         let mut file = Self {
             writer,
-            reference,
-            separations,
-            indicator_channels,
+            encoder: Encoder {
+                reference,
+                separations,
+                indicators: indicator_channels,
+                end,
+            },
             indicators: IndicatorStream::new(header),
-            end,
             recording,
             encoded: Vec::new(),
+            batch: EncodedMessages::default(),
             last_log_time: 0,
         };
         file.put(run, 0, 0, header)?;
@@ -208,6 +320,12 @@ impl<W: Write + Seek> RecordingFile<W> {
         std::mem::replace(&mut self.indicators, IndicatorStream::disabled())
     }
 
+    /// The encoder of this file's messages, for a recorder that encodes on another thread and
+    /// hands the result to [`Self::write_encoded`].
+    pub fn encoder(&self) -> Encoder {
+        self.encoder.clone()
+    }
+
     /// Appends `indicators` (computed by a detached stream for this message), the indicators of
     /// the file's own stream if it has one, then `message`.
     pub fn write_after(
@@ -216,29 +334,53 @@ impl<W: Write + Seek> RecordingFile<W> {
         message: &DataMessage,
     ) -> mcap::McapResult<()> {
         let own = self.indicators.before(message);
-        self.put_indicators(indicators)?;
-        self.put_indicators(&own)?;
-        match message {
-            DataMessage::Reference(m) => self.put(self.reference, m.frame, log_time_of(m.t), m),
-            DataMessage::Separations(m) => {
-                let channel = *self.separations.get(m.scheme as usize).ok_or_else(|| {
-                    mcap::McapError::UnknownChannel(m.frame as u32, m.scheme as u16)
-                })?;
-                self.put(channel, m.frame, log_time_of(m.t), m)
+        let mut batch = std::mem::take(&mut self.batch);
+        batch.clear();
+        let written = self
+            .encoder
+            .indicators(indicators, &mut batch)
+            .and_then(|()| self.encoder.indicators(&own, &mut batch))
+            .and_then(|()| self.encoder.message(message, &mut batch))
+            .and_then(|()| self.write_encoded(&batch, drop));
+        self.batch = batch;
+        written
+    }
+
+    /// Appends messages encoded by [`Encoder`], in their order, telling `data_frame` the frame
+    /// number of each data message just before it is written. Their MCAP `publish_time`, the
+    /// wall-clock time of writing, is read once for all of them (a batch is written within a
+    /// fraction of a millisecond).
+    pub fn write_encoded(
+        &mut self,
+        messages: &EncodedMessages,
+        mut data_frame: impl FnMut(u64),
+    ) -> mcap::McapResult<()> {
+        let publish_time = wall_clock_ns();
+        for (m, bytes) in messages.iter() {
+            if let Some(frame) = m.frame {
+                data_frame(frame);
             }
-            DataMessage::End(m) => self.put(self.end, m.frame, log_time_of(m.t), m),
+            self.last_log_time = self.last_log_time.max(m.log_time);
+            let header = MessageHeader {
+                channel_id: m.channel,
+                sequence: m.sequence,
+                log_time: m.log_time,
+                publish_time,
+            };
+            self.writer.write_to_known_channel(&header, bytes)?;
         }
+        Ok(())
     }
 
     fn put_indicators(&mut self, indicators: &[Indicators]) -> mcap::McapResult<()> {
-        for m in indicators {
-            let channel = *self
-                .indicator_channels
-                .get(m.scheme as usize)
-                .ok_or_else(|| mcap::McapError::UnknownChannel(m.seq as u32, m.scheme as u16))?;
-            self.put(channel, m.seq, log_time_of(m.t), m)?;
-        }
-        Ok(())
+        let mut batch = std::mem::take(&mut self.batch);
+        batch.clear();
+        let written = self
+            .encoder
+            .indicators(indicators, &mut batch)
+            .and_then(|()| self.write_encoded(&batch, drop));
+        self.batch = batch;
+        written
     }
 
     /// Closes the open chunk so it is on disk whole (bounds what a crash can lose).

@@ -5,7 +5,7 @@ use std::io::{Seek, Write};
 use chaoscope_schemas::convert::DataMessage;
 use chaoscope_schemas::proto::{EndOfRun, Indicators, RecordingSummary, RunHeader, end_of_run};
 
-use crate::file::{FileOptions, RecordingFile};
+use crate::file::{EncodedMessages, Encoder, FileOptions, RecordingFile};
 use crate::indicators::IndicatorStream;
 use crate::sequence::SequenceTracker;
 
@@ -73,6 +73,29 @@ impl<W: Write + Seek> Recording<W> {
             self.end = Some(m.clone());
         }
         Ok(self.end.is_some())
+    }
+
+    /// [`Self::on_message_after`] for messages encoded by the file's [`Encoder`] (indicators
+    /// included), `end` the run's end-of-run record if they hold it; true once it is recorded.
+    pub fn on_encoded(
+        &mut self,
+        messages: &EncodedMessages,
+        end: Option<&EndOfRun>,
+    ) -> mcap::McapResult<bool> {
+        // The gap before each frame is counted by the tracker; nothing to do with it here.
+        let observe = |frame| {
+            self.sequence.observe(frame);
+        };
+        self.file.write_encoded(messages, observe)?;
+        if let Some(end) = end {
+            self.end = Some(end.clone());
+        }
+        Ok(self.end.is_some())
+    }
+
+    /// The file's message encoder ([`RecordingFile::encoder`]).
+    pub fn encoder(&self) -> Encoder {
+        self.file.encoder()
     }
 
     pub fn sequence(&self) -> &SequenceTracker {

@@ -1,13 +1,14 @@
 //! A recording written on a thread of its own, so that a recorder uses two cores: the bus
-//! thread decodes frames and computes the indicators (a detached [`IndicatorStream`]), the
-//! writer thread encodes, compresses and writes. At every message the two do what
-//! [`Recording::on_message`] does on one thread, so the file holds the same messages in the
-//! same order (only MCAP's `publish_time`, the wall-clock time of writing, differs, as it does
-//! between any two recordings).
+//! thread decodes frames, computes the indicators (a detached [`IndicatorStream`]) and encodes
+//! the messages for the file (the file's [`Encoder`]), the writer thread compresses and writes
+//! them. At every message the two do what [`Recording::on_message`] does on one thread, so the
+//! file holds the same messages in the same order (only MCAP's `publish_time`, the wall-clock
+//! time of writing, differs, as it does between any two recordings).
 //!
 //! Why: with a run sampled at every step, a one-threaded recorder spent its core on zstd
 //! (about half), the indicators and the bus, and the producer waited for it
-//! (`cargo bench --bench pipeline`). The queue between the threads is bounded, so a slow disk
+//! (`cargo bench --bench pipeline`). With two threads the writer's is the busier (zstd is about
+//! three quarters of it), so everything else, protobuf encoding included, is on the bus thread. The queue between the threads is bounded, so a slow disk
 //! still holds the producer back (nothing is dropped), and what it holds is at most
 //! [`QUEUE_BATCHES`] x [`BATCH`] messages, which a killed recorder loses like its open chunk.
 
@@ -16,21 +17,21 @@ use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::thread::JoinHandle;
 
 use chaoscope_schemas::convert::DataMessage;
-use chaoscope_schemas::proto::{Indicators, RecordingSummary};
+use chaoscope_schemas::proto::{EndOfRun, RecordingSummary};
 
+use crate::file::{EncodedMessages, Encoder};
 use crate::indicators::IndicatorStream;
 use crate::recording::{FinalizedBy, Recording};
 
-/// Messages sent to the writer thread at once (the cost of a hand-over is paid per batch).
+/// Data messages sent to the writer thread at once (the cost of a hand-over is paid per batch).
 pub const BATCH: usize = 256;
 /// Batches the queue holds before the bus thread waits for the writer.
 pub const QUEUE_BATCHES: usize = 8;
 
-/// A message and the indicator messages to be written just before it.
-type Item = (Vec<Indicators>, DataMessage);
-
 enum Command {
-    Messages(Vec<Item>),
+    /// Messages encoded for the file, indicators included, and the run's end-of-run record if
+    /// they hold it.
+    Messages(EncodedMessages, Option<EndOfRun>),
     CloseChunk,
 }
 
@@ -40,22 +41,35 @@ type Outcome<W> = (Recording<W>, Option<mcap::McapError>);
 /// A [`Recording`] being written by its own thread.
 pub struct WriteThread<W: Write + Seek + Send + 'static> {
     indicators: IndicatorStream,
-    batch: Vec<Item>,
+    encoder: Encoder,
+    batch: EncodedMessages,
+    /// Data messages in `batch`.
+    queued: usize,
+    end: Option<EndOfRun>,
+    /// A message this side could not encode (a separation set of a scheme the header did not
+    /// announce): the recording stops there, as at a write error.
+    error: Option<mcap::McapError>,
     queue: Option<SyncSender<Command>>,
     writer: JoinHandle<Outcome<W>>,
 }
 
 impl<W: Write + Seek + Send + 'static> WriteThread<W> {
-    /// Moves `recording` to a new writer thread; its indicators are computed by this side.
+    /// Moves `recording` to a new writer thread; its indicators are computed and its messages
+    /// encoded by this side.
     pub fn start(mut recording: Recording<W>) -> std::io::Result<Self> {
         let indicators = recording.detach_indicators();
+        let encoder = recording.encoder();
         let (queue, commands) = sync_channel(QUEUE_BATCHES);
         let writer = std::thread::Builder::new()
             .name("recording writer".into())
             .spawn(move || write_all(recording, commands))?;
         Ok(Self {
             indicators,
-            batch: Vec::with_capacity(BATCH),
+            encoder,
+            batch: EncodedMessages::default(),
+            queued: 0,
+            end: None,
+            error: None,
             queue: Some(queue),
             writer,
         })
@@ -65,8 +79,22 @@ impl<W: Write + Seek + Send + 'static> WriteThread<W> {
     /// [`Self::finish`] returns): stop feeding it then.
     pub fn push(&mut self, message: DataMessage) -> bool {
         let indicators = self.indicators.before(&message);
-        self.batch.push((indicators, message));
-        self.batch.len() < BATCH || self.flush()
+        let encoded = self
+            .encoder
+            .indicators(&indicators, &mut self.batch)
+            .and_then(|()| self.encoder.message(&message, &mut self.batch));
+        if let Err(e) = encoded {
+            // What was encoded before it is written, as a one-thread recording would.
+            self.flush();
+            self.error = Some(e);
+            self.queue = None;
+            return false;
+        }
+        if let DataMessage::End(m) = message {
+            self.end = Some(m);
+        }
+        self.queued += 1;
+        self.queued < BATCH || self.flush()
     }
 
     /// Hands the queued messages to the writer thread (call when the bus is idle, so the file
@@ -75,8 +103,11 @@ impl<W: Write + Seek + Send + 'static> WriteThread<W> {
         if self.batch.is_empty() {
             return self.queue.is_some();
         }
-        let batch = std::mem::replace(&mut self.batch, Vec::with_capacity(BATCH));
-        self.send(Command::Messages(batch))
+        let next = self.batch.empty_like();
+        let batch = std::mem::replace(&mut self.batch, next);
+        self.queued = 0;
+        let end = self.end.take();
+        self.send(Command::Messages(batch, end))
     }
 
     /// Closes the open chunk after everything queued so far (bounds what a crash loses).
@@ -104,7 +135,7 @@ impl<W: Write + Seek + Send + 'static> WriteThread<W> {
             ))
         })?;
         let last = self.indicators.take();
-        match error {
+        match error.or(self.error) {
             None => recording.finish_after(&last, reason),
             Some(e) => {
                 let _ = recording.finish_after(&last, FinalizedBy::Signal);
@@ -121,9 +152,9 @@ fn write_all<W: Write + Seek>(
 ) -> Outcome<W> {
     for command in commands {
         let result = match command {
-            Command::Messages(items) => items.iter().try_for_each(|(indicators, m)| {
-                recording.on_message_after(indicators, m).map(drop)
-            }),
+            Command::Messages(messages, end) => {
+                recording.on_encoded(&messages, end.as_ref()).map(drop)
+            }
             Command::CloseChunk => recording.close_chunk(),
         };
         if let Err(e) = result {
@@ -139,6 +170,7 @@ mod tests {
     use super::*;
     use crate::file::FileOptions;
     use crate::testing;
+    use chaoscope_schemas::proto::RunHeader;
     use std::io::Cursor;
 
     /// (topic, sequence, log time, payload) of every message of a file, in file order: all but
@@ -150,17 +182,22 @@ mod tests {
             .collect()
     }
 
+    /// A run of a 4-dimensional system with `k` vectors in each of `sets` sets.
+    fn run(k: u32, sets: u32, samples: u64) -> (RunHeader, Vec<DataMessage>) {
+        let shape = testing::Shape {
+            dim: 4,
+            k,
+            sets,
+            samples,
+        };
+        testing::run_messages(&shape, 11)
+    }
+
     /// The same run written on one thread and on two, with chunk closes and a small queue
     /// hand-over in between: the same messages in the same order, indicators included.
     #[test]
     fn the_file_is_the_one_a_single_thread_writes() {
-        let shape = testing::Shape {
-            dim: 4,
-            k: 3,
-            sets: 2,
-            samples: 500,
-        };
-        let (header, run) = testing::run_messages(&shape, 11);
+        let (header, run) = run(3, 2, 500);
         let options = FileOptions {
             chunk_size: 4096,
             ..FileOptions::default()
@@ -190,5 +227,33 @@ mod tests {
         assert_eq!(one.len(), two.len());
         assert!(one == two, "the messages differ");
         assert_eq!(one_summary, two_summary);
+    }
+
+    /// A set of a scheme the header did not announce, caught where messages are encoded (the
+    /// bus thread): `push` refuses it and `finish` returns the error, as at a write error; no
+    /// panic.
+    #[test]
+    fn a_set_of_an_unknown_scheme_stops_the_recording_with_an_error() {
+        let (header, run) = run(2, 1, 20);
+        let recording =
+            Recording::start(Cursor::new(Vec::new()), &header, &FileOptions::default()).unwrap();
+        let mut thread = WriteThread::start(recording).unwrap();
+        let before = 7;
+        for m in &run[..before] {
+            assert!(thread.push(m.clone()));
+        }
+        let unknown = chaoscope_schemas::proto::SeparationSet {
+            frame: before as u64,
+            scheme: header.schemes.len() as u32,
+            ..Default::default()
+        };
+        assert!(!thread.push(DataMessage::Separations(unknown)));
+        let Err(error) = thread.finish(FinalizedBy::EndOfRun) else {
+            panic!("an unknown scheme must be an error");
+        };
+        assert!(
+            matches!(error, mcap::McapError::UnknownChannel(..)),
+            "{error}"
+        );
     }
 }

@@ -10,7 +10,8 @@
 //! Targets:
 //! - [`mcap`]: the MCAP scanner in memory (records and messages), the map reader, and through a
 //!   file the analyzer's recording reader and analysis, `summary`, the map file reader and
-//!   `recover`.
+//!   `recover` (whose output must read back, keep every message a reader of the input sees, and
+//!   come through a second `recover` unchanged).
 //! - [`config`]: `RunConfig::from_toml`, the resource estimate, then `RunSpec::from_config` or
 //!   `MapSpec::from_config`, as `chaoscope run`/`map` call them.
 //! - [`expr`]: the expression language of user-written potentials: parsing, lowering under
@@ -73,18 +74,48 @@ pub fn mcap(data: &[u8]) {
     .map(|(analysis, _)| analysis.report());
     let _ = chaoscope_analyzer::summary::summarize(&input);
     let _ = chaoscope_recorder::map_file::read_map_file(&input);
-    if chaoscope_recorder::recover::recover(&input, &output, true).is_ok() {
-        // What recover writes must read back without damage.
-        let again = chaoscope_recorder::scan::Scanner::open_file(&output).map(|(scanner, _)| {
-            let mut messages = Messages::new(scanner);
-            while let Ok(Some(_)) = messages.next_message() {}
-            messages.scan().stopped_at.clone()
-        });
+    if let Ok(report) = chaoscope_recorder::recover::recover(&input, &output, true) {
+        // What recover writes must read back without damage, and hold every message a reader
+        // of the input sees, in order and unchanged, before anything else: recover may keep
+        // more (it passes over a message of an undefined channel where a reader stops), never
+        // less, never other bytes.
+        let (salvaged, damage) = read_messages(&output);
+        assert_eq!(damage, None, "recover wrote a file that does not read back");
+        assert_eq!(salvaged.len() as u64, report.messages, "recover's count");
+        let (seen, _) = read_messages(&input);
         assert!(
-            matches!(again, Ok(None)),
-            "recover wrote a file that does not read back: {again:?}"
+            salvaged.len() >= seen.len() && salvaged[..seen.len()] == seen[..],
+            "recover lost or changed a message a reader of the input sees"
+        );
+        // A recovered file is undamaged: recovering it again changes no message.
+        let twice = dir.join("recovered-twice.mcap");
+        let again = chaoscope_recorder::recover::recover(&output, &twice, true)
+            .map(|r| (r.stopped_at, read_messages(&twice).0));
+        assert!(
+            matches!(&again, Ok((None, m)) if *m == salvaged),
+            "recovering a recovered file changed it: {:?}",
+            again.map(|(stopped, m)| (stopped, m.len()))
         );
     }
+}
+
+/// A message as a reader sees it: topic, (sequence, log time, publish time) and data; not the
+/// channel id, which a rewrite renumbers.
+type SeenMessage = (String, [u64; 3], Vec<u8>);
+
+/// The messages of the MCAP file at `path`, and where reading stopped at damage.
+fn read_messages(path: &std::path::Path) -> (Vec<SeenMessage>, Option<String>) {
+    let Ok((scanner, _)) = Scanner::open_file(path) else {
+        return (Vec::new(), Some("does not open".into()));
+    };
+    let mut messages = Messages::new(scanner);
+    let mut seen = Vec::new();
+    while let Ok(Some(m)) = messages.next_message() {
+        let h = m.header;
+        let header = [u64::from(h.sequence), h.log_time, h.publish_time];
+        seen.push((m.topic.to_string(), header, m.data));
+    }
+    (seen, messages.scan().stopped_at.clone())
 }
 
 /// Largest deviation state (sets x k x 2N values) the `config` target validates: drawing more

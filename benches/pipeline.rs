@@ -311,7 +311,8 @@ fn main() {
         * 1e6;
     // The same bound with the CPU the two processes took in this run (the bus, decoding and the
     // hand-over between threads included): what perfect scheduling of this very work allows.
-    let measured_ratio = cores * raw_data_cpu / messages * 1e6 / (recorder_us + producer_us);
+    let raw_data_us = raw_data_cpu / messages * 1e6;
+    let measured_ratio = cores * raw_data_us / (recorder_us + producer_us);
     let target = json!({
         "case": "hh-every-step (median of 3 runs) vs the raw MCAP writer to a file, same run",
         "cpu": chaoscope_producer::estimate::Machine::cpu_model(),
@@ -330,7 +331,7 @@ fn main() {
             median / raw_file_rate(&raw_hh, true) >= 0.8 && lost == Some(0),
         "cpu_accounting": {
             "cores": cores,
-            "raw_writer_cpu_us_per_message": raw_data_cpu / messages * 1e6,
+            "raw_writer_cpu_us_per_message": raw_data_us,
             "raw_writer_with_indicators_cpu_us_per_message": same_file_cpu / messages * 1e6,
             "recorder_cpu_us_per_message": recorder_us,
             "producer_cpu_us_per_message": producer_us,

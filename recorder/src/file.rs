@@ -87,8 +87,7 @@ pub struct RecordingFile<W: Write + Seek> {
     encoder: Encoder,
     indicators: IndicatorStream,
     recording: u16,
-    encoded: Vec<u8>,
-    /// The messages of one [`Self::write_after`], encoded.
+    /// The messages of one write ([`Self::write_with`]), encoded; kept for its capacity.
     batch: EncodedMessages,
     last_log_time: u64,
 }
@@ -145,13 +144,20 @@ impl EncodedMessages {
         self.messages.clear();
     }
 
-    fn push(&mut self, channel: u16, sequence: u64, t: f64, frame: Option<u64>, m: &impl Message) {
+    fn push(
+        &mut self,
+        channel: u16,
+        sequence: u64,
+        log_time: u64,
+        frame: Option<u64>,
+        m: &impl Message,
+    ) {
         m.encode(&mut self.bytes).expect("a Vec grows as needed");
         self.messages.push(EncodedMessage {
             channel,
             // MCAP's sequence is 32 bits; the frame number modulo 2^32 (the payload keeps all 64).
             sequence: sequence as u32,
-            log_time: log_time_of(t),
+            log_time,
             end: self.bytes.len(),
             frame,
         });
@@ -179,7 +185,7 @@ impl Encoder {
                 .indicators
                 .get(m.scheme as usize)
                 .ok_or_else(|| mcap::McapError::UnknownChannel(m.seq as u32, m.scheme as u16))?;
-            out.push(channel, m.seq, m.t, None, m);
+            out.push(channel, m.seq, log_time_of(m.t), None, m);
         }
         Ok(())
     }
@@ -192,14 +198,16 @@ impl Encoder {
         out: &mut EncodedMessages,
     ) -> mcap::McapResult<()> {
         match message {
-            DataMessage::Reference(m) => out.push(self.reference, m.frame, m.t, Some(m.frame), m),
+            DataMessage::Reference(m) => {
+                out.push(self.reference, m.frame, log_time_of(m.t), Some(m.frame), m)
+            }
             DataMessage::Separations(m) => {
                 let channel = *self.separations.get(m.scheme as usize).ok_or_else(|| {
                     mcap::McapError::UnknownChannel(m.frame as u32, m.scheme as u16)
                 })?;
-                out.push(channel, m.frame, m.t, Some(m.frame), m)
+                out.push(channel, m.frame, log_time_of(m.t), Some(m.frame), m)
             }
-            DataMessage::End(m) => out.push(self.end, m.frame, m.t, Some(m.frame), m),
+            DataMessage::End(m) => out.push(self.end, m.frame, log_time_of(m.t), Some(m.frame), m),
         }
         Ok(())
     }
@@ -277,33 +285,27 @@ impl<W: Write + Seek> RecordingFile<W> {
             },
             indicators: IndicatorStream::new(header),
             recording,
-            encoded: Vec::new(),
             batch: EncodedMessages::default(),
             last_log_time: 0,
         };
-        file.put(run, 0, 0, header)?;
+        file.write_with(|_, out| {
+            out.push(run, 0, 0, None, header);
+            Ok(())
+        })?;
         Ok(file)
     }
 
-    fn put(
+    /// Encodes with `encode` into the file's batch buffer, then writes what it encoded.
+    fn write_with(
         &mut self,
-        channel_id: u16,
-        sequence: u64,
-        log_time: u64,
-        message: &impl Message,
+        encode: impl FnOnce(&Encoder, &mut EncodedMessages) -> mcap::McapResult<()>,
     ) -> mcap::McapResult<()> {
-        self.encoded.clear();
-        message
-            .encode(&mut self.encoded)
-            .expect("a Vec grows as needed");
-        self.last_log_time = self.last_log_time.max(log_time);
-        let header = MessageHeader {
-            channel_id,
-            sequence: sequence as u32,
-            log_time,
-            publish_time: wall_clock_ns(),
-        };
-        self.writer.write_to_known_channel(&header, &self.encoded)
+        let mut batch = std::mem::take(&mut self.batch);
+        batch.clear();
+        let written =
+            encode(&self.encoder, &mut batch).and_then(|()| self.write_encoded(&batch, drop));
+        self.batch = batch;
+        written
     }
 
     /// Appends one data message, preceded by the indicators of the sample it completes. A
@@ -334,16 +336,11 @@ impl<W: Write + Seek> RecordingFile<W> {
         message: &DataMessage,
     ) -> mcap::McapResult<()> {
         let own = self.indicators.before(message);
-        let mut batch = std::mem::take(&mut self.batch);
-        batch.clear();
-        let written = self
-            .encoder
-            .indicators(indicators, &mut batch)
-            .and_then(|()| self.encoder.indicators(&own, &mut batch))
-            .and_then(|()| self.encoder.message(message, &mut batch))
-            .and_then(|()| self.write_encoded(&batch, drop));
-        self.batch = batch;
-        written
+        self.write_with(|encoder, out| {
+            encoder.indicators(indicators, out)?;
+            encoder.indicators(&own, out)?;
+            encoder.message(message, out)
+        })
     }
 
     /// Appends messages encoded by [`Encoder`], in their order, telling `data_frame` the frame
@@ -372,17 +369,6 @@ impl<W: Write + Seek> RecordingFile<W> {
         Ok(())
     }
 
-    fn put_indicators(&mut self, indicators: &[Indicators]) -> mcap::McapResult<()> {
-        let mut batch = std::mem::take(&mut self.batch);
-        batch.clear();
-        let written = self
-            .encoder
-            .indicators(indicators, &mut batch)
-            .and_then(|()| self.write_encoded(&batch, drop));
-        self.batch = batch;
-        written
-    }
-
     /// Closes the open chunk so it is on disk whole (bounds what a crash can lose).
     pub fn close_chunk(&mut self) -> mcap::McapResult<()> {
         self.writer.flush()
@@ -399,15 +385,17 @@ impl<W: Write + Seek> RecordingFile<W> {
         indicators: &[Indicators],
         summary: &RecordingSummary,
     ) -> mcap::McapResult<W> {
-        self.put_indicators(indicators)?;
         let own = self.indicators.take();
-        self.put_indicators(&own)?;
-        self.put(
-            self.recording,
-            summary.last_frame,
-            self.last_log_time,
-            summary,
-        )?;
+        self.write_with(|encoder, out| {
+            encoder.indicators(indicators, out)?;
+            encoder.indicators(&own, out)
+        })?;
+        // Logged at the latest time written, the indicators' included.
+        let (channel, log_time) = (self.recording, self.last_log_time);
+        self.write_with(|_, out| {
+            out.push(channel, summary.last_frame, log_time, None, summary);
+            Ok(())
+        })?;
         self.writer.write_metadata(&Metadata {
             name: metadata::RECORDING.into(),
             metadata: BTreeMap::from([

@@ -8,9 +8,10 @@
 //! Why: with a run sampled at every step, a one-threaded recorder spent its core on zstd
 //! (about half), the indicators and the bus, and the producer waited for it
 //! (`cargo bench --bench pipeline`). With two threads the writer's is the busier (zstd is about
-//! three quarters of it), so everything else, protobuf encoding included, is on the bus thread. The queue between the threads is bounded, so a slow disk
-//! still holds the producer back (nothing is dropped), and what it holds is at most
-//! [`QUEUE_BATCHES`] x [`BATCH`] messages, which a killed recorder loses like its open chunk.
+//! three quarters of it), so everything else, protobuf encoding included, is on the bus thread.
+//! The queue between the threads is bounded, so a slow disk still holds the producer back
+//! (nothing is dropped), and what it holds is at most [`QUEUE_BATCHES`] x [`BATCH`] data
+//! messages, which a killed recorder loses like its open chunk.
 
 use std::io::{Seek, Write};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};

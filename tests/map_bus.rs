@@ -9,6 +9,8 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
+mod common;
+
 use chaoscope_recorder::map_file::read_map_file;
 use chaoscope_schemas::bus;
 use chaoscope_schemas::proto::MapPoint;
@@ -19,14 +21,6 @@ const CHAOSCOPE: &str = env!("CARGO_BIN_EXE_chaoscope");
 const CONFIG: &str = include_str!("data/hh-map-small.toml");
 
 const GRID: u64 = 63;
-
-fn unique(tag: &str) -> String {
-    let nanos = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .unwrap()
-        .subsec_nanos();
-    format!("t-{tag}-{}-{nanos}", std::process::id())
-}
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
@@ -150,7 +144,7 @@ fn a_watcher_follows_a_map_live() {
     std::fs::write(&cfg, CONFIG).unwrap();
 
     // A whole map: every point published once, values as in the file.
-    let name = unique("map");
+    let name = common::unique_run("map");
     let watcher = Watcher::start(&name);
     let out = d.join("whole.mcap");
     let run = map(&[
@@ -211,4 +205,50 @@ fn a_watcher_follows_a_map_live() {
         "map services left behind: {:?}",
         bus::list_maps()
     );
+}
+
+/// Two maps of one name started at the same moment: both compute their map, and the one that
+/// finds the other on the bus goes without a live stream, saying so with an error that names
+/// the map and the other process, never the bus's own slot error (the liveness check before
+/// opening the bus passes for both when they start together).
+#[test]
+fn a_second_map_of_a_name_goes_without_a_live_stream_and_says_why() {
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let cfg = d.join("map.toml");
+    // GALI at a fixed time, long enough (about 0.3 s) that the two processes of a pair overlap
+    // ("gali-time" stops every orbit of this map within milliseconds).
+    let config = CONFIG
+        .replace("t_final = 20.0", "t_final = 1000.0")
+        .replace("indicator = \"gali-time\"", "indicator = \"gali\"")
+        .replace("threshold = 0.05\n", "");
+    std::fs::write(&cfg, config).unwrap();
+    let mut without = 0;
+    for i in 0..4 {
+        let name = common::unique_run("map-twice");
+        let start = |j: usize| {
+            let out = d.join(format!("m{i}-{j}.mcap"));
+            Command::new(CHAOSCOPE)
+                .args(["map", s(&cfg), "--out", s(&out), "--name", &name])
+                .args(["--threads", "1", "--no-progress"])
+                .stdout(Stdio::null())
+                .stderr(Stdio::piped())
+                .spawn()
+                .unwrap()
+        };
+        let (a, b) = (start(0), start(1));
+        for o in [a, b].map(|c| c.wait_with_output().unwrap()) {
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert!(o.status.success(), "{err}");
+            if err.contains("no live stream") {
+                assert!(
+                    err.contains("already being published") && err.contains(&name),
+                    "{err}"
+                );
+                without += 1;
+            }
+        }
+    }
+    eprintln!("{without} of 8 maps went without a live stream");
+    assert!(without >= 1, "the two maps of a pair never met on the bus");
 }

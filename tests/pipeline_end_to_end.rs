@@ -5,7 +5,7 @@
 mod common;
 
 use std::ops::ControlFlow;
-use std::process::Command;
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use chaoscope_recorder::subscription::{BusEvent, Ended, RunSubscription};
@@ -217,4 +217,62 @@ fn bad_config_is_a_clear_error_not_a_panic() {
         .unwrap();
     assert_eq!(missing.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&missing.stderr).contains("/nonexistent/run.toml"));
+}
+
+/// Two producers of one run: the second is refused with an error that names the run and the
+/// other producer, whether it starts while the first waits for its recorder or at the same
+/// moment (then both pass the liveness check, and the one that opens the bus second finds the
+/// other's publishers in place). The first, with no recorder, gives up after its wait.
+#[test]
+fn a_second_producer_of_a_run_is_refused_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), &hh_config(10.0, 0.05).to_toml());
+    let producer = |run: &str| {
+        let mut c = Command::new(CHAOSCOPE);
+        c.args(["produce", config.to_str().unwrap(), "--run", run])
+            .args(["--recorders", "1", "--wait-timeout", "1", "--no-progress"])
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped());
+        c
+    };
+    let outcome = |child: std::process::Child| {
+        let out = child.wait_with_output().unwrap();
+        (
+            out.status,
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    // One after the other: the first is waiting for its recorder when the second starts.
+    let run = common::unique_run("twice");
+    let first = producer(&run).spawn().unwrap();
+    std::thread::sleep(Duration::from_millis(300));
+    let (status, err) = outcome(producer(&run).spawn().unwrap());
+    assert!(!status.success());
+    assert!(
+        err.contains("already being produced") && err.contains(&run),
+        "{err}"
+    );
+    let (status, err) = outcome(first);
+    assert!(
+        !status.success() && err.contains("no recorder subscribed"),
+        "{err}"
+    );
+    // At the same moment, a few times: exactly one of the two waits for its recorder.
+    for _ in 0..4 {
+        let run = common::unique_run("together");
+        let (a, b) = (
+            producer(&run).spawn().unwrap(),
+            producer(&run).spawn().unwrap(),
+        );
+        let mut errors = [outcome(a), outcome(b)].map(|(status, err)| {
+            assert!(!status.success(), "{err}");
+            err
+        });
+        errors.sort_by_key(|e| !e.contains("already being produced"));
+        assert!(
+            errors[0].contains("already being produced") && errors[0].contains(&run),
+            "{errors:?}"
+        );
+        assert!(errors[1].contains("no recorder subscribed"), "{errors:?}");
+    }
 }

@@ -32,13 +32,18 @@ pub fn hh_config(t_final: f64, tau: f64) -> RunConfig {
     )
 }
 
-/// A run name no other test (or concurrent test run) uses.
+/// A run name no other test (or concurrent test run) uses: the process id tells concurrent
+/// test binaries apart, a counter the tests of one binary (they run on parallel threads, and two
+/// of them once read the same clock nanosecond and shared a run), the clock a later process that
+/// reuses the id.
 pub fn unique_run(tag: &str) -> String {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let nanos = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap()
         .subsec_nanos();
-    format!("test-{tag}-{}-{nanos}", std::process::id())
+    format!("test-{tag}-{}-{n}-{nanos}", std::process::id())
 }
 
 pub fn chaoscope(args: &[&str]) -> Command {

@@ -81,7 +81,19 @@ impl MapPublisher {
         if bus::node_liveness(&node_name) == Liveness::Alive {
             return Err(MapBusError::AlreadyRunning(name.to_string()));
         }
-        let node = bus::create_node(&node_name)?;
+        // A second map of this name started at the same moment passes the check above too;
+        // whichever opens the bus second finds the other's publishers in place. Its error then
+        // names the other map rather than the bus's slot count.
+        Self::open_services(name, &node_name, header).map_err(|e| {
+            match bus::node_liveness(&node_name) {
+                Liveness::Alive => MapBusError::AlreadyRunning(name.to_string()),
+                _ => MapBusError::from(e),
+            }
+        })
+    }
+
+    fn open_services(name: &str, node_name: &str, header: &MapHeader) -> Result<Self, BusError> {
+        let node = bus::create_node(node_name)?;
         let header_service = bus::map_header_service(&node, name)?;
         let points_service = bus::map_points_service(&node, name)?;
         let header_publisher = header_service

@@ -178,7 +178,14 @@ pub fn publish_spec(
     let frames_per_sample = 1 + spec.schemes.len() * spec.sets();
     let max_frame = bus::max_frame_words(longest_record(&spec));
     let monitor_buffer = bus::monitor_buffer_for(frames_per_sample, max_frame);
-    let mut ports = Ports::open(&node_name, &run, max_frame, monitor_buffer, &termination)?;
+    // A second producer of this run started at the same moment passes the check above too;
+    // whichever opens the bus second finds the other's publishers in place (one per stream).
+    // Its error then names the other producer rather than the bus's slot count.
+    let mut ports = Ports::open(&node_name, &run, max_frame, monitor_buffer, &termination)
+        .map_err(|e| match bus::node_liveness(&node_name) {
+            Liveness::Alive => PublishError::AlreadyRunning(run.clone()),
+            _ => PublishError::Bus(e),
+        })?;
     ports.announce(&header)?;
 
     let start = Instant::now();

@@ -308,3 +308,16 @@ pub fn run_command(cmd: &mut Command) -> String {
     );
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
+
+/// Waits (at most 30 s) until a live node named `node` is on the bus, i.e. a process has got
+/// as far as opening it.
+pub fn wait_for_node(node: &str) {
+    let start = Instant::now();
+    while chaoscope_schemas::bus::node_liveness(node) != chaoscope_schemas::bus::Liveness::Alive {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "node {node} never came up"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}

@@ -80,15 +80,15 @@ impl<W: Write + Seek> Recording<W> {
     pub fn on_encoded(
         &mut self,
         messages: &EncodedMessages,
-        end: Option<&EndOfRun>,
+        end: Option<EndOfRun>,
     ) -> mcap::McapResult<bool> {
         // The gap before each frame is counted by the tracker; nothing to do with it here.
         let observe = |frame| {
             self.sequence.observe(frame);
         };
         self.file.write_encoded(messages, observe)?;
-        if let Some(end) = end {
-            self.end = Some(end.clone());
+        if end.is_some() {
+            self.end = end;
         }
         Ok(self.end.is_some())
     }

@@ -153,9 +153,7 @@ fn write_all<W: Write + Seek>(
 ) -> Outcome<W> {
     for command in commands {
         let result = match command {
-            Command::Messages(messages, end) => {
-                recording.on_encoded(&messages, end.as_ref()).map(drop)
-            }
+            Command::Messages(messages, end) => recording.on_encoded(&messages, end).map(drop),
             Command::CloseChunk => recording.close_chunk(),
         };
         if let Err(e) = result {

@@ -430,6 +430,34 @@ pub fn node_liveness(name: &str) -> Liveness {
     result
 }
 
+/// Why [`open_alone`] opened nothing.
+#[derive(Debug)]
+pub enum OpenAloneError {
+    /// A live node of that name holds the services.
+    Held,
+    Bus(BusError),
+}
+
+/// Opens with `open` the services of a process that must be alone on the bus under the node
+/// name `node_name` (a run's producer, a map's publisher), unless a live node of that name
+/// already holds them. Two processes started at the same moment both find no such node before
+/// opening; the one that opens second fails to get the publishers (one per stream) and then
+/// finds the other alive, so it too reports [`OpenAloneError::Held`] rather than the bus's
+/// slot count.
+pub fn open_alone<T>(
+    node_name: &str,
+    open: impl FnOnce() -> Result<T, BusError>,
+) -> Result<T, OpenAloneError> {
+    cleanup_dead_nodes();
+    if node_liveness(node_name) == Liveness::Alive {
+        return Err(OpenAloneError::Held);
+    }
+    open().map_err(|e| match node_liveness(node_name) {
+        Liveness::Alive => OpenAloneError::Held,
+        _ => OpenAloneError::Bus(e),
+    })
+}
+
 fn service_name(run: &str, stream: &str) -> Result<ServiceName, BusError> {
     let name = names::service_name(run, stream);
     name.as_str()

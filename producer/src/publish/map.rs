@@ -9,7 +9,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{self, BusError, Liveness, MapService};
+use chaoscope_schemas::bus::{self, BusError, MapService, OpenAloneError};
 use chaoscope_schemas::frame::{MapFrameHeader, MapFrameKind};
 use chaoscope_schemas::names::{self, MAX_RUN_NAME_LEN};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
@@ -77,17 +77,10 @@ impl MapPublisher {
     pub fn open(name: &str, header: &MapHeader) -> Result<Self, MapBusError> {
         names::validate_run_name(name).map_err(MapBusError::Name)?;
         let node_name = names::map_node_name(name);
-        bus::cleanup_dead_nodes();
-        if bus::node_liveness(&node_name) == Liveness::Alive {
-            return Err(MapBusError::AlreadyRunning(name.to_string()));
-        }
-        // A second map of this name started at the same moment passes the check above too;
-        // whichever opens the bus second finds the other's publishers in place. Its error then
-        // names the other map rather than the bus's slot count.
-        Self::open_services(name, &node_name, header).map_err(|e| {
-            match bus::node_liveness(&node_name) {
-                Liveness::Alive => MapBusError::AlreadyRunning(name.to_string()),
-                _ => MapBusError::from(e),
+        bus::open_alone(&node_name, || Self::open_services(name, &node_name, header)).map_err(|e| {
+            match e {
+                OpenAloneError::Held => MapBusError::AlreadyRunning(name.to_string()),
+                OpenAloneError::Bus(e) => MapBusError::Bus(e),
             }
         })
     }

@@ -13,7 +13,7 @@ mod termination;
 
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{self, BusError, Liveness};
+use chaoscope_schemas::bus::{self, BusError, OpenAloneError};
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::frame::{
     FrameHeader, RecordBatch, reference_record_words, separations_record_words, status,
@@ -167,10 +167,6 @@ pub fn publish_spec(
 ) -> Result<PublishOutcome, PublishError> {
     let run = resolve_run_name(config, options.run_name.as_deref())?;
     let node_name = names::producer_node_name(&run);
-    bus::cleanup_dead_nodes();
-    if bus::node_liveness(&node_name) == Liveness::Alive {
-        return Err(PublishError::AlreadyRunning(run));
-    }
     let header = run_header(&run, config, &spec);
     let termination = Termination::new();
     // Monitors hold two whole samples (a sample's records take at most one frame each),
@@ -178,14 +174,13 @@ pub fn publish_spec(
     let frames_per_sample = 1 + spec.schemes.len() * spec.sets();
     let max_frame = bus::max_frame_words(longest_record(&spec));
     let monitor_buffer = bus::monitor_buffer_for(frames_per_sample, max_frame);
-    // A second producer of this run started at the same moment passes the check above too;
-    // whichever opens the bus second finds the other's publishers in place (one per stream).
-    // Its error then names the other producer rather than the bus's slot count.
-    let mut ports = Ports::open(&node_name, &run, max_frame, monitor_buffer, &termination)
-        .map_err(|e| match bus::node_liveness(&node_name) {
-            Liveness::Alive => PublishError::AlreadyRunning(run.clone()),
-            _ => PublishError::Bus(e),
-        })?;
+    let mut ports = bus::open_alone(&node_name, || {
+        Ports::open(&node_name, &run, max_frame, monitor_buffer, &termination)
+    })
+    .map_err(|e| match e {
+        OpenAloneError::Held => PublishError::AlreadyRunning(run.clone()),
+        OpenAloneError::Bus(e) => PublishError::Bus(e),
+    })?;
     ports.announce(&header)?;
 
     let start = Instant::now();

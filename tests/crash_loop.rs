@@ -540,6 +540,7 @@ fn killing_any_process_at_any_moment_loses_nothing_but_the_tail_and_leaves_no_st
     let files = bus.files();
     assert!(files.is_empty(), "bus files left: {files:#?}");
     assert_eq!(bus.nodes(), (vec![], vec![]));
+    assert_eq!(close_private_bus(bus.dir.path()), Vec::<String>::new());
 
     let kills: usize = tally.values().sum();
     assert!(kills >= 50, "only {kills} kills");

@@ -89,6 +89,18 @@ fn command(job: &Job, out: &Path, bus: &Path) -> Command {
     c
 }
 
+/// How many shared-memory segments with `prefix` exist, iceoryx2's node counter aside.
+fn segments_of(prefix: &str) -> usize {
+    std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .flatten()
+        .filter(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.starts_with(prefix) && !name.ends_with(".global_mgmt")
+        })
+        .count()
+}
+
 #[test]
 fn four_runs_and_two_maps_at_once_with_monitors_coming_and_going_match_runs_made_alone() {
     let started = Instant::now();
@@ -219,6 +231,33 @@ fn four_runs_and_two_maps_at_once_with_monitors_coming_and_going_match_runs_made
             assert!(mb.iter().any(|m| m.0 == topic::END));
         }
     }
+    // Last, a watcher of a map that never comes, killed outright: nobody starts after it, so
+    // its node and the services it made (a watcher started before its map makes them) stay in
+    // shared memory until the next process of this domain cleans up first thing, which
+    // `close_private_bus` does here. Nothing may be left then, of it or of any watcher above.
+    let mut late = chaoscope(&["map-watch", &format!("{tag}-late"), "--wait-timeout", "60"]);
+    late.env(BUS_DIR_ENV, bus.path());
+    let mut late = Proc::spawn(late);
+    let prefix = chaoscope_schemas::bus::domain_at(bus.path())
+        .unwrap()
+        .prefix;
+    let start = Instant::now();
+    // Its second segment is the points service's: it has made both of its services.
+    while segments_of(&prefix) < 2 {
+        assert!(
+            start.elapsed() < LIMIT,
+            "the late watcher never made its services"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    late.signal(libc::SIGKILL);
+    late.wait(LIMIT);
+    assert!(
+        segments_of(&prefix) >= 2,
+        "the killed watcher left nothing to clean"
+    );
+    let left = close_private_bus(bus.path());
+    assert!(left.is_empty(), "segments left after cleanup: {left:#?}");
     eprintln!(
         "load: 4 runs + 2 maps alone {:.1} s, together {:.1} s with {} monitor/watcher \
          attachments; {:.1} s wall",

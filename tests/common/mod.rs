@@ -321,3 +321,28 @@ pub fn wait_for_node(node: &str) {
         std::thread::sleep(Duration::from_millis(5));
     }
 }
+
+/// Closes a test's private bus domain (the directory `dir` its processes were given as
+/// `CHAOSCOPE_BUS_DIR`) once every process of it has ended. Removes what processes killed with
+/// SIGKILL left there, as the next chaoscope process of that domain would, and returns the
+/// shared-memory segments still there besides iceoryx2's node counter: a test asserts that list
+/// is empty. The node counter itself (16 bytes that iceoryx2 keeps for the domain's lifetime) is
+/// removed too, since nobody uses this domain any more: test runs leave nothing in /dev/shm.
+pub fn close_private_bus(dir: &Path) -> Vec<String> {
+    let domain = chaoscope_schemas::bus::domain_at(dir).unwrap();
+    chaoscope_schemas::bus::cleanup_dead_nodes_in(domain.config());
+    let mut left = Vec::new();
+    for e in std::fs::read_dir("/dev/shm").unwrap().flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if !name.starts_with(&domain.prefix) {
+            continue;
+        }
+        if name.ends_with(".global_mgmt") {
+            let _ = std::fs::remove_file(e.path());
+        } else {
+            left.push(name);
+        }
+    }
+    left.sort();
+    left
+}

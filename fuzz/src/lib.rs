@@ -20,24 +20,12 @@
 //!   modest size, native compilation.
 
 use std::io::Cursor;
-use std::path::PathBuf;
 
 use chaoscope_producer::estimate::{self, Machine};
 use chaoscope_producer::map::MapSpec;
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_recorder::scan::{Entry, Messages, Scanner};
 use chaoscope_schemas::config::RunConfig;
-
-/// Where the `mcap` target writes its input for the readers that take a path: one directory per
-/// process, reused for every input.
-fn scratch() -> &'static PathBuf {
-    static DIR: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
-    DIR.get_or_init(|| {
-        let dir = std::env::temp_dir().join(format!("chaoscope-fuzz-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).expect("scratch directory");
-        dir
-    })
-}
 
 /// Every MCAP reader over `data`.
 pub fn mcap(data: &[u8]) {
@@ -61,7 +49,12 @@ pub fn mcap(data: &[u8]) {
     let _ = chaoscope_recorder::map_file::read_map(Cursor::new(data), len);
 
     // The readers that open a path.
-    let dir = scratch();
+    // A directory per input, removed when this returns: AFL restarts its workers (new pids)
+    // thousands of times a session, and a directory kept per process filled /tmp with them.
+    let Ok(scratch) = tempfile::Builder::new().prefix("chaoscope-fuzz-").tempdir() else {
+        return;
+    };
+    let dir = scratch.path();
     let input = dir.join("input.mcap");
     let output = dir.join("recovered.mcap");
     if std::fs::write(&input, data).is_err() {

@@ -82,14 +82,7 @@ impl Bus {
 
     /// This domain's segments in /dev/shm, by name.
     fn segments(&self) -> Vec<String> {
-        let mut v: Vec<String> = std::fs::read_dir("/dev/shm")
-            .unwrap()
-            .flatten()
-            .map(|e| e.file_name().to_string_lossy().into_owned())
-            .filter(|n| n.starts_with(&self.domain.prefix))
-            .collect();
-        v.sort();
-        v
+        domain_segments(&self.domain.prefix)
     }
 
     /// Every file under the bus directory (service and node records, event sockets).
@@ -534,7 +527,7 @@ fn killing_any_process_at_any_moment_loses_nothing_but_the_tail_and_leaves_no_st
     assert_bit_identical(&read_recording(&out), &expected);
     let segments = bus.segments();
     assert!(
-        segments.iter().all(|s| s.ends_with(".global_mgmt")),
+        segments.iter().all(|s| is_node_counter(s)),
         "segments left after the last run: {segments:#?}"
     );
     let files = bus.files();

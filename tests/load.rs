@@ -91,13 +91,9 @@ fn command(job: &Job, out: &Path, bus: &Path) -> Command {
 
 /// How many shared-memory segments with `prefix` exist, iceoryx2's node counter aside.
 fn segments_of(prefix: &str) -> usize {
-    std::fs::read_dir("/dev/shm")
-        .unwrap()
-        .flatten()
-        .filter(|e| {
-            let name = e.file_name().to_string_lossy().into_owned();
-            name.starts_with(prefix) && !name.ends_with(".global_mgmt")
-        })
+    domain_segments(prefix)
+        .iter()
+        .filter(|name| !is_node_counter(name))
         .count()
 }
 

@@ -331,18 +331,28 @@ pub fn wait_for_node(node: &str) {
 pub fn close_private_bus(dir: &Path) -> Vec<String> {
     let domain = chaoscope_schemas::bus::domain_at(dir).unwrap();
     chaoscope_schemas::bus::cleanup_dead_nodes_in(domain.config());
-    let mut left = Vec::new();
-    for e in std::fs::read_dir("/dev/shm").unwrap().flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        if !name.starts_with(&domain.prefix) {
-            continue;
-        }
-        if name.ends_with(".global_mgmt") {
-            let _ = std::fs::remove_file(e.path());
-        } else {
-            left.push(name);
-        }
+    let (counters, left): (Vec<String>, Vec<String>) = domain_segments(&domain.prefix)
+        .into_iter()
+        .partition(|name| is_node_counter(name));
+    for name in counters {
+        let _ = std::fs::remove_file(Path::new("/dev/shm").join(name));
     }
-    left.sort();
     left
+}
+
+/// The shared-memory segments of the bus domain with segment prefix `prefix`, by name.
+pub fn domain_segments(prefix: &str) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir("/dev/shm")
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with(prefix))
+        .collect();
+    v.sort();
+    v
+}
+
+/// Whether segment `name` is iceoryx2's node counter, which it keeps for a domain's lifetime.
+pub fn is_node_counter(name: &str) -> bool {
+    name.ends_with(".global_mgmt")
 }

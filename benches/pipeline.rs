@@ -15,13 +15,14 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
+use chaoscope_bus::convert::decode_frame;
+use chaoscope_bus::frame::{FrameHeader, RecordBatch, status};
 use chaoscope_producer::engine::Engine;
 use chaoscope_producer::publish::run_header;
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_recorder::file::{FileOptions, RecordingFile};
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
-use chaoscope_schemas::convert::{DataMessage, decode_frame};
-use chaoscope_schemas::frame::{FrameHeader, RecordBatch, status};
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::RunHeader;
 use serde_json::{Value, json};
 

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{self, BUS_DIR_ENV, Domain};
+use chaoscope_bus::{self as bus, BUS_DIR_ENV, Domain};
 use chaoscope_schemas::names;
 use common::*;
 use iceoryx2::node::NodeView;

@@ -19,8 +19,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
+use chaoscope_bus::BUS_DIR_ENV;
 use chaoscope_recorder::map_file::read_map_file;
-use chaoscope_schemas::bus::BUS_DIR_ENV;
 use chaoscope_schemas::names::topic;
 use common::*;
 use prost::Message;
@@ -234,9 +234,7 @@ fn four_runs_and_two_maps_at_once_with_monitors_coming_and_going_match_runs_made
     let mut late = chaoscope(&["map-watch", &format!("{tag}-late"), "--wait-timeout", "60"]);
     late.env(BUS_DIR_ENV, bus.path());
     let mut late = Proc::spawn(late);
-    let prefix = chaoscope_schemas::bus::domain_at(bus.path())
-        .unwrap()
-        .prefix;
+    let prefix = chaoscope_bus::domain_at(bus.path()).unwrap().prefix;
     let start = Instant::now();
     // Its second segment is the points service's: it has made both of its services.
     while segments_of(&prefix) < 2 {

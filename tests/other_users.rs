@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{self, BUS_DIR_ENV};
+use chaoscope_bus::{self as bus, BUS_DIR_ENV};
 use common::*;
 use iceoryx2::prelude::*;
 

@@ -5,7 +5,7 @@ mod common;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{self, Liveness};
+use chaoscope_bus::{self as bus, Liveness};
 use chaoscope_schemas::names;
 use common::*;
 

@@ -9,7 +9,7 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use chaoscope_recorder::subscription::{BusEvent, Ended, RunSubscription};
-use chaoscope_schemas::convert::DataMessage;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::end_of_run::Status;
 use common::*;
 

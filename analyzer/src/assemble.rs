@@ -2,7 +2,7 @@
 //! separation sets of the same sample number.
 
 use chaoscope_producer::engine::{Sample, SchemeSample};
-use chaoscope_schemas::convert::DataMessage;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{EndOfRun, ReferenceState, SeparationSet};
 
 /// Groups consecutive messages of one sample number.

@@ -3,14 +3,14 @@
 //! the plots.
 //!
 //! The core ([`analysis`]) is sans-io: it is fed a run header and samples. Readers around it
-//! turn an MCAP file ([`recording`]), the bus ([`live`]) or the engine in process into samples.
+//! turn an MCAP file ([`recording`]), the bus (`chaoscope_bus::monitor`, as messages) or the engine
+//! in process into samples.
 
 pub mod analysis;
 pub mod assemble;
 pub mod chart;
 pub mod csv;
 pub mod inprocess;
-pub mod live;
 pub mod map_png;
 pub mod plot;
 pub mod progress;

@@ -13,8 +13,8 @@ use std::path::{Path, PathBuf};
 use chaoscope_recorder::scan::{self, FileError, Messages, Scanner};
 
 use chaoscope_producer::engine::Sample;
-use chaoscope_schemas::convert::DataMessage;
 use chaoscope_schemas::names::topic;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{
     EndOfRun, RecordingSummary, ReferenceState, RunHeader, SeparationSet,
 };

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use chaoscope_producer::engine::Sample;
 use chaoscope_recorder::file::{FileOptions, RecordingFile};
-use chaoscope_schemas::convert::DataMessage;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{
     EndOfRun, RecordingSummary, ReferenceState, RunHeader, SeparationSet, end_of_run,
 };

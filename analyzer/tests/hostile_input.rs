@@ -23,7 +23,7 @@ use chaoscope_recorder::recording::{FinalizedBy, Recording};
 use chaoscope_recorder::scan::FileError;
 use chaoscope_recorder::testing::{self, Noise};
 use chaoscope_schemas::config::RunConfig;
-use chaoscope_schemas::convert::DataMessage;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{EndOfRun, ReferenceState, RunHeader, Scheme, SeparationSet};
 
 /// The analysis report as JSON, or the error.

@@ -1,12 +1,14 @@
 //! Bus frames to the protobuf messages stored in MCAP (the recorder's one translation step).
 
+use chaoscope_schemas::FORMAT_VERSION;
+use chaoscope_schemas::proto::{
+    DataMessage, EndOfRun, ReferenceState, RunHeader, SeparationSet, end_of_run,
+};
 use prost::Message;
 
-use crate::FORMAT_VERSION;
 use crate::frame::{
     FrameHeader, FrameKind, RECORD_HEADER_WORDS, RecordKind, RunAnnouncement, status,
 };
-use crate::proto::{EndOfRun, ReferenceState, RunHeader, SeparationSet, end_of_run};
 
 /// A run header announcement that this build cannot read.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -48,25 +50,6 @@ pub enum FrameError {
     Kind { frame: u64, kind: u64 },
     #[error("frame {frame}: {problem}")]
     Layout { frame: u64, problem: String },
-}
-
-/// A validated record as a protobuf message.
-#[derive(Debug, Clone, PartialEq)]
-pub enum DataMessage {
-    Reference(ReferenceState),
-    Separations(SeparationSet),
-    End(EndOfRun),
-}
-
-impl DataMessage {
-    /// The record's number (`frame_seq`), the recorded `frame` field.
-    pub fn frame(&self) -> u64 {
-        match self {
-            Self::Reference(m) => m.frame,
-            Self::Separations(m) => m.frame,
-            Self::End(m) => m.frame,
-        }
-    }
 }
 
 fn f64s(words: &[u64]) -> Vec<f64> {

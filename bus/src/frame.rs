@@ -32,7 +32,7 @@
 //! processes built with another layout refuse to connect instead of misreading frames.
 //!
 //! Maps (`chaoscope map`) publish on their own services (`chaoscope/map/<name>/...`, see
-//! [`crate::names`]), with payload `[u8]` and user header [`MapFrameHeader`]:
+//! [`chaoscope_schemas::names`]), with payload `[u8]` and user header [`MapFrameHeader`]:
 //!
 //! | service  | kind     | payload (bytes)                                        |
 //! |----------|----------|--------------------------------------------------------|
@@ -46,7 +46,7 @@
 
 use iceoryx2::prelude::*;
 
-use crate::FORMAT_VERSION;
+use chaoscope_schemas::FORMAT_VERSION;
 
 /// Version of the data frames' layout on the bus (not of the files: [`FORMAT_VERSION`]).
 /// 2: several records per frame, payload in words.

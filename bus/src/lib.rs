@@ -1,4 +1,14 @@
-//! How every chaoscope process opens the iceoryx2 services of a run.
+//! chaoscope-bus: everything chaoscope sends over iceoryx2 (shared memory), and nothing a file
+//! carries (that is `chaoscope-schemas`).
+//!
+//! - [`frame`]: the `#[repr(C)]` user headers and the payload layout of the data frames.
+//! - [`convert`]: frames to the protobuf messages a recording stores, and the run header
+//!   decoder every receiver uses.
+//! - this module: how every process opens the services of a run (below), the per-user domain,
+//!   liveness, the idle wait; `stale`: what killed processes leave behind, removed.
+//! - [`monitor`]: a monitor's subscriber on a run's lossy monitor stream.
+//!
+//! # Opening the services of a run
 //!
 //! Producer, recorders, checkers and monitors all go through these functions, so service QoS
 //! (buffer sizes, overflow policy) cannot drift between them: iceoryx2 refuses to connect ports
@@ -33,11 +43,15 @@ use iceoryx2::service::builder::publish_subscribe::{
 };
 use iceoryx2::service::port_factory::{event, publish_subscribe};
 
-use crate::convert::{self, HeaderError};
-use crate::frame::{FrameHeader, MapFrameHeader, RunAnnouncement};
-use crate::names::{self, map_stream, stream};
-use crate::proto::RunHeader;
+use chaoscope_schemas::names::{self, map_stream, stream};
+use chaoscope_schemas::proto::RunHeader;
 
+use crate::convert::HeaderError;
+use crate::frame::{FrameHeader, MapFrameHeader, RunAnnouncement};
+
+pub mod convert;
+pub mod frame;
+pub mod monitor;
 mod stale;
 
 /// Frames a data subscriber can hold before the producer waits.
@@ -766,7 +780,7 @@ pub fn try_receive_run_header<E: From<BusError> + From<HeaderError>>(
     let Some(sample) = received else {
         return Ok(None);
     };
-    Ok(Some(convert::decode_run_header(
+    Ok(Some(crate::convert::decode_run_header(
         run,
         sample.user_header(),
         sample.payload(),

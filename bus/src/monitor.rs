@@ -10,12 +10,11 @@ use std::cell::Cell;
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{
-    self, BusError, DataService, EventService, HeaderService, HeaderSubscriber, Liveness,
-};
-use chaoscope_schemas::convert::{self, DataMessage, HeaderError};
-use chaoscope_schemas::frame::FrameHeader;
+use crate::convert::{self, HeaderError};
+use crate::frame::FrameHeader;
+use crate::{BusError, DataService, EventService, HeaderService, HeaderSubscriber, Liveness};
 use chaoscope_schemas::names;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::RunHeader;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;
@@ -74,26 +73,26 @@ impl LiveRun {
     /// an error when nothing arrived within `timeout`.
     pub fn connect(run: &str, timeout: Duration) -> Result<Option<(Self, RunHeader)>, LiveError> {
         let node_name = format!("chaoscope-monitor/{run}/{}", std::process::id());
-        let node = bus::create_node(&node_name)?;
+        let node = crate::create_node(&node_name)?;
         let start = Instant::now();
         let Some(header_service) = wait_for(&node, run, start, timeout, &|| {
-            bus::open_header_service(&node, run)
+            crate::open_header_service(&node, run)
         })?
         else {
             return Ok(None);
         };
-        let header = bus::header_subscriber(&header_service)?;
+        let header = crate::header_subscriber(&header_service)?;
         let Some(run_header) = wait_header(&node, &header, run, start, timeout)? else {
             return Ok(None);
         };
         let Some(monitor_service) = wait_for(&node, run, start, timeout, &|| {
-            bus::open_monitor_service(&node, run)
+            crate::open_monitor_service(&node, run)
         })?
         else {
             return Ok(None);
         };
         let Some(event_service) = wait_for(&node, run, start, timeout, &|| {
-            bus::open_data_ready_service(&node, run)
+            crate::open_data_ready_service(&node, run)
         })?
         else {
             return Ok(None);
@@ -137,7 +136,7 @@ impl LiveRun {
     }
 
     fn producer_alive(&self) -> bool {
-        bus::node_liveness(&names::producer_node_name(&self.run)) == Liveness::Alive
+        crate::node_liveness(&names::producer_node_name(&self.run)) == Liveness::Alive
     }
 
     /// Takes everything buffered now; returns whether `f` asked to stop.
@@ -187,7 +186,7 @@ impl LiveRun {
         tick: Duration,
         mut f: impl FnMut(LiveEvent) -> ControlFlow<()>,
     ) -> Result<LiveEnded, LiveError> {
-        bus::with_data_waitset(&self.listener, tick, |waitset| {
+        crate::with_data_waitset(&self.listener, tick, |waitset| {
             let mut last_liveness = Instant::now();
             loop {
                 let result = waitset
@@ -205,7 +204,7 @@ impl LiveRun {
                 if f(LiveEvent::Tick).is_break() {
                     return Ok(LiveEnded::Stopped);
                 }
-                if last_liveness.elapsed() >= bus::POLL_INTERVAL {
+                if last_liveness.elapsed() >= crate::POLL_INTERVAL {
                     last_liveness = Instant::now();
                     if !self.producer_alive() {
                         // What it delivered before going is still buffered: take it first.
@@ -239,7 +238,7 @@ fn wait_for<T>(
                 timeout,
             });
         }
-        if !bus::poll_wait(node) {
+        if !crate::poll_wait(node) {
             return Ok(None);
         }
     }
@@ -254,7 +253,7 @@ fn wait_header(
     timeout: Duration,
 ) -> Result<Option<RunHeader>, LiveError> {
     loop {
-        if let Some(run_header) = bus::try_receive_run_header::<LiveError>(header, run)? {
+        if let Some(run_header) = crate::try_receive_run_header::<LiveError>(header, run)? {
             return Ok(Some(run_header));
         }
         if start.elapsed() > timeout {
@@ -263,7 +262,7 @@ fn wait_header(
                 timeout,
             });
         }
-        if !bus::poll_wait(node) {
+        if !crate::poll_wait(node) {
             return Ok(None);
         }
     }

@@ -402,7 +402,8 @@ impl Layout {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bus::{self, Domain};
+    use crate as bus;
+    use crate::Domain;
     use iceoryx2::prelude::{CallbackProgression, Node, NodeBuilder, NodeState, ipc};
 
     /// A private bus domain in a fresh directory, removed (with its segments) on drop.

@@ -9,7 +9,7 @@
 //!
 //! Pure: the caller says how many cores and how much memory the machine has ([`Machine`]).
 
-use chaoscope_schemas::bus;
+use chaoscope_bus as bus;
 use chaoscope_schemas::config::RunConfig;
 
 use crate::map::MapSpec;
@@ -165,7 +165,7 @@ fn run_estimate(
     let frame = kf * dimf + kf;
     // A bus frame gathers records up to a target size (small systems) or holds one.
     let bus_frame =
-        bus::max_frame_words(k * dim + k + chaoscope_schemas::frame::RECORD_HEADER_WORDS) as f64;
+        bus::max_frame_words(k * dim + k + chaoscope_bus::frame::RECORD_HEADER_WORDS) as f64;
     let tasks = schemes as f64 * setsf;
     let values = setsf * kf * dimf
         + tasks * (kf + 1.0) * dimf

@@ -12,8 +12,8 @@ use std::time::Duration;
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
 use chaoscope_analyzer::assemble::SampleAssembler;
-use chaoscope_analyzer::live::{LiveEvent, LiveRun};
 use chaoscope_analyzer::run_info::RunInfo;
+use chaoscope_bus::monitor::{LiveEvent, LiveRun};
 use chaoscope_producer::engine::Sample;
 use numpy::PyArray1;
 use pyo3::prelude::*;

@@ -2,7 +2,7 @@
 
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{self, BusError, Liveness};
+use chaoscope_bus::{self as bus, BusError, Liveness};
 use chaoscope_schemas::names;
 
 /// Outcome of waiting for a run.

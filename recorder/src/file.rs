@@ -15,8 +15,8 @@ use std::collections::BTreeMap;
 use std::io::{Seek, Write};
 
 use chaoscope_schemas::FORMAT_VERSION;
-use chaoscope_schemas::convert::DataMessage;
 use chaoscope_schemas::names::{metadata, topic};
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{self, Indicators, RecordingSummary, RunHeader, schema_name};
 use mcap::records::{MessageHeader, Metadata};
 use prost::Message;

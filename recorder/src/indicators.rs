@@ -8,7 +8,7 @@
 //! is complete, and `chaoscope monitor --foxglove` streams them live.
 
 use chaoscope_indicators::{Layout, LogStat, SchemeIndicators, Tracker};
-use chaoscope_schemas::convert::DataMessage;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{Indicators, MeanOverSets, RunHeader, SeparationSet};
 
 /// The indicator state of one run and the schemes whose indicators are due.

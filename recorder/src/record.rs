@@ -6,9 +6,9 @@ use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus;
-use chaoscope_schemas::convert::DataMessage;
+use chaoscope_bus as bus;
 use chaoscope_schemas::names;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::RecordingSummary;
 
 use crate::discover::{self, Discovery};

@@ -2,7 +2,7 @@
 
 use std::io::{Seek, Write};
 
-use chaoscope_schemas::convert::DataMessage;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{EndOfRun, Indicators, RecordingSummary, RunHeader, end_of_run};
 
 use crate::file::{EncodedMessages, Encoder, FileOptions, RecordingFile};

@@ -8,12 +8,13 @@ use std::cell::{Cell, RefCell};
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{
-    self, BusError, DataService, EventService, HeaderService, HeaderSubscriber, Liveness,
+use chaoscope_bus::convert::{self, FrameError, HeaderError};
+use chaoscope_bus::frame::FrameHeader;
+use chaoscope_bus::{
+    self as bus, BusError, DataService, EventService, HeaderService, HeaderSubscriber, Liveness,
 };
-use chaoscope_schemas::convert::{self, DataMessage, FrameError, HeaderError};
-use chaoscope_schemas::frame::FrameHeader;
 use chaoscope_schemas::names;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::RunHeader;
 use iceoryx2::port::listener::Listener;
 use iceoryx2::port::subscriber::Subscriber;

@@ -13,7 +13,7 @@ use std::io::{Cursor, Seek, Write};
 use crate::file::{Compression, FileOptions};
 use crate::map_file::MapFile;
 use crate::recording::{FinalizedBy, Recording};
-use chaoscope_schemas::convert::DataMessage;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{
     EndOfRun, MapHeader, MapPoint, ReferenceState, RunHeader, Scheme, SeparationSet, end_of_run,
 };

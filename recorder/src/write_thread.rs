@@ -17,7 +17,7 @@ use std::io::{Seek, Write};
 use std::sync::mpsc::{Receiver, SyncSender, sync_channel};
 use std::thread::JoinHandle;
 
-use chaoscope_schemas::convert::DataMessage;
+use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{EndOfRun, RecordingSummary};
 
 use crate::file::{EncodedMessages, Encoder};

@@ -2,16 +2,10 @@
 //!
 //! - [`config`]: the TOML run configuration.
 //! - [`proto`]: the protobuf messages stored in MCAP and their FileDescriptorSet.
-//! - [`frame`]: the `#[repr(C)]` headers and payload layout on the iceoryx2 bus.
 //! - [`names`]: run, service, node and topic names.
-//! - [`bus`]: how every process opens the services (one place, so QoS cannot drift).
-//! - [`convert`]: bus frames to protobuf messages.
 //! - [`sweep`]: `[[sweep]]` ranges expanded into schemes.
 
-pub mod bus;
 pub mod config;
-pub mod convert;
-pub mod frame;
 pub mod names;
 pub mod proto;
 pub mod sweep;

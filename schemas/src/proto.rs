@@ -38,6 +38,26 @@ impl end_of_run::Status {
     }
 }
 
+/// One record of a run as the protobuf message a recording stores it in: what the bus's
+/// frames decode to and what files are written from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum DataMessage {
+    Reference(ReferenceState),
+    Separations(SeparationSet),
+    End(EndOfRun),
+}
+
+impl DataMessage {
+    /// The record's number (`frame_seq`), the recorded `frame` field.
+    pub fn frame(&self) -> u64 {
+        match self {
+            Self::Reference(m) => m.frame,
+            Self::Separations(m) => m.frame,
+            Self::End(m) => m.frame,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -20,13 +20,13 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
+use chaoscope_bus::frame::status;
 use chaoscope_producer::batch::{AnyLaneModel, Isa};
 use chaoscope_producer::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
 use chaoscope_producer::publish::Termination;
 use chaoscope_producer::publish::map::{MapPublisher, default_map_name};
 use chaoscope_recorder::file::{Compression, FileOptions};
 use chaoscope_recorder::map_file::{MapFile, read_map_file};
-use chaoscope_schemas::frame::status;
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 
 /// Longest wait, once the map is done, for live watchers to read its last points.

@@ -19,10 +19,10 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
 use chaoscope_analyzer::assemble::SampleAssembler;
-use chaoscope_analyzer::live::{LiveEnded, LiveEvent, LiveRun};
 use chaoscope_analyzer::progress::Progress;
 use chaoscope_analyzer::run_info::RunInfo;
-use chaoscope_schemas::bus::{self, Liveness};
+use chaoscope_bus::monitor::{LiveEnded, LiveEvent, LiveRun};
+use chaoscope_bus::{self as bus, Liveness};
 use chaoscope_schemas::names;
 use chaoscope_schemas::proto::EndOfRun;
 

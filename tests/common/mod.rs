@@ -313,7 +313,7 @@ pub fn run_command(cmd: &mut Command) -> String {
 /// as far as opening it.
 pub fn wait_for_node(node: &str) {
     let start = Instant::now();
-    while chaoscope_schemas::bus::node_liveness(node) != chaoscope_schemas::bus::Liveness::Alive {
+    while chaoscope_bus::node_liveness(node) != chaoscope_bus::Liveness::Alive {
         assert!(
             start.elapsed() < Duration::from_secs(30),
             "node {node} never came up"
@@ -329,8 +329,8 @@ pub fn wait_for_node(node: &str) {
 /// is empty. The node counter itself (16 bytes that iceoryx2 keeps for the domain's lifetime) is
 /// removed too, since nobody uses this domain any more: test runs leave nothing in /dev/shm.
 pub fn close_private_bus(dir: &Path) -> Vec<String> {
-    let domain = chaoscope_schemas::bus::domain_at(dir).unwrap();
-    chaoscope_schemas::bus::cleanup_dead_nodes_in(domain.config());
+    let domain = chaoscope_bus::domain_at(dir).unwrap();
+    chaoscope_bus::cleanup_dead_nodes_in(domain.config());
     let (counters, left): (Vec<String>, Vec<String>) = domain_segments(&domain.prefix)
         .into_iter()
         .partition(|name| is_node_counter(name));

@@ -1,6 +1,6 @@
 //! The live stream of a map (`chaoscope map`): the map header, then every finished point, then
 //! an end record, on the `chaoscope/map/<name>/...` services (layout in
-//! [`chaoscope_schemas::frame`]).
+//! [`chaoscope_bus::frame`]).
 //!
 //! The stream is for watchers and must never slow the map: the point service overwrites the
 //! oldest points of a slow watcher, a point that cannot be loaned is dropped, and no call here
@@ -9,8 +9,8 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{self, BusError, MapService, OpenAloneError};
-use chaoscope_schemas::frame::{MapFrameHeader, MapFrameKind};
+use chaoscope_bus::frame::{MapFrameHeader, MapFrameKind};
+use chaoscope_bus::{self as bus, BusError, MapService, OpenAloneError};
 use chaoscope_schemas::names::{self, MAX_RUN_NAME_LEN};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 use iceoryx2::port::publisher::Publisher;
@@ -151,7 +151,7 @@ impl MapPublisher {
         );
     }
 
-    /// Publishes the end record (`status` as in [`chaoscope_schemas::frame::status`]), then
+    /// Publishes the end record (`status` as in [`chaoscope_bus::frame::status`]), then
     /// waits up to `linger` (after the map is done) for connected watchers to read it and
     /// leave, so the points still queued for them outlive this publisher.
     pub fn end(&mut self, status: u32, linger: Duration) {

@@ -13,11 +13,11 @@ mod termination;
 
 use std::time::{Duration, Instant};
 
-use chaoscope_schemas::bus::{self, BusError, OpenAloneError};
-use chaoscope_schemas::config::RunConfig;
-use chaoscope_schemas::frame::{
+use chaoscope_bus::frame::{
     FrameHeader, RecordBatch, reference_record_words, separations_record_words, status,
 };
+use chaoscope_bus::{self as bus, BusError, OpenAloneError};
+use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::names;
 
 use crate::engine::{Engine, RunError, Sample};

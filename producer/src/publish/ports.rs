@@ -5,8 +5,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
-use chaoscope_schemas::bus::{self, BusError, DataService, EventService, HeaderService};
-use chaoscope_schemas::frame::{FrameHeader, RunAnnouncement};
+use chaoscope_bus::frame::{FrameHeader, RunAnnouncement};
+use chaoscope_bus::{self as bus, BusError, DataService, EventService, HeaderService};
 use chaoscope_schemas::proto::RunHeader;
 use iceoryx2::port::notifier::Notifier;
 use iceoryx2::port::publisher::Publisher;

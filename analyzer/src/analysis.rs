@@ -9,10 +9,9 @@
 //! every recording with the same tracker, so the values agree to the last bit.
 
 use chaoscope_indicators::{SchemeIndicators, Tracker};
-use chaoscope_producer::engine::{Sample, SchemeSample};
-use chaoscope_producer::renormalization::Orthonormalization;
-use chaoscope_producer::spec::{Method, SchemeSpec};
-use chaoscope_producer::system::SystemKind;
+use chaoscope_schemas::run::{
+    Method, Orthonormalization, Sample, SchemeSample, SchemeSpec, SystemKind,
+};
 
 pub use chaoscope_indicators::SetValues;
 

@@ -1,9 +1,9 @@
 //! Messages (from MCAP or the bus) back into [`Sample`]s: a reference state followed by the
 //! separation sets of the same sample number.
 
-use chaoscope_producer::engine::{Sample, SchemeSample};
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{EndOfRun, ReferenceState, SeparationSet};
+use chaoscope_schemas::run::{Sample, SchemeSample};
 
 /// Groups consecutive messages of one sample number.
 #[derive(Debug, Default)]

@@ -45,7 +45,7 @@ pub fn write_csv(analysis: &Analysis, dir: &Path) -> std::io::Result<Vec<PathBuf
         f.flush()?;
         files.push(path);
     }
-    if analysis.run().kind != chaoscope_producer::system::SystemKind::Hamiltonian {
+    if analysis.run().kind != chaoscope_schemas::run::SystemKind::Hamiltonian {
         // No energy to follow.
         return Ok(files);
     }

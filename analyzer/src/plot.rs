@@ -5,8 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use chaoscope_producer::renormalization::Orthonormalization;
-use chaoscope_producer::spec::Method;
+use chaoscope_schemas::run::{Method, Orthonormalization};
 
 use crate::analysis::{Analysis, SchemePoint};
 use crate::chart::{Chart, ChartError, Line, Stroke, render};
@@ -371,7 +370,7 @@ pub fn plot_all(
         &mle_chart(analysis, report, &time_schemes[..time_schemes.len().min(8)]),
         &dir.join("mle"),
     )?);
-    if analysis.run().kind == chaoscope_producer::system::SystemKind::Hamiltonian {
+    if analysis.run().kind == chaoscope_schemas::run::SystemKind::Hamiltonian {
         files.extend(render(&energy_chart(analysis), &dir.join("energy_error"))?);
     }
     for (name, chart) in sweep_charts(report) {

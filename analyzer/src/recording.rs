@@ -12,12 +12,12 @@ use std::path::{Path, PathBuf};
 
 use chaoscope_recorder::scan::{self, FileError, Messages, Scanner};
 
-use chaoscope_producer::engine::Sample;
 use chaoscope_schemas::names::topic;
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{
     EndOfRun, RecordingSummary, ReferenceState, RunHeader, SeparationSet,
 };
+use chaoscope_schemas::run::Sample;
 use prost::Message;
 
 use crate::analysis::{Analysis, AnalysisOptions};

@@ -13,10 +13,11 @@ use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use chaoscope_producer::engine::{Engine, RunError, Sample};
+use chaoscope_producer::engine::{Engine, RunError};
 use chaoscope_producer::publish::run_header;
 use chaoscope_producer::spec::{RunSpec, SpecError};
 use chaoscope_schemas::config::{RunConfig, SchemeConfig};
+use chaoscope_schemas::run::Sample;
 
 use crate::recording::{ReadError, RecordingReader};
 use crate::write::SampleWriter;

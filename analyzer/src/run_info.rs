@@ -2,12 +2,11 @@
 //! of the recording or the bus, or built in process from a `RunSpec`).
 
 use chaoscope_indicators::Layout;
-use chaoscope_producer::renormalization::Orthonormalization;
-use chaoscope_producer::spec::{
-    MAX_STATE_VALUES, Method, Route, SchemeSpec, deviation_state_values,
-};
-use chaoscope_producer::system::SystemKind;
 use chaoscope_schemas::proto::RunHeader;
+use chaoscope_schemas::run::{
+    MAX_STATE_VALUES, Method, Orthonormalization, Route, SchemeSpec, SystemKind,
+    deviation_state_values,
+};
 
 /// A header that cannot describe a run the analysis can follow.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -60,8 +60,7 @@
 
 use serde::Serialize;
 
-use chaoscope_producer::renormalization::Orthonormalization;
-use chaoscope_producer::spec::Method;
+use chaoscope_schemas::run::{Method, Orthonormalization};
 
 use crate::analysis::SchemePoint;
 

@@ -6,12 +6,12 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::Path;
 
-use chaoscope_producer::engine::Sample;
 use chaoscope_recorder::file::{FileOptions, RecordingFile};
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{
     EndOfRun, RecordingSummary, ReferenceState, RunHeader, SeparationSet, end_of_run,
 };
+use chaoscope_schemas::run::Sample;
 
 /// A recording being written from samples.
 pub struct SampleWriter {

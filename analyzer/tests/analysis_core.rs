@@ -3,10 +3,11 @@
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
 use chaoscope_analyzer::inprocess::{analyze_config, run_info};
-use chaoscope_producer::engine::{Engine, Sample};
+use chaoscope_producer::engine::Engine;
 use chaoscope_producer::indicators::{StretchSums, gali_log10};
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
+use chaoscope_schemas::run::Sample;
 
 /// The paper's chaotic Henon-Heiles orbit with `sets` sets of k = 4 directions.
 fn hh(t_final: f64, sets: usize, seed: u64, schemes: Vec<SchemeConfig>) -> RunConfig {

@@ -13,7 +13,9 @@ use rayon::prelude::*;
 
 use crate::integrator::{TangentError, Workspace};
 use crate::renormalization::{self, RenormalizationError};
-use crate::spec::{Method, Route, RunSpec};
+use chaoscope_schemas::run::{Method, Route, Sample, SchemeSample};
+
+use crate::spec::RunSpec;
 
 /// Below this many state values stepped in a window (steps x dimension x orbits, over every
 /// task), the tasks of the window run one after another on the calling thread: waking rayon's
@@ -21,38 +23,6 @@ use crate::spec::{Method, Route, RunSpec};
 /// Henon-Heiles run sampled at every step: 40), and the idle workers' spinning takes the core
 /// a recorder needs. The bits are the same either way: each task is serial on its own data.
 const PARALLEL_MIN_WORK: u64 = 1024;
-
-/// Everything known at one renormalization time.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Sample {
-    /// 0, 1, 2, ... without gaps: receivers use it to prove nothing was lost.
-    pub seq: u64,
-    /// Integration step; `t = step * h`.
-    pub step: u64,
-    pub t: f64,
-    /// Reference state `(q, p)`.
-    pub state: Vec<f64>,
-    /// Energy of the reference state (0 for systems without an invariant).
-    pub energy: f64,
-    /// Mean of the system's divergence along the reference orbit from t = 0 to `t` (its value
-    /// at the initial state for t = 0; 0 for systems that conserve volume), see
-    /// [`crate::system::DynamicalSystem::divergence`].
-    pub mean_divergence: f64,
-    /// The schemes renormalized at this step, ordered by (scheme, set).
-    pub schemes: Vec<SchemeSample>,
-}
-
-/// One set of one scheme at a renormalization.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SchemeSample {
-    pub scheme: u32,
-    pub set: u32,
-    /// `k` separation vectors of length `2N`, one after the other, before renormalization.
-    pub separations: Vec<f64>,
-    /// Stretching factor of each vector since the previous renormalization (`|d|/d0`, or
-    /// `|R_ii|` in QR mode).
-    pub stretch: Vec<f64>,
-}
 
 /// A run that could not go on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

@@ -13,7 +13,9 @@ use chaoscope_bus as bus;
 use chaoscope_schemas::config::RunConfig;
 
 use crate::map::MapSpec;
-use crate::spec::{self, Method, RunSpec};
+use chaoscope_schemas::run::{self, Method};
+
+use crate::spec::{self, RunSpec};
 
 /// Cost of one orbit-step (one trajectory or tangent vector advanced one ABA864 step) of the
 /// one-orbit engine (`chaoscope run`/`produce`): `ENGINE_NS_BASE + ENGINE_NS_PER_DIM * 2N`
@@ -102,10 +104,10 @@ pub fn run(cfg: &RunConfig, machine: &Machine) -> Option<Estimate> {
     if dev.k == 0
         || dev.k > dim
         || sets == 0
-        || sets > spec::MAX_SETS
+        || sets > run::MAX_SETS
         || schemes.is_empty()
-        || spec::deviation_state_values(schemes.len(), sets as u64, dev.k as u64, dim as u64)
-            > spec::MAX_STATE_VALUES
+        || run::deviation_state_values(schemes.len(), sets as u64, dev.k as u64, dim as u64)
+            > run::MAX_STATE_VALUES
     {
         return None;
     }

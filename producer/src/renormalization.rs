@@ -5,31 +5,10 @@
 //! vectors are made orthonormal again, and `|R_ii|` are the stretching factors of the standard
 //! method for the Lyapunov spectrum).
 
+use chaoscope_schemas::run::Orthonormalization;
+
 use crate::deviation::orthonormal_columns;
 use nalgebra::DMatrix;
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Orthonormalization {
-    Rescale,
-    Qr,
-}
-
-impl Orthonormalization {
-    pub fn name(self) -> &'static str {
-        match self {
-            Orthonormalization::Rescale => "rescale",
-            Orthonormalization::Qr => "qr",
-        }
-    }
-
-    pub fn from_name(s: &str) -> Option<Self> {
-        match s {
-            "rescale" => Some(Self::Rescale),
-            "qr" => Some(Self::Qr),
-            _ => None,
-        }
-    }
-}
 
 /// A renormalization failed: a vector vanished or stopped being finite (an escaping orbit, or
 /// vectors that became linearly dependent to machine precision in QR mode).

@@ -6,12 +6,15 @@
 use std::sync::Arc;
 
 use chaoscope_schemas::config::{OrbitConfig, RunConfig};
+use chaoscope_schemas::run::{
+    MAX_SCHEMES, MAX_SETS, MAX_STATE_VALUES, Method, Orthonormalization, Route, SchemeSpec,
+    deviation_state_values,
+};
 
 use crate::deviation::{self, DirectionError, Directions};
 use crate::integrator::runge_kutta::{RungeKutta, RungeKuttaKind, Tolerances};
 use crate::integrator::{Splitting, SplittingKind};
 use crate::model::{FputBeta, HenonHeiles, Model};
-use crate::renormalization::Orthonormalization;
 use crate::system::{DynamicalSystem, Map, RkFlow, SplitHamiltonian, Time};
 
 mod potential;
@@ -19,77 +22,12 @@ pub mod vector;
 
 pub use potential::{TableDigest, pin_tables};
 
-/// How deviation vectors are evolved.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Method {
-    /// Variational method: the integrator's tangent map.
-    Vm,
-    /// Multi-particle method: nearby orbits integrated with the full equations of motion.
-    Mpm,
-}
-
-impl Method {
-    pub fn name(self) -> &'static str {
-        match self {
-            Method::Vm => "vm",
-            Method::Mpm => "mpm",
-        }
-    }
-
-    pub fn from_name(s: &str) -> Option<Self> {
-        match s {
-            "vm" => Some(Method::Vm),
-            "mpm" => Some(Method::Mpm),
-            _ => None,
-        }
-    }
-}
-
-/// One renormalization scheme evolved around the shared reference orbit.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SchemeSpec {
-    pub name: String,
-    pub method: Method,
-    /// Norm of every deviation vector right after a renormalization.
-    pub d0: f64,
-    /// Renormalization period, an exact multiple of the time step.
-    pub tau: f64,
-    /// `tau / h`.
-    pub tau_steps: u64,
-    pub orthonormalize: Orthonormalization,
-    pub route: Route,
-}
-
-/// How deviation sets are evolved (`[[scheme]] route` of a VM scheme, `[map] route`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Route {
-    /// Every set's own `k` tangent vectors or nearby orbits (the reference).
-    PerSet,
-    /// One basis of `2N` tangent vectors (VM) or nearby orbits (MPM, maps only), every set's
-    /// vectors formed from it: in a run the basis starts as the identity at every
-    /// renormalization of the scheme and its image, the tangent propagator of the window, is
-    /// applied to every set ([`crate::engine`]); in a map see [`crate::map::propagator`].
-    Propagator,
-}
-
-impl Route {
-    pub fn name(self) -> &'static str {
-        match self {
-            Route::PerSet => "per-set",
-            Route::Propagator => "propagator",
-        }
-    }
-
-    /// The route a configuration names at `key` (absent: per-set).
-    pub fn from_config(key: &str, value: Option<&str>) -> Result<Self, SpecError> {
-        match value {
-            None | Some("per-set") => Ok(Route::PerSet),
-            Some("propagator") => Ok(Route::Propagator),
-            Some(other) => Err(SpecError::new(
-                key,
-                format!("'{other}' is not per-set or propagator"),
-            )),
-        }
+/// The route a configuration names at `key` (absent: per-set).
+pub fn route_from_config(key: &str, value: Option<&str>) -> Result<Route, SpecError> {
+    match value {
+        None => Ok(Route::PerSet),
+        Some(name) => Route::from_name(name)
+            .ok_or_else(|| SpecError::new(key, format!("'{name}' is not per-set or propagator"))),
     }
 }
 
@@ -130,23 +68,6 @@ impl SpecError {
 
 /// Longest run accepted, in steps: beyond this `step * h` loses integer exactness in f64.
 const MAX_STEPS: u64 = 1 << 52;
-
-/// Most numbers of deviation state a run may hold (2^30 doubles = 8 GiB): a typo such as
-/// `sets = 1000000` with a long chain must be refused with a message, not abort on allocation.
-pub const MAX_STATE_VALUES: u128 = 1 << 30;
-
-/// Most random sets of directions one run may draw.
-pub const MAX_SETS: usize = 1_000_000;
-
-/// Deviation state values (f64) a run holds: `sets` sets of `k` deviation vectors of dimension
-/// `dim`, per scheme (at least one) plus the reference; compare with [`MAX_STATE_VALUES`].
-pub fn deviation_state_values(schemes: usize, sets: u64, k: u64, dim: u64) -> u128 {
-    (schemes.max(1) as u128 + 1) * u128::from(sets) * u128::from(k) * u128::from(dim)
-}
-
-/// Most schemes one run may have, explicit and swept together: each is a channel of the
-/// recording and a task of every sample (the limit of one `[[sweep]]`).
-pub const MAX_SCHEMES: usize = chaoscope_schemas::sweep::MAX_SWEEP_SCHEMES;
 
 /// The parts of a separable Hamiltonian run, for what is specific to it (energy surfaces, the
 /// batched splitting kernel of maps, sections).
@@ -1066,7 +987,7 @@ impl RunSpec {
                         format!("'{}' is not rescale or qr", s.orthonormalize),
                     )
                 })?;
-            let route = Route::from_config(&key("route"), s.route.as_deref())?;
+            let route = route_from_config(&key("route"), s.route.as_deref())?;
             if route == Route::Propagator {
                 if method != Method::Vm {
                     return Err(SpecError::new(

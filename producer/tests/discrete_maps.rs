@@ -11,8 +11,9 @@
 use chaoscope_expr::{Boundary, ParamValue, VectorDefinition, VectorFunction};
 use chaoscope_producer::indicators::{StretchSums, gali_log10};
 use chaoscope_producer::integrator::Workspace;
-use chaoscope_producer::renormalization::{Orthonormalization, renormalize};
+use chaoscope_producer::renormalization::renormalize;
 use chaoscope_producer::system::{DynamicalSystem, Map};
+use chaoscope_schemas::run::Orthonormalization;
 
 fn map(components: &[&str], params: &[(&str, f64)], modulo: Vec<f64>) -> Map {
     let f = VectorFunction::new(VectorDefinition {

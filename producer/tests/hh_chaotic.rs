@@ -229,7 +229,7 @@ fn same_seed_is_bit_identical_on_any_thread_count() {
     let two = collect(2);
     let four = collect(4);
     assert_eq!(one.len(), 1 + 100, "a sample per 0.5 time units plus t = 0");
-    let bits = |v: &Vec<chaoscope_producer::engine::Sample>| -> Vec<u64> {
+    let bits = |v: &Vec<chaoscope_schemas::run::Sample>| -> Vec<u64> {
         v.iter()
             .flat_map(|s| {
                 s.state

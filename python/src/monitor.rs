@@ -14,7 +14,7 @@ use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
 use chaoscope_analyzer::assemble::SampleAssembler;
 use chaoscope_analyzer::run_info::RunInfo;
 use chaoscope_bus::monitor::{LiveEvent, LiveRun};
-use chaoscope_producer::engine::Sample;
+use chaoscope_schemas::run::Sample;
 use numpy::PyArray1;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;

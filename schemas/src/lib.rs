@@ -3,11 +3,14 @@
 //! - [`config`]: the TOML run configuration.
 //! - [`proto`]: the protobuf messages stored in MCAP and their FileDescriptorSet.
 //! - [`names`]: run, service, node and topic names.
+//! - [`run`]: what a run is made of as recordings carry it: samples, schemes, the kind of
+//!   system, the size limits.
 //! - [`sweep`]: `[[sweep]]` ranges expanded into schemes.
 
 pub mod config;
 pub mod names;
 pub mod proto;
+pub mod run;
 pub mod sweep;
 
 /// Version of the bus and file formats. Bumped on any incompatible change; both the bus headers

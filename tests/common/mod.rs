@@ -7,13 +7,14 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use chaoscope_producer::engine::{Engine, Sample};
+use chaoscope_producer::engine::Engine;
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 use chaoscope_schemas::names::topic;
 use chaoscope_schemas::proto::{
     EndOfRun, Indicators, RecordingSummary, ReferenceState, RunHeader, SeparationSet,
 };
+use chaoscope_schemas::run::Sample;
 use prost::Message;
 
 pub const CHAOSCOPE: &str = env!("CARGO_BIN_EXE_chaoscope");

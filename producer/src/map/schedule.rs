@@ -2,6 +2,7 @@
 
 use std::sync::mpsc;
 
+use chaoscope_schemas::run::Method;
 use rayon::prelude::*;
 
 use super::point::PointResult;
@@ -10,7 +11,6 @@ use super::spec::Route;
 use super::{mpm, propagator, vm};
 use crate::batch::Isa;
 use crate::publish::Termination;
-use crate::spec::Method;
 
 /// MPM points per batch on the propagator route, in units of
 /// [`MapOptions::mpm_points_per_batch`].

@@ -1,13 +1,12 @@
 //! The validated map: grid, indicator, the run every point shares, shards.
 
 use chaoscope_schemas::config::{MapAxis, RunConfig};
+use chaoscope_schemas::run::{Method, Orthonormalization, SystemKind};
 
 use super::indicator::{Indicator, PointAccumulator, failed};
 use super::point::{PointResult, PointStatus};
 use crate::batch::{AnyLaneModel, StepCoeffs};
-use crate::renormalization::Orthonormalization;
 use crate::spec::{RunSpec, SpecError, parse_coordinate, solve_momentum, state_coordinate};
-use crate::system::SystemKind;
 
 /// One grid axis.
 #[derive(Debug, Clone, PartialEq)]
@@ -123,7 +122,7 @@ impl std::fmt::Display for Shard {
 }
 
 /// How a map evolves its deviation sets (`[map] route`), as VM schemes of a run do.
-pub use crate::spec::Route;
+pub use chaoscope_schemas::run::Route;
 
 /// The `d0` range of the MPM propagator route: there its maps agree with per-set MPM within the
 /// per-set MPM-VM distance (`chaoscope bench --routes`, examples/paper/RESULTS.md). Outside it
@@ -201,7 +200,7 @@ impl MapSpec {
             ));
         }
         let indicator = Indicator::from_config(map, k)?;
-        let route = Route::from_config("map.route", map.route.as_deref())?;
+        let route = crate::spec::route_from_config("map.route", map.route.as_deref())?;
         if route == Route::Propagator {
             if hamiltonian.is_none() && !super::kernel::has_batched_form(run.system.as_ref()) {
                 return Err(SpecError::new(
@@ -212,7 +211,7 @@ impl MapSpec {
             }
             let d0 = run.schemes[0].d0;
             let (lo, hi) = MPM_PROPAGATOR_D0;
-            if run.schemes[0].method == crate::spec::Method::Mpm && !(lo..=hi).contains(&d0) {
+            if run.schemes[0].method == Method::Mpm && !(lo..=hi).contains(&d0) {
                 return Err(SpecError::new(
                     "map.route",
                     format!(

@@ -4,7 +4,9 @@
 
 use super::indicator::PointAccumulator;
 use crate::engine::RunError;
-use crate::renormalization::{self, Orthonormalization};
+use chaoscope_schemas::run::Orthonormalization;
+
+use crate::renormalization;
 use crate::spec::RunSpec;
 
 /// Beyond this norm a state counts as escaped (the engine's criterion).

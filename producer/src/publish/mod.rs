@@ -20,8 +20,9 @@ use chaoscope_bus::{self as bus, BusError, OpenAloneError};
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::names;
 
-use crate::engine::{Engine, RunError, Sample};
+use crate::engine::{Engine, RunError};
 use crate::spec::{RunSpec, SpecError};
+use chaoscope_schemas::run::Sample;
 
 pub use header::run_header;
 use ports::Ports;

@@ -15,7 +15,9 @@
 //! The map must be well defined on the torus (periodic in every wrapped coordinate, as the
 //! standard map is in both); that is the model's business, as in every code that wraps angles.
 
-use super::{DynamicalSystem, SystemKind, Time};
+use chaoscope_schemas::run::SystemKind;
+
+use super::{DynamicalSystem, Time};
 use crate::integrator::{TangentError, Workspace};
 use chaoscope_expr::VectorFunction;
 

@@ -25,6 +25,8 @@ pub use map::{Map, wrap_coordinate};
 pub use rk_flow::{RkFlow, VectorField};
 pub use split_hamiltonian::SplitHamiltonian;
 
+use chaoscope_schemas::run::SystemKind;
+
 use crate::integrator::{TangentError, Workspace};
 
 /// How a system's time advances.
@@ -42,40 +44,6 @@ impl Time {
         match self {
             Time::Continuous { .. } => "continuous",
             Time::Discrete => "discrete",
-        }
-    }
-}
-
-/// What kind of system a run integrates: decides what the report carries beside the
-/// indicators (the energy error of a Hamiltonian, the mean divergence of a flow or map).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SystemKind {
-    /// Conserves its energy and phase-space volume.
-    Hamiltonian,
-    /// `dx/dt = f(x)`, in general neither.
-    Flow,
-    /// `x -> F(x)`.
-    Map,
-}
-
-impl SystemKind {
-    /// As recordings name it (`RunHeader.kind`).
-    pub fn name(self) -> &'static str {
-        match self {
-            SystemKind::Hamiltonian => "hamiltonian",
-            SystemKind::Flow => "flow",
-            SystemKind::Map => "map",
-        }
-    }
-
-    /// The kind a recording names; an empty name is a recording from before flows and maps,
-    /// all of which were Hamiltonian.
-    pub fn from_name(name: &str) -> Option<Self> {
-        match name {
-            "" | "hamiltonian" => Some(SystemKind::Hamiltonian),
-            "flow" => Some(SystemKind::Flow),
-            "map" => Some(SystemKind::Map),
-            _ => None,
         }
     }
 }

@@ -8,7 +8,9 @@
 
 use std::sync::Arc;
 
-use super::{DynamicalSystem, SystemKind, Time};
+use chaoscope_schemas::run::SystemKind;
+
+use super::{DynamicalSystem, Time};
 use crate::integrator::runge_kutta::{RungeKutta, Tolerances};
 use crate::integrator::{TangentError, Workspace};
 

@@ -2,7 +2,9 @@
 
 use std::sync::Arc;
 
-use super::{DynamicalSystem, SystemKind, Time};
+use chaoscope_schemas::run::SystemKind;
+
+use super::{DynamicalSystem, Time};
 use crate::integrator::{Integrator, Splitting, TangentError, Workspace};
 use crate::model::Model;
 

@@ -1,0 +1,182 @@
+//! What a run is made of, as recordings carry it: its samples, its schemes (method, route,
+//! orthonormalization), the kind of system, and the limits of the state a run may hold, which
+//! every reader of a run header checks as the producer does.
+//!
+//! The producer computes these and the analysis reads them; neither owns them.
+
+/// What kind of system a run integrates: decides what the report carries beside the
+/// indicators (the energy error of a Hamiltonian, the mean divergence of a flow or map).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SystemKind {
+    /// Conserves its energy and phase-space volume.
+    Hamiltonian,
+    /// `dx/dt = f(x)`, in general neither.
+    Flow,
+    /// `x -> F(x)`.
+    Map,
+}
+
+impl SystemKind {
+    /// As recordings name it (`RunHeader.kind`).
+    pub fn name(self) -> &'static str {
+        match self {
+            SystemKind::Hamiltonian => "hamiltonian",
+            SystemKind::Flow => "flow",
+            SystemKind::Map => "map",
+        }
+    }
+
+    /// The kind a recording names; an empty name is a recording from before flows and maps,
+    /// all of which were Hamiltonian.
+    pub fn from_name(name: &str) -> Option<Self> {
+        match name {
+            "" | "hamiltonian" => Some(SystemKind::Hamiltonian),
+            "flow" => Some(SystemKind::Flow),
+            "map" => Some(SystemKind::Map),
+            _ => None,
+        }
+    }
+}
+
+/// How deviation vectors are renormalized.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Orthonormalization {
+    Rescale,
+    Qr,
+}
+
+impl Orthonormalization {
+    pub fn name(self) -> &'static str {
+        match self {
+            Orthonormalization::Rescale => "rescale",
+            Orthonormalization::Qr => "qr",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<Self> {
+        match s {
+            "rescale" => Some(Self::Rescale),
+            "qr" => Some(Self::Qr),
+            _ => None,
+        }
+    }
+}
+
+/// How deviation vectors are evolved.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Method {
+    /// Variational method: the integrator's tangent map.
+    Vm,
+    /// Multi-particle method: nearby orbits integrated with the full equations of motion.
+    Mpm,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::Vm => "vm",
+            Method::Mpm => "mpm",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<Self> {
+        match s {
+            "vm" => Some(Method::Vm),
+            "mpm" => Some(Method::Mpm),
+            _ => None,
+        }
+    }
+}
+
+/// One renormalization scheme evolved around the shared reference orbit.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SchemeSpec {
+    pub name: String,
+    pub method: Method,
+    /// Norm of every deviation vector right after a renormalization.
+    pub d0: f64,
+    /// Renormalization period, an exact multiple of the time step.
+    pub tau: f64,
+    /// `tau / h`.
+    pub tau_steps: u64,
+    pub orthonormalize: Orthonormalization,
+    pub route: Route,
+}
+
+/// How deviation sets are evolved (`[[scheme]] route` of a VM scheme, `[map] route`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Route {
+    /// Every set's own `k` tangent vectors or nearby orbits (the reference).
+    PerSet,
+    /// One basis of `2N` tangent vectors (VM) or nearby orbits (MPM, maps only), every set's
+    /// vectors formed from it: in a run the basis starts as the identity at every
+    /// renormalization of the scheme and its image, the tangent propagator of the window, is
+    /// applied to every set (the engine of chaoscope-producer); in a map, the map's propagator.
+    Propagator,
+}
+
+impl Route {
+    pub fn name(self) -> &'static str {
+        match self {
+            Route::PerSet => "per-set",
+            Route::Propagator => "propagator",
+        }
+    }
+
+    pub fn from_name(s: &str) -> Option<Self> {
+        match s {
+            "per-set" => Some(Route::PerSet),
+            "propagator" => Some(Route::Propagator),
+            _ => None,
+        }
+    }
+}
+
+/// Most numbers of deviation state a run may hold (2^30 doubles = 8 GiB): a typo such as
+/// `sets = 1000000` with a long chain must be refused with a message, not abort on allocation.
+pub const MAX_STATE_VALUES: u128 = 1 << 30;
+
+/// Most random sets of directions one run may draw.
+pub const MAX_SETS: usize = 1_000_000;
+
+/// Deviation state values (f64) a run holds: `sets` sets of `k` deviation vectors of dimension
+/// `dim`, per scheme (at least one) plus the reference; compare with [`MAX_STATE_VALUES`].
+pub fn deviation_state_values(schemes: usize, sets: u64, k: u64, dim: u64) -> u128 {
+    (schemes.max(1) as u128 + 1) * u128::from(sets) * u128::from(k) * u128::from(dim)
+}
+
+/// Most schemes one run may have, explicit and swept together: each is a channel of the
+/// recording and a task of every sample (the limit of one `[[sweep]]`).
+pub const MAX_SCHEMES: usize = crate::sweep::MAX_SWEEP_SCHEMES;
+
+/// Everything known at one renormalization time.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sample {
+    /// 0, 1, 2, ... without gaps: receivers use it to prove nothing was lost.
+    pub seq: u64,
+    /// Integration step; `t = step * h`.
+    pub step: u64,
+    pub t: f64,
+    /// Reference state `(q, p)`.
+    pub state: Vec<f64>,
+    /// Energy of the reference state (0 for systems without an invariant).
+    pub energy: f64,
+    /// Mean of the system's divergence along the reference orbit from t = 0 to `t` (its value
+    /// at the initial state for t = 0; 0 for systems that conserve volume), see
+    /// the system's divergence.
+    pub mean_divergence: f64,
+    /// The schemes renormalized at this step, ordered by (scheme, set).
+    pub schemes: Vec<SchemeSample>,
+}
+
+/// One set of one scheme at a renormalization.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SchemeSample {
+    pub scheme: u32,
+    pub set: u32,
+    /// `k` separation vectors of length `2N`, one after the other, before renormalization.
+    pub separations: Vec<f64>,
+    /// Stretching factor of each vector since the previous renormalization (`|d|/d0`, or
+    /// `|R_ii|` in QR mode).
+    pub stretch: Vec<f64>,
+}

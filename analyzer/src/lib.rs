@@ -1,24 +1,21 @@
 //! chaoscope-analyzer: streaming analysis of a recorded or live run (GALI, SALI, Lyapunov
-//! exponents, energy error), replay with other renormalization settings, Poincare sections, and
-//! the plots.
+//! exponents, energy error, the verdict), and its tables, CSV, plots and map images.
 //!
 //! The core ([`analysis`]) is sans-io: it is fed a run header and samples. Readers around it
-//! turn an MCAP file ([`recording`]), the bus (`chaoscope_bus::monitor`, as messages) or the engine
-//! in process into samples.
+//! turn an MCAP file ([`recording`]) or the messages of the bus's monitor stream
+//! ([`assemble`], fed by `chaoscope_bus::monitor`) into samples. It depends on no engine:
+//! replay and in-process runs are `chaoscope-replay`'s, Poincare sections the producer's.
 
 pub mod analysis;
 pub mod assemble;
 pub mod chart;
 pub mod csv;
-pub mod inprocess;
 pub mod map_png;
 pub mod plot;
 pub mod progress;
 pub mod recording;
-pub mod replay;
 pub mod report;
 pub mod run_info;
-pub mod section;
 pub mod series;
 /// Averages over sets, shared with the recorder (re-exported from `chaoscope-indicators`).
 pub use chaoscope_indicators::stats;

@@ -13,6 +13,7 @@ pub mod model;
 pub mod propagator;
 pub mod publish;
 pub mod renormalization;
+pub mod section;
 pub mod spec;
 pub mod system;
 

@@ -4,9 +4,9 @@
 //! whole state is interpolated the same way, using `dq/dt = p`, `dp/dt = -grad V`: error
 //! O(h^4), far below what a plot resolves.
 
-use chaoscope_producer::integrator::{Integrator, Workspace};
-use chaoscope_producer::model::Model;
-use chaoscope_producer::spec::RunSpec;
+use crate::integrator::{Integrator, Workspace};
+use crate::model::Model;
+use crate::spec::RunSpec;
 
 /// Time derivative of the state `(q, p)` of `H = |p|^2/2 + V(q)`.
 fn velocity(model: &dyn Model, x: &[f64], out: &mut [f64]) {

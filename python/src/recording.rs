@@ -6,13 +6,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions, energy_error};
 use chaoscope_analyzer::recording::{RecordingReader, analyze_file};
-use chaoscope_analyzer::replay::{ReplayError, ReplayOptions};
 use chaoscope_analyzer::run_info::RunInfo;
 use chaoscope_analyzer::write::SampleWriter;
 use chaoscope_producer::engine::Engine;
 use chaoscope_producer::estimate::{self, Machine};
 use chaoscope_producer::publish::{non_finite, resolve_run_name, run_header};
 use chaoscope_producer::spec::RunSpec;
+use chaoscope_replay::{ReplayError, ReplayOptions};
 use chaoscope_schemas::proto::{RunHeader, end_of_run};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;
@@ -356,7 +356,7 @@ impl Recording {
         let outcome = interruptible(
             py,
             || stop.store(true, Ordering::Relaxed),
-            || chaoscope_analyzer::replay::replay(&self.path, &out, &options),
+            || chaoscope_replay::replay(&self.path, &out, &options),
         )?;
         let outcome = match outcome {
             Ok(o) => o,

@@ -7,8 +7,8 @@ use chaoscope_producer::spec::{RunSpec, SpecError};
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::run::Sample;
 
-use crate::analysis::{Analysis, AnalysisOptions};
-use crate::run_info::RunInfo;
+use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
+use chaoscope_analyzer::run_info::RunInfo;
 
 #[derive(Debug, thiserror::Error)]
 pub enum InProcessError {

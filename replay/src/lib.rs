@@ -1,4 +1,13 @@
-//! Replay: re-run a recorded configuration with the schemes' renormalization settings replaced
+//! chaoscope-replay: the engine run for the analysis, where the producer and the analyzer meet
+//! (the analyzer itself reads recordings and samples and depends on no engine).
+//!
+//! - this module: replay, below;
+//! - [`inprocess`]: a run computed in this process by the engine, fed to an analysis (tests,
+//!   sweeps, the Python package's quick paths).
+//!
+//! # Replay
+//!
+//! Re-run a recorded configuration with the schemes' renormalization settings replaced
 //! (other `tau`, other `d0`), on the same reference orbit and the same initial directions, and
 //! prove it by comparing every recorded reference state bit for bit with the replay.
 //!
@@ -19,8 +28,10 @@ use chaoscope_producer::spec::{RunSpec, SpecError};
 use chaoscope_schemas::config::{RunConfig, SchemeConfig};
 use chaoscope_schemas::run::Sample;
 
-use crate::recording::{ReadError, RecordingReader};
-use crate::write::SampleWriter;
+use chaoscope_analyzer::recording::{ReadError, RecordingReader};
+use chaoscope_analyzer::write::SampleWriter;
+
+pub mod inprocess;
 
 #[derive(Debug, Clone, Default)]
 pub struct ReplayOptions {

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::bail;
-use chaoscope_analyzer::replay::{ReplayOptions, replay};
+use chaoscope_replay::{ReplayOptions, replay};
 
 #[derive(clap::Args)]
 pub struct Args {

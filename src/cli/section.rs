@@ -8,7 +8,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use chaoscope_analyzer::chart::{Chart, Line, Stroke, render};
-use chaoscope_analyzer::section::crossings;
+use chaoscope_producer::section::crossings;
 use chaoscope_producer::spec::{RunSpec, parse_coordinate};
 
 #[derive(clap::Args)]

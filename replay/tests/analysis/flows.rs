@@ -5,11 +5,11 @@
 use std::sync::Arc;
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
-use chaoscope_analyzer::inprocess::analyze_spec;
 use chaoscope_producer::integrator::runge_kutta::{RkScratch, Tolerances};
 use chaoscope_producer::integrator::{RungeKutta, RungeKuttaKind};
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_producer::system::{RkFlow, VectorField};
+use chaoscope_replay::inprocess::analyze_spec;
 use chaoscope_schemas::config::{
     DeviationsConfig, IntegratorConfig, ModelConfig, OrbitConfig, RunConfig, RunSection,
     SchemeConfig,

@@ -12,11 +12,11 @@
 //! orbit, the MLE of the chaotic one.
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
-use chaoscope_analyzer::inprocess::analyze_config;
 use chaoscope_producer::engine::Engine;
 use chaoscope_producer::indicators::gali_log10;
 use chaoscope_producer::integrator::Workspace;
 use chaoscope_producer::spec::RunSpec;
+use chaoscope_replay::inprocess::analyze_config;
 use chaoscope_schemas::config::RunConfig;
 
 const C: f64 = 0.5;

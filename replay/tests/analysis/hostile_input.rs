@@ -13,7 +13,6 @@ use std::path::Path;
 use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::csv::write_csv;
 use chaoscope_analyzer::recording::{ReadError, analyze_file};
-use chaoscope_analyzer::replay::{ReplayOptions, replay};
 use chaoscope_analyzer::write::SampleWriter;
 use chaoscope_producer::engine::Engine;
 use chaoscope_producer::publish::run_header;
@@ -22,6 +21,7 @@ use chaoscope_recorder::file::{Compression, FileOptions};
 use chaoscope_recorder::recording::{FinalizedBy, Recording};
 use chaoscope_recorder::scan::FileError;
 use chaoscope_recorder::testing::{self, Noise};
+use chaoscope_replay::{ReplayOptions, replay};
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{EndOfRun, ReferenceState, RunHeader, Scheme, SeparationSet};
@@ -305,7 +305,7 @@ fn damaged_recordings_are_analyzed_whole_or_refused_with_a_clear_error() {
 /// A real run (the paper's chaotic Henon-Heiles orbit to t = 10), written as `replay` writes
 /// its output.
 fn real_recording(path: &Path) {
-    let paper = include_str!("../../examples/paper/configs/hh_chaotic.toml");
+    let paper = include_str!("../../../examples/paper/configs/hh_chaotic.toml");
     let mut config = RunConfig::from_toml(paper).unwrap();
     config.integrator.t_final = 10.0;
     let spec = RunSpec::from_config(&config).unwrap();

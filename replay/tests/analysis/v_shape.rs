@@ -6,8 +6,8 @@
 //! smallest at d0 ~ sqrt(eps) ~ 1e-8 (paper, Sect. 3).
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
-use chaoscope_analyzer::inprocess::analyze_config;
 use chaoscope_analyzer::vshape::v_shapes;
+use chaoscope_replay::inprocess::analyze_config;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 
 /// The VM scheme the MPM sweep is measured against.

@@ -16,13 +16,13 @@
 //! between, never to chaotic).
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
-use chaoscope_analyzer::inprocess::run_info;
 use chaoscope_analyzer::report::Report;
 use chaoscope_analyzer::verdict::{
     Class, D0_FAR_FROM_SQRT_EPS, ENERGY_ERROR_ABOVE_SQRT_EPS, GALI_AT_ROUNDING_FLOOR, TAU_ABOVE_ONE,
 };
 use chaoscope_producer::engine::Engine;
 use chaoscope_producer::spec::RunSpec;
+use chaoscope_replay::inprocess::run_info;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 
 /// The paper's settings: VM, MPM with d0 = 1e-8, tau = 1, and a QR scheme.

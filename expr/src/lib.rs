@@ -14,9 +14,14 @@
 //!   bit-identical to `eval`;
 //! - `table`: tabulated functions (CSV samples, cubic spline with its derivatives);
 //! - `vector`: a vector function `F: R^D -> R^D` (a flow's right-hand side, a map) from `D`
-//!   expressions, compiled with its Jacobian-vector product and divergence.
+//!   expressions, compiled with its Jacobian-vector product and divergence;
+//! - `potential`: a separable Hamiltonian's potential `V(q)` compiled with its gradient,
+//!   Hessian-vector product and whole splitting steps over lanes (Cranelift at once, C on a
+//!   background thread).
 //!
-//! No I/O except `table`'s reading of the CSV file a config names.
+//! I/O, in three places only: `table` reads the CSV file a config names; `jit::c_step` runs
+//! the system C compiler and reads and writes its kernel cache (`CHAOSCOPE_KERNEL_CACHE`, else
+//! the user's cache directory); `potential` says once on stderr why the C kernels could not be built.
 
 pub mod ast;
 pub mod diff;
@@ -27,6 +32,7 @@ pub mod jit;
 mod lexer;
 pub mod lower;
 pub mod parser;
+pub mod potential;
 pub mod smooth;
 pub mod table;
 #[cfg(test)]

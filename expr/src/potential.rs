@@ -1,8 +1,8 @@
-//! `[model] name = "potential"`: a separable Hamiltonian whose potential the user writes as an
-//! expression, compiled once to native code with its gradient and Hessian-vector product
-//! derived symbolically.
+//! A separable Hamiltonian `H = sum_j w_j p_j^2 / 2 + V(q)` whose potential is written as an
+//! expression (`[model] name = "potential"`), compiled once to native code with its gradient and
+//! Hessian-vector product derived symbolically.
 //!
-//! The expression is lowered to a DAG (`chaoscope_expr`), differentiated there (reverse mode for
+//! The expression is lowered to a DAG ([`crate::lower`]), differentiated there (reverse mode for
 //! the gradient, forward mode over the gradient for `Hess V v`), and the potential, gradient and
 //! Hessian-vector product are compiled by Cranelift, once per run: as scalar functions (the
 //! one-orbit engine), and as whole splitting steps over structure-of-arrays lanes, orbits and
@@ -15,13 +15,11 @@ use std::sync::{Arc, Mutex, Once, OnceLock, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use chaoscope_expr::graph::{Graph, NodeId, Tabulated};
-use chaoscope_expr::jit::{Compiled, FunctionSpec, Layout, ScalarFnPtr, StepKernels, StepSpec};
-use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope};
-use chaoscope_expr::smooth::Smoothness;
-use chaoscope_expr::{Span, diff, eval, jit, lower};
-
-use super::Model;
+use crate::graph::{Graph, NodeId, Tabulated};
+use crate::jit::{Compiled, FunctionSpec, Layout, ScalarFnPtr, StepKernels, StepSpec};
+use crate::lower::{Boundary, Family, ParamValue, Scope};
+use crate::smooth::Smoothness;
+use crate::{Span, diff, eval, jit, lower};
 
 /// Everything that defines a potential model, validated except for the expression itself.
 #[derive(Debug, Clone)]
@@ -333,6 +331,88 @@ impl ExpressionModel {
         &self.0.definition
     }
 
+    /// Degrees of freedom `N`.
+    pub fn dof(&self) -> usize {
+        self.0.definition.n
+    }
+
+    /// `V(q)`.
+    #[inline]
+    pub fn potential(&self, q: &[f64]) -> f64 {
+        let mut v = [0.0];
+        self.0.compiled.call(POTENTIAL, &[q], &mut v);
+        v[0]
+    }
+
+    /// `out = dV/dq (q)`.
+    ///
+    /// # Panics
+    /// If `q` or `out` does not have `N` entries.
+    #[inline]
+    pub fn gradient(&self, q: &[f64], out: &mut [f64]) {
+        let n = self.0.definition.n;
+        assert!(q.len() == n && out.len() == n, "gradient of {n} sites");
+        let args = [q.as_ptr()];
+        // SAFETY: the function reads at most N entries of `q` (checked in `new`) and writes N
+        // outputs; both slices have N entries; `out` is a `&mut`, so it overlaps nothing; the
+        // code lives as long as `self.0.compiled`.
+        unsafe { (self.0.gradient_fn)(args.as_ptr(), out.as_mut_ptr()) }
+    }
+
+    /// `out = Hess V(q) v`, or `false` (with `out` untouched) when `V` is not `C^2`.
+    ///
+    /// # Panics
+    /// If `q`, `v` or `out` does not have `N` entries.
+    #[inline]
+    pub fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+        if !self.0.c2 {
+            return false;
+        }
+        let n = self.0.definition.n;
+        assert!(
+            q.len() == n && v.len() == n && out.len() == n,
+            "Hessian-vector product of {n} sites"
+        );
+        let args = [q.as_ptr(), v.as_ptr()];
+        // SAFETY: as in `gradient`, for the two arguments `q` and `v`.
+        unsafe { (self.0.hessian_vector_fn)(args.as_ptr(), out.as_mut_ptr()) }
+        true
+    }
+
+    /// Whether `V` has continuous second derivatives (the variational method applies).
+    pub fn has_hessian(&self) -> bool {
+        self.0.c2
+    }
+
+    /// Why the variational method cannot be used, naming the operation that limits the
+    /// smoothness of `V`; `None` when it can.
+    pub fn no_hessian_reason(&self) -> Option<String> {
+        self.0
+            .smoothness
+            .require(2, "the variational method (vm)")
+            .err()
+    }
+
+    /// `1 / m_i`, or `None` for unit masses.
+    pub fn inverse_masses(&self) -> Option<&[f64]> {
+        self.0.definition.inverse_masses.as_deref()
+    }
+
+    /// The operation (with its line and column in the source) that makes `V` or a component
+    /// of its gradient non-finite at `q`, if any.
+    pub fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {
+        let g = &self.0.graph;
+        if let Some(id) = eval::first_non_finite(g, &[q], self.0.potential) {
+            return Some(self.describe(id, q, "in the potential"));
+        }
+        for (i, &out) in self.0.gradient.iter().enumerate() {
+            if let Some(id) = eval::first_non_finite(g, &[q], out) {
+                return Some(self.describe(id, q, &format!("in dV/dq{}", i + 1)));
+            }
+        }
+        None
+    }
+
     /// Parse, differentiate and compile time of this model.
     pub fn build_time(&self) -> Duration {
         self.0.build_time
@@ -496,7 +576,7 @@ impl ExpressionModel {
         let op = self.0.graph.operation_name(id);
         match self.0.origins.get(&id) {
             Some(span) => {
-                let at = chaoscope_expr::ExprError::new(&self.0.definition.potential, *span, "");
+                let at = crate::ExprError::new(&self.0.definition.potential, *span, "");
                 let (line, column) = (at.line, at.column);
                 format!(
                     "{op} at line {line}, column {column} of the potential gave {} ({what})",
@@ -505,77 +585,5 @@ impl ExpressionModel {
             }
             None => format!("{op} gave {} ({what})", value[0]),
         }
-    }
-}
-
-impl Model for ExpressionModel {
-    fn name(&self) -> &str {
-        "potential"
-    }
-
-    fn dof(&self) -> usize {
-        self.0.definition.n
-    }
-
-    #[inline]
-    fn potential(&self, q: &[f64]) -> f64 {
-        let mut v = [0.0];
-        self.0.compiled.call(POTENTIAL, &[q], &mut v);
-        v[0]
-    }
-
-    #[inline]
-    fn gradient(&self, q: &[f64], out: &mut [f64]) {
-        let n = self.0.definition.n;
-        assert!(q.len() == n && out.len() == n, "gradient of {n} sites");
-        let args = [q.as_ptr()];
-        // SAFETY: the function reads at most N entries of `q` (checked in `new`) and writes N
-        // outputs; both slices have N entries; `out` is a `&mut`, so it overlaps nothing; the
-        // code lives as long as `self.0.compiled`.
-        unsafe { (self.0.gradient_fn)(args.as_ptr(), out.as_mut_ptr()) }
-    }
-
-    #[inline]
-    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
-        if !self.0.c2 {
-            return false;
-        }
-        let n = self.0.definition.n;
-        assert!(
-            q.len() == n && v.len() == n && out.len() == n,
-            "Hessian-vector product of {n} sites"
-        );
-        let args = [q.as_ptr(), v.as_ptr()];
-        // SAFETY: as in `gradient`, for the two arguments `q` and `v`.
-        unsafe { (self.0.hessian_vector_fn)(args.as_ptr(), out.as_mut_ptr()) }
-        true
-    }
-
-    fn has_hessian(&self) -> bool {
-        self.0.c2
-    }
-
-    fn no_hessian_reason(&self) -> Option<String> {
-        self.0
-            .smoothness
-            .require(2, "the variational method (vm)")
-            .err()
-    }
-
-    fn inverse_masses(&self) -> Option<&[f64]> {
-        self.0.definition.inverse_masses.as_deref()
-    }
-
-    fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {
-        let g = &self.0.graph;
-        if let Some(id) = eval::first_non_finite(g, &[q], self.0.potential) {
-            return Some(self.describe(id, q, "in the potential"));
-        }
-        for (i, &out) in self.0.gradient.iter().enumerate() {
-            if let Some(id) = eval::first_non_finite(g, &[q], out) {
-                return Some(self.describe(id, q, &format!("in dV/dq{}", i + 1)));
-            }
-        }
-        None
     }
 }

@@ -13,7 +13,8 @@ mod expression;
 mod fput;
 mod henon_heiles;
 
-pub use expression::{
+/// `[model] name = "potential"`: compiled by `chaoscope-expr`; `expression.rs` makes it a [`Model`].
+pub use chaoscope_expr::potential::{
     CStepState, CStepStatus, ExpressionModel, PotentialDefinition, PotentialError,
 };
 pub use fput::FputBeta;

@@ -4,7 +4,7 @@
 //! and stage loops in native code.
 
 use crate::batch::lanes::{LaneModel, StepCoeffs};
-use crate::model::{ExpressionModel, Model};
+use crate::model::ExpressionModel;
 
 impl LaneModel for ExpressionModel {
     /// Wide chunks while a 32-lane chunk's rows fit in half of L1 (16 KiB: `N <= 32`): the

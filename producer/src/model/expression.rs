@@ -1,0 +1,47 @@
+//! `[model] name = "potential"`: the compiled model of `chaoscope_expr::potential` (parsing,
+//! symbolic derivatives, native code and step kernels live there) as a [`Model`].
+
+use chaoscope_expr::potential::ExpressionModel;
+
+use super::Model;
+
+impl Model for ExpressionModel {
+    fn name(&self) -> &str {
+        "potential"
+    }
+
+    fn dof(&self) -> usize {
+        ExpressionModel::dof(self)
+    }
+
+    #[inline]
+    fn potential(&self, q: &[f64]) -> f64 {
+        ExpressionModel::potential(self, q)
+    }
+
+    #[inline]
+    fn gradient(&self, q: &[f64], out: &mut [f64]) {
+        ExpressionModel::gradient(self, q, out)
+    }
+
+    #[inline]
+    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+        ExpressionModel::hessian_vector(self, q, v, out)
+    }
+
+    fn has_hessian(&self) -> bool {
+        ExpressionModel::has_hessian(self)
+    }
+
+    fn no_hessian_reason(&self) -> Option<String> {
+        ExpressionModel::no_hessian_reason(self)
+    }
+
+    fn inverse_masses(&self) -> Option<&[f64]> {
+        ExpressionModel::inverse_masses(self)
+    }
+
+    fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {
+        ExpressionModel::diagnose_non_finite(self, q)
+    }
+}

@@ -54,12 +54,15 @@ use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
 
 mod c_step;
 mod step;
+mod step_cranelift;
+mod step_spec;
 
 pub use c_step::{C_BLOCK_LANES, CCompiler};
 pub use step::{
-    OrbitStepsFnPtr, StepBackend, StepKernels, StepSpec, TangentStepsFnPtr, compile_steps,
-    compile_steps_c, compile_steps_c_cancellable,
+    StepBackend, StepKernels, compile_steps, compile_steps_c, compile_steps_c_cancellable,
 };
+pub use step_cranelift::{OrbitStepsFnPtr, TangentStepsFnPtr};
+pub use step_spec::StepSpec;
 
 /// How a function reads one argument array (or writes its output).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -47,7 +47,7 @@ use super::{JitError, Layout, Plan, cb_atan2, cb_pow, cb_table, is_leaf};
 use super::{outputs_by_node, unary_callback};
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
 
-use super::step::{StepSpec, kernel_plan};
+use super::step_spec::{StepSpec, kernel_plan};
 
 /// Lanes per block of the C kernels: one value is two 4-lane vectors (two AVX2 registers, or
 /// four SSE2 ones), two independent dependency chains per operation. The batched kernel's chunks (8 or 32 lanes on

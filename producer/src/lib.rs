@@ -16,6 +16,7 @@ pub mod renormalization;
 pub mod section;
 pub mod spec;
 pub mod system;
+pub mod vector_field;
 
 /// GALI, SALI and the finite-time exponents live in their own crate (the recorder computes them
 /// too, and must not depend on the producer); re-exported under their old path.

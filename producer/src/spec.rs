@@ -570,7 +570,7 @@ fn state_of_q_and_p(orbit: &OrbitConfig, n: usize) -> Result<OrbitConfig, SpecEr
 /// `dop853` landing on the grid of `h` when `rtol` and `atol` are given.
 fn runge_kutta_system(
     cfg: &RunConfig,
-    field: Arc<dyn crate::system::VectorField>,
+    field: Arc<dyn crate::vector_field::VectorField>,
 ) -> Result<Arc<dyn DynamicalSystem>, SpecError> {
     let model = &cfg.model;
     let integrator = &cfg.integrator;

@@ -17,7 +17,7 @@
 // The stage loops index the stage rows, the state and the tableau by the same coordinate.
 #![allow(clippy::needless_range_loop)]
 
-use crate::system::VectorField;
+use crate::vector_field::VectorField;
 
 /// Most fixed-point sweeps of one step: far beyond what converges (a sweep gains about
 /// `-log10(h L)` digits), so reaching it means the step is too long for the iteration.

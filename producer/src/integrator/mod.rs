@@ -3,7 +3,7 @@
 //! One trait, [`Integrator`], generic over the system it advances: symplectic splittings
 //! ([`Splitting`]) implement it for separable Hamiltonians ([`Model`]); the explicit Runge-Kutta
 //! methods ([`RungeKutta`]: rk4, dop853 with or without error control) implement it for vector
-//! fields ([`crate::system::VectorField`]).
+//! fields ([`crate::vector_field::VectorField`]).
 //! An integrator may also advance deviation vectors with its own tangent map (the variational
 //! method); one that cannot says so and only the multi-particle method is offered.
 

@@ -15,7 +15,7 @@
 
 use super::gauss_legendre::{self, ImplicitScratch, ImplicitTableau};
 use super::{Integrator, TangentError, Workspace};
-use crate::system::VectorField;
+use crate::vector_field::VectorField;
 
 /// Which tableau.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -22,7 +22,7 @@ mod rk_flow;
 mod split_hamiltonian;
 
 pub use map::{Map, wrap_coordinate};
-pub use rk_flow::{RkFlow, VectorField};
+pub use rk_flow::RkFlow;
 pub use split_hamiltonian::SplitHamiltonian;
 
 use chaoscope_schemas::run::SystemKind;

@@ -8,7 +8,8 @@ use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_producer::integrator::runge_kutta::{RkScratch, Tolerances};
 use chaoscope_producer::integrator::{RungeKutta, RungeKuttaKind};
 use chaoscope_producer::spec::RunSpec;
-use chaoscope_producer::system::{RkFlow, VectorField};
+use chaoscope_producer::system::RkFlow;
+use chaoscope_producer::vector_field::VectorField;
 use chaoscope_replay::inprocess::analyze_spec;
 use chaoscope_schemas::config::{
     DeviationsConfig, IntegratorConfig, ModelConfig, OrbitConfig, RunConfig, RunSection,

@@ -12,6 +12,12 @@ use serde::{Deserialize, Serialize};
 mod load;
 pub mod paper;
 mod parse_error;
+mod scheme;
+pub mod sweep;
+
+pub use scheme::SchemeConfig;
+
+use sweep::{SweepConfig, SweepError};
 
 pub use load::{
     ConfigLoadError, MAX_CONFIG_BYTES, parse_config_bytes, read_bounded, read_config_file,
@@ -31,9 +37,9 @@ pub struct RunConfig {
     /// One or more renormalization schemes evolved around the same reference orbit.
     #[serde(rename = "scheme", default)]
     pub schemes: Vec<SchemeConfig>,
-    /// Ranges of schemes (see [`crate::sweep`]), expanded after the explicit schemes.
+    /// Ranges of schemes (see [`sweep`]), expanded after the explicit schemes.
     #[serde(rename = "sweep", default, skip_serializing_if = "Vec::is_empty")]
-    pub sweeps: Vec<crate::sweep::SweepConfig>,
+    pub sweeps: Vec<SweepConfig>,
     /// Present only for `chaoscope map`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub map: Option<MapConfig>,
@@ -261,52 +267,6 @@ impl DeviationsConfig {
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct SchemeConfig {
-    pub name: String,
-    /// `"vm"` or `"mpm"`.
-    pub method: String,
-    /// Norm of the deviation vectors after each renormalization.
-    pub d0: f64,
-    /// Renormalization period (a multiple of `h`); also the sample period.
-    pub tau: f64,
-    /// `"rescale"` (per-vector, for GALI/SALI) or `"qr"` (Lyapunov spectrum).
-    #[serde(default = "default_orthonormalize")]
-    pub orthonormalize: String,
-    /// How a `vm` scheme evolves its sets: `"per-set"` (default, the reference: every set's
-    /// `k` tangent vectors) or `"propagator"` (the `2N` tangent vectors of a basis, once per
-    /// renormalization window, applied to every set).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub route: Option<String>,
-}
-
-fn default_orthonormalize() -> String {
-    "rescale".to_string()
-}
-
-impl SchemeConfig {
-    /// A scheme with per-vector rescaling (the default `orthonormalize`).
-    pub fn new(name: &str, method: &str, d0: f64, tau: f64) -> Self {
-        Self {
-            name: name.to_string(),
-            method: method.to_string(),
-            d0,
-            tau,
-            orthonormalize: default_orthonormalize(),
-            route: None,
-        }
-    }
-
-    /// The same scheme with `orthonormalize = how` (`"qr"` for the Lyapunov spectrum).
-    pub fn with_orthonormalize(self, how: &str) -> Self {
-        Self {
-            orthonormalize: how.to_string(),
-            ..self
-        }
-    }
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct MapAxis {
     /// Coordinate name such as `"q2"` or `"p2"`.
     pub coord: String,
@@ -393,9 +353,82 @@ impl RunConfig {
     }
 }
 
+impl RunConfig {
+    /// The `[[scheme]]` entries followed by the expansion of every `[[sweep]]`, in order.
+    pub fn expanded_schemes(&self) -> Result<Vec<SchemeConfig>, SweepError> {
+        let mut all = self.schemes.clone();
+        for (i, s) in self.sweeps.iter().enumerate() {
+            all.extend(s.expand(i)?);
+        }
+        Ok(all)
+    }
+
+    /// The same run with every sweep expanded into explicit schemes.
+    pub fn with_sweeps_expanded(&self) -> Result<RunConfig, SweepError> {
+        let mut c = self.clone();
+        c.schemes = self.expanded_schemes()?;
+        c.sweeps.clear();
+        Ok(c)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The paper's Henon-Heiles run with one VM scheme and `sweeps` as a user writes them.
+    fn sweep_config(sweeps: &str) -> RunConfig {
+        let base = paper::henon_heiles(
+            paper::HH_CHAOTIC_Q2,
+            10.0,
+            DeviationsConfig::random(2, 1, 0),
+            vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
+        );
+        RunConfig::from_toml(&(base.to_toml() + sweeps)).unwrap()
+    }
+
+    #[test]
+    fn per_decade_range_gives_clean_decades_and_names() {
+        let c = sweep_config(
+            "[[sweep]]\nmethod = \"mpm\"\nd0 = { from = 1e-14, to = 1e-2, per_decade = 1 }\ntau = [0.1, 1.0]\n",
+        );
+        let s = c.expanded_schemes().unwrap();
+        assert_eq!(s.len(), 1 + 13 * 2);
+        assert_eq!(s[0].name, "vm");
+        let d0s: Vec<f64> = s[1..14].iter().map(|s| s.d0).collect();
+        assert_eq!(d0s[0], 1e-14);
+        assert_eq!(d0s[6], 1e-8);
+        assert_eq!(d0s[12], 1e-2);
+        assert_eq!(s[7].name, "mpm-d01e-8-tau0.1");
+        assert_eq!(s[14].tau, 1.0);
+        assert!(s.iter().all(|s| s.orthonormalize == "rescale"));
+        // The config with the sweep round-trips through TOML (recordings store it).
+        assert_eq!(RunConfig::from_toml(&c.to_toml()).unwrap(), c);
+        let e = c.with_sweeps_expanded().unwrap();
+        assert!(e.sweeps.is_empty());
+        assert_eq!(e.schemes, s);
+    }
+
+    #[test]
+    fn bad_sweeps_name_their_key() {
+        let cases = [
+            (
+                "d0 = { from = 1e-2, to = 1e-4, per_decade = 1 }\ntau = 1.0",
+                "sweep[0].d0",
+            ),
+            ("d0 = 1e-8\ntau = []", "sweep[0].tau"),
+            ("d0 = { from = 1e-8, to = 1e-2 }\ntau = 1.0", "sweep[0].d0"),
+            ("d0 = -1.0\ntau = 1.0", "sweep[0].d0"),
+            (
+                "d0 = { from = 1e-300, to = 1e300, per_decade = 100 }\ntau = 1.0",
+                "sweep[0].d0",
+            ),
+        ];
+        for (body, key) in cases {
+            let c = sweep_config(&format!("[[sweep]]\nmethod = \"mpm\"\n{body}\n"));
+            assert_eq!(c.expanded_schemes().unwrap_err().key, key, "{body}");
+        }
+    }
 
     #[test]
     fn issue_keys_parse_and_round_trip() {

@@ -147,7 +147,7 @@ pub fn deviation_state_values(schemes: usize, sets: u64, k: u64, dim: u64) -> u1
 
 /// Most schemes one run may have, explicit and swept together: each is a channel of the
 /// recording and a task of every sample (the limit of one `[[sweep]]`).
-pub const MAX_SCHEMES: usize = crate::sweep::MAX_SWEEP_SCHEMES;
+pub const MAX_SCHEMES: usize = crate::config::sweep::MAX_SWEEP_SCHEMES;
 
 /// Everything known at one renormalization time.
 #[derive(Debug, Clone, PartialEq)]

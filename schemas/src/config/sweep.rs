@@ -16,7 +16,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::config::{RunConfig, SchemeConfig};
+use super::scheme::SchemeConfig;
 
 /// Values of one swept parameter.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -167,62 +167,9 @@ impl SweepConfig {
     }
 }
 
-impl RunConfig {
-    /// The `[[scheme]]` entries followed by the expansion of every `[[sweep]]`, in order.
-    pub fn expanded_schemes(&self) -> Result<Vec<SchemeConfig>, SweepError> {
-        let mut all = self.schemes.clone();
-        for (i, s) in self.sweeps.iter().enumerate() {
-            all.extend(s.expand(i)?);
-        }
-        Ok(all)
-    }
-
-    /// The same run with every sweep expanded into explicit schemes.
-    pub fn with_sweeps_expanded(&self) -> Result<RunConfig, SweepError> {
-        let mut c = self.clone();
-        c.schemes = self.expanded_schemes()?;
-        c.sweeps.clear();
-        Ok(c)
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::{DeviationsConfig, paper};
-
-    /// The paper's Henon-Heiles run with one VM scheme and `sweeps` as a user writes them.
-    fn config(sweeps: &str) -> RunConfig {
-        let base = paper::henon_heiles(
-            paper::HH_CHAOTIC_Q2,
-            10.0,
-            DeviationsConfig::random(2, 1, 0),
-            vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
-        );
-        RunConfig::from_toml(&(base.to_toml() + sweeps)).unwrap()
-    }
-
-    #[test]
-    fn per_decade_range_gives_clean_decades_and_names() {
-        let c = config(
-            "[[sweep]]\nmethod = \"mpm\"\nd0 = { from = 1e-14, to = 1e-2, per_decade = 1 }\ntau = [0.1, 1.0]\n",
-        );
-        let s = c.expanded_schemes().unwrap();
-        assert_eq!(s.len(), 1 + 13 * 2);
-        assert_eq!(s[0].name, "vm");
-        let d0s: Vec<f64> = s[1..14].iter().map(|s| s.d0).collect();
-        assert_eq!(d0s[0], 1e-14);
-        assert_eq!(d0s[6], 1e-8);
-        assert_eq!(d0s[12], 1e-2);
-        assert_eq!(s[7].name, "mpm-d01e-8-tau0.1");
-        assert_eq!(s[14].tau, 1.0);
-        assert!(s.iter().all(|s| s.orthonormalize == "rescale"));
-        // The config with the sweep round-trips through TOML (recordings store it).
-        assert_eq!(RunConfig::from_toml(&c.to_toml()).unwrap(), c);
-        let e = c.with_sweeps_expanded().unwrap();
-        assert!(e.sweeps.is_empty());
-        assert_eq!(e.schemes, s);
-    }
 
     #[test]
     fn two_per_decade_and_linear_counts() {
@@ -246,26 +193,5 @@ mod tests {
         .expand("x")
         .unwrap();
         assert_eq!(v, vec![0.5, 1.0, 1.5, 2.0]);
-    }
-
-    #[test]
-    fn bad_sweeps_name_their_key() {
-        let cases = [
-            (
-                "d0 = { from = 1e-2, to = 1e-4, per_decade = 1 }\ntau = 1.0",
-                "sweep[0].d0",
-            ),
-            ("d0 = 1e-8\ntau = []", "sweep[0].tau"),
-            ("d0 = { from = 1e-8, to = 1e-2 }\ntau = 1.0", "sweep[0].d0"),
-            ("d0 = -1.0\ntau = 1.0", "sweep[0].d0"),
-            (
-                "d0 = { from = 1e-300, to = 1e300, per_decade = 100 }\ntau = 1.0",
-                "sweep[0].d0",
-            ),
-        ];
-        for (body, key) in cases {
-            let c = config(&format!("[[sweep]]\nmethod = \"mpm\"\n{body}\n"));
-            assert_eq!(c.expanded_schemes().unwrap_err().key, key, "{body}");
-        }
     }
 }

@@ -17,7 +17,7 @@ pub use chaoscope_indicators::SetValues;
 
 use crate::report::{ByOrder, DeltaLog, Report, RunReport, SchemeReport, VsVm};
 use crate::run_info::RunInfo;
-use crate::series::Series;
+use crate::series::{SchemePoint, Series};
 use crate::stats::Stat;
 use crate::verdict;
 
@@ -40,20 +40,6 @@ impl Default for AnalysisOptions {
             at: Vec::new(),
         }
     }
-}
-
-/// Means over the sets of one scheme at one time: a point of a plotted curve.
-#[derive(Debug, Clone, PartialEq)]
-pub struct SchemePoint {
-    /// `[j - 2]`: mean over sets of log10 GALI_j.
-    pub gali_log10_mean: Vec<f64>,
-    /// `[j - 2]`: log10 of the arithmetic mean of GALI_j.
-    pub gali_log10_of_mean: Vec<f64>,
-    pub sali_log10_mean: Option<f64>,
-    /// Mean over sets of the finite-time exponents (one per vector).
-    pub lyapunov: Vec<f64>,
-    /// `[j - 2]`: mean over sets of |log10 GALI_j - log10 GALI_j(VM)|, for MPM schemes.
-    pub vs_vm_abs_delta: Option<Vec<f64>>,
 }
 
 #[derive(Debug, Clone)]

@@ -7,9 +7,10 @@ use std::path::{Path, PathBuf};
 
 use chaoscope_schemas::run::{Method, Orthonormalization};
 
-use crate::analysis::{Analysis, SchemePoint};
+use crate::analysis::Analysis;
 use crate::chart::{Chart, ChartError, Line, Stroke, render};
 use crate::report::Report;
+use crate::series::SchemePoint;
 
 /// Time axis of GALI plots.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

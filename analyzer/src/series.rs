@@ -4,6 +4,22 @@
 //! what log-time plots of GALI need: the early decay is as visible as the late one) and evenly
 //! spaced samples whose stride doubles whenever the buffer fills (what linear-time plots and CSV
 //! need). Together at most `capacity + decades * per_decade` points per series.
+//!
+//! A scheme's curve is a series of [`SchemePoint`]s, which the verdict and the plots read.
+
+/// Means over the sets of one scheme at one time: a point of a plotted curve.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SchemePoint {
+    /// `[j - 2]`: mean over sets of log10 GALI_j.
+    pub gali_log10_mean: Vec<f64>,
+    /// `[j - 2]`: log10 of the arithmetic mean of GALI_j.
+    pub gali_log10_of_mean: Vec<f64>,
+    pub sali_log10_mean: Option<f64>,
+    /// Mean over sets of the finite-time exponents (one per vector).
+    pub lyapunov: Vec<f64>,
+    /// `[j - 2]`: mean over sets of |log10 GALI_j - log10 GALI_j(VM)|, for MPM schemes.
+    pub vs_vm_abs_delta: Option<Vec<f64>>,
+}
 
 /// Decides which samples a series keeps and stores them.
 #[derive(Debug, Clone)]

@@ -62,7 +62,7 @@ use serde::Serialize;
 
 use chaoscope_schemas::run::{Method, Orthonormalization};
 
-use crate::analysis::SchemePoint;
+use crate::series::SchemePoint;
 
 /// What the orbit is, at this time.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]

@@ -185,7 +185,7 @@ fn every_example_model_and_paper_orbit_records_the_same_bits_on_aarch64() {
         match path.extension().and_then(|e| e.to_str()) {
             Some("toml") => {
                 let text = std::fs::read_to_string(&path).unwrap();
-                let is_map = RunConfig::from_toml(&text).unwrap().model.name == "map";
+                let is_map = RunConfig::from_toml(&text).unwrap().model.name() == "map";
                 // 100 time units of a flow, 1000 iterations of a map.
                 let t_final = if is_map { 1000.0 } else { 100.0 };
                 let name = path.file_stem().unwrap().to_string_lossy().into_owned();

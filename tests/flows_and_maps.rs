@@ -10,7 +10,7 @@ mod common;
 use std::f64::consts::{PI, TAU};
 use std::path::Path;
 
-use chaoscope_schemas::config::{MapAxis, MapConfig, RunConfig};
+use chaoscope_schemas::config::{MapAxis, MapConfig, MapModelConfig, ModelConfig, RunConfig};
 use serde_json::Value;
 
 use common::{chaoscope_captured as chaoscope, run_ok};
@@ -27,6 +27,14 @@ fn example(name: &str) -> RunConfig {
 
 fn s(p: &Path) -> &str {
     p.to_str().unwrap()
+}
+
+/// The `[model]` keys of a map's config.
+fn map_model(config: &mut RunConfig) -> &mut MapModelConfig {
+    match &mut config.model {
+        ModelConfig::Map(m) => m,
+        other => panic!("not a map: {}", other.name()),
+    }
 }
 
 fn write(dir: &Path, name: &str, config: &RunConfig) -> std::path::PathBuf {
@@ -214,28 +222,52 @@ fn henon_map_records_and_reports_its_constant_jacobian() {
 fn a_map_refuses_a_fractional_tau_and_a_step_other_than_one() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
-    for (edit, key) in [
+    // Each edit spoils the Henon map's config and gives its text.
+    type Spoil = fn(RunConfig) -> String;
+    let cases: [(Spoil, &str); 5] = [
         (
-            (|c: &mut RunConfig| c.schemes[0].tau = 2.5) as fn(&mut RunConfig),
+            |mut c| {
+                c.schemes[0].tau = 2.5;
+                c.to_toml()
+            },
             "tau",
         ),
-        (|c: &mut RunConfig| c.integrator.h = 0.5, "integrator.h"),
         (
-            |c: &mut RunConfig| c.integrator.method = "rk4".into(),
-            "integrator.method",
+            |mut c| {
+                c.integrator.h = 0.5;
+                c.to_toml()
+            },
+            "integrator.h",
         ),
         (
-            |c: &mut RunConfig| c.model.rhs = Some(vec!["x1".into(), "x2".into()]),
+            |mut c| {
+                c.integrator.method = "rk4".into();
+                c.to_toml()
+            },
+            "integrator.method",
+        ),
+        // A flow's key in a map's table.
+        (
+            |c| {
+                c.to_toml().replacen(
+                    "name = \"map\"\n",
+                    "name = \"map\"\nrhs = [\"x1\", \"x2\"]\n",
+                    1,
+                )
+            },
             "model.rhs",
         ),
         (
-            |c: &mut RunConfig| c.model.modulo = Some(vec![1.0]),
+            |mut c| {
+                map_model(&mut c).modulo = Some(vec![1.0]);
+                c.to_toml()
+            },
             "model.modulo",
         ),
-    ] {
-        let mut config = example("henon-map.toml");
-        edit(&mut config);
-        let cfg = write(d, "bad.toml", &config);
+    ];
+    for (spoil, key) in cases {
+        let cfg = d.join("bad.toml");
+        std::fs::write(&cfg, spoil(example("henon-map.toml"))).unwrap();
         let rec = d.join("bad.mcap");
         let out = chaoscope(&["run", s(&cfg), "--out", s(&rec)])
             .output()
@@ -279,8 +311,8 @@ fn escaping_blowing_up_and_nan_orbits_stop_with_their_time() {
     // A map with an unbounded orbit: x -> 2 x + 1 from 1 doubles every iteration and passes the
     // escape norm (1e100... far below f64's range) after about 330 iterations.
     let mut config = example("henon-map.toml");
-    config.model.next = Some(vec!["2*x1 + 1".into(), "x2".into()]);
-    config.model.params.clear();
+    map_model(&mut config).next = Some(vec!["2*x1 + 1".into(), "x2".into()]);
+    map_model(&mut config).params.clear();
     config.orbit.x = vec![1.0, 0.0];
     config.integrator.t_final = 1000.0;
     for s in &mut config.schemes {
@@ -290,8 +322,11 @@ fn escaping_blowing_up_and_nan_orbits_stop_with_their_time() {
 
     // A flow that blows up in finite time: dx/dt = x^2 from x = 1 reaches infinity at t = 1.
     let mut config = example("lorenz.toml");
-    config.model.rhs = Some(vec!["x1^2".into(), "-x2".into(), "-x3".into()]);
-    config.model.params.clear();
+    let ModelConfig::Ode(ode) = &mut config.model else {
+        panic!("lorenz.toml is a flow")
+    };
+    ode.rhs = Some(vec!["x1^2".into(), "-x2".into(), "-x3".into()]);
+    ode.params.clear();
     config.orbit.x = vec![1.0, 1.0, 1.0];
     config.integrator.t_final = 5.0;
     config.integrator.h = 0.01;
@@ -302,8 +337,8 @@ fn escaping_blowing_up_and_nan_orbits_stop_with_their_time() {
 
     // A map that produces NaN: log of a negative number once x1 < 0 (x1 -> x1 - 1 from 2.5).
     let mut config = example("henon-map.toml");
-    config.model.next = Some(vec!["x1 - 1".into(), "x2 + log(x1)".into()]);
-    config.model.params.clear();
+    map_model(&mut config).next = Some(vec!["x1 - 1".into(), "x2 + log(x1)".into()]);
+    map_model(&mut config).params.clear();
     config.orbit.x = vec![2.5, 1.0];
     config.integrator.t_final = 100.0;
     for s in &mut config.schemes {

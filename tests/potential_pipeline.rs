@@ -8,7 +8,7 @@ mod common;
 
 use std::path::Path;
 
-use chaoscope_schemas::config::{MapAxis, MapConfig, RunConfig};
+use chaoscope_schemas::config::{MapAxis, MapConfig, ModelConfig, RunConfig};
 use common::{chaoscope_captured as chaoscope, run_ok};
 use serde_json::Value;
 
@@ -121,8 +121,10 @@ fn abs_is_refused_for_vm_and_runs_by_mpm() {
     let mut config = hertz(10.0);
     config.sweeps.clear();
     // A kink: no continuous first derivative where a bond length crosses zero.
-    config.model.potential =
-        Some("sum(i = 0..N, A*(q[i+1] - q[i])^2 + delta0*abs(q[i+1] - q[i]))".into());
+    let ModelConfig::Potential(model) = &mut config.model else {
+        panic!("the Hertz chain is a potential")
+    };
+    model.potential = Some("sum(i = 0..N, A*(q[i+1] - q[i])^2 + delta0*abs(q[i+1] - q[i]))".into());
     let cfg = dir.path().join("abs.toml");
     std::fs::write(&cfg, config.to_toml()).unwrap();
     let rec = dir.path().join("abs.mcap");

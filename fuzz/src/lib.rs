@@ -25,7 +25,7 @@ use chaoscope_producer::estimate::{self, Machine};
 use chaoscope_producer::map::MapSpec;
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_recorder::scan::{Entry, Messages, Scanner};
-use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::config::{ModelConfig, RunConfig};
 
 /// Every MCAP reader over `data`.
 pub fn mcap(data: &[u8]) {
@@ -111,10 +111,24 @@ fn read_messages(path: &std::path::Path) -> (Vec<SeenMessage>, Option<String>) {
     (seen, messages.scan().stopped_at.clone())
 }
 
-/// Largest deviation state (sets x k x 2N values) the `config` target validates: drawing more
-/// directions is legitimately slow (a valid config, not a finding), and would only make the
-/// fuzzer report hangs.
+/// Largest deviation state (sets x k x dimension values) the `config` target validates: a
+/// larger system is legitimately slow to build (a long chain's compiled potential, a valid
+/// config, not a finding), and would only make the fuzzer report hangs.
 const MAX_FUZZ_STATE: u128 = 1 << 16;
+
+/// The dimension a `[model]` claims, before anything is built.
+fn claimed_dim(model: &ModelConfig) -> u128 {
+    let dof = |n: Option<usize>| n.unwrap_or(1).saturating_mul(2) as u128;
+    let len = |v: &Option<Vec<String>>| v.as_ref().map_or(1, Vec::len) as u128;
+    match model {
+        ModelConfig::HenonHeiles(_) | ModelConfig::Custom(_) => 4,
+        ModelConfig::FputBeta(m) => dof(m.n),
+        ModelConfig::Potential(m) => dof(m.n),
+        ModelConfig::Hamiltonian(m) => dof(m.n),
+        ModelConfig::Ode(m) => len(&m.rhs),
+        ModelConfig::Map(m) => len(&m.next),
+    }
+}
 
 /// The configuration parser and validators over `data`.
 pub fn config(data: &[u8]) {
@@ -133,11 +147,8 @@ pub fn config(data: &[u8]) {
         cores: 2,
         memory_bytes: Some(24 << 30),
     };
-    if estimate::run(&cfg, &machine).is_some_and(|e| e.refusal(&machine).is_some()) {
-        return;
-    }
     let schemes = cfg.expanded_schemes().map_or(1, |s| s.len().max(1));
-    let dim = cfg.model.n.unwrap_or(2).saturating_mul(2) as u128;
+    let dim = claimed_dim(&cfg.model);
     let state = schemes as u128 * cfg.deviations.sets.max(1) as u128 * cfg.deviations.k as u128;
     if state.saturating_mul(dim) > MAX_FUZZ_STATE {
         return;
@@ -159,7 +170,7 @@ pub fn config(data: &[u8]) {
     } else {
         match RunSpec::from_config(&cfg) {
             Ok(spec) => {
-                let _ = estimate::run_spec(&spec, &machine).refusal(&machine);
+                let _ = estimate::run(&spec, &machine).refusal(&machine);
             }
             Err(e) => checked(&e),
         }

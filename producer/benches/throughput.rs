@@ -34,8 +34,8 @@ tau = 1.0
 
 fn measure(name: &str, text: &str) -> serde_json::Value {
     let spec = RunSpec::from_config(&RunConfig::from_toml(text).unwrap()).unwrap();
-    let (steps, k, n) = (spec.total_steps, spec.k, spec.dim / 2);
-    let method = spec.schemes[0].method.name();
+    let (steps, k, n) = (spec.total_steps(), spec.k(), spec.dim() / 2);
+    let method = spec.schemes()[0].method.name();
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(1)
         .build()

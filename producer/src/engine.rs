@@ -110,18 +110,18 @@ pub struct Engine {
 
 impl Engine {
     pub fn new(spec: RunSpec) -> Self {
-        let dim = spec.dim;
-        let mut tasks = Vec::with_capacity(spec.schemes.len() * spec.sets());
-        for (si, scheme) in spec.schemes.iter().enumerate() {
+        let dim = spec.dim();
+        let mut tasks = Vec::with_capacity(spec.schemes().len() * spec.sets());
+        for (si, scheme) in spec.schemes().iter().enumerate() {
             if scheme.route == Route::Propagator {
                 tasks.push(DeviationSet {
                     scheme: si,
                     set: 0,
                     deviations: Deviations::Propagated {
-                        orbit: spec.x0.clone(),
+                        orbit: spec.x0().to_vec(),
                         basis: identity(dim),
                         sets: spec
-                            .directions
+                            .directions()
                             .iter()
                             .map(|d| d.scaled(scheme.d0))
                             .collect(),
@@ -130,17 +130,17 @@ impl Engine {
                 });
                 continue;
             }
-            for (set, dirs) in spec.directions.iter().enumerate() {
+            for (set, dirs) in spec.directions().iter().enumerate() {
                 let scaled = dirs.scaled(scheme.d0);
                 let deviations = match scheme.method {
                     Method::Vm => Deviations::Variational {
-                        orbit: spec.x0.clone(),
+                        orbit: spec.x0().to_vec(),
                         vectors: scaled,
                     },
                     Method::Mpm => Deviations::MultiParticle {
                         orbits: scaled
                             .chunks_exact(dim)
-                            .flat_map(|d| spec.x0.iter().zip(d).map(|(x, d)| x + d))
+                            .flat_map(|d| spec.x0().iter().zip(d).map(|(x, d)| x + d))
                             .collect(),
                     },
                 };
@@ -152,9 +152,9 @@ impl Engine {
                 });
             }
         }
-        let divergence = spec.system.divergence(&spec.x0).map(|d| (d, 0.0));
+        let divergence = spec.system().divergence(spec.x0()).map(|d| (d, 0.0));
         Self {
-            reference: spec.x0.clone(),
+            reference: spec.x0().to_vec(),
             spec,
             work: Workspace::new(),
             tasks,
@@ -181,7 +181,7 @@ impl Engine {
     }
 
     pub fn total_steps(&self) -> u64 {
-        self.spec.total_steps
+        self.spec.total_steps()
     }
 
     pub fn current_step(&self) -> u64 {
@@ -196,16 +196,17 @@ impl Engine {
     /// The step of the next renormalization of any scheme (the run's last step at the latest).
     fn next_stop(&self) -> u64 {
         self.spec
-            .schemes
+            .schemes()
             .iter()
             .map(|s| (self.step / s.tau_steps + 1) * s.tau_steps)
             .min()
-            .unwrap_or(self.spec.total_steps)
-            .min(self.spec.total_steps)
+            .unwrap_or(self.spec.total_steps())
+            .min(self.spec.total_steps())
     }
 
     fn renormalizes_at(&self, scheme: usize, step: u64) -> bool {
-        step.is_multiple_of(self.spec.schemes[scheme].tau_steps) || step == self.spec.total_steps
+        step.is_multiple_of(self.spec.schemes()[scheme].tau_steps)
+            || step == self.spec.total_steps()
     }
 
     /// Advance to the next renormalization time and return what it produced; `Ok(None)` once the
@@ -215,13 +216,13 @@ impl Engine {
         if self.next_seq == 0 {
             return Ok(Some(self.initial_sample()));
         }
-        if self.step >= self.spec.total_steps {
+        if self.step >= self.spec.total_steps() {
             return Ok(None);
         }
         let target = self.next_stop();
         let n_steps = target - self.step;
         let spec = &self.spec;
-        let system = spec.system.as_ref();
+        let system = spec.system().as_ref();
         let last_good = self.reference.clone();
         let divergence_before = self.divergence;
         self.plan.clear();
@@ -258,7 +259,7 @@ impl Engine {
         let t = spec.time_of(target);
 
         let reference = &self.reference;
-        let renorm: Vec<bool> = (0..spec.schemes.len())
+        let renorm: Vec<bool> = (0..spec.schemes().len())
             .map(|s| self.renormalizes_at(s, target))
             .collect();
         let plan = Plan {
@@ -269,7 +270,7 @@ impl Engine {
             |task: &mut DeviationSet| task.advance(spec, reference, &plan, renorm[task.scheme], t);
         // Work of this window: state values stepped, over every task's orbits.
         let work = n_steps
-            .saturating_mul((spec.k as u64 + 1) * spec.dim as u64)
+            .saturating_mul((spec.k() as u64 + 1) * spec.dim() as u64)
             .saturating_mul(self.tasks.len() as u64);
         let results: Vec<Result<Vec<SchemeSample>, RunError>> = if work < self.parallel_min_work {
             self.tasks.iter_mut().map(advance).collect()
@@ -300,18 +301,18 @@ impl Engine {
         self.next_seq = 1;
         let spec = &self.spec;
         let schemes = spec
-            .schemes
+            .schemes()
             .iter()
             .enumerate()
             .flat_map(|(si, scheme)| {
-                spec.directions
+                spec.directions()
                     .iter()
                     .enumerate()
                     .map(move |(set, dirs)| SchemeSample {
                         scheme: si as u32,
                         set: set as u32,
                         separations: dirs.scaled(scheme.d0),
-                        stretch: vec![1.0; spec.k],
+                        stretch: vec![1.0; spec.k()],
                     })
             })
             .collect();
@@ -320,7 +321,7 @@ impl Engine {
             step: 0,
             t: 0.0,
             state: self.reference.clone(),
-            energy: self.spec.e0,
+            energy: self.spec.e0(),
             mean_divergence: self.mean_divergence(0),
             schemes,
         }
@@ -331,7 +332,7 @@ impl Engine {
     /// steps again from the last finite state to the first step that leaves it, and names that
     /// step's time or iteration and, where the system knows it, the operation that failed.
     fn escaped(&self, last_good: Vec<f64>, target: u64, norm: f64) -> RunError {
-        let system = self.spec.system.as_ref();
+        let system = self.spec.system().as_ref();
         let mut x = last_good;
         let mut work = Workspace::new();
         let mut cause = None;
@@ -409,8 +410,8 @@ impl DeviationSet {
         renormalize: bool,
         t: f64,
     ) -> Result<Vec<SchemeSample>, RunError> {
-        let system = spec.system.as_ref();
-        let dim = spec.dim;
+        let system = spec.system().as_ref();
+        let dim = spec.dim();
         match &mut self.deviations {
             Deviations::Propagated { orbit, basis, sets } => {
                 for substeps in plan.steps() {
@@ -492,17 +493,16 @@ fn renormalized(
     vectors: &mut [f64],
     t: f64,
 ) -> Result<SchemeSample, RunError> {
-    let s = &spec.schemes[scheme];
+    let s = &spec.schemes()[scheme];
     let separations = vectors.to_vec();
-    let mut stretch = vec![0.0; spec.k];
-    renormalization::renormalize(vectors, spec.dim, s.d0, s.orthonormalize, &mut stretch).map_err(
-        |source| RunError::Renormalization {
+    let mut stretch = vec![0.0; spec.k()];
+    renormalization::renormalize(vectors, spec.dim(), s.d0, s.orthonormalize, &mut stretch)
+        .map_err(|source| RunError::Renormalization {
             scheme: s.name.clone(),
             set: set as u32,
             t,
             source,
-        },
-    )?;
+        })?;
     Ok(SchemeSample {
         scheme: scheme as u32,
         set: set as u32,
@@ -589,13 +589,13 @@ mod tests {
         }
         // And it is the plain integration of the initial condition.
         let s = spec(vec![scheme("a", "vm", 1.0)], 0.125, 20.0);
-        let mut x = s.x0.clone();
+        let mut x = s.x0().to_vec();
         let mut w = Workspace::new();
-        let hamiltonian = s.hamiltonian.as_ref().unwrap();
+        let hamiltonian = s.hamiltonian().unwrap();
         for _ in 0..2000 {
             hamiltonian
                 .splitting
-                .step(hamiltonian.model.as_ref(), &mut x, s.h, &mut w);
+                .step(hamiltonian.model.as_ref(), &mut x, s.h(), &mut w);
         }
         assert_eq!(x, a[&2000]);
     }

@@ -10,12 +10,11 @@
 //! Pure: the caller says how many cores and how much memory the machine has ([`Machine`]).
 
 use chaoscope_bus as bus;
-use chaoscope_schemas::config::RunConfig;
 
 use crate::map::MapSpec;
-use chaoscope_schemas::run::{self, Method};
+use chaoscope_schemas::run::{Method, SystemKind};
 
-use crate::spec::{self, RunSpec};
+use crate::spec::RunSpec;
 
 /// Cost of one orbit-step (one trajectory or tangent vector advanced one ABA864 step) of the
 /// one-orbit engine (`chaoscope run`/`produce`): `ENGINE_NS_BASE + ENGINE_NS_PER_DIM * 2N`
@@ -88,63 +87,43 @@ pub struct Estimate {
     pub cores: usize,
 }
 
-/// Estimate of a run from its configuration, before any direction is drawn. `None` if the
-/// sizes it needs are not valid (validation then names the problem).
-pub fn run(cfg: &RunConfig, machine: &Machine) -> Option<Estimate> {
-    let schemes = cfg.expanded_schemes().ok()?;
-    // The size alone: building the model would compile a potential (and read its tables).
-    let dim = 2 * spec::model_dof(&cfg.model)?;
-    let h = cfg.integrator.h;
-    if !(h.is_finite() && h > 0.0) {
-        return None;
-    }
-    let steps = spec::whole_steps("integrator.t_final", cfg.integrator.t_final, h).ok()? as f64;
-    let dev = &cfg.deviations;
-    let sets = if dev.vectors.is_some() { 1 } else { dev.sets };
-    if dev.k == 0
-        || dev.k > dim
-        || sets == 0
-        || sets > run::MAX_SETS
-        || schemes.is_empty()
-        || run::deviation_state_values(schemes.len(), sets as u64, dev.k as u64, dim as u64)
-            > run::MAX_STATE_VALUES
-    {
-        return None;
-    }
-    let vm = schemes
-        .iter()
-        .filter(|s| s.method == Method::Vm.name())
-        .count();
-    Some(run_estimate(
-        steps,
-        dim,
-        dev.k,
-        sets,
-        schemes.len(),
-        vm,
-        machine,
-    ))
-}
-
-/// Estimate of a validated run.
-pub fn run_spec(spec: &RunSpec, machine: &Machine) -> Estimate {
+/// Estimate of a validated run (validation draws no direction and allocates nothing in
+/// proportion to the run, so this comes before any of it). Its sizes are the spec's: the
+/// dimension of every kind of system, the sets, the schemes.
+pub fn run(spec: &RunSpec, machine: &Machine) -> Estimate {
     let vm = spec
-        .schemes
+        .schemes()
         .iter()
         .filter(|s| s.method == Method::Vm)
         .count();
     run_estimate(
-        spec.total_steps as f64,
-        spec.dim,
-        spec.k,
+        spec.system().kind(),
+        spec.total_steps() as f64,
+        spec.dim(),
+        spec.k(),
         spec.sets(),
-        spec.schemes.len(),
+        spec.schemes().len(),
         vm,
         machine,
     )
 }
 
+/// Nanoseconds of one orbit-step of the one-orbit engine for a system of `kind` and dimension
+/// `dim`: the place to calibrate each kind of system. Measured for separable Hamiltonians
+/// (above); flows and maps are charged the same until measured (an expression's evaluation
+/// costs about what a force does, and the estimate need only be right within a factor of a
+/// few).
+fn engine_ns_per_orbit_step(kind: SystemKind, dim: usize) -> f64 {
+    match kind {
+        SystemKind::Hamiltonian | SystemKind::Flow | SystemKind::Map => {
+            ENGINE_NS_BASE + ENGINE_NS_PER_DIM * dim as f64
+        }
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
 fn run_estimate(
+    kind: SystemKind,
     steps: f64,
     dim: usize,
     k: usize,
@@ -157,7 +136,7 @@ fn run_estimate(
     // Per step: the reference orbit (serial), then every (scheme, set) task in parallel: k
     // nearby orbits (MPM), or k tangent vectors and the task's own copy of the orbit (VM).
     let task_orbits = setsf * (schemes as f64 * kf + vm_schemes as f64);
-    let ns = ENGINE_NS_BASE + ENGINE_NS_PER_DIM * dimf;
+    let ns = engine_ns_per_orbit_step(kind, dim);
     let cores = machine.cores.clamp(1, (schemes * sets).max(1)) as f64;
     let seconds = steps * ns * (1.0 + task_orbits / cores) * 1e-9;
     // Memory, in f64 values: the directions (sets x k x 2N), every task's vectors and orbits,
@@ -200,13 +179,13 @@ fn run_estimate(
 /// outside the energy surface, escaped, or `gali-time` below its threshold).
 pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
     let run = &spec.run;
-    let (dimf, setsf) = (run.dim as f64, run.sets() as f64);
+    let (dimf, setsf) = (run.dim() as f64, run.sets() as f64);
     let per_point = match spec.route {
-        crate::map::Route::PerSet => 1.0 + setsf * run.k as f64,
+        crate::map::Route::PerSet => 1.0 + setsf * run.k() as f64,
         // One basis of dim tangent vectors or nearby orbits per point.
         crate::map::Route::Propagator => 1.0 + dimf,
     };
-    let steps = run.total_steps as f64;
+    let steps = run.total_steps() as f64;
     let pointsf = points as f64;
     let orbit_steps = pointsf * per_point * steps;
     let seconds = orbit_steps * MAP_NS_PER_DIM * dimf * 1e-9 / threads.max(1) as f64;
@@ -223,7 +202,7 @@ pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
             count(pointsf),
             count(per_point),
             count(steps),
-            run.dim
+            run.dim()
         ),
         memory_key: "map.x.n",
         cores: threads.max(1),
@@ -300,7 +279,7 @@ fn duration(s: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
+    use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 
     const TWO_CORES: Machine = Machine {
         cores: 2,
@@ -318,11 +297,7 @@ mod tests {
                 SchemeConfig::new("mpm", "mpm", 1e-8, 1.0),
             ],
         );
-        let e = run(&cfg, &TWO_CORES).unwrap();
-        assert_eq!(
-            e,
-            run_spec(&RunSpec::from_config(&cfg).unwrap(), &TWO_CORES)
-        );
+        let e = run(&RunSpec::from_config(&cfg).unwrap(), &TWO_CORES);
         // 1e5 steps x (1 + 9 / 2) orbit-steps at 100 ns: about 0.05 s.
         assert!(e.seconds > 0.01 && e.seconds < 1.0, "{e:?}");
         assert!(e.bytes < 128.0 * (1 << 20) as f64, "{e:?}");
@@ -351,12 +326,43 @@ d0 = 1e-8
 tau = 1.0
 "#;
         let cfg = RunConfig::from_toml(text).unwrap();
-        let e = run(&cfg, &TWO_CORES).unwrap();
+        let e = run(&RunSpec::from_config(&cfg).unwrap(), &TWO_CORES);
         let why = e.refusal(&TWO_CORES).unwrap();
         assert!(
             why.starts_with("integrator.t_final: this would take about"),
             "{why}"
         );
         assert!(why.contains("--force") && !why.contains('\n'), "{why}");
+    }
+
+    #[test]
+    fn flows_and_maps_are_estimated_at_their_dimension() {
+        // A flow of 3 coordinates and a map of 2: the dimension is the validated spec's, as for
+        // Hamiltonians (2N), so the cost scales with each system's own size.
+        let runs = [
+            (
+                "[model]\nname = \"ode\"\nrhs = [\"x2\", \"x3\", \"-x1\"]\n[orbit]\nx = [1.0, 0.0, 0.0]\n\
+                 [integrator]\nmethod = \"rk4\"\nh = 0.01\nt_final = 1e11\n",
+                3,
+            ),
+            (
+                "[model]\nname = \"map\"\nnext = [\"x2\", \"-x1\"]\n[orbit]\nx = [0.5, 0.0]\n\
+                 [integrator]\nh = 1\nt_final = 1e12\n",
+                2,
+            ),
+        ];
+        for (system, dim) in runs {
+            let text = format!(
+                "{system}[deviations]\nk = 2\n[[scheme]]\nname = \"v\"\nmethod = \"vm\"\n\
+                 d0 = 1e-8\ntau = 1\n"
+            );
+            let spec = RunSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap();
+            let e = run(&spec, &TWO_CORES);
+            assert!(e.work.ends_with(&format!("of dimension {dim}")), "{e:?}");
+            // 1e13 and 1e12 steps of about 100 ns, 4 orbits each (the reference, the task's copy
+            // and k = 2 tangent vectors) on one core: weeks, refused.
+            assert!(e.seconds > 86_400.0, "{e:?}");
+            assert!(e.refusal(&TWO_CORES).is_some());
+        }
     }
 }

@@ -37,7 +37,7 @@ pub fn crossings(
     steps: u64,
     max: usize,
 ) -> Vec<Vec<f64>> {
-    let Some(hamiltonian) = spec.hamiltonian.as_ref() else {
+    let Some(hamiltonian) = spec.hamiltonian() else {
         return Vec::new();
     };
     let model = hamiltonian.model.as_ref();
@@ -47,7 +47,7 @@ pub fn crossings(
     let (mut v0, mut v1) = (vec![0.0; dim], vec![0.0; dim]);
     let mut work = Workspace::new();
     let mut out = Vec::new();
-    let h = spec.h;
+    let h = spec.h();
     for _ in 0..steps {
         prev.copy_from_slice(&x);
         hamiltonian.splitting.step(model, &mut x, h, &mut work);
@@ -95,14 +95,14 @@ mod tests {
             vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
         );
         let spec = RunSpec::from_config(&cfg).unwrap();
-        let pts = crossings(&spec, &spec.x0, 0, 200_000, 200);
+        let pts = crossings(&spec, spec.x0(), 0, 200_000, 200);
         assert!(pts.len() > 100, "{} crossings", pts.len());
         for p in &pts {
             // On the plane to interpolation accuracy, moving through it the right way, and on
             // the energy surface to integrator plus interpolation error.
             assert!(p[0].abs() < 1e-8, "q1 = {}", p[0]);
             assert!(p[2] > 0.0);
-            let model = &spec.hamiltonian.as_ref().unwrap().model;
+            let model = &spec.hamiltonian().unwrap().model;
             assert!((model.energy(p) - paper::HH_ENERGY).abs() < 1e-7);
         }
         // A regular orbit (x2 = 0.558 is the paper's regular one): its section points lie on

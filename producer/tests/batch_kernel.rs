@@ -10,7 +10,7 @@ use chaoscope_producer::batch::{
 use chaoscope_producer::integrator::{Integrator, Splitting, SplittingKind, Workspace};
 use chaoscope_producer::model::{ExpressionModel, FputBeta, HenonHeiles};
 use chaoscope_producer::with_lane_model;
-use chaoscope_schemas::config::{ModelConfig, ParamValue};
+use chaoscope_schemas::config::{ModelConfig, ParamValue, PotentialConfig};
 
 /// Deterministic pseudo-random numbers in [-1, 1) (no dependency needed).
 fn noise(seed: u64, i: usize) -> f64 {
@@ -163,17 +163,18 @@ fn compiled_expression_lanes_equal_one_orbit_steps() {
     ));
     check_orbits(&hh, 45, 0.3, 301);
     check_tangents(&hh, 45, 0.3, 301);
-    let mut fput = ModelConfig::potential(
-        5,
-        "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)",
-    );
+    let mut fput = PotentialConfig {
+        n: Some(5),
+        potential: Some("sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)".into()),
+        ..PotentialConfig::default()
+    };
     fput.params.insert("beta".into(), ParamValue::Scalar(1.0));
-    let m = expression(&fput);
+    let m = expression(&ModelConfig::Potential(fput.clone()));
     check_orbits(&m, 19, 0.8, 57);
     check_tangents(&m, 19, 0.8, 57);
     // Unequal masses: the drift's `(ch / m_i) * p` per row.
     fput.masses = Some(ParamValue::Array(vec![1.0, 2.0, 0.5, 3.0, 1.5]));
-    let m = expression(&fput);
+    let m = expression(&ModelConfig::Potential(fput));
     check_orbits(&m, 19, 0.8, 57);
     check_tangents(&m, 19, 0.8, 57);
     // Through the dispatcher, as the map kernels pick it.

@@ -20,11 +20,11 @@ fn max_energy_error(kind: SplittingKind, h: f64) -> f64 {
     let spec = common::spec(&config);
     let model = HenonHeiles;
     let integ = Splitting::new(kind);
-    let mut x = spec.x0.clone();
+    let mut x = spec.x0().to_vec();
     let e0 = model.energy(&x);
     let mut work = Workspace::new();
     let mut worst: f64 = 0.0;
-    for _ in 0..spec.total_steps {
+    for _ in 0..spec.total_steps() {
         integ.step(&model, &mut x, h, &mut work);
         worst = worst.max(relative_energy_error(&model, &x, e0));
     }

@@ -249,7 +249,7 @@ fn same_seed_is_bit_identical_on_any_thread_count() {
     let mut other = config.clone();
     other.deviations.seed = 78;
     assert_ne!(
-        common::spec(&other).directions,
-        common::spec(&config).directions
+        common::spec(&other).directions(),
+        common::spec(&config).directions()
     );
 }

@@ -7,8 +7,8 @@ use chaoscope_producer::indicators::{StretchSums, gali_log10, sali};
 use chaoscope_producer::model::{FputBeta, Model};
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_schemas::config::{
-    DeviationsConfig, ModelConfig, ParamValue, RunConfig, SchemeConfig, TableConfig, TableSpec,
-    paper,
+    DeviationsConfig, ModelConfig, ParamValue, PotentialConfig, RunConfig, SchemeConfig,
+    TableConfig, TableSpec, paper,
 };
 
 mod common;
@@ -34,9 +34,9 @@ struct Final {
 }
 
 fn final_indicators(spec: RunSpec) -> Final {
-    let dim = spec.dim;
-    let n_tasks = spec.schemes.len() * spec.sets();
-    let mut sums = vec![StretchSums::new(spec.k); n_tasks];
+    let dim = spec.dim();
+    let n_tasks = spec.schemes().len() * spec.sets();
+    let mut sums = vec![StretchSums::new(spec.k()); n_tasks];
     let mut last = None;
     Engine::new(spec)
         .run(|s| {
@@ -141,9 +141,18 @@ fn fput_orbit(n: usize) -> (Vec<f64>, Vec<f64>) {
 }
 
 fn fput_expression(n: usize) -> ModelConfig {
-    let mut m = ModelConfig::potential(n, FPUT_POTENTIAL);
+    let mut m = potential(n, FPUT_POTENTIAL);
     m.params.insert("beta".into(), ParamValue::Scalar(1.0));
-    m
+    ModelConfig::Potential(m)
+}
+
+/// `[model] name = "potential"` with `V = source` on `n` sites.
+fn potential(n: usize, source: &str) -> PotentialConfig {
+    PotentialConfig {
+        n: Some(n),
+        potential: Some(source.into()),
+        ..PotentialConfig::default()
+    }
 }
 
 #[test]
@@ -273,7 +282,7 @@ fn tabulated_bond_reproduces_the_analytic_chain() {
         DeviationsConfig::random(4, 2, 1),
         vm_and_mpm(),
     );
-    let mut model = ModelConfig::potential(5, "sum(i = 0..N, U(q[i+1] - q[i]))");
+    let mut model = potential(5, "sum(i = 0..N, U(q[i+1] - q[i]))");
     model.tables.insert(
         "U".into(),
         TableConfig::Detailed(TableSpec {
@@ -283,7 +292,7 @@ fn tabulated_bond_reproduces_the_analytic_chain() {
             sha256: None,
         }),
     );
-    let tabulated = with_model(analytic.clone(), model);
+    let tabulated = with_model(analytic.clone(), ModelConfig::Potential(model));
     let a = final_indicators(RunSpec::from_config(&analytic).unwrap());
     let b = final_indicators(RunSpec::from_config(&tabulated).unwrap());
     let state = a
@@ -414,9 +423,9 @@ fn bad_parameters_and_tables_name_their_key() {
     std::fs::write(&unsorted, "x,U\n0,0\n1,1\n0.5,2\n2,3\n3,4\n").unwrap();
     let non_finite = dir.path().join("nan.csv");
     std::fs::write(&non_finite, "x,U\n0,0\n1,nan\n2,3\n3,4\n").unwrap();
-    type Spoil = Box<dyn Fn(&mut ModelConfig)>;
+    type Spoil = Box<dyn Fn(&mut PotentialConfig)>;
     let table = |path: std::path::PathBuf| -> Spoil {
-        Box::new(move |m: &mut ModelConfig| {
+        Box::new(move |m: &mut PotentialConfig| {
             m.potential = Some("U(q1) + q2^2".into());
             m.tables.insert(
                 "U".into(),
@@ -461,8 +470,9 @@ fn bad_parameters_and_tables_name_their_key() {
     ];
     for (spoil, key, needle) in cases {
         let mut config = base();
-        config.model = hh_expression();
-        spoil(&mut config.model);
+        let mut model = potential(2, HH_POTENTIAL);
+        spoil(&mut model);
+        config.model = ModelConfig::Potential(model);
         let err = RunSpec::from_config(&config).unwrap_err();
         eprintln!("{err}");
         assert_eq!(err.key, key, "{err}");

@@ -54,14 +54,14 @@ struct Agreement {
 
 fn agreement(config: &RunConfig) -> Agreement {
     let spec = RunSpec::from_config(config).unwrap();
-    let (dim, sets) = (spec.dim, spec.sets());
+    let (dim, sets) = (spec.dim(), spec.sets());
     let mut a = Agreement {
         worst_gali: 0.0,
         compared: 0,
         lowest: 0.0,
         worst_exponent: 0.0,
     };
-    let mut log_stretch = vec![vec![0.0; spec.k * sets]; 2];
+    let mut log_stretch = vec![vec![0.0; spec.k() * sets]; 2];
     let samples = samples(config);
     for sample in &samples[1..] {
         assert_eq!(sample.schemes.len(), 2 * sets, "every set of both schemes");
@@ -84,7 +84,7 @@ fn agreement(config: &RunConfig) -> Agreement {
             }
             for (scheme, s) in [p, r].into_iter().enumerate() {
                 for (i, f) in s.stretch.iter().enumerate() {
-                    log_stretch[scheme][set * spec.k + i] += f.ln();
+                    log_stretch[scheme][set * spec.k() + i] += f.ln();
                 }
             }
         }

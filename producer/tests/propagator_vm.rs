@@ -29,12 +29,12 @@ const RESOLVED_LOG10: f64 = -7.0;
 /// the smallest log10 GALI the route reached (to show the run went far below the cut-off).
 fn compare(config: &RunConfig, ks: &[usize]) -> (f64, usize, f64) {
     let run = RunSpec::from_config(config).unwrap();
-    let (dim, k, sets) = (run.dim, run.k, run.sets());
-    let tau = run.schemes[0].tau_steps;
-    let mut x = run.x0.clone();
+    let (dim, k, sets) = (run.dim(), run.k(), run.sets());
+    let tau = run.schemes()[0].tau_steps;
+    let mut x = run.x0().to_vec();
     // Per-set vectors first (set s, vector i at (s k + i) dim), then the propagator's basis.
     let mut w = Vec::with_capacity((sets * k + dim) * dim);
-    for d in &run.directions {
+    for d in run.directions() {
         w.extend_from_slice(&d.vectors);
     }
     let mut prop = Propagator::new(dim);
@@ -45,9 +45,11 @@ fn compare(config: &RunConfig, ks: &[usize]) -> (f64, usize, f64) {
     let (mut worst, mut compared, mut lowest) = (0.0f64, 0usize, 0.0f64);
     let mut step = 0;
     let mut bins = [0.0f64; 16];
-    while step < run.total_steps {
+    while step < run.total_steps() {
         for _ in 0..tau {
-            run.system.step_tangent(&mut x, &mut w, &mut work).unwrap();
+            run.system()
+                .step_tangent(&mut x, &mut w, &mut work)
+                .unwrap();
         }
         step += tau;
         for v in w[..split].chunks_exact_mut(dim) {
@@ -56,7 +58,7 @@ fn compare(config: &RunConfig, ks: &[usize]) -> (f64, usize, f64) {
         }
         prop.renormalize(&w[split..], 1.0).unwrap();
         w[split..].copy_from_slice(prop.basis());
-        for (s, d) in run.directions.iter().enumerate() {
+        for (s, d) in run.directions().iter().enumerate() {
             let vectors = &w[s * k * dim..(s + 1) * k * dim];
             for &j in ks {
                 let per_set = log10_gali(vectors, dim, j, &mut gs);

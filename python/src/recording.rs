@@ -98,14 +98,14 @@ pub fn run(
     force: bool,
 ) -> PyResult<Recording> {
     let config = crate::config::run_config(config)?;
+    let spec = RunSpec::from_config(&config)
+        .map_err(|e| crate::message(format!("invalid run configuration: {e}")))?;
     let machine = Machine::this_host();
-    if let Some(why) = estimate::run(&config, &machine).and_then(|e| e.refusal(&machine))
+    if let Some(why) = estimate::run(&spec, &machine).refusal(&machine)
         && !force
     {
         return Err(crate::message(why));
     }
-    let spec = RunSpec::from_config(&config)
-        .map_err(|e| crate::message(format!("invalid run configuration: {e}")))?;
     let name = resolve_run_name(&config, run.as_deref()).map_err(|e| crate::error(&e))?;
     let out = out.unwrap_or_else(|| Path::new("runs").join(format!("{name}.mcap")));
     if out.exists() && !force {

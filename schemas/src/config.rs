@@ -4,17 +4,21 @@
 //! them). They only describe and syntactically validate; turning a config into numerics (solving
 //! an initial condition from the energy, drawing directions) is the producer's job.
 
-use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
 mod load;
+mod model;
 pub mod paper;
 mod parse_error;
 mod scheme;
 pub mod sweep;
 
+pub use model::{
+    CustomModelConfig, FputBetaConfig, HamiltonianConfig, HenonHeilesConfig, KNOWN_MODELS,
+    MapModelConfig, ModelConfig, OdeConfig, ParamValue, PotentialConfig, TableConfig, TableSpec,
+};
 pub use scheme::SchemeConfig;
 
 use sweep::{SweepConfig, SweepError};
@@ -51,128 +55,6 @@ pub struct RunSection {
     /// Run name (letters, digits, `-`, `_`); default derived from the process id and time.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub name: Option<String>,
-}
-
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ModelConfig {
-    /// The system's kind and, for built-in ones, the model. Hamiltonians: `"henon-heiles"`,
-    /// `"fput-beta"`, or `"potential"` (a separable Hamiltonian `H = sum p_i^2 / (2 m_i) + V(q)`
-    /// with `V` written in `potential`). Flows: `"ode"` (`dx/dt = f(x)` with `f` written in
-    /// `rhs`). Maps: `"map"` (`x -> F(x)` with `F` written in `next`). Any Hamiltonian:
-    /// `"hamiltonian"` (`H(q, p)` written in `hamiltonian`).
-    pub name: String,
-    /// Number of degrees of freedom (lattice sites); fixed to 2 for Henon-Heiles.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub n: Option<usize>,
-    /// Quartic coupling of the beta-FPUT chain.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub beta: Option<f64>,
-    /// `"potential"` only: `V(q)` in chaoscope's expression language (README, "Your own
-    /// Hamiltonian").
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub potential: Option<String>,
-    /// Parameters the expression names: a number, or an array with one entry per site.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub params: BTreeMap<String, ParamValue>,
-    /// Masses `m_i`: one number for every site or one per site (default 1).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub masses: Option<ParamValue>,
-    /// What lattice sums see beyond the ends: `"fixed"` (default: `q[0] = q[N+1] = 0`),
-    /// `"periodic"` (`q[N+1] = q[1]`) or `"free"` (terms reaching past an end are left out).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub boundary: Option<String>,
-    /// Tabulated functions the expression may call by name, e.g. `U = "bond.csv"`.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub tables: BTreeMap<String, TableConfig>,
-    /// `"ode"` only: the right-hand side `f_1(x), ..., f_D(x)` of `dx/dt = f(x)`, one expression
-    /// per coordinate over `x1..xD` (or `x[i]`) and `params`; `D` is the number of entries.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub rhs: Option<Vec<String>>,
-    /// `"map"` only: the map `x -> F(x)`, one expression `F_i(x)` per coordinate over `x1..xD`
-    /// (or `x[i]`) and `params`; `D` is the number of entries.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub next: Option<Vec<String>>,
-    /// `"map"` only: per coordinate, the period it is taken modulo (e.g. `6.283185307179586`
-    /// for an angle), or 0 for a coordinate that is not wrapped. Separations of nearby orbits
-    /// are measured on the torus (the minimal image).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub modulo: Option<Vec<f64>>,
-    /// `"hamiltonian"` only: `H(q, p)` in the expression language over `q1..qN`, `p1..pN` (and
-    /// `q[i]`, `p[i]`), any Hamiltonian, separable or not; `n` is `N`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub hamiltonian: Option<String>,
-}
-
-impl ModelConfig {
-    /// A built-in model by name with no parameters.
-    pub fn named(name: &str) -> Self {
-        Self {
-            name: name.to_string(),
-            ..Self::default()
-        }
-    }
-
-    /// `[model] name = "potential"` with `V(q) = potential` on `n` sites.
-    pub fn potential(n: usize, potential: &str) -> Self {
-        Self {
-            name: "potential".to_string(),
-            n: Some(n),
-            potential: Some(potential.to_string()),
-            ..Self::default()
-        }
-    }
-}
-
-/// A parameter value: one number, or one number per site.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum ParamValue {
-    Scalar(f64),
-    Array(Vec<f64>),
-}
-
-/// A tabulated function: samples `x, f(x)` in a CSV file, interpolated by a cubic spline.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(untagged)]
-pub enum TableConfig {
-    /// Just the file (natural spline).
-    File(String),
-    Detailed(TableSpec),
-}
-
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TableSpec {
-    /// CSV file with two columns `x, f(x)`; a relative path is taken from the config file's
-    /// directory.
-    pub file: String,
-    /// `"natural"` (default; zero second derivative at the ends) or `"clamped"` (with `slopes`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub spline: Option<String>,
-    /// `[f'(x_first), f'(x_last)]` for a clamped spline.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub slopes: Option<[f64; 2]>,
-    /// SHA-256 of the file's bytes. Recordings and map files carry it (the producer fills it
-    /// in), so a replay or a resumed map refuses a table that differs from the one the run used;
-    /// a user may pin it too.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub sha256: Option<String>,
-}
-
-impl TableConfig {
-    /// The detailed form (a bare file name becomes a natural spline of that file).
-    pub fn spec(&self) -> TableSpec {
-        match self {
-            TableConfig::File(file) => TableSpec {
-                file: file.clone(),
-                spline: None,
-                slopes: None,
-                sha256: None,
-            },
-            TableConfig::Detailed(spec) => spec.clone(),
-        }
-    }
 }
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
@@ -337,7 +219,12 @@ impl RunConfig {
     pub fn from_file_text(text: &str, path: &Path) -> Result<Self, ConfigParseError> {
         let mut config = Self::from_toml(text)?;
         let dir = path.parent().unwrap_or(Path::new(""));
-        for table in config.model.tables.values_mut() {
+        for table in config
+            .model
+            .tables_mut()
+            .into_iter()
+            .flat_map(|t| t.values_mut())
+        {
             let mut spec = table.spec();
             if Path::new(&spec.file).is_relative() && !dir.as_os_str().is_empty() {
                 spec.file = dir.join(&spec.file).to_string_lossy().into_owned();

@@ -723,7 +723,7 @@ fn scalar_c_case(
     });
     let run = &spec.run;
     // The pseudo-code integrates the reference again beside every set's k nearby orbits.
-    let steps_per_point = (run.sets() * (1 + run.k)) as f64 * run.total_steps as f64;
+    let steps_per_point = (run.sets() * (1 + run.k())) as f64 * run.total_steps() as f64;
     let mut out = serde_json::json!({
         "program": "the paper's Appendix A pseudo-code, HH, k = 2, reference integrated once per set",
         "compiler": scalar_c::compiler(),
@@ -804,7 +804,7 @@ mod expressions {
     use chaoscope_producer::model::{CStepState, ExpressionModel, FputBeta, HenonHeiles};
     use chaoscope_producer::spec::{RunSpec, model_from_config};
     use chaoscope_schemas::config::{
-        DeviationsConfig, ModelConfig, ParamValue, RunConfig, SchemeConfig, paper,
+        DeviationsConfig, ModelConfig, ParamValue, PotentialConfig, RunConfig, SchemeConfig, paper,
     };
 
     use super::{kernel_case, thread_cpu_seconds};
@@ -813,9 +813,13 @@ mod expressions {
     const FPUT: &str = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
 
     fn fput_config(n: usize) -> ModelConfig {
-        let mut m = ModelConfig::potential(n, FPUT);
+        let mut m = PotentialConfig {
+            n: Some(n),
+            potential: Some(FPUT.into()),
+            ..PotentialConfig::default()
+        };
         m.params.insert("beta".into(), ParamValue::Scalar(1.0));
-        m
+        ModelConfig::Potential(m)
     }
 
     fn compiled(cfg: &ModelConfig) -> anyhow::Result<ExpressionModel> {
@@ -831,13 +835,13 @@ mod expressions {
     /// and one MPM scheme, `k` vectors, one set) for `seconds` at least.
     fn engine_rate(config: &RunConfig, seconds: f64) -> anyhow::Result<f64> {
         let spec = RunSpec::from_config(config)?;
-        let k = spec.k as f64;
+        let k = spec.k() as f64;
         let start = thread_cpu_seconds();
         let mut steps = 0u64;
         while thread_cpu_seconds() - start < seconds || steps == 0 {
             let mut engine = Engine::new(spec.clone());
             while engine.next_sample()?.is_some() {}
-            steps += spec.total_steps;
+            steps += spec.total_steps();
         }
         // Reference orbit + the VM copy and its k vectors + k MPM orbits.
         let orbits = 1.0 + (1.0 + k) + k;

@@ -85,7 +85,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let (total, count) = (spec.grid_points(), u64::from(args.shard.count));
     let points = total / count + u64::from(total % count > u64::from(args.shard.index));
     let estimate = chaoscope_producer::estimate::map(&spec, points, threads);
-    super::check_estimate(Some(&estimate), &machine, args.force, "map")?;
+    super::check_estimate(&estimate, &machine, args.force, "map")?;
     let isa = match &args.isa {
         None => Isa::detect(),
         Some(name) => {
@@ -380,8 +380,8 @@ fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u6
 fn table_difference(recorded: &str, now: &str) -> Option<String> {
     let recorded = chaoscope_schemas::config::RunConfig::from_toml(recorded).ok()?;
     let now = chaoscope_schemas::config::RunConfig::from_toml(now).ok()?;
-    now.model.tables.iter().find_map(|(name, table)| {
-        let (was, is) = (recorded.model.tables.get(name)?.spec(), table.spec());
+    now.model.tables()?.iter().find_map(|(name, table)| {
+        let (was, is) = (recorded.model.tables()?.get(name)?.spec(), table.spec());
         match (&was.sha256, &is.sha256) {
             (Some(a), Some(b)) if a != b => Some(format!(
                 "table '{name}' ({}) has SHA-256 {b}, the map was made with {a}",

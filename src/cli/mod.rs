@@ -62,12 +62,12 @@ pub fn machine() -> Machine {
 /// Refuses, before it starts, work estimated to take more than a day or more memory than the
 /// machine has, unless `force`; with `force` it says so and goes on.
 pub fn check_estimate(
-    estimate: Option<&Estimate>,
+    estimate: &Estimate,
     machine: &Machine,
     force: bool,
     command: &str,
 ) -> anyhow::Result<()> {
-    if let Some(why) = estimate.and_then(|e| e.refusal(machine)) {
+    if let Some(why) = estimate.refusal(machine) {
         if !force {
             anyhow::bail!("{why}");
         }

@@ -4,7 +4,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+use anyhow::Context;
 use chaoscope_producer::publish::{self, PublishOptions, RunStatus};
+use chaoscope_producer::spec::RunSpec;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -29,9 +31,10 @@ pub struct Args {
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let (config, _) = super::load_config(&args.config)?;
+    let spec = RunSpec::from_config(&config).context("invalid run configuration")?;
     let machine = super::machine();
-    let estimate = chaoscope_producer::estimate::run(&config, &machine);
-    super::check_estimate(estimate.as_ref(), &machine, args.force, "produce")?;
+    let estimate = chaoscope_producer::estimate::run(&spec, &machine);
+    super::check_estimate(&estimate, &machine, args.force, "produce")?;
     let options = PublishOptions {
         run_name: args.run,
         recorders: args.recorders,
@@ -39,7 +42,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         progress: !args.no_progress,
         ..PublishOptions::default()
     };
-    let outcome = publish::publish(&config, &options)?;
+    let outcome = publish::publish(&config, spec, &options)?;
     let (status, reason) = match &outcome.status {
         RunStatus::Completed => ("completed", ""),
         RunStatus::Interrupted => ("interrupted", ""),

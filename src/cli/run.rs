@@ -111,12 +111,12 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         ),
     };
     // Fail on a bad config or one beyond the machine here, before any process starts (the
-    // estimate first: validation draws every set's directions, which for an absurd size is
-    // itself slow).
+    // producer process validates its own copy once more: a process trusts no other).
+    let spec = chaoscope_producer::spec::RunSpec::from_config(&config)
+        .context("invalid run configuration")?;
     let machine = super::machine();
-    let estimate = chaoscope_producer::estimate::run(&config, &machine);
-    super::check_estimate(estimate.as_ref(), &machine, args.force, "run")?;
-    chaoscope_producer::spec::RunSpec::from_config(&config).context("invalid run configuration")?;
+    let estimate = chaoscope_producer::estimate::run(&spec, &machine);
+    super::check_estimate(&estimate, &machine, args.force, "run")?;
     let run = resolve_run_name(&config, args.run.as_deref())?;
     let out = args
         .out

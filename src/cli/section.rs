@@ -43,20 +43,20 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         "the config needs orbit.solve_for (the momentum crossing the plane) and orbit.energy",
     )?;
     let base = RunSpec::from_config(&config).context("invalid run configuration")?;
-    if base.hamiltonian.is_none() {
+    if base.hamiltonian().is_none() {
         bail!(
             "model.name: sections are drawn for separable Hamiltonians, not for '{}'",
-            config.model.name
+            config.model.name()
         );
     }
-    let n = base.dim / 2;
+    let n = base.dim() / 2;
     let Some((true, plane)) = parse_coordinate(&solve, n) else {
         bail!("orbit.solve_for must be a momentum, got {solve}");
     };
     let Some((false, vary)) = parse_coordinate(&args.vary, n) else {
         bail!("--vary must be a position q1..q{n}, got {}", args.vary);
     };
-    let steps = base.total_steps;
+    let steps = base.total_steps();
     let mut lines = Vec::new();
     let mut csv = match &args.csv {
         Some(p) => Some(std::io::BufWriter::new(
@@ -76,7 +76,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         let Ok(spec) = RunSpec::from_config(&config) else {
             continue;
         };
-        let pts = crossings(&spec, &spec.x0, plane, steps, args.crossings);
+        let pts = crossings(&spec, spec.x0(), plane, steps, args.crossings);
         if let Some(f) = csv.as_mut() {
             for p in &pts {
                 let row: Vec<String> = p.iter().map(f64::to_string).collect();
@@ -98,10 +98,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         let chart = Chart {
             title: format!(
                 "{}: section q{} = 0, p{} > 0, H = {}",
-                config.model.name,
+                config.model.name(),
                 plane + 1,
                 plane + 1,
-                base.e0
+                base.e0()
             ),
             x_label: format!("q{}", vary + 1),
             y_label: format!("p{}", vary + 1),

@@ -125,9 +125,5 @@ pub fn record(config: &RunConfig, spec: RunSpec, out: &Path) -> anyhow::Result<R
 
 /// Publishes the run on the bus (start `chaoscope record --run barbanis --out FILE` first).
 pub fn publish(config: &RunConfig, spec: RunSpec) -> anyhow::Result<PublishOutcome> {
-    Ok(publish::publish_spec(
-        config,
-        spec,
-        &PublishOptions::default(),
-    )?)
+    Ok(publish::publish(config, spec, &PublishOptions::default())?)
 }

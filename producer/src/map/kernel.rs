@@ -224,13 +224,13 @@ macro_rules! with_point_kernel {
                 let $k = &mut kernel;
                 $body
             })
-        } else if let Some(map) = spec.run.system.as_discrete_map() {
+        } else if let Some(map) = spec.run.system().as_discrete_map() {
             let mut kernel = $crate::map::kernel::MapKernel::new(map);
             let $k = &mut kernel;
             $body
         } else if let Some(mut kernel) = spec
             .run
-            .system
+            .system()
             .as_rk_flow()
             .and_then($crate::map::kernel::FlowKernel::new)
         {

@@ -47,7 +47,7 @@ fn compute_with<K: PointKernel>(
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
     let run = &spec.run;
-    let (dim, k, d0) = (run.dim, run.k, run.schemes[0].d0);
+    let (dim, k, d0) = (run.dim(), run.k(), run.schemes()[0].d0);
     let mut out = Vec::with_capacity(indices.len());
     let mut live = Vec::new();
     let mut lanes: Vec<Vec<f64>> = Vec::new();
@@ -58,7 +58,7 @@ fn compute_with<K: PointKernel>(
                 let ref_lane = lanes.len();
                 lanes.push(x0.clone());
                 let mut sets = Vec::with_capacity(run.sets());
-                for (s, dirs) in run.directions.iter().enumerate() {
+                for (s, dirs) in run.directions().iter().enumerate() {
                     sets.push((s, lanes.len()));
                     // As Engine::new: d = d0 * u, nearby orbit = x + d.
                     let scaled: Vec<f64> = dirs.vectors.iter().map(|u| d0 * u).collect();

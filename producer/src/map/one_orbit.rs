@@ -13,7 +13,7 @@ pub fn point(spec: &MapSpec, index: u64) -> PointResult {
         Err(outside) => return *outside,
     };
     let run = spec.point_run(&x0);
-    let total = run.total_steps;
+    let total = run.total_steps();
     let mut acc = spec.accumulator();
     let mut engine = Engine::new(run);
     let mut steps = 0;
@@ -44,5 +44,5 @@ pub fn point(spec: &MapSpec, index: u64) -> PointResult {
             }
         }
     }
-    acc.finish(base, steps * (1 + (spec.sets() * spec.run.k) as u64))
+    acc.finish(base, steps * (1 + (spec.sets() * spec.run.k()) as u64))
 }

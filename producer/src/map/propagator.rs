@@ -37,10 +37,10 @@ struct Sets {
 impl Sets {
     fn new(run: &RunSpec) -> Self {
         Self {
-            log_norms: vec![vec![0.0; run.k]; run.sets()],
+            log_norms: vec![vec![0.0; run.k()]; run.sets()],
             image: SetImage::default(),
-            unit: vec![0.0; run.k * run.dim],
-            stretch: vec![0.0; run.k],
+            unit: vec![0.0; run.k() * run.dim()],
+            stretch: vec![0.0; run.k()],
         }
     }
 
@@ -55,7 +55,7 @@ impl Sets {
         if !(w.last || acc.observes_every_window()) {
             return;
         }
-        for (set, dirs) in run.directions.iter().enumerate() {
+        for (set, dirs) in run.directions().iter().enumerate() {
             if acc.is_stopped(set) {
                 continue;
             }
@@ -81,7 +81,7 @@ fn basis_error(
     source: crate::renormalization::RenormalizationError,
 ) -> RunError {
     RunError::Renormalization {
-        scheme: run.schemes[0].name.clone(),
+        scheme: run.schemes()[0].name.clone(),
         // The propagator's basis is shared by every set: reported as set 0.
         set: 0,
         t: w.t,
@@ -111,7 +111,7 @@ fn vm_with<K: PointKernel>(
     stop: &dyn Fn() -> bool,
 ) -> Option<PointResult> {
     let run = &spec.run;
-    let dim = run.dim;
+    let dim = run.dim();
     let (base, mut x) = match spec.start_point(index) {
         Ok(start) => start,
         Err(outside) => return Some(*outside),
@@ -193,7 +193,7 @@ fn vm_batch_with<M: crate::batch::LaneModel>(
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
     let run = &spec.run;
-    let dim = run.dim;
+    let dim = run.dim();
     let rows = dim * (1 + dim);
     let mut out = Vec::with_capacity(indices.len());
     let mut live = Vec::new();
@@ -299,7 +299,7 @@ fn mpm_with<K: PointKernel>(
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
     let run = &spec.run;
-    let (dim, d0) = (run.dim, run.schemes[0].d0);
+    let (dim, d0) = (run.dim(), run.schemes()[0].d0);
     let mut out = Vec::with_capacity(indices.len());
     let mut live = Vec::new();
     let mut lanes: Vec<Vec<f64>> = Vec::new();

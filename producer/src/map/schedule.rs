@@ -55,7 +55,7 @@ pub fn run_map(
         builder = builder.num_threads(n);
     }
     let pool = builder.build()?;
-    let per_batch = match spec.run.schemes[0].method {
+    let per_batch = match spec.run.schemes()[0].method {
         // Systems without a batched kernel: one point at a time through the one-orbit engine.
         _ if !spec.has_batched_kernel() => 1,
         // Each point has 1 + 2N lanes instead of 1 + sets * k: more points fill the kernel's
@@ -84,7 +84,7 @@ pub fn run_map(
                     if stopped() {
                         return;
                     }
-                    let results = match spec.run.schemes[0].method {
+                    let results = match spec.run.schemes()[0].method {
                         Method::Mpm if spec.route == Route::Propagator => {
                             propagator::compute_mpm(spec, options.isa, chunk, &stopped)
                         }

@@ -191,9 +191,9 @@ impl MapSpec {
             Some(_) if e.key == "deviations.k" => SpecError::new("map.k", e.message),
             _ => e,
         })?;
-        let hamiltonian = run.hamiltonian.clone();
-        let n = run.dim / 2;
-        if run.schemes[0].orthonormalize != Orthonormalization::Rescale {
+        let hamiltonian = run.hamiltonian().cloned();
+        let n = run.dim() / 2;
+        if run.schemes()[0].orthonormalize != Orthonormalization::Rescale {
             return Err(SpecError::new(
                 "scheme[0].orthonormalize",
                 "maps renormalize each vector separately: use \"rescale\"",
@@ -202,16 +202,16 @@ impl MapSpec {
         let indicator = Indicator::from_config(map, k)?;
         let route = crate::spec::route_from_config("map.route", map.route.as_deref())?;
         if route == Route::Propagator {
-            if hamiltonian.is_none() && !super::kernel::has_batched_form(run.system.as_ref()) {
+            if hamiltonian.is_none() && !super::kernel::has_batched_form(run.system().as_ref()) {
                 return Err(SpecError::new(
                     "map.route",
                     "the propagator route runs on the batched kernel (separable Hamiltonians, \
                      discrete maps, fixed-step explicit Runge-Kutta flows); use \"per-set\"",
                 ));
             }
-            let d0 = run.schemes[0].d0;
+            let d0 = run.schemes()[0].d0;
             let (lo, hi) = MPM_PROPAGATOR_D0;
-            if run.schemes[0].method == Method::Mpm && !(lo..=hi).contains(&d0) {
+            if run.schemes()[0].method == Method::Mpm && !(lo..=hi).contains(&d0) {
                 return Err(SpecError::new(
                     "map.route",
                     format!(
@@ -222,9 +222,9 @@ impl MapSpec {
             }
         }
         // Any Hamiltonian (separable or written as `H(q, p)`) names its axes q1..qN / p1..pN.
-        let canonical = run.system.kind() == SystemKind::Hamiltonian;
-        let x = Axis::from_config("map.x", &map.x, run.dim, canonical)?;
-        let y = Axis::from_config("map.y", &map.y, run.dim, canonical)?;
+        let canonical = run.system().kind() == SystemKind::Hamiltonian;
+        let x = Axis::from_config("map.x", &map.x, run.dim(), canonical)?;
+        let y = Axis::from_config("map.y", &map.y, run.dim(), canonical)?;
         if x.slot == y.slot {
             return Err(SpecError::new(
                 "map.y.coord",
@@ -274,8 +274,14 @@ impl MapSpec {
             }
         };
         let batched = hamiltonian.map(|parts| Batched {
-            lanes: AnyLaneModel::new(parts.model.clone(), cfg.model.beta.or(Some(1.0))),
-            coeffs: StepCoeffs::new(&parts.splitting, run.h),
+            lanes: AnyLaneModel::new(
+                parts.model.clone(),
+                match &cfg.model {
+                    chaoscope_schemas::config::ModelConfig::FputBeta(f) => f.beta.or(Some(1.0)),
+                    _ => Some(1.0),
+                },
+            ),
+            coeffs: StepCoeffs::new(&parts.splitting, run.h()),
         });
         let config_toml = run.pinned_config(cfg).to_toml();
         Ok(Self {
@@ -295,7 +301,7 @@ impl MapSpec {
     /// Hamiltonians, discrete maps and fixed-step explicit Runge-Kutta flows of compiled
     /// expressions; every other system runs through the one-orbit engine.
     pub fn has_batched_kernel(&self) -> bool {
-        self.batched.is_some() || super::kernel::has_batched_form(self.run.system.as_ref())
+        self.batched.is_some() || super::kernel::has_batched_form(self.run.system().as_ref())
     }
 
     pub fn grid_points(&self) -> u64 {
@@ -315,11 +321,11 @@ impl MapSpec {
     /// The initial condition of a point, or why it has none (outside the energy surface).
     pub fn initial_state(&self, index: u64) -> Result<Vec<f64>, String> {
         let (ix, iy) = self.cell(index);
-        let mut x = self.run.x0.clone();
+        let mut x = self.run.x0().to_vec();
         x[self.x.slot] = self.x.value(ix);
         x[self.y.slot] = self.y.value(iy);
         if let (Some(j), Some(e), Some(parts)) =
-            (self.solve_for, self.energy, self.run.hamiltonian.as_ref())
+            (self.solve_for, self.energy, self.run.hamiltonian())
         {
             solve_momentum(parts.model.as_ref(), &mut x, j, e).map_err(|e| e.message)?;
         }
@@ -328,10 +334,7 @@ impl MapSpec {
 
     /// The one-orbit run of a point (what the [`crate::engine::Engine`] integrates).
     pub fn point_run(&self, x0: &[f64]) -> RunSpec {
-        let mut run = self.run.clone();
-        run.x0 = x0.to_vec();
-        run.e0 = run.system.invariant(x0).unwrap_or(0.0);
-        run
+        self.run.starting_at(x0)
     }
 
     /// Points of `shard`, in index order.
@@ -368,7 +371,7 @@ impl MapSpec {
     pub fn accumulator(&self) -> PointAccumulator {
         PointAccumulator::new(
             self.indicator,
-            self.run.dim,
+            self.run.dim(),
             self.run.sets(),
             self.run.t_final(),
         )

@@ -32,7 +32,7 @@ fn compute_with<K: PointKernel>(
     stop: &dyn Fn() -> bool,
 ) -> Option<PointResult> {
     let run = &spec.run;
-    let (dim, k, d0) = (run.dim, run.k, run.schemes[0].d0);
+    let (dim, k, d0) = (run.dim(), run.k(), run.schemes()[0].d0);
     let (base, mut x) = match spec.start_point(index) {
         Ok(start) => start,
         Err(outside) => return Some(*outside),
@@ -41,7 +41,7 @@ fn compute_with<K: PointKernel>(
     // Active sets: (set index, first lane of its k vectors).
     let mut sets: Vec<(usize, usize)> = (0..run.sets()).map(|s| (s, s * k)).collect();
     let mut soa = Soa::new(dim, run.sets() * k);
-    for (s, dirs) in run.directions.iter().enumerate() {
+    for (s, dirs) in run.directions().iter().enumerate() {
         for (i, u) in dirs.vectors.chunks_exact(dim).enumerate() {
             let scaled: Vec<f64> = u.iter().map(|u| d0 * u).collect();
             soa.write_lane(s * k + i, &scaled);

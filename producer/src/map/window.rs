@@ -55,11 +55,11 @@ impl<'a> Windows<'a> {
 impl Iterator for Windows<'_> {
     type Item = Window;
     fn next(&mut self) -> Option<Window> {
-        let total = self.run.total_steps;
+        let total = self.run.total_steps();
         if self.step >= total {
             return None;
         }
-        let tau = self.run.schemes[0].tau_steps;
+        let tau = self.run.schemes()[0].tau_steps;
         let target = ((self.step / tau + 1) * tau).min(total);
         let w = Window {
             steps: target - self.step,
@@ -86,9 +86,9 @@ impl<'a> SetRenormalization<'a> {
     pub fn new(run: &'a RunSpec) -> Self {
         Self {
             run,
-            separations: vec![0.0; run.k * run.dim],
-            raw: vec![0.0; run.k * run.dim],
-            stretch: vec![0.0; run.k],
+            separations: vec![0.0; run.k() * run.dim()],
+            raw: vec![0.0; run.k() * run.dim()],
+            stretch: vec![0.0; run.k()],
         }
     }
 
@@ -101,11 +101,11 @@ impl<'a> SetRenormalization<'a> {
         set: usize,
         w: &Window,
     ) -> Result<bool, RunError> {
-        let scheme = &self.run.schemes[0];
+        let scheme = &self.run.schemes()[0];
         self.raw.copy_from_slice(&self.separations);
         renormalization::renormalize(
             &mut self.separations,
-            self.run.dim,
+            self.run.dim(),
             scheme.d0,
             Orthonormalization::Rescale,
             &mut self.stretch,

@@ -9,7 +9,7 @@ use crate::spec::RunSpec;
 /// Describes `spec` (validated from `config`) as the protobuf header of run `run_name`.
 pub fn run_header(run_name: &str, config: &RunConfig, spec: &RunSpec) -> RunHeader {
     let schemes = spec
-        .schemes
+        .schemes()
         .iter()
         .enumerate()
         .map(|(i, s)| Scheme {
@@ -26,25 +26,25 @@ pub fn run_header(run_name: &str, config: &RunConfig, spec: &RunSpec) -> RunHead
         format_version: FORMAT_VERSION,
         run_name: run_name.to_string(),
         config_toml: spec.pinned_config(config).to_toml(),
-        model: config.model.name.clone(),
-        n: if spec.hamiltonian.is_some() {
-            (spec.dim / 2) as u32
+        model: config.model.name().to_string(),
+        n: if spec.hamiltonian().is_some() {
+            (spec.dim() / 2) as u32
         } else {
             0
         },
-        dim: spec.dim as u32,
-        k: spec.k as u32,
+        dim: spec.dim() as u32,
+        k: spec.k() as u32,
         sets: spec.sets() as u32,
         integrator: config.integrator.method.clone(),
-        h: spec.h,
+        h: spec.h(),
         t_final: spec.t_final(),
-        total_steps: spec.total_steps,
-        energy0: spec.e0,
-        x0: spec.x0.clone(),
+        total_steps: spec.total_steps(),
+        energy0: spec.e0(),
+        x0: spec.x0().to_vec(),
         schemes,
-        seed: spec.seed,
+        seed: spec.seed(),
         producer_version: env!("CARGO_PKG_VERSION").to_string(),
-        kind: spec.system.kind().name().to_string(),
-        time: spec.system.time().name().to_string(),
+        kind: spec.system().kind().name().to_string(),
+        time: spec.system().time().name().to_string(),
     }
 }

@@ -21,7 +21,7 @@ use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::names;
 
 use crate::engine::{Engine, RunError};
-use crate::spec::{RunSpec, SpecError};
+use crate::spec::RunSpec;
 use chaoscope_schemas::run::Sample;
 
 pub use header::run_header;
@@ -78,9 +78,6 @@ pub struct PublishOutcome {
 
 #[derive(Debug, thiserror::Error)]
 pub enum PublishError {
-    /// Not a `#[source]`: the message already holds it, and error chains would repeat it.
-    #[error("invalid configuration: {0}")]
-    Spec(SpecError),
     #[error("invalid run name: {0}")]
     RunName(String),
     #[error("run {0:?} is already being produced by a live process")]
@@ -89,12 +86,6 @@ pub enum PublishError {
     NoRecorder { run: String, timeout: Duration },
     #[error(transparent)]
     Bus(#[from] BusError),
-}
-
-impl From<SpecError> for PublishError {
-    fn from(e: SpecError) -> Self {
-        Self::Spec(e)
-    }
 }
 
 /// The run name: explicit option, else the config's `[run] name`, else generated.
@@ -125,7 +116,7 @@ pub fn resolve_run_name(
 
 /// Longest record of a run, in words (a separation set: k vectors plus k stretches).
 fn longest_record(spec: &RunSpec) -> usize {
-    reference_record_words(spec.dim).max(separations_record_words(spec.k, spec.dim))
+    reference_record_words(spec.dim()).max(separations_record_words(spec.k(), spec.dim()))
 }
 
 /// The first non-finite value of a sample, described (NaN never goes on the bus or into files).
@@ -150,18 +141,11 @@ pub fn non_finite(sample: &Sample) -> Option<String> {
         })
 }
 
-/// Validates `config`, then integrates and publishes it. Returns when the run completed, was
-/// interrupted (SIGINT/SIGTERM) or failed numerically; the end-of-run record says which.
+/// Integrates and publishes the validated run `spec` (from `config`, or around a hand-written
+/// model, [`RunSpec::with_model`]); `config` is what the run header records. Returns when the
+/// run completed, was interrupted (SIGINT/SIGTERM) or failed numerically; the end-of-run record
+/// says which.
 pub fn publish(
-    config: &RunConfig,
-    options: &PublishOptions,
-) -> Result<PublishOutcome, PublishError> {
-    publish_spec(config, RunSpec::from_config(config)?, options)
-}
-
-/// [`publish`] for a run already validated, e.g. one with a hand-written model
-/// ([`RunSpec::with_model`]); `config` is what the run header records.
-pub fn publish_spec(
     config: &RunConfig,
     spec: RunSpec,
     options: &PublishOptions,
@@ -172,7 +156,7 @@ pub fn publish_spec(
     let termination = Termination::new();
     // Monitors hold two whole samples (a sample's records take at most one frame each),
     // memory permitting.
-    let frames_per_sample = 1 + spec.schemes.len() * spec.sets();
+    let frames_per_sample = 1 + spec.schemes().len() * spec.sets();
     let max_frame = bus::max_frame_words(longest_record(&spec));
     let monitor_buffer = bus::monitor_buffer_for(frames_per_sample, max_frame);
     let mut ports = bus::open_alone(&node_name, || {

@@ -9,9 +9,9 @@ use std::sync::Arc;
 
 use chaoscope_expr::lower::{Boundary, ParamValue};
 use chaoscope_expr::table::{self, Spline, SplineKind};
-use chaoscope_schemas::config::{self, ModelConfig, TableConfig};
+use chaoscope_schemas::config::{self, ModelConfig, PotentialConfig, RunConfig, TableConfig};
 
-use super::SpecError;
+use super::{Built, SpecError, separable};
 use crate::model::{ExpressionModel, Model, PotentialDefinition};
 
 /// Most degrees of freedom of a potential model (the straight-line compiled code grows with N).
@@ -132,7 +132,9 @@ fn load_table(name: &str, cfg: &TableConfig) -> Result<(Arc<Spline>, TableDigest
 }
 
 /// Check the keys of a `potential` model, load its tables and compile it.
-pub fn potential_model(cfg: &ModelConfig) -> Result<(Arc<dyn Model>, Vec<TableDigest>), SpecError> {
+pub fn potential_model(
+    cfg: &PotentialConfig,
+) -> Result<(Arc<dyn Model>, Vec<TableDigest>), SpecError> {
     let n = cfg.n.ok_or_else(|| {
         SpecError::new("model.n", "a potential model needs the number of sites n")
     })?;
@@ -140,12 +142,6 @@ pub fn potential_model(cfg: &ModelConfig) -> Result<(Arc<dyn Model>, Vec<TableDi
         return Err(SpecError::new(
             "model.n",
             format!("must be between 1 and {MAX_SITES}, got {n}"),
-        ));
-    }
-    if cfg.beta.is_some() {
-        return Err(SpecError::new(
-            "model.beta",
-            "a potential model takes its constants from params, e.g. params = { beta = 1.0 }",
         ));
     }
     let potential = cfg.potential.as_ref().ok_or_else(|| {
@@ -198,11 +194,17 @@ pub fn potential_model(cfg: &ModelConfig) -> Result<(Arc<dyn Model>, Vec<TableDi
     Ok((Arc::new(model), digests))
 }
 
+/// `name = "potential"`: the compiled model with the splitting of `[integrator]`.
+pub(super) fn run(model: &PotentialConfig, cfg: &RunConfig) -> Result<Built, SpecError> {
+    let (model, tables) = potential_model(model)?;
+    separable::run(cfg, model, tables)
+}
+
 /// `cfg` with every table's `sha256` filled in from `digests` (what recordings carry).
 pub fn pin_tables(cfg: &ModelConfig, digests: &[TableDigest]) -> ModelConfig {
     let mut cfg = cfg.clone();
     for d in digests {
-        if let Some(t) = cfg.tables.get_mut(&d.name) {
+        if let Some(t) = cfg.tables_mut().and_then(|tables| tables.get_mut(&d.name)) {
             let mut spec = t.spec();
             spec.sha256 = Some(d.sha256.clone());
             *t = TableConfig::Detailed(spec);

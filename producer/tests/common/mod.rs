@@ -39,7 +39,7 @@ impl Recorded {
     pub fn scheme(&self, name: &str) -> &[Point] {
         let i = self
             .spec
-            .schemes
+            .schemes()
             .iter()
             .position(|s| s.name == name)
             .expect("scheme exists");
@@ -57,11 +57,11 @@ pub fn run(config: &RunConfig) -> Recorded {
 
 pub fn run_spec(spec: RunSpec) -> Recorded {
     let sets = spec.sets();
-    let k = spec.k;
-    let dim = spec.dim;
-    let mut sums = vec![vec![StretchSums::new(k); sets]; spec.schemes.len()];
-    let mut series: Vec<Vec<Point>> = vec![Vec::new(); spec.schemes.len()];
-    let e0 = spec.e0;
+    let k = spec.k();
+    let dim = spec.dim();
+    let mut sums = vec![vec![StretchSums::new(k); sets]; spec.schemes().len()];
+    let mut series: Vec<Vec<Point>> = vec![Vec::new(); spec.schemes().len()];
+    let e0 = spec.e0();
     let engine = Engine::new(spec.clone());
     engine
         .run(|sample| {

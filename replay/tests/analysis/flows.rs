@@ -12,7 +12,7 @@ use chaoscope_producer::system::RkFlow;
 use chaoscope_producer::vector_field::VectorField;
 use chaoscope_replay::inprocess::analyze_spec;
 use chaoscope_schemas::config::{
-    DeviationsConfig, IntegratorConfig, ModelConfig, OrbitConfig, RunConfig, RunSection,
+    DeviationsConfig, IntegratorConfig, ModelConfig, OdeConfig, OrbitConfig, RunConfig, RunSection,
     SchemeConfig,
 };
 
@@ -61,7 +61,7 @@ fn lorenz_flow(kind: RungeKuttaKind, h: f64, tolerances: Option<Tolerances>) -> 
 fn lorenz_config(h: f64, t_final: f64, schemes: Vec<SchemeConfig>) -> RunConfig {
     RunConfig {
         run: RunSection::default(),
-        model: ModelConfig::named("lorenz"),
+        model: ModelConfig::custom("lorenz"),
         orbit: OrbitConfig {
             x: vec![1.0, 1.0, 1.0],
             ..OrbitConfig::default()
@@ -229,7 +229,7 @@ fn the_compiled_rhs_is_the_hand_written_lorenz() {
     );
     let by_hand =
         RunSpec::with_system(&config, lorenz_flow(RungeKuttaKind::Dop853, 0.01, None)).unwrap();
-    config.model = ModelConfig {
+    config.model = ModelConfig::Ode(OdeConfig {
         rhs: Some(vec![
             "sigma*(x2 - x1)".into(),
             "x1*(rho - x3) - x2".into(),
@@ -244,8 +244,8 @@ fn the_compiled_rhs_is_the_hand_written_lorenz() {
                 )
             })
             .collect(),
-        ..ModelConfig::named("ode")
-    };
+        ..OdeConfig::default()
+    });
     let compiled = RunSpec::from_config(&config).unwrap();
     let mut states = [Vec::new(), Vec::new()];
     let mut reports = Vec::new();

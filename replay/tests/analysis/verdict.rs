@@ -23,7 +23,9 @@ use chaoscope_analyzer::verdict::{
 use chaoscope_producer::engine::Engine;
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_replay::inprocess::run_info;
-use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
+use chaoscope_schemas::config::{
+    DeviationsConfig, FputBetaConfig, ModelConfig, RunConfig, SchemeConfig, paper,
+};
 
 /// The paper's settings: VM, MPM with d0 = 1e-8, tau = 1, and a QR scheme.
 fn paper_schemes() -> Vec<SchemeConfig> {
@@ -190,7 +192,10 @@ fn fput5_spo1_above_its_destabilization_energy_is_chaotic() {
         DeviationsConfig::random(10, 5, 7),
         paper_schemes(),
     );
-    cfg.model.n = Some(5);
+    cfg.model = ModelConfig::FputBeta(FputBetaConfig {
+        n: Some(5),
+        beta: Some(1.0),
+    });
     cfg.orbit.preset = Some("spo1".into());
     cfg.orbit.energy = Some(10.0);
     chaotic_run("FPUT N = 5 SPO1 at H = 10", &cfg, 5.0);

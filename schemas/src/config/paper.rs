@@ -7,8 +7,8 @@
 //! command-line tools.
 
 use super::{
-    DeviationsConfig, IntegratorConfig, MapAxis, MapConfig, ModelConfig, OrbitConfig, RunConfig,
-    RunSection, SchemeConfig,
+    DeviationsConfig, FputBetaConfig, IntegratorConfig, MapAxis, MapConfig, ModelConfig,
+    OrbitConfig, RunConfig, RunSection, SchemeConfig,
 };
 
 /// Energy of the paper's Henon-Heiles orbits.
@@ -28,7 +28,7 @@ pub fn henon_heiles(
     deviations: DeviationsConfig,
     schemes: Vec<SchemeConfig>,
 ) -> RunConfig {
-    let model = ModelConfig::named("henon-heiles");
+    let model = ModelConfig::HenonHeiles(Default::default());
     let orbit = OrbitConfig {
         q: vec![0.0, q2],
         p: vec![0.0, 0.0],
@@ -81,11 +81,10 @@ pub fn fput_beta(
     deviations: DeviationsConfig,
     schemes: Vec<SchemeConfig>,
 ) -> RunConfig {
-    let model = ModelConfig {
+    let model = ModelConfig::FputBeta(FputBetaConfig {
         n: Some(q.len()),
         beta: Some(1.0),
-        ..ModelConfig::named("fput-beta")
-    };
+    });
     let orbit = OrbitConfig {
         q: q.to_vec(),
         p: p.to_vec(),

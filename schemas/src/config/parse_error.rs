@@ -22,10 +22,27 @@ pub(super) fn describe(text: &str, err: &toml::de::Error) -> String {
     let field = quoted_field(&message);
     let key = key_path(&text[..line_start], line, start - line_start, field);
     let at = format!("line {line_no}, column {column}");
+    let message = match (field.map(str::to_string), key.as_deref()) {
+        (Some(field), Some(key)) if key == format!("model.{field}") => {
+            with_model_kinds(message, &field)
+        }
+        _ => message,
+    };
     match key {
         Some(key) => format!("{key} ({at}): {message}"),
         None => format!("{at}: {message}"),
     }
+}
+
+/// An unknown `[model]` key that another kind of model reads: the message says which (a key
+/// written under the wrong `name`, or a name written wrong).
+fn with_model_kinds(message: String, field: &str) -> String {
+    let kinds = super::ModelConfig::kinds_with_key(field);
+    if kinds.is_empty() || !message.starts_with("unknown field") {
+        return message;
+    }
+    let names: Vec<String> = kinds.iter().map(|k| format!("name = \"{k}\"")).collect();
+    format!("{message}; `{field}` is a key of {}", names.join(", "))
 }
 
 /// The message on one line: lines joined with "; ", blank ones dropped.
@@ -223,5 +240,15 @@ mod tests {
         .unwrap_err()
         .0;
         assert!(inline.starts_with("map.x.n (line"), "{inline}");
+        // A key of another kind of model: named with its position and the kinds that read it.
+        let foreign = error(
+            "name = \"henon-heiles\"",
+            "name = \"henon-heiles\"\nrhs = [\"x1\"]",
+        );
+        assert!(
+            foreign.starts_with("model.rhs (line 3, column 1): unknown field `rhs`")
+                && foreign.ends_with("`rhs` is a key of name = \"ode\""),
+            "{foreign}"
+        );
     }
 }

@@ -31,12 +31,12 @@ pub struct Timing {
 fn input(spec: &MapSpec, coeffs: &StepCoeffs, points: &[Vec<f64>]) -> anyhow::Result<String> {
     let run = &spec.run;
     anyhow::ensure!(
-        run.dim == 4 && run.k == 2,
+        run.dim() == 4 && run.k() == 2,
         "the C yardstick is HH with k = 2"
     );
-    let tau = run.schemes[0].tau_steps;
+    let tau = run.schemes()[0].tau_steps;
     anyhow::ensure!(
-        run.total_steps.is_multiple_of(tau),
+        run.total_steps().is_multiple_of(tau),
         "the C yardstick needs whole renormalization windows"
     );
     let mut s = String::new();
@@ -45,10 +45,10 @@ fn input(spec: &MapSpec, coeffs: &StepCoeffs, points: &[Vec<f64>]) -> anyhow::Re
     coeffs.drift.iter().for_each(|&v| put(v));
     coeffs.kick.iter().for_each(|&v| put(v));
     put(tau as f64);
-    put((run.total_steps / tau) as f64);
-    put(run.schemes[0].d0);
+    put((run.total_steps() / tau) as f64);
+    put(run.schemes()[0].d0);
     put(run.sets() as f64);
-    for d in &run.directions {
+    for d in run.directions() {
         d.vectors.iter().for_each(|&v| put(v));
     }
     put(points.len() as f64);

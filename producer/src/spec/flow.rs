@@ -1,0 +1,95 @@
+//! Flows `dx/dt = f(x)` (`[model] name = "ode"`), and the Runge-Kutta integration of
+//! `[integrator]` that flows and general Hamiltonians share.
+
+use std::sync::Arc;
+
+use chaoscope_schemas::config::{OdeConfig, RunConfig};
+
+use super::{Built, SpecError, finite_positive, num, vector};
+use crate::integrator::runge_kutta::{RungeKutta, RungeKuttaKind, Tolerances};
+use crate::system::{DynamicalSystem, RkFlow};
+use crate::vector_field::VectorField;
+
+/// `[model] name = "ode"`: the compiled right-hand side with the Runge-Kutta method of
+/// `[integrator]`, fixed step `h`, or adaptive `dop853` landing on the grid of `h` when `rtol`
+/// and `atol` are given.
+pub(super) fn run(model: &OdeConfig, cfg: &RunConfig) -> Result<Built, SpecError> {
+    let rhs = model.rhs.as_ref().ok_or_else(|| {
+        SpecError::new(
+            "model.rhs",
+            "ode needs the right-hand side, e.g. rhs = [\"sigma * (x2 - x1)\", ...]",
+        )
+    })?;
+    let field = vector::vector_function("rhs", rhs, &model.params, model.boundary.as_deref())?;
+    let system = runge_kutta_system(cfg, Arc::new(field))?;
+    super::state_x(cfg, system, Vec::new())
+}
+
+/// A vector field with the Runge-Kutta method of `[integrator]`: fixed step `h`, or adaptive
+/// `dop853` landing on the grid of `h` when `rtol` and `atol` are given.
+pub(super) fn runge_kutta_system(
+    cfg: &RunConfig,
+    field: Arc<dyn VectorField>,
+) -> Result<Arc<dyn DynamicalSystem>, SpecError> {
+    let integrator = &cfg.integrator;
+    let kind = RungeKuttaKind::from_name(&integrator.method).ok_or_else(|| {
+        SpecError::new(
+            "integrator.method",
+            format!(
+                "unknown method '{}' for a flow (known: rk4, dop853, gl4, gl6)",
+                integrator.method
+            ),
+        )
+    })?;
+    let h = finite_positive("integrator.h", integrator.h)?;
+    let tolerances = match (integrator.rtol, integrator.atol) {
+        (None, None) => None,
+        (Some(rtol), Some(atol)) => {
+            if kind != RungeKuttaKind::Dop853 {
+                return Err(SpecError::new(
+                    "integrator.rtol",
+                    format!("error control is offered by dop853, not {}", kind.name()),
+                ));
+            }
+            for (key, v) in [("integrator.rtol", rtol), ("integrator.atol", atol)] {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(SpecError::new(
+                        key,
+                        format!("must be finite and >= 0, got {}", num(v)),
+                    ));
+                }
+            }
+            if rtol == 0.0 && atol == 0.0 {
+                return Err(SpecError::new(
+                    "integrator.rtol",
+                    "rtol and atol cannot both be 0 (no step would ever be accepted)",
+                ));
+            }
+            // Below about 100 eps relative the controller chases rounding and shrinks the step
+            // without end.
+            if rtol > 0.0 && rtol < 100.0 * f64::EPSILON {
+                return Err(SpecError::new(
+                    "integrator.rtol",
+                    format!(
+                        "{} is below what double precision resolves (use >= 2.3e-14)",
+                        num(rtol)
+                    ),
+                ));
+            }
+            Some(Tolerances { rtol, atol })
+        }
+        (Some(_), None) => {
+            return Err(SpecError::new("integrator.atol", "rtol needs atol as well"));
+        }
+        (None, Some(_)) => {
+            return Err(SpecError::new("integrator.rtol", "atol needs rtol as well"));
+        }
+    };
+    Ok(Arc::new(RkFlow {
+        name: cfg.model.name().to_string(),
+        field,
+        method: RungeKutta::new(kind),
+        h,
+        tolerances,
+    }))
+}

@@ -1,0 +1,243 @@
+//! Separable Hamiltonians `H = sum p_i^2 / (2 m_i) + V(q)` with a symplectic splitting: the
+//! built-in models (`henon-heiles`, `fput-beta`), a `potential` ([`super::potential`]) and
+//! models built in code; their initial state from `[orbit]` (`q` and `p`, the energy solved for
+//! one momentum, or a preset).
+
+use std::sync::Arc;
+
+use chaoscope_schemas::config::{
+    FputBetaConfig, HenonHeilesConfig, KNOWN_MODELS, ModelConfig, OrbitConfig, RunConfig,
+};
+
+use super::potential::{self, TableDigest};
+use super::{Built, HamiltonianParts, SpecError, finite_positive};
+use crate::integrator::{Splitting, SplittingKind};
+use crate::model::{FputBeta, HenonHeiles, Model};
+use crate::system::SplitHamiltonian;
+
+/// Most particles of the built-in FPUT chain.
+pub const MAX_FPUT_SITES: usize = 1_000_000;
+
+/// The separable model `cfg` names, with the digests of the tables it read.
+pub fn model_from_config(
+    cfg: &ModelConfig,
+) -> Result<(Arc<dyn Model>, Vec<TableDigest>), SpecError> {
+    match cfg {
+        ModelConfig::HenonHeiles(m) => Ok((henon_heiles(m)?, Vec::new())),
+        ModelConfig::FputBeta(m) => Ok((fput_beta(m)?, Vec::new())),
+        ModelConfig::Potential(m) => potential::potential_model(m),
+        ModelConfig::Custom(c) => Err(SpecError::new(
+            "model.name",
+            format!("unknown model '{}' (known: {KNOWN_MODELS})", c.name),
+        )),
+        other => Err(SpecError::new(
+            "model.name",
+            format!("'{}' is not a separable Hamiltonian model", other.name()),
+        )),
+    }
+}
+
+/// `name = "henon-heiles"`.
+fn henon_heiles(cfg: &HenonHeilesConfig) -> Result<Arc<dyn Model>, SpecError> {
+    if let Some(n) = cfg.n.filter(|&n| n != 2) {
+        return Err(SpecError::new(
+            "model.n",
+            format!("henon-heiles has 2 degrees of freedom, got n = {n}"),
+        ));
+    }
+    Ok(Arc::new(HenonHeiles))
+}
+
+/// `name = "fput-beta"`.
+fn fput_beta(cfg: &FputBetaConfig) -> Result<Arc<dyn Model>, SpecError> {
+    let n = cfg
+        .n
+        .ok_or_else(|| SpecError::new("model.n", "fput-beta needs the number of particles n"))?;
+    if n == 0 || n > MAX_FPUT_SITES {
+        return Err(SpecError::new(
+            "model.n",
+            format!("must be between 1 and {MAX_FPUT_SITES}, got {n}"),
+        ));
+    }
+    let beta = cfg.beta.unwrap_or(1.0);
+    FputBeta::new(n, beta)
+        .map(|m| Arc::new(m) as Arc<dyn Model>)
+        .map_err(|e| SpecError::new("model.beta", e))
+}
+
+/// A separable Hamiltonian `model` with the splitting of `[integrator]`, from the initial state
+/// of `[orbit]` (`q` and `p`, the energy solved for a momentum, or a preset).
+pub(super) fn run(
+    cfg: &RunConfig,
+    model: Arc<dyn Model>,
+    tables: Vec<TableDigest>,
+) -> Result<Built, SpecError> {
+    let kind = SplittingKind::from_name(&cfg.integrator.method).ok_or_else(|| {
+        SpecError::new(
+            "integrator.method",
+            format!(
+                "unknown method '{}' for a separable Hamiltonian (known: aba864, leapfrog, \
+                 saba2, yoshida4)",
+                cfg.integrator.method
+            ),
+        )
+    })?;
+    for (key, present) in [
+        ("integrator.rtol", cfg.integrator.rtol.is_some()),
+        ("integrator.atol", cfg.integrator.atol.is_some()),
+    ] {
+        if present {
+            return Err(SpecError::new(
+                key,
+                "splittings take a fixed step; tolerances apply to adaptive dop853",
+            ));
+        }
+    }
+    if !cfg.orbit.x.is_empty() {
+        return Err(SpecError::new(
+            "orbit.x",
+            "a Hamiltonian's initial state is q and p (x is for flows and maps)",
+        ));
+    }
+    let h = finite_positive("integrator.h", cfg.integrator.h)?;
+    let x0 = initial_state(model.as_ref(), &cfg.orbit)?;
+    let splitting = Splitting::new(kind);
+    let system = Arc::new(SplitHamiltonian {
+        model: model.clone(),
+        splitting: splitting.clone(),
+        h,
+    });
+    let hamiltonian = HamiltonianParts { model, splitting };
+    Ok(Built {
+        system,
+        hamiltonian: Some(hamiltonian),
+        x0,
+        tables,
+    })
+}
+
+/// Parse a coordinate name `q3` / `p1` into (is_momentum, zero-based index) for `n` dof.
+pub fn parse_coordinate(name: &str, n: usize) -> Option<(bool, usize)> {
+    let (momentum, digits) = match name.as_bytes().first()? {
+        b'q' | b'x' => (false, &name[1..]),
+        b'p' => (true, &name[1..]),
+        _ => return None,
+    };
+    let i: usize = digits.parse().ok()?;
+    // `then`, not `then_some`: `i - 1` must not be evaluated for `p0` (it would overflow).
+    (1..=n).contains(&i).then(|| (momentum, i - 1))
+}
+
+/// Parse a coordinate name `x3` of a `dim`-dimensional state into its zero-based index.
+pub fn state_coordinate(name: &str, dim: usize) -> Option<usize> {
+    let i: usize = name.strip_prefix('x')?.parse().ok()?;
+    (1..=dim).contains(&i).then(|| i - 1)
+}
+
+/// Solve momentum `p_j` (positive root) so that `H(q, p) = energy`.
+pub fn solve_momentum(
+    model: &dyn Model,
+    x: &mut [f64],
+    j: usize,
+    energy: f64,
+) -> Result<(), SpecError> {
+    let n = model.dof();
+    x[n + j] = 0.0;
+    let rest = model.energy(x);
+    let twice_kinetic = 2.0 * (energy - rest);
+    if !twice_kinetic.is_finite() || twice_kinetic < 0.0 {
+        return Err(SpecError::new(
+            "orbit.energy",
+            format!(
+                "no real p{} exists: the other coordinates already have energy {rest} > {energy} \
+                 (the initial condition lies outside the energy surface)",
+                j + 1
+            ),
+        ));
+    }
+    // p_j^2 / (2 m_j) = E - rest; with unit masses exactly the mass-free formula.
+    x[n + j] = match model.inverse_masses() {
+        None => twice_kinetic.sqrt(),
+        Some(w) => (twice_kinetic / w[j]).sqrt(),
+    };
+    Ok(())
+}
+
+/// Initial state from the `[orbit]` section.
+pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>, SpecError> {
+    let n = model.dof();
+    let mut x = vec![0.0; 2 * n];
+    if let Some(preset) = &orbit.preset {
+        let e = orbit.energy.ok_or_else(|| {
+            SpecError::new("orbit.energy", format!("preset {preset} needs an energy"))
+        })?;
+        x = model
+            .preset(preset, e)
+            .ok_or_else(|| {
+                SpecError::new(
+                    "orbit.preset",
+                    format!("model {} has no preset '{preset}'", model.name()),
+                )
+            })?
+            .map_err(|m| SpecError::new("orbit.preset", m))?;
+        if !orbit.q.is_empty() || !orbit.p.is_empty() || orbit.solve_for.is_some() {
+            return Err(SpecError::new(
+                "orbit",
+                "give either a preset or q/p/solve_for, not both",
+            ));
+        }
+        return Ok(x);
+    }
+    if orbit.q.len() != n {
+        return Err(SpecError::new(
+            "orbit.q",
+            format!("needs {n} positions, got {}", orbit.q.len()),
+        ));
+    }
+    if orbit.p.len() != n {
+        return Err(SpecError::new(
+            "orbit.p",
+            format!("needs {n} momenta, got {}", orbit.p.len()),
+        ));
+    }
+    x[..n].copy_from_slice(&orbit.q);
+    x[n..].copy_from_slice(&orbit.p);
+    if let Some(i) = x.iter().position(|v| !v.is_finite()) {
+        let key = if i < n { "orbit.q" } else { "orbit.p" };
+        return Err(SpecError::new(
+            key,
+            format!("entry {} is not finite", i % n + 1),
+        ));
+    }
+    match (&orbit.solve_for, orbit.energy) {
+        (Some(name), Some(e)) => {
+            if !e.is_finite() {
+                return Err(SpecError::new(
+                    "orbit.energy",
+                    format!("must be finite, got {e}"),
+                ));
+            }
+            match parse_coordinate(name, n) {
+                Some((true, j)) => solve_momentum(model, &mut x, j, e)?,
+                _ => {
+                    return Err(SpecError::new(
+                        "orbit.solve_for",
+                        format!("must name a momentum p1..p{n}, got '{name}'"),
+                    ));
+                }
+            }
+        }
+        (Some(_), None) => return Err(SpecError::new("orbit.solve_for", "needs orbit.energy")),
+        (None, Some(_)) => {
+            return Err(SpecError::new(
+                "orbit.energy",
+                "needs orbit.solve_for (which momentum to solve) or a preset",
+            ));
+        }
+        (None, None) => {}
+    }
+    if !model.energy(&x).is_finite() {
+        return Err(SpecError::new("orbit", "the initial energy is not finite"));
+    }
+    Ok(x)
+}

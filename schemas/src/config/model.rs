@@ -6,7 +6,7 @@
 //! Kinds: separable Hamiltonians `H = sum p_i^2 / (2 m_i) + V(q)` (`henon-heiles`, `fput-beta`,
 //! `potential` with `V` written as an expression), any Hamiltonian `H(q, p)` (`hamiltonian`),
 //! flows `dx/dt = f(x)` (`ode`) and maps `x -> F(x)` (`map`). A model or system written in Rust
-//! (the library route) is named by `name` alone ([`CustomModelConfig`]).
+//! (the library route) is named by a `name` of its own ([`CustomModelConfig`]).
 
 use std::collections::BTreeMap;
 
@@ -145,10 +145,13 @@ pub struct MapModelConfig {
     pub modulo: Option<Vec<f64>>,
 }
 
-/// A model or system built in code: the name recordings carry, no other key.
+/// A model or system built in code: the name recordings carry, and whatever other keys its
+/// code reads (kept as written; the command-line tools refuse the name).
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CustomModelConfig {
     pub name: String,
+    #[serde(flatten)]
+    pub keys: BTreeMap<String, toml::Value>,
 }
 
 /// A parameter value: one number, or one number per site.
@@ -219,6 +222,7 @@ impl ModelConfig {
     pub fn custom(name: &str) -> Self {
         Self::Custom(CustomModelConfig {
             name: name.to_string(),
+            keys: BTreeMap::new(),
         })
     }
 
@@ -354,20 +358,10 @@ impl<'de> Visitor<'de> for ModelVisitor {
                 }
                 "ode" => ModelConfig::Ode(Deserialize::deserialize(rest(&mut before, &mut map))?),
                 "map" => ModelConfig::Map(Deserialize::deserialize(rest(&mut before, &mut map))?),
-                _ => {
-                    let extra = match before.first() {
-                        Some((key, _)) => Some(key.clone()),
-                        None => map.next_key::<String>()?,
-                    };
-                    if let Some(key) = extra {
-                        return Err(de::Error::custom(format!(
-                            "unknown model '{}' (known: {KNOWN_MODELS}), given with `{key}` \
-                             (a model built in code takes no key but name)",
-                            name.escape_default()
-                        )));
-                    }
-                    ModelConfig::Custom(CustomModelConfig { name })
-                }
+                _ => ModelConfig::Custom(CustomModelConfig {
+                    name,
+                    keys: Deserialize::deserialize(rest(&mut before, &mut map))?,
+                }),
             });
         }
         Err(de::Error::missing_field("name"))
@@ -466,8 +460,12 @@ mod tests {
     fn a_name_alone_is_a_model_built_in_code() {
         let m = parse("[model]\nname = \"barbanis\"\n").unwrap();
         assert_eq!(m, ModelConfig::custom("barbanis"));
-        let e = parse("[model]\nname = \"henon-heils\"\nn = 2\n").unwrap_err();
-        assert!(e.contains("unknown model 'henon-heils'"), "{e}");
+        // Its keys are its code's (the validation of a config refuses the name itself).
+        let m = parse("[model]\nname = \"barbanis\"\neps = 0.08\n").unwrap();
+        let ModelConfig::Custom(c) = &m else {
+            panic!("{m:?}")
+        };
+        assert_eq!(c.keys["eps"].as_float(), Some(0.08));
         assert!(
             parse("[model]\nn = 2\n")
                 .unwrap_err()

@@ -591,11 +591,11 @@ mod tests {
         let s = spec(vec![scheme("a", "vm", 1.0)], 0.125, 20.0);
         let mut x = s.x0().to_vec();
         let mut w = Workspace::new();
-        let hamiltonian = s.hamiltonian().unwrap();
+        let hamiltonian = s.system().separable().unwrap();
         for _ in 0..2000 {
             hamiltonian
-                .splitting
-                .step(hamiltonian.model.as_ref(), &mut x, s.h(), &mut w);
+                .splitting()
+                .step(hamiltonian.model().as_ref(), &mut x, s.h(), &mut w);
         }
         assert_eq!(x, a[&2000]);
     }

@@ -37,10 +37,10 @@ pub fn crossings(
     steps: u64,
     max: usize,
 ) -> Vec<Vec<f64>> {
-    let Some(hamiltonian) = spec.hamiltonian() else {
+    let Some(hamiltonian) = spec.system().separable() else {
         return Vec::new();
     };
-    let model = hamiltonian.model.as_ref();
+    let model = hamiltonian.model().as_ref();
     let dim = x0.len();
     let mut x = x0.to_vec();
     let mut prev = x.clone();
@@ -50,7 +50,7 @@ pub fn crossings(
     let h = spec.h();
     for _ in 0..steps {
         prev.copy_from_slice(&x);
-        hamiltonian.splitting.step(model, &mut x, h, &mut work);
+        hamiltonian.splitting().step(model, &mut x, h, &mut work);
         if !x.iter().all(|v| v.is_finite()) {
             break;
         }
@@ -102,7 +102,7 @@ mod tests {
             // the energy surface to integrator plus interpolation error.
             assert!(p[0].abs() < 1e-8, "q1 = {}", p[0]);
             assert!(p[2] > 0.0);
-            let model = &spec.hamiltonian().unwrap().model;
+            let model = spec.system().separable().unwrap().model();
             assert!((model.energy(p) - paper::HH_ENERGY).abs() < 1e-7);
         }
         // A regular orbit (x2 = 0.558 is the paper's regular one): its section points lie on

@@ -141,7 +141,7 @@ fn generic_fallback_equals_one_orbit_steps() {
     check_orbits(&m, 9, 0.8, 23);
     check_tangents(&m, 9, 0.8, 23);
     // The dispatcher picks the concrete implementations for the shipped models.
-    let any = AnyLaneModel::new(Arc::new(HenonHeiles), None);
+    let any = AnyLaneModel::new(Arc::new(HenonHeiles));
     with_lane_model!(&any, |m| check_orbits(m, 8, 0.3, 11));
 }
 
@@ -178,7 +178,7 @@ fn compiled_expression_lanes_equal_one_orbit_steps() {
     check_orbits(&m, 19, 0.8, 57);
     check_tangents(&m, 19, 0.8, 57);
     // Through the dispatcher, as the map kernels pick it.
-    let any = AnyLaneModel::new(Arc::new(hh), None);
+    let any = AnyLaneModel::new(Arc::new(hh));
     assert!(matches!(any, AnyLaneModel::Expression(_)));
     with_lane_model!(&any, |m| check_orbits(m, 8, 0.3, 11));
 }

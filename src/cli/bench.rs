@@ -704,7 +704,12 @@ fn scalar_c_case(
         .iter()
         .filter_map(|&i| spec.initial_state(i).ok())
         .collect();
-    let coeffs = &spec.batched.as_ref().expect("HH maps run batched").coeffs;
+    let separable = spec
+        .run
+        .system()
+        .separable()
+        .expect("HH maps are separable");
+    let coeffs = separable.step_coeffs();
     let builds = match scalar_c::measure(spec, coeffs, &states) {
         Ok(b) => b,
         Err(e) => return serde_json::json!({ "unavailable": format!("{e:#}") }),
@@ -797,7 +802,7 @@ impl MapPair {
 mod expressions {
     use std::time::Instant;
 
-    use chaoscope_producer::batch::{AnyLaneModel, Isa, LaneModel};
+    use chaoscope_producer::batch::{Isa, LaneModel};
     use chaoscope_producer::engine::Engine;
     use chaoscope_producer::estimate::Machine;
     use chaoscope_producer::map::MapSpec;
@@ -887,7 +892,7 @@ mod expressions {
         let mut used = serde_json::Value::Null;
         let mut rate = |config: &RunConfig| -> anyhow::Result<f64> {
             let spec = MapSpec::from_config(config)?;
-            if let Some(AnyLaneModel::Expression(m)) = spec.batched.as_ref().map(|b| &b.lanes) {
+            if let Some(m) = spec.expression_model() {
                 // The map's own model: its C kernels come from the cache (built for the kernel
                 // comparison above), awaited here so the timed map runs them from its start.
                 let _ = m.c_step_kernels();

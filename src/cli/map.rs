@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
 use chaoscope_bus::frame::status;
-use chaoscope_producer::batch::{AnyLaneModel, Isa};
+use chaoscope_producer::batch::Isa;
 use chaoscope_producer::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
 use chaoscope_producer::publish::Termination;
 use chaoscope_producer::publish::map::{MapPublisher, default_map_name};
@@ -287,7 +287,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
 /// the first batched call the C kernels were ready, and the kernel calls (windows times
 /// batches) each backend ran. `null` for the built-in models.
 fn expression_kernels(spec: &MapSpec) -> serde_json::Value {
-    let Some(AnyLaneModel::Expression(model)) = spec.batched.as_ref().map(|b| &b.lanes) else {
+    let Some(model) = spec.expression_model() else {
         return serde_json::Value::Null;
     };
     let status = model.c_step_status();

@@ -43,7 +43,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         "the config needs orbit.solve_for (the momentum crossing the plane) and orbit.energy",
     )?;
     let base = RunSpec::from_config(&config).context("invalid run configuration")?;
-    if base.hamiltonian().is_none() {
+    if base.system().separable().is_none() {
         bail!(
             "model.name: sections are drawn for separable Hamiltonians, not for '{}'",
             config.model.name()

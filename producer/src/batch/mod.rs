@@ -13,6 +13,7 @@
 
 mod flow_lanes;
 mod isa;
+mod kernel;
 mod lanes;
 mod map_lanes;
 mod models;
@@ -20,8 +21,11 @@ mod soa;
 
 pub use flow_lanes::{FlowScratch, flow_orbit_steps, flow_tangent_steps, record_flow_reference};
 pub use isa::Isa;
+pub use kernel::PointKernel;
 pub use lanes::{LaneModel, StepCoeffs, record_reference_stages};
-pub use map_lanes::{map_orbit_steps, map_tangent_steps, record_map_reference};
+pub use map_lanes::{
+    map_orbit_steps, map_tangent_steps, record_map_reference, wrap, wrap_coordinate,
+};
 pub use models::{AnyLaneModel, DynLanes};
 pub use soa::Soa;
 

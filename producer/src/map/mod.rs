@@ -4,9 +4,8 @@
 //! - [`spec`]: the validated `[map]` section, the grid, shards, each point's initial condition.
 //! - [`indicator`]: what is accumulated per deviation set and how a point's value is formed.
 //! - [`point`]: a point's result.
-//! - [`kernel`]: what the batched methods need from a system (`PointKernel`): a separable
-//!   Hamiltonian's splitting or a discrete map's compiled lane functions.
-//! - [`mpm`], [`vm`]: the batched computation of points over a [`kernel::PointKernel`].
+//! - [`mpm`], [`vm`]: the batched computation of points over the system's batched form
+//!   (`DynamicalSystem::batched`, a [`crate::batch::PointKernel`]).
 //! - [`propagator`]: `route = "propagator"`: every set from one evolved basis per point.
 //! - [`one_orbit`]: the same point computed by the one-orbit [`crate::engine::Engine`]; the
 //!   batched path must agree with it bit for bit (tests).
@@ -16,7 +15,6 @@
 //! results are identical for any thread count, batch grouping, shard split or resumption.
 
 pub mod indicator;
-pub mod kernel;
 pub mod mpm;
 pub mod one_orbit;
 pub mod point;

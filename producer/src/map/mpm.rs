@@ -4,11 +4,10 @@
 //! the kernel never integrates a finished orbit.
 
 use super::indicator::{PointAccumulator, broke_off};
-use super::kernel::PointKernel;
 use super::point::PointResult;
 use super::spec::MapSpec;
 use super::window::{SetRenormalization, Windows, check_escape, retain_sets};
-use crate::batch::{Isa, Soa};
+use crate::batch::{Isa, PointKernel, Soa};
 
 struct Live {
     base: PointResult,
@@ -28,20 +27,18 @@ pub fn compute(
     indices: &[u64],
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
-    crate::with_point_kernel!(
-        spec,
-        isa,
-        |k| compute_with(k, spec, indices, stop),
-        indices
+    match spec.run.system().batched(isa) {
+        Some(mut kernel) => compute_with(kernel.as_mut(), spec, indices, stop),
+        None => indices
             .iter()
             .take_while(|_| !stop())
             .map(|&i| super::one_orbit::point(spec, i))
-            .collect()
-    )
+            .collect(),
+    }
 }
 
-fn compute_with<K: PointKernel>(
-    kernel: &mut K,
+fn compute_with(
+    kernel: &mut dyn PointKernel,
     spec: &MapSpec,
     indices: &[u64],
     stop: &dyn Fn() -> bool,

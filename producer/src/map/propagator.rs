@@ -16,11 +16,10 @@
 //! [`PointAccumulator`], so a point's numbers mean what they mean on the per-set route.
 
 use super::indicator::{PointAccumulator, broke_off};
-use super::kernel::PointKernel;
 use super::point::PointResult;
 use super::spec::MapSpec;
 use super::window::{Window, Windows, check_escape};
-use crate::batch::{Isa, Soa};
+use crate::batch::{Isa, PointKernel, Soa};
 use crate::engine::RunError;
 use crate::propagator::{Propagator, SetImage};
 use crate::spec::RunSpec;
@@ -96,16 +95,20 @@ pub fn compute_vm(
     index: u64,
     stop: &dyn Fn() -> bool,
 ) -> Option<PointResult> {
-    crate::with_point_kernel!(
-        spec,
-        isa,
-        |k| vm_with(k, spec, index, stop),
-        unreachable!("validation keeps the propagator route to systems with a batched kernel")
-    )
+    let mut kernel = batched(spec, isa);
+    vm_with(kernel.as_mut(), spec, index, stop)
 }
 
-fn vm_with<K: PointKernel>(
-    kernel: &mut K,
+/// The system's batched form (validation keeps the propagator route to systems with one).
+fn batched(spec: &MapSpec, isa: Isa) -> Box<dyn PointKernel + '_> {
+    spec.run
+        .system()
+        .batched(isa)
+        .expect("validation keeps the propagator route to systems with a batched form")
+}
+
+fn vm_with(
+    kernel: &mut dyn PointKernel,
     spec: &MapSpec,
     index: u64,
     stop: &dyn Fn() -> bool,
@@ -132,7 +135,7 @@ fn vm_with<K: PointKernel>(
         orbit_steps += w.steps * (1 + dim as u64);
         kernel.reference_steps(&mut x, w.steps);
         if let Err(e) = kernel.tangent_steps(&mut soa, w.steps) {
-            return Some(broke_off(base, w.t, &e, orbit_steps));
+            return Some(broke_off(base, w.t, &e.into(), orbit_steps));
         }
         if let Err(e) = check_escape(&x, w.t) {
             return Some(broke_off(base, w.t, &e, orbit_steps));
@@ -151,28 +154,18 @@ fn vm_with<K: PointKernel>(
     Some(acc.finish(base, orbit_steps))
 }
 
-/// VM of separable Hamiltonians, many points at once: one lane per point holding its orbit and
-/// its `D` basis vectors ([`crate::batch::orbit_tangent_steps`]), so the reference orbits share
-/// the SIMD lanes too; the same numbers as [`compute_vm`] bit for bit (the kernel repeats
-/// the reference's recorded stages and the tangent steps lane by lane).
+/// VM, many points at once: one lane per point holding its orbit and its `D` basis vectors
+/// (`PointKernel::orbit_tangent_steps`; fused into one pass for separable Hamiltonians), so the
+/// reference orbits share the SIMD lanes too; the same numbers as [`compute_vm`] bit for bit
+/// (the kernel repeats the reference's recorded stages and the tangent steps lane by lane).
 pub fn compute_vm_batch(
     spec: &MapSpec,
     isa: Isa,
     indices: &[u64],
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
-    let batched = spec
-        .batched
-        .as_ref()
-        .expect("the batched VM route runs separable Hamiltonians");
-    crate::with_lane_model!(&batched.lanes, |m| vm_batch_with(
-        m,
-        &batched.coeffs,
-        isa,
-        spec,
-        indices,
-        stop
-    ))
+    let mut kernel = batched(spec, isa);
+    vm_batch_with(kernel.as_mut(), spec, indices, stop)
 }
 
 struct LiveVm {
@@ -184,10 +177,8 @@ struct LiveVm {
     orbit_steps: u64,
 }
 
-fn vm_batch_with<M: crate::batch::LaneModel>(
-    model: &M,
-    coeffs: &crate::batch::StepCoeffs,
-    isa: Isa,
+fn vm_batch_with(
+    kernel: &mut dyn PointKernel,
     spec: &MapSpec,
     indices: &[u64],
     stop: &dyn Fn() -> bool,
@@ -228,7 +219,14 @@ fn vm_batch_with<M: crate::batch::LaneModel>(
             break;
         }
         let Some(w) = windows.next() else { break };
-        crate::batch::orbit_tangent_steps(isa, model, coeffs, &mut soa, w.steps);
+        if let Err(e) = kernel.orbit_tangent_steps(&mut soa, w.steps) {
+            let e = e.into();
+            out.extend(
+                live.drain(..)
+                    .map(|p| broke_off(p.base, w.t, &e, p.orbit_steps)),
+            );
+            break;
+        }
         let before = live.len();
         let mut keep = Vec::with_capacity(before);
         for mut p in live.drain(..) {
@@ -284,16 +282,12 @@ pub fn compute_mpm(
     indices: &[u64],
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
-    crate::with_point_kernel!(
-        spec,
-        isa,
-        |k| mpm_with(k, spec, indices, stop),
-        unreachable!("validation keeps the propagator route to systems with a batched kernel")
-    )
+    let mut kernel = batched(spec, isa);
+    mpm_with(kernel.as_mut(), spec, indices, stop)
 }
 
-fn mpm_with<K: PointKernel>(
-    kernel: &mut K,
+fn mpm_with(
+    kernel: &mut dyn PointKernel,
     spec: &MapSpec,
     indices: &[u64],
     stop: &dyn Fn() -> bool,

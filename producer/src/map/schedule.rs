@@ -64,7 +64,7 @@ pub fn run_map(
             options.mpm_points_per_batch.max(1) * ROUTE_BATCH_FACTOR
         }
         // One lane per point (its orbit and basis): the points fill the kernel's chunks.
-        Method::Vm if spec.route == Route::Propagator && spec.batched.is_some() => {
+        Method::Vm if spec.route == Route::Propagator && spec.fuses_orbits_and_tangents() => {
             options.mpm_points_per_batch.max(1) * ROUTE_BATCH_FACTOR
         }
         Method::Mpm => options.mpm_points_per_batch.max(1),
@@ -88,7 +88,10 @@ pub fn run_map(
                         Method::Mpm if spec.route == Route::Propagator => {
                             propagator::compute_mpm(spec, options.isa, chunk, &stopped)
                         }
-                        Method::Vm if spec.route == Route::Propagator && spec.batched.is_some() => {
+                        Method::Vm
+                            if spec.route == Route::Propagator
+                                && spec.fuses_orbits_and_tangents() =>
+                        {
                             propagator::compute_vm_batch(spec, options.isa, chunk, &stopped)
                         }
                         Method::Vm if spec.route == Route::Propagator => chunk

@@ -5,7 +5,8 @@ use chaoscope_schemas::run::{Method, Orthonormalization, SystemKind};
 
 use super::indicator::{Indicator, PointAccumulator, failed};
 use super::point::{PointResult, PointStatus};
-use crate::batch::{AnyLaneModel, StepCoeffs};
+use crate::batch::Isa;
+use crate::model::ExpressionModel;
 use crate::spec::{RunSpec, SpecError, parse_coordinate, solve_momentum, state_coordinate};
 
 /// One grid axis.
@@ -130,22 +131,11 @@ pub use chaoscope_schemas::run::Route;
 /// `x + d0 q` (small `d0`) into every set at once.
 pub const MPM_PROPAGATOR_D0: (f64, f64) = (1e-10, 1e-6);
 
-/// The batched splitting kernel's view of a separable Hamiltonian.
-#[derive(Clone)]
-pub struct Batched {
-    pub lanes: AnyLaneModel,
-    pub coeffs: StepCoeffs,
-}
-
 /// A validated map.
 #[derive(Clone)]
 pub struct MapSpec {
     /// The run shared by every point; its `x0` is the base state the grid coordinates overwrite.
     pub run: RunSpec,
-    /// The batched splitting kernel, for separable Hamiltonians; `None` for other systems
-    /// (discrete maps and fixed-step explicit flows have their own batched forms,
-    /// [`super::kernel`]; the rest run through the one-orbit engine, [`super::one_orbit`]).
-    pub batched: Option<Batched>,
     pub x: Axis,
     pub y: Axis,
     pub indicator: Indicator,
@@ -191,7 +181,7 @@ impl MapSpec {
             Some(_) if e.key == "deviations.k" => SpecError::new("map.k", e.message),
             _ => e,
         })?;
-        let hamiltonian = run.hamiltonian().cloned();
+        let separable = run.system().separable().is_some();
         let n = run.dim() / 2;
         if run.schemes()[0].orthonormalize != Orthonormalization::Rescale {
             return Err(SpecError::new(
@@ -202,7 +192,7 @@ impl MapSpec {
         let indicator = Indicator::from_config(map, k)?;
         let route = crate::spec::route_from_config("map.route", map.route.as_deref())?;
         if route == Route::Propagator {
-            if hamiltonian.is_none() && !super::kernel::has_batched_form(run.system().as_ref()) {
+            if run.system().batched(Isa::detect()).is_none() {
                 return Err(SpecError::new(
                     "map.route",
                     "the propagator route runs on the batched kernel (separable Hamiltonians, \
@@ -231,7 +221,7 @@ impl MapSpec {
                 "x and y are the same coordinate",
             ));
         }
-        if hamiltonian.is_none() {
+        if !separable {
             for (key, present) in [
                 ("orbit.solve_for", cfg.orbit.solve_for.is_some()),
                 ("orbit.energy", cfg.orbit.energy.is_some()),
@@ -273,19 +263,8 @@ impl MapSpec {
                 return Err(SpecError::new("orbit.solve_for", "energy needs solve_for"));
             }
         };
-        let batched = hamiltonian.map(|parts| Batched {
-            lanes: AnyLaneModel::new(
-                parts.model.clone(),
-                match &cfg.model {
-                    chaoscope_schemas::config::ModelConfig::FputBeta(f) => f.beta.or(Some(1.0)),
-                    _ => Some(1.0),
-                },
-            ),
-            coeffs: StepCoeffs::new(&parts.splitting, run.h()),
-        });
         let config_toml = run.pinned_config(cfg).to_toml();
         Ok(Self {
-            batched,
             x,
             y,
             indicator,
@@ -297,11 +276,27 @@ impl MapSpec {
         })
     }
 
-    /// Whether the points run on the batched kernel ([`super::kernel`]): separable
-    /// Hamiltonians, discrete maps and fixed-step explicit Runge-Kutta flows of compiled
-    /// expressions; every other system runs through the one-orbit engine.
+    /// Whether the points run on the system's batched form (`DynamicalSystem::batched`):
+    /// separable Hamiltonians, discrete maps and fixed-step explicit Runge-Kutta flows of
+    /// compiled expressions; every other system runs through the one-orbit engine.
     pub fn has_batched_kernel(&self) -> bool {
-        self.batched.is_some() || super::kernel::has_batched_form(self.run.system().as_ref())
+        self.run.system().batched(Isa::detect()).is_some()
+    }
+
+    /// Whether the system's batched form advances many points' orbits and tangent bases in one
+    /// fused pass (`PointKernel::fuses_orbits_and_tangents`).
+    pub fn fuses_orbits_and_tangents(&self) -> bool {
+        self.run
+            .system()
+            .batched(Isa::detect())
+            .is_some_and(|k| k.fuses_orbits_and_tangents())
+    }
+
+    /// The compiled model of a `potential` (whose C step kernels' state a map reports), if
+    /// this is one.
+    pub fn expression_model(&self) -> Option<&ExpressionModel> {
+        let model: &dyn std::any::Any = self.run.system().separable()?.model().as_ref();
+        model.downcast_ref()
     }
 
     pub fn grid_points(&self) -> u64 {
@@ -324,10 +319,10 @@ impl MapSpec {
         let mut x = self.run.x0().to_vec();
         x[self.x.slot] = self.x.value(ix);
         x[self.y.slot] = self.y.value(iy);
-        if let (Some(j), Some(e), Some(parts)) =
-            (self.solve_for, self.energy, self.run.hamiltonian())
+        if let (Some(j), Some(e), Some(separable)) =
+            (self.solve_for, self.energy, self.run.system().separable())
         {
-            solve_momentum(parts.model.as_ref(), &mut x, j, e).map_err(|e| e.message)?;
+            solve_momentum(separable.model().as_ref(), &mut x, j, e).map_err(|e| e.message)?;
         }
         Ok(x)
     }

@@ -3,11 +3,10 @@
 //! its sets advanced as lanes by the system's tangent kernel around it.
 
 use super::indicator::broke_off;
-use super::kernel::PointKernel;
 use super::point::PointResult;
 use super::spec::MapSpec;
 use super::window::{SetRenormalization, Windows, check_escape, retain_sets};
-use crate::batch::{Isa, Soa};
+use crate::batch::{Isa, PointKernel, Soa};
 
 /// The point `index`, or `None` if `stop()` (asked at every window) became true first. Systems
 /// without a batched form are computed by the one-orbit engine.
@@ -17,16 +16,14 @@ pub fn compute(
     index: u64,
     stop: &dyn Fn() -> bool,
 ) -> Option<PointResult> {
-    crate::with_point_kernel!(
-        spec,
-        isa,
-        |k| compute_with(k, spec, index, stop),
-        (!stop()).then(|| super::one_orbit::point(spec, index))
-    )
+    match spec.run.system().batched(isa) {
+        Some(mut kernel) => compute_with(kernel.as_mut(), spec, index, stop),
+        None => (!stop()).then(|| super::one_orbit::point(spec, index)),
+    }
 }
 
-fn compute_with<K: PointKernel>(
-    kernel: &mut K,
+fn compute_with(
+    kernel: &mut dyn PointKernel,
     spec: &MapSpec,
     index: u64,
     stop: &dyn Fn() -> bool,
@@ -56,7 +53,7 @@ fn compute_with<K: PointKernel>(
         orbit_steps += w.steps * (1 + (sets.len() * k) as u64);
         kernel.reference_steps(&mut x, w.steps);
         if let Err(e) = kernel.tangent_steps(&mut soa, w.steps) {
-            return Some(broke_off(base, w.t, &e, orbit_steps));
+            return Some(broke_off(base, w.t, &e.into(), orbit_steps));
         }
         if let Err(e) = check_escape(&x, w.t) {
             return Some(broke_off(base, w.t, &e, orbit_steps));

@@ -27,11 +27,11 @@ pub fn run_header(run_name: &str, config: &RunConfig, spec: &RunSpec) -> RunHead
         run_name: run_name.to_string(),
         config_toml: spec.pinned_config(config).to_toml(),
         model: config.model.name().to_string(),
-        n: if spec.hamiltonian().is_some() {
-            (spec.dim() / 2) as u32
-        } else {
-            0
-        },
+        // N of a separable Hamiltonian; 0 for every other kind (`dim` says their size).
+        n: spec
+            .system()
+            .separable()
+            .map_or(0, |s| s.model().dof() as u32),
         dim: spec.dim() as u32,
         k: spec.k() as u32,
         sets: spec.sets() as u32,

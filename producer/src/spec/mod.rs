@@ -24,7 +24,6 @@ use chaoscope_schemas::run::{
 };
 
 use crate::deviation::{self, DirectionError, Directions};
-use crate::integrator::Splitting;
 use crate::model::Model;
 use crate::system::{DynamicalSystem, Time};
 
@@ -87,19 +86,10 @@ impl SpecError {
 /// Longest run accepted, in steps: beyond this `step * h` loses integer exactness in f64.
 const MAX_STEPS: u64 = 1 << 52;
 
-/// The parts of a separable Hamiltonian run, for what is specific to it (energy surfaces, the
-/// batched splitting kernel of maps, sections).
-#[derive(Clone)]
-pub struct HamiltonianParts {
-    pub model: Arc<dyn Model>,
-    pub splitting: Splitting,
-}
-
 /// What the validation of one kind of `[model]` gives: the system, its initial state, and the
 /// tables it read.
 struct Built {
     system: Arc<dyn DynamicalSystem>,
-    hamiltonian: Option<HamiltonianParts>,
     x0: Vec<f64>,
     tables: Vec<TableDigest>,
 }
@@ -156,7 +146,6 @@ impl DirectionSets {
 #[derive(Clone)]
 pub struct RunSpec {
     system: Arc<dyn DynamicalSystem>,
-    hamiltonian: Option<HamiltonianParts>,
     h: f64,
     total_steps: u64,
     x0: Vec<f64>,
@@ -286,12 +275,7 @@ fn state_x(
             ),
         ));
     }
-    Ok(Built {
-        system,
-        hamiltonian: None,
-        x0,
-        tables,
-    })
+    Ok(Built { system, x0, tables })
 }
 
 impl RunSpec {
@@ -340,12 +324,7 @@ impl RunSpec {
 
     /// What every kind shares: the time grid, deviations and schemes.
     fn validated(cfg: &RunConfig, built: Built) -> Result<Self, SpecError> {
-        let Built {
-            system,
-            hamiltonian,
-            x0,
-            tables,
-        } = built;
+        let Built { system, x0, tables } = built;
         let dim = system.dim();
         let h = match system.time() {
             Time::Continuous { h } => h,
@@ -374,7 +353,11 @@ impl RunSpec {
                 "deviations.k",
                 format!(
                     "must be between 1 and {} = {dim} (the dimension), got {}",
-                    if hamiltonian.is_some() { "2N" } else { "D" },
+                    if system.separable().is_some() {
+                        "2N"
+                    } else {
+                        "D"
+                    },
                     dev.k
                 ),
             ));
@@ -521,7 +504,6 @@ impl RunSpec {
 
         Ok(RunSpec {
             system,
-            hamiltonian,
             h,
             total_steps,
             x0,
@@ -547,11 +529,6 @@ impl RunSpec {
     /// What the engine steps: the model with its integrator and time step.
     pub fn system(&self) -> &Arc<dyn DynamicalSystem> {
         &self.system
-    }
-
-    /// `Some` for separable Hamiltonians (`SplitHamiltonian`), `None` for every other kind.
-    pub fn hamiltonian(&self) -> Option<&HamiltonianParts> {
-        self.hamiltonian.as_ref()
     }
 
     /// Time step (1 for maps: a step is an iteration).

@@ -10,7 +10,7 @@ use chaoscope_schemas::config::{
 };
 
 use super::potential::{self, TableDigest};
-use super::{Built, HamiltonianParts, SpecError, finite_positive};
+use super::{Built, SpecError, finite_positive};
 use crate::integrator::{Splitting, SplittingKind};
 use crate::model::{FputBeta, HenonHeiles, Model};
 use crate::system::SplitHamiltonian;
@@ -101,19 +101,8 @@ pub(super) fn run(
     }
     let h = finite_positive("integrator.h", cfg.integrator.h)?;
     let x0 = initial_state(model.as_ref(), &cfg.orbit)?;
-    let splitting = Splitting::new(kind);
-    let system = Arc::new(SplitHamiltonian {
-        model: model.clone(),
-        splitting: splitting.clone(),
-        h,
-    });
-    let hamiltonian = HamiltonianParts { model, splitting };
-    Ok(Built {
-        system,
-        hamiltonian: Some(hamiltonian),
-        x0,
-        tables,
-    })
+    let system = Arc::new(SplitHamiltonian::new(model, Splitting::new(kind), h));
+    Ok(Built { system, x0, tables })
 }
 
 /// Parse a coordinate name `q3` / `p1` into (is_momentum, zero-based index) for `n` dof.

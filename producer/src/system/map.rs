@@ -15,11 +15,12 @@
 //! The map must be well defined on the torus (periodic in every wrapped coordinate, as the
 //! standard map is in both); that is the model's business, as in every code that wraps angles.
 
+use chaoscope_expr::VectorFunction;
 use chaoscope_schemas::run::SystemKind;
 
 use super::{DynamicalSystem, Time};
+use crate::batch::{self, Isa, PointKernel, Soa};
 use crate::integrator::{TangentError, Workspace};
-use chaoscope_expr::VectorFunction;
 
 /// `x -> F(x)` with optional periods per coordinate.
 #[derive(Debug, Clone)]
@@ -74,13 +75,8 @@ impl Map {
     /// check stops on it).
     #[inline]
     pub fn wrap(&self, x: &mut [f64]) {
-        if !self.wraps {
-            return;
-        }
-        for (xi, &p) in x.iter_mut().zip(&self.modulo) {
-            if p > 0.0 {
-                *xi = wrap_coordinate(*xi, p);
-            }
+        if self.wraps {
+            batch::wrap(&self.modulo, x);
         }
     }
 
@@ -106,17 +102,6 @@ impl Map {
         }
         Some(log_abs_det(&mut a, d))
     }
-}
-
-/// `x` into `[0, p)`: the remainder, shifted up by `p` when negative. A tiny negative `x` gives
-/// `r + p == p` in floating point; that is `0` on the circle.
-#[inline]
-pub fn wrap_coordinate(x: f64, p: f64) -> f64 {
-    let mut r = x % p;
-    if r < 0.0 {
-        r += p;
-    }
-    if r >= p { r - p } else { r }
 }
 
 /// `ln |det A|` of the row-major `d x d` matrix `a` (overwritten) by Gaussian elimination with
@@ -164,8 +149,13 @@ impl DynamicalSystem for Map {
         Time::Discrete
     }
 
-    fn as_discrete_map(&self) -> Option<&Map> {
-        Some(self)
+    /// Its compiled lane functions ([`MapKernel`]).
+    fn batched(&self, _isa: Isa) -> Option<Box<dyn PointKernel + '_>> {
+        Some(Box::new(MapKernel {
+            map: self,
+            stages: Vec::new(),
+            scratch: Vec::new(),
+        }))
     }
 
     #[inline]
@@ -244,9 +234,50 @@ impl DynamicalSystem for Map {
     }
 }
 
+/// The batched form of a map: its compiled lane functions (the SIMD is inside the compiled
+/// code, so there is no instruction-set choice here).
+struct MapKernel<'a> {
+    map: &'a Map,
+    /// States before every iteration of the last reference steps.
+    stages: Vec<f64>,
+    scratch: Vec<f64>,
+}
+
+impl PointKernel for MapKernel<'_> {
+    fn orbit_steps(&mut self, x: &mut Soa, steps: u64) {
+        let map = self.map;
+        batch::map_orbit_steps(&map.function, &map.modulo, x, steps, &mut self.scratch);
+    }
+
+    fn reference_steps(&mut self, x: &mut [f64], steps: u64) {
+        let map = self.map;
+        batch::record_map_reference(&map.function, &map.modulo, x, steps, &mut self.stages);
+    }
+
+    fn tangent_steps(&mut self, v: &mut Soa, steps: u64) -> Result<(), TangentError> {
+        let f = &self.map.function;
+        if batch::map_tangent_steps(f, &self.stages, v, steps, &mut self.scratch) {
+            Ok(())
+        } else {
+            // Validation refuses VM for a map without a tangent; this is the same error the
+            // engine would raise, should that ever be bypassed.
+            Err(TangentError::NoHessian(
+                f.no_tangent_reason()
+                    .unwrap_or_else(|| "the map's Jacobian".into()),
+            ))
+        }
+    }
+
+    #[inline]
+    fn separation(&self, y: &[f64], x: &[f64], out: &mut [f64]) {
+        self.map.separation(y, x, out);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::batch::wrap_coordinate;
     use chaoscope_expr::{Boundary, ParamValue, VectorDefinition};
 
     fn map(components: &[&str], params: &[(&str, f64)], modulo: Vec<f64>) -> Map {
@@ -350,5 +381,68 @@ mod tests {
                 .unwrap_err()
                 .contains("entry 1")
         );
+    }
+
+    fn standard_map() -> Map {
+        let f = VectorFunction::new(VectorDefinition {
+            key: "next".into(),
+            components: vec!["x1 + x2 + K * sin(x1)".into(), "x2 + K * sin(x1)".into()],
+            params: [("K".to_string(), ParamValue::Scalar(1.2))].into(),
+            boundary: Boundary::Fixed,
+            tables: Vec::new(),
+        })
+        .unwrap();
+        let p = std::f64::consts::TAU;
+        Map::new(f, vec![p, p]).unwrap()
+    }
+
+    /// Every lane of the batched form equals the one-orbit `step` / `step_tangent` bit for bit,
+    /// lane counts that are and are not multiples of the compiled block.
+    #[test]
+    fn batched_lanes_match_the_one_orbit_steps_bit_for_bit() {
+        let m = standard_map();
+        let mut kernel = m.batched(Isa::detect()).unwrap();
+        for used in [1usize, 3, 8, 13] {
+            let starts: Vec<Vec<f64>> = (0..used)
+                .map(|l| vec![0.1 + 0.37 * l as f64, 6.0 - 0.41 * l as f64])
+                .collect();
+            let mut soa = Soa::new(2, used);
+            for (l, x) in starts.iter().enumerate() {
+                soa.write_lane(l, x);
+            }
+            kernel.orbit_steps(&mut soa, 50);
+            let mut w = Workspace::new();
+            for (l, x0) in starts.iter().enumerate() {
+                let mut x = x0.clone();
+                for _ in 0..50 {
+                    m.step(&mut x, &mut w);
+                }
+                let mut got = vec![0.0; 2];
+                soa.read_lane(l, &mut got);
+                assert_eq!(got, x, "lane {l} of {used}");
+            }
+
+            // Tangent vectors around the first start.
+            let mut x = starts[0].clone();
+            kernel.reference_steps(&mut x, 50);
+            let mut v = Soa::new(2, used);
+            let dirs: Vec<Vec<f64>> = (0..used)
+                .map(|l| vec![(l as f64).cos(), (l as f64).sin()])
+                .collect();
+            for (l, d) in dirs.iter().enumerate() {
+                v.write_lane(l, d);
+            }
+            kernel.tangent_steps(&mut v, 50).unwrap();
+            for (l, d) in dirs.iter().enumerate() {
+                let (mut y, mut w1) = (starts[0].clone(), d.clone());
+                for _ in 0..50 {
+                    m.step_tangent(&mut y, &mut w1, &mut w).unwrap();
+                }
+                assert_eq!(y, x, "reference copy");
+                let mut got = vec![0.0; 2];
+                v.read_lane(l, &mut got);
+                assert_eq!(got, w1, "tangent lane {l} of {used}");
+            }
+        }
     }
 }

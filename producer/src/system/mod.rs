@@ -9,24 +9,31 @@
 //! orbits, its multi-particle sets) work for *any* system.
 //!
 //! Kinds, one file each:
-//! - [`SplitHamiltonian`]: a separable Hamiltonian [`Model`] with a symplectic [`Splitting`]
-//!   (built-in models and `[model] name = "potential"`);
+//! - [`SplitHamiltonian`]: a separable Hamiltonian [`Model`](crate::model::Model) with a
+//!   symplectic [`Splitting`](crate::integrator::Splitting) (built-in models and `[model] name =
+//!   "potential"`);
 //! - [`RkFlow`]: a vector field `dx/dt = f(x)` with a Runge-Kutta method (its tangent map is the
-//!   derivative of the Runge-Kutta step, from the field's Jacobian-vector product);
+//!   derivative of the Runge-Kutta step, from the field's Jacobian-vector product): `[model]
+//!   name = "ode"`, and any Hamiltonian `H(q, p)` (`name = "hamiltonian"`, whose field is
+//!   `(dH/dp, -dH/dq)`), explicit (`rk4`, `dop853`) or implicit symplectic Gauss-Legendre
+//!   (`gl4`, `gl6`);
 //! - [`Map`]: a discrete map `x -> F(x)` (`[model] name = "map"`, `Time::Discrete`, `tau`
-//!   counted in iterations), angles taken modulo their period;
-//! - later, beside them: a non-separable Hamiltonian with an implicit Gauss-Legendre method.
+//!   counted in iterations), angles taken modulo their period.
+//!
+//! Each kind's batched form (`batched`: many orbits as lanes, for phase-space maps) is written
+//! beside it, in its own file.
 
 mod map;
 mod rk_flow;
 mod split_hamiltonian;
 
-pub use map::{Map, wrap_coordinate};
+pub use map::Map;
 pub use rk_flow::RkFlow;
 pub use split_hamiltonian::SplitHamiltonian;
 
 use chaoscope_schemas::run::SystemKind;
 
+use crate::batch::{Isa, PointKernel};
 use crate::integrator::{TangentError, Workspace};
 
 /// How a system's time advances.
@@ -117,16 +124,19 @@ pub trait DynamicalSystem: Send + Sync {
     /// operation where the system knows it. Off the hot path: called after a failure.
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String>;
 
-    /// The discrete map behind this system, for the batched kernel of phase-space maps (its
-    /// compiled lane functions, `crate::map::kernel::MapKernel`); `None` for every other kind.
-    fn as_discrete_map(&self) -> Option<&Map> {
+    /// The system's batched form, its one extension point for it: many orbits (and tangent
+    /// vectors along a recorded reference) advanced together as lanes, on the instruction set
+    /// `isa` where the kind has per-ISA code; what phase-space maps run on. `None` for a system
+    /// without one, whose map points run through the engine (same bits, one orbit at a time).
+    fn batched(&self, isa: Isa) -> Option<Box<dyn PointKernel + '_>> {
+        let _ = isa;
         None
     }
 
-    /// The Runge-Kutta flow behind this system, for the batched kernel of phase-space maps
-    /// (`crate::map::kernel::FlowKernel`, fixed-step explicit methods); `None` for every other
-    /// kind.
-    fn as_rk_flow(&self) -> Option<&RkFlow> {
+    /// The separable Hamiltonian behind this system (its model, splitting and step), for what
+    /// only separable Hamiltonians offer: solving the energy for a momentum (maps' grid
+    /// points), Poincare sections, `N` in the run header. `None` for every other kind.
+    fn separable(&self) -> Option<&SplitHamiltonian> {
         None
     }
 

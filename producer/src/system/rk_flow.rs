@@ -10,8 +10,11 @@ use std::sync::Arc;
 
 use chaoscope_schemas::run::SystemKind;
 
+use chaoscope_expr::VectorFunction;
+
 use super::{DynamicalSystem, Time};
-use crate::integrator::runge_kutta::{RungeKutta, Tolerances};
+use crate::batch::{self, FlowScratch, Isa, PointKernel, Soa};
+use crate::integrator::runge_kutta::{RungeKutta, Tableau, Tolerances};
 use crate::integrator::{TangentError, Workspace};
 use crate::vector_field::VectorField;
 
@@ -58,8 +61,21 @@ impl DynamicalSystem for RkFlow {
         Time::Continuous { h: self.h }
     }
 
-    fn as_rk_flow(&self) -> Option<&RkFlow> {
-        Some(self)
+    /// The compiled right-hand side stepped by a fixed-step explicit method ([`FlowKernel`]);
+    /// `None` with adaptive steps (every orbit would choose its own substeps), an implicit
+    /// method (per-orbit stage iterations) or a hand-written field: their points run through
+    /// the engine.
+    fn batched(&self, _isa: Isa) -> Option<Box<dyn PointKernel + '_>> {
+        if self.tolerances.is_some() {
+            return None;
+        }
+        Some(Box::new(FlowKernel {
+            tableau: self.method.kind.tableau()?,
+            f: self.field.compiled()?,
+            h: self.h,
+            stages: Vec::new(),
+            scratch: FlowScratch::default(),
+        }))
     }
 
     fn step(&self, x: &mut [f64], work: &mut Workspace) {
@@ -190,5 +206,54 @@ impl DynamicalSystem for RkFlow {
             }
         }
         None
+    }
+}
+
+/// A flow with a fixed-step explicit Runge-Kutta method and a compiled right-hand side, over
+/// its lane functions.
+struct FlowKernel<'a> {
+    tableau: &'static Tableau,
+    f: &'a VectorFunction,
+    h: f64,
+    /// Stage states of every step of the last reference steps.
+    stages: Vec<f64>,
+    scratch: FlowScratch,
+}
+
+impl PointKernel for FlowKernel<'_> {
+    fn orbit_steps(&mut self, x: &mut Soa, steps: u64) {
+        batch::flow_orbit_steps(self.tableau, self.f, self.h, x, steps, &mut self.scratch);
+    }
+
+    fn reference_steps(&mut self, x: &mut [f64], steps: u64) {
+        batch::record_flow_reference(
+            self.tableau,
+            self.f,
+            self.h,
+            x,
+            steps,
+            &mut self.stages,
+            &mut self.scratch,
+        );
+    }
+
+    fn tangent_steps(&mut self, v: &mut Soa, steps: u64) -> Result<(), TangentError> {
+        if batch::flow_tangent_steps(
+            self.tableau,
+            self.f,
+            self.h,
+            &self.stages,
+            v,
+            steps,
+            &mut self.scratch,
+        ) {
+            Ok(())
+        } else {
+            Err(TangentError::NoHessian(
+                self.f
+                    .no_tangent_reason()
+                    .unwrap_or_else(|| "the right-hand side's Jacobian".into()),
+            ))
+        }
     }
 }

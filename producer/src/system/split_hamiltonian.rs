@@ -5,6 +5,7 @@ use std::sync::Arc;
 use chaoscope_schemas::run::SystemKind;
 
 use super::{DynamicalSystem, Time};
+use crate::batch::{self, AnyLaneModel, Isa, LaneModel, PointKernel, Soa, StepCoeffs};
 use crate::integrator::{Integrator, Splitting, TangentError, Workspace};
 use crate::model::Model;
 
@@ -12,9 +13,47 @@ use crate::model::Model;
 /// splitting's own (`Splitting::step_tangent`), the variational equations of the discrete map.
 #[derive(Clone)]
 pub struct SplitHamiltonian {
-    pub model: Arc<dyn Model>,
-    pub splitting: Splitting,
-    pub h: f64,
+    model: Arc<dyn Model>,
+    splitting: Splitting,
+    h: f64,
+    /// The model's lane implementation and the splitting's coefficients times `h`: the batched
+    /// form ([`SplittingKernel`]).
+    lanes: AnyLaneModel,
+    coeffs: StepCoeffs,
+}
+
+impl SplitHamiltonian {
+    pub fn new(model: Arc<dyn Model>, splitting: Splitting, h: f64) -> Self {
+        Self {
+            lanes: AnyLaneModel::new(model.clone()),
+            coeffs: StepCoeffs::new(&splitting, h),
+            model,
+            splitting,
+            h,
+        }
+    }
+
+    pub fn model(&self) -> &Arc<dyn Model> {
+        &self.model
+    }
+
+    pub fn splitting(&self) -> &Splitting {
+        &self.splitting
+    }
+
+    pub fn h(&self) -> f64 {
+        self.h
+    }
+
+    /// The model's lane implementation (the batched kernel's; a `potential`'s compiled model).
+    pub fn lanes(&self) -> &AnyLaneModel {
+        &self.lanes
+    }
+
+    /// The splitting's coefficients times `h`, as the batched kernel steps them.
+    pub fn step_coeffs(&self) -> &StepCoeffs {
+        &self.coeffs
+    }
 }
 
 impl DynamicalSystem for SplitHamiltonian {
@@ -62,6 +101,19 @@ impl DynamicalSystem for SplitHamiltonian {
         None
     }
 
+    /// The model's lane implementation over the instruction set `isa` ([`SplittingKernel`]).
+    fn batched(&self, isa: Isa) -> Option<Box<dyn PointKernel + '_>> {
+        let coeffs = &self.coeffs;
+        Some(crate::with_lane_model!(
+            &self.lanes,
+            |m| Box::new(SplittingKernel::new(m, coeffs, isa)) as Box<dyn PointKernel>
+        ))
+    }
+
+    fn separable(&self) -> Option<&SplitHamiltonian> {
+        Some(self)
+    }
+
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
         let n = self.model.dof();
         // The potential itself undefined at x (the energy is what the run checks), ...
@@ -86,5 +138,59 @@ impl DynamicalSystem for SplitHamiltonian {
             }
         }
         None
+    }
+}
+
+/// A separable Hamiltonian's splitting over the lane kernel of the instruction set `isa`.
+struct SplittingKernel<'a, M: LaneModel> {
+    model: &'a M,
+    coeffs: &'a StepCoeffs,
+    isa: Isa,
+    /// Positions before every kick of the last reference steps.
+    stages: Vec<f64>,
+    force: Vec<f64>,
+}
+
+impl<'a, M: LaneModel> SplittingKernel<'a, M> {
+    fn new(model: &'a M, coeffs: &'a StepCoeffs, isa: Isa) -> Self {
+        Self {
+            model,
+            coeffs,
+            isa,
+            stages: Vec::new(),
+            force: vec![0.0; model.dof()],
+        }
+    }
+}
+
+impl<M: LaneModel> PointKernel for SplittingKernel<'_, M> {
+    fn orbit_steps(&mut self, x: &mut Soa, steps: u64) {
+        batch::orbit_steps(self.isa, self.model, self.coeffs, x, steps);
+    }
+
+    fn reference_steps(&mut self, x: &mut [f64], steps: u64) {
+        batch::record_reference_stages(
+            self.model,
+            self.coeffs,
+            x,
+            steps,
+            &mut self.stages,
+            &mut self.force,
+        );
+    }
+
+    fn tangent_steps(&mut self, v: &mut Soa, steps: u64) -> Result<(), TangentError> {
+        batch::tangent_steps(self.isa, self.model, self.coeffs, &self.stages, v, steps);
+        Ok(())
+    }
+
+    /// Each lane its own orbit with its basis, all in one pass of the lane kernel.
+    fn fuses_orbits_and_tangents(&self) -> bool {
+        true
+    }
+
+    fn orbit_tangent_steps(&mut self, x: &mut Soa, steps: u64) -> Result<(), TangentError> {
+        batch::orbit_tangent_steps(self.isa, self.model, self.coeffs, x, steps);
+        Ok(())
     }
 }

@@ -24,20 +24,18 @@ pub enum AnyLaneModel {
 }
 
 impl AnyLaneModel {
-    /// The lane implementation for `model`, identified by its name and degrees of freedom.
-    /// `beta` is needed to rebuild the FPUT chain (the trait object does not expose it).
-    pub fn new(model: Arc<dyn Model>, fput_beta: Option<f64>) -> Self {
+    /// The lane implementation of `model`, found by its type: the models chaoscope ships have
+    /// their own, any other model goes lane by lane through its scalar methods.
+    pub fn new(model: Arc<dyn Model>) -> Self {
         let any: &dyn std::any::Any = model.as_ref();
         if let Some(m) = any.downcast_ref::<ExpressionModel>() {
-            return Self::Expression(m.clone());
-        }
-        match (model.name(), fput_beta) {
-            ("henon-heiles", _) => Self::HenonHeiles(HenonHeiles),
-            ("fput-beta", Some(beta)) => match FputBeta::new(model.dof(), beta) {
-                Ok(m) => Self::Fput(m),
-                Err(_) => Self::Other(DynLanes::new(model)),
-            },
-            _ => Self::Other(DynLanes::new(model)),
+            Self::Expression(m.clone())
+        } else if let Some(m) = any.downcast_ref::<FputBeta>() {
+            Self::Fput(*m)
+        } else if any.is::<HenonHeiles>() {
+            Self::HenonHeiles(HenonHeiles)
+        } else {
+            Self::Other(DynLanes::new(model))
         }
     }
 }

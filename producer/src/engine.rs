@@ -11,9 +11,12 @@
 
 use rayon::prelude::*;
 
+use crate::batch::{PointKernel, Soa};
 use crate::integrator::{TangentError, Workspace};
+use crate::method::{self, DeviationMethod};
 use crate::renormalization::{self, RenormalizationError};
-use chaoscope_schemas::run::{Method, Route, Sample, SchemeSample};
+use crate::system::DynamicalSystem;
+use chaoscope_schemas::run::{Route, Sample, SchemeSample};
 
 use crate::spec::RunSpec;
 
@@ -49,45 +52,23 @@ pub enum RunError {
 /// Beyond this norm a state is treated as escaped: polynomial forces overflow soon after.
 const ESCAPE_NORM: f64 = 1e100;
 
-#[derive(Debug, Clone)]
-enum Deviations {
-    /// Tangent vectors and the task's own copy of the reference orbit.
-    Variational { orbit: Vec<f64>, vectors: Vec<f64> },
-    /// The `k` nearby orbits themselves.
-    MultiParticle { orbits: Vec<f64> },
-    /// A `route = "propagator"` VM scheme, every set at once: the images of the `2N` unit
-    /// vectors under the tangent map since the scheme's last renormalization (column `j` is
-    /// the image of `e_j`), the task's copy of the reference orbit, and each set's `k` vectors
-    /// (`sets[s]`, updated only at renormalizations, as `M w` then renormalized).
-    Propagated {
-        orbit: Vec<f64>,
-        basis: Vec<f64>,
-        sets: Vec<Vec<f64>>,
-    },
-}
-
-/// The `dim x dim` identity, column by column.
-fn identity(dim: usize) -> Vec<f64> {
-    let mut m = vec![0.0; dim * dim];
-    set_identity(&mut m, dim);
-    m
-}
-
-/// Makes `m` (`dim x dim`) the identity, in place.
-fn set_identity(m: &mut [f64], dim: usize) {
-    m.fill(0.0);
-    m.iter_mut().step_by(dim + 1).for_each(|v| *v = 1.0);
-}
-
-/// One scheme's evolution of one set of deviation vectors (of every set, for the propagator
-/// route): a `DeviationSet`.
-#[derive(Debug, Clone)]
+/// One scheme's evolution of one set of deviation vectors, or of every set of a scheme on the
+/// window-propagator route.
 struct DeviationSet {
     scheme: usize,
-    /// The set (the first one, for the propagator route).
+    /// The set (the first one, for the window propagator).
     set: usize,
-    deviations: Deviations,
+    method: &'static dyn DeviationMethod,
+    /// Per set: its `k` lanes (tangent vectors or nearby orbits). Window propagator: the `D`
+    /// tangent vectors evolved from the identity since the scheme's last renormalization
+    /// (lane `j` is the image of `e_j`: column `j` of the window's tangent propagator `M`).
+    lanes: Soa,
+    /// Window propagator only: each set's `k` vectors, updated at renormalizations as `M w`
+    /// then renormalized.
+    propagated: Option<Vec<Vec<f64>>>,
     work: Workspace,
+    /// Lanes as rows, for the steps and the renormalization.
+    rows: Vec<f64>,
 }
 
 pub struct Engine {
@@ -112,44 +93,36 @@ impl Engine {
     pub fn new(spec: RunSpec) -> Self {
         let dim = spec.dim();
         let mut tasks = Vec::with_capacity(spec.schemes().len() * spec.sets());
+        let x0 = spec.x0();
         for (si, scheme) in spec.schemes().iter().enumerate() {
-            if scheme.route == Route::Propagator {
-                tasks.push(DeviationSet {
-                    scheme: si,
-                    set: 0,
-                    deviations: Deviations::Propagated {
-                        orbit: spec.x0().to_vec(),
-                        basis: identity(dim),
-                        sets: spec
-                            .directions()
-                            .iter()
-                            .map(|d| d.scaled(scheme.d0))
-                            .collect(),
-                    },
-                    work: Workspace::new(),
-                });
+            let method = method::of(scheme.method);
+            let task = |set, lanes, propagated| DeviationSet {
+                scheme: si,
+                set,
+                method,
+                lanes,
+                propagated,
+                work: Workspace::new(),
+                rows: Vec::new(),
+            };
+            if scheme.route == Route::WindowPropagator {
+                let sets = spec
+                    .directions()
+                    .iter()
+                    .map(|d| d.scaled(scheme.d0))
+                    .collect();
+                tasks.push(task(0, identity_lanes(method, x0), Some(sets)));
                 continue;
             }
             for (set, dirs) in spec.directions().iter().enumerate() {
                 let scaled = dirs.scaled(scheme.d0);
-                let deviations = match scheme.method {
-                    Method::Vm => Deviations::Variational {
-                        orbit: spec.x0().to_vec(),
-                        vectors: scaled,
-                    },
-                    Method::Mpm => Deviations::MultiParticle {
-                        orbits: scaled
-                            .chunks_exact(dim)
-                            .flat_map(|d| spec.x0().iter().zip(d).map(|(x, d)| x + d))
-                            .collect(),
-                    },
-                };
-                tasks.push(DeviationSet {
-                    scheme: si,
-                    set,
-                    deviations,
-                    work: Workspace::new(),
-                });
+                let mut lanes = Soa::unpadded(dim, spec.k());
+                let mut lane = vec![0.0; dim];
+                for (i, d) in scaled.chunks_exact(dim).enumerate() {
+                    method.start(x0, d, &mut lane);
+                    lanes.write_lane(i, &lane);
+                }
+                tasks.push(task(set, lanes, None));
             }
         }
         let divergence = spec.system().divergence(spec.x0()).map(|d| (d, 0.0));
@@ -223,6 +196,7 @@ impl Engine {
         let n_steps = target - self.step;
         let spec = &self.spec;
         let system = spec.system().as_ref();
+        // The window's start: where tangent lanes take the reference from.
         let last_good = self.reference.clone();
         let divergence_before = self.divergence;
         self.plan.clear();
@@ -266,8 +240,10 @@ impl Engine {
             substeps: &self.plan,
             bounds: &self.plan_bounds,
         };
-        let advance =
-            |task: &mut DeviationSet| task.advance(spec, reference, &plan, renorm[task.scheme], t);
+        let start = &last_good;
+        let advance = |task: &mut DeviationSet| {
+            task.advance(spec, start, reference, &plan, renorm[task.scheme], t)
+        };
         // Work of this window: state values stepped, over every task's orbits.
         let work = n_steps
             .saturating_mul((spec.k() as u64 + 1) * spec.dim() as u64)
@@ -401,86 +377,137 @@ impl Plan<'_> {
     }
 }
 
+/// The engine's stepper as a [`PointKernel`]: every lane follows the steps (and the substeps of
+/// adaptive systems) the reference took in the current window, lane by lane through the
+/// one-orbit system; tangent lanes are carried along a copy of the reference from its state at
+/// the window's start, stepped with them by the same code (so it agrees with the reference bit
+/// for bit).
+struct AlongReference<'a> {
+    system: &'a dyn DynamicalSystem,
+    plan: &'a Plan<'a>,
+    /// The reference at the window's start.
+    start: &'a [f64],
+    work: &'a mut Workspace,
+    rows: &'a mut Vec<f64>,
+}
+
+impl PointKernel for AlongReference<'_> {
+    fn orbit_steps(&mut self, x: &mut Soa, _steps: u64) {
+        self.rows.resize(x.rows(), 0.0);
+        for lane in 0..x.lanes() {
+            x.read_lane(lane, self.rows);
+            for substeps in self.plan.steps() {
+                self.system.step_along(self.rows, substeps, self.work);
+            }
+            x.write_lane(lane, self.rows);
+        }
+    }
+
+    fn reference_steps(&mut self, x: &mut [f64], _steps: u64) {
+        for substeps in self.plan.steps() {
+            self.system.step_along(x, substeps, self.work);
+        }
+    }
+
+    fn tangent_steps(&mut self, v: &mut Soa, _steps: u64) -> Result<(), TangentError> {
+        let dim = v.rows();
+        self.rows.resize(v.lanes() * dim, 0.0);
+        for (lane, row) in self.rows.chunks_exact_mut(dim).enumerate() {
+            v.read_lane(lane, row);
+        }
+        let mut orbit = self.start.to_vec();
+        for substeps in self.plan.steps() {
+            self.system
+                .step_tangent_along(&mut orbit, self.rows, substeps, self.work)?;
+        }
+        for (lane, row) in self.rows.chunks_exact(dim).enumerate() {
+            v.write_lane(lane, row);
+        }
+        Ok(())
+    }
+
+    #[inline]
+    fn separation(&self, y: &[f64], x: &[f64], out: &mut [f64]) {
+        self.system.separation(y, x, out);
+    }
+}
+
+/// The window propagator's lanes: the identity, `e_j` in lane `j` (unit vectors: the window
+/// propagator is VM's, and the tangent map is linear).
+fn identity_lanes(method: &dyn DeviationMethod, x: &[f64]) -> Soa {
+    let dim = x.len();
+    let mut lanes = Soa::unpadded(dim, dim);
+    let (mut e, mut lane) = (vec![0.0; dim], vec![0.0; dim]);
+    for j in 0..dim {
+        e.fill(0.0);
+        e[j] = 1.0;
+        method.start(x, &e, &mut lane);
+        lanes.write_lane(j, &lane);
+    }
+    lanes
+}
+
 impl DeviationSet {
     fn advance(
         &mut self,
         spec: &RunSpec,
+        start: &[f64],
         reference: &[f64],
         plan: &Plan<'_>,
         renormalize: bool,
         t: f64,
     ) -> Result<Vec<SchemeSample>, RunError> {
-        let system = spec.system().as_ref();
         let dim = spec.dim();
-        match &mut self.deviations {
-            Deviations::Propagated { orbit, basis, sets } => {
-                for substeps in plan.steps() {
-                    system.step_tangent_along(orbit, basis, substeps, &mut self.work)?;
-                }
-                debug_assert_eq!(orbit.as_slice(), reference);
-                if !renormalize {
-                    return Ok(Vec::new());
-                }
-                let mut samples = Vec::with_capacity(sets.len());
-                for (set, vectors) in sets.iter_mut().enumerate() {
-                    // M w, column by column of M: the same tangent map applied to w.
-                    let mut images = vec![0.0; vectors.len()];
-                    for (image, w) in images.chunks_exact_mut(dim).zip(vectors.chunks_exact(dim)) {
-                        for (column, wj) in basis.chunks_exact(dim).zip(w) {
-                            for (x, m) in image.iter_mut().zip(column) {
-                                *x += m * wj;
-                            }
-                        }
-                    }
-                    *vectors = images;
-                    samples.push(renormalized(spec, self.scheme, set, vectors, t)?);
-                }
-                set_identity(basis, dim);
-                Ok(samples)
-            }
-            Deviations::Variational { orbit, vectors } => {
-                for substeps in plan.steps() {
-                    system.step_tangent_along(orbit, vectors, substeps, &mut self.work)?;
-                }
-                debug_assert_eq!(
-                    orbit.as_slice(),
-                    reference,
-                    "variational copy of the orbit diverged"
-                );
-                if !renormalize {
-                    return Ok(Vec::new());
-                }
-                Ok(vec![renormalized(spec, self.scheme, self.set, vectors, t)?])
-            }
-            Deviations::MultiParticle { orbits } => {
-                for y in orbits.chunks_exact_mut(dim) {
-                    for substeps in plan.steps() {
-                        system.step_along(y, substeps, &mut self.work);
-                    }
-                }
-                if !renormalize {
-                    return Ok(Vec::new());
-                }
-                // Measured as the system measures separations (on the torus for angles).
-                let mut separations = vec![0.0; orbits.len()];
-                for (d, y) in separations
-                    .chunks_exact_mut(dim)
-                    .zip(orbits.chunks_exact(dim))
-                {
-                    system.separation(y, reference, d);
-                }
-                let sample = renormalized(spec, self.scheme, self.set, &mut separations, t)?;
-                for (y, d) in orbits
-                    .chunks_exact_mut(dim)
-                    .zip(separations.chunks_exact(dim))
-                {
-                    for ((yi, di), xi) in y.iter_mut().zip(d).zip(reference) {
-                        *yi = xi + di;
-                    }
-                }
-                Ok(vec![sample])
-            }
+        let kernel = &mut AlongReference {
+            system: spec.system().as_ref(),
+            plan,
+            start,
+            work: &mut self.work,
+            rows: &mut self.rows,
+        };
+        let steps = plan.bounds.len() as u64 - 1;
+        self.method.advance(kernel, &mut self.lanes, steps)?;
+        if !renormalize {
+            return Ok(Vec::new());
         }
+        let method = self.method;
+        let lanes = &mut self.lanes;
+        let Some(sets) = &mut self.propagated else {
+            // Per set: the lanes' deviations, renormalized; the lanes restart from them.
+            let mut separations = vec![0.0; lanes.lanes() * dim];
+            let mut lane = vec![0.0; dim];
+            for (i, d) in separations.chunks_exact_mut(dim).enumerate() {
+                lanes.read_lane(i, &mut lane);
+                method.deviation(kernel, &lane, reference, d);
+            }
+            let sample = renormalized(spec, self.scheme, self.set, &mut separations, t)?;
+            for (i, d) in separations.chunks_exact(dim).enumerate() {
+                method.start(reference, d, &mut lane);
+                lanes.write_lane(i, &lane);
+            }
+            return Ok(vec![sample]);
+        };
+        // Window propagator: M, column by column, applied to every set's vectors.
+        let mut basis = vec![0.0; dim * dim];
+        for (j, column) in basis.chunks_exact_mut(dim).enumerate() {
+            lanes.read_lane(j, column);
+        }
+        let mut samples = Vec::with_capacity(sets.len());
+        for (set, vectors) in sets.iter_mut().enumerate() {
+            // M w, column by column of M: the same tangent map applied to w.
+            let mut images = vec![0.0; vectors.len()];
+            for (image, w) in images.chunks_exact_mut(dim).zip(vectors.chunks_exact(dim)) {
+                for (column, wj) in basis.chunks_exact(dim).zip(w) {
+                    for (x, m) in image.iter_mut().zip(column) {
+                        *x += m * wj;
+                    }
+                }
+            }
+            *vectors = images;
+            samples.push(renormalized(spec, self.scheme, set, vectors, t)?);
+        }
+        *lanes = identity_lanes(method, reference);
+        Ok(samples)
     }
 }
 

@@ -181,9 +181,9 @@ pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
     let run = &spec.run;
     let (dimf, setsf) = (run.dim() as f64, run.sets() as f64);
     let per_point = match spec.route {
-        crate::map::Route::PerSet => 1.0 + setsf * run.k() as f64,
+        crate::map::MapRoute::PerSet => 1.0 + setsf * run.k() as f64,
         // One basis of dim tangent vectors or nearby orbits per point.
-        crate::map::Route::Propagator => 1.0 + dimf,
+        crate::map::MapRoute::Basis => 1.0 + dimf,
     };
     let steps = run.total_steps() as f64;
     let pointsf = points as f64;

@@ -9,6 +9,7 @@ pub mod engine;
 pub mod estimate;
 pub mod integrator;
 pub mod map;
+pub mod method;
 pub mod model;
 pub mod propagator;
 pub mod publish;

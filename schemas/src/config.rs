@@ -171,8 +171,9 @@ pub struct MapConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threshold: Option<f64>,
     /// How the sets are evolved: `"per-set"` (default, the reference: every set's `k` vectors
-    /// or nearby orbits) or `"propagator"` (one basis of `2N` tangent vectors (VM) or nearby
-    /// orbits (MPM) per point, every set's vectors formed from it).
+    /// or nearby orbits) or `"basis"` (one basis of `D` tangent vectors (VM) or nearby orbits
+    /// (MPM) per point, accumulated over the orbit, every set's vectors formed from it;
+    /// `"propagator"`, its former name, is read too).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub route: Option<String>,
 }

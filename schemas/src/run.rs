@@ -103,30 +103,31 @@ pub struct SchemeSpec {
     pub route: Route,
 }
 
-/// How deviation sets are evolved (`[[scheme]] route` of a VM scheme, `[map] route`).
+/// How a scheme of a run evolves its deviation sets (`[[scheme]] route`). A phase-space map's
+/// routes are another thing (`[map] route`, the producer's `map::MapRoute`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Route {
-    /// Every set's own `k` tangent vectors or nearby orbits (the reference).
+    /// `"per-set"`: every set's own `k` tangent vectors or nearby orbits (the reference).
     PerSet,
-    /// One basis of `2N` tangent vectors (VM) or nearby orbits (MPM, maps only), every set's
-    /// vectors formed from it: in a run the basis starts as the identity at every
-    /// renormalization of the scheme and its image, the tangent propagator of the window, is
-    /// applied to every set (the engine of chaoscope-producer); in a map, the map's propagator.
-    Propagator,
+    /// `"propagator"` (VM only): `D` tangent vectors evolved from the identity over each
+    /// renormalization window, the window's tangent propagator `M`, applied to every set's
+    /// vectors at the renormalization (`M w`, then renormalized as per set).
+    WindowPropagator,
 }
 
 impl Route {
+    /// As configs write it.
     pub fn name(self) -> &'static str {
         match self {
             Route::PerSet => "per-set",
-            Route::Propagator => "propagator",
+            Route::WindowPropagator => "propagator",
         }
     }
 
     pub fn from_name(s: &str) -> Option<Self> {
         match s {
             "per-set" => Some(Route::PerSet),
-            "propagator" => Some(Route::Propagator),
+            "propagator" => Some(Route::WindowPropagator),
             _ => None,
         }
     }

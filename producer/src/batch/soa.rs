@@ -25,6 +25,16 @@ impl Soa {
         }
     }
 
+    /// Storage for exactly `lanes` lanes, without padding: for steppers that go lane by lane
+    /// (the engine's), never for the batched kernels, which step whole chunks.
+    pub fn unpadded(rows: usize, lanes: usize) -> Self {
+        Self {
+            rows,
+            lanes,
+            data: vec![0.0; rows * lanes],
+        }
+    }
+
     pub fn rows(&self) -> usize {
         self.rows
     }

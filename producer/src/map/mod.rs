@@ -28,4 +28,4 @@ mod window;
 pub use indicator::Indicator;
 pub use point::{PointResult, PointStatus};
 pub use schedule::{MapOptions, run_map};
-pub use spec::{MapSpec, Route, Shard};
+pub use spec::{MapRoute, MapSpec, Shard};

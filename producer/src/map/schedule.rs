@@ -6,8 +6,8 @@ use chaoscope_schemas::run::Method;
 use rayon::prelude::*;
 
 use super::point::PointResult;
+use super::spec::MapRoute;
 use super::spec::MapSpec;
-use super::spec::Route;
 use super::{mpm, propagator, vm};
 use crate::batch::Isa;
 use crate::publish::Termination;
@@ -60,11 +60,11 @@ pub fn run_map(
         _ if !spec.has_batched_kernel() => 1,
         // Each point has 1 + 2N lanes instead of 1 + sets * k: more points fill the kernel's
         // chunks as well.
-        Method::Mpm if spec.route == Route::Propagator => {
+        Method::Mpm if spec.route == MapRoute::Basis => {
             options.mpm_points_per_batch.max(1) * ROUTE_BATCH_FACTOR
         }
         // One lane per point (its orbit and basis): the points fill the kernel's chunks.
-        Method::Vm if spec.route == Route::Propagator && spec.fuses_orbits_and_tangents() => {
+        Method::Vm if spec.route == MapRoute::Basis && spec.fuses_orbits_and_tangents() => {
             options.mpm_points_per_batch.max(1) * ROUTE_BATCH_FACTOR
         }
         Method::Mpm => options.mpm_points_per_batch.max(1),
@@ -85,16 +85,16 @@ pub fn run_map(
                         return;
                     }
                     let results = match spec.run.schemes()[0].method {
-                        Method::Mpm if spec.route == Route::Propagator => {
+                        Method::Mpm if spec.route == MapRoute::Basis => {
                             propagator::compute_mpm(spec, options.isa, chunk, &stopped)
                         }
                         Method::Vm
-                            if spec.route == Route::Propagator
+                            if spec.route == MapRoute::Basis
                                 && spec.fuses_orbits_and_tangents() =>
                         {
                             propagator::compute_vm_batch(spec, options.isa, chunk, &stopped)
                         }
-                        Method::Vm if spec.route == Route::Propagator => chunk
+                        Method::Vm if spec.route == MapRoute::Basis => chunk
                             .iter()
                             .map_while(|&i| propagator::compute_vm(spec, options.isa, i, &stopped))
                             .collect(),

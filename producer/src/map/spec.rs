@@ -122,14 +122,47 @@ impl std::fmt::Display for Shard {
     }
 }
 
-/// How a map evolves its deviation sets (`[map] route`), as VM schemes of a run do.
-pub use chaoscope_schemas::run::Route;
+/// How a map evolves every point's deviation sets (`[map] route`). Not a run's route
+/// (`chaoscope_schemas::run::Route`): a map's basis is accumulated over the whole orbit, for
+/// either method.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MapRoute {
+    /// `"per-set"`: every set's own `k` tangent vectors or nearby orbits (the reference).
+    PerSet,
+    /// `"basis"` (`"propagator"`, its former name, is read too): one basis of `D` lanes per
+    /// point, tangent vectors (VM) or nearby orbits at `d0` (MPM: a finite-difference
+    /// propagator), QR-renormalized every window and accumulated as the scaled QR propagator
+    /// ([`crate::propagator`]); every set's vectors formed from it ([`super::basis`]).
+    Basis,
+}
 
-/// The `d0` range of the MPM propagator route: there its maps agree with per-set MPM within the
+impl MapRoute {
+    /// As configs write it.
+    pub fn name(self) -> &'static str {
+        match self {
+            MapRoute::PerSet => "per-set",
+            MapRoute::Basis => "basis",
+        }
+    }
+
+    /// `[map] route` (absent: per-set).
+    fn from_config(value: Option<&str>) -> Result<Self, SpecError> {
+        match value {
+            None | Some("per-set") => Ok(MapRoute::PerSet),
+            Some("basis" | "propagator") => Ok(MapRoute::Basis),
+            Some(other) => Err(SpecError::new(
+                "map.route",
+                format!("'{other}' is not per-set or basis"),
+            )),
+        }
+    }
+}
+
+/// The `d0` range of the MPM basis route: there its maps agree with per-set MPM within the
 /// per-set MPM-VM distance (`chaoscope bench --routes`, examples/paper/RESULTS.md). Outside it
 /// the finite-difference basis carries the nonlinear terms (large `d0`) or the rounding of
 /// `x + d0 q` (small `d0`) into every set at once.
-pub const MPM_PROPAGATOR_D0: (f64, f64) = (1e-10, 1e-6);
+pub const MPM_BASIS_D0: (f64, f64) = (1e-10, 1e-6);
 
 /// A validated map.
 #[derive(Clone)]
@@ -139,7 +172,7 @@ pub struct MapSpec {
     pub x: Axis,
     pub y: Axis,
     pub indicator: Indicator,
-    pub route: Route,
+    pub route: MapRoute,
     /// Momentum index solved from `energy` per point, if any.
     pub solve_for: Option<usize>,
     pub energy: Option<f64>,
@@ -190,22 +223,22 @@ impl MapSpec {
             ));
         }
         let indicator = Indicator::from_config(map, k)?;
-        let route = crate::spec::route_from_config("map.route", map.route.as_deref())?;
-        if route == Route::Propagator {
+        let route = MapRoute::from_config(map.route.as_deref())?;
+        if route == MapRoute::Basis {
             if run.system().batched(Isa::detect()).is_none() {
                 return Err(SpecError::new(
                     "map.route",
-                    "the propagator route runs on the batched kernel (separable Hamiltonians, \
+                    "the basis route runs on the batched kernel (separable Hamiltonians, \
                      discrete maps, fixed-step explicit Runge-Kutta flows); use \"per-set\"",
                 ));
             }
             let d0 = run.schemes()[0].d0;
-            let (lo, hi) = MPM_PROPAGATOR_D0;
+            let (lo, hi) = MPM_BASIS_D0;
             if run.schemes()[0].method == Method::Mpm && !(lo..=hi).contains(&d0) {
                 return Err(SpecError::new(
                     "map.route",
                     format!(
-                        "the MPM propagator route is valid for {lo:e} <= d0 <= {hi:e} \
+                        "the MPM basis route is valid for {lo:e} <= d0 <= {hi:e} \
                          (scheme d0 = {d0:e}); use \"per-set\""
                     ),
                 ));

@@ -470,12 +470,12 @@ impl RunSpec {
                     )
                 })?;
             let route = route_from_config(&key("route"), s.route.as_deref())?;
-            if route == Route::Propagator {
+            if route == Route::WindowPropagator {
                 if method != Method::Vm {
                     return Err(SpecError::new(
                         key("route"),
-                        "the propagator route of a run is for vm schemes (maps also offer it \
-                         for mpm: [map] route)",
+                        "the propagator route of a run (the window's tangent propagator) is for \
+                         vm schemes (a map's basis route also takes mpm: [map] route)",
                     ));
                 }
                 // It integrates 2N tangent vectors where the per-set route integrates sets x k,

@@ -17,8 +17,8 @@ pub struct SchemeConfig {
     #[serde(default = "default_orthonormalize")]
     pub orthonormalize: String,
     /// How a `vm` scheme evolves its sets: `"per-set"` (default, the reference: every set's
-    /// `k` tangent vectors) or `"propagator"` (the `2N` tangent vectors of a basis, once per
-    /// renormalization window, applied to every set).
+    /// `k` tangent vectors) or `"propagator"` (the `D` tangent vectors of a basis evolved over
+    /// each renormalization window, the window's tangent propagator, applied to every set).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub route: Option<String>,
 }

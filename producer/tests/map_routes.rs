@@ -2,7 +2,7 @@
 //! route gives every set's value per-set VM gives wherever per-set VM resolves it, and the MPM
 //! route is as close to VM as per-set MPM is. Config mistakes name `map.route`.
 
-use chaoscope_producer::map::{MapOptions, MapSpec, PointResult, PointStatus, run_map};
+use chaoscope_producer::map::{MapOptions, MapRoute, MapSpec, PointResult, PointStatus, run_map};
 use chaoscope_schemas::config::{DeviationsConfig, MapConfig, RunConfig, SchemeConfig, paper};
 
 fn config(method: &str, route: &str, d0: f64) -> RunConfig {
@@ -109,17 +109,25 @@ fn route_mistakes_name_the_key() {
     }
     // VM is linear: any d0 is the same propagator.
     assert!(MapSpec::from_config(&config("vm", "propagator", 1e-4)).is_ok());
+    // "basis" is the route's name, "propagator" its former spelling: the same map.
+    let (a, b) = (
+        MapSpec::from_config(&config("mpm", "basis", 1e-8)).unwrap(),
+        MapSpec::from_config(&config("mpm", "propagator", 1e-8)).unwrap(),
+    );
+    assert_eq!((a.route, b.route), (MapRoute::Basis, MapRoute::Basis));
 }
 
 #[test]
 fn batched_vm_route_is_the_per_point_vm_route_bit_for_bit() {
-    // run_map takes separable Hamiltonians' VM route through the many-points kernel (one lane
-    // per point: orbit and basis); compute_vm integrates one point with its recorded reference.
+    // run_map takes separable Hamiltonians' VM basis route through the fused many-points kernel
+    // (one lane per point: orbit and basis); basis::compute integrates one point with its
+    // recorded reference.
     let spec = MapSpec::from_config(&config("vm", "propagator", 1e-8)).unwrap();
     let batched = map("vm", "propagator");
     let isa = chaoscope_producer::batch::Isa::detect();
     for r in &batched {
-        let one = chaoscope_producer::map::propagator::compute_vm(&spec, isa, r.index, &|| false)
+        let one = chaoscope_producer::map::basis::compute(&spec, isa, &[r.index], &|| false)
+            .pop()
             .unwrap();
         assert!(r.same_numbers(&one), "point {}: {r:?} vs {one:?}", r.index);
     }

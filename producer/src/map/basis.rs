@@ -1,8 +1,10 @@
-//! The propagator route of a map (`[map] route = "propagator"`): every set's indicator from one
-//! evolved basis per point instead of `sets * k` vectors (see [`crate::propagator`]).
+//! The basis route of a map (`[map] route = "basis"`, formerly `"propagator"`): every set's
+//! indicator from one evolved basis per point instead of `sets * k` vectors, accumulated over
+//! the whole orbit as the scaled QR propagator ([`crate::propagator`]). The basis is `D` lanes
+//! of the scheme's [`DeviationMethod`], at its basis norm:
 //!
-//! - VM: the `D = 2N` basis vectors are tangent vectors around the point's reference orbit (the
-//!   batched tangent kernel, as per-set VM), QR-renormalized every window.
+//! - VM: `D` unit tangent vectors around the point's reference orbit, QR-renormalized every
+//!   window.
 //! - MPM: `D` nearby orbits at `x + d0 q_j`, integrated with the full equations of motion like
 //!   per-set MPM's, and restarted at `x + d0 q_j,new` after each window's QR of the separations:
 //!   a finite-difference propagator. It differs from per-set MPM by terms of order `d0` (the
@@ -21,6 +23,7 @@ use super::spec::MapSpec;
 use super::window::{Window, Windows, check_escape};
 use crate::batch::{Isa, PointKernel, Soa};
 use crate::engine::RunError;
+use crate::method::{self, DeviationMethod};
 use crate::propagator::{Propagator, SetImage};
 use crate::spec::RunSpec;
 
@@ -88,84 +91,229 @@ fn basis_error(
     }
 }
 
-/// VM: the point `index`, or `None` if `stop()` (asked at every window) became true first.
-pub fn compute_vm(
-    spec: &MapSpec,
-    isa: Isa,
-    index: u64,
-    stop: &dyn Fn() -> bool,
-) -> Option<PointResult> {
-    let mut kernel = batched(spec, isa);
-    vm_with(kernel.as_mut(), spec, index, stop)
+/// A point being computed.
+struct Live {
+    base: PointResult,
+    acc: PointAccumulator,
+    prop: Propagator,
+    sets: Sets,
+    /// Its reference state: read from lane `ref_lane` when the lanes are orbits, stepped here
+    /// by the kernel otherwise.
+    x: Vec<f64>,
+    ref_lane: Option<usize>,
+    /// The lane of its first basis vector; the `D` lanes are consecutive.
+    first: usize,
+    orbit_steps: u64,
 }
 
-/// The system's batched form (validation keeps the propagator route to systems with one).
+/// Points advanced by one kernel call: their lanes (for tangent lanes, one point's).
+struct Group {
+    soa: Soa,
+    points: Vec<Live>,
+}
+
+/// The system's batched form (validation keeps the basis route to systems with one).
 fn batched(spec: &MapSpec, isa: Isa) -> Box<dyn PointKernel + '_> {
     spec.run
         .system()
         .batched(isa)
-        .expect("validation keeps the propagator route to systems with a batched form")
+        .expect("validation keeps the basis route to systems with a batched form")
 }
 
-fn vm_with(
-    kernel: &mut dyn PointKernel,
-    spec: &MapSpec,
-    index: u64,
-    stop: &dyn Fn() -> bool,
-) -> Option<PointResult> {
-    let run = &spec.run;
-    let dim = run.dim();
-    let (base, mut x) = match spec.start_point(index) {
-        Ok(start) => start,
-        Err(outside) => return Some(*outside),
-    };
-    let mut acc = spec.accumulator();
-    let mut prop = Propagator::new(dim);
-    let mut soa = Soa::new(dim, dim);
-    let mut evolved = vec![0.0; dim * dim];
-    let mut sets = Sets::new(run);
-    let mut orbit_steps = 0;
-    for w in Windows::new(run) {
-        if stop() {
-            return None;
-        }
-        for (j, q) in prop.basis().chunks_exact(dim).enumerate() {
-            soa.write_lane(j, q);
-        }
-        orbit_steps += w.steps * (1 + dim as u64);
-        kernel.reference_steps(&mut x, w.steps);
-        if let Err(e) = kernel.tangent_steps(&mut soa, w.steps) {
-            return Some(broke_off(base, w.t, &e.into(), orbit_steps));
-        }
-        if let Err(e) = check_escape(&x, w.t) {
-            return Some(broke_off(base, w.t, &e, orbit_steps));
-        }
-        for (j, y) in evolved.chunks_exact_mut(dim).enumerate() {
-            soa.read_lane(j, y);
-        }
-        if let Err(e) = prop.renormalize(&evolved, 1.0) {
-            return Some(broke_off(base, w.t, &basis_error(run, &w, e), orbit_steps));
-        }
-        sets.observe(run, &prop, &mut acc, &w);
-        if acc.is_done() {
-            break;
-        }
-    }
-    Some(acc.finish(base, orbit_steps))
-}
-
-/// VM, many points at once: one lane per point holding its orbit and its `D` basis vectors
-/// (`PointKernel::orbit_tangent_steps`; fused into one pass for separable Hamiltonians), so the
-/// reference orbits share the SIMD lanes too; the same numbers as [`compute_vm`] bit for bit
-/// (the kernel repeats the reference's recorded stages and the tangent steps lane by lane).
-pub fn compute_vm_batch(
+/// Computes the points `indices` (several at once when the method's lanes are orbits); results
+/// in no particular order. Once `stop()` (asked at every window) is true, returns the points
+/// finished so far.
+pub fn compute(
     spec: &MapSpec,
     isa: Isa,
     indices: &[u64],
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
     let mut kernel = batched(spec, isa);
-    vm_batch_with(kernel.as_mut(), spec, indices, stop)
+    let kernel = kernel.as_mut();
+    let run = &spec.run;
+    let method = method::of(run.schemes()[0].method);
+    let orbits = method.lanes_are_orbits();
+    let dim = run.dim();
+    let mut out = Vec::with_capacity(indices.len());
+    let mut groups: Vec<Group> = Vec::new();
+    let mut lanes: Vec<Vec<f64>> = Vec::new();
+    let mut points = Vec::new();
+    for &index in indices {
+        match spec.start_point(index) {
+            Err(outside) => out.push(*outside),
+            Ok((base, x0)) => {
+                if !orbits && !points.is_empty() {
+                    groups.push(group(&mut lanes, std::mem::take(&mut points), dim));
+                }
+                points.push(start(spec, method, base, x0, &mut lanes));
+            }
+        }
+    }
+    if !points.is_empty() {
+        groups.push(group(&mut lanes, points, dim));
+    }
+    let mut windows = Windows::new(run);
+    while groups.iter().any(|g| !g.points.is_empty()) {
+        if stop() {
+            break;
+        }
+        let Some(w) = windows.next() else { break };
+        for g in &mut groups {
+            out.extend(window(kernel, method, spec, g, &w));
+        }
+        groups.retain(|g| !g.points.is_empty());
+    }
+    out
+}
+
+/// A point's reference and its basis lanes `x + s q_j` (orbits) or `s q_j` (tangent vectors),
+/// `s` the method's basis norm, appended to `lanes`.
+fn start(
+    spec: &MapSpec,
+    method: &dyn DeviationMethod,
+    base: PointResult,
+    x0: Vec<f64>,
+    lanes: &mut Vec<Vec<f64>>,
+) -> Live {
+    let run = &spec.run;
+    let dim = run.dim();
+    let prop = Propagator::new(dim);
+    let ref_lane = method.lanes_are_orbits().then(|| {
+        lanes.push(x0.clone());
+        lanes.len() - 1
+    });
+    let first = lanes.len();
+    let norm = method.basis_norm(run.schemes()[0].d0);
+    for q in prop.basis().chunks_exact(dim) {
+        let d: Vec<f64> = q.iter().map(|q| norm * q).collect();
+        let mut lane = vec![0.0; dim];
+        method.start(&x0, &d, &mut lane);
+        lanes.push(lane);
+    }
+    Live {
+        acc: spec.accumulator(),
+        sets: Sets::new(run),
+        prop,
+        base,
+        x: x0,
+        ref_lane,
+        first,
+        orbit_steps: 0,
+    }
+}
+
+/// The points whose lanes are `lanes` (taken), as one lane array.
+fn group(lanes: &mut Vec<Vec<f64>>, points: Vec<Live>, dim: usize) -> Group {
+    let mut soa = Soa::new(dim, lanes.len());
+    for (l, x) in lanes.drain(..).enumerate() {
+        soa.write_lane(l, &x);
+    }
+    Group { soa, points }
+}
+
+/// One window of a group: advance its lanes, QR-renormalize every point's basis and restart its
+/// lanes from it, observe the sets. Returns the points that finished or failed.
+fn window(
+    kernel: &mut dyn PointKernel,
+    method: &dyn DeviationMethod,
+    spec: &MapSpec,
+    g: &mut Group,
+    w: &Window,
+) -> Vec<PointResult> {
+    let run = &spec.run;
+    let dim = run.dim();
+    let norm = method.basis_norm(run.schemes()[0].d0);
+    for p in &mut g.points {
+        p.orbit_steps += w.steps * (1 + dim as u64);
+    }
+    if method.lanes_are_orbits() {
+        if let Err(e) = method.advance(kernel, &mut g.soa, w.steps) {
+            let e = RunError::from(e);
+            return g
+                .points
+                .drain(..)
+                .map(|p| broke_off(p.base, w.t, &e, p.orbit_steps))
+                .collect();
+        }
+    } else {
+        let p = &mut g.points[0];
+        kernel.reference_steps(&mut p.x, w.steps);
+        if let Err(e) = method.advance(kernel, &mut g.soa, w.steps) {
+            let p = g.points.remove(0);
+            return vec![broke_off(p.base, w.t, &e.into(), p.orbit_steps)];
+        }
+    }
+    let mut out = Vec::new();
+    let before = g.points.len();
+    let mut keep = Vec::with_capacity(before);
+    let (mut lane, mut d) = (vec![0.0; dim], vec![0.0; dim]);
+    let mut deviations = vec![0.0; dim * dim];
+    for mut p in g.points.drain(..) {
+        if let Some(r) = p.ref_lane {
+            g.soa.read_lane(r, &mut p.x);
+        }
+        if let Err(e) = check_escape(&p.x, w.t) {
+            out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
+            continue;
+        }
+        for (j, dev) in deviations.chunks_exact_mut(dim).enumerate() {
+            g.soa.read_lane(p.first + j, &mut lane);
+            method.deviation(kernel, &lane, &p.x, dev);
+        }
+        if let Err(e) = p.prop.renormalize(&deviations, norm) {
+            out.push(broke_off(
+                p.base,
+                w.t,
+                &basis_error(run, w, e),
+                p.orbit_steps,
+            ));
+            continue;
+        }
+        for (j, q) in p.prop.basis().chunks_exact(dim).enumerate() {
+            for (dj, qj) in d.iter_mut().zip(q) {
+                *dj = norm * qj;
+            }
+            method.start(&p.x, &d, &mut lane);
+            g.soa.write_lane(p.first + j, &lane);
+        }
+        p.sets.observe(run, &p.prop, &mut p.acc, w);
+        if p.acc.is_done() {
+            out.push(p.acc.finish(p.base, p.orbit_steps));
+            continue;
+        }
+        keep.push(p);
+    }
+    if keep.len() != before && !keep.is_empty() {
+        let per_point = usize::from(keep[0].ref_lane.is_some()) + dim;
+        let mut firsts: Vec<usize> = keep.iter().map(|p| p.ref_lane.unwrap_or(p.first)).collect();
+        g.soa = compact(&g.soa, dim, per_point, firsts.iter_mut());
+        for (p, at) in keep.iter_mut().zip(firsts) {
+            match &mut p.ref_lane {
+                Some(r) => {
+                    *r = at;
+                    p.first = at + 1;
+                }
+                None => p.first = at,
+            }
+        }
+    }
+    g.points = keep;
+    out
+}
+
+/// VM, many points at once: one lane per point holding its orbit and its `D` basis vectors
+/// (`PointKernel::orbit_tangent_steps`; fused into one pass for separable Hamiltonians), so the
+/// reference orbits share the SIMD lanes too; the same numbers as [`compute`] bit for bit
+/// (the kernel repeats the reference's recorded stages and the tangent steps lane by lane).
+pub fn compute_fused(
+    spec: &MapSpec,
+    isa: Isa,
+    indices: &[u64],
+    stop: &dyn Fn() -> bool,
+) -> Vec<PointResult> {
+    let mut kernel = batched(spec, isa);
+    fused_with(kernel.as_mut(), spec, indices, stop)
 }
 
 struct LiveVm {
@@ -177,7 +325,7 @@ struct LiveVm {
     orbit_steps: u64,
 }
 
-fn vm_batch_with(
+fn fused_with(
     kernel: &mut dyn PointKernel,
     spec: &MapSpec,
     indices: &[u64],
@@ -257,117 +405,6 @@ fn vm_batch_with(
         }
         if keep.len() != before {
             soa = compact(&soa, rows, 1, keep.iter_mut().map(|p| &mut p.lane));
-        }
-        live = keep;
-    }
-    out
-}
-
-struct Live {
-    base: PointResult,
-    acc: PointAccumulator,
-    prop: Propagator,
-    sets: Sets,
-    /// The reference orbit's lane; the `D` nearby orbits follow it.
-    lane: usize,
-    orbit_steps: u64,
-}
-
-/// MPM: the points `indices` together (each a reference and `D` nearby orbits in one lane
-/// array); results in no particular order. Once `stop()` (asked at every window) is true,
-/// returns the points finished so far.
-pub fn compute_mpm(
-    spec: &MapSpec,
-    isa: Isa,
-    indices: &[u64],
-    stop: &dyn Fn() -> bool,
-) -> Vec<PointResult> {
-    let mut kernel = batched(spec, isa);
-    mpm_with(kernel.as_mut(), spec, indices, stop)
-}
-
-fn mpm_with(
-    kernel: &mut dyn PointKernel,
-    spec: &MapSpec,
-    indices: &[u64],
-    stop: &dyn Fn() -> bool,
-) -> Vec<PointResult> {
-    let run = &spec.run;
-    let (dim, d0) = (run.dim(), run.schemes()[0].d0);
-    let mut out = Vec::with_capacity(indices.len());
-    let mut live = Vec::new();
-    let mut lanes: Vec<Vec<f64>> = Vec::new();
-    for &index in indices {
-        match spec.start_point(index) {
-            Err(outside) => out.push(*outside),
-            Ok((base, x0)) => {
-                let prop = Propagator::new(dim);
-                let lane = lanes.len();
-                lanes.push(x0.clone());
-                for q in prop.basis().chunks_exact(dim) {
-                    lanes.push(x0.iter().zip(q).map(|(x, q)| x + d0 * q).collect());
-                }
-                live.push(Live {
-                    base,
-                    acc: spec.accumulator(),
-                    prop,
-                    sets: Sets::new(run),
-                    lane,
-                    orbit_steps: 0,
-                });
-            }
-        }
-    }
-    let mut soa = Soa::new(dim, lanes.len());
-    for (l, x) in lanes.iter().enumerate() {
-        soa.write_lane(l, x);
-    }
-    let (mut x, mut y) = (vec![0.0; dim], vec![0.0; dim]);
-    let mut separations = vec![0.0; dim * dim];
-    let mut windows = Windows::new(run);
-    while !live.is_empty() {
-        if stop() {
-            break;
-        }
-        let Some(w) = windows.next() else { break };
-        kernel.orbit_steps(&mut soa, w.steps);
-        let before = live.len();
-        let mut keep = Vec::with_capacity(before);
-        for mut p in live.drain(..) {
-            p.orbit_steps += w.steps * (1 + dim as u64);
-            soa.read_lane(p.lane, &mut x);
-            if let Err(e) = check_escape(&x, w.t) {
-                out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
-                continue;
-            }
-            for (j, d) in separations.chunks_exact_mut(dim).enumerate() {
-                soa.read_lane(p.lane + 1 + j, &mut y);
-                kernel.separation(&y, &x, d);
-            }
-            if let Err(e) = p.prop.renormalize(&separations, d0) {
-                out.push(broke_off(
-                    p.base,
-                    w.t,
-                    &basis_error(run, &w, e),
-                    p.orbit_steps,
-                ));
-                continue;
-            }
-            for (j, q) in p.prop.basis().chunks_exact(dim).enumerate() {
-                for (yi, (xi, qi)) in y.iter_mut().zip(x.iter().zip(q)) {
-                    *yi = xi + d0 * qi;
-                }
-                soa.write_lane(p.lane + 1 + j, &y);
-            }
-            p.sets.observe(run, &p.prop, &mut p.acc, &w);
-            if p.acc.is_done() {
-                out.push(p.acc.finish(p.base, p.orbit_steps));
-                continue;
-            }
-            keep.push(p);
-        }
-        if keep.len() != before {
-            soa = compact(&soa, dim, 1 + dim, keep.iter_mut().map(|p| &mut p.lane));
         }
         live = keep;
     }

@@ -4,9 +4,10 @@
 //! - [`spec`]: the validated `[map]` section, the grid, shards, each point's initial condition.
 //! - [`indicator`]: what is accumulated per deviation set and how a point's value is formed.
 //! - [`point`]: a point's result.
-//! - [`mpm`], [`vm`]: the batched computation of points over the system's batched form
-//!   (`DynamicalSystem::batched`, a [`crate::batch::PointKernel`]).
-//! - [`propagator`]: `route = "propagator"`: every set from one evolved basis per point.
+//! - [`per_set`]: the per-set route, every set's `k` lanes; [`basis`]: the basis route, every
+//!   set formed from one evolved basis per point. Both drive the scheme's method
+//!   ([`crate::method`]) over the system's batched form (`DynamicalSystem::batched`, a
+//!   [`crate::batch::PointKernel`]).
 //! - [`one_orbit`]: the same point computed by the one-orbit [`crate::engine::Engine`]; the
 //!   batched path must agree with it bit for bit (tests).
 //! - [`schedule`]: rayon across points, results streamed to a sink as they complete.
@@ -14,15 +15,14 @@
 //! Every point is a deterministic function of the configuration and its grid index alone, so
 //! results are identical for any thread count, batch grouping, shard split or resumption.
 
+pub mod basis;
 pub mod indicator;
-pub mod mpm;
 pub mod one_orbit;
+pub mod per_set;
 pub mod point;
-pub mod propagator;
 pub mod record;
 pub mod schedule;
 pub mod spec;
-pub mod vm;
 mod window;
 
 pub use indicator::Indicator;

@@ -2,17 +2,17 @@
 
 use std::sync::mpsc;
 
-use chaoscope_schemas::run::Method;
 use rayon::prelude::*;
 
 use super::point::PointResult;
 use super::spec::MapRoute;
 use super::spec::MapSpec;
-use super::{mpm, propagator, vm};
+use super::{basis, per_set};
 use crate::batch::Isa;
+use crate::method;
 use crate::publish::Termination;
 
-/// MPM points per batch on the propagator route, in units of
+/// Points per batch on the basis route (and the fused one), in units of
 /// [`MapOptions::mpm_points_per_batch`].
 const ROUTE_BATCH_FACTOR: usize = 8;
 
@@ -55,20 +55,23 @@ pub fn run_map(
         builder = builder.num_threads(n);
     }
     let pool = builder.build()?;
-    let per_batch = match spec.run.schemes()[0].method {
+    let orbits = method::of(spec.run.schemes()[0].method).lanes_are_orbits();
+    // The basis of tangent vectors of many points at once, one lane per point (its orbit and
+    // basis), where the kernel fuses them.
+    let fused = spec.route == MapRoute::Basis && !orbits && spec.fuses_orbits_and_tangents();
+    let points_per_batch = options.mpm_points_per_batch.max(1);
+    let per_batch = if !spec.has_batched_kernel() {
         // Systems without a batched kernel: one point at a time through the one-orbit engine.
-        _ if !spec.has_batched_kernel() => 1,
-        // Each point has 1 + 2N lanes instead of 1 + sets * k: more points fill the kernel's
-        // chunks as well.
-        Method::Mpm if spec.route == MapRoute::Basis => {
-            options.mpm_points_per_batch.max(1) * ROUTE_BATCH_FACTOR
-        }
-        // One lane per point (its orbit and basis): the points fill the kernel's chunks.
-        Method::Vm if spec.route == MapRoute::Basis && spec.fuses_orbits_and_tangents() => {
-            options.mpm_points_per_batch.max(1) * ROUTE_BATCH_FACTOR
-        }
-        Method::Mpm => options.mpm_points_per_batch.max(1),
-        Method::Vm => 1,
+        1
+    } else if fused || (orbits && spec.route == MapRoute::Basis) {
+        // One lane per point, or 1 + D lanes instead of 1 + sets * k: more points fill the
+        // kernel's chunks as well.
+        points_per_batch * ROUTE_BATCH_FACTOR
+    } else if orbits {
+        points_per_batch
+    } else {
+        // Tangent lanes follow their own point's reference: one point at a time.
+        1
     };
     let (tx, rx) = mpsc::channel::<PointResult>();
     let stop = std::sync::atomic::AtomicBool::new(false);
@@ -84,25 +87,10 @@ pub fn run_map(
                     if stopped() {
                         return;
                     }
-                    let results = match spec.run.schemes()[0].method {
-                        Method::Mpm if spec.route == MapRoute::Basis => {
-                            propagator::compute_mpm(spec, options.isa, chunk, &stopped)
-                        }
-                        Method::Vm
-                            if spec.route == MapRoute::Basis
-                                && spec.fuses_orbits_and_tangents() =>
-                        {
-                            propagator::compute_vm_batch(spec, options.isa, chunk, &stopped)
-                        }
-                        Method::Vm if spec.route == MapRoute::Basis => chunk
-                            .iter()
-                            .map_while(|&i| propagator::compute_vm(spec, options.isa, i, &stopped))
-                            .collect(),
-                        Method::Mpm => mpm::compute(spec, options.isa, chunk, &stopped),
-                        Method::Vm => chunk
-                            .iter()
-                            .map_while(|&i| vm::compute(spec, options.isa, i, &stopped))
-                            .collect(),
+                    let results = match spec.route {
+                        _ if fused => basis::compute_fused(spec, options.isa, chunk, &stopped),
+                        MapRoute::Basis => basis::compute(spec, options.isa, chunk, &stopped),
+                        MapRoute::PerSet => per_set::compute(spec, options.isa, chunk, &stopped),
                     };
                     for r in results {
                         // The receiver hung up: the caller stopped.

@@ -46,6 +46,9 @@ enum Command {
     Merge(cli::merge::Args),
     /// Throughput of the batched kernel and the paper's GALI_2 map workload, as JSON.
     Bench(cli::bench::Args),
+    /// Validate a configuration without running it, or print the JSON Schema of configurations
+    /// (--schema) for TOML editors.
+    Config(cli::config::Args),
 }
 
 fn main() -> ExitCode {
@@ -68,6 +71,7 @@ fn main() -> ExitCode {
         Command::Bench(args) => cli::bench::main(args),
         Command::Section(args) => cli::section::main(args),
         Command::Chart(args) => cli::chart::main(args),
+        Command::Config(args) => cli::config::main(args),
     };
     result.unwrap_or_else(|e| {
         eprintln!("chaoscope: error: {e:#}");

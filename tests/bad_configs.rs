@@ -294,7 +294,7 @@ fn cases() -> Vec<Case> {
         map("map min above max", "min = -0.4, max = 0.6", "min = 0.6, max = -0.4", "map.x.min", "min <= max"),
         map("map min NaN", "min = -0.4, max = 0.4", "min = nan, max = 0.4", "map.y.min", "finite"),
         map("map unknown indicator", "indicator = \"gali\"", "indicator = \"fli\"", "map.indicator", "is not gali"),
-        map("map unknown route", "indicator = \"gali\"", "indicator = \"gali\"\nroute = \"shared\"", "map.route", "is not per-set or propagator"),
+        map("map unknown route", "indicator = \"gali\"", "indicator = \"gali\"\nroute = \"shared\"", "map.route", "is not per-set or basis"),
         map("map MPM propagator route with a large d0", "d0 = 1e-8\ntau = 0.5\n\n[map]", "d0 = 1e-3\ntau = 0.5\n\n[map]\nroute = \"propagator\"", "map.route", "valid for"),
         map("map k above 2N", "indicator = \"gali\"", "indicator = \"gali\"\nk = 5", "map.k", "2n"),
         map("map threshold negative", "indicator = \"gali\"", "indicator = \"gali-time\"\nthreshold = -1.0", "map.threshold", "threshold"),
@@ -707,4 +707,100 @@ fn the_estimate_refuses_no_example_and_no_test_run() {
     // the configs above; the longest are the paper's runs (`examples/paper`).
     let spec = RunSpec::from_config(&common::hh_config(1000.0, 1.0)).unwrap();
     assert_eq!(estimate::run(&spec, &machine).refusal(&machine), None);
+}
+
+#[test]
+fn the_json_schema_accepts_every_example_and_refuses_a_typo() {
+    // The schema `chaoscope config --schema` prints, checked by a third-party validator (Python's
+    // jsonschema, as TOML editors check a file) against every configuration a user is shown:
+    // the examples and `run`'s default; and a config with a misspelled key must be refused.
+    if !common::python_checks_enabled() {
+        return;
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let tmp = tempfile::tempdir().unwrap();
+    let out = Command::new(CHAOSCOPE)
+        .args(["config", "--schema"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let schema = tmp.path().join("schema.json");
+    std::fs::write(&schema, &out.stdout).unwrap();
+    let mut valid = vec![root.join("src/cli/hh_chaotic.toml")];
+    let mut dirs = vec![root.join("examples")];
+    while let Some(dir) = dirs.pop() {
+        for e in std::fs::read_dir(dir).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                dirs.push(p);
+            } else if p.extension().is_some_and(|x| x == "toml")
+                && p.file_name().is_some_and(|n| n != "Cargo.toml")
+            {
+                valid.push(p);
+            }
+        }
+    }
+    assert!(valid.len() > 25, "{} configs", valid.len());
+    // Typos a user makes: a misspelled key at the top of a table, in a scheme, in [model] (a key
+    // of another kind), and a misspelled table.
+    let typos = [
+        spoil(RUN, "t_final = 1.0", "t_finall = 1.0"),
+        spoil(RUN, "d0 = 1e-8", "do = 1e-8"),
+        spoil(
+            RUN,
+            "name = \"henon-heiles\"",
+            "name = \"henon-heiles\"\nbeta = 1.0",
+        ),
+        spoil(MAP, "[map]", "[maps]"),
+    ];
+    let mut invalid = Vec::new();
+    for (i, text) in typos.iter().enumerate() {
+        let path = tmp.path().join(format!("typo{i}.toml"));
+        std::fs::write(&path, text).unwrap();
+        invalid.push(path);
+    }
+    let out = Command::new("python3")
+        .arg(common::python_script("check_schema.py"))
+        .arg(&schema)
+        .arg("--valid")
+        .args(&valid)
+        .arg("--invalid")
+        .args(&invalid)
+        .output()
+        .expect("python3 (packages: tests/python/requirements.txt)");
+    let report = String::from_utf8_lossy(&out.stdout);
+    eprintln!("{report}{}", String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success(), "{report}");
+    assert_eq!(
+        report.lines().filter(|l| l.starts_with("valid:")).count(),
+        valid.len()
+    );
+    assert_eq!(
+        report.lines().filter(|l| l.starts_with("refused:")).count(),
+        typos.len()
+    );
+    // `chaoscope config FILE` validates as `run` and `map` do, without running anything.
+    let ok = Command::new(CHAOSCOPE)
+        .arg("config")
+        .arg(root.join("examples/models/lorenz.toml"))
+        .output()
+        .unwrap();
+    let line = String::from_utf8_lossy(&ok.stdout);
+    assert!(
+        ok.status.success() && line.contains("\"valid\":true"),
+        "{line}"
+    );
+    assert!(line.contains("a run of a flow of dimension 3"), "{line}");
+    let bad = Command::new(CHAOSCOPE)
+        .arg("config")
+        .arg(&invalid[0])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert_eq!(bad.status.code(), Some(1), "{err}");
+    assert!(err.contains("integrator.t_finall (line"), "{err}");
 }

@@ -97,7 +97,9 @@ fn locked(path: &Path) -> bool {
     if unsafe { libc::fcntl(file.as_raw_fd(), libc::F_GETLK, &mut lock) } == -1 {
         return true;
     }
-    lock.l_type != libc::F_UNLCK as _
+    // The field's own type named: `as _` is ambiguous once a crate of the build (serde_json)
+    // compares integers with other types.
+    lock.l_type != libc::F_UNLCK as libc::c_short
 }
 
 /// The bus directory's node and service records, by file name.

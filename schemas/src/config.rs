@@ -6,6 +6,7 @@
 
 use std::path::Path;
 
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 mod load;
@@ -28,7 +29,7 @@ pub use load::{
 };
 
 /// Top level of a run configuration file.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RunConfig {
     /// Optional human name of the run; the bus service names derive from it.
@@ -49,7 +50,7 @@ pub struct RunConfig {
     pub map: Option<MapConfig>,
 }
 
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct RunSection {
     /// Run name (letters, digits, `-`, `_`); default derived from the process id and time.
@@ -57,7 +58,7 @@ pub struct RunSection {
     pub name: Option<String>,
 }
 
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct OrbitConfig {
     /// The initial state `x1..xD` of a general (non-Hamiltonian) system.
@@ -80,7 +81,7 @@ pub struct OrbitConfig {
     pub preset: Option<String>,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct IntegratorConfig {
     /// Splittings of separable Hamiltonians: `"aba864"`, `"leapfrog"`, `"saba2"`, `"yoshida4"`.
@@ -114,7 +115,7 @@ impl IntegratorConfig {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct DeviationsConfig {
     /// Number of deviation vectors per set, 2..=2N.
@@ -147,7 +148,7 @@ impl DeviationsConfig {
     }
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct MapAxis {
     /// Coordinate name such as `"q2"` or `"p2"`.
@@ -157,7 +158,7 @@ pub struct MapAxis {
     pub n: usize,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct MapConfig {
     pub x: MapAxis,
@@ -233,6 +234,16 @@ impl RunConfig {
             }
         }
         Ok(config)
+    }
+
+    /// The JSON Schema of a configuration file, derived from the types that parse it (every
+    /// key, its type and documentation; unknown keys refused): what TOML editors that take a
+    /// schema (taplo, Even Better TOML) check and complete a config with.
+    pub fn json_schema() -> serde_json::Value {
+        let mut schema = serde_json::to_value(schemars::schema_for!(RunConfig))
+            .expect("a JSON Schema serializes");
+        schema["title"] = "chaoscope run configuration".into();
+        schema
     }
 
     /// Canonical TOML text (stored in recordings so a run can be replayed).

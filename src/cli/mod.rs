@@ -3,6 +3,7 @@
 pub mod analyze;
 pub mod bench;
 pub mod chart;
+pub mod config;
 pub mod map;
 pub mod map_watch;
 pub mod merge;

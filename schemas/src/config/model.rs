@@ -10,12 +10,13 @@
 
 use std::collections::BTreeMap;
 
+use schemars::JsonSchema;
 use serde::de::value::MapAccessDeserializer;
 use serde::de::{self, DeserializeSeed, IntoDeserializer, MapAccess, Visitor};
 use serde::{Deserialize, Deserializer, Serialize};
 
 /// The `[model]` table: which system, and its parameters.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, JsonSchema)]
 #[serde(tag = "name")]
 pub enum ModelConfig {
     /// The Henon-Heiles potential (2 degrees of freedom).
@@ -36,14 +37,16 @@ pub enum ModelConfig {
     /// A map `x -> F(x)` written as expressions.
     #[serde(rename = "map")]
     Map(MapModelConfig),
-    /// A model or system built in code (`RunSpec::with_model`, `RunSpec::with_system`): only its
-    /// name, which recordings carry. The command-line tools know no such name.
+    /// A model or system built in code (`RunSpec::with_model`, `RunSpec::with_system`): its
+    /// name, which recordings carry, and the keys its code reads. The command-line tools know
+    /// no such name, so the configuration's JSON Schema has no room for it.
     #[serde(untagged)]
+    #[schemars(skip)]
     Custom(CustomModelConfig),
 }
 
 /// `name = "henon-heiles"`.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct HenonHeilesConfig {
     /// Degrees of freedom: 2 (may be left out).
@@ -52,7 +55,7 @@ pub struct HenonHeilesConfig {
 }
 
 /// `name = "fput-beta"`: `H = sum p_i^2/2 + sum (q_{i+1} - q_i)^2/2 + beta (q_{i+1} - q_i)^4/4`.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct FputBetaConfig {
     /// Number of particles `N`.
@@ -65,7 +68,7 @@ pub struct FputBetaConfig {
 
 /// `name = "potential"`: `H = sum p_i^2 / (2 m_i) + V(q)` with `V` in chaoscope's expression
 /// language.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PotentialConfig {
     /// Number of degrees of freedom (lattice sites) `N`.
@@ -90,7 +93,7 @@ pub struct PotentialConfig {
 }
 
 /// `name = "hamiltonian"`: any `H(q, p)`, separable or not.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct HamiltonianConfig {
     /// Degrees of freedom `N`.
@@ -109,7 +112,7 @@ pub struct HamiltonianConfig {
 }
 
 /// `name = "ode"`: `dx/dt = f(x)`.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct OdeConfig {
     /// Parameters the expressions name: a number, or an array with one entry per coordinate.
@@ -125,7 +128,7 @@ pub struct OdeConfig {
 }
 
 /// `name = "map"`: `x -> F(x)`.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct MapModelConfig {
     /// Parameters the expressions name: a number, or an array with one entry per coordinate.
@@ -155,7 +158,7 @@ pub struct CustomModelConfig {
 }
 
 /// A parameter value: one number, or one number per site.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(untagged)]
 pub enum ParamValue {
     Scalar(f64),
@@ -163,7 +166,7 @@ pub enum ParamValue {
 }
 
 /// A tabulated function: samples `x, f(x)` in a CSV file, interpolated by a cubic spline.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(untagged)]
 pub enum TableConfig {
     /// Just the file (natural spline).
@@ -171,7 +174,7 @@ pub enum TableConfig {
     Detailed(TableSpec),
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TableSpec {
     /// CSV file with two columns `x, f(x)`; a relative path is taken from the config file's

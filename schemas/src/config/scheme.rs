@@ -1,9 +1,10 @@
 //! `[[scheme]]`: one renormalization scheme of a run.
 
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 /// One `[[scheme]]` table.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct SchemeConfig {
     pub name: String,

@@ -14,12 +14,13 @@
 //! A pure transformation of the configuration; the expanded schemes are validated like any
 //! other (`RunSpec::from_config` applies the expansion first).
 
+use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 use super::scheme::SchemeConfig;
 
 /// Values of one swept parameter.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(untagged)]
 pub enum Values {
     One(f64),
@@ -28,7 +29,7 @@ pub enum Values {
 }
 
 /// `from` to `to` inclusive, either `per_decade` log-spaced values or `count` evenly spaced.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Range {
     pub from: f64,
@@ -39,7 +40,7 @@ pub struct Range {
     pub count: Option<u32>,
 }
 
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct SweepConfig {
     /// Prefix of the generated scheme names (`<name>-d0<d0>-tau<tau>`); default: the method.

@@ -1,0 +1,63 @@
+//! `chaoscope config --schema`: the JSON Schema of a run configuration (for TOML editors that
+//! check and complete a file against one: taplo, Even Better TOML), derived from the types that
+//! parse configs. `chaoscope config FILE`: validate a config as `run` or `map` would, without
+//! running it, and say what it is and what it would cost.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, bail};
+use chaoscope_producer::estimate;
+use chaoscope_producer::map::MapSpec;
+use chaoscope_producer::spec::RunSpec;
+use chaoscope_schemas::config::RunConfig;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// A run configuration (TOML) to validate; `-` reads it from stdin.
+    pub config: Option<PathBuf>,
+    /// Print the JSON Schema of run configurations instead.
+    #[arg(long, conflicts_with = "config")]
+    pub schema: bool,
+}
+
+pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    if args.schema {
+        let schema = serde_json::to_string_pretty(&RunConfig::json_schema())?;
+        writeln!(std::io::stdout().lock(), "{schema}").context("writing the schema")?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    let Some(path) = args.config else {
+        bail!("give a configuration file to validate, or --schema");
+    };
+    let (config, _) = super::load_config(&path)?;
+    let machine = super::machine();
+    let (what, estimate) = if config.map.is_some() {
+        let spec = MapSpec::from_config(&config).context("invalid map configuration")?;
+        let points = spec.grid_points();
+        let e = estimate::map(&spec, points, machine.cores);
+        (format!("a map of {points} points"), e)
+    } else {
+        let spec = RunSpec::from_config(&config).context("invalid run configuration")?;
+        let e = estimate::run(&spec, &machine);
+        (
+            format!(
+                "a run of a {} of dimension {}",
+                spec.system().kind().name(),
+                spec.dim()
+            ),
+            e,
+        )
+    };
+    let refusal = estimate.refusal(&machine);
+    super::print_summary(&serde_json::json!({
+        "config": path.display().to_string(),
+        "valid": true,
+        "what": what,
+        "seconds": estimate.seconds,
+        "bytes": estimate.bytes,
+        "refused_without_force": refusal,
+    }));
+    Ok(ExitCode::SUCCESS)
+}

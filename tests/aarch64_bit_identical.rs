@@ -257,7 +257,7 @@ fn maps_through_the_batched_kernel_are_the_same_bits_on_aarch64() {
         config.to_toml()
     };
     let cases = [
-        // The paper's MPM workload: HH kernel, per-set and by the propagator route.
+        // The paper's MPM workload: HH kernel, per-set and by the basis route.
         ("hh-gali2", small("hh-gali2.toml", 100.0, 4, 8)),
         (
             "hh-gali2-propagator",

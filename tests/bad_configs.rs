@@ -804,3 +804,91 @@ fn the_json_schema_accepts_every_example_and_refuses_a_typo() {
     assert_eq!(bad.status.code(), Some(1), "{err}");
     assert!(err.contains("integrator.t_finall (line"), "{err}");
 }
+
+/// Every file or directory of the repository (relative paths, `/`-separated, directories with a
+/// trailing `/`), build outputs and installed packages left out.
+fn repository_paths(root: &Path) -> Vec<String> {
+    let mut out = Vec::new();
+    let mut dirs = vec![root.to_path_buf()];
+    while let Some(dir) = dirs.pop() {
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let p = e.unwrap().path();
+            let name = p.file_name().unwrap().to_string_lossy().to_string();
+            if matches!(
+                name.as_str(),
+                "target" | ".git" | "node_modules" | "__pycache__"
+            ) {
+                continue;
+            }
+            let rel = p
+                .strip_prefix(root)
+                .unwrap()
+                .to_string_lossy()
+                .replace('\\', "/");
+            if p.is_dir() {
+                out.push(format!("{rel}/"));
+                dirs.push(p);
+            } else {
+                out.push(rel);
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn every_path_architecture_md_names_exists() {
+    // ARCHITECTURE.md is the code map: a file it names that is gone (moved, renamed, merged)
+    // sends a reader nowhere. A path is resolved from the repository root, or within the
+    // section's directory (`### `producer/``: `map/basis.rs` is `producer/src/map/basis.rs`,
+    // a bare `engine.rs` some file of that name below it).
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("ARCHITECTURE.md")).unwrap();
+    let paths = repository_paths(root);
+    let extensions = [
+        ".rs", ".toml", ".md", ".proto", ".py", ".pyi", ".sh", ".c", ".json", ".txt", ".csv",
+    ];
+    let looks_like_path = |t: &str| {
+        !t.is_empty()
+            && !t.starts_with('/')
+            && t.chars()
+                .all(|c| c.is_ascii_alphanumeric() || "_-./".contains(c))
+            && (extensions.iter().any(|e| t.ends_with(e)) || (t.ends_with('/') && t.len() > 1))
+    };
+    let (mut section, mut checked, mut missing) = (String::new(), 0, Vec::new());
+    for (n, line) in text.lines().enumerate() {
+        if let Some(rest) = line.strip_prefix("### ") {
+            // `### `producer/` (chaoscope-producer)`: paths below are the crate's.
+            let name = rest.strip_prefix('`').and_then(|r| r.split('`').next());
+            section = name.filter(|n| n.ends_with('/')).unwrap_or("").to_string();
+        } else if line.starts_with("## ") {
+            section.clear();
+        }
+        for token in line.split('`').skip(1).step_by(2) {
+            if !looks_like_path(token) {
+                continue;
+            }
+            checked += 1;
+            let found = paths.iter().any(|p| {
+                let p = p.as_str();
+                p == token
+                    || p.strip_prefix(section.as_str()).is_some_and(|inner| {
+                        inner == token || inner.ends_with(&format!("/{token}"))
+                    })
+            });
+            if !found {
+                missing.push(format!("line {}: `{token}` (section `{section}`)", n + 1));
+            }
+        }
+    }
+    assert!(
+        checked > 150,
+        "only {checked} paths found in ARCHITECTURE.md"
+    );
+    assert!(
+        missing.is_empty(),
+        "ARCHITECTURE.md names {} paths that do not exist:\n{}",
+        missing.len(),
+        missing.join("\n")
+    );
+}

@@ -7,7 +7,8 @@
 //! development machine (below); it only has to be right within a factor of a few, since it is
 //! compared with limits (a day, the machine's memory) that real runs are far from or far above.
 //!
-//! Pure: the caller says how many cores and how much memory the machine has ([`Machine`]).
+//! Pure: the caller says how many cores and how much memory the machine has ([`Machine`];
+//! `Machine::this_host` reads them from `/proc`, the one I/O here).
 
 use chaoscope_bus as bus;
 
@@ -175,7 +176,7 @@ fn run_estimate(
 }
 
 /// Estimate of a validated map: `points` grid points (the shard's share), each the reference
-/// orbit and every set's `k` vectors (the propagator route: `dim` basis vectors) to the horizon (an upper bound for points that stop early:
+/// orbit and every set's `k` vectors (the basis route: `dim` basis vectors) to the horizon (an upper bound for points that stop early:
 /// outside the energy surface, escaped, or `gali-time` below its threshold).
 pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
     let run = &spec.run;

@@ -1,7 +1,9 @@
-//! chaoscope-producer: the numerical core (models, integrators, deviation dynamics, indicators,
-//! the run engine) and the producer process that publishes a run on the bus.
+//! chaoscope-producer: the numerical core (models, systems, integrators, the deviation methods,
+//! the run engine, phase-space maps) and the producer process that publishes a run on the bus.
 //!
-//! Every module except the process wrapper is pure computation with no I/O.
+//! Every module but `publish` (the process) is computation without I/O, with two exceptions
+//! stated where they live: the validation of a `potential` reads the tables its config names
+//! (`spec`), and `estimate::Machine::this_host` reads the machine's cores and memory.
 
 pub mod batch;
 pub mod deviation;

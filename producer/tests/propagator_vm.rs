@@ -1,4 +1,4 @@
-//! The propagator route (`propagator.rs`) against per-set VM on the paper's orbits: log10 GALI_k
+//! The scaled QR propagator (`propagator.rs`, the map's basis route) against per-set VM on the paper's orbits: log10 GALI_k
 //! of every set agrees to 1e-6 decades at every renormalization while per-set VM resolves it.
 //!
 //! Both are computed in one pass over one reference orbit: the tangent vectors of every set and

@@ -21,7 +21,7 @@
 //!   the grid, per initial condition against this map
 //!   (`per_initial_condition_speedup_over_scalar_c`, target 6).
 //! - `propagator_routes`: the same workload on a smaller grid (`--routes-grid`) by per-set VM,
-//!   the VM propagator route, per-set MPM and the MPM propagator route (`[map] route`), one
+//!   the VM basis route, per-set MPM and the MPM basis route (`[map] route`), one
 //!   thread each: CPU time, points per CPU-second, extrapolated CPU hours for 700 x 600, the
 //!   routes' speed-ups and the distributions over the points of the route-vs-per-set distance
 //!   and per-set MPM's distance to VM (mean over sets of |delta log10 GALI_2|, the paper's

@@ -1,5 +1,11 @@
 //! The batched kernel: many independent orbits (or deviation vectors) advanced at once.
 //!
+//! [`PointKernel`] (`kernel.rs`) is what the map's methods need from a system's batched form;
+//! each kind of system implements it beside itself (`crate::system`), over the lane loops here:
+//! a separable Hamiltonian's splitting over a [`LaneModel`] (`lanes.rs`, the models' lane
+//! implementations in `models/`), a map's (`map_lanes.rs`) and a flow's (`flow_lanes.rs`)
+//! compiled lane functions.
+//!
 //! Layout: structure of arrays ([`Soa`]): row `c` holds coordinate `c` of every lane, so one
 //! arithmetic expression applied across a row is a plain loop the compiler turns into SIMD.
 //! The kernel is compiled three times (AVX-512, AVX2, portable SSE2) and the widest one the CPU
@@ -56,7 +62,7 @@ pub fn tangent_steps<M: LaneModel>(
 
 /// Advance every lane of `x` by `n_steps` steps: rows `0..2N` are an orbit, each further `2N`
 /// rows a tangent vector around that lane's own orbit (the variational equations of many
-/// points at once, for the map's VM propagator route). Lane by lane the bits of
+/// points at once, for the map's VM basis route). Lane by lane the bits of
 /// [`record_reference_stages`] + [`tangent_steps`].
 pub fn orbit_tangent_steps<M: LaneModel>(
     isa: Isa,

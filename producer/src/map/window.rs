@@ -1,6 +1,6 @@
-//! Renormalization windows of a map point, exactly as the engine schedules them, and what both
-//! batched methods do at the end of a window: the escape test of the reference orbit and each
-//! set's renormalization.
+//! Renormalization windows of a map point, exactly as the engine schedules them, and what the
+//! routes do at the end of a window: the escape test of the reference orbit (both) and each
+//! set's renormalization (the per-set route).
 
 use super::indicator::PointAccumulator;
 use crate::engine::RunError;

@@ -4,8 +4,9 @@
 //! symplectic splittings and their tangent maps need. A model states which derivatives it has:
 //! the Hessian-vector product is optional, and a model without it (a non-smooth or empirical
 //! potential) can still be studied with the multi-particle method, never with the variational
-//! one. Non-Hamiltonian vector fields (for Runge-Kutta integrators) will get a sibling trait; the
-//! integrator trait is generic over the system so both fit.
+//! one. Vector fields of other systems (for the Runge-Kutta integrators) are a sibling trait,
+//! [`crate::vector_field::VectorField`]; the integrator trait is generic over the system so
+//! both fit.
 //!
 //! Every method is pure and allocation-free: models are called in the innermost loop.
 

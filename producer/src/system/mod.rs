@@ -5,8 +5,8 @@
 //! tangent map of that evolution (for the variational method), and whatever invariant it
 //! conserves (for the report). [`DynamicalSystem`] is that interface, in the shape of
 //! DynamicalSystemsBase.jl's: a continuous or discrete system advanced by `step`, around which
-//! the two generic wrappers of this crate (tangent vectors, `engine`'s variational sets; nearby
-//! orbits, its multi-particle sets) work for *any* system.
+//! the deviation methods of this crate ([`crate::method`]: tangent vectors, nearby orbits) work
+//! for *any* system, in the engine and, through the system's batched form, in the maps.
 //!
 //! Kinds, one file each:
 //! - [`SplitHamiltonian`]: a separable Hamiltonian [`Model`](crate::model::Model) with a

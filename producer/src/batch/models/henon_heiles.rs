@@ -55,7 +55,7 @@ impl LaneModel for HenonHeiles {
         force: &mut [[f64; L]],
         n_steps: u64,
     ) {
-        // The propagator route's shape (orbit + 4 tangent vectors, 20 rows) in registers; the
+        // The map's VM basis route's shape (orbit + 4 tangent vectors, 20 rows) in registers; the
         // operations of orbit_steps and hessian_vector_each_lane, in the generic order.
         if x.len() != 20 {
             return super::super::lanes::orbit_tangent_steps_generic(self, c, x, force, n_steps);

@@ -337,3 +337,161 @@ fn a_map_ended_or_interrupted_during_the_c_build_leaves_no_compiler_and_no_files
     assert_eq!(processes_mentioning(&cache), Vec::<String>::new());
     assert_eq!(files_under(&cache), Vec::<String>::new());
 }
+
+/// A shared library whose constructor writes `marker` when loaded, carrying the stamp of
+/// kernel `hash` (what another user would plant in a kernel cache they can write).
+fn planted_library(dir: &Path, hash: &str, marker: &Path) -> Vec<u8> {
+    let src = dir.join("planted.c");
+    let lib = dir.join("planted.so");
+    std::fs::write(
+        &src,
+        format!(
+            "#include <stdio.h>\nconst char chaoscope_kernel_hash[] = \"{hash}\";\n\
+             __attribute__((constructor)) static void planted(void) {{\n\
+             FILE *f = fopen(\"{}\", \"w\"); if (f) {{ fputs(\"loaded\", f); fclose(f); }} }}\n",
+            marker.display()
+        ),
+    )
+    .unwrap();
+    let status = Command::new("cc")
+        .args(["-shared", "-fPIC", "-o"])
+        .arg(&lib)
+        .arg(&src)
+        .status()
+        .unwrap();
+    assert!(status.success(), "cc builds the planted library");
+    std::fs::read(&lib).unwrap()
+}
+
+#[test]
+fn a_library_planted_in_a_shared_temporary_kernel_cache_is_never_loaded() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("map.toml");
+    std::fs::write(&config, hh_map("mpm", "gali-time")).unwrap();
+    let out = dir.path().join("map.mcap");
+    // The kernel's name (its hash: compiler, flags, target, source; not the directory), from
+    // a build into a cache of the test's own.
+    let own = dir.path().join("own");
+    let (reference, json, _) = map(
+        &config,
+        &out,
+        2,
+        &[
+            ("CHAOSCOPE_KERNEL_CACHE", s(&own)),
+            ("CHAOSCOPE_C_KERNELS_AFTER_CALLS", "0"),
+        ],
+    );
+    assert_eq!(json["expression_kernels"]["c_build"], "compiled");
+    let name = std::fs::read_dir(&own)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .find(|n| n.ends_with(".so"))
+        .expect("a library in the cache");
+    let hash = &name["steps-".len()..name.len() - ".so".len()];
+
+    // A temporary directory shared by all users (mode 1777, as /tmp), in which another user
+    // made the kernel caches a user without HOME would fall back to (this one's and the
+    // per-user one), writable by all, holding a planted library of that very name and its
+    // matching digest.
+    let tmp = dir.path().join("tmp");
+    std::fs::create_dir(&tmp).unwrap();
+    std::fs::set_permissions(&tmp, std::fs::Permissions::from_mode(0o1777)).unwrap();
+    let marker = dir.path().join("planted-code-ran");
+    let planted = planted_library(dir.path(), hash, &marker);
+    // SAFETY: geteuid(2) cannot fail.
+    let uid = unsafe { libc::geteuid() };
+    for cache in [
+        "chaoscope-kernels".to_string(),
+        format!("chaoscope-kernels-{uid}"),
+    ] {
+        let cache = tmp.join(cache);
+        std::fs::create_dir(&cache).unwrap();
+        std::fs::write(cache.join(&name), &planted).unwrap();
+        std::fs::write(
+            cache.join(name.replace(".so", ".sha256")),
+            hex_sha256(&planted),
+        )
+        .unwrap();
+        std::fs::set_permissions(&cache, std::fs::Permissions::from_mode(0o777)).unwrap();
+        if uid == 0 {
+            // Root can make it another user's for real.
+            for f in [
+                cache.join(&name),
+                cache.join(name.replace(".so", ".sha256")),
+                cache,
+            ] {
+                std::os::unix::fs::chown(&f, Some(65534), Some(65534)).unwrap();
+            }
+        }
+    }
+    let run_without_home = |expect_build: &str| {
+        let _ = std::fs::remove_file(&out);
+        let o = map_command(
+            &config,
+            &out,
+            2,
+            &[("CHAOSCOPE_C_KERNELS_AFTER_CALLS", "0")],
+        )
+        .env_remove("CHAOSCOPE_KERNEL_CACHE")
+        .env_remove("HOME")
+        .env_remove("XDG_CACHE_HOME")
+        .env("TMPDIR", &tmp)
+        .output()
+        .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
+        assert!(o.status.success(), "{stderr}");
+        assert!(
+            !marker.exists(),
+            "the planted library was loaded (its constructor ran): {stderr}"
+        );
+        let json: Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(
+            json["expression_kernels"]["c_build"], expect_build,
+            "{stderr}"
+        );
+        let points: BTreeMap<u64, Vec<u8>> = read_map_file(&out)
+            .unwrap()
+            .points
+            .into_iter()
+            .map(|p| (p.index, p.encode_to_vec()))
+            .collect();
+        assert!(points == reference, "the map changed");
+        stderr
+    };
+    // Refused in one line naming the directory and why; the map is computed by Cranelift.
+    let stderr = run_without_home("failed");
+    let per_user = tmp.join(format!("chaoscope-kernels-{uid}"));
+    let said: Vec<&str> = stderr
+        .lines()
+        .filter(|l| l.contains("kernel cache"))
+        .collect();
+    assert_eq!(said.len(), 1, "{stderr}");
+    assert!(
+        said[0].contains(&per_user.display().to_string())
+            && (said[0].contains("belongs to uid 65534") || said[0].contains("writable by others")),
+        "{}",
+        said[0]
+    );
+    // Once that directory is gone, the user's own is made (mode 0700) and used.
+    std::fs::remove_dir_all(&per_user).unwrap();
+    run_without_home("compiled");
+    let mode = std::fs::metadata(&per_user).unwrap().permissions().mode() & 0o777;
+    assert_eq!(mode, 0o700, "the per-user cache is private");
+    run_without_home("loaded-from-cache");
+}
+
+/// SHA-256 in hexadecimal (coreutils' `sha256sum`), as the kernel cache's digest files hold it.
+fn hex_sha256(bytes: &[u8]) -> String {
+    let out = Command::new("sha256sum")
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .and_then(|mut child| {
+            use std::io::Write;
+            child.stdin.take().unwrap().write_all(bytes)?;
+            child.wait_with_output()
+        })
+        .unwrap();
+    String::from_utf8(out.stdout).unwrap()[..64].to_string()
+}

@@ -514,7 +514,150 @@ fn c_builds_clean_up_after_dead_processes_and_cancels() {
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
         .collect();
     left.sort();
-    assert_eq!(left.len(), 2, "{left:?}");
-    assert!(left[0] == "build-1-0" && left[1].starts_with("steps-") && left[1].ends_with(".so"));
+    // The live process's directory, the library and its digest.
+    assert_eq!(left.len(), 3, "{left:?}");
+    assert!(
+        left[0] == "build-1-0" && left[1].starts_with("steps-") && left[1].ends_with(".sha256")
+    );
+    assert_eq!(left[2], left[1].replace(".sha256", ".so"), "{left:?}");
     check("C HH after the clean-up", &s, &k);
+}
+
+/// A shared library whose constructor writes `marker` when it is loaded (what someone who can
+/// write into a kernel cache would plant), with the stamp of kernel `hash` so that even a
+/// loader that checks the stamp after loading would take it for the kernels.
+fn planted_library(dir: &std::path::Path, hash: &str, marker: &std::path::Path) -> Vec<u8> {
+    let src = dir.join("planted.c");
+    let lib = dir.join("planted.so");
+    std::fs::write(
+        &src,
+        format!(
+            "#include <stdio.h>\nconst char chaoscope_kernel_hash[] = \"{hash}\";\n\
+             __attribute__((constructor)) static void planted(void) {{\n\
+             FILE *f = fopen(\"{}\", \"w\"); if (f) {{ fputs(\"loaded\", f); fclose(f); }} }}\n",
+            marker.display()
+        ),
+    )
+    .unwrap();
+    let status = std::process::Command::new("cc")
+        .args(["-shared", "-fPIC", "-o"])
+        .arg(&lib)
+        .arg(&src)
+        .status()
+        .unwrap();
+    assert!(status.success(), "cc builds the planted library");
+    std::fs::read(&lib).unwrap()
+}
+
+/// The cache's library file and its kernel hash (`steps-<hash>.so`).
+fn cached_library(cache: &std::path::Path) -> (std::path::PathBuf, String) {
+    let lib = std::fs::read_dir(cache)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|x| x == "so"))
+        .expect("a library in the cache");
+    let name = lib.file_name().unwrap().to_string_lossy();
+    let hash = name["steps-".len()..name.len() - ".so".len()].to_string();
+    (lib, hash)
+}
+
+#[test]
+fn a_library_planted_in_the_kernel_cache_is_rebuilt_not_loaded() {
+    let cache = tempfile::tempdir().unwrap();
+    let scratch = tempfile::tempdir().unwrap();
+    let marker = scratch.path().join("planted-code-ran");
+    let s = henon_heiles();
+    drop(compile_c(&s, cache.path()));
+    let (lib, hash) = cached_library(cache.path());
+    // The planted library in place of the real one (its digest file left as it was), and as
+    // a library with its own matching digest under the name of a kernel never built here.
+    let planted = planted_library(scratch.path(), &hash, &marker);
+    std::fs::write(&lib, &planted).unwrap();
+    let k = compile_c(&s, cache.path());
+    assert!(
+        !marker.exists(),
+        "the planted library was loaded (its constructor ran)"
+    );
+    assert!(
+        matches!(k.backend(), StepBackend::C { cached: false, .. }),
+        "a library that does not match its digest is rebuilt: {:?}",
+        k.backend()
+    );
+    check("C HH rebuilt over a planted library", &s, &k);
+    drop(k);
+    // Without its digest file a library is never loaded either.
+    std::fs::write(&lib, &planted).unwrap();
+    std::fs::remove_file(lib.with_extension("sha256")).unwrap();
+    let k = compile_c(&s, cache.path());
+    assert!(!marker.exists(), "a library without digest was loaded");
+    assert!(matches!(k.backend(), StepBackend::C { cached: false, .. }));
+    // And the rebuilt cache is used again.
+    drop(k);
+    let k = compile_c(&s, cache.path());
+    assert!(matches!(k.backend(), StepBackend::C { cached: true, .. }));
+}
+
+#[test]
+fn a_kernel_cache_others_could_write_is_refused_with_one_line() {
+    use std::os::unix::fs::PermissionsExt;
+    let s = henon_heiles();
+    let spec = StepSpec {
+        n: s.n,
+        gradient: s.gradient.clone(),
+        hessian_vector: Some(s.hessian_vector.clone()),
+    };
+    let program = CCompiler::from_env().map_or_else(|| "cc".into(), |c| c.program);
+    let build = |dir: &std::path::Path| {
+        jit::compile_steps_c(
+            &s.graph,
+            &spec,
+            &CCompiler {
+                program: program.clone(),
+                cache_dir: dir.to_path_buf(),
+            },
+        )
+        .map(|_| ())
+        .map_err(|e| e.to_string())
+    };
+    let root = tempfile::tempdir().unwrap();
+    // Writable by the group or by everyone: another user could put a library there.
+    for mode in [0o777, 0o775, 0o1777] {
+        let dir = root.path().join(format!("mode{mode:o}"));
+        std::fs::create_dir(&dir).unwrap();
+        std::fs::set_permissions(&dir, std::fs::Permissions::from_mode(mode)).unwrap();
+        let e = build(&dir).unwrap_err();
+        assert!(
+            e.contains(&dir.display().to_string())
+                && e.contains("is writable by others")
+                && !e.contains('\n'),
+            "mode {mode:o}: {e}"
+        );
+        assert_eq!(
+            std::fs::read_dir(&dir).unwrap().count(),
+            0,
+            "nothing built there"
+        );
+    }
+    // A link, even to a directory of one's own: refused, not followed.
+    let own = root.path().join("own");
+    std::fs::create_dir(&own).unwrap();
+    let link = root.path().join("link");
+    std::os::unix::fs::symlink(&own, &link).unwrap();
+    let e = build(&link).unwrap_err();
+    assert!(e.contains("not a directory but a link"), "{e}");
+    // A directory of another user (root can make one; others cannot, and skip this part).
+    // SAFETY: geteuid(2) cannot fail.
+    if unsafe { libc::geteuid() } == 0 {
+        let foreign = root.path().join("foreign");
+        std::fs::create_dir(&foreign).unwrap();
+        std::os::unix::fs::chown(&foreign, Some(65534), Some(65534)).unwrap();
+        std::fs::set_permissions(&foreign, std::fs::Permissions::from_mode(0o755)).unwrap();
+        let e = build(&foreign).unwrap_err();
+        assert!(
+            e.contains("belongs to uid 65534, not to you (uid 0)"),
+            "{e}"
+        );
+    }
+    // The user's own private directory is used.
+    assert_eq!(build(&own), Ok(()));
 }

@@ -30,6 +30,17 @@
 //! its version and the CPU features it targets (`-march=native`'s predefined macros) are part of
 //! the hash, so a cache shared by machines with different CPUs never hands one the other's code.
 //!
+//! Loading a library runs its code (its constructors run at `dlopen`), so the cache is trusted
+//! only as far as it is provably the user's own ([`CacheDir`]): the directory must be a real
+//! directory (not a link) owned by the user and writable by nobody else, checked at every use
+//! through one open handle of it; the fallback without `HOME` is a per-user directory
+//! (`chaoscope-kernels-<uid>`), never a shared one. Beside each library the build writes the
+//! SHA-256 of its bytes (`steps-<hash>.sha256`, renamed into place like the library); a
+//! cached library is read whole, checked against that digest, and loaded from the bytes that
+//! were checked (a memory file on Linux), so a library swapped in after the check cannot be
+//! the one that runs. Anything else is rebuilt, or refused with one line (the caller then runs
+//! the Cranelift kernels).
+//!
 //! I/O: this module runs the C compiler and reads and writes its cache directory; it is the
 //! second exception (after `table`) to the crate's no-I/O rule, and only the batched kernel's
 //! lazy construction calls it.
@@ -141,8 +152,10 @@ const FLAGS: [&str; 8] = [
 impl CCompiler {
     /// From the environment: `CHAOSCOPE_CC` names the compiler (`none` or empty: no C
     /// kernels, Cranelift's are used), else `cc`; `CHAOSCOPE_KERNEL_CACHE` the cache directory,
-    /// else `$XDG_CACHE_HOME/chaoscope/kernels`, `$HOME/.cache/chaoscope/kernels`, or the
-    /// temporary directory. `None` when C kernels are switched off.
+    /// else `$XDG_CACHE_HOME/chaoscope/kernels`, `$HOME/.cache/chaoscope/kernels`, or
+    /// `chaoscope-kernels-<uid>` in the temporary directory (one per user: a directory
+    /// another user could create first is refused by [`CacheDir::open`], never shared). `None`
+    /// when C kernels are switched off.
     pub fn from_env() -> Option<CCompiler> {
         let program = match std::env::var_os("CHAOSCOPE_CC") {
             Some(p) if p.is_empty() || p == "none" => return None,
@@ -159,7 +172,9 @@ impl CCompiler {
                 .join("chaoscope")
                 .join("kernels")
         } else {
-            std::env::temp_dir().join("chaoscope-kernels")
+            // SAFETY: geteuid(2) cannot fail.
+            let uid = unsafe { libc::geteuid() };
+            std::env::temp_dir().join(format!("chaoscope-kernels-{uid}"))
         };
         Some(CCompiler { program, cache_dir })
     }
@@ -292,12 +307,13 @@ pub(super) fn build(
     let io = |what: &str, path: &Path, e: std::io::Error| {
         JitError::CCompiler(format!("{what} {}: {e}", path.display()))
     };
-    std::fs::create_dir_all(&cc.cache_dir)
-        .map_err(|e| io("cannot create the kernel cache", &cc.cache_dir, e))?;
-    let lib_path = cc.cache_dir.join(format!("steps-{hash}.so"));
+    let cache = CacheDir::open(&cc.cache_dir)?;
+    let lib_name = format!("steps-{hash}.so");
+    let digest_name = format!("steps-{hash}.sha256");
+    let lib_path = cc.cache_dir.join(&lib_name);
     let tangent = spec.hessian_vector.is_some();
-    if lib_path.exists()
-        && let Ok(k) = load(&lib_path, &hash, tangent, true)
+    if let Some(bytes) = cache.verified(&lib_name, &digest_name)
+        && let Ok(k) = load(&bytes, &lib_path, &hash, tangent, true)
     {
         return Ok((k, start.elapsed()));
     }
@@ -364,11 +380,175 @@ pub(super) fn build(
             first_lines(&messages)
         )));
     }
+    // The library's digest beside it, both renamed into place (the library first: a reader
+    // that finds a digest of an older library rebuilds rather than trusting it).
+    let bytes = std::fs::read(&tmp_path).map_err(|e| io("cannot read", &tmp_path, e))?;
+    let digest_tmp = work.0.join("steps.sha256");
+    let digest_path = cc.cache_dir.join(&digest_name);
+    std::fs::write(&digest_tmp, digest_hex(&bytes))
+        .map_err(|e| io("cannot write", &digest_tmp, e))?;
     std::fs::rename(&tmp_path, &lib_path)
         .map_err(|e| io("cannot move the compiled kernels to", &lib_path, e))?;
+    std::fs::rename(&digest_tmp, &digest_path)
+        .map_err(|e| io("cannot move the kernels' digest to", &digest_path, e))?;
     drop(work);
-    let k = load(&lib_path, &hash, tangent, false)?;
+    // Loaded from the bytes just read, not from the cache path.
+    let k = load(&bytes, &lib_path, &hash, tangent, false)?;
     Ok((k, start.elapsed()))
+}
+
+/// SHA-256 of `bytes` in hexadecimal: what the digest file beside a library holds.
+fn digest_hex(bytes: &[u8]) -> String {
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// The kernel cache directory, opened once per build and checked through that handle: a real
+/// directory (a symbolic link is refused, not followed) owned by this user and writable by no
+/// one else. Files are read relative to the handle, so the directory checked is the one read,
+/// even if its path is renamed meanwhile.
+struct CacheDir {
+    #[cfg(not(unix))]
+    path: PathBuf,
+    #[cfg(unix)]
+    fd: std::os::fd::OwnedFd,
+}
+
+/// Why a cache directory is refused, for the one-line error.
+const FOREIGN_CODE: &str = "a library someone else put there would run as you";
+
+impl CacheDir {
+    fn open(path: &Path) -> Result<CacheDir, JitError> {
+        let fail = |what: String| {
+            JitError::CCompiler(format!("the kernel cache {}: {what}", path.display()))
+        };
+        let mut builder = std::fs::DirBuilder::new();
+        builder.recursive(true);
+        #[cfg(unix)]
+        std::os::unix::fs::DirBuilderExt::mode(&mut builder, 0o700);
+        builder.create(path).map_err(|e| {
+            JitError::CCompiler(format!(
+                "cannot create the kernel cache {}: {e}",
+                path.display()
+            ))
+        })?;
+        #[cfg(unix)]
+        {
+            use std::os::fd::FromRawFd;
+            use std::os::unix::ffi::OsStrExt;
+            let c_path = std::ffi::CString::new(path.as_os_str().as_bytes())
+                .map_err(|_| fail("the path holds a NUL byte".into()))?;
+            // SAFETY: a NUL-terminated path; the descriptor is owned below.
+            let raw = unsafe {
+                libc::open(
+                    c_path.as_ptr(),
+                    libc::O_RDONLY | libc::O_DIRECTORY | libc::O_NOFOLLOW | libc::O_CLOEXEC,
+                )
+            };
+            if raw < 0 {
+                let e = std::io::Error::last_os_error();
+                return Err(fail(match e.raw_os_error() {
+                    Some(libc::ELOOP) | Some(libc::ENOTDIR) => format!(
+                        "not a directory but a link or a file, refused ({FOREIGN_CODE} through                          it); remove it or set CHAOSCOPE_KERNEL_CACHE to a directory of yours"
+                    ),
+                    _ => e.to_string(),
+                }));
+            }
+            // SAFETY: `raw` is a descriptor this call just opened and nothing else owns.
+            let fd = unsafe { std::os::fd::OwnedFd::from_raw_fd(raw) };
+            let dir = CacheDir { fd };
+            let meta = dir.stat(None).map_err(|e| fail(e.to_string()))?;
+            check_owner(&meta).map_err(|why| {
+                fail(format!(
+                    "{why}: {FOREIGN_CODE}; remove it, or set CHAOSCOPE_KERNEL_CACHE to a                      directory of yours"
+                ))
+            })?;
+            Ok(dir)
+        }
+        #[cfg(not(unix))]
+        {
+            let _ = fail;
+            Ok(CacheDir {
+                path: path.to_path_buf(),
+            })
+        }
+    }
+
+    /// `fstat` of the directory (`file` `None`) or of the open file `file`.
+    #[cfg(unix)]
+    fn stat(&self, file: Option<&std::fs::File>) -> std::io::Result<libc::stat> {
+        use std::os::fd::AsRawFd;
+        let fd = file.map_or(self.fd.as_raw_fd(), |f| f.as_raw_fd());
+        // SAFETY: `stat` is plain data, filled by fstat(2) on a descriptor we hold.
+        let mut st: libc::stat = unsafe { std::mem::zeroed() };
+        // SAFETY: as above.
+        if unsafe { libc::fstat(fd, &mut st) } != 0 {
+            return Err(std::io::Error::last_os_error());
+        }
+        Ok(st)
+    }
+
+    /// The bytes of file `name` of the directory, if it is a regular file (not a link) owned
+    /// by this user and writable by no one else; `None` otherwise (missing, foreign, unreadable).
+    fn read(&self, name: &str) -> Option<Vec<u8>> {
+        #[cfg(unix)]
+        {
+            use std::io::Read;
+            use std::os::fd::{AsRawFd, FromRawFd};
+            let c_name = std::ffi::CString::new(name).ok()?;
+            // SAFETY: a NUL-terminated name relative to a directory descriptor we hold.
+            let raw = unsafe {
+                libc::openat(
+                    self.fd.as_raw_fd(),
+                    c_name.as_ptr(),
+                    libc::O_RDONLY | libc::O_NOFOLLOW | libc::O_CLOEXEC,
+                )
+            };
+            if raw < 0 {
+                return None;
+            }
+            // SAFETY: `raw` was just opened and is owned by the file from here on.
+            let mut file = unsafe { std::fs::File::from_raw_fd(raw) };
+            let meta = self.stat(Some(&file)).ok()?;
+            if meta.st_mode & libc::S_IFMT != libc::S_IFREG || check_owner(&meta).is_err() {
+                return None;
+            }
+            let mut bytes = Vec::new();
+            file.read_to_end(&mut bytes).ok()?;
+            Some(bytes)
+        }
+        #[cfg(not(unix))]
+        {
+            std::fs::read(self.path.join(name)).ok()
+        }
+    }
+
+    /// The library `lib` if its bytes have the SHA-256 the digest file `digest` holds.
+    fn verified(&self, lib: &str, digest: &str) -> Option<Vec<u8>> {
+        let expected = self.read(digest)?;
+        let bytes = self.read(lib)?;
+        (digest_hex(&bytes).as_bytes() == expected.trim_ascii()).then_some(bytes)
+    }
+}
+
+/// Owned by this user and writable by no one else; else why not.
+#[cfg(unix)]
+fn check_owner(meta: &libc::stat) -> Result<(), String> {
+    // SAFETY: geteuid(2) cannot fail.
+    let uid = unsafe { libc::geteuid() };
+    if meta.st_uid != uid {
+        return Err(format!(
+            "belongs to uid {}, not to you (uid {uid})",
+            meta.st_uid
+        ));
+    }
+    let mode = meta.st_mode & 0o7777;
+    if mode & 0o022 != 0 {
+        return Err(format!("is writable by others (mode {mode:o})"));
+    }
+    Ok(())
 }
 
 /// Prefix of the build directories in the cache: `build-<pid>-<n>`.
@@ -384,7 +564,11 @@ impl WorkDir {
         let path = cache_dir.join(format!("{BUILD_DIR}{}-{n}", std::process::id()));
         // A directory of this name can only be left by an earlier process of the same pid.
         let _ = std::fs::remove_dir_all(&path);
-        std::fs::create_dir(&path)
+        let mut builder = std::fs::DirBuilder::new();
+        #[cfg(unix)]
+        std::os::unix::fs::DirBuilderExt::mode(&mut builder, 0o700);
+        builder
+            .create(&path)
             .map_err(|e| JitError::CCompiler(format!("cannot create {}: {e}", path.display())))?;
         Ok(WorkDir(path))
     }
@@ -447,17 +631,22 @@ fn process_exists(pid: i32) -> bool {
     }
 }
 
-/// Loads a compiled library and checks that it is the one its name says (it carries its hash).
-fn load(path: &Path, hash: &str, tangent: bool, cached: bool) -> Result<CKernels, JitError> {
+/// Loads a compiled library from `bytes` (those of `path`, already checked against their
+/// digest) and checks that it is the one its name says (it carries its hash).
+fn load(
+    bytes: &[u8],
+    path: &Path,
+    hash: &str,
+    tangent: bool,
+    cached: bool,
+) -> Result<CKernels, JitError> {
     let fail = |e: String| {
         JitError::CCompiler(format!(
             "cannot load the compiled kernels {}: {e}",
             path.display()
         ))
     };
-    // SAFETY: a library this module compiled from its own source: no constructors, no global
-    // state; its symbols are checked below before any is called.
-    let library = unsafe { libloading::Library::new(path) }.map_err(|e| fail(e.to_string()))?;
+    let library = open_library(bytes, path).map_err(fail)?;
     // SAFETY: the symbol is a NUL-terminated `char` array in the generated source.
     let stamp = unsafe { library.get::<*const std::ffi::c_char>(b"chaoscope_kernel_hash\0") }
         .map_err(|e| fail(e.to_string()))?;
@@ -485,6 +674,37 @@ fn load(path: &Path, hash: &str, tangent: bool, cached: bool) -> Result<CKernels
         cached,
         path: path.to_path_buf(),
     })
+}
+
+/// `dlopen` of exactly `bytes`: on Linux through an anonymous memory file, so what runs is
+/// what was checked whatever happens to the cache meanwhile; elsewhere from `path`.
+fn open_library(bytes: &[u8], path: &Path) -> Result<libloading::Library, String> {
+    #[cfg(target_os = "linux")]
+    {
+        use std::io::Write;
+        use std::os::fd::{AsRawFd, FromRawFd};
+        let _ = path;
+        // SAFETY: a NUL-terminated name; the descriptor is owned below.
+        let raw = unsafe { libc::memfd_create(c"chaoscope-kernels".as_ptr(), libc::MFD_CLOEXEC) };
+        if raw < 0 {
+            return Err(format!("memfd_create: {}", std::io::Error::last_os_error()));
+        }
+        // SAFETY: `raw` was just created and is owned by the file from here on.
+        let mut file = unsafe { std::fs::File::from_raw_fd(raw) };
+        file.write_all(bytes).map_err(|e| e.to_string())?;
+        let at = format!("/proc/self/fd/{}", file.as_raw_fd());
+        // SAFETY: a library this module compiled from its own source and whose bytes match
+        // the digest written when it was built: no constructors, no global state; its symbols
+        // are checked before any is called. The mapping outlives the descriptor.
+        unsafe { libloading::Library::new(at) }.map_err(|e| e.to_string())
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        let _ = bytes;
+        // SAFETY: as above (the file was checked just before; between the check and this
+        // call only its owner, this user, could change it).
+        unsafe { libloading::Library::new(path) }.map_err(|e| e.to_string())
+    }
 }
 
 /// Helpers of every generated file. `vd` is one vector of `LANES` lanes (a block is two); compares give `vi`

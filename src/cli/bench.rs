@@ -929,12 +929,16 @@ mod expressions {
         let started = Instant::now();
         let model = compiled(&fput_config(1001))?;
         let usable = started.elapsed().as_secs_f64();
-        let cache =
-            std::env::temp_dir().join(format!("chaoscope-bench-kernels-{}", std::process::id()));
+        // A fresh private directory (random name, mode 0700, removed when dropped): the
+        // library built there is loaded.
+        let scratch = tempfile::Builder::new()
+            .prefix("chaoscope-bench-kernels-")
+            .tempdir()?;
+        let cache = scratch.path().join("kernels");
         let started = Instant::now();
         let built = model.build_c_step_kernels(&cache);
         let seconds = started.elapsed().as_secs_f64();
-        let _ = std::fs::remove_dir_all(&cache);
+        drop(scratch);
         let c = match built {
             Ok(k) => serde_json::json!({
                 "c_build_seconds": seconds,

@@ -123,19 +123,24 @@ pub fn measure(
     points: &[Vec<f64>],
 ) -> anyhow::Result<Vec<(&'static str, &'static str, Timing)>> {
     let input = input(spec, coeffs, points)?;
-    let dir = std::env::temp_dir().join(format!("chaoscope-bench-c-{}", std::process::id()));
-    std::fs::create_dir_all(&dir)?;
+    // A fresh directory of a random name, created mode 0700 and removed when dropped: the
+    // programs built here are run, so the directory must be nobody else's (a predictable name
+    // in the shared temporary directory could be made first by another user).
+    let scratch = tempfile::Builder::new()
+        .prefix("chaoscope-bench-c-")
+        .tempdir()?;
+    let dir = scratch.path();
     let result = (|| {
         std::fs::write(dir.join("gali2_mpm.c"), SOURCE)?;
         let mut out = Vec::new();
         for (name, flag) in BUILDS {
             let exe = dir.join(name);
-            compile(&dir, flag, &exe)?;
+            compile(dir, flag, &exe)?;
             out.push((name, flag, run(&exe, &input, points.len())?));
         }
         Ok(out)
     })();
-    let _ = std::fs::remove_dir_all(&dir);
+    drop(scratch);
     result
 }
 

@@ -235,3 +235,29 @@ fn foxglove_client_receives_the_run_live_from_monitor_foxglove() {
         "GALI_2 and GALI_3: {gali}"
     );
 }
+
+#[test]
+fn monitor_foxglove_says_that_any_local_user_can_read_the_run() {
+    // No node needed: the warning comes when the server starts, before any run is found.
+    let out = chaoscope_captured(&[
+        "monitor",
+        &unique_run("foxglove-nobody"),
+        "--plain",
+        "--foxglove",
+        "127.0.0.1:0",
+        "--wait-timeout",
+        "0.2",
+    ])
+    .output()
+    .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let warnings: Vec<&str> = stderr.lines().filter(|l| l.contains("warning")).collect();
+    assert_eq!(warnings.len(), 1, "{stderr}");
+    assert!(
+        warnings[0].contains("no access control")
+            && warnings[0].contains("any user of this machine")
+            && warnings[0].contains("can connect to it and read this run"),
+        "{}",
+        warnings[0]
+    );
+}

@@ -23,6 +23,21 @@ use prost::Message;
 /// Where `--foxglove` without an address serves (Foxglove's default port, this machine only).
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
 
+/// Who can read the run once the server listens on `addr`. The server (Foxglove's protocol)
+/// has no authentication and a TCP connection does not say which local user made it, so the
+/// bus's privacy ends here; the user is told so where they turn it on.
+pub fn who_can_read(addr: SocketAddr) -> String {
+    let who = if addr.ip().is_loopback() {
+        "any user of this machine"
+    } else {
+        "anyone who can reach this address over the network, and any user of this machine"
+    };
+    format!(
+        "the Foxglove server has no access control: {who} can connect to it and read this run \
+         while it is served"
+    )
+}
+
 /// The WebSocket server, running on its own threads until [`FoxgloveServer::stop`].
 pub struct FoxgloveServer {
     context: Arc<Context>,
@@ -44,6 +59,7 @@ impl FoxgloveServer {
             addr.ip(),
             handle.port()
         );
+        eprintln!("chaoscope monitor: warning: {}", who_can_read(addr));
         Ok(Self { context, handle })
     }
 

@@ -35,8 +35,11 @@ use crate::parser::{on_big_stack, parse_here};
 use crate::smooth::{self, Info, LimitKind, Signs, Smoothness};
 
 /// Refuse expressions that expand to more graph nodes than this (a lattice sum over a huge
-/// range, nested sums): the graph, its derivatives and the compiled code would not fit.
-pub const MAX_NODES: usize = 10_000_000;
+/// range, nested sums): the graph, its derivatives and the compiled code would not fit. A
+/// node costs about 110 bytes while lowering (the node, its hash-consing entry, its origin), so
+/// the refusal comes before about 220 MB; a chain of 10^5 sites (about 10 nodes a site) fits.
+/// A single sum with more terms than this is refused before its first term is lowered.
+pub const MAX_NODES: usize = 2_000_000;
 
 /// Refuse expressions whose expansion takes more steps than this, even if constant folding
 /// keeps the graph small (`sum(i = 1..10^12, 0)` must not run for hours).
@@ -931,6 +934,20 @@ impl<'a> Lowerer<'a> {
         }
         let a = self.int(from)?;
         let b = self.int(to)?;
+        // Bounded before anything is built: a sum of more terms than the graph may hold nodes
+        // is refused at once (a 36-byte `sum(i = 1..100000000, q1)` would otherwise allocate
+        // a node per term until the limit, hundreds of megabytes, before being refused).
+        let terms = i128::from(b) - i128::from(a) + 1;
+        if terms > self.max_nodes as i128 {
+            return Err(self.err(
+                e.span,
+                format!(
+                    "sum over {terms} terms: an expression may expand to at most {} graph nodes \
+                     (lattice sums over too many sites?)",
+                    self.max_nodes
+                ),
+            ));
+        }
         let free = self.scope.boundary == Boundary::Free;
         let mut acc: Option<(NodeId, Info)> = None;
         let mut i = a;
@@ -1613,14 +1630,33 @@ mod tests {
         };
         let e = limited(
             Boundary::Fixed,
-            "sum(i = 1..100000, sum(j = 1..1000, q1*i*j))",
+            "sum(i = 1..1000, sum(j = 1..1000, q1*i*j))",
         );
         assert!(e.message.contains("more than 10000 graph nodes"), "{e}");
-        assert_eq!((e.line, e.column), (1, 41), "the product that overflowed");
+        assert_eq!((e.line, e.column), (1, 39), "the product that overflowed");
+        // A sum of more terms than the graph may hold is refused before its first term (even
+        // one that folds to a constant), naming the sum.
         let e = limited(Boundary::Fixed, "sum(i = 1..1000000000000, 0)");
-        assert!(e.message.contains("more than 50000 operations"), "{e}");
+        assert!(
+            e.message.contains(
+                "sum over 1000000000000 terms: an expression may expand to at most 10000"
+            ),
+            "{e}"
+        );
+        assert_eq!((e.line, e.column), (1, 1));
         let e = limited(Boundary::Free, "sum(i = 10..9000000000000000, q[i])");
-        assert!(e.message.contains("operations"), "{e}");
+        assert!(e.message.contains("sum over 8999999999999991 terms"), "{e}");
+        let e = limited(
+            Boundary::Fixed,
+            "sum(i = -9000000000000000..9000000000000000, 0)",
+        );
+        assert!(
+            e.message.contains("sum over 18000000000000001 terms"),
+            "{e}"
+        );
+        // Sums of fewer terms each that fold to constants are bounded by the operations.
+        let e = limited(Boundary::Fixed, "sum(i = 1..10000, sum(j = 1..10000, 0))");
+        assert!(e.message.contains("more than 50000 operations"), "{e}");
         // Checking whether a term exists and evaluating indices count too.
         let long = "q1 + ".repeat(1000);
         let e = limited(Boundary::Free, &format!("sum(i = 10..1000, {long}q[i])"));

@@ -139,6 +139,35 @@ fn fput(g: &mut Graph, n: u32, beta: f64) -> (Vec<NodeId>, Vec<NodeId>) {
 
 /// Gradient (`q` per lane) and HVP (shared reference `q`, `v` per lane), as the variational
 /// kernel calls them.
+/// `(q1^2 + q2^2 + q3^2)/2 + 0.001 prod_{i<n} (1 + 0.0001 q_(i mod 3))`, written as the
+/// expression a user would write: its gradient and Hessian-vector product.
+fn product(g: &mut Graph, n: usize) -> (Vec<NodeId>, Vec<NodeId>) {
+    let factors: Vec<String> = (0..n)
+        .map(|i| format!("(1 + 0.0001*q[{}])", 1 + i % 3))
+        .collect();
+    let source = format!("0.5*(q1^2 + q2^2 + q3^2) + 0.001*{}", factors.join("*"));
+    let families = [chaoscope_expr::Family {
+        name: "q".into(),
+        len: 3,
+        arg: 0,
+        offset: 0,
+    }];
+    let params = std::collections::BTreeMap::new();
+    let scope = chaoscope_expr::Scope {
+        families: &families,
+        params: &params,
+        tables: &[],
+        n: 3,
+        boundary: chaoscope_expr::Boundary::Fixed,
+    };
+    let root = chaoscope_expr::lower(&source, &scope, g)
+        .expect("the product lowers")
+        .root;
+    let grad = chaoscope_expr::gradient(g, root, 0, 3).expect("gradient");
+    let hvp = chaoscope_expr::jacobian_vector(g, &grad, 0, 1).expect("HVP");
+    (grad, hvp)
+}
+
 fn specs(grad: &[NodeId], hvp: &[NodeId]) -> Vec<FunctionSpec> {
     vec![
         FunctionSpec {
@@ -275,6 +304,28 @@ fn main() {
         isa: probe.isa().to_string(),
         rust: rust_target_features(),
     };
+
+    // Compile time of products of n factors (gradient and Hessian-vector product): every
+    // partial product is live at once in the gradient, the case that made register allocation
+    // superlinear (a product of 1000 factors took 38 s with the backtracking allocator). Linear
+    // means `seconds_per_operation` about constant across n.
+    if wanted("compile", "product") {
+        for n in [250usize, 500, 1000, 2000, 4000] {
+            let mut g = Graph::new();
+            let (gr, hv) = product(&mut g, n);
+            let c = jit::compile(&g, &specs(&gr, &hv)).expect("compiles");
+            let work = c.allocation_work();
+            let seconds = c.compile_time().as_secs_f64();
+            env.line(&format!(
+                "\"kind\":\"compile\",\"system\":\"product{n}\",\"factors\":{n},\
+                 \"operations\":{},\"backtracking_live_span\":{},\"seconds\":{seconds:.4},\
+                 \"seconds_per_operation\":{:.3e}",
+                work.operations,
+                work.backtracking_live_span,
+                seconds / work.operations as f64
+            ));
+        }
+    }
 
     // Compile times.
     for (name, n) in [("henon_heiles", 0u32), ("fput", 101), ("fput", 1001)] {

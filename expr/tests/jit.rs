@@ -716,3 +716,87 @@ fn lane_groups_with_a_stride() {
         }
     }
 }
+
+/// The gradient and Hessian-vector product of a product of `n` factors written as a user would
+/// (`(1 + 0.0001*q[1])*(1 + 0.0001*q[2])*...`, over three variables).
+fn product(g: &mut Graph, n: usize) -> (Vec<NodeId>, Vec<NodeId>) {
+    let factors: Vec<String> = (0..n)
+        .map(|i| format!("(1 + 0.0001*q[{}])", 1 + i % 3))
+        .collect();
+    let source = format!("0.5*(q1^2 + q2^2 + q3^2) + 0.001*{}", factors.join("*"));
+    let families = [chaoscope_expr::Family {
+        name: "q".into(),
+        len: 3,
+        arg: 0,
+        offset: 0,
+    }];
+    let params = std::collections::BTreeMap::new();
+    let scope = chaoscope_expr::Scope {
+        families: &families,
+        params: &params,
+        tables: &[],
+        n: 3,
+        boundary: chaoscope_expr::Boundary::Fixed,
+    };
+    let root = chaoscope_expr::lower(&source, &scope, g).unwrap().root;
+    let grad = chaoscope_expr::gradient(g, root, 0, 3).unwrap();
+    let hvp = chaoscope_expr::jacobian_vector(g, &grad, 0, 1).unwrap();
+    (grad, hvp)
+}
+
+/// Compilation time is linear in the expression's size, shown by what it is made of rather than
+/// by a clock: the operations compiled grow in proportion to the factors of a product, and the
+/// live span handed to the backtracking register allocator (superlinear in it: a product of
+/// 1000 factors took 38 s) stays within `MAX_MEAN_LIVE` per operation. A product keeps every
+/// partial product live for its gradient, so it goes to the single-pass allocator (span 0 for
+/// backtracking); an FPUT chain's values live a few operations, so it keeps the backtracking
+/// allocator and its better code. `benches/jit.rs` (`compile product`) times it.
+#[test]
+fn compile_work_is_linear_in_the_size_of_a_product() {
+    let mut per_factor = Vec::new();
+    for n in [250usize, 500, 1000, 2000] {
+        let mut g = Graph::new();
+        let (grad, hvp) = product(&mut g, n);
+        let c = jit::compile(&g, &specs_of(&grad, &hvp)).unwrap();
+        let work = c.allocation_work();
+        assert_eq!(work.backtracking_live_span, 0, "n = {n}: {work:?}");
+        per_factor.push(work.operations as f64 / n as f64);
+    }
+    // Operations per factor: constant to within 2% from 250 to 2000 factors (the terms that do
+    // not grow with n, the quadratic part and the sums of the gradient, are a few dozen).
+    let (lo, hi) = (
+        per_factor.iter().copied().fold(f64::INFINITY, f64::min),
+        per_factor.iter().copied().fold(0.0, f64::max),
+    );
+    assert!(hi / lo < 1.02, "operations per factor {per_factor:?}");
+
+    let mut g = Graph::new();
+    let (grad, hvp) = fput(&mut g, 1001, 0.7);
+    let work = jit::compile(&g, &specs_of(&grad, &hvp))
+        .unwrap()
+        .allocation_work();
+    assert!(
+        work.backtracking_live_span > 0 && work.backtracking_live_span < 8 * work.operations,
+        "the FPUT chain keeps the backtracking allocator, its values short-lived: {work:?}"
+    );
+
+    // The single-pass allocator only places values: the same bits as the reference.
+    let mut g = Graph::new();
+    let (grad, hvp) = product(&mut g, 300);
+    let mut all = specs(&grad);
+    all.extend(specs(&hvp));
+    check(&g, &all, &[3, 3], 50, 8, Rng::moderate);
+}
+
+fn specs_of(grad: &[NodeId], hvp: &[NodeId]) -> Vec<FunctionSpec> {
+    vec![
+        FunctionSpec {
+            args: vec![Layout::Scalar],
+            outputs: grad.to_vec(),
+        },
+        FunctionSpec {
+            args: vec![Layout::Scalar, Layout::Lanes],
+            outputs: hvp.to_vec(),
+        },
+    ]
+}

@@ -16,8 +16,8 @@ use cranelift_module::{Linkage, Module};
 
 use super::step_spec::{StepSpec, kernel_plan};
 use super::{
-    JitError, Layout, OptLevel, Options, Plan, Sigs, VConsts, emit_scalar, emit_vector, flags,
-    is_leaf, new_module, operand_scalar, outputs_by_node,
+    JitError, Layout, OptLevel, Options, Plan, Regalloc, Sigs, VConsts, emit_scalar, emit_vector, flags,
+    is_leaf, new_module, operand_scalar, outputs_by_node, regalloc_for,
 };
 use crate::graph::{Graph, Node, NodeId, Tabulated};
 
@@ -104,7 +104,7 @@ pub(super) fn compile(
         kernels.push((1, plan, 1, true));
     }
 
-    let mut modules: Vec<(OptLevel, JITModule)> = Vec::new();
+    let mut modules: Vec<((OptLevel, Regalloc), JITModule)> = Vec::new();
     let mut ctx = Context::new();
     let mut fctx = FunctionBuilderContext::new();
     let mut defined = Vec::new();
@@ -118,10 +118,11 @@ pub(super) fn compile(
         };
         let block = if large { 2 } else { options.lane_block };
         blocks[usize::from(*tangent)] = block;
-        let m = match modules.iter().position(|(o, _)| *o == opt) {
+        let key = (opt, regalloc_for(options, graph, &plan.varying_order).0);
+        let m = match modules.iter().position(|(k, _)| *k == key) {
             Some(m) => m,
             None => {
-                modules.push((opt, new_module(opt, options.regalloc)?.0));
+                modules.push((key, new_module(key.0, key.1)?.0));
                 modules.len() - 1
             }
         };

@@ -760,6 +760,23 @@ fn compile_work_is_linear_in_the_size_of_a_product() {
         let c = jit::compile(&g, &specs_of(&grad, &hvp)).unwrap();
         let work = c.allocation_work();
         assert_eq!(work.backtracking_live_span, 0, "n = {n}: {work:?}");
+        // The splitting step kernels (the batched kernel's): the Hessian's entries, uniform
+        // over the lanes, are computed before the lane loop and keep as many values live.
+        let steps = jit::compile_steps(
+            &g,
+            &jit::StepSpec {
+                n: 3,
+                gradient: grad.clone(),
+                hessian_vector: Some(hvp.clone()),
+            },
+            &Options::default(),
+        )
+        .unwrap();
+        let step_work = steps.allocation_work();
+        assert_eq!(
+            step_work.backtracking_live_span, 0,
+            "n = {n}: {step_work:?}"
+        );
         per_factor.push(work.operations as f64 / n as f64);
     }
     // Operations per factor: constant to within 2% from 250 to 2000 factors (the terms that do

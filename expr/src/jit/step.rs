@@ -41,7 +41,7 @@ use std::time::Duration;
 use super::c_step::{self, C_BLOCK_LANES, CCompiler, CKernels};
 use super::step_cranelift::{self, CraneliftKernels};
 use super::step_spec::StepSpec;
-use super::{JitError, Options};
+use super::{AllocationWork, JitError, Options};
 use crate::graph::{Graph, Tabulated};
 
 /// The compiled step kernels of one [`compile_steps`] or [`compile_steps_c`] call (owns the
@@ -54,6 +54,8 @@ pub struct StepKernels {
     blocks: [usize; 2],
     _tables: Box<[Arc<dyn Tabulated>]>,
     compile_time: Duration,
+    /// What Cranelift's register allocators were given (zero for the C kernels).
+    allocation: AllocationWork,
 }
 
 /// Who generated the machine code.
@@ -127,6 +129,12 @@ impl StepKernels {
     /// Code generation (and, for C, compilation or cache lookup) and linking time.
     pub fn compile_time(&self) -> Duration {
         self.compile_time
+    }
+
+    /// What Cranelift's register allocators were given, as [`super::Compiled::allocation_work`]
+    /// (zero for the C kernels).
+    pub fn allocation_work(&self) -> AllocationWork {
+        self.allocation
     }
 
     pub fn backend(&self) -> StepBackend {
@@ -313,8 +321,10 @@ pub fn compile_steps(
     options: &Options,
 ) -> Result<StepKernels, JitError> {
     let (kernels, blocks, tables, compile_time) = step_cranelift::compile(graph, spec, options)?;
+    let allocation = kernels.allocation;
     Ok(StepKernels {
         code: Code::Cranelift(kernels),
+        allocation,
         n: spec.n,
         blocks,
         _tables: tables,
@@ -354,5 +364,6 @@ pub fn compile_steps_c_cancellable(
         blocks: [C_BLOCK_LANES; 2],
         _tables: tables,
         compile_time,
+        allocation: AllocationWork::default(),
     })
 }

@@ -16,8 +16,9 @@ use cranelift_module::{Linkage, Module};
 
 use super::step_spec::{StepSpec, kernel_plan};
 use super::{
-    JitError, Layout, OptLevel, Options, Plan, Regalloc, Sigs, VConsts, emit_scalar, emit_vector, flags,
-    is_leaf, new_module, operand_scalar, outputs_by_node, regalloc_for,
+    AllocationWork, JitError, Layout, OptLevel, Options, Plan, Regalloc, Sigs, VConsts,
+    emit_scalar, emit_vector, flags, is_leaf, new_module, operand_scalar, outputs_by_node,
+    regalloc_for,
 };
 use crate::graph::{Graph, Node, NodeId, Tabulated};
 
@@ -64,6 +65,8 @@ pub(super) struct CraneliftKernels {
     pub(super) modules: Mutex<Vec<JITModule>>,
     pub(super) orbit: OrbitStepsFnPtr,
     pub(super) tangent: Option<TangentStepsFnPtr>,
+    /// What the register allocators were given.
+    pub(super) allocation: AllocationWork,
 }
 
 /// What a [`compile`] call built: the kernels, lanes per block of each (orbit, tangent), the
@@ -105,6 +108,7 @@ pub(super) fn compile(
     }
 
     let mut modules: Vec<((OptLevel, Regalloc), JITModule)> = Vec::new();
+    let mut allocation = AllocationWork::default();
     let mut ctx = Context::new();
     let mut fctx = FunctionBuilderContext::new();
     let mut defined = Vec::new();
@@ -118,7 +122,21 @@ pub(super) fn compile(
         };
         let block = if large { 2 } else { options.lane_block };
         blocks[usize::from(*tangent)] = block;
-        let key = (opt, regalloc_for(options, graph, &plan.varying_order).0);
+        // The uniform part (what depends on the stage's positions only: in the tangent kernel
+        // the Hessian's entries, most of the work) is emitted before the lane loop, the
+        // varying part inside it: either can keep many values live.
+        let (uniform, uniform_span) = regalloc_for(options, graph, &plan.uniform_order);
+        let (varying, varying_span) = regalloc_for(options, graph, &plan.varying_order);
+        let regalloc = if uniform == Regalloc::SinglePass {
+            uniform
+        } else {
+            varying
+        };
+        allocation.operations += (plan.uniform_order.len() + plan.varying_order.len()) as u64;
+        if regalloc == Regalloc::Backtracking {
+            allocation.backtracking_live_span += uniform_span + varying_span;
+        }
+        let key = (opt, regalloc);
         let m = match modules.iter().position(|(k, _)| *k == key) {
             Some(m) => m,
             None => {
@@ -183,6 +201,7 @@ pub(super) fn compile(
         modules: Mutex::new(modules.into_iter().map(|(_, m)| m).collect()),
         orbit: orbit.expect("the orbit kernel is always compiled"),
         tangent,
+        allocation,
     };
     Ok((kernels, blocks, tables, start.elapsed()))
 }

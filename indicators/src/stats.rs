@@ -58,20 +58,35 @@ pub struct Stat {
 
 impl Stat {
     pub fn from_values(values: impl IntoIterator<Item = f64>) -> Option<Self> {
-        let mut n = 0usize;
+        let values: Vec<f64> = values.into_iter().collect();
+        if values.is_empty() {
+            return None;
+        }
         let (mut sum, mut sum2) = (0.0, 0.0);
-        for v in values {
-            n += 1;
+        for &v in &values {
             sum += v;
             sum2 += v * v;
         }
-        if n == 0 {
-            return None;
+        let n = values.len() as f64;
+        let mean = sum / n;
+        let std = (sum2 / n - mean * mean).max(0.0).sqrt();
+        if (mean.is_finite() && std.is_finite()) || values.iter().any(|v| !v.is_finite()) {
+            return Some(Self { mean, std });
         }
-        let mean = sum / n as f64;
+        // Finite values whose sum or sum of squares leaves the range of f64 (exponents near
+        // f64::MAX, only from files with hostile values): the same moments with every value
+        // scaled by the largest magnitude first, so they stay finite. Never taken for the
+        // values of a run, whose results above are bit for bit what they were.
+        let scale = values.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let (mut sum, mut sum2) = (0.0, 0.0);
+        for &v in &values {
+            sum += v / scale;
+            sum2 += (v / scale) * (v / scale);
+        }
+        let mean = sum / n;
         Some(Self {
-            mean,
-            std: (sum2 / n as f64 - mean * mean).max(0.0).sqrt(),
+            mean: mean * scale,
+            std: (sum2 / n - mean * mean).max(0.0).sqrt() * scale,
         })
     }
 }
@@ -95,5 +110,17 @@ mod tests {
     fn signed_stat() {
         let s = Stat::from_values([1.0, 3.0]).unwrap();
         assert_eq!((s.mean, s.std), (2.0, 1.0));
+    }
+
+    #[test]
+    fn moments_of_huge_finite_values_stay_finite() {
+        // Their sum (and squares) overflow; the scaled moments do not: mean 1.5e308, spread
+        // 0.5e308 (to rounding of the scaling).
+        let s = Stat::from_values([f64::MAX, 0.5 * f64::MAX]).unwrap();
+        assert!((s.mean / (0.75 * f64::MAX) - 1.0).abs() < 1e-15, "{s:?}");
+        assert!((s.std / (0.25 * f64::MAX) - 1.0).abs() < 1e-15, "{s:?}");
+        let s = Stat::from_values([1e200, -1e200]).unwrap();
+        assert_eq!(s.mean, 0.0);
+        assert!((s.std / 1e200 - 1.0).abs() < 1e-15, "{s:?}");
     }
 }

@@ -1,5 +1,8 @@
 //! Accumulated logarithmic stretching of deviation vectors: finite-time Lyapunov exponents.
 
+/// Largest finite-time exponent reported (in magnitude): rates beyond are reported as this.
+pub const MAX_RATE: f64 = 1e300;
+
 /// Accumulated logarithmic stretching of `k` vectors: the finite-time Lyapunov exponents.
 ///
 /// With per-vector rescaling every vector's sum estimates the maximal exponent (the first one is
@@ -38,15 +41,24 @@ impl StretchSums {
 
     /// Finite-time maximal Lyapunov exponent `lambda_1(t)` (0 at `t = 0`).
     pub fn mle(&self, t: f64) -> f64 {
-        if t > 0.0 { self.log_sums[0] / t } else { 0.0 }
+        rate(self.log_sums[0], t)
     }
 
     /// Finite-time exponents `lambda_i(t) = (1/t) sum ln |R_ii|` (meaningful for QR schemes).
     pub fn spectrum(&self, t: f64) -> Vec<f64> {
-        self.log_sums
-            .iter()
-            .map(|s| if t > 0.0 { s / t } else { 0.0 })
-            .collect()
+        self.log_sums.iter().map(|&s| rate(s, t)).collect()
+    }
+}
+
+/// `sum / t` (0 at `t = 0`), at most [`MAX_RATE`] in magnitude: a time step near the smallest
+/// double with stretching factors near the largest (only in a file with hostile values) would
+/// overflow to infinity, and differences and sums of rates (MPM against VM, a spectrum's sum)
+/// must stay finite too. A run comes near it only with a step below 1e-297.
+fn rate(sum: f64, t: f64) -> f64 {
+    if t > 0.0 {
+        (sum / t).clamp(-MAX_RATE, MAX_RATE)
+    } else {
+        0.0
     }
 }
 

@@ -150,7 +150,8 @@ impl Tracker {
     }
 
     /// Applies one set's separations (the `k` vectors of `dim` entries one after another) and
-    /// stretching factors at `step`. False, and nothing changed, if they do not fit the layout.
+    /// stretching factors at `step`. False, and nothing changed, if they do not fit the layout,
+    /// or a stretching factor is not positive and finite, or a separation not finite.
     /// Steps of one (scheme, set) must increase; a missed renormalization is a gap.
     pub fn apply(
         &mut self,
@@ -165,6 +166,10 @@ impl Tracker {
             || set >= self.layout.sets
             || separations.len() != k * dim
             || stretch.len() != k
+            // Values no producer sends (the producer stops before a vector vanishes or leaves
+            // the range of f64): their logarithms and alignments would be NaN or infinite.
+            || !stretch.iter().all(|s| s.is_finite() && *s > 0.0)
+            || !separations.iter().all(|v| v.is_finite())
         {
             return false;
         }
@@ -217,12 +222,7 @@ impl Tracker {
             t: self.layout.time_of(step),
             gali_log10: gali_log10(&st.separations, self.layout.dim),
             sali: sali(&st.separations, self.layout.dim),
-            exponents: st
-                .sums
-                .log_sums()
-                .iter()
-                .map(|s| if covered > 0.0 { s / covered } else { 0.0 })
-                .collect(),
+            exponents: st.sums.spectrum(covered),
         })
     }
 

@@ -11,7 +11,7 @@ use std::process::Command;
 use chaoscope_recorder::file::{Compression, FileOptions};
 use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_recorder::testing;
-use chaoscope_schemas::proto::{MapHeader, MapPoint};
+use chaoscope_schemas::proto::{MapAxis, MapHeader, MapPoint, map_point};
 use common::{CHAOSCOPE, chaoscope};
 use prost::Message;
 
@@ -112,10 +112,25 @@ fn merge_refuses_a_damaged_shard_with_a_clear_error() {
     }
 }
 
-/// A complete map file whose header says `shard_index / shard_count` of `grid_points`.
+/// A complete map file whose header says `shard_index / shard_count` of `grid_points` (a grid
+/// of `grid_points` x 1), holding points 0 to 3 of a 4 x 1 grid: valid values otherwise, so
+/// that what is refused is the shard or the grid.
 fn shard(dir: &Path, name: &str, shard_index: u32, shard_count: u32, grid_points: u64) -> String {
+    let n = grid_points as u32;
+    let axis = |n: u32| MapAxis {
+        coord: "q2".into(),
+        min: 0.0,
+        max: 3.0,
+        n,
+    };
     let header = MapHeader {
         config_toml: "[map]".into(),
+        indicator: "gali".into(),
+        k: 2,
+        sets: 1,
+        t_final: 1.0,
+        x: Some(axis(n)),
+        y: Some(axis(1)),
         grid_points,
         shard_index,
         shard_count,
@@ -127,6 +142,13 @@ fn shard(dir: &Path, name: &str, shard_index: u32, shard_count: u32, grid_points
     for index in 0..4 {
         let point = MapPoint {
             index,
+            ix: index as u32,
+            x: 3.0 * index as f64 / f64::from(n.max(2) - 1),
+            status: map_point::Status::Ok as i32,
+            value: -1.0,
+            mean_log10: -1.0,
+            per_set: vec![-1.0],
+            t_end: 1.0,
             ..Default::default()
         };
         file.write_point(&point).unwrap();

@@ -60,6 +60,20 @@ impl Map {
             header.y.clone().unwrap_or_default(),
         );
         let (nx, ny, sets) = (xa.n as usize, ya.n as usize, header.sets as usize);
+        // The grids are dense (a value for every grid point and set, NaN where none was
+        // computed): a header may describe up to 10^10 points and a million sets, far beyond any
+        // file it comes in, so their size is checked against the machine before allocating.
+        let bytes = (nx as u128 * ny as u128) * (8 * 3 + 4 + 8 * sets as u128);
+        if let Some(memory) = Machine::this_host().memory_bytes
+            && bytes > u128::from(memory / 2)
+        {
+            return Err(crate::message(format!(
+                "{}: the map's grid ({nx} x {ny} points, {sets} sets) would take {:.1} GiB as \
+                 arrays, more than half of this machine's memory",
+                path.display(),
+                bytes as f64 / (1u64 << 30) as f64
+            )));
+        }
         let mut x = vec![f64::NAN; nx];
         let mut y = vec![f64::NAN; ny];
         let mut value = vec![f64::NAN; nx * ny];
@@ -230,6 +244,10 @@ pub fn open_map(py: Python<'_>, path: PathBuf) -> PyResult<Map> {
             path.display()
         )));
     }
+    // Every value the arrays are sized and indexed by, checked before they are allocated.
+    contents
+        .check()
+        .map_err(|e| crate::message(format!("{}: {e}", path.display())))?;
     let header = contents.header.ok_or_else(|| {
         crate::message(format!(
             "{} holds no readable map header (not a `chaoscope map` recording?)",

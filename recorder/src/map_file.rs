@@ -13,7 +13,7 @@ use std::path::Path;
 
 use chaoscope_schemas::FORMAT_VERSION;
 use chaoscope_schemas::names::{metadata, topic};
-use chaoscope_schemas::proto::{self, MapHeader, MapPoint, schema_name};
+use chaoscope_schemas::proto::{self, MapHeader, MapPoint, map_point, schema_name};
 use mcap::records::{MessageHeader, Metadata};
 use prost::Message;
 
@@ -102,6 +102,162 @@ pub struct MapContents {
     /// Where and why reading stopped in a damaged (e.g. killed) file; `None` when it was
     /// complete.
     pub damaged: Option<String>,
+}
+
+/// Most grid points per axis a map file may describe (what `[map] x.n` and `y.n` accept).
+pub const MAX_AXIS_POINTS: u32 = 100_000;
+
+/// Indicators a map file may hold.
+pub const INDICATORS: [&str; 4] = ["gali", "sali", "gali-time", "mle"];
+
+/// A map header whose values no `chaoscope map` writes, as `field: problem`: every value the
+/// readers use to index, allocate, loop or draw (axes, sizes, shard, indicator, times) is
+/// checked here before they use it.
+pub fn check_header(h: &MapHeader) -> Result<(), String> {
+    for (name, axis) in [("x", &h.x), ("y", &h.y)] {
+        let Some(a) = axis else {
+            return Err(format!("{name}: no axis"));
+        };
+        if a.n == 0 || a.n > MAX_AXIS_POINTS {
+            return Err(format!(
+                "{name}.n = {}: an axis has 1 to {MAX_AXIS_POINTS} points",
+                a.n
+            ));
+        }
+        if !(a.min.is_finite()
+            && a.max.is_finite()
+            && a.min <= a.max
+            && (a.max - a.min).is_finite())
+        {
+            return Err(format!(
+                "{name}.min, {name}.max = {:?}, {:?}: need finite min <= max, their distance finite",
+                a.min, a.max
+            ));
+        }
+    }
+    let (x, y) = (
+        h.x.as_ref().expect("checked"),
+        h.y.as_ref().expect("checked"),
+    );
+    if h.grid_points != u64::from(x.n) * u64::from(y.n) {
+        return Err(format!(
+            "grid_points = {}, but x.n * y.n = {} * {}",
+            h.grid_points, x.n, y.n
+        ));
+    }
+    if h.shard_count == 0 || h.shard_index >= h.shard_count {
+        return Err(format!(
+            "shard {}/{}, which no `chaoscope map --shard` writes",
+            h.shard_index, h.shard_count
+        ));
+    }
+    if !INDICATORS.contains(&h.indicator.as_str()) {
+        return Err(format!(
+            "indicator {:?} is none of {}",
+            h.indicator,
+            INDICATORS.join(", ")
+        ));
+    }
+    if h.sets == 0 || h.sets as usize > MAX_SETS || h.k == 0 {
+        return Err(format!(
+            "sets = {}, k = {}: need 1 to {MAX_SETS} sets and k >= 1",
+            h.sets, h.k
+        ));
+    }
+    if !(h.t_final.is_finite() && h.t_final >= 0.0) {
+        return Err(format!(
+            "t_final = {:?}: a final time is finite and not negative",
+            h.t_final
+        ));
+    }
+    if !h.threshold.is_finite() {
+        return Err(format!("threshold = {:?}", h.threshold));
+    }
+    Ok(())
+}
+
+/// Most sets of a map point (`[deviations] sets`'s limit).
+const MAX_SETS: usize = 1_000_000;
+
+/// A point of the map `h` describes (checked by [`check_header`]) whose values no `chaoscope
+/// map` writes, as `field: problem`: its index and grid position within the grid and agreeing
+/// with each other, its coordinates those of its grid position, a known status, and for an
+/// integrated point a finite value per set.
+pub fn check_point(h: &MapHeader, p: &MapPoint) -> Result<(), String> {
+    let (Some(x), Some(y)) = (&h.x, &h.y) else {
+        return Err("the header has no axes".into());
+    };
+    let at = |what: String| format!("point {}: {what}", p.index);
+    if p.ix >= x.n || p.iy >= y.n || p.index != u64::from(p.iy) * u64::from(x.n) + u64::from(p.ix) {
+        return Err(at(format!(
+            "(ix, iy) = ({}, {}) on a {} x {} grid, which is point {}",
+            p.ix,
+            p.iy,
+            x.n,
+            y.n,
+            u64::from(p.iy) * u64::from(x.n) + u64::from(p.ix)
+        )));
+    }
+    if p.index % u64::from(h.shard_count) != u64::from(h.shard_index) {
+        return Err(at(format!(
+            "not in shard {}/{}",
+            h.shard_index, h.shard_count
+        )));
+    }
+    for (name, axis, i, v) in [("x", x, p.ix, p.x), ("y", y, p.iy, p.y)] {
+        let expected = if axis.n > 1 {
+            axis.min + (axis.max - axis.min) * f64::from(i) / f64::from(axis.n - 1)
+        } else {
+            axis.min
+        };
+        let slack = 1e-9 * (axis.max - axis.min).max(axis.min.abs().max(axis.max.abs()));
+        if !(v.is_finite() && (v - expected).abs() <= slack) {
+            return Err(at(format!(
+                "{name} = {v:?}, but grid position {i} of {:?}..{:?} is {expected:?}",
+                axis.min, axis.max
+            )));
+        }
+    }
+    let status = map_point::Status::try_from(p.status).ok();
+    let ok = match status {
+        Some(map_point::Status::Ok) => true,
+        Some(map_point::Status::OutsideEnergySurface | map_point::Status::Escaped) => false,
+        _ => return Err(at(format!("status {} is not a point status", p.status))),
+    };
+    if p.per_set.len() > h.sets as usize || (ok && p.per_set.len() != h.sets as usize) {
+        return Err(at(format!(
+            "{} values per set, but the map has {} sets",
+            p.per_set.len(),
+            h.sets
+        )));
+    }
+    if ok {
+        for (field, v) in [("value", p.value), ("mean_log10", p.mean_log10)] {
+            if !v.is_finite() {
+                return Err(at(format!("{field} = {v:?} of an integrated point")));
+            }
+        }
+        if let Some(i) = p.per_set.iter().position(|v| !v.is_finite()) {
+            return Err(at(format!("per_set[{i}] = {:?}", p.per_set[i])));
+        }
+    }
+    if !(p.t_end.is_finite() && p.t_end >= 0.0) {
+        return Err(at(format!("t_end = {:?}", p.t_end)));
+    }
+    Ok(())
+}
+
+impl MapContents {
+    /// The header ([`check_header`]) and every point ([`check_point`]), as `header: field:
+    /// problem` or `point N: field: problem`; a file without a header passes (its readers
+    /// refuse it for that).
+    pub fn check(&self) -> Result<(), String> {
+        let Some(h) = &self.header else {
+            return Ok(());
+        };
+        check_header(h).map_err(|e| format!("map header: {e}"))?;
+        self.points.iter().try_for_each(|p| check_point(h, p))
+    }
 }
 
 /// Reads the map recording at `path`, streaming (memory of about one chunk besides the

@@ -368,6 +368,14 @@ fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u6
             if p.index >= header.grid_points || !shard.contains(p.index) {
                 bail!("{}: point {} is not in its shard", path.display(), p.index);
             }
+            // Its values are this map's own (this configuration's header) or the file is
+            // refused: they go into the new file and the PNG as they are.
+            chaoscope_recorder::map_file::check_point(header, &p).map_err(|e| {
+                anyhow::anyhow!(
+                    "{}: {e}; pass --restart to recompute it or choose another --out",
+                    path.display()
+                )
+            })?;
             points.insert(p.index, p);
         }
         prev_is_this_map |= is_prev;

@@ -202,13 +202,19 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                         })
                         .to_string());
                     } else {
+                        // A point that has no value (outside the energy surface, escaped)
+                        // carries NaN: shown as `-`, never as NaN.
+                        let value = if p.value.is_finite() {
+                            p.value.to_string()
+                        } else {
+                            "-".to_string()
+                        };
                         out(format!(
-                            "{} {} {} {} {}",
+                            "{} {} {} {} {value}",
                             p.index,
                             p.ix,
                             p.iy,
                             status_name(&p),
-                            p.value
                         ));
                     }
                 }

@@ -58,6 +58,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 path.display()
             );
         }
+        // Every value used below (sizes, shard, grid positions) and by the PNG, checked first.
+        contents
+            .check()
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
         let h = contents
             .header
             .with_context(|| format!("{} has no map header", path.display()))?;

@@ -163,6 +163,12 @@ impl Analysis {
     /// Feeds the next sample. Samples must come in increasing step order; sets or the reference
     /// state may be missing (a lossy live stream): what arrives is used.
     pub fn feed(&mut self, sample: &Sample) {
+        // A sample whose time is not finite cannot be placed on any curve (the file reader
+        // refuses it; a live stream's is left out as a lost one).
+        if !sample.t.is_finite() {
+            self.gaps = true;
+            return;
+        }
         // The captures this sample passes get the values as of the previous one.
         let due = |c: &Capture| c.report.is_none() && sample.step > c.step;
         if self.samples > 0 && self.captures.iter().any(due) {
@@ -174,7 +180,12 @@ impl Analysis {
         self.samples += 1;
         self.step = sample.step;
         self.t = sample.t;
-        if !sample.state.is_empty() {
+        // Energies and divergences that are not finite (never written by a producer, which
+        // stops first) are left out rather than carried into every report.
+        if !sample.state.is_empty()
+            && sample.energy.is_finite()
+            && sample.mean_divergence.is_finite()
+        {
             if self.run.kind == SystemKind::Hamiltonian {
                 let err = energy_error(sample.energy, self.run.header.energy0);
                 self.energy_error_max = self.energy_error_max.max(err);

@@ -33,14 +33,15 @@ pub enum ReadError {
          chunks before the damage)"
     )]
     Damaged { path: PathBuf, why: String },
-    #[error("{path}: message on {topic} is not valid protobuf: {source}")]
+    #[error("{path}: message on {topic} is not valid protobuf: {error}")]
     Decode {
         path: PathBuf,
         topic: String,
-        source: prost::DecodeError,
+        error: prost::DecodeError,
     },
-    /// A value no producer writes (a time or energy that is not finite): refused rather than
-    /// carried into outputs as NaN or infinity.
+    /// A value no producer writes (a time or energy that is not finite, a stretching factor of
+    /// zero, a size or index beyond the header's): refused rather than used to index or
+    /// allocate, or carried into outputs as NaN or infinity.
     #[error("{path}: message on {topic} holds {what}, which no producer writes")]
     Value {
         path: PathBuf,
@@ -49,8 +50,9 @@ pub enum ReadError {
     },
     #[error("{path}: no run header; is it a chaoscope recording?")]
     NoHeader { path: PathBuf },
-    #[error("{path}: {source}")]
-    Header { path: PathBuf, source: HeaderError },
+    // Not named `source`: the message already holds it (an error chain would print it twice).
+    #[error("{path}: {header}")]
+    Header { path: PathBuf, header: HeaderError },
 }
 
 /// What a recording holds besides its samples.
@@ -62,13 +64,169 @@ pub struct RecordingInfo {
     pub bytes: u64,
 }
 
-/// An open recording, positioned after its run header.
+/// An open recording, positioned after its run header (checked: [`RunInfo::from_header`]).
 pub struct RecordingReader {
     path: PathBuf,
     messages: Messages<BufReader<File>>,
-    header: RunHeader,
+    run: RunInfo,
     assembler: SampleAssembler,
+    /// What the values read so far allow next ([`SampleCheck`]).
+    check: SampleCheck,
     pub info: RecordingInfo,
+}
+
+/// What every message of a recording must agree with, besides being finite: sizes and
+/// indices within the header's, times those of their steps, steps and sample numbers that
+/// increase, and samples as a producer publishes them (a reference state, then each set of
+/// every scheme renormalizing at that step, once; only the file's last sample may be cut
+/// short). Checked before a value is used, so that a valid file holding values no producer
+/// writes is refused naming the field, instead of indexing out of bounds, allocating what a
+/// count claims (readers size their outputs by the header's sets) or printing NaN.
+#[derive(Debug, Default)]
+struct SampleCheck {
+    /// Sample number and step of the latest reference state.
+    sample: Option<(u64, u64)>,
+    /// (scheme, set) pairs of the current sample's separation sets.
+    seen: std::collections::BTreeSet<(u32, u32)>,
+}
+
+impl SampleCheck {
+    /// `t` is the time of `step` (as the producer computes it: `step * h`, never accumulated).
+    fn time(run: &RunInfo, step: u64, t: f64) -> Result<(), String> {
+        let expected = run.time_of(step);
+        // A relative slack of a few ulps, for writers that compute it another way.
+        if t.is_finite() && (t - expected).abs() <= 4.0 * f64::EPSILON * expected.abs() {
+            Ok(())
+        } else {
+            Err(format!(
+                "t = {t:?}, but step {step} with h = {:?} is at t = {expected:?}",
+                run.h
+            ))
+        }
+    }
+
+    fn finite(field: &str, values: &[f64]) -> Result<(), String> {
+        match values.iter().position(|v| !v.is_finite()) {
+            Some(i) => Err(format!("{field}[{i}] = {:?}", values[i])),
+            None => Ok(()),
+        }
+    }
+
+    /// The separation sets sample `seq` at `step` holds: `sets` of each scheme renormalizing
+    /// there (every one at step 0 and at the last step).
+    fn expected_sets(run: &RunInfo, step: u64) -> usize {
+        let last = run.header.total_steps;
+        run.schemes
+            .iter()
+            .filter(|s| step.is_multiple_of(s.tau_steps) || step == last)
+            .count()
+            * run.sets
+    }
+
+    /// The sample before the next one (or the end of the run) is whole.
+    fn finish_sample(&self, run: &RunInfo) -> Result<(), String> {
+        if let Some((seq, step)) = self.sample {
+            let expected = Self::expected_sets(run, step);
+            if self.seen.len() != expected {
+                return Err(format!(
+                    "sample {seq} (step {step}) with {} separation sets, but {expected} of the \
+                     header's schemes and sets renormalize there",
+                    self.seen.len()
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn reference(&mut self, run: &RunInfo, r: &ReferenceState) -> Result<(), String> {
+        for (field, v) in [("energy", r.energy), ("mean_divergence", r.mean_divergence)] {
+            if !v.is_finite() {
+                return Err(format!("{field} = {v:?}"));
+            }
+        }
+        Self::time(run, r.step, r.t)?;
+        if r.state.len() != run.dim {
+            return Err(format!(
+                "a state of {} values, but the run's dimension is {}",
+                r.state.len(),
+                run.dim
+            ));
+        }
+        Self::finite("state", &r.state)?;
+        if let Some((seq, step)) = self.sample
+            && (r.seq <= seq || r.step <= step)
+        {
+            return Err(format!(
+                "sample {} at step {} after sample {seq} at step {step} (they must increase)",
+                r.seq, r.step
+            ));
+        }
+        self.finish_sample(run)?;
+        self.sample = Some((r.seq, r.step));
+        self.seen.clear();
+        Ok(())
+    }
+
+    fn separations(&mut self, run: &RunInfo, m: &SeparationSet) -> Result<(), String> {
+        if m.scheme as usize >= run.schemes.len() || m.set as usize >= run.sets {
+            return Err(format!(
+                "scheme {} set {}, but the run has {} schemes of {} sets",
+                m.scheme,
+                m.set,
+                run.schemes.len(),
+                run.sets
+            ));
+        }
+        if (m.k as usize, m.dim as usize) != (run.k, run.dim)
+            || m.separations.len() != run.k * run.dim
+            || m.stretch.len() != run.k
+        {
+            return Err(format!(
+                "k = {}, dim = {}, {} separation values and {} stretching factors, but the run \
+                 has k = {} vectors of dimension {}",
+                m.k,
+                m.dim,
+                m.separations.len(),
+                m.stretch.len(),
+                run.k,
+                run.dim
+            ));
+        }
+        Self::time(run, m.step, m.t)?;
+        Self::finite("separations", &m.separations)?;
+        if let Some(i) = m.stretch.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
+            return Err(format!(
+                "stretch[{i}] = {:?} (a stretching factor |w| / d0 is positive and finite)",
+                m.stretch[i]
+            ));
+        }
+        let Some((seq, step)) = self.sample.filter(|(seq, _)| *seq == m.seq) else {
+            return Err(format!(
+                "a separation set of sample {} that does not follow its reference state",
+                m.seq
+            ));
+        };
+        if m.step != step {
+            return Err(format!(
+                "step {} in sample {seq}, whose reference state is at step {step}",
+                m.step
+            ));
+        }
+        let tau = run.schemes[m.scheme as usize].tau_steps;
+        if !(step.is_multiple_of(tau) || step == run.header.total_steps) {
+            return Err(format!(
+                "scheme {} renormalizes every {tau} steps, not at step {step}",
+                m.scheme
+            ));
+        }
+        if !self.seen.insert((m.scheme, m.set)) {
+            return Err(format!(
+                "scheme {} set {} twice in sample {seq}",
+                m.scheme, m.set
+            ));
+        }
+        Ok(())
+    }
 }
 
 impl RecordingReader {
@@ -83,18 +241,23 @@ impl RecordingReader {
                 });
             };
             if &*m.topic == topic::RUN {
-                break RunHeader::decode(&m.data[..]).map_err(|source| ReadError::Decode {
+                break RunHeader::decode(&m.data[..]).map_err(|error| ReadError::Decode {
                     path: path.to_path_buf(),
                     topic: topic::RUN.into(),
-                    source,
+                    error,
                 })?;
             }
         };
+        let run = RunInfo::from_header(header).map_err(|header| ReadError::Header {
+            path: path.to_path_buf(),
+            header,
+        })?;
         Ok(Self {
             path: path.to_path_buf(),
             messages,
-            header,
+            run,
             assembler: SampleAssembler::new(),
+            check: SampleCheck::default(),
             info: RecordingInfo {
                 bytes: meta.len(),
                 ..Default::default()
@@ -103,7 +266,12 @@ impl RecordingReader {
     }
 
     pub fn header(&self) -> &RunHeader {
-        &self.header
+        &self.run.header
+    }
+
+    /// The run the header describes (checked when the file was opened).
+    pub fn run(&self) -> &RunInfo {
+        &self.run
     }
 
     pub fn path(&self) -> &Path {
@@ -119,36 +287,38 @@ impl RecordingReader {
             };
             let t = &*m.topic;
             let path = &self.path;
-            let decode = |source| ReadError::Decode {
+            let decode = |error| ReadError::Decode {
                 path: path.clone(),
                 topic: t.to_string(),
-                source,
+                error,
+            };
+            let value = |what: String| ReadError::Value {
+                path: path.clone(),
+                topic: t.to_string(),
+                what,
             };
             let finite = |name: &str, v: f64| {
                 if v.is_finite() {
                     Ok(())
                 } else {
-                    Err(ReadError::Value {
-                        path: path.clone(),
-                        topic: t.to_string(),
-                        what: format!("{name} = {v}"),
-                    })
+                    Err(value(format!("{name} = {v:?}")))
                 }
             };
             let data = &m.data[..];
             if t == topic::REFERENCE {
                 let r = ReferenceState::decode(data).map_err(decode)?;
                 finite("t", r.t)?;
-                finite("energy", r.energy)?;
-                finite("mean_divergence", r.mean_divergence)?;
+                self.check.reference(&self.run, &r).map_err(value)?;
                 return Ok(Some(DataMessage::Reference(r)));
             } else if t.starts_with("/chaoscope/separations/") {
                 let s = SeparationSet::decode(data).map_err(decode)?;
                 finite("t", s.t)?;
+                self.check.separations(&self.run, &s).map_err(value)?;
                 return Ok(Some(DataMessage::Separations(s)));
             } else if t == topic::END {
                 let e = EndOfRun::decode(data).map_err(decode)?;
                 finite("t", e.t)?;
+                self.check.finish_sample(&self.run).map_err(value)?;
                 self.info.end = Some(e.clone());
                 return Ok(Some(DataMessage::End(e)));
             } else if t == topic::RECORDING {
@@ -201,12 +371,7 @@ pub fn analyze_file(
     options: &AnalysisOptions,
 ) -> Result<(Analysis, RecordingInfo), ReadError> {
     let mut reader = RecordingReader::open(path)?;
-    let run =
-        RunInfo::from_header(reader.header().clone()).map_err(|source| ReadError::Header {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    let mut analysis = Analysis::new(run, options);
+    let mut analysis = Analysis::new(reader.run().clone(), options);
     while let Some(sample) = reader.next_sample()? {
         analysis.feed(&sample);
         if analysis.captures_done() {

@@ -74,6 +74,17 @@ impl RunInfo {
         if !(header.h.is_finite() && header.h > 0.0) {
             return Err(err(format!("time step h = {} is not positive", header.h)));
         }
+        // Values every report carries: finite, or the header is refused (a NaN here would be
+        // printed as NaN, or as null in JSON).
+        if !(header.t_final.is_finite() && header.t_final >= 0.0) {
+            return Err(err(format!(
+                "t_final = {:?}: a final time is finite and not negative",
+                header.t_final
+            )));
+        }
+        if let Some(x) = header.x0.iter().find(|x| !x.is_finite()) {
+            return Err(err(format!("initial state x0 holds {x:?}")));
+        }
         let mut schemes: Vec<SchemeSpec> = Vec::with_capacity(header.schemes.len());
         for s in &header.schemes {
             // Scheme names become file names (`analyze --csv/--plot`): a recording from anyone
@@ -94,6 +105,14 @@ impl RunInfo {
                 })?;
             if s.tau_steps == 0 {
                 return Err(err(format!("scheme {}: tau_steps = 0", s.name)));
+            }
+            for (field, v) in [("d0", s.d0), ("tau", s.tau)] {
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(err(format!(
+                        "scheme {}: {field} = {v:?} is not a positive number",
+                        s.name
+                    )));
+                }
             }
             schemes.push(SchemeSpec {
                 name: s.name.clone(),

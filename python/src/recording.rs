@@ -6,7 +6,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions, energy_error};
 use chaoscope_analyzer::recording::{RecordingReader, analyze_file};
-use chaoscope_analyzer::run_info::RunInfo;
 use chaoscope_analyzer::write::SampleWriter;
 use chaoscope_producer::engine::Engine;
 use chaoscope_producer::estimate::{self, Machine};
@@ -402,8 +401,7 @@ struct Series {
 /// Returns early (the caller raises the pending `KeyboardInterrupt`) once `stop` is set.
 fn read_series(path: &Path, si: usize, stop: &AtomicBool) -> Result<Series, String> {
     let mut reader = RecordingReader::open(path).map_err(|e| error_text(&e))?;
-    let run = RunInfo::from_header(reader.header().clone())
-        .map_err(|e| format!("{}: {}", path.display(), error_text(&e)))?;
+    let run = reader.run().clone();
     let (sets, k, energy0) = (run.sets, run.k, run.header.energy0);
     let orders = k.saturating_sub(1);
     let mut analysis = Analysis::new(run, &AnalysisOptions::default());

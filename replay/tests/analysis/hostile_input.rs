@@ -491,8 +491,12 @@ fn valid_files_with_hostile_values_never_panic() {
         (50..300).contains(&refused_headers),
         "{refused_headers} headers refused"
     );
+    // The messages are drawn at random, so no file is a coherent run (times of their steps,
+    // samples in order, every set once): since the reader checks that, all of them are refused
+    // at a value. Files that are analyzed, with finite outputs, are the crafted ones of
+    // tests/hostile_files.rs and the corpus of the `values_*` fuzz targets.
     assert!(
-        refused_values > 0 && analyzed > 0,
+        refused_values > 0,
         "{refused_values} refused, {analyzed} analyzed"
     );
 }

@@ -53,6 +53,19 @@ pub struct Chart {
     pub y_range: Option<(f64, f64)>,
 }
 
+impl Chart {
+    /// The values of a chart description that are checked before drawing (its fixed axis
+    /// ranges, [`check_range`]), as `field: problem`.
+    pub fn check(&self) -> Result<(), String> {
+        for (name, range) in [("x_range", self.x_range), ("y_range", self.y_range)] {
+            if let Some(r) = range {
+                check_range(name, r)?;
+            }
+        }
+        Ok(())
+    }
+}
+
 #[derive(Debug, thiserror::Error)]
 pub enum ChartError {
     #[error(
@@ -93,7 +106,11 @@ fn font_available() -> bool {
     })
 }
 
-fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
+/// The axis range of `values` (finite ones), padded by 4 % of its width: always finite, wider
+/// than rounding at its magnitude, and of finite width (values beyond +-f64::MAX / 4 are
+/// clipped), so that plotters can place ticks on it. Data near +-1e308 once made the width
+/// infinite and the tick search never end.
+pub fn padded_range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     let (lo, hi) = values
         .filter(|v| v.is_finite())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
@@ -102,8 +119,39 @@ fn range(values: impl Iterator<Item = f64>) -> (f64, f64) {
     if !lo.is_finite() {
         return (0.0, 1.0);
     }
-    let pad = if hi > lo { 0.04 * (hi - lo) } else { 0.5 };
+    const LIMIT: f64 = f64::MAX / 4.0;
+    let (lo, hi) = (lo.clamp(-LIMIT, LIMIT), hi.clamp(-LIMIT, LIMIT));
+    let pad = (0.04 * (hi - lo))
+        .max(MIN_RELATIVE_WIDTH * lo.abs().max(hi.abs()))
+        .max(MIN_WIDTH);
     (lo - pad, hi + pad)
+}
+
+/// Narrowest axis range, relative to the magnitude of its ends: narrower ranges have fewer
+/// distinct doubles than an axis needs ticks.
+const MIN_RELATIVE_WIDTH: f64 = 1e-9;
+/// Narrowest axis range near zero.
+const MIN_WIDTH: f64 = 1e-200;
+
+/// A range given for an axis (`x_range`, `y_range` of a chart description), checked as
+/// [`padded_range`] makes them: finite ends, `lo < hi`, a finite width not narrower than
+/// rounding allows.
+pub fn check_range(name: &str, (lo, hi): (f64, f64)) -> Result<(), String> {
+    let width = hi - lo;
+    let ok = lo.is_finite()
+        && hi.is_finite()
+        && width.is_finite()
+        && width > 0.0
+        && width >= MIN_RELATIVE_WIDTH * lo.abs().max(hi.abs())
+        && width >= MIN_WIDTH;
+    if ok {
+        Ok(())
+    } else {
+        Err(format!(
+            "{name} = [{lo}, {hi}]: need finite ends lo < hi, their distance finite and at \
+             least {MIN_RELATIVE_WIDTH:e} of their magnitude"
+        ))
+    }
 }
 
 fn palette(i: usize) -> RGBColor {
@@ -130,8 +178,9 @@ where
     DB::ErrorType: 'static,
 {
     root.fill(&WHITE).map_err(|e| e.to_string())?;
+    chart.check()?;
     let xr = chart.x_range.unwrap_or_else(|| {
-        range(
+        padded_range(
             chart
                 .lines
                 .iter()
@@ -139,7 +188,7 @@ where
         )
     });
     let yr = chart.y_range.unwrap_or_else(|| {
-        range(
+        padded_range(
             chart
                 .lines
                 .iter()
@@ -167,7 +216,14 @@ where
         mesh.x_labels(0).y_labels(0);
     }
     mesh.draw().map_err(|e| e.to_string())?;
-    let in_range = |p: &&(f64, f64)| p.0.is_finite() && p.1.is_finite();
+    // Points far outside the axes (a fixed range, or values clipped by `padded_range`) are left
+    // out rather than mapped to pixel coordinates beyond i32, whose lines the rasterizer would
+    // walk pixel by pixel.
+    let near = |v: f64, (lo, hi): (f64, f64)| {
+        let w = hi - lo;
+        v.is_finite() && v >= lo - 8.0 * w && v <= hi + 8.0 * w
+    };
+    let in_range = |p: &&(f64, f64)| near(p.0, xr) && near(p.1, yr);
     for line in &chart.lines {
         let color = palette(line.color);
         let pts: Vec<(f64, f64)> = line.points.iter().filter(in_range).copied().collect();
@@ -201,6 +257,21 @@ where
     root.present().map_err(|e| e.to_string())
 }
 
+/// The SVG of `chart` as text (what [`render`] writes to `<stem>.svg`), drawn in memory.
+pub fn render_svg(chart: &Chart) -> Result<String, String> {
+    let text = ensure_font().is_ok();
+    let mut svg = String::new();
+    draw(
+        SVGBackend::with_string(&mut svg, SIZE).into_drawing_area(),
+        chart,
+        text,
+    )?;
+    Ok(svg)
+}
+
+/// Size of every chart in pixels.
+const SIZE: (u32, u32) = (800, 560);
+
 /// Writes `<stem>.png` and `<stem>.svg`. Without any TrueType font on the machine the charts
 /// are drawn without text (a warning says so once) rather than not at all.
 pub fn render(chart: &Chart, stem: &Path) -> Result<Vec<PathBuf>, ChartError> {
@@ -214,9 +285,15 @@ pub fn render(chart: &Chart, stem: &Path) -> Result<Vec<PathBuf>, ChartError> {
             )
         });
     }
-    let size = (800, 560);
-    let png = stem.with_extension("png");
-    let svg = stem.with_extension("svg");
+    let size = SIZE;
+    // Appended, not `with_extension`: a scheme name may hold dots (`gali_tau0.5` must not
+    // become `gali_tau0.png`, nor two schemes share one file).
+    let with = |ext: &str| {
+        let mut name = stem.as_os_str().to_os_string();
+        name.push(ext);
+        PathBuf::from(name)
+    };
+    let (png, svg) = (with(".png"), with(".svg"));
     let err = |path: &Path, message: String| ChartError::Draw {
         path: path.to_path_buf(),
         message,

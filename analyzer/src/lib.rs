@@ -20,6 +20,7 @@ pub mod series;
 /// Averages over sets, shared with the recorder (re-exported from `chaoscope-indicators`).
 pub use chaoscope_indicators::stats;
 pub mod summary;
+pub mod table;
 pub mod verdict;
 pub mod vshape;
 pub mod write;

@@ -85,13 +85,36 @@ fn colour(v: f64, lo: f64, hi: f64, chaotic_high: bool) -> RGBColor {
     ViridisRGB.get_color_normalized(v as f32, lo as f32, hi as f32)
 }
 
-/// Renders `points` of the map described by `header` to a PNG file.
+/// Largest side of the image in pixels: grids of more points per axis get cells narrower than a
+/// pixel (an image of at most 4096 x 4096 x 3 bytes, whatever the grid claims).
+const MAX_SIDE: u32 = 4096;
+
+/// `lo..hi`, or, if it is not a finite range of finite width, the finite range plotters can
+/// draw around the same ends ([`crate::chart::padded_range`]).
+fn drawable(lo: f64, hi: f64, ends: [f64; 2]) -> std::ops::Range<f64> {
+    if lo.is_finite() && hi.is_finite() && (hi - lo).is_finite() && hi > lo {
+        lo..hi
+    } else {
+        let (lo, hi) = crate::chart::padded_range(ends.into_iter());
+        lo..hi
+    }
+}
+
+/// Renders `points` of the map described by `header` to a PNG file. The header and points are
+/// checked first ([`chaoscope_recorder::map_file::check_header`], [`check_point`]): a value
+/// no map writes is an error naming it, never an image of absurd size or a hang.
+///
+/// [`check_point`]: chaoscope_recorder::map_file::check_point
 pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Result<(), String> {
+    use chaoscope_recorder::map_file::{check_header, check_point};
+    check_header(header).map_err(|e| format!("map header: {e}"))?;
+    points.iter().try_for_each(|p| check_point(header, p))?;
     let (xa, ya) = match (&header.x, &header.y) {
         (Some(x), Some(y)) => (x.clone(), y.clone()),
         _ => return Err("map header without axes".into()),
     };
-    let (nx, ny) = (xa.n.max(1) as i32, ya.n.max(1) as i32);
+    // At most 100 000 each (checked).
+    let (nx, ny) = (xa.n as i32, ya.n as i32);
     let scale = scale_of(header);
     let values: Vec<f64> = points
         .iter()
@@ -112,8 +135,14 @@ pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Resul
     if hi <= lo {
         hi = lo + 1.0;
     }
+    // A colour scale of finite width (values near +-1e308 would make it infinite).
+    let scale_range = drawable(lo, hi, [lo, hi]);
+    (lo, hi) = (scale_range.start, scale_range.end);
     let cell = (600 / nx.max(ny)).clamp(1, 16) as u32;
-    let (pw, ph) = (cell * nx as u32, cell * ny as u32);
+    let (pw, ph) = (
+        (cell * nx as u32).min(MAX_SIDE),
+        (cell * ny as u32).min(MAX_SIDE),
+    );
     let text = font_available();
     let (margin, bar) = (if text { 70 } else { 10 }, if text { 130 } else { 40 });
     let (w, h) = (
@@ -138,9 +167,10 @@ pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Resul
         1.0
     };
     let (xr, yr) = (
-        (x0 - dx / 2.0)..(x0 + dx * (nx as f64 - 0.5)),
-        (y0 - dy / 2.0)..(y0 + dy * (ny as f64 - 0.5)),
+        drawable(x0 - dx / 2.0, x0 + dx * (nx as f64 - 0.5), [x0, x1]),
+        drawable(y0 - dy / 2.0, y0 + dy * (ny as f64 - 0.5), [y0, y1]),
     );
+    let (xb, yb) = ((xr.start, xr.end), (yr.start, yr.end));
     let mut builder = ChartBuilder::on(&plot_area);
     builder.margin(10);
     if text {
@@ -170,11 +200,15 @@ pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Resul
                 map_point::Status::Escaped => RGBColor(140, 140, 140),
                 _ => WHITE,
             };
-            let (cx, cy) = (p.x, p.y);
+            // The cell of its grid position (checked to be where its coordinates are), kept
+            // inside the drawn range.
+            let (cx, cy) = (x0 + dx * f64::from(p.ix), y0 + dy * f64::from(p.iy));
+            let x = |v: f64| v.clamp(xb.0, xb.1);
+            let y = |v: f64| v.clamp(yb.0, yb.1);
             Rectangle::new(
                 [
-                    (cx - dx / 2.0, cy - dy / 2.0),
-                    (cx + dx / 2.0, cy + dy / 2.0),
+                    (x(cx - dx / 2.0), y(cy - dy / 2.0)),
+                    (x(cx + dx / 2.0), y(cy + dy / 2.0)),
                 ],
                 fill.filled(),
             )

@@ -76,7 +76,7 @@ fn gali_chart(analysis: &Analysis, report: &Report, si: usize, axis: TimeAxis) -
     for j in 2..=run.k {
         let pts: Vec<(f64, f64)> = series
             .iter()
-            .map(|(t, p)| (x(*t), p.gali_log10_mean[j - 2]))
+            .filter_map(|(t, p)| Some((x(*t), *p.gali_log10_mean.get(j - 2)?)))
             .collect();
         lines.push(Line {
             label: format!("GALI_{j}"),
@@ -90,14 +90,14 @@ fn gali_chart(analysis: &Analysis, report: &Report, si: usize, axis: TimeAxis) -
         series
             .iter()
             .find(|(t, _)| *t >= t_a)
-            .map(|(_, p)| p.gali_log10_mean[j - 2])
+            .and_then(|(_, p)| p.gali_log10_mean.get(j - 2).copied())
     };
     if chaotic {
         if let Some(spec) = reference_spectrum(report, n, scheme.mle) {
             let rates = chaotic_rates(&spec, run.k);
             let t_a = (0.05 * t_end).max(run.h);
             for j in 2..=run.k {
-                let (Some(g_a), rate) = (anchor(j, t_a), rates[j - 2]) else {
+                let (Some(g_a), Some(&rate)) = (anchor(j, t_a), rates.get(j - 2)) else {
                     continue;
                 };
                 // Down to the double-precision floor only.
@@ -194,7 +194,7 @@ fn spectrum_chart(analysis: &Analysis, report: &Report, si: usize) -> Chart {
             points: series
                 .iter()
                 .filter(|(t, _)| *t > 0.0)
-                .map(|(t, p)| (lg(*t), p.lyapunov[i]))
+                .filter_map(|(t, p)| Some((lg(*t), *p.lyapunov.get(i)?)))
                 .collect(),
             stroke: Stroke::Solid,
             color: i,
@@ -240,7 +240,7 @@ fn vs_vm_chart(analysis: &Analysis, report: &Report, si: usize) -> Option<Chart>
             points: series
                 .iter()
                 .filter_map(|(t, p)| {
-                    let d = p.vs_vm_abs_delta.as_ref()?[j - 2];
+                    let d = *p.vs_vm_abs_delta.as_ref()?.get(j - 2)?;
                     (*t > 0.0).then(|| (*t, lg(d.max(1e-16))))
                 })
                 .collect(),
@@ -332,6 +332,43 @@ fn sweep_charts(report: &Report) -> Vec<(String, Chart)> {
     out
 }
 
+/// Every chart of `analysis`, with the file stem it is drawn to.
+pub fn charts(analysis: &Analysis, report: &Report, axis: TimeAxis) -> Vec<(String, Chart)> {
+    let run = analysis.run();
+    let mut out = Vec::new();
+    // Per-scheme time plots only for a readable number of schemes (sweeps get sweep charts).
+    let time_schemes: Vec<usize> = (0..run.schemes.len()).take(12).collect();
+    for &si in &time_schemes {
+        let name = &run.schemes[si].name;
+        if run.k >= 2 {
+            out.push((
+                format!("gali_{name}"),
+                gali_chart(analysis, report, si, axis),
+            ));
+        }
+        if run.schemes[si].orthonormalize == Orthonormalization::Qr {
+            out.push((
+                format!("spectrum_{name}"),
+                spectrum_chart(analysis, report, si),
+            ));
+        }
+        if run.schemes[si].method == Method::Mpm
+            && let Some(c) = vs_vm_chart(analysis, report, si)
+        {
+            out.push((format!("vs_vm_{name}"), c));
+        }
+    }
+    out.push((
+        "mle".into(),
+        mle_chart(analysis, report, &time_schemes[..time_schemes.len().min(8)]),
+    ));
+    if analysis.run().kind == chaoscope_schemas::run::SystemKind::Hamiltonian {
+        out.push(("energy_error".into(), energy_chart(analysis)));
+    }
+    out.extend(sweep_charts(report));
+    out
+}
+
 /// Draws every chart of `analysis` into `dir` (PNG and SVG); returns the files written.
 pub fn plot_all(
     analysis: &Analysis,
@@ -343,38 +380,8 @@ pub fn plot_all(
         path: dir.to_path_buf(),
         message: e.to_string(),
     })?;
-    let run = analysis.run();
     let mut files = Vec::new();
-    // Per-scheme time plots only for a readable number of schemes (sweeps get sweep charts).
-    let time_schemes: Vec<usize> = (0..run.schemes.len()).take(12).collect();
-    for &si in &time_schemes {
-        let name = &run.schemes[si].name;
-        if run.k >= 2 {
-            files.extend(render(
-                &gali_chart(analysis, report, si, axis),
-                &dir.join(format!("gali_{name}")),
-            )?);
-        }
-        if run.schemes[si].orthonormalize == Orthonormalization::Qr {
-            files.extend(render(
-                &spectrum_chart(analysis, report, si),
-                &dir.join(format!("spectrum_{name}")),
-            )?);
-        }
-        if run.schemes[si].method == Method::Mpm
-            && let Some(c) = vs_vm_chart(analysis, report, si)
-        {
-            files.extend(render(&c, &dir.join(format!("vs_vm_{name}")))?);
-        }
-    }
-    files.extend(render(
-        &mle_chart(analysis, report, &time_schemes[..time_schemes.len().min(8)]),
-        &dir.join("mle"),
-    )?);
-    if analysis.run().kind == chaoscope_schemas::run::SystemKind::Hamiltonian {
-        files.extend(render(&energy_chart(analysis), &dir.join("energy_error"))?);
-    }
-    for (name, chart) in sweep_charts(report) {
+    for (name, chart) in charts(analysis, report, axis) {
         files.extend(render(&chart, &dir.join(name))?);
     }
     Ok(files)

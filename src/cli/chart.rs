@@ -25,9 +25,17 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             .with_context(|| format!("reading {}", args.spec.display()))?
     };
     let chart: Chart = serde_json::from_str(&text).context("chart description")?;
+    chart
+        .check()
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.spec.display()))?;
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)?;
     }
-    render(&chart, &args.out)?;
+    // STEM.png and STEM.svg; an --out that already names one of them stands for its stem.
+    let stem = match args.out.extension().and_then(|e| e.to_str()) {
+        Some("png" | "svg") => args.out.with_extension(""),
+        _ => args.out.clone(),
+    };
+    render(&chart, &stem)?;
     Ok(ExitCode::SUCCESS)
 }

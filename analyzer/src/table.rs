@@ -1,0 +1,132 @@
+//! The human-readable table of a report (`chaoscope analyze` without `--json`), as text: one
+//! line for the run, one per scheme, then each scheme's verdict and warnings. A value that is
+//! absent (no set has reached a renormalization yet, a GALI order the scheme lacks) is `-`,
+//! never `NaN`.
+
+use std::fmt::Write as _;
+
+use crate::report::Report;
+
+/// `v` in `format`'s style, right-aligned in `width`; `-` when absent or not finite.
+fn cell(v: Option<f64>, width: usize, format: impl Fn(f64) -> String) -> String {
+    let text = v.filter(|v| v.is_finite()).map_or("-".to_string(), format);
+    format!("{text:>width$}")
+}
+
+/// The report as the table `chaoscope analyze` prints.
+pub fn table(report: &Report) -> String {
+    let mut out = String::new();
+    let r = &report.run;
+    let size = if r.kind == "hamiltonian" {
+        format!("N = {}", r.n)
+    } else {
+        format!("{}, D = {}", r.kind, r.dim)
+    };
+    // What applies: the energy error of a Hamiltonian, the contraction rate of anything else.
+    let conserved = match (r.energy_error_max, r.mean_divergence) {
+        (Some(e), _) => format!(
+            "max energy error {}",
+            cell(Some(e), 0, |e| format!("{e:.2e}"))
+        ),
+        (None, Some(d)) => format!(
+            "mean divergence {}",
+            cell(Some(d), 0, |d| format!("{d:.6}"))
+        ),
+        (None, None) => String::new(),
+    };
+    let _ = writeln!(
+        out,
+        "run {} ({}, {size}, {} with h = {}): t = {} of {}, {} samples, k = {}, {} sets, \
+         {conserved}{}",
+        r.name,
+        r.model,
+        r.integrator,
+        r.h,
+        r.t,
+        r.t_final,
+        r.samples,
+        r.k,
+        r.sets,
+        if r.complete {
+            ""
+        } else {
+            " (INCOMPLETE: frames missing)"
+        }
+    );
+    if let Some(end) = r.end.as_ref().filter(|e| e.status != "completed") {
+        let _ = writeln!(out, "the run {}: {}", end.status, end.reason);
+    }
+    let k = r.k;
+    let mut head = format!(
+        "{:<22} {:>4} {:>8} {:>7} {:>5} {:>9}",
+        "scheme", "meth", "d0", "tau", "sets", "t"
+    );
+    for j in 2..=k {
+        head += &format!(" {:>9}", format!("lgGALI{j}"));
+    }
+    head += &format!(" {:>9} {:>10}  {}", "lgSALI", "MLE", "MPM-VM |dlg GALI_j|");
+    let _ = writeln!(out, "{head}");
+    for s in &report.schemes {
+        let mut line = format!(
+            "{:<22} {:>4} {} {:>7} {:>5} {:>9}",
+            s.name,
+            s.method,
+            cell(Some(s.d0), 8, |v| format!("{v:.0e}")),
+            s.tau,
+            s.sets,
+            s.t
+        );
+        for j in 2..=k {
+            line += &format!(
+                " {}",
+                cell(s.gali.get(j).map(|g| g.log10_mean), 9, |v| format!(
+                    "{v:.3}"
+                ))
+            );
+        }
+        line += &format!(
+            " {} {}",
+            cell(s.sali.map(|v| v.log10_mean), 9, |v| format!("{v:.3}")),
+            cell(Some(s.mle), 10, |v| format!("{v:.6}"))
+        );
+        if let Some(v) = &s.vs_vm {
+            let d: Vec<String> = v
+                .gali
+                .0
+                .iter()
+                .map(|(_, d)| cell(Some(d.mean_abs_delta_log10), 0, |v| format!("{v:.1e}")))
+                .collect();
+            line += &format!("  vs {}: {}", v.scheme, d.join(" "));
+        }
+        if s.lyapunov.len() > 1 {
+            let l: Vec<String> = s
+                .lyapunov
+                .iter()
+                .map(|&l| cell(Some(l), 0, |v| format!("{v:.6}")))
+                .collect();
+            line += &format!("  spectrum: {}", l.join(" "));
+        }
+        if let Some(sum) = s.lyapunov_sum {
+            line += &format!(" (sum {})", cell(Some(sum), 0, |v| format!("{v:.6}")));
+        }
+        let _ = writeln!(out, "{line}");
+    }
+    for s in &report.schemes {
+        let v = &s.verdict;
+        let class = match v.torus_dimension {
+            Some(d) => format!("{} (on a {d}-torus)", v.class.word()),
+            None => v.class.word().to_string(),
+        };
+        let _ = writeln!(
+            out,
+            "{}: {class}, confidence {}: {}",
+            s.name,
+            cell(Some(v.confidence), 0, |v| format!("{v:.2}")),
+            v.criterion
+        );
+        for w in &s.warnings {
+            let _ = writeln!(out, "{}: warning {}: {}", s.name, w.code, w.message);
+        }
+    }
+    out
+}

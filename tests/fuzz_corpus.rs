@@ -61,3 +61,71 @@ fn config_corpus_and_regressions_replay() {
 fn expr_corpus_and_regressions_replay() {
     replay("expr", targets::expr);
 }
+
+/// Replays a `values_*` target's corpus (AFL's kept inputs and the reproducers of what it
+/// found), then `seeded` inputs of seeded noise (a few hostile values among valid ones), and
+/// reports how many files were read with their outputs checked and how many were refused.
+fn replay_values(target: &str, run: fn(&[u8]) -> targets::Outcome, seeded: usize) {
+    let files = inputs(target);
+    assert!(
+        files.len() >= 5,
+        "fuzz/corpus/{target}/ holds {} inputs",
+        files.len()
+    );
+    let mut noise = chaoscope_recorder::testing::Noise::new(41);
+    let generated = (0..seeded).map(|case| {
+        // About one value in 4, 16, 64 or 256 hostile.
+        let rarity = [4u64, 16, 64, 256][case % 4];
+        let bytes: Vec<u8> = (0..2048)
+            .map(|_| {
+                let b = (noise.next_u64() >> 56) as u8;
+                if noise.next_u64().is_multiple_of(rarity) {
+                    b | 0xa0
+                } else {
+                    b % 0xa0
+                }
+            })
+            .collect();
+        (format!("seeded case {case}"), bytes)
+    });
+    let start = Instant::now();
+    let (mut read, mut refused, mut outputs) = (0, 0, 0);
+    let all = files
+        .iter()
+        .map(|f| (f.display().to_string(), std::fs::read(f).unwrap()))
+        .chain(generated);
+    for (name, data) in all {
+        match std::panic::catch_unwind(|| run(&data)) {
+            Ok(o) if o.read => {
+                read += 1;
+                outputs += o.outputs;
+            }
+            Ok(_) => refused += 1,
+            Err(_) => panic!("{target}: {name} fails"),
+        }
+    }
+    eprintln!(
+        "{target}: {} corpus inputs and {seeded} seeded: {read} files read with {outputs} \
+         outputs free of NaN and infinity, {refused} refused in one line naming the file; \
+         {:?}",
+        files.len(),
+        start.elapsed()
+    );
+    // Both kinds of outcome, or the corpus and the generator have lost their reach.
+    assert!(read > 0 && refused > 0, "{read} read, {refused} refused");
+}
+
+#[test]
+fn hostile_values_in_valid_recordings_corpus_replays() {
+    replay_values("values_recording", targets::values_recording, 200);
+}
+
+#[test]
+fn hostile_values_replayed_corpus_replays() {
+    replay_values("values_replay", targets::values_replay, 100);
+}
+
+#[test]
+fn hostile_values_in_valid_maps_corpus_replays() {
+    replay_values("values_map", targets::values_map, 200);
+}

@@ -316,3 +316,290 @@ fn map_refuses_and_keeps_a_file_it_cannot_read_as_its_map_unless_restarted() {
     let stderr = String::from_utf8_lossy(&map(&headless, &[]).stderr).into_owned();
     assert!(stderr.contains("is damaged or cut short"), "{stderr}");
 }
+
+// ---- Valid files with hostile values, through every command that reads them ---------------
+
+/// Words a non-finite number prints as.
+const NON_FINITE: [&str; 6] = ["NaN", "-NaN", "inf", "-inf", "+inf", "infinity"];
+
+/// The non-finite numbers written as words of `text` (an output of a command).
+fn non_finite_words(text: &str) -> Vec<&str> {
+    let word = |c: char| c.is_ascii_alphanumeric() || matches!(c, '.' | '+' | '-' | '_');
+    text.split(|c: char| !word(c))
+        .filter(|w| NON_FINITE.contains(w))
+        .collect()
+}
+
+/// JSON nulls at keys other than those a report may leave empty (`serde_json` writes NaN and
+/// infinities as null, so a null elsewhere is a non-finite number).
+fn unexpected_nulls(value: &serde_json::Value, key: &str, out: &mut Vec<String>) {
+    match value {
+        serde_json::Value::Null if !["torus_dimension", "sali"].contains(&key) => {
+            out.push(key.to_string());
+        }
+        serde_json::Value::Array(items) => {
+            items.iter().for_each(|v| unexpected_nulls(v, key, out));
+        }
+        serde_json::Value::Object(map) => {
+            map.iter().for_each(|(k, v)| unexpected_nulls(v, k, out));
+        }
+        _ => {}
+    }
+}
+
+/// What one command did: its exit code (`None`: killed by a signal), stdout and stderr.
+struct Ran {
+    code: Option<i32>,
+    stdout: String,
+    stderr: String,
+}
+
+/// `chaoscope args`, killed after 30 s (a hang fails the test), with its address space limited
+/// to 2 GiB (an allocation a file's claim drives beyond it aborts, which fails the test too).
+fn run_bounded(args: &[&str]) -> Ran {
+    use std::io::Read;
+    use std::os::unix::process::CommandExt;
+    let mut command = Command::new(CHAOSCOPE);
+    command
+        .args(args)
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped());
+    // SAFETY: setrlimit(2) is async-signal-safe; nothing else runs between fork and exec.
+    unsafe {
+        command.pre_exec(|| {
+            let limit = 2u64 << 30;
+            let rl = libc::rlimit {
+                rlim_cur: limit,
+                rlim_max: limit,
+            };
+            libc::setrlimit(libc::RLIMIT_AS, &rl);
+            Ok(())
+        });
+    }
+    let mut child = command.spawn().unwrap();
+    let (mut out, mut err) = (child.stdout.take().unwrap(), child.stderr.take().unwrap());
+    let reader = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = out.read_to_string(&mut s);
+        s
+    });
+    let err_reader = std::thread::spawn(move || {
+        let mut s = String::new();
+        let _ = err.read_to_string(&mut s);
+        s
+    });
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break s;
+        }
+        if start.elapsed() > std::time::Duration::from_secs(30) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("chaoscope {args:?} still running after 30 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(10));
+    };
+    Ran {
+        code: status.code(),
+        stdout: reader.join().unwrap(),
+        stderr: err_reader.join().unwrap(),
+    }
+}
+
+/// A command on a file with hostile values either succeeds or fails with status 1 and one line
+/// naming `file`; never a panic, a signal or a hang. True if it succeeded.
+fn succeeded_or_refused(what: &str, args: &[&str], file: &Path, ran: &Ran) -> bool {
+    let lines: Vec<&str> = ran.stderr.lines().collect();
+    match ran.code {
+        Some(0) => true,
+        Some(1) => {
+            assert!(
+                lines.len() == 1 && lines[0].contains(&file.display().to_string()),
+                "{what}: {args:?}: the refusal is not one line naming {}: {}",
+                file.display(),
+                ran.stderr
+            );
+            false
+        }
+        code => panic!("{what}: {args:?} ended with {code:?}: {}", ran.stderr),
+    }
+}
+
+/// Valid recordings holding hostile values (stretching factors of NaN, 0 and infinity, and the
+/// rest of [`testing::values::crafted_recordings`]) through `analyze` (table, `--json`, `--csv`,
+/// `--plot`) and `replay`: each is analyzed with finite numbers in every output or refused in
+/// one line naming the file and the value, never a panic, a hang or a NaN (before: NaN and
+/// infinities in the table and the CSV files, index out of bounds in `--plot`).
+#[test]
+fn valid_recordings_with_hostile_values_give_finite_outputs_or_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut analyzed, mut refused) = (Vec::new(), Vec::new());
+    for (what, bytes) in testing::values::crafted_recordings() {
+        let file = dir.path().join(format!("{}.mcap", what.replace(' ', "-")));
+        std::fs::write(&file, bytes).unwrap();
+        let f = file.to_str().unwrap();
+        let ran = run_bounded(&["analyze", f]);
+        if !succeeded_or_refused(&what, &["analyze", f], &file, &ran) {
+            refused.push(format!("{what}: {}", ran.stderr.trim()));
+            let out = dir.path().join("replay.mcap");
+            let args = ["replay", f, "--tau", "0.2", "--out", out.to_str().unwrap()];
+            let replayed = run_bounded(&args);
+            assert!(!succeeded_or_refused(&what, &args, &file, &replayed));
+            assert!(!out.exists(), "{what}: a failed replay left its output");
+            continue;
+        }
+        let bad = non_finite_words(&ran.stdout);
+        assert!(
+            bad.is_empty(),
+            "{what}: the table holds {bad:?}:\n{}",
+            ran.stdout
+        );
+        let json = run_bounded(&["analyze", f, "--json"]);
+        assert_eq!(json.code, Some(0), "{what}: {}", json.stderr);
+        let mut nulls = Vec::new();
+        unexpected_nulls(&serde_json::from_str(&json.stdout).unwrap(), "", &mut nulls);
+        assert!(
+            nulls.is_empty(),
+            "{what}: non-finite JSON values at {nulls:?}"
+        );
+        let csv = dir.path().join(format!("csv-{}", what.replace(' ', "-")));
+        let plot = dir.path().join(format!("plot-{}", what.replace(' ', "-")));
+        for (flag, out) in [("--csv", &csv), ("--plot", &plot)] {
+            let ran = run_bounded(&["analyze", f, flag, out.to_str().unwrap()]);
+            assert_eq!(ran.code, Some(0), "{what} {flag}: {}", ran.stderr);
+        }
+        for entry in std::fs::read_dir(&csv)
+            .unwrap()
+            .chain(std::fs::read_dir(&plot).unwrap())
+        {
+            let path = entry.unwrap().path();
+            if path.extension().is_some_and(|e| e == "png") {
+                continue;
+            }
+            let text = std::fs::read_to_string(&path).unwrap();
+            let bad = non_finite_words(&text);
+            assert!(bad.is_empty(), "{what}: {} holds {bad:?}", path.display());
+        }
+        analyzed.push(what);
+    }
+    eprintln!(
+        "{} crafted recordings: {} analyzed with finite outputs ({analyzed:?}), {} refused:\n{}",
+        analyzed.len() + refused.len(),
+        analyzed.len(),
+        refused.len(),
+        refused.join("\n")
+    );
+    // Every value no producer writes is refused; the valid edge case (rates beyond f64) is
+    // analyzed, its rates reported as +-f64::MAX.
+    assert_eq!(analyzed, ["rates beyond f64"]);
+}
+
+/// Valid map files holding hostile values (a header claiming 10^7 points per axis, axes near
+/// 1e308, and the rest of [`testing::values::crafted_maps`]) through `merge --png`: each is
+/// refused in one line naming the file and the field, never a panic, a hang or gigabytes
+/// (before: the 10^7 header drove `merge --png` to 3.3 GB, axes near 1e308 never ended,
+/// others panicked in plotting); the valid map merges and draws.
+#[test]
+fn valid_maps_with_hostile_values_are_refused_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let (header, points) = testing::values::valid_map();
+    let mut cases = testing::values::crafted_maps();
+    let mut valid = MapFile::create(
+        std::io::Cursor::new(Vec::new()),
+        &header,
+        &FileOptions::default(),
+    )
+    .unwrap();
+    for p in &points {
+        valid.write_point(p).unwrap();
+    }
+    cases.push(("valid".into(), valid.finish().unwrap().into_inner()));
+    for (what, bytes) in cases {
+        let file = dir.path().join(format!("{}.mcap", what.replace(' ', "-")));
+        std::fs::write(&file, bytes).unwrap();
+        let out = dir.path().join("merged.mcap");
+        let png = dir.path().join("merged.png");
+        let _ = std::fs::remove_file(&out);
+        let args = [
+            "merge",
+            file.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--png",
+            png.to_str().unwrap(),
+            "--allow-incomplete",
+            "--force",
+        ];
+        let ran = run_bounded(&args);
+        let merged = succeeded_or_refused(&what, &args, &file, &ran);
+        assert_eq!(merged, what == "valid", "{what}: {}", ran.stderr);
+        if merged {
+            assert!(std::fs::metadata(&png).unwrap().len() > 1000);
+        }
+    }
+}
+
+/// Chart descriptions with ranges near the limits of f64 (data at +-1e308, fixed ranges of
+/// infinite or zero width, reversed): drawn, or refused in one line naming the file, never a
+/// hang (before: `chart` with ranges near 1e308 never ended).
+#[test]
+fn charts_with_extreme_ranges_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let line = |points: &str| format!(r#"{{"lines": [{{"points": {points}, "stroke": "dots"}}]"#);
+    let specs = [
+        (
+            "data at 1e308",
+            format!("{}}}", line("[[-1e308, -1e308], [1e308, 1e308]]")),
+        ),
+        (
+            "range of infinite width",
+            format!(
+                r#"{}, "x_range": [-1e308, 1e308]}}"#,
+                line("[[0, 0], [1, 1]]")
+            ),
+        ),
+        (
+            "range of no width",
+            format!(
+                r#"{}, "y_range": [1e300, 1e300]}}"#,
+                line("[[0, 0], [1, 1]]")
+            ),
+        ),
+        (
+            "reversed range",
+            format!(r#"{}, "x_range": [1, 0]}}"#, line("[[0, 0], [1, 1]]")),
+        ),
+        (
+            "data near the largest double",
+            format!("{}}}", line("[[1.7976931348623157e308, 0], [1.7e308, 1]]")),
+        ),
+        (
+            "one point far from a fixed range",
+            format!(r#"{}, "x_range": [0, 1]}}"#, line("[[0, 0], [1e300, 1]]")),
+        ),
+    ];
+    let (mut drawn, mut refused) = (0, 0);
+    for (what, spec) in specs {
+        let file = dir.path().join(format!("{}.json", what.replace(' ', "-")));
+        std::fs::write(&file, spec).unwrap();
+        let stem = dir.path().join(what.replace(' ', "-"));
+        let args = [
+            "chart",
+            file.to_str().unwrap(),
+            "--out",
+            stem.to_str().unwrap(),
+        ];
+        let ran = run_bounded(&args);
+        if succeeded_or_refused(what, &args, &file, &ran) {
+            let svg = std::fs::read_to_string(stem.with_extension("svg")).unwrap();
+            assert!(non_finite_words(&svg).is_empty(), "{what}");
+            drawn += 1;
+        } else {
+            refused += 1;
+        }
+    }
+    // The fixed ranges that cannot be drawn are refused, the data ranges drawn.
+    assert_eq!((drawn, refused), (3, 3));
+}

@@ -14,6 +14,11 @@
 //!   come through a second `recover` unchanged).
 //! - [`config`]: `RunConfig::from_toml`, the resource estimate, then `RunSpec::from_config` or
 //!   `MapSpec::from_config`, as `chaoscope run`/`map` call them.
+//! - [`values_recording`], [`values_replay`], [`values_map`]: structure-aware, for valid files
+//!   with hostile values (`chaoscope_recorder::testing::values` writes a well-formed recording
+//!   or map file whose every value the input chooses): every reader and output of a recording
+//!   (analyze's report, table, CSV files and charts, the run summary), replay, and the map
+//!   readers with the map PNG. Besides panics, a NaN or infinity in any output is a finding.
 //! - [`expr`]: the expression language of user-written potentials: parsing, lowering under
 //!   each boundary condition (parameters, an array parameter, a table), smoothness, the
 //!   symbolic gradient and Hessian-vector product, the reference evaluator, and, for graphs of
@@ -248,4 +253,429 @@ pub fn expr(data: &[u8]) {
             }
         }
     }
+}
+
+// ---- Valid files with hostile values (structure-aware) ------------------------------------
+
+use chaoscope_recorder::testing::values::{self as hostile, Choices};
+
+/// What a `values_*` target did with its input, for the corpus replay's counts.
+#[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
+pub struct Outcome {
+    /// The file was read and its outputs made (else it was refused with one line naming it).
+    pub read: bool,
+    /// Outputs checked for NaN and infinity (reports, tables, CSV files, charts, images).
+    pub outputs: usize,
+}
+
+/// Words a non-finite number prints as (Rust's `Display` of f64 and the usual spellings).
+const NON_FINITE_WORDS: [&str; 8] = [
+    "NaN", "-NaN", "nan", "inf", "-inf", "+inf", "infinity", "Infinity",
+];
+
+/// Panics if `text` (an output: a table, a CSV file, an SVG) holds a non-finite number as a
+/// word of its own.
+pub fn assert_finite_text(what: &str, text: &str) {
+    let word = |c: char| c.is_ascii_alphanumeric() || matches!(c, '.' | '+' | '-' | '_');
+    if let Some(bad) = text
+        .split(|c: char| !word(c))
+        .find(|w| NON_FINITE_WORDS.contains(w))
+    {
+        let at = text.find(bad).unwrap_or(0);
+        let boundary = |i: usize| {
+            (0..=i)
+                .rev()
+                .find(|&b| text.is_char_boundary(b))
+                .unwrap_or(0)
+        };
+        let context = &text[boundary(at.saturating_sub(80))..boundary((at + 80).min(text.len()))];
+        panic!("{what} holds '{bad}': ...{context}...");
+    }
+}
+
+/// Panics if `value` holds a non-finite f64 anywhere once serialized (serde_json would print
+/// NaN and infinities as `null`, so the JSON text cannot show them).
+pub fn assert_finite_serialized(what: &str, value: &impl serde::Serialize) {
+    let mut walk = floats::Walk::default();
+    value.serialize(&mut walk).expect("walks any value");
+    assert!(walk.found.is_empty(), "{what} holds {:?}", walk.found);
+}
+
+/// A refusal: one line naming the file.
+fn assert_refusal(what: &str, error: &str, path: &std::path::Path) {
+    assert!(
+        !error.contains('\n'),
+        "{what}: an error of several lines: {error}"
+    );
+    assert!(
+        error.contains(&path.display().to_string()),
+        "{what}: the error does not name the file: {error}"
+    );
+}
+
+/// A valid recording with hostile values (its values chosen by `data`, its structure always
+/// the recorder's), through every reader and output of a recording as `chaoscope analyze`
+/// (report as JSON, table, CSV files, every chart as SVG) and the run summary make them: the
+/// file is analyzed with only finite numbers in every output, or refused with one line naming
+/// it. No panic, no hang, no huge allocation.
+pub fn values_recording(data: &[u8]) -> Outcome {
+    use chaoscope_analyzer::plot::{TimeAxis, charts};
+    let bytes = hostile::recording(&mut Choices::new(data));
+    let Ok(scratch) = tempfile::Builder::new().prefix("chaoscope-fuzz-").tempdir() else {
+        return Outcome::default();
+    };
+    let input = scratch.path().join("input.mcap");
+    if std::fs::write(&input, &bytes).is_err() {
+        return Outcome::default();
+    }
+    let options = chaoscope_analyzer::AnalysisOptions::default();
+    let (analysis, info) = match chaoscope_analyzer::recording::analyze_file(&input, &options) {
+        Ok(read) => read,
+        Err(e) => {
+            assert_refusal("analyze", &e.to_string(), &input);
+            let summary = chaoscope_analyzer::summary::summarize(&input);
+            assert!(summary.is_err(), "the summary reads what analyze refused");
+            return Outcome::default();
+        }
+    };
+    let mut outputs = 0;
+    let mut report_check = |what: &str, report: &chaoscope_analyzer::Report| {
+        assert_finite_serialized(what, report);
+        let json = serde_json::to_string(report).expect("a report serializes");
+        assert_finite_text(what, &json);
+        assert_finite_text(what, &chaoscope_analyzer::table::table(report));
+        outputs += 2;
+    };
+    let report = analysis.report_ended(info.end.as_ref());
+    report_check("the report", &report);
+    // `analyze --at 0.5`: reads up to that time only.
+    let at = chaoscope_analyzer::AnalysisOptions {
+        at: vec![0.5],
+        ..Default::default()
+    };
+    let (early, _) = chaoscope_analyzer::recording::analyze_file(&input, &at)
+        .unwrap_or_else(|e| panic!("the start of a file that reads whole is refused: {e}"));
+    report_check(
+        "the report at t = 0.5",
+        &early.report_at(0.5).expect("the time asked for"),
+    );
+    let csv = scratch.path().join("csv");
+    let files = chaoscope_analyzer::csv::write_csv(&analysis, &csv).expect("CSV written");
+    for f in &files {
+        let text = std::fs::read_to_string(f).expect("CSV text");
+        assert_finite_text(&f.display().to_string(), &text);
+        outputs += 1;
+    }
+    for axis in [TimeAxis::Auto, TimeAxis::Linear] {
+        for (name, chart) in charts(&analysis, &report, axis) {
+            let svg = chaoscope_analyzer::chart::render_svg(&chart)
+                .unwrap_or_else(|e| panic!("chart {name}: {e}"));
+            assert_finite_text(&format!("chart {name}"), &svg);
+            outputs += 1;
+        }
+    }
+    let summary = chaoscope_analyzer::summary::summarize(&input).expect("the summary reads it");
+    assert_finite_text("the run summary", &summary.to_string());
+    Outcome {
+        read: true,
+        outputs: outputs + 1,
+    }
+}
+
+/// A valid recording with hostile values replayed with another `tau`: the replay runs the
+/// recorded configuration and compares every recorded value, so it either completes (its
+/// output reads back, with finite numbers in its report) or fails with one line naming the
+/// recording, leaving no output.
+pub fn values_replay(data: &[u8]) -> Outcome {
+    use chaoscope_replay::{ReplayError, ReplayOptions, replay};
+    let bytes = hostile::recording(&mut Choices::new(data));
+    let Ok(scratch) = tempfile::Builder::new().prefix("chaoscope-fuzz-").tempdir() else {
+        return Outcome::default();
+    };
+    let input = scratch.path().join("input.mcap");
+    let output = scratch.path().join("replay.mcap");
+    if std::fs::write(&input, &bytes).is_err() {
+        return Outcome::default();
+    }
+    let options = ReplayOptions {
+        taus: vec![0.2],
+        ..Default::default()
+    };
+    match replay(&input, &output, &options) {
+        Ok(outcome) => {
+            assert_finite_serialized("the replay outcome", &outcome);
+            let (analysis, info) = chaoscope_analyzer::recording::analyze_file(
+                &output,
+                &chaoscope_analyzer::AnalysisOptions::default(),
+            )
+            .unwrap_or_else(|e| panic!("the replay does not read back: {e}"));
+            let report = analysis.report_ended(info.end.as_ref());
+            assert_finite_serialized("the replay's report", &report);
+            Outcome {
+                read: true,
+                outputs: 2,
+            }
+        }
+        Err(e) => {
+            // A recording refused names it; a configuration refused is the recording's too.
+            let text = e.to_string();
+            assert!(!text.contains('\n'), "an error of several lines: {text}");
+            if matches!(e, ReplayError::Read(_)) {
+                assert_refusal("replay", &text, &input);
+            }
+            assert!(!output.exists(), "a failed replay left its output");
+            Outcome::default()
+        }
+    }
+}
+
+/// Valid map files (one or two shards) with hostile values, through the map readers as
+/// `chaoscope merge --png`, `map` resuming and the Python `open_map` use them: the header and
+/// every point are checked, and a map that passes is drawn as a PNG without error; one that
+/// does not is refused with one line. No panic, no hang, no image or array of absurd size.
+pub fn values_map(data: &[u8]) -> Outcome {
+    use chaoscope_recorder::map_file::read_map_file;
+    let mut choices = Choices::new(data);
+    let shards = 1 + u32::from(choices.byte() % 2);
+    let Ok(scratch) = tempfile::Builder::new().prefix("chaoscope-fuzz-").tempdir() else {
+        return Outcome::default();
+    };
+    let mut header = None;
+    let mut points = Vec::new();
+    for shard in 0..shards {
+        let path = scratch.path().join(format!("shard{shard}.mcap"));
+        if std::fs::write(&path, hostile::map(&mut choices, shard, shards)).is_err() {
+            return Outcome::default();
+        }
+        let contents = read_map_file(&path).expect("a file written just now opens");
+        assert!(
+            contents.damaged.is_none(),
+            "a valid map file read as damaged"
+        );
+        if let Err(e) = contents.check() {
+            assert!(!e.contains('\n'), "an error of several lines: {e}");
+            return Outcome::default();
+        }
+        let Some(h) = contents.header else {
+            return Outcome::default();
+        };
+        points.extend(contents.points);
+        header = Some(h);
+    }
+    let mut header = header.expect("at least one shard");
+    // Merged as `chaoscope merge` does: the points of every shard under a whole map's header.
+    header.shard_index = 0;
+    header.shard_count = 1;
+    points.sort_by_key(|p| p.index);
+    points.dedup_by_key(|p| p.index);
+    let png = scratch.path().join("map.png");
+    chaoscope_analyzer::map_png::render_png(&header, &points, &png)
+        .unwrap_or_else(|e| panic!("a checked map does not draw: {e}"));
+    Outcome {
+        read: true,
+        outputs: 1,
+    }
+}
+
+/// A serializer that only looks at floats: the paths of the non-finite ones.
+mod floats {
+    use serde::ser::{self, Serialize};
+
+    #[derive(Default)]
+    pub struct Walk {
+        path: Vec<String>,
+        pub found: Vec<String>,
+    }
+
+    #[derive(Debug)]
+    pub struct Never;
+    impl std::fmt::Display for Never {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.write_str("never")
+        }
+    }
+    impl std::error::Error for Never {}
+    impl ser::Error for Never {
+        fn custom<T: std::fmt::Display>(_: T) -> Self {
+            Never
+        }
+    }
+
+    impl Walk {
+        fn float(&mut self, v: f64) -> Result<(), Never> {
+            if !v.is_finite() {
+                self.found.push(format!("{} = {v}", self.path.join(".")));
+            }
+            Ok(())
+        }
+        fn nested<T: Serialize + ?Sized>(&mut self, key: &str, v: &T) -> Result<(), Never> {
+            self.path.push(key.to_string());
+            v.serialize(&mut *self)?;
+            self.path.pop();
+            Ok(())
+        }
+    }
+
+    macro_rules! ignore {
+        ($($f:ident: $t:ty),*) => {
+            $(fn $f(self, _: $t) -> Result<(), Never> { Ok(()) })*
+        };
+    }
+
+    impl ser::Serializer for &mut Walk {
+        type Ok = ();
+        type Error = Never;
+        type SerializeSeq = Self;
+        type SerializeTuple = Self;
+        type SerializeTupleStruct = Self;
+        type SerializeTupleVariant = Self;
+        type SerializeMap = Self;
+        type SerializeStruct = Self;
+        type SerializeStructVariant = Self;
+        ignore!(serialize_bool: bool, serialize_i8: i8, serialize_i16: i16, serialize_i32: i32,
+            serialize_i64: i64, serialize_u8: u8, serialize_u16: u16, serialize_u32: u32,
+            serialize_u64: u64, serialize_char: char, serialize_str: &str,
+            serialize_bytes: &[u8], serialize_unit_struct: &'static str);
+        fn serialize_f32(self, v: f32) -> Result<(), Never> {
+            self.float(f64::from(v))
+        }
+        fn serialize_f64(self, v: f64) -> Result<(), Never> {
+            self.float(v)
+        }
+        fn serialize_none(self) -> Result<(), Never> {
+            Ok(())
+        }
+        fn serialize_some<T: Serialize + ?Sized>(self, v: &T) -> Result<(), Never> {
+            v.serialize(self)
+        }
+        fn serialize_unit(self) -> Result<(), Never> {
+            Ok(())
+        }
+        fn serialize_unit_variant(
+            self,
+            _: &'static str,
+            _: u32,
+            _: &'static str,
+        ) -> Result<(), Never> {
+            Ok(())
+        }
+        fn serialize_newtype_struct<T: Serialize + ?Sized>(
+            self,
+            _: &'static str,
+            v: &T,
+        ) -> Result<(), Never> {
+            v.serialize(self)
+        }
+        fn serialize_newtype_variant<T: Serialize + ?Sized>(
+            self,
+            _: &'static str,
+            _: u32,
+            variant: &'static str,
+            v: &T,
+        ) -> Result<(), Never> {
+            self.nested(variant, v)
+        }
+        fn serialize_seq(self, _: Option<usize>) -> Result<Self, Never> {
+            self.path.push("0".into());
+            Ok(self)
+        }
+        fn serialize_tuple(self, _: usize) -> Result<Self, Never> {
+            self.serialize_seq(None)
+        }
+        fn serialize_tuple_struct(self, _: &'static str, _: usize) -> Result<Self, Never> {
+            self.serialize_seq(None)
+        }
+        fn serialize_tuple_variant(
+            self,
+            _: &'static str,
+            _: u32,
+            _: &'static str,
+            _: usize,
+        ) -> Result<Self, Never> {
+            self.serialize_seq(None)
+        }
+        fn serialize_map(self, _: Option<usize>) -> Result<Self, Never> {
+            self.path.push("key".into());
+            Ok(self)
+        }
+        fn serialize_struct(self, _: &'static str, _: usize) -> Result<Self, Never> {
+            self.path.push(String::new());
+            Ok(self)
+        }
+        fn serialize_struct_variant(
+            self,
+            _: &'static str,
+            _: u32,
+            _: &'static str,
+            _: usize,
+        ) -> Result<Self, Never> {
+            self.serialize_struct("", 0)
+        }
+    }
+
+    /// Elements of sequences and tuples: the last path part counts them.
+    fn element<T: Serialize + ?Sized>(w: &mut Walk, v: &T) -> Result<(), Never> {
+        v.serialize(&mut *w)?;
+        if let Some(i) = w.path.last_mut().and_then(|p| p.parse::<usize>().ok()) {
+            *w.path.last_mut().expect("a path part") = (i + 1).to_string();
+        }
+        Ok(())
+    }
+
+    macro_rules! sequence {
+        ($($trait:ident::$method:ident),*) => {$(
+            impl ser::$trait for &mut Walk {
+                type Ok = ();
+                type Error = Never;
+                fn $method<T: Serialize + ?Sized>(&mut self, v: &T) -> Result<(), Never> {
+                    element(self, v)
+                }
+                fn end(self) -> Result<(), Never> {
+                    self.path.pop();
+                    Ok(())
+                }
+            }
+        )*};
+    }
+    sequence!(
+        SerializeSeq::serialize_element,
+        SerializeTuple::serialize_element,
+        SerializeTupleStruct::serialize_field,
+        SerializeTupleVariant::serialize_field
+    );
+
+    impl ser::SerializeMap for &mut Walk {
+        type Ok = ();
+        type Error = Never;
+        fn serialize_key<T: Serialize + ?Sized>(&mut self, _: &T) -> Result<(), Never> {
+            Ok(())
+        }
+        fn serialize_value<T: Serialize + ?Sized>(&mut self, v: &T) -> Result<(), Never> {
+            v.serialize(&mut **self)
+        }
+        fn end(self) -> Result<(), Never> {
+            self.path.pop();
+            Ok(())
+        }
+    }
+
+    macro_rules! structure {
+        ($($trait:ident),*) => {$(
+            impl ser::$trait for &mut Walk {
+                type Ok = ();
+                type Error = Never;
+                fn serialize_field<T: Serialize + ?Sized>(&mut self, key: &'static str, v: &T) -> Result<(), Never> {
+                    if let Some(last) = self.path.last_mut() {
+                        *last = key.to_string();
+                    }
+                    v.serialize(&mut **self)
+                }
+                fn end(self) -> Result<(), Never> {
+                    self.path.pop();
+                    Ok(())
+                }
+            }
+        )*};
+    }
+    structure!(SerializeStruct, SerializeStructVariant);
 }

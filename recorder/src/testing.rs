@@ -7,6 +7,11 @@
 //! - Hostile variants of a file, for the rule that every input file is hostile: cut at many
 //!   offsets, single bit flips, random record streams after a valid magic, a short attachment,
 //!   huge length fields, zero-filled tails ([`hostile`] chains them all).
+//! - Valid files with hostile values ([`values`]): well-formed recordings and map files whose
+//!   field values (sizes, times, stretch factors, axes, counts, names) are chosen by a byte
+//!   stream, for the structure-aware fuzz target and the tests of every reader.
+
+pub mod values;
 
 use std::io::{Cursor, Seek, Write};
 

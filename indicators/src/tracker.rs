@@ -6,6 +6,8 @@
 //! instantaneous functions of the vectors. Memory is O(schemes x sets x k x 2N), independent of
 //! the length of the run.
 
+use std::collections::BTreeMap;
+
 use crate::alignment::{SIGMA_FLOOR, gali_log10, sali};
 use crate::stats::{LogStat, Stat};
 use crate::stretch::StretchSums;
@@ -109,8 +111,10 @@ struct SetState {
 
 #[derive(Debug, Clone)]
 struct SchemeState {
-    /// Grown as sets arrive (up to the layout's count), so a header's claim allocates nothing.
-    sets: Vec<SetState>,
+    /// The sets that have arrived, by index (up to the layout's count): a map, not a vector
+    /// grown to the index, so that neither a header's claim nor a message's set index (one
+    /// set numbered 4 billion in a file once asked for 343 GB) allocates more than what came.
+    sets: BTreeMap<usize, SetState>,
     step: Option<u64>,
 }
 
@@ -129,7 +133,7 @@ impl Tracker {
             .tau_steps
             .iter()
             .map(|_| SchemeState {
-                sets: Vec::new(),
+                sets: BTreeMap::new(),
                 step: None,
             })
             .collect();
@@ -174,19 +178,15 @@ impl Tracker {
             return false;
         }
         let prev = self.layout.previous_renormalization(scheme, step);
-        let sets = &mut self.schemes[scheme].sets;
-        if set >= sets.len() {
-            sets.resize(
-                set + 1,
-                SetState {
-                    sums: StretchSums::new(k),
-                    covered_steps: 0,
-                    step: None,
-                    separations: Vec::new(),
-                },
-            );
-        }
-        let st = &mut sets[set];
+        let st = self.schemes[scheme]
+            .sets
+            .entry(set)
+            .or_insert_with(|| SetState {
+                sums: StretchSums::new(k),
+                covered_steps: 0,
+                step: None,
+                separations: Vec::new(),
+            });
         // A stretching factor covers the interval since the scheme's previous renormalization;
         // if that one was not seen, the sum has a hole.
         let expected_prev = st.step.unwrap_or(0);
@@ -212,7 +212,7 @@ impl Tracker {
 
     /// Step of the latest separations of one set (`None` before any).
     pub fn set_step(&self, scheme: usize, set: usize) -> Option<u64> {
-        self.schemes[scheme].sets.get(set)?.step
+        self.schemes[scheme].sets.get(&set)?.step
     }
 
     fn values_of(&self, st: &SetState) -> Option<SetValues> {
@@ -228,7 +228,7 @@ impl Tracker {
 
     /// The latest values of one set (`None` before its first sample).
     pub fn set_values(&self, scheme: usize, set: usize) -> Option<SetValues> {
-        self.values_of(self.schemes[scheme].sets.get(set)?)
+        self.values_of(self.schemes[scheme].sets.get(&set)?)
     }
 
     /// The sets of `scheme` at its latest step, with their values, in set order.
@@ -240,9 +240,8 @@ impl Tracker {
         state
             .sets
             .iter()
-            .enumerate()
             .filter(|(_, st)| st.step == Some(step))
-            .filter_map(|(i, st)| self.values_of(st).map(|v| (i, v)))
+            .filter_map(|(&i, st)| self.values_of(st).map(|v| (i, v)))
             .collect()
     }
 
@@ -313,5 +312,19 @@ mod tests {
         assert!(!t.apply(1, 0, 2, &[0.0; 4], &[1.0, 1.0]));
         assert!(!t.apply(0, 2, 2, &[0.0; 4], &[1.0, 1.0]));
         assert!(!t.apply(0, 0, 8, &[0.0; 3], &[1.0, 1.0]));
+    }
+
+    #[test]
+    fn a_set_numbered_near_the_header_claim_allocates_one_set() {
+        // A header claiming 2^32 - 1 sets and one separation set numbered 2^32 - 2 (a valid
+        // file with hostile values, found by the `values_recording` fuzz target): a vector
+        // grown to that index asked for 343 GB and aborted; one set is kept.
+        let sets = u32::MAX as usize;
+        let mut t = Tracker::new(Layout::new(2, 2, sets, 0.5, vec![2]).unwrap());
+        assert!(t.apply(0, sets - 1, 0, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0]));
+        assert_eq!(t.current_sets(0).len(), 1);
+        assert_eq!(t.current_sets(0)[0].0, sets - 1);
+        assert_eq!(t.set_step(0, sets - 1), Some(0));
+        assert_eq!(t.set_step(0, 0), None);
     }
 }

@@ -1,0 +1,20 @@
+//! What a chaoscope process asks of the operating system, decided once for every command and
+//! the Python package:
+//!
+//! - [`output`]: the one way a file is written (a locked in-progress file beside the target,
+//!   created exclusively and never through a link, renamed into place only when complete; a
+//!   second writer of the same file refused; inputs never overwritten; nothing unlinked that
+//!   is not ours).
+//! - [`signals`]: SIGINT/SIGTERM latched once, so no library can swallow them, with the exit
+//!   status each means (130, 143); commands that have nothing to finalize end at once instead,
+//!   removing their unfinished outputs.
+//! - [`stdout`]: standard output written with its errors seen: a closed pipe ends a command
+//!   quietly, a full disk is an error.
+//!
+//! No numerics, no file format, no bus: every other crate may depend on this one.
+
+pub mod output;
+pub mod signals;
+pub mod stdout;
+
+pub use output::{Leftover, Output, OutputError, OutputOptions};

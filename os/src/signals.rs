@@ -1,0 +1,227 @@
+//! SIGINT and SIGTERM, latched once per process.
+//!
+//! Why not iceoryx2's flag: iceoryx2 keeps only the *last* signal of a dozen kinds, forgets it
+//! once read (`termination_requested` swaps it out; its own waits read it), and erases it before
+//! it zeroes shared memory (`call_and_fetch`). A SIGTERM that arrived while a map opened its
+//! live stream, or one followed by a SIGCONT, was lost, and the command ran on until SIGKILL.
+//! Here the first SIGINT or SIGTERM is stored by our own handler, chained after iceoryx2's (so
+//! its waits still wake), and nothing ever resets it.
+//!
+//! Two ways to use it ([`install`]):
+//! - [`Mode::Finish`]: the command polls [`received`] in its loops, finalizes what it has into a
+//!   valid file and exits with [`exit_status`] (run, produce, record, map, replay).
+//! - [`Mode::Exit`]: the command has nothing worth finalizing (analyze, merge, recover, section,
+//!   chart): the handler removes the in-progress files registered by [`crate::output`] (this
+//!   process's own) and ends the process at once with the signal's status. Earlier outputs stay
+//!   as they were.
+//!
+//! Not installed at all inside Python: Ctrl-C stays Python's (the bindings stop the work when
+//! Python reports it).
+
+use std::ffi::CString;
+use std::sync::Once;
+use std::sync::atomic::{AtomicI32, AtomicPtr, AtomicU8, AtomicUsize, Ordering};
+
+/// How a command reacts to SIGINT/SIGTERM.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Mode {
+    /// Latch the signal; the command stops at its next check and finalizes its files.
+    Finish,
+    /// Remove this process's unfinished outputs and exit at once.
+    Exit,
+}
+
+/// The first SIGINT/SIGTERM received (0: none).
+static RECEIVED: AtomicI32 = AtomicI32::new(0);
+/// Sections during which an exit on a signal waits ([`critical`]): between creating an
+/// in-progress file and registering it for removal, between unregistering it and renaming it
+/// into place.
+static CRITICAL: AtomicUsize = AtomicUsize::new(0);
+static MODE: AtomicU8 = AtomicU8::new(0);
+static INSTALLED: Once = Once::new();
+
+/// In-progress files of this process, removed by the handler in [`Mode::Exit`]: fixed slots a
+/// signal handler can read without allocating or locking (a path is leaked when registered and
+/// never freed, so a handler that read a pointer can always use it).
+const CLEANUP_SLOTS: usize = 64;
+static CLEANUP: [AtomicPtr<libc::c_char>; CLEANUP_SLOTS] =
+    [const { AtomicPtr::new(std::ptr::null_mut()) }; CLEANUP_SLOTS];
+
+/// Installs the handlers (once per process; later calls only change the mode).
+pub fn install(mode: Mode) {
+    MODE.store(
+        match mode {
+            Mode::Finish => 0,
+            Mode::Exit => 1,
+        },
+        Ordering::SeqCst,
+    );
+    INSTALLED.call_once(|| {
+        // iceoryx2's handlers first: they replace whatever is installed, without chaining, the
+        // first time anything asks iceoryx2 about signals. Nothing is pending this early; a
+        // signal that was is kept.
+        use iceoryx2_bb_posix::signal::{NonFatalFetchableSignal, SignalHandler};
+        match SignalHandler::last_signal() {
+            Some(NonFatalFetchableSignal::Interrupt) => latch(libc::SIGINT),
+            Some(NonFatalFetchableSignal::Terminate) => latch(libc::SIGTERM),
+            _ => {}
+        }
+        for signal in [libc::SIGINT, libc::SIGTERM] {
+            // SAFETY: the action only does async-signal-safe things: atomics, unlink(2) of
+            // leaked C strings and _exit(2). signal-hook's registry calls the previous handler
+            // (iceoryx2's) after it, so iceoryx2's waits still wake.
+            let registered = unsafe { signal_hook_registry::register(signal, move || on(signal)) };
+            if let Err(e) = registered {
+                // Only if the signal number were invalid; the command then keeps the default
+                // disposition (the signal ends it at once).
+                eprintln!("chaoscope: warning: cannot handle signal {signal}: {e}");
+            }
+        }
+    });
+}
+
+fn latch(signal: i32) {
+    let _ = RECEIVED.compare_exchange(0, signal, Ordering::SeqCst, Ordering::SeqCst);
+}
+
+fn on(signal: i32) {
+    latch(signal);
+    // In a critical section the section's end exits instead (see `critical`: of the handler's
+    // store of RECEIVED and the section's decrement, at least one sees the other).
+    if MODE.load(Ordering::SeqCst) == 1 && CRITICAL.load(Ordering::SeqCst) == 0 {
+        exit_now();
+    }
+}
+
+/// Removes the registered in-progress files and ends the process with the signal's status
+/// (async-signal-safe).
+fn exit_now() -> ! {
+    for slot in &CLEANUP {
+        let path = slot.load(Ordering::SeqCst);
+        if !path.is_null() {
+            // SAFETY: a NUL-terminated string leaked by `Cleanup::register`, never freed.
+            unsafe { libc::unlink(path) };
+        }
+    }
+    let first = RECEIVED.load(Ordering::SeqCst);
+    // SAFETY: _exit is async-signal-safe; nothing of this process needs to run after it.
+    unsafe { libc::_exit(exit_status(first) as i32) }
+}
+
+/// Runs `f` with an exit on a signal ([`Mode::Exit`]) held back until it returns, so that an
+/// in-progress file is never created without being registered for removal, nor unregistered
+/// without being renamed into place.
+pub(crate) fn critical<T>(f: impl FnOnce() -> T) -> T {
+    CRITICAL.fetch_add(1, Ordering::SeqCst);
+    let result = f();
+    if CRITICAL.fetch_sub(1, Ordering::SeqCst) == 1
+        && MODE.load(Ordering::SeqCst) == 1
+        && RECEIVED.load(Ordering::SeqCst) != 0
+    {
+        exit_now();
+    }
+    result
+}
+
+/// Whether [`install`] ran in this process.
+pub fn installed() -> bool {
+    INSTALLED.is_completed()
+}
+
+/// The first SIGINT or SIGTERM this process received since [`install`], if any.
+pub fn received() -> Option<i32> {
+    match RECEIVED.load(Ordering::SeqCst) {
+        0 => None,
+        s => Some(s),
+    }
+}
+
+/// Whether SIGINT or SIGTERM arrived.
+pub fn requested() -> bool {
+    received().is_some()
+}
+
+/// The exit status of a command ended by `signal`: 128 + the signal number, as a shell reports
+/// a process killed by it (130 for SIGINT, 143 for SIGTERM).
+pub fn exit_status(signal: i32) -> u8 {
+    128u8.saturating_add(signal.clamp(0, 127) as u8)
+}
+
+/// A registration of an in-progress file for removal on a signal in [`Mode::Exit`].
+#[derive(Debug)]
+pub(crate) struct Cleanup(Option<usize>);
+
+impl Cleanup {
+    /// No registration.
+    pub(crate) fn none() -> Self {
+        Self(None)
+    }
+
+    /// Registers `path` (when a slot is free; with all 64 in use the file is simply not removed
+    /// by a signal, and stays as `NAME.partial`).
+    pub(crate) fn register(path: &std::path::Path) -> Self {
+        use std::os::unix::ffi::OsStrExt;
+        let Ok(c) = CString::new(path.as_os_str().as_bytes()) else {
+            return Self(None);
+        };
+        let ptr = c.into_raw();
+        for (i, slot) in CLEANUP.iter().enumerate() {
+            if slot
+                .compare_exchange(
+                    std::ptr::null_mut(),
+                    ptr,
+                    Ordering::SeqCst,
+                    Ordering::SeqCst,
+                )
+                .is_ok()
+            {
+                return Self(Some(i));
+            }
+        }
+        // SAFETY: `ptr` came from `into_raw` above and was published nowhere.
+        drop(unsafe { CString::from_raw(ptr) });
+        Self(None)
+    }
+
+    /// Unregisters (before the file is renamed or removed by the process itself). The string
+    /// is leaked: a handler running now may still hold its pointer.
+    pub(crate) fn clear(&mut self) {
+        if let Some(i) = self.0.take() {
+            CLEANUP[i].store(std::ptr::null_mut(), Ordering::SeqCst);
+        }
+    }
+}
+
+impl Drop for Cleanup {
+    fn drop(&mut self) {
+        self.clear();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    // The logger iceoryx2-bb-posix calls into lives in iceoryx2.
+    use iceoryx2 as _;
+
+    #[test]
+    fn exit_statuses_are_the_shells() {
+        assert_eq!(exit_status(libc::SIGINT), 130);
+        assert_eq!(exit_status(libc::SIGTERM), 143);
+    }
+
+    #[test]
+    fn a_signal_is_latched_and_stays_latched() {
+        install(Mode::Finish);
+        assert_eq!(received(), None);
+        // SAFETY: raising a signal whose handler is installed above.
+        unsafe { libc::raise(libc::SIGTERM) };
+        assert_eq!(received(), Some(libc::SIGTERM));
+        // iceoryx2 reading (and resetting) its own flag does not reset ours; a later SIGINT
+        // does not replace the first signal.
+        let _ = iceoryx2_bb_posix::signal::SignalHandler::termination_requested();
+        unsafe { libc::raise(libc::SIGINT) };
+        assert_eq!(received(), Some(libc::SIGTERM));
+        assert!(requested());
+    }
+}

@@ -72,8 +72,43 @@ pub enum ChartError {
         "no TrueType font found for chart text; set CHAOSCOPE_FONT to a .ttf file (e.g. DejaVuSans.ttf)"
     )]
     NoFont,
-    #[error("{path}: {message}")]
+    #[error("{}: {message}", path.display())]
     Draw { path: PathBuf, message: String },
+    #[error(transparent)]
+    Output(#[from] chaoscope_os::OutputError),
+}
+
+/// How charts, plots and colour maps are written: complete or not at all, replacing an earlier
+/// drawing of the same name (never anything but a regular file, never an input).
+fn drawing_options(inputs: &[PathBuf]) -> chaoscope_os::OutputOptions {
+    chaoscope_os::OutputOptions {
+        replace: true,
+        inputs: inputs.to_vec(),
+        leftover: chaoscope_os::Leftover::Discard,
+        ..Default::default()
+    }
+}
+
+/// Writes RGB `pixels` of `size` as a PNG file at `path`.
+pub fn save_png(
+    path: &Path,
+    inputs: &[PathBuf],
+    pixels: &[u8],
+    size: (u32, u32),
+) -> Result<PathBuf, ChartError> {
+    use image::ImageEncoder;
+    use std::io::Write;
+    Ok(chaoscope_os::output::write_whole(
+        path,
+        &drawing_options(inputs),
+        |file| {
+            let mut out = std::io::BufWriter::new(file);
+            image::codecs::png::PngEncoder::new(&mut out)
+                .write_image(pixels, size.0, size.1, image::ColorType::Rgb8)
+                .map_err(std::io::Error::other)?;
+            out.flush()
+        },
+    )?)
 }
 
 const FONT_CANDIDATES: &[&str] = &[
@@ -272,9 +307,9 @@ pub fn render_svg(chart: &Chart) -> Result<String, String> {
 /// Size of every chart in pixels.
 const SIZE: (u32, u32) = (800, 560);
 
-/// Writes `<stem>.png` and `<stem>.svg`. Without any TrueType font on the machine the charts
+/// Writes `<stem>.png` and `<stem>.svg` (each complete or not at all, never one of `inputs`). Without any TrueType font on the machine the charts
 /// are drawn without text (a warning says so once) rather than not at all.
-pub fn render(chart: &Chart, stem: &Path) -> Result<Vec<PathBuf>, ChartError> {
+pub fn render(chart: &Chart, stem: &Path, inputs: &[PathBuf]) -> Result<Vec<PathBuf>, ChartError> {
     let text = ensure_font().is_ok();
     static WARNED: OnceLock<()> = OnceLock::new();
     if !text {
@@ -298,13 +333,25 @@ pub fn render(chart: &Chart, stem: &Path) -> Result<Vec<PathBuf>, ChartError> {
         path: path.to_path_buf(),
         message,
     };
+    // Drawn in memory, then each written as one output (`chaoscope_os::output`).
+    let mut pixels = vec![0u8; size.0 as usize * size.1 as usize * 3];
     draw(
-        BitMapBackend::new(&png, size).into_drawing_area(),
+        BitMapBackend::with_buffer(&mut pixels, size).into_drawing_area(),
         chart,
         text,
     )
     .map_err(|m| err(&png, m))?;
-    draw(SVGBackend::new(&svg, size).into_drawing_area(), chart, text).map_err(|m| err(&svg, m))?;
+    save_png(&png, inputs, &pixels, size)?;
+    let mut vector = String::new();
+    draw(
+        SVGBackend::with_string(&mut vector, size).into_drawing_area(),
+        chart,
+        text,
+    )
+    .map_err(|m| err(&svg, m))?;
+    chaoscope_os::output::write_whole(&svg, &drawing_options(inputs), |file| {
+        std::io::Write::write_all(file, vector.as_bytes())
+    })?;
     Ok(vec![png, svg])
 }
 

@@ -5,16 +5,29 @@ use std::path::{Path, PathBuf};
 
 use crate::analysis::Analysis;
 
-/// Writes `<dir>/<scheme>.csv` and, for Hamiltonians, `<dir>/energy.csv`; returns the files
-/// written.
-pub fn write_csv(analysis: &Analysis, dir: &Path) -> std::io::Result<Vec<PathBuf>> {
+/// Writes `<dir>/<scheme>.csv` and, for Hamiltonians, `<dir>/energy.csv` (each complete or not
+/// at all, replacing an earlier table of the same name, never one of `inputs`:
+/// `chaoscope_os::output`); returns the files written.
+pub fn write_csv(
+    analysis: &Analysis,
+    dir: &Path,
+    inputs: &[PathBuf],
+) -> std::io::Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir)?;
+    let options = chaoscope_os::OutputOptions {
+        replace: true,
+        inputs: inputs.to_vec(),
+        leftover: chaoscope_os::Leftover::Discard,
+        ..Default::default()
+    };
+    let create = |path: &Path| chaoscope_os::Output::create(path, &options).map_err(io);
     let run = analysis.run();
     let k = run.k;
     let mut files = Vec::new();
     for (si, s) in run.schemes.iter().enumerate() {
         let path = dir.join(format!("{}.csv", s.name));
-        let mut f = std::io::BufWriter::new(std::fs::File::create(&path)?);
+        let output = create(&path)?;
+        let mut f = std::io::BufWriter::new(output.file().map_err(io)?);
         let mut head = vec!["t".to_string()];
         for j in 2..=k {
             head.push(format!("gali{j}_log10_mean"));
@@ -43,19 +56,28 @@ pub fn write_csv(analysis: &Analysis, dir: &Path) -> std::io::Result<Vec<PathBuf
             writeln!(f, "{}", row.join(","))?;
         }
         f.flush()?;
-        files.push(path);
+        drop(f);
+        files.push(output.commit().map_err(io)?);
     }
     if analysis.run().kind != chaoscope_schemas::run::SystemKind::Hamiltonian {
         // No energy to follow.
         return Ok(files);
     }
     let path = dir.join("energy.csv");
-    let mut f = std::io::BufWriter::new(std::fs::File::create(&path)?);
+    let output = create(&path)?;
+    let mut f = std::io::BufWriter::new(output.file().map_err(io)?);
     writeln!(f, "t,relative_energy_error")?;
     for (t, e) in analysis.energy_series() {
         writeln!(f, "{t},{e}")?;
     }
     f.flush()?;
-    files.push(path);
+    drop(f);
+    files.push(output.commit().map_err(io)?);
     Ok(files)
+}
+
+/// An output refused or failed, as the I/O error this module returns (its message names the
+/// file and the cause).
+fn io(e: chaoscope_os::OutputError) -> std::io::Error {
+    std::io::Error::other(e.to_string())
 }

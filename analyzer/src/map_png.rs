@@ -6,7 +6,7 @@
 //! Text needs a TrueType font, looked up at run time (`CHAOSCOPE_FONT`, then DejaVu Sans /
 //! Liberation Sans in the usual places); without one the image is drawn without labels.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
 use chaoscope_schemas::proto::{MapHeader, MapPoint, map_point};
@@ -105,7 +105,12 @@ fn drawable(lo: f64, hi: f64, ends: [f64; 2]) -> std::ops::Range<f64> {
 /// no map writes is an error naming it, never an image of absurd size or a hang.
 ///
 /// [`check_point`]: chaoscope_recorder::map_file::check_point
-pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Result<(), String> {
+pub fn render_png(
+    header: &MapHeader,
+    points: &[MapPoint],
+    path: &Path,
+    inputs: &[PathBuf],
+) -> Result<(), String> {
     use chaoscope_recorder::map_file::{check_header, check_point};
     check_header(header).map_err(|e| format!("map header: {e}"))?;
     points.iter().try_for_each(|p| check_point(header, p))?;
@@ -151,7 +156,9 @@ pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Resul
     );
     let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
 
-    let root = BitMapBackend::new(path, (w, h)).into_drawing_area();
+    // Drawn in memory, then written as one output (`chaoscope_os::output`).
+    let mut pixels = vec![0u8; w as usize * h as usize * 3];
+    let root = BitMapBackend::with_buffer(&mut pixels, (w, h)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
     let (plot_area, bar_area) = root.split_horizontally(pw + margin + 20);
     let (x0, x1) = (xa.min, xa.max.max(xa.min + f64::EPSILON));
@@ -248,5 +255,8 @@ pub fn render_png(header: &MapHeader, points: &[MapPoint], path: &Path) -> Resul
         }))
         .map_err(|e| err(&e))?;
     root.present().map_err(|e| err(&e))?;
-    Ok(())
+    drop((bar_chart, chart, plot_area, bar_area, root));
+    crate::chart::save_png(path, inputs, &pixels, (w, h))
+        .map(drop)
+        .map_err(|e| e.to_string())
 }

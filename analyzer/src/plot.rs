@@ -370,11 +370,13 @@ pub fn charts(analysis: &Analysis, report: &Report, axis: TimeAxis) -> Vec<(Stri
 }
 
 /// Draws every chart of `analysis` into `dir` (PNG and SVG); returns the files written.
+/// (Each file complete or not at all, never one of `inputs`: `chaoscope_os::output`.)
 pub fn plot_all(
     analysis: &Analysis,
     report: &Report,
     dir: &Path,
     axis: TimeAxis,
+    inputs: &[PathBuf],
 ) -> Result<Vec<PathBuf>, ChartError> {
     std::fs::create_dir_all(dir).map_err(|e| ChartError::Draw {
         path: dir.to_path_buf(),
@@ -382,7 +384,7 @@ pub fn plot_all(
     })?;
     let mut files = Vec::new();
     for (name, chart) in charts(analysis, report, axis) {
-        files.extend(render(&chart, &dir.join(name))?);
+        files.extend(render(&chart, &dir.join(name), inputs)?);
     }
     Ok(files)
 }

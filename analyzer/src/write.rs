@@ -4,7 +4,9 @@
 
 use std::fs::File;
 use std::io::BufWriter;
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+use chaoscope_os::{Leftover, Output, OutputError, OutputOptions};
 
 use chaoscope_recorder::file::{FileOptions, RecordingFile};
 use chaoscope_schemas::proto::DataMessage;
@@ -13,9 +15,26 @@ use chaoscope_schemas::proto::{
 };
 use chaoscope_schemas::run::Sample;
 
-/// A recording being written from samples.
+/// Why a recording could not be written.
+#[derive(Debug, thiserror::Error)]
+pub enum WriteError {
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    /// The whole cause in the message and no error source, so a chain printer does not repeat
+    /// it.
+    #[error("{}: MCAP: {}", path.display(), chaoscope_recorder::file::error_chain(error))]
+    Mcap {
+        path: PathBuf,
+        error: mcap::McapError,
+    },
+}
+
+/// A recording being written from samples, into its in-progress file until
+/// [`SampleWriter::finish`] puts it in place (`chaoscope_os::output`); dropped unfinished, the
+/// in-progress file goes.
 pub struct SampleWriter {
     file: RecordingFile<BufWriter<File>>,
+    output: Output,
     frame: u64,
     samples: u64,
     last: (u64, f64),
@@ -24,10 +43,34 @@ pub struct SampleWriter {
 }
 
 impl SampleWriter {
-    pub fn create(path: &Path, header: &RunHeader) -> mcap::McapResult<Self> {
-        let out = BufWriter::with_capacity(1 << 20, File::create(path)?);
+    /// A new recording at `path`, replacing an earlier file of that name (benches, examples).
+    pub fn create(path: &Path, header: &RunHeader) -> Result<Self, WriteError> {
+        let options = OutputOptions {
+            replace: true,
+            leftover: Leftover::Discard,
+            ..Default::default()
+        };
+        Self::create_with(path, header, &options)
+    }
+
+    /// A new recording at `path`, opened with `options` (`--force`, the inputs it must not be).
+    pub fn create_with(
+        path: &Path,
+        header: &RunHeader,
+        options: &OutputOptions,
+    ) -> Result<Self, WriteError> {
+        let output = Output::create(path, options)?;
+        let out = BufWriter::with_capacity(1 << 20, output.file()?);
+        let file =
+            RecordingFile::create(out, header, &FileOptions::default()).map_err(|error| {
+                WriteError::Mcap {
+                    path: path.to_path_buf(),
+                    error,
+                }
+            })?;
         Ok(Self {
-            file: RecordingFile::create(out, header, &FileOptions::default())?,
+            file,
+            output,
             frame: 0,
             samples: 0,
             last: (0, 0.0),
@@ -69,7 +112,7 @@ impl SampleWriter {
 
     /// Writes the end-of-run record of a completed run and the summary (`finalized_by` says
     /// who wrote the file).
-    pub fn finish(self, finalized_by: &str) -> mcap::McapResult<()> {
+    pub fn finish(self, finalized_by: &str) -> Result<(), WriteError> {
         self.finish_with(finalized_by, end_of_run::Status::Completed, "")
     }
 
@@ -80,15 +123,22 @@ impl SampleWriter {
         finalized_by: &str,
         status: end_of_run::Status,
         reason: &str,
-    ) -> mcap::McapResult<()> {
-        self.file.write(&DataMessage::End(EndOfRun {
-            frame: self.frame,
-            status: status as i32,
-            reason: reason.to_string(),
-            samples: self.samples,
-            last_step: self.last.0,
-            t: self.last.1,
-        }))?;
+    ) -> Result<(), WriteError> {
+        let path = self.output.target().to_path_buf();
+        let mcap = |error| WriteError::Mcap {
+            path: path.clone(),
+            error,
+        };
+        self.file
+            .write(&DataMessage::End(EndOfRun {
+                frame: self.frame,
+                status: status as i32,
+                reason: reason.to_string(),
+                samples: self.samples,
+                last_step: self.last.0,
+                t: self.last.1,
+            }))
+            .map_err(mcap)?;
         let summary = RecordingSummary {
             finalized_by: finalized_by.to_string(),
             run_status: status.word().into(),
@@ -98,8 +148,10 @@ impl SampleWriter {
             last_frame: self.frame,
             recorder_version: env!("CARGO_PKG_VERSION").to_string(),
         };
-        let mut out = self.file.finish(&summary)?;
-        std::io::Write::flush(&mut out)?;
+        let mut out = self.file.finish(&summary).map_err(mcap)?;
+        std::io::Write::flush(&mut out).map_err(|e| mcap(e.into()))?;
+        drop(out);
+        self.output.commit()?;
         Ok(())
     }
 }

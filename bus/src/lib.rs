@@ -98,11 +98,14 @@ pub const POLL_INTERVAL: Duration = Duration::from_millis(50);
 /// end. Any other interrupted sleep (SIGCONT after SIGSTOP, SIGCHLD) is not a request to end:
 /// a recorder stopped and continued before its run started took it for Ctrl+C and quit, and its
 /// producer waited in vain for it (found by `tests/crash_loop.rs`, seed 35).
+/// SIGINT/SIGTERM are also read from `chaoscope_os::signals`, which iceoryx2 cannot lose.
 pub fn poll_wait(node: &Node<ipc::Service>) -> bool {
-    !matches!(
-        node.wait(POLL_INTERVAL),
-        Err(iceoryx2::node::NodeWaitFailure::TerminationRequest)
-    )
+    !chaoscope_os::signals::requested()
+        && !matches!(
+            node.wait(POLL_INTERVAL),
+            Err(iceoryx2::node::NodeWaitFailure::TerminationRequest)
+        )
+        && !chaoscope_os::signals::requested()
 }
 
 pub type DataService = publish_subscribe::PortFactory<ipc::Service, [u64], FrameHeader>;

@@ -193,8 +193,11 @@ impl LiveRun {
                     .wait_and_process_once(|_| CallbackProgression::Stop)
                     .map_err(|e| BusError::new("wait", e))?;
                 // `Interrupt` is any interrupted wait, also a monitor resumed by SIGCONT after
-                // SIGSTOP: a SIGINT or SIGTERM is reported as `TerminationRequest` next.
-                if result == WaitSetRunResult::TerminationRequest {
+                // SIGSTOP: a SIGINT or SIGTERM is reported as `TerminationRequest` next (and
+                // latched by `chaoscope_os::signals` when iceoryx2 lost it).
+                if result == WaitSetRunResult::TerminationRequest
+                    || chaoscope_os::signals::requested()
+                {
                     return Ok(LiveEnded::Signal);
                 }
                 let _ = self.listener.try_wait(|_| {});

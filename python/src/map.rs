@@ -1,9 +1,9 @@
 //! `map` and `open_map`: a phase-space map computed by the map scheduler of `chaoscope map`,
 //! recorded in its file format, returned as numpy grids.
 
-use std::fs::File;
 use std::path::{Path, PathBuf};
 
+use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::batch::Isa;
 use chaoscope_producer::estimate::{self, Machine};
 use chaoscope_producer::map::{MapOptions, MapSpec, Shard, run_map};
@@ -174,11 +174,25 @@ pub fn map(
             out.display()
         )));
     }
-    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)
-            .map_err(|e| crate::message(format!("{}: {e}", dir.display())))?;
-    }
     let header = spec.header(whole);
+    // Written as every chaoscope output is (`chaoscope_os::output`): into `out.partial`, locked
+    // (a `chaoscope map` of the same file is refused meanwhile), renamed to `out` when done or
+    // interrupted; `chaoscope map` resumes an interrupted one.
+    let output = Output::create(
+        &out,
+        &OutputOptions {
+            replace: force,
+            create_dir: true,
+            leftover: if force {
+                Leftover::Discard
+            } else {
+                Leftover::Refuse
+            },
+            keep_failed: true,
+            ..Default::default()
+        },
+    )
+    .map_err(|e| crate::message(e.to_string()))?;
     let termination = Termination::new();
     let options = MapOptions {
         threads,
@@ -198,7 +212,7 @@ pub fn map(
                     chaoscope_recorder::file::error_chain(e)
                 )
             };
-            let file = File::create(&out).map_err(|e| write_error(&e))?;
+            let file = output.file().map_err(|e| write_error(&e))?;
             let file_options = FileOptions {
                 compression: Compression::Zstd,
                 chunk_size: 1 << 20,
@@ -223,6 +237,7 @@ pub fn map(
             file.close_chunk()
                 .and_then(|()| file.finish().map(drop))
                 .map_err(|e| write_error(&e))?;
+            output.commit().map_err(|e| write_error(&e))?;
             Ok(points)
         },
     )?;

@@ -6,7 +6,9 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions, energy_error};
 use chaoscope_analyzer::recording::{RecordingReader, analyze_file};
-use chaoscope_analyzer::write::SampleWriter;
+use chaoscope_analyzer::run_info::RunInfo;
+use chaoscope_analyzer::write::{SampleWriter, WriteError};
+use chaoscope_os::{Leftover, OutputOptions};
 use chaoscope_producer::engine::Engine;
 use chaoscope_producer::estimate::{self, Machine};
 use chaoscope_producer::publish::{non_finite, resolve_run_name, run_header};
@@ -110,16 +112,26 @@ pub fn run(
     if out.exists() && !force {
         return Err(exists_error(&out));
     }
-    if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)
-            .map_err(|e| crate::message(format!("{}: {e}", dir.display())))?;
-    }
     let header = run_header(&name, &config, &spec);
+    // Written as every chaoscope output is (`chaoscope_os::output`): complete at `out` or not
+    // there at all, never through a link, never over a live writer's file.
+    let options = OutputOptions {
+        replace: force,
+        create_dir: true,
+        leftover: if force {
+            Leftover::Discard
+        } else {
+            Leftover::Refuse
+        },
+        ..Default::default()
+    };
+    let writer = SampleWriter::create_with(&out, &header, &options)
+        .map_err(|e| crate::message(error_text(&e)))?;
     let stop = AtomicBool::new(false);
     let failure = interruptible(
         py,
         || stop.store(true, Ordering::Relaxed),
-        || record_run(&out, &header, spec, &stop),
+        || record_run(writer, &out, &header, spec, &stop),
     )?;
     if let Some(why) = failure {
         return Err(crate::message(why));
@@ -128,20 +140,15 @@ pub fn run(
 }
 
 /// Integrates and writes the run; `Some(message)` if it failed (the file then says so too, as
-/// the recorder's file of a failed run does). A write error removes the half-written file.
-fn record_run(out: &Path, header: &RunHeader, spec: RunSpec, stop: &AtomicBool) -> Option<String> {
-    let written = |e: mcap::McapError| {
-        let _ = std::fs::remove_file(out);
-        Some(format!(
-            "{}: MCAP: {}",
-            out.display(),
-            chaoscope_recorder::file::error_chain(&e)
-        ))
-    };
-    let mut writer = match SampleWriter::create(out, header) {
-        Ok(w) => w,
-        Err(e) => return written(e),
-    };
+/// the recorder's file of a failed run does). A write error leaves no file.
+fn record_run(
+    mut writer: SampleWriter,
+    out: &Path,
+    header: &RunHeader,
+    spec: RunSpec,
+    stop: &AtomicBool,
+) -> Option<String> {
+    let written = |e: &(dyn std::error::Error + 'static)| Some(error_text(e));
     let mut engine = Engine::new(spec);
     let (status, reason) = loop {
         if stop.load(Ordering::Relaxed) {
@@ -154,7 +161,10 @@ fn record_run(out: &Path, header: &RunHeader, spec: RunSpec, stop: &AtomicBool) 
                     break (end_of_run::Status::Failed, why);
                 }
                 if let Err(e) = writer.write(&sample) {
-                    return written(e);
+                    return written(&WriteError::Mcap {
+                        path: out.to_path_buf(),
+                        error: e,
+                    });
                 }
             }
             Ok(None) => break (end_of_run::Status::Completed, String::new()),
@@ -166,7 +176,7 @@ fn record_run(out: &Path, header: &RunHeader, spec: RunSpec, stop: &AtomicBool) 
         _ => "end-of-run",
     };
     if let Err(e) = writer.finish_with(finalized_by, status, &reason) {
-        return written(e);
+        return written(&e);
     }
     (status == end_of_run::Status::Failed)
         .then(|| format!("run {} failed: {reason}", header.run_name))
@@ -342,15 +352,13 @@ impl Recording {
         if out.exists() && !force {
             return Err(exists_error(&out));
         }
-        if out.exists() && out.canonicalize().ok() == self.path.canonicalize().ok() {
-            return Err(crate::message("out must differ from the input recording"));
-        }
         let stop = Arc::new(AtomicBool::new(false));
         let options = ReplayOptions {
             taus: tau.map(Floats::into_vec).unwrap_or_default(),
             d0s: d0.map(Floats::into_vec).unwrap_or_default(),
             without_original,
             stop: Some(Arc::clone(&stop)),
+            force,
         };
         let outcome = interruptible(
             py,

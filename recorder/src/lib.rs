@@ -31,5 +31,5 @@ pub mod subscription;
 pub mod testing;
 pub mod write_thread;
 
-pub use record::{RecordOptions, RecordOutcome, record};
+pub use record::{RecordError, RecordOptions, RecordOutcome, record};
 pub use recover::{RecoverReport, recover};

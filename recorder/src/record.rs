@@ -1,12 +1,12 @@
 //! The recorder process: discover a run, subscribe, write MCAP, finalize on end-of-run, signal
 //! or producer death.
 
-use std::fs::File;
 use std::ops::ControlFlow;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use chaoscope_bus as bus;
+use chaoscope_os::output::{Leftover, Output, OutputError, OutputOptions};
 use chaoscope_schemas::names;
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::RecordingSummary;
@@ -64,19 +64,34 @@ pub enum RecordError {
     Bus(#[from] bus::BusError),
     #[error("invalid run name: {0}")]
     RunName(String),
-    #[error("{path}: {source}")]
+    /// The cause is in the message (no error source), so a chain printer does not repeat it.
+    #[error("{}: {cause}", path.display())]
     Io {
         path: PathBuf,
-        source: std::io::Error,
+        cause: std::io::Error,
     },
-    #[error("{path} already exists (pass --force to replace it)")]
-    Exists { path: PathBuf },
+    #[error(transparent)]
+    Output(#[from] OutputError),
     /// The whole cause in the message (`...: File too large`) and no error source, so that a
     /// chain printer does not repeat it.
-    #[error("{path}: MCAP: {}", crate::file::error_chain(error))]
+    #[error("{}: MCAP: {}", path.display(), crate::file::error_chain(error))]
     Mcap {
         path: PathBuf,
         error: mcap::McapError,
+    },
+    /// A write failed: the file written so far stays as `kept` (its complete chunks can be
+    /// salvaged), never at the output's name.
+    #[error(
+        "{}: MCAP: {}; what was written is kept in {} (`chaoscope recover` salvages its \
+         complete chunks)",
+        path.display(),
+        crate::file::error_chain(error),
+        kept.display()
+    )]
+    WriteFailed {
+        path: PathBuf,
+        error: mcap::McapError,
+        kept: PathBuf,
     },
     #[error("interrupted before any run started")]
     InterruptedBeforeRun,
@@ -84,26 +99,38 @@ pub enum RecordError {
     NoRun(Duration),
 }
 
-fn create_output(path: &Path, force: bool) -> Result<File, RecordError> {
-    let io = |source| RecordError::Io {
-        path: path.to_path_buf(),
-        source,
+/// The recording's output (see [`chaoscope_os::output`]): opened before anything else, so an
+/// output that cannot be written (or that another live recorder writes) is refused before the
+/// recorder tells a producer it is ready.
+pub fn open_output(out: &std::path::Path, force: bool) -> Result<Output, RecordError> {
+    let options = OutputOptions {
+        replace: force,
+        create_dir: true,
+        inputs: Vec::new(),
+        leftover: if force {
+            Leftover::Discard
+        } else {
+            Leftover::Refuse
+        },
+        // A recording that stops on an error keeps its complete chunks for `recover`.
+        keep_failed: true,
     };
-    if path.exists() && !force {
-        return Err(RecordError::Exists {
-            path: path.to_path_buf(),
-        });
-    }
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(io)?;
-    }
-    // Unbuffered on purpose: chunks are written whole, so a crash never leaves a half chunk
-    // sitting in a user-space buffer.
-    File::create(path).map_err(io)
+    Output::create(out, &options)
+        .map_err(|e| {
+            e.with_leftover_hint(|partial| {
+                format!(
+                    " (a recorder that was killed: `chaoscope recover {}` salvages its complete \
+                     chunks)",
+                    partial.display()
+                )
+            })
+        })
+        .map_err(RecordError::from)
 }
 
 /// Records one run to `options.out`.
 pub fn record(options: &RecordOptions) -> Result<RecordOutcome, RecordError> {
+    let output = open_output(&options.out, options.force)?;
     let run = match &options.run {
         Some(run) => {
             names::validate_run_name(run).map_err(RecordError::RunName)?;
@@ -127,12 +154,14 @@ pub fn record(options: &RecordOptions) -> Result<RecordOutcome, RecordError> {
         path: path.clone(),
         error,
     };
-    let file = create_output(&path, options.force)?;
+    // Unbuffered on purpose: chunks are written whole, so a crash never leaves a half chunk
+    // sitting in a user-space buffer.
+    let file = output.file()?;
     let recording = Recording::start(file, &header, &options.file).map_err(mcap_err)?;
     // Encoding, compression and writing on a thread of their own (see `write_thread`).
-    let mut recording = WriteThread::start(recording).map_err(|source| RecordError::Io {
+    let mut recording = WriteThread::start(recording).map_err(|cause| RecordError::Io {
         path: path.clone(),
-        source,
+        cause,
     })?;
 
     let mut invalid_frames = 0;
@@ -178,12 +207,16 @@ pub fn record(options: &RecordOptions) -> Result<RecordOutcome, RecordError> {
         Ended::Signal => FinalizedBy::Signal,
         Ended::ProducerGone => FinalizedBy::ProducerDied,
     };
-    // On a write error this still leaves a readable file behind, and returns the error.
-    let (file, summary) = recording.finish(reason).map_err(mcap_err)?;
-    file.sync_all().map_err(|source| RecordError::Io {
-        path: path.clone(),
-        source,
-    })?;
+    // On a write error this still finalizes the file as far as it goes, and returns the error;
+    // the file then stays at its in-progress name.
+    let summary = match recording.finish(reason) {
+        Ok((_file, summary)) => summary,
+        Err(error) => {
+            let kept = output.keep();
+            return Err(RecordError::WriteFailed { path, error, kept });
+        }
+    };
+    output.commit()?;
     if reason == FinalizedBy::ProducerDied {
         bus::cleanup_dead_nodes();
     }

@@ -38,8 +38,8 @@ pub enum RecoverError {
         "{path} is the input file: recover never writes over its input (choose another output)"
     )]
     SameFile { path: PathBuf },
-    #[error("{path} already exists (pass --force to replace it)")]
-    Exists { path: PathBuf },
+    #[error(transparent)]
+    Output(#[from] chaoscope_os::OutputError),
     /// The whole cause in the message (`...: File too large`) and no error source, so that a
     /// chain printer does not repeat it.
     #[error("{path}: MCAP: {}", crate::file::error_chain(error))]
@@ -49,7 +49,9 @@ pub enum RecoverError {
     },
 }
 
-/// Copies the readable records of `input` into a new file at `output`.
+/// Copies the readable records of `input` into a new file at `output` (through
+/// [`chaoscope_os::output`]: complete or not at all). `input` may be the in-progress file a
+/// killed writer left for `output` (`NAME.partial` recovered into `NAME`): it is left as it is.
 pub fn recover(input: &Path, output: &Path, force: bool) -> Result<RecoverReport, RecoverError> {
     let (scanner, identity) = Scanner::open_file(input).map_err(|e| match e {
         FileError::Io { path, source } => RecoverError::Io { path, source },
@@ -60,21 +62,21 @@ pub fn recover(input: &Path, output: &Path, force: bool) -> Result<RecoverReport
             path: output.into(),
         });
     }
-    if output.exists() && !force {
-        return Err(RecoverError::Exists {
-            path: output.into(),
-        });
-    }
-    let out = File::create(output).map_err(|source| RecoverError::Io {
-        path: output.into(),
-        source,
-    })?;
-    let result = salvage(scanner, out, input, output);
-    if result.is_err() {
-        // A half-written salvage is no use; the error says what went wrong.
-        let _ = std::fs::remove_file(output);
-    }
-    result
+    let options = chaoscope_os::OutputOptions {
+        replace: force,
+        create_dir: false,
+        inputs: vec![input.to_path_buf()],
+        // Another killed writer's file for this name is not ours to discard.
+        leftover: chaoscope_os::Leftover::Resume,
+        keep_failed: false,
+    };
+    let mut out = chaoscope_os::Output::create(output, &options)?;
+    let file = out.start_fresh()?;
+    // A half-written salvage is no use: on an error it is removed (dropping `out`), and the
+    // error says what went wrong.
+    let report = salvage(scanner, file, input, output)?;
+    out.commit()?;
+    Ok(report)
 }
 
 /// Whether `output` is the file `input` is (opened, with metadata `identity`): the same path

@@ -214,6 +214,12 @@ impl RunSubscription {
             let _ = self.listener.try_wait(|_| {});
             let mut idle = true;
             loop {
+                // A producer faster than this receiver keeps it draining: a signal must still
+                // end it now, not when the data stops.
+                if chaoscope_os::signals::requested() {
+                    ended.set(Some(Ended::Signal));
+                    return CallbackProgression::Stop;
+                }
                 match self.drain(&mut f) {
                     Err(e) => *failure.borrow_mut() = Some(e),
                     Ok((_, true)) => ended.set(Some(Ended::Stopped)),
@@ -258,8 +264,12 @@ impl RunSubscription {
                 }
                 // `Interrupt` is any interrupted wait, also a process resumed by SIGCONT after
                 // SIGSTOP (epoll returns EINTR then): waiting again is right, since a SIGINT or
-                // SIGTERM is reported as `TerminationRequest` by the next wait.
-                if result == WaitSetRunResult::TerminationRequest {
+                // SIGTERM is reported as `TerminationRequest` by the next wait, and latched
+                // (`chaoscope_os::signals`) even when iceoryx2 lost it (a SIGCONT after it
+                // overwrites iceoryx2's record of the last signal).
+                if result == WaitSetRunResult::TerminationRequest
+                    || chaoscope_os::signals::requested()
+                {
                     return Ok(Ended::Signal);
                 }
             }

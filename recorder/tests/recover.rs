@@ -406,7 +406,7 @@ fn existing_output_needs_force_and_other_inputs_are_refused() {
     std::fs::write(&files.output, b"keep me").unwrap();
     assert!(matches!(
         recover(&files.input, &files.output, false),
-        Err(RecoverError::Exists { .. })
+        Err(RecoverError::Output(chaoscope_os::OutputError::Exists(_)))
     ));
     assert_eq!(std::fs::read(&files.output).unwrap(), b"keep me");
     assert!(recover(&files.input, &files.output, true).is_ok());

@@ -29,7 +29,9 @@ use chaoscope_schemas::config::{RunConfig, SchemeConfig};
 use chaoscope_schemas::run::Sample;
 
 use chaoscope_analyzer::recording::{ReadError, RecordingReader};
-use chaoscope_analyzer::write::SampleWriter;
+use chaoscope_analyzer::write::{SampleWriter, WriteError};
+use chaoscope_os::{Leftover, OutputOptions};
+use chaoscope_schemas::proto::end_of_run;
 
 pub mod inprocess;
 
@@ -41,9 +43,12 @@ pub struct ReplayOptions {
     pub d0s: Vec<f64>,
     /// Leave the original schemes out of the replay.
     pub without_original: bool,
-    /// Set from another thread to stop the replay (the output file is then removed); the
-    /// Python binding sets it on Ctrl-C.
+    /// Set from another thread to stop the replay (the Python binding sets it on Ctrl-C); a
+    /// SIGINT/SIGTERM latched by `chaoscope_os::signals` stops it too. The output is then
+    /// finalized as an interrupted run: a valid file up to the last sample.
     pub stop: Option<Arc<AtomicBool>>,
+    /// Replace an existing output file (`--force`).
+    pub force: bool,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -63,10 +68,10 @@ pub enum ReplayError {
         path: String,
         source: mcap::McapError,
     },
+    #[error(transparent)]
+    Output(#[from] WriteError),
     #[error("nothing to replay: give --tau and/or --d0")]
     Nothing,
-    #[error("replay interrupted")]
-    Interrupted,
 }
 
 impl From<SpecError> for ReplayError {
@@ -91,6 +96,9 @@ pub struct ReplayOutcome {
     /// Step of the first difference, if any.
     pub first_difference_step: Option<u64>,
     pub replay_samples: u64,
+    /// Stopped by a signal (or the caller) before the end: the file holds the samples up to
+    /// then and says it was interrupted.
+    pub interrupted: bool,
 }
 
 impl ReplayOutcome {
@@ -183,7 +191,15 @@ pub fn replay(
         path: output.display().to_string(),
         source,
     };
-    let mut writer = SampleWriter::create(output, &new_header).map_err(werr)?;
+    let output_options = OutputOptions {
+        replace: options.force,
+        inputs: vec![input.to_path_buf()],
+        // A killed replay's file is no use: it is computed again.
+        leftover: Leftover::Discard,
+        ..Default::default()
+    };
+    // Dropped on an error (a damaged recording, a full disk), the half-written replay goes.
+    let mut writer = SampleWriter::create_with(output, &new_header, &output_options)?;
     let mut outcome = ReplayOutcome {
         schemes: new_config.schemes.iter().map(|s| s.name.clone()).collect(),
         ..Default::default()
@@ -196,8 +212,10 @@ pub fn replay(
                 .stop
                 .as_ref()
                 .is_some_and(|s| s.load(Ordering::Relaxed))
+                || chaoscope_os::signals::requested()
             {
-                return Err(ReplayError::Interrupted);
+                outcome.interrupted = true;
+                return Ok(());
             }
             writer.write(&sample).map_err(werr)?;
             outcome.replay_samples += 1;
@@ -217,12 +235,15 @@ pub fn replay(
         }
         Ok(())
     };
-    let result = replayed().and_then(|()| writer.finish("replay").map_err(werr));
-    if let Err(e) = result {
-        // A half-written replay is no use (a damaged recording, a full disk); the error says
-        // what went wrong.
-        let _ = std::fs::remove_file(output);
-        return Err(e);
+    replayed()?;
+    if outcome.interrupted {
+        writer.finish_with(
+            "signal",
+            end_of_run::Status::Interrupted,
+            "interrupted by a signal",
+        )?;
+    } else {
+        writer.finish("replay")?;
     }
     Ok(outcome)
 }

@@ -41,6 +41,11 @@ pub struct PublishOptions {
     pub linger: Duration,
     /// Draw a progress bar on stderr (only if it is a terminal).
     pub progress: bool,
+    /// Called once the run's services are open (no other live producer of this run holds them)
+    /// and the header is announced, before waiting for the recorders: `chaoscope run` starts
+    /// its recorder only then, so a recorder never records another producer's run of the same
+    /// name.
+    pub on_open: Option<fn()>,
 }
 
 impl Default for PublishOptions {
@@ -51,9 +56,13 @@ impl Default for PublishOptions {
             wait_timeout: None,
             linger: Duration::from_secs(30),
             progress: true,
+            on_open: None,
         }
     }
 }
+
+/// The failure of a run whose recorders all left before its end.
+pub const RECORDERS_LEFT: &str = "every recorder left before the end of the run";
 
 /// How a run ended.
 #[derive(Debug, Clone, PartialEq)]
@@ -167,6 +176,9 @@ pub fn publish(
         OpenAloneError::Bus(e) => PublishError::Bus(e),
     })?;
     ports.announce(&header)?;
+    if let Some(on_open) = options.on_open {
+        on_open();
+    }
 
     let start = Instant::now();
     let mut publisher = RunPublisher {
@@ -295,6 +307,16 @@ impl RunPublisher<'_> {
                 return Err(e.into());
             }
             if last_refresh.elapsed() > bus::POLL_INTERVAL {
+                // Recorders that left before the end (a failed write, a kill once its node is
+                // cleaned up) leave nobody to compute for.
+                // (Recorders that finalized on the signal this process got too: interrupted.)
+                if options.recorders > 0 && self.ports.data_subscribers() == 0 {
+                    break if termination.requested() {
+                        RunStatus::Interrupted
+                    } else {
+                        RunStatus::Failed(RECORDERS_LEFT.to_string())
+                    };
+                }
                 // New subscribers (monitors, late recorders) get the run header.
                 self.ports.refresh_connections();
                 progress.set_position(engine.current_step());

@@ -1,8 +1,11 @@
-//! A latched "stop requested" flag fed by iceoryx2's SIGINT/SIGTERM handler.
+//! A latched "stop requested" flag: SIGINT/SIGTERM, or a request from the caller.
 //!
-//! iceoryx2's `termination_requested()` forgets the signal once read; the publishing loop and
-//! the backpressure handler (which runs inside a blocked `send`) both need to see it, so the
-//! first reader latches it here.
+//! In the `chaoscope` command the signals come from `chaoscope_os::signals`, which latches the
+//! first one where no library can reset it. A process that did not install that latch (a
+//! program using the library, like `examples/custom-model`) keeps the earlier behaviour: the
+//! flag iceoryx2's handler sets, read once and latched here (iceoryx2 forgets it once read, and
+//! the publishing loop and the backpressure handler both need to see it). Inside Python neither
+//! handler is installed and the bindings call [`Termination::request`] on Ctrl-C.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -22,11 +25,15 @@ impl Termination {
         if self.0.load(Ordering::Relaxed) {
             return true;
         }
-        if SignalHandler::termination_requested() {
+        let signalled = if chaoscope_os::signals::installed() {
+            chaoscope_os::signals::requested()
+        } else {
+            SignalHandler::termination_requested()
+        };
+        if signalled {
             self.request();
-            return true;
         }
-        false
+        signalled
     }
 
     pub fn request(&self) {

@@ -457,7 +457,7 @@ fn valid_files_with_hostile_values_never_panic() {
         let result = catch_unwind(AssertUnwindSafe(|| {
             analyze_file(&path, &AnalysisOptions::default()).map(|(analysis, _)| {
                 let csv = dir.path().join(format!("csv{case}"));
-                let files = write_csv(&analysis, &csv).expect("CSV written");
+                let files = write_csv(&analysis, &csv, &[]).expect("CSV written");
                 (analysis.report(), files)
             })
         }))

@@ -3,8 +3,10 @@
 
 mod cli;
 
+use std::io::Write;
 use std::process::ExitCode;
 
+use chaoscope_os::stdout::StdoutError;
 use clap::{Parser, Subcommand};
 
 #[derive(Parser)]
@@ -57,6 +59,10 @@ fn main() -> ExitCode {
     // the process with SIGXFSZ and no message.
     // SAFETY: setting a signal's disposition to SIG_IGN before any thread starts.
     unsafe { libc::signal(libc::SIGXFSZ, libc::SIG_IGN) };
+    // SIGINT/SIGTERM from the first instant: until a command says it finalizes its files
+    // (`Mode::Finish`), a signal removes this process's unfinished outputs and exits with
+    // 128 + the signal (130, 143).
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
     let result = match Cli::parse().command {
         Command::Run(args) => cli::run::main(args),
         Command::Produce(args) => cli::produce::main(args),
@@ -73,8 +79,36 @@ fn main() -> ExitCode {
         Command::Chart(args) => cli::chart::main(args),
         Command::Config(args) => cli::config::main(args),
     };
+    // What `print!` left buffered, and whether stdout took it (a full disk fails here).
+    let result = result.and_then(|code| Ok(chaoscope_os::stdout::flush().map(|()| code)?));
     result.unwrap_or_else(|e| {
-        eprintln!("chaoscope: error: {e:#}");
+        // A reader that went away (`| head`) ends the command quietly, as SIGPIPE would.
+        if let Some(StdoutError::Closed) = e.downcast_ref::<StdoutError>() {
+            return ExitCode::from(chaoscope_os::stdout::CLOSED_STATUS);
+        }
+        // Not `eprintln!`, which panics when stderr is closed or full.
+        let _ = writeln!(
+            std::io::stderr().lock(),
+            "chaoscope: error: {}",
+            one_line(&e)
+        );
         ExitCode::FAILURE
     })
+}
+
+/// The error and its causes on one line, each cause once: many errors quote their cause in
+/// their own message (`FILE: No such file or directory`), and `{:#}` would repeat it.
+fn one_line(e: &anyhow::Error) -> String {
+    let mut line = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if line.contains(&text) {
+            continue;
+        }
+        if !line.is_empty() {
+            line.push_str(": ");
+        }
+        line.push_str(&text);
+    }
+    line
 }

@@ -256,9 +256,21 @@ fn names_per_run() -> usize {
     5
 }
 
-/// Reads `file`: a finalized file as it is, otherwise what `chaoscope recover` salvages.
-/// `None` when there is nothing to read (the recorder died before writing its first bytes).
-fn read_or_recover(file: &Path, dir: &Path, i: usize) -> Option<(Recorded, bool)> {
+/// Reads the recording `out`: a finalized file as it is, otherwise what `chaoscope recover`
+/// salvages from the in-progress file a killed recorder left (`out.partial`; `out` itself only
+/// ever holds a finalized file). `None` when there is nothing to read (the recorder died
+/// before writing its first bytes).
+fn read_or_recover(out: &Path, dir: &Path, i: usize) -> Option<(Recorded, bool)> {
+    let partial = chaoscope_os::output::partial_path(out);
+    let file = if out.exists() {
+        assert!(
+            !partial.exists(),
+            "run {i}: both {out:?} and its in-progress file"
+        );
+        out
+    } else {
+        &partial
+    };
     let Ok(meta) = std::fs::metadata(file) else {
         return None;
     };
@@ -435,7 +447,8 @@ fn killing_any_process_at_any_moment_loses_nothing_but_the_tail_and_leaves_no_st
             let mut killed = killed;
             killed.wait(LIMIT);
             // The survivor ends on its own: a recorder finalizes ("producer-died"), a producer
-            // streams on to its end without blocking on the dead recorder. Only one killed
+            // never blocks on the dead recorder (it streams on to its end, or stops once the
+            // dead recorder is cleaned up: exit 3, its recorders left). Only one killed
             // before the two met (the recorder before its ready handshake, the producer before
             // its header) still waits for its peer: it must then be waiting, not streaming,
             // and stop at once on SIGINT.
@@ -459,6 +472,10 @@ fn killing_any_process_at_any_moment_loses_nothing_but_the_tail_and_leaves_no_st
                     // went away before publishing its run header"), exit 1, with no data.
                     waited_for_peer = true;
                     "killed before the two met; the recorder reported it, exit 1"
+                } else if victim == Victim::Recorder && status.code() == Some(3) {
+                    // The producer found its recorder gone (once the dead node was cleaned up)
+                    // and stopped rather than compute the rest of the run for nobody.
+                    "killed recorder; the producer ended, its recorder gone"
                 } else {
                     assert!(
                         status.success(),

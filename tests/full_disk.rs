@@ -100,14 +100,28 @@ fn a_recorder_hitting_a_full_disk_stops_clearly_and_keeps_its_complete_chunks() 
     );
     assert!(!recorder_status.success(), "{recorder_err}");
     assert_eq!(recorder_status.code(), Some(1), "{recorder_err}");
+    // One line, naming the file, the cause and where what was written is kept.
+    let partial = chaoscope_os::output::partial_path(&out);
+    assert_eq!(recorder_err.lines().count(), 1, "{recorder_err}");
     let line = recorder_err.lines().last().unwrap_or("");
     assert!(
-        line.contains(out.to_str().unwrap()) && line.contains("File too large"),
+        line.contains(out.to_str().unwrap())
+            && line.contains("File too large")
+            && line.contains(partial.to_str().unwrap()),
         "the error names neither the file nor the cause: {recorder_err}"
     );
     assert!(!recorder_err.contains("panicked"), "{recorder_err}");
-    let size = std::fs::metadata(&out).unwrap().len();
+    // The output's name only ever holds a finished file.
+    assert!(!out.exists(), "a failed recording took the output's name");
+    let size = std::fs::metadata(&partial).unwrap().len();
     assert!(size <= 300_000, "{size} bytes");
+    // The producer is not left computing for nobody: it ends with one line saying why.
+    assert_eq!(producer_status.code(), Some(3), "{producer_err}");
+    assert_eq!(producer_err.lines().count(), 1, "{producer_err}");
+    assert!(
+        producer_err.contains("every recorder left before the end of the run"),
+        "{producer_err}"
+    );
 
     // Every complete chunk is kept: recover salvages them, and they are exactly the start of
     // the run.
@@ -116,7 +130,7 @@ fn a_recorder_hitting_a_full_disk_stops_clearly_and_keeps_its_complete_chunks() 
         let mut c = Command::new(CHAOSCOPE);
         c.args([
             "recover",
-            out.to_str().unwrap(),
+            partial.to_str().unwrap(),
             "--out",
             fixed.to_str().unwrap(),
         ]);
@@ -259,4 +273,239 @@ fn recover_to_an_output_it_cannot_write_fails_clearly_and_leaves_nothing() {
         "{err}"
     );
     assert!(!out.exists(), "a partial output was left behind");
+    assert!(
+        !chaoscope_os::output::partial_path(&out).exists(),
+        "its in-progress file was left behind"
+    );
+}
+
+/// Runs `command` (its stdout as the caller set it) to its end, or kills it after `limit`
+/// (`None`).
+fn output_within(mut command: Command, limit: Duration) -> Option<Output> {
+    let mut child = command
+        .stdin(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    Some(child.wait_with_output().unwrap())
+}
+
+/// Issue #24, failing partners: when `chaoscope run`'s recorder cannot write its output, both
+/// processes end at once and the user reads one line naming the file and the cause (before:
+/// two error lines, then the producer waited for its dead recorder forever). Two ways to fail:
+/// a directory that cannot be made (under /proc, which root cannot write either), and an
+/// in-progress name taken by something that is not chaoscope's (`run`'s own check of the
+/// output passes, the recorder refuses).
+#[test]
+fn a_run_whose_recorder_cannot_write_ends_at_once_with_one_line() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let config = common::write_config(dir, &common::hh_config(1e4, 0.01).to_toml());
+    let taken = dir.join("taken.mcap");
+    std::fs::create_dir(chaoscope_os::output::partial_path(&taken)).unwrap();
+    for (out, cause) in [
+        (
+            Path::new("/proc/chaoscope-no-such-dir/run.mcap").to_path_buf(),
+            "No such file or directory",
+        ),
+        (taken.clone(), "not a regular file"),
+    ] {
+        let mut run = Command::new(CHAOSCOPE);
+        run.args([
+            "run",
+            config.to_str().unwrap(),
+            "--run",
+            &unique_run("unwritable"),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        run.stdout(Stdio::null());
+        let o = output_within(run, Duration::from_secs(30))
+            .unwrap_or_else(|| panic!("run --out {out:?} did not end within 30 s"));
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{out:?}: {stderr}");
+        assert_eq!(stderr.trim_end().lines().count(), 1, "{out:?}: {stderr}");
+        let parent = out.parent().unwrap().to_str().unwrap();
+        assert!(
+            stderr.contains(parent) && stderr.contains(cause),
+            "{out:?}: {stderr}"
+        );
+        assert!(!out.exists());
+    }
+    assert!(chaoscope_os::output::partial_path(&taken).is_dir());
+}
+
+/// Issue #24, failing writes to standard output: a reader that goes away (`| head`) ends every
+/// printing command quietly with 141 (what a shell shows for a filter killed by SIGPIPE), and a
+/// full disk (`> /dev/full`) is one error line and a non-zero exit (before: a panic with exit
+/// status 101, and `analyze --json > /dev/full` exited 0 having written nothing). Live
+/// followers (`monitor --json-lines`, `map-watch --json-lines`) end too instead of following
+/// on into a closed pipe.
+#[test]
+fn a_closed_pipe_ends_quietly_and_a_full_standard_output_is_one_error() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let config = common::write_config(dir, &common::hh_config(2.0, 0.01).to_toml());
+    let recording = dir.join("run.mcap");
+    common::run_ok(&[
+        "run",
+        config.to_str().unwrap(),
+        "--run",
+        &unique_run("pipes"),
+        "--out",
+        recording.to_str().unwrap(),
+    ]);
+    let map_config = dir.join("map.toml");
+    std::fs::write(&map_config, include_str!("data/hh-map-small.toml")).unwrap();
+    let shard = dir.join("shard.mcap");
+    common::run_ok(&[
+        "map",
+        map_config.to_str().unwrap(),
+        "--out",
+        shard.to_str().unwrap(),
+        "--no-progress",
+        "--name",
+        &unique_run("pipes-map"),
+    ]);
+    // Live sources for the followers: a run producing for nobody, a map of long orbits.
+    let long = dir.join("long.toml");
+    std::fs::write(&long, common::hh_config(1e6, 0.01).to_toml()).unwrap();
+    let live_run = unique_run("pipes-live");
+    let mut producer = Proc::spawn(common::chaoscope(&[
+        "produce",
+        long.to_str().unwrap(),
+        "--run",
+        &live_run,
+        "--recorders",
+        "0",
+        "--no-progress",
+    ]));
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let mut n = 0;
+    let mut commands: Vec<Vec<String>> = vec![
+        // The followers first, while their sources live.
+        vec!["monitor".into(), live_run.clone(), "--json-lines".into()],
+        // The watcher of a map started after it (below), so that it sees the map from its
+        // header on.
+        vec!["map-watch".into(), String::new(), "--json-lines".into()],
+        vec!["analyze".into(), s(&recording)],
+        vec!["analyze".into(), s(&recording), "--json".into()],
+        vec!["merge".into(), s(&shard), "--json".into(), "--force".into()],
+        vec![
+            "map".into(),
+            s(&map_config),
+            "--json".into(),
+            "--no-progress".into(),
+        ],
+        vec!["recover".into(), s(&recording), "--force".into()],
+        vec![
+            "replay".into(),
+            s(&recording),
+            "--tau".into(),
+            "0.02".into(),
+            "--force".into(),
+        ],
+        vec![
+            "replay".into(),
+            s(&recording),
+            "--tau".into(),
+            "0.02".into(),
+            "--json".into(),
+            "--force".into(),
+        ],
+    ];
+    for args in &mut commands {
+        // Each writes a file of its own.
+        if ["merge", "map", "recover", "replay"].contains(&args[0].as_str()) {
+            args.push("--out".into());
+            args.push(s(&dir.join(format!("out-{}.mcap", args[0]))));
+        }
+        if args[0] == "map" {
+            args.push("--name".into());
+            args.push(unique_run("pipes-m"));
+        }
+    }
+    for args in &commands {
+        for full in [false, true] {
+            n += 1;
+            let mut c = Command::new(CHAOSCOPE);
+            c.stdin(Stdio::null()).stderr(Stdio::piped());
+            let watched = unique_run("pipes-watched");
+            if args[0] == "map-watch" {
+                c.args(["map-watch", &watched, "--json-lines"]);
+            } else {
+                c.args(args);
+            }
+            if full {
+                c.stdout(std::fs::File::create("/dev/full").unwrap());
+            } else {
+                // A reader that has gone away: the pipe's read end is closed before anything
+                // is written.
+                let (read, write) = std::io::pipe().unwrap();
+                drop(read);
+                c.stdout(write);
+            }
+            let watcher = (args[0] == "map-watch").then(|| {
+                std::thread::spawn({
+                    let (config, out, watched) =
+                        (map_config.clone(), dir.join("w.mcap"), watched.clone());
+                    move || {
+                        common::wait_for_node(&chaoscope_schemas::names::map_watcher_node_name(
+                            &watched,
+                        ));
+                        common::run_ok(&[
+                            "map",
+                            config.to_str().unwrap(),
+                            "--out",
+                            out.to_str().unwrap(),
+                            "--restart",
+                            "--no-progress",
+                            "--name",
+                            &watched,
+                        ]);
+                    }
+                })
+            });
+            let o = output_within(c, Duration::from_secs(60))
+                .unwrap_or_else(|| panic!("{args:?} (full {full}) did not end within 60 s"));
+            if let Some(w) = watcher {
+                w.join().unwrap();
+            }
+            let stderr = String::from_utf8_lossy(&o.stderr);
+            assert!(
+                o.status.code() != Some(101) && !stderr.contains("panicked"),
+                "{args:?}: {stderr}"
+            );
+            if full {
+                assert_eq!(o.status.code(), Some(1), "{args:?} > /dev/full: {stderr}");
+                let last = stderr.trim_end().lines().last().unwrap_or("");
+                assert_eq!(
+                    last,
+                    "chaoscope: error: writing to standard output: No space left on device \
+                     (os error 28)",
+                    "{args:?}: {stderr}"
+                );
+                assert_eq!(
+                    stderr.matches("chaoscope: error").count(),
+                    1,
+                    "{args:?}: more than one error: {stderr}"
+                );
+            } else {
+                assert_eq!(o.status.code(), Some(141), "{args:?} | closed: {stderr}");
+                assert!(!stderr.contains("error"), "{args:?} | closed: {stderr}");
+            }
+        }
+    }
+    producer.signal(libc::SIGINT);
+    assert_eq!(producer.wait(Duration::from_secs(60)).code(), Some(130));
+    eprintln!("{n} cases of closed and full standard output");
 }

@@ -11,6 +11,7 @@ use std::collections::BTreeSet;
 use std::io::Cursor;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+use std::time::{Duration, Instant};
 
 use chaoscope_recorder::file::{Compression, FileOptions};
 use chaoscope_recorder::map_file::MapFile;
@@ -318,4 +319,526 @@ fn resuming_a_foreign_map_writes_nothing_and_leaves_it_untouched() {
             "{what}: the map was changed"
         );
     }
+}
+
+/// A writer's arguments, from its case's directory and its output's path.
+type Arguments = Box<dyn Fn(&Path, &Path) -> Vec<String>>;
+
+/// Issue #24, paths: every command that writes a file writes it through one discipline
+/// (`chaoscope_os::output`): into `NAME.partial`, created exclusively, renamed onto `NAME` when
+/// complete. So, whatever sits at the output's name, and even with `--force`:
+/// - a FIFO or a device is neither opened, replaced nor removed (before: `replay` opened a FIFO
+///   and hung; as root `replay`/`recover --out /dev/null --force` deleted `/dev/null`; tested
+///   here on a twin of `/dev/null` made with mknod when the test runs as root);
+/// - a hard or symbolic link to one of the command's inputs is refused and the input kept
+///   (before: `replay --out` a hard link of its input overwrote the input);
+/// - a dangling symbolic link is not followed: nothing appears where it points;
+/// - a directory is refused and kept;
+///
+/// and no in-progress file is left behind.
+#[test]
+fn no_writer_replaces_a_special_file_or_an_input_nor_follows_a_link() {
+    let place = Place::new();
+    let inputs = place.path("inputs");
+    let run = inputs.join("run.mcap");
+    let config = common::write_config(&inputs, &common::hh_config(2.0, 0.01).to_toml());
+    let ran = common::chaoscope_captured(&[
+        "run",
+        config.to_str().unwrap(),
+        "--run",
+        &common::unique_run("paths"),
+        "--out",
+        run.to_str().unwrap(),
+    ])
+    .output()
+    .unwrap();
+    assert!(
+        ran.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ran.stderr)
+    );
+    let map_config = inputs.join("map.toml");
+    std::fs::write(&map_config, include_str!("data/hh-map-small.toml")).unwrap();
+    let shard = inputs.join("shard.mcap");
+    common::run_ok(&[
+        "map",
+        map_config.to_str().unwrap(),
+        "--out",
+        shard.to_str().unwrap(),
+        "--no-progress",
+        "--name",
+        &common::unique_run("paths-map"),
+    ]);
+    let chart = inputs.join("chart.json");
+    std::fs::write(
+        &chart,
+        r#"{"title": "t", "x_label": "x", "y_label": "y", "lines": [{"points": [[0, 0], [1, 1]]}]}"#,
+    )
+    .unwrap();
+
+    /// A command writing `target` (in `dir`), and the input a link at `target` aims at.
+    struct Writer {
+        what: &'static str,
+        args: Arguments,
+        /// The output's name within the case's directory.
+        name: &'static str,
+        input: PathBuf,
+    }
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let (run_s, shard_s, map_s, config_s, chart_s) =
+        (s(&run), s(&shard), s(&map_config), s(&config), s(&chart));
+    let writers = vec![
+        Writer {
+            what: "replay",
+            args: Box::new({
+                let run_s = run_s.clone();
+                move |_, t| {
+                    vec![
+                        "replay".into(),
+                        run_s.clone(),
+                        "--tau".into(),
+                        "0.02".into(),
+                        "--out".into(),
+                        s(t),
+                        "--force".into(),
+                    ]
+                }
+            }),
+            name: "out.mcap",
+            input: run.clone(),
+        },
+        Writer {
+            what: "recover",
+            args: Box::new({
+                let run_s = run_s.clone();
+                move |_, t| {
+                    vec![
+                        "recover".into(),
+                        run_s.clone(),
+                        "--out".into(),
+                        s(t),
+                        "--force".into(),
+                    ]
+                }
+            }),
+            name: "out.mcap",
+            input: run.clone(),
+        },
+        Writer {
+            what: "merge",
+            args: Box::new({
+                let shard_s = shard_s.clone();
+                move |_, t| {
+                    vec![
+                        "merge".into(),
+                        shard_s.clone(),
+                        "--out".into(),
+                        s(t),
+                        "--force".into(),
+                    ]
+                }
+            }),
+            name: "out.mcap",
+            input: shard.clone(),
+        },
+        Writer {
+            what: "map --out",
+            args: Box::new({
+                let map_s = map_s.clone();
+                move |_, t| {
+                    vec![
+                        "map".into(),
+                        map_s.clone(),
+                        "--out".into(),
+                        s(t),
+                        "--restart".into(),
+                        "--no-progress".into(),
+                        "--name".into(),
+                        common::unique_run("paths-out"),
+                    ]
+                }
+            }),
+            name: "out.mcap",
+            input: map_config.clone(),
+        },
+        Writer {
+            what: "map --png",
+            args: Box::new({
+                let map_s = map_s.clone();
+                move |d, t| {
+                    vec![
+                        "map".into(),
+                        map_s.clone(),
+                        "--out".into(),
+                        s(&d.join("m.mcap")),
+                        "--png".into(),
+                        s(t),
+                        "--restart".into(),
+                        "--no-progress".into(),
+                        "--name".into(),
+                        common::unique_run("paths-png"),
+                    ]
+                }
+            }),
+            name: "map.png",
+            input: map_config.clone(),
+        },
+        Writer {
+            what: "analyze --csv",
+            args: Box::new({
+                let run_s = run_s.clone();
+                move |d, _| vec!["analyze".into(), run_s.clone(), "--csv".into(), s(d)]
+            }),
+            name: "vm.csv",
+            input: run.clone(),
+        },
+        Writer {
+            what: "analyze --plot",
+            args: Box::new({
+                let run_s = run_s.clone();
+                move |d, _| vec!["analyze".into(), run_s.clone(), "--plot".into(), s(d)]
+            }),
+            name: "gali_vm.png",
+            input: run.clone(),
+        },
+        Writer {
+            what: "section --csv",
+            args: Box::new({
+                let map_s = map_s.clone();
+                move |_, t| {
+                    vec![
+                        "section".into(),
+                        map_s.clone(),
+                        "--vary".into(),
+                        "q2".into(),
+                        "--from".into(),
+                        "-0.1".into(),
+                        "--to".into(),
+                        "0.1".into(),
+                        "--count".into(),
+                        "2".into(),
+                        "--csv".into(),
+                        s(t),
+                    ]
+                }
+            }),
+            name: "section.csv",
+            input: map_config.clone(),
+        },
+        Writer {
+            what: "chart",
+            args: Box::new({
+                let chart_s = chart_s.clone();
+                move |d, _| {
+                    vec![
+                        "chart".into(),
+                        chart_s.clone(),
+                        "--out".into(),
+                        s(&d.join("c")),
+                    ]
+                }
+            }),
+            name: "c.png",
+            input: chart.clone(),
+        },
+        Writer {
+            what: "run",
+            args: Box::new({
+                let config_s = config_s.clone();
+                move |_, t| {
+                    vec![
+                        "run".into(),
+                        config_s.clone(),
+                        "--run".into(),
+                        common::unique_run("paths-run"),
+                        "--out".into(),
+                        s(t),
+                        "--force".into(),
+                    ]
+                }
+            }),
+            name: "out.mcap",
+            input: config.clone(),
+        },
+    ];
+
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    enum Planted {
+        Fifo,
+        Device,
+        HardLinkToInput,
+        SymlinkToInput,
+        DanglingLink,
+        Directory,
+    }
+    // SAFETY: geteuid(2) cannot fail.
+    let root = unsafe { libc::geteuid() } == 0;
+    let mut planted = vec![
+        Planted::Fifo,
+        Planted::HardLinkToInput,
+        Planted::SymlinkToInput,
+        Planted::DanglingLink,
+        Planted::Directory,
+    ];
+    if root {
+        planted.push(Planted::Device);
+    }
+    let inputs_before: Vec<(PathBuf, Vec<u8>)> = [&run, &shard, &map_config, &config, &chart]
+        .iter()
+        .map(|p| (p.to_path_buf(), std::fs::read(p).unwrap()))
+        .collect();
+    let mut cases = 0;
+    let mut failures = Vec::new();
+    for (wi, w) in writers.iter().enumerate() {
+        for (pi, &p) in planted.iter().enumerate() {
+            let dir = place.path(&format!("given/{wi}-{pi}"));
+            std::fs::create_dir_all(&dir).unwrap();
+            let target = dir.join(w.name);
+            let aim = place.path(&format!("given/aim-{wi}-{pi}"));
+            let c = |p: &Path| std::ffi::CString::new(p.to_str().unwrap()).unwrap();
+            match p {
+                Planted::Fifo => {
+                    // SAFETY: mkfifo(3) on a NUL-terminated path.
+                    assert_eq!(unsafe { libc::mkfifo(c(&target).as_ptr(), 0o600) }, 0);
+                }
+                Planted::Device => {
+                    // A twin of /dev/null (character device 1:3), which only root can make.
+                    let dev = libc::makedev(1, 3);
+                    // SAFETY: mknod(2) on a NUL-terminated path.
+                    let made =
+                        unsafe { libc::mknod(c(&target).as_ptr(), libc::S_IFCHR | 0o666, dev) };
+                    assert_eq!(made, 0, "mknod: {}", std::io::Error::last_os_error());
+                }
+                Planted::HardLinkToInput => std::fs::hard_link(&w.input, &target).unwrap(),
+                Planted::SymlinkToInput => std::os::unix::fs::symlink(&w.input, &target).unwrap(),
+                Planted::DanglingLink => std::os::unix::fs::symlink(&aim, &target).unwrap(),
+                Planted::Directory => std::fs::create_dir(&target).unwrap(),
+            }
+            let before = std::fs::symlink_metadata(&target).unwrap().file_type();
+            let args = (w.args)(&dir, &target);
+            let args: Vec<&str> = args.iter().map(String::as_str).collect();
+            cases += 1;
+            let case = format!("{} over {p:?}", w.what);
+            let Some(out) = output_within(&args, Duration::from_secs(60)) else {
+                failures.push(format!("{case}: did not end within 60 s (hung on it?)"));
+                continue;
+            };
+            let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
+            if out.status.code() == Some(101) || stderr.contains("panicked") {
+                failures.push(format!("{case}: panicked: {stderr}"));
+            }
+            let after = std::fs::symlink_metadata(&target).map(|m| m.file_type());
+            match p {
+                Planted::DanglingLink => {
+                    if aim.exists() {
+                        failures.push(format!("{case}: followed the link and wrote {aim:?}"));
+                    }
+                }
+                _ => {
+                    if after.as_ref().ok() != Some(&before) {
+                        failures.push(format!("{case}: {before:?} became {after:?}"));
+                    }
+                    if out.status.success() && p != Planted::Directory {
+                        failures.push(format!("{case}: succeeded: {stderr}"));
+                    }
+                    // One line, naming the output.
+                    if !out.status.success()
+                        && (stderr.trim_end().lines().count() != 1
+                            || !stderr.contains(target.to_str().unwrap()))
+                    {
+                        failures.push(format!("{case}: error is not one line naming it: {stderr}"));
+                    }
+                }
+            }
+            let left: Vec<_> = std::fs::read_dir(&dir)
+                .unwrap()
+                .flatten()
+                .map(|e| e.file_name().to_string_lossy().into_owned())
+                .filter(|n| n.contains(".partial"))
+                .collect();
+            if !left.is_empty() {
+                failures.push(format!("{case}: left {left:?}"));
+            }
+            for (path, bytes) in &inputs_before {
+                if std::fs::read(path).ok().as_ref() != Some(bytes) {
+                    failures.push(format!("{case}: the input {path:?} changed"));
+                }
+            }
+        }
+    }
+    eprintln!(
+        "{cases} cases ({} writers x {} planted files)",
+        writers.len(),
+        planted.len()
+    );
+    assert!(
+        failures.is_empty(),
+        "{} of {cases} cases failed:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
+}
+
+/// `chaoscope ARGS` with its output; `None` (after killing it) if it runs past `limit`.
+fn output_within(args: &[&str], limit: Duration) -> Option<Output> {
+    let mut child = Command::new(CHAOSCOPE)
+        .args(args)
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Read both pipes on threads, so a chatty child cannot block on a full pipe.
+    let mut stdout = child.stdout.take().unwrap();
+    let mut stderr = child.stderr.take().unwrap();
+    let read_out = std::thread::spawn(move || {
+        let mut v = Vec::new();
+        let _ = std::io::Read::read_to_end(&mut stdout, &mut v);
+        v
+    });
+    let read_err = std::thread::spawn(move || {
+        let mut v = Vec::new();
+        let _ = std::io::Read::read_to_end(&mut stderr, &mut v);
+        v
+    });
+    let start = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            return None;
+        }
+        std::thread::sleep(Duration::from_millis(10));
+    };
+    Some(Output {
+        status,
+        stdout: read_out.join().unwrap(),
+        stderr: read_err.join().unwrap(),
+    })
+}
+
+/// Waits until `path` exists (up to a minute).
+fn wait_for_file(path: &Path) {
+    let start = Instant::now();
+    while !path.exists() {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "{path:?} never appeared"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// Issue #24, paths: one writer per output. A second `map` of one `--out` is refused with one
+/// line while the first lives, and the first completes the whole map (before: the second
+/// deleted the first's live file and both said `complete`). `run --force` onto the file a live
+/// run writes is refused (before: the two runs mixed in one file), and a run refused as a
+/// duplicate of a live run's name leaves no file (before: its recorder recorded the other run).
+#[test]
+fn a_second_writer_of_one_output_is_refused_while_the_first_lives() {
+    let place = Place::new();
+    let dir = place.path("given");
+    // A map of a few seconds: long enough to be live while the second starts.
+    let config = place.path("inputs/map.toml");
+    std::fs::write(
+        &config,
+        include_str!("data/hh-map-small.toml").replace("t_final = 20.0", "t_final = 400.0"),
+    )
+    .unwrap();
+    let out = dir.join("map.mcap");
+    let map = |name: &str| {
+        common::chaoscope_captured(&[
+            "map",
+            config.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--no-progress",
+            "--json",
+            "--threads",
+            "1",
+            "--name",
+            &common::unique_run(name),
+        ])
+    };
+    let first = map("first")
+        .stdout(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_file(&chaoscope_os::output::partial_path(&out));
+    let second = map("second").output().unwrap();
+    let stderr = String::from_utf8_lossy(&second.stderr);
+    assert_eq!(second.status.code(), Some(1), "{stderr}");
+    assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains(out.to_str().unwrap()) && stderr.contains("another live process"),
+        "{stderr}"
+    );
+    let done = first.wait_with_output().unwrap();
+    assert!(done.status.success(), "the first map failed");
+    let json: serde_json::Value = serde_json::from_slice(&done.stdout).unwrap();
+    assert_eq!(json["complete"], true, "{json}");
+    assert_eq!(json["computed"], 63, "{json}");
+    assert_eq!(common::map_points(&out).len(), 63);
+
+    // Two runs and one file.
+    let long = common::write_config(
+        &place.path("inputs"),
+        &common::hh_config(1e5, 0.01).to_toml(),
+    );
+    let first_name = common::unique_run("first-run");
+    let run_out = dir.join("run.mcap");
+    let mut first = common::Proc::spawn(common::chaoscope(&[
+        "run",
+        long.to_str().unwrap(),
+        "--run",
+        &first_name,
+        "--out",
+        run_out.to_str().unwrap(),
+    ]));
+    wait_for_file(&chaoscope_os::output::partial_path(&run_out));
+    let second = common::chaoscope_captured(&[
+        "run",
+        long.to_str().unwrap(),
+        "--run",
+        &common::unique_run("second-run"),
+        "--out",
+        run_out.to_str().unwrap(),
+        "--force",
+    ])
+    .output()
+    .unwrap();
+    let stderr = String::from_utf8_lossy(&second.stderr);
+    assert_eq!(second.status.code(), Some(1), "{stderr}");
+    assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
+    assert!(stderr.contains("another live process"), "{stderr}");
+    // A run of the live run's name, into a file of its own: refused, and no file.
+    let duplicate_out = dir.join("duplicate.mcap");
+    let duplicate = common::chaoscope_captured(&[
+        "run",
+        long.to_str().unwrap(),
+        "--run",
+        &first_name,
+        "--out",
+        duplicate_out.to_str().unwrap(),
+    ])
+    .output()
+    .unwrap();
+    let stderr = String::from_utf8_lossy(&duplicate.stderr);
+    assert_eq!(duplicate.status.code(), Some(1), "{stderr}");
+    assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
+    assert!(stderr.contains("already being produced"), "{stderr}");
+    assert!(
+        !duplicate_out.exists() && !chaoscope_os::output::partial_path(&duplicate_out).exists(),
+        "a refused run left a file"
+    );
+    first.signal(libc::SIGINT);
+    assert_eq!(first.wait(Duration::from_secs(60)).code(), Some(130));
+    // The first run's file holds the first run alone, every frame once.
+    let rec = common::read_recording(&run_out);
+    assert_eq!(rec.header.as_ref().unwrap().run_name, first_name);
+    common::assert_contiguous(&rec.frames);
+    assert_eq!(rec.recording.unwrap().run_status, "interrupted");
 }

@@ -11,8 +11,10 @@ use common::*;
 
 const LIMIT: Duration = Duration::from_secs(60);
 
-/// Waits until `path` holds at least `bytes` bytes (completed chunks are on disk).
-fn wait_for_size(path: &Path, bytes: u64) {
+/// Waits until the in-progress file of `out` (`out.partial`, renamed to `out` once the
+/// recording is finalized) holds at least `bytes` bytes (completed chunks are on disk).
+fn wait_for_size(out: &Path, bytes: u64) {
+    let path = &chaoscope_os::output::partial_path(out);
     let start = Instant::now();
     while std::fs::metadata(path).map(|m| m.len()).unwrap_or(0) < bytes {
         assert!(
@@ -52,14 +54,16 @@ fn kill_9_of_the_recorder_keeps_every_completed_chunk_and_recover_salvages_it() 
     wait_for_size(&broken, 400_000);
     recorder.signal(libc::SIGKILL);
     recorder.wait(LIMIT);
+    // A killed recorder's file never has the output's name: it stays in progress.
+    assert!(!broken.exists());
+    let broken = chaoscope_os::output::partial_path(&broken);
 
-    // The producer must not hang on its dead recorder: it still stops cleanly on SIGINT.
-    std::thread::sleep(Duration::from_millis(300));
-    producer.signal(libc::SIGINT);
+    // The producer neither hangs on its dead recorder nor computes on for nobody: once the
+    // dead recorder is cleaned up it ends by itself (the run failed: its recorders left).
     assert_eq!(
         producer.wait(LIMIT).code(),
-        Some(130),
-        "producer should report an interrupted run"
+        Some(3),
+        "producer should end, its recorder gone"
     );
 
     // The killed file has no summary; standard readers of the indexed layout reject it.
@@ -191,5 +195,673 @@ fn a_slow_recorder_loses_nothing_because_the_producer_waits() {
     assert_eq!(
         (summary.frames_missing, summary.run_status.as_str()),
         (0, "completed")
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// Issue #24, signals: the kill-and-signal matrix.
+//
+// Every long-running command, at every moment of its life, under load: SIGINT or SIGTERM ends
+// it within one second (every renormalization window of these configs is far shorter), with
+// exit status 130 or 143 (0 if it had finished its work when the signal came; a process
+// signalled before its own code runs dies of the signal, which a shell reports the same way),
+// and leaves a valid file at the output's name or none (a command that has nothing worth
+// finalizing ends at once and removes its unfinished output), never an in-progress file. The
+// partner of a signalled recorder or producer ends too. Moments are events seen from outside:
+// the process spawned, its program running (exec done), its in-progress file created, data in
+// it (or the C compiler building a potential's step kernels), its output in place.
+
+/// Longest time from the signal to the command's exit.
+const SIGNAL_BOUND: Duration = Duration::from_secs(1);
+/// How long a moment may take to come.
+const MOMENT_LIMIT: Duration = Duration::from_secs(60);
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Kind {
+    Run,
+    /// `record` signalled, its producer started first.
+    Record,
+    /// `produce` signalled, its recorder started first.
+    Produce,
+    /// The standard map (a discrete map, VM, batched).
+    Map,
+    /// A user-written potential: its C step kernels build while the map runs.
+    PotentialMap,
+    Replay,
+    Merge,
+    Recover,
+    Analyze,
+    Section,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Moment {
+    /// At once: the child may not have executed chaoscope yet.
+    Spawned,
+    /// Its program runs (exec done).
+    Started,
+    /// Its in-progress file exists.
+    Opened,
+    /// The system C compiler builds the step kernels.
+    Building,
+    /// Data flows: its in-progress file grew past its first bytes (`analyze`, which writes at
+    /// the end only: 100 ms into reading).
+    Mid,
+    /// Its output is in place: the work is done, the process is ending.
+    End,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Case {
+    kind: Kind,
+    threads: usize,
+    moment: Moment,
+    signal: i32,
+}
+
+/// Inputs shared by the cases (read only).
+struct Inputs {
+    dir: tempfile::TempDir,
+    long_run: std::path::PathBuf,
+    short_run: std::path::PathBuf,
+    /// A recording that takes a while to replay, and a short one.
+    long_recording: std::path::PathBuf,
+    short_recording: std::path::PathBuf,
+    long_map: std::path::PathBuf,
+    short_map: std::path::PathBuf,
+    long_potential: std::path::PathBuf,
+    short_potential: std::path::PathBuf,
+    shards: Vec<std::path::PathBuf>,
+    section: std::path::PathBuf,
+}
+
+fn fput_potential_map(n: usize, grid: usize, t_final: f64) -> String {
+    let q: Vec<String> = (1..=n)
+        .map(|i| {
+            format!(
+                "{}",
+                0.5 * (std::f64::consts::PI * i as f64 / (n + 1) as f64).sin()
+            )
+        })
+        .collect();
+    let p = vec!["0.0"; n].join(", ");
+    format!(
+        "[model]\nname = \"potential\"\nn = {n}\nboundary = \"fixed\"\nparams = {{ beta = 1.0 }}\n\
+         potential = \"sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)\"\n\
+         [orbit]\nq = [{}]\np = [{p}]\n\
+         [integrator]\nmethod = \"aba864\"\nh = 0.02\nt_final = {t_final}\n\
+         [deviations]\nk = 2\nsets = 1\nseed = 3\n\
+         [[scheme]]\nname = \"mpm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 1.0\n\
+         [map]\nx = {{ coord = \"q1\", min = -0.1, max = 0.1, n = {grid} }}\n\
+         y = {{ coord = \"q2\", min = -0.1, max = 0.1, n = {grid} }}\nindicator = \"gali\"\nk = 2\n",
+        q.join(", ")
+    )
+}
+
+fn standard_map(n: usize, t_final: u64) -> String {
+    format!(
+        "[model]\nname = \"map\"\nnext = [\"x1 + x2 + K*sin(x1)\", \"x2 + K*sin(x1)\"]\n\
+         params = {{ K = 1.0 }}\nmodulo = [6.283185307179586, 6.283185307179586]\n\
+         [orbit]\nx = [0.0, 0.0]\n[integrator]\nh = 1\nt_final = {t_final}\n\
+         [deviations]\nk = 2\nsets = 1\nseed = 1\n\
+         [[scheme]]\nname = \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 1\n\
+         [map]\nx = {{ coord = \"x1\", min = 0.0, max = 6.283185307179586, n = {n} }}\n\
+         y = {{ coord = \"x2\", min = -3.141592653589793, max = 3.141592653589793, n = {n} }}\n\
+         indicator = \"sali\"\n"
+    )
+}
+
+impl Inputs {
+    fn new() -> Self {
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str, text: &str| {
+            let p = dir.path().join(name);
+            std::fs::write(&p, text).unwrap();
+            p
+        };
+        let long_run = write("long-run.toml", &hh_config(1e6, 0.01).to_toml());
+        let short_run = write("short-run.toml", &hh_config(2.0, 0.01).to_toml());
+        let long_map = write("long-map.toml", &standard_map(10, 200_000));
+        let short_map = write("short-map.toml", &standard_map(4, 2_000));
+        let long_potential = write("long-potential.toml", &fput_potential_map(101, 4, 1000.0));
+        let short_potential = write("short-potential.toml", &fput_potential_map(101, 2, 5.0));
+        let section = write(
+            "section.toml",
+            &include_str!("data/hh-map-small.toml").replace("t_final = 20.0", "t_final = 200.0"),
+        );
+        let record = |config: &Path, name: &str| {
+            let out = dir.path().join(name);
+            run_ok(&[
+                "run",
+                config.to_str().unwrap(),
+                "--run",
+                &unique_run("matrix-input"),
+                "--out",
+                out.to_str().unwrap(),
+            ]);
+            out
+        };
+        // About 1.5 s of replay (more under load): 20 sets of k = 4.
+        let replayed = {
+            let mut c = hh_config(300.0, 0.5);
+            c.deviations = chaoscope_schemas::config::DeviationsConfig::random(4, 20, 11);
+            write("replayed.toml", &c.to_toml())
+        };
+        let long_recording = record(&replayed, "long.mcap");
+        let short_recording = record(&short_run, "short.mcap");
+        let map_config = write("shard-map.toml", include_str!("data/hh-map-small.toml"));
+        let shards = (0..2)
+            .map(|i| {
+                let out = dir.path().join(format!("shard-{i}.mcap"));
+                run_ok(&[
+                    "map",
+                    map_config.to_str().unwrap(),
+                    "--out",
+                    out.to_str().unwrap(),
+                    "--shard",
+                    &format!("{i}/2"),
+                    "--no-progress",
+                    "--name",
+                    &unique_run("matrix-shard"),
+                ]);
+                out
+            })
+            .collect();
+        Self {
+            dir,
+            long_run,
+            short_run,
+            long_recording,
+            short_recording,
+            long_map,
+            short_map,
+            long_potential,
+            short_potential,
+            shards,
+            section,
+        }
+    }
+}
+
+/// Two busy threads: the load the matrix runs under (with the cases themselves, more runnable
+/// threads than the machine has cores).
+struct Hog {
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+    threads: Vec<std::thread::JoinHandle<u64>>,
+}
+
+impl Hog {
+    fn start(threads: usize) -> Self {
+        let stop = std::sync::Arc::new(std::sync::atomic::AtomicBool::new(false));
+        let threads = (0..threads)
+            .map(|_| {
+                let stop = stop.clone();
+                std::thread::spawn(move || {
+                    let mut x = 0u64;
+                    while !stop.load(std::sync::atomic::Ordering::Relaxed) {
+                        for _ in 0..10_000 {
+                            x = std::hint::black_box(x.wrapping_mul(6364136223846793005) + 1);
+                        }
+                    }
+                    x
+                })
+            })
+            .collect();
+        Self { stop, threads }
+    }
+}
+
+impl Drop for Hog {
+    fn drop(&mut self) {
+        self.stop.store(true, std::sync::atomic::Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
+
+/// A spawned chaoscope process whose stderr goes to a file of the case.
+fn spawn_in(dir: &Path, tag: &str, args: &[String], env: &[(&str, String)]) -> Proc {
+    let mut c = std::process::Command::new(CHAOSCOPE);
+    c.args(args)
+        .stdin(std::process::Stdio::null())
+        .stdout(std::process::Stdio::null())
+        .stderr(std::fs::File::create(dir.join(format!("{tag}.stderr"))).unwrap());
+    for (k, v) in env {
+        c.env(k, v);
+    }
+    Proc::spawn(c)
+}
+
+/// Whether a process of `pid` runs chaoscope's own program (exec done).
+fn executing_chaoscope(pid: i32) -> bool {
+    std::fs::read_link(format!("/proc/{pid}/exe"))
+        .is_ok_and(|exe| exe == Path::new(CHAOSCOPE) || exe.ends_with("chaoscope"))
+}
+
+/// Any process whose command line mentions `needle` (the C compiler building into a cache).
+fn process_mentioning(needle: &str) -> bool {
+    std::fs::read_dir("/proc").unwrap().flatten().any(|e| {
+        e.file_name()
+            .to_str()
+            .is_some_and(|n| n.bytes().all(|b| b.is_ascii_digit()))
+            && std::fs::read(e.path().join("cmdline"))
+                .is_ok_and(|c| c.windows(needle.len()).any(|w| w == needle.as_bytes()))
+    })
+}
+
+fn size(path: &Path) -> u64 {
+    std::fs::metadata(path).map_or(0, |m| m.len())
+}
+
+/// How a case went.
+struct Outcome {
+    /// From the signal to the exit; `None` if the command had ended before the moment came.
+    took: Option<Duration>,
+    /// The whole case.
+    wall: Duration,
+}
+
+fn run_case(inputs: &Inputs, case: Case, n: usize) -> Result<Outcome, String> {
+    let case_start = Instant::now();
+    let work = tempfile::tempdir_in(inputs.dir.path()).unwrap();
+    let dir = work.path();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let long = !matches!(case.moment, Moment::End);
+    let cache = dir.join("kernel-cache");
+    let env = vec![("CHAOSCOPE_KERNEL_CACHE", s(&cache))];
+    let run = unique_run(&format!("matrix{n}"));
+    // The output (its name; a command may write several), and the partner process.
+    let (out, args, partner): (std::path::PathBuf, Vec<String>, Option<Vec<String>>) =
+        match case.kind {
+            Kind::Run => {
+                let out = dir.join("run.mcap");
+                let config = if long {
+                    &inputs.long_run
+                } else {
+                    &inputs.short_run
+                };
+                let args = ["run", &s(config), "--run", &run, "--out", &s(&out)];
+                (out, args.map(String::from).to_vec(), None)
+            }
+            Kind::Record | Kind::Produce => {
+                let out = dir.join("run.mcap");
+                let config = if long {
+                    &inputs.long_run
+                } else {
+                    &inputs.short_run
+                };
+                let produce = ["produce", &s(config), "--run", &run, "--no-progress"];
+                let record = ["record", "--run", &run, "--out", &s(&out)];
+                let (me, other): (Vec<String>, Vec<String>) = if case.kind == Kind::Record {
+                    (
+                        record.map(String::from).to_vec(),
+                        produce.map(String::from).to_vec(),
+                    )
+                } else {
+                    (
+                        produce.map(String::from).to_vec(),
+                        record.map(String::from).to_vec(),
+                    )
+                };
+                (out, me, Some(other))
+            }
+            Kind::Map | Kind::PotentialMap => {
+                let out = dir.join("map.mcap");
+                let config = match (case.kind, long) {
+                    (Kind::Map, true) => &inputs.long_map,
+                    (Kind::Map, false) => &inputs.short_map,
+                    (_, true) => &inputs.long_potential,
+                    (_, false) => &inputs.short_potential,
+                };
+                let threads = case.threads.to_string();
+                let args = [
+                    "map",
+                    &s(config),
+                    "--out",
+                    &s(&out),
+                    "--threads",
+                    &threads,
+                    "--no-progress",
+                    "--flush-interval",
+                    "0.1",
+                    "--name",
+                    &run,
+                ];
+                (out, args.map(String::from).to_vec(), None)
+            }
+            Kind::Replay => {
+                let out = dir.join("replay.mcap");
+                let input = if long {
+                    &inputs.long_recording
+                } else {
+                    &inputs.short_recording
+                };
+                let args = [
+                    "replay",
+                    &s(input),
+                    "--tau",
+                    "1.0",
+                    "--tau",
+                    "2.0",
+                    "--out",
+                    &s(&out),
+                ];
+                (out, args.map(String::from).to_vec(), None)
+            }
+            Kind::Merge => {
+                let out = dir.join("merged.mcap");
+                let mut args: Vec<String> = vec!["merge".into()];
+                args.extend(inputs.shards.iter().map(|p| s(p)));
+                args.extend([
+                    "--out".into(),
+                    s(&out),
+                    "--png".into(),
+                    s(&dir.join("m.png")),
+                ]);
+                (out, args, None)
+            }
+            Kind::Recover => {
+                let out = dir.join("recovered.mcap");
+                let args = ["recover", &s(&inputs.long_recording), "--out", &s(&out)];
+                (out, args.map(String::from).to_vec(), None)
+            }
+            Kind::Analyze => {
+                let csv = dir.join("csv");
+                let args = [
+                    "analyze",
+                    &s(&inputs.long_recording),
+                    "--csv",
+                    &s(&csv),
+                    "--plot",
+                    &s(&dir.join("plot")),
+                ];
+                (csv.join("vm.csv"), args.map(String::from).to_vec(), None)
+            }
+            Kind::Section => {
+                let out = dir.join("section.csv");
+                let args = [
+                    "section",
+                    &s(&inputs.section),
+                    "--vary",
+                    "q2",
+                    "--from",
+                    "-0.2",
+                    "--to",
+                    "0.2",
+                    "--count",
+                    if long { "400" } else { "3" },
+                    "--csv",
+                    &s(&out),
+                    "--plot",
+                    &s(dir),
+                ];
+                (out, args.map(String::from).to_vec(), None)
+            }
+        };
+    let partial = chaoscope_os::output::partial_path(&out);
+    // A partner first: a recorder waits for its run, a producer for its recorder.
+    let mut partner = partner.map(|a| spawn_in(dir, "partner", &a, &env));
+    if case.kind == Kind::Record {
+        wait_for_node(&names::producer_node_name(&run));
+    }
+    let mut me = spawn_in(dir, "me", &args, &env);
+    let pid = me.pid();
+    let mut reached = |what: &dyn Fn() -> bool| -> Result<bool, String> {
+        let start = Instant::now();
+        loop {
+            if what() {
+                return Ok(true);
+            }
+            if me.0.try_wait().unwrap().is_some() {
+                return Ok(false);
+            }
+            if start.elapsed() > MOMENT_LIMIT {
+                return Err(format!("{case:?}: its moment never came"));
+            }
+            std::thread::sleep(Duration::from_millis(2));
+        }
+    };
+    let opened_size = std::cell::Cell::new(0);
+    let came = match case.moment {
+        Moment::Spawned => true,
+        Moment::Started => reached(&|| executing_chaoscope(pid))?,
+        Moment::Opened => reached(&|| partial.exists())?,
+        Moment::Building => reached(&|| process_mentioning(&s(&cache)))?,
+        Moment::Mid if case.kind == Kind::Analyze => {
+            std::thread::sleep(Duration::from_millis(100));
+            true
+        }
+        Moment::Mid => reached(&|| {
+            let now = size(&partial);
+            if opened_size.get() == 0 {
+                opened_size.set(now);
+            }
+            opened_size.get() > 0 && now > opened_size.get()
+        })?,
+        Moment::End => reached(&|| out.exists())?,
+    };
+    let signalled = Instant::now();
+    if came {
+        me.signal(case.signal);
+    }
+    let status = loop {
+        if let Some(status) = me.0.try_wait().unwrap() {
+            break status;
+        }
+        if signalled.elapsed() > Duration::from_secs(30) {
+            me.signal(libc::SIGKILL);
+            return Err(format!("{case:?}: still running 30 s after the signal"));
+        }
+        std::thread::sleep(Duration::from_millis(1));
+    };
+    let took = came.then(|| signalled.elapsed());
+    let stderr = std::fs::read_to_string(dir.join("me.stderr")).unwrap_or_default();
+    if stderr.contains("panicked") {
+        return Err(format!("{case:?}: panicked: {stderr}"));
+    }
+    if let Some(t) = took
+        && t > SIGNAL_BOUND
+    {
+        return Err(format!("{case:?}: ended {t:?} after the signal"));
+    }
+    // Its exit status: the signal's, or success if its work was done.
+    use std::os::unix::process::ExitStatusExt;
+    let by_signal = status.code()
+        == Some(i32::from(chaoscope_os::signals::exit_status(case.signal)))
+        || status.signal() == Some(case.signal);
+    // Success is right when the work was done before the signal was seen (the output is then
+    // in place, checked below).
+    let ok_status = by_signal || status.success() && (!came || out.exists());
+    if !ok_status {
+        return Err(format!("{case:?}: exit {status}: {stderr}"));
+    }
+    if let Some(p) = &mut partner {
+        // A partner that met the signalled process ends by itself: a producer whose recorder
+        // left after taking samples, a recorder that got its run's header (the producer's end
+        // or death ends it). One that never met it still waits for it, as it should (a
+        // recorder that came and went before its producer looked is one the producer never
+        // had); the user (here, the test) ends that one.
+        let met = match case.kind {
+            Kind::Record => out.exists() && !read_recording(&out).references.is_empty(),
+            _ => size(&out) > 0 || size(&partial) > 0,
+        };
+        let start = Instant::now();
+        while p.0.try_wait().unwrap().is_none() {
+            if !met || start.elapsed() > Duration::from_secs(20) {
+                p.signal(libc::SIGTERM);
+                p.wait(Duration::from_secs(20));
+                if met {
+                    return Err(format!("{case:?}: its partner did not end"));
+                }
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(10));
+        }
+    }
+    // Never an in-progress file; the output valid where it is.
+    for e in walk(dir) {
+        if e.to_string_lossy().contains(".partial") {
+            return Err(format!("{case:?}: left {e:?}"));
+        }
+    }
+    if out.exists() {
+        match case.kind {
+            Kind::Run | Kind::Record | Kind::Produce | Kind::Replay | Kind::Recover => {
+                chaoscope_analyzer::recording::analyze_file(
+                    &out,
+                    &chaoscope_analyzer::AnalysisOptions::default(),
+                )
+                .map_err(|e| format!("{case:?}: {out:?} unreadable: {e}"))?;
+            }
+            Kind::Map | Kind::PotentialMap | Kind::Merge => {
+                let m = chaoscope_recorder::map_file::read_map_file(&out)
+                    .map_err(|e| format!("{case:?}: {out:?}: {e}"))?;
+                if m.damaged.is_some() || m.header.is_none() {
+                    return Err(format!("{case:?}: {out:?} damaged: {:?}", m.damaged));
+                }
+            }
+            Kind::Analyze | Kind::Section => {
+                if size(&out) == 0 {
+                    return Err(format!("{case:?}: {out:?} empty"));
+                }
+            }
+        }
+    } else if came
+        && matches!(case.moment, Moment::Mid)
+        && matches!(
+            case.kind,
+            Kind::Run
+                | Kind::Record
+                | Kind::Produce
+                | Kind::Map
+                | Kind::PotentialMap
+                | Kind::Replay
+        )
+    {
+        return Err(format!("{case:?}: data was written, yet no file: {stderr}"));
+    }
+    Ok(Outcome {
+        took,
+        wall: case_start.elapsed(),
+    })
+}
+
+fn walk(dir: &Path) -> Vec<std::path::PathBuf> {
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(dir).into_iter().flatten().flatten() {
+        let p = e.path();
+        if p.is_dir() {
+            out.extend(walk(&p));
+        }
+        out.push(p);
+    }
+    out
+}
+
+#[test]
+fn sigint_and_sigterm_end_every_long_command_at_every_moment_with_a_valid_file() {
+    let started = Instant::now();
+    let inputs = Inputs::new();
+    let mut cases = Vec::new();
+    use Moment::*;
+    let writing = [Spawned, Started, Opened, Mid, End];
+    let one_shot = [Spawned, Started, Opened, End];
+    let plan: Vec<(Kind, usize, Vec<Moment>)> = vec![
+        (Kind::Run, 1, writing.to_vec()),
+        (Kind::Record, 1, writing.to_vec()),
+        (Kind::Produce, 1, writing.to_vec()),
+        (Kind::Replay, 1, writing.to_vec()),
+        (Kind::Map, 1, writing.to_vec()),
+        (Kind::Map, 2, writing.to_vec()),
+        (
+            Kind::PotentialMap,
+            1,
+            vec![Spawned, Started, Building, Mid, End],
+        ),
+        (
+            Kind::PotentialMap,
+            2,
+            vec![Spawned, Started, Building, Mid, End],
+        ),
+        (Kind::Merge, 1, one_shot.to_vec()),
+        (Kind::Recover, 1, one_shot.to_vec()),
+        (Kind::Section, 1, one_shot.to_vec()),
+        (Kind::Analyze, 1, vec![Spawned, Started, Mid, End]),
+    ];
+    for (kind, threads, moments) in plan {
+        for moment in moments {
+            for signal in [libc::SIGINT, libc::SIGTERM] {
+                cases.push(Case {
+                    kind,
+                    threads,
+                    moment,
+                    signal,
+                });
+            }
+        }
+    }
+    let total = cases.len();
+    assert!(total >= 100, "{total} cases");
+    let prepared = started.elapsed();
+    let hog = Hog::start(2);
+    // Four at a time: with the hog, more runnable threads than cores all along.
+    let queue = std::sync::Mutex::new(cases.into_iter().enumerate().collect::<Vec<_>>());
+    let results = std::sync::Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for _ in 0..4 {
+            scope.spawn(|| {
+                while let Some((n, case)) = queue.lock().unwrap().pop() {
+                    let r = run_case(&inputs, case, n);
+                    results.lock().unwrap().push((case, r));
+                }
+            });
+        }
+    });
+    drop(hog);
+    let results = results.into_inner().unwrap();
+    let failures: Vec<&String> = results
+        .iter()
+        .filter_map(|(_, r)| r.as_ref().err())
+        .collect();
+    let took: Vec<Duration> = results
+        .iter()
+        .filter_map(|(_, r)| r.as_ref().ok().and_then(|o| o.took))
+        .collect();
+    let early = results
+        .iter()
+        .filter(|(_, r)| r.as_ref().is_ok_and(|o| o.took.is_none()))
+        .count();
+    let worst = took.iter().max().copied().unwrap_or_default();
+    let mut walls: Vec<(Duration, Case)> = results
+        .iter()
+        .filter_map(|(c, r)| r.as_ref().ok().map(|o| (o.wall, *c)))
+        .collect();
+    walls.sort_by_key(|w| std::cmp::Reverse(w.0));
+    eprintln!("slowest cases: {:?}", &walls[..walls.len().min(6)]);
+    let mut sorted = took.clone();
+    sorted.sort();
+    eprintln!(
+        "signal matrix: {total} cases ({} signalled, {early} had ended before their moment), \
+         signal to exit: median {:?}, worst {worst:?}; inputs {:.1} s, matrix {:.1} s",
+        took.len(),
+        sorted.get(sorted.len() / 2).copied().unwrap_or_default(),
+        prepared.as_secs_f64(),
+        (started.elapsed() - prepared).as_secs_f64()
+    );
+    assert!(
+        failures.is_empty(),
+        "{} of {total} cases failed:\n{}",
+        failures.len(),
+        failures
+            .iter()
+            .map(|s| s.as_str())
+            .collect::<Vec<_>>()
+            .join("\n")
+    );
+    // The matrix proves little if most cases missed their moment.
+    assert!(
+        early * 10 <= total,
+        "{early} of {total} cases ended before their moment"
     );
 }

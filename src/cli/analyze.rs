@@ -10,6 +10,8 @@ use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::plot::{TimeAxis, plot_all};
 use chaoscope_analyzer::recording::analyze_file;
 use chaoscope_analyzer::report::Report;
+use chaoscope_os::outln;
+use chaoscope_os::stdout::StdoutError;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -36,11 +38,15 @@ pub struct Args {
 }
 
 /// The human-readable table.
-pub fn print_table(report: &Report) {
-    print!("{}", chaoscope_analyzer::table::table(report));
+pub fn print_table(report: &Report) -> Result<(), StdoutError> {
+    let table = chaoscope_analyzer::table::table(report);
+    outln!("{}", table.trim_end_matches('\n'))?;
+    Ok(())
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    // Nothing worth finalizing: a signal removes the unfinished outputs and ends at once.
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
     let axis = match args.time_axis.as_str() {
         "auto" => TimeAxis::Auto,
         "log" => TimeAxis::Log,
@@ -58,19 +64,14 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         None => analysis.report_ended(info.end.as_ref()),
     };
     if args.json {
-        use std::io::Write;
-        // A closed pipe (`| head`) is not an error worth a panic.
-        let _ = writeln!(
-            std::io::stdout().lock(),
-            "{}",
-            serde_json::to_string(&report)?
-        );
+        outln!("{}", serde_json::to_string(&report)?)?;
     } else {
-        print_table(&report);
+        print_table(&report)?;
     }
     if let Some(dir) = &args.csv {
-        let files = chaoscope_analyzer::csv::write_csv(&analysis, dir)
-            .with_context(|| format!("writing CSV into {}", dir.display()))?;
+        let files =
+            chaoscope_analyzer::csv::write_csv(&analysis, dir, std::slice::from_ref(&args.file))
+                .with_context(|| format!("writing CSV into {}", dir.display()))?;
         eprintln!(
             "chaoscope analyze: {} CSV files in {}",
             files.len(),
@@ -78,7 +79,13 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         );
     }
     if let Some(dir) = &args.plot {
-        let files = plot_all(&analysis, &report, dir, axis)?;
+        let files = plot_all(
+            &analysis,
+            &report,
+            dir,
+            axis,
+            std::slice::from_ref(&args.file),
+        )?;
         eprintln!(
             "chaoscope analyze: {} plot files in {}",
             files.len(),

@@ -566,10 +566,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 }),
             );
         }
-        println!(
+        chaoscope_os::outln!(
             "{}",
             serde_json::to_string_pretty(&serde_json::json!({ "machine_ceiling": by_isa }))?
-        );
+        )?;
         return Ok(ExitCode::SUCCESS);
     }
     let (nx, ny) = parse_grid(&args.grid).context("--grid")?;
@@ -580,13 +580,13 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             "cpu": Machine::cpu_model(),
             "propagator_routes": routes(isa, rx, ry, args.t_final, args.routes_d0)?,
         });
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
         return Ok(ExitCode::SUCCESS);
     }
     let s = args.kernel_seconds;
     if args.expressions_only {
         let report = expressions::compare(isa, s)?;
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
         return Ok(ExitCode::SUCCESS);
     }
     let expression_models = if args.kernel_only {
@@ -611,7 +611,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             "cpu": Machine::cpu_model(),
             "kernel": kernel,
         });
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
         return Ok(ExitCode::SUCCESS);
     }
     anyhow::ensure!(args.pairs >= 1, "--pairs must be at least 1");
@@ -644,7 +644,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let cpu_hours = cpu1 * full_points / reduced / 3600.0;
     let paper_hours = 28.2;
     let scalar_c = scalar_c_case(&spec, isa, args.scalar_c_points, cpu1 / integrated as f64);
-    println!(
+    chaoscope_os::outln!(
         "{}",
         serde_json::to_string_pretty(&serde_json::json!({
             "isa": isa.name(),
@@ -676,7 +676,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             },
             "propagator_routes": propagator_routes,
         }))?
-    );
+    )?;
     Ok(ExitCode::SUCCESS)
 }
 

@@ -18,6 +18,8 @@ pub struct Args {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    // Nothing worth finalizing: a signal removes the unfinished outputs and ends at once.
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
     let text = if args.spec.as_os_str() == "-" {
         std::io::read_to_string(std::io::stdin())?
     } else {
@@ -36,6 +38,6 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         Some("png" | "svg") => args.out.with_extension(""),
         _ => args.out.clone(),
     };
-    render(&chart, &stem)?;
+    render(&chart, &stem, std::slice::from_ref(&args.spec))?;
     Ok(ExitCode::SUCCESS)
 }

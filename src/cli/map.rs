@@ -1,19 +1,23 @@
 //! `chaoscope map CONFIG --out FILE.mcap [--png FILE.png] [--threads N] [--json] [--shard i/n]`:
 //! a phase-space map, one chaos indicator per grid point, recorded to MCAP as points complete.
 //!
-//! Resuming: when FILE.mcap exists (finished, interrupted by Ctrl-C, or truncated by a kill)
-//! and was made from the same configuration and shard, its points are kept and only the missing
-//! ones are computed. The old file is renamed to FILE.mcap.prev while its points are copied
-//! into the new one, so an interruption at any moment loses nothing that was on disk. An
-//! existing FILE.mcap that cannot be read as a map of this configuration and shard is refused
-//! and left as it is, unless `--restart` says to discard it.
+//! The map is written into FILE.mcap.partial (locked while the map runs, so a second map of the
+//! same FILE is refused) and renamed to FILE.mcap when it ends: complete, or stopped by
+//! Ctrl-C/SIGTERM with the points done so far (`chaoscope_os::output`).
+//!
+//! Resuming: the points of FILE.mcap (a map stopped by a signal) and of FILE.mcap.partial (left
+//! by a map that was killed or hit a full disk; every complete chunk counts), when they were
+//! made from the same configuration and shard, are kept and only the missing ones are
+//! computed. The new in-progress file holds all of them before it replaces the old one, so an
+//! interruption at any moment loses nothing that was on disk. An existing FILE.mcap that
+//! cannot be read as a map of this configuration and shard is refused and left as it is,
+//! unless `--restart` says to discard it.
 //!
 //! Live: every point (resumed ones first) is also published on the iceoryx2 bus under the map's
 //! name (`--name`, default: the output file's stem), for `chaoscope map-watch`. That stream is
 //! lossy and never slows the map; if it cannot be opened the map runs without it.
 
 use std::collections::BTreeMap;
-use std::fs::File;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -21,6 +25,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
 use chaoscope_bus::frame::status;
+use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::batch::Isa;
 use chaoscope_producer::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
 use chaoscope_producer::publish::Termination;
@@ -98,14 +103,33 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         }
     };
     let header = spec.header(args.shard);
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
     let termination = Termination::new();
-    // Installs the SIGINT/SIGTERM handler before the long computation starts.
-    let _ = termination.requested();
 
+    let mut output = Output::create(
+        &args.out,
+        &OutputOptions {
+            // An existing FILE is this map's earlier part (checked below) or refused untouched.
+            replace: true,
+            create_dir: false,
+            inputs: [&args.config, &args.png.clone().unwrap_or_default()]
+                .into_iter()
+                .filter(|p| p.as_os_str() != "-" && !p.as_os_str().is_empty())
+                .cloned()
+                .collect(),
+            leftover: if args.restart {
+                Leftover::Discard
+            } else {
+                Leftover::Resume
+            },
+            // The points of a map stopped by a failed write are resumed.
+            keep_failed: true,
+        },
+    )?;
     let recorded = if args.restart {
         BTreeMap::new()
     } else {
-        previous_points(&args.out, &header)?
+        previous_points(&args.out, output.leftover(), &header)?
     };
     let name = args
         .name
@@ -119,26 +143,11 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         }
     };
 
-    let prev = prev_path(&args.out);
-    if prev.exists() {
-        // An interrupted resume: the `.prev` file holds every point of the output file (which
-        // was being rewritten from it), so the output file goes and `.prev` stays until the
-        // points are safe in the new one.
-        if args.out.exists() {
-            std::fs::remove_file(&args.out)
-                .with_context(|| format!("removing {}", args.out.display()))?;
-        }
-    } else if args.out.exists() {
-        std::fs::rename(&args.out, &prev)
-            .with_context(|| format!("moving {} aside", args.out.display()))?;
-    }
     let options = FileOptions {
         compression: Compression::Zstd,
         chunk_size: 1 << 20,
     };
-    let out =
-        File::create(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let mut file = MapFile::create(out, &header, &options)?;
+    let mut file = MapFile::create(output.start_fresh()?, &header, &options)?;
     for p in recorded.values() {
         file.write_point(p)?;
         if let Some(live) = &mut live {
@@ -146,9 +155,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         }
     }
     file.close_chunk()?;
-    if prev.exists() {
-        std::fs::remove_file(&prev).with_context(|| format!("removing {}", prev.display()))?;
-    }
+    // Every point on disk before is in the new file now: it replaces a killed map's.
+    output.adopt_fresh()?;
 
     let todo: Vec<u64> = spec
         .shard_points(args.shard)
@@ -207,12 +215,20 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     // A signal stops the workers within a window, dropping the points in progress.
     interrupted |= termination.requested();
     bar.finish_and_clear();
-    let finished = match write_error {
-        Some(e) => Err(anyhow::Error::from(e).context(format!("writing {}", args.out.display()))),
-        None => file
-            .close_chunk()
-            .and_then(|()| file.finish().map(drop))
-            .map_err(anyhow::Error::from),
+    let written = match write_error {
+        Some(e) => Err(e),
+        None => file.close_chunk().and_then(|()| file.finish().map(drop)),
+    };
+    let finished = match written {
+        Ok(()) => output.commit().map(drop).map_err(anyhow::Error::from),
+        Err(e) => {
+            let kept = output.keep();
+            Err(anyhow::Error::from(e).context(format!(
+                "writing {}; the points so far are in {} (run the same command again to resume)",
+                args.out.display(),
+                kept.display()
+            )))
+        }
     };
     if let Some(live) = &mut live {
         let code = match (&finished, interrupted) {
@@ -241,7 +257,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     };
     let expected = spec.shard_points(args.shard).count();
     if args.json {
-        println!(
+        chaoscope_os::outln!(
             "{}",
             serde_json::json!({
                 "out": args.out,
@@ -265,7 +281,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "live_stream": live.as_ref().map(|l| l.name()),
                 "expression_kernels": expression_kernels(&spec),
             })
-        );
+        )?;
     }
     if interrupted {
         eprintln!(
@@ -277,7 +293,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         return Ok(super::exit_interrupted());
     }
     if let Some(png) = &args.png {
-        map_png::render_png(&header, &all, png).map_err(anyhow::Error::msg)?;
+        let inputs = vec![args.out.clone(), args.config.clone()];
+        map_png::render_png(&header, &all, png, &inputs).map_err(anyhow::Error::msg)?;
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -306,27 +323,26 @@ fn rayon_threads() -> usize {
         .unwrap_or(1)
 }
 
-fn prev_path(out: &Path) -> PathBuf {
-    let mut s = out.as_os_str().to_owned();
-    s.push(".prev");
-    PathBuf::from(s)
-}
-
-/// Points already recorded for this map and shard, from the output file and from a `.prev`
-/// file left by an interrupted resume. A file that cannot be read as a map of this
-/// configuration and shard is refused, never discarded (that takes `--restart`).
-fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u64, MapPoint>> {
+/// Points already recorded for this map and shard, from the output file (a map stopped by a
+/// signal) and from the in-progress file a killed map left (`leftover`). A file that cannot be
+/// read as a map of this configuration and shard is refused, never discarded (that takes
+/// `--restart`).
+fn previous_points(
+    out: &Path,
+    leftover: Option<&Path>,
+    header: &MapHeader,
+) -> anyhow::Result<BTreeMap<u64, MapPoint>> {
     let shard = Shard {
         index: header.shard_index,
         count: header.shard_count,
     };
     let mut points = BTreeMap::new();
-    let mut prev_is_this_map = false;
-    for (path, is_prev) in [(prev_path(out), true), (out.to_path_buf(), false)] {
-        if !path.exists() {
-            continue;
-        }
-        let contents = read_map_file(&path)?;
+    let files = leftover
+        .map(|p| (p, true))
+        .into_iter()
+        .chain(out.exists().then_some((out, false)));
+    for (path, is_leftover) in files {
+        let contents = read_map_file(path)?;
         if let Some(d) = &contents.damaged {
             eprintln!(
                 "chaoscope map: {} is damaged or cut short ({d}); {} points before that are \
@@ -336,9 +352,8 @@ fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u6
             );
         }
         let Some(h) = contents.header else {
-            if !is_prev && prev_is_this_map {
-                // A resume was interrupted before it wrote the header of the new file: all of
-                // its points are still in the `.prev` file.
+            if is_leftover {
+                // Killed before it wrote its first chunk: nothing in it.
                 continue;
             }
             bail!(
@@ -378,7 +393,6 @@ fn previous_points(out: &Path, header: &MapHeader) -> anyhow::Result<BTreeMap<u6
             })?;
             points.insert(p.index, p);
         }
-        prev_is_this_map |= is_prev;
     }
     Ok(points)
 }

@@ -95,6 +95,7 @@ impl Tally {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
     let termination = Termination::new();
     let name = match args.name {
         Some(n) => {
@@ -130,7 +131,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let mut end_code = None;
     let mut last_check = Instant::now() - LIVENESS_PERIOD;
     let mut gone = false;
-    let out = |line: String| println!("{line}");
+    // A closed pipe ends the watcher quietly, a failed write with one line (`main`).
+    let out = |line: String| chaoscope_os::outln!("{line}");
     loop {
         if termination.requested() {
             eprintln!("chaoscope map-watch: interrupted");
@@ -167,12 +169,12 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                     "grid_points": h.grid_points,
                     "shard": format!("{}/{}", h.shard_index, h.shard_count),
                 })
-                .to_string());
+                .to_string())?;
             } else {
                 out(format!(
                     "# map {name}: {} of {}, {} points, shard {}/{}; index ix iy status value",
                     h.indicator, h.model, h.grid_points, h.shard_index, h.shard_count
-                ));
+                ))?;
             }
             header = Some(h);
         }
@@ -200,7 +202,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                             "status": status_name(&p),
                             "value": p.value,
                         })
-                        .to_string());
+                        .to_string())?;
                     } else {
                         // A point that has no value (outside the energy surface, escaped)
                         // carries NaN: shown as `-`, never as NaN.
@@ -215,7 +217,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                             p.ix,
                             p.iy,
                             status_name(&p),
-                        ));
+                        ))?;
                     }
                 }
                 Some(MapFrameKind::End) => {
@@ -250,7 +252,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             "received": tally.received,
             "missed": tally.missed,
         })
-        .to_string());
+        .to_string())?;
     }
     eprintln!(
         "chaoscope map-watch: map {name} {how}; {} points received, {} missed",

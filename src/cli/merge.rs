@@ -6,12 +6,12 @@
 //! the header of shard 0/1: exactly what an unsharded run would have computed.
 
 use std::collections::BTreeMap;
-use std::fs::File;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
+use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::map::Shard;
 use chaoscope_recorder::file::{Compression, FileOptions};
 use chaoscope_recorder::map_file::{MapFile, read_map_file};
@@ -43,9 +43,17 @@ pub struct Args {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
-    if args.out.exists() && !args.force {
-        bail!("{} exists (pass --force to replace it)", args.out.display());
-    }
+    // Nothing worth finalizing: a signal removes the unfinished output and ends at once.
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
+    let output_options = OutputOptions {
+        replace: args.force,
+        inputs: args.shards.clone(),
+        // A killed merge's file is no use: it is merged again.
+        leftover: Leftover::Discard,
+        ..Default::default()
+    };
+    // Before reading shards for minutes: an output that cannot be written is said at once.
+    chaoscope_os::output::check_target(&args.out, &output_options)?;
     let mut header: Option<MapHeader> = None;
     let mut seen_shards = BTreeMap::new();
     let mut points: BTreeMap<u64, MapPoint> = BTreeMap::new();
@@ -127,10 +135,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     }
     header.shard_index = 0;
     header.shard_count = 1;
-    let out =
-        File::create(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let output = Output::create(&args.out, &output_options)?;
     let mut file = MapFile::create(
-        out,
+        output.file()?,
         &header,
         &FileOptions {
             compression: Compression::Zstd,
@@ -141,12 +148,15 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         file.write_point(p)?;
     }
     file.finish()?;
+    output.commit()?;
     let all: Vec<MapPoint> = points.into_values().collect();
     if let Some(png) = &args.png {
-        map_png::render_png(&header, &all, png).map_err(anyhow::Error::msg)?;
+        let mut inputs = args.shards.clone();
+        inputs.push(args.out.clone());
+        map_png::render_png(&header, &all, png, &inputs).map_err(anyhow::Error::msg)?;
     }
     if args.json {
-        println!(
+        chaoscope_os::outln!(
             "{}",
             serde_json::json!({
                 "out": args.out,
@@ -155,7 +165,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "grid_points": header.grid_points,
                 "missing": missing,
             })
-        );
+        )?;
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -24,19 +24,19 @@ use anyhow::Context;
 use chaoscope_producer::estimate::{Estimate, Machine};
 use chaoscope_schemas::config::RunConfig;
 
-/// Exit code of a run stopped by SIGINT/SIGTERM (128 + SIGINT, the shell convention).
-pub const EXIT_INTERRUPTED: u8 = 130;
-
 /// Writes the one JSON summary line of `produce` and `record` to stdout. Its reader (`chaoscope
-/// run`) may have been killed: the run's files are complete by then, so a closed pipe is not an
-/// error of this process (and `println!` would panic on it).
+/// run`) may have been killed: the run's files are complete by then, so a closed pipe (or any
+/// failure to print it) is not an error of this process.
 pub fn print_summary(line: &serde_json::Value) {
-    use std::io::Write;
-    let _ = writeln!(std::io::stdout().lock(), "{line}");
+    let _ = chaoscope_os::outln!("{line}");
 }
 
+/// Exit status of a command stopped by SIGINT (130) or SIGTERM (143): 128 + the signal, as a
+/// shell reports a process killed by it. A stop without a signal (`map --stop-after`) counts
+/// as SIGINT.
 pub fn exit_interrupted() -> ExitCode {
-    ExitCode::from(EXIT_INTERRUPTED)
+    let signal = chaoscope_os::signals::received().unwrap_or(libc::SIGINT);
+    ExitCode::from(chaoscope_os::signals::exit_status(signal))
 }
 
 /// Reads a run configuration from a TOML file, or from stdin when `path` is `-`; returns it

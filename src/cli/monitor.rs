@@ -130,6 +130,7 @@ fn plain_line(analysis: &Analysis, progress: &Progress, live: &LiveRun) -> Strin
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
     // Serving before the run appears, so a client can connect and wait for its channels.
     let foxglove = args.foxglove.map(FoxgloveServer::start).transpose()?;
     let run = match args.run {
@@ -230,10 +231,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(server) = foxglove {
         server.stop();
     }
-    if let Some(e) = out_error
-        && e.kind() != std::io::ErrorKind::BrokenPipe
-    {
-        return Err(e).context("writing to stdout");
+    if let Some(e) = out_error {
+        // A closed pipe ends the monitor quietly, a failed write with one line (`main`).
+        return Err(chaoscope_os::stdout::StdoutError::from(e).into());
     }
     let how = match (ended, &end, detached) {
         (_, _, true) | (LiveEnded::Signal, _, _) => "detached",
@@ -242,18 +242,21 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         _ => "stopped",
     };
     if args.json_lines {
-        let _ = writeln!(
-            std::io::stdout().lock(),
+        chaoscope_os::outln!(
             "{}",
             json_line(&analysis, &progress, &live, true, end.as_ref())
-        );
+        )?;
     } else {
-        super::analyze::print_table(&analysis.report());
+        super::analyze::print_table(&analysis.report())?;
     }
     eprintln!(
         "chaoscope monitor: run {run} {how}; {} frames received, {} missed",
         live.frames_received(),
         live.frames_lost()
     );
-    Ok(ExitCode::SUCCESS)
+    Ok(if ended == LiveEnded::Signal {
+        super::exit_interrupted()
+    } else {
+        ExitCode::SUCCESS
+    })
 }

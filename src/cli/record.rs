@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use chaoscope_recorder::file::Compression;
-use chaoscope_recorder::{RecordOptions, record};
+use chaoscope_recorder::{RecordError, RecordOptions, record};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -49,7 +49,13 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     options.flush_interval = args.flush_interval;
     options.wait_timeout = args.wait_timeout;
     options.throttle = args.throttle_ms.unwrap_or_default();
-    let outcome = record(&options)?;
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    let outcome = match record(&options) {
+        Ok(outcome) => outcome,
+        // Stopped before any run started: nothing was written, nothing to say.
+        Err(RecordError::InterruptedBeforeRun) => return Ok(super::exit_interrupted()),
+        Err(e) => return Err(e.into()),
+    };
     let s = &outcome.summary;
     eprintln!(
         "chaoscope record: run {} -> {} ({} frames, {} missing, finalized by {}, run {})",

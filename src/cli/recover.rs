@@ -16,6 +16,8 @@ pub struct Args {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    // Nothing worth finalizing: a signal removes the unfinished output and ends at once.
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
     let report = chaoscope_recorder::recover(&args.input, &args.out, args.force)?;
     eprintln!(
         "chaoscope recover: {} messages from {} chunks salvaged into {} ({})",
@@ -24,7 +26,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         args.out.display(),
         report.stopped_at.as_deref().unwrap_or("input was complete")
     );
-    println!(
+    chaoscope_os::outln!(
         "{}",
         serde_json::json!({
             "messages": report.messages,
@@ -33,6 +35,6 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             "attachments": report.attachments,
             "stopped_at": report.stopped_at,
         })
-    );
+    )?;
     Ok(ExitCode::SUCCESS)
 }

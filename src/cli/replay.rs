@@ -6,7 +6,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use anyhow::bail;
+use chaoscope_os::outln;
 use chaoscope_replay::{ReplayOptions, replay};
 
 #[derive(clap::Args)]
@@ -34,32 +34,30 @@ pub struct Args {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
-    if args.out.exists() && !args.force {
-        bail!(
-            "{} already exists (pass --force to replace it)",
-            args.out.display()
-        );
-    }
-    if args.out.canonicalize().ok() == args.file.canonicalize().ok() && args.out.exists() {
-        bail!("--out must differ from the input recording");
-    }
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
     let options = ReplayOptions {
         taus: args.taus,
         d0s: args.d0s,
         without_original: args.without_original,
         stop: None,
+        force: args.force,
     };
     let outcome = replay(&args.file, &args.out, &options)?;
     if args.json {
-        println!("{}", serde_json::to_string(&outcome)?);
+        outln!("{}", serde_json::to_string(&outcome)?)?;
     } else {
-        println!(
-            "replay: {} ({} samples)",
+        outln!(
+            "replay: {} ({} samples{})",
             args.out.display(),
-            outcome.replay_samples
-        );
-        println!("schemes: {}", outcome.schemes.join(", "));
-        println!(
+            outcome.replay_samples,
+            if outcome.interrupted {
+                ", interrupted"
+            } else {
+                ""
+            }
+        )?;
+        outln!("schemes: {}", outcome.schemes.join(", "))?;
+        outln!(
             "reference states: {} of {} recorded states bit-identical{}",
             outcome.reference_states_identical,
             outcome.reference_states_compared,
@@ -71,21 +69,24 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             } else {
                 String::new()
             }
-        );
+        )?;
         if outcome.separation_sets_compared > 0 {
-            println!(
+            outln!(
                 "original schemes: {} of {} separation sets bit-identical",
-                outcome.separation_sets_identical, outcome.separation_sets_compared
-            );
+                outcome.separation_sets_identical,
+                outcome.separation_sets_compared
+            )?;
         }
     }
-    if outcome.identical() {
-        Ok(ExitCode::SUCCESS)
-    } else {
+    if outcome.first_difference_step.is_some() || !outcome.interrupted && !outcome.identical() {
         eprintln!(
             "chaoscope replay: the replay DIFFERS from the recording (first at step {:?})",
             outcome.first_difference_step
         );
-        Ok(ExitCode::from(2))
+        return Ok(ExitCode::from(2));
     }
+    if outcome.interrupted {
+        return Ok(super::exit_interrupted());
+    }
+    Ok(ExitCode::SUCCESS)
 }

@@ -6,8 +6,6 @@ use std::io::Write;
 use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitCode, Stdio};
-use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
@@ -122,31 +120,26 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         .out
         .clone()
         .unwrap_or_else(|| Path::new("runs").join(format!("{run}.mcap")));
-    if out.exists() && !args.force {
-        bail!(
-            "{} already exists (pass --force to replace it)",
-            out.display()
-        );
-    }
+    // What the recorder will refuse, said before anything starts.
+    chaoscope_os::output::check_target(
+        &out,
+        &chaoscope_os::OutputOptions {
+            replace: args.force,
+            inputs: args.config.iter().cloned().collect(),
+            ..Default::default()
+        },
+    )?;
 
     // Ctrl+C reaches the whole process group; SIGTERM (or a SIGINT sent to us alone) is
     // forwarded to both children, which finalize cleanly.
-    let stop = Arc::new(AtomicBool::new(false));
-    for signal in [signal_hook::consts::SIGINT, signal_hook::consts::SIGTERM] {
-        signal_hook::flag::register(signal, Arc::clone(&stop))
-            .context("installing signal handlers")?;
-    }
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
 
-    let mut record = child_command("record")?;
-    record.args(["--run", &run, "--out"]).arg(&out);
-    if args.force {
-        record.arg("--force");
-    }
-    let mut recorder = Role::spawn("recorder", record)?;
-
+    // The producer first: the recorder starts once the producer has opened the run's services
+    // (it says `open`), so it can only ever record this producer's run, never that of a live
+    // producer of the same name, which refuses this one.
     let mut produce = child_command("produce")?;
     produce
-        .args(["-", "--run", &run, "--recorders", "1"])
+        .args(["-", "--run", &run, "--recorders", "1", "--under-run"])
         .stdin(Stdio::piped());
     if args.force {
         produce.arg("--force");
@@ -158,51 +151,119 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             .write_all(text.as_bytes())
             .context("sending the configuration to the producer")?;
     }
+    let opened = {
+        let stdout = producer.child.stdout.take().context("producer stdout")?;
+        let (tx, rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            use std::io::BufRead;
+            for line in std::io::BufReader::new(stdout).lines() {
+                let Ok(line) = line else { break };
+                if line == super::produce::OPEN_LINE {
+                    let _ = tx.send(());
+                }
+            }
+        });
+        rx
+    };
 
+    let mut recorder: Option<Role> = None;
     let mut forwarded = false;
+    let mut recorder_failed = false;
     loop {
-        let done = producer.poll()? & recorder.poll()?;
-        if done {
+        let producer_done = producer.poll()?;
+        let recorder_done = match &mut recorder {
+            Some(r) => r.poll()?,
+            None => true,
+        };
+        if producer_done && recorder_done {
             break;
         }
-        if stop.load(Ordering::Relaxed) && !forwarded {
-            producer.signal(libc::SIGINT);
-            recorder.signal(libc::SIGINT);
+        let signal = chaoscope_os::signals::received();
+        if recorder.is_none() && !producer_done && signal.is_none() && opened.try_recv().is_ok() {
+            let mut record = child_command("record")?;
+            record.args(["--run", &run, "--out"]).arg(&out);
+            if args.force {
+                record.arg("--force");
+            }
+            recorder = Some(Role::spawn("recorder", record)?);
+        }
+        if let Some(signal) = signal
+            && !forwarded
+        {
+            producer.signal(signal);
+            if let Some(r) = &recorder {
+                r.signal(signal);
+            }
             forwarded = true;
         }
+        // A recorder that failed (it said why) leaves nobody to compute for.
+        if let Some(r) = &recorder
+            && r.status.is_some_and(|s| !s.success())
+            && !recorder_failed
+        {
+            producer.signal(libc::SIGTERM);
+            recorder_failed = true;
+        }
         // Recorder alone after the producer failed before streaming: do not wait forever.
-        if producer.status.is_some_and(|s| !s.success()) && recorder.status.is_none() && !forwarded
+        if producer.status.is_some_and(|s| !s.success())
+            && recorder.as_ref().is_some_and(|r| r.status.is_none())
+            && !forwarded
         {
             std::thread::sleep(Duration::from_secs(2));
-            recorder.signal(libc::SIGINT);
+            if let Some(r) = &recorder {
+                r.signal(libc::SIGINT);
+            }
             forwarded = true;
         }
         std::thread::sleep(Duration::from_millis(50));
     }
 
     let producer_status = producer.status.expect("reaped");
+    let child_code = |status: std::process::ExitStatus| match status.code() {
+        Some(code) => ExitCode::from(code as u8),
+        None => ExitCode::FAILURE,
+    };
+    let Some(recorder) = recorder else {
+        // The producer ended before it opened the run (it said why), or a signal came first:
+        // nothing was recorded, no file was written.
+        return Ok(match chaoscope_os::signals::received() {
+            Some(_) => super::exit_interrupted(),
+            None if producer_status.success() => ExitCode::FAILURE,
+            None => child_code(producer_status),
+        });
+    };
     let recorder_status = recorder.status.expect("reaped");
     if !recorder_status.success() {
-        bail!("the recorder failed ({recorder_status}); see its messages above");
+        if let Some(signal) = std::os::unix::process::ExitStatusExt::signal(&recorder_status) {
+            bail!(
+                "the recorder was killed by signal {signal}; what it wrote is in {} \
+                 (`chaoscope recover` salvages its complete chunks)",
+                chaoscope_os::output::partial_path(&out).display()
+            );
+        }
+        // It said why on stderr, in one line; the producer was stopped.
+        return Ok(child_code(recorder_status));
     }
     // How the recording ended, then the same analysis table as `chaoscope analyze` (one
     // renderer for both commands).
     let summary = chaoscope_analyzer::summary::summarize(&out)?;
-    println!(
+    chaoscope_os::outln!(
         "recording: {} (status {}, finalized by {}, {} frames missing)",
         out.display(),
         summary.run_status,
         summary.finalized_by,
         summary.frames_missing
-    );
+    )?;
+    // Stopped by a signal: end now (reading a long recording takes time); `chaoscope analyze`
+    // gives the table later.
+    if chaoscope_os::signals::requested() {
+        chaoscope_os::outln!("analysis: chaoscope analyze {}", out.display())?;
+        return Ok(child_code(producer_status));
+    }
     let (analysis, _info) = chaoscope_analyzer::recording::analyze_file(
         &out,
         &chaoscope_analyzer::AnalysisOptions::default(),
     )?;
-    super::analyze::print_table(&analysis.report());
-    Ok(match producer_status.code() {
-        Some(0) => ExitCode::SUCCESS,
-        Some(code) => ExitCode::from(code as u8),
-        None => ExitCode::FAILURE,
-    })
+    super::analyze::print_table(&analysis.report())?;
+    Ok(child_code(producer_status))
 }

@@ -8,6 +8,7 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use chaoscope_analyzer::chart::{Chart, Line, Stroke, render};
+use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::section::crossings;
 use chaoscope_producer::spec::{RunSpec, parse_coordinate};
 
@@ -38,6 +39,8 @@ pub struct Args {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    // Nothing worth finalizing: a signal removes the unfinished outputs and ends at once.
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
     let (mut config, _) = super::load_config(&args.config)?;
     let solve = config.orbit.solve_for.clone().context(
         "the config needs orbit.solve_for (the momentum crossing the plane) and orbit.energy",
@@ -58,10 +61,21 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     };
     let steps = base.total_steps();
     let mut lines = Vec::new();
-    let mut csv = match &args.csv {
-        Some(p) => Some(std::io::BufWriter::new(
-            std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?,
-        )),
+    // The CSV table replaces an earlier one, never the config (`chaoscope_os::output`).
+    let csv_output = match &args.csv {
+        Some(p) => Some(Output::create(
+            p,
+            &OutputOptions {
+                replace: true,
+                inputs: vec![args.config.clone()],
+                leftover: Leftover::Discard,
+                ..Default::default()
+            },
+        )?),
+        None => None,
+    };
+    let mut csv = match &csv_output {
+        Some(out) => Some(std::io::BufWriter::new(out.file()?)),
         None => None,
     };
     let mut orbits = 0;
@@ -91,6 +105,11 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         });
         orbits += 1;
     }
+    if let (Some(mut f), Some(out)) = (csv, csv_output) {
+        f.flush()?;
+        drop(f);
+        out.commit()?;
+    }
     let total: usize = lines.iter().map(|l| l.points.len()).sum();
     eprintln!("chaoscope section: {orbits} orbits, {total} crossings");
     if let Some(dir) = &args.plot {
@@ -108,7 +127,11 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             lines,
             ..Default::default()
         };
-        render(&chart, &dir.join("section"))?;
+        render(
+            &chart,
+            &dir.join("section"),
+            std::slice::from_ref(&args.config),
+        )?;
     }
     Ok(ExitCode::SUCCESS)
 }

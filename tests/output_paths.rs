@@ -619,8 +619,8 @@ fn no_writer_replaces_a_special_file_or_an_input_nor_follows_a_link() {
             let args: Vec<&str> = args.iter().map(String::as_str).collect();
             cases += 1;
             let case = format!("{} over {p:?}", w.what);
-            let Some(out) = output_within(&args, Duration::from_secs(60)) else {
-                failures.push(format!("{case}: did not end within 60 s (hung on it?)"));
+            let Some(out) = output_within(&args, Duration::from_secs(30)) else {
+                failures.push(format!("{case}: did not end within 30 s (hung on it?)"));
                 continue;
             };
             let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
@@ -720,13 +720,15 @@ fn output_within(args: &[&str], limit: Duration) -> Option<Output> {
     })
 }
 
-/// Waits until `path` exists (up to a minute).
-fn wait_for_file(path: &Path) {
+/// Waits until the writer of `out` has begun: its in-progress file (or, for a writer that
+/// writes in place, the file itself) exists (up to a minute).
+fn wait_for_writer(out: &Path) {
+    let partial = chaoscope_os::output::partial_path(out);
     let start = Instant::now();
-    while !path.exists() {
+    while !partial.exists() && !out.exists() {
         assert!(
             start.elapsed() < Duration::from_secs(60),
-            "{path:?} never appeared"
+            "{out:?} never begun"
         );
         std::thread::sleep(Duration::from_millis(10));
     }
@@ -767,7 +769,7 @@ fn a_second_writer_of_one_output_is_refused_while_the_first_lives() {
         .stdout(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    wait_for_file(&chaoscope_os::output::partial_path(&out));
+    wait_for_writer(&out);
     let second = map("second").output().unwrap();
     let stderr = String::from_utf8_lossy(&second.stderr);
     assert_eq!(second.status.code(), Some(1), "{stderr}");
@@ -798,7 +800,7 @@ fn a_second_writer_of_one_output_is_refused_while_the_first_lives() {
         "--out",
         run_out.to_str().unwrap(),
     ]));
-    wait_for_file(&chaoscope_os::output::partial_path(&run_out));
+    wait_for_writer(&run_out);
     let second = common::chaoscope_captured(&[
         "run",
         long.to_str().unwrap(),

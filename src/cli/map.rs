@@ -106,6 +106,18 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
     let termination = Termination::new();
 
+    // The colour map is drawn at the end: what would refuse it is said now.
+    if let Some(png) = &args.png {
+        let inputs = vec![args.out.clone(), args.config.clone()];
+        chaoscope_os::output::check_target(
+            png,
+            &OutputOptions {
+                replace: true,
+                inputs,
+                ..Default::default()
+            },
+        )?;
+    }
     let mut output = Output::create(
         &args.out,
         &OutputOptions {

@@ -54,6 +54,18 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     };
     // Before reading shards for minutes: an output that cannot be written is said at once.
     chaoscope_os::output::check_target(&args.out, &output_options)?;
+    if let Some(png) = &args.png {
+        let mut inputs = args.shards.clone();
+        inputs.push(args.out.clone());
+        chaoscope_os::output::check_target(
+            png,
+            &OutputOptions {
+                replace: true,
+                inputs,
+                ..Default::default()
+            },
+        )?;
+    }
     let mut header: Option<MapHeader> = None;
     let mut seen_shards = BTreeMap::new();
     let mut points: BTreeMap<u64, MapPoint> = BTreeMap::new();

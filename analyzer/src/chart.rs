@@ -314,7 +314,7 @@ pub fn render(chart: &Chart, stem: &Path, inputs: &[PathBuf]) -> Result<Vec<Path
     static WARNED: OnceLock<()> = OnceLock::new();
     if !text {
         WARNED.get_or_init(|| {
-            eprintln!(
+            chaoscope_os::errln!(
                 "chaoscope: warning: {}; charts have no text",
                 ChartError::NoFont
             )

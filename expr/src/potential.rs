@@ -10,6 +10,7 @@
 //! exactly the reference evaluator's operations, so every path gives the same bits.
 
 use std::collections::{BTreeMap, HashMap};
+use std::io::Write as _;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, Once, OnceLock, PoisonError};
 use std::thread::JoinHandle;
@@ -192,7 +193,11 @@ impl CSteps {
                 reason: "the C kernel build was cancelled".into(),
             }),
             Err(e) => {
-                eprintln!(
+                // Not `eprintln!`, which panics when stderr is closed or full: a message that
+                // cannot be shown is lost, the run goes on (this crate depends on no other
+                // chaoscope crate, so not `chaoscope_os::errln!`).
+                let _ = writeln!(
+                    std::io::stderr(),
                     "chaoscope: {e}; the batched kernel runs the Cranelift kernels instead \
                      (the same results, more slowly)"
                 );

@@ -74,7 +74,7 @@ pub fn install(mode: Mode) {
             if let Err(e) = registered {
                 // Only if the signal number were invalid; the command then keeps the default
                 // disposition (the signal ends it at once).
-                eprintln!("chaoscope: warning: cannot handle signal {signal}: {e}");
+                crate::errln!("chaoscope: warning: cannot handle signal {signal}: {e}");
             }
         }
     });

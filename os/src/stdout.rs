@@ -5,7 +5,8 @@
 //! prints goes through [`line`] instead: a reader that went away ([`StdoutError::Closed`]: the
 //! command stops printing and ends quietly with [`CLOSED_STATUS`], as a filter killed by
 //! SIGPIPE would) is told apart from a failed write ([`StdoutError::Failed`]: one line naming
-//! standard output and the cause, non-zero exit).
+//! standard output and the cause, non-zero exit). Messages to standard error go through
+//! [`errln!`], which never panics.
 
 use std::io::Write;
 
@@ -54,6 +55,23 @@ pub fn text(text: &str) -> Result<(), StdoutError> {
 pub fn flush() -> Result<(), StdoutError> {
     std::io::stdout().lock().flush()?;
     Ok(())
+}
+
+/// Writes `args` and a newline to standard error, ignoring a failure: a message that cannot be
+/// shown (stderr closed or on a full disk) is lost, and the exit status still says what
+/// happened. (`eprintln!` panics instead.)
+pub fn error_line(args: std::fmt::Arguments<'_>) {
+    let mut err = std::io::stderr().lock();
+    let _ = err.write_fmt(args);
+    let _ = err.write_all(b"\n");
+}
+
+/// `errln!("...", args)`: [`error_line`] with `format!` arguments.
+#[macro_export]
+macro_rules! errln {
+    ($($arg:tt)*) => {
+        $crate::stdout::error_line(format_args!($($arg)*))
+    };
 }
 
 /// `outln!("...", args)`: [`line`] with `format!` arguments; evaluates to its `Result`.

@@ -178,7 +178,7 @@ pub fn record(options: &RecordOptions) -> Result<RecordOutcome, RecordError> {
                 recording.push(m) && (!done || recording.flush())
             }
             BusEvent::Invalid(e) => {
-                eprintln!("chaoscope record: skipping invalid frame: {e}");
+                chaoscope_os::errln!("chaoscope record: skipping invalid frame: {e}");
                 invalid_frames += 1;
                 true
             }

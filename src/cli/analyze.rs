@@ -72,7 +72,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         let files =
             chaoscope_analyzer::csv::write_csv(&analysis, dir, std::slice::from_ref(&args.file))
                 .with_context(|| format!("writing CSV into {}", dir.display()))?;
-        eprintln!(
+        chaoscope_os::errln!(
             "chaoscope analyze: {} CSV files in {}",
             files.len(),
             dir.display()
@@ -86,7 +86,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             axis,
             std::slice::from_ref(&args.file),
         )?;
-        eprintln!(
+        chaoscope_os::errln!(
             "chaoscope analyze: {} plot files in {}",
             files.len(),
             dir.display()

@@ -150,7 +150,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let mut live = match MapPublisher::open(&name, &header) {
         Ok(p) => Some(p),
         Err(e) => {
-            eprintln!("chaoscope map: no live stream ({e}); computing the map anyway");
+            chaoscope_os::errln!("chaoscope map: no live stream ({e}); computing the map anyway");
             None
         }
     };
@@ -296,7 +296,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         )?;
     }
     if interrupted {
-        eprintln!(
+        chaoscope_os::errln!(
             "chaoscope map: interrupted with {} of {expected} points in {}; run the same \
              command again to resume",
             all.len(),
@@ -356,7 +356,7 @@ fn previous_points(
     for (path, is_leftover) in files {
         let contents = read_map_file(path)?;
         if let Some(d) = &contents.damaged {
-            eprintln!(
+            chaoscope_os::errln!(
                 "chaoscope map: {} is damaged or cut short ({d}); {} points before that are \
                  readable",
                 path.display(),

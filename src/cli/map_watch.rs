@@ -121,7 +121,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         .buffer_size(bus::MAP_POINTS_BUFFER)
         .create()
         .map_err(|e| bus::BusError::new("create map point subscriber", e))?;
-    eprintln!("chaoscope map-watch: following map {name}");
+    chaoscope_os::errln!("chaoscope map-watch: following map {name}");
 
     let map_node = names::map_node_name(&name);
     let start = Instant::now();
@@ -135,7 +135,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let out = |line: String| chaoscope_os::outln!("{line}");
     loop {
         if termination.requested() {
-            eprintln!("chaoscope map-watch: interrupted");
+            chaoscope_os::errln!("chaoscope map-watch: interrupted");
             return Ok(super::exit_interrupted());
         }
         // Liveness before draining: whatever the map sent before it went away is read below.
@@ -254,9 +254,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         })
         .to_string())?;
     }
-    eprintln!(
+    chaoscope_os::errln!(
         "chaoscope map-watch: map {name} {how}; {} points received, {} missed",
-        tally.received, tally.missed
+        tally.received,
+        tally.missed
     );
     Ok(if end_code.is_some() {
         ExitCode::SUCCESS

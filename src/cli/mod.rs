@@ -72,7 +72,7 @@ pub fn check_estimate(
         if !force {
             anyhow::bail!("{why}");
         }
-        eprintln!("chaoscope {command}: --force: starting although {why}");
+        chaoscope_os::errln!("chaoscope {command}: --force: starting although {why}");
     }
     Ok(())
 }

@@ -146,7 +146,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     };
     let info = RunInfo::from_header(header).context("run header")?;
     let total_steps = info.header.total_steps;
-    eprintln!("chaoscope monitor: attached to run {run}");
+    chaoscope_os::errln!("chaoscope monitor: attached to run {run}");
     let mut analysis = Analysis::new(
         info,
         &AnalysisOptions {
@@ -249,7 +249,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     } else {
         super::analyze::print_table(&analysis.report())?;
     }
-    eprintln!(
+    chaoscope_os::errln!(
         "chaoscope monitor: run {run} {how}; {} frames received, {} missed",
         live.frames_received(),
         live.frames_lost()

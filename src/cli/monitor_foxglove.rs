@@ -54,7 +54,7 @@ impl FoxgloveServer {
             .bind(addr.ip().to_string(), addr.port())
             .start_blocking()
             .with_context(|| format!("starting the Foxglove WebSocket server on {addr}"))?;
-        eprintln!(
+        chaoscope_os::errln!(
             "chaoscope monitor: serving the run to Foxglove on ws://{}:{}",
             addr.ip(),
             handle.port()

@@ -82,7 +82,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         RunStatus::Interrupted => super::exit_interrupted(),
         RunStatus::Failed(reason) => {
             if !(args.under_run && reason == publish::RECORDERS_LEFT) {
-                eprintln!("chaoscope produce: run {} failed: {reason}", outcome.run);
+                chaoscope_os::errln!("chaoscope produce: run {} failed: {reason}", outcome.run);
             }
             ExitCode::from(3)
         }

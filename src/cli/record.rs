@@ -57,7 +57,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         Err(e) => return Err(e.into()),
     };
     let s = &outcome.summary;
-    eprintln!(
+    chaoscope_os::errln!(
         "chaoscope record: run {} -> {} ({} frames, {} missing, finalized by {}, run {})",
         outcome.run,
         outcome.out.display(),

@@ -79,7 +79,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         }
     }
     if outcome.first_difference_step.is_some() || !outcome.interrupted && !outcome.identical() {
-        eprintln!(
+        chaoscope_os::errln!(
             "chaoscope replay: the replay DIFFERS from the recording (first at step {:?})",
             outcome.first_difference_step
         );

@@ -111,7 +111,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         out.commit()?;
     }
     let total: usize = lines.iter().map(|l| l.points.len()).sum();
-    eprintln!("chaoscope section: {orbits} orbits, {total} crossings");
+    chaoscope_os::errln!("chaoscope section: {orbits} orbits, {total} crossings");
     if let Some(dir) = &args.plot {
         std::fs::create_dir_all(dir)?;
         let chart = Chart {

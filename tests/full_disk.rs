@@ -344,7 +344,7 @@ fn a_run_whose_recorder_cannot_write_ends_at_once_with_one_line() {
     assert!(chaoscope_os::output::partial_path(&taken).is_dir());
 }
 
-/// Issue #24, failing writes to standard output: a reader that goes away (`| head`) ends every
+/// Issue #24, failing writes to standard output (and error): a reader that goes away (`| head`) ends every
 /// printing command quietly with 141 (what a shell shows for a filter killed by SIGPIPE), and a
 /// full disk (`> /dev/full`) is one error line and a non-zero exit (before: a panic with exit
 /// status 101, and `analyze --json > /dev/full` exited 0 having written nothing). Live
@@ -507,5 +507,28 @@ fn a_closed_pipe_ends_quietly_and_a_full_standard_output_is_one_error() {
     }
     producer.signal(libc::SIGINT);
     assert_eq!(producer.wait(Duration::from_secs(60)).code(), Some(130));
+    // A full standard error loses the messages, never the work or the exit status (before: a
+    // panic, 101, once `analyze --csv` had written its files).
+    for (args, code) in [
+        (
+            vec![
+                "analyze".to_string(),
+                s(&recording),
+                "--csv".into(),
+                s(&dir.join("csv")),
+            ],
+            0,
+        ),
+        (vec!["analyze".to_string(), s(&dir.join("missing.mcap"))], 1),
+    ] {
+        let status = Command::new(CHAOSCOPE)
+            .args(&args)
+            .stdout(Stdio::null())
+            .stderr(std::fs::File::create("/dev/full").unwrap())
+            .status()
+            .unwrap();
+        assert_eq!(status.code(), Some(code), "{args:?} 2> /dev/full");
+    }
+    assert!(dir.join("csv/vm.csv").exists());
     eprintln!("{n} cases of closed and full standard output");
 }

@@ -814,7 +814,10 @@ mod tests {
         std::fs::write(&partial, "left").unwrap();
         let e = Output::create(&t, &opts(true)).unwrap_err();
         assert!(matches!(e, OutputError::Leftover { .. }), "{e}");
+        // The first writer's complete file is at the name: a resuming writer replaces it when
+        // it commits, as `map` does with its earlier part.
         let resume = OutputOptions {
+            replace: true,
             leftover: Leftover::Resume,
             ..Default::default()
         };

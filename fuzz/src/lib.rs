@@ -360,7 +360,7 @@ pub fn values_recording(data: &[u8]) -> Outcome {
         &early.report_at(0.5).expect("the time asked for"),
     );
     let csv = scratch.path().join("csv");
-    let files = chaoscope_analyzer::csv::write_csv(&analysis, &csv).expect("CSV written");
+    let files = chaoscope_analyzer::csv::write_csv(&analysis, &csv, &[]).expect("CSV written");
     for f in &files {
         let text = std::fs::read_to_string(f).expect("CSV text");
         assert_finite_text(&f.display().to_string(), &text);
@@ -469,7 +469,7 @@ pub fn values_map(data: &[u8]) -> Outcome {
     points.sort_by_key(|p| p.index);
     points.dedup_by_key(|p| p.index);
     let png = scratch.path().join("map.png");
-    chaoscope_analyzer::map_png::render_png(&header, &points, &png)
+    chaoscope_analyzer::map_png::render_png(&header, &points, &png, &[])
         .unwrap_or_else(|e| panic!("a checked map does not draw: {e}"));
     Outcome {
         read: true,

@@ -6,7 +6,6 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions, energy_error};
 use chaoscope_analyzer::recording::{RecordingReader, analyze_file};
-use chaoscope_analyzer::run_info::RunInfo;
 use chaoscope_analyzer::write::{SampleWriter, WriteError};
 use chaoscope_os::{Leftover, OutputOptions};
 use chaoscope_producer::engine::Engine;

@@ -532,7 +532,14 @@ fn runs_beyond_a_day_or_the_memory_are_refused_before_they_start() {
         "n = 3 }",
         "n = 1000 }",
     );
+    // Every kind of system, its time from a calibration of the system itself: an `ode` flow
+    // (Lorenz, dop853), a `map` model (the standard map) and a general `hamiltonian` (gl4).
+    let (long_flow, long_iteration, long_hamiltonian) = (long_flow(), long_iteration(), long_hamiltonian());
     let cases = [
+        case("run: Lorenz (ode) to 1e11", Cmd::Run, long_flow, "integrator.t_final", "days"),
+        case("run: standard map (map) to 1e14", Cmd::Run, long_iteration, "integrator.t_final", "days"),
+        case("run: magnetic HH (hamiltonian) to 1e11", Cmd::Run, long_hamiltonian, "integrator.t_final", "days"),
+        case("map: standard map, 40000 points to 1e8", Cmd::Map, calibrated_map(), "integrator.t_final", "days"),
         text_case("run: FPUT 501 to 1e9", Cmd::Run, LONG_CHAIN, "integrator.t_final", "days"),
         text_case("produce: FPUT 501 to 1e9", Cmd::Produce, LONG_CHAIN, "integrator.t_final", "days"),
         text_case("run: 10^6-dimensional, k = 200", Cmd::Run, WIDE_CHAIN, "deviations.k", "memory"),
@@ -564,6 +571,44 @@ fn runs_beyond_a_day_or_the_memory_are_refused_before_they_start() {
         // Refused from the estimate, not after drawing directions or allocating.
         assert!(start.elapsed() < Duration::from_secs(5), "{}", c.name);
     }
+}
+
+/// An example of `examples/models` with its `t_final` spoiled.
+fn long_example(name: &str, t_final: &str) -> Vec<u8> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("examples/models/{name}.toml"));
+    let text = std::fs::read_to_string(path).unwrap();
+    let line = text.lines().find(|l| l.starts_with("t_final = ")).unwrap();
+    spoil(&text, line, &format!("t_final = {t_final}"))
+}
+
+/// The Lorenz flow (dop853, VM and MPM) to t = 1e11: 1e13 steps of several orbits and tangent
+/// vectors, at least tens of nanoseconds each on any machine: years.
+fn long_flow() -> Vec<u8> {
+    long_example("lorenz", "1e11")
+}
+
+/// The standard map to 10^14 iterations, with its VM and MPM schemes (5 orbit-steps per
+/// iteration, a sine each): at least about 10 ns an iteration on any machine, weeks.
+fn long_iteration() -> Vec<u8> {
+    long_example("standard-map", "1e14")
+}
+
+/// Henon-Heiles in a magnetic field (a `hamiltonian`, gl4 solved by fixed-point iteration) to
+/// t = 1e11: 1e13 implicit steps, years.
+fn long_hamiltonian() -> Vec<u8> {
+    long_example("magnetic-henon-heiles", "1e11")
+}
+
+/// The standard map's SALI map (`examples/maps`) to 10^8 iterations: 200 x 200 points x 3
+/// orbits x 1e8 steps = 1.2e13 orbit-steps. The former fixed cost (1 ns per orbit-step and
+/// dimension, the same for every system) put it at 1.4 days on one core and a third of a day
+/// on 4 (CI's machines have 2), and missed that a standard-map orbit-step (a sine through the
+/// expression's callback, wrapping on the torus) costs tens of nanoseconds: the calibration
+/// of the map's own kernel puts it at weeks.
+fn calibrated_map() -> Vec<u8> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/maps/standard-map-sali.toml");
+    let text = std::fs::read_to_string(path).unwrap();
+    spoil(&text, "t_final = 1000\n", "t_final = 100000000\n")
 }
 
 /// Starts `args` (with `--force`), checks that it is still running after a while, interrupts it
@@ -638,6 +683,59 @@ fn force_starts_what_the_estimate_refuses() {
     assert!(stderr.contains("--force: starting although"), "{stderr}");
     let summary = chaoscope_analyzer::summary::summarize(&dir.join("long.mcap")).unwrap();
     assert_eq!(summary.run_status, "interrupted", "{summary:?}");
+
+    // The recording carries the configuration `run` refused: its replay (the same run with one
+    // more scheme) is refused as well, before it writes anything, and starts with --force.
+    let replay = ["replay", "long.mcap", "--tau", "2", "--out", "replay.mcap"];
+    let start = Instant::now();
+    let refused = Command::new(CHAOSCOPE)
+        .args(replay)
+        .current_dir(dir)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    eprintln!("replay refused in {:?}: {stderr}", start.elapsed());
+    assert_eq!(refused.status.code(), Some(1), "{stderr}");
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains("error: integrator.t_final: this would take about")
+            && stderr.contains("days")
+            && stderr.contains("--force"),
+        "{stderr}"
+    );
+    assert!(!dir.join("replay.mcap").exists());
+    let forced_replay: Vec<&str> = replay.iter().copied().chain(["--force"]).collect();
+    let (_, stderr) = forced(&forced_replay, dir);
+    assert!(
+        stderr.contains("--force: starting although integrator.t_final"),
+        "{stderr}"
+    );
+
+    // A flow and a map model beyond a day start with --force.
+    for (name, text) in [("flow", long_flow()), ("iteration", long_iteration())] {
+        std::fs::write(dir.join(format!("{name}.toml")), text).unwrap();
+        let (config, out) = (format!("{name}.toml"), format!("{name}.mcap"));
+        let (code, stderr) = forced(
+            &[
+                "run",
+                &config,
+                "--force",
+                "--out",
+                &out,
+                "--run",
+                &unique_run(name),
+            ],
+            dir,
+        );
+        assert_eq!(code, Some(130), "{name}: {stderr}");
+        assert!(
+            stderr.contains("--force: starting although integrator.t_final"),
+            "{name}: {stderr}"
+        );
+        let summary = chaoscope_analyzer::summary::summarize(&dir.join(&out)).unwrap();
+        assert_eq!(summary.run_status, "interrupted", "{name}: {summary:?}");
+    }
 
     let (code, stderr) = forced(
         &[

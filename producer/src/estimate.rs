@@ -3,34 +3,54 @@
 //! A typo (`t_final = 1e9` for `1e6`, `n = 700` for `70`) can turn a run into a month of a
 //! shared machine or a request for more memory than it has, found out only when the job is
 //! killed. The commands refuse such a run up front with an estimate (`--force` runs it anyway).
-//! The estimate is a product of sizes and one cost per orbit-step measured once on the
-//! development machine (below); it only has to be right within a factor of a few, since it is
-//! compared with limits (a day, the machine's memory) that real runs are far from or far above.
 //!
-//! Pure: the caller says how many cores and how much memory the machine has ([`Machine`];
-//! `Machine::this_host` reads them from `/proc`, the one I/O here).
+//! Memory is a product of sizes (checked first, before anything is allocated). Time is the
+//! run's orbit-steps times a cost per orbit-step measured for the actual system by a short
+//! calibration ([`Calibration`]): a few milliseconds stepping the validated system itself (its
+//! compiled vector field, map or potential, with the deviation work of its schemes) from its
+//! initial state, or, for a map, computing a batch of its own grid points cut to a few steps
+//! through the map's route and kernel. Each cost is the least of several timings, so a loaded
+//! machine (which only ever slows a timing down) inflates it little; the estimate only has to be
+//! right within a factor of a few, since it is compared with limits (a day, the machine's
+//! memory) that real runs are far from or far above.
+//!
+//! Numerics stay pure: the calibration's timings are wall-clock dependent but go only into the
+//! decision to start, never into an output, and it computes on copies (the validated spec and
+//! every output are untouched, so recordings and maps stay bit-identical). `Machine::this_host`
+//! reads the machine's cores and memory from `/proc`, the one I/O here.
+
+use std::time::{Duration, Instant};
 
 use chaoscope_bus as bus;
 
-use crate::map::MapSpec;
-use chaoscope_schemas::run::{Method, SystemKind};
+use crate::batch::Isa;
+use crate::integrator::Workspace;
+use crate::map::{Batching, MapOptions, MapSpec};
+use crate::system::DynamicalSystem;
+use chaoscope_schemas::run::{Method, Route};
 
 use crate::spec::RunSpec;
 
-/// Cost of one orbit-step (one trajectory or tangent vector advanced one ABA864 step) of the
-/// one-orbit engine (`chaoscope run`/`produce`): `ENGINE_NS_BASE + ENGINE_NS_PER_DIM * 2N`
-/// nanoseconds. Measured with `chaoscope produce --recorders 0` on one core (2-core Xeon,
-/// AVX-512): Henon-Heiles 100 (VM) and 123 (MPM) ns; FPUT N = 101 MPM 1.35 us; FPUT N = 501
-/// 5.3 (MPM) and 6.8 (VM) us per orbit-step.
-pub const ENGINE_NS_BASE: f64 = 80.0;
-pub const ENGINE_NS_PER_DIM: f64 = 5.0;
-
 /// Cost of one orbit-step of the batched map kernel per phase-space dimension, in nanoseconds
-/// (RESULTS-maps.md: Henon-Heiles 2.7 ns per orbit-step, FPUT N = 501 1.6 to 3.2 us).
+/// (RESULTS-maps.md: Henon-Heiles 2.7 ns per orbit-step, FPUT N = 501 1.6 to 3.2 us): used only
+/// when the calibration finds no point of the map to time (every sampled point outside the
+/// energy surface).
 pub const MAP_NS_PER_DIM: f64 = 1.0;
+
+/// The one-orbit engine's work beyond stepping (renormalization, samples, publishing), as a
+/// factor on the calibrated stepping: measured with `chaoscope produce --recorders 0`
+/// against the estimate (RELIABILITY.md).
+pub const ENGINE_OVERHEAD: f64 = 1.25;
 
 /// Longest run (wall clock) started without `--force`.
 pub const MAX_SECONDS: f64 = 86_400.0;
+
+/// The calibration's timings: each cost is the least of `TIMINGS` timings of at least
+/// `MIN_TIMING` each (more calls per timing until one lasts that long), within `BUDGET` per
+/// cost (a step slower than the budget is timed once, after one untimed call).
+const TIMINGS: usize = 5;
+const MIN_TIMING: Duration = Duration::from_millis(1);
+const BUDGET: Duration = Duration::from_millis(40);
 
 /// What the machine offers.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -86,99 +106,236 @@ pub struct Estimate {
     pub memory_key: &'static str,
     /// Cores the work is estimated to spread over.
     pub cores: usize,
+    /// The measured costs the time comes from (`None` when memory alone refuses the run, which
+    /// is then not stepped at all).
+    pub calibration: Option<Calibration>,
+}
+
+/// Costs measured for one system on this machine, in nanoseconds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Calibration {
+    /// One orbit-step: one trajectory (the reference, or a nearby orbit of the multi-particle
+    /// method) advanced one step; for a map, the average orbit-step of its batched points,
+    /// deviation work included.
+    pub ns_per_orbit_step: f64,
+    /// One tangent vector advanced one step beside its orbit (the variational method), beyond
+    /// that orbit's own step; 0 when no scheme uses it.
+    pub ns_per_tangent_step: f64,
+    /// Wall-clock time the calibration took.
+    pub seconds_spent: f64,
 }
 
 /// Estimate of a validated run (validation draws no direction and allocates nothing in
-/// proportion to the run, so this comes before any of it). Its sizes are the spec's: the
-/// dimension of every kind of system, the sets, the schemes.
+/// proportion to the run, so this comes before any of it): memory from the spec's sizes, then,
+/// if it fits, time from a calibration of the spec's own system.
 pub fn run(spec: &RunSpec, machine: &Machine) -> Estimate {
-    let vm = spec
-        .schemes()
-        .iter()
-        .filter(|s| s.method == Method::Vm)
-        .count();
-    run_estimate(
-        spec.system().kind(),
-        spec.total_steps() as f64,
-        spec.dim(),
-        spec.k(),
-        spec.sets(),
-        spec.schemes().len(),
-        vm,
-        machine,
-    )
-}
-
-/// Nanoseconds of one orbit-step of the one-orbit engine for a system of `kind` and dimension
-/// `dim`: the place to calibrate each kind of system. Measured for separable Hamiltonians
-/// (above); flows and maps are charged the same until measured (an expression's evaluation
-/// costs about what a force does, and the estimate need only be right within a factor of a
-/// few).
-fn engine_ns_per_orbit_step(kind: SystemKind, dim: usize) -> f64 {
-    match kind {
-        SystemKind::Hamiltonian | SystemKind::Flow | SystemKind::Map => {
-            ENGINE_NS_BASE + ENGINE_NS_PER_DIM * dim as f64
-        }
+    let sizes = RunSizes::of(spec);
+    let memory = sizes.memory();
+    if machine.memory_bytes.is_some_and(|m| memory.0 > m as f64) {
+        return sizes.estimate(memory, None, machine);
     }
+    let calibration = calibrate_run(spec, &sizes);
+    sizes.estimate(memory, Some(calibration), machine)
 }
 
-#[allow(clippy::too_many_arguments)]
-fn run_estimate(
-    kind: SystemKind,
+/// The sizes of a run that its cost is a function of.
+struct RunSizes {
     steps: f64,
     dim: usize,
     k: usize,
     sets: usize,
-    schemes: usize,
-    vm_schemes: usize,
-    machine: &Machine,
-) -> Estimate {
-    let (dimf, kf, setsf) = (dim as f64, k as f64, sets as f64);
-    // Per step: the reference orbit (serial), then every (scheme, set) task in parallel: k
-    // nearby orbits (MPM), or k tangent vectors and the task's own copy of the orbit (VM).
-    let task_orbits = setsf * (schemes as f64 * kf + vm_schemes as f64);
-    let ns = engine_ns_per_orbit_step(kind, dim);
-    let cores = machine.cores.clamp(1, (schemes * sets).max(1)) as f64;
-    let seconds = steps * ns * (1.0 + task_orbits / cores) * 1e-9;
-    // Memory, in f64 values: the directions (sets x k x 2N), every task's vectors and orbits,
-    // one sample in the producer and one in the analysis of `run` (every task's k separations
-    // and stretches), and the frames in flight in shared memory (a recorder's buffer and the
-    // monitors' bounded share).
-    let frame = kf * dimf + kf;
-    // A bus frame gathers records up to a target size (small systems) or holds one.
-    let bus_frame =
-        bus::max_frame_words(k * dim + k + chaoscope_bus::frame::RECORD_HEADER_WORDS) as f64;
-    let tasks = schemes as f64 * setsf;
-    let values = setsf * kf * dimf
-        + tasks * (kf + 1.0) * dimf
-        + 2.0 * tasks * frame
-        + (bus::DATA_BUFFER as f64 + 2.0) * bus_frame;
-    let bytes = 8.0 * values + bus::MONITOR_MEMORY as f64;
-    // The frames in flight depend on k and 2N alone; the rest grows with the sets.
-    let memory_key = if bus::DATA_BUFFER as f64 * frame > setsf * (schemes as f64 + 1.0) * frame {
-        "deviations.k"
-    } else {
-        "deviations.sets"
-    };
-    Estimate {
-        orbit_steps: steps * (1.0 + task_orbits),
-        seconds,
-        bytes,
-        time_key: "integrator.t_final",
-        work: format!(
-            "{} steps x {} orbits of dimension {dim}",
-            count(steps),
-            count(1.0 + task_orbits)
-        ),
-        memory_key,
-        cores: cores as usize,
+    /// Per-set schemes by method, and window-propagator schemes (one task of `dim` lanes each).
+    mpm: usize,
+    vm: usize,
+    propagator_mpm: usize,
+    propagator_vm: usize,
+}
+
+impl RunSizes {
+    fn of(spec: &RunSpec) -> Self {
+        let count = |method: Method, route: Route| {
+            spec.schemes()
+                .iter()
+                .filter(|s| s.method == method && s.route == route)
+                .count()
+        };
+        Self {
+            steps: spec.total_steps() as f64,
+            dim: spec.dim(),
+            k: spec.k(),
+            sets: spec.sets(),
+            mpm: count(Method::Mpm, Route::PerSet),
+            vm: count(Method::Vm, Route::PerSet),
+            propagator_mpm: count(Method::Mpm, Route::WindowPropagator),
+            propagator_vm: count(Method::Vm, Route::WindowPropagator),
+        }
+    }
+
+    /// (Orbits, tangent vectors) one step advances across all tasks, and the number of tasks.
+    fn task_work(&self) -> (f64, f64, usize) {
+        let (dimf, kf, setsf) = (self.dim as f64, self.k as f64, self.sets as f64);
+        // Per step: every (scheme, set) task: k nearby orbits (MPM), or k tangent vectors and
+        // the task's own copy of the orbit (VM); a propagator scheme is one task of D lanes.
+        let orbits = setsf * (self.mpm as f64 * kf + self.vm as f64)
+            + self.propagator_mpm as f64 * dimf
+            + self.propagator_vm as f64;
+        let tangents = setsf * self.vm as f64 * kf + self.propagator_vm as f64 * dimf;
+        let tasks = (self.mpm + self.vm) * self.sets + self.propagator_mpm + self.propagator_vm;
+        (orbits, tangents, tasks)
+    }
+
+    /// Peak bytes, and the key that sets them.
+    fn memory(&self) -> (f64, &'static str) {
+        let (dimf, kf, setsf) = (self.dim as f64, self.k as f64, self.sets as f64);
+        let schemes = (self.mpm + self.vm + self.propagator_mpm + self.propagator_vm) as f64;
+        let (orbits, tangents, _) = self.task_work();
+        // Memory, in f64 values: the directions (sets x k x D), every task's vectors and orbits,
+        // one sample in the producer and one in the analysis of `run` (every (scheme, set)'s k
+        // separations and stretches), and the frames in flight in shared memory (a recorder's
+        // buffer and the monitors' bounded share).
+        let frame = kf * dimf + kf;
+        // A bus frame gathers records up to a target size (small systems) or holds one.
+        let bus_frame =
+            bus::max_frame_words(self.k * self.dim + self.k + bus::frame::RECORD_HEADER_WORDS)
+                as f64;
+        let per_set_tasks = schemes * setsf;
+        let values = setsf * kf * dimf
+            + (orbits + tangents) * dimf
+            + 2.0 * per_set_tasks * frame
+            + (bus::DATA_BUFFER as f64 + 2.0) * bus_frame;
+        let bytes = 8.0 * values + bus::MONITOR_MEMORY as f64;
+        // The frames in flight depend on k and D alone; the rest grows with the sets.
+        let key = if bus::DATA_BUFFER as f64 * frame > setsf * (schemes + 1.0) * frame {
+            "deviations.k"
+        } else {
+            "deviations.sets"
+        };
+        (bytes, key)
+    }
+
+    fn estimate(
+        &self,
+        (bytes, memory_key): (f64, &'static str),
+        calibration: Option<Calibration>,
+        machine: &Machine,
+    ) -> Estimate {
+        let (orbits, tangents, tasks) = self.task_work();
+        let cores = machine.cores.clamp(1, tasks.max(1));
+        // The reference orbit is serial; the tasks spread over the cores.
+        let seconds = calibration.map_or(0.0, |c| {
+            let task_ns = orbits * c.ns_per_orbit_step + tangents * c.ns_per_tangent_step;
+            self.steps * (c.ns_per_orbit_step + task_ns / cores as f64) * ENGINE_OVERHEAD * 1e-9
+        });
+        Estimate {
+            orbit_steps: self.steps * (1.0 + orbits + tangents),
+            seconds,
+            bytes,
+            time_key: "integrator.t_final",
+            work: format!(
+                "{} steps x {} orbits and tangent vectors of dimension {}",
+                count(self.steps),
+                count(1.0 + orbits + tangents),
+                self.dim
+            ),
+            memory_key,
+            cores,
+            calibration,
+        }
     }
 }
 
-/// Estimate of a validated map: `points` grid points (the shard's share), each the reference
-/// orbit and every set's `k` vectors (the basis route: `dim` basis vectors) to the horizon (an upper bound for points that stop early:
-/// outside the energy surface, escaped, or `gali-time` below its threshold).
-pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
+/// Nanoseconds per call of `call`: the least of [`TIMINGS`] timings of at least [`MIN_TIMING`]
+/// (calls per timing doubled until one lasts that long), within [`BUDGET`]. The least, because
+/// other work on the machine only ever adds to a timing.
+fn ns_per_call(mut call: impl FnMut()) -> f64 {
+    // Untimed: first touches of memory and caches, lazily prepared state.
+    call();
+    let start = Instant::now();
+    let (mut calls, mut timings, mut least) = (1u64, 0, f64::INFINITY);
+    loop {
+        let t = Instant::now();
+        for _ in 0..calls {
+            call();
+        }
+        let elapsed = t.elapsed();
+        let over_budget = start.elapsed() >= BUDGET;
+        if elapsed >= MIN_TIMING || over_budget {
+            least = least.min(elapsed.as_nanos() as f64 / calls as f64);
+            timings += 1;
+        } else {
+            calls *= 2;
+        }
+        if timings >= TIMINGS || over_budget {
+            return least;
+        }
+    }
+}
+
+/// Steps the run's own system from its initial state: the reference (or a nearby orbit) alone,
+/// and, if a scheme uses the variational method, with tangent vectors beside it. A state that
+/// stops being finite (an escaping orbit, growing tangent vectors) starts over from `x0`.
+fn calibrate_run(spec: &RunSpec, sizes: &RunSizes) -> Calibration {
+    let start = Instant::now();
+    let system: &dyn DynamicalSystem = spec.system().as_ref();
+    let x0 = spec.x0();
+    let dim = x0.len();
+    let mut work = Workspace::new();
+    let (mut x, mut plan) = (x0.to_vec(), Vec::new());
+    let ns_per_orbit_step = ns_per_call(|| {
+        plan.clear();
+        system.step_reference(&mut x, &mut plan, &mut work);
+        if !x.iter().all(|v| v.is_finite()) {
+            x.copy_from_slice(x0);
+        }
+    });
+    let ns_per_tangent_step = if sizes.vm + sizes.propagator_vm > 0 {
+        // A few vectors stand for any number: their cost is linear in the count.
+        let m = if sizes.propagator_vm > 0 {
+            dim
+        } else {
+            sizes.k
+        }
+        .clamp(1, 4);
+        let unit = |w: &mut [f64]| {
+            w.fill(0.0);
+            for j in 0..m {
+                w[j * dim + j % dim] = 1.0;
+            }
+        };
+        let mut w = vec![0.0; m * dim];
+        unit(&mut w);
+        x.copy_from_slice(x0);
+        let ns = ns_per_call(|| {
+            let ok = system.step_tangent(&mut x, &mut w, &mut work).is_ok();
+            if !ok || !x.iter().chain(&w).all(|v| v.is_finite() && v.abs() < 1e100) {
+                x.copy_from_slice(x0);
+                unit(&mut w);
+            }
+        });
+        ((ns - ns_per_orbit_step) / m as f64).max(0.0)
+    } else {
+        0.0
+    };
+    Calibration {
+        ns_per_orbit_step,
+        ns_per_tangent_step,
+        seconds_spent: start.elapsed().as_secs_f64(),
+    }
+}
+
+/// Estimate of a validated map on the instruction set the map will use: `points` grid points
+/// (the shard's share), each the reference orbit and every set's `k` vectors (the basis route:
+/// `dim` basis vectors) to the horizon (an upper bound for points that stop early: outside the
+/// energy surface, escaped, or `gali-time` below its threshold), over `threads` threads (give
+/// no more than the machine's cores). Memory first; then the time from a calibration
+/// ([`calibrate_map`]).
+pub fn map_on(
+    spec: &MapSpec,
+    points: u64,
+    machine: &Machine,
+    threads: usize,
+    isa: Isa,
+) -> Estimate {
     let run = &spec.run;
     let (dimf, setsf) = (run.dim() as f64, run.sets() as f64);
     let per_point = match spec.route {
@@ -189,10 +346,21 @@ pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
     let steps = run.total_steps() as f64;
     let pointsf = points as f64;
     let orbit_steps = pointsf * per_point * steps;
-    let seconds = orbit_steps * MAP_NS_PER_DIM * dimf * 1e-9 / threads.max(1) as f64;
     // Every point's result is kept until the end (for the summary and the PNG): its per-set
     // values, its initial condition and some fixed overhead.
     let bytes = pointsf * (8.0 * (setsf + dimf) + 256.0);
+    let calibration = if machine.memory_bytes.is_some_and(|m| bytes > m as f64) {
+        None
+    } else {
+        Some(calibrate_map(spec, isa).unwrap_or(Calibration {
+            ns_per_orbit_step: MAP_NS_PER_DIM * dimf,
+            ns_per_tangent_step: 0.0,
+            seconds_spent: 0.0,
+        }))
+    };
+    let seconds = calibration.map_or(0.0, |c| {
+        orbit_steps * c.ns_per_orbit_step * 1e-9 / threads.max(1) as f64
+    });
     Estimate {
         orbit_steps,
         seconds,
@@ -207,6 +375,54 @@ pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
         ),
         memory_key: "map.x.n",
         cores: threads.max(1),
+        calibration,
+    }
+}
+
+/// [`map_on`] on this machine ([`Machine::this_host`]) with the instruction set it detects.
+pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
+    map_on(spec, points, &Machine::this_host(), threads, Isa::detect())
+}
+
+/// Times one batch of the map's own points (spread over the grid, as many as a batch of the
+/// map holds) computed through its route and kernel on this thread, with the run cut to a few
+/// steps (more until a timing lasts [`MIN_TIMING`]); the cost is the time over the orbit-steps
+/// the points report. `None` if no sampled point is integrated (all outside the energy
+/// surface).
+fn calibrate_map(spec: &MapSpec, isa: Isa) -> Option<Calibration> {
+    let start = Instant::now();
+    let batching = Batching::of(spec, MapOptions::default().mpm_points_per_batch);
+    let grid = spec.grid_points();
+    let n = (batching.points as u64).clamp(1, grid.max(1));
+    let indices: Vec<u64> = (0..n).map(|i| i * grid / n).collect();
+    let total = spec.run.total_steps();
+    let (mut steps, mut timings, mut least) = (total.min(8), 0, f64::INFINITY);
+    loop {
+        let short = MapSpec {
+            run: spec.run.truncated(steps),
+            ..spec.clone()
+        };
+        let t = Instant::now();
+        let results = batching.compute(&short, isa, &indices, &|| false);
+        let elapsed = t.elapsed();
+        let orbit_steps: u64 = results.iter().map(|r| r.orbit_steps).sum();
+        if orbit_steps == 0 {
+            return None;
+        }
+        let over_budget = start.elapsed() >= BUDGET;
+        if elapsed >= MIN_TIMING || steps >= total || over_budget {
+            least = least.min(elapsed.as_nanos() as f64 / orbit_steps as f64);
+            timings += 1;
+        } else {
+            steps = (steps * 4).min(total);
+        }
+        if timings >= TIMINGS || over_budget {
+            return Some(Calibration {
+                ns_per_orbit_step: least,
+                ns_per_tangent_step: 0.0,
+                seconds_spent: start.elapsed().as_secs_f64(),
+            });
+        }
     }
 }
 
@@ -299,8 +515,15 @@ mod tests {
             ],
         );
         let e = run(&RunSpec::from_config(&cfg).unwrap(), &TWO_CORES);
-        // 1e5 steps x (1 + 9 / 2) orbit-steps at 100 ns: about 0.05 s.
+        // 1e5 steps x (1 + 9 / 2) orbit-steps at about 100 ns: about 0.05 s. Bounds a
+        // factor of 5 and 20 away: a calibration on a loaded machine, or a slower one, stays
+        // inside; a cost off by orders of magnitude (a unit, a count) does not.
         assert!(e.seconds > 0.01 && e.seconds < 1.0, "{e:?}");
+        let c = e.calibration.unwrap();
+        assert!(
+            c.ns_per_tangent_step > 0.0 && c.seconds_spent < 1.0,
+            "{c:?}"
+        );
         assert!(e.bytes < 128.0 * (1 << 20) as f64, "{e:?}");
         assert_eq!(e.refusal(&TWO_CORES), None);
     }
@@ -343,12 +566,12 @@ tau = 1.0
         let runs = [
             (
                 "[model]\nname = \"ode\"\nrhs = [\"x2\", \"x3\", \"-x1\"]\n[orbit]\nx = [1.0, 0.0, 0.0]\n\
-                 [integrator]\nmethod = \"rk4\"\nh = 0.01\nt_final = 1e11\n",
+                 [integrator]\nmethod = \"rk4\"\nh = 0.01\nt_final = 1e13\n",
                 3,
             ),
             (
                 "[model]\nname = \"map\"\nnext = [\"x2\", \"-x1\"]\n[orbit]\nx = [0.5, 0.0]\n\
-                 [integrator]\nh = 1\nt_final = 1e12\n",
+                 [integrator]\nh = 1\nt_final = 1e14\n",
                 2,
             ),
         ];
@@ -360,8 +583,9 @@ tau = 1.0
             let spec = RunSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap();
             let e = run(&spec, &TWO_CORES);
             assert!(e.work.ends_with(&format!("of dimension {dim}")), "{e:?}");
-            // 1e13 and 1e12 steps of about 100 ns, 4 orbits each (the reference, the task's copy
-            // and k = 2 tangent vectors) on one core: weeks, refused.
+            // 1e15 and 1e14 steps, 4 orbits each (the reference, the task's copy and k = 2
+            // tangent vectors) on one core: at a nanosecond per orbit-step (what the calibration
+            // of these few-operation systems cannot undercut), 46 and 4.6 days. Refused.
             assert!(e.seconds > 86_400.0, "{e:?}");
             assert!(e.refusal(&TWO_CORES).is_some());
         }

@@ -158,7 +158,13 @@ pub fn map(
         .map_err(|e| crate::message(format!("invalid map configuration: {e}")))?;
     let machine = Machine::this_host();
     let whole = Shard { index: 0, count: 1 };
-    let estimate = estimate::map(&spec, spec.grid_points(), threads.unwrap_or(machine.cores));
+    let estimate = estimate::map_on(
+        &spec,
+        spec.grid_points(),
+        &machine,
+        threads.unwrap_or(machine.cores).min(machine.cores),
+        chaoscope_producer::batch::Isa::detect(),
+    );
     if let Some(why) = estimate.refusal(&machine)
         && !force
     {

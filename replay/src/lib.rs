@@ -23,6 +23,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use chaoscope_producer::engine::{Engine, RunError};
+use chaoscope_producer::estimate::{self, Machine};
 use chaoscope_producer::publish::run_header;
 use chaoscope_producer::spec::{RunSpec, SpecError};
 use chaoscope_schemas::config::{RunConfig, SchemeConfig};
@@ -47,7 +48,9 @@ pub struct ReplayOptions {
     /// SIGINT/SIGTERM latched by `chaoscope_os::signals` stops it too. The output is then
     /// finalized as an interrupted run: a valid file up to the last sample.
     pub stop: Option<Arc<AtomicBool>>,
-    /// Replace an existing output file (`--force`).
+    /// `--force`: replace an existing output file, and start even a replay estimated to take
+    /// more than a day or more memory than the machine has (as `run` refuses it: the recorded
+    /// configuration with the replay's schemes).
     pub force: bool,
 }
 
@@ -72,6 +75,9 @@ pub enum ReplayError {
     Output(#[from] WriteError),
     #[error("nothing to replay: give --tau and/or --d0")]
     Nothing,
+    /// The estimate's refusal (`chaoscope_producer::estimate`), one line naming the key.
+    #[error("{0}")]
+    BeyondTheMachine(String),
 }
 
 impl From<SpecError> for ReplayError {
@@ -186,6 +192,15 @@ pub fn replay(
     let name = format!("{}-replay", header.run_name);
     new_config.run.name = Some(name.clone());
     let spec = RunSpec::from_config(&new_config)?;
+    // A recording's run may be one `run` refuses (or was forced): its replay, with more
+    // schemes, costs at least as much, so it is estimated like a run before anything is written.
+    let machine = Machine::this_host();
+    if let Some(why) = estimate::run(&spec, &machine).refusal(&machine) {
+        if !options.force {
+            return Err(ReplayError::BeyondTheMachine(why));
+        }
+        chaoscope_os::errln!("chaoscope replay: --force: starting although {why}");
+    }
     let new_header = run_header(&name, &new_config, &spec);
     let werr = |source| ReplayError::Write {
         path: output.display().to_string(),

@@ -57,6 +57,15 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         "what": what,
         "seconds": estimate.seconds,
         "bytes": estimate.bytes,
+        "orbit_steps": estimate.orbit_steps,
+        "cores": estimate.cores,
+        // What the time comes from, measured on this machine (a few milliseconds): nanoseconds
+        // per orbit-step and per tangent vector's step.
+        "calibration": estimate.calibration.map(|c| serde_json::json!({
+            "ns_per_orbit_step": c.ns_per_orbit_step,
+            "ns_per_tangent_step": c.ns_per_tangent_step,
+            "seconds_spent": c.seconds_spent,
+        })),
         "refused_without_force": refusal,
     }));
     Ok(ExitCode::SUCCESS)

@@ -89,8 +89,6 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let threads = args.threads.unwrap_or(machine.cores);
     let (total, count) = (spec.grid_points(), u64::from(args.shard.count));
     let points = total / count + u64::from(total % count > u64::from(args.shard.index));
-    let estimate = chaoscope_producer::estimate::map(&spec, points, threads);
-    super::check_estimate(&estimate, &machine, args.force, "map")?;
     let isa = match &args.isa {
         None => Isa::detect(),
         Some(name) => {
@@ -102,6 +100,15 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             isa
         }
     };
+    // Threads beyond the cores share them: the estimate spreads the work over the fewer.
+    let estimate = chaoscope_producer::estimate::map_on(
+        &spec,
+        points,
+        &machine,
+        threads.min(machine.cores),
+        isa,
+    );
+    super::check_estimate(&estimate, &machine, args.force, "map")?;
     let header = spec.header(args.shard);
     chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
     let termination = Termination::new();

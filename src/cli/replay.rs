@@ -25,7 +25,8 @@ pub struct Args {
     /// Do not re-run the original schemes (then only common sample times are compared).
     #[arg(long)]
     pub without_original: bool,
-    /// Replace the output file if it exists.
+    /// Replace the output file if it exists, and start even a replay estimated to take more
+    /// than a day or more memory than the machine has.
     #[arg(long)]
     pub force: bool,
     /// Print the comparison as JSON.

@@ -27,5 +27,5 @@ mod window;
 
 pub use indicator::Indicator;
 pub use point::{PointResult, PointStatus};
-pub use schedule::{MapOptions, run_map};
+pub use schedule::{Batching, MapOptions, run_map};
 pub use spec::{MapRoute, MapSpec, Shard};

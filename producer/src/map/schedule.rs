@@ -55,24 +55,7 @@ pub fn run_map(
         builder = builder.num_threads(n);
     }
     let pool = builder.build()?;
-    let orbits = method::of(spec.run.schemes()[0].method).lanes_are_orbits();
-    // The basis of tangent vectors of many points at once, one lane per point (its orbit and
-    // basis), where the kernel fuses them.
-    let fused = spec.route == MapRoute::Basis && !orbits && spec.fuses_orbits_and_tangents();
-    let points_per_batch = options.mpm_points_per_batch.max(1);
-    let per_batch = if !spec.has_batched_kernel() {
-        // Systems without a batched kernel: one point at a time through the one-orbit engine.
-        1
-    } else if fused || (orbits && spec.route == MapRoute::Basis) {
-        // One lane per point, or 1 + D lanes instead of 1 + sets * k: more points fill the
-        // kernel's chunks as well.
-        points_per_batch * ROUTE_BATCH_FACTOR
-    } else if orbits {
-        points_per_batch
-    } else {
-        // Tangent lanes follow their own point's reference: one point at a time.
-        1
-    };
+    let batching = Batching::of(spec, options.mpm_points_per_batch);
     let (tx, rx) = mpsc::channel::<PointResult>();
     let stop = std::sync::atomic::AtomicBool::new(false);
     std::thread::scope(|scope| {
@@ -83,22 +66,20 @@ pub fn run_map(
         };
         scope.spawn(move || {
             pool.install(|| {
-                points.par_chunks(per_batch).for_each_with(tx, |tx, chunk| {
-                    if stopped() {
-                        return;
-                    }
-                    let results = match spec.route {
-                        _ if fused => basis::compute_fused(spec, options.isa, chunk, &stopped),
-                        MapRoute::Basis => basis::compute(spec, options.isa, chunk, &stopped),
-                        MapRoute::PerSet => per_set::compute(spec, options.isa, chunk, &stopped),
-                    };
-                    for r in results {
-                        // The receiver hung up: the caller stopped.
-                        if tx.send(r).is_err() {
+                points
+                    .par_chunks(batching.points)
+                    .for_each_with(tx, |tx, chunk| {
+                        if stopped() {
                             return;
                         }
-                    }
-                })
+                        let results = batching.compute(spec, options.isa, chunk, &stopped);
+                        for r in results {
+                            // The receiver hung up: the caller stopped.
+                            if tx.send(r).is_err() {
+                                return;
+                            }
+                        }
+                    })
             });
         });
         for r in rx.iter() {
@@ -109,4 +90,54 @@ pub fn run_map(
         }
     });
     Ok(())
+}
+
+/// How a map's points are grouped into batches of the kernel, decided once per map.
+#[derive(Debug, Clone, Copy)]
+pub struct Batching {
+    /// Points one batch computes together.
+    pub points: usize,
+    /// The basis of tangent vectors of many points at once, one lane per point (its orbit and
+    /// basis), where the kernel fuses them.
+    fused: bool,
+}
+
+impl Batching {
+    /// `mpm_points_per_batch`: see [`MapOptions`].
+    pub fn of(spec: &MapSpec, mpm_points_per_batch: usize) -> Self {
+        let orbits = method::of(spec.run.schemes()[0].method).lanes_are_orbits();
+        let fused = spec.route == MapRoute::Basis && !orbits && spec.fuses_orbits_and_tangents();
+        let points_per_batch = mpm_points_per_batch.max(1);
+        let points = if !spec.has_batched_kernel() {
+            // Systems without a batched kernel: one point at a time through the one-orbit
+            // engine.
+            1
+        } else if fused || (orbits && spec.route == MapRoute::Basis) {
+            // One lane per point, or 1 + D lanes instead of 1 + sets * k: more points fill the
+            // kernel's chunks as well.
+            points_per_batch * ROUTE_BATCH_FACTOR
+        } else if orbits {
+            points_per_batch
+        } else {
+            // Tangent lanes follow their own point's reference: one point at a time.
+            1
+        };
+        Self { points, fused }
+    }
+
+    /// One batch of points (grid indices) computed on this thread by the spec's route, as
+    /// [`run_map`] computes each of its batches (and the estimate's calibration times one).
+    pub fn compute(
+        &self,
+        spec: &MapSpec,
+        isa: Isa,
+        indices: &[u64],
+        stop: &dyn Fn() -> bool,
+    ) -> Vec<PointResult> {
+        match spec.route {
+            _ if self.fused => basis::compute_fused(spec, isa, indices, stop),
+            MapRoute::Basis => basis::compute(spec, isa, indices, stop),
+            MapRoute::PerSet => per_set::compute(spec, isa, indices, stop),
+        }
+    }
 }

@@ -589,6 +589,14 @@ impl RunSpec {
         run
     }
 
+    /// The same run cut to its first `steps` steps (at least one, at most the run's own): what
+    /// the estimate's calibration times ([`crate::estimate`]).
+    pub(crate) fn truncated(&self, steps: u64) -> RunSpec {
+        let mut run = self.clone();
+        run.total_steps = steps.clamp(1, self.total_steps.max(1));
+        run
+    }
+
     /// Number of direction sets.
     pub fn sets(&self) -> usize {
         self.directions.sets()

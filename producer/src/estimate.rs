@@ -403,7 +403,10 @@ fn calibrate_map(spec: &MapSpec, isa: Isa) -> Option<Calibration> {
             ..spec.clone()
         };
         let t = Instant::now();
-        let results = batching.compute(&short, isa, &indices, &|| false);
+        // Uncounted: the map's C-kernel switch and its call counts see only the map's calls.
+        let results = chaoscope_expr::potential::uncounted(|| {
+            batching.compute(&short, isa, &indices, &|| false)
+        });
         let elapsed = t.elapsed();
         let orbit_steps: u64 = results.iter().map(|r| r.orbit_steps).sum();
         if orbit_steps == 0 {

@@ -30,7 +30,8 @@ const PARALLEL_MIN_WORK: u64 = 1024;
 /// A run that could not go on.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum RunError {
-    #[error("the reference orbit escaped or became non-finite by t = {t} (|x| = {norm:e}){}",
+    // Begins with `REFERENCE_ESCAPED`, which the verdict reads back from the end-of-run reason.
+    #[error("{} by t = {t} (|x| = {norm:e}){}", chaoscope_schemas::run::REFERENCE_ESCAPED,
         cause.as_ref().map(|c| format!(": {c}")).unwrap_or_default())]
     Escaped {
         t: f64,

@@ -181,3 +181,37 @@ pub struct SchemeSample {
     /// `|R_ii|` in QR mode).
     pub stretch: Vec<f64>,
 }
+
+/// How a run's end-of-run reason begins when the reference orbit escaped (its norm passed the
+/// producer's escape bound) or became non-finite: the producer writes it, the verdict reads it
+/// (`escaped`, never chaotic or regular). The reason goes on `" by t = <time> ..."`.
+pub const REFERENCE_ESCAPED: &str = "the reference orbit escaped or became non-finite";
+
+/// The time named by an end-of-run reason of an escaped reference orbit
+/// ([`REFERENCE_ESCAPED`]), `None` for any other reason (or a reason without a readable time).
+pub fn escape_time(reason: &str) -> Option<f64> {
+    let rest = reason.strip_prefix(REFERENCE_ESCAPED)?;
+    let rest = rest.strip_prefix(" by t = ")?;
+    let end = rest.find([' ', ',', ':', ')']).unwrap_or(rest.len());
+    rest[..end].parse::<f64>().ok().filter(|t| t.is_finite())
+}
+
+#[cfg(test)]
+mod escape_tests {
+    use super::*;
+
+    #[test]
+    fn the_escape_time_is_read_back_from_the_reason() {
+        let r = format!("{REFERENCE_ESCAPED} by t = 14.5 (|x| = 1e100): |x| passed 1e100");
+        assert_eq!(escape_time(&r), Some(14.5));
+        assert_eq!(
+            escape_time(&format!("{REFERENCE_ESCAPED} by t = 3")),
+            Some(3.0)
+        );
+        assert_eq!(escape_time("scheme 'mpm', set 0, t = 5: zero vector"), None);
+        assert_eq!(
+            escape_time(&format!("{REFERENCE_ESCAPED} by t = nan")),
+            None
+        );
+    }
+}

@@ -15,6 +15,8 @@ use chaoscope_schemas::run::{
 
 pub use chaoscope_indicators::SetValues;
 
+use chaoscope_schemas::proto::{EndOfRun, end_of_run};
+
 use crate::report::{ByOrder, DeltaLog, Report, RunReport, SchemeReport, VsVm};
 use crate::run_info::RunInfo;
 use crate::series::{SchemePoint, Series};
@@ -67,6 +69,12 @@ pub struct Analysis {
     schemes: Vec<SchemeState>,
     energy_error_max: f64,
     energy_series: Series<f64>,
+    /// The reference orbit's extent `max |x|` since the first state seen, log-spaced at the
+    /// verdict's resolution (the verdict's `unbounded`).
+    extent: Series<f64>,
+    extent_max: f64,
+    /// Time of the latest state seen.
+    extent_t: Option<f64>,
     /// The latest mean divergence of the reference orbit (cumulative from t = 0 in the
     /// producer, so a late reader still gets the whole orbit's).
     mean_divergence: f64,
@@ -124,6 +132,9 @@ impl Analysis {
             schemes,
             energy_error_max: 0.0,
             energy_series: Series::new(options.series_capacity, options.per_decade),
+            extent: Series::new(2, verdict::PER_DECADE),
+            extent_max: 0.0,
+            extent_t: None,
             mean_divergence: 0.0,
             step: 0,
             t: 0.0,
@@ -182,6 +193,15 @@ impl Analysis {
         self.t = sample.t;
         // Energies and divergences that are not finite (never written by a producer, which
         // stops first) are left out rather than carried into every report.
+        if !sample.state.is_empty() {
+            let norm = sample.state.iter().map(|v| v * v).sum::<f64>().sqrt();
+            if norm.is_finite() {
+                self.extent_max = self.extent_max.max(norm);
+            }
+            let extent = self.extent_max;
+            self.extent.offer(sample.t, || extent);
+            self.extent_t = Some(sample.t);
+        }
         if !sample.state.is_empty()
             && sample.energy.is_finite()
             && sample.mean_divergence.is_finite()
@@ -299,7 +319,21 @@ impl Analysis {
 
     /// Values now (at the latest sample).
     pub fn report(&self) -> Report {
+        self.report_with(None)
+    }
+
+    /// The report, with the verdict of a run that ended as `end` says (a failed run is never
+    /// chaotic or regular; an escaped reference orbit is `escaped`).
+    fn report_with(&self, end: Option<&EndOfRun>) -> Report {
         let (run, schemes, tracker) = (&self.run, &self.schemes[..], &self.tracker);
+        // Ending with the latest state's, whether the thinning kept it or not.
+        let mut extent = self.extent.points();
+        if self
+            .extent_t
+            .is_some_and(|t| extent.last().is_none_or(|p| p.0 < t))
+        {
+            extent.push((self.extent_t.unwrap_or(0.0), self.extent_max));
+        }
         let (energy_error_max, samples, t, complete) =
             (self.energy_error_max, self.samples, self.t, self.complete());
         let hamiltonian = run.kind == SystemKind::Hamiltonian;
@@ -344,8 +378,19 @@ impl Analysis {
                     dof: run.dim / 2,
                     k: run.k,
                 };
-                let (verdict, warnings) =
-                    verdict::assess(&settings, &curve, reported_energy_error.unwrap_or(0.0));
+                let run_values = verdict::RunValues {
+                    energy_error_max: reported_energy_error.unwrap_or(0.0),
+                    mean_divergence: (!hamiltonian).then_some(self.mean_divergence),
+                    complete,
+                    dim: run.dim,
+                };
+                let orbit = verdict::Orbit {
+                    extent: &extent,
+                    failure: end
+                        .filter(|e| e.status == end_of_run::Status::Failed as i32)
+                        .map(|e| (e.reason.as_str(), if e.t.is_finite() { e.t } else { t })),
+                };
+                let (verdict, warnings) = verdict::assess(&settings, &curve, &run_values, &orbit);
                 SchemeReport {
                     name: info.name.clone(),
                     method: info.method.name().to_string(),
@@ -404,8 +449,8 @@ impl Analysis {
 
     /// [`Analysis::report`] with how the producer ended the run (`run.end`), for a stream whose
     /// end-of-run record was seen (a finished recording, a monitor at the end).
-    pub fn report_ended(&self, end: Option<&chaoscope_schemas::proto::EndOfRun>) -> Report {
-        let mut report = self.report();
+    pub fn report_ended(&self, end: Option<&EndOfRun>) -> Report {
+        let mut report = self.report_with(end);
         report.run.end = end.map(crate::report::EndReport::from_message);
         report
     }

@@ -1,7 +1,15 @@
 //! The stored curves as CSV, one file per scheme plus the energy error (for other tools).
+//!
+//! Finite-time exponents: `lyapunov1..k` (kept for existing readers) are the mean over sets
+//! of each vector's `(1/t) sum ln stretch`, whatever the scheme. Only a QR scheme's are the
+//! Lyapunov spectrum; a rescale scheme's are per-vector growth rates, each an estimate of the
+//! MLE. So the same values are written again under their name: `spectrum1..k` for a QR scheme,
+//! `growth_rate1..k` for a rescale scheme (the other set of columns is empty).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
+
+use chaoscope_schemas::run::Orthonormalization;
 
 use crate::analysis::Analysis;
 
@@ -42,6 +50,13 @@ pub fn write_csv(
         for j in 2..=k {
             head.push(format!("gali{j}_vs_vm_mean_abs_delta_log10"));
         }
+        let qr = s.orthonormalize == Orthonormalization::Qr;
+        for i in 1..=k {
+            head.push(format!("spectrum{i}"));
+        }
+        for i in 1..=k {
+            head.push(format!("growth_rate{i}"));
+        }
         writeln!(f, "{}", head.join(","))?;
         for (t, p) in analysis.series(si) {
             let mut row = vec![t.to_string()];
@@ -52,6 +67,15 @@ pub fn write_csv(
             match &p.vs_vm_abs_delta {
                 Some(d) => row.extend(d.iter().map(f64::to_string)),
                 None => row.extend((2..=k).map(|_| String::new())),
+            }
+            let rates = || (0..k).map(|i| p.lyapunov.get(i).map_or(String::new(), f64::to_string));
+            let empty = || (0..k).map(|_| String::new());
+            if qr {
+                row.extend(rates());
+                row.extend(empty());
+            } else {
+                row.extend(empty());
+                row.extend(rates());
             }
             writeln!(f, "{}", row.join(","))?;
         }

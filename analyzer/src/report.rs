@@ -140,7 +140,9 @@ pub struct SchemeReport {
     /// Finite-time maximal Lyapunov exponent, mean over sets.
     pub mle: f64,
     /// Finite-time exponents, mean over sets: the spectrum lambda_1..lambda_k for QR schemes;
-    /// for rescaled schemes the MLE estimate of each vector.
+    /// for rescaled schemes only the MLE (the first vector's growth rate: the other vectors'
+    /// rates are each an estimate of the MLE, not a spectrum; the CSV names them
+    /// `growth_rate1..k`).
     pub lyapunov: Vec<f64>,
     pub lyapunov_std: Vec<f64>,
     /// Sum of the spectrum of a QR scheme with k = D: the rate of phase-space volume change the
@@ -151,7 +153,8 @@ pub struct SchemeReport {
     pub energy_error_max: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vs_vm: Option<VsVm>,
-    /// Chaotic, regular or undecided at this time, with the criterion and a confidence.
+    /// Chaotic, regular (with the torus dimension), escaped or unbounded (with the time), or
+    /// undecided (with the reason) at this time, with the criterion and a confidence.
     pub verdict: Verdict,
     /// Settings or values outside the region where the indicators are reliable.
     pub warnings: Vec<Warning>,

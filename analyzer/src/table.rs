@@ -77,12 +77,14 @@ pub fn table(report: &Report) -> String {
             s.t
         );
         for j in 2..=k {
-            line += &format!(
-                " {}",
-                cell(s.gali.get(j).map(|g| g.log10_mean), 9, |v| format!(
-                    "{v:.3}"
-                ))
-            );
+            // A QR scheme's vectors are re-orthonormalized at every renormalization: its GALI
+            // is 1 by construction and says nothing about the orbit, so it is not printed.
+            let gali = s
+                .gali
+                .get(j)
+                .map(|g| g.log10_mean)
+                .filter(|_| s.orthonormalize != "qr");
+            line += &format!(" {}", cell(gali, 9, |v| format!("{v:.3}")));
         }
         line += &format!(
             " {} {}",
@@ -113,9 +115,10 @@ pub fn table(report: &Report) -> String {
     }
     for s in &report.schemes {
         let v = &s.verdict;
-        let class = match v.torus_dimension {
-            Some(d) => format!("{} (on a {d}-torus)", v.class.word()),
-            None => v.class.word().to_string(),
+        let class = match (v.torus_dimension, v.time) {
+            (Some(d), _) => format!("{} (on a {d}-torus)", v.class.word()),
+            (None, Some(t)) => format!("{} (t = {t})", v.class.word()),
+            (None, None) => v.class.word().to_string(),
         };
         let _ = writeln!(
             out,

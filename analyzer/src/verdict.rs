@@ -1,10 +1,29 @@
 //! The verdict a newcomer can read: per scheme, is the orbit chaotic, regular (on a torus of
-//! which dimension) or undecided at this time, by which criterion and with what confidence; and
-//! warnings when the settings or the values leave the region where the indicators are reliable
-//! (Many Manda, Hillebrand, Skokos: the error analysis of GALI by VM and MPM).
+//! which dimension), escaped or unbounded (since when) or undecided (why) at this time, by which
+//! criterion and with what confidence; and warnings when the settings or the values leave the
+//! region where the indicators are reliable (Many Manda, Hillebrand, Skokos: the error analysis
+//! of GALI by VM and MPM).
 //!
 //! Sans-io and pure: a function of what the analysis already keeps per scheme (its curve of
-//! geometric-mean GALI_j and finite-time MLE, the scheme's settings, the energy error).
+//! geometric-mean GALI_j and finite-time exponents, the scheme's settings, the energy error or
+//! mean divergence) and of the reference orbit (its extent over time, how the run ended).
+//!
+//! # Outcomes before chaos and order
+//!
+//! Chaotic and regular describe a bounded orbit; the first rule that applies decides:
+//! 1. **escaped**: the run failed because the reference orbit escaped (the producer's escape
+//!    bound on `|x|`) or became non-finite; the end-of-run reason names the time
+//!    (`chaoscope_schemas::run::REFERENCE_ESCAPED`). `time` is that time.
+//! 2. **unbounded**: the extent `R(t) = max_{t' <= t} |x(t')|` of the reference state (every
+//!    sample carries it) grew by a factor 2 over the latest decade `[t/10, t]` and by 1.25 over
+//!    each half of it, with at least 10 samples in the decade: a steady drift (`|x| ~ t`: 10
+//!    per decade) or diffusion (`|x| ~ t^(1/2)`: 3.2), not a bounded orbit reaching a new
+//!    corner once. `time` is the latest sample's. Also a failed run whose extent grew a
+//!    hundredfold over its second half (the Henon map at a = 1.6, whose MPM separations drown
+//!    in the rounding of `|x| ~ 1e8` before the reference reaches the escape bound).
+//! 3. **undecided** (`run_failed`): any other failed run.
+//! 4. Otherwise chaotic, regular or undecided as below; a regular verdict also needs the
+//!    extent to have grown by at most 1.5 over the latest decade (`extent_growing` otherwise).
 //!
 //! # Criteria
 //!
@@ -32,7 +51,8 @@
 //!      chaotic orbit's GALIs can pass for power laws: the HH chaotic orbit at t ~ 25 shows
 //!      slopes 0.5, 2.0, 4.0 over [8, 25]);
 //!   2. over the last decade `[t/10, t]`, the exponents `p_j` of the GALI_j away from the floor
-//!      are within `0.7` of the pattern of some torus dimension `2 <= s <= N`; a chaotic orbit
+//!      are within `0.7` of the pattern of some torus dimension `1 <= s <= N` (`N = D/2`; a 2D
+//!      map's island orbit is a 1-torus, GALI_2 ~ t^-2; a 4D map's 1-torus gives t^-1, -2, -4); a chaotic orbit
 //!      cannot match it: with `k = 2N`, `p_N ~ l1 t <= 0.7` forces `p_2N = 2N l1 t <= 1.4 N`,
 //!      short of `2N - 0.7`;
 //!   3. at least one of them decays (`p_j >= 1`): constant GALIs alone are also what a chaotic
@@ -47,7 +67,23 @@
 //!   exactly one does (`None` otherwise: the orbit's GALIs may still be crossing over).
 //! - otherwise **undecided**. Schemes with QR orthonormalization re-orthonormalize the vectors at
 //!   every renormalization, so their GALI does not accumulate: they are called chaotic by the
-//!   MLE alone at twice the threshold (10 e-folds), and never regular.
+//!   MLE alone at twice the threshold (10 e-folds; the criterion states the ratio reached), and
+//!   never regular.
+//!
+//! Undecided verdicts carry a `reason` word ([`Undecided`]) besides the criterion text.
+//!
+//! # Warnings
+//!
+//! Settings (they halve the confidence): `d0_far_from_sqrt_eps`, `tau_above_one` (MPM),
+//! `energy_error_above_sqrt_eps` (Hamiltonians), `exponent_sum_off_divergence` (flows and maps:
+//! a QR scheme with `k = D` whose exponents' sum is off the mean divergence by more than 1e-3
+//! of the largest rate; for a map the two are equal to rounding, for a flow they differ by the
+//! integration error, ~h^4 for rk4: Lorenz at h = 0.05 gives 7e-3). Values, for rescale
+//! schemes not called chaotic (where the floor is expected): `gali_at_rounding_floor`, and for
+//! MPM `mpm_departs_from_vm` (more than 1 decade from the VM scheme with the same tau, mean
+//! over sets) and, without such a VM scheme, `mpm_leaves_power_law` (a GALI decaying with
+//! exponent >= 1 over `[t/10, t/3.2]` keeps less than half of it over `[t/3.2, t]`: the
+//! separations' floor).
 //!
 //! # Confidence
 //!
@@ -60,7 +96,7 @@
 
 use serde::Serialize;
 
-use chaoscope_schemas::run::{Method, Orthonormalization};
+use chaoscope_schemas::run::{Method, Orthonormalization, escape_time};
 
 use crate::series::SchemePoint;
 
@@ -70,6 +106,10 @@ use crate::series::SchemePoint;
 pub enum Class {
     Chaotic,
     Regular,
+    /// The reference orbit left for infinity (or became non-finite): the run ended there.
+    Escaped,
+    /// The reference orbit's extent in phase space keeps growing.
+    Unbounded,
     Undecided,
 }
 
@@ -78,6 +118,8 @@ impl Class {
         match self {
             Class::Chaotic => "chaotic",
             Class::Regular => "regular",
+            Class::Escaped => "escaped",
+            Class::Unbounded => "unbounded",
             Class::Undecided => "undecided",
         }
     }
@@ -93,13 +135,49 @@ pub struct Verdict {
     pub criterion: String,
     /// In [0, 1]; see the module documentation.
     pub confidence: f64,
+    /// Escaped: the time by which the reference orbit escaped; unbounded: the time of the
+    /// latest sample, whose extent the criterion names; `None` (absent from JSON) otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub time: Option<f64>,
+    /// Undecided: what is missing, as a stable word (see [`Undecided`]); `None` (absent from
+    /// JSON) otherwise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reason: Option<Undecided>,
+}
+
+/// Why a verdict is undecided (the `reason` field: a stable word scripts can test; the
+/// criterion text says it with the numbers).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Undecided {
+    /// No sample after t = 0 yet, or too few renormalizations for a window of time.
+    TooEarly,
+    /// The deviation grew exponentially but no GALI decayed faster than a power law (yet).
+    NoGaliEvidence,
+    /// A QR scheme whose MLE has not grown by its threshold (its GALI does not accumulate).
+    QrMleBelowThreshold,
+    /// GALI_2 is at the rounding floor.
+    GaliAtFloor,
+    /// The GALI slopes steepen like an exponential, not a power law.
+    NotSteady,
+    /// The GALI slopes match no torus pattern.
+    NoTorusPattern,
+    /// Every GALI stays constant: a torus of dimension >= k, or chaos before its Lyapunov time.
+    ConstantGali,
+    /// GALI power laws, but the deviation grew faster than linearly.
+    FastGrowth,
+    /// The orbit's extent still grows, too slowly to call it unbounded.
+    ExtentGrowing,
+    /// The run failed for a reason other than the reference orbit escaping.
+    RunFailed,
 }
 
 /// A setting or value outside the region where the indicators are reliable.
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Warning {
     /// Stable identifier: one of [`D0_FAR_FROM_SQRT_EPS`], [`TAU_ABOVE_ONE`],
-    /// [`ENERGY_ERROR_ABOVE_SQRT_EPS`], [`GALI_AT_ROUNDING_FLOOR`].
+    /// [`ENERGY_ERROR_ABOVE_SQRT_EPS`], [`GALI_AT_ROUNDING_FLOOR`], [`MPM_DEPARTS_FROM_VM`],
+    /// [`MPM_LEAVES_POWER_LAW`], [`EXPONENT_SUM_OFF_DIVERGENCE`].
     pub code: String,
     pub message: String,
 }
@@ -108,6 +186,22 @@ pub const D0_FAR_FROM_SQRT_EPS: &str = "d0_far_from_sqrt_eps";
 pub const TAU_ABOVE_ONE: &str = "tau_above_one";
 pub const ENERGY_ERROR_ABOVE_SQRT_EPS: &str = "energy_error_above_sqrt_eps";
 pub const GALI_AT_ROUNDING_FLOOR: &str = "gali_at_rounding_floor";
+pub const MPM_DEPARTS_FROM_VM: &str = "mpm_departs_from_vm";
+pub const MPM_LEAVES_POWER_LAW: &str = "mpm_leaves_power_law";
+pub const EXPONENT_SUM_OFF_DIVERGENCE: &str = "exponent_sum_off_divergence";
+
+/// Decades between MPM's and VM's log10 GALI_j (mean over sets) beyond which MPM has left VM.
+/// MPM's own error at a `d0` of the paper's range is far below it; the paper's regular FPUT
+/// N = 5 orbit shows 0.3 decades on GALI_10 by t ~ 700 (a start at the floor, not yet a
+/// departure worth a warning), the floor reached takes MPM decades away.
+pub const MPM_VM_TOL: f64 = 1.0;
+/// Fraction of its log-log exponent over `[t/10, t/3.2]` below which an MPM GALI's exponent
+/// over `[t/3.2, t]` tells it has left its power law.
+const MPM_SLOPE_KEPT: f64 = 0.5;
+/// Relative difference of the sum of a QR spectrum and the mean divergence (relative to the
+/// largest of the rates) above which the integration error shows: for Lorenz, rk4 at h = 0.05
+/// gives 7e-3, at h = 0.01 (error ~ h^4) about 1e-5.
+pub const SUM_DIVERGENCE_TOL: f64 = 1e-3;
 
 /// Double-precision rounding unit.
 pub const EPS: f64 = f64::EPSILON;
@@ -118,6 +212,21 @@ pub const D0_DECADES: f64 = 2.0;
 
 /// e-folds of growth of the log-stretch over `[t/2, t]` for the MLE criterion of chaos.
 const CHAOS_STRETCH: f64 = 5.0;
+/// The same for QR schemes, whose GALI gives no second sign: twice as much.
+const QR_CHAOS_STRETCH: f64 = 2.0 * CHAOS_STRETCH;
+/// Growth of the orbit's extent over the latest decade of time for `unbounded` ...
+const EXTENT_GROWTH: f64 = 2.0;
+/// ... and over each half of that decade.
+const EXTENT_HALF_GROWTH: f64 = 1.25;
+/// Largest growth of the extent over the latest decade for a regular verdict: a quasi-periodic
+/// orbit has come close to its largest |x| within the first tenth of its time (at least 10
+/// renormalizations).
+const EXTENT_BOUNDED: f64 = 1.5;
+/// Growth of the extent over the second half of a failed run that tells the orbit was running
+/// away when it failed.
+const RUNAWAY_GROWTH: f64 = 100.0;
+/// Least points of the extent in the latest decade for an extent criterion.
+const MIN_EXTENT_POINTS: usize = 10;
 /// Exponent margin beyond the steepest power law of a regular orbit.
 const CHAOS_SLOPE_MARGIN: f64 = 2.0;
 /// Tolerance on a power-law exponent of a regular orbit.
@@ -276,25 +385,130 @@ fn confidence(x: f64) -> f64 {
     1.0 - 0.5 / x.clamp(1.0, 10.0)
 }
 
-/// The verdict from a scheme's curve (time order, ending with the latest sample).
-pub fn verdict(settings: &Settings, curve: &[(f64, &SchemePoint)]) -> Verdict {
-    let undecided = |criterion: String| Verdict {
+/// What the verdict knows of the reference orbit itself, besides a scheme's curve.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Orbit<'a> {
+    /// The orbit's extent `R(t) = max_{t' <= t} |x(t')|` (Euclidean norm of the reference
+    /// state), at log-spaced times in time order (empty when no state was seen).
+    pub extent: &'a [(f64, f64)],
+    /// The run's end-of-run reason and the time of its last sample, when the run failed.
+    pub failure: Option<(&'a str, f64)>,
+}
+
+fn undecided(reason: Undecided, criterion: String) -> Verdict {
+    Verdict {
         class: Class::Undecided,
         torus_dimension: None,
         criterion,
         confidence: 0.0,
-    };
+        time: None,
+        reason: Some(reason),
+    }
+}
+
+/// Growth of the extent over the latest decade of time: `R(t/10)`, `R(t/sqrt 10)`, `R(t)` and
+/// `t`, when the decade holds at least [`MIN_EXTENT_POINTS`] points after t = 0.
+fn extent_decade(extent: &[(f64, f64)]) -> Option<(f64, f64, f64, f64)> {
+    let &(t, r) = extent.last()?;
+    let at = |x: f64| extent.iter().rposition(|p| p.0 <= x).map(|i| extent[i].1);
+    let in_decade = extent
+        .iter()
+        .filter(|p| p.0 > 0.0 && p.0 >= t / 10.0)
+        .count();
+    if t <= 0.0 || in_decade < MIN_EXTENT_POINTS {
+        return None;
+    }
+    Some((at(t / 10.0)?, at(t / 10f64.sqrt())?, r, t))
+}
+
+/// The unbounded verdict, when the extent grew by [`EXTENT_GROWTH`] over the latest decade and
+/// by [`EXTENT_HALF_GROWTH`] over each of its halves: steady growth, as of an orbit drifting or
+/// diffusing away (a drift `|x| ~ t` gives 10 and 3.2, diffusion `|x| ~ t^(1/2)` 3.2 and 1.8),
+/// not a bounded orbit reaching a new corner of its region once.
+fn unbounded(extent: &[(f64, f64)]) -> Option<Verdict> {
+    let (r0, r1, r, t) = extent_decade(extent)?;
+    let growing =
+        r >= EXTENT_GROWTH * r0 && r1 >= EXTENT_HALF_GROWTH * r0 && r >= EXTENT_HALF_GROWTH * r1;
+    growing.then(|| Verdict {
+        class: Class::Unbounded,
+        torus_dimension: None,
+        criterion: format!(
+            "the orbit's extent max |x| grew from {r0:.3e} by t = {} to {r1:.3e} by t = {} and \
+             {r:.3e} by t = {} (x{:.1} over the decade; a bounded orbit's extent levels off)",
+            time(t / 10.0),
+            time(t / 10f64.sqrt()),
+            time(t),
+            r / r0.max(f64::MIN_POSITIVE),
+        ),
+        confidence: confidence(r / r0.max(f64::MIN_POSITIVE) / EXTENT_GROWTH),
+        time: Some(t),
+        reason: None,
+    })
+}
+
+/// The verdict from a scheme's curve (time order, ending with the latest sample) and what is
+/// known of the reference orbit. In order: an escaped reference orbit is `escaped`, a growing
+/// extent `unbounded`, a run failed otherwise `undecided`; only then chaotic or regular.
+pub fn verdict(settings: &Settings, curve: &[(f64, &SchemePoint)], orbit: &Orbit) -> Verdict {
+    if let Some((reason, t_last)) = orbit.failure
+        && let Some(t) = escape_time(reason)
+    {
+        return Verdict {
+            class: Class::Escaped,
+            torus_dimension: None,
+            criterion: format!(
+                "the reference orbit escaped by t = {} (last sample at t = {}): {reason}",
+                time(t),
+                time(t_last)
+            ),
+            confidence: 1.0,
+            time: Some(t),
+            reason: None,
+        };
+    }
+    if let Some(v) = unbounded(orbit.extent) {
+        return v;
+    }
+    if let Some((reason, t_last)) = orbit.failure {
+        // Running away when the run stopped: the extent grew a hundredfold over the last half
+        // of the run (the Henon map at a = 1.6 squares |x| every iteration, and its MPM
+        // separations vanish in the rounding of |x| ~ 1e8 before the escape bound).
+        if let Some(&(t, r)) = orbit.extent.last()
+            && let Some(i) = orbit.extent.iter().rposition(|p| p.0 <= t / 2.0)
+            && r >= RUNAWAY_GROWTH * orbit.extent[i].1
+        {
+            let r0 = orbit.extent[i].1;
+            return Verdict {
+                class: Class::Unbounded,
+                torus_dimension: None,
+                criterion: format!(
+                    "the run failed after t = {} ({reason}) while the orbit ran away: its extent \
+                     max |x| grew from {r0:.3e} by t = {} to {r:.3e} by t = {}",
+                    time(t_last),
+                    time(orbit.extent[i].0),
+                    time(t)
+                ),
+                confidence: confidence(r / r0.max(f64::MIN_POSITIVE) / RUNAWAY_GROWTH),
+                time: Some(t),
+                reason: None,
+            };
+        }
+        return undecided(
+            Undecided::RunFailed,
+            format!(
+                "the run failed after t = {}: {reason}; a failed run is neither chaotic nor \
+                 regular",
+                time(t_last)
+            ),
+        );
+    }
     let pts = thin(curve);
     if pts.is_empty() {
-        return undecided("no samples after t = 0 yet".into());
+        return undecided(Undecided::TooEarly, "no samples after t = 0 yet".into());
     }
     let floor = settings.floor_log10();
     let qr = settings.orthonormalize == Orthonormalization::Qr;
-    let chaos_stretch = if qr {
-        2.0 * CHAOS_STRETCH
-    } else {
-        CHAOS_STRETCH
-    };
+    let chaos_stretch = if qr { QR_CHAOS_STRETCH } else { CHAOS_STRETCH };
     let mle = curve
         .last()
         .and_then(|(_, p)| p.lyapunov.first().copied())
@@ -314,8 +528,14 @@ pub fn verdict(settings: &Settings, curve: &[(f64, &SchemePoint)]) -> Verdict {
             return Verdict {
                 class: Class::Chaotic,
                 torus_dimension: None,
-                criterion: format!("{mle_text}; QR scheme: MLE alone, at twice the threshold"),
+                criterion: format!(
+                    "{mle_text}; QR scheme: MLE alone, {:.1} times its threshold of \
+                     e^{QR_CHAOS_STRETCH} (its GALI does not accumulate)",
+                    ds / chaos_stretch
+                ),
                 confidence: confidence(ds / chaos_stretch),
+                time: None,
+                reason: None,
             };
         }
         if let Some((j, p, t_end)) = exponential_decay(&pts, floor, settings.k) {
@@ -331,24 +551,40 @@ pub fn verdict(settings: &Settings, curve: &[(f64, &SchemePoint)]) -> Verdict {
                     2 * (j - 1)
                 ),
                 confidence: confidence(x),
+                time: None,
+                reason: None,
             };
         }
-        return undecided(format!(
-            "{mle_text}, but no GALI has decayed faster than a power law yet"
-        ));
+        return undecided(
+            Undecided::NoGaliEvidence,
+            format!("{mle_text}, but no GALI has decayed faster than a power law yet"),
+        );
     }
     if qr {
         return undecided(
-            "QR scheme: its GALI does not accumulate, and the MLE has not grown exponentially \
-             (yet)"
-                .into(),
+            Undecided::QrMleBelowThreshold,
+            format!(
+                "QR scheme: its GALI does not accumulate, and the deviation has not grown by \
+                 e^{QR_CHAOS_STRETCH} over any [t'/2, t'] (yet)"
+            ),
         );
     }
 
-    // Regular.
+    // Regular: never while the orbit's extent still grows.
+    if let Some((r0, _, r, _)) = extent_decade(orbit.extent)
+        && r > EXTENT_BOUNDED * r0
+    {
+        return undecided(
+            Undecided::ExtentGrowing,
+            format!(
+                "the orbit's extent max |x| still grows ({r0:.3e} at t/10, {r:.3e} at t): not \
+                 on a torus"
+            ),
+        );
+    }
     match regular(settings, &pts, floor) {
         Ok(v) => v,
-        Err(why) => undecided(why),
+        Err((reason, why)) => undecided(reason, why),
     }
 }
 
@@ -396,7 +632,7 @@ fn exponential_decay(pts: &[Pt], floor: f64, k: usize) -> Option<(usize, f64, f6
     best.map(|(j, p, t, _)| (j, p, t))
 }
 
-fn regular(settings: &Settings, pts: &[Pt], floor: f64) -> Result<Verdict, String> {
+fn regular(settings: &Settings, pts: &[Pt], floor: f64) -> Result<Verdict, (Undecided, String)> {
     let last = *pts.last().expect("non-empty");
     let t = last.t;
     let n = settings.dof;
@@ -405,22 +641,31 @@ fn regular(settings: &Settings, pts: &[Pt], floor: f64) -> Result<Verdict, Strin
         pts.iter().position(|p| p.t >= t / 10.0),
         pts.iter().position(|p| p.t >= split),
     ) else {
-        return Err("too early for a power law over a decade of time".into());
+        return Err((
+            Undecided::TooEarly,
+            "too early for a power law over a decade of time".into(),
+        ));
     };
     let (w1, w2) = (&pts[a..b], &pts[b..]);
     if w1.len() < MIN_POINTS || w2.len() < MIN_POINTS {
-        return Err("too early for a power law over a decade of time".into());
+        return Err((
+            Undecided::TooEarly,
+            "too early for a power law over a decade of time".into(),
+        ));
     }
     let top = usable_top(&pts[a..], floor).min(settings.k);
     if top < 2 {
-        return Err("GALI_2 is at the rounding floor".into());
+        return Err((
+            Undecided::GaliAtFloor,
+            "GALI_2 is at the rounding floor".into(),
+        ));
     }
     let (mut p1, mut p2, mut pd) = (Vec::new(), Vec::new(), Vec::new());
     for j in 2..=top {
         let (Some((x1, _)), Some((x2, _)), Some((xd, _))) =
             (exponent(w1, j), exponent(w2, j), exponent(&pts[a..], j))
         else {
-            return Err("too few points for a power law".into());
+            return Err((Undecided::TooEarly, "too few points for a power law".into()));
         };
         p1.push(x1);
         p2.push(x2);
@@ -434,7 +679,8 @@ fn regular(settings: &Settings, pts: &[Pt], floor: f64) -> Result<Verdict, Strin
     };
     // Torus dimensions whose pattern the decade matches within REGULAR_TOL.
     let mut matches = Vec::new();
-    for s in 2..=n.max(2) {
+    // s = 1 included: a 2D map's island orbit (N = 1) is a 1-torus, GALI_2 ~ t^-2.
+    for s in 1..=n.max(1) {
         let dev = (2..=top)
             .enumerate()
             .map(|(i, j)| (pd[i] - torus_exponent(j, s, n) as f64).abs())
@@ -451,47 +697,66 @@ fn regular(settings: &Settings, pts: &[Pt], floor: f64) -> Result<Verdict, Strin
         .max_by(|a, b| a.1.total_cmp(b.1))
         .expect("at least GALI_2");
     if p_steep >= 1.0 && p2[steep] > MAX_ACCELERATION * p1[steep].max(0.5) {
-        return Err(format!(
-            "GALI_{} steepens from t^-{:.1} over [t/10, t/3.2] to t^-{:.1} over [t/3.2, t]: \
+        return Err((
+            Undecided::NotSteady,
+            format!(
+                "GALI_{} steepens from t^-{:.1} over [t/10, t/3.2] to t^-{:.1} over [t/3.2, t]: \
              not a steady power law",
-            steep + 2,
-            p1[steep],
-            p2[steep]
+                steep + 2,
+                p1[steep],
+                p2[steep]
+            ),
         ));
     }
     if t < MIN_REGULAR_RENORMALIZATIONS * settings.tau {
-        return Err(format!(
-            "too early: a regular verdict needs t >= {MIN_REGULAR_RENORMALIZATIONS} tau"
+        return Err((
+            Undecided::TooEarly,
+            format!("too early: a regular verdict needs t >= {MIN_REGULAR_RENORMALIZATIONS} tau"),
         ));
     }
     if matches.is_empty() {
-        return Err(format!(
-            "GALI_2..{top} log-log slopes over [t/10, t/3.2], [t/3.2, t] and [t/10, t]: ({}), \
+        return Err((
+            Undecided::NoTorusPattern,
+            format!(
+                "GALI_2..{top} log-log slopes over [t/10, t/3.2], [t/3.2, t] and [t/10, t]: ({}), \
              ({}), ({}) match no torus pattern",
-            fmt(&p1),
-            fmt(&p2),
-            fmt(&pd)
+                fmt(&p1),
+                fmt(&p2),
+                fmt(&pd)
+            ),
         ));
     }
     if pd.iter().all(|&p| p < 1.0) {
-        return Err(format!(
-            "GALI_2..{top} stay constant (slopes {}): consistent with a torus of dimension >= \
+        return Err((
+            Undecided::ConstantGali,
+            format!(
+                "GALI_2..{top} stay constant (slopes {}): consistent with a torus of dimension >= \
              {top}, but also with chaos before its first Lyapunov time; no GALI decays by a \
              power law (k = 2N vectors decide)",
-            fmt(&pd)
+                fmt(&pd)
+            ),
         ));
     }
     let ds = last.stretch - pts[a].stretch;
     let bound = 2.0 * 10f64.ln() + 2.0;
     if ds > bound {
-        return Err(format!(
-            "GALI power laws, but the deviation grew by e^{ds:.1} over [t/10, t], more than \
+        return Err((
+            Undecided::FastGrowth,
+            format!(
+                "GALI power laws, but the deviation grew by e^{ds:.1} over [t/10, t], more than \
              the linear growth of a regular orbit"
+            ),
         ));
     }
     let worst = matches.iter().map(|m| m.1).fold(f64::INFINITY, f64::min);
-    let torus_dimension =
-        (matches.len() == 1 && matches[0].1 <= DIMENSION_TOL).then(|| matches[0].0);
+    // Two tori's patterns differ by a whole power somewhere, so at most one is within
+    // DIMENSION_TOL (< 0.5) of the exponents; with s = 1 included, the neighbouring pattern is
+    // often within REGULAR_TOL too.
+    let best = matches
+        .iter()
+        .min_by(|a, b| a.1.total_cmp(&b.1))
+        .expect("a match");
+    let torus_dimension = (best.1 <= DIMENSION_TOL).then_some(best.0);
     let dim_text = match torus_dimension {
         Some(s) => format!("the exponents of a {s}-torus"),
         None => format!(
@@ -509,19 +774,38 @@ fn regular(settings: &Settings, pts: &[Pt], floor: f64) -> Result<Verdict, Strin
             fmt(&pd)
         ),
         confidence: confidence(x),
+        time: None,
+        reason: None,
     })
 }
 
-/// Warnings for a scheme: settings outside the paper's reliable region, and GALIs at the
-/// rounding floor (from the latest point of the curve).
+/// What the warnings need to know of the run as a whole.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct RunValues {
+    /// Largest relative energy error of the reference orbit (0 for systems without energy).
+    pub energy_error_max: f64,
+    /// Mean divergence of the reference orbit from t = 0 (flows and maps).
+    pub mean_divergence: Option<f64>,
+    /// Every stretching factor from t = 0 was seen (so a scheme's exponents cover the same
+    /// time as the mean divergence).
+    pub complete: bool,
+    /// Dimension of the state.
+    pub dim: usize,
+}
+
+/// Warnings for a scheme: settings outside the paper's reliable region, GALIs at the rounding
+/// floor (from the latest point of the curve), an MPM scheme leaving VM or its own power law,
+/// and the exponents' sum off the mean divergence.
 pub fn warnings(
     settings: &Settings,
-    energy_error_max: f64,
-    latest: Option<&SchemePoint>,
+    run: &RunValues,
+    curve: &[(f64, &SchemePoint)],
     verdict: &Verdict,
 ) -> Vec<Warning> {
+    let latest = curve.last().map(|(_, p)| *p);
     let mut out = Vec::new();
     let sqrt_eps = EPS.sqrt();
+    let energy_error_max = run.energy_error_max;
     if settings.method == Method::Mpm && (settings.d0 / sqrt_eps).log10().abs() > D0_DECADES {
         out.push(Warning {
             code: D0_FAR_FROM_SQRT_EPS.into(),
@@ -551,8 +835,15 @@ pub fn warnings(
             ),
         });
     }
+    if let Some(w) = exponent_sum_off_divergence(settings, run, latest) {
+        out.push(w);
+    }
+    // GALI values of QR schemes mean nothing (re-orthonormalized vectors); past an escape or a
+    // growing extent, or once chaos is decided, values at the floor are expected.
+    let gali_judged = settings.orthonormalize == Orthonormalization::Rescale
+        && matches!(verdict.class, Class::Regular | Class::Undecided);
     if let Some(p) = latest
-        && verdict.class != Class::Chaotic
+        && gali_judged
     {
         let pt = Pt {
             t: 0.0,
@@ -581,12 +872,140 @@ pub fn warnings(
             });
         }
     }
+    if settings.method == Method::Mpm && gali_judged {
+        // With a VM scheme beside it, the distance says it; without, the slopes.
+        match latest.and_then(|p| p.vs_vm_abs_delta.as_ref()) {
+            Some(_) => out.extend(mpm_off_vm(latest)),
+            None => out.extend(mpm_leaves_power_law(settings, curve)),
+        }
+    }
     out
+}
+
+/// An MPM scheme whose GALI_j is, averaged over the sets, more than [`MPM_VM_TOL`] decades from
+/// the VM scheme's with the same tau and directions. Away from the floor MPM differs from VM
+/// by `O((d0 tau)^k) + O((eps/d0)^k)`, far below a decade at any `d0` within the paper's
+/// range; a larger distance is the floor the rounding of `x + d` sets under the small singular
+/// values (numerics: GALI_4 of the HH chaotic orbit departs at t ~ 115 with d0 = 1e-8).
+fn mpm_off_vm(latest: Option<&SchemePoint>) -> Option<Warning> {
+    let d = latest?.vs_vm_abs_delta.as_ref()?;
+    let off: Vec<usize> = d
+        .iter()
+        .enumerate()
+        .filter(|(_, x)| **x > MPM_VM_TOL)
+        .map(|(o, _)| o + 2)
+        .collect();
+    let (&first, &last) = (off.first()?, off.last()?);
+    let worst = d.iter().copied().fold(0.0f64, f64::max);
+    let orders = if first == last {
+        format!("GALI_{first} is")
+    } else {
+        format!("GALI_{first}..{last} are")
+    };
+    Some(Warning {
+        code: MPM_DEPARTS_FROM_VM.into(),
+        message: format!(
+            "MPM {orders} more than {MPM_VM_TOL} decades from VM's (up to {worst:.1} decades, \
+             mean over sets): beyond what d0 allows, the nearby orbits' rounding (eps/d0) has \
+             reached these GALIs; read VM's values"
+        ),
+    })
+}
+
+/// An MPM scheme (without a VM scheme to compare with) whose GALI_j decayed by a power law
+/// over `[t/10, t/3.2]` (exponent >= 1) and decays by less than half that exponent over
+/// `[t/3.2, t]`: a regular orbit's power laws keep their exponents (the crossovers between
+/// tori patterns seen on FPUT change them by about one power) and a chaotic orbit's GALIs
+/// steepen, so a slope that gives way is the floor of the MPM's separations, reached before
+/// the eps/d0 factor check sees it.
+fn mpm_leaves_power_law(settings: &Settings, curve: &[(f64, &SchemePoint)]) -> Option<Warning> {
+    let pts = thin(curve);
+    let t = pts.last()?.t;
+    let a = pts.iter().position(|p| p.t >= t / 10.0)?;
+    let b = pts.iter().position(|p| p.t >= t / 10f64.sqrt())?;
+    let (w1, w2) = (&pts[a..b], &pts[b..]);
+    if t < MIN_REGULAR_RENORMALIZATIONS * settings.tau {
+        return None;
+    }
+    let k = pts.last()?.gali.len() + 1;
+    let mut off = Vec::new();
+    for j in 2..=k.min(settings.k) {
+        let (Some((p1, _)), Some((p2, _))) = (exponent(w1, j), exponent(w2, j)) else {
+            continue;
+        };
+        if p1 >= 1.0 && p2 < MPM_SLOPE_KEPT * p1 {
+            off.push((j, p1, p2));
+        }
+    }
+    let (j, p1, p2) = *off.first()?;
+    let others = if off.len() > 1 {
+        format!(" (and GALI_{})", {
+            off[1..]
+                .iter()
+                .map(|o| o.0.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        })
+    } else {
+        String::new()
+    };
+    Some(Warning {
+        code: MPM_LEAVES_POWER_LAW.into(),
+        message: format!(
+            "MPM GALI_{j}{others} left its power law: log-log slope -{p1:.1} over [t/10, \
+             t/3.2], -{p2:.1} over [t/3.2, t]; the separations' rounding floor (eps/d0 = \
+             {:.0e}) has been reached: use a VM scheme for these orders",
+            EPS / settings.d0.min(1.0)
+        ),
+    })
+}
+
+/// A QR scheme with `k = D` on a flow or map: the sum of its exponents is the mean
+/// `ln |det|` of the step's derivative, which for a map is the mean divergence (`ln |det DF|`)
+/// to rounding and for a flow approximates the mean of `div f` to the integrator's order.
+/// A relative difference above [`SUM_DIVERGENCE_TOL`] is the integration error (a step too
+/// large) or an inexact tangent: the exponents carry it too.
+fn exponent_sum_off_divergence(
+    settings: &Settings,
+    run: &RunValues,
+    latest: Option<&SchemePoint>,
+) -> Option<Warning> {
+    let div = run.mean_divergence?;
+    let p = latest?;
+    if settings.orthonormalize != Orthonormalization::Qr
+        || settings.k != run.dim
+        || p.lyapunov.len() != run.dim
+        || !run.complete
+    {
+        return None;
+    }
+    let sum: f64 = p.lyapunov.iter().sum();
+    let scale = p
+        .lyapunov
+        .iter()
+        .fold(div.abs(), |m, l| m.max(l.abs()))
+        .max(f64::MIN_POSITIVE);
+    let rel = (sum - div).abs() / scale;
+    (rel > SUM_DIVERGENCE_TOL).then(|| Warning {
+        code: EXPONENT_SUM_OFF_DIVERGENCE.into(),
+        message: format!(
+            "the exponents sum to {sum:.6} but the mean divergence is {div:.6} (difference \
+             {:.1e}, {rel:.1e} of the largest rate, above {SUM_DIVERGENCE_TOL:.0e}): the \
+             integration error shows in the exponents; use a smaller h",
+            sum - div
+        ),
+    })
 }
 
 /// Whether a warning is about the settings (lowers the confidence) rather than the values.
 pub fn is_settings_warning(w: &Warning) -> bool {
-    w.code != GALI_AT_ROUNDING_FLOOR
+    matches!(
+        w.code.as_str(),
+        D0_FAR_FROM_SQRT_EPS
+            | TAU_ABOVE_ONE
+            | ENERGY_ERROR_ABOVE_SQRT_EPS
+            | EXPONENT_SUM_OFF_DIVERGENCE
+    )
 }
 
 /// The verdict with its confidence lowered by the settings warnings that apply, and the
@@ -594,15 +1013,11 @@ pub fn is_settings_warning(w: &Warning) -> bool {
 pub fn assess(
     settings: &Settings,
     curve: &[(f64, &SchemePoint)],
-    energy_error_max: f64,
+    run: &RunValues,
+    orbit: &Orbit,
 ) -> (Verdict, Vec<Warning>) {
-    let mut v = verdict(settings, curve);
-    let w = warnings(
-        settings,
-        energy_error_max,
-        curve.last().map(|(_, p)| *p),
-        &v,
-    );
+    let mut v = verdict(settings, curve, orbit);
+    let w = warnings(settings, run, curve, &v);
     if w.iter().any(is_settings_warning) {
         v.confidence *= 0.5;
     }
@@ -650,7 +1065,7 @@ mod tests {
 
     fn judge(s: &Settings, c: &[(f64, SchemePoint)]) -> Verdict {
         let refs: Vec<(f64, &SchemePoint)> = c.iter().map(|(t, p)| (*t, p)).collect();
-        verdict(s, &refs)
+        verdict(s, &refs, &Orbit::default())
     }
 
     #[test]
@@ -717,14 +1132,13 @@ mod tests {
 
     #[test]
     fn settings_warnings_follow_the_paper_region() {
-        let v = Verdict {
-            class: Class::Undecided,
-            torus_dimension: None,
-            criterion: String::new(),
-            confidence: 0.0,
+        let v = undecided(Undecided::TooEarly, String::new());
+        let run = |e: f64| RunValues {
+            energy_error_max: e,
+            ..RunValues::default()
         };
         let codes = |s: &Settings, e: f64| -> Vec<String> {
-            warnings(s, e, None, &v)
+            warnings(s, &run(e), &[], &v)
                 .into_iter()
                 .map(|w| w.code)
                 .collect()
@@ -752,9 +1166,193 @@ mod tests {
             lyapunov: vec![0.0],
             vs_vm_abs_delta: None,
         };
-        let w = warnings(&settings(Method::Vm, 1e-8, 1.0, 2, 4), 0.0, Some(&p), &v);
+        let w = warnings(
+            &settings(Method::Vm, 1e-8, 1.0, 2, 4),
+            &run(0.0),
+            &[(1.0, &p)],
+            &v,
+        );
         assert_eq!(w.len(), 1);
         assert_eq!(w[0].code, GALI_AT_ROUNDING_FLOOR);
         assert!(w[0].message.contains("GALI_3..4"), "{}", w[0].message);
+    }
+
+    /// `R(t)` at t = 0, 1, .. t_final.
+    fn extent(t_final: usize, r: impl Fn(f64) -> f64) -> Vec<(f64, f64)> {
+        (0..=t_final).map(|i| (i as f64, r(i as f64))).collect()
+    }
+
+    fn judge_orbit(s: &Settings, c: &[(f64, SchemePoint)], orbit: &Orbit) -> Verdict {
+        let refs: Vec<(f64, &SchemePoint)> = c.iter().map(|(t, p)| (*t, p)).collect();
+        verdict(s, &refs, orbit)
+    }
+
+    #[test]
+    fn a_1_torus_of_a_2d_map_is_regular() {
+        // N = 1, k = 2: GALI_2 ~ t^-2 (s = 1: 2(j - N)), linear growth of the deviation.
+        let s = settings(Method::Vm, 1e-8, 1.0, 1, 2);
+        let c = curve(
+            3000,
+            2,
+            |_, t| -0.2 - 2.0 * t.max(1.0).log10(),
+            |t| (1.0 + 0.5 * t).ln() / t.max(1.0),
+        );
+        let v = judge(&s, &c);
+        assert_eq!(v.class, Class::Regular, "{v:?}");
+        assert_eq!(v.torus_dimension, Some(1));
+        // N = 2 on a 1-torus: t^-1, -2, -4.
+        let s = settings(Method::Vm, 1e-8, 1.0, 2, 4);
+        let c = curve(
+            3000,
+            4,
+            |j, t| -0.2 - (torus_exponent(j, 1, 2) as f64) * t.max(1.0).log10(),
+            |t| (1.0 + 0.5 * t).ln() / t.max(1.0),
+        );
+        let v = judge(&s, &c);
+        assert_eq!(v.class, Class::Regular, "{v:?}");
+        assert_eq!(v.torus_dimension, Some(1));
+    }
+
+    #[test]
+    fn escapes_growing_extents_and_failures_are_neither_chaotic_nor_regular() {
+        let s = settings(Method::Vm, 1e-8, 1.0, 2, 4);
+        let l1 = 0.05;
+        let chaotic = curve(
+            1500,
+            4,
+            |j, t| -((j - 1) as f64) * l1 * t / 10f64.ln(),
+            |_| l1,
+        );
+        let regular = curve(
+            2000,
+            4,
+            |j, t| -0.3 - (torus_exponent(j, 2, 2) as f64) * t.max(1.0).log10(),
+            |t| (1.0 + 0.5 * t).ln() / t.max(1.0),
+        );
+        let bounded = extent(2000, |t| 1.0 - 0.5 / (1.0 + t));
+        assert_eq!(
+            judge_orbit(
+                &s,
+                &chaotic,
+                &Orbit {
+                    extent: &bounded,
+                    failure: None
+                }
+            )
+            .class,
+            Class::Chaotic
+        );
+        // The producer's reason for an escape: escaped, with its time, whatever the curve.
+        let reason = format!(
+            "{} by t = 14 (|x| = 1e100)",
+            chaoscope_schemas::run::REFERENCE_ESCAPED
+        );
+        let v = judge_orbit(
+            &s,
+            &chaotic,
+            &Orbit {
+                extent: &bounded,
+                failure: Some((&reason, 13.0)),
+            },
+        );
+        assert_eq!((v.class, v.time), (Class::Escaped, Some(14.0)), "{v:?}");
+        // Any other failure: undecided.
+        let v = judge_orbit(
+            &s,
+            &regular,
+            &Orbit {
+                extent: &bounded,
+                failure: Some(("scheme 'mpm', set 0: zero", 2000.0)),
+            },
+        );
+        assert_eq!(
+            (v.class, v.reason),
+            (Class::Undecided, Some(Undecided::RunFailed)),
+            "{v:?}"
+        );
+        // A linear drift: unbounded; a square-root diffusion too; a bounded orbit is not.
+        for r in [|t: f64| 1.0 + 4.0 * t, |t: f64| 1.0 + t.sqrt()] {
+            let e = extent(2000, r);
+            let v = judge_orbit(
+                &s,
+                &regular,
+                &Orbit {
+                    extent: &e,
+                    failure: None,
+                },
+            );
+            assert_eq!((v.class, v.time), (Class::Unbounded, Some(2000.0)), "{v:?}");
+        }
+        let v = judge_orbit(
+            &s,
+            &regular,
+            &Orbit {
+                extent: &bounded,
+                failure: None,
+            },
+        );
+        assert_eq!(v.class, Class::Regular, "{v:?}");
+        // A slow growth (t^0.2: 1.6 per decade) is not unbounded, but not regular either.
+        let e = extent(2000, |t| (1.0 + t).powf(0.2));
+        let v = judge_orbit(
+            &s,
+            &regular,
+            &Orbit {
+                extent: &e,
+                failure: None,
+            },
+        );
+        assert_eq!(
+            (v.class, v.reason),
+            (Class::Undecided, Some(Undecided::ExtentGrowing))
+        );
+        // One jump to a new region (x2 at t = 1500) is not a steady growth.
+        let e = extent(2000, |t| if t < 1500.0 { 1.0 } else { 2.5 });
+        let v = judge_orbit(
+            &s,
+            &chaotic,
+            &Orbit {
+                extent: &e,
+                failure: None,
+            },
+        );
+        assert_eq!(v.class, Class::Chaotic, "{v:?}");
+    }
+
+    #[test]
+    fn the_qr_criterion_states_its_ratio_and_the_exponent_sum_is_checked() {
+        let mut s = settings(Method::Vm, 1e-8, 1.0, 1, 3);
+        s.orthonormalize = Orthonormalization::Qr;
+        let c = curve(200, 3, |_, _| 0.0, |_| 0.9);
+        let v = judge(&s, &c);
+        assert_eq!(v.class, Class::Chaotic);
+        // The thinned curve (about 40 points per decade) has t = 95 as its last point at or
+        // before 100: the deviation grew by e^(0.9 * 105) = e^94.5, 9.4 times e^10.
+        assert!(
+            v.criterion.contains("9.4 times its threshold"),
+            "{}",
+            v.criterion
+        );
+        let point = |sum_off: f64| SchemePoint {
+            gali_log10_mean: vec![0.0, 0.0],
+            gali_log10_of_mean: Vec::new(),
+            sali_log10_mean: None,
+            lyapunov: vec![0.906, 0.0, -14.573 + sum_off],
+            vs_vm_abs_delta: None,
+        };
+        let run = RunValues {
+            energy_error_max: 0.0,
+            mean_divergence: Some(-13.667),
+            complete: true,
+            dim: 3,
+        };
+        let codes = |p: &SchemePoint| -> Vec<String> {
+            warnings(&s, &run, &[(100.0, p)], &v)
+                .into_iter()
+                .map(|w| w.code)
+                .collect()
+        };
+        assert!(codes(&point(0.0)).is_empty());
+        assert_eq!(codes(&point(0.1)), [EXPONENT_SUM_OFF_DIVERGENCE]);
     }
 }

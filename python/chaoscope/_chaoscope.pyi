@@ -39,7 +39,9 @@ class Indicators:
     sali_sets: FloatArray
     """SALI of each set, shape (n, sets)."""
     exponents: FloatArray
-    """Finite-time exponent of each vector, mean over the sets, shape (n, k)."""
+    """Finite-time exponent of each vector, mean over the sets, shape (n, k): the Lyapunov
+    spectrum for a QR scheme; for a rescale scheme each vector's growth rate, an estimate of the
+    MLE each (not a spectrum)."""
     exponents_sets: FloatArray
     """The same per set, shape (n, sets, k)."""
     mle: FloatArray

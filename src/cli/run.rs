@@ -260,10 +260,11 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         chaoscope_os::outln!("analysis: chaoscope analyze {}", out.display())?;
         return Ok(child_code(producer_status));
     }
-    let (analysis, _info) = chaoscope_analyzer::recording::analyze_file(
+    let (analysis, info) = chaoscope_analyzer::recording::analyze_file(
         &out,
         &chaoscope_analyzer::AnalysisOptions::default(),
     )?;
-    super::analyze::print_table(&analysis.report())?;
+    // With the run's end, so an escaped or failed orbit is said so in the verdicts.
+    super::analyze::print_table(&analysis.report_ended(info.end.as_ref()))?;
     Ok(child_code(producer_status))
 }

@@ -15,8 +15,8 @@ A thin layer over the chaoscope Rust crates (the same engine, file format and an
   gap count)
 
 Configurations are a dict, a TOML string or a path, exactly as the ``chaoscope`` command reads
-them (README.md: "Run configuration"). Errors raise ``ChaoscopeError`` with the command's
-one-line message; long calls release the GIL and stop on Ctrl-C (``KeyboardInterrupt``).
+them (the guide: docs/src/configuration.md, every key in docs/src/reference.md). Errors raise
+``ChaoscopeError`` with the command's one-line message; long calls release the GIL and stop on Ctrl-C (``KeyboardInterrupt``).
 """
 
 from ._chaoscope import (

@@ -8,7 +8,7 @@
 //! force and the drift and kick, not calls, spills or address arithmetic), and at two lanes per
 //! instruction they ran 1.6-2.6x behind the built-in models' AVX2 kernels. The same graph as
 //! C, each value two 4-lane vectors (two AVX2 registers, two independent chains), closes most
-//! of that (see the README's speed paragraph for the figures).
+//! of that (the figures: docs/src/performance.md, "Expressions against the built-in models").
 //!
 //! What keeps the bits those of [`crate::eval`]:
 //! - every value is a GCC vector (`vector_size`), whose `+ - * /` are the IEEE operations lane

@@ -2,6 +2,8 @@
 //! struct and a `main(args) -> anyhow::Result<ExitCode>`; this file only dispatches.
 
 mod cli;
+#[cfg(test)]
+mod guide;
 
 use std::io::Write;
 use std::process::ExitCode;

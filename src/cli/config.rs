@@ -33,23 +33,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     };
     let (config, _) = super::load_config(&path)?;
     let machine = super::machine();
-    let (what, estimate) = if config.map.is_some() {
-        let spec = MapSpec::from_config(&config).context("invalid map configuration")?;
-        let points = spec.grid_points();
-        let e = estimate::map(&spec, points, machine.cores);
-        (format!("a map of {points} points"), e)
-    } else {
-        let spec = RunSpec::from_config(&config).context("invalid run configuration")?;
-        let e = estimate::run(&spec, &machine);
-        (
-            format!(
-                "a run of a {} of dimension {}",
-                spec.system().kind().name(),
-                spec.dim()
-            ),
-            e,
-        )
-    };
+    let (what, estimate) = validate(&config, &machine)?;
     let refusal = estimate.refusal(&machine);
     super::print_summary(&serde_json::json!({
         "config": path.display().to_string(),
@@ -69,4 +53,30 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         "refused_without_force": refusal,
     }));
     Ok(ExitCode::SUCCESS)
+}
+
+/// Validates a configuration as `run` (or `map`, when it has a `[map]` table) would, and says
+/// what it is and what it would cost on `machine`. The guide's test validates its examples
+/// through this too.
+pub fn validate(
+    config: &RunConfig,
+    machine: &estimate::Machine,
+) -> anyhow::Result<(String, estimate::Estimate)> {
+    Ok(if config.map.is_some() {
+        let spec = MapSpec::from_config(config).context("invalid map configuration")?;
+        let points = spec.grid_points();
+        let e = estimate::map(&spec, points, machine.cores);
+        (format!("a map of {points} points"), e)
+    } else {
+        let spec = RunSpec::from_config(config).context("invalid run configuration")?;
+        let e = estimate::run(&spec, machine);
+        (
+            format!(
+                "a run of a {} of dimension {}",
+                spec.system().kind().name(),
+                spec.dim()
+            ),
+            e,
+        )
+    })
 }

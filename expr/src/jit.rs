@@ -57,12 +57,18 @@ use cranelift_module::{FuncId, Linkage, Module};
 
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
 
+mod c_sites;
 mod c_step;
+mod site_steps;
+mod sites;
 mod step;
 mod step_cranelift;
 mod step_spec;
 
+pub use c_sites::{compile_lattice_steps_c, compile_lattice_steps_c_cancellable};
 pub use c_step::{C_BLOCK_LANES, CCompiler};
+pub use site_steps::compile_lattice_steps;
+pub use sites::{LATTICE_GRADIENT, LATTICE_HESSIAN_VECTOR, LATTICE_POTENTIAL, compile_lattice};
 pub use step::{
     StepBackend, StepKernels, compile_steps, compile_steps_c, compile_steps_c_cancellable,
 };
@@ -244,6 +250,8 @@ pub struct Compiled {
     /// Read by the compiled code through `*const Arc<dyn Tabulated>` pointers into this boxed
     /// slice, which never moves or changes after compilation.
     _tables: Box<[Arc<dyn Tabulated>]>,
+    /// The array parameters lattice loops read by address ([`compile_lattice`]).
+    _arrays: Vec<Arc<[f64]>>,
     compile_time: Duration,
     isa: String,
     /// The register allocators' input: see [`Compiled::allocation_work`].
@@ -641,6 +649,7 @@ pub fn compile_with(
         modules: Mutex::new(modules.into_iter().map(|(_, m)| m).collect()),
         fns,
         _tables: tables,
+        _arrays: Vec::new(),
         compile_time: start.elapsed(),
         isa: isa_name,
         allocation,

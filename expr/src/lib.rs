@@ -4,7 +4,10 @@
 //! - `lexer` / `parser`: source text to an AST with source spans (`ast`), errors with line,
 //!   column and a caret (`error`);
 //! - `lower`: AST plus parameters, the lattice size and boundary condition to a [`Graph`]
-//!   (hash-consed expression DAG; lattice sums expanded, parameters folded to constants);
+//!   (hash-consed expression DAG; lattice sums expanded, or kept as loops over one term,
+//!   parameters folded to constants);
+//! - `lattice`: lattice sums as loops (a term, its slots and index range), the gradient and
+//!   Hessian-vector product of a potential made of them, and their order of operations;
 //! - `smooth`: how many continuous derivatives each expression has, and which operation at
 //!   which position limits it (the variational method needs two);
 //! - `diff`: symbolic gradient (reverse mode over the DAG) and Hessian-vector product (forward
@@ -29,6 +32,7 @@ pub mod error;
 pub mod eval;
 pub mod graph;
 pub mod jit;
+pub mod lattice;
 mod lexer;
 pub mod lower;
 pub mod parser;
@@ -44,7 +48,7 @@ pub use error::{ExprError, Span};
 pub use eval::{Evaluator, first_non_finite};
 pub use graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
 pub use jit::{Compiled, FunctionSpec, JitError, Layout};
-pub use lower::{Boundary, Family, Lowered, ParamValue, Scope, lower};
+pub use lower::{Boundary, Family, Lowered, ParamValue, Scope, lower, lower_with_loops};
 pub use parser::parse;
 pub use smooth::{Limit, Smoothness};
 pub use table::{

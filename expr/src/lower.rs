@@ -31,8 +31,11 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use crate::ast::{BinOp, Expr, ExprKind};
 use crate::error::{ExprError, Span};
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
+use crate::lattice::SiteSum;
 use crate::parser::{on_big_stack, parse_here};
 use crate::smooth::{self, Info, LimitKind, Signs, Smoothness};
+
+mod loops;
 
 /// Refuse expressions that expand to more graph nodes than this (a lattice sum over a huge
 /// range, nested sums): the graph, its derivatives and the compiled code would not fit. A
@@ -127,6 +130,9 @@ pub struct Lowered {
     /// the whole `sum(...)` for the additions of its fold. Nodes that already existed in the
     /// graph are not included.
     pub origins: HashMap<NodeId, Span>,
+    /// The lattice sums lowered as loops ([`lower_with_loops`]; empty for [`lower`]): sum `s`
+    /// is `Input { arg: ARG_SUM, index: s }` in `root`.
+    pub sums: Vec<SiteSum>,
 }
 
 const UNARY: &[(&str, Unary)] = &[
@@ -163,7 +169,20 @@ fn is_function(name: &str) -> bool {
 
 /// Parse `source` and lower it into `graph`.
 pub fn lower(source: &str, scope: &Scope, graph: &mut Graph) -> Result<Lowered, ExprError> {
-    on_big_stack(|| lower_limited(source, scope, graph, MAX_NODES, MAX_STEPS))
+    on_big_stack(|| lower_limited(source, scope, graph, MAX_NODES, MAX_STEPS, false))
+}
+
+/// [`lower`], with the lattice sums that allow it lowered as loops (their terms once, see
+/// [`crate::lattice`]) rather than unrolled: for a potential of the variables `q` (one family,
+/// argument [`crate::lattice::ARG_Q`], offset 0, `N` entries). Accepts and refuses exactly the
+/// expressions [`lower`] does, with the same errors.
+pub fn lower_with_loops(
+    source: &str,
+    scope: &Scope,
+    graph: &mut Graph,
+) -> Result<Lowered, ExprError> {
+    let loops = matches!(scope.families, [f] if f.arg == crate::lattice::ARG_Q && f.offset == 0 && f.len == scope.n);
+    on_big_stack(|| lower_limited(source, scope, graph, MAX_NODES, MAX_STEPS, loops))
 }
 
 /// [`lower`] with other size limits (tests reach them without building ten million nodes).
@@ -173,6 +192,7 @@ fn lower_limited(
     graph: &mut Graph,
     max_nodes: usize,
     max_steps: u64,
+    loops: bool,
 ) -> Result<Lowered, ExprError> {
     let ast = parse_here(source)?;
     let start_len = graph.len();
@@ -186,6 +206,9 @@ fn lower_limited(
         steps: Cell::new(0),
         max_nodes,
         max_steps,
+        loops,
+        site_sums: Vec::new(),
+        template: None,
     };
     let (root, info) = l.root(&ast).map_err(|e| *e)?;
     let tables = scope.tables;
@@ -202,6 +225,7 @@ fn lower_limited(
             .zip(l.origins)
             .map(|(id, span)| (id as NodeId, span))
             .collect(),
+        sums: l.site_sums,
     })
 }
 
@@ -235,6 +259,12 @@ struct Lowerer<'a> {
     steps: Cell<u64>,
     max_nodes: usize,
     max_steps: u64,
+    /// Lower the lattice sums that allow it as loops.
+    loops: bool,
+    /// Those sums, in the order met.
+    site_sums: Vec<SiteSum>,
+    /// The sum whose term is being lowered (once, as a loop's body).
+    template: Option<loops::Template<'a>>,
 }
 
 impl<'a> Lowerer<'a> {
@@ -511,6 +541,12 @@ impl<'a> Lowerer<'a> {
     }
 
     fn name(&mut self, n: &str, span: Span) -> R<(NodeId, Info)> {
+        if self.is_loop_index(n)
+            || (self.template.is_some() && matches!(self.meaning(n), Meaning::Var(..)))
+        {
+            // A site loop's term reads its index and the variables only as q[i + k].
+            return Err(self.not_a_loop(span));
+        }
         match self.meaning(n) {
             Meaning::SumIndex(i) => self.constant(i as f64, span),
             Meaning::N => self.constant(self.scope.n as f64, span),
@@ -577,6 +613,15 @@ impl<'a> Lowerer<'a> {
         name_span: Span,
         index: &'a Expr,
     ) -> R<(NodeId, Info)> {
+        if let Some(t) = &self.template {
+            if loops::mentions(index, t.index) {
+                return self.slot(e, name, index);
+            }
+            if matches!(self.meaning(name), Meaning::Family(_)) {
+                // A fixed site in every term: not a loop's slot.
+                return Err(self.not_a_loop(e.span));
+            }
+        }
         match self.meaning(name) {
             Meaning::Family(f) => {
                 let k = self.int(index)?;
@@ -657,6 +702,7 @@ impl<'a> Lowerer<'a> {
                     ))
                 }
             }
+            ExprKind::Name(n) if self.is_loop_index(n) => Err(self.not_a_loop(e.span)),
             ExprKind::Name(n) => match self.meaning(n) {
                 Meaning::SumIndex(i) => Ok(i),
                 Meaning::N => i64::try_from(self.scope.n).map_err(|_| overflow()),
@@ -949,6 +995,13 @@ impl<'a> Lowerer<'a> {
             ));
         }
         let free = self.scope.boundary == Boundary::Free;
+        if self.template.is_some() && free {
+            // Its terms would be left out site by site of the enclosing loop.
+            return Err(self.not_a_loop(e.span));
+        }
+        if let Some(looped) = self.sum_as_loop(e, index, (a, b), body)? {
+            return Ok(looped);
+        }
         let mut acc: Option<(NodeId, Info)> = None;
         let mut i = a;
         while i <= b {
@@ -1626,7 +1679,7 @@ mod tests {
         let limited = |boundary, src: &str| {
             let mut s = Setup::new(5, boundary);
             let (scope, graph) = s.parts();
-            on_big_stack(|| lower_limited(src, &scope, graph, 10_000, 50_000)).unwrap_err()
+            on_big_stack(|| lower_limited(src, &scope, graph, 10_000, 50_000, false)).unwrap_err()
         };
         let e = limited(
             Boundary::Fixed,
@@ -1883,7 +1936,8 @@ mod tests {
                     .param("delta0", 0.1)
                     .array("k", vec![1.0; 4]);
                 let (scope, graph) = s.parts();
-                match lower_limited(&src, &scope, graph, MAX_NODES, MAX_STEPS) {
+                let unrolled = lower_limited(&src, &scope, graph, MAX_NODES, MAX_STEPS, false);
+                match &unrolled {
                     // Every error renders, and its position is inside the source.
                     Err(e) => {
                         let _ = e.to_string();
@@ -1892,6 +1946,13 @@ mod tests {
                     Ok(l) => {
                         let _ = l.smoothness.require(2, "vm");
                     }
+                }
+                // Loops change how sums are lowered, never what is accepted or refused.
+                let looped = lower_limited(&src, &scope, graph, MAX_NODES, MAX_STEPS, true);
+                match (&unrolled, &looped) {
+                    (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string(), "{src:?}"),
+                    (Ok(a), Ok(b)) => assert_eq!(a.smoothness, b.smoothness, "{src:?}"),
+                    _ => panic!("{src:?}: unrolled {unrolled:?}, looped {looped:?}"),
                 }
             }
         }

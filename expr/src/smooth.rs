@@ -166,7 +166,7 @@ impl Signs {
         self.0 & s.0 != 0
     }
 
-    fn union(self, s: Signs) -> Signs {
+    pub(crate) fn union(self, s: Signs) -> Signs {
         Signs(self.0 | s.0)
     }
 

@@ -11,7 +11,8 @@ use std::sync::Arc;
 
 use chaoscope_expr::graph::Tabulated;
 use chaoscope_expr::jit::{self, CCompiler, Options, StepBackend, StepKernels, StepSpec};
-use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope};
+use chaoscope_expr::lattice::{LatticeEvaluator, LatticePotential};
+use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope, lower_with_loops};
 use chaoscope_expr::table::{Spline, SplineKind};
 use chaoscope_expr::{Evaluator, Graph, NodeId, diff, lower};
 
@@ -27,6 +28,24 @@ struct System {
     graph: Graph,
     gradient: Vec<NodeId>,
     hessian_vector: Vec<NodeId>,
+    /// The potential's lattice sums as loops (then `gradient` and `hessian_vector` are empty).
+    lattice: Option<LatticePotential>,
+}
+
+impl System {
+    fn gradient(&self, ev: &mut Evaluator, q: &[f64], g: &mut [f64]) {
+        match &self.lattice {
+            Some(l) => LatticeEvaluator::new(&self.graph, l).gradient(q, g),
+            None => ev.eval(&self.graph, &[q], &self.gradient, g),
+        }
+    }
+
+    fn hessian_vector(&self, ev: &mut Evaluator, q: &[f64], v: &[f64], h: &mut [f64]) {
+        match &self.lattice {
+            Some(l) => LatticeEvaluator::new(&self.graph, l).hessian_vector(q, v, h),
+            None => ev.eval(&self.graph, &[q, v], &self.hessian_vector, h),
+        }
+    }
 }
 
 fn system(n: usize, potential: &str) -> System {
@@ -62,7 +81,92 @@ fn system_with_tables(n: usize, potential: &str, tables: &[(&str, Arc<dyn Tabula
         graph,
         gradient,
         hessian_vector,
+        lattice: None,
     }
+}
+
+/// A potential whose lattice sums are loops, with the array parameter `k` (one per site), the
+/// table `U` (a cubic on [-4, 4]) and `beta`.
+fn lattice_system(n: usize, boundary: Boundary, potential: &str) -> System {
+    let mut graph = Graph::new();
+    let xs: Vec<f64> = (0..81).map(|i| -4.0 + 0.1 * i as f64).collect();
+    let ys: Vec<f64> = xs.iter().map(|x| x * x / 2.0 + x * x * x / 10.0).collect();
+    let u: Arc<dyn Tabulated> = Arc::new(Spline::new("U", &xs, &ys, SplineKind::Natural).unwrap());
+    let tables = vec![("U".to_string(), graph.add_table(u))];
+    let mut params = BTreeMap::new();
+    params.insert("beta".to_string(), ParamValue::Scalar(1.0));
+    params.insert(
+        "k".to_string(),
+        ParamValue::Array((0..n).map(|j| 0.5 + 0.07 * (j % 13) as f64).collect()),
+    );
+    let families = [Family {
+        name: "q".into(),
+        len: n,
+        arg: 0,
+        offset: 0,
+    }];
+    let scope = Scope {
+        families: &families,
+        params: &params,
+        tables: &tables,
+        n,
+        boundary,
+    };
+    let l = lower_with_loops(potential, &scope, &mut graph).unwrap();
+    assert!(!l.sums.is_empty(), "{potential}: no loop");
+    let lattice = LatticePotential::new(&mut graph, l.root, l.sums, n, true)
+        .unwrap()
+        .expect("affine in its sums");
+    System {
+        n,
+        graph,
+        gradient: Vec::new(),
+        hessian_vector: Vec::new(),
+        lattice: Some(lattice),
+    }
+}
+
+/// Lattice potentials: each boundary condition, array parameters, a rest around the sums,
+/// coefficients other than 1, shifts of two, a table, the operations with masks and calls.
+fn lattices() -> Vec<(String, System)> {
+    let fput = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
+    let kg = "sum(i = 1..N, k[i]/2*q[i]^2 + q[i]^4/4) + sum(i = 1..N, (q[i+1] - q[i])^2/(2*4))";
+    let mixed = "q1^2*q2 - 0.5*sum(i = 1..N, k[i+1]*(q[i+2] - q[i])^2 + cos(q[i-1])*q[i]^2) \
+                 + sum(i = 0..N, U(q[i+1] - q[i]) + max(q[i], 0.3*q[i+1])^3 \
+                 + if(q[i] < q[i+1], q[i]^2, tanh(q[i])) + exp(q[i]/4)*sin(q[i+1]) \
+                 + sqrt(2 + q[i]^2) + atan2(q[i], 2 + q[i+1]) + (1 + q[i+1]^2)^1.5)";
+    let mut out = Vec::new();
+    for n in [1usize, 5, 33] {
+        out.push((
+            format!("FPUT-{n} loops"),
+            lattice_system(n, Boundary::Fixed, fput),
+        ));
+    }
+    for (name, b) in [("free", Boundary::Free), ("periodic", Boundary::Periodic)] {
+        out.push((format!("KG-9 {name} loops"), lattice_system(9, b, kg)));
+    }
+    out.push((
+        "Toda-7 periodic loops".into(),
+        lattice_system(
+            7,
+            Boundary::Periodic,
+            "sum(i = 1..N, exp(q[i+1] - q[i]) - (q[i+1] - q[i]) - 1)",
+        ),
+    ));
+    out.push((
+        "mixed-11 periodic loops".into(),
+        lattice_system(11, Boundary::Periodic, mixed),
+    ));
+    // Walls under a term reaching two sites back and one ahead.
+    out.push((
+        "next-nearest-6 fixed loops".into(),
+        lattice_system(
+            6,
+            Boundary::Fixed,
+            "sum(i = -1..N+1, (q[i+1] - q[i-1])^2*(1 + q[i]^2))",
+        ),
+    ));
+    out
 }
 
 fn henon_heiles() -> System {
@@ -109,7 +213,7 @@ fn reference_orbit(
             let (q, p) = x.split_at_mut(n);
             drift(q, p, ch, w);
             stages.extend_from_slice(q);
-            ev.eval(&s.graph, &[q], &s.gradient, &mut g);
+            s.gradient(&mut ev, q, &mut g);
             for (pi, gi) in p.iter_mut().zip(&g) {
                 *pi -= dh * gi;
             }
@@ -130,7 +234,7 @@ fn reference_tangent(s: &System, v: &mut [f64], n_steps: u64, w: Option<&[f64]>,
             let (dq, dp) = v.split_at_mut(n);
             drift(dq, dp, ch, w);
             let q = stage.next().unwrap();
-            ev.eval(&s.graph, &[q, dq], &s.hessian_vector, &mut f);
+            s.hessian_vector(&mut ev, q, dq, &mut f);
             for (pi, fi) in dp.iter_mut().zip(&f) {
                 *pi -= dh * fi;
             }
@@ -145,6 +249,9 @@ fn compile(s: &System, lane_block: usize) -> StepKernels {
         lane_block,
         ..Options::default()
     };
+    if let Some(l) = &s.lattice {
+        return jit::compile_lattice_steps(&s.graph, l, &options).unwrap();
+    }
     jit::compile_steps(
         &s.graph,
         &StepSpec {
@@ -265,6 +372,23 @@ fn fput_101_steps_are_bit_identical() {
 }
 
 #[test]
+fn lattice_loop_steps_are_bit_identical() {
+    for (name, s) in lattices() {
+        for block in [2, 4] {
+            check(&format!("{name} block {block}"), &s, &compile(&s, block));
+        }
+    }
+}
+
+#[test]
+fn c_lattice_loop_steps_are_bit_identical() {
+    let cache = tempfile::tempdir().unwrap();
+    for (name, s) in lattices() {
+        check(&format!("C {name}"), &s, &compile_c(&s, cache.path()));
+    }
+}
+
+#[test]
 fn unoptimized_large_functions_are_bit_identical() {
     // The code path of large graphs (no optimizer) on a small one.
     let s = fput(5);
@@ -338,6 +462,11 @@ fn compile_c(s: &System, cache: &std::path::Path) -> StepKernels {
         program,
         cache_dir: cache.to_path_buf(),
     };
+    if let Some(l) = &s.lattice {
+        let k = jit::compile_lattice_steps_c(&s.graph, l, &cc).unwrap_or_else(|e| panic!("{e}"));
+        assert!(matches!(k.backend(), StepBackend::C { .. }));
+        return k;
+    }
     let k = jit::compile_steps_c(
         &s.graph,
         &StepSpec {

@@ -75,6 +75,7 @@ pub(super) type COrbitFn = unsafe extern "C" fn(
     kick: *const f64,
     n_kicks: usize,
     inverse_masses: *const f64,
+    scratch: *mut f64,
     env: *const usize,
 );
 
@@ -89,6 +90,7 @@ pub(super) type CTangentFn = unsafe extern "C" fn(
     kick: *const f64,
     n_kicks: usize,
     inverse_masses: *const f64,
+    scratch: *mut f64,
     env: *const usize,
 );
 
@@ -107,12 +109,13 @@ const UNARY_CALLED: [Unary; 9] = [
 const ENV_POW: usize = UNARY_CALLED.len();
 const ENV_ATAN2: usize = ENV_POW + 1;
 const ENV_TABLE: usize = ENV_ATAN2 + 1;
-/// `env[ENV_TABLES + t]` is table `t` (a `*const Arc<dyn Tabulated>`).
-const ENV_TABLES: usize = ENV_TABLE + 1;
+/// `env[ENV_TABLES + t]` is table `t` (a `*const Arc<dyn Tabulated>`); after the tables, the
+/// array parameters' values (a `*const f64` each) the lattice loops read.
+pub(super) const ENV_TABLES: usize = ENV_TABLE + 1;
 
 /// The callback table the kernels read: the Rust callbacks, then the table pointers (into
-/// `tables`, which must outlive every call).
-pub(super) fn env(tables: &[Arc<dyn Tabulated>]) -> Box<[usize]> {
+/// `tables`, which must outlive every call), then the arrays' (which must too).
+pub(super) fn env(tables: &[Arc<dyn Tabulated>], arrays: &[Arc<[f64]>]) -> Box<[usize]> {
     let mut env: Vec<usize> = UNARY_CALLED
         .iter()
         .map(|&op| unary_callback(op).expect("a called-back unary operation"))
@@ -122,6 +125,9 @@ pub(super) fn env(tables: &[Arc<dyn Tabulated>]) -> Box<[usize]> {
     env.push(cb_table as *const () as usize);
     for t in tables {
         env.push(t as *const Arc<dyn Tabulated> as usize);
+    }
+    for a in arrays {
+        env.push(a.as_ptr() as usize);
     }
     env.into_boxed_slice()
 }
@@ -261,16 +267,15 @@ pub(super) fn source(graph: &Graph, spec: &StepSpec) -> Result<String, JitError>
     Ok(src)
 }
 
-/// Compiles (or loads from the cache) the C kernels of `spec`; stops the compiler and returns
-/// [`JitError::Cancelled`] once `cancel` is set.
+/// Compiles (or loads from the cache) the C kernels of the source `src` (with a tangent kernel
+/// when `tangent`); stops the compiler and returns [`JitError::Cancelled`] once `cancel` is set.
 pub(super) fn build(
-    graph: &Graph,
-    spec: &StepSpec,
+    src: &str,
+    tangent: bool,
     cc: &CCompiler,
     cancel: &AtomicBool,
 ) -> Result<(CKernels, Duration), JitError> {
     let start = Instant::now();
-    let src = source(graph, spec)?;
     // The compiler's identity is the same for the whole process: asked once.
     static IDENTITY: OnceLock<std::sync::Mutex<Vec<(CCompiler, String)>>> = OnceLock::new();
     let identity = {
@@ -311,7 +316,6 @@ pub(super) fn build(
     let lib_name = format!("steps-{hash}.so");
     let digest_name = format!("steps-{hash}.sha256");
     let lib_path = cc.cache_dir.join(&lib_name);
-    let tangent = spec.hessian_vector.is_some();
     if let Some(bytes) = cache.verified(&lib_name, &digest_name)
         && let Ok(k) = load(&bytes, &lib_path, &hash, tangent, true)
     {
@@ -709,7 +713,7 @@ fn open_library(bytes: &[u8], path: &Path) -> Result<libloading::Library, String
 
 /// Helpers of every generated file. `vd` is one vector of `LANES` lanes (a block is two); compares give `vi`
 /// masks (all ones where true, false when either side is NaN).
-const PRELUDE: &str = r#"/* chaoscope step kernels, generated; see expr/src/jit/c_step.rs. */
+pub(super) const PRELUDE: &str = r#"/* chaoscope step kernels, generated; see expr/src/jit/c_step.rs. */
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
@@ -767,7 +771,7 @@ fn unary_slot(op: Unary) -> usize {
 }
 
 /// A constant by its bits (no decimal round trip; NaN payloads and signed zeros kept).
-fn konst(c: f64) -> String {
+pub(super) fn konst(c: f64) -> String {
     format!("K(0x{:016x}ull)", c.to_bits())
 }
 
@@ -781,6 +785,102 @@ fn powi(x: &str, n: i32, one: &str) -> String {
         format!("{one} / ({product})")
     } else {
         format!("({product})")
+    }
+}
+
+/// A scalar node as a C expression of its operands (`o` names them).
+pub(super) fn scalar_expr(node: &Node, o: &mut dyn FnMut(NodeId) -> String) -> String {
+    match *node {
+        Node::Const(_) | Node::Input { .. } => unreachable!("leaves are operands"),
+        Node::Unary(op, a) => {
+            let a = o(a);
+            match op {
+                Unary::Neg => format!("-{a}"),
+                Unary::Abs => format!("SABS({a})"),
+                Unary::Sqrt => format!("__builtin_sqrt({a})"),
+                Unary::Step => format!("SSTEP({a})"),
+                Unary::Sign => format!("SSIGN({a})"),
+                _ => format!("((fn1)env[{}])({a})", unary_slot(op)),
+            }
+        }
+        Node::Binary(op, a, b) => {
+            let (a, b) = (o(a), o(b));
+            match op {
+                Binary::Add => format!("{a} + {b}"),
+                Binary::Sub => format!("{a} - {b}"),
+                Binary::Mul => format!("{a} * {b}"),
+                Binary::Div => format!("{a} / {b}"),
+                Binary::Pow => format!("((fn2)env[{ENV_POW}])({a}, {b})"),
+                Binary::Atan2 => format!("((fn2)env[{ENV_ATAN2}])({a}, {b})"),
+                Binary::Max => format!("SMAX({a}, {b})"),
+                Binary::Min => format!("SMIN({a}, {b})"),
+            }
+        }
+        Node::Powi(a, n) => powi(&o(a), n, "1.0"),
+        Node::Select {
+            cmp,
+            a,
+            b,
+            then,
+            otherwise,
+        } => {
+            let (a, b) = (o(a), o(b));
+            let (t, e) = (o(then), o(otherwise));
+            format!("({a} {} {b}) ? {t} : {e}", cmp_op(cmp))
+        }
+        Node::Table { table, deriv, arg } => format!(
+            "((fntab)env[{ENV_TABLE}])(env[{}], {deriv}, {})",
+            ENV_TABLES + table as usize,
+            o(arg)
+        ),
+    }
+}
+
+/// A vector node (`vd` values) as a C expression of its operands (`o` names them, as vectors).
+pub(super) fn vector_expr(node: &Node, o: &mut dyn FnMut(NodeId) -> String) -> String {
+    match *node {
+        Node::Const(_) | Node::Input { .. } => unreachable!("leaves are operands"),
+        Node::Unary(op, a) => {
+            let a = o(a);
+            match op {
+                Unary::Neg => format!("-{a}"),
+                Unary::Abs => format!("VABS({a})"),
+                Unary::Sqrt => format!("VSQRT({a})"),
+                Unary::Step => format!("VSTEP({a})"),
+                Unary::Sign => format!("VSIGN({a})"),
+                _ => format!("V1(env[{}], {a})", unary_slot(op)),
+            }
+        }
+        Node::Binary(op, a, b) => {
+            let (a, b) = (o(a), o(b));
+            match op {
+                Binary::Add => format!("{a} + {b}"),
+                Binary::Sub => format!("{a} - {b}"),
+                Binary::Mul => format!("{a} * {b}"),
+                Binary::Div => format!("{a} / {b}"),
+                Binary::Pow => format!("V2(env[{ENV_POW}], {a}, {b})"),
+                Binary::Atan2 => format!("V2(env[{ENV_ATAN2}], {a}, {b})"),
+                Binary::Max => format!("VMAX({a}, {b})"),
+                Binary::Min => format!("VMIN({a}, {b})"),
+            }
+        }
+        Node::Powi(a, n) => powi(&o(a), n, "B(1.0)"),
+        Node::Select {
+            cmp,
+            a,
+            b,
+            then,
+            otherwise,
+        } => {
+            let (a, b) = (o(a), o(b));
+            let (t, e) = (o(then), o(otherwise));
+            format!("SEL({a} {} {b}, {t}, {e})", cmp_op(cmp))
+        }
+        Node::Table { table, deriv, arg } => format!(
+            "VT(env[{ENV_TABLE}], env[{}], {deriv}, {})",
+            ENV_TABLES + table as usize,
+            o(arg)
+        ),
     }
 }
 
@@ -800,54 +900,7 @@ impl Kernel<'_> {
     }
 
     fn scalar_node(&self, node: &Node) -> String {
-        let o = |id| self.scalar_operand(id);
-        match *node {
-            Node::Const(_) | Node::Input { .. } => unreachable!("leaves are operands"),
-            Node::Unary(op, a) => {
-                let a = o(a);
-                match op {
-                    Unary::Neg => format!("-{a}"),
-                    Unary::Abs => format!("SABS({a})"),
-                    Unary::Sqrt => format!("__builtin_sqrt({a})"),
-                    Unary::Step => format!("SSTEP({a})"),
-                    Unary::Sign => format!("SSIGN({a})"),
-                    _ => format!("((fn1)env[{}])({a})", unary_slot(op)),
-                }
-            }
-            Node::Binary(op, a, b) => {
-                let (a, b) = (o(a), o(b));
-                match op {
-                    Binary::Add => format!("{a} + {b}"),
-                    Binary::Sub => format!("{a} - {b}"),
-                    Binary::Mul => format!("{a} * {b}"),
-                    Binary::Div => format!("{a} / {b}"),
-                    Binary::Pow => format!("((fn2)env[{ENV_POW}])({a}, {b})"),
-                    Binary::Atan2 => format!("((fn2)env[{ENV_ATAN2}])({a}, {b})"),
-                    Binary::Max => format!("SMAX({a}, {b})"),
-                    Binary::Min => format!("SMIN({a}, {b})"),
-                }
-            }
-            Node::Powi(a, n) => powi(&o(a), n, "1.0"),
-            Node::Select {
-                cmp,
-                a,
-                b,
-                then,
-                otherwise,
-            } => format!(
-                "({} {} {}) ? {} : {}",
-                o(a),
-                cmp_op(cmp),
-                o(b),
-                o(then),
-                o(otherwise)
-            ),
-            Node::Table { table, deriv, arg } => format!(
-                "((fntab)env[{ENV_TABLE}])(env[{}], {deriv}, {})",
-                ENV_TABLES + table as usize,
-                o(arg)
-            ),
-        }
+        scalar_expr(node, &mut |id| self.scalar_operand(id))
     }
 
     /// A vector operand in the block code; drifts row `j` on its first use.
@@ -888,51 +941,7 @@ impl Kernel<'_> {
     }
 
     fn vector_node(&self, out: &mut String, drifted: &mut [bool], node: &Node) -> String {
-        let mut o = |id| self.operand(out, drifted, id);
-        match *node {
-            Node::Const(_) | Node::Input { .. } => unreachable!("leaves are operands"),
-            Node::Unary(op, a) => {
-                let a = o(a);
-                match op {
-                    Unary::Neg => format!("-{a}"),
-                    Unary::Abs => format!("VABS({a})"),
-                    Unary::Sqrt => format!("VSQRT({a})"),
-                    Unary::Step => format!("VSTEP({a})"),
-                    Unary::Sign => format!("VSIGN({a})"),
-                    _ => format!("V1(env[{}], {a})", unary_slot(op)),
-                }
-            }
-            Node::Binary(op, a, b) => {
-                let (a, b) = (o(a), o(b));
-                match op {
-                    Binary::Add => format!("{a} + {b}"),
-                    Binary::Sub => format!("{a} - {b}"),
-                    Binary::Mul => format!("{a} * {b}"),
-                    Binary::Div => format!("{a} / {b}"),
-                    Binary::Pow => format!("V2(env[{ENV_POW}], {a}, {b})"),
-                    Binary::Atan2 => format!("V2(env[{ENV_ATAN2}], {a}, {b})"),
-                    Binary::Max => format!("VMAX({a}, {b})"),
-                    Binary::Min => format!("VMIN({a}, {b})"),
-                }
-            }
-            Node::Powi(a, n) => powi(&o(a), n, "B(1.0)"),
-            Node::Select {
-                cmp,
-                a,
-                b,
-                then,
-                otherwise,
-            } => {
-                let (a, b) = (o(a), o(b));
-                let (t, e) = (o(then), o(otherwise));
-                format!("SEL({a} {} {b}, {t}, {e})", cmp_op(cmp))
-            }
-            Node::Table { table, deriv, arg } => format!(
-                "VT(env[{ENV_TABLE}], env[{}], {deriv}, {})",
-                ENV_TABLES + table as usize,
-                o(arg)
-            ),
-        }
+        vector_expr(node, &mut |id| self.operand(out, drifted, id))
     }
 
     /// The uniform values: scalar code, once per call (orbit) or per stage (tangent).
@@ -993,7 +1002,7 @@ impl Kernel<'_> {
             out,
             "void {name}({lead}double *restrict x, size_t stride, size_t lanes, uint64_t n_steps, \
              const double *drift, const double *kick, size_t n_kicks, const double *w, \
-             const uintptr_t *env) {{"
+             double *scratch, const uintptr_t *env) {{"
         );
         let _ = writeln!(
             out,

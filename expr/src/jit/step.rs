@@ -52,18 +52,23 @@ pub struct StepKernels {
     n: usize,
     /// Lanes per block of each kernel (orbit, tangent).
     blocks: [usize; 2],
+    /// Values of working memory each call needs per lane of a block (the lattice loops' force,
+    /// `N`; 0 for the other kernels).
+    scratch_per_lane: usize,
     _tables: Box<[Arc<dyn Tabulated>]>,
+    /// The array parameters lattice loops read by address.
+    _arrays: Vec<Arc<[f64]>>,
     compile_time: Duration,
     /// What Cranelift's register allocators were given (zero for the C kernels).
     allocation: AllocationWork,
 }
 
 /// Who generated the machine code.
-enum Code {
+pub(super) enum Code {
     /// Cranelift ([`super::step_cranelift`]).
     Cranelift(CraneliftKernels),
     /// The system C compiler ([`super::c_step`]); `env` is the callback table the code reads
-    /// (pointers to the Rust callbacks and into `_tables`).
+    /// (pointers to the Rust callbacks, into `_tables` and to `_arrays`).
     C {
         kernels: CKernels,
         env: Box<[usize]>,
@@ -103,6 +108,36 @@ impl std::fmt::Debug for StepKernels {
 }
 
 impl StepKernels {
+    /// Kernels built elsewhere in `jit` (the lattice loops); `allocation` as
+    /// [`StepKernels::allocation_work`] (zero for C kernels).
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn new(
+        code: Code,
+        n: usize,
+        blocks: [usize; 2],
+        scratch_per_lane: usize,
+        tables: Box<[Arc<dyn Tabulated>]>,
+        arrays: Vec<Arc<[f64]>>,
+        compile_time: Duration,
+        allocation: AllocationWork,
+    ) -> Self {
+        Self {
+            code,
+            n,
+            blocks,
+            scratch_per_lane,
+            _tables: tables,
+            _arrays: arrays,
+            compile_time,
+            allocation,
+        }
+    }
+
+    /// The working memory of one call of a kernel with `block`-lane blocks.
+    fn scratch(&self, block: usize) -> Vec<f64> {
+        vec![0.0; self.scratch_per_lane * block]
+    }
+
     /// Degrees of freedom `N` (the state has `2N` rows).
     pub fn dof(&self) -> usize {
         self.n
@@ -239,15 +274,17 @@ impl StepKernels {
         self.check(x, stride, lanes, drift, kick, inverse_masses);
         let w = inverse_masses.map_or(std::ptr::null(), |w| w.as_ptr());
         let (d, k, nk) = (drift.as_ptr(), kick.as_ptr(), kick.len());
+        let mut scratch = self.scratch(self.blocks[0]);
+        let sc = scratch.as_mut_ptr();
         self.by_blocks(x, stride, lanes, self.blocks[0], |p, stride, lanes| {
             // SAFETY: lengths checked above (the padded copy has `2N` rows of `block` lanes);
-            // `lanes` is a multiple of the block; the code (and the tables and callbacks `env`
-            // points to) lives as long as `self`.
+            // `lanes` is a multiple of the block; `scratch` is this call's own; the code (and
+            // the tables, arrays and callbacks `env` points to) lives as long as `self`.
             unsafe {
                 match &self.code {
-                    Code::Cranelift(c) => (c.orbit)(p, stride, lanes, n_steps, d, k, nk, w),
+                    Code::Cranelift(c) => (c.orbit)(p, stride, lanes, n_steps, d, k, nk, w, sc),
                     Code::C { kernels, env } => {
-                        (kernels.orbit)(p, stride, lanes, n_steps, d, k, nk, w, env.as_ptr())
+                        (kernels.orbit)(p, stride, lanes, n_steps, d, k, nk, w, sc, env.as_ptr())
                     }
                 }
             }
@@ -288,6 +325,8 @@ impl StepKernels {
         );
         let w = inverse_masses.map_or(std::ptr::null(), |w| w.as_ptr());
         let (st, d, k, nk) = (stages.as_ptr(), drift.as_ptr(), kick.as_ptr(), kick.len());
+        let mut scratch = self.scratch(self.blocks[1]);
+        let sc = scratch.as_mut_ptr();
         self.by_blocks(v, stride, lanes, self.blocks[1], |p, stride, lanes| {
             // SAFETY: as in `orbit_steps`, and `stages` holds every position the steps read;
             // the tangent kernel exists (asserted above).
@@ -295,14 +334,14 @@ impl StepKernels {
                 match &self.code {
                     Code::Cranelift(CraneliftKernels {
                         tangent: Some(f), ..
-                    }) => f(st, p, stride, lanes, n_steps, d, k, nk, w),
+                    }) => f(st, p, stride, lanes, n_steps, d, k, nk, w, sc),
                     Code::C {
                         kernels:
                             CKernels {
                                 tangent: Some(f), ..
                             },
                         env,
-                    } => f(st, p, stride, lanes, n_steps, d, k, nk, w, env.as_ptr()),
+                    } => f(st, p, stride, lanes, n_steps, d, k, nk, w, sc, env.as_ptr()),
                     _ => unreachable!("has_tangent checked above"),
                 }
             }
@@ -322,14 +361,16 @@ pub fn compile_steps(
 ) -> Result<StepKernels, JitError> {
     let (kernels, blocks, tables, compile_time) = step_cranelift::compile(graph, spec, options)?;
     let allocation = kernels.allocation;
-    Ok(StepKernels {
-        code: Code::Cranelift(kernels),
-        allocation,
-        n: spec.n,
+    Ok(StepKernels::new(
+        Code::Cranelift(kernels),
+        spec.n,
         blocks,
-        _tables: tables,
+        0,
+        tables,
+        Vec::new(),
         compile_time,
-    })
+        allocation,
+    ))
 }
 
 /// The same kernels as [`compile_steps`], written as C and compiled by `cc` (or loaded from its
@@ -356,14 +397,18 @@ pub fn compile_steps_c_cancellable(
     cancel: &AtomicBool,
 ) -> Result<StepKernels, JitError> {
     let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
-    let (kernels, compile_time) = c_step::build(graph, spec, cc, cancel)?;
-    let env = c_step::env(&tables);
-    Ok(StepKernels {
-        code: Code::C { kernels, env },
-        n: spec.n,
-        blocks: [C_BLOCK_LANES; 2],
-        _tables: tables,
+    let src = c_step::source(graph, spec)?;
+    let tangent = spec.hessian_vector.is_some();
+    let (kernels, compile_time) = c_step::build(&src, tangent, cc, cancel)?;
+    let env = c_step::env(&tables, &[]);
+    Ok(StepKernels::new(
+        Code::C { kernels, env },
+        spec.n,
+        [C_BLOCK_LANES; 2],
+        0,
+        tables,
+        Vec::new(),
         compile_time,
-        allocation: AllocationWork::default(),
-    })
+        AllocationWork::default(),
+    ))
 }

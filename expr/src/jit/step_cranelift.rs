@@ -26,10 +26,14 @@ use crate::graph::{Graph, Node, NodeId, Tabulated};
 /// lane `l` is `x[r * stride + l]`; `drift` holds `n_kicks + 1` coefficients (already times the
 /// step), `kick` `n_kicks`; `inverse_masses` is null (unit masses) or holds `N` values.
 ///
+/// `scratch` is the kernel's working memory ([`super::StepKernels`] allocates it for each call:
+/// the lattice loops' force of one block of lanes, `N` rows of a block; unused by other kernels).
+///
 /// # Safety contract
 /// `x` readable and writable at `[r * stride + l]` for `r < 2N`, `l < lanes`; `lanes` a multiple
 /// of [`super::StepKernels::block_lanes`] (other lanes are not touched); `drift`, `kick`,
-/// `inverse_masses` readable as stated and not overlapping `x`; the [`super::StepKernels`] it came from
+/// `inverse_masses` readable as stated and not overlapping `x`; `scratch` writable for the
+/// kernel's scratch length and overlapping nothing; the [`super::StepKernels`] it came from
 /// alive.
 pub type OrbitStepsFnPtr = unsafe extern "C" fn(
     x: *mut f64,
@@ -40,6 +44,7 @@ pub type OrbitStepsFnPtr = unsafe extern "C" fn(
     kick: *const f64,
     n_kicks: usize,
     inverse_masses: *const f64,
+    scratch: *mut f64,
 );
 
 /// `n_steps` steps of the splitting's tangent map for `lanes` deviation vectors (rows `dq, dp`,
@@ -58,6 +63,7 @@ pub type TangentStepsFnPtr = unsafe extern "C" fn(
     kick: *const f64,
     n_kicks: usize,
     inverse_masses: *const f64,
+    scratch: *mut f64,
 );
 
 /// The Cranelift kernels of one [`compile`] call.
@@ -147,7 +153,7 @@ pub(super) fn compile(
         let module = &mut modules[m].1;
         let ptr = module.target_config().pointer_type();
         let mut sig = module.make_signature();
-        let params = if *tangent { 9 } else { 8 };
+        let params = if *tangent { 10 } else { 9 };
         for _ in 0..params {
             sig.params.push(AbiParam::new(ptr));
         }
@@ -187,7 +193,7 @@ pub(super) fn compile(
     let mut tangent = None;
     for (m, id, is_tangent) in defined {
         let code = modules[m].1.get_finalized_function(id);
-        // SAFETY: defined above with exactly these signatures (eight or nine pointer-sized
+        // SAFETY: defined above with exactly these signatures (nine or ten pointer-sized
         // integer parameters, no results, the host's C calling convention).
         unsafe {
             if is_tangent {
@@ -400,7 +406,7 @@ impl Block<'_> {
     }
 }
 
-fn vconsts(b: &mut FunctionBuilder) -> VConsts {
+pub(super) fn vconsts(b: &mut FunctionBuilder) -> VConsts {
     let mut sp = |c: f64| {
         let s = b.ins().f64const(c);
         b.ins().splat(F64X2, s)

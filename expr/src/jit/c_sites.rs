@@ -1,0 +1,347 @@
+//! The lattice step kernels of [`super::site_steps`] written as C ([`super::c_step`]'s vectors,
+//! flags, callbacks and cache): the same passes (drift and clear, the rest's derivatives and
+//! each sum's boundary terms and loop into the scratch rows, kick) and the same operations in
+//! the same order, so the same bits as the Cranelift kernels and the generic step loops.
+//!
+//! The source holds `N`, the sums' ranges and one copy of each term (and of its boundary
+//! terms), never a site's own code: its size, and the compiler's time, do not grow with `N`.
+//! Array parameters are read through pointers the caller appends to `env`, so their values are
+//! not in the source either (nor in the cache key: a new disorder realization reuses the
+//! library).
+
+use std::fmt::Write as _;
+use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
+
+use super::c_step::{self, C_BLOCK_LANES, CCompiler, konst, scalar_expr, vector_expr};
+use super::sites::arrays_of;
+use super::step::{Code, StepKernels};
+use super::{AllocationWork, JitError};
+use crate::graph::{Graph, Node, NodeId, Tabulated};
+use crate::lattice::{
+    ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_V, LatticePotential, SiteSum,
+};
+
+/// The C kernels of a lattice potential (compiled by `cc` or loaded from its cache), as
+/// [`super::compile_lattice_steps`] builds them with Cranelift; gives up once `cancel` is set
+/// (see [`super::compile_steps_c_cancellable`]).
+pub fn compile_lattice_steps_c_cancellable(
+    graph: &Graph,
+    lattice: &LatticePotential,
+    cc: &CCompiler,
+    cancel: &AtomicBool,
+) -> Result<StepKernels, JitError> {
+    let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
+    let arrays = arrays_of(lattice);
+    let src = source(graph, lattice, &arrays);
+    let (kernels, compile_time) = c_step::build(&src, lattice.has_hessian(), cc, cancel)?;
+    let arrays: Vec<Arc<[f64]>> = arrays.into_iter().map(|(_, a)| a).collect();
+    let env = c_step::env(&tables, &arrays);
+    Ok(StepKernels::new(
+        Code::C { kernels, env },
+        lattice.n,
+        [C_BLOCK_LANES; 2],
+        lattice.n,
+        tables,
+        arrays,
+        compile_time,
+        AllocationWork::default(),
+    ))
+}
+
+/// [`compile_lattice_steps_c_cancellable`] without cancellation.
+pub fn compile_lattice_steps_c(
+    graph: &Graph,
+    lattice: &LatticePotential,
+    cc: &CCompiler,
+) -> Result<StepKernels, JitError> {
+    compile_lattice_steps_c_cancellable(graph, lattice, cc, &AtomicBool::new(false))
+}
+
+/// The C source of the kernels.
+fn source(graph: &Graph, lattice: &LatticePotential, arrays: &[(String, Arc<[f64]>)]) -> String {
+    let mut src = String::from(c_step::PRELUDE);
+    let n_tables = graph.tables().len();
+    for tangent in [false, true] {
+        if tangent && !lattice.has_hessian() {
+            continue;
+        }
+        let k = Kernel {
+            graph,
+            lattice,
+            arrays,
+            array_env: c_step::ENV_TABLES + n_tables,
+            tangent,
+        };
+        k.write(&mut src);
+    }
+    src
+}
+
+struct Kernel<'a> {
+    graph: &'a Graph,
+    lattice: &'a LatticePotential,
+    arrays: &'a [(String, Arc<[f64]>)],
+    /// `env` slot of the first array parameter.
+    array_env: usize,
+    tangent: bool,
+}
+
+/// Where a term's slots are: a boundary term's known sites, or the loop's `i`.
+#[derive(Clone, Copy)]
+enum At {
+    Term(i64),
+    Loop,
+}
+
+/// One line of a term: scalar code (written once) or lane code (written once per unit, with
+/// `_@` and `@O` the unit's name suffix and lane offset).
+enum Line {
+    Once(String),
+    PerUnit(String),
+}
+
+impl Kernel<'_> {
+    /// A scalar leaf's C expression, or a lane leaf's (`None` for a scalar).
+    fn leaf(&self, node: &Node, sum: Option<&SiteSum>, at: At) -> (String, bool) {
+        let lanes = |row: String| (format!("LD(xb + ({row}) * stride + @O)"), true);
+        match *node {
+            Node::Const(c) => (konst(c), false),
+            Node::Input { arg: ARG_Q, index } if !self.tangent => lanes(index.to_string()),
+            Node::Input { arg: ARG_Q, index } => (format!("qs[{index}]"), false),
+            Node::Input { arg: ARG_V, index } => lanes(index.to_string()),
+            Node::Input { arg, index } => {
+                let sum = sum.expect("a term's slot");
+                let (shift, param) = match arg {
+                    ARG_SITE | ARG_SITE_DIRECTION => (sum.variables[index as usize], None),
+                    ARG_SITE_PARAM => {
+                        let p = &sum.params[index as usize];
+                        (p.shift, Some(p))
+                    }
+                    _ => unreachable!("a leaf of a term: {node:?}"),
+                };
+                let row = match at {
+                    At::Term(i) => match sum.site(i, shift) {
+                        Some(j) => j.to_string(),
+                        None => return (konst(0.0), false),
+                    },
+                    At::Loop => format!("i + {}", shift - 1),
+                };
+                if let Some(p) = param {
+                    if let At::Term(i) = at {
+                        let j = sum.site(i, p.shift).expect("parameters inside the lattice");
+                        return (konst(p.values[j]), false);
+                    }
+                    let a = self
+                        .arrays
+                        .iter()
+                        .position(|(name, _)| *name == p.name)
+                        .expect("every array a sum reads");
+                    return (format!("arr{a}[{row}]"), false);
+                }
+                if arg == ARG_SITE && self.tangent {
+                    (format!("qs[{row}]"), false)
+                } else {
+                    lanes(row)
+                }
+            }
+            _ => unreachable!("not a leaf: {node:?}"),
+        }
+    }
+
+    /// The lines computing `roots` (in [`super::sites::Body`]'s order), and each root's
+    /// expression as a lane value.
+    fn emit(
+        &self,
+        roots: &[NodeId],
+        sum: Option<&SiteSum>,
+        at: At,
+        lines: &mut Vec<Line>,
+    ) -> Vec<String> {
+        let graph = self.graph;
+        // Per node: its C name or expression, and whether it is lane code.
+        let mut vals: Vec<Option<(String, bool)>> = vec![None; graph.len()];
+        for id in super::schedule(graph, roots, |_| true) {
+            let node = graph.node(id);
+            if super::is_leaf(node) {
+                vals[id as usize] = Some(self.leaf(node, sum, at));
+                continue;
+            }
+            let lane = node
+                .operands()
+                .any(|o| vals[o as usize].as_ref().is_some_and(|v| v.1));
+            if lane {
+                let e = vector_expr(node, &mut |o| {
+                    let (x, lane) = vals[o as usize].clone().expect("operands first");
+                    if lane { x } else { format!("B({x})") }
+                });
+                lines.push(Line::PerUnit(format!("const vd v{id}_@ = {e};")));
+                vals[id as usize] = Some((format!("v{id}_@"), true));
+            } else {
+                let e = scalar_expr(node, &mut |o| {
+                    vals[o as usize].clone().expect("operands first").0
+                });
+                lines.push(Line::Once(format!("const double s{id} = {e};")));
+                vals[id as usize] = Some((format!("s{id}"), false));
+            }
+        }
+        roots
+            .iter()
+            .map(|&r| {
+                let (x, lane) = vals[r as usize].clone().expect("emitted");
+                if lane { x } else { format!("B({x})") }
+            })
+            .collect()
+    }
+
+    /// `g[row] += c d` in every unit.
+    fn add_to(lines: &mut Vec<Line>, row: &str, c: f64, d: &str) {
+        let at = format!("g + ({row}) * BLOCK + @O");
+        let e = if c == 1.0 {
+            format!("LD({at}) + {d}")
+        } else if c == -1.0 {
+            format!("LD({at}) - {d}")
+        } else {
+            format!("LD({at}) + B({}) * {d}", konst(c))
+        };
+        lines.push(Line::PerUnit(format!("ST({at}, {e});")));
+    }
+
+    fn write_lines(out: &mut String, lines: &[Line], indent: &str) {
+        for line in lines {
+            match line {
+                Line::Once(l) => {
+                    let _ = writeln!(out, "{indent}{l}");
+                }
+                Line::PerUnit(l) => {
+                    for (suffix, offset) in [("_0", "0"), ("_1", "LANES")] {
+                        let l = l.replace("_@", suffix).replace("@O", offset);
+                        let _ = writeln!(out, "{indent}{l}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// The force of one block into `g`, which holds `-0`.
+    fn force(&self, out: &mut String) {
+        let lattice = self.lattice;
+        let rest = if self.tangent {
+            lattice
+                .rest_hessian_vector
+                .as_deref()
+                .expect("a tangent kernel has the Hessian-vector product")
+        } else {
+            &lattice.rest_gradient
+        };
+        if !rest.is_empty() {
+            let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
+            let mut lines = Vec::new();
+            let d = self.emit(&roots, None, At::Loop, &mut lines);
+            for (&(j, _), d) in rest.iter().zip(&d) {
+                Self::add_to(&mut lines, &j.to_string(), 1.0, d);
+            }
+            let _ = writeln!(out, "        {{");
+            Self::write_lines(out, &lines, "          ");
+            let _ = writeln!(out, "        }}");
+        }
+        for (sum, d) in lattice.sums.iter().zip(&lattice.derivatives) {
+            let contributions = d.contributions(self.graph, self.tangent);
+            let roots: Vec<NodeId> = contributions.iter().map(|&(_, id)| id).collect();
+            let roots = &roots[..];
+            if roots.is_empty() {
+                continue;
+            }
+            let term = |out: &mut String, at: At, indent: &str| {
+                let mut lines = Vec::new();
+                let ds = self.emit(roots, Some(sum), at, &mut lines);
+                for ((&shift, dv), &(factor, _)) in
+                    sum.variables.iter().zip(&ds).zip(&contributions)
+                {
+                    let row = match at {
+                        At::Term(i) => match sum.site(i, shift) {
+                            Some(j) => j.to_string(),
+                            None => continue,
+                        },
+                        At::Loop => format!("i + {}", shift - 1),
+                    };
+                    Self::add_to(&mut lines, &row, factor, dv);
+                }
+                Self::write_lines(out, &lines, indent);
+            };
+            let (before, after) = sum.boundary_terms();
+            for i in before {
+                let _ = writeln!(out, "        {{ /* term {i} */");
+                term(out, At::Term(i), "          ");
+                let _ = writeln!(out, "        }}");
+            }
+            if let Some((from, to)) = sum.interior() {
+                let _ = writeln!(out, "        for (int64_t i = {from}; i <= {to}; i++) {{");
+                term(out, At::Loop, "          ");
+                let _ = writeln!(out, "        }}");
+            }
+            for i in after {
+                let _ = writeln!(out, "        {{ /* term {i} */");
+                term(out, At::Term(i), "          ");
+                let _ = writeln!(out, "        }}");
+            }
+        }
+    }
+
+    fn write(&self, out: &mut String) {
+        let n = self.lattice.n;
+        let (name, lead) = if self.tangent {
+            ("chaoscope_tangent_steps", "const double *stages, ")
+        } else {
+            ("chaoscope_orbit_steps", "")
+        };
+        let _ = writeln!(
+            out,
+            "void {name}({lead}double *restrict x, size_t stride, size_t lanes, uint64_t n_steps, \
+             const double *drift, const double *kick, size_t n_kicks, const double *w, \
+             double *restrict g, const uintptr_t *env) {{"
+        );
+        let _ = writeln!(
+            out,
+            "  const size_t end = lanes - lanes % BLOCK;\n  if (end == 0 || n_steps == 0) return;"
+        );
+        for a in 0..self.arrays.len() {
+            let _ = writeln!(
+                out,
+                "  const double *arr{a} = (const double *)env[{}];",
+                self.array_env + a
+            );
+        }
+        let _ = writeln!(
+            out,
+            "  for (uint64_t s = 0; s < n_steps; s++) {{\n    for (size_t k = 0; k < n_kicks; k++) {{\n      const double ch = drift[k];\n      const vd dh = B(kick[k]);"
+        );
+        if self.tangent {
+            let _ = writeln!(
+                out,
+                "      const double *qs = stages + (s * n_kicks + k) * {n};"
+            );
+        }
+        // Drift, with the force's rows set to -0 on the way.
+        let _ = writeln!(
+            out,
+            "      for (size_t o = 0; o < end; o += BLOCK) {{\n        double *xb = x + o;\n        for (size_t j = 0; j < {n}; j++) {{\n          const double c = w ? ch * w[j] : ch;"
+        );
+        for (suffix, offset) in [("_0", "0"), ("_1", "LANES")] {
+            let _ = writeln!(
+                out,
+                "          vd p{suffix} = LD(xb + ({n} + j) * stride + {offset}); ST(xb + j * stride + {offset}, LD(xb + j * stride + {offset}) + B(c) * p{suffix}); ST(g + j * BLOCK + {offset}, B(-0.0));"
+            );
+        }
+        let _ = writeln!(out, "        }}");
+        self.force(out);
+        let _ = writeln!(
+            out,
+            "        for (size_t j = 0; j < {n}; j++) {{\n          ST(xb + ({n} + j) * stride, LD(xb + ({n} + j) * stride) - dh * LD(g + j * BLOCK));\n          ST(xb + ({n} + j) * stride + LANES, LD(xb + ({n} + j) * stride + LANES) - dh * LD(g + j * BLOCK + LANES));\n        }}\n      }}\n    }}"
+        );
+        let _ = writeln!(
+            out,
+            "    {{\n      const double ch = drift[n_kicks];\n      for (size_t o = 0; o < end; o += BLOCK) {{\n        double *xb = x + o;\n        for (size_t j = 0; j < {n}; j++) {{\n          const double c = w ? ch * w[j] : ch;\n          ST(xb + j * stride, LD(xb + j * stride) + B(c) * LD(xb + ({n} + j) * stride));\n          ST(xb + j * stride + LANES, LD(xb + j * stride + LANES) + B(c) * LD(xb + ({n} + j) * stride + LANES));\n        }}\n      }}\n    }}\n  }}\n}}"
+        );
+    }
+}

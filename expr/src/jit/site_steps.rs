@@ -1,0 +1,622 @@
+//! The splitting step kernels of [`super::step`] for a potential made of lattice sums: the force
+//! (or `Hess V dq`) of each block of lanes computed by the sums' loops ([`super::sites`]) into
+//! the call's scratch rows, in the order of [`crate::lattice::LatticeEvaluator`], so every lane
+//! gets the bits of the generic step loops around the scalar functions.
+//!
+//! ```text
+//! for step, for stage i                      (as the graph kernels)
+//!     for each block of 2 or 4 lanes
+//!         drift   q_j += c_j p_j, g_j = -0    (one pass over the rows)
+//!         force   the rest's derivatives, then each sum: its boundary terms and the loop
+//!                 over its interior, g_{i+k} += d_k term by term
+//!         kick    p_j -= dh g_j               (one pass)
+//!     last drift, block by block
+//! ```
+//!
+//! The tangent kernel reads the reference position of the stage (shared by the lanes) where the
+//! orbit kernel reads each lane's own: the term's position-only operations are scalar code,
+//! once per term and block, broadcast into the lane code of the direction's.
+
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use cranelift_codegen::Context;
+use cranelift_codegen::ir::condcodes::IntCC;
+use cranelift_codegen::ir::types::{F64, F64X2, I64};
+use cranelift_codegen::ir::{AbiParam, BlockArg, InstBuilder, UserFuncName, Value};
+use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
+use cranelift_jit::JITModule;
+use cranelift_module::{Linkage, Module};
+
+use super::sites::{Body, Val, accumulate, arrays_of, site_loop};
+use super::step::{Code, StepKernels};
+use super::step_cranelift::{CraneliftKernels, OrbitStepsFnPtr, TangentStepsFnPtr, vconsts};
+use super::{JitError, Options, Sigs, VConsts, flags, new_module};
+use crate::graph::{Graph, Node, NodeId, Tabulated};
+use crate::lattice::{
+    ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_V, LatticePotential, SiteSum,
+};
+
+/// Compiles the orbit kernel (and the tangent kernel when the potential's Hessian-vector
+/// product was derived) of a lattice potential with `options.lane_block` lanes per block.
+pub fn compile_lattice_steps(
+    graph: &Graph,
+    lattice: &LatticePotential,
+    options: &Options,
+) -> Result<StepKernels, JitError> {
+    let start = Instant::now();
+    if options.lane_block != 2 && options.lane_block != 4 {
+        return Err(JitError::Host(format!(
+            "lane_block must be 2 or 4, not {}",
+            options.lane_block
+        )));
+    }
+    let units = options.lane_block / 2;
+    super::sites::check_size(lattice)?;
+    let (regalloc, allocation) = super::sites::lattice_regalloc(options, graph, lattice, false);
+    let (mut module, _) = new_module(options.opt_level, regalloc)?;
+    let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
+    let arrays = arrays_of(lattice);
+    let mut ctx = Context::new();
+    let mut fctx = FunctionBuilderContext::new();
+    let mut ids = Vec::new();
+    let kinds: &[bool] = if lattice.has_hessian() {
+        &[false, true]
+    } else {
+        &[false]
+    };
+    for &tangent in kinds {
+        let ptr = module.target_config().pointer_type();
+        let mut sig = module.make_signature();
+        for _ in 0..if tangent { 10 } else { 9 } {
+            sig.params.push(AbiParam::new(ptr));
+        }
+        let variant = if tangent { "tangent" } else { "orbit" };
+        let codegen = |e: cranelift_module::ModuleError| JitError::Codegen {
+            function: usize::from(tangent),
+            variant,
+            message: format!("{e:?}"),
+        };
+        let id = module
+            .declare_function(&format!("lattice_steps_{variant}"), Linkage::Local, &sig)
+            .map_err(codegen)?;
+        module.clear_context(&mut ctx);
+        ctx.func.signature = sig;
+        ctx.func.name = UserFuncName::user(0, id.as_u32());
+        let kernel = Kernel {
+            graph,
+            lattice,
+            tables: &tables,
+            arrays: &arrays,
+            units,
+            tangent,
+        };
+        kernel.build(&mut ctx, &mut fctx, &module);
+        module.define_function(id, &mut ctx).map_err(codegen)?;
+        ids.push((id, tangent));
+    }
+    module
+        .finalize_definitions()
+        .map_err(|e| JitError::Link(format!("{e:?}")))?;
+    let mut orbit = None;
+    let mut tangent = None;
+    for (id, is_tangent) in ids {
+        let code = module.get_finalized_function(id);
+        // SAFETY: defined above with exactly these signatures (nine or ten pointer-sized
+        // integer parameters, no results, the host's C calling convention).
+        unsafe {
+            if is_tangent {
+                tangent = Some(std::mem::transmute::<*const u8, TangentStepsFnPtr>(code));
+            } else {
+                orbit = Some(std::mem::transmute::<*const u8, OrbitStepsFnPtr>(code));
+            }
+        }
+    }
+    let block = options.lane_block;
+    Ok(StepKernels::new(
+        Code::Cranelift(CraneliftKernels {
+            modules: Mutex::new(vec![module]),
+            orbit: orbit.expect("the orbit kernel is always compiled"),
+            tangent,
+            allocation,
+        }),
+        lattice.n,
+        [block; 2],
+        lattice.n,
+        tables,
+        arrays.into_iter().map(|(_, a)| a).collect(),
+        start.elapsed(),
+        allocation,
+    ))
+}
+
+struct Kernel<'a> {
+    graph: &'a Graph,
+    lattice: &'a LatticePotential,
+    tables: &'a [Arc<dyn Tabulated>],
+    arrays: &'a [(String, Arc<[f64]>)],
+    units: usize,
+    tangent: bool,
+}
+
+/// What one block's code reads: its lanes' rows, the stage's reference position (tangent), the
+/// scratch rows of the force, the row stride in bytes.
+#[derive(Clone, Copy)]
+struct Rows {
+    x: Value,
+    stride: Value,
+    stage: Option<Value>,
+    g: Value,
+}
+
+/// Where a term's slots are: a boundary term's sites known at compile time, or the loop's term
+/// `i` (an SSA value).
+#[derive(Clone, Copy)]
+enum At {
+    Term(i64),
+    Loop(Value),
+}
+
+impl Kernel<'_> {
+    /// Bytes of one scratch row (a block of lanes).
+    fn g_row(&self) -> i64 {
+        16 * self.units as i64
+    }
+
+    fn build(&self, ctx: &mut Context, fctx: &mut FunctionBuilderContext, module: &JITModule) {
+        let n = self.lattice.n;
+        let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
+        let entry = b.create_block();
+        let run = b.create_block();
+        let step_head = b.create_block();
+        let stage_head = b.create_block();
+        let stage_body = b.create_block();
+        let blk = b.create_block();
+        let stage_next = b.create_block();
+        let last = b.create_block();
+        let last_blk = b.create_block();
+        let step_next = b.create_block();
+        let exit = b.create_block();
+        b.append_block_params_for_function_params(entry);
+        let s = b.append_block_param(step_head, I64);
+        let i = b.append_block_param(stage_head, I64);
+        let off = b.append_block_param(blk, I64);
+        let last_off = b.append_block_param(last_blk, I64);
+
+        b.switch_to_block(entry);
+        let params = b.block_params(entry).to_vec();
+        let (stages, rest) = if self.tangent {
+            (Some(params[0]), &params[1..])
+        } else {
+            (None, &params[..])
+        };
+        let (x, stride, lanes, n_steps, drift, kick, n_kicks, w, scratch) = (
+            rest[0], rest[1], rest[2], rest[3], rest[4], rest[5], rest[6], rest[7], rest[8],
+        );
+        let sigs = Sigs::new(&mut b, module);
+        let sb = b.ins().ishl_imm_u(stride, 3);
+        let half = b.ins().imul_imm_s(sb, n as i64);
+        let block_lanes = 2 * self.units as i64;
+        let whole = b.ins().band_imm_s(lanes, !(block_lanes - 1));
+        let end = b.ins().ishl_imm_u(whole, 3);
+        let no_lanes = b.ins().icmp_imm_u(IntCC::Equal, end, 0);
+        let no_steps = b.ins().icmp_imm_u(IntCC::Equal, n_steps, 0);
+        let nothing = b.ins().bor(no_lanes, no_steps);
+        b.ins().brif(nothing, exit, &[], run, &[]);
+
+        b.switch_to_block(run);
+        let zero = b.ins().iconst(I64, 0);
+        b.ins().jump(step_head, &[BlockArg::Value(zero)]);
+
+        b.switch_to_block(step_head);
+        b.ins().jump(stage_head, &[BlockArg::Value(zero)]);
+
+        b.switch_to_block(stage_head);
+        let more = b.ins().icmp(IntCC::UnsignedLessThan, i, n_kicks);
+        b.ins().brif(more, stage_body, &[], last, &[]);
+
+        // stage_body: the stage's coefficients and reference position, then the blocks.
+        b.switch_to_block(stage_body);
+        let ioff = b.ins().ishl_imm_u(i, 3);
+        let dp = b.ins().iadd(drift, ioff);
+        let ch = b.ins().load(F64, flags(), dp, 0);
+        let kp = b.ins().iadd(kick, ioff);
+        let dh = b.ins().load(F64, flags(), kp, 0);
+        let dhv = b.ins().splat(F64X2, dh);
+        let stage = stages.map(|st| {
+            let si = b.ins().imul(s, n_kicks);
+            let si = b.ins().iadd(si, i);
+            let byte = b.ins().imul_imm_s(si, (n * 8) as i64);
+            b.ins().iadd(st, byte)
+        });
+        b.ins().jump(blk, &[BlockArg::Value(zero)]);
+
+        // blk(off): drift, force and kick of one block of lanes.
+        b.switch_to_block(blk);
+        let xb = b.ins().iadd(x, off);
+        let k = vconsts(&mut b);
+        let rows = Rows {
+            x: xb,
+            stride: sb,
+            stage,
+            g: scratch,
+        };
+        self.drift(&mut b, rows, half, ch, w, true);
+        self.force(&mut b, &sigs, &k, rows);
+        self.kick(&mut b, rows, half, dhv);
+        let next = b.ins().iadd_imm_s(off, 8 * block_lanes);
+        let more = b.ins().icmp(IntCC::UnsignedLessThan, next, end);
+        b.ins()
+            .brif(more, blk, &[BlockArg::Value(next)], stage_next, &[]);
+
+        b.switch_to_block(stage_next);
+        let i1 = b.ins().iadd_imm_s(i, 1);
+        b.ins().jump(stage_head, &[BlockArg::Value(i1)]);
+
+        // last: the drift after the last kick, over every block.
+        b.switch_to_block(last);
+        let loff = b.ins().ishl_imm_u(n_kicks, 3);
+        let lp = b.ins().iadd(drift, loff);
+        let ch_last = b.ins().load(F64, flags(), lp, 0);
+        b.ins().jump(last_blk, &[BlockArg::Value(zero)]);
+
+        b.switch_to_block(last_blk);
+        let xb = b.ins().iadd(x, last_off);
+        let rows = Rows {
+            x: xb,
+            stride: sb,
+            stage: None,
+            g: scratch,
+        };
+        self.drift(&mut b, rows, half, ch_last, w, false);
+        let next = b.ins().iadd_imm_s(last_off, 8 * block_lanes);
+        let more = b.ins().icmp(IntCC::UnsignedLessThan, next, end);
+        b.ins()
+            .brif(more, last_blk, &[BlockArg::Value(next)], step_next, &[]);
+
+        b.switch_to_block(step_next);
+        let s1 = b.ins().iadd_imm_s(s, 1);
+        let more = b.ins().icmp(IntCC::UnsignedLessThan, s1, n_steps);
+        b.ins()
+            .brif(more, step_head, &[BlockArg::Value(s1)], exit, &[]);
+
+        b.switch_to_block(exit);
+        b.ins().return_(&[]);
+        b.seal_all_blocks();
+        b.finalize(module.target_config());
+    }
+
+    /// `q_j += c_j p_j` over the rows (`c_j = ch w_j`, or `ch` where `w` is null: unit masses),
+    /// and with `clear` the force's rows set to `-0` on the way.
+    fn drift(
+        &self,
+        b: &mut FunctionBuilder,
+        rows: Rows,
+        half: Value,
+        ch: Value,
+        w: Value,
+        clear: bool,
+    ) {
+        let n = self.lattice.n as i64;
+        let unit_loop = b.create_block();
+        let mass_loop = b.create_block();
+        let done = b.create_block();
+        let mut params = Vec::new();
+        for blk in [unit_loop, mass_loop] {
+            let j = b.append_block_param(blk, I64);
+            let row = b.append_block_param(blk, I64);
+            let g = b.append_block_param(blk, I64);
+            params.push((blk, j, row, g));
+        }
+        let zero = b.ins().iconst(I64, 0);
+        let null = b.ins().icmp_imm_u(IntCC::Equal, w, 0);
+        let start = [
+            BlockArg::Value(zero),
+            BlockArg::Value(rows.x),
+            BlockArg::Value(rows.g),
+        ];
+        b.ins().brif(null, unit_loop, &start, mass_loop, &start);
+        for (masses, (blk, j, row, g)) in params.into_iter().enumerate() {
+            b.switch_to_block(blk);
+            let c = if masses == 1 {
+                let off = b.ins().ishl_imm_u(j, 3);
+                let wp = b.ins().iadd(w, off);
+                let wj = b.ins().load(F64, flags(), wp, 0);
+                b.ins().fmul(ch, wj)
+            } else {
+                ch
+            };
+            let cv = b.ins().splat(F64X2, c);
+            let prow = b.ins().iadd(row, half);
+            let m0 = if clear {
+                let z = b.ins().f64const(-0.0);
+                Some(b.ins().splat(F64X2, z))
+            } else {
+                None
+            };
+            for unit in 0..self.units {
+                let o = 16 * unit as i32;
+                let q = b.ins().load(F64X2, flags(), row, o);
+                let p = b.ins().load(F64X2, flags(), prow, o);
+                let cp = b.ins().fmul(cv, p);
+                let q = b.ins().fadd(q, cp);
+                b.ins().store(flags(), q, row, o);
+                if let Some(m0) = m0 {
+                    b.ins().store(flags(), m0, g, o);
+                }
+            }
+            let j1 = b.ins().iadd_imm_s(j, 1);
+            let row1 = b.ins().iadd(row, rows.stride);
+            let g1 = b.ins().iadd_imm_s(g, self.g_row());
+            let more = b.ins().icmp_imm_s(IntCC::SignedLessThan, j1, n);
+            b.ins().brif(
+                more,
+                blk,
+                &[
+                    BlockArg::Value(j1),
+                    BlockArg::Value(row1),
+                    BlockArg::Value(g1),
+                ],
+                done,
+                &[],
+            );
+        }
+        b.switch_to_block(done);
+    }
+
+    /// `p_j -= dh g_j` over the rows.
+    fn kick(&self, b: &mut FunctionBuilder, rows: Rows, half: Value, dhv: Value) {
+        let n = self.lattice.n as i64;
+        let body = b.create_block();
+        let done = b.create_block();
+        let j = b.append_block_param(body, I64);
+        let row = b.append_block_param(body, I64);
+        let g = b.append_block_param(body, I64);
+        let zero = b.ins().iconst(I64, 0);
+        b.ins().jump(
+            body,
+            &[
+                BlockArg::Value(zero),
+                BlockArg::Value(rows.x),
+                BlockArg::Value(rows.g),
+            ],
+        );
+        b.switch_to_block(body);
+        let prow = b.ins().iadd(row, half);
+        for unit in 0..self.units {
+            let o = 16 * unit as i32;
+            let p = b.ins().load(F64X2, flags(), prow, o);
+            let f = b.ins().load(F64X2, flags(), g, o);
+            let df = b.ins().fmul(dhv, f);
+            let p = b.ins().fsub(p, df);
+            b.ins().store(flags(), p, prow, o);
+        }
+        let j1 = b.ins().iadd_imm_s(j, 1);
+        let row1 = b.ins().iadd(row, rows.stride);
+        let g1 = b.ins().iadd_imm_s(g, self.g_row());
+        let more = b.ins().icmp_imm_s(IntCC::SignedLessThan, j1, n);
+        b.ins().brif(
+            more,
+            body,
+            &[
+                BlockArg::Value(j1),
+                BlockArg::Value(row1),
+                BlockArg::Value(g1),
+            ],
+            done,
+            &[],
+        );
+        b.switch_to_block(done);
+    }
+
+    /// The lanes' values of row `j` of the block (`F64X2` per unit).
+    fn lane_row(&self, b: &mut FunctionBuilder, row: Value) -> Val {
+        let mut v = [row; 2];
+        for (unit, slot) in v.iter_mut().enumerate().take(self.units) {
+            *slot = b.ins().load(F64X2, flags(), row, 16 * unit as i32);
+        }
+        if self.units == 1 {
+            v[1] = v[0];
+        }
+        Val::Lanes(v)
+    }
+
+    /// `g_row += c d` for every unit at the scratch row's address `row + off`.
+    fn add_to(&self, b: &mut FunctionBuilder, row: Value, off: i64, c: f64, d: Val) {
+        let d = match d {
+            Val::Lanes(v) => v,
+            Val::One(x) => {
+                let v = b.ins().splat(F64X2, x);
+                [v, v]
+            }
+        };
+        for (unit, &d) in d.iter().enumerate().take(self.units) {
+            let o = (off + 16 * unit as i64) as i32;
+            let acc = b.ins().load(F64X2, flags(), row, o);
+            let acc = accumulate(b, c, acc, d, true);
+            b.ins().store(flags(), acc, row, o);
+        }
+    }
+
+    /// The force (or `Hess V dq`) of the block into the scratch rows, which hold `-0`.
+    fn force(&self, b: &mut FunctionBuilder, sigs: &Sigs, k: &VConsts, rows: Rows) {
+        let lattice = self.lattice;
+        let body = Body {
+            graph: self.graph,
+            sigs,
+            tables: self.tables,
+            units: self.units,
+            k: Some(k),
+        };
+        let rest = if self.tangent {
+            lattice
+                .rest_hessian_vector
+                .as_deref()
+                .expect("a tangent kernel has the Hessian-vector product")
+        } else {
+            &lattice.rest_gradient
+        };
+        if !rest.is_empty() {
+            let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
+            let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| match *node {
+                Node::Const(c) => Val::One(b.ins().f64const(c)),
+                Node::Input { arg: ARG_Q, index } if !self.tangent => {
+                    let row = self.row(b, rows, index as i64);
+                    self.lane_row(b, row)
+                }
+                Node::Input { arg: ARG_Q, index } => {
+                    let st = rows.stage.expect("the tangent kernel's stage");
+                    Val::One(b.ins().load(F64, flags(), st, (index * 8) as i32))
+                }
+                Node::Input { arg: ARG_V, index } => {
+                    let row = self.row(b, rows, index as i64);
+                    self.lane_row(b, row)
+                }
+                _ => unreachable!("a leaf of the expression around the sums: {node:?}"),
+            };
+            let vals = body.emit(b, &roots, &mut leaf);
+            for &(j, id) in rest {
+                let d = vals[id as usize].expect("emitted");
+                self.add_to(b, rows.g, j as i64 * self.g_row(), 1.0, d);
+            }
+        }
+        for (sum, d) in lattice.sums.iter().zip(&lattice.derivatives) {
+            let contributions = d.contributions(self.graph, self.tangent);
+            let roots: Vec<NodeId> = contributions.iter().map(|&(_, id)| id).collect();
+            let roots = &roots[..];
+            if roots.is_empty() {
+                continue;
+            }
+            let term = |b: &mut FunctionBuilder, at: At| {
+                let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| {
+                    self.slot(b, node, sum, at, rows)
+                };
+                let vals = body.emit(b, roots, &mut leaf);
+                // Where the scratch row of site `i + shift` is: a constant site's, or the
+                // loop's row `i - 1` and an offset.
+                let g_base = match at {
+                    At::Term(_) => rows.g,
+                    At::Loop(i) => {
+                        let im1 = b.ins().iadd_imm_s(i, -1);
+                        let off = b.ins().imul_imm_s(im1, self.g_row());
+                        b.ins().iadd(rows.g, off)
+                    }
+                };
+                for (&shift, &(factor, r)) in sum.variables.iter().zip(&contributions) {
+                    let off = match at {
+                        At::Term(i) => match sum.site(i, shift) {
+                            Some(j) => j as i64 * self.g_row(),
+                            None => continue,
+                        },
+                        At::Loop(_) => shift * self.g_row(),
+                    };
+                    let dv = vals[r as usize].expect("emitted");
+                    self.add_to(b, g_base, off, factor, dv);
+                }
+            };
+            let (before, after) = sum.boundary_terms();
+            for i in before {
+                term(b, At::Term(i));
+            }
+            if let Some((from, to)) = sum.interior() {
+                site_loop(b, from, to, None, &mut |b, i, _| {
+                    term(b, At::Loop(i));
+                    None
+                });
+            }
+            for i in after {
+                term(b, At::Term(i));
+            }
+        }
+    }
+
+    /// The address of the block's row `j` (0-based).
+    fn row(&self, b: &mut FunctionBuilder, rows: Rows, j: i64) -> Value {
+        if j == 0 {
+            return rows.x;
+        }
+        let off = b.ins().imul_imm_s(rows.stride, j);
+        b.ins().iadd(rows.x, off)
+    }
+
+    /// A leaf of a term: a constant, a slot (the lanes' rows, or the stage's shared position in
+    /// the tangent kernel; a wall is 0), an array parameter.
+    fn slot(&self, b: &mut FunctionBuilder, node: &Node, sum: &SiteSum, at: At, rows: Rows) -> Val {
+        enum Source {
+            Lanes,
+            Stage,
+            Array(i64),
+        }
+        let (source, shift) = match *node {
+            Node::Const(c) => return Val::One(b.ins().f64const(c)),
+            Node::Input {
+                arg: ARG_SITE,
+                index,
+            } if self.tangent => (Source::Stage, sum.variables[index as usize]),
+            Node::Input {
+                arg: ARG_SITE,
+                index,
+            } => (Source::Lanes, sum.variables[index as usize]),
+            Node::Input {
+                arg: ARG_SITE_DIRECTION,
+                index,
+            } => (Source::Lanes, sum.variables[index as usize]),
+            Node::Input {
+                arg: ARG_SITE_PARAM,
+                index,
+            } => {
+                let p = &sum.params[index as usize];
+                if let At::Term(i) = at {
+                    let j = sum.site(i, p.shift).expect("parameters inside the lattice");
+                    return Val::One(b.ins().f64const(p.values[j]));
+                }
+                let (_, a) = self
+                    .arrays
+                    .iter()
+                    .find(|(name, _)| *name == p.name)
+                    .expect("every array a sum reads");
+                (Source::Array(a.as_ptr() as i64), p.shift)
+            }
+            _ => unreachable!("a leaf of a term: {node:?}"),
+        };
+        match at {
+            At::Term(i) => {
+                let Some(j) = sum.site(i, shift) else {
+                    return Val::One(b.ins().f64const(0.0));
+                };
+                match source {
+                    Source::Lanes => {
+                        let row = self.row(b, rows, j as i64);
+                        self.lane_row(b, row)
+                    }
+                    Source::Stage => {
+                        let st = rows.stage.expect("the tangent kernel's stage");
+                        Val::One(b.ins().load(F64, flags(), st, (j * 8) as i32))
+                    }
+                    Source::Array(_) => unreachable!("a constant above"),
+                }
+            }
+            At::Loop(i) => {
+                // Site i + shift is row i + shift - 1.
+                let r = b.ins().iadd_imm_s(i, shift - 1);
+                match source {
+                    Source::Lanes => {
+                        let off = b.ins().imul(r, rows.stride);
+                        let row = b.ins().iadd(rows.x, off);
+                        self.lane_row(b, row)
+                    }
+                    Source::Stage | Source::Array(_) => {
+                        let base = match source {
+                            Source::Stage => rows.stage.expect("the tangent kernel's stage"),
+                            Source::Array(addr) => b.ins().iconst(I64, addr),
+                            Source::Lanes => unreachable!(),
+                        };
+                        let off = b.ins().ishl_imm_u(r, 3);
+                        let p = b.ins().iadd(base, off);
+                        Val::One(b.ins().load(F64, flags(), p, 0))
+                    }
+                }
+            }
+        }
+    }
+}

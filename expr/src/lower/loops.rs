@@ -1,0 +1,231 @@
+//! Lattice sums lowered as loops ([`crate::lattice`]): the body of `sum(i = a..b, term)` lowered
+//! once with its sites `q[i + k]` and array parameters `eps[i + k]` as slot inputs.
+//!
+//! A sum is lowered this way when its body reads the variables and array parameters only as
+//! `name[i + k]` (a whole shift `k`; the index `i` nowhere else, not as a number), has no sum
+//! of its own under free ends (whose terms would be left out site by site), reads array
+//! parameters only inside the lattice under fixed ends, and has at most
+//! [`MAX_BOUNDARY_TERMS`] terms reaching beyond an end. Anything else, including every error,
+//! makes the sum unrolled as before (which then reports the error exactly as it always did):
+//! the loop form never changes what is accepted, only how it is lowered.
+
+use std::sync::Arc;
+
+use super::{Info, Lowerer, Meaning, R};
+use crate::ast::{BinOp, Expr, ExprKind};
+use crate::error::Span;
+use crate::graph::{Node, NodeId};
+use crate::lattice::{ARG_SITE, ARG_SITE_PARAM, ARG_SUM, MAX_BOUNDARY_TERMS, ParamSlot, SiteSum};
+use crate::lower::{Boundary, ParamValue};
+use crate::smooth::Signs;
+
+/// The sum whose body is being lowered as a term: its index and the slots met so far.
+pub(super) struct Template<'a> {
+    pub index: &'a str,
+    pub variables: Vec<i64>,
+    pub params: Vec<ParamSlot>,
+}
+
+impl<'a> Lowerer<'a> {
+    /// Whether `name` is the index of the sum being lowered as a term.
+    pub(super) fn is_loop_index(&self, name: &str) -> bool {
+        self.template.as_ref().is_some_and(|t| t.index == name)
+    }
+
+    /// The refusal of the loop form (never shown: the sum is then lowered unrolled).
+    pub(super) fn not_a_loop(&self, span: Span) -> Box<crate::error::ExprError> {
+        self.err(span, "not a site loop")
+    }
+
+    /// `index` as `c * i + k` in the loop index `i`.
+    fn affine(&self, e: &Expr, index: &str) -> R<(i64, i64)> {
+        self.tick(e.span)?;
+        let overflow = || self.not_a_loop(e.span);
+        match &e.kind {
+            ExprKind::Name(n) if n == index => Ok((1, 0)),
+            ExprKind::Neg { arg, .. } => {
+                let (c, k) = self.affine(arg, index)?;
+                Ok((
+                    c.checked_neg().ok_or_else(overflow)?,
+                    k.checked_neg().ok_or_else(overflow)?,
+                ))
+            }
+            ExprKind::Chain { first, rest } => {
+                let (mut c, mut k) = self.affine(first, index)?;
+                for (op, _, x) in rest {
+                    let (c2, k2) = self.affine(x, index)?;
+                    let next = match op {
+                        BinOp::Add => c.checked_add(c2).zip(k.checked_add(k2)),
+                        BinOp::Sub => c.checked_sub(c2).zip(k.checked_sub(k2)),
+                        BinOp::Mul if c == 0 => k.checked_mul(c2).zip(k.checked_mul(k2)),
+                        BinOp::Mul if c2 == 0 => c.checked_mul(k2).zip(k.checked_mul(k2)),
+                        _ => return Err(self.not_a_loop(e.span)),
+                    };
+                    (c, k) = next.ok_or_else(overflow)?;
+                }
+                Ok((c, k))
+            }
+            // No loop index inside: an ordinary index expression (whose errors are the
+            // unrolled lowering's to report).
+            _ if !mentions(e, index) => Ok((0, self.int(e)?)),
+            _ => Err(self.not_a_loop(e.span)),
+        }
+    }
+
+    /// `name[index]` in a term where `index` mentions the loop index: a slot input.
+    pub(super) fn slot(&mut self, e: &'a Expr, name: &str, index: &'a Expr) -> R<(NodeId, Info)> {
+        let loop_index = self.template.as_ref().map_or("", |t| t.index);
+        let (c, shift) = self.affine(index, loop_index)?;
+        if c != 1 {
+            return Err(self.not_a_loop(e.span));
+        }
+        match self.meaning(name) {
+            Meaning::Family(f) if f.len == self.scope.n && f.offset == 0 => {
+                let t = self.template.as_mut().expect("in a term");
+                let s = match t.variables.iter().position(|&k| k == shift) {
+                    Some(s) => s,
+                    None => {
+                        t.variables.push(shift);
+                        t.variables.len() - 1
+                    }
+                };
+                let node = Node::Input {
+                    arg: ARG_SITE,
+                    index: s as u32,
+                };
+                Ok((self.emit(node, e.span)?, Info::variable()))
+            }
+            Meaning::Param(ParamValue::Array(v)) if v.len() == self.scope.n => {
+                // A known constant in every term: its signs are those of the entries.
+                let signs = v
+                    .iter()
+                    .fold(None, |acc: Option<Signs>, &x| {
+                        let s = Signs::of(x);
+                        Some(acc.map_or(s, |a| a.union(s)))
+                    })
+                    .unwrap_or(Signs::ALL);
+                let t = self.template.as_mut().expect("in a term");
+                let p = match t
+                    .params
+                    .iter()
+                    .position(|p| p.name == name && p.shift == shift)
+                {
+                    Some(p) => p,
+                    None => {
+                        t.params.push(ParamSlot {
+                            name: name.to_string(),
+                            values: Arc::from(v.as_slice()),
+                            shift,
+                        });
+                        t.params.len() - 1
+                    }
+                };
+                let node = Node::Input {
+                    arg: ARG_SITE_PARAM,
+                    index: p as u32,
+                };
+                let info = Info {
+                    limit: None,
+                    signs,
+                    zero_kink: false,
+                };
+                Ok((self.emit(node, e.span)?, info))
+            }
+            _ => Err(self.not_a_loop(e.span)),
+        }
+    }
+
+    /// `sum(index = a..b, body)` as a loop, or `None` to lower it unrolled.
+    pub(super) fn sum_as_loop(
+        &mut self,
+        e: &'a Expr,
+        index: &'a str,
+        (a, b): (i64, i64),
+        body: &'a Expr,
+    ) -> R<Option<(NodeId, Info)>> {
+        if !self.loops || self.template.is_some() || a > b {
+            return Ok(None);
+        }
+        self.template = Some(Template {
+            index,
+            variables: Vec::new(),
+            params: Vec::new(),
+        });
+        // The loop index stands in the scope as a name (so it is not "unknown"); every use
+        // of it outside a slot's index refuses the loop form.
+        self.sums.push((index, 0));
+        let lowered = self.value(body);
+        self.sums.pop();
+        let template = self.template.take().expect("set above");
+        let Ok((term, info)) = lowered else {
+            return Ok(None);
+        };
+        if self.graph.as_const(term).is_some() {
+            // The same term at every site: the unrolled sum folds to one constant.
+            return Ok(None);
+        }
+        let n = self.scope.n as i64;
+        let shifts = || {
+            template
+                .variables
+                .iter()
+                .copied()
+                .chain(template.params.iter().map(|p| p.shift))
+        };
+        let lo = shifts().min().unwrap_or(0);
+        let hi = shifts().max().unwrap_or(0);
+        let (first, last) = match self.scope.boundary {
+            Boundary::Free => (a.max(1 - lo), b.min(n - hi)),
+            Boundary::Periodic if n == 0 => return Ok(None),
+            Boundary::Periodic => (a, b),
+            Boundary::Fixed => {
+                let inside = template
+                    .params
+                    .iter()
+                    .all(|p| a + p.shift >= 1 && b + p.shift <= n);
+                if !inside {
+                    return Ok(None);
+                }
+                (a, b)
+            }
+        };
+        if first > last {
+            return self.constant(0.0, e.span).map(Some);
+        }
+        let sum = SiteSum {
+            span: e.span,
+            first,
+            last,
+            variables: template.variables,
+            params: template.params,
+            term,
+            n: self.scope.n,
+            boundary: self.scope.boundary,
+        };
+        let (before, after) = sum.boundary_terms();
+        if (before.len() + after.len()) as i64 > MAX_BOUNDARY_TERMS {
+            return Ok(None);
+        }
+        let s = self.site_sums.len() as u32;
+        self.site_sums.push(sum);
+        let id = self.emit(
+            Node::Input {
+                arg: ARG_SUM,
+                index: s,
+            },
+            e.span,
+        )?;
+        // Every term has the facts of the one lowered (a constant term gives a constant
+        // sum only in the unrolled form, where it folds; here it is a sum of unknown sign).
+        let info = if first == last { info } else { info.add(info) };
+        Ok(Some((id, info)))
+    }
+}
+
+/// Whether `e` mentions the name `index` anywhere.
+pub(super) fn mentions(e: &Expr, index: &str) -> bool {
+    match &e.kind {
+        ExprKind::Name(n) => n == index,
+        _ => e.children().any(|c| mentions(c, index)),
+    }
+}

@@ -44,9 +44,17 @@ fn hh_map(method: &str, indicator: &str) -> String {
         )
 }
 
-/// The FPUT-beta chain of `n` sites (lowest mode, amplitude 0.5) mapped over (q1, q2) on a
-/// `grid` x `grid` grid to `t_final`.
-fn fput_map(n: usize, grid: usize, t_final: f64) -> String {
+/// The FPUT-beta chain as a lattice sum (a loop over its term).
+const FPUT_LOOP: &str = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
+
+/// A graded FPUT-beta chain (the quartic coupling growing along it, `beta i / N`: the sum's
+/// index as a number, which the loop form of lattice sums does not take, so every site's
+/// derivative is unrolled and the C build of a long chain takes tens of seconds).
+const FPUT_GRADED: &str = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta*i/(4*N)*(q[i+1] - q[i])^4)";
+
+/// The chain `potential` of `n` sites with fixed ends (lowest mode, amplitude 0.5) mapped by
+/// `method` over (q1, q2) on a `grid` x `grid` grid to `t_final`.
+fn fput_map(n: usize, grid: usize, t_final: f64, potential: &str, method: &str) -> String {
     let q: Vec<String> = (1..=n)
         .map(|i| {
             format!(
@@ -58,11 +66,11 @@ fn fput_map(n: usize, grid: usize, t_final: f64) -> String {
     let p = vec!["0.0"; n].join(", ");
     format!(
         "[model]\nname = \"potential\"\nn = {n}\nboundary = \"fixed\"\nparams = {{ beta = 1.0 }}\n\
-         potential = \"sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)\"\n\
+         potential = \"{potential}\"\n\
          [orbit]\nq = [{}]\np = [{p}]\n\
          [integrator]\nmethod = \"aba864\"\nh = 0.02\nt_final = {t_final}\n\
          [deviations]\nk = 2\nsets = 1\nseed = 3\n\
-         [[scheme]]\nname = \"mpm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 1.0\n\
+         [[scheme]]\nname = \"{method}\"\nmethod = \"{method}\"\nd0 = 1e-8\ntau = 1.0\n\
          [map]\nx = {{ coord = \"q1\", min = -0.1, max = 0.1, n = {grid} }}\n\
          y = {{ coord = \"q2\", min = -0.1, max = 0.1, n = {grid} }}\nindicator = \"gali\"\nk = 2\n",
         q.join(", ")
@@ -124,9 +132,14 @@ fn the_map_is_the_same_whatever_call_the_c_kernels_arrive_at() {
     let dir = tempfile::tempdir().unwrap();
     let cache = dir.path().join("kernels");
     let cache_env = ("CHAOSCOPE_KERNEL_CACHE", s(&cache));
-    for (method, indicator) in [("mpm", "gali-time"), ("vm", "gali")] {
+    // Henon-Heiles, and an FPUT chain whose lattice sum is a loop (the lattice step kernels).
+    for (method, text, grid_points) in [
+        ("mpm", hh_map("mpm", "gali-time"), 63),
+        ("vm", hh_map("vm", "gali"), 63),
+        ("fput-loop-vm", fput_map(12, 4, 60.0, FPUT_LOOP, "vm"), 16),
+    ] {
         let config = dir.path().join(format!("{method}.toml"));
-        std::fs::write(&config, hh_map(method, indicator)).unwrap();
+        std::fs::write(&config, text).unwrap();
         let out = dir.path().join(format!("{method}.mcap"));
 
         // All Cranelift: the C kernels switched off.
@@ -137,7 +150,11 @@ fn the_map_is_the_same_whatever_call_the_c_kernels_arrive_at() {
             assert_eq!(c, 0, "{method}: C kernels ran although switched off");
             (cl, cl + c)
         };
-        assert_eq!(cranelift.len(), 63, "{method}: every grid point recorded");
+        assert_eq!(
+            cranelift.len(),
+            grid_points,
+            "{method}: every grid point recorded"
+        );
         // Enough kernel calls to place switches early, in the middle and late.
         assert!(total > 100, "{method}: only {total} kernel calls");
 
@@ -285,15 +302,15 @@ fn wait_for(limit: Duration, mut done: impl FnMut() -> bool) -> bool {
 
 #[test]
 fn a_map_ended_or_interrupted_during_the_c_build_leaves_no_compiler_and_no_files() {
-    // A 1001-site chain: its C build takes tens of seconds, its Cranelift kernels a fraction of
-    // one, so the map computes while the compiler runs.
+    // A 1001-site chain unrolled: its C build takes tens of seconds, its Cranelift kernels a
+    // fraction of one, so the map computes while the compiler runs.
     let dir = tempfile::tempdir().unwrap();
     let cache = dir.path().join("kernels");
     let cache_env = ("CHAOSCOPE_KERNEL_CACHE", s(&cache));
 
     // Ends first: four short orbits.
     let small = dir.path().join("small.toml");
-    std::fs::write(&small, fput_map(1001, 2, 2.0)).unwrap();
+    std::fs::write(&small, fput_map(1001, 2, 2.0, FPUT_GRADED, "mpm")).unwrap();
     let (points, json, _) = map(&small, &dir.path().join("small.mcap"), 2, &[cache_env]);
     assert_eq!(points.len(), 4);
     assert_eq!(
@@ -305,7 +322,7 @@ fn a_map_ended_or_interrupted_during_the_c_build_leaves_no_compiler_and_no_files
 
     // Interrupted: SIGINT once the compiler is running.
     let large = dir.path().join("large.toml");
-    std::fs::write(&large, fput_map(1001, 20, 100.0)).unwrap();
+    std::fs::write(&large, fput_map(1001, 20, 100.0, FPUT_GRADED, "mpm")).unwrap();
     let mut child = map_command(&large, &dir.path().join("large.mcap"), 2, &[cache_env])
         .stdout(std::process::Stdio::piped())
         .stderr(std::process::Stdio::piped())

@@ -5,9 +5,12 @@
 //! The expression is lowered to a DAG ([`crate::lower`]), differentiated there (reverse mode for
 //! the gradient, forward mode over the gradient for `Hess V v`), and the potential, gradient and
 //! Hessian-vector product are compiled by Cranelift, once per run: as scalar functions (the
-//! one-orbit engine), and as whole splitting steps over structure-of-arrays lanes, orbits and
-//! tangent vectors, with the force inline (the batched kernel). The compiled code performs
-//! exactly the reference evaluator's operations, so every path gives the same bits.
+//! one-orbit engine), and, at the batched kernel's first call, as whole splitting steps over
+//! structure-of-arrays lanes, orbits and tangent vectors, with the force inline (a run never
+//! builds them). Lattice sums that allow it are loops over their term
+//! ([`crate::lattice`]): compile time and code size do not grow with `N`. The compiled
+//! code performs exactly the reference evaluator's operations, so every path gives the same
+//! bits.
 
 use std::collections::{BTreeMap, HashMap};
 use std::io::Write as _;
@@ -18,7 +21,8 @@ use std::time::{Duration, Instant};
 
 use crate::graph::{Graph, NodeId, Tabulated};
 use crate::jit::{Compiled, FunctionSpec, Layout, ScalarFnPtr, StepKernels, StepSpec};
-use crate::lower::{Boundary, Family, ParamValue, Scope};
+use crate::lattice::{LatticeEvaluator, LatticePotential};
+use crate::lower::{Boundary, Family, Lowered, ParamValue, Scope};
 use crate::smooth::Smoothness;
 use crate::{Span, diff, eval, jit, lower};
 
@@ -49,22 +53,32 @@ const GRADIENT: usize = 1;
 const HESSIAN_VECTOR: usize = 2;
 
 /// Argument arrays of the compiled functions: positions, and the direction of `Hess V v`.
-const ARG_Q: u8 = 0;
-const ARG_V: u8 = 1;
+use crate::lattice::{ARG_Q, ARG_V};
+
+/// How the potential's derivatives are written.
+enum Form {
+    /// Every site's derivative a node of the graph (no lattice sum, or one that is not a loop).
+    Unrolled {
+        potential: NodeId,
+        gradient: Vec<NodeId>,
+        hessian_vector: Vec<NodeId>,
+    },
+    /// Loops over the terms of lattice sums.
+    Lattice(Arc<LatticePotential>),
+}
 
 struct Inner {
     definition: PotentialDefinition,
     /// Shared with the background C build.
     graph: Arc<Graph>,
     origins: HashMap<NodeId, Span>,
-    potential: NodeId,
-    gradient: Vec<NodeId>,
+    form: Form,
     smoothness: Smoothness,
     compiled: Compiled,
-    hessian_vector: Vec<NodeId>,
-    /// Whole splitting steps over lanes by Cranelift: compiled with the model, the batched
-    /// kernel's fallback.
-    steps: StepKernels,
+    /// Whole splitting steps over lanes by Cranelift: compiled at the batched kernel's first
+    /// call (a run never calls it), its fallback while the C kernels build; why there are none
+    /// if that failed (the generic step loops around the scalar functions run instead).
+    steps: OnceLock<Result<StepKernels, String>>,
     /// The same steps in C (host-width vectors), built on a background thread from the
     /// batched kernel's first call (a `run` never pays for it) or loaded from the kernel
     /// cache.
@@ -179,8 +193,8 @@ impl CSteps {
     /// The build thread's body. A failure (not a cancel) is said once on stderr, in one line
     /// naming the cause: the run goes on with the Cranelift kernels, which give the same
     /// results more slowly, and the user should know why it is slower than it could be.
-    fn build(&self, graph: &Graph, spec: &StepSpec, cc: &jit::CCompiler) {
-        let built = jit::compile_steps_c_cancellable(graph, spec, cc, &self.cancel);
+    fn build(&self, graph: &Graph, source: &StepSource, cc: &jit::CCompiler) {
+        let built = source.compile_c(graph, cc, &self.cancel);
         let result = match built {
             Ok(k) => {
                 if let Some(t0) = self.started_at.get() {
@@ -214,6 +228,37 @@ impl CSteps {
         let mut worker = self.worker.lock().unwrap_or_else(PoisonError::into_inner);
         if let Some(handle) = worker.take() {
             let _ = handle.join();
+        }
+    }
+}
+
+/// What the step kernels are built from.
+#[derive(Clone)]
+enum StepSource {
+    Graph(StepSpec),
+    Lattice(Arc<LatticePotential>),
+}
+
+impl StepSource {
+    fn compile_cranelift(&self, graph: &Graph) -> Result<StepKernels, jit::JitError> {
+        let options = jit::Options::default();
+        match self {
+            StepSource::Graph(spec) => jit::compile_steps(graph, spec, &options),
+            StepSource::Lattice(l) => jit::compile_lattice_steps(graph, l, &options),
+        }
+    }
+
+    fn compile_c(
+        &self,
+        graph: &Graph,
+        cc: &jit::CCompiler,
+        cancel: &AtomicBool,
+    ) -> Result<StepKernels, jit::JitError> {
+        match self {
+            StepSource::Graph(spec) => jit::compile_steps_c_cancellable(graph, spec, cc, cancel),
+            StepSource::Lattice(l) => {
+                jit::compile_lattice_steps_c_cancellable(graph, l, cc, cancel)
+            }
         }
     }
 }
@@ -256,61 +301,60 @@ impl ExpressionModel {
             n,
             boundary: definition.boundary,
         };
-        let lowered = lower::lower(&definition.potential, &scope, &mut graph)
-            .map_err(|e| PotentialError(e.to_string()))?;
-        let potential = lowered.root;
-        let gradient = diff::gradient(&mut graph, potential, ARG_Q, n)
-            .map_err(|e| PotentialError(e.to_string()))?;
+        let source = &definition.potential;
+        let err = |e: &dyn std::fmt::Display| PotentialError(e.to_string());
+        let lowered = lower::lower_with_loops(source, &scope, &mut graph).map_err(|e| err(&e))?;
         // Second derivatives only where they exist: a potential that is not C^2 is refused
         // for VM anyway, and its Hessian-vector product is not compiled.
         let c2 = lowered.smoothness.require(2, "vm").is_ok();
-        let hessian_vector = if c2 {
-            diff::jacobian_vector(&mut graph, &gradient, ARG_Q, ARG_V)
-                .map_err(|e| PotentialError(e.to_string()))?
+        let Lowered {
+            root,
+            smoothness,
+            origins,
+            sums,
+        } = lowered;
+        let had_sums = !sums.is_empty();
+        let lattice = if had_sums {
+            LatticePotential::new(&mut graph, root, sums, n, c2).map_err(|e| err(&e))?
         } else {
-            vec![graph.constant(0.0); n]
+            None
         };
-        let specs = [
-            FunctionSpec {
-                args: vec![Layout::Scalar],
-                outputs: vec![potential],
-            },
-            FunctionSpec {
-                args: vec![Layout::Scalar],
-                outputs: gradient.clone(),
-            },
-            FunctionSpec {
-                args: vec![Layout::Scalar, Layout::Scalar],
-                outputs: hessian_vector.clone(),
-            },
-        ];
-        // Scalar functions only: the batched kernel runs the step kernels below.
-        let options = jit::Options {
-            lane_functions: false,
-            ..jit::Options::default()
-        };
-        let compiled = jit::compile_with(&graph, &specs, &options)
-            .map_err(|e| PotentialError(format!("compiling the potential: {e}")))?;
-        let steps = jit::compile_steps(
-            &graph,
-            &StepSpec {
-                n,
-                gradient: gradient.clone(),
-                hessian_vector: Some(hessian_vector.clone()),
-            },
-            &jit::Options::default(),
-        )
-        .map_err(|e| PotentialError(format!("compiling the step kernels: {e}")))?;
-        for (f, args) in [(GRADIENT, 1), (HESSIAN_VECTOR, 2)] {
-            for a in 0..args {
-                if compiled.arg_len(f, a) > n {
-                    return Err(PotentialError(format!(
-                        "compiled function {f} reads {} entries of argument {a}, more than N = {n}",
-                        compiled.arg_len(f, a)
-                    )));
-                }
+        let (graph, origins, form, compiled) = match lattice {
+            Some(lattice) => {
+                let compiled = jit::compile_lattice(&graph, &lattice, &jit::Options::default())
+                    .map_err(|e| PotentialError(format!("compiling the potential: {e}")))?;
+                (graph, origins, Form::Lattice(Arc::new(lattice)), compiled)
             }
-        }
+            None => {
+                // No sum is a loop, or the potential is not affine in its sums: every site's
+                // derivative unrolled (lowered again without loops if some sum was one).
+                let (mut graph, origins, potential) = if had_sums {
+                    let mut graph = Graph::new();
+                    for (_, t) in &definition.tables {
+                        graph.add_table(t.clone());
+                    }
+                    let lowered = lower::lower(source, &scope, &mut graph).map_err(|e| err(&e))?;
+                    (graph, lowered.origins, lowered.root)
+                } else {
+                    (graph, origins, root)
+                };
+                let gradient =
+                    diff::gradient(&mut graph, potential, ARG_Q, n).map_err(|e| err(&e))?;
+                let hessian_vector = if c2 {
+                    diff::jacobian_vector(&mut graph, &gradient, ARG_Q, ARG_V)
+                        .map_err(|e| err(&e))?
+                } else {
+                    vec![graph.constant(0.0); n]
+                };
+                let compiled = compile_unrolled(&graph, potential, &gradient, &hessian_vector)?;
+                let form = Form::Unrolled {
+                    potential,
+                    gradient,
+                    hessian_vector,
+                };
+                (graph, origins, form, compiled)
+            }
+        };
         let switch_after_calls = std::env::var("CHAOSCOPE_C_KERNELS_AFTER_CALLS")
             .ok()
             .and_then(|v| v.trim().parse().ok());
@@ -318,18 +362,21 @@ impl ExpressionModel {
             gradient_fn: compiled.raw_scalar(GRADIENT),
             hessian_vector_fn: compiled.raw_scalar(HESSIAN_VECTOR),
             c2,
-            origins: lowered.origins,
-            smoothness: lowered.smoothness,
+            origins,
+            smoothness,
             definition,
             graph: Arc::new(graph),
-            potential,
-            gradient,
+            form,
             compiled,
-            hessian_vector,
-            steps,
+            steps: OnceLock::new(),
             c_steps: Arc::new(CSteps::new(switch_after_calls)),
             build_time: started.elapsed(),
         })))
+    }
+
+    /// Whether the lattice sums are loops (else every site's derivative is unrolled).
+    pub fn has_loops(&self) -> bool {
+        matches!(self.0.form, Form::Lattice(_))
     }
 
     pub fn definition(&self) -> &PotentialDefinition {
@@ -404,18 +451,42 @@ impl ExpressionModel {
     }
 
     /// The operation (with its line and column in the source) that makes `V` or a component
-    /// of its gradient non-finite at `q`, if any.
+    /// of its gradient non-finite at `q`, if any; in a lattice loop, with the term it arose in.
     pub fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {
         let g = &self.0.graph;
-        if let Some(id) = eval::first_non_finite(g, &[q], self.0.potential) {
-            return Some(self.describe(id, q, "in the potential"));
-        }
-        for (i, &out) in self.0.gradient.iter().enumerate() {
-            if let Some(id) = eval::first_non_finite(g, &[q], out) {
-                return Some(self.describe(id, q, &format!("in dV/dq{}", i + 1)));
+        match &self.0.form {
+            Form::Unrolled {
+                potential,
+                gradient,
+                ..
+            } => {
+                if let Some(id) = eval::first_non_finite(g, &[q], *potential) {
+                    return Some(self.describe(id, &[q], "in the potential"));
+                }
+                for (i, &out) in gradient.iter().enumerate() {
+                    if let Some(id) = eval::first_non_finite(g, &[q], out) {
+                        return Some(self.describe(id, &[q], &format!("in dV/dq{}", i + 1)));
+                    }
+                }
+                None
+            }
+            Form::Lattice(lattice) => {
+                let mut e = LatticeEvaluator::new(g, lattice);
+                let (id, term) = e.first_non_finite(q)?;
+                match term {
+                    Some((s, i)) => {
+                        let args = e.term_args(s, i, q);
+                        let args: Vec<&[f64]> = args.iter().map(Vec::as_slice).collect();
+                        Some(self.describe(id, &args, &format!("in the term i = {i} of a sum")))
+                    }
+                    None => {
+                        let sums = e.sums(q);
+                        let args: [&[f64]; 6] = [q, &[], &[], &[], &[], &sums];
+                        Some(self.describe(id, &args, "in the potential"))
+                    }
+                }
             }
         }
-        None
     }
 
     /// Parse, differentiate and compile time of this model.
@@ -442,9 +513,9 @@ impl ExpressionModel {
     /// Test hook: `CHAOSCOPE_C_KERNELS_AFTER_CALLS=k` (read when the model is built) makes the
     /// first `k` calls run the Cranelift kernels and every later call wait for the C build,
     /// so a test can place the switch where it wants (`0`: only the C kernels).
-    pub fn step_kernels(&self) -> &StepKernels {
+    pub fn step_kernels(&self) -> Option<&StepKernels> {
         if UNCOUNTED.get() {
-            return &self.0.steps;
+            return self.cranelift_step_kernels().ok();
         }
         let c = &self.0.c_steps;
         self.start_c_build();
@@ -456,11 +527,11 @@ impl ExpressionModel {
         match ready {
             Some(Ok(k)) => {
                 c.c_calls.fetch_add(1, Ordering::Relaxed);
-                k
+                Some(k)
             }
             _ => {
                 c.cranelift_calls.fetch_add(1, Ordering::Relaxed);
-                &self.0.steps
+                self.cranelift_step_kernels().ok()
             }
         }
     }
@@ -470,9 +541,26 @@ impl ExpressionModel {
         matches!(k.backend(), jit::StepBackend::C { cached: true, .. })
     }
 
-    /// The Cranelift step kernels (compiled with the model).
-    pub fn cranelift_step_kernels(&self) -> &StepKernels {
-        &self.0.steps
+    /// The Cranelift step kernels (compiled at the first call); why there are none if their
+    /// compilation failed (said once on stderr: the batched kernel then runs the generic step
+    /// loops around the scalar functions, the same bits more slowly).
+    pub fn cranelift_step_kernels(&self) -> Result<&StepKernels, &str> {
+        self.0
+            .steps
+            .get_or_init(|| {
+                self.step_source()
+                    .compile_cranelift(&self.0.graph)
+                    .map_err(|e| {
+                        let e = format!("compiling the step kernels: {e}");
+                        eprintln!(
+                            "chaoscope: {e}; the batched kernel steps the compiled forces lane \
+                             by lane instead (the same results, more slowly)"
+                        );
+                        e
+                    })
+            })
+            .as_ref()
+            .map_err(String::as_str)
     }
 
     /// The C step kernels, waiting for their build (started here if it was not): compiled or
@@ -522,14 +610,23 @@ impl ExpressionModel {
             cache_dir: cache_dir.to_path_buf(),
             ..cc
         };
-        jit::compile_steps_c(&self.0.graph, &self.step_spec(), &cc).map_err(|e| e.to_string())
+        self.step_source()
+            .compile_c(&self.0.graph, &cc, &AtomicBool::new(false))
+            .map_err(|e| e.to_string())
     }
 
-    fn step_spec(&self) -> StepSpec {
-        StepSpec {
-            n: self.0.definition.n,
-            gradient: self.0.gradient.clone(),
-            hessian_vector: Some(self.0.hessian_vector.clone()),
+    fn step_source(&self) -> StepSource {
+        match &self.0.form {
+            Form::Unrolled {
+                gradient,
+                hessian_vector,
+                ..
+            } => StepSource::Graph(StepSpec {
+                n: self.0.definition.n,
+                gradient: gradient.clone(),
+                hessian_vector: Some(hessian_vector.clone()),
+            }),
+            Form::Lattice(l) => StepSource::Lattice(l.clone()),
         }
     }
 
@@ -545,10 +642,10 @@ impl ExpressionModel {
                 }));
                 return;
             };
-            let (graph, spec, shared) = (self.0.graph.clone(), self.step_spec(), c.clone());
+            let (graph, source, shared) = (self.0.graph.clone(), self.step_source(), c.clone());
             let worker = std::thread::Builder::new()
                 .name("c-step-kernels".into())
-                .spawn(move || shared.build(&graph, &spec, &cc));
+                .spawn(move || shared.build(&graph, &source, &cc));
             match worker {
                 Ok(handle) => {
                     *c.worker.lock().unwrap_or_else(PoisonError::into_inner) = Some(handle)
@@ -578,9 +675,11 @@ impl ExpressionModel {
         })
     }
 
-    fn describe(&self, id: NodeId, q: &[f64], what: &str) -> String {
+    /// `'log' at line 1, column 9 of the potential gave NaN (what)`: node `id` evaluated with
+    /// the argument arrays `args`.
+    fn describe(&self, id: NodeId, args: &[&[f64]], what: &str) -> String {
         let mut value = [0.0];
-        eval::Evaluator::new().eval(&self.0.graph, &[q], &[id], &mut value);
+        eval::Evaluator::new().eval(&self.0.graph, args, &[id], &mut value);
         let op = self.0.graph.operation_name(id);
         match self.0.origins.get(&id) {
             Some(span) => {
@@ -615,3 +714,47 @@ pub fn uncounted<R>(f: impl FnOnce() -> R) -> R {
     let _reset = Reset(UNCOUNTED.replace(true));
     f()
 }
+
+/// The potential, its gradient and its Hessian-vector product as scalar functions (the
+/// batched kernel runs the step kernels), each checked to read at most `N` entries of each
+/// argument.
+fn compile_unrolled(
+    graph: &Graph,
+    potential: NodeId,
+    gradient: &[NodeId],
+    hessian_vector: &[NodeId],
+) -> Result<Compiled, PotentialError> {
+    let n = gradient.len();
+    let specs = [
+        FunctionSpec {
+            args: vec![Layout::Scalar],
+            outputs: vec![potential],
+        },
+        FunctionSpec {
+            args: vec![Layout::Scalar],
+            outputs: gradient.to_vec(),
+        },
+        FunctionSpec {
+            args: vec![Layout::Scalar, Layout::Scalar],
+            outputs: hessian_vector.to_vec(),
+        },
+    ];
+    let options = jit::Options {
+        lane_functions: false,
+        ..jit::Options::default()
+    };
+    let compiled = jit::compile_with(graph, &specs, &options)
+        .map_err(|e| PotentialError(format!("compiling the potential: {e}")))?;
+    for (f, args) in [(GRADIENT, 1), (HESSIAN_VECTOR, 2)] {
+        for a in 0..args {
+            if compiled.arg_len(f, a) > n {
+                return Err(PotentialError(format!(
+                    "compiled function {f} reads {} entries of argument {a}, more than N = {n}",
+                    compiled.arg_len(f, a)
+                )));
+            }
+        }
+    }
+    Ok(compiled)
+}
+

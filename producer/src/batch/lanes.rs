@@ -134,17 +134,7 @@ pub trait LaneModel: Model {
         force: &mut [[f64; L]],
         n_steps: u64,
     ) {
-        let n = self.dof();
-        let w = self.inverse_masses();
-        let (q, p) = x.split_at_mut(n);
-        for _ in 0..n_steps {
-            for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
-                drift_rows(q, p, ch, w);
-                self.gradient_lanes(q, force);
-                kick_rows(p, force, dh);
-            }
-            drift_rows(q, p, c.last_drift(), w);
-        }
+        orbit_steps_generic(self, c, x, force, n_steps)
     }
 
     /// `n_steps` steps of the tangent map for `L` deviation vectors around one reference orbit
@@ -158,19 +148,55 @@ pub trait LaneModel: Model {
         force: &mut [[f64; L]],
         n_steps: u64,
     ) {
-        let n = self.dof();
-        let w = self.inverse_masses();
-        let (dq, dp) = v.split_at_mut(n);
-        let mut stage = stages.chunks_exact(n);
-        for _ in 0..n_steps {
-            for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
-                drift_rows(dq, dp, ch, w);
-                let q = stage.next().expect("one recorded position per kick");
-                self.hessian_vector_lanes(q, dq, force);
-                kick_rows(dp, force, dh);
-            }
-            drift_rows(dq, dp, c.last_drift(), w);
+        tangent_steps_generic(self, c, stages, v, force, n_steps)
+    }
+}
+
+/// [`LaneModel::orbit_steps`]'s generic loops: drift, the model's lane gradient, kick.
+#[inline(always)]
+pub(crate) fn orbit_steps_generic<M: LaneModel + ?Sized, const L: usize>(
+    m: &M,
+    c: &StepCoeffs,
+    x: &mut [[f64; L]],
+    force: &mut [[f64; L]],
+    n_steps: u64,
+) {
+    let n = m.dof();
+    let w = m.inverse_masses();
+    let (q, p) = x.split_at_mut(n);
+    for _ in 0..n_steps {
+        for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
+            drift_rows(q, p, ch, w);
+            m.gradient_lanes(q, force);
+            kick_rows(p, force, dh);
         }
+        drift_rows(q, p, c.last_drift(), w);
+    }
+}
+
+/// [`LaneModel::tangent_steps`]'s generic loops: drift, the model's lane Hessian-vector product
+/// at the recorded stage, kick.
+#[inline(always)]
+pub(crate) fn tangent_steps_generic<M: LaneModel + ?Sized, const L: usize>(
+    m: &M,
+    c: &StepCoeffs,
+    stages: &[f64],
+    v: &mut [[f64; L]],
+    force: &mut [[f64; L]],
+    n_steps: u64,
+) {
+    let n = m.dof();
+    let w = m.inverse_masses();
+    let (dq, dp) = v.split_at_mut(n);
+    let mut stage = stages.chunks_exact(n);
+    for _ in 0..n_steps {
+        for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
+            drift_rows(dq, dp, ch, w);
+            let q = stage.next().expect("one recorded position per kick");
+            m.hessian_vector_lanes(q, dq, force);
+            kick_rows(dp, force, dh);
+        }
+        drift_rows(dq, dp, c.last_drift(), w);
     }
 }
 

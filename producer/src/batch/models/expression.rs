@@ -3,7 +3,7 @@
 //! `L`, the layout the kernels read), drift, force and kick fused per block of lanes, the step
 //! and stage loops in native code.
 
-use crate::batch::lanes::{LaneModel, StepCoeffs};
+use crate::batch::lanes::{LaneModel, StepCoeffs, orbit_steps_generic, tangent_steps_generic};
 use crate::model::ExpressionModel;
 
 impl LaneModel for ExpressionModel {
@@ -58,18 +58,22 @@ impl LaneModel for ExpressionModel {
         &self,
         c: &StepCoeffs,
         x: &mut [[f64; L]],
-        _force: &mut [[f64; L]],
+        force: &mut [[f64; L]],
         n_steps: u64,
     ) {
-        self.step_kernels().orbit_steps(
-            x.as_flattened_mut(),
-            L,
-            L,
-            n_steps,
-            &c.drift,
-            &c.kick,
-            self.inverse_masses(),
-        )
+        match self.step_kernels() {
+            Some(k) => k.orbit_steps(
+                x.as_flattened_mut(),
+                L,
+                L,
+                n_steps,
+                &c.drift,
+                &c.kick,
+                self.inverse_masses(),
+            ),
+            // No step kernels (their compilation failed, said on stderr): the same bits.
+            None => orbit_steps_generic(self, c, x, force, n_steps),
+        }
     }
 
     #[inline(always)]
@@ -78,18 +82,21 @@ impl LaneModel for ExpressionModel {
         c: &StepCoeffs,
         stages: &[f64],
         v: &mut [[f64; L]],
-        _force: &mut [[f64; L]],
+        force: &mut [[f64; L]],
         n_steps: u64,
     ) {
-        self.step_kernels().tangent_steps(
-            stages,
-            v.as_flattened_mut(),
-            L,
-            L,
-            n_steps,
-            &c.drift,
-            &c.kick,
-            self.inverse_masses(),
-        )
+        match self.step_kernels() {
+            Some(k) => k.tangent_steps(
+                stages,
+                v.as_flattened_mut(),
+                L,
+                L,
+                n_steps,
+                &c.drift,
+                &c.kick,
+                self.inverse_masses(),
+            ),
+            None => tangent_steps_generic(self, c, stages, v, force, n_steps),
+        }
     }
 }

@@ -607,6 +607,46 @@ fn node_tangent(
     })
 }
 
+/// The partial derivatives of `outputs` with respect to the nodes `cuts`, each cut taken as an
+/// independent variable (the other cuts held fixed, whatever they are computed from):
+/// `result[o][c]` is `d outputs[o] / d cuts[c]`, the constant 0 where it does not depend on it.
+/// Forward mode, one sweep per cut over the nodes the outputs need. With the cuts' own
+/// tangents `t_c`, `sum_c result[o][c] t_c` is the directional derivative of `outputs[o]`.
+pub fn partials_at(
+    g: &mut Graph,
+    outputs: &[NodeId],
+    cuts: &[NodeId],
+) -> Result<Vec<Vec<NodeId>>, DiffError> {
+    let mut need = Vec::new();
+    crate::eval::mark_needed(g, outputs, &mut need);
+    let len = need.len();
+    let mut out = vec![Vec::with_capacity(cuts.len()); outputs.len()];
+    let none = |_: &mut Graph, _: u8, _: u32| None;
+    for &c in cuts {
+        let mut tan: Vec<Option<NodeId>> = vec![None; len];
+        for v in 0..len as NodeId {
+            if !need[v as usize] {
+                continue;
+            }
+            tan[v as usize] = if v == c {
+                Some(g.constant(1.0))
+            } else if cuts.contains(&v) {
+                None
+            } else {
+                node_tangent(g, v, &tan, &none)?
+            };
+        }
+        for (o, &id) in outputs.iter().enumerate() {
+            let d = match tan[id as usize] {
+                Some(d) => d,
+                None => g.constant(0.0),
+            };
+            out[o].push(d);
+        }
+    }
+    Ok(out)
+}
+
 /// A sparse Jacobian: per output, `(input index, partial derivative node)` by increasing index.
 pub type SparseRows = Vec<Vec<(u32, NodeId)>>;
 

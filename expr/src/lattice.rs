@@ -45,7 +45,7 @@ use std::sync::Arc;
 use crate::diff::{self, DiffError};
 use crate::error::Span;
 use crate::eval::Evaluator;
-use crate::graph::{Graph, Node, NodeId, Unary};
+use crate::graph::{Binary, Graph, Node, NodeId, Unary};
 use crate::lower::Boundary;
 
 /// Argument of a term's variable slots: `Input { arg: ARG_SITE, index: s }` is `q[i + shift_s]`.
@@ -148,8 +148,8 @@ pub struct SumDerivatives {
     pub coefficient: f64,
     /// `d term / d slot s`.
     pub gradient: Vec<NodeId>,
-    /// `sum_r (d^2 term / d slot s d slot r) v_r`, reading [`ARG_SITE_DIRECTION`]; `None`
-    /// without second derivatives.
+    /// `sum_r (d^2 term / d slot s d slot r) v_r`, reading [`ARG_SITE_DIRECTION`] (see
+    /// [`term_hessian_vector`]); `None` without second derivatives.
     pub hessian_vector: Option<Vec<NodeId>>,
 }
 
@@ -214,12 +214,96 @@ fn nonzero(graph: &Graph, nodes: Vec<NodeId>) -> Vec<(u32, NodeId)> {
         .collect()
 }
 
+/// Whether each node (up to the largest of `outputs`) is a linear combination of a term's
+/// variable slots with constant coefficients (a slot, a sum or difference of such, a constant
+/// multiple or fraction of one): `q[i+1] - q[i]`, say.
+fn linear_in_slots(graph: &Graph, len: usize) -> Vec<bool> {
+    let mut linear = vec![false; len];
+    for v in 0..len {
+        let lin = |x: NodeId| linear[x as usize];
+        let constant = |x: NodeId| graph.as_const(x).is_some();
+        linear[v] = match *graph.node(v as NodeId) {
+            Node::Input { arg: ARG_SITE, .. } => true,
+            Node::Unary(Unary::Neg, a) => lin(a),
+            Node::Binary(Binary::Add | Binary::Sub, a, b) => {
+                (lin(a) || constant(a)) && (lin(b) || constant(b)) && (lin(a) || lin(b))
+            }
+            Node::Binary(Binary::Mul, a, b) => (lin(a) && constant(b)) || (constant(a) && lin(b)),
+            Node::Binary(Binary::Div, a, b) => lin(a) && constant(b),
+            _ => false,
+        };
+    }
+    linear
+}
+
+/// A term's Hessian-vector product per slot, from its gradient `gradient` (per slot), in the
+/// factored form a hand-written one has: the *cuts* are the linear combinations of slots that
+/// something non-linear reads (a chain's bond `r = q[i+1] - q[i]`), or that are themselves a
+/// slot's derivative; each slot's `sum_c (d gradient / d cut_c) t_c` with `t_c` the cut's
+/// direction (`v[i+1] - v[i]`), so a bond's product is `f'(r) (v[i+1] - v[i])`, formed once
+/// for both its ends (`d / d cut` of a derivative `-x` is written `-(d x / d cut)`, and the
+/// product with it `-(f' t)`: the same product, subtracted).
+fn term_hessian_vector(graph: &mut Graph, gradient: &[NodeId]) -> Result<Vec<NodeId>, DiffError> {
+    let mut need = Vec::new();
+    crate::eval::mark_needed(graph, gradient, &mut need);
+    let linear = linear_in_slots(graph, need.len());
+    let mut cut = vec![false; need.len()];
+    for v in 0..need.len() {
+        if !need[v] {
+            continue;
+        }
+        if !linear[v] {
+            for o in graph.node(v as NodeId).operands() {
+                if linear[o as usize] {
+                    cut[o as usize] = true;
+                }
+            }
+        }
+    }
+    for &o in gradient {
+        if linear[o as usize] {
+            cut[o as usize] = true;
+        }
+    }
+    let cuts: Vec<NodeId> = (0..need.len() as NodeId)
+        .filter(|&v| cut[v as usize])
+        .collect();
+    let tangents = diff::directional(graph, &cuts, ARG_SITE, ARG_SITE_DIRECTION)?;
+    let partials = diff::partials_at(graph, gradient, &cuts)?;
+    let mut out = Vec::with_capacity(gradient.len());
+    for row in partials {
+        let mut acc: Option<NodeId> = None;
+        for (&k, &t) in row.iter().zip(&tangents) {
+            if graph.as_const(k) == Some(0.0) {
+                continue;
+            }
+            // `-x` times t as `-(x t)`: one product shared by the ends of a bond.
+            let term = match *graph.node(k) {
+                Node::Unary(Unary::Neg, x) => {
+                    let p = graph.mul(x, t);
+                    graph.neg(p)
+                }
+                _ => graph.mul(k, t),
+            };
+            acc = Some(match acc {
+                None => term,
+                Some(a) => match *graph.node(term) {
+                    Node::Unary(Unary::Neg, x) => graph.sub(a, x),
+                    _ => graph.add2(a, term),
+                },
+            });
+        }
+        out.push(acc.unwrap_or_else(|| graph.constant(0.0)));
+    }
+    Ok(out)
+}
+
 impl LatticePotential {
     /// Differentiates the potential `root` (lowered by [`crate::lower::lower_with_loops`] with
     /// its `sums`): the rest by reverse accumulation over `q`, each term by reverse
     /// accumulation over its slots, and with `hessian` their Hessian-vector products (the
-    /// rest's as [`diff::jacobian_vector`], a term's by forward accumulation over its
-    /// gradient). `None` when the potential is not affine in its sums (some `dV/dS` is not a
+    /// rest's as [`diff::jacobian_vector`], a term's in the factored form of
+    /// [`term_hessian_vector`]). `None` when the potential is not affine in its sums (some `dV/dS` is not a
     /// constant): the caller lowers it unrolled.
     pub fn new(
         graph: &mut Graph,
@@ -248,12 +332,7 @@ impl LatticePotential {
         for (sum, coefficient) in sums.iter().zip(coefficients) {
             let gradient = diff::gradient(graph, sum.term, ARG_SITE, sum.variables.len())?;
             let hessian_vector = if hessian {
-                Some(diff::directional(
-                    graph,
-                    &gradient,
-                    ARG_SITE,
-                    ARG_SITE_DIRECTION,
-                )?)
+                Some(term_hessian_vector(graph, &gradient)?)
             } else {
                 None
             };

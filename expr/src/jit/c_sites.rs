@@ -14,7 +14,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
 use super::c_step::{self, C_BLOCK_LANES, CCompiler, konst, scalar_expr, vector_expr};
-use super::sites::arrays_of;
+use super::sites::{WindowPlan, arrays_of};
 use super::step::{Code, StepKernels};
 use super::{AllocationWork, JitError};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
@@ -69,6 +69,7 @@ fn source(graph: &Graph, lattice: &LatticePotential, arrays: &[(String, Arc<[f64
         let k = Kernel {
             graph,
             lattice,
+            plan: super::sites::OutputPlan::new(graph, lattice, tangent, true),
             arrays,
             array_env: c_step::ENV_TABLES + n_tables,
             tangent,
@@ -81,17 +82,22 @@ fn source(graph: &Graph, lattice: &LatticePotential, arrays: &[(String, Arc<[f64
 struct Kernel<'a> {
     graph: &'a Graph,
     lattice: &'a LatticePotential,
+    /// Which sums' interior loops keep their window of sites in variables.
+    plan: super::sites::OutputPlan,
     arrays: &'a [(String, Arc<[f64]>)],
     /// `env` slot of the first array parameter.
     array_env: usize,
     tangent: bool,
 }
 
-/// Where a term's slots are: a boundary term's known sites, or the loop's `i`.
-#[derive(Clone, Copy)]
+/// Where a term's slots are: a boundary term's known sites, or the loop's `i` (its variable
+/// slots read directly, or, in a window loop, from the variables `x{s}` (lanes) and `y{s}`
+/// (the tangent kernel's shared position) declared at the top of the loop's body).
+#[derive(Clone, Copy, PartialEq, Eq)]
 enum At {
     Term(i64),
     Loop,
+    Window,
 }
 
 /// One line of a term: scalar code (written once) or lane code (written once per unit, with
@@ -120,12 +126,19 @@ impl Kernel<'_> {
                     }
                     _ => unreachable!("a leaf of a term: {node:?}"),
                 };
+                if at == At::Window && param.is_none() {
+                    return if arg == ARG_SITE && self.tangent {
+                        (format!("y{index}"), false)
+                    } else {
+                        (format!("x{index}_@"), true)
+                    };
+                }
                 let row = match at {
                     At::Term(i) => match sum.site(i, shift) {
                         Some(j) => j.to_string(),
                         None => return (konst(0.0), false),
                     },
-                    At::Loop => format!("i + {}", shift - 1),
+                    At::Loop | At::Window => format!("i + {}", shift - 1),
                 };
                 if let Some(p) = param {
                     if let At::Term(i) = at {
@@ -245,7 +258,7 @@ impl Kernel<'_> {
             Self::write_lines(out, &lines, "          ");
             let _ = writeln!(out, "        }}");
         }
-        for (sum, d) in lattice.sums.iter().zip(&lattice.derivatives) {
+        for (s, (sum, d)) in lattice.sums.iter().zip(&lattice.derivatives).enumerate() {
             let contributions = d.contributions(self.graph, self.tangent);
             let roots: Vec<NodeId> = contributions.iter().map(|&(_, id)| id).collect();
             let roots = &roots[..];
@@ -263,7 +276,7 @@ impl Kernel<'_> {
                             Some(j) => j.to_string(),
                             None => continue,
                         },
-                        At::Loop => format!("i + {}", shift - 1),
+                        At::Loop | At::Window => format!("i + {}", shift - 1),
                     };
                     Self::add_to(&mut lines, &row, factor, dv);
                 }
@@ -276,9 +289,17 @@ impl Kernel<'_> {
                 let _ = writeln!(out, "        }}");
             }
             if let Some((from, to)) = sum.interior() {
-                let _ = writeln!(out, "        for (int64_t i = {from}; i <= {to}; i++) {{");
-                term(out, At::Loop, "          ");
-                let _ = writeln!(out, "        }}");
+                match self.plan.window[s] {
+                    Some(plan) => {
+                        self.window_loop(out, sum, &contributions, roots, (from, to), plan);
+                    }
+                    None => {
+                        let _ =
+                            writeln!(out, "        for (int64_t i = {from}; i <= {to}; i++) {{");
+                        term(out, At::Loop, "          ");
+                        let _ = writeln!(out, "        }}");
+                    }
+                }
             }
             for i in after {
                 let _ = writeln!(out, "        {{ /* term {i} */");
@@ -286,6 +307,147 @@ impl Kernel<'_> {
                 let _ = writeln!(out, "        }}");
             }
         }
+    }
+
+    /// The interior loop of a sum with the sites its terms reach (`i + kmin .. i + kmax`) kept
+    /// in variables from term to term, as [`super::sites`]'s window loop: the same additions in
+    /// the same order as adding to the scratch rows in memory, one store per site; the slots
+    /// a term shares with the next one read once.
+    fn window_loop(
+        &self,
+        out: &mut String,
+        sum: &SiteSum,
+        contributions: &[(f64, NodeId)],
+        roots: &[NodeId],
+        (from, to): (i64, i64),
+        plan: WindowPlan,
+    ) {
+        let fresh = plan.fresh;
+        let n = self.lattice.n;
+        let shifts = &sum.variables;
+        let (kmin, kmax) = super::sites::shift_range(shifts);
+        let w = (kmax - kmin) as usize;
+        let carry: Vec<(usize, usize)> = shifts
+            .iter()
+            .enumerate()
+            .filter_map(|(s, &k)| shifts.iter().position(|&k2| k2 == k + 1).map(|s2| (s, s2)))
+            .collect();
+        let mut pre = Vec::new();
+        for t in 0..w {
+            pre.push(Line::PerUnit(format!(
+                "vd w{t}_@ = LD(g + ({}) * BLOCK + @O);",
+                from + kmin + t as i64 - 1
+            )));
+        }
+        for &(s, _) in &carry {
+            let row = from + shifts[s] - 1;
+            pre.push(Line::PerUnit(format!(
+                "vd cx{s}_@ = LD(xb + ({row}) * stride + @O);"
+            )));
+            if self.tangent {
+                pre.push(Line::Once(format!("double cy{s} = qs[{row}];")));
+            }
+        }
+        let _ = writeln!(out, "        {{");
+        Self::write_lines(out, &pre, "          ");
+        let _ = writeln!(out, "          for (int64_t i = {from}; i <= {to}; i++) {{");
+        let mut lines = Vec::new();
+        if plan.drift {
+            // The row entering the window, drifted before its first read.
+            let r = format!("i + {}", kmax - 1);
+            lines.push(Line::Once(format!(
+                "const double c = w ? ch * w[{r}] : ch;"
+            )));
+            lines.push(Line::PerUnit(format!(
+                "ST(xb + ({r}) * stride + @O, LD(xb + ({r}) * stride + @O) + B(c) * LD(xb + ({n} + {r}) * stride + @O));"
+            )));
+        }
+        for (s, &shift) in shifts.iter().enumerate() {
+            let carried = carry.iter().any(|&(c, _)| c == s);
+            let x = if carried {
+                format!("cx{s}_@")
+            } else {
+                format!("LD(xb + (i + {}) * stride + @O)", shift - 1)
+            };
+            lines.push(Line::PerUnit(format!("const vd x{s}_@ = {x};")));
+            if self.tangent {
+                let y = if carried {
+                    format!("cy{s}")
+                } else {
+                    format!("qs[i + {}]", shift - 1)
+                };
+                lines.push(Line::Once(format!("const double y{s} = {y};")));
+            }
+        }
+        let ds = self.emit(roots, Some(sum), At::Window, &mut lines);
+        if !fresh {
+            lines.push(Line::PerUnit(format!(
+                "vd w{w}_@ = LD(g + (i + {}) * BLOCK + @O);",
+                kmax - 1
+            )));
+        }
+        for ((&shift, d), &(factor, _)) in shifts.iter().zip(&ds).zip(contributions) {
+            let t = (shift - kmin) as usize;
+            let first = fresh && t == w;
+            let acc = if first {
+                "B(-0.0)".to_string()
+            } else {
+                format!("w{t}_@")
+            };
+            let e = if factor == 1.0 {
+                if first {
+                    d.clone()
+                } else {
+                    format!("{acc} + {d}")
+                }
+            } else if factor == -1.0 {
+                format!("{acc} - {d}")
+            } else {
+                format!("{acc} + B({}) * {d}", konst(factor))
+            };
+            let decl = if first { "vd " } else { "" };
+            lines.push(Line::PerUnit(format!("{decl}w{t}_@ = {e};")));
+        }
+        if plan.kick {
+            // The site the term completes, kicked at once.
+            let r = format!("i + {}", kmin - 1);
+            lines.push(Line::PerUnit(format!(
+                "ST(xb + ({n} + {r}) * stride + @O, LD(xb + ({n} + {r}) * stride + @O) - dh * w0_@);"
+            )));
+        } else {
+            lines.push(Line::PerUnit(format!(
+                "ST(g + (i + {}) * BLOCK + @O, w0_@);",
+                kmin - 1
+            )));
+        }
+        for t in 0..w {
+            lines.push(Line::PerUnit(format!("w{t}_@ = w{}_@;", t + 1)));
+        }
+        for &(s, s2) in &carry {
+            lines.push(Line::PerUnit(format!("cx{s}_@ = x{s2}_@;")));
+            if self.tangent {
+                lines.push(Line::Once(format!("cy{s} = y{s2};")));
+            }
+        }
+        Self::write_lines(out, &lines, "            ");
+        let _ = writeln!(out, "          }}");
+        let mut post = Vec::new();
+        for t in 0..w {
+            post.push(Line::PerUnit(format!(
+                "ST(g + ({}) * BLOCK + @O, w{t}_@);",
+                to + 1 + kmin + t as i64 - 1
+            )));
+        }
+        Self::write_lines(out, &post, "          ");
+        let _ = writeln!(out, "        }}");
+    }
+
+    /// `q_j += c_j p_j` for the rows `a..z` of the block.
+    fn drift_rows(out: &mut String, n: usize, a: usize, z: usize) {
+        let _ = writeln!(
+            out,
+            "        for (size_t j = {a}; j < {z}; j++) {{\n          const double c = w ? ch * w[j] : ch;\n          ST(xb + j * stride, LD(xb + j * stride) + B(c) * LD(xb + ({n} + j) * stride));\n          ST(xb + j * stride + LANES, LD(xb + j * stride + LANES) + B(c) * LD(xb + ({n} + j) * stride + LANES));\n        }}"
+        );
     }
 
     fn write(&self, out: &mut String) {
@@ -322,23 +484,33 @@ impl Kernel<'_> {
                 "      const double *qs = stages + (s * n_kicks + k) * {n};"
             );
         }
-        // Drift, with the force's rows set to -0 on the way.
         let _ = writeln!(
             out,
-            "      for (size_t o = 0; o < end; o += BLOCK) {{\n        double *xb = x + o;\n        for (size_t j = 0; j < {n}; j++) {{\n          const double c = w ? ch * w[j] : ch;"
+            "      for (size_t o = 0; o < end; o += BLOCK) {{\n        double *xb = x + o;"
         );
-        for (suffix, offset) in [("_0", "0"), ("_1", "LANES")] {
+        // The plan's passes: rows drifted before the parts, the force's rows that must start
+        // at -0, the parts (whose loops drift and kick as they go), the rows the force never
+        // read, the rows left to kick.
+        for &(a, z) in &self.plan.pre_drift {
+            Self::drift_rows(out, n, a, z);
+        }
+        for &(a, z) in &self.plan.init {
             let _ = writeln!(
                 out,
-                "          vd p{suffix} = LD(xb + ({n} + j) * stride + {offset}); ST(xb + j * stride + {offset}, LD(xb + j * stride + {offset}) + B(c) * p{suffix}); ST(g + j * BLOCK + {offset}, B(-0.0));"
+                "        for (size_t j = {a}; j < {z}; j++) {{ ST(g + j * BLOCK, B(-0.0)); ST(g + j * BLOCK + LANES, B(-0.0)); }}"
             );
         }
-        let _ = writeln!(out, "        }}");
         self.force(out);
-        let _ = writeln!(
-            out,
-            "        for (size_t j = 0; j < {n}; j++) {{\n          ST(xb + ({n} + j) * stride, LD(xb + ({n} + j) * stride) - dh * LD(g + j * BLOCK));\n          ST(xb + ({n} + j) * stride + LANES, LD(xb + ({n} + j) * stride + LANES) - dh * LD(g + j * BLOCK + LANES));\n        }}\n      }}\n    }}"
-        );
+        for &(a, z) in &self.plan.post_drift {
+            Self::drift_rows(out, n, a, z);
+        }
+        for &(a, z) in &self.plan.post_kick {
+            let _ = writeln!(
+                out,
+                "        for (size_t j = {a}; j < {z}; j++) {{\n          ST(xb + ({n} + j) * stride, LD(xb + ({n} + j) * stride) - dh * LD(g + j * BLOCK));\n          ST(xb + ({n} + j) * stride + LANES, LD(xb + ({n} + j) * stride + LANES) - dh * LD(g + j * BLOCK + LANES));\n        }}"
+            );
+        }
+        let _ = writeln!(out, "      }}\n    }}");
         let _ = writeln!(
             out,
             "    {{\n      const double ch = drift[n_kicks];\n      for (size_t o = 0; o < end; o += BLOCK) {{\n        double *xb = x + o;\n        for (size_t j = 0; j < {n}; j++) {{\n          const double c = w ? ch * w[j] : ch;\n          ST(xb + j * stride, LD(xb + j * stride) + B(c) * LD(xb + ({n} + j) * stride));\n          ST(xb + j * stride + LANES, LD(xb + j * stride + LANES) + B(c) * LD(xb + ({n} + j) * stride + LANES));\n        }}\n      }}\n    }}\n  }}\n}}"

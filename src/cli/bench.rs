@@ -41,6 +41,7 @@
 //! speed-up is the median pair, and `speedup_over_ceiling` the median of each pair's speed-up over
 //! the ceiling measured right after it.
 
+mod lattice;
 mod plain_loop;
 mod scalar_c;
 
@@ -99,6 +100,21 @@ pub struct Args {
     /// models and no map workload.
     #[arg(long)]
     pub kernel_only: bool,
+    /// Only the lattice sums as loops: the beta-FPUT chain written as a lattice sum against
+    /// the built-in chain (each run a process of its own: CPU time, peak memory, time to the
+    /// first step) at `--lattice-sizes`, and the C step kernels' build time at N = 10^2 and
+    /// 10^5.
+    #[arg(long)]
+    pub lattice_only: bool,
+    /// Chain lengths of the lattice comparison.
+    #[arg(long, value_delimiter = ',', default_values_t = [1000usize, 10_000, 100_000])]
+    pub lattice_sizes: Vec<usize>,
+    /// (built-in, expression) pairs of runs per size; the median ratios are reported.
+    #[arg(long, default_value_t = 1)]
+    pub lattice_pairs: usize,
+    /// One run of the lattice comparison (internal: `MODEL:N:T_FINAL`), as a child process.
+    #[arg(long, hide = true)]
+    pub lattice_case: Option<String>,
     /// Kept for symmetry with other commands: the output is always JSON.
     #[arg(long)]
     pub json: bool,
@@ -538,6 +554,20 @@ fn map_case(spec: &MapSpec, isa: Isa, threads: usize) -> anyhow::Result<(f64, f6
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
+    if let Some(case) = &args.lattice_case {
+        lattice::case(case)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    if args.lattice_only {
+        let report = serde_json::json!({
+            "cpu": Machine::cpu_model(),
+            "isa": Isa::detect().name(),
+            "fput_lattice_sum_vs_builtin": lattice::compare(&args.lattice_sizes, args.lattice_pairs)?,
+            "fput_lattice_sum_c_build": lattice::c_build(&[100, 100_000])?,
+        });
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(ExitCode::SUCCESS);
+    }
     let isa = match &args.isa {
         None => Isa::detect(),
         Some(n) => Isa::from_name(n)

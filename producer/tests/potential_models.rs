@@ -184,10 +184,10 @@ fn fput_lattice_sum_as_a_loop_gives_the_built_in_chain_bits_for_mpm_and_rounding
     // amplitude 0.5 (a regular orbit), t = 100. The loop's forces are the built-in
     // `f(r_{i-1}) - f(r_i)` with f(r) = r + r^3 (beta = 1), bit for bit, so the reference orbit
     // and the MPM scheme (nearby orbits: forces only) must be the built-in's bits. The
-    // Hessian-vector product is the bond's `dr + (3 r^2) dr` against the built-in's
-    // `(1 + 3 beta r r) dr`: a rounding apart per product, which a regular orbit's tangent map
-    // carries with linear growth (~ t / h = 5000 steps of 1e-16 roundings, relative): the VM
-    // indicators agree to far better than 1e-9 (the value found is printed).
+    // Hessian-vector product is the bond's `(1 + 3 (r r)) dr` against the built-in's
+    // `(1 + (3 beta r) r) dr`: a rounding apart per stiffness, which a regular orbit's tangent
+    // map carries with linear growth (~ t / h = 5000 steps of 1e-16 roundings, relative): the
+    // VM indicators agree to far better than 1e-9 (the value found is printed).
     let n = 300;
     let (q, p) = fput_orbit(n);
     let schemes = vec![

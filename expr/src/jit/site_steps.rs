@@ -28,7 +28,9 @@ use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::JITModule;
 use cranelift_module::{Linkage, Module};
 
-use super::sites::{Body, Val, accumulate, arrays_of, site_loop};
+use super::sites::{
+    Body, OutputPlan, Val, WindowPlan, accumulate, arrays_of, shift_range, site_loop,
+};
 use super::step::{Code, StepKernels};
 use super::step_cranelift::{CraneliftKernels, OrbitStepsFnPtr, TangentStepsFnPtr, vconsts};
 use super::{JitError, Options, Sigs, VConsts, flags, new_module};
@@ -86,6 +88,7 @@ pub fn compile_lattice_steps(
         let kernel = Kernel {
             graph,
             lattice,
+            plan: OutputPlan::new(graph, lattice, tangent, true),
             tables: &tables,
             arrays: &arrays,
             units,
@@ -133,6 +136,8 @@ pub fn compile_lattice_steps(
 struct Kernel<'a> {
     graph: &'a Graph,
     lattice: &'a LatticePotential,
+    /// Where each row is drifted and kicked, which loops keep a window of sites.
+    plan: OutputPlan,
     tables: &'a [Arc<dyn Tabulated>],
     arrays: &'a [(String, Arc<[f64]>)],
     units: usize,
@@ -147,6 +152,15 @@ struct Rows {
     stride: Value,
     stage: Option<Value>,
     g: Value,
+}
+
+/// What a stage's passes over a block need: the drift coefficient `ch` and the inverse masses
+/// `w` (null: unit masses), `dh` broadcast, `N` rows in bytes (from `q_r` to `p_r`).
+struct Stage {
+    ch: Value,
+    w: Value,
+    dhv: Value,
+    half: Value,
 }
 
 /// Where a term's slots are: a boundary term's sites known at compile time, or the loop's term
@@ -241,9 +255,23 @@ impl Kernel<'_> {
             stage,
             g: scratch,
         };
-        self.drift(&mut b, rows, half, ch, w, true);
-        self.force(&mut b, &sigs, &k, rows);
-        self.kick(&mut b, rows, half, dhv);
+        let st = Stage { ch, w, dhv, half };
+        // The plan's passes: rows drifted before the parts, the force's rows that must start
+        // at -0, the parts (whose window loops drift and kick as they go), the rows the force
+        // never read, the rows left to kick.
+        for &range in &self.plan.pre_drift {
+            self.drift_rows(&mut b, &st, rows, range);
+        }
+        for &range in &self.plan.init {
+            self.clear_rows(&mut b, rows, range);
+        }
+        self.force(&mut b, &sigs, &k, rows, &st);
+        for &range in &self.plan.post_drift {
+            self.drift_rows(&mut b, &st, rows, range);
+        }
+        for &range in &self.plan.post_kick {
+            self.kick_rows(&mut b, &st, rows, range);
+        }
         let next = b.ins().iadd_imm_s(off, 8 * block_lanes);
         let more = b.ins().icmp(IntCC::UnsignedLessThan, next, end);
         b.ins()
@@ -268,7 +296,13 @@ impl Kernel<'_> {
             stage: None,
             g: scratch,
         };
-        self.drift(&mut b, rows, half, ch_last, w, false);
+        let st = Stage {
+            ch: ch_last,
+            w,
+            dhv: ch_last,
+            half,
+        };
+        self.drift_rows(&mut b, &st, rows, (0, n));
         let next = b.ins().iadd_imm_s(last_off, 8 * block_lanes);
         let more = b.ins().icmp(IntCC::UnsignedLessThan, next, end);
         b.ins()
@@ -286,120 +320,93 @@ impl Kernel<'_> {
         b.finalize(module.target_config());
     }
 
-    /// `q_j += c_j p_j` over the rows (`c_j = ch w_j`, or `ch` where `w` is null: unit masses),
-    /// and with `clear` the force's rows set to `-0` on the way.
-    fn drift(
-        &self,
-        b: &mut FunctionBuilder,
-        rows: Rows,
-        half: Value,
-        ch: Value,
-        w: Value,
-        clear: bool,
-    ) {
-        let n = self.lattice.n as i64;
-        let unit_loop = b.create_block();
-        let mass_loop = b.create_block();
+    /// The drift coefficient of row `r` (an SSA row index): `ch w_r`, or `ch` where `w` is null
+    /// (unit masses: the mass-free drift's own coefficient).
+    fn coefficient(&self, b: &mut FunctionBuilder, st: &Stage, r: Value) -> Value {
+        let masses = b.create_block();
         let done = b.create_block();
-        let mut params = Vec::new();
-        for blk in [unit_loop, mass_loop] {
-            let j = b.append_block_param(blk, I64);
-            let row = b.append_block_param(blk, I64);
-            let g = b.append_block_param(blk, I64);
-            params.push((blk, j, row, g));
-        }
-        let zero = b.ins().iconst(I64, 0);
-        let null = b.ins().icmp_imm_u(IntCC::Equal, w, 0);
-        let start = [
-            BlockArg::Value(zero),
-            BlockArg::Value(rows.x),
-            BlockArg::Value(rows.g),
-        ];
-        b.ins().brif(null, unit_loop, &start, mass_loop, &start);
-        for (masses, (blk, j, row, g)) in params.into_iter().enumerate() {
-            b.switch_to_block(blk);
-            let c = if masses == 1 {
-                let off = b.ins().ishl_imm_u(j, 3);
-                let wp = b.ins().iadd(w, off);
-                let wj = b.ins().load(F64, flags(), wp, 0);
-                b.ins().fmul(ch, wj)
-            } else {
-                ch
-            };
-            let cv = b.ins().splat(F64X2, c);
-            let prow = b.ins().iadd(row, half);
-            let m0 = if clear {
-                let z = b.ins().f64const(-0.0);
-                Some(b.ins().splat(F64X2, z))
-            } else {
-                None
-            };
-            for unit in 0..self.units {
-                let o = 16 * unit as i32;
-                let q = b.ins().load(F64X2, flags(), row, o);
-                let p = b.ins().load(F64X2, flags(), prow, o);
-                let cp = b.ins().fmul(cv, p);
-                let q = b.ins().fadd(q, cp);
-                b.ins().store(flags(), q, row, o);
-                if let Some(m0) = m0 {
-                    b.ins().store(flags(), m0, g, o);
-                }
-            }
-            let j1 = b.ins().iadd_imm_s(j, 1);
-            let row1 = b.ins().iadd(row, rows.stride);
-            let g1 = b.ins().iadd_imm_s(g, self.g_row());
-            let more = b.ins().icmp_imm_s(IntCC::SignedLessThan, j1, n);
-            b.ins().brif(
-                more,
-                blk,
-                &[
-                    BlockArg::Value(j1),
-                    BlockArg::Value(row1),
-                    BlockArg::Value(g1),
-                ],
-                done,
-                &[],
-            );
-        }
+        let c = b.append_block_param(done, F64);
+        let null = b.ins().icmp_imm_u(IntCC::Equal, st.w, 0);
+        b.ins()
+            .brif(null, done, &[BlockArg::Value(st.ch)], masses, &[]);
+        b.switch_to_block(masses);
+        let off = b.ins().ishl_imm_u(r, 3);
+        let wp = b.ins().iadd(st.w, off);
+        let wr = b.ins().load(F64, flags(), wp, 0);
+        let cw = b.ins().fmul(st.ch, wr);
+        b.ins().jump(done, &[BlockArg::Value(cw)]);
         b.switch_to_block(done);
+        c
     }
 
-    /// `p_j -= dh g_j` over the rows.
-    fn kick(&self, b: &mut FunctionBuilder, rows: Rows, half: Value, dhv: Value) {
-        let n = self.lattice.n as i64;
-        let body = b.create_block();
-        let done = b.create_block();
-        let j = b.append_block_param(body, I64);
-        let row = b.append_block_param(body, I64);
-        let g = b.append_block_param(body, I64);
-        let zero = b.ins().iconst(I64, 0);
-        b.ins().jump(
-            body,
-            &[
-                BlockArg::Value(zero),
-                BlockArg::Value(rows.x),
-                BlockArg::Value(rows.g),
-            ],
-        );
-        b.switch_to_block(body);
-        let prow = b.ins().iadd(row, half);
-        for unit in 0..self.units {
+    /// `q_r += c_r p_r` for the row `r` at `row`; returns the drifted lane values.
+    fn drift_row(&self, b: &mut FunctionBuilder, st: &Stage, row: Value, c: Value) -> [Value; 2] {
+        let cv = b.ins().splat(F64X2, c);
+        let prow = b.ins().iadd(row, st.half);
+        let mut out = [cv; 2];
+        for (unit, slot) in out.iter_mut().enumerate().take(self.units) {
+            let o = 16 * unit as i32;
+            let q = b.ins().load(F64X2, flags(), row, o);
+            let p = b.ins().load(F64X2, flags(), prow, o);
+            let cp = b.ins().fmul(cv, p);
+            let q = b.ins().fadd(q, cp);
+            b.ins().store(flags(), q, row, o);
+            *slot = q;
+        }
+        if self.units == 1 {
+            out[1] = out[0];
+        }
+        out
+    }
+
+    /// `p_r -= dh f` for the row `r` at `row` (`f` per unit).
+    fn kick_row(&self, b: &mut FunctionBuilder, st: &Stage, row: Value, f: [Value; 2]) {
+        let prow = b.ins().iadd(row, st.half);
+        for (unit, &f) in f.iter().enumerate().take(self.units) {
             let o = 16 * unit as i32;
             let p = b.ins().load(F64X2, flags(), prow, o);
-            let f = b.ins().load(F64X2, flags(), g, o);
-            let df = b.ins().fmul(dhv, f);
+            let df = b.ins().fmul(st.dhv, f);
             let p = b.ins().fsub(p, df);
             b.ins().store(flags(), p, prow, o);
         }
-        let j1 = b.ins().iadd_imm_s(j, 1);
+    }
+
+    /// `for r in a..z`: `body(r, row address, scratch row address)`.
+    fn rows_loop(
+        &self,
+        b: &mut FunctionBuilder,
+        rows: Rows,
+        (a, z): (usize, usize),
+        body: &mut dyn FnMut(&mut FunctionBuilder, Value, Value, Value),
+    ) {
+        let head = b.create_block();
+        let done = b.create_block();
+        let r = b.append_block_param(head, I64);
+        let row = b.append_block_param(head, I64);
+        let g = b.append_block_param(head, I64);
+        let r0 = b.ins().iconst(I64, a as i64);
+        let off = b.ins().imul_imm_s(rows.stride, a as i64);
+        let row0 = b.ins().iadd(rows.x, off);
+        let g0 = b.ins().iadd_imm_s(rows.g, a as i64 * self.g_row());
+        b.ins().jump(
+            head,
+            &[
+                BlockArg::Value(r0),
+                BlockArg::Value(row0),
+                BlockArg::Value(g0),
+            ],
+        );
+        b.switch_to_block(head);
+        body(b, r, row, g);
+        let r1 = b.ins().iadd_imm_s(r, 1);
         let row1 = b.ins().iadd(row, rows.stride);
         let g1 = b.ins().iadd_imm_s(g, self.g_row());
-        let more = b.ins().icmp_imm_s(IntCC::SignedLessThan, j1, n);
+        let more = b.ins().icmp_imm_s(IntCC::SignedLessThan, r1, z as i64);
         b.ins().brif(
             more,
-            body,
+            head,
             &[
-                BlockArg::Value(j1),
+                BlockArg::Value(r1),
                 BlockArg::Value(row1),
                 BlockArg::Value(g1),
             ],
@@ -407,6 +414,36 @@ impl Kernel<'_> {
             &[],
         );
         b.switch_to_block(done);
+    }
+
+    /// `q_r += c_r p_r` for the rows `a..z`.
+    fn drift_rows(&self, b: &mut FunctionBuilder, st: &Stage, rows: Rows, range: (usize, usize)) {
+        self.rows_loop(b, rows, range, &mut |b, r, row, _| {
+            let c = self.coefficient(b, st, r);
+            self.drift_row(b, st, row, c);
+        });
+    }
+
+    /// `p_r -= dh g_r` for the rows `a..z`.
+    fn kick_rows(&self, b: &mut FunctionBuilder, st: &Stage, rows: Rows, range: (usize, usize)) {
+        self.rows_loop(b, rows, range, &mut |b, _, row, g| {
+            let mut f = [g; 2];
+            for (unit, slot) in f.iter_mut().enumerate().take(self.units) {
+                *slot = b.ins().load(F64X2, flags(), g, 16 * unit as i32);
+            }
+            self.kick_row(b, st, row, f);
+        });
+    }
+
+    /// The force's scratch rows `a..z` set to `-0`.
+    fn clear_rows(&self, b: &mut FunctionBuilder, rows: Rows, range: (usize, usize)) {
+        self.rows_loop(b, rows, range, &mut |b, _, _, g| {
+            let z = b.ins().f64const(-0.0);
+            let z = b.ins().splat(F64X2, z);
+            for unit in 0..self.units {
+                b.ins().store(flags(), z, g, 16 * unit as i32);
+            }
+        });
     }
 
     /// The lanes' values of row `j` of the block (`F64X2` per unit).
@@ -439,7 +476,7 @@ impl Kernel<'_> {
     }
 
     /// The force (or `Hess V dq`) of the block into the scratch rows, which hold `-0`.
-    fn force(&self, b: &mut FunctionBuilder, sigs: &Sigs, k: &VConsts, rows: Rows) {
+    fn force(&self, b: &mut FunctionBuilder, sigs: &Sigs, k: &VConsts, rows: Rows, st: &Stage) {
         let lattice = self.lattice;
         let body = Body {
             graph: self.graph,
@@ -480,7 +517,7 @@ impl Kernel<'_> {
                 self.add_to(b, rows.g, j as i64 * self.g_row(), 1.0, d);
             }
         }
-        for (sum, d) in lattice.sums.iter().zip(&lattice.derivatives) {
+        for (s, (sum, d)) in lattice.sums.iter().zip(&lattice.derivatives).enumerate() {
             let contributions = d.contributions(self.graph, self.tangent);
             let roots: Vec<NodeId> = contributions.iter().map(|&(_, id)| id).collect();
             let roots = &roots[..];
@@ -519,10 +556,27 @@ impl Kernel<'_> {
                 term(b, At::Term(i));
             }
             if let Some((from, to)) = sum.interior() {
-                site_loop(b, from, to, None, &mut |b, i, _| {
-                    term(b, At::Loop(i));
-                    None
-                });
+                match self.plan.window[s] {
+                    Some(plan) => {
+                        let window = LaneWindow {
+                            kernel: self,
+                            body: &body,
+                            sum,
+                            contributions: &contributions,
+                            roots,
+                            rows,
+                            st,
+                            plan,
+                        };
+                        window.build(b, (from, to));
+                    }
+                    None => {
+                        site_loop(b, from, to, None, &mut |b, i, _| {
+                            term(b, At::Loop(i));
+                            None
+                        });
+                    }
+                }
             }
             for i in after {
                 term(b, At::Term(i));
@@ -617,6 +671,314 @@ impl Kernel<'_> {
                     }
                 }
             }
+        }
+    }
+}
+
+/// A sum's interior loop in a step kernel, with its window of sites carried in registers from
+/// term to term (as [`super::sites`]'s scalar window, for a block of lanes): the row entering
+/// the window drifted before its first read when the plan says so, the site a term completes
+/// kicked at once when the plan says so (else stored in its scratch row), the slots a term
+/// shares with the next one read once.
+struct LaneWindow<'a> {
+    kernel: &'a Kernel<'a>,
+    body: &'a Body<'a>,
+    sum: &'a SiteSum,
+    contributions: &'a [(f64, NodeId)],
+    roots: &'a [NodeId],
+    rows: Rows,
+    st: &'a Stage,
+    plan: WindowPlan,
+}
+
+/// What a [`LaneWindow`] carries from term to term: the sums of the sites `i + kmin ..
+/// i + kmax - 1` (lanes), the carried slots' lane values (positions or directions) and, in the
+/// tangent kernel, their shared positions.
+struct LaneState {
+    accs: Vec<[Value; 2]>,
+    lanes: Vec<[Value; 2]>,
+    shared: Vec<Value>,
+}
+
+impl LaneWindow<'_> {
+    fn units(&self) -> usize {
+        self.kernel.units
+    }
+
+    fn carry(&self) -> Vec<(usize, usize)> {
+        let shifts = &self.sum.variables;
+        shifts
+            .iter()
+            .enumerate()
+            .filter_map(|(s, &k)| shifts.iter().position(|&k2| k2 == k + 1).map(|s2| (s, s2)))
+            .collect()
+    }
+
+    /// The lane values at `row`.
+    fn load(&self, b: &mut FunctionBuilder, row: Value, off: i32) -> [Value; 2] {
+        let mut v = [row; 2];
+        for (unit, slot) in v.iter_mut().enumerate().take(self.units()) {
+            *slot = b.ins().load(F64X2, flags(), row, off + 16 * unit as i32);
+        }
+        if self.units() == 1 {
+            v[1] = v[0];
+        }
+        v
+    }
+
+    fn args(&self, state: &LaneState) -> Vec<BlockArg> {
+        let u = self.units();
+        state
+            .accs
+            .iter()
+            .chain(&state.lanes)
+            .flat_map(|v| v[..u].iter().copied())
+            .chain(state.shared.iter().copied())
+            .map(BlockArg::Value)
+            .collect()
+    }
+
+    fn params(
+        &self,
+        b: &mut FunctionBuilder,
+        block: cranelift_codegen::ir::Block,
+        like: &LaneState,
+    ) -> LaneState {
+        let u = self.units();
+        let lanes = |b: &mut FunctionBuilder| {
+            let mut v = [Value::from_u32(0); 2];
+            for slot in v.iter_mut().take(u) {
+                *slot = b.append_block_param(block, F64X2);
+            }
+            if u == 1 {
+                v[1] = v[0];
+            }
+            v
+        };
+        let accs = like.accs.iter().map(|_| lanes(b)).collect();
+        let carried = like.lanes.iter().map(|_| lanes(b)).collect();
+        let shared = like
+            .shared
+            .iter()
+            .map(|_| b.append_block_param(block, F64))
+            .collect();
+        LaneState {
+            accs,
+            lanes: carried,
+            shared,
+        }
+    }
+
+    fn build(&self, b: &mut FunctionBuilder, (from, to): (i64, i64)) {
+        let rows = self.rows;
+        let shifts = &self.sum.variables;
+        let (kmin, kmax) = shift_range(shifts);
+        let carry = self.carry();
+        let g_row = self.kernel.g_row();
+        // Entry: the window's sites as the scratch rows hold them, the carried slots' values.
+        let mut accs = Vec::new();
+        for t in 0..kmax - kmin {
+            let off = ((from + kmin + t - 1) * g_row) as i32;
+            accs.push(self.load(b, rows.g, off));
+        }
+        let mut lanes = Vec::new();
+        let mut shared = Vec::new();
+        for &(s, _) in &carry {
+            let r = from + shifts[s] - 1;
+            let row = self.kernel.row(b, rows, r);
+            lanes.push(self.load(b, row, 0));
+            if let Some(stage) = rows.stage {
+                shared.push(b.ins().load(F64, flags(), stage, (r * 8) as i32));
+            }
+        }
+        let state = LaneState {
+            accs,
+            lanes,
+            shared,
+        };
+        let head = b.create_block();
+        let exit = b.create_block();
+        let i = b.append_block_param(head, I64);
+        let inside = self.params(b, head, &state);
+        let out = self.params(b, exit, &state);
+        let mut args = vec![BlockArg::Value(b.ins().iconst(I64, from))];
+        args.extend(self.args(&state));
+        b.ins().jump(head, &args);
+        b.switch_to_block(head);
+        let next = self.step(b, i, inside, &carry);
+        let i1 = b.ins().iadd_imm_s(i, 1);
+        let more = b.ins().icmp_imm_s(IntCC::SignedLessThanOrEqual, i1, to);
+        let mut loop_args = vec![BlockArg::Value(i1)];
+        loop_args.extend(self.args(&next));
+        b.ins()
+            .brif(more, head, &loop_args, exit, &self.args(&next));
+        b.switch_to_block(exit);
+        // The window's sites after the last term.
+        for (t, acc) in out.accs.iter().enumerate() {
+            let off = (to + 1 + kmin + t as i64 - 1) * g_row;
+            for (unit, &v) in acc.iter().enumerate().take(self.units()) {
+                b.ins()
+                    .store(flags(), v, rows.g, (off + 16 * unit as i64) as i32);
+            }
+        }
+    }
+
+    /// Term `i`: the entering row drifted (if planned), the term's contributions added to the
+    /// window, the completed site kicked or stored.
+    fn step(
+        &self,
+        b: &mut FunctionBuilder,
+        i: Value,
+        state: LaneState,
+        carry: &[(usize, usize)],
+    ) -> LaneState {
+        let (rows, sum, k) = (self.rows, self.sum, self.kernel);
+        let shifts = &sum.variables;
+        let (kmin, kmax) = shift_range(shifts);
+        let g_row = k.g_row();
+        let im1 = b.ins().iadd_imm_s(i, -1);
+        let off = b.ins().imul(im1, rows.stride);
+        let xi = b.ins().iadd(rows.x, off);
+        let goff = b.ins().imul_imm_s(im1, g_row);
+        let gi = b.ins().iadd(rows.g, goff);
+        let si = rows.stage.map(|st| {
+            let o = b.ins().ishl_imm_u(im1, 3);
+            b.ins().iadd(st, o)
+        });
+        // The row of shift k in this term: row i + k - 1.
+        let row_of = |b: &mut FunctionBuilder, k: i64| {
+            if k == 0 {
+                xi
+            } else {
+                let o = b.ins().imul_imm_s(rows.stride, k);
+                b.ins().iadd(xi, o)
+            }
+        };
+        let mut entering = None;
+        if self.plan.drift {
+            let r = b.ins().iadd_imm_s(i, kmax - 1);
+            let c = k.coefficient(b, self.st, r);
+            let row = row_of(b, kmax);
+            entering = Some(k.drift_row(b, self.st, row, c));
+        }
+        // The slots' values.
+        let mut lane_vals: Vec<Option<[Value; 2]>> = vec![None; shifts.len()];
+        let mut shared_vals: Vec<Option<Value>> = vec![None; shifts.len()];
+        for ((&(s, _), &v), sh) in carry
+            .iter()
+            .zip(&state.lanes)
+            .zip(state.shared.iter().map(Some).chain(std::iter::repeat(None)))
+        {
+            lane_vals[s] = Some(v);
+            shared_vals[s] = sh.copied();
+        }
+        for (s, &shift) in shifts.iter().enumerate() {
+            if lane_vals[s].is_none() {
+                lane_vals[s] = Some(match entering {
+                    Some(v) if shift == kmax => v,
+                    _ => {
+                        let row = row_of(b, shift);
+                        self.load(b, row, 0)
+                    }
+                });
+            }
+            if let (Some(si), None) = (si, shared_vals[s]) {
+                shared_vals[s] = Some(b.ins().load(F64, flags(), si, (shift * 8) as i32));
+            }
+        }
+        let vals = {
+            let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| match *node {
+                Node::Input {
+                    arg: ARG_SITE,
+                    index,
+                } if k.tangent => Val::One(shared_vals[index as usize].expect("loaded")),
+                Node::Input {
+                    arg: ARG_SITE,
+                    index,
+                }
+                | Node::Input {
+                    arg: ARG_SITE_DIRECTION,
+                    index,
+                } => Val::Lanes(lane_vals[index as usize].expect("loaded")),
+                _ => k.slot(b, node, sum, At::Loop(i), rows),
+            };
+            self.body.emit(b, self.roots, &mut leaf)
+        };
+        let u = self.units();
+        let mut accs: Vec<Option<[Value; 2]>> = state.accs.iter().map(|&a| Some(a)).collect();
+        accs.push(if self.plan.fresh {
+            None
+        } else {
+            Some(self.load(b, gi, ((kmax) * g_row) as i32))
+        });
+        for (&shift, &(factor, r)) in shifts.iter().zip(self.contributions) {
+            let d = match vals[r as usize].expect("emitted") {
+                Val::Lanes(v) => v,
+                Val::One(x) => {
+                    let v = b.ins().splat(F64X2, x);
+                    [v, v]
+                }
+            };
+            let t = (shift - kmin) as usize;
+            let mut next = [d[0]; 2];
+            for unit in 0..u {
+                next[unit] = match accs[t] {
+                    // `-0 + d` is `d`.
+                    None if factor == 1.0 => d[unit],
+                    None => {
+                        let z = b.ins().f64const(-0.0);
+                        let z = b.ins().splat(F64X2, z);
+                        accumulate(b, factor, z, d[unit], true)
+                    }
+                    Some(a) => accumulate(b, factor, a[unit], d[unit], true),
+                };
+            }
+            if u == 1 {
+                next[1] = next[0];
+            }
+            accs[t] = Some(next);
+        }
+        let zero = |b: &mut FunctionBuilder| {
+            let z = b.ins().f64const(-0.0);
+            let z = b.ins().splat(F64X2, z);
+            [z, z]
+        };
+        let done = match accs[0] {
+            Some(a) => a,
+            None => zero(b),
+        };
+        if self.plan.kick {
+            let row = row_of(b, kmin);
+            k.kick_row(b, self.st, row, done);
+        } else {
+            for (unit, &v) in done.iter().enumerate().take(u) {
+                b.ins()
+                    .store(flags(), v, gi, (kmin * g_row + 16 * unit as i64) as i32);
+            }
+        }
+        let accs = accs[1..]
+            .iter()
+            .map(|&a| match a {
+                Some(a) => a,
+                None => zero(b),
+            })
+            .collect();
+        let lanes = carry
+            .iter()
+            .map(|&(_, s2)| lane_vals[s2].expect("loaded"))
+            .collect();
+        let shared = if rows.stage.is_some() {
+            carry
+                .iter()
+                .map(|&(_, s2)| shared_vals[s2].expect("loaded"))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        LaneState {
+            accs,
+            lanes,
+            shared,
         }
     }
 }

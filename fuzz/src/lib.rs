@@ -221,6 +221,7 @@ pub fn expr(data: &[u8]) {
             n,
             boundary,
         };
+        lattice_loops(text, &scope, &spline);
         let Ok(lowered) = chaoscope_expr::lower(text, &scope, &mut g) else {
             continue;
         };
@@ -253,6 +254,72 @@ pub fn expr(data: &[u8]) {
             }
         }
     }
+}
+
+/// The potential model's path: lattice sums lowered as loops, their derivatives, the compiled
+/// loops against the lattice's reference evaluation (the same bits, any NaN equal to any other),
+/// and the same refusals as the unrolled lowering.
+fn lattice_loops(text: &str, scope: &chaoscope_expr::Scope, spline: &chaoscope_expr::Spline) {
+    use chaoscope_expr::Graph;
+    use chaoscope_expr::graph::Tabulated;
+    use chaoscope_expr::jit;
+    use chaoscope_expr::lattice::{LatticeEvaluator, LatticePotential};
+    use std::sync::Arc;
+
+    // Each lowering in its own graph holding the same table, so that the table's id in `scope`
+    // names it in both.
+    let with_table = || {
+        let mut g = Graph::new();
+        g.add_table(Arc::new(spline.clone()) as Arc<dyn Tabulated>);
+        g
+    };
+    let unrolled = chaoscope_expr::lower(text, scope, &mut with_table()).map(|_| ());
+    let mut g = with_table();
+    let lowered = chaoscope_expr::lower_with_loops(text, scope, &mut g);
+    assert_eq!(
+        unrolled.map_err(|e| e.to_string()),
+        lowered.as_ref().map(|_| ()).map_err(|e| e.to_string()),
+        "loops refuse what the unrolled lowering refuses, with its message"
+    );
+    let Ok(lowered) = lowered else {
+        return;
+    };
+    if lowered.sums.is_empty() {
+        return;
+    }
+    let n = scope.n;
+    let q = [0.3, -0.2, 0.1, 0.05];
+    let v = [1.0, 0.5, -0.25, 0.125];
+    let Ok(Some(lattice)) = LatticePotential::new(&mut g, lowered.root, lowered.sums, n, true)
+    else {
+        return;
+    };
+    let Ok(compiled) = jit::compile_lattice(&g, &lattice, &jit::Options::default()) else {
+        return;
+    };
+    let mut e = LatticeEvaluator::new(&g, &lattice);
+    let (mut got, mut want) = (vec![0.0; n], vec![0.0; n]);
+    let same = |a: &[f64], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .all(|(x, y)| x.to_bits() == y.to_bits() || (x.is_nan() && y.is_nan()))
+    };
+    compiled.call(jit::LATTICE_GRADIENT, &[&q], &mut got);
+    e.gradient(&q, &mut want);
+    assert!(
+        same(&got, &want),
+        "compiled loops: the gradient {got:?} vs {want:?}"
+    );
+    compiled.call(jit::LATTICE_HESSIAN_VECTOR, &[&q, &v], &mut got);
+    e.hessian_vector(&q, &v, &mut want);
+    assert!(same(&got, &want), "compiled loops: Hv {got:?} vs {want:?}");
+    let mut p = [0.0];
+    compiled.call(jit::LATTICE_POTENTIAL, &[&q], &mut p);
+    assert!(
+        same(&p, &[e.potential(&q)]),
+        "compiled loops: the potential"
+    );
+    let _ = e.first_non_finite(&q);
 }
 
 // ---- Valid files with hostile values (structure-aware) ------------------------------------

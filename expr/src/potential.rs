@@ -757,4 +757,3 @@ fn compile_unrolled(
     }
     Ok(compiled)
 }
-

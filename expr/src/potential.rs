@@ -552,7 +552,10 @@ impl ExpressionModel {
                     .compile_cranelift(&self.0.graph)
                     .map_err(|e| {
                         let e = format!("compiling the step kernels: {e}");
-                        eprintln!(
+                        // Not `eprintln!`, which panics when stderr is closed or full (as for
+                        // the C kernels above): a message that cannot be shown is lost.
+                        let _ = writeln!(
+                            std::io::stderr(),
                             "chaoscope: {e}; the batched kernel steps the compiled forces lane \
                              by lane instead (the same results, more slowly)"
                         );

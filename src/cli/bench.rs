@@ -565,7 +565,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             "fput_lattice_sum_vs_builtin": lattice::compare(&args.lattice_sizes, args.lattice_pairs)?,
             "fput_lattice_sum_c_build": lattice::c_build(&[100, 100_000])?,
         });
-        println!("{}", serde_json::to_string_pretty(&report)?);
+        chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
         return Ok(ExitCode::SUCCESS);
     }
     let isa = match &args.isa {

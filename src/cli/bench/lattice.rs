@@ -128,7 +128,7 @@ pub fn case(arg: &str) -> anyhow::Result<()> {
             "mle": sums.iter().map(|m| m.mle(t)).collect::<Vec<_>>(),
         }))
     })()?;
-    println!("{}", serde_json::to_string(&report)?);
+    chaoscope_os::outln!("{}", serde_json::to_string(&report)?)?;
     Ok(())
 }
 

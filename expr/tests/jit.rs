@@ -987,4 +987,55 @@ mod lattice_loops {
         assert_eq!(small_nodes, large_nodes);
         assert!(compile.as_secs_f64() < 5.0, "{compile:?}");
     }
+
+    /// The register allocator of the loops' functions follows the rule of the unrolled ones
+    /// (`compile_work_is_linear_in_the_size_of_a_product`): a rest around the sums that is a
+    /// product of 300 factors keeps every partial product live for its gradient (mean live span
+    /// about a third of its operations, far above `MAX_MEAN_LIVE`), so the scalar functions and
+    /// the step kernels get the single-pass allocator (no span given to backtracking); an FPUT
+    /// sum's term keeps its values live a few operations and keeps backtracking. The
+    /// single-pass allocator only places values: the reference's bits.
+    #[test]
+    fn long_lived_values_around_the_sums_get_the_single_pass_allocator() {
+        let factors: Vec<String> = (0..300)
+            .map(|i| format!("(1 + 0.0001*q[{}])", 1 + i % 3))
+            .collect();
+        let src = format!(
+            "0.001*{} + sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)",
+            factors.join("*")
+        );
+        let n = 5;
+        let (g, lp) = lattice(n, Boundary::Fixed, &src);
+        let c = jit::compile_lattice(&g, &lp, &jit::Options::default()).unwrap();
+        let work = c.allocation_work();
+        assert!(work.operations > 300, "{work:?}");
+        assert_eq!(work.backtracking_live_span, 0, "{work:?}");
+        let steps = jit::compile_lattice_steps(&g, &lp, &jit::Options::default()).unwrap();
+        let step_work = steps.allocation_work();
+        assert!(step_work.operations > 300, "{step_work:?}");
+        assert_eq!(step_work.backtracking_live_span, 0, "{step_work:?}");
+        let mut e = LatticeEvaluator::new(&g, &lp);
+        let mut rng = Rng(17);
+        for _ in 0..20 {
+            let q: Vec<f64> = (0..n).map(|_| rng.moderate()).collect();
+            let v: Vec<f64> = (0..n).map(|_| rng.moderate()).collect();
+            let (mut got, mut want) = (vec![0.0; n], vec![0.0; n]);
+            c.call(LATTICE_GRADIENT, &[&q], &mut got);
+            e.gradient(&q, &mut want);
+            assert_same("product rest: gradient", &got, &want, &q);
+            c.call(LATTICE_HESSIAN_VECTOR, &[&q, &v], &mut got);
+            e.hessian_vector(&q, &v, &mut want);
+            assert_same("product rest: Hv", &got, &want, &(&q, &v));
+        }
+
+        let (g, lp) = lattice(n, Boundary::Fixed, CASES[0].1);
+        let c = jit::compile_lattice(&g, &lp, &jit::Options::default()).unwrap();
+        let work = c.allocation_work();
+        assert!(
+            work.backtracking_live_span > 0 && work.backtracking_live_span < 8 * work.operations,
+            "an FPUT term keeps the backtracking allocator: {work:?}"
+        );
+        let steps = jit::compile_lattice_steps(&g, &lp, &jit::Options::default()).unwrap();
+        assert!(steps.allocation_work().backtracking_live_span > 0);
+    }
 }

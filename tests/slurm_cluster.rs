@@ -140,7 +140,8 @@ fn map_array_under_slurm_requeues_a_task_resumes_it_and_merges_bit_identically()
     let task0 = format!("{array_job}_0");
 
     // Requeue task 0 once it has written at least one chunk and is still computing.
-    let shard0 = out_dir.join("shard-0.mcap");
+    // A running map writes `shard-0.mcap.partial` (renamed to `shard-0.mcap` when it ends).
+    let shard0 = chaoscope_os::output::partial_path(&out_dir.join("shard-0.mcap"));
     wait_until(
         "task 0 to write its first chunk",
         Duration::from_secs(120),

@@ -536,15 +536,15 @@ fn runs_beyond_a_day_or_the_memory_are_refused_before_they_start() {
     // (Lorenz, dop853), a `map` model (the standard map) and a general `hamiltonian` (gl4).
     let (long_flow, long_iteration, long_hamiltonian) = (long_flow(), long_iteration(), long_hamiltonian());
     let cases = [
-        case("run: Lorenz (ode) to 1e11", Cmd::Run, long_flow, "integrator.t_final", "days"),
-        case("run: standard map (map) to 1e14", Cmd::Run, long_iteration, "integrator.t_final", "days"),
-        case("run: magnetic HH (hamiltonian) to 1e11", Cmd::Run, long_hamiltonian, "integrator.t_final", "days"),
-        case("map: standard map, 40000 points to 1e8", Cmd::Map, calibrated_map(), "integrator.t_final", "days"),
-        text_case("run: FPUT 501 to 1e9", Cmd::Run, LONG_CHAIN, "integrator.t_final", "days"),
-        text_case("produce: FPUT 501 to 1e9", Cmd::Produce, LONG_CHAIN, "integrator.t_final", "days"),
+        case("run: Lorenz (ode) to 1e11", Cmd::Run, long_flow, "integrator.t_final", "would take about"),
+        case("run: standard map (map) to 1e14", Cmd::Run, long_iteration, "integrator.t_final", "would take about"),
+        case("run: magnetic HH (hamiltonian) to 1e11", Cmd::Run, long_hamiltonian, "integrator.t_final", "would take about"),
+        case("map: standard map, 40000 points to 1e8", Cmd::Map, calibrated_map(), "integrator.t_final", "would take about"),
+        text_case("run: FPUT 501 to 1e9", Cmd::Run, LONG_CHAIN, "integrator.t_final", "would take about"),
+        text_case("produce: FPUT 501 to 1e9", Cmd::Produce, LONG_CHAIN, "integrator.t_final", "would take about"),
         text_case("run: 10^6-dimensional, k = 200", Cmd::Run, WIDE_CHAIN, "deviations.k", "memory"),
         case("map: 10^10 points", Cmd::Map, huge_map, "map.x.n", "memory"),
-        case("map: 2000 points to 1e9", Cmd::Map, long_map, "integrator.t_final", "days"),
+        case("map: 2000 points to 1e9", Cmd::Map, long_map, "integrator.t_final", "would take about"),
     ];
     let tmp = tempfile::tempdir().unwrap();
     for (i, c) in cases.iter().enumerate() {

@@ -790,65 +790,63 @@ fn powi(x: &str, n: i32, one: &str) -> String {
 
 /// A scalar node as a C expression of its operands (`o` names them).
 pub(super) fn scalar_expr(node: &Node, o: &mut dyn FnMut(NodeId) -> String) -> String {
-    match *node {
-        Node::Const(_) | Node::Input { .. } => unreachable!("leaves are operands"),
-        Node::Unary(op, a) => {
-            let a = o(a);
-            match op {
-                Unary::Neg => format!("-{a}"),
-                Unary::Abs => format!("SABS({a})"),
-                Unary::Sqrt => format!("__builtin_sqrt({a})"),
-                Unary::Step => format!("SSTEP({a})"),
-                Unary::Sign => format!("SSIGN({a})"),
-                _ => format!("((fn1)env[{}])({a})", unary_slot(op)),
-            }
-        }
-        Node::Binary(op, a, b) => {
-            let (a, b) = (o(a), o(b));
-            match op {
-                Binary::Add => format!("{a} + {b}"),
-                Binary::Sub => format!("{a} - {b}"),
-                Binary::Mul => format!("{a} * {b}"),
-                Binary::Div => format!("{a} / {b}"),
-                Binary::Pow => format!("((fn2)env[{ENV_POW}])({a}, {b})"),
-                Binary::Atan2 => format!("((fn2)env[{ENV_ATAN2}])({a}, {b})"),
-                Binary::Max => format!("SMAX({a}, {b})"),
-                Binary::Min => format!("SMIN({a}, {b})"),
-            }
-        }
-        Node::Powi(a, n) => powi(&o(a), n, "1.0"),
-        Node::Select {
-            cmp,
-            a,
-            b,
-            then,
-            otherwise,
-        } => {
-            let (a, b) = (o(a), o(b));
-            let (t, e) = (o(then), o(otherwise));
-            format!("({a} {} {b}) ? {t} : {e}", cmp_op(cmp))
-        }
-        Node::Table { table, deriv, arg } => format!(
-            "((fntab)env[{ENV_TABLE}])(env[{}], {deriv}, {})",
-            ENV_TABLES + table as usize,
-            o(arg)
-        ),
-    }
+    c_expr(node, o, Lanes::Scalar)
 }
 
 /// A vector node (`vd` values) as a C expression of its operands (`o` names them, as vectors).
 pub(super) fn vector_expr(node: &Node, o: &mut dyn FnMut(NodeId) -> String) -> String {
+    c_expr(node, o, Lanes::Vector)
+}
+
+/// Whether C code computes one value (plain `double`) or `vd` lanes at once (the vector type
+/// and its helper macros): the two spell only calls, branches and the non-arithmetic
+/// operations differently.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Lanes {
+    Scalar,
+    Vector,
+}
+
+impl Lanes {
+    /// The helper macro for an operation the prelude defines in both flavours (`SABS`/`VABS`).
+    fn helper(self, name: &str) -> String {
+        match self {
+            Lanes::Scalar => format!("S{name}"),
+            Lanes::Vector => format!("V{name}"),
+        }
+    }
+
+    /// A call of the unary function in environment slot `slot`.
+    fn call1(self, slot: usize, a: &str) -> String {
+        match self {
+            Lanes::Scalar => format!("((fn1)env[{slot}])({a})"),
+            Lanes::Vector => format!("V1(env[{slot}], {a})"),
+        }
+    }
+
+    /// A call of the binary function in environment slot `slot`.
+    fn call2(self, slot: usize, a: &str, b: &str) -> String {
+        match self {
+            Lanes::Scalar => format!("((fn2)env[{slot}])({a}, {b})"),
+            Lanes::Vector => format!("V2(env[{slot}], {a}, {b})"),
+        }
+    }
+}
+
+/// A node as a C expression of its operands, in scalar or vector code.
+fn c_expr(node: &Node, o: &mut dyn FnMut(NodeId) -> String, lanes: Lanes) -> String {
     match *node {
         Node::Const(_) | Node::Input { .. } => unreachable!("leaves are operands"),
         Node::Unary(op, a) => {
             let a = o(a);
             match op {
                 Unary::Neg => format!("-{a}"),
-                Unary::Abs => format!("VABS({a})"),
+                Unary::Abs => format!("{}({a})", lanes.helper("ABS")),
+                Unary::Sqrt if lanes == Lanes::Scalar => format!("__builtin_sqrt({a})"),
                 Unary::Sqrt => format!("VSQRT({a})"),
-                Unary::Step => format!("VSTEP({a})"),
-                Unary::Sign => format!("VSIGN({a})"),
-                _ => format!("V1(env[{}], {a})", unary_slot(op)),
+                Unary::Step => format!("{}({a})", lanes.helper("STEP")),
+                Unary::Sign => format!("{}({a})", lanes.helper("SIGN")),
+                _ => lanes.call1(unary_slot(op), &a),
             }
         }
         Node::Binary(op, a, b) => {
@@ -858,13 +856,19 @@ pub(super) fn vector_expr(node: &Node, o: &mut dyn FnMut(NodeId) -> String) -> S
                 Binary::Sub => format!("{a} - {b}"),
                 Binary::Mul => format!("{a} * {b}"),
                 Binary::Div => format!("{a} / {b}"),
-                Binary::Pow => format!("V2(env[{ENV_POW}], {a}, {b})"),
-                Binary::Atan2 => format!("V2(env[{ENV_ATAN2}], {a}, {b})"),
-                Binary::Max => format!("VMAX({a}, {b})"),
-                Binary::Min => format!("VMIN({a}, {b})"),
+                Binary::Pow => lanes.call2(ENV_POW, &a, &b),
+                Binary::Atan2 => lanes.call2(ENV_ATAN2, &a, &b),
+                Binary::Max => format!("{}({a}, {b})", lanes.helper("MAX")),
+                Binary::Min => format!("{}({a}, {b})", lanes.helper("MIN")),
             }
         }
-        Node::Powi(a, n) => powi(&o(a), n, "B(1.0)"),
+        Node::Powi(a, n) => {
+            let one = match lanes {
+                Lanes::Scalar => "1.0",
+                Lanes::Vector => "B(1.0)",
+            };
+            powi(&o(a), n, one)
+        }
         Node::Select {
             cmp,
             a,
@@ -874,13 +878,21 @@ pub(super) fn vector_expr(node: &Node, o: &mut dyn FnMut(NodeId) -> String) -> S
         } => {
             let (a, b) = (o(a), o(b));
             let (t, e) = (o(then), o(otherwise));
-            format!("SEL({a} {} {b}, {t}, {e})", cmp_op(cmp))
+            match lanes {
+                Lanes::Scalar => format!("({a} {} {b}) ? {t} : {e}", cmp_op(cmp)),
+                Lanes::Vector => format!("SEL({a} {} {b}, {t}, {e})", cmp_op(cmp)),
+            }
         }
-        Node::Table { table, deriv, arg } => format!(
-            "VT(env[{ENV_TABLE}], env[{}], {deriv}, {})",
-            ENV_TABLES + table as usize,
-            o(arg)
-        ),
+        Node::Table { table, deriv, arg } => {
+            let data = ENV_TABLES + table as usize;
+            let arg = o(arg);
+            match lanes {
+                Lanes::Scalar => {
+                    format!("((fntab)env[{ENV_TABLE}])(env[{data}], {deriv}, {arg})")
+                }
+                Lanes::Vector => format!("VT(env[{ENV_TABLE}], env[{data}], {deriv}, {arg})"),
+            }
+        }
     }
 }
 

@@ -20,7 +20,9 @@
 use super::indicator::{PointAccumulator, broke_off};
 use super::point::PointResult;
 use super::spec::MapSpec;
-use super::window::{Window, Windows, check_escape};
+use super::window::{
+    Window, Windows, advance_group, check_escape, lane_array, push_reference_lane,
+};
 use crate::batch::{Isa, PointKernel, Soa};
 use crate::engine::RunError;
 use crate::method::{self, DeviationMethod};
@@ -179,10 +181,7 @@ fn start(
     let run = &spec.run;
     let dim = run.dim();
     let prop = Propagator::new(dim);
-    let ref_lane = method.lanes_are_orbits().then(|| {
-        lanes.push(x0.clone());
-        lanes.len() - 1
-    });
+    let ref_lane = push_reference_lane(method, lanes, &x0);
     let first = lanes.len();
     let norm = method.basis_norm(run.schemes()[0].d0);
     for q in prop.basis().chunks_exact(dim) {
@@ -205,11 +204,10 @@ fn start(
 
 /// The points whose lanes are `lanes` (taken), as one lane array.
 fn group(lanes: &mut Vec<Vec<f64>>, points: Vec<Live>, dim: usize) -> Group {
-    let mut soa = Soa::new(dim, lanes.len());
-    for (l, x) in lanes.drain(..).enumerate() {
-        soa.write_lane(l, &x);
+    Group {
+        soa: lane_array(lanes, dim),
+        points,
     }
-    Group { soa, points }
 }
 
 /// One window of a group: advance its lanes, QR-renormalize every point's basis and restart its
@@ -227,22 +225,13 @@ fn window(
     for p in &mut g.points {
         p.orbit_steps += w.steps * (1 + dim as u64);
     }
-    if method.lanes_are_orbits() {
-        if let Err(e) = method.advance(kernel, &mut g.soa, w.steps) {
-            let e = RunError::from(e);
-            return g
-                .points
-                .drain(..)
-                .map(|p| broke_off(p.base, w.t, &e, p.orbit_steps))
-                .collect();
-        }
-    } else {
-        let p = &mut g.points[0];
-        kernel.reference_steps(&mut p.x, w.steps);
-        if let Err(e) = method.advance(kernel, &mut g.soa, w.steps) {
-            let p = g.points.remove(0);
-            return vec![broke_off(p.base, w.t, &e.into(), p.orbit_steps)];
-        }
+    let single = g.points.first_mut().map(|p| p.x.as_mut_slice());
+    if let Err(e) = advance_group(kernel, method, &mut g.soa, single, w.steps) {
+        return g
+            .points
+            .drain(..)
+            .map(|p| broke_off(p.base, w.t, &e, p.orbit_steps))
+            .collect();
     }
     let mut out = Vec::new();
     let before = g.points.len();

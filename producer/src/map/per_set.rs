@@ -11,9 +11,11 @@
 use super::indicator::{PointAccumulator, broke_off};
 use super::point::PointResult;
 use super::spec::MapSpec;
-use super::window::{SetRenormalization, Window, Windows, check_escape, retain_sets};
+use super::window::{
+    SetRenormalization, Window, Windows, advance_group, check_escape, lane_array,
+    push_reference_lane, retain_sets,
+};
 use crate::batch::{Isa, PointKernel, Soa};
-use crate::engine::RunError;
 use crate::method::{self, DeviationMethod};
 
 /// A point being computed.
@@ -110,10 +112,7 @@ fn start(
 ) -> Live {
     let run = &spec.run;
     let d0 = run.schemes()[0].d0;
-    let ref_lane = method.lanes_are_orbits().then(|| {
-        lanes.push(x0.clone());
-        lanes.len() - 1
-    });
+    let ref_lane = push_reference_lane(method, lanes, &x0);
     let mut sets = Vec::with_capacity(run.sets());
     for (s, dirs) in run.directions().iter().enumerate() {
         sets.push((s, lanes.len()));
@@ -137,11 +136,10 @@ fn start(
 
 /// The points whose lanes are `lanes` (taken), as one lane array.
 fn group(lanes: &mut Vec<Vec<f64>>, points: Vec<Live>, dim: usize) -> Group {
-    let mut soa = Soa::new(dim, lanes.len());
-    for (l, x) in lanes.drain(..).enumerate() {
-        soa.write_lane(l, &x);
+    Group {
+        soa: lane_array(lanes, dim),
+        points,
     }
-    Group { soa, points }
 }
 
 /// One window of a group: advance its lanes, then renormalize every active set of every point.
@@ -161,24 +159,13 @@ fn window(
     for p in &mut g.points {
         p.orbit_steps += w.steps * (1 + (p.sets.len() * k) as u64);
     }
-    if method.lanes_are_orbits() {
-        // The references are lanes of the same array: one call steps them all.
-        if let Err(e) = method.advance(kernel, &mut g.soa, w.steps) {
-            let e = RunError::from(e);
-            return g
-                .points
-                .drain(..)
-                .map(|p| broke_off(p.base, w.t, &e, p.orbit_steps))
-                .collect();
-        }
-    } else {
-        // One point per group: its reference first, its tangent lanes along the recorded steps.
-        let p = &mut g.points[0];
-        kernel.reference_steps(&mut p.x, w.steps);
-        if let Err(e) = method.advance(kernel, &mut g.soa, w.steps) {
-            let p = g.points.remove(0);
-            return vec![broke_off(p.base, w.t, &e.into(), p.orbit_steps)];
-        }
+    let single = g.points.first_mut().map(|p| p.x.as_mut_slice());
+    if let Err(e) = advance_group(kernel, method, &mut g.soa, single, w.steps) {
+        return g
+            .points
+            .drain(..)
+            .map(|p| broke_off(p.base, w.t, &e, p.orbit_steps))
+            .collect();
     }
     let mut changed = false;
     let mut keep = Vec::with_capacity(g.points.len());

@@ -3,7 +3,9 @@
 //! set's renormalization (the per-set route).
 
 use super::indicator::PointAccumulator;
+use crate::batch::{PointKernel, Soa};
 use crate::engine::RunError;
+use crate::method::DeviationMethod;
 use chaoscope_schemas::run::Orthonormalization;
 
 use crate::renormalization;
@@ -28,6 +30,48 @@ pub fn check_escape(x: &[f64], t: f64) -> Result<(), RunError> {
     } else {
         Ok(())
     }
+}
+
+/// The lanes of one group of points as one lane array (`lanes` is emptied): both routes batch
+/// the lanes of several points so that one kernel call steps them all.
+pub fn lane_array(lanes: &mut Vec<Vec<f64>>, dim: usize) -> Soa {
+    let mut soa = Soa::new(dim, lanes.len());
+    for (l, x) in lanes.drain(..).enumerate() {
+        soa.write_lane(l, &x);
+    }
+    soa
+}
+
+/// The reference orbit's lane, pushed onto `lanes`, when the method steps orbits as lanes (MPM:
+/// the reference is stepped by the same call as its neighbours); `None` for the tangent method,
+/// whose point keeps its reference state outside the lane array.
+pub fn push_reference_lane(
+    method: &dyn DeviationMethod,
+    lanes: &mut Vec<Vec<f64>>,
+    x0: &[f64],
+) -> Option<usize> {
+    method.lanes_are_orbits().then(|| {
+        lanes.push(x0.to_vec());
+        lanes.len() - 1
+    })
+}
+
+/// Steps a group's lanes through `steps` steps. With orbit lanes one call steps references and
+/// neighbours alike; otherwise the group holds one point, whose reference state `single` is
+/// stepped first and its tangent lanes then follow the recorded steps. An error ends every point
+/// of the group.
+pub fn advance_group(
+    kernel: &mut dyn PointKernel,
+    method: &dyn DeviationMethod,
+    soa: &mut Soa,
+    single: Option<&mut [f64]>,
+    steps: u64,
+) -> Result<(), RunError> {
+    if !method.lanes_are_orbits() {
+        let x = single.expect("a tangent-method group holds one point");
+        kernel.reference_steps(x, steps);
+    }
+    method.advance(kernel, soa, steps).map_err(RunError::from)
 }
 
 /// One window: advance `steps` steps, then renormalize at time `t`.

@@ -66,7 +66,7 @@ struct Files {
 
 impl Files {
     fn new() -> Self {
-        let dir = tempfile::tempdir().unwrap();
+        let dir = chaoscope_recorder::testing::scratch_dir();
         let input = dir.path().join("broken.mcap");
         let output = dir.path().join("fixed.mcap");
         Self {

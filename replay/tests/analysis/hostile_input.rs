@@ -248,7 +248,7 @@ fn panic_text(payload: &(dyn std::any::Any + Send)) -> String {
 
 #[test]
 fn damaged_recordings_are_analyzed_whole_or_refused_with_a_clear_error() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = testing::scratch_dir();
     let path = dir.path().join("damaged.mcap");
     let name = path.to_str().unwrap();
     let mut panics = Vec::new();
@@ -319,7 +319,7 @@ fn real_recording(path: &Path) {
 
 #[test]
 fn replay_of_a_damaged_recording_fails_clearly_and_leaves_no_output() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = testing::scratch_dir();
     let original = dir.path().join("run.mcap");
     real_recording(&original);
     let bytes = std::fs::read(&original).unwrap();
@@ -426,7 +426,7 @@ fn hostile_content(header: &RunHeader, noise: &mut Noise, non_finite: bool) -> V
 
 #[test]
 fn valid_files_with_hostile_values_never_panic() {
-    let dir = tempfile::tempdir().unwrap();
+    let dir = testing::scratch_dir();
     let path = dir.path().join("hostile.mcap");
     let mut noise = Noise::new(23);
     let scheme = |tau_steps| Scheme {

@@ -166,7 +166,11 @@ fn another_local_user_cannot_read_inject_or_delete_a_run() {
     // A running recorder writes `run.mcap.partial`; `run.mcap` appears only when it ends.
     let in_progress = chaoscope_os::output::partial_path(&out);
     let start = Instant::now();
-    while std::fs::metadata(&in_progress).map(|m| m.len()).unwrap_or(0) < 100_000 {
+    while std::fs::metadata(&in_progress)
+        .map(|m| m.len())
+        .unwrap_or(0)
+        < 100_000
+    {
         assert!(start.elapsed() < LIMIT, "the victim's run never got going");
         std::thread::sleep(Duration::from_millis(20));
     }

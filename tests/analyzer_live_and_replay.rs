@@ -146,6 +146,43 @@ fn replay_with_other_tau_is_bit_identical_and_follows_the_paper_at_t_200() {
     );
 
     let report = json_stdout(&["analyze", rep.to_str().unwrap(), "--json", "--at", "200"]);
+    // Every new indicator for every scheme: FLI, OFLI (the Henon-Heiles vector field rebuilt
+    // from the recording's config), MEGNO and its mean over the sets; the 0-1 test where the
+    // scheme has at least 100 renormalizations to sample the orbit at (tau <= 1 here), and where
+    // not, the reason. The original schemes' values equal the recording's to the last bit (the
+    // same orbit and separations: replay changes none of their numbers).
+    let recorded = json_stdout(&["analyze", rec.to_str().unwrap(), "--json", "--at", "200"]);
+    for s in report["schemes"].as_array().unwrap() {
+        let name = s["name"].as_str().unwrap();
+        for field in ["fli", "ofli", "megno", "megno_mean"] {
+            assert!(s[field]["mean"].is_f64(), "{name}: {field} = {}", s[field]);
+            assert!(s[field]["std"].is_f64(), "{name}: {field} = {}", s[field]);
+        }
+        let tau = s["tau"].as_f64().unwrap();
+        if tau <= 1.0 {
+            let k = s["zero_one_k"].as_f64().unwrap();
+            assert!((-1.0..=1.0).contains(&k), "{name}: K = {k}");
+        } else {
+            assert!(
+                s["zero_one_k"]["unavailable"]
+                    .as_str()
+                    .unwrap()
+                    .contains("at least 100 samples"),
+                "{name}: {}",
+                s["zero_one_k"]
+            );
+        }
+        if let Some(orig) = recorded["schemes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|o| o["name"] == s["name"])
+        {
+            for field in ["fli", "ofli", "megno", "megno_mean", "zero_one_k"] {
+                assert_eq!(s[field], orig[field], "{name}: {field}");
+            }
+        }
+    }
     for j in 2..=4 {
         let (m01, m1, m10, m100) = (
             gali(&report, "mpm-tau0.1", j),

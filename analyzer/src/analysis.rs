@@ -8,6 +8,7 @@
 //! are instantaneous functions of the vectors. The recorder writes the indicators channel of
 //! every recording with the same tracker, so the values agree to the last bit.
 
+pub use chaoscope_indicators::FlowField;
 use chaoscope_indicators::{SchemeIndicators, Tracker};
 use chaoscope_schemas::run::{
     Method, Orthonormalization, Sample, SchemeSample, SchemeSpec, SystemKind,
@@ -32,7 +33,15 @@ pub struct AnalysisOptions {
     pub per_decade: usize,
     /// Times at which to keep a full report ("values at time T").
     pub at: Vec<f64>,
+    /// Where the system's vector field comes from, for the indicators that need the flow
+    /// direction (OFLI): the analyzer runs no engine, so the caller that has one (the binary,
+    /// Python: `chaoscope_replay::flow::flow_field_of_run`) says how to rebuild it from the
+    /// run's header. `None`: those indicators report themselves unavailable.
+    pub flow_field: Option<FlowSource>,
 }
+
+/// Builds the vector field of a run from its header, if it can.
+pub type FlowSource = fn(&RunInfo) -> Option<FlowField>;
 
 impl Default for AnalysisOptions {
     fn default() -> Self {
@@ -40,6 +49,7 @@ impl Default for AnalysisOptions {
             series_capacity: 2000,
             per_decade: 40,
             at: Vec::new(),
+            flow_field: None,
         }
     }
 }
@@ -127,8 +137,12 @@ impl Analysis {
                 report: None,
             })
             .collect();
+        let mut tracker = Tracker::new(run.layout());
+        if let Some(field) = options.flow_field.and_then(|source| source(&run)) {
+            tracker.set_flow_field(field);
+        }
         Self {
-            tracker: Tracker::new(run.layout()),
+            tracker,
             schemes,
             energy_error_max: 0.0,
             energy_series: Series::new(options.series_capacity, options.per_decade),
@@ -202,6 +216,9 @@ impl Analysis {
             self.extent.offer(sample.t, || extent);
             self.extent_t = Some(sample.t);
         }
+        if !sample.state.is_empty() {
+            self.tracker.observe_reference(sample.step, &sample.state);
+        }
         if !sample.state.is_empty()
             && sample.energy.is_finite()
             && sample.mean_divergence.is_finite()
@@ -233,6 +250,13 @@ impl Analysis {
                 .verdict_series
                 .offer(t, || point.expect("a wanted point"));
         }
+    }
+
+    /// Gives the analysis the system's vector field (from whoever holds the system: replay, a
+    /// run in process, `analyze` rebuilding it from the recording's config), for the
+    /// indicators that need the flow direction (OFLI). Before the first sample.
+    pub fn set_flow_field(&mut self, field: FlowField) {
+        self.tracker.set_flow_field(field);
     }
 
     /// Applies one set's separations; false if it does not fit the header (ignored).
@@ -411,6 +435,11 @@ impl Analysis {
                     lyapunov_std,
                     energy_error_max: reported_energy_error,
                     vs_vm: self.vs_vm_of(si),
+                    indicators: {
+                        let mut named = ind.named.clone();
+                        named.0.extend(tracker.orbit_indicators(si).0);
+                        named
+                    },
                     verdict,
                     warnings,
                 }

@@ -4,6 +4,8 @@
 use serde::ser::SerializeMap;
 use serde::{Serialize, Serializer};
 
+use chaoscope_indicators::NamedOutputs;
+
 use crate::stats::LogStat;
 use crate::verdict::{Verdict, Warning};
 
@@ -153,6 +155,13 @@ pub struct SchemeReport {
     pub energy_error_max: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vs_vm: Option<VsVm>,
+    /// Every registered indicator's outputs by name, as fields of the scheme: `fli`, `ofli`,
+    /// `megno`, `megno_mean` (mean and spread over the sets, `{"mean", "std"}`) and
+    /// `zero_one_k` (one value: the 0-1 test on the reference orbit's first coordinate sampled
+    /// at the scheme's renormalizations); `{"unavailable": reason}` where the run does not give
+    /// what an indicator needs.
+    #[serde(flatten)]
+    pub indicators: NamedOutputs,
     /// Chaotic, regular (with the torus dimension), escaped or unbounded (with the time), or
     /// undecided (with the reason) at this time, with the criterion and a confidence.
     pub verdict: Verdict,

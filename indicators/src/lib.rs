@@ -10,15 +10,23 @@
 //! - [`alignment`]: GALI (volume of the unit vectors, from a QR factorization) and SALI.
 //! - [`stretch`]: accumulated logarithmic stretching, the finite-time exponents.
 //! - [`stats`]: averages over the random sets of a scheme.
+//! - [`indicator`]: the one indicator interface (set and orbit indicators, named outputs) and
+//!   the registry of the indicators every run tracks: [`fli`] (FLI, OFLI), [`megno`] (MEGNO and
+//!   its mean), [`zero_one`] (the 0-1 test for chaos).
 //! - [`tracker`]: the streaming state of a run (per scheme and set: stretching sums and latest
 //!   vectors) and a scheme's indicators averaged over its sets at its latest renormalization.
 
 pub mod alignment;
+pub mod fli;
+pub mod indicator;
+pub mod megno;
 pub mod stats;
 pub mod stretch;
 pub mod tracker;
+pub mod zero_one;
 
 pub use alignment::{SIGMA_FLOOR, gali_log10, sali, unit_columns, volume_log10};
+pub use indicator::{OrbitIndicator, Output, SetIndicator, SetObservation};
 pub use stats::{LogStat, Stat};
 pub use stretch::StretchSums;
-pub use tracker::{Layout, SchemeIndicators, SetValues, Tracker};
+pub use tracker::{FlowField, Layout, Named, NamedOutputs, SchemeIndicators, SetValues, Tracker};

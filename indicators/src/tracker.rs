@@ -7,8 +7,14 @@
 //! the length of the run.
 
 use std::collections::BTreeMap;
+use std::sync::Arc;
+
+use serde::ser::{Serialize, SerializeMap, Serializer};
 
 use crate::alignment::{SIGMA_FLOOR, gali_log10, sali};
+use crate::indicator::{
+    OrbitIndicator, Output, SetIndicator, SetObservation, orbit_indicators, set_indicators,
+};
 use crate::stats::{LogStat, Stat};
 use crate::stretch::StretchSums;
 
@@ -72,6 +78,81 @@ pub struct SetValues {
     pub sali: Option<f64>,
     /// Finite-time exponent per vector.
     pub exponents: Vec<f64>,
+    /// The outputs of every set indicator, by name, in registration order.
+    pub outputs: Vec<(&'static str, Output)>,
+}
+
+/// One named output of a scheme: averaged over its sets (set indicators), one value (orbit
+/// indicators), or unavailable with the reason.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Named {
+    /// Mean and spread over the sets, as the exponents.
+    OverSets(Stat),
+    /// One value for the scheme (an indicator of the reference orbit).
+    Value(f64),
+    /// Cannot be computed from what this run gives.
+    Unavailable(String),
+}
+
+/// Named outputs in order, serialized as map entries `name: value` (a set indicator's
+/// `{"mean", "std"}`, an orbit indicator's number, or `{"unavailable": reason}`), so a report
+/// carries every registered indicator under its own name without knowing it.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct NamedOutputs(pub Vec<(&'static str, Named)>);
+
+impl NamedOutputs {
+    pub fn get(&self, name: &str) -> Option<&Named> {
+        self.0.iter().find(|(n, _)| *n == name).map(|(_, v)| v)
+    }
+
+    /// The value of an output (the mean over the sets for a set indicator), if available.
+    pub fn value(&self, name: &str) -> Option<f64> {
+        match self.get(name)? {
+            Named::OverSets(s) => Some(s.mean),
+            Named::Value(v) => Some(*v),
+            Named::Unavailable(_) => None,
+        }
+    }
+}
+
+impl Serialize for Named {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        match self {
+            Named::OverSets(stat) => stat.serialize(s),
+            Named::Value(v) => s.serialize_f64(*v),
+            Named::Unavailable(reason) => {
+                let mut m = s.serialize_map(Some(1))?;
+                m.serialize_entry("unavailable", reason)?;
+                m.end()
+            }
+        }
+    }
+}
+
+impl Serialize for NamedOutputs {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let mut m = s.serialize_map(Some(self.0.len()))?;
+        for (name, v) in &self.0 {
+            m.serialize_entry(name, v)?;
+        }
+        m.end()
+    }
+}
+
+/// The vector field `f(x)` of the run's system, for the indicators that need the flow direction
+/// at the reference state (OFLI): writes `f(x)` into `out` and returns true, or false where the
+/// system has none (a map). Given by whoever holds the system (the engine's side); the tracker
+/// itself stays a pure function of what it is fed.
+#[derive(Clone)]
+pub struct FlowField(pub Arc<FlowFn>);
+
+/// `f(x)` into `out`, false where there is none.
+pub type FlowFn = dyn Fn(&[f64], &mut [f64]) -> bool + Send + Sync;
+
+impl std::fmt::Debug for FlowField {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("FlowField")
+    }
 }
 
 /// One scheme's indicators averaged over the sets at its latest renormalization.
@@ -89,6 +170,8 @@ pub struct SchemeIndicators {
     /// Finite-time exponent of each vector, mean and spread over the sets: the spectrum for QR
     /// schemes, an estimate of the maximal exponent per vector for rescaled ones.
     pub exponents: Vec<Stat>,
+    /// Every set indicator's outputs over the sets, by name (FLI, OFLI, MEGNO, ...).
+    pub named: NamedOutputs,
 }
 
 impl SchemeIndicators {
@@ -107,6 +190,7 @@ struct SetState {
     /// Step of the latest separations.
     step: Option<u64>,
     separations: Vec<f64>,
+    indicators: Vec<Box<dyn SetIndicator>>,
 }
 
 #[derive(Debug, Clone)]
@@ -116,6 +200,16 @@ struct SchemeState {
     /// set numbered 4 billion in a file once asked for 343 GB) allocates more than what came.
     sets: BTreeMap<usize, SetState>,
     step: Option<u64>,
+    /// The indicators of the reference orbit sampled at this scheme's renormalizations.
+    orbit: Vec<Box<dyn OrbitIndicator>>,
+}
+
+/// The latest reference state seen, with the vector field there when known.
+#[derive(Debug, Clone)]
+struct Reference {
+    step: u64,
+    state: Vec<f64>,
+    flow: Option<Vec<f64>>,
 }
 
 /// The indicator state of one run.
@@ -125,6 +219,8 @@ pub struct Tracker {
     schemes: Vec<SchemeState>,
     /// Some stretching factor was never seen (late attach, lost frames).
     gaps: bool,
+    reference: Option<Reference>,
+    flow_field: Option<FlowField>,
 }
 
 impl Tracker {
@@ -135,13 +231,42 @@ impl Tracker {
             .map(|_| SchemeState {
                 sets: BTreeMap::new(),
                 step: None,
+                orbit: orbit_indicators(),
             })
             .collect();
         Self {
             layout,
             schemes,
             gaps: false,
+            reference: None,
+            flow_field: None,
         }
+    }
+
+    /// Gives the tracker the system's vector field, for the indicators that need the flow
+    /// direction (OFLI); without it they report themselves unavailable.
+    pub fn set_flow_field(&mut self, field: FlowField) {
+        self.flow_field = Some(field);
+    }
+
+    /// The reference state at `step` (before the separation sets of that step are applied):
+    /// the orbit indicators sample it at each scheme's renormalizations, and the set indicators
+    /// read the flow direction there. A state that does not fit the layout or is not finite is
+    /// ignored (those renormalizations then see no state).
+    pub fn observe_reference(&mut self, step: u64, state: &[f64]) {
+        if state.len() != self.layout.dim || !state.iter().all(|v| v.is_finite()) {
+            self.reference = None;
+            return;
+        }
+        let flow = self.flow_field.as_ref().and_then(|field| {
+            let mut out = vec![0.0; state.len()];
+            ((field.0)(state, &mut out) && out.iter().all(|v| v.is_finite())).then_some(out)
+        });
+        self.reference = Some(Reference {
+            step,
+            state: state.to_vec(),
+            flow,
+        });
     }
 
     pub fn layout(&self) -> &Layout {
@@ -186,6 +311,7 @@ impl Tracker {
                 covered_steps: 0,
                 step: None,
                 separations: Vec::new(),
+                indicators: set_indicators(),
             });
         // A stretching factor covers the interval since the scheme's previous renormalization;
         // if that one was not seen, the sum has a hole.
@@ -197,10 +323,31 @@ impl Tracker {
             st.sums.add(stretch);
             st.covered_steps += step - prev;
         }
+        let reference = self.reference.as_ref().filter(|r| r.step == step);
+        let t = self.layout.time_of(step);
+        let observation = SetObservation {
+            t,
+            dt: t - st.step.map_or(0.0, |s| self.layout.time_of(s)),
+            dim,
+            separations,
+            stretch,
+            flow: reference.and_then(|r| r.flow.as_deref()),
+        };
+        for indicator in &mut st.indicators {
+            indicator.observe(&observation);
+        }
         st.step = Some(step);
         st.separations.clear();
         st.separations.extend_from_slice(separations);
         let state = &mut self.schemes[scheme];
+        // The first set of a new renormalization of the scheme samples the orbit.
+        if state.step.is_none_or(|s| s < step)
+            && let Some(r) = reference
+        {
+            for indicator in &mut state.orbit {
+                indicator.observe(t, &r.state);
+            }
+        }
         state.step = Some(state.step.map_or(step, |x| x.max(step)));
         true
     }
@@ -223,6 +370,11 @@ impl Tracker {
             gali_log10: gali_log10(&st.separations, self.layout.dim),
             sali: sali(&st.separations, self.layout.dim),
             exponents: st.sums.spectrum(covered),
+            outputs: st
+                .indicators
+                .iter()
+                .flat_map(|i| i.names().iter().copied().zip(i.outputs()))
+                .collect(),
         })
     }
 
@@ -259,6 +411,26 @@ impl Tracker {
         let exponents = (0..sets.first().map_or(0, |(_, v)| v.exponents.len()))
             .filter_map(|i| Stat::from_values(sets.iter().map(|(_, v)| v.exponents[i])))
             .collect();
+        let named = NamedOutputs(
+            (0..sets.first().map_or(0, |(_, v)| v.outputs.len()))
+                .map(|i| {
+                    let name = sets[0].1.outputs[i].0;
+                    let unavailable = sets.iter().find_map(|(_, v)| match &v.outputs[i].1 {
+                        Output::Unavailable(reason) => Some(reason.clone()),
+                        Output::Value(_) => None,
+                    });
+                    let value = match unavailable {
+                        Some(reason) => Named::Unavailable(reason),
+                        None => Stat::from_values(sets.iter().map(|(_, v)| match v.outputs[i].1 {
+                            Output::Value(x) => x,
+                            Output::Unavailable(_) => 0.0,
+                        }))
+                        .map_or(Named::Unavailable("no set".to_string()), Named::OverSets),
+                    };
+                    (name, value)
+                })
+                .collect(),
+        );
         SchemeIndicators {
             step,
             t: self.layout.time_of(step),
@@ -266,7 +438,28 @@ impl Tracker {
             gali,
             sali,
             exponents,
+            named,
         }
+    }
+
+    /// The outputs of the orbit indicators of `scheme` (the 0-1 test), by name: computed only
+    /// when asked, since they read the whole sampled series.
+    pub fn orbit_indicators(&self, scheme: usize) -> NamedOutputs {
+        NamedOutputs(
+            self.schemes[scheme]
+                .orbit
+                .iter()
+                .flat_map(|i| {
+                    i.names().iter().copied().zip(i.outputs()).map(|(n, o)| {
+                        let v = match o {
+                            Output::Value(x) => Named::Value(x),
+                            Output::Unavailable(r) => Named::Unavailable(r),
+                        };
+                        (n, v)
+                    })
+                })
+                .collect(),
+        )
     }
 }
 

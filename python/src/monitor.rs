@@ -174,6 +174,7 @@ fn read(
         &AnalysisOptions {
             series_capacity: 2,
             per_decade: 1,
+            flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
             ..Default::default()
         },
     );

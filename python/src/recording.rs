@@ -292,6 +292,7 @@ impl Recording {
     fn report<'py>(&self, py: Python<'py>, at: Option<f64>) -> PyResult<Bound<'py, PyAny>> {
         let options = AnalysisOptions {
             at: at.into_iter().collect(),
+            flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
             ..Default::default()
         };
         let json = py

@@ -51,6 +51,9 @@ pub fn analyze_spec(
     mut each: impl FnMut(&Sample),
 ) -> Result<Analysis, InProcessError> {
     let mut analysis = Analysis::new(run_info("in-process", config, &spec), options);
+    if let Some(field) = crate::flow::flow_field(spec.system()) {
+        analysis.set_flow_field(field);
+    }
     let mut engine = Engine::new(spec);
     while let Some(sample) = engine.next_sample()? {
         analysis.feed(&sample);

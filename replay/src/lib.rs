@@ -2,6 +2,7 @@
 //! (the analyzer itself reads recordings and samples and depends on no engine).
 //!
 //! - this module: replay, below;
+//! - [`flow`]: the system's vector field for the analysis (OFLI), from a run or a recording;
 //! - [`inprocess`]: a run computed in this process by the engine, fed to an analysis (tests,
 //!   sweeps, the Python package's quick paths).
 //!
@@ -34,6 +35,7 @@ use chaoscope_analyzer::write::{SampleWriter, WriteError};
 use chaoscope_os::{Leftover, OutputOptions};
 use chaoscope_schemas::proto::end_of_run;
 
+pub mod flow;
 pub mod inprocess;
 
 #[derive(Debug, Clone, Default)]

@@ -56,6 +56,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let options = AnalysisOptions {
         series_capacity: args.points,
         at: args.at.into_iter().collect(),
+        flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
         ..Default::default()
     };
     let (analysis, info) = analyze_file(&args.file, &options)?;

@@ -152,6 +152,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         &AnalysisOptions {
             series_capacity: 1000,
             per_decade: 20,
+            flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
             ..Default::default()
         },
     );

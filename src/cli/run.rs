@@ -262,7 +262,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     }
     let (analysis, info) = chaoscope_analyzer::recording::analyze_file(
         &out,
-        &chaoscope_analyzer::AnalysisOptions::default(),
+        &chaoscope_analyzer::AnalysisOptions {
+            flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
+            ..Default::default()
+        },
     )?;
     // With the run's end, so an escaped or failed orbit is said so in the verdicts.
     super::analyze::print_table(&analysis.report_ended(info.end.as_ref()))?;

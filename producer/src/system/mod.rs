@@ -120,6 +120,14 @@ pub trait DynamicalSystem: Send + Sync {
     /// conserve volume by construction (Hamiltonians).
     fn divergence(&self, x: &[f64]) -> Option<f64>;
 
+    /// The vector field `out = f(x)`, the flow direction at `x` (the orthogonal FLI reads the
+    /// deviation's component across it), and true; false for a system without one (a map: its
+    /// time is discrete). Off the hot path: once per renormalization of the reference.
+    fn vector_field(&self, x: &[f64], out: &mut [f64]) -> bool {
+        let _ = (x, out);
+        false
+    }
+
     /// What made a state non-finite when stepped from `x` (the last finite state), naming the
     /// operation where the system knows it. Off the hot path: called after a failure.
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String>;

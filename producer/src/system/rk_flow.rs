@@ -159,6 +159,11 @@ impl DynamicalSystem for RkFlow {
         (!self.field.is_hamiltonian()).then(|| self.field.divergence(x))
     }
 
+    fn vector_field(&self, x: &[f64], out: &mut [f64]) -> bool {
+        self.field.value(x, out);
+        true
+    }
+
     fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
         let field = self.field.as_ref();
         if let Some(cause) = field.diagnose_non_finite(x) {

@@ -101,6 +101,26 @@ impl DynamicalSystem for SplitHamiltonian {
         None
     }
 
+    /// `(dq/dt, dp/dt) = (p / m, -dV/dq)`.
+    fn vector_field(&self, x: &[f64], out: &mut [f64]) -> bool {
+        let n = self.model.dof();
+        let (q, p) = x.split_at(n);
+        let (dq, dp) = out.split_at_mut(n);
+        match self.model.inverse_masses() {
+            None => dq.copy_from_slice(p),
+            Some(w) => {
+                for ((d, p), w) in dq.iter_mut().zip(p).zip(w) {
+                    *d = p * w;
+                }
+            }
+        }
+        self.model.gradient(q, dp);
+        for d in dp.iter_mut() {
+            *d = -*d;
+        }
+        true
+    }
+
     /// The model's lane implementation over the instruction set `isa` ([`SplittingKernel`]).
     fn batched(&self, isa: Isa) -> Option<Box<dyn PointKernel + '_>> {
         let coeffs = &self.coeffs;

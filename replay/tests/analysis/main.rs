@@ -5,5 +5,6 @@ mod analysis_core;
 mod flows;
 mod general_hamiltonian;
 mod hostile_input;
+mod indicators;
 mod v_shape;
 mod verdict;

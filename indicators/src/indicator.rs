@@ -1,0 +1,90 @@
+//! The one indicator interface: an indicator accumulates from what a run already publishes and
+//! names its outputs; the tracker, and through it the analysis, its reports, replay, monitor,
+//! Python and maps, take every indicator registered here without a change of their own.
+//!
+//! Two shapes, by what they accumulate from:
+//! - [`SetIndicator`]: one instance per (scheme, set), fed at every renormalization of its set
+//!   with the stretching factors and the separation vectors before renormalization (and the
+//!   vector field at the reference state where the system gives it). Outputs are averaged over
+//!   the sets of a scheme as GALI is.
+//! - [`OrbitIndicator`]: one instance per scheme, fed the reference state at each of that
+//!   scheme's renormalizations (the orbit sampled every `tau`). Its outputs are one value per
+//!   scheme.
+//!
+//! Adding an indicator: its file in this crate, and its constructor in [`set_indicators`] or
+//! [`orbit_indicators`]; every reader then names and reports its outputs.
+
+use std::fmt::Debug;
+
+/// What a set indicator sees at one renormalization of its set.
+#[derive(Debug, Clone, Copy)]
+pub struct SetObservation<'a> {
+    /// Time of this renormalization (0 for the initial vectors).
+    pub t: f64,
+    /// Time since the set's previous renormalization seen (0 at t = 0).
+    pub dt: f64,
+    /// Phase-space dimension (entries per vector).
+    pub dim: usize,
+    /// The `k` separation vectors before renormalization, one after the other.
+    pub separations: &'a [f64],
+    /// Stretching factor of each vector since the previous renormalization (`|d| / d0`, or
+    /// `|R_ii|`; for the first vector both are its own growth). All 1 at t = 0.
+    pub stretch: &'a [f64],
+    /// The vector field `f(x)` at the reference state of this renormalization, where the system
+    /// can give it (flows and Hamiltonians in process); `None` otherwise.
+    pub flow: Option<&'a [f64]>,
+}
+
+/// One output's value for one set (or one scheme).
+#[derive(Debug, Clone, PartialEq)]
+pub enum Output {
+    Value(f64),
+    /// The indicator cannot be computed from what this run gives, and says why.
+    Unavailable(String),
+}
+
+/// An indicator accumulated per (scheme, set) from the renormalizations of its set.
+pub trait SetIndicator: Debug + Send + Sync {
+    /// The names of its outputs, as reports carry them (a public contract).
+    fn names(&self) -> &'static [&'static str];
+    /// Accumulates one renormalization (called in increasing time, the first at t = 0).
+    fn observe(&mut self, obs: &SetObservation<'_>);
+    /// The current value of each output, in the order of [`SetIndicator::names`].
+    fn outputs(&self) -> Vec<Output>;
+    fn boxed_clone(&self) -> Box<dyn SetIndicator>;
+}
+
+/// An indicator accumulated per scheme from the reference orbit sampled at its
+/// renormalizations.
+pub trait OrbitIndicator: Debug + Send + Sync {
+    fn names(&self) -> &'static [&'static str];
+    /// Accumulates the reference state at time `t` (called in increasing time).
+    fn observe(&mut self, t: f64, state: &[f64]);
+    fn outputs(&self) -> Vec<Output>;
+    fn boxed_clone(&self) -> Box<dyn OrbitIndicator>;
+}
+
+impl Clone for Box<dyn SetIndicator> {
+    fn clone(&self) -> Self {
+        self.boxed_clone()
+    }
+}
+
+impl Clone for Box<dyn OrbitIndicator> {
+    fn clone(&self) -> Self {
+        self.boxed_clone()
+    }
+}
+
+/// The set indicators every run tracks, in report order.
+pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
+    vec![
+        Box::new(crate::fli::Fli::default()),
+        Box::new(crate::megno::Megno::default()),
+    ]
+}
+
+/// The orbit indicators every run tracks, in report order.
+pub fn orbit_indicators() -> Vec<Box<dyn OrbitIndicator>> {
+    vec![Box::new(crate::zero_one::ZeroOneTest::default())]
+}

@@ -321,9 +321,6 @@ fn resuming_a_foreign_map_writes_nothing_and_leaves_it_untouched() {
     }
 }
 
-/// A writer's arguments, from its case's directory and its output's path.
-type Arguments = Box<dyn Fn(&Path, &Path) -> Vec<String>>;
-
 /// Issue #24, paths: every command that writes a file writes it through one discipline
 /// (`chaoscope_os::output`): into `NAME.partial`, created exclusively, renamed onto `NAME` when
 /// complete. So, whatever sits at the output's name, and even with `--force`:
@@ -376,190 +373,95 @@ fn no_writer_replaces_a_special_file_or_an_input_nor_follows_a_link() {
     )
     .unwrap();
 
-    /// A command writing `target` (in `dir`), and the input a link at `target` aims at.
+    /// A command writing `target` (in `dir`), and the input a link at `target` aims at. Its
+    /// arguments, split at spaces, with `{out}` for `target`, `{dir}` for `dir`, `{unique}` for a
+    /// fresh run name, and `{run}`, `{shard}`, `{map}`, `{config}`, `{chart}` for the inputs.
     struct Writer {
         what: &'static str,
-        args: Arguments,
+        argv: &'static str,
         /// The output's name within the case's directory.
         name: &'static str,
         input: PathBuf,
     }
     let s = |p: &Path| p.to_str().unwrap().to_string();
-    let (run_s, shard_s, map_s, config_s, chart_s) =
-        (s(&run), s(&shard), s(&map_config), s(&config), s(&chart));
+    let inputs_named = [
+        ("{run}", s(&run)),
+        ("{shard}", s(&shard)),
+        ("{map}", s(&map_config)),
+        ("{config}", s(&config)),
+        ("{chart}", s(&chart)),
+    ];
+    let expand = |argv: &str, dir: &Path, target: &Path| -> Vec<String> {
+        argv.split(' ')
+            .map(|word| {
+                let mut word = word
+                    .replace("{out}", &s(target))
+                    .replace("{dir}", &s(dir))
+                    .replace("{unique}", &common::unique_run("paths"));
+                for (name, path) in &inputs_named {
+                    word = word.replace(name, path);
+                }
+                word
+            })
+            .collect()
+    };
+    let writer = |what, argv, name, input: &Path| Writer {
+        what,
+        argv,
+        name,
+        input: input.to_path_buf(),
+    };
     let writers = vec![
-        Writer {
-            what: "replay",
-            args: Box::new({
-                let run_s = run_s.clone();
-                move |_, t| {
-                    vec![
-                        "replay".into(),
-                        run_s.clone(),
-                        "--tau".into(),
-                        "0.02".into(),
-                        "--out".into(),
-                        s(t),
-                        "--force".into(),
-                    ]
-                }
-            }),
-            name: "out.mcap",
-            input: run.clone(),
-        },
-        Writer {
-            what: "recover",
-            args: Box::new({
-                let run_s = run_s.clone();
-                move |_, t| {
-                    vec![
-                        "recover".into(),
-                        run_s.clone(),
-                        "--out".into(),
-                        s(t),
-                        "--force".into(),
-                    ]
-                }
-            }),
-            name: "out.mcap",
-            input: run.clone(),
-        },
-        Writer {
-            what: "merge",
-            args: Box::new({
-                let shard_s = shard_s.clone();
-                move |_, t| {
-                    vec![
-                        "merge".into(),
-                        shard_s.clone(),
-                        "--out".into(),
-                        s(t),
-                        "--force".into(),
-                    ]
-                }
-            }),
-            name: "out.mcap",
-            input: shard.clone(),
-        },
-        Writer {
-            what: "map --out",
-            args: Box::new({
-                let map_s = map_s.clone();
-                move |_, t| {
-                    vec![
-                        "map".into(),
-                        map_s.clone(),
-                        "--out".into(),
-                        s(t),
-                        "--restart".into(),
-                        "--no-progress".into(),
-                        "--name".into(),
-                        common::unique_run("paths-out"),
-                    ]
-                }
-            }),
-            name: "out.mcap",
-            input: map_config.clone(),
-        },
-        Writer {
-            what: "map --png",
-            args: Box::new({
-                let map_s = map_s.clone();
-                move |d, t| {
-                    vec![
-                        "map".into(),
-                        map_s.clone(),
-                        "--out".into(),
-                        s(&d.join("m.mcap")),
-                        "--png".into(),
-                        s(t),
-                        "--restart".into(),
-                        "--no-progress".into(),
-                        "--name".into(),
-                        common::unique_run("paths-png"),
-                    ]
-                }
-            }),
-            name: "map.png",
-            input: map_config.clone(),
-        },
-        Writer {
-            what: "analyze --csv",
-            args: Box::new({
-                let run_s = run_s.clone();
-                move |d, _| vec!["analyze".into(), run_s.clone(), "--csv".into(), s(d)]
-            }),
-            name: "vm.csv",
-            input: run.clone(),
-        },
-        Writer {
-            what: "analyze --plot",
-            args: Box::new({
-                let run_s = run_s.clone();
-                move |d, _| vec!["analyze".into(), run_s.clone(), "--plot".into(), s(d)]
-            }),
-            name: "gali_vm.png",
-            input: run.clone(),
-        },
-        Writer {
-            what: "section --csv",
-            args: Box::new({
-                let map_s = map_s.clone();
-                move |_, t| {
-                    vec![
-                        "section".into(),
-                        map_s.clone(),
-                        "--vary".into(),
-                        "q2".into(),
-                        "--from".into(),
-                        "-0.1".into(),
-                        "--to".into(),
-                        "0.1".into(),
-                        "--count".into(),
-                        "2".into(),
-                        "--csv".into(),
-                        s(t),
-                    ]
-                }
-            }),
-            name: "section.csv",
-            input: map_config.clone(),
-        },
-        Writer {
-            what: "chart",
-            args: Box::new({
-                let chart_s = chart_s.clone();
-                move |d, _| {
-                    vec![
-                        "chart".into(),
-                        chart_s.clone(),
-                        "--out".into(),
-                        s(&d.join("c")),
-                    ]
-                }
-            }),
-            name: "c.png",
-            input: chart.clone(),
-        },
-        Writer {
-            what: "run",
-            args: Box::new({
-                let config_s = config_s.clone();
-                move |_, t| {
-                    vec![
-                        "run".into(),
-                        config_s.clone(),
-                        "--run".into(),
-                        common::unique_run("paths-run"),
-                        "--out".into(),
-                        s(t),
-                        "--force".into(),
-                    ]
-                }
-            }),
-            name: "out.mcap",
-            input: config.clone(),
-        },
+        writer(
+            "replay",
+            "replay {run} --tau 0.02 --out {out} --force",
+            "out.mcap",
+            &run,
+        ),
+        writer(
+            "recover",
+            "recover {run} --out {out} --force",
+            "out.mcap",
+            &run,
+        ),
+        writer(
+            "merge",
+            "merge {shard} --out {out} --force",
+            "out.mcap",
+            &shard,
+        ),
+        writer(
+            "map --out",
+            "map {map} --out {out} --restart --no-progress --name {unique}",
+            "out.mcap",
+            &map_config,
+        ),
+        writer(
+            "map --png",
+            "map {map} --out {dir}/m.mcap --png {out} --restart --no-progress --name {unique}",
+            "map.png",
+            &map_config,
+        ),
+        writer("analyze --csv", "analyze {run} --csv {dir}", "vm.csv", &run),
+        writer(
+            "analyze --plot",
+            "analyze {run} --plot {dir}",
+            "gali_vm.png",
+            &run,
+        ),
+        writer(
+            "section --csv",
+            "section {map} --vary q2 --from -0.1 --to 0.1 --count 2 --csv {out}",
+            "section.csv",
+            &map_config,
+        ),
+        writer("chart", "chart {chart} --out {dir}/c", "c.png", &chart),
+        writer(
+            "run",
+            "run {config} --run {unique} --out {out} --force",
+            "out.mcap",
+            &config,
+        ),
     ];
 
     #[derive(Debug, Clone, Copy, PartialEq)]
@@ -615,7 +517,7 @@ fn no_writer_replaces_a_special_file_or_an_input_nor_follows_a_link() {
                 Planted::Directory => std::fs::create_dir(&target).unwrap(),
             }
             let before = std::fs::symlink_metadata(&target).unwrap().file_type();
-            let args = (w.args)(&dir, &target);
+            let args = expand(w.argv, &dir, &target);
             let args: Vec<&str> = args.iter().map(String::as_str).collect();
             cases += 1;
             let case = format!("{} over {p:?}", w.what);

@@ -138,6 +138,51 @@ pub fn run(spec: &RunSpec, machine: &Machine) -> Estimate {
     sizes.estimate(memory, Some(calibration), machine)
 }
 
+/// Estimate of `section`: `orbits` reference orbits of the spec's steps each, one after the
+/// other on one core (no deviation vectors), keeping up to `crossings` crossings of each (the
+/// state, and the plotted pair). Memory first, from the sizes alone; then the time from a
+/// calibration of the spec's own reference step.
+pub fn section(spec: &RunSpec, orbits: usize, crossings: usize, machine: &Machine) -> Estimate {
+    let steps = spec.total_steps() as f64;
+    let dim = spec.dim();
+    let (orbitsf, crossingsf) = (orbits as f64, crossings as f64);
+    // Each orbit's crossings (the state) while it is drawn, and every orbit's plotted pairs.
+    let bytes =
+        8.0 * (crossingsf * dim as f64 + 2.0 * orbitsf * crossingsf) + 8.0 * dim as f64 * 4.0;
+    let mut estimate = Estimate {
+        orbit_steps: orbitsf * steps,
+        seconds: 0.0,
+        bytes,
+        time_key: "integrator.t_final",
+        work: format!(
+            "{} orbits x {} steps of dimension {dim}",
+            count(orbitsf),
+            count(steps)
+        ),
+        memory_key: "--count x --crossings",
+        cores: 1,
+        calibration: None,
+    };
+    if machine.memory_bytes.is_some_and(|m| bytes > m as f64) {
+        return estimate;
+    }
+    // The reference step alone: no scheme's vectors are stepped.
+    let reference_only = RunSizes {
+        steps,
+        dim,
+        k: spec.k(),
+        sets: spec.sets(),
+        mpm: 0,
+        vm: 0,
+        propagator_mpm: 0,
+        propagator_vm: 0,
+    };
+    let calibration = calibrate_run(spec, &reference_only);
+    estimate.seconds = orbitsf * steps * calibration.ns_per_orbit_step * ENGINE_OVERHEAD * 1e-9;
+    estimate.calibration = Some(calibration);
+    estimate
+}
+
 /// The sizes of a run that its cost is a function of.
 struct RunSizes {
     steps: f64,
@@ -487,10 +532,15 @@ fn duration(s: f64) -> String {
     let (h, d, y) = (3600.0, 86_400.0, 365.25 * 86_400.0);
     if s < d {
         format!("{:.1} hours", s / h)
-    } else if s < y {
-        format!("{:.0} days", s / d)
     } else if s < 1e4 * y {
-        format!("{:.0} years", s / y)
+        // Whole days or years, with the noun agreeing ("1 day", "1 year", "2 days").
+        let (count, unit) = if s < y {
+            ((s / d).round(), "day")
+        } else {
+            ((s / y).round(), "year")
+        };
+        let plural = if count == 1.0 { "" } else { "s" };
+        format!("{count:.0} {unit}{plural}")
     } else {
         format!("{:.1e} years", s / y)
     }
@@ -592,5 +642,47 @@ tau = 1.0
             assert!(e.seconds > 86_400.0, "{e:?}");
             assert!(e.refusal(&TWO_CORES).is_some());
         }
+    }
+
+    #[test]
+    fn durations_read_as_english() {
+        assert_eq!(duration(1800.0), "0.5 hours");
+        assert_eq!(duration(86_400.0), "1 day");
+        assert_eq!(duration(3.0 * 86_400.0), "3 days");
+        assert_eq!(duration(365.25 * 86_400.0), "1 year");
+        assert_eq!(duration(2.4 * 365.25 * 86_400.0), "2 years");
+        assert_eq!(duration(3e4 * 365.25 * 86_400.0), "3.0e4 years");
+    }
+
+    #[test]
+    fn a_section_of_many_long_orbits_is_refused_and_a_small_one_is_not() {
+        let spec_to = |t_final| {
+            let cfg = paper::henon_heiles(
+                paper::HH_CHAOTIC_Q2,
+                t_final,
+                DeviationsConfig::random(4, 1, 1),
+                vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
+            );
+            RunSpec::from_config(&cfg).unwrap()
+        };
+        // 30 orbits of 10^5 steps: well under a second per orbit.
+        let small = section(&spec_to(1000.0), 30, 400, &TWO_CORES);
+        assert!(small.refusal(&TWO_CORES).is_none(), "{small:?}");
+        assert!(small.calibration.is_some());
+        // 10^7 orbits of 10^7 steps: 10^14 steps, weeks at any speed (a step is > 10 ns).
+        let many = section(&spec_to(1e5), 10_000_000, 10, &TWO_CORES);
+        let why = many.refusal(&TWO_CORES).expect("refused");
+        assert!(
+            why.starts_with("integrator.t_final: this would take about"),
+            "{why}"
+        );
+        // 2^40 crossings kept per orbit: terabytes, refused before any step is timed.
+        let huge = section(&spec_to(1000.0), 30, 1 << 40, &TWO_CORES);
+        let why = huge.refusal(&TWO_CORES).expect("refused");
+        assert!(
+            why.starts_with("--count x --crossings: this would need about"),
+            "{why}"
+        );
+        assert!(huge.calibration.is_none());
     }
 }

@@ -36,6 +36,10 @@ pub struct Args {
     /// Write the crossings as CSV (orbit, then the state q1..qN, p1..pN).
     #[arg(long)]
     pub csv: Option<PathBuf>,
+    /// Start even a section estimated to take more than a day or more memory than the machine
+    /// has.
+    #[arg(long)]
+    pub force: bool,
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
@@ -59,6 +63,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let Some((false, vary)) = parse_coordinate(&args.vary, n) else {
         bail!("--vary must be a position q1..q{n}, got {}", args.vary);
     };
+    let machine = super::machine();
+    let estimate =
+        chaoscope_producer::estimate::section(&base, args.count, args.crossings, &machine);
+    super::check_estimate(&estimate, &machine, args.force, "section")?;
     let steps = base.total_steps();
     let mut lines = Vec::new();
     // The CSV table replaces an earlier one, never the config (`chaoscope_os::output`).

@@ -295,7 +295,7 @@ fn cases() -> Vec<Case> {
         map("map same coordinate twice", "coord = \"p2\"", "coord = \"q2\"", "map.y.coord", "same coordinate"),
         map("map min above max", "min = -0.4, max = 0.6", "min = 0.6, max = -0.4", "map.x.min", "min <= max"),
         map("map min NaN", "min = -0.4, max = 0.4", "min = nan, max = 0.4", "map.y.min", "finite"),
-        map("map unknown indicator", "indicator = \"gali\"", "indicator = \"fli\"", "map.indicator", "is not gali"),
+        map("map unknown indicator", "indicator = \"gali\"", "indicator = \"ofli\"", "map.indicator", "is not gali"),
         map("map unknown route", "indicator = \"gali\"", "indicator = \"gali\"\nroute = \"shared\"", "map.route", "is not per-set or basis"),
         map("map MPM propagator route with a large d0", "d0 = 1e-8\ntau = 0.5\n\n[map]", "d0 = 1e-3\ntau = 0.5\n\n[map]\nroute = \"propagator\"", "map.route", "valid for"),
         map("map k above 2N", "indicator = \"gali\"", "indicator = \"gali\"\nk = 5", "map.k", "2n"),

@@ -72,9 +72,17 @@ fn scale_of(h: &MapHeader) -> Scale {
             transform: lin,
             chaotic_high: false,
         },
-        _ => Scale {
+        "mle" => Scale {
             label: format!("log10 MLE (t = {})", h.t_final),
             transform: log,
+            chaotic_high: true,
+        },
+        // A registered set indicator's output (`fli`, `megno`, `megno_mean`): they grow with
+        // chaos, linearly in time (FLI, MEGNO), so a linear scale keeps the regular values
+        // (MEGNO near 2, FLI near ln t) apart from one another.
+        name => Scale {
+            label: format!("{name} (t = {})", h.t_final),
+            transform: lin,
             chaotic_high: true,
         },
     }

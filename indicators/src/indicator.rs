@@ -88,3 +88,40 @@ pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
 pub fn orbit_indicators() -> Vec<Box<dyn OrbitIndicator>> {
     vec![Box::new(crate::zero_one::ZeroOneTest::default())]
 }
+
+/// The outputs of the registered set indicators that a run without the flow direction can give
+/// (a phase-space map's points carry no vector field), in report order: those available after
+/// one observation with `flow: None`. The map indicators by output name.
+pub fn flowless_set_outputs() -> Vec<&'static str> {
+    let observation = SetObservation {
+        t: 0.0,
+        dt: 0.0,
+        dim: 1,
+        separations: &[1.0],
+        stretch: &[1.0],
+        flow: None,
+    };
+    set_indicators()
+        .into_iter()
+        .flat_map(|mut i| {
+            i.observe(&observation);
+            i.names()
+                .iter()
+                .copied()
+                .zip(i.outputs())
+                .collect::<Vec<_>>()
+        })
+        .filter_map(|(name, output)| matches!(output, Output::Value(_)).then_some(name))
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_map_shows_every_output_but_ofli() {
+        // OFLI needs the flow direction; FLI and MEGNO only the stretching factors.
+        assert_eq!(flowless_set_outputs(), ["fli", "megno", "megno_mean"]);
+    }
+}

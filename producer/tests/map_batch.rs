@@ -87,6 +87,8 @@ fn mpm_points_equal_the_engine() {
     check_against_engine(&hh_map("mpm", grid("gali"), 30.0, 3));
     check_against_engine(&hh_map("mpm", gali3_time(0.05), 30.0, 3));
     check_against_engine(&hh_map("mpm", grid("mle"), 20.0, 2));
+    check_against_engine(&hh_map("mpm", grid("megno"), 20.0, 2));
+    check_against_engine(&hh_map("mpm", grid("fli"), 20.0, 2));
 }
 
 #[test]
@@ -94,6 +96,8 @@ fn vm_points_equal_the_engine() {
     check_against_engine(&hh_map("vm", grid("gali"), 30.0, 3));
     check_against_engine(&hh_map("vm", gali3_time(0.05), 30.0, 3));
     check_against_engine(&hh_map("vm", grid("mle"), 20.0, 2));
+    check_against_engine(&hh_map("vm", grid("fli"), 20.0, 2));
+    check_against_engine(&hh_map("vm", grid("megno_mean"), 20.0, 2));
 }
 
 #[test]
@@ -130,6 +134,46 @@ fn islands_and_the_chaotic_sea() {
     let mle = batched(&hh_map("vm", orbits("mle"), 300.0, 4), 2, Isa::detect());
     assert!(mle[0].value > 0.03, "chaotic MLE {}", mle[0].value);
     assert!(mle[1].value < 0.02, "regular MLE {}", mle[1].value);
+
+    // MEGNO's mean and FLI through the one indicator interface (`indicator = "megno_mean"`,
+    // `"fli"`), at t = 1000 (tau = 1). On the regular orbit the first vector grows linearly,
+    // |w| ~ a + b t, so Y -> 2 and its mean -> 2 from below, the start weighing like
+    // ln(t) / t: at t = 1000 the mean is within 0.4 of 2 (about 1.8 here; at t = 300 still
+    // 1.3). On the chaotic one megno_mean ~ lambda_1 t / 2 ~ 0.04 * 500 = 20: above 10 allows
+    // the finite-time exponent to be half its value, and is far from 2.
+    let megno = batched(
+        &hh_map("vm", orbits("megno_mean"), 1000.0, 4),
+        2,
+        Isa::detect(),
+    );
+    assert!(
+        megno[0].value > 10.0,
+        "chaotic megno_mean {}",
+        megno[0].value
+    );
+    assert!(
+        (megno[1].value - 2.0).abs() < 0.4,
+        "regular megno_mean {}",
+        megno[1].value
+    );
+    // FLI from t = 300 to t = 1000: on the regular orbit ln |w| = ln(a + b t) gains
+    // ln(1000 / 300) = 1.20 (within 0.5: the tangent vector's oscillation about the linear
+    // growth), on the chaotic one lambda_1 * 700 ~ 28 (above 14: half of it at least).
+    let fli_300 = batched(&hh_map("mpm", orbits("fli"), 300.0, 4), 2, Isa::detect());
+    let fli = batched(&hh_map("mpm", orbits("fli"), 1000.0, 4), 2, Isa::detect());
+    let gain = |i: usize| fli[i].value - fli_300[i].value;
+    assert!(
+        gain(0) > 14.0,
+        "chaotic FLI {} -> {}",
+        fli_300[0].value,
+        fli[0].value
+    );
+    assert!(
+        (gain(1) - (1000f64 / 300.0).ln()).abs() < 0.5,
+        "regular FLI {} -> {}",
+        fli_300[1].value,
+        fli[1].value
+    );
 
     let time = batched(
         &hh_map(
@@ -226,6 +270,8 @@ fn discrete_map_points_equal_the_engine() {
         ("vm", "gali", 1, false),
         ("mpm", "gali", 4, false),
         ("vm", "mle", 2, false),
+        ("mpm", "megno", 1, true),
+        ("vm", "fli", 2, false),
     ] {
         let spec = discrete_map(method, indicator, tau, standard);
         let want: Vec<PointResult> = (0..spec.grid_points())
@@ -290,6 +336,8 @@ fn flow_points_equal_the_engine() {
         ("lorenz", "dop853", "mpm", "mle"),
         ("magnetic", "rk4", "mpm", "gali"),
         ("magnetic", "dop853", "vm", "sali"),
+        ("lorenz", "rk4", "mpm", "fli"),
+        ("magnetic", "dop853", "vm", "megno_mean"),
     ] {
         let spec = flow_map(system, method, scheme, indicator);
         assert!(spec.has_batched_kernel(), "{system} {method}");

@@ -21,7 +21,7 @@ use crate::interrupt::interruptible;
 pub struct Map {
     /// The map file.
     path: PathBuf,
-    /// "gali", "gali-time" or "mle".
+    /// "gali", "gali-time", "sali", "mle", "fli", "megno" or "megno_mean".
     indicator: String,
     /// "vm" or "mpm".
     method: String,

@@ -163,7 +163,8 @@ pub struct MapAxis {
 pub struct MapConfig {
     pub x: MapAxis,
     pub y: MapAxis,
-    /// `"gali"`, `"gali-time"`, `"sali"` or `"mle"`.
+    /// `"gali"`, `"gali-time"`, `"sali"`, `"mle"`, or an output of a registered set indicator
+    /// that needs no flow direction: `"fli"`, `"megno"` or `"megno_mean"` (`ofli` is not one).
     pub indicator: String,
     /// Order of the GALI (for `gali` and `gali-time`).
     #[serde(default, skip_serializing_if = "Option::is_none")]

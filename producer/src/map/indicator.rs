@@ -3,6 +3,9 @@
 
 use chaoscope_schemas::config::MapConfig;
 
+use chaoscope_indicators::indicator::{
+    Output, SetIndicator, SetObservation, flowless_set_outputs, set_indicators,
+};
 use chaoscope_indicators::sali;
 
 use super::point::{PointResult, PointStatus};
@@ -20,6 +23,22 @@ pub enum Indicator {
     Sali,
     /// Finite-time maximal Lyapunov exponent at `t_final` (from the first vector of each set).
     Mle,
+    /// An output of a registered set indicator (`chaoscope_indicators::indicator`) at
+    /// `t_final`, by its name: `fli`, `megno`, `megno_mean`.
+    Set { name: &'static str },
+}
+
+/// Indicators of a map that are not set indicators' outputs.
+const OWN_INDICATORS: [&str; 4] = ["gali", "gali-time", "sali", "mle"];
+
+/// Every value `[map] indicator` takes: [`OWN_INDICATORS`] and the registered set indicators'
+/// outputs that need nothing but the stretching factors and separations (OFLI needs the flow
+/// direction at each point's reference state, which the map's kernels do not compute).
+pub fn map_indicators() -> Vec<&'static str> {
+    OWN_INDICATORS
+        .into_iter()
+        .chain(flowless_set_outputs())
+        .collect()
 }
 
 impl Indicator {
@@ -56,12 +75,15 @@ impl Indicator {
                 }
             }
             "mle" => Indicator::Mle,
-            other => {
-                return Err(SpecError::new(
-                    "map.indicator",
-                    format!("'{other}' is not gali, gali-time, sali or mle"),
-                ));
-            }
+            other => match flowless_set_outputs().into_iter().find(|n| *n == other) {
+                Some(name) => Indicator::Set { name },
+                None => {
+                    return Err(SpecError::new(
+                        "map.indicator",
+                        format!("'{other}' is not {}", map_indicators().join(", ")),
+                    ));
+                }
+            },
         };
         if map.threshold.is_some() && !matches!(ind, Indicator::GaliTime { .. }) {
             return Err(SpecError::new(
@@ -78,6 +100,7 @@ impl Indicator {
             Indicator::GaliTime { .. } => "gali-time",
             Indicator::Sali => "sali",
             Indicator::Mle => "mle",
+            Indicator::Set { name } => name,
         }
     }
 
@@ -109,6 +132,9 @@ pub struct PointAccumulator {
     scratch: Vec<f64>,
     /// Latest stopping time of any set (for `t_end`).
     last_stop: f64,
+    /// Per set, the registered set indicators and the time of its previous renormalization
+    /// (`Indicator::Set` only).
+    set_indicators: Vec<(Vec<Box<dyn SetIndicator>>, f64)>,
 }
 
 impl PointAccumulator {
@@ -120,13 +146,20 @@ impl PointAccumulator {
             sets: vec![SetAccumulator::default(); sets],
             scratch: Vec::new(),
             last_stop: 0.0,
+            set_indicators: match indicator {
+                Indicator::Set { .. } => vec![(set_indicators(), 0.0); sets],
+                _ => Vec::new(),
+            },
         }
     }
 
     /// The indicator reads the sets at every renormalization (`gali-time`, `mle`), not only at
     /// the last one.
     pub fn observes_every_window(&self) -> bool {
-        matches!(self.indicator, Indicator::GaliTime { .. } | Indicator::Mle)
+        matches!(
+            self.indicator,
+            Indicator::GaliTime { .. } | Indicator::Mle | Indicator::Set { .. }
+        )
     }
 
     pub fn is_stopped(&self, set: usize) -> bool {
@@ -181,6 +214,30 @@ impl PointAccumulator {
                 acc.log_sum += stretch[0].ln();
                 if last {
                     acc.value = Some(acc.log_sum / t);
+                }
+            }
+            Indicator::Set { name } => {
+                let (indicators, previous) = &mut self.set_indicators[set];
+                let observation = SetObservation {
+                    t,
+                    dt: t - *previous,
+                    dim: self.dim,
+                    separations,
+                    stretch,
+                    flow: None,
+                };
+                *previous = t;
+                for i in indicators.iter_mut() {
+                    i.observe(&observation);
+                }
+                if last {
+                    acc.value = indicators
+                        .iter()
+                        .flat_map(|i| i.names().iter().copied().zip(i.outputs()))
+                        .find_map(|(n, o)| match o {
+                            Output::Value(v) if n == name => Some(v),
+                            _ => None,
+                        });
                 }
             }
         }

@@ -199,3 +199,85 @@ tau = 0.1
         assert!(fli < 2f64.ln() + 1e-6, "{name}: FLI {fli}");
     }
 }
+
+/// A two-dimensional discrete map (`x1`, `x2`) from the origin, `t_final` iterations with one
+/// renormalization each (so the 0-1 test is offered every iterate), by VM and MPM.
+fn discrete_map(next: &str, params: &str, modulo: &str, x: [f64; 2], t_final: f64) -> RunConfig {
+    RunConfig::from_toml(&format!(
+        r#"
+[model]
+name = "map"
+next = {next}
+params = {params}
+{modulo}
+[orbit]
+x = [{}, {}]
+[integrator]
+h = 1
+t_final = {t_final}
+[deviations]
+k = 1
+sets = 1
+seed = 1
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-8
+tau = 1
+"#,
+        x[0], x[1]
+    ))
+    .unwrap()
+}
+
+#[test]
+fn zero_one_test_on_the_henon_and_standard_maps() {
+    // The observable is x1 at every iterate: 2000 iterates and the initial state are 2001
+    // samples, below the 2048 at which the series is thinned, n_cut = 200 lags. (Thinned by 2,
+    // a period-2 orbit would be seen as a constant after the transient, still regular but
+    // closer to the bound: K = 0.08 at 4000 iterates.) For a chaotic orbit the translation
+    // variables diffuse: D_c grows linearly up to fluctuations of relative size
+    // sqrt(n_cut / N) ~ 0.3, which the correlation with n forgives (K > 0.9, as for the
+    // logistic map in the unit test). For a periodic or quasi-periodic orbit D_c is bounded and
+    // its correlation with n is O(1) only at resonant c, which the median over c discards
+    // (K < 0.1).
+    let henon = |a: f64| {
+        discrete_map(
+            r#"["1 - a*x1^2 + x2", "b*x1"]"#,
+            &format!("{{ a = {a:?}, b = 0.3 }}"),
+            "",
+            [0.0, 0.0],
+            2000.0,
+        )
+    };
+    // The classic chaotic attractor (a = 1.4, b = 0.3).
+    let chaotic = reports(&henon(1.4), &[2000.0]);
+    // a = 0.5: the fixed point is a saddle (eigenvalues 0.26 and -1.14) and the attracting
+    // orbit has period 2; the transient from the origin is a few tens of iterates.
+    let periodic = reports(&henon(0.5), &[2000.0]);
+    // The standard map (K = 0.5) in the island of its elliptic point (pi, 0): (pi, 1) librates
+    // on an invariant circle (the separatrix half-width is 2 sqrt(K) = 1.41 > 1), quasi-periodic.
+    let island = reports(
+        &discrete_map(
+            r#"["x1 + x2 + K*sin(x1)", "x2 + K*sin(x1)"]"#,
+            "{ K = 0.5 }",
+            "modulo = [6.283185307179586, 6.283185307179586]",
+            [std::f64::consts::PI, 1.0],
+            2000.0,
+        ),
+        &[2000.0],
+    );
+    for name in ["vm", "mpm"] {
+        let k = value(chaotic[0].scheme(name).unwrap(), "zero_one_k");
+        assert!(k > 0.9, "Henon a = 1.4, {name}: K = {k}");
+        let k = value(periodic[0].scheme(name).unwrap(), "zero_one_k");
+        assert!(k.abs() < 0.1, "Henon a = 0.5, {name}: K = {k}");
+        let k = value(island[0].scheme(name).unwrap(), "zero_one_k");
+        assert!(k.abs() < 0.1, "standard map island, {name}: K = {k}");
+    }
+}

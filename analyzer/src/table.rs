@@ -1,9 +1,12 @@
 //! The human-readable table of a report (`chaoscope analyze` without `--json`), as text: one
-//! line for the run, one per scheme, then each scheme's verdict and warnings. A value that is
-//! absent (no set has reached a renormalization yet, a GALI order the scheme lacks) is `-`,
-//! never `NaN`.
+//! line for the run, one per scheme, then each scheme's verdict, its other indicators (every
+//! output of the indicator interface, by name) and its warnings. A value that is absent (no set
+//! has reached a renormalization yet, a GALI order the scheme lacks) is `-`, an indicator this
+//! run cannot give is `n/a`; never `NaN`.
 
 use std::fmt::Write as _;
+
+use chaoscope_indicators::Named;
 
 use crate::report::Report;
 
@@ -127,6 +130,23 @@ pub fn table(report: &Report) -> String {
             cell(Some(v.confidence), 0, |v| format!("{v:.2}")),
             v.criterion
         );
+        // Every registered indicator under its own name: the table needs no change for a new one.
+        let named: Vec<String> = s
+            .indicators
+            .0
+            .iter()
+            .map(|(name, value)| {
+                let v = match value {
+                    Named::OverSets(stat) => cell(Some(stat.mean), 0, |v| format!("{v:.4}")),
+                    Named::Value(v) => cell(Some(*v), 0, |v| format!("{v:.4}")),
+                    Named::Unavailable(_) => "n/a".to_string(),
+                };
+                format!("{name} {v}")
+            })
+            .collect();
+        if !named.is_empty() {
+            let _ = writeln!(out, "{}: {}", s.name, named.join(", "));
+        }
         for w in &s.warnings {
             let _ = writeln!(out, "{}: warning {}: {}", s.name, w.code, w.message);
         }

@@ -281,3 +281,27 @@ fn zero_one_test_on_the_henon_and_standard_maps() {
         assert!(k.abs() < 0.1, "standard map island, {name}: K = {k}");
     }
 }
+
+/// The table of `chaoscope analyze` shows every indicator of the interface by name, for every
+/// scheme, a value or `n/a` (here the 0-1 test of a run with fewer than 100 renormalizations),
+/// and never NaN.
+#[test]
+fn the_table_shows_every_named_indicator() {
+    let r = reports(&hh(paper::HH_CHAOTIC_Q2, 50.0), &[50.0]);
+    let table = chaoscope_analyzer::table::table(&r[0]);
+    eprintln!("{table}");
+    for scheme in ["vm", "mpm"] {
+        let line = table
+            .lines()
+            .find(|l| l.starts_with(&format!("{scheme}: fli ")))
+            .unwrap_or_else(|| panic!("no indicator line for {scheme}:\n{table}"));
+        for (name, _) in &r[0].scheme(scheme).unwrap().indicators.0 {
+            assert!(line.contains(&format!("{name} ")), "{name} missing: {line}");
+        }
+        assert!(line.contains("zero_one_k n/a"), "{line}");
+    }
+    let not_finite = table
+        .split(|c: char| c.is_whitespace() || c == ',')
+        .any(|w| matches!(w, "NaN" | "inf" | "-inf"));
+    assert!(!not_finite, "{table}");
+}

@@ -15,6 +15,20 @@ fn schemes() -> Vec<SchemeConfig> {
     ]
 }
 
+/// The `[[scheme]]` tables of [`schemes`] with renormalization time `tau`, for configs written
+/// as TOML.
+fn vm_and_mpm(tau: f64) -> String {
+    schemes()
+        .iter()
+        .map(|s| {
+            format!(
+                "[[scheme]]\nname = \"{}\"\nmethod = \"{}\"\nd0 = {:e}\ntau = {tau:?}\n",
+                s.name, s.method, s.d0
+            )
+        })
+        .collect()
+}
+
 fn hh(q2: f64, t_final: f64) -> RunConfig {
     paper::henon_heiles(q2, t_final, DeviationsConfig::random(2, 2, 1), schemes())
 }
@@ -159,7 +173,7 @@ fn harmonic_oscillator_megno_zero() {
     // V = 2 q^2 (omega = 2): every orbit is periodic with the same period (isochronous), the
     // tangent map is the flow itself, so |w| stays bounded (oscillating by a factor omega):
     // Y oscillates about 0 and its mean decays like ln t / t.
-    let cfg = RunConfig::from_toml(
+    let cfg = RunConfig::from_toml(&format!(
         r#"
 [model]
 name = "potential"
@@ -176,18 +190,9 @@ t_final = 1000.0
 k = 1
 sets = 2
 seed = 1
-[[scheme]]
-name = "vm"
-method = "vm"
-d0 = 1e-8
-tau = 0.1
-[[scheme]]
-name = "mpm"
-method = "mpm"
-d0 = 1e-8
-tau = 0.1
-"#,
-    )
+{}"#,
+        vm_and_mpm(0.1)
+    ))
     .unwrap();
     let r = reports(&cfg, &[1000.0]);
     for name in ["vm", "mpm"] {
@@ -219,18 +224,10 @@ t_final = {t_final}
 k = 1
 sets = 1
 seed = 1
-[[scheme]]
-name = "vm"
-method = "vm"
-d0 = 1e-8
-tau = 1
-[[scheme]]
-name = "mpm"
-method = "mpm"
-d0 = 1e-8
-tau = 1
-"#,
-        x[0], x[1]
+{}"#,
+        x[0],
+        x[1],
+        vm_and_mpm(1.0)
     ))
     .unwrap()
 }

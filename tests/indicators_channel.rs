@@ -100,6 +100,33 @@ fn assert_equals_report(m: &Indicators, report: &Value) {
             "{name}: no spectrum for a rescaled scheme"
         );
     }
+    // Every registered set indicator, by name, as `analyze --json` names it: the same bits where
+    // the channel has a value. OFLI needs the system's vector field, which `analyze` rebuilds
+    // from the recording's config and the recorder does not: there the channel says why.
+    let names: Vec<&str> = m.named.iter().map(|n| n.name.as_str()).collect();
+    for contract in ["fli", "ofli", "megno", "megno_mean"] {
+        assert!(names.contains(&contract), "{name}: {contract} in {names:?}");
+    }
+    for n in &m.named {
+        assert!(
+            s.get(&n.name).is_some(),
+            "{name}: {} not in the report",
+            n.name
+        );
+        let what = format!("{name} {}", n.name);
+        match (n.mean, n.std) {
+            (Some(mean), Some(std)) => {
+                assert!(n.unavailable.is_empty(), "{what}");
+                assert_same(&format!("{what}.mean"), mean, f(&s[&n.name]["mean"]));
+                assert_same(&format!("{what}.std"), std, f(&s[&n.name]["std"]));
+            }
+            _ => {
+                assert_eq!(n.name, "ofli", "{what}: only OFLI needs the flow");
+                assert!(n.unavailable.contains("vector field"), "{what}");
+                assert!(s["ofli"]["mean"].is_f64(), "{what}: analyze gives it");
+            }
+        }
+    }
 }
 
 /// The messages of one scheme's channel, checked to be one per renormalization in time order.

@@ -295,6 +295,10 @@ impl Analysis {
                     .map(|(_, x)| x.mean_abs_delta_log10)
                     .collect()
             }),
+            named: chaoscope_indicators::indicator::set_output_names()
+                .iter()
+                .map(|name| ind.named.value(name))
+                .collect(),
         }
     }
 

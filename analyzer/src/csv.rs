@@ -5,6 +5,12 @@
 //! Lyapunov spectrum; a rescale scheme's are per-vector growth rates, each an estimate of the
 //! MLE. So the same values are written again under their name: `spectrum1..k` for a QR scheme,
 //! `growth_rate1..k` for a rescale scheme (the other set of columns is empty).
+//!
+//! Then one column per output of every registered set indicator, under its report name (`fli`,
+//! `ofli`, `megno`, `megno_mean`, ...: `set_output_names()`), the mean over the sets, empty where
+//! the run cannot give it (OFLI without the system's vector field). A new indicator adds its
+//! columns here without a change to this file. The 0-1 test is one value of the whole sampled
+//! orbit, not a time series: it is in `--json` and the table.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -57,6 +63,8 @@ pub fn write_csv(
         for i in 1..=k {
             head.push(format!("growth_rate{i}"));
         }
+        let named = chaoscope_indicators::indicator::set_output_names();
+        head.extend(named.iter().map(|n| n.to_string()));
         writeln!(f, "{}", head.join(","))?;
         for (t, p) in analysis.series(si) {
             let mut row = vec![t.to_string()];
@@ -77,6 +85,14 @@ pub fn write_csv(
                 row.extend(empty());
                 row.extend(rates());
             }
+            row.extend((0..named.len()).map(|i| {
+                p.named
+                    .get(i)
+                    .copied()
+                    .flatten()
+                    .filter(|v| v.is_finite())
+                    .map_or(String::new(), |v| v.to_string())
+            }));
             writeln!(f, "{}", row.join(","))?;
         }
         f.flush()?;

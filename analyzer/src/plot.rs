@@ -1,7 +1,8 @@
 //! The analysis drawn with the paper's axes: GALI_k against t (log10 GALI; log10 t for regular
 //! orbits, linear t for chaotic ones) with the expected laws as dashed reference lines, the MLE
-//! against t on log-log axes, the energy error, MPM-VM distances, and for sweeps GALI against d0
-//! and tau.
+//! against t on log-log axes, every registered set indicator's output against t (`fli.png`,
+//! `megno_mean.png`, ...: a new indicator is drawn without a change here), the energy error,
+//! MPM-VM distances, and for sweeps GALI against d0 and tau.
 
 use std::path::{Path, PathBuf};
 
@@ -209,6 +210,54 @@ fn spectrum_chart(analysis: &Analysis, report: &Report, si: usize) -> Chart {
     }
 }
 
+/// One registered set indicator's output (FLI, MEGNO, ...: `set_output_names()[i]`) against t,
+/// one line per scheme of `schemes`, the mean over the sets; `None` where no scheme has a value
+/// (OFLI of a recording analyzed without the system's vector field). Time as the GALI plots
+/// take it: log10 t unless the orbit looks chaotic (FLI grows like ln t on regular orbits and
+/// like lambda_1 t on chaotic ones; MEGNO's mean tends to 2 or grows like lambda_1 t / 2).
+fn named_chart(
+    analysis: &Analysis,
+    report: &Report,
+    schemes: &[usize],
+    i: usize,
+    name: &str,
+    axis: TimeAxis,
+) -> Option<Chart> {
+    let first = &report.schemes[*schemes.first()?];
+    let log_t = match axis {
+        TimeAxis::Auto => !looks_chaotic(first.mle, first.t),
+        TimeAxis::Log => true,
+        TimeAxis::Linear => false,
+    };
+    let x = |t: f64| if log_t { lg(t) } else { t };
+    let lines: Vec<Line> = schemes
+        .iter()
+        .enumerate()
+        .map(|(c, &si)| Line {
+            label: report.schemes[si].name.clone(),
+            points: analysis
+                .series(si)
+                .iter()
+                .filter(|(t, _)| *t > 0.0)
+                .filter_map(|(t, p)| {
+                    let v = p.named.get(i).copied().flatten()?;
+                    v.is_finite().then_some((x(*t), v))
+                })
+                .collect(),
+            stroke: Stroke::Solid,
+            color: c,
+        })
+        .filter(|l| !l.points.is_empty())
+        .collect();
+    (!lines.is_empty()).then(|| Chart {
+        title: format!("{}: {name} (mean over sets)", analysis.run().header.model),
+        x_label: if log_t { "log10 t" } else { "t" }.into(),
+        y_label: name.into(),
+        lines,
+        ..Default::default()
+    })
+}
+
 fn energy_chart(analysis: &Analysis) -> Chart {
     let pts = analysis
         .energy_series()
@@ -358,10 +407,16 @@ pub fn charts(analysis: &Analysis, report: &Report, axis: TimeAxis) -> Vec<(Stri
             out.push((format!("vs_vm_{name}"), c));
         }
     }
-    out.push((
-        "mle".into(),
-        mle_chart(analysis, report, &time_schemes[..time_schemes.len().min(8)]),
-    ));
+    let shown = &time_schemes[..time_schemes.len().min(8)];
+    out.push(("mle".into(), mle_chart(analysis, report, shown)));
+    for (i, name) in chaoscope_indicators::indicator::set_output_names()
+        .iter()
+        .enumerate()
+    {
+        if let Some(c) = named_chart(analysis, report, shown, i, name, axis) {
+            out.push((name.to_string(), c));
+        }
+    }
     if analysis.run().kind == chaoscope_schemas::run::SystemKind::Hamiltonian {
         out.push(("energy_error".into(), energy_chart(analysis)));
     }

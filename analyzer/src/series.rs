@@ -19,6 +19,9 @@ pub struct SchemePoint {
     pub lyapunov: Vec<f64>,
     /// `[j - 2]`: mean over sets of |log10 GALI_j - log10 GALI_j(VM)|, for MPM schemes.
     pub vs_vm_abs_delta: Option<Vec<f64>>,
+    /// Every registered set indicator's output (`set_output_names()` order: FLI, OFLI, MEGNO,
+    /// ...), mean over the sets; `None` where the run cannot give it (OFLI without the flow).
+    pub named: Vec<Option<f64>>,
 }
 
 /// Decides which samples a series keeps and stores them.

@@ -1057,6 +1057,7 @@ mod tests {
                         sali_log10_mean: None,
                         lyapunov: vec![mle(t)],
                         vs_vm_abs_delta: None,
+                        named: Vec::new(),
                     },
                 )
             })
@@ -1165,6 +1166,7 @@ mod tests {
             sali_log10_mean: None,
             lyapunov: vec![0.0],
             vs_vm_abs_delta: None,
+            named: Vec::new(),
         };
         let w = warnings(
             &settings(Method::Vm, 1e-8, 1.0, 2, 4),
@@ -1339,6 +1341,7 @@ mod tests {
             sali_log10_mean: None,
             lyapunov: vec![0.906, 0.0, -14.573 + sum_off],
             vs_vm_abs_delta: None,
+            named: Vec::new(),
         };
         let run = RunValues {
             energy_error_max: 0.0,

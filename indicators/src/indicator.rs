@@ -89,6 +89,18 @@ pub fn orbit_indicators() -> Vec<Box<dyn OrbitIndicator>> {
     vec![Box::new(crate::zero_one::ZeroOneTest::default())]
 }
 
+/// The names of every registered set indicator's outputs, in report order (the columns of a
+/// time series of them: CSV, plots, the recording's indicators channel).
+pub fn set_output_names() -> &'static [&'static str] {
+    static NAMES: std::sync::OnceLock<Vec<&'static str>> = std::sync::OnceLock::new();
+    NAMES.get_or_init(|| {
+        set_indicators()
+            .iter()
+            .flat_map(|i| i.names().iter().copied())
+            .collect()
+    })
+}
+
 /// The outputs of the registered set indicators that a run without the flow direction can give
 /// (a phase-space map's points carry no vector field), in report order: those available after
 /// one observation with `flow: None`. The map indicators by output name.
@@ -123,5 +135,15 @@ mod tests {
     fn a_map_shows_every_output_but_ofli() {
         // OFLI needs the flow direction; FLI and MEGNO only the stretching factors.
         assert_eq!(flowless_set_outputs(), ["fli", "megno", "megno_mean"]);
+    }
+
+    #[test]
+    fn every_set_output_is_named_once() {
+        let names = set_output_names();
+        assert_eq!(names, ["fli", "ofli", "megno", "megno_mean"]);
+        let mut unique = names.to_vec();
+        unique.sort_unstable();
+        unique.dedup();
+        assert_eq!(unique.len(), names.len());
     }
 }

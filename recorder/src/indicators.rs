@@ -7,9 +7,11 @@
 //! No bus and no file here: the file layout ([`crate::file`]) asks for the messages when a sample
 //! is complete, and `chaoscope monitor --foxglove` streams them live.
 
-use chaoscope_indicators::{Layout, LogStat, SchemeIndicators, Tracker};
+use chaoscope_indicators::{Layout, LogStat, Named, SchemeIndicators, Tracker};
 use chaoscope_schemas::proto::DataMessage;
-use chaoscope_schemas::proto::{Indicators, MeanOverSets, RunHeader, SeparationSet};
+use chaoscope_schemas::proto::{
+    Indicators, MeanOverSets, NamedIndicator, RunHeader, SeparationSet,
+};
 
 /// The indicator state of one run and the schemes whose indicators are due.
 #[derive(Debug, Clone)]
@@ -121,5 +123,23 @@ pub fn message(scheme: u32, seq: u64, ind: &SchemeIndicators, spectrum: bool) ->
         } else {
             Vec::new()
         },
+        named: ind
+            .named
+            .0
+            .iter()
+            .map(|(name, value)| {
+                let (mean, std, unavailable) = match value {
+                    Named::OverSets(s) => (Some(s.mean), Some(s.std), String::new()),
+                    Named::Value(v) => (Some(*v), None, String::new()),
+                    Named::Unavailable(reason) => (None, None, reason.clone()),
+                };
+                NamedIndicator {
+                    name: name.to_string(),
+                    mean,
+                    std,
+                    unavailable,
+                }
+            })
+            .collect(),
     }
 }

@@ -114,6 +114,18 @@ function compareIndicators(last, report) {
       if (m.spectrum.length !== s.lyapunov.length) fail(`${s.name}: spectrum length`);
       m.spectrum.forEach((l, i) => same(`${s.name} lambda_${i + 1}`, l, s.lyapunov[i]));
     }
+    // Every registered set indicator by its report name (FLI, MEGNO, ...): the same doubles.
+    // One the recorder cannot give (OFLI needs the system's vector field) says why instead.
+    if (!m.named || !m.named.some((n) => n.name === "megno_mean")) fail(`${s.name}: no named indicators`);
+    for (const n of m.named) {
+      if (!(n.name in s)) fail(`${s.name}: ${n.name} not in the report`);
+      if (n.unavailable) {
+        if (n.mean !== undefined && n.mean !== null) fail(`${s.name} ${n.name}: a value and a reason`);
+        continue;
+      }
+      same(`${s.name} ${n.name}.mean`, n.mean, s[n.name].mean);
+      same(`${s.name} ${n.name}.std`, n.std, s[n.name].std);
+    }
   }
 }
 

@@ -302,3 +302,72 @@ fn the_table_shows_every_named_indicator() {
         .any(|w| matches!(w, "NaN" | "inf" | "-inf"));
     assert!(!not_finite, "{table}");
 }
+
+/// The CSV and the plots of `analyze` carry every set indicator of the interface over time,
+/// under its report name, from the same series the report reads: on the paper's chaotic orbit
+/// FLI is the accumulated log stretch of the first vector, so at the last row FLI / t is the
+/// finite-time MLE there (within 10 %: the FLI is the largest value so far, the MLE the latest
+/// one, which differ by the oscillation of the stretch, a few percent at t = 500); MEGNO's mean
+/// is above 2 (a chaotic orbit's grows like lambda_1 t / 2). Every name has its chart.
+#[test]
+fn the_csv_and_the_plots_carry_every_named_indicator_over_time() {
+    let cfg = hh(paper::HH_CHAOTIC_Q2, 500.0);
+    let options = AnalysisOptions {
+        at: vec![500.0],
+        ..Default::default()
+    };
+    let a = analyze_config(&cfg, &options, |_| {}).unwrap();
+    let report = a.report_at(500.0).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    chaoscope_analyzer::csv::write_csv(&a, dir.path(), &[]).unwrap();
+    let names = chaoscope_producer::indicators::indicator::set_output_names();
+    for name in ["vm", "mpm"] {
+        let text = std::fs::read_to_string(dir.path().join(format!("{name}.csv"))).unwrap();
+        assert!(
+            !text.contains("NaN") && !text.contains("inf"),
+            "{name}.csv has a non-finite value"
+        );
+        let mut lines = text.lines();
+        let head: Vec<&str> = lines.next().unwrap().split(',').collect();
+        let column = |n: &str| {
+            head.iter()
+                .position(|h| *h == n)
+                .unwrap_or_else(|| panic!("{name}.csv: no column {n} in {head:?}"))
+        };
+        for n in names {
+            column(n);
+        }
+        let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+        assert!(rows.len() > 100, "{name}.csv: {} rows", rows.len());
+        let last = rows.last().unwrap();
+        let at = |n: &str| last[column(n)].parse::<f64>().unwrap();
+        let (t, fli, megno_mean) = (at("t"), at("fli"), at("megno_mean"));
+        let mle = report.scheme(name).unwrap().mle;
+        assert!(
+            (fli / t - mle).abs() < 0.1 * mle,
+            "{name}: FLI {fli} at t = {t}, MLE {mle}"
+        );
+        assert!(
+            megno_mean > 2.5,
+            "{name}: megno_mean {megno_mean} at t = {t}"
+        );
+        // OFLI is in the CSV too (the in-process run gives the vector field): FLI plus the log
+        // of the deviation's part across the flow, ln(|w_perp| / |w|) <= 0, which on a chaotic
+        // orbit is O(1) while FLI is ~ 50 here.
+        let ofli = at("ofli");
+        assert!(
+            ofli <= fli + 1e-9 && ofli > 0.8 * fli,
+            "{name}: OFLI {ofli}, FLI {fli}"
+        );
+    }
+    let charts =
+        chaoscope_analyzer::plot::charts(&a, &report, chaoscope_analyzer::plot::TimeAxis::Auto);
+    for n in names {
+        let (_, chart) = charts
+            .iter()
+            .find(|(stem, _)| stem == n)
+            .unwrap_or_else(|| panic!("no chart {n}"));
+        assert_eq!(chart.lines.len(), 2, "{n}: one line per scheme");
+        assert!(chart.lines.iter().all(|l| l.points.len() > 100), "{n}");
+    }
+}

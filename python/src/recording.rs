@@ -330,7 +330,8 @@ impl Recording {
     /// distances `d0` (a number or a list each) on the bit-identical reference orbit, like
     /// `chaoscope replay`, into `out` (default: `<stem>-replay.mcap` beside this file). The
     /// original schemes are re-run too unless `without_original=True`; the new schemes are
-    /// named `<scheme>-tau<T>` / `-d0<D>`. Raises `ChaoscopeError` if the replayed orbit differs
+    /// named `<scheme>-tau<T>` / `-d0<D>` (VM schemes take no other `d0`: it only scales their
+    /// linearly evolving tangent vectors). Raises `ChaoscopeError` if the replayed orbit differs
     /// from the recorded one in any bit.
     #[pyo3(signature = (*, tau = None, d0 = None, out = None, without_original = false, force = false))]
     fn replay(

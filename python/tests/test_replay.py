@@ -13,14 +13,18 @@ def test_replay_keeps_the_orbit_and_adds_schemes(tmp_path, cli):
     assert rep.path == tmp_path / "hh-replay.mcap"
     assert rep.finalized_by == "replay" and rep.status == "completed"
     assert rep.schemes[:3] == ["vm", "mpm", "qr"]
-    assert "mpm-tau0.5-d01e-7" in rep.schemes and "vm-tau2-d01e-7" in rep.schemes
+    # MPM schemes are copied per tau and d0; VM ones per tau only (d0 only scales their
+    # linearly evolving tangent vectors).
+    assert "mpm-tau0.5-d01e-7" in rep.schemes and "vm-tau2" in rep.schemes
+    assert not [s for s in rep.schemes if s.startswith(("vm-", "qr-")) and "-d0" in s]
     # The original schemes are re-run: same bits.
     for scheme in ("vm", "mpm", "qr"):
         a, b = rec.indicators(scheme), rep.indicators(scheme)
         assert a.gali.tobytes() == b.gali.tobytes()
         assert a.exponents_sets.tobytes() == b.exponents_sets.tobytes()
-    fast = rep.indicators("vm-tau0.5-d01e-7")
-    assert fast.tau == 0.5 and fast.d0 == 1e-7
+    fast = rep.indicators("vm-tau0.5")
+    assert fast.tau == 0.5 and fast.d0 == 1e-8
+    assert rep.indicators("mpm-tau0.5-d01e-7").d0 == 1e-7
     assert np.allclose(np.diff(fast.t), 0.5, rtol=0, atol=1e-9)
     # The command's replay of the same file gives the same numbers.
     done = cli("replay", tmp_path / "hh.mcap", "--tau", 0.5, "--tau", 2.0, "--d0", 1e-7,

@@ -30,10 +30,13 @@ use chaoscope_producer::spec::{RunSpec, SpecError};
 use chaoscope_schemas::config::{RunConfig, SchemeConfig};
 use chaoscope_schemas::run::Sample;
 
+use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
 use chaoscope_analyzer::recording::{ReadError, RecordingReader};
+use chaoscope_analyzer::report::{ByOrder, Report};
+use chaoscope_analyzer::run_info::RunInfo;
 use chaoscope_analyzer::write::{SampleWriter, WriteError};
 use chaoscope_os::{Leftover, OutputOptions};
-use chaoscope_schemas::proto::end_of_run;
+use chaoscope_schemas::proto::{RunHeader, end_of_run};
 
 pub mod flow;
 pub mod inprocess;
@@ -107,6 +110,71 @@ pub struct ReplayOutcome {
     /// Stopped by a signal (or the caller) before the end: the file holds the samples up to
     /// then and says it was interrupted.
     pub interrupted: bool,
+    /// Each new scheme against the original it was made from, at the end of the replay.
+    pub comparison: Vec<SchemeComparison>,
+}
+
+/// One replayed scheme against the recorded scheme it was made from (the same sets of initial
+/// directions on the same orbit), at the latest time both reached, means over the sets.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SchemeComparison {
+    pub scheme: String,
+    /// The original scheme's name.
+    pub of: String,
+    pub tau: f64,
+    pub d0: f64,
+    /// Time of the values.
+    pub t: f64,
+    pub mle: f64,
+    /// `mle - mle(of)`.
+    pub mle_delta: f64,
+    /// Per GALI order: `log10 GALI_j` (geometric mean over the sets), and its difference from
+    /// the original's.
+    pub gali_log10_mean: ByOrder<f64>,
+    pub gali_delta_log10: ByOrder<f64>,
+}
+
+/// Each scheme of `replay` from index `first_new` on against its origin's entry in `original`
+/// (a report of the recording, or the replay itself where it re-ran the originals).
+fn comparison(
+    replay: &Report,
+    original: &Report,
+    origins: &[(SchemeConfig, usize)],
+    first_new: usize,
+) -> Vec<SchemeComparison> {
+    origins
+        .iter()
+        .zip(&replay.schemes)
+        .skip(first_new)
+        .filter_map(|((_, origin), new)| {
+            let old = original.schemes.get(*origin)?;
+            let gali = |r: &chaoscope_analyzer::report::SchemeReport| {
+                r.gali
+                    .0
+                    .iter()
+                    .map(|(j, g)| (*j, g.log10_mean))
+                    .collect::<Vec<_>>()
+            };
+            let (g_new, g_old) = (gali(new), gali(old));
+            Some(SchemeComparison {
+                scheme: new.name.clone(),
+                of: old.name.clone(),
+                tau: new.tau,
+                d0: new.d0,
+                t: new.t,
+                mle: new.mle,
+                mle_delta: new.mle - old.mle,
+                gali_delta_log10: ByOrder(
+                    g_new
+                        .iter()
+                        .zip(&g_old)
+                        .map(|((j, a), (_, b))| (*j, a - b))
+                        .collect(),
+                ),
+                gali_log10_mean: ByOrder(g_new),
+            })
+        })
+        .collect()
 }
 
 impl ReplayOutcome {
@@ -125,22 +193,36 @@ fn short(v: f64) -> String {
 
 /// The replay's schemes: the originals (unless left out), then every original scheme with every
 /// requested `tau` x `d0` (the unchanged setting when one list is empty), skipping duplicates.
+/// A VM scheme takes the `tau`s but not the `d0`s: its tangent vectors evolve linearly, so `d0`
+/// only scales them (and changes nothing but rounding), and a copy per `d0` would be noise.
 pub fn replay_schemes(original: &[SchemeConfig], options: &ReplayOptions) -> Vec<SchemeConfig> {
-    let mut out: Vec<SchemeConfig> = if options.without_original {
+    replay_schemes_with_origin(original, options)
+        .into_iter()
+        .map(|(s, _)| s)
+        .collect()
+}
+
+/// [`replay_schemes`], each with the index of the original scheme it was made from.
+fn replay_schemes_with_origin(
+    original: &[SchemeConfig],
+    options: &ReplayOptions,
+) -> Vec<(SchemeConfig, usize)> {
+    let mut out: Vec<(SchemeConfig, usize)> = if options.without_original {
         Vec::new()
     } else {
-        original.to_vec()
+        original.iter().cloned().zip(0..).collect()
     };
-    for s in original {
+    for (origin, s) in original.iter().enumerate() {
         let taus = if options.taus.is_empty() {
             vec![s.tau]
         } else {
             options.taus.clone()
         };
-        let d0s = if options.d0s.is_empty() {
-            vec![s.d0]
-        } else {
+        let new_d0 = !options.d0s.is_empty() && s.method != "vm";
+        let d0s = if new_d0 {
             options.d0s.clone()
+        } else {
+            vec![s.d0]
         };
         for &tau in &taus {
             for &d0 in &d0s {
@@ -151,18 +233,21 @@ pub fn replay_schemes(original: &[SchemeConfig], options: &ReplayOptions) -> Vec
                 if !options.taus.is_empty() {
                     name += &format!("-tau{}", short(tau));
                 }
-                if !options.d0s.is_empty() {
+                if new_d0 {
                     name += &format!("-d0{}", short(d0));
                 }
-                if out.iter().any(|o| o.name == name) {
+                if out.iter().any(|(o, _)| o.name == name) {
                     continue;
                 }
-                out.push(SchemeConfig {
-                    name,
-                    tau,
-                    d0,
-                    ..s.clone()
-                });
+                out.push((
+                    SchemeConfig {
+                        name,
+                        tau,
+                        d0,
+                        ..s.clone()
+                    },
+                    origin,
+                ));
             }
         }
     }
@@ -190,7 +275,8 @@ pub fn replay(
         .map_err(|e| ReplayError::Config(e.to_string()))?;
     let original_schemes = config.schemes.len();
     let mut new_config = config.clone();
-    new_config.schemes = replay_schemes(&config.schemes, options);
+    let origins = replay_schemes_with_origin(&config.schemes, options);
+    new_config.schemes = origins.iter().map(|(s, _)| s.clone()).collect();
     let name = format!("{}-replay", header.run_name);
     new_config.run.name = Some(name.clone());
     let spec = RunSpec::from_config(&new_config)?;
@@ -221,6 +307,20 @@ pub fn replay(
         schemes: new_config.schemes.iter().map(|s| s.name.clone()).collect(),
         ..Default::default()
     };
+    // The comparison's values, by the analysis `analyze` runs: of the replay, and of the
+    // recording where the replay leaves its schemes out.
+    let analysis_of = |header: RunHeader| {
+        RunInfo::from_header(header).map(|run| Analysis::new(run, &AnalysisOptions::default()))
+    };
+    let mut replay_analysis = analysis_of(new_header.clone()).ok();
+    if let (Some(a), Some(field)) = (&mut replay_analysis, flow::flow_field(spec.system())) {
+        a.set_flow_field(field);
+    }
+    let mut recorded_analysis = if options.without_original {
+        analysis_of(header.clone()).ok()
+    } else {
+        None
+    };
     let mut engine = Engine::new(spec);
     let mut replayed = || -> Result<(), ReplayError> {
         let mut pending: Option<Sample> = recorded.next_sample()?;
@@ -235,12 +335,18 @@ pub fn replay(
                 return Ok(());
             }
             writer.write(&sample).map_err(werr)?;
+            if let Some(a) = &mut replay_analysis {
+                a.feed(&sample);
+            }
             outcome.replay_samples += 1;
             while let Some(r) = pending.as_ref().filter(|r| r.step <= sample.step) {
                 if r.step < sample.step {
                     outcome.reference_states_not_sampled += 1;
                 } else {
                     compare(r, &sample, original_schemes, options, &mut outcome);
+                }
+                if let (Some(a), Some(r)) = (&mut recorded_analysis, &pending) {
+                    a.feed(r);
                 }
                 pending = recorded.next_sample()?;
             }
@@ -253,6 +359,14 @@ pub fn replay(
         Ok(())
     };
     replayed()?;
+    if let Some(replay_report) = replay_analysis.as_ref().map(Analysis::report) {
+        let original_report = recorded_analysis.as_ref().map(Analysis::report);
+        let (original, first_new) = match &original_report {
+            Some(r) => (r, 0),
+            None => (&replay_report, original_schemes),
+        };
+        outcome.comparison = comparison(&replay_report, original, &origins, first_new);
+    }
     if outcome.interrupted {
         writer.finish_with(
             "signal",

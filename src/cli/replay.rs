@@ -78,6 +78,29 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 outcome.separation_sets_compared
             )?;
         }
+        if !outcome.comparison.is_empty() {
+            outln!(
+                "against the original schemes at the end (log10 GALI: geometric mean over the sets):"
+            )?;
+            for c in &outcome.comparison {
+                let gali: Vec<String> = c
+                    .gali_delta_log10
+                    .0
+                    .iter()
+                    .map(|(j, d)| format!("GALI_{j} {d:+.3}"))
+                    .collect();
+                outln!(
+                    "  {} vs {}: t = {}, MLE {:.6} ({:+.2e}){}{}",
+                    c.scheme,
+                    c.of,
+                    c.t,
+                    c.mle,
+                    c.mle_delta,
+                    if gali.is_empty() { "" } else { ", " },
+                    gali.join(", ")
+                )?;
+            }
+        }
     }
     if outcome.first_difference_step.is_some() || !outcome.interrupted && !outcome.identical() {
         chaoscope_os::errln!(

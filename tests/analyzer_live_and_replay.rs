@@ -275,3 +275,85 @@ fn replay_with_other_tau_is_bit_identical_and_follows_the_paper_at_t_200() {
         );
     }
 }
+
+/// Every leaf of two JSON values that differs, as `path`.
+fn differing_paths(a: &Value, b: &Value, path: &str, out: &mut Vec<String>) {
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => {
+            for key in x.keys().chain(y.keys().filter(|k| !x.contains_key(*k))) {
+                let (u, v) = (x.get(key), y.get(key));
+                match (u, v) {
+                    (Some(u), Some(v)) => differing_paths(u, v, &format!("{path}.{key}"), out),
+                    _ => out.push(format!("{path}.{key}")),
+                }
+            }
+        }
+        (Value::Array(x), Value::Array(y)) if x.len() == y.len() => {
+            for (i, (u, v)) in x.iter().zip(y).enumerate() {
+                differing_paths(u, v, &format!("{path}[{i}]"), out);
+            }
+        }
+        _ if a != b => out.push(path.to_string()),
+        _ => {}
+    }
+}
+
+/// `analyze --from T` (issue #27 must-show 4): the finite-time exponents average the stretching
+/// from T on, and nothing else in the report changes (GALI, SALI, FLI, MEGNO, the 0-1 test, the
+/// verdict). The exponents from T follow from the whole run's at T and at the end:
+/// `(t l(t) - T l(T)) / (t - T)`, the same sums of logarithms, to rounding.
+#[test]
+fn analyze_from_t_changes_the_averaged_exponents_and_nothing_else() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = unique_run("from");
+    let config = dir.path().join("run.toml");
+    std::fs::write(&config, hh_run(&run, 200.0, 3, 1e-8)).unwrap();
+    let rec = dir.path().join("rec.mcap");
+    let status = chaoscope(&[
+        "run",
+        config.to_str().unwrap(),
+        "--out",
+        rec.to_str().unwrap(),
+    ])
+    .stdout(Stdio::null())
+    .status()
+    .unwrap();
+    assert!(status.success());
+    let file = rec.to_str().unwrap();
+    let whole = json_stdout(&["analyze", file, "--json"]);
+    let at_50 = json_stdout(&["analyze", file, "--json", "--at", "50"]);
+    let from = json_stdout(&["analyze", file, "--json", "--from", "50"]);
+    assert_eq!(from["run"]["exponents_from"], 50.0);
+    let mut changed = Vec::new();
+    differing_paths(&whole, &from, "", &mut changed);
+    let exponent_field = |p: &str| {
+        p == ".run.exponents_from"
+            || p.ends_with(".mle")
+            || p.contains(".lyapunov[")
+            || p.contains(".lyapunov_std[")
+            || p.ends_with(".lyapunov_sum")
+            || p.ends_with(".vs_vm.mle_delta")
+    };
+    let others: Vec<&String> = changed.iter().filter(|p| !exponent_field(p)).collect();
+    assert!(others.is_empty(), "--from changed {others:?}");
+    assert!(
+        changed.iter().any(|p| p.contains("schemes[2].lyapunov[3]")),
+        "the QR spectrum did not change: {changed:?}"
+    );
+    for (si, name) in ["vm", "mpm", "qr"].iter().enumerate() {
+        let l = |r: &Value, i: usize| r["schemes"][si]["lyapunov"][i].as_f64().unwrap();
+        let n = whole["schemes"][si]["lyapunov"].as_array().unwrap().len();
+        for i in 0..n {
+            let want = (200.0 * l(&whole, i) - 50.0 * l(&at_50, i)) / 150.0;
+            let got = l(&from, i);
+            // Sums of ~200 logarithms of size ~0.1 each, divided and multiplied back: rounding
+            // of order 1e-15 relative to the sums, so 1e-12 absolute is generous and still far
+            // below any transient effect (the exponents move by ~1e-3 here).
+            assert!(
+                (got - want).abs() < 1e-12,
+                "{name} l_{}: from 50 {got}, from the whole run's {want}",
+                i + 1
+            );
+        }
+    }
+}

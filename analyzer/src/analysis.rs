@@ -38,6 +38,32 @@ pub struct AnalysisOptions {
     /// Python: `chaoscope_replay::flow::flow_field_of_run`) says how to rebuild it from the
     /// run's header. `None`: those indicators report themselves unavailable.
     pub flow_field: Option<FlowSource>,
+    /// `--from T`: the finite-time exponents average the stretching from time T on (a
+    /// transient before it is discarded); nothing else changes, and the verdict judges the
+    /// whole run. Checked by [`exponents_from_step`].
+    pub exponents_from: Option<f64>,
+}
+
+/// The step from which the exponents are averaged for `--from T`: `T / h` rounded up, where
+/// a `T` on the step grid to rounding (100 / 0.01 = 10000.000000000002) is that step. An error
+/// naming the value for a `T` that is negative, not finite, or not before the run's end.
+pub fn exponents_from_step(from: f64, h: f64, t_final: f64) -> Result<u64, String> {
+    if !from.is_finite() || from < 0.0 {
+        return Err(format!("--from {from}: a time from 0 on"));
+    }
+    if from >= t_final {
+        return Err(format!(
+            "--from {from}: not before the run's end, t = {t_final}: no exponent would be left"
+        ));
+    }
+    let steps = from / h;
+    let near = steps.round();
+    let step = if (steps - near).abs() <= 1e-9 * near.max(1.0) {
+        near
+    } else {
+        steps.ceil()
+    };
+    Ok(step as u64)
 }
 
 /// Builds the vector field of a run from its header, if it can.
@@ -50,6 +76,7 @@ impl Default for AnalysisOptions {
             per_decade: 40,
             at: Vec::new(),
             flow_field: None,
+            exponents_from: None,
         }
     }
 }
@@ -85,6 +112,8 @@ pub struct Analysis {
     extent_max: f64,
     /// Time of the latest state seen.
     extent_t: Option<f64>,
+    /// The start of the exponents' average (`--from T`, on the step grid), if set.
+    exponents_from: Option<f64>,
     /// The latest mean divergence of the reference orbit (cumulative from t = 0 in the
     /// producer, so a late reader still gets the whole orbit's).
     mean_divergence: f64,
@@ -141,7 +170,16 @@ impl Analysis {
         if let Some(field) = options.flow_field.and_then(|source| source(&run)) {
             tracker.set_flow_field(field);
         }
+        // The caller checked T against the run's end (`exponents_from_step`, one line naming
+        // the value); here only a usable T takes effect.
+        let exponents_from = options
+            .exponents_from
+            .and_then(|t| exponents_from_step(t, run.h, f64::INFINITY).ok());
+        if let Some(step) = exponents_from {
+            tracker.set_exponents_from(step);
+        }
         Self {
+            exponents_from: exponents_from.map(|step| run.time_of(step)),
             tracker,
             schemes,
             energy_error_max: 0.0,
@@ -287,7 +325,17 @@ impl Analysis {
             gali_log10_mean: ind.gali.iter().map(|g| g.log10_mean).collect(),
             gali_log10_of_mean: ind.gali.iter().map(|g| g.mean.log10()).collect(),
             sali_log10_mean: ind.sali.map(|s| s.log10_mean),
-            lyapunov: ind.exponents.iter().map(|e| e.mean).collect(),
+            lyapunov: ind
+                .exponents_whole
+                .as_ref()
+                .unwrap_or(&ind.exponents)
+                .iter()
+                .map(|e| e.mean)
+                .collect(),
+            lyapunov_from: ind
+                .exponents_whole
+                .is_some()
+                .then(|| ind.exponents.iter().map(|e| e.mean).collect()),
             vs_vm_abs_delta: self.vs_vm_of(si).map(|d| {
                 d.gali
                     .0
@@ -475,6 +523,7 @@ impl Analysis {
                 mean_divergence: (!hamiltonian).then_some(self.mean_divergence),
                 complete,
                 end: None,
+                exponents_from: self.exponents_from,
             },
             schemes: scheme_reports,
         }

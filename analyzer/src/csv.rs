@@ -4,7 +4,8 @@
 //! of each vector's `(1/t) sum ln stretch`, whatever the scheme. Only a QR scheme's are the
 //! Lyapunov spectrum; a rescale scheme's are per-vector growth rates, each an estimate of the
 //! MLE. So the same values are written again under their name: `spectrum1..k` for a QR scheme,
-//! `growth_rate1..k` for a rescale scheme (the other set of columns is empty).
+//! `growth_rate1..k` for a rescale scheme (the other set of columns is empty). With a discarded
+//! transient (`analyze --from T`) all of these are averaged from T on.
 //!
 //! Then one column per output of every registered set indicator, under its report name (`fli`,
 //! `ofli`, `megno`, `megno_mean`, ...: `set_output_names()`), the mean over the sets, empty where
@@ -71,12 +72,13 @@ pub fn write_csv(
             row.extend(p.gali_log10_mean.iter().map(f64::to_string));
             row.extend(p.gali_log10_of_mean.iter().map(f64::to_string));
             row.push(p.sali_log10_mean.map_or(String::new(), |v| v.to_string()));
-            row.extend(p.lyapunov.iter().map(f64::to_string));
+            row.extend(p.exponents().iter().map(f64::to_string));
             match &p.vs_vm_abs_delta {
                 Some(d) => row.extend(d.iter().map(f64::to_string)),
                 None => row.extend((2..=k).map(|_| String::new())),
             }
-            let rates = || (0..k).map(|i| p.lyapunov.get(i).map_or(String::new(), f64::to_string));
+            let rates =
+                || (0..k).map(|i| p.exponents().get(i).map_or(String::new(), f64::to_string));
             let empty = || (0..k).map(|_| String::new());
             if qr {
                 row.extend(rates());

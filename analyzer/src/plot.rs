@@ -157,8 +157,8 @@ fn mle_chart(analysis: &Analysis, report: &Report, schemes: &[usize]) -> Chart {
         let pts = analysis
             .series(si)
             .into_iter()
-            .filter(|(t, p)| *t > 0.0 && p.lyapunov.first().is_some_and(|l| *l > 0.0))
-            .map(|(t, p)| (lg(t), lg(p.lyapunov[0])))
+            .filter(|(t, p)| *t > 0.0 && p.exponents().first().is_some_and(|l| *l > 0.0))
+            .map(|(t, p)| (lg(t), lg(p.exponents()[0])))
             .collect();
         lines.push(Line {
             label: report.schemes[si].name.clone(),
@@ -195,7 +195,7 @@ fn spectrum_chart(analysis: &Analysis, report: &Report, si: usize) -> Chart {
             points: series
                 .iter()
                 .filter(|(t, _)| *t > 0.0)
-                .filter_map(|(t, p)| Some((lg(*t), *p.lyapunov.get(i)?)))
+                .filter_map(|(t, p)| Some((lg(*t), *p.exponents().get(i)?)))
                 .collect(),
             stroke: Stroke::Solid,
             color: i,

@@ -53,6 +53,9 @@ pub enum ReadError {
     // Not named `source`: the message already holds it (an error chain would print it twice).
     #[error("{path}: {header}")]
     Header { path: PathBuf, header: HeaderError },
+    /// An analysis option that does not fit this run (`--from T` past its end).
+    #[error("{path}: {why}")]
+    Option { path: PathBuf, why: String },
 }
 
 /// What a recording holds besides its samples.
@@ -371,6 +374,15 @@ pub fn analyze_file(
     options: &AnalysisOptions,
 ) -> Result<(Analysis, RecordingInfo), ReadError> {
     let mut reader = RecordingReader::open(path)?;
+    if let Some(from) = options.exponents_from {
+        let run = reader.run();
+        crate::analysis::exponents_from_step(from, run.h, run.header.t_final).map_err(|why| {
+            ReadError::Option {
+                path: path.to_path_buf(),
+                why,
+            }
+        })?;
+    }
     let mut analysis = Analysis::new(reader.run().clone(), options);
     while let Some(sample) = reader.next_sample()? {
         analysis.feed(&sample);

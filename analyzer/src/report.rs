@@ -72,6 +72,12 @@ pub struct RunReport {
     /// a file; absent live and for files cut before the end).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub end: Option<EndReport>,
+    /// `--from T`: the finite-time exponents (`mle`, `lyapunov`, `lyapunov_sum`, the MPM-VM
+    /// `mle_delta`) average the stretching from this time on (T on the step grid); absent
+    /// when they cover the whole run. Nothing else depends on it: the verdict judges the
+    /// whole run.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub exponents_from: Option<f64>,
 }
 
 /// The producer's last message: `status` is `"completed"`, `"interrupted"` or `"failed"`;

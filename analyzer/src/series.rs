@@ -15,13 +15,25 @@ pub struct SchemePoint {
     /// `[j - 2]`: log10 of the arithmetic mean of GALI_j.
     pub gali_log10_of_mean: Vec<f64>,
     pub sali_log10_mean: Option<f64>,
-    /// Mean over sets of the finite-time exponents (one per vector).
+    /// Mean over sets of the finite-time exponents (one per vector), over the whole run: what
+    /// the verdict judges.
     pub lyapunov: Vec<f64>,
+    /// The same averaged from the end of a discarded transient (`analyze --from T`), where one
+    /// is set: what the CSV and the plots show. See [`SchemePoint::exponents`].
+    pub lyapunov_from: Option<Vec<f64>>,
     /// `[j - 2]`: mean over sets of |log10 GALI_j - log10 GALI_j(VM)|, for MPM schemes.
     pub vs_vm_abs_delta: Option<Vec<f64>>,
     /// Every registered set indicator's output (`set_output_names()` order: FLI, OFLI, MEGNO,
     /// ...), mean over the sets; `None` where the run cannot give it (OFLI without the flow).
     pub named: Vec<Option<f64>>,
+}
+
+impl SchemePoint {
+    /// The finite-time exponents as reported: from the transient's end where one is set, else
+    /// over the whole run.
+    pub fn exponents(&self) -> &[f64] {
+        self.lyapunov_from.as_deref().unwrap_or(&self.lyapunov)
+    }
 }
 
 /// Decides which samples a series keeps and stores them.

@@ -56,6 +56,12 @@ pub fn table(report: &Report) -> String {
             " (INCOMPLETE: frames missing)"
         }
     );
+    if let Some(from) = r.exponents_from {
+        let _ = writeln!(
+            out,
+            "exponents (MLE, l_i) averaged from t = {from} on (--from); everything else over the whole run"
+        );
+    }
     if let Some(end) = r.end.as_ref().filter(|e| e.status != "completed") {
         let _ = writeln!(out, "the run {}: {}", end.status, end.reason);
     }

@@ -1058,6 +1058,7 @@ mod tests {
                         lyapunov: vec![mle(t)],
                         vs_vm_abs_delta: None,
                         named: Vec::new(),
+                        lyapunov_from: None,
                     },
                 )
             })
@@ -1167,6 +1168,7 @@ mod tests {
             lyapunov: vec![0.0],
             vs_vm_abs_delta: None,
             named: Vec::new(),
+            lyapunov_from: None,
         };
         let w = warnings(
             &settings(Method::Vm, 1e-8, 1.0, 2, 4),
@@ -1342,6 +1344,7 @@ mod tests {
             lyapunov: vec![0.906, 0.0, -14.573 + sum_off],
             vs_vm_abs_delta: None,
             named: Vec::new(),
+            lyapunov_from: None,
         };
         let run = RunValues {
             energy_error_max: 0.0,

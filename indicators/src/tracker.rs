@@ -76,8 +76,12 @@ pub struct SetValues {
     /// `[j - 2]` = log10 GALI_j.
     pub gali_log10: Vec<f64>,
     pub sali: Option<f64>,
-    /// Finite-time exponent per vector.
+    /// Finite-time exponent per vector (from the transient's end where one is set,
+    /// [`Tracker::set_exponents_from`]).
     pub exponents: Vec<f64>,
+    /// The same over the whole run, where a transient is set (`None` otherwise: then
+    /// `exponents` are the whole run's).
+    pub exponents_whole: Option<Vec<f64>>,
     /// The outputs of every set indicator, by name, in registration order.
     pub outputs: Vec<(&'static str, Output)>,
 }
@@ -168,8 +172,11 @@ pub struct SchemeIndicators {
     /// SALI (floored at [`SIGMA_FLOOR`]) over the sets; `None` for k < 2 or no set.
     pub sali: Option<LogStat>,
     /// Finite-time exponent of each vector, mean and spread over the sets: the spectrum for QR
-    /// schemes, an estimate of the maximal exponent per vector for rescaled ones.
+    /// schemes, an estimate of the maximal exponent per vector for rescaled ones. Averaged
+    /// from the transient's end where one is set ([`Tracker::set_exponents_from`]).
     pub exponents: Vec<Stat>,
+    /// The same over the whole run, where a transient is set (`None` otherwise).
+    pub exponents_whole: Option<Vec<Stat>>,
     /// Every set indicator's outputs over the sets, by name (FLI, OFLI, MEGNO, ...).
     pub named: NamedOutputs,
 }
@@ -187,6 +194,10 @@ struct SetState {
     sums: StretchSums,
     /// Steps covered by the stretching factors received (equals the step when none was missed).
     covered_steps: u64,
+    /// The stretching after the transient (intervals beginning at or after
+    /// `Tracker::exponents_from`), and the steps it covers.
+    late_sums: StretchSums,
+    late_covered_steps: u64,
     /// Step of the latest separations.
     step: Option<u64>,
     separations: Vec<f64>,
@@ -221,6 +232,9 @@ pub struct Tracker {
     gaps: bool,
     reference: Option<Reference>,
     flow_field: Option<FlowField>,
+    /// First step of the exponents' average: a transient before it is discarded (`None`: the
+    /// whole run).
+    exponents_from: Option<u64>,
 }
 
 impl Tracker {
@@ -240,7 +254,17 @@ impl Tracker {
             gaps: false,
             reference: None,
             flow_field: None,
+            exponents_from: None,
         }
+    }
+
+    /// Discards a transient from the finite-time exponents: they average the stretching of the
+    /// renormalization intervals that begin at or after step `from` (time `from * h`), over the
+    /// time those intervals cover, as every Lyapunov code's transient option does. Nothing else
+    /// changes (GALI, SALI, FLI, MEGNO, the 0-1 test, and the whole run's exponents in
+    /// `exponents_whole`, which the verdict reads). Before the first sample.
+    pub fn set_exponents_from(&mut self, from: u64) {
+        self.exponents_from = Some(from);
     }
 
     /// Gives the tracker the system's vector field, for the indicators that need the flow
@@ -309,6 +333,8 @@ impl Tracker {
             .or_insert_with(|| SetState {
                 sums: StretchSums::new(k),
                 covered_steps: 0,
+                late_sums: StretchSums::new(k),
+                late_covered_steps: 0,
                 step: None,
                 separations: Vec::new(),
                 indicators: set_indicators(),
@@ -322,6 +348,10 @@ impl Tracker {
         if step > 0 {
             st.sums.add(stretch);
             st.covered_steps += step - prev;
+            if self.exponents_from.is_some_and(|from| prev >= from) {
+                st.late_sums.add(stretch);
+                st.late_covered_steps += step - prev;
+            }
         }
         let reference = self.reference.as_ref().filter(|r| r.step == step);
         let t = self.layout.time_of(step);
@@ -364,12 +394,21 @@ impl Tracker {
 
     fn values_of(&self, st: &SetState) -> Option<SetValues> {
         let step = st.step?;
-        let covered = self.layout.time_of(st.covered_steps);
+        let whole = st.sums.spectrum(self.layout.time_of(st.covered_steps));
+        let (exponents, exponents_whole) = match self.exponents_from {
+            None => (whole, None),
+            Some(_) => (
+                st.late_sums
+                    .spectrum(self.layout.time_of(st.late_covered_steps)),
+                Some(whole),
+            ),
+        };
         Some(SetValues {
             t: self.layout.time_of(step),
             gali_log10: gali_log10(&st.separations, self.layout.dim),
             sali: sali(&st.separations, self.layout.dim),
-            exponents: st.sums.spectrum(covered),
+            exponents,
+            exponents_whole,
             outputs: st
                 .indicators
                 .iter()
@@ -411,6 +450,15 @@ impl Tracker {
         let exponents = (0..sets.first().map_or(0, |(_, v)| v.exponents.len()))
             .filter_map(|i| Stat::from_values(sets.iter().map(|(_, v)| v.exponents[i])))
             .collect();
+        let exponents_whole = self.exponents_from.map(|_| {
+            (0..sets.first().map_or(0, |(_, v)| v.exponents.len()))
+                .filter_map(|i| {
+                    Stat::from_values(sets.iter().filter_map(|(_, v)| {
+                        v.exponents_whole.as_ref().and_then(|w| w.get(i).copied())
+                    }))
+                })
+                .collect()
+        });
         let named = NamedOutputs(
             (0..sets.first().map_or(0, |(_, v)| v.outputs.len()))
                 .map(|i| {
@@ -438,6 +486,7 @@ impl Tracker {
             gali,
             sali,
             exponents,
+            exponents_whole,
             named,
         }
     }

@@ -8,7 +8,11 @@ A thin layer over the chaoscope Rust crates (the same engine, file format and an
 - ``Recording.indicators(scheme)`` -> ``Indicators`` (numpy arrays of t, GALI_2..k per set and
   averaged, SALI, the finite-time exponents, the energy error), equal to
   ``chaoscope analyze --json`` to the last bit
-- ``Recording.report(at=None)`` -> the dict ``chaoscope analyze --json`` prints (with the verdict)
+- ``Recording.report(at=None, from_t=None)`` (also ``Recording.analyze``) -> the dict
+  ``chaoscope analyze --json [--at T] [--from T0]`` prints (with the verdict); ``from_t``
+  discards a transient from the finite-time exponents
+- ``Recording.orbit(scheme=None)`` -> ``Orbit`` (numpy arrays: times and reference states, and
+  an MPM scheme's nearby orbits)
 - ``Recording.replay(tau=..., d0=...)`` -> a new ``Recording`` on the bit-identical orbit
 - ``map(config, out=...)`` / ``open_map(path)`` -> ``Map`` (numpy grids of a phase-space map)
 - ``monitor(run)`` -> an iterator of ``LiveSample`` from a running producer (lossy, with its
@@ -16,7 +20,8 @@ A thin layer over the chaoscope Rust crates (the same engine, file format and an
 
 Configurations are a dict, a TOML string or a path, exactly as the ``chaoscope`` command reads
 them (the guide: docs/src/configuration.md, every key in docs/src/reference.md). Errors raise
-``ChaoscopeError`` with the command's one-line message; long calls release the GIL and stop on Ctrl-C (``KeyboardInterrupt``).
+``ChaoscopeError`` with the command's message (one line; an expression error adds its source
+line and a caret on lines of their own); long calls release the GIL and stop on Ctrl-C (``KeyboardInterrupt``).
 """
 
 from ._chaoscope import (
@@ -25,6 +30,7 @@ from ._chaoscope import (
     LiveSample,
     Map,
     Monitor,
+    Orbit,
     Recording,
     map,
     monitor,
@@ -38,6 +44,7 @@ __all__ = [
     "Indicators",
     "LiveSample",
     "Map",
+    "Orbit",
     "Monitor",
     "Recording",
     "map",

@@ -14,6 +14,16 @@ FloatArray = npt.NDArray[np.float64]
 class ChaoscopeError(Exception):
     """An error reported by chaoscope, with the same one-line message as the command."""
 
+class Orbit:
+    """The recorded orbit: `t` (n,), `states` (n, dim); with an MPM scheme, `nearby_t` (m,)
+    and `nearby` (m, sets, k, dim), the reference plus each separation before renormalization."""
+
+    scheme: Optional[str]
+    t: np.ndarray
+    states: np.ndarray
+    nearby_t: Optional[np.ndarray]
+    nearby: Optional[np.ndarray]
+
 class Indicators:
     """One scheme's indicators, one row per renormalization; column j - 2 is GALI_j."""
 
@@ -81,8 +91,16 @@ class Recording:
     def finalized_by(self) -> str: ...
     @property
     def frames_missing(self) -> int: ...
-    def report(self, at: Optional[float] = None) -> Dict[str, Any]:
-        """What `chaoscope analyze --json [--at T]` prints, as a dict."""
+    def report(
+        self, at: Optional[float] = None, from_t: Optional[float] = None
+    ) -> Dict[str, Any]:
+        """What `chaoscope analyze --json [--at T] [--from T0]` prints, as a dict."""
+    def analyze(
+        self, at: Optional[float] = None, from_t: Optional[float] = None
+    ) -> Dict[str, Any]:
+        """The same as `report`, under the command's name."""
+    def orbit(self, scheme: Optional[str] = None) -> Orbit:
+        """The recorded reference orbit, and an MPM scheme's nearby orbits."""
     def indicators(self, scheme: str) -> Indicators:
         """The indicators of `scheme` at each of its renormalizations."""
     def replay(

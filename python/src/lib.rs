@@ -37,6 +37,7 @@ fn _chaoscope(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("ChaoscopeError", m.py().get_type::<ChaoscopeError>())?;
     m.add_class::<recording::Recording>()?;
     m.add_class::<recording::Indicators>()?;
+    m.add_class::<recording::Orbit>()?;
     m.add_class::<map::Map>()?;
     m.add_class::<monitor::Monitor>()?;
     m.add_class::<monitor::LiveSample>()?;

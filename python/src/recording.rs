@@ -286,13 +286,21 @@ impl Recording {
     }
 
     /// The analysis of the whole recording, or as of time `at`: the object that
-    /// `chaoscope analyze --json [--at T]` prints (GALI, SALI, exponents, energy error, the
-    /// verdict and the warnings of every scheme), as a dict.
-    #[pyo3(signature = (at = None))]
-    fn report<'py>(&self, py: Python<'py>, at: Option<f64>) -> PyResult<Bound<'py, PyAny>> {
+    /// `chaoscope analyze --json [--at T] [--from T0]` prints (GALI, SALI, exponents, energy
+    /// error, the verdict and the warnings of every scheme), as a dict. `from_t` discards a
+    /// transient: the finite-time exponents average the stretching from that time on, and
+    /// nothing else changes.
+    #[pyo3(signature = (at = None, from_t = None))]
+    fn report<'py>(
+        &self,
+        py: Python<'py>,
+        at: Option<f64>,
+        from_t: Option<f64>,
+    ) -> PyResult<Bound<'py, PyAny>> {
         let options = AnalysisOptions {
             at: at.into_iter().collect(),
             flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
+            exponents_from: from_t,
             ..Default::default()
         };
         let json = py
@@ -308,6 +316,63 @@ impl Recording {
             })
             .map_err(crate::message)?;
         py.import("json")?.call_method1("loads", (json,))
+    }
+
+    /// The same as [`Recording::report`], under the command's name: `analyze(from_t=100.0)` is
+    /// `chaoscope analyze FILE --json --from 100`.
+    #[pyo3(signature = (at = None, from_t = None))]
+    fn analyze<'py>(
+        &self,
+        py: Python<'py>,
+        at: Option<f64>,
+        from_t: Option<f64>,
+    ) -> PyResult<Bound<'py, PyAny>> {
+        self.report(py, at, from_t)
+    }
+
+    /// The recorded orbit: the reference state at every recorded sample, and with `scheme` (an
+    /// MPM scheme) the nearby orbits too, each the reference plus its separation before
+    /// renormalization, at that scheme's renormalizations. Streams the file with the GIL
+    /// released; Ctrl-C stops it.
+    #[pyo3(signature = (scheme = None))]
+    fn orbit(&self, py: Python<'_>, scheme: Option<&str>) -> PyResult<Orbit> {
+        let si = match scheme {
+            None => None,
+            Some(name) => {
+                let si = self.scheme_index(name)?;
+                if self.header.schemes[si].method != "mpm" {
+                    return Err(crate::message(format!(
+                        "{}: scheme '{name}' is {}: its deviation vectors are tangent vectors, \
+                         not nearby orbits (only an mpm scheme records nearby orbits)",
+                        self.path.display(),
+                        self.header.schemes[si].method
+                    )));
+                }
+                Some(si)
+            }
+        };
+        let stop = AtomicBool::new(false);
+        let orbit = interruptible(
+            py,
+            || stop.store(true, Ordering::Relaxed),
+            || read_orbit(&self.path, si, &stop),
+        )?
+        .map_err(crate::message)?;
+        let (dim, n) = (self.header.dim as usize, orbit.t.len());
+        let (sets, k, m) = (
+            self.header.sets as usize,
+            self.header.k as usize,
+            orbit.nearby_t.len(),
+        );
+        Ok(Orbit {
+            scheme: scheme.map(str::to_string),
+            t: array(py, orbit.t, &[n])?,
+            states: array(py, orbit.states, &[n, dim])?,
+            nearby_t: si.map(|_| array(py, orbit.nearby_t, &[m])).transpose()?,
+            nearby: si
+                .map(|_| array(py, orbit.nearby, &[m, sets, k, dim]))
+                .transpose()?,
+        })
     }
 
     /// The indicators of scheme `scheme` at each of its renormalizations, computed by the same
@@ -385,6 +450,61 @@ impl Recording {
 
 fn error_text(e: &(dyn std::error::Error + 'static)) -> String {
     chaoscope_recorder::file::error_chain(e)
+}
+
+/// The recorded orbit, as flat rows.
+struct OrbitRows {
+    t: Vec<f64>,
+    states: Vec<f64>,
+    nearby_t: Vec<f64>,
+    nearby: Vec<f64>,
+}
+
+/// Reads the reference state of every sample, and for scheme `si` the nearby orbits
+/// (reference + separation) of every set at its renormalizations; a set missing at a time
+/// (lost frames) is NaN there, as in `Indicators`. Returns early once `stop` is set.
+fn read_orbit(path: &Path, si: Option<usize>, stop: &AtomicBool) -> Result<OrbitRows, String> {
+    let mut reader = RecordingReader::open(path).map_err(|e| error_text(&e))?;
+    let run = reader.run();
+    let (dim, sets, k) = (run.dim, run.sets, run.k);
+    let mut rows = OrbitRows {
+        t: Vec::new(),
+        states: Vec::new(),
+        nearby_t: Vec::new(),
+        nearby: Vec::new(),
+    };
+    while let Some(sample) = reader.next_sample().map_err(|e| error_text(&e))? {
+        if stop.load(Ordering::Relaxed) {
+            return Err("interrupted".into());
+        }
+        // A sample whose reference state was lost (frames missing) has none to give.
+        if sample.state.len() != dim {
+            continue;
+        }
+        rows.t.push(sample.t);
+        rows.states.extend_from_slice(&sample.state);
+        let Some(si) = si else { continue };
+        let mine: Vec<_> = sample
+            .schemes
+            .iter()
+            .filter(|s| s.scheme as usize == si)
+            .collect();
+        if mine.is_empty() {
+            continue;
+        }
+        rows.nearby_t.push(sample.t);
+        let start = rows.nearby.len();
+        rows.nearby.resize(start + sets * k * dim, f64::NAN);
+        for s in mine {
+            let at = start + s.set as usize * k * dim;
+            for (j, d) in s.separations.chunks_exact(dim).enumerate().take(k) {
+                for (i, (x, dx)) in sample.state.iter().zip(d).enumerate() {
+                    rows.nearby[at + j * dim + i] = x + dx;
+                }
+            }
+        }
+    }
+    Ok(rows)
 }
 
 /// One scheme's indicators at each of its renormalizations, row by row.
@@ -557,6 +677,32 @@ impl Indicators {
             mle: array(py, mle, &[n])?,
             energy_error: array(py, s.energy_error, &[n])?,
         })
+    }
+}
+
+/// The recorded orbit (numpy arrays): `t` and `states` of the reference at every recorded
+/// sample; for an MPM scheme, `nearby_t` and `nearby`, its nearby orbits at its
+/// renormalizations (the state each nearby orbit reached before it was pulled back to `d0`).
+#[pyclass(module = "chaoscope", frozen, get_all)]
+pub struct Orbit {
+    /// The MPM scheme whose nearby orbits are given, or None.
+    scheme: Option<String>,
+    /// Times of the recorded samples, shape (n,).
+    t: Py<PyAny>,
+    /// The reference state at those times (q1..qN, p1..pN or x1..xD), shape (n, dim).
+    states: Py<PyAny>,
+    /// Times of the scheme's renormalizations, shape (m,); None without a scheme.
+    nearby_t: Option<Py<PyAny>>,
+    /// Nearby orbit `j` of set `s` at those times, shape (m, sets, k, dim): the reference plus
+    /// the separation before renormalization. None without a scheme.
+    nearby: Option<Py<PyAny>>,
+}
+
+#[pymethods]
+impl Orbit {
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        let n = self.t.bind(py).len()?;
+        Ok(format!("Orbit(samples={n}, scheme={:?})", self.scheme))
     }
 }
 

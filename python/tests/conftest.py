@@ -42,8 +42,9 @@ def cli(chaoscope_bin):
 
 @pytest.fixture
 def analyze_json(cli):
-    def analyze(path, at=None):
+    def analyze(path, at=None, from_t=None):
         args = ["analyze", path, "--json"] + ([] if at is None else ["--at", repr(at)])
+        args += [] if from_t is None else ["--from", repr(from_t)]
         done = cli(*args)
         assert done.returncode == 0, done.stderr
         return json.loads(done.stdout)

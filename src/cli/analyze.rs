@@ -32,6 +32,10 @@ pub struct Args {
     /// Time axis of GALI plots: auto (log t for regular orbits, t for chaotic), log, linear.
     #[arg(long, default_value = "auto")]
     pub time_axis: String,
+    /// Discard a transient: the finite-time Lyapunov exponents average the stretching from
+    /// time T on (nothing else changes; the verdict judges the whole run).
+    #[arg(long, value_name = "T")]
+    pub from: Option<f64>,
     /// Evenly spaced points kept per curve (plus 40 log-spaced per decade).
     #[arg(long, default_value_t = 2000)]
     pub points: usize,
@@ -57,6 +61,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         series_capacity: args.points,
         at: args.at.into_iter().collect(),
         flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
+        exponents_from: args.from,
         ..Default::default()
     };
     let (analysis, info) = analyze_file(&args.file, &options)?;

@@ -57,15 +57,21 @@ pub struct SpecError {
 }
 
 impl SpecError {
-    /// The message is kept on one line: control characters (a newline in a name the message
-    /// quotes back) are written as escapes.
+    /// The first line of the message is self-contained, and nothing in it can start a line of
+    /// its own: control characters (a newline in a name the message quotes back) are written as
+    /// escapes. The one exception is context that follows it on indented lines, as an
+    /// expression error's source line and caret (`line 1, column 14: ...\n  x1 +* x2\n     ^`):
+    /// where every line after the first starts with two spaces, the line breaks stay real (and
+    /// other control characters are still escaped), so a terminal shows the caret under the
+    /// mistake while a log's first line still says it all. An indented line cannot pass for an
+    /// error line of its own.
     pub fn new(key: impl Into<String>, message: impl Into<String>) -> Self {
         let message: String = message.into();
-        let message = if message.chars().any(char::is_control) {
-            message
-                .chars()
+        // Control characters as escapes; tabs kept where they line a caret up.
+        let escape = |text: &str, keep_tabs: bool| -> String {
+            text.chars()
                 .flat_map(|c| {
-                    let escaped: Vec<char> = if c.is_control() {
+                    let escaped: Vec<char> = if c.is_control() && !(keep_tabs && c == '\t') {
                         c.escape_default().collect()
                     } else {
                         vec![c]
@@ -73,8 +79,17 @@ impl SpecError {
                     escaped
                 })
                 .collect()
+        };
+        let mut lines = message.split('\n');
+        let first = lines.next().unwrap_or_default();
+        let context: Vec<&str> = lines.collect();
+        let message = if !context.is_empty() && context.iter().all(|l| l.starts_with("  ")) {
+            std::iter::once(escape(first, false))
+                .chain(context.iter().map(|l| escape(l, true)))
+                .collect::<Vec<_>>()
+                .join("\n")
         } else {
-            message
+            escape(&message, false)
         };
         Self {
             key: key.into(),
@@ -615,6 +630,30 @@ impl RunSpec {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_expression_error_keeps_its_caret_lines_and_a_quoted_newline_is_escaped() {
+        // An expression error: the first line says it all, the source line and the caret
+        // follow on real, indented lines (what a terminal needs to show the caret).
+        let e = SpecError::new(
+            "model.rhs",
+            "rhs[1]: line 1, column 4: unexpected '*'\n  x1 +* x2\n     ^",
+        );
+        assert_eq!(
+            e.to_string(),
+            "model.rhs: rhs[1]: line 1, column 4: unexpected '*'\n  x1 +* x2\n     ^"
+        );
+        // A newline in a name quoted back does not start a line of its own.
+        let e = SpecError::new("model.name", "unknown model 'a\nchaoscope: fine'");
+        assert_eq!(
+            e.to_string(),
+            "model.name: unknown model 'a\\nchaoscope: fine'"
+        );
+        // Nor inside the indented context: its other control characters are escaped too.
+        let e = SpecError::new("model.rhs", "bad\n  x\u{1b}[2J\n  ^");
+        assert!(!e.to_string().contains('\u{1b}'), "{e}");
+        assert_eq!(e.to_string().lines().count(), 3);
+    }
 
     use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 

@@ -287,6 +287,8 @@ fn damaged_recordings_are_analyzed_whole_or_refused_with_a_clear_error() {
                         | ReadError::Decode { .. }
                         | ReadError::Value { .. } => {}
                         ReadError::File(FileError::Io { .. }) => panic!("{what}: {message}"),
+                        // No analysis option is given here.
+                        ReadError::Option { .. } => panic!("{what}: {message}"),
                     }
                 }
             }

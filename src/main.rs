@@ -34,7 +34,8 @@ enum Command {
     Analyze(cli::analyze::Args),
     /// Follow a running producer live (terminal view or --json-lines), never slowing it.
     Monitor(cli::monitor::Args),
-    /// Poincare surface of section of many orbits of one energy.
+    /// Poincare section: of many orbits of one energy (q_i = 0), or of any flow through a
+    /// surface written as an expression (--surface).
     Section(cli::section::Args),
     /// Draw a chart described in JSON (PNG and SVG).
     Chart(cli::chart::Args),

@@ -389,3 +389,202 @@ fn standard_map_sali_map_shows_islands() {
     assert!(island > -5.0, "island centre: log10 SALI = {island}");
     assert!(sea < -10.0, "chaotic sea: log10 SALI = {sea}");
 }
+
+/// The crossings a `section --surface ... --csv` wrote: (time, state) per row, after the
+/// header `orbit,t,<coordinates>`.
+fn read_crossings(path: &Path, coordinates: &str) -> Vec<(f64, Vec<f64>)> {
+    let text = std::fs::read_to_string(path).unwrap();
+    let mut lines = text.lines();
+    assert_eq!(
+        lines.next(),
+        Some(format!("orbit,t,{coordinates}").as_str())
+    );
+    lines
+        .map(|l| {
+            let v: Vec<f64> = l.split(',').map(|x| x.parse().unwrap()).collect();
+            assert_eq!(v[0], 0.0, "one orbit: {l}");
+            assert!(v.iter().all(|x| x.is_finite()), "{l}");
+            (v[1], v[2..].to_vec())
+        })
+        .collect()
+}
+
+#[test]
+fn rossler_section_crossings_agree_at_a_ten_times_smaller_step() {
+    // The Rossler attractor (a = b = 0.2, c = 5.7) cut by x1 = 0 upward (x1 increasing, where
+    // dx1/dt = -x2 - x3 > 0: the half-plane x2 < 0 the orbit winds through, the standard
+    // section), from the example's initial state, by fixed-step dop853 at h = 0.01 and at
+    // h = 0.001. The crossings are located to rounding from the last step before them, so
+    // they differ only by the two trajectories' errors: dop853's truncation error at h = 0.01
+    // is ~h^8 = 1e-16 per unit time, so rounding (~1e-16 per step over 1.2e4 steps) dominates,
+    // amplified by the largest exponent 0.07 over the t ~ 116 of 20 returns (e^8 ~ 3e3): about
+    // 1e-11, measured 3e-11. The bound 1e-9 holds with a margin of 30; a crossing
+    // located only to an interpolation's accuracy (cubic Hermite over h = 0.01: ~1e-9 to 1e-8
+    // here) would not meet it.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut crossings = Vec::new();
+    for h in [0.01, 0.001] {
+        let mut config = example("rossler.toml");
+        config.integrator = chaoscope_schemas::config::IntegratorConfig::fixed("dop853", h, 200.0);
+        let cfg = write(d, &format!("rossler-{h}.toml"), &config);
+        let csv = d.join(format!("rossler-{h}.csv"));
+        run_ok(&[
+            "section",
+            s(&cfg),
+            "--surface",
+            "x1",
+            "--direction",
+            "up",
+            "--crossings",
+            "20",
+            "--csv",
+            s(&csv),
+        ]);
+        crossings.push(read_crossings(&csv, "x1,x2,x3"));
+    }
+    let (coarse, fine) = (&crossings[0], &crossings[1]);
+    assert_eq!((coarse.len(), fine.len()), (20, 20));
+    let mut worst: f64 = 0.0;
+    for ((t, x), (t_fine, x_fine)) in coarse.iter().zip(fine) {
+        // On the surface to rounding (|x1| at the crossing is ~eps of the step's scale), on the
+        // x2 < 0 side.
+        assert!(
+            x[0].abs() < 1e-14 && x_fine[0].abs() < 1e-14,
+            "{x:?} {x_fine:?}"
+        );
+        assert!(x[1] < 0.0, "{x:?}");
+        worst = worst.max((t - t_fine).abs());
+        for (a, b) in x.iter().zip(x_fine) {
+            worst = worst.max((a - b).abs());
+        }
+    }
+    assert!(worst < 1e-9, "largest difference {worst:e}");
+    eprintln!("rossler section: first 20 crossings at h and h/10 differ by at most {worst:e}");
+    // A return time is about 2 pi / 1.03: 20 returns by t ~ 120.
+    assert!(
+        (100.0..140.0).contains(&coarse[19].0),
+        "t = {}",
+        coarse[19].0
+    );
+
+    // The first-return map of x2 and the section, drawn.
+    let plot = d.join("plot");
+    run_ok(&[
+        "section",
+        s(&d.join("rossler-0.01.toml")),
+        "--surface",
+        "x1",
+        "--return-map",
+        "x2",
+        "--plot",
+        s(&plot),
+    ]);
+    for f in [
+        "section.png",
+        "section.svg",
+        "return-map.png",
+        "return-map.svg",
+    ] {
+        assert!(plot.join(f).metadata().unwrap().len() > 1000, "{f}");
+    }
+}
+
+#[test]
+fn section_through_a_surface_refuses_what_it_cannot_draw() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let rossler = write(d, "rossler.toml", &example("rossler.toml"));
+    let map = write(d, "henon-map.toml", &example("henon-map.toml"));
+    let csv = d.join("out.csv");
+    let cases: [(&Path, &[&str], &str); 6] = [
+        (
+            &map,
+            &["--surface", "x1"],
+            "--surface: sections through a surface are drawn for flows",
+        ),
+        (
+            &rossler,
+            &["--surface", "x4"],
+            "--surface: line 1, column 1: variable 'x4' does not exist",
+        ),
+        (
+            &rossler,
+            &["--surface", "x1 +"],
+            "--surface: line 1, column 5",
+        ),
+        (&rossler, &["--surface", "2 * a"], "reads no coordinate"),
+        // |x1| stays below about 12 on the attractor.
+        (
+            &rossler,
+            &["--surface", "x1 - 100"],
+            "no crossing of the surface x1 - 100 = 0 (up)",
+        ),
+        (
+            &rossler,
+            &["--surface", "x1", "--axes", "x1,y"],
+            "--axes: 'y' is not a coordinate",
+        ),
+    ];
+    for (config, extra, needle) in cases {
+        let mut args = vec!["section", s(config), "--csv", s(&csv)];
+        args.extend_from_slice(extra);
+        let out = chaoscope(&args).output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{extra:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+        let error = err
+            .lines()
+            .find(|l| l.starts_with("chaoscope: error: "))
+            .unwrap();
+        assert!(error.contains(needle), "{extra:?}: {err}");
+        // Nothing written: no CSV, no unfinished one.
+        assert!(
+            !csv.exists() && !d.join("out.csv.partial").exists(),
+            "{extra:?}"
+        );
+    }
+    // An orbit that escapes after some crossings: they are written (finite), the orbit's end
+    // is named with its time, and the exit status says it failed. x3' = x3^2 added to a
+    // rotation blows x3 up in finite time (x3 = 1 / (2 - t) from 0.5: at t = 2).
+    let mut blow = example("rossler.toml");
+    let ModelConfig::Ode(ode) = &mut blow.model else {
+        panic!("a flow")
+    };
+    ode.rhs = Some(vec!["-x2".into(), "x1".into(), "x3^2".into()]);
+    ode.params.clear();
+    blow.orbit.x = vec![1.0, 0.0, 0.5];
+    blow.integrator = chaoscope_schemas::config::IntegratorConfig::fixed("dop853", 0.001, 10.0);
+    let blow = write(d, "blow.toml", &blow);
+    let out = chaoscope(&["section", s(&blow), "--surface", "x1", "--csv", s(&csv)])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    // The first step past t = 2 is where the state stops being finite.
+    assert!(
+        err.contains("stopped at t = 2.00") && err.contains("rhs[3]"),
+        "{err}"
+    );
+    // x1 = cos t crosses 0 upward at 3 pi / 2 = 4.7 only: before the blow-up at t = 2 there is
+    // no upward crossing, so nothing is written; downward, the one at pi / 2 is.
+    assert!(!csv.exists(), "{err}");
+    let out = chaoscope(&[
+        "section",
+        s(&blow),
+        "--surface",
+        "x1",
+        "--direction",
+        "down",
+        "--csv",
+        s(&csv),
+    ])
+    .output()
+    .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("after 1 crossings"), "{err}");
+    let rows = read_crossings(&csv, "x1,x2,x3");
+    assert_eq!(rows.len(), 1);
+    assert!((rows[0].0 - PI / 2.0).abs() < 1e-12, "{rows:?}");
+}

@@ -16,6 +16,8 @@
 //! - `jit`: native code for the graph's outputs (Cranelift), scalar and over SoA lanes,
 //!   bit-identical to `eval`;
 //! - `table`: tabulated functions (CSV samples, cubic spline with its derivatives);
+//! - `scalar`: a scalar function `S(x)` of a state (a Poincare section's surface `S = 0`),
+//!   compiled with its gradient;
 //! - `vector`: a vector function `F: R^D -> R^D` (a flow's right-hand side, a map) from `D`
 //!   expressions, compiled with its Jacobian-vector product and divergence;
 //! - `potential`: a separable Hamiltonian's potential `V(q)` compiled with its gradient,
@@ -37,6 +39,7 @@ mod lexer;
 pub mod lower;
 pub mod parser;
 pub mod potential;
+pub mod scalar;
 pub mod smooth;
 pub mod table;
 #[cfg(test)]
@@ -50,6 +53,7 @@ pub use graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
 pub use jit::{Compiled, FunctionSpec, JitError, Layout};
 pub use lower::{Boundary, Family, Lowered, ParamValue, Scope, lower, lower_with_loops};
 pub use parser::parse;
+pub use scalar::{ScalarDefinition, ScalarError, ScalarFunction};
 pub use smooth::{Limit, Smoothness};
 pub use table::{
     ErrorBound, Spline, SplineKind, TableData, TableError, interpolation_error_bound, parse_csv,

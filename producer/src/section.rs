@@ -3,6 +3,11 @@
 //! interpolant of `q_i(t)` (the steps give `q_i` and its derivative `p_i` at both ends), and the
 //! whole state is interpolated the same way, using `dq/dt = p`, `dp/dt = -grad V`: error
 //! O(h^4), far below what a plot resolves.
+//!
+//! [`surface`]: sections of any flow (and any Hamiltonian) through a surface `S(x) = 0`
+//! written as an expression, crossings located to rounding.
+
+pub mod surface;
 
 use crate::integrator::{Integrator, Workspace};
 use crate::model::Model;

@@ -261,6 +261,59 @@ static DOP853: Tableau = Tableau {
     ]),
 };
 
+/// The stages of one explicit step of tableau `t` from `x` with step `h` of the field `f`
+/// (`f(y, out)` writes `f(y)`): stage states into `s.xs`, derivatives into `s.k`, the new state
+/// into `s.next`. The one definition of the arithmetic of an explicit step.
+fn explicit_stages(
+    t: &Tableau,
+    mut f: impl FnMut(&[f64], &mut [f64]),
+    x: &[f64],
+    h: f64,
+    s: &mut RkScratch,
+) {
+    let dim = x.len();
+    s.ensure(t.stages(), dim);
+    for i in 0..t.stages() {
+        let row = t.a[i];
+        let (done, rest) = s.k.split_at_mut(i * dim);
+        let xi = &mut s.xs[i * dim..(i + 1) * dim];
+        for d in 0..dim {
+            let mut sum = 0.0;
+            for (j, &a) in row.iter().enumerate() {
+                if a != 0.0 {
+                    sum += a * done[j * dim + d];
+                }
+            }
+            xi[d] = x[d] + h * sum;
+        }
+        f(xi, &mut rest[..dim]);
+    }
+    for d in 0..dim {
+        let mut sum = 0.0;
+        for (i, &b) in t.b.iter().enumerate() {
+            if b != 0.0 {
+                sum += b * s.k[i * dim + d];
+            }
+        }
+        s.next[d] = x[d] + h * sum;
+    }
+}
+
+/// One step of size `h` of the explicit tableau `t` for a field given as a function (`f(y,
+/// out)` writes `f(y)`), with the arithmetic of [`RungeKutta::advance`]: for callers that hold
+/// a vector field but no [`VectorField`] (a Poincare section's crossing locator steps a
+/// system's field through `DynamicalSystem::vector_field`).
+pub fn explicit_step(
+    t: &Tableau,
+    f: impl FnMut(&[f64], &mut [f64]),
+    x: &mut [f64],
+    h: f64,
+    s: &mut RkScratch,
+) {
+    explicit_stages(t, f, x, h, s);
+    x.copy_from_slice(&s.next[..x.len()]);
+}
+
 /// Error control of an adaptive step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Tolerances {
@@ -331,35 +384,10 @@ impl RungeKutta {
     }
 
     /// Stages from `x` with step `h`: stage states into `xs`, derivatives into `k`, the new
-    /// state into `next`. The one definition of the arithmetic of a step.
+    /// state into `next`.
     fn stages(&self, f: &dyn VectorField, x: &[f64], h: f64, s: &mut RkScratch) {
         let t = self.kind.tableau().expect("an explicit method");
-        let dim = x.len();
-        s.ensure(t.stages(), dim);
-        for i in 0..t.stages() {
-            let row = t.a[i];
-            let (done, rest) = s.k.split_at_mut(i * dim);
-            let xi = &mut s.xs[i * dim..(i + 1) * dim];
-            for d in 0..dim {
-                let mut sum = 0.0;
-                for (j, &a) in row.iter().enumerate() {
-                    if a != 0.0 {
-                        sum += a * done[j * dim + d];
-                    }
-                }
-                xi[d] = x[d] + h * sum;
-            }
-            f.value(xi, &mut rest[..dim]);
-        }
-        for d in 0..dim {
-            let mut sum = 0.0;
-            for (i, &b) in t.b.iter().enumerate() {
-                if b != 0.0 {
-                    sum += b * s.k[i * dim + d];
-                }
-            }
-            s.next[d] = x[d] + h * sum;
-        }
+        explicit_stages(t, |y, out| f.value(y, out), x, h, s);
     }
 
     /// One step of size `h`.

@@ -34,6 +34,7 @@ mod potential;
 mod separable;
 pub mod vector;
 
+pub(crate) use potential::param_value;
 pub use potential::{TableDigest, pin_tables};
 pub use separable::{
     initial_state, model_from_config, parse_coordinate, solve_momentum, state_coordinate,

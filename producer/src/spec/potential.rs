@@ -26,7 +26,7 @@ pub struct TableDigest {
 
 /// A parameter's value from the config: finite, and an array has one entry per site (`n`,
 /// described as `size` in the message: "the model has n = 5 sites").
-pub(super) fn param_value(
+pub(crate) fn param_value(
     key: &str,
     v: &config::ParamValue,
     n: usize,

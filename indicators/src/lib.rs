@@ -8,6 +8,8 @@
 //! a file equals the value `analyze` reports to the last bit.
 //!
 //! - [`alignment`]: GALI (volume of the unit vectors, from a QR factorization) and SALI.
+//! - [`clv`]: covariant Lyapunov vectors (Ginelli's backward pass over the QR factors of a VM
+//!   QR scheme) and principal angles between subspaces.
 //! - [`stretch`]: accumulated logarithmic stretching, the finite-time exponents.
 //! - [`stats`]: averages over the random sets of a scheme.
 //! - [`indicator`]: the one indicator interface (set and orbit indicators, named outputs) and
@@ -17,6 +19,7 @@
 //!   vectors) and a scheme's indicators averaged over its sets at its latest renormalization.
 
 pub mod alignment;
+pub mod clv;
 pub mod fli;
 pub mod indicator;
 pub mod megno;

@@ -9,6 +9,7 @@
 pub mod analysis;
 pub mod assemble;
 pub mod chart;
+pub mod clv;
 pub mod csv;
 pub mod map_png;
 pub mod plot;

@@ -1,12 +1,14 @@
 //! `chaoscope analyze FILE.mcap`: GALI_2..k, SALI, the MLE and Lyapunov spectrum, the energy
 //! error and VM-versus-MPM differences of a recording, streamed (memory independent of the
-//! length of the run).
+//! length of the run); with `--clv`, the covariant Lyapunov vectors of a VM QR scheme instead
+//! (growth rates and the angles between their subspaces, `chaoscope_analyzer::clv`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::Context;
 use chaoscope_analyzer::analysis::AnalysisOptions;
+use chaoscope_analyzer::clv::{ClvOptions, clv_of_file, summary as clv_summary};
 use chaoscope_analyzer::plot::{TimeAxis, plot_all};
 use chaoscope_analyzer::recording::analyze_file;
 use chaoscope_analyzer::report::Report;
@@ -39,6 +41,33 @@ pub struct Args {
     /// Evenly spaced points kept per curve (plus 40 log-spaced per decade).
     #[arg(long, default_value_t = 2000)]
     pub points: usize,
+    /// Covariant Lyapunov vectors (Ginelli) of a VM scheme renormalized by QR, instead of the
+    /// table: their growth rates beside the QR spectrum, and the distributions of the smallest
+    /// angles between their unstable, neutral and stable subspaces (with --csv DIR, also their
+    /// time series in DIR/clv-angles.csv).
+    #[arg(long)]
+    pub clv: bool,
+    /// The scheme of --clv (default: the first VM scheme with orthonormalize = "qr").
+    #[arg(long, value_name = "NAME", requires = "clv")]
+    pub clv_scheme: Option<String>,
+    /// The set of directions of --clv (0-based).
+    #[arg(long, value_name = "J", default_value_t = 0, requires = "clv")]
+    pub clv_set: usize,
+    /// Time discarded at the start for the QR basis to converge (default: a tenth of the run).
+    #[arg(long, value_name = "T", requires = "clv")]
+    pub clv_forward_transient: Option<f64>,
+    /// Time discarded at the end for the backward iteration to converge (default: a tenth of
+    /// the run).
+    #[arg(long, value_name = "T", requires = "clv")]
+    pub clv_backward_transient: Option<f64>,
+    /// How many exponents count as neutral, the ones nearest zero (default: those the dynamics
+    /// puts at zero: 0 for a map, 1 for a flow, 2 for a Hamiltonian; with k < dim, a flow's 0
+    /// and a Hamiltonian's exponents N and N+1 of 2N among the first k).
+    #[arg(long, value_name = "N", requires = "clv")]
+    pub clv_neutral: Option<usize>,
+    /// Memory for the stored QR factors before they spill to a temporary file, in MiB.
+    #[arg(long, value_name = "MIB", default_value_t = 256, requires = "clv")]
+    pub clv_memory: usize,
 }
 
 /// The human-readable table.
@@ -57,6 +86,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         "linear" => TimeAxis::Linear,
         other => anyhow::bail!("--time-axis {other:?}: use auto, log or linear"),
     };
+    if args.clv {
+        return clv(&args);
+    }
     let options = AnalysisOptions {
         series_capacity: args.points,
         at: args.at.into_iter().collect(),
@@ -97,6 +129,34 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             files.len(),
             dir.display()
         );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `analyze --clv`.
+fn clv(args: &Args) -> anyhow::Result<ExitCode> {
+    if args.at.is_some() || args.plot.is_some() {
+        anyhow::bail!("--clv takes neither --at nor --plot");
+    }
+    let options = ClvOptions {
+        scheme: args.clv_scheme.clone(),
+        set: args.clv_set,
+        forward_transient: args.clv_forward_transient,
+        backward_transient: args.clv_backward_transient,
+        neutral: args.clv_neutral,
+        memory_bytes: args.clv_memory.saturating_mul(1 << 20),
+    };
+    let (report, series) = clv_of_file(&args.file, &options)?;
+    if args.json {
+        outln!("{}", serde_json::json!({ "clv": report }))?;
+    } else {
+        outln!("{}", clv_summary(&report).trim_end_matches('\n'))?;
+    }
+    if let Some(dir) = &args.csv {
+        let file = series
+            .write_csv(dir, std::slice::from_ref(&args.file))
+            .with_context(|| format!("writing CSV into {}", dir.display()))?;
+        chaoscope_os::errln!("chaoscope analyze: {}", file.display());
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -201,6 +201,47 @@ fn henon_map_records_and_reports_its_constant_jacobian() {
         let mle = sch["mle"].as_f64().unwrap();
         assert!((mle - 0.41922).abs() < 0.01, "{name}: {mle}");
     }
+    // The covariant Lyapunov vectors of the VM scheme (`analyze --clv`): growth rates on the
+    // QR spectrum (1.6e4 iterations between the transients; boundary terms of at most
+    // |ln 1e-4| / 1.6e4, replay/tests/analysis/clv.rs), the angle series as CSV in time order.
+    let clv: Value =
+        serde_json::from_str(&run_ok(&["analyze", s(&rec), "--clv", "--json"])).unwrap();
+    assert_all_finite(&clv, "clv");
+    let clv = &clv["clv"];
+    assert_eq!(clv["scheme"], "vm");
+    assert_eq!(clv["classes"], serde_json::json!(["unstable", "stable"]));
+    for j in 0..2 {
+        let (a, b) = (
+            clv["growth_rates"][j].as_f64(),
+            clv["qr_spectrum"][j].as_f64(),
+        );
+        assert!((a.unwrap() - b.unwrap()).abs() < 1e-3, "{clv}");
+    }
+    let csv_dir = d.join("csv");
+    run_ok(&["analyze", s(&rec), "--clv", "--csv", s(&csv_dir)]);
+    let csv = std::fs::read_to_string(csv_dir.join("clv-angles.csv")).unwrap();
+    let mut lines = csv.lines();
+    assert_eq!(
+        lines.next(),
+        Some("t,unstable_vs_rest,expanding_vs_contracting")
+    );
+    let times: Vec<f64> = lines
+        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+        .collect();
+    assert_eq!(
+        times.len() as u64,
+        clv["renormalizations"].as_u64().unwrap()
+    );
+    assert!(times.windows(2).all(|w| w[0] < w[1]));
+    assert_eq!(times[0], clv["t_start"].as_f64().unwrap());
+    // A scheme the CLVs cannot come from: one line naming it, exit status 1.
+    let out = chaoscope(&["analyze", s(&rec), "--clv", "--clv-scheme", "mpm"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("scheme 'mpm' is mpm with qr"), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     // Replay with another tau (an integer number of iterations).
     let out = run_ok(&[
         "replay",

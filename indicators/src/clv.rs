@@ -229,9 +229,15 @@ pub fn min_principal_angle(a: &[f64], b: &[f64], dim: usize) -> f64 {
     let (p, q) = (a.len() / dim, b.len() / dim);
     let qa = orthonormal(a, dim, p);
     let qb = orthonormal(b, dim, q);
-    // Residual of A's basis after projecting out B.
-    let proj = qb.transpose() * &qa;
-    let residual = &qa - &qb * &proj;
+    // Residual of A's basis after projecting out B. Written as loops: nalgebra multiplies
+    // dynamic matrices above 5 x 5 with matrixmultiply, whose kernels use fused multiply-add
+    // where the CPU has it, and no numerics here may (the same bits on every machine).
+    let proj = DMatrix::from_fn(q, p, |i, j| {
+        (0..dim).fold(0.0, |s, r| s + qb[(r, i)] * qa[(r, j)])
+    });
+    let residual = DMatrix::from_fn(dim, p, |r, j| {
+        qa[(r, j)] - (0..q).fold(0.0, |s, i| s + qb[(r, i)] * proj[(i, j)])
+    });
     if p == 1 {
         let s = residual.norm();
         let c = proj.norm();
@@ -365,5 +371,22 @@ mod tests {
         let p1 = [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0];
         let p2 = [1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
         assert!(min_principal_angle(&p1, &p2, 4) < 1e-15);
+        // Seven-dimensional subspaces of R^14 (past nalgebra's 5 x 5 threshold for its own
+        // products): a_i = cos t_i e_i + sin t_i e_{7+i} against span(e_1..e_7), whose
+        // principal angles are the t_i. The smallest, 1e-9, from sines: to the SVD's absolute
+        // error of a few eps over a unit matrix, 1e-6 relative.
+        let dim = 14;
+        let angles: Vec<f64> = (0..7)
+            .map(|i| if i == 3 { 1e-9 } else { 0.2 + 0.1 * i as f64 })
+            .collect();
+        let mut a = vec![0.0; dim * 7];
+        let mut b = vec![0.0; dim * 7];
+        for (i, t) in angles.iter().enumerate() {
+            a[i * dim + i] = t.cos();
+            a[i * dim + 7 + i] = t.sin();
+            b[i * dim + i] = 1.0;
+        }
+        let got = min_principal_angle(&a, &b, dim);
+        assert!((got - 1e-9).abs() < 1e-15, "{got}");
     }
 }

@@ -722,6 +722,15 @@ pub fn summary(r: &ClvReport) -> String {
             r.growth_rates[j] - r.qr_spectrum[j]
         ));
     }
+    s.push_str(&format!(
+        "  recomputed R_jj against the recorded stretching: max relative difference {:e}{}\n",
+        r.stretch_max_relative_difference,
+        if r.spilled_bytes > 0 {
+            format!("; {} bytes of factors spilled to disk", r.spilled_bytes)
+        } else {
+            String::new()
+        }
+    ));
     s.push_str("  smallest principal angles (rad):\n");
     s.push_str(&format!(
         "    {:<28} {:>10} {:>10} {:>10} {:>10} {:>10} {:>10}\n",

@@ -135,8 +135,11 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
 
 /// `analyze --clv`.
 fn clv(args: &Args) -> anyhow::Result<ExitCode> {
-    if args.at.is_some() || args.plot.is_some() {
-        anyhow::bail!("--clv takes neither --at nor --plot");
+    if args.at.is_some() || args.plot.is_some() || args.from.is_some() {
+        anyhow::bail!(
+            "--clv takes neither --at, --from nor --plot (its transients are \
+             --clv-forward-transient and --clv-backward-transient)"
+        );
     }
     let options = ClvOptions {
         scheme: args.clv_scheme.clone(),

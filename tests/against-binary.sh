@@ -19,7 +19,8 @@
 # `target/release/chaoscope` aside (the tests run the path `env!("CARGO_BIN_EXE_chaoscope")`
 # compiled into them, tests/common), puts a copy of the given binary in its place, runs each
 # test function of each test executable directly (never through cargo, so nothing is rebuilt),
-# one at a time (`--exact NAME --test-threads=1`, in the package directory as cargo does), and
+# one at a time (`--exact NAME --test-threads=1 --nocapture`, in the package directory as cargo
+# does; a test killed at the timeout keeps its output so far in its log), and
 # always puts the real binary back (on exit, Ctrl+C or SIGTERM; a run killed with SIGKILL leaves
 # it as `chaoscope.against-real`, which the next run of this script restores first). The copy
 # carries a 1970 modification time, so a cargo build that ever saw it would rebuild it rather
@@ -214,9 +215,11 @@ for entry in "${executables[@]}"; do
         # the timeout kills the test before it removes its own files (a replay wrote 8 GB).
         test_tmp="$(mktemp -d "${TMPDIR:-/tmp}/chaoscope-against-test.XXXXXX")"
         chmod 1777 "$test_tmp"
-        # In the package directory, as cargo runs its tests.
+        # In the package directory, as cargo runs its tests. `--nocapture`: a test killed at the
+        # timeout keeps what it printed so far in its log (the case it hung at), which the
+        # harness would otherwise hold back until the test ends.
         (cd "$repo" && TMPDIR="$test_tmp" exec timeout --kill-after=10 "$per_test_timeout" \
-            "$exe" --exact "$test" --test-threads=1) >"$log" 2>&1 &
+            "$exe" --exact "$test" --test-threads=1 --nocapture) >"$log" 2>&1 &
         current_pid=$!
         rc=0
         wait "$current_pid" || rc=$?

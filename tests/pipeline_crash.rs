@@ -833,6 +833,11 @@ fn sigint_and_sigterm_end_every_long_command_at_every_moment_with_a_valid_file()
                         run_case(&inputs, case, n)
                     }))
                     .unwrap_or_else(|_| Err(format!("{case:?}: panicked in the test")));
+                    // Named as it happens: a matrix killed at an outer timeout (run against an
+                    // older binary, tests/against-binary.sh) still tells which cases failed.
+                    if let Err(e) = &r {
+                        eprintln!("case {n} failed: {e}");
+                    }
                     results.lock().unwrap().push((case, r));
                 }
             });

@@ -132,7 +132,8 @@ fn orbits_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
 /// vectors per row to hide the latency of a stage (drift, force, kick). Measured on Zen 5
 /// (a loaded 2-core VM; `chaoscope bench --kernel-only --isa avx512`), FPUT kernel over the
 /// plain loop: N = 5: 16 lanes 2.07, 8 lanes 0.36; N = 101: 16 lanes 0.77, 8 lanes 2.3;
-/// N = 501: 1.48 and 1.14.
+/// N = 501: 1.48 and 1.14. (Only the x86-64 AVX-512 instantiation reads it.)
+#[cfg(target_arch = "x86_64")]
 const LONG_CHAIN: usize = 32;
 
 #[cfg(target_arch = "x86_64")]

@@ -10,6 +10,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 mod load;
+pub mod locate;
 mod model;
 pub mod paper;
 mod parse_error;
@@ -25,7 +26,8 @@ pub use scheme::SchemeConfig;
 use sweep::{SweepConfig, SweepError};
 
 pub use load::{
-    ConfigLoadError, MAX_CONFIG_BYTES, parse_config_bytes, read_bounded, read_config_file,
+    ConfigLoadError, ConfigSource, MAX_CONFIG_BYTES, parse_config_bytes, parse_config_source,
+    read_bounded, read_config_file, read_config_source,
 };
 
 /// Top level of a run configuration file.

@@ -39,6 +39,7 @@ pub use potential::{TableDigest, pin_tables};
 pub use separable::{
     initial_state, model_from_config, parse_coordinate, solve_momentum, state_coordinate,
 };
+pub use vector::unused_params;
 
 /// The route a configuration names at `key` (absent: per-set).
 pub fn route_from_config(key: &str, value: Option<&str>) -> Result<Route, SpecError> {

@@ -243,7 +243,7 @@ fn toml_examples_are_valid_configurations() {
                     parse_config_bytes(&block.place, block.text.clone().into_bytes(), &base)
                         .map_err(|e| e.to_string())
                         .and_then(|config| {
-                            crate::cli::config::validate(&config, &machine)
+                            crate::cli::config::validate(&config, None, &machine)
                                 .map(|_| ())
                                 .map_err(|e| format!("{e:#}"))
                         })

@@ -91,6 +91,77 @@ fn monitor_json_lines_final_values_equal_offline_analyze() {
     );
 }
 
+#[test]
+fn a_late_monitor_loses_no_frame_and_a_stopped_one_is_not_final() {
+    // A monitor attached mid-run: what the producer published before it attached is counted
+    // in frames_before_attach, never as lost; stopped by SIGINT while the run goes on, its last
+    // line says "interrupted", not "final".
+    let dir = tempfile::tempdir().unwrap();
+    let run = unique_run("late-monitor");
+    let config = dir.path().join("run.toml");
+    // Long enough to outlive the test (it is stopped by a signal).
+    std::fs::write(&config, hh_run(&run, 1e7, 1, 1e-8)).unwrap();
+    let out = dir.path().join("run.mcap");
+    let mut producer = Proc::spawn(chaoscope(&[
+        "produce",
+        config.to_str().unwrap(),
+        "--no-progress",
+        "--force",
+        "--wait-timeout",
+        "60",
+    ]));
+    let mut recorder = Proc::spawn(record_cmd(&run, &out, &[]));
+    // Let the run publish for a while before the monitor comes.
+    std::thread::sleep(Duration::from_millis(1500));
+    let mut monitor_cmd = chaoscope(&[
+        "monitor",
+        &run,
+        "--json-lines",
+        "--interval",
+        "0.1",
+        "--wait-timeout",
+        "60",
+    ]);
+    monitor_cmd.stderr(Stdio::piped());
+    let mut monitor = Proc::spawn(monitor_cmd);
+    let mut err = BufReader::new(monitor.0.stderr.take().unwrap());
+    let mut line = String::new();
+    err.read_line(&mut line).unwrap();
+    assert!(line.contains("attached"), "monitor said: {line}");
+    let mut stdout = BufReader::new(monitor.0.stdout.take().unwrap());
+    let mut first = String::new();
+    stdout.read_line(&mut first).unwrap();
+    let first: Value = serde_json::from_str(&first).unwrap();
+    assert_eq!(first["final"], false);
+    // The run published at least one frame in 1.5 s before the monitor came; just attached,
+    // it has not fallen behind (a monitor's buffer holds far more than 0.1 s of this run).
+    assert!(
+        first["progress"]["frames_before_attach"].as_u64().unwrap() > 0,
+        "{first}"
+    );
+    assert_eq!(first["progress"]["frames_lost"], 0, "{first}");
+    monitor.signal(libc::SIGINT);
+    let status = monitor.wait(LIMIT);
+    assert_eq!(status.code(), Some(130));
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut stdout, &mut rest).unwrap();
+    let last: Value = serde_json::from_str(rest.lines().last().unwrap()).unwrap();
+    assert_eq!(last["final"], false, "{last}");
+    assert_eq!(last["interrupted"], true, "{last}");
+    assert_eq!(last["detached"], false, "{last}");
+    assert!(last["progress"]["status"].is_null(), "{last}");
+    assert_eq!(
+        last["run"]["complete"], false,
+        "it saw only part of the run"
+    );
+    let mut said = String::new();
+    std::io::Read::read_to_string(&mut err, &mut said).unwrap();
+    assert!(said.contains("published before it attached"), "{said}");
+    producer.signal(libc::SIGINT);
+    producer.wait(LIMIT);
+    recorder.wait(LIMIT);
+}
+
 fn gali(report: &Value, scheme: &str, j: usize) -> f64 {
     let s = report["schemes"]
         .as_array()

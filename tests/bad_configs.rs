@@ -476,6 +476,178 @@ fn every_bad_config_is_one_line_naming_the_key_and_leaves_nothing() {
     );
 }
 
+/// The line (1-based) of `text` holding `needle`, which must occur once.
+fn line_of(text: &str, needle: &str) -> usize {
+    assert_eq!(text.matches(needle).count(), 1, "{needle:?}");
+    text[..text.find(needle).unwrap()].matches('\n').count() + 1
+}
+
+#[test]
+fn semantic_errors_name_the_file_and_the_line_of_their_key() {
+    // A value the TOML parser accepts and the validation refuses: the message names the file
+    // and the key's line and column, as a TOML error does (`in FILE: invalid run
+    // configuration: KEY (line L, column C): ...`), in every command that reads the file.
+    use Cmd::*;
+    let tmp = tempfile::tempdir().unwrap();
+    let cases = [
+        (
+            Run,
+            RUN,
+            "h = 0.01",
+            "h = -0.01",
+            "invalid run configuration: integrator.h",
+        ),
+        (
+            Produce,
+            RUN,
+            "h = 0.01",
+            "h = 0.0",
+            "invalid run configuration: integrator.h",
+        ),
+        (
+            Run,
+            RUN,
+            "d0 = 1e-8",
+            "d0 = -1e-8",
+            "invalid run configuration: scheme[0].d0",
+        ),
+        (
+            Section,
+            RUN,
+            "k = 4",
+            "k = 9",
+            "invalid run configuration: deviations.k",
+        ),
+        (
+            Map,
+            MAP,
+            "indicator = \"gali\"",
+            "indicator = \"galli\"",
+            "invalid map configuration: map.indicator",
+        ),
+        (
+            Produce,
+            FPUT,
+            "beta = 1.0",
+            "beta = nan",
+            "invalid run configuration: model.beta",
+        ),
+    ];
+    for (i, (cmd, base, from, to, says)) in cases.into_iter().enumerate() {
+        let text = String::from_utf8(spoil(base, from, to)).unwrap();
+        let line = line_of(&text, to.lines().next().unwrap());
+        let c = case("semantic", cmd, text.into_bytes(), "", "");
+        let dir = tmp.path().join(i.to_string());
+        let (code, stderr, _) = run_case(&c, &dir);
+        assert_eq!(code, Some(1), "{stderr}");
+        let config = dir.join("cfg").join("run.toml");
+        let want = format!("in {}: ", config.display());
+        assert!(stderr.contains(&want), "{stderr:?} does not name the file");
+        assert!(stderr.contains(says), "{stderr:?} does not say {says:?}");
+        assert!(
+            stderr.contains(&format!("(line {line}, column 1): ")),
+            "{stderr:?} does not give line {line}"
+        );
+        assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    }
+    // A key the user left out (a map's h given where a Hamiltonian needs one): its table.
+    let text = String::from_utf8(spoil(RUN, "h = 0.01\n", "")).unwrap();
+    let line = line_of(&text, "[integrator]");
+    let dir = tmp.path().join("missing");
+    let (code, stderr, _) = run_case(&case("missing", Run, text.into_bytes(), "", ""), &dir);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains(&format!("integrator.h (line {line}, column 1): missing")),
+        "{stderr}"
+    );
+}
+
+/// `chaoscope config` on `text`: exit status, stdout and stderr.
+fn config_check(text: &str, dir: &Path) -> (Option<i32>, String, String) {
+    std::fs::create_dir_all(dir).unwrap();
+    let path = dir.join("check.toml");
+    std::fs::write(&path, text).unwrap();
+    let out = Command::new(CHAOSCOPE)
+        .args(["config", path.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let text = |b: Vec<u8>| String::from_utf8(b).unwrap();
+    (out.status.code(), text(out.stdout), text(out.stderr))
+}
+
+/// The Henon map with `params`, `[integrator]` holding `integrator`, and `map` appended.
+fn henon_map(params: &str, integrator: &str, map: &str) -> String {
+    format!(
+        "[model]\nname = \"map\"\nnext = [\"1 - a*x1^2 + x2\", \"b*x1\"]\nparams = {params}\n\
+         modulo = [6.283185307179586, 0]\n[orbit]\nx = [0.1, 0.1]\n\
+         [integrator]\n{integrator}\n[deviations]\nk = 2\nsets = 1\nseed = 1\n\
+         [[scheme]]\nname = \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 1\n\
+         orthonormalize = \"rescale\"\n{map}"
+    )
+}
+
+#[test]
+fn papercuts_of_maps_and_parameters_are_said_not_silent() {
+    let tmp = tempfile::tempdir().unwrap();
+    let used = "{ a = 1.4, b = 0.3 }";
+    // A map needs no h (time counts iterations); any h but 1 is one line naming integrator.h.
+    let (code, _, stderr) = config_check(&henon_map(used, "t_final = 10", ""), tmp.path());
+    assert_eq!(code, Some(0), "{stderr}");
+    assert!(stderr.is_empty(), "{stderr}");
+    let (code, _, stderr) = config_check(&henon_map(used, "h = 0.1\nt_final = 10", ""), tmp.path());
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("integrator.h (line 9, column 1): a map's time counts iterations"));
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+
+    // An unused parameter: a warning naming it, and the run still succeeds.
+    let unused = "{ a = 1.4, b = 0.3, unused = 3 }";
+    let config = tmp.path().join("unused.toml");
+    std::fs::write(&config, henon_map(unused, "t_final = 10", "")).unwrap();
+    let out = Command::new(CHAOSCOPE)
+        .current_dir(tmp.path())
+        .args(["run", config.to_str().unwrap(), "--out", "unused.mcap"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8(out.stderr).unwrap();
+    assert!(out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("warning: model.params.unused = 3 is used by no expression"),
+        "{stderr}"
+    );
+    assert!(tmp.path().join("unused.mcap").is_file());
+
+    // A grid over a whole period of x1 (0 and 2 pi are one point): a warning naming map.x
+    // and the max that grids it once; none for x2, which has no period, nor for max < 2 pi.
+    let axes = |max: &str| {
+        format!(
+            "[map]\nx = {{ coord = \"x1\", min = 0.0, max = {max}, n = 4 }}\n\
+             y = {{ coord = \"x2\", min = -1.0, max = 1.0, n = 2 }}\nindicator = \"sali\"\n"
+        )
+    };
+    let (code, _, stderr) = config_check(
+        &henon_map(used, "t_final = 10", &axes("6.283185307179586")),
+        tmp.path(),
+    );
+    assert_eq!(code, Some(0), "{stderr}");
+    assert!(
+        stderr.contains("warning: map.x: min = 0 and max = 6.283185307179586 are the same point")
+            && stderr.contains("max = 4.71238898038469"),
+        "{stderr}"
+    );
+    assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    let (code, _, stderr) = config_check(
+        &henon_map(used, "t_final = 10", &axes("4.71238898038469")),
+        tmp.path(),
+    );
+    assert_eq!(code, Some(0), "{stderr}");
+    assert!(stderr.is_empty(), "{stderr}");
+
+    // energy + solve_for: p may be left out.
+    let no_p = String::from_utf8(spoil(RUN, "p = [0.0, 0.0]\n", "")).unwrap();
+    let (code, _, stderr) = config_check(&no_p, tmp.path());
+    assert_eq!(code, Some(0), "{stderr}");
+}
+
 /// FPUT N = 501 for 10^9 time units: days of computing.
 const LONG_CHAIN: &str = r#"
 [model]
@@ -1091,8 +1263,11 @@ fn expression_blow_ups_are_refused_under_a_memory_limit() {
         let (code, stderr) = run_limited(&potential_run(potential), dir.path(), LIMIT);
         let lines: Vec<&str> = stderr.lines().collect();
         assert_eq!(code, Some(1), "{potential}: {stderr}");
+        // One line says it all; the expression and a caret under it follow, indented.
         assert!(
-            lines.len() == 1 && lines[0].contains("model.potential") && lines[0].contains(said),
+            lines[0].contains("model.potential")
+                && lines[0].contains(said)
+                && lines[1..].iter().all(|l| l.starts_with("  ")),
             "{potential}: {stderr}"
         );
     }

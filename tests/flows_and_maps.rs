@@ -148,7 +148,7 @@ fn adaptive_lorenz_replays_bit_identically() {
     let d = dir.path();
     let mut config = example("lorenz.toml");
     config.integrator.t_final = 20.0;
-    config.integrator.h = 0.1;
+    config.integrator.h = Some(0.1);
     config.integrator.rtol = Some(1e-10);
     config.integrator.atol = Some(1e-10);
     let cfg = write(d, "lorenz.toml", &config);
@@ -275,7 +275,7 @@ fn a_map_refuses_a_fractional_tau_and_a_step_other_than_one() {
         ),
         (
             |mut c| {
-                c.integrator.h = 0.5;
+                c.integrator.h = Some(0.5);
                 c.to_toml()
             },
             "integrator.h",
@@ -370,7 +370,7 @@ fn escaping_blowing_up_and_nan_orbits_stop_with_their_time() {
     ode.params.clear();
     config.orbit.x = vec![1.0, 1.0, 1.0];
     config.integrator.t_final = 5.0;
-    config.integrator.h = 0.01;
+    config.integrator.h = Some(0.01);
     for s in &mut config.schemes {
         s.tau = 0.1;
     }

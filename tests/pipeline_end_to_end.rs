@@ -190,7 +190,7 @@ fn bad_config_is_a_clear_error_not_a_panic() {
     let mut unknown_method = hh_config(10.0, 0.05);
     unknown_method.integrator.method = "rk4".to_string();
     let mut negative_step = hh_config(10.0, 0.05);
-    negative_step.integrator.h = -1.0;
+    negative_step.integrator.h = Some(-1.0);
     let cases = [
         ("[model]\nname = 'henon-heiles'\n", "orbit"),
         (&unknown_method.to_toml() as &str, "rk4"),

@@ -1,7 +1,10 @@
 //! PNG colour maps of a map recording, in the style of the paper's Fig. 9: one cell per grid
-//! point, viridis colours (yellow = regular, purple = chaotic, for every indicator), a colour
-//! bar, GALI and MLE on a log10 scale. Points outside the energy surface are white, escaped
-//! ones grey.
+//! point, viridis colours rising with the plotted value for every indicator (purple = low,
+//! yellow = high, as the colour bar beside it reads upwards), GALI, SALI and MLE on a log10
+//! scale. Which end is chaos depends on the indicator (low GALI, SALI and `gali-time`; high
+//! MLE, FLI and MEGNO: the paper's GALI maps have the chaotic sea purple, MLE and MEGNO maps
+//! conventionally yellow), so the bar says it: "chaotic" at that end, "regular" at the other.
+//! Points outside the energy surface are white, escaped ones grey.
 //!
 //! Text needs a TrueType font, looked up at run time (`CHAOSCOPE_FONT`, then DejaVu Sans /
 //! Liberation Sans in the usual places); without one the image is drawn without labels.
@@ -49,7 +52,7 @@ struct Scale {
     label: String,
     /// Map a value to the plotted number (e.g. log10); `None` for unplottable values.
     transform: fn(f64) -> Option<f64>,
-    /// Large plotted numbers mean chaos (drawn purple).
+    /// Large plotted numbers mean chaos (the top of the colour bar, yellow).
     chaotic_high: bool,
 }
 
@@ -88,9 +91,19 @@ fn scale_of(h: &MapHeader) -> Scale {
     }
 }
 
-fn colour(v: f64, lo: f64, hi: f64, chaotic_high: bool) -> RGBColor {
-    let v = if chaotic_high { lo + hi - v } else { v };
+/// The colour of a plotted number on the scale `lo..hi`: viridis rising with the number, the
+/// same way for every indicator, so the bar beside the map reads like its axis.
+fn colour(v: f64, lo: f64, hi: f64) -> RGBColor {
     ViridisRGB.get_color_normalized(v as f32, lo as f32, hi as f32)
+}
+
+/// The words at the top and the bottom of the colour bar: which end is chaos.
+fn bar_ends(scale: &Scale) -> [&'static str; 2] {
+    if scale.chaotic_high {
+        ["chaotic", "regular"]
+    } else {
+        ["regular", "chaotic"]
+    }
 }
 
 /// Largest side of the image in pixels: grids of more points per axis get cells narrower than a
@@ -209,8 +222,8 @@ pub fn render_png(
         .draw_series(points.iter().map(|p| {
             let fill = match p.status() {
                 map_point::Status::Ok => match (scale.transform)(p.value) {
-                    Some(v) => colour(v.clamp(lo, hi), lo, hi, scale.chaotic_high),
-                    None => colour(lo, lo, hi, scale.chaotic_high),
+                    Some(v) => colour(v.clamp(lo, hi), lo, hi),
+                    None => colour(lo, lo, hi),
                 },
                 map_point::Status::Escaped => RGBColor(140, 140, 140),
                 _ => WHITE,
@@ -256,15 +269,92 @@ pub fn render_png(
         .draw_series((0..steps).map(|i| {
             let a = lo + (hi - lo) * i as f64 / steps as f64;
             let b = lo + (hi - lo) * (i + 1) as f64 / steps as f64;
-            Rectangle::new(
-                [(0.0, a), (1.0, b)],
-                colour((a + b) / 2.0, lo, hi, scale.chaotic_high).filled(),
-            )
+            Rectangle::new([(0.0, a), (1.0, b)], colour((a + b) / 2.0, lo, hi).filled())
         }))
         .map_err(|e| err(&e))?;
+    if text {
+        // Which end is chaos, above and below the bar (in the margins left for them).
+        let [top, bottom] = bar_ends(&scale);
+        let style = (FONT, 13).into_font().color(&BLACK);
+        bar_area
+            .draw(&Text::new(top, (0, 16), style.clone()))
+            .map_err(|e| err(&e))?;
+        bar_area
+            .draw(&Text::new(bottom, (0, h as i32 - 44), style))
+            .map_err(|e| err(&e))?;
+    }
     root.present().map_err(|e| err(&e))?;
     drop((bar_chart, chart, plot_area, bar_area, root));
     crate::chart::save_png(path, inputs, &pixels, (w, h))
         .map(drop)
         .map_err(|e| e.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use chaoscope_schemas::proto::MapHeader;
+
+    use super::{bar_ends, colour, scale_of};
+
+    /// Near the two ends of viridis: purple (68, 1, 84) and yellow (253, 231, 37; 0.9 of the
+    /// way up it is still (189, 223, 38)).
+    fn is_purple(c: plotters::style::RGBColor) -> bool {
+        c.0 < 100 && c.1 < 50 && c.2 > 60
+    }
+    fn is_yellow(c: plotters::style::RGBColor) -> bool {
+        c.0 > 150 && c.1 > 180 && c.2 < 100
+    }
+
+    #[test]
+    fn the_bar_says_which_end_is_chaos_and_colours_rise_with_the_value() {
+        let header = |indicator: &str| MapHeader {
+            indicator: indicator.to_string(),
+            k: 2,
+            t_final: 1000.0,
+            ..Default::default()
+        };
+        // Where chaos lies for each indicator: a large MLE, FLI or MEGNO; a small GALI, SALI
+        // or time for GALI to fall under its threshold.
+        for (indicator, chaotic_high) in [
+            ("mle", true),
+            ("fli", true),
+            ("megno", true),
+            ("megno_mean", true),
+            ("gali", false),
+            ("sali", false),
+            ("gali-time", false),
+        ] {
+            let scale = scale_of(&header(indicator));
+            assert_eq!(scale.chaotic_high, chaotic_high, "{indicator}");
+            let [top, bottom] = bar_ends(&scale);
+            let (chaotic, regular) = if chaotic_high {
+                (top, bottom)
+            } else {
+                (bottom, top)
+            };
+            assert_eq!((chaotic, regular), ("chaotic", "regular"), "{indicator}");
+        }
+        // The same colours for the same place on the scale, whatever the indicator: the bottom
+        // purple, the top yellow. A chaotic MLE of 0.4 on a scale from 1e-4 (log10 -4) to 1
+        // is yellow, a regular one of 1e-4 purple.
+        let mle = scale_of(&header("mle"));
+        let (lo, hi) = (-4.0, 0.0);
+        let chaotic = (mle.transform)(0.4).unwrap();
+        let regular = (mle.transform)(1e-4).unwrap();
+        assert!(
+            is_yellow(colour(chaotic, lo, hi)),
+            "{:?}",
+            colour(chaotic, lo, hi)
+        );
+        assert!(
+            is_purple(colour(regular, lo, hi)),
+            "{:?}",
+            colour(regular, lo, hi)
+        );
+        // GALI: a chaotic 1e-16 at the bottom is purple, a regular 1e-2 at the top yellow.
+        let gali = scale_of(&header("gali"));
+        let (lo, hi) = (-16.0, -2.0);
+        assert!(is_purple(colour((gali.transform)(1e-16).unwrap(), lo, hi)));
+        assert!(is_yellow(colour((gali.transform)(1e-2).unwrap(), lo, hi)));
+    }
 }

@@ -58,8 +58,12 @@ pub struct LiveRun {
     _services: (DataService, HeaderService, EventService),
     /// Next frame sequence number expected.
     next_frame: Cell<Option<u64>>,
-    /// Frames known to be missed (gaps in the sequence, frames before attaching).
+    /// Frames known to be missed while attached (gaps in the sequence, broken frames).
     frames_lost: Cell<u64>,
+    /// Records the producer published before the first frame this monitor received: before it
+    /// attached (or, for a monitor that attached first and read late, overwritten before its
+    /// first read: the stream cannot tell the two apart). Not lost: the monitor was not there.
+    frames_before_attach: Cell<u64>,
     frames_received: Cell<u64>,
 }
 
@@ -116,6 +120,7 @@ impl LiveRun {
                 _services: (monitor_service, header_service, event_service),
                 next_frame: Cell::new(None),
                 frames_lost: Cell::new(0),
+                frames_before_attach: Cell::new(0),
                 frames_received: Cell::new(0),
             },
             run_header,
@@ -126,9 +131,21 @@ impl LiveRun {
         &self.run
     }
 
-    /// Frames known to be missed so far (before attaching, or overwritten while behind).
+    /// Frames known to be missed so far while attached (overwritten while behind, or broken);
+    /// not those published before the monitor's first frame ([`Self::frames_before_attach`]).
     pub fn frames_lost(&self) -> u64 {
         self.frames_lost.get()
+    }
+
+    /// Frames the producer published before the first one this monitor received.
+    pub fn frames_before_attach(&self) -> u64 {
+        self.frames_before_attach.get()
+    }
+
+    /// Whether the samples received miss any of the run's: lost while attached, or published
+    /// before (an analysis of them is then incomplete).
+    pub fn missed_any(&self) -> bool {
+        self.frames_lost() > 0 || self.frames_before_attach() > 0
     }
 
     pub fn frames_received(&self) -> u64 {
@@ -152,13 +169,18 @@ impl LiveRun {
             };
             let h = *sample.user_header();
             // Frames and their counts come from another process: saturating arithmetic.
-            let expected = self.next_frame.get().unwrap_or(0);
-            if h.frame_seq > expected {
-                self.frames_lost.set(
-                    self.frames_lost
-                        .get()
-                        .saturating_add(h.frame_seq - expected),
-                );
+            match self.next_frame.get() {
+                // The first frame: what came before it was published before the monitor was
+                // there to receive it.
+                None => self.frames_before_attach.set(h.frame_seq),
+                Some(expected) if h.frame_seq > expected => {
+                    self.frames_lost.set(
+                        self.frames_lost
+                            .get()
+                            .saturating_add(h.frame_seq - expected),
+                    );
+                }
+                Some(_) => {}
             }
             self.next_frame
                 .set(Some(h.frame_seq.saturating_add(h.records)));

@@ -90,6 +90,24 @@ pub enum ExprKind {
 type Parts<'e> = ([Option<&'e Expr>; 3], &'e [Expr], &'e [(BinOp, Span, Expr)]);
 
 impl Expr {
+    /// Every name the expression reads: bare names (variables, scalar parameters, `N`, `pi`,
+    /// sum indices) and the names of indexed families and array parameters (`a` of `a[i]`);
+    /// not the names of called functions. What tells a parameter no expression uses.
+    pub fn names(&self) -> std::collections::BTreeSet<&str> {
+        let mut names = std::collections::BTreeSet::new();
+        let mut stack = vec![self];
+        while let Some(e) = stack.pop() {
+            match &e.kind {
+                ExprKind::Name(name) | ExprKind::Index { name, .. } => {
+                    names.insert(name.as_str());
+                }
+                _ => {}
+            }
+            stack.extend(e.children());
+        }
+        names
+    }
+
     /// The direct subexpressions, in source order (no allocation: passes over a lattice sum's
     /// body run once per term).
     pub fn children(&self) -> impl Iterator<Item = &Expr> {
@@ -110,5 +128,16 @@ impl Expr {
             .flatten()
             .chain(args.iter())
             .chain(chain.iter().map(|(_, _, x)| x))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn names_are_every_name_read_but_no_function() {
+        let e =
+            crate::parser::parse("a * sin(x1) + sum(i = 1..N, w[i] * q[i]^2) - exp(b)").unwrap();
+        let names: Vec<&str> = e.names().into_iter().collect();
+        assert_eq!(names, ["N", "a", "b", "i", "q", "w", "x1"]);
     }
 }

@@ -16,7 +16,7 @@ fn max_energy_error(kind: SplittingKind, h: f64) -> f64 {
         DeviationsConfig::random(2, 1, 0),
         vec![SchemeConfig::new("v", "vm", 1e-8, 200.0)],
     );
-    config.integrator.h = h;
+    config.integrator.h = Some(h);
     let spec = common::spec(&config);
     let model = HenonHeiles;
     let integ = Splitting::new(kind);

@@ -189,7 +189,7 @@ fn read(
             let (sample, e) = assembler.push(m);
             if let Some(s) = sample {
                 analysis.feed(&s);
-                if live.frames_lost() > 0 {
+                if live.missed_any() {
                     analysis.mark_gap();
                 }
                 if !send(&tx, Item::Sample(sample_data(&analysis, &s, &live)), &stop) {
@@ -214,7 +214,7 @@ fn read(
         analysis.feed(&s);
         send(&tx, Item::Sample(sample_data(&analysis, &s, &live)), &stop);
     }
-    if live.frames_lost() > 0 {
+    if live.missed_any() {
         analysis.mark_gap();
     }
     let mut end = end.lock().unwrap_or_else(|e| e.into_inner());

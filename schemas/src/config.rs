@@ -10,6 +10,7 @@ use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
 mod load;
+pub mod locate;
 mod model;
 pub mod paper;
 mod parse_error;
@@ -25,7 +26,8 @@ pub use scheme::SchemeConfig;
 use sweep::{SweepConfig, SweepError};
 
 pub use load::{
-    ConfigLoadError, MAX_CONFIG_BYTES, parse_config_bytes, read_bounded, read_config_file,
+    ConfigLoadError, ConfigSource, MAX_CONFIG_BYTES, parse_config_bytes, parse_config_source,
+    read_bounded, read_config_file, read_config_source,
 };
 
 /// Top level of a run configuration file.
@@ -67,7 +69,8 @@ pub struct OrbitConfig {
     /// Positions q1..qN. May be omitted when `preset` gives them.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub q: Vec<f64>,
-    /// Momenta p1..pN. The entry named by `solve_for` is ignored (solved from `energy`).
+    /// Momenta p1..pN. The entry named by `solve_for` is ignored (solved from `energy`); with
+    /// `solve_for` and `energy`, `p` may be left out (every other momentum is then 0).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub p: Vec<f64>,
     /// Target energy; requires `solve_for`.
@@ -90,8 +93,11 @@ pub struct IntegratorConfig {
     pub method: String,
     /// Time step. Fixed-step methods take exactly this step; adaptive `dop853` (with `rtol` /
     /// `atol`) lands every accepted step on the grid of multiples of `h`, so `h` is the time
-    /// grid that `tau` and `t_final` are multiples of.
-    pub h: f64,
+    /// grid that `tau` and `t_final` are multiples of. Required, except for a map, whose time
+    /// counts iterations: there `h` may be left out (it is 1, one iteration; any other value is
+    /// refused).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub h: Option<f64>,
     /// Final time (the horizon of a map).
     pub t_final: f64,
     /// Relative tolerance of adaptive `dop853` (error control on; needs `atol` too).
@@ -107,7 +113,7 @@ impl IntegratorConfig {
     pub fn fixed(method: &str, h: f64, t_final: f64) -> Self {
         Self {
             method: method.to_string(),
-            h,
+            h: Some(h),
             t_final,
             rtol: None,
             atol: None,

@@ -10,8 +10,8 @@ use std::process::ExitCode;
 use anyhow::{Context, bail};
 use chaoscope_producer::estimate;
 use chaoscope_producer::map::MapSpec;
-use chaoscope_producer::spec::RunSpec;
-use chaoscope_schemas::config::RunConfig;
+use chaoscope_producer::spec::{RunSpec, SpecError};
+use chaoscope_schemas::config::{ConfigSource, RunConfig};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -31,9 +31,11 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let Some(path) = args.config else {
         bail!("give a configuration file to validate, or --schema");
     };
-    let (config, _) = super::load_config(&path)?;
+    let (config, _, source) = super::load_config(&path)?;
     let machine = super::machine();
-    let (what, estimate) = validate(&config, &machine)?;
+    let (what, estimate) = validate(&config, Some(&source), &machine)?;
+    super::warn_unused_params("config", &config);
+    super::warn_repeated_grid_lines("config", &config);
     let refusal = estimate.refusal(&machine);
     super::print_summary(&serde_json::json!({
         "config": path.display().to_string(),
@@ -60,15 +62,21 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
 /// through this too.
 pub fn validate(
     config: &RunConfig,
+    source: Option<&ConfigSource>,
     machine: &estimate::Machine,
 ) -> anyhow::Result<(String, estimate::Estimate)> {
+    // Errors name the file and the key's line where the config was read from one.
+    let invalid = |what: &str, e: SpecError| match source {
+        Some(source) => super::invalid_config(source, what, e),
+        None => anyhow::Error::new(e).context(format!("invalid {what} configuration")),
+    };
     Ok(if config.map.is_some() {
-        let spec = MapSpec::from_config(config).context("invalid map configuration")?;
+        let spec = MapSpec::from_config(config).map_err(|e| invalid("map", e))?;
         let points = spec.grid_points();
         let e = estimate::map(&spec, points, machine.cores);
         (format!("a map of {points} points"), e)
     } else {
-        let spec = RunSpec::from_config(config).context("invalid run configuration")?;
+        let spec = RunSpec::from_config(config).map_err(|e| invalid("run", e))?;
         let e = estimate::run(&spec, machine);
         (
             format!(

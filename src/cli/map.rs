@@ -83,8 +83,9 @@ pub struct Args {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
-    let (config, _) = super::load_config(&args.config)?;
-    let spec = MapSpec::from_config(&config).context("invalid map configuration")?;
+    let (config, _, source) = super::load_config(&args.config)?;
+    let spec =
+        MapSpec::from_config(&config).map_err(|e| super::invalid_config(&source, "map", e))?;
     let machine = super::machine();
     let threads = args.threads.unwrap_or(machine.cores);
     let (total, count) = (spec.grid_points(), u64::from(args.shard.count));
@@ -109,6 +110,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         isa,
     );
     super::check_estimate(&estimate, &machine, args.force, "map")?;
+    super::warn_unused_params("map", &config);
+    super::warn_repeated_grid_lines("map", &config);
     let header = spec.header(args.shard);
     chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
     let termination = Termination::new();

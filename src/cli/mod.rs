@@ -22,7 +22,8 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use chaoscope_producer::estimate::{Estimate, Machine};
-use chaoscope_schemas::config::RunConfig;
+use chaoscope_producer::spec::SpecError;
+use chaoscope_schemas::config::{ConfigSource, RunConfig};
 
 /// Writes the one JSON summary line of `produce` and `record` to stdout. Its reader (`chaoscope
 /// run`) may have been killed: the run's files are complete by then, so a closed pipe (or any
@@ -40,19 +41,42 @@ pub fn exit_interrupted() -> ExitCode {
 }
 
 /// Reads a run configuration from a TOML file, or from stdin when `path` is `-`; returns it
-/// with its canonical TOML text.
-pub fn load_config(path: &Path) -> anyhow::Result<(RunConfig, String)> {
-    let config = if path == Path::new("-") {
+/// with its canonical TOML text, and the text as read (which [`invalid_config`] places the
+/// keys of validation errors in).
+pub fn load_config(path: &Path) -> anyhow::Result<(RunConfig, String, ConfigSource)> {
+    let (config, source) = if path == Path::new("-") {
         let bytes = chaoscope_schemas::config::read_bounded(std::io::stdin())
             .context("reading the run configuration from stdin")?;
-        chaoscope_schemas::config::parse_config_bytes("stdin", bytes, path)?
+        chaoscope_schemas::config::parse_config_source("stdin", bytes, path)?
     } else {
-        chaoscope_schemas::config::read_config_file(path)?
+        chaoscope_schemas::config::read_config_source(path)?
     };
     // The canonical text, with table paths joined to the config's directory: the producer
     // child reads it from stdin, where the file's own directory is unknown.
     let text = config.to_toml();
-    Ok((config, text))
+    Ok((config, text, source))
+}
+
+/// A validation error of the config read from `source`, with the file and the line and column
+/// of the key it names, as a TOML error of the file is written (`what`: `run` or `map`).
+pub fn invalid_config(source: &ConfigSource, what: &str, e: SpecError) -> anyhow::Error {
+    anyhow::anyhow!(source.describe(what, &e.key, &e.message))
+}
+
+/// Says on stderr which parameters of an expression model no expression reads: a warning, not
+/// an error (a user comments expressions in and out), once the config is valid.
+pub fn warn_unused_params(command: &str, config: &RunConfig) {
+    for unused in chaoscope_producer::spec::unused_params(&config.model) {
+        chaoscope_os::errln!("chaoscope {command}: warning: {unused}");
+    }
+}
+
+/// Says on stderr which axes of a valid map grid a periodic coordinate over a whole period,
+/// so that their last line repeats the first (`map::spec::repeated_grid_lines`).
+pub fn warn_repeated_grid_lines(command: &str, config: &RunConfig) {
+    for repeated in chaoscope_producer::map::spec::repeated_grid_lines(config) {
+        chaoscope_os::errln!("chaoscope {command}: warning: {repeated}");
+    }
 }
 
 /// This machine's cores and memory, for the resource estimate.

@@ -33,7 +33,8 @@ use super::monitor_view::TerminalView;
 pub struct Args {
     /// Run to follow; default: the only live run (waits for one to appear).
     pub run: Option<String>,
-    /// Stream one JSON object per update on stdout (the last one has "final": true).
+    /// Stream one JSON object per update on stdout (the last one has "final": true if the run
+    /// ended; a monitor stopped by a signal or detached says "interrupted" or "detached" instead).
     #[arg(long)]
     pub json_lines: bool,
     /// Seconds between updates.
@@ -80,14 +81,23 @@ fn json_line(
     analysis: &Analysis,
     progress: &Progress,
     live: &LiveRun,
-    is_final: bool,
+    last: Option<Last>,
     end: Option<&EndOfRun>,
 ) -> serde_json::Value {
     // As `analyze` reports a finished recording: how the producer ended the run.
     let mut v = serde_json::to_value(analysis.report_ended(end)).expect("reports serialize");
     let step = analysis.step();
     let obj = v.as_object_mut().expect("a report is an object");
-    obj.insert("final".into(), is_final.into());
+    // "final" only when the run is over: a monitor that stops following a run still going
+    // says why it stopped instead.
+    obj.insert("final".into(), (last == Some(Last::RunOver)).into());
+    if last.is_some() {
+        obj.insert(
+            "interrupted".into(),
+            (last == Some(Last::Interrupted)).into(),
+        );
+        obj.insert("detached".into(), (last == Some(Last::Detached)).into());
+    }
     obj.insert(
         "progress".into(),
         serde_json::json!({
@@ -98,10 +108,22 @@ fn json_line(
             "eta_s": progress.eta_seconds(step),
             "frames_received": live.frames_received(),
             "frames_lost": live.frames_lost(),
+            "frames_before_attach": live.frames_before_attach(),
             "status": end.map(|e| e.status().word()),
         }),
     );
     v
+}
+
+/// Why the monitor's last line is its last.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Last {
+    /// The run ended (its end record arrived, or its producer is gone).
+    RunOver,
+    /// SIGINT or SIGTERM stopped the monitor while the run went on.
+    Interrupted,
+    /// The user detached from the terminal view (`q`).
+    Detached,
 }
 
 fn plain_line(analysis: &Analysis, progress: &Progress, live: &LiveRun) -> String {
@@ -194,14 +216,14 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         if last_update.is_none_or(|l| l.elapsed() >= args.interval) {
             last_update = Some(Instant::now());
             progress.observe(analysis.step(), start.elapsed());
-            if live.frames_lost() > 0 {
+            if live.missed_any() {
                 analysis.mark_gap();
             }
             let result = match &mut view {
                 View::JsonLines => writeln!(
                     std::io::stdout().lock(),
                     "{}",
-                    json_line(&analysis, &progress, &live, false, None)
+                    json_line(&analysis, &progress, &live, None, None)
                 ),
                 View::Plain => writeln!(
                     std::io::stdout().lock(),
@@ -220,7 +242,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(s) = assembler.finish() {
         analysis.feed(&s);
     }
-    if live.frames_lost() > 0 {
+    if live.missed_any() {
         analysis.mark_gap();
     }
     if let View::Terminal(t) = view {
@@ -242,16 +264,27 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         (LiveEnded::ProducerGone, None, _) => "producer gone",
         _ => "stopped",
     };
+    let last = match (ended, &end, detached) {
+        // An end record that arrived wins over a signal that came after it.
+        (_, Some(_), _) => Last::RunOver,
+        (_, _, true) => Last::Detached,
+        (LiveEnded::Signal, _, _) => Last::Interrupted,
+        _ => Last::RunOver,
+    };
     if args.json_lines {
         chaoscope_os::outln!(
             "{}",
-            json_line(&analysis, &progress, &live, true, end.as_ref())
+            json_line(&analysis, &progress, &live, Some(last), end.as_ref())
         )?;
     } else {
         super::analyze::print_table(&analysis.report())?;
     }
+    let before = match live.frames_before_attach() {
+        0 => String::new(),
+        n => format!(" ({n} published before it attached)"),
+    };
     chaoscope_os::errln!(
-        "chaoscope monitor: run {run} {how}; {} frames received, {} missed",
+        "chaoscope monitor: run {run} {how}; {} frames received{before}, {} missed",
         live.frames_received(),
         live.frames_lost()
     );

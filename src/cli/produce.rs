@@ -4,7 +4,6 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use anyhow::Context;
 use chaoscope_producer::publish::{self, PublishOptions, RunStatus};
 use chaoscope_producer::spec::RunSpec;
 
@@ -45,8 +44,9 @@ fn say_open() {
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
-    let (config, _) = super::load_config(&args.config)?;
-    let spec = RunSpec::from_config(&config).context("invalid run configuration")?;
+    let (config, _, source) = super::load_config(&args.config)?;
+    let spec =
+        RunSpec::from_config(&config).map_err(|e| super::invalid_config(&source, "run", e))?;
     let machine = super::machine();
     let estimate = chaoscope_producer::estimate::run(&spec, &machine);
     super::check_estimate(&estimate, &machine, args.force, "produce")?;

@@ -101,20 +101,28 @@ fn child_command(subcommand: &str) -> anyhow::Result<Command> {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
-    let (config, text) = match &args.config {
-        Some(path) => super::load_config(path)?,
+    let (config, text, source) = match &args.config {
+        Some(path) => {
+            let (config, text, source) = super::load_config(path)?;
+            (config, text, Some(source))
+        }
         None => (
             RunConfig::from_toml(DEFAULT_CONFIG)?,
             DEFAULT_CONFIG.to_string(),
+            None,
         ),
     };
     // Fail on a bad config or one beyond the machine here, before any process starts (the
     // producer process validates its own copy once more: a process trusts no other).
-    let spec = chaoscope_producer::spec::RunSpec::from_config(&config)
-        .context("invalid run configuration")?;
+    let spec =
+        chaoscope_producer::spec::RunSpec::from_config(&config).map_err(|e| match &source {
+            Some(source) => super::invalid_config(source, "run", e),
+            None => anyhow::Error::new(e).context("invalid run configuration"),
+        })?;
     let machine = super::machine();
     let estimate = chaoscope_producer::estimate::run(&spec, &machine);
     super::check_estimate(&estimate, &machine, args.force, "run")?;
+    super::warn_unused_params("run", &config);
     let run = resolve_run_name(&config, args.run.as_deref())?;
     let out = args
         .out

@@ -19,7 +19,7 @@ use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::section::crossings;
 use chaoscope_producer::section::surface::{Direction, OrbitEnd, Surface, surface_crossings};
 use chaoscope_producer::spec::{RunSpec, parse_coordinate};
-use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::config::{ConfigSource, RunConfig};
 use chaoscope_schemas::run::SystemKind;
 
 #[derive(clap::Args)]
@@ -82,15 +82,15 @@ pub struct Args {
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     // Nothing worth finalizing: a signal removes the unfinished outputs and ends at once.
     chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
-    let (config, _) = super::load_config(&args.config)?;
+    let (config, _, source) = super::load_config(&args.config)?;
     for (name, v) in [("--from", args.from), ("--to", args.to)] {
         if v.is_some_and(|v| !v.is_finite()) {
             bail!("{name} must be a finite number");
         }
     }
     match args.surface.clone() {
-        Some(surface) => surface_section(&args, config, &surface),
-        None => energy_section(&args, config),
+        Some(surface) => surface_section(&args, config, &source, &surface),
+        None => energy_section(&args, config, &source),
     }
 }
 
@@ -124,7 +124,11 @@ fn start_value(from: f64, to: f64, i: usize, count: usize) -> f64 {
 }
 
 /// Crossings of `q_i = 0` with `p_i > 0` of many orbits on the configured energy surface.
-fn energy_section(args: &Args, mut config: RunConfig) -> anyhow::Result<ExitCode> {
+fn energy_section(
+    args: &Args,
+    mut config: RunConfig,
+    source: &ConfigSource,
+) -> anyhow::Result<ExitCode> {
     let (Some(vary_name), Some(from), Some(to)) = (&args.vary, args.from, args.to) else {
         bail!(
             "--vary, --from and --to are needed: the coordinate along which orbits are started \
@@ -136,7 +140,8 @@ fn energy_section(args: &Args, mut config: RunConfig) -> anyhow::Result<ExitCode
         "the config needs orbit.solve_for (the momentum crossing the plane) and orbit.energy \
          (or use --surface)",
     )?;
-    let base = RunSpec::from_config(&config).context("invalid run configuration")?;
+    let base =
+        RunSpec::from_config(&config).map_err(|e| super::invalid_config(source, "run", e))?;
     if base.system().separable().is_none() {
         bail!(
             "model.name: sections of an energy surface are drawn for separable Hamiltonians, \
@@ -244,11 +249,17 @@ fn set_start(config: &mut RunConfig, canonical: bool, vary: usize, dim: usize, v
 }
 
 /// The section of any flow through `EXPR = 0`.
-fn surface_section(args: &Args, mut config: RunConfig, source: &str) -> anyhow::Result<ExitCode> {
+fn surface_section(
+    args: &Args,
+    mut config: RunConfig,
+    config_source: &ConfigSource,
+    source: &str,
+) -> anyhow::Result<ExitCode> {
     if args.crossings == 0 || args.count == Some(0) {
         bail!("--crossings and --count must be at least 1");
     }
-    let base = RunSpec::from_config(&config).context("invalid run configuration")?;
+    let base = RunSpec::from_config(&config)
+        .map_err(|e| super::invalid_config(config_source, "run", e))?;
     let surface = Surface::new(&base, &config.model, source)
         .map_err(|e| anyhow::anyhow!("{}: {}", e.key, e.message))?;
     let direction = Direction::from_name(&args.direction)

@@ -79,6 +79,45 @@ impl Axis {
     }
 }
 
+/// Grid axes of a valid map config over a periodic coordinate (a map model's `modulo`) whose
+/// `max - min` is a whole number of periods: their last line is their first one again, a row
+/// or column of orbits computed twice. Each is said as a warning naming the axis, with the
+/// `max` that grids one period without repeating it. Not refused: the grid is what was asked
+/// (and every point stays a function of the config and its index), only wasteful.
+pub fn repeated_grid_lines(cfg: &RunConfig) -> Vec<String> {
+    let (Some(map), chaoscope_schemas::config::ModelConfig::Map(model)) = (&cfg.map, &cfg.model)
+    else {
+        return Vec::new();
+    };
+    let Some(modulo) = &model.modulo else {
+        return Vec::new();
+    };
+    let mut warnings = Vec::new();
+    for (key, axis) in [("map.x", &map.x), ("map.y", &map.y)] {
+        let Some(period) = state_coordinate(&axis.coord, modulo.len()).map(|i| modulo[i]) else {
+            continue;
+        };
+        if period <= 0.0 || axis.n < 2 {
+            continue;
+        }
+        let periods = (axis.max - axis.min) / period;
+        // Written as the same decimal (2 pi as 6.283185307179586, or -pi .. pi) the quotient
+        // is a whole number to within a few roundings.
+        if periods < 0.5 || (periods - periods.round()).abs() > 1e-12 * periods {
+            continue;
+        }
+        let n = axis.n;
+        let end = axis.min + period * (n - 1) as f64 / n as f64;
+        warnings.push(format!(
+            "{key}: min = {} and max = {} are the same point of {} (period {period}): the \
+             last of its {n} grid lines repeats the first, computed twice; max = {end} grids \
+             one period in {n} distinct lines",
+            axis.min, axis.max, axis.coord
+        ));
+    }
+    warnings
+}
+
 /// `--shard i/n`: the points with `index % n == i`. Interleaved rather than contiguous so every
 /// shard gets a fair share of regular (slow) and chaotic (fast-stopping) regions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

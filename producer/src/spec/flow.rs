@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use chaoscope_schemas::config::{OdeConfig, RunConfig};
 
-use super::{Built, SpecError, finite_positive, num, vector};
+use super::{Built, SpecError, num, vector};
 use crate::integrator::runge_kutta::{RungeKutta, RungeKuttaKind, Tolerances};
 use crate::system::{DynamicalSystem, RkFlow};
 use crate::vector_field::VectorField;
@@ -41,7 +41,7 @@ pub(super) fn runge_kutta_system(
             ),
         )
     })?;
-    let h = finite_positive("integrator.h", integrator.h)?;
+    let h = super::time_step(integrator)?;
     let tolerances = match (integrator.rtol, integrator.atol) {
         (None, None) => None,
         (Some(rtol), Some(atol)) => {

@@ -1,4 +1,4 @@
-//! Maps `x -> F(x)` (`[model] name = "map"`): iterated, `h` = 1, `t_final` and every `tau` a
+//! Maps `x -> F(x)` (`[model] name = "map"`): iterated, `h` = 1 (may be left out), `t_final` and every `tau` a
 //! whole number of iterations; coordinates with a `modulo` wrap.
 
 use std::sync::Arc;
@@ -28,12 +28,13 @@ pub(super) fn run(model: &MapModelConfig, cfg: &RunConfig) -> Result<Built, Spec
             ),
         ));
     }
-    if integrator.h.to_bits() != 1.0f64.to_bits() {
+    // A map's time counts iterations: `h` may be left out, and if given it must say so.
+    if let Some(h) = integrator.h.filter(|h| h.to_bits() != 1.0f64.to_bits()) {
         return Err(SpecError::new(
             "integrator.h",
             format!(
-                "a map's time counts iterations: h = 1, got {}",
-                num(integrator.h)
+                "a map's time counts iterations: h = 1 (or leave it out), got {}",
+                num(h)
             ),
         ));
     }

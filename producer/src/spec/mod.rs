@@ -17,7 +17,7 @@
 
 use std::sync::{Arc, OnceLock};
 
-use chaoscope_schemas::config::{ModelConfig, RunConfig};
+use chaoscope_schemas::config::{IntegratorConfig, ModelConfig, RunConfig};
 use chaoscope_schemas::run::{
     MAX_SCHEMES, MAX_SETS, MAX_STATE_VALUES, Method, Orthonormalization, Route, SchemeSpec,
     deviation_state_values,
@@ -39,6 +39,7 @@ pub use potential::{TableDigest, pin_tables};
 pub use separable::{
     initial_state, model_from_config, parse_coordinate, solve_momentum, state_coordinate,
 };
+pub use vector::unused_params;
 
 /// The route a configuration names at `key` (absent: per-set).
 pub fn route_from_config(key: &str, value: Option<&str>) -> Result<Route, SpecError> {
@@ -201,6 +202,18 @@ pub(crate) fn finite_positive(key: &str, v: f64) -> Result<f64, SpecError> {
     }
 }
 
+/// The time step `integrator.h` of a Hamiltonian or a flow, which must be given (only a map,
+/// whose time counts iterations, may leave it out).
+pub(crate) fn time_step(integrator: &IntegratorConfig) -> Result<f64, SpecError> {
+    let h = integrator.h.ok_or_else(|| {
+        SpecError::new(
+            "integrator.h",
+            "missing: the time step of a Hamiltonian or a flow (only a map may leave it out)",
+        )
+    })?;
+    finite_positive("integrator.h", h)
+}
+
 /// A number as the user would write it: `1e-300` rather than three hundred zeros.
 pub(crate) fn num(v: f64) -> String {
     let plain = format!("{v}");
@@ -346,17 +359,18 @@ impl RunSpec {
             Time::Continuous { h } => h,
             Time::Discrete => 1.0,
         };
-        if matches!(system.time(), Time::Continuous { .. })
-            && h.to_bits() != cfg.integrator.h.to_bits()
-        {
-            return Err(SpecError::new(
-                "integrator.h",
-                format!(
-                    "{} differs from the system's own step {}",
-                    num(cfg.integrator.h),
-                    num(h)
-                ),
-            ));
+        if matches!(system.time(), Time::Continuous { .. }) {
+            let given = time_step(&cfg.integrator)?;
+            if h.to_bits() != given.to_bits() {
+                return Err(SpecError::new(
+                    "integrator.h",
+                    format!(
+                        "{} differs from the system's own step {}",
+                        num(given),
+                        num(h)
+                    ),
+                ));
+            }
         }
         let h = finite_positive("integrator.h", h)?;
         let t_final = finite_positive("integrator.t_final", cfg.integrator.t_final)?;
@@ -691,12 +705,72 @@ mod tests {
         assert!(e.message.contains("no real p1"), "{e}");
     }
 
+    /// The Henon map up to 10 iterations, with `h_line` in `[integrator]`.
+    fn henon_map(h_line: &str) -> String {
+        format!(
+            "[model]\nname = \"map\"\nnext = [\"1 - a*x1^2 + x2\", \"b*x1\"]\n\
+             params = {{ a = 1.4, b = 0.3 }}\n[orbit]\nx = [0.0, 0.0]\n\
+             [integrator]\n{h_line}\nt_final = 10\n\
+             [deviations]\nk = 2\nsets = 1\nseed = 1\n\
+             [[scheme]]\nname = \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 1\n\
+             orthonormalize = \"qr\"\n"
+        )
+    }
+
+    #[test]
+    fn a_map_may_leave_h_out_and_refuses_any_h_but_one() {
+        // Time counts iterations: h is 1 whether written or left out.
+        for h_line in ["", "h = 1", "h = 1.0"] {
+            let s = spec(&henon_map(h_line)).unwrap();
+            assert_eq!(s.h().to_bits(), 1.0f64.to_bits(), "{h_line:?}");
+            assert_eq!(s.total_steps, 10, "{h_line:?}");
+        }
+        for (h_line, got) in [("h = 0.5", "got 0.5"), ("h = 2", "got 2")] {
+            let e = spec(&henon_map(h_line)).unwrap_err();
+            assert_eq!(e.key, "integrator.h", "{e}");
+            assert!(e.message.contains(got), "{e}");
+            assert_eq!(e.to_string().lines().count(), 1, "{e}");
+        }
+    }
+
+    #[test]
+    fn a_hamiltonian_or_flow_still_needs_h() {
+        let mut config = hh_config();
+        config.integrator.h = None;
+        let e = RunSpec::from_config(&config).unwrap_err();
+        assert_eq!(e.key, "integrator.h");
+        assert!(e.message.contains("missing"), "{e}");
+    }
+
+    #[test]
+    fn solve_for_needs_no_placeholder_momentum() {
+        // The paper's orbit writes p = [0, 0], p1 solved from the energy; leaving p out gives
+        // the same state bit for bit (the other momenta are 0).
+        let mut config = hh_config();
+        assert_eq!(config.orbit.p, [0.0, 0.0]);
+        let with_p = RunSpec::from_config(&config).unwrap().x0.clone();
+        config.orbit.p.clear();
+        let without_p = RunSpec::from_config(&config).unwrap().x0.clone();
+        let bits = |x: &[f64]| x.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&with_p), bits(&without_p));
+        // A p of the wrong length is still an error, with the hint.
+        config.orbit.p = vec![0.0];
+        let e = RunSpec::from_config(&config).unwrap_err();
+        assert_eq!(e.key, "orbit.p");
+        assert!(e.message.contains("leave p out"), "{e}");
+        // Without solve_for, p stays required.
+        config.orbit.p.clear();
+        config.orbit.solve_for = None;
+        config.orbit.energy = None;
+        assert_eq!(RunSpec::from_config(&config).unwrap_err().key, "orbit.p");
+    }
+
     #[test]
     fn bad_values_name_their_key() {
         // Each case spoils one value of a valid config.
         type Spoil = fn(&mut RunConfig);
         let cases: [(Spoil, &str); 9] = [
-            (|c| c.integrator.h = -1.0, "integrator.h"),
+            (|c| c.integrator.h = Some(-1.0), "integrator.h"),
             (|c| c.schemes[0].tau = 0.015, "scheme[0].tau"),
             (|c| c.deviations.k = 5, "deviations.k"),
             (|c| c.schemes[0].d0 = f64::NAN, "scheme[0].d0"),

@@ -10,7 +10,7 @@ use chaoscope_schemas::config::{
 };
 
 use super::potential::{self, TableDigest};
-use super::{Built, SpecError, finite_positive};
+use super::{Built, SpecError};
 use crate::integrator::{Splitting, SplittingKind};
 use crate::model::{FputBeta, HenonHeiles, Model};
 use crate::system::SplitHamiltonian;
@@ -99,7 +99,7 @@ pub(super) fn run(
             "a Hamiltonian's initial state is q and p (x is for flows and maps)",
         ));
     }
-    let h = finite_positive("integrator.h", cfg.integrator.h)?;
+    let h = super::time_step(&cfg.integrator)?;
     let x0 = initial_state(model.as_ref(), &cfg.orbit)?;
     let system = Arc::new(SplitHamiltonian::new(model, Splitting::new(kind), h));
     Ok(Built { system, x0, tables })
@@ -183,14 +183,27 @@ pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>,
             format!("needs {n} positions, got {}", orbit.q.len()),
         ));
     }
-    if orbit.p.len() != n {
+    // With a momentum solved from the energy, `p` may be left out: every other momentum is then
+    // 0 (no placeholder for the solved one). Given, it holds all N momenta as before.
+    let solving = orbit.solve_for.is_some() && orbit.energy.is_some();
+    if orbit.p.len() != n && !(solving && orbit.p.is_empty()) {
         return Err(SpecError::new(
             "orbit.p",
-            format!("needs {n} momenta, got {}", orbit.p.len()),
+            format!(
+                "needs {n} momenta, got {}{}",
+                orbit.p.len(),
+                if solving {
+                    " (or leave p out: with solve_for, the other momenta are then 0)"
+                } else {
+                    ""
+                }
+            ),
         ));
     }
     x[..n].copy_from_slice(&orbit.q);
-    x[n..].copy_from_slice(&orbit.p);
+    if !orbit.p.is_empty() {
+        x[n..].copy_from_slice(&orbit.p);
+    }
     if let Some(i) = x.iter().position(|v| !v.is_finite()) {
         let key = if i < n { "orbit.q" } else { "orbit.p" };
         return Err(SpecError::new(

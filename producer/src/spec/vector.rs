@@ -95,3 +95,92 @@ pub fn hamiltonian_function(
         VectorError::Other(m) => SpecError::new(key, m),
     })
 }
+
+/// The `params` of an expression model that none of its expressions reads, each as the warning
+/// a user is shown: `model.params.unused = 3 is used by no expression`. Not an error (an
+/// expression commented out leaves its parameters behind); empty for the built-in models and
+/// for expressions that do not parse (their error is the validation's to report).
+pub fn unused_params(model: &config::ModelConfig) -> Vec<String> {
+    use config::ModelConfig as M;
+    let (params, sources): (_, Vec<&str>) = match model {
+        M::Potential(m) => (&m.params, m.potential.iter().map(String::as_str).collect()),
+        M::Hamiltonian(m) => (
+            &m.params,
+            m.hamiltonian.iter().map(String::as_str).collect(),
+        ),
+        M::Ode(m) => (
+            &m.params,
+            m.rhs.iter().flatten().map(String::as_str).collect(),
+        ),
+        M::Map(m) => (
+            &m.params,
+            m.next.iter().flatten().map(String::as_str).collect(),
+        ),
+        _ => return Vec::new(),
+    };
+    let mut read = std::collections::BTreeSet::new();
+    for source in sources {
+        let Ok(expr) = chaoscope_expr::parse(source) else {
+            return Vec::new();
+        };
+        read.extend(expr.names().into_iter().map(str::to_string));
+    }
+    params
+        .iter()
+        .filter(|(name, _)| !read.contains(name.as_str()))
+        .map(|(name, value)| {
+            let value = match value {
+                config::ParamValue::Scalar(v) => v.to_string(),
+                config::ParamValue::Array(vs) => {
+                    let shown: Vec<String> = vs.iter().take(4).map(f64::to_string).collect();
+                    let more = if vs.len() > 4 { ", ..." } else { "" };
+                    format!("[{}{more}]", shown.join(", "))
+                }
+            };
+            format!("model.params.{name} = {value} is used by no expression")
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use chaoscope_schemas::config::RunConfig;
+
+    use super::unused_params;
+
+    #[test]
+    fn a_parameter_no_expression_reads_is_named() {
+        let config = |model: &str| {
+            RunConfig::from_toml(&format!(
+                "[model]\n{model}\n[orbit]\nx = [0.0, 0.0]\n[integrator]\nt_final = 1\n\
+                 [deviations]\nk = 1\n"
+            ))
+            .unwrap()
+            .model
+        };
+        let map = config(
+            "name = \"map\"\nnext = [\"1 - a*x1^2 + x2\", \"b*x1\"]\n\
+             params = { a = 1.4, b = 0.3, unused = 3, w = [1, 2, 3, 4, 5] }",
+        );
+        assert_eq!(
+            unused_params(&map),
+            [
+                "model.params.unused = 3 is used by no expression",
+                "model.params.w = [1, 2, 3, 4, ...] is used by no expression",
+            ]
+        );
+        // Read only as an array entry, or inside a lattice sum: used.
+        let potential = config(
+            "name = \"potential\"\nn = 3\n\
+             potential = \"sum(i = 1..N, k[i] * q[i]^2 / 2) + c\"\n\
+             params = { k = [1, 2, 3], c = 0.5 }",
+        );
+        assert!(unused_params(&potential).is_empty());
+        let ode = config("name = \"ode\"\nrhs = [\"x2\", \"-x1\"]\nparams = { gamma = 0.1 }");
+        assert_eq!(
+            unused_params(&ode),
+            ["model.params.gamma = 0.1 is used by no expression"]
+        );
+        assert!(unused_params(&config("name = \"henon-heiles\"")).is_empty());
+    }
+}

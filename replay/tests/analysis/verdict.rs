@@ -229,7 +229,7 @@ fn hh_regular(t_final: f64, h: f64, schemes: Vec<SchemeConfig>) -> RunConfig {
         DeviationsConfig::random(4, 4, 2),
         schemes,
     );
-    cfg.integrator.h = h;
+    cfg.integrator.h = Some(h);
     cfg
 }
 

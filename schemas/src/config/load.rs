@@ -41,6 +41,28 @@ pub fn read_bounded(mut source: impl Read) -> std::io::Result<Vec<u8>> {
     Ok(bytes)
 }
 
+/// Where a configuration was read from and its text: what places the key a validation error
+/// names in the file, as a TOML error is placed.
+#[derive(Debug, Clone)]
+pub struct ConfigSource {
+    /// The file's name as the user gave it (or `stdin`).
+    pub name: String,
+    pub text: String,
+}
+
+impl ConfigSource {
+    /// `in NAME: invalid run configuration: KEY (line L, column C): MESSAGE`, as a TOML error
+    /// of the same file reads (`what` is `run` or `map`); without the position where the key is
+    /// not written in the file.
+    pub fn describe(&self, what: &str, key: &str, message: &str) -> String {
+        format!(
+            "in {}: invalid {what} configuration: {}",
+            self.name,
+            super::locate::describe_key(&self.text, key, message)
+        )
+    }
+}
+
 /// Parses configuration bytes read from `name`; relative table paths are taken from `path`'s
 /// directory (see [`RunConfig::from_file_text`]).
 pub fn parse_config_bytes(
@@ -48,6 +70,15 @@ pub fn parse_config_bytes(
     bytes: Vec<u8>,
     path: &Path,
 ) -> Result<RunConfig, ConfigLoadError> {
+    parse_config_source(name, bytes, path).map(|(config, _)| config)
+}
+
+/// [`parse_config_bytes`], keeping the text (see [`ConfigSource`]).
+pub fn parse_config_source(
+    name: &str,
+    bytes: Vec<u8>,
+    path: &Path,
+) -> Result<(RunConfig, ConfigSource), ConfigLoadError> {
     if bytes.len() as u64 > MAX_CONFIG_BYTES {
         return Err(ConfigLoadError::TooLarge {
             name: name.to_string(),
@@ -57,19 +88,30 @@ pub fn parse_config_bytes(
         name: name.to_string(),
         at: e.utf8_error().valid_up_to(),
     })?;
-    RunConfig::from_file_text(&text, path).map_err(|error| ConfigLoadError::Parse {
+    let config =
+        RunConfig::from_file_text(&text, path).map_err(|error| ConfigLoadError::Parse {
+            name: name.to_string(),
+            error,
+        })?;
+    let source = ConfigSource {
         name: name.to_string(),
-        error,
-    })
+        text,
+    };
+    Ok((config, source))
 }
 
 /// Reads and parses the configuration file at `path`.
 pub fn read_config_file(path: &Path) -> Result<RunConfig, ConfigLoadError> {
+    read_config_source(path).map(|(config, _)| config)
+}
+
+/// [`read_config_file`], keeping the text (see [`ConfigSource`]).
+pub fn read_config_source(path: &Path) -> Result<(RunConfig, ConfigSource), ConfigLoadError> {
     let read_error = |error| ConfigLoadError::Read {
         path: path.display().to_string(),
         error,
     };
     let file = std::fs::File::open(path).map_err(read_error)?;
     let bytes = read_bounded(file).map_err(read_error)?;
-    parse_config_bytes(&path.display().to_string(), bytes, path)
+    parse_config_source(&path.display().to_string(), bytes, path)
 }

@@ -198,9 +198,9 @@ mod tests {
                 "integrator.h (line 10, column 5): invalid type",
             ),
             (
-                "h = 0.01\n",
+                "t_final = 1.0\n",
                 "",
-                "integrator.h (line 8, column 1): missing field `h`",
+                "integrator.t_final (line 8, column 1): missing field `t_final`",
             ),
             ("k = 2", "k = -2", "deviations.k (line 14"),
             ("h = 0.01", "h = 0.01\ndt = 1", "integrator.dt (line 11"),

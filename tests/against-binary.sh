@@ -87,6 +87,13 @@ current_pid=""
 test_tmp=""
 commit_tree=""
 commit_target=""
+# Ends every process still working in a test's directory: an old binary's process that ignored
+# the test's SIGTERM (a `record` partner of the signal matrix on 0b8441d ran on for an hour,
+# burning a core) would otherwise outlive its test and slow every later one.
+reap() {
+    pkill -KILL -f -- "$1" 2>/dev/null || true
+}
+
 cleanup() {
     if [[ -n "$current_pid" ]]; then
         # timeout(1) forwards the signal to the test's whole process group.
@@ -95,6 +102,7 @@ cleanup() {
         current_pid=""
     fi
     if [[ -n "$test_tmp" ]]; then
+        reap "$test_tmp"
         rm -rf "$test_tmp"
         test_tmp=""
     fi
@@ -224,6 +232,7 @@ for entry in "${executables[@]}"; do
         rc=0
         wait "$current_pid" || rc=$?
         current_pid=""
+        reap "$test_tmp"
         rm -rf "$test_tmp"
         test_tmp=""
         seconds=$(python3 -c "import sys; print(round($(date +%s.%N) - $start, 1))")

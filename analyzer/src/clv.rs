@@ -338,13 +338,8 @@ impl AngleSeries {
     /// through `chaoscope_os::output`, never over one of `inputs`); returns its path.
     pub fn write_csv(mut self, dir: &Path, inputs: &[PathBuf]) -> std::io::Result<PathBuf> {
         std::fs::create_dir_all(dir)?;
-        let options = chaoscope_os::OutputOptions {
-            replace: true,
-            inputs: inputs.to_vec(),
-            leftover: chaoscope_os::Leftover::Discard,
-            ..Default::default()
-        };
-        let io = |e: chaoscope_os::OutputError| std::io::Error::other(e.to_string());
+        let options = crate::csv::table_options(inputs);
+        let io = crate::csv::io;
         let output =
             chaoscope_os::Output::create(&dir.join("clv-angles.csv"), &options).map_err(io)?;
         let mut f = std::io::BufWriter::new(output.file().map_err(io)?);

@@ -29,12 +29,7 @@ pub fn write_csv(
     inputs: &[PathBuf],
 ) -> std::io::Result<Vec<PathBuf>> {
     std::fs::create_dir_all(dir)?;
-    let options = chaoscope_os::OutputOptions {
-        replace: true,
-        inputs: inputs.to_vec(),
-        leftover: chaoscope_os::Leftover::Discard,
-        ..Default::default()
-    };
+    let options = table_options(inputs);
     let create = |path: &Path| chaoscope_os::Output::create(path, &options).map_err(io);
     let run = analysis.run();
     let k = run.k;
@@ -118,8 +113,19 @@ pub fn write_csv(
     Ok(files)
 }
 
+/// How a table for other tools is written: it replaces an earlier table of the same name, is
+/// never one of `inputs`, and an unfinished one is removed (it is computed again).
+pub(crate) fn table_options(inputs: &[PathBuf]) -> chaoscope_os::OutputOptions {
+    chaoscope_os::OutputOptions {
+        replace: true,
+        inputs: inputs.to_vec(),
+        leftover: chaoscope_os::Leftover::Discard,
+        ..Default::default()
+    }
+}
+
 /// An output refused or failed, as the I/O error this module returns (its message names the
 /// file and the cause).
-fn io(e: chaoscope_os::OutputError) -> std::io::Error {
+pub(crate) fn io(e: chaoscope_os::OutputError) -> std::io::Error {
     std::io::Error::other(e.to_string())
 }

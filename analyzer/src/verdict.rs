@@ -861,9 +861,9 @@ pub fn warnings(
             out.push(Warning {
                 code: GALI_AT_ROUNDING_FLOOR.into(),
                 message: format!(
-                    "{orders} at the rounding floor (a factor below {:.0e}, the {} precision of \
+                    "{orders} at the rounding floor (a factor below {}, the {} precision of \
                      a separation): their values are not meaningful",
-                    10f64.powf(settings.floor_log10()),
+                    power_of_ten(settings.floor_log10()),
                     match settings.method {
                         Method::Vm => "eps",
                         Method::Mpm => "eps/d0",
@@ -1024,9 +1024,30 @@ pub fn assess(
     (v, w)
 }
 
+/// `10^x` for a message: as a number where it is one (`2e-8`), and as `1e<x>` where it is
+/// beyond the range of f64 (a recording's hostile `d0` of 1e-320 puts MPM's floor eps/d0 there),
+/// never `inf`.
+fn power_of_ten(x: f64) -> String {
+    let v = 10f64.powf(x);
+    if v.is_finite() && v > 0.0 {
+        format!("{v:.0e}")
+    } else {
+        format!("1e{}", x.round())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_floor_beyond_the_doubles_is_written_as_a_power_never_inf() {
+        assert_eq!(power_of_ten((2.2e-16f64 / 1e-8).log10()), "2e-8");
+        // eps / d0 with a hostile d0 of 1e-320 (a fuzzed recording).
+        assert_eq!(power_of_ten(304.3), "2e304");
+        assert_eq!(power_of_ten(400.2), "1e400");
+        assert_eq!(power_of_ten(-400.0), "1e-400");
+    }
 
     fn settings(method: Method, d0: f64, tau: f64, dof: usize, k: usize) -> Settings {
         Settings {

@@ -447,18 +447,21 @@ impl Tracker {
             sets.iter()
                 .filter_map(|(_, v)| v.sali.map(|s| s.max(SIGMA_FLOOR).log10())),
         );
-        let exponents = (0..sets.first().map_or(0, |(_, v)| v.exponents.len()))
-            .filter_map(|i| Stat::from_values(sets.iter().map(|(_, v)| v.exponents[i])))
-            .collect();
-        let exponents_whole = self.exponents_from.map(|_| {
+        // Each vector's exponent over the sets, from `rates` of each set's values.
+        let over_sets = |rates: &dyn Fn(&SetValues) -> Option<&Vec<f64>>| -> Vec<Stat> {
             (0..sets.first().map_or(0, |(_, v)| v.exponents.len()))
                 .filter_map(|i| {
-                    Stat::from_values(sets.iter().filter_map(|(_, v)| {
-                        v.exponents_whole.as_ref().and_then(|w| w.get(i).copied())
-                    }))
+                    Stat::from_values(
+                        sets.iter()
+                            .filter_map(|(_, v)| rates(v).and_then(|r| r.get(i).copied())),
+                    )
                 })
                 .collect()
-        });
+        };
+        let exponents = over_sets(&|v| Some(&v.exponents));
+        let exponents_whole = self
+            .exponents_from
+            .map(|_| over_sets(&|v| v.exponents_whole.as_ref()));
         let named = NamedOutputs(
             (0..sets.first().map_or(0, |(_, v)| v.outputs.len()))
                 .map(|i| {

@@ -453,6 +453,7 @@ fn error_text(e: &(dyn std::error::Error + 'static)) -> String {
 }
 
 /// The recorded orbit, as flat rows.
+#[derive(Default)]
 struct OrbitRows {
     t: Vec<f64>,
     states: Vec<f64>,
@@ -467,12 +468,7 @@ fn read_orbit(path: &Path, si: Option<usize>, stop: &AtomicBool) -> Result<Orbit
     let mut reader = RecordingReader::open(path).map_err(|e| error_text(&e))?;
     let run = reader.run();
     let (dim, sets, k) = (run.dim, run.sets, run.k);
-    let mut rows = OrbitRows {
-        t: Vec::new(),
-        states: Vec::new(),
-        nearby_t: Vec::new(),
-        nearby: Vec::new(),
-    };
+    let mut rows = OrbitRows::default();
     while let Some(sample) = reader.next_sample().map_err(|e| error_text(&e))? {
         if stop.load(Ordering::Relaxed) {
             return Err("interrupted".into());

@@ -161,6 +161,14 @@ fn sigint_to_chaoscope_run_ends_both_processes_with_a_valid_file() {
     let summary = rec.recording.as_ref().expect("finalized file");
     assert_eq!(summary.run_status, "interrupted");
     assert_eq!(summary.frames_missing, 0);
+    // The recorder got the signal too, and waited for the producer's end-of-run record, so
+    // the file says how the run ended (`analyze`'s `run.end`), not only that it was cut.
+    assert_eq!(summary.finalized_by, "end-of-run");
+    let end = rec.end.as_ref().expect("the producer's end-of-run record");
+    assert_eq!(
+        chaoscope_schemas::proto::end_of_run::Status::try_from(end.status),
+        Ok(chaoscope_schemas::proto::end_of_run::Status::Interrupted)
+    );
     assert_contiguous(&rec.frames);
     for name in [
         names::producer_node_name(&run),

@@ -16,6 +16,26 @@ fn cell(v: Option<f64>, width: usize, format: impl Fn(f64) -> String) -> String 
     format!("{text:>width$}")
 }
 
+/// A time for reading: at most 10 significant digits, trailing zeros dropped, so a time on the
+/// grid `n * tau` reads as written (`11439.3`, not the sum's `11439.300000000001`); the JSON
+/// keeps every bit.
+fn time(t: f64) -> String {
+    if !t.is_finite() {
+        return "-".to_string();
+    }
+    if t != 0.0 && !(1e-4..1e10).contains(&t.abs()) {
+        return format!("{t:e}");
+    }
+    let integer_digits = (t.abs().log10().floor() as i32 + 1).max(1);
+    let decimals = (10 - integer_digits).max(0) as usize;
+    let text = format!("{t:.decimals$}");
+    if text.contains('.') {
+        text.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        text
+    }
+}
+
 /// The report as the table `chaoscope analyze` prints.
 pub fn table(report: &Report) -> String {
     let mut out = String::new();
@@ -45,8 +65,8 @@ pub fn table(report: &Report) -> String {
         r.model,
         r.integrator,
         r.h,
-        r.t,
-        r.t_final,
+        time(r.t),
+        time(r.t_final),
         r.samples,
         r.k,
         r.sets,
@@ -63,7 +83,11 @@ pub fn table(report: &Report) -> String {
         );
     }
     if let Some(end) = r.end.as_ref().filter(|e| e.status != "completed") {
-        let _ = writeln!(out, "the run {}: {}", end.status, end.reason);
+        let _ = writeln!(
+            out,
+            "the run did not complete ({}): {}",
+            end.status, end.reason
+        );
     }
     let k = r.k;
     let mut head = format!(
@@ -83,7 +107,7 @@ pub fn table(report: &Report) -> String {
             cell(Some(s.d0), 8, |v| format!("{v:.0e}")),
             s.tau,
             s.sets,
-            s.t
+            time(s.t)
         );
         for j in 2..=k {
             // A QR scheme's vectors are re-orthonormalized at every renormalization: its GALI
@@ -158,4 +182,23 @@ pub fn table(report: &Report) -> String {
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::time;
+
+    #[test]
+    fn times_read_as_written_without_the_sums_last_bits() {
+        assert_eq!(time(11439.300000000001), "11439.3");
+        assert_eq!(time(0.1 + 0.2), "0.3");
+        assert_eq!(time(200.0), "200");
+        assert_eq!(time(0.0), "0");
+        assert_eq!(time(-2.5), "-2.5");
+        // Ten significant digits survive: a time that differs in them is not rounded away.
+        assert_eq!(time(1234.567891), "1234.567891");
+        assert_eq!(time(1e12), "1e12");
+        assert_eq!(time(3e-7), "3e-7");
+        assert_eq!(time(f64::NAN), "-");
+    }
 }

@@ -22,6 +22,13 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use iceoryx2::waitset::WaitSetRunResult;
 
+/// How long a receiver that got SIGINT or SIGTERM still takes frames, waiting for the
+/// producer's end-of-run record: a terminal's Ctrl+C, or `chaoscope run` passing a signal on,
+/// reaches the producer at the same moment, which then stops at once and says so; a recording
+/// that holds that record says how the run ended (`analyze`'s `run.end`). A producer that goes
+/// on (a recorder stopped alone) costs this wait, well inside the second a signal is given.
+pub const SIGNAL_GRACE: Duration = Duration::from_millis(250);
+
 /// What a receiver sees.
 #[derive(Debug)]
 pub enum BusEvent {
@@ -201,8 +208,9 @@ impl RunSubscription {
         Ok((count, false))
     }
 
-    /// Delivers every data frame to `f` until `f` breaks, a signal arrives, or the producer is
-    /// gone. Sleeps in a WaitSet on the producer's data-ready event and a liveness interval.
+    /// Delivers every data frame to `f` until `f` breaks, a signal's grace
+    /// ([`SIGNAL_GRACE`]) has passed, or the producer is gone. Sleeps in a WaitSet on the
+    /// producer's data-ready event and a liveness interval.
     pub fn receive(
         &self,
         mut f: impl FnMut(BusEvent) -> ControlFlow<()>,
@@ -210,13 +218,24 @@ impl RunSubscription {
         // Results of the wake-up callback, read by the loop between calls.
         let ended = Cell::new(None);
         let failure = RefCell::new(None);
+        // When a signal's grace ends: set when the signal is first seen.
+        let grace_ends = Cell::new(None::<Instant>);
+        let signal_grace_over = || {
+            if !chaoscope_os::signals::requested() {
+                return false;
+            }
+            let now = Instant::now();
+            let ends = grace_ends.get().unwrap_or(now + SIGNAL_GRACE);
+            grace_ends.set(Some(ends));
+            now >= ends
+        };
         let mut on_wake = |_id: WaitSetAttachmentId<ipc::Service>| {
             let _ = self.listener.try_wait(|_| {});
             let mut idle = true;
             loop {
                 // A producer faster than this receiver keeps it draining: a signal must still
-                // end it now, not when the data stops.
-                if chaoscope_os::signals::requested() {
+                // end it within its grace, not when the data stops.
+                if signal_grace_over() {
                     ended.set(Some(Ended::Signal));
                     return CallbackProgression::Stop;
                 }
@@ -267,8 +286,9 @@ impl RunSubscription {
                 // SIGTERM is reported as `TerminationRequest` by the next wait, and latched
                 // (`chaoscope_os::signals`) even when iceoryx2 lost it (a SIGCONT after it
                 // overwrites iceoryx2's record of the last signal).
-                if result == WaitSetRunResult::TerminationRequest
-                    || chaoscope_os::signals::requested()
+                if (result == WaitSetRunResult::TerminationRequest
+                    || chaoscope_os::signals::requested())
+                    && signal_grace_over()
                 {
                     return Ok(Ended::Signal);
                 }

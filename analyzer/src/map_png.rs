@@ -75,6 +75,13 @@ fn scale_of(h: &MapHeader) -> Scale {
             transform: lin,
             chaotic_high: false,
         },
+        // lambda_1 of the spectrum (the other exponents are layers of the file): it can be
+        // zero or negative, so on a linear scale.
+        "spectrum" => Scale {
+            label: format!("lambda_1 of {} exponents (t = {})", h.k, h.t_final),
+            transform: lin,
+            chaotic_high: true,
+        },
         "mle" => Scale {
             label: format!("log10 MLE (t = {})", h.t_final),
             transform: log,

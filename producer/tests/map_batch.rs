@@ -358,3 +358,169 @@ fn flow_points_equal_the_engine() {
     }
     assert!(!flow_map("magnetic", "gl4", "vm", "gali").has_batched_kernel());
 }
+
+/// `[map] indicator = "spectrum"`: the first `k` exponents per point, by QR renormalization.
+/// The batched kernel equals the engine bit for bit (VM and MPM, a separable Hamiltonian, a
+/// discrete map and a flow); the spectrum keeps its laws: for a symplectic system and k = D the
+/// exponents sum to zero (the tangent map has determinant 1, so `sum ln |R_jj|` over a window is
+/// `ln |det M| = 0` up to the QR's rounding, a few ulps per window, over `t` at least 20: well
+/// under 1e-12), for Lorenz to the divergence `-(sigma + 1 + beta)`; and lambda_1 is the MLE
+/// map's value (the first vector is only scaled, by QR as by rescaling; the two differ in the
+/// rounding of that scaling, amplified at most by e^(lambda t) ~ e^4 here: 1e-9 is generous).
+#[test]
+fn spectrum_maps_equal_the_engine_and_keep_the_spectrum_laws() {
+    let qr = |spec: RunConfig| {
+        let mut spec = spec;
+        spec.schemes[0].orthonormalize = "qr".to_string();
+        spec
+    };
+    let check = |spec: &MapSpec| -> Vec<PointResult> {
+        let want: Vec<PointResult> = (0..spec.grid_points())
+            .map(|i| map::one_orbit::point(spec, i))
+            .collect();
+        for threads in [1, 2] {
+            let got = batched(spec, threads, Isa::detect());
+            for (g, w) in got.iter().zip(&want) {
+                assert!(
+                    g.same_numbers(w),
+                    "{threads} threads:\n batch  {g:?}\n engine {w:?}"
+                );
+            }
+        }
+        want
+    };
+    let spectrum = |k: usize| MapConfig {
+        k: Some(k),
+        ..grid("spectrum")
+    };
+    for method in ["vm", "mpm"] {
+        let spec = MapSpec::from_config(&qr(hh_map_config(method, spectrum(4), 20.0, 2))).unwrap();
+        let points = check(&spec);
+        let mle = batched(&hh_map(method, grid("mle"), 20.0, 2), 1, Isa::detect());
+        let mut integrated = 0;
+        for (p, m) in points.iter().zip(&mle) {
+            assert_eq!(p.status, m.status);
+            if p.status != PointStatus::Ok {
+                assert!(p.spectrum.is_empty());
+                continue;
+            }
+            integrated += 1;
+            assert_eq!(p.spectrum.len(), 4);
+            assert_eq!(p.value.to_bits(), p.spectrum[0].to_bits());
+            // MPM's nearby orbits at d0 = 1e-8 see the flow's non-linearity: their volume
+            // changes by O(d0) per window, not by rounding.
+            let tolerance = if method == "vm" { 1e-12 } else { 1e-6 };
+            let sum: f64 = p.spectrum.iter().sum();
+            assert!(
+                sum.abs() < tolerance,
+                "{method} point {}: sum {sum}",
+                p.index
+            );
+            assert!(
+                (p.value - m.value).abs() < if method == "vm" { 1e-9 } else { 1e-6 },
+                "{method} point {}: lambda_1 {} vs MLE {}",
+                p.index,
+                p.value,
+                m.value
+            );
+        }
+        assert!(integrated >= 4, "only {integrated} points integrated");
+    }
+    // The standard map (2 exponents summing to 0) and Lorenz (3, summing to the divergence).
+    let standard = "[model]\nname = \"map\"\nnext = [\"x1 + x2 + K*sin(x1)\", \"x2 + K*sin(x1)\"]\n\
+         params = { K = 1.0 }\nmodulo = [6.283185307179586, 6.283185307179586]\n\
+         [orbit]\nx = [0.0, 0.0]\n[integrator]\nt_final = 300\n\
+         [deviations]\nk = 2\nsets = 2\nseed = 5\n\
+         [[scheme]]\nname = \"s\"\nmethod = \"vm\"\nd0 = 1e-7\ntau = 1\northonormalize = \"qr\"\n\
+         [map]\nx = { coord = \"x1\", min = 0.0, max = 6.2, n = 5 }\n\
+         y = { coord = \"x2\", min = -3.1, max = 3.1, n = 4 }\nindicator = \"spectrum\"\n";
+    let spec = MapSpec::from_config(&RunConfig::from_toml(standard).unwrap()).unwrap();
+    let per_set = check(&spec);
+    let (mut chaotic, mut regular) = (0, 0);
+    for p in &per_set {
+        assert_eq!(p.status, PointStatus::Ok);
+        let sum = p.spectrum[0] + p.spectrum[1];
+        assert!(sum.abs() < 1e-12, "point {}: {:?}", p.index, p.spectrum);
+        // K = 1: the chaotic layer's MLE is about 0.1 or more; a torus gives ln t / t decay,
+        // well below 0.05 by t = 300.
+        if p.value > 0.08 {
+            chaotic += 1;
+        } else if p.value < 0.05 {
+            regular += 1;
+        }
+    }
+    assert!(
+        chaotic > 0 && regular > 0,
+        "{chaotic} chaotic, {regular} regular"
+    );
+    // The basis route: one QR basis per point from the coordinate axes, not the sets' random
+    // directions. At t = 300 two generic starts differ in lambda_1 by |ln c| / t, c the first
+    // vector's projection on the most unstable direction (|ln 1e-6| / 300 < 0.05).
+    let basis = standard.replace("[map]\n", "[map]\nroute = \"basis\"\n");
+    let spec = MapSpec::from_config(&RunConfig::from_toml(&basis).unwrap()).unwrap();
+    for (b, p) in batched(&spec, 2, Isa::detect()).iter().zip(&per_set) {
+        assert_eq!(
+            b.per_set[0].to_bits(),
+            b.per_set[1].to_bits(),
+            "one basis per point"
+        );
+        assert!(
+            (b.spectrum[0] + b.spectrum[1]).abs() < 1e-12,
+            "{:?}",
+            b.spectrum
+        );
+        assert!(
+            (b.value - p.value).abs() < 0.05,
+            "point {}: basis {} vs per-set {}",
+            b.index,
+            b.value,
+            p.value
+        );
+    }
+    let lorenz = "[model]\nname = \"ode\"\n\
+         rhs = [\"sigma*(x2 - x1)\", \"x1*(rho - x3) - x2\", \"x1*x2 - beta*x3\"]\n\
+         params = { sigma = 10.0, rho = 28.0, beta = 2.6666666666666665 }\n\
+         [orbit]\nx = [1.0, 1.0, 20.0]\n[integrator]\nmethod = \"dop853\"\nh = 0.01\nt_final = 5\n\
+         [deviations]\nk = 3\nsets = 2\nseed = 5\n\
+         [[scheme]]\nname = \"s\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 0.5\northonormalize = \"qr\"\n\
+         [map]\nx = { coord = \"x1\", min = -0.3, max = 0.3, n = 3 }\n\
+         y = { coord = \"x2\", min = -0.2, max = 0.2, n = 2 }\nindicator = \"spectrum\"\n";
+    let spec = MapSpec::from_config(&RunConfig::from_toml(lorenz).unwrap()).unwrap();
+    assert!(spec.has_batched_kernel());
+    for p in check(&spec) {
+        // A step's tangent map has determinant exp(-(sigma + 1 + beta) h) only to the method's
+        // order: DOP853's error in ln det per step is about (14.6 h)^9 / 9! ~ 1e-13 (rk4's,
+        // (14.6 h)^5 / 5!, would be 5e-7, a sum off by 5e-5), 500 steps over t = 5: 1e-9 holds
+        // it with room for the QR's rounding.
+        let sum: f64 = p.spectrum.iter().sum();
+        assert!(
+            (sum + 13.666_666_666_666_666).abs() < 1e-9,
+            "{:?}",
+            p.spectrum
+        );
+    }
+}
+
+/// Spectrum maps need QR renormalization, and the other indicators refuse it: both errors name
+/// the scheme's key.
+#[test]
+fn spectrum_and_qr_go_together() {
+    let err = MapSpec::from_config(&hh_map_config(
+        "vm",
+        MapConfig {
+            k: Some(4),
+            ..grid("spectrum")
+        },
+        2.0,
+        1,
+    ))
+    .err()
+    .expect("refused");
+    assert_eq!(err.key, "scheme[0].orthonormalize");
+    assert!(err.message.contains("orthonormalize = \"qr\""), "{err}");
+    let mut config = hh_map_config("vm", grid("mle"), 2.0, 1);
+    config.schemes[0].orthonormalize = "qr".to_string();
+    let err = MapSpec::from_config(&config).err().expect("refused");
+    assert_eq!(err.key, "scheme[0].orthonormalize");
+    assert!(err.message.contains("rescale"), "{err}");
+}

@@ -132,6 +132,8 @@ class Map:
     status: npt.NDArray[np.int32]
     """1 integrated, 2 outside the energy surface, 3 escaped, 0 not computed."""
     per_set: FloatArray
+    spectrum: FloatArray
+    """"spectrum" maps: lambda_1..lambda_k per point, shape (ny, nx, k); (ny, nx, 0) otherwise."""
     points: int
 
 class LiveSample:

@@ -21,11 +21,11 @@ use crate::interrupt::interruptible;
 pub struct Map {
     /// The map file.
     path: PathBuf,
-    /// "gali", "gali-time", "sali", "mle", "fli", "megno" or "megno_mean".
+    /// "gali", "gali-time", "sali", "mle", "spectrum", "fli", "megno" or "megno_mean".
     indicator: String,
     /// "vm" or "mpm".
     method: String,
-    /// GALI order (or vectors per set for "mle").
+    /// GALI order (or vectors per set for "mle", exponents for "spectrum").
     k: u32,
     sets: u32,
     t_final: f64,
@@ -44,6 +44,9 @@ pub struct Map {
     status: Py<PyAny>,
     /// Per point and set: log10 GALI_k, the stopping time or the MLE, shape (ny, nx, sets).
     per_set: Py<PyAny>,
+    /// "spectrum" maps: lambda_1..lambda_k (each the mean over the sets), shape (ny, nx, k),
+    /// NaN where no point was integrated; shape (ny, nx, 0) for every other indicator.
+    spectrum: Py<PyAny>,
     /// Points present.
     points: usize,
 }
@@ -60,10 +63,16 @@ impl Map {
             header.y.clone().unwrap_or_default(),
         );
         let (nx, ny, sets) = (xa.n as usize, ya.n as usize, header.sets as usize);
+        let exponents = if header.indicator == "spectrum" {
+            header.k as usize
+        } else {
+            0
+        };
         // The grids are dense (a value for every grid point and set, NaN where none was
         // computed): a header may describe up to 10^10 points and a million sets, far beyond any
         // file it comes in, so their size is checked against the machine before allocating.
-        let bytes = (nx as u128 * ny as u128) * (8 * 3 + 4 + 8 * sets as u128);
+        let bytes =
+            (nx as u128 * ny as u128) * (8 * 3 + 4 + 8 * sets as u128 + 8 * exponents as u128);
         if let Some(memory) = Machine::this_host().memory_bytes
             && bytes > u128::from(memory / 2)
         {
@@ -80,6 +89,7 @@ impl Map {
         let mut mean_log10 = vec![f64::NAN; nx * ny];
         let mut status = vec![0i32; nx * ny];
         let mut per_set = vec![f64::NAN; nx * ny * sets];
+        let mut spectrum = vec![f64::NAN; nx * ny * exponents];
         for p in points {
             let (ix, iy) = (p.ix as usize, p.iy as usize);
             if ix >= nx || iy >= ny {
@@ -93,6 +103,9 @@ impl Map {
             status[i] = p.status;
             for (s, v) in p.per_set.iter().take(sets).enumerate() {
                 per_set[i * sets + s] = *v;
+            }
+            for (j, v) in p.spectrum.iter().take(exponents).enumerate() {
+                spectrum[i * exponents + j] = *v;
             }
         }
         let grid = |v: Vec<f64>, shape: &[usize]| -> PyResult<Py<PyAny>> {
@@ -119,6 +132,7 @@ impl Map {
                 .into_any()
                 .unbind(),
             per_set: grid(per_set, &[ny, nx, sets])?,
+            spectrum: grid(spectrum, &[ny, nx, exponents])?,
             points: points.len(),
         })
     }

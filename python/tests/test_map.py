@@ -63,3 +63,30 @@ def test_map_errors(tmp_path):
     chaoscope.map(hh_map(n=(2, 2), t_final=2.0), out=tmp_path / "y.mcap")
     with pytest.raises(chaoscope.ChaoscopeError, match="already exists"):
         chaoscope.map(hh_map(n=(2, 2), t_final=2.0), out=tmp_path / "y.mcap")
+
+
+def test_spectrum_map_has_one_layer_per_exponent(tmp_path, cli):
+    """`indicator = "spectrum"`: lambda_1..lambda_k per point as `Map.spectrum` (ny, nx, k);
+    `value` is lambda_1; for the Hamiltonian flow (VM, k = 2N) the exponents sum to 0 (the
+    tangent map has determinant 1: only the QR's rounding, a few ulps a window, remains)."""
+    config = hh_map(n=(5, 4), t_final=20.0)
+    config["scheme"] = [{"name": "vm", "method": "vm", "d0": 1e-8, "tau": 1.0, "orthonormalize": "qr"}]
+    config["map"]["indicator"] = "spectrum"
+    config["map"]["k"] = 4
+    m = chaoscope.map(config, out=tmp_path / "spectrum.mcap")
+    assert m.indicator == "spectrum" and m.k == 4
+    assert m.spectrum.shape == (4, 5, 4)
+    ok = m.status == 1
+    assert ok.any() and (~ok).any()
+    assert np.array_equal(m.value[ok], m.spectrum[ok][:, 0])
+    assert np.all(np.isnan(m.spectrum[~ok]))
+    assert np.all(np.abs(m.spectrum[ok].sum(axis=1)) < 1e-12)
+    # Other maps have no layers.
+    assert chaoscope.open_map(tmp_path / "spectrum.mcap").spectrum.shape == (4, 5, 4)
+    gali = chaoscope.map(hh_map(n=(2, 2), t_final=2.0), out=tmp_path / "gali.mcap")
+    assert gali.spectrum.shape == (2, 2, 0)
+    # The command draws lambda_1.
+    done = cli("merge", tmp_path / "spectrum.mcap", "--out", tmp_path / "merged.mcap",
+               "--png", tmp_path / "spectrum.png")
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "spectrum.png").stat().st_size > 1000

@@ -110,7 +110,7 @@ pub const MAX_AXIS_POINTS: u32 = 100_000;
 /// Indicators a map file may hold: the map's own and every registered set indicator's output
 /// that needs no flow direction (`fli`, `megno`, `megno_mean`: what `chaoscope map` accepts).
 pub fn indicators() -> Vec<&'static str> {
-    ["gali", "sali", "gali-time", "mle"]
+    chaoscope_schemas::config::MAP_OWN_INDICATORS
         .into_iter()
         .chain(chaoscope_indicators::indicator::flowless_set_outputs())
         .collect()
@@ -247,6 +247,23 @@ pub fn check_point(h: &MapHeader, p: &MapPoint) -> Result<(), String> {
         if let Some(i) = p.per_set.iter().position(|v| !v.is_finite()) {
             return Err(at(format!("per_set[{i}] = {:?}", p.per_set[i])));
         }
+        if let Some(i) = p.spectrum.iter().position(|v| !v.is_finite()) {
+            return Err(at(format!("spectrum[{i}] = {:?}", p.spectrum[i])));
+        }
+    }
+    // lambda_1..lambda_k of an integrated point of a spectrum map, nothing otherwise.
+    let exponents = if ok && h.indicator == "spectrum" {
+        h.k as usize
+    } else {
+        0
+    };
+    if p.spectrum.len() != exponents {
+        return Err(at(format!(
+            "{} exponents in spectrum, but a {} point of this {} map has {exponents}",
+            p.spectrum.len(),
+            if ok { "computed" } else { "failed" },
+            h.indicator
+        )));
     }
     if !(p.t_end.is_finite() && p.t_end >= 0.0) {
         return Err(at(format!("t_end = {:?}", p.t_end)));

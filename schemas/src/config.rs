@@ -169,7 +169,8 @@ pub struct MapAxis {
 pub struct MapConfig {
     pub x: MapAxis,
     pub y: MapAxis,
-    /// `"gali"`, `"gali-time"`, `"sali"`, `"mle"`, or an output of a registered set indicator
+    /// `"gali"`, `"gali-time"`, `"sali"`, `"mle"`, `"spectrum"` (the first `k` Lyapunov
+    /// exponents, with QR renormalization), or an output of a registered set indicator
     /// that needs no flow direction: `"fli"`, `"megno"` or `"megno_mean"` (`ofli` is not one).
     pub indicator: String,
     /// Order of the GALI (for `gali` and `gali-time`).
@@ -196,6 +197,10 @@ impl MapAxis {
         }
     }
 }
+
+/// The map indicators that are not a registered set indicator's output: the one list the map's
+/// validation and every reader of map files check `indicator` against.
+pub const MAP_OWN_INDICATORS: [&str; 5] = ["gali", "gali-time", "sali", "mle", "spectrum"];
 
 impl MapConfig {
     /// A map of `indicator` over the grid `x` by `y`, without `k` or `threshold`.

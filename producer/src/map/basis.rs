@@ -59,6 +59,26 @@ impl Sets {
         if !(w.last || acc.observes_every_window()) {
             return;
         }
+        if acc.needs_qr() {
+            // `spectrum`: the basis is itself renormalized by QR every window, so its
+            // accumulated `ln R_jj` are the Benettin spectrum of the point (from the coordinate
+            // axes, whatever the sets' directions: every set gets the same first k exponents,
+            // to which any generic set's converge).
+            let k = self.stretch.len();
+            for set in 0..run.sets() {
+                for ((s, now), before) in self
+                    .stretch
+                    .iter_mut()
+                    .zip(&prop.log_scales()[..k])
+                    .zip(self.log_norms[set].iter_mut())
+                {
+                    *s = (now - *before).exp();
+                    *before = *now;
+                }
+                acc.observe(set, w.t, &self.unit, &self.stretch, w.last);
+            }
+            return;
+        }
         for (set, dirs) in run.directions().iter().enumerate() {
             if acc.is_stopped(set) {
                 continue;

@@ -1,7 +1,7 @@
 //! The indicator of a map: what each deviation set accumulates at its renormalizations, when it
 //! may stop, and how the sets' numbers make the point's value.
 
-use chaoscope_schemas::config::MapConfig;
+use chaoscope_schemas::config::{MAP_OWN_INDICATORS, MapConfig};
 
 use chaoscope_indicators::indicator::{
     Output, SetIndicator, SetObservation, flowless_set_outputs, set_indicators,
@@ -23,19 +23,20 @@ pub enum Indicator {
     Sali,
     /// Finite-time maximal Lyapunov exponent at `t_final` (from the first vector of each set).
     Mle,
+    /// The first `k` finite-time Lyapunov exponents at `t_final`: each set's vectors are
+    /// renormalized by QR (validation asks the scheme for `orthonormalize = "qr"`), and
+    /// `lambda_j` is the mean of `ln |R_jj|` per unit time.
+    Spectrum { k: usize },
     /// An output of a registered set indicator (`chaoscope_indicators::indicator`) at
     /// `t_final`, by its name: `fli`, `megno`, `megno_mean`.
     Set { name: &'static str },
 }
 
-/// Indicators of a map that are not set indicators' outputs.
-const OWN_INDICATORS: [&str; 4] = ["gali", "gali-time", "sali", "mle"];
-
-/// Every value `[map] indicator` takes: [`OWN_INDICATORS`] and the registered set indicators'
+/// Every value `[map] indicator` takes: [`MAP_OWN_INDICATORS`] and the registered set indicators'
 /// outputs that need nothing but the stretching factors and separations (OFLI needs the flow
 /// direction at each point's reference state, which the map's kernels do not compute).
 pub fn map_indicators() -> Vec<&'static str> {
-    OWN_INDICATORS
+    MAP_OWN_INDICATORS
         .into_iter()
         .chain(flowless_set_outputs())
         .collect()
@@ -75,6 +76,7 @@ impl Indicator {
                 }
             }
             "mle" => Indicator::Mle,
+            "spectrum" => Indicator::Spectrum { k },
             other => match flowless_set_outputs().into_iter().find(|n| *n == other) {
                 Some(name) => Indicator::Set { name },
                 None => {
@@ -100,6 +102,7 @@ impl Indicator {
             Indicator::GaliTime { .. } => "gali-time",
             Indicator::Sali => "sali",
             Indicator::Mle => "mle",
+            Indicator::Spectrum { .. } => "spectrum",
             Indicator::Set { name } => name,
         }
     }
@@ -119,6 +122,8 @@ pub struct SetAccumulator {
     log_sum: f64,
     /// The set's number once known (its final value, or its stopping time).
     value: Option<f64>,
+    /// `sum ln |R_jj|` of each vector (`spectrum`), then its exponents at the end.
+    log_sums: Vec<f64>,
 }
 
 /// Per-point bookkeeping shared by the batched and the one-orbit paths, so both form the result
@@ -143,7 +148,16 @@ impl PointAccumulator {
             indicator,
             dim,
             t_final,
-            sets: vec![SetAccumulator::default(); sets],
+            sets: vec![
+                SetAccumulator {
+                    log_sums: match indicator {
+                        Indicator::Spectrum { k } => vec![0.0; k],
+                        _ => Vec::new(),
+                    },
+                    ..SetAccumulator::default()
+                };
+                sets
+            ],
             scratch: Vec::new(),
             last_stop: 0.0,
             set_indicators: match indicator {
@@ -153,13 +167,21 @@ impl PointAccumulator {
         }
     }
 
-    /// The indicator reads the sets at every renormalization (`gali-time`, `mle`), not only at
-    /// the last one.
+    /// The indicator reads the sets at every renormalization (`gali-time`, `mle`, `spectrum`,
+    /// the set indicators), not only at the last one.
     pub fn observes_every_window(&self) -> bool {
         matches!(
             self.indicator,
-            Indicator::GaliTime { .. } | Indicator::Mle | Indicator::Set { .. }
+            Indicator::GaliTime { .. }
+                | Indicator::Mle
+                | Indicator::Spectrum { .. }
+                | Indicator::Set { .. }
         )
+    }
+
+    /// The stretching factors must be QR's `|R_jj|` (`spectrum`), not each vector's own.
+    pub fn needs_qr(&self) -> bool {
+        matches!(self.indicator, Indicator::Spectrum { .. })
     }
 
     pub fn is_stopped(&self, set: usize) -> bool {
@@ -216,6 +238,15 @@ impl PointAccumulator {
                     acc.value = Some(acc.log_sum / t);
                 }
             }
+            Indicator::Spectrum { .. } => {
+                for (sum, s) in acc.log_sums.iter_mut().zip(stretch) {
+                    *sum += s.ln();
+                }
+                if last {
+                    acc.log_sums.iter_mut().for_each(|sum| *sum /= t);
+                    acc.value = Some(acc.log_sums[0]);
+                }
+            }
             Indicator::Set { name } => {
                 let (indicators, previous) = &mut self.set_indicators[set];
                 let observation = SetObservation {
@@ -263,11 +294,19 @@ impl PointAccumulator {
             ),
             _ => (per_set.iter().sum::<f64>() / m, 0.0),
         };
+        // lambda_j averaged over the sets, in the sets' order (as `value` is).
+        let spectrum = match self.indicator {
+            Indicator::Spectrum { k } => (0..k)
+                .map(|j| self.sets.iter().map(|s| s.log_sums[j]).sum::<f64>() / m)
+                .collect(),
+            _ => Vec::new(),
+        };
         PointResult {
             status: PointStatus::Ok,
             value,
             per_set,
             mean_log10,
+            spectrum,
             t_end: self.last_stop,
             orbit_steps,
             reason: String::new(),
@@ -283,6 +322,7 @@ pub fn failed(base: PointResult, status: PointStatus, t_end: f64, reason: String
         value: f64::NAN,
         per_set: Vec::new(),
         mean_log10: 0.0,
+        spectrum: Vec::new(),
         t_end,
         reason,
         ..base

@@ -26,6 +26,8 @@ pub struct PointResult {
     pub per_set: Vec<f64>,
     /// Mean of log10 GALI_k over the sets for `gali`, else 0.
     pub mean_log10: f64,
+    /// `spectrum`: `lambda_1..lambda_k`, each the mean over the sets (empty otherwise).
+    pub spectrum: Vec<f64>,
     /// Time the point finished.
     pub t_end: f64,
     /// Orbit-steps integrated (reference plus nearby orbits or tangent vectors).
@@ -46,6 +48,7 @@ impl PointResult {
             && self.value.to_bits() == other.value.to_bits()
             && bits(&self.per_set) == bits(&other.per_set)
             && self.mean_log10.to_bits() == other.mean_log10.to_bits()
+            && bits(&self.spectrum) == bits(&other.spectrum)
             && self.t_end.to_bits() == other.t_end.to_bits()
             && bits(&self.x0) == bits(&other.x0)
     }

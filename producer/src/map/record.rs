@@ -55,6 +55,7 @@ impl From<&PointResult> for MapPoint {
             value: r.value,
             per_set: r.per_set.clone(),
             mean_log10: r.mean_log10,
+            spectrum: r.spectrum.clone(),
             t_end: r.t_end,
             orbit_steps: r.orbit_steps,
             reason: r.reason.clone(),

@@ -255,13 +255,26 @@ impl MapSpec {
         })?;
         let separable = run.system().separable().is_some();
         let n = run.dim() / 2;
-        if run.schemes()[0].orthonormalize != Orthonormalization::Rescale {
-            return Err(SpecError::new(
-                "scheme[0].orthonormalize",
-                "maps renormalize each vector separately: use \"rescale\"",
-            ));
-        }
         let indicator = Indicator::from_config(map, k)?;
+        // The exponents beyond the first come from QR's |R_jj|; every other indicator reads
+        // each vector's own growth or the directions, which QR would change.
+        match (indicator, run.schemes()[0].orthonormalize) {
+            (Indicator::Spectrum { .. }, Orthonormalization::Rescale) => {
+                return Err(SpecError::new(
+                    "scheme[0].orthonormalize",
+                    "the spectrum is measured with QR renormalization: write \
+                     orthonormalize = \"qr\" in the [[scheme]]",
+                ));
+            }
+            (Indicator::Spectrum { .. }, _) | (_, Orthonormalization::Rescale) => {}
+            _ => {
+                return Err(SpecError::new(
+                    "scheme[0].orthonormalize",
+                    "maps renormalize each vector separately (only indicator = \"spectrum\" \
+                     uses QR): use \"rescale\"",
+                ));
+            }
+        }
         let route = MapRoute::from_config(map.route.as_deref())?;
         if route == MapRoute::Basis {
             if run.system().batched(Isa::detect()).is_none() {
@@ -456,6 +469,7 @@ impl MapSpec {
             value: f64::NAN,
             per_set: Vec::new(),
             mean_log10: 0.0,
+            spectrum: Vec::new(),
             t_end: 0.0,
             orbit_steps: 0,
             reason: String::new(),

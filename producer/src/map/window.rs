@@ -6,7 +6,6 @@ use super::indicator::PointAccumulator;
 use crate::batch::{PointKernel, Soa};
 use crate::engine::RunError;
 use crate::method::DeviationMethod;
-use chaoscope_schemas::run::Orthonormalization;
 
 use crate::renormalization;
 use crate::spec::RunSpec;
@@ -136,8 +135,9 @@ impl<'a> SetRenormalization<'a> {
         }
     }
 
-    /// Rescales every separation vector of `set` to `d0`, as the engine does, and hands the
-    /// vectors before it and their stretching factors to `acc`. `Ok(true)` when the set goes
+    /// Renormalizes the separation vectors of `set` to `d0` as the engine does (each rescaled,
+    /// or by QR for `spectrum`: the scheme's `orthonormalize`, checked by the validation), and
+    /// hands the vectors before it and their stretching factors to `acc`. `Ok(true)` when the set goes
     /// on, `Ok(false)` when it has finished.
     pub fn apply(
         &mut self,
@@ -151,7 +151,7 @@ impl<'a> SetRenormalization<'a> {
             &mut self.separations,
             self.run.dim(),
             scheme.d0,
-            Orthonormalization::Rescale,
+            scheme.orthonormalize,
             &mut self.stretch,
         )
         .map_err(|source| RunError::Renormalization {

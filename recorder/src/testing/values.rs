@@ -421,7 +421,12 @@ pub fn map(choices: &mut Choices, shard: u32, shards: u32) -> Vec<u8> {
         n: choices.u32(n),
     };
     let indicators = ["gali", "sali", "gali-time", "mle"];
-    let indicator = indicators[choices.below(4) as usize];
+    let mut indicator = indicators[choices.below(4) as usize];
+    // A spectrum map is an MLE map with every exponent: half of the MLE maps (a byte more only
+    // for MLE maps, so the inputs of the other indicators keep their meaning).
+    if indicator == "mle" && choices.byte() < Choices::KEEP / 2 {
+        indicator = "spectrum";
+    }
     let header = MapHeader {
         format_version: choices.u32(chaoscope_schemas::FORMAT_VERSION),
         config_toml: choices.string(MAP_CONFIG),
@@ -465,7 +470,7 @@ pub fn map(choices: &mut Choices, shard: u32, shards: u32) -> Vec<u8> {
         let ok = status == map_point::Status::Ok as i32;
         let value = if ok {
             match indicator {
-                "mle" => noise.next_f64(1.0).abs(),
+                "mle" | "spectrum" => noise.next_f64(1.0).abs(),
                 "gali-time" => noise.next_f64(1.0).abs(),
                 _ => 10f64.powf(-8.0 * noise.next_f64(1.0).abs()),
             }
@@ -489,6 +494,13 @@ pub fn map(choices: &mut Choices, shard: u32, shards: u32) -> Vec<u8> {
             orbit_steps: choices.u64(300),
             reason: choices.string(if ok { "" } else { "escaped" }),
             x0: (0..choices.len(4)).map(|_| choices.f64(0.1)).collect(),
+            spectrum: if indicator == "spectrum" {
+                (0..choices.len(if ok { 2 } else { 0 }))
+                    .map(|j| choices.f64(if j == 0 { value } else { -value }))
+                    .collect()
+            } else {
+                Vec::new()
+            },
         };
         file.write_point(&point).expect("writing to memory");
         if choices.byte() == 0xff {
@@ -874,6 +886,7 @@ pub fn valid_map() -> (MapHeader, Vec<MapPoint>) {
                 orbit_steps: 300,
                 reason: String::new(),
                 x0: vec![0.0, -0.4 + f64::from(ix) * 0.2, 0.3, 0.0],
+                spectrum: Vec::new(),
             }
         })
         .collect();

@@ -30,6 +30,9 @@ pub struct Layout {
     pub h: f64,
     /// Renormalization period of each scheme in steps, in header order.
     pub tau_steps: Vec<u64>,
+    /// The sites `N` of a Hamiltonian (`dim = 2N`), for the indicators over a lattice
+    /// ([`Layout::with_sites`]); `None` for flows and maps.
+    pub sites: Option<usize>,
 }
 
 impl Layout {
@@ -49,7 +52,16 @@ impl Layout {
             sets,
             h,
             tau_steps,
+            sites: None,
         })
+    }
+
+    /// The layout of a Hamiltonian's run: `dim / 2` sites, site `l` at `q_l`, `p_l`.
+    pub fn with_sites(self) -> Self {
+        Self {
+            sites: self.dim.is_multiple_of(2).then_some(self.dim / 2),
+            ..self
+        }
     }
 
     /// Time of step `step`, computed as the producer does (`step * h`, never accumulated).
@@ -362,6 +374,7 @@ impl Tracker {
             separations,
             stretch,
             flow: reference.and_then(|r| r.flow.as_deref()),
+            sites: self.layout.sites,
         };
         for indicator in &mut st.indicators {
             indicator.observe(&observation);

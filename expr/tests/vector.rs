@@ -18,6 +18,7 @@ fn definition(key: &str, components: &[&str], params: &[(&str, ParamValue)]) -> 
             .collect::<BTreeMap<_, _>>(),
         boundary: Boundary::Fixed,
         tables: Vec::new(),
+        time: true,
     }
 }
 

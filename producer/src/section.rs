@@ -6,7 +6,11 @@
 //!
 //! [`surface`]: sections of any flow (and any Hamiltonian) through a surface `S(x) = 0`
 //! written as an expression, crossings located to rounding.
+//!
+//! [`stroboscopic`]: the state every `T` time units, the section of a periodically forced
+//! system at a fixed phase of its forcing.
 
+pub mod stroboscopic;
 pub mod surface;
 
 use crate::integrator::{Integrator, Workspace};

@@ -94,6 +94,60 @@ pub fn coordinate_names(spec: &RunSpec) -> Vec<String> {
     }
 }
 
+/// `source` compiled as a scalar function of the state of `spec`'s system (its coordinate
+/// names, the config's `params` and `boundary`), errors in one line naming `key`: a section's
+/// surface, or the period of a stroboscopic section (which reads no coordinate).
+pub fn scalar_over_state(
+    spec: &RunSpec,
+    model: &ModelConfig,
+    key: &str,
+    source: &str,
+) -> Result<ScalarFunction, SpecError> {
+    let system = spec.system();
+    let dim = spec.dim();
+    let canonical = system.kind() == SystemKind::Hamiltonian;
+    let (families, n) = if canonical {
+        let n = dim / 2;
+        (vec![("q".to_string(), n), ("p".to_string(), n)], n)
+    } else {
+        (vec![("x".to_string(), dim)], dim)
+    };
+    let (params, boundary) = match model {
+        ModelConfig::Ode(m) => (Some(&m.params), m.boundary.as_deref()),
+        ModelConfig::Hamiltonian(m) => (Some(&m.params), m.boundary.as_deref()),
+        ModelConfig::Potential(m) => (Some(&m.params), m.boundary.as_deref()),
+        _ => (None, None),
+    };
+    let size = format!("the system has N = {n}");
+    let mut values = std::collections::BTreeMap::new();
+    for (name, v) in params.into_iter().flatten() {
+        values.insert(
+            name.clone(),
+            param_value(&format!("model.params.{name}"), v, n, &size)?,
+        );
+    }
+    let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
+        .map_err(|e| SpecError::new("model.boundary", e))?;
+    let function = ScalarFunction::new(ScalarDefinition {
+        key: key.to_string(),
+        source: source.to_string(),
+        families,
+        n,
+        params: values,
+        boundary,
+    })
+    .map_err(|e| {
+        let line = e.one_line();
+        // The error already starts with the key.
+        let message = line
+            .strip_prefix(&format!("{key}: ") as &str)
+            .unwrap_or(&line)
+            .to_string();
+        SpecError::new(key, message)
+    })?;
+    Ok(function)
+}
+
 impl Surface {
     /// `source` (the `--surface` expression) over the coordinates of `spec`'s system, with
     /// the scalar parameters and arrays of `model` (the config's `params`, `boundary`). Maps
@@ -114,47 +168,7 @@ impl Surface {
                 ),
             ));
         }
-        let dim = spec.dim();
-        let canonical = system.kind() == SystemKind::Hamiltonian;
-        let (families, n) = if canonical {
-            let n = dim / 2;
-            (vec![("q".to_string(), n), ("p".to_string(), n)], n)
-        } else {
-            (vec![("x".to_string(), dim)], dim)
-        };
-        let (params, boundary) = match model {
-            ModelConfig::Ode(m) => (Some(&m.params), m.boundary.as_deref()),
-            ModelConfig::Hamiltonian(m) => (Some(&m.params), m.boundary.as_deref()),
-            ModelConfig::Potential(m) => (Some(&m.params), m.boundary.as_deref()),
-            _ => (None, None),
-        };
-        let size = format!("the system has N = {n}");
-        let mut values = std::collections::BTreeMap::new();
-        for (name, v) in params.into_iter().flatten() {
-            values.insert(
-                name.clone(),
-                param_value(&format!("model.params.{name}"), v, n, &size)?,
-            );
-        }
-        let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
-            .map_err(|e| SpecError::new("model.boundary", e))?;
-        let function = ScalarFunction::new(ScalarDefinition {
-            key: KEY.to_string(),
-            source: source.to_string(),
-            families,
-            n,
-            params: values,
-            boundary,
-        })
-        .map_err(|e| {
-            let line = e.one_line();
-            // The error already starts with the key.
-            let message = line
-                .strip_prefix("--surface: ")
-                .unwrap_or(&line)
-                .to_string();
-            SpecError::new(KEY, message)
-        })?;
+        let function = scalar_over_state(spec, model, KEY, source)?;
         if function.reads().is_empty() {
             return Err(SpecError::new(
                 KEY,

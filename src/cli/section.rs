@@ -293,13 +293,21 @@ impl Sampling {
         }
     }
 
-    /// What the samples are, for messages and titles: `x1 = 0 (up)`, `t = k * 2*pi/omega`.
+    /// What the samples are, for titles: `x1 = 0 (up)`, `t = k * 2*pi/omega`.
     fn describe(&self) -> String {
         match self {
             Sampling::Surface {
                 direction, source, ..
             } => format!("{source} = 0 ({})", direction.name()),
             Sampling::Every(_, period) => format!("t = k * {period}"),
+        }
+    }
+
+    /// What a sample is, for messages: `crossing of x1 = 0 (up)`, `sample at t = k * T`.
+    fn sample(&self) -> String {
+        match self {
+            Sampling::Surface { .. } => format!("crossing of {}", self.describe()),
+            Sampling::Every(..) => format!("sample at {}", self.describe()),
         }
     }
 }
@@ -430,8 +438,8 @@ fn surface_section(
         match &orbit.end {
             OrbitEnd::Crossings | OrbitEnd::Horizon if orbit.crossings.is_empty() => {
                 chaoscope_os::errln!(
-                    "chaoscope section: warning: {label}: no sample {} up to t = {}",
-                    sampling.describe(),
+                    "chaoscope section: warning: {label}: no {} up to t = {}",
+                    sampling.sample(),
                     spec.t_final()
                 );
             }
@@ -484,9 +492,12 @@ fn surface_section(
         } else {
             format!("up to t = {}", base.t_final())
         };
+        let what = match &sampling {
+            Sampling::Surface { .. } => format!("crossing of the surface {}", sampling.describe()),
+            Sampling::Every(..) => sampling.sample(),
+        };
         bail!(
-            "no sample {} of {} {until}",
-            sampling.describe(),
+            "no {what} by {} {until}",
             if vary.is_some() {
                 "any orbit"
             } else {

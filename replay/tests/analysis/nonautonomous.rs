@@ -392,3 +392,82 @@ orthonormalize = "qr"
         "VM {vm:?} vs MPM {mpm:?}"
     );
 }
+
+#[test]
+fn map_of_a_time_dependent_potential_runs_through_the_engine() {
+    // A potential of t has no lane kernels (they take no time): its map points run through
+    // the one-orbit engine, every point from t = 0, on any number of threads with the same
+    // bits; the basis route (batched kernel only) is refused naming the reason.
+    let text = |route: &str| {
+        format!(
+            r#"
+[model]
+name = "potential"
+n = 1
+potential = "-cos(q1) * (1 + a*cos(w*t))"
+params = {{ a = 0.5, w = 2.0 }}
+[orbit]
+q = [0.5]
+p = [0.2]
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = 20.0
+[deviations]
+k = 1
+sets = 1
+seed = 1
+[[scheme]]
+name = "s"
+method = "mpm"
+d0 = 1e-8
+tau = 1.0
+[map]
+x = {{ coord = "q1", min = -1.0, max = 1.0, n = 3 }}
+y = {{ coord = "p1", min = -0.5, max = 0.5, n = 2 }}
+indicator = "mle"
+{route}
+"#
+        )
+    };
+    use chaoscope_producer::batch::Isa;
+    use chaoscope_producer::map::schedule::{MapOptions, run_map};
+    use chaoscope_producer::map::spec::MapSpec;
+    use chaoscope_producer::map::{PointStatus, one_orbit};
+    let spec = MapSpec::from_config(&RunConfig::from_toml(&text("")).unwrap()).unwrap();
+    assert!(!spec.has_batched_kernel());
+    let want: Vec<_> = (0..spec.grid_points())
+        .map(|i| one_orbit::point(&spec, i))
+        .collect();
+    assert!(want.iter().all(|r| r.status == PointStatus::Ok), "{want:?}");
+    for threads in [1, 2] {
+        let mut got = Vec::new();
+        let options = MapOptions {
+            threads: Some(threads),
+            isa: Isa::detect(),
+            mpm_points_per_batch: 2,
+            termination: None,
+        };
+        run_map(
+            &spec,
+            &(0..spec.grid_points()).collect::<Vec<_>>(),
+            &options,
+            |r| {
+                got.push(r);
+                true
+            },
+        )
+        .unwrap();
+        got.sort_by_key(|r| r.index);
+        for (g, w) in got.iter().zip(&want) {
+            assert!(g.same_numbers(w), "{threads} threads: {g:?} vs {w:?}");
+        }
+    }
+    let Err(basis) =
+        MapSpec::from_config(&RunConfig::from_toml(&text("route = \"basis\"")).unwrap())
+    else {
+        panic!("the basis route of a potential of t is refused")
+    };
+    let basis = basis.to_string();
+    assert!(basis.contains("potential does not read t"), "{basis}");
+}

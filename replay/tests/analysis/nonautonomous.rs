@@ -185,7 +185,7 @@ fn duffing_periodic_orbit_explicit_time_equals_the_phase_variable_rewrite() {
         let (t_half, l_half) = &full[scheme][full[scheme].len() / 2 - 1];
         let (s_end, s_half) = (l_end[0] * t_end, l_half[0] * t_half);
         assert!(
-            s_end >= -1e-6 && s_end < 3.0,
+            (-1e-6..3.0).contains(&s_end),
             "scheme {scheme}: ln|w| = {s_end}"
         );
         assert!(

@@ -17,6 +17,13 @@
 //! Every compiled function performs exactly the operations of [`crate::eval`] on the same graph,
 //! so the scalar calls, the lane calls and the reference evaluator agree bit for bit.
 //!
+//! Time: where the definition says so ([`VectorDefinition::time`]: a flow's `rhs`, and every
+//! Hamiltonian), the name `t` is the time, argument array [`ARG_T`] of every compiled function
+//! (shared by all lanes of a lane call: the batched integrators step their lanes together).
+//! The `*_at` calls take it; the calls without `_at` evaluate at `t = 0`, the only value of a
+//! function that does not read the time ([`VectorFunction::reads_time`]), whose arithmetic is
+//! exactly what it was before time existed: an argument it never reads changes no operation.
+//!
 //! Components are numbered from 1, as the variables are: component `i` is `F_i`, written
 //! `<key>[i]` in messages (`next[2]` is the map's second component, the new `x2`).
 
@@ -44,6 +51,9 @@ pub struct VectorDefinition {
     pub boundary: Boundary,
     /// Tabulated functions by the name the expressions call them.
     pub tables: Vec<(String, Arc<dyn Tabulated>)>,
+    /// Whether `t` is the time (a flow's `rhs`: non-autonomous systems); `false` for a map's
+    /// `next`, where `t` is an ordinary name.
+    pub time: bool,
 }
 
 /// Why a vector function could not be built.
@@ -67,9 +77,10 @@ const TANGENT: usize = 1;
 const DIVERGENCE: usize = 2;
 const ENERGY: usize = 3;
 
-/// Argument arrays: the state, and the direction of `J v`.
+/// Argument arrays: the state, the direction of `J v`, and the time (one entry).
 const ARG_X: u8 = 0;
 const ARG_V: u8 = 1;
+pub const ARG_T: u8 = 2;
 
 /// Most components of a vector function (the straight-line code grows with `D`).
 pub const MAX_DIM: usize = 100_000;
@@ -89,6 +100,8 @@ struct Inner {
     tangent_refusal: Option<String>,
     /// A Hamiltonian vector field's `H` (see [`VectorFunction::hamiltonian`]).
     energy: Option<NodeId>,
+    /// Some expression reads the time `t`.
+    reads_time: bool,
     compiled: Compiled,
     value_fn: ScalarFnPtr,
     tangent_fn: ScalarFnPtr,
@@ -163,6 +176,7 @@ impl VectorFunction {
             tables: &tables,
             n: d,
             boundary: definition.boundary,
+            time: definition.time.then_some(ARG_T),
         };
         let mut values = Vec::with_capacity(d);
         let mut smoothness = Vec::with_capacity(d);
@@ -247,6 +261,7 @@ impl VectorFunction {
             tables: &tables,
             n,
             boundary: h.boundary,
+            time: Some(ARG_T),
         };
         let lowered = lower::lower(&h.source, &scope, &mut graph).map_err(|error| {
             VectorError::Component {
@@ -291,6 +306,7 @@ impl VectorFunction {
             params: h.params,
             boundary: h.boundary,
             tables: h.tables,
+            time: true,
         };
         Self::finish(
             definition,
@@ -346,33 +362,44 @@ impl VectorFunction {
             }
         }
         let divergence = divergence.unwrap_or_else(|| graph.constant(0.0));
+        // Every function takes the time as argument ARG_T, one value shared by all lanes
+        // (argument ARG_V of the functions other than `J v` is never read).
+        let unary = vec![Layout::Lanes, Layout::Scalar, Layout::Scalar];
         let mut specs = vec![
             FunctionSpec {
-                args: vec![Layout::Lanes],
+                args: unary.clone(),
                 outputs: values.clone(),
             },
             FunctionSpec {
-                args: vec![Layout::Scalar, Layout::Lanes],
+                args: vec![Layout::Scalar, Layout::Lanes, Layout::Scalar],
                 outputs: tangent.clone(),
             },
             FunctionSpec {
-                args: vec![Layout::Lanes],
+                args: unary.clone(),
                 outputs: vec![divergence],
             },
         ];
         if let Some(h) = energy {
             specs.push(FunctionSpec {
-                args: vec![Layout::Lanes],
+                args: unary,
                 outputs: vec![h],
             });
         }
+
         let compiled = jit::compile(&graph, &specs)
             .map_err(|e| VectorError::Other(format!("compiling {}: {e}", definition.key)))?;
         let energy_fn = energy.map(|_| (ENERGY, 1));
+        let reads_time = (0..specs.len()).any(|f| compiled.arg_len(f, ARG_T as usize) > 0);
         for (f, args) in [(VALUE, 1), (TANGENT, 2), (DIVERGENCE, 1)]
             .into_iter()
             .chain(energy_fn)
         {
+            if compiled.arg_len(f, ARG_T as usize) > 1 {
+                return Err(VectorError::Other(format!(
+                    "compiled function {f} reads {} entries of the time",
+                    compiled.arg_len(f, ARG_T as usize)
+                )));
+            }
             for a in 0..args {
                 if compiled.arg_len(f, a) > d {
                     return Err(VectorError::Other(format!(
@@ -388,6 +415,7 @@ impl VectorFunction {
             divergence_fn: compiled.raw_scalar(DIVERGENCE),
             energy_fn: energy.map(|_| compiled.raw_scalar(ENERGY)),
             energy,
+            reads_time,
             tangent_refusal,
             definition,
             graph,
@@ -451,18 +479,32 @@ impl VectorFunction {
         self.0.tangent_refusal.clone()
     }
 
-    /// `H(x)` of a Hamiltonian vector field ([`Self::hamiltonian`]); `None` for others.
+    /// Whether some compiled function reads the time `t` (a non-autonomous system). When it
+    /// does not, every `*_at` call gives the bits of the call at any other time.
+    pub fn reads_time(&self) -> bool {
+        self.0.reads_time
+    }
+
+    /// `H(x)` of a Hamiltonian vector field ([`Self::hamiltonian`]) at `t = 0`; `None` for
+    /// others.
+    #[inline]
+    pub fn energy(&self, x: &[f64]) -> Option<f64> {
+        self.energy_at(x, 0.0)
+    }
+
+    /// `H(x, t)` of a Hamiltonian vector field; `None` for others.
     ///
     /// # Panics
     /// If `x` does not have `D` entries.
     #[inline]
-    pub fn energy(&self, x: &[f64]) -> Option<f64> {
+    pub fn energy_at(&self, x: &[f64], t: f64) -> Option<f64> {
         let f = self.0.energy_fn?;
         let d = self.dim();
         assert!(x.len() == d, "energy of {d} coordinates");
-        let args = [x.as_ptr()];
+        let time = [t];
+        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr()];
         let mut out = [0.0];
-        // SAFETY: as in `value`; one output.
+        // SAFETY: as in `value_at`; one output.
         unsafe { f(args.as_ptr(), out.as_mut_ptr()) }
         Some(out[0])
     }
@@ -472,28 +514,42 @@ impl VectorFunction {
         self.0.energy.is_some()
     }
 
-    /// `out = F(x)`.
+    /// `out = F(x)` at `t = 0`.
+    #[inline]
+    pub fn value(&self, x: &[f64], out: &mut [f64]) {
+        self.value_at(x, 0.0, out)
+    }
+
+    /// `out = F(x, t)`.
     ///
     /// # Panics
     /// If `x` or `out` does not have `D` entries.
     #[inline]
-    pub fn value(&self, x: &[f64], out: &mut [f64]) {
+    pub fn value_at(&self, x: &[f64], t: f64, out: &mut [f64]) {
         let d = self.dim();
         assert!(x.len() == d && out.len() == d, "{d} components");
-        let args = [x.as_ptr()];
-        // SAFETY: the function reads at most D entries of `x` (checked in `new`) and writes D
-        // outputs; both slices have D entries; `out` is a `&mut`, so it overlaps nothing; the
-        // code lives as long as `self.0.compiled`.
+        let time = [t];
+        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr()];
+        // SAFETY: the function reads at most D entries of `x` and one of the time (checked in
+        // `new`), never argument ARG_V (null), and writes D outputs; both slices have D
+        // entries; `out` is a `&mut`, so it overlaps nothing; the code lives as long as
+        // `self.0.compiled`.
         unsafe { (self.0.value_fn)(args.as_ptr(), out.as_mut_ptr()) }
     }
 
-    /// `out = J(x) v`; `false` (and `out` untouched) when the function has no continuous first
-    /// derivatives ([`Self::no_tangent_reason`]).
+    /// `out = J(x) v` at `t = 0`; see [`Self::tangent_at`].
+    #[inline]
+    pub fn tangent(&self, x: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+        self.tangent_at(x, 0.0, v, out)
+    }
+
+    /// `out = J(x, t) v` (the derivative in `x` at time `t`); `false` (and `out` untouched)
+    /// when the function has no continuous first derivatives ([`Self::no_tangent_reason`]).
     ///
     /// # Panics
     /// If `x`, `v` or `out` does not have `D` entries.
     #[inline]
-    pub fn tangent(&self, x: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+    pub fn tangent_at(&self, x: &[f64], t: f64, v: &[f64], out: &mut [f64]) -> bool {
         if !self.0.c1 {
             return false;
         }
@@ -502,44 +558,73 @@ impl VectorFunction {
             x.len() == d && v.len() == d && out.len() == d,
             "Jacobian-vector product of {d} components"
         );
-        let args = [x.as_ptr(), v.as_ptr()];
-        // SAFETY: as in `value`, for the two arguments `x` and `v`.
+        let time = [t];
+        let args = [x.as_ptr(), v.as_ptr(), time.as_ptr()];
+        // SAFETY: as in `value_at`, for the arguments `x`, `v` and the time.
         unsafe { (self.0.tangent_fn)(args.as_ptr(), out.as_mut_ptr()) }
         true
     }
 
-    /// `tr J(x)`.
+    /// `tr J(x)` at `t = 0`.
+    #[inline]
+    pub fn divergence(&self, x: &[f64]) -> f64 {
+        self.divergence_at(x, 0.0)
+    }
+
+    /// `tr J(x, t)`.
     ///
     /// # Panics
     /// If `x` does not have `D` entries.
     #[inline]
-    pub fn divergence(&self, x: &[f64]) -> f64 {
+    pub fn divergence_at(&self, x: &[f64], t: f64) -> f64 {
         let d = self.dim();
         assert!(x.len() == d, "divergence of {d} components");
-        let args = [x.as_ptr()];
+        let time = [t];
+        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr()];
         let mut out = [0.0];
-        // SAFETY: as in `value`; one output.
+        // SAFETY: as in `value_at`; one output.
         unsafe { (self.0.divergence_fn)(args.as_ptr(), out.as_mut_ptr()) }
         out[0]
     }
 
-    /// `F` over `lanes` states in structure-of-arrays layout: `x[i * lanes + l]` is `x_i` of
-    /// lane `l`, `out[i * lanes + l]` its `F_i`. Lane by lane the bits of [`Self::value`].
+    /// `F` at `t = 0` over lanes; see [`Self::value_lanes_at`].
+    pub fn value_lanes(&self, x: &[f64], out: &mut [f64], lanes: usize) {
+        self.value_lanes_at(x, 0.0, out, lanes)
+    }
+
+    /// `F(., t)` over `lanes` states in structure-of-arrays layout, all at the time `t`:
+    /// `x[i * lanes + l]` is `x_i` of lane `l`, `out[i * lanes + l]` its `F_i`. Lane by lane
+    /// the bits of [`Self::value_at`].
     ///
     /// # Panics
     /// If `x` or `out` does not have `D * lanes` entries.
-    pub fn value_lanes(&self, x: &[f64], out: &mut [f64], lanes: usize) {
+    pub fn value_lanes_at(&self, x: &[f64], t: f64, out: &mut [f64], lanes: usize) {
         let d = self.dim();
         assert_eq!(x.len(), d * lanes, "{d} rows of {lanes} lanes");
-        self.0.compiled.call_lanes(VALUE, &[x], out, lanes)
+        self.0
+            .compiled
+            .call_lanes(VALUE, &[x, &[], &[t]], out, lanes)
     }
 
-    /// `J(x) v` at one shared state `x` (the reference orbit) for `lanes` directions in
-    /// structure-of-arrays layout (`v[i * lanes + l]`); `false` as [`Self::tangent`].
+    /// `J v` at `t = 0` over lanes; see [`Self::tangent_lanes_at`].
+    pub fn tangent_lanes(&self, x: &[f64], v: &[f64], out: &mut [f64], lanes: usize) -> bool {
+        self.tangent_lanes_at(x, 0.0, v, out, lanes)
+    }
+
+    /// `J(x, t) v` at one shared state `x` (the reference orbit) and time `t` for `lanes`
+    /// directions in structure-of-arrays layout (`v[i * lanes + l]`); `false` as
+    /// [`Self::tangent_at`].
     ///
     /// # Panics
     /// If `x` does not have `D` entries, or `v` or `out` not `D * lanes`.
-    pub fn tangent_lanes(&self, x: &[f64], v: &[f64], out: &mut [f64], lanes: usize) -> bool {
+    pub fn tangent_lanes_at(
+        &self,
+        x: &[f64],
+        t: f64,
+        v: &[f64],
+        out: &mut [f64],
+        lanes: usize,
+    ) -> bool {
         if !self.0.c1 {
             return false;
         }
@@ -548,16 +633,25 @@ impl VectorFunction {
             x.len() == d && v.len() == d * lanes,
             "a state of {d} and {d} rows of {lanes} lanes"
         );
-        self.0.compiled.call_lanes(TANGENT, &[x, v], out, lanes);
+        self.0
+            .compiled
+            .call_lanes(TANGENT, &[x, v, &[t]], out, lanes);
         true
     }
 
-    /// The divergence over `lanes` states in structure-of-arrays layout; `out` has `lanes`
-    /// entries.
+    /// The divergence at `t = 0` over lanes; see [`Self::divergence_lanes_at`].
     pub fn divergence_lanes(&self, x: &[f64], out: &mut [f64], lanes: usize) {
+        self.divergence_lanes_at(x, 0.0, out, lanes)
+    }
+
+    /// The divergence at time `t` over `lanes` states in structure-of-arrays layout; `out` has
+    /// `lanes` entries.
+    pub fn divergence_lanes_at(&self, x: &[f64], t: f64, out: &mut [f64], lanes: usize) {
         let d = self.dim();
         assert_eq!(x.len(), d * lanes, "{d} rows of {lanes} lanes");
-        self.0.compiled.call_lanes(DIVERGENCE, &[x], out, lanes)
+        self.0
+            .compiled
+            .call_lanes(DIVERGENCE, &[x, &[], &[t]], out, lanes)
     }
 
     /// What made `F(x)` non-finite: the first operation, in component order and evaluation
@@ -565,15 +659,22 @@ impl VectorFunction {
     /// 1, column 3 of next[2] gave NaN (x = [0.5, -1])`. `None` when `F(x)` is finite. Off the
     /// hot path: called after a run met a non-finite state.
     pub fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
+        self.diagnose_non_finite_at(x, 0.0)
+    }
+
+    /// [`Self::diagnose_non_finite`] at time `t`.
+    pub fn diagnose_non_finite_at(&self, x: &[f64], t: f64) -> Option<String> {
+        let time = [t];
+        let args: [&[f64]; 3] = [x, &[], &time];
         let g = &self.0.graph;
         let key = &self.0.definition.key;
         let state = format!("{x:?}");
         for (i, &root) in self.0.values.iter().enumerate() {
-            let Some(id) = eval::first_non_finite(g, &[x], root) else {
+            let Some(id) = eval::first_non_finite(g, &args, root) else {
                 continue;
             };
             let mut value = [0.0];
-            Evaluator::new().eval(g, &[x], &[id], &mut value);
+            Evaluator::new().eval(g, &args, &[id], &mut value);
             let op = g.operation_name(id);
             return Some(match self.0.origins.get(&id) {
                 Some(&(c, span)) => {

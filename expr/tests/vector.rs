@@ -18,6 +18,7 @@ fn definition(key: &str, components: &[&str], params: &[(&str, ParamValue)]) -> 
             .collect::<BTreeMap<_, _>>(),
         boundary: Boundary::Fixed,
         tables: Vec::new(),
+        time: true,
     }
 }
 
@@ -243,4 +244,70 @@ fn diagnosis_names_the_operation_and_component() {
         d,
         "'log' at line 1, column 1 of next[2] gave NaN in next[2] (x = [-1.0, 2.0])"
     );
+}
+
+/// A right-hand side that reads the time `t`: every compiled form (scalar `*_at`, lanes at one
+/// shared time) gives the reference evaluator's bits with the time as argument 2, at several
+/// times; `t` is a built-in there (a parameter of that name is an error naming it), and an
+/// ordinary name where the definition has no time (a map's `next`).
+#[test]
+fn time_is_an_argument_of_every_compiled_form() {
+    let f = VectorFunction::new(definition(
+        "rhs",
+        &[
+            "x2",
+            "-0.3 * x2 + x1 - x1^3 + gamma * cos(1.2 * t)",
+            "x1 * sin(t) - t * x3",
+        ],
+        &[("gamma", ParamValue::Scalar(0.5))],
+    ))
+    .unwrap();
+    assert!(f.reads_time());
+    assert!(!lorenz().reads_time());
+    let (g, values, tangent, divergence) = f.graph();
+    let mut ev = Evaluator::new();
+    let d = f.dim();
+    for (k, t) in [0.0, 0.37, 12.5, -3.0].into_iter().enumerate() {
+        let time = [t];
+        let lanes = 5;
+        let xs: Vec<Vec<f64>> = (0..lanes)
+            .map(|l| uniform(d, 11 + l as u64 + k as u64))
+            .collect();
+        let v = uniform(d, 5);
+        let soa: Vec<f64> = (0..d).flat_map(|i| xs.iter().map(move |r| r[i])).collect();
+        let mut f_lanes = vec![0.0; d * lanes];
+        f.value_lanes_at(&soa, t, &mut f_lanes, lanes);
+        for (l, x) in xs.iter().enumerate() {
+            let mut want = vec![0.0; d];
+            ev.eval(g, &[x, &[], &time], values, &mut want);
+            let mut got = vec![0.0; d];
+            f.value_at(x, t, &mut got);
+            assert_eq!(bits(&got), bits(&want), "F at t = {t}");
+            let lane: Vec<f64> = (0..d).map(|i| f_lanes[i * lanes + l]).collect();
+            assert_eq!(bits(&lane), bits(&want), "F lanes at t = {t}, lane {l}");
+            ev.eval(g, &[x, &v, &time], tangent, &mut want);
+            assert!(f.tangent_at(x, t, &v, &mut got));
+            assert_eq!(bits(&got), bits(&want), "J v at t = {t}");
+            let mut div = [0.0];
+            ev.eval(g, &[x, &[], &time], &[divergence], &mut div);
+            assert_eq!(f.divergence_at(x, t).to_bits(), div[0].to_bits());
+            // The time enters: dF3/dx3 = -t.
+            assert_eq!(div[0], -0.3 - t);
+        }
+    }
+    let clash = VectorFunction::new(definition(
+        "rhs",
+        &["t * x1"],
+        &[("t", ParamValue::Scalar(1.0))],
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        clash.contains("parameter 't' has the name of the time"),
+        "{clash}"
+    );
+    let mut map = definition("next", &["t * x1"], &[]);
+    map.time = false;
+    let unknown = VectorFunction::new(map).unwrap_err().to_string();
+    assert!(unknown.contains("unknown name 't'"), "{unknown}");
 }

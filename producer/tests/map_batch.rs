@@ -299,6 +299,17 @@ fn discrete_map_points_equal_the_engine() {
 /// magnetic field) with a fixed-step explicit method, or with a method that has no batched form.
 fn flow_map(system: &str, method: &str, scheme: &str, indicator: &str) -> MapSpec {
     let model = match system {
+        // The driven Duffing oscillator, `t` written explicitly: the lanes take every stage at
+        // its time (every point starts at t = 0).
+        "duffing" => {
+            "name = \"ode\"\nrhs = [\"x2\", \"-0.3*x2 + x1 - x1^3 + 0.5*cos(1.2*t)\"]\n\
+             [orbit]\nx = [1.0, 0.0]"
+        }
+        "driven" => {
+            "name = \"hamiltonian\"\nn = 2\nhamiltonian = \"((p1 + B*q2/2)^2 + (p2 - B*q1/2)^2)/2 \
+             + (q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3 + 0.05*q1*sin(3*t)\"\nparams = { B = 0.2 }\n\
+             [orbit]\nq = [0.0, 0.0]\np = [0.3, 0.0]"
+        }
         "lorenz" => {
             "name = \"ode\"\nrhs = [\"sigma*(x2 - x1)\", \"x1*(rho - x3) - x2\", \"x1*x2 - beta*x3\"]\n\
              params = { sigma = 10.0, rho = 28.0, beta = 2.6666666666666665 }\n\
@@ -310,7 +321,7 @@ fn flow_map(system: &str, method: &str, scheme: &str, indicator: &str) -> MapSpe
              [orbit]\nq = [0.0, 0.0]\np = [0.3, 0.0]"
         }
     };
-    let (x, y) = if system == "lorenz" {
+    let (x, y) = if system == "lorenz" || system == "duffing" {
         ("x1", "x2")
     } else {
         ("q2", "p2")
@@ -328,7 +339,8 @@ fn flow_map(system: &str, method: &str, scheme: &str, indicator: &str) -> MapSpe
 
 /// Flows of compiled expressions with a fixed-step explicit Runge-Kutta method run on the
 /// batched kernel and equal the engine bit for bit (VM and MPM, rk4 and dop853, an `ode` and a
-/// `hamiltonian`); implicit and adaptive methods keep the engine path.
+/// `hamiltonian`, each also with explicit time); implicit and adaptive methods keep the engine
+/// path.
 #[test]
 fn flow_points_equal_the_engine() {
     for (system, method, scheme, indicator) in [
@@ -338,6 +350,10 @@ fn flow_points_equal_the_engine() {
         ("magnetic", "dop853", "vm", "sali"),
         ("lorenz", "rk4", "mpm", "fli"),
         ("magnetic", "dop853", "vm", "megno_mean"),
+        ("duffing", "rk4", "vm", "gali"),
+        ("duffing", "dop853", "mpm", "mle"),
+        ("driven", "rk4", "mpm", "sali"),
+        ("driven", "dop853", "vm", "gali"),
     ] {
         let spec = flow_map(system, method, scheme, indicator);
         assert!(spec.has_batched_kernel(), "{system} {method}");

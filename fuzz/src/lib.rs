@@ -527,6 +527,13 @@ pub fn values_map(data: &[u8]) -> Outcome {
         let Some(h) = contents.header else {
             return Outcome::default();
         };
+        // `merge` refuses shards of different maps (another indicator, order, grid).
+        if header
+            .as_ref()
+            .is_some_and(|first| !chaoscope_recorder::map_file::same_map(first, &h))
+        {
+            return Outcome::default();
+        }
         points.extend(contents.points);
         header = Some(h);
     }

@@ -183,6 +183,19 @@ pub fn check_header(h: &MapHeader) -> Result<(), String> {
     Ok(())
 }
 
+/// Whether two map headers describe shards of one map: equal in every field but the shard's
+/// index (and the version of the program that wrote it). `merge` joins only such shards, and
+/// reads each point under one header, so a shard whose header says another indicator, order,
+/// grid or split is refused, never drawn or merged under the first one's.
+pub fn same_map(a: &MapHeader, b: &MapHeader) -> bool {
+    let whole = |h: &MapHeader| MapHeader {
+        shard_index: 0,
+        producer_version: String::new(),
+        ..h.clone()
+    };
+    whole(a) == whole(b)
+}
+
 /// Most sets of a map point (`[deviations] sets`'s limit).
 const MAX_SETS: usize = 1_000_000;
 

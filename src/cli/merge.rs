@@ -94,9 +94,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             );
         }
         if let Some(first) = &header
-            && (first.config_toml != h.config_toml
-                || first.shard_count != h.shard_count
-                || first.grid_points != h.grid_points)
+            && !chaoscope_recorder::map_file::same_map(first, &h)
         {
             bail!(
                 "{} belongs to a different map or shard split than {}",

@@ -94,6 +94,19 @@ pub enum ParamValue {
     Scalar(f64),
     /// One entry per site (`k[1]` is the first); must have exactly `N` entries.
     Array(Vec<f64>),
+    /// A scalar whose value every evaluation brings: entry `index` of the function's argument
+    /// `arg`, not folded as a constant (a map's parameter axis, where each lane of a lane call
+    /// is a point with a value of its own). `min..=max` is the range it takes: its signs decide
+    /// the smoothness of what reads it, as a constant's do. Operations on it round as they
+    /// would on the constant, so a lane holding the value the constant would have gives the
+    /// same bits wherever the constant would not fold differently (an identity such as
+    /// `x * 1`, a whole exponent, a branch of `if`).
+    Lane {
+        arg: u8,
+        index: u32,
+        min: f64,
+        max: f64,
+    },
 }
 
 /// A family of variables: `q1..qN` and `q[i]` are entries of the function's argument `arg`.
@@ -483,7 +496,12 @@ impl<'a> Lowerer<'a> {
                 )),
                 None => Ok(()),
             },
-            ParamValue::Scalar(_) => Ok(()),
+            ParamValue::Lane { min, max, .. } if !(min.is_finite() && max.is_finite()) => Err(self
+                .err(
+                    span,
+                    format!("parameter '{name}' ranges over {min} .. {max}, not finite numbers"),
+                )),
+            ParamValue::Scalar(_) | ParamValue::Lane { .. } => Ok(()),
         }
     }
 
@@ -552,6 +570,15 @@ impl<'a> Lowerer<'a> {
             Meaning::N => self.constant(self.scope.n as f64, span),
             Meaning::Pi => self.constant(std::f64::consts::PI, span),
             Meaning::Param(ParamValue::Scalar(v)) => self.constant(*v, span),
+            Meaning::Param(&ParamValue::Lane {
+                arg,
+                index,
+                min,
+                max,
+            }) => {
+                let id = self.emit(Node::Input { arg, index }, span)?;
+                Ok((id, Info::within(min, max)))
+            }
             Meaning::Param(ParamValue::Array(_)) => Err(self.err(
                 span,
                 format!("parameter '{n}' is an array (one entry per site): write {n}[i]"),
@@ -638,7 +665,7 @@ impl<'a> Lowerer<'a> {
                     None => Err(self.err(e.span, format!("{name}[{k}] does not exist"))),
                 }
             }
-            Meaning::Param(ParamValue::Scalar(_)) => Err(self.err(
+            Meaning::Param(ParamValue::Scalar(_) | ParamValue::Lane { .. }) => Err(self.err(
                 name_span,
                 format!("'{name}' is a scalar parameter, not an array: write {name}"),
             )),

@@ -70,6 +70,12 @@ const ENERGY: usize = 3;
 /// Argument arrays: the state, and the direction of `J v`.
 const ARG_X: u8 = 0;
 const ARG_V: u8 = 1;
+/// The argument of the parameters given per evaluation ([`ParamValue::Lane`] with this `arg`,
+/// indices `0..P`): a map's parameter axes. Every function reads them after the state: a state
+/// given to this function is `D` coordinates followed by the `P` parameter values (in lane
+/// calls, `D` rows then `P` rows), the "extended state". With `P = 0` nothing changes (the
+/// functions are compiled exactly as without this argument).
+pub const ARG_PARAMS: u8 = 2;
 
 /// Most components of a vector function (the straight-line code grows with `D`).
 pub const MAX_DIM: usize = 100_000;
@@ -94,6 +100,8 @@ struct Inner {
     tangent_fn: ScalarFnPtr,
     divergence_fn: ScalarFnPtr,
     energy_fn: Option<ScalarFnPtr>,
+    /// `P`: parameters read from [`ARG_PARAMS`] after the `D` coordinates of every state.
+    lane_params: usize,
     build_time: Duration,
 }
 
@@ -317,6 +325,17 @@ impl VectorFunction {
         started: Instant,
     ) -> Result<Self, VectorError> {
         let d = values.len();
+        let lane_params = definition
+            .params
+            .values()
+            .filter_map(|v| match v {
+                ParamValue::Lane { arg, index, .. } if *arg == ARG_PARAMS => {
+                    Some(*index as usize + 1)
+                }
+                _ => None,
+            })
+            .max()
+            .unwrap_or(0);
         let c1 = tangent_refusal.is_none();
         let other = |e: crate::diff::DiffError| VectorError::Other(e.to_string());
         // The tangent only where it means something (as the Hessian-vector product of a
@@ -346,23 +365,35 @@ impl VectorFunction {
             }
         }
         let divergence = divergence.unwrap_or_else(|| graph.constant(0.0));
+        // The parameters come with the state: one per lane where the state is one per lane,
+        // shared where it is shared (the tangent's reference state). They are argument
+        // `ARG_PARAMS`, so a function without a direction declares an unread one before them.
+        let with_params = |mut args: Vec<Layout>, layout: Layout| {
+            if lane_params > 0 {
+                if args.len() == 1 {
+                    args.push(Layout::Scalar);
+                }
+                args.push(layout);
+            }
+            args
+        };
         let mut specs = vec![
             FunctionSpec {
-                args: vec![Layout::Lanes],
+                args: with_params(vec![Layout::Lanes], Layout::Lanes),
                 outputs: values.clone(),
             },
             FunctionSpec {
-                args: vec![Layout::Scalar, Layout::Lanes],
+                args: with_params(vec![Layout::Scalar, Layout::Lanes], Layout::Scalar),
                 outputs: tangent.clone(),
             },
             FunctionSpec {
-                args: vec![Layout::Lanes],
+                args: with_params(vec![Layout::Lanes], Layout::Lanes),
                 outputs: vec![divergence],
             },
         ];
         if let Some(h) = energy {
             specs.push(FunctionSpec {
-                args: vec![Layout::Lanes],
+                args: with_params(vec![Layout::Lanes], Layout::Lanes),
                 outputs: vec![h],
             });
         }
@@ -381,6 +412,13 @@ impl VectorFunction {
                     )));
                 }
             }
+            let p = ARG_PARAMS as usize;
+            if lane_params > 0 && compiled.arg_len(f, p) > lane_params {
+                return Err(VectorError::Other(format!(
+                    "compiled function {f} reads {} parameters, more than P = {lane_params}",
+                    compiled.arg_len(f, p)
+                )));
+            }
         }
         Ok(Self(Arc::new(Inner {
             value_fn: compiled.raw_scalar(VALUE),
@@ -388,6 +426,7 @@ impl VectorFunction {
             divergence_fn: compiled.raw_scalar(DIVERGENCE),
             energy_fn: energy.map(|_| compiled.raw_scalar(ENERGY)),
             energy,
+            lane_params,
             tangent_refusal,
             definition,
             graph,
@@ -406,6 +445,49 @@ impl VectorFunction {
     #[inline]
     pub fn dim(&self) -> usize {
         self.0.values.len()
+    }
+
+    /// `P`: the parameters every state carries after its `D` coordinates ([`ARG_PARAMS`]); 0
+    /// unless parameters were given as [`ParamValue::Lane`].
+    #[inline]
+    pub fn lane_params(&self) -> usize {
+        self.0.lane_params
+    }
+
+    /// `D + P`: the length of a state (a lane's rows) the functions read.
+    #[inline]
+    pub fn state_len(&self) -> usize {
+        self.dim() + self.0.lane_params
+    }
+
+    /// A state's coordinates and its parameters, as the scalar functions' argument arrays.
+    #[inline]
+    fn split<'a>(&self, x: &'a [f64]) -> (&'a [f64], &'a [f64]) {
+        x.split_at(self.dim())
+    }
+
+    /// The argument arrays of a lane call over `x` (`D + P` rows of `lanes`), with `middle`
+    /// (the direction of `J v`) after the state if given.
+    /// (No allocation: these calls sit in the kernels' inner loops.)
+    fn lane_args<'a>(
+        &self,
+        x: &'a [f64],
+        middle: Option<&'a [f64]>,
+        lanes: usize,
+    ) -> ([&'a [f64]; 3], usize) {
+        let (x, p) = x.split_at(self.dim() * lanes);
+        let mut args: [&[f64]; 3] = [x, &[], &[]];
+        let mut n = 1;
+        if let Some(m) = middle {
+            args[n] = m;
+            n += 1;
+        }
+        if self.0.lane_params > 0 {
+            // After the direction, or an unread empty argument in its place.
+            args[ARG_PARAMS as usize] = p;
+            n = ARG_PARAMS as usize + 1;
+        }
+        (args, n)
     }
 
     pub fn definition(&self) -> &VectorDefinition {
@@ -458,9 +540,11 @@ impl VectorFunction {
     #[inline]
     pub fn energy(&self, x: &[f64]) -> Option<f64> {
         let f = self.0.energy_fn?;
-        let d = self.dim();
-        assert!(x.len() == d, "energy of {d} coordinates");
-        let args = [x.as_ptr()];
+        let n = self.state_len();
+        assert!(x.len() == n, "energy of a state of {n}");
+        let (x, p) = self.split(x);
+        // Argument 1 (a direction) is not read by this function.
+        let args = [x.as_ptr(), p.as_ptr(), p.as_ptr()];
         let mut out = [0.0];
         // SAFETY: as in `value`; one output.
         unsafe { f(args.as_ptr(), out.as_mut_ptr()) }
@@ -472,17 +556,23 @@ impl VectorFunction {
         self.0.energy.is_some()
     }
 
-    /// `out = F(x)`.
+    /// `out = F(x)` (`x`: the `D + P` entries of a state, `out`: `D`).
     ///
     /// # Panics
-    /// If `x` or `out` does not have `D` entries.
+    /// If `x` does not have `D + P` entries or `out` `D`.
     #[inline]
     pub fn value(&self, x: &[f64], out: &mut [f64]) {
-        let d = self.dim();
-        assert!(x.len() == d && out.len() == d, "{d} components");
-        let args = [x.as_ptr()];
-        // SAFETY: the function reads at most D entries of `x` (checked in `new`) and writes D
-        // outputs; both slices have D entries; `out` is a `&mut`, so it overlaps nothing; the
+        let (d, n) = (self.dim(), self.state_len());
+        assert!(
+            x.len() == n && out.len() == d,
+            "{d} components of a state of {n}"
+        );
+        let (x, p) = self.split(x);
+        // Argument 1 (a direction) is not read by this function.
+        let args = [x.as_ptr(), p.as_ptr(), p.as_ptr()];
+        // SAFETY: the function reads at most D entries of `x` and P of `p` (checked in `new`;
+        // a function without parameters reads only the first pointer) and writes D outputs;
+        // the slices have D and P entries; `out` is a `&mut`, so it overlaps nothing; the
         // code lives as long as `self.0.compiled`.
         unsafe { (self.0.value_fn)(args.as_ptr(), out.as_mut_ptr()) }
     }
@@ -497,12 +587,13 @@ impl VectorFunction {
         if !self.0.c1 {
             return false;
         }
-        let d = self.dim();
+        let (d, n) = (self.dim(), self.state_len());
         assert!(
-            x.len() == d && v.len() == d && out.len() == d,
+            x.len() == n && v.len() == d && out.len() == d,
             "Jacobian-vector product of {d} components"
         );
-        let args = [x.as_ptr(), v.as_ptr()];
+        let (x, p) = self.split(x);
+        let args = [x.as_ptr(), v.as_ptr(), p.as_ptr()];
         // SAFETY: as in `value`, for the two arguments `x` and `v`.
         unsafe { (self.0.tangent_fn)(args.as_ptr(), out.as_mut_ptr()) }
         true
@@ -514,9 +605,11 @@ impl VectorFunction {
     /// If `x` does not have `D` entries.
     #[inline]
     pub fn divergence(&self, x: &[f64]) -> f64 {
-        let d = self.dim();
-        assert!(x.len() == d, "divergence of {d} components");
-        let args = [x.as_ptr()];
+        let n = self.state_len();
+        assert!(x.len() == n, "divergence at a state of {n}");
+        let (x, p) = self.split(x);
+        // Argument 1 (a direction) is not read by this function.
+        let args = [x.as_ptr(), p.as_ptr(), p.as_ptr()];
         let mut out = [0.0];
         // SAFETY: as in `value`; one output.
         unsafe { (self.0.divergence_fn)(args.as_ptr(), out.as_mut_ptr()) }
@@ -524,40 +617,46 @@ impl VectorFunction {
     }
 
     /// `F` over `lanes` states in structure-of-arrays layout: `x[i * lanes + l]` is `x_i` of
-    /// lane `l`, `out[i * lanes + l]` its `F_i`. Lane by lane the bits of [`Self::value`].
+    /// lane `l` (rows `D..D + P` its parameters), `out[i * lanes + l]` its `F_i`. Lane by lane
+    /// the bits of [`Self::value`].
     ///
     /// # Panics
-    /// If `x` or `out` does not have `D * lanes` entries.
+    /// If `x` does not have `(D + P) * lanes` entries or `out` `D * lanes`.
     pub fn value_lanes(&self, x: &[f64], out: &mut [f64], lanes: usize) {
-        let d = self.dim();
-        assert_eq!(x.len(), d * lanes, "{d} rows of {lanes} lanes");
-        self.0.compiled.call_lanes(VALUE, &[x], out, lanes)
+        let n = self.state_len();
+        assert_eq!(x.len(), n * lanes, "{n} rows of {lanes} lanes");
+        let (args, n) = self.lane_args(x, None, lanes);
+        self.0.compiled.call_lanes(VALUE, &args[..n], out, lanes)
     }
 
     /// `J(x) v` at one shared state `x` (the reference orbit) for `lanes` directions in
     /// structure-of-arrays layout (`v[i * lanes + l]`); `false` as [`Self::tangent`].
     ///
     /// # Panics
-    /// If `x` does not have `D` entries, or `v` or `out` not `D * lanes`.
+    /// If `x` does not have `D + P` entries, or `v` or `out` not `D * lanes`.
     pub fn tangent_lanes(&self, x: &[f64], v: &[f64], out: &mut [f64], lanes: usize) -> bool {
         if !self.0.c1 {
             return false;
         }
-        let d = self.dim();
+        let (d, n) = (self.dim(), self.state_len());
         assert!(
-            x.len() == d && v.len() == d * lanes,
-            "a state of {d} and {d} rows of {lanes} lanes"
+            x.len() == n && v.len() == d * lanes,
+            "a state of {n} and {d} rows of {lanes} lanes"
         );
-        self.0.compiled.call_lanes(TANGENT, &[x, v], out, lanes);
+        let (args, n) = self.lane_args(x, Some(v), 1);
+        self.0.compiled.call_lanes(TANGENT, &args[..n], out, lanes);
         true
     }
 
     /// The divergence over `lanes` states in structure-of-arrays layout; `out` has `lanes`
     /// entries.
     pub fn divergence_lanes(&self, x: &[f64], out: &mut [f64], lanes: usize) {
-        let d = self.dim();
-        assert_eq!(x.len(), d * lanes, "{d} rows of {lanes} lanes");
-        self.0.compiled.call_lanes(DIVERGENCE, &[x], out, lanes)
+        let n = self.state_len();
+        assert_eq!(x.len(), n * lanes, "{n} rows of {lanes} lanes");
+        let (args, n) = self.lane_args(x, None, lanes);
+        self.0
+            .compiled
+            .call_lanes(DIVERGENCE, &args[..n], out, lanes)
     }
 
     /// What made `F(x)` non-finite: the first operation, in component order and evaluation
@@ -568,12 +667,19 @@ impl VectorFunction {
         let g = &self.0.graph;
         let key = &self.0.definition.key;
         let state = format!("{x:?}");
+        let (coordinates, params) = self.split(x);
+        let args = [coordinates, &[], params];
+        let args = if self.0.lane_params > 0 {
+            &args[..]
+        } else {
+            &args[..1]
+        };
         for (i, &root) in self.0.values.iter().enumerate() {
-            let Some(id) = eval::first_non_finite(g, &[x], root) else {
+            let Some(id) = eval::first_non_finite(g, args, root) else {
                 continue;
             };
             let mut value = [0.0];
-            Evaluator::new().eval(g, &[x], &[id], &mut value);
+            Evaluator::new().eval(g, args, &[id], &mut value);
             let op = g.operation_name(id);
             return Some(match self.0.origins.get(&id) {
                 Some(&(c, span)) => {

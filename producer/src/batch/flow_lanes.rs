@@ -38,7 +38,8 @@ fn combine(x: &[f64], h: f64, weights: &[f64], k: &[f64], out: &mut [f64]) {
     }
 }
 
-/// One step of every lane of `x` (`D * lanes` numbers, rows = coordinates); the stage states are
+/// One step of every lane of `x` (`(D + P) * lanes` numbers, rows = coordinates, then the
+/// lanes' parameters, which every stage state carries unchanged); the stage states are
 /// appended to `stages` when given (for one lane: where the tangent map is taken).
 fn step(
     t: &Tableau,
@@ -49,19 +50,20 @@ fn step(
     s: &mut FlowScratch,
     mut stages: Option<&mut Vec<f64>>,
 ) {
-    let n = x.len();
+    let n = f.dim() * lanes;
     s.k.resize(t.stages() * n, 0.0);
-    s.arg.resize(n, 0.0);
+    s.arg.resize(x.len(), 0.0);
+    s.arg[n..].copy_from_slice(&x[n..]);
     for i in 0..t.stages() {
         let (done, rest) = s.k.split_at_mut(i * n);
-        combine(x, h, t.a[i], done, &mut s.arg);
+        combine(&x[..n], h, t.a[i], done, &mut s.arg[..n]);
         if let Some(stages) = stages.as_deref_mut() {
             stages.extend_from_slice(&s.arg);
         }
         f.value_lanes(&s.arg, &mut rest[..n], lanes);
     }
-    combine(x, h, t.b, &s.k, &mut s.arg);
-    x.copy_from_slice(&s.arg);
+    combine(&x[..n], h, t.b, &s.k, &mut s.arg[..n]);
+    x[..n].copy_from_slice(&s.arg[..n]);
 }
 
 /// Advance every lane of `x` by `n_steps` steps of size `h`.
@@ -113,9 +115,13 @@ pub fn flow_tangent_steps(
     let n = d * lanes;
     s.k.resize(t.stages() * n, 0.0);
     s.arg.resize(n, 0.0);
-    for states in stages.chunks_exact(t.stages() * d).take(n_steps as usize) {
+    let state = f.state_len();
+    for states in stages
+        .chunks_exact(t.stages() * state)
+        .take(n_steps as usize)
+    {
         let v = v.data_mut();
-        for (i, xs) in states.chunks_exact(d).enumerate() {
+        for (i, xs) in states.chunks_exact(state).enumerate() {
             let (done, rest) = s.k.split_at_mut(i * n);
             combine(v, h, t.a[i], done, &mut s.arg);
             if !f.tangent_lanes(xs, &s.arg, &mut rest[..n], lanes) {

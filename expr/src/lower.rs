@@ -1,7 +1,8 @@
 //! Syntax tree plus parameters, lattice size and boundary condition to [`Graph`] nodes.
 //!
 //! Everything that is known before the run is resolved here, so the graph holds only
-//! arithmetic on the variables: parameters become constants, `N` and sum indices become
+//! arithmetic on the variables: parameters become constants (except a [`ParamValue::Lane`],
+//! an input each evaluation brings: a map's parameter axis), `N` and sum indices become
 //! numbers, lattice sums are expanded term by term (a left fold, in index order), and the
 //! boundary condition decides what a site beyond the ends means. The smoothness of the result
 //! ([`crate::smooth`]) is computed alongside, on the same walk, where parameter values are

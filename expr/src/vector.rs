@@ -17,6 +17,11 @@
 //! Every compiled function performs exactly the operations of [`crate::eval`] on the same graph,
 //! so the scalar calls, the lane calls and the reference evaluator agree bit for bit.
 //!
+//! Parameters given as [`ParamValue::Lane`] of [`ARG_PARAMS`] (a map's parameter axes) are
+//! read by every function from the state, after its `D` coordinates: per lane in a lane call
+//! over states, from the shared reference state in the Jacobian-vector product's. Derivatives
+//! are taken with respect to the coordinates only.
+//!
 //! Components are numbered from 1, as the variables are: component `i` is `F_i`, written
 //! `<key>[i]` in messages (`next[2]` is the map's second component, the new `x2`).
 

@@ -553,11 +553,16 @@ fn model_map(
 ) -> MapSpec {
     let k = if indicator == "mle" { 1 } else { 2 };
     let model = model.replace("{params}", params);
+    let threshold = if indicator == "gali-time" {
+        "threshold = 1e-6\n"
+    } else {
+        ""
+    };
     let text = format!(
         "[model]\n{model}\n[orbit]\n{orbit}\n[integrator]\n{integrator}\n\
          [deviations]\nk = {k}\nsets = 2\nseed = 5\n\
          [[scheme]]\nname = \"s\"\nmethod = \"{method}\"\nd0 = 1e-7\ntau = {tau}\n\
-         [map]\nx = {x}\ny = {y}\nindicator = \"{indicator}\"\nroute = \"{route}\"\n"
+         [map]\nx = {x}\ny = {y}\nindicator = \"{indicator}\"\nroute = \"{route}\"\n{threshold}"
     );
     MapSpec::from_config(&RunConfig::from_toml(&text).unwrap())
         .unwrap_or_else(|e| panic!("{e}\n{text}"))
@@ -589,6 +594,7 @@ fn parameter_axes_equal_coordinate_maps_at_fixed_values() {
         ("vm", "2", "per-set", "fli"),
         ("mpm", "1", "per-set", "megno"),
         ("vm", "1", "per-set", "megno_mean"),
+        ("vm", "1", "per-set", "gali-time"),
         ("vm", "1", "basis", "gali"),
         ("mpm", "1", "basis", "sali"),
     ] {

@@ -1,4 +1,5 @@
-//! The validated map: grid, indicator, the run every point shares, shards.
+//! The validated map: grid (coordinate and parameter axes), indicator, the run every point
+//! shares, shards.
 
 use chaoscope_schemas::config::{MapAxis, MapConfig, RunConfig};
 use chaoscope_schemas::run::{Method, Orthonormalization, SystemKind};

@@ -26,7 +26,7 @@
 //! - Index expressions and sum bounds are evaluated exactly in 64-bit integers (overflow is
 //!   an error); parameters are not allowed in them, even whole-valued ones.
 
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use crate::ast::{BinOp, Expr, ExprKind};
@@ -223,6 +223,15 @@ fn lower_limited(
         loops,
         site_sums: Vec::new(),
         template: None,
+        lane_args: scope
+            .params
+            .values()
+            .filter_map(|v| match v {
+                ParamValue::Lane { arg, .. } => Some(*arg),
+                _ => None,
+            })
+            .collect(),
+        lane_only: RefCell::new(HashMap::new()),
     };
     let (root, info) = l.root(&ast).map_err(|e| *e)?;
     let tables = scope.tables;
@@ -279,6 +288,10 @@ struct Lowerer<'a> {
     site_sums: Vec<SiteSum>,
     /// The sum whose term is being lowered (once, as a loop's body).
     template: Option<loops::Template<'a>>,
+    /// The arguments [`ParamValue::Lane`] parameters are read from, and which nodes depend on
+    /// nothing else (no variable): see [`Lowerer::settle`].
+    lane_args: Vec<u8>,
+    lane_only: RefCell<HashMap<NodeId, bool>>,
 }
 
 impl<'a> Lowerer<'a> {
@@ -334,12 +347,45 @@ impl<'a> Lowerer<'a> {
     }
 
     /// The facts of a freshly built node: a node that folded to a constant is smooth whatever
-    /// operations it was written with (`abs(beta)`, `step(N - 2)`).
+    /// operations it was written with (`abs(beta)`, `step(N - 2)`), and so is one of lane
+    /// parameters alone (`sqrt(K)` over `K` in `0..1`): constant along every orbit, it limits
+    /// no derivative with respect to the variables.
     fn settle(&self, id: NodeId, info: Info) -> Info {
         match self.graph.as_const(id) {
             Some(c) => Info::constant(c),
+            None if !self.lane_args.is_empty() && self.reads_lane_params_only(id) => Info {
+                limit: None,
+                zero_kink: false,
+                ..info
+            },
             None => info,
         }
+    }
+
+    /// Whether node `id` reads no input but lane parameters (memoized; iterative, so a long
+    /// chain of operations cannot overflow the stack).
+    fn reads_lane_params_only(&self, id: NodeId) -> bool {
+        let mut memo = self.lane_only.borrow_mut();
+        let mut stack = vec![id];
+        while let Some(&top) = stack.last() {
+            if memo.contains_key(&top) {
+                stack.pop();
+                continue;
+            }
+            let node = self.graph.node(top);
+            let pending: Vec<NodeId> = node.operands().filter(|o| !memo.contains_key(o)).collect();
+            if !pending.is_empty() {
+                stack.extend(pending);
+                continue;
+            }
+            let only = match *node {
+                Node::Input { arg, .. } => self.lane_args.contains(&arg),
+                _ => node.operands().all(|o| memo[&o]),
+            };
+            memo.insert(top, only);
+            stack.pop();
+        }
+        memo[&id]
     }
 
     fn tick(&self, span: Span) -> R<()> {

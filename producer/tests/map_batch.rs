@@ -558,10 +558,15 @@ fn model_map(
     } else {
         ""
     };
+    let qr = if indicator == "spectrum" {
+        "orthonormalize = \"qr\"\n"
+    } else {
+        ""
+    };
     let text = format!(
         "[model]\n{model}\n[orbit]\n{orbit}\n[integrator]\n{integrator}\n\
          [deviations]\nk = {k}\nsets = 2\nseed = 5\n\
-         [[scheme]]\nname = \"s\"\nmethod = \"{method}\"\nd0 = 1e-7\ntau = {tau}\n\
+         [[scheme]]\nname = \"s\"\nmethod = \"{method}\"\nd0 = 1e-7\ntau = {tau}\n{qr}\
          [map]\nx = {x}\ny = {y}\nindicator = \"{indicator}\"\nroute = \"{route}\"\n{threshold}"
     );
     MapSpec::from_config(&RunConfig::from_toml(&text).unwrap())
@@ -595,6 +600,7 @@ fn parameter_axes_equal_coordinate_maps_at_fixed_values() {
         ("mpm", "1", "per-set", "megno"),
         ("vm", "1", "per-set", "megno_mean"),
         ("vm", "1", "per-set", "gali-time"),
+        ("mpm", "2", "per-set", "spectrum"),
         ("vm", "1", "basis", "gali"),
         ("mpm", "1", "basis", "sali"),
     ] {
@@ -657,6 +663,11 @@ fn parameter_axes_equal_coordinate_maps_at_fixed_values() {
             "method = \"rk4\"\nh = 0.01\nt_final = 3",
             ("vm", "0.5", "basis"),
             "sali",
+        ),
+        (
+            "method = \"rk4\"\nh = 0.01\nt_final = 3",
+            ("vm", "0.5", "per-set"),
+            "spectrum",
         ),
     ] {
         let by_params = model_map(

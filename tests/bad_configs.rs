@@ -307,7 +307,7 @@ fn cases() -> Vec<Case> {
         by_k("map parameter axis over an array parameter", "params = { K = 1.0 }", "params = { K = [1.0, 2.0] }", "map.x.param", "'K' is an array parameter"),
         by_rho("map the same parameter twice", "param = \"sigma\"", "param = \"rho\"", "map.y.param", "same parameter"),
         by_rho("map parameter axis of an adaptive flow", "method = \"rk4\"", "method = \"dop853\"\nrtol = 1e-9\natol = 1e-9", "map.x.param", "batched kernel"),
-        map("map parameter axis of a built-in model", "coord = \"q2\"", "param = \"q2\"", "map.x.param", "not yet supported for [model] name = henon-heiles"),
+        map("map parameter axis of a built-in model", "coord = \"q2\"", "param = \"q2\"", "map.x.param", "henon-heiles has no parameters to put on an axis"),
         map("map min above max", "min = -0.4, max = 0.6", "min = 0.6, max = -0.4", "map.x.min", "min <= max"),
         map("map min NaN", "min = -0.4, max = 0.4", "min = nan, max = 0.4", "map.y.min", "finite"),
         map("map unknown indicator", "indicator = \"gali\"", "indicator = \"ofli\"", "map.indicator", "is not gali"),

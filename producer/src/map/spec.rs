@@ -156,14 +156,16 @@ fn lane_params(cfg: &RunConfig, map: &MapConfig) -> Result<Vec<LaneParam>, SpecE
             ));
         }
         let Some(params) = params else {
-            return Err(SpecError::new(
-                key,
+            let message = if matches!(cfg.model, ModelConfig::HenonHeiles(_)) {
+                "[model] name = henon-heiles has no parameters to put on an axis".to_string()
+            } else {
                 format!(
                     "parameter axes are not yet supported for [model] name = {} (they are for \
                      map, ode and hamiltonian)",
                     cfg.model.name()
-                ),
-            ));
+                )
+            };
+            return Err(SpecError::new(key, message));
         };
         match params.get(name) {
             Some(ParamValue::Scalar(_)) => {}

@@ -629,3 +629,67 @@ fn section_through_a_surface_refuses_what_it_cannot_draw() {
     assert_eq!(rows.len(), 1);
     assert!((rows[0].0 - PI / 2.0).abs() < 1e-12, "{rows:?}");
 }
+
+#[test]
+fn stroboscopic_section_samples_the_orbit_every_period() {
+    // The Duffing example (t in its rhs) over 40 forcing periods T = 2 pi / omega, h = T / 100:
+    // `--sample-every "2*pi/omega"` gives the state after every 100 steps, at the times
+    // k * 100 h (= k T to rounding), and sampling every 2T gives every second of those states,
+    // bit for bit: the samples are the run's own orbit, never interpolated.
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let mut duffing = example("duffing.toml");
+    let period = 2.0 * PI / 1.2;
+    duffing.integrator.t_final = 40.0 * period;
+    let config = write(d, "duffing.toml", &duffing);
+    let (one, two) = (d.join("one.csv"), d.join("two.csv"));
+    for (every, csv) in [("2*pi/omega", &one), ("2 * (2*pi/omega)", &two)] {
+        run_ok(&[
+            "section",
+            s(&config),
+            "--sample-every",
+            every,
+            "--crossings",
+            "1000",
+            "--csv",
+            s(csv),
+        ]);
+    }
+    let (one, two) = (read_crossings(&one, "x1,x2"), read_crossings(&two, "x1,x2"));
+    assert_eq!((one.len(), two.len()), (40, 20));
+    let h = duffing.integrator.h.unwrap();
+    for (k, (t, _)) in one.iter().enumerate() {
+        assert_eq!(*t, ((k as u64 + 1) * 100) as f64 * h);
+        assert!((t - (k + 1) as f64 * period).abs() < 1e-12 * t, "{t}");
+    }
+    for (k, sample) in two.iter().enumerate() {
+        assert_eq!(sample, &one[2 * k + 1]);
+    }
+    // What it refuses, in one line naming the option, before writing anything.
+    let csv = d.join("bad.csv");
+    for (every, needle) in [
+        (
+            "1.0",
+            "--sample-every: 1 is not a whole number of time steps",
+        ),
+        ("x1", "reads the state"),
+        ("-period", "line 1"),
+        ("0 * omega", "must be a positive number"),
+        ("2*pi/omega +", "--sample-every: line 1, column 13"),
+    ] {
+        let out = chaoscope(&[
+            "section",
+            s(&config),
+            "--sample-every",
+            every,
+            "--csv",
+            s(&csv),
+        ])
+        .output()
+        .unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{every}: {err}");
+        assert!(err.contains(needle), "{every}: {err}");
+        assert!(!csv.exists(), "{every}");
+    }
+}

@@ -589,6 +589,7 @@ mod tests {
             tables: &[],
             n,
             boundary,
+            time: None,
         };
         let mut g = Graph::new();
         let l = lower_with_loops(src, &scope, &mut g).unwrap_or_else(|e| panic!("{e}"));
@@ -603,6 +604,7 @@ mod tests {
             tables: &[],
             n,
             boundary,
+            time: None,
         };
         let mut unrolled = Graph::new();
         let root = lower(src, &scope, &mut unrolled).unwrap().root;
@@ -853,6 +855,7 @@ mod tests {
                 tables: &[],
                 n: 4,
                 boundary,
+                time: None,
             };
             for src in [
                 "sum(i = 0..N, k[i]*q[i]^2)",

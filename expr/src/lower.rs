@@ -131,6 +131,11 @@ pub struct Scope<'a> {
     /// The value of `N` (number of sites or dimension).
     pub n: usize,
     pub boundary: Boundary,
+    /// The argument array whose entry 0 is the time, where the name `t` means the time (a
+    /// flow's `rhs`, a Hamiltonian, a potential: non-autonomous systems); `None` where `t` is
+    /// an ordinary name (a map's `next`, a section's surface). Where it is `Some`, `t` is a
+    /// built-in like `N`: a parameter or sum index of that name is an error.
+    pub time: Option<u8>,
 }
 
 /// The result of [`lower`].
@@ -260,6 +265,8 @@ enum Meaning<'a> {
     N,
     Pi,
     Param(&'a ParamValue),
+    /// The time `t` (where the scope has one): entry 0 of this argument array.
+    Time(u8),
     /// A numbered variable `q3`: its family and number (not yet checked against the length).
     Var(&'a Family, u64),
     Family(&'a Family),
@@ -417,6 +424,7 @@ impl<'a> Lowerer<'a> {
         match name {
             "N" => return Meaning::N,
             "pi" => return Meaning::Pi,
+            "t" if let Some(arg) = self.scope.time => return Meaning::Time(arg),
             _ => {}
         }
         if let Some(p) = self.scope.params.get(name) {
@@ -502,6 +510,8 @@ impl<'a> Lowerer<'a> {
     fn check_param(&self, name: &str, value: &ParamValue, span: Span) -> R<()> {
         let clash = if matches!(name, "N" | "pi") {
             Some("the built-in")
+        } else if name == "t" && self.scope.time.is_some() {
+            Some("the time")
         } else if self.numbered(name).is_some()
             || self.scope.families.iter().any(|f| f.name == name)
         {
@@ -607,8 +617,11 @@ impl<'a> Lowerer<'a> {
 
     fn name(&mut self, n: &str, span: Span) -> R<(NodeId, Info)> {
         if self.is_loop_index(n)
-            || (self.template.is_some() && matches!(self.meaning(n), Meaning::Var(..)))
+            || (self.template.is_some()
+                && matches!(self.meaning(n), Meaning::Var(..) | Meaning::Time(_)))
         {
+            // (A term that reads the time is not the same function of its slots at every
+            // step; such a sum is unrolled.)
             // A site loop's term reads its index and the variables only as q[i + k].
             return Err(self.not_a_loop(span));
         }
@@ -616,6 +629,10 @@ impl<'a> Lowerer<'a> {
             Meaning::SumIndex(i) => self.constant(i as f64, span),
             Meaning::N => self.constant(self.scope.n as f64, span),
             Meaning::Pi => self.constant(std::f64::consts::PI, span),
+            Meaning::Time(arg) => {
+                let node = Node::Input { arg, index: 0 };
+                Ok((self.emit(node, span)?, Info::variable()))
+            }
             Meaning::Param(ParamValue::Scalar(v)) => self.constant(*v, span),
             Meaning::Param(&ParamValue::Lane {
                 arg,
@@ -726,7 +743,7 @@ impl<'a> Lowerer<'a> {
                     f.name
                 ),
             )),
-            Meaning::N | Meaning::Pi => {
+            Meaning::N | Meaning::Pi | Meaning::Time(_) => {
                 Err(self.err(name_span, format!("'{name}' is a number, not an array")))
             }
             m @ (Meaning::Table(_) | Meaning::Function | Meaning::Unknown) => {
@@ -1013,7 +1030,8 @@ impl<'a> Lowerer<'a> {
             | Meaning::Var(..)
             | Meaning::SumIndex(_)
             | Meaning::N
-            | Meaning::Pi => Err(self.err(
+            | Meaning::Pi
+            | Meaning::Time(_) => Err(self.err(
                 name_span,
                 format!("'{name}' is not a function (for a product write {name}*(...))"),
             )),
@@ -1040,6 +1058,7 @@ impl<'a> Lowerer<'a> {
             Meaning::Unknown => None,
             Meaning::SumIndex(_) => Some("the index of an enclosing sum".to_string()),
             Meaning::N | Meaning::Pi => Some(format!("the built-in '{index}'")),
+            Meaning::Time(_) => Some(format!("the time '{index}'")),
             Meaning::Param(_) => Some(format!("the parameter '{index}'")),
             Meaning::Var(..) => Some(format!("the variable '{index}'")),
             Meaning::Family(_) => Some(format!("the variables '{index}'")),
@@ -1250,6 +1269,7 @@ mod tests {
                 tables: &self.tables,
                 n: self.n,
                 boundary: self.boundary,
+                time: None,
             };
             (scope, &mut self.graph)
         }
@@ -2057,6 +2077,7 @@ mod deep {
                 tables: &[],
                 n: 3,
                 boundary: Boundary::Free,
+                time: None,
             };
             let shapes = [
                 format!("{}q1{}", "(q1 + q1*".repeat(d - 1), ")".repeat(d - 1)),

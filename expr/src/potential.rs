@@ -11,6 +11,12 @@
 //! ([`crate::lattice`]): compile time and code size do not grow with `N`. The compiled
 //! code performs exactly the reference evaluator's operations, so every path gives the same
 //! bits.
+//!
+//! Time: `t` in the potential is the time (`V(q, t)`, a non-autonomous system), argument array
+//! [`ARG_T`] of the scalar functions (`*_at` calls). A potential that reads it is always
+//! unrolled (its lattice sums are not loops) and has no step kernels: the splittings step it
+//! through the scalar functions, kick by kick at the time of each kick. One that does not
+//! read it is compiled exactly as before time existed.
 
 use std::collections::{BTreeMap, HashMap};
 use std::io::Write as _;
@@ -55,6 +61,14 @@ const HESSIAN_VECTOR: usize = 2;
 /// Argument arrays of the compiled functions: positions, and the direction of `Hess V v`.
 use crate::lattice::{ARG_Q, ARG_V};
 
+/// The time's argument array (one entry): beyond those of the lattice loops
+/// ([`crate::lattice::ARG_SUM`] and below), so a graph holding a failed loop attempt's slot
+/// inputs never mistakes one for the time.
+pub const ARG_T: u8 = 6;
+
+/// Argument arrays of a scalar call: positions, direction, the unused lattice ones, the time.
+const ARGS: usize = ARG_T as usize + 1;
+
 /// How the potential's derivatives are written.
 enum Form {
     /// Every site's derivative a node of the graph (no lattice sum, or one that is not a loop).
@@ -90,6 +104,8 @@ struct Inner {
     hessian_vector_fn: ScalarFnPtr,
     /// Continuous second derivatives (the variational method applies).
     c2: bool,
+    /// `V` reads the time.
+    reads_time: bool,
     build_time: Duration,
 }
 
@@ -300,6 +316,7 @@ impl ExpressionModel {
             tables: &tables,
             n,
             boundary: definition.boundary,
+            time: Some(ARG_T),
         };
         let source = &definition.potential;
         let err = |e: &dyn std::fmt::Display| PotentialError(e.to_string());
@@ -314,7 +331,11 @@ impl ExpressionModel {
             sums,
         } = lowered;
         let had_sums = !sums.is_empty();
-        let lattice = if had_sums {
+        let reads_time = graph
+            .nodes()
+            .iter()
+            .any(|n| matches!(n, crate::graph::Node::Input { arg: ARG_T, .. }));
+        let lattice = if had_sums && !reads_time {
             LatticePotential::new(&mut graph, root, sums, n, c2).map_err(|e| err(&e))?
         } else {
             None
@@ -346,7 +367,8 @@ impl ExpressionModel {
                 } else {
                     vec![graph.constant(0.0); n]
                 };
-                let compiled = compile_unrolled(&graph, potential, &gradient, &hessian_vector)?;
+                let compiled =
+                    compile_unrolled(&graph, potential, &gradient, &hessian_vector, reads_time)?;
                 let form = Form::Unrolled {
                     potential,
                     gradient,
@@ -362,6 +384,7 @@ impl ExpressionModel {
             gradient_fn: compiled.raw_scalar(GRADIENT),
             hessian_vector_fn: compiled.raw_scalar(HESSIAN_VECTOR),
             c2,
+            reads_time,
             origins,
             smoothness,
             definition,
@@ -388,11 +411,30 @@ impl ExpressionModel {
         self.0.definition.n
     }
 
-    /// `V(q)`.
+    /// Whether `V` reads the time `t` (a non-autonomous system: no step kernels, no loops).
+    pub fn reads_time(&self) -> bool {
+        self.0.reads_time
+    }
+
+    /// `V(q)` (at `t = 0`: the only value of a potential that does not read the time).
     #[inline]
     pub fn potential(&self, q: &[f64]) -> f64 {
+        self.potential_at(q, 0.0)
+    }
+
+    /// `V(q, t)`.
+    #[inline]
+    pub fn potential_at(&self, q: &[f64], t: f64) -> f64 {
         let mut v = [0.0];
-        self.0.compiled.call(POTENTIAL, &[q], &mut v);
+        if self.0.reads_time {
+            let time = [t];
+            let mut args: [&[f64]; ARGS] = [&[]; ARGS];
+            args[ARG_Q as usize] = q;
+            args[ARG_T as usize] = &time;
+            self.0.compiled.call(POTENTIAL, &args, &mut v);
+        } else {
+            self.0.compiled.call(POTENTIAL, &[q], &mut v);
+        }
         v[0]
     }
 
@@ -402,9 +444,21 @@ impl ExpressionModel {
     /// If `q` or `out` does not have `N` entries.
     #[inline]
     pub fn gradient(&self, q: &[f64], out: &mut [f64]) {
+        self.gradient_at(q, 0.0, out)
+    }
+
+    /// `out = dV/dq (q, t)`.
+    ///
+    /// # Panics
+    /// If `q` or `out` does not have `N` entries.
+    #[inline]
+    pub fn gradient_at(&self, q: &[f64], t: f64, out: &mut [f64]) {
         let n = self.0.definition.n;
         assert!(q.len() == n && out.len() == n, "gradient of {n} sites");
-        let args = [q.as_ptr()];
+        let time = [t];
+        let mut args = [std::ptr::null(); ARGS];
+        args[ARG_Q as usize] = q.as_ptr();
+        args[ARG_T as usize] = time.as_ptr();
         // SAFETY: the function reads at most N entries of `q` (checked in `new`) and writes N
         // outputs; both slices have N entries; `out` is a `&mut`, so it overlaps nothing; the
         // code lives as long as `self.0.compiled`.
@@ -417,6 +471,16 @@ impl ExpressionModel {
     /// If `q`, `v` or `out` does not have `N` entries.
     #[inline]
     pub fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+        self.hessian_vector_at(q, 0.0, v, out)
+    }
+
+    /// `out = Hess V(q, t) v` (second derivatives in `q`), or `false` as
+    /// [`Self::hessian_vector`].
+    ///
+    /// # Panics
+    /// If `q`, `v` or `out` does not have `N` entries.
+    #[inline]
+    pub fn hessian_vector_at(&self, q: &[f64], t: f64, v: &[f64], out: &mut [f64]) -> bool {
         if !self.0.c2 {
             return false;
         }
@@ -425,8 +489,12 @@ impl ExpressionModel {
             q.len() == n && v.len() == n && out.len() == n,
             "Hessian-vector product of {n} sites"
         );
-        let args = [q.as_ptr(), v.as_ptr()];
-        // SAFETY: as in `gradient`, for the two arguments `q` and `v`.
+        let time = [t];
+        let mut args = [std::ptr::null(); ARGS];
+        args[ARG_Q as usize] = q.as_ptr();
+        args[ARG_V as usize] = v.as_ptr();
+        args[ARG_T as usize] = time.as_ptr();
+        // SAFETY: as in `gradient_at`, for the arguments `q`, `v` and the time.
         unsafe { (self.0.hessian_vector_fn)(args.as_ptr(), out.as_mut_ptr()) }
         true
     }
@@ -453,6 +521,11 @@ impl ExpressionModel {
     /// The operation (with its line and column in the source) that makes `V` or a component
     /// of its gradient non-finite at `q`, if any; in a lattice loop, with the term it arose in.
     pub fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {
+        self.diagnose_non_finite_at(q, 0.0)
+    }
+
+    /// [`Self::diagnose_non_finite`] at time `t`.
+    pub fn diagnose_non_finite_at(&self, q: &[f64], t: f64) -> Option<String> {
         let g = &self.0.graph;
         match &self.0.form {
             Form::Unrolled {
@@ -460,12 +533,16 @@ impl ExpressionModel {
                 gradient,
                 ..
             } => {
-                if let Some(id) = eval::first_non_finite(g, &[q], *potential) {
-                    return Some(self.describe(id, &[q], "in the potential"));
+                let time = [t];
+                let mut a: [&[f64]; ARGS] = [&[]; ARGS];
+                a[ARG_Q as usize] = q;
+                a[ARG_T as usize] = &time;
+                if let Some(id) = eval::first_non_finite(g, &a, *potential) {
+                    return Some(self.describe(id, &a, "in the potential"));
                 }
                 for (i, &out) in gradient.iter().enumerate() {
-                    if let Some(id) = eval::first_non_finite(g, &[q], out) {
-                        return Some(self.describe(id, &[q], &format!("in dV/dq{}", i + 1)));
+                    if let Some(id) = eval::first_non_finite(g, &a, out) {
+                        return Some(self.describe(id, &a, &format!("in dV/dq{}", i + 1)));
                     }
                 }
                 None
@@ -514,6 +591,11 @@ impl ExpressionModel {
     /// first `k` calls run the Cranelift kernels and every later call wait for the C build,
     /// so a test can place the switch where it wants (`0`: only the C kernels).
     pub fn step_kernels(&self) -> Option<&StepKernels> {
+        if self.0.reads_time {
+            // Kernels have no time input; a potential of the time is stepped through its
+            // scalar functions (and maps it through the one-orbit engine).
+            return None;
+        }
         if UNCOUNTED.get() {
             return self.cranelift_step_kernels().ok();
         }
@@ -726,19 +808,23 @@ fn compile_unrolled(
     potential: NodeId,
     gradient: &[NodeId],
     hessian_vector: &[NodeId],
+    reads_time: bool,
 ) -> Result<Compiled, PotentialError> {
     let n = gradient.len();
+    // A potential of the time takes every argument array up to the time's (the lattice ones
+    // unused); one that does not keeps its one or two.
+    let args = |k: usize| vec![Layout::Scalar; if reads_time { ARGS } else { k }];
     let specs = [
         FunctionSpec {
-            args: vec![Layout::Scalar],
+            args: args(1),
             outputs: vec![potential],
         },
         FunctionSpec {
-            args: vec![Layout::Scalar],
+            args: args(1),
             outputs: gradient.to_vec(),
         },
         FunctionSpec {
-            args: vec![Layout::Scalar, Layout::Scalar],
+            args: args(2),
             outputs: hessian_vector.to_vec(),
         },
     ];

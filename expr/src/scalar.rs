@@ -108,6 +108,7 @@ impl ScalarFunction {
             tables: &[],
             n: definition.n,
             boundary: definition.boundary,
+            time: None,
         };
         let lowered = lower::lower(&definition.source, &scope, &mut graph).map_err(|error| {
             ScalarError::Expression {

@@ -17,10 +17,20 @@
 //! Every compiled function performs exactly the operations of [`crate::eval`] on the same graph,
 //! so the scalar calls, the lane calls and the reference evaluator agree bit for bit.
 //!
+//! Time: where the definition says so ([`VectorDefinition::time`]: a flow's `rhs`, and every
+//! Hamiltonian), the name `t` is the time, argument array [`ARG_T`] of every compiled function
+//! (shared by all lanes of a lane call: the batched integrators step their lanes together).
+//! The `*_at` calls take it; the calls without `_at` evaluate at `t = 0`, the only value of a
+//! function that does not read the time ([`VectorFunction::reads_time`]), whose arithmetic is
+//! exactly what it was before time existed: an argument it never reads changes no operation.
+//!
 //! Parameters given as [`ParamValue::Lane`] of [`ARG_PARAMS`] (a map's parameter axes) are
 //! read by every function from the state, after its `D` coordinates: per lane in a lane call
 //! over states, from the shared reference state in the Jacobian-vector product's. Derivatives
-//! are taken with respect to the coordinates only.
+//! are taken with respect to the coordinates only. They are the last argument array, after the
+//! time, and only there when `P > 0`: both can be read together (a parameter axis over a
+//! non-autonomous flow), each with its own layout (the time shared by all lanes, the
+//! parameters per lane).
 //!
 //! Components are numbered from 1, as the variables are: component `i` is `F_i`, written
 //! `<key>[i]` in messages (`next[2]` is the map's second component, the new `x2`).
@@ -49,6 +59,9 @@ pub struct VectorDefinition {
     pub boundary: Boundary,
     /// Tabulated functions by the name the expressions call them.
     pub tables: Vec<(String, Arc<dyn Tabulated>)>,
+    /// Whether `t` is the time (a flow's `rhs`: non-autonomous systems); `false` for a map's
+    /// `next`, where `t` is an ordinary name.
+    pub time: bool,
 }
 
 /// Why a vector function could not be built.
@@ -72,15 +85,17 @@ const TANGENT: usize = 1;
 const DIVERGENCE: usize = 2;
 const ENERGY: usize = 3;
 
-/// Argument arrays: the state, and the direction of `J v`.
+/// Argument arrays: the state, the direction of `J v`, the time (one entry), and the lane
+/// parameters.
 const ARG_X: u8 = 0;
 const ARG_V: u8 = 1;
+pub const ARG_T: u8 = 2;
 /// The argument of the parameters given per evaluation ([`ParamValue::Lane`] with this `arg`,
 /// indices `0..P`): a map's parameter axes. Every function reads them after the state: a state
 /// given to this function is `D` coordinates followed by the `P` parameter values (in lane
 /// calls, `D` rows then `P` rows), the "extended state". With `P = 0` nothing changes (the
-/// functions are compiled exactly as without this argument).
-pub const ARG_PARAMS: u8 = 2;
+/// functions are compiled exactly as without this argument, which they then do not declare).
+pub const ARG_PARAMS: u8 = 3;
 
 /// Most components of a vector function (the straight-line code grows with `D`).
 pub const MAX_DIM: usize = 100_000;
@@ -100,6 +115,8 @@ struct Inner {
     tangent_refusal: Option<String>,
     /// A Hamiltonian vector field's `H` (see [`VectorFunction::hamiltonian`]).
     energy: Option<NodeId>,
+    /// Some expression reads the time `t`.
+    reads_time: bool,
     compiled: Compiled,
     value_fn: ScalarFnPtr,
     tangent_fn: ScalarFnPtr,
@@ -176,6 +193,7 @@ impl VectorFunction {
             tables: &tables,
             n: d,
             boundary: definition.boundary,
+            time: definition.time.then_some(ARG_T),
         };
         let mut values = Vec::with_capacity(d);
         let mut smoothness = Vec::with_capacity(d);
@@ -260,6 +278,7 @@ impl VectorFunction {
             tables: &tables,
             n,
             boundary: h.boundary,
+            time: Some(ARG_T),
         };
         let lowered = lower::lower(&h.source, &scope, &mut graph).map_err(|error| {
             VectorError::Component {
@@ -304,6 +323,7 @@ impl VectorFunction {
             params: h.params,
             boundary: h.boundary,
             tables: h.tables,
+            time: true,
         };
         Self::finish(
             definition,
@@ -370,45 +390,58 @@ impl VectorFunction {
             }
         }
         let divergence = divergence.unwrap_or_else(|| graph.constant(0.0));
-        // The parameters come with the state: one per lane where the state is one per lane,
-        // shared where it is shared (the tangent's reference state). They are argument
-        // `ARG_PARAMS`, so a function without a direction declares an unread one before them.
+        // Every function takes the time as argument ARG_T, one value shared by all lanes
+        // (argument ARG_V of the functions other than `J v` is never read). The parameters come
+        // with the state, after the time: one per lane where the state is one per lane, shared
+        // where it is shared (the tangent's reference state).
         let with_params = |mut args: Vec<Layout>, layout: Layout| {
             if lane_params > 0 {
-                if args.len() == 1 {
-                    args.push(Layout::Scalar);
-                }
                 args.push(layout);
             }
             args
         };
+        let unary = with_params(
+            vec![Layout::Lanes, Layout::Scalar, Layout::Scalar],
+            Layout::Lanes,
+        );
         let mut specs = vec![
             FunctionSpec {
-                args: with_params(vec![Layout::Lanes], Layout::Lanes),
+                args: unary.clone(),
                 outputs: values.clone(),
             },
             FunctionSpec {
-                args: with_params(vec![Layout::Scalar, Layout::Lanes], Layout::Scalar),
+                args: with_params(
+                    vec![Layout::Scalar, Layout::Lanes, Layout::Scalar],
+                    Layout::Scalar,
+                ),
                 outputs: tangent.clone(),
             },
             FunctionSpec {
-                args: with_params(vec![Layout::Lanes], Layout::Lanes),
+                args: unary.clone(),
                 outputs: vec![divergence],
             },
         ];
         if let Some(h) = energy {
             specs.push(FunctionSpec {
-                args: with_params(vec![Layout::Lanes], Layout::Lanes),
+                args: unary,
                 outputs: vec![h],
             });
         }
+
         let compiled = jit::compile(&graph, &specs)
             .map_err(|e| VectorError::Other(format!("compiling {}: {e}", definition.key)))?;
         let energy_fn = energy.map(|_| (ENERGY, 1));
+        let reads_time = (0..specs.len()).any(|f| compiled.arg_len(f, ARG_T as usize) > 0);
         for (f, args) in [(VALUE, 1), (TANGENT, 2), (DIVERGENCE, 1)]
             .into_iter()
             .chain(energy_fn)
         {
+            if compiled.arg_len(f, ARG_T as usize) > 1 {
+                return Err(VectorError::Other(format!(
+                    "compiled function {f} reads {} entries of the time",
+                    compiled.arg_len(f, ARG_T as usize)
+                )));
+            }
             for a in 0..args {
                 if compiled.arg_len(f, a) > d {
                     return Err(VectorError::Other(format!(
@@ -432,6 +465,7 @@ impl VectorFunction {
             energy_fn: energy.map(|_| compiled.raw_scalar(ENERGY)),
             energy,
             lane_params,
+            reads_time,
             tangent_refusal,
             definition,
             graph,
@@ -471,27 +505,24 @@ impl VectorFunction {
         x.split_at(self.dim())
     }
 
-    /// The argument arrays of a lane call over `x` (`D + P` rows of `lanes`), with `middle`
-    /// (the direction of `J v`) after the state if given.
+    /// The argument arrays of a lane call over `x` (`D + P` rows of `lanes`): the state, `middle`
+    /// (the direction of `J v`; an unread empty array for the other functions), the time, and
+    /// the parameters when there are any.
     /// (No allocation: these calls sit in the kernels' inner loops.)
     fn lane_args<'a>(
         &self,
         x: &'a [f64],
-        middle: Option<&'a [f64]>,
+        middle: &'a [f64],
+        time: &'a [f64],
         lanes: usize,
-    ) -> ([&'a [f64]; 3], usize) {
+    ) -> ([&'a [f64]; 4], usize) {
         let (x, p) = x.split_at(self.dim() * lanes);
-        let mut args: [&[f64]; 3] = [x, &[], &[]];
-        let mut n = 1;
-        if let Some(m) = middle {
-            args[n] = m;
-            n += 1;
-        }
-        if self.0.lane_params > 0 {
-            // After the direction, or an unread empty argument in its place.
-            args[ARG_PARAMS as usize] = p;
-            n = ARG_PARAMS as usize + 1;
-        }
+        let args: [&[f64]; 4] = [x, middle, time, p];
+        let n = if self.0.lane_params > 0 {
+            ARG_PARAMS as usize + 1
+        } else {
+            ARG_T as usize + 1
+        };
         (args, n)
     }
 
@@ -538,20 +569,33 @@ impl VectorFunction {
         self.0.tangent_refusal.clone()
     }
 
-    /// `H(x)` of a Hamiltonian vector field ([`Self::hamiltonian`]); `None` for others.
-    ///
-    /// # Panics
-    /// If `x` does not have `D` entries.
+    /// Whether some compiled function reads the time `t` (a non-autonomous system). When it
+    /// does not, every `*_at` call gives the bits of the call at any other time.
+    pub fn reads_time(&self) -> bool {
+        self.0.reads_time
+    }
+
+    /// `H(x)` of a Hamiltonian vector field ([`Self::hamiltonian`]) at `t = 0`; `None` for
+    /// others.
     #[inline]
     pub fn energy(&self, x: &[f64]) -> Option<f64> {
+        self.energy_at(x, 0.0)
+    }
+
+    /// `H(x, t)` of a Hamiltonian vector field; `None` for others.
+    ///
+    /// # Panics
+    /// If `x` does not have `D + P` entries.
+    #[inline]
+    pub fn energy_at(&self, x: &[f64], t: f64) -> Option<f64> {
         let f = self.0.energy_fn?;
         let n = self.state_len();
         assert!(x.len() == n, "energy of a state of {n}");
         let (x, p) = self.split(x);
-        // Argument 1 (a direction) is not read by this function.
-        let args = [x.as_ptr(), p.as_ptr(), p.as_ptr()];
+        let time = [t];
+        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr(), p.as_ptr()];
         let mut out = [0.0];
-        // SAFETY: as in `value`; one output.
+        // SAFETY: as in `value_at`; one output.
         unsafe { f(args.as_ptr(), out.as_mut_ptr()) }
         Some(out[0])
     }
@@ -561,34 +605,48 @@ impl VectorFunction {
         self.0.energy.is_some()
     }
 
-    /// `out = F(x)` (`x`: the `D + P` entries of a state, `out`: `D`).
+    /// `out = F(x)` at `t = 0`.
+    #[inline]
+    pub fn value(&self, x: &[f64], out: &mut [f64]) {
+        self.value_at(x, 0.0, out)
+    }
+
+    /// `out = F(x, t)` (`x`: the `D + P` entries of a state, `out`: `D`).
     ///
     /// # Panics
     /// If `x` does not have `D + P` entries or `out` `D`.
     #[inline]
-    pub fn value(&self, x: &[f64], out: &mut [f64]) {
+    pub fn value_at(&self, x: &[f64], t: f64, out: &mut [f64]) {
         let (d, n) = (self.dim(), self.state_len());
         assert!(
             x.len() == n && out.len() == d,
             "{d} components of a state of {n}"
         );
         let (x, p) = self.split(x);
-        // Argument 1 (a direction) is not read by this function.
-        let args = [x.as_ptr(), p.as_ptr(), p.as_ptr()];
-        // SAFETY: the function reads at most D entries of `x` and P of `p` (checked in `new`;
-        // a function without parameters reads only the first pointer) and writes D outputs;
-        // the slices have D and P entries; `out` is a `&mut`, so it overlaps nothing; the
-        // code lives as long as `self.0.compiled`.
+        let time = [t];
+        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr(), p.as_ptr()];
+        // SAFETY: the function reads at most D entries of `x`, one of the time and P of `p`
+        // (checked in `new`; a function without parameters does not declare the last
+        // argument), never argument ARG_V (null), and writes D outputs; the slices have D, 1
+        // and P entries; `out` is a `&mut`, so it overlaps nothing; the code lives as long as
+        // `self.0.compiled`.
         unsafe { (self.0.value_fn)(args.as_ptr(), out.as_mut_ptr()) }
     }
 
-    /// `out = J(x) v`; `false` (and `out` untouched) when the function has no continuous first
-    /// derivatives ([`Self::no_tangent_reason`]).
-    ///
-    /// # Panics
-    /// If `x`, `v` or `out` does not have `D` entries.
+    /// `out = J(x) v` at `t = 0`; see [`Self::tangent_at`].
     #[inline]
     pub fn tangent(&self, x: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+        self.tangent_at(x, 0.0, v, out)
+    }
+
+    /// `out = J(x, t) v` (the derivative in the coordinates of `x` at time `t`); `false` (and
+    /// `out` untouched) when the function has no continuous first derivatives
+    /// ([`Self::no_tangent_reason`]).
+    ///
+    /// # Panics
+    /// If `x` does not have `D + P` entries, or `v` or `out` not `D`.
+    #[inline]
+    pub fn tangent_at(&self, x: &[f64], t: f64, v: &[f64], out: &mut [f64]) -> bool {
         if !self.0.c1 {
             return false;
         }
@@ -598,48 +656,74 @@ impl VectorFunction {
             "Jacobian-vector product of {d} components"
         );
         let (x, p) = self.split(x);
-        let args = [x.as_ptr(), v.as_ptr(), p.as_ptr()];
-        // SAFETY: as in `value`, for the two arguments `x` and `v`.
+        let time = [t];
+        let args = [x.as_ptr(), v.as_ptr(), time.as_ptr(), p.as_ptr()];
+        // SAFETY: as in `value_at`, for the arguments `x`, `v`, the time and the parameters.
         unsafe { (self.0.tangent_fn)(args.as_ptr(), out.as_mut_ptr()) }
         true
     }
 
-    /// `tr J(x)`.
-    ///
-    /// # Panics
-    /// If `x` does not have `D` entries.
+    /// `tr J(x)` at `t = 0`.
     #[inline]
     pub fn divergence(&self, x: &[f64]) -> f64 {
+        self.divergence_at(x, 0.0)
+    }
+
+    /// `tr J(x, t)`.
+    ///
+    /// # Panics
+    /// If `x` does not have `D + P` entries.
+    #[inline]
+    pub fn divergence_at(&self, x: &[f64], t: f64) -> f64 {
         let n = self.state_len();
         assert!(x.len() == n, "divergence at a state of {n}");
         let (x, p) = self.split(x);
-        // Argument 1 (a direction) is not read by this function.
-        let args = [x.as_ptr(), p.as_ptr(), p.as_ptr()];
+        let time = [t];
+        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr(), p.as_ptr()];
         let mut out = [0.0];
-        // SAFETY: as in `value`; one output.
+        // SAFETY: as in `value_at`; one output.
         unsafe { (self.0.divergence_fn)(args.as_ptr(), out.as_mut_ptr()) }
         out[0]
     }
 
-    /// `F` over `lanes` states in structure-of-arrays layout: `x[i * lanes + l]` is `x_i` of
-    /// lane `l` (rows `D..D + P` its parameters), `out[i * lanes + l]` its `F_i`. Lane by lane
-    /// the bits of [`Self::value`].
+    /// `F` at `t = 0` over lanes; see [`Self::value_lanes_at`].
+    pub fn value_lanes(&self, x: &[f64], out: &mut [f64], lanes: usize) {
+        self.value_lanes_at(x, 0.0, out, lanes)
+    }
+
+    /// `F(., t)` over `lanes` states in structure-of-arrays layout, all at the time `t`:
+    /// `x[i * lanes + l]` is `x_i` of lane `l` (rows `D..D + P` its parameters),
+    /// `out[i * lanes + l]` its `F_i`. Lane by lane the bits of [`Self::value_at`].
     ///
     /// # Panics
     /// If `x` does not have `(D + P) * lanes` entries or `out` `D * lanes`.
-    pub fn value_lanes(&self, x: &[f64], out: &mut [f64], lanes: usize) {
+    pub fn value_lanes_at(&self, x: &[f64], t: f64, out: &mut [f64], lanes: usize) {
         let n = self.state_len();
         assert_eq!(x.len(), n * lanes, "{n} rows of {lanes} lanes");
-        let (args, n) = self.lane_args(x, None, lanes);
+        let time = [t];
+        let (args, n) = self.lane_args(x, &[], &time, lanes);
         self.0.compiled.call_lanes(VALUE, &args[..n], out, lanes)
     }
 
-    /// `J(x) v` at one shared state `x` (the reference orbit) for `lanes` directions in
-    /// structure-of-arrays layout (`v[i * lanes + l]`); `false` as [`Self::tangent`].
+    /// `J v` at `t = 0` over lanes; see [`Self::tangent_lanes_at`].
+    pub fn tangent_lanes(&self, x: &[f64], v: &[f64], out: &mut [f64], lanes: usize) -> bool {
+        self.tangent_lanes_at(x, 0.0, v, out, lanes)
+    }
+
+    /// `J(x, t) v` at one shared state `x` (the reference orbit, with its parameters) and time
+    /// `t` for `lanes` directions in structure-of-arrays layout (`v[i * lanes + l]`); `false`
+    /// as [`Self::tangent_at`].
     ///
     /// # Panics
     /// If `x` does not have `D + P` entries, or `v` or `out` not `D * lanes`.
-    pub fn tangent_lanes(&self, x: &[f64], v: &[f64], out: &mut [f64], lanes: usize) -> bool {
+    pub fn tangent_lanes_at(
+        &self,
+        x: &[f64],
+        t: f64,
+        v: &[f64],
+        out: &mut [f64],
+        lanes: usize,
+    ) -> bool {
         if !self.0.c1 {
             return false;
         }
@@ -648,17 +732,24 @@ impl VectorFunction {
             x.len() == n && v.len() == d * lanes,
             "a state of {n} and {d} rows of {lanes} lanes"
         );
-        let (args, n) = self.lane_args(x, Some(v), 1);
+        let time = [t];
+        let (args, n) = self.lane_args(x, v, &time, 1);
         self.0.compiled.call_lanes(TANGENT, &args[..n], out, lanes);
         true
     }
 
-    /// The divergence over `lanes` states in structure-of-arrays layout; `out` has `lanes`
-    /// entries.
+    /// The divergence at `t = 0` over lanes; see [`Self::divergence_lanes_at`].
     pub fn divergence_lanes(&self, x: &[f64], out: &mut [f64], lanes: usize) {
+        self.divergence_lanes_at(x, 0.0, out, lanes)
+    }
+
+    /// The divergence at time `t` over `lanes` states in structure-of-arrays layout (`D + P`
+    /// rows); `out` has `lanes` entries.
+    pub fn divergence_lanes_at(&self, x: &[f64], t: f64, out: &mut [f64], lanes: usize) {
         let n = self.state_len();
         assert_eq!(x.len(), n * lanes, "{n} rows of {lanes} lanes");
-        let (args, n) = self.lane_args(x, None, lanes);
+        let time = [t];
+        let (args, n) = self.lane_args(x, &[], &time, lanes);
         self.0
             .compiled
             .call_lanes(DIVERGENCE, &args[..n], out, lanes)
@@ -669,15 +760,21 @@ impl VectorFunction {
     /// 1, column 3 of next[2] gave NaN (x = [0.5, -1])`. `None` when `F(x)` is finite. Off the
     /// hot path: called after a run met a non-finite state.
     pub fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
+        self.diagnose_non_finite_at(x, 0.0)
+    }
+
+    /// [`Self::diagnose_non_finite`] at time `t`.
+    pub fn diagnose_non_finite_at(&self, x: &[f64], t: f64) -> Option<String> {
         let g = &self.0.graph;
         let key = &self.0.definition.key;
         let state = format!("{x:?}");
         let (coordinates, params) = self.split(x);
-        let args = [coordinates, &[], params];
+        let time = [t];
+        let args: [&[f64]; 4] = [coordinates, &[], &time, params];
         let args = if self.0.lane_params > 0 {
             &args[..]
         } else {
-            &args[..1]
+            &args[..ARG_PARAMS as usize]
         };
         for (i, &root) in self.0.values.iter().enumerate() {
             let Some(id) = eval::first_non_finite(g, args, root) else {

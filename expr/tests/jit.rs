@@ -737,6 +737,7 @@ fn product(g: &mut Graph, n: usize) -> (Vec<NodeId>, Vec<NodeId>) {
         tables: &[],
         n: 3,
         boundary: chaoscope_expr::Boundary::Fixed,
+        time: None,
     };
     let root = chaoscope_expr::lower(&source, &scope, g).unwrap().root;
     let grad = chaoscope_expr::gradient(g, root, 0, 3).unwrap();
@@ -882,6 +883,7 @@ mod lattice_loops {
             tables: &tables,
             n,
             boundary,
+            time: None,
         };
         let l = lower_with_loops(src, &scope, &mut g).unwrap_or_else(|e| panic!("{e}"));
         assert!(!l.sums.is_empty(), "{src}: no loop");

@@ -72,6 +72,7 @@ fn system_with_tables(n: usize, potential: &str, tables: &[(&str, Arc<dyn Tabula
         tables: &tables,
         n,
         boundary: Boundary::Fixed,
+        time: None,
     };
     let root = lower(potential, &scope, &mut graph).unwrap().root;
     let gradient = diff::gradient(&mut graph, root, 0, n).unwrap();
@@ -111,6 +112,7 @@ fn lattice_system(n: usize, boundary: Boundary, potential: &str) -> System {
         tables: &tables,
         n,
         boundary,
+        time: None,
     };
     let l = lower_with_loops(potential, &scope, &mut graph).unwrap();
     assert!(!l.sums.is_empty(), "{potential}: no loop");

@@ -18,6 +18,7 @@ fn definition(key: &str, components: &[&str], params: &[(&str, ParamValue)]) -> 
             .collect::<BTreeMap<_, _>>(),
         boundary: Boundary::Fixed,
         tables: Vec::new(),
+        time: true,
     }
 }
 
@@ -332,4 +333,140 @@ fn lane_parameters_give_the_bits_of_the_folded_constants() {
     let why = log.diagnose_non_finite(&[1.0, 2.0, -1.0]).unwrap();
     assert!(why.contains("'log'") && why.contains("next[1]"), "{why}");
     assert!(log.diagnose_non_finite(&[1.0, 2.0, 0.5]).is_none());
+}
+
+/// A right-hand side that reads the time `t`: every compiled form (scalar `*_at`, lanes at one
+/// shared time) gives the reference evaluator's bits with the time as argument 2, at several
+/// times; `t` is a built-in there (a parameter of that name is an error naming it), and an
+/// ordinary name where the definition has no time (a map's `next`).
+#[test]
+fn time_is_an_argument_of_every_compiled_form() {
+    let f = VectorFunction::new(definition(
+        "rhs",
+        &[
+            "x2",
+            "-0.3 * x2 + x1 - x1^3 + gamma * cos(1.2 * t)",
+            "x1 * sin(t) - t * x3",
+        ],
+        &[("gamma", ParamValue::Scalar(0.5))],
+    ))
+    .unwrap();
+    assert!(f.reads_time());
+    assert!(!lorenz().reads_time());
+    let (g, values, tangent, divergence) = f.graph();
+    let mut ev = Evaluator::new();
+    let d = f.dim();
+    for (k, t) in [0.0, 0.37, 12.5, -3.0].into_iter().enumerate() {
+        let time = [t];
+        let lanes = 5;
+        let xs: Vec<Vec<f64>> = (0..lanes)
+            .map(|l| uniform(d, 11 + l as u64 + k as u64))
+            .collect();
+        let v = uniform(d, 5);
+        let soa: Vec<f64> = (0..d).flat_map(|i| xs.iter().map(move |r| r[i])).collect();
+        let mut f_lanes = vec![0.0; d * lanes];
+        f.value_lanes_at(&soa, t, &mut f_lanes, lanes);
+        for (l, x) in xs.iter().enumerate() {
+            let mut want = vec![0.0; d];
+            ev.eval(g, &[x, &[], &time], values, &mut want);
+            let mut got = vec![0.0; d];
+            f.value_at(x, t, &mut got);
+            assert_eq!(bits(&got), bits(&want), "F at t = {t}");
+            let lane: Vec<f64> = (0..d).map(|i| f_lanes[i * lanes + l]).collect();
+            assert_eq!(bits(&lane), bits(&want), "F lanes at t = {t}, lane {l}");
+            ev.eval(g, &[x, &v, &time], tangent, &mut want);
+            assert!(f.tangent_at(x, t, &v, &mut got));
+            assert_eq!(bits(&got), bits(&want), "J v at t = {t}");
+            let mut div = [0.0];
+            ev.eval(g, &[x, &[], &time], &[divergence], &mut div);
+            assert_eq!(f.divergence_at(x, t).to_bits(), div[0].to_bits());
+            // The time enters: dF3/dx3 = -t.
+            assert_eq!(div[0], -0.3 - t);
+        }
+    }
+    let clash = VectorFunction::new(definition(
+        "rhs",
+        &["t * x1"],
+        &[("t", ParamValue::Scalar(1.0))],
+    ))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        clash.contains("parameter 't' has the name of the time"),
+        "{clash}"
+    );
+    let mut map = definition("next", &["t * x1"], &[]);
+    map.time = false;
+    let unknown = VectorFunction::new(map).unwrap_err().to_string();
+    assert!(unknown.contains("unknown name 't'"), "{unknown}");
+}
+
+/// Time and lane parameters together (a parameter axis over a non-autonomous flow): the two
+/// are distinct argument arrays (`ARG_T` shared by the lanes, `ARG_PARAMS` per lane), so at
+/// each time every lane gives the bits of the function compiled with its parameter as a
+/// constant, evaluated at that time, in every compiled form.
+#[test]
+fn time_and_lane_parameters_are_distinct_arguments() {
+    use chaoscope_expr::vector::{ARG_PARAMS, ARG_T};
+    assert_ne!(ARG_T, ARG_PARAMS);
+    let components = ["x2", "-0.3 * x2 + x1 - x1^3 + gamma * cos(1.2 * t)"];
+    let by_lane = VectorFunction::new(definition(
+        "rhs",
+        &components,
+        &[(
+            "gamma",
+            ParamValue::Lane {
+                arg: ARG_PARAMS,
+                index: 0,
+                min: 0.0,
+                max: 1.0,
+            },
+        )],
+    ))
+    .unwrap();
+    assert!(by_lane.reads_time());
+    assert_eq!(by_lane.state_len(), 3);
+    let points = [[0.3, -1.2, 0.1], [2.5, 0.4, 0.9], [-1.0, 0.5, 0.45]];
+    let lanes = points.len();
+    let soa: Vec<f64> = (0..3)
+        .flat_map(|r| points.iter().map(move |p| p[r]))
+        .collect();
+    for t in [0.0, 0.37, 12.5] {
+        let mut out_lanes = vec![0.0; 2 * lanes];
+        by_lane.value_lanes_at(&soa, t, &mut out_lanes, lanes);
+        let mut div_lanes = vec![0.0; lanes];
+        by_lane.divergence_lanes_at(&soa, t, &mut div_lanes, lanes);
+        for (l, p) in points.iter().enumerate() {
+            let folded = VectorFunction::new(definition(
+                "rhs",
+                &components,
+                &[("gamma", ParamValue::Scalar(p[2]))],
+            ))
+            .unwrap();
+            let (mut want, mut got) = ([0.0; 2], [0.0; 2]);
+            folded.value_at(&p[..2], t, &mut want);
+            by_lane.value_at(p, t, &mut got);
+            assert_eq!(bits(&got), bits(&want), "value at {p:?}, t = {t}");
+            assert_eq!(
+                bits(&[out_lanes[l], out_lanes[lanes + l]]),
+                bits(&want),
+                "lane {l}, t = {t}"
+            );
+            // The forcing moves the value with t (when gamma is not 0): the time is read.
+            let mut at_zero = [0.0; 2];
+            folded.value_at(&p[..2], 0.0, &mut at_zero);
+            if t != 0.0 {
+                assert_ne!(bits(&at_zero), bits(&want), "t = {t} is read");
+            }
+            assert_eq!(
+                div_lanes[l].to_bits(),
+                folded.divergence_at(&p[..2], t).to_bits()
+            );
+            let v = [1.0, 0.0, 0.5, -2.0];
+            let (mut want_jv, mut got_jv) = (vec![0.0; 4], vec![0.0; 4]);
+            assert!(folded.tangent_lanes_at(&p[..2], t, &v, &mut want_jv, 2));
+            assert!(by_lane.tangent_lanes_at(p, t, &v, &mut got_jv, 2));
+            assert_eq!(bits(&got_jv), bits(&want_jv), "J v at {p:?}, t = {t}");
+        }
+    }
 }

@@ -220,6 +220,7 @@ pub fn expr(data: &[u8]) {
             tables: &tables,
             n,
             boundary,
+            time: None,
         };
         lattice_loops(text, &scope, &spline);
         let Ok(lowered) = chaoscope_expr::lower(text, &scope, &mut g) else {

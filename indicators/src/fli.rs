@@ -109,6 +109,7 @@ mod tests {
             separations: sep,
             stretch,
             flow,
+            sites: None,
         }
     }
 

@@ -33,6 +33,9 @@ pub struct SetObservation<'a> {
     /// The vector field `f(x)` at the reference state of this renormalization, where the system
     /// can give it (flows and Hamiltonians in process); `None` otherwise.
     pub flow: Option<&'a [f64]>,
+    /// The number of sites `N` of a Hamiltonian (`dim = 2N`, site `l` at `q_l`, `p_l`); `None`
+    /// for a system without them (a flow, a map).
+    pub sites: Option<usize>,
 }
 
 /// One output's value for one set (or one scheme).
@@ -81,6 +84,7 @@ pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
     vec![
         Box::new(crate::fli::Fli::default()),
         Box::new(crate::megno::Megno::default()),
+        Box::new(crate::dvd::DeviationDistribution::default()),
     ]
 }
 
@@ -103,7 +107,7 @@ pub fn set_output_names() -> &'static [&'static str] {
 
 /// The outputs of the registered set indicators that a run without the flow direction can give
 /// (a phase-space map's points carry no vector field), in report order: those available after
-/// one observation with `flow: None`. The map indicators by output name.
+/// one observation with `flow: None` and no sites. The map indicators by output name.
 pub fn flowless_set_outputs() -> Vec<&'static str> {
     let observation = SetObservation {
         t: 0.0,
@@ -112,6 +116,7 @@ pub fn flowless_set_outputs() -> Vec<&'static str> {
         separations: &[1.0],
         stretch: &[1.0],
         flow: None,
+        sites: None,
     };
     set_indicators()
         .into_iter()
@@ -133,14 +138,25 @@ mod tests {
 
     #[test]
     fn a_map_shows_every_output_but_ofli() {
-        // OFLI needs the flow direction; FLI and MEGNO only the stretching factors.
+        // OFLI needs the flow direction, the DVD a Hamiltonian's sites; FLI and MEGNO only the
+        // stretching factors.
         assert_eq!(flowless_set_outputs(), ["fli", "megno", "megno_mean"]);
     }
 
     #[test]
     fn every_set_output_is_named_once() {
         let names = set_output_names();
-        assert_eq!(names, ["fli", "ofli", "megno", "megno_mean"]);
+        assert_eq!(
+            names,
+            [
+                "fli",
+                "ofli",
+                "megno",
+                "megno_mean",
+                "dvd_m2",
+                "dvd_participation"
+            ]
+        );
         let mut unique = names.to_vec();
         unique.sort_unstable();
         unique.dedup();

@@ -14,12 +14,14 @@
 //! - [`stats`]: averages over the random sets of a scheme.
 //! - [`indicator`]: the one indicator interface (set and orbit indicators, named outputs) and
 //!   the registry of the indicators every run tracks: [`fli`] (FLI, OFLI), [`megno`] (MEGNO and
-//!   its mean), [`zero_one`] (the 0-1 test for chaos).
+//!   its mean), [`dvd`] (the deviation vector distribution over a lattice's sites: its second
+//!   moment and participation number), [`zero_one`] (the 0-1 test for chaos).
 //! - [`tracker`]: the streaming state of a run (per scheme and set: stretching sums and latest
 //!   vectors) and a scheme's indicators averaged over its sets at its latest renormalization.
 
 pub mod alignment;
 pub mod clv;
+pub mod dvd;
 pub mod fli;
 pub mod indicator;
 pub mod megno;

@@ -77,6 +77,7 @@ mod tests {
                 separations: &[1.0],
                 stretch: &[stretch],
                 flow: None,
+                sites: None,
             });
             prev = l;
         }

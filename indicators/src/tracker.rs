@@ -30,6 +30,9 @@ pub struct Layout {
     pub h: f64,
     /// Renormalization period of each scheme in steps, in header order.
     pub tau_steps: Vec<u64>,
+    /// The sites `N` of a Hamiltonian (`dim = 2N`), for the indicators over a lattice
+    /// ([`Layout::with_sites`]); `None` for flows and maps.
+    pub sites: Option<usize>,
 }
 
 impl Layout {
@@ -49,7 +52,16 @@ impl Layout {
             sets,
             h,
             tau_steps,
+            sites: None,
         })
+    }
+
+    /// The layout of a Hamiltonian's run: `dim / 2` sites, site `l` at `q_l`, `p_l`.
+    pub fn with_sites(self) -> Self {
+        Self {
+            sites: self.dim.is_multiple_of(2).then_some(self.dim / 2),
+            ..self
+        }
     }
 
     /// Time of step `step`, computed as the producer does (`step * h`, never accumulated).
@@ -143,15 +155,16 @@ impl Serialize for NamedOutputs {
     }
 }
 
-/// The vector field `f(x)` of the run's system, for the indicators that need the flow direction
+/// The vector field `f(x, t)` of the run's system, for the indicators that need the flow direction
 /// at the reference state (OFLI): writes `f(x)` into `out` and returns true, or false where the
 /// system has none (a map). Given by whoever holds the system (the engine's side); the tracker
 /// itself stays a pure function of what it is fed.
 #[derive(Clone)]
 pub struct FlowField(pub Arc<FlowFn>);
 
-/// `f(x)` into `out`, false where there is none.
-pub type FlowFn = dyn Fn(&[f64], &mut [f64]) -> bool + Send + Sync;
+/// `f(x, t)` into `out` at the time of step `step` (a non-autonomous system's field depends on
+/// it; the system knows its time step), false where there is none.
+pub type FlowFn = dyn Fn(u64, &[f64], &mut [f64]) -> bool + Send + Sync;
 
 impl std::fmt::Debug for FlowField {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -284,7 +297,7 @@ impl Tracker {
         }
         let flow = self.flow_field.as_ref().and_then(|field| {
             let mut out = vec![0.0; state.len()];
-            ((field.0)(state, &mut out) && out.iter().all(|v| v.is_finite())).then_some(out)
+            ((field.0)(step, state, &mut out) && out.iter().all(|v| v.is_finite())).then_some(out)
         });
         self.reference = Some(Reference {
             step,
@@ -362,6 +375,7 @@ impl Tracker {
             separations,
             stretch,
             flow: reference.and_then(|r| r.flow.as_deref()),
+            sites: self.layout.sites,
         };
         for indicator in &mut st.indicators {
             indicator.observe(&observation);

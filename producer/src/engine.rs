@@ -126,7 +126,7 @@ impl Engine {
                 tasks.push(task(set, lanes, None));
             }
         }
-        let divergence = spec.system().divergence(spec.x0()).map(|d| (d, 0.0));
+        let divergence = spec.system().divergence(spec.x0(), 0.0).map(|d| (d, 0.0));
         Self {
             reference: spec.x0().to_vec(),
             spec,
@@ -203,12 +203,15 @@ impl Engine {
         self.plan.clear();
         self.plan_bounds.clear();
         self.plan_bounds.push(0);
-        for _ in 0..n_steps {
-            system.step_reference(&mut self.reference, &mut self.plan, &mut self.work);
+        for step in self.step..target {
+            let t = spec.time_of(step);
+            system.step_reference(&mut self.reference, t, &mut self.plan, &mut self.work);
             self.plan_bounds.push(self.plan.len());
             if let Some((before, integral)) = &mut self.divergence {
                 // Non-finite values are caught below, once per window.
-                let after = system.divergence(&self.reference).unwrap_or(f64::NAN);
+                let after = system
+                    .divergence(&self.reference, spec.time_of(step + 1))
+                    .unwrap_or(f64::NAN);
                 *integral += match system.time() {
                     // The trapezoidal rule over the step: the mean of div f along the orbit.
                     crate::system::Time::Continuous { h } => 0.5 * h * (*before + after),
@@ -240,6 +243,7 @@ impl Engine {
         let plan = Plan {
             substeps: &self.plan,
             bounds: &self.plan_bounds,
+            from: self.step,
         };
         let start = &last_good;
         let advance = |task: &mut DeviationSet| {
@@ -317,14 +321,16 @@ impl Engine {
         let mut plan = Vec::new();
         while step < target {
             let before = x.clone();
+            let t_before = self.spec.time_of(step);
             plan.clear();
-            system.step_reference(&mut x, &mut plan, &mut work);
+            system.step_reference(&mut x, t_before, &mut plan, &mut work);
             step += 1;
+            let t_after = self.spec.time_of(step);
             let at = format!("in the step to t = {}", self.spec.time_of(step));
             if x.iter().any(|v| !v.is_finite()) {
                 cause = Some(
                     system
-                        .diagnose_non_finite(&before)
+                        .diagnose_non_finite(&before, t_before)
                         .map_or(format!("the state became non-finite {at}"), |c| {
                             format!("{c} {at}")
                         }),
@@ -332,11 +338,13 @@ impl Engine {
                 break;
             }
             if system.invariant(&x).is_some_and(|e| !e.is_finite())
-                || system.divergence(&x).is_some_and(|d| !d.is_finite())
+                || system
+                    .divergence(&x, t_after)
+                    .is_some_and(|d| !d.is_finite())
             {
                 cause = Some(
                     system
-                        .diagnose_non_finite(&x)
+                        .diagnose_non_finite(&x, t_after)
                         .map_or(format!("the system is not defined {at}"), |c| {
                             format!("{c} {at}")
                         }),
@@ -366,15 +374,17 @@ impl Engine {
 }
 
 /// The substeps the reference orbit took in a window, step by step (empty for fixed-step
-/// systems): `substeps[bounds[i]..bounds[i + 1]]` belong to step `i`.
+/// systems): `substeps[bounds[i]..bounds[i + 1]]` belong to step `from + i` of the run.
 struct Plan<'a> {
     substeps: &'a [f64],
     bounds: &'a [usize],
+    from: u64,
 }
 
 impl Plan<'_> {
-    fn steps(&self) -> impl Iterator<Item = &[f64]> + '_ {
-        self.bounds.windows(2).map(|b| &self.substeps[b[0]..b[1]])
+    /// Each step's number and substeps.
+    fn steps(&self) -> impl Iterator<Item = (u64, &[f64])> + '_ {
+        (self.from..).zip(self.bounds.windows(2).map(|b| &self.substeps[b[0]..b[1]]))
     }
 }
 
@@ -393,33 +403,44 @@ struct AlongReference<'a> {
 }
 
 impl PointKernel for AlongReference<'_> {
-    fn orbit_steps(&mut self, x: &mut Soa, _steps: u64) {
+    // The plan knows its steps' numbers (`from`, `steps` are the window's, as the plan's).
+    fn orbit_steps(&mut self, x: &mut Soa, _from: u64, _steps: u64) {
+        let time = self.system.time();
         self.rows.resize(x.rows(), 0.0);
         for lane in 0..x.lanes() {
             x.read_lane(lane, self.rows);
-            for substeps in self.plan.steps() {
-                self.system.step_along(self.rows, substeps, self.work);
+            for (step, substeps) in self.plan.steps() {
+                self.system
+                    .step_along(self.rows, time.at(step), substeps, self.work);
             }
             x.write_lane(lane, self.rows);
         }
     }
 
-    fn reference_steps(&mut self, x: &mut [f64], _steps: u64) {
-        for substeps in self.plan.steps() {
-            self.system.step_along(x, substeps, self.work);
+    fn reference_steps(&mut self, x: &mut [f64], _from: u64, _steps: u64) {
+        let time = self.system.time();
+        for (step, substeps) in self.plan.steps() {
+            self.system
+                .step_along(x, time.at(step), substeps, self.work);
         }
     }
 
-    fn tangent_steps(&mut self, v: &mut Soa, _steps: u64) -> Result<(), TangentError> {
+    fn tangent_steps(&mut self, v: &mut Soa, _from: u64, _steps: u64) -> Result<(), TangentError> {
+        let time = self.system.time();
         let dim = v.rows();
         self.rows.resize(v.lanes() * dim, 0.0);
         for (lane, row) in self.rows.chunks_exact_mut(dim).enumerate() {
             v.read_lane(lane, row);
         }
         let mut orbit = self.start.to_vec();
-        for substeps in self.plan.steps() {
-            self.system
-                .step_tangent_along(&mut orbit, self.rows, substeps, self.work)?;
+        for (step, substeps) in self.plan.steps() {
+            self.system.step_tangent_along(
+                &mut orbit,
+                self.rows,
+                time.at(step),
+                substeps,
+                self.work,
+            )?;
         }
         for (lane, row) in self.rows.chunks_exact(dim).enumerate() {
             v.write_lane(lane, row);
@@ -467,7 +488,8 @@ impl DeviationSet {
             rows: &mut self.rows,
         };
         let steps = plan.bounds.len() as u64 - 1;
-        self.method.advance(kernel, &mut self.lanes, steps)?;
+        self.method
+            .advance(kernel, &mut self.lanes, plan.from, steps)?;
         if !renormalize {
             return Ok(Vec::new());
         }
@@ -623,7 +645,7 @@ mod tests {
         for _ in 0..2000 {
             hamiltonian
                 .splitting()
-                .step(hamiltonian.model().as_ref(), &mut x, s.h(), &mut w);
+                .step(hamiltonian.model().as_ref(), &mut x, 0.0, s.h(), &mut w);
         }
         assert_eq!(x, a[&2000]);
     }

@@ -328,7 +328,7 @@ fn calibrate_run(spec: &RunSpec, sizes: &RunSizes) -> Calibration {
     let (mut x, mut plan) = (x0.to_vec(), Vec::new());
     let ns_per_orbit_step = ns_per_call(|| {
         plan.clear();
-        system.step_reference(&mut x, &mut plan, &mut work);
+        system.step_reference(&mut x, 0.0, &mut plan, &mut work);
         if !x.iter().all(|v| v.is_finite()) {
             x.copy_from_slice(x0);
         }
@@ -351,7 +351,7 @@ fn calibrate_run(spec: &RunSpec, sizes: &RunSizes) -> Calibration {
         unit(&mut w);
         x.copy_from_slice(x0);
         let ns = ns_per_call(|| {
-            let ok = system.step_tangent(&mut x, &mut w, &mut work).is_ok();
+            let ok = system.step_tangent(&mut x, &mut w, 0.0, &mut work).is_ok();
             if !ok || !x.iter().chain(&w).all(|v| v.is_finite() && v.abs() < 1e100) {
                 x.copy_from_slice(x0);
                 unit(&mut w);

@@ -31,11 +31,13 @@ pub trait DeviationMethod: Sync {
     /// starts, and how it restarts after a renormalization.
     fn start(&self, x: &[f64], d: &[f64], lane: &mut [f64]);
 
-    /// Advance every lane by `steps` steps.
+    /// Advance every lane by `steps` steps, the first of them step number `from` of the run
+    /// (see [`PointKernel`]).
     fn advance(
         &self,
         kernel: &mut dyn PointKernel,
         lanes: &mut Soa,
+        from: u64,
         steps: u64,
     ) -> Result<(), TangentError>;
 
@@ -74,9 +76,10 @@ impl DeviationMethod for Variational {
         &self,
         kernel: &mut dyn PointKernel,
         lanes: &mut Soa,
+        from: u64,
         steps: u64,
     ) -> Result<(), TangentError> {
-        kernel.tangent_steps(lanes, steps)
+        kernel.tangent_steps(lanes, from, steps)
     }
 
     fn deviation(&self, _kernel: &dyn PointKernel, lane: &[f64], _x: &[f64], out: &mut [f64]) {
@@ -107,9 +110,10 @@ impl DeviationMethod for MultiParticle {
         &self,
         kernel: &mut dyn PointKernel,
         lanes: &mut Soa,
+        from: u64,
         steps: u64,
     ) -> Result<(), TangentError> {
-        kernel.orbit_steps(lanes, steps);
+        kernel.orbit_steps(lanes, from, steps);
         Ok(())
     }
 

@@ -6,18 +6,22 @@
 //!
 //! [`surface`]: sections of any flow (and any Hamiltonian) through a surface `S(x) = 0`
 //! written as an expression, crossings located to rounding.
+//!
+//! [`stroboscopic`]: the state every `T` time units, the section of a periodically forced
+//! system at a fixed phase of its forcing.
 
+pub mod stroboscopic;
 pub mod surface;
 
 use crate::integrator::{Integrator, Workspace};
 use crate::model::Model;
 use crate::spec::RunSpec;
 
-/// Time derivative of the state `(q, p)` of `H = |p|^2/2 + V(q)`.
-fn velocity(model: &dyn Model, x: &[f64], out: &mut [f64]) {
+/// Time derivative of the state `(q, p)` of `H = |p|^2/2 + V(q, t)` at time `t`.
+fn velocity(model: &dyn Model, x: &[f64], t: f64, out: &mut [f64]) {
     let n = x.len() / 2;
     out[..n].copy_from_slice(&x[n..]);
-    model.gradient(&x[..n], &mut out[n..]);
+    model.gradient_at(&x[..n], t, &mut out[n..]);
     for v in &mut out[n..] {
         *v = -*v;
     }
@@ -53,16 +57,19 @@ pub fn crossings(
     let mut work = Workspace::new();
     let mut out = Vec::new();
     let h = spec.h();
-    for _ in 0..steps {
+    for step in 0..steps {
+        let (t0, t1) = (spec.time_of(step), spec.time_of(step + 1));
         prev.copy_from_slice(&x);
-        hamiltonian.splitting().step(model, &mut x, h, &mut work);
+        hamiltonian
+            .splitting()
+            .step(model, &mut x, t0, h, &mut work);
         if !x.iter().all(|v| v.is_finite()) {
             break;
         }
         let (a, b) = (prev[plane], x[plane]);
         if a < 0.0 && b >= 0.0 {
-            velocity(model, &prev, &mut v0);
-            velocity(model, &x, &mut v1);
+            velocity(model, &prev, t0, &mut v0);
+            velocity(model, &x, t1, &mut v1);
             // Root of the Hermite cubic of q_plane by bisection (monotone enough on one step).
             let f = |s: f64| hermite(a, v0[plane], b, v1[plane], h, s);
             let (mut lo, mut hi) = (0.0, 1.0);

@@ -3,30 +3,36 @@
 //! ([`crate::integrator::runge_kutta`]). Its own file so that both depend on it and neither on
 //! the other.
 
-/// A vector field `f: R^D -> R^D` with its Jacobian-vector product, what a Runge-Kutta flow
-/// needs (the compiled expressions of `[model] name = "ode"` implement it).
+/// A vector field `f(x, t)` on `R^D` with its Jacobian-vector product (in `x`), what a
+/// Runge-Kutta flow needs (the compiled expressions of `[model] name = "ode"` implement it).
+/// `t` is the time; a field that does not read it (an autonomous system) ignores it.
 pub trait VectorField: Send + Sync {
     /// Dimension `D`.
     fn dim(&self) -> usize;
 
-    /// `out = f(x)`.
-    fn value(&self, x: &[f64], out: &mut [f64]);
+    /// `out = f(x, t)`.
+    fn value(&self, x: &[f64], t: f64, out: &mut [f64]);
 
-    /// `out = J(x) v`, the derivative of `f` at `x` in direction `v`.
-    fn tangent(&self, x: &[f64], v: &[f64], out: &mut [f64]);
+    /// `out = J(x, t) v`, the derivative of `f` in `x` at `(x, t)` in direction `v`.
+    fn tangent(&self, x: &[f64], t: f64, v: &[f64], out: &mut [f64]);
 
-    /// `div f(x)`, the trace of the Jacobian.
-    fn divergence(&self, x: &[f64]) -> f64;
+    /// `div f(x, t)`, the trace of the Jacobian.
+    fn divergence(&self, x: &[f64], t: f64) -> f64;
 
     /// Why `J` is not available (a kink or jump of `f`, naming the operation); `None` when it is.
     fn no_tangent_reason(&self) -> Option<String>;
 
-    /// The operation that makes `f` non-finite at `x`, if known.
-    fn diagnose_non_finite(&self, x: &[f64]) -> Option<String>;
+    /// The operation that makes `f` non-finite at `(x, t)`, if known.
+    fn diagnose_non_finite(&self, x: &[f64], t: f64) -> Option<String>;
 
-    /// `H(x)` when `f` is the vector field of a Hamiltonian `H` (`dq/dt = dH/dp`, `dp/dt =
+    /// Whether `f` depends on the time (a non-autonomous system).
+    fn reads_time(&self) -> bool {
+        false
+    }
+
+    /// `H(x, t)` when `f` is the vector field of a Hamiltonian `H` (`dq/dt = dH/dp`, `dp/dt =
     /// -dH/dq` on `x = (q, p)`): the energy the report follows; `None` otherwise.
-    fn energy(&self, _x: &[f64]) -> Option<f64> {
+    fn energy(&self, _x: &[f64], _t: f64) -> Option<f64> {
         None
     }
 
@@ -51,34 +57,38 @@ impl VectorField for chaoscope_expr::VectorFunction {
     }
 
     #[inline]
-    fn value(&self, x: &[f64], out: &mut [f64]) {
-        chaoscope_expr::VectorFunction::value(self, x, out)
+    fn value(&self, x: &[f64], t: f64, out: &mut [f64]) {
+        chaoscope_expr::VectorFunction::value_at(self, x, t, out)
     }
 
     #[inline]
-    fn tangent(&self, x: &[f64], v: &[f64], out: &mut [f64]) {
+    fn tangent(&self, x: &[f64], t: f64, v: &[f64], out: &mut [f64]) {
         // Validation refuses VM for a field without a tangent (`no_tangent_reason`), so this is
         // not reached there; were it reached, NaN stops the run with an error naming the time
         // rather than continuing with a wrong tangent.
-        if !chaoscope_expr::VectorFunction::tangent(self, x, v, out) {
+        if !chaoscope_expr::VectorFunction::tangent_at(self, x, t, v, out) {
             out.fill(f64::NAN);
         }
     }
 
-    fn divergence(&self, x: &[f64]) -> f64 {
-        chaoscope_expr::VectorFunction::divergence(self, x)
+    fn divergence(&self, x: &[f64], t: f64) -> f64 {
+        chaoscope_expr::VectorFunction::divergence_at(self, x, t)
     }
 
     fn no_tangent_reason(&self) -> Option<String> {
         chaoscope_expr::VectorFunction::no_tangent_reason(self)
     }
 
-    fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
-        chaoscope_expr::VectorFunction::diagnose_non_finite(self, x)
+    fn diagnose_non_finite(&self, x: &[f64], t: f64) -> Option<String> {
+        chaoscope_expr::VectorFunction::diagnose_non_finite_at(self, x, t)
     }
 
-    fn energy(&self, x: &[f64]) -> Option<f64> {
-        chaoscope_expr::VectorFunction::energy(self, x)
+    fn reads_time(&self) -> bool {
+        chaoscope_expr::VectorFunction::reads_time(self)
+    }
+
+    fn energy(&self, x: &[f64], t: f64) -> Option<f64> {
+        chaoscope_expr::VectorFunction::energy_at(self, x, t)
     }
 
     fn is_hamiltonian(&self) -> bool {

@@ -40,7 +40,7 @@ fn check_orbits<M: LaneModel>(model: &M, lanes: usize, scale: f64, n_steps: u64)
         .map(|x0| {
             let mut x = x0.clone();
             for _ in 0..n_steps {
-                split.step(model, &mut x, h, &mut work);
+                split.step(model, &mut x, 0.0, h, &mut work);
             }
             x
         })
@@ -80,7 +80,7 @@ fn check_tangents<M: LaneModel>(model: &M, lanes: usize, scale: f64, n_steps: u6
     let (mut x, mut w) = (x0.clone(), vectors.clone());
     for _ in 0..n_steps {
         split
-            .step_tangent(model, &mut x, &mut w, h, &mut work)
+            .step_tangent(model, &mut x, &mut w, 0.0, h, &mut work)
             .unwrap();
     }
     for isa in Isa::ALL.into_iter().filter(|i| i.available()) {

@@ -25,6 +25,7 @@ fn map(components: &[&str], params: &[(&str, f64)], modulo: Vec<f64>) -> Map {
             .collect(),
         boundary: Boundary::Fixed,
         tables: Vec::new(),
+        time: false,
     })
     .unwrap();
     Map::new(f, modulo).unwrap()
@@ -105,7 +106,7 @@ fn henon_map_mle_and_sum_of_exponents() {
     let mut w = Workspace::new();
     // Onto the attractor first: the exponents are those of the attractor.
     for _ in 0..1000 {
-        m.step(&mut x, &mut w);
+        m.step(&mut x, 0.0, &mut w);
     }
     let mut v = start_vectors(d, k);
     let mut sums = StretchSums::new(k);
@@ -116,7 +117,7 @@ fn henon_map_mle_and_sum_of_exponents() {
     let mut worst = 0.0f64;
     for n in 1..=total {
         worst_det = worst_det.max((m.log_abs_det_jacobian(&x).unwrap() - ln_b).abs());
-        m.step_tangent(&mut x, &mut v, &mut w).unwrap();
+        m.step_tangent(&mut x, &mut v, 0.0, &mut w).unwrap();
         if n % tau == 0 {
             renormalize(&mut v, d, 1.0, Orthonormalization::Qr, &mut stretch).unwrap();
             sums.add(&stretch);
@@ -139,7 +140,7 @@ fn henon_map_mle_and_sum_of_exponents() {
     // (1e-3 at 1e6 iterations is generous; measured ~1e-4).
     let mut x = vec![0.0, 0.0];
     for _ in 0..1000 {
-        m.step(&mut x, &mut w);
+        m.step(&mut x, 0.0, &mut w);
     }
     let d0 = 1e-8;
     let mut y: Vec<f64> = x
@@ -151,8 +152,8 @@ fn henon_map_mle_and_sum_of_exponents() {
     let mut sums = StretchSums::new(1);
     let mut s1 = [0.0];
     for _ in 0..total {
-        m.step(&mut x, &mut w);
-        m.step(&mut y, &mut w);
+        m.step(&mut x, 0.0, &mut w);
+        m.step(&mut y, 0.0, &mut w);
         m.separation(&y, &x, &mut sep);
         renormalize(&mut sep, d, d0, Orthonormalization::Rescale, &mut s1).unwrap();
         sums.add(&s1);
@@ -183,9 +184,9 @@ fn gali_curve(x0: &[f64], checkpoints: &[u64]) -> (Vec<(u64, Vec<f64>)>, Vec<f64
     let mut out = Vec::new();
     let last = *checkpoints.last().unwrap();
     for n in 1..=last {
-        m.step_tangent(&mut x, &mut v, &mut w).unwrap();
+        m.step_tangent(&mut x, &mut v, 0.0, &mut w).unwrap();
         renormalize(&mut v, d, 1.0, Orthonormalization::Rescale, &mut stretch).unwrap();
-        m.step_tangent(&mut xq, &mut q, &mut w).unwrap();
+        m.step_tangent(&mut xq, &mut q, 0.0, &mut w).unwrap();
         renormalize(&mut q, d, 1.0, Orthonormalization::Qr, &mut stretch).unwrap();
         sums.add(&stretch);
         if checkpoints.contains(&n) {

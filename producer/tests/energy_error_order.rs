@@ -25,7 +25,7 @@ fn max_energy_error(kind: SplittingKind, h: f64) -> f64 {
     let mut work = Workspace::new();
     let mut worst: f64 = 0.0;
     for _ in 0..spec.total_steps() {
-        integ.step(&model, &mut x, h, &mut work);
+        integ.step(&model, &mut x, 0.0, h, &mut work);
         worst = worst.max(relative_energy_error(&model, &x, e0));
     }
     worst

@@ -299,6 +299,17 @@ fn discrete_map_points_equal_the_engine() {
 /// magnetic field) with a fixed-step explicit method, or with a method that has no batched form.
 fn flow_map(system: &str, method: &str, scheme: &str, indicator: &str) -> MapSpec {
     let model = match system {
+        // The driven Duffing oscillator, `t` written explicitly: the lanes take every stage at
+        // its time (every point starts at t = 0).
+        "duffing" => {
+            "name = \"ode\"\nrhs = [\"x2\", \"-0.3*x2 + x1 - x1^3 + 0.5*cos(1.2*t)\"]\n\
+             [orbit]\nx = [1.0, 0.0]"
+        }
+        "driven" => {
+            "name = \"hamiltonian\"\nn = 2\nhamiltonian = \"((p1 + B*q2/2)^2 + (p2 - B*q1/2)^2)/2 \
+             + (q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3 + 0.05*q1*sin(3*t)\"\nparams = { B = 0.2 }\n\
+             [orbit]\nq = [0.0, 0.0]\np = [0.3, 0.0]"
+        }
         "lorenz" => {
             "name = \"ode\"\nrhs = [\"sigma*(x2 - x1)\", \"x1*(rho - x3) - x2\", \"x1*x2 - beta*x3\"]\n\
              params = { sigma = 10.0, rho = 28.0, beta = 2.6666666666666665 }\n\
@@ -310,7 +321,7 @@ fn flow_map(system: &str, method: &str, scheme: &str, indicator: &str) -> MapSpe
              [orbit]\nq = [0.0, 0.0]\np = [0.3, 0.0]"
         }
     };
-    let (x, y) = if system == "lorenz" {
+    let (x, y) = if system == "lorenz" || system == "duffing" {
         ("x1", "x2")
     } else {
         ("q2", "p2")
@@ -328,7 +339,8 @@ fn flow_map(system: &str, method: &str, scheme: &str, indicator: &str) -> MapSpe
 
 /// Flows of compiled expressions with a fixed-step explicit Runge-Kutta method run on the
 /// batched kernel and equal the engine bit for bit (VM and MPM, rk4 and dop853, an `ode` and a
-/// `hamiltonian`); implicit and adaptive methods keep the engine path.
+/// `hamiltonian`, each also with explicit time); implicit and adaptive methods keep the engine
+/// path.
 #[test]
 fn flow_points_equal_the_engine() {
     for (system, method, scheme, indicator) in [
@@ -338,6 +350,10 @@ fn flow_points_equal_the_engine() {
         ("magnetic", "dop853", "vm", "sali"),
         ("lorenz", "rk4", "mpm", "fli"),
         ("magnetic", "dop853", "vm", "megno_mean"),
+        ("duffing", "rk4", "vm", "gali"),
+        ("duffing", "dop853", "mpm", "mle"),
+        ("driven", "rk4", "mpm", "sali"),
+        ("driven", "dop853", "vm", "gali"),
     ] {
         let spec = flow_map(system, method, scheme, indicator);
         assert!(spec.has_batched_kernel(), "{system} {method}");
@@ -795,4 +811,67 @@ fn lorenz_mle_over_rho_and_sigma() {
         "MLE at rho = 0.5, sigma = 10: {} (node {slowest})",
         stable.value
     );
+}
+
+const FORCED_DUFFING: &str = "name = \"ode\"\n\
+     rhs = [\"x2\", \"-0.25*x2 + x1 - x1^3 + gamma*cos(1.2*t)\"]\n\
+     params = { {params} }";
+
+/// A parameter axis over a non-autonomous flow (the forced Duffing oscillator over its forcing
+/// amplitude `gamma`): the time is one argument shared by the lanes and `gamma` another, read
+/// per lane, so every point equals, bit for bit, the coordinate map at its `gamma` (the
+/// parameter folded as a constant; `gamma * cos(1.2 t)` is one multiplication either way), VM
+/// and MPM, both routes, on 1 and 2 threads; and the forcing enters (the column of
+/// `gamma = 0`, the autonomous oscillator, differs from the forced ones).
+#[test]
+fn parameter_axes_over_a_non_autonomous_flow() {
+    let orbit = "x = [0.5, 0.0]";
+    let integrator = "method = \"rk4\"\nh = 0.01\nt_final = 5";
+    let v_axis = "{ coord = \"x2\", min = -0.2, max = 0.2, n = 2 }";
+    for (scheme, indicator) in [
+        (("vm", "0.5", "per-set"), "mle"),
+        (("mpm", "0.5", "per-set"), "gali"),
+        (("vm", "0.5", "basis"), "sali"),
+    ] {
+        let by_gamma = model_map(
+            FORCED_DUFFING,
+            "gamma = 0.3",
+            orbit,
+            integrator,
+            scheme,
+            indicator,
+            "{ param = \"gamma\", min = 0.0, max = 0.6, n = 3 }",
+            v_axis,
+        );
+        let got = batched(&by_gamma, 2, Isa::detect());
+        assert_eq!(got, batched(&by_gamma, 1, Isa::detect()));
+        for ig in 0..by_gamma.x.n {
+            let gamma = by_gamma.x.value(ig);
+            let at = model_map(
+                FORCED_DUFFING,
+                &format!("gamma = {gamma:?}"),
+                orbit,
+                integrator,
+                scheme,
+                indicator,
+                "{ coord = \"x1\", min = 0.5, max = 0.5, n = 1 }",
+                v_axis,
+            );
+            for (iy, w) in batched(&at, 1, Isa::detect()).iter().enumerate() {
+                let g = &got[iy * by_gamma.x.n + ig];
+                assert!(
+                    g.status == PointStatus::Ok && same_point(g, w),
+                    "duffing {scheme:?} {indicator} gamma = {gamma}:\n param {g:?}\n coord {w:?}"
+                );
+            }
+        }
+        // The forcing moves the orbits: the unforced column differs from the forced ones.
+        for iy in 0..2 {
+            let row = &got[iy * by_gamma.x.n..(iy + 1) * by_gamma.x.n];
+            assert!(
+                row[1..].iter().all(|g| !same_point(g, &row[0])),
+                "{scheme:?} {indicator}: gamma did not change the points of row {iy}"
+            );
+        }
+    }
 }

@@ -48,7 +48,7 @@ fn compare(config: &RunConfig, ks: &[usize]) -> (f64, usize, f64) {
     while step < run.total_steps() {
         for _ in 0..tau {
             run.system()
-                .step_tangent(&mut x, &mut w, &mut work)
+                .step_tangent(&mut x, &mut w, 0.0, &mut work)
                 .unwrap();
         }
         step += tau;

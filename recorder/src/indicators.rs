@@ -34,7 +34,15 @@ impl IndicatorStream {
             header.sets as usize,
             header.h,
             header.schemes.iter().map(|s| s.tau_steps).collect(),
-        );
+        )
+        .map(|layout| {
+            // A Hamiltonian's degrees of freedom are the sites of the lattice indicators (as
+            // the analyzer's layout says: `run_info.rs`).
+            match chaoscope_schemas::run::SystemKind::from_name(&header.kind) {
+                Some(chaoscope_schemas::run::SystemKind::Hamiltonian) => layout.with_sites(),
+                _ => layout,
+            }
+        });
         Self {
             tracker: layout.map(Tracker::new),
             spectrum: header

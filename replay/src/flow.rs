@@ -16,9 +16,14 @@ pub fn flow_field(system: &Arc<dyn DynamicalSystem>) -> Option<FlowField> {
         return None;
     }
     let system = Arc::clone(system);
-    Some(FlowField(Arc::new(move |x: &[f64], out: &mut [f64]| {
-        x.len() == system.dim() && out.len() == x.len() && system.vector_field(x, out)
-    })))
+    let time = system.time();
+    Some(FlowField(Arc::new(
+        move |step: u64, x: &[f64], out: &mut [f64]| {
+            x.len() == system.dim()
+                && out.len() == x.len()
+                && system.vector_field(x, time.at(step), out)
+        },
+    )))
 }
 
 /// The vector field of a recorded run, its system rebuilt from the config the header carries

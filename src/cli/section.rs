@@ -8,6 +8,9 @@
 //!   flow's (or Hamiltonian's) section through the surface `EXPR = 0`, of the config's orbit or
 //!   of many started along one coordinate, crossings located to rounding
 //!   (`chaoscope_producer::section::surface`).
+//! - `chaoscope section CONFIG --sample-every T [--vary ...]`: the stroboscopic section of a
+//!   periodically forced system, its state every `T` (the forcing's period, e.g. `2*pi/omega`)
+//!   (`chaoscope_producer::section::stroboscopic`).
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -17,7 +20,10 @@ use anyhow::{Context, bail};
 use chaoscope_analyzer::chart::{Chart, Line, Stroke, render};
 use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::section::crossings;
-use chaoscope_producer::section::surface::{Direction, OrbitEnd, Surface, surface_crossings};
+use chaoscope_producer::section::stroboscopic::{Stroboscopic, stroboscopic_samples};
+use chaoscope_producer::section::surface::{
+    Direction, OrbitEnd, Surface, SurfaceOrbit, coordinate_names, surface_crossings,
+};
 use chaoscope_producer::spec::{RunSpec, parse_coordinate};
 use chaoscope_schemas::config::{ConfigSource, RunConfig};
 use chaoscope_schemas::run::SystemKind;
@@ -31,8 +37,17 @@ pub struct Args {
     /// The section's surface EXPR = 0, an expression over the state's coordinates (x1..xD of a
     /// flow, q1..qN and p1..pN of a Hamiltonian) and the config's params, e.g. "x1" or
     /// "x3 - 27"; any flow or Hamiltonian, not a map.
-    #[arg(long, allow_hyphen_values = true)]
+    #[arg(long, allow_hyphen_values = true, conflicts_with = "sample_every")]
     pub surface: Option<String>,
+    /// A stroboscopic section: the state every T time units, T a number or an expression of
+    /// the config's params (e.g. "2*pi/omega", the period of a forcing cos(omega*t)), which
+    /// must be a whole number of steps h; any flow or Hamiltonian. The points are the run's
+    /// own states (no interpolation), at the times k*T.
+    #[arg(long, visible_alias = "sample_every", allow_hyphen_values = true)]
+    pub sample_every: Option<String>,
+    /// With --sample-every: samples dropped at the start of each orbit (its transient).
+    #[arg(long, requires = "sample_every", default_value_t = 0)]
+    pub skip: usize,
     /// With --surface: which crossings count: `up` (EXPR increasing through 0), `down`, or
     /// `both`.
     #[arg(long, requires = "surface", value_parser = ["up", "down", "both"], default_value = "up")]
@@ -52,25 +67,25 @@ pub struct Args {
     /// Orbits started from --from to --to (default 30).
     #[arg(long, requires = "vary")]
     pub count: Option<usize>,
-    /// Crossings kept per orbit.
+    /// Crossings (or stroboscopic samples) kept per orbit.
     #[arg(long, default_value_t = 400)]
     pub crossings: usize,
-    /// With --surface: the two coordinates plotted, e.g. `x2,x3` (default: for a Hamiltonian
-    /// q_j, p_j of the first degree of freedom the surface does not fix; otherwise the first
-    /// two coordinates the surface does not fix, a surface fixing a coordinate when it reads
-    /// that one alone).
-    #[arg(long, requires = "surface")]
+    /// With --surface or --sample-every: the two coordinates plotted, e.g. `x2,x3` (default:
+    /// for a Hamiltonian q_j, p_j of the first degree of freedom the surface does not fix;
+    /// otherwise the first two coordinates the surface does not fix, a surface fixing a
+    /// coordinate when it reads that one alone; with --sample-every, q1, p1 or x1, x2).
+    #[arg(long)]
     pub axes: Option<String>,
-    /// With --surface and --plot: also draw the first-return map of this coordinate
-    /// (its value at crossing n + 1 against crossing n) as return-map.png / .svg.
-    #[arg(long, requires_all = ["surface", "plot"])]
+    /// With --surface or --sample-every, and --plot: also draw the first-return map of this
+    /// coordinate (its value at crossing n + 1 against crossing n) as return-map.png / .svg.
+    #[arg(long, requires = "plot")]
     pub return_map: Option<String>,
     /// Draw section.png / section.svg into DIR.
     #[arg(long)]
     pub plot: Option<PathBuf>,
     /// Write the crossings as CSV: without --surface, a row per crossing of the orbit number
-    /// and the state q1..qN, p1..pN; with --surface, a header row, then the orbit number, the
-    /// crossing's time and the state.
+    /// and the state q1..qN, p1..pN; with --surface or --sample-every, a header row, then the
+    /// orbit number, the crossing's (sample's) time and the state.
     #[arg(long)]
     pub csv: Option<PathBuf>,
     /// Start even a section estimated to take more than a day or more memory than the machine
@@ -88,10 +103,18 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             bail!("{name} must be a finite number");
         }
     }
-    match args.surface.clone() {
-        Some(surface) => surface_section(&args, config, &source, &surface),
-        None => energy_section(&args, config, &source),
+    if args.surface.is_none() && args.sample_every.is_none() {
+        for (flag, given) in [
+            ("--axes", args.axes.is_some()),
+            ("--return-map", args.return_map.is_some()),
+        ] {
+            if given {
+                bail!("{flag} needs --surface or --sample-every");
+            }
+        }
+        return energy_section(&args, config, &source);
     }
+    surface_section(&args, config, &source)
 }
 
 /// The CSV output, if asked: it replaces an earlier table, never the config
@@ -248,36 +271,90 @@ fn set_start(config: &mut RunConfig, canonical: bool, vary: usize, dim: usize, v
     }
 }
 
-/// The section of any flow through `EXPR = 0`.
+/// How a section samples an orbit: crossings of a surface, or a stroboscope.
+enum Sampling {
+    Surface {
+        surface: Box<Surface>,
+        direction: Direction,
+        source: String,
+    },
+    Every(Stroboscopic, String),
+}
+
+impl Sampling {
+    fn orbit(&self, spec: &RunSpec, steps: u64, max: usize, skip: usize) -> SurfaceOrbit {
+        match self {
+            Sampling::Surface {
+                surface, direction, ..
+            } => surface_crossings(spec, surface, *direction, spec.x0(), steps, max),
+            Sampling::Every(every, _) => {
+                stroboscopic_samples(spec, *every, spec.x0(), steps, skip, max)
+            }
+        }
+    }
+
+    /// What the samples are, for titles: `x1 = 0 (up)`, `t = k * 2*pi/omega`.
+    fn describe(&self) -> String {
+        match self {
+            Sampling::Surface {
+                direction, source, ..
+            } => format!("{source} = 0 ({})", direction.name()),
+            Sampling::Every(_, period) => format!("t = k * {period}"),
+        }
+    }
+
+    /// What a sample is, for messages: `crossing of x1 = 0 (up)`, `sample at t = k * T`.
+    fn sample(&self) -> String {
+        match self {
+            Sampling::Surface { .. } => format!("crossing of {}", self.describe()),
+            Sampling::Every(..) => format!("sample at {}", self.describe()),
+        }
+    }
+}
+
+/// The section of any flow through `EXPR = 0`, or its stroboscopic section.
 fn surface_section(
     args: &Args,
     mut config: RunConfig,
     config_source: &ConfigSource,
-    source: &str,
 ) -> anyhow::Result<ExitCode> {
     if args.crossings == 0 || args.count == Some(0) {
         bail!("--crossings and --count must be at least 1");
     }
     let base = RunSpec::from_config(&config)
         .map_err(|e| super::invalid_config(config_source, "run", e))?;
-    let surface = Surface::new(&base, &config.model, source)
-        .map_err(|e| anyhow::anyhow!("{}: {}", e.key, e.message))?;
-    let direction = Direction::from_name(&args.direction)
-        .with_context(|| format!("--direction: unknown '{}'", args.direction))?;
+    let one_line =
+        |e: chaoscope_producer::spec::SpecError| anyhow::anyhow!("{}: {}", e.key, e.message);
+    let sampling = match (&args.surface, &args.sample_every) {
+        (Some(source), _) => Sampling::Surface {
+            surface: Box::new(Surface::new(&base, &config.model, source).map_err(one_line)?),
+            direction: Direction::from_name(&args.direction)
+                .with_context(|| format!("--direction: unknown '{}'", args.direction))?,
+            source: source.clone(),
+        },
+        (None, Some(period)) => Sampling::Every(
+            Stroboscopic::new(&base, &config.model, period).map_err(one_line)?,
+            period.trim().to_string(),
+        ),
+        (None, None) => unreachable!("main sends these to the energy section"),
+    };
     let dim = base.dim();
     let canonical = base.system().kind() == SystemKind::Hamiltonian;
-    let names = surface.names().to_vec();
+    let names = coordinate_names(&base);
     let known = || format!("{}..{}", names[0], names[dim - 1]);
     let coordinate = |flag: &str, name: &str| {
-        surface.index_of(name.trim()).with_context(|| {
-            let all = if canonical {
-                let n = dim / 2;
-                format!("q1..q{n}, p1..p{n}")
-            } else {
-                known()
-            };
-            format!("{flag}: '{name}' is not a coordinate of the state ({all})")
-        })
+        names
+            .iter()
+            .position(|n| n == name.trim())
+            .with_context(|| {
+                let all = if canonical {
+                    let n = dim / 2;
+                    format!("q1..q{n}, p1..p{n}")
+                } else {
+                    known()
+                };
+                format!("{flag}: '{name}' is not a coordinate of the state ({all})")
+            })
     };
     let (ax, ay) = match &args.axes {
         Some(spec) => {
@@ -286,7 +363,11 @@ fn surface_section(
             };
             (coordinate("--axes", a)?, coordinate("--axes", b)?)
         }
-        None => surface.default_axes(canonical),
+        None => match &sampling {
+            Sampling::Surface { surface, .. } => surface.default_axes(canonical),
+            Sampling::Every(..) if canonical => (0, dim / 2),
+            Sampling::Every(..) => (0, 1.min(dim - 1)),
+        },
     };
     let return_map = args
         .return_map
@@ -353,13 +434,12 @@ fn surface_section(
             }
             None => (base.clone(), "the config's orbit".to_string()),
         };
-        let orbit = surface_crossings(&spec, &surface, direction, spec.x0(), steps, args.crossings);
+        let orbit = sampling.orbit(&spec, steps, args.crossings, args.skip);
         match &orbit.end {
             OrbitEnd::Crossings | OrbitEnd::Horizon if orbit.crossings.is_empty() => {
                 chaoscope_os::errln!(
-                    "chaoscope section: warning: {label}: no crossing of {source} = 0 ({}) up to \
-                     t = {}",
-                    direction.name(),
+                    "chaoscope section: warning: {label}: no {} up to t = {}",
+                    sampling.sample(),
                     spec.t_final()
                 );
             }
@@ -412,9 +492,12 @@ fn surface_section(
         } else {
             format!("up to t = {}", base.t_final())
         };
+        let what = match &sampling {
+            Sampling::Surface { .. } => format!("crossing of the surface {}", sampling.describe()),
+            Sampling::Every(..) => sampling.sample(),
+        };
         bail!(
-            "no crossing of the surface {source} = 0 ({}) by {} {until}",
-            direction.name(),
+            "no {what} by {} {until}",
             if vary.is_some() {
                 "any orbit"
             } else {
@@ -431,14 +514,14 @@ fn surface_section(
     if let Some(dir) = &args.plot {
         // The run's name where the config gives one ("rossler"), else the model's ("ode").
         let system = config.run.name.as_deref().unwrap_or(config.model.name());
-        let title = format!("{system}: section {source} = 0 ({})", direction.name());
+        let title = format!("{system}: section {}", sampling.describe());
         let labels = (names[ax].clone(), names[ay].clone());
         draw(dir, "section", title, labels, section, &args.config)?;
         if let Some(k) = return_map {
             let title = format!(
-                "{system}: first-return map of {} on {source} = 0 ({})",
+                "{system}: first-return map of {} on {}",
                 names[k],
-                direction.name()
+                sampling.describe()
             );
             let labels = (
                 format!("{} (crossing n)", names[k]),

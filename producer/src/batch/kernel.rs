@@ -11,18 +11,20 @@
 use super::Soa;
 use crate::integrator::TangentError;
 
-/// A system's batched steps, as the map's methods use them.
+/// A system's batched steps, as the map's methods use them. Every call advances `steps` steps
+/// starting with step number `from` of the run (the first step of a run is number 0): a system
+/// that reads the time takes step `n` at its time `n h` (`Time::at`); others ignore it.
 pub trait PointKernel {
     /// Advance every lane of `x` (orbits; rows are coordinates) by `steps` steps.
-    fn orbit_steps(&mut self, x: &mut Soa, steps: u64);
+    fn orbit_steps(&mut self, x: &mut Soa, from: u64, steps: u64);
 
     /// Advance the reference orbit `x` by `steps` steps exactly as the one-orbit system does,
     /// keeping where each step's tangent map is taken for [`PointKernel::tangent_steps`].
-    fn reference_steps(&mut self, x: &mut [f64], steps: u64);
+    fn reference_steps(&mut self, x: &mut [f64], from: u64, steps: u64);
 
     /// Advance every lane of `v` (tangent vectors) along the steps of the last
-    /// [`PointKernel::reference_steps`].
-    fn tangent_steps(&mut self, v: &mut Soa, steps: u64) -> Result<(), TangentError>;
+    /// [`PointKernel::reference_steps`] (the same `from` and `steps`).
+    fn tangent_steps(&mut self, v: &mut Soa, from: u64, steps: u64) -> Result<(), TangentError>;
 
     /// The separation `out = y - x` of a nearby orbit from the reference, as the system's
     /// `DynamicalSystem::separation` measures it: the plain difference unless the system has
@@ -44,7 +46,12 @@ pub trait PointKernel {
     /// rows a tangent vector around that lane's own orbit (the variational equations of many
     /// points at once). Lane by lane the bits of [`PointKernel::reference_steps`] followed by
     /// [`PointKernel::tangent_steps`], which is what this default does.
-    fn orbit_tangent_steps(&mut self, x: &mut Soa, steps: u64) -> Result<(), TangentError> {
+    fn orbit_tangent_steps(
+        &mut self,
+        x: &mut Soa,
+        from: u64,
+        steps: u64,
+    ) -> Result<(), TangentError> {
         let rows = x.rows();
         let dim = (1..=rows).find(|d| d * (d + 1) == rows).unwrap_or(rows);
         let mut column = vec![0.0; rows];
@@ -55,8 +62,8 @@ pub trait PointKernel {
             for (j, v) in basis.chunks_exact(dim).enumerate() {
                 vectors.write_lane(j, v);
             }
-            self.reference_steps(orbit, steps);
-            self.tangent_steps(&mut vectors, steps)?;
+            self.reference_steps(orbit, from, steps);
+            self.tangent_steps(&mut vectors, from, steps)?;
             for (j, v) in basis.chunks_exact_mut(dim).enumerate() {
                 vectors.read_lane(j, v);
             }

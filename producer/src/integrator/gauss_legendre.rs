@@ -146,16 +146,18 @@ impl ImplicitScratch {
 }
 
 /// Solve the stages of a step from `x` (into `s.k`, with the stage states in `s.xs`).
+/// Stage `i` is evaluated at the time `time + c_i h`.
 fn solve_stages(
     t: &ImplicitTableau,
     f: &dyn VectorField,
     x: &[f64],
+    time: f64,
     h: f64,
     s: &mut ImplicitScratch,
 ) -> Result<(), NotConverged> {
     let dim = x.len();
     s.ensure(t.stages(), dim);
-    f.value(x, &mut s.k[..dim]);
+    f.value(x, time, &mut s.k[..dim]);
     for i in 1..t.stages() {
         s.k.copy_within(0..dim, i * dim);
     }
@@ -165,6 +167,7 @@ fn solve_stages(
         for i in 0..t.stages() {
             f.value(
                 &xs[i * dim..(i + 1) * dim],
+                time + t.c[i] * h,
                 &mut out[i * dim..(i + 1) * dim],
             );
         }
@@ -186,15 +189,16 @@ fn update_state(t: &ImplicitTableau, x: &mut [f64], h: f64, k: &[f64]) {
     }
 }
 
-/// One step of size `h`; on failure `x` is left as it was.
+/// One step of size `h` from the time `time`; on failure `x` is left as it was.
 pub fn advance(
     t: &ImplicitTableau,
     f: &dyn VectorField,
     x: &mut [f64],
+    time: f64,
     h: f64,
     s: &mut ImplicitScratch,
 ) -> Result<(), NotConverged> {
-    solve_stages(t, f, x, h, s)?;
+    solve_stages(t, f, x, time, h, s)?;
     update_state(t, x, h, &s.k);
     Ok(())
 }
@@ -206,11 +210,12 @@ pub fn advance_tangent(
     f: &dyn VectorField,
     x: &mut [f64],
     w: &mut [f64],
+    time: f64,
     h: f64,
     s: &mut ImplicitScratch,
 ) -> Result<(), NotConverged> {
     let dim = x.len();
-    solve_stages(t, f, x, h, s)?;
+    solve_stages(t, f, x, time, h, s)?;
     let stages = t.stages();
     for v in w.chunks_exact_mut(dim) {
         let ImplicitScratch {
@@ -219,6 +224,7 @@ pub fn advance_tangent(
         for i in 0..stages {
             f.tangent(
                 &xs[i * dim..(i + 1) * dim],
+                time + t.c[i] * h,
                 v,
                 &mut kt[i * dim..(i + 1) * dim],
             );
@@ -234,6 +240,7 @@ pub fn advance_tangent(
                 }
                 f.tangent(
                     &xs[i * dim..(i + 1) * dim],
+                    time + t.c[i] * h,
                     wt,
                     &mut out[i * dim..(i + 1) * dim],
                 );

@@ -54,16 +54,18 @@ pub trait Integrator<S: ?Sized>: Send + Sync {
     /// Order of the global error in `h` for a general system.
     fn order(&self) -> u32;
 
-    /// Advance the phase-space point `x` by one step `h`.
-    fn step(&self, system: &S, x: &mut [f64], h: f64, work: &mut Workspace);
+    /// Advance the phase-space point `x` by one step `h` from time `t` (what a system that
+    /// depends on the time reads at each stage; see each integrator for how).
+    fn step(&self, system: &S, x: &mut [f64], t: f64, h: f64, work: &mut Workspace);
 
     /// Advance `x` and `k` deviation vectors stored one after the other in `w` (each of the
-    /// phase-space dimension) by one step of the integrator's own tangent map.
+    /// phase-space dimension) by one step from time `t` of the integrator's own tangent map.
     fn step_tangent(
         &self,
         system: &S,
         x: &mut [f64],
         w: &mut [f64],
+        t: f64,
         h: f64,
         work: &mut Workspace,
     ) -> Result<(), TangentError>;

@@ -8,6 +8,11 @@
 //! map the multi-particle method (MPM) iterates, as for the splittings. The stage states are
 //! computed by one function for both, so a tangent step moves its copy of the orbit to exactly
 //! the bits of a plain step.
+//!
+//! Time: stage `i` of a step from time `t` evaluates the field (and, for the tangent, its
+//! Jacobian) at `t + c_i h`; an adaptive step's substeps start at `t` plus the substeps before
+//! them, summed in order, which is how followers of its plan compute them too. A field that
+//! does not read the time gets the same bits whatever it is given.
 
 // The stage loops index several arrays (stage rows, the state, the tableau) by the same
 // coordinate; iterators over one of them would hide that symmetry.
@@ -261,13 +266,15 @@ static DOP853: Tableau = Tableau {
     ]),
 };
 
-/// The stages of one explicit step of tableau `t` from `x` with step `h` of the field `f`
-/// (`f(y, out)` writes `f(y)`): stage states into `s.xs`, derivatives into `s.k`, the new state
-/// into `s.next`. The one definition of the arithmetic of an explicit step.
+/// The stages of one explicit step of tableau `t` from `x` at time `time` with step `h` of the
+/// field `f` (`f(y, ti, out)` writes `f(y, ti)`; stage `i` at `ti = time + c_i h`): stage
+/// states into `s.xs`, derivatives into `s.k`, the new state into `s.next`. The one definition
+/// of the arithmetic of an explicit step.
 fn explicit_stages(
     t: &Tableau,
-    mut f: impl FnMut(&[f64], &mut [f64]),
+    mut f: impl FnMut(&[f64], f64, &mut [f64]),
     x: &[f64],
+    time: f64,
     h: f64,
     s: &mut RkScratch,
 ) {
@@ -286,7 +293,7 @@ fn explicit_stages(
             }
             xi[d] = x[d] + h * sum;
         }
-        f(xi, &mut rest[..dim]);
+        f(xi, time + t.c[i] * h, &mut rest[..dim]);
     }
     for d in 0..dim {
         let mut sum = 0.0;
@@ -299,19 +306,31 @@ fn explicit_stages(
     }
 }
 
-/// One step of size `h` of the explicit tableau `t` for a field given as a function (`f(y,
-/// out)` writes `f(y)`), with the arithmetic of [`RungeKutta::advance`]: for callers that hold
-/// a vector field but no [`VectorField`] (a Poincare section's crossing locator steps a
-/// system's field through `DynamicalSystem::vector_field`).
+/// One step of size `h` from time `time` of the explicit tableau `t` for a field given as a
+/// function (`f(y, ti, out)` writes `f(y, ti)`), with the arithmetic of
+/// [`RungeKutta::advance`]: for callers that hold a vector field but no [`VectorField`] (a
+/// Poincare section's crossing locator steps a system's field through
+/// `DynamicalSystem::vector_field`).
 pub fn explicit_step(
     t: &Tableau,
-    f: impl FnMut(&[f64], &mut [f64]),
+    f: impl FnMut(&[f64], f64, &mut [f64]),
     x: &mut [f64],
+    time: f64,
     h: f64,
     s: &mut RkScratch,
 ) {
-    explicit_stages(t, f, x, h, s);
+    explicit_stages(t, f, x, time, h, s);
     x.copy_from_slice(&s.next[..x.len()]);
+}
+
+/// The start times of the substeps `plan` of a step from time `time`: `time + done`, `done` the
+/// substeps before, summed in order, exactly as [`RungeKutta::step_adaptive`] timed them.
+pub fn substep_times(time: f64, plan: &[f64]) -> impl Iterator<Item = (f64, f64)> + '_ {
+    plan.iter().scan(0.0, move |done: &mut f64, &h| {
+        let start = time + *done;
+        *done += h;
+        Some((start, h))
+    })
 }
 
 /// Error control of an adaptive step.
@@ -383,45 +402,59 @@ impl RungeKutta {
         Self { kind }
     }
 
-    /// Stages from `x` with step `h`: stage states into `xs`, derivatives into `k`, the new
-    /// state into `next`.
-    fn stages(&self, f: &dyn VectorField, x: &[f64], h: f64, s: &mut RkScratch) {
+    /// Stages from `x` at time `time` with step `h`: stage states into `xs`, derivatives into
+    /// `k`, the new state into `next`.
+    fn stages(&self, f: &dyn VectorField, x: &[f64], time: f64, h: f64, s: &mut RkScratch) {
         let t = self.kind.tableau().expect("an explicit method");
-        explicit_stages(t, |y, out| f.value(y, out), x, h, s);
+        explicit_stages(t, |y, ti, out| f.value(y, ti, out), x, time, h, s);
     }
 
-    /// One step of size `h`.
+    /// One step of size `h` from time `time`.
     ///
     /// An implicit step whose stages do not converge leaves `x` NaN: the engine stops the run
     /// there and asks the system why (`RkFlow::diagnose_non_finite` names the solver).
-    pub fn advance(&self, f: &dyn VectorField, x: &mut [f64], h: f64, s: &mut RkScratch) {
+    pub fn advance(
+        &self,
+        f: &dyn VectorField,
+        x: &mut [f64],
+        time: f64,
+        h: f64,
+        s: &mut RkScratch,
+    ) {
         if let Some(t) = self.kind.implicit_tableau() {
-            if gauss_legendre::advance(t, f, x, h, &mut s.implicit).is_err() {
+            if gauss_legendre::advance(t, f, x, time, h, &mut s.implicit).is_err() {
                 x.fill(f64::NAN);
             }
             return;
         }
-        self.stages(f, x, h, s);
+        self.stages(f, x, time, h, s);
         x.copy_from_slice(&s.next[..x.len()]);
     }
 
-    /// Whether one implicit step from `x` fails to converge (for diagnosis; `false` for the
-    /// explicit methods).
-    pub fn implicit_step_fails(&self, f: &dyn VectorField, x: &[f64], h: f64) -> Option<String> {
+    /// Whether one implicit step from `x` at time `time` fails to converge (for diagnosis;
+    /// `false` for the explicit methods).
+    pub fn implicit_step_fails(
+        &self,
+        f: &dyn VectorField,
+        x: &[f64],
+        time: f64,
+        h: f64,
+    ) -> Option<String> {
         let t = self.kind.implicit_tableau()?;
         let mut y = x.to_vec();
-        gauss_legendre::advance(t, f, &mut y, h, &mut ImplicitScratch::default())
+        gauss_legendre::advance(t, f, &mut y, time, h, &mut ImplicitScratch::default())
             .err()
             .map(|e| e.to_string())
     }
 
-    /// One step of `x` and of the deviation vectors in `w` (one after the other) by the exact
-    /// derivative of the step.
+    /// One step from time `time` of `x` and of the deviation vectors in `w` (one after the
+    /// other) by the exact derivative of the step (each stage's Jacobian at its stage time).
     pub fn advance_tangent(
         &self,
         f: &dyn VectorField,
         x: &mut [f64],
         w: &mut [f64],
+        time: f64,
         h: f64,
         s: &mut RkScratch,
     ) -> Result<(), TangentError> {
@@ -429,7 +462,7 @@ impl RungeKutta {
             return Err(TangentError::NoHessian(reason));
         }
         if let Some(t) = self.kind.implicit_tableau() {
-            if gauss_legendre::advance_tangent(t, f, x, w, h, &mut s.implicit).is_err() {
+            if gauss_legendre::advance_tangent(t, f, x, w, time, h, &mut s.implicit).is_err() {
                 // As in `advance`: the engine stops at the non-finite state.
                 x.fill(f64::NAN);
                 w.fill(f64::NAN);
@@ -438,7 +471,7 @@ impl RungeKutta {
         }
         let t = self.kind.tableau().expect("an explicit method");
         let dim = x.len();
-        self.stages(f, x, h, s);
+        self.stages(f, x, time, h, s);
         for v in w.chunks_exact_mut(dim) {
             for i in 0..t.stages() {
                 let row = t.a[i];
@@ -455,7 +488,7 @@ impl RungeKutta {
                     &s.xs[i * dim..(i + 1) * dim],
                     &mut s.kt[i * dim..(i + 1) * dim],
                 );
-                f.tangent(xs, &s.wt, kt);
+                f.tangent(xs, time + t.c[i] * h, &s.wt, kt);
             }
             for d in 0..dim {
                 let mut sum = 0.0;
@@ -498,14 +531,18 @@ impl RungeKutta {
         h.abs() * err5 / (denominator * dim as f64).sqrt()
     }
 
-    /// Advance `x` by exactly `span` with error-controlled substeps, appending each accepted
-    /// substep's size to `plan`; `s.proposal` carries the controller's next step size from one
-    /// call to the next. A substep that would pass the end is cut to land on it exactly (so
-    /// the trajectory is the same whatever the sampling), without lowering the proposal.
+    /// Advance `x` from time `time` by exactly `span` with error-controlled substeps, appending
+    /// each accepted substep's size to `plan`; `s.proposal` carries the controller's next step
+    /// size from one call to the next. A substep that would pass the end is cut to land on it
+    /// exactly (so the trajectory is the same whatever the sampling), without lowering the
+    /// proposal. A substep starts at `time + done`, `done` the sum of the accepted substeps
+    /// before it in order (what [`substep_times`] gives a follower of the plan).
+    #[allow(clippy::too_many_arguments)]
     pub fn step_adaptive(
         &self,
         f: &dyn VectorField,
         x: &mut [f64],
+        time: f64,
         span: f64,
         tol: Tolerances,
         plan: &mut Vec<f64>,
@@ -526,7 +563,7 @@ impl RungeKutta {
             if h.is_nan() || h <= span * 1e-14 {
                 return Err(AdaptiveError::StepUnderflow { h, at: done });
             }
-            self.stages(f, x, h, s);
+            self.stages(f, x, time + done, h, s);
             let err = self.error_norm(x, h, tol, s);
             if !err.is_finite() || s.next[..dim].iter().any(|v| !v.is_finite()) {
                 // Treated as a rejection with the smallest factor: a step into a region where
@@ -570,8 +607,8 @@ impl Integrator<dyn VectorField> for RungeKutta {
         self.kind.order()
     }
 
-    fn step(&self, system: &dyn VectorField, x: &mut [f64], h: f64, work: &mut Workspace) {
-        self.advance(system, x, h, &mut work.rk)
+    fn step(&self, system: &dyn VectorField, x: &mut [f64], t: f64, h: f64, work: &mut Workspace) {
+        self.advance(system, x, t, h, &mut work.rk)
     }
 
     fn step_tangent(
@@ -579,9 +616,10 @@ impl Integrator<dyn VectorField> for RungeKutta {
         system: &dyn VectorField,
         x: &mut [f64],
         w: &mut [f64],
+        t: f64,
         h: f64,
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
-        self.advance_tangent(system, x, w, h, &mut work.rk)
+        self.advance_tangent(system, x, w, t, h, &mut work.rk)
     }
 }

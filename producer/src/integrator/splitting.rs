@@ -5,6 +5,17 @@
 //! drift `dq += c h dp`, kick `dp -= d h Hess V(q) dq` with `q` the orbit's position at that
 //! stage, so the variational method shares the integrator's splitting and order.
 //!
+//! Time (`V(q, t)`, a non-autonomous potential) is handled in the extended phase space: `t`
+//! is one more coordinate, conjugate to a momentum `p_t` (minus the energy), and `H(q, p, t) =
+//! T(p) + V(q, t)` becomes the autonomous `K = (T(p) + p_t) + V(q, t)`, split as before into
+//! `A = T(p) + p_t`, whose flow drifts `q` *and* advances `t` by the drift's `a_i h`, and `B =
+//! V(q, t)`, whose flow kicks `p` (and `p_t`, which nothing reads) at fixed `q` and `t`. So a
+//! kick takes the time the drifts before it accumulated, `t + (a_1 + ... + a_i) h` (the sums
+//! fixed once per splitting, [`Splitting::kick_times`]), and the method keeps its order: it is
+//! the same splitting of an autonomous Hamiltonian of one more degree of freedom, of the same
+//! `T + V` form. The tangent kick takes `Hess V` at the same time. A potential that does not
+//! read the time gets the same bits as before.
+//!
 //! Steps are never merged across step boundaries (the trailing drift of one step with the
 //! leading drift of the next): outputs are full steps and the reference orbit is bit-identical
 //! whatever the sampling or renormalization period.
@@ -54,6 +65,8 @@ pub struct Splitting {
     order: u32,
     drifts: Vec<f64>,
     kicks: Vec<f64>,
+    /// `c_i = a_1 + ... + a_i`: kick `i` of a step from `t` acts at `t + c_i h`.
+    kick_times: Vec<f64>,
 }
 
 // ABA864 coefficients, full precision as published (numerics.md; REBOUND `lf8_6_4_a/b`).
@@ -102,11 +115,19 @@ impl Splitting {
             }
         };
         debug_assert_eq!(drifts.len(), kicks.len() + 1);
+        let kick_times = drifts[..kicks.len()]
+            .iter()
+            .scan(0.0, |c: &mut f64, &a| {
+                *c += a;
+                Some(*c)
+            })
+            .collect();
         Self {
             kind,
             order,
             drifts,
             kicks,
+            kick_times,
         }
     }
 
@@ -122,6 +143,12 @@ impl Splitting {
     /// Kick coefficients `b_i`.
     pub fn kicks(&self) -> &[f64] {
         &self.kicks
+    }
+
+    /// The time of each kick within a step, in units of `h`: `c_i = a_1 + ... + a_i`, the time
+    /// the drifts before it advanced the extended phase space's `t` (see the module header).
+    pub fn kick_times(&self) -> &[f64] {
+        &self.kick_times
     }
 
     /// `q += c h M^-1 p`. With masses the coefficient of site `i` is `(c h) / m_i` formed first
@@ -144,9 +171,16 @@ impl Splitting {
     }
 
     #[inline(always)]
-    fn kick<M: Model + ?Sized>(model: &M, x: &mut [f64], n: usize, dh: f64, force: &mut [f64]) {
+    fn kick<M: Model + ?Sized>(
+        model: &M,
+        x: &mut [f64],
+        n: usize,
+        t: f64,
+        dh: f64,
+        force: &mut [f64],
+    ) {
         let (q, p) = x.split_at_mut(n);
-        model.gradient(q, force);
+        model.gradient_at(q, t, force);
         for (pi, fi) in p.iter_mut().zip(force.iter()) {
             *pi -= dh * fi;
         }
@@ -162,13 +196,13 @@ impl<M: Model + ?Sized> Integrator<M> for Splitting {
         self.order
     }
 
-    fn step(&self, model: &M, x: &mut [f64], h: f64, work: &mut Workspace) {
+    fn step(&self, model: &M, x: &mut [f64], t: f64, h: f64, work: &mut Workspace) {
         let n = model.dof();
         let w = model.inverse_masses();
         let force = work.force(n);
         for (i, &d) in self.kicks.iter().enumerate() {
             Self::drift(x, n, self.drifts[i] * h, w);
-            Self::kick(model, x, n, d * h, force);
+            Self::kick(model, x, n, t + self.kick_times[i] * h, d * h, force);
         }
         Self::drift(x, n, self.drifts[self.kicks.len()] * h, w);
     }
@@ -178,6 +212,7 @@ impl<M: Model + ?Sized> Integrator<M> for Splitting {
         model: &M,
         x: &mut [f64],
         w: &mut [f64],
+        t: f64,
         h: f64,
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
@@ -197,15 +232,17 @@ impl<M: Model + ?Sized> Integrator<M> for Splitting {
         for (i, &d) in self.kicks.iter().enumerate() {
             drift_all(x, w, self.drifts[i] * h);
             let dh = d * h;
-            // Tangent kicks use the position before the orbit's own kick (same stage).
+            let tk = t + self.kick_times[i] * h;
+            // Tangent kicks use the position before the orbit's own kick (same stage), at the
+            // kick's time.
             for v in w.chunks_exact_mut(dim) {
                 let (dq, dp) = v.split_at_mut(n);
-                model.hessian_vector(&x[..n], dq, force);
+                model.hessian_vector_at(&x[..n], tk, dq, force);
                 for (pi, fi) in dp.iter_mut().zip(force.iter()) {
                     *pi -= dh * fi;
                 }
             }
-            Self::kick(model, x, n, dh, force);
+            Self::kick(model, x, n, tk, dh, force);
         }
         drift_all(x, w, self.drifts[self.kicks.len()] * h);
         Ok(())

@@ -246,7 +246,7 @@ fn window(
         p.orbit_steps += w.steps * (1 + dim as u64);
     }
     let single = g.points.first_mut().map(|p| p.x.as_mut_slice());
-    if let Err(e) = advance_group(kernel, method, &mut g.soa, single, w.steps) {
+    if let Err(e) = advance_group(kernel, method, &mut g.soa, single, w) {
         return g
             .points
             .drain(..)
@@ -376,7 +376,7 @@ fn fused_with(
             break;
         }
         let Some(w) = windows.next() else { break };
-        if let Err(e) = kernel.orbit_tangent_steps(&mut soa, w.steps) {
+        if let Err(e) = kernel.orbit_tangent_steps(&mut soa, w.from, w.steps) {
             let e = e.into();
             out.extend(
                 live.drain(..)

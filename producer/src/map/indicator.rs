@@ -256,6 +256,8 @@ impl PointAccumulator {
                     separations,
                     stretch,
                     flow: None,
+                    // The map indicators are the outputs that need no sites either.
+                    sites: None,
                 };
                 *previous = t;
                 for i in indicators.iter_mut() {

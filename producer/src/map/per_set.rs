@@ -161,7 +161,7 @@ fn window(
         p.orbit_steps += w.steps * (1 + (p.sets.len() * k) as u64);
     }
     let single = g.points.first_mut().map(|p| p.x.as_mut_slice());
-    if let Err(e) = advance_group(kernel, method, &mut g.soa, single, w.steps) {
+    if let Err(e) = advance_group(kernel, method, &mut g.soa, single, w) {
         return g
             .points
             .drain(..)

@@ -411,8 +411,9 @@ impl MapSpec {
             if run.system().batched(Isa::detect()).is_none() {
                 return Err(SpecError::new(
                     "map.route",
-                    "the basis route runs on the batched kernel (separable Hamiltonians, \
-                     discrete maps, fixed-step explicit Runge-Kutta flows); use \"per-set\"",
+                    "the basis route runs on the batched kernel (separable Hamiltonians whose \
+                     potential does not read t, discrete maps, fixed-step explicit Runge-Kutta \
+                     flows); use \"per-set\"",
                 ));
             }
             let d0 = run.schemes()[0].d0;

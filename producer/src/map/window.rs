@@ -65,18 +65,22 @@ pub fn advance_group(
     method: &dyn DeviationMethod,
     soa: &mut Soa,
     single: Option<&mut [f64]>,
-    steps: u64,
+    w: &Window,
 ) -> Result<(), RunError> {
     if !method.lanes_are_orbits() {
         let x = single.expect("a tangent-method group holds one point");
-        kernel.reference_steps(x, steps);
+        kernel.reference_steps(x, w.from, w.steps);
     }
-    method.advance(kernel, soa, steps).map_err(RunError::from)
+    method
+        .advance(kernel, soa, w.from, w.steps)
+        .map_err(RunError::from)
 }
 
-/// One window: advance `steps` steps, then renormalize at time `t`.
+/// One window: advance `steps` steps from step number `from` (every point starts at step 0,
+/// `t = 0`), then renormalize at time `t`.
 #[derive(Debug, Clone, Copy)]
 pub struct Window {
+    pub from: u64,
     pub steps: u64,
     pub t: f64,
     /// The run's final step.
@@ -106,6 +110,7 @@ impl Iterator for Windows<'_> {
         let tau = self.run.schemes()[0].tau_steps;
         let target = ((self.step / tau + 1) * tau).min(total);
         let w = Window {
+            from: self.step,
             steps: target - self.step,
             t: self.run.time_of(target),
             last: target == total,

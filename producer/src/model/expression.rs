@@ -44,4 +44,26 @@ impl Model for ExpressionModel {
     fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {
         ExpressionModel::diagnose_non_finite(self, q)
     }
+
+    fn reads_time(&self) -> bool {
+        ExpressionModel::reads_time(self)
+    }
+
+    fn potential_at(&self, q: &[f64], t: f64) -> f64 {
+        ExpressionModel::potential_at(self, q, t)
+    }
+
+    #[inline]
+    fn gradient_at(&self, q: &[f64], t: f64, out: &mut [f64]) {
+        ExpressionModel::gradient_at(self, q, t, out)
+    }
+
+    #[inline]
+    fn hessian_vector_at(&self, q: &[f64], t: f64, v: &[f64], out: &mut [f64]) -> bool {
+        ExpressionModel::hessian_vector_at(self, q, t, v, out)
+    }
+
+    fn diagnose_non_finite_at(&self, q: &[f64], t: f64) -> Option<String> {
+        ExpressionModel::diagnose_non_finite_at(self, q, t)
+    }
 }

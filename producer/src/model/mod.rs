@@ -82,6 +82,44 @@ pub trait Model: std::any::Any + Send + Sync {
         let n = self.dof();
         self.kinetic(&x[n..]) + self.potential(&x[..n])
     }
+
+    /// Whether the potential depends on the time, `V(q, t)` (a non-autonomous system; only
+    /// `[model] name = "potential"` can). The `*_at` methods below take the time; a model that
+    /// does not read it keeps them as its plain methods, so its arithmetic is unchanged.
+    fn reads_time(&self) -> bool {
+        false
+    }
+
+    /// `V(q, t)`.
+    fn potential_at(&self, q: &[f64], _t: f64) -> f64 {
+        self.potential(q)
+    }
+
+    /// `out = dV/dq (q, t)`.
+    #[inline]
+    fn gradient_at(&self, q: &[f64], _t: f64, out: &mut [f64]) {
+        self.gradient(q, out)
+    }
+
+    /// `out = Hess V(q, t) * v`, or `false` as [`Model::hessian_vector`].
+    #[inline]
+    fn hessian_vector_at(&self, q: &[f64], _t: f64, v: &[f64], out: &mut [f64]) -> bool {
+        self.hessian_vector(q, v, out)
+    }
+
+    /// [`Model::diagnose_non_finite`] at time `t`.
+    fn diagnose_non_finite_at(&self, q: &[f64], _t: f64) -> Option<String> {
+        self.diagnose_non_finite(q)
+    }
+
+    /// `H(x, t)`: what the energy of a time-dependent potential is at time `t` (not conserved).
+    fn energy_at(&self, x: &[f64], t: f64) -> f64 {
+        if !self.reads_time() {
+            return self.energy(x);
+        }
+        let n = self.dof();
+        self.kinetic(&x[n..]) + self.potential_at(&x[..n], t)
+    }
 }
 
 #[cfg(test)]

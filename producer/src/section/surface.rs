@@ -94,6 +94,60 @@ pub fn coordinate_names(spec: &RunSpec) -> Vec<String> {
     }
 }
 
+/// `source` compiled as a scalar function of the state of `spec`'s system (its coordinate
+/// names, the config's `params` and `boundary`), errors in one line naming `key`: a section's
+/// surface, or the period of a stroboscopic section (which reads no coordinate).
+pub fn scalar_over_state(
+    spec: &RunSpec,
+    model: &ModelConfig,
+    key: &str,
+    source: &str,
+) -> Result<ScalarFunction, SpecError> {
+    let system = spec.system();
+    let dim = spec.dim();
+    let canonical = system.kind() == SystemKind::Hamiltonian;
+    let (families, n) = if canonical {
+        let n = dim / 2;
+        (vec![("q".to_string(), n), ("p".to_string(), n)], n)
+    } else {
+        (vec![("x".to_string(), dim)], dim)
+    };
+    let (params, boundary) = match model {
+        ModelConfig::Ode(m) => (Some(&m.params), m.boundary.as_deref()),
+        ModelConfig::Hamiltonian(m) => (Some(&m.params), m.boundary.as_deref()),
+        ModelConfig::Potential(m) => (Some(&m.params), m.boundary.as_deref()),
+        _ => (None, None),
+    };
+    let size = format!("the system has N = {n}");
+    let mut values = std::collections::BTreeMap::new();
+    for (name, v) in params.into_iter().flatten() {
+        values.insert(
+            name.clone(),
+            param_value(&format!("model.params.{name}"), v, n, &size)?,
+        );
+    }
+    let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
+        .map_err(|e| SpecError::new("model.boundary", e))?;
+    let function = ScalarFunction::new(ScalarDefinition {
+        key: key.to_string(),
+        source: source.to_string(),
+        families,
+        n,
+        params: values,
+        boundary,
+    })
+    .map_err(|e| {
+        let line = e.one_line();
+        // The error already starts with the key.
+        let message = line
+            .strip_prefix(&format!("{key}: ") as &str)
+            .unwrap_or(&line)
+            .to_string();
+        SpecError::new(key, message)
+    })?;
+    Ok(function)
+}
+
 impl Surface {
     /// `source` (the `--surface` expression) over the coordinates of `spec`'s system, with
     /// the scalar parameters and arrays of `model` (the config's `params`, `boundary`). Maps
@@ -103,7 +157,7 @@ impl Surface {
         const KEY: &str = "--surface";
         let system = spec.system();
         if system.time() == Time::Discrete
-            || !system.vector_field(spec.x0(), &mut vec![0.0; spec.dim()])
+            || !system.vector_field(spec.x0(), 0.0, &mut vec![0.0; spec.dim()])
         {
             return Err(SpecError::new(
                 KEY,
@@ -114,47 +168,7 @@ impl Surface {
                 ),
             ));
         }
-        let dim = spec.dim();
-        let canonical = system.kind() == SystemKind::Hamiltonian;
-        let (families, n) = if canonical {
-            let n = dim / 2;
-            (vec![("q".to_string(), n), ("p".to_string(), n)], n)
-        } else {
-            (vec![("x".to_string(), dim)], dim)
-        };
-        let (params, boundary) = match model {
-            ModelConfig::Ode(m) => (Some(&m.params), m.boundary.as_deref()),
-            ModelConfig::Hamiltonian(m) => (Some(&m.params), m.boundary.as_deref()),
-            ModelConfig::Potential(m) => (Some(&m.params), m.boundary.as_deref()),
-            _ => (None, None),
-        };
-        let size = format!("the system has N = {n}");
-        let mut values = std::collections::BTreeMap::new();
-        for (name, v) in params.into_iter().flatten() {
-            values.insert(
-                name.clone(),
-                param_value(&format!("model.params.{name}"), v, n, &size)?,
-            );
-        }
-        let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
-            .map_err(|e| SpecError::new("model.boundary", e))?;
-        let function = ScalarFunction::new(ScalarDefinition {
-            key: KEY.to_string(),
-            source: source.to_string(),
-            families,
-            n,
-            params: values,
-            boundary,
-        })
-        .map_err(|e| {
-            let line = e.one_line();
-            // The error already starts with the key.
-            let message = line
-                .strip_prefix("--surface: ")
-                .unwrap_or(&line)
-                .to_string();
-            SpecError::new(KEY, message)
-        })?;
+        let function = scalar_over_state(spec, model, KEY, source)?;
         if function.reads().is_empty() {
             return Err(SpecError::new(
                 KEY,
@@ -247,11 +261,12 @@ pub struct LocateScratch {
     grad: Vec<f64>,
 }
 
-/// The flow of `system`'s vector field over `tau` from `x`, in `m` DOP853 substeps, into `out`;
-/// false if it is not finite.
+/// The flow of `system`'s vector field over `tau` from `x` at time `t0`, in `m` DOP853
+/// substeps (substep `j` from `t0 + j tau / m`), into `out`; false if it is not finite.
 fn flow(
     system: &dyn DynamicalSystem,
     x: &[f64],
+    t0: f64,
     tau: f64,
     m: u32,
     out: &mut Vec<f64>,
@@ -263,13 +278,14 @@ fn flow(
     out.clear();
     out.extend_from_slice(x);
     let sub = tau / f64::from(m);
-    for _ in 0..m {
+    for j in 0..m {
         explicit_step(
             tableau,
-            |y, f| {
-                system.vector_field(y, f);
+            |y, t, f| {
+                system.vector_field(y, t, f);
             },
             out,
+            t0 + f64::from(j) * sub,
             sub,
             rk,
         );
@@ -277,14 +293,16 @@ fn flow(
     out.iter().all(|v| v.is_finite())
 }
 
-/// The crossing of `surface` by the flow of `system` from `before` (where `S = s_before`,
-/// not 0), within about one step `h` (the run's step that went from `before` across the
-/// surface): the time of flight `tau` and the state there, located to rounding (module
+/// The crossing of `surface` by the flow of `system` from `before` at time `t0` (where `S =
+/// s_before`, not 0), within about one step `h` (the run's step that went from `before` across
+/// the surface): the time of flight `tau` and the state there, located to rounding (module
 /// documentation).
+#[allow(clippy::too_many_arguments)]
 pub fn locate(
     system: &dyn DynamicalSystem,
     surface: &ScalarFunction,
     before: &[f64],
+    t0: f64,
     s_before: f64,
     h: f64,
     scratch: &mut LocateScratch,
@@ -302,9 +320,9 @@ pub fn locate(
     // Substeps: doubled until the whole step no longer changes beyond SUBSTEP_TOLERANCE.
     let mut m = 1;
     let mut converged = false;
-    let mut coarse_ok = flow(system, before, h, m, coarse, rk);
+    let mut coarse_ok = flow(system, before, t0, h, m, coarse, rk);
     for _ in 0..MAX_DOUBLINGS {
-        let fine_ok = flow(system, before, h, 2 * m, y, rk);
+        let fine_ok = flow(system, before, t0, h, 2 * m, y, rk);
         m *= 2;
         if coarse_ok && fine_ok {
             let size = y.iter().fold(1.0f64, |a, v| a.max(v.abs()));
@@ -347,7 +365,7 @@ pub fn locate(
     let mut best = (f64::INFINITY, tau);
     let mut last_newton = f64::INFINITY;
     for _ in 0..MAX_ITERATIONS {
-        if !flow(system, before, tau, m, y, rk) {
+        if !flow(system, before, t0, tau, m, y, rk) {
             return Err(LocateError::NonFinite);
         }
         let s = surface.value(y);
@@ -367,7 +385,7 @@ pub fn locate(
                 hi = tau;
             }
         }
-        system.vector_field(y, f);
+        system.vector_field(y, t0 + tau, f);
         surface.gradient(y, grad);
         // dS/dt along the flow, summed in coordinate order.
         let rate: f64 = grad.iter().zip(f.iter()).map(|(g, v)| g * v).sum();
@@ -396,7 +414,7 @@ pub fn locate(
             tau = next;
         }
         if done || stalled {
-            if !flow(system, before, tau, m, y, rk) {
+            if !flow(system, before, t0, tau, m, y, rk) {
                 return Err(LocateError::NonFinite);
             }
             return Ok((tau, y.clone()));
@@ -466,11 +484,11 @@ pub fn surface_crossings(
     }
     for step in 0..steps {
         prev.copy_from_slice(&x);
-        system.step(&mut x, &mut work);
+        system.step(&mut x, spec.time_of(step), &mut work);
         let t = spec.time_of(step + 1);
         if !x.iter().all(|v| v.is_finite()) {
             let why = system
-                .diagnose_non_finite(&prev)
+                .diagnose_non_finite(&prev, spec.time_of(step))
                 .unwrap_or_else(|| "the state is not finite".to_string());
             return SurfaceOrbit {
                 crossings,
@@ -486,7 +504,7 @@ pub fn surface_crossings(
         }
         if direction.crosses(s, s_next) {
             let t0 = spec.time_of(step);
-            match locate(system, surface.function(), &prev, s, h, &mut scratch) {
+            match locate(system, surface.function(), &prev, t0, s, h, &mut scratch) {
                 Ok((tau, state)) => {
                     crossings.push(Crossing {
                         t: t0 + tau,
@@ -549,7 +567,7 @@ mod tests {
                 let before = [t0.cos(), -t0.sin()];
                 let s = surface.value(&before);
                 let (tau, x) =
-                    locate(system, surface.function(), &before, s, h, &mut scratch).unwrap();
+                    locate(system, surface.function(), &before, t0, s, h, &mut scratch).unwrap();
                 let t = t0 + tau;
                 assert!(
                     (t - FRAC_PI_2).abs() < 2e-15,

@@ -315,14 +315,14 @@ fn state_x_with_lanes(
     let mut x0 = orbit.x.clone();
     x0.extend_from_slice(lane_values);
     if system.invariant(&x0).is_some_and(|e| !e.is_finite())
-        || system.divergence(&x0).is_some_and(|d| !d.is_finite())
+        || system.divergence(&x0, 0.0).is_some_and(|d| !d.is_finite())
     {
         return Err(SpecError::new(
             "orbit.x",
             format!(
                 "the system is not defined at the initial state{}",
                 system
-                    .diagnose_non_finite(&x0)
+                    .diagnose_non_finite(&x0, 0.0)
                     .map(|c| format!(": {c}"))
                     .unwrap_or_default()
             ),

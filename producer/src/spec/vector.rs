@@ -99,6 +99,9 @@ pub fn vector_function(
         params: values,
         boundary,
         tables: Vec::new(),
+        // A flow's right-hand side may read the time; a map's `next` may not (its time counts
+        // iterations, and `t` stays an ordinary name there).
+        time: key == "rhs",
     })
     .map(|f| (f, lane_values))
     .map_err(|e| match e {

@@ -158,8 +158,9 @@ impl DynamicalSystem for Map {
         }))
     }
 
+    /// (A map's `next` cannot read the time: `t` is ignored, here and below.)
     #[inline]
-    fn step(&self, x: &mut [f64], work: &mut Workspace) {
+    fn step(&self, x: &mut [f64], _t: f64, work: &mut Workspace) {
         let d = self.function.dim();
         let next = work.force(d);
         self.function.value(x, next);
@@ -173,6 +174,7 @@ impl DynamicalSystem for Map {
         &self,
         x: &mut [f64],
         w: &mut [f64],
+        _t: f64,
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
         let d = self.function.dim();
@@ -206,7 +208,7 @@ impl DynamicalSystem for Map {
     /// singular Jacobian (a map that collapses a direction, legitimately) counts as the
     /// smallest normal `|det|`, ln = -708, rather than -inf: the run goes on, and no infinity
     /// reaches an output.
-    fn divergence(&self, x: &[f64]) -> Option<f64> {
+    fn divergence(&self, x: &[f64], _t: f64) -> Option<f64> {
         self.log_abs_det_jacobian(x).map(|l| {
             if l == f64::NEG_INFINITY {
                 f64::MIN_POSITIVE.ln()
@@ -216,7 +218,7 @@ impl DynamicalSystem for Map {
         })
     }
 
-    fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
+    fn diagnose_non_finite(&self, x: &[f64], _t: f64) -> Option<String> {
         self.function.diagnose_non_finite(x)
     }
 
@@ -244,17 +246,17 @@ struct MapKernel<'a> {
 }
 
 impl PointKernel for MapKernel<'_> {
-    fn orbit_steps(&mut self, x: &mut Soa, steps: u64) {
+    fn orbit_steps(&mut self, x: &mut Soa, _from: u64, steps: u64) {
         let map = self.map;
         batch::map_orbit_steps(&map.function, &map.modulo, x, steps, &mut self.scratch);
     }
 
-    fn reference_steps(&mut self, x: &mut [f64], steps: u64) {
+    fn reference_steps(&mut self, x: &mut [f64], _from: u64, steps: u64) {
         let map = self.map;
         batch::record_map_reference(&map.function, &map.modulo, x, steps, &mut self.stages);
     }
 
-    fn tangent_steps(&mut self, v: &mut Soa, steps: u64) -> Result<(), TangentError> {
+    fn tangent_steps(&mut self, v: &mut Soa, _from: u64, steps: u64) -> Result<(), TangentError> {
         let f = &self.map.function;
         if batch::map_tangent_steps(f, &self.stages, v, steps, &mut self.scratch) {
             Ok(())
@@ -290,6 +292,7 @@ mod tests {
                 .collect(),
             boundary: Boundary::Fixed,
             tables: Vec::new(),
+            time: false,
         })
         .unwrap();
         Map::new(f, modulo).unwrap()
@@ -328,7 +331,7 @@ mod tests {
         let mut x = vec![6.0, 6.2];
         let mut w = Workspace::new();
         for _ in 0..100 {
-            m.step(&mut x, &mut w);
+            m.step(&mut x, 0.0, &mut w);
             assert!(x.iter().all(|v| (0.0..p).contains(v)), "{x:?}");
         }
         // Across the seam: 1e-8 apart, not 2 pi - 1e-8.
@@ -354,7 +357,7 @@ mod tests {
         let mut x = vec![0.1, 0.2];
         let mut v = vec![1.0, 0.0, 0.0, 1.0];
         let mut w = Workspace::new();
-        m.step_tangent(&mut x, &mut v, &mut w).unwrap();
+        m.step_tangent(&mut x, &mut v, 0.0, &mut w).unwrap();
         assert_eq!(x, vec![1.0 - 1.4 * 0.1 * 0.1 + 0.2, 0.3 * 0.1]);
         assert_eq!(v, vec![-2.8 * 0.1, 0.3, 1.0, 0.0]);
         for x in [[0.1, 0.2], [1.2, -0.3], [0.0, 0.0]] {
@@ -390,6 +393,7 @@ mod tests {
             params: [("K".to_string(), ParamValue::Scalar(1.2))].into(),
             boundary: Boundary::Fixed,
             tables: Vec::new(),
+            time: false,
         })
         .unwrap();
         let p = std::f64::consts::TAU;
@@ -410,12 +414,12 @@ mod tests {
             for (l, x) in starts.iter().enumerate() {
                 soa.write_lane(l, x);
             }
-            kernel.orbit_steps(&mut soa, 50);
+            kernel.orbit_steps(&mut soa, 0, 50);
             let mut w = Workspace::new();
             for (l, x0) in starts.iter().enumerate() {
                 let mut x = x0.clone();
                 for _ in 0..50 {
-                    m.step(&mut x, &mut w);
+                    m.step(&mut x, 0.0, &mut w);
                 }
                 let mut got = vec![0.0; 2];
                 soa.read_lane(l, &mut got);
@@ -424,7 +428,7 @@ mod tests {
 
             // Tangent vectors around the first start.
             let mut x = starts[0].clone();
-            kernel.reference_steps(&mut x, 50);
+            kernel.reference_steps(&mut x, 0, 50);
             let mut v = Soa::new(2, used);
             let dirs: Vec<Vec<f64>> = (0..used)
                 .map(|l| vec![(l as f64).cos(), (l as f64).sin()])
@@ -432,11 +436,11 @@ mod tests {
             for (l, d) in dirs.iter().enumerate() {
                 v.write_lane(l, d);
             }
-            kernel.tangent_steps(&mut v, 50).unwrap();
+            kernel.tangent_steps(&mut v, 0, 50).unwrap();
             for (l, d) in dirs.iter().enumerate() {
                 let (mut y, mut w1) = (starts[0].clone(), d.clone());
                 for _ in 0..50 {
-                    m.step_tangent(&mut y, &mut w1, &mut w).unwrap();
+                    m.step_tangent(&mut y, &mut w1, 0.0, &mut w).unwrap();
                 }
                 assert_eq!(y, x, "reference copy");
                 let mut got = vec![0.0; 2];

@@ -20,6 +20,12 @@
 //! - [`Map`]: a discrete map `x -> F(x)` (`[model] name = "map"`, `Time::Discrete`, `tau`
 //!   counted in iterations), angles taken modulo their period.
 //!
+//! Time: every step is given the time it starts at, `t = n h` for step `n` (computed, never
+//! accumulated: [`Time::at`]), so a non-autonomous system (`t` read by a flow's `rhs`, a
+//! Hamiltonian or a potential) is stepped at the right times by the engine, its deviation
+//! sets and the batched kernels alike; each integrator says how the time enters its stages.
+//! Runs start at `t = 0`.
+//!
 //! Each kind's batched form (`batched`: many orbits as lanes, for phase-space maps) is written
 //! beside it, in its own file.
 
@@ -46,6 +52,16 @@ pub enum Time {
 }
 
 impl Time {
+    /// The time of step `step`: `step * h` (an iteration count for a map), computed from the
+    /// step number and never accumulated, as `RunSpec::time_of`.
+    #[inline]
+    pub fn at(self, step: u64) -> f64 {
+        match self {
+            Time::Continuous { h } => step as f64 * h,
+            Time::Discrete => step as f64,
+        }
+    }
+
     /// As recordings name it (`RunHeader.time`).
     pub fn name(self) -> &'static str {
         match self {
@@ -67,32 +83,40 @@ pub trait DynamicalSystem: Send + Sync {
 
     fn time(&self) -> Time;
 
-    /// Advance the state `x` by one step.
-    fn step(&self, x: &mut [f64], work: &mut Workspace);
+    /// Whether the system depends on the time (a non-autonomous flow, Hamiltonian or
+    /// potential): its steps depend on the `t` they are given.
+    fn reads_time(&self) -> bool {
+        false
+    }
 
-    /// Advance `x` and the deviation vectors stored one after the other in `w` by one step of
-    /// the exact tangent map of [`DynamicalSystem::step`] (so VM and MPM see the same dynamics).
+    /// Advance the state `x` by one step from time `t`.
+    fn step(&self, x: &mut [f64], t: f64, work: &mut Workspace);
+
+    /// Advance `x` and the deviation vectors stored one after the other in `w` by one step
+    /// from time `t` of the exact tangent map of [`DynamicalSystem::step`] (so VM and MPM see
+    /// the same dynamics).
     fn step_tangent(
         &self,
         x: &mut [f64],
         w: &mut [f64],
+        t: f64,
         work: &mut Workspace,
     ) -> Result<(), TangentError>;
 
-    /// Advance the reference orbit by one step, appending to `plan` the substeps it took when
-    /// the state chose them (adaptive step-size control), so that the deviation sets follow
-    /// the very same substeps ([`DynamicalSystem::step_along`]) and every scheme sees one
-    /// trajectory. Fixed-step systems leave `plan` alone.
-    fn step_reference(&self, x: &mut [f64], plan: &mut Vec<f64>, work: &mut Workspace) {
+    /// Advance the reference orbit by one step from time `t`, appending to `plan` the substeps
+    /// it took when the state chose them (adaptive step-size control), so that the deviation
+    /// sets follow the very same substeps ([`DynamicalSystem::step_along`]) and every scheme
+    /// sees one trajectory. Fixed-step systems leave `plan` alone.
+    fn step_reference(&self, x: &mut [f64], t: f64, plan: &mut Vec<f64>, work: &mut Workspace) {
         let _ = plan;
-        self.step(x, work)
+        self.step(x, t, work)
     }
 
-    /// Advance `x` by one step along the substeps `plan` the reference took in it (empty for
-    /// fixed-step systems).
-    fn step_along(&self, x: &mut [f64], plan: &[f64], work: &mut Workspace) {
+    /// Advance `x` by one step from time `t` along the substeps `plan` the reference took in
+    /// it (empty for fixed-step systems).
+    fn step_along(&self, x: &mut [f64], t: f64, plan: &[f64], work: &mut Workspace) {
         let _ = plan;
-        self.step(x, work)
+        self.step(x, t, work)
     }
 
     /// [`DynamicalSystem::step_tangent`] along the substeps `plan` the reference took.
@@ -100,37 +124,40 @@ pub trait DynamicalSystem: Send + Sync {
         &self,
         x: &mut [f64],
         w: &mut [f64],
+        t: f64,
         plan: &[f64],
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
         let _ = plan;
-        self.step_tangent(x, w, work)
+        self.step_tangent(x, w, t, work)
     }
 
     /// Why the variational method cannot be used (a derivative the system lacks, naming the
     /// operation); `None` when it can.
     fn no_tangent_reason(&self) -> Option<String>;
 
-    /// The conserved quantity reported beside the indicators (a Hamiltonian's energy), if any.
+    /// The conserved quantity reported beside the indicators (a Hamiltonian's energy), if any;
+    /// `None` for a system that reads the time (its energy is not conserved).
     fn invariant(&self, x: &[f64]) -> Option<f64>;
 
     /// The local rate of phase-space volume change at `x`, whose average along the orbit the
     /// report carries beside the sum of the Lyapunov exponents: `div f(x)` (the trace of the
     /// Jacobian) for a flow, `ln |det DF(x)|` per iteration for a map. `None` for systems that
-    /// conserve volume by construction (Hamiltonians).
-    fn divergence(&self, x: &[f64]) -> Option<f64>;
+    /// conserve volume by construction (Hamiltonians). At time `t`.
+    fn divergence(&self, x: &[f64], t: f64) -> Option<f64>;
 
-    /// The vector field `out = f(x)`, the flow direction at `x` (the orthogonal FLI reads the
-    /// deviation's component across it), and true; false for a system without one (a map: its
-    /// time is discrete). Off the hot path: once per renormalization of the reference.
-    fn vector_field(&self, x: &[f64], out: &mut [f64]) -> bool {
-        let _ = (x, out);
+    /// The vector field `out = f(x, t)`, the flow direction at `x` (the orthogonal FLI reads
+    /// the deviation's component across it), and true; false for a system without one (a map:
+    /// its time is discrete). Off the hot path: once per renormalization of the reference.
+    fn vector_field(&self, x: &[f64], t: f64, out: &mut [f64]) -> bool {
+        let _ = (x, t, out);
         false
     }
 
-    /// What made a state non-finite when stepped from `x` (the last finite state), naming the
-    /// operation where the system knows it. Off the hot path: called after a failure.
-    fn diagnose_non_finite(&self, x: &[f64]) -> Option<String>;
+    /// What made a state non-finite when stepped from `x` (the last finite state) at time `t`,
+    /// naming the operation where the system knows it. Off the hot path: called after a
+    /// failure.
+    fn diagnose_non_finite(&self, x: &[f64], t: f64) -> Option<String>;
 
     /// The system's batched form, its one extension point for it: many orbits (and tangent
     /// vectors along a recorded reference) advanced together as lanes, on the instruction set

@@ -5,6 +5,10 @@
 //! the reference orbit chooses its substeps there and lands exactly on the grid point, and the
 //! deviation sets (VM's tangent vectors, MPM's nearby orbits) take the very same substeps
 //! ([`DynamicalSystem::step_along`]), so every scheme sees one trajectory, whatever `tau`.
+//!
+//! A field that reads the time is evaluated at each stage's time (`t + c_i h`, see
+//! `integrator::runge_kutta`), the substeps of an adaptive step at the times the reference
+//! gave them; its energy (a Hamiltonian `H(q, p, t)`) is not conserved, so it reports none.
 
 use std::sync::Arc;
 
@@ -14,7 +18,7 @@ use chaoscope_expr::VectorFunction;
 
 use super::{DynamicalSystem, Time};
 use crate::batch::{self, FlowScratch, Isa, PointKernel, Soa};
-use crate::integrator::runge_kutta::{RungeKutta, Tableau, Tolerances};
+use crate::integrator::runge_kutta::{RungeKutta, Tableau, Tolerances, substep_times};
 use crate::integrator::{TangentError, Workspace};
 use crate::vector_field::VectorField;
 
@@ -31,10 +35,12 @@ pub struct RkFlow {
 }
 
 impl RkFlow {
-    fn substeps<'a>(&'a self, plan: &'a [f64]) -> impl Iterator<Item = f64> + 'a {
-        // A fixed-step flow follows no plan: its one substep is `h`.
-        let fixed = self.tolerances.is_none().then_some(self.h);
-        fixed.into_iter().chain(plan.iter().copied())
+    /// The substeps of a step from time `t` with their start times: a fixed-step flow's one
+    /// substep `h` at `t`, or the plan's, each at `t` plus the substeps before it
+    /// (`substep_times`, the times `step_adaptive` gave them).
+    fn substeps<'a>(&'a self, t: f64, plan: &'a [f64]) -> impl Iterator<Item = (f64, f64)> + 'a {
+        let fixed = self.tolerances.is_none().then_some((t, self.h));
+        fixed.into_iter().chain(substep_times(t, plan))
     }
 }
 
@@ -61,6 +67,10 @@ impl DynamicalSystem for RkFlow {
         Time::Continuous { h: self.h }
     }
 
+    fn reads_time(&self) -> bool {
+        self.field.reads_time()
+    }
+
     /// The compiled right-hand side stepped by a fixed-step explicit method ([`FlowKernel`]);
     /// `None` with adaptive steps (every orbit would choose its own substeps), an implicit
     /// method (per-orbit stage iterations) or a hand-written field: their points run through
@@ -78,14 +88,14 @@ impl DynamicalSystem for RkFlow {
         }))
     }
 
-    fn step(&self, x: &mut [f64], work: &mut Workspace) {
+    fn step(&self, x: &mut [f64], t: f64, work: &mut Workspace) {
         match self.tolerances {
             None => self
                 .method
-                .advance(self.field.as_ref(), x, self.h, &mut work.rk),
+                .advance(self.field.as_ref(), x, t, self.h, &mut work.rk),
             Some(_) => {
                 let mut plan = Vec::new();
-                self.step_reference(x, &mut plan, work);
+                self.step_reference(x, t, &mut plan, work);
             }
         }
     }
@@ -94,30 +104,31 @@ impl DynamicalSystem for RkFlow {
         &self,
         x: &mut [f64],
         w: &mut [f64],
+        t: f64,
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
         match self.tolerances {
             None => self
                 .method
-                .advance_tangent(self.field.as_ref(), x, w, self.h, &mut work.rk),
+                .advance_tangent(self.field.as_ref(), x, w, t, self.h, &mut work.rk),
             Some(_) => {
                 // Choose the substeps as the reference does, then follow them.
                 let mut plan = Vec::new();
                 let mut probe = x.to_vec();
-                self.step_reference(&mut probe, &mut plan, work);
-                self.step_tangent_along(x, w, &plan, work)
+                self.step_reference(&mut probe, t, &mut plan, work);
+                self.step_tangent_along(x, w, t, &plan, work)
             }
         }
     }
 
-    fn step_reference(&self, x: &mut [f64], plan: &mut Vec<f64>, work: &mut Workspace) {
+    fn step_reference(&self, x: &mut [f64], t: f64, plan: &mut Vec<f64>, work: &mut Workspace) {
         let Some(tol) = self.tolerances else {
-            return self.step(x, work);
+            return self.step(x, t, work);
         };
         let field = self.field.as_ref();
         if self
             .method
-            .step_adaptive(field, x, self.h, tol, plan, &mut work.rk)
+            .step_adaptive(field, x, t, self.h, tol, plan, &mut work.rk)
             .is_err()
         {
             // The engine stops the run at a non-finite state and asks `diagnose_non_finite`
@@ -126,9 +137,10 @@ impl DynamicalSystem for RkFlow {
         }
     }
 
-    fn step_along(&self, x: &mut [f64], plan: &[f64], work: &mut Workspace) {
-        for h in self.substeps(plan) {
-            self.method.advance(self.field.as_ref(), x, h, &mut work.rk);
+    fn step_along(&self, x: &mut [f64], t: f64, plan: &[f64], work: &mut Workspace) {
+        for (ts, h) in self.substeps(t, plan) {
+            self.method
+                .advance(self.field.as_ref(), x, ts, h, &mut work.rk);
         }
     }
 
@@ -136,12 +148,13 @@ impl DynamicalSystem for RkFlow {
         &self,
         x: &mut [f64],
         w: &mut [f64],
+        t: f64,
         plan: &[f64],
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
-        for h in self.substeps(plan) {
+        for (ts, h) in self.substeps(t, plan) {
             self.method
-                .advance_tangent(self.field.as_ref(), x, w, h, &mut work.rk)?;
+                .advance_tangent(self.field.as_ref(), x, w, ts, h, &mut work.rk)?;
         }
         Ok(())
     }
@@ -150,23 +163,27 @@ impl DynamicalSystem for RkFlow {
         self.field.no_tangent_reason()
     }
 
+    /// The energy of a Hamiltonian field, conserved unless `H` reads the time.
     fn invariant(&self, x: &[f64]) -> Option<f64> {
-        self.field.energy(x)
+        if self.field.reads_time() {
+            return None;
+        }
+        self.field.energy(x, 0.0)
     }
 
     /// `None` for a Hamiltonian field: its flow conserves volume (`div f = 0` identically).
-    fn divergence(&self, x: &[f64]) -> Option<f64> {
-        (!self.field.is_hamiltonian()).then(|| self.field.divergence(x))
+    fn divergence(&self, x: &[f64], t: f64) -> Option<f64> {
+        (!self.field.is_hamiltonian()).then(|| self.field.divergence(x, t))
     }
 
-    fn vector_field(&self, x: &[f64], out: &mut [f64]) -> bool {
-        self.field.value(x, out);
+    fn vector_field(&self, x: &[f64], t: f64, out: &mut [f64]) -> bool {
+        self.field.value(x, t, out);
         true
     }
 
-    fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
+    fn diagnose_non_finite(&self, x: &[f64], t: f64) -> Option<String> {
         let field = self.field.as_ref();
-        if let Some(cause) = field.diagnose_non_finite(x) {
+        if let Some(cause) = field.diagnose_non_finite(x, t) {
             return Some(cause);
         }
         if let Some(tol) = self.tolerances {
@@ -175,12 +192,12 @@ impl DynamicalSystem for RkFlow {
             let mut plan = Vec::new();
             if let Err(e) =
                 self.method
-                    .step_adaptive(field, &mut y, self.h, tol, &mut plan, &mut scratch.rk)
+                    .step_adaptive(field, &mut y, t, self.h, tol, &mut plan, &mut scratch.rk)
             {
                 return Some(e.to_string());
             }
         }
-        if let Some(why) = self.method.implicit_step_fails(field, x, self.h) {
+        if let Some(why) = self.method.implicit_step_fails(field, x, t, self.h) {
             return Some(format!("{why} (h = {})", self.h));
         }
         // Replay the step stage by stage: the first stage state where f is not finite.
@@ -199,10 +216,11 @@ impl DynamicalSystem for RkFlow {
                     i + 1
                 ));
             }
+            let ti = t + tableau.c[i] * self.h;
             let (_, rest) = k.split_at_mut(i * dim);
-            field.value(&xi, &mut rest[..dim]);
+            field.value(&xi, ti, &mut rest[..dim]);
             if rest[..dim].iter().any(|v| !v.is_finite()) {
-                return Some(field.diagnose_non_finite(&xi).unwrap_or_else(|| {
+                return Some(field.diagnose_non_finite(&xi, ti).unwrap_or_else(|| {
                     format!(
                         "f is not finite at the Runge-Kutta stage {} (the solution blows up)",
                         i + 1
@@ -226,29 +244,39 @@ struct FlowKernel<'a> {
 }
 
 impl PointKernel for FlowKernel<'_> {
-    fn orbit_steps(&mut self, x: &mut Soa, steps: u64) {
-        batch::flow_orbit_steps(self.tableau, self.f, self.h, x, steps, &mut self.scratch);
+    fn orbit_steps(&mut self, x: &mut Soa, from: u64, steps: u64) {
+        batch::flow_orbit_steps(
+            self.tableau,
+            self.f,
+            self.h,
+            x,
+            from,
+            steps,
+            &mut self.scratch,
+        );
     }
 
-    fn reference_steps(&mut self, x: &mut [f64], steps: u64) {
+    fn reference_steps(&mut self, x: &mut [f64], from: u64, steps: u64) {
         batch::record_flow_reference(
             self.tableau,
             self.f,
             self.h,
             x,
+            from,
             steps,
             &mut self.stages,
             &mut self.scratch,
         );
     }
 
-    fn tangent_steps(&mut self, v: &mut Soa, steps: u64) -> Result<(), TangentError> {
+    fn tangent_steps(&mut self, v: &mut Soa, from: u64, steps: u64) -> Result<(), TangentError> {
         if batch::flow_tangent_steps(
             self.tableau,
             self.f,
             self.h,
             &self.stages,
             v,
+            from,
             steps,
             &mut self.scratch,
         ) {

@@ -73,9 +73,13 @@ impl DynamicalSystem for SplitHamiltonian {
         Time::Continuous { h: self.h }
     }
 
+    fn reads_time(&self) -> bool {
+        self.model.reads_time()
+    }
+
     #[inline]
-    fn step(&self, x: &mut [f64], work: &mut Workspace) {
-        self.splitting.step(self.model.as_ref(), x, self.h, work)
+    fn step(&self, x: &mut [f64], t: f64, work: &mut Workspace) {
+        self.splitting.step(self.model.as_ref(), x, t, self.h, work)
     }
 
     #[inline]
@@ -83,26 +87,28 @@ impl DynamicalSystem for SplitHamiltonian {
         &self,
         x: &mut [f64],
         w: &mut [f64],
+        t: f64,
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
         self.splitting
-            .step_tangent(self.model.as_ref(), x, w, self.h, work)
+            .step_tangent(self.model.as_ref(), x, w, t, self.h, work)
     }
 
     fn no_tangent_reason(&self) -> Option<String> {
         self.model.no_hessian_reason()
     }
 
+    /// The energy, conserved unless the potential reads the time.
     fn invariant(&self, x: &[f64]) -> Option<f64> {
-        Some(self.model.energy(x))
+        (!self.model.reads_time()).then(|| self.model.energy(x))
     }
 
-    fn divergence(&self, _x: &[f64]) -> Option<f64> {
+    fn divergence(&self, _x: &[f64], _t: f64) -> Option<f64> {
         None
     }
 
-    /// `(dq/dt, dp/dt) = (p / m, -dV/dq)`.
-    fn vector_field(&self, x: &[f64], out: &mut [f64]) -> bool {
+    /// `(dq/dt, dp/dt) = (p / m, -dV/dq (q, t))`.
+    fn vector_field(&self, x: &[f64], t: f64, out: &mut [f64]) -> bool {
         let n = self.model.dof();
         let (q, p) = x.split_at(n);
         let (dq, dp) = out.split_at_mut(n);
@@ -114,15 +120,20 @@ impl DynamicalSystem for SplitHamiltonian {
                 }
             }
         }
-        self.model.gradient(q, dp);
+        self.model.gradient_at(q, t, dp);
         for d in dp.iter_mut() {
             *d = -*d;
         }
         true
     }
 
-    /// The model's lane implementation over the instruction set `isa` ([`SplittingKernel`]).
+    /// The model's lane implementation over the instruction set `isa` ([`SplittingKernel`]);
+    /// `None` for a potential of the time (the lane kernels take no time: its points run
+    /// through the engine, one orbit at a time, with the same bits).
     fn batched(&self, isa: Isa) -> Option<Box<dyn PointKernel + '_>> {
+        if self.model.reads_time() {
+            return None;
+        }
         let coeffs = &self.coeffs;
         Some(crate::with_lane_model!(
             &self.lanes,
@@ -134,11 +145,11 @@ impl DynamicalSystem for SplitHamiltonian {
         Some(self)
     }
 
-    fn diagnose_non_finite(&self, x: &[f64]) -> Option<String> {
+    fn diagnose_non_finite(&self, x: &[f64], t: f64) -> Option<String> {
         let n = self.model.dof();
         // The potential itself undefined at x (the energy is what the run checks), ...
-        if x.iter().all(|v| v.is_finite()) && !self.model.potential(&x[..n]).is_finite() {
-            return self.model.diagnose_non_finite(&x[..n]);
+        if x.iter().all(|v| v.is_finite()) && !self.model.potential_at(&x[..n], t).is_finite() {
+            return self.model.diagnose_non_finite_at(&x[..n], t);
         }
         // ... or the step from x: replay it stage by stage and ask the model about the first
         // position whose forces are not finite.
@@ -148,9 +159,10 @@ impl DynamicalSystem for SplitHamiltonian {
         let (drifts, kicks) = (self.splitting.drifts(), self.splitting.kicks());
         for (i, &d) in kicks.iter().enumerate() {
             Splitting::drift(&mut x, n, drifts[i] * self.h, w);
-            self.model.gradient(&x[..n], &mut force);
+            let tk = t + self.splitting.kick_times()[i] * self.h;
+            self.model.gradient_at(&x[..n], tk, &mut force);
             if force.iter().any(|f| !f.is_finite()) || x.iter().any(|v| !v.is_finite()) {
-                return self.model.diagnose_non_finite(&x[..n]);
+                return self.model.diagnose_non_finite_at(&x[..n], tk);
             }
             let (_, p) = x.split_at_mut(n);
             for (pi, fi) in p.iter_mut().zip(&force) {
@@ -184,11 +196,11 @@ impl<'a, M: LaneModel> SplittingKernel<'a, M> {
 }
 
 impl<M: LaneModel> PointKernel for SplittingKernel<'_, M> {
-    fn orbit_steps(&mut self, x: &mut Soa, steps: u64) {
+    fn orbit_steps(&mut self, x: &mut Soa, _from: u64, steps: u64) {
         batch::orbit_steps(self.isa, self.model, self.coeffs, x, steps);
     }
 
-    fn reference_steps(&mut self, x: &mut [f64], steps: u64) {
+    fn reference_steps(&mut self, x: &mut [f64], _from: u64, steps: u64) {
         batch::record_reference_stages(
             self.model,
             self.coeffs,
@@ -199,7 +211,7 @@ impl<M: LaneModel> PointKernel for SplittingKernel<'_, M> {
         );
     }
 
-    fn tangent_steps(&mut self, v: &mut Soa, steps: u64) -> Result<(), TangentError> {
+    fn tangent_steps(&mut self, v: &mut Soa, _from: u64, steps: u64) -> Result<(), TangentError> {
         batch::tangent_steps(self.isa, self.model, self.coeffs, &self.stages, v, steps);
         Ok(())
     }
@@ -209,7 +221,12 @@ impl<M: LaneModel> PointKernel for SplittingKernel<'_, M> {
         true
     }
 
-    fn orbit_tangent_steps(&mut self, x: &mut Soa, steps: u64) -> Result<(), TangentError> {
+    fn orbit_tangent_steps(
+        &mut self,
+        x: &mut Soa,
+        _from: u64,
+        steps: u64,
+    ) -> Result<(), TangentError> {
         batch::orbit_tangent_steps(self.isa, self.model, self.coeffs, x, steps);
         Ok(())
     }

@@ -27,23 +27,23 @@ impl VectorField for Lorenz {
     fn dim(&self) -> usize {
         3
     }
-    fn value(&self, x: &[f64], out: &mut [f64]) {
+    fn value(&self, x: &[f64], _t: f64, out: &mut [f64]) {
         out[0] = SIGMA * (x[1] - x[0]);
         out[1] = x[0] * (RHO - x[2]) - x[1];
         out[2] = x[0] * x[1] - BETA * x[2];
     }
-    fn tangent(&self, x: &[f64], v: &[f64], out: &mut [f64]) {
+    fn tangent(&self, x: &[f64], _t: f64, v: &[f64], out: &mut [f64]) {
         out[0] = SIGMA * (v[1] - v[0]);
         out[1] = (RHO - x[2]) * v[0] - v[1] - x[0] * v[2];
         out[2] = x[1] * v[0] + x[0] * v[1] - BETA * v[2];
     }
-    fn divergence(&self, _x: &[f64]) -> f64 {
+    fn divergence(&self, _x: &[f64], _t: f64) -> f64 {
         -SIGMA - 1.0 - BETA
     }
     fn no_tangent_reason(&self) -> Option<String> {
         None
     }
-    fn diagnose_non_finite(&self, _x: &[f64]) -> Option<String> {
+    fn diagnose_non_finite(&self, _x: &[f64], _t: f64) -> Option<String> {
         None
     }
 }
@@ -82,7 +82,7 @@ fn trajectory(kind: RungeKuttaKind, h: f64, t: f64) -> Vec<f64> {
     let mut scratch = RkScratch::default();
     let steps = (t / h).round() as usize;
     for _ in 0..steps {
-        method.advance(&Lorenz, &mut x, h, &mut scratch);
+        method.advance(&Lorenz, &mut x, 0.0, h, &mut scratch);
     }
     x
 }

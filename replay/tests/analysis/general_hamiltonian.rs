@@ -85,7 +85,7 @@ fn the_orbit_is_the_built_in_henon_heiles_orbit() {
     let mut x = spec.x0().to_vec();
     let mut w = Workspace::new();
     for _ in 0..10_000 {
-        spec.system().step(&mut x, &mut w);
+        spec.system().step(&mut x, 0.0, &mut w);
     }
     let reference = format!(
         r#"
@@ -111,7 +111,7 @@ tau = 100.0
     let hh = RunSpec::from_config(&RunConfig::from_toml(&reference).unwrap()).unwrap();
     let mut y = hh.x0().to_vec();
     for _ in 0..100_000 {
-        hh.system().step(&mut y, &mut w);
+        hh.system().step(&mut y, 0.0, &mut w);
     }
     let dq = (x[0] - y[0]).hypot(x[1] - y[1]);
     // And the momenta through the change of variables.
@@ -137,7 +137,7 @@ fn gauss_legendre_keeps_the_energy_without_drift_over_a_million_steps() {
     let steps = 1_000_000;
     let (mut first, mut last, mut all) = (0.0f64, 0.0f64, 0.0f64);
     for i in 1..=steps {
-        spec.system().step(&mut x, &mut w);
+        spec.system().step(&mut x, 0.0, &mut w);
         if i % 100 == 0 {
             let err = ((spec.system().invariant(&x).unwrap() - e0) / e0).abs();
             all = all.max(err);

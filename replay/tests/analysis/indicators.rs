@@ -359,6 +359,15 @@ fn the_csv_and_the_plots_carry_every_named_indicator_over_time() {
             ofli <= fli + 1e-9 && ofli > 0.8 * fli,
             "{name}: OFLI {ofli}, FLI {fli}"
         );
+        // The DVD over HH's two sites (q1, p1) and (q2, p2): a participation number between
+        // one site and both, a second moment between none and two sites' half-and-half
+        // (1/4), and on a chaotic orbit both sites carry deviation (neither limit is held).
+        let (m2, p) = (at("dvd_m2"), at("dvd_participation"));
+        assert!(
+            (1.0..=2.0).contains(&p) && (0.0..=0.25).contains(&m2),
+            "{name}: DVD m2 {m2}, P {p}"
+        );
+        assert!(p > 1.0 && m2 > 0.0, "{name}: DVD m2 {m2}, P {p}");
     }
     let charts =
         chaoscope_analyzer::plot::charts(&a, &report, chaoscope_analyzer::plot::TimeAxis::Auto);

@@ -7,5 +7,6 @@ mod flows;
 mod general_hamiltonian;
 mod hostile_input;
 mod indicators;
+mod nonautonomous;
 mod v_shape;
 mod verdict;

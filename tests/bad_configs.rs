@@ -189,6 +189,13 @@ fn cases() -> Vec<Case> {
         |name, from, to, key, problem| case(name, Run, spoil(EXPLICIT, from, to), key, problem);
     let fput = |name, from, to, key, problem| case(name, Run, spoil(FPUT, from, to), key, problem);
     let map = |name, from, to, key, problem| case(name, Map, spoil(MAP, from, to), key, problem);
+    let example = |file: &str| {
+        std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(file)).unwrap()
+    };
+    let (standard_k, lorenz_mle) =
+        (example("examples/maps/standard-map-k-sali.toml"), example("examples/maps/lorenz-mle.toml"));
+    let by_k = |name, from, to, key, problem| case(name, Map, spoil(&standard_k, from, to), key, problem);
+    let by_rho = |name, from, to, key, problem| case(name, Map, spoil(&lorenz_mle, from, to), key, problem);
     let many_schemes = {
         let mut text = RUN.to_string();
         for i in 0..12_000 {
@@ -293,6 +300,14 @@ fn cases() -> Vec<Case> {
         map("map unknown coordinate", "coord = \"q2\"", "coord = \"q3\"", "map.x.coord", "not a coordinate"),
         map("map coordinate not a name", "coord = \"p2\"", "coord = \"z\"", "map.y.coord", "not a coordinate"),
         map("map same coordinate twice", "coord = \"p2\"", "coord = \"q2\"", "map.y.coord", "same coordinate"),
+        by_k("map parameter axis of no parameter", "param = \"K\"", "param = \"Q\"", "map.x.param", "'Q' is not a parameter of [model] params (scalars: K)"),
+        by_k("map axis both coordinate and parameter", "{ param = \"K\",", "{ coord = \"x1\", param = \"K\",", "map.x.param", "coord = \"x1\" and param = \"K\" both given"),
+        by_k("map coordinate axis naming a parameter", "{ param = \"K\",", "{ coord = \"K\",", "map.x.coord", "'K' is a parameter, not a coordinate"),
+        by_k("map axis of neither", "{ param = \"K\",", "{", "map.x.coord", "needs coord"),
+        by_k("map parameter axis over an array parameter", "params = { K = 1.0 }", "params = { K = [1.0, 2.0] }", "map.x.param", "'K' is an array parameter"),
+        by_rho("map the same parameter twice", "param = \"sigma\"", "param = \"rho\"", "map.y.param", "same parameter"),
+        by_rho("map parameter axis of an adaptive flow", "method = \"rk4\"", "method = \"dop853\"\nrtol = 1e-9\natol = 1e-9", "map.x.param", "batched kernel"),
+        map("map parameter axis of a built-in model", "coord = \"q2\"", "param = \"q2\"", "map.x.param", "henon-heiles has no parameters to put on an axis"),
         map("map min above max", "min = -0.4, max = 0.6", "min = 0.6, max = -0.4", "map.x.min", "min <= max"),
         map("map min NaN", "min = -0.4, max = 0.4", "min = nan, max = 0.4", "map.y.min", "finite"),
         map("map unknown indicator", "indicator = \"gali\"", "indicator = \"ofli\"", "map.indicator", "is not gali"),

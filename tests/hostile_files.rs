@@ -119,6 +119,7 @@ fn shard(dir: &Path, name: &str, shard_index: u32, shard_count: u32, grid_points
     let n = grid_points as u32;
     let axis = |n: u32| MapAxis {
         coord: "q2".into(),
+        param: String::new(),
         min: 0.0,
         max: 3.0,
         n,

@@ -51,11 +51,54 @@ fn points(path: &Path) -> BTreeMap<u64, Vec<u8>> {
     map
 }
 
+/// A small map over a parameter and a coordinate: the standard map's SALI over (K, p0) (6 x 5
+/// points, 200 iterations), each point's K a lane value.
+const PARAM_CONFIG: &str = r#"
+[model]
+name = "map"
+next = ["x1 + x2 + K*sin(x1)", "x2 + K*sin(x1)"]
+params = { K = 1.0 }
+modulo = [6.283185307179586, 6.283185307179586]
+[orbit]
+x = [2.0, 0.0]
+[integrator]
+t_final = 200
+[deviations]
+k = 2
+sets = 2
+seed = 3
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-7
+tau = 1
+[map]
+x = { param = "K", min = 0.2, max = 2.7, n = 6 }
+y = { coord = "x2", min = -3.0, max = 3.0, n = 5 }
+indicator = "sali"
+"#;
+
+/// Shards at 1 and 2 threads merge into exactly the unsharded map's points, for a coordinate
+/// map and a map over a parameter (whose header says so: `MapAxis.param`).
 #[test]
 fn merged_shards_equal_the_unsharded_map() {
+    merged_shards_equal_the_unsharded(CONFIG, 63);
+    merged_shards_equal_the_unsharded(PARAM_CONFIG, 30);
+    let tmp = dir();
+    let (cfg, out) = (tmp.path().join("k.toml"), tmp.path().join("k.mcap"));
+    std::fs::write(&cfg, PARAM_CONFIG).unwrap();
+    ok(&["map", s(&cfg), "--out", s(&out), "--no-progress"]);
+    let header = read_map_file(&out).unwrap().header.unwrap();
+    let (x, y) = (header.x.unwrap(), header.y.unwrap());
+    assert_eq!((x.param.as_str(), x.coord.as_str(), x.n), ("K", "", 6));
+    assert_eq!((y.param.as_str(), y.coord.as_str()), ("", "x2"));
+}
+
+fn merged_shards_equal_the_unsharded(config: &str, grid_points: usize) {
     let tmp = dir();
     let d = tmp.path();
     let cfg = d.join("map.toml");
+    std::fs::write(&cfg, config).unwrap();
     let whole = d.join("whole.mcap");
     ok(&[
         "map",
@@ -90,7 +133,7 @@ fn merged_shards_equal_the_unsharded_map() {
     args.extend(shards.iter().map(|p| s(p)));
     ok(&args);
     let want = points(&whole);
-    assert_eq!(want.len(), 63);
+    assert_eq!(want.len(), grid_points);
     assert_eq!(points(&merged), want);
     assert!(std::fs::metadata(&png).unwrap().len() > 1000);
     // A missing shard is refused.

@@ -219,8 +219,8 @@ pub fn render_png(
         chart
             .configure_mesh()
             .disable_mesh()
-            .x_desc(&xa.coord)
-            .y_desc(&ya.coord)
+            .x_desc(xa.name())
+            .y_desc(ya.name())
             .label_style((FONT, 14))
             .draw()
             .map_err(|e| err(&e))?;

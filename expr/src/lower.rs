@@ -1,7 +1,8 @@
 //! Syntax tree plus parameters, lattice size and boundary condition to [`Graph`] nodes.
 //!
 //! Everything that is known before the run is resolved here, so the graph holds only
-//! arithmetic on the variables: parameters become constants, `N` and sum indices become
+//! arithmetic on the variables: parameters become constants (except a [`ParamValue::Lane`],
+//! an input each evaluation brings: a map's parameter axis), `N` and sum indices become
 //! numbers, lattice sums are expanded term by term (a left fold, in index order), and the
 //! boundary condition decides what a site beyond the ends means. The smoothness of the result
 //! ([`crate::smooth`]) is computed alongside, on the same walk, where parameter values are
@@ -25,7 +26,7 @@
 //! - Index expressions and sum bounds are evaluated exactly in 64-bit integers (overflow is
 //!   an error); parameters are not allowed in them, even whole-valued ones.
 
-use std::cell::Cell;
+use std::cell::{Cell, RefCell};
 use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use crate::ast::{BinOp, Expr, ExprKind};
@@ -94,6 +95,19 @@ pub enum ParamValue {
     Scalar(f64),
     /// One entry per site (`k[1]` is the first); must have exactly `N` entries.
     Array(Vec<f64>),
+    /// A scalar whose value every evaluation brings: entry `index` of the function's argument
+    /// `arg`, not folded as a constant (a map's parameter axis, where each lane of a lane call
+    /// is a point with a value of its own). `min..=max` is the range it takes: its signs decide
+    /// the smoothness of what reads it, as a constant's do. Operations on it round as they
+    /// would on the constant, so a lane holding the value the constant would have gives the
+    /// same bits wherever the constant would not fold differently (an identity such as
+    /// `x * 1`, a whole exponent, a branch of `if`).
+    Lane {
+        arg: u8,
+        index: u32,
+        min: f64,
+        max: f64,
+    },
 }
 
 /// A family of variables: `q1..qN` and `q[i]` are entries of the function's argument `arg`.
@@ -214,6 +228,15 @@ fn lower_limited(
         loops,
         site_sums: Vec::new(),
         template: None,
+        lane_args: scope
+            .params
+            .values()
+            .filter_map(|v| match v {
+                ParamValue::Lane { arg, .. } => Some(*arg),
+                _ => None,
+            })
+            .collect(),
+        lane_only: RefCell::new(HashMap::new()),
     };
     let (root, info) = l.root(&ast).map_err(|e| *e)?;
     let tables = scope.tables;
@@ -272,6 +295,10 @@ struct Lowerer<'a> {
     site_sums: Vec<SiteSum>,
     /// The sum whose term is being lowered (once, as a loop's body).
     template: Option<loops::Template<'a>>,
+    /// The arguments [`ParamValue::Lane`] parameters are read from, and which nodes depend on
+    /// nothing else (no variable): see [`Lowerer::settle`].
+    lane_args: Vec<u8>,
+    lane_only: RefCell<HashMap<NodeId, bool>>,
 }
 
 impl<'a> Lowerer<'a> {
@@ -327,12 +354,45 @@ impl<'a> Lowerer<'a> {
     }
 
     /// The facts of a freshly built node: a node that folded to a constant is smooth whatever
-    /// operations it was written with (`abs(beta)`, `step(N - 2)`).
+    /// operations it was written with (`abs(beta)`, `step(N - 2)`), and so is one of lane
+    /// parameters alone (`sqrt(K)` over `K` in `0..1`): constant along every orbit, it limits
+    /// no derivative with respect to the variables.
     fn settle(&self, id: NodeId, info: Info) -> Info {
         match self.graph.as_const(id) {
             Some(c) => Info::constant(c),
+            None if !self.lane_args.is_empty() && self.reads_lane_params_only(id) => Info {
+                limit: None,
+                zero_kink: false,
+                ..info
+            },
             None => info,
         }
+    }
+
+    /// Whether node `id` reads no input but lane parameters (memoized; iterative, so a long
+    /// chain of operations cannot overflow the stack).
+    fn reads_lane_params_only(&self, id: NodeId) -> bool {
+        let mut memo = self.lane_only.borrow_mut();
+        let mut stack = vec![id];
+        while let Some(&top) = stack.last() {
+            if memo.contains_key(&top) {
+                stack.pop();
+                continue;
+            }
+            let node = self.graph.node(top);
+            let pending: Vec<NodeId> = node.operands().filter(|o| !memo.contains_key(o)).collect();
+            if !pending.is_empty() {
+                stack.extend(pending);
+                continue;
+            }
+            let only = match *node {
+                Node::Input { arg, .. } => self.lane_args.contains(&arg),
+                _ => node.operands().all(|o| memo[&o]),
+            };
+            memo.insert(top, only);
+            stack.pop();
+        }
+        memo[&id]
     }
 
     fn tick(&self, span: Span) -> R<()> {
@@ -493,7 +553,12 @@ impl<'a> Lowerer<'a> {
                 )),
                 None => Ok(()),
             },
-            ParamValue::Scalar(_) => Ok(()),
+            ParamValue::Lane { min, max, .. } if !(min.is_finite() && max.is_finite()) => Err(self
+                .err(
+                    span,
+                    format!("parameter '{name}' ranges over {min} .. {max}, not finite numbers"),
+                )),
+            ParamValue::Scalar(_) | ParamValue::Lane { .. } => Ok(()),
         }
     }
 
@@ -569,6 +634,15 @@ impl<'a> Lowerer<'a> {
                 Ok((self.emit(node, span)?, Info::variable()))
             }
             Meaning::Param(ParamValue::Scalar(v)) => self.constant(*v, span),
+            Meaning::Param(&ParamValue::Lane {
+                arg,
+                index,
+                min,
+                max,
+            }) => {
+                let id = self.emit(Node::Input { arg, index }, span)?;
+                Ok((id, Info::within(min, max)))
+            }
             Meaning::Param(ParamValue::Array(_)) => Err(self.err(
                 span,
                 format!("parameter '{n}' is an array (one entry per site): write {n}[i]"),
@@ -655,7 +729,7 @@ impl<'a> Lowerer<'a> {
                     None => Err(self.err(e.span, format!("{name}[{k}] does not exist"))),
                 }
             }
-            Meaning::Param(ParamValue::Scalar(_)) => Err(self.err(
+            Meaning::Param(ParamValue::Scalar(_) | ParamValue::Lane { .. }) => Err(self.err(
                 name_span,
                 format!("'{name}' is a scalar parameter, not an array: write {name}"),
             )),

@@ -253,6 +253,20 @@ impl Info {
         }
     }
 
+    /// A smooth value anywhere in `min..=max` (a parameter each lane brings: its signs are
+    /// those of the range).
+    pub fn within(min: f64, max: f64) -> Self {
+        let mut signs = Signs::of(min).union(Signs::of(max));
+        if min < 0.0 && max > 0.0 {
+            signs = Signs::ALL;
+        }
+        Self {
+            limit: None,
+            signs,
+            zero_kink: false,
+        }
+    }
+
     /// A smooth value of unknown sign (a variable).
     pub fn variable() -> Self {
         Self {

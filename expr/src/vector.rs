@@ -24,6 +24,14 @@
 //! function that does not read the time ([`VectorFunction::reads_time`]), whose arithmetic is
 //! exactly what it was before time existed: an argument it never reads changes no operation.
 //!
+//! Parameters given as [`ParamValue::Lane`] of [`ARG_PARAMS`] (a map's parameter axes) are
+//! read by every function from the state, after its `D` coordinates: per lane in a lane call
+//! over states, from the shared reference state in the Jacobian-vector product's. Derivatives
+//! are taken with respect to the coordinates only. They are the last argument array, after the
+//! time, and only there when `P > 0`: both can be read together (a parameter axis over a
+//! non-autonomous flow), each with its own layout (the time shared by all lanes, the
+//! parameters per lane).
+//!
 //! Components are numbered from 1, as the variables are: component `i` is `F_i`, written
 //! `<key>[i]` in messages (`next[2]` is the map's second component, the new `x2`).
 
@@ -77,10 +85,17 @@ const TANGENT: usize = 1;
 const DIVERGENCE: usize = 2;
 const ENERGY: usize = 3;
 
-/// Argument arrays: the state, the direction of `J v`, and the time (one entry).
+/// Argument arrays: the state, the direction of `J v`, the time (one entry), and the lane
+/// parameters.
 const ARG_X: u8 = 0;
 const ARG_V: u8 = 1;
 pub const ARG_T: u8 = 2;
+/// The argument of the parameters given per evaluation ([`ParamValue::Lane`] with this `arg`,
+/// indices `0..P`): a map's parameter axes. Every function reads them after the state: a state
+/// given to this function is `D` coordinates followed by the `P` parameter values (in lane
+/// calls, `D` rows then `P` rows), the "extended state". With `P = 0` nothing changes (the
+/// functions are compiled exactly as without this argument, which they then do not declare).
+pub const ARG_PARAMS: u8 = 3;
 
 /// Most components of a vector function (the straight-line code grows with `D`).
 pub const MAX_DIM: usize = 100_000;
@@ -107,6 +122,8 @@ struct Inner {
     tangent_fn: ScalarFnPtr,
     divergence_fn: ScalarFnPtr,
     energy_fn: Option<ScalarFnPtr>,
+    /// `P`: parameters read from [`ARG_PARAMS`] after the `D` coordinates of every state.
+    lane_params: usize,
     build_time: Duration,
 }
 
@@ -333,6 +350,17 @@ impl VectorFunction {
         started: Instant,
     ) -> Result<Self, VectorError> {
         let d = values.len();
+        let lane_params = definition
+            .params
+            .values()
+            .filter_map(|v| match v {
+                ParamValue::Lane { arg, index, .. } if *arg == ARG_PARAMS => {
+                    Some(*index as usize + 1)
+                }
+                _ => None,
+            })
+            .max()
+            .unwrap_or(0);
         let c1 = tangent_refusal.is_none();
         let other = |e: crate::diff::DiffError| VectorError::Other(e.to_string());
         // The tangent only where it means something (as the Hessian-vector product of a
@@ -363,15 +391,29 @@ impl VectorFunction {
         }
         let divergence = divergence.unwrap_or_else(|| graph.constant(0.0));
         // Every function takes the time as argument ARG_T, one value shared by all lanes
-        // (argument ARG_V of the functions other than `J v` is never read).
-        let unary = vec![Layout::Lanes, Layout::Scalar, Layout::Scalar];
+        // (argument ARG_V of the functions other than `J v` is never read). The parameters come
+        // with the state, after the time: one per lane where the state is one per lane, shared
+        // where it is shared (the tangent's reference state).
+        let with_params = |mut args: Vec<Layout>, layout: Layout| {
+            if lane_params > 0 {
+                args.push(layout);
+            }
+            args
+        };
+        let unary = with_params(
+            vec![Layout::Lanes, Layout::Scalar, Layout::Scalar],
+            Layout::Lanes,
+        );
         let mut specs = vec![
             FunctionSpec {
                 args: unary.clone(),
                 outputs: values.clone(),
             },
             FunctionSpec {
-                args: vec![Layout::Scalar, Layout::Lanes, Layout::Scalar],
+                args: with_params(
+                    vec![Layout::Scalar, Layout::Lanes, Layout::Scalar],
+                    Layout::Scalar,
+                ),
                 outputs: tangent.clone(),
             },
             FunctionSpec {
@@ -408,6 +450,13 @@ impl VectorFunction {
                     )));
                 }
             }
+            let p = ARG_PARAMS as usize;
+            if lane_params > 0 && compiled.arg_len(f, p) > lane_params {
+                return Err(VectorError::Other(format!(
+                    "compiled function {f} reads {} parameters, more than P = {lane_params}",
+                    compiled.arg_len(f, p)
+                )));
+            }
         }
         Ok(Self(Arc::new(Inner {
             value_fn: compiled.raw_scalar(VALUE),
@@ -415,6 +464,7 @@ impl VectorFunction {
             divergence_fn: compiled.raw_scalar(DIVERGENCE),
             energy_fn: energy.map(|_| compiled.raw_scalar(ENERGY)),
             energy,
+            lane_params,
             reads_time,
             tangent_refusal,
             definition,
@@ -434,6 +484,46 @@ impl VectorFunction {
     #[inline]
     pub fn dim(&self) -> usize {
         self.0.values.len()
+    }
+
+    /// `P`: the parameters every state carries after its `D` coordinates ([`ARG_PARAMS`]); 0
+    /// unless parameters were given as [`ParamValue::Lane`].
+    #[inline]
+    pub fn lane_params(&self) -> usize {
+        self.0.lane_params
+    }
+
+    /// `D + P`: the length of a state (a lane's rows) the functions read.
+    #[inline]
+    pub fn state_len(&self) -> usize {
+        self.dim() + self.0.lane_params
+    }
+
+    /// A state's coordinates and its parameters, as the scalar functions' argument arrays.
+    #[inline]
+    fn split<'a>(&self, x: &'a [f64]) -> (&'a [f64], &'a [f64]) {
+        x.split_at(self.dim())
+    }
+
+    /// The argument arrays of a lane call over `x` (`D + P` rows of `lanes`): the state, `middle`
+    /// (the direction of `J v`; an unread empty array for the other functions), the time, and
+    /// the parameters when there are any.
+    /// (No allocation: these calls sit in the kernels' inner loops.)
+    fn lane_args<'a>(
+        &self,
+        x: &'a [f64],
+        middle: &'a [f64],
+        time: &'a [f64],
+        lanes: usize,
+    ) -> ([&'a [f64]; 4], usize) {
+        let (x, p) = x.split_at(self.dim() * lanes);
+        let args: [&[f64]; 4] = [x, middle, time, p];
+        let n = if self.0.lane_params > 0 {
+            ARG_PARAMS as usize + 1
+        } else {
+            ARG_T as usize + 1
+        };
+        (args, n)
     }
 
     pub fn definition(&self) -> &VectorDefinition {
@@ -495,14 +585,15 @@ impl VectorFunction {
     /// `H(x, t)` of a Hamiltonian vector field; `None` for others.
     ///
     /// # Panics
-    /// If `x` does not have `D` entries.
+    /// If `x` does not have `D + P` entries.
     #[inline]
     pub fn energy_at(&self, x: &[f64], t: f64) -> Option<f64> {
         let f = self.0.energy_fn?;
-        let d = self.dim();
-        assert!(x.len() == d, "energy of {d} coordinates");
+        let n = self.state_len();
+        assert!(x.len() == n, "energy of a state of {n}");
+        let (x, p) = self.split(x);
         let time = [t];
-        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr()];
+        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr(), p.as_ptr()];
         let mut out = [0.0];
         // SAFETY: as in `value_at`; one output.
         unsafe { f(args.as_ptr(), out.as_mut_ptr()) }
@@ -520,19 +611,24 @@ impl VectorFunction {
         self.value_at(x, 0.0, out)
     }
 
-    /// `out = F(x, t)`.
+    /// `out = F(x, t)` (`x`: the `D + P` entries of a state, `out`: `D`).
     ///
     /// # Panics
-    /// If `x` or `out` does not have `D` entries.
+    /// If `x` does not have `D + P` entries or `out` `D`.
     #[inline]
     pub fn value_at(&self, x: &[f64], t: f64, out: &mut [f64]) {
-        let d = self.dim();
-        assert!(x.len() == d && out.len() == d, "{d} components");
+        let (d, n) = (self.dim(), self.state_len());
+        assert!(
+            x.len() == n && out.len() == d,
+            "{d} components of a state of {n}"
+        );
+        let (x, p) = self.split(x);
         let time = [t];
-        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr()];
-        // SAFETY: the function reads at most D entries of `x` and one of the time (checked in
-        // `new`), never argument ARG_V (null), and writes D outputs; both slices have D
-        // entries; `out` is a `&mut`, so it overlaps nothing; the code lives as long as
+        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr(), p.as_ptr()];
+        // SAFETY: the function reads at most D entries of `x`, one of the time and P of `p`
+        // (checked in `new`; a function without parameters does not declare the last
+        // argument), never argument ARG_V (null), and writes D outputs; the slices have D, 1
+        // and P entries; `out` is a `&mut`, so it overlaps nothing; the code lives as long as
         // `self.0.compiled`.
         unsafe { (self.0.value_fn)(args.as_ptr(), out.as_mut_ptr()) }
     }
@@ -543,24 +639,26 @@ impl VectorFunction {
         self.tangent_at(x, 0.0, v, out)
     }
 
-    /// `out = J(x, t) v` (the derivative in `x` at time `t`); `false` (and `out` untouched)
-    /// when the function has no continuous first derivatives ([`Self::no_tangent_reason`]).
+    /// `out = J(x, t) v` (the derivative in the coordinates of `x` at time `t`); `false` (and
+    /// `out` untouched) when the function has no continuous first derivatives
+    /// ([`Self::no_tangent_reason`]).
     ///
     /// # Panics
-    /// If `x`, `v` or `out` does not have `D` entries.
+    /// If `x` does not have `D + P` entries, or `v` or `out` not `D`.
     #[inline]
     pub fn tangent_at(&self, x: &[f64], t: f64, v: &[f64], out: &mut [f64]) -> bool {
         if !self.0.c1 {
             return false;
         }
-        let d = self.dim();
+        let (d, n) = (self.dim(), self.state_len());
         assert!(
-            x.len() == d && v.len() == d && out.len() == d,
+            x.len() == n && v.len() == d && out.len() == d,
             "Jacobian-vector product of {d} components"
         );
+        let (x, p) = self.split(x);
         let time = [t];
-        let args = [x.as_ptr(), v.as_ptr(), time.as_ptr()];
-        // SAFETY: as in `value_at`, for the arguments `x`, `v` and the time.
+        let args = [x.as_ptr(), v.as_ptr(), time.as_ptr(), p.as_ptr()];
+        // SAFETY: as in `value_at`, for the arguments `x`, `v`, the time and the parameters.
         unsafe { (self.0.tangent_fn)(args.as_ptr(), out.as_mut_ptr()) }
         true
     }
@@ -574,13 +672,14 @@ impl VectorFunction {
     /// `tr J(x, t)`.
     ///
     /// # Panics
-    /// If `x` does not have `D` entries.
+    /// If `x` does not have `D + P` entries.
     #[inline]
     pub fn divergence_at(&self, x: &[f64], t: f64) -> f64 {
-        let d = self.dim();
-        assert!(x.len() == d, "divergence of {d} components");
+        let n = self.state_len();
+        assert!(x.len() == n, "divergence at a state of {n}");
+        let (x, p) = self.split(x);
         let time = [t];
-        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr()];
+        let args = [x.as_ptr(), std::ptr::null(), time.as_ptr(), p.as_ptr()];
         let mut out = [0.0];
         // SAFETY: as in `value_at`; one output.
         unsafe { (self.0.divergence_fn)(args.as_ptr(), out.as_mut_ptr()) }
@@ -593,17 +692,17 @@ impl VectorFunction {
     }
 
     /// `F(., t)` over `lanes` states in structure-of-arrays layout, all at the time `t`:
-    /// `x[i * lanes + l]` is `x_i` of lane `l`, `out[i * lanes + l]` its `F_i`. Lane by lane
-    /// the bits of [`Self::value_at`].
+    /// `x[i * lanes + l]` is `x_i` of lane `l` (rows `D..D + P` its parameters),
+    /// `out[i * lanes + l]` its `F_i`. Lane by lane the bits of [`Self::value_at`].
     ///
     /// # Panics
-    /// If `x` or `out` does not have `D * lanes` entries.
+    /// If `x` does not have `(D + P) * lanes` entries or `out` `D * lanes`.
     pub fn value_lanes_at(&self, x: &[f64], t: f64, out: &mut [f64], lanes: usize) {
-        let d = self.dim();
-        assert_eq!(x.len(), d * lanes, "{d} rows of {lanes} lanes");
-        self.0
-            .compiled
-            .call_lanes(VALUE, &[x, &[], &[t]], out, lanes)
+        let n = self.state_len();
+        assert_eq!(x.len(), n * lanes, "{n} rows of {lanes} lanes");
+        let time = [t];
+        let (args, n) = self.lane_args(x, &[], &time, lanes);
+        self.0.compiled.call_lanes(VALUE, &args[..n], out, lanes)
     }
 
     /// `J v` at `t = 0` over lanes; see [`Self::tangent_lanes_at`].
@@ -611,12 +710,12 @@ impl VectorFunction {
         self.tangent_lanes_at(x, 0.0, v, out, lanes)
     }
 
-    /// `J(x, t) v` at one shared state `x` (the reference orbit) and time `t` for `lanes`
-    /// directions in structure-of-arrays layout (`v[i * lanes + l]`); `false` as
-    /// [`Self::tangent_at`].
+    /// `J(x, t) v` at one shared state `x` (the reference orbit, with its parameters) and time
+    /// `t` for `lanes` directions in structure-of-arrays layout (`v[i * lanes + l]`); `false`
+    /// as [`Self::tangent_at`].
     ///
     /// # Panics
-    /// If `x` does not have `D` entries, or `v` or `out` not `D * lanes`.
+    /// If `x` does not have `D + P` entries, or `v` or `out` not `D * lanes`.
     pub fn tangent_lanes_at(
         &self,
         x: &[f64],
@@ -628,14 +727,14 @@ impl VectorFunction {
         if !self.0.c1 {
             return false;
         }
-        let d = self.dim();
+        let (d, n) = (self.dim(), self.state_len());
         assert!(
-            x.len() == d && v.len() == d * lanes,
-            "a state of {d} and {d} rows of {lanes} lanes"
+            x.len() == n && v.len() == d * lanes,
+            "a state of {n} and {d} rows of {lanes} lanes"
         );
-        self.0
-            .compiled
-            .call_lanes(TANGENT, &[x, v, &[t]], out, lanes);
+        let time = [t];
+        let (args, n) = self.lane_args(x, v, &time, 1);
+        self.0.compiled.call_lanes(TANGENT, &args[..n], out, lanes);
         true
     }
 
@@ -644,14 +743,16 @@ impl VectorFunction {
         self.divergence_lanes_at(x, 0.0, out, lanes)
     }
 
-    /// The divergence at time `t` over `lanes` states in structure-of-arrays layout; `out` has
-    /// `lanes` entries.
+    /// The divergence at time `t` over `lanes` states in structure-of-arrays layout (`D + P`
+    /// rows); `out` has `lanes` entries.
     pub fn divergence_lanes_at(&self, x: &[f64], t: f64, out: &mut [f64], lanes: usize) {
-        let d = self.dim();
-        assert_eq!(x.len(), d * lanes, "{d} rows of {lanes} lanes");
+        let n = self.state_len();
+        assert_eq!(x.len(), n * lanes, "{n} rows of {lanes} lanes");
+        let time = [t];
+        let (args, n) = self.lane_args(x, &[], &time, lanes);
         self.0
             .compiled
-            .call_lanes(DIVERGENCE, &[x, &[], &[t]], out, lanes)
+            .call_lanes(DIVERGENCE, &args[..n], out, lanes)
     }
 
     /// What made `F(x)` non-finite: the first operation, in component order and evaluation
@@ -664,17 +765,23 @@ impl VectorFunction {
 
     /// [`Self::diagnose_non_finite`] at time `t`.
     pub fn diagnose_non_finite_at(&self, x: &[f64], t: f64) -> Option<String> {
-        let time = [t];
-        let args: [&[f64]; 3] = [x, &[], &time];
         let g = &self.0.graph;
         let key = &self.0.definition.key;
         let state = format!("{x:?}");
+        let (coordinates, params) = self.split(x);
+        let time = [t];
+        let args: [&[f64]; 4] = [coordinates, &[], &time, params];
+        let args = if self.0.lane_params > 0 {
+            &args[..]
+        } else {
+            &args[..ARG_PARAMS as usize]
+        };
         for (i, &root) in self.0.values.iter().enumerate() {
-            let Some(id) = eval::first_non_finite(g, &args, root) else {
+            let Some(id) = eval::first_non_finite(g, args, root) else {
                 continue;
             };
             let mut value = [0.0];
-            Evaluator::new().eval(g, &args, &[id], &mut value);
+            Evaluator::new().eval(g, args, &[id], &mut value);
             let op = g.operation_name(id);
             return Some(match self.0.origins.get(&id) {
                 Some(&(c, span)) => {

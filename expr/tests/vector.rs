@@ -246,6 +246,95 @@ fn diagnosis_names_the_operation_and_component() {
     );
 }
 
+/// Lane parameters (a map's parameter axes): each lane's own value, read after the state's
+/// coordinates, gives the bits of the function compiled with that value as a constant (value,
+/// divergence and lanes; the Jacobian-vector product around a shared state), the expressions
+/// being ones where the constant folds with nothing; a function of lane parameters alone
+/// (`sqrt(K)`, `abs(c)`) limits no derivative with respect to the variables, so VM stays
+/// allowed; and the non-finite diagnosis reads the parameters.
+#[test]
+fn lane_parameters_give_the_bits_of_the_folded_constants() {
+    use chaoscope_expr::vector::ARG_PARAMS;
+    let components = [
+        "x1 + x2 + K * sin(x1) * sqrt(K)",
+        "x2 + c * K * sin(x1) + abs(c)",
+    ];
+    let lane = |index, min, max| ParamValue::Lane {
+        arg: ARG_PARAMS,
+        index,
+        min,
+        max,
+    };
+    let by_lane = VectorFunction::new(definition(
+        "next",
+        &components,
+        &[("K", lane(0, 0.0, 2.0)), ("c", lane(1, -1.0, 1.0))],
+    ))
+    .unwrap();
+    assert_eq!(
+        (by_lane.dim(), by_lane.lane_params(), by_lane.state_len()),
+        (2, 2, 4)
+    );
+    assert!(by_lane.has_tangent(), "{:?}", by_lane.no_tangent_reason());
+    let points = [
+        [0.3, -1.2, 0.7, 0.25],
+        [2.5, 0.4, 1.9, -0.75],
+        [6.0, 3.0, 0.0, 1.0],
+    ];
+    let lanes = points.len();
+    let mut soa = vec![0.0; 4 * lanes];
+    for (l, p) in points.iter().enumerate() {
+        for (r, v) in p.iter().enumerate() {
+            soa[r * lanes + l] = *v;
+        }
+    }
+    let mut out_lanes = vec![0.0; 2 * lanes];
+    by_lane.value_lanes(&soa, &mut out_lanes, lanes);
+    let mut div_lanes = vec![0.0; lanes];
+    by_lane.divergence_lanes(&soa, &mut div_lanes, lanes);
+    for (l, p) in points.iter().enumerate() {
+        let folded = VectorFunction::new(definition(
+            "next",
+            &components,
+            &[
+                ("K", ParamValue::Scalar(p[2])),
+                ("c", ParamValue::Scalar(p[3])),
+            ],
+        ))
+        .unwrap();
+        let (mut want, mut got) = ([0.0; 2], [0.0; 2]);
+        folded.value(&p[..2], &mut want);
+        by_lane.value(p, &mut got);
+        assert_eq!(bits(&got), bits(&want), "value at {p:?}");
+        assert_eq!(
+            bits(&[out_lanes[l], out_lanes[lanes + l]]),
+            bits(&want),
+            "lane {l}"
+        );
+        assert_eq!(
+            by_lane.divergence(p).to_bits(),
+            folded.divergence(&p[..2]).to_bits()
+        );
+        assert_eq!(div_lanes[l].to_bits(), folded.divergence(&p[..2]).to_bits());
+        // J v for three directions around this point's state.
+        let v = [1.0, 0.0, 0.5, -2.0, 0.25, 3.0];
+        let (mut want_jv, mut got_jv) = (vec![0.0; 6], vec![0.0; 6]);
+        assert!(folded.tangent_lanes(&p[..2], &v, &mut want_jv, 3));
+        assert!(by_lane.tangent_lanes(p, &v, &mut got_jv, 3));
+        assert_eq!(bits(&got_jv), bits(&want_jv), "J v at {p:?}");
+    }
+    // A parameter that makes the value non-finite is named with the state it came from.
+    let log = VectorFunction::new(definition(
+        "next",
+        &["x1 + log(K)", "x2"],
+        &[("K", lane(0, 0.0, 1.0))],
+    ))
+    .unwrap();
+    let why = log.diagnose_non_finite(&[1.0, 2.0, -1.0]).unwrap();
+    assert!(why.contains("'log'") && why.contains("next[1]"), "{why}");
+    assert!(log.diagnose_non_finite(&[1.0, 2.0, 0.5]).is_none());
+}
+
 /// A right-hand side that reads the time `t`: every compiled form (scalar `*_at`, lanes at one
 /// shared time) gives the reference evaluator's bits with the time as argument 2, at several
 /// times; `t` is a built-in there (a parameter of that name is an error naming it), and an
@@ -310,4 +399,74 @@ fn time_is_an_argument_of_every_compiled_form() {
     map.time = false;
     let unknown = VectorFunction::new(map).unwrap_err().to_string();
     assert!(unknown.contains("unknown name 't'"), "{unknown}");
+}
+
+/// Time and lane parameters together (a parameter axis over a non-autonomous flow): the two
+/// are distinct argument arrays (`ARG_T` shared by the lanes, `ARG_PARAMS` per lane), so at
+/// each time every lane gives the bits of the function compiled with its parameter as a
+/// constant, evaluated at that time, in every compiled form.
+#[test]
+fn time_and_lane_parameters_are_distinct_arguments() {
+    use chaoscope_expr::vector::{ARG_PARAMS, ARG_T};
+    assert_ne!(ARG_T, ARG_PARAMS);
+    let components = ["x2", "-0.3 * x2 + x1 - x1^3 + gamma * cos(1.2 * t)"];
+    let by_lane = VectorFunction::new(definition(
+        "rhs",
+        &components,
+        &[(
+            "gamma",
+            ParamValue::Lane {
+                arg: ARG_PARAMS,
+                index: 0,
+                min: 0.0,
+                max: 1.0,
+            },
+        )],
+    ))
+    .unwrap();
+    assert!(by_lane.reads_time());
+    assert_eq!(by_lane.state_len(), 3);
+    let points = [[0.3, -1.2, 0.1], [2.5, 0.4, 0.9], [-1.0, 0.5, 0.45]];
+    let lanes = points.len();
+    let soa: Vec<f64> = (0..3)
+        .flat_map(|r| points.iter().map(move |p| p[r]))
+        .collect();
+    for t in [0.0, 0.37, 12.5] {
+        let mut out_lanes = vec![0.0; 2 * lanes];
+        by_lane.value_lanes_at(&soa, t, &mut out_lanes, lanes);
+        let mut div_lanes = vec![0.0; lanes];
+        by_lane.divergence_lanes_at(&soa, t, &mut div_lanes, lanes);
+        for (l, p) in points.iter().enumerate() {
+            let folded = VectorFunction::new(definition(
+                "rhs",
+                &components,
+                &[("gamma", ParamValue::Scalar(p[2]))],
+            ))
+            .unwrap();
+            let (mut want, mut got) = ([0.0; 2], [0.0; 2]);
+            folded.value_at(&p[..2], t, &mut want);
+            by_lane.value_at(p, t, &mut got);
+            assert_eq!(bits(&got), bits(&want), "value at {p:?}, t = {t}");
+            assert_eq!(
+                bits(&[out_lanes[l], out_lanes[lanes + l]]),
+                bits(&want),
+                "lane {l}, t = {t}"
+            );
+            // The forcing moves the value with t (when gamma is not 0): the time is read.
+            let mut at_zero = [0.0; 2];
+            folded.value_at(&p[..2], 0.0, &mut at_zero);
+            if t != 0.0 {
+                assert_ne!(bits(&at_zero), bits(&want), "t = {t} is read");
+            }
+            assert_eq!(
+                div_lanes[l].to_bits(),
+                folded.divergence_at(&p[..2], t).to_bits()
+            );
+            let v = [1.0, 0.0, 0.5, -2.0];
+            let (mut want_jv, mut got_jv) = (vec![0.0; 4], vec![0.0; 4]);
+            assert!(folded.tangent_lanes_at(&p[..2], t, &v, &mut want_jv, 2));
+            assert!(by_lane.tangent_lanes_at(p, t, &v, &mut got_jv, 2));
+            assert_eq!(bits(&got_jv), bits(&want_jv), "J v at {p:?}, t = {t}");
+        }
+    }
 }

@@ -96,10 +96,14 @@ impl DeviationMethod for MultiParticle {
         true
     }
 
+    /// A nearby orbit carries the reference's parameters (a state's entries after its `D`
+    /// coordinates, when the lane has them) unchanged.
     fn start(&self, x: &[f64], d: &[f64], lane: &mut [f64]) {
         for ((y, xi), di) in lane.iter_mut().zip(x).zip(d) {
             *y = xi + di;
         }
+        let (n, len) = (d.len().min(lane.len()), lane.len());
+        lane[n..].copy_from_slice(&x[n..len]);
     }
 
     fn advance(

@@ -540,3 +540,338 @@ fn spectrum_and_qr_go_together() {
     assert_eq!(err.key, "scheme[0].orthonormalize");
     assert!(err.message.contains("rescale"), "{err}");
 }
+
+/// The numbers of two points of different maps (their grid places aside), bit for bit.
+fn same_point(a: &PointResult, b: &PointResult) -> bool {
+    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    a.status == b.status
+        && a.value.to_bits() == b.value.to_bits()
+        && bits(&a.per_set) == bits(&b.per_set)
+        && bits(&a.spectrum) == bits(&b.spectrum)
+        && a.mean_log10.to_bits() == b.mean_log10.to_bits()
+        && a.t_end.to_bits() == b.t_end.to_bits()
+        && a.orbit_steps == b.orbit_steps
+        && bits(&a.x0) == bits(&b.x0)
+}
+
+/// A map config of `model` (its `[model]` keys, `{params}` where the parameters go) with the
+/// given `[orbit]`, `[integrator]`, scheme and axes.
+#[allow(clippy::too_many_arguments)]
+fn model_map(
+    model: &str,
+    params: &str,
+    orbit: &str,
+    integrator: &str,
+    (method, tau, route): (&str, &str, &str),
+    indicator: &str,
+    x: &str,
+    y: &str,
+) -> MapSpec {
+    let k = if indicator == "mle" { 1 } else { 2 };
+    let model = model.replace("{params}", params);
+    let threshold = if indicator == "gali-time" {
+        "threshold = 1e-6\n"
+    } else {
+        ""
+    };
+    let qr = if indicator == "spectrum" {
+        "orthonormalize = \"qr\"\n"
+    } else {
+        ""
+    };
+    let text = format!(
+        "[model]\n{model}\n[orbit]\n{orbit}\n[integrator]\n{integrator}\n\
+         [deviations]\nk = {k}\nsets = 2\nseed = 5\n\
+         [[scheme]]\nname = \"s\"\nmethod = \"{method}\"\nd0 = 1e-7\ntau = {tau}\n{qr}\
+         [map]\nx = {x}\ny = {y}\nindicator = \"{indicator}\"\nroute = \"{route}\"\n{threshold}"
+    );
+    MapSpec::from_config(&RunConfig::from_toml(&text).unwrap())
+        .unwrap_or_else(|e| panic!("{e}\n{text}"))
+}
+
+const STANDARD_MAP: &str = "name = \"map\"\nnext = [\"x1 + x2 + K*sin(x1)\", \"x2 + K*sin(x1)\"]\n\
+     params = { {params} }\nmodulo = [6.283185307179586, 6.283185307179586]";
+const LORENZ: &str = "name = \"ode\"\n\
+     rhs = [\"sigma*(x2 - x1)\", \"x1*(rho - x3) - x2\", \"x1*x2 - beta*x3\"]\n\
+     params = { {params} }";
+const MAGNETIC_HH: &str = "name = \"hamiltonian\"\nn = 2\n\
+     hamiltonian = \"((p1 + B*q2/2)^2 + (p2 - B*q1/2)^2)/2 + (q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3\"\n\
+     params = { {params} }";
+
+/// Must-show of parameter axes: a map over a parameter (`x = { param = "K", ... }`) computes
+/// each point with its parameter as a lane value of the compiled functions, and its column at
+/// a fixed value equals, bit for bit, a coordinate map at that value (the parameter folded as
+/// a constant): the operations are the same (`K * sin(x1)` is one multiplication either way;
+/// no identity folds at these values), for every indicator, VM and MPM, both routes, the
+/// standard map and Lorenz (two parameter axes), with 1 and 2 threads; a Hamiltonian `H(q, p)`
+/// to rounding (see there).
+#[test]
+fn parameter_axes_equal_coordinate_maps_at_fixed_values() {
+    // The standard map over (K, p0) from theta0 = 2, against (theta, p) maps at each K.
+    for (method, tau, route, indicator) in [
+        ("vm", "1", "per-set", "sali"),
+        ("mpm", "1", "per-set", "gali"),
+        ("mpm", "3", "per-set", "mle"),
+        ("vm", "2", "per-set", "fli"),
+        ("mpm", "1", "per-set", "megno"),
+        ("vm", "1", "per-set", "megno_mean"),
+        ("vm", "1", "per-set", "gali-time"),
+        ("mpm", "2", "per-set", "spectrum"),
+        ("vm", "1", "basis", "gali"),
+        ("mpm", "1", "basis", "sali"),
+    ] {
+        let scheme = (method, tau, route);
+        let p_axis = "{ coord = \"x2\", min = -3.1, max = 3.1, n = 4 }";
+        let integrator = "h = 1\nt_final = 300";
+        let by_k = model_map(
+            STANDARD_MAP,
+            "K = 1.0",
+            "x = [2.0, 0.0]",
+            integrator,
+            scheme,
+            indicator,
+            "{ param = \"K\", min = 0.3, max = 2.1, n = 3 }",
+            p_axis,
+        );
+        assert!(by_k.x.is_param && !by_k.y.is_param);
+        let got = batched(&by_k, 2, Isa::detect());
+        assert_eq!(got, batched(&by_k, 1, Isa::detect()));
+        for ik in 0..by_k.x.n {
+            let k = by_k.x.value(ik);
+            let at_k = model_map(
+                STANDARD_MAP,
+                &format!("K = {k:?}"),
+                "x = [0.0, 0.0]",
+                integrator,
+                scheme,
+                indicator,
+                "{ coord = \"x1\", min = 2.0, max = 2.0, n = 1 }",
+                p_axis,
+            );
+            let want = batched(&at_k, 1, Isa::detect());
+            for (iy, w) in want.iter().enumerate() {
+                let g = &got[iy * by_k.x.n + ik];
+                assert!(
+                    (g.x, g.y, g.ix, g.iy) == (k, w.y, ik as u32, iy as u32) && same_point(g, w),
+                    "{method} {route} {indicator} K = {k}:\n param {g:?}\n coord {w:?}"
+                );
+            }
+        }
+    }
+
+    // Lorenz over (rho, sigma), and a Hamiltonian over (B, q2), against coordinate maps.
+    let lorenz_orbit = "x = [1.0, 1.0, 20.0]";
+    let lorenz_params = |rho: f64, sigma: f64| {
+        format!("sigma = {sigma:?}, rho = {rho:?}, beta = 2.6666666666666665")
+    };
+    for (integrator, scheme, indicator) in [
+        (
+            "method = \"rk4\"\nh = 0.01\nt_final = 3",
+            ("vm", "0.5", "per-set"),
+            "mle",
+        ),
+        (
+            "method = \"dop853\"\nh = 0.01\nt_final = 3",
+            ("mpm", "0.5", "per-set"),
+            "gali",
+        ),
+        (
+            "method = \"rk4\"\nh = 0.01\nt_final = 3",
+            ("vm", "0.5", "basis"),
+            "sali",
+        ),
+        (
+            "method = \"rk4\"\nh = 0.01\nt_final = 3",
+            ("vm", "0.5", "per-set"),
+            "spectrum",
+        ),
+    ] {
+        let by_params = model_map(
+            LORENZ,
+            &lorenz_params(28.0, 10.0),
+            lorenz_orbit,
+            integrator,
+            scheme,
+            indicator,
+            "{ param = \"rho\", min = 0.5, max = 28.0, n = 2 }",
+            "{ param = \"sigma\", min = 10.0, max = 16.0, n = 2 }",
+        );
+        let got = batched(&by_params, 2, Isa::detect());
+        assert_eq!(got, batched(&by_params, 1, Isa::detect()));
+        for g in &got {
+            let at = model_map(
+                LORENZ,
+                &lorenz_params(g.x, g.y),
+                lorenz_orbit,
+                integrator,
+                scheme,
+                indicator,
+                "{ coord = \"x1\", min = 1.0, max = 1.0, n = 1 }",
+                "{ coord = \"x2\", min = 1.0, max = 1.0, n = 1 }",
+            );
+            let w = &batched(&at, 1, Isa::detect())[0];
+            assert!(
+                g.status == PointStatus::Ok && same_point(g, w),
+                "lorenz {scheme:?} {indicator}:\n param {g:?}\n coord {w:?}"
+            );
+        }
+    }
+    let hh_orbit = "q = [0.0, 0.0]\np = [0.3, 0.0]";
+    let q2_axis = "{ coord = \"q2\", min = -0.2, max = 0.2, n = 2 }";
+    for (scheme, indicator) in [
+        (("vm", "0.5", "per-set"), "gali"),
+        (("mpm", "0.5", "basis"), "mle"),
+    ] {
+        let integrator = "method = \"rk4\"\nh = 0.01\nt_final = 3";
+        let by_b = model_map(
+            MAGNETIC_HH,
+            "B = 0.2",
+            hh_orbit,
+            integrator,
+            scheme,
+            indicator,
+            "{ param = \"B\", min = 0.1, max = 0.4, n = 2 }",
+            q2_axis,
+        );
+        let got = batched(&by_b, 2, Isa::detect());
+        for ib in 0..by_b.x.n {
+            let b = by_b.x.value(ib);
+            let at_b = model_map(
+                MAGNETIC_HH,
+                &format!("B = {b:?}"),
+                hh_orbit,
+                integrator,
+                scheme,
+                indicator,
+                "{ coord = \"p2\", min = 0.0, max = 0.0, n = 1 }",
+                q2_axis,
+            );
+            // Not bit for bit: the field is the symbolic gradient of H, and its Jacobian holds
+            // products of parameter factors ((B/2) (B/2)) that fold into one constant when B is
+            // one, but are multiplied at run time, in the order the derivative builds them, when
+            // it is a lane value: a few roundings apart per step. Over these 300 steps of
+            // regular orbits that stays within 1e-13 relative for VM (the outputs are of order
+            // 1e-2 .. 1, so 1e-13 absolute at worst); MPM's separations are differences of
+            // orbits at d0 = 1e-7, which carry the orbits' rounding difference divided by d0
+            // (1e-16 / 1e-7 = 1e-9 relative; 1e-6 leaves a factor 1000 for its growth). The
+            // steps and the classification are equal.
+            let tol = if scheme.0 == "mpm" { 1e-6 } else { 1e-13 };
+            let close = |a: f64, b: f64| (a - b).abs() <= tol * a.abs().max(b.abs()).max(1.0);
+            for (iy, w) in batched(&at_b, 1, Isa::detect()).iter().enumerate() {
+                let g = &got[iy * by_b.x.n + ib];
+                assert!(
+                    g.status == w.status
+                        && g.orbit_steps == w.orbit_steps
+                        && g.x0 == w.x0
+                        && close(g.value, w.value)
+                        && g.per_set.iter().zip(&w.per_set).all(|(a, b)| close(*a, *b)),
+                    "hamiltonian {scheme:?} {indicator} B = {b}:\n param {g:?}\n coord {w:?}"
+                );
+            }
+        }
+    }
+}
+
+/// Lorenz's largest Lyapunov exponent over parameter axes against what is known of it: at the
+/// classical rho = 28, sigma = 10, beta = 8/3 it is 0.9056 (Sprott's reference value); below
+/// rho = 1 the origin is a stable node, every orbit falls into it and the exponent is that of
+/// its slowest direction, (-(sigma + 1) + sqrt((sigma + 1)^2 - 4 sigma (1 - rho))) / 2 =
+/// -0.4751 at rho = 0.5, sigma = 10.
+#[test]
+fn lorenz_mle_over_rho_and_sigma() {
+    let spec = model_map(
+        LORENZ,
+        "sigma = 10.0, rho = 28.0, beta = 2.6666666666666665",
+        "x = [1.0, 1.0, 1.0]",
+        "method = \"rk4\"\nh = 0.01\nt_final = 1000",
+        ("vm", "1", "per-set"),
+        "mle",
+        "{ param = \"rho\", min = 0.5, max = 28.0, n = 2 }",
+        "{ param = \"sigma\", min = 10.0, max = 10.0, n = 1 }",
+    );
+    let points = batched(&spec, 2, Isa::detect());
+    let (stable, chaotic) = (&points[0], &points[1]);
+    assert_eq!((stable.x, chaotic.x, chaotic.y), (0.5, 28.0, 10.0));
+    // The finite-time exponent over T = 1000 (the transient from (1, 1, 1) included)
+    // fluctuates from orbit to orbit with a spread ~ 1/sqrt(T): 20 orbits near rho = 28 gave
+    // a standard deviation of 0.003 at T = 2000, so 0.005 here; the transient of a few time
+    // units biases it by a few 1e-3. rk4's error at h = 0.01 is far below both. 0.03 is five
+    // spreads plus the bias.
+    assert!(
+        (chaotic.value - 0.9056).abs() < 0.03,
+        "MLE at rho = 28, sigma = 10: {}",
+        chaotic.value
+    );
+    // Falling onto the node, the tangent vector aligns with its slowest eigendirection within
+    // a few time units (the other rates are -10.5 and -8/3): the finite-time average differs
+    // from -0.4751 by O(1/T).
+    let slowest = (-11.0 + (121.0f64 - 20.0).sqrt()) / 2.0;
+    assert!(
+        stable.value < 0.0 && (stable.value - slowest).abs() < 0.01,
+        "MLE at rho = 0.5, sigma = 10: {} (node {slowest})",
+        stable.value
+    );
+}
+
+const FORCED_DUFFING: &str = "name = \"ode\"\n\
+     rhs = [\"x2\", \"-0.25*x2 + x1 - x1^3 + gamma*cos(1.2*t)\"]\n\
+     params = { {params} }";
+
+/// A parameter axis over a non-autonomous flow (the forced Duffing oscillator over its forcing
+/// amplitude `gamma`): the time is one argument shared by the lanes and `gamma` another, read
+/// per lane, so every point equals, bit for bit, the coordinate map at its `gamma` (the
+/// parameter folded as a constant; `gamma * cos(1.2 t)` is one multiplication either way), VM
+/// and MPM, both routes, on 1 and 2 threads; and the forcing enters (the column of
+/// `gamma = 0`, the autonomous oscillator, differs from the forced ones).
+#[test]
+fn parameter_axes_over_a_non_autonomous_flow() {
+    let orbit = "x = [0.5, 0.0]";
+    let integrator = "method = \"rk4\"\nh = 0.01\nt_final = 5";
+    let v_axis = "{ coord = \"x2\", min = -0.2, max = 0.2, n = 2 }";
+    for (scheme, indicator) in [
+        (("vm", "0.5", "per-set"), "mle"),
+        (("mpm", "0.5", "per-set"), "gali"),
+        (("vm", "0.5", "basis"), "sali"),
+    ] {
+        let by_gamma = model_map(
+            FORCED_DUFFING,
+            "gamma = 0.3",
+            orbit,
+            integrator,
+            scheme,
+            indicator,
+            "{ param = \"gamma\", min = 0.0, max = 0.6, n = 3 }",
+            v_axis,
+        );
+        let got = batched(&by_gamma, 2, Isa::detect());
+        assert_eq!(got, batched(&by_gamma, 1, Isa::detect()));
+        for ig in 0..by_gamma.x.n {
+            let gamma = by_gamma.x.value(ig);
+            let at = model_map(
+                FORCED_DUFFING,
+                &format!("gamma = {gamma:?}"),
+                orbit,
+                integrator,
+                scheme,
+                indicator,
+                "{ coord = \"x1\", min = 0.5, max = 0.5, n = 1 }",
+                v_axis,
+            );
+            for (iy, w) in batched(&at, 1, Isa::detect()).iter().enumerate() {
+                let g = &got[iy * by_gamma.x.n + ig];
+                assert!(
+                    g.status == PointStatus::Ok && same_point(g, w),
+                    "duffing {scheme:?} {indicator} gamma = {gamma}:\n param {g:?}\n coord {w:?}"
+                );
+            }
+        }
+        // The forcing moves the orbits: the unforced column differs from the forced ones.
+        for iy in 0..2 {
+            let row = &got[iy * by_gamma.x.n..(iy + 1) * by_gamma.x.n];
+            assert!(
+                row[1..].iter().all(|g| !same_point(g, &row[0])),
+                "{scheme:?} {indicator}: gamma did not change the points of row {iy}"
+            );
+        }
+    }
+}

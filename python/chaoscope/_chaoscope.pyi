@@ -124,6 +124,7 @@ class Map:
     sets: int
     t_final: float
     x_coord: str
+    """What the x axis varies: a coordinate ("q2"), or a parameter of a parameter axis ("K")."""
     y_coord: str
     x: FloatArray
     y: FloatArray

@@ -29,7 +29,7 @@ pub struct Map {
     k: u32,
     sets: u32,
     t_final: f64,
-    /// Coordinates of the axes, e.g. "q2" and "p2".
+    /// What the axes vary: coordinates such as "q2" and "p2", or a parameter ("K").
     x_coord: String,
     y_coord: String,
     /// Grid coordinates, shapes (nx,) and (ny,).
@@ -121,8 +121,8 @@ impl Map {
             k: header.k,
             sets: header.sets,
             t_final: header.t_final,
-            x_coord: xa.coord.clone(),
-            y_coord: ya.coord.clone(),
+            x_coord: xa.name().to_string(),
+            y_coord: ya.name().to_string(),
             x: grid(x, &[nx])?,
             y: grid(y, &[ny])?,
             value: grid(value, &[ny, nx])?,

@@ -54,6 +54,39 @@ def test_map_grid_equals_the_command(tmp_path, cli):
     assert again.value.tobytes() == m.value.tobytes()
 
 
+def test_parameter_axis_map_equals_the_command(tmp_path, cli):
+    """A map over a parameter of the model (the standard map's SALI over K and p0): x_coord
+    names the parameter, the grid holds its values, and the points equal the command's."""
+    config = {
+        "model": {
+            "name": "map",
+            "next": ["x1 + x2 + K*sin(x1)", "x2 + K*sin(x1)"],
+            "params": {"K": 1.0},
+            "modulo": [6.283185307179586, 6.283185307179586],
+        },
+        "orbit": {"x": [2.0, 0.0]},
+        "integrator": {"t_final": 200},
+        "deviations": {"k": 2, "sets": 1, "seed": 1},
+        "scheme": [{"name": "vm", "method": "vm", "d0": 1e-8, "tau": 1}],
+        "map": {
+            "x": {"param": "K", "min": 0.0, "max": 3.0, "n": 7},
+            "y": {"coord": "x2", "min": -3.0, "max": 3.0, "n": 5},
+            "indicator": "sali",
+        },
+    }
+    m = chaoscope.map(config, out=tmp_path / "py.mcap", threads=2)
+    assert (m.x_coord, m.y_coord) == ("K", "x2")
+    assert np.allclose(m.x, np.linspace(0.0, 3.0, 7)) and m.value.shape == (5, 7)
+    # K = 0 is the free rotation p' = p: every orbit regular, SALI far above the chaotic floor;
+    # at K = 3 most of the column is the chaotic sea.
+    assert np.all(m.value[:, 0] > 1e-8) and np.sum(m.value[:, -1] < 1e-12) >= 3
+    path = tmp_path / "map.toml"
+    path.write_text(to_toml(config))
+    done = cli("map", path, "--out", tmp_path / "cli.mcap", "--threads", 1, "--no-progress")
+    assert done.returncode == 0, done.stderr
+    assert chaoscope.open_map(tmp_path / "cli.mcap").value.tobytes() == m.value.tobytes()
+
+
 def test_map_errors(tmp_path):
     config = hh_map()
     del config["map"]

@@ -157,8 +157,15 @@ impl DeviationsConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct MapAxis {
-    /// Coordinate name such as `"q2"` or `"p2"`.
+    /// Coordinate name such as `"q2"` or `"p2"` (a coordinate axis; empty for a parameter
+    /// axis).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
     pub coord: String,
+    /// A parameter axis: the name of a scalar of `[model] params` (`"K"`), whose value each
+    /// grid line sets; the coordinates keep the config's initial state. Either `coord` or
+    /// `param`, never both.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub param: Option<String>,
     pub min: f64,
     pub max: f64,
     pub n: usize,
@@ -191,6 +198,18 @@ impl MapAxis {
     pub fn new(coord: &str, min: f64, max: f64, n: usize) -> Self {
         Self {
             coord: coord.to_string(),
+            param: None,
+            min,
+            max,
+            n,
+        }
+    }
+
+    /// An axis over the parameter `name` of `[model] params`.
+    pub fn param(name: &str, min: f64, max: f64, n: usize) -> Self {
+        Self {
+            coord: String::new(),
+            param: Some(name.to_string()),
             min,
             max,
             n,

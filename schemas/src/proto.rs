@@ -26,6 +26,18 @@ pub mod schema_name {
     pub const MAP_POINT: &str = "chaoscope.v1.MapPoint";
 }
 
+impl MapAxis {
+    /// What the axis varies: the parameter of a parameter axis, else the coordinate (axis
+    /// labels, column names).
+    pub fn name(&self) -> &str {
+        if self.param.is_empty() {
+            &self.coord
+        } else {
+            &self.param
+        }
+    }
+}
+
 impl end_of_run::Status {
     /// Lower-case word used in metadata and summaries.
     pub fn word(self) -> &'static str {

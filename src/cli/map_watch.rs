@@ -62,10 +62,14 @@ fn end_status_name(code: u32) -> &'static str {
 }
 
 fn axis(a: &Option<MapAxis>) -> serde_json::Value {
-    a.as_ref().map_or(
-        serde_json::Value::Null,
-        |a| json!({"coord": a.coord, "min": a.min, "max": a.max, "n": a.n}),
-    )
+    a.as_ref().map_or(serde_json::Value::Null, |a| {
+        // A parameter axis names its parameter instead of a coordinate.
+        if a.param.is_empty() {
+            json!({"coord": a.coord, "min": a.min, "max": a.max, "n": a.n})
+        } else {
+            json!({"param": a.param, "min": a.min, "max": a.max, "n": a.n})
+        }
+    })
 }
 
 /// Counts received and missed points from the sequence numbers.

@@ -12,6 +12,10 @@
 //! Time: step number `n` starts at `n h` (computed, as the engine's `Time::at`), stage `i` at
 //! `n h + c_i h`, the same for every lane (every orbit of a map starts at `t = 0` and takes the
 //! same steps), so the time is one scalar argument of the lane functions.
+//!
+//! Parameter axes: a lane's state carries its `P` parameters after its `D` coordinates (rows
+//! `D..D + P`, [`VectorFunction::state_len`]), which every stage keeps unchanged; so one batch
+//! steps orbits of different parameters, all at the same time.
 
 use chaoscope_expr::VectorFunction;
 
@@ -42,7 +46,8 @@ fn combine(x: &[f64], h: f64, weights: &[f64], k: &[f64], out: &mut [f64]) {
     }
 }
 
-/// One step from time `time` of every lane of `x` (`D * lanes` numbers, rows = coordinates); the
+/// One step from time `time` of every lane of `x` (`(D + P) * lanes` numbers, rows =
+/// coordinates, then the lanes' parameters, which every stage state carries unchanged); the
 /// stage states are appended to `stages` when given (for one lane: where the tangent map is
 /// taken).
 #[allow(clippy::too_many_arguments)]
@@ -56,19 +61,20 @@ fn step(
     s: &mut FlowScratch,
     mut stages: Option<&mut Vec<f64>>,
 ) {
-    let n = x.len();
+    let n = f.dim() * lanes;
     s.k.resize(t.stages() * n, 0.0);
-    s.arg.resize(n, 0.0);
+    s.arg.resize(x.len(), 0.0);
+    s.arg[n..].copy_from_slice(&x[n..]);
     for i in 0..t.stages() {
         let (done, rest) = s.k.split_at_mut(i * n);
-        combine(x, h, t.a[i], done, &mut s.arg);
+        combine(&x[..n], h, t.a[i], done, &mut s.arg[..n]);
         if let Some(stages) = stages.as_deref_mut() {
             stages.extend_from_slice(&s.arg);
         }
         f.value_lanes_at(&s.arg, time + t.c[i] * h, &mut rest[..n], lanes);
     }
-    combine(x, h, t.b, &s.k, &mut s.arg);
-    x.copy_from_slice(&s.arg);
+    combine(&x[..n], h, t.b, &s.k, &mut s.arg[..n]);
+    x[..n].copy_from_slice(&s.arg[..n]);
 }
 
 /// The time of step number `n`, as the engine computes it (`Time::at`).
@@ -93,8 +99,8 @@ pub fn flow_orbit_steps(
 }
 
 /// Advance one reference orbit `x` by `n_steps` steps exactly as `RungeKutta::advance` does,
-/// writing every stage state to `stages` (`n_steps * stages * D` numbers): where the tangent
-/// map of each stage is taken.
+/// writing every stage state to `stages` (`n_steps * stages * (D + P)` numbers): where the
+/// tangent map of each stage is taken.
 #[allow(clippy::too_many_arguments)]
 pub fn record_flow_reference(
     t: &Tableau,
@@ -130,14 +136,15 @@ pub fn flow_tangent_steps(
     let n = d * lanes;
     s.k.resize(t.stages() * n, 0.0);
     s.arg.resize(n, 0.0);
+    let state = f.state_len();
     for (k, states) in stages
-        .chunks_exact(t.stages() * d)
+        .chunks_exact(t.stages() * state)
         .take(n_steps as usize)
         .enumerate()
     {
         let time = time_of(from + k as u64, h);
         let v = v.data_mut();
-        for (i, xs) in states.chunks_exact(d).enumerate() {
+        for (i, xs) in states.chunks_exact(state).enumerate() {
             let (done, rest) = s.k.split_at_mut(i * n);
             combine(v, h, t.a[i], done, &mut s.arg);
             if !f.tangent_lanes_at(xs, time + t.c[i] * h, &s.arg, &mut rest[..n], lanes) {

@@ -23,18 +23,19 @@ pub fn map_orbit_steps(
     scratch: &mut Vec<f64>,
 ) {
     let lanes = x.lanes();
-    let d = x.rows();
-    scratch.resize(d * lanes, 0.0);
+    // Rows beyond `D` are the lanes' parameters, read and never written.
+    let n = f.dim() * lanes;
+    scratch.resize(n, 0.0);
     for _ in 0..n_steps {
         f.value_lanes(x.data(), scratch, lanes);
-        x.data_mut().copy_from_slice(scratch);
+        x.data_mut()[..n].copy_from_slice(scratch);
         wrap_rows(modulo, x.data_mut(), lanes);
     }
 }
 
 /// Iterate one reference orbit `x` `n_steps` times exactly as the map's `step` does, writing
-/// the state before every iteration to `stages` (`n_steps * D` numbers): where the tangent map
-/// of each iteration is taken.
+/// the state before every iteration to `stages` (`n_steps * (D + P)` numbers, a state's
+/// parameters included): where the tangent map of each iteration is taken.
 pub fn record_map_reference(
     f: &VectorFunction,
     modulo: &[f64],
@@ -42,12 +43,13 @@ pub fn record_map_reference(
     n_steps: u64,
     stages: &mut Vec<f64>,
 ) {
-    let mut next = vec![0.0; x.len()];
+    let d = f.dim();
+    let mut next = vec![0.0; d];
     stages.clear();
     for _ in 0..n_steps {
         stages.extend_from_slice(x);
         f.value(x, &mut next);
-        x.copy_from_slice(&next);
+        x[..d].copy_from_slice(&next);
         wrap(modulo, x);
     }
 }
@@ -65,7 +67,7 @@ pub fn map_tangent_steps(
     let lanes = v.lanes();
     let d = v.rows();
     scratch.resize(d * lanes, 0.0);
-    for x in stages.chunks_exact(d).take(n_steps as usize) {
+    for x in stages.chunks_exact(f.state_len()).take(n_steps as usize) {
         if !f.tangent_lanes(x, v.data(), scratch, lanes) {
             return false;
         }

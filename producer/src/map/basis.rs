@@ -156,7 +156,7 @@ pub fn compute(
     let run = &spec.run;
     let method = method::of(run.schemes()[0].method);
     let orbits = method.lanes_are_orbits();
-    let dim = run.dim();
+    let rows = spec.lane_len(orbits);
     let mut out = Vec::with_capacity(indices.len());
     let mut groups: Vec<Group> = Vec::new();
     let mut lanes: Vec<Vec<f64>> = Vec::new();
@@ -166,14 +166,14 @@ pub fn compute(
             Err(outside) => out.push(*outside),
             Ok((base, x0)) => {
                 if !orbits && !points.is_empty() {
-                    groups.push(group(&mut lanes, std::mem::take(&mut points), dim));
+                    groups.push(group(&mut lanes, std::mem::take(&mut points), rows));
                 }
                 points.push(start(spec, method, base, x0, &mut lanes));
             }
         }
     }
     if !points.is_empty() {
-        groups.push(group(&mut lanes, points, dim));
+        groups.push(group(&mut lanes, points, rows));
     }
     let mut windows = Windows::new(run);
     while groups.iter().any(|g| !g.points.is_empty()) {
@@ -206,7 +206,7 @@ fn start(
     let norm = method.basis_norm(run.schemes()[0].d0);
     for q in prop.basis().chunks_exact(dim) {
         let d: Vec<f64> = q.iter().map(|q| norm * q).collect();
-        let mut lane = vec![0.0; dim];
+        let mut lane = vec![0.0; spec.lane_len(method.lanes_are_orbits())];
         method.start(&x0, &d, &mut lane);
         lanes.push(lane);
     }
@@ -296,7 +296,7 @@ fn window(
     if keep.len() != before && !keep.is_empty() {
         let per_point = usize::from(keep[0].ref_lane.is_some()) + dim;
         let mut firsts: Vec<usize> = keep.iter().map(|p| p.ref_lane.unwrap_or(p.first)).collect();
-        g.soa = compact(&g.soa, dim, per_point, firsts.iter_mut());
+        g.soa = compact(&g.soa, g.soa.rows(), per_point, firsts.iter_mut());
         for (p, at) in keep.iter_mut().zip(firsts) {
             match &mut p.ref_lane {
                 Some(r) => {

@@ -1,5 +1,10 @@
-//! Phase-space maps: a grid of initial conditions over two coordinates, one chaos indicator per
-//! point (`chaoscope map`).
+//! Phase-space maps: a grid of initial conditions over two coordinates or parameters of the
+//! model, one chaos indicator per point (`chaoscope map`).
+//!
+//! A parameter axis makes the parameter an input of the compiled functions
+//! ([`crate::spec::LaneParam`]): a point's state is its coordinates followed by its parameters,
+//! orbit lanes carry them as rows the kernels read and never write, tangent lanes (deviation
+//! vectors) hold the coordinates only.
 //!
 //! - [`spec`]: the validated `[map]` section, the grid, shards, each point's initial condition.
 //! - [`indicator`]: what is accumulated per deviation set and how a point's value is formed.

@@ -66,6 +66,7 @@ fn compute_with(
     let run = &spec.run;
     let method = method::of(run.schemes()[0].method);
     let orbits = method.lanes_are_orbits();
+    let rows = spec.lane_len(orbits);
     let mut out = Vec::with_capacity(indices.len());
     let mut groups: Vec<Group> = Vec::new();
     let mut lanes: Vec<Vec<f64>> = Vec::new();
@@ -75,14 +76,14 @@ fn compute_with(
             Err(outside) => out.push(*outside),
             Ok((base, x0)) => {
                 if !orbits && !points.is_empty() {
-                    groups.push(group(&mut lanes, std::mem::take(&mut points), run.dim()));
+                    groups.push(group(&mut lanes, std::mem::take(&mut points), rows));
                 }
                 points.push(start(spec, method, base, x0, &mut lanes));
             }
         }
     }
     if !points.is_empty() {
-        groups.push(group(&mut lanes, points, run.dim()));
+        groups.push(group(&mut lanes, points, rows));
     }
 
     let mut renormalization = SetRenormalization::new(run);
@@ -119,7 +120,7 @@ fn start(
         // As Engine::new: d = d0 * u, the lane from it.
         let scaled: Vec<f64> = dirs.vectors.iter().map(|u| d0 * u).collect();
         for d in scaled.chunks_exact(run.dim()) {
-            let mut lane = vec![0.0; x0.len()];
+            let mut lane = vec![0.0; spec.lane_len(method.lanes_are_orbits())];
             method.start(&x0, d, &mut lane);
             lanes.push(lane);
         }
@@ -134,10 +135,10 @@ fn start(
     }
 }
 
-/// The points whose lanes are `lanes` (taken), as one lane array.
-fn group(lanes: &mut Vec<Vec<f64>>, points: Vec<Live>, dim: usize) -> Group {
+/// The points whose lanes (of `rows` entries) are `lanes` (taken), as one lane array.
+fn group(lanes: &mut Vec<Vec<f64>>, points: Vec<Live>, rows: usize) -> Group {
     Group {
-        soa: lane_array(lanes, dim),
+        soa: lane_array(lanes, rows),
         points,
     }
 }
@@ -213,19 +214,20 @@ fn window(
     }
     g.points = keep;
     if changed && !g.points.is_empty() {
-        g.soa = compact(&g.soa, &mut g.points, k, dim);
+        g.soa = compact(&g.soa, &mut g.points, k);
     }
     out
 }
 
 /// A new lane array holding only the lanes of `live` points and their active sets.
-fn compact(old: &Soa, live: &mut [Live], k: usize, dim: usize) -> Soa {
+fn compact(old: &Soa, live: &mut [Live], k: usize) -> Soa {
+    let rows = old.rows();
     let total: usize = live
         .iter()
         .map(|p| usize::from(p.ref_lane.is_some()) + p.sets.len() * k)
         .sum();
-    let mut soa = Soa::new(dim, total);
-    let mut buf = vec![0.0; dim];
+    let mut soa = Soa::new(rows, total);
+    let mut buf = vec![0.0; rows];
     let mut next = 0;
     let mut mv = |from: usize, soa: &mut Soa| {
         old.read_lane(from, &mut buf);

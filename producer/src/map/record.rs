@@ -7,8 +7,15 @@ use super::point::{PointResult, PointStatus};
 use super::spec::{Axis, MapSpec, Shard};
 
 fn axis(a: &Axis) -> proto::MapAxis {
+    // A parameter axis names its parameter, never a coordinate.
+    let (coord, param) = if a.is_param {
+        (String::new(), a.name.clone())
+    } else {
+        (a.name.clone(), String::new())
+    };
     proto::MapAxis {
-        coord: a.coord.clone(),
+        coord,
+        param,
         min: a.min,
         max: a.max,
         n: a.n as u32,

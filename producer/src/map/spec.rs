@@ -1,19 +1,26 @@
-//! The validated map: grid, indicator, the run every point shares, shards.
+//! The validated map: grid (coordinate and parameter axes), indicator, the run every point
+//! shares, shards.
 
-use chaoscope_schemas::config::{MapAxis, RunConfig};
+use chaoscope_schemas::config::{MapAxis, MapConfig, RunConfig};
 use chaoscope_schemas::run::{Method, Orthonormalization, SystemKind};
 
 use super::indicator::{Indicator, PointAccumulator, failed};
 use super::point::{PointResult, PointStatus};
 use crate::batch::Isa;
 use crate::model::ExpressionModel;
-use crate::spec::{RunSpec, SpecError, parse_coordinate, solve_momentum, state_coordinate};
+use crate::spec::{
+    LaneParam, RunSpec, SpecError, parse_coordinate, solve_momentum, state_coordinate,
+};
 
 /// One grid axis.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Axis {
-    pub coord: String,
-    /// Index into the phase-space vector `(q, p)`.
+    /// What it varies: the coordinate's or the parameter's name.
+    pub name: String,
+    /// A parameter axis (`param = "K"`) rather than a coordinate axis.
+    pub is_param: bool,
+    /// Index into a point's state: a coordinate's in `(q, p)` or `x`; a parameter's after the
+    /// `D` coordinates (`D + j` for the `j`-th parameter axis, see [`LaneParam`]).
     pub slot: usize,
     pub min: f64,
     pub max: f64,
@@ -30,13 +37,46 @@ impl Axis {
         }
     }
 
+    /// The grid of `min`, `max` and `n` (at `key.min`, `key.n`).
+    fn grid(key: &str, a: &MapAxis) -> Result<(), SpecError> {
+        if !(a.min.is_finite() && a.max.is_finite() && a.min <= a.max) {
+            return Err(SpecError::new(
+                format!("{key}.min"),
+                format!("need finite min <= max, got {} .. {}", a.min, a.max),
+            ));
+        }
+        if a.n == 0 || a.n > 100_000 {
+            return Err(SpecError::new(
+                format!("{key}.n"),
+                format!("must be between 1 and 100000, got {}", a.n),
+            ));
+        }
+        Ok(())
+    }
+
     /// `hamiltonian`: coordinates are `q1..qN` / `p1..pN` of `dim = 2N`; otherwise `x1..xD`.
+    /// `lanes`: the parameter axes in order, whose slots follow the `dim` coordinates.
     fn from_config(
         key: &str,
         a: &MapAxis,
         dim: usize,
         hamiltonian: bool,
+        lanes: &[LaneParam],
     ) -> Result<Self, SpecError> {
+        if let Some(name) = &a.param {
+            let j = lanes
+                .iter()
+                .position(|l| &l.name == name)
+                .expect("every parameter axis is a lane parameter");
+            return Ok(Self {
+                name: name.clone(),
+                is_param: true,
+                slot: dim + j,
+                min: a.min,
+                max: a.max,
+                n: a.n,
+            });
+        }
         let slot = if hamiltonian {
             let n_dof = dim / 2;
             let (momentum, i) = parse_coordinate(&a.coord, n_dof).ok_or_else(|| {
@@ -57,26 +97,116 @@ impl Axis {
                 )
             })?
         };
-        if !(a.min.is_finite() && a.max.is_finite() && a.min <= a.max) {
-            return Err(SpecError::new(
-                format!("{key}.min"),
-                format!("need finite min <= max, got {} .. {}", a.min, a.max),
-            ));
-        }
-        if a.n == 0 || a.n > 100_000 {
-            return Err(SpecError::new(
-                format!("{key}.n"),
-                format!("must be between 1 and 100000, got {}", a.n),
-            ));
-        }
         Ok(Self {
-            coord: a.coord.clone(),
+            name: a.coord.clone(),
+            is_param: false,
             slot,
             min: a.min,
             max: a.max,
             n: a.n,
         })
     }
+}
+
+/// The parameter axes of `[map]` (x first) as the run's lane parameters, after the checks
+/// that need only the config: every axis names a coordinate or a parameter, not both; a
+/// parameter is a scalar of `[model] params` of a kind that takes parameter axes; the two axes
+/// are not the same parameter.
+fn lane_params(cfg: &RunConfig, map: &MapConfig) -> Result<Vec<LaneParam>, SpecError> {
+    use chaoscope_schemas::config::{ModelConfig, ParamValue};
+    let params = match &cfg.model {
+        ModelConfig::Map(m) => Some(&m.params),
+        ModelConfig::Ode(m) => Some(&m.params),
+        ModelConfig::Hamiltonian(m) => Some(&m.params),
+        _ => None,
+    };
+    let mut lanes: Vec<LaneParam> = Vec::new();
+    for (key, axis) in [("map.x", &map.x), ("map.y", &map.y)] {
+        Axis::grid(key, axis)?;
+        let Some(name) = &axis.param else {
+            if axis.coord.is_empty() {
+                return Err(SpecError::new(
+                    format!("{key}.coord"),
+                    "an axis needs coord = \"x1\" (a coordinate) or param = \"K\" (a \
+                     parameter of [model] params)",
+                ));
+            }
+            // A parameter may not have a variable's name, so this names no coordinate.
+            if params.is_some_and(|p| p.contains_key(&axis.coord)) {
+                return Err(SpecError::new(
+                    format!("{key}.coord"),
+                    format!(
+                        "'{0}' is a parameter, not a coordinate: a parameter axis is written \
+                         param = \"{0}\"",
+                        axis.coord
+                    ),
+                ));
+            }
+            continue;
+        };
+        let key = format!("{key}.param");
+        if !axis.coord.is_empty() {
+            return Err(SpecError::new(
+                key,
+                format!(
+                    "an axis is a coordinate or a parameter: coord = \"{}\" and param = \
+                     \"{name}\" both given",
+                    axis.coord
+                ),
+            ));
+        }
+        let Some(params) = params else {
+            let message = if matches!(cfg.model, ModelConfig::HenonHeiles(_)) {
+                "[model] name = henon-heiles has no parameters to put on an axis".to_string()
+            } else {
+                format!(
+                    "parameter axes are not yet supported for [model] name = {} (they are for \
+                     map, ode and hamiltonian)",
+                    cfg.model.name()
+                )
+            };
+            return Err(SpecError::new(key, message));
+        };
+        match params.get(name) {
+            Some(ParamValue::Scalar(_)) => {}
+            Some(ParamValue::Array(_)) => {
+                return Err(SpecError::new(
+                    key,
+                    format!(
+                        "'{name}' is an array parameter (one entry per site); an axis sets a \
+                         scalar parameter"
+                    ),
+                ));
+            }
+            None => {
+                let known: Vec<&str> = params
+                    .iter()
+                    .filter(|(_, v)| matches!(v, ParamValue::Scalar(_)))
+                    .map(|(n, _)| n.as_str())
+                    .collect();
+                return Err(SpecError::new(
+                    key,
+                    format!(
+                        "'{name}' is not a parameter of [model] params (scalars: {})",
+                        if known.is_empty() {
+                            "none".to_string()
+                        } else {
+                            known.join(", ")
+                        }
+                    ),
+                ));
+            }
+        }
+        if lanes.iter().any(|l| &l.name == name) {
+            return Err(SpecError::new(key, "x and y are the same parameter"));
+        }
+        lanes.push(LaneParam {
+            name: name.clone(),
+            min: axis.min,
+            max: axis.max,
+        });
+    }
+    Ok(lanes)
 }
 
 /// Grid axes of a valid map config over a periodic coordinate (a map model's `modulo`) whose
@@ -248,7 +378,8 @@ impl MapSpec {
                 ),
             ));
         }
-        let run = RunSpec::from_config(&base).map_err(|e| match map.k {
+        let lanes = lane_params(cfg, map)?;
+        let run = RunSpec::from_config_with_lanes(&base, &lanes).map_err(|e| match map.k {
             // The order the user wrote is [map] k, which overrides [deviations] k.
             Some(_) if e.key == "deviations.k" => SpecError::new("map.k", e.message),
             _ => e,
@@ -299,12 +430,25 @@ impl MapSpec {
         }
         // Any Hamiltonian (separable or written as `H(q, p)`) names its axes q1..qN / p1..pN.
         let canonical = run.system().kind() == SystemKind::Hamiltonian;
-        let x = Axis::from_config("map.x", &map.x, run.dim(), canonical)?;
-        let y = Axis::from_config("map.y", &map.y, run.dim(), canonical)?;
+        let x = Axis::from_config("map.x", &map.x, run.dim(), canonical, &lanes)?;
+        let y = Axis::from_config("map.y", &map.y, run.dim(), canonical, &lanes)?;
         if x.slot == y.slot {
             return Err(SpecError::new(
                 "map.y.coord",
                 "x and y are the same coordinate",
+            ));
+        }
+        if !lanes.is_empty() && run.system().batched(Isa::detect()).is_none() {
+            let key = if x.is_param {
+                "map.x.param"
+            } else {
+                "map.y.param"
+            };
+            return Err(SpecError::new(
+                key,
+                "a parameter axis runs on the batched kernel (its points carry their parameter \
+                 as a lane value): use a fixed-step explicit method (rk4, or dop853 without \
+                 rtol/atol)",
             ));
         }
         if !separable {
@@ -399,7 +543,23 @@ impl MapSpec {
         (i % self.x.n, i / self.x.n)
     }
 
-    /// The initial condition of a point, or why it has none (outside the energy surface).
+    /// `D + P`: a point's state, its `D` coordinates then the values of its parameter axes.
+    pub fn state_len(&self) -> usize {
+        self.run.x0().len()
+    }
+
+    /// The length of a lane of the scheme's method: a state (orbits, MPM) or a deviation
+    /// vector (tangent vectors, VM: the `D` coordinates only).
+    pub fn lane_len(&self, lanes_are_orbits: bool) -> usize {
+        if lanes_are_orbits {
+            self.state_len()
+        } else {
+            self.run.dim()
+        }
+    }
+
+    /// The initial condition of a point, or why it has none (outside the energy surface): its
+    /// `D` coordinates, then its parameters when the map has parameter axes.
     pub fn initial_state(&self, index: u64) -> Result<Vec<f64>, String> {
         let (ix, iy) = self.cell(index);
         let mut x = self.run.x0().to_vec();
@@ -434,7 +594,8 @@ impl MapSpec {
         match self.initial_state(index) {
             Ok(x0) => Ok((
                 PointResult {
-                    x0: x0.clone(),
+                    // The coordinates: a parameter is the point's x or y already.
+                    x0: x0[..self.run.dim()].to_vec(),
                     ..base
                 },
                 x0,

@@ -31,10 +31,11 @@ pub fn check_escape(x: &[f64], t: f64) -> Result<(), RunError> {
     }
 }
 
-/// The lanes of one group of points as one lane array (`lanes` is emptied): both routes batch
-/// the lanes of several points so that one kernel call steps them all.
-pub fn lane_array(lanes: &mut Vec<Vec<f64>>, dim: usize) -> Soa {
-    let mut soa = Soa::new(dim, lanes.len());
+/// The lanes of one group of points as one lane array (`lanes` is emptied, each of `rows`
+/// entries: a state, parameters included, or a deviation vector): both routes batch the lanes
+/// of several points so that one kernel call steps them all.
+pub fn lane_array(lanes: &mut Vec<Vec<f64>>, rows: usize) -> Soa {
+    let mut soa = Soa::new(rows, lanes.len());
     for (l, x) in lanes.drain(..).enumerate() {
         soa.write_lane(l, &x);
     }

@@ -5,7 +5,7 @@ use std::sync::Arc;
 
 use chaoscope_schemas::config::{OdeConfig, RunConfig};
 
-use super::{Built, SpecError, num, vector};
+use super::{Built, LaneParam, SpecError, num, vector};
 use crate::integrator::runge_kutta::{RungeKutta, RungeKuttaKind, Tolerances};
 use crate::system::{DynamicalSystem, RkFlow};
 use crate::vector_field::VectorField;
@@ -13,16 +13,21 @@ use crate::vector_field::VectorField;
 /// `[model] name = "ode"`: the compiled right-hand side with the Runge-Kutta method of
 /// `[integrator]`, fixed step `h`, or adaptive `dop853` landing on the grid of `h` when `rtol`
 /// and `atol` are given.
-pub(super) fn run(model: &OdeConfig, cfg: &RunConfig) -> Result<Built, SpecError> {
+pub(super) fn run(
+    model: &OdeConfig,
+    cfg: &RunConfig,
+    lanes: &[LaneParam],
+) -> Result<Built, SpecError> {
     let rhs = model.rhs.as_ref().ok_or_else(|| {
         SpecError::new(
             "model.rhs",
             "ode needs the right-hand side, e.g. rhs = [\"sigma * (x2 - x1)\", ...]",
         )
     })?;
-    let field = vector::vector_function("rhs", rhs, &model.params, model.boundary.as_deref())?;
+    let (field, lane_values) =
+        vector::vector_function("rhs", rhs, &model.params, model.boundary.as_deref(), lanes)?;
     let system = runge_kutta_system(cfg, Arc::new(field))?;
-    super::state_x(cfg, system, Vec::new())
+    super::state_x_with_lanes(cfg, system, Vec::new(), &lane_values)
 }
 
 /// A vector field with the Runge-Kutta method of `[integrator]`: fixed step `h`, or adaptive

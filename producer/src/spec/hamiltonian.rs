@@ -7,11 +7,15 @@ use std::sync::Arc;
 use chaoscope_schemas::config::{HamiltonianConfig, OrbitConfig, RunConfig};
 
 use super::flow::runge_kutta_system;
-use super::{Built, SpecError, vector};
+use super::{Built, LaneParam, SpecError, vector};
 
 /// `[model] name = "hamiltonian"`: the vector field of `H(q, p)` (derivatives taken
 /// symbolically) with a Runge-Kutta method; `gl4` and `gl6` are symplectic.
-pub(super) fn run(model: &HamiltonianConfig, cfg: &RunConfig) -> Result<Built, SpecError> {
+pub(super) fn run(
+    model: &HamiltonianConfig,
+    cfg: &RunConfig,
+    lanes: &[LaneParam],
+) -> Result<Built, SpecError> {
     let source = model.hamiltonian.as_ref().ok_or_else(|| {
         SpecError::new(
             "model.hamiltonian",
@@ -28,12 +32,13 @@ pub(super) fn run(model: &HamiltonianConfig, cfg: &RunConfig) -> Result<Built, S
             format!("must be between 1 and {max}, got {n}"),
         ));
     }
-    let field = vector::hamiltonian_function(source, n, &model.params, model.boundary.as_deref())?;
+    let (field, lane_values) =
+        vector::hamiltonian_function(source, n, &model.params, model.boundary.as_deref(), lanes)?;
     let system = runge_kutta_system(cfg, Arc::new(field))?;
     // The initial state is q and p, as for every Hamiltonian; inside, x = (q, p).
     let mut with_x = cfg.clone();
     with_x.orbit = state_of_q_and_p(&cfg.orbit, n)?;
-    super::state_x(&with_x, system, Vec::new())
+    super::state_x_with_lanes(&with_x, system, Vec::new(), &lane_values)
 }
 
 /// `[orbit] q` and `p` (or `x`) of a Hamiltonian given as an expression, as the state `x =

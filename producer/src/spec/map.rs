@@ -5,19 +5,29 @@ use std::sync::Arc;
 
 use chaoscope_schemas::config::{MapModelConfig, RunConfig};
 
-use super::{Built, SpecError, num, vector};
+use super::{Built, LaneParam, SpecError, num, vector};
 use crate::system::Map;
 
 /// `[model] name = "map"`: the compiled map with its periods. Time counts iterations: `h` is 1,
 /// `t_final` and every `tau` are whole numbers of iterations.
-pub(super) fn run(model: &MapModelConfig, cfg: &RunConfig) -> Result<Built, SpecError> {
+pub(super) fn run(
+    model: &MapModelConfig,
+    cfg: &RunConfig,
+    lanes: &[LaneParam],
+) -> Result<Built, SpecError> {
     let next = model.next.as_ref().ok_or_else(|| {
         SpecError::new(
             "model.next",
             "map needs the image of every coordinate, e.g. next = [\"1 - a * x1^2 + x2\", \"b * x1\"]",
         )
     })?;
-    let function = vector::vector_function("next", next, &model.params, model.boundary.as_deref())?;
+    let (function, lane_values) = vector::vector_function(
+        "next",
+        next,
+        &model.params,
+        model.boundary.as_deref(),
+        lanes,
+    )?;
     let integrator = &cfg.integrator;
     if !integrator.method.is_empty() && integrator.method != "iterate" {
         return Err(SpecError::new(
@@ -48,5 +58,5 @@ pub(super) fn run(model: &MapModelConfig, cfg: &RunConfig) -> Result<Built, Spec
     }
     let modulo = model.modulo.clone().unwrap_or_default();
     let map = Map::new(function, modulo).map_err(|e| SpecError::new("model.modulo", e))?;
-    super::state_x(cfg, Arc::new(map), Vec::new())
+    super::state_x_with_lanes(cfg, Arc::new(map), Vec::new(), &lane_values)
 }

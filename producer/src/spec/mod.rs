@@ -50,6 +50,18 @@ pub fn route_from_config(key: &str, value: Option<&str>) -> Result<Route, SpecEr
     }
 }
 
+/// A parameter whose value every point of a map brings (a parameter axis): the compiled
+/// functions read it per lane instead of folding it as a constant, and a state of the run is
+/// its `D` coordinates followed by these parameters' values, in this order.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LaneParam {
+    /// The name in `[model] params` (a scalar there).
+    pub name: String,
+    /// The range the axis covers (the smoothness analysis reads its signs).
+    pub min: f64,
+    pub max: f64,
+}
+
 /// A problem with the configuration, naming the key.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{key}: {message}")]
@@ -258,6 +270,17 @@ fn state_x(
     system: Arc<dyn DynamicalSystem>,
     tables: Vec<TableDigest>,
 ) -> Result<Built, SpecError> {
+    state_x_with_lanes(cfg, system, tables, &[])
+}
+
+/// [`state_x`] of a system whose states carry `lane_values` (the config's values of its
+/// [`LaneParam`]s) after the coordinates.
+fn state_x_with_lanes(
+    cfg: &RunConfig,
+    system: Arc<dyn DynamicalSystem>,
+    tables: Vec<TableDigest>,
+    lane_values: &[f64],
+) -> Result<Built, SpecError> {
     let dim = system.dim();
     let orbit = &cfg.orbit;
     for (key, present) in [
@@ -289,7 +312,8 @@ fn state_x(
             format!("entry {} is not finite", i + 1),
         ));
     }
-    let x0 = orbit.x.clone();
+    let mut x0 = orbit.x.clone();
+    x0.extend_from_slice(lane_values);
     if system.invariant(&x0).is_some_and(|e| !e.is_finite())
         || system.divergence(&x0, 0.0).is_some_and(|d| !d.is_finite())
     {
@@ -310,19 +334,42 @@ fn state_x(
 impl RunSpec {
     /// Validate a configuration into a run.
     pub fn from_config(cfg: &RunConfig) -> Result<Self, SpecError> {
+        Self::from_config_with_lanes(cfg, &[])
+    }
+
+    /// A run whose system reads the parameters `lanes` from every state instead of folding
+    /// them (a map over parameter axes): its states, `x0` included, are `D` coordinates then
+    /// the lane parameters' values (`x0` holds the config's values). The kinds written as
+    /// vector functions (`map`, `ode`, `hamiltonian`) take them; the caller names the axis in
+    /// the error of any other kind.
+    pub fn from_config_with_lanes(cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Self, SpecError> {
         // `[[sweep]]` ranges are shorthand for schemes: expand them before anything is checked.
         let cfg = &cfg
             .with_sweeps_expanded()
             .map_err(|e| SpecError::new(e.key, e.message))?;
         let built = match &cfg.model {
+            ModelConfig::HenonHeiles(_)
+            | ModelConfig::FputBeta(_)
+            | ModelConfig::Custom(_)
+            | ModelConfig::Potential(_)
+                if !lanes.is_empty() =>
+            {
+                return Err(SpecError::new(
+                    "map",
+                    format!(
+                        "parameter axes are not yet supported for [model] name = {}",
+                        cfg.model.name()
+                    ),
+                ));
+            }
             ModelConfig::HenonHeiles(_) | ModelConfig::FputBeta(_) | ModelConfig::Custom(_) => {
                 let (model, tables) = model_from_config(&cfg.model)?;
                 separable::run(cfg, model, tables)?
             }
             ModelConfig::Potential(model) => potential::run(model, cfg)?,
-            ModelConfig::Hamiltonian(model) => hamiltonian::run(model, cfg)?,
-            ModelConfig::Ode(model) => flow::run(model, cfg)?,
-            ModelConfig::Map(model) => map::run(model, cfg)?,
+            ModelConfig::Hamiltonian(model) => hamiltonian::run(model, cfg, lanes)?,
+            ModelConfig::Ode(model) => flow::run(model, cfg, lanes)?,
+            ModelConfig::Map(model) => map::run(model, cfg, lanes)?,
         };
         Self::validated(cfg, built)
     }

@@ -63,6 +63,7 @@ fn inverse_masses(m: &config::ParamValue, n: usize) -> Result<Option<Vec<f64>>, 
     let masses = match param_value("model.masses", m, n, &sites(n))? {
         ParamValue::Scalar(m) => vec![m; n],
         ParamValue::Array(ms) => ms,
+        ParamValue::Lane { .. } => unreachable!("param_value gives no lane parameters"),
     };
     if let Some(i) = masses.iter().position(|&m| m <= 0.0) {
         return Err(SpecError::new(

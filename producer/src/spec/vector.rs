@@ -4,23 +4,74 @@
 
 use std::collections::BTreeMap;
 
-use chaoscope_expr::lower::Boundary;
+use chaoscope_expr::lower::{Boundary, ParamValue};
 use chaoscope_expr::vector::HamiltonianDefinition;
 use chaoscope_expr::{VectorDefinition, VectorError, VectorFunction};
 use chaoscope_schemas::config;
 
-use super::SpecError;
 use super::potential::param_value;
+use super::{LaneParam, SpecError};
+
+/// `params` as the expressions read them: each of `lanes` (a scalar of `params`) a
+/// [`ParamValue::Lane`] of [`chaoscope_expr::vector::ARG_PARAMS`], numbered in the order of
+/// `lanes`, the others their values; and the config's values of `lanes` in that order (a
+/// state's entries after its coordinates).
+fn expression_params(
+    params: &BTreeMap<String, config::ParamValue>,
+    n: usize,
+    size: &str,
+    lanes: &[LaneParam],
+) -> Result<(BTreeMap<String, ParamValue>, Vec<f64>), SpecError> {
+    let mut values = BTreeMap::new();
+    for (name, v) in params {
+        values.insert(
+            name.clone(),
+            param_value(&format!("model.params.{name}"), v, n, size)?,
+        );
+    }
+    let mut lane_values = Vec::with_capacity(lanes.len());
+    for (j, lane) in lanes.iter().enumerate() {
+        let key = format!("model.params.{}", lane.name);
+        let value = match values.get(&lane.name) {
+            Some(ParamValue::Scalar(v)) => *v,
+            Some(_) => {
+                return Err(SpecError::new(
+                    key,
+                    "is an array; a parameter axis sets a scalar parameter",
+                ));
+            }
+            None => {
+                return Err(SpecError::new(
+                    key,
+                    "is not a parameter of the model (a parameter axis names a key of [model] params)",
+                ));
+            }
+        };
+        lane_values.push(value);
+        values.insert(
+            lane.name.clone(),
+            ParamValue::Lane {
+                arg: chaoscope_expr::vector::ARG_PARAMS,
+                index: j as u32,
+                min: lane.min,
+                max: lane.max,
+            },
+        );
+    }
+    Ok((values, lane_values))
+}
 
 /// `components` of the config key `model.<key>` compiled with `params` and `boundary`
-/// (default `fixed`). A component's error is reported under `model.<key>` as `<key>[i]: line
-/// L, column C: ...` with the source line and a caret.
+/// (default `fixed`), the parameters `lanes` read from each state (with the config's values
+/// of them). A component's error is reported under `model.<key>` as `<key>[i]: line L,
+/// column C: ...` with the source line and a caret.
 pub fn vector_function(
     key: &str,
     components: &[String],
     params: &BTreeMap<String, config::ParamValue>,
     boundary: Option<&str>,
-) -> Result<VectorFunction, SpecError> {
+    lanes: &[LaneParam],
+) -> Result<(VectorFunction, Vec<f64>), SpecError> {
     let model_key = format!("model.{key}");
     if components.is_empty() {
         return Err(SpecError::new(
@@ -39,13 +90,7 @@ pub fn vector_function(
         ));
     }
     let size = format!("the system has dimension {d}");
-    let mut values = BTreeMap::new();
-    for (name, v) in params {
-        values.insert(
-            name.clone(),
-            param_value(&format!("model.params.{name}"), v, d, &size)?,
-        );
-    }
+    let (values, lane_values) = expression_params(params, d, &size, lanes)?;
     let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
         .map_err(|e| SpecError::new("model.boundary", e))?;
     VectorFunction::new(VectorDefinition {
@@ -58,6 +103,7 @@ pub fn vector_function(
         // iterations, and `t` stays an ordinary name there).
         time: key == "rhs",
     })
+    .map(|f| (f, lane_values))
     .map_err(|e| match e {
         VectorError::Component { .. } => SpecError::new(&model_key, e.to_string()),
         VectorError::Other(m) => SpecError::new(&model_key, m),
@@ -72,16 +118,11 @@ pub fn hamiltonian_function(
     n: usize,
     params: &BTreeMap<String, config::ParamValue>,
     boundary: Option<&str>,
-) -> Result<VectorFunction, SpecError> {
+    lanes: &[LaneParam],
+) -> Result<(VectorFunction, Vec<f64>), SpecError> {
     let key = "model.hamiltonian";
     let size = format!("the system has {n} degrees of freedom");
-    let mut values = BTreeMap::new();
-    for (name, v) in params {
-        values.insert(
-            name.clone(),
-            param_value(&format!("model.params.{name}"), v, n, &size)?,
-        );
-    }
+    let (values, lane_values) = expression_params(params, n, &size, lanes)?;
     let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
         .map_err(|e| SpecError::new("model.boundary", e))?;
     VectorFunction::hamiltonian(HamiltonianDefinition {
@@ -92,6 +133,7 @@ pub fn hamiltonian_function(
         boundary,
         tables: Vec::new(),
     })
+    .map(|f| (f, lane_values))
     .map_err(|e| match e {
         // One expression: "hamiltonian[1]: ..." says nothing the key does not.
         VectorError::Component { error, .. } => SpecError::new(key, error.to_string()),

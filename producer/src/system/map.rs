@@ -161,10 +161,10 @@ impl DynamicalSystem for Map {
     /// (A map's `next` cannot read the time: `t` is ignored, here and below.)
     #[inline]
     fn step(&self, x: &mut [f64], _t: f64, work: &mut Workspace) {
-        let d = x.len();
+        let d = self.function.dim();
         let next = work.force(d);
         self.function.value(x, next);
-        x.copy_from_slice(next);
+        x[..d].copy_from_slice(next);
         self.wrap(x);
     }
 
@@ -177,7 +177,7 @@ impl DynamicalSystem for Map {
         _t: f64,
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
-        let d = x.len();
+        let d = self.function.dim();
         let buf = work.force(2 * d);
         let (next, jw) = buf.split_at_mut(d);
         for wi in w.chunks_exact_mut(d) {
@@ -191,7 +191,7 @@ impl DynamicalSystem for Map {
             wi.copy_from_slice(jw);
         }
         self.function.value(x, next);
-        x.copy_from_slice(next);
+        x[..d].copy_from_slice(next);
         self.wrap(x);
         Ok(())
     }

@@ -416,6 +416,7 @@ pub fn map(choices: &mut Choices, shard: u32, shards: u32) -> Vec<u8> {
     let (nx, ny, sets) = (6u32, 5u32, 2u32);
     let axis = |choices: &mut Choices, coord: &str, min: f64, max: f64, n: u32| MapAxis {
         coord: choices.string(coord),
+        param: String::new(),
         min: choices.f64(min),
         max: choices.f64(max),
         n: choices.u32(n),
@@ -845,12 +846,14 @@ pub fn valid_map() -> (MapHeader, Vec<MapPoint>) {
         method: "mpm".into(),
         x: Some(MapAxis {
             coord: "q2".into(),
+            param: String::new(),
             min: -0.4,
             max: 0.6,
             n: nx,
         }),
         y: Some(MapAxis {
             coord: "p2".into(),
+            param: String::new(),
             min: -0.4,
             max: 0.4,
             n: ny,

@@ -152,11 +152,7 @@ impl RunInfo {
             self.h,
             self.schemes.iter().map(|s| s.tau_steps).collect(),
         )
-        .map(|layout| match self.kind {
-            // A Hamiltonian's degrees of freedom are the sites of the lattice indicators.
-            SystemKind::Hamiltonian => layout.with_sites(),
-            SystemKind::Flow | SystemKind::Map => layout,
-        })
+        .map(|layout| layout.with_sites(self.kind.lattice_sites(self.dim)))
         .expect("a validated header has a valid layout")
     }
 

@@ -56,12 +56,10 @@ impl Layout {
         })
     }
 
-    /// The layout of a Hamiltonian's run: `dim / 2` sites, site `l` at `q_l`, `p_l`.
-    pub fn with_sites(self) -> Self {
-        Self {
-            sites: self.dim.is_multiple_of(2).then_some(self.dim / 2),
-            ..self
-        }
+    /// The layout with `sites` lattice sites (a Hamiltonian's `dim / 2`, site `l` at `q_l`,
+    /// `p_l`), or none.
+    pub fn with_sites(self, sites: Option<usize>) -> Self {
+        Self { sites, ..self }
     }
 
     /// Time of step `step`, computed as the producer does (`step * h`, never accumulated).

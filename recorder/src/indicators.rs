@@ -36,12 +36,8 @@ impl IndicatorStream {
             header.schemes.iter().map(|s| s.tau_steps).collect(),
         )
         .map(|layout| {
-            // A Hamiltonian's degrees of freedom are the sites of the lattice indicators (as
-            // the analyzer's layout says: `run_info.rs`).
-            match chaoscope_schemas::run::SystemKind::from_name(&header.kind) {
-                Some(chaoscope_schemas::run::SystemKind::Hamiltonian) => layout.with_sites(),
-                _ => layout,
-            }
+            let kind = chaoscope_schemas::run::SystemKind::from_name(&header.kind);
+            layout.with_sites(kind.and_then(|k| k.lattice_sites(header.dim as usize)))
         });
         Self {
             tracker: layout.map(Tracker::new),

@@ -36,6 +36,17 @@ impl SystemKind {
             _ => None,
         }
     }
+
+    /// The sites of a lattice indicator (the deviation vector distribution) in a state of
+    /// `dim` entries: a Hamiltonian's `N = dim / 2` degrees of freedom (site `l` at `q_l`,
+    /// `p_l`); flows and maps have none. The one decision the recorder and the analyzer share,
+    /// so the recording's indicators equal `analyze`'s.
+    pub fn lattice_sites(self, dim: usize) -> Option<usize> {
+        match self {
+            SystemKind::Hamiltonian if dim.is_multiple_of(2) => Some(dim / 2),
+            _ => None,
+        }
+    }
 }
 
 /// How deviation vectors are renormalized.

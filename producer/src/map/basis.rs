@@ -63,18 +63,14 @@ impl Sets {
             // `spectrum`: the basis is itself renormalized by QR every window, so its
             // accumulated `ln R_jj` are the Benettin spectrum of the point (from the coordinate
             // axes, whatever the sets' directions: every set gets the same first k exponents,
-            // to which any generic set's converge).
+            // to which any generic set's converge). One stretch for all, from set 0's record.
             let k = self.stretch.len();
+            stretch_since(
+                &mut self.stretch,
+                &prop.log_scales()[..k],
+                &mut self.log_norms[0],
+            );
             for set in 0..run.sets() {
-                for ((s, now), before) in self
-                    .stretch
-                    .iter_mut()
-                    .zip(&prop.log_scales()[..k])
-                    .zip(self.log_norms[set].iter_mut())
-                {
-                    *s = (now - *before).exp();
-                    *before = *now;
-                }
                 acc.observe(set, w.t, &self.unit, &self.stretch, w.last);
             }
             return;
@@ -85,17 +81,22 @@ impl Sets {
             }
             prop.image(&dirs.vectors, &mut self.image);
             prop.unit_vectors(&self.image, &mut self.unit);
-            for ((s, now), before) in self
-                .stretch
-                .iter_mut()
-                .zip(self.image.log_norms())
-                .zip(self.log_norms[set].iter_mut())
-            {
-                *s = (now - *before).exp();
-                *before = *now;
-            }
+            stretch_since(
+                &mut self.stretch,
+                self.image.log_norms(),
+                &mut self.log_norms[set],
+            );
             acc.observe(set, w.t, &self.unit, &self.stretch, w.last);
         }
+    }
+}
+
+/// The stretching factors since the last observation, `e^(now - before)`, from logarithmic
+/// norms; `before` becomes `now`.
+fn stretch_since(stretch: &mut [f64], now: &[f64], before: &mut [f64]) {
+    for ((s, now), before) in stretch.iter_mut().zip(now).zip(before) {
+        *s = (now - *before).exp();
+        *before = *now;
     }
 }
 

@@ -266,20 +266,24 @@ fn duffing_attractor_explicit_time_and_phase_rewrite_have_one_exponent_distribut
     );
 }
 
+/// The driven pendulum-like potential `V(q, t) = -cos(q) (1 + a cos(w t))` from (q, p) = (0.5,
+/// 0.2), as config sections.
+const DRIVEN_POTENTIAL: &str = r#"[model]
+name = "potential"
+n = 1
+potential = "-cos(q1) * (1 + a*cos(w*t))"
+params = { a = 0.5, w = 2.0 }
+[orbit]
+q = [0.5]
+p = [0.2]
+"#;
+
 /// The driven pendulum-like potential `V(q, t) = -cos(q) (1 + a cos(w t))`, stepped by
 /// `method` at `h` to `t_final` from (q, p) = (0.5, 0.2): the final state.
 fn driven_potential_state(method: &str, h: f64, t_final: f64) -> Vec<f64> {
     let toml = format!(
         r#"
-[model]
-name = "potential"
-n = 1
-potential = "-cos(q1) * (1 + a*cos(w*t))"
-params = {{ a = 0.5, w = 2.0 }}
-[orbit]
-q = [0.5]
-p = [0.2]
-[integrator]
+{DRIVEN_POTENTIAL}[integrator]
 method = "{method}"
 h = {h:?}
 t_final = {t_final:?}
@@ -401,15 +405,7 @@ fn map_of_a_time_dependent_potential_runs_through_the_engine() {
     let text = |route: &str| {
         format!(
             r#"
-[model]
-name = "potential"
-n = 1
-potential = "-cos(q1) * (1 + a*cos(w*t))"
-params = {{ a = 0.5, w = 2.0 }}
-[orbit]
-q = [0.5]
-p = [0.2]
-[integrator]
+{DRIVEN_POTENTIAL}[integrator]
 method = "aba864"
 h = 0.01
 t_final = 20.0

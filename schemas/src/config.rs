@@ -87,7 +87,8 @@ pub struct OrbitConfig {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct IntegratorConfig {
-    /// Splittings of separable Hamiltonians: `"aba864"`, `"leapfrog"`, `"saba2"`, `"yoshida4"`.
+    /// Splittings of separable Hamiltonians: `"aba864"`, `"leapfrog"`, `"saba2"`, `"saba3"`,
+    /// `"saba4"`, `"yoshida4"`, `"aba104"`, `"aba1064"`.
     /// Runge-Kutta methods of flows: `"rk4"`, `"dop853"`. Maps: `"iterate"` or left out.
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub method: String,

@@ -30,27 +30,98 @@ pub enum SplittingKind {
     Leapfrog,
     /// Laskar-Robutel SABA2, order 2 (4 for small perturbations).
     Saba2,
+    /// Laskar-Robutel SABA3, order 2 (6 for small perturbations).
+    Saba3,
+    /// Laskar-Robutel SABA4, order 2 (8 for small perturbations).
+    Saba4,
     /// Yoshida's fourth-order triple jump of the leapfrog.
     Yoshida4,
     /// Blanes, Casas, Farres, Laskar, Makazaga, Murua (2013), order (8,6,4).
     Aba864,
+    /// Blanes et al. (2013), order (10,4).
+    Aba104,
+    /// Blanes et al. (2013), order (10,6,4).
+    Aba1064,
 }
 
 impl SplittingKind {
-    pub const ALL: [SplittingKind; 4] = [
+    pub const ALL: [SplittingKind; 8] = [
         SplittingKind::Leapfrog,
         SplittingKind::Saba2,
+        SplittingKind::Saba3,
+        SplittingKind::Saba4,
         SplittingKind::Yoshida4,
         SplittingKind::Aba864,
+        SplittingKind::Aba104,
+        SplittingKind::Aba1064,
     ];
 
     pub fn name(self) -> &'static str {
         match self {
             SplittingKind::Leapfrog => "leapfrog",
             SplittingKind::Saba2 => "saba2",
+            SplittingKind::Saba3 => "saba3",
+            SplittingKind::Saba4 => "saba4",
             SplittingKind::Yoshida4 => "yoshida4",
             SplittingKind::Aba864 => "aba864",
+            SplittingKind::Aba104 => "aba104",
+            SplittingKind::Aba1064 => "aba1064",
         }
+    }
+
+    /// The order for any split `H = A + B` (the energy error of a step falls as `h^order`
+    /// times the step count).
+    pub fn order(self) -> u32 {
+        match self {
+            SplittingKind::Leapfrog
+            | SplittingKind::Saba2
+            | SplittingKind::Saba3
+            | SplittingKind::Saba4 => 2,
+            SplittingKind::Yoshida4
+            | SplittingKind::Aba864
+            | SplittingKind::Aba104
+            | SplittingKind::Aba1064 => 4,
+        }
+    }
+
+    /// The orders for a near-integrable split `H = A + eps B` as the literature writes them:
+    /// `(r_1, r_2, ...)` means an error `O(eps h^r_1 + eps^2 h^r_2 + ...)`, so at small `eps`
+    /// the first one rules (Laskar and Robutel 2001; Blanes et al. 2013). The general order is
+    /// the last entry.
+    pub fn near_integrable_orders(self) -> &'static [u32] {
+        match self {
+            SplittingKind::Leapfrog => &[2],
+            SplittingKind::Saba2 => &[4, 2],
+            SplittingKind::Saba3 => &[6, 2],
+            SplittingKind::Saba4 => &[8, 2],
+            SplittingKind::Yoshida4 => &[4],
+            SplittingKind::Aba864 => &[8, 6, 4],
+            SplittingKind::Aba104 => &[10, 4],
+            SplittingKind::Aba1064 => &[10, 6, 4],
+        }
+    }
+
+    /// Every splitting with its orders, as error messages and `--help` list them:
+    /// `leapfrog (order 2), saba2 (order 2; (4,2) near integrable), ...`.
+    pub fn catalogue() -> String {
+        Self::ALL
+            .iter()
+            .map(|k| {
+                let near = k.near_integrable_orders();
+                if near.len() > 1 {
+                    let orders: Vec<String> = near.iter().map(u32::to_string).collect();
+                    format!(
+                        "{} (order {}; ({}) near integrable)",
+                        k.name(),
+                        k.order(),
+                        orders.join(",")
+                    )
+                } else {
+                    format!("{} (order {})", k.name(), k.order())
+                }
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
     }
 
     pub fn from_name(name: &str) -> Option<Self> {
@@ -85,21 +156,84 @@ const ABA864_B: [f64; 4] = [
     0.0653961422823734184559721793911134363710,
 ];
 
+// ABA(10,4) and ABA(10,6,4) of Blanes et al. (2013), Table 3, as published: the drifts
+// `a_1..a_4` (`a_5` of ABA(10,6,4)) and kicks `b_1..b_4` of the first half of the palindrome.
+#[allow(clippy::excessive_precision)]
+const ABA104_A: [f64; 4] = [
+    0.04706710064597250612947887637243678556564,
+    0.1847569354170881069247376193702560968574,
+    0.2827060056798362053243616565541452479160,
+    -0.01453004174289681837857815229683813033908,
+];
+#[allow(clippy::excessive_precision)]
+const ABA104_B: [f64; 4] = [
+    0.1188819173681970199453503950853885936957,
+    0.2410504605515015657441667865901651105675,
+    -0.2732866667053238060543113981664559460630,
+    0.8267085775712504407295884329818044835997,
+];
+#[allow(clippy::excessive_precision)]
+const ABA1064_A: [f64; 5] = [
+    0.03809449742241219545697532230863756534060,
+    0.1452987161169137492940200726606637497442,
+    0.2076276957255412507162056113249882065158,
+    0.4359097036515261592231548624010651844006,
+    -0.6538612258327867093807117373907094120024,
+];
+#[allow(clippy::excessive_precision)]
+const ABA1064_B: [f64; 4] = [
+    0.09585888083707521061077150377145884776921,
+    0.2044461531429987806805077839164344779763,
+    0.2170703479789911017143385924306336714532,
+    -0.01737538195906509300561788011852699719871,
+];
+
+// SABA3 and SABA4 (Laskar and Robutel 2001): kicks at the Gauss-Legendre nodes of [0, 1] with
+// their weights; the drifts are the gaps between the nodes. Written out to 40 digits (the closed
+// forms `1/2 - sqrt(15)/10`, `1/2 - sqrt(3/7 + 2/7 sqrt(6/5))/2`, ... evaluated in high
+// precision), so no coefficient carries an f64 square root's rounding.
+#[allow(clippy::excessive_precision)]
+const SABA3_A: [f64; 2] = [
+    0.1127016653792583114820734600217600389167,
+    0.3872983346207416885179265399782399610833,
+];
+const SABA3_B: [f64; 2] = [5.0 / 18.0, 4.0 / 9.0];
+#[allow(clippy::excessive_precision)]
+const SABA4_A: [f64; 3] = [
+    0.06943184420297371238802675555359524745214,
+    0.2605776340045981552106403648947824089476,
+    0.3399810435848562648026657591032446872006,
+];
+#[allow(clippy::excessive_precision)]
+const SABA4_B: [f64; 2] = [
+    0.1739274225687269286865319746109997036177,
+    0.3260725774312730713134680253890002963823,
+];
+
 impl Splitting {
     pub fn new(kind: SplittingKind) -> Self {
-        let (order, drifts, kicks) = match kind {
-            SplittingKind::Leapfrog => (2, vec![0.5, 0.5], vec![1.0]),
+        let (drifts, kicks) = match kind {
+            SplittingKind::Leapfrog => (vec![0.5, 0.5], vec![1.0]),
             SplittingKind::Saba2 => {
                 let a1 = 0.5 - 3f64.sqrt() / 6.0;
                 let a2 = 3f64.sqrt() / 3.0;
-                (2, vec![a1, a2, a1], vec![0.5, 0.5])
+                (vec![a1, a2, a1], vec![0.5, 0.5])
+            }
+            SplittingKind::Saba3 => {
+                let [a1, a2] = SABA3_A;
+                let [b1, b2] = SABA3_B;
+                (vec![a1, a2, a2, a1], vec![b1, b2, b1])
+            }
+            SplittingKind::Saba4 => {
+                let [a1, a2, a3] = SABA4_A;
+                let [b1, b2] = SABA4_B;
+                (vec![a1, a2, a3, a2, a1], vec![b1, b2, b2, b1])
             }
             SplittingKind::Yoshida4 => {
                 let cbrt2 = 2f64.cbrt();
                 let w1 = 1.0 / (2.0 - cbrt2);
                 let w0 = -cbrt2 / (2.0 - cbrt2);
                 (
-                    4,
                     vec![w1 / 2.0, (w0 + w1) / 2.0, (w0 + w1) / 2.0, w1 / 2.0],
                     vec![w1, w0, w1],
                 )
@@ -108,12 +242,28 @@ impl Splitting {
                 let [a1, a2, a3, a4] = ABA864_A;
                 let [b1, b2, b3, b4] = ABA864_B;
                 (
-                    4,
                     vec![a1, a2, a3, a4, a4, a3, a2, a1],
                     vec![b1, b2, b3, b4, b3, b2, b1],
                 )
             }
+            SplittingKind::Aba104 => {
+                let [a1, a2, a3, a4] = ABA104_A;
+                let [b1, b2, b3, b4] = ABA104_B;
+                (
+                    vec![a1, a2, a3, a4, a4, a3, a2, a1],
+                    vec![b1, b2, b3, b4, b3, b2, b1],
+                )
+            }
+            SplittingKind::Aba1064 => {
+                let [a1, a2, a3, a4, a5] = ABA1064_A;
+                let [b1, b2, b3, b4] = ABA1064_B;
+                (
+                    vec![a1, a2, a3, a4, a5, a4, a3, a2, a1],
+                    vec![b1, b2, b3, b4, b4, b3, b2, b1],
+                )
+            }
         };
+        let order = kind.order();
         debug_assert_eq!(drifts.len(), kicks.len() + 1);
         let kick_times = drifts[..kicks.len()]
             .iter()
@@ -274,5 +424,34 @@ mod tests {
         let b = ABA864_B;
         assert!((2.0 * (a[0] + a[1] + a[2] + a[3]) - 1.0).abs() < 1e-15);
         assert!((2.0 * (b[0] + b[1] + b[2]) + b[3] - 1.0).abs() < 1e-15);
+    }
+
+    /// The SABA literals are the Gauss-Legendre nodes and weights of [0, 1] (to the last bit
+    /// an f64 evaluation of the closed forms can check, a few ulps).
+    #[test]
+    fn saba_coefficients_are_the_gauss_legendre_nodes() {
+        let close = |x: f64, y: f64| (x - y).abs() <= 4.0 * f64::EPSILON * y.abs().max(1.0);
+        let r15 = 15f64.sqrt() / 10.0;
+        assert!(close(SABA3_A[0], 0.5 - r15) && close(SABA3_A[1], r15));
+        let inner = (6.0f64 / 5.0).sqrt() * 2.0 / 7.0;
+        let x1 = 0.5 - (3.0 / 7.0 + inner).sqrt() / 2.0;
+        let x2 = 0.5 - (3.0 / 7.0 - inner).sqrt() / 2.0;
+        assert!(close(SABA4_A[0], x1));
+        assert!(close(SABA4_A[1], x2 - x1));
+        assert!(close(SABA4_A[2], 1.0 - 2.0 * x2));
+        let r30 = 30f64.sqrt();
+        assert!(close(SABA4_B[0], (18.0 - r30) / 72.0));
+        assert!(close(SABA4_B[1], (18.0 + r30) / 72.0));
+    }
+
+    #[test]
+    fn every_splitting_is_listed_with_its_orders() {
+        let list = SplittingKind::catalogue();
+        assert!(list.starts_with("leapfrog (order 2), saba2 (order 2; (4,2) near integrable)"));
+        assert!(list.contains("aba1064 (order 4; (10,6,4) near integrable)"));
+        for kind in SplittingKind::ALL {
+            assert_eq!(SplittingKind::from_name(kind.name()), Some(kind));
+            assert_eq!(kind.near_integrable_orders().last(), Some(&kind.order()));
+        }
     }
 }

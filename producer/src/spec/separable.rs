@@ -76,9 +76,9 @@ pub(super) fn run(
         SpecError::new(
             "integrator.method",
             format!(
-                "unknown method '{}' for a separable Hamiltonian (known: aba864, leapfrog, \
-                 saba2, yoshida4)",
-                cfg.integrator.method
+                "unknown method '{}' for a separable Hamiltonian (known: {})",
+                cfg.integrator.method,
+                SplittingKind::catalogue()
             ),
         )
     })?;

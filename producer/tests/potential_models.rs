@@ -559,3 +559,156 @@ fn every_example_model_validates_and_runs() {
     }
     assert!(seen >= 6, "{seen} example models");
 }
+
+/// The disordered Klein-Gordon chain of `examples/models`, shortened to `t_final`, with
+/// `[orbit]` and `params` as given.
+fn dkg(orbit: &str, eps: &str, t_final: f64) -> RunConfig {
+    RunConfig::from_toml(&format!(
+        "[model]\nname = \"potential\"\nn = 40\nboundary = \"fixed\"\n\
+         params = {{ W = 4.0, eps = {eps} }}\n\
+         potential = \"sum(i = 1..N, eps[i]/2*q[i]^2 + q[i]^4/4) + sum(i = 0..N, \
+         (q[i+1] - q[i])^2/(2*W))\"\n\
+         [orbit]\n{orbit}\n[integrator]\nmethod = \"aba864\"\nh = 0.05\nt_final = {t_final}\n\
+         [deviations]\nk = 2\nseed = 1\n\
+         [[scheme]]\nname = \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 1.0\n\
+         [[scheme]]\nname = \"mpm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 1.0\n"
+    ))
+    .expect("the DKG config parses")
+}
+
+/// A drawn disorder is the array it stands for: the same run, bit for bit, as the drawn
+/// values written out (they are uniform in [1/2, 3/2], another seed another array).
+#[test]
+fn drawn_disorder_runs_as_the_written_out_array() {
+    let orbit = "excite = { sites = 20, energy = 0.4 }";
+    let drawn = dkg(orbit, "{ uniform = [0.5, 1.5], seed = 11 }", 20.0);
+    let spec = RunSpec::from_config(&drawn).expect("valid");
+    // The values the spec drew, read back through a config that writes them out.
+    let values = chaoscope_producer::spec::drawn::uniform(0.5, 1.5, 11, 40);
+    assert!(values.iter().all(|e| (0.5..1.5).contains(e)));
+    assert_ne!(
+        values,
+        chaoscope_producer::spec::drawn::uniform(0.5, 1.5, 12, 40)
+    );
+    let written: Vec<String> = values.iter().map(|v| format!("{v:?}")).collect();
+    let explicit = dkg(orbit, &format!("[{}]", written.join(", ")), 20.0);
+    let a = final_indicators(spec);
+    let b = final_indicators(RunSpec::from_config(&explicit).expect("valid"));
+    assert_eq!(
+        a, b,
+        "a drawn array and its values written out run differently"
+    );
+    assert!(a.mle.iter().all(|m| m.is_finite()));
+}
+
+/// `excite`: q = 0, the excited momenta share the energy (`p = sqrt(2 E / L)`, signs from the
+/// seed), so `H = E` to rounding since `V(0) = 0` for this chain.
+#[test]
+fn single_site_and_block_excitations_carry_their_energy() {
+    let eps = "{ uniform = [0.5, 1.5], seed = 1 }";
+    let single = RunSpec::from_config(&dkg("excite = { sites = 20, energy = 0.4 }", eps, 1.0))
+        .expect("valid");
+    let x = single.x0();
+    assert!(x[..40].iter().all(|&q| q == 0.0));
+    let excited: Vec<usize> = (0..40).filter(|&l| x[40 + l] != 0.0).collect();
+    assert_eq!(excited, [19]);
+    assert_eq!(x[40 + 19], 0.8f64.sqrt());
+    let energy = single.system().invariant(x).expect("energy");
+    assert!((energy - 0.4).abs() <= 1e-15, "H = {energy}");
+
+    let block = RunSpec::from_config(&dkg(
+        "excite = { sites = [15, 25], energy = 4.125, seed = 3 }",
+        eps,
+        1.0,
+    ))
+    .expect("valid");
+    let x = block.x0();
+    let p: Vec<f64> = x[40..].to_vec();
+    let per_site = (2.0f64 * 4.125 / 11.0).sqrt();
+    for (l, &pl) in p.iter().enumerate() {
+        if (14..25).contains(&l) {
+            assert_eq!(pl.abs(), per_site, "site {}", l + 1);
+        } else {
+            assert_eq!(pl, 0.0, "site {}", l + 1);
+        }
+    }
+    // Random signs: both occur (11 fair coins all alike has probability 2^-10; seed 3 is pinned).
+    assert!(p.iter().any(|&v| v > 0.0) && p.iter().any(|&v| v < 0.0));
+    let energy = block.system().invariant(x).expect("energy");
+    // Eleven terms of size 0.375 summed: a few ulps of 4.125.
+    assert!(
+        (energy - 4.125).abs() <= 8.0 * f64::EPSILON * 4.125,
+        "H = {energy}"
+    );
+}
+
+#[test]
+fn bad_excitations_and_draws_are_named() {
+    let eps = "{ uniform = [0.5, 1.5], seed = 1 }";
+    let refused = |orbit: &str, eps: &str| -> String {
+        match RunSpec::from_config(&dkg(orbit, eps, 1.0)) {
+            Ok(_) => panic!("{orbit} / {eps} was accepted"),
+            Err(e) => format!("{}: {}", e.key, e.message),
+        }
+    };
+    let e = refused("excite = { sites = 41, energy = 0.4 }", eps);
+    assert!(
+        e.starts_with("orbit.excite.sites") && e.contains("<= 40"),
+        "{e}"
+    );
+    let e = refused("excite = { sites = [25, 15], energy = 0.4 }", eps);
+    assert!(e.starts_with("orbit.excite.sites"), "{e}");
+    let e = refused("excite = { sites = 0, energy = 0.4 }", eps);
+    assert!(e.starts_with("orbit.excite.sites"), "{e}");
+    let e = refused("excite = { sites = 3, energy = -1.0 }", eps);
+    assert!(
+        e.starts_with("orbit.excite.energy") && e.contains("positive"),
+        "{e}"
+    );
+    let e = refused("excite = { sites = 3, energy = 0.4 }\nq = [0.0]", eps);
+    assert!(
+        e.starts_with("orbit.q") && e.contains("orbit.excite"),
+        "{e}"
+    );
+    let e = refused(
+        "excite = { sites = 3, energy = 0.4 }",
+        "{ uniform = [1.5, 0.5], seed = 1 }",
+    );
+    assert!(
+        e.starts_with("model.params.eps") && e.contains("lo < hi"),
+        "{e}"
+    );
+    // A wrong shape, an unknown or a missing key of a drawn array: parse errors naming them.
+    let text = include_str!("../../examples/models/dkg-single-site.toml");
+    for (bad, says) in [
+        (
+            "seed = 1, normal = 2 }",
+            "model.params.eps.normal (line 15, column 61): unknown field `normal`",
+        ),
+        (
+            "}",
+            "model.params.eps.seed (line 15, column 27): missing field `seed`",
+        ),
+        ("seed = 1 }", ""),
+    ] {
+        let spoiled = text.replace(", seed = 1 }", &format!(", {bad}"));
+        let spoiled = if says.is_empty() {
+            spoiled.replace("eps = { uniform", "eps = { uniforms")
+        } else {
+            spoiled
+        };
+        let e = RunConfig::from_toml(&spoiled).expect_err(bad).to_string();
+        let says = if says.is_empty() {
+            "unknown field `uniforms`"
+        } else {
+            says
+        };
+        assert!(e.contains(says), "{bad}: {e}");
+    }
+    let e = RunConfig::from_toml(
+        &text.replace("eps = { uniform = [0.5, 1.5], seed = 1 }", "eps = \"x\""),
+    )
+    .expect_err("a string parameter")
+    .to_string();
+    assert!(e.contains("a number, an array of numbers"), "{e}");
+}

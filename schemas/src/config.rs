@@ -18,8 +18,9 @@ mod scheme;
 pub mod sweep;
 
 pub use model::{
-    CustomModelConfig, FputBetaConfig, HamiltonianConfig, HenonHeilesConfig, KNOWN_MODELS,
-    MapModelConfig, ModelConfig, OdeConfig, ParamValue, PotentialConfig, TableConfig, TableSpec,
+    CustomModelConfig, DrawnArray, FputBetaConfig, HamiltonianConfig, HenonHeilesConfig,
+    KNOWN_MODELS, MapModelConfig, ModelConfig, OdeConfig, ParamValue, PotentialConfig, TableConfig,
+    TableSpec,
 };
 pub use scheme::SchemeConfig;
 
@@ -82,6 +83,46 @@ pub struct OrbitConfig {
     /// Named initial condition generator, e.g. `"spo1"` for the FPUT chain (uses `energy`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub preset: Option<String>,
+    /// A lattice at rest but for the momenta of one site or a block of sites, which share an
+    /// energy: `excite = { sites = 500, energy = 0.4 }`, `excite = { sites = [490, 510],
+    /// energy = 0.4, seed = 3 }` (separable Hamiltonians).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub excite: Option<Excitation>,
+}
+
+/// `[orbit] excite`: every `q = 0` and every momentum 0 except those of the excited sites, each
+/// carrying the kinetic energy `energy / L` of a block of `L` sites (`p_l = +-sqrt(2 m_l
+/// energy / L)`): the single-site and block excitations of the disordered-lattice literature.
+/// The energy of the state is `energy + V(0)`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Excitation {
+    /// One site `l`, or the block `[first, last]` (sites numbered from 1, ends included).
+    pub sites: ExcitedSites,
+    /// The energy the excited sites share (positive).
+    pub energy: f64,
+    /// With a seed, the momenta's signs are drawn from it (the "random phases" of a block);
+    /// without, every momentum is positive.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seed: Option<u64>,
+}
+
+/// The sites of an excitation: one, or a block.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(untagged)]
+pub enum ExcitedSites {
+    One(usize),
+    Block([usize; 2]),
+}
+
+impl ExcitedSites {
+    /// `(first, last)`, numbered from 1.
+    pub fn range(self) -> (usize, usize) {
+        match self {
+            ExcitedSites::One(l) => (l, l),
+            ExcitedSites::Block([a, b]) => (a, b),
+        }
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]

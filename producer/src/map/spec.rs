@@ -169,7 +169,7 @@ fn lane_params(cfg: &RunConfig, map: &MapConfig) -> Result<Vec<LaneParam>, SpecE
         };
         match params.get(name) {
             Some(ParamValue::Scalar(_)) => {}
-            Some(ParamValue::Array(_)) => {
+            Some(ParamValue::Array(_) | ParamValue::Drawn(_)) => {
                 return Err(SpecError::new(
                     key,
                     format!(
@@ -361,11 +361,16 @@ impl MapSpec {
         base.map = None;
         base.orbit.solve_for = None;
         base.orbit.energy = None;
-        if cfg.orbit.preset.is_some() {
-            return Err(SpecError::new(
-                "orbit.preset",
-                "a map takes its fixed coordinates from [orbit] q and p, not a preset",
-            ));
+        for (key, present) in [
+            ("orbit.preset", cfg.orbit.preset.is_some()),
+            ("orbit.excite", cfg.orbit.excite.is_some()),
+        ] {
+            if present {
+                return Err(SpecError::new(
+                    key,
+                    "a map takes its fixed coordinates from [orbit] q and p (or x)",
+                ));
+            }
         }
         let k = map.k.unwrap_or(cfg.deviations.k);
         base.deviations.k = k;

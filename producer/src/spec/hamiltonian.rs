@@ -48,6 +48,7 @@ fn state_of_q_and_p(orbit: &OrbitConfig, n: usize) -> Result<OrbitConfig, SpecEr
         ("orbit.energy", orbit.energy.is_some()),
         ("orbit.solve_for", orbit.solve_for.is_some()),
         ("orbit.preset", orbit.preset.is_some()),
+        ("orbit.excite", orbit.excite.is_some()),
     ] {
         if present {
             return Err(SpecError::new(

@@ -27,6 +27,7 @@ use crate::deviation::{self, DirectionError, Directions};
 use crate::model::Model;
 use crate::system::{DynamicalSystem, Time};
 
+pub mod drawn;
 mod flow;
 mod hamiltonian;
 mod map;
@@ -289,6 +290,7 @@ fn state_x_with_lanes(
         ("orbit.energy", orbit.energy.is_some()),
         ("orbit.solve_for", orbit.solve_for.is_some()),
         ("orbit.preset", orbit.preset.is_some()),
+        ("orbit.excite", orbit.excite.is_some()),
     ] {
         if present {
             return Err(SpecError::new(

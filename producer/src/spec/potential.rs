@@ -52,6 +52,13 @@ pub(crate) fn param_value(
             }
             Ok(ParamValue::Array(xs.clone()))
         }
+        config::ParamValue::Drawn(d) => {
+            let [lo, hi] = d.uniform;
+            if let Some(problem) = super::drawn::range_problem(lo, hi) {
+                return Err(SpecError::new(key, problem));
+            }
+            Ok(ParamValue::Array(super::drawn::uniform(lo, hi, d.seed, n)))
+        }
     }
 }
 

@@ -152,10 +152,80 @@ pub fn solve_momentum(
     Ok(())
 }
 
+/// `[orbit] excite`: the momenta of the excited sites in `x` (all else 0), `p_l = +-sqrt(2 m_l
+/// E / L)` for a block of `L` sites sharing the energy `E`.
+fn excited_momenta(
+    model: &dyn Model,
+    excite: &chaoscope_schemas::config::Excitation,
+    x: &mut [f64],
+) -> Result<(), SpecError> {
+    let n = model.dof();
+    let (first, last) = excite.sites.range();
+    if first == 0 || first > last || last > n {
+        return Err(SpecError::new(
+            "orbit.excite.sites",
+            format!(
+                "must be a site or a block [first, last] with 1 <= first <= last <= {n} (the \
+                 model has {n} sites), got {}",
+                if first == last {
+                    first.to_string()
+                } else {
+                    format!("[{first}, {last}]")
+                }
+            ),
+        ));
+    }
+    let e = excite.energy;
+    if !(e.is_finite() && e > 0.0) {
+        return Err(SpecError::new(
+            "orbit.excite.energy",
+            format!("must be positive and finite, got {e}"),
+        ));
+    }
+    let sites = last - first + 1;
+    let per_site = e / sites as f64;
+    let signs = match excite.seed {
+        Some(seed) => super::drawn::signs(seed, sites),
+        None => vec![1.0; sites],
+    };
+    for (l, sign) in (first - 1..last).zip(signs) {
+        // p^2 / (2 m) = E / L; unit masses give sqrt(2 E / L) exactly.
+        let twice = 2.0 * per_site;
+        let p = match model.inverse_masses() {
+            None => twice.sqrt(),
+            Some(w) => (twice / w[l]).sqrt(),
+        };
+        x[n + l] = sign * p;
+    }
+    Ok(())
+}
+
 /// Initial state from the `[orbit]` section.
 pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>, SpecError> {
     let n = model.dof();
     let mut x = vec![0.0; 2 * n];
+    if let Some(excite) = &orbit.excite {
+        for (key, present) in [
+            ("orbit.q", !orbit.q.is_empty()),
+            ("orbit.p", !orbit.p.is_empty()),
+            ("orbit.energy", orbit.energy.is_some()),
+            ("orbit.solve_for", orbit.solve_for.is_some()),
+            ("orbit.preset", orbit.preset.is_some()),
+        ] {
+            if present {
+                return Err(SpecError::new(
+                    key,
+                    "orbit.excite gives the whole initial state (q = 0, the excited momenta); \
+                     leave this out",
+                ));
+            }
+        }
+        excited_momenta(model, excite, &mut x)?;
+        if !model.energy(&x).is_finite() {
+            return Err(SpecError::new("orbit", "the initial energy is not finite"));
+        }
+        return Ok(x);
+    }
     if let Some(preset) = &orbit.preset {
         let e = orbit.energy.ok_or_else(|| {
             SpecError::new("orbit.energy", format!("preset {preset} needs an energy"))

@@ -181,6 +181,10 @@ pub fn unused_params(model: &config::ModelConfig) -> Vec<String> {
                     let more = if vs.len() > 4 { ", ..." } else { "" };
                     format!("[{}{more}]", shown.join(", "))
                 }
+                config::ParamValue::Drawn(d) => format!(
+                    "{{ uniform = [{}, {}], seed = {} }}",
+                    d.uniform[0], d.uniform[1], d.seed
+                ),
             };
             format!("model.params.{name} = {value} is used by no expression")
         })

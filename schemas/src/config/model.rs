@@ -157,12 +157,65 @@ pub struct CustomModelConfig {
     pub keys: BTreeMap<String, toml::Value>,
 }
 
-/// A parameter value: one number, or one number per site.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+/// A parameter value: one number, or one number per site (written out, or drawn at random
+/// from a seed: `eps = { uniform = [0.5, 1.5], seed = 7 }`).
+#[derive(Debug, Clone, PartialEq, Serialize, JsonSchema)]
 #[serde(untagged)]
 pub enum ParamValue {
     Scalar(f64),
     Array(Vec<f64>),
+    Drawn(DrawnArray),
+}
+
+/// By the value's shape, so a wrong one gets a message saying what a parameter may be (and a
+/// drawn array's own errors, an unknown or a missing key, name the key) instead of serde's
+/// "did not match any variant".
+impl<'de> Deserialize<'de> for ParamValue {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        struct ParamVisitor;
+        impl<'de> Visitor<'de> for ParamVisitor {
+            type Value = ParamValue;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str(
+                    "a number, an array of numbers (one per site), or a drawn array \
+                     { uniform = [lo, hi], seed = S }",
+                )
+            }
+            fn visit_f64<E: de::Error>(self, v: f64) -> Result<ParamValue, E> {
+                Ok(ParamValue::Scalar(v))
+            }
+            fn visit_i64<E: de::Error>(self, v: i64) -> Result<ParamValue, E> {
+                Ok(ParamValue::Scalar(v as f64))
+            }
+            fn visit_u64<E: de::Error>(self, v: u64) -> Result<ParamValue, E> {
+                Ok(ParamValue::Scalar(v as f64))
+            }
+            fn visit_seq<A: de::SeqAccess<'de>>(self, mut seq: A) -> Result<ParamValue, A::Error> {
+                let mut values = Vec::new();
+                while let Some(v) = seq.next_element::<f64>()? {
+                    values.push(v);
+                }
+                Ok(ParamValue::Array(values))
+            }
+            fn visit_map<A: MapAccess<'de>>(self, map: A) -> Result<ParamValue, A::Error> {
+                DrawnArray::deserialize(MapAccessDeserializer::new(map)).map(ParamValue::Drawn)
+            }
+        }
+        deserializer.deserialize_any(ParamVisitor)
+    }
+}
+
+/// An array parameter drawn at random, one entry per site, from a seed: a disorder realization
+/// (`eps_l` uniform in `[1/2, 3/2]` of the disordered Klein-Gordon chain) written in two
+/// numbers, the same on every machine and version. How the entries are drawn is the producer's
+/// and is documented with the configuration.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct DrawnArray {
+    /// `[lo, hi]`: each entry uniform in `[lo, hi)`.
+    pub uniform: [f64; 2],
+    /// The realization: another seed, another disorder.
+    pub seed: u64,
 }
 
 /// A tabulated function: samples `x, f(x)` in a CSV file, interpolated by a cubic spline.

@@ -107,7 +107,9 @@ fn table_path(before: &str, this_line: Option<(&str, bool)>) -> String {
     current
 }
 
-/// The key of `line` (`k = ...`), then the keys of inline tables opened before byte `col`.
+/// The key of `line` (`k = ...`), then the keys of the inline tables still open at byte `col`
+/// (nested ones too: `params = { eps = { seed = 1, normal = 2 } }` gives `params`, `eps`), then
+/// the key whose value is being written there, if any.
 fn keys_before(line: &str, col: usize) -> Vec<&str> {
     let head = &line[..floor_char_boundary(line, col.min(line.len()))];
     let mut keys = Vec::new();
@@ -118,20 +120,36 @@ fn keys_before(line: &str, col: usize) -> Vec<&str> {
     if !own.is_empty() {
         keys.push(own);
     }
-    let mut rest = head.get(first_eq + 1..).unwrap_or("");
-    while let Some(eq) = rest.find('=') {
-        let before = rest[..eq].trim_end();
-        // Past the last character that cannot be in a key (which may be several bytes long).
-        let start = before
-            .char_indices()
-            .rfind(|&(_, c)| !(c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '"'))
-            .map_or(0, |(i, c)| i + c.len_utf8());
-        let key = before[start..].trim_matches('"');
-        if !key.is_empty() {
-            keys.push(key);
+    let rest = head.get(first_eq + 1..).unwrap_or("");
+    // The keys of the open inline tables (an empty one for a table opened where no key was
+    // pending, as the line's own value is), and the key of the latest `=` at the current depth.
+    let mut open: Vec<&str> = Vec::new();
+    let mut pending: Option<&str> = None;
+    let mut in_string = false;
+    for (i, c) in rest.char_indices() {
+        match c {
+            '"' => in_string = !in_string,
+            _ if in_string => {}
+            '=' => {
+                let before = rest[..i].trim_end();
+                // Past the last character that cannot be in a key (which may be several bytes).
+                let start = before
+                    .char_indices()
+                    .rfind(|&(_, c)| !(c.is_ascii_alphanumeric() || c == '_' || c == '-'))
+                    .map_or(0, |(i, c)| i + c.len_utf8());
+                pending = Some(before[start..].trim_matches('"')).filter(|k| !k.is_empty());
+            }
+            '{' => open.push(pending.take().unwrap_or("")),
+            '}' => {
+                open.pop();
+                pending = None;
+            }
+            ',' => pending = None,
+            _ => {}
         }
-        rest = &rest[eq + 1..];
     }
+    keys.extend(open.into_iter().filter(|k| !k.is_empty()));
+    keys.extend(pending);
     keys
 }
 
@@ -155,14 +173,9 @@ fn key_path(before: &str, line: &str, col: usize, field: Option<&str>) -> Option
         return field.map(|f| join(&table, f));
     }
     let table = table_path(before, None);
-    let keys = keys_before(line, col);
     let mut path = table.clone();
-    match (keys.first(), keys.last()) {
-        (Some(first), Some(last)) if keys.len() > 1 => {
-            path = join(&join(&path, first), last);
-        }
-        (Some(first), _) => path = join(&path, first),
-        _ => {}
+    for key in keys_before(line, col) {
+        path = join(&path, key);
     }
     if let Some(f) = field
         && !path.ends_with(f)

@@ -41,6 +41,7 @@
 //! speed-up is the median pair, and `speedup_over_ceiling` the median of each pair's speed-up over
 //! the ceiling measured right after it.
 
+mod dkg;
 mod lattice;
 mod plain_loop;
 mod scalar_c;
@@ -112,6 +113,14 @@ pub struct Args {
     /// (built-in, expression) pairs of runs per size; the median ratios are reported.
     #[arg(long, default_value_t = 1)]
     pub lattice_pairs: usize,
+    /// Only the disordered Klein-Gordon chain (an expression, through the whole `chaoscope
+    /// run`) against a hand-written scalar C of the same step and tangent map, at `--dkg-sizes`:
+    /// site-steps per CPU second and the MLE at t = 100 of both.
+    #[arg(long)]
+    pub dkg_only: bool,
+    /// Chain lengths of the DKG comparison.
+    #[arg(long, value_delimiter = ',', default_values_t = [200usize, 1000, 4000])]
+    pub dkg_sizes: Vec<usize>,
     /// One run of the lattice comparison (internal: `MODEL:N:T_FINAL`), as a child process.
     #[arg(long, hide = true)]
     pub lattice_case: Option<String>,
@@ -556,6 +565,15 @@ fn map_case(spec: &MapSpec, isa: Isa, threads: usize) -> anyhow::Result<(f64, f6
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(case) = &args.lattice_case {
         lattice::case(case)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    if args.dkg_only {
+        let report = serde_json::json!({
+            "cpu": Machine::cpu_model(),
+            "isa": Isa::detect().name(),
+            "dkg_expression_run_vs_scalar_c": dkg::compare(&args.dkg_sizes)?,
+        });
+        chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
         return Ok(ExitCode::SUCCESS);
     }
     if args.lattice_only {

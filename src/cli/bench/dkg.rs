@@ -1,0 +1,218 @@
+//! `chaoscope bench --dkg-only`: the disordered Klein-Gordon chain of
+//! `examples/models/dkg-single-site.toml` (written as an expression, disorder drawn from a seed)
+//! through the whole `chaoscope run` (producer, bus, recorder: each run a process tree of its
+//! own, its CPU time that of every process in it) against a hand-written scalar C of the same
+//! ABA864 step and tangent map (`dkg.c`, built at bench time with `-O3 -march=native
+//! -ffp-contract=off`), at `--dkg-sizes` (issue 26, must-show 2 and item 5).
+//!
+//! Both integrate one reference orbit and one VM deviation vector, renormalized every 100 time
+//! units (the run records a sample there, as a recording interval of 100 would), over the same
+//! site-steps at every size (`2 * 10^8`, so the process start and the compilation weigh what
+//! they weigh in a run of that length); and both run to `t = 100` once more, whose MLEs are
+//! compared (the C's vector is the run's own first direction). The C's arithmetic is the
+//! chain's forces in the textbook order, not chaoscope's compiled loop, so the two MLEs agree to
+//! rounding amplified by the orbit's (weak) chaos, not bit for bit.
+
+use std::io::Write;
+use std::process::{Command, Stdio};
+
+use anyhow::Context;
+use chaoscope_producer::batch::StepCoeffs;
+use chaoscope_producer::integrator::{Splitting, SplittingKind};
+use chaoscope_producer::spec::RunSpec;
+use chaoscope_schemas::config::RunConfig;
+
+const SOURCE: &str = include_str!("dkg.c");
+const EXAMPLE: &str = include_str!("../../../examples/models/dkg-single-site.toml");
+const H: f64 = 0.05;
+const TAU: f64 = 100.0;
+/// Site-steps of each throughput run.
+const SITE_STEPS: f64 = 2e8;
+
+/// The example at `n` sites (the excitation in the middle), to `t_final`, one VM vector
+/// renormalized every `TAU`.
+fn config(n: usize, t_final: f64) -> anyhow::Result<RunConfig> {
+    let mut text = EXAMPLE
+        .replace("n = 1000\n", &format!("n = {n}\n"))
+        .replace("sites = 500,", &format!("sites = {},", n / 2))
+        .replace("t_final = 5000.0", &format!("t_final = {t_final:?}"))
+        .replace("tau = 10.0", &format!("tau = {TAU:?}"))
+        .replace("k = 2\n", "k = 1\n");
+    text = text.replace("name = \"dkg-single-site\"", "name = \"bench-dkg\"");
+    let config = RunConfig::from_toml(&text)?;
+    anyhow::ensure!(
+        config.integrator.h == Some(H) && config.integrator.t_final == t_final,
+        "the DKG example changed shape: the bench cannot set its size and length"
+    );
+    Ok(config)
+}
+
+/// CPU seconds (user + system) of every waited-for descendant so far.
+fn children_cpu_seconds() -> f64 {
+    // SAFETY: getrusage writes the struct it is given.
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) };
+    let s = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    s(usage.ru_utime) + s(usage.ru_stime)
+}
+
+/// `chaoscope run` of `config` in `dir`: (CPU seconds of its process tree, MLE of its scheme).
+fn chaoscope_run(
+    dir: &std::path::Path,
+    config: &RunConfig,
+    tag: &str,
+) -> anyhow::Result<(f64, f64)> {
+    let exe = std::env::current_exe()?;
+    let cfg = dir.join(format!("{tag}.toml"));
+    let out = dir.join(format!("{tag}.mcap"));
+    std::fs::write(&cfg, config.to_toml())?;
+    let before = children_cpu_seconds();
+    let status = Command::new(&exe)
+        .arg("run")
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&out)
+        .env("RAYON_NUM_THREADS", "1")
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .status()
+        .context("starting chaoscope run")?;
+    let cpu = children_cpu_seconds() - before;
+    anyhow::ensure!(
+        status.success(),
+        "chaoscope run of the DKG chain failed ({status})"
+    );
+    let report = Command::new(&exe)
+        .arg("analyze")
+        .arg(&out)
+        .arg("--json")
+        .output()
+        .context("running chaoscope analyze")?;
+    anyhow::ensure!(report.status.success(), "chaoscope analyze failed");
+    let json: serde_json::Value = serde_json::from_slice(&report.stdout)?;
+    let mle = json["schemes"][0]["mle"]
+        .as_f64()
+        .context("analyze --json gave no MLE")?;
+    std::fs::remove_file(&out).ok();
+    Ok((cpu, mle))
+}
+
+/// The C program's input for `config` (see `dkg.c`).
+fn c_input(config: &RunConfig) -> anyhow::Result<String> {
+    let spec = RunSpec::from_config(config)?;
+    let n = spec.dim() / 2;
+    let coeffs = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), H);
+    let tau = spec.schemes()[0].tau_steps;
+    let mut s = String::new();
+    let mut put = |v: f64| s.push_str(&format!("{v:e}\n"));
+    put(n as f64);
+    put(4.0);
+    chaoscope_producer::spec::drawn::uniform(0.5, 1.5, 1, n)
+        .into_iter()
+        .for_each(&mut put);
+    put(coeffs.kicks() as f64);
+    coeffs.drift.iter().for_each(|&v| put(v));
+    coeffs.kick.iter().for_each(|&v| put(v));
+    put(tau as f64);
+    put((spec.total_steps() / tau) as f64);
+    put(H);
+    put(1.0);
+    spec.x0().iter().for_each(|&v| put(v));
+    spec.directions()[0].vectors[..2 * n]
+        .iter()
+        .for_each(|&v| put(v));
+    Ok(s)
+}
+
+/// The C yardstick on `input`: (CPU seconds, MLE).
+fn c_run(exe: &std::path::Path, input: &str) -> anyhow::Result<(f64, f64)> {
+    let mut child = Command::new(exe)
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .spawn()
+        .context("starting the C yardstick")?;
+    child
+        .stdin
+        .take()
+        .context("stdin of the C yardstick")?
+        .write_all(input.as_bytes())?;
+    let out = child.wait_with_output()?;
+    anyhow::ensure!(
+        out.status.success(),
+        "the C yardstick failed ({})",
+        out.status
+    );
+    let text = String::from_utf8(out.stdout)?;
+    let value = |key: &str| -> anyhow::Result<f64> {
+        text.lines()
+            .find_map(|l| l.strip_prefix(key))
+            .with_context(|| format!("the C yardstick printed no {key}"))?
+            .trim()
+            .parse::<f64>()
+            .map_err(Into::into)
+    };
+    Ok((value("cpu_seconds ")?, value("mle ")?))
+}
+
+pub fn compare(sizes: &[usize]) -> anyhow::Result<serde_json::Value> {
+    // A private directory (mode 0700, random name): the program built here is run.
+    let scratch = tempfile::Builder::new()
+        .prefix("chaoscope-bench-dkg-")
+        .tempdir()?;
+    let dir = scratch.path();
+    std::fs::write(dir.join("dkg.c"), SOURCE)?;
+    let exe = dir.join("dkg");
+    let built = Command::new("cc")
+        .args(["-O3", "-march=native", "-ffp-contract=off", "-o"])
+        .arg(&exe)
+        .arg(dir.join("dkg.c"))
+        .arg("-lm")
+        .output();
+    match built {
+        Ok(o) if o.status.success() => {}
+        Ok(o) => {
+            return Ok(serde_json::json!({ "unavailable": format!(
+                "cc failed: {}", String::from_utf8_lossy(&o.stderr).lines().next().unwrap_or(""))}));
+        }
+        Err(e) => return Ok(serde_json::json!({ "unavailable": format!("no C compiler: {e}") })),
+    }
+    let mut rows = Vec::new();
+    for &n in sizes {
+        anyhow::ensure!(n >= 4, "--dkg-sizes: a chain of at least 4 sites, got {n}");
+        // Whole renormalization windows of the same site-steps at every size.
+        let windows = (SITE_STEPS / (n as f64 * TAU / H)).round().max(1.0);
+        let t_final = windows * TAU;
+        let long = config(n, t_final)?;
+        let (run_cpu, _) = chaoscope_run(dir, &long, &format!("long-{n}"))?;
+        let (c_cpu, _) = c_run(&exe, &c_input(&long)?)?;
+        let short = config(n, 100.0)?;
+        let (_, run_mle) = chaoscope_run(dir, &short, &format!("short-{n}"))?;
+        let (_, c_mle) = c_run(&exe, &c_input(&short)?)?;
+        let site_steps = n as f64 * t_final / H;
+        let ratio = (site_steps / run_cpu) / (site_steps / c_cpu);
+        rows.push(serde_json::json!({
+            "sites": n,
+            "t_final": t_final,
+            "site_steps": site_steps,
+            "run_cpu_seconds": run_cpu,
+            "c_cpu_seconds": c_cpu,
+            "run_site_steps_per_cpu_second": site_steps / run_cpu,
+            "c_site_steps_per_cpu_second": site_steps / c_cpu,
+            "run_over_c": ratio,
+            "target_run_over_c": 0.8,
+            "meets_target": ratio >= 0.8,
+            "mle_t100": { "run": run_mle, "c": c_mle,
+                          "relative_difference": ((run_mle - c_mle) / c_mle).abs(),
+                          "target_relative_difference": 1e-10 },
+        }));
+    }
+    Ok(serde_json::json!({
+        "settings": "DKG W = 4, eps uniform in [0.5, 1.5) (seed 1), fixed ends, single site \
+                     excited at E = 0.4, ABA864 h = 0.05, one VM vector renormalized (and \
+                     recorded) every 100 time units; chaoscope run with one rayon thread, \
+                     CPU time of its whole process tree; scalar C -O3 -march=native \
+                     -ffp-contract=off",
+        "compiler": super::scalar_c::compiler(),
+        "sizes": rows,
+    }))
+}

@@ -150,6 +150,9 @@ pub enum CStepState {
     Failed,
     /// Cancelled (the model was dropped during the build).
     Cancelled,
+    /// The potential has no step kernels (it reads the time or lane parameters): its lanes are
+    /// stepped through its scalar functions.
+    Unused,
 }
 
 impl CStepState {
@@ -162,6 +165,7 @@ impl CStepState {
             CStepState::Off => "off",
             CStepState::Failed => "failed",
             CStepState::Cancelled => "cancelled",
+            CStepState::Unused => "unused",
         }
     }
 }
@@ -746,6 +750,19 @@ impl ExpressionModel {
     /// Where the background C build stands, and how many batched kernel calls each backend ran.
     pub fn c_step_status(&self) -> CStepStatus {
         let c = &self.0.c_steps;
+        if self.0.reads_time || self.0.lane_params > 0 {
+            return CStepStatus {
+                state: CStepState::Unused,
+                reason: Some(
+                    "the potential reads the time or lane parameters, which the step kernels \
+                     do not take"
+                        .into(),
+                ),
+                ready_after: None,
+                cranelift_calls: 0,
+                c_calls: 0,
+            };
+        }
         let state = match c.result.get() {
             _ if !c.started.is_completed() => CStepState::NotStarted,
             None => CStepState::Building,

@@ -294,24 +294,33 @@ impl<'a> LaneByLaneKernel<'a> {
 }
 
 impl PointKernel for LaneByLaneKernel<'_> {
+    /// Each lane's model bound once for all its steps (what `SplitHamiltonian::step` does at
+    /// every step).
     fn orbit_steps(&mut self, x: &mut Soa, from: u64, steps: u64) {
-        let time = self.system.time();
+        let (system, time, dim) = (self.system, self.system.time(), self.system.dim());
         self.lane.resize(x.rows(), 0.0);
         for l in 0..x.lanes() {
             x.read_lane(l, &mut self.lane);
+            let model = WithParams::of_state(&system.model, &self.lane);
             for s in from..from + steps {
-                self.system.step(&mut self.lane, time.at(s), &mut self.work);
+                let state = &mut self.lane[..dim];
+                system
+                    .splitting
+                    .step(&model, state, time.at(s), system.h, &mut self.work);
             }
             x.write_lane(l, &self.lane);
         }
     }
 
     fn reference_steps(&mut self, x: &mut [f64], from: u64, steps: u64) {
-        let time = self.system.time();
+        let (system, time, dim) = (self.system, self.system.time(), self.system.dim());
+        let model = WithParams::of_state(&system.model, x);
         self.reference.clear();
         for s in from..from + steps {
             self.reference.extend_from_slice(x);
-            self.system.step(x, time.at(s), &mut self.work);
+            system
+                .splitting
+                .step(&model, &mut x[..dim], time.at(s), system.h, &mut self.work);
         }
     }
 
@@ -324,14 +333,21 @@ impl PointKernel for LaneByLaneKernel<'_> {
         for (l, w) in self.vectors.chunks_exact_mut(dim).enumerate() {
             v.read_lane(l, w);
         }
+        // The parameters are the same at every step of the reference.
+        let Some(first) = self.reference.get(..len) else {
+            return Ok(());
+        };
+        let model = WithParams::of_state(&self.system.model, first);
         for (k, s) in (from..from + steps).enumerate() {
             self.lane.clear();
             self.lane
-                .extend_from_slice(&self.reference[k * len..(k + 1) * len]);
-            self.system.step_tangent(
+                .extend_from_slice(&self.reference[k * len..][..dim]);
+            self.system.splitting.step_tangent(
+                &model,
                 &mut self.lane,
                 &mut self.vectors,
                 time.at(s),
+                self.system.h,
                 &mut self.work,
             )?;
         }

@@ -78,12 +78,44 @@ y = { coord = "x2", min = -3.0, max = 3.0, n = 5 }
 indicator = "sali"
 "#;
 
+/// A small map over a parameter of a `potential` (a coupling of Henon-Heiles) and a momentum:
+/// the points' coupling a per-lane value of the compiled potential (5 x 4 points, t = 10).
+const POTENTIAL_PARAM_CONFIG: &str = r#"
+[model]
+name = "potential"
+n = 2
+potential = "(q1^2 + q2^2)/2 + lam*(q1^2*q2 - q2^3/3)"
+params = { lam = 1.0 }
+[orbit]
+q = [0.0, 0.1]
+p = [0.3, 0.0]
+[integrator]
+method = "aba864"
+h = 0.05
+t_final = 10
+[deviations]
+k = 2
+sets = 2
+seed = 3
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1
+[map]
+x = { param = "lam", min = 0.5, max = 2.5, n = 5 }
+y = { coord = "p2", min = -0.2, max = 0.2, n = 4 }
+indicator = "gali"
+"#;
+
 /// Shards at 1 and 2 threads merge into exactly the unsharded map's points, for a coordinate
-/// map and a map over a parameter (whose header says so: `MapAxis.param`).
+/// map and maps over a parameter (whose header says so: `MapAxis.param`) of a discrete map and
+/// of a potential.
 #[test]
 fn merged_shards_equal_the_unsharded_map() {
     merged_shards_equal_the_unsharded(CONFIG, 63);
     merged_shards_equal_the_unsharded(PARAM_CONFIG, 30);
+    merged_shards_equal_the_unsharded(POTENTIAL_PARAM_CONFIG, 20);
     let tmp = dir();
     let (cfg, out) = (tmp.path().join("k.toml"), tmp.path().join("k.mcap"));
     std::fs::write(&cfg, PARAM_CONFIG).unwrap();

@@ -66,8 +66,17 @@ use crate::lattice::{ARG_Q, ARG_V};
 /// inputs never mistakes one for the time.
 pub const ARG_T: u8 = 6;
 
-/// Argument arrays of a scalar call: positions, direction, the unused lattice ones, the time.
+/// The lane parameters' argument array (a map's parameter axes: [`ParamValue::Lane`]s of this
+/// argument, numbered from 0), after the time's.
+pub const ARG_PARAMS: u8 = ARG_T + 1;
+
+/// Argument arrays of a scalar function of the time: positions, direction, the unused lattice
+/// ones, the time.
 const ARGS: usize = ARG_T as usize + 1;
+
+/// Argument arrays of a scalar call: as [`ARGS`], and the lane parameters (read only by a
+/// potential that has some).
+const CALL_ARGS: usize = ARG_PARAMS as usize + 1;
 
 /// How the potential's derivatives are written.
 enum Form {
@@ -106,6 +115,12 @@ struct Inner {
     c2: bool,
     /// `V` reads the time.
     reads_time: bool,
+    /// `P`: parameters read per call ([`ARG_PARAMS`]) instead of folded (a map's parameter
+    /// axes). A potential with any is always unrolled and has no step kernels.
+    lane_params: usize,
+    /// `P` NaNs: the parameters of a call that gives none (`gradient`, `gradient_at`, ...),
+    /// so such a call of a parametrized potential gives NaN, never reads a null pointer.
+    no_params: Vec<f64>,
     build_time: Duration,
 }
 
@@ -135,6 +150,9 @@ pub enum CStepState {
     Failed,
     /// Cancelled (the model was dropped during the build).
     Cancelled,
+    /// The potential has no step kernels (it reads the time or lane parameters): its lanes are
+    /// stepped through its scalar functions.
+    Unused,
 }
 
 impl CStepState {
@@ -147,6 +165,7 @@ impl CStepState {
             CStepState::Off => "off",
             CStepState::Failed => "failed",
             CStepState::Cancelled => "cancelled",
+            CStepState::Unused => "unused",
         }
     }
 }
@@ -335,7 +354,8 @@ impl ExpressionModel {
             .nodes()
             .iter()
             .any(|n| matches!(n, crate::graph::Node::Input { arg: ARG_T, .. }));
-        let lattice = if had_sums && !reads_time {
+        let lane_params = lane_param_count(&definition.params)?;
+        let lattice = if had_sums && !reads_time && lane_params == 0 {
             LatticePotential::new(&mut graph, root, sums, n, c2).map_err(|e| err(&e))?
         } else {
             None
@@ -367,8 +387,14 @@ impl ExpressionModel {
                 } else {
                     vec![graph.constant(0.0); n]
                 };
-                let compiled =
-                    compile_unrolled(&graph, potential, &gradient, &hessian_vector, reads_time)?;
+                let compiled = compile_unrolled(
+                    &graph,
+                    potential,
+                    &gradient,
+                    &hessian_vector,
+                    reads_time,
+                    lane_params,
+                )?;
                 let form = Form::Unrolled {
                     potential,
                     gradient,
@@ -385,6 +411,8 @@ impl ExpressionModel {
             hessian_vector_fn: compiled.raw_scalar(HESSIAN_VECTOR),
             c2,
             reads_time,
+            lane_params,
+            no_params: vec![f64::NAN; lane_params],
             origins,
             smoothness,
             definition,
@@ -425,8 +453,30 @@ impl ExpressionModel {
     /// `V(q, t)`.
     #[inline]
     pub fn potential_at(&self, q: &[f64], t: f64) -> f64 {
+        self.potential_with(q, t, &self.0.no_params)
+    }
+
+    /// `P`: the parameters every call reads ([`ARG_PARAMS`], a map's parameter axes); 0 for a
+    /// potential whose parameters are all constants.
+    pub fn lane_params(&self) -> usize {
+        self.0.lane_params
+    }
+
+    /// `V(q, t)` at the lane parameters `params` (`P` values; ignored when `P = 0`).
+    ///
+    /// # Panics
+    /// If `params` has fewer than `P` entries.
+    #[inline]
+    pub fn potential_with(&self, q: &[f64], t: f64, params: &[f64]) -> f64 {
         let mut v = [0.0];
-        if self.0.reads_time {
+        if self.0.lane_params > 0 {
+            let time = [t];
+            let mut args: [&[f64]; CALL_ARGS] = [&[]; CALL_ARGS];
+            args[ARG_Q as usize] = q;
+            args[ARG_T as usize] = &time;
+            args[ARG_PARAMS as usize] = params;
+            self.0.compiled.call(POTENTIAL, &args, &mut v);
+        } else if self.0.reads_time {
             let time = [t];
             let mut args: [&[f64]; ARGS] = [&[]; ARGS];
             args[ARG_Q as usize] = q;
@@ -453,15 +503,26 @@ impl ExpressionModel {
     /// If `q` or `out` does not have `N` entries.
     #[inline]
     pub fn gradient_at(&self, q: &[f64], t: f64, out: &mut [f64]) {
+        self.gradient_with(q, t, &self.0.no_params, out)
+    }
+
+    /// `out = dV/dq (q, t)` at the lane parameters `params` (`P` values).
+    ///
+    /// # Panics
+    /// If `q` or `out` does not have `N` entries, or `params` fewer than `P`.
+    #[inline]
+    pub fn gradient_with(&self, q: &[f64], t: f64, params: &[f64], out: &mut [f64]) {
         let n = self.0.definition.n;
         assert!(q.len() == n && out.len() == n, "gradient of {n} sites");
+        assert!(params.len() >= self.0.lane_params, "lane parameters");
         let time = [t];
-        let mut args = [std::ptr::null(); ARGS];
+        let mut args = [std::ptr::null(); CALL_ARGS];
         args[ARG_Q as usize] = q.as_ptr();
         args[ARG_T as usize] = time.as_ptr();
-        // SAFETY: the function reads at most N entries of `q` (checked in `new`) and writes N
-        // outputs; both slices have N entries; `out` is a `&mut`, so it overlaps nothing; the
-        // code lives as long as `self.0.compiled`.
+        args[ARG_PARAMS as usize] = params.as_ptr();
+        // SAFETY: the function reads at most N entries of `q` and P of the parameters (checked
+        // in `new`) and writes N outputs; the slices are that long; `out` is a `&mut`, so it
+        // overlaps nothing; the code lives as long as `self.0.compiled`.
         unsafe { (self.0.gradient_fn)(args.as_ptr(), out.as_mut_ptr()) }
     }
 
@@ -481,6 +542,23 @@ impl ExpressionModel {
     /// If `q`, `v` or `out` does not have `N` entries.
     #[inline]
     pub fn hessian_vector_at(&self, q: &[f64], t: f64, v: &[f64], out: &mut [f64]) -> bool {
+        self.hessian_vector_with(q, t, &self.0.no_params, v, out)
+    }
+
+    /// `out = Hess V(q, t) v` at the lane parameters `params` (`P` values), or `false` as
+    /// [`Self::hessian_vector`].
+    ///
+    /// # Panics
+    /// If `q`, `v` or `out` does not have `N` entries, or `params` fewer than `P`.
+    #[inline]
+    pub fn hessian_vector_with(
+        &self,
+        q: &[f64],
+        t: f64,
+        params: &[f64],
+        v: &[f64],
+        out: &mut [f64],
+    ) -> bool {
         if !self.0.c2 {
             return false;
         }
@@ -489,12 +567,15 @@ impl ExpressionModel {
             q.len() == n && v.len() == n && out.len() == n,
             "Hessian-vector product of {n} sites"
         );
+        assert!(params.len() >= self.0.lane_params, "lane parameters");
         let time = [t];
-        let mut args = [std::ptr::null(); ARGS];
+        let mut args = [std::ptr::null(); CALL_ARGS];
         args[ARG_Q as usize] = q.as_ptr();
         args[ARG_V as usize] = v.as_ptr();
         args[ARG_T as usize] = time.as_ptr();
-        // SAFETY: as in `gradient_at`, for the arguments `q`, `v` and the time.
+        args[ARG_PARAMS as usize] = params.as_ptr();
+        // SAFETY: as in `gradient_with`, for the arguments `q`, `v`, the time and the
+        // parameters.
         unsafe { (self.0.hessian_vector_fn)(args.as_ptr(), out.as_mut_ptr()) }
         true
     }
@@ -526,6 +607,11 @@ impl ExpressionModel {
 
     /// [`Self::diagnose_non_finite`] at time `t`.
     pub fn diagnose_non_finite_at(&self, q: &[f64], t: f64) -> Option<String> {
+        self.diagnose_non_finite_with(q, t, &self.0.no_params)
+    }
+
+    /// [`Self::diagnose_non_finite`] at time `t` and the lane parameters `params`.
+    pub fn diagnose_non_finite_with(&self, q: &[f64], t: f64, params: &[f64]) -> Option<String> {
         let g = &self.0.graph;
         match &self.0.form {
             Form::Unrolled {
@@ -534,9 +620,10 @@ impl ExpressionModel {
                 ..
             } => {
                 let time = [t];
-                let mut a: [&[f64]; ARGS] = [&[]; ARGS];
+                let mut a: [&[f64]; CALL_ARGS] = [&[]; CALL_ARGS];
                 a[ARG_Q as usize] = q;
                 a[ARG_T as usize] = &time;
+                a[ARG_PARAMS as usize] = params;
                 if let Some(id) = eval::first_non_finite(g, &a, *potential) {
                     return Some(self.describe(id, &a, "in the potential"));
                 }
@@ -591,9 +678,9 @@ impl ExpressionModel {
     /// first `k` calls run the Cranelift kernels and every later call wait for the C build,
     /// so a test can place the switch where it wants (`0`: only the C kernels).
     pub fn step_kernels(&self) -> Option<&StepKernels> {
-        if self.0.reads_time {
-            // Kernels have no time input; a potential of the time is stepped through its
-            // scalar functions (and maps it through the one-orbit engine).
+        if self.0.reads_time || self.0.lane_params > 0 {
+            // Kernels have no time or parameter input; such a potential is stepped through its
+            // scalar functions.
             return None;
         }
         if UNCOUNTED.get() {
@@ -663,6 +750,19 @@ impl ExpressionModel {
     /// Where the background C build stands, and how many batched kernel calls each backend ran.
     pub fn c_step_status(&self) -> CStepStatus {
         let c = &self.0.c_steps;
+        if self.0.reads_time || self.0.lane_params > 0 {
+            return CStepStatus {
+                state: CStepState::Unused,
+                reason: Some(
+                    "the potential reads the time or lane parameters, which the step kernels \
+                     do not take"
+                        .into(),
+                ),
+                ready_after: None,
+                cranelift_calls: 0,
+                c_calls: 0,
+            };
+        }
         let state = match c.result.get() {
             _ if !c.started.is_completed() => CStepState::NotStarted,
             None => CStepState::Building,
@@ -809,11 +909,22 @@ fn compile_unrolled(
     gradient: &[NodeId],
     hessian_vector: &[NodeId],
     reads_time: bool,
+    lane_params: usize,
 ) -> Result<Compiled, PotentialError> {
     let n = gradient.len();
     // A potential of the time takes every argument array up to the time's (the lattice ones
-    // unused); one that does not keeps its one or two.
-    let args = |k: usize| vec![Layout::Scalar; if reads_time { ARGS } else { k }];
+    // unused), one with lane parameters up to theirs; one that reads neither keeps its one or
+    // two.
+    let args = |k: usize| {
+        let count = if lane_params > 0 {
+            CALL_ARGS
+        } else if reads_time {
+            ARGS
+        } else {
+            k
+        };
+        vec![Layout::Scalar; count]
+    };
     let specs = [
         FunctionSpec {
             args: args(1),
@@ -843,6 +954,35 @@ fn compile_unrolled(
                 )));
             }
         }
+        if lane_params > 0 && compiled.arg_len(f, ARG_PARAMS as usize) > lane_params {
+            return Err(PotentialError(format!(
+                "compiled function {f} reads {} lane parameters, more than P = {lane_params}",
+                compiled.arg_len(f, ARG_PARAMS as usize)
+            )));
+        }
     }
     Ok(compiled)
+}
+
+/// `P`: how many parameters are [`ParamValue::Lane`]s; they must be entries `0..P` of
+/// [`ARG_PARAMS`].
+fn lane_param_count(params: &BTreeMap<String, ParamValue>) -> Result<usize, PotentialError> {
+    let mut indices: Vec<u32> = Vec::new();
+    for v in params.values() {
+        if let ParamValue::Lane { arg, index, .. } = v {
+            if *arg != ARG_PARAMS {
+                return Err(PotentialError(format!(
+                    "a lane parameter of a potential is read from argument {ARG_PARAMS}, not {arg}"
+                )));
+            }
+            indices.push(*index);
+        }
+    }
+    indices.sort_unstable();
+    if indices.iter().enumerate().any(|(i, &j)| j as usize != i) {
+        return Err(PotentialError(
+            "lane parameters must be entries 0..P of their argument, each once".into(),
+        ));
+    }
+    Ok(indices.len())
 }

@@ -772,6 +772,275 @@ fn parameter_axes_equal_coordinate_maps_at_fixed_values() {
     }
 }
 
+/// `a` and `b` are the same point to rounding: the same status, steps and initial condition,
+/// every number within `tol` relative (absolute below 1). What a parameter axis gives where a
+/// constant folds with another constant and the lane value cannot.
+fn same_point_to(a: &PointResult, b: &PointResult, tol: f64) -> bool {
+    let close = |x: f64, y: f64| (x - y).abs() <= tol * x.abs().max(y.abs()).max(1.0);
+    let all_close =
+        |x: &[f64], y: &[f64]| x.len() == y.len() && x.iter().zip(y).all(|(x, y)| close(*x, *y));
+    a.status == b.status
+        && a.orbit_steps == b.orbit_steps
+        && a.t_end == b.t_end
+        && a.x0 == b.x0
+        && close(a.value, b.value)
+        && close(a.mean_log10, b.mean_log10)
+        && all_close(&a.per_set, &b.per_set)
+        && all_close(&a.spectrum, &b.spectrum)
+}
+
+const COUPLED_HH: &str = "name = \"potential\"\nn = 2\n\
+     potential = \"(q1^2 + q2^2)/2 + lam*q1*q1*q2 - lam*q2*q2*q2/3\"\n\
+     params = { {params} }";
+const COUPLED_HH_FACTORED: &str = "name = \"potential\"\nn = 2\n\
+     potential = \"(q1^2 + q2^2)/2 + lam*(q1^2*q2 - q2^3/3)\"\n\
+     params = { {params} }";
+const DRIVEN_WELL: &str = "name = \"potential\"\nn = 1\n\
+     potential = \"q1^2/2 + q1^4/4 - F*q1*cos(t)\"\n\
+     params = { {params} }";
+const KG_CHAIN: &str = "name = \"potential\"\nn = 4\nboundary = \"free\"\n\
+     potential = \"sum(i = 1..N, eps[i]/2*q[i]^2 + q[i]^4/4) + sum(i = 1..N, (q[i+1] - q[i])^2/(2*W))\"\n\
+     params = { eps = [0.8238, 0.6508, 1.1509, 0.5724], {params} }";
+
+/// Parameter axes of a `potential` (`H = p^2/2 + V(q)` by a splitting): every point steps the
+/// splitting's own code with its parameters bound (`WithParams`), and its column at a fixed
+/// value equals the coordinate map at that value, which runs the compiled step kernels (bit
+/// for bit the generic step loops, so the splitting's `step`). A coupling of Henon-Heiles
+/// written two ways, to rounding with the same status and steps (bit for bit where no constant
+/// folds differently); every indicator, VM and MPM, both routes, 1 and 2 threads. Bit for bit:
+/// an energy solved per point at each point's own coupling, and a potential of the time
+/// (whose coordinate map runs through the engine).
+#[test]
+fn potential_parameter_axes_equal_coordinate_maps_at_fixed_values() {
+    let integrator = "method = \"aba864\"\nh = 0.05\nt_final = 4";
+    let p2_axis = "{ coord = \"p2\", min = -0.1, max = 0.1, n = 2 }";
+    for ((scheme, indicator), model) in [
+        (("vm", "0.5", "per-set"), "gali"),
+        (("mpm", "0.5", "per-set"), "mle"),
+        (("vm", "0.5", "per-set"), "spectrum"),
+        (("mpm", "1", "per-set"), "megno"),
+        (("vm", "0.5", "per-set"), "fli"),
+        (("vm", "0.5", "basis"), "sali"),
+        (("mpm", "0.5", "basis"), "gali"),
+    ]
+    .into_iter()
+    .flat_map(|case| [(case, COUPLED_HH), (case, COUPLED_HH_FACTORED)])
+    {
+        let orbit = "q = [0.0, 0.1]\np = [0.3, 0.0]";
+        let by_lam = model_map(
+            model,
+            "lam = 1.0",
+            orbit,
+            integrator,
+            scheme,
+            indicator,
+            "{ param = \"lam\", min = 0.5, max = 2.5, n = 3 }",
+            p2_axis,
+        );
+        assert!(by_lam.x.is_param && !by_lam.y.is_param);
+        let got = batched(&by_lam, 2, Isa::detect());
+        assert_eq!(got, batched(&by_lam, 1, Isa::detect()));
+        for il in 0..by_lam.x.n {
+            let lam = by_lam.x.value(il);
+            let at_lam = model_map(
+                model,
+                &format!("lam = {lam:?}"),
+                orbit,
+                integrator,
+                scheme,
+                indicator,
+                "{ coord = \"q1\", min = 0.0, max = 0.0, n = 1 }",
+                p2_axis,
+            );
+            // To rounding: a lane value is multiplied where the constant folds with another
+            // constant of the derivatives (`lam * 3 / 3` is `lam` for a constant; `2 q1` times
+            // `lam`, ...), a rounding apart per force evaluation. Over these 80 steps of
+            // regular orbits that stays far below 1e-12 relative for VM (GALI, SALI, the
+            // exponents are of order 1e-3 .. 1: 1e-12 absolute at worst); MPM's separations
+            // are differences of orbits at d0 = 1e-7, which carry the orbits' rounding
+            // difference divided by d0 (1e-16 / 1e-7 = 1e-9 relative; 1e-6 leaves a factor
+            // 1000 for its growth). Steps and status are equal. Bit for bit where nothing
+            // folds differently: the coupling written as products at lam = 0.5, a power of two,
+            // whose products with the derivatives' constants are exact either way.
+            let tol = if scheme.0 == "mpm" { 1e-6 } else { 1e-12 };
+            let exact = model == COUPLED_HH && lam == 0.5;
+            for (iy, w) in batched(&at_lam, 1, Isa::detect()).iter().enumerate() {
+                let g = &got[iy * by_lam.x.n + il];
+                assert!(
+                    g.status == PointStatus::Ok
+                        && same_point_to(g, w, tol)
+                        && (!exact || same_point(g, w)),
+                    "potential {scheme:?} {indicator} lam = {lam}:\n param {g:?}\n coord {w:?}"
+                );
+            }
+        }
+    }
+
+    // The energy solved for p1 at each point's own coupling, over (q2, lam): the parameter on
+    // the y axis, mixed with a coordinate on x.
+    let on_shell = "q = [0.0, 0.0]\np = [0.0, 0.0]\nenergy = 0.08\nsolve_for = \"p1\"";
+    let q2_axis = "{ coord = \"q2\", min = -0.2, max = 0.2, n = 3 }";
+    let scheme = ("vm", "0.5", "per-set");
+    let by_lam = model_map(
+        COUPLED_HH,
+        "lam = 1.0",
+        on_shell,
+        integrator,
+        scheme,
+        "gali",
+        q2_axis,
+        "{ param = \"lam\", min = 0.0, max = 2.0, n = 2 }",
+    );
+    let got = batched(&by_lam, 2, Isa::detect());
+    for (il, lam) in [0.0, 2.0].into_iter().enumerate() {
+        let at_lam = model_map(
+            COUPLED_HH,
+            &format!("lam = {lam:?}"),
+            on_shell,
+            integrator,
+            scheme,
+            "gali",
+            q2_axis,
+            "{ coord = \"q1\", min = 0.0, max = 0.0, n = 1 }",
+        );
+        let want = batched(&at_lam, 1, Isa::detect());
+        assert_eq!(&got[il * 3..(il + 1) * 3].len(), &want.len());
+        for (g, w) in got[il * 3..(il + 1) * 3].iter().zip(&want) {
+            assert!(
+                (g.y, g.x) == (lam, w.x) && same_point(g, w),
+                "on the energy surface, lam = {lam}:\n param {g:?}\n coord {w:?}"
+            );
+        }
+    }
+
+    // A potential of the time: no step kernels either way (the coordinate map runs through
+    // the engine, the parameter map lane by lane through the same splitting).
+    let driven = "method = \"aba864\"\nh = 0.05\nt_final = 3";
+    for scheme in [("vm", "0.5", "per-set"), ("mpm", "0.5", "per-set")] {
+        let by_f = model_map(
+            DRIVEN_WELL,
+            "F = 0.1",
+            "q = [0.2]\np = [0.0]",
+            driven,
+            scheme,
+            "mle",
+            "{ param = \"F\", min = 0.0, max = 0.6, n = 2 }",
+            "{ coord = \"p1\", min = -0.3, max = 0.3, n = 2 }",
+        );
+        let got = batched(&by_f, 2, Isa::detect());
+        for (i_f, f) in [0.0, 0.6].into_iter().enumerate() {
+            let at_f = model_map(
+                DRIVEN_WELL,
+                &format!("F = {f:?}"),
+                "q = [0.2]\np = [0.0]",
+                driven,
+                scheme,
+                "mle",
+                "{ coord = \"q1\", min = 0.2, max = 0.2, n = 1 }",
+                "{ coord = \"p1\", min = -0.3, max = 0.3, n = 2 }",
+            );
+            for (iy, w) in batched(&at_f, 1, Isa::detect()).iter().enumerate() {
+                let g = &got[iy * 2 + i_f];
+                assert!(
+                    same_point(g, w),
+                    "driven {scheme:?} F = {f}:\n param {g:?}\n coord {w:?}"
+                );
+            }
+        }
+    }
+}
+
+/// The disordered Klein-Gordon chain over its coupling `1/W` (a lattice sum): with a constant
+/// `W` its sums are compiled as loops, with `W` on an axis the derivatives are unrolled (a
+/// potential with lane parameters has no loops), which may add a site's terms in another
+/// order; see the tolerance below. Mixed with a momentum axis, VM and MPM.
+#[test]
+fn potential_parameter_axes_over_a_lattice_chain() {
+    let integrator = "method = \"aba864\"\nh = 0.05\nt_final = 4";
+    let orbit = "q = [0.0, 0.0, 0.0, 0.0]\np = [0.0, 0.4, 0.0, 0.0]";
+    let p3_axis = "{ coord = \"p3\", min = -0.2, max = 0.2, n = 2 }";
+    for (scheme, indicator) in [
+        (("vm", "0.5", "per-set"), "gali"),
+        (("mpm", "0.5", "per-set"), "mle"),
+    ] {
+        let by_w = model_map(
+            KG_CHAIN,
+            "W = 4.0",
+            orbit,
+            integrator,
+            scheme,
+            indicator,
+            p3_axis,
+            "{ param = \"W\", min = 2.0, max = 6.0, n = 2 }",
+        );
+        let got = batched(&by_w, 2, Isa::detect());
+        // To rounding: the loops add each site's terms in the lattice order, the unrolled
+        // gradient in the order of reverse accumulation, which can differ by a rounding per
+        // force; the tolerances are argued as for the coupled Henon-Heiles potential above
+        // (80 steps of regular orbits; MPM's d0 = 1e-7).
+        let tol = if scheme.0 == "mpm" { 1e-6 } else { 1e-12 };
+        for (iw, w_value) in [2.0, 6.0].into_iter().enumerate() {
+            let at_w = model_map(
+                KG_CHAIN,
+                &format!("W = {w_value:?}"),
+                orbit,
+                integrator,
+                scheme,
+                indicator,
+                p3_axis,
+                "{ coord = \"q1\", min = 0.0, max = 0.0, n = 1 }",
+            );
+            for (ix, w) in batched(&at_w, 1, Isa::detect()).iter().enumerate() {
+                let g = &got[iw * 2 + ix];
+                assert!(
+                    same_point_to(g, w, tol),
+                    "kg {scheme:?} {indicator} W = {w_value}:\n param {g:?}\n coord {w:?}"
+                );
+            }
+        }
+    }
+}
+
+/// What a parameter axis of a potential refuses, with the key and why: a name not in `params`,
+/// an array parameter; the built-in chain says what to write instead.
+#[test]
+fn potential_parameter_axes_refuse_what_they_cannot_vary() {
+    let config = |params: &str, axis: &str, model: &str| {
+        let model = model.replace("{params}", params);
+        format!(
+            "[model]\n{model}\n[orbit]\nq = [0.0, 0.0, 0.0, 0.0]\np = [0.0, 0.4, 0.0, 0.0]\n\
+             [integrator]\nmethod = \"aba864\"\nh = 0.05\nt_final = 1\n\
+             [deviations]\nk = 2\nsets = 1\nseed = 1\n\
+             [[scheme]]\nname = \"s\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 1\n\
+             [map]\nx = {{ param = \"{axis}\", min = 1.0, max = 2.0, n = 2 }}\n\
+             y = {{ coord = \"p1\", min = 0.0, max = 0.1, n = 2 }}\nindicator = \"gali\"\n"
+        )
+    };
+    let refused = |text: String| {
+        MapSpec::from_config(&RunConfig::from_toml(&text).unwrap())
+            .err()
+            .unwrap_or_else(|| panic!("accepted:\n{text}"))
+            .to_string()
+    };
+    let e = refused(config("W = 4.0", "V", KG_CHAIN));
+    assert!(
+        e.starts_with("map.x.param: 'V' is not a parameter of [model] params (scalars: W)"),
+        "{e}"
+    );
+    let e = refused(config("W = 4.0", "eps", KG_CHAIN));
+    assert!(
+        e.starts_with("map.x.param: 'eps' is an array parameter"),
+        "{e}"
+    );
+    let fput = "name = \"fput-beta\"\nn = 4\nbeta = 1.0";
+    let e = refused(config("", "beta", fput));
+    assert!(
+        e.starts_with("map.x.param: the built-in fput-beta chain takes no parameter axis")
+            && e.contains("name = \"potential\""),
+        "{e}"
+    );
+}
+
 /// Lorenz's largest Lyapunov exponent over parameter axes against what is known of it: at the
 /// classical rho = 28, sigma = 10, beta = 8/3 it is 0.9056 (Sprott's reference value); below
 /// rho = 1 the origin is a stable node, every orbit falls into it and the exponent is that of

@@ -7,7 +7,7 @@ use chaoscope_schemas::run::{Method, Orthonormalization, SystemKind};
 use super::indicator::{Indicator, PointAccumulator, failed};
 use super::point::{PointResult, PointStatus};
 use crate::batch::Isa;
-use crate::model::ExpressionModel;
+use crate::model::{ExpressionModel, WithParams};
 use crate::spec::{
     LaneParam, RunSpec, SpecError, parse_coordinate, solve_momentum, state_coordinate,
 };
@@ -118,6 +118,7 @@ fn lane_params(cfg: &RunConfig, map: &MapConfig) -> Result<Vec<LaneParam>, SpecE
         ModelConfig::Map(m) => Some(&m.params),
         ModelConfig::Ode(m) => Some(&m.params),
         ModelConfig::Hamiltonian(m) => Some(&m.params),
+        ModelConfig::Potential(m) => Some(&m.params),
         _ => None,
     };
     let mut lanes: Vec<LaneParam> = Vec::new();
@@ -156,14 +157,19 @@ fn lane_params(cfg: &RunConfig, map: &MapConfig) -> Result<Vec<LaneParam>, SpecE
             ));
         }
         let Some(params) = params else {
-            let message = if matches!(cfg.model, ModelConfig::HenonHeiles(_)) {
-                "[model] name = henon-heiles has no parameters to put on an axis".to_string()
-            } else {
-                format!(
-                    "parameter axes are not yet supported for [model] name = {} (they are for \
-                     map, ode and hamiltonian)",
+            let message = match &cfg.model {
+                ModelConfig::HenonHeiles(_) => {
+                    "[model] name = henon-heiles has no parameters to put on an axis".to_string()
+                }
+                ModelConfig::FputBeta(_) => "the built-in fput-beta chain takes no parameter \
+                     axis: write the chain as [model] name = \"potential\" (a lattice sum with \
+                     beta in params), which does"
+                    .to_string(),
+                _ => format!(
+                    "parameter axes are not supported for [model] name = {} (they are for \
+                     map, ode, hamiltonian and potential)",
                     cfg.model.name()
-                )
+                ),
             };
             return Err(SpecError::new(key, message));
         };
@@ -573,7 +579,15 @@ impl MapSpec {
         if let (Some(j), Some(e), Some(separable)) =
             (self.solve_for, self.energy, self.run.system().separable())
         {
-            solve_momentum(separable.model().as_ref(), &mut x, j, e).map_err(|e| e.message)?;
+            let model = separable.model();
+            if model.lane_params() > 0 {
+                // The energy at the point's own parameters.
+                let (coordinates, params) = x.split_at_mut(self.run.dim());
+                solve_momentum(&WithParams::new(model, params), coordinates, j, e)
+            } else {
+                solve_momentum(model.as_ref(), &mut x, j, e)
+            }
+            .map_err(|e| e.message)?;
         }
         Ok(x)
     }

@@ -66,4 +66,33 @@ impl Model for ExpressionModel {
     fn diagnose_non_finite_at(&self, q: &[f64], t: f64) -> Option<String> {
         ExpressionModel::diagnose_non_finite_at(self, q, t)
     }
+
+    fn lane_params(&self) -> usize {
+        ExpressionModel::lane_params(self)
+    }
+
+    fn potential_with(&self, q: &[f64], t: f64, params: &[f64]) -> f64 {
+        ExpressionModel::potential_with(self, q, t, params)
+    }
+
+    #[inline]
+    fn gradient_with(&self, q: &[f64], t: f64, params: &[f64], out: &mut [f64]) {
+        ExpressionModel::gradient_with(self, q, t, params, out)
+    }
+
+    #[inline]
+    fn hessian_vector_with(
+        &self,
+        q: &[f64],
+        t: f64,
+        params: &[f64],
+        v: &[f64],
+        out: &mut [f64],
+    ) -> bool {
+        ExpressionModel::hessian_vector_with(self, q, t, params, v, out)
+    }
+
+    fn diagnose_non_finite_with(&self, q: &[f64], t: f64, params: &[f64]) -> Option<String> {
+        ExpressionModel::diagnose_non_finite_with(self, q, t, params)
+    }
 }

@@ -120,6 +120,154 @@ pub trait Model: std::any::Any + Send + Sync {
         let n = self.dof();
         self.kinetic(&x[n..]) + self.potential_at(&x[..n], t)
     }
+
+    /// `P`: parameters the potential reads per evaluation instead of folding them (a map's
+    /// parameter axes, [`crate::spec::LaneParam`]); a state of such a model is `(q, p)`
+    /// followed by their values. The `*_with` methods below take them; [`WithParams`] binds
+    /// them to give the plain model of one point. 0 for every model but a `potential` built
+    /// with lane parameters.
+    fn lane_params(&self) -> usize {
+        0
+    }
+
+    /// `V(q, t)` at the lane parameters `params`.
+    fn potential_with(&self, q: &[f64], t: f64, _params: &[f64]) -> f64 {
+        self.potential_at(q, t)
+    }
+
+    /// `out = dV/dq (q, t)` at the lane parameters `params`.
+    #[inline]
+    fn gradient_with(&self, q: &[f64], t: f64, _params: &[f64], out: &mut [f64]) {
+        self.gradient_at(q, t, out)
+    }
+
+    /// `out = Hess V(q, t) * v` at the lane parameters `params`, or `false` as
+    /// [`Model::hessian_vector`].
+    #[inline]
+    fn hessian_vector_with(
+        &self,
+        q: &[f64],
+        t: f64,
+        _params: &[f64],
+        v: &[f64],
+        out: &mut [f64],
+    ) -> bool {
+        self.hessian_vector_at(q, t, v, out)
+    }
+
+    /// [`Model::diagnose_non_finite_at`] at the lane parameters `params`.
+    fn diagnose_non_finite_with(&self, q: &[f64], t: f64, _params: &[f64]) -> Option<String> {
+        self.diagnose_non_finite_at(q, t)
+    }
+}
+
+/// Most lane parameters of a model: a map has two axes.
+pub const MAX_LANE_PARAMS: usize = 2;
+
+/// A model whose lane parameters ([`Model::lane_params`]) are bound to one point's values: the
+/// plain model of that point (its `*_at` methods call the model's `*_with` ones), which the
+/// splittings step exactly as a model with those values as constants, up to how a constant
+/// folds. The values are copied, so the state they came from can be stepped meanwhile (and the
+/// model is shared, not borrowed: a `Model` is `'static`).
+#[derive(Clone)]
+pub struct WithParams {
+    model: std::sync::Arc<dyn Model>,
+    params: [f64; MAX_LANE_PARAMS],
+}
+
+impl WithParams {
+    /// `model` at the parameter values `params` (its `P` values: the entries of a state after
+    /// its `2N` coordinates).
+    ///
+    /// # Panics
+    /// If `params` does not have `P` entries, or `P` exceeds [`MAX_LANE_PARAMS`].
+    pub fn new(model: &std::sync::Arc<dyn Model>, params: &[f64]) -> Self {
+        let p = model.lane_params();
+        assert!(
+            params.len() == p && p <= MAX_LANE_PARAMS,
+            "{} lane parameter values for a model of {p}",
+            params.len()
+        );
+        let mut values = [0.0; MAX_LANE_PARAMS];
+        values[..p].copy_from_slice(params);
+        Self {
+            model: model.clone(),
+            params: values,
+        }
+    }
+
+    /// The model at the parameters a state `x = (q, p, params)` carries after its `2N`
+    /// coordinates.
+    pub fn of_state(model: &std::sync::Arc<dyn Model>, x: &[f64]) -> Self {
+        Self::new(model, &x[2 * model.dof()..])
+    }
+
+    fn params(&self) -> &[f64] {
+        &self.params[..self.model.lane_params()]
+    }
+}
+
+impl Model for WithParams {
+    fn name(&self) -> &str {
+        self.model.name()
+    }
+
+    fn dof(&self) -> usize {
+        self.model.dof()
+    }
+
+    fn potential(&self, q: &[f64]) -> f64 {
+        self.model.potential_with(q, 0.0, self.params())
+    }
+
+    #[inline]
+    fn gradient(&self, q: &[f64], out: &mut [f64]) {
+        self.model.gradient_with(q, 0.0, self.params(), out)
+    }
+
+    #[inline]
+    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+        self.model
+            .hessian_vector_with(q, 0.0, self.params(), v, out)
+    }
+
+    fn has_hessian(&self) -> bool {
+        self.model.has_hessian()
+    }
+
+    fn inverse_masses(&self) -> Option<&[f64]> {
+        self.model.inverse_masses()
+    }
+
+    fn no_hessian_reason(&self) -> Option<String> {
+        self.model.no_hessian_reason()
+    }
+
+    fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {
+        self.model.diagnose_non_finite_with(q, 0.0, self.params())
+    }
+
+    fn reads_time(&self) -> bool {
+        self.model.reads_time()
+    }
+
+    fn potential_at(&self, q: &[f64], t: f64) -> f64 {
+        self.model.potential_with(q, t, self.params())
+    }
+
+    #[inline]
+    fn gradient_at(&self, q: &[f64], t: f64, out: &mut [f64]) {
+        self.model.gradient_with(q, t, self.params(), out)
+    }
+
+    #[inline]
+    fn hessian_vector_at(&self, q: &[f64], t: f64, v: &[f64], out: &mut [f64]) -> bool {
+        self.model.hessian_vector_with(q, t, self.params(), v, out)
+    }
+
+    fn diagnose_non_finite_at(&self, q: &[f64], t: f64) -> Option<String> {
+        self.model.diagnose_non_finite_with(q, t, self.params())
+    }
 }
 
 #[cfg(test)]

@@ -342,24 +342,21 @@ impl RunSpec {
     /// A run whose system reads the parameters `lanes` from every state instead of folding
     /// them (a map over parameter axes): its states, `x0` included, are `D` coordinates then
     /// the lane parameters' values (`x0` holds the config's values). The kinds written as
-    /// vector functions (`map`, `ode`, `hamiltonian`) take them; the caller names the axis in
-    /// the error of any other kind.
+    /// expressions (`map`, `ode`, `hamiltonian`, `potential`) take them; the caller names the
+    /// axis in the error of any other kind.
     pub fn from_config_with_lanes(cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Self, SpecError> {
         // `[[sweep]]` ranges are shorthand for schemes: expand them before anything is checked.
         let cfg = &cfg
             .with_sweeps_expanded()
             .map_err(|e| SpecError::new(e.key, e.message))?;
         let built = match &cfg.model {
-            ModelConfig::HenonHeiles(_)
-            | ModelConfig::FputBeta(_)
-            | ModelConfig::Custom(_)
-            | ModelConfig::Potential(_)
+            ModelConfig::HenonHeiles(_) | ModelConfig::FputBeta(_) | ModelConfig::Custom(_)
                 if !lanes.is_empty() =>
             {
                 return Err(SpecError::new(
                     "map",
                     format!(
-                        "parameter axes are not yet supported for [model] name = {}",
+                        "parameter axes are not supported for [model] name = {} (they are for map, ode, hamiltonian and potential)",
                         cfg.model.name()
                     ),
                 ));
@@ -368,7 +365,7 @@ impl RunSpec {
                 let (model, tables) = model_from_config(&cfg.model)?;
                 separable::run(cfg, model, tables)?
             }
-            ModelConfig::Potential(model) => potential::run(model, cfg)?,
+            ModelConfig::Potential(model) => potential::run(model, cfg, lanes)?,
             ModelConfig::Hamiltonian(model) => hamiltonian::run(model, cfg, lanes)?,
             ModelConfig::Ode(model) => flow::run(model, cfg, lanes)?,
             ModelConfig::Map(model) => map::run(model, cfg, lanes)?,

@@ -11,7 +11,7 @@ use chaoscope_expr::lower::{Boundary, ParamValue};
 use chaoscope_expr::table::{self, Spline, SplineKind};
 use chaoscope_schemas::config::{self, ModelConfig, PotentialConfig, RunConfig, TableConfig};
 
-use super::{Built, SpecError, separable};
+use super::{Built, LaneParam, SpecError, separable};
 use crate::model::{ExpressionModel, Model, PotentialDefinition};
 
 /// Most degrees of freedom of a potential model (the straight-line compiled code grows with N).
@@ -143,6 +143,20 @@ fn load_table(name: &str, cfg: &TableConfig) -> Result<(Arc<Spline>, TableDigest
 pub fn potential_model(
     cfg: &PotentialConfig,
 ) -> Result<(Arc<dyn Model>, Vec<TableDigest>), SpecError> {
+    potential_model_with_lanes(cfg, &[]).map(|(model, tables, _)| (model, tables))
+}
+
+/// A compiled potential, the digests of its tables and the config values of its lane
+/// parameters.
+type CompiledPotential = (Arc<dyn Model>, Vec<TableDigest>, Vec<f64>);
+
+/// [`potential_model`] with the parameters `lanes` read per evaluation (a map's parameter
+/// axes, entries `0..P` of [`chaoscope_expr::potential::ARG_PARAMS`] in the order of `lanes`)
+/// instead of folded; also their config values in that order.
+fn potential_model_with_lanes(
+    cfg: &PotentialConfig,
+    lanes: &[LaneParam],
+) -> Result<CompiledPotential, SpecError> {
     let n = cfg.n.ok_or_else(|| {
         SpecError::new("model.n", "a potential model needs the number of sites n")
     })?;
@@ -163,6 +177,35 @@ pub fn potential_model(
         params.insert(
             name.clone(),
             param_value(&format!("model.params.{name}"), v, n, &sites(n))?,
+        );
+    }
+    let mut lane_values = Vec::with_capacity(lanes.len());
+    for (j, lane) in lanes.iter().enumerate() {
+        let key = format!("model.params.{}", lane.name);
+        match params.get(&lane.name) {
+            Some(ParamValue::Scalar(v)) => lane_values.push(*v),
+            Some(_) => {
+                return Err(SpecError::new(
+                    key,
+                    "is an array; a parameter axis sets a scalar parameter",
+                ));
+            }
+            None => {
+                return Err(SpecError::new(
+                    key,
+                    "is not a parameter of the model (a parameter axis names a key of [model] \
+                     params)",
+                ));
+            }
+        }
+        params.insert(
+            lane.name.clone(),
+            ParamValue::Lane {
+                arg: chaoscope_expr::potential::ARG_PARAMS,
+                index: j as u32,
+                min: lane.min,
+                max: lane.max,
+            },
         );
     }
     let inverse_masses = match &cfg.masses {
@@ -199,13 +242,18 @@ pub fn potential_model(
         tables,
     })
     .map_err(|e| SpecError::new("model.potential", e.0))?;
-    Ok((Arc::new(model), digests))
+    Ok((Arc::new(model), digests, lane_values))
 }
 
-/// `name = "potential"`: the compiled model with the splitting of `[integrator]`.
-pub(super) fn run(model: &PotentialConfig, cfg: &RunConfig) -> Result<Built, SpecError> {
-    let (model, tables) = potential_model(model)?;
-    separable::run(cfg, model, tables)
+/// `name = "potential"`: the compiled model with the splitting of `[integrator]`, reading the
+/// parameters `lanes` from every state after its `2N` coordinates.
+pub(super) fn run(
+    model: &PotentialConfig,
+    cfg: &RunConfig,
+    lanes: &[LaneParam],
+) -> Result<Built, SpecError> {
+    let (model, tables, lane_values) = potential_model_with_lanes(model, lanes)?;
+    separable::run_with_lanes(cfg, model, tables, &lane_values)
 }
 
 /// `cfg` with every table's `sha256` filled in from `digests` (what recordings carry).

@@ -12,7 +12,7 @@ use chaoscope_schemas::config::{
 use super::potential::{self, TableDigest};
 use super::{Built, SpecError};
 use crate::integrator::{Splitting, SplittingKind};
-use crate::model::{FputBeta, HenonHeiles, Model};
+use crate::model::{FputBeta, HenonHeiles, Model, WithParams};
 use crate::system::SplitHamiltonian;
 
 /// Most particles of the built-in FPUT chain.
@@ -72,6 +72,17 @@ pub(super) fn run(
     model: Arc<dyn Model>,
     tables: Vec<TableDigest>,
 ) -> Result<Built, SpecError> {
+    run_with_lanes(cfg, model, tables, &[])
+}
+
+/// [`run`] of a model with lane parameters (`Model::lane_params`): its initial state is `(q,
+/// p)` at the config's values `lane_values` of them, followed by those values.
+pub(super) fn run_with_lanes(
+    cfg: &RunConfig,
+    model: Arc<dyn Model>,
+    tables: Vec<TableDigest>,
+    lane_values: &[f64],
+) -> Result<Built, SpecError> {
     let kind = SplittingKind::from_name(&cfg.integrator.method).ok_or_else(|| {
         SpecError::new(
             "integrator.method",
@@ -100,7 +111,12 @@ pub(super) fn run(
         ));
     }
     let h = super::time_step(&cfg.integrator)?;
-    let x0 = initial_state(model.as_ref(), &cfg.orbit)?;
+    let mut x0 = if lane_values.is_empty() {
+        initial_state(model.as_ref(), &cfg.orbit)?
+    } else {
+        initial_state(&WithParams::new(&model, lane_values), &cfg.orbit)?
+    };
+    x0.extend_from_slice(lane_values);
     let system = Arc::new(SplitHamiltonian::new(model, Splitting::new(kind), h));
     Ok(Built { system, x0, tables })
 }

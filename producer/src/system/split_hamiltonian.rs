@@ -7,10 +7,14 @@ use chaoscope_schemas::run::SystemKind;
 use super::{DynamicalSystem, Time};
 use crate::batch::{self, AnyLaneModel, Isa, LaneModel, PointKernel, Soa, StepCoeffs};
 use crate::integrator::{Integrator, Splitting, TangentError, Workspace};
-use crate::model::Model;
+use crate::model::{Model, WithParams};
 
 /// `H = T(p) + V(q)` stepped by a splitting with fixed step `h`; its tangent map is the
 /// splitting's own (`Splitting::step_tangent`), the variational equations of the discrete map.
+///
+/// A model with lane parameters (`Model::lane_params`, a map's parameter axes) has states `(q,
+/// p)` followed by their values, which every step reads (the model bound to them,
+/// [`WithParams`]) and never writes; its deviation vectors are `(dq, dp)`.
 #[derive(Clone)]
 pub struct SplitHamiltonian {
     model: Arc<dyn Model>,
@@ -79,6 +83,11 @@ impl DynamicalSystem for SplitHamiltonian {
 
     #[inline]
     fn step(&self, x: &mut [f64], t: f64, work: &mut Workspace) {
+        if self.model.lane_params() > 0 {
+            let model = WithParams::of_state(&self.model, x);
+            let dim = self.dim();
+            return self.splitting.step(&model, &mut x[..dim], t, self.h, work);
+        }
         self.splitting.step(self.model.as_ref(), x, t, self.h, work)
     }
 
@@ -90,6 +99,13 @@ impl DynamicalSystem for SplitHamiltonian {
         t: f64,
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
+        if self.model.lane_params() > 0 {
+            let model = WithParams::of_state(&self.model, x);
+            let dim = self.dim();
+            return self
+                .splitting
+                .step_tangent(&model, &mut x[..dim], w, t, self.h, work);
+        }
         self.splitting
             .step_tangent(self.model.as_ref(), x, w, t, self.h, work)
     }
@@ -100,7 +116,14 @@ impl DynamicalSystem for SplitHamiltonian {
 
     /// The energy, conserved unless the potential reads the time.
     fn invariant(&self, x: &[f64]) -> Option<f64> {
-        (!self.model.reads_time()).then(|| self.model.energy(x))
+        if self.model.reads_time() {
+            return None;
+        }
+        Some(if self.model.lane_params() > 0 {
+            WithParams::of_state(&self.model, x).energy(&x[..self.dim()])
+        } else {
+            self.model.energy(x)
+        })
     }
 
     fn divergence(&self, _x: &[f64], _t: f64) -> Option<f64> {
@@ -110,7 +133,8 @@ impl DynamicalSystem for SplitHamiltonian {
     /// `(dq/dt, dp/dt) = (p / m, -dV/dq (q, t))`.
     fn vector_field(&self, x: &[f64], t: f64, out: &mut [f64]) -> bool {
         let n = self.model.dof();
-        let (q, p) = x.split_at(n);
+        let model = WithParams::of_state(&self.model, x);
+        let (q, p) = x[..2 * n].split_at(n);
         let (dq, dp) = out.split_at_mut(n);
         match self.model.inverse_masses() {
             None => dq.copy_from_slice(p),
@@ -120,7 +144,7 @@ impl DynamicalSystem for SplitHamiltonian {
                 }
             }
         }
-        self.model.gradient_at(q, t, dp);
+        model.gradient_at(q, t, dp);
         for d in dp.iter_mut() {
             *d = -*d;
         }
@@ -129,8 +153,13 @@ impl DynamicalSystem for SplitHamiltonian {
 
     /// The model's lane implementation over the instruction set `isa` ([`SplittingKernel`]);
     /// `None` for a potential of the time (the lane kernels take no time: its points run
-    /// through the engine, one orbit at a time, with the same bits).
+    /// through the engine, one orbit at a time, with the same bits). A model with lane
+    /// parameters (of the time or not) steps its lanes one by one through the splitting's own
+    /// step with each lane's parameters ([`LaneByLaneKernel`]).
     fn batched(&self, isa: Isa) -> Option<Box<dyn PointKernel + '_>> {
+        if self.model.lane_params() > 0 {
+            return Some(Box::new(LaneByLaneKernel::new(self)));
+        }
         if self.model.reads_time() {
             return None;
         }
@@ -147,9 +176,12 @@ impl DynamicalSystem for SplitHamiltonian {
 
     fn diagnose_non_finite(&self, x: &[f64], t: f64) -> Option<String> {
         let n = self.model.dof();
+        let model = WithParams::of_state(&self.model, x);
+        let model = &model;
+        let x = &x[..2 * n];
         // The potential itself undefined at x (the energy is what the run checks), ...
-        if x.iter().all(|v| v.is_finite()) && !self.model.potential_at(&x[..n], t).is_finite() {
-            return self.model.diagnose_non_finite_at(&x[..n], t);
+        if x.iter().all(|v| v.is_finite()) && !model.potential_at(&x[..n], t).is_finite() {
+            return model.diagnose_non_finite_at(&x[..n], t);
         }
         // ... or the step from x: replay it stage by stage and ask the model about the first
         // position whose forces are not finite.
@@ -160,9 +192,9 @@ impl DynamicalSystem for SplitHamiltonian {
         for (i, &d) in kicks.iter().enumerate() {
             Splitting::drift(&mut x, n, drifts[i] * self.h, w);
             let tk = t + self.splitting.kick_times()[i] * self.h;
-            self.model.gradient_at(&x[..n], tk, &mut force);
+            model.gradient_at(&x[..n], tk, &mut force);
             if force.iter().any(|f| !f.is_finite()) || x.iter().any(|v| !v.is_finite()) {
-                return self.model.diagnose_non_finite_at(&x[..n], tk);
+                return model.diagnose_non_finite_at(&x[..n], tk);
             }
             let (_, p) = x.split_at_mut(n);
             for (pi, fi) in p.iter_mut().zip(&force) {
@@ -228,6 +260,100 @@ impl<M: LaneModel> PointKernel for SplittingKernel<'_, M> {
         steps: u64,
     ) -> Result<(), TangentError> {
         batch::orbit_tangent_steps(self.isa, self.model, self.coeffs, x, steps);
+        Ok(())
+    }
+}
+
+/// The batched form of a model with lane parameters: every lane stepped by the splitting's own
+/// `step` / `step_tangent` with its parameters bound (the one-orbit engine's code, so the same
+/// bits), at the time of each step (a potential of the time takes parameter axes too). The
+/// compiled step kernels have no parameter input; this is correct, not fast.
+struct LaneByLaneKernel<'a> {
+    system: &'a SplitHamiltonian,
+    work: Workspace,
+    /// The reference's states at the start of each of its last steps (`2N + P` each).
+    reference: Vec<f64>,
+    lane: Vec<f64>,
+    vectors: Vec<f64>,
+}
+
+impl<'a> LaneByLaneKernel<'a> {
+    fn new(system: &'a SplitHamiltonian) -> Self {
+        Self {
+            system,
+            work: Workspace::default(),
+            reference: Vec::new(),
+            lane: Vec::new(),
+            vectors: Vec::new(),
+        }
+    }
+
+    fn state_len(&self) -> usize {
+        self.system.dim() + self.system.model.lane_params()
+    }
+}
+
+impl PointKernel for LaneByLaneKernel<'_> {
+    /// Each lane's model bound once for all its steps (what `SplitHamiltonian::step` does at
+    /// every step).
+    fn orbit_steps(&mut self, x: &mut Soa, from: u64, steps: u64) {
+        let (system, time, dim) = (self.system, self.system.time(), self.system.dim());
+        self.lane.resize(x.rows(), 0.0);
+        for l in 0..x.lanes() {
+            x.read_lane(l, &mut self.lane);
+            let model = WithParams::of_state(&system.model, &self.lane);
+            for s in from..from + steps {
+                let state = &mut self.lane[..dim];
+                system
+                    .splitting
+                    .step(&model, state, time.at(s), system.h, &mut self.work);
+            }
+            x.write_lane(l, &self.lane);
+        }
+    }
+
+    fn reference_steps(&mut self, x: &mut [f64], from: u64, steps: u64) {
+        let (system, time, dim) = (self.system, self.system.time(), self.system.dim());
+        let model = WithParams::of_state(&system.model, x);
+        self.reference.clear();
+        for s in from..from + steps {
+            self.reference.extend_from_slice(x);
+            system
+                .splitting
+                .step(&model, &mut x[..dim], time.at(s), system.h, &mut self.work);
+        }
+    }
+
+    /// Every vector of `v` around the recorded reference: each step's tangent map taken from
+    /// the reference's state at its start, as `step_tangent` takes it along the orbit.
+    fn tangent_steps(&mut self, v: &mut Soa, from: u64, steps: u64) -> Result<(), TangentError> {
+        let (time, len, dim) = (self.system.time(), self.state_len(), self.system.dim());
+        let lanes = v.lanes();
+        self.vectors.resize(lanes * dim, 0.0);
+        for (l, w) in self.vectors.chunks_exact_mut(dim).enumerate() {
+            v.read_lane(l, w);
+        }
+        // The parameters are the same at every step of the reference.
+        let Some(first) = self.reference.get(..len) else {
+            return Ok(());
+        };
+        let model = WithParams::of_state(&self.system.model, first);
+        for (k, s) in (from..from + steps).enumerate() {
+            self.lane.clear();
+            self.lane
+                .extend_from_slice(&self.reference[k * len..][..dim]);
+            self.system.splitting.step_tangent(
+                &model,
+                &mut self.lane,
+                &mut self.vectors,
+                time.at(s),
+                self.system.h,
+                &mut self.work,
+            )?;
+        }
+        for (l, w) in self.vectors.chunks_exact(dim).enumerate() {
+            v.write_lane(l, w);
+        }
         Ok(())
     }
 }

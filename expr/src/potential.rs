@@ -518,6 +518,37 @@ impl ExpressionModel {
         self.0.definition.inverse_masses.as_deref()
     }
 
+    /// The potential energy of each site at `q` into `out` (`N` values): each term of a
+    /// lattice sum shared equally by the sites it reads ([`LatticeEvaluator::site_potentials`],
+    /// which defines it). An error saying why where the sites of `V`'s parts are not known: a
+    /// potential without lattice sums compiled as loops, or one that reads the time.
+    pub fn site_potentials(&self, q: &[f64], out: &mut [f64]) -> Result<(), String> {
+        let n = self.0.definition.n;
+        if q.len() != n || out.len() != n {
+            return Err(format!(
+                "{n} sites expected, got {} and {}",
+                q.len(),
+                out.len()
+            ));
+        }
+        match &self.0.form {
+            Form::Lattice(lattice) => {
+                LatticeEvaluator::new(&self.0.graph, lattice).site_potentials(q, out)
+            }
+            Form::Unrolled { .. } if self.0.reads_time => Err(
+                "V reads the time, so it is not compiled as lattice sums and its terms' sites \
+                 are not known"
+                    .to_string(),
+            ),
+            Form::Unrolled { .. } => Err(
+                "V is not written as lattice sums compiled as loops (sum(i = a..b, term) with \
+                 the term reading q[i + k] only, V affine in its sums), so which of its terms \
+                 belongs to which site is not known"
+                    .to_string(),
+            ),
+        }
+    }
+
     /// The operation (with its line and column in the source) that makes `V` or a component
     /// of its gradient non-finite at `q`, if any; in a lattice loop, with the term it arose in.
     pub fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {

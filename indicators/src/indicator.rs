@@ -36,6 +36,11 @@ pub struct SetObservation<'a> {
     /// The number of sites `N` of a Hamiltonian (`dim = 2N`, site `l` at `q_l`, `p_l`); `None`
     /// for a system without them (a flow, a map).
     pub sites: Option<usize>,
+    /// The energy of each site at the reference state of this renormalization (`N` values):
+    /// `None` when the reader was given no way to compute them (the recorder, which does not
+    /// rebuild the model), `Some(Err(reason))` where the system cannot give them or no
+    /// reference state came with this renormalization.
+    pub site_energies: Option<Result<&'a [f64], &'a str>>,
 }
 
 /// One output's value for one set (or one scheme).
@@ -85,6 +90,7 @@ pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
         Box::new(crate::fli::Fli::default()),
         Box::new(crate::megno::Megno::default()),
         Box::new(crate::dvd::DeviationDistribution::default()),
+        Box::new(crate::energy::EnergyDistribution::default()),
     ]
 }
 
@@ -117,6 +123,7 @@ pub fn flowless_set_outputs() -> Vec<&'static str> {
         stretch: &[1.0],
         flow: None,
         sites: None,
+        site_energies: None,
     };
     set_indicators()
         .into_iter()
@@ -138,8 +145,8 @@ mod tests {
 
     #[test]
     fn a_map_shows_every_output_but_ofli() {
-        // OFLI needs the flow direction, the DVD a Hamiltonian's sites; FLI and MEGNO only the
-        // stretching factors.
+        // OFLI needs the flow direction, the DVD and the energy distribution a Hamiltonian's
+        // sites; FLI and MEGNO only the stretching factors.
         assert_eq!(flowless_set_outputs(), ["fli", "megno", "megno_mean"]);
     }
 
@@ -154,7 +161,9 @@ mod tests {
                 "megno",
                 "megno_mean",
                 "dvd_m2",
-                "dvd_participation"
+                "dvd_participation",
+                "energy_m2",
+                "energy_participation"
             ]
         );
         let mut unique = names.to_vec();

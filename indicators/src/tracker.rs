@@ -170,6 +170,21 @@ impl std::fmt::Debug for FlowField {
     }
 }
 
+/// The energy of each site of a lattice Hamiltonian at a state (`N` values into `out`: kinetic
+/// energy plus the site's share of the potential), or why the system cannot say. Given, like
+/// [`FlowField`], by whoever holds the system, for the energy distribution.
+#[derive(Clone)]
+pub struct SiteEnergies(pub Arc<SiteEnergyFn>);
+
+/// `h_l` of the state into `out`, or why not.
+pub type SiteEnergyFn = dyn Fn(&[f64], &mut [f64]) -> Result<(), String> + Send + Sync;
+
+impl std::fmt::Debug for SiteEnergies {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("SiteEnergies")
+    }
+}
+
 /// One scheme's indicators averaged over the sets at its latest renormalization.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SchemeIndicators {
@@ -232,6 +247,8 @@ struct Reference {
     step: u64,
     state: Vec<f64>,
     flow: Option<Vec<f64>>,
+    /// The energy of each site there, or why not; `None` without [`SiteEnergies`].
+    energies: Option<Result<Vec<f64>, String>>,
 }
 
 /// The indicator state of one run.
@@ -243,6 +260,7 @@ pub struct Tracker {
     gaps: bool,
     reference: Option<Reference>,
     flow_field: Option<FlowField>,
+    site_energies: Option<SiteEnergies>,
     /// First step of the exponents' average: a transient before it is discarded (`None`: the
     /// whole run).
     exponents_from: Option<u64>,
@@ -265,6 +283,7 @@ impl Tracker {
             gaps: false,
             reference: None,
             flow_field: None,
+            site_energies: None,
             exponents_from: None,
         }
     }
@@ -284,6 +303,12 @@ impl Tracker {
         self.flow_field = Some(field);
     }
 
+    /// Gives the tracker the energy of each site of the system's states, for the energy
+    /// distribution; without it that reports itself unavailable.
+    pub fn set_site_energies(&mut self, energies: SiteEnergies) {
+        self.site_energies = Some(energies);
+    }
+
     /// The reference state at `step` (before the separation sets of that step are applied):
     /// the orbit indicators sample it at each scheme's renormalizations, and the set indicators
     /// read the flow direction there. A state that does not fit the layout or is not finite is
@@ -297,11 +322,28 @@ impl Tracker {
             let mut out = vec![0.0; state.len()];
             ((field.0)(step, state, &mut out) && out.iter().all(|v| v.is_finite())).then_some(out)
         });
+        let energies = match (&self.site_energies, self.layout.sites) {
+            (Some(f), Some(n)) => Some({
+                let mut out = vec![0.0; n];
+                (f.0)(state, &mut out).map(|()| out)
+            }),
+            _ => None,
+        };
         self.reference = Some(Reference {
             step,
             state: state.to_vec(),
             flow,
+            energies,
         });
+    }
+
+    /// The energy of each site at the latest reference state, or why there is none there;
+    /// `None` without [`SiteEnergies`] or a reference state.
+    pub fn reference_site_energies(&self) -> Option<Result<&[f64], &str>> {
+        match self.reference.as_ref()?.energies.as_ref()? {
+            Ok(e) => Some(Ok(e)),
+            Err(why) => Some(Err(why)),
+        }
     }
 
     pub fn layout(&self) -> &Layout {
@@ -374,6 +416,17 @@ impl Tracker {
             stretch,
             flow: reference.and_then(|r| r.flow.as_deref()),
             sites: self.layout.sites,
+            site_energies: self.site_energies.as_ref().map(|_| match reference {
+                Some(Reference {
+                    energies: Some(Ok(e)),
+                    ..
+                }) => Ok(e.as_slice()),
+                Some(Reference {
+                    energies: Some(Err(why)),
+                    ..
+                }) => Err(why.as_str()),
+                _ => Err("no reference state came with this renormalization"),
+            }),
         };
         for indicator in &mut st.indicators {
             indicator.observe(&observation);

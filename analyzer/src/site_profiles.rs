@@ -69,7 +69,7 @@ impl SiteProfiles {
         // Every renormalization of the set is offered (the even thinning counts them); the
         // profile is made only for the kept ones.
         if !self.series.wants(sample.t) {
-            self.series.offer(sample.t, || unreachable_profile());
+            self.series.offer(sample.t, unreachable_profile);
             return;
         }
         let Some(dvd) = normalized(site_weights(first, n)) else {

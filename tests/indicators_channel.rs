@@ -123,8 +123,15 @@ fn assert_equals_report(m: &Indicators, report: &Value) {
                 assert_same(&format!("{what}.std"), std, f(&s[&n.name]["std"]));
             }
             _ if n.name.starts_with("energy_") => {
-                assert!(n.unavailable.contains("rebuild"), "{what}: {}", n.unavailable);
-                assert!(s[&n.name]["unavailable"].is_string(), "{what}: not a lattice");
+                assert!(
+                    n.unavailable.contains("rebuild"),
+                    "{what}: {}",
+                    n.unavailable
+                );
+                assert!(
+                    s[&n.name]["unavailable"].is_string(),
+                    "{what}: not a lattice"
+                );
             }
             _ => {
                 assert_eq!(n.name, "ofli", "{what}: only OFLI needs the flow");

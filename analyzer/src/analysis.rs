@@ -301,7 +301,8 @@ impl Analysis {
             }
         }
         if let Some(profiles) = &mut self.site_profiles {
-            profiles.offer(sample, self.tracker.reference_site_energies());
+            let tracker = &self.tracker;
+            profiles.offer(sample, || tracker.reference_site_energies());
         }
         for si in touched {
             let t = sample.t;

@@ -51,9 +51,13 @@ impl SiteProfiles {
     }
 
     /// Takes `sample` if it renormalized the first set of the first scheme (the DVD's vector),
-    /// with the site energies at its reference state (`None` when the analysis has no way to
-    /// compute them).
-    pub fn offer(&mut self, sample: &Sample, energies: Option<Result<&[f64], &str>>) {
+    /// with the site energies at its reference state from `energies` (called only for a kept
+    /// time; `None` when the analysis has no way to compute them).
+    pub fn offer(
+        &mut self,
+        sample: &Sample,
+        energies: impl FnOnce() -> Option<Result<Vec<f64>, String>>,
+    ) {
         let n = self.sites;
         let Some(first) = sample
             .schemes
@@ -75,10 +79,10 @@ impl SiteProfiles {
         let Some(dvd) = normalized(site_weights(first, n)) else {
             return;
         };
-        let energy = match energies {
+        let energy = match energies() {
             None => Err("no site energies (the model was not rebuilt)".to_string()),
-            Some(Err(why)) => Err(why.to_string()),
-            Some(Ok(e)) => chaoscope_indicators::energy::energy_moments(e).and_then(|_| {
+            Some(Err(why)) => Err(why),
+            Some(Ok(e)) => chaoscope_indicators::energy::energy_moments(&e).and_then(|_| {
                 normalized(e.iter().copied()).ok_or_else(|| "no positive total".to_string())
             }),
         };

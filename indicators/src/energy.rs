@@ -14,20 +14,31 @@
 //! rebuild the model (the recorder) has no site energies: unavailable, saying why.
 
 use crate::distribution::moments;
-use crate::indicator::{Output, SetIndicator, SetObservation};
+use crate::indicator::{Output, SetIndicator, SetObservation, SiteEnergies, SiteEnergyInput};
 
 /// The energy distribution's second moment and participation number at the latest
-/// renormalization.
+/// renormalization: the state they are to be computed at (evaluated when asked for, so a long
+/// run over a large lattice pays for its reported points only), or why there are none.
 #[derive(Debug, Clone)]
 pub struct EnergyDistribution {
-    /// `(m2, P)` at the latest observation, or why there is none.
-    latest: Result<(f64, f64), String>,
+    latest: Latest,
+}
+
+#[derive(Debug, Clone)]
+enum Latest {
+    At {
+        energies: SiteEnergies,
+        state: Vec<f64>,
+        t: f64,
+        sites: usize,
+    },
+    Unavailable(String),
 }
 
 impl Default for EnergyDistribution {
     fn default() -> Self {
         Self {
-            latest: Err("no reference state seen yet".to_string()),
+            latest: Latest::Unavailable("no reference state seen yet".to_string()),
         }
     }
 }
@@ -56,27 +67,63 @@ impl SetIndicator for EnergyDistribution {
 
     fn observe(&mut self, obs: &SetObservation<'_>) {
         let Some(n) = obs.sites.filter(|&n| n > 0 && 2 * n == obs.dim) else {
-            self.latest = Err("the energy distribution is over the sites (q_l, p_l) of a \
-                               Hamiltonian; this system has none"
-                .to_string());
+            self.latest = Latest::Unavailable(
+                "the energy distribution is over the sites (q_l, p_l) of a Hamiltonian; this \
+                 system has none"
+                    .to_string(),
+            );
             return;
         };
-        self.latest = match obs.site_energies {
-            None => Err(
-                "the site energies need the model, which this reader does not rebuild \
-                         (chaoscope analyze and monitor do)"
-                    .to_string(),
-            ),
-            Some(Err(why)) => Err(why.to_string()),
-            Some(Ok(e)) if e.len() != n => Err(format!("{} site energies for {n} sites", e.len())),
-            Some(Ok(e)) => energy_moments(e).map_err(|why| format!("at t = {}: {why}", obs.t)),
-        };
+        match obs.site_energies {
+            None => {
+                self.latest = Latest::Unavailable(
+                    "the site energies need the model, which this reader does not rebuild \
+                     (chaoscope analyze and monitor do)"
+                        .to_string(),
+                );
+            }
+            Some(SiteEnergyInput::Unavailable(why)) => {
+                self.latest = Latest::Unavailable(why.to_string());
+            }
+            // The previous state's buffer reused: one copy of 2N numbers per observation.
+            Some(SiteEnergyInput::At { energies, state }) => match &mut self.latest {
+                Latest::At {
+                    energies: e,
+                    state: s,
+                    t,
+                    sites,
+                } => {
+                    (*e, *t, *sites) = (energies.clone(), obs.t, n);
+                    s.clear();
+                    s.extend_from_slice(state);
+                }
+                latest => {
+                    *latest = Latest::At {
+                        energies: energies.clone(),
+                        state: state.to_vec(),
+                        t: obs.t,
+                        sites: n,
+                    };
+                }
+            },
+        }
     }
 
     fn outputs(&self) -> Vec<Output> {
-        match &self.latest {
-            Ok((m2, p)) => vec![Output::Value(*m2), Output::Value(*p)],
-            Err(why) => vec![Output::Unavailable(why.clone()); 2],
+        let moments = match &self.latest {
+            Latest::Unavailable(why) => Err(why.clone()),
+            Latest::At {
+                energies,
+                state,
+                t,
+                sites,
+            } => SiteEnergyInput::At { energies, state }
+                .evaluate(*sites)
+                .and_then(|e| energy_moments(&e).map_err(|why| format!("at t = {t}: {why}"))),
+        };
+        match moments {
+            Ok((m2, p)) => vec![Output::Value(m2), Output::Value(p)],
+            Err(why) => vec![Output::Unavailable(why); 2],
         }
     }
 
@@ -89,8 +136,28 @@ impl SetIndicator for EnergyDistribution {
 mod tests {
     use super::*;
 
+    use std::sync::Arc;
+
+    /// The distribution after one observation whose site energies are `energies` (as a
+    /// system's function would give them; `Err` as a system that has none).
     fn observe(sites: Option<usize>, energies: Option<Result<&[f64], &str>>) -> Vec<Output> {
         let w = vec![1.0; 2 * sites.unwrap_or(1)];
+        let given: Option<Result<Vec<f64>, String>> =
+            energies.map(|e| e.map(<[f64]>::to_vec).map_err(str::to_string));
+        let function = SiteEnergies(Arc::new(move |_x: &[f64], out: &mut [f64]| {
+            match given.as_ref().expect("asked only where given") {
+                Ok(e) if e.len() == out.len() => {
+                    out.copy_from_slice(e);
+                    Ok(())
+                }
+                Ok(e) => Err(format!("{} site energies for {} sites", e.len(), out.len())),
+                Err(why) => Err(why.clone()),
+            }
+        }));
+        let input = energies.map(|_| SiteEnergyInput::At {
+            energies: &function,
+            state: &w,
+        });
         let mut d = EnergyDistribution::default();
         d.observe(&SetObservation {
             t: 2.0,
@@ -100,7 +167,7 @@ mod tests {
             stretch: &[1.0],
             flow: None,
             sites,
-            site_energies: energies,
+            site_energies: input,
         });
         d.outputs()
     }

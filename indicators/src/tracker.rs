@@ -12,8 +12,10 @@ use std::sync::Arc;
 use serde::ser::{Serialize, SerializeMap, Serializer};
 
 use crate::alignment::{SIGMA_FLOOR, gali_log10, sali};
+pub use crate::indicator::SiteEnergies;
 use crate::indicator::{
-    OrbitIndicator, Output, SetIndicator, SetObservation, orbit_indicators, set_indicators,
+    OrbitIndicator, Output, SetIndicator, SetObservation, SiteEnergyInput, orbit_indicators,
+    set_indicators,
 };
 use crate::stats::{LogStat, Stat};
 use crate::stretch::StretchSums;
@@ -170,21 +172,6 @@ impl std::fmt::Debug for FlowField {
     }
 }
 
-/// The energy of each site of a lattice Hamiltonian at a state (`N` values into `out`: kinetic
-/// energy plus the site's share of the potential), or why the system cannot say. Given, like
-/// [`FlowField`], by whoever holds the system, for the energy distribution.
-#[derive(Clone)]
-pub struct SiteEnergies(pub Arc<SiteEnergyFn>);
-
-/// `h_l` of the state into `out`, or why not.
-pub type SiteEnergyFn = dyn Fn(&[f64], &mut [f64]) -> Result<(), String> + Send + Sync;
-
-impl std::fmt::Debug for SiteEnergies {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("SiteEnergies")
-    }
-}
-
 /// One scheme's indicators averaged over the sets at its latest renormalization.
 #[derive(Debug, Clone, PartialEq)]
 pub struct SchemeIndicators {
@@ -247,8 +234,6 @@ struct Reference {
     step: u64,
     state: Vec<f64>,
     flow: Option<Vec<f64>>,
-    /// The energy of each site there, or why not; `None` without [`SiteEnergies`].
-    energies: Option<Result<Vec<f64>, String>>,
 }
 
 /// The indicator state of one run.
@@ -322,28 +307,23 @@ impl Tracker {
             let mut out = vec![0.0; state.len()];
             ((field.0)(step, state, &mut out) && out.iter().all(|v| v.is_finite())).then_some(out)
         });
-        let energies = match (&self.site_energies, self.layout.sites) {
-            (Some(f), Some(n)) => Some({
-                let mut out = vec![0.0; n];
-                (f.0)(state, &mut out).map(|()| out)
-            }),
-            _ => None,
-        };
         self.reference = Some(Reference {
             step,
             state: state.to_vec(),
             flow,
-            energies,
         });
     }
 
-    /// The energy of each site at the latest reference state, or why there is none there;
-    /// `None` without [`SiteEnergies`] or a reference state.
-    pub fn reference_site_energies(&self) -> Option<Result<&[f64], &str>> {
-        match self.reference.as_ref()?.energies.as_ref()? {
-            Ok(e) => Some(Ok(e)),
-            Err(why) => Some(Err(why)),
-        }
+    /// The energy of each site at the latest reference state (computed now), or why there is
+    /// none; `None` without [`SiteEnergies`], sites or a reference state.
+    pub fn reference_site_energies(&self) -> Option<Result<Vec<f64>, String>> {
+        let (f, n, r) = (
+            self.site_energies.as_ref()?,
+            self.layout.sites?,
+            self.reference.as_ref()?,
+        );
+        let mut out = vec![0.0; n];
+        Some((f.0)(&r.state, &mut out).map(|()| out))
     }
 
     pub fn layout(&self) -> &Layout {
@@ -416,16 +396,14 @@ impl Tracker {
             stretch,
             flow: reference.and_then(|r| r.flow.as_deref()),
             sites: self.layout.sites,
-            site_energies: self.site_energies.as_ref().map(|_| match reference {
-                Some(Reference {
-                    energies: Some(Ok(e)),
-                    ..
-                }) => Ok(e.as_slice()),
-                Some(Reference {
-                    energies: Some(Err(why)),
-                    ..
-                }) => Err(why.as_str()),
-                _ => Err("no reference state came with this renormalization"),
+            site_energies: self.site_energies.as_ref().map(|energies| match reference {
+                Some(r) => SiteEnergyInput::At {
+                    energies,
+                    state: &r.state,
+                },
+                None => SiteEnergyInput::Unavailable(
+                    "no reference state came with this renormalization",
+                ),
             }),
         };
         for indicator in &mut st.indicators {

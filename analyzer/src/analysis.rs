@@ -8,7 +8,7 @@
 //! are instantaneous functions of the vectors. The recorder writes the indicators channel of
 //! every recording with the same tracker, so the values agree to the last bit.
 
-pub use chaoscope_indicators::FlowField;
+pub use chaoscope_indicators::{FlowField, SiteEnergies};
 use chaoscope_indicators::{SchemeIndicators, Tracker};
 use chaoscope_schemas::run::{
     Method, Orthonormalization, Sample, SchemeSample, SchemeSpec, SystemKind,
@@ -21,6 +21,7 @@ use chaoscope_schemas::proto::{EndOfRun, end_of_run};
 use crate::report::{ByOrder, DeltaLog, Report, RunReport, SchemeReport, VsVm};
 use crate::run_info::RunInfo;
 use crate::series::{SchemePoint, Series};
+use crate::site_profiles::SiteProfiles;
 use crate::stats::Stat;
 use crate::verdict;
 
@@ -38,6 +39,15 @@ pub struct AnalysisOptions {
     /// Python: `chaoscope_replay::flow::flow_field_of_run`) says how to rebuild it from the
     /// run's header. `None`: those indicators report themselves unavailable.
     pub flow_field: Option<FlowSource>,
+    /// Where the energy of each site of a lattice Hamiltonian comes from, for the energy
+    /// distribution (`energy_m2`, `energy_participation`): as `flow_field`, from the caller
+    /// that can rebuild the model (`chaoscope_replay::flow::site_energies_of_run`). `None`:
+    /// those outputs report themselves unavailable.
+    pub site_energies: Option<SiteEnergySource>,
+    /// Keep the distributions over the sites over time (the energy and the first scheme's
+    /// first set's DVD weights, [`crate::site_profiles`]) for `analyze --plot`'s
+    /// `distributions.png`: bounded, `2N` numbers per kept time.
+    pub site_profiles: bool,
     /// `--from T`: the finite-time exponents average the stretching from time T on (a
     /// transient before it is discarded); nothing else changes, and the verdict judges the
     /// whole run. Checked by [`exponents_from_step`].
@@ -69,6 +79,9 @@ pub fn exponents_from_step(from: f64, h: f64, t_final: f64) -> Result<u64, Strin
 /// Builds the vector field of a run from its header, if it can.
 pub type FlowSource = fn(&RunInfo) -> Option<FlowField>;
 
+/// Builds the site energies of a run's model from its header, if it can.
+pub type SiteEnergySource = fn(&RunInfo) -> Option<SiteEnergies>;
+
 impl Default for AnalysisOptions {
     fn default() -> Self {
         Self {
@@ -76,6 +89,8 @@ impl Default for AnalysisOptions {
             per_decade: 40,
             at: Vec::new(),
             flow_field: None,
+            site_energies: None,
+            site_profiles: false,
             exponents_from: None,
         }
     }
@@ -114,6 +129,8 @@ pub struct Analysis {
     extent_t: Option<f64>,
     /// The start of the exponents' average (`--from T`, on the step grid), if set.
     exponents_from: Option<f64>,
+    /// The distributions over the sites over time, where asked for and the run has sites.
+    site_profiles: Option<SiteProfiles>,
     /// The latest mean divergence of the reference orbit (cumulative from t = 0 in the
     /// producer, so a late reader still gets the whole orbit's).
     mean_divergence: f64,
@@ -170,6 +187,9 @@ impl Analysis {
         if let Some(field) = options.flow_field.and_then(|source| source(&run)) {
             tracker.set_flow_field(field);
         }
+        if let Some(energies) = options.site_energies.and_then(|source| source(&run)) {
+            tracker.set_site_energies(energies);
+        }
         // The caller checked T against the run's end (`exponents_from_step`, one line naming
         // the value); here only a usable T takes effect.
         let exponents_from = options
@@ -180,6 +200,11 @@ impl Analysis {
         }
         Self {
             exponents_from: exponents_from.map(|step| run.time_of(step)),
+            site_profiles: run
+                .layout()
+                .sites
+                .filter(|_| options.site_profiles)
+                .map(SiteProfiles::new),
             tracker,
             schemes,
             energy_error_max: 0.0,
@@ -275,6 +300,10 @@ impl Analysis {
                 touched.push(s.scheme as usize);
             }
         }
+        if let Some(profiles) = &mut self.site_profiles {
+            let tracker = &self.tracker;
+            profiles.offer(sample, || tracker.reference_site_energies());
+        }
         for si in touched {
             let t = sample.t;
             let scheme = &self.schemes[si];
@@ -295,6 +324,13 @@ impl Analysis {
     /// indicators that need the flow direction (OFLI). Before the first sample.
     pub fn set_flow_field(&mut self, field: FlowField) {
         self.tracker.set_flow_field(field);
+    }
+
+    /// Gives the analysis the energy of each site of the system's states (from whoever holds
+    /// the system, as [`Analysis::set_flow_field`]), for the energy distribution. Before the
+    /// first sample.
+    pub fn set_site_energies(&mut self, energies: SiteEnergies) {
+        self.tracker.set_site_energies(energies);
     }
 
     /// Applies one set's separations; false if it does not fit the header (ignored).
@@ -552,6 +588,12 @@ impl Analysis {
 
     /// The stored curve of scheme `si`.
     /// Ends with the latest sample, whether the thinning kept it or not.
+    /// The distributions over the sites kept over time (`AnalysisOptions::site_profiles` on a
+    /// run with sites), `None` otherwise.
+    pub fn site_profiles(&self) -> Option<&SiteProfiles> {
+        self.site_profiles.as_ref()
+    }
+
     pub fn series(&self, si: usize) -> Vec<(f64, SchemePoint)> {
         let mut points = self.schemes[si].series.points();
         if let Some(step) = self.tracker.scheme_step(si) {

@@ -18,6 +18,8 @@ pub mod recording;
 pub mod report;
 pub mod run_info;
 pub mod series;
+pub mod site_png;
+pub mod site_profiles;
 /// Averages over sets, shared with the recorder (re-exported from `chaoscope-indicators`).
 pub use chaoscope_indicators::stats;
 pub mod summary;

@@ -16,10 +16,10 @@ use chaoscope_schemas::proto::{MapHeader, MapPoint, map_point};
 use plotters::prelude::*;
 use plotters::style::colors::colormaps::ViridisRGB;
 
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 
 /// Registers a system font with plotters once; false when none was found.
-fn font_available() -> bool {
+pub(crate) fn font_available() -> bool {
     static FOUND: OnceLock<bool> = OnceLock::new();
     *FOUND.get_or_init(|| {
         let mut candidates: Vec<String> = std::env::var("CHAOSCOPE_FONT").into_iter().collect();
@@ -100,7 +100,7 @@ fn scale_of(h: &MapHeader) -> Scale {
 
 /// The colour of a plotted number on the scale `lo..hi`: viridis rising with the number, the
 /// same way for every indicator, so the bar beside the map reads like its axis.
-fn colour(v: f64, lo: f64, hi: f64) -> RGBColor {
+pub(crate) fn colour(v: f64, lo: f64, hi: f64) -> RGBColor {
     ViridisRGB.get_color_normalized(v as f32, lo as f32, hi as f32)
 }
 

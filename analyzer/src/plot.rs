@@ -2,7 +2,9 @@
 //! orbits, linear t for chaotic ones) with the expected laws as dashed reference lines, the MLE
 //! against t on log-log axes, every registered set indicator's output against t (`fli.png`,
 //! `megno_mean.png`, ...: a new indicator is drawn without a change here), the energy error,
-//! MPM-VM distances, and for sweeps GALI against d0 and tau.
+//! MPM-VM distances, for sweeps GALI against d0 and tau, and for a lattice the energy and
+//! deviation vector distributions over the sites against time (`distributions.png`,
+//! [`crate::site_png`]).
 
 use std::path::{Path, PathBuf};
 
@@ -440,6 +442,20 @@ pub fn plot_all(
     let mut files = Vec::new();
     for (name, chart) in charts(analysis, report, axis) {
         files.extend(render(&chart, &dir.join(name), inputs)?);
+    }
+    // A lattice's distributions over the sites against time (kept where the analysis was
+    // asked to, `AnalysisOptions::site_profiles`).
+    if let Some(profiles) = analysis.site_profiles()
+        && profiles.points().len() >= 2
+    {
+        let path = dir.join("distributions.png");
+        crate::site_png::render_png(profiles, &path, inputs).map_err(|message| {
+            ChartError::Draw {
+                path: path.clone(),
+                message,
+            }
+        })?;
+        files.push(path);
     }
     Ok(files)
 }

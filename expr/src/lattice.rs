@@ -463,6 +463,79 @@ impl<'a> LatticeEvaluator<'a> {
         out[0]
     }
 
+    /// The potential energy of each site at `q` (`N` values into `out`), as the lattice
+    /// literature defines the energy distribution (Flach, Krimer and Skokos 2009; Senyange,
+    /// Many Manda and Skokos 2018): each term of a sum, times the sum's coefficient in `V`, is
+    /// shared equally by the distinct sites its variable slots read (a wall is no site), so an
+    /// on-site term goes whole to its site and a bond half to each end (whole to the one end
+    /// of a bond to a fixed wall). The expression around the sums, where it is not zero, goes
+    /// to the one site it reads (a pinned end, `q1^2/2`). The shares add up to `V` to rounding.
+    ///
+    /// An error saying why where no site can be named: a term (or the rest) that reads no
+    /// site but is not zero (a constant), or a rest that reads several sites (which part is
+    /// whose is not written down: write it as sums).
+    pub fn site_potentials(&mut self, q: &[f64], out: &mut [f64]) -> Result<(), String> {
+        let lattice = self.lattice;
+        let n = lattice.n;
+        assert!(q.len() >= n && out.len() >= n, "{n} sites");
+        out[..n].fill(0.0);
+        let mut sites: Vec<usize> = Vec::new();
+        for (s, (sum, d)) in lattice.sums.iter().zip(&lattice.derivatives).enumerate() {
+            for i in sum.first..=sum.last {
+                self.term(s, i, q, None, &[sum.term]);
+                let value = d.coefficient * self.values[0];
+                sites.clear();
+                sites.extend(sum.variables.iter().filter_map(|&k| sum.site(i, k)));
+                sites.sort_unstable();
+                sites.dedup();
+                if sites.is_empty() {
+                    if value != 0.0 {
+                        return Err(format!(
+                            "the term i = {i} of lattice sum {} reads no site but is {value}, \
+                             which belongs to no site",
+                            s + 1
+                        ));
+                    }
+                    continue;
+                }
+                let share = value / sites.len() as f64;
+                for &j in &sites {
+                    out[j] += share;
+                }
+            }
+        }
+        // The rest: V with every sum at 0 (V is affine in its sums).
+        let zeros = vec![0.0; lattice.sums.len()];
+        let mut rest = [0.0];
+        let args: [&[f64]; 6] = [q, &[], &[], &[], &[], &zeros];
+        self.ev.eval(self.graph, &args, &[lattice.root], &mut rest);
+        let rest = rest[0];
+        if rest != 0.0 {
+            match lattice.rest_gradient[..] {
+                [(j, _)] => out[j as usize] += rest,
+                [] => {
+                    return Err(format!(
+                        "V has a constant part {rest} outside its lattice sums, which belongs \
+                         to no site"
+                    ));
+                }
+                _ => {
+                    let names: Vec<String> = lattice
+                        .rest_gradient
+                        .iter()
+                        .map(|&(j, _)| format!("q{}", j + 1))
+                        .collect();
+                    return Err(format!(
+                        "the part of V outside its lattice sums reads several sites ({}), so \
+                         which share is whose is not written down: write it as lattice sums",
+                        names.join(", ")
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// `dV/dq` at `q` into `out` (`N` values).
     pub fn gradient(&mut self, q: &[f64], out: &mut [f64]) {
         self.accumulate(q, None, out);

@@ -599,6 +599,37 @@ impl ExpressionModel {
         self.0.definition.inverse_masses.as_deref()
     }
 
+    /// The potential energy of each site at `q` into `out` (`N` values): each term of a
+    /// lattice sum shared equally by the sites it reads ([`LatticeEvaluator::site_potentials`],
+    /// which defines it). An error saying why where the sites of `V`'s parts are not known: a
+    /// potential without lattice sums compiled as loops, or one that reads the time.
+    pub fn site_potentials(&self, q: &[f64], out: &mut [f64]) -> Result<(), String> {
+        let n = self.0.definition.n;
+        if q.len() != n || out.len() != n {
+            return Err(format!(
+                "{n} sites expected, got {} and {}",
+                q.len(),
+                out.len()
+            ));
+        }
+        match &self.0.form {
+            Form::Lattice(lattice) => {
+                LatticeEvaluator::new(&self.0.graph, lattice).site_potentials(q, out)
+            }
+            Form::Unrolled { .. } if self.0.reads_time => Err(
+                "V reads the time, so it is not compiled as lattice sums and its terms' sites \
+                 are not known"
+                    .to_string(),
+            ),
+            Form::Unrolled { .. } => Err(
+                "V is not written as lattice sums compiled as loops (sum(i = a..b, term) with \
+                 the term reading q[i + k] only, V affine in its sums), so which of its terms \
+                 belongs to which site is not known"
+                    .to_string(),
+            ),
+        }
+    }
+
     /// The operation (with its line and column in the source) that makes `V` or a component
     /// of its gradient non-finite at `q`, if any; in a lattice loop, with the term it arose in.
     pub fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {
@@ -985,4 +1016,56 @@ fn lane_param_count(params: &BTreeMap<String, ParamValue>) -> Result<usize, Pote
         ));
     }
     Ok(indices.len())
+}
+
+#[cfg(test)]
+mod site_energy_tests {
+    use super::*;
+
+    fn model(n: usize, potential: &str, boundary: Boundary) -> ExpressionModel {
+        ExpressionModel::new(PotentialDefinition {
+            n,
+            potential: potential.to_string(),
+            params: BTreeMap::new(),
+            inverse_masses: None,
+            boundary,
+            tables: Vec::new(),
+        })
+        .unwrap()
+    }
+
+    fn sites(m: &ExpressionModel, q: &[f64]) -> Result<Vec<f64>, String> {
+        let mut out = vec![f64::NAN; q.len()];
+        m.site_potentials(q, &mut out).map(|()| out)
+    }
+
+    /// Each term shared equally by the distinct sites it reads (values exact in binary: halves
+    /// and quarters of small integers), a wall being no site; the rest to its one site.
+    #[test]
+    fn terms_are_shared_by_the_sites_they_read() {
+        // A ring of 3: bonds (1,2) and (3,1) stretched by 1, each 1/2, half to each end.
+        let ring = model(3, "sum(i = 1..N, (q[i+1] - q[i])^2/2)", Boundary::Periodic);
+        assert_eq!(sites(&ring, &[1.0, 0.0, 0.0]).unwrap(), [0.5, 0.25, 0.25]);
+        // Fixed walls: the bond to the left wall whole to site 1.
+        let chain = model(2, "sum(i = 0..N, (q[i+1] - q[i])^2/2)", Boundary::Fixed);
+        assert_eq!(sites(&chain, &[1.0, 0.0]).unwrap(), [0.75, 0.25]);
+        // A sum's coefficient, and a rest reading one site (a pinned first site).
+        let pinned = model(2, "0.5*sum(i = 1..N, q[i]^2) + q1^4", Boundary::Free);
+        assert_eq!(sites(&pinned, &[1.0, 2.0]).unwrap(), [1.5, 2.0]);
+        let v = pinned.potential(&[1.0, 2.0]);
+        assert_eq!(v, 3.5);
+    }
+
+    #[test]
+    fn parts_with_no_site_or_several_are_refused_with_the_reason() {
+        let constant = model(2, "sum(i = 1..N, q[i]^2) + 1", Boundary::Free);
+        let why = sites(&constant, &[1.0, 2.0]).unwrap_err();
+        assert!(why.contains("constant part 1"), "{why}");
+        let two = model(2, "sum(i = 1..N, q[i]^2) + q1*q2", Boundary::Free);
+        let why = sites(&two, &[1.0, 2.0]).unwrap_err();
+        assert!(why.contains("several sites (q1, q2)"), "{why}");
+        let unrolled = model(2, "q1^2 + q2^2", Boundary::Free);
+        let why = sites(&unrolled, &[1.0, 2.0]).unwrap_err();
+        assert!(why.contains("not written as lattice sums"), "{why}");
+    }
 }

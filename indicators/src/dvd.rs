@@ -4,14 +4,16 @@
 //!
 //! At each renormalization of a set, its first deviation vector `w = (dq_1..dq_N, dp_1..dp_N)`
 //! gives the weights `xi_l = (dq_l^2 + dp_l^2) / |w|^2` of the `N` sites (they sum to 1), and
-//! two numbers of the distribution: its second moment about its mean site,
-//! `m2 = sum_l (l - lbar)^2 xi_l` with `lbar = sum_l l xi_l`, and its participation number
-//! `P = 1 / sum_l xi_l^2` (1 on one site, `N` spread evenly). The first vector is the one whose
-//! stretching the maximal Lyapunov exponent measures.
+//! two numbers of the distribution ([`crate::distribution`], shared with the energy
+//! distribution): its second moment about its mean site, `m2 = sum_l (l - lbar)^2 xi_l` with
+//! `lbar = sum_l l xi_l`, and its participation number `P = 1 / sum_l xi_l^2` (1 on one site,
+//! `N` spread evenly). The first vector is the one whose stretching the maximal Lyapunov
+//! exponent measures.
 //!
 //! Sites are the degrees of freedom of a Hamiltonian (`q_l`, `p_l`); a run whose system has none
 //! (a flow, a map) gets the outputs as unavailable, with the reason.
 
+use crate::distribution::moments;
 use crate::indicator::{Output, SetIndicator, SetObservation};
 
 /// The DVD's second moment and participation number at the latest renormalization.
@@ -23,28 +25,10 @@ pub struct DeviationDistribution {
     no_sites: bool,
 }
 
-/// The second moment about the mean site and the participation number of the distribution whose
-/// unnormalized weights are `weights` (sites numbered from 1); `None` when they are not finite or
-/// all zero.
-pub fn moments(weights: impl Iterator<Item = f64> + Clone) -> Option<(f64, f64)> {
-    let total: f64 = weights.clone().sum();
-    if !(total.is_finite() && total > 0.0) {
-        return None;
-    }
-    let (mut mean, mut squares) = (0.0, 0.0);
-    for (l, w) in weights.clone().enumerate() {
-        let xi = w / total;
-        mean += (l + 1) as f64 * xi;
-        squares += xi * xi;
-    }
-    let m2 = weights
-        .enumerate()
-        .map(|(l, w)| {
-            let d = (l + 1) as f64 - mean;
-            d * d * (w / total)
-        })
-        .sum();
-    Some((m2, 1.0 / squares))
+/// The unnormalized DVD weights `dq_l^2 + dp_l^2` of the `N` sites of a vector `w` of `2N`
+/// entries (`(q_1..q_N, p_1..p_N)`).
+pub fn site_weights(w: &[f64], n: usize) -> impl Iterator<Item = f64> + Clone + '_ {
+    (0..n).map(move |l| w[l] * w[l] + w[n + l] * w[n + l])
 }
 
 impl SetIndicator for DeviationDistribution {
@@ -60,8 +44,7 @@ impl SetIndicator for DeviationDistribution {
         let Some(w) = obs.separations.get(..obs.dim) else {
             return;
         };
-        let site = |l: usize| w[l] * w[l] + w[n + l] * w[n + l];
-        if let Some(m) = moments((0..n).map(site)) {
+        if let Some(m) = moments(site_weights(w, n)) {
             self.latest = Some(m);
         }
     }
@@ -100,6 +83,7 @@ mod tests {
             stretch: &[1.0],
             flow: None,
             sites,
+            site_energies: None,
         });
         d.outputs()
     }

@@ -110,6 +110,7 @@ mod tests {
             stretch,
             flow,
             sites: None,
+            site_energies: None,
         }
     }
 

@@ -15,6 +15,7 @@
 //! [`orbit_indicators`]; every reader then names and reports its outputs.
 
 use std::fmt::Debug;
+use std::sync::Arc;
 
 /// What a set indicator sees at one renormalization of its set.
 #[derive(Debug, Clone, Copy)]
@@ -36,6 +37,52 @@ pub struct SetObservation<'a> {
     /// The number of sites `N` of a Hamiltonian (`dim = 2N`, site `l` at `q_l`, `p_l`); `None`
     /// for a system without them (a flow, a map).
     pub sites: Option<usize>,
+    /// The energy of each site at the reference state of this renormalization: `None` when
+    /// the reader was given no way to compute them (the recorder, which does not rebuild the
+    /// model).
+    pub site_energies: Option<SiteEnergyInput<'a>>,
+}
+
+/// The energy of each site of a lattice Hamiltonian at a state (`N` values into `out`: kinetic
+/// energy plus the site's share of the potential), or why the system cannot say. Given, like
+/// [`crate::tracker::FlowField`], by whoever holds the system, for the energy distribution.
+#[derive(Clone)]
+pub struct SiteEnergies(pub Arc<SiteEnergyFn>);
+
+/// `h_l` of the state into `out`, or why not.
+pub type SiteEnergyFn = dyn Fn(&[f64], &mut [f64]) -> Result<(), String> + Send + Sync;
+
+impl std::fmt::Debug for SiteEnergies {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("SiteEnergies")
+    }
+}
+
+/// The site energies of one renormalization, computed only when a value is asked for (an
+/// indicator keeps the state and evaluates at [`SetIndicator::outputs`]): a lattice of many
+/// sites costs one evaluation per reported point, not one per renormalization.
+#[derive(Debug, Clone, Copy)]
+pub enum SiteEnergyInput<'a> {
+    /// The system's site energies, to be evaluated at the reference state `state`.
+    At {
+        energies: &'a SiteEnergies,
+        state: &'a [f64],
+    },
+    /// Why there are none at this renormalization.
+    Unavailable(&'a str),
+}
+
+impl SiteEnergyInput<'_> {
+    /// The `n` site energies, or why there are none.
+    pub fn evaluate(&self, n: usize) -> Result<Vec<f64>, String> {
+        match self {
+            SiteEnergyInput::At { energies, state } => {
+                let mut out = vec![0.0; n];
+                (energies.0)(state, &mut out).map(|()| out)
+            }
+            SiteEnergyInput::Unavailable(why) => Err(why.to_string()),
+        }
+    }
 }
 
 /// One output's value for one set (or one scheme).
@@ -85,6 +132,7 @@ pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
         Box::new(crate::fli::Fli::default()),
         Box::new(crate::megno::Megno::default()),
         Box::new(crate::dvd::DeviationDistribution::default()),
+        Box::new(crate::energy::EnergyDistribution::default()),
     ]
 }
 
@@ -117,6 +165,7 @@ pub fn flowless_set_outputs() -> Vec<&'static str> {
         stretch: &[1.0],
         flow: None,
         sites: None,
+        site_energies: None,
     };
     set_indicators()
         .into_iter()
@@ -138,8 +187,8 @@ mod tests {
 
     #[test]
     fn a_map_shows_every_output_but_ofli() {
-        // OFLI needs the flow direction, the DVD a Hamiltonian's sites; FLI and MEGNO only the
-        // stretching factors.
+        // OFLI needs the flow direction, the DVD and the energy distribution a Hamiltonian's
+        // sites; FLI and MEGNO only the stretching factors.
         assert_eq!(flowless_set_outputs(), ["fli", "megno", "megno_mean"]);
     }
 
@@ -154,7 +203,9 @@ mod tests {
                 "megno",
                 "megno_mean",
                 "dvd_m2",
-                "dvd_participation"
+                "dvd_participation",
+                "energy_m2",
+                "energy_participation"
             ]
         );
         let mut unique = names.to_vec();

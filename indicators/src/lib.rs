@@ -15,13 +15,16 @@
 //! - [`indicator`]: the one indicator interface (set and orbit indicators, named outputs) and
 //!   the registry of the indicators every run tracks: [`fli`] (FLI, OFLI), [`megno`] (MEGNO and
 //!   its mean), [`dvd`] (the deviation vector distribution over a lattice's sites: its second
-//!   moment and participation number), [`zero_one`] (the 0-1 test for chaos).
+//!   moment and participation number), [`energy`] (the energy distribution over the sites,
+//!   the same two numbers; both from [`distribution`]), [`zero_one`] (the 0-1 test for chaos).
 //! - [`tracker`]: the streaming state of a run (per scheme and set: stretching sums and latest
 //!   vectors) and a scheme's indicators averaged over its sets at its latest renormalization.
 
 pub mod alignment;
 pub mod clv;
+pub mod distribution;
 pub mod dvd;
+pub mod energy;
 pub mod fli;
 pub mod indicator;
 pub mod megno;
@@ -34,4 +37,6 @@ pub use alignment::{SIGMA_FLOOR, gali_log10, sali, unit_columns, volume_log10};
 pub use indicator::{OrbitIndicator, Output, SetIndicator, SetObservation};
 pub use stats::{LogStat, Stat};
 pub use stretch::StretchSums;
-pub use tracker::{FlowField, Layout, Named, NamedOutputs, SchemeIndicators, SetValues, Tracker};
+pub use tracker::{
+    FlowField, Layout, Named, NamedOutputs, SchemeIndicators, SetValues, SiteEnergies, Tracker,
+};

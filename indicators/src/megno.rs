@@ -78,6 +78,7 @@ mod tests {
                 stretch: &[stretch],
                 flow: None,
                 sites: None,
+                site_energies: None,
             });
             prev = l;
         }

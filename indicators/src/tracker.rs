@@ -12,8 +12,10 @@ use std::sync::Arc;
 use serde::ser::{Serialize, SerializeMap, Serializer};
 
 use crate::alignment::{SIGMA_FLOOR, gali_log10, sali};
+pub use crate::indicator::SiteEnergies;
 use crate::indicator::{
-    OrbitIndicator, Output, SetIndicator, SetObservation, orbit_indicators, set_indicators,
+    OrbitIndicator, Output, SetIndicator, SetObservation, SiteEnergyInput, orbit_indicators,
+    set_indicators,
 };
 use crate::stats::{LogStat, Stat};
 use crate::stretch::StretchSums;
@@ -243,6 +245,7 @@ pub struct Tracker {
     gaps: bool,
     reference: Option<Reference>,
     flow_field: Option<FlowField>,
+    site_energies: Option<SiteEnergies>,
     /// First step of the exponents' average: a transient before it is discarded (`None`: the
     /// whole run).
     exponents_from: Option<u64>,
@@ -265,6 +268,7 @@ impl Tracker {
             gaps: false,
             reference: None,
             flow_field: None,
+            site_energies: None,
             exponents_from: None,
         }
     }
@@ -282,6 +286,12 @@ impl Tracker {
     /// direction (OFLI); without it they report themselves unavailable.
     pub fn set_flow_field(&mut self, field: FlowField) {
         self.flow_field = Some(field);
+    }
+
+    /// Gives the tracker the energy of each site of the system's states, for the energy
+    /// distribution; without it that reports itself unavailable.
+    pub fn set_site_energies(&mut self, energies: SiteEnergies) {
+        self.site_energies = Some(energies);
     }
 
     /// The reference state at `step` (before the separation sets of that step are applied):
@@ -302,6 +312,18 @@ impl Tracker {
             state: state.to_vec(),
             flow,
         });
+    }
+
+    /// The energy of each site at the latest reference state (computed now), or why there is
+    /// none; `None` without [`SiteEnergies`], sites or a reference state.
+    pub fn reference_site_energies(&self) -> Option<Result<Vec<f64>, String>> {
+        let (f, n, r) = (
+            self.site_energies.as_ref()?,
+            self.layout.sites?,
+            self.reference.as_ref()?,
+        );
+        let mut out = vec![0.0; n];
+        Some((f.0)(&r.state, &mut out).map(|()| out))
     }
 
     pub fn layout(&self) -> &Layout {
@@ -374,6 +396,15 @@ impl Tracker {
             stretch,
             flow: reference.and_then(|r| r.flow.as_deref()),
             sites: self.layout.sites,
+            site_energies: self.site_energies.as_ref().map(|energies| match reference {
+                Some(r) => SiteEnergyInput::At {
+                    energies,
+                    state: &r.state,
+                },
+                None => SiteEnergyInput::Unavailable(
+                    "no reference state came with this renormalization",
+                ),
+            }),
         };
         for indicator in &mut st.indicators {
             indicator.observe(&observation);

@@ -175,6 +175,7 @@ fn read(
             series_capacity: 2,
             per_decade: 1,
             flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
+            site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
             ..Default::default()
         },
     );

@@ -1,10 +1,11 @@
-//! The system's vector field for the analysis, whose OFLI needs the flow direction at the
-//! reference state: from a validated run, or rebuilt from the config a recording carries (the
-//! analyzer itself runs no engine, so whoever holds the producer gives it the field).
+//! What the analysis needs from the system itself, from a validated run or rebuilt from the
+//! config a recording carries (the analyzer runs no engine, so whoever holds the producer gives
+//! it): the vector field, whose OFLI needs the flow direction at the reference state, and the
+//! energy of each site of a lattice Hamiltonian, for the energy distribution.
 
 use std::sync::Arc;
 
-use chaoscope_analyzer::analysis::FlowField;
+use chaoscope_analyzer::analysis::{FlowField, SiteEnergies};
 use chaoscope_analyzer::run_info::RunInfo;
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_producer::system::{DynamicalSystem, Time};
@@ -30,13 +31,36 @@ pub fn flow_field(system: &Arc<dyn DynamicalSystem>) -> Option<FlowField> {
 /// exactly as replay rebuilds it. `None` where that config does not validate here (a model built
 /// in code, a table no longer at its path): the indicators that need it then say so.
 pub fn flow_field_of_run(run: &RunInfo) -> Option<FlowField> {
+    flow_field(&system_of_run(run)?)
+}
+
+/// The system of a recorded run, rebuilt from the config its header carries as replay rebuilds
+/// it; `None` where that config does not validate here or gives another dimension.
+fn system_of_run(run: &RunInfo) -> Option<Arc<dyn DynamicalSystem>> {
     let config = RunConfig::from_toml(&run.header.config_toml)
         .ok()?
         .with_sweeps_expanded()
         .ok()?;
     let spec = RunSpec::from_config(&config).ok()?;
-    if spec.system().dim() != run.dim {
-        return None;
-    }
-    flow_field(spec.system())
+    (spec.system().dim() == run.dim).then(|| Arc::clone(spec.system()))
+}
+
+/// The energy of each site of `system`'s states ([`chaoscope_producer::model::Model::site_energies`]
+/// of a separable Hamiltonian's model); for any other system, the reason why there are none.
+pub fn site_energies(system: &Arc<dyn DynamicalSystem>) -> SiteEnergies {
+    let model = system.separable().map(|s| Arc::clone(s.model()));
+    let name = system.name().to_string();
+    SiteEnergies(Arc::new(move |x: &[f64], out: &mut [f64]| match &model {
+        Some(model) => model.site_energies(x, out),
+        None => Err(format!(
+            "site energies are given for separable lattice Hamiltonians (fput-beta, a potential \
+             written as lattice sums); '{name}' is not one"
+        )),
+    }))
+}
+
+/// The site energies of a recorded run, its system rebuilt as [`flow_field_of_run`] rebuilds
+/// it; `None` where it cannot be (the energy distribution then says so).
+pub fn site_energies_of_run(run: &RunInfo) -> Option<SiteEnergies> {
+    Some(site_energies(&system_of_run(run)?))
 }

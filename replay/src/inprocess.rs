@@ -54,6 +54,7 @@ pub fn analyze_spec(
     if let Some(field) = crate::flow::flow_field(spec.system()) {
         analysis.set_flow_field(field);
     }
+    analysis.set_site_energies(crate::flow::site_energies(spec.system()));
     let mut engine = Engine::new(spec);
     while let Some(sample) = engine.next_sample()? {
         analysis.feed(&sample);

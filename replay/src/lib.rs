@@ -316,6 +316,9 @@ pub fn replay(
     if let (Some(a), Some(field)) = (&mut replay_analysis, flow::flow_field(spec.system())) {
         a.set_flow_field(field);
     }
+    if let Some(a) = &mut replay_analysis {
+        a.set_site_energies(flow::site_energies(spec.system()));
+    }
     let mut recorded_analysis = if options.without_original {
         analysis_of(header.clone()).ok()
     } else {

@@ -93,6 +93,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         series_capacity: args.points,
         at: args.at.into_iter().collect(),
         flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
+        site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
+        site_profiles: args.plot.is_some(),
         exponents_from: args.from,
         ..Default::default()
     };

@@ -175,6 +175,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             series_capacity: 1000,
             per_decade: 20,
             flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
+            site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
             ..Default::default()
         },
     );

@@ -272,6 +272,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         &out,
         &chaoscope_analyzer::AnalysisOptions {
             flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
+            site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
             ..Default::default()
         },
     )?;

@@ -258,6 +258,7 @@ impl PointAccumulator {
                     flow: None,
                     // The map indicators are the outputs that need no sites either.
                     sites: None,
+                    site_energies: None,
                 };
                 *previous = t;
                 for i in indicators.iter_mut() {

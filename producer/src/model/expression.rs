@@ -45,6 +45,10 @@ impl Model for ExpressionModel {
         ExpressionModel::diagnose_non_finite(self, q)
     }
 
+    fn site_potentials(&self, q: &[f64], out: &mut [f64]) -> Result<(), String> {
+        ExpressionModel::site_potentials(self, q, out)
+    }
+
     fn reads_time(&self) -> bool {
         ExpressionModel::reads_time(self)
     }

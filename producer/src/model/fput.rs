@@ -131,6 +131,32 @@ impl Model for FputBeta {
         true
     }
 
+    /// Bond `i` (`r_i = x_{i+1} - x_i`, `i = 0..N`) half to each of its particles; the bonds to
+    /// the fixed walls whole to the end particle (a wall is no site). In bond order, as the
+    /// same chain written as a `potential` lattice sum attributes it, so both give the same
+    /// distribution to rounding.
+    fn site_potentials(&self, q: &[f64], out: &mut [f64]) -> Result<(), String> {
+        let n = self.n;
+        if q.len() != n || out.len() != n {
+            return Err(format!("{n} sites expected"));
+        }
+        out.fill(0.0);
+        for i in 0..=n {
+            let r = Self::site(q, i + 1, n) - Self::site(q, i, n);
+            let r2 = r * r;
+            let u = 0.5 * r2 + 0.25 * self.beta * r2 * r2;
+            if i == 0 {
+                out[0] += u;
+            } else if i == n {
+                out[n - 1] += u;
+            } else {
+                out[i - 1] += 0.5 * u;
+                out[i] += 0.5 * u;
+            }
+        }
+        Ok(())
+    }
+
     fn has_hessian(&self) -> bool {
         true
     }

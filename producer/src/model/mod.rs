@@ -77,6 +77,39 @@ pub trait Model: std::any::Any + Send + Sync {
         None
     }
 
+    /// The potential energy of each site at `q` into `out` (`N` values), where the model is a
+    /// lattice that says which part of `V` is whose: each on-site term whole to its site, each
+    /// coupling term shared equally by the sites it touches (the energy distribution of the
+    /// lattice literature). They add up to `V` to rounding. An error saying why otherwise.
+    fn site_potentials(&self, _q: &[f64], _out: &mut [f64]) -> Result<(), String> {
+        Err(format!(
+            "model '{}' does not say which part of its potential belongs to which site",
+            self.name()
+        ))
+    }
+
+    /// The energy of each site of `x = (q, p)` into `out` (`N` values): `p_l^2 / (2 m_l)` plus
+    /// [`Model::site_potentials`]; they add up to [`Model::energy`] to rounding.
+    fn site_energies(&self, x: &[f64], out: &mut [f64]) -> Result<(), String> {
+        let n = self.dof();
+        if x.len() != 2 * n || out.len() != n {
+            return Err(format!(
+                "a state of {} entries and {n} sites expected",
+                2 * n
+            ));
+        }
+        self.site_potentials(&x[..n], out)?;
+        let p = &x[n..];
+        match self.inverse_masses() {
+            None => out.iter_mut().zip(p).for_each(|(e, v)| *e += 0.5 * (v * v)),
+            Some(w) => out
+                .iter_mut()
+                .zip(p.iter().zip(w))
+                .for_each(|(e, (v, w))| *e += 0.5 * (v * v * w)),
+        }
+        Ok(())
+    }
+
     /// Total energy of a phase-space point `x = (q, p)`.
     fn energy(&self, x: &[f64]) -> f64 {
         let n = self.dof();

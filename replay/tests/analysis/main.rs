@@ -7,6 +7,7 @@ mod flows;
 mod general_hamiltonian;
 mod hostile_input;
 mod indicators;
+mod lattice_distributions;
 mod nonautonomous;
 mod v_shape;
 mod verdict;

@@ -1,0 +1,141 @@
+//! `distributions.png` of `analyze --plot` for runs over a lattice: the energy distribution and
+//! the deviation vector distribution over the sites against time, side by side, as the DVD papers
+//! draw them (Senyange, Many Manda and Skokos, PRE 98, 052229 (2018), Fig. 1): site `l`
+//! across, time up, `log10` of the weight in colour (viridis, one scale for both, six decades
+//! below the largest weight). Where chaos lives in the chain shows as the DVD's bright cells
+//! sitting on the energy's.
+
+use std::path::{Path, PathBuf};
+
+use plotters::prelude::*;
+
+use crate::map_png::{FONT, colour, font_available};
+use crate::site_profiles::SiteProfiles;
+
+/// Decades of weight the colour scale spans below the largest weight.
+const DECADES: f64 = 6.0;
+
+/// Draws `profiles` to the PNG `path` (through `chaoscope_os::output`, never one of `inputs`).
+/// An error naming the file, or saying that there is nothing to draw (fewer than two times).
+pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> Result<(), String> {
+    let points = profiles.points();
+    if points.len() < 2 {
+        return Err(format!(
+            "{}: fewer than two renormalizations of the first set to draw",
+            path.display()
+        ));
+    }
+    let n = profiles.sites();
+    let lg = |x: f64| {
+        if x > 0.0 {
+            x.log10()
+        } else {
+            f64::NEG_INFINITY
+        }
+    };
+    let hi = points
+        .iter()
+        .flat_map(|(_, p)| {
+            p.dvd
+                .iter()
+                .chain(p.energy.as_deref().unwrap_or(&[]))
+                .copied()
+        })
+        .fold(f64::NEG_INFINITY, f64::max);
+    let hi = if hi > 0.0 { lg(hi).min(0.0) } else { 0.0 };
+    let lo = hi - DECADES;
+    let (t0, t_last) = (points[0].0, points[points.len() - 1].0);
+    // Each kept time's row reaches to the next one's; the last one a mean interval up.
+    let t_end = t_last + (t_last - t0) / (points.len() - 1) as f64;
+    let text = font_available();
+    let (panel_w, panel_h, bar_w) = (440u32, 520u32, if text { 110 } else { 40 });
+    let (w, h) = (2 * panel_w + bar_w, panel_h);
+    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let mut pixels = vec![0u8; w as usize * h as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut pixels, (w, h)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let (panels, bar_area) = root.split_horizontally(2 * panel_w);
+        let (left, right) = panels.split_horizontally(panel_w);
+        let x_range = 0.5..n as f64 + 0.5;
+        for (area, title, energy) in [
+            (&left, "energy h_l / sum h", true),
+            (&right, "deviation vector xi_l", false),
+        ] {
+            let mut builder = ChartBuilder::on(area);
+            builder.margin(10);
+            if text {
+                builder
+                    .caption(title, (FONT, 18))
+                    .x_label_area_size(40)
+                    .y_label_area_size(60);
+            }
+            let mut chart = builder
+                .build_cartesian_2d(x_range.clone(), t0..t_end)
+                .map_err(|e| err(&e))?;
+            if text {
+                chart
+                    .configure_mesh()
+                    .disable_mesh()
+                    .x_desc("site l")
+                    .y_desc("t")
+                    .label_style((FONT, 14))
+                    .draw()
+                    .map_err(|e| err(&e))?;
+            }
+            for (i, (t, p)) in points.iter().enumerate() {
+                let t_next = points.get(i + 1).map_or(t_end, |q| q.0);
+                let weights: Option<&[f64]> = if energy {
+                    p.energy.as_deref().ok()
+                } else {
+                    Some(&p.dvd)
+                };
+                let Some(weights) = weights else {
+                    continue;
+                };
+                chart
+                    .draw_series(weights.iter().enumerate().map(|(l, &x)| {
+                        let site = (l + 1) as f64;
+                        Rectangle::new(
+                            [(site - 0.5, *t), (site + 0.5, t_next)],
+                            colour(lg(x).clamp(lo, hi), lo, hi).filled(),
+                        )
+                    }))
+                    .map_err(|e| err(&e))?;
+            }
+        }
+        let mut bar_builder = ChartBuilder::on(&bar_area);
+        bar_builder
+            .margin_top(if text { 38 } else { 10 })
+            .margin_bottom(if text { 50 } else { 10 })
+            .margin_right(if text { 55 } else { 10 });
+        if text {
+            bar_builder
+                .caption("log10", (FONT, 14))
+                .y_label_area_size(0)
+                .right_y_label_area_size(45);
+        }
+        let mut bar = bar_builder
+            .build_cartesian_2d(0.0..1.0, lo..hi)
+            .map_err(|e| err(&e))?;
+        if text {
+            bar.configure_mesh()
+                .disable_mesh()
+                .disable_x_axis()
+                .label_style((FONT, 13))
+                .draw()
+                .map_err(|e| err(&e))?;
+        }
+        let steps = 120;
+        bar.draw_series((0..steps).map(|i| {
+            let a = lo + (hi - lo) * i as f64 / steps as f64;
+            let b = lo + (hi - lo) * (i + 1) as f64 / steps as f64;
+            Rectangle::new([(0.0, a), (1.0, b)], colour((a + b) / 2.0, lo, hi).filled())
+        }))
+        .map_err(|e| err(&e))?;
+        root.present().map_err(|e| err(&e))?;
+    }
+    crate::chart::save_png(path, inputs, &pixels, (w, h))
+        .map(drop)
+        .map_err(|e| e.to_string())
+}

@@ -79,6 +79,10 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
                     .disable_mesh()
                     .x_desc("site l")
                     .y_desc("t")
+                    // Sites are whole numbers; six labels keep four-digit ones apart.
+                    .x_labels(6)
+                    .x_label_formatter(&|v| format!("{v:.0}"))
+                    .y_label_formatter(&|v| format!("{v}"))
                     .label_style((FONT, 14))
                     .draw()
                     .map_err(|e| err(&e))?;

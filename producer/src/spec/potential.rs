@@ -172,42 +172,13 @@ fn potential_model_with_lanes(
             "a potential model needs potential = \"...\"",
         )
     })?;
-    let mut params = std::collections::BTreeMap::new();
-    for (name, v) in &cfg.params {
-        params.insert(
-            name.clone(),
-            param_value(&format!("model.params.{name}"), v, n, &sites(n))?,
-        );
-    }
-    let mut lane_values = Vec::with_capacity(lanes.len());
-    for (j, lane) in lanes.iter().enumerate() {
-        let key = format!("model.params.{}", lane.name);
-        match params.get(&lane.name) {
-            Some(ParamValue::Scalar(v)) => lane_values.push(*v),
-            Some(_) => {
-                return Err(SpecError::new(
-                    key,
-                    "is an array; a parameter axis sets a scalar parameter",
-                ));
-            }
-            None => {
-                return Err(SpecError::new(
-                    key,
-                    "is not a parameter of the model (a parameter axis names a key of [model] \
-                     params)",
-                ));
-            }
-        }
-        params.insert(
-            lane.name.clone(),
-            ParamValue::Lane {
-                arg: chaoscope_expr::potential::ARG_PARAMS,
-                index: j as u32,
-                min: lane.min,
-                max: lane.max,
-            },
-        );
-    }
+    let (params, lane_values) = super::vector::expression_params(
+        &cfg.params,
+        n,
+        &sites(n),
+        lanes,
+        chaoscope_expr::potential::ARG_PARAMS,
+    )?;
     let inverse_masses = match &cfg.masses {
         Some(m) => inverse_masses(m, n)?,
         None => None,

@@ -13,14 +13,16 @@ use super::potential::param_value;
 use super::{LaneParam, SpecError};
 
 /// `params` as the expressions read them: each of `lanes` (a scalar of `params`) a
-/// [`ParamValue::Lane`] of [`chaoscope_expr::vector::ARG_PARAMS`], numbered in the order of
+/// [`ParamValue::Lane`] of argument `arg` (the compiled functions' `ARG_PARAMS`: of
+/// [`chaoscope_expr::vector`], or of [`chaoscope_expr::potential`]), numbered in the order of
 /// `lanes`, the others their values; and the config's values of `lanes` in that order (a
 /// state's entries after its coordinates).
-fn expression_params(
+pub(super) fn expression_params(
     params: &BTreeMap<String, config::ParamValue>,
     n: usize,
     size: &str,
     lanes: &[LaneParam],
+    arg: u8,
 ) -> Result<(BTreeMap<String, ParamValue>, Vec<f64>), SpecError> {
     let mut values = BTreeMap::new();
     for (name, v) in params {
@@ -51,7 +53,7 @@ fn expression_params(
         values.insert(
             lane.name.clone(),
             ParamValue::Lane {
-                arg: chaoscope_expr::vector::ARG_PARAMS,
+                arg,
                 index: j as u32,
                 min: lane.min,
                 max: lane.max,
@@ -90,7 +92,8 @@ pub fn vector_function(
         ));
     }
     let size = format!("the system has dimension {d}");
-    let (values, lane_values) = expression_params(params, d, &size, lanes)?;
+    let (values, lane_values) =
+        expression_params(params, d, &size, lanes, chaoscope_expr::vector::ARG_PARAMS)?;
     let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
         .map_err(|e| SpecError::new("model.boundary", e))?;
     VectorFunction::new(VectorDefinition {
@@ -122,7 +125,8 @@ pub fn hamiltonian_function(
 ) -> Result<(VectorFunction, Vec<f64>), SpecError> {
     let key = "model.hamiltonian";
     let size = format!("the system has {n} degrees of freedom");
-    let (values, lane_values) = expression_params(params, n, &size, lanes)?;
+    let (values, lane_values) =
+        expression_params(params, n, &size, lanes, chaoscope_expr::vector::ARG_PARAMS)?;
     let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
         .map_err(|e| SpecError::new("model.boundary", e))?;
     VectorFunction::hamiltonian(HamiltonianDefinition {

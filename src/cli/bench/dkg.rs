@@ -13,14 +13,13 @@
 //! chain's forces in the textbook order, not chaoscope's compiled loop, so the two MLEs agree to
 //! rounding amplified by the orbit's (weak) chaos, not bit for bit.
 
-use std::io::Write;
 use std::process::{Command, Stdio};
 
 use anyhow::Context;
 use chaoscope_producer::batch::StepCoeffs;
 use chaoscope_producer::integrator::{Splitting, SplittingKind};
 use chaoscope_producer::spec::RunSpec;
-use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::config::{ModelConfig, ParamValue, RunConfig};
 
 const SOURCE: &str = include_str!("dkg.c");
 const EXAMPLE: &str = include_str!("../../../examples/models/dkg-single-site.toml");
@@ -103,13 +102,22 @@ fn c_input(config: &RunConfig) -> anyhow::Result<String> {
     let n = spec.dim() / 2;
     let coeffs = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), H);
     let tau = spec.schemes()[0].tau_steps;
+    // W and the disorder as the example writes them, so the C runs the run's chain.
+    let (w, eps) = match &config.model {
+        ModelConfig::Potential(p) => match (p.params.get("W"), p.params.get("eps")) {
+            (Some(ParamValue::Scalar(w)), Some(ParamValue::Drawn(d))) => (
+                *w,
+                chaoscope_producer::spec::drawn::uniform(d.uniform[0], d.uniform[1], d.seed, n),
+            ),
+            _ => anyhow::bail!("the DKG example no longer has a scalar W and a drawn eps"),
+        },
+        _ => anyhow::bail!("the DKG example is no longer a potential model"),
+    };
     let mut s = String::new();
     let mut put = |v: f64| s.push_str(&format!("{v:e}\n"));
     put(n as f64);
-    put(4.0);
-    chaoscope_producer::spec::drawn::uniform(0.5, 1.5, 1, n)
-        .into_iter()
-        .for_each(&mut put);
+    put(w);
+    eps.into_iter().for_each(&mut put);
     put(coeffs.kicks() as f64);
     coeffs.drift.iter().for_each(|&v| put(v));
     coeffs.kick.iter().for_each(|&v| put(v));
@@ -126,23 +134,7 @@ fn c_input(config: &RunConfig) -> anyhow::Result<String> {
 
 /// The C yardstick on `input`: (CPU seconds, MLE).
 fn c_run(exe: &std::path::Path, input: &str) -> anyhow::Result<(f64, f64)> {
-    let mut child = Command::new(exe)
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .spawn()
-        .context("starting the C yardstick")?;
-    child
-        .stdin
-        .take()
-        .context("stdin of the C yardstick")?
-        .write_all(input.as_bytes())?;
-    let out = child.wait_with_output()?;
-    anyhow::ensure!(
-        out.status.success(),
-        "the C yardstick failed ({})",
-        out.status
-    );
-    let text = String::from_utf8(out.stdout)?;
+    let text = super::scalar_c::output_of(exe, input)?;
     let value = |key: &str| -> anyhow::Result<f64> {
         text.lines()
             .find_map(|l| l.strip_prefix(key))

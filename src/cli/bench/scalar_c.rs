@@ -78,7 +78,8 @@ fn compile(dir: &Path, flag: &str, exe: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn run(exe: &Path, input: &str, points: usize) -> anyhow::Result<Timing> {
+/// A built C yardstick run on `input` (its stdin): what it printed.
+pub fn output_of(exe: &Path, input: &str) -> anyhow::Result<String> {
     let mut child = Command::new(exe)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
@@ -95,7 +96,11 @@ fn run(exe: &Path, input: &str, points: usize) -> anyhow::Result<Timing> {
         "the C yardstick failed ({})",
         out.status
     );
-    let text = String::from_utf8(out.stdout)?;
+    Ok(String::from_utf8(out.stdout)?)
+}
+
+fn run(exe: &Path, input: &str, points: usize) -> anyhow::Result<Timing> {
+    let text = output_of(exe, input)?;
     let mut values = Vec::new();
     let mut cpu = None;
     for line in text.lines() {

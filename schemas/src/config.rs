@@ -108,11 +108,55 @@ pub struct Excitation {
 }
 
 /// The sites of an excitation: one, or a block.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, JsonSchema)]
 #[serde(untagged)]
 pub enum ExcitedSites {
     One(usize),
     Block([usize; 2]),
+}
+
+/// By the value's shape, so a wrong one (`-3`, `[1, 2, 3]`) is told what a site may be rather
+/// than serde's "did not match any variant".
+impl<'de> Deserialize<'de> for ExcitedSites {
+    fn deserialize<D: serde::Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        use serde::de::{Error, SeqAccess, Visitor};
+        struct SitesVisitor;
+        impl<'de> Visitor<'de> for SitesVisitor {
+            type Value = ExcitedSites;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a site number (from 1) or a block [first, last]")
+            }
+            fn visit_u64<E: Error>(self, v: u64) -> Result<ExcitedSites, E> {
+                usize::try_from(v)
+                    .map(ExcitedSites::One)
+                    .map_err(|_| E::custom(format!("site {v} is out of range")))
+            }
+            fn visit_i64<E: Error>(self, v: i64) -> Result<ExcitedSites, E> {
+                u64::try_from(v)
+                    .map_err(|_| {
+                        E::custom(format!(
+                            "sites are numbered from 1, got {v}; expected {}",
+                            "a site number (from 1) or a block [first, last]"
+                        ))
+                    })
+                    .and_then(|v| self.visit_u64(v))
+            }
+            fn visit_seq<A: SeqAccess<'de>>(self, mut seq: A) -> Result<ExcitedSites, A::Error> {
+                let mut ends = Vec::new();
+                while let Some(v) = seq.next_element::<usize>()? {
+                    ends.push(v);
+                }
+                match ends[..] {
+                    [first, last] => Ok(ExcitedSites::Block([first, last])),
+                    _ => Err(A::Error::custom(format!(
+                        "a block is [first, last], got {} entries",
+                        ends.len()
+                    ))),
+                }
+            }
+        }
+        deserializer.deserialize_any(SitesVisitor)
+    }
 }
 
 impl ExcitedSites {

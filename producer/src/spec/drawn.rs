@@ -36,12 +36,13 @@ pub fn signs(seed: u64, n: usize) -> Vec<f64> {
 /// Why `[lo, hi]` cannot be drawn from (both finite, `lo < hi`), or `None`.
 pub fn range_problem(lo: f64, hi: f64) -> Option<String> {
     if !(lo.is_finite() && hi.is_finite()) {
-        return Some(format!("uniform = [{lo}, {hi}] must be finite"));
+        // `{:?}`: the shortest form (`1e308`), not 309 digits.
+        return Some(format!("uniform = [{lo:?}, {hi:?}] must be finite"));
     }
     // Both finite here, so `>=` is the negation of `<`.
     if lo >= hi || !(hi - lo).is_finite() {
         return Some(format!(
-            "uniform = [{lo}, {hi}] needs lo < hi (and a finite width)"
+            "uniform = [{lo:?}, {hi:?}] needs lo < hi (and a finite width)"
         ));
     }
     None

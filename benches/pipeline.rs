@@ -168,7 +168,15 @@ fn run_messages(config: &str) -> (RunHeader, Vec<DataMessage>) {
     let mut messages = Vec::new();
     while let Some(s) = engine.next_sample().unwrap() {
         batch.reset(messages.len() as u64);
-        batch.push_reference(s.seq, s.step, s.t, s.energy, s.mean_divergence, &s.state);
+        batch.push_reference(
+            s.seq,
+            s.step,
+            s.t,
+            s.energy,
+            s.mean_divergence,
+            s.divergence_sum,
+            &s.state,
+        );
         for x in &s.schemes {
             batch.push_separations(
                 s.seq,

@@ -41,6 +41,8 @@ enum Command {
     Chart(cli::chart::Args),
     /// Re-run a recording with other tau/d0 on the bit-identical reference orbit.
     Replay(cli::replay::Args),
+    /// Continue a killed, interrupted or finished run from its recording (--t-final extends it).
+    Resume(cli::resume::Args),
     /// Salvage an MCAP file whose writer was killed.
     Recover(cli::recover::Args),
     /// Compute a phase-space map (one chaos indicator per grid point) into MCAP and PNG.
@@ -73,6 +75,7 @@ fn main() -> ExitCode {
         Command::Recover(args) => cli::recover::main(args),
         Command::Analyze(args) => cli::analyze::main(args),
         Command::Replay(args) => cli::replay::main(args),
+        Command::Resume(args) => cli::resume::main(args),
         Command::Monitor(args) => cli::monitor::main(args),
         Command::Map(args) => cli::map::main(args),
         Command::MapWatch(args) => cli::map_watch::main(args),

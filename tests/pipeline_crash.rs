@@ -909,3 +909,348 @@ fn sigint_and_sigterm_end_every_long_command_at_every_moment_with_a_valid_file()
         "{early} of {total} cases ended before their moment"
     );
 }
+
+// Issue #26, resume and extend: a run killed at random moments, or interrupted, and resumed,
+// and a finished run extended, give the analysis of the uninterrupted run, exactly.
+
+/// `chaoscope analyze FILE --json` (the whole report: every indicator of every scheme at the
+/// end, the curves' summary, the verdicts, the run's energy error and divergence).
+fn analysis_json(path: &Path) -> String {
+    run_ok(&["analyze", path.to_str().unwrap(), "--json"])
+}
+
+/// The Henon-Heiles orbit of `hh_config` with two schemes of different `tau` (resumable only
+/// at their common multiples), one on the window-propagator route, VM and MPM, QR and rescale.
+fn resumable_config(t_final: f64) -> String {
+    let mut config = hh_config(t_final, 0.5);
+    config.schemes[0].tau = 0.75;
+    let mut propagator = chaoscope_schemas::config::SchemeConfig::new("vm-window", "vm", 1e-8, 1.5);
+    propagator.route = Some("propagator".into());
+    config.schemes.push(propagator);
+    config.to_toml()
+}
+
+/// Moments in `[lo, hi)` seconds from a seeded generator (SplitMix64): the seed is printed, and
+/// `CHAOSCOPE_RESUME_SEED` replays a failure's moments.
+fn moments(n: usize, lo: f64, hi: f64) -> Vec<Duration> {
+    let seed = std::env::var("CHAOSCOPE_RESUME_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| {
+            std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .unwrap()
+                .as_nanos() as u64
+        });
+    eprintln!("kill moments from CHAOSCOPE_RESUME_SEED={seed}");
+    let mut state = seed;
+    (0..n)
+        .map(|_| {
+            state = state.wrapping_add(0x9e37_79b9_7f4a_7c15);
+            let mut z = state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+            let u = (z ^ (z >> 31)) as f64 / u64::MAX as f64;
+            Duration::from_secs_f64(lo + (hi - lo) * u)
+        })
+        .collect()
+}
+
+/// `chaoscope ARGS` in a process group of its own (so a signal to the group reaches the
+/// command and every process it started, as a batch system's kill does).
+fn spawn_group(args: &[&str]) -> Proc {
+    use std::os::unix::process::CommandExt;
+    let mut c = chaoscope_captured(args);
+    c.stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .process_group(0);
+    Proc::spawn(c)
+}
+
+fn signal_group(p: &Proc, signal: i32) {
+    // SAFETY: kill(2) on the process group our own child leads.
+    unsafe { libc::kill(-p.pid(), signal) };
+}
+
+#[test]
+fn a_run_killed_at_random_moments_and_resumed_gives_the_uninterrupted_analysis() {
+    let dir = tempfile::tempdir().unwrap();
+    // About 2.5 s of computing on one core of a Zen 3: kills land before, between and after
+    // the recorder's chunks (it closes one every second).
+    let config = write_config(dir.path(), &resumable_config(4_000.0));
+    let cfg = config.to_str().unwrap();
+    let run = unique_run("resume");
+    let whole = dir.path().join("whole.mcap");
+    run_ok(&["run", cfg, "--run", &run, "--out", whole.to_str().unwrap()]);
+    let want = analysis_json(&whole);
+
+    let mut resumed = 0;
+    for (i, moment) in moments(4, 0.2, 2.2).into_iter().enumerate() {
+        let out = dir.path().join(format!("killed-{i}.mcap"));
+        let o = out.to_str().unwrap();
+        // Case 3 is stopped by SIGTERM (an interrupted, finalized file), the others by SIGKILL
+        // of every process (a killed recorder's in-progress file).
+        let signal = if i == 3 { libc::SIGTERM } else { libc::SIGKILL };
+        let mut p = spawn_group(&["run", cfg, "--run", &run, "--out", o]);
+        std::thread::sleep(moment);
+        signal_group(&p, signal);
+        p.wait(LIMIT);
+        if out.exists() && analysis_json(&out) == want {
+            continue; // it had finished before its moment
+        }
+        let resume = chaoscope_captured(&["resume", o, "--json"])
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&resume.stderr);
+        if !resume.status.success() {
+            // Killed before the first chunk reached the disk: nothing to resume, said so.
+            assert!(
+                stderr.contains("holds no complete sample") && signal == libc::SIGKILL,
+                "case {i} ({moment:?}): {stderr}"
+            );
+            continue;
+        }
+        // Resumed in place: the in-progress file became the recording.
+        assert!(!chaoscope_os::output::partial_path(&out).exists());
+        assert_eq!(analysis_json(&out), want, "case {i}: killed at {moment:?}");
+        resumed += 1;
+    }
+    assert!(
+        resumed >= 2,
+        "only {resumed} of 4 kills left something to resume"
+    );
+
+    // A resume killed in turn is resumed again, to the same analysis.
+    let out = dir.path().join("twice.mcap");
+    let o = out.to_str().unwrap();
+    let mut p = spawn_group(&["run", cfg, "--run", &run, "--out", o]);
+    wait_for_size(&out, 100_000);
+    signal_group(&p, libc::SIGKILL);
+    p.wait(LIMIT);
+    let mut p = spawn_group(&["resume", o]);
+    std::thread::sleep(Duration::from_millis(500));
+    signal_group(&p, libc::SIGKILL);
+    p.wait(LIMIT);
+    // Unless the resume had finished before its kill (then the run is complete).
+    let again = chaoscope_captured(&["resume", o]).output().unwrap();
+    assert!(
+        again.status.success()
+            || String::from_utf8_lossy(&again.stderr).contains("the run is complete"),
+        "{}",
+        String::from_utf8_lossy(&again.stderr)
+    );
+    assert_eq!(analysis_json(&out), want, "a resume killed and resumed");
+    // A killed resume leaves nothing behind but the recording.
+    let names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("twice"))
+        .collect();
+    assert_eq!(names, ["twice.mcap"]);
+}
+
+#[test]
+fn a_finished_run_extended_to_twice_its_t_final_is_the_longer_run() {
+    let dir = tempfile::tempdir().unwrap();
+    // t_final = 250.25 ends off the schemes' common multiple of 1.5: the extension drops the
+    // recording's last sample (at the old end, where every scheme renormalized only because the
+    // run ended) and continues from t = 249.
+    let rossler = r#"
+[model]
+name = "ode"
+rhs = ["-x2 - x3", "x1 + a*x2", "b + x3*(x1 - c)"]
+params = { a = 0.2, b = 0.2, c = 5.7 }
+[orbit]
+x = [1.0, 1.0, 0.0]
+[integrator]
+method = "dop853"
+h = 0.01
+t_final = T
+[deviations]
+k = 3
+sets = 2
+seed = 5
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1.0
+orthonormalize = "qr"
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-8
+tau = 0.5
+"#;
+    let cases = [
+        ("henon-heiles", resumable_config(250.25), 250.25, 500.5),
+        ("rossler", rossler.replace("T", "150.25"), 150.25, 300.5),
+    ];
+    for (name, short, t, twice) in cases {
+        let run = unique_run("extend");
+        let long_cfg = write_config(
+            dir.path(),
+            &short.replace(&format!("t_final = {t}"), &format!("t_final = {twice}")),
+        );
+        let long = dir.path().join(format!("{name}-long.mcap"));
+        run_ok(&[
+            "run",
+            long_cfg.to_str().unwrap(),
+            "--run",
+            &run,
+            "--out",
+            long.to_str().unwrap(),
+        ]);
+        let short_cfg = dir.path().join(format!("{name}-short.toml"));
+        std::fs::write(&short_cfg, &short).unwrap();
+        let finished = dir.path().join(format!("{name}.mcap"));
+        let f = finished.to_str().unwrap();
+        run_ok(&[
+            "run",
+            short_cfg.to_str().unwrap(),
+            "--run",
+            &run,
+            "--out",
+            f,
+        ]);
+        let before = std::fs::read(&finished).unwrap();
+
+        // A finished run is not resumed without a later end.
+        let again = chaoscope_captured(&["resume", f]).output().unwrap();
+        assert!(!again.status.success());
+        assert!(
+            String::from_utf8_lossy(&again.stderr).contains("the run is complete at t_final"),
+            "{}",
+            String::from_utf8_lossy(&again.stderr)
+        );
+        // Into another file: the recording stays as it was.
+        let other = dir.path().join(format!("{name}-extended.mcap"));
+        let twice_s = twice.to_string();
+        run_ok(&[
+            "resume",
+            f,
+            "--t-final",
+            &twice_s,
+            "--out",
+            other.to_str().unwrap(),
+        ]);
+        assert_eq!(std::fs::read(&finished).unwrap(), before);
+        let want = analysis_json(&long);
+        assert_eq!(
+            analysis_json(&other),
+            want,
+            "{name} extended into another file"
+        );
+        // In place.
+        run_ok(&["resume", f, "--t-final", &twice_s]);
+        assert_eq!(analysis_json(&finished), want, "{name} extended in place");
+    }
+}
+
+#[test]
+fn what_cannot_be_resumed_is_refused_naming_why() {
+    let dir = tempfile::tempdir().unwrap();
+    let refused = |args: &[&str], needle: &str| {
+        let out = chaoscope_captured(args).output().unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{args:?}: {stderr}");
+        assert!(stderr.contains(needle), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    };
+    let missing = dir.path().join("none.mcap");
+    refused(&["resume", missing.to_str().unwrap()], "no such recording");
+    let junk = dir.path().join("junk.mcap");
+    std::fs::write(&junk, b"not a recording").unwrap();
+    refused(&["resume", junk.to_str().unwrap()], "not an MCAP file");
+
+    // Adaptive step sizes carry the controller's state from step to step.
+    let adaptive = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/models/rossler.toml"),
+    )
+    .unwrap()
+    .replace("t_final = 10000.0", "t_final = 20.0");
+    let cfg = write_config(dir.path(), &adaptive);
+    let rec = dir.path().join("adaptive.mcap");
+    let run = unique_run("adaptive");
+    run_ok(&[
+        "run",
+        cfg.to_str().unwrap(),
+        "--run",
+        &run,
+        "--out",
+        rec.to_str().unwrap(),
+    ]);
+    refused(
+        &["resume", rec.to_str().unwrap(), "--t-final", "40"],
+        "dop853 with tolerances chooses each substep from the one before",
+    );
+
+    // An escaped orbit would escape again.
+    let escaping = r#"
+[model]
+name = "potential"
+n = 1
+potential = "-q1^4"
+[orbit]
+q = [1.0]
+p = [1.0]
+[integrator]
+method = "leapfrog"
+h = 0.01
+t_final = 50.0
+[deviations]
+k = 1
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1.0
+"#;
+    let cfg = dir.path().join("escaping.toml");
+    std::fs::write(&cfg, escaping).unwrap();
+    let rec = dir.path().join("escaped.mcap");
+    let run = unique_run("escaped");
+    let _ = chaoscope_captured(&[
+        "run",
+        cfg.to_str().unwrap(),
+        "--run",
+        &run,
+        "--out",
+        rec.to_str().unwrap(),
+    ])
+    .output()
+    .unwrap();
+    refused(
+        &["resume", rec.to_str().unwrap(), "--t-final", "100"],
+        "a continuation would fail the same way",
+    );
+
+    // A run still being recorded is its recorder's.
+    let config = write_config(dir.path(), &resumable_config(1e6));
+    let live = dir.path().join("live.mcap");
+    let run = unique_run("live");
+    let mut p = spawn_group(&[
+        "run",
+        config.to_str().unwrap(),
+        "--run",
+        &run,
+        "--out",
+        live.to_str().unwrap(),
+    ]);
+    wait_for_size(&live, 1);
+    refused(
+        &["resume", live.to_str().unwrap()],
+        "is being written by another live process",
+    );
+    refused(
+        &[
+            "resume",
+            live.to_str().unwrap(),
+            "--out",
+            dir.path().join("elsewhere.mcap").to_str().unwrap(),
+        ],
+        "is being written by another live process",
+    );
+    signal_group(&p, libc::SIGINT);
+    p.wait(LIMIT);
+}

@@ -211,3 +211,114 @@ fn map_array_under_slurm_requeues_a_task_resumes_it_and_merges_bit_identically()
     assert_eq!(map_points(&out_dir.join("map.mcap")), want);
     assert!(std::fs::metadata(out_dir.join("map.png")).unwrap().len() > 1000);
 }
+
+/// The paper's chaotic Henon-Heiles orbit, VM and MPM with k = 2, long enough (about 4 s on one
+/// core of a Zen 3) to be requeued after its recorder closed its first chunks (one a second).
+const RUN_CONFIG: &str = r#"
+[model]
+name = "henon-heiles"
+
+[orbit]
+q = [0.0, -0.25]
+p = [0.0, 0.0]
+energy = 0.125
+solve_for = "p1"
+
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = 100000.0
+
+[deviations]
+k = 2
+sets = 1
+seed = 1
+
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1.0
+
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-8
+tau = 1.0
+orthonormalize = "qr"
+"#;
+
+#[test]
+#[ignore = "needs a running Slurm cluster: tests/slurm/start-cluster.sh (root), then --ignored"]
+fn a_requeued_run_resumes_by_itself_to_the_uninterrupted_analysis() {
+    let sinfo = Command::new("sinfo").arg("-h").output();
+    assert!(
+        matches!(&sinfo, Ok(o) if o.status.success()),
+        "no Slurm cluster answers (sinfo failed); start one with tests/slurm/start-cluster.sh"
+    );
+    let bin = PathBuf::from(env!("CARGO_BIN_EXE_chaoscope"));
+    let tmp = tempfile::tempdir().unwrap();
+    let d = tmp.path();
+    let cfg = d.join("run.toml");
+    std::fs::write(&cfg, RUN_CONFIG).unwrap();
+    let analysis = |path: &Path| run(Command::new(&bin).args(["analyze", "--json"]).arg(path));
+
+    // The reference: the same run uninterrupted, outside Slurm.
+    let whole = d.join("whole.mcap");
+    run(Command::new(&bin)
+        .args(["run", "--run", "requeue-test", "--out"])
+        .arg(&whole)
+        .arg(&cfg));
+    let want = analysis(&whole);
+
+    // The job as a user writes it: `chaoscope run` with --requeue, nothing else.
+    let out = d.join("run.mcap");
+    let log = d.join("run.out");
+    let job = run(Command::new("sbatch")
+        .args(["--parsable", "--requeue", "--cpus-per-task=1", "--mem=500M"])
+        .args(["--time=00:10:00", "--job-name=chaoscope-run"])
+        .arg(format!("--output={}", log.display()))
+        .arg(format!(
+            "--wrap='{}' run '{}' --run requeue-test --out '{}'",
+            bin.display(),
+            cfg.display(),
+            out.display()
+        )));
+    let job = job.trim().to_string();
+
+    // Requeue it once its recording holds complete chunks and it is still computing. Slurm
+    // stops it with SIGTERM: the recorder finalizes an interrupted file.
+    let partial = chaoscope_os::output::partial_path(&out);
+    wait_until("the run's first chunks", Duration::from_secs(120), || {
+        std::fs::metadata(&partial).is_ok_and(|m| m.len() > 1_000_000)
+    });
+    assert_eq!(
+        state(&job),
+        "RUNNING",
+        "the run finished before it could be requeued"
+    );
+    run(Command::new("scontrol").args(["requeue", &job]));
+    wait_until(
+        "the run to be pending again",
+        Duration::from_secs(60),
+        || state(&job) == "PENDING",
+    );
+    std::thread::sleep(Duration::from_secs(2));
+    run(Command::new("scontrol").args(["update", &format!("JobId={job}"), "StartTime=now"]));
+    wait_until("the requeued run", Duration::from_secs(300), || {
+        let s = state(&job);
+        assert!(
+            !matches!(s.as_str(), "FAILED" | "CANCELLED" | "TIMEOUT" | "NODE_FAIL"),
+            "run {s}: {}",
+            std::fs::read_to_string(&log).unwrap_or_default()
+        );
+        s == "COMPLETED"
+    });
+    assert_eq!(job_fields(&job).unwrap()["Restarts"], "1", "requeued once");
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(
+        text.contains("requeued by Slurm: continuing") && text.contains("samples copied"),
+        "the second run did not resume:\n{text}"
+    );
+    assert_eq!(analysis(&out), want, "the requeued run's analysis");
+}

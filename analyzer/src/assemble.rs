@@ -19,6 +19,7 @@ fn empty_sample(seq: u64, step: u64, t: f64) -> Sample {
         state: Vec::new(),
         energy: f64::NAN,
         mean_divergence: f64::NAN,
+        divergence_sum: f64::NAN,
         schemes: Vec::new(),
     }
 }
@@ -38,6 +39,7 @@ impl SampleAssembler {
             state: m.state,
             energy: m.energy,
             mean_divergence: m.mean_divergence,
+            divergence_sum: m.divergence_sum,
             schemes: Vec::new(),
         });
         done

@@ -62,6 +62,9 @@ pub enum ReadError {
 #[derive(Debug, Clone, Default)]
 pub struct RecordingInfo {
     pub end: Option<EndOfRun>,
+    /// Where and why a reader opened with [`RecordingReader::open_salvaging`] stopped before the
+    /// end of the file (a killed writer's cut chunk, damage); `None` if it read the whole file.
+    pub damage: Option<String>,
     pub summary: Option<RecordingSummary>,
     /// File bytes read.
     pub bytes: u64,
@@ -73,6 +76,8 @@ pub struct RecordingReader {
     messages: Messages<BufReader<File>>,
     run: RunInfo,
     assembler: SampleAssembler,
+    /// Damage ends the file instead of failing ([`RecordingReader::open_salvaging`]).
+    salvaging: bool,
     /// What the values read so far allow next ([`SampleCheck`]).
     check: SampleCheck,
     pub info: RecordingInfo,
@@ -142,7 +147,11 @@ impl SampleCheck {
     }
 
     fn reference(&mut self, run: &RunInfo, r: &ReferenceState) -> Result<(), String> {
-        for (field, v) in [("energy", r.energy), ("mean_divergence", r.mean_divergence)] {
+        for (field, v) in [
+            ("energy", r.energy),
+            ("mean_divergence", r.mean_divergence),
+            ("divergence_sum", r.divergence_sum),
+        ] {
             if !v.is_finite() {
                 return Err(format!("{field} = {v:?}"));
             }
@@ -234,11 +243,22 @@ impl SampleCheck {
 
 impl RecordingReader {
     pub fn open(path: &Path) -> Result<Self, ReadError> {
+        Self::open_with(path, false)
+    }
+
+    /// Opens a recording whose writer may have been killed: it reads every complete chunk up to
+    /// the first damage and ends there (saying where in [`RecordingInfo::damage`]), as
+    /// `chaoscope recover` would salvage it; values no producer writes are still refused.
+    pub fn open_salvaging(path: &Path) -> Result<Self, ReadError> {
+        Self::open_with(path, true)
+    }
+
+    fn open_with(path: &Path, salvaging: bool) -> Result<Self, ReadError> {
         let (scanner, meta) = Scanner::open_file(path)?;
         let mut messages = Messages::new(scanner);
         // The run header is the first message of every recording.
         let header = loop {
-            let Some(m) = next(&mut messages, path)? else {
+            let Some(m) = next(&mut messages, path, false)? else {
                 return Err(ReadError::NoHeader {
                     path: path.to_path_buf(),
                 });
@@ -260,6 +280,7 @@ impl RecordingReader {
             messages,
             run,
             assembler: SampleAssembler::new(),
+            salvaging,
             check: SampleCheck::default(),
             info: RecordingInfo {
                 bytes: meta.len(),
@@ -285,7 +306,12 @@ impl RecordingReader {
     /// end of the file. Recording summaries are collected into [`RecordingReader::info`].
     pub fn next_message(&mut self) -> Result<Option<DataMessage>, ReadError> {
         loop {
-            let Some(m) = next(&mut self.messages, &self.path)? else {
+            let Some(m) = next(&mut self.messages, &self.path, self.salvaging)? else {
+                if self.salvaging {
+                    self.info
+                        .damage
+                        .clone_from(&self.messages.scan().stopped_at);
+                }
                 return Ok(None);
             };
             let t = &*m.topic;
@@ -351,16 +377,18 @@ impl RecordingReader {
     }
 }
 
-/// The next message of the file at `path`; `None` at its end, an error if it is damaged.
+/// The next message of the file at `path`; `None` at its end, an error if it is damaged
+/// (unless `salvaging`: then damage ends it too).
 fn next(
     messages: &mut Messages<BufReader<File>>,
     path: &Path,
+    salvaging: bool,
 ) -> Result<Option<scan::Message>, ReadError> {
     let m = messages
         .next_message()
         .map_err(|e| FileError::io(path, e))?;
     match (m, &messages.scan().stopped_at) {
-        (None, Some(why)) => Err(ReadError::Damaged {
+        (None, Some(why)) if !salvaging => Err(ReadError::Damaged {
             path: path.to_path_buf(),
             why: why.clone(),
         }),

@@ -79,6 +79,41 @@ impl SampleWriter {
         })
     }
 
+    /// A new recording written into `output` as it stands: its in-progress file, or the fresh
+    /// file beside a leftover that [`Output::start_fresh`] started (a run resumed from it).
+    pub fn create_in(output: Output, header: &RunHeader) -> Result<Self, WriteError> {
+        let path = output.target().to_path_buf();
+        let out = BufWriter::with_capacity(1 << 20, output.file()?);
+        let file = RecordingFile::create(out, header, &FileOptions::default())
+            .map_err(|error| WriteError::Mcap { path, error })?;
+        Ok(Self {
+            file,
+            output,
+            frame: 0,
+            samples: 0,
+            last: (0, 0.0),
+            dim: header.dim,
+            k: header.k,
+        })
+    }
+
+    /// Puts what was written so far on disk in whole chunks (what a kill can lose is bounded
+    /// by the time since).
+    pub fn checkpoint(&mut self) -> Result<(), WriteError> {
+        let path = self.output.target().to_path_buf();
+        self.file
+            .close_chunk()
+            .map_err(|error| WriteError::Mcap { path, error })
+    }
+
+    /// Once the file holds everything the leftover it continues held: on disk, and put in the
+    /// leftover's place ([`Output::adopt_fresh`]).
+    pub fn adopt_fresh(&mut self) -> Result<(), WriteError> {
+        self.checkpoint()?;
+        self.output.adopt_fresh()?;
+        Ok(())
+    }
+
     pub fn write(&mut self, s: &Sample) -> mcap::McapResult<()> {
         self.file.write(&DataMessage::Reference(ReferenceState {
             frame: self.frame,
@@ -88,6 +123,7 @@ impl SampleWriter {
             energy: s.energy,
             state: s.state.clone(),
             mean_divergence: s.mean_divergence,
+            divergence_sum: s.divergence_sum,
         }))?;
         self.frame += 1;
         for set in &s.schemes {

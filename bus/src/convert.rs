@@ -152,6 +152,7 @@ fn decode_records(
                 energy: f64::from_bits(a),
                 state: f64s(body),
                 mean_divergence: f64::from_bits(b),
+                divergence_sum: f64::from_bits(k),
             })
         } else {
             let (Ok(scheme), Ok(set), Ok(k32), Ok(dim32)) = (
@@ -216,14 +217,17 @@ mod tests {
         let mut b = RecordBatch::new(7);
         // Values whose bits a conversion through decimal or arithmetic could change.
         let state = [-0.0, f64::MIN_POSITIVE / 4.0, 1.0 / 3.0, -2.5e300];
-        b.push_reference(3, 300, 3.0, 0.125, -1e-17, &state);
+        b.push_reference(3, 300, 3.0, 0.125, -1e-17, -3e-17, &state);
         b.push_separations(3, 300, 3.0, 1, 2, 2, &[1.0, 2.0, 3.0, 4.0], &[0.5, 0.25]);
         let out = decode(&b.header(), b.words()).unwrap();
         let DataMessage::Reference(r) = &out[0] else {
             panic!()
         };
         assert_eq!((r.frame, r.seq, r.step, r.t), (7, 3, 300, 3.0));
-        assert_eq!((r.energy, r.mean_divergence), (0.125, -1e-17));
+        assert_eq!(
+            (r.energy, r.mean_divergence, r.divergence_sum),
+            (0.125, -1e-17, -3e-17)
+        );
         let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&r.state), bits(&state));
         let DataMessage::Separations(m) = &out[1] else {
@@ -244,7 +248,7 @@ mod tests {
     #[test]
     fn a_frame_breaking_the_layout_is_refused_whole() {
         let mut b = RecordBatch::new(0);
-        b.push_reference(0, 0, 0.0, 0.1, 0.0, &[1.0; 4]);
+        b.push_reference(0, 0, 0.0, 0.1, 0.0, 0.0, &[1.0; 4]);
         b.push_separations(0, 0, 0.0, 0, 0, 2, &[1.0; 4], &[1.0; 2]);
         let words = b.words().to_vec();
         let h = b.header();

@@ -24,7 +24,7 @@
 //! | 3    | t                              | t                                      |
 //! | 4    | energy                         | scheme index                           |
 //! | 5    | mean divergence                | set                                    |
-//! | 6    | 0                              | `k`, vectors per set                   |
+//! | 6    | divergence sum                 | `k`, vectors per set                   |
 //! | 7    | `dim`                          | `dim`                                  |
 //! | then | the state (`dim` values)       | `k` vectors of `dim`, `k` stretches    |
 //!
@@ -49,8 +49,9 @@ use iceoryx2::prelude::*;
 use chaoscope_schemas::FORMAT_VERSION;
 
 /// Version of the data frames' layout on the bus (not of the files: [`FORMAT_VERSION`]).
-/// 2: several records per frame, payload in words.
-pub const BUS_PROTOCOL: u32 = 2;
+/// 2: several records per frame, payload in words. 3: the reference record's word 6 carries
+/// the divergence sum (0 before).
+pub const BUS_PROTOCOL: u32 = 3;
 
 /// Longest end-of-run reason carried on the bus (longer reasons are cut at a char boundary).
 pub const MAX_REASON_LEN: usize = 240;
@@ -248,6 +249,7 @@ impl RecordBatch {
     }
 
     /// Appends a reference-state record.
+    #[allow(clippy::too_many_arguments)]
     pub fn push_reference(
         &mut self,
         sample_seq: u64,
@@ -255,6 +257,7 @@ impl RecordBatch {
         t: f64,
         energy: f64,
         mean_divergence: f64,
+        divergence_sum: f64,
         state: &[f64],
     ) {
         let head = [
@@ -264,7 +267,7 @@ impl RecordBatch {
             t.to_bits(),
             energy.to_bits(),
             mean_divergence.to_bits(),
-            0,
+            divergence_sum.to_bits(),
             state.len() as u64,
         ];
         self.push_record(head, &[state]);
@@ -396,7 +399,7 @@ mod tests {
     fn a_batch_numbers_its_records_from_its_first() {
         let mut b = RecordBatch::new(5);
         assert!(b.is_empty());
-        b.push_reference(0, 0, 0.0, 0.125, 0.0, &[1.0, 2.0]);
+        b.push_reference(0, 0, 0.0, 0.125, 0.0, 0.0, &[1.0, 2.0]);
         b.push_separations(0, 0, 0.0, 1, 0, 2, &[0.5, 0.25], &[1.0]);
         assert_eq!((b.next_frame(), b.value_words()), (7, 5));
         assert_eq!(

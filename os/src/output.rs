@@ -351,6 +351,7 @@ impl Output {
             return self.file();
         }
         if self.fresh.is_none() {
+            remove_dead_fresh(&self.partial);
             self.fresh = Some(crate::signals::critical(|| {
                 let (path, file) = create_unique(&self.partial)?;
                 let cleanup = Cleanup::register(&path);
@@ -611,6 +612,58 @@ fn check_partial(partial: &Path, meta: &std::fs::Metadata) -> Result<(), OutputE
 }
 
 /// Creates `PARTIAL.<pid>[.<n>]` exclusively and locks it.
+/// Removes the fresh files (`NAME.partial.<pid>[.<n>]`, [`create_unique`]) that writers killed
+/// before adopting or committing them left beside the in-progress file `partial`, whose
+/// leftover this process holds locked: a fresh file never adopted holds nothing the leftover
+/// does not. Only regular files of a process that is gone (no process has its pid, and nobody
+/// holds the file's lock); anything else stays.
+fn remove_dead_fresh(partial: &Path) {
+    let (Some(dir), Some(name)) = (partial.parent(), partial.file_name()) else {
+        return;
+    };
+    let dir = if dir.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        dir
+    };
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    let prefix = format!("{}.", name.to_string_lossy());
+    for entry in entries.flatten() {
+        let file_name = entry.file_name();
+        let file_name = file_name.to_string_lossy();
+        let Some(rest) = file_name.strip_prefix(&prefix) else {
+            continue;
+        };
+        let mut parts = rest.split('.');
+        let pid = parts.next().and_then(|p| p.parse::<i32>().ok());
+        let numbered = parts.all(|p| !p.is_empty() && p.bytes().all(|b| b.is_ascii_digit()));
+        let Some(pid) = pid.filter(|&p| p > 0 && numbered) else {
+            continue;
+        };
+        // SAFETY: kill(2) with signal 0 only asks whether the process exists.
+        let alive = unsafe { libc::kill(pid, 0) } == 0
+            || io::Error::last_os_error().raw_os_error() == Some(libc::EPERM);
+        if alive || pid as u32 == std::process::id() {
+            continue;
+        }
+        let path = entry.path();
+        let Ok(file) = OpenOptions::new()
+            .read(true)
+            .custom_flags(open_flags())
+            .open(&path)
+        else {
+            continue;
+        };
+        if file.metadata().is_ok_and(|m| m.file_type().is_file())
+            && matches!(try_lock(&file, &path), Ok(true))
+        {
+            remove_if_same(&path, &file);
+        }
+    }
+}
+
 fn create_unique(partial: &Path) -> Result<(PathBuf, File), OutputError> {
     for n in 0..1000u32 {
         let mut s = partial.as_os_str().to_owned();

@@ -50,6 +50,11 @@ pub enum RunError {
     Tangent(#[from] TangentError),
 }
 
+/// Why a recorded run cannot be resumed from a sample ([`Engine::resume`]).
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("{0}")]
+pub struct ResumeError(pub String);
+
 /// Beyond this norm a state is treated as escaped: polynomial forces overflow soon after.
 const ESCAPE_NORM: f64 = 1e100;
 
@@ -92,43 +97,14 @@ pub struct Engine {
 
 impl Engine {
     pub fn new(spec: RunSpec) -> Self {
-        let dim = spec.dim();
-        let mut tasks = Vec::with_capacity(spec.schemes().len() * spec.sets());
-        let x0 = spec.x0();
-        for (si, scheme) in spec.schemes().iter().enumerate() {
-            let method = method::of(scheme.method);
-            let task = |set, lanes, propagated| DeviationSet {
-                scheme: si,
-                set,
-                method,
-                lanes,
-                propagated,
-                work: Workspace::new(),
-                rows: Vec::new(),
-            };
-            if scheme.route == Route::WindowPropagator {
-                let sets = spec
-                    .directions()
-                    .iter()
-                    .map(|d| d.scaled(scheme.d0))
-                    .collect();
-                tasks.push(task(0, identity_lanes(method, x0), Some(sets)));
-                continue;
-            }
-            for (set, dirs) in spec.directions().iter().enumerate() {
-                let scaled = dirs.scaled(scheme.d0);
-                let mut lanes = Soa::unpadded(dim, spec.k());
-                let mut lane = vec![0.0; dim];
-                for (i, d) in scaled.chunks_exact(dim).enumerate() {
-                    method.start(x0, d, &mut lane);
-                    lanes.write_lane(i, &lane);
-                }
-                tasks.push(task(set, lanes, None));
-            }
-        }
-        let divergence = spec.system().divergence(spec.x0(), 0.0).map(|d| (d, 0.0));
+        let x0 = spec.x0().to_vec();
+        let divergence = spec.system().divergence(&x0, 0.0).map(|d| (d, 0.0));
+        // Every set starts from its directions at distance d0.
+        let tasks = tasks(&spec, &x0, |scheme, set| {
+            spec.directions()[set].scaled(spec.schemes()[scheme].d0)
+        });
         Self {
-            reference: spec.x0().to_vec(),
+            reference: x0,
             spec,
             work: Workspace::new(),
             tasks,
@@ -141,6 +117,84 @@ impl Engine {
         }
     }
 
+    /// The engine of a run recorded up to `sample`, at the point it was at just after emitting
+    /// it: the next call of [`Engine::next_sample`] returns the sample after it, bit for bit
+    /// what the uninterrupted run gives. Everything the engine carries from one window to the
+    /// next is in a sample at which every scheme renormalized: the reference state, each set's
+    /// separations (renormalized again here by the same function, to the same bits), the step,
+    /// the sample number and the divergence sum; the random directions are drawn only at t = 0.
+    /// `sample` must be one of this `spec`'s run (the caller checks the recording's header
+    /// against it): what can still be wrong is said, never panicked on.
+    pub fn resume(spec: RunSpec, sample: &Sample) -> Result<Self, ResumeError> {
+        let dim = spec.dim();
+        if let Err(why) = spec.system().resumable() {
+            return Err(ResumeError(why));
+        }
+        if sample.state.len() != dim || sample.step > spec.total_steps() {
+            return Err(ResumeError(format!(
+                "sample {} (step {}, {} state values) is not a sample of this run (dimension \
+                 {dim}, {} steps)",
+                sample.seq,
+                sample.step,
+                sample.state.len(),
+                spec.total_steps()
+            )));
+        }
+        let every = spec
+            .schemes()
+            .iter()
+            .all(|s| sample.step.is_multiple_of(s.tau_steps));
+        let sets = spec.schemes().len() * spec.sets();
+        if !every || sample.schemes.len() != sets {
+            return Err(ResumeError(format!(
+                "sample {} (step {}) is not one at which every scheme renormalized, which a run \
+                 resumes from",
+                sample.seq, sample.step
+            )));
+        }
+        // Each (scheme, set)'s vectors as the engine left them: its separations renormalized.
+        let mut renormalized = Vec::with_capacity(sets);
+        for (i, s) in sample.schemes.iter().enumerate() {
+            let (scheme, set) = (i / spec.sets(), i % spec.sets());
+            if (s.scheme as usize, s.set as usize) != (scheme, set)
+                || s.separations.len() != spec.k() * dim
+            {
+                return Err(ResumeError(format!(
+                    "sample {}: separation set {i} is scheme {} set {} with {} values, where \
+                     scheme {scheme} set {set} with {} values belongs",
+                    sample.seq,
+                    s.scheme,
+                    s.set,
+                    s.separations.len(),
+                    spec.k() * dim
+                )));
+            }
+            let mut vectors = s.separations.clone();
+            renormalized_in_place(&spec, scheme, set, &mut vectors, sample.t)
+                .map_err(|e| ResumeError(e.to_string()))?;
+            renormalized.push(vectors);
+        }
+        let divergence = spec
+            .system()
+            .divergence(&sample.state, sample.t)
+            .map(|d| (d, sample.divergence_sum));
+        let tasks = tasks(&spec, &sample.state, |scheme, set| {
+            renormalized[scheme * spec.sets() + set].clone()
+        });
+        Ok(Self {
+            reference: sample.state.clone(),
+            spec,
+            work: Workspace::new(),
+            tasks,
+            step: sample.step,
+            next_seq: sample.seq + 1,
+            divergence,
+            plan: Vec::new(),
+            plan_bounds: Vec::new(),
+            parallel_min_work: PARALLEL_MIN_WORK,
+        })
+    }
+
     /// The mean divergence from t = 0 to step `step` (see [`Sample::mean_divergence`]).
     fn mean_divergence(&self, step: u64) -> f64 {
         match self.divergence {
@@ -148,6 +202,11 @@ impl Engine {
             Some((now, _)) if step == 0 => now,
             Some((_, integral)) => integral / self.spec.time_of(step),
         }
+    }
+
+    /// The divergence's integral (or sum) from t = 0 to now (see [`Sample::divergence_sum`]).
+    fn divergence_sum(&self) -> f64 {
+        self.divergence.map_or(0.0, |(_, sum)| sum)
     }
 
     pub fn spec(&self) -> &RunSpec {
@@ -274,6 +333,7 @@ impl Engine {
             state: self.reference.clone(),
             energy,
             mean_divergence: self.mean_divergence(target),
+            divergence_sum: self.divergence_sum(),
             schemes,
         }))
     }
@@ -304,6 +364,7 @@ impl Engine {
             state: self.reference.clone(),
             energy: self.spec.e0(),
             mean_divergence: self.mean_divergence(0),
+            divergence_sum: self.divergence_sum(),
             schemes,
         }
     }
@@ -456,6 +517,46 @@ impl PointKernel for AlongReference<'_> {
 
 /// The window propagator's lanes: the identity, `e_j` in lane `j` (unit vectors: the window
 /// propagator is VM's, and the tangent map is linear).
+/// Every (scheme, set)'s task at reference state `x`, its deviation vectors (`k` of the run's
+/// dimension, at their scheme's scale) given by `vectors(scheme index, set)`: at t = 0 the
+/// sets' directions, on resuming the recorded separations renormalized.
+fn tasks(
+    spec: &RunSpec,
+    x: &[f64],
+    vectors: impl Fn(usize, usize) -> Vec<f64>,
+) -> Vec<DeviationSet> {
+    let dim = spec.dim();
+    let mut tasks = Vec::with_capacity(spec.schemes().len() * spec.sets());
+    for (si, scheme) in spec.schemes().iter().enumerate() {
+        let method = method::of(scheme.method);
+        let task = |set, lanes, propagated| DeviationSet {
+            scheme: si,
+            set,
+            method,
+            lanes,
+            propagated,
+            work: Workspace::new(),
+            rows: Vec::new(),
+        };
+        if scheme.route == Route::WindowPropagator {
+            let sets = (0..spec.sets()).map(|set| vectors(si, set)).collect();
+            tasks.push(task(0, identity_lanes(method, x), Some(sets)));
+            continue;
+        }
+        for set in 0..spec.sets() {
+            let scaled = vectors(si, set);
+            let mut lanes = Soa::unpadded(dim, spec.k());
+            let mut lane = vec![0.0; dim];
+            for (i, d) in scaled.chunks_exact(dim).enumerate() {
+                method.start(x, d, &mut lane);
+                lanes.write_lane(i, &lane);
+            }
+            tasks.push(task(set, lanes, None));
+        }
+    }
+    tasks
+}
+
 fn identity_lanes(method: &dyn DeviationMethod, x: &[f64]) -> Soa {
     let dim = x.len();
     let mut lanes = Soa::unpadded(dim, dim);
@@ -543,8 +644,26 @@ fn renormalized(
     vectors: &mut [f64],
     t: f64,
 ) -> Result<SchemeSample, RunError> {
-    let s = &spec.schemes()[scheme];
     let separations = vectors.to_vec();
+    let stretch = renormalized_in_place(spec, scheme, set, vectors, t)?;
+    Ok(SchemeSample {
+        scheme: scheme as u32,
+        set: set as u32,
+        separations,
+        stretch,
+    })
+}
+
+/// Renormalizes set `set` of scheme `scheme` in place and returns the stretching factors: the
+/// one renormalization of a run, and of a resumed run's recorded separations.
+fn renormalized_in_place(
+    spec: &RunSpec,
+    scheme: usize,
+    set: usize,
+    vectors: &mut [f64],
+    t: f64,
+) -> Result<Vec<f64>, RunError> {
+    let s = &spec.schemes()[scheme];
     let mut stretch = vec![0.0; spec.k()];
     renormalization::renormalize(vectors, spec.dim(), s.d0, s.orthonormalize, &mut stretch)
         .map_err(|source| RunError::Renormalization {
@@ -553,12 +672,7 @@ fn renormalized(
             t,
             source,
         })?;
-    Ok(SchemeSample {
-        scheme: scheme as u32,
-        set: set as u32,
-        separations,
-        stretch,
-    })
+    Ok(stretch)
 }
 
 #[cfg(test)]

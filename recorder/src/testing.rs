@@ -138,6 +138,7 @@ fn run_messages_with(
             energy: 1.0 + noise.next_f64(1e-12),
             state,
             mean_divergence: 0.0,
+            divergence_sum: 0.0,
         }));
         frame += 1;
         for set in 0..shape.sets {

@@ -4,7 +4,8 @@
 //! - this module: replay, below;
 //! - [`flow`]: the system's vector field for the analysis (OFLI), from a run or a recording;
 //! - [`inprocess`]: a run computed in this process by the engine, fed to an analysis (tests,
-//!   sweeps, the Python package's quick paths).
+//!   sweeps, the Python package's quick paths);
+//! - [`resume`]: a killed, interrupted or finished run continued from its recording.
 //!
 //! # Replay
 //!
@@ -40,6 +41,7 @@ use chaoscope_schemas::proto::{RunHeader, end_of_run};
 
 pub mod flow;
 pub mod inprocess;
+pub mod resume;
 
 #[derive(Debug, Clone, Default)]
 pub struct ReplayOptions {

@@ -177,6 +177,10 @@ pub struct Sample {
     /// at the initial state for t = 0; 0 for systems that conserve volume), see
     /// the system's divergence.
     pub mean_divergence: f64,
+    /// The integral (flows) or sum (maps) of the divergence from t = 0 to `t`, as the engine
+    /// accumulates it (`mean_divergence` is it over `t`): a resumed run continues from it, as
+    /// the mean alone cannot give it back to the bit. 0 for systems that conserve volume.
+    pub divergence_sum: f64,
     /// The schemes renormalized at this step, ordered by (scheme, set).
     pub schemes: Vec<SchemeSample>,
 }

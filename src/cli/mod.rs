@@ -14,6 +14,7 @@ pub mod produce;
 pub mod record;
 pub mod recover;
 pub mod replay;
+pub mod resume;
 pub mod run;
 pub mod section;
 

@@ -128,11 +128,24 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         .out
         .clone()
         .unwrap_or_else(|| Path::new("runs").join(format!("{run}.mcap")));
+    // A job Slurm requeued (preempted, or `scontrol requeue`) runs this command again: it
+    // continues the recording its first run left instead of refusing or starting over.
+    let mut force = args.force;
+    if requeued_by_slurm()
+        && (std::fs::symlink_metadata(&out).is_ok()
+            || std::fs::symlink_metadata(chaoscope_os::output::partial_path(&out)).is_ok())
+    {
+        match resume_requeued(&config, &out)? {
+            Some(code) => return Ok(code),
+            // Nothing on disk to continue from: the leftover goes and the run starts afresh.
+            None => force = true,
+        }
+    }
     // What the recorder will refuse, said before anything starts.
     chaoscope_os::output::check_target(
         &out,
         &chaoscope_os::OutputOptions {
-            replace: args.force,
+            replace: force,
             inputs: args.config.iter().cloned().collect(),
             ..Default::default()
         },
@@ -149,7 +162,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     produce
         .args(["-", "--run", &run, "--recorders", "1", "--under-run"])
         .stdin(Stdio::piped());
-    if args.force {
+    if force {
         produce.arg("--force");
     }
     let mut producer = Role::spawn("producer", produce)?;
@@ -190,7 +203,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         if recorder.is_none() && !producer_done && signal.is_none() && opened.try_recv().is_ok() {
             let mut record = child_command("record")?;
             record.args(["--run", &run, "--out"]).arg(&out);
-            if args.force {
+            if force {
                 record.arg("--force");
             }
             recorder = Some(Role::spawn("recorder", record)?);
@@ -279,4 +292,42 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     // With the run's end, so an escaped or failed orbit is said so in the verdicts.
     super::analyze::print_table(&analysis.report_ended(info.end.as_ref()))?;
     Ok(child_code(producer_status))
+}
+
+/// Whether Slurm started this job again after a requeue (`SLURM_RESTART_COUNT` > 0).
+fn requeued_by_slurm() -> bool {
+    std::env::var("SLURM_RESTART_COUNT")
+        .ok()
+        .and_then(|v| v.trim().parse::<u64>().ok())
+        .is_some_and(|n| n > 0)
+}
+
+/// Continues the recording `out` of this run (its configuration `config`) in place, as
+/// `chaoscope resume` does: `Some(exit status)` when done (also when it was already complete),
+/// `None` when nothing was on disk to continue from.
+fn resume_requeued(config: &RunConfig, out: &Path) -> anyhow::Result<Option<ExitCode>> {
+    use chaoscope_replay::resume::{ResumeFailure, ResumeOptions, resume};
+    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    let options = ResumeOptions {
+        config: Some(config.clone()),
+        ..Default::default()
+    };
+    chaoscope_os::errln!(
+        "chaoscope run: requeued by Slurm: continuing {} from its last complete sample",
+        out.display()
+    );
+    match resume(out, &options) {
+        Ok(outcome) => super::resume::report(&outcome, false).map(Some),
+        Err(ResumeFailure::Complete { .. }) => {
+            chaoscope_os::outln!("recording: {} (complete)", out.display())?;
+            Ok(Some(ExitCode::SUCCESS))
+        }
+        Err(ResumeFailure::NoSample { path }) => {
+            chaoscope_os::errln!(
+                "chaoscope run: {path} holds no complete sample: starting the run afresh"
+            );
+            Ok(None)
+        }
+        Err(e) => Err(e.into()),
+    }
 }

@@ -338,6 +338,7 @@ impl RunPublisher<'_> {
             sample.t,
             sample.energy,
             sample.mean_divergence,
+            sample.divergence_sum,
             &sample.state,
         );
         for s in &sample.schemes {

@@ -112,6 +112,12 @@ pub trait DynamicalSystem: Send + Sync {
         self.step(x, t, work)
     }
 
+    /// Whether a run of this system can be resumed from a recorded sample (`chaoscope resume`):
+    /// only if a step carries nothing from the steps before it that a sample does not hold.
+    fn resumable(&self) -> Result<(), String> {
+        Ok(())
+    }
+
     /// Advance `x` by one step from time `t` along the substeps `plan` the reference took in
     /// it (empty for fixed-step systems).
     fn step_along(&self, x: &mut [f64], t: f64, plan: &[f64], work: &mut Workspace) {

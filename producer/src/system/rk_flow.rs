@@ -137,6 +137,19 @@ impl DynamicalSystem for RkFlow {
         }
     }
 
+    fn resumable(&self) -> Result<(), String> {
+        match self.tolerances {
+            None => Ok(()),
+            // The controller's proposal for the next substep: the one thing a sample lacks.
+            Some(_) => Err(format!(
+                "{} with tolerances chooses each substep from the one before, which a recording \
+                 does not keep: a resumed run would take other substeps. Use a fixed step (no \
+                 rtol/atol) to make runs resumable, or rerun with a longer t_final",
+                self.method.kind.name()
+            )),
+        }
+    }
+
     fn step_along(&self, x: &mut [f64], t: f64, plan: &[f64], work: &mut Workspace) {
         for (ts, h) in self.substeps(t, plan) {
             self.method

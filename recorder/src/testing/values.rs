@@ -313,6 +313,7 @@ pub fn recording(choices: &mut Choices) -> Vec<u8> {
                     energy: choices.f64(0.125 + noise.next_f64(1e-12)),
                     state,
                     mean_divergence: choices.f64(0.0),
+                    divergence_sum: 0.0,
                 }),
             );
             frame += 1;
@@ -722,6 +723,7 @@ fn crafted(header_edit: fn(&mut RunHeader), message_edit: fn(&mut DataMessage)) 
             energy: 0.125 + noise.next_f64(1e-12),
             state: (0..dim).map(|_| noise.next_f64(0.5)).collect(),
             mean_divergence: 0.0,
+            divergence_sum: 0.0,
         }));
         frame += 1;
         for scheme in 0..2 {

@@ -396,6 +396,7 @@ fn hostile_content(header: &RunHeader, noise: &mut Noise, non_finite: bool) -> V
                 energy: times[(noise.next_u64() % times.len() as u64) as usize],
                 state: vec![noise.next_f64(1.0); pick(noise, &lens) as usize],
                 mean_divergence: 0.0,
+                divergence_sum: 0.0,
             }),
             2 | 3 => DataMessage::Separations(SeparationSet {
                 frame,

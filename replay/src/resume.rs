@@ -1,0 +1,410 @@
+//! Resume and extend: a run continued from its recording, into the file an uninterrupted run
+//! would have written.
+//!
+//! A recording holds, at every sample at which every scheme renormalized, all the engine
+//! carries from one window to the next (the reference state, each set's separations, the step,
+//! the divergence sum; the random directions are drawn only at t = 0), so
+//! [`Engine::resume`] continues from the last such sample bit for bit. The output is the
+//! recording's samples up to that point, copied, then the engine's: the file the uninterrupted
+//! run gives, every indicator included (the recording's indicators channel is computed from the
+//! samples as they are written, by the one tracker).
+//!
+//! What can be resumed: a run killed (`kill -9`: its recorder's in-progress `NAME.partial`,
+//! read up to its last complete chunk), interrupted (a signal: a finalized file whose run
+//! ended early) or finished (extended with a later `t_final`). In place, the recording is
+//! replaced only once the longer one is complete (a killed recorder's leftover, once the new
+//! file holds all it held), so a kill of the resume at any moment loses nothing and can be
+//! resumed again.
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use chaoscope_analyzer::recording::{ReadError, RecordingReader};
+use chaoscope_analyzer::write::{SampleWriter, WriteError};
+use chaoscope_os::{Leftover, Output, OutputError, OutputOptions};
+use chaoscope_producer::engine::{Engine, ResumeError, RunError};
+use chaoscope_producer::publish::run_header;
+use chaoscope_producer::spec::{RunSpec, SpecError};
+use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::proto::{RunHeader, end_of_run};
+use chaoscope_schemas::run::Sample;
+
+/// How often the file being written is put on disk in whole chunks: what a kill can lose.
+const CHECKPOINT_EVERY: Duration = Duration::from_secs(5);
+
+#[derive(Debug, Clone, Default)]
+pub struct ResumeOptions {
+    /// The new end of the run (`--t-final`): later than the recorded one extends it. Default:
+    /// the recorded `t_final`.
+    pub t_final: Option<f64>,
+    /// Where the resumed recording goes (`--out`); default: in place of the recording.
+    pub out: Option<PathBuf>,
+    /// Replace an existing `out` (never needed in place).
+    pub force: bool,
+    /// The run's configuration as given again (a requeued `chaoscope run`): refused unless it
+    /// describes the recorded run (its `t_final` aside, which is then the new end).
+    pub config: Option<RunConfig>,
+    /// Set from another thread to stop; a SIGINT/SIGTERM latched by `chaoscope_os::signals`
+    /// stops it too. The output is then finalized as an interrupted run, to be resumed again.
+    pub stop: Option<Arc<AtomicBool>>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum ResumeFailure {
+    #[error("{}: no such recording, and no in-progress file {} of a killed one", .0.display(), chaoscope_os::output::partial_path(.0).display())]
+    Missing(PathBuf),
+    #[error(transparent)]
+    Read(#[from] ReadError),
+    #[error("{path}: the recorded configuration does not parse: {why}")]
+    Config { path: String, why: String },
+    #[error("{path}: the recorded configuration is no longer valid: {source}")]
+    Spec { path: String, source: SpecError },
+    #[error("{path}: {why}")]
+    Mismatch { path: String, why: String },
+    #[error("{path}: {why}")]
+    Nothing { path: String, why: String },
+    #[error(
+        "{path}: it holds no complete sample to resume from (the run was killed before its first \
+         chunk with one reached the disk): run it again"
+    )]
+    NoSample { path: String },
+    #[error(
+        "{path}: the run is complete at t_final = {t_final}: pass --t-final with a later time to \
+         extend it"
+    )]
+    Complete { path: String, t_final: f64 },
+    #[error("{path}: cannot resume: {source}")]
+    Engine { path: String, source: ResumeError },
+    #[error(transparent)]
+    Output(#[from] OutputError),
+    #[error(transparent)]
+    Write(#[from] WriteError),
+    #[error("{path}: writing the resumed recording: {source}")]
+    Mcap {
+        path: String,
+        source: mcap::McapError,
+    },
+}
+
+/// What a resume did.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct ResumeOutcome {
+    /// The recording read (the file, or the in-progress file of a killed run).
+    pub input: PathBuf,
+    /// The resumed recording.
+    pub output: PathBuf,
+    /// Time and sample number of the sample it resumed from.
+    pub resumed_from_t: f64,
+    pub resumed_from_seq: u64,
+    /// Samples copied from the recording (up to and including that one) and computed after it.
+    pub samples_copied: u64,
+    pub samples_computed: u64,
+    /// The run's end now: `t_final`, and how it ended ("completed", "interrupted", "failed").
+    pub t_final: f64,
+    pub status: String,
+    /// Why the run failed (an escaped orbit), if it did.
+    pub reason: Option<String>,
+    /// Where reading the input stopped before its end (a killed writer's cut chunk), if it did.
+    pub input_damage: Option<String>,
+}
+
+/// The recording `path` names and the file to read it from: the file itself, or the
+/// in-progress file a killed writer left (`NAME.partial`, also when named directly).
+fn locate(path: &Path) -> Result<(PathBuf, PathBuf), ResumeFailure> {
+    let name = path.to_string_lossy();
+    if let Some(target) = name.strip_suffix(".partial")
+        && std::fs::symlink_metadata(path).is_ok()
+    {
+        return Ok((PathBuf::from(target), path.to_path_buf()));
+    }
+    let partial = chaoscope_os::output::partial_path(path);
+    // A dead writer's in-progress file is newer than any finished file of that name (a
+    // killed resume of it, or a run killed before its file was ever completed).
+    if std::fs::symlink_metadata(&partial).is_ok() {
+        return Ok((path.to_path_buf(), partial));
+    }
+    if std::fs::symlink_metadata(path).is_ok() {
+        return Ok((path.to_path_buf(), path.to_path_buf()));
+    }
+    Err(ResumeFailure::Missing(path.to_path_buf()))
+}
+
+/// Whether every scheme renormalizes at `step` (a sample a run can resume from).
+fn every_scheme_renormalizes(spec: &RunSpec, step: u64) -> bool {
+    spec.schemes()
+        .iter()
+        .all(|s| step.is_multiple_of(s.tau_steps))
+}
+
+/// Resumes the recording `recording` (see the module documentation).
+pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome, ResumeFailure> {
+    let (target, input) = locate(recording)?;
+    let shown = input.display().to_string();
+    let in_place = options.out.as_ref().is_none_or(|o| o == &target);
+    let out_path = options.out.clone().unwrap_or_else(|| target.clone());
+
+    // The output first: a live writer of that name (the run still going) is refused before
+    // anything is read, and a killed one's leftover is locked for us while we read it.
+    let output_options = if in_place {
+        OutputOptions {
+            // The recording itself, replaced only by the complete longer one.
+            replace: true,
+            leftover: Leftover::Resume,
+            // A failed write keeps what it holds: it is resumed again.
+            keep_failed: true,
+            ..Default::default()
+        }
+    } else {
+        OutputOptions {
+            replace: options.force,
+            inputs: vec![input.clone()],
+            leftover: Leftover::Refuse,
+            keep_failed: true,
+            ..Default::default()
+        }
+    };
+    let mut output = Output::create(&out_path, &output_options)?;
+    let resuming_leftover = output.leftover().is_some();
+    // Read from elsewhere, a killed writer's leftover is still locked for the time we read it,
+    // so a live run (whose file this is) is refused, not continued beside itself.
+    let _leftover_lock = if !in_place && input != target {
+        let lock = OutputOptions {
+            replace: true,
+            leftover: Leftover::Resume,
+            keep_failed: true,
+            ..Default::default()
+        };
+        Some(Output::create(&target, &lock)?)
+    } else {
+        None
+    };
+
+    // The recorded run, rebuilt from its header's configuration with the new end. A file cut
+    // before its run header reached the disk holds nothing of the run.
+    let mut reader = match RecordingReader::open_salvaging(&input) {
+        Err(ReadError::Damaged { .. } | ReadError::NoHeader { .. }) => {
+            return Err(ResumeFailure::NoSample { path: shown });
+        }
+        r => r?,
+    };
+    let recorded = reader.header().clone();
+    let config_err = |why: String| ResumeFailure::Config {
+        path: shown.clone(),
+        why,
+    };
+    let mut config =
+        RunConfig::from_toml(&recorded.config_toml).map_err(|e| config_err(e.to_string()))?;
+    let spec_err = |source| ResumeFailure::Spec {
+        path: shown.clone(),
+        source,
+    };
+    let recorded_spec = RunSpec::from_config(&config).map_err(spec_err)?;
+    let same = run_header(&recorded.run_name, &config, &recorded_spec);
+    if let Some(why) = header_difference(&recorded, &same) {
+        return Err(ResumeFailure::Mismatch {
+            path: shown,
+            why: format!(
+                "the recorded run header differs from the one its configuration gives now \
+                 ({why}): it was recorded by another version or its inputs changed, so a \
+                 continuation would not be that run's"
+            ),
+        });
+    }
+    if let Some(given) = &options.config {
+        let mut given = given.clone();
+        given.integrator.t_final = recorded.t_final;
+        let spec = RunSpec::from_config(&given).map_err(spec_err)?;
+        let header = run_header(&recorded.run_name, &given, &spec);
+        if let Some(why) = header_difference(&recorded, &header) {
+            return Err(ResumeFailure::Mismatch {
+                path: shown,
+                why: format!(
+                    "the configuration is not the recorded run's ({why} differs): this run \
+                     would not continue it; choose another output, or remove the recording to \
+                     start afresh"
+                ),
+            });
+        }
+    }
+    let t_final = options
+        .t_final
+        .or(options.config.as_ref().map(|c| c.integrator.t_final))
+        .unwrap_or(recorded.t_final);
+    if !(t_final.is_finite() && t_final > 0.0) {
+        return Err(ResumeFailure::Nothing {
+            path: shown,
+            why: format!("--t-final {t_final} is not a positive time"),
+        });
+    }
+    config.integrator.t_final = t_final;
+    let spec = RunSpec::from_config(&config).map_err(spec_err)?;
+    let header = run_header(&recorded.run_name, &config, &spec);
+
+    // The last sample to resume from: complete, every scheme renormalizing there, not past the
+    // new end. The samples of the new run up to it are exactly the recorded ones: every scheme
+    // renormalizes at its multiples of tau whatever the end (a run's last step, where all
+    // renormalize, is one only if it stays the last).
+    let total = spec.total_steps();
+    let mut from: Option<Sample> = None;
+    let mut ended_failed = None;
+    let mut ended_complete = false;
+    while let Some(sample) = reader.next_sample()? {
+        if sample.step <= total
+            && every_scheme_renormalizes(&spec, sample.step)
+            && sample.schemes.len() == spec.schemes().len() * spec.sets()
+            && !sample.state.is_empty()
+        {
+            from = Some(sample);
+        }
+    }
+    if let Some(end) = &reader.info.end
+        && end.status == end_of_run::Status::Failed as i32
+    {
+        ended_failed = Some(end.reason.clone());
+    }
+    if let Some(end) = &reader.info.end {
+        ended_complete =
+            end.status == end_of_run::Status::Completed as i32 && recorded.total_steps == total;
+    }
+    let damage = reader.info.damage.clone();
+    drop(reader);
+    if let Some(reason) = ended_failed {
+        return Err(ResumeFailure::Nothing {
+            path: shown,
+            why: format!("the run failed ({reason}); a continuation would fail the same way"),
+        });
+    }
+    let Some(from) = from else {
+        return Err(ResumeFailure::NoSample { path: shown });
+    };
+    if ended_complete {
+        return Err(ResumeFailure::Complete {
+            path: shown,
+            t_final: spec.t_final(),
+        });
+    }
+    let engine = Engine::resume(spec, &from).map_err(|source| ResumeFailure::Engine {
+        path: shown.clone(),
+        source,
+    })?;
+
+    // The new file: the recording's samples up to `from`, then the engine's.
+    if resuming_leftover {
+        output.start_fresh()?;
+    }
+    let mut writer = SampleWriter::create_in(output, &header)?;
+    let werr = |source| ResumeFailure::Mcap {
+        path: out_path.display().to_string(),
+        source,
+    };
+    let mut copied = 0;
+    let mut reader = RecordingReader::open_salvaging(&input)?;
+    while let Some(sample) = reader.next_sample()? {
+        if sample.seq > from.seq {
+            break;
+        }
+        writer.write(&sample).map_err(werr)?;
+        copied += 1;
+    }
+    drop(reader);
+    if resuming_leftover {
+        // The new file holds all the killed one held that counts: it takes its place.
+        writer.adopt_fresh()?;
+    }
+    let mut outcome = ResumeOutcome {
+        input: input.clone(),
+        output: out_path.clone(),
+        resumed_from_t: from.t,
+        resumed_from_seq: from.seq,
+        samples_copied: copied,
+        samples_computed: 0,
+        t_final,
+        status: "completed".into(),
+        reason: None,
+        input_damage: damage,
+    };
+    let stopped = || {
+        options
+            .stop
+            .as_ref()
+            .is_some_and(|s| s.load(Ordering::Relaxed))
+            || chaoscope_os::signals::requested()
+    };
+    let mut engine = engine;
+    let mut last_checkpoint = Instant::now();
+    let ended = loop {
+        if stopped() {
+            break Some((
+                end_of_run::Status::Interrupted,
+                "interrupted by a signal".to_string(),
+            ));
+        }
+        match engine.next_sample() {
+            Ok(Some(sample)) => {
+                writer.write(&sample).map_err(werr)?;
+                outcome.samples_computed += 1;
+                if last_checkpoint.elapsed() >= CHECKPOINT_EVERY {
+                    writer.checkpoint()?;
+                    last_checkpoint = Instant::now();
+                }
+            }
+            Ok(None) => break None,
+            Err(e @ RunError::Escaped { .. }) => {
+                break Some((end_of_run::Status::Failed, e.to_string()));
+            }
+            Err(e) => break Some((end_of_run::Status::Failed, e.to_string())),
+        }
+    };
+    match ended {
+        None => writer.finish("resume")?,
+        Some((status, reason)) => {
+            outcome.status = status.word().to_string();
+            if status == end_of_run::Status::Failed {
+                outcome.reason = Some(reason.clone());
+            }
+            writer.finish_with("resume", status, &reason)?;
+        }
+    }
+    Ok(outcome)
+}
+
+/// The first field in which two run headers differ, apart from those a resume may change or
+/// that do not describe the computation (the end of the run, the writer's version).
+fn header_difference(recorded: &RunHeader, now: &RunHeader) -> Option<String> {
+    let mut a = recorded.clone();
+    let mut b = now.clone();
+    for h in [&mut a, &mut b] {
+        h.producer_version.clear();
+    }
+    if a == b {
+        return None;
+    }
+    let fields: [(&str, bool); 10] = [
+        ("config_toml", a.config_toml != b.config_toml),
+        ("model", a.model != b.model),
+        ("dim", a.dim != b.dim),
+        ("k", a.k != b.k),
+        ("sets", a.sets != b.sets),
+        ("integrator", a.integrator != b.integrator),
+        ("h", a.h.to_bits() != b.h.to_bits()),
+        (
+            "x0",
+            a.x0.len() != b.x0.len()
+                || a.x0
+                    .iter()
+                    .zip(&b.x0)
+                    .any(|(x, y)| x.to_bits() != y.to_bits()),
+        ),
+        ("schemes", a.schemes != b.schemes),
+        ("energy0", a.energy0.to_bits() != b.energy0.to_bits()),
+    ];
+    Some(
+        fields
+            .iter()
+            .find(|(_, differs)| *differs)
+            .map_or("another field", |(name, _)| name)
+            .to_string(),
+    )
+}

@@ -187,6 +187,7 @@ fn run_messages(config: &str) -> (RunHeader, Vec<DataMessage>) {
                 s.state.len(),
                 &x.separations,
                 &x.stretch,
+                &x.earlier_stretch,
             );
         }
         decode_frame(&batch.header(), batch.words(), &mut messages).unwrap();

@@ -233,3 +233,33 @@ fn recorded_and_replayed_indicators_equal_analyze_json_to_the_last_bit() {
         assert_equals_report(last, &report);
     }
 }
+
+#[test]
+fn a_run_sampled_every_few_renormalizations_records_its_indicators_exactly() {
+    // Sampled every 4 (tau 1, 1 and 2): the recorder's tracker accumulates the stretching
+    // factors each sample carries for the renormalizations in between, so the channel holds one
+    // message per sample and its last one equals analyze --json to the last bit.
+    let dir = tempfile::tempdir().unwrap();
+    let run = unique_run("indicators-thinned");
+    let text = format!(
+        "[run]\nsample_every = 4.0\n{}",
+        hh_run(&run).replacen("[run]\n", "", 1)
+    );
+    let config = write_config(dir.path(), &text);
+    let file = dir.path().join("run.mcap");
+    let out = chaoscope(&[
+        "run",
+        config.to_str().unwrap(),
+        "--out",
+        file.to_str().unwrap(),
+    ])
+    .output()
+    .expect("chaoscope run");
+    assert!(out.status.success(), "chaoscope run failed");
+    let rec = read_recording(&file);
+    let end = analyze_json(&file, None);
+    for name in ["vm", "mpm", "qr"] {
+        let ms = channel(&rec, name, 4.0, 60.0);
+        assert_equals_report(ms[15], &end);
+    }
+}

@@ -6,6 +6,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use chaoscope_bus::{self as bus, Liveness};
+use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::names;
 use common::*;
 
@@ -1253,4 +1254,89 @@ tau = 1.0
     );
     signal_group(&p, libc::SIGINT);
     p.wait(LIMIT);
+}
+
+#[test]
+fn sample_every_keeps_the_accumulated_indicators_exact_and_resumes() {
+    let dir = tempfile::tempdir().unwrap();
+    // Taus 0.75, 0.5 and 1.5: a sample every 4.5 is a multiple of each; t_final off that grid.
+    let every = |t_final: f64| {
+        let mut config = RunConfig::from_toml(&resumable_config(t_final)).unwrap();
+        config.run.sample_every = Some(4.5);
+        config.to_toml()
+    };
+    let run = unique_run("sample-every");
+    let go = |name: &str, text: &str| {
+        let cfg = dir.path().join(format!("{name}.toml"));
+        std::fs::write(&cfg, text).unwrap();
+        let out = dir.path().join(format!("{name}.mcap"));
+        run_ok(&[
+            "run",
+            cfg.to_str().unwrap(),
+            "--run",
+            &run,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        out
+    };
+    let all = go("all", &resumable_config(300.25));
+    let thinned = go("thinned", &every(300.25));
+    let report = |p: &Path| serde_json::from_str::<serde_json::Value>(&analysis_json(p)).unwrap();
+    let (a, b) = (report(&all), report(&thinned));
+    // 0, every 4.5 up to 297, and the end at 300.25.
+    assert_eq!(b["run"]["samples"], 68);
+    // The stretching factors of every renormalization reach the analysis: the exponents, FLI
+    // and MEGNO are the every-renormalization run's to the bit; GALI and SALI are computed from
+    // the last sample's vectors, the same in both.
+    for (sa, sb) in a["schemes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(b["schemes"].as_array().unwrap())
+    {
+        for key in [
+            "t",
+            "mle",
+            "lyapunov",
+            "fli",
+            "megno",
+            "megno_mean",
+            "gali",
+            "sali",
+        ] {
+            assert_eq!(sa[key], sb[key], "scheme {}: {key}", sa["name"]);
+        }
+    }
+    let size = |p: &Path| std::fs::metadata(p).unwrap().len();
+    assert!(
+        size(&thinned) * 2 < size(&all),
+        "{} vs {}",
+        size(&thinned),
+        size(&all)
+    );
+
+    // A thinned run extended: the recording's end off the sampling grid is not resumed from
+    // (its renormalizations since 148.5 belong to the sample at 153).
+    let half = go("half", &every(150.25));
+    run_ok(&["resume", half.to_str().unwrap(), "--t-final", "300.25"]);
+    assert_eq!(analysis_json(&half), analysis_json(&thinned));
+
+    // A sampling interval that is not a multiple of every tau is refused, naming the key.
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(
+        &bad,
+        every(300.25).replace("sample_every = 4.5", "sample_every = 2.0"),
+    )
+    .unwrap();
+    let out = chaoscope_captured(&["config", bad.to_str().unwrap()])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("run.sample_every")
+            && stderr.contains("not a multiple of scheme 'vm''s tau"),
+        "{stderr}"
+    );
 }

@@ -341,6 +341,7 @@ impl Analysis {
             step,
             &s.separations,
             &s.stretch,
+            &s.earlier_stretch,
         )
     }
 

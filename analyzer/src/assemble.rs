@@ -58,6 +58,7 @@ impl SampleAssembler {
             set: m.set,
             separations: m.separations,
             stretch: m.stretch,
+            earlier_stretch: m.earlier_stretch,
         });
         done
     }

@@ -94,6 +94,9 @@ pub struct RecordingReader {
 struct SampleCheck {
     /// Sample number and step of the latest reference state.
     sample: Option<(u64, u64)>,
+    /// Step of the sample before it (the renormalizations in between are a sample's earlier
+    /// stretching factors).
+    previous_step: u64,
     /// (scheme, set) pairs of the current sample's separation sets.
     seen: std::collections::BTreeSet<(u32, u32)>,
 }
@@ -174,6 +177,7 @@ impl SampleCheck {
             ));
         }
         self.finish_sample(run)?;
+        self.previous_step = self.sample.map_or(0, |(_, step)| step);
         self.sample = Some((r.seq, r.step));
         self.seen.clear();
         Ok(())
@@ -206,11 +210,16 @@ impl SampleCheck {
         }
         Self::time(run, m.step, m.t)?;
         Self::finite("separations", &m.separations)?;
-        if let Some(i) = m.stretch.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
-            return Err(format!(
-                "stretch[{i}] = {:?} (a stretching factor |w| / d0 is positive and finite)",
-                m.stretch[i]
-            ));
+        for (field, values) in [
+            ("stretch", &m.stretch),
+            ("earlier_stretch", &m.earlier_stretch),
+        ] {
+            if let Some(i) = values.iter().position(|s| !(s.is_finite() && *s > 0.0)) {
+                return Err(format!(
+                    "{field}[{i}] = {:?} (a stretching factor |w| / d0 is positive and finite)",
+                    values[i]
+                ));
+            }
         }
         let Some((seq, step)) = self.sample.filter(|(seq, _)| *seq == m.seq) else {
             return Err(format!(
@@ -229,6 +238,17 @@ impl SampleCheck {
             return Err(format!(
                 "scheme {} renormalizes every {tau} steps, not at step {step}",
                 m.scheme
+            ));
+        }
+        // The scheme's renormalizations since the previous sample, before this one.
+        let between = (step.max(1) - 1) / tau - self.previous_step / tau;
+        if m.earlier_stretch.len() as u64 != between.saturating_mul(run.k as u64) {
+            return Err(format!(
+                "{} earlier stretching factors in sample {seq}, but scheme {} renormalized {between} \
+                 times with k = {} since the previous sample",
+                m.earlier_stretch.len(),
+                m.scheme,
+                run.k
             ));
         }
         if !self.seen.insert((m.scheme, m.set)) {

@@ -138,6 +138,7 @@ impl SampleWriter {
                 dim: self.dim,
                 separations: set.separations.clone(),
                 stretch: set.stretch.clone(),
+                earlier_stretch: set.earlier_stretch.clone(),
             }))?;
             self.frame += 1;
         }

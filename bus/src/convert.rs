@@ -125,12 +125,17 @@ fn decode_records(
                 rest.len()
             )));
         };
-        let [kind, seq, step, t, a, b, k, dim] = *head;
+        let [kind, seq, step, t, a, b, word6, dim] = *head;
+        // A separation record's word 6: k, and the renormalizations before it in the high half.
+        let (k, earlier) = (word6 & u64::from(u32::MAX), word6 >> 32);
         let t = f64::from_bits(t);
         // Sizes from another process are checked before they size anything.
         let len = match kind {
             1 => Some(dim),
-            2 => k.checked_mul(dim).and_then(|n| n.checked_add(k)),
+            2 => k
+                .checked_mul(dim)
+                .and_then(|n| n.checked_add(k))
+                .and_then(|n| n.checked_add(earlier.checked_mul(k)?)),
             _ => return Err(FrameError::Kind { frame, kind }),
         };
         let Some(len) = len
@@ -152,7 +157,7 @@ fn decode_records(
                 energy: f64::from_bits(a),
                 state: f64s(body),
                 mean_divergence: f64::from_bits(b),
-                divergence_sum: f64::from_bits(k),
+                divergence_sum: f64::from_bits(word6),
             })
         } else {
             let (Ok(scheme), Ok(set), Ok(k32), Ok(dim32)) = (
@@ -163,7 +168,8 @@ fn decode_records(
             ) else {
                 return Err(layout(format!("record {i}: a field beyond 32 bits")));
             };
-            let (separations, stretch) = body.split_at(len - k as usize);
+            let (separations, rest) = body.split_at((k * dim) as usize);
+            let (stretch, earlier_stretch) = rest.split_at(k as usize);
             DataMessage::Separations(SeparationSet {
                 frame,
                 seq,
@@ -175,6 +181,7 @@ fn decode_records(
                 dim: dim32,
                 separations: f64s(separations),
                 stretch: f64s(stretch),
+                earlier_stretch: f64s(earlier_stretch),
             })
         });
     }
@@ -218,7 +225,18 @@ mod tests {
         // Values whose bits a conversion through decimal or arithmetic could change.
         let state = [-0.0, f64::MIN_POSITIVE / 4.0, 1.0 / 3.0, -2.5e300];
         b.push_reference(3, 300, 3.0, 0.125, -1e-17, -3e-17, &state);
-        b.push_separations(3, 300, 3.0, 1, 2, 2, &[1.0, 2.0, 3.0, 4.0], &[0.5, 0.25]);
+        let earlier = [0.9, 1.1, 2.0, 0.75];
+        b.push_separations(
+            3,
+            300,
+            3.0,
+            1,
+            2,
+            2,
+            &[1.0, 2.0, 3.0, 4.0],
+            &[0.5, 0.25],
+            &earlier,
+        );
         let out = decode(&b.header(), b.words()).unwrap();
         let DataMessage::Reference(r) = &out[0] else {
             panic!()
@@ -235,6 +253,7 @@ mod tests {
         };
         assert_eq!(m.separations, vec![1.0, 2.0, 3.0, 4.0]);
         assert_eq!(m.stretch, vec![0.5, 0.25]);
+        assert_eq!(m.earlier_stretch, earlier);
         assert_eq!(
             (m.frame, m.seq, m.scheme, m.set, m.k, m.dim),
             (8, 3, 1, 2, 2, 2)
@@ -249,7 +268,7 @@ mod tests {
     fn a_frame_breaking_the_layout_is_refused_whole() {
         let mut b = RecordBatch::new(0);
         b.push_reference(0, 0, 0.0, 0.1, 0.0, 0.0, &[1.0; 4]);
-        b.push_separations(0, 0, 0.0, 0, 0, 2, &[1.0; 4], &[1.0; 2]);
+        b.push_separations(0, 0, 0.0, 0, 0, 2, &[1.0; 4], &[1.0; 2], &[]);
         let words = b.words().to_vec();
         let h = b.header();
         // Cut short, one word too many, more records announced than sent, fewer.

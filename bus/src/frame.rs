@@ -24,9 +24,10 @@
 //! | 3    | t                              | t                                      |
 //! | 4    | energy                         | scheme index                           |
 //! | 5    | mean divergence                | set                                    |
-//! | 6    | divergence sum                 | `k`, vectors per set                   |
+//! | 6    | divergence sum                 | `k` + 2^32 x earlier renormalizations  |
 //! | 7    | `dim`                          | `dim`                                  |
-//! | then | the state (`dim` values)       | `k` vectors of `dim`, `k` stretches    |
+//! | then | the state (`dim` values)       | `k` vectors of `dim`, `k` stretches,   |
+//! |      |                                | `k` per earlier renormalization        |
 //!
 //! The layout is the bus protocol [`BUS_PROTOCOL`]; it is part of the header's type name, so
 //! processes built with another layout refuse to connect instead of misreading frames.
@@ -50,7 +51,8 @@ use chaoscope_schemas::FORMAT_VERSION;
 
 /// Version of the data frames' layout on the bus (not of the files: [`FORMAT_VERSION`]).
 /// 2: several records per frame, payload in words. 3: the reference record's word 6 carries
-/// the divergence sum (0 before).
+/// the divergence sum (0 before); a separation record's word 6 the number of earlier
+/// renormalizations in its high half, their stretching factors after its own.
 pub const BUS_PROTOCOL: u32 = 3;
 
 /// Longest end-of-run reason carried on the bus (longer reasons are cut at a char boundary).
@@ -178,9 +180,10 @@ impl FrameHeader {
     }
 }
 
-/// Words of a separation-set record of `k` vectors of `dim` values.
-pub fn separations_record_words(k: usize, dim: usize) -> usize {
-    RECORD_HEADER_WORDS + k * dim + k
+/// Words of a separation-set record of `k` vectors of `dim` values, carrying the stretching
+/// factors of `earlier` renormalizations before it.
+pub fn separations_record_words(k: usize, dim: usize, earlier: usize) -> usize {
+    RECORD_HEADER_WORDS + k * dim + k + earlier * k
 }
 
 /// Words of a reference-state record of dimension `dim`.
@@ -273,7 +276,10 @@ impl RecordBatch {
         self.push_record(head, &[state]);
     }
 
-    /// Appends a separation-set record: `separations` are `stretch.len()` vectors of `dim`.
+    /// Appends a separation-set record: `separations` are `stretch.len()` vectors of `dim`;
+    /// `earlier_stretch` the stretching factors of the renormalizations since the previous
+    /// sample, `stretch.len()` per renormalization (empty unless the run is sampled every
+    /// `sample_every`).
     #[allow(clippy::too_many_arguments)]
     pub fn push_separations(
         &mut self,
@@ -285,7 +291,10 @@ impl RecordBatch {
         dim: usize,
         separations: &[f64],
         stretch: &[f64],
+        earlier_stretch: &[f64],
     ) {
+        let k = stretch.len();
+        let earlier = earlier_stretch.len().checked_div(k).unwrap_or(0);
         let head = [
             RecordKind::Separations as u64,
             sample_seq,
@@ -293,10 +302,10 @@ impl RecordBatch {
             t.to_bits(),
             scheme as u64,
             set as u64,
-            stretch.len() as u64,
+            k as u64 | (earlier as u64) << 32,
             dim as u64,
         ];
-        self.push_record(head, &[separations, stretch]);
+        self.push_record(head, &[separations, stretch, earlier_stretch]);
     }
 }
 
@@ -400,11 +409,11 @@ mod tests {
         let mut b = RecordBatch::new(5);
         assert!(b.is_empty());
         b.push_reference(0, 0, 0.0, 0.125, 0.0, 0.0, &[1.0, 2.0]);
-        b.push_separations(0, 0, 0.0, 1, 0, 2, &[0.5, 0.25], &[1.0]);
+        b.push_separations(0, 0, 0.0, 1, 0, 2, &[0.5, 0.25], &[1.0], &[]);
         assert_eq!((b.next_frame(), b.value_words()), (7, 5));
         assert_eq!(
             b.words().len(),
-            reference_record_words(2) + separations_record_words(1, 2)
+            reference_record_words(2) + separations_record_words(1, 2, 0)
         );
         let h = b.header();
         assert_eq!(

@@ -42,6 +42,11 @@ impl SetIndicator for Fli {
             self.log_norm += first.ln();
         }
         self.fli = self.fli.max(self.log_norm);
+        // A renormalization whose vectors were not recorded (between the samples of a run
+        // sampled every `sample_every`): OFLI's sup is over the samples.
+        if obs.separations.is_empty() {
+            return;
+        }
         let w = &obs.separations[..obs.dim.min(obs.separations.len())];
         match obs.flow {
             Some(f) if f.len() == w.len() => {

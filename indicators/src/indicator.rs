@@ -26,7 +26,9 @@ pub struct SetObservation<'a> {
     pub dt: f64,
     /// Phase-space dimension (entries per vector).
     pub dim: usize,
-    /// The `k` separation vectors before renormalization, one after the other.
+    /// The `k` separation vectors before renormalization, one after the other; empty at a
+    /// renormalization between the samples of a run sampled every `sample_every`, where only
+    /// the stretching factors are known (indicators of the vectors keep their last values).
     pub separations: &'a [f64],
     /// Stretching factor of each vector since the previous renormalization (`|d| / d0`, or
     /// `|R_ii|`; for the first vector both are its own growth). All 1 at t = 0.

@@ -336,8 +336,11 @@ impl Tracker {
     }
 
     /// Applies one set's separations (the `k` vectors of `dim` entries one after another) and
-    /// stretching factors at `step`. False, and nothing changed, if they do not fit the layout,
-    /// or a stretching factor is not positive and finite, or a separation not finite.
+    /// stretching factors at `step`, after the stretching factors `earlier` of its
+    /// renormalizations since its previous sample (`k` each, oldest first: a run sampled every
+    /// `sample_every`; empty otherwise), each accumulated as at its own renormalization. False,
+    /// and nothing changed, if they do not fit the layout, or a stretching factor is not
+    /// positive and finite, or a separation not finite.
     /// Steps of one (scheme, set) must increase; a missed renormalization is a gap.
     pub fn apply(
         &mut self,
@@ -346,19 +349,57 @@ impl Tracker {
         step: u64,
         separations: &[f64],
         stretch: &[f64],
+        earlier: &[f64],
     ) -> bool {
         let (k, dim) = (self.layout.k, self.layout.dim);
+        let positive = |s: &[f64]| s.iter().all(|s| s.is_finite() && *s > 0.0);
         if scheme >= self.schemes.len()
             || set >= self.layout.sets
             || separations.len() != k * dim
             || stretch.len() != k
+            || !earlier.len().is_multiple_of(k)
             // Values no producer sends (the producer stops before a vector vanishes or leaves
             // the range of f64): their logarithms and alignments would be NaN or infinite.
-            || !stretch.iter().all(|s| s.is_finite() && *s > 0.0)
+            || !positive(stretch)
+            || !positive(earlier)
             || !separations.iter().all(|v| v.is_finite())
         {
             return false;
         }
+        // The earlier renormalizations, at the tau grid's points before this one's.
+        let tau = self.layout.tau_steps[scheme];
+        let prev = self.layout.previous_renormalization(scheme, step);
+        let count = (earlier.len() / k) as u64;
+        let first = match count {
+            0 => prev,
+            _ => match (count - 1)
+                .checked_mul(tau)
+                .and_then(|back| prev.checked_sub(back))
+            {
+                Some(first) if first > 0 => first,
+                // More renormalizations than fit before this step: none a producer sends.
+                _ => return false,
+            },
+        };
+        for (i, stretch) in earlier.chunks_exact(k).enumerate() {
+            self.accumulate(scheme, set, first + i as u64 * tau, &[], stretch);
+        }
+        self.accumulate(scheme, set, step, separations, stretch);
+        true
+    }
+
+    /// One renormalization of one set at `step` (its separations empty where they were not
+    /// recorded): the stretching sums, the set indicators, and the orbit indicators at the
+    /// scheme's first set of a new step.
+    fn accumulate(
+        &mut self,
+        scheme: usize,
+        set: usize,
+        step: u64,
+        separations: &[f64],
+        stretch: &[f64],
+    ) {
+        let (k, dim) = (self.layout.k, self.layout.dim);
         let prev = self.layout.previous_renormalization(scheme, step);
         let st = self.schemes[scheme]
             .sets
@@ -386,7 +427,11 @@ impl Tracker {
                 st.late_covered_steps += step - prev;
             }
         }
-        let reference = self.reference.as_ref().filter(|r| r.step == step);
+        // Only a sample (with separations) comes with the reference state of its step.
+        let reference = self
+            .reference
+            .as_ref()
+            .filter(|r| r.step == step && !separations.is_empty());
         let t = self.layout.time_of(step);
         let observation = SetObservation {
             t,
@@ -410,8 +455,10 @@ impl Tracker {
             indicator.observe(&observation);
         }
         st.step = Some(step);
-        st.separations.clear();
-        st.separations.extend_from_slice(separations);
+        if !separations.is_empty() {
+            st.separations.clear();
+            st.separations.extend_from_slice(separations);
+        }
         let state = &mut self.schemes[scheme];
         // The first set of a new renormalization of the scheme samples the orbit.
         if state.step.is_none_or(|s| s < step)
@@ -422,7 +469,6 @@ impl Tracker {
             }
         }
         state.step = Some(state.step.map_or(step, |x| x.max(step)));
-        true
     }
 
     /// Step of the latest renormalization of `scheme` seen (`None` before any).
@@ -580,11 +626,11 @@ mod tests {
         let mut t = Tracker::new(layout());
         let e = std::f64::consts::E;
         // Set 0: orthogonal vectors (GALI_2 = 1), stretched by e per tau = 1 (two steps of 0.5).
-        assert!(t.apply(0, 0, 0, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0]));
-        assert!(t.apply(0, 0, 2, &[2.0, 0.0, 0.0, 3.0], &[e, e]));
+        assert!(t.apply(0, 0, 0, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0], &[]));
+        assert!(t.apply(0, 0, 2, &[2.0, 0.0, 0.0, 3.0], &[e, e], &[]));
         // Set 1 at the same step: vectors at 90 degrees too, stretched by e^3.
-        assert!(t.apply(0, 1, 0, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0]));
-        assert!(t.apply(0, 1, 2, &[1.0, 1.0, 1.0, -1.0], &[e * e * e, 1.0]));
+        assert!(t.apply(0, 1, 0, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0], &[]));
+        assert!(t.apply(0, 1, 2, &[1.0, 1.0, 1.0, -1.0], &[e * e * e, 1.0], &[]));
         let ind = t.indicators(0);
         assert_eq!((ind.step, ind.t, ind.sets), (2, 1.0, 2));
         assert!(ind.gali[0].log10_mean.abs() < 1e-15);
@@ -592,14 +638,14 @@ mod tests {
         assert!((ind.mle() - 2.0).abs() < 1e-15, "{}", ind.mle());
         assert!(t.complete());
         // Set 0 skips the renormalization at step 4: the sum has a hole.
-        assert!(t.apply(0, 0, 6, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0]));
+        assert!(t.apply(0, 0, 6, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0], &[]));
         assert!(!t.complete());
         // Only set 0 is at step 6 now.
         assert_eq!(t.indicators(0).sets, 1);
         // Frames that do not fit are ignored.
-        assert!(!t.apply(1, 0, 2, &[0.0; 4], &[1.0, 1.0]));
-        assert!(!t.apply(0, 2, 2, &[0.0; 4], &[1.0, 1.0]));
-        assert!(!t.apply(0, 0, 8, &[0.0; 3], &[1.0, 1.0]));
+        assert!(!t.apply(1, 0, 2, &[0.0; 4], &[1.0, 1.0], &[]));
+        assert!(!t.apply(0, 2, 2, &[0.0; 4], &[1.0, 1.0], &[]));
+        assert!(!t.apply(0, 0, 8, &[0.0; 3], &[1.0, 1.0], &[]));
     }
 
     #[test]
@@ -609,7 +655,7 @@ mod tests {
         // grown to that index asked for 343 GB and aborted; one set is kept.
         let sets = u32::MAX as usize;
         let mut t = Tracker::new(Layout::new(2, 2, sets, 0.5, vec![2]).unwrap());
-        assert!(t.apply(0, sets - 1, 0, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0]));
+        assert!(t.apply(0, sets - 1, 0, &[1.0, 0.0, 0.0, 1.0], &[1.0, 1.0], &[]));
         assert_eq!(t.current_sets(0).len(), 1);
         assert_eq!(t.current_sets(0)[0].0, sets - 1);
         assert_eq!(t.set_step(0, sets - 1), Some(0));

@@ -93,6 +93,9 @@ pub struct Engine {
     plan_bounds: Vec<usize>,
     /// [`PARALLEL_MIN_WORK`]; tests move it to take either path.
     parallel_min_work: u64,
+    /// Per (scheme, set): the stretching factors of its renormalizations since the last sample
+    /// (`[run] sample_every`), which the next sample carries.
+    earlier_stretch: Vec<Vec<f64>>,
 }
 
 impl Engine {
@@ -114,6 +117,7 @@ impl Engine {
             plan: Vec::new(),
             plan_bounds: Vec::new(),
             parallel_min_work: PARALLEL_MIN_WORK,
+            earlier_stretch: Vec::new(),
         }
     }
 
@@ -140,10 +144,13 @@ impl Engine {
                 spec.total_steps()
             )));
         }
+        // A sample of the resumed run too (with `sample_every`, a recording's end off its
+        // multiples is not: the renormalizations before it belong to a later sample).
         let every = spec
             .schemes()
             .iter()
-            .all(|s| sample.step.is_multiple_of(s.tau_steps));
+            .all(|s| sample.step.is_multiple_of(s.tau_steps))
+            && (sample.step == 0 || spec.is_sample_step(sample.step));
         let sets = spec.schemes().len() * spec.sets();
         if !every || sample.schemes.len() != sets {
             return Err(ResumeError(format!(
@@ -192,6 +199,7 @@ impl Engine {
             plan: Vec::new(),
             plan_bounds: Vec::new(),
             parallel_min_work: PARALLEL_MIN_WORK,
+            earlier_stretch: Vec::new(),
         })
     }
 
@@ -242,13 +250,65 @@ impl Engine {
             || step == self.spec.total_steps()
     }
 
-    /// Advance to the next renormalization time and return what it produced; `Ok(None)` once the
-    /// run is complete. The first call returns the initial state (seq 0, t = 0) with every
-    /// scheme's initial vectors and unit stretching.
+    /// Advance to the next sample time (the next renormalization of any scheme, or with
+    /// `[run] sample_every` the next multiple of it) and return what it produced; `Ok(None)`
+    /// once the run is complete. The first call returns the initial state (seq 0, t = 0) with
+    /// every scheme's initial vectors and unit stretching. The renormalizations between two
+    /// samples give the next one their stretching factors (`SchemeSample::earlier_stretch`).
     pub fn next_sample(&mut self) -> Result<Option<Sample>, RunError> {
         if self.next_seq == 0 {
             return Ok(Some(self.initial_sample()));
         }
+        loop {
+            let Some(schemes) = self.next_window()? else {
+                return Ok(None);
+            };
+            if self.spec.is_sample_step(self.step) {
+                return Ok(Some(self.sample(schemes)));
+            }
+            let sets = self.spec.sets();
+            if self.earlier_stretch.is_empty() {
+                self.earlier_stretch = vec![Vec::new(); self.spec.schemes().len() * sets];
+            }
+            for s in schemes {
+                self.earlier_stretch[s.scheme as usize * sets + s.set as usize]
+                    .extend_from_slice(&s.stretch);
+            }
+        }
+    }
+
+    /// The sample at the current step, of the sets renormalized there (`schemes`), with the
+    /// stretching factors of their renormalizations since the previous sample.
+    fn sample(&mut self, mut schemes: Vec<SchemeSample>) -> Sample {
+        let sets = self.spec.sets();
+        for s in &mut schemes {
+            if let Some(earlier) = self
+                .earlier_stretch
+                .get_mut(s.scheme as usize * sets + s.set as usize)
+            {
+                s.earlier_stretch = std::mem::take(earlier);
+            }
+        }
+        let system = self.spec.system().as_ref();
+        // Systems without a conserved quantity report 0 (never NaN in an output).
+        let energy = system.invariant(&self.reference).unwrap_or(0.0);
+        let seq = self.next_seq;
+        self.next_seq += 1;
+        Sample {
+            seq,
+            step: self.step,
+            t: self.spec.time_of(self.step),
+            state: self.reference.clone(),
+            energy,
+            mean_divergence: self.mean_divergence(self.step),
+            divergence_sum: self.divergence_sum(),
+            schemes,
+        }
+    }
+
+    /// Advances to the next renormalization of any scheme; returns the sets renormalized
+    /// there, `Ok(None)` once the run is complete.
+    fn next_window(&mut self) -> Result<Option<Vec<SchemeSample>>, RunError> {
         if self.step >= self.spec.total_steps() {
             return Ok(None);
         }
@@ -322,20 +382,7 @@ impl Engine {
             schemes.extend(r?);
         }
         self.step = target;
-        // Systems without a conserved quantity report 0 (never NaN in an output).
-        let energy = system.invariant(&self.reference).unwrap_or(0.0);
-        let seq = self.next_seq;
-        self.next_seq += 1;
-        Ok(Some(Sample {
-            seq,
-            step: target,
-            t,
-            state: self.reference.clone(),
-            energy,
-            mean_divergence: self.mean_divergence(target),
-            divergence_sum: self.divergence_sum(),
-            schemes,
-        }))
+        Ok(Some(schemes))
     }
 
     fn initial_sample(&mut self) -> Sample {
@@ -354,6 +401,7 @@ impl Engine {
                         set: set as u32,
                         separations: dirs.scaled(scheme.d0),
                         stretch: vec![1.0; spec.k()],
+                        earlier_stretch: Vec::new(),
                     })
             })
             .collect();
@@ -651,6 +699,7 @@ fn renormalized(
         set: set as u32,
         separations,
         stretch,
+        earlier_stretch: Vec::new(),
     })
 }
 

@@ -79,7 +79,14 @@ impl IndicatorStream {
             return;
         };
         let si = m.scheme as usize;
-        if tracker.apply(si, m.set as usize, m.step, &m.separations, &m.stretch) {
+        if tracker.apply(
+            si,
+            m.set as usize,
+            m.step,
+            &m.separations,
+            &m.stretch,
+            &m.earlier_stretch,
+        ) {
             match self.pending.iter_mut().find(|p| p.0 == si) {
                 Some(p) => p.1 = m.seq,
                 None => self.pending.push((si, m.seq)),

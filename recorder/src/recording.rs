@@ -187,6 +187,7 @@ mod tests {
             dim: 2,
             separations: vec![1e-8, 0.0],
             stretch: vec![1.0],
+            earlier_stretch: Vec::new(),
             ..Default::default()
         };
         r.on_message(&DataMessage::Separations(sep)).unwrap();

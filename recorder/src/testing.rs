@@ -157,6 +157,7 @@ fn run_messages_with(
                 dim: shape.dim,
                 separations,
                 stretch,
+                earlier_stretch: Vec::new(),
             }));
             frame += 1;
         }

@@ -253,6 +253,7 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
     while let Some(sample) = reader.next_sample()? {
         if sample.step <= total
             && every_scheme_renormalizes(&spec, sample.step)
+            && (sample.step == 0 || spec.is_sample_step(sample.step))
             && sample.schemes.len() == spec.schemes().len() * spec.sets()
             && !sample.state.is_empty()
         {

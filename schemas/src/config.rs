@@ -59,6 +59,14 @@ pub struct RunSection {
     /// Run name (letters, digits, `-`, `_`); default derived from the process id and time.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub name: Option<String>,
+    /// Record a sample (the reference state and every set's separation vectors) every this
+    /// much time instead of at every renormalization: a multiple of every scheme's `tau`. The
+    /// stretching factors of the renormalizations in between travel with the next sample, so
+    /// every indicator accumulated from them (Lyapunov exponents, FLI, MEGNO) stays exact;
+    /// GALI, SALI, OFLI and the distributions are computed at the samples. Default: a sample
+    /// at every renormalization.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sample_every: Option<f64>,
 }
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]

@@ -195,6 +195,10 @@ pub struct SchemeSample {
     /// Stretching factor of each vector since the previous renormalization (`|d|/d0`, or
     /// `|R_ii|` in QR mode).
     pub stretch: Vec<f64>,
+    /// A run sampled every `[run] sample_every`: the stretching factors of this set's
+    /// renormalizations since the previous sample (not this one), `k` per renormalization,
+    /// oldest first. Empty when every renormalization is a sample.
+    pub earlier_stretch: Vec<f64>,
 }
 
 /// How a run's end-of-run reason begins when the reference orbit escaped (its norm passed the

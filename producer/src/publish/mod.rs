@@ -125,7 +125,8 @@ pub fn resolve_run_name(
 
 /// Longest record of a run, in words (a separation set: k vectors plus k stretches).
 fn longest_record(spec: &RunSpec) -> usize {
-    reference_record_words(spec.dim()).max(separations_record_words(spec.k(), spec.dim()))
+    let earlier = spec.most_earlier_renormalizations() as usize;
+    reference_record_words(spec.dim()).max(separations_record_words(spec.k(), spec.dim(), earlier))
 }
 
 /// The first non-finite value of a sample, described (NaN never goes on the bus or into files).
@@ -342,7 +343,8 @@ impl RunPublisher<'_> {
             &sample.state,
         );
         for s in &sample.schemes {
-            self.make_room(separations_record_words(s.stretch.len(), dim))?;
+            let earlier = s.earlier_stretch.len() / s.stretch.len().max(1);
+            self.make_room(separations_record_words(s.stretch.len(), dim, earlier))?;
             self.batch.push_separations(
                 sample.seq,
                 sample.step,
@@ -352,6 +354,7 @@ impl RunPublisher<'_> {
                 dim,
                 &s.separations,
                 &s.stretch,
+                &s.earlier_stretch,
             );
         }
         self.samples = sample.seq + 1;

@@ -186,7 +186,15 @@ pub struct RunSpec {
     schemes: Vec<SchemeSpec>,
     seed: u64,
     tables: Vec<TableDigest>,
+    /// `[run] sample_every` in steps: a sample at its multiples (and at the end) only; `None`:
+    /// at every renormalization.
+    sample_every_steps: Option<u64>,
 }
+
+/// Most values the stretching factors of the renormalizations between two samples of one set
+/// may take (`[run] sample_every` over the shortest `tau`, times `k`): 2^20, 8 MiB per record
+/// on the bus and in the file.
+pub const MAX_EARLIER_STRETCH: u64 = 1 << 20;
 
 impl std::fmt::Debug for RunSpec {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -578,6 +586,44 @@ impl RunSpec {
             });
         }
 
+        let sample_every_steps = match cfg.run.sample_every {
+            None => None,
+            Some(every) => {
+                let key = "run.sample_every";
+                let every = finite_positive(key, every)?;
+                let steps = whole_steps(key, every, h)?;
+                if let Some(s) = schemes.iter().find(|s| !steps.is_multiple_of(s.tau_steps)) {
+                    return Err(SpecError::new(
+                        key,
+                        format!(
+                            "{} is not a multiple of scheme '{}''s tau = {}: a sample is taken \
+                             where every scheme renormalizes",
+                            num(every),
+                            s.name,
+                            num(s.tau)
+                        ),
+                    ));
+                }
+                let shortest = schemes.iter().map(|s| s.tau_steps).min().unwrap_or(steps);
+                let values = (steps / shortest - 1).saturating_mul(dev.k as u64);
+                if values > MAX_EARLIER_STRETCH {
+                    return Err(SpecError::new(
+                        key,
+                        format!(
+                            "{} carries {} renormalizations' stretching factors of k = {} \
+                             vectors to each sample ({values} values, limit \
+                             {MAX_EARLIER_STRETCH}): sample more often or renormalize less \
+                             often",
+                            num(every),
+                            steps / shortest - 1,
+                            dev.k
+                        ),
+                    ));
+                }
+                Some(steps)
+            }
+        };
+
         Ok(RunSpec {
             system,
             h,
@@ -590,6 +636,7 @@ impl RunSpec {
             schemes,
             seed: dev.seed,
             tables,
+            sample_every_steps,
         })
     }
 
@@ -614,6 +661,33 @@ impl RunSpec {
 
     pub fn total_steps(&self) -> u64 {
         self.total_steps
+    }
+
+    /// `[run] sample_every` in steps (`None`: a sample at every renormalization).
+    pub fn sample_every_steps(&self) -> Option<u64> {
+        self.sample_every_steps
+    }
+
+    /// Whether the engine emits a sample at `step` (a renormalization of some scheme): at
+    /// every one, or at the multiples of `sample_every` and the end.
+    pub fn is_sample_step(&self, step: u64) -> bool {
+        step == self.total_steps
+            || self
+                .sample_every_steps
+                .is_none_or(|every| step.is_multiple_of(every))
+    }
+
+    /// Most renormalizations of one scheme between two samples (the stretching factors a
+    /// sample carries besides its own, per vector): 0 without `sample_every`.
+    pub fn most_earlier_renormalizations(&self) -> u64 {
+        let Some(every) = self.sample_every_steps else {
+            return 0;
+        };
+        self.schemes
+            .iter()
+            .map(|s| every / s.tau_steps - 1)
+            .max()
+            .unwrap_or(0)
     }
 
     /// Initial reference state: `(q, p)` of a Hamiltonian, `x` of any other system.

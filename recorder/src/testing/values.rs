@@ -348,6 +348,7 @@ pub fn recording(choices: &mut Choices) -> Vec<u8> {
                             dim: choices.u32(dim),
                             separations,
                             stretch,
+                            earlier_stretch: Vec::new(),
                         }),
                     );
                     frame += 1;
@@ -748,6 +749,7 @@ fn crafted(header_edit: fn(&mut RunHeader), message_edit: fn(&mut DataMessage)) 
                             }
                         })
                         .collect(),
+                    earlier_stretch: Vec::new(),
                 }));
                 frame += 1;
             }

@@ -409,6 +409,7 @@ fn hostile_content(header: &RunHeader, noise: &mut Noise, non_finite: bool) -> V
                 dim: pick(noise, &lens) as u32,
                 separations: vec![noise.next_f64(1e-8); pick(noise, &lens) as usize],
                 stretch: vec![pick(noise, &[0, 1, 2]) as f64; pick(noise, &lens) as usize],
+                earlier_stretch: Vec::new(),
             }),
             _ => DataMessage::End(EndOfRun {
                 frame,

@@ -5,10 +5,11 @@
 //! ABA864 step and tangent map (`dkg.c`, built at bench time with `-O3 -march=native
 //! -ffp-contract=off`), at `--dkg-sizes` (issue 26, must-show 2 and item 5).
 //!
-//! Both integrate one reference orbit and one VM deviation vector, renormalized every 100 time
-//! units (the run records a sample there, as a recording interval of 100 would), over the same
-//! site-steps at every size (`2 * 10^8`, so the process start and the compilation weigh what
-//! they weigh in a run of that length); and both run to `t = 100` once more, whose MLEs are
+//! Both integrate one reference orbit and one VM deviation vector, renormalized every `tau` = 10
+//! of the example (the run records a sample every `sample_every` = 100, the stretching factors
+//! between carried with it), over the same site-steps at every size (`2 * 10^8`, so the process
+//! start and the compilation weigh what they weigh in a run of that length); and both run to
+//! `t = 100` once more, whose MLEs are
 //! compared (the C's vector is the run's own first direction). The C's arithmetic is the
 //! chain's forces in the textbook order, not chaoscope's compiled loop, so the two MLEs agree to
 //! rounding amplified by the orbit's (weak) chaos, not bit for bit.
@@ -24,21 +25,22 @@ use chaoscope_schemas::config::{ModelConfig, ParamValue, RunConfig};
 const SOURCE: &str = include_str!("dkg.c");
 const EXAMPLE: &str = include_str!("../../../examples/models/dkg-single-site.toml");
 const H: f64 = 0.05;
-const TAU: f64 = 100.0;
+/// The run's recording interval, `[run] sample_every` (the must-show's setting).
+const SAMPLE_EVERY: f64 = 100.0;
 /// Site-steps of each throughput run.
 const SITE_STEPS: f64 = 2e8;
 
-/// The example at `n` sites (the excitation in the middle), to `t_final`, one VM vector
-/// renormalized every `TAU`.
+/// The example at `n` sites (the excitation in the middle), to `t_final`, one VM vector, a sample
+/// every `SAMPLE_EVERY`.
 fn config(n: usize, t_final: f64) -> anyhow::Result<RunConfig> {
     let mut text = EXAMPLE
         .replace("n = 1000\n", &format!("n = {n}\n"))
         .replace("sites = 500,", &format!("sites = {},", n / 2))
         .replace("t_final = 5000.0", &format!("t_final = {t_final:?}"))
-        .replace("tau = 10.0", &format!("tau = {TAU:?}"))
         .replace("k = 2\n", "k = 1\n");
     text = text.replace("name = \"dkg-single-site\"", "name = \"bench-dkg\"");
-    let config = RunConfig::from_toml(&text)?;
+    let mut config = RunConfig::from_toml(&text)?;
+    config.run.sample_every = Some(SAMPLE_EVERY);
     anyhow::ensure!(
         config.integrator.h == Some(H) && config.integrator.t_final == t_final,
         "the DKG example changed shape: the bench cannot set its size and length"
@@ -171,9 +173,11 @@ pub fn compare(sizes: &[usize]) -> anyhow::Result<serde_json::Value> {
     let mut rows = Vec::new();
     for &n in sizes {
         anyhow::ensure!(n >= 4, "--dkg-sizes: a chain of at least 4 sites, got {n}");
-        // Whole renormalization windows of the same site-steps at every size.
-        let windows = (SITE_STEPS / (n as f64 * TAU / H)).round().max(1.0);
-        let t_final = windows * TAU;
+        // Whole sampling intervals of the same site-steps at every size.
+        let windows = (SITE_STEPS / (n as f64 * SAMPLE_EVERY / H))
+            .round()
+            .max(1.0);
+        let t_final = windows * SAMPLE_EVERY;
         let long = config(n, t_final)?;
         let (run_cpu, _) = chaoscope_run(dir, &long, &format!("long-{n}"))?;
         let (c_cpu, _) = c_run(&exe, &c_input(&long)?)?;

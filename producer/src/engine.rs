@@ -8,6 +8,11 @@
 //! therefore bit-identical for any thread count. The reference orbit is integrated once; each
 //! variational task also carries its own copy (the tangent map needs the orbit's stage positions)
 //! stepped by the same code, so the copies agree with the reference bit for bit.
+//!
+//! The deviation lanes of a system with a batched form (`DynamicalSystem::batched`) are stepped
+//! by it, many lanes in one fused pass, the same bits as lane by lane (`engine/stepping.rs`).
+
+mod stepping;
 
 use rayon::prelude::*;
 
@@ -19,6 +24,7 @@ use crate::system::DynamicalSystem;
 use chaoscope_schemas::run::{Route, Sample, SchemeSample};
 
 use crate::spec::RunSpec;
+use stepping::{BatchedAlong, Stepping};
 
 /// Below this many state values stepped in a window (steps x dimension x orbits, over every
 /// task), the tasks of the window run one after another on the calling thread: waking rayon's
@@ -75,6 +81,8 @@ struct DeviationSet {
     work: Workspace,
     /// Lanes as rows, for the steps and the renormalization.
     rows: Vec<f64>,
+    /// How its lanes are stepped.
+    stepping: Stepping,
 }
 
 pub struct Engine {
@@ -99,11 +107,25 @@ pub struct Engine {
 }
 
 impl Engine {
+    /// The engine of `spec`, its deviation lanes stepped by the system's batched form where it
+    /// has one.
     pub fn new(spec: RunSpec) -> Self {
+        let stepping = Stepping::of(&spec);
+        Self::with_stepping(spec, stepping)
+    }
+
+    /// The engine of `spec` with every deviation lane stepped one by one through the one-orbit
+    /// system: the definition the batched kernels are tested against (a map point's
+    /// reference, `map::one_orbit`); the same bits as [`Engine::new`], more slowly.
+    pub fn one_orbit(spec: RunSpec) -> Self {
+        Self::with_stepping(spec, Stepping::OneOrbit)
+    }
+
+    fn with_stepping(spec: RunSpec, stepping: Stepping) -> Self {
         let x0 = spec.x0().to_vec();
         let divergence = spec.system().divergence(&x0, 0.0).map(|d| (d, 0.0));
         // Every set starts from its directions at distance d0.
-        let tasks = tasks(&spec, &x0, |scheme, set| {
+        let tasks = tasks(&spec, &x0, stepping, |scheme, set| {
             spec.directions()[set].scaled(spec.schemes()[scheme].d0)
         });
         Self {
@@ -185,7 +207,7 @@ impl Engine {
             .system()
             .divergence(&sample.state, sample.t)
             .map(|d| (d, sample.divergence_sum));
-        let tasks = tasks(&spec, &sample.state, |scheme, set| {
+        let tasks = tasks(&spec, &sample.state, Stepping::of(&spec), |scheme, set| {
             renormalized[scheme * spec.sets() + set].clone()
         });
         Ok(Self {
@@ -563,21 +585,20 @@ impl PointKernel for AlongReference<'_> {
     }
 }
 
-/// The window propagator's lanes: the identity, `e_j` in lane `j` (unit vectors: the window
-/// propagator is VM's, and the tangent map is linear).
 /// Every (scheme, set)'s task at reference state `x`, its deviation vectors (`k` of the run's
 /// dimension, at their scheme's scale) given by `vectors(scheme index, set)`: at t = 0 the
 /// sets' directions, on resuming the recorded separations renormalized.
 fn tasks(
     spec: &RunSpec,
     x: &[f64],
+    stepping: Stepping,
     vectors: impl Fn(usize, usize) -> Vec<f64>,
 ) -> Vec<DeviationSet> {
     let dim = spec.dim();
     let mut tasks = Vec::with_capacity(spec.schemes().len() * spec.sets());
     for (si, scheme) in spec.schemes().iter().enumerate() {
         let method = method::of(scheme.method);
-        let task = |set, lanes, propagated| DeviationSet {
+        let task = |set, lanes, propagated, stepping| DeviationSet {
             scheme: si,
             set,
             method,
@@ -585,29 +606,39 @@ fn tasks(
             propagated,
             work: Workspace::new(),
             rows: Vec::new(),
+            stepping,
         };
         if scheme.route == Route::WindowPropagator {
             let sets = (0..spec.sets()).map(|set| vectors(si, set)).collect();
-            tasks.push(task(0, identity_lanes(method, x), Some(sets)));
+            let stepping = stepping.for_lanes(dim);
+            tasks.push(task(
+                0,
+                identity_lanes(method, x, stepping),
+                Some(sets),
+                stepping,
+            ));
             continue;
         }
+        let stepping = stepping.for_lanes(spec.k());
         for set in 0..spec.sets() {
             let scaled = vectors(si, set);
-            let mut lanes = Soa::unpadded(dim, spec.k());
+            let mut lanes = stepping.lanes(dim, spec.k());
             let mut lane = vec![0.0; dim];
             for (i, d) in scaled.chunks_exact(dim).enumerate() {
                 method.start(x, d, &mut lane);
                 lanes.write_lane(i, &lane);
             }
-            tasks.push(task(set, lanes, None));
+            tasks.push(task(set, lanes, None, stepping));
         }
     }
     tasks
 }
 
-fn identity_lanes(method: &dyn DeviationMethod, x: &[f64]) -> Soa {
+/// The window propagator's lanes: the identity, `e_j` in lane `j` (unit vectors: the window
+/// propagator is VM's, and the tangent map is linear).
+fn identity_lanes(method: &dyn DeviationMethod, x: &[f64], stepping: Stepping) -> Soa {
     let dim = x.len();
-    let mut lanes = Soa::unpadded(dim, dim);
+    let mut lanes = stepping.lanes(dim, dim);
     let (mut e, mut lane) = (vec![0.0; dim], vec![0.0; dim]);
     for j in 0..dim {
         e.fill(0.0);
@@ -629,12 +660,24 @@ impl DeviationSet {
         t: f64,
     ) -> Result<Vec<SchemeSample>, RunError> {
         let dim = spec.dim();
-        let kernel = &mut AlongReference {
-            system: spec.system().as_ref(),
-            plan,
-            start,
-            work: &mut self.work,
-            rows: &mut self.rows,
+        let system = spec.system().as_ref();
+        let mut batched = match self.stepping {
+            Stepping::Batched { isa, .. } => BatchedAlong::new(system, isa, start),
+            Stepping::OneOrbit => None,
+        };
+        let mut along;
+        let kernel: &mut dyn PointKernel = match &mut batched {
+            Some(b) => b,
+            None => {
+                along = AlongReference {
+                    system,
+                    plan,
+                    start,
+                    work: &mut self.work,
+                    rows: &mut self.rows,
+                };
+                &mut along
+            }
         };
         let steps = plan.bounds.len() as u64 - 1;
         self.method
@@ -646,7 +689,7 @@ impl DeviationSet {
         let lanes = &mut self.lanes;
         let Some(sets) = &mut self.propagated else {
             // Per set: the lanes' deviations, renormalized; the lanes restart from them.
-            let mut separations = vec![0.0; lanes.lanes() * dim];
+            let mut separations = vec![0.0; spec.k() * dim];
             let mut lane = vec![0.0; dim];
             for (i, d) in separations.chunks_exact_mut(dim).enumerate() {
                 lanes.read_lane(i, &mut lane);
@@ -678,7 +721,7 @@ impl DeviationSet {
             *vectors = images;
             samples.push(renormalized(spec, self.scheme, set, vectors, t)?);
         }
-        *lanes = identity_lanes(method, reference);
+        *lanes = identity_lanes(method, reference, self.stepping);
         Ok(samples)
     }
 }

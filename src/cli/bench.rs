@@ -892,7 +892,7 @@ mod expressions {
         let start = thread_cpu_seconds();
         let mut steps = 0u64;
         while thread_cpu_seconds() - start < seconds || steps == 0 {
-            let mut engine = Engine::new(spec.clone());
+            let mut engine = Engine::one_orbit(spec.clone());
             while engine.next_sample()?.is_some() {}
             steps += spec.total_steps();
         }

@@ -15,7 +15,7 @@ pub fn point(spec: &MapSpec, index: u64) -> PointResult {
     let run = spec.point_run(&x0);
     let total = run.total_steps();
     let mut acc = spec.accumulator();
-    let mut engine = Engine::new(run);
+    let mut engine = Engine::one_orbit(run);
     let mut steps = 0;
     loop {
         match engine.next_sample() {

@@ -131,6 +131,26 @@ fn locate(path: &Path) -> Result<(PathBuf, PathBuf), ResumeFailure> {
     Err(ResumeFailure::Missing(path.to_path_buf()))
 }
 
+/// How long a writer's lock is waited for: a killed run's processes release their locks only
+/// as the kernel tears them down, which a resume started right after the kill can precede.
+const DYING_WRITER_GRACE: Duration = Duration::from_secs(3);
+
+/// [`Output::create`], waiting up to [`DYING_WRITER_GRACE`] for a writer that holds the
+/// in-progress file to be gone; a live one is refused after that, as by `create`.
+fn create_waiting(path: &Path, options: &OutputOptions) -> Result<Output, OutputError> {
+    let start = Instant::now();
+    loop {
+        match Output::create(path, options) {
+            Err(OutputError::Busy { .. })
+                if start.elapsed() < DYING_WRITER_GRACE && !chaoscope_os::signals::requested() =>
+            {
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            other => return other,
+        }
+    }
+}
+
 /// Whether every scheme renormalizes at `step` (a sample a run can resume from).
 fn every_scheme_renormalizes(spec: &RunSpec, step: u64) -> bool {
     spec.schemes()
@@ -165,7 +185,7 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
             ..Default::default()
         }
     };
-    let mut output = Output::create(&out_path, &output_options)?;
+    let mut output = create_waiting(&out_path, &output_options)?;
     let resuming_leftover = output.leftover().is_some();
     // Read from elsewhere, a killed writer's leftover is still locked for the time we read it,
     // so a live run (whose file this is) is refused, not continued beside itself.
@@ -176,7 +196,7 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
             keep_failed: true,
             ..Default::default()
         };
-        Some(Output::create(&target, &lock)?)
+        Some(create_waiting(&target, &lock)?)
     } else {
         None
     };

@@ -477,6 +477,16 @@ impl ClvAnalysis {
             return Ok(());
         };
         let t = sample.t;
+        // The backward pass needs every renormalization's factors, which a recording sampled
+        // every `sample_every` keeps only at its samples.
+        if !s.earlier_stretch.is_empty() {
+            return Err(ClvRunError::Setup(format!(
+                "the recording is sampled every [run] sample_every (at t = {t} it carries {} \
+                 renormalizations only as stretching factors): covariant vectors need every \
+                 renormalization's vectors; run it without sample_every",
+                s.earlier_stretch.len() / self.k.max(1)
+            )));
+        }
         let numerics = |error| ClvRunError::Numerics { t, error };
         let (q, r) =
             clv::qr_factors(&s.separations, self.dim, self.k, self.d0).map_err(numerics)?;

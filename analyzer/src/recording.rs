@@ -240,15 +240,16 @@ impl SampleCheck {
                 m.scheme
             ));
         }
-        // The scheme's renormalizations since the previous sample, before this one.
+        // The scheme's renormalizations since the previous sample in the file, before this one
+        // (the previous sample may be lost: then fewer are carried, and the tracker counts the
+        // gap).
         let between = (step.max(1) - 1) / tau - self.previous_step / tau;
-        if m.earlier_stretch.len() as u64 != between.saturating_mul(run.k as u64) {
+        let carried = m.earlier_stretch.len() as u64;
+        if !carried.is_multiple_of(run.k as u64) || carried / run.k as u64 > between {
             return Err(format!(
-                "{} earlier stretching factors in sample {seq}, but scheme {} renormalized {between} \
-                 times with k = {} since the previous sample",
-                m.earlier_stretch.len(),
-                m.scheme,
-                run.k
+                "{carried} earlier stretching factors in sample {seq}, but scheme {} renormalized \
+                 {between} times with k = {} since the previous sample",
+                m.scheme, run.k
             ));
         }
         if !self.seen.insert((m.scheme, m.set)) {

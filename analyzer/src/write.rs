@@ -97,6 +97,12 @@ impl SampleWriter {
         })
     }
 
+    /// Removes the file being written (a resume stopped before it held more than its input),
+    /// whatever `keep_failed` says.
+    pub fn abandon(self) {
+        self.output.abandon();
+    }
+
     /// Puts what was written so far on disk in whole chunks (what a kill can lose is bounded
     /// by the time since).
     pub fn checkpoint(&mut self) -> Result<(), WriteError> {

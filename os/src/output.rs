@@ -464,6 +464,14 @@ impl Output {
         self.remove();
     }
 
+    /// Removes the in-progress file even where a failed write would keep it (`keep_failed`):
+    /// its content is known to be of no use (a resume stopped before it held more than its
+    /// input).
+    pub fn abandon(mut self) {
+        self.keep_failed = false;
+        self.remove();
+    }
+
     fn remove(&mut self) {
         if self.done {
             return;

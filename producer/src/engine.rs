@@ -181,6 +181,21 @@ impl Engine {
                 sample.seq, sample.step
             )));
         }
+        let Some(next_seq) = sample.seq.checked_add(1) else {
+            return Err(ResumeError(format!(
+                "sample number {} has no next",
+                sample.seq
+            )));
+        };
+        // At t = 0 the run starts from its directions as they are (renormalizing them again
+        // would change their last bits): the engine's own start, past its first sample.
+        if sample.step == 0 {
+            let mut engine = Self::new(spec);
+            engine.next_seq = 1;
+            return Ok(engine);
+        }
+        // The time of the step as the engine computes it, not as a file wrote it.
+        let t = spec.time_of(sample.step);
         // Each (scheme, set)'s vectors as the engine left them: its separations renormalized.
         let mut renormalized = Vec::with_capacity(sets);
         for (i, s) in sample.schemes.iter().enumerate() {
@@ -199,13 +214,13 @@ impl Engine {
                 )));
             }
             let mut vectors = s.separations.clone();
-            renormalized_in_place(&spec, scheme, set, &mut vectors, sample.t)
+            renormalized_in_place(&spec, scheme, set, &mut vectors, t)
                 .map_err(|e| ResumeError(e.to_string()))?;
             renormalized.push(vectors);
         }
         let divergence = spec
             .system()
-            .divergence(&sample.state, sample.t)
+            .divergence(&sample.state, t)
             .map(|d| (d, sample.divergence_sum));
         let tasks = tasks(&spec, &sample.state, Stepping::of(&spec), |scheme, set| {
             renormalized[scheme * spec.sets() + set].clone()
@@ -216,7 +231,7 @@ impl Engine {
             work: Workspace::new(),
             tasks,
             step: sample.step,
-            next_seq: sample.seq + 1,
+            next_seq,
             divergence,
             plan: Vec::new(),
             plan_bounds: Vec::new(),
@@ -788,6 +803,32 @@ mod tests {
 
     fn scheme(name: &str, method: &str, tau: f64) -> SchemeConfig {
         SchemeConfig::new(name, method, 1e-8, tau)
+    }
+
+    #[test]
+    fn a_run_resumed_from_any_of_its_resumable_samples_goes_on_bit_for_bit() {
+        // Taus 0.02 and 0.03 (2 and 3 steps): resumable every 6 steps, at t = 0 too (where the
+        // directions are taken as they are, not renormalized again). QR and rescale, VM and MPM.
+        let mut qr = scheme("mpm-qr", "mpm", 0.03);
+        qr.orthonormalize = "qr".into();
+        let make = || spec(vec![scheme("vm", "vm", 0.02), qr.clone()], 0.125, 0.6);
+        let mut whole = Vec::new();
+        Engine::new(make()).run(|x| whole.push(x)).unwrap();
+        let resumable: Vec<usize> = (0..whole.len())
+            .filter(|&i| whole[i].step % 6 == 0 && whole[i].step < 60)
+            .collect();
+        assert!(resumable.len() >= 5, "{resumable:?}");
+        for i in resumable {
+            let mut rest = Vec::new();
+            Engine::resume(make(), &whole[i])
+                .unwrap()
+                .run(|x| rest.push(x))
+                .unwrap();
+            assert_eq!(rest, whole[i + 1..], "resumed from sample {i}");
+        }
+        // A sample where a scheme did not renormalize is not one to resume from.
+        let off = whole.iter().find(|s| s.step % 6 != 0).unwrap();
+        assert!(Engine::resume(make(), off).is_err());
     }
 
     #[test]

@@ -120,15 +120,35 @@ fn locate(path: &Path) -> Result<(PathBuf, PathBuf), ResumeFailure> {
         return Ok((PathBuf::from(target), path.to_path_buf()));
     }
     let partial = chaoscope_os::output::partial_path(path);
-    // A dead writer's in-progress file is newer than any finished file of that name (a
-    // killed resume of it, or a run killed before its file was ever completed).
-    if std::fs::symlink_metadata(&partial).is_ok() {
+    let (has_partial, has_file) = (
+        std::fs::symlink_metadata(&partial).is_ok(),
+        std::fs::symlink_metadata(path).is_ok(),
+    );
+    // A killed writer's in-progress file (of a run never completed, or of a resume killed
+    // after it passed its input) or the file, whichever reaches further: a resume killed early
+    // leaves an in-progress file shorter than the recording it continues.
+    let use_partial = match (has_partial, has_file) {
+        (true, true) => last_step(&partial) > last_step(path),
+        (has_partial, _) => has_partial,
+    };
+    if use_partial {
         return Ok((path.to_path_buf(), partial));
     }
-    if std::fs::symlink_metadata(path).is_ok() {
+    if has_file {
         return Ok((path.to_path_buf(), path.to_path_buf()));
     }
     Err(ResumeFailure::Missing(path.to_path_buf()))
+}
+
+/// The step of the last sample of the recording at `path` (read up to any damage), `None` if
+/// it holds none or cannot be read.
+fn last_step(path: &Path) -> Option<u64> {
+    let mut reader = RecordingReader::open_salvaging(path).ok()?;
+    let mut last = None;
+    while let Ok(Some(sample)) = reader.next_sample() {
+        last = Some(sample.step);
+    }
+    last
 }
 
 /// How long a writer's lock is waited for: a killed run's processes release their locks only
@@ -270,7 +290,10 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
     let mut from: Option<Sample> = None;
     let mut ended_failed = None;
     let mut ended_complete = false;
+    // The furthest the recording got (a sample cut short included).
+    let mut input_last = (0, 0.0);
     while let Some(sample) = reader.next_sample()? {
+        input_last = (sample.step, sample.t);
         if sample.step <= total
             && every_scheme_renormalizes(&spec, sample.step)
             && (sample.step == 0 || spec.is_sample_step(sample.step))
@@ -300,6 +323,17 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
     let Some(from) = from else {
         return Err(ResumeFailure::NoSample { path: shown });
     };
+    // In place, the recording is only ever replaced by a longer one.
+    if in_place && total < input_last.0 {
+        return Err(ResumeFailure::Nothing {
+            path: shown,
+            why: format!(
+                "--t-final {t_final} is before the recording's end (t = {}): in place that \
+                 would cut it; write the shorter run elsewhere with --out",
+                input_last.1
+            ),
+        });
+    }
     if ended_complete {
         return Err(ResumeFailure::Complete {
             path: shown,
@@ -330,8 +364,11 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
         copied += 1;
     }
     drop(reader);
-    if resuming_leftover {
-        // The new file holds all the killed one held that counts: it takes its place.
+    // In place, the new file replaces the recording only once it reaches as far: until then a
+    // kill leaves the recording (or the killed writer's leftover) as it was, and a signal
+    // abandons the new file.
+    let mut passed_input = !in_place || from.step >= input_last.0;
+    if resuming_leftover && passed_input {
         writer.adopt_fresh()?;
     }
     let mut outcome = ResumeOutcome {
@@ -364,8 +401,18 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
         }
         match engine.next_sample() {
             Ok(Some(sample)) => {
+                // No NaN or infinity goes into a file: the run fails there, as the producer's.
+                if let Some(problem) = chaoscope_producer::publish::non_finite(&sample) {
+                    break Some((end_of_run::Status::Failed, problem));
+                }
                 writer.write(&sample).map_err(werr)?;
                 outcome.samples_computed += 1;
+                if !passed_input && sample.step >= input_last.0 {
+                    passed_input = true;
+                    if resuming_leftover {
+                        writer.adopt_fresh()?;
+                    }
+                }
                 if last_checkpoint.elapsed() >= CHECKPOINT_EVERY {
                     writer.checkpoint()?;
                     last_checkpoint = Instant::now();
@@ -378,6 +425,13 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
             Err(e) => break Some((end_of_run::Status::Failed, e.to_string())),
         }
     };
+    if !passed_input {
+        // Stopped before the new file reached the recording's end: the recording stays.
+        writer.abandon();
+        outcome.status = "interrupted".into();
+        outcome.output = input.clone();
+        return Ok(outcome);
+    }
     match ended {
         None => writer.finish("resume")?,
         Some((status, reason)) => {

@@ -367,6 +367,13 @@ impl MapSpec {
         base.map = None;
         base.orbit.solve_for = None;
         base.orbit.energy = None;
+        if cfg.run.sample_every.is_some() {
+            return Err(SpecError::new(
+                "run.sample_every",
+                "a map records one result per point, accumulated over every renormalization; \
+                 sampling applies to runs",
+            ));
+        }
         for (key, present) in [
             ("orbit.preset", cfg.orbit.preset.is_some()),
             ("orbit.excite", cfg.orbit.excite.is_some()),

@@ -141,6 +141,7 @@ pub fn non_finite(sample: &Sample) -> Option<String> {
             !s.separations
                 .iter()
                 .chain(&s.stretch)
+                .chain(&s.earlier_stretch)
                 .all(|v| v.is_finite())
         })
         .map(|s| {

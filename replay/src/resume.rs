@@ -12,8 +12,9 @@
 //! What can be resumed: a run killed (`kill -9`: its recorder's in-progress `NAME.partial`,
 //! read up to its last complete chunk), interrupted (a signal: a finalized file whose run
 //! ended early) or finished (extended with a later `t_final`). In place, the recording is
-//! replaced only once the longer one is complete (a killed recorder's leftover, once the new
-//! file holds all it held), so a kill of the resume at any moment loses nothing and can be
+//! replaced only by a longer one: a killed recorder's leftover once the new file reaches as
+//! far, a finished file once the new one is complete; a signal before the new file reaches the
+//! recording's end abandons it. So a kill of the resume at any moment loses nothing and can be
 //! resumed again.
 
 use std::path::{Path, PathBuf};

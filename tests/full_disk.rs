@@ -49,11 +49,14 @@ fn output(mut command: Command) -> Output {
     command.stdin(Stdio::null()).output().unwrap()
 }
 
-/// A run that writes about 10 MB: the paper's chaotic HH orbit, 50 sets sampled every step.
+/// A run that writes about 100 MB (compressed, some 3 MB: ten times the recorder's 300 kB
+/// limit, so the producer is still publishing when the recorder dies, however fast the
+/// machine): the paper's chaotic HH orbit, 50 sets sampled every step. (At 10 MB a Zen 5
+/// published the whole run before the recorder, compressing, reached its limit.)
 fn big_run() -> String {
     paper::henon_heiles(
         paper::HH_CHAOTIC_Q2,
-        20.0,
+        200.0,
         DeviationsConfig::random(4, 50, 5),
         vec![SchemeConfig::new("mpm", "mpm", 1e-8, 0.01)],
     )

@@ -1000,18 +1000,38 @@ fn wait_group_gone(p: &mut Proc) {
 #[test]
 fn a_run_killed_at_random_moments_and_resumed_gives_the_uninterrupted_analysis() {
     let dir = tempfile::tempdir().unwrap();
-    // About 2.6 s of computing on one core of a Zen 3 (the window propagator's four vectors
-    // go through the batched kernel): kills land before, between and after the recorder's
-    // chunks (it closes one every second).
-    let config = write_config(dir.path(), &resumable_config(6_000.0));
-    let cfg = config.to_str().unwrap();
+    // A run of at least WHOLE_SECONDS on this machine (about 2.6 s of computing for t = 6000
+    // on one core of a Zen 3, 0.8 s on a Zen 5: the length is scaled to the machine), so that
+    // kills land between the recorder's chunks (it closes one every second) and before the
+    // end: the moments are drawn from the measured length.
+    const WHOLE_SECONDS: f64 = 3.5;
     let run = unique_run("resume");
     let whole = dir.path().join("whole.mcap");
-    run_ok(&["run", cfg, "--run", &run, "--out", whole.to_str().unwrap()]);
+    let mut t_final = 6_000.0;
+    let (config, took) = loop {
+        let config = write_config(dir.path(), &resumable_config(t_final));
+        let started = Instant::now();
+        run_ok(&[
+            "run",
+            config.to_str().unwrap(),
+            "--run",
+            &run,
+            "--out",
+            whole.to_str().unwrap(),
+        ]);
+        let took = started.elapsed().as_secs_f64();
+        if took >= WHOLE_SECONDS || t_final >= 48_000.0 {
+            break (config, took);
+        }
+        std::fs::remove_file(&whole).unwrap();
+        t_final *= (WHOLE_SECONDS * 1.2 / took).ceil().clamp(2.0, 8.0);
+    };
+    eprintln!("the uninterrupted run: t = {t_final}, {took:.2} s");
+    let cfg = config.to_str().unwrap();
     let want = analysis_json(&whole);
 
     let mut resumed = 0;
-    for (i, moment) in moments(3, 0.2, 2.2).into_iter().enumerate() {
+    for (i, moment) in moments(3, 1.2, 0.85 * took).into_iter().enumerate() {
         let out = dir.path().join(format!("killed-{i}.mcap"));
         let o = out.to_str().unwrap();
         // Case 2 is stopped by SIGTERM (an interrupted, finalized file), the others by SIGKILL

@@ -57,6 +57,7 @@ use cranelift_module::{FuncId, Linkage, Module};
 
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
 
+mod c_fused;
 mod c_sites;
 mod c_step;
 mod site_steps;
@@ -65,6 +66,7 @@ mod step;
 mod step_cranelift;
 mod step_spec;
 
+pub use c_fused::applies as fused_applies;
 pub use c_sites::{compile_lattice_steps_c, compile_lattice_steps_c_cancellable};
 pub use c_step::{C_BLOCK_LANES, CCompiler};
 pub use site_steps::compile_lattice_steps;

@@ -736,6 +736,55 @@ impl ExpressionModel {
         }
     }
 
+    /// `n_steps` steps of the splitting (coefficients times `h`: `drift`, `kick`) for the orbit
+    /// `x` (`2N`) and the tangent vectors `v` around it (a whole number of `2N`-value vectors),
+    /// in one pass per stage vectorized along the sites, where the potential's C kernels have
+    /// that kernel (lattice sums as loops; `jit::StepKernels::reference_tangent_steps`): the
+    /// bits of the splitting's `step` and `step_tangent` through this model's scalar functions.
+    /// False, with nothing stepped, while those kernels are not ready (the first call starts
+    /// their build in the background) or where there is none: the caller then steps the orbit
+    /// and vectors through the scalar functions, to the same bits. The test hook of
+    /// [`Self::step_kernels`] places the switch here too.
+    pub fn reference_tangent_steps(
+        &self,
+        x: &mut [f64],
+        v: &mut [f64],
+        n_steps: u64,
+        drift: &[f64],
+        kick: &[f64],
+    ) -> bool {
+        if self.0.reads_time || self.0.lane_params > 0 || !matches!(self.0.form, Form::Lattice(_)) {
+            return false;
+        }
+        if UNCOUNTED.get() {
+            return false;
+        }
+        let c = &self.0.c_steps;
+        self.start_c_build();
+        let ready = match c.switch_after_calls {
+            None => c.result.get(),
+            Some(k) if c.calls.fetch_add(1, Ordering::Relaxed) < k => None,
+            Some(_) => Some(self.wait_c_build()),
+        };
+        match ready {
+            Some(Ok(k)) if k.has_reference_tangent() => {
+                c.c_calls.fetch_add(1, Ordering::Relaxed);
+                k.reference_tangent_steps(x, v, n_steps, drift, kick, self.inverse_masses())
+            }
+            _ => false,
+        }
+    }
+
+    /// Whether [`Self::reference_tangent_steps`] can ever step (its kernel is written for this
+    /// potential, once the C kernels are built): what decides a run's stepping.
+    pub fn may_step_reference_tangent(&self) -> bool {
+        !self.0.reads_time
+            && self.0.lane_params == 0
+            && self.0.c2
+            && jit::CCompiler::from_env().is_some()
+            && matches!(&self.0.form, Form::Lattice(l) if jit::fused_applies(l))
+    }
+
     /// Whether the C kernels `k` were loaded from the kernel cache rather than compiled.
     pub fn c_step_kernels_cached(&self, k: &StepKernels) -> bool {
         matches!(k.backend(), jit::StepBackend::C { cached: true, .. })

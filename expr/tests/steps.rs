@@ -792,3 +792,116 @@ fn a_kernel_cache_others_could_write_is_refused_with_one_line() {
     // The user's own private directory is used.
     assert_eq!(build(&own), Ok(()));
 }
+
+/// Lattices long enough for the fused one-orbit kernel (`StepKernels::reference_tangent_steps`,
+/// vectorized along the sites): each boundary condition, array parameters, a rest around the
+/// sums at a site of its own and at two, coefficients other than 1, shifts of two, a table,
+/// every operation of `lattices`' mixed chain; lengths that leave the vector loops a remainder
+/// and lengths that do not.
+fn long_lattices() -> Vec<(String, System)> {
+    let fput = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
+    let kg = "sum(i = 1..N, k[i]/2*q[i]^2 + q[i]^4/4) + sum(i = 0..N, (q[i+1] - q[i])^2/(2*4))";
+    let mixed = "q1^2*q2 - 0.5*sum(i = 1..N, k[i+1]*(q[i+2] - q[i])^2 + cos(q[i-1])*q[i]^2) \
+                 + sum(i = 0..N, U(q[i+1] - q[i]) + max(q[i], 0.3*q[i+1])^3 \
+                 + if(q[i] < q[i+1], q[i]^2, tanh(q[i])) + exp(q[i]/4)*sin(q[i+1]) \
+                 + sqrt(2 + q[i]^2) + atan2(q[i], 2 + q[i+1]) + (1 + q[i+1]^2)^1.5)";
+    let mut out = Vec::new();
+    for n in [16usize, 33, 64] {
+        out.push((
+            format!("FPUT-{n}"),
+            lattice_system(n, Boundary::Fixed, fput),
+        ));
+    }
+    for (name, b) in [
+        ("fixed", Boundary::Fixed),
+        ("free", Boundary::Free),
+        ("periodic", Boundary::Periodic),
+    ] {
+        out.push((format!("KG-41 {name}"), lattice_system(41, b, kg)));
+    }
+    out.push((
+        "KG-40 pinned end".into(),
+        lattice_system(40, Boundary::Free, &format!("{kg} + q1^2/2")),
+    ));
+    out.push((
+        "Toda-37 periodic".into(),
+        lattice_system(
+            37,
+            Boundary::Periodic,
+            "sum(i = 1..N, exp(q[i+1] - q[i]) - (q[i+1] - q[i]) - 1)",
+        ),
+    ));
+    out.push((
+        "mixed-43 periodic".into(),
+        lattice_system(43, Boundary::Periodic, mixed),
+    ));
+    out.push((
+        "mixed-21 fixed".into(),
+        lattice_system(21, Boundary::Fixed, &mixed.replace("k[i+1]", "k[i]")),
+    ));
+    out.push((
+        "next-nearest-38 fixed".into(),
+        lattice_system(
+            38,
+            Boundary::Fixed,
+            "sum(i = -1..N+1, (q[i+1] - q[i-1])^2*(1 + q[i]^2))",
+        ),
+    ));
+    out
+}
+
+/// The fused kernel against the reference loops (the orbit's steps, and each vector's along
+/// the orbit's stages): bit for bit, for 1 to 3 vectors, 1 to 10 steps, with and without
+/// masses. A short chain has no fused kernel (its caller steps the one-orbit way).
+#[test]
+fn c_fused_reference_tangent_steps_are_bit_identical() {
+    let cache = tempfile::tempdir().unwrap();
+    let (dr, ki) = coeffs();
+    for (name, s) in long_lattices() {
+        let k = compile_c(&s, cache.path());
+        assert!(k.has_reference_tangent(), "{name}: no fused kernel");
+        let n = s.n;
+        let masses: Vec<f64> = (0..n).map(|i| 1.0 / (1.0 + 0.37 * i as f64)).collect();
+        for w in [None, Some(&masses[..])] {
+            for vectors in [1usize, 2, 3] {
+                for n_steps in [1u64, 3, 10] {
+                    let mut x = state(n, 0, 1.0);
+                    let mut v: Vec<f64> = (1..=vectors).flat_map(|l| state(n, l, 1e-3)).collect();
+                    let mut want_x = x.clone();
+                    let mut stages = Vec::new();
+                    reference_orbit(&s, &mut want_x, n_steps, w, &mut stages);
+                    let mut want_v = v.clone();
+                    for vec in want_v.chunks_exact_mut(2 * n) {
+                        reference_tangent(&s, vec, n_steps, w, &stages);
+                    }
+                    assert!(k.reference_tangent_steps(&mut x, &mut v, n_steps, &dr, &ki, w));
+                    let bits = |a: &[f64]| a.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(
+                        bits(&x),
+                        bits(&want_x),
+                        "{name}: orbit, {vectors} vectors, {n_steps} steps, masses {}",
+                        w.is_some()
+                    );
+                    assert_eq!(
+                        bits(&v),
+                        bits(&want_v),
+                        "{name}: vectors, {vectors} of them, {n_steps} steps, masses {}",
+                        w.is_some()
+                    );
+                }
+            }
+        }
+    }
+    for (name, s) in lattices().into_iter().filter(|(_, s)| s.n < 16) {
+        let k = compile_c(&s, cache.path());
+        assert!(
+            !k.has_reference_tangent(),
+            "{name}: {} sites, a fused kernel",
+            s.n
+        );
+        let (mut x, mut v) = (state(s.n, 0, 1.0), state(s.n, 1, 1e-3));
+        let (x0, v0) = (x.clone(), v.clone());
+        assert!(!k.reference_tangent_steps(&mut x, &mut v, 3, &dr, &ki, None));
+        assert_eq!((x, v), (x0, v0), "{name}: stepped without a kernel");
+    }
+}

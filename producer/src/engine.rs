@@ -11,6 +11,11 @@
 //!
 //! The deviation lanes of a system with a batched form (`DynamicalSystem::batched`) are stepped
 //! by it, many lanes in one fused pass, the same bits as lane by lane (`engine/stepping.rs`).
+//! A set of a few tangent vectors of a system with a fused one-orbit kernel
+//! (`DynamicalSystem::reference_tangent_steps`: a lattice potential) steps them with its copy of
+//! the reference in one pass; the first such set *carries* the reference: its copy, stepped
+//! first in each window, is the reference (the same bits as stepping the reference itself), so
+//! the orbit is integrated once, not once more beside that set.
 
 mod stepping;
 
@@ -81,6 +86,9 @@ struct DeviationSet {
     work: Workspace,
     /// Lanes as rows, for the steps and the renormalization.
     rows: Vec<f64>,
+    /// The copy of the reference its tangent lanes follow through a window (one-orbit and
+    /// fused stepping): at the window's end the reference's state.
+    orbit: Vec<f64>,
     /// How its lanes are stepped.
     stepping: Stepping,
 }
@@ -104,6 +112,8 @@ pub struct Engine {
     /// Per (scheme, set): the stretching factors of its renormalizations since the last sample
     /// (`[run] sample_every`), which the next sample carries.
     earlier_stretch: Vec<Vec<f64>>,
+    /// The task whose copy of the reference is the reference (see the module documentation).
+    carrier: Option<usize>,
 }
 
 impl Engine {
@@ -129,6 +139,7 @@ impl Engine {
             spec.directions()[set].scaled(spec.schemes()[scheme].d0)
         });
         Self {
+            carrier: carrier(&tasks, divergence.is_some()),
             reference: x0,
             spec,
             work: Workspace::new(),
@@ -226,6 +237,7 @@ impl Engine {
             renormalized[scheme * spec.sets() + set].clone()
         });
         Ok(Self {
+            carrier: carrier(&tasks, divergence.is_some()),
             reference: sample.state.clone(),
             spec,
             work: Workspace::new(),
@@ -359,7 +371,21 @@ impl Engine {
         self.plan.clear();
         self.plan_bounds.clear();
         self.plan_bounds.push(0);
-        for step in self.step..target {
+        if let Some(c) = self.carrier {
+            // The carrier's copy is the reference: a fixed-step system with no divergence (no
+            // substeps to plan, nothing to integrate along the orbit).
+            self.plan_bounds.extend((self.step..target).map(|_| 0));
+            let plan = Plan {
+                substeps: &self.plan,
+                bounds: &self.plan_bounds,
+                from: self.step,
+            };
+            let t = spec.time_of(target);
+            let carrier = &mut self.tasks[c];
+            carrier.advance(spec, &last_good, &last_good, &plan, false, t, false)?;
+            self.reference.copy_from_slice(&carrier.orbit);
+        }
+        for step in (self.step..target).filter(|_| self.carrier.is_none()) {
             let t = spec.time_of(step);
             system.step_reference(&mut self.reference, t, &mut self.plan, &mut self.work);
             self.plan_bounds.push(self.plan.len());
@@ -402,17 +428,27 @@ impl Engine {
             from: self.step,
         };
         let start = &last_good;
-        let advance = |task: &mut DeviationSet| {
-            task.advance(spec, start, reference, &plan, renorm[task.scheme], t)
+        let carrier = self.carrier;
+        let advance = |(i, task): (usize, &mut DeviationSet)| {
+            let stepped = carrier == Some(i);
+            task.advance(
+                spec,
+                start,
+                reference,
+                &plan,
+                renorm[task.scheme],
+                t,
+                stepped,
+            )
         };
         // Work of this window: state values stepped, over every task's orbits.
         let work = n_steps
             .saturating_mul((spec.k() as u64 + 1) * spec.dim() as u64)
             .saturating_mul(self.tasks.len() as u64);
         let results: Vec<Result<Vec<SchemeSample>, RunError>> = if work < self.parallel_min_work {
-            self.tasks.iter_mut().map(advance).collect()
+            self.tasks.iter_mut().enumerate().map(advance).collect()
         } else {
-            self.tasks.par_iter_mut().map(advance).collect()
+            self.tasks.par_iter_mut().enumerate().map(advance).collect()
         };
         let mut schemes = Vec::new();
         for r in results {
@@ -546,6 +582,11 @@ struct AlongReference<'a> {
     start: &'a [f64],
     work: &'a mut Workspace,
     rows: &'a mut Vec<f64>,
+    /// The copy of the reference the tangent lanes follow.
+    orbit: &'a mut Vec<f64>,
+    /// Tangent lanes and their copy in one fused pass where the system has it now
+    /// ([`Stepping::Fused`]).
+    fused: bool,
 }
 
 impl PointKernel for AlongReference<'_> {
@@ -578,15 +619,24 @@ impl PointKernel for AlongReference<'_> {
         for (lane, row) in self.rows.chunks_exact_mut(dim).enumerate() {
             v.read_lane(lane, row);
         }
-        let mut orbit = self.start.to_vec();
-        for (step, substeps) in self.plan.steps() {
-            self.system.step_tangent_along(
-                &mut orbit,
-                self.rows,
-                time.at(step),
-                substeps,
-                self.work,
-            )?;
+        self.orbit.clear();
+        self.orbit.extend_from_slice(self.start);
+        let steps = self.plan.bounds.len() as u64 - 1;
+        let fused = self.fused
+            && self.plan.substeps.is_empty()
+            && self
+                .system
+                .reference_tangent_steps(self.orbit, self.rows, self.plan.from, steps);
+        if !fused {
+            for (step, substeps) in self.plan.steps() {
+                self.system.step_tangent_along(
+                    self.orbit,
+                    self.rows,
+                    time.at(step),
+                    substeps,
+                    self.work,
+                )?;
+            }
         }
         for (lane, row) in self.rows.chunks_exact(dim).enumerate() {
             v.write_lane(lane, row);
@@ -621,6 +671,7 @@ fn tasks(
             propagated,
             work: Workspace::new(),
             rows: Vec::new(),
+            orbit: Vec::new(),
             stepping,
         };
         if scheme.route == Route::WindowPropagator {
@@ -649,6 +700,17 @@ fn tasks(
     tasks
 }
 
+/// The task that carries the reference (see the module documentation): the first set of
+/// tangent vectors stepped by the fused pass, where no divergence is integrated along the orbit.
+fn carrier(tasks: &[DeviationSet], divergence: bool) -> Option<usize> {
+    if divergence {
+        return None;
+    }
+    tasks.iter().position(|t| {
+        t.stepping == Stepping::Fused && !t.method.lanes_are_orbits() && t.propagated.is_none()
+    })
+}
+
 /// The window propagator's lanes: the identity, `e_j` in lane `j` (unit vectors: the window
 /// propagator is VM's, and the tangent map is linear).
 fn identity_lanes(method: &dyn DeviationMethod, x: &[f64], stepping: Stepping) -> Soa {
@@ -665,6 +727,10 @@ fn identity_lanes(method: &dyn DeviationMethod, x: &[f64], stepping: Stepping) -
 }
 
 impl DeviationSet {
+    /// Steps the lanes through the window `plan` from the reference's state `start` (unless
+    /// `stepped`: the carrier, stepped before the others) and renormalizes them where
+    /// `renormalize`, against the reference's state at the window's end `reference`.
+    #[allow(clippy::too_many_arguments)]
     fn advance(
         &mut self,
         spec: &RunSpec,
@@ -673,12 +739,13 @@ impl DeviationSet {
         plan: &Plan<'_>,
         renormalize: bool,
         t: f64,
+        stepped: bool,
     ) -> Result<Vec<SchemeSample>, RunError> {
         let dim = spec.dim();
         let system = spec.system().as_ref();
         let mut batched = match self.stepping {
             Stepping::Batched { isa, .. } => BatchedAlong::new(system, isa, start),
-            Stepping::OneOrbit => None,
+            Stepping::OneOrbit | Stepping::Fused => None,
         };
         let mut along;
         let kernel: &mut dyn PointKernel = match &mut batched {
@@ -690,13 +757,17 @@ impl DeviationSet {
                     start,
                     work: &mut self.work,
                     rows: &mut self.rows,
+                    orbit: &mut self.orbit,
+                    fused: self.stepping == Stepping::Fused,
                 };
                 &mut along
             }
         };
         let steps = plan.bounds.len() as u64 - 1;
-        self.method
-            .advance(kernel, &mut self.lanes, plan.from, steps)?;
+        if !stepped {
+            self.method
+                .advance(kernel, &mut self.lanes, plan.from, steps)?;
+        }
         if !renormalize {
             return Ok(Vec::new());
         }

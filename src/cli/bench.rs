@@ -121,6 +121,11 @@ pub struct Args {
     /// Chain lengths of the DKG comparison.
     #[arg(long, value_delimiter = ',', default_values_t = [200usize, 1000, 4000])]
     pub dkg_sizes: Vec<usize>,
+    /// With `--dkg-only`: the ensemble's throughput, `REALIZATIONS:SITES` (disorder seeds 1,
+    /// 2, ..., as many runs at a time as the machine has cores), site-steps per CPU and per
+    /// wall second; `0` for none.
+    #[arg(long, default_value = "4:1000")]
+    pub dkg_ensemble: String,
     /// One run of the lattice comparison (internal: `MODEL:N:T_FINAL`), as a child process.
     #[arg(long, hide = true)]
     pub lattice_case: Option<String>,
@@ -562,6 +567,24 @@ fn map_case(spec: &MapSpec, isa: Isa, threads: usize) -> anyhow::Result<(f64, f6
     ))
 }
 
+/// `--dkg-ensemble`: `REALIZATIONS:SITES`, or `0` for none.
+fn dkg_ensemble(text: &str) -> anyhow::Result<Option<(usize, usize)>> {
+    if text.trim() == "0" {
+        return Ok(None);
+    }
+    let parse = || -> Option<(usize, usize)> {
+        let (r, n) = text.split_once(':')?;
+        Some((r.trim().parse().ok()?, n.trim().parse().ok()?))
+    };
+    match parse() {
+        Some((r, n)) if (1..=1000).contains(&r) && (4..=100_000).contains(&n) => Ok(Some((r, n))),
+        _ => anyhow::bail!(
+            "--dkg-ensemble: REALIZATIONS:SITES (1 to 1000 realizations of 4 to 100000 sites), or \
+             0 for none, not {text:?}"
+        ),
+    }
+}
+
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     if let Some(case) = &args.lattice_case {
         lattice::case(case)?;
@@ -571,7 +594,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         let report = serde_json::json!({
             "cpu": Machine::cpu_model(),
             "isa": Isa::detect().name(),
-            "dkg_expression_run_vs_scalar_c": dkg::compare(&args.dkg_sizes)?,
+            "dkg_expression_run_vs_scalar_c": dkg::compare(&args.dkg_sizes, dkg_ensemble(&args.dkg_ensemble)?)?,
         });
         chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
         return Ok(ExitCode::SUCCESS);

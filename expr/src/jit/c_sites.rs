@@ -76,6 +76,10 @@ fn source(graph: &Graph, lattice: &LatticePotential, arrays: &[(String, Arc<[f64
         };
         k.write(&mut src);
     }
+    let array_env = c_step::ENV_TABLES + n_tables;
+    if let Some(fused) = super::c_fused::source(graph, lattice, arrays, array_env) {
+        src.push_str(&fused);
+    }
     src
 }
 

@@ -94,6 +94,21 @@ pub(super) type CTangentFn = unsafe extern "C" fn(
     env: *const usize,
 );
 
+/// The fused one-orbit kernel's C signature ([`super::c_fused`]): the orbit `x` (`2N`), `k`
+/// tangent vectors `v` (`k` times `2N`), the splitting's coefficients, the inverse masses
+/// (null: unit masses) and the callback table.
+pub(super) type CFusedFn = unsafe extern "C" fn(
+    x: *mut f64,
+    v: *mut f64,
+    k: usize,
+    n_steps: u64,
+    drift: *const f64,
+    kick: *const f64,
+    n_kicks: usize,
+    inverse_masses: *const f64,
+    env: *const usize,
+);
+
 /// Unary operations called back, in the order of their `env` slots.
 const UNARY_CALLED: [Unary; 9] = [
     Unary::Exp,
@@ -234,6 +249,8 @@ pub(super) struct CKernels {
     pub _library: libloading::Library,
     pub orbit: COrbitFn,
     pub tangent: Option<CTangentFn>,
+    /// The fused one-orbit kernel, where the source has one ([`super::c_fused`]).
+    pub fused: Option<CFusedFn>,
     /// Whether the library came from the cache (no compilation in this call).
     pub cached: bool,
     pub path: PathBuf,
@@ -671,10 +688,15 @@ fn load(
     } else {
         None
     };
+    // SAFETY: as above; the symbol is there only where the source wrote the kernel.
+    let fused = unsafe { library.get::<CFusedFn>(super::c_fused::SYMBOL) }
+        .ok()
+        .map(|f| *f);
     Ok(CKernels {
         _library: library,
         orbit,
         tangent,
+        fused,
         cached,
         path: path.to_path_buf(),
     })

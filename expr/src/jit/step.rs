@@ -133,6 +133,68 @@ impl StepKernels {
         }
     }
 
+    /// Whether [`Self::reference_tangent_steps`] has a kernel (the C kernels of a lattice
+    /// potential that suits it, [`super::c_fused`]).
+    pub fn has_reference_tangent(&self) -> bool {
+        matches!(&self.code, Code::C { kernels, .. } if kernels.fused.is_some())
+    }
+
+    /// `n_steps` steps of the splitting for one orbit `x` (rows `q, p`) and `k` tangent vectors
+    /// around it in `v` (`k` rows of `2N` values each, `dq, dp`), in one pass per stage
+    /// vectorized along the sites: bit for bit [`Self::orbit_steps`] of `x` and
+    /// [`Self::tangent_steps`] of `v` around its stages. False (nothing stepped) where there is
+    /// no such kernel ([`Self::has_reference_tangent`]).
+    ///
+    /// # Panics
+    /// If `x` does not hold `2N` values or `v` a whole number of `2N`-value vectors, or as
+    /// [`Self::orbit_steps`] for the coefficients and masses.
+    pub fn reference_tangent_steps(
+        &self,
+        x: &mut [f64],
+        v: &mut [f64],
+        n_steps: u64,
+        drift: &[f64],
+        kick: &[f64],
+        inverse_masses: Option<&[f64]>,
+    ) -> bool {
+        let Code::C {
+            kernels: CKernels { fused: Some(f), .. },
+            env,
+        } = &self.code
+        else {
+            return false;
+        };
+        let dim = 2 * self.n;
+        assert!(
+            x.len() == dim && v.len().is_multiple_of(dim),
+            "fused steps: an orbit of {} values and vectors of {} for {dim}",
+            x.len(),
+            v.len()
+        );
+        self.check(x, 1, 1, drift, kick, inverse_masses);
+        if n_steps == 0 {
+            return true;
+        }
+        let w = inverse_masses.map_or(std::ptr::null(), |w| w.as_ptr());
+        // SAFETY: lengths checked above; the kernel reads `2N` values of `x`, `k` vectors of
+        // `2N` of `v`, `n_kicks + 1` drifts, `n_kicks` kicks, `N` inverse masses; the code,
+        // tables and arrays `env` points to live as long as `self`.
+        unsafe {
+            f(
+                x.as_mut_ptr(),
+                v.as_mut_ptr(),
+                v.len() / dim,
+                n_steps,
+                drift.as_ptr(),
+                kick.as_ptr(),
+                kick.len(),
+                w,
+                env.as_ptr(),
+            )
+        };
+        true
+    }
+
     /// The working memory of one call of a kernel with `block`-lane blocks.
     fn scratch(&self, block: usize) -> Vec<f64> {
         vec![0.0; self.scratch_per_lane * block]

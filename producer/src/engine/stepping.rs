@@ -53,9 +53,19 @@ pub(crate) enum Stepping {
     /// Lane by lane through the one-orbit system, following the reference's steps and
     /// substeps: every system, and the definition the batched form reproduces.
     OneOrbit,
+    /// As [`Stepping::OneOrbit`], but a set's tangent vectors step with their copy of the
+    /// reference in one fused pass vectorized along a lattice's sites
+    /// ([`DynamicalSystem::reference_tangent_steps`], where the system has that kernel now; the
+    /// same bits): the few vectors the batched kernels would pad to a chunk.
+    Fused,
     /// The system's batched form on the instruction set `isa`, for tasks of at least
-    /// `min_lanes` lanes ([`Stepping::for_lanes`]).
-    Batched { isa: Isa, min_lanes: usize },
+    /// `min_lanes` lanes ([`Stepping::for_lanes`]); smaller tasks take the fused pass where
+    /// the system has one (`fused`), else the one-orbit path.
+    Batched {
+        isa: Isa,
+        min_lanes: usize,
+        fused: bool,
+    },
 }
 
 impl Stepping {
@@ -65,20 +75,27 @@ impl Stepping {
     pub(crate) fn of(spec: &RunSpec) -> Self {
         let system = spec.system().as_ref();
         let isa = Isa::detect();
-        if spec.x0().len() == system.dim() && system.batched(isa).is_some() {
+        let plain = spec.x0().len() == system.dim();
+        let fused = plain && system.steps_reference_tangent();
+        if plain && system.batched(isa).is_some() {
             Stepping::Batched {
                 isa,
                 min_lanes: MIN_BATCHED_LANES,
+                fused,
             }
+        } else if fused {
+            Stepping::Fused
         } else {
             Stepping::OneOrbit
         }
     }
 
-    /// The stepping of a task of `lanes` lanes: the batched form only if they are enough.
+    /// The stepping of a task of `lanes` lanes: the batched form only if they are enough, else
+    /// the fused pass where the system has it.
     pub(crate) fn for_lanes(self, lanes: usize) -> Self {
         match self {
             Stepping::Batched { min_lanes, .. } if lanes >= min_lanes => self,
+            Stepping::Batched { fused: true, .. } | Stepping::Fused => Stepping::Fused,
             _ => Stepping::OneOrbit,
         }
     }
@@ -88,7 +105,7 @@ impl Stepping {
     /// for the one-orbit path, which steps every lane it is given.
     pub(crate) fn lanes(self, rows: usize, lanes: usize) -> Soa {
         match self {
-            Stepping::OneOrbit => Soa::unpadded(rows, lanes),
+            Stepping::OneOrbit | Stepping::Fused => Soa::unpadded(rows, lanes),
             Stepping::Batched { .. } => Soa::new(rows, lanes),
         }
     }
@@ -190,7 +207,11 @@ mod tests {
         let Stepping::Batched { isa, .. } = Stepping::of(&spec) else {
             panic!("{}: the batched form should apply", spec.system().name());
         };
-        let all = Stepping::Batched { isa, min_lanes: 1 };
+        let all = Stepping::Batched {
+            isa,
+            min_lanes: 1,
+            fused: false,
+        };
         let batched = samples(Engine::with_stepping(spec.clone(), all));
         let one_orbit = samples(Engine::one_orbit(spec.clone()));
         let chosen = Engine::new(spec);
@@ -250,6 +271,72 @@ mod tests {
         config.deviations = DeviationsConfig::random(4, 2, 7);
         config.schemes = schemes(1e-7, 0.05, false);
         batched_equals_one_orbit(&config, 16);
+    }
+
+    /// The DKG chain as an expression at 24 and 37 sites with sets of 1 to 3 vectors (fewer
+    /// than the batched kernels take): their tangent vectors and the reference step in the fused
+    /// pass along the sites, the first VM set carrying the reference; every sample the one-orbit
+    /// path's, bit for bit, and so is a run resumed from a sample of it.
+    #[test]
+    fn dkg_expression_chain_fused_is_one_orbit_bit_for_bit() {
+        use chaoscope_expr::potential::ExpressionModel;
+        for (n, k) in [(24usize, 1usize), (37, 2), (24, 3)] {
+            let text = include_str!("../../../examples/models/dkg-single-site.toml")
+                .replace("n = 1000\n", &format!("n = {n}\n"))
+                .replace("sites = 500,", &format!("sites = {},", n / 2));
+            let mut config = RunConfig::from_toml(&text).unwrap();
+            // 320 steps: every scheme renormalizes at step 300 (12, 20 and 25 divide it).
+            config.integrator.t_final = 16.0;
+            config.deviations = DeviationsConfig::random(k, 2, 7);
+            config.schemes = schemes(1e-7, 0.05, false);
+            let spec = RunSpec::from_config(&config).unwrap();
+            // The C kernels built first (a run switches to them when they are ready: the
+            // same bits either way), so the fused pass steps from the first window.
+            let model = spec.system().separable().unwrap().model().clone();
+            let expression = (model.as_ref() as &dyn std::any::Any)
+                .downcast_ref::<ExpressionModel>()
+                .unwrap();
+            expression.c_step_kernels().unwrap();
+            assert!(matches!(
+                Stepping::of(&spec),
+                Stepping::Batched { fused: true, .. }
+            ));
+            let engine = Engine::new(spec.clone());
+            assert!(engine.tasks.iter().all(|t| t.stepping == Stepping::Fused));
+            assert_eq!(
+                engine.carrier,
+                Some(0),
+                "the first VM set carries the reference"
+            );
+            let calls = expression.c_step_status().c_calls;
+            let fused = samples(engine);
+            assert!(
+                expression.c_step_status().c_calls > calls,
+                "n = {n}, k = {k}: the fused kernel never ran"
+            );
+            let one_orbit = samples(Engine::one_orbit(spec.clone()));
+            assert!(one_orbit.len() > 40);
+            same_bits(&fused, &one_orbit);
+            assert!(
+                fused
+                    .last()
+                    .unwrap()
+                    .schemes
+                    .iter()
+                    .any(|s| s.stretch.iter().any(|&f| f != 1.0))
+            );
+            // Resumed from a sample at which every scheme renormalized.
+            let from = one_orbit
+                .iter()
+                .position(|s| s.step == 300)
+                .expect("a sample at step 300");
+            let mut resumed = vec![];
+            Engine::resume(spec.clone(), &one_orbit[from])
+                .unwrap()
+                .run(|s| resumed.push(s))
+                .unwrap();
+            same_bits(&resumed, &one_orbit[from + 1..]);
+        }
     }
 
     #[test]

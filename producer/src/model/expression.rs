@@ -99,4 +99,19 @@ impl Model for ExpressionModel {
     fn diagnose_non_finite_with(&self, q: &[f64], t: f64, params: &[f64]) -> Option<String> {
         ExpressionModel::diagnose_non_finite_with(self, q, t, params)
     }
+
+    fn may_step_reference_tangent(&self) -> bool {
+        ExpressionModel::may_step_reference_tangent(self)
+    }
+
+    fn reference_tangent_steps(
+        &self,
+        x: &mut [f64],
+        v: &mut [f64],
+        n_steps: u64,
+        drift: &[f64],
+        kick: &[f64],
+    ) -> bool {
+        ExpressionModel::reference_tangent_steps(self, x, v, n_steps, drift, kick)
+    }
 }

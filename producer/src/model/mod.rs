@@ -192,6 +192,30 @@ pub trait Model: std::any::Any + Send + Sync {
     fn diagnose_non_finite_with(&self, q: &[f64], t: f64, _params: &[f64]) -> Option<String> {
         self.diagnose_non_finite_at(q, t)
     }
+
+    /// Whether [`Model::reference_tangent_steps`] can step (now or once its code is built):
+    /// what a run's stepping is chosen by. False for every model but a `potential` whose
+    /// lattice sums are loops and whose C kernels are not switched off.
+    fn may_step_reference_tangent(&self) -> bool {
+        false
+    }
+
+    /// `n_steps` steps of a splitting (its coefficients times `h`) for the state `x` (`q, p`)
+    /// and the tangent vectors `v` around it (each `dq, dp`) in one fused pass per stage: bit
+    /// for bit `Splitting::step` and `step_tangent` through this model's own functions. False,
+    /// with nothing stepped, where the model has no such kernel (yet): the caller steps them
+    /// as usual.
+    fn reference_tangent_steps(
+        &self,
+        x: &mut [f64],
+        v: &mut [f64],
+        n_steps: u64,
+        drift: &[f64],
+        kick: &[f64],
+    ) -> bool {
+        let _ = (x, v, n_steps, drift, kick);
+        false
+    }
 }
 
 /// Most lane parameters of a model: a map has two axes.

@@ -174,6 +174,22 @@ pub trait DynamicalSystem: Send + Sync {
         None
     }
 
+    /// Whether [`DynamicalSystem::reference_tangent_steps`] can step this system (now, or once
+    /// its code is built): a run then steps a small set of tangent vectors with its own copy of
+    /// the reference in one fused pass, and takes the reference from one such copy.
+    fn steps_reference_tangent(&self) -> bool {
+        false
+    }
+
+    /// `steps` steps, the first of them step number `from`, of the orbit `x` and the tangent
+    /// vectors `v` around it (stored one after the other), in one fused pass: bit for bit
+    /// `step` of `x` and `step_tangent` of `v` along it. False, with nothing stepped, where the
+    /// system has no such kernel now (its caller steps them one step at a time).
+    fn reference_tangent_steps(&self, x: &mut [f64], v: &mut [f64], from: u64, steps: u64) -> bool {
+        let _ = (x, v, from, steps);
+        false
+    }
+
     /// The separable Hamiltonian behind this system (its model, splitting and step), for what
     /// only separable Hamiltonians offer: solving the energy for a momentum (maps' grid
     /// points), Poincare sections, `N` in the run header. `None` for every other kind.

@@ -174,6 +174,34 @@ impl DynamicalSystem for SplitHamiltonian {
         Some(self)
     }
 
+    /// A potential whose lattice sums are loops (its C kernels' fused one-orbit kernel), not
+    /// of the time and without lane parameters.
+    fn steps_reference_tangent(&self) -> bool {
+        self.model.lane_params() == 0
+            && !self.model.reads_time()
+            && self.model.has_hessian()
+            && self.model.may_step_reference_tangent()
+    }
+
+    fn reference_tangent_steps(
+        &self,
+        x: &mut [f64],
+        v: &mut [f64],
+        _from: u64,
+        steps: u64,
+    ) -> bool {
+        // The time is not read (`steps_reference_tangent`): the step number does not matter.
+        self.model.lane_params() == 0
+            && !self.model.reads_time()
+            && self.model.reference_tangent_steps(
+                x,
+                v,
+                steps,
+                &self.coeffs.drift,
+                &self.coeffs.kick,
+            )
+    }
+
     fn diagnose_non_finite(&self, x: &[f64], t: f64) -> Option<String> {
         let n = self.model.dof();
         let model = WithParams::of_state(&self.model, x);

@@ -1,0 +1,600 @@
+//! One orbit and its tangent vectors stepped together, vectorized along the lattice: the C
+//! kernel `chaoscope_reference_tangent_steps` of a lattice potential, written into the same
+//! library as its step kernels ([`super::c_sites`]).
+//!
+//! The step kernels vectorize across lanes (many orbits, many tangent vectors), which a run's
+//! reference orbit with one or two tangent vectors cannot fill: stepped one by one through the
+//! scalar functions it paid a compiled loop per gradient and per Hessian-vector product, each
+//! writing a buffer that another loop applied, at about a fifth of a hand-written C's speed.
+//! This kernel vectorizes along the sites instead, as a hand-written chain does, and reads the
+//! reference's stage positions where they are (no recorded stages). Per stage:
+//!
+//! ```text
+//! drift   q += c p, and dq += c dp of every vector              (vectors of 4 sites)
+//! sites   g_j = the derivatives of the terms that read site j, in order; p_j -= dh g_j;
+//!         the same for the first vector's Hess V(q) dq into dp  (vectors of 4 sites)
+//! vectors the further vectors' Hess V(q) dq, site by site        (vectors of 4 sites)
+//! ends    the sites near the ends one by one
+//! ```
+//!
+//! The bits are [`crate::lattice::LatticeEvaluator`]'s, so those of the scalar functions and of
+//! the step kernels. A site adds its contributions in the evaluator's order: `-0` first, then
+//! the expression around the sums, then every sum's terms in increasing `i`, slot by slot.
+//! Away from the ends that order is the same at every site (a sum's slots by decreasing shift:
+//! the term that reads a site through its largest shift comes first), so one vector loop
+//! computes, for each site, each slot's derivative of the term that reads the site through that
+//! slot (a term shared by two sites is computed at both: each value is the graph's
+//! operations on the same inputs, so the same bits, and nothing goes through memory). The few
+//! sites at the ends (a wall, a periodic wrap, the rest's sites) are written out one by one
+//! with their own lists. Drifts `q + c p` (`c = ch * w_j` with masses) and kicks `p - dh g` as
+//! the splitting's own; no fused multiply-add (the library's flags).
+//!
+//! The source holds `N`, one copy of each slot's derivative and the end sites' lists (bounded
+//! by the boundary terms, not by `N`); array parameters are read through `env`, as the step
+//! kernels read them. A lattice whose ends would need more than [`MAX_END_SITES`] sites written
+//! out, or with fewer than [`MIN_SITES`] sites, gets no such kernel (the caller steps its orbit
+//! and vectors the one-orbit way: the same bits).
+
+use std::fmt::Write as _;
+use std::sync::Arc;
+
+use super::c_step::{konst, scalar_expr, vector_expr};
+use super::{is_leaf, schedule};
+use crate::graph::{Graph, Node, NodeId};
+use crate::lattice::{
+    ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_V, LatticePotential, SiteSum,
+};
+
+/// The C symbol of the kernel.
+pub(super) const SYMBOL: &[u8] = b"chaoscope_reference_tangent_steps\0";
+
+/// Most sites written out one by one at the ends.
+const MAX_END_SITES: usize = 256;
+
+/// Fewest sites for the kernel: below this the vector loops hardly run.
+pub const MIN_SITES: usize = 16;
+
+/// One contribution to a site: slot `slot` of term `term` of sum `sum`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Contribution {
+    sum: usize,
+    term: i64,
+    slot: usize,
+}
+
+/// The gather's plan: the sites `regular.0..=regular.1` take their contributions in the same
+/// order (`order`: per sum, the slots by decreasing shift), every other site has its own list.
+struct Gather {
+    regular: (usize, usize),
+    /// Per sum, its slots in the order a regular site takes them.
+    order: Vec<Vec<usize>>,
+    /// The other sites: (site, whether the rest adds to it first, its contributions).
+    ends: Vec<(usize, bool, Vec<Contribution>)>,
+}
+
+impl Gather {
+    fn new(lattice: &LatticePotential) -> Option<Self> {
+        let n = lattice.n;
+        // Every site's contributions in the evaluator's order: sums in turn, terms in
+        // increasing `i`, slots in slot order.
+        let mut lists: Vec<Vec<Contribution>> = vec![Vec::new(); n];
+        for (sum, s) in lattice.sums.iter().enumerate() {
+            for term in s.first..=s.last {
+                for (slot, &shift) in s.variables.iter().enumerate() {
+                    if let Some(j) = s.site(term, shift) {
+                        lists[j].push(Contribution { sum, term, slot });
+                    }
+                }
+            }
+        }
+        let order: Vec<Vec<usize>> = lattice
+            .sums
+            .iter()
+            .map(|s| {
+                let mut slots: Vec<usize> = (0..s.variables.len()).collect();
+                // Increasing term index at a fixed site is decreasing shift; equal shifts (one
+                // term reading a site twice) keep slot order.
+                slots.sort_by_key(|&slot| std::cmp::Reverse(s.variables[slot]));
+                slots
+            })
+            .collect();
+        let rest: Vec<bool> = {
+            let mut r = vec![false; n];
+            for &(j, _) in &lattice.rest_gradient {
+                r[j as usize] = true;
+            }
+            if let Some(hv) = &lattice.rest_hessian_vector {
+                for &(j, _) in hv {
+                    r[j as usize] = true;
+                }
+            }
+            r
+        };
+        let regular_at = |j: usize| -> bool {
+            if rest[j] {
+                return false;
+            }
+            let mut expected = Vec::new();
+            for (sum, s) in lattice.sums.iter().enumerate() {
+                // Only terms that read inside the lattice (no wall, no wrap) run in the loop.
+                let Some((from, to)) = s.interior() else {
+                    return false;
+                };
+                for &slot in &order[sum] {
+                    let term = j as i64 + 1 - s.variables[slot];
+                    if term < from || term > to {
+                        return false;
+                    }
+                    expected.push(Contribution { sum, term, slot });
+                }
+            }
+            lists[j] == expected
+        };
+        // The longest run of regular sites.
+        let (mut best, mut run_start) = (None::<(usize, usize)>, None::<usize>);
+        for j in 0..=n {
+            if j < n && regular_at(j) {
+                run_start.get_or_insert(j);
+                continue;
+            }
+            if let Some(a) = run_start.take() {
+                let len = j - a;
+                if best.is_none_or(|(b0, b1)| b1 + 1 - b0 < len) {
+                    best = Some((a, j - 1));
+                }
+            }
+        }
+        let regular = best?;
+        let ends: Vec<(usize, bool, Vec<Contribution>)> = (0..n)
+            .filter(|&j| j < regular.0 || j > regular.1)
+            .map(|j| (j, rest[j], std::mem::take(&mut lists[j])))
+            .collect();
+        (ends.len() <= MAX_END_SITES).then_some(Self {
+            regular,
+            order,
+            ends,
+        })
+    }
+}
+
+/// Whether `lattice` gets the kernel ([`source`] writes it into its C kernels' library).
+pub fn applies(lattice: &LatticePotential) -> bool {
+    lattice.has_hessian() && lattice.n >= MIN_SITES && Gather::new(lattice).is_some()
+}
+
+/// The vectors of this kernel: as wide as the host's widest registers (eight lanes with
+/// AVX-512, four otherwise), where the step kernels' (the prelude's `vd`) are four lanes in two
+/// chains. The prelude's names are redefined to these types from here on (this kernel is the
+/// last part of the source), so the expressions are written as everywhere else; the helpers
+/// are the prelude's, lane by lane, at the new width.
+const WIDE: &str = r#"
+/* The fused one-orbit kernel (expr/src/jit/c_fused.rs): host-wide vectors. */
+#if defined(__AVX512F__)
+#define FLANES 8
+#else
+#define FLANES 4
+#endif
+typedef double vf __attribute__((vector_size(FLANES * 8)));
+typedef int64_t vfi __attribute__((vector_size(FLANES * 8)));
+static inline vf FB(double x) { vf r; for (int l = 0; l < FLANES; l++) r[l] = x; return r; }
+static inline vf FLD(const double *p) { vf r; memcpy(&r, p, sizeof r); return r; }
+static inline void FST(double *p, vf v) { memcpy(p, &v, sizeof v); }
+static inline vf FSEL(vfi m, vf t, vf e) { return (vf)((m & (vfi)t) | (~m & (vfi)e)); }
+static inline vf FVABS(vf a) { vfi m; for (int l = 0; l < FLANES; l++) m[l] = INT64_MAX; return (vf)((vfi)a & m); }
+static inline vf FVSQRT(vf a) { vf r; for (int l = 0; l < FLANES; l++) r[l] = __builtin_sqrt(a[l]); return r; }
+static inline vf FVSTEP(vf x) { vf r = FSEL(x > FB(0.0), FB(1.0), FB(0.0)); return FSEL(x != x, x, r); }
+static inline vf FVSIGN(vf x) { vf r = FSEL(x < FB(0.0), FB(-1.0), FB(0.0)); r = FSEL(x > FB(0.0), FB(1.0), r); return FSEL(x != x, x, r); }
+static inline vf FVMAX(vf a, vf b) { vf r = FSEL(a >= b, a, b); return FSEL((a != a) | (b != b), FB(K(0x7ff8000000000000ull)), r); }
+static inline vf FVMIN(vf a, vf b) { vf r = FSEL(a <= b, a, b); return FSEL((a != a) | (b != b), FB(K(0x7ff8000000000000ull)), r); }
+static inline vf FV1(uintptr_t f, vf a) { vf r; for (int l = 0; l < FLANES; l++) r[l] = ((fn1)f)(a[l]); return r; }
+static inline vf FV2(uintptr_t f, vf a, vf b) { vf r; for (int l = 0; l < FLANES; l++) r[l] = ((fn2)f)(a[l], b[l]); return r; }
+static inline vf FVT(uintptr_t f, uintptr_t t, uint64_t d, vf a) { vf r; for (int l = 0; l < FLANES; l++) r[l] = ((fntab)f)(t, d, a[l]); return r; }
+#undef LANES
+#define LANES FLANES
+#define vd vf
+#define vi vfi
+#define B FB
+#define LD FLD
+#define ST FST
+#define SEL FSEL
+#define VABS FVABS
+#define VSQRT FVSQRT
+#define VSTEP FVSTEP
+#define VSIGN FVSIGN
+#define VMAX FVMAX
+#define VMIN FVMIN
+#define V1 FV1
+#define V2 FV2
+#define VT FVT
+"#;
+
+/// The kernel's C source (after the step kernels' prelude), `None` when it does not apply.
+/// `arrays` are the array parameters as `env` holds them from slot `array_env` on.
+pub(super) fn source(
+    graph: &Graph,
+    lattice: &LatticePotential,
+    arrays: &[(String, Arc<[f64]>)],
+    array_env: usize,
+) -> Option<String> {
+    if !lattice.has_hessian() || lattice.n < MIN_SITES {
+        return None;
+    }
+    let gather = Gather::new(lattice)?;
+    let writer = Writer {
+        graph,
+        lattice,
+        arrays,
+        gather: &gather,
+        contributions: [false, true].map(|tangent| {
+            lattice
+                .derivatives
+                .iter()
+                .map(|d| d.contributions(graph, tangent))
+                .collect()
+        }),
+    };
+    let n = lattice.n;
+    let two_n = 2 * n;
+    let mut src = String::from(WIDE);
+    writer.drift(&mut src);
+    let _ = writeln!(
+        src,
+        "static void fused_stage(double *restrict x, double *restrict v, size_t k, double dh, \
+         const uintptr_t *env) {{"
+    );
+    let _ = writeln!(
+        src,
+        "  const double *restrict q = x;\n  double *restrict p = x + {n};\n  (void)env;"
+    );
+    for a in 0..arrays.len() {
+        let _ = writeln!(
+            src,
+            "  const double *arr{a} = (const double *)env[{}];",
+            array_env + a
+        );
+    }
+    let _ = writeln!(
+        src,
+        "  if (k > 0) {{\n    const double *dq = v;\n    double *dp = v + {n};"
+    );
+    writer.regular(&mut src, &[false, true]);
+    let _ = writeln!(src, "  }} else {{");
+    writer.regular(&mut src, &[false]);
+    let _ = writeln!(
+        src,
+        "  }}\n  for (size_t m = 1; m < k; m++) {{\n    const double *dq = v + m * {two_n};\n    double *dp = v + m * {two_n} + {n};"
+    );
+    writer.regular(&mut src, &[true]);
+    let _ = writeln!(src, "  }}");
+    // The ends, one site at a time: the orbit's, then every vector's.
+    writer.ends(&mut src, false);
+    let _ = writeln!(
+        src,
+        "  for (size_t m = 0; m < k; m++) {{\n    const double *dq = v + m * {two_n};\n    double *dp = v + m * {two_n} + {n};"
+    );
+    writer.ends(&mut src, true);
+    let _ = writeln!(src, "  }}\n}}");
+    let _ = writeln!(
+        src,
+        "void chaoscope_reference_tangent_steps(double *restrict x, double *restrict v, size_t k, \
+         uint64_t n_steps, const double *drift, const double *kick, size_t n_kicks, \
+         const double *w, const uintptr_t *env) {{
+  for (uint64_t s = 0; s < n_steps; s++) {{
+    for (size_t kk = 0; kk < n_kicks; kk++) {{
+      const double ch = drift[kk];
+      fused_drift(x, ch, w);
+      for (size_t m = 0; m < k; m++) fused_drift(v + m * {two_n}, ch, w);
+      fused_stage(x, v, k, kick[kk], env);
+    }}
+    const double ch = drift[n_kicks];
+    fused_drift(x, ch, w);
+    for (size_t m = 0; m < k; m++) fused_drift(v + m * {two_n}, ch, w);
+  }}
+}}"
+    );
+    Some(src)
+}
+
+struct Writer<'a> {
+    graph: &'a Graph,
+    lattice: &'a LatticePotential,
+    arrays: &'a [(String, Arc<[f64]>)],
+    gather: &'a Gather,
+    /// Per sum, what each slot adds to its site (`factor`, node): the gradient's `[0]`, the
+    /// Hessian-vector product's `[1]`.
+    contributions: [Vec<Vec<(f64, NodeId)>>; 2],
+}
+
+/// Where a term's slots are read: relative to the loop's site `j` (vectors of `LANES` sites,
+/// or one), or at a term known when writing (its sites resolved: a wall is `0`).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum At {
+    /// The term that reads site `j` through the slot of this shift.
+    Site {
+        shift: i64,
+        vector: bool,
+    },
+    Term(i64),
+}
+
+/// How the regular sites' loop body is written: a vector of sites, the last vector with the
+/// lanes already done kept, or one site.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Body {
+    Vector,
+    Masked,
+    Scalar,
+}
+
+/// `acc + x`, `acc - x` or `acc + c x` ([`crate::lattice::accumulate`]).
+fn add(acc: &str, c: f64, x: &str, vector: bool) -> String {
+    if c == 1.0 {
+        format!("{acc} + {x}")
+    } else if c == -1.0 {
+        format!("{acc} - {x}")
+    } else if vector {
+        format!("{acc} + B({}) * {x}", konst(c))
+    } else {
+        format!("{acc} + {} * {x}", konst(c))
+    }
+}
+
+impl Writer<'_> {
+    /// `q += c p` over one state's `N` sites: vectors, then the remaining sites.
+    fn drift(&self, out: &mut String) {
+        let n = self.lattice.n;
+        let _ = writeln!(
+            out,
+            "static inline void fused_drift(double *restrict x, double ch, const double *w) {{
+  size_t j = 0;
+  if (w) {{
+    for (; j + LANES <= {n}; j += LANES) ST(x + j, LD(x + j) + (B(ch) * LD(w + j)) * LD(x + {n} + j));
+    for (; j < {n}; j++) x[j] = x[j] + (ch * w[j]) * x[{n} + j];
+  }} else {{
+    for (; j + LANES <= {n}; j += LANES) ST(x + j, LD(x + j) + B(ch) * LD(x + {n} + j));
+    for (; j < {n}; j++) x[j] = x[j] + ch * x[{n} + j];
+  }}
+}}"
+        );
+    }
+
+    /// The array parameter `name`'s local pointer.
+    fn array(&self, name: &str) -> usize {
+        self.arrays
+            .iter()
+            .position(|(a, _)| a == name)
+            .expect("every array a sum reads")
+    }
+
+    /// A term leaf's C expression, and whether it is a vector.
+    fn leaf(&self, node: &Node, sum: &SiteSum, at: At) -> (String, bool) {
+        let (shift, base) = match *node {
+            Node::Const(c) => return (konst(c), false),
+            Node::Input {
+                arg: ARG_SITE,
+                index,
+            } => (sum.variables[index as usize], "q".to_string()),
+            Node::Input {
+                arg: ARG_SITE_DIRECTION,
+                index,
+            } => (sum.variables[index as usize], "dq".to_string()),
+            Node::Input {
+                arg: ARG_SITE_PARAM,
+                index,
+            } => {
+                let p = &sum.params[index as usize];
+                (p.shift, format!("arr{}", self.array(&p.name)))
+            }
+            _ => unreachable!("a leaf of a term: {node:?}"),
+        };
+        match at {
+            // Term i = j + 1 - s reads site i + shift - 1 = j + shift - s.
+            At::Site { shift: s, vector } => {
+                let at = format!("j + {}", shift - s);
+                if vector {
+                    (format!("LD({base} + ({at}))"), true)
+                } else {
+                    (format!("{base}[{at}]"), false)
+                }
+            }
+            At::Term(i) => match sum.site(i, shift) {
+                Some(j) => (format!("{base}[{j}]"), false),
+                // A wall (parameter slots always read inside the lattice).
+                None => (konst(0.0), false),
+            },
+        }
+    }
+
+    /// Lines computing `root` of a term of `sum` at `at` into `lines` (names suffixed by
+    /// `tag`); the root's value (a vector in vector code).
+    fn term(
+        &self,
+        root: NodeId,
+        sum: &SiteSum,
+        at: At,
+        tag: &str,
+        lines: &mut Vec<String>,
+    ) -> String {
+        let graph = self.graph;
+        let vector = matches!(at, At::Site { vector: true, .. });
+        let mut vals: Vec<Option<(String, bool)>> = vec![None; graph.len()];
+        for id in schedule(graph, &[root], |_| true) {
+            let node = graph.node(id);
+            if is_leaf(node) {
+                vals[id as usize] = Some(self.leaf(node, sum, at));
+                continue;
+            }
+            let lane = node
+                .operands()
+                .any(|o| vals[o as usize].as_ref().is_some_and(|v| v.1));
+            if lane {
+                let e = vector_expr(node, &mut |o| {
+                    let (x, lane) = vals[o as usize].clone().expect("operands first");
+                    if lane { x } else { format!("B({x})") }
+                });
+                lines.push(format!("const vd v{id}{tag} = {e};"));
+                vals[id as usize] = Some((format!("v{id}{tag}"), true));
+            } else {
+                let e = scalar_expr(node, &mut |o| {
+                    vals[o as usize].clone().expect("operands first").0
+                });
+                lines.push(format!("const double s{id}{tag} = {e};"));
+                vals[id as usize] = Some((format!("s{id}{tag}"), false));
+            }
+        }
+        let (x, lane) = vals[root as usize].clone().expect("emitted");
+        if vector && !lane {
+            format!("B({x})")
+        } else {
+            x
+        }
+    }
+
+    /// The loop over the regular sites for `parts` (the orbit's force, `false`; the vector
+    /// `dq, dp`'s Hessian-vector product, `true`): vectors of `LANES` sites, the last ones a
+    /// vector ending at the last regular site whose lanes already done keep their values (or
+    /// one by one, for fewer regular sites than a vector).
+    fn regular(&self, out: &mut String, parts: &[bool]) {
+        let (ja, jb) = self.gather.regular;
+        let _ = writeln!(out, "    {{ int64_t j = {ja};");
+        let _ = writeln!(out, "    for (; j + LANES - 1 <= {jb}; j += LANES) {{");
+        for &t in parts {
+            self.site(out, t, Body::Vector);
+        }
+        let _ = writeln!(out, "    }}");
+        // LANES is 4 or 8, as the host has.
+        if jb + 1 - ja >= 8 {
+            // A vector ending at the last regular site, the lanes before `j` (done) kept.
+            let _ = writeln!(
+                out,
+                "    if (j <= {jb}) {{\n      const int64_t done = j;\n      j = {jb} - LANES + 1;\n      vi keep;\n      for (int l = 0; l < LANES; l++) keep[l] = j + l < done ? -1 : 0;"
+            );
+            for &t in parts {
+                self.site(out, t, Body::Masked);
+            }
+            let _ = writeln!(out, "    }}");
+        } else {
+            let _ = writeln!(out, "    for (; j <= {jb}; j++) {{");
+            for &t in parts {
+                self.site(out, t, Body::Scalar);
+            }
+            let _ = writeln!(out, "    }}");
+        }
+        let _ = writeln!(out, "    }}");
+    }
+
+    /// The body of the regular sites' loop at site `j`: the orbit's force kicked into `p`, or
+    /// (`tangent`) the Hessian-vector product along `dq` kicked into `dp`.
+    fn site(&self, out: &mut String, tangent: bool, body: Body) {
+        let vector = body != Body::Scalar;
+        let lattice = self.lattice;
+        let contributions = &self.contributions[usize::from(tangent)];
+        let mut lines = Vec::new();
+        let mut acc = if vector { "B(-0.0)" } else { "-0.0" }.to_string();
+        for (s, sum) in lattice.sums.iter().enumerate() {
+            for &slot in &self.gather.order[s] {
+                let (factor, root) = contributions[s][slot];
+                let at = At::Site {
+                    shift: sum.variables[slot],
+                    vector,
+                };
+                let x = self.term(root, sum, at, &format!("_{s}_{slot}"), &mut lines);
+                let next = format!("a{s}_{slot}");
+                let ty = if vector { "vd" } else { "double" };
+                lines.push(format!(
+                    "const {ty} {next} = {};",
+                    add(&acc, factor, &x, vector)
+                ));
+                acc = next;
+            }
+        }
+        let p = if tangent { "dp" } else { "p" };
+        match body {
+            Body::Vector => lines.push(format!("ST({p} + j, LD({p} + j) - B(dh) * {acc});")),
+            Body::Masked => lines.push(format!(
+                "ST({p} + j, SEL(keep, LD({p} + j), LD({p} + j) - B(dh) * {acc}));"
+            )),
+            Body::Scalar => lines.push(format!("{p}[j] = {p}[j] - dh * {acc};")),
+        }
+        let _ = writeln!(out, "      {{");
+        for l in lines {
+            let _ = writeln!(out, "        {l}");
+        }
+        let _ = writeln!(out, "      }}");
+    }
+
+    /// The sites outside the regular run, one by one, each with its own list (the rest first).
+    fn ends(&self, out: &mut String, tangent: bool) {
+        let lattice = self.lattice;
+        let contributions = &self.contributions[usize::from(tangent)];
+        let rest = if tangent {
+            lattice
+                .rest_hessian_vector
+                .as_deref()
+                .expect("the kernel is written only with the Hessian-vector product")
+        } else {
+            &lattice.rest_gradient
+        };
+        let (p, indent) = if tangent { ("dp", "    ") } else { ("p", "  ") };
+        let mut lines = Vec::new();
+        // The expression around the sums, computed once.
+        let mut rest_of = vec![None; lattice.n];
+        if !rest.is_empty() {
+            let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
+            let graph = self.graph;
+            let mut vals: Vec<Option<String>> = vec![None; graph.len()];
+            for id in schedule(graph, &roots, |_| true) {
+                let node = graph.node(id);
+                let e = match *node {
+                    Node::Const(c) => konst(c),
+                    Node::Input { arg: ARG_Q, index } => format!("q[{index}]"),
+                    Node::Input { arg: ARG_V, index } => format!("dq[{index}]"),
+                    Node::Input { .. } => unreachable!("the rest reads q and v: {node:?}"),
+                    _ => {
+                        let e = scalar_expr(node, &mut |o| {
+                            vals[o as usize].clone().expect("operands first")
+                        });
+                        lines.push(format!("const double r{id} = {e};"));
+                        format!("r{id}")
+                    }
+                };
+                vals[id as usize] = Some(e);
+            }
+            for &(j, id) in rest {
+                rest_of[j as usize] = vals[id as usize].clone();
+            }
+        }
+        for (e, (j, _, list)) in self.gather.ends.iter().enumerate() {
+            let mut acc = "-0.0".to_string();
+            let mut step = 0;
+            let mut push = |lines: &mut Vec<String>, acc: &mut String, value: String| {
+                let next = format!("e{e}_{step}");
+                step += 1;
+                lines.push(format!("const double {next} = {value};"));
+                *acc = next;
+            };
+            if let Some(r) = &rest_of[*j] {
+                let v = add(&acc, 1.0, r, false);
+                push(&mut lines, &mut acc, v);
+            }
+            for (c, &Contribution { sum, term, slot }) in list.iter().enumerate() {
+                let (factor, root) = contributions[sum][slot];
+                let x = self.term(
+                    root,
+                    &lattice.sums[sum],
+                    At::Term(term),
+                    &format!("_e{e}_{c}"),
+                    &mut lines,
+                );
+                let v = add(&acc, factor, &x, false);
+                push(&mut lines, &mut acc, v);
+            }
+            lines.push(format!("{p}[{j}] = {p}[{j}] - dh * {acc};"));
+        }
+        let _ = writeln!(out, "{indent}{{");
+        for l in lines {
+            let _ = writeln!(out, "{indent}  {l}");
+        }
+        let _ = writeln!(out, "{indent}}}");
+    }
+}

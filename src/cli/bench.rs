@@ -42,6 +42,7 @@
 //! the ceiling measured right after it.
 
 mod dkg;
+mod fput_c;
 mod lattice;
 mod plain_loop;
 mod scalar_c;
@@ -605,6 +606,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             "isa": Isa::detect().name(),
             "fput_lattice_sum_vs_builtin": lattice::compare(&args.lattice_sizes, args.lattice_pairs)?,
             "fput_lattice_sum_c_build": lattice::c_build(&[100, 100_000])?,
+            "fput_runs_vs_scalar_c": fput_c::compare(&args.lattice_sizes)?,
         });
         chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
         return Ok(ExitCode::SUCCESS);

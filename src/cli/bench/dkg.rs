@@ -49,7 +49,7 @@ fn config(n: usize, t_final: f64) -> anyhow::Result<RunConfig> {
 }
 
 /// CPU seconds (user + system) of every waited-for descendant so far.
-fn children_cpu_seconds() -> f64 {
+pub(super) fn children_cpu_seconds() -> f64 {
     // SAFETY: getrusage writes the struct it is given.
     let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
     unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) };
@@ -58,7 +58,7 @@ fn children_cpu_seconds() -> f64 {
 }
 
 /// `chaoscope run` of `config` in `dir`: (CPU seconds of its process tree, MLE of its scheme).
-fn chaoscope_run(
+pub(super) fn chaoscope_run(
     dir: &std::path::Path,
     config: &RunConfig,
     tag: &str,
@@ -135,7 +135,7 @@ fn c_input(config: &RunConfig) -> anyhow::Result<String> {
 }
 
 /// The C yardstick on `input`: (CPU seconds, MLE).
-fn c_run(exe: &std::path::Path, input: &str) -> anyhow::Result<(f64, f64)> {
+pub(super) fn c_run(exe: &std::path::Path, input: &str) -> anyhow::Result<(f64, f64)> {
     let text = super::scalar_c::output_of(exe, input)?;
     let value = |key: &str| -> anyhow::Result<f64> {
         text.lines()
@@ -146,6 +146,36 @@ fn c_run(exe: &std::path::Path, input: &str) -> anyhow::Result<(f64, f64)> {
             .map_err(Into::into)
     };
     Ok((value("cpu_seconds ")?, value("mle ")?))
+}
+
+/// Builds the yardstick `source` as `dir/name` (`cc -O3 -march=native -ffp-contract=off`);
+/// why not, where there is no C compiler or it fails (the bench then says so instead of
+/// failing).
+pub(super) fn build_c(
+    dir: &std::path::Path,
+    name: &str,
+    source: &str,
+) -> anyhow::Result<Result<std::path::PathBuf, String>> {
+    let src = dir.join(format!("{name}.c"));
+    std::fs::write(&src, source)?;
+    let exe = dir.join(name);
+    let built = Command::new("cc")
+        .args(["-O3", "-march=native", "-ffp-contract=off", "-o"])
+        .arg(&exe)
+        .arg(&src)
+        .arg("-lm")
+        .output();
+    Ok(match built {
+        Ok(o) if o.status.success() => Ok(exe),
+        Ok(o) => Err(format!(
+            "cc failed: {}",
+            String::from_utf8_lossy(&o.stderr)
+                .lines()
+                .next()
+                .unwrap_or("")
+        )),
+        Err(e) => Err(format!("no C compiler: {e}")),
+    })
 }
 
 /// The comparison at `sizes`, and with `ensemble` = (realizations, sites) the ensemble's
@@ -159,22 +189,10 @@ pub fn compare(
         .prefix("chaoscope-bench-dkg-")
         .tempdir()?;
     let dir = scratch.path();
-    std::fs::write(dir.join("dkg.c"), SOURCE)?;
-    let exe = dir.join("dkg");
-    let built = Command::new("cc")
-        .args(["-O3", "-march=native", "-ffp-contract=off", "-o"])
-        .arg(&exe)
-        .arg(dir.join("dkg.c"))
-        .arg("-lm")
-        .output();
-    match built {
-        Ok(o) if o.status.success() => {}
-        Ok(o) => {
-            return Ok(serde_json::json!({ "unavailable": format!(
-                "cc failed: {}", String::from_utf8_lossy(&o.stderr).lines().next().unwrap_or(""))}));
-        }
-        Err(e) => return Ok(serde_json::json!({ "unavailable": format!("no C compiler: {e}") })),
-    }
+    let exe = match build_c(dir, "dkg", SOURCE)? {
+        Ok(exe) => exe,
+        Err(why) => return Ok(serde_json::json!({ "unavailable": why })),
+    };
     let mut rows = Vec::new();
     for &n in sizes {
         anyhow::ensure!(n >= 4, "--dkg-sizes: a chain of at least 4 sites, got {n}");

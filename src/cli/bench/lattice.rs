@@ -31,7 +31,7 @@ use chaoscope_schemas::config::RunConfig;
 const FPUT: &str = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
 
 /// The run's configuration: `model` is `builtin` or `expression`.
-fn config_text(model: &str, n: usize, t_final: f64) -> anyhow::Result<String> {
+pub(super) fn config_text(model: &str, n: usize, t_final: f64) -> anyhow::Result<String> {
     let model = match model {
         "builtin" => format!("name = \"fput-beta\"\nn = {n}\nbeta = 1.0"),
         "expression" => format!(

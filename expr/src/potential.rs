@@ -718,13 +718,7 @@ impl ExpressionModel {
             return self.cranelift_step_kernels().ok();
         }
         let c = &self.0.c_steps;
-        self.start_c_build();
-        let ready = match c.switch_after_calls {
-            None => c.result.get(),
-            Some(k) if c.calls.fetch_add(1, Ordering::Relaxed) < k => None,
-            Some(_) => Some(self.wait_c_build()),
-        };
-        match ready {
+        match self.c_kernels_for_this_call() {
             Some(Ok(k)) => {
                 c.c_calls.fetch_add(1, Ordering::Relaxed);
                 Some(k)
@@ -759,19 +753,25 @@ impl ExpressionModel {
         if UNCOUNTED.get() {
             return false;
         }
-        let c = &self.0.c_steps;
-        self.start_c_build();
-        let ready = match c.switch_after_calls {
-            None => c.result.get(),
-            Some(k) if c.calls.fetch_add(1, Ordering::Relaxed) < k => None,
-            Some(_) => Some(self.wait_c_build()),
-        };
-        match ready {
+        match self.c_kernels_for_this_call() {
             Some(Ok(k)) if k.has_reference_tangent() => {
-                c.c_calls.fetch_add(1, Ordering::Relaxed);
+                self.0.c_steps.c_calls.fetch_add(1, Ordering::Relaxed);
                 k.reference_tangent_steps(x, v, n_steps, drift, kick, self.inverse_masses())
             }
             _ => false,
+        }
+    }
+
+    /// The C kernels if this kernel call is to run them: the build started (by the first
+    /// call), its result once ready (`None` while it builds), or as the test hook of
+    /// [`Self::step_kernels`] says (the first `k` calls none, every later one waiting for it).
+    fn c_kernels_for_this_call(&self) -> Option<&Result<StepKernels, CUnavailable>> {
+        let c = &self.0.c_steps;
+        self.start_c_build();
+        match c.switch_after_calls {
+            None => c.result.get(),
+            Some(k) if c.calls.fetch_add(1, Ordering::Relaxed) < k => None,
+            Some(_) => Some(self.wait_c_build()),
         }
     }
 

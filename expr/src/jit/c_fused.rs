@@ -38,8 +38,7 @@
 use std::fmt::Write as _;
 use std::sync::Arc;
 
-use super::c_step::{konst, scalar_expr, vector_expr};
-use super::{is_leaf, schedule};
+use super::c_step::{emit_nodes, konst};
 use crate::graph::{Graph, Node, NodeId};
 use crate::lattice::{
     ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_V, LatticePotential, SiteSum,
@@ -415,33 +414,14 @@ impl Writer<'_> {
         tag: &str,
         lines: &mut Vec<String>,
     ) -> String {
-        let graph = self.graph;
         let vector = matches!(at, At::Site { vector: true, .. });
-        let mut vals: Vec<Option<(String, bool)>> = vec![None; graph.len()];
-        for id in schedule(graph, &[root], |_| true) {
-            let node = graph.node(id);
-            if is_leaf(node) {
-                vals[id as usize] = Some(self.leaf(node, sum, at));
-                continue;
-            }
-            let lane = node
-                .operands()
-                .any(|o| vals[o as usize].as_ref().is_some_and(|v| v.1));
-            if lane {
-                let e = vector_expr(node, &mut |o| {
-                    let (x, lane) = vals[o as usize].clone().expect("operands first");
-                    if lane { x } else { format!("B({x})") }
-                });
-                lines.push(format!("const vd v{id}{tag} = {e};"));
-                vals[id as usize] = Some((format!("v{id}{tag}"), true));
-            } else {
-                let e = scalar_expr(node, &mut |o| {
-                    vals[o as usize].clone().expect("operands first").0
-                });
-                lines.push(format!("const double s{id}{tag} = {e};"));
-                vals[id as usize] = Some((format!("s{id}{tag}"), false));
-            }
-        }
+        let vals = emit_nodes(
+            self.graph,
+            &[root],
+            &mut |node| self.leaf(node, sum, at),
+            &|id, lane| format!("{}{id}{tag}", if lane { "v" } else { "s" }),
+            &mut |_, text| lines.push(text),
+        );
         let (x, lane) = vals[root as usize].clone().expect("emitted");
         if vector && !lane {
             format!("B({x})")
@@ -541,27 +521,20 @@ impl Writer<'_> {
         let mut rest_of = vec![None; lattice.n];
         if !rest.is_empty() {
             let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
-            let graph = self.graph;
-            let mut vals: Vec<Option<String>> = vec![None; graph.len()];
-            for id in schedule(graph, &roots, |_| true) {
-                let node = graph.node(id);
-                let e = match *node {
-                    Node::Const(c) => konst(c),
-                    Node::Input { arg: ARG_Q, index } => format!("q[{index}]"),
-                    Node::Input { arg: ARG_V, index } => format!("dq[{index}]"),
-                    Node::Input { .. } => unreachable!("the rest reads q and v: {node:?}"),
-                    _ => {
-                        let e = scalar_expr(node, &mut |o| {
-                            vals[o as usize].clone().expect("operands first")
-                        });
-                        lines.push(format!("const double r{id} = {e};"));
-                        format!("r{id}")
-                    }
-                };
-                vals[id as usize] = Some(e);
-            }
+            let vals = emit_nodes(
+                self.graph,
+                &roots,
+                &mut |node| match *node {
+                    Node::Const(c) => (konst(c), false),
+                    Node::Input { arg: ARG_Q, index } => (format!("q[{index}]"), false),
+                    Node::Input { arg: ARG_V, index } => (format!("dq[{index}]"), false),
+                    _ => unreachable!("the rest reads q and v: {node:?}"),
+                },
+                &|id, _| format!("r{id}"),
+                &mut |_, text| lines.push(text),
+            );
             for &(j, id) in rest {
-                rest_of[j as usize] = vals[id as usize].clone();
+                rest_of[j as usize] = vals[id as usize].clone().map(|v| v.0);
             }
         }
         for (e, (j, _, list)) in self.gather.ends.iter().enumerate() {

@@ -13,7 +13,7 @@ use std::fmt::Write as _;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
-use super::c_step::{self, C_BLOCK_LANES, CCompiler, konst, scalar_expr, vector_expr};
+use super::c_step::{self, C_BLOCK_LANES, CCompiler, konst};
 use super::sites::{WindowPlan, arrays_of};
 use super::step::{Code, StepKernels};
 use super::{AllocationWork, JitError};
@@ -175,33 +175,25 @@ impl Kernel<'_> {
         at: At,
         lines: &mut Vec<Line>,
     ) -> Vec<String> {
-        let graph = self.graph;
-        // Per node: its C name or expression, and whether it is lane code.
-        let mut vals: Vec<Option<(String, bool)>> = vec![None; graph.len()];
-        for id in super::schedule(graph, roots, |_| true) {
-            let node = graph.node(id);
-            if super::is_leaf(node) {
-                vals[id as usize] = Some(self.leaf(node, sum, at));
-                continue;
-            }
-            let lane = node
-                .operands()
-                .any(|o| vals[o as usize].as_ref().is_some_and(|v| v.1));
-            if lane {
-                let e = vector_expr(node, &mut |o| {
-                    let (x, lane) = vals[o as usize].clone().expect("operands first");
-                    if lane { x } else { format!("B({x})") }
-                });
-                lines.push(Line::PerUnit(format!("const vd v{id}_@ = {e};")));
-                vals[id as usize] = Some((format!("v{id}_@"), true));
-            } else {
-                let e = scalar_expr(node, &mut |o| {
-                    vals[o as usize].clone().expect("operands first").0
-                });
-                lines.push(Line::Once(format!("const double s{id} = {e};")));
-                vals[id as usize] = Some((format!("s{id}"), false));
-            }
-        }
+        let vals = c_step::emit_nodes(
+            self.graph,
+            roots,
+            &mut |node| self.leaf(node, sum, at),
+            &|id, lane| {
+                if lane {
+                    format!("v{id}_@")
+                } else {
+                    format!("s{id}")
+                }
+            },
+            &mut |lane, text| {
+                lines.push(if lane {
+                    Line::PerUnit(text)
+                } else {
+                    Line::Once(text)
+                })
+            },
+        );
         roots
             .iter()
             .map(|&r| {

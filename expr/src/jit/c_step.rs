@@ -810,6 +810,46 @@ fn powi(x: &str, n: i32, one: &str) -> String {
     }
 }
 
+/// The C lines computing `roots`, operands first (in [`super::schedule`]'s order): each leaf's
+/// expression and whether it is lane code from `leaf`; a node with a lane operand becomes
+/// `const vd NAME = ...;` (its scalar operands broadcast), any other `const double NAME = ...;`,
+/// named by `name(id, lane)` and handed to `line(lane, text)`. Returns every emitted node's
+/// (name or expression, lane).
+pub(super) fn emit_nodes(
+    graph: &Graph,
+    roots: &[NodeId],
+    leaf: &mut dyn FnMut(&Node) -> (String, bool),
+    name: &dyn Fn(NodeId, bool) -> String,
+    line: &mut dyn FnMut(bool, String),
+) -> Vec<Option<(String, bool)>> {
+    let mut vals: Vec<Option<(String, bool)>> = vec![None; graph.len()];
+    for id in super::schedule(graph, roots, |_| true) {
+        let node = graph.node(id);
+        if is_leaf(node) {
+            vals[id as usize] = Some(leaf(node));
+            continue;
+        }
+        let lane = node
+            .operands()
+            .any(|o| vals[o as usize].as_ref().is_some_and(|v| v.1));
+        let e = if lane {
+            vector_expr(node, &mut |o| {
+                let (x, lane) = vals[o as usize].clone().expect("operands first");
+                if lane { x } else { format!("B({x})") }
+            })
+        } else {
+            scalar_expr(node, &mut |o| {
+                vals[o as usize].clone().expect("operands first").0
+            })
+        };
+        let n = name(id, lane);
+        let ty = if lane { "vd" } else { "double" };
+        line(lane, format!("const {ty} {n} = {e};"));
+        vals[id as usize] = Some((n, lane));
+    }
+    vals
+}
+
 /// A scalar node as a C expression of its operands (`o` names them).
 pub(super) fn scalar_expr(node: &Node, o: &mut dyn FnMut(NodeId) -> String) -> String {
     c_expr(node, o, Lanes::Scalar)

@@ -2,7 +2,7 @@
 //! `examples/models/dkg-single-site.toml` (written as an expression, disorder drawn from a seed)
 //! through the whole `chaoscope run` (producer, bus, recorder: each run a process tree of its
 //! own, its CPU time that of every process in it) against a hand-written scalar C of the same
-//! ABA864 step and tangent map (`dkg.c`, built at bench time with `-O3 -march=native
+//! ABA864 step and tangent map (`chains.c`, model 0, built at bench time with `-O3 -march=native
 //! -ffp-contract=off`), at `--dkg-sizes` (issue 26, must-show 2 and item 5).
 //!
 //! Both integrate one reference orbit and one VM deviation vector, renormalized every `tau` = 10
@@ -22,7 +22,8 @@ use chaoscope_producer::integrator::{Splitting, SplittingKind};
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_schemas::config::{ModelConfig, ParamValue, RunConfig};
 
-const SOURCE: &str = include_str!("dkg.c");
+/// The yardsticks' C program (`chains.c`: model 0 the DKG chain, 1 the FPUT chain).
+const SOURCE: &str = include_str!("chains.c");
 const EXAMPLE: &str = include_str!("../../../examples/models/dkg-single-site.toml");
 const H: f64 = 0.05;
 /// The run's recording interval, `[run] sample_every` (the must-show's setting).
@@ -98,12 +99,10 @@ pub(super) fn chaoscope_run(
     Ok((cpu, mle))
 }
 
-/// The C program's input for `config` (see `dkg.c`).
+/// The C program's input for `config` (model 0 of `chains.c`).
 fn c_input(config: &RunConfig) -> anyhow::Result<String> {
     let spec = RunSpec::from_config(config)?;
     let n = spec.dim() / 2;
-    let coeffs = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), H);
-    let tau = spec.schemes()[0].tau_steps;
     // W and the disorder as the example writes them, so the C runs the run's chain.
     let (w, eps) = match &config.model {
         ModelConfig::Potential(p) => match (p.params.get("W"), p.params.get("eps")) {
@@ -115,23 +114,29 @@ fn c_input(config: &RunConfig) -> anyhow::Result<String> {
         },
         _ => anyhow::bail!("the DKG example is no longer a potential model"),
     };
-    let mut s = String::new();
-    let mut put = |v: f64| s.push_str(&format!("{v:e}\n"));
-    put(n as f64);
-    put(w);
-    eps.into_iter().for_each(&mut put);
-    put(coeffs.kicks() as f64);
-    coeffs.drift.iter().for_each(|&v| put(v));
-    coeffs.kick.iter().for_each(|&v| put(v));
-    put(tau as f64);
-    put((spec.total_steps() / tau) as f64);
-    put(H);
-    put(1.0);
-    spec.x0().iter().for_each(|&v| put(v));
-    spec.directions()[0].vectors[..2 * n]
-        .iter()
-        .for_each(|&v| put(v));
-    Ok(s)
+    let mut values = vec![0.0, n as f64, w];
+    values.extend(eps);
+    Ok(c_input_of(values, &spec, H))
+}
+
+/// The C program's input: the model's values `model` (its id, `N`, its parameters), then the
+/// ABA864 splitting at step `h`, the renormalization windows of `spec`'s first scheme, its
+/// initial state and its first set's first direction (see `chains.c`).
+pub(super) fn c_input_of(model: Vec<f64>, spec: &RunSpec, h: f64) -> String {
+    let n = spec.dim() / 2;
+    let coeffs = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), h);
+    let tau = spec.schemes()[0].tau_steps;
+    let mut values = model;
+    values.push(coeffs.kicks() as f64);
+    values.extend(&coeffs.drift);
+    values.extend(&coeffs.kick);
+    values.push(tau as f64);
+    values.push((spec.total_steps() / tau) as f64);
+    values.push(h);
+    values.push(1.0);
+    values.extend(spec.x0());
+    values.extend(&spec.directions()[0].vectors[..2 * n]);
+    values.iter().map(|v| format!("{v:e}\n")).collect()
 }
 
 /// The C yardstick on `input`: (CPU seconds, MLE).
@@ -148,17 +153,17 @@ pub(super) fn c_run(exe: &std::path::Path, input: &str) -> anyhow::Result<(f64, 
     Ok((value("cpu_seconds ")?, value("mle ")?))
 }
 
-/// Builds the yardstick `source` as `dir/name` (`cc -O3 -march=native -ffp-contract=off`);
-/// why not, where there is no C compiler or it fails (the bench then says so instead of
-/// failing).
-pub(super) fn build_c(
-    dir: &std::path::Path,
-    name: &str,
-    source: &str,
-) -> anyhow::Result<Result<std::path::PathBuf, String>> {
-    let src = dir.join(format!("{name}.c"));
-    std::fs::write(&src, source)?;
-    let exe = dir.join(name);
+/// A private scratch directory (mode 0700, random name, prefix `prefix`: the program built
+/// there is run) with the yardsticks' program `chains.c` built in it (`cc -O3 -march=native
+/// -ffp-contract=off`); why not, where there is no C compiler or it fails (the bench then says
+/// so instead of failing).
+pub(super) fn yardstick(
+    prefix: &str,
+) -> anyhow::Result<Result<(tempfile::TempDir, std::path::PathBuf), String>> {
+    let scratch = tempfile::Builder::new().prefix(prefix).tempdir()?;
+    let src = scratch.path().join("chains.c");
+    std::fs::write(&src, SOURCE)?;
+    let exe = scratch.path().join("chains");
     let built = Command::new("cc")
         .args(["-O3", "-march=native", "-ffp-contract=off", "-o"])
         .arg(&exe)
@@ -166,7 +171,7 @@ pub(super) fn build_c(
         .arg("-lm")
         .output();
     Ok(match built {
-        Ok(o) if o.status.success() => Ok(exe),
+        Ok(o) if o.status.success() => Ok((scratch, exe)),
         Ok(o) => Err(format!(
             "cc failed: {}",
             String::from_utf8_lossy(&o.stderr)
@@ -184,15 +189,11 @@ pub fn compare(
     sizes: &[usize],
     ensemble: Option<(usize, usize)>,
 ) -> anyhow::Result<serde_json::Value> {
-    // A private directory (mode 0700, random name): the program built here is run.
-    let scratch = tempfile::Builder::new()
-        .prefix("chaoscope-bench-dkg-")
-        .tempdir()?;
-    let dir = scratch.path();
-    let exe = match build_c(dir, "dkg", SOURCE)? {
-        Ok(exe) => exe,
+    let (scratch, exe) = match yardstick("chaoscope-bench-dkg-")? {
+        Ok(built) => built,
         Err(why) => return Ok(serde_json::json!({ "unavailable": why })),
     };
+    let dir = scratch.path();
     let mut rows = Vec::new();
     for &n in sizes {
         anyhow::ensure!(n >= 4, "--dkg-sizes: a chain of at least 4 sites, got {n}");

@@ -1,7 +1,7 @@
 //! `chaoscope bench --lattice-only`, its second part: the beta-FPUT chain written as a lattice
 //! sum and the built-in `fput-beta` chain, each through the whole `chaoscope run` (producer,
 //! bus, recorder; the CPU time of its process tree), against a hand-written scalar C of the same
-//! ABA864 step and tangent map (`fput.c`, built at bench time with `-O3 -march=native
+//! ABA864 step and tangent map (`chains.c`, built at bench time with `-O3 -march=native
 //! -ffp-contract=off`), at the lattice sizes (issue 26, item 5).
 //!
 //! The run of `lattice.rs` (fixed ends, beta = 1, the lowest normal mode at amplitude 0.5, a
@@ -11,14 +11,10 @@
 //! the timed one; the MLEs of the timed runs are compared with the C's (the C sums the forces in
 //! the textbook order, chaoscope in the lattice sum's: equal to rounding on this regular orbit).
 
-use chaoscope_producer::batch::StepCoeffs;
-use chaoscope_producer::integrator::{Splitting, SplittingKind};
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig};
 
-use super::dkg::{build_c, c_run, chaoscope_run};
-
-const SOURCE: &str = include_str!("fput.c");
+use super::dkg::{c_input_of, c_run, chaoscope_run, yardstick};
 const H: f64 = 0.02;
 const TAU: f64 = 1.0;
 const SAMPLE_EVERY: f64 = 10.0;
@@ -38,39 +34,19 @@ fn config(model: &str, n: usize, t_final: f64) -> anyhow::Result<RunConfig> {
     Ok(config)
 }
 
-/// The C program's input for `config` (see `fput.c`).
+/// The C program's input for `config` (model 1 of `chains.c`, beta = 1).
 fn c_input(config: &RunConfig) -> anyhow::Result<String> {
     let spec = RunSpec::from_config(config)?;
     let n = spec.dim() / 2;
-    let coeffs = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), H);
-    let tau = spec.schemes()[0].tau_steps;
-    let mut s = String::new();
-    let mut put = |v: f64| s.push_str(&format!("{v:e}\n"));
-    put(n as f64);
-    put(1.0);
-    put(coeffs.kicks() as f64);
-    coeffs.drift.iter().for_each(|&v| put(v));
-    coeffs.kick.iter().for_each(|&v| put(v));
-    put(tau as f64);
-    put((spec.total_steps() / tau) as f64);
-    put(H);
-    put(1.0);
-    spec.x0().iter().for_each(|&v| put(v));
-    spec.directions()[0].vectors[..2 * n]
-        .iter()
-        .for_each(|&v| put(v));
-    Ok(s)
+    Ok(c_input_of(vec![1.0, n as f64, 1.0], &spec, H))
 }
 
 pub fn compare(sizes: &[usize]) -> anyhow::Result<serde_json::Value> {
-    let scratch = tempfile::Builder::new()
-        .prefix("chaoscope-bench-fput-")
-        .tempdir()?;
-    let dir = scratch.path();
-    let exe = match build_c(dir, "fput", SOURCE)? {
-        Ok(exe) => exe,
+    let (scratch, exe) = match yardstick("chaoscope-bench-fput-")? {
+        Ok(built) => built,
         Err(why) => return Ok(serde_json::json!({ "unavailable": why })),
     };
+    let dir = scratch.path();
     let mut rows = Vec::new();
     for &n in sizes {
         anyhow::ensure!(

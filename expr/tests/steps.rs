@@ -905,3 +905,16 @@ fn c_fused_reference_tangent_steps_are_bit_identical() {
         assert_eq!((x, v), (x0, v0), "{name}: stepped without a kernel");
     }
 }
+
+/// Two kernel libraries loaded at once: the second is its own, not the first handed back
+/// (`dlopen` knows a library by the `/proc/self/fd/N` name it was opened by, which a closed
+/// and reused descriptor would give the second).
+#[test]
+fn two_c_kernel_libraries_loaded_at_once_are_each_their_own() {
+    let cache = tempfile::tempdir().unwrap();
+    let (a, b) = (henon_heiles(), fput(5));
+    let ka = compile_c(&a, cache.path());
+    let kb = compile_c(&b, cache.path());
+    check("C HH beside FPUT-5", &a, &ka);
+    check("C FPUT-5 beside HH", &b, &kb);
+}

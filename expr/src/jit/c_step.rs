@@ -247,6 +247,9 @@ fn first_lines(bytes: &[u8]) -> String {
 pub(super) struct CKernels {
     /// Keeps the code mapped while the function pointers are in use.
     pub _library: libloading::Library,
+    /// The memory file the library was loaded from, open while it is loaded (after it in
+    /// drop order; see `open_library`).
+    pub _memory_file: Option<std::fs::File>,
     pub orbit: COrbitFn,
     pub tangent: Option<CTangentFn>,
     /// The fused one-orbit kernel, where the source has one ([`super::c_fused`]).
@@ -667,7 +670,7 @@ fn load(
             path.display()
         ))
     };
-    let library = open_library(bytes, path).map_err(fail)?;
+    let (library, memory_file) = open_library(bytes, path).map_err(fail)?;
     // SAFETY: the symbol is a NUL-terminated `char` array in the generated source.
     let stamp = unsafe { library.get::<*const std::ffi::c_char>(b"chaoscope_kernel_hash\0") }
         .map_err(|e| fail(e.to_string()))?;
@@ -694,6 +697,7 @@ fn load(
         .map(|f| *f);
     Ok(CKernels {
         _library: library,
+        _memory_file: memory_file,
         orbit,
         tangent,
         fused,
@@ -704,7 +708,17 @@ fn load(
 
 /// `dlopen` of exactly `bytes`: on Linux through an anonymous memory file, so what runs is
 /// what was checked whatever happens to the cache meanwhile; elsewhere from `path`.
-fn open_library(bytes: &[u8], path: &Path) -> Result<libloading::Library, String> {
+///
+/// On Linux the memory file stays open as long as the library is loaded (the caller keeps the
+/// returned file beside it): `dlopen` knows a library by the name it was opened by, and
+/// `/proc/self/fd/N` names whatever descriptor `N` is now, so a library opened once the
+/// descriptor of another, still loaded, had been closed and its number reused would be handed
+/// that other library (seen as "compiled from another source" when two threads loaded
+/// kernels at once).
+fn open_library(
+    bytes: &[u8],
+    path: &Path,
+) -> Result<(libloading::Library, Option<std::fs::File>), String> {
     #[cfg(target_os = "linux")]
     {
         use std::io::Write;
@@ -721,15 +735,17 @@ fn open_library(bytes: &[u8], path: &Path) -> Result<libloading::Library, String
         let at = format!("/proc/self/fd/{}", file.as_raw_fd());
         // SAFETY: a library this module compiled from its own source and whose bytes match
         // the digest written when it was built: no constructors, no global state; its symbols
-        // are checked before any is called. The mapping outlives the descriptor.
-        unsafe { libloading::Library::new(at) }.map_err(|e| e.to_string())
+        // are checked before any is called.
+        let library = unsafe { libloading::Library::new(at) }.map_err(|e| e.to_string())?;
+        Ok((library, Some(file)))
     }
     #[cfg(not(target_os = "linux"))]
     {
         let _ = bytes;
         // SAFETY: as above (the file was checked just before; between the check and this
         // call only its owner, this user, could change it).
-        unsafe { libloading::Library::new(path) }.map_err(|e| e.to_string())
+        let library = unsafe { libloading::Library::new(path) }.map_err(|e| e.to_string())?;
+        Ok((library, None))
     }
 }
 

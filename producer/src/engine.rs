@@ -163,6 +163,16 @@ impl Engine {
     /// `sample` must be one of this `spec`'s run (the caller checks the recording's header
     /// against it): what can still be wrong is said, never panicked on.
     pub fn resume(spec: RunSpec, sample: &Sample) -> Result<Self, ResumeError> {
+        let stepping = Stepping::of(&spec);
+        Self::resume_with_stepping(spec, sample, stepping)
+    }
+
+    /// [`Engine::resume`] with the lanes stepped by `stepping`.
+    fn resume_with_stepping(
+        spec: RunSpec,
+        sample: &Sample,
+        stepping: Stepping,
+    ) -> Result<Self, ResumeError> {
         let dim = spec.dim();
         if let Err(why) = spec.system().resumable() {
             return Err(ResumeError(why));
@@ -201,7 +211,7 @@ impl Engine {
         // At t = 0 the run starts from its directions as they are (renormalizing them again
         // would change their last bits): the engine's own start, past its first sample.
         if sample.step == 0 {
-            let mut engine = Self::new(spec);
+            let mut engine = Self::with_stepping(spec, stepping);
             engine.next_seq = 1;
             return Ok(engine);
         }
@@ -233,7 +243,7 @@ impl Engine {
             .system()
             .divergence(&sample.state, t)
             .map(|d| (d, sample.divergence_sum));
-        let tasks = tasks(&spec, &sample.state, Stepping::of(&spec), |scheme, set| {
+        let tasks = tasks(&spec, &sample.state, stepping, |scheme, set| {
             renormalized[scheme * spec.sets() + set].clone()
         });
         Ok(Self {

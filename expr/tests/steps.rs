@@ -856,9 +856,57 @@ fn long_lattices() -> Vec<(String, System)> {
 #[test]
 fn c_fused_reference_tangent_steps_are_bit_identical() {
     let cache = tempfile::tempdir().unwrap();
+    fused_bit_identical(&|s| compile_c(s, cache.path()));
+    for (name, s) in lattices().into_iter().filter(|(_, s)| s.n < 16) {
+        let k = compile_c(&s, cache.path());
+        assert!(
+            !k.has_reference_tangent(),
+            "{name}: {} sites, a fused kernel",
+            s.n
+        );
+        let (dr, ki) = coeffs();
+        let (mut x, mut v) = (state(s.n, 0, 1.0), state(s.n, 1, 1e-3));
+        let (x0, v0) = (x.clone(), v.clone());
+        assert!(!k.reference_tangent_steps(&mut x, &mut v, 3, &dr, &ki, None));
+        assert_eq!((x, v), (x0, v0), "{name}: stepped without a kernel");
+    }
+}
+
+/// The fused kernel's vectors are as wide as the host's (8 lanes with AVX-512, 4 otherwise):
+/// on an AVX-512 host the 4-lane kernel an AVX2 machine builds is built too, through a compiler
+/// that targets the host without AVX-512, and is bit-identical as well (elsewhere it is the
+/// kernel of the test above again).
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn c_fused_kernel_of_four_lanes_is_bit_identical() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let program = CCompiler::from_env().map_or_else(|| "cc".into(), |c| c.program);
+    let wrapper = dir.path().join("cc-no-avx512");
+    std::fs::write(
+        &wrapper,
+        format!(
+            "#!/bin/sh\nexec '{}' \"$@\" -mno-avx512f\n",
+            program.display()
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&wrapper, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let cc = CCompiler {
+        program: wrapper,
+        cache_dir: dir.path().join("cache"),
+    };
+    fused_bit_identical(&|s| {
+        let l = s.lattice.as_ref().expect("a lattice");
+        jit::compile_lattice_steps_c(&s.graph, l, &cc).unwrap_or_else(|e| panic!("{e}"))
+    });
+}
+
+/// Every long lattice's fused kernel, built by `build`, against the reference loops.
+fn fused_bit_identical(build: &dyn Fn(&System) -> StepKernels) {
     let (dr, ki) = coeffs();
     for (name, s) in long_lattices() {
-        let k = compile_c(&s, cache.path());
+        let k = build(&s);
         assert!(k.has_reference_tangent(), "{name}: no fused kernel");
         let n = s.n;
         let masses: Vec<f64> = (0..n).map(|i| 1.0 / (1.0 + 0.37 * i as f64)).collect();
@@ -891,18 +939,6 @@ fn c_fused_reference_tangent_steps_are_bit_identical() {
                 }
             }
         }
-    }
-    for (name, s) in lattices().into_iter().filter(|(_, s)| s.n < 16) {
-        let k = compile_c(&s, cache.path());
-        assert!(
-            !k.has_reference_tangent(),
-            "{name}: {} sites, a fused kernel",
-            s.n
-        );
-        let (mut x, mut v) = (state(s.n, 0, 1.0), state(s.n, 1, 1e-3));
-        let (x0, v0) = (x.clone(), v.clone());
-        assert!(!k.reference_tangent_steps(&mut x, &mut v, 3, &dr, &ki, None));
-        assert_eq!((x, v), (x0, v0), "{name}: stepped without a kernel");
     }
 }
 

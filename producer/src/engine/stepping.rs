@@ -357,6 +357,41 @@ mod tests {
         }
     }
 
+    /// The carrier where the system has no fused kernel (or before it is built): its copy of
+    /// the reference, stepped by the one-orbit tangent steps, is the reference too, bit for bit
+    /// (Henon-Heiles and the FPUT chain, built in, with the fused stepping forced).
+    #[test]
+    fn a_carrier_stepped_one_orbit_is_the_reference_bit_for_bit() {
+        let hh = paper::henon_heiles(
+            paper::HH_CHAOTIC_Q2,
+            3.0,
+            DeviationsConfig::random(2, 2, 4),
+            schemes(1e-8, 0.01, false),
+        );
+        let fput = paper::fput_beta(
+            &paper::FPUT_N5_CHAOTIC_Q,
+            &paper::FPUT_N5_CHAOTIC_P,
+            0.05,
+            5.0,
+            DeviationsConfig::random(3, 2, 5),
+            schemes(1e-8, 0.05, false),
+        );
+        for config in [hh, fput] {
+            let spec = RunSpec::from_config(&config).unwrap();
+            let Stepping::Batched { isa, min_lanes, .. } = Stepping::of(&spec) else {
+                panic!("{}: a batched form", spec.system().name());
+            };
+            let forced = Stepping::Batched {
+                isa,
+                min_lanes,
+                fused: true,
+            };
+            let engine = Engine::with_stepping(spec.clone(), forced);
+            assert_eq!(engine.carrier, Some(0));
+            same_bits(&samples(engine), &samples(Engine::one_orbit(spec)));
+        }
+    }
+
     #[test]
     fn henon_heiles_and_fput_batched_are_one_orbit_bit_for_bit() {
         let hh = paper::henon_heiles(

@@ -138,6 +138,7 @@ impl Engine {
         let tasks = tasks(&spec, &x0, stepping, |scheme, set| {
             spec.directions()[set].scaled(spec.schemes()[scheme].d0)
         });
+        prepare(&spec, &tasks, 0);
         Self {
             carrier: carrier(&tasks, divergence.is_some()),
             reference: x0,
@@ -246,6 +247,7 @@ impl Engine {
         let tasks = tasks(&spec, &sample.state, stepping, |scheme, set| {
             renormalized[scheme * spec.sets() + set].clone()
         });
+        prepare(&spec, &tasks, sample.step);
         Ok(Self {
             carrier: carrier(&tasks, divergence.is_some()),
             reference: sample.state.clone(),
@@ -708,6 +710,17 @@ fn tasks(
         }
     }
     tasks
+}
+
+/// Tells the system that the run's steps from `from` on will go through its fused pass, where
+/// some task steps that way: it builds what the pass needs if the run is long enough to repay
+/// it.
+fn prepare(spec: &RunSpec, tasks: &[DeviationSet], from: u64) {
+    if tasks.iter().any(|t| t.stepping == Stepping::Fused) {
+        let steps = spec.total_steps().saturating_sub(from);
+        spec.system()
+            .prepare_reference_tangent(steps.saturating_mul(spec.dim() as u64));
+    }
 }
 
 /// The task that carries the reference (see the module documentation): the first set of

@@ -47,16 +47,6 @@ const MIN_CHUNK_STEPS: u64 = 4;
 /// threshold at which no kind measured is slower serves them all.
 pub(crate) const MIN_BATCHED_LANES: usize = 4;
 
-/// A run steps its small sets with the fused pass only if it steps at least this many state
-/// values (steps times the dimension): the pass needs the chain's C kernels, whose build costs
-/// about 0.15-0.5 CPU-seconds (a compiler process, and its memory) once per chain and machine
-/// (later runs load them from the kernel cache), while the pass saves about 5 ns per site and
-/// step against the one-orbit path (AMD EPYC Zen 5, the DKG chain of 1000 sites, one vector:
-/// 2.0 s against 0.9 s per 2 * 10^8 site-steps). Below about 10^8 state values (5 * 10^7
-/// site-steps) the build would cost more than it saves, so such a run keeps the one-orbit path
-/// and builds nothing. The bits are the same either way.
-pub(crate) const MIN_FUSED_WORK: u64 = 100_000_000;
-
 /// How the deviation lanes of a run are stepped.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) enum Stepping {
@@ -86,8 +76,7 @@ impl Stepping {
         let system = spec.system().as_ref();
         let isa = Isa::detect();
         let plain = spec.x0().len() == system.dim();
-        let work = spec.total_steps().saturating_mul(spec.dim() as u64);
-        let fused = plain && work >= MIN_FUSED_WORK && system.steps_reference_tangent();
+        let fused = plain && system.steps_reference_tangent();
         if plain && system.batched(isa).is_some() {
             Stepping::Batched {
                 isa,
@@ -308,8 +297,8 @@ mod tests {
                 .downcast_ref::<ExpressionModel>()
                 .unwrap();
             expression.c_step_kernels().unwrap();
-            // A short run: the engine would keep the one-orbit path (MIN_FUSED_WORK); the
-            // fused pass is chosen here as a long run chooses it.
+            // A short run builds no C kernels for itself (it would not repay the build): they
+            // were built above, as a long run builds them.
             let Stepping::Batched { isa, min_lanes, .. } = Stepping::of(&spec) else {
                 panic!("the DKG chain has a batched form");
             };
@@ -359,9 +348,10 @@ mod tests {
 
     /// The carrier where the system has no fused kernel (or before it is built): its copy of
     /// the reference, stepped by the one-orbit tangent steps, is the reference too, bit for bit
-    /// (Henon-Heiles and the FPUT chain, built in, with the fused stepping forced).
+    /// (Henon-Heiles, with the fused stepping forced); and through the built-in FPUT chain's
+    /// own fused pass (in Rust), which a run of it takes at any length.
     #[test]
-    fn a_carrier_stepped_one_orbit_is_the_reference_bit_for_bit() {
+    fn a_carrier_is_the_reference_bit_for_bit() {
         let hh = paper::henon_heiles(
             paper::HH_CHAOTIC_Q2,
             3.0,
@@ -376,6 +366,11 @@ mod tests {
             DeviationsConfig::random(3, 2, 5),
             schemes(1e-8, 0.05, false),
         );
+        let fput_spec = RunSpec::from_config(&fput).unwrap();
+        assert!(matches!(
+            Stepping::of(&fput_spec),
+            Stepping::Batched { fused: true, .. }
+        ));
         for config in [hh, fput] {
             let spec = RunSpec::from_config(&config).unwrap();
             let Stepping::Batched { isa, min_lanes, .. } = Stepping::of(&spec) else {

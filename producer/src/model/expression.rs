@@ -100,8 +100,8 @@ impl Model for ExpressionModel {
         ExpressionModel::diagnose_non_finite_with(self, q, t, params)
     }
 
-    fn may_step_reference_tangent(&self) -> bool {
-        ExpressionModel::may_step_reference_tangent(self)
+    fn prepare_reference_tangent(&self, work: u64) {
+        ExpressionModel::prepare_reference_tangent(self, work)
     }
 
     fn reference_tangent_steps(

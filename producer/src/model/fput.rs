@@ -131,6 +131,41 @@ impl Model for FputBeta {
         true
     }
 
+    /// The orbit and its tangent vectors stage by stage in one call: the drifts, then the
+    /// orbit's force and every vector's `Hess V dq` as [`Model::gradient`] and
+    /// [`Model::hessian_vector`] form them (the same expressions, site by site), each kicked as
+    /// it is formed; the vectors read the stage's positions where they are. So the bits of the
+    /// splitting's `step` and `step_tangent`, without a second copy of the orbit or a buffer
+    /// per force (the engine's carrier takes the orbit from here).
+    fn reference_tangent_steps(
+        &self,
+        x: &mut [f64],
+        v: &mut [f64],
+        n_steps: u64,
+        drift: &[f64],
+        kick: &[f64],
+    ) -> bool {
+        let n = self.n;
+        let dim = 2 * n;
+        if n < 2 || x.len() != dim || !v.len().is_multiple_of(dim) || drift.len() != kick.len() + 1
+        {
+            return false;
+        }
+        let args = (self.beta, x, v, n_steps, drift, kick);
+        // The same loops compiled for the widest instruction set the CPU has (as the batched
+        // kernels): vectors of 8 or 4 sites where the baseline has 2. Rust never fuses a
+        // multiply and an add, so every instruction set gives the same bits.
+        #[cfg(target_arch = "x86_64")]
+        match crate::batch::Isa::detect() {
+            // SAFETY: the CPU has the instruction set (detected just above).
+            crate::batch::Isa::Avx512 => return unsafe { fused_avx512(args) },
+            // SAFETY: as above.
+            crate::batch::Isa::Avx2 => return unsafe { fused_avx2(args) },
+            crate::batch::Isa::Portable => {}
+        }
+        fused(args)
+    }
+
     /// Bond `i` (`r_i = x_{i+1} - x_i`, `i = 0..N`) half to each of its particles; the bonds to
     /// the fixed walls whole to the end particle (a wall is no site). In bond order, as the
     /// same chain written as a `potential` lattice sum attributes it, so both give the same
@@ -166,6 +201,65 @@ impl Model for FputBeta {
     }
 }
 
+/// The arguments of [`fused`]: `beta`, the orbit, the vectors, the steps, the splitting.
+type FusedArgs<'a> = (f64, &'a mut [f64], &'a mut [f64], u64, &'a [f64], &'a [f64]);
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn fused_avx512(args: FusedArgs<'_>) -> bool {
+    fused(args)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn fused_avx2(args: FusedArgs<'_>) -> bool {
+    fused(args)
+}
+
+/// `FputBeta::reference_tangent_steps`' loops (the lengths checked by the caller).
+#[inline(always)]
+fn fused((beta, x, v, n_steps, drift, kick): FusedArgs<'_>) -> bool {
+    let n = x.len() / 2;
+    let dim = 2 * n;
+    let f = |r: f64| r + beta * r * r * r;
+    let g = |r: f64, dv: f64| (1.0 + 3.0 * beta * r * r) * dv;
+    let drift_state = |y: &mut [f64], ch: f64| {
+        let (q, p) = y.split_at_mut(n);
+        for (qi, pi) in q.iter_mut().zip(p.iter()) {
+            *qi += ch * pi;
+        }
+    };
+    for _ in 0..n_steps {
+        for (&ch, &dh) in drift.iter().zip(kick) {
+            drift_state(x, ch);
+            for y in v.chunks_exact_mut(dim) {
+                drift_state(y, ch);
+            }
+            let (q, p) = x.split_at_mut(n);
+            p[0] -= dh * (f(q[0]) - f(q[1] - q[0]));
+            for (pi, w) in p[1..n - 1].iter_mut().zip(q.windows(3)) {
+                *pi -= dh * (f(w[1] - w[0]) - f(w[2] - w[1]));
+            }
+            p[n - 1] -= dh * (f(q[n - 1] - q[n - 2]) - f(-q[n - 1]));
+            for y in v.chunks_exact_mut(dim) {
+                let (dq, dp) = y.split_at_mut(n);
+                dp[0] -= dh * (g(q[0], dq[0]) - g(q[1] - q[0], dq[1] - dq[0]));
+                for ((pi, w), u) in dp[1..n - 1].iter_mut().zip(q.windows(3)).zip(dq.windows(3)) {
+                    *pi -= dh * (g(w[1] - w[0], u[1] - u[0]) - g(w[2] - w[1], u[2] - u[1]));
+                }
+                dp[n - 1] -=
+                    dh * (g(q[n - 1] - q[n - 2], dq[n - 1] - dq[n - 2]) - g(-q[n - 1], -dq[n - 1]));
+            }
+        }
+        let ch = drift[kick.len()];
+        drift_state(x, ch);
+        for y in v.chunks_exact_mut(dim) {
+            drift_state(y, ch);
+        }
+    }
+    true
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -180,6 +274,96 @@ mod tests {
             check::gradient_matches_potential(&m, &q);
             check::hessian_matches_gradient(&m, &q, &v);
         }
+    }
+
+    /// The fused pass is the splitting's `step` and `step_tangent`, bit for bit: chains of 2
+    /// to 33 particles, 1 to 3 vectors, 1 to 7 steps of ABA864 (a chaotic amplitude, so a
+    /// wrong last bit would grow); a single particle has no fused pass.
+    #[test]
+    fn fused_steps_are_the_splittings_bit_for_bit() {
+        use crate::batch::StepCoeffs;
+        use crate::integrator::{Integrator, Splitting, SplittingKind, Workspace};
+        let splitting = Splitting::new(SplittingKind::Aba864);
+        let h = 0.05;
+        let c = StepCoeffs::new(&splitting, h);
+        for n in [2usize, 3, 8, 33] {
+            let m = FputBeta::new(n, 1.3).unwrap();
+            for k in 1..=3 {
+                for steps in [1u64, 7] {
+                    let x0: Vec<f64> = (0..2 * n)
+                        .map(|i| 0.9 * ((i as f64) * 1.37 + 0.2).sin())
+                        .collect();
+                    let v0: Vec<f64> = (0..k * 2 * n)
+                        .map(|i| 1e-3 * ((i as f64) * 0.71).cos())
+                        .collect();
+                    let (mut x, mut v) = (x0.clone(), v0.clone());
+                    let mut work = Workspace::new();
+                    for s in 0..steps {
+                        splitting
+                            .step_tangent(&m, &mut x, &mut v, s as f64 * h, h, &mut work)
+                            .unwrap();
+                    }
+                    let bits = |a: &[f64]| a.iter().map(|y| y.to_bits()).collect::<Vec<_>>();
+                    // Every instruction set's instantiation the CPU has gives the same bits.
+                    let (mut px, mut pv) = (x0.clone(), v0.clone());
+                    assert!(fused((1.3, &mut px, &mut pv, steps, &c.drift, &c.kick)));
+                    #[cfg(target_arch = "x86_64")]
+                    for isa in [crate::batch::Isa::Avx2, crate::batch::Isa::Avx512] {
+                        if !isa.available() {
+                            continue;
+                        }
+                        let (mut ix, mut iv) = (x0.clone(), v0.clone());
+                        let a = (
+                            1.3,
+                            &mut ix[..],
+                            &mut iv[..],
+                            steps,
+                            &c.drift[..],
+                            &c.kick[..],
+                        );
+                        // SAFETY: the CPU has the instruction set (checked above).
+                        assert!(unsafe {
+                            match isa {
+                                crate::batch::Isa::Avx2 => fused_avx2(a),
+                                _ => fused_avx512(a),
+                            }
+                        });
+                        assert_eq!((bits(&ix), bits(&iv)), (bits(&px), bits(&pv)), "{isa:?}");
+                    }
+                    let (mut fx, mut fv) = (x0, v0);
+                    assert!(m.reference_tangent_steps(&mut fx, &mut fv, steps, &c.drift, &c.kick));
+                    assert_eq!((bits(&fx), bits(&fv)), (bits(&px), bits(&pv)), "portable");
+                    assert_eq!(
+                        bits(&fx),
+                        bits(&x),
+                        "N = {n}, k = {k}, {steps} steps: orbit"
+                    );
+                    assert_eq!(
+                        bits(&fv),
+                        bits(&v),
+                        "N = {n}, k = {k}, {steps} steps: vectors"
+                    );
+                    // The one-orbit step moves the orbit alike.
+                    let mut y = fx.clone();
+                    let mut z = x.clone();
+                    splitting.step(&m, &mut y, 0.0, h, &mut work);
+                    let mut none = Vec::new();
+                    splitting
+                        .step_tangent(&m, &mut z, &mut none, 0.0, h, &mut work)
+                        .unwrap();
+                    assert_eq!(bits(&y), bits(&z));
+                }
+            }
+        }
+        let single = FputBeta::new(1, 1.0).unwrap();
+        let c1 = StepCoeffs::new(&splitting, h);
+        assert!(!single.reference_tangent_steps(
+            &mut [0.1, 0.2],
+            &mut [1.0, 0.0],
+            1,
+            &c1.drift,
+            &c1.kick
+        ));
     }
 
     #[test]

@@ -193,11 +193,12 @@ pub trait Model: std::any::Any + Send + Sync {
         self.diagnose_non_finite_at(q, t)
     }
 
-    /// Whether [`Model::reference_tangent_steps`] can step (now or once its code is built):
-    /// what a run's stepping is chosen by. False for every model but a `potential` whose
-    /// lattice sums are loops and whose C kernels are not switched off.
-    fn may_step_reference_tangent(&self) -> bool {
-        false
+    /// A run of `work` state-value steps (steps times `2N`) will ask
+    /// [`Model::reference_tangent_steps`] to step its small sets: build what that needs, where
+    /// it repays (a `potential` whose lattice sums are loops starts its C kernels' build in the
+    /// background). Nothing for every other model.
+    fn prepare_reference_tangent(&self, work: u64) {
+        let _ = work;
     }
 
     /// `n_steps` steps of a splitting (its coefficients times `h`) for the state `x` (`q, p`)

@@ -174,11 +174,19 @@ pub trait DynamicalSystem: Send + Sync {
         None
     }
 
-    /// Whether [`DynamicalSystem::reference_tangent_steps`] can step this system (now, or once
-    /// its code is built): a run then steps a small set of tangent vectors with its own copy of
-    /// the reference in one fused pass, and takes the reference from one such copy.
+    /// Whether a small set of tangent vectors can step with its own copy of the reference, one
+    /// window at a time, and that copy serve as the reference (its tangent steps move the orbit
+    /// exactly as `step` does): through [`DynamicalSystem::reference_tangent_steps`] where the
+    /// system has a fused pass now, else its one-orbit tangent steps. A run then integrates the
+    /// orbit once, not once more beside such a set.
     fn steps_reference_tangent(&self) -> bool {
         false
+    }
+
+    /// A run of `work` state-value steps (steps times the dimension) will call
+    /// [`DynamicalSystem::reference_tangent_steps`]: build what it needs, where that repays.
+    fn prepare_reference_tangent(&self, work: u64) {
+        let _ = work;
     }
 
     /// `steps` steps, the first of them step number `from`, of the orbit `x` and the tangent

@@ -174,13 +174,18 @@ impl DynamicalSystem for SplitHamiltonian {
         Some(self)
     }
 
-    /// A potential whose lattice sums are loops (its C kernels' fused one-orbit kernel), not
-    /// of the time and without lane parameters.
+    /// Every model not of the time and without lane parameters: `Splitting::step_tangent`
+    /// moves the orbit with `step`'s operations (`engine/stepping.rs`'s tests); the built-in
+    /// FPUT chain and a potential whose lattice sums are loops (once its C kernels are built)
+    /// have a fused pass.
     fn steps_reference_tangent(&self) -> bool {
-        self.model.lane_params() == 0
-            && !self.model.reads_time()
-            && self.model.has_hessian()
-            && self.model.may_step_reference_tangent()
+        self.model.lane_params() == 0 && !self.model.reads_time() && self.model.has_hessian()
+    }
+
+    fn prepare_reference_tangent(&self, work: u64) {
+        if self.steps_reference_tangent() {
+            self.model.prepare_reference_tangent(work);
+        }
     }
 
     fn reference_tangent_steps(

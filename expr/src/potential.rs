@@ -790,19 +790,14 @@ impl ExpressionModel {
     /// [`Self::reference_tangent_steps`]: the C kernels' build starts in the background if the
     /// run is long enough to repay it ([`MIN_FUSED_WORK`]) and the potential has that kernel.
     pub fn prepare_reference_tangent(&self, work: u64) {
-        if work >= MIN_FUSED_WORK && self.may_step_reference_tangent() {
-            self.start_c_build();
-        }
-    }
-
-    /// Whether [`Self::reference_tangent_steps`] can ever step (its kernel is written for this
-    /// potential, once the C kernels are built): what decides a run's stepping.
-    pub fn may_step_reference_tangent(&self) -> bool {
-        !self.0.reads_time
+        let has_kernel = !self.0.reads_time
             && self.0.lane_params == 0
             && self.0.c2
             && jit::CCompiler::from_env().is_some()
-            && matches!(&self.0.form, Form::Lattice(l) if jit::fused_applies(l))
+            && matches!(&self.0.form, Form::Lattice(l) if jit::fused_applies(l));
+        if work >= MIN_FUSED_WORK && has_kernel {
+            self.start_c_build();
+        }
     }
 
     /// Whether the C kernels `k` were loaded from the kernel cache rather than compiled.

@@ -396,23 +396,24 @@ impl Engine {
             let carrier = &mut self.tasks[c];
             carrier.advance(spec, &last_good, &last_good, &plan, false, t, false)?;
             self.reference.copy_from_slice(&carrier.orbit);
-        }
-        for step in (self.step..target).filter(|_| self.carrier.is_none()) {
-            let t = spec.time_of(step);
-            system.step_reference(&mut self.reference, t, &mut self.plan, &mut self.work);
-            self.plan_bounds.push(self.plan.len());
-            if let Some((before, integral)) = &mut self.divergence {
-                // Non-finite values are caught below, once per window.
-                let after = system
-                    .divergence(&self.reference, spec.time_of(step + 1))
-                    .unwrap_or(f64::NAN);
-                *integral += match system.time() {
-                    // The trapezoidal rule over the step: the mean of div f along the orbit.
-                    crate::system::Time::Continuous { h } => 0.5 * h * (*before + after),
-                    // ln |det DF| at the state the iteration starts from.
-                    crate::system::Time::Discrete => *before,
-                };
-                *before = after;
+        } else {
+            for step in self.step..target {
+                let t = spec.time_of(step);
+                system.step_reference(&mut self.reference, t, &mut self.plan, &mut self.work);
+                self.plan_bounds.push(self.plan.len());
+                if let Some((before, integral)) = &mut self.divergence {
+                    // Non-finite values are caught below, once per window.
+                    let after = system
+                        .divergence(&self.reference, spec.time_of(step + 1))
+                        .unwrap_or(f64::NAN);
+                    *integral += match system.time() {
+                        // The trapezoidal rule over the step: the mean of div f along the orbit.
+                        crate::system::Time::Continuous { h } => 0.5 * h * (*before + after),
+                        // ln |det DF| at the state the iteration starts from.
+                        crate::system::Time::Discrete => *before,
+                    };
+                    *before = after;
+                }
             }
         }
         let norm = self.reference.iter().map(|v| v * v).sum::<f64>().sqrt();

@@ -67,12 +67,17 @@ struct Gather {
     regular: (usize, usize),
     /// Per sum, its slots in the order a regular site takes them.
     order: Vec<Vec<usize>>,
-    /// The other sites: (site, whether the rest adds to it first, its contributions).
-    ends: Vec<(usize, bool, Vec<Contribution>)>,
+    /// The other sites: (site, its contributions); the rest's, where it has one, comes first.
+    ends: Vec<(usize, Vec<Contribution>)>,
 }
 
 impl Gather {
+    /// `None` where the kernel does not apply: no Hessian-vector product, fewer than
+    /// [`MIN_SITES`] sites, no run of regular sites, or more than [`MAX_END_SITES`] ends.
     fn new(lattice: &LatticePotential) -> Option<Self> {
+        if !lattice.has_hessian() || lattice.n < MIN_SITES {
+            return None;
+        }
         let n = lattice.n;
         // Every site's contributions in the evaluator's order: sums in turn, terms in
         // increasing `i`, slots in slot order.
@@ -144,9 +149,9 @@ impl Gather {
             }
         }
         let regular = best?;
-        let ends: Vec<(usize, bool, Vec<Contribution>)> = (0..n)
+        let ends: Vec<(usize, Vec<Contribution>)> = (0..n)
             .filter(|&j| j < regular.0 || j > regular.1)
-            .map(|j| (j, rest[j], std::mem::take(&mut lists[j])))
+            .map(|j| (j, std::mem::take(&mut lists[j])))
             .collect();
         (ends.len() <= MAX_END_SITES).then_some(Self {
             regular,
@@ -158,7 +163,7 @@ impl Gather {
 
 /// Whether `lattice` gets the kernel ([`source`] writes it into its C kernels' library).
 pub fn applies(lattice: &LatticePotential) -> bool {
-    lattice.has_hessian() && lattice.n >= MIN_SITES && Gather::new(lattice).is_some()
+    Gather::new(lattice).is_some()
 }
 
 /// The vectors of this kernel: as wide as the host's widest registers (eight lanes with
@@ -215,9 +220,6 @@ pub(super) fn source(
     arrays: &[(String, Arc<[f64]>)],
     array_env: usize,
 ) -> Option<String> {
-    if !lattice.has_hessian() || lattice.n < MIN_SITES {
-        return None;
-    }
     let gather = Gather::new(lattice)?;
     let writer = Writer {
         graph,
@@ -537,7 +539,7 @@ impl Writer<'_> {
                 rest_of[j as usize] = vals[id as usize].clone().map(|v| v.0);
             }
         }
-        for (e, (j, _, list)) in self.gather.ends.iter().enumerate() {
+        for (e, (j, list)) in self.gather.ends.iter().enumerate() {
             let mut acc = "-0.0".to_string();
             let mut step = 0;
             let mut push = |lines: &mut Vec<String>, acc: &mut String, value: String| {

@@ -54,13 +54,14 @@ pub(crate) enum Stepping {
     /// substeps: every system, and the definition the batched form reproduces.
     OneOrbit,
     /// As [`Stepping::OneOrbit`], but a set's tangent vectors step with their copy of the
-    /// reference in one fused pass vectorized along a lattice's sites
-    /// ([`DynamicalSystem::reference_tangent_steps`], where the system has that kernel now; the
-    /// same bits): the few vectors the batched kernels would pad to a chunk.
+    /// reference, which can carry the reference ([`DynamicalSystem::steps_reference_tangent`]),
+    /// in one fused pass where the system has one now
+    /// ([`DynamicalSystem::reference_tangent_steps`]; the same bits): the few vectors the
+    /// batched kernels would pad to a chunk.
     Fused,
     /// The system's batched form on the instruction set `isa`, for tasks of at least
-    /// `min_lanes` lanes ([`Stepping::for_lanes`]); smaller tasks take the fused pass where
-    /// the system has one (`fused`), else the one-orbit path.
+    /// `min_lanes` lanes ([`Stepping::for_lanes`]); smaller tasks are [`Stepping::Fused`] where
+    /// the system allows it (`fused`), else the one-orbit path.
     Batched {
         isa: Isa,
         min_lanes: usize,

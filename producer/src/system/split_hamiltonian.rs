@@ -196,8 +196,7 @@ impl DynamicalSystem for SplitHamiltonian {
         steps: u64,
     ) -> bool {
         // The time is not read (`steps_reference_tangent`): the step number does not matter.
-        self.model.lane_params() == 0
-            && !self.model.reads_time()
+        self.steps_reference_tangent()
             && self.model.reference_tangent_steps(
                 x,
                 v,

@@ -51,7 +51,7 @@ fn config(n: usize, t_final: f64) -> anyhow::Result<RunConfig> {
 }
 
 /// CPU seconds (user + system) of every waited-for descendant so far.
-pub(super) fn children_cpu_seconds() -> f64 {
+fn children_cpu_seconds() -> f64 {
     // SAFETY: getrusage writes the struct it is given.
     let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
     unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) };
@@ -198,11 +198,7 @@ pub fn compare(
     let mut rows = Vec::new();
     for &n in sizes {
         anyhow::ensure!(n >= 4, "--dkg-sizes: a chain of at least 4 sites, got {n}");
-        // Whole sampling intervals of the same site-steps at every size.
-        let windows = (SITE_STEPS / (n as f64 * SAMPLE_EVERY / H))
-            .round()
-            .max(1.0);
-        let t_final = windows * SAMPLE_EVERY;
+        let t_final = t_final_of(SITE_STEPS, n, SAMPLE_EVERY, H);
         // The chain's C kernels built into the kernel cache (or found there) first, as a
         // user's first long run of a chain does once for every later realization and length:
         // the timed run starts from the cache, as the C yardstick from its built program.
@@ -250,23 +246,26 @@ pub fn compare(
     }))
 }
 
-/// `realizations` disorder realizations (seeds 1, 2, ...) of the `n`-site chain over the same
-/// site-steps each, as many `chaoscope run`s at a time as the machine has cores: the ensemble's
-/// site-steps per CPU second (the sum over every process tree) and per wall second.
+/// The end of a run of about `site_steps` site-steps of an `n`-site chain at step `h`: whole
+/// sampling intervals `sample_every` (at least one), so every size runs the same work.
+pub(super) fn t_final_of(site_steps: f64, n: usize, sample_every: f64, h: f64) -> f64 {
+    (site_steps / (n as f64 * sample_every / h))
+        .round()
+        .max(1.0)
+        * sample_every
+}
+
+/// `realizations` disorder realizations (seeds 1, 2, ...; the command line checked 1 to 1000 of
+/// 4 sites or more) of the `n`-site chain over the same site-steps each, as many `chaoscope
+/// run`s at a time as the machine has cores: the ensemble's site-steps per CPU second (the sum
+/// over every process tree) and per wall second.
 fn ensemble_throughput(
     dir: &std::path::Path,
     realizations: usize,
     n: usize,
 ) -> anyhow::Result<serde_json::Value> {
-    anyhow::ensure!(
-        (1..=1000).contains(&realizations) && n >= 4,
-        "--dkg-ensemble: 1 to 1000 realizations of a chain of at least 4 sites"
-    );
     let at_once = std::thread::available_parallelism().map_or(1, |c| c.get());
-    let windows = (SITE_STEPS / (n as f64 * SAMPLE_EVERY / H))
-        .round()
-        .max(1.0);
-    let t_final = windows * SAMPLE_EVERY;
+    let t_final = t_final_of(SITE_STEPS, n, SAMPLE_EVERY, H);
     let exe = std::env::current_exe()?;
     let mut configs = Vec::with_capacity(realizations);
     for r in 1..=realizations {

@@ -14,7 +14,7 @@
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig};
 
-use super::dkg::{c_input_of, c_run, chaoscope_run, warm_kernel_cache, yardstick};
+use super::dkg::{c_input_of, c_run, chaoscope_run, t_final_of, warm_kernel_cache, yardstick};
 const H: f64 = 0.02;
 const TAU: f64 = 1.0;
 const SAMPLE_EVERY: f64 = 10.0;
@@ -53,10 +53,7 @@ pub fn compare(sizes: &[usize]) -> anyhow::Result<serde_json::Value> {
             n >= 4,
             "--lattice-sizes: a chain of at least 4 sites, got {n}"
         );
-        let windows = (SITE_STEPS / (n as f64 * SAMPLE_EVERY / H))
-            .round()
-            .max(1.0);
-        let t_final = windows * SAMPLE_EVERY;
+        let t_final = t_final_of(SITE_STEPS, n, SAMPLE_EVERY, H);
         let site_steps = n as f64 * t_final / H;
         let mut row =
             serde_json::json!({ "sites": n, "t_final": t_final, "site_steps": site_steps });

@@ -247,8 +247,8 @@ impl CSteps {
                 // chaoscope crate, so not `chaoscope_os::errln!`).
                 let _ = writeln!(
                     std::io::stderr(),
-                    "chaoscope: {e}; the batched kernel runs the Cranelift kernels instead \
-                     (the same results, more slowly)"
+                    "chaoscope: {e}; running without the C kernels (the Cranelift kernels for \
+                     a map, the one-orbit path for a run: the same results, more slowly)"
                 );
                 Err(CUnavailable {
                     kind: CStepState::Failed,

@@ -475,7 +475,7 @@ impl CacheDir {
                 let e = std::io::Error::last_os_error();
                 return Err(fail(match e.raw_os_error() {
                     Some(libc::ELOOP) | Some(libc::ENOTDIR) => format!(
-                        "not a directory but a link or a file, refused ({FOREIGN_CODE} through                          it); remove it or set CHAOSCOPE_KERNEL_CACHE to a directory of yours"
+                        "not a directory but a link or a file, refused ({FOREIGN_CODE} through it); remove it or set CHAOSCOPE_KERNEL_CACHE to a directory of yours"
                     ),
                     _ => e.to_string(),
                 }));
@@ -486,7 +486,7 @@ impl CacheDir {
             let meta = dir.stat(None).map_err(|e| fail(e.to_string()))?;
             check_owner(&meta).map_err(|why| {
                 fail(format!(
-                    "{why}: {FOREIGN_CODE}; remove it, or set CHAOSCOPE_KERNEL_CACHE to a                      directory of yours"
+                    "{why}: {FOREIGN_CODE}; remove it, or set CHAOSCOPE_KERNEL_CACHE to a directory of yours"
                 ))
             })?;
             Ok(dir)

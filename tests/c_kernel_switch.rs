@@ -275,10 +275,16 @@ fn processes_mentioning(path: &Path) -> Vec<String> {
     found
 }
 
+/// Every file and directory under `dir` but the compiler's target records (`target-*`: a
+/// finished record of what the compiler targets, written whole before any build, which every
+/// later build reads instead of running the compiler to ask).
 fn files_under(dir: &Path) -> Vec<String> {
     let mut files = Vec::new();
     if let Ok(entries) = std::fs::read_dir(dir) {
         for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with("target-") {
+                continue;
+            }
             files.push(e.path().display().to_string());
             if e.path().is_dir() {
                 files.extend(files_under(&e.path()));
@@ -511,4 +517,111 @@ fn hex_sha256(bytes: &[u8]) -> String {
         })
         .unwrap();
     String::from_utf8(out.stdout).unwrap()[..64].to_string()
+}
+
+/// A short run of a chain written as a lattice sum builds no C kernels (the build would cost
+/// more than it saves) and so runs no compiler; once the kernels are in the cache (here built
+/// by a map, as a long run builds them), a short run loads them and steps its small sets in the
+/// fused pass, still running no compiler: what the compiler targets is remembered in the cache
+/// under a fingerprint of the compiler's file and the CPU, and asked again, once, when the
+/// compiler's file changes. The run's bits are the built-in chain's whichever kernels ran.
+#[test]
+fn a_short_run_loads_cached_kernels_without_running_the_compiler() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("kernels");
+    let log = dir.path().join("cc.log");
+    // A compiler that logs every call, then is `cc`.
+    let cc = dir.path().join("logging-cc");
+    std::fs::write(
+        &cc,
+        format!(
+            "#!/bin/sh\necho \"$*\" >> '{}'\nexec cc \"$@\"\n",
+            log.display()
+        ),
+    )
+    .unwrap();
+    {
+        use std::os::unix::fs::PermissionsExt;
+        std::fs::set_permissions(&cc, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+    let calls = || -> Vec<String> {
+        std::fs::read_to_string(&log)
+            .unwrap_or_default()
+            .lines()
+            .map(String::from)
+            .collect()
+    };
+    // 16 sites to t = 20 (1000 steps, 3.2 * 10^4 state-value steps: far below a build's worth),
+    // VM and MPM sets of two vectors.
+    let short_run = |model: &str| -> Value {
+        let o = Command::new(env!("CARGO_BIN_EXE_chaoscope"))
+            .args(["bench", "--lattice-case", &format!("{model}:16:20")])
+            .env("RAYON_NUM_THREADS", "1")
+            .env("CHAOSCOPE_KERNEL_CACHE", &cache)
+            .env("CHAOSCOPE_CC", &cc)
+            .env_remove("CHAOSCOPE_C_KERNELS_AFTER_CALLS")
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{stderr}");
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    let builtin = short_run("builtin");
+
+    let cold = short_run("expression");
+    assert_eq!(cold["c_kernels"], "not-started", "{cold}");
+    assert_eq!(
+        calls(),
+        Vec::<String>::new(),
+        "a short run ran the compiler"
+    );
+    assert!(!cache.exists(), "a short run made the kernel cache");
+    assert_eq!(cold["final_state_digest"], builtin["final_state_digest"]);
+
+    // The same chain's kernels built by a map (which waits for them).
+    let config = dir.path().join("map.toml");
+    std::fs::write(&config, fput_map(16, 2, 2.0, FPUT_LOOP, "vm")).unwrap();
+    let (_, json, _) = map(
+        &config,
+        &dir.path().join("map.mcap"),
+        1,
+        &[
+            ("CHAOSCOPE_KERNEL_CACHE", s(&cache)),
+            ("CHAOSCOPE_CC", s(&cc)),
+            ("CHAOSCOPE_C_KERNELS_AFTER_CALLS", "0"),
+        ],
+    );
+    assert_eq!(json["expression_kernels"]["c_build"], "compiled", "{json}");
+    let built = calls();
+    assert_eq!(
+        built.len(),
+        2,
+        "the target asked, the kernels compiled: {built:?}"
+    );
+    assert!(
+        built[0].contains("-dM") && built[1].contains("-shared"),
+        "{built:?}"
+    );
+
+    let warm = short_run("expression");
+    assert_eq!(warm["c_kernels"], "loaded-from-cache", "{warm}");
+    assert_eq!(calls(), built, "a cached load ran the compiler");
+    assert_eq!(warm["final_state_digest"], builtin["final_state_digest"]);
+    assert_eq!(warm["mle"], cold["mle"]);
+
+    // Another compiler file (a later modification time): its target is asked once, and the
+    // kernels, the same for the same target, are loaded.
+    let later = std::time::SystemTime::now() + Duration::from_secs(5);
+    std::fs::File::options()
+        .write(true)
+        .open(&cc)
+        .unwrap()
+        .set_modified(later)
+        .unwrap();
+    let changed = short_run("expression");
+    assert_eq!(changed["c_kernels"], "loaded-from-cache", "{changed}");
+    let now = calls();
+    assert_eq!(now.len(), 3, "{now:?}");
+    assert!(now[2].contains("-dM"), "{now:?}");
+    assert_eq!(changed["final_state_digest"], builtin["final_state_digest"]);
 }

@@ -67,7 +67,9 @@ mod step_cranelift;
 mod step_spec;
 
 pub use c_fused::applies as fused_applies;
-pub use c_sites::{compile_lattice_steps_c, compile_lattice_steps_c_cancellable};
+pub use c_sites::{
+    compile_lattice_steps_c, compile_lattice_steps_c_cancellable, load_lattice_steps_c,
+};
 pub use c_step::{C_BLOCK_LANES, CCompiler};
 pub use site_steps::compile_lattice_steps;
 pub use sites::{LATTICE_GRADIENT, LATTICE_HESSIAN_VECTOR, LATTICE_POTENTIAL, compile_lattice};
@@ -205,6 +207,9 @@ pub enum JitError {
     /// The C build was cancelled by its caller (the compiler stopped, its files removed).
     #[error("C step kernels: the build was cancelled")]
     Cancelled,
+    /// A lookup that must not compile ([`load_lattice_steps_c`]) found no library in the cache.
+    #[error("C step kernels: not in the kernel cache")]
+    NotCached,
 }
 
 /// A compiled scalar function.

@@ -304,7 +304,8 @@ impl StepSource {
 /// the kernels from the cache), the pass saves about 5 ns per site and step against the
 /// one-orbit path (AMD EPYC Zen 5, the DKG chain of 1000 sites, one vector: 2.0 s against 0.9 s
 /// per 2 * 10^8 site-steps), so below about 10^8 state values the build costs more than it
-/// saves. The bits are the same either way.
+/// saves (such a run still loads the kernels if an earlier one left them in the cache). The
+/// bits are the same either way.
 pub const MIN_FUSED_WORK: u64 = 100_000_000;
 
 /// A compiled potential model. Cheap to clone (shared compiled code).
@@ -795,9 +796,42 @@ impl ExpressionModel {
             && self.0.c2
             && jit::CCompiler::from_env().is_some()
             && matches!(&self.0.form, Form::Lattice(l) if jit::fused_applies(l));
-        if work >= MIN_FUSED_WORK && has_kernel {
-            self.start_c_build();
+        if !has_kernel {
+            return;
         }
+        if work >= MIN_FUSED_WORK {
+            self.start_c_build();
+        } else {
+            self.load_cached_c_kernels();
+        }
+    }
+
+    /// A run too short to repay the C build still takes the kernels where an earlier run left
+    /// them in the cache (the kernels of one potential serve every `N`: neither the source nor
+    /// the cache key holds it), loaded here at once; a miss changes nothing (no build, and a
+    /// later batched call may still start one), and neither does a cache that cannot be used
+    /// (a build would say why).
+    fn load_cached_c_kernels(&self) {
+        let c = &self.0.c_steps;
+        let Form::Lattice(lattice) = &self.0.form else {
+            return;
+        };
+        if c.started.is_completed() {
+            return;
+        }
+        let Some(cc) = jit::CCompiler::from_env() else {
+            return;
+        };
+        let started = Instant::now();
+        let Ok(kernels) = jit::load_lattice_steps_c(&self.0.graph, lattice, &cc) else {
+            return;
+        };
+        let mut kernels = Some(kernels);
+        c.started.call_once(|| {
+            let _ = c.started_at.set(started);
+            let _ = c.ready_after.set(started.elapsed());
+            let _ = c.result.set(Ok(kernels.take().expect("set once")));
+        });
     }
 
     /// Whether the C kernels `k` were loaded from the kernel cache rather than compiled.

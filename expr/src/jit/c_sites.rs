@@ -31,10 +31,38 @@ pub fn compile_lattice_steps_c_cancellable(
     cc: &CCompiler,
     cancel: &AtomicBool,
 ) -> Result<StepKernels, JitError> {
+    lattice_steps_c(graph, lattice, cc, cancel, c_step::Mode::Build)
+}
+
+/// The C kernels of a lattice potential if an earlier build left them in `cc`'s cache, without
+/// compiling them ([`JitError::NotCached`] otherwise) and without creating the cache: what a
+/// run too short to repay a build takes (a few milliseconds where the compiler's target is
+/// remembered, see `c_step`'s target record).
+pub fn load_lattice_steps_c(
+    graph: &Graph,
+    lattice: &LatticePotential,
+    cc: &CCompiler,
+) -> Result<StepKernels, JitError> {
+    lattice_steps_c(
+        graph,
+        lattice,
+        cc,
+        &AtomicBool::new(false),
+        c_step::Mode::Load,
+    )
+}
+
+fn lattice_steps_c(
+    graph: &Graph,
+    lattice: &LatticePotential,
+    cc: &CCompiler,
+    cancel: &AtomicBool,
+    mode: c_step::Mode,
+) -> Result<StepKernels, JitError> {
     let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
     let arrays = arrays_of(lattice);
     let src = source(graph, lattice, &arrays);
-    let (kernels, compile_time) = c_step::build(&src, lattice.has_hessian(), cc, cancel)?;
+    let (kernels, compile_time) = c_step::build(&src, lattice.has_hessian(), cc, cancel, mode)?;
     let arrays: Vec<Arc<[f64]>> = arrays.into_iter().map(|(_, a)| a).collect();
     let env = c_step::env(&tables, &arrays);
     Ok(StepKernels::new(

@@ -29,6 +29,9 @@
 //! same compiler and the same CPU features loads it without compiling. The compiler, its flags,
 //! its version and the CPU features it targets (`-march=native`'s predefined macros) are part of
 //! the hash, so a cache shared by machines with different CPUs never hands one the other's code.
+//! Asking the compiler for its macros is a process of its own (about 20 MB), so the answer is
+//! remembered in the cache under a fingerprint of the compiler's file and the CPU ([`identity`]):
+//! a load from the cache runs no compiler.
 //!
 //! Loading a library runs its code (its constructors run at `dlopen`), so the cache is trusted
 //! only as far as it is provably the user's own ([`CacheDir`]): the directory must be a real
@@ -225,8 +228,179 @@ impl CCompiler {
             .lines()
             .collect();
         macros.sort_unstable();
-        Ok(macros.join("\n"))
+        Ok(digest_hex(macros.join("\n").as_bytes()))
     }
+
+    /// What [`Self::target_identity`] depends on, where it can be read without running the
+    /// compiler: the compiler's file as the `PATH` search finds it (its real path, device,
+    /// inode, size and change times: a new version or another program is another file), the
+    /// variables that change which compiler passes it runs, and the CPU (`-march=native` is
+    /// derived from the CPU identification instructions alone, so the same answers give the
+    /// same macros). `None` where any of it cannot be read (a compiler not found: running it
+    /// says why) or on a CPU other than x86-64, where the compiler is always asked.
+    fn target_fingerprint(&self) -> Option<String> {
+        use std::os::unix::fs::MetadataExt;
+        let cpu = cpu_identity()?;
+        let found = if self.program.components().count() > 1 {
+            self.program.clone()
+        } else {
+            let path = std::env::var_os("PATH")?;
+            std::env::split_paths(&path)
+                .map(|dir| dir.join(&self.program))
+                .find(|p| {
+                    std::fs::metadata(p).is_ok_and(|m| m.is_file() && m.mode() & 0o111 != 0)
+                })?
+        };
+        let real = std::fs::canonicalize(&found).ok()?;
+        let m = std::fs::metadata(&real).ok()?;
+        let mut f = format!(
+            "{}\n{}\n{} {} {} {}.{} {}.{}\n{cpu}",
+            found.display(),
+            real.display(),
+            m.dev(),
+            m.ino(),
+            m.size(),
+            m.mtime(),
+            m.mtime_nsec(),
+            m.ctime(),
+            m.ctime_nsec()
+        );
+        for var in [
+            "GCC_EXEC_PREFIX",
+            "COMPILER_PATH",
+            "CPATH",
+            "C_INCLUDE_PATH",
+        ] {
+            if let Some(v) = std::env::var_os(var) {
+                f.push_str(&format!("\n{var}={}", v.to_string_lossy()));
+            }
+        }
+        Some(f)
+    }
+}
+
+/// The answers of the CPU identification instruction that `-march=native` reads (vendor,
+/// family and model, feature leaves, brand string), without the per-core fields (APIC
+/// identifiers, topology, hybrid core types), and which wide registers the operating system
+/// enables: equal on every core of one machine and on machines of one CPU model.
+#[cfg(target_arch = "x86_64")]
+fn cpu_identity() -> Option<String> {
+    use std::arch::x86_64::__cpuid_count;
+    // CPUID exists on every x86-64 CPU and only reads (safe to call since Rust 1.87).
+    let max = __cpuid_count(0, 0).eax;
+    let max_ext = __cpuid_count(0x8000_0000, 0).eax;
+    let mut id = String::new();
+    let leaves = [
+        (0, 0),
+        (1, 0),
+        (7, 0),
+        (7, 1),
+        (0xd, 0),
+        (0xd, 1),
+        (0x14, 0),
+        (0x19, 0),
+        (0x24, 0),
+    ];
+    for (leaf, sub) in leaves.into_iter().filter(|&(l, _)| l <= max) {
+        let r = __cpuid_count(leaf, sub);
+        // Leaf 1's EBX holds the core's APIC identifier in its top byte; leaf 0xd's EBX the
+        // save area of the features this process has enabled.
+        let ebx = match leaf {
+            1 => r.ebx & 0x00ff_ffff,
+            0xd => 0,
+            _ => r.ebx,
+        };
+        id.push_str(&format!(
+            "{leaf:x}.{sub}:{:x},{ebx:x},{:x},{:x};",
+            r.eax, r.ecx, r.edx
+        ));
+    }
+    for leaf in [
+        0x8000_0001u32,
+        0x8000_0002,
+        0x8000_0003,
+        0x8000_0004,
+        0x8000_0008,
+    ] {
+        if leaf <= max_ext {
+            let r = __cpuid_count(leaf, 0);
+            id.push_str(&format!(
+                "{leaf:x}:{:x},{:x},{:x},{:x};",
+                r.eax, r.ebx, r.ecx, r.edx
+            ));
+        }
+    }
+    // The operating system's part: which register states it saves (AVX, AVX-512).
+    for (name, on) in [
+        ("avx", std::arch::is_x86_feature_detected!("avx")),
+        ("avx512f", std::arch::is_x86_feature_detected!("avx512f")),
+    ] {
+        id.push_str(&format!("{name}={on};"));
+    }
+    Some(id)
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+fn cpu_identity() -> Option<String> {
+    None
+}
+
+/// Whether [`build`] may compile or only load from the cache.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Mode {
+    Build,
+    /// Load a cached library or fail with [`JitError::NotCached`]; the cache is not created.
+    Load,
+}
+
+/// Prefix of the target records in the cache: `target-<hash of the fingerprint>` holds the
+/// compiler's target identity for that fingerprint.
+const TARGET_RECORD: &str = "target-";
+
+/// The compiler's target identity ([`CCompiler::target_identity`]), asked once per process and
+/// remembered in the cache under its fingerprint ([`CCompiler::target_fingerprint`]), so a
+/// later run that loads its kernels from the cache runs no compiler at all (it would cost a
+/// process of about 20 MB, more than a short chain's whole run). The record is read through
+/// the checked cache handle like the libraries; a record that is missing, foreign or not a
+/// digest is replaced by asking the compiler.
+fn identity(cc: &CCompiler, cache: &CacheDir) -> Result<String, JitError> {
+    static IDENTITY: OnceLock<std::sync::Mutex<Vec<(CCompiler, String)>>> = OnceLock::new();
+    let known = IDENTITY.get_or_init(Default::default);
+    if let Some(id) = known
+        .lock()
+        .ok()
+        .and_then(|k| k.iter().find(|(c, _)| c == cc).map(|(_, id)| id.clone()))
+    {
+        return Ok(id);
+    }
+    let record = cc
+        .target_fingerprint()
+        .map(|f| format!("{TARGET_RECORD}{}", &digest_hex(f.as_bytes())[..40]));
+    let remembered = record.as_deref().and_then(|name| {
+        let bytes = cache.read(name)?;
+        let id = std::str::from_utf8(bytes.trim_ascii()).ok()?;
+        (id.len() == 64 && id.bytes().all(|b| b.is_ascii_hexdigit())).then(|| id.to_string())
+    });
+    let id = match remembered {
+        Some(id) => id,
+        None => {
+            let id = cc.target_identity()?;
+            if let Some(name) = &record {
+                // Best effort, renamed into place whole: without it the next run asks again.
+                if let Ok(work) = WorkDir::new(&cc.cache_dir) {
+                    let tmp = work.0.join("target");
+                    if std::fs::write(&tmp, &id).is_ok() {
+                        let _ = std::fs::rename(&tmp, cc.cache_dir.join(name));
+                    }
+                }
+            }
+            id
+        }
+    };
+    if let Ok(mut k) = known.lock() {
+        k.push((cc.clone(), id.clone()));
+    }
+    Ok(id)
 }
 
 fn first_lines(bytes: &[u8]) -> String {
@@ -294,27 +468,14 @@ pub(super) fn build(
     tangent: bool,
     cc: &CCompiler,
     cancel: &AtomicBool,
+    mode: Mode,
 ) -> Result<(CKernels, Duration), JitError> {
     let start = Instant::now();
-    // The compiler's identity is the same for the whole process: asked once.
-    static IDENTITY: OnceLock<std::sync::Mutex<Vec<(CCompiler, String)>>> = OnceLock::new();
-    let identity = {
-        let known = IDENTITY.get_or_init(Default::default);
-        let found = known
-            .lock()
-            .ok()
-            .and_then(|k| k.iter().find(|(c, _)| c == cc).map(|(_, id)| id.clone()));
-        match found {
-            Some(id) => id,
-            None => {
-                let id = cc.target_identity()?;
-                if let Ok(mut k) = known.lock() {
-                    k.push((cc.clone(), id.clone()));
-                }
-                id
-            }
-        }
-    };
+    if mode == Mode::Load && !cc.cache_dir.exists() {
+        return Err(JitError::NotCached);
+    }
+    let cache = CacheDir::open(&cc.cache_dir)?;
+    let identity = identity(cc, &cache)?;
     let mut h = Sha256::new();
     h.update(cc.program.to_string_lossy().as_bytes());
     h.update([0]);
@@ -332,7 +493,6 @@ pub(super) fn build(
     let io = |what: &str, path: &Path, e: std::io::Error| {
         JitError::CCompiler(format!("{what} {}: {e}", path.display()))
     };
-    let cache = CacheDir::open(&cc.cache_dir)?;
     let lib_name = format!("steps-{hash}.so");
     let digest_name = format!("steps-{hash}.sha256");
     let lib_path = cc.cache_dir.join(&lib_name);
@@ -340,6 +500,9 @@ pub(super) fn build(
         && let Ok(k) = load(&bytes, &lib_path, &hash, tangent, true)
     {
         return Ok((k, start.elapsed()));
+    }
+    if mode == Mode::Load {
+        return Err(JitError::NotCached);
     }
     if cancel.load(Ordering::Relaxed) {
         return Err(JitError::Cancelled);

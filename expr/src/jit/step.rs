@@ -461,7 +461,7 @@ pub fn compile_steps_c_cancellable(
     let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
     let src = c_step::source(graph, spec)?;
     let tangent = spec.hessian_vector.is_some();
-    let (kernels, compile_time) = c_step::build(&src, tangent, cc, cancel)?;
+    let (kernels, compile_time) = c_step::build(&src, tangent, cc, cancel, c_step::Mode::Build)?;
     let env = c_step::env(&tables, &[]);
     Ok(StepKernels::new(
         Code::C { kernels, env },

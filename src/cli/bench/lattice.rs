@@ -9,8 +9,9 @@
 //! time from the configuration text to an engine ready to step (parse, validate, compile), in
 //! wall time and in its own CPU time (on a loaded machine the wall time counts other
 //! processes' turns), and to the first sample. The two models run one after the other at each
-//! size (built-in first), the pair repeated `--lattice-pairs` times; the JSON gives every run
-//! and the median ratios.
+//! size (built-in first), the pair repeated `--lattice-pairs` times, first with an empty kernel
+//! cache (`cold_cache`), then with the chain's C kernels built into it (the top-level figures);
+//! the JSON gives every run, where its C kernels stood (`c_kernels`) and the median ratios.
 //!
 //! The run: fixed ends, beta = 1, the lowest normal mode at amplitude 0.5 (a regular orbit),
 //! ABA864 with h = 0.02 to t = 2 * 10^5 / N (the same site-steps at every size), one VM and one
@@ -80,10 +81,11 @@ pub fn case(arg: &str) -> anyhow::Result<()> {
     let started = Instant::now();
     let config = RunConfig::from_toml(&text)?;
     let spec = RunSpec::from_config(&config)?;
-    let loops = spec.system().separable().and_then(|h| {
+    let expression = spec.system().separable().and_then(|h| {
         let any: &dyn std::any::Any = h.model().as_ref();
-        any.downcast_ref::<ExpressionModel>().map(|m| m.has_loops())
+        any.downcast_ref::<ExpressionModel>().cloned()
     });
+    let loops = expression.as_ref().map(ExpressionModel::has_loops);
     let steps = spec.total_steps();
     let mut engine = Engine::new(spec);
     let ready = started.elapsed().as_secs_f64();
@@ -126,6 +128,9 @@ pub fn case(arg: &str) -> anyhow::Result<()> {
             "lattice_loops": loops,
             "final_state_digest": format!("{digest:016x}"),
             "mle": sums.iter().map(|m| m.mle(t)).collect::<Vec<_>>(),
+            // Where the expression's C kernels stood at the end: `not-started` (a run too
+            // short to build them, none in the cache), `loaded-from-cache`, `compiled`, ...
+            "c_kernels": expression.as_ref().map(|m| m.c_step_status().state.name()),
         }))
     })()?;
     chaoscope_os::outln!("{}", serde_json::to_string(&report)?)?;
@@ -133,12 +138,18 @@ pub fn case(arg: &str) -> anyhow::Result<()> {
 }
 
 /// One child run: its report, CPU seconds and peak resident memory (MB).
-fn run_child(model: &str, n: usize, t_final: f64) -> anyhow::Result<serde_json::Value> {
+fn run_child(
+    model: &str,
+    n: usize,
+    t_final: f64,
+    cache: &std::path::Path,
+) -> anyhow::Result<serde_json::Value> {
     let exe = std::env::current_exe().context("this executable")?;
     let mut child = Command::new(exe)
         .args(["bench", "--lattice-case", &format!("{model}:{n}:{t_final}")])
         // One thread: the figures are per core.
         .env("RAYON_NUM_THREADS", "1")
+        .env("CHAOSCOPE_KERNEL_CACHE", cache)
         .stdout(Stdio::piped())
         .stderr(Stdio::inherit())
         .spawn()
@@ -182,19 +193,37 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
-/// The expression chain against the built-in one at each of `sizes`, `pairs` times.
+/// The expression chain against the built-in one at each of `sizes`, `pairs` times, in two
+/// states of the kernel cache: cold (the chain's C kernels never built on this machine: a run
+/// this short builds none, so the expression steps through its Cranelift code) and warm (built
+/// once before, as any long run of the chain at that size or `bench`'s own build leaves them:
+/// the run loads them, running no compiler, and its small sets take the fused pass). The
+/// top-level ratios are the warm runs', the steady state of a user's runs; `cold_cache` holds
+/// the first run's.
 pub fn compare(sizes: &[usize], pairs: usize) -> anyhow::Result<serde_json::Value> {
     let mut out = Vec::new();
+    let scratch =
+        std::env::temp_dir().join(format!("chaoscope-bench-lattice-{}", std::process::id()));
     for &n in sizes {
         let t_final = 2e5 / n as f64;
+        let cold = scratch.join(format!("cold-{n}"));
+        let warm = scratch.join(format!("warm-{n}"));
+        let mut cold_runs = Vec::new();
+        for _ in 0..pairs.max(1) {
+            let b = run_child("builtin", n, t_final, &cold)?;
+            let e = run_child("expression", n, t_final, &cold)?;
+            cold_runs.push((b, e));
+        }
+        let build = warm_cache(n, &warm);
         let mut runs = Vec::new();
         for _ in 0..pairs.max(1) {
-            let b = run_child("builtin", n, t_final)?;
-            let e = run_child("expression", n, t_final)?;
+            let b = run_child("builtin", n, t_final, &warm)?;
+            let e = run_child("expression", n, t_final, &warm)?;
             runs.push((b, e));
         }
+        let _ = std::fs::remove_dir_all(&scratch);
         let field = |v: &serde_json::Value, k: &str| v[k].as_f64().unwrap_or(f64::NAN);
-        let ratio = |k: &str| {
+        let ratio = |runs: &[(serde_json::Value, serde_json::Value)], k: &str| {
             median(
                 runs.iter()
                     .map(|(b, e)| field(e, k) / field(b, k))
@@ -215,13 +244,21 @@ pub fn compare(sizes: &[usize], pairs: usize) -> anyhow::Result<serde_json::Valu
                 (x - y).abs() / x.abs().max(y.abs())
             })
             .collect();
+        let pair_json = |runs: &[(serde_json::Value, serde_json::Value)]| {
+            runs.iter()
+                .map(|(b, e)| serde_json::json!({"builtin": b, "expression": e}))
+                .collect::<Vec<_>>()
+        };
+        let cold_e0 = &cold_runs[0].1;
         out.push(serde_json::json!({
             "n": n,
             "t_final": t_final,
-            "runs": runs.iter().map(|(b, e)| serde_json::json!({"builtin": b, "expression": e})).collect::<Vec<_>>(),
-            "cpu_expression_over_builtin": ratio("cpu_seconds"),
+            "kernel_cache": "warm",
+            "kernel_cache_build": build,
+            "runs": pair_json(&runs),
+            "cpu_expression_over_builtin": ratio(&runs, "cpu_seconds"),
             "cpu_target": 1.5,
-            "memory_expression_over_builtin": ratio("peak_memory_mb"),
+            "memory_expression_over_builtin": ratio(&runs, "peak_memory_mb"),
             "memory_target": 2.0,
             "expression_config_to_engine_seconds": median(runs.iter().map(|(_, e)| field(e, "config_to_engine_seconds")).collect()),
             "expression_config_to_engine_cpu_seconds": median(runs.iter().map(|(_, e)| field(e, "config_to_engine_cpu_seconds")).collect()),
@@ -229,9 +266,38 @@ pub fn compare(sizes: &[usize], pairs: usize) -> anyhow::Result<serde_json::Valu
             "config_to_first_step_target_seconds": 1.0,
             "final_state_bit_identical": b0["final_state_digest"] == e0["final_state_digest"],
             "mle_relative_difference_vm_mpm": mle_rel,
+            "cold_cache": {
+                "runs": pair_json(&cold_runs),
+                "cpu_expression_over_builtin": ratio(&cold_runs, "cpu_seconds"),
+                "memory_expression_over_builtin": ratio(&cold_runs, "peak_memory_mb"),
+                "final_state_bit_identical": cold_runs[0].0["final_state_digest"] == cold_e0["final_state_digest"],
+            },
         }));
     }
     Ok(serde_json::Value::Array(out))
+}
+
+/// Builds the expression chain's C kernels at `n` sites into `cache` (in this process, as a
+/// long run's background build would): the build's seconds, or why there are none (then the
+/// "warm" runs are the cold ones again, and say so in their `c_kernels`).
+fn warm_cache(n: usize, cache: &std::path::Path) -> serde_json::Value {
+    let built = (|| -> anyhow::Result<f64> {
+        let config = RunConfig::from_toml(&config_text("expression", n, 1.0)?)?;
+        let (model, _) = chaoscope_producer::spec::model_from_config(&config.model)?;
+        let any: &dyn std::any::Any = model.as_ref();
+        let model = any
+            .downcast_ref::<ExpressionModel>()
+            .context("a potential compiles to an ExpressionModel")?;
+        let started = Instant::now();
+        model
+            .build_c_step_kernels(cache)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        Ok(started.elapsed().as_secs_f64())
+    })();
+    match built {
+        Ok(seconds) => serde_json::json!({ "c_build_seconds": seconds }),
+        Err(e) => serde_json::json!({ "c_unavailable": e.to_string() }),
+    }
 }
 
 /// The C step kernels of the FPUT chain written as a lattice sum, built afresh (an empty

@@ -61,11 +61,12 @@ pub fn install(mode: Mode) {
         // first time anything asks iceoryx2 about signals. Nothing is pending this early; a
         // signal that was is kept.
         use iceoryx2_bb_posix::signal::{NonFatalFetchableSignal, SignalHandler};
-        match SignalHandler::last_signal() {
+        let take_iceoryx2_signal = || match SignalHandler::last_signal() {
             Some(NonFatalFetchableSignal::Interrupt) => latch(libc::SIGINT),
             Some(NonFatalFetchableSignal::Terminate) => latch(libc::SIGTERM),
             _ => {}
-        }
+        };
+        take_iceoryx2_signal();
         for signal in [libc::SIGINT, libc::SIGTERM] {
             // SAFETY: the action only does async-signal-safe things: atomics, unlink(2) of
             // leaked C strings and _exit(2). signal-hook's registry calls the previous handler
@@ -77,6 +78,11 @@ pub fn install(mode: Mode) {
                 crate::errln!("chaoscope: warning: cannot handle signal {signal}: {e}");
             }
         }
+        // A signal between iceoryx2's handlers and ours reached iceoryx2's alone, whose next
+        // shared-memory operation erases it: taken from there too. (A `chaoscope record`
+        // started by `run` once lost its parent-death SIGTERM so, and waited for its producer
+        // for ever; that signal comes once.)
+        take_iceoryx2_signal();
     });
 }
 

@@ -170,8 +170,10 @@ pub fn applies(lattice: &LatticePotential) -> bool {
 /// AVX-512, four otherwise), where the step kernels' (the prelude's `vd`) are four lanes in two
 /// chains. The prelude's names are redefined to these types from here on (this kernel is the
 /// last part of the source), so the expressions are written as everywhere else; the helpers
-/// are the prelude's, lane by lane, at the new width.
-const WIDE: &str = r#"
+/// are the prelude's (`c_step::vector_helpers`) at the new width.
+fn wide() -> String {
+    let mut src = String::from(
+        r#"
 /* The fused one-orbit kernel (expr/src/jit/c_fused.rs): host-wide vectors. */
 #if defined(__AVX512F__)
 #define FLANES 8
@@ -180,20 +182,11 @@ const WIDE: &str = r#"
 #endif
 typedef double vf __attribute__((vector_size(FLANES * 8)));
 typedef int64_t vfi __attribute__((vector_size(FLANES * 8)));
-static inline vf FB(double x) { vf r; for (int l = 0; l < FLANES; l++) r[l] = x; return r; }
-static inline vf FLD(const double *p) { vf r; memcpy(&r, p, sizeof r); return r; }
-static inline void FST(double *p, vf v) { memcpy(p, &v, sizeof v); }
-static inline vf FSEL(vfi m, vf t, vf e) { return (vf)((m & (vfi)t) | (~m & (vfi)e)); }
-static inline vf FVABS(vf a) { vfi m; for (int l = 0; l < FLANES; l++) m[l] = INT64_MAX; return (vf)((vfi)a & m); }
-static inline vf FVSQRT(vf a) { vf r; for (int l = 0; l < FLANES; l++) r[l] = __builtin_sqrt(a[l]); return r; }
-static inline vf FVSTEP(vf x) { vf r = FSEL(x > FB(0.0), FB(1.0), FB(0.0)); return FSEL(x != x, x, r); }
-static inline vf FVSIGN(vf x) { vf r = FSEL(x < FB(0.0), FB(-1.0), FB(0.0)); r = FSEL(x > FB(0.0), FB(1.0), r); return FSEL(x != x, x, r); }
-static inline vf FVMAX(vf a, vf b) { vf r = FSEL(a >= b, a, b); return FSEL((a != a) | (b != b), FB(K(0x7ff8000000000000ull)), r); }
-static inline vf FVMIN(vf a, vf b) { vf r = FSEL(a <= b, a, b); return FSEL((a != a) | (b != b), FB(K(0x7ff8000000000000ull)), r); }
-static inline vf FV1(uintptr_t f, vf a) { vf r; for (int l = 0; l < FLANES; l++) r[l] = ((fn1)f)(a[l]); return r; }
-static inline vf FV2(uintptr_t f, vf a, vf b) { vf r; for (int l = 0; l < FLANES; l++) r[l] = ((fn2)f)(a[l], b[l]); return r; }
-static inline vf FVT(uintptr_t f, uintptr_t t, uint64_t d, vf a) { vf r; for (int l = 0; l < FLANES; l++) r[l] = ((fntab)f)(t, d, a[l]); return r; }
-#undef LANES
+"#,
+    );
+    src.push_str(&super::c_step::vector_helpers("F", "vf", "vfi", "FLANES"));
+    src.push_str(
+        r#"#undef LANES
 #define LANES FLANES
 #define vd vf
 #define vi vfi
@@ -210,7 +203,10 @@ static inline vf FVT(uintptr_t f, uintptr_t t, uint64_t d, vf a) { vf r; for (in
 #define V1 FV1
 #define V2 FV2
 #define VT FVT
-"#;
+"#,
+    );
+    src
+}
 
 /// The kernel's C source (after the step kernels' prelude), `None` when it does not apply.
 /// `arrays` are the array parameters as `env` holds them from slot `array_env` on.
@@ -236,7 +232,7 @@ pub(super) fn source(
     };
     let n = lattice.n;
     let two_n = 2 * n;
-    let mut src = String::from(WIDE);
+    let mut src = wide();
     writer.drift(&mut src);
     let _ = writeln!(
         src,

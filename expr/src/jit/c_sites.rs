@@ -88,7 +88,7 @@ pub fn compile_lattice_steps_c(
 
 /// The C source of the kernels.
 fn source(graph: &Graph, lattice: &LatticePotential, arrays: &[(String, Arc<[f64]>)]) -> String {
-    let mut src = String::from(c_step::PRELUDE);
+    let mut src = c_step::prelude();
     let n_tables = graph.tables().len();
     for tangent in [false, true] {
         if tangent && !lattice.has_hessian() {

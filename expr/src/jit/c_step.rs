@@ -439,7 +439,7 @@ pub(super) fn source(graph: &Graph, spec: &StepSpec) -> Result<String, JitError>
     let check =
         |f: usize, outputs: &[NodeId], args: Vec<Layout>| kernel_plan(graph, n, f, outputs, args);
     let mut src = String::with_capacity(64 * graph.len() + 4096);
-    let _ = write!(src, "{PRELUDE}");
+    src.push_str(&prelude());
     let orbit = check(0, &spec.gradient, vec![Layout::Lanes])?;
     Kernel {
         graph,
@@ -914,7 +914,9 @@ fn open_library(
 
 /// Helpers of every generated file. `vd` is one vector of `LANES` lanes (a block is two); compares give `vi`
 /// masks (all ones where true, false when either side is NaN).
-pub(super) const PRELUDE: &str = r#"/* chaoscope step kernels, generated; see expr/src/jit/c_step.rs. */
+pub(super) fn prelude() -> String {
+    let mut src = String::from(
+        r#"/* chaoscope step kernels, generated; see expr/src/jit/c_step.rs. */
 #include <stddef.h>
 #include <stdint.h>
 #include <string.h>
@@ -927,25 +929,43 @@ typedef double (*fn2)(double, double);
 typedef double (*fntab)(uintptr_t, uint64_t, double);
 const char chaoscope_kernel_hash[] = "@HASH@";
 static inline double K(uint64_t bits) { double d; memcpy(&d, &bits, 8); return d; }
-static inline vd B(double x) { return (vd){x, x, x, x}; }
-static inline vd LD(const double *p) { vd r; memcpy(&r, p, sizeof r); return r; }
-static inline void ST(double *p, vd v) { memcpy(p, &v, sizeof v); }
-static inline vd SEL(vi m, vd t, vd e) { return (vd)((m & (vi)t) | (~m & (vi)e)); }
-static inline vd VABS(vd a) { vi m; for (int l = 0; l < LANES; l++) m[l] = INT64_MAX; return (vd)((vi)a & m); }
-static inline vd VSQRT(vd a) { vd r; for (int l = 0; l < LANES; l++) r[l] = __builtin_sqrt(a[l]); return r; }
-static inline vd VSTEP(vd x) { vd r = SEL(x > B(0.0), B(1.0), B(0.0)); return SEL(x != x, x, r); }
-static inline vd VSIGN(vd x) { vd r = SEL(x < B(0.0), B(-1.0), B(0.0)); r = SEL(x > B(0.0), B(1.0), r); return SEL(x != x, x, r); }
-static inline vd VMAX(vd a, vd b) { vd r = SEL(a >= b, a, b); return SEL((a != a) | (b != b), B(K(0x7ff8000000000000ull)), r); }
-static inline vd VMIN(vd a, vd b) { vd r = SEL(a <= b, a, b); return SEL((a != a) | (b != b), B(K(0x7ff8000000000000ull)), r); }
-static inline vd V1(uintptr_t f, vd a) { vd r; for (int l = 0; l < LANES; l++) r[l] = ((fn1)f)(a[l]); return r; }
-static inline vd V2(uintptr_t f, vd a, vd b) { vd r; for (int l = 0; l < LANES; l++) r[l] = ((fn2)f)(a[l], b[l]); return r; }
-static inline vd VT(uintptr_t f, uintptr_t t, uint64_t d, vd a) { vd r; for (int l = 0; l < LANES; l++) r[l] = ((fntab)f)(t, d, a[l]); return r; }
-static inline double SABS(double a) { uint64_t b; memcpy(&b, &a, 8); b &= 0x7fffffffffffffffull; memcpy(&a, &b, 8); return a; }
+"#,
+    );
+    src.push_str(&vector_helpers("", "vd", "vi", "LANES"));
+    src.push_str(
+        r#"static inline double SABS(double a) { uint64_t b; memcpy(&b, &a, 8); b &= 0x7fffffffffffffffull; memcpy(&a, &b, 8); return a; }
 static inline double SSTEP(double x) { return x != x ? x : (x > 0.0 ? 1.0 : 0.0); }
 static inline double SSIGN(double x) { return x != x ? x : (x > 0.0 ? 1.0 : (x < 0.0 ? -1.0 : 0.0)); }
 static inline double SMAX(double a, double b) { return (a != a || b != b) ? K(0x7ff8000000000000ull) : (a >= b ? a : b); }
 static inline double SMIN(double a, double b) { return (a != a || b != b) ? K(0x7ff8000000000000ull) : (a <= b ? a : b); }
-"#;
+"#,
+    );
+    src
+}
+
+/// The vector helpers over the vector type `vd` of `lanes` lanes and its mask type `vi`, each
+/// name with `prefix` (the step kernels' four-lane ones without, the fused kernel's host-wide
+/// ones with `F`): one definition of what each operation does lane by lane (NaN and signed
+/// zeros as the scalar definitions), whatever the width.
+pub(super) fn vector_helpers(prefix: &str, vd: &str, vi: &str, lanes: &str) -> String {
+    let p = prefix;
+    format!(
+        r#"static inline {vd} {p}B(double x) {{ {vd} r; for (int l = 0; l < {lanes}; l++) r[l] = x; return r; }}
+static inline {vd} {p}LD(const double *p) {{ {vd} r; memcpy(&r, p, sizeof r); return r; }}
+static inline void {p}ST(double *p, {vd} v) {{ memcpy(p, &v, sizeof v); }}
+static inline {vd} {p}SEL({vi} m, {vd} t, {vd} e) {{ return ({vd})((m & ({vi})t) | (~m & ({vi})e)); }}
+static inline {vd} {p}VABS({vd} a) {{ {vi} m; for (int l = 0; l < {lanes}; l++) m[l] = INT64_MAX; return ({vd})(({vi})a & m); }}
+static inline {vd} {p}VSQRT({vd} a) {{ {vd} r; for (int l = 0; l < {lanes}; l++) r[l] = __builtin_sqrt(a[l]); return r; }}
+static inline {vd} {p}VSTEP({vd} x) {{ {vd} r = {p}SEL(x > {p}B(0.0), {p}B(1.0), {p}B(0.0)); return {p}SEL(x != x, x, r); }}
+static inline {vd} {p}VSIGN({vd} x) {{ {vd} r = {p}SEL(x < {p}B(0.0), {p}B(-1.0), {p}B(0.0)); r = {p}SEL(x > {p}B(0.0), {p}B(1.0), r); return {p}SEL(x != x, x, r); }}
+static inline {vd} {p}VMAX({vd} a, {vd} b) {{ {vd} r = {p}SEL(a >= b, a, b); return {p}SEL((a != a) | (b != b), {p}B(K(0x7ff8000000000000ull)), r); }}
+static inline {vd} {p}VMIN({vd} a, {vd} b) {{ {vd} r = {p}SEL(a <= b, a, b); return {p}SEL((a != a) | (b != b), {p}B(K(0x7ff8000000000000ull)), r); }}
+static inline {vd} {p}V1(uintptr_t f, {vd} a) {{ {vd} r; for (int l = 0; l < {lanes}; l++) r[l] = ((fn1)f)(a[l]); return r; }}
+static inline {vd} {p}V2(uintptr_t f, {vd} a, {vd} b) {{ {vd} r; for (int l = 0; l < {lanes}; l++) r[l] = ((fn2)f)(a[l], b[l]); return r; }}
+static inline {vd} {p}VT(uintptr_t f, uintptr_t t, uint64_t d, {vd} a) {{ {vd} r; for (int l = 0; l < {lanes}; l++) r[l] = ((fntab)f)(t, d, a[l]); return r; }}
+"#
+    )
+}
 
 /// One kernel (orbit or tangent) being written.
 struct Kernel<'a> {

@@ -334,6 +334,14 @@ fn ensemble_throughput(
 /// finds them there), waiting for them: what a run of that chain then loads. Says which, in how
 /// long, or why there are none (the runs then step without the fused pass).
 pub(super) fn warm_kernel_cache(config: &RunConfig) -> anyhow::Result<serde_json::Value> {
+    warm_kernel_cache_in(config, None)
+}
+
+/// [`warm_kernel_cache`] into the cache directory `cache` instead of the environment's.
+pub(super) fn warm_kernel_cache_in(
+    config: &RunConfig,
+    cache: Option<&std::path::Path>,
+) -> anyhow::Result<serde_json::Value> {
     let spec = RunSpec::from_config(config)?;
     let Some(model) = spec.system().separable().map(|h| h.model().clone()) else {
         return Ok(serde_json::json!({ "unavailable": "not a potential" }));
@@ -343,9 +351,18 @@ pub(super) fn warm_kernel_cache(config: &RunConfig) -> anyhow::Result<serde_json
         return Ok(serde_json::json!({ "unavailable": "a built-in model: no C kernels" }));
     };
     let started = std::time::Instant::now();
-    Ok(match expression.c_step_kernels() {
-        Ok(k) => serde_json::json!({
-            "loaded_from_cache": expression.c_step_kernels_cached(k),
+    let built = match cache {
+        None => expression
+            .c_step_kernels()
+            .map(|k| expression.c_step_kernels_cached(k))
+            .map_err(String::from),
+        Some(dir) => expression
+            .build_c_step_kernels(dir)
+            .map(|k| expression.c_step_kernels_cached(&k)),
+    };
+    Ok(match built {
+        Ok(cached) => serde_json::json!({
+            "loaded_from_cache": cached,
             "seconds": started.elapsed().as_secs_f64(),
         }),
         Err(why) => serde_json::json!({ "unavailable": why }),

@@ -214,7 +214,10 @@ pub fn compare(sizes: &[usize], pairs: usize) -> anyhow::Result<serde_json::Valu
             let e = run_child("expression", n, t_final, &cold)?;
             cold_runs.push((b, e));
         }
-        let build = warm_cache(n, &warm);
+        let build = super::dkg::warm_kernel_cache_in(
+            &RunConfig::from_toml(&config_text("expression", n, 1.0)?)?,
+            Some(&warm),
+        )?;
         let mut runs = Vec::new();
         for _ in 0..pairs.max(1) {
             let b = run_child("builtin", n, t_final, &warm)?;
@@ -275,29 +278,6 @@ pub fn compare(sizes: &[usize], pairs: usize) -> anyhow::Result<serde_json::Valu
         }));
     }
     Ok(serde_json::Value::Array(out))
-}
-
-/// Builds the expression chain's C kernels at `n` sites into `cache` (in this process, as a
-/// long run's background build would): the build's seconds, or why there are none (then the
-/// "warm" runs are the cold ones again, and say so in their `c_kernels`).
-fn warm_cache(n: usize, cache: &std::path::Path) -> serde_json::Value {
-    let built = (|| -> anyhow::Result<f64> {
-        let config = RunConfig::from_toml(&config_text("expression", n, 1.0)?)?;
-        let (model, _) = chaoscope_producer::spec::model_from_config(&config.model)?;
-        let any: &dyn std::any::Any = model.as_ref();
-        let model = any
-            .downcast_ref::<ExpressionModel>()
-            .context("a potential compiles to an ExpressionModel")?;
-        let started = Instant::now();
-        model
-            .build_c_step_kernels(cache)
-            .map_err(|e| anyhow::anyhow!("{e}"))?;
-        Ok(started.elapsed().as_secs_f64())
-    })();
-    match built {
-        Ok(seconds) => serde_json::json!({ "c_build_seconds": seconds }),
-        Err(e) => serde_json::json!({ "c_unavailable": e.to_string() }),
-    }
 }
 
 /// The C step kernels of the FPUT chain written as a lattice sum, built afresh (an empty

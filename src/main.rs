@@ -96,10 +96,22 @@ fn main() -> ExitCode {
         let _ = writeln!(
             std::io::stderr().lock(),
             "chaoscope: error: {}",
-            one_line(&e)
+            with_kept_files(one_line(&e))
         );
         ExitCode::FAILURE
     })
+}
+
+/// The error line, naming every in-progress file the failure kept (what was written, left for
+/// the next attempt, which says how to continue or discard it) that it does not name yet.
+fn with_kept_files(mut line: String) -> String {
+    for kept in chaoscope_os::output::kept_after_failure() {
+        let kept = kept.display().to_string();
+        if !line.contains(&kept) {
+            line.push_str(&format!("; what was written is kept in {kept}"));
+        }
+    }
+    line
 }
 
 /// The error and its causes on one line, each cause once: many errors quote their cause in

@@ -752,3 +752,382 @@ fn a_second_writer_of_one_output_is_refused_while_the_first_lives() {
     common::assert_contiguous(&rec.frames);
     assert_eq!(rec.recording.unwrap().run_status, "interrupted");
 }
+
+/// `chaoscope ARGS`, its exit code and stderr (run to its end; stdin closed).
+fn attempt(args: &[String]) -> (Option<i32>, String) {
+    let out = Command::new(CHAOSCOPE)
+        .args(args)
+        .stdin(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    (
+        out.status.code(),
+        String::from_utf8_lossy(&out.stderr).into_owned(),
+    )
+}
+
+fn strings(args: &[&str]) -> Vec<String> {
+    args.iter().map(|s| s.to_string()).collect()
+}
+
+/// The inputs the attacking writers read: a finished short recording, a map configuration and
+/// a finished map, a chart description, all under `dir`.
+struct Ammunition {
+    recording: PathBuf,
+    map_config: PathBuf,
+    map: PathBuf,
+    short_config: PathBuf,
+}
+
+impl Ammunition {
+    fn new(dir: &Path) -> Self {
+        let short_config = dir.join("short.toml");
+        std::fs::write(&short_config, common::hh_config(5.0, 0.01).to_toml()).unwrap();
+        let recording = dir.join("short.mcap");
+        let (code, stderr) = attempt(&strings(&[
+            "run",
+            short_config.to_str().unwrap(),
+            "--run",
+            &common::unique_run("ammunition"),
+            "--out",
+            recording.to_str().unwrap(),
+        ]));
+        assert_eq!(code, Some(0), "{stderr}");
+        let map_config = dir.join("map.toml");
+        std::fs::write(&map_config, include_str!("data/hh-map-small.toml")).unwrap();
+        let map = dir.join("map.mcap");
+        let (code, stderr) = attempt(&strings(&[
+            "map",
+            map_config.to_str().unwrap(),
+            "--out",
+            map.to_str().unwrap(),
+            "--no-progress",
+            "--json",
+        ]));
+        assert_eq!(code, Some(0), "{stderr}");
+        Self {
+            recording,
+            map_config,
+            map,
+            short_config,
+        }
+    }
+
+    /// Every command that writes a file, aimed at `target` (with `--force` where it has one).
+    fn writers(&self, target: &Path, force: bool) -> Vec<Vec<String>> {
+        let t = target.to_str().unwrap();
+        let rec = self.recording.to_str().unwrap();
+        let mut all = vec![
+            strings(&["recover", rec, "--out", t]),
+            strings(&["replay", rec, "--tau", "0.02", "--out", t]),
+            strings(&["resume", rec, "--t-final", "6", "--out", t]),
+            strings(&[
+                "map",
+                self.map_config.to_str().unwrap(),
+                "--out",
+                t,
+                "--no-progress",
+                "--json",
+            ]),
+            strings(&[
+                "merge",
+                self.map.to_str().unwrap(),
+                "--out",
+                t,
+                "--allow-incomplete",
+            ]),
+            strings(&[
+                "record",
+                "--run",
+                &common::unique_run("attacker"),
+                "--out",
+                t,
+                "--wait-timeout",
+                "0.2",
+            ]),
+            strings(&[
+                "run",
+                self.short_config.to_str().unwrap(),
+                "--run",
+                &common::unique_run("attacker"),
+                "--out",
+                t,
+            ]),
+        ];
+        if force {
+            for args in &mut all {
+                args.push("--force".into());
+            }
+        }
+        all
+    }
+}
+
+/// A long run (about a minute and a half of integration, ended by SIGINT) recording into
+/// `out`, once its recorder holds `out.partial`.
+fn live_run(config: &Path, name: &str, out: &Path) -> common::Proc {
+    let run = common::Proc::spawn({
+        let mut c = common::chaoscope_captured(&[
+            "run",
+            config.to_str().unwrap(),
+            "--run",
+            name,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        c.stdin(std::process::Stdio::null())
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::piped());
+        c
+    });
+    let partial = chaoscope_os::output::partial_path(out);
+    let start = Instant::now();
+    while !partial.exists() {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "{out:?} never begun"
+        );
+        std::thread::sleep(Duration::from_millis(10));
+    }
+    run
+}
+
+/// Why the recording at `out` is not the run `name` of `expected` (its samples a prefix of
+/// `expected`, bit for bit, every frame once, finalized with status `interrupted`), if it
+/// is not.
+fn not_the_live_run(out: &Path, name: &str, expected: &[chaoscope_schemas::run::Sample]) -> Option<String> {
+    let read = std::panic::catch_unwind(|| {
+        let rec = common::read_recording(out);
+        common::assert_contiguous(&rec.frames);
+        common::assert_bit_identical(&rec, expected);
+        rec
+    });
+    let Ok(rec) = read else {
+        return Some(format!("{out:?} is not a complete copy of the live run's samples"));
+    };
+    let header = rec.header.as_ref().map(|h| h.run_name.clone());
+    if header.as_deref() != Some(name) {
+        return Some(format!("{out:?} holds run {header:?}, not {name}"));
+    }
+    if rec.references.is_empty() {
+        return Some(format!("{out:?} holds no sample"));
+    }
+    match rec.recording.as_ref().map(|r| r.run_status.as_str()) {
+        Some("interrupted") => None,
+        other => Some(format!("{out:?} ended with status {other:?}")),
+    }
+}
+
+/// Stops a live run with SIGINT; its exit code and stderr.
+fn stop(mut run: common::Proc) -> (Option<i32>, String) {
+    run.signal(libc::SIGINT);
+    let code = run.wait(Duration::from_secs(60)).code();
+    let mut stderr = String::new();
+    if let Some(mut e) = run.0.stderr.take() {
+        std::io::Read::read_to_string(&mut e, &mut stderr).unwrap();
+    }
+    (code, stderr)
+}
+
+/// A live output has one owner. Every writing command aimed at a live run's in-progress file
+/// `live.mcap.partial` (as an output of its own, with and without `--force`) or at a link to it
+/// is refused in one line naming the live writer, and the run completes its own file (before:
+/// `recover`, `replay` and `resume` with `--force` renamed their file over the live one and the
+/// run reported success with their file at its name). An in-progress file replaced behind the
+/// writer's back (a plain `mv` of another user program) makes the run fail loudly, naming it,
+/// instead of putting the stranger's file at the run's name.
+#[test]
+fn no_command_replaces_a_live_in_progress_file_whatever_its_flags() {
+    let place = Place::new();
+    let ammo = Ammunition::new(&place.path("inputs"));
+    let long_toml = common::hh_config(1e5, 0.01).to_toml();
+    let long = place.path("inputs/long.toml");
+    std::fs::write(&long, &long_toml).unwrap();
+    let expected = common::compute(&long_toml, Some(400));
+    let out = place.path("given/live.mcap");
+    let partial = chaoscope_os::output::partial_path(&out);
+    let link = place.path("given/link.mcap");
+    std::os::unix::fs::symlink(&partial, &link).unwrap();
+    let name = common::unique_run("live");
+    let run = live_run(&long, &name, &out);
+    let mut failures = Vec::new();
+    for force in [false, true] {
+        for args in ammo.writers(&partial, force) {
+            let (code, stderr) = attempt(&args);
+            let line = stderr.trim_end();
+            if code != Some(1)
+                || line.lines().count() != 1
+                || !line.contains("another live process")
+                || !line.contains(partial.to_str().unwrap())
+            {
+                failures.push(format!("{args:?}: exit {code:?}: {line}"));
+            }
+        }
+    }
+    // A link at the output is replaced itself, never what it points to.
+    let (code, stderr) = attempt(&ammo.writers(&link, true)[0]);
+    assert_eq!(code, Some(0), "{stderr}");
+    assert!(std::fs::symlink_metadata(&link).unwrap().is_file());
+    let (code, stderr) = stop(run);
+    assert_eq!(code, Some(130), "{stderr}");
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+    assert_eq!(not_the_live_run(&out, &name, &expected), None);
+
+    // Replaced behind the writer's back: the run fails loudly and nothing is renamed.
+    std::fs::remove_file(&out).unwrap();
+    let name = common::unique_run("replaced");
+    let run = live_run(&long, &name, &out);
+    let stranger = place.path("given/stranger");
+    std::fs::write(&stranger, "not the run").unwrap();
+    std::fs::rename(&stranger, &partial).unwrap();
+    let (code, stderr) = stop(run);
+    assert_ne!(code, Some(0), "{stderr}");
+    assert_ne!(code, Some(130), "{stderr}");
+    assert!(
+        stderr.contains("replaced or removed by another process")
+            && stderr.contains(partial.to_str().unwrap()),
+        "{stderr}"
+    );
+    assert!(!out.exists(), "the stranger's file was put at the run's name");
+    assert_eq!(std::fs::read(&partial).unwrap(), b"not the run");
+}
+
+/// Fifty rounds of a live run attacked by every other writing command (one command a round,
+/// in turn), aimed at the run's output and at its in-progress file, with and without
+/// `--force`; and, one round in eight, `analyze --csv` aimed at a live run whose output has the
+/// name of one of its tables. Each live run lives until the attacks are over (it ends by
+/// SIGINT after them), so the verdict does not depend on timing: every attack is refused, and
+/// the run's file is its own, every sample bit-identical to the undisturbed computation of its
+/// configuration, or the run failed loudly (an exit status other than 0 and 130, with an
+/// error). A silent loss (exit 130 or 0 with a file that is not the run's) fails the test.
+#[test]
+fn fifty_rounds_of_attacks_on_a_live_output_lose_nothing_silently() {
+    let place = Place::new();
+    let ammo = Ammunition::new(&place.path("inputs"));
+    let long_toml = common::hh_config(1e5, 0.01).to_toml();
+    let long = place.path("inputs/long.toml");
+    std::fs::write(&long, &long_toml).unwrap();
+    let mut expected = common::compute(&long_toml, Some(1000));
+    let commands = ammo.writers(Path::new("x"), false).len() + 1;
+    let (mut silent, mut loud, mut refused) = (0, 0, 0);
+    let mut failures = Vec::new();
+    for round in 0..50 {
+        let dir = place.path(&format!("given/round{round}"));
+        std::fs::create_dir(&dir).unwrap();
+        let command = round % commands;
+        let analyzing = command == commands - 1;
+        // `analyze --csv DIR` writes `DIR/<scheme>.csv`: the live output takes the name of
+        // the short recording's first scheme's table.
+        let out = dir.join(if analyzing { "vm.csv" } else { "live.mcap" });
+        let partial = chaoscope_os::output::partial_path(&out);
+        let name = common::unique_run(&format!("round{round}"));
+        let run = live_run(&long, &name, &out);
+        let mut attacks = Vec::new();
+        if analyzing {
+            let rec = ammo.recording.to_str().unwrap();
+            attacks.push(strings(&["analyze", rec, "--csv", dir.to_str().unwrap()]));
+        } else {
+            for target in [&out, &partial] {
+                for force in [false, true] {
+                    attacks.push(ammo.writers(target, force).swap_remove(command));
+                }
+            }
+        }
+        for args in &attacks {
+            let (code, stderr) = attempt(args);
+            if code == Some(1) && stderr.trim_end().lines().count() == 1 {
+                refused += 1;
+            } else {
+                failures.push(format!("round {round}: {args:?} not refused: {code:?} {stderr}"));
+            }
+        }
+        let (code, stderr) = stop(run);
+        let written = std::panic::catch_unwind(|| common::read_recording(&out).references.len())
+            .unwrap_or(0);
+        if written > expected.len() {
+            expected = common::compute(&long_toml, Some(2 * written));
+        }
+        match (code, not_the_live_run(&out, &name, &expected)) {
+            (Some(130), None) => {}
+            (Some(0 | 130), Some(why)) => {
+                silent += 1;
+                failures.push(format!("round {round}: silent loss: {why}"));
+            }
+            (_, _) if !stderr.trim().is_empty() => loud += 1,
+            (code, _) => failures.push(format!("round {round}: exit {code:?} without a word")),
+        }
+    }
+    eprintln!("50 rounds: {refused} attacks refused, {loud} runs failed loudly, {silent} silent losses");
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+    assert_eq!(silent, 0);
+}
+
+/// A failed command names every in-progress file it keeps, and the kept file never blocks the
+/// next attempt without saying how to go on. A resume into `--out` that fills its file-size
+/// limit (a full disk, a quota) keeps what it wrote, and its one-line error names that file
+/// (before: it named only the output); the next `resume` into that output is refused with a
+/// line saying which command continues the kept file, and `--force`, as that line says,
+/// discards it and writes the whole resumed run (before: `--force` was refused the same way).
+#[test]
+fn a_failed_resume_names_what_it_keeps_and_the_next_attempt_can_go_on() {
+    use std::os::unix::process::CommandExt;
+    let place = Place::new();
+    let ammo = Ammunition::new(&place.path("inputs"));
+    let out = place.path("given/longer.mcap");
+    let partial = chaoscope_os::output::partial_path(&out);
+    let resume = |extra: &[&str], limit: Option<u64>| {
+        let mut c = Command::new(CHAOSCOPE);
+        c.args([
+            "resume",
+            ammo.recording.to_str().unwrap(),
+            "--t-final",
+            "60",
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .args(extra)
+        .stdin(std::process::Stdio::null());
+        if let Some(bytes) = limit {
+            // SAFETY: only async-signal-safe calls (setrlimit) between fork and exec.
+            unsafe {
+                c.pre_exec(move || {
+                    let limit = libc::rlimit {
+                        rlim_cur: bytes,
+                        rlim_max: bytes,
+                    };
+                    if libc::setrlimit(libc::RLIMIT_FSIZE, &limit) != 0 {
+                        return Err(std::io::Error::last_os_error());
+                    }
+                    Ok(())
+                });
+            }
+        }
+        let o = c.output().unwrap();
+        (o.status.code(), String::from_utf8_lossy(&o.stderr).into_owned())
+    };
+    // The 5-unit recording resumed to t = 60 writes some 12 times its size: past 64 KiB.
+    let (code, stderr) = resume(&[], Some(64 << 10));
+    assert_eq!(code, Some(1), "{stderr}");
+    assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
+    assert!(partial.exists() && !out.exists(), "{stderr}");
+    assert!(
+        stderr.contains(partial.to_str().unwrap()),
+        "the error does not name the kept {partial:?}: {stderr}"
+    );
+    let (code, stderr) = resume(&[], None);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert_eq!(stderr.trim_end().lines().count(), 1, "{stderr}");
+    assert!(
+        stderr.contains(partial.to_str().unwrap())
+            && stderr.contains(&format!("chaoscope resume {}", out.display()))
+            && stderr.contains("--force"),
+        "{stderr}"
+    );
+    let (code, stderr) = resume(&["--force"], None);
+    assert_eq!(code, Some(0), "{stderr}");
+    assert!(!partial.exists());
+    let rec = common::read_recording(&out);
+    common::assert_contiguous(&rec.frames);
+    assert_eq!(rec.recording.unwrap().run_status, "completed");
+    assert_eq!(rec.header.unwrap().t_final, 60.0);
+}

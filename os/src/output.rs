@@ -88,12 +88,37 @@ pub enum OutputError {
     #[error("{} is the input {} (the same file): choose another output", target.display(), input.display())]
     IsInput { target: PathBuf, input: PathBuf },
     #[error(
-        "{} is being written by another live process (it holds {} locked); wait for it to \
+        "{} is being written by another live process ({}holds {} locked); wait for it to \
          finish or choose another output",
         target.display(),
+        holder(*pid),
         partial.display()
     )]
-    Busy { target: PathBuf, partial: PathBuf },
+    Busy {
+        target: PathBuf,
+        partial: PathBuf,
+        /// The live writer, where the kernel's lock table names it.
+        pid: Option<u32>,
+    },
+    /// The target itself is a file another live process writes (its in-progress file, named
+    /// as an output): never written over, renamed over or removed, whatever the options.
+    #[error(
+        "{} is the in-progress file of another live process ({}holds it locked): chaoscope \
+         never replaces or removes a file being written, even with --force; wait for it to \
+         finish or choose another output",
+        path.display(),
+        holder(*pid)
+    )]
+    Live { path: PathBuf, pid: Option<u32> },
+    /// This writer's in-progress file is no longer at its name (renamed over or removed by
+    /// another process): what it wrote cannot reach the target, which stays as it was.
+    #[error(
+        "{} was replaced or removed by another process while this one wrote it: what this \
+         process wrote is lost and {} was left as it was",
+        partial.display(),
+        target.display()
+    )]
+    Replaced { partial: PathBuf, target: PathBuf },
     #[error(
         "{} holds the unfinished output of a writer that stopped before finishing it{hint}; \
          pass --force to discard it",
@@ -133,6 +158,75 @@ impl OutputError {
             other => other,
         }
     }
+}
+
+/// `process N, which ` for a lock holder the kernel names, else `it `.
+fn holder(pid: Option<u32>) -> String {
+    match pid {
+        Some(pid) => format!("process {pid}, which "),
+        None => "it ".to_owned(),
+    }
+}
+
+/// The process holding a `flock` on the file `meta` describes, from the kernel's lock table
+/// (`/proc/locks`: `N: FLOCK ADVISORY WRITE PID MAJ:MIN:INODE ...`, the device in hex).
+fn lock_holder(meta: &std::fs::Metadata) -> Option<u32> {
+    let text = std::fs::read_to_string("/proc/locks").ok()?;
+    let dev = meta.dev() as libc::dev_t;
+    let want = format!(
+        "{:02x}:{:02x}:{}",
+        libc::major(dev),
+        libc::minor(dev),
+        meta.ino()
+    );
+    text.lines().find_map(|line| {
+        let fields: Vec<&str> = line.split_whitespace().collect();
+        // A blocked waiter's line starts `N: ->`; only holders count.
+        (fields.len() >= 6 && fields[1] == "FLOCK" && fields[5] == want)
+            .then(|| fields[4].parse().ok())
+            .flatten()
+    })
+}
+
+/// Whether another process holds a `flock` on the regular file at `path` (a live writer's
+/// in-progress file, whatever its name), and which process if the kernel says. A shared lock
+/// is taken for an instant, so two checkers never refuse each other; a file this process
+/// cannot open is not an in-progress file of this user.
+fn live_writer(path: &Path) -> Result<Option<Option<u32>>, OutputError> {
+    let file = match OpenOptions::new()
+        .read(true)
+        .custom_flags(open_flags())
+        .open(path)
+    {
+        Ok(file) => file,
+        Err(_) => return Ok(None),
+    };
+    let meta = file
+        .metadata()
+        .map_err(|e| OutputError::io(path, "checking", e))?;
+    if !meta.file_type().is_file() {
+        return Ok(None);
+    }
+    // Closing the file releases the lock.
+    Ok((!try_lock_shared(&file, path)?).then(|| lock_holder(&meta)))
+}
+
+/// The in-progress files this process left in place after a failure (`keep_failed`, or
+/// [`Output::keep`]), for the command's error line to name.
+static KEPT: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn note_kept(path: &Path) {
+    if let Ok(mut kept) = KEPT.lock()
+        && !kept.iter().any(|k| k == path)
+    {
+        kept.push(path.to_path_buf());
+    }
+}
+
+/// The in-progress files a failure of this process kept (what was written, worth salvaging or
+/// resuming), each once: a command's error names them, so nothing it leaves is unnamed.
+pub fn kept_after_failure() -> Vec<PathBuf> {
+    KEPT.lock().map(|k| k.clone()).unwrap_or_default()
 }
 
 /// `NAME.partial` beside `target`.
@@ -196,6 +290,14 @@ pub fn check_target(target: &Path, options: &OutputOptions) -> Result<(), Output
             return Err(OutputError::NotRegular {
                 path: target.to_path_buf(),
                 kind: kind_of(meta),
+            });
+        }
+        if t.is_file()
+            && let Some(pid) = live_writer(target)?
+        {
+            return Err(OutputError::Live {
+                path: target.to_path_buf(),
+                pid,
             });
         }
         if !options.replace {
@@ -324,6 +426,19 @@ impl Output {
         &self.partial
     }
 
+    /// Device and inode of the file being written (the one [`Output::commit`] puts at the
+    /// target): whoever reads the target later can tell whether it still is this output or was
+    /// replaced since.
+    pub fn identity(&self) -> Result<(u64, u64), OutputError> {
+        let (path, file) = match &self.fresh {
+            Some((path, file, _)) => (path, file),
+            None => (&self.partial, &self.file),
+        };
+        file.metadata()
+            .map(|m| identity(&m))
+            .map_err(|e| OutputError::io(path, "checking", e))
+    }
+
     /// A writer's own handle on the in-progress file (the same open file: the lock and
     /// [`Output::commit`]'s `fsync` cover what it writes). With a leftover being resumed, the
     /// handle is on the fresh file once [`Output::start_fresh`] started it.
@@ -406,28 +521,19 @@ impl Output {
         let removing = |e: OutputError, from: &Path, file: &File| {
             if !(keep_failed && file.metadata().is_ok_and(|m| m.len() > 0)) {
                 remove_if_same(from, file);
+            } else if still_at(from, file) {
+                note_kept(from);
             }
             e
         };
         file.sync_all()
             .map_err(|e| removing(OutputError::io(&from, "syncing", e), &from, &file))?;
-        // The target may have changed since `create` looked.
-        if let Ok(meta) = std::fs::symlink_metadata(&self.target)
-            && !meta.file_type().is_file()
-            && !meta.file_type().is_symlink()
-        {
-            let e = OutputError::NotRegular {
-                path: self.target.clone(),
-                kind: kind_of(&meta),
-            };
-            return Err(removing(e, &from, &file));
-        }
         // Unregistered and renamed as one step: a signal in between would leave it behind.
         let target = self.target.clone();
         let replace = self.replace;
         crate::signals::critical(|| {
             cleanup.clear();
-            rename(&from, &target, replace)
+            rename_into_place(&from, &file, &target, replace)
         })
         .map_err(|e| removing(e, &from, &file))?;
         // What was at the in-progress name (ours, renamed; or a leftover left alone) is no
@@ -456,6 +562,7 @@ impl Output {
         }
         self.done = true;
         self.cleanup.clear();
+        note_kept(&self.partial);
         self.partial.clone()
     }
 
@@ -485,6 +592,8 @@ impl Output {
         let kept = self.keep_failed && self.file.metadata().is_ok_and(|m| m.len() > 0);
         if self.ours && !kept {
             remove_if_same(&self.partial, &self.file);
+        } else if self.ours && still_at(&self.partial, &self.file) {
+            note_kept(&self.partial);
         }
     }
 }
@@ -527,8 +636,18 @@ fn create_exclusive(path: &Path) -> io::Result<File> {
 
 /// Takes the exclusive lock of `file` without waiting; false if another process holds it.
 fn try_lock(file: &File, path: &Path) -> Result<bool, OutputError> {
+    try_flock(file, path, libc::LOCK_EX)
+}
+
+/// Takes a shared lock of `file` without waiting; false if another process holds it
+/// exclusively (a live writer). Checkers share it, so they never refuse one another.
+fn try_lock_shared(file: &File, path: &Path) -> Result<bool, OutputError> {
+    try_flock(file, path, libc::LOCK_SH)
+}
+
+fn try_flock(file: &File, path: &Path, operation: i32) -> Result<bool, OutputError> {
     // SAFETY: flock(2) on a file descriptor we own.
-    if unsafe { libc::flock(file.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+    if unsafe { libc::flock(file.as_raw_fd(), operation | libc::LOCK_NB) } == 0 {
         return Ok(true);
     }
     let e = io::Error::last_os_error();
@@ -582,6 +701,7 @@ fn lock_partial(target: &Path, partial: &Path) -> Result<(File, bool), OutputErr
             return Err(OutputError::Busy {
                 target: target.to_path_buf(),
                 partial: partial.to_path_buf(),
+                pid: file.metadata().ok().and_then(|m| lock_holder(&m)),
             });
         }
         // The name may have moved on between our open and our lock (its writer renamed it into
@@ -693,6 +813,99 @@ fn create_unique(partial: &Path) -> Result<(PathBuf, File), OutputError> {
         partial,
         "creating a fresh in-progress file",
         io::Error::from(io::ErrorKind::AlreadyExists),
+    ))
+}
+
+/// Whether the name `path` still is the open file `file`.
+fn still_at(path: &Path, file: &File) -> bool {
+    std::fs::symlink_metadata(path)
+        .ok()
+        .zip(file.metadata().ok())
+        .is_some_and(|(here, ours)| identity(&here) == identity(&ours))
+}
+
+/// Renames the in-progress file `from` (open as `file`) onto `to`, as [`Output::commit`] says:
+/// only if `from` still is `file` (a file another process put at that name is never renamed
+/// for it), never over anything but a regular file or a symbolic link, over an existing one
+/// only with `replace`, and never over a file another live process writes: a shared lock of
+/// it is taken and held across the rename, so a live writer's file (locked exclusively) is
+/// refused and no writer can take it up meanwhile.
+fn rename_into_place(from: &Path, file: &File, to: &Path, replace: bool) -> Result<(), OutputError> {
+    let replaced = || {
+        Err(OutputError::Replaced {
+            partial: from.to_path_buf(),
+            target: to.to_path_buf(),
+        })
+    };
+    // The target may change meanwhile (another writer's commit): look again, a few times.
+    for _ in 0..64 {
+        let here = match std::fs::symlink_metadata(to) {
+            Ok(meta) => meta,
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {
+                if !still_at(from, file) {
+                    return replaced();
+                }
+                // Atomically refuses a file that appeared meanwhile: look at it again.
+                match rename(from, to, false) {
+                    Err(OutputError::Exists(_)) if replace => continue,
+                    done => return done,
+                }
+            }
+            Err(e) => return Err(OutputError::io(to, "checking the output", e)),
+        };
+        let t = here.file_type();
+        if !t.is_file() && !t.is_symlink() {
+            return Err(OutputError::NotRegular {
+                path: to.to_path_buf(),
+                kind: kind_of(&here),
+            });
+        }
+        // A link is replaced itself, never followed: what it points to is not touched.
+        let held = if t.is_file() {
+            let held = match OpenOptions::new()
+                .read(true)
+                .custom_flags(open_flags())
+                .open(to)
+            {
+                Ok(held) => Some(held),
+                Err(e) if e.kind() == io::ErrorKind::NotFound => continue,
+                Err(e) if e.raw_os_error() == Some(libc::ELOOP) => continue,
+                // Unreadable to this user: not an in-progress file of this user's writers.
+                Err(e) if e.kind() == io::ErrorKind::PermissionDenied => None,
+                Err(e) => return Err(OutputError::io(to, "checking the output", e)),
+            };
+            if let Some(held) = &held {
+                if !still_at(to, held) {
+                    continue;
+                }
+                if !try_lock_shared(held, to)? {
+                    return Err(OutputError::Live {
+                        path: to.to_path_buf(),
+                        pid: held.metadata().ok().and_then(|m| lock_holder(&m)),
+                    });
+                }
+                if !still_at(to, held) {
+                    continue;
+                }
+            }
+            held
+        } else {
+            None
+        };
+        if !replace {
+            return Err(OutputError::Exists(to.to_path_buf()));
+        }
+        if !still_at(from, file) {
+            return replaced();
+        }
+        let renamed = rename(from, to, true);
+        drop(held);
+        return renamed;
+    }
+    Err(OutputError::io(
+        to,
+        "renaming into place",
+        io::Error::other("the output kept changing under other writers"),
     ))
 }
 

@@ -54,6 +54,8 @@ pub struct RecordOutcome {
     pub summary: RecordingSummary,
     /// Frames that broke the layout and were skipped.
     pub invalid_frames: u64,
+    /// Device and inode of the file written, as it was put at `out`.
+    pub file_identity: (u64, u64),
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -216,6 +218,7 @@ pub fn record(options: &RecordOptions) -> Result<RecordOutcome, RecordError> {
             return Err(RecordError::WriteFailed { path, error, kept });
         }
     };
+    let file_identity = output.identity()?;
     output.commit()?;
     if reason == FinalizedBy::ProducerDied {
         bus::cleanup_dead_nodes();
@@ -225,5 +228,6 @@ pub fn record(options: &RecordOptions) -> Result<RecordOutcome, RecordError> {
         out: path,
         summary,
         invalid_frames,
+        file_identity,
     })
 }

@@ -201,12 +201,25 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
         OutputOptions {
             replace: options.force,
             inputs: vec![input.clone()],
-            leftover: Leftover::Refuse,
+            // The leftover of an earlier resume into OUT, which `--force` discards as its
+            // refusal says.
+            leftover: if options.force {
+                Leftover::Discard
+            } else {
+                Leftover::Refuse
+            },
             keep_failed: true,
             ..Default::default()
         }
     };
-    let mut output = create_waiting(&out_path, &output_options)?;
+    let mut output = create_waiting(&out_path, &output_options).map_err(|e| {
+        e.with_leftover_hint(|_| {
+            format!(
+                " (`chaoscope resume {}` continues it)",
+                out_path.display()
+            )
+        })
+    })?;
     let resuming_leftover = output.leftover().is_some();
     // Read from elsewhere, a killed writer's leftover is still locked for the time we read it,
     // so a live run (whose file this is) is refused, not continued beside itself.

@@ -75,6 +75,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         "frames_received": s.frames_received,
         "frames_missing": s.frames_missing,
         "invalid_frames": outcome.invalid_frames,
+        "file": {
+            "device": outcome.file_identity.0,
+            "inode": outcome.file_identity.1,
+        },
     }));
     Ok(ExitCode::SUCCESS)
 }

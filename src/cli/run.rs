@@ -244,7 +244,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         Some(code) => ExitCode::from(code as u8),
         None => ExitCode::FAILURE,
     };
-    let Some(recorder) = recorder else {
+    let Some(mut recorder) = recorder else {
         // The producer ended before it opened the run (it said why), or a signal came first:
         // nothing was recorded, no file was written.
         return Ok(match chaoscope_os::signals::received() {
@@ -265,9 +265,29 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         // It said why on stderr, in one line; the producer was stopped.
         return Ok(child_code(recorder_status));
     }
+    // The file at `out` must be the one this run's recorder put there: another writer's
+    // `--force` may have replaced it since, and its report would not be this run's.
+    let written = written_file(&mut recorder.child)?;
+    let still_ours = || -> anyhow::Result<()> {
+        let here = std::fs::symlink_metadata(&out).map(|m| {
+            use std::os::unix::fs::MetadataExt;
+            (m.dev(), m.ino())
+        });
+        if here.ok() != Some(written) {
+            bail!(
+                "{} was replaced or removed by another process after this run's recorder \
+                 completed it: this run's recording is lost (another writer of that name with \
+                 --force?)",
+                out.display()
+            );
+        }
+        Ok(())
+    };
+    still_ours()?;
     // How the recording ended, then the same analysis table as `chaoscope analyze` (one
     // renderer for both commands).
     let summary = chaoscope_analyzer::summary::summarize(&out)?;
+    still_ours()?;
     chaoscope_os::outln!(
         "recording: {} (status {}, finalized by {}, {} frames missing)",
         out.display(),
@@ -289,9 +309,30 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             ..Default::default()
         },
     )?;
+    still_ours()?;
     // With the run's end, so an escaped or failed orbit is said so in the verdicts.
     super::analyze::print_table(&analysis.report_ended(info.end.as_ref()))?;
     Ok(child_code(producer_status))
+}
+
+/// Device and inode of the file a recorder that succeeded put at its output, from the summary
+/// line it printed on its standard output.
+fn written_file(recorder: &mut std::process::Child) -> anyhow::Result<(u64, u64)> {
+    let mut text = String::new();
+    if let Some(mut stdout) = recorder.stdout.take() {
+        std::io::Read::read_to_string(&mut stdout, &mut text)
+            .context("reading the recorder's summary")?;
+    }
+    text.lines()
+        .rev()
+        .find_map(|line| {
+            let v: serde_json::Value = serde_json::from_str(line).ok()?;
+            Some((
+                v["file"]["device"].as_u64()?,
+                v["file"]["inode"].as_u64()?,
+            ))
+        })
+        .context("the recorder did not say which file it wrote")
 }
 
 /// Whether Slurm started this job again after a requeue (`SLURM_RESTART_COUNT` > 0).

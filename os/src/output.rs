@@ -830,7 +830,12 @@ fn still_at(path: &Path, file: &File) -> bool {
 /// only with `replace`, and never over a file another live process writes: a shared lock of
 /// it is taken and held across the rename, so a live writer's file (locked exclusively) is
 /// refused and no writer can take it up meanwhile.
-fn rename_into_place(from: &Path, file: &File, to: &Path, replace: bool) -> Result<(), OutputError> {
+fn rename_into_place(
+    from: &Path,
+    file: &File,
+    to: &Path,
+    replace: bool,
+) -> Result<(), OutputError> {
     let replaced = || {
         Err(OutputError::Replaced {
             partial: from.to_path_buf(),
@@ -1142,6 +1147,39 @@ mod tests {
     }
 
     #[test]
+    fn a_live_writers_file_is_never_replaced_and_a_replaced_partial_never_renamed() {
+        let d = tempfile::tempdir().unwrap();
+        let t = d.path().join("live.mcap");
+        let partial = partial_path(&t);
+        // A writer aiming at `live.mcap.partial`, begun before the live writer of `live.mcap`.
+        let early = Output::create(&partial, &opts(true)).unwrap();
+        early.file().unwrap().write_all(b"early").unwrap();
+        let live = Output::create(&t, &opts(false)).unwrap();
+        live.file().unwrap().write_all(b"live").unwrap();
+        // Refused at the start and at the commit, even with --force (flock is per open file,
+        // so this process's own second open is refused as another process's would be).
+        let e = write(&partial, &opts(true), "x").unwrap_err();
+        assert!(matches!(e, OutputError::Live { .. }), "{e}");
+        let e = early.commit().unwrap_err();
+        assert!(matches!(e, OutputError::Live { .. }), "{e}");
+        assert_eq!(read(&partial), "live");
+        live.commit().unwrap();
+        assert_eq!(read(&t), "live");
+
+        // An in-progress file renamed over behind its writer's back: nothing is renamed.
+        let y = d.path().join("y.mcap");
+        let out = Output::create(&y, &opts(false)).unwrap();
+        out.file().unwrap().write_all(b"ours").unwrap();
+        let stranger = d.path().join("stranger");
+        std::fs::write(&stranger, "stranger").unwrap();
+        std::fs::rename(&stranger, partial_path(&y)).unwrap();
+        let e = out.commit().unwrap_err();
+        assert!(matches!(e, OutputError::Replaced { .. }), "{e}");
+        assert!(!y.exists());
+        assert_eq!(read(&partial_path(&y)), "stranger");
+    }
+
+    #[test]
     fn a_failed_write_leaves_nothing_and_keep_leaves_the_partial() {
         let d = tempfile::tempdir().unwrap();
         let t = d.path().join("x.csv");
@@ -1153,5 +1191,6 @@ mod tests {
         let kept = out.keep();
         assert_eq!(read(&kept), "chunks");
         assert!(!t.exists());
+        assert!(kept_after_failure().contains(&kept));
     }
 }

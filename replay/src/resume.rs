@@ -214,10 +214,7 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
     };
     let mut output = create_waiting(&out_path, &output_options).map_err(|e| {
         e.with_leftover_hint(|_| {
-            format!(
-                " (`chaoscope resume {}` continues it)",
-                out_path.display()
-            )
+            format!(" (`chaoscope resume {}` continues it)", out_path.display())
         })
     })?;
     let resuming_leftover = output.leftover().is_some();

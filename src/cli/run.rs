@@ -327,10 +327,7 @@ fn written_file(recorder: &mut std::process::Child) -> anyhow::Result<(u64, u64)
         .rev()
         .find_map(|line| {
             let v: serde_json::Value = serde_json::from_str(line).ok()?;
-            Some((
-                v["file"]["device"].as_u64()?,
-                v["file"]["inode"].as_u64()?,
-            ))
+            Some((v["file"]["device"].as_u64()?, v["file"]["inode"].as_u64()?))
         })
         .context("the recorder did not say which file it wrote")
 }

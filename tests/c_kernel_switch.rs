@@ -356,7 +356,10 @@ fn a_map_ended_or_interrupted_during_the_c_build_leaves_no_compiler_and_no_files
     );
     let json: Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(json["interrupted"], true);
-    assert_eq!(json["expression_kernels"]["c_build"], "building", "{json}");
+    // The signal stops the compiler too (its wait observes it), so the build may be over,
+    // cancelled, by the time the map writes its summary.
+    let state = &json["expression_kernels"]["c_build"];
+    assert!(state == "building" || state == "cancelled", "{json}");
     assert_eq!(processes_mentioning(&cache), Vec::<String>::new());
     assert_eq!(files_under(&cache), Vec::<String>::new());
 }

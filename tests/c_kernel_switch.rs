@@ -648,7 +648,10 @@ fn a_short_run_loads_cached_kernels_without_running_the_compiler() {
     let reloaded = short_run("expression");
     assert_eq!(reloaded["c_kernels"], "loaded-from-cache", "{reloaded}");
     assert_eq!(calls(), now, "a cached load ran the compiler");
-    assert_eq!(reloaded["final_state_digest"], builtin["final_state_digest"]);
+    assert_eq!(
+        reloaded["final_state_digest"],
+        builtin["final_state_digest"]
+    );
 }
 
 /// An executable shell script `name` in `dir` with the body `body` (a stand-in compiler).
@@ -756,9 +759,14 @@ fn a_compiler_that_hangs_crashes_or_lies_costs_its_deadline_and_one_line() {
     let pids = dir.path().join("pids");
     let hang = format!("echo $$ >> '{}'\nexec sleep 1000\n", pids.display());
     // `-o PATH` of a build (the target query has none).
-    let output_arg = "out=\nprev=\nfor a in \"$@\"; do [ \"$prev\" = -o ] && out=\"$a\"; prev=\"$a\"; done\n";
+    let output_arg =
+        "out=\nprev=\nfor a in \"$@\"; do [ \"$prev\" = -o ] && out=\"$a\"; prev=\"$a\"; done\n";
     let cases = [
-        ("hang", hang.clone(), "did not finish reporting its target within 2 s"),
+        (
+            "hang",
+            hang.clone(),
+            "did not finish reporting its target within 2 s",
+        ),
         (
             "hang-build",
             format!("case \" $* \" in *\" -shared \"*) {hang};; esac\nexec cc \"$@\"\n"),
@@ -780,7 +788,9 @@ fn a_compiler_that_hangs_crashes_or_lies_costs_its_deadline_and_one_line() {
         ),
         (
             "fifo",
-            format!("{output_arg}if [ -n \"$out\" ]; then mkfifo \"$out\"; exit 0; fi\nexec cc \"$@\"\n"),
+            format!(
+                "{output_arg}if [ -n \"$out\" ]; then mkfifo \"$out\"; exit 0; fi\nexec cc \"$@\"\n"
+            ),
             "a FIFO, not a regular file",
         ),
     ];
@@ -909,7 +919,11 @@ fn a_fifo_in_the_kernel_cache_is_refused_in_one_line_and_the_command_goes_on() {
         );
         let said = c_lines(&stderr);
         assert_eq!(said.len(), 1, "{name}: a short run says it too: {stderr}");
-        assert!(said[0].contains("a FIFO, not a regular file"), "{}", said[0]);
+        assert!(
+            said[0].contains("a FIFO, not a regular file"),
+            "{}",
+            said[0]
+        );
         std::fs::remove_file(&path).unwrap();
         std::fs::rename(&aside, &path).unwrap();
     }

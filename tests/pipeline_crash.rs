@@ -1452,7 +1452,10 @@ fn hanging_compiler(dir: &Path, pids: &Path) -> std::path::PathBuf {
     let path = dir.join("hanging-cc");
     std::fs::write(
         &path,
-        format!("#!/bin/sh\necho $$ >> '{}'\nexec sleep 1000\n", pids.display()),
+        format!(
+            "#!/bin/sh\necho $$ >> '{}'\nexec sleep 1000\n",
+            pids.display()
+        ),
     )
     .unwrap();
     std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o755)).unwrap();

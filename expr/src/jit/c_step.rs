@@ -882,8 +882,7 @@ fn run_compiler(
     what: &str,
 ) -> Result<ExitStatus, JitError> {
     let deadline = compiler_deadline()?;
-    let stop_wanted =
-        || cancel.load(Ordering::Relaxed) || chaoscope_os::signals::requested();
+    let stop_wanted = || cancel.load(Ordering::Relaxed) || chaoscope_os::signals::requested();
     if stop_wanted() {
         return Err(JitError::Cancelled);
     }

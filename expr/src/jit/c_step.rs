@@ -370,7 +370,8 @@ fn cpu_identity() -> Option<String> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Mode {
     Build,
-    /// Load a cached library or fail with [`JitError::NotCached`]; the cache is not created.
+    /// Load a cached library or fail with [`JitError::NotCached`]; the cache is not created and
+    /// no compiler runs.
     Load,
 }
 
@@ -383,7 +384,7 @@ const TARGET_RECORD: &str = "target-";
 /// later run that loads its kernels from the cache runs no compiler at all (it would cost a
 /// process of about 20 MB, more than a short chain's whole run). The record is read through
 /// the checked cache handle like the libraries; a record that is missing, foreign or not a
-/// digest is replaced by asking the compiler.
+/// digest is replaced by asking the compiler, one that is not a regular file refused.
 ///
 /// In [`Mode::Load`] the compiler is never run: without a record the lookup is a miss
 /// ([`JitError::NotCached`]; a library can only be in the cache if a build wrote the record

@@ -1427,3 +1427,271 @@ fn sample_every_keeps_the_accumulated_indicators_exact_and_resumes() {
         "{stderr}"
     );
 }
+
+// The compiler is optional at every step: a C compiler that never returns (a stalled licence
+// server or network mount) holds no command. Its wait observes SIGINT and SIGTERM, a model
+// dropped during its build cancels it (the compiler's group killed, never joined), and the
+// compiler dies with its parent (the parent-death signal), even one killed outright.
+
+/// The DKG chain of `examples/models/dkg-block.toml` at 200 sites (its block at sites 90..110)
+/// to `t_final`.
+fn dkg_200(t_final: f64) -> String {
+    let text = include_str!("../examples/models/dkg-block.toml");
+    for from in ["n = 1000\n", "sites = [490, 510]", "t_final = 5000.0\n"] {
+        assert!(text.contains(from), "dkg-block.toml changed: {from}");
+    }
+    text.replace("n = 1000\n", "n = 200\n")
+        .replace("sites = [490, 510]", "sites = [90, 110]")
+        .replace("t_final = 5000.0\n", &format!("t_final = {t_final:?}\n"))
+}
+
+/// A stand-in C compiler that appends its process id to `pids` and then sleeps (as itself: the
+/// process that hangs is the one chaoscope started).
+fn hanging_compiler(dir: &Path, pids: &Path) -> std::path::PathBuf {
+    use std::os::unix::fs::PermissionsExt;
+    let path = dir.join("hanging-cc");
+    std::fs::write(
+        &path,
+        format!(
+            "#!/bin/sh\necho $$ >> '{}'\nexec sleep 1000\n",
+            pids.display()
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o755)).unwrap();
+    path
+}
+
+fn pids_in(file: &Path) -> Vec<i32> {
+    std::fs::read_to_string(file)
+        .unwrap_or_default()
+        .lines()
+        .filter_map(|l| l.trim().parse().ok())
+        .collect()
+}
+
+/// Whether process `pid` exists and is not a zombie.
+fn alive(pid: i32) -> bool {
+    std::fs::read_to_string(format!("/proc/{pid}/stat")).is_ok_and(|stat| {
+        stat.rsplit_once(')')
+            .and_then(|(_, rest)| rest.split_whitespace().next())
+            .is_some_and(|state| !matches!(state, "Z" | "X"))
+    })
+}
+
+/// How long a signalled command may take to end with a compiler hanging: far beyond its own
+/// answer (a poll of 10 ms, then the ends of the signal matrix above), far below the compiler's
+/// default deadline (300 s), which a command that waits for the compiler would reach.
+const HUNG_COMPILER_BOUND: Duration = Duration::from_secs(10);
+
+#[test]
+fn a_hanging_compiler_never_holds_a_command_past_its_signal() {
+    let dir = tempfile::tempdir().unwrap();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    // Long enough to build the C kernels (a run: at least 10^8 state-value steps) and to be
+    // running for the whole case.
+    let run_config = dir.path().join("dkg-200.toml");
+    std::fs::write(&run_config, dkg_200(1e6)).unwrap();
+    let map_config = dir.path().join("potential-map.toml");
+    std::fs::write(&map_config, fput_potential_map(101, 4, 1000.0)).unwrap();
+    #[derive(Debug, Clone, Copy, PartialEq)]
+    enum Command {
+        Run,
+        Map,
+        Produce,
+    }
+    let mut cases: Vec<(Command, i32)> = Vec::new();
+    for command in [Command::Run, Command::Map, Command::Produce] {
+        for signal in [libc::SIGINT, libc::SIGTERM] {
+            cases.push((command, signal));
+        }
+    }
+    // Killed outright: the compiler still dies with it.
+    cases.push((Command::Map, libc::SIGKILL));
+    cases.push((Command::Run, libc::SIGKILL));
+    for (n, (command, signal)) in cases.into_iter().enumerate() {
+        let case = format!("{command:?} {signal}");
+        let work = dir.path().join(format!("case-{n}"));
+        std::fs::create_dir(&work).unwrap();
+        let pids = work.join("pids");
+        let cc = hanging_compiler(&work, &pids);
+        let cache = work.join("kernels");
+        let out = work.join("out.mcap");
+        let run = unique_run("hung-cc");
+        let args: Vec<String> = match command {
+            Command::Run => vec![
+                "run".into(),
+                s(&run_config),
+                "--run".into(),
+                run.clone(),
+                "--out".into(),
+                s(&out),
+            ],
+            Command::Map => vec![
+                "map".into(),
+                s(&map_config),
+                "--out".into(),
+                s(&out),
+                "--threads".into(),
+                "2".into(),
+                "--no-progress".into(),
+                "--name".into(),
+                run.clone(),
+            ],
+            Command::Produce => vec![
+                "produce".into(),
+                s(&run_config),
+                "--run".into(),
+                run.clone(),
+                "--no-progress".into(),
+            ],
+        };
+        let spawn = |args: &[String]| {
+            use std::os::unix::process::CommandExt;
+            let mut c = std::process::Command::new(CHAOSCOPE);
+            c.args(args)
+                .env("CHAOSCOPE_CC", &cc)
+                .env("CHAOSCOPE_KERNEL_CACHE", &cache)
+                .env_remove("CHAOSCOPE_CC_TIMEOUT")
+                .env_remove("CHAOSCOPE_C_KERNELS_AFTER_CALLS")
+                .stdin(std::process::Stdio::null())
+                .stdout(std::process::Stdio::null())
+                .stderr(std::process::Stdio::null())
+                .process_group(0);
+            Proc::spawn(c)
+        };
+        let mut recorder = (command == Command::Produce).then(|| {
+            spawn(&[
+                "record".into(),
+                "--run".into(),
+                run.clone(),
+                "--out".into(),
+                s(&out),
+            ])
+        });
+        let mut me = spawn(&args);
+        let start = Instant::now();
+        while pids_in(&pids).is_empty() {
+            assert!(
+                me.0.try_wait().unwrap().is_none(),
+                "{case}: ended before its compiler ran"
+            );
+            assert!(
+                start.elapsed() < MOMENT_LIMIT,
+                "{case}: the compiler never ran"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        let compiler = pids_in(&pids)[0];
+        me.signal(signal);
+        let signalled = Instant::now();
+        let status = me.wait(HUNG_COMPILER_BOUND + Duration::from_secs(20));
+        let took = signalled.elapsed();
+        assert!(
+            took < HUNG_COMPILER_BOUND,
+            "{case}: ended {took:?} after its signal"
+        );
+        use std::os::unix::process::ExitStatusExt;
+        if signal == libc::SIGKILL {
+            assert_eq!(status.signal(), Some(libc::SIGKILL), "{case}");
+        } else {
+            assert_eq!(
+                status.code(),
+                Some(i32::from(chaoscope_os::signals::exit_status(signal))),
+                "{case}: {status}"
+            );
+        }
+        // The compiler is gone, with the command (at once: it was killed, or died with its
+        // parent), and so is everything the command started (its group: `run`'s producer and
+        // recorder). A recorder partner ends by itself once its producer is gone.
+        let start = Instant::now();
+        while alive(compiler) {
+            assert!(
+                start.elapsed() < HUNG_COMPILER_BOUND,
+                "{case}: the compiler {compiler} outlived its command"
+            );
+            std::thread::sleep(Duration::from_millis(10));
+        }
+        if signal == libc::SIGKILL {
+            // SAFETY: kill(2) on the group our own child led (what is left of it).
+            unsafe { libc::kill(-me.pid(), libc::SIGKILL) };
+        }
+        wait_group_gone(&mut me);
+        if let Some(r) = &mut recorder {
+            if size(&out) == 0 && size(&chaoscope_os::output::partial_path(&out)) == 0 {
+                // It never met its producer: the user ends it.
+                r.signal(libc::SIGTERM);
+            }
+            r.wait(LIMIT);
+        }
+        assert!(
+            pids_in(&pids).iter().all(|&p| !alive(p)),
+            "{case}: a compiler is left: {:?}",
+            pids_in(&pids)
+        );
+    }
+}
+
+/// A command whose compiler hangs finishes, within its deadline (`CHAOSCOPE_CC_TIMEOUT`) and
+/// its own time, with the file of a run without C kernels, bit for bit: a 200-site DKG run long
+/// enough to build them (the build runs beside it, the run steps the one-orbit way meanwhile).
+#[test]
+fn a_run_whose_compiler_hangs_finishes_with_the_bits_of_a_run_without_c_kernels() {
+    use prost::Message;
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("dkg-200.toml");
+    // 3 * 10^5 steps of 400 state values: over the 10^8 that start a build.
+    std::fs::write(&config, dkg_200(15000.0)).unwrap();
+    let pids = dir.path().join("pids");
+    let cc = hanging_compiler(dir.path(), &pids);
+    let record = |name: &str, env: &[(&str, &std::ffi::OsStr)]| {
+        let out = dir.path().join(format!("{name}.mcap"));
+        let mut c = chaoscope_captured(&[
+            "run",
+            config.to_str().unwrap(),
+            "--run",
+            &unique_run(name),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        c.env("CHAOSCOPE_KERNEL_CACHE", dir.path().join("kernels"))
+            .env_remove("CHAOSCOPE_C_KERNELS_AFTER_CALLS")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
+        for (k, v) in env {
+            c.env(k, v);
+        }
+        let mut p = Proc::spawn(c);
+        // A bound only a hang reaches (the run takes seconds).
+        let status = p.wait(Duration::from_secs(300));
+        assert!(status.success(), "{name}: {status}");
+        let r = read_recording(&out);
+        let encoded = |m: &[_]| -> Vec<Vec<u8>> {
+            m.iter()
+                .map(|x: &chaoscope_schemas::proto::ReferenceState| x.encode_to_vec())
+                .collect()
+        };
+        let separations: Vec<Vec<u8>> = r.separations.iter().map(|x| x.encode_to_vec()).collect();
+        let indicators: Vec<(String, Vec<u8>)> = r
+            .indicators
+            .iter()
+            .map(|(t, x)| (t.clone(), x.encode_to_vec()))
+            .collect();
+        (encoded(&r.references), separations, indicators)
+    };
+    let without = record("without", &[("CHAOSCOPE_CC", "none".as_ref())]);
+    let hung = record(
+        "hung",
+        &[
+            ("CHAOSCOPE_CC", cc.as_os_str()),
+            ("CHAOSCOPE_CC_TIMEOUT", "2".as_ref()),
+        ],
+    );
+    assert!(!without.0.is_empty());
+    assert_eq!(pids_in(&pids).len(), 1, "the compiler ran once");
+    assert!(
+        without == hung,
+        "a run whose compiler hung differs from one without C kernels"
+    );
+    assert!(pids_in(&pids).iter().all(|&p| !alive(p)));
+}

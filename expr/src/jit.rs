@@ -207,6 +207,10 @@ pub enum JitError {
     /// The C build was cancelled by its caller (the compiler stopped, its files removed).
     #[error("C step kernels: the build was cancelled")]
     Cancelled,
+    /// An entry of the kernel cache that is not a regular file (a FIFO, a device, a socket):
+    /// refused without reading it. Said even by a lookup that only loads, where a miss is silent.
+    #[error("C step kernels: {0}")]
+    CacheEntry(String),
     /// A lookup that must not compile ([`load_lattice_steps_c`]) found no library in the cache.
     #[error("C step kernels: not in the kernel cache")]
     NotCached,

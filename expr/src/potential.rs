@@ -128,12 +128,18 @@ impl Drop for Inner {
     /// The last handle to the model is gone: a C build still running is not wanted any more.
     /// It is cancelled (the compiler killed, its files removed) rather than awaited, so a map
     /// that ends, or is interrupted, before the build never waits for a compiler; the next map
-    /// of the same potential starts it again (a build that finished is in the cache).
+    /// of the same potential starts it again (a build that finished is in the cache). The build
+    /// thread sees the cancel within milliseconds; one that does not end within
+    /// [`CANCEL_GRACE`] (a compiler stuck where even SIGKILL waits, on a stalled network mount)
+    /// is left behind rather than joined, and ends with the process.
     fn drop(&mut self) {
         self.c_steps.cancel.store(true, Ordering::Relaxed);
-        self.c_steps.join();
+        self.c_steps.join_within(CANCEL_GRACE);
     }
 }
+
+/// Longest a dropped model waits for its cancelled C build's thread to end.
+const CANCEL_GRACE: Duration = Duration::from_millis(500);
 
 /// Where the C step kernels stand.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -243,8 +249,7 @@ impl CSteps {
             }),
             Err(e) => {
                 // Not `eprintln!`, which panics when stderr is closed or full: a message that
-                // cannot be shown is lost, the run goes on (this crate depends on no other
-                // chaoscope crate, so not `chaoscope_os::errln!`).
+                // cannot be shown is lost, the run goes on.
                 let _ = writeln!(
                     std::io::stderr(),
                     "chaoscope: {e}; running without the C kernels (the Cranelift kernels for \
@@ -262,6 +267,21 @@ impl CSteps {
     fn join(&self) {
         let mut worker = self.worker.lock().unwrap_or_else(PoisonError::into_inner);
         if let Some(handle) = worker.take() {
+            let _ = handle.join();
+        }
+    }
+
+    /// Joins the build thread if it ends within `limit`; else leaves it (detached).
+    fn join_within(&self, limit: Duration) {
+        let mut worker = self.worker.lock().unwrap_or_else(PoisonError::into_inner);
+        let Some(handle) = worker.take() else {
+            return;
+        };
+        let start = Instant::now();
+        while !handle.is_finished() && start.elapsed() < limit {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        if handle.is_finished() {
             let _ = handle.join();
         }
     }
@@ -823,8 +843,18 @@ impl ExpressionModel {
             return;
         };
         let started = Instant::now();
-        let Ok(kernels) = jit::load_lattice_steps_c(&self.0.graph, lattice, &cc) else {
-            return;
+        let kernels = match jit::load_lattice_steps_c(&self.0.graph, lattice, &cc) {
+            Ok(kernels) => kernels,
+            Err(e @ jit::JitError::CacheEntry(_)) => {
+                // Not `eprintln!` (see `CSteps::build`).
+                let _ = writeln!(
+                    std::io::stderr(),
+                    "chaoscope: {e}; running without the C kernels (the same results, more \
+                     slowly)"
+                );
+                return;
+            }
+            Err(_) => return,
         };
         let mut kernels = Some(kernels);
         c.started.call_once(|| {

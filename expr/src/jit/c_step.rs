@@ -44,13 +44,21 @@
 //! the one that runs. Anything else is rebuilt, or refused with one line (the caller then runs
 //! the Cranelift kernels).
 //!
+//! The compiler is an optimization, never a requirement: every compiler process (the build,
+//! the target query) runs through [`run_compiler`], in a process group of its own that dies
+//! with its parent, stopped at a cancel, at SIGINT/SIGTERM of this process, or at its deadline
+//! (`CHAOSCOPE_CC_TIMEOUT`, [`DEFAULT_CC_TIMEOUT`]); a lookup that only loads runs none. Cache
+//! entries are opened without blocking and only as regular files (a FIFO planted there is
+//! refused in one line). A compiler that hangs, crashes or lies thus costs at most its deadline
+//! and one line, and the caller runs the Cranelift kernels, which give the same bits.
+//!
 //! I/O: this module runs the C compiler and reads and writes its cache directory; it is the
 //! second exception (after `table`) to the crate's no-I/O rule, and only the batched kernel's
 //! lazy construction calls it.
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Command, ExitStatus, Stdio};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
@@ -204,26 +212,39 @@ impl CCompiler {
     }
 
     /// What the compiler and these flags target: its predefined macros (version, ISA
-    /// features of `-march=native`), hashed into every cache key. Runs the compiler once.
-    fn target_identity(&self) -> Result<String, JitError> {
-        let out = Command::new(&self.program)
+    /// features of `-march=native`), hashed into every cache key. Runs the compiler once
+    /// ([`run_compiler`]: a deadline, a cancel), its answer written to a file of the build
+    /// directory `work` (a pipe left unread would stall a compiler with much to say).
+    fn target_identity(&self, work: &WorkDir, cancel: &AtomicBool) -> Result<String, JitError> {
+        let macros_path = work.0.join("macros");
+        let log_path = work.0.join("target-messages");
+        let create = |p: &Path| {
+            std::fs::File::create(p)
+                .map_err(|e| JitError::CCompiler(format!("cannot write {}: {e}", p.display())))
+        };
+        let mut command = Command::new(&self.program);
+        command
             .args(["-march=native", "-ffp-contract=off", "-E", "-dM", "-x", "c"])
             .arg("/dev/null")
-            .output()
-            .map_err(|e| {
-                JitError::CCompiler(format!(
-                    "cannot run the C compiler '{}': {e}",
-                    self.program.display()
-                ))
-            })?;
-        if !out.status.success() {
+            .stdin(Stdio::null())
+            .stdout(create(&macros_path)?)
+            .stderr(create(&log_path)?);
+        let status = run_compiler(self, &mut command, cancel, "reporting its target")?;
+        if !status.success() {
             return Err(JitError::CCompiler(format!(
-                "the C compiler '{}' failed to report its target: {}",
+                "the C compiler '{}' failed to report its target ({status}): {}",
                 self.program.display(),
-                first_lines(&out.stderr)
+                first_lines(&read_regular(&log_path).unwrap_or_default())
             )));
         }
-        let mut macros: Vec<&str> = std::str::from_utf8(&out.stdout)
+        let out = read_regular(&macros_path).map_err(|e| {
+            JitError::CCompiler(format!(
+                "the C compiler '{}' reported its target in {}: {e}",
+                self.program.display(),
+                macros_path.display()
+            ))
+        })?;
+        let mut macros: Vec<&str> = std::str::from_utf8(&out)
             .unwrap_or_default()
             .lines()
             .collect();
@@ -349,7 +370,8 @@ fn cpu_identity() -> Option<String> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(super) enum Mode {
     Build,
-    /// Load a cached library or fail with [`JitError::NotCached`]; the cache is not created.
+    /// Load a cached library or fail with [`JitError::NotCached`]; the cache is not created and
+    /// no compiler runs.
     Load,
 }
 
@@ -362,8 +384,17 @@ const TARGET_RECORD: &str = "target-";
 /// later run that loads its kernels from the cache runs no compiler at all (it would cost a
 /// process of about 20 MB, more than a short chain's whole run). The record is read through
 /// the checked cache handle like the libraries; a record that is missing, foreign or not a
-/// digest is replaced by asking the compiler.
-fn identity(cc: &CCompiler, cache: &CacheDir) -> Result<String, JitError> {
+/// digest is replaced by asking the compiler, one that is not a regular file refused.
+///
+/// In [`Mode::Load`] the compiler is never run: without a record the lookup is a miss
+/// ([`JitError::NotCached`]; a library can only be in the cache if a build wrote the record
+/// beside it), so a command that only loads never waits for a compiler.
+fn identity(
+    cc: &CCompiler,
+    cache: &CacheDir,
+    cancel: &AtomicBool,
+    mode: Mode,
+) -> Result<String, JitError> {
     static IDENTITY: OnceLock<std::sync::Mutex<Vec<(CCompiler, String)>>> = OnceLock::new();
     let known = IDENTITY.get_or_init(Default::default);
     if let Some(id) = known
@@ -376,22 +407,27 @@ fn identity(cc: &CCompiler, cache: &CacheDir) -> Result<String, JitError> {
     let record = cc
         .target_fingerprint()
         .map(|f| format!("{TARGET_RECORD}{}", &digest_hex(f.as_bytes())[..40]));
-    let remembered = record.as_deref().and_then(|name| {
-        let bytes = cache.read(name)?;
-        let id = std::str::from_utf8(bytes.trim_ascii()).ok()?;
-        (id.len() == 64 && id.bytes().all(|b| b.is_ascii_hexdigit())).then(|| id.to_string())
-    });
+    let remembered = match record.as_deref() {
+        Some(name) => cache.read(name)?.and_then(|bytes| {
+            let id = std::str::from_utf8(bytes.trim_ascii()).ok()?;
+            (id.len() == 64 && id.bytes().all(|b| b.is_ascii_hexdigit())).then(|| id.to_string())
+        }),
+        None => None,
+    };
     let id = match remembered {
         Some(id) => id,
+        None if mode == Mode::Load => return Err(JitError::NotCached),
         None => {
-            let id = cc.target_identity()?;
+            if cancel.load(Ordering::Relaxed) {
+                return Err(JitError::Cancelled);
+            }
+            let work = WorkDir::new(&cc.cache_dir)?;
+            let id = cc.target_identity(&work, cancel)?;
             if let Some(name) = &record {
                 // Best effort, renamed into place whole: without it the next run asks again.
-                if let Ok(work) = WorkDir::new(&cc.cache_dir) {
-                    let tmp = work.0.join("target");
-                    if std::fs::write(&tmp, &id).is_ok() {
-                        let _ = std::fs::rename(&tmp, cc.cache_dir.join(name));
-                    }
+                let tmp = work.0.join("target");
+                if std::fs::write(&tmp, &id).is_ok() {
+                    let _ = std::fs::rename(&tmp, cc.cache_dir.join(name));
                 }
             }
             id
@@ -475,7 +511,7 @@ pub(super) fn build(
         return Err(JitError::NotCached);
     }
     let cache = CacheDir::open(&cc.cache_dir)?;
-    let identity = identity(cc, &cache)?;
+    let identity = identity(cc, &cache, cancel, mode)?;
     let mut h = Sha256::new();
     h.update(cc.program.to_string_lossy().as_bytes());
     h.update([0]);
@@ -496,7 +532,7 @@ pub(super) fn build(
     let lib_name = format!("steps-{hash}.so");
     let digest_name = format!("steps-{hash}.sha256");
     let lib_path = cc.cache_dir.join(&lib_name);
-    if let Some(bytes) = cache.verified(&lib_name, &digest_name)
+    if let Some(bytes) = cache.verified(&lib_name, &digest_name)?
         && let Ok(k) = load(&bytes, &lib_path, &hash, tangent, true)
     {
         return Ok((k, start.elapsed()));
@@ -529,38 +565,9 @@ pub(super) fn build(
         .stdin(Stdio::null())
         .stdout(Stdio::null())
         .stderr(log);
-    #[cfg(unix)]
-    {
-        use std::os::unix::process::CommandExt;
-        // Its own process group: a cancel kills the driver and all it started, and a Ctrl-C
-        // meant for chaoscope does not reach it (chaoscope decides what happens to it).
-        command.process_group(0);
-    }
-    let mut child = command.spawn().map_err(|e| {
-        JitError::CCompiler(format!(
-            "cannot run the C compiler '{}': {e}",
-            cc.program.display()
-        ))
-    })?;
-    let status = loop {
-        match child.try_wait() {
-            Ok(Some(status)) => break status,
-            Ok(None) if cancel.load(Ordering::Relaxed) => {
-                kill_group(&mut child);
-                return Err(JitError::Cancelled);
-            }
-            Ok(None) => std::thread::sleep(Duration::from_millis(10)),
-            Err(e) => {
-                kill_group(&mut child);
-                return Err(JitError::CCompiler(format!(
-                    "waiting for the C compiler '{}': {e}",
-                    cc.program.display()
-                )));
-            }
-        }
-    };
+    let status = run_compiler(cc, &mut command, cancel, "compiling the step kernels")?;
     if !status.success() {
-        let messages = std::fs::read(&log_path).unwrap_or_default();
+        let messages = read_regular(&log_path).unwrap_or_default();
         return Err(JitError::CCompiler(format!(
             "the C compiler '{}' failed on the step kernels ({status}): {}",
             cc.program.display(),
@@ -569,7 +576,15 @@ pub(super) fn build(
     }
     // The library's digest beside it, both renamed into place (the library first: a reader
     // that finds a digest of an older library rebuilds rather than trusting it).
-    let bytes = std::fs::read(&tmp_path).map_err(|e| io("cannot read", &tmp_path, e))?;
+    // Read without blocking and only as a regular file: a compiler that lies could leave a
+    // FIFO there, whose open would wait for a writer for ever.
+    let bytes = read_regular(&tmp_path).map_err(|e| {
+        JitError::CCompiler(format!(
+            "the C compiler '{}' left no library: {}: {e}",
+            cc.program.display(),
+            tmp_path.display()
+        ))
+    })?;
     let digest_tmp = work.0.join("steps.sha256");
     let digest_path = cc.cache_dir.join(&digest_name);
     std::fs::write(&digest_tmp, digest_hex(&bytes))
@@ -597,7 +612,6 @@ fn digest_hex(bytes: &[u8]) -> String {
 /// one else. Files are read relative to the handle, so the directory checked is the one read,
 /// even if its path is renamed meanwhile.
 struct CacheDir {
-    #[cfg(not(unix))]
     path: PathBuf,
     #[cfg(unix)]
     fd: std::os::fd::OwnedFd,
@@ -645,7 +659,10 @@ impl CacheDir {
             }
             // SAFETY: `raw` is a descriptor this call just opened and nothing else owns.
             let fd = unsafe { std::os::fd::OwnedFd::from_raw_fd(raw) };
-            let dir = CacheDir { fd };
+            let dir = CacheDir {
+                path: path.to_path_buf(),
+                fd,
+            };
             let meta = dir.stat(None).map_err(|e| fail(e.to_string()))?;
             check_owner(&meta).map_err(|why| {
                 fail(format!(
@@ -678,45 +695,256 @@ impl CacheDir {
     }
 
     /// The bytes of file `name` of the directory, if it is a regular file (not a link) owned
-    /// by this user and writable by no one else; `None` otherwise (missing, foreign, unreadable).
-    fn read(&self, name: &str) -> Option<Vec<u8>> {
+    /// by this user and writable by no one else; `None` otherwise (missing, a link, foreign,
+    /// unreadable: a build replaces it). An entry that is there but not a regular file (a
+    /// FIFO, a device, a socket, a directory) is refused ([`JitError::CacheEntry`]) without
+    /// being opened for reading: a FIFO's open or read would wait for a writer for ever, a
+    /// device's could do anything. It is checked before the open and again through the
+    /// descriptor (opened non-blocking), so one swapped in between is refused too.
+    fn read(&self, name: &str) -> Result<Option<Vec<u8>>, JitError> {
         #[cfg(unix)]
         {
             use std::io::Read;
             use std::os::fd::{AsRawFd, FromRawFd};
-            let c_name = std::ffi::CString::new(name).ok()?;
+            let refuse = |mode: libc::mode_t| {
+                JitError::CacheEntry(format!(
+                    "the kernel cache entry {} is {}, not a regular file: refused (nothing \
+                     read from it); remove it",
+                    self.path.join(name).display(),
+                    file_kind(mode)
+                ))
+            };
+            let Ok(c_name) = std::ffi::CString::new(name) else {
+                return Ok(None);
+            };
+            // SAFETY: `stat` is plain data, filled by fstatat(2) relative to a descriptor we
+            // hold, of a NUL-terminated name, not following a link.
+            let mut st: libc::stat = unsafe { std::mem::zeroed() };
+            // SAFETY: as above.
+            let found = unsafe {
+                libc::fstatat(
+                    self.fd.as_raw_fd(),
+                    c_name.as_ptr(),
+                    &mut st,
+                    libc::AT_SYMLINK_NOFOLLOW,
+                )
+            } == 0;
+            if !found || st.st_mode & libc::S_IFMT == libc::S_IFLNK {
+                return Ok(None);
+            }
+            if st.st_mode & libc::S_IFMT != libc::S_IFREG {
+                return Err(refuse(st.st_mode));
+            }
             // SAFETY: a NUL-terminated name relative to a directory descriptor we hold.
             let raw = unsafe {
                 libc::openat(
                     self.fd.as_raw_fd(),
                     c_name.as_ptr(),
-                    libc::O_RDONLY | libc::O_NOFOLLOW | libc::O_CLOEXEC,
+                    libc::O_RDONLY | libc::O_NOFOLLOW | libc::O_NONBLOCK | libc::O_CLOEXEC,
                 )
             };
             if raw < 0 {
-                return None;
+                return Ok(None);
             }
             // SAFETY: `raw` was just opened and is owned by the file from here on.
             let mut file = unsafe { std::fs::File::from_raw_fd(raw) };
-            let meta = self.stat(Some(&file)).ok()?;
-            if meta.st_mode & libc::S_IFMT != libc::S_IFREG || check_owner(&meta).is_err() {
-                return None;
+            let Ok(meta) = self.stat(Some(&file)) else {
+                return Ok(None);
+            };
+            if meta.st_mode & libc::S_IFMT != libc::S_IFREG {
+                return Err(refuse(meta.st_mode));
+            }
+            if check_owner(&meta).is_err() {
+                return Ok(None);
             }
             let mut bytes = Vec::new();
-            file.read_to_end(&mut bytes).ok()?;
-            Some(bytes)
+            Ok(file.read_to_end(&mut bytes).ok().map(|_| bytes))
         }
         #[cfg(not(unix))]
         {
-            std::fs::read(self.path.join(name)).ok()
+            Ok(std::fs::read(self.path.join(name)).ok())
         }
     }
 
     /// The library `lib` if its bytes have the SHA-256 the digest file `digest` holds.
-    fn verified(&self, lib: &str, digest: &str) -> Option<Vec<u8>> {
-        let expected = self.read(digest)?;
-        let bytes = self.read(lib)?;
-        (digest_hex(&bytes).as_bytes() == expected.trim_ascii()).then_some(bytes)
+    fn verified(&self, lib: &str, digest: &str) -> Result<Option<Vec<u8>>, JitError> {
+        let Some(expected) = self.read(digest)? else {
+            return Ok(None);
+        };
+        let Some(bytes) = self.read(lib)? else {
+            return Ok(None);
+        };
+        Ok((digest_hex(&bytes).as_bytes() == expected.trim_ascii()).then_some(bytes))
+    }
+}
+
+/// What a file of mode `mode` is, for a refusal.
+#[cfg(unix)]
+fn file_kind(mode: libc::mode_t) -> &'static str {
+    match mode & libc::S_IFMT {
+        libc::S_IFIFO => "a FIFO",
+        libc::S_IFCHR => "a character device",
+        libc::S_IFBLK => "a block device",
+        libc::S_IFSOCK => "a socket",
+        libc::S_IFDIR => "a directory",
+        libc::S_IFLNK => "a symbolic link",
+        _ => "a special file",
+    }
+}
+
+/// The bytes of the file at `path` if it is a regular file, opened without blocking and
+/// without following a link (what the compiler left in the build directory: a compiler that
+/// lies could leave a FIFO, whose open or read would wait for ever).
+fn read_regular(path: &Path) -> Result<Vec<u8>, String> {
+    use std::io::Read;
+    let mut options = std::fs::OpenOptions::new();
+    options.read(true);
+    #[cfg(unix)]
+    std::os::unix::fs::OpenOptionsExt::custom_flags(
+        &mut options,
+        libc::O_NONBLOCK | libc::O_NOFOLLOW,
+    );
+    let mut file = options.open(path).map_err(|e| e.to_string())?;
+    let meta = file.metadata().map_err(|e| e.to_string())?;
+    if !meta.is_file() {
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            return Err(format!(
+                "{}, not a regular file: refused",
+                file_kind(meta.mode() as libc::mode_t)
+            ));
+        }
+        #[cfg(not(unix))]
+        return Err("not a regular file: refused".into());
+    }
+    let mut bytes = Vec::new();
+    file.read_to_end(&mut bytes).map_err(|e| e.to_string())?;
+    Ok(bytes)
+}
+
+/// Longest a compiler process may run when `CHAOSCOPE_CC_TIMEOUT` does not say: far beyond a
+/// normal build (0.15-0.5 s for the kernels of a chain on an AMD EPYC Zen 5, tens of seconds
+/// for the unrolled derivatives of a thousand-site chain whose terms do not fold into one loop,
+/// more on a loaded machine), so only a compiler that hangs (a stalled licence server or
+/// network mount) meets it. Meanwhile the command runs on the Cranelift kernels (a build runs
+/// in the background; a lookup that only loads runs no compiler at all).
+pub const DEFAULT_CC_TIMEOUT: Duration = Duration::from_secs(300);
+
+/// How long one compiler process may run: `CHAOSCOPE_CC_TIMEOUT` (seconds, a positive
+/// number), else [`DEFAULT_CC_TIMEOUT`]. A value that is not a positive number is an error of
+/// the C build (said in its one line; the command goes on without C kernels).
+pub fn compiler_deadline() -> Result<Duration, JitError> {
+    let Some(v) = std::env::var_os("CHAOSCOPE_CC_TIMEOUT") else {
+        return Ok(DEFAULT_CC_TIMEOUT);
+    };
+    v.to_str()
+        .and_then(|t| t.trim().parse::<f64>().ok())
+        .filter(|t| t.is_finite() && *t > 0.0 && *t < 1e9)
+        .map(Duration::from_secs_f64)
+        .ok_or_else(|| {
+            JitError::CCompiler(format!(
+                "CHAOSCOPE_CC_TIMEOUT='{}' is not a positive number of seconds",
+                v.to_string_lossy()
+            ))
+        })
+}
+
+/// A compiler process and its process group, killed when dropped unless it was reaped (a
+/// panic or an early return never leaves a compiler running).
+struct CompilerProcess(Option<std::process::Child>);
+
+impl Drop for CompilerProcess {
+    fn drop(&mut self) {
+        if let Some(child) = &mut self.0 {
+            kill_group(child);
+        }
+    }
+}
+
+/// Runs one compiler process (`command`, its input and output already set) to its end:
+///
+/// - in a process group of its own, so that a stop kills the driver and every pass it started
+///   (cc1, as, ld), and a Ctrl-C at the terminal, meant for chaoscope, does not reach it
+///   (chaoscope decides what happens to it);
+/// - with the parent-death signal SIGKILL (Linux), so that a chaoscope killed outright (SIGKILL,
+///   a crash) leaves no compiler waiting for ever (the signal follows the thread that started
+///   it, which waits here until the compiler has ended);
+/// - stopped (its group killed) once `cancel` is set, once this process has received SIGINT or
+///   SIGTERM (the command then ends on its own path), or at its deadline
+///   ([`compiler_deadline`]), polled every 10 ms.
+///
+/// `what` names the step for the error. A compiler that hangs thus costs at most its deadline,
+/// in the background, and one line; the caller goes on without C kernels.
+fn run_compiler(
+    cc: &CCompiler,
+    command: &mut Command,
+    cancel: &AtomicBool,
+    what: &str,
+) -> Result<ExitStatus, JitError> {
+    let deadline = compiler_deadline()?;
+    let stop_wanted = || cancel.load(Ordering::Relaxed) || chaoscope_os::signals::requested();
+    if stop_wanted() {
+        return Err(JitError::Cancelled);
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::process::CommandExt;
+        command.process_group(0);
+    }
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::process::CommandExt;
+        // SAFETY: getpid(2) cannot fail.
+        let parent = unsafe { libc::getpid() };
+        // SAFETY: the closure runs in the forked child before exec and calls only
+        // async-signal-safe functions (prctl, getppid), allocating nothing.
+        unsafe {
+            command.pre_exec(move || {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL as libc::c_ulong) != 0 {
+                    return Err(std::io::Error::last_os_error());
+                }
+                // The parent may have ended before the line above: then nothing would ever
+                // send the signal.
+                if libc::getppid() != parent {
+                    return Err(std::io::Error::from_raw_os_error(libc::ESRCH));
+                }
+                Ok(())
+            });
+        }
+    }
+    let start = Instant::now();
+    let child = command.spawn().map_err(|e| {
+        JitError::CCompiler(format!(
+            "cannot run the C compiler '{}': {e}",
+            cc.program.display()
+        ))
+    })?;
+    let mut process = CompilerProcess(Some(child));
+    loop {
+        let child = process.0.as_mut().expect("reaped only on the way out");
+        match child.try_wait() {
+            Ok(Some(status)) => {
+                process.0 = None;
+                return Ok(status);
+            }
+            Ok(None) if stop_wanted() => return Err(JitError::Cancelled),
+            Ok(None) if start.elapsed() >= deadline => {
+                return Err(JitError::CCompiler(format!(
+                    "the C compiler '{}' did not finish {what} within {} s (stopped; \
+                     CHAOSCOPE_CC_TIMEOUT sets the limit)",
+                    cc.program.display(),
+                    deadline.as_secs_f64()
+                )));
+            }
+            Ok(None) => std::thread::sleep(Duration::from_millis(10)),
+            Err(e) => {
+                return Err(JitError::CCompiler(format!(
+                    "waiting for the C compiler '{}': {e}",
+                    cc.program.display()
+                )));
+            }
+        }
     }
 }
 

@@ -58,6 +58,12 @@ enum Command {
     Config(cli::config::Args),
 }
 
+/// The exit status of a command line that does not parse (an unknown option, a value of the
+/// wrong type: `replay --tau abc`): sysexits' `EX_USAGE`. clap's own 2 is a result status here
+/// (`replay`: the replayed orbit differs), and a script must tell a mistyped command from a
+/// finding; 64 is outside every result status (0 to 3) and the signals' 128 + n.
+const USAGE_STATUS: u8 = 64;
+
 fn main() -> ExitCode {
     // A write past RLIMIT_FSIZE (a file-size quota) must fail with EFBIG, reported with the file
     // it was for and handled like any failed write (complete chunks kept), instead of killing
@@ -68,7 +74,19 @@ fn main() -> ExitCode {
     // (`Mode::Finish`), a signal removes this process's unfinished outputs and exits with
     // 128 + the signal (130, 143).
     chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
-    let result = match Cli::parse().command {
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            // `--help` and `--version` (clap's status 0, on stdout) are answers, not errors.
+            let _ = e.print();
+            return if e.exit_code() == 0 {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::from(USAGE_STATUS)
+            };
+        }
+    };
+    let result = match cli.command {
         Command::Run(args) => cli::run::main(args),
         Command::Produce(args) => cli::produce::main(args),
         Command::Record(args) => cli::record::main(args),

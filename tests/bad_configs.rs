@@ -99,6 +99,36 @@ d0 = 1e-8
 tau = 0.5
 "#;
 
+/// A small disordered Klein-Gordon chain (a potential with a drawn array parameter).
+const DKG: &str = r#"
+[model]
+name = "potential"
+n = 4
+boundary = "fixed"
+params = { W = 4.0, eps = { uniform = [0.5, 1.5], seed = 1 } }
+potential = """
+  sum(i = 1..N, eps[i]/2*q[i]^2 + q[i]^4/4)
++ sum(i = 0..N, (q[i+1] - q[i])^2/(2*W))"""
+
+[orbit]
+excite = { sites = 2, energy = 0.5 }
+
+[integrator]
+method = "aba864"
+h = 0.05
+t_final = 1.0
+
+[deviations]
+k = 2
+sets = 1
+
+[[scheme]]
+name = "mpm"
+method = "mpm"
+d0 = 1e-8
+tau = 0.5
+"#;
+
 /// A small valid map (3 x 2 points of the paper's section).
 const MAP: &str = r#"
 [model]
@@ -189,6 +219,7 @@ fn cases() -> Vec<Case> {
         |name, from, to, key, problem| case(name, Run, spoil(EXPLICIT, from, to), key, problem);
     let fput = |name, from, to, key, problem| case(name, Run, spoil(FPUT, from, to), key, problem);
     let map = |name, from, to, key, problem| case(name, Map, spoil(MAP, from, to), key, problem);
+    let dkg = |name, from, to, key, problem| case(name, Run, spoil(DKG, from, to), key, problem);
     let example = |file: &str| {
         std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join(file)).unwrap()
     };
@@ -310,6 +341,19 @@ fn cases() -> Vec<Case> {
         map("map parameter axis of a built-in model", "coord = \"q2\"", "param = \"q2\"", "map.x.param", "henon-heiles has no parameters to put on an axis"),
         map("map min above max", "min = -0.4, max = 0.6", "min = 0.6, max = -0.4", "map.x.min", "min <= max"),
         map("map min NaN", "min = -0.4, max = 0.4", "min = nan, max = 0.4", "map.y.min", "finite"),
+        // Grids whose ends are finite but whose width, or a line on the way to the last, is not.
+        map("map axis of width beyond f64", "min = -0.4, max = 0.6", "min = -1e308, max = 1e308", "map.x.max", "too far apart"),
+        map("map axis whose lines overflow", "min = -0.4, max = 0.6", "min = 0.0, max = 1e308", "map.x.max", "too far apart"),
+        by_k("map parameter axis beyond f64", "min = 0.0, max = 3.0", "min = -1e308, max = 1e308", "map.x.max", "too far apart"),
+        // Initial conditions whose momentum, computed from an energy, would not be finite.
+        map("map energy beyond f64", "energy = 0.125", "energy = 1e308", "orbit.energy", "twice it"),
+        run("energy whose momentum overflows", "energy = 0.125", "energy = 1e308", "orbit.energy", "too large"),
+        dkg("excitation whose momentum overflows", "excite = { sites = 2, energy = 0.5 }", "excite = { sites = 2, energy = 1e308 }", "orbit.excite.energy", "too large"),
+        // Arrays of fixed length with entries beyond it, or of another type.
+        dkg("drawn array with extra entries", "uniform = [0.5, 1.5]", "uniform = [0.5, 1.5, \"x\", {a = 1}]", "model.params.eps", "invalid type: string \"x\""),
+        dkg("drawn array with a third number", "uniform = [0.5, 1.5]", "uniform = [0.5, 1.5, 2.5]", "model.params.eps.uniform", "two numbers [a, b], not 3"),
+        dkg("drawn array of one number", "uniform = [0.5, 1.5]", "uniform = [0.5]", "model.params.eps.uniform", "two numbers [a, b], not 1"),
+        dkg("drawn array entry a string", "uniform = [0.5, 1.5]", "uniform = [0.5, \"x\"]", "model.params", "invalid type"),
         map("map unknown indicator", "indicator = \"gali\"", "indicator = \"ofli\"", "map.indicator", "is not gali"),
         map("map unknown route", "indicator = \"gali\"", "indicator = \"gali\"\nroute = \"shared\"", "map.route", "is not per-set or basis"),
         map("map MPM propagator route with a large d0", "d0 = 1e-8\ntau = 0.5\n\n[map]", "d0 = 1e-3\ntau = 0.5\n\n[map]\nroute = \"propagator\"", "map.route", "valid for"),
@@ -436,7 +480,7 @@ fn the_base_configs_are_valid() {
     use chaoscope_producer::map::MapSpec;
     use chaoscope_producer::spec::RunSpec;
     use chaoscope_schemas::config::RunConfig;
-    for base in [RUN, EXPLICIT, FPUT] {
+    for base in [RUN, EXPLICIT, FPUT, DKG] {
         RunSpec::from_config(&RunConfig::from_toml(base).unwrap()).unwrap();
     }
     MapSpec::from_config(&RunConfig::from_toml(MAP).unwrap()).unwrap();
@@ -961,6 +1005,131 @@ fn force_starts_what_the_estimate_refuses() {
     assert!(dir.join("map.mcap").exists());
 }
 
+/// A command line that does not parse (a mistyped value, an unknown option, a missing
+/// argument) exits with 64, sysexits' EX_USAGE, and none of the result statuses (0 to 3: 2 is
+/// `replay`'s "the replayed orbit differs"); `--help` and `--version` answer with 0 (before:
+/// clap's 2 for every usage error).
+#[test]
+fn usage_errors_have_a_status_of_their_own() {
+    let status = |args: &[&str]| {
+        let out = Command::new(CHAOSCOPE)
+            .args(args)
+            .stdin(Stdio::null())
+            .output()
+            .unwrap();
+        (
+            out.status.code(),
+            String::from_utf8_lossy(&out.stdout).into_owned(),
+            String::from_utf8_lossy(&out.stderr).into_owned(),
+        )
+    };
+    for args in [
+        &["replay", "x.mcap", "--tau", "abc", "--out", "y.mcap"][..],
+        &["resume", "x.mcap", "--t-final", "soon"],
+        &["map", "m.toml", "--out", "m.mcap", "--threads", "-1"],
+        &["run", "--no-such-option"],
+        &["replay", "x.mcap", "--tau", "1"],
+        &["no-such-command"],
+        &[],
+    ] {
+        let (code, stdout, stderr) = status(args);
+        assert_eq!(code, Some(64), "{args:?}: {stderr}");
+        assert!(stdout.is_empty(), "{args:?}: {stdout}");
+        // clap's message: the error and where to read how the command is used.
+        assert!(
+            (stderr.contains("Usage:") || stderr.contains("try '--help'"))
+                && !stderr.contains("panicked"),
+            "{args:?}: {stderr}"
+        );
+    }
+    for args in [
+        &["--help"][..],
+        &["--version"],
+        &["replay", "--help"],
+        &["help", "resume"],
+    ] {
+        let (code, stdout, stderr) = status(args);
+        assert_eq!(code, Some(0), "{args:?}: {stderr}");
+        assert!(!stdout.is_empty() && stderr.is_empty(), "{args:?}: {stderr}");
+    }
+}
+
+/// `resume --t-final` is estimated as `run` of the same configuration to that end: a 50-unit
+/// Lorenz recording extended to 1e12 is refused in one line naming `--t-final`, before
+/// anything is written (in place or elsewhere; the recording unchanged), and starts with
+/// `--force` (before: it started at once and wrote 250 MB in 8 s where `run` refuses it).
+#[test]
+fn resume_to_a_new_end_is_estimated_as_run_is() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    std::fs::write(dir.join("lorenz.toml"), long_example("lorenz", "50.0")).unwrap();
+    let run = Command::new(CHAOSCOPE)
+        .args(["run", "lorenz.toml", "--out", "base.mcap", "--run"])
+        .arg(unique_run("resume-estimate"))
+        .current_dir(dir)
+        .stdin(Stdio::null())
+        .output()
+        .unwrap();
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let base = std::fs::read(dir.join("base.mcap")).unwrap();
+    for out in [&["--out", "big.mcap"][..], &[]] {
+        let args: Vec<&str> = ["resume", "base.mcap", "--t-final", "1e12"]
+            .iter()
+            .chain(out)
+            .copied()
+            .collect();
+        let start = Instant::now();
+        let refused = Command::new(CHAOSCOPE)
+            .args(&args)
+            .current_dir(dir)
+            .stdin(Stdio::null())
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&refused.stderr);
+        eprintln!("{args:?} refused in {:?}: {stderr}", start.elapsed());
+        assert_eq!(refused.status.code(), Some(1), "{args:?}: {stderr}");
+        assert_eq!(stderr.lines().count(), 1, "{args:?}: {stderr}");
+        // 1e14 steps of dop853 with 3 tangent vectors and 3 nearby orbits: years on any
+        // machine (a step of this flow is above 10 ns).
+        assert!(
+            stderr.contains("base.mcap: --t-final: this would take about")
+                && stderr.contains(" year")
+                && stderr.contains("--force"),
+            "{args:?}: {stderr}"
+        );
+        let mut left: Vec<String> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        left.sort();
+        assert_eq!(left, ["base.mcap", "lorenz.toml"], "{args:?}");
+        assert!(std::fs::read(dir.join("base.mcap")).unwrap() == base, "{args:?}");
+    }
+    let (code, stderr) = forced(
+        &[
+            "resume",
+            "base.mcap",
+            "--t-final",
+            "1e12",
+            "--out",
+            "big.mcap",
+            "--force",
+        ],
+        dir,
+    );
+    assert_eq!(code, Some(130), "{stderr}");
+    assert!(
+        stderr.contains("--force: starting although --t-final: this would take about"),
+        "{stderr}"
+    );
+    let summary = chaoscope_analyzer::summary::summarize(&dir.join("big.mcap")).unwrap();
+    assert_eq!(summary.run_status, "interrupted", "{summary:?}");
+}
+
 #[test]
 fn the_estimate_refuses_no_example_and_no_test_run() {
     use chaoscope_producer::estimate::{self, Machine};
@@ -988,7 +1157,7 @@ fn the_estimate_refuses_no_example_and_no_test_run() {
         }
     }
     configs.extend(
-        [RUN, EXPLICIT, FPUT, MAP]
+        [RUN, EXPLICIT, FPUT, MAP, DKG]
             .map(|t| ("a test base".to_string(), RunConfig::from_toml(t).unwrap())),
     );
     for (name, cfg) in &configs {

@@ -282,6 +282,50 @@ fn recover_to_an_output_it_cannot_write_fails_clearly_and_leaves_nothing() {
     );
 }
 
+/// `merge` whose output cannot grow past 1000 bytes (a full disk, a quota): one line naming
+/// the output and the cause, exit 1, nothing left behind, and the PNG (written after the map)
+/// not started (before: a bare "File too large (os error 27)", naming no file).
+#[test]
+fn merge_to_an_output_it_cannot_write_names_the_file() {
+    use chaoscope_recorder::map_file::MapFile;
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let shard = dir.join("shard.mcap");
+    let (header, points) = chaoscope_recorder::testing::values::valid_map();
+    let mut file = MapFile::create(
+        std::io::Cursor::new(Vec::new()),
+        &header,
+        &chaoscope_recorder::file::FileOptions::default(),
+    )
+    .unwrap();
+    for p in &points {
+        file.write_point(p).unwrap();
+    }
+    let bytes = file.finish().unwrap().into_inner();
+    std::fs::write(&shard, &bytes).unwrap();
+    let (out, png) = (dir.join("merged.mcap"), dir.join("merged.png"));
+    let merge = || {
+        let mut c = Command::new(CHAOSCOPE);
+        c.args(["merge", shard.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        c.args(["--png", png.to_str().unwrap()]);
+        c
+    };
+    let r = output(limited(merge(), 1000));
+    let err = String::from_utf8_lossy(&r.stderr);
+    eprintln!("{err}");
+    assert_eq!(r.status.code(), Some(1), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.contains(out.to_str().unwrap()) && err.contains("File too large"),
+        "{err}"
+    );
+    assert!(!out.exists() && !png.exists(), "an output was left behind");
+    assert!(
+        !chaoscope_os::output::partial_path(&out).exists(),
+        "its in-progress file was left behind"
+    );
+}
+
 /// Runs `command` (its stdout as the caller set it) to its end, or kills it after `limit`
 /// (`None`).
 fn output_within(mut command: Command, limit: Duration) -> Option<Output> {

@@ -129,3 +129,43 @@ fn hostile_values_replayed_corpus_replays() {
 fn hostile_values_in_valid_maps_corpus_replays() {
     replay_values("values_map", targets::values_map, 200);
 }
+
+#[test]
+fn hostile_values_resumed_corpus_replays() {
+    replay_values("values_resume", targets::values_resume, 60);
+}
+
+#[test]
+fn hostile_values_in_clvs_corpus_replays() {
+    replay_values("values_clv", targets::values_clv, 100);
+}
+
+#[test]
+fn hostile_map_headers_corpus_replays() {
+    replay_values("values_map_header", targets::values_map_header, 200);
+}
+
+/// The committed seeds of the resume, CLV and map-header targets are the generated ones
+/// (`targets::values_seeds`, which `fuzz/src/bin/seeds.rs` writes): a change to the generator
+/// without new files, or a lost file, fails here. `CHAOSCOPE_WRITE_FUZZ_SEEDS=1` writes them.
+#[test]
+fn the_values_seeds_are_committed() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("fuzz/corpus");
+    let write = std::env::var_os("CHAOSCOPE_WRITE_FUZZ_SEEDS").is_some();
+    for target in ["values_resume", "values_clv", "values_map_header"] {
+        let dir = root.join(target);
+        for (name, bytes) in targets::values_seeds(target) {
+            let path = dir.join(&name);
+            if write {
+                std::fs::create_dir_all(&dir).unwrap();
+                std::fs::write(&path, &bytes).unwrap();
+            }
+            assert_eq!(
+                std::fs::read(&path).ok(),
+                Some(bytes),
+                "{} is not the generated seed",
+                path.display()
+            );
+        }
+    }
+}

@@ -542,6 +542,117 @@ fn valid_maps_with_hostile_values_are_refused_in_one_line() {
     }
 }
 
+/// Maps whose header and points hold values at the ends of f64 that a map file may hold (a
+/// `gali-time` map of t_final near 1e308, so its colour bar spans it; values near 1e308 and
+/// 1e-308 of every indicator; one value among many equal ones): `merge --png` draws each or
+/// refuses it in one line naming the file, never a panic in plotting (before: a gali-time
+/// map of t_final 1e308 panicked with `Option::unwrap()` on `None`, exit 101).
+#[test]
+fn maps_of_extreme_finite_values_draw_or_are_refused_in_one_line() {
+    let dir = tempfile::tempdir().unwrap();
+    type Edit = fn(&mut MapHeader, &mut Vec<MapPoint>);
+    let cases: Vec<(&str, Edit)> = vec![
+        ("gali-time of t_final 1e308", |h, p| {
+            h.indicator = "gali-time".into();
+            h.threshold = 1e-8;
+            h.t_final = 1e308;
+            for q in p.iter_mut() {
+                q.value = 1e307;
+                q.t_end = 1e308;
+            }
+        }),
+        ("gali-time of t_final f64::MAX", |h, p| {
+            h.indicator = "gali-time".into();
+            h.threshold = 1e-8;
+            h.t_final = f64::MAX;
+            for (i, q) in p.iter_mut().enumerate() {
+                q.value = f64::MAX / (1.0 + i as f64);
+                q.t_end = f64::MAX;
+            }
+        }),
+        ("gali-time of t_final 0", |h, p| {
+            h.indicator = "gali-time".into();
+            h.threshold = 1e-8;
+            h.t_final = 0.0;
+            for q in p.iter_mut() {
+                q.value = 0.0;
+                q.t_end = 0.0;
+            }
+        }),
+        ("gali-time of t_final 5e-324", |h, p| {
+            h.indicator = "gali-time".into();
+            h.threshold = 1e-8;
+            h.t_final = 5e-324;
+            for q in p.iter_mut() {
+                q.value = 5e-324;
+                q.t_end = 5e-324;
+            }
+        }),
+        ("gali-time threshold f64::MAX", |h, _| {
+            h.indicator = "gali-time".into();
+            h.threshold = f64::MAX;
+        }),
+        ("mle values near 1e308", |h, p| {
+            h.indicator = "mle".into();
+            for (i, q) in p.iter_mut().enumerate() {
+                q.value = if i % 2 == 0 { f64::MAX } else { 1e-300 };
+            }
+        }),
+        ("spectrum values at -1e308 and 1e308", |h, p| {
+            h.indicator = "spectrum".into();
+            h.k = 2;
+            for (i, q) in p.iter_mut().enumerate() {
+                q.value = if i % 2 == 0 { -f64::MAX } else { f64::MAX };
+                q.spectrum = vec![q.value, -q.value];
+            }
+        }),
+        ("fli values near 1e308", |h, p| {
+            h.indicator = "fli".into();
+            for (i, q) in p.iter_mut().enumerate() {
+                q.value = if i % 3 == 0 { f64::MAX } else { -f64::MAX };
+            }
+        }),
+        ("gali values of 5e-324", |_, p| {
+            for q in p.iter_mut() {
+                q.value = 5e-324;
+            }
+        }),
+        ("sali values all equal", |h, p| {
+            h.indicator = "sali".into();
+            for q in p.iter_mut() {
+                q.value = 0.5;
+            }
+        }),
+        ("t_final f64::MAX", |h, _| h.t_final = f64::MAX),
+    ];
+    for (what, edit) in cases {
+        let (mut header, mut points) = testing::values::valid_map();
+        edit(&mut header, &mut points);
+        let mut file =
+            MapFile::create(std::io::Cursor::new(Vec::new()), &header, &FileOptions::default())
+                .unwrap();
+        for p in &points {
+            file.write_point(p).unwrap();
+        }
+        let path = dir.path().join(format!("{}.mcap", what.replace(' ', "-")));
+        std::fs::write(&path, file.finish().unwrap().into_inner()).unwrap();
+        let (out, png) = (dir.path().join("merged.mcap"), dir.path().join("merged.png"));
+        let args = [
+            "merge",
+            path.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--png",
+            png.to_str().unwrap(),
+            "--force",
+        ];
+        let ran = run_bounded(&args);
+        if succeeded_or_refused(what, &args, &path, &ran) {
+            assert!(std::fs::metadata(&png).unwrap().len() > 1000, "{what}");
+        }
+    }
+}
+
 /// Chart descriptions with ranges near the limits of f64 (data at +-1e308, fixed ranges of
 /// infinite or zero width, reversed): drawn, or refused in one line naming the file, never a
 /// hang (before: `chart` with ranges near 1e308 never ended).

@@ -343,7 +343,12 @@ impl AngleSeries {
         let output =
             chaoscope_os::Output::create(&dir.join("clv-angles.csv"), &options).map_err(io)?;
         let mut f = std::io::BufWriter::new(output.file().map_err(io)?);
-        writeln!(f, "t,{}", self.names.join(","))?;
+        // With one subspace class (every exponent positive, say) there is no angle: the
+        // header is `t` alone, never a column without a name.
+        let header: Vec<&str> = std::iter::once("t")
+            .chain(self.names.iter().map(String::as_str))
+            .collect();
+        writeln!(f, "{}", header.join(","))?;
         let mut row = vec![0.0; 1 + self.names.len()];
         while self.rows.pop(&mut row)? {
             let cells: Vec<String> = row.iter().map(f64::to_string).collect();
@@ -760,4 +765,43 @@ pub fn summary(r: &ClvReport) -> String {
         ));
     }
     s
+}
+
+#[cfg(test)]
+mod angle_csv_tests {
+    use super::*;
+
+    fn written(names: &[&str], rows: &[Vec<f64>]) -> String {
+        let dir = std::env::temp_dir().join(format!(
+            "chaoscope-clv-csv-{}-{}",
+            std::process::id(),
+            names.len()
+        ));
+        let _ = std::fs::remove_dir_all(&dir);
+        let mut stack = SpillStack::new(1 + names.len(), 1 << 20);
+        // Pushed from the end back, as the backward pass does.
+        for row in rows.iter().rev() {
+            stack.push(row).unwrap();
+        }
+        let series = AngleSeries {
+            names: names.iter().map(|n| n.to_string()).collect(),
+            rows: stack,
+        };
+        let path = series.write_csv(&dir, &[]).unwrap();
+        let text = std::fs::read_to_string(path).unwrap();
+        std::fs::remove_dir_all(&dir).unwrap();
+        text
+    }
+
+    #[test]
+    fn every_column_of_the_angle_csv_has_a_name() {
+        // One subspace class: no angle, and the header is `t` alone, one column as every row.
+        let text = written(&[], &[vec![1.0], vec![2.0]]);
+        assert_eq!(text, "t\n1\n2\n");
+        let text = written(&["unstable_vs_rest"], &[vec![1.0, 0.5]]);
+        assert_eq!(text, "t,unstable_vs_rest\n1,0.5\n");
+        for line in text.lines() {
+            assert!(line.split(',').all(|cell| !cell.is_empty()), "{text}");
+        }
+    }
 }

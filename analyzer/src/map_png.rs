@@ -101,7 +101,12 @@ fn scale_of(h: &MapHeader) -> Scale {
 /// The colour of a plotted number on the scale `lo..hi`: viridis rising with the number, the
 /// same way for every indicator, so the bar beside the map reads like its axis.
 pub(crate) fn colour(v: f64, lo: f64, hi: f64) -> RGBColor {
-    ViridisRGB.get_color_normalized(v as f32, lo as f32, hi as f32)
+    // The fraction of the way up the scale, in f64 and clamped to [0, 1] (0 where it is not a
+    // number): plotters normalizes in f32, where ends beyond 3.4e38 (a gali-time map of
+    // t_final 1e308) are infinite, the fraction NaN, and its index `unwrap()`s a `None`.
+    let t = (v - lo) / (hi - lo);
+    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
+    ViridisRGB.get_color_normalized(t as f32, 0.0, 1.0)
 }
 
 /// The words at the top and the bottom of the colour bar: which end is chaos.

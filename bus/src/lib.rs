@@ -258,6 +258,19 @@ fn make_domain(root: PathBuf) -> Result<Domain, String> {
     if !root_text.ends_with('/') {
         root_text.push('/');
     }
+    let longest = longest_socket_path(root_text.len(), prefix.len());
+    if longest > SOCKET_PATH_MAX {
+        return Err(format!(
+            "{} = {} is {} bytes long, too long for the bus's sockets: each listener is a unix \
+             socket at DIR/{prefix}<listener id, up to {LISTENER_ID_DIGITS} digits>.event, which \
+             must fit the {SOCKET_PATH_MAX} bytes of a socket path; use a directory of at most \
+             {} bytes",
+            BUS_DIR_ENV,
+            root.display(),
+            root.as_os_str().len(),
+            max_bus_dir_len(prefix.len())
+        ));
+    }
     let root_path = Path::new(root_text.as_bytes())
         .map_err(|e| format!("{} as an iceoryx2 path: {e:?}", root.display()))?;
     config.global.set_root_path(&root_path);
@@ -268,6 +281,31 @@ fn make_domain(root: PathBuf) -> Result<Domain, String> {
         prefix,
         config,
     })
+}
+
+/// The longest path of a unix socket: `sun_path` is 108 bytes, its last the terminating NUL.
+pub const SOCKET_PATH_MAX: usize = 107;
+
+/// Digits of a listener's id in its socket's name: iceoryx2 names each listener's socket by its
+/// `UniqueListenerId`, a u128 written in decimal (up to 39 digits, the process's id counter in
+/// its top bits: a long-lived process's ids grow longer).
+const LISTENER_ID_DIGITS: usize = 39;
+
+/// What iceoryx2 appends to the event sockets' names (`Config::global.service
+/// .event_connection_suffix`).
+const EVENT_SUFFIX: &str = ".event";
+
+/// The longest socket path iceoryx2 makes in a root directory written in `root_with_slash`
+/// bytes (its trailing `/` included) under a prefix of `prefix` bytes: an event listener's,
+/// `ROOT/PREFIX<id>.event` (`event_config` and `event_concept_name` of iceoryx2).
+fn longest_socket_path(root_with_slash: usize, prefix: usize) -> usize {
+    root_with_slash + prefix + LISTENER_ID_DIGITS + EVENT_SUFFIX.len()
+}
+
+/// The longest bus directory (without a trailing `/`) whose sockets fit [`SOCKET_PATH_MAX`],
+/// under a prefix of `prefix` bytes (`cs<uid>_<8 hex>_`: 48 bytes for uid 0, 45 for uid 1000).
+pub fn max_bus_dir_len(prefix: usize) -> usize {
+    SOCKET_PATH_MAX - longest_socket_path(1, prefix)
 }
 
 /// 32-bit FNV-1a: a short, stable tag of the bus directory for segment names.
@@ -878,6 +916,53 @@ pub fn list_runs() -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A directory under the temporary one whose path is exactly `len` bytes.
+    fn dir_of_len(base: &std::path::Path, len: usize) -> PathBuf {
+        let base = base.to_string_lossy().into_owned();
+        assert!(base.len() + 2 <= len, "{base} is too long for {len}");
+        PathBuf::from(format!("{base}/{}", "d".repeat(len - base.len() - 1)))
+    }
+
+    #[test]
+    fn a_bus_directory_is_refused_up_front_when_its_sockets_would_not_fit() {
+        // SAFETY: geteuid(2) cannot fail.
+        let uid = unsafe { libc::geteuid() };
+        let prefix = format!("cs{uid}_00000000_").len();
+        let max = max_bus_dir_len(prefix);
+        // sun_path holds 107 bytes and its NUL; the socket adds '/', the prefix, 39 digits
+        // and ".event": 108 - 1 - 1 - prefix - 39 - 6 (48 for uid 0).
+        assert_eq!(max, 108 - 1 - 1 - prefix - 39 - 6);
+        let base = PathBuf::from(format!("/tmp/cbus-{}", std::process::id()));
+        std::fs::create_dir_all(&base).unwrap();
+        // At the limit: the domain is made, and a listener opens a socket in it.
+        let at = dir_of_len(&base, max);
+        let domain = domain_at(&at).unwrap();
+        quiet_logging();
+        let node = NodeBuilder::new()
+            .config(domain.config())
+            .create::<ipc::Service>()
+            .unwrap();
+        let service = node
+            .service_builder(&"length-test".try_into().unwrap())
+            .event()
+            .open_or_create()
+            .unwrap();
+        let listener = service.listener_builder().create().unwrap();
+        drop((listener, service, node));
+        // One byte beyond (a trailing slash counts for nothing): refused in one line saying
+        // why and how long it may be, before iceoryx2 is asked.
+        let beyond = dir_of_len(&base, max + 1);
+        let why = domain_at(&beyond).unwrap_err().to_string();
+        assert!(
+            why.contains("too long for the bus's sockets")
+                && why.contains(&format!("at most {max} bytes"))
+                && !why.contains('\n'),
+            "{why}"
+        );
+        assert!(domain_at(&PathBuf::from(format!("{}/", at.display()))).is_ok());
+        std::fs::remove_dir_all(&base).unwrap();
+    }
 
     #[test]
     fn monitor_buffer_holds_whole_samples_within_the_memory_bound() {

@@ -19,6 +19,11 @@
 //!   or map file whose every value the input chooses): every reader and output of a recording
 //!   (analyze's report, table, CSV files and charts, the run summary), replay, and the map
 //!   readers with the map PNG. Besides panics, a NaN or infinity in any output is a finding.
+//! - [`values_resume`], [`values_clv`], [`values_map_header`]: structure-aware likewise, for
+//!   the paths that trust a file's values most: a recording resumed and extended (the
+//!   configuration it carries rebuilt into a run, its last sample into the engine's state), its
+//!   covariant Lyapunov vectors (QR factors, transients, subspace classes, the angle CSV), and a
+//!   map's header (checked, its configuration rebuilt as `map` resuming compares it, drawn).
 //! - [`expr`]: the expression language of user-written potentials: parsing, lowering under
 //!   each boundary condition (parameters, an array parameter, a table), smoothness, the
 //!   symbolic gradient and Hessian-vector product, the reference evaluator, and, for graphs of
@@ -753,4 +758,289 @@ mod floats {
         )*};
     }
     structure!(SerializeStruct, SerializeStructVariant);
+}
+
+// ---- Resume, CLVs and map headers with hostile values --------------------------------------
+
+/// The new end a `values_resume` input asks for (its first byte): the recorded end (resume a
+/// cut run), a later one (extend it), an earlier one, or a hostile one; all within a few
+/// hundred steps of the recorded run, so no input is a long computation.
+const RESUME_ENDS: [Option<f64>; 8] = [
+    None,
+    Some(1.0),
+    Some(2.0),
+    Some(0.5),
+    Some(0.0),
+    Some(f64::NAN),
+    Some(-1.0),
+    Some(1e-300),
+];
+
+/// A valid recording with hostile values resumed (and extended) into a new file, as
+/// `chaoscope resume RECORDING --t-final T --out OUT` does: the resume either completes (its
+/// output reads back whole, its report finite) or is refused in one line (naming the recording
+/// when it is the file that is refused). No panic, no hang, no NaN in the new file.
+pub fn values_resume(data: &[u8]) -> Outcome {
+    use chaoscope_replay::resume::{ResumeFailure, ResumeOptions, resume};
+    let mut choices = Choices::new(data);
+    let t_final = RESUME_ENDS[usize::from(choices.byte()) % RESUME_ENDS.len()];
+    let Ok(scratch) = tempfile::Builder::new().prefix("chaoscope-fuzz-").tempdir() else {
+        return Outcome::default();
+    };
+    let input = scratch.path().join("input.mcap");
+    let output = scratch.path().join("resumed.mcap");
+    if !computed_recording(&mut choices, &input) {
+        return Outcome::default();
+    }
+    let options = ResumeOptions {
+        t_final,
+        out: Some(output.clone()),
+        // The ends above are a few hundred steps at most: nothing the estimate would refuse,
+        // and its calibration (tens of milliseconds) would dominate every input.
+        estimated: true,
+        ..Default::default()
+    };
+    match resume(&input, &options) {
+        Ok(outcome) => {
+            assert_finite_serialized("the resume outcome", &outcome);
+            let (analysis, info) = chaoscope_analyzer::recording::analyze_file(
+                &output,
+                &chaoscope_analyzer::AnalysisOptions::default(),
+            )
+            .unwrap_or_else(|e| panic!("the resumed recording does not read back: {e}"));
+            assert!(
+                info.damage.is_none(),
+                "the resumed recording is damaged: {:?}",
+                info.damage
+            );
+            let report = analysis.report_ended(info.end.as_ref());
+            assert_finite_serialized("the resumed recording's report", &report);
+            Outcome {
+                read: true,
+                outputs: 2,
+            }
+        }
+        Err(e) => {
+            let text = e.to_string();
+            assert!(!text.contains('\n'), "an error of several lines: {text}");
+            if matches!(e, ResumeFailure::Read(_)) {
+                assert_refusal("resume", &text, &input);
+            }
+            assert!(!output.exists(), "a refused resume took its output's name");
+            Outcome::default()
+        }
+    }
+}
+
+/// A valid recording with hostile values through `analyze --clv` (the first byte chooses the
+/// options: the set, the transients, the neutral count, a memory small enough that the stored
+/// factors spill to disk): the report and its text are finite and the angle CSV has a named
+/// column for each of its values, finite, in time order; or the file is refused in one line.
+pub fn values_clv(data: &[u8]) -> Outcome {
+    use chaoscope_analyzer::clv::{ClvOptions, ClvRunError, clv_of_file, summary};
+    let mut choices = Choices::new(data);
+    let pick = choices.byte();
+    let transients = [None, Some(0.0), Some(0.1), Some(0.45), Some(2.0), Some(f64::NAN)];
+    let options = ClvOptions {
+        scheme: None,
+        set: usize::from(pick & 1),
+        forward_transient: transients[usize::from(pick >> 1) % transients.len()],
+        backward_transient: transients[usize::from(pick >> 3) % transients.len()],
+        neutral: [None, Some(0), Some(1), Some(3)][usize::from(pick >> 5) % 4],
+        memory_bytes: if pick & 0x80 != 0 { 512 } else { 1 << 20 },
+    };
+    let Ok(scratch) = tempfile::Builder::new().prefix("chaoscope-fuzz-").tempdir() else {
+        return Outcome::default();
+    };
+    let input = scratch.path().join("input.mcap");
+    if !computed_recording(&mut choices, &input) {
+        return Outcome::default();
+    }
+    match clv_of_file(&input, &options) {
+        Ok((report, series)) => {
+            assert_finite_serialized("the CLV report", &report);
+            let text = summary(&report);
+            assert_finite_text("the CLV summary", &text);
+            let csv = series
+                .write_csv(&scratch.path().join("csv"), std::slice::from_ref(&input))
+                .expect("the angle CSV is written");
+            let text = std::fs::read_to_string(&csv).expect("CSV text");
+            assert_finite_text("clv-angles.csv", &text);
+            let mut lines = text.lines();
+            let header: Vec<&str> = lines.next().expect("a header").split(',').collect();
+            assert!(
+                header[0] == "t" && header.iter().all(|c| !c.is_empty()),
+                "clv-angles.csv: a column without a name: {header:?}"
+            );
+            let mut last_t = f64::NEG_INFINITY;
+            for line in lines {
+                let cells: Vec<&str> = line.split(',').collect();
+                assert_eq!(cells.len(), header.len(), "clv-angles.csv: row {line:?}");
+                let t: f64 = cells[0].parse().expect("a time");
+                assert!(t >= last_t, "clv-angles.csv: times out of order at {t}");
+                last_t = t;
+            }
+            Outcome {
+                read: true,
+                outputs: 3,
+            }
+        }
+        Err(e) => {
+            let text = e.to_string();
+            assert!(!text.contains('\n'), "an error of several lines: {text}");
+            if matches!(e, ClvRunError::Read(_)) {
+                assert_refusal("analyze --clv", &text, &input);
+            }
+            Outcome::default()
+        }
+    }
+}
+
+/// Writes at `path` a recording of the run [`hostile::RUN_CONFIG`] describes as the producer
+/// computes it and the recorder writes it (the producer's own run header, so `resume` and the
+/// CLVs take it as that run's), with values made hostile by `choices`: how many samples it
+/// keeps, then each kept sample's time, step, state, divergence sum, separations and
+/// stretching factors, then how the run ended. False if it could not be written.
+fn computed_recording(choices: &mut Choices, path: &std::path::Path) -> bool {
+    use chaoscope_analyzer::write::SampleWriter;
+    use chaoscope_producer::engine::Engine;
+    use chaoscope_schemas::proto::end_of_run::Status;
+    let config = RunConfig::from_toml(hostile::RUN_CONFIG).expect("the hostile runs' config");
+    let spec = RunSpec::from_config(&config).expect("the hostile runs' config is valid");
+    let header = chaoscope_producer::publish::run_header("hostile", &config, &spec);
+    let mut engine = Engine::new(spec);
+    // 0 to 11 of the run's 11 samples (t = 0, 0.1, ..., 1).
+    let keep = choices.below(13);
+    let Ok(mut writer) = SampleWriter::create(path, &header) else {
+        return false;
+    };
+    let mut kept = 0;
+    while kept < keep
+        && let Ok(Some(mut sample)) = engine.next_sample()
+    {
+        kept += 1;
+        sample.t = choices.f64(sample.t);
+        sample.step = choices.u64(sample.step);
+        for v in &mut sample.state {
+            *v = choices.f64(*v);
+        }
+        sample.divergence_sum = choices.f64(sample.divergence_sum);
+        for set in &mut sample.schemes {
+            for v in set.separations.iter_mut().chain(set.stretch.iter_mut()) {
+                *v = choices.f64(*v);
+            }
+        }
+        if writer.write(&sample).is_err() {
+            return false;
+        }
+    }
+    let status = [Status::Interrupted, Status::Completed, Status::Failed]
+        [choices.below(3) as usize];
+    writer.finish_with("fuzz", status, "").is_ok()
+}
+
+/// A map file whose header's every value the input chooses (axes, indicator, sizes, shard,
+/// times, its configuration), through what reads a map header: the header check, the
+/// configuration it carries rebuilt into a map whose own header must pass that check and is
+/// compared with the file's (as `map` does before resuming a file), and the PNG of whichever
+/// points the header admits. A header that passes the check is drawn without
+/// error; one that does not is refused in one line.
+pub fn values_map_header(data: &[u8]) -> Outcome {
+    use chaoscope_recorder::map_file::{check_header, read_map_file, same_map};
+    let mut choices = Choices::new(data);
+    let shards = 1 + u32::from(choices.byte() % 2);
+    let bytes = hostile::map(&mut choices, 0, shards);
+    let Ok(scratch) = tempfile::Builder::new().prefix("chaoscope-fuzz-").tempdir() else {
+        return Outcome::default();
+    };
+    let path = scratch.path().join("map.mcap");
+    if std::fs::write(&path, &bytes).is_err() {
+        return Outcome::default();
+    }
+    let contents = read_map_file(&path).expect("a file written just now opens");
+    let Some(header) = contents.header.clone() else {
+        return Outcome::default();
+    };
+    if let Err(e) = check_header(&header) {
+        assert!(!e.contains('\n'), "an error of several lines: {e}");
+        return Outcome::default();
+    }
+    assert!(same_map(&header, &header), "a header is not its own map");
+    // `map` resuming this file: the configuration it carries, rebuilt, gives the header a map
+    // of it writes, or is refused with a key.
+    if let Ok(cfg) = RunConfig::from_toml(&header.config_toml)
+        && claimed_dim(&cfg.model) <= 64
+    {
+        match MapSpec::from_config(&cfg) {
+            Ok(spec) => {
+                let shard = chaoscope_producer::map::Shard {
+                    index: header.shard_index,
+                    count: header.shard_count,
+                };
+                let own = spec.header(shard);
+                check_header(&own)
+                    .unwrap_or_else(|e| panic!("a map's own header fails the check: {e}"));
+                let _ = same_map(&own, &header);
+            }
+            Err(e) => assert!(
+                !e.key.is_empty() && !e.to_string().contains('\n'),
+                "an error without a key, or of several lines: {e:?}"
+            ),
+        }
+    }
+    // Its points, those the header admits, drawn under it as `merge --png` draws them.
+    let points: Vec<_> = contents
+        .points
+        .into_iter()
+        .filter(|p| chaoscope_recorder::map_file::check_point(&header, p).is_ok())
+        .collect();
+    let png = scratch.path().join("map.png");
+    chaoscope_analyzer::map_png::render_png(&header, &points, &png, &[])
+        .unwrap_or_else(|e| panic!("a checked map header does not draw: {e}"));
+    Outcome {
+        read: true,
+        outputs: 1,
+    }
+}
+
+/// The starting corpus of the `values_resume`, `values_clv` and `values_map_header` targets:
+/// the valid file (all bytes "keep"), each option byte's values, and single hostile values at
+/// the positions that feed the paths these targets are for (the leading option bytes, the
+/// header's first fields, the first samples). `fuzz/src/bin/seeds.rs` writes them;
+/// `tests/fuzz_corpus.rs` checks that `fuzz/corpus/` holds them.
+pub fn values_seeds(target: &str) -> Vec<(String, Vec<u8>)> {
+    let keep = Choices::KEEP;
+    let hostile_at = |lead: &[u8], at: usize, value: u8| {
+        let mut bytes = lead.to_vec();
+        bytes.resize(lead.len() + at, 0);
+        bytes.push(value);
+        bytes
+    };
+    let mut seeds = Vec::new();
+    let leads: Vec<Vec<u8>> = match target {
+        // Every end of RESUME_ENDS.
+        "values_resume" => (0..RESUME_ENDS.len() as u8).map(|b| vec![b, 12]).collect(),
+        // The options' bits: set, transients, neutral count, spilling.
+        "values_clv" => [0u8, 1, 0x02, 0x0c, 0x12, 0x20, 0x40, 0x60, 0x80, 0xff]
+            .iter()
+            .map(|&b| vec![b, 12])
+            .collect(),
+        // One shard or two.
+        "values_map_header" => vec![vec![0], vec![1]],
+        other => panic!("no seeds for {other}"),
+    };
+    for lead in &leads {
+        seeds.push((
+            format!("valid-{}", lead.iter().map(|b| format!("{b:02x}")).collect::<String>()),
+            lead.clone(),
+        ));
+    }
+    // Hostile values at the first 40 choices after the lead (the first samples' values, or the
+    // map header's fields, in the order the writers read them), each a different kind.
+    let lead = &leads[leads.len() / 2];
+    for at in 0..40 {
+        let value = keep + (at as u8 * 7) % (0xff - keep);
+        seeds.push((format!("hostile-{at:02}"), hostile_at(lead, at, value)));
+    }
+    seeds
 }

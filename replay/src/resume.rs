@@ -26,6 +26,7 @@ use chaoscope_analyzer::recording::{ReadError, RecordingReader};
 use chaoscope_analyzer::write::{SampleWriter, WriteError};
 use chaoscope_os::{Leftover, Output, OutputError, OutputOptions};
 use chaoscope_producer::engine::{Engine, ResumeError, RunError};
+use chaoscope_producer::estimate::Machine;
 use chaoscope_producer::publish::run_header;
 use chaoscope_producer::spec::{RunSpec, SpecError};
 use chaoscope_schemas::config::RunConfig;
@@ -50,6 +51,10 @@ pub struct ResumeOptions {
     /// Set from another thread to stop; a SIGINT/SIGTERM latched by `chaoscope_os::signals`
     /// stops it too. The output is then finalized as an interrupted run, to be resumed again.
     pub stop: Option<Arc<AtomicBool>>,
+    /// The run to its new end was estimated by the caller already (a requeued `run`, which
+    /// estimated its configuration before continuing it); otherwise it is estimated here as
+    /// `run` estimates it, and refused beyond a day or the machine's memory unless `force`.
+    pub estimated: bool,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -76,6 +81,9 @@ pub enum ResumeFailure {
          extend it"
     )]
     Complete { path: String, t_final: f64 },
+    /// The estimate's refusal (`chaoscope_producer::estimate`), one line naming the key.
+    #[error("{path}: {why}")]
+    BeyondTheMachine { path: String, why: String },
     #[error("{path}: cannot resume: {source}")]
     Engine { path: String, source: ResumeError },
     #[error(transparent)]
@@ -291,6 +299,22 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
     }
     config.integrator.t_final = t_final;
     let spec = RunSpec::from_config(&config).map_err(spec_err)?;
+    // The run to its new end costs what `run` of it would (the recorded part is copied, a
+    // small share of any run long enough to be refused): estimated as `run` estimates it,
+    // before a sample is read or written, so `--t-final 1e12` is refused as `run` refuses it.
+    if !options.estimated {
+        let machine = Machine::this_host();
+        let mut estimate = chaoscope_producer::estimate::run(&spec, &machine);
+        if options.t_final.is_some() {
+            estimate.time_key = "--t-final";
+        }
+        if let Some(why) = estimate.refusal(&machine) {
+            if !options.force {
+                return Err(ResumeFailure::BeyondTheMachine { path: shown, why });
+            }
+            chaoscope_os::errln!("chaoscope resume: --force: starting although {why}");
+        }
+    }
     let header = run_header(&recorded.run_name, &config, &spec);
 
     // The last sample to resume from: complete, every scheme renormalizing there, not past the

@@ -146,6 +146,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     header.shard_index = 0;
     header.shard_count = 1;
     let output = Output::create(&args.out, &output_options)?;
+    // The map writer's errors are the bare I/O error ("File too large", "No space left on
+    // device"): named here with the file they were writing (the output's name; its unfinished
+    // in-progress file goes with the error).
+    let writing = || format!("{}: writing the merged map", args.out.display());
     let mut file = MapFile::create(
         output.file()?,
         &header,
@@ -153,11 +157,12 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             compression: Compression::Zstd,
             chunk_size: 1 << 20,
         },
-    )?;
+    )
+    .with_context(writing)?;
     for p in points.values() {
-        file.write_point(p)?;
+        file.write_point(p).with_context(writing)?;
     }
-    file.finish()?;
+    file.finish().with_context(writing)?;
     output.commit()?;
     let all: Vec<MapPoint> = points.into_values().collect();
     if let Some(png) = &args.png {

@@ -19,7 +19,8 @@ pub struct Args {
     /// the resumed one is complete.
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Replace OUT if it exists.
+    /// Replace OUT if it exists, and start even a resumed run estimated (to its new end) to
+    /// take more than a day or more memory than the machine has, as `run --force` does.
     #[arg(long)]
     pub force: bool,
     /// Print what was done as JSON.
@@ -35,6 +36,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         force: args.force,
         config: None,
         stop: None,
+        estimated: false,
     };
     let outcome = resume(&args.recording, &options)?;
     report(&outcome, args.json)

@@ -348,6 +348,8 @@ fn resume_requeued(config: &RunConfig, out: &Path) -> anyhow::Result<Option<Exit
     chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
     let options = ResumeOptions {
         config: Some(config.clone()),
+        // `run` estimated this configuration before it came here.
+        estimated: true,
         ..Default::default()
     };
     chaoscope_os::errln!(

@@ -96,5 +96,12 @@ fn main() {
             }
         }
     }
+    for target in ["values_resume", "values_clv", "values_map_header"] {
+        let dir = root.join("corpus").join(target);
+        std::fs::create_dir_all(&dir).unwrap();
+        for (name, bytes) in chaoscope_fuzz::values_seeds(target) {
+            std::fs::write(dir.join(name), bytes).unwrap();
+        }
+    }
     println!("{n} config seeds, MCAP seeds in {}", mcap_dir.display());
 }

@@ -30,11 +30,7 @@ pub struct Axis {
 impl Axis {
     /// Value of grid line `i` (computed, never accumulated).
     pub fn value(&self, i: usize) -> f64 {
-        if self.n == 1 {
-            self.min
-        } else {
-            self.min + (self.max - self.min) * i as f64 / (self.n - 1) as f64
-        }
+        grid_line(self.min, self.max, self.n, i)
     }
 
     /// The grid of `min`, `max` and `n` (at `key.min`, `key.n`).
@@ -49,6 +45,25 @@ impl Axis {
             return Err(SpecError::new(
                 format!("{key}.n"),
                 format!("must be between 1 and 100000, got {}", a.n),
+            ));
+        }
+        // Finite ends may still be too far apart for the grid's arithmetic: the width
+        // `max - min`, or `(max - min) * i` on the way to a line, overflows, and the points
+        // there would start at infinity or NaN.
+        if let Some(i) = (0..a.n).find(|&i| !grid_line(a.min, a.max, a.n, i).is_finite()) {
+            return Err(SpecError::new(
+                format!("{key}.max"),
+                format!(
+                    "min = {:?} and max = {:?} are too far apart for a grid of n = {}: the \
+                     width max - min = {:?} and (max - min) x (n - 1) = {:?} must be finite \
+                     for every grid line to be (line {i}, from 0, would be at {:?})",
+                    a.min,
+                    a.max,
+                    a.n,
+                    a.max - a.min,
+                    (a.max - a.min) * (a.n.max(2) - 1) as f64,
+                    grid_line(a.min, a.max, a.n, i)
+                ),
             ));
         }
         Ok(())
@@ -105,6 +120,15 @@ impl Axis {
             max: a.max,
             n: a.n,
         })
+    }
+}
+
+/// Value of grid line `i` of `n` from `min` to `max` (computed, never accumulated).
+fn grid_line(min: f64, max: f64, n: usize, i: usize) -> f64 {
+    if n == 1 {
+        min
+    } else {
+        min + (max - min) * i as f64 / (n - 1) as f64
     }
 }
 
@@ -481,10 +505,13 @@ impl MapSpec {
         }
         let solve_for = match (&cfg.orbit.solve_for, cfg.orbit.energy) {
             (Some(name), Some(e)) => {
-                if !e.is_finite() {
+                // Every point solves 2 (E - V) for its momentum: an energy whose double
+                // overflows puts no point on the surface (and a near one, a momentum at
+                // infinity).
+                if !(2.0 * e).is_finite() {
                     return Err(SpecError::new(
                         "orbit.energy",
-                        format!("must be finite, got {e}"),
+                        format!("must be finite, and twice it too, got {e:?}"),
                     ));
                 }
                 match parse_coordinate(name, n) {

@@ -150,6 +150,21 @@ pub fn solve_momentum(
     x[n + j] = 0.0;
     let rest = model.energy(x);
     let twice_kinetic = 2.0 * (energy - rest);
+    let p = match model.inverse_masses() {
+        None => twice_kinetic.sqrt(),
+        Some(w) => (twice_kinetic / w[j]).sqrt(),
+    };
+    if twice_kinetic >= 0.0 && !p.is_finite() {
+        // Not below the surface but beyond the numbers: 2 (E - V) / m overflows.
+        return Err(SpecError::new(
+            "orbit.energy",
+            format!(
+                "p{} = sqrt(2 m (E - V)) is not finite at energy {energy:?} (the other \
+                 coordinates have energy {rest:?}): the energy is too large",
+                j + 1
+            ),
+        ));
+    }
     if !twice_kinetic.is_finite() || twice_kinetic < 0.0 {
         return Err(SpecError::new(
             "orbit.energy",
@@ -161,10 +176,7 @@ pub fn solve_momentum(
         ));
     }
     // p_j^2 / (2 m_j) = E - rest; with unit masses exactly the mass-free formula.
-    x[n + j] = match model.inverse_masses() {
-        None => twice_kinetic.sqrt(),
-        Some(w) => (twice_kinetic / w[j]).sqrt(),
-    };
+    x[n + j] = p;
     Ok(())
 }
 
@@ -211,6 +223,16 @@ fn excited_momenta(
             None => twice.sqrt(),
             Some(w) => (twice / w[l]).sqrt(),
         };
+        if !p.is_finite() {
+            return Err(SpecError::new(
+                "orbit.excite.energy",
+                format!(
+                    "site {}'s momentum sqrt(2 m E / L) is not finite at energy {e:?}: the \
+                     energy is too large",
+                    l + 1
+                ),
+            ));
+        }
         x[n + l] = sign * p;
     }
     Ok(())
@@ -255,6 +277,20 @@ pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>,
                 )
             })?
             .map_err(|m| SpecError::new("orbit.preset", m))?;
+        if let Some(i) = x.iter().position(|v| !v.is_finite()) {
+            return Err(SpecError::new(
+                "orbit.energy",
+                format!(
+                    "preset {preset} at energy {e:?} puts {} at a value that is not finite: the \
+                     energy is too large",
+                    if i < n {
+                        format!("q{}", i + 1)
+                    } else {
+                        format!("p{}", i - n + 1)
+                    }
+                ),
+            ));
+        }
         if !orbit.q.is_empty() || !orbit.p.is_empty() || orbit.solve_for.is_some() {
             return Err(SpecError::new(
                 "orbit",

@@ -213,9 +213,31 @@ impl<'de> Deserialize<'de> for ParamValue {
 #[serde(deny_unknown_fields)]
 pub struct DrawnArray {
     /// `[lo, hi]`: each entry uniform in `[lo, hi)`.
+    #[serde(deserialize_with = "two_numbers")]
     pub uniform: [f64; 2],
     /// The realization: another seed, another disorder.
     pub seed: u64,
+}
+
+/// A pair `[a, b]` of numbers, every entry read: serde's fixed-size array reads its first two
+/// entries and leaves the rest unread, which TOML then drops without a word
+/// (`uniform = [0.5, 1.5, "x"]` would pass as `[0.5, 1.5]`).
+fn two_numbers<'de, D: Deserializer<'de>>(deserializer: D) -> Result<[f64; 2], D::Error> {
+    let values = Vec::<f64>::deserialize(deserializer)?;
+    match values[..] {
+        [a, b] => Ok([a, b]),
+        _ => Err(de::Error::custom(format!(
+            "expected two numbers [a, b], not {}",
+            values.len()
+        ))),
+    }
+}
+
+/// [`two_numbers`] of an optional key.
+fn two_numbers_or_none<'de, D: Deserializer<'de>>(
+    deserializer: D,
+) -> Result<Option<[f64; 2]>, D::Error> {
+    two_numbers(deserializer).map(Some)
 }
 
 /// A tabulated function: samples `x, f(x)` in a CSV file, interpolated by a cubic spline.
@@ -237,7 +259,11 @@ pub struct TableSpec {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub spline: Option<String>,
     /// `[f'(x_first), f'(x_last)]` for a clamped spline.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        deserialize_with = "two_numbers_or_none"
+    )]
     pub slopes: Option<[f64; 2]>,
     /// SHA-256 of the file's bytes. Recordings and map files carry it (the producer fills it
     /// in), so a replay or a resumed map refuses a table that differs from the one the run used;

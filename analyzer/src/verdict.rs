@@ -96,7 +96,7 @@
 
 use serde::Serialize;
 
-use chaoscope_schemas::run::{Method, Orthonormalization, escape_time};
+use chaoscope_schemas::run::{Method, Orthonormalization, escape_time, integrator_failure_time};
 
 use crate::series::SchemePoint;
 
@@ -110,6 +110,12 @@ pub enum Class {
     Escaped,
     /// The reference orbit's extent in phase space keeps growing.
     Unbounded,
+    /// The orbit is attracted to a stable fixed point or cycle: nearby orbits converge
+    /// exponentially (largest exponent negative), as on a dissipative system's periodic window.
+    Attracting,
+    /// The integrator could not go on (the implicit stages stopped converging): the run ended
+    /// there, and the orbit did not escape.
+    Failed,
     Undecided,
 }
 
@@ -120,6 +126,8 @@ impl Class {
             Class::Regular => "regular",
             Class::Escaped => "escaped",
             Class::Unbounded => "unbounded",
+            Class::Attracting => "attracting",
+            Class::Failed => "failed",
             Class::Undecided => "undecided",
         }
     }
@@ -135,8 +143,9 @@ pub struct Verdict {
     pub criterion: String,
     /// In [0, 1]; see the module documentation.
     pub confidence: f64,
-    /// Escaped: the time by which the reference orbit escaped; unbounded: the time of the
-    /// latest sample, whose extent the criterion names; `None` (absent from JSON) otherwise.
+    /// Escaped: the time by which the reference orbit escaped; failed: the time of the step
+    /// the integrator could not take; unbounded: the time of the latest sample, whose extent
+    /// the criterion names; `None` (absent from JSON) otherwise.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub time: Option<f64>,
     /// Undecided: what is missing, as a stable word (see [`Undecided`]); `None` (absent from
@@ -154,8 +163,12 @@ pub enum Undecided {
     TooEarly,
     /// The deviation grew exponentially but no GALI decayed faster than a power law (yet).
     NoGaliEvidence,
-    /// A QR scheme whose MLE has not grown by its threshold (its GALI does not accumulate).
+    /// A QR scheme (exponents only) whose deviation has neither grown nor shrunk by its
+    /// threshold.
     QrMleBelowThreshold,
+    /// A scheme with one deviation vector (no GALI: the exponent alone decides) whose deviation
+    /// has neither grown nor shrunk by its threshold.
+    MleBelowThreshold,
     /// GALI_2 is at the rounding floor.
     GaliAtFloor,
     /// The GALI slopes steepen like an exponential, not a power law.
@@ -214,6 +227,15 @@ pub const D0_DECADES: f64 = 2.0;
 const CHAOS_STRETCH: f64 = 5.0;
 /// The same for QR schemes, whose GALI gives no second sign: twice as much.
 const QR_CHAOS_STRETCH: f64 = 2.0 * CHAOS_STRETCH;
+/// e-folds the deviation must shrink over the latest `[t/2, t]` for `attracting`: the mirror
+/// of the exponent-alone threshold (a neutral orbit, regular or at a bifurcation, changes its
+/// deviation by at most a power of t: ln 2 per halving for linear growth).
+const ATTRACTING_STRETCH: f64 = QR_CHAOS_STRETCH;
+/// Largest growth of the extent over the latest decade of an orbit that drifts while chaotic
+/// (chaotic diffusion: `t^(1/2)` gives 3.2, a drift `t` 10, an accelerating `t^2` 100); beyond
+/// it the orbit runs away faster than any power law, which is an unstable escape, not chaos
+/// on a region of phase space.
+const DRIFT_POLYNOMIAL: f64 = 100.0;
 /// Growth of the orbit's extent over the latest decade of time for `unbounded` ...
 const EXTENT_GROWTH: f64 = 2.0;
 /// ... and over each half of that decade.
@@ -451,6 +473,24 @@ fn unbounded(extent: &[(f64, f64)]) -> Option<Verdict> {
 /// extent `unbounded`, a run failed otherwise `undecided`; only then chaotic or regular.
 pub fn verdict(settings: &Settings, curve: &[(f64, &SchemePoint)], orbit: &Orbit) -> Verdict {
     if let Some((reason, t_last)) = orbit.failure
+        && let Some(t) = integrator_failure_time(reason)
+    {
+        return Verdict {
+            class: Class::Failed,
+            torus_dimension: None,
+            criterion: format!(
+                "the integrator failed in the step to t = {} (last sample at t = {}): \
+                 {reason}; the orbit did not escape, and a run stopped there is neither chaotic \
+                 nor regular",
+                time(t),
+                time(t_last)
+            ),
+            confidence: 1.0,
+            time: Some(t),
+            reason: None,
+        };
+    }
+    if let Some((reason, t_last)) = orbit.failure
         && let Some(t) = escape_time(reason)
     {
         return Verdict {
@@ -466,7 +506,28 @@ pub fn verdict(settings: &Settings, curve: &[(f64, &SchemePoint)], orbit: &Orbit
             reason: None,
         };
     }
+    let pts = thin(curve);
+    let floor = settings.floor_log10();
     if let Some(v) = unbounded(orbit.extent) {
+        // Chaotic diffusion: a drift (at most polynomial) with nearby orbits diverging
+        // exponentially beyond doubt is chaos on an unbounded region, not a drift alone.
+        if orbit.failure.is_none()
+            && let Some((r0, _, r, _)) = extent_decade(orbit.extent)
+            && r <= DRIFT_POLYNOMIAL * r0
+            && let Some((ds, t_mle)) = stretch_growth(&pts, QR_CHAOS_STRETCH)
+            && let Chaos::Chaotic(mut c) = chaos(settings, &pts, floor, curve)
+        {
+            c.criterion = format!(
+                "{}; the orbit drifts (its extent max |x| grew x{:.1} over the latest decade), \
+                 but nearby orbits diverge exponentially beyond doubt (e^{ds:.1} over [{}, {}], \
+                 at least e^{QR_CHAOS_STRETCH}): chaotic diffusion",
+                c.criterion,
+                r / r0.max(f64::MIN_POSITIVE),
+                time(t_mle / 2.0),
+                time(t_mle)
+            );
+            return c;
+        }
         return v;
     }
     if let Some((reason, t_last)) = orbit.failure {
@@ -502,70 +563,31 @@ pub fn verdict(settings: &Settings, curve: &[(f64, &SchemePoint)], orbit: &Orbit
             ),
         );
     }
-    let pts = thin(curve);
     if pts.is_empty() {
         return undecided(Undecided::TooEarly, "no samples after t = 0 yet".into());
     }
-    let floor = settings.floor_log10();
-    let qr = settings.orthonormalize == Orthonormalization::Qr;
-    let chaos_stretch = if qr { QR_CHAOS_STRETCH } else { CHAOS_STRETCH };
-    let mle = curve
-        .last()
-        .and_then(|(_, p)| p.lyapunov.first().copied())
-        .unwrap_or(0.0);
-
-    // Chaotic: both evidences, each seen in some window up to now (chaos does not undo itself;
-    // a regular orbit shows neither in any window).
-    let mle_window = stretch_growth(&pts, chaos_stretch);
-    if let Some((ds, t_mle)) = mle_window {
-        let mle_text = format!(
-            "the deviation grew by e^{ds:.1} over [{}, {}] (now MLE {mle:.3e}; a regular orbit \
-             grows linearly, e^0.7 per doubling of time, its MLE decays ~ ln(t)/t)",
-            time(t_mle / 2.0),
-            time(t_mle)
-        );
-        if qr {
-            return Verdict {
-                class: Class::Chaotic,
-                torus_dimension: None,
-                criterion: format!(
-                    "{mle_text}; QR scheme: MLE alone, {:.1} times its threshold of \
-                     e^{QR_CHAOS_STRETCH} (its GALI does not accumulate)",
-                    ds / chaos_stretch
-                ),
-                confidence: confidence(ds / chaos_stretch),
-                time: None,
-                reason: None,
-            };
-        }
-        if let Some((j, p, t_end)) = exponential_decay(&pts, floor, settings.k) {
-            let x = (ds / chaos_stretch).min(p / (2.0 * (j - 1) as f64 + CHAOS_SLOPE_MARGIN));
-            return Verdict {
-                class: Class::Chaotic,
-                torus_dimension: None,
-                criterion: format!(
-                    "{mle_text}; GALI_{j} decayed faster than any power law of a regular orbit \
-                     (log-log slope -{p:.1} over [{}, {}], regular orbits at most -{})",
-                    time(t_end / 2.0),
-                    time(t_end),
-                    2 * (j - 1)
-                ),
-                confidence: confidence(x),
-                time: None,
-                reason: None,
-            };
-        }
-        return undecided(
-            Undecided::NoGaliEvidence,
-            format!("{mle_text}, but no GALI has decayed faster than a power law yet"),
-        );
+    if let Some(v) = attracting(&pts) {
+        return v;
     }
-    if qr {
+    match chaos(settings, &pts, floor, curve) {
+        Chaos::Chaotic(v) | Chaos::Undecided(v) => return v,
+        Chaos::NoEvidence => {}
+    }
+    if settings.orthonormalize == Orthonormalization::Qr {
         return undecided(
             Undecided::QrMleBelowThreshold,
             format!(
-                "QR scheme: its GALI does not accumulate, and the deviation has not grown by \
+                "QR scheme (exponents only): the deviation has neither grown nor shrunk by \
                  e^{QR_CHAOS_STRETCH} over any [t'/2, t'] (yet)"
+            ),
+        );
+    }
+    if settings.k < 2 {
+        return undecided(
+            Undecided::MleBelowThreshold,
+            format!(
+                "one deviation vector (the exponent alone decides): the deviation has neither \
+                 grown nor shrunk by e^{QR_CHAOS_STRETCH} over any [t'/2, t'] (yet)"
             ),
         );
     }
@@ -586,6 +608,132 @@ pub fn verdict(settings: &Settings, curve: &[(f64, &SchemePoint)], orbit: &Orbit
         Ok(v) => v,
         Err((reason, why)) => undecided(reason, why),
     }
+}
+
+/// The outcome of the chaos criteria.
+enum Chaos {
+    Chaotic(Verdict),
+    /// The deviation grew exponentially, but the second sign is missing.
+    Undecided(Verdict),
+    /// No exponential growth of the deviation.
+    NoEvidence,
+}
+
+/// The chaos criteria (module documentation): the growth of the log-stretch over some
+/// `[t'/2, t']` and, where the scheme has GALIs, their decay faster than any power law; the
+/// exponent alone at twice the threshold where the scheme has no GALI (QR, one vector) or
+/// where its GALIs reached the rounding floor between the recorded samples.
+fn chaos(settings: &Settings, pts: &[Pt], floor: f64, curve: &[(f64, &SchemePoint)]) -> Chaos {
+    let qr = settings.orthonormalize == Orthonormalization::Qr;
+    let exponents_only = qr || settings.k < 2;
+    let chaos_stretch = if exponents_only {
+        QR_CHAOS_STRETCH
+    } else {
+        CHAOS_STRETCH
+    };
+    let mle = curve
+        .last()
+        .and_then(|(_, p)| p.lyapunov.first().copied())
+        .unwrap_or(0.0);
+    // Both evidences, each seen in some window up to now (chaos does not undo itself; a
+    // regular orbit shows neither in any window).
+    let Some((ds, t_mle)) = stretch_growth(pts, chaos_stretch) else {
+        return Chaos::NoEvidence;
+    };
+    let mle_text = format!(
+        "the deviation grew by e^{ds:.1} over [{}, {}] (now MLE {mle:.3e}; a regular orbit \
+         grows linearly, e^0.7 per doubling of time, its MLE decays ~ ln(t)/t)",
+        time(t_mle / 2.0),
+        time(t_mle)
+    );
+    let alone = |why: &str| {
+        Chaos::Chaotic(Verdict {
+            class: Class::Chaotic,
+            torus_dimension: None,
+            criterion: format!(
+                "{mle_text}; {why}: the exponent alone, {:.1} times its threshold of \
+                 e^{QR_CHAOS_STRETCH}",
+                ds / QR_CHAOS_STRETCH
+            ),
+            confidence: confidence(ds / QR_CHAOS_STRETCH),
+            time: None,
+            reason: None,
+        })
+    };
+    if qr {
+        return alone("QR scheme (exponents only)");
+    }
+    if settings.k < 2 {
+        return alone("one deviation vector (its exponent only)");
+    }
+    if let Some((j, p, t_end)) = exponential_decay(pts, floor, settings.k) {
+        let x = (ds / chaos_stretch).min(p / (2.0 * (j - 1) as f64 + CHAOS_SLOPE_MARGIN));
+        return Chaos::Chaotic(Verdict {
+            class: Class::Chaotic,
+            torus_dimension: None,
+            criterion: format!(
+                "{mle_text}; GALI_{j} decayed faster than any power law of a regular orbit \
+                 (log-log slope -{p:.1} over [{}, {}], regular orbits at most -{})",
+                time(t_end / 2.0),
+                time(t_end),
+                2 * (j - 1)
+            ),
+            confidence: confidence(x),
+            time: None,
+            reason: None,
+        });
+    }
+    // GALI_2 at the floor at the latest sample, with too few samples above it for a window
+    // (`[run] sample_every` records a sample every few Lyapunov times): the GALIs fell
+    // between the samples, which only the exponent saw.
+    if let Some(last) = pts.last()
+        && last.top_usable(floor) < 2
+        && ds >= QR_CHAOS_STRETCH
+    {
+        let since = pts
+            .iter()
+            .position(|p| p.top_usable(floor) < 2)
+            .map_or(last.t, |i| pts[i].t);
+        let v = alone(&format!(
+            "GALI_2 has been at the rounding floor since the sample at t = {} (it fell between \
+             the recorded samples, too fast for a window of them; a regular orbit's GALI_2 \
+             decays at most like t^-2)",
+            time(since)
+        ));
+        return v;
+    }
+    Chaos::Undecided(undecided(
+        Undecided::NoGaliEvidence,
+        format!("{mle_text}, but no GALI has decayed faster than a power law yet"),
+    ))
+}
+
+/// `attracting` when the deviation shrank by at least [`ATTRACTING_STRETCH`] e-folds over the
+/// latest `[t/2, t]` (with at least [`MIN_POINTS`] points): nearby orbits converge, so the orbit
+/// is on (or falling onto) a stable fixed point or cycle. Judged on the latest window only: a
+/// transient chaos that settles on a cycle is attracting now.
+fn attracting(pts: &[Pt]) -> Option<Verdict> {
+    let last = pts.last()?;
+    let start = at_or_before(pts, last.t / 2.0)?;
+    if pts.len() - start < MIN_POINTS {
+        return None;
+    }
+    let ds = last.stretch - pts[start].stretch;
+    (ds <= -ATTRACTING_STRETCH).then(|| Verdict {
+        class: Class::Attracting,
+        torus_dimension: None,
+        criterion: format!(
+            "the deviation shrank by e^{:.1} over [{}, {}] (MLE {:.3e} < 0): nearby orbits \
+             converge, the orbit is attracted to a stable fixed point or cycle; not chaotic",
+            -ds,
+            time(pts[start].t),
+            time(last.t),
+            last.stretch / last.t
+        ),
+        confidence: confidence(-ds / ATTRACTING_STRETCH),
+        time: None,
+        reason: None,
+    })
 }
 
 /// The largest growth of the log-stretch over a window `[t'/2, t']` of at least
@@ -1345,6 +1493,132 @@ mod tests {
     }
 
     #[test]
+    fn one_vector_is_decided_by_its_exponent_alone() {
+        // k = 1 (a 1-D map): no GALI. MLE ln 2 (the logistic map at r = 4): the deviation grows
+        // by 0.69 * 50 = 35 e-folds over [50, 100], 3.5 times the exponent-alone threshold.
+        let s = settings(Method::Vm, 1e-8, 1.0, 0, 1);
+        let v = judge(&s, &curve(100, 1, |_, _| 0.0, |_| 2f64.ln()));
+        assert_eq!(v.class, Class::Chaotic, "{v:?}");
+        assert!(!v.criterion.contains("GALI"), "{}", v.criterion);
+        // MLE -0.1 (an attracting cycle): it shrinks by e^10 over [t/2, t] from t = 200 on.
+        let v = judge(&s, &curve(400, 1, |_, _| 0.0, |_| -0.1));
+        assert_eq!(v.class, Class::Attracting, "{v:?}");
+        assert!(v.criterion.contains("MLE -1.000e-1"), "{}", v.criterion);
+        let v = judge(&s, &curve(100, 1, |_, _| 0.0, |_| -0.1));
+        assert_eq!(
+            (v.class, v.reason),
+            (Class::Undecided, Some(Undecided::MleBelowThreshold)),
+            "{v:?}"
+        );
+        assert!(!v.criterion.contains("GALI"), "{}", v.criterion);
+        // A neutral orbit (MLE ~ ln(t)/t) is never decided by the exponent alone.
+        let v = judge(&s, &curve(3000, 1, |_, _| 0.0, |t| (1.0 + t).ln() / t.max(1.0)));
+        assert_eq!(v.class, Class::Undecided, "{v:?}");
+    }
+
+    /// The curve of `curve` recorded at every `every`-th time only (`[run] sample_every`).
+    fn sampled(c: Vec<(f64, SchemePoint)>, every: usize) -> Vec<(f64, SchemePoint)> {
+        c.into_iter().step_by(every).collect()
+    }
+
+    #[test]
+    fn gali_falling_to_the_floor_between_samples_with_the_exponent_beyond_doubt_is_chaotic() {
+        // The standard map at K = 1.2 in its chaotic sea: GALI_2 ~ exp(-2 l1 t) with l1 ~ 0.3
+        // over the first tens of iterations reaches VM's floor by t = 60 (measured: -11.7 at
+        // t = 50, the floor at 60); sampled every 10 iterations, no window [t'/2, t'] holds 5
+        // samples above it.
+        let s = settings(Method::Vm, 1e-8, 1.0, 1, 2);
+        let l1 = 0.3;
+        let c = sampled(
+            curve(
+                2000,
+                2,
+                |_, t| (-2.0 * l1 * t / 10f64.ln()).max(-15.65),
+                |_| l1,
+            ),
+            10,
+        );
+        let v = judge(&s, &c);
+        assert_eq!(v.class, Class::Chaotic, "{v:?}");
+        assert!(v.criterion.contains("rounding floor"), "{}", v.criterion);
+        // A regular orbit's GALI_2 at the floor (MPM on an island, eps/d0 reached) with linear
+        // growth of the deviation is not chaotic.
+        let c = sampled(
+            curve(
+                2000,
+                2,
+                |_, t| (-2.0 * t.max(1.0).log10()).max(-15.65),
+                |t| (1.0 + 0.5 * t).ln() / t.max(1.0),
+            ),
+            10,
+        );
+        assert_ne!(judge(&s, &c).class, Class::Chaotic);
+    }
+
+    #[test]
+    fn a_chaotic_drift_is_chaotic_and_a_regular_drift_unbounded() {
+        // Chaotic diffusion: the extent grows like t^(1/2) (x3.2 per decade) while nearby
+        // orbits diverge at l1 = 0.05: chaotic. The same drift with linear growth of the
+        // deviation, or an extent running away faster than any power law (e^(t/100): x10^7.8
+        // over the latest decade), is unbounded.
+        let s = settings(Method::Vm, 1e-8, 1.0, 2, 4);
+        let l1 = 0.05;
+        let chaotic = curve(
+            2000,
+            4,
+            |j, t| -((j - 1) as f64) * (l1 * t / 10f64.ln()).min(15.0),
+            |_| l1,
+        );
+        let regular = curve(
+            2000,
+            4,
+            |j, t| -0.3 - (torus_exponent(j, 2, 2) as f64) * t.max(1.0).log10(),
+            |t| (1.0 + 0.5 * t).ln() / t.max(1.0),
+        );
+        let diffusing = extent(2000, |t| 1.0 + t.sqrt());
+        let orbit = Orbit {
+            extent: &diffusing,
+            failure: None,
+        };
+        let v = judge_orbit(&s, &chaotic, &orbit);
+        assert_eq!(v.class, Class::Chaotic, "{v:?}");
+        assert!(v.criterion.contains("chaotic diffusion"), "{}", v.criterion);
+        assert_eq!(judge_orbit(&s, &regular, &orbit).class, Class::Unbounded);
+        let runaway = extent(2000, |t| (t / 100.0).exp());
+        let v = judge_orbit(
+            &s,
+            &chaotic,
+            &Orbit {
+                extent: &runaway,
+                failure: None,
+            },
+        );
+        assert_eq!(v.class, Class::Unbounded, "{v:?}");
+    }
+
+    #[test]
+    fn an_integrator_failure_is_failed_not_escaped() {
+        let s = settings(Method::Vm, 1e-8, 1.0, 2, 4);
+        let c = curve(200, 4, |_, _| -0.3, |_| 0.01);
+        let bounded = extent(200, |_| 1.0);
+        let reason = format!(
+            "{} by t = 135.5: {} within 64 sweeps",
+            chaoscope_schemas::run::INTEGRATOR_FAILED,
+            chaoscope_schemas::run::IMPLICIT_NOT_CONVERGED
+        );
+        let v = judge_orbit(
+            &s,
+            &c,
+            &Orbit {
+                extent: &bounded,
+                failure: Some((&reason, 135.0)),
+            },
+        );
+        assert_eq!((v.class, v.time), (Class::Failed, Some(135.5)), "{v:?}");
+        assert!(v.criterion.contains("did not converge"), "{}", v.criterion);
+    }
+
+    #[test]
     fn the_qr_criterion_states_its_ratio_and_the_exponent_sum_is_checked() {
         let mut s = settings(Method::Vm, 1e-8, 1.0, 1, 3);
         s.orthonormalize = Orthonormalization::Qr;
@@ -1358,6 +1632,8 @@ mod tests {
             "{}",
             v.criterion
         );
+        // A QR scheme has exponents only: its criterion names no GALI.
+        assert!(!v.criterion.contains("GALI"), "{}", v.criterion);
         let point = |sum_off: f64| SchemePoint {
             gali_log10_mean: vec![0.0, 0.0],
             gali_log10_of_mean: Vec::new(),

@@ -50,6 +50,14 @@ pub enum RunError {
         /// The operation that produced a non-finite value, where the system knows it.
         cause: Option<String>,
     },
+    // Begins with `INTEGRATOR_FAILED`, which the verdict reads back (`failed`, not `escaped`).
+    #[error("{} by t = {t}: {cause}", chaoscope_schemas::run::INTEGRATOR_FAILED)]
+    IntegratorFailed {
+        /// The time the failed step was to reach.
+        t: f64,
+        /// The integrator's own reason.
+        cause: String,
+    },
     #[error("scheme '{scheme}', set {set}, t = {t}: {source}")]
     Renormalization {
         scheme: String,
@@ -523,13 +531,20 @@ impl Engine {
             let t_after = self.spec.time_of(step);
             let at = format!("in the step to t = {}", self.spec.time_of(step));
             if x.iter().any(|v| !v.is_finite()) {
-                cause = Some(
-                    system
-                        .diagnose_non_finite(&before, t_before)
-                        .map_or(format!("the state became non-finite {at}"), |c| {
-                            format!("{c} {at}")
-                        }),
-                );
+                let why = system.diagnose_non_finite(&before, t_before);
+                // From a finite state within the bound, a step the integrator could not take
+                // is its failure, not the orbit's escape.
+                if let Some(why) = &why
+                    && why.contains(chaoscope_schemas::run::IMPLICIT_NOT_CONVERGED)
+                {
+                    return RunError::IntegratorFailed {
+                        t: t_after,
+                        cause: format!("{why} {at}"),
+                    };
+                }
+                cause = Some(why.map_or(format!("the state became non-finite {at}"), |c| {
+                    format!("{c} {at}")
+                }));
                 break;
             }
             if system.invariant(&x).is_some_and(|e| !e.is_finite())

@@ -215,6 +215,32 @@ pub fn escape_time(reason: &str) -> Option<f64> {
     rest[..end].parse::<f64>().ok().filter(|t| t.is_finite())
 }
 
+/// How a run's end-of-run reason begins when the integrator could not take a step from a finite
+/// state within the escape bound (the implicit Gauss-Legendre stages stopped converging, at a
+/// close approach or with a step too long for the vector field there): the producer writes it,
+/// the verdict reads it (`failed`, never `escaped`: the orbit did not leave, the integrator
+/// stopped). The reason goes on `" by t = <time>: <the integrator's reason>"`.
+pub const INTEGRATOR_FAILED: &str = "the integrator failed";
+
+/// How the implicit integrators' own error begins. A recording written before
+/// [`INTEGRATOR_FAILED`] existed carries it inside an escape reason; the verdict reads such a
+/// reason as an integrator failure too.
+pub const IMPLICIT_NOT_CONVERGED: &str = "the implicit Gauss-Legendre stages did not converge";
+
+/// The time named by an end-of-run reason of an integrator failure ([`INTEGRATOR_FAILED`],
+/// or an escape reason whose cause is [`IMPLICIT_NOT_CONVERGED`]), `None` for any other reason.
+pub fn integrator_failure_time(reason: &str) -> Option<f64> {
+    if let Some(rest) = reason.strip_prefix(INTEGRATOR_FAILED) {
+        let rest = rest.strip_prefix(" by t = ")?;
+        let end = rest.find([' ', ',', ':', ')']).unwrap_or(rest.len());
+        return rest[..end].parse::<f64>().ok().filter(|t| t.is_finite());
+    }
+    if reason.contains(IMPLICIT_NOT_CONVERGED) {
+        return escape_time(reason);
+    }
+    None
+}
+
 #[cfg(test)]
 mod escape_tests {
     use super::*;
@@ -232,5 +258,17 @@ mod escape_tests {
             escape_time(&format!("{REFERENCE_ESCAPED} by t = nan")),
             None
         );
+    }
+
+    #[test]
+    fn an_integrator_failure_is_read_back_and_is_not_an_escape() {
+        let r = format!("{INTEGRATOR_FAILED} by t = 135.2: {IMPLICIT_NOT_CONVERGED} (h = 0.1)");
+        assert_eq!(integrator_failure_time(&r), Some(135.2));
+        assert_eq!(escape_time(&r), None);
+        // A recording of the earlier format: the same failure inside an escape reason.
+        let old = format!("{REFERENCE_ESCAPED} by t = 135 (|x| = NaN): {IMPLICIT_NOT_CONVERGED}");
+        assert_eq!(integrator_failure_time(&old), Some(135.0));
+        let escape = format!("{REFERENCE_ESCAPED} by t = 3 (|x| = 1e100): |x| passed 1e100");
+        assert_eq!(integrator_failure_time(&escape), None);
     }
 }

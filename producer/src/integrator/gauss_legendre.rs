@@ -65,8 +65,9 @@ pub static GL6: ImplicitTableau = ImplicitTableau {
 /// The fixed-point iteration did not settle within [`MAX_SWEEPS`].
 #[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
 #[error(
-    "the implicit Gauss-Legendre stages did not converge within {MAX_SWEEPS} sweeps (the step h \
-     is too long for this vector field here; use a smaller h)"
+    "{} within {MAX_SWEEPS} sweeps (the step h is too long for this vector field here; use a \
+     smaller h)",
+    chaoscope_schemas::run::IMPLICIT_NOT_CONVERGED
 )]
 pub struct NotConverged;
 

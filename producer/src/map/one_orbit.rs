@@ -37,7 +37,9 @@ pub fn point(spec: &MapSpec, index: u64) -> PointResult {
             Ok(None) => break,
             Err(e) => {
                 let t = match &e {
-                    RunError::Escaped { t, .. } | RunError::Renormalization { t, .. } => *t,
+                    RunError::Escaped { t, .. }
+                    | RunError::IntegratorFailed { t, .. }
+                    | RunError::Renormalization { t, .. } => *t,
                     RunError::Tangent(_) => 0.0,
                 };
                 return failed(base, PointStatus::Escaped, t, e.to_string());

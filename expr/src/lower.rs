@@ -363,6 +363,10 @@ impl<'a> Lowerer<'a> {
             None if !self.lane_args.is_empty() && self.reads_lane_params_only(id) => Info {
                 limit: None,
                 zero_kink: false,
+                vanishing: true,
+                pole_free: true,
+                varies: false,
+                absorbed: None,
                 ..info
             },
             None => info,
@@ -1893,6 +1897,27 @@ mod tests {
             ("if(q1 < 0, q2, q2)", smooth.clone()),
             ("sqrt(abs(q1))", at(0, "sqrt", 1)),
             ("sqrt(step(q1))", at(-1, "step", 6)),
+            // Every spelling of a Newtonian pole is a pole (module documentation of smooth).
+            ("-2/sqrt((q3-q1)^2 + (q2-q1)^2)", smooth.clone()),
+            ("(q1^2 + q2^2)^(-1/2)", smooth.clone()),
+            ("1/sqrt(q1^2 + q2^2)^3", smooth.clone()),
+            ("(q1^2 + q2^2)^(-3/2)", smooth.clone()),
+            ("1/(sqrt(q1^2 + q2^2)*(q1^2 + q2^2))", smooth.clone()),
+            ("sqrt(q1^2 + q2^2)^-1", smooth.clone()),
+            ("p*d0/(2*sqrt(q1^2 + q2^2))", smooth.clone()),
+            ("-1/sqrt(q1^2 + q2^2) - p/sqrt((q1 - q3)^2 + q2^2)", smooth.clone()),
+            ("(1 + q3^2)/sqrt(q1^2) + exp(q2)/abs(q3)", smooth.clone()),
+            ("1/sqrt(abs(q1)) + 1/max(0, q2)^2 + sqrt(1/sqrt(q1^2))", smooth.clone()),
+            ("1/sin(sqrt(q1^2 + q2^2))", smooth.clone()),
+            // A state-dependent factor that may be 0 can undo the pole: x/|x| jumps.
+            ("q1/sqrt(q1^2)", at(0, "sqrt", 4)),
+            ("q1*(q1^2)^(-1/2)", at(0, "^ 0.5", 10)),
+            ("q1^2/sqrt(q1^2 + q2^2)", at(0, "sqrt", 6)),
+            ("1/sqrt(q1^2) + sqrt(q1^2)", at(0, "sqrt", 16)),
+            ("sin(1/abs(q1))", at(0, "abs", 7)),
+            ("1/(1/sqrt(q1^2 + q2^2))", at(0, "sqrt", 6)),
+            ("1/(1 + sqrt(q1^2 + q2^2))", at(0, "sqrt", 8)),
+            ("1/(sqrt(q1^2 + q2^2) + q3^2)", at(0, "sqrt", 4)),
         ];
         let wrong: Vec<String> = cases
             .into_iter()

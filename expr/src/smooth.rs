@@ -16,6 +16,20 @@
 //! where `u` reaches 0 (or pi/2), but an orbit of finite energy never reaches an infinite
 //! potential, and everywhere it does move these functions are analytic; the tangent dynamics
 //! there is exact. They are treated as smooth.
+//!
+//! One rule decides between a pole and a kink for roots, so that every spelling of a
+//! Newtonian or Coulomb potential is judged alike: a value that is 0 at every point where it is
+//! not smooth (`sqrt(u)`, `u^(3/2)`, `abs(u)`, `max(0, u)` with a smooth `u`, and products of
+//! such values with each other and with smooth pole-free factors: `sqrt(r2)*r2`) is
+//! "vanishing". Its reciprocal or negative power (`1/sqrt(r2)`, `sqrt(r2)^-3`,
+//! `r2^(-1/2)`, `1/(sqrt(r2)*r2)`) is infinite at every one of those points and smooth
+//! wherever it is finite: a pole, accepted. The non-smoothness it covered is kept aside
+//! (`absorbed`) and comes back when something can undo the pole: a factor that depends on
+//! the state and may be 0 (`x/sqrt(x^2)` is `sign(x)`, `x/sqrt(x^2 + y^2)` is bounded and jumps
+//! at the origin), a reciprocal of the pole (`1/(1/sqrt(r2))`), or a function of it
+//! (`sin(1/abs(x))` oscillates without bound and is crossed). Factors that do not depend on the
+//! state (masses, charges, lane parameters) or cannot be 0 (`1 + q^2`, `exp(q)`) keep the pole.
+//! Sums keep it too: poles of different terms are assumed not to cancel each other exactly.
 
 use crate::error::{Span, locate};
 use crate::graph::Unary;
@@ -242,6 +256,16 @@ pub(crate) struct Info {
     pub limit: Option<LimitAt>,
     pub signs: Signs,
     pub zero_kink: bool,
+    /// 0 at every point where it is not smooth (see the module documentation); true of every
+    /// smooth value and implied by `zero_kink`.
+    pub vanishing: bool,
+    /// Finite wherever its inputs are (no division, negative power, `log`, `tan`, ...).
+    pub pole_free: bool,
+    /// Depends on the state (a variable or the time), not only on constants and parameters.
+    pub varies: bool,
+    /// The worst limit that a pole covers: this value is infinite at every point where that
+    /// operation is not smooth, so it does not count unless the pole is undone.
+    pub absorbed: Option<LimitAt>,
 }
 
 impl Info {
@@ -250,6 +274,10 @@ impl Info {
             limit: None,
             signs: Signs::of(c),
             zero_kink: false,
+            vanishing: true,
+            pole_free: c.is_finite(),
+            varies: false,
+            absorbed: None,
         }
     }
 
@@ -264,6 +292,10 @@ impl Info {
             limit: None,
             signs,
             zero_kink: false,
+            vanishing: true,
+            pole_free: true,
+            varies: false,
+            absorbed: None,
         }
     }
 
@@ -273,11 +305,31 @@ impl Info {
             limit: None,
             signs: Signs::ALL,
             zero_kink: false,
+            vanishing: true,
+            pole_free: true,
+            varies: true,
+            absorbed: None,
         }
     }
 
     pub fn is_smooth(&self) -> bool {
         self.limit.is_none()
+    }
+
+    /// Can be 0 somewhere along an orbit (and so can undo a pole it multiplies).
+    fn may_vanish_on_orbit(&self) -> bool {
+        self.varies && self.signs.has(Signs::ZERO)
+    }
+
+    /// Its limit with what its poles cover put back: for an operation that can undo a pole.
+    fn undone(&self) -> Option<LimitAt> {
+        worse(self.limit, self.absorbed)
+    }
+
+    /// A vanishing pole-free value: its reciprocal is a pole at every point where it is not
+    /// smooth.
+    fn covers_by_reciprocal(&self) -> bool {
+        self.vanishing && self.pole_free
     }
 
     pub fn neg(self) -> Self {
@@ -288,10 +340,15 @@ impl Info {
     }
 
     pub fn add(self, other: Self) -> Self {
+        let limit = worse(self.limit, other.limit);
         Self {
-            limit: worse(self.limit, other.limit),
+            limit,
             signs: self.signs.add(other.signs),
             zero_kink: false,
+            vanishing: limit.is_none(),
+            pole_free: self.pole_free && other.pole_free,
+            varies: self.varies || other.varies,
+            absorbed: worse(self.absorbed, other.absorbed),
         }
     }
 
@@ -299,27 +356,69 @@ impl Info {
         self.add(other.neg())
     }
 
+    /// The facts of a product other than its signs and `zero_kink`: a pole times a factor that
+    /// may be 0 on the orbit is no longer known to be a pole.
+    fn product(self, other: Self) -> Self {
+        let mut limit = worse(self.limit, other.limit);
+        let mut absorbed = None;
+        for (pole, factor) in [(&self, &other), (&other, &self)] {
+            if factor.may_vanish_on_orbit() {
+                limit = worse(limit, pole.absorbed);
+            } else {
+                absorbed = worse(absorbed, pole.absorbed);
+            }
+        }
+        let pole_free = self.pole_free && other.pole_free;
+        Self {
+            limit,
+            signs: self.signs.mul(other.signs),
+            zero_kink: false,
+            vanishing: pole_free && self.vanishing && other.vanishing,
+            pole_free,
+            varies: self.varies || other.varies,
+            absorbed,
+        }
+    }
+
+    /// `1 / self`: a pole wherever a vanishing value is not smooth; anything else keeps its
+    /// limit and loses any pole it had (`1/(1/sqrt(r2))` is `sqrt(r2)`).
+    fn reciprocal(self) -> Self {
+        let (limit, absorbed) = if self.covers_by_reciprocal() {
+            (None, self.limit)
+        } else {
+            (self.undone(), None)
+        };
+        Self {
+            limit,
+            signs: self.signs.without_zero(),
+            zero_kink: false,
+            vanishing: limit.is_none(),
+            pole_free: self.pole_free && !self.signs.has(Signs::ZERO),
+            varies: self.varies,
+            absorbed,
+        }
+    }
+
     /// A smooth multiple of a zero kink is still one (Lipschitz, 0 at the kink).
     pub fn mul(self, other: Self) -> Self {
         Self {
-            limit: worse(self.limit, other.limit),
-            signs: self.signs.mul(other.signs),
             zero_kink: (self.zero_kink && other.is_smooth())
                 || (other.zero_kink && self.is_smooth()),
+            ..self.product(other)
         }
     }
 
     /// Division by 0 is a singularity, not a kink (see the module documentation).
     pub fn div(self, other: Self) -> Self {
         Self {
-            limit: worse(self.limit, other.limit),
             signs: self.signs.mul(other.signs.without_zero()),
             zero_kink: self.zero_kink && other.is_smooth(),
+            ..self.product(other.reciprocal())
         }
     }
 
     /// A smooth (where finite) function of `self`: `exp`, `log`, `sin`, ..., and the signs it
-    /// can take.
+    /// can take. A function of a pole may undo it (`sin(1/abs(q))` is bounded and crossed).
     pub fn smooth_fn(self, op: Unary) -> Self {
         let signs = match op {
             Unary::Exp | Unary::Cosh => Signs::POS,
@@ -329,10 +428,22 @@ impl Info {
             Unary::Step => Signs::NONNEG,
             _ => Signs::ALL,
         };
+        // Odd functions with f(0) = 0, finite wherever their argument is: they keep a value
+        // vanishing (`sin(sqrt(r2))`).
+        let keeps_zero = matches!(
+            op,
+            Unary::Neg | Unary::Sin | Unary::Sinh | Unary::Tanh | Unary::Atan
+        );
+        let finite = keeps_zero || matches!(op, Unary::Exp | Unary::Cos | Unary::Cosh);
+        let limit = self.undone();
         Self {
-            limit: self.limit,
+            limit,
             signs,
             zero_kink: false,
+            vanishing: limit.is_none() || (keeps_zero && self.covers_by_reciprocal()),
+            pole_free: finite && self.pole_free,
+            varies: self.varies,
+            absorbed: None,
         }
     }
 
@@ -347,6 +458,10 @@ impl Info {
             limit: worse(Some(own), self.limit),
             signs: self.signs.square(),
             zero_kink: self.is_smooth(),
+            vanishing: self.covers_by_reciprocal(),
+            pole_free: self.pole_free,
+            varies: self.varies,
+            absorbed: self.absorbed,
         }
     }
 
@@ -361,14 +476,20 @@ impl Info {
                 LimitKind::Min
             },
         };
+        let zero_kink = (a_zero && b.is_smooth()) || (b_zero && a.is_smooth());
+        let pole_free = a.pole_free && b.pole_free;
         Self {
-            limit: worse(Some(own), worse(a.limit, b.limit)),
+            limit: worse(Some(own), worse(a.undone(), b.undone())),
             signs: if is_max {
                 a.signs.max(b.signs)
             } else {
                 a.signs.min(b.signs)
             },
-            zero_kink: (a_zero && b.is_smooth()) || (b_zero && a.is_smooth()),
+            zero_kink,
+            vanishing: zero_kink && pole_free,
+            pole_free,
+            varies: a.varies || b.varies,
+            absorbed: None,
         }
     }
 
@@ -382,12 +503,16 @@ impl Info {
         };
         let mut limit = Some(own);
         for p in parts {
-            limit = worse(limit, p.limit);
+            limit = worse(limit, p.undone());
         }
         Self {
             limit,
             signs,
             zero_kink: false,
+            vanishing: false,
+            pole_free: parts.iter().all(|p| p.pole_free),
+            varies: parts.iter().any(|p| p.varies),
+            absorbed: None,
         }
     }
 
@@ -402,18 +527,31 @@ impl Info {
         )
     }
 
-    /// `self ^ a` for a constant `a` (`sqrt` is `a = 1/2` with `sqrt` set).
+    /// `self ^ a` for a constant `a` (`sqrt` is `a = 1/2` with `sqrt` set). A negative power
+    /// is the reciprocal of the positive one.
     pub fn power(self, a: f64, span: Span, sqrt: bool) -> Self {
-        let whole = a.is_finite() && a.fract() == 0.0;
+        if a < 0.0 && a.is_finite() {
+            return self.power(-a, span, sqrt).reciprocal();
+        }
+        if a == 0.0 || !a.is_finite() {
+            return Self {
+                limit: None,
+                signs: if a == 0.0 || self.signs.positive() {
+                    Signs::POS
+                } else {
+                    Signs::NONNEG
+                },
+                zero_kink: false,
+                vanishing: true,
+                pole_free: a == 0.0,
+                varies: self.varies && a != 0.0,
+                absorbed: None,
+            };
+        }
+        let whole = a.fract() == 0.0;
         let signs = if whole {
             let even = (a / 2.0).fract() == 0.0;
-            if a == 0.0 {
-                Signs::POS
-            } else if a < 0.0 {
-                // Where 0 would be a pole.
-                let s = self.signs.without_zero();
-                if even { s.square() } else { s }
-            } else if even {
+            if even {
                 self.signs.square()
             } else {
                 self.signs
@@ -423,21 +561,23 @@ impl Info {
         } else {
             Signs::NONNEG
         };
-        let limit = if a == 0.0 || !a.is_finite() {
-            None
-        } else if whole {
+        let (limit, absorbed) = if whole {
             if a >= 2.0 && self.zero_kink {
-                Some(LimitAt {
-                    span,
-                    order: (a - 1.0).min(f64::from(SMOOTH - 1)) as i32,
-                    kind: LimitKind::KinkPow { exp: a },
-                })
+                (
+                    Some(LimitAt {
+                        span,
+                        order: (a - 1.0).min(f64::from(SMOOTH - 1)) as i32,
+                        kind: LimitKind::KinkPow { exp: a },
+                    }),
+                    None,
+                )
             } else {
-                self.limit
+                // A positive whole power of a pole is a pole at the same points.
+                (self.limit, self.absorbed)
             }
-        } else if a < 0.0 || self.signs.positive() {
-            // A pole (see the module documentation) or a base that never reaches 0.
-            self.limit
+        } else if self.signs.positive() {
+            // A base that never reaches 0 (a pole's power is still a pole).
+            (self.limit, self.absorbed)
         } else {
             let own = Some(LimitAt {
                 span,
@@ -446,15 +586,21 @@ impl Info {
             });
             if self.zero_kink {
                 // `max(0, d)^(5/2)`: the kink is absorbed, the power's order is what remains.
-                own
+                (own, None)
             } else {
-                worse(self.limit, own)
+                (worse(self.undone(), own), None)
             }
         };
         Self {
             limit,
             signs,
             zero_kink: false,
+            // `u^a` is 0 exactly where `u` is: where `u` is not smooth and where the power is
+            // not (u = 0).
+            vanishing: limit.is_none() || self.covers_by_reciprocal(),
+            pole_free: self.pole_free,
+            varies: self.varies,
+            absorbed,
         }
     }
 
@@ -462,12 +608,17 @@ impl Info {
     /// positive; where the base may reach 0 we assume the worst a power of a smooth base can
     /// do there for exponents near the small positive ones (a kink, as `sqrt` of `q^2`).
     pub fn power_var(self, exp: Self, span: Span) -> Self {
-        let parts = worse(self.limit, exp.limit);
+        let parts = worse(self.undone(), exp.undone());
+        let varies = self.varies || exp.varies;
         if self.signs.positive() {
             return Self {
                 limit: parts,
                 signs: Signs::POS,
                 zero_kink: false,
+                vanishing: parts.is_none(),
+                pole_free: false,
+                varies,
+                absorbed: None,
             };
         }
         let own = LimitAt {
@@ -483,6 +634,10 @@ impl Info {
                 Signs::NONNEG
             },
             zero_kink: false,
+            vanishing: false,
+            pole_free: false,
+            varies,
+            absorbed: None,
         }
     }
 
@@ -494,9 +649,13 @@ impl Info {
             kind: LimitKind::Table(table),
         };
         Self {
-            limit: worse(Some(own), self.limit),
+            limit: worse(Some(own), self.undone()),
             signs: Signs::ALL,
             zero_kink: false,
+            vanishing: false,
+            pole_free: self.pole_free,
+            varies: self.varies,
+            absorbed: None,
         }
     }
 }

@@ -124,10 +124,15 @@ impl<'a> Lowerer<'a> {
                     arg: ARG_SITE_PARAM,
                     index: p as u32,
                 };
+                // A per-site parameter: constant along every orbit.
                 let info = Info {
                     limit: None,
                     signs,
                     zero_kink: false,
+                    vanishing: true,
+                    pole_free: true,
+                    varies: false,
+                    absorbed: None,
                 };
                 Ok((self.emit(node, e.span)?, info))
             }

@@ -538,7 +538,7 @@ fn section_through_a_surface_refuses_what_it_cannot_draw() {
     let rossler = write(d, "rossler.toml", &example("rossler.toml"));
     let map = write(d, "henon-map.toml", &example("henon-map.toml"));
     let csv = d.join("out.csv");
-    let cases: [(&Path, &[&str], &str); 6] = [
+    let cases: [(&Path, &[&str], &str); 8] = [
         (
             &map,
             &["--surface", "x1"],
@@ -565,6 +565,17 @@ fn section_through_a_surface_refuses_what_it_cannot_draw() {
             &rossler,
             &["--surface", "x1", "--axes", "x1,y"],
             "--axes: 'y' is not a coordinate",
+        ),
+        (
+            &rossler,
+            &["--surface", "x1", "--axes", "x1 - x2 +, x3"],
+            "--axes: 'x1 - x2 +' is not a coordinate or an expression of the state (x1..x3): \
+             line 1, column 10",
+        ),
+        (
+            &rossler,
+            &["--surface", "x1", "--axes", "x1, x2, x3"],
+            "--axes 'x1, x2, x3': give two expressions",
         ),
     ];
     for (config, extra, needle) in cases {
@@ -628,6 +639,99 @@ fn section_through_a_surface_refuses_what_it_cannot_draw() {
     let rows = read_crossings(&csv, "x1,x2,x3");
     assert_eq!(rows.len(), 1);
     assert!((rows[0].0 - PI / 2.0).abs() < 1e-12, "{rows:?}");
+}
+
+#[test]
+fn sections_of_periodic_angles_span_one_period() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    // The pendulum H = p^2/2 - cos(q) rotating from q = 0, p = 2.5 (energy 2.125, above the
+    // separatrix at 1), sampled every time unit for 300: unwrapped its angle reaches ~700.
+    let pendulum = |modulo: &str| {
+        format!(
+            "[model]\nname = \"hamiltonian\"\nn = 1\nhamiltonian = \"p1^2/2 - cos(q1)\"\n\
+             {modulo}[orbit]\nx = [0.0, 2.5]\n[integrator]\nmethod = \"dop853\"\nh = 0.05\n\
+             t_final = 300.0\n[deviations]\nk = 1\nsets = 1\nseed = 1\n[[scheme]]\n\
+             name = \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 1.0\n"
+        )
+    };
+    let mut samples = Vec::new();
+    for (name, modulo) in [
+        ("raw", ""),
+        ("wrapped", "modulo = [6.283185307179586, 0]\n"),
+    ] {
+        let config = d.join(format!("{name}.toml"));
+        std::fs::write(&config, pendulum(modulo)).unwrap();
+        let csv = d.join(format!("{name}.csv"));
+        let plot = d.join(name);
+        run_ok(&[
+            "section",
+            s(&config),
+            "--sample-every",
+            "1",
+            "--crossings",
+            "1000",
+            "--csv",
+            s(&csv),
+            "--plot",
+            s(&plot),
+        ]);
+        assert!(plot.join("section.svg").exists());
+        samples.push(read_crossings(&csv, "q1,p1"));
+    }
+    let (raw, wrapped) = (&samples[0], &samples[1]);
+    assert_eq!((raw.len(), wrapped.len()), (300, 300));
+    // Unwrapped the angle spans some hundred periods (the mean angular speed is above
+    // sqrt(2 (2.125 - 1)) = 1.5).
+    assert!(raw.last().unwrap().1[0] > 100.0 * TAU, "{:?}", raw.last());
+    for ((t, r), (t_w, w)) in raw.iter().zip(wrapped) {
+        // The same orbit (the integration never wraps), its angle taken into [0, 2 pi): the
+        // difference is a whole number of turns to the rounding of a remainder of q <~ 700,
+        // 1e-13; the momentum is the same bits.
+        assert_eq!(t, t_w);
+        assert!((0.0..TAU).contains(&w[0]), "q1 = {}", w[0]);
+        let turns = (r[0] - w[0]) / TAU;
+        assert!((turns - turns.round()).abs() < 1e-12, "{r:?} {w:?}");
+        assert_eq!(r[1], w[1]);
+    }
+    // Over 300 samples of a rotation with an irrational period the wrapped angle covers the
+    // circle: the section spans one period, [0, 2 pi).
+    let (lo, hi) = wrapped
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(lo, hi), (_, w)| (lo.min(w[0]), hi.max(w[0])));
+    assert!(lo < 0.1 && hi > TAU - 0.1, "{lo} {hi}");
+
+    // The driven pendulum of Baker and Gollub (its angle x1 and the drive's phase x3 declared
+    // periodic in the example), cut once per drive period by sin(x3) = 0 upward (x3 = 0 mod 2
+    // pi): its chaotic orbit's angle fills the circle, written within one period.
+    let config = write(d, "pendulum.toml", &example("driven-pendulum.toml"));
+    let csv = d.join("pendulum.csv");
+    run_ok(&[
+        "section",
+        s(&config),
+        "--surface",
+        "sin(x3)",
+        "--crossings",
+        "300",
+        "--axes",
+        "sin(x1), x2",
+        "--csv",
+        s(&csv),
+        "--plot",
+        s(&d.join("pendulum")),
+    ]);
+    let rows = read_crossings(&csv, "x1,x2,x3");
+    assert_eq!(rows.len(), 300);
+    for (_, x) in &rows {
+        assert!((0.0..TAU).contains(&x[0]) && (0.0..TAU).contains(&x[2]), "{x:?}");
+        // On the section: the drive's phase is 0 mod 2 pi, to the rounding of x3 ~ 2 pi k.
+        assert!(x[2].sin().abs() < 1e-9, "{x:?}");
+    }
+    let spread = rows
+        .iter()
+        .fold((f64::MAX, f64::MIN), |(lo, hi), (_, x)| (lo.min(x[0]), hi.max(x[0])));
+    assert!(spread.1 - spread.0 > 5.0, "{spread:?}");
+    assert!(d.join("pendulum/section.svg").exists());
 }
 
 #[test]

@@ -121,8 +121,9 @@ pub struct Analysis {
     schemes: Vec<SchemeState>,
     energy_error_max: f64,
     energy_series: Series<f64>,
-    /// The reference orbit's extent `max |x|` since the first state seen, log-spaced at the
-    /// verdict's resolution (the verdict's `unbounded`).
+    /// The reference orbit's extent `max |x|` since the first state seen (periodic coordinates
+    /// wrapped into their period), log-spaced at the verdict's resolution (the verdict's
+    /// `unbounded`).
     extent: Series<f64>,
     extent_max: f64,
     /// Time of the latest state seen.
@@ -271,7 +272,15 @@ impl Analysis {
         // Energies and divergences that are not finite (never written by a producer, which
         // stops first) are left out rather than carried into every report.
         if !sample.state.is_empty() {
-            let norm = sample.state.iter().map(|v| v * v).sum::<f64>().sqrt();
+            // A periodic coordinate counts with its wrapped value: an angle that keeps turning
+            // is no drift.
+            let norm = self
+                .run
+                .wrapped(&sample.state)
+                .iter()
+                .map(|v| v * v)
+                .sum::<f64>()
+                .sqrt();
             if norm.is_finite() {
                 self.extent_max = self.extent_max.max(norm);
             }

@@ -25,6 +25,10 @@ pub struct RunInfo {
     pub h: f64,
     /// The run's schemes, in header order (a scheme's index is its position).
     pub schemes: Vec<SchemeSpec>,
+    /// The period of each coordinate of the state (`[model] modulo` of the recorded
+    /// configuration, `0`: none), empty when none is declared: the analysis reads the state
+    /// with these coordinates wrapped (the extent, the orbit indicators).
+    pub periods: Vec<f64>,
 }
 
 impl RunInfo {
@@ -126,7 +130,11 @@ impl RunInfo {
                 route: Route::PerSet,
             });
         }
+        let periods = recorded_periods(&header.config_toml);
+        chaoscope_indicators::periodic::check_periods(&periods, header.dim as usize)
+            .map_err(|problem| err(format!("model.modulo {problem}")))?;
         Ok(Self {
+            periods,
             kind,
             dim: header.dim as usize,
             k: header.k as usize,
@@ -135,6 +143,11 @@ impl RunInfo {
             schemes,
             header,
         })
+    }
+
+    /// `state` with its periodic coordinates wrapped into one period (a copy).
+    pub fn wrapped(&self, state: &[f64]) -> Vec<f64> {
+        chaoscope_indicators::periodic::wrap_state(&self.periods, state)
     }
 
     /// Time of step `step`, computed as the producer does (`step * h`, never accumulated).
@@ -152,11 +165,28 @@ impl RunInfo {
             self.h,
             self.schemes.iter().map(|s| s.tau_steps).collect(),
         )
-        .map(|layout| layout.with_sites(self.kind.lattice_sites(self.dim)))
+        .map(|layout| {
+            layout
+                .with_sites(self.kind.lattice_sites(self.dim))
+                .with_periods(self.periods.clone())
+        })
         .expect("a validated header has a valid layout")
     }
 
     pub fn scheme_index(&self, name: &str) -> Option<usize> {
         self.schemes.iter().position(|s| s.name == name)
     }
+}
+
+/// The periods `[model] modulo` of a recorded configuration; none when the header carries no
+/// configuration the reader understands (a header built in code, a recording of a model
+/// written in Rust): its states are read as they are.
+fn recorded_periods(config_toml: &str) -> Vec<f64> {
+    if config_toml.is_empty() {
+        return Vec::new();
+    }
+    chaoscope_schemas::config::RunConfig::from_toml(config_toml)
+        .ok()
+        .and_then(|c| c.model.modulo().map(<[f64]>::to_vec))
+        .unwrap_or_default()
 }

@@ -411,7 +411,8 @@ fn confidence(x: f64) -> f64 {
 #[derive(Debug, Clone, Copy, Default)]
 pub struct Orbit<'a> {
     /// The orbit's extent `R(t) = max_{t' <= t} |x(t')|` (Euclidean norm of the reference
-    /// state), at log-spaced times in time order (empty when no state was seen).
+    /// state, its periodic coordinates wrapped into their period), at log-spaced times in time
+    /// order (empty when no state was seen).
     pub extent: &'a [(f64, f64)],
     /// The run's end-of-run reason and the time of its last sample, when the run failed.
     pub failure: Option<(&'a str, f64)>,

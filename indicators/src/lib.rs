@@ -17,6 +17,8 @@
 //!   its mean), [`dvd`] (the deviation vector distribution over a lattice's sites: its second
 //!   moment and participation number), [`energy`] (the energy distribution over the sites,
 //!   the same two numbers; both from [`distribution`]), [`zero_one`] (the 0-1 test for chaos).
+//! - [`periodic`]: periodic coordinates (angles): their wrap into one period, which the
+//!   orbit indicators and every reader of states see.
 //! - [`tracker`]: the streaming state of a run (per scheme and set: stretching sums and latest
 //!   vectors) and a scheme's indicators averaged over its sets at its latest renormalization.
 
@@ -28,6 +30,7 @@ pub mod energy;
 pub mod fli;
 pub mod indicator;
 pub mod megno;
+pub mod periodic;
 pub mod stats;
 pub mod stretch;
 pub mod tracker;

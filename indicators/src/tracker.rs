@@ -35,6 +35,10 @@ pub struct Layout {
     /// The sites `N` of a Hamiltonian (`dim = 2N`), for the indicators over a lattice
     /// ([`Layout::with_sites`]); `None` for flows and maps.
     pub sites: Option<usize>,
+    /// The period of each coordinate of the state (`0`: none; empty: no periodic coordinate),
+    /// [`Layout::with_periods`]: the orbit indicators observe the state with its periodic
+    /// coordinates wrapped ([`crate::periodic`]).
+    pub periods: Vec<f64>,
 }
 
 impl Layout {
@@ -55,6 +59,7 @@ impl Layout {
             h,
             tau_steps,
             sites: None,
+            periods: Vec::new(),
         })
     }
 
@@ -62,6 +67,12 @@ impl Layout {
     /// `p_l`), or none.
     pub fn with_sites(self, sites: Option<usize>) -> Self {
         Self { sites, ..self }
+    }
+
+    /// The layout with the periods of the state's coordinates (one per coordinate, `0` for
+    /// none, as [`crate::periodic::check_periods`] accepts; empty for none).
+    pub fn with_periods(self, periods: Vec<f64>) -> Self {
+        Self { periods, ..self }
     }
 
     /// Time of step `step`, computed as the producer does (`step * h`, never accumulated).
@@ -233,6 +244,9 @@ struct SchemeState {
 struct Reference {
     step: u64,
     state: Vec<f64>,
+    /// The state with its periodic coordinates wrapped (what the orbit indicators observe);
+    /// `None` when no coordinate is periodic (they observe `state`).
+    wrapped: Option<Vec<f64>>,
     flow: Option<Vec<f64>>,
 }
 
@@ -295,7 +309,8 @@ impl Tracker {
     }
 
     /// The reference state at `step` (before the separation sets of that step are applied):
-    /// the orbit indicators sample it at each scheme's renormalizations, and the set indicators
+    /// the orbit indicators sample it (its periodic coordinates wrapped) at each scheme's
+    /// renormalizations, and the set indicators
     /// read the flow direction there. A state that does not fit the layout or is not finite is
     /// ignored (those renormalizations then see no state).
     pub fn observe_reference(&mut self, step: u64, state: &[f64]) {
@@ -307,9 +322,12 @@ impl Tracker {
             let mut out = vec![0.0; state.len()];
             ((field.0)(step, state, &mut out) && out.iter().all(|v| v.is_finite())).then_some(out)
         });
+        let periods = &self.layout.periods;
         self.reference = Some(Reference {
             step,
             state: state.to_vec(),
+            wrapped: crate::periodic::any_periodic(periods)
+                .then(|| crate::periodic::wrap_state(periods, state)),
             flow,
         });
     }
@@ -464,8 +482,11 @@ impl Tracker {
         if state.step.is_none_or(|s| s < step)
             && let Some(r) = reference
         {
+            // An angle is observed on its circle: a rotating orbit's unwrapped angle grows
+            // without end, which the 0-1 test would read as diffusion.
+            let observed = r.wrapped.as_deref().unwrap_or(&r.state);
             for indicator in &mut state.orbit {
-                indicator.observe(t, &r.state);
+                indicator.observe(t, observed);
             }
         }
         state.step = Some(state.step.map_or(step, |x| x.max(step)));

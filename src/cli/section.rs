@@ -11,6 +11,10 @@
 //! - `chaoscope section CONFIG --sample-every T [--vary ...]`: the stroboscopic section of a
 //!   periodically forced system, its state every `T` (the forcing's period, e.g. `2*pi/omega`)
 //!   (`chaoscope_producer::section::stroboscopic`).
+//!
+//! The points written and drawn are the states with their periodic coordinates (`[model]
+//! modulo`) wrapped into one period, and a plot axis that is a periodic coordinate spans it;
+//! `--axes` and `--return-map` are expressions of that wrapped state.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -22,7 +26,8 @@ use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::section::crossings;
 use chaoscope_producer::section::stroboscopic::{Stroboscopic, stroboscopic_samples};
 use chaoscope_producer::section::surface::{
-    Direction, OrbitEnd, Surface, SurfaceOrbit, coordinate_names, surface_crossings,
+    Direction, OrbitEnd, ScalarFunction, Surface, SurfaceOrbit, coordinate_names,
+    state_expression, surface_crossings,
 };
 use chaoscope_producer::spec::{RunSpec, parse_coordinate};
 use chaoscope_schemas::config::{ConfigSource, RunConfig};
@@ -70,15 +75,18 @@ pub struct Args {
     /// Crossings (or stroboscopic samples) kept per orbit.
     #[arg(long, default_value_t = 400)]
     pub crossings: usize,
-    /// With --surface or --sample-every: the two coordinates plotted, e.g. `x2,x3` (default:
-    /// for a Hamiltonian q_j, p_j of the first degree of freedom the surface does not fix;
-    /// otherwise the first two coordinates the surface does not fix, a surface fixing a
-    /// coordinate when it reads that one alone; with --sample-every, q1, p1 or x1, x2).
-    #[arg(long)]
+    /// With --surface or --sample-every: the two quantities plotted, expressions of the state
+    /// separated by a comma, e.g. `x2,x3`, "q1 - q2, p1 + p2" or "sin(x1), x2" (default: for a
+    /// Hamiltonian q_j, p_j of the first degree of freedom the surface does not fix; otherwise
+    /// the first two coordinates the surface does not fix, a surface fixing a coordinate when
+    /// it reads that one alone; with --sample-every, q1, p1 or x1, x2). They read the state
+    /// with its periodic coordinates (`[model] modulo`) wrapped.
+    #[arg(long, allow_hyphen_values = true)]
     pub axes: Option<String>,
     /// With --surface or --sample-every, and --plot: also draw the first-return map of this
-    /// coordinate (its value at crossing n + 1 against crossing n) as return-map.png / .svg.
-    #[arg(long, requires = "plot")]
+    /// coordinate or expression of the state (its value at crossing n + 1 against crossing n)
+    /// as return-map.png / .svg.
+    #[arg(long, requires = "plot", allow_hyphen_values = true)]
     pub return_map: Option<String>,
     /// Draw section.png / section.svg into DIR.
     #[arg(long)]
@@ -199,7 +207,11 @@ fn energy_section(
         let Ok(spec) = RunSpec::from_config(&config) else {
             continue;
         };
-        let pts = crossings(&spec, spec.x0(), plane, steps, args.crossings);
+        // Written and drawn with the angles wrapped into their period.
+        let pts: Vec<Vec<f64>> = crossings(&spec, spec.x0(), plane, steps, args.crossings)
+            .iter()
+            .map(|x| chaoscope_producer::indicators::periodic::wrap_state(base.periods(), x))
+            .collect();
         if let Some(f) = csv.as_mut() {
             for p in &pts {
                 let row: Vec<String> = p.iter().map(f64::to_string).collect();
@@ -229,31 +241,117 @@ fn energy_section(
             plane + 1,
             base.e0()
         );
-        let labels = (format!("q{}", vary + 1), format!("p{}", vary + 1));
-        draw(dir, "section", title, labels, lines, &args.config)?;
+        let period = base.periods().get(vary).copied().filter(|&p| p > 0.0);
+        let chart = Chart {
+            title,
+            x_label: format!("q{}", vary + 1),
+            y_label: format!("p{}", vary + 1),
+            lines,
+            x_range: period.map(|p| (0.0, p)),
+            y_range: None,
+        };
+        draw_chart(dir, "section", chart, &args.config)?;
     }
     Ok(ExitCode::SUCCESS)
 }
 
-/// Draw `lines` as dots into `dir/stem.png` and `.svg`.
-fn draw(
-    dir: &Path,
-    stem: &str,
-    title: String,
-    (x_label, y_label): (String, String),
-    lines: Vec<Line>,
-    config: &Path,
-) -> anyhow::Result<()> {
+/// Draw `chart` into `dir/stem.png` and `.svg`.
+fn draw_chart(dir: &Path, stem: &str, chart: Chart, config: &Path) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir)?;
-    let chart = Chart {
-        title,
-        x_label,
-        y_label,
-        lines,
-        ..Default::default()
-    };
     render(&chart, &dir.join(stem), &[config.to_path_buf()])?;
     Ok(())
+}
+
+/// One plotted quantity of a section: an expression of the state (its angles wrapped), e.g.
+/// `q1`, `q1 - q2` or `sin(x1)`.
+struct Axis {
+    /// The expression as written (trimmed): the axis label.
+    label: String,
+    function: ScalarFunction,
+    /// The coordinate the expression is, when it is one name alone.
+    coordinate: Option<usize>,
+}
+
+impl Axis {
+    /// `source` compiled over the state of `spec`'s system; an error names `flag` and the
+    /// expression, with a caret under the fault.
+    fn new(
+        spec: &RunSpec,
+        model: &chaoscope_schemas::config::ModelConfig,
+        names: &[String],
+        flag: &str,
+        source: &str,
+    ) -> anyhow::Result<Self> {
+        let label = source.trim().to_string();
+        if label.is_empty() {
+            bail!("{flag}: an empty expression (give an expression of the state, e.g. {})", names[0]);
+        }
+        let function = state_expression(spec, model, flag, &label).map_err(|e| {
+            // `--axes: line 1, column 5: ...` and the expression with a caret under the fault.
+            let detail = e.strip_prefix(&format!("{flag}: ")).unwrap_or(&e).to_string();
+            anyhow::anyhow!(
+                "{flag}: '{label}' is not a coordinate or an expression of the state ({}..{}): \
+                 {detail}",
+                names[0],
+                names[names.len() - 1]
+            )
+        })?;
+        if function.reads().is_empty() {
+            bail!(
+                "{flag} '{label}' reads no coordinate of the state ({}..{})",
+                names[0],
+                names[names.len() - 1]
+            );
+        }
+        Ok(Self {
+            coordinate: names.iter().position(|n| *n == label),
+            label,
+            function,
+        })
+    }
+
+    /// The value at a (wrapped) state.
+    fn value(&self, x: &[f64]) -> f64 {
+        self.function.value(x)
+    }
+
+    /// The axis range: one whole period `[0, P)` for a periodic coordinate, else from the
+    /// data.
+    fn range(&self, periods: &[f64]) -> Option<(f64, f64)> {
+        let p = periods.get(self.coordinate?).copied()?;
+        (p > 0.0).then_some((0.0, p))
+    }
+}
+
+/// The points whose both values are finite (an axis expression like `log(x1)` may not be
+/// everywhere), counting those left out.
+fn finite_points(points: Vec<(f64, f64)>, dropped: &mut usize) -> Vec<(f64, f64)> {
+    let before = points.len();
+    let kept: Vec<(f64, f64)> = points
+        .into_iter()
+        .filter(|(a, b)| a.is_finite() && b.is_finite())
+        .collect();
+    *dropped += before - kept.len();
+    kept
+}
+
+/// `text` split at its commas outside parentheses (`atan2(q1, p1), p2` is two expressions).
+fn split_top_level(text: &str) -> Vec<&str> {
+    let mut parts = Vec::new();
+    let (mut depth, mut start) = (0i64, 0);
+    for (i, c) in text.char_indices() {
+        match c {
+            '(' | '[' => depth += 1,
+            ')' | ']' => depth -= 1,
+            ',' if depth == 0 => {
+                parts.push(&text[start..i]);
+                start = i + 1;
+            }
+            _ => {}
+        }
+    }
+    parts.push(&text[start..]);
+    parts
 }
 
 /// Where orbit `i` starts: the config's initial state with the `--vary` coordinate set (the
@@ -356,24 +454,39 @@ fn surface_section(
                 format!("{flag}: '{name}' is not a coordinate of the state ({all})")
             })
     };
+    let default_axes = || match &sampling {
+        Sampling::Surface { surface, .. } => surface.default_axes(canonical),
+        Sampling::Every(..) if canonical => (0, dim / 2),
+        Sampling::Every(..) => (0, 1.min(dim - 1)),
+    };
     let (ax, ay) = match &args.axes {
         Some(spec) => {
-            let Some((a, b)) = spec.split_once(',') else {
-                bail!("--axes: give two coordinates separated by a comma, e.g. x2,x3");
+            let parts = split_top_level(spec);
+            let [a, b] = parts.as_slice() else {
+                bail!(
+                    "--axes '{spec}': give two expressions of the state separated by a comma,                      e.g. x2,x3 or \"q1 - q2, p1 + p2\""
+                );
             };
-            (coordinate("--axes", a)?, coordinate("--axes", b)?)
+            (
+                Axis::new(&base, &config.model, &names, "--axes", a)?,
+                Axis::new(&base, &config.model, &names, "--axes", b)?,
+            )
         }
-        None => match &sampling {
-            Sampling::Surface { surface, .. } => surface.default_axes(canonical),
-            Sampling::Every(..) if canonical => (0, dim / 2),
-            Sampling::Every(..) => (0, 1.min(dim - 1)),
-        },
+        None => {
+            let (a, b) = default_axes();
+            (
+                Axis::new(&base, &config.model, &names, "--axes", &names[a])?,
+                Axis::new(&base, &config.model, &names, "--axes", &names[b])?,
+            )
+        }
     };
     let return_map = args
         .return_map
         .as_deref()
-        .map(|c| coordinate("--return-map", c))
+        .map(|c| Axis::new(&base, &config.model, &names, "--return-map", c))
         .transpose()?;
+    let periods = base.periods().to_vec();
+    let mut dropped = 0usize;
     // The orbits: the config's own, or `count` started along `--vary`.
     let (vary, count) = match (&args.vary, args.from, args.to) {
         (Some(name), Some(_), Some(_)) => {
@@ -461,23 +574,35 @@ fn surface_section(
                 );
             }
         }
+        // What is written and drawn is the state with its angles wrapped into their period
+        // (the integration itself never wraps it).
+        let states: Vec<Vec<f64>> = orbit
+            .crossings
+            .iter()
+            .map(|c| chaoscope_producer::indicators::periodic::wrap_state(&periods, &c.x))
+            .collect();
         if let Some(f) = csv.as_mut() {
-            for c in &orbit.crossings {
-                let row: Vec<String> = c.x.iter().map(f64::to_string).collect();
+            for (c, x) in orbit.crossings.iter().zip(&states) {
+                let row: Vec<String> = x.iter().map(f64::to_string).collect();
                 writeln!(f, "{orbits},{},{}", c.t, row.join(","))?;
             }
         }
-        let at = |k: usize| orbit.crossings.iter().map(move |c| c.x[k]);
+        let points: Vec<(f64, f64)> = states
+            .iter()
+            .map(|x| (ax.value(x), ay.value(x)))
+            .collect();
         section.push(Line {
             label: String::new(),
-            points: at(ax).zip(at(ay)).collect(),
+            points: finite_points(points, &mut dropped),
             stroke: Stroke::Dots,
             color: orbits,
         });
-        if let Some(k) = return_map {
+        if let Some(r) = &return_map {
+            let values: Vec<f64> = states.iter().map(|x| r.value(x)).collect();
+            let points = values.iter().copied().zip(values.iter().copied().skip(1));
             returns.push(Line {
                 label: String::new(),
-                points: at(k).zip(at(k).skip(1)).collect(),
+                points: finite_points(points.collect(), &mut dropped),
                 stroke: Stroke::Dots,
                 color: orbits,
             });
@@ -511,23 +636,40 @@ fn surface_section(
         out.commit()?;
     }
     chaoscope_os::errln!("chaoscope section: {orbits} orbits, {total} crossings");
+    if dropped > 0 {
+        chaoscope_os::errln!(
+            "chaoscope section: warning: {dropped} points left out of the plots: an axis \
+             expression is not finite there"
+        );
+    }
     if let Some(dir) = &args.plot {
         // The run's name where the config gives one ("rossler"), else the model's ("ode").
         let system = config.run.name.as_deref().unwrap_or(config.model.name());
         let title = format!("{system}: section {}", sampling.describe());
-        let labels = (names[ax].clone(), names[ay].clone());
-        draw(dir, "section", title, labels, section, &args.config)?;
-        if let Some(k) = return_map {
+        let chart = Chart {
+            title,
+            x_label: ax.label.clone(),
+            y_label: ay.label.clone(),
+            lines: section,
+            x_range: ax.range(&periods),
+            y_range: ay.range(&periods),
+        };
+        draw_chart(dir, "section", chart, &args.config)?;
+        if let Some(r) = &return_map {
             let title = format!(
                 "{system}: first-return map of {} on {}",
-                names[k],
+                r.label,
                 sampling.describe()
             );
-            let labels = (
-                format!("{} (crossing n)", names[k]),
-                format!("{} (crossing n + 1)", names[k]),
-            );
-            draw(dir, "return-map", title, labels, returns, &args.config)?;
+            let chart = Chart {
+                title,
+                x_label: format!("{} (crossing n)", r.label),
+                y_label: format!("{} (crossing n + 1)", r.label),
+                lines: returns,
+                x_range: r.range(&periods),
+                y_range: r.range(&periods),
+            };
+            draw_chart(dir, "return-map", chart, &args.config)?;
         }
     }
     if failed > 0 {
@@ -538,4 +680,91 @@ fn surface_section(
         );
     }
     Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::f64::consts::TAU;
+
+    /// Two coupled pendulums, both angles periodic.
+    fn coupled_pendulums() -> (RunSpec, RunConfig) {
+        let config = RunConfig::from_toml(
+            r#"
+[model]
+name = "hamiltonian"
+n = 2
+hamiltonian = "(p1^2 + p2^2)/2 - cos(q1) - cos(q2) + c*cos(q1 - q2)"
+params = { c = 0.1 }
+modulo = [6.283185307179586, 6.283185307179586, 0, 0]
+[orbit]
+x = [0.1, 0.2, 2.5, 0.0]
+[integrator]
+method = "dop853"
+h = 0.05
+t_final = 10.0
+[deviations]
+k = 1
+sets = 1
+seed = 1
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1.0
+"#,
+        )
+        .unwrap();
+        (RunSpec::from_config(&config).unwrap(), config)
+    }
+
+    #[test]
+    fn axes_are_expressions_of_the_wrapped_state() {
+        let (spec, config) = coupled_pendulums();
+        let names = coordinate_names(&spec);
+        let axis = |source: &str| Axis::new(&spec, &config.model, &names, "--axes", source);
+        // A state whose angles left their period: 7 = 2 pi + 0.717, -1 = -2 pi + 5.283.
+        let x = chaoscope_producer::indicators::periodic::wrap_state(
+            spec.periods(),
+            &[7.0, -1.0, 0.3, -0.4],
+        );
+        let (q1, q2) = (7.0 - TAU, -1.0 + TAU);
+        assert_eq!(x, vec![q1, q2, 0.3, -0.4]);
+        // The compiled expressions compute what their operations compute on these values: a
+        // difference and a sum exactly, a sine to its last bit or two (the compiled sine against
+        // the platform's).
+        assert_eq!(axis("q1 - q2").unwrap().value(&x), q1 - q2);
+        assert_eq!(axis(" p1 + p2 ").unwrap().value(&x), 0.3 + -0.4);
+        assert!((axis("sin(q1)").unwrap().value(&x) - q1.sin()).abs() <= 2.0 * f64::EPSILON);
+        assert_eq!(axis("q2").unwrap().value(&x), q2);
+        let coupling = axis("c*cos(q1 - q2)").unwrap().value(&x);
+        assert!((coupling - 0.1 * (q1 - q2).cos()).abs() <= 1e-16);
+        // A periodic coordinate's axis spans its period; anything else spans its data.
+        assert_eq!(axis("q1").unwrap().range(spec.periods()), Some((0.0, TAU)));
+        assert_eq!(axis("p1").unwrap().range(spec.periods()), None);
+        assert_eq!(axis("q1 - q2").unwrap().range(spec.periods()), None);
+        // A fault is named with the expression and a caret under it.
+        let err = axis("q1 - qq2").err().unwrap().to_string();
+        assert!(
+            err.starts_with(
+                "--axes: 'q1 - qq2' is not a coordinate or an expression of the state \
+                 (q1..p2): line 1, column 6"
+            ),
+            "{err}"
+        );
+        assert!(err.ends_with("\n  q1 - qq2\n       ^^^"), "{err}");
+        assert!(axis("2 * c").err().unwrap().to_string().contains("reads no coordinate"));
+        assert!(axis("  ").is_err());
+    }
+
+    #[test]
+    fn axes_split_at_commas_outside_parentheses() {
+        assert_eq!(split_top_level("x2,x3"), vec!["x2", "x3"]);
+        assert_eq!(
+            split_top_level("atan2(q1, p1), max(p2, 0)"),
+            vec!["atan2(q1, p1)", " max(p2, 0)"]
+        );
+        assert_eq!(split_top_level("x1"), vec!["x1"]);
+        assert_eq!(split_top_level("x1,x2,x3").len(), 3);
+    }
 }

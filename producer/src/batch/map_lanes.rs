@@ -1,7 +1,8 @@
 //! The batched form of a discrete map `x -> F(x)` (`crate::system::Map`): many orbits (or
 //! tangent vectors) iterated at once through the compiled lane functions of `F`, coordinates
-//! with a period wrapped; and [`wrap_coordinate`], the one definition of that wrap, which the
-//! map's one-orbit step uses too.
+//! with a period wrapped by [`wrap_coordinate`] (`chaoscope_indicators::periodic`, the one
+//! definition of that wrap, which the map's one-orbit step, the analysis and the sections use
+//! too).
 //!
 //! Lane by lane these are the bits of the map's `step` / `step_tangent`: the compiled lane
 //! function of `F` (or of `J v` around one shared reference state) gives, per lane, exactly
@@ -86,23 +87,6 @@ fn wrap_rows(modulo: &[f64], data: &mut [f64], lanes: usize) {
     }
 }
 
-/// Every coordinate with a period `modulo[i] > 0` of `x` into `[0, P)`.
-#[inline]
-pub fn wrap(modulo: &[f64], x: &mut [f64]) {
-    for (xi, &p) in x.iter_mut().zip(modulo) {
-        if p > 0.0 {
-            *xi = wrap_coordinate(*xi, p);
-        }
-    }
-}
-
-/// `x` into `[0, p)`: the remainder, shifted up by `p` when negative. A tiny negative `x` gives
-/// `r + p == p` in floating point; that is `0` on the circle.
-#[inline]
-pub fn wrap_coordinate(x: f64, p: f64) -> f64 {
-    let mut r = x % p;
-    if r < 0.0 {
-        r += p;
-    }
-    if r >= p { r - p } else { r }
-}
+/// Every coordinate with a period `modulo[i] > 0` of `x` into `[0, P)`, and the wrap of one
+/// coordinate: defined once, with the periodic coordinates of every system kind.
+pub use chaoscope_indicators::periodic::{wrap, wrap_coordinate};

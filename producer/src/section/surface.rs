@@ -21,7 +21,9 @@
 //! its iterates cost a few short integrations per crossing, a small part of a section's cost.
 
 use chaoscope_expr::lower::Boundary;
-use chaoscope_expr::{ScalarDefinition, ScalarFunction};
+use chaoscope_expr::ScalarDefinition;
+/// What a section's surface and axes compile to.
+pub use chaoscope_expr::ScalarFunction;
 use chaoscope_schemas::config::ModelConfig;
 use chaoscope_schemas::run::SystemKind;
 
@@ -103,6 +105,39 @@ pub fn scalar_over_state(
     key: &str,
     source: &str,
 ) -> Result<ScalarFunction, SpecError> {
+    ScalarFunction::new(scalar_definition(spec, model, key, source)?).map_err(|e| {
+        let line = e.one_line();
+        // The error already starts with the key.
+        let message = line
+            .strip_prefix(&format!("{key}: ") as &str)
+            .unwrap_or(&line)
+            .to_string();
+        SpecError::new(key, message)
+    })
+}
+
+/// [`scalar_over_state`] for an expression a user reads back in a message (a section's
+/// `--axes`): an error in the expression is its first line `key: line L, column C: problem`
+/// followed by the expression and a caret under the fault.
+pub fn state_expression(
+    spec: &RunSpec,
+    model: &ModelConfig,
+    key: &str,
+    source: &str,
+) -> Result<ScalarFunction, String> {
+    let definition =
+        scalar_definition(spec, model, key, source).map_err(|e| format!("{}: {}", e.key, e.message))?;
+    ScalarFunction::new(definition).map_err(|e| e.to_string())
+}
+
+/// What defines a scalar function of the state of `spec`'s system: its coordinate families,
+/// the config's `params` (checked against the system's size) and `boundary`.
+fn scalar_definition(
+    spec: &RunSpec,
+    model: &ModelConfig,
+    key: &str,
+    source: &str,
+) -> Result<ScalarDefinition, SpecError> {
     let system = spec.system();
     let dim = spec.dim();
     let canonical = system.kind() == SystemKind::Hamiltonian;
@@ -128,7 +163,7 @@ pub fn scalar_over_state(
     }
     let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
         .map_err(|e| SpecError::new("model.boundary", e))?;
-    let function = ScalarFunction::new(ScalarDefinition {
+    Ok(ScalarDefinition {
         key: key.to_string(),
         source: source.to_string(),
         families,
@@ -136,16 +171,6 @@ pub fn scalar_over_state(
         params: values,
         boundary,
     })
-    .map_err(|e| {
-        let line = e.one_line();
-        // The error already starts with the key.
-        let message = line
-            .strip_prefix(&format!("{key}: ") as &str)
-            .unwrap_or(&line)
-            .to_string();
-        SpecError::new(key, message)
-    })?;
-    Ok(function)
 }
 
 impl Surface {

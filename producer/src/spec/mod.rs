@@ -189,6 +189,10 @@ pub struct RunSpec {
     /// `[run] sample_every` in steps: a sample at its multiples (and at the end) only; `None`:
     /// at every renormalization.
     sample_every_steps: Option<u64>,
+    /// `[model] modulo`: the period of each coordinate (`0`: none), empty when none is
+    /// declared. A map's iteration wraps them; a flow's integration never does (what is read
+    /// and shown of its state is wrapped).
+    periods: Vec<f64>,
 }
 
 /// Most values the stretching factors of the renormalizations between two samples of one set
@@ -430,6 +434,9 @@ impl RunSpec {
         let t_final = finite_positive("integrator.t_final", cfg.integrator.t_final)?;
         let total_steps = whole_steps("integrator.t_final", t_final, h)?;
         let e0 = system.invariant(&x0).unwrap_or(0.0);
+        let periods = cfg.model.modulo().map(<[f64]>::to_vec).unwrap_or_default();
+        chaoscope_indicators::periodic::check_periods(&periods, dim)
+            .map_err(|e| SpecError::new("model.modulo", e))?;
 
         let dev = &cfg.deviations;
         if dev.k == 0 || dev.k > dim {
@@ -637,6 +644,7 @@ impl RunSpec {
             seed: dev.seed,
             tables,
             sample_every_steps,
+            periods,
         })
     }
 
@@ -655,6 +663,12 @@ impl RunSpec {
     }
 
     /// Time step (1 for maps: a step is an iteration).
+    /// The period of each coordinate of the state (`[model] modulo`, `0`: none); empty when
+    /// the model declares none.
+    pub fn periods(&self) -> &[f64] {
+        &self.periods
+    }
+
     pub fn h(&self) -> f64 {
         self.h
     }

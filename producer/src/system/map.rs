@@ -41,19 +41,7 @@ impl Map {
         } else {
             modulo
         };
-        if modulo.len() != d {
-            return Err(format!(
-                "has {} entries but the map has dimension {d}",
-                modulo.len()
-            ));
-        }
-        if let Some(i) = modulo.iter().position(|p| !(p.is_finite() && *p >= 0.0)) {
-            return Err(format!(
-                "entry {} must be a period > 0 or 0 for none, got {}",
-                i + 1,
-                modulo[i]
-            ));
-        }
+        chaoscope_indicators::periodic::check_periods(&modulo, d)?;
         let wraps = modulo.iter().any(|&p| p > 0.0);
         Ok(Self {
             function,

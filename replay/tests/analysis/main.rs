@@ -2,6 +2,7 @@
 //! binary: these modules share their link).
 
 mod analysis_core;
+mod angles;
 mod clv;
 mod flows;
 mod general_hamiltonian;

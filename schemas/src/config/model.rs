@@ -90,6 +90,13 @@ pub struct PotentialConfig {
     /// Tabulated functions the expression may call by name, e.g. `U = "bond.csv"`.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub tables: BTreeMap<String, TableConfig>,
+    /// Per coordinate of the state `q1..qN, p1..pN` (2N entries), the period it is taken
+    /// modulo (e.g. `6.283185307179586` for an angle), or 0 for a coordinate that is not
+    /// periodic: as a map's `modulo`. The integration never wraps the state (the exponents are
+    /// those of the unwrapped flow); what is read and shown of it (the verdict's extent, the 0-1
+    /// test, sections) takes the wrapped value.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub modulo: Option<Vec<f64>>,
 }
 
 /// `name = "hamiltonian"`: any `H(q, p)`, separable or not.
@@ -109,6 +116,13 @@ pub struct HamiltonianConfig {
     /// `H(q, p)` over `q1..qN`, `p1..pN` (and `q[i]`, `p[i]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub hamiltonian: Option<String>,
+    /// Per coordinate of the state `q1..qN, p1..pN` (2N entries), the period it is taken
+    /// modulo (e.g. `6.283185307179586` for an angle), or 0 for a coordinate that is not
+    /// periodic: as a map's `modulo`. The integration never wraps the state (the exponents are
+    /// those of the unwrapped flow); what is read and shown of it (the verdict's extent, the 0-1
+    /// test, sections) takes the wrapped value.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub modulo: Option<Vec<f64>>,
 }
 
 /// `name = "ode"`: `dx/dt = f(x)`.
@@ -125,6 +139,13 @@ pub struct OdeConfig {
     /// (or `x[i]`) and `params`; `D` is the number of entries.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rhs: Option<Vec<String>>,
+    /// Per coordinate of the state `x1..xD` (D entries), the period it is taken
+    /// modulo (e.g. `6.283185307179586` for an angle), or 0 for a coordinate that is not
+    /// periodic: as a map's `modulo`. The integration never wraps the state (the exponents are
+    /// those of the unwrapped flow); what is read and shown of it (the verdict's extent, the 0-1
+    /// test, sections) takes the wrapped value.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub modulo: Option<Vec<f64>>,
 }
 
 /// `name = "map"`: `x -> F(x)`.
@@ -318,6 +339,19 @@ impl ModelConfig {
             Self::Ode(_) => "ode",
             Self::Map(_) => "map",
             Self::Custom(c) => &c.name,
+        }
+    }
+
+    /// The period of each coordinate of the state (`modulo`: `0` for a coordinate that is not
+    /// periodic), where the model declares any: maps, flows and the Hamiltonians written as
+    /// expressions.
+    pub fn modulo(&self) -> Option<&[f64]> {
+        match self {
+            Self::Potential(m) => m.modulo.as_deref(),
+            Self::Hamiltonian(m) => m.modulo.as_deref(),
+            Self::Ode(m) => m.modulo.as_deref(),
+            Self::Map(m) => m.modulo.as_deref(),
+            _ => None,
         }
     }
 

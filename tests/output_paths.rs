@@ -1045,7 +1045,11 @@ fn fifty_rounds_of_attacks_on_a_live_output_lose_nothing_silently() {
             // Each round one of the four aims, in turn with the commands: 50 rounds cover each
             // command at each aim at least once.
             let variant = (round / commands) % 4;
-            let target = if variant % 2 == 0 { &out } else { &partial };
+            let target = if variant.is_multiple_of(2) {
+                &out
+            } else {
+                &partial
+            };
             attacks.push(ammo.writers(target, variant >= 2).swap_remove(command));
         }
         for args in &attacks {

@@ -261,7 +261,16 @@ pub fn map(
             Ok(points)
         },
     )?;
-    let mut points = computed.map_err(crate::message)?;
+    // A failed write keeps what it wrote (`chaoscope map` resumes it): the error names it.
+    let mut points = computed.map_err(|e| {
+        let partial = chaoscope_os::output::partial_path(&out);
+        let shown = partial.display().to_string();
+        if chaoscope_os::output::kept_after_failure().contains(&partial) && !e.contains(&shown) {
+            crate::message(format!("{e}; what was written is kept in {shown}"))
+        } else {
+            crate::message(e)
+        }
+    })?;
     points.sort_by_key(|p| p.index);
     Map::new(py, out, &header, &points)
 }

@@ -820,6 +820,28 @@ fn a_compiler_that_hangs_crashes_or_lies_costs_its_deadline_and_one_line() {
         assert!(points == reference, "{name}: the fallback changed the map");
         assert_eq!(processes_mentioning(&cache), Vec::<String>::new());
     }
+    // A deadline that is not a positive number of seconds is said in that line too (the C
+    // kernels off, the map the same).
+    let cache = dir.path().join("cache-bad-timeout");
+    let (points, json, stderr) = map_within(
+        &config,
+        &out,
+        &[
+            ("CHAOSCOPE_KERNEL_CACHE", s(&cache)),
+            ("CHAOSCOPE_CC_TIMEOUT", "-1"),
+            ("CHAOSCOPE_C_KERNELS_AFTER_CALLS", "3"),
+        ],
+        Duration::from_secs(120),
+    );
+    let said = c_lines(&stderr);
+    assert_eq!(said.len(), 1, "said once: {stderr}");
+    assert!(
+        said[0].contains("CHAOSCOPE_CC_TIMEOUT='-1' is not a positive number of seconds"),
+        "{}",
+        said[0]
+    );
+    assert_eq!(json["expression_kernels"]["c_build"], "failed");
+    assert!(points == reference, "a refused deadline changed the map");
     // Every hung compiler's process ended with its build.
     let hung: Vec<String> = std::fs::read_to_string(&pids)
         .unwrap()

@@ -824,9 +824,10 @@ fn read_regular(path: &Path) -> Result<Vec<u8>, String> {
 }
 
 /// Longest a compiler process may run when `CHAOSCOPE_CC_TIMEOUT` does not say: far beyond a
-/// normal build (0.15-0.5 s for the kernels of a chain on an AMD EPYC Zen 5, tens of seconds
-/// for the unrolled derivatives of a thousand-site chain whose terms do not fold into one loop,
-/// more on a loaded machine), so only a compiler that hangs (a stalled licence server or
+/// normal build (0.15-0.5 s for the kernels of a chain on an AMD EPYC Zen 5; 2.7-3.4 s from
+/// the first call to the kernels loaded, target query included, for a 16-site chain's on 2 of
+/// its vCPUs at a load average of 14; tens of seconds for the unrolled derivatives of a
+/// thousand-site chain whose terms do not fold into one loop), so only a compiler that hangs (a stalled licence server or
 /// network mount) meets it. Meanwhile the command runs on the Cranelift kernels (a build runs
 /// in the background; a lookup that only loads runs no compiler at all).
 pub const DEFAULT_CC_TIMEOUT: Duration = Duration::from_secs(300);

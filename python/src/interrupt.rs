@@ -88,8 +88,16 @@ pub fn abandonable<T: Send + 'static>(
     std::thread::spawn(move || {
         let _ = done.send(std::panic::catch_unwind(std::panic::AssertUnwindSafe(work)));
     });
+    // Held by this thread alone; the lock only lets the wait move to where the GIL is released.
+    let result = Mutex::new(result);
     loop {
-        match py.detach(|| result.recv_timeout(CHECK_INTERVAL)) {
+        let received = py.detach(|| {
+            result
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .recv_timeout(CHECK_INTERVAL)
+        });
+        match received {
             Ok(Ok(value)) => return Ok(value),
             Ok(Err(panic)) => std::panic::resume_unwind(panic),
             Err(RecvTimeoutError::Timeout) => py.check_signals()?,

@@ -715,3 +715,145 @@ fn charts_with_extreme_ranges_end() {
     // The fixed ranges that cannot be drawn are refused, the data ranges drawn.
     assert_eq!((drawn, refused), (3, 3));
 }
+
+fn mkfifo(path: &Path) {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(path.as_os_str().as_bytes()).unwrap();
+    // SAFETY: a NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0, "mkfifo");
+}
+
+/// `chaoscope args` refused at once: status 1 and one line naming `file` and saying it is
+/// `what` ("a FIFO"), within [`run_bounded`]'s watchdog (a command that waits on the FIFO fails
+/// the test instead of hanging it), leaving nothing at `outputs` (nor a `.partial` of them).
+fn assert_refused_special(args: &[&str], file: &Path, what: &str, outputs: &[&Path]) {
+    let ran = run_bounded(args);
+    let lines: Vec<&str> = ran.stderr.lines().collect();
+    assert_eq!(ran.code, Some(1), "{args:?}: {}", ran.stderr);
+    assert!(
+        lines.len() == 1
+            && lines[0].contains(&file.display().to_string())
+            && lines[0].contains(what),
+        "{args:?}: not one line naming {} as {what}: {}",
+        file.display(),
+        ran.stderr
+    );
+    for out in outputs {
+        let partial = format!("{}.partial", out.display());
+        assert!(
+            !out.exists() && !Path::new(&partial).exists(),
+            "{args:?} left {} or its .partial",
+            out.display()
+        );
+    }
+}
+
+/// Files that are not regular files wherever a command reads one: a FIFO (with no writer: a
+/// blocking open never returns, and used to hang the command deaf to SIGINT and SIGTERM) as a
+/// table named in a recording's embedded config (`replay`, `resume`; `analyze` goes on without
+/// what it would add) or in a
+/// config (`config`, `run`, `produce`, `map`, `section`), as the config itself, as the
+/// recording (`analyze`, `analyze --clv`, `replay`, `resume`, `recover`), as a map shard
+/// (`merge`) and as a chart description (`chart`); a character device and a directory where
+/// a recording or a table belongs. Each is refused at once in one line naming the path and
+/// what it is, with no output left behind.
+#[test]
+fn fifos_devices_and_directories_as_inputs_are_refused_at_once_in_one_line() {
+    use chaoscope_schemas::config::{MapAxis, MapConfig, RunConfig};
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/models");
+    let csv = d.join("fput-bond.csv");
+    std::fs::copy(models.join("fput-bond.csv"), &csv).unwrap();
+    let text = std::fs::read_to_string(models.join("tabulated-bond.toml")).unwrap();
+    let mut config = RunConfig::from_toml(&text).unwrap();
+    config.integrator.t_final = 2.0;
+    config.run.name = Some(common::unique_run("fifo-table"));
+    let cfg = d.join("tabulated.toml");
+    std::fs::write(&cfg, config.to_toml()).unwrap();
+    let rec = d.join("tabulated.mcap");
+    common::run_ok(&["run", &s(&cfg), "--out", &s(&rec)]);
+    config.schemes.retain(|s| s.method == "mpm");
+    config.map = Some(MapConfig {
+        k: Some(2),
+        ..MapConfig::new(
+            MapAxis::new("q2", -0.2, 0.2, 3),
+            MapAxis::new("p2", -0.2, 0.2, 2),
+            "gali",
+        )
+    });
+    let map_cfg = d.join("map.toml");
+    std::fs::write(&map_cfg, config.to_toml()).unwrap();
+
+    // The table the recording and the configs name becomes a FIFO no one writes.
+    std::fs::remove_file(&csv).unwrap();
+    mkfifo(&csv);
+    let out = d.join("out.mcap");
+    let o = s(&out);
+    let (r, c, m) = (s(&rec), s(&cfg), s(&map_cfg));
+    // `analyze` reads the table only for what it adds (flow field, site energies): without it
+    // the analysis of what the recording holds goes on, at once.
+    let ran = run_bounded(&["analyze", &r, "--json"]);
+    assert_eq!(ran.code, Some(0), "analyze: {}", ran.stderr);
+    let table_cases: [Vec<&str>; 7] = [
+        vec!["replay", &r, "--tau", "0.5", "--out", &o],
+        vec!["resume", &r, "--t-final", "4", "--out", &o],
+        vec!["config", &c],
+        vec!["run", &c, "--out", &o],
+        vec!["produce", &c],
+        vec!["map", &m, "--out", &o],
+        vec!["section", &c, "--surface", "q1", "--csv", &o],
+    ];
+    for args in &table_cases {
+        assert_refused_special(args, &csv, "a FIFO", &[&out]);
+    }
+
+    // The file a command is given is a FIFO.
+    let fifo_toml = d.join("config.toml");
+    let fifo_mcap = d.join("recording.mcap");
+    let fifo_json = d.join("chart.json");
+    for f in [&fifo_toml, &fifo_mcap, &fifo_json] {
+        mkfifo(f);
+    }
+    let (ft, fm, fj) = (s(&fifo_toml), s(&fifo_mcap), s(&fifo_json));
+    for args in [
+        vec!["config", &ft],
+        vec!["run", &ft, "--out", &o],
+        vec!["produce", &ft],
+        vec!["map", &ft, "--out", &o],
+        vec!["section", &ft, "--surface", "q1", "--csv", &o],
+    ] {
+        assert_refused_special(&args, &fifo_toml, "a FIFO", &[&out]);
+    }
+    for args in [
+        vec!["analyze", &fm],
+        vec!["analyze", &fm, "--clv"],
+        vec!["replay", &fm, "--tau", "0.5", "--out", &o],
+        vec!["resume", &fm, "--t-final", "4", "--out", &o],
+        vec!["recover", &fm, "--out", &o],
+        vec!["merge", &fm, "--out", &o],
+    ] {
+        assert_refused_special(&args, &fifo_mcap, "a FIFO", &[&out]);
+    }
+    assert_refused_special(
+        &["chart", &fj, "--out", &s(&d.join("chart"))],
+        &fifo_json,
+        "a FIFO",
+        &[&d.join("chart.png"), &d.join("chart.svg")],
+    );
+
+    // A device (which reads forever) and a directory, where a recording or a table belongs.
+    let zero = Path::new("/dev/zero");
+    assert_refused_special(&["analyze", "/dev/zero"], zero, "a character device", &[]);
+    assert_refused_special(&["config", "/dev/zero"], zero, "a character device", &[]);
+    std::fs::remove_file(&csv).unwrap();
+    std::fs::create_dir(&csv).unwrap();
+    assert_refused_special(
+        &["replay", &r, "--tau", "0.5", "--out", &o],
+        &csv,
+        "a directory",
+        &[&out],
+    );
+    assert_refused_special(&["config", &c], &csv, "a directory", &[]);
+}

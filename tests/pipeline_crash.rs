@@ -1694,4 +1694,184 @@ fn a_run_whose_compiler_hangs_finishes_with_the_bits_of_a_run_without_c_kernels(
         "a run whose compiler hung differs from one without C kernels"
     );
     assert!(pids_in(&pids).iter().all(|&p| !alive(p)));
+/// Whether the main thread of `pid` is blocked in read(2) on its standard input (x86-64 and
+/// aarch64 number `read` 0 and 63; the first argument is the descriptor).
+fn reading_stdin(pid: i32) -> bool {
+    let syscall = std::fs::read_to_string(format!("/proc/{pid}/syscall")).unwrap_or_default();
+    let mut fields = syscall.split_whitespace();
+    let read = if cfg!(target_arch = "aarch64") {
+        "63"
+    } else {
+        "0"
+    };
+    fields.next() == Some(read) && fields.next() == Some("0x0")
+}
+
+fn mkfifo(path: &Path) {
+    use std::os::unix::ffi::OsStrExt;
+    let c = std::ffi::CString::new(path.as_os_str().as_bytes()).unwrap();
+    // SAFETY: a NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0, "mkfifo");
+}
+
+/// The signal matrix on FIFO inputs. Standard input a pipe no writer ever closes (`-`, the
+/// documented way to hand a config over standard input): every command that reads its config
+/// there (`config`, `run`, `produce`, `map`, `section`), blocked in that read, ends on SIGINT
+/// and on SIGTERM within the bound with 130 or 143, and leaves no process behind (before:
+/// `produce -` latched the signal and went on waiting in the read, restarted after each one).
+#[test]
+fn sigint_and_sigterm_end_commands_waiting_on_a_standard_input_fifo() {
+    use std::os::unix::process::CommandExt;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out.mcap");
+    let o = out.to_str().unwrap();
+    let cases: [&[&str]; 5] = [
+        &["config", "-"],
+        &["run", "-", "--out", o],
+        &["produce", "-"],
+        &["map", "-", "--out", o],
+        &["section", "-", "--surface", "x1", "--csv", o],
+    ];
+    for args in cases {
+        for signal in [libc::SIGINT, libc::SIGTERM] {
+            let mut c = chaoscope_captured(args);
+            c.stdin(std::process::Stdio::piped())
+                .stdout(std::process::Stdio::null())
+                .stderr(std::process::Stdio::null())
+                .process_group(0);
+            let mut p = Proc::spawn(c);
+            // The pipe's write end, held open: the read never ends by itself.
+            let _writer = p.0.stdin.take().unwrap();
+            let start = Instant::now();
+            while !reading_stdin(p.pid()) {
+                assert!(start.elapsed() < MOMENT_LIMIT, "{args:?} never read stdin");
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            signal_group(&p, signal);
+            let sent = Instant::now();
+            let status = p.wait(SIGNAL_BOUND + LOAD_MARGIN + LIMIT);
+            let took = sent.elapsed();
+            assert!(
+                took <= SIGNAL_BOUND + LOAD_MARGIN,
+                "{args:?} took {took:?} to end on signal {signal}"
+            );
+            assert_eq!(
+                status.code(),
+                Some(chaoscope_os::signals::exit_status(signal) as i32),
+                "{args:?} on signal {signal}"
+            );
+            wait_group_gone(&mut p);
+            assert!(!out.exists(), "{args:?} left {}", out.display());
+        }
+    }
+}
+
+/// Whether the main thread of `pid` is blocked in openat(2) (x86-64 and aarch64 number it 257
+/// and 56): where a command that opens a FIFO without a writer waits.
+fn opening(pid: i32) -> bool {
+    let syscall = std::fs::read_to_string(format!("/proc/{pid}/syscall")).unwrap_or_default();
+    let openat = if cfg!(target_arch = "aarch64") {
+        "56"
+    } else {
+        "257"
+    };
+    syscall.split_whitespace().next() == Some(openat)
+}
+
+/// The signal matrix on FIFO inputs named in files: a recording whose embedded config names its
+/// table at a FIFO (anyone can send such a file) through `analyze`, `replay` and `resume`, the
+/// same with the recording itself a FIFO, and `produce` of a config with a FIFO table. Each
+/// either ends by itself, refused in one line (status 1: the FIFO is never waited on) or done
+/// (`analyze`, 0: the table only adds to its report), or, once seen blocked in an open, is
+/// signalled (SIGINT, SIGTERM) and ends within the bound with 130 or 143; no process and no
+/// output, nor its
+/// `.partial` of it, left behind (before: `replay` and `resume` waited on the FIFO deaf to both
+/// signals, and `resume` left `OUT.partial` when killed).
+#[test]
+fn sigint_and_sigterm_end_commands_given_a_fifo_in_place_of_a_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("examples/models");
+    let csv = d.join("fput-bond.csv");
+    std::fs::copy(models.join("fput-bond.csv"), &csv).unwrap();
+    let text = std::fs::read_to_string(models.join("tabulated-bond.toml")).unwrap();
+    let mut config = RunConfig::from_toml(&text).unwrap();
+    config.integrator.t_final = 2.0;
+    config.run.name = Some(unique_run("fifo-signal"));
+    let cfg = d.join("tabulated.toml");
+    std::fs::write(&cfg, config.to_toml()).unwrap();
+    let rec = d.join("tabulated.mcap");
+    run_ok(&["run", &s(&cfg), "--out", &s(&rec)]);
+    std::fs::remove_file(&csv).unwrap();
+    mkfifo(&csv);
+    let fifo_rec = d.join("fifo.mcap");
+    mkfifo(&fifo_rec);
+    let out = d.join("out.mcap");
+    let (r, f, c, o) = (s(&rec), s(&fifo_rec), s(&cfg), s(&out));
+    let cases: [Vec<&str>; 7] = [
+        vec!["analyze", &r, "--json"],
+        vec!["replay", &r, "--tau", "0.5", "--out", &o],
+        vec!["resume", &r, "--t-final", "4", "--out", &o],
+        vec!["analyze", &f],
+        vec!["replay", &f, "--tau", "0.5", "--out", &o],
+        vec!["resume", &f, "--t-final", "4", "--out", &o],
+        vec!["produce", &c],
+    ];
+    for args in &cases {
+        for signal in [libc::SIGINT, libc::SIGTERM] {
+            let mut p = spawn_group(args);
+            let start = Instant::now();
+            let ended = loop {
+                if let Some(status) = p.0.try_wait().unwrap() {
+                    break Some(status);
+                }
+                // Blocked in an open once it runs chaoscope's program (the loader's opens
+                // are over by then): the wait the FIFO would make.
+                if executing_chaoscope(p.pid()) && opening(p.pid()) {
+                    break None;
+                }
+                assert!(
+                    start.elapsed() < MOMENT_LIMIT,
+                    "{args:?} neither ended nor opened"
+                );
+                std::thread::sleep(Duration::from_millis(1));
+            };
+            match ended {
+                Some(status) => {
+                    let done = status.code() == Some(0) && args[0] == "analyze";
+                    assert!(
+                        status.code() == Some(1) || done,
+                        "{args:?} ended with {status:?}"
+                    );
+                }
+                None => {
+                    signal_group(&p, signal);
+                    let sent = Instant::now();
+                    let status = p.wait(SIGNAL_BOUND + LOAD_MARGIN + LIMIT);
+                    let took = sent.elapsed();
+                    assert!(
+                        took <= SIGNAL_BOUND + LOAD_MARGIN,
+                        "{args:?} took {took:?} to end on signal {signal}"
+                    );
+                    // A signal that came while a regular file was being opened may also find
+                    // the command refusing the FIFO, or done.
+                    let code = status.code();
+                    assert!(
+                        code == Some(chaoscope_os::signals::exit_status(signal) as i32)
+                            || code == Some(1)
+                            || (code == Some(0) && args[0] == "analyze"),
+                        "{args:?} on signal {signal} ended with {status:?}"
+                    );
+                }
+            }
+            wait_group_gone(&mut p);
+            let partial = d.join("out.mcap.partial");
+            assert!(
+                !out.exists() && !partial.exists(),
+                "{args:?} left {} or its .partial",
+                out.display()
+            );
+        }
+    }
 }

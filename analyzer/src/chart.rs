@@ -133,7 +133,7 @@ fn font_available() -> bool {
             .iter()
             .map(String::as_str)
             .chain(FONT_CANDIDATES.iter().copied())
-            .find_map(|p| std::fs::read(p).ok());
+            .find_map(|p| chaoscope_os::read_regular(p.as_ref()).ok());
         let Some(bytes) = bytes else { return false };
         // The registry wants 'static bytes: a font is loaded once per process.
         let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());

@@ -35,7 +35,7 @@ pub(crate) fn font_available() -> bool {
             .map(String::from),
         );
         for path in candidates {
-            if let Ok(bytes) = std::fs::read(&path) {
+            if let Ok(bytes) = chaoscope_os::read_regular(path.as_ref()) {
                 // Fonts are registered for the life of the process.
                 let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
                 if plotters::style::register_font(FONT, FontStyle::Normal, bytes).is_ok() {

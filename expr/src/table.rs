@@ -136,7 +136,7 @@ pub fn read_csv(path: impl AsRef<Path>) -> Result<TableData, TableError> {
         name: name.clone(),
         source: e,
     };
-    let file = std::fs::File::open(path).map_err(|e| match e.kind() {
+    let file = chaoscope_os::open_regular(path).map_err(|e| match e.kind() {
         std::io::ErrorKind::NotFound => TableError::NotFound { name: name.clone() },
         _ => unreadable(e),
     })?;

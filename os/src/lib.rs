@@ -1,6 +1,8 @@
 //! What a chaoscope process asks of the operating system, decided once for every command and
 //! the Python package:
 //!
+//! - [`input`]: the one way a file a user names is opened for reading: a regular file, never a
+//!   FIFO, device, socket or directory, and never a wait to find out.
 //! - [`output`]: the one way a file is written (a locked in-progress file beside the target,
 //!   created exclusively and never through a link, renamed into place only when complete; a
 //!   second writer of the same file refused; inputs never overwritten; nothing unlinked that
@@ -13,8 +15,10 @@
 //!
 //! No numerics, no file format, no bus: every other crate may depend on this one.
 
+pub mod input;
 pub mod output;
 pub mod signals;
 pub mod stdout;
 
+pub use input::{NotRegularFile, open_regular, read_regular};
 pub use output::{Leftover, Output, OutputError, OutputOptions};

@@ -147,6 +147,26 @@ pub fn requested() -> bool {
     received().is_some()
 }
 
+/// Runs `f`, a wait on something no deadline bounds (standard input a user may never close),
+/// with SIGINT/SIGTERM ending the process at once as in [`Mode::Exit`], whatever the mode; the
+/// mode is restored after. Why: a read blocked in the kernel is restarted after our handler
+/// returns, so in [`Mode::Finish`] a latched signal would be seen only once the read ends.
+/// For waits before a command has anything to finalize. Without [`install`] (inside Python)
+/// it only runs `f`.
+pub fn exit_on_signal_while<T>(f: impl FnOnce() -> T) -> T {
+    if !installed() {
+        return f();
+    }
+    let previous = MODE.swap(1, Ordering::SeqCst);
+    // A signal latched before the swap found the old mode.
+    if RECEIVED.load(Ordering::SeqCst) != 0 && CRITICAL.load(Ordering::SeqCst) == 0 {
+        exit_now();
+    }
+    let result = f();
+    MODE.store(previous, Ordering::SeqCst);
+    result
+}
+
 /// The exit status of a command ended by `signal`: 128 + the signal number, as a shell reports
 /// a process killed by it (130 for SIGINT, 143 for SIGTERM).
 pub fn exit_status(signal: i32) -> u8 {

@@ -74,3 +74,36 @@ pub fn interruptible<T: Send>(
         }
     })
 }
+
+/// Runs `work`, which only reads (it has no file of its own to finalize and no way to be asked
+/// to stop), on a thread of its own while the calling thread looks for Ctrl-C as
+/// [`interruptible`] does; on a Python exception from a signal handler the exception is raised
+/// at once and the work is left to end by itself, its result dropped.
+pub fn abandonable<T: Send + 'static>(
+    py: Python<'_>,
+    work: impl FnOnce() -> T + Send + 'static,
+) -> PyResult<T> {
+    use std::sync::mpsc::{RecvTimeoutError, channel};
+    let (done, result) = channel();
+    std::thread::spawn(move || {
+        let _ = done.send(std::panic::catch_unwind(std::panic::AssertUnwindSafe(work)));
+    });
+    // Held by this thread alone; the lock only lets the wait move to where the GIL is released.
+    let result = Mutex::new(result);
+    loop {
+        let received = py.detach(|| {
+            result
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .recv_timeout(CHECK_INTERVAL)
+        });
+        match received {
+            Ok(Ok(value)) => return Ok(value),
+            Ok(Err(panic)) => std::panic::resume_unwind(panic),
+            Err(RecvTimeoutError::Timeout) => py.check_signals()?,
+            Err(RecvTimeoutError::Disconnected) => {
+                unreachable!("the worker sends its result before it ends")
+            }
+        }
+    }
+}

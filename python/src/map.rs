@@ -279,8 +279,9 @@ pub fn map(
 /// damaged file raises `ChaoscopeError` naming where it is damaged.
 #[pyfunction]
 pub fn open_map(py: Python<'_>, path: PathBuf) -> PyResult<Map> {
-    let contents = py
-        .detach(|| read_map_file(&path))
+    // Reading a large map takes a while: Ctrl-C ends the wait at once.
+    let read = path.clone();
+    let contents = crate::interrupt::abandonable(py, move || read_map_file(&read))?
         .map_err(|e| crate::error(&e))?;
     if let Some(why) = &contents.damaged {
         return Err(crate::message(format!(

@@ -41,13 +41,17 @@ pub struct Recording {
 
 impl Recording {
     fn open_path(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
-        let (header, summary) = py
-            .detach(|| -> Result<_, chaoscope_analyzer::recording::ReadError> {
-                let header = RecordingReader::open(&path)?.header().clone();
-                let summary = chaoscope_analyzer::summary::summarize(&path)?;
+        // Reading a long recording to its end takes a while: Ctrl-C ends the wait at once.
+        let read = path.clone();
+        let (header, summary) = crate::interrupt::abandonable(
+            py,
+            move || -> Result<_, chaoscope_analyzer::recording::ReadError> {
+                let header = RecordingReader::open(&read)?.header().clone();
+                let summary = chaoscope_analyzer::summary::summarize(&read)?;
                 Ok((header, summary))
-            })
-            .map_err(|e| crate::error(&e))?;
+            },
+        )?
+        .map_err(|e| crate::error(&e))?;
         Ok(Self {
             path,
             header,

@@ -394,13 +394,13 @@ impl<R: Read> Scanner<R> {
 }
 
 impl Scanner<BufReader<File>> {
-    /// Opens the file at `path` for scanning, buffered, no record longer than the file (if it
-    /// is a regular file; a pipe or device has no length to bound records by). Also returns
-    /// the opened file's metadata.
+    /// Opens the regular file at `path` for scanning, buffered, no record longer than the
+    /// file; a FIFO, device or socket is refused without waiting on it
+    /// ([`chaoscope_os::open_regular`]). Also returns the opened file's metadata.
     pub fn open_file(path: &Path) -> Result<(Self, std::fs::Metadata), FileError> {
-        let file = File::open(path).map_err(|e| FileError::io(path, e))?;
+        let file = chaoscope_os::open_regular(path).map_err(|e| FileError::io(path, e))?;
         let meta = file.metadata().map_err(|e| FileError::io(path, e))?;
-        let len = meta.is_file().then_some(meta.len());
+        let len = Some(meta.len());
         let scanner = Self::open(BufReader::with_capacity(1 << 20, file), len)
             .map_err(|e| FileError::io(path, e))?
             .ok_or_else(|| FileError::NotMcap { path: path.into() })?;

@@ -23,7 +23,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let text = if args.spec.as_os_str() == "-" {
         std::io::read_to_string(std::io::stdin())?
     } else {
-        std::fs::read_to_string(&args.spec)
+        chaoscope_os::open_regular(&args.spec)
+            .and_then(std::io::read_to_string)
             .with_context(|| format!("reading {}", args.spec.display()))?
     };
     let chart: Chart = serde_json::from_str(&text).context("chart description")?;

@@ -46,8 +46,12 @@ pub fn exit_interrupted() -> ExitCode {
 /// keys of validation errors in).
 pub fn load_config(path: &Path) -> anyhow::Result<(RunConfig, String, ConfigSource)> {
     let (config, source) = if path == Path::new("-") {
-        let bytes = chaoscope_schemas::config::read_bounded(std::io::stdin())
-            .context("reading the run configuration from stdin")?;
+        // Standard input may never end (a terminal, a pipe no one closes): a signal ends the
+        // command during the read even where it would otherwise finalize first.
+        let bytes = chaoscope_os::signals::exit_on_signal_while(|| {
+            chaoscope_schemas::config::read_bounded(std::io::stdin())
+        })
+        .context("reading the run configuration from stdin")?;
         chaoscope_schemas::config::parse_config_source("stdin", bytes, path)?
     } else {
         chaoscope_schemas::config::read_config_source(path)?

@@ -111,7 +111,7 @@ pub fn read_config_source(path: &Path) -> Result<(RunConfig, ConfigSource), Conf
         path: path.display().to_string(),
         error,
     };
-    let file = std::fs::File::open(path).map_err(read_error)?;
+    let file = chaoscope_os::open_regular(path).map_err(read_error)?;
     let bytes = read_bounded(file).map_err(read_error)?;
     parse_config_source(&path.display().to_string(), bytes, path)
 }

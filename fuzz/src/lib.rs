@@ -1049,7 +1049,7 @@ pub fn values_seeds(target: &str) -> Vec<(String, Vec<u8>)> {
     // map header's fields, in the order the writers read them), each a different kind.
     let lead = &leads[leads.len() / 2];
     for at in 0..40 {
-        let value = keep + (at as u8 * 7) % (0xff - keep);
+        let value = keep + ((at * 7) % usize::from(0xff - keep)) as u8;
         seeds.push((format!("hostile-{at:02}"), hostile_at(lead, at, value)));
     }
     seeds

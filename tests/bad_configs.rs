@@ -1050,7 +1050,10 @@ fn usage_errors_have_a_status_of_their_own() {
     ] {
         let (code, stdout, stderr) = status(args);
         assert_eq!(code, Some(0), "{args:?}: {stderr}");
-        assert!(!stdout.is_empty() && stderr.is_empty(), "{args:?}: {stderr}");
+        assert!(
+            !stdout.is_empty() && stderr.is_empty(),
+            "{args:?}: {stderr}"
+        );
     }
 }
 
@@ -1107,7 +1110,10 @@ fn resume_to_a_new_end_is_estimated_as_run_is() {
             .collect();
         left.sort();
         assert_eq!(left, ["base.mcap", "lorenz.toml"], "{args:?}");
-        assert!(std::fs::read(dir.join("base.mcap")).unwrap() == base, "{args:?}");
+        assert!(
+            std::fs::read(dir.join("base.mcap")).unwrap() == base,
+            "{args:?}"
+        );
     }
     let (code, stderr) = forced(
         &[

@@ -306,7 +306,12 @@ fn merge_to_an_output_it_cannot_write_names_the_file() {
     let (out, png) = (dir.join("merged.mcap"), dir.join("merged.png"));
     let merge = || {
         let mut c = Command::new(CHAOSCOPE);
-        c.args(["merge", shard.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+        c.args([
+            "merge",
+            shard.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
         c.args(["--png", png.to_str().unwrap()]);
         c
     };

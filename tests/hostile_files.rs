@@ -628,15 +628,21 @@ fn maps_of_extreme_finite_values_draw_or_are_refused_in_one_line() {
     for (what, edit) in cases {
         let (mut header, mut points) = testing::values::valid_map();
         edit(&mut header, &mut points);
-        let mut file =
-            MapFile::create(std::io::Cursor::new(Vec::new()), &header, &FileOptions::default())
-                .unwrap();
+        let mut file = MapFile::create(
+            std::io::Cursor::new(Vec::new()),
+            &header,
+            &FileOptions::default(),
+        )
+        .unwrap();
         for p in &points {
             file.write_point(p).unwrap();
         }
         let path = dir.path().join(format!("{}.mcap", what.replace(' ', "-")));
         std::fs::write(&path, file.finish().unwrap().into_inner()).unwrap();
-        let (out, png) = (dir.path().join("merged.mcap"), dir.path().join("merged.png"));
+        let (out, png) = (
+            dir.path().join("merged.mcap"),
+            dir.path().join("merged.png"),
+        );
         let args = [
             "merge",
             path.to_str().unwrap(),

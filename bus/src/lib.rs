@@ -220,6 +220,31 @@ fn make_domain(root: PathBuf) -> Result<Domain, String> {
             root.display()
         ));
     }
+    // Before the directory is made: one whose sockets would not fit is refused, not created.
+    // The user and the directory in every segment name: users never collide in /dev/shm, and
+    // neither do two bus directories of one user (separate domains, e.g. per batch job).
+    let prefix = format!(
+        "cs{uid}_{:08x}_",
+        fnv1a(root.as_os_str().as_encoded_bytes())
+    );
+    let mut config = Config::default();
+    let mut root_text = root.to_string_lossy().into_owned();
+    if !root_text.ends_with('/') {
+        root_text.push('/');
+    }
+    let longest = longest_socket_path(root_text.len(), prefix.len());
+    if longest > SOCKET_PATH_MAX {
+        return Err(format!(
+            "{} = {} is {} bytes long, too long for the bus's sockets: each listener is a unix \
+             socket at DIR/{prefix}<listener id, up to {LISTENER_ID_DIGITS} digits>.event, which \
+             must fit the {SOCKET_PATH_MAX} bytes of a socket path; use a directory of at most \
+             {} bytes",
+            BUS_DIR_ENV,
+            root.display(),
+            root.as_os_str().len(),
+            max_bus_dir_len(prefix.len())
+        ));
+    }
     match std::fs::DirBuilder::new().mode(0o700).create(&root) {
         Ok(()) => {}
         Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
@@ -246,30 +271,6 @@ fn make_domain(root: PathBuf) -> Result<Domain, String> {
         // Ours, but open to others (made by hand or by an older umask): close it.
         std::fs::set_permissions(&root, std::fs::Permissions::from_mode(0o700))
             .map_err(|e| format!("making {} private: {e}", root.display()))?;
-    }
-    // The user and the directory in every segment name: users never collide in /dev/shm, and
-    // neither do two bus directories of one user (separate domains, e.g. per batch job).
-    let prefix = format!(
-        "cs{uid}_{:08x}_",
-        fnv1a(root.as_os_str().as_encoded_bytes())
-    );
-    let mut config = Config::default();
-    let mut root_text = root.to_string_lossy().into_owned();
-    if !root_text.ends_with('/') {
-        root_text.push('/');
-    }
-    let longest = longest_socket_path(root_text.len(), prefix.len());
-    if longest > SOCKET_PATH_MAX {
-        return Err(format!(
-            "{} = {} is {} bytes long, too long for the bus's sockets: each listener is a unix \
-             socket at DIR/{prefix}<listener id, up to {LISTENER_ID_DIGITS} digits>.event, which \
-             must fit the {SOCKET_PATH_MAX} bytes of a socket path; use a directory of at most \
-             {} bytes",
-            BUS_DIR_ENV,
-            root.display(),
-            root.as_os_str().len(),
-            max_bus_dir_len(prefix.len())
-        ));
     }
     let root_path = Path::new(root_text.as_bytes())
         .map_err(|e| format!("{} as an iceoryx2 path: {e:?}", root.display()))?;
@@ -960,6 +961,7 @@ mod tests {
                 && !why.contains('\n'),
             "{why}"
         );
+        assert!(!beyond.exists(), "a refused directory was made");
         assert!(domain_at(&PathBuf::from(format!("{}/", at.display()))).is_ok());
         std::fs::remove_dir_all(&base).unwrap();
     }

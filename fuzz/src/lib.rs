@@ -840,7 +840,14 @@ pub fn values_clv(data: &[u8]) -> Outcome {
     use chaoscope_analyzer::clv::{ClvOptions, ClvRunError, clv_of_file, summary};
     let mut choices = Choices::new(data);
     let pick = choices.byte();
-    let transients = [None, Some(0.0), Some(0.1), Some(0.45), Some(2.0), Some(f64::NAN)];
+    let transients = [
+        None,
+        Some(0.0),
+        Some(0.1),
+        Some(0.45),
+        Some(2.0),
+        Some(f64::NAN),
+    ];
     let options = ClvOptions {
         scheme: None,
         set: usize::from(pick & 1),
@@ -934,8 +941,8 @@ fn computed_recording(choices: &mut Choices, path: &std::path::Path) -> bool {
             return false;
         }
     }
-    let status = [Status::Interrupted, Status::Completed, Status::Failed]
-        [choices.below(3) as usize];
+    let status =
+        [Status::Interrupted, Status::Completed, Status::Failed][choices.below(3) as usize];
     writer.finish_with("fuzz", status, "").is_ok()
 }
 
@@ -1031,7 +1038,10 @@ pub fn values_seeds(target: &str) -> Vec<(String, Vec<u8>)> {
     };
     for lead in &leads {
         seeds.push((
-            format!("valid-{}", lead.iter().map(|b| format!("{b:02x}")).collect::<String>()),
+            format!(
+                "valid-{}",
+                lead.iter().map(|b| format!("{b:02x}")).collect::<String>()
+            ),
             lead.clone(),
         ));
     }
@@ -1039,7 +1049,7 @@ pub fn values_seeds(target: &str) -> Vec<(String, Vec<u8>)> {
     // map header's fields, in the order the writers read them), each a different kind.
     let lead = &leads[leads.len() / 2];
     for at in 0..40 {
-        let value = keep + (at as u8 * 7) % (0xff - keep);
+        let value = keep + ((at * 7) % usize::from(0xff - keep)) as u8;
         seeds.push((format!("hostile-{at:02}"), hostile_at(lead, at, value)));
     }
     seeds

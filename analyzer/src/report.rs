@@ -163,13 +163,15 @@ pub struct SchemeReport {
     pub vs_vm: Option<VsVm>,
     /// Every registered indicator's outputs by name, as fields of the scheme: `fli`, `ofli`,
     /// `megno`, `megno_mean` (mean and spread over the sets, `{"mean", "std"}`) and
-    /// `zero_one_k` (one value: the 0-1 test on the reference orbit's first coordinate sampled
-    /// at the scheme's renormalizations); `{"unavailable": reason}` where the run does not give
-    /// what an indicator needs.
+    /// `zero_one_k` (one value: the 0-1 test on a fixed projection of the whole reference
+    /// state, `sum_i w_i x_i`, sampled at the scheme's renormalizations; unavailable below 1000
+    /// samples); `{"unavailable": reason}` where the run does not give what an indicator needs.
     #[serde(flatten)]
     pub indicators: NamedOutputs,
-    /// Chaotic, regular (with the torus dimension), escaped or unbounded (with the time), or
-    /// undecided (with the reason) at this time, with the criterion and a confidence.
+    /// `class`: `chaotic`, `regular` (with `torus_dimension`), `attracting` (the largest
+    /// exponent negative: a stable fixed point or cycle), `escaped`, `failed` (the integrator
+    /// stopped; `time` of its failed step) or `unbounded` (with `time`), or `undecided` (with
+    /// `reason`) at this time, with the `criterion` in words and a `confidence`.
     pub verdict: Verdict,
     /// Settings or values outside the region where the indicators are reliable.
     pub warnings: Vec<Warning>,

@@ -798,3 +798,115 @@ fn mpm_leaving_vm_on_a_regular_orbit_is_a_warning() {
     assert!(!has("mpm", MPM_DEPARTS_FROM_VM));
     assert!(last.scheme("vm").unwrap().warnings.is_empty());
 }
+
+/// An example model of `examples/models/`, run to `t_final`.
+fn example(name: &str, t_final: f64) -> RunConfig {
+    let path = format!("{}/../examples/models/{name}.toml", env!("CARGO_MANIFEST_DIR"));
+    let mut cfg = RunConfig::from_toml(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    cfg.integrator.t_final = Some(t_final);
+    cfg
+}
+
+#[test]
+fn the_driven_pendulum_drifts_and_is_chaotic() {
+    // Baker and Gollub's chaotic regime (MLE ~ 0.11): the angle rotates unwrapped and the
+    // drive's phase grows like t, so the extent grows tenfold per decade, as any drift. Nearby
+    // orbits diverge by 0.11 * 300 = 33 e-folds over [300, 600], three times the
+    // exponent-alone threshold: chaotic diffusion, not a drift alone (and never regular).
+    let (live, last) = outcome(&example("driven-pendulum", 600.0), 50);
+    never(&live, Class::Regular);
+    let v = all_end("driven pendulum", &last, Class::Chaotic);
+    assert!(v[0].criterion.contains("chaotic diffusion"), "{:?}", v[0]);
+}
+
+#[test]
+fn the_standard_map_sampled_every_10_iterations_is_chaotic() {
+    // K = 1.2 in the chaotic sea: GALI_2 ~ exp(-2 l1 t) reaches VM's floor within ~60
+    // iterations, before 5 samples 10 iterations apart show its exponential decay; the
+    // exponent sees every renormalization (the samples carry the stretching factors in between)
+    // and grows by hundreds of e-folds: chaotic by the exponent beyond doubt with the GALI at
+    // the floor.
+    let mut cfg = toml(&format!(
+        "{}{VM_MPM}",
+        map_config(
+            &STANDARD_MAP,
+            "{ K = 1.2 }",
+            Some(TWO_PI),
+            &[0.1, 0.1],
+            3000,
+            2
+        )
+    ));
+    cfg.run.sample_every = Some(10.0);
+    let (live, last) = outcome(&cfg, 10);
+    never(&live, Class::Regular);
+    let v = &last.scheme("vm").unwrap().verdict;
+    eprintln!("standard map K = 1.2 sampled every 10: {v:?}");
+    assert_eq!(v.class, Class::Chaotic, "{v:?}");
+    assert!(v.criterion.contains("rounding floor"), "{v:?}");
+}
+
+#[test]
+fn the_logistic_map_with_one_vector_is_chaotic_at_r_4_and_attracting_at_r_3_55() {
+    // One tangent vector of a 1-D map: no GALI, the exponent decides. At r = 4 the MLE is
+    // ln 2: 0.69 * 1000 = 690 e-folds over [1000, 2000]. At r = 3.55 the orbit falls onto an
+    // attracting cycle of period 8 (MLE ~ -0.1): the deviation shrinks by ~100 e-folds over
+    // [1000, 2000], ten times the threshold.
+    let logistic = |r: f64| {
+        toml(&format!(
+            "{}{VM_MPM}{QR}",
+            map_config(
+                &["r*x1*(1 - x1)"],
+                &format!("{{ r = {r:?} }}"),
+                None,
+                &[0.3],
+                2000,
+                1
+            )
+        ))
+    };
+    let (live, last) = outcome(&logistic(4.0), 100);
+    never(&live, Class::Regular);
+    let v = all_end("logistic r = 4", &last, Class::Chaotic);
+    assert!(!v[0].criterion.contains("GALI"), "{:?}", v[0]);
+    let mle = last.scheme("vm").unwrap().mle;
+    assert!((mle - 2f64.ln()).abs() < 0.01, "MLE {mle}");
+    let (live, last) = outcome(&logistic(3.55), 100);
+    never(&live, Class::Chaotic);
+    let v = all_end("logistic r = 3.55", &last, Class::Attracting);
+    assert!(v[0].criterion.contains("< 0"), "{:?}", v[0]);
+}
+
+#[test]
+fn an_implicit_integrator_failing_at_a_close_approach_is_failed_not_escaped() {
+    // A nearly radial Kepler orbit (angular momentum 0.05, pericentre ~ 1.3e-3) stepped by gl6
+    // at a fixed h = 0.05: at the close approach h times the speed (~40) is a thousand times
+    // the distance, and the implicit stages stop converging. The body did not escape.
+    let cfg = toml(&format!(
+        r#"
+[model]
+name = "ode"
+rhs = ["x3", "x4", "-x1*(x1^2 + x2^2)^(-1.5)", "-x2*(x1^2 + x2^2)^(-1.5)"]
+[orbit]
+x = [1.0, 0.0, 0.0, 0.05]
+[integrator]
+method = "gl6"
+h = 0.05
+t_final = 20.0
+[deviations]
+k = 2
+sets = 1
+seed = 1
+{VM_MPM}"#
+    ));
+    let (live, last) = outcome(&cfg, 1);
+    never(&live, Class::Regular);
+    let reason = &last.run.end.as_ref().expect("an end").reason;
+    assert!(
+        reason.starts_with(chaoscope_schemas::run::INTEGRATOR_FAILED),
+        "{reason}"
+    );
+    let v = all_end("gl6 Kepler close approach", &last, Class::Failed);
+    assert!(v[0].criterion.contains("did not converge"), "{:?}", v[0]);
+    assert!(v[0].time.is_some_and(|t| t > 0.5 && t < 2.0), "{:?}", v[0]);
+}

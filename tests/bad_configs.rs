@@ -619,6 +619,43 @@ fn semantic_errors_name_the_file_and_the_line_of_their_key() {
         stderr.contains(&format!("integrator.h (line {line}, column 1): missing")),
         "{stderr}"
     );
+    // A run name that would be a hidden file: its file and line, as any other key.
+    let text = String::from_utf8(spoil(RUN, "[model]", "[run]\nname = \".h\"\n\n[model]")).unwrap();
+    let line = line_of(&text, "name = \".h\"");
+    let dir = tmp.path().join("run-name");
+    let (code, stderr, _) = run_case(&case("run name", Run, text.into_bytes(), "", ""), &dir);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("in ") && stderr.contains("run.toml: "),
+        "{stderr}"
+    );
+    assert!(
+        stderr.contains(&format!(
+            "run.name (line {line}, column 1): run name \".h\" starts with '.'"
+        )),
+        "{stderr}"
+    );
+    // A table left out of the document: named as the table, not as a key of the first one.
+    let orbit = "[orbit]\nq = [0.0, -0.25]\np = [0.0, 0.0]\nenergy = 0.125\nsolve_for = \"p1\"\n";
+    let text = String::from_utf8(spoil(RUN, orbit, "")).unwrap();
+    let dir = tmp.path().join("no-orbit");
+    let (code, stderr, _) = run_case(&case("no orbit", Run, text.into_bytes(), "", ""), &dir);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(
+        stderr.contains("orbit: the [orbit] table is missing"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("model.orbit"), "{stderr}");
+}
+
+/// Run names may hold dots (`h0.01`): they are file names and bus service names, and both
+/// take them.
+#[test]
+fn run_names_may_hold_dots() {
+    let tmp = tempfile::tempdir().unwrap();
+    let text = RUN.replacen("[model]", "[run]\nname = \"h0.01\"\n\n[model]", 1);
+    let (code, stdout, stderr) = config_check(&text, tmp.path());
+    assert_eq!(code, Some(0), "{stdout}{stderr}");
 }
 
 /// `chaoscope config` on `text`: exit status, stdout and stderr.

@@ -209,6 +209,8 @@ fn interrupted_and_killed_maps_resume() {
     assert!(second.status.success());
     let summary: serde_json::Value = serde_json::from_slice(&second.stdout).unwrap();
     assert_eq!(summary["resumed"], partial as u64);
+    // The route that ran: the config names none, and per-set is the default.
+    assert_eq!(summary["route"], "per-set");
     assert_eq!(points(&out), want);
 
     // Killed mid-write: the file is cut inside a chunk; the complete chunks are kept.

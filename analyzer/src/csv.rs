@@ -63,17 +63,17 @@ pub fn write_csv(
         head.extend(named.iter().map(|n| n.to_string()));
         writeln!(f, "{}", head.join(","))?;
         for (t, p) in analysis.series(si) {
-            let mut row = vec![t.to_string()];
-            row.extend(p.gali_log10_mean.iter().map(f64::to_string));
-            row.extend(p.gali_log10_of_mean.iter().map(f64::to_string));
-            row.push(p.sali_log10_mean.map_or(String::new(), |v| v.to_string()));
-            row.extend(p.exponents().iter().map(f64::to_string));
+            let mut row = vec![cell(t)];
+            row.extend(p.gali_log10_mean.iter().copied().map(cell));
+            row.extend(p.gali_log10_of_mean.iter().copied().map(cell));
+            row.push(p.sali_log10_mean.map_or(String::new(), cell));
+            row.extend(p.exponents().iter().copied().map(cell));
             match &p.vs_vm_abs_delta {
-                Some(d) => row.extend(d.iter().map(f64::to_string)),
+                Some(d) => row.extend(d.iter().copied().map(cell)),
                 None => row.extend((2..=k).map(|_| String::new())),
             }
             let rates =
-                || (0..k).map(|i| p.exponents().get(i).map_or(String::new(), f64::to_string));
+                || (0..k).map(|i| p.exponents().get(i).copied().map_or(String::new(), cell));
             let empty = || (0..k).map(|_| String::new());
             if qr {
                 row.extend(rates());
@@ -88,7 +88,7 @@ pub fn write_csv(
                     .copied()
                     .flatten()
                     .filter(|v| v.is_finite())
-                    .map_or(String::new(), |v| v.to_string())
+                    .map_or(String::new(), cell)
             }));
             writeln!(f, "{}", row.join(","))?;
         }
@@ -105,12 +105,20 @@ pub fn write_csv(
     let mut f = std::io::BufWriter::new(output.file().map_err(io)?);
     writeln!(f, "t,relative_energy_error")?;
     for (t, e) in analysis.energy_series() {
-        writeln!(f, "{t},{e}")?;
+        writeln!(f, "{},{}", cell(t), cell(e))?;
     }
     f.flush()?;
     drop(f);
     files.push(output.commit().map_err(io)?);
     Ok(files)
+}
+
+/// A CSV cell: the shortest text that reads back as exactly `v`, plain (`0.25`, `3000`) or in
+/// scientific notation where that is shorter (`1e-300`, `-4.8e-17`, not hundreds of digits).
+pub fn cell(v: f64) -> String {
+    let plain = v.to_string();
+    let sci = format!("{v:e}");
+    if plain.len() <= sci.len() { plain } else { sci }
 }
 
 /// How a table for other tools is written: it replaces an earlier table of the same name, is
@@ -128,4 +136,32 @@ pub(crate) fn table_options(inputs: &[PathBuf]) -> chaoscope_os::OutputOptions {
 /// file and the cause).
 pub(crate) fn io(e: chaoscope_os::OutputError) -> std::io::Error {
     std::io::Error::other(e.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::cell;
+
+    #[test]
+    fn cells_are_short_and_exact() {
+        for (v, text) in [
+            (1e-300, "1e-300"),
+            (-4.8e-17, "-4.8e-17"),
+            (0.25, "0.25"),
+            (3000.0, "3000"),
+            (-0.0, "-0"),
+            (1.5e300, "1.5e300"),
+            (0.001, "0.001"),
+        ] {
+            assert_eq!(cell(v), text);
+        }
+        // Every cell reads back as the value it was written from.
+        for v in [
+            std::f64::consts::PI * 1e-20,
+            -2.0f64.sqrt() * 1e15,
+            f64::MIN_POSITIVE,
+        ] {
+            assert_eq!(cell(v).parse::<f64>().unwrap(), v);
+        }
+    }
 }

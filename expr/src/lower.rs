@@ -1905,9 +1905,15 @@ mod tests {
             ("1/(sqrt(q1^2 + q2^2)*(q1^2 + q2^2))", smooth.clone()),
             ("sqrt(q1^2 + q2^2)^-1", smooth.clone()),
             ("p*d0/(2*sqrt(q1^2 + q2^2))", smooth.clone()),
-            ("-1/sqrt(q1^2 + q2^2) - p/sqrt((q1 - q3)^2 + q2^2)", smooth.clone()),
+            (
+                "-1/sqrt(q1^2 + q2^2) - p/sqrt((q1 - q3)^2 + q2^2)",
+                smooth.clone(),
+            ),
             ("(1 + q3^2)/sqrt(q1^2) + exp(q2)/abs(q3)", smooth.clone()),
-            ("1/sqrt(abs(q1)) + 1/max(0, q2)^2 + sqrt(1/sqrt(q1^2))", smooth.clone()),
+            (
+                "1/sqrt(abs(q1)) + 1/max(0, q2)^2 + sqrt(1/sqrt(q1^2))",
+                smooth.clone(),
+            ),
             ("1/sin(sqrt(q1^2 + q2^2))", smooth.clone()),
             // A state-dependent factor that may be 0 can undo the pole: x/|x| jumps.
             ("q1/sqrt(q1^2)", at(0, "sqrt", 4)),

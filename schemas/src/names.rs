@@ -34,7 +34,10 @@ pub mod map_stream {
     pub const POINTS: &str = "points";
 }
 
-/// A run name is a service-name component: letters, digits, `-`, `_`, 1..=64 bytes.
+/// A run name is a service-name component and a file name (`runs/<name>.mcap`): letters,
+/// digits, `-`, `_` and `.` (`h0.01`), 1..=64 bytes, not starting with `.` (no hidden file, no
+/// `.` or `..`). iceoryx2 takes any bytes in a service or node name (it hashes them into its
+/// own file names), so only `/`, which separates the components, must stay out.
 pub fn validate_run_name(name: &str) -> Result<(), String> {
     if name.is_empty() || name.len() > MAX_RUN_NAME_LEN {
         return Err(format!(
@@ -44,10 +47,15 @@ pub fn validate_run_name(name: &str) -> Result<(), String> {
     }
     if let Some(c) = name
         .chars()
-        .find(|c| !(c.is_ascii_alphanumeric() || *c == '-' || *c == '_'))
+        .find(|c| !(c.is_ascii_alphanumeric() || "-_.".contains(*c)))
     {
         return Err(format!(
-            "run name {name:?} contains {c:?}; use letters, digits, '-' and '_'"
+            "run name {name:?} contains {c:?}; use letters, digits, '-', '_' and '.'"
+        ));
+    }
+    if name.starts_with('.') {
+        return Err(format!(
+            "run name {name:?} starts with '.'; start it with a letter, digit, '-' or '_'"
         ));
     }
     Ok(())
@@ -169,6 +177,14 @@ mod tests {
         assert!(validate_run_name("hh-chaotic_1").is_ok());
         assert!(validate_run_name("").is_err());
         assert!(validate_run_name("a/b").unwrap_err().contains("'/'"));
+        assert!(validate_run_name("h0.01").is_ok());
+        for hidden in [".", "..", ".h"] {
+            assert!(
+                validate_run_name(hidden)
+                    .unwrap_err()
+                    .contains("starts with '.'")
+            );
+        }
         assert!(validate_run_name(&"x".repeat(65)).is_err());
     }
 

@@ -286,6 +286,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "shard": args.shard.to_string(),
                 "indicator": spec.indicator.name(),
                 "method": header.method,
+                "route": spec.route.name(),
                 "points": all.len(),
                 "points_expected": expected,
                 "computed": computed,

@@ -519,6 +519,10 @@ impl RunSpec {
                 ),
             ));
         }
+        if let Some(name) = &cfg.run.name {
+            chaoscope_schemas::names::validate_run_name(name)
+                .map_err(|problem| SpecError::new("run.name", problem))?;
+        }
         let mut schemes = Vec::with_capacity(cfg.schemes.len());
         for (i, s) in cfg.schemes.iter().enumerate() {
             let key = |k: &str| format!("scheme[{i}].{k}");

@@ -20,6 +20,15 @@ pub(super) fn describe(text: &str, err: &toml::de::Error) -> String {
     let line_end = text[start..].find('\n').map_or(text.len(), |i| start + i);
     let line = &text[line_start..line_end];
     let field = quoted_field(&message);
+    if let Some(field) = field
+        && message.starts_with("missing field")
+        && span.start == 0
+        && DOCUMENT_TABLES.contains(&field)
+    {
+        // A table of the document itself: the error stands at the document's start, whose
+        // first line (a comment, or the header of another table) says nothing about it.
+        return format!("{field}: the [{field}] table is missing");
+    }
     let key = key_path(&text[..line_start], line, start - line_start, field);
     let at = format!("line {line_no}, column {column}");
     let message = match (field.map(str::to_string), key.as_deref()) {
@@ -33,6 +42,19 @@ pub(super) fn describe(text: &str, err: &toml::de::Error) -> String {
         None => format!("{at}: {message}"),
     }
 }
+
+/// The tables of a configuration document (`RunConfig`'s fields), none of them a key of
+/// another table.
+const DOCUMENT_TABLES: [&str; 8] = [
+    "run",
+    "model",
+    "orbit",
+    "integrator",
+    "deviations",
+    "scheme",
+    "sweep",
+    "map",
+];
 
 /// An unknown `[model]` key that another kind of model reads: the message says which (a key
 /// written under the wrong `name`, or a name written wrong).
@@ -214,6 +236,11 @@ mod tests {
                 "t_final = 1.0\n",
                 "",
                 "integrator.t_final (line 8, column 1): missing field `t_final`",
+            ),
+            (
+                "[orbit]\nq = [0.0, -0.25]\np = [0.0, 0.0]\n",
+                "",
+                "orbit: the [orbit] table is missing",
             ),
             ("k = 2", "k = -2", "deviations.k (line 14"),
             ("h = 0.01", "h = 0.01\ndt = 1", "integrator.dt (line 11"),

@@ -111,7 +111,11 @@ fn a_rotating_pendulum_with_a_periodic_angle_is_regular_not_unbounded() {
     // The 0-1 test observes the wrapped state (its observable is its own module's choice):
     // printed for the record, not judged here.
     let k_wrapped = last.scheme("vm").unwrap().indicators.value("zero_one_k");
-    let k_raw = unwrapped.scheme("vm").unwrap().indicators.value("zero_one_k");
+    let k_raw = unwrapped
+        .scheme("vm")
+        .unwrap()
+        .indicators
+        .value("zero_one_k");
     eprintln!("rotating pendulum: K = {k_wrapped:?} (angle wrapped), {k_raw:?} (unwrapped)");
 }
 
@@ -171,9 +175,18 @@ fn a_wrong_modulo_is_refused_naming_the_key() {
         let spec = RunSpec::from_config(&config("modulo = [6.283185307179586, 0]")).unwrap();
         assert_eq!(spec.periods(), &[TWO_PI, 0.0]);
         for (modulo, problem) in [
-            ("modulo = [6.283185307179586]", "has 1 entries but the state has dimension 2"),
-            ("modulo = [6.283185307179586, -1]", "entry 2 must be a period > 0"),
-            ("modulo = [6.283185307179586, inf]", "entry 2 must be a period > 0"),
+            (
+                "modulo = [6.283185307179586]",
+                "has 1 entries but the state has dimension 2",
+            ),
+            (
+                "modulo = [6.283185307179586, -1]",
+                "entry 2 must be a period > 0",
+            ),
+            (
+                "modulo = [6.283185307179586, inf]",
+                "entry 2 must be a period > 0",
+            ),
         ] {
             let e = RunSpec::from_config(&config(modulo)).unwrap_err();
             assert_eq!(e.key, "model.modulo", "{model}: {e:?}");

@@ -84,8 +84,16 @@ mod tests {
     fn bad_periods_are_refused() {
         assert!(check_periods(&[], 3).is_ok());
         assert!(check_periods(&[1.0, 0.0], 2).is_ok());
-        assert!(check_periods(&[1.0], 2).unwrap_err().contains("dimension 2"));
-        assert!(check_periods(&[1.0, -1.0], 2).unwrap_err().contains("entry 2"));
+        assert!(
+            check_periods(&[1.0], 2)
+                .unwrap_err()
+                .contains("dimension 2")
+        );
+        assert!(
+            check_periods(&[1.0, -1.0], 2)
+                .unwrap_err()
+                .contains("entry 2")
+        );
         assert!(check_periods(&[f64::INFINITY, 0.0], 2).is_err());
     }
 }

@@ -26,8 +26,8 @@ use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::section::crossings;
 use chaoscope_producer::section::stroboscopic::{Stroboscopic, stroboscopic_samples};
 use chaoscope_producer::section::surface::{
-    Direction, OrbitEnd, ScalarFunction, Surface, SurfaceOrbit, coordinate_names,
-    state_expression, surface_crossings,
+    Direction, OrbitEnd, ScalarFunction, Surface, SurfaceOrbit, coordinate_names, state_expression,
+    surface_crossings,
 };
 use chaoscope_producer::spec::{RunSpec, parse_coordinate};
 use chaoscope_schemas::config::{ConfigSource, RunConfig};
@@ -284,11 +284,17 @@ impl Axis {
     ) -> anyhow::Result<Self> {
         let label = source.trim().to_string();
         if label.is_empty() {
-            bail!("{flag}: an empty expression (give an expression of the state, e.g. {})", names[0]);
+            bail!(
+                "{flag}: an empty expression (give an expression of the state, e.g. {})",
+                names[0]
+            );
         }
         let function = state_expression(spec, model, flag, &label).map_err(|e| {
             // `--axes: line 1, column 5: ...` and the expression with a caret under the fault.
-            let detail = e.strip_prefix(&format!("{flag}: ")).unwrap_or(&e).to_string();
+            let detail = e
+                .strip_prefix(&format!("{flag}: "))
+                .unwrap_or(&e)
+                .to_string();
             anyhow::anyhow!(
                 "{flag}: '{label}' is not a coordinate or an expression of the state ({}..{}): \
                  {detail}",
@@ -587,10 +593,7 @@ fn surface_section(
                 writeln!(f, "{orbits},{},{}", c.t, row.join(","))?;
             }
         }
-        let points: Vec<(f64, f64)> = states
-            .iter()
-            .map(|x| (ax.value(x), ay.value(x)))
-            .collect();
+        let points: Vec<(f64, f64)> = states.iter().map(|x| (ax.value(x), ay.value(x))).collect();
         section.push(Line {
             label: String::new(),
             points: finite_points(points, &mut dropped),
@@ -753,7 +756,13 @@ tau = 1.0
             "{err}"
         );
         assert!(err.ends_with("\n  q1 - qq2\n       ^^^"), "{err}");
-        assert!(axis("2 * c").err().unwrap().to_string().contains("reads no coordinate"));
+        assert!(
+            axis("2 * c")
+                .err()
+                .unwrap()
+                .to_string()
+                .contains("reads no coordinate")
+        );
         assert!(axis("  ").is_err());
     }
 

@@ -20,10 +20,10 @@
 //! grazes the surface breaks; Newton on the re-integrated flow needs nothing of the kind, and
 //! its iterates cost a few short integrations per crossing, a small part of a section's cost.
 
-use chaoscope_expr::lower::Boundary;
 use chaoscope_expr::ScalarDefinition;
 /// What a section's surface and axes compile to.
 pub use chaoscope_expr::ScalarFunction;
+use chaoscope_expr::lower::Boundary;
 use chaoscope_schemas::config::ModelConfig;
 use chaoscope_schemas::run::SystemKind;
 
@@ -125,8 +125,8 @@ pub fn state_expression(
     key: &str,
     source: &str,
 ) -> Result<ScalarFunction, String> {
-    let definition =
-        scalar_definition(spec, model, key, source).map_err(|e| format!("{}: {}", e.key, e.message))?;
+    let definition = scalar_definition(spec, model, key, source)
+        .map_err(|e| format!("{}: {}", e.key, e.message))?;
     ScalarFunction::new(definition).map_err(|e| e.to_string())
 }
 

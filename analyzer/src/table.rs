@@ -177,13 +177,6 @@ pub fn table(report: &Report) -> String {
         if !named.is_empty() {
             let _ = writeln!(out, "{}: {}", s.name, named.join(", "));
         }
-        // A 0-1 test left out says why (a series too short to mean something), so its absence
-        // is not read as a value.
-        if let Some((_, Named::Unavailable(why))) =
-            s.indicators.0.iter().find(|(name, _)| *name == "zero_one_k")
-        {
-            let _ = writeln!(out, "{}: zero_one_k n/a: {why}", s.name);
-        }
         for w in &s.warnings {
             let _ = writeln!(out, "{}: warning {}: {}", s.name, w.code, w.message);
         }

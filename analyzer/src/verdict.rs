@@ -1513,7 +1513,10 @@ mod tests {
         );
         assert!(!v.criterion.contains("GALI"), "{}", v.criterion);
         // A neutral orbit (MLE ~ ln(t)/t) is never decided by the exponent alone.
-        let v = judge(&s, &curve(3000, 1, |_, _| 0.0, |t| (1.0 + t).ln() / t.max(1.0)));
+        let v = judge(
+            &s,
+            &curve(3000, 1, |_, _| 0.0, |t| (1.0 + t).ln() / t.max(1.0)),
+        );
         assert_eq!(v.class, Class::Undecided, "{v:?}");
     }
 

@@ -542,9 +542,11 @@ impl Engine {
                         cause: format!("{why} {at}"),
                     };
                 }
-                cause = Some(why.map_or(format!("the state became non-finite {at}"), |c| {
-                    format!("{c} {at}")
-                }));
+                cause = Some(
+                    why.map_or(format!("the state became non-finite {at}"), |c| {
+                        format!("{c} {at}")
+                    }),
+                );
                 break;
             }
             if system.invariant(&x).is_some_and(|e| !e.is_finite())

@@ -387,50 +387,6 @@ fn the_csv_and_the_plots_carry_every_named_indicator_over_time() {
     }
 }
 
-/// An example model of `examples/models/`, run to `t_final`.
-fn example(name: &str, t_final: f64) -> RunConfig {
-    let path = format!("{}/../examples/models/{name}.toml", env!("CARGO_MANIFEST_DIR"));
-    let mut cfg = RunConfig::from_toml(&std::fs::read_to_string(&path).unwrap()).unwrap();
-    cfg.integrator.t_final = Some(t_final);
-    cfg
-}
-
-#[test]
-fn zero_one_test_on_a_chaotic_and_a_regular_chain() {
-    // The default observable projects the whole state, so on the chaotic Klein-Gordon chain
-    // (64 sites, the 11 middle ones excited; x1 alone is a cold end site) it sees the hot
-    // spot. Length: 2000 renormalizations (tau = 1) give 2000 samples, n_cut = 200 lags: twice
-    // the test's minimum; the samples decorrelate within a few periods of the on-site
-    // oscillators (2 pi / sqrt(eps) ~ 6-9 time units), so N is hundreds of correlation times.
-    let kg = reports(&example("klein-gordon-chaotic", 2000.0), &[2000.0]);
-    let k = value(kg[0].scheme("vm").unwrap(), "zero_one_k");
-    assert!(k > 0.9, "Klein-Gordon chaotic chain: K = {k}");
-    // The paper's regular FPUT N = 5 orbit (a 4-torus): the projection is quasi-periodic, its
-    // translation variables stay bounded, and the median over c discards the resonant ones.
-    // 2000 samples as above.
-    let fput = reports(
-        &paper::fput_beta(
-            &paper::FPUT_N5_REGULAR_Q,
-            &paper::FPUT_N5_REGULAR_P,
-            0.05,
-            2000.0,
-            DeviationsConfig::random(2, 1, 1),
-            schemes(),
-        ),
-        &[2000.0],
-    );
-    for name in ["vm", "mpm"] {
-        let k = value(fput[0].scheme(name).unwrap(), "zero_one_k");
-        assert!(k.abs() < 0.1, "FPUT N = 5 regular chain, {name}: K = {k}");
-    }
-    // Below the minimum length the value is unavailable, and says why.
-    let short = reports(&example("klein-gordon-chaotic", 500.0), &[500.0]);
-    match short[0].scheme("vm").unwrap().indicators.get("zero_one_k") {
-        Some(Named::Unavailable(why)) => assert!(why.contains("at least 1000"), "{why}"),
-        other => panic!("zero_one_k at t = 500: {other:?}"),
-    }
-}
-
 /// A Sun and two planets with the potential written `-G m_i m_j / sqrt(r_ij^2)`
 /// (examples/models/sun-two-planets.toml): the variational method accepts the square root (a
 /// pole at each collision, the guide's smoothness rule), and the orbit, two circular planets

@@ -315,7 +315,7 @@ fn cases() -> Vec<Case> {
         fput("fput unknown preset", "q = [0.1, -0.2, 0.3]\np = [0.0, 0.1, 0.0]", "preset = \"spo9\"\nenergy = 1.0", "orbit.preset", "no preset"),
         run("henon-heiles with n", "name = \"henon-heiles\"", "name = \"henon-heiles\"\nn = 3", "model.n", "2 degrees of freedom"),
         // Files.
-        case("empty file", Run, Vec::new(), "model", "missing field"),
+        case("empty file", Run, Vec::new(), "model", "the [model] table is missing"),
         case("binary file", Run, binary.clone(), "run.toml", "not a text file"),
         case("huge file", Run, huge_config(), "run.toml", "larger than"),
         case("twelve thousand schemes", Run, many_schemes, "scheme", "exceed the limit"),

@@ -113,12 +113,15 @@ pub fn write_csv(
     Ok(files)
 }
 
-/// A CSV cell: the shortest text that reads back as exactly `v`, plain (`0.25`, `3000`) or in
-/// scientific notation where that is shorter (`1e-300`, `-4.8e-17`, not hundreds of digits).
+/// A CSV cell: the shortest digits that read back as exactly `v`, plain between 1e-5 and 1e16
+/// (`0.25`, `3000`: at most 5 leading zeros) and in scientific notation outside
+/// (`1e-300`, `-4.8e-17`, not hundreds of digits).
 pub fn cell(v: f64) -> String {
-    let plain = v.to_string();
-    let sci = format!("{v:e}");
-    if plain.len() <= sci.len() { plain } else { sci }
+    if v == 0.0 || !v.is_finite() || (1e-5..1e16).contains(&v.abs()) {
+        v.to_string()
+    } else {
+        format!("{v:e}")
+    }
 }
 
 /// How a table for other tools is written: it replaces an earlier table of the same name, is

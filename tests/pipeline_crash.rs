@@ -1694,6 +1694,8 @@ fn a_run_whose_compiler_hangs_finishes_with_the_bits_of_a_run_without_c_kernels(
         "a run whose compiler hung differs from one without C kernels"
     );
     assert!(pids_in(&pids).iter().all(|&p| !alive(p)));
+}
+
 /// Whether the main thread of `pid` is blocked in read(2) on its standard input (x86-64 and
 /// aarch64 number `read` 0 and 63; the first argument is the descriptor).
 fn reading_stdin(pid: i32) -> bool {

@@ -418,9 +418,12 @@ mod tests {
                 .duration_since(std::time::UNIX_EPOCH)
                 .unwrap()
                 .as_nanos();
+            // Short enough for the bus's sockets (`make_domain` refuses a longer directory):
+            // the nanoseconds within the second tell apart the domains of one process.
             let dir = std::env::temp_dir().join(format!(
-                "chaoscope-stale-{tag}-{}-{nanos}",
-                std::process::id()
+                "cs-stale-{tag}-{}-{}",
+                std::process::id(),
+                nanos % 1_000_000_000
             ));
             Self(bus::domain_at(&dir).unwrap())
         }

@@ -308,18 +308,19 @@ impl Recording {
             exponents_from: from_t,
             ..Default::default()
         };
-        let json = py
-            .detach(|| -> Result<String, String> {
-                let (analysis, info) =
-                    analyze_file(&self.path, &options).map_err(|e| error_text(&e))?;
-                // As `chaoscope analyze --json`: the final report says how the run ended.
-                let report = match at {
-                    Some(t) => analysis.report_at(t).expect("requested time is captured"),
-                    None => analysis.report_ended(info.end.as_ref()),
-                };
-                serde_json::to_string(&report).map_err(|e| e.to_string())
-            })
-            .map_err(crate::message)?;
+        // Read-only, so on its own thread: Ctrl-C raises at once and the analysis of a long
+        // recording is left to end unseen (nothing to finalize).
+        let path = self.path.clone();
+        let json = crate::interrupt::abandonable(py, move || -> Result<String, String> {
+            let (analysis, info) = analyze_file(&path, &options).map_err(|e| error_text(&e))?;
+            // As `chaoscope analyze --json`: the final report says how the run ended.
+            let report = match at {
+                Some(t) => analysis.report_at(t).expect("requested time is captured"),
+                None => analysis.report_ended(info.end.as_ref()),
+            };
+            serde_json::to_string(&report).map_err(|e| e.to_string())
+        })?
+        .map_err(crate::message)?;
         py.import("json")?.call_method1("loads", (json,))
     }
 

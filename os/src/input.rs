@@ -24,17 +24,13 @@ use std::path::Path;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct NotRegularFile {
     /// What the path is: "a FIFO", "a character device", "a block device", "a socket",
-    /// "a directory" or "not a regular file" (an unknown type).
+    /// "a directory" or "a special file" (an unknown type), as [`kind_of`] names it.
     pub kind: &'static str,
 }
 
 impl fmt::Display for NotRegularFile {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        if self.kind == UNKNOWN {
-            f.write_str(UNKNOWN)
-        } else {
-            write!(f, "{}, not a regular file", self.kind)
-        }
+        write!(f, "{}, not a regular file", self.kind)
     }
 }
 
@@ -51,9 +47,9 @@ impl NotRegularFile {
     }
 }
 
-const UNKNOWN: &str = "not a regular file";
-
-/// What a file of type `t` is, in the words of an error; `None` for a regular file.
+/// What a file of type `t` is, in the words of an error; `None` for a regular file. The one
+/// naming of file types for readers and writers alike (a writer's `t` comes from `lstat`, so it
+/// can be a link).
 pub fn kind_of(t: std::fs::FileType) -> Option<&'static str> {
     if t.is_file() {
         return None;
@@ -68,8 +64,10 @@ pub fn kind_of(t: std::fs::FileType) -> Option<&'static str> {
         "a socket"
     } else if t.is_dir() {
         "a directory"
+    } else if t.is_symlink() {
+        "a symbolic link"
     } else {
-        UNKNOWN
+        "a special file"
     })
 }
 

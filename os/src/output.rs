@@ -236,24 +236,9 @@ pub fn partial_path(target: &Path) -> PathBuf {
     PathBuf::from(s)
 }
 
+/// What a file that is not a regular file is ([`crate::input::kind_of`]).
 fn kind_of(meta: &std::fs::Metadata) -> &'static str {
-    use std::os::unix::fs::FileTypeExt;
-    let t = meta.file_type();
-    if t.is_dir() {
-        "a directory"
-    } else if t.is_fifo() {
-        "a FIFO"
-    } else if t.is_char_device() {
-        "a character device"
-    } else if t.is_block_device() {
-        "a block device"
-    } else if t.is_socket() {
-        "a socket"
-    } else if t.is_symlink() {
-        "a symbolic link"
-    } else {
-        "a special file"
-    }
+    crate::input::kind_of(meta.file_type()).unwrap_or("a regular file")
 }
 
 fn identity(meta: &std::fs::Metadata) -> (u64, u64) {

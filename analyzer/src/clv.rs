@@ -25,6 +25,7 @@ use chaoscope_indicators::clv::{self, Backward, ClvError};
 use chaoscope_schemas::run::{Method, Orthonormalization, Sample, SystemKind};
 use serde::Serialize;
 
+use crate::chart::{Chart, ChartError, Line, Stroke, render};
 use crate::recording::{ReadError, RecordingReader};
 use crate::run_info::RunInfo;
 
@@ -50,8 +51,12 @@ pub struct ClvOptions {
     /// How many exponents are neutral (the ones nearest zero); `None`: what the dynamics forces
     /// ([`forced_zero_exponents`]).
     pub neutral: Option<usize>,
-    /// Memory for the stored factors before they spill to disk.
+    /// Memory for the stored factors before they spill to disk (and, with `vectors`, as much
+    /// again for the CLVs kept).
     pub memory_bytes: usize,
+    /// Keep the CLVs at every renormalization of the window ([`ClvOutput::vectors`]: `analyze
+    /// --clv-vectors`, Python's `Recording.clv`).
+    pub vectors: bool,
 }
 
 impl Default for ClvOptions {
@@ -63,6 +68,7 @@ impl Default for ClvOptions {
             backward_transient: None,
             neutral: None,
             memory_bytes: DEFAULT_MEMORY_BYTES,
+            vectors: false,
         }
     }
 }
@@ -92,6 +98,8 @@ pub enum ClvRunError {
     Numerics { t: f64, error: ClvError },
     #[error("--clv: the temporary file of the stored QR factors: {0}")]
     Spill(std::io::Error),
+    #[error("--clv: stopped")]
+    Stopped,
 }
 
 /// The distribution of one angle over the kept window (radians).
@@ -358,6 +366,95 @@ impl AngleSeries {
         drop(f);
         output.commit().map_err(io)
     }
+
+    /// The next row `t, angle...` in time order into `row` (`1 + names.len()` values); `false`
+    /// when none is left.
+    pub fn next_row(&mut self, row: &mut [f64]) -> std::io::Result<bool> {
+        self.rows.pop(row)
+    }
+}
+
+/// The CLVs at every renormalization of the window, in time order (at the times of the angle
+/// series, row for row), for `analyze --clv-vectors` and Python.
+pub struct VectorSeries {
+    k: usize,
+    dim: usize,
+    len: usize,
+    /// Rows `t, v_1 (dim values), ..., v_k`, pushed from the end of the window back.
+    rows: SpillStack,
+}
+
+impl VectorSeries {
+    /// CLVs per row.
+    pub fn k(&self) -> usize {
+        self.k
+    }
+
+    /// Entries per vector (the phase-space dimension).
+    pub fn dim(&self) -> usize {
+        self.dim
+    }
+
+    /// Rows left.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The next row in time order: its time, and into `vectors` the `k` unit CLVs one after
+    /// the other (`k * dim` values); `None` when none is left.
+    pub fn next_row(&mut self, vectors: &mut [f64]) -> std::io::Result<Option<f64>> {
+        let mut row = vec![0.0; 1 + self.k * self.dim];
+        if !self.rows.pop(&mut row)? {
+            return Ok(None);
+        }
+        self.len -= 1;
+        vectors.copy_from_slice(&row[1..]);
+        Ok(Some(row[0]))
+    }
+
+    /// Writes `<dir>/clv-vectors.npy` (doubles of shape `(rows, k, dim)`: `[n, j]` is CLV `j +
+    /// 1` at row `n`, a unit vector) and `<dir>/clv-times.npy` (shape `(rows,)`, the rows'
+    /// times, those of `clv-angles.csv`), NumPy's own format, each complete or not at all,
+    /// never over one of `inputs`; returns their paths.
+    pub fn write_npy(mut self, dir: &Path, inputs: &[PathBuf]) -> std::io::Result<Vec<PathBuf>> {
+        std::fs::create_dir_all(dir)?;
+        let options = crate::csv::table_options(inputs);
+        let io = crate::csv::io;
+        let (rows, k, dim) = (self.len, self.k, self.dim);
+        let output =
+            chaoscope_os::Output::create(&dir.join("clv-vectors.npy"), &options).map_err(io)?;
+        let mut f = std::io::BufWriter::new(output.file().map_err(io)?);
+        f.write_all(&crate::npy::header(&[rows, k, dim]))?;
+        let mut times = Vec::with_capacity(rows);
+        let mut v = vec![0.0; k * dim];
+        while let Some(t) = self.next_row(&mut v)? {
+            times.push(t);
+            crate::npy::write_values(&mut f, &v)?;
+        }
+        f.flush()?;
+        drop(f);
+        let vectors = output.commit().map_err(io)?;
+        let output =
+            chaoscope_os::Output::create(&dir.join("clv-times.npy"), &options).map_err(io)?;
+        let mut f = std::io::BufWriter::new(output.file().map_err(io)?);
+        f.write_all(&crate::npy::header(&[times.len()]))?;
+        crate::npy::write_values(&mut f, &times)?;
+        f.flush()?;
+        drop(f);
+        Ok(vec![vectors, output.commit().map_err(io)?])
+    }
+}
+
+/// What the CLV analysis of a run gives: the report, the angle series, and where asked for
+/// ([`ClvOptions::vectors`]) the vectors.
+pub struct ClvOutput {
+    pub report: ClvReport,
+    pub angles: AngleSeries,
+    pub vectors: Option<VectorSeries>,
 }
 
 /// The stream of one scheme's set: fed samples in order ([`ClvAnalysis::feed`]), then the
@@ -374,6 +471,7 @@ pub struct ClvAnalysis {
     forward_transient: f64,
     backward_transient: f64,
     memory_bytes: usize,
+    keep_vectors: bool,
     factors: SpillStack,
     /// Time of the scheme's first renormalization, and its latest.
     t_first: Option<f64>,
@@ -460,6 +558,7 @@ impl ClvAnalysis {
             forward_transient,
             backward_transient,
             memory_bytes: options.memory_bytes,
+            keep_vectors: options.vectors,
             factors: SpillStack::new(1 + clv::packed_len(k) + dim * k, options.memory_bytes),
             t_first: None,
             t_last: f64::NAN,
@@ -528,8 +627,9 @@ impl ClvAnalysis {
         Ok(())
     }
 
-    /// The backward pass: growth rates, classes, angle distributions, and the angle series.
-    pub fn finish(mut self) -> Result<(ClvReport, AngleSeries), ClvRunError> {
+    /// The backward pass: growth rates, classes, angle distributions, the angle series, and
+    /// where asked for the vectors.
+    pub fn finish(mut self) -> Result<ClvOutput, ClvRunError> {
         let setup = |m: String| ClvRunError::Setup(m);
         let (Some(t_first), Some(t_kept)) = (self.t_first, self.t_kept) else {
             return Err(setup(format!(
@@ -604,6 +704,9 @@ impl ClvAnalysis {
         let mut accumulators: Vec<AngleAccumulator> =
             pairs.iter().map(|_| AngleAccumulator::new()).collect();
         let mut series = SpillStack::new(1 + pairs.len(), self.memory_bytes / 8);
+        let mut vectors = self
+            .keep_vectors
+            .then(|| SpillStack::new(1 + dim * k, self.memory_bytes));
 
         let mut backward = Backward::new(k);
         let mut record = vec![0.0; 1 + clv::packed_len(k) + dim * k];
@@ -633,6 +736,12 @@ impl ClvAnalysis {
                     row.push(angle);
                 }
                 series.push(&row).map_err(ClvRunError::Spill)?;
+                if let Some(stack) = &mut vectors {
+                    row.clear();
+                    row.push(t);
+                    row.extend_from_slice(&v);
+                    stack.push(&row).map_err(ClvRunError::Spill)?;
+                }
             }
             // The window from the previous record to this one: stepped back through unless this
             // is the first record kept (t_kept), measured when it lies in [t_kept, t_end].
@@ -683,27 +792,119 @@ impl ClvAnalysis {
                 .zip(accumulators.iter().map(AngleAccumulator::stats))
                 .collect(),
         };
-        Ok((
+        Ok(ClvOutput {
             report,
-            AngleSeries {
+            angles: AngleSeries {
                 names,
                 rows: series,
             },
-        ))
+            vectors: vectors.map(|rows| VectorSeries {
+                k,
+                dim,
+                len: count as usize,
+                rows,
+            }),
+        })
     }
 }
 
 /// The CLVs of the recording at `path` (one pass through the file, then the backward pass).
-pub fn clv_of_file(
+pub fn clv_of_file(path: &Path, options: &ClvOptions) -> Result<ClvOutput, ClvRunError> {
+    clv_of_file_until(path, options, &|| false)
+}
+
+/// [`clv_of_file`], given up (as [`ClvRunError::Stopped`]) at the first sample read once `stop`
+/// says so (Python's Ctrl-C).
+pub fn clv_of_file_until(
     path: &Path,
     options: &ClvOptions,
-) -> Result<(ClvReport, AngleSeries), ClvRunError> {
+    stop: &dyn Fn() -> bool,
+) -> Result<ClvOutput, ClvRunError> {
     let mut reader = RecordingReader::open(path)?;
     let mut analysis = ClvAnalysis::new(reader.run(), options)?;
     while let Some(sample) = reader.next_sample()? {
+        if stop() {
+            return Err(ClvRunError::Stopped);
+        }
         analysis.feed(&sample)?;
     }
     analysis.finish()
+}
+
+/// The chart of one angle's distribution over the window: the fraction of the renormalizations
+/// in each bin of its histogram (10 bins per decade of the angle, log10 on the x axis, drawn as
+/// steps), with the median as a dashed line.
+pub fn angle_histogram_chart(report: &ClvReport, name: &str, stats: &AngleStats) -> Chart {
+    let h = &stats.histogram;
+    let width = 1.0 / f64::from(h.bins_per_decade);
+    let edge = |i: usize| h.log10_start + i as f64 * width;
+    let total = stats.count.max(1) as f64;
+    let mut steps = vec![(edge(0), 0.0)];
+    for (i, &c) in h.counts.iter().enumerate() {
+        let fraction = c as f64 / total;
+        steps.push((edge(i), fraction));
+        steps.push((edge(i + 1), fraction));
+    }
+    steps.push((edge(h.counts.len()), 0.0));
+    let peak = steps.iter().map(|p| p.1).fold(0.0, f64::max);
+    // Unlabelled (no legend box over the bins, which crowd the right end for angles near
+    // pi/2): the title names the angle and the dashed line.
+    let mut lines = vec![Line {
+        label: String::new(),
+        points: steps,
+        stroke: Stroke::Solid,
+        color: 2,
+    }];
+    let median = stats
+        .quantiles
+        .iter()
+        .find(|(p, _)| *p == 0.5)
+        .map(|&(_, m)| m)
+        .filter(|m| *m > 0.0);
+    if let Some(median) = median {
+        lines.push(Line {
+            label: String::new(),
+            points: vec![(median.log10(), 0.0), (median.log10(), peak)],
+            stroke: Stroke::Dashed,
+            color: 1,
+        });
+    }
+    Chart {
+        title: format!(
+            "CLV angle {name} (scheme {}, set {}){}",
+            report.scheme,
+            report.set,
+            median.map_or(String::new(), |m| format!(", dashed: median {m:.3e}"))
+        ),
+        x_label: "log10 angle (rad)".into(),
+        y_label: format!("fraction of {} renormalizations per bin", stats.count),
+        lines,
+        ..Default::default()
+    }
+}
+
+/// Draws the distribution of every angle of `report` ([`angle_histogram_chart`]) as
+/// `<dir>/clv-angle-<name>.png` and `.svg`, as every chart is written (never over one of
+/// `inputs`); returns the files written.
+pub fn plot_angle_histograms(
+    report: &ClvReport,
+    dir: &Path,
+    inputs: &[PathBuf],
+) -> Result<Vec<PathBuf>, ChartError> {
+    std::fs::create_dir_all(dir).map_err(|e| ChartError::Draw {
+        path: dir.to_path_buf(),
+        message: e.to_string(),
+    })?;
+    let mut files = Vec::new();
+    for (name, stats) in &report.angles {
+        let chart = angle_histogram_chart(report, name, stats);
+        files.extend(render(
+            &chart,
+            &dir.join(format!("clv-angle-{name}")),
+            inputs,
+        )?);
+    }
+    Ok(files)
 }
 
 /// The report as text, for `analyze --clv`.

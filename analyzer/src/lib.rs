@@ -12,6 +12,7 @@ pub mod chart;
 pub mod clv;
 pub mod csv;
 pub mod map_png;
+pub mod npy;
 pub mod plot;
 pub mod progress;
 pub mod recording;

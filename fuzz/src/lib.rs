@@ -834,8 +834,9 @@ pub fn values_resume(data: &[u8]) -> Outcome {
 
 /// A valid recording with hostile values through `analyze --clv` (the first byte chooses the
 /// options: the set, the transients, the neutral count, a memory small enough that the stored
-/// factors spill to disk): the report and its text are finite and the angle CSV has a named
-/// column for each of its values, finite, in time order; or the file is refused in one line.
+/// factors spill to disk): the report and its text are finite, the angle CSV has a named
+/// column for each of its values, finite, in time order, and the CLVs' `.npy` holds a finite
+/// row of vectors per angle row; or the file is refused in one line.
 pub fn values_clv(data: &[u8]) -> Outcome {
     use chaoscope_analyzer::clv::{ClvOptions, ClvRunError, clv_of_file, summary};
     let mut choices = Choices::new(data);
@@ -855,6 +856,7 @@ pub fn values_clv(data: &[u8]) -> Outcome {
         backward_transient: transients[usize::from(pick >> 3) % transients.len()],
         neutral: [None, Some(0), Some(1), Some(3)][usize::from(pick >> 5) % 4],
         memory_bytes: if pick & 0x80 != 0 { 512 } else { 1 << 20 },
+        vectors: true,
     };
     let Ok(scratch) = tempfile::Builder::new().prefix("chaoscope-fuzz-").tempdir() else {
         return Outcome::default();
@@ -864,7 +866,25 @@ pub fn values_clv(data: &[u8]) -> Outcome {
         return Outcome::default();
     }
     match clv_of_file(&input, &options) {
-        Ok((report, series)) => {
+        Ok(output) => {
+            let (report, series) = (output.report, output.angles);
+            let vectors = output.vectors.expect("asked for");
+            let rows = vectors.len() as u64;
+            let files = vectors
+                .write_npy(&scratch.path().join("npy"), std::slice::from_ref(&input))
+                .expect("the CLVs are written");
+            let bytes = std::fs::read(&files[0]).expect("clv-vectors.npy");
+            let header = 10 + usize::from(u16::from_le_bytes([bytes[8], bytes[9]]));
+            assert_eq!(rows, report.renormalizations, "a CLV row per angle row");
+            assert_eq!(
+                (bytes.len() - header) as u64,
+                8 * rows * (report.k * report.dim) as u64,
+                "clv-vectors.npy: its size is not its shape's"
+            );
+            for value in bytes[header..].chunks_exact(8) {
+                let v = f64::from_le_bytes(value.try_into().expect("8 bytes"));
+                assert!(v.is_finite(), "clv-vectors.npy: {v}");
+            }
             assert_finite_serialized("the CLV report", &report);
             let text = summary(&report);
             assert_finite_text("the CLV summary", &text);
@@ -889,7 +909,7 @@ pub fn values_clv(data: &[u8]) -> Outcome {
             }
             Outcome {
                 read: true,
-                outputs: 3,
+                outputs: 5,
             }
         }
         Err(e) => {

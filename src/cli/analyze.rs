@@ -8,7 +8,9 @@ use std::process::ExitCode;
 
 use anyhow::Context;
 use chaoscope_analyzer::analysis::AnalysisOptions;
-use chaoscope_analyzer::clv::{ClvOptions, clv_of_file, summary as clv_summary};
+use chaoscope_analyzer::clv::{
+    ClvOptions, ClvOutput, clv_of_file, plot_angle_histograms, summary as clv_summary,
+};
 use chaoscope_analyzer::plot::{TimeAxis, plot_all};
 use chaoscope_analyzer::recording::analyze_file;
 use chaoscope_analyzer::report::Report;
@@ -44,9 +46,15 @@ pub struct Args {
     /// Covariant Lyapunov vectors (Ginelli) of a VM scheme renormalized by QR, instead of the
     /// table: their growth rates beside the QR spectrum, and the distributions of the smallest
     /// angles between their unstable, neutral and stable subspaces (with --csv DIR, also their
-    /// time series in DIR/clv-angles.csv).
+    /// time series in DIR/clv-angles.csv; with --plot DIR, their histograms in
+    /// DIR/clv-angle-NAME.png and .svg).
     #[arg(long)]
     pub clv: bool,
+    /// Write the CLVs at every renormalization between the transients into DIR as NumPy files:
+    /// DIR/clv-vectors.npy, shape (rows, k, dim), and their times DIR/clv-times.npy (those of
+    /// clv-angles.csv).
+    #[arg(long, value_name = "DIR", requires = "clv")]
+    pub clv_vectors: Option<PathBuf>,
     /// The scheme of --clv (default: the first VM scheme with orthonormalize = "qr").
     #[arg(long, value_name = "NAME", requires = "clv")]
     pub clv_scheme: Option<String>,
@@ -137,9 +145,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
 
 /// `analyze --clv`.
 fn clv(args: &Args) -> anyhow::Result<ExitCode> {
-    if args.at.is_some() || args.plot.is_some() || args.from.is_some() {
+    if args.at.is_some() || args.from.is_some() {
         anyhow::bail!(
-            "--clv takes neither --at, --from nor --plot (its transients are \
+            "--clv takes neither --at nor --from (its transients are \
              --clv-forward-transient and --clv-backward-transient)"
         );
     }
@@ -150,18 +158,40 @@ fn clv(args: &Args) -> anyhow::Result<ExitCode> {
         backward_transient: args.clv_backward_transient,
         neutral: args.clv_neutral,
         memory_bytes: args.clv_memory.saturating_mul(1 << 20),
+        vectors: args.clv_vectors.is_some(),
     };
-    let (report, series) = clv_of_file(&args.file, &options)?;
+    let ClvOutput {
+        report,
+        angles,
+        vectors,
+    } = clv_of_file(&args.file, &options)?;
     if args.json {
         outln!("{}", serde_json::json!({ "clv": report }))?;
     } else {
         outln!("{}", clv_summary(&report).trim_end_matches('\n'))?;
     }
+    let inputs = std::slice::from_ref(&args.file);
     if let Some(dir) = &args.csv {
-        let file = series
-            .write_csv(dir, std::slice::from_ref(&args.file))
+        let file = angles
+            .write_csv(dir, inputs)
             .with_context(|| format!("writing CSV into {}", dir.display()))?;
         chaoscope_os::errln!("chaoscope analyze: {}", file.display());
+    }
+    if let (Some(dir), Some(vectors)) = (&args.clv_vectors, vectors) {
+        let files = vectors
+            .write_npy(dir, inputs)
+            .with_context(|| format!("writing the CLVs into {}", dir.display()))?;
+        for file in files {
+            chaoscope_os::errln!("chaoscope analyze: {}", file.display());
+        }
+    }
+    if let Some(dir) = &args.plot {
+        let files = plot_angle_histograms(&report, dir, inputs)?;
+        chaoscope_os::errln!(
+            "chaoscope analyze: {} plot files in {}",
+            files.len(),
+            dir.display()
+        );
     }
     Ok(ExitCode::SUCCESS)
 }

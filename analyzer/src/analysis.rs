@@ -396,6 +396,13 @@ impl Analysis {
         }
     }
 
+    /// An MPM scheme's distance to its VM partner at its latest renormalization (`None` for a
+    /// scheme without one, or before both reach the same step): what the report's `vs_vm` and
+    /// the CSV's `gali<j>_vs_vm_mean_abs_delta_log10` carry.
+    pub fn vs_vm(&self, si: usize) -> Option<VsVm> {
+        self.vs_vm_of(si)
+    }
+
     fn vs_vm_of(&self, si: usize) -> Option<VsVm> {
         let (run, tracker) = (&self.run, &self.tracker);
         let vi = self.schemes[si].vm_partner?;

@@ -6,8 +6,12 @@ A thin layer over the chaoscope Rust crates (the same engine, file format and an
 - ``run(config, out=...)`` integrates a run and records it to an MCAP file -> ``Recording``
 - ``open(path)`` opens a recording -> ``Recording``
 - ``Recording.indicators(scheme)`` -> ``Indicators`` (numpy arrays of t, GALI_2..k per set and
-  averaged, SALI, the finite-time exponents, the energy error), equal to
-  ``chaoscope analyze --json`` to the last bit
+  averaged, SALI, the finite-time exponents, the energy error, and every registered indicator
+  by its name: ``fli``, ``ofli``, ``megno``, ``megno_mean``, ``dvd_m2``, ...), equal to
+  ``chaoscope analyze --json`` to the last bit and to the columns of ``analyze --csv``
+- ``Recording.clv(scheme=None, ...)`` -> ``Clv`` (the covariant Lyapunov vectors as
+  ``analyze --clv`` computes them: growth rates, angles between subspaces over time, and the
+  vectors, shape (m, k, dim))
 - ``Recording.report(at=None, from_t=None)`` (also ``Recording.analyze``) -> the dict
   ``chaoscope analyze --json [--at T] [--from T0]`` prints (with the verdict); ``from_t``
   discards a transient from the finite-time exponents
@@ -26,6 +30,7 @@ line and a caret on lines of their own); long calls release the GIL and stop on 
 
 from ._chaoscope import (
     ChaoscopeError,
+    Clv,
     Indicators,
     LiveSample,
     Map,
@@ -41,6 +46,7 @@ from ._chaoscope import (
 
 __all__ = [
     "ChaoscopeError",
+    "Clv",
     "Indicators",
     "LiveSample",
     "Map",

@@ -58,6 +58,56 @@ class Indicators:
     """Finite-time maximal Lyapunov exponent, shape (n,)."""
     energy_error: FloatArray
     """Relative energy error of the reference orbit, shape (n,)."""
+    names: List[str]
+    """Every registered set indicator's output, in report order (the `analyze --csv` columns)."""
+    named: Dict[str, FloatArray]
+    """Each output's mean over the sets by name, shape (n,); NaN where unavailable."""
+    named_sets: Dict[str, FloatArray]
+    """Each output of each set by name, shape (n, sets)."""
+    unavailable: Dict[str, str]
+    """The outputs this run cannot give, with the reason."""
+    gali_vs_vm_mean_abs_delta_log10: Optional[FloatArray]
+    """MPM schemes: mean over the sets of |log10 GALI_j - log10 GALI_j(VM)|, shape (n, k - 1)."""
+    fli: FloatArray
+    """Fast Lyapunov indicator, mean over the sets, shape (n,) (as every name of `names`)."""
+    ofli: FloatArray
+    megno: FloatArray
+    megno_mean: FloatArray
+    dvd_m2: FloatArray
+    dvd_participation: FloatArray
+    energy_m2: FloatArray
+    energy_participation: FloatArray
+
+class Clv:
+    """Covariant Lyapunov vectors of one VM QR scheme's set (`chaoscope analyze --clv`)."""
+
+    scheme: str
+    set: int
+    k: int
+    dim: int
+    forward_transient: float
+    backward_transient: float
+    t_start: float
+    t_end: float
+    renormalizations: int
+    growth_rates: FloatArray
+    """Each CLV's growth rate over the window, shape (k,)."""
+    qr_spectrum: FloatArray
+    """The QR spectrum over the window, shape (k,)."""
+    qr_spectrum_run: FloatArray
+    classes: List[str]
+    """"unstable", "neutral" or "stable" per CLV."""
+    neutral: int
+    stretch_max_relative_difference: float
+    spilled_bytes: int
+    report: Dict[str, Any]
+    """What `analyze --clv --json` prints under "clv"."""
+    t: FloatArray
+    """Times of the window's renormalizations, shape (m,)."""
+    angles: Dict[str, FloatArray]
+    """Smallest principal angle between subspaces by name, radians, shape (m,) each."""
+    vectors: Optional[FloatArray]
+    """The CLVs, shape (m, k, dim); None with vectors=False."""
 
 class Recording:
     """A chaoscope recording (MCAP file)."""
@@ -103,6 +153,18 @@ class Recording:
         """The recorded reference orbit, and an MPM scheme's nearby orbits."""
     def indicators(self, scheme: str) -> Indicators:
         """The indicators of `scheme` at each of its renormalizations."""
+    def clv(
+        self,
+        scheme: Optional[str] = None,
+        *,
+        set: int = 0,
+        forward_transient: Optional[float] = None,
+        backward_transient: Optional[float] = None,
+        neutral: Optional[int] = None,
+        memory: int = 256,
+        vectors: bool = True,
+    ) -> Clv:
+        """The covariant Lyapunov vectors, as `chaoscope analyze --clv` computes them."""
     def replay(
         self,
         *,

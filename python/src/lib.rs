@@ -5,6 +5,7 @@
 //! worker thread with the GIL released while the calling thread watches for Ctrl-C
 //! ([`interrupt`]).
 
+mod clv;
 mod config;
 mod interrupt;
 mod map;
@@ -38,6 +39,7 @@ fn _chaoscope(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<recording::Recording>()?;
     m.add_class::<recording::Indicators>()?;
     m.add_class::<recording::Orbit>()?;
+    m.add_class::<clv::Clv>()?;
     m.add_class::<map::Map>()?;
     m.add_class::<monitor::Monitor>()?;
     m.add_class::<monitor::LiveSample>()?;

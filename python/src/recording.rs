@@ -14,9 +14,10 @@ use chaoscope_producer::publish::{non_finite, resolve_run_name, run_header};
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_replay::{ReplayError, ReplayOptions};
 use chaoscope_schemas::proto::{RunHeader, end_of_run};
+use chaoscope_indicators::{Named, Output};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::PyAny;
+use pyo3::types::{PyAny, PyDict};
 
 use crate::interrupt::interruptible;
 
@@ -397,6 +398,40 @@ impl Recording {
         Indicators::new(py, &self.header, si, series)
     }
 
+    /// The covariant Lyapunov vectors (Ginelli) of a VM scheme renormalized by QR, as
+    /// `chaoscope analyze --clv` computes them, with the same arguments: `scheme`
+    /// (`--clv-scheme`, default the first such scheme), `set` (`--clv-set`),
+    /// `forward_transient` and `backward_transient` (times discarded at the start and the end,
+    /// default a tenth of the run each), `neutral` (`--clv-neutral`), `memory` (MiB of stored
+    /// factors before they spill to a temporary file, `--clv-memory`). Returns a `Clv`: the
+    /// growth rates, the angles between the subspaces at every renormalization of the window,
+    /// and (unless `vectors=False`) the vectors themselves, shape (m, k, dim), in memory. Reads
+    /// the file with the GIL released; Ctrl-C raises at once.
+    #[pyo3(signature = (scheme = None, *, set = 0, forward_transient = None, backward_transient = None, neutral = None, memory = 256, vectors = true))]
+    #[allow(clippy::too_many_arguments)]
+    fn clv(
+        &self,
+        py: Python<'_>,
+        scheme: Option<String>,
+        set: usize,
+        forward_transient: Option<f64>,
+        backward_transient: Option<f64>,
+        neutral: Option<usize>,
+        memory: usize,
+        vectors: bool,
+    ) -> PyResult<crate::clv::Clv> {
+        let options = chaoscope_analyzer::clv::ClvOptions {
+            scheme,
+            set,
+            forward_transient,
+            backward_transient,
+            neutral,
+            memory_bytes: memory.saturating_mul(1 << 20),
+            vectors,
+        };
+        crate::clv::clv(py, self.path.clone(), options)
+    }
+
     /// Re-runs the recorded configuration with other renormalization periods `tau` and/or
     /// distances `d0` (a number or a list each) on the bit-identical reference orbit, like
     /// `chaoscope replay`, into `out` (default: `<stem>-replay.mcap` beside this file). The
@@ -525,6 +560,17 @@ struct Series {
     exponents: Vec<f64>,
     exponents_sets: Vec<f64>,
     energy_error: Vec<f64>,
+    /// Every registered set indicator's outputs (`set_output_names()`), per row: the mean over
+    /// the sets (`names` values a row), and per set (`sets * names` values a row); NaN where
+    /// unavailable.
+    names: &'static [&'static str],
+    named: Vec<f64>,
+    named_sets: Vec<f64>,
+    /// The outputs unavailable at the latest row, with the reason.
+    unavailable: Vec<(&'static str, String)>,
+    /// An MPM scheme's mean |log10 GALI_j - log10 GALI_j(VM)| per row (`orders` values a row,
+    /// NaN where its VM partner is not at the same step); `None` without a partner.
+    vs_vm: Option<Vec<f64>>,
 }
 
 /// Streams the recording through the analysis core (the reader and feed of
@@ -535,7 +581,15 @@ fn read_series(path: &Path, si: usize, stop: &AtomicBool) -> Result<Series, Stri
     let run = reader.run().clone();
     let (sets, k, energy0) = (run.sets, run.k, run.header.energy0);
     let orders = k.saturating_sub(1);
-    let mut analysis = Analysis::new(run, &AnalysisOptions::default());
+    // The options of `chaoscope analyze` that change an indicator's value: the system rebuilt
+    // from the recording's config for OFLI's flow direction and the site energies.
+    let options = AnalysisOptions {
+        flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
+        site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
+        ..Default::default()
+    };
+    let mut analysis = Analysis::new(run, &options);
+    let names = chaoscope_indicators::indicator::set_output_names();
     let mut s = Series {
         sets,
         orders,
@@ -551,6 +605,11 @@ fn read_series(path: &Path, si: usize, stop: &AtomicBool) -> Result<Series, Stri
         exponents: Vec::new(),
         exponents_sets: Vec::new(),
         energy_error: Vec::new(),
+        names,
+        named: Vec::new(),
+        named_sets: Vec::new(),
+        unavailable: Vec::new(),
+        vs_vm: None,
     };
     while let Some(sample) = reader.next_sample().map_err(|e| error_text(&e))? {
         if stop.load(Ordering::Relaxed) {
@@ -575,6 +634,35 @@ fn read_series(path: &Path, si: usize, stop: &AtomicBool) -> Result<Series, Stri
             s.exponents
                 .push(ind.exponents.get(i).map_or(f64::NAN, |e| e.mean));
         }
+        // As the CSV's columns: the mean over the sets of each output.
+        s.named.extend(
+            names
+                .iter()
+                .map(|name| ind.named.value(name).unwrap_or(f64::NAN)),
+        );
+        s.unavailable = ind
+            .named
+            .0
+            .iter()
+            .filter_map(|(name, v)| match v {
+                Named::Unavailable(reason) => Some((*name, reason.clone())),
+                _ => None,
+            })
+            .collect();
+        let rows = s.t.len();
+        match (analysis.vs_vm(si), &mut s.vs_vm) {
+            (Some(d), vs_vm) => {
+                let all = vs_vm.get_or_insert_with(|| vec![f64::NAN; (rows - 1) * orders]);
+                all.extend((0..orders).map(|o| {
+                    d.gali
+                        .0
+                        .get(o)
+                        .map_or(f64::NAN, |(_, x)| x.mean_abs_delta_log10)
+                }));
+            }
+            (None, Some(all)) => all.extend((0..orders).map(|_| f64::NAN)),
+            (None, None) => {}
+        }
         for set in 0..sets {
             // A set whose latest values are not of this sample (lost frames) is missing here.
             let v = analysis
@@ -593,6 +681,17 @@ fn read_series(path: &Path, si: usize, stop: &AtomicBool) -> Result<Series, Stri
                 s.exponents_sets.push(
                     v.as_ref()
                         .and_then(|v| v.exponents.get(i).copied())
+                        .unwrap_or(f64::NAN),
+                );
+            }
+            for name in names {
+                s.named_sets.push(
+                    v.as_ref()
+                        .and_then(|v| v.outputs.iter().find(|(n, _)| n == name))
+                        .and_then(|(_, o)| match o {
+                            Output::Value(x) => Some(*x),
+                            Output::Unavailable(_) => None,
+                        })
                         .unwrap_or(f64::NAN),
                 );
             }
@@ -645,9 +744,23 @@ pub struct Indicators {
     mle: Py<PyAny>,
     /// Relative energy error of the reference orbit at each time, shape (n,).
     energy_error: Py<PyAny>,
+    /// The names of every registered set indicator's outputs, in report order: `fli`, `ofli`,
+    /// `megno`, `megno_mean`, `dvd_m2`, `dvd_participation`, `energy_m2`,
+    /// `energy_participation` (the columns of `analyze --csv`).
+    names: Vec<&'static str>,
+    /// Each output's mean over the sets by name, shape (n,), NaN where unavailable (each is also
+    /// an attribute: `ind.fli`).
+    named: Py<PyAny>,
+    /// Each output of each set by name, shape (n, sets).
+    named_sets: Py<PyAny>,
+    /// The outputs this run cannot give (at its latest row), with the reason.
+    unavailable: Py<PyAny>,
+    /// For an MPM scheme, the mean over the sets of |log10 GALI_j - log10 GALI_j(VM)| against the
+    /// VM scheme of the same tau, shape (n, k - 1); None for a scheme without one.
+    gali_vs_vm_mean_abs_delta_log10: Option<Py<PyAny>>,
 }
 
-fn array(py: Python<'_>, data: Vec<f64>, shape: &[usize]) -> PyResult<Py<PyAny>> {
+pub(crate) fn array(py: Python<'_>, data: Vec<f64>, shape: &[usize]) -> PyResult<Py<PyAny>> {
     Ok(PyArray1::from_vec(py, data)
         .reshape(shape)?
         .into_any()
@@ -659,6 +772,21 @@ impl Indicators {
         let info = &header.schemes[si];
         let n = s.t.len();
         let mle: Vec<f64> = (0..n).map(|r| s.exponents[r * s.vectors]).collect();
+        let width = s.names.len();
+        let named = PyDict::new(py);
+        let named_sets = PyDict::new(py);
+        for (i, name) in s.names.iter().enumerate() {
+            let mean: Vec<f64> = (0..n).map(|r| s.named[r * width + i]).collect();
+            named.set_item(name, array(py, mean, &[n])?)?;
+            let sets: Vec<f64> = (0..n * s.sets)
+                .map(|rs| s.named_sets[rs * width + i])
+                .collect();
+            named_sets.set_item(name, array(py, sets, &[n, s.sets])?)?;
+        }
+        let unavailable = PyDict::new(py);
+        for (name, reason) in &s.unavailable {
+            unavailable.set_item(name, reason)?;
+        }
         Ok(Self {
             scheme: info.name.clone(),
             method: info.method.clone(),
@@ -678,6 +806,14 @@ impl Indicators {
             exponents_sets: array(py, s.exponents_sets, &[n, s.sets, s.vectors])?,
             mle: array(py, mle, &[n])?,
             energy_error: array(py, s.energy_error, &[n])?,
+            names: s.names.to_vec(),
+            named: named.into_any().unbind(),
+            named_sets: named_sets.into_any().unbind(),
+            unavailable: unavailable.into_any().unbind(),
+            gali_vs_vm_mean_abs_delta_log10: s
+                .vs_vm
+                .map(|d| array(py, d, &[n, s.orders]))
+                .transpose()?,
         })
     }
 }
@@ -710,6 +846,17 @@ impl Orbit {
 
 #[pymethods]
 impl Indicators {
+    /// Every registered output by name as an attribute (`ind.fli`, `ind.megno_mean`): its mean
+    /// over the sets, from `named`.
+    fn __getattr__(&self, py: Python<'_>, name: &str) -> PyResult<Py<PyAny>> {
+        match self.named.bind(py).get_item(name) {
+            Ok(value) => Ok(value.unbind()),
+            Err(_) => Err(pyo3::exceptions::PyAttributeError::new_err(format!(
+                "'Indicators' object has no attribute '{name}'"
+            ))),
+        }
+    }
+
     fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
         let n = self.t.bind(py).len()?;
         Ok(format!(

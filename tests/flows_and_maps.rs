@@ -29,6 +29,31 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// A little-endian `f64` array in NumPy's `.npy` format (version 1.0, C order), read as the
+/// format's specification says: its shape and its values.
+fn read_npy(path: &Path) -> (Vec<usize>, Vec<f64>) {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(&bytes[..8], b"\x93NUMPY\x01\x00", "{}", path.display());
+    let data = 10 + u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
+    assert_eq!(data % 64, 0, "the data is aligned");
+    let header = std::str::from_utf8(&bytes[10..data]).unwrap();
+    assert!(header.contains("'descr': '<f8'"), "{header}");
+    assert!(header.contains("'fortran_order': False"), "{header}");
+    let shape = &header[header.find("'shape': (").unwrap() + 10..];
+    let shape: Vec<usize> = shape[..shape.find(')').unwrap()]
+        .split(',')
+        .map(str::trim)
+        .filter(|d| !d.is_empty())
+        .map(|d| d.parse().unwrap())
+        .collect();
+    let values: Vec<f64> = bytes[data..]
+        .chunks_exact(8)
+        .map(|b| f64::from_le_bytes(b.try_into().unwrap()))
+        .collect();
+    assert_eq!(values.len(), shape.iter().product::<usize>());
+    (shape, values)
+}
+
 /// The `[model]` keys of a map's config.
 fn map_model(config: &mut RunConfig) -> &mut MapModelConfig {
     match &mut config.model {
@@ -235,6 +260,67 @@ fn henon_map_records_and_reports_its_constant_jacobian() {
     );
     assert!(times.windows(2).all(|w| w[0] < w[1]));
     assert_eq!(times[0], clv["t_start"].as_f64().unwrap());
+    // The vectors exported as NumPy files (`--clv-vectors DIR`) and the angle histograms drawn
+    // (`--plot DIR`).
+    let (npy_dir, plot_dir) = (d.join("npy"), d.join("plots"));
+    run_ok(&[
+        "analyze",
+        s(&rec),
+        "--clv",
+        "--clv-vectors",
+        s(&npy_dir),
+        "--plot",
+        s(&plot_dir),
+    ]);
+    let (shape, vectors) = read_npy(&npy_dir.join("clv-vectors.npy"));
+    assert_eq!(shape, [times.len(), 2, 2]);
+    let (shape, npy_times) = read_npy(&npy_dir.join("clv-times.npy"));
+    assert_eq!(shape, [times.len()]);
+    // The same doubles as the CSV's times (its cells read back exactly).
+    assert_eq!(npy_times, times);
+    let angle_rows: Vec<Vec<f64>> = csv
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').skip(1).map(|c| c.parse().unwrap()).collect())
+        .collect();
+    for (row, angles) in vectors.chunks_exact(4).zip(&angle_rows) {
+        let (a, b) = (&row[0..2], &row[2..4]);
+        // Unit vectors: V = Q C with Q orthonormal and C's columns normalized, each to a few
+        // roundings of 1.1e-16 in a 2-term sum.
+        for v in [a, b] {
+            let norm = (v[0] * v[0] + v[1] * v[1]).sqrt();
+            assert!((norm - 1.0).abs() < 1e-14, "|v| = {norm}");
+        }
+        // The angle between the two lines, computed here from sines and cosines of the
+        // exported vectors, is the CSV's (the analysis goes through an orthonormalization of
+        // each: the two agree to a few roundings of the angle, below pi/2).
+        let sin = (a[0] * b[1] - a[1] * b[0]).abs();
+        let cos = (a[0] * b[0] + a[1] * b[1]).abs();
+        let angle = sin.atan2(cos);
+        // Unstable against the rest and expanding against contracting are one pair here.
+        for recorded in angles {
+            assert!((angle - recorded).abs() < 1e-12, "{angle} vs {recorded}");
+        }
+    }
+    for name in ["unstable_vs_rest", "expanding_vs_contracting"] {
+        let png = std::fs::read(plot_dir.join(format!("clv-angle-{name}.png"))).unwrap();
+        assert!(png.starts_with(b"\x89PNG\r\n\x1a\n"), "{name}: not a PNG");
+        let svg = std::fs::read_to_string(plot_dir.join(format!("clv-angle-{name}.svg"))).unwrap();
+        assert!(
+            svg.contains("<svg") && svg.contains("</svg>"),
+            "{name}: not an SVG"
+        );
+    }
+    // A directory that is a file: one line naming it, exit status 1.
+    let not_a_dir = d.join("a-file");
+    std::fs::write(&not_a_dir, "x").unwrap();
+    let out = chaoscope(&["analyze", s(&rec), "--clv", "--clv-vectors", s(&not_a_dir)])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains(s(&not_a_dir)), "{err}");
+    assert_eq!(err.trim_end().lines().count(), 1, "{err}");
     // A scheme the CLVs cannot come from: one line naming it, exit status 1.
     let out = chaoscope(&["analyze", s(&rec), "--clv", "--clv-scheme", "mpm"])
         .output()

@@ -25,8 +25,8 @@ struct Computed {
 
 fn compute(path: &Path, options: &ClvOptions, stop: &AtomicBool) -> Result<Computed, String> {
     let text = |e: &(dyn std::error::Error + 'static)| chaoscope_recorder::file::error_chain(e);
-    let output = clv_of_file_until(path, options, &|| stop.load(Ordering::Relaxed))
-        .map_err(|e| text(&e))?;
+    let output =
+        clv_of_file_until(path, options, &|| stop.load(Ordering::Relaxed)).map_err(|e| text(&e))?;
     let spill = |e: std::io::Error| format!("--clv: the temporary file of the series: {e}");
     let mut angles = output.angles;
     let names = angles.names.clone();
@@ -63,14 +63,14 @@ fn compute(path: &Path, options: &ClvOptions, stop: &AtomicBool) -> Result<Compu
 pub fn clv(py: Python<'_>, path: PathBuf, options: ClvOptions) -> PyResult<Clv> {
     let stop = Arc::new(AtomicBool::new(false));
     let flag = Arc::clone(&stop);
-    let computed =
-        match crate::interrupt::abandonable(py, move || compute(&path, &options, &flag)) {
-            Ok(result) => result.map_err(crate::message)?,
-            Err(interrupted) => {
-                stop.store(true, Ordering::Relaxed);
-                return Err(interrupted);
-            }
-        };
+    let computed = match crate::interrupt::abandonable(py, move || compute(&path, &options, &flag))
+    {
+        Ok(result) => result.map_err(crate::message)?,
+        Err(interrupted) => {
+            stop.store(true, Ordering::Relaxed);
+            return Err(interrupted);
+        }
+    };
     let Computed {
         report: r,
         json,

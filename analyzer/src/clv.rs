@@ -421,6 +421,10 @@ impl VectorSeries {
     /// times, those of `clv-angles.csv`), NumPy's own format, each complete or not at all,
     /// never over one of `inputs`; returns their paths.
     pub fn write_npy(mut self, dir: &Path, inputs: &[PathBuf]) -> std::io::Result<Vec<PathBuf>> {
+        // Said plainly rather than as the "File exists" of creating it.
+        if dir.exists() && !dir.is_dir() {
+            return Err(std::io::Error::other("not a directory"));
+        }
         std::fs::create_dir_all(dir)?;
         let options = crate::csv::table_options(inputs);
         let io = crate::csv::io;

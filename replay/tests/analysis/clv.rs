@@ -289,6 +289,35 @@ fn factors_spilled_to_disk_give_the_same_report() {
         },
         in_memory
     );
+    // The vectors kept for export (`--clv-vectors`) go through a stack of their own, within
+    // the same budget: spilled or not, the same rows in time order, bit for bit, one per
+    // renormalization of the window and at the angle series' times.
+    let rows = |memory_bytes: usize| {
+        let output = clv_of_file(
+            &path,
+            &ClvOptions {
+                memory_bytes,
+                vectors: true,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let mut angles = output.angles;
+        let mut vectors = output.vectors.expect("asked for");
+        assert_eq!((vectors.k(), vectors.dim()), (2, 2));
+        assert_eq!(vectors.len() as u64, output.report.renormalizations);
+        let (mut v, mut angle_row) = (vec![0.0; 4], vec![0.0; 3]);
+        let mut all = Vec::new();
+        while let Some(t) = vectors.next_row(&mut v).unwrap() {
+            assert!(angles.next_row(&mut angle_row).unwrap());
+            assert_eq!(t.to_bits(), angle_row[0].to_bits());
+            all.push((t, v.clone()));
+        }
+        assert!(vectors.is_empty());
+        assert!(all.windows(2).all(|w| w[0].0 < w[1].0));
+        all
+    };
+    assert_eq!(rows(1), rows(ClvOptions::default().memory_bytes));
 }
 
 #[test]

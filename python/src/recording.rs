@@ -706,7 +706,9 @@ fn read_series(path: &Path, si: usize, stop: &AtomicBool) -> Result<Series, Stri
 }
 
 /// The indicators of one scheme, one row per renormalization (numpy arrays). Column `j - 2` of
-/// the GALI arrays is GALI_j, j = 2..k. Averages are over the sets present at that time.
+/// the GALI arrays is GALI_j, j = 2..k. Averages are over the sets present at that time. Every
+/// registered set indicator's output (FLI, OFLI, MEGNO, ...) is in `named` under its report
+/// name, and an attribute of that name.
 #[pyclass(module = "chaoscope", frozen, get_all)]
 pub struct Indicators {
     /// Scheme name.

@@ -575,3 +575,99 @@ fn running(pid: u32) -> bool {
             .is_some_and(|(_, rest)| rest.trim_start().starts_with(['Z', 'X']))
     })
 }
+
+/// The arguments of process `pid` (empty once it is gone).
+fn argv(pid: u32) -> Vec<String> {
+    std::fs::read(format!("/proc/{pid}/cmdline"))
+        .unwrap_or_default()
+        .split(|&b| b == 0)
+        .filter(|a| !a.is_empty())
+        .map(|a| String::from_utf8_lossy(a).into_owned())
+        .collect()
+}
+
+/// The children of process `pid` (those its main thread started: `run` starts both there).
+fn children(pid: u32) -> Vec<u32> {
+    std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children"))
+        .unwrap_or_default()
+        .split_whitespace()
+        .filter_map(|c| c.parse().ok())
+        .collect()
+}
+
+/// `chaoscope run` SIGKILLed while its recorder is between fork and exec, at the two points
+/// where the recorder's parent-death SIGTERM could go astray: before `PR_SET_PDEATHSIG` (the
+/// child finds its parent gone and raises the signal itself) and after it (the kernel sends
+/// it). The forked child runs `run`'s handlers until exec, which latched the signal in memory
+/// the exec then dropped: the recorder started with no signal, its producer (which got its own
+/// and ended) never seen alive, and waited for it for ever (once in this file's crash loop,
+/// seed 13; a kill lands in this window by chance only). `CHAOSCOPE_SPAWN_PAUSE` holds the
+/// child at each point so the kill lands there every time.
+#[test]
+fn a_run_killed_while_its_recorder_starts_leaves_no_recorder_behind() {
+    let work = tempfile::tempdir().unwrap();
+    let bus = Bus::new();
+    let config = write_config(work.path(), &hh_config(20.0, 0.01).to_toml());
+    for point in ["before-pdeathsig", "before-exec"] {
+        let run = unique_run("spawn-kill");
+        let out = work.path().join(format!("{point}.mcap"));
+        let mut command = bus.command(&[
+            "run",
+            config.to_str().unwrap(),
+            "--run",
+            &run,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        // Long enough for this test to see the child and kill `run` within it on a loaded
+        // machine, and for the producer to be gone when a recorder that lost the signal
+        // starts after it.
+        command.env("CHAOSCOPE_SPAWN_PAUSE", format!("record:{point}:1500"));
+        let mut front = Proc::spawn(command);
+        let front_pid = front.pid() as u32;
+        // The recorder's child: forked after the producer opened the run, still running
+        // `run`'s image (its arguments are `run`'s until exec).
+        let start = Instant::now();
+        let recorder = loop {
+            let kids = children(front_pid);
+            let started = kids
+                .iter()
+                .any(|&k| argv(k).get(1).is_some_and(|a| a == "produce"));
+            let forked = kids
+                .iter()
+                .copied()
+                .find(|&k| argv(k).get(1).is_some_and(|a| a == "run"));
+            if let (true, Some(recorder)) = (started, forked) {
+                break recorder;
+            }
+            assert!(
+                front.0.try_wait().unwrap().is_none(),
+                "{point}: run ended before starting its recorder"
+            );
+            assert!(start.elapsed() < LIMIT, "{point}: no recorder started");
+            std::thread::sleep(Duration::from_millis(5));
+        };
+        front.signal(libc::SIGKILL);
+        front.wait(LIMIT);
+        let start = Instant::now();
+        while running(recorder) && start.elapsed() < LIMIT {
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        let left = running(recorder).then(|| argv(recorder));
+        if left.is_some() {
+            // SAFETY: kill(2) of the recorder this test's `run` started.
+            unsafe { libc::kill(recorder as libc::pid_t, libc::SIGKILL) };
+        }
+        assert_eq!(
+            left, None,
+            "{point}: the recorder outlived its killed `run` by {LIMIT:?}"
+        );
+        bus.wait_nodes_gone(&run);
+        // The recorder ended before it wrote anything, and the producer streamed to nobody.
+        assert!(!out.exists(), "{point}: {out:?} written");
+        assert!(
+            !chaoscope_os::output::partial_path(&out).exists(),
+            "{point}: an in-progress file left"
+        );
+    }
+}

@@ -799,9 +799,26 @@ fn fifos_devices_and_directories_as_inputs_are_refused_at_once_in_one_line() {
     let o = s(&out);
     let (r, c, m) = (s(&rec), s(&cfg), s(&map_cfg));
     // `analyze` reads the table only for what it adds (flow field, site energies): without it
-    // the analysis of what the recording holds goes on, at once.
-    let ran = run_bounded(&["analyze", &r, "--json"]);
-    assert_eq!(ran.code, Some(0), "analyze: {}", ran.stderr);
+    // the analysis of what the recording holds goes on, at once, saying in one line what is
+    // left out and why (the table, a FIFO).
+    let analyze_without_table = |what: &str| {
+        let ran = run_bounded(&["analyze", &r, "--json"]);
+        assert_eq!(ran.code, Some(0), "analyze: {}", ran.stderr);
+        let report: serde_json::Value = serde_json::from_str(ran.stdout.trim())
+            .unwrap_or_else(|e| panic!("analyze --json: {e}: {}", ran.stdout));
+        assert!(report["schemes"].is_array(), "{report}");
+        let lines: Vec<&str> = ran.stderr.lines().collect();
+        assert!(
+            lines.len() == 1
+                && lines[0].contains("warning")
+                && lines[0].contains("no flow field and no site energies")
+                && lines[0].contains(&csv.display().to_string())
+                && lines[0].contains(what),
+            "analyze: not one warning naming what is missing and why ({what}): {}",
+            ran.stderr
+        );
+    };
+    analyze_without_table("a FIFO");
     let table_cases: [Vec<&str>; 7] = [
         vec!["replay", &r, "--tau", "0.5", "--out", &o],
         vec!["resume", &r, "--t-final", "4", "--out", &o],
@@ -855,6 +872,7 @@ fn fifos_devices_and_directories_as_inputs_are_refused_at_once_in_one_line() {
     assert_refused_special(&["config", "/dev/zero"], zero, "a character device", &[]);
     std::fs::remove_file(&csv).unwrap();
     std::fs::create_dir(&csv).unwrap();
+    analyze_without_table("a directory");
     assert_refused_special(
         &["replay", &r, "--tau", "0.5", "--out", &o],
         &csv,

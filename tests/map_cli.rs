@@ -235,3 +235,109 @@ fn interrupted_and_killed_maps_resume() {
     assert!(!other.status.success());
     assert!(String::from_utf8_lossy(&other.stderr).contains("--restart"));
 }
+
+/// A grid axis over a coordinate the model declares periodic (`[model] modulo`) whose
+/// `max - min` is one whole period repeats its first line as its last: `map` and `config` say
+/// so, for the grid of a map as for those of a flow (`ode`) and of the Hamiltonians
+/// (`hamiltonian`, `potential`, whose `modulo` runs over q1..qN, p1..pN). The pendulum's angle
+/// is periodic, its momentum not (period 0): only the angle's axis is named, and a grid of the
+/// angle ending one grid spacing short of the period (the `max` the warning proposes) is not.
+#[test]
+fn grids_spanning_a_declared_period_are_said_to_repeat_their_first_line() {
+    let d = tempfile::tempdir().unwrap();
+    const TWO_PI: &str = "6.283185307179586";
+    let common = r#"
+[deviations]
+k = 2
+sets = 1
+seed = 1
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1
+"#;
+    // (name, model table and orbit, integrator, angle, momentum)
+    let models = [
+        (
+            "map",
+            format!(
+                "[model]\nname = \"map\"\nnext = [\"x1 + x2 + sin(x1)\", \"x2 + sin(x1)\"]\n\
+                 modulo = [{TWO_PI}, 0]\n[orbit]\nx = [0.5, 0.0]\n"
+            ),
+            "[integrator]\nt_final = 10\n",
+            "x1",
+            "x2",
+        ),
+        (
+            "ode",
+            format!(
+                "[model]\nname = \"ode\"\nrhs = [\"x2\", \"-sin(x1)\"]\nmodulo = [{TWO_PI}, 0]\n\
+                 [orbit]\nx = [0.5, 0.0]\n"
+            ),
+            "[integrator]\nmethod = \"rk4\"\nh = 0.05\nt_final = 10\n",
+            "x1",
+            "x2",
+        ),
+        (
+            "hamiltonian",
+            format!(
+                "[model]\nname = \"hamiltonian\"\nn = 1\nhamiltonian = \"p1^2/2 - cos(q1)\"\n\
+                 modulo = [{TWO_PI}, 0]\n[orbit]\nq = [0.5]\np = [0.0]\n"
+            ),
+            "[integrator]\nmethod = \"gl4\"\nh = 0.05\nt_final = 10\n",
+            "q1",
+            "p1",
+        ),
+        (
+            "potential",
+            format!(
+                "[model]\nname = \"potential\"\nn = 1\npotential = \"-cos(q1)\"\n\
+                 modulo = [{TWO_PI}, 0]\n[orbit]\nq = [0.5]\np = [0.0]\n"
+            ),
+            "[integrator]\nmethod = \"aba864\"\nh = 0.05\nt_final = 10\n",
+            "q1",
+            "p1",
+        ),
+    ];
+    let pi = std::f64::consts::PI;
+    // One spacing short of the period: 5 distinct lines over [-pi, pi).
+    let short = -pi + 2.0 * pi * 4.0 / 5.0;
+    for (name, model, integrator, angle, momentum) in &models {
+        for (max, repeats) in [(pi, true), (short, false)] {
+            let text = format!(
+                "{model}{integrator}{common}[map]\n\
+                 x = {{ coord = \"{angle}\", min = {:?}, max = {max:?}, n = 5 }}\n\
+                 y = {{ coord = \"{momentum}\", min = -2.0, max = 2.0, n = 3 }}\n\
+                 indicator = \"sali\"\n",
+                -pi
+            );
+            let path = d.path().join(format!("{name}.toml"));
+            std::fs::write(&path, &text).unwrap();
+            let out = chaoscope(&["config", s(&path)]);
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            assert!(out.status.success(), "{name}: {stderr}\n{text}");
+            let warned: Vec<&str> = stderr
+                .lines()
+                .filter(|l| l.contains("repeats the first"))
+                .collect();
+            if repeats {
+                assert_eq!(warned.len(), 1, "{name}, max = {max}: {stderr}");
+                assert!(
+                    warned[0].contains(&format!("map.x: min = {} and max = {pi}", -pi))
+                        && warned[0].contains(&format!("same point of {angle}")),
+                    "{name}: {}",
+                    warned[0]
+                );
+                // The max it proposes is the grid that stops short of the period.
+                assert!(
+                    warned[0].contains(&format!("max = {short}")),
+                    "{name}: {}",
+                    warned[0]
+                );
+            } else {
+                assert!(warned.is_empty(), "{name}, max = {max}: {stderr}");
+            }
+        }
+    }
+}

@@ -535,7 +535,8 @@ impl Engine {
                 // From a finite state within the bound, a step the integrator could not take
                 // is its failure, not the orbit's escape.
                 if let Some(why) = &why
-                    && why.contains(chaoscope_schemas::run::IMPLICIT_NOT_CONVERGED)
+                    && (why.contains(chaoscope_schemas::run::IMPLICIT_NOT_CONVERGED)
+                        || why.starts_with(chaoscope_schemas::run::ADAPTIVE_STEP_FAILED))
                 {
                     return RunError::IntegratorFailed {
                         t: t_after,

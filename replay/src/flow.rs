@@ -37,12 +37,30 @@ pub fn flow_field_of_run(run: &RunInfo) -> Option<FlowField> {
 /// The system of a recorded run, rebuilt from the config its header carries as replay rebuilds
 /// it; `None` where that config does not validate here or gives another dimension.
 fn system_of_run(run: &RunInfo) -> Option<Arc<dyn DynamicalSystem>> {
+    rebuild_system(run).ok()
+}
+
+/// Why the system of a recorded run cannot be rebuilt from the config its header carries (so
+/// the flow field and the site energies are missing from its analysis), `None` when it can.
+pub fn why_no_system_of_run(run: &RunInfo) -> Option<String> {
+    rebuild_system(run).err()
+}
+
+fn rebuild_system(run: &RunInfo) -> Result<Arc<dyn DynamicalSystem>, String> {
     let config = RunConfig::from_toml(&run.header.config_toml)
-        .ok()?
+        .map_err(|e| format!("its recorded configuration does not parse here: {e}"))?
         .with_sweeps_expanded()
-        .ok()?;
-    let spec = RunSpec::from_config(&config).ok()?;
-    (spec.system().dim() == run.dim).then(|| Arc::clone(spec.system()))
+        .map_err(|e| format!("its recorded configuration does not validate here: {e}"))?;
+    let spec = RunSpec::from_config(&config)
+        .map_err(|e| format!("its recorded configuration does not validate here: {e}"))?;
+    let dim = spec.system().dim();
+    if dim != run.dim {
+        return Err(format!(
+            "its recorded configuration gives a state of dimension {dim}, the recording {}",
+            run.dim
+        ));
+    }
+    Ok(Arc::clone(spec.system()))
 }
 
 /// The energy of each site of `system`'s states ([`chaoscope_producer::model::Model::site_energies`]

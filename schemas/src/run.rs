@@ -227,6 +227,13 @@ pub const INTEGRATOR_FAILED: &str = "the integrator failed";
 /// reason as an integrator failure too.
 pub const IMPLICIT_NOT_CONVERGED: &str = "the implicit Gauss-Legendre stages did not converge";
 
+/// How the reason of an adaptive step that could not be completed begins (its step size fell
+/// below what the time can resolve, it took too many substeps, or its error estimate stayed
+/// non-finite) when the state did not run away within that step: the integrator failed there
+/// (the vector field is not smooth enough for the tolerances), the orbit did not escape. A
+/// collapse while the state grows without bound is the solution's blow-up: an escape.
+pub const ADAPTIVE_STEP_FAILED: &str = "the adaptive step size control failed";
+
 /// The time named by an end-of-run reason of an integrator failure ([`INTEGRATOR_FAILED`],
 /// or an escape reason whose cause is [`IMPLICIT_NOT_CONVERGED`]), `None` for any other reason.
 pub fn integrator_failure_time(reason: &str) -> Option<f64> {

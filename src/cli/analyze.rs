@@ -107,6 +107,15 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         ..Default::default()
     };
     let (analysis, info) = analyze_file(&args.file, &options)?;
+    // What the analysis leaves out when the run's system cannot be rebuilt here (a table now
+    // unreadable, a configuration this version refuses): said, not fatal.
+    if let Some(why) = chaoscope_replay::flow::why_no_system_of_run(analysis.run()) {
+        chaoscope_os::errln!(
+            "chaoscope analyze: warning: {}: no flow field and no site energies (the system is \
+             rebuilt from the run's configuration): {why}",
+            args.file.display()
+        );
+    }
     let report = match args.at {
         Some(t) => analysis.report_at(t).expect("requested time is captured"),
         None => analysis.report_ended(info.end.as_ref()),

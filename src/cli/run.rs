@@ -81,12 +81,22 @@ fn child_command(subcommand: &str) -> anyhow::Result<Command> {
     let exe = std::env::current_exe().context("locating the chaoscope executable")?;
     let mut command = Command::new(exe);
     command.arg(subcommand).stdout(Stdio::piped());
+    let pause = spawn_pause(subcommand)?;
     // If this process is killed (SIGKILL cannot be forwarded), the children get SIGTERM from
     // the kernel and finalize their files as on Ctrl-C, instead of running on as orphans.
     let parent = std::process::id();
-    // SAFETY: only async-signal-safe calls (prctl, getppid, raise) between fork and exec.
+    // SAFETY: only async-signal-safe calls (signal, prctl, getppid, raise, nanosleep) between
+    // fork and exec.
     unsafe {
         command.pre_exec(move || {
+            // Until exec the child runs this process's handlers, which would latch SIGINT or
+            // SIGTERM in memory exec then discards: the parent-death signal, caught so, never
+            // reached the child's own latch, and a recorder whose producer was gone waited
+            // for it for ever. With the default action such a signal ends the child before
+            // it starts anything; after exec chaoscope's handlers are its own.
+            libc::signal(libc::SIGINT, libc::SIG_DFL);
+            libc::signal(libc::SIGTERM, libc::SIG_DFL);
+            pause_at(pause, PausePoint::BeforeDeathSignal);
             if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
                 return Err(std::io::Error::last_os_error());
             }
@@ -94,10 +104,72 @@ fn child_command(subcommand: &str) -> anyhow::Result<Command> {
             if libc::getppid() as u32 != parent {
                 libc::raise(libc::SIGTERM);
             }
+            pause_at(pause, PausePoint::BeforeExec);
             Ok(())
         });
     }
     Ok(command)
+}
+
+/// Test seam: `CHAOSCOPE_SPAWN_PAUSE=SUBCOMMAND:POINT:MILLIS` holds the child `run` starts for
+/// SUBCOMMAND (`produce`, `record`) for MILLIS between fork and exec, at POINT:
+/// `before-pdeathsig` (its parent-death signal not yet set) or `before-exec` (set). A test
+/// kills `run` there, where a kill otherwise lands only by chance.
+const SPAWN_PAUSE_ENV: &str = "CHAOSCOPE_SPAWN_PAUSE";
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum PausePoint {
+    BeforeDeathSignal,
+    BeforeExec,
+}
+
+/// The pause [`SPAWN_PAUSE_ENV`] asks of the child for `subcommand`, read before the fork.
+fn spawn_pause(subcommand: &str) -> anyhow::Result<Option<(PausePoint, libc::timespec)>> {
+    let Some(value) = std::env::var_os(SPAWN_PAUSE_ENV) else {
+        return Ok(None);
+    };
+    let value = value.to_string_lossy();
+    let bad = || {
+        anyhow::anyhow!(
+            "{SPAWN_PAUSE_ENV}={value:?}: expected SUBCOMMAND:POINT:MILLIS, POINT \
+             before-pdeathsig or before-exec"
+        )
+    };
+    let mut parts = value.split(':');
+    let (Some(which), Some(point), Some(millis), None) =
+        (parts.next(), parts.next(), parts.next(), parts.next())
+    else {
+        return Err(bad());
+    };
+    let point = match point {
+        "before-pdeathsig" => PausePoint::BeforeDeathSignal,
+        "before-exec" => PausePoint::BeforeExec,
+        _ => return Err(bad()),
+    };
+    let millis: u32 = millis.parse().map_err(|_| bad())?;
+    if which != subcommand {
+        return Ok(None);
+    }
+    let pause = libc::timespec {
+        tv_sec: (millis / 1000) as libc::time_t,
+        tv_nsec: (millis % 1000) as libc::c_long * 1_000_000,
+    };
+    Ok(Some((point, pause)))
+}
+
+/// Sleeps the whole pause when `at` is its point, through signals that interrupt the sleep
+/// (async-signal-safe: only nanosleep).
+fn pause_at(pause: Option<(PausePoint, libc::timespec)>, at: PausePoint) {
+    let Some((point, mut left)) = pause else {
+        return;
+    };
+    if point != at {
+        return;
+    }
+    // SAFETY: nanosleep with valid pointers; `left` receives what an interruption left.
+    while unsafe { libc::nanosleep(&left, &mut left) } != 0
+        && std::io::Error::last_os_error().raw_os_error() == Some(libc::EINTR)
+    {}
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {

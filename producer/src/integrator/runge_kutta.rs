@@ -386,10 +386,7 @@ pub const MAX_SUBSTEPS: usize = 1_000_000;
 /// Why an adaptive step could not be completed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum AdaptiveError {
-    #[error(
-        "the adaptive step size fell to {h:e} at t + {at:e} within the step (the solution blows \
-         up or the vector field is not smooth enough for the tolerances)"
-    )]
+    #[error("the adaptive step size fell to {h:e} at t + {at:e} within the step")]
     StepUnderflow { h: f64, at: f64 },
     #[error("more than {MAX_SUBSTEPS} substeps within one step of the time grid")]
     TooManySubsteps,

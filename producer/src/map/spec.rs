@@ -239,22 +239,34 @@ fn lane_params(cfg: &RunConfig, map: &MapConfig) -> Result<Vec<LaneParam>, SpecE
     Ok(lanes)
 }
 
-/// Grid axes of a valid map config over a periodic coordinate (a map model's `modulo`) whose
-/// `max - min` is a whole number of periods: their last line is their first one again, a row
-/// or column of orbits computed twice. Each is said as a warning naming the axis, with the
-/// `max` that grids one period without repeating it. Not refused: the grid is what was asked
-/// (and every point stays a function of the config and its index), only wasteful.
+/// Grid axes of a valid map config over a periodic coordinate (the model's `modulo`: a map's,
+/// a flow's, a Hamiltonian's) whose `max - min` is a whole number of periods: their last line
+/// is their first one again, a row or column of orbits computed twice. Each is said as a
+/// warning naming the axis, with the `max` that grids one period without repeating it. Not
+/// refused: the grid is what was asked (and every point stays a function of the config and its
+/// index), only wasteful.
 pub fn repeated_grid_lines(cfg: &RunConfig) -> Vec<String> {
-    let (Some(map), chaoscope_schemas::config::ModelConfig::Map(model)) = (&cfg.map, &cfg.model)
-    else {
+    use chaoscope_schemas::config::ModelConfig;
+    let (Some(map), Some(modulo)) = (&cfg.map, cfg.model.modulo()) else {
         return Vec::new();
     };
-    let Some(modulo) = &model.modulo else {
-        return Vec::new();
+    // Hamiltonians name their axes q1..qN / p1..pN (`modulo` has 2N entries), the others
+    // x1..xD.
+    let canonical = matches!(
+        cfg.model,
+        ModelConfig::Potential(_) | ModelConfig::Hamiltonian(_)
+    );
+    let slot = |coord: &str| {
+        if canonical {
+            let n = modulo.len() / 2;
+            parse_coordinate(coord, n).map(|(momentum, i)| if momentum { n + i } else { i })
+        } else {
+            state_coordinate(coord, modulo.len())
+        }
     };
     let mut warnings = Vec::new();
     for (key, axis) in [("map.x", &map.x), ("map.y", &map.y)] {
-        let Some(period) = state_coordinate(&axis.coord, modulo.len()).map(|i| modulo[i]) else {
+        let Some(period) = slot(&axis.coord).map(|i| modulo[i]) else {
             continue;
         };
         if period <= 0.0 || axis.n < 2 {

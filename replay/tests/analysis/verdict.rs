@@ -923,3 +923,41 @@ seed = 1
     assert!(v[0].criterion.contains("did not converge"), "{:?}", v[0]);
     assert!(v[0].time.is_some_and(|t| t > 0.5 && t < 2.0), "{:?}", v[0]);
 }
+
+#[test]
+fn an_adaptive_step_that_collapses_is_escaped_when_the_orbit_blows_up_and_failed_otherwise() {
+    let adaptive = |rhs: &[&str], x: &[f64], atol: f64, schemes: &str| {
+        let text = flow_config(rhs, "{}", x, 0.01, 2.0, 2).replace(
+            "method = \"rk4\"",
+            &format!("method = \"dop853\"\nrtol = 1e-10\natol = {atol:?}"),
+        );
+        toml(&format!("{text}{schemes}"))
+    };
+    // dx1/dt = x1^2 from 0.7 blows up at t = 1/0.7 = 1.43 (off the sampling grid, which a
+    // start at 1 would put the pole on): dop853's substeps shrink with the distance to the pole
+    // until the time cannot resolve them, while |x| grows without bound (10^13-fold within the
+    // last step). The state escapes: escaped, not failed.
+    let (live, last) = outcome(&adaptive(&["x1^2", "-x2"], &[0.7, 1.0], 1e-12, VM_MPM), 1);
+    never(&live, Class::Failed);
+    let v = all_end("adaptive dx/dt = x^2", &last, Class::Escaped);
+    assert!(v[0].criterion.contains("blows up"), "{:?}", v[0]);
+    assert!(v[0].criterion.contains("to t = 1.43"), "{:?}", v[0]);
+
+    // dx1/dt = -sqrt(x1) from 1: x1 = (1 - t/2)^2 reaches the equilibrium 0 at t = 2 and the
+    // state never leaves |x| <= sqrt(2). Under a purely relative tolerance (atol = 0) the error
+    // allowed shrinks with x1 while the derivatives of sqrt grow without bound at 0: the step
+    // collapses in the step to t = 2 with |x| = e^-2 (x2 = e^-t, x1 ~ 0). The orbit did not
+    // escape; the integrator failed.
+    let mpm = "\n[[scheme]]\nname = \"mpm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 1.0\n";
+    let (live, last) = outcome(&adaptive(&["-sqrt(x1)", "-x2"], &[1.0, 1.0], 0.0, mpm), 1);
+    never(&live, Class::Escaped);
+    let v = all_end("adaptive dx/dt = -sqrt(x)", &last, Class::Failed);
+    for reason in [
+        chaoscope_schemas::run::INTEGRATOR_FAILED,
+        chaoscope_schemas::run::ADAPTIVE_STEP_FAILED,
+    ] {
+        assert!(v[0].criterion.contains(reason), "{:?}", v[0]);
+    }
+    // The step to t = 2 (the grid's 200th), where x1 reaches 0.
+    assert_eq!(v[0].time, Some(2.0), "{:?}", v[0]);
+}

@@ -216,7 +216,8 @@ impl ZeroOneTest {
             _ => String::new(),
         };
         format!(
-            "the series is too short for the 0-1 test: {n} samples of the orbit (renormalizations);              it needs at least {MIN_SAMPLES}{needed}"
+            "the series is too short for the 0-1 test: {n} samples of the orbit \
+             (renormalizations); it needs at least {MIN_SAMPLES}{needed}"
         )
     }
 }

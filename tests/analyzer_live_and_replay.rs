@@ -477,3 +477,52 @@ fn replay_of_a_non_autonomous_run_is_bit_identical() {
         outcome["separation_sets_compared"]
     );
 }
+
+/// `[analysis] zero_one_observable` travels with the recording: `analyze` of the recorded run
+/// rebuilds the system from the config the file carries and observes the same expression as
+/// the run computed in process (the same K to the last bit), which differs from the generic
+/// observable's.
+#[test]
+fn the_zero_one_observable_travels_with_the_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    // The paper's chaotic Henon-Heiles orbit to t = 1000 at tau = 1: 1001 samples, enough for K.
+    let k_of = |name: &str, analysis: &str| -> (f64, f64) {
+        let text = hh_run(&unique_run(name), 1000.0, 1, 1e-8) + analysis;
+        let config = dir.path().join(format!("{name}.toml"));
+        std::fs::write(&config, &text).unwrap();
+        let rec = dir.path().join(format!("{name}.mcap"));
+        let status = chaoscope(&[
+            "run",
+            config.to_str().unwrap(),
+            "--out",
+            rec.to_str().unwrap(),
+        ])
+        .stdout(Stdio::null())
+        .status()
+        .unwrap();
+        assert!(status.success());
+        let report = json_stdout(&["analyze", rec.to_str().unwrap(), "--json"]);
+        let vm = report["schemes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["name"] == "vm")
+            .unwrap();
+        let recorded = vm["zero_one_k"].as_f64().unwrap_or_else(|| panic!("{vm}"));
+        let cfg = chaoscope_schemas::config::RunConfig::from_toml(&text).unwrap();
+        let options = chaoscope_analyzer::analysis::AnalysisOptions::default();
+        let a = chaoscope_replay::inprocess::analyze_config(&cfg, &options, |_| {}).unwrap();
+        let in_process = a
+            .report()
+            .scheme("vm")
+            .unwrap()
+            .indicators
+            .value("zero_one_k")
+            .unwrap();
+        (recorded, in_process)
+    };
+    let (recorded, in_process) = k_of("zo-q2", "\n[analysis]\nzero_one_observable = \"q2\"\n");
+    assert_eq!(recorded.to_bits(), in_process.to_bits(), "{recorded} {in_process}");
+    let (generic, _) = k_of("zo-generic", "");
+    assert_ne!(recorded, generic, "the key changes the observable");
+}

@@ -522,7 +522,11 @@ fn the_zero_one_observable_travels_with_the_recording() {
         (recorded, in_process)
     };
     let (recorded, in_process) = k_of("zo-q2", "\n[analysis]\nzero_one_observable = \"q2\"\n");
-    assert_eq!(recorded.to_bits(), in_process.to_bits(), "{recorded} {in_process}");
+    assert_eq!(
+        recorded.to_bits(),
+        in_process.to_bits(),
+        "{recorded} {in_process}"
+    );
     let (generic, _) = k_of("zo-generic", "");
     assert_ne!(recorded, generic, "the key changes the observable");
 }

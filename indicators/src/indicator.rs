@@ -142,7 +142,9 @@ pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
 pub fn orbit_indicators(
     zero_one: &crate::zero_one::ZeroOneObservable,
 ) -> Vec<Box<dyn OrbitIndicator>> {
-    vec![Box::new(crate::zero_one::ZeroOneTest::new(zero_one.clone()))]
+    vec![Box::new(crate::zero_one::ZeroOneTest::new(
+        zero_one.clone(),
+    ))]
 }
 
 /// The names of every registered set indicator's outputs, in report order (the columns of a

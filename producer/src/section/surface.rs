@@ -27,8 +27,8 @@ use chaoscope_schemas::run::SystemKind;
 
 use crate::integrator::Workspace;
 use crate::integrator::runge_kutta::{RkScratch, RungeKuttaKind, explicit_step};
-pub use crate::spec::state_function::scalar_over_state;
 use crate::spec::state_function::scalar_definition;
+pub use crate::spec::state_function::scalar_over_state;
 use crate::spec::{RunSpec, SpecError};
 use crate::system::{DynamicalSystem, Time};
 

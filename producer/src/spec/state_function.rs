@@ -28,7 +28,9 @@ pub fn zero_one_observable(
     if function.reads().is_empty() {
         return Err(SpecError::new(
             ZERO_ONE_OBSERVABLE_KEY,
-            format!("'{source}' reads no coordinate of the state: a constant observes nothing of the orbit"),
+            format!(
+                "'{source}' reads no coordinate of the state: a constant observes nothing of the orbit"
+            ),
         ));
     }
     Ok(Some(function))
@@ -96,4 +98,3 @@ pub(crate) fn scalar_definition(
         boundary,
     })
 }
-

@@ -137,6 +137,8 @@ pub struct ZeroOneTest {
     /// Times of the first and the latest sample kept (the length a short series would need).
     first_t: Option<f64>,
     last_t: f64,
+    /// States where the observable was not finite (a configured expression's pole), left out.
+    not_finite: u64,
 }
 
 impl ZeroOneTest {
@@ -148,6 +150,7 @@ impl ZeroOneTest {
             offered: 0,
             first_t: None,
             last_t: 0.0,
+            not_finite: 0,
         }
     }
 }
@@ -171,6 +174,7 @@ impl OrbitIndicator for ZeroOneTest {
             return;
         };
         if !phi.is_finite() {
+            self.not_finite += 1;
             return;
         }
         if self.offered.is_multiple_of(self.stride) {
@@ -215,9 +219,13 @@ impl ZeroOneTest {
             }
             _ => String::new(),
         };
+        let left_out = match self.not_finite {
+            0 => String::new(),
+            m => format!(" ({m} states where the observable is not finite left out)"),
+        };
         format!(
             "the series is too short for the 0-1 test: {n} samples of the orbit \
-             (renormalizations); it needs at least {MIN_SAMPLES}{needed}"
+             (renormalizations){left_out}; it needs at least {MIN_SAMPLES}{needed}"
         )
     }
 }
@@ -390,6 +398,22 @@ mod tests {
         assert!(why.contains("too short"), "{why}");
         assert!(why.contains("500 samples"), "{why}");
         assert!(why.contains("at least 1000, to t = 499.5 "), "{why}");
+        // An observable that is never finite (a configured expression's pole) says so.
+        let mut z = ZeroOneTest::new(ZeroOneObservable::Function {
+            source: "1/0".to_string(),
+            function: Arc::new(|_: &[f64]| f64::INFINITY),
+        });
+        z.observe(0.0, &[1.0]);
+        let [Output::Unavailable(why)] = &z.outputs()[..] else {
+            panic!("{:?}", z.outputs())
+        };
+        assert!(
+            why.contains(
+                "0 samples of the orbit (renormalizations) (1 states where the \
+                 observable is not finite left out); it needs at least 1000"
+            ),
+            "{why}"
+        );
     }
 
     #[test]

@@ -174,8 +174,8 @@ fn gali(report: &Value, scheme: &str, j: usize) -> f64 {
 
 /// Every new indicator for every scheme of a replay's `analyze --json`: FLI, OFLI (the
 /// Henon-Heiles vector field rebuilt from the recording's config), MEGNO and its mean over the
-/// sets; the 0-1 test where the scheme has at least 100 renormalizations to sample the orbit at
-/// (tau <= 1 here), and where not, the reason. The original schemes' values equal the
+/// sets; the 0-1 test where the scheme has at least 1000 renormalizations to sample the orbit
+/// at (tau <= 0.2 here, t = 200), and where not, the reason. The original schemes' values equal the
 /// recording's to the last bit (the same orbit and separations: replay changes none of their
 /// numbers).
 fn assert_every_indicator_and_the_originals_unchanged(report: &Value, recorded: &Value) {
@@ -186,7 +186,7 @@ fn assert_every_indicator_and_the_originals_unchanged(report: &Value, recorded: 
             assert!(s[field]["std"].is_f64(), "{name}: {field} = {}", s[field]);
         }
         let tau = s["tau"].as_f64().unwrap();
-        if tau <= 1.0 {
+        if tau <= 0.2 {
             let k = s["zero_one_k"].as_f64().unwrap();
             assert!((-1.0..=1.0).contains(&k), "{name}: K = {k}");
         } else {
@@ -194,7 +194,7 @@ fn assert_every_indicator_and_the_originals_unchanged(report: &Value, recorded: 
                 s["zero_one_k"]["unavailable"]
                     .as_str()
                     .unwrap()
-                    .contains("at least 100 samples"),
+                    .contains("too short for the 0-1 test"),
                 "{name}: {}",
                 s["zero_one_k"]
             );
@@ -476,4 +476,57 @@ fn replay_of_a_non_autonomous_run_is_bit_identical() {
         outcome["separation_sets_identical"],
         outcome["separation_sets_compared"]
     );
+}
+
+/// `[analysis] zero_one_observable` travels with the recording: `analyze` of the recorded run
+/// rebuilds the system from the config the file carries and observes the same expression as
+/// the run computed in process (the same K to the last bit), which differs from the generic
+/// observable's.
+#[test]
+fn the_zero_one_observable_travels_with_the_recording() {
+    let dir = tempfile::tempdir().unwrap();
+    // The paper's chaotic Henon-Heiles orbit to t = 1000 at tau = 1: 1001 samples, enough for K.
+    let k_of = |name: &str, analysis: &str| -> (f64, f64) {
+        let text = hh_run(&unique_run(name), 1000.0, 1, 1e-8) + analysis;
+        let config = dir.path().join(format!("{name}.toml"));
+        std::fs::write(&config, &text).unwrap();
+        let rec = dir.path().join(format!("{name}.mcap"));
+        let status = chaoscope(&[
+            "run",
+            config.to_str().unwrap(),
+            "--out",
+            rec.to_str().unwrap(),
+        ])
+        .stdout(Stdio::null())
+        .status()
+        .unwrap();
+        assert!(status.success());
+        let report = json_stdout(&["analyze", rec.to_str().unwrap(), "--json"]);
+        let vm = report["schemes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["name"] == "vm")
+            .unwrap();
+        let recorded = vm["zero_one_k"].as_f64().unwrap_or_else(|| panic!("{vm}"));
+        let cfg = chaoscope_schemas::config::RunConfig::from_toml(&text).unwrap();
+        let options = chaoscope_analyzer::analysis::AnalysisOptions::default();
+        let a = chaoscope_replay::inprocess::analyze_config(&cfg, &options, |_| {}).unwrap();
+        let in_process = a
+            .report()
+            .scheme("vm")
+            .unwrap()
+            .indicators
+            .value("zero_one_k")
+            .unwrap();
+        (recorded, in_process)
+    };
+    let (recorded, in_process) = k_of("zo-q2", "\n[analysis]\nzero_one_observable = \"q2\"\n");
+    assert_eq!(
+        recorded.to_bits(),
+        in_process.to_bits(),
+        "{recorded} {in_process}"
+    );
+    let (generic, _) = k_of("zo-generic", "");
+    assert_ne!(recorded, generic, "the key changes the observable");
 }

@@ -635,6 +635,31 @@ fn semantic_errors_name_the_file_and_the_line_of_their_key() {
         )),
         "{stderr}"
     );
+    // The 0-1 test's observable: an expression that does not parse, one that names no
+    // coordinate of the state (Henon-Heiles has q1, q2, p1, p2), one that reads none. Each is
+    // refused before the run, in one line naming the key and its line.
+    for (i, (expression, says)) in [
+        ("q1 +* q2", "line 1, column"),
+        ("q1 + q3", "q3"),
+        ("2 * 3", "reads no coordinate"),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let table = format!("[analysis]\nzero_one_observable = \"{expression}\"\n\n[model]");
+        let text = String::from_utf8(spoil(RUN, "[model]", &table)).unwrap();
+        let line = line_of(&text, "zero_one_observable = ");
+        let dir = tmp.path().join(format!("observable-{i}"));
+        let (code, stderr, _) = run_case(&case("observable", Run, text.into_bytes(), "", ""), &dir);
+        assert_eq!(code, Some(1), "{expression}: {stderr}");
+        assert!(
+            stderr.contains(&format!(
+                "analysis.zero_one_observable (line {line}, column 1): "
+            )) && stderr.contains(says),
+            "{expression}: {stderr}"
+        );
+        assert_eq!(stderr.lines().count(), 1, "{stderr}");
+    }
     // A table left out of the document: named as the table, not as a key of the first one.
     let orbit = "[orbit]\nq = [0.0, -0.25]\np = [0.0, 0.0]\nenergy = 0.125\nsolve_for = \"p1\"\n";
     let text = String::from_utf8(spoil(RUN, orbit, "")).unwrap();

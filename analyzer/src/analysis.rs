@@ -8,6 +8,10 @@
 //! are instantaneous functions of the vectors. The recorder writes the indicators channel of
 //! every recording with the same tracker, so the values agree to the last bit.
 
+use std::sync::Arc;
+
+pub use chaoscope_indicators::tracker::ZeroOneObservable;
+pub use chaoscope_indicators::zero_one::ObservableFn;
 pub use chaoscope_indicators::{FlowField, SiteEnergies};
 use chaoscope_indicators::{SchemeIndicators, Tracker};
 use chaoscope_schemas::run::{
@@ -44,6 +48,12 @@ pub struct AnalysisOptions {
     /// that can rebuild the model (`chaoscope_replay::flow::site_energies_of_run`). `None`:
     /// those outputs report themselves unavailable.
     pub site_energies: Option<SiteEnergySource>,
+    /// Where a run's `[analysis] zero_one_observable` (an expression of the state) is compiled,
+    /// as `flow_field`, by the caller that can rebuild the system
+    /// (`chaoscope_replay::flow::zero_one_observable_of_run`). `None`, or a run whose system
+    /// cannot be rebuilt here: the 0-1 test of such a run says why it is unavailable (never a
+    /// value of another observable). A run without the key needs none of it.
+    pub zero_one_observable: Option<ObservableSource>,
     /// Keep the distributions over the sites over time (the energy and the first scheme's
     /// first set's DVD weights, [`crate::site_profiles`]) for `analyze --plot`'s
     /// `distributions.png`: bounded, `2N` numbers per kept time.
@@ -82,6 +92,11 @@ pub type FlowSource = fn(&RunInfo) -> Option<FlowField>;
 /// Builds the site energies of a run's model from its header, if it can.
 pub type SiteEnergySource = fn(&RunInfo) -> Option<SiteEnergies>;
 
+/// Compiles a run's `[analysis] zero_one_observable` over its system rebuilt from the header:
+/// `None` where the system cannot be rebuilt, the problem in one line where the expression
+/// does not compile.
+pub type ObservableSource = fn(&RunInfo) -> Option<Result<std::sync::Arc<ObservableFn>, String>>;
+
 impl Default for AnalysisOptions {
     fn default() -> Self {
         Self {
@@ -90,6 +105,7 @@ impl Default for AnalysisOptions {
             at: Vec::new(),
             flow_field: None,
             site_energies: None,
+            zero_one_observable: None,
             site_profiles: false,
             exponents_from: None,
         }
@@ -154,6 +170,25 @@ pub fn energy_error(e: f64, e0: f64) -> f64 {
     error.min(f64::MAX)
 }
 
+/// What the 0-1 test of a run with `[analysis] zero_one_observable` observes: the compiled
+/// expression, or why there is none (never another observable in its place).
+fn configured_observable(
+    run: &RunInfo,
+    function: Option<Result<Arc<ObservableFn>, String>>,
+) -> ZeroOneObservable {
+    let source = run.zero_one_observable.clone().unwrap_or_default();
+    match function {
+        Some(Ok(function)) => ZeroOneObservable::Function { source, function },
+        Some(Err(why)) => ZeroOneObservable::Unavailable(format!(
+            "[analysis] zero_one_observable = {source:?}: {why}"
+        )),
+        None => ZeroOneObservable::Unavailable(format!(
+            "[analysis] zero_one_observable = {source:?} needs the run's system, which this \
+             reader cannot rebuild from the recorded configuration"
+        )),
+    }
+}
+
 impl Analysis {
     pub fn new(run: RunInfo, options: &AnalysisOptions) -> Self {
         let schemes = run
@@ -190,6 +225,10 @@ impl Analysis {
         }
         if let Some(energies) = options.site_energies.and_then(|source| source(&run)) {
             tracker.set_site_energies(energies);
+        }
+        if run.zero_one_observable.is_some() {
+            let function = options.zero_one_observable.and_then(|build| build(&run));
+            tracker.set_zero_one_observable(configured_observable(&run, function));
         }
         // The caller checked T against the run's end (`exponents_from_step`, one line naming
         // the value); here only a usable T takes effect.
@@ -340,6 +379,16 @@ impl Analysis {
     /// first sample.
     pub fn set_site_energies(&mut self, energies: SiteEnergies) {
         self.tracker.set_site_energies(energies);
+    }
+
+    /// Gives the analysis the run's `[analysis] zero_one_observable` compiled (from whoever
+    /// holds the system, as [`Analysis::set_flow_field`]; `None`: it cannot be here, and the
+    /// 0-1 test says so). Nothing changes for a run without the key. Before the first sample.
+    pub fn set_zero_one_observable(&mut self, function: Option<Result<Arc<ObservableFn>, String>>) {
+        if self.run.zero_one_observable.is_some() {
+            self.tracker
+                .set_zero_one_observable(configured_observable(&self.run, function));
+        }
     }
 
     /// Applies one set's separations; false if it does not fit the header (ignored).

@@ -163,9 +163,10 @@ pub struct SchemeReport {
     pub vs_vm: Option<VsVm>,
     /// Every registered indicator's outputs by name, as fields of the scheme: `fli`, `ofli`,
     /// `megno`, `megno_mean` (mean and spread over the sets, `{"mean", "std"}`) and
-    /// `zero_one_k` (one value: the 0-1 test on the reference orbit's first coordinate sampled
-    /// at the scheme's renormalizations); `{"unavailable": reason}` where the run does not give
-    /// what an indicator needs.
+    /// `zero_one_k` (one value: the 0-1 test on an observable of the reference orbit, the
+    /// generic one or `[analysis] zero_one_observable`, sampled at the scheme's
+    /// renormalizations); `{"unavailable": reason}` where the run does not give what an
+    /// indicator needs (for the 0-1 test also a series too short, with the length it needs).
     #[serde(flatten)]
     pub indicators: NamedOutputs,
     /// `class`: `chaotic`, `regular` (with `torus_dimension`), `attracting` (the largest

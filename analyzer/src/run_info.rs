@@ -29,6 +29,9 @@ pub struct RunInfo {
     /// configuration, `0`: none), empty when none is declared: the analysis reads the state
     /// with these coordinates wrapped (the extent, the orbit indicators).
     pub periods: Vec<f64>,
+    /// `[analysis] zero_one_observable` of the recorded configuration: the expression of the
+    /// state the 0-1 test observes (`None`: the generic observable).
+    pub zero_one_observable: Option<String>,
 }
 
 impl RunInfo {
@@ -130,11 +133,17 @@ impl RunInfo {
                 route: Route::PerSet,
             });
         }
-        let periods = recorded_periods(&header.config_toml);
+        let recorded = recorded_config(&header.config_toml);
+        let periods = recorded
+            .as_ref()
+            .and_then(|c| c.model.modulo().map(<[f64]>::to_vec))
+            .unwrap_or_default();
+        let zero_one_observable = recorded.and_then(|c| c.analysis.zero_one_observable);
         chaoscope_indicators::periodic::check_periods(&periods, header.dim as usize)
             .map_err(|problem| err(format!("model.modulo {problem}")))?;
         Ok(Self {
             periods,
+            zero_one_observable,
             kind,
             dim: header.dim as usize,
             k: header.k as usize,
@@ -178,15 +187,12 @@ impl RunInfo {
     }
 }
 
-/// The periods `[model] modulo` of a recorded configuration; none when the header carries no
-/// configuration the reader understands (a header built in code, a recording of a model
-/// written in Rust): its states are read as they are.
-fn recorded_periods(config_toml: &str) -> Vec<f64> {
+/// The recorded configuration, where the header carries one the reader understands (not a
+/// header built in code, nor a recording of a model written in Rust): its `[model] modulo` and
+/// `[analysis]` say how the states are read; without it they are read as they are.
+fn recorded_config(config_toml: &str) -> Option<chaoscope_schemas::config::RunConfig> {
     if config_toml.is_empty() {
-        return Vec::new();
+        return None;
     }
-    chaoscope_schemas::config::RunConfig::from_toml(config_toml)
-        .ok()
-        .and_then(|c| c.model.modulo().map(<[f64]>::to_vec))
-        .unwrap_or_default()
+    chaoscope_schemas::config::RunConfig::from_toml(config_toml).ok()
 }

@@ -177,6 +177,11 @@ pub fn table(report: &Report) -> String {
         if !named.is_empty() {
             let _ = writeln!(out, "{}: {}", s.name, named.join(", "));
         }
+        // A 0-1 test without a value says why: most often a series too short to mean
+        // something, with the length it would need.
+        if let Some(Named::Unavailable(why)) = s.indicators.get("zero_one_k") {
+            let _ = writeln!(out, "{}: zero_one_k n/a: {why}", s.name);
+        }
         for w in &s.warnings {
             let _ = writeln!(out, "{}: warning {}: {}", s.name, w.code, w.message);
         }

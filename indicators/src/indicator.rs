@@ -138,9 +138,13 @@ pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
     ]
 }
 
-/// The orbit indicators every run tracks, in report order.
-pub fn orbit_indicators() -> Vec<Box<dyn OrbitIndicator>> {
-    vec![Box::new(crate::zero_one::ZeroOneTest::default())]
+/// The orbit indicators every run tracks, in report order; the 0-1 test observes `zero_one`.
+pub fn orbit_indicators(
+    zero_one: &crate::zero_one::ZeroOneObservable,
+) -> Vec<Box<dyn OrbitIndicator>> {
+    vec![Box::new(crate::zero_one::ZeroOneTest::new(
+        zero_one.clone(),
+    ))]
 }
 
 /// The names of every registered set indicator's outputs, in report order (the columns of a

@@ -19,6 +19,7 @@ use crate::indicator::{
 };
 use crate::stats::{LogStat, Stat};
 use crate::stretch::StretchSums;
+pub use crate::zero_one::ZeroOneObservable;
 
 /// The shape of a run, as its header states it.
 #[derive(Debug, Clone, PartialEq)]
@@ -39,7 +40,9 @@ pub struct Layout {
     /// [`Layout::with_periods`], for the readers of a run that show its state wrapped
     /// ([`crate::periodic`]). The orbit indicators observe the state as the system integrates it
     /// (a flow's angle continuous): a wrapped angle is a sawtooth, whose jumps the 0-1 test
-    /// reads as chaos (K = 0.70 on a rotating pendulum, against -0.08 on its continuous angle).
+    /// reads as chaos (K = 0.70 on a rotating pendulum, against -0.08 on its continuous angle);
+    /// its default observable takes a periodic coordinate by its sine and cosine, which have no
+    /// seam ([`crate::zero_one::generic_observable`]).
     pub periods: Vec<f64>,
 }
 
@@ -266,13 +269,16 @@ pub struct Tracker {
 
 impl Tracker {
     pub fn new(layout: Layout) -> Self {
+        let zero_one = ZeroOneObservable::Generic {
+            periods: layout.periods.clone(),
+        };
         let schemes = layout
             .tau_steps
             .iter()
             .map(|_| SchemeState {
                 sets: BTreeMap::new(),
                 step: None,
-                orbit: orbit_indicators(),
+                orbit: orbit_indicators(&zero_one),
             })
             .collect();
         Self {
@@ -293,6 +299,15 @@ impl Tracker {
     /// `exponents_whole`, which the verdict reads). Before the first sample.
     pub fn set_exponents_from(&mut self, from: u64) {
         self.exponents_from = Some(from);
+    }
+
+    /// Sets what the 0-1 test observes (a run's `[analysis] zero_one_observable`, compiled by
+    /// whoever holds the system, or why it cannot be), in place of the generic observable of
+    /// the layout's coordinates. Before the first sample.
+    pub fn set_zero_one_observable(&mut self, observable: ZeroOneObservable) {
+        for scheme in &mut self.schemes {
+            scheme.orbit = orbit_indicators(&observable);
+        }
     }
 
     /// Gives the tracker the system's vector field, for the indicators that need the flow

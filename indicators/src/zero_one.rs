@@ -3,13 +3,32 @@
 //! 8, 129): `K` near 0 for a regular orbit, near 1 for a chaotic one, from an observable of the
 //! orbit alone, no deviation vector.
 //!
-//! The observable is the first coordinate of the reference state (`q_1`, `x1`), sampled at the
-//! scheme's renormalizations. The samples are kept bounded: at most [`MAX_SAMPLES`], and when
-//! full every other one is dropped and the stride doubled, so the series spans the whole run with
-//! between `MAX_SAMPLES / 2` and `MAX_SAMPLES` evenly spaced samples (whatever the run length,
-//! and deterministic). The stride growing with the run also keeps the sampling from being much
-//! finer than the orbit's own times, where the test would read chaos as regular (oversampling,
-//! Gottwald and Melbourne 2009, section 5.3).
+//! The observable ([`ZeroOneObservable`]) is, by default, [`generic_observable`]: every
+//! coordinate of the state with a fixed unequal weight, a periodic coordinate by the sine and
+//! cosine of its angle. Why that one: the test needs an observable that sees the whole orbit.
+//! A single coordinate does not on a lattice, where `x1` is an end site that the energy may
+//! never reach (on the chaotic Klein-Gordon chain of `examples/models/` it reads K = -0.05 at
+//! t = 2000 and 0.37 at t = 10^4); every coordinate enters the combination, none dominates.
+//! The weights are unequal because an equal-weight sum is often a conserved or slow quantity
+//! (the total momentum of a chain); they are `1/2 + frac((i + 1/2) g)`, `g` the golden ratio's
+//! fractional part, in `[1/2, 3/2)`, and never change (a number of a run must not depend on
+//! anything else). A wrapped coordinate (a map's angle) jumps by its period at the seam, which
+//! the test reads as chaos (K = 0.46 on an island of the standard map whose momentum is
+//! wrapped); its sine and cosine have no seam. A flow's angle that is not declared periodic is
+//! read as integrated, continuous (a declared one gives the same sine and cosine either way).
+//! A run's `[analysis] zero_one_observable` replaces it with an expression of the state,
+//! compiled by whoever holds the system ([`ZeroOneObservable::Function`]).
+//!
+//! The observable is sampled at the scheme's renormalizations. The samples are kept bounded:
+//! at most [`MAX_SAMPLES`], and when full every other one is dropped and the stride doubled, so
+//! the series spans the whole run with between `MAX_SAMPLES / 2` and `MAX_SAMPLES` evenly spaced
+//! samples (whatever the run length, and deterministic). The stride growing with the run keeps
+//! the sampling from being much finer than the orbit's own times, where the test would read
+//! chaos as regular (oversampling, Gottwald and Melbourne 2009, section 5.3). It has the
+//! opposite cost on a lattice of many frequencies: a stride that spreads (aliases) the band of
+//! its frequencies over the whole range of `c` reads a regular chain as chaotic (the Klein-Gordon
+//! chain of 64 sites sampled every 4 time units: K = 0.7 on a regular orbit). [`MAX_SAMPLES`]
+//! is therefore large: a run of up to 8192 renormalizations keeps every one.
 //!
 //! From `N` samples `phi_j`: for each `c`, the translation variables
 //! `p_c(n) = sum_{j<=n} phi_j cos(jc)`, `q_c(n) = sum phi_j sin(jc)`, the mean square
@@ -18,32 +37,130 @@
 //! with `n`; `K` is the median of `K_c` over [`C_VALUES`] values of `c` in `(pi/5, 4 pi/5)`
 //! (away from the resonances at 0 and pi; the median removes the rest). The `c` values are a
 //! fixed low-discrepancy sequence rather than random ones, so `K` is a function of the samples.
+//!
+//! The length rule ([`MIN_SAMPLES`] = 1000): `K_c` is the correlation coefficient of the
+//! `n_cut` points `D_c(1..n_cut)` with their index. Where `D_c` has no trend (a regular orbit)
+//! that coefficient scatters about 0 by about `1 / sqrt(n_cut)`; a reading whose scatter is not
+//! well below the margin the test is read with (K < 0.1 regular, K > 0.9 chaotic) tells
+//! nothing, so `n_cut >= 100`, `N >= 1000`. The resolution in `c` is then `2 pi / n_cut` =
+//! 0.06, a thirtieth of the range of `c`, so a handful of frequencies of a regular orbit cannot
+//! make most `c` resonant. Shorter series give no `K` but the length they would need.
+
+use std::sync::Arc;
 
 use crate::indicator::{OrbitIndicator, Output};
+use crate::periodic::wrap_coordinate;
 
 /// Most samples kept (between half of it and all of it once the run is long enough).
-pub const MAX_SAMPLES: usize = 2048;
-/// Fewest samples the test is computed from (`n_cut` = 10 displacements at least).
-pub const MIN_SAMPLES: usize = 100;
+pub const MAX_SAMPLES: usize = 8192;
+/// Fewest samples the test is computed from (`n_cut` = 100 displacements at least; the module
+/// documentation says why).
+pub const MIN_SAMPLES: usize = 1000;
 /// Values of `c` the median is taken over.
 pub const C_VALUES: usize = 100;
 
+/// The fractional part of the golden ratio: the weights of [`generic_observable`] and the `c`
+/// values of the median are its multiples modulo 1, spread evenly and never repeating.
+const GOLDEN: f64 = 0.618_033_988_749_894_9;
+
+/// The weight of entry `i` of [`generic_observable`], in `[1/2, 3/2)`.
+fn weight(i: usize) -> f64 {
+    0.5 + ((i as f64 + 0.5) * GOLDEN).fract()
+}
+
+/// The default observable of the 0-1 test: `sum_i w_i x_i` over the state's coordinates, a
+/// coordinate with a period `P = periods[i] > 0` entering as `w_i sin(2 pi x_i / P) + w_{D+i}
+/// cos(2 pi x_i / P)` (no seam where it wraps); the weights `w_i` in `[1/2, 3/2)` are fixed
+/// and unequal (the module documentation says why).
+pub fn generic_observable(periods: &[f64], x: &[f64]) -> f64 {
+    let d = x.len();
+    let mut sum = 0.0;
+    for (i, &v) in x.iter().enumerate() {
+        let p = periods.get(i).copied().unwrap_or(0.0);
+        if p > 0.0 {
+            // Wrapped first: the angle of a flow that turned many times keeps its digits.
+            let angle = std::f64::consts::TAU * (wrap_coordinate(v, p) / p);
+            sum += weight(i) * angle.sin() + weight(d + i) * angle.cos();
+        } else {
+            sum += weight(i) * v;
+        }
+    }
+    sum
+}
+
+/// A function of the state, as whoever holds the system compiles it.
+pub type ObservableFn = dyn Fn(&[f64]) -> f64 + Send + Sync;
+
+/// What the 0-1 test observes of each sampled state.
+#[derive(Clone)]
+pub enum ZeroOneObservable {
+    /// [`generic_observable`] with the periods of the state's coordinates (`[model] modulo`;
+    /// empty for none).
+    Generic { periods: Vec<f64> },
+    /// A function of the state: a run's `[analysis] zero_one_observable`, compiled.
+    Function {
+        source: String,
+        function: Arc<ObservableFn>,
+    },
+    /// A run asks for an observable this reader cannot evaluate: why (the test then says so).
+    Unavailable(String),
+}
+
+impl std::fmt::Debug for ZeroOneObservable {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Generic { periods } => write!(f, "Generic {{ periods: {periods:?} }}"),
+            Self::Function { source, .. } => write!(f, "Function({source:?})"),
+            Self::Unavailable(why) => write!(f, "Unavailable({why:?})"),
+        }
+    }
+}
+
+impl ZeroOneObservable {
+    fn value(&self, state: &[f64]) -> Option<f64> {
+        match self {
+            Self::Generic { periods } => Some(generic_observable(periods, state)),
+            Self::Function { function, .. } => Some(function(state)),
+            Self::Unavailable(_) => None,
+        }
+    }
+}
+
 #[derive(Debug, Clone)]
 pub struct ZeroOneTest {
+    observable: ZeroOneObservable,
     samples: Vec<f64>,
     /// Keep one state in `stride`.
     stride: u64,
     /// States offered so far.
     offered: u64,
+    /// Times of the first and the latest sample kept (the length a short series would need).
+    first_t: Option<f64>,
+    last_t: f64,
+    /// States where the observable was not finite (a configured expression's pole), left out.
+    not_finite: u64,
 }
 
-impl Default for ZeroOneTest {
-    fn default() -> Self {
+impl ZeroOneTest {
+    pub fn new(observable: ZeroOneObservable) -> Self {
         Self {
+            observable,
             samples: Vec::new(),
             stride: 1,
             offered: 0,
+            first_t: None,
+            last_t: 0.0,
+            not_finite: 0,
         }
+    }
+}
+
+impl Default for ZeroOneTest {
+    /// The generic observable of a state with no periodic coordinate.
+    fn default() -> Self {
+        Self::new(ZeroOneObservable::Generic {
+            periods: Vec::new(),
+        })
     }
 }
 
@@ -52,15 +169,18 @@ impl OrbitIndicator for ZeroOneTest {
         &["zero_one_k"]
     }
 
-    fn observe(&mut self, _t: f64, state: &[f64]) {
-        let Some(&phi) = state.first() else {
+    fn observe(&mut self, t: f64, state: &[f64]) {
+        let Some(phi) = self.observable.value(state) else {
             return;
         };
         if !phi.is_finite() {
+            self.not_finite += 1;
             return;
         }
         if self.offered.is_multiple_of(self.stride) {
             self.samples.push(phi);
+            self.first_t.get_or_insert(t);
+            self.last_t = t;
             if self.samples.len() == MAX_SAMPLES {
                 let kept: Vec<f64> = self.samples.iter().copied().step_by(2).collect();
                 self.samples = kept;
@@ -71,18 +191,42 @@ impl OrbitIndicator for ZeroOneTest {
     }
 
     fn outputs(&self) -> Vec<Output> {
+        if let ZeroOneObservable::Unavailable(why) = &self.observable {
+            return vec![Output::Unavailable(why.clone())];
+        }
         vec![match zero_one_k(&self.samples) {
             Some(k) => Output::Value(k),
-            None => Output::Unavailable(format!(
-                "the 0-1 test needs at least {MIN_SAMPLES} samples of the orbit (renormalizations), \
-                 this run has {}",
-                self.samples.len()
-            )),
+            None => Output::Unavailable(self.too_short()),
         }]
     }
 
     fn boxed_clone(&self) -> Box<dyn OrbitIndicator> {
         Box::new(self.clone())
+    }
+}
+
+impl ZeroOneTest {
+    /// Why a series shorter than [`MIN_SAMPLES`] gives no `K`, and how long it would need to be.
+    fn too_short(&self) -> String {
+        let n = self.samples.len();
+        let needed = match self.first_t {
+            // Below MIN_SAMPLES < MAX_SAMPLES nothing was thinned: the samples are the
+            // renormalizations, evenly spaced.
+            Some(first) if n >= 2 => {
+                let dt = (self.last_t - first) / (n - 1) as f64;
+                let t = first + (MIN_SAMPLES - 1) as f64 * dt;
+                format!(", to t = {t} at this scheme's sampling")
+            }
+            _ => String::new(),
+        };
+        let left_out = match self.not_finite {
+            0 => String::new(),
+            m => format!(" ({m} states where the observable is not finite left out)"),
+        };
+        format!(
+            "the series is too short for the 0-1 test: {n} samples of the orbit \
+             (renormalizations){left_out}; it needs at least {MIN_SAMPLES}{needed}"
+        )
     }
 }
 
@@ -99,7 +243,7 @@ pub fn zero_one_k(phi: &[f64]) -> Option<f64> {
     if phi.iter().all(|&v| v == phi[0]) {
         return Some(0.0);
     }
-    let golden = 0.5 * (5f64.sqrt() - 1.0);
+    let golden = GOLDEN;
     let pi = std::f64::consts::PI;
     let mut ks: Vec<f64> = (0..C_VALUES)
         .map(|i| {
@@ -131,19 +275,39 @@ fn k_of_c(phi: &[f64], mean: f64, c: f64, n_cut: usize) -> f64 {
     }
     let d: Vec<f64> = (1..=n_cut)
         .map(|lag| {
-            let m = (0..n - lag)
-                .map(|j| {
-                    let dp = p[j + lag] - p[j];
-                    let dq = q[j + lag] - q[j];
-                    dp * dp + dq * dq
-                })
-                .sum::<f64>()
-                / (n - lag) as f64;
+            let m = square_displacement_sum(&p, &q, lag) / (n - lag) as f64;
             m - mean * mean * (1.0 - (lag as f64 * c).cos()) / (1.0 - c.cos())
         })
         .collect();
     correlation_with_index(&d)
 }
+
+/// `sum_j |z_{j+lag} - z_j|^2` for `z = p + i q`, in [`LANES`] partial sums added in a fixed
+/// order at the end: independent sums the processor overlaps (the series are long), the same
+/// bits on every machine.
+fn square_displacement_sum(p: &[f64], q: &[f64], lag: usize) -> f64 {
+    let len = p.len() - lag;
+    let (p0, p1, q0, q1) = (&p[..len], &p[lag..], &q[..len], &q[lag..]);
+    let mut acc = [0.0f64; LANES];
+    let whole = len / LANES * LANES;
+    for j in (0..whole).step_by(LANES) {
+        for (l, a) in acc.iter_mut().enumerate() {
+            let dp = p1[j + l] - p0[j + l];
+            let dq = q1[j + l] - q0[j + l];
+            *a += dp * dp + dq * dq;
+        }
+    }
+    let mut tail = 0.0;
+    for j in whole..len {
+        let dp = p1[j] - p0[j];
+        let dq = q1[j] - q0[j];
+        tail += dp * dp + dq * dq;
+    }
+    acc.iter().sum::<f64>() + tail
+}
+
+/// Partial sums of [`square_displacement_sum`].
+const LANES: usize = 8;
 
 /// Pearson correlation of `d[i]` with `i`; 0 when `d` does not vary.
 fn correlation_with_index(d: &[f64]) -> f64 {
@@ -204,16 +368,71 @@ mod tests {
 
     #[test]
     fn bounded_samples_span_the_run() {
-        let mut z = ZeroOneTest::default();
+        let mut z = ZeroOneTest::new(ZeroOneObservable::Function {
+            source: "x1".to_string(),
+            function: Arc::new(|x: &[f64]| x[0]),
+        });
         for j in 0..10_000u32 {
             z.observe(f64::from(j), &[f64::from(j)]);
         }
-        // Halved at 2048 (stride 2), at 2048 again (stride 4): 1024 + (10000 - 8192) / 8.
+        // Halved at 8192 (stride 2): 4096 + (10000 - 8192) / 2.
         assert!(z.samples.len() >= MAX_SAMPLES / 2 && z.samples.len() < MAX_SAMPLES);
         assert_eq!(z.samples[1] - z.samples[0], z.stride as f64);
         assert!(matches!(
             ZeroOneTest::default().outputs()[0],
             Output::Unavailable(_)
         ));
+    }
+
+    #[test]
+    fn a_short_series_says_how_long_it_would_need_to_be() {
+        // 500 renormalizations every 0.5 from t = 0: 1000 samples reach t = 499.5.
+        let mut z = ZeroOneTest::default();
+        for j in 0..500u32 {
+            let t = 0.5 * f64::from(j);
+            z.observe(t, &[t.sin(), t.cos()]);
+        }
+        let [Output::Unavailable(why)] = &z.outputs()[..] else {
+            panic!("{:?}", z.outputs())
+        };
+        assert!(why.contains("too short"), "{why}");
+        assert!(why.contains("500 samples"), "{why}");
+        assert!(why.contains("at least 1000, to t = 499.5 "), "{why}");
+        // An observable that is never finite (a configured expression's pole) says so.
+        let mut z = ZeroOneTest::new(ZeroOneObservable::Function {
+            source: "1/0".to_string(),
+            function: Arc::new(|_: &[f64]| f64::INFINITY),
+        });
+        z.observe(0.0, &[1.0]);
+        let [Output::Unavailable(why)] = &z.outputs()[..] else {
+            panic!("{:?}", z.outputs())
+        };
+        assert!(
+            why.contains(
+                "0 samples of the orbit (renormalizations) (1 states where the \
+                 observable is not finite left out); it needs at least 1000"
+            ),
+            "{why}"
+        );
+    }
+
+    #[test]
+    fn the_generic_observable_weighs_every_coordinate_and_has_no_seam() {
+        // Every weight in [1/2, 3/2), no two equal among the first thousand.
+        let w: Vec<f64> = (0..1000).map(weight).collect();
+        assert!(w.iter().all(|w| (0.5..1.5).contains(w)));
+        let mut sorted = w.clone();
+        sorted.sort_by(f64::total_cmp);
+        assert!(sorted.windows(2).all(|p| p[0] < p[1]));
+        // A periodic coordinate reads the same on both sides of its seam and a period apart.
+        let tau = std::f64::consts::TAU;
+        let periods = [tau, 0.0];
+        let below = generic_observable(&periods, &[tau - 1e-12, 0.3]);
+        let above = generic_observable(&periods, &[1e-12, 0.3]);
+        assert!((below - above).abs() < 1e-11, "{below} {above}");
+        let turned = generic_observable(&periods, &[1.0 + 40.0 * tau, 0.3]);
+        assert!((turned - generic_observable(&periods, &[1.0, 0.3])).abs() < 1e-12);
+        // Without periods it is the weighted sum.
+        assert_eq!(generic_observable(&[], &[2.0, 0.0]), 2.0 * weight(0));
     }
 }

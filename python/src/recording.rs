@@ -306,6 +306,7 @@ impl Recording {
             at: at.into_iter().collect(),
             flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
             site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
+            zero_one_observable: Some(chaoscope_replay::flow::zero_one_observable_of_run),
             exponents_from: from_t,
             ..Default::default()
         };

@@ -1,13 +1,15 @@
 //! What the analysis needs from the system itself, from a validated run or rebuilt from the
 //! config a recording carries (the analyzer runs no engine, so whoever holds the producer gives
-//! it): the vector field, whose OFLI needs the flow direction at the reference state, and the
-//! energy of each site of a lattice Hamiltonian, for the energy distribution.
+//! it): the vector field, whose OFLI needs the flow direction at the reference state, the
+//! energy of each site of a lattice Hamiltonian, for the energy distribution, and the 0-1 test's
+//! observable where the config writes one (`[analysis] zero_one_observable`).
 
 use std::sync::Arc;
 
-use chaoscope_analyzer::analysis::{FlowField, SiteEnergies};
+use chaoscope_analyzer::analysis::{FlowField, ObservableFn, SiteEnergies};
 use chaoscope_analyzer::run_info::RunInfo;
 use chaoscope_producer::spec::RunSpec;
+use chaoscope_producer::spec::state_function::zero_one_observable;
 use chaoscope_producer::system::{DynamicalSystem, Time};
 use chaoscope_schemas::config::RunConfig;
 
@@ -81,4 +83,39 @@ pub fn site_energies(system: &Arc<dyn DynamicalSystem>) -> SiteEnergies {
 /// it; `None` where it cannot be (the energy distribution then says so).
 pub fn site_energies_of_run(run: &RunInfo) -> Option<SiteEnergies> {
     Some(site_energies(&system_of_run(run)?))
+}
+
+/// A run's `[analysis] zero_one_observable` compiled over its system rebuilt from the recorded
+/// config as [`flow_field_of_run`] rebuilds it: `None` where the run has no such key or its
+/// system cannot be rebuilt here, the problem in one line where the expression does not compile.
+pub fn zero_one_observable_of_run(run: &RunInfo) -> Option<Result<Arc<ObservableFn>, String>> {
+    let config = RunConfig::from_toml(&run.header.config_toml)
+        .ok()?
+        .with_sweeps_expanded()
+        .ok()?;
+    config.analysis.zero_one_observable.as_ref()?;
+    // The system without the observable, so that an expression this version refuses is the
+    // test's reason rather than a system that cannot be rebuilt.
+    let mut system_only = config.clone();
+    system_only.analysis = Default::default();
+    let spec = RunSpec::from_config(&system_only).ok()?;
+    if spec.system().dim() != run.dim {
+        return None;
+    }
+    zero_one_observable_of_spec(&spec, &config)
+}
+
+/// A run's `[analysis] zero_one_observable` compiled over `spec`'s system (a run in process,
+/// replay): `None` without the key, the problem in one line where the expression does not
+/// compile (which the validation of a config refuses first).
+pub fn zero_one_observable_of_spec(
+    spec: &RunSpec,
+    config: &RunConfig,
+) -> Option<Result<Arc<ObservableFn>, String>> {
+    let compiled = match zero_one_observable(spec, config) {
+        Ok(compiled) => compiled?,
+        Err(e) => return Some(Err(format!("{}: {}", e.key, e.message))),
+    };
+    let function: Arc<ObservableFn> = Arc::new(move |x: &[f64]| compiled.value(x));
+    Some(Ok(function))
 }

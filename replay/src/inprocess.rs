@@ -55,6 +55,7 @@ pub fn analyze_spec(
         analysis.set_flow_field(field);
     }
     analysis.set_site_energies(crate::flow::site_energies(spec.system()));
+    analysis.set_zero_one_observable(crate::flow::zero_one_observable_of_spec(&spec, config));
     let mut engine = Engine::new(spec);
     while let Some(sample) = engine.next_sample()? {
         analysis.feed(&sample);

@@ -320,12 +320,16 @@ pub fn replay(
     }
     if let Some(a) = &mut replay_analysis {
         a.set_site_energies(flow::site_energies(spec.system()));
+        a.set_zero_one_observable(flow::zero_one_observable_of_spec(&spec, &new_config));
     }
     let mut recorded_analysis = if options.without_original {
         analysis_of(header.clone()).ok()
     } else {
         None
     };
+    if let Some(a) = &mut recorded_analysis {
+        a.set_zero_one_observable(flow::zero_one_observable_of_spec(&spec, &new_config));
+    }
     let mut engine = Engine::new(spec);
     let mut replayed = || -> Result<(), ReplayError> {
         let mut pending: Option<Sample> = recorded.next_sample()?;

@@ -51,6 +51,29 @@ pub struct RunConfig {
     /// Present only for `chaoscope map`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub map: Option<MapConfig>,
+    /// How the analysis reads the run (the 0-1 test's observable).
+    #[serde(default, skip_serializing_if = "AnalysisSection::is_default")]
+    pub analysis: AnalysisSection,
+}
+
+/// `[analysis]`: choices of the analysis that the run's recording carries, so `analyze`, replay
+/// and the live views of the run read it the same way.
+#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
+#[serde(deny_unknown_fields)]
+pub struct AnalysisSection {
+    /// The observable of the 0-1 test for chaos: an expression of the state (`x1..xD`, or
+    /// `q1..qN`, `p1..pN` for a Hamiltonian, with the model's `params`), evaluated on the state
+    /// as integrated (a flow's angle continuous). Default: a generic combination of every
+    /// coordinate with fixed unequal weights, a periodic coordinate by the sine and cosine of
+    /// its angle.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub zero_one_observable: Option<String>,
+}
+
+impl AnalysisSection {
+    fn is_default(&self) -> bool {
+        *self == Self::default()
+    }
 }
 
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]

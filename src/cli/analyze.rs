@@ -102,6 +102,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         at: args.at.into_iter().collect(),
         flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
         site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
+        zero_one_observable: Some(chaoscope_replay::flow::zero_one_observable_of_run),
         site_profiles: args.plot.is_some(),
         exponents_from: args.from,
         ..Default::default()

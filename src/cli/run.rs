@@ -378,6 +378,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         &chaoscope_analyzer::AnalysisOptions {
             flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
             site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
+            zero_one_observable: Some(chaoscope_replay::flow::zero_one_observable_of_run),
             ..Default::default()
         },
     )?;

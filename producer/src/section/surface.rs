@@ -20,16 +20,16 @@
 //! grazes the surface breaks; Newton on the re-integrated flow needs nothing of the kind, and
 //! its iterates cost a few short integrations per crossing, a small part of a section's cost.
 
-use chaoscope_expr::ScalarDefinition;
 /// What a section's surface and axes compile to.
 pub use chaoscope_expr::ScalarFunction;
-use chaoscope_expr::lower::Boundary;
 use chaoscope_schemas::config::ModelConfig;
 use chaoscope_schemas::run::SystemKind;
 
 use crate::integrator::Workspace;
 use crate::integrator::runge_kutta::{RkScratch, RungeKuttaKind, explicit_step};
-use crate::spec::{RunSpec, SpecError, param_value};
+use crate::spec::state_function::scalar_definition;
+pub use crate::spec::state_function::scalar_over_state;
+use crate::spec::{RunSpec, SpecError};
 use crate::system::{DynamicalSystem, Time};
 
 /// Which crossings of `S = 0` count.
@@ -96,26 +96,6 @@ pub fn coordinate_names(spec: &RunSpec) -> Vec<String> {
     }
 }
 
-/// `source` compiled as a scalar function of the state of `spec`'s system (its coordinate
-/// names, the config's `params` and `boundary`), errors in one line naming `key`: a section's
-/// surface, or the period of a stroboscopic section (which reads no coordinate).
-pub fn scalar_over_state(
-    spec: &RunSpec,
-    model: &ModelConfig,
-    key: &str,
-    source: &str,
-) -> Result<ScalarFunction, SpecError> {
-    ScalarFunction::new(scalar_definition(spec, model, key, source)?).map_err(|e| {
-        let line = e.one_line();
-        // The error already starts with the key.
-        let message = line
-            .strip_prefix(&format!("{key}: ") as &str)
-            .unwrap_or(&line)
-            .to_string();
-        SpecError::new(key, message)
-    })
-}
-
 /// [`scalar_over_state`] for an expression a user reads back in a message (a section's
 /// `--axes`): an error in the expression is its first line `key: line L, column C: problem`
 /// followed by the expression and a caret under the fault.
@@ -128,49 +108,6 @@ pub fn state_expression(
     let definition = scalar_definition(spec, model, key, source)
         .map_err(|e| format!("{}: {}", e.key, e.message))?;
     ScalarFunction::new(definition).map_err(|e| e.to_string())
-}
-
-/// What defines a scalar function of the state of `spec`'s system: its coordinate families,
-/// the config's `params` (checked against the system's size) and `boundary`.
-fn scalar_definition(
-    spec: &RunSpec,
-    model: &ModelConfig,
-    key: &str,
-    source: &str,
-) -> Result<ScalarDefinition, SpecError> {
-    let system = spec.system();
-    let dim = spec.dim();
-    let canonical = system.kind() == SystemKind::Hamiltonian;
-    let (families, n) = if canonical {
-        let n = dim / 2;
-        (vec![("q".to_string(), n), ("p".to_string(), n)], n)
-    } else {
-        (vec![("x".to_string(), dim)], dim)
-    };
-    let (params, boundary) = match model {
-        ModelConfig::Ode(m) => (Some(&m.params), m.boundary.as_deref()),
-        ModelConfig::Hamiltonian(m) => (Some(&m.params), m.boundary.as_deref()),
-        ModelConfig::Potential(m) => (Some(&m.params), m.boundary.as_deref()),
-        _ => (None, None),
-    };
-    let size = format!("the system has N = {n}");
-    let mut values = std::collections::BTreeMap::new();
-    for (name, v) in params.into_iter().flatten() {
-        values.insert(
-            name.clone(),
-            param_value(&format!("model.params.{name}"), v, n, &size)?,
-        );
-    }
-    let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
-        .map_err(|e| SpecError::new("model.boundary", e))?;
-    Ok(ScalarDefinition {
-        key: key.to_string(),
-        source: source.to_string(),
-        families,
-        n,
-        params: values,
-        boundary,
-    })
 }
 
 impl Surface {

@@ -33,6 +33,7 @@ mod hamiltonian;
 mod map;
 mod potential;
 mod separable;
+pub mod state_function;
 pub mod vector;
 
 pub(crate) use potential::param_value;
@@ -382,7 +383,12 @@ impl RunSpec {
             ModelConfig::Ode(model) => flow::run(model, cfg, lanes)?,
             ModelConfig::Map(model) => map::run(model, cfg, lanes)?,
         };
-        Self::validated(cfg, built)
+        let spec = Self::validated(cfg, built)?;
+        // A map over parameter axes has the lanes' values in its state; it runs no 0-1 test.
+        if lanes.is_empty() {
+            state_function::zero_one_observable(&spec, cfg)?;
+        }
+        Ok(spec)
     }
 
     /// A run of a system built in code (any [`DynamicalSystem`]: a flow, a map, ...): `[orbit]
@@ -396,7 +402,9 @@ impl RunSpec {
         let cfg = &cfg
             .with_sweeps_expanded()
             .map_err(|e| SpecError::new(e.key, e.message))?;
-        Self::validated(cfg, state_x(cfg, system, Vec::new())?)
+        let spec = Self::validated(cfg, state_x(cfg, system, Vec::new())?)?;
+        state_function::zero_one_observable(&spec, cfg)?;
+        Ok(spec)
     }
 
     /// A run of a model built in code rather than named in the config (the library route for
@@ -406,7 +414,9 @@ impl RunSpec {
         let cfg = &cfg
             .with_sweeps_expanded()
             .map_err(|e| SpecError::new(e.key, e.message))?;
-        Self::validated(cfg, separable::run(cfg, model, Vec::new())?)
+        let spec = Self::validated(cfg, separable::run(cfg, model, Vec::new())?)?;
+        state_function::zero_one_observable(&spec, cfg)?;
+        Ok(spec)
     }
 
     /// What every kind shares: the time grid, deviations and schemes.

@@ -1,7 +1,8 @@
 //! Periodic coordinates (`[model] modulo`) of flows and Hamiltonians: the integration never
 //! wraps the state (the exponents are those of the unwrapped flow), and what the analysis reads
 //! of the state (the extent the verdict's `unbounded` tests, the 0-1 test's observable) takes
-//! the angle on its circle, so a pendulum that keeps rotating is no drift.
+//! the angle on its circle (the 0-1 test by its sine and cosine), so a pendulum that keeps
+//! rotating is no drift.
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
 use chaoscope_analyzer::report::Report;
@@ -108,17 +109,22 @@ fn a_rotating_pendulum_with_a_periodic_angle_is_regular_not_unbounded() {
             "{name}"
         );
     }
-    // The 0-1 test observes the angle as integrated, continuous, with or without the
-    // declaration: a wrapped angle's sawtooth would read as chaos (K = 0.70 at t = 3000, against
-    // -0.08 on the continuous angle).
-    let k_wrapped = last.scheme("vm").unwrap().indicators.value("zero_one_k");
+    // The 0-1 test never reads the wrapped angle's sawtooth, whose jumps it would read as
+    // chaos (K = 0.70 at t = 3000): its generic observable takes a declared angle by its sine
+    // and cosine (no seam), an undeclared one as integrated, continuous. Both are regular
+    // readings of this rotation (K = 0.003 and -0.077): the rotation is periodic, so D_c is
+    // bounded and the median K is within 0.1 of 0, as for the regular orbits of the maps.
+    let k_declared = last.scheme("vm").unwrap().indicators.value("zero_one_k");
     let k_raw = unwrapped
         .scheme("vm")
         .unwrap()
         .indicators
         .value("zero_one_k");
-    eprintln!("rotating pendulum: K = {k_wrapped:?} (declared periodic), {k_raw:?} (not)");
-    assert_eq!(k_wrapped, k_raw, "the declaration changes no 0-1 value");
+    eprintln!("rotating pendulum: K = {k_declared:?} (declared periodic), {k_raw:?} (not)");
+    for k in [k_declared, k_raw] {
+        let k = k.expect("3001 samples, more than the 0-1 test needs");
+        assert!(k.abs() < 0.1, "rotating pendulum: K = {k}");
+    }
 }
 
 #[test]

@@ -71,6 +71,7 @@ fn lorenz_config(h: f64, t_final: f64, schemes: Vec<SchemeConfig>) -> RunConfig 
         schemes,
         sweeps: Vec::new(),
         map: None,
+        analysis: Default::default(),
     }
 }
 

@@ -296,6 +296,13 @@ fn the_table_shows_every_named_indicator() {
             assert!(line.contains(&format!("{name} ")), "{name} missing: {line}");
         }
         assert!(line.contains("zero_one_k n/a"), "{line}");
+        // Too short a series for the 0-1 test: a line says so and how long it would need to
+        // be (51 renormalizations every 1 from t = 0: 1000 of them reach t = 999).
+        let notice = format!(
+            "{scheme}: zero_one_k n/a: the series is too short for the 0-1 test: 51 samples of \
+             the orbit (renormalizations); it needs at least 1000, to t = 999 "
+        );
+        assert!(table.contains(&notice), "{notice:?} is not in\n{table}");
     }
     let not_finite = table
         .split(|c: char| c.is_whitespace() || c == ',')
@@ -405,4 +412,50 @@ fn sun_and_two_planets_written_with_sqrt_megno_two() {
     let r = reports(&cfg, &[3000.0]);
     let mean = over_sets(r[0].scheme("vm").unwrap(), "megno_mean");
     assert!((mean - 2.0).abs() < 0.1, "megno_mean {mean}");
+}
+
+/// The chaotic Klein-Gordon chain of `examples/models/` (64 sites, the 11 middle ones excited,
+/// MLE ~ 0.01) run to `t_final`, one VM scheme (tau = 1), its momenta scaled by `scale` and
+/// `[analysis]` lines `analysis` added.
+fn klein_gordon(t_final: f64, scale: f64, analysis: &str) -> RunConfig {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../examples/models/klein-gordon-chaotic.toml");
+    let text = std::fs::read_to_string(path).unwrap() + analysis;
+    let mut cfg = RunConfig::from_toml(&text).unwrap();
+    cfg.integrator.t_final = t_final;
+    for p in &mut cfg.orbit.p {
+        *p *= scale;
+    }
+    cfg
+}
+
+#[test]
+fn zero_one_test_on_klein_gordon_chains_chaotic_and_regular() {
+    // The length, t = 5000 at tau = 1: 5001 samples, every one kept (below 8192), n_cut = 500.
+    // The chain's frequencies fill a band of about [0.7, 1.5] per unit time; sampled every
+    // time unit that band covers less than half of the range of c, (pi/5, 4 pi/5), and the
+    // median reads the rest, where a regular orbit has no line and a chaotic one a continuous
+    // spectrum. The chaos is weak (MLE ~ 0.01): its D_c outgrows the lines' bounded
+    // oscillations only after some hundred Lyapunov times, K = 0.86 at t = 2000, 0.92 at 3000,
+    // 0.96 at 5000, 0.98 at 10^4 (the regular orbit: -0.002, -0.013, -0.02, 0.005). So t = 5000
+    // is where both readings sit well beyond their bounds, a run of about a second.
+    let chaotic = reports(&klein_gordon(5000.0, 1.0, ""), &[5000.0]);
+    let k = value(chaotic[0].scheme("vm").unwrap(), "zero_one_k");
+    assert!(k > 0.9, "chaotic Klein-Gordon chain: K = {k}");
+    // The same chain with its momenta divided by 20 (energy 7.5e-4 per excited site, 400
+    // times less): the quartic term is 1e-3 of the harmonic one, the chain nearly linear and
+    // its disorder localizes it (Anderson modes): a regular, quasi-periodic orbit of 64
+    // frequencies.
+    let regular = reports(&klein_gordon(5000.0, 0.05, ""), &[5000.0]);
+    let k = value(regular[0].scheme("vm").unwrap(), "zero_one_k");
+    assert!(k.abs() < 0.1, "regular Klein-Gordon chain: K = {k}");
+    // `[analysis] zero_one_observable` replaces the generic observable: the cold end site q1
+    // of the chaotic chain, which the energy barely reaches, reads K = 0.02 where every site
+    // together reads 0.96; a reading below 0.5 says it is that observable the test took.
+    let end_site = reports(
+        &klein_gordon(5000.0, 1.0, "[analysis]\nzero_one_observable = \"q1\"\n"),
+        &[5000.0],
+    );
+    let k = value(end_site[0].scheme("vm").unwrap(), "zero_one_k");
+    assert!(k < 0.5, "the end site q1: K = {k}");
 }

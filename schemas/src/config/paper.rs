@@ -111,5 +111,6 @@ fn aba864_run(
         schemes,
         sweeps: Vec::new(),
         map: None,
+        analysis: Default::default(),
     }
 }

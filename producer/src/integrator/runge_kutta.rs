@@ -266,6 +266,49 @@ static DOP853: Tableau = Tableau {
     ]),
 };
 
+/// `acc = sum_j row_j k_j` over the `n = acc.len()` values of each of the first `row.len()`
+/// blocks of `k` (block `j` is `k[j * n..(j + 1) * n]`): each value summed from `0.0` over the
+/// row's non-zero coefficients in order (a zero coefficient adds no term). The one way every
+/// stage combination of this file sums; the blocks of several deviation vectors side by side
+/// are summed as one longer block, value by value the same operations.
+#[inline(always)]
+fn weighted_sum(row: &[f64], k: &[f64], acc: &mut [f64]) {
+    // Blocks of a few values at a time, held in registers across the row: the same sums,
+    // value by value, in any blocking.
+    match acc.len() {
+        n if n % 4 == 0 => weighted_sum_by::<4>(row, k, acc),
+        n if n % 3 == 0 => weighted_sum_by::<3>(row, k, acc),
+        n if n % 2 == 0 => weighted_sum_by::<2>(row, k, acc),
+        _ => weighted_sum_by::<1>(row, k, acc),
+    }
+}
+
+/// [`weighted_sum`] `N` values at a time (`acc.len()` a multiple of `N`).
+#[inline(always)]
+fn weighted_sum_by<const N: usize>(row: &[f64], k: &[f64], acc: &mut [f64]) {
+    let n = acc.len();
+    for (c, out) in acc.chunks_exact_mut(N).enumerate() {
+        let mut sum = [0.0; N];
+        for (j, &a) in row.iter().enumerate() {
+            if a != 0.0 {
+                let kj = &k[j * n + c * N..][..N];
+                for e in 0..N {
+                    sum[e] += a * kj[e];
+                }
+            }
+        }
+        out.copy_from_slice(&sum);
+    }
+}
+
+/// `out = base + h * out` value by value (`out` holding a [`weighted_sum`]).
+#[inline(always)]
+fn add_scaled(base: &[f64], h: f64, out: &mut [f64]) {
+    for (o, &b) in out.iter_mut().zip(base) {
+        *o = b + h * *o;
+    }
+}
+
 /// The stages of one explicit step of tableau `t` from `x` at time `time` with step `h` of the
 /// field `f` (`f(y, ti, out)` writes `f(y, ti)`; stage `i` at `ti = time + c_i h`): stage
 /// states into `s.xs`, derivatives into `s.k`, the new state into `s.next`. The one definition
@@ -279,31 +322,17 @@ fn explicit_stages(
     s: &mut RkScratch,
 ) {
     let dim = x.len();
-    s.ensure(t.stages(), dim);
+    s.ensure(t.stages(), dim, 0);
     for i in 0..t.stages() {
-        let row = t.a[i];
         let (done, rest) = s.k.split_at_mut(i * dim);
         let xi = &mut s.xs[i * dim..(i + 1) * dim];
-        for d in 0..dim {
-            let mut sum = 0.0;
-            for (j, &a) in row.iter().enumerate() {
-                if a != 0.0 {
-                    sum += a * done[j * dim + d];
-                }
-            }
-            xi[d] = x[d] + h * sum;
-        }
+        weighted_sum(t.a[i], done, xi);
+        add_scaled(x, h, xi);
         f(xi, time + t.c[i] * h, &mut rest[..dim]);
     }
-    for d in 0..dim {
-        let mut sum = 0.0;
-        for (i, &b) in t.b.iter().enumerate() {
-            if b != 0.0 {
-                sum += b * s.k[i * dim + d];
-            }
-        }
-        s.next[d] = x[d] + h * sum;
-    }
+    let next = &mut s.next[..dim];
+    weighted_sum(t.b, &s.k, next);
+    add_scaled(x, h, next);
 }
 
 /// One step of size `h` from time `time` of the explicit tableau `t` for a field given as a
@@ -347,9 +376,10 @@ pub struct RkScratch {
     k: Vec<f64>,
     /// Stage states `X_i`, `s * D` (the tangent map evaluates `J` there).
     xs: Vec<f64>,
-    /// Stage tangents `K_i` of one deviation vector, `s * D`.
+    /// Stage tangents `K_i` of the `m` deviation vectors, stage by stage: `s * m * D`, stage
+    /// `i`'s `K_i` of vector `v` at `(i * m + v) * D`.
     kt: Vec<f64>,
-    /// One stage's tangent argument.
+    /// One stage's tangent arguments of the `m` vectors, `m * D`.
     wt: Vec<f64>,
     /// The state after the step (adaptive steps keep `x` until accepted).
     next: Vec<f64>,
@@ -360,14 +390,21 @@ pub struct RkScratch {
 }
 
 impl RkScratch {
-    fn ensure(&mut self, stages: usize, dim: usize) {
+    /// Room for `stages` stages of a state of `dim` values and of `vectors` deviation vectors
+    /// (the tangent buffers only grow: a step of the state alone keeps them).
+    fn ensure(&mut self, stages: usize, dim: usize, vectors: usize) {
         let n = stages * dim;
         if self.k.len() != n {
             self.k = vec![0.0; n];
             self.xs = vec![0.0; n];
-            self.kt = vec![0.0; n];
-            self.wt = vec![0.0; dim];
             self.next = vec![0.0; dim];
+            self.kt.clear();
+            self.wt.clear();
+        }
+        let m = vectors * dim;
+        if self.wt.len() < m || self.kt.len() < stages * m {
+            self.kt = vec![0.0; stages * m];
+            self.wt = vec![0.0; m];
         }
     }
 }
@@ -472,33 +509,22 @@ impl RungeKutta {
         let t = self.kind.tableau().expect("an explicit method");
         let dim = x.len();
         self.stages(f, x, time, h, s);
-        for v in w.chunks_exact_mut(dim) {
-            for i in 0..t.stages() {
-                let row = t.a[i];
-                for d in 0..dim {
-                    let mut sum = 0.0;
-                    for (j, &a) in row.iter().enumerate() {
-                        if a != 0.0 {
-                            sum += a * s.kt[j * dim + d];
-                        }
-                    }
-                    s.wt[d] = v[d] + h * sum;
-                }
-                let (xs, kt) = (
-                    &s.xs[i * dim..(i + 1) * dim],
-                    &mut s.kt[i * dim..(i + 1) * dim],
-                );
-                f.tangent(xs, time + t.c[i] * h, &s.wt, kt);
-            }
-            for d in 0..dim {
-                let mut sum = 0.0;
-                for (i, &b) in t.b.iter().enumerate() {
-                    if b != 0.0 {
-                        sum += b * s.kt[i * dim + d];
-                    }
-                }
-                v[d] += h * sum;
-            }
+        // The vectors stage by stage, side by side: each stage's combination runs over all of
+        // them as one block (value by value the sums of one vector alone), and its Jacobian
+        // at the stage state is applied to all of them in one call.
+        let m = w.len();
+        s.ensure(t.stages(), dim, m / dim);
+        let (kt, wt) = (&mut s.kt[..t.stages() * m], &mut s.wt[..m]);
+        for i in 0..t.stages() {
+            let (done, rest) = kt.split_at_mut(i * m);
+            weighted_sum(t.a[i], done, wt);
+            add_scaled(w, h, wt);
+            let xs = &s.xs[i * dim..(i + 1) * dim];
+            f.tangents(xs, time + t.c[i] * h, wt, &mut rest[..m]);
+        }
+        weighted_sum(t.b, kt, wt);
+        for (v, &sum) in w.iter_mut().zip(wt.iter()) {
+            *v += h * sum;
         }
         x.copy_from_slice(&s.next[..dim]);
         Ok(())

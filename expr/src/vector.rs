@@ -681,8 +681,9 @@ impl VectorFunction {
         );
         let (x, p) = self.split(x);
         let time = [t];
+        let mut args = [x.as_ptr(), v.as_ptr(), time.as_ptr(), p.as_ptr()];
         for (v, out) in v.chunks_exact(d).zip(out.chunks_exact_mut(d)) {
-            let args = [x.as_ptr(), v.as_ptr(), time.as_ptr(), p.as_ptr()];
+            args[1] = v.as_ptr();
             // SAFETY: as in `tangent_at`: each chunk of `v` and `out` has D entries.
             unsafe { (self.0.tangent_fn)(args.as_ptr(), out.as_mut_ptr()) }
         }

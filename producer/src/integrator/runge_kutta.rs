@@ -266,35 +266,70 @@ static DOP853: Tableau = Tableau {
     ]),
 };
 
-/// `acc = sum_j row_j k_j` over the `n = acc.len()` values of each of the first `row.len()`
-/// blocks of `k` (block `j` is `k[j * n..(j + 1) * n]`): each value summed from `0.0` over the
-/// row's non-zero coefficients in order (a zero coefficient adds no term). The one way every
-/// stage combination of this file sums; the blocks of several deviation vectors side by side
-/// are summed as one longer block, value by value the same operations.
+/// The non-zero coefficients of an explicit tableau, row by row and then the weights `b`, as
+/// (stage, coefficient) in order: the terms every stage combination of this file sums (a zero
+/// coefficient adds no term).
+#[derive(Debug, Default, Clone)]
+struct Terms {
+    /// The tableau they are of: the addresses of its `a` and `b`, `'static` data that no other
+    /// tableau can come to occupy.
+    of: (usize, usize),
+    terms: Vec<(usize, f64)>,
+    /// Row `i`'s terms are `terms[bounds[i]..bounds[i + 1]]`; row `stages` holds `b`'s.
+    bounds: Vec<usize>,
+}
+
+impl Terms {
+    fn ensure(&mut self, t: &Tableau) {
+        let of = (t.a.as_ptr() as usize, t.b.as_ptr() as usize);
+        if self.of == of && !self.bounds.is_empty() {
+            return;
+        }
+        self.of = of;
+        self.terms.clear();
+        self.bounds.clear();
+        self.bounds.push(0);
+        for row in t.a.iter().copied().chain([t.b]) {
+            let nonzero = row.iter().enumerate().filter(|(_, a)| **a != 0.0);
+            self.terms.extend(nonzero.map(|(j, &a)| (j, a)));
+            self.bounds.push(self.terms.len());
+        }
+    }
+
+    /// Row `i`'s terms (`i = stages`: the weights').
+    #[inline(always)]
+    fn row(&self, i: usize) -> &[(usize, f64)] {
+        &self.terms[self.bounds[i]..self.bounds[i + 1]]
+    }
+}
+
+/// `acc = sum_j a_j k_j` over the `n = acc.len()` values of the blocks of `k` the terms name
+/// (block `j` is `k[j * n..(j + 1) * n]`): each value summed from `0.0` over the terms in
+/// order. The one way every stage combination of this file sums; the blocks of several
+/// deviation vectors side by side are summed as one longer block, value by value the same
+/// operations.
 #[inline(always)]
-fn weighted_sum(row: &[f64], k: &[f64], acc: &mut [f64]) {
-    // Blocks of a few values at a time, held in registers across the row: the same sums,
+fn weighted_sum(terms: &[(usize, f64)], k: &[f64], acc: &mut [f64]) {
+    // Blocks of a few values at a time, held in registers across the terms: the same sums,
     // value by value, in any blocking.
     match acc.len() {
-        n if n % 4 == 0 => weighted_sum_by::<4>(row, k, acc),
-        n if n % 3 == 0 => weighted_sum_by::<3>(row, k, acc),
-        n if n % 2 == 0 => weighted_sum_by::<2>(row, k, acc),
-        _ => weighted_sum_by::<1>(row, k, acc),
+        n if n % 4 == 0 => weighted_sum_by::<4>(terms, k, acc),
+        n if n % 3 == 0 => weighted_sum_by::<3>(terms, k, acc),
+        n if n % 2 == 0 => weighted_sum_by::<2>(terms, k, acc),
+        _ => weighted_sum_by::<1>(terms, k, acc),
     }
 }
 
 /// [`weighted_sum`] `N` values at a time (`acc.len()` a multiple of `N`).
 #[inline(always)]
-fn weighted_sum_by<const N: usize>(row: &[f64], k: &[f64], acc: &mut [f64]) {
+fn weighted_sum_by<const N: usize>(terms: &[(usize, f64)], k: &[f64], acc: &mut [f64]) {
     let n = acc.len();
     for (c, out) in acc.chunks_exact_mut(N).enumerate() {
         let mut sum = [0.0; N];
-        for (j, &a) in row.iter().enumerate() {
-            if a != 0.0 {
-                let kj = &k[j * n + c * N..][..N];
-                for e in 0..N {
-                    sum[e] += a * kj[e];
-                }
+        for &(j, a) in terms {
+            let kj = &k[j * n + c * N..][..N];
+            for e in 0..N {
+                sum[e] += a * kj[e];
             }
         }
         out.copy_from_slice(&sum);
@@ -323,15 +358,16 @@ fn explicit_stages(
 ) {
     let dim = x.len();
     s.ensure(t.stages(), dim, 0);
+    s.terms.ensure(t);
     for i in 0..t.stages() {
         let (done, rest) = s.k.split_at_mut(i * dim);
         let xi = &mut s.xs[i * dim..(i + 1) * dim];
-        weighted_sum(t.a[i], done, xi);
+        weighted_sum(s.terms.row(i), done, xi);
         add_scaled(x, h, xi);
         f(xi, time + t.c[i] * h, &mut rest[..dim]);
     }
     let next = &mut s.next[..dim];
-    weighted_sum(t.b, &s.k, next);
+    weighted_sum(s.terms.row(t.stages()), &s.k, next);
     add_scaled(x, h, next);
 }
 
@@ -387,6 +423,8 @@ pub struct RkScratch {
     pub(crate) proposal: Option<f64>,
     /// The stages of the implicit methods.
     implicit: ImplicitScratch,
+    /// The explicit tableau's non-zero terms.
+    terms: Terms,
 }
 
 impl RkScratch {
@@ -517,12 +555,12 @@ impl RungeKutta {
         let (kt, wt) = (&mut s.kt[..t.stages() * m], &mut s.wt[..m]);
         for i in 0..t.stages() {
             let (done, rest) = kt.split_at_mut(i * m);
-            weighted_sum(t.a[i], done, wt);
+            weighted_sum(s.terms.row(i), done, wt);
             add_scaled(w, h, wt);
             let xs = &s.xs[i * dim..(i + 1) * dim];
             f.tangents(xs, time + t.c[i] * h, wt, &mut rest[..m]);
         }
-        weighted_sum(t.b, kt, wt);
+        weighted_sum(s.terms.row(t.stages()), kt, wt);
         for (v, &sum) in w.iter_mut().zip(wt.iter()) {
             *v += h * sum;
         }

@@ -324,12 +324,18 @@ fn weighted_sum(terms: &[(usize, f64)], k: &[f64], acc: &mut [f64]) {
 #[inline(always)]
 fn weighted_sum_by<const N: usize>(terms: &[(usize, f64)], k: &[f64], acc: &mut [f64]) {
     let n = acc.len();
+    // The terms name their stages in increasing order, so the last names the highest block:
+    // one check covers every read below.
+    if let Some(&(last, _)) = terms.last() {
+        assert!((last + 1) * n <= k.len(), "stage {last} of blocks of {n}");
+    }
     for (c, out) in acc.chunks_exact_mut(N).enumerate() {
         let mut sum = [0.0; N];
         for &(j, a) in terms {
-            let kj = &k[j * n + c * N..][..N];
             for e in 0..N {
-                sum[e] += a * kj[e];
+                // SAFETY: j <= last and c * N + e < n, so the index is below (last + 1) * n,
+                // which the assertion above keeps within `k`.
+                sum[e] += a * unsafe { *k.get_unchecked(j * n + c * N + e) };
             }
         }
         out.copy_from_slice(&sum);

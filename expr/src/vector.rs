@@ -676,7 +676,7 @@ impl VectorFunction {
         }
         let (d, n) = (self.dim(), self.state_len());
         assert!(
-            x.len() == n && v.len() == out.len() && v.len() % d.max(1) == 0,
+            x.len() == n && v.len() == out.len() && d > 0 && v.len().is_multiple_of(d),
             "Jacobian-vector products of {d} components"
         );
         let (x, p) = self.split(x);

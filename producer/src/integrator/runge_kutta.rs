@@ -313,9 +313,9 @@ fn weighted_sum(terms: &[(usize, f64)], k: &[f64], acc: &mut [f64]) {
     // Blocks of a few values at a time, held in registers across the terms: the same sums,
     // value by value, in any blocking.
     match acc.len() {
-        n if n % 4 == 0 => weighted_sum_by::<4>(terms, k, acc),
-        n if n % 3 == 0 => weighted_sum_by::<3>(terms, k, acc),
-        n if n % 2 == 0 => weighted_sum_by::<2>(terms, k, acc),
+        n if n.is_multiple_of(4) => weighted_sum_by::<4>(terms, k, acc),
+        n if n.is_multiple_of(3) => weighted_sum_by::<3>(terms, k, acc),
+        n if n.is_multiple_of(2) => weighted_sum_by::<2>(terms, k, acc),
         _ => weighted_sum_by::<1>(terms, k, acc),
     }
 }

@@ -103,15 +103,25 @@ fn state_error(side: &serde_json::Value, reference: &serde_json::Value) -> serde
     serde_json::json!(e)
 }
 
-/// The peer's JSON, or why there is none.
+/// The peer's JSON, or why there is none (no interpreter, or heyoka not importable).
 fn run_script(python: &str, t_final: f64) -> anyhow::Result<serde_json::Value> {
-    let mut child = Command::new(python)
+    let spawned = Command::new(python)
         .args(["-", "--t-final", &format!("{t_final:?}")])
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
-        .spawn()
-        .with_context(|| format!("cannot start the Python interpreter {python:?}"))?;
+        .spawn();
+    let mut child = match spawned {
+        Ok(child) => child,
+        // No interpreter, no peer: said as plainly as a missing package.
+        Err(e) => {
+            return Ok(serde_json::json!({
+                "reference_state_t10": null,
+                "heyoka_available": false,
+                "heyoka_unavailable": format!("cannot start the Python interpreter {python:?} ({e}); --peer-python names another"),
+            }));
+        }
+    };
     child
         .stdin
         .take()

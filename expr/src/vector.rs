@@ -663,6 +663,33 @@ impl VectorFunction {
         true
     }
 
+    /// [`Self::tangent_at`] of each of the vectors in `v` (one after the other, `D` values
+    /// each) into the same place of `out`, the bits of one call per vector; `false` (and `out`
+    /// untouched) when the function has no continuous first derivatives.
+    ///
+    /// # Panics
+    /// If `x` does not have `D + P` entries, or `v` and `out` not the same multiple of `D`.
+    #[inline]
+    pub fn tangents_at(&self, x: &[f64], t: f64, v: &[f64], out: &mut [f64]) -> bool {
+        if !self.0.c1 {
+            return false;
+        }
+        let (d, n) = (self.dim(), self.state_len());
+        assert!(
+            x.len() == n && v.len() == out.len() && d > 0 && v.len().is_multiple_of(d),
+            "Jacobian-vector products of {d} components"
+        );
+        let (x, p) = self.split(x);
+        let time = [t];
+        let mut args = [x.as_ptr(), v.as_ptr(), time.as_ptr(), p.as_ptr()];
+        for (v, out) in v.chunks_exact(d).zip(out.chunks_exact_mut(d)) {
+            args[1] = v.as_ptr();
+            // SAFETY: as in `tangent_at`: each chunk of `v` and `out` has D entries.
+            unsafe { (self.0.tangent_fn)(args.as_ptr(), out.as_mut_ptr()) }
+        }
+        true
+    }
+
     /// `tr J(x)` at `t = 0`.
     #[inline]
     pub fn divergence(&self, x: &[f64]) -> f64 {

@@ -150,6 +150,16 @@ fn lorenz_jacobian_and_divergence_by_hand() {
                 want[i]
             );
         }
+        // Several vectors in one call: each the bits of its own call (the Runge-Kutta tangent
+        // step applies a stage's Jacobian to all its vectors this way).
+        let vs = uniform(9, seed + 2000);
+        let mut all = [0.0; 9];
+        assert!(f.tangents_at(&x, 0.0, &vs, &mut all));
+        for (v, got) in vs.chunks_exact(3).zip(all.chunks_exact(3)) {
+            let mut one = [0.0; 3];
+            assert!(f.tangent(&x, v, &mut one));
+            assert_eq!(bits(got), bits(&one));
+        }
         // The diagonal is constant: -sigma, -1, -beta, summed in that order.
         assert_eq!(f.divergence(&x), (-s - 1.0) - b);
         let mut fx = [0.0; 3];

@@ -16,6 +16,15 @@ pub trait VectorField: Send + Sync {
     /// `out = J(x, t) v`, the derivative of `f` in `x` at `(x, t)` in direction `v`.
     fn tangent(&self, x: &[f64], t: f64, v: &[f64], out: &mut [f64]);
 
+    /// [`VectorField::tangent`] of each of the vectors in `v` (one after the other, `D`
+    /// values each) into the same place of `out`: the bits of one call per vector.
+    fn tangents(&self, x: &[f64], t: f64, v: &[f64], out: &mut [f64]) {
+        let dim = self.dim();
+        for (v, out) in v.chunks_exact(dim).zip(out.chunks_exact_mut(dim)) {
+            self.tangent(x, t, v, out);
+        }
+    }
+
     /// `div f(x, t)`, the trace of the Jacobian.
     fn divergence(&self, x: &[f64], t: f64) -> f64;
 
@@ -67,6 +76,14 @@ impl VectorField for chaoscope_expr::VectorFunction {
         // not reached there; were it reached, NaN stops the run with an error naming the time
         // rather than continuing with a wrong tangent.
         if !chaoscope_expr::VectorFunction::tangent_at(self, x, t, v, out) {
+            out.fill(f64::NAN);
+        }
+    }
+
+    #[inline]
+    fn tangents(&self, x: &[f64], t: f64, v: &[f64], out: &mut [f64]) {
+        // As in `tangent`: NaN where there is no tangent.
+        if !chaoscope_expr::VectorFunction::tangents_at(self, x, t, v, out) {
             out.fill(f64::NAN);
         }
     }

@@ -44,6 +44,8 @@
 mod dkg;
 mod fput_c;
 mod lattice;
+mod lorenz_stage;
+mod peer;
 mod plain_loop;
 mod scalar_c;
 
@@ -130,6 +132,27 @@ pub struct Args {
     /// One run of the lattice comparison (internal: `MODEL:N:T_FINAL`), as a child process.
     #[arg(long, hide = true)]
     pub lattice_case: Option<String>,
+    /// Only the one-orbit Lorenz step with three tangent vectors (dop853, h = 0.01): ns per
+    /// stage through the real one-orbit path beside a plain loop of the same flops, and their
+    /// ratio.
+    #[arg(long)]
+    pub lorenz_stage_only: bool,
+    /// Steps of each side per round of the Lorenz stage measurement.
+    #[arg(long, default_value_t = 200_000)]
+    pub lorenz_stage_steps: u64,
+    /// Only the comparison with a peer program on the Lorenz spectrum workload (`heyoka`: the
+    /// Python package, run by `benches/peer/heyoka_lorenz.py`).
+    #[arg(long, value_name = "PEER")]
+    pub peer: Option<String>,
+    /// Final time of the peer comparison's Lorenz spectrum.
+    #[arg(long, default_value_t = 1e5)]
+    pub peer_t_final: f64,
+    /// chaoscope's fixed dop853 step in the peer comparison (a divisor of tau = 1).
+    #[arg(long, default_value_t = 0.01)]
+    pub peer_h: f64,
+    /// Python interpreter that runs the peer's side.
+    #[arg(long, default_value = "python3")]
+    pub peer_python: String,
     /// Kept for symmetry with other commands: the output is always JSON.
     #[arg(long)]
     pub json: bool,
@@ -600,6 +623,20 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
         return Ok(ExitCode::SUCCESS);
     }
+    if args.lorenz_stage_only {
+        let report = serde_json::json!({
+            "cpu": Machine::cpu_model(),
+            "isa": Isa::detect().name(),
+            "lorenz_stage": lorenz_stage::measure(args.lorenz_stage_steps, 100.0)?,
+        });
+        chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    if let Some(peer) = &args.peer {
+        let report = peer::compare(peer, args.peer_t_final, args.peer_h, &args.peer_python)?;
+        chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
+        return Ok(ExitCode::SUCCESS);
+    }
     if args.lattice_only {
         let report = serde_json::json!({
             "cpu": Machine::cpu_model(),
@@ -724,6 +761,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             "cpu": Machine::cpu_model(),
             "kernel": kernel,
             "expression_models": expression_models,
+            "lorenz_stage": lorenz_stage::measure(args.lorenz_stage_steps, 100.0)?,
             "gali2_map": {
                 "settings": "HH H=0.125 x1=0 section, q2 in [-0.45,0.65], p2 in [-0.45,0.45], ABA864 h=0.01, MPM tau=1 d0=1e-8, k=2, 50 sets",
                 "t_final": args.t_final,

@@ -266,6 +266,90 @@ static DOP853: Tableau = Tableau {
     ]),
 };
 
+/// The non-zero coefficients of an explicit tableau, row by row and then the weights `b`, as
+/// (stage, coefficient) in order: the terms every stage combination of this file sums (a zero
+/// coefficient adds no term).
+#[derive(Debug, Default, Clone)]
+struct Terms {
+    /// The tableau they are of: the addresses of its `a` and `b`, `'static` data that no other
+    /// tableau can come to occupy.
+    of: (usize, usize),
+    terms: Vec<(usize, f64)>,
+    /// Row `i`'s terms are `terms[bounds[i]..bounds[i + 1]]`; row `stages` holds `b`'s.
+    bounds: Vec<usize>,
+}
+
+impl Terms {
+    fn ensure(&mut self, t: &Tableau) {
+        let of = (t.a.as_ptr() as usize, t.b.as_ptr() as usize);
+        if self.of == of && !self.bounds.is_empty() {
+            return;
+        }
+        self.of = of;
+        self.terms.clear();
+        self.bounds.clear();
+        self.bounds.push(0);
+        for row in t.a.iter().copied().chain([t.b]) {
+            let nonzero = row.iter().enumerate().filter(|(_, a)| **a != 0.0);
+            self.terms.extend(nonzero.map(|(j, &a)| (j, a)));
+            self.bounds.push(self.terms.len());
+        }
+    }
+
+    /// Row `i`'s terms (`i = stages`: the weights').
+    #[inline(always)]
+    fn row(&self, i: usize) -> &[(usize, f64)] {
+        &self.terms[self.bounds[i]..self.bounds[i + 1]]
+    }
+}
+
+/// `acc = sum_j a_j k_j` over the `n = acc.len()` values of the blocks of `k` the terms name
+/// (block `j` is `k[j * n..(j + 1) * n]`): each value summed from `0.0` over the terms in
+/// order. The one way every stage combination of this file sums; the blocks of several
+/// deviation vectors side by side are summed as one longer block, value by value the same
+/// operations.
+#[inline(always)]
+fn weighted_sum(terms: &[(usize, f64)], k: &[f64], acc: &mut [f64]) {
+    // Blocks of a few values at a time, held in registers across the terms: the same sums,
+    // value by value, in any blocking.
+    match acc.len() {
+        n if n.is_multiple_of(4) => weighted_sum_by::<4>(terms, k, acc),
+        n if n.is_multiple_of(3) => weighted_sum_by::<3>(terms, k, acc),
+        n if n.is_multiple_of(2) => weighted_sum_by::<2>(terms, k, acc),
+        _ => weighted_sum_by::<1>(terms, k, acc),
+    }
+}
+
+/// [`weighted_sum`] `N` values at a time (`acc.len()` a multiple of `N`).
+#[inline(always)]
+fn weighted_sum_by<const N: usize>(terms: &[(usize, f64)], k: &[f64], acc: &mut [f64]) {
+    let n = acc.len();
+    // The terms name their stages in increasing order, so the last names the highest block:
+    // one check covers every read below.
+    if let Some(&(last, _)) = terms.last() {
+        assert!((last + 1) * n <= k.len(), "stage {last} of blocks of {n}");
+    }
+    for (c, out) in acc.chunks_exact_mut(N).enumerate() {
+        let mut sum = [0.0; N];
+        for &(j, a) in terms {
+            for e in 0..N {
+                // SAFETY: j <= last and c * N + e < n, so the index is below (last + 1) * n,
+                // which the assertion above keeps within `k`.
+                sum[e] += a * unsafe { *k.get_unchecked(j * n + c * N + e) };
+            }
+        }
+        out.copy_from_slice(&sum);
+    }
+}
+
+/// `out = base + h * out` value by value (`out` holding a [`weighted_sum`]).
+#[inline(always)]
+fn add_scaled(base: &[f64], h: f64, out: &mut [f64]) {
+    for (o, &b) in out.iter_mut().zip(base) {
+        *o = b + h * *o;
+    }
+}
+
 /// The stages of one explicit step of tableau `t` from `x` at time `time` with step `h` of the
 /// field `f` (`f(y, ti, out)` writes `f(y, ti)`; stage `i` at `ti = time + c_i h`): stage
 /// states into `s.xs`, derivatives into `s.k`, the new state into `s.next`. The one definition
@@ -279,31 +363,18 @@ fn explicit_stages(
     s: &mut RkScratch,
 ) {
     let dim = x.len();
-    s.ensure(t.stages(), dim);
+    s.ensure(t.stages(), dim, 0);
+    s.terms.ensure(t);
     for i in 0..t.stages() {
-        let row = t.a[i];
         let (done, rest) = s.k.split_at_mut(i * dim);
         let xi = &mut s.xs[i * dim..(i + 1) * dim];
-        for d in 0..dim {
-            let mut sum = 0.0;
-            for (j, &a) in row.iter().enumerate() {
-                if a != 0.0 {
-                    sum += a * done[j * dim + d];
-                }
-            }
-            xi[d] = x[d] + h * sum;
-        }
+        weighted_sum(s.terms.row(i), done, xi);
+        add_scaled(x, h, xi);
         f(xi, time + t.c[i] * h, &mut rest[..dim]);
     }
-    for d in 0..dim {
-        let mut sum = 0.0;
-        for (i, &b) in t.b.iter().enumerate() {
-            if b != 0.0 {
-                sum += b * s.k[i * dim + d];
-            }
-        }
-        s.next[d] = x[d] + h * sum;
-    }
+    let next = &mut s.next[..dim];
+    weighted_sum(s.terms.row(t.stages()), &s.k, next);
+    add_scaled(x, h, next);
 }
 
 /// One step of size `h` from time `time` of the explicit tableau `t` for a field given as a
@@ -347,9 +418,10 @@ pub struct RkScratch {
     k: Vec<f64>,
     /// Stage states `X_i`, `s * D` (the tangent map evaluates `J` there).
     xs: Vec<f64>,
-    /// Stage tangents `K_i` of one deviation vector, `s * D`.
+    /// Stage tangents `K_i` of the `m` deviation vectors, stage by stage: `s * m * D`, stage
+    /// `i`'s `K_i` of vector `v` at `(i * m + v) * D`.
     kt: Vec<f64>,
-    /// One stage's tangent argument.
+    /// One stage's tangent arguments of the `m` vectors, `m * D`.
     wt: Vec<f64>,
     /// The state after the step (adaptive steps keep `x` until accepted).
     next: Vec<f64>,
@@ -357,17 +429,26 @@ pub struct RkScratch {
     pub(crate) proposal: Option<f64>,
     /// The stages of the implicit methods.
     implicit: ImplicitScratch,
+    /// The explicit tableau's non-zero terms.
+    terms: Terms,
 }
 
 impl RkScratch {
-    fn ensure(&mut self, stages: usize, dim: usize) {
+    /// Room for `stages` stages of a state of `dim` values and of `vectors` deviation vectors
+    /// (the tangent buffers only grow: a step of the state alone keeps them).
+    fn ensure(&mut self, stages: usize, dim: usize, vectors: usize) {
         let n = stages * dim;
         if self.k.len() != n {
             self.k = vec![0.0; n];
             self.xs = vec![0.0; n];
-            self.kt = vec![0.0; n];
-            self.wt = vec![0.0; dim];
             self.next = vec![0.0; dim];
+            self.kt.clear();
+            self.wt.clear();
+        }
+        let m = vectors * dim;
+        if self.wt.len() < m || self.kt.len() < stages * m {
+            self.kt = vec![0.0; stages * m];
+            self.wt = vec![0.0; m];
         }
     }
 }
@@ -469,33 +550,22 @@ impl RungeKutta {
         let t = self.kind.tableau().expect("an explicit method");
         let dim = x.len();
         self.stages(f, x, time, h, s);
-        for v in w.chunks_exact_mut(dim) {
-            for i in 0..t.stages() {
-                let row = t.a[i];
-                for d in 0..dim {
-                    let mut sum = 0.0;
-                    for (j, &a) in row.iter().enumerate() {
-                        if a != 0.0 {
-                            sum += a * s.kt[j * dim + d];
-                        }
-                    }
-                    s.wt[d] = v[d] + h * sum;
-                }
-                let (xs, kt) = (
-                    &s.xs[i * dim..(i + 1) * dim],
-                    &mut s.kt[i * dim..(i + 1) * dim],
-                );
-                f.tangent(xs, time + t.c[i] * h, &s.wt, kt);
-            }
-            for d in 0..dim {
-                let mut sum = 0.0;
-                for (i, &b) in t.b.iter().enumerate() {
-                    if b != 0.0 {
-                        sum += b * s.kt[i * dim + d];
-                    }
-                }
-                v[d] += h * sum;
-            }
+        // The vectors stage by stage, side by side: each stage's combination runs over all of
+        // them as one block (value by value the sums of one vector alone), and its Jacobian
+        // at the stage state is applied to all of them in one call.
+        let m = w.len();
+        s.ensure(t.stages(), dim, m / dim);
+        let (kt, wt) = (&mut s.kt[..t.stages() * m], &mut s.wt[..m]);
+        for i in 0..t.stages() {
+            let (done, rest) = kt.split_at_mut(i * m);
+            weighted_sum(s.terms.row(i), done, wt);
+            add_scaled(w, h, wt);
+            let xs = &s.xs[i * dim..(i + 1) * dim];
+            f.tangents(xs, time + t.c[i] * h, wt, &mut rest[..m]);
+        }
+        weighted_sum(s.terms.row(t.stages()), kt, wt);
+        for (v, &sum) in w.iter_mut().zip(wt.iter()) {
+            *v += h * sum;
         }
         x.copy_from_slice(&s.next[..dim]);
         Ok(())

@@ -10,42 +10,12 @@
 //! Liberation Sans in the usual places); without one the image is drawn without labels.
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 
 use chaoscope_schemas::proto::{MapHeader, MapPoint, map_point};
 use plotters::prelude::*;
 use plotters::style::colors::colormaps::ViridisRGB;
 
-pub(crate) const FONT: &str = "sans-serif";
-
-/// Registers a system font with plotters once; false when none was found.
-pub(crate) fn font_available() -> bool {
-    static FOUND: OnceLock<bool> = OnceLock::new();
-    *FOUND.get_or_init(|| {
-        let mut candidates: Vec<String> = std::env::var("CHAOSCOPE_FONT").into_iter().collect();
-        candidates.extend(
-            [
-                "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-                "/usr/share/fonts/TTF/DejaVuSans.ttf",
-                "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-                "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-                "/System/Library/Fonts/Supplemental/Arial.ttf",
-                "C:\\Windows\\Fonts\\arial.ttf",
-            ]
-            .map(String::from),
-        );
-        for path in candidates {
-            if let Ok(bytes) = chaoscope_os::read_regular(path.as_ref()) {
-                // Fonts are registered for the life of the process.
-                let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-                if plotters::style::register_font(FONT, FontStyle::Normal, bytes).is_ok() {
-                    return true;
-                }
-            }
-        }
-        false
-    })
-}
+pub(crate) use crate::chart::{FONT, font_available};
 
 /// How a point's value is coloured.
 struct Scale {
@@ -78,12 +48,12 @@ fn scale_of(h: &MapHeader) -> Scale {
         // lambda_1 of the spectrum (the other exponents are layers of the file): it can be
         // zero or negative, so on a linear scale.
         "spectrum" => Scale {
-            label: format!("lambda_1 of {} exponents (t = {})", h.k, h.t_final),
+            label: format!("λ_1 of {} exponents (t = {})", h.k, h.t_final),
             transform: lin,
             chaotic_high: true,
         },
         "mle" => Scale {
-            label: format!("log10 MLE (t = {})", h.t_final),
+            label: format!("log10 λ_1 (t = {})", h.t_final),
             transform: log,
             chaotic_high: true,
         },
@@ -91,7 +61,7 @@ fn scale_of(h: &MapHeader) -> Scale {
         // chaos, linearly in time (FLI, MEGNO), so a linear scale keeps the regular values
         // (MEGNO near 2, FLI near ln t) apart from one another.
         name => Scale {
-            label: format!("{name} (t = {})", h.t_final),
+            label: format!("{} (t = {})", crate::plot::indicator_label(name), h.t_final),
             transform: lin,
             chaotic_high: true,
         },
@@ -226,6 +196,8 @@ pub fn render_png(
             .disable_mesh()
             .x_desc(xa.name())
             .y_desc(ya.name())
+            .x_label_formatter(&|v| crate::chart::tick_label(*v, xb))
+            .y_label_formatter(&|v| crate::chart::tick_label(*v, yb))
             .label_style((FONT, 14))
             .draw()
             .map_err(|e| err(&e))?;
@@ -272,6 +244,7 @@ pub fn render_png(
             .configure_mesh()
             .disable_mesh()
             .disable_x_axis()
+            .y_label_formatter(&|v| crate::chart::tick_label(*v, (lo, hi)))
             .label_style((FONT, 13))
             .draw()
             .map_err(|e| err(&e))?;

@@ -12,6 +12,11 @@ use plotters::prelude::*;
 use crate::map_png::{FONT, colour, font_available};
 use crate::site_profiles::SiteProfiles;
 
+/// Fewest sites a space-time picture of the distributions is drawn for: over two sites each
+/// distribution is one number (the other site's weight is its complement), which says nothing
+/// a curve would not; a two-degree-of-freedom system is no lattice.
+pub const MIN_SITES: usize = 3;
+
 /// Decades of weight the colour scale spans below the largest weight.
 const DECADES: f64 = 6.0;
 
@@ -59,8 +64,8 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
         let (left, right) = panels.split_horizontally(panel_w);
         let x_range = 0.5..n as f64 + 0.5;
         for (area, title, energy) in [
-            (&left, "energy h_l / sum h", true),
-            (&right, "deviation vector xi_l", false),
+            (&left, "energy distribution h_l / Σ h", true),
+            (&right, "deviation vector distribution ξ_l", false),
         ] {
             let mut builder = ChartBuilder::on(area);
             builder.margin(10);
@@ -82,7 +87,7 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
                     // Sites are whole numbers; six labels keep four-digit ones apart.
                     .x_labels(6)
                     .x_label_formatter(&|v| format!("{v:.0}"))
-                    .y_label_formatter(&|v| format!("{v}"))
+                    .y_label_formatter(&|v| crate::chart::tick_label(*v, (t0, t_end)))
                     .label_style((FONT, 14))
                     .draw()
                     .map_err(|e| err(&e))?;
@@ -115,7 +120,7 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
             .margin_right(if text { 55 } else { 10 });
         if text {
             bar_builder
-                .caption("log10", (FONT, 14))
+                .caption("log10 weight", (FONT, 14))
                 .y_label_area_size(0)
                 .right_y_label_area_size(45);
         }
@@ -126,6 +131,7 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
             bar.configure_mesh()
                 .disable_mesh()
                 .disable_x_axis()
+                .y_label_formatter(&|v| crate::chart::tick_label(*v, (lo, hi)))
                 .label_style((FONT, 13))
                 .draw()
                 .map_err(|e| err(&e))?;

@@ -458,10 +458,12 @@ fn ranges(chart: &Chart) -> ((f64, f64), (f64, f64)) {
 /// Draws `chart`: its title across the top, the axes with clean ticks, every series cut at the
 /// border of the plotting area, and the labelled series' legend in a strip to the right. Without
 /// a font (`text` false) the curves and frame are drawn without any text (and no legend).
+/// `raster`: the backend is a bitmap (thick lines drawn without joins, see below).
 fn draw<DB: DrawingBackend>(
     root: DrawingArea<DB, Shift>,
     chart: &Chart,
     text: bool,
+    raster: bool,
 ) -> Result<Layout, String>
 where
     DB::ErrorType: 'static,
@@ -522,8 +524,19 @@ where
         match line.stroke {
             Stroke::Solid => {
                 for run in clip_polyline(&line.points, xr, yr) {
-                    ctx.draw_series(LineSeries::new(run, color.stroke_width(2)))
-                        .map_err(|e| e.to_string())?;
+                    if raster {
+                        // Segment by segment: the rasterizer joins a thick polyline's segments
+                        // with unlimited miters, whose spikes at a noisy curve's sharp turns
+                        // reach far beyond the data (over the title and the ticks).
+                        let style = color.stroke_width(2);
+                        ctx.draw_series(
+                            run.windows(2)
+                                .map(|w| PathElement::new(vec![w[0], w[1]], style)),
+                        )
+                    } else {
+                        ctx.draw_series(LineSeries::new(run, color.stroke_width(2)))
+                    }
+                    .map_err(|e| e.to_string())?;
                 }
             }
             Stroke::Dashed => {
@@ -582,6 +595,26 @@ pub fn stray_pixels(
     out
 }
 
+/// The words of an SVG drawing's `<text>` elements (trimmed, the XML escapes undone): what a
+/// reader of the figure sees written.
+pub fn svg_texts(svg: &str) -> Vec<String> {
+    svg.split("<text")
+        .skip(1)
+        .filter_map(|t| {
+            let inner = t.split_once('>')?.1.split_once("</text>")?.0;
+            Some(
+                inner
+                    .trim()
+                    .replace("&lt;", "<")
+                    .replace("&gt;", ">")
+                    .replace("&quot;", "\"")
+                    .replace("&apos;", "'")
+                    .replace("&amp;", "&"),
+            )
+        })
+        .collect()
+}
+
 /// `chart` drawn in memory as RGB pixels of [`SIZE`], with where it put the plotting area and
 /// the legend (what [`render`] writes to `<stem>.png`).
 pub fn render_pixels(chart: &Chart) -> Result<(Vec<u8>, (u32, u32), Layout), String> {
@@ -591,6 +624,7 @@ pub fn render_pixels(chart: &Chart) -> Result<(Vec<u8>, (u32, u32), Layout), Str
         BitMapBackend::with_buffer(&mut pixels, SIZE).into_drawing_area(),
         chart,
         text,
+        true,
     )?;
     Ok((pixels, SIZE, layout))
 }
@@ -603,6 +637,7 @@ pub fn render_svg(chart: &Chart) -> Result<String, String> {
         SVGBackend::with_string(&mut svg, SIZE).into_drawing_area(),
         chart,
         text,
+        false,
     )?;
     Ok(svg)
 }
@@ -639,13 +674,7 @@ pub fn render(chart: &Chart, stem: &Path, inputs: &[PathBuf]) -> Result<Vec<Path
     // Drawn in memory, then each written as one output (`chaoscope_os::output`).
     let (pixels, _, _) = render_pixels(chart).map_err(|m| err(&png, m))?;
     save_png(&png, inputs, &pixels, size)?;
-    let mut vector = String::new();
-    draw(
-        SVGBackend::with_string(&mut vector, size).into_drawing_area(),
-        chart,
-        text,
-    )
-    .map_err(|m| err(&svg, m))?;
+    let vector = render_svg(chart).map_err(|m| err(&svg, m))?;
     chaoscope_os::output::write_whole(&svg, &drawing_options(inputs), |file| {
         std::io::Write::write_all(file, vector.as_bytes())
     })?;
@@ -684,7 +713,7 @@ mod tests {
         // Machines without any TrueType font still get the curves (no text at all).
         let mut buf = vec![0u8; 200 * 150 * 3];
         let root = BitMapBackend::with_buffer(&mut buf, (200, 150)).into_drawing_area();
-        draw(root, &chart(), false).unwrap();
+        draw(root, &chart(), false, true).unwrap();
         // Something other than white was drawn.
         assert!(buf.iter().any(|&b| b != 255));
     }
@@ -715,12 +744,31 @@ mod tests {
                 },
                 wild(2, Stroke::Dashed),
                 wild(3, Stroke::Dots),
+                // A noisy curve inside the axes: sharp turns, where joined thick strokes spike.
+                Line {
+                    label: String::new(),
+                    points: {
+                        // Deterministic noise (a linear congruential sequence) in [-0.97, 0.97].
+                        let mut state = 1u64;
+                        (0..1500)
+                            .map(|i| {
+                                state = state
+                                    .wrapping_mul(6364136223846793005)
+                                    .wrapping_add(1442695040888963407);
+                                let u = (state >> 11) as f64 / (1u64 << 53) as f64;
+                                (-0.99 + 0.00132 * i as f64, 0.97 * (2.0 * u - 1.0))
+                            })
+                            .collect()
+                    },
+                    stroke: Stroke::Solid,
+                    color: 4,
+                },
             ],
             x_range: Some((-1.0, 1.0)),
             y_range: Some((-1.0, 1.0)),
         };
         let (pixels, (w, _), layout) = render_pixels(&chart).unwrap();
-        let colours = [palette(1), palette(2), palette(3)];
+        let colours = [palette(1), palette(2), palette(3), palette(4)];
         let out = stray_pixels(&pixels, w, &layout, &colours);
         assert!(
             out.is_empty(),
@@ -734,6 +782,44 @@ mod tests {
             pixels
                 .chunks(3)
                 .any(|p| p == [colours[0].0, colours[0].1, colours[0].2])
+        );
+    }
+
+    #[test]
+    fn ticks_are_clean_numbers() {
+        for (v, range, text) in [
+            (1000.0, (0.0, 2000.0), "1000"),
+            (-0.0, (-1.0, 1.0), "0"),
+            // A rounding residue of a tick at zero.
+            (1.3e-17, (-1.0, 1.0), "0"),
+            (0.30000000000000004, (0.0, 1.0), "0.3"),
+            (-2.5, (-5.0, 0.0), "-2.5"),
+            (12.0, (10.0, 20.0), "12"),
+            (250000.0, (0.0, 1e6), "2.5e5"),
+            (1e6, (0.0, 1e6), "1e6"),
+            (1e-4, (0.0, 5e-4), "1e-4"),
+            (-12.0, (-12.5, 0.2), "-12"),
+        ] {
+            assert_eq!(tick_label(v, range), text, "{v} on {range:?}");
+        }
+    }
+
+    #[test]
+    fn the_svg_carries_the_title_axis_labels_and_legend() {
+        if !font_available() {
+            // Without a font a chart has no text at all (drawn and said so by `render`).
+            return;
+        }
+        let svg = render_svg(&chart()).unwrap();
+        let texts = svg_texts(&svg);
+        for want in ["t", "x", "y", "a"] {
+            assert!(texts.iter().any(|t| t == want), "{want} not in {texts:?}");
+        }
+        // Ticks, clean: -3..1 padded, in steps of 0.5 or 1, never "-0" or "1.0".
+        assert!(texts.iter().any(|t| t == "0"), "{texts:?}");
+        assert!(
+            !texts.iter().any(|t| t == "-0" || t.ends_with(".0")),
+            "{texts:?}"
         );
     }
 

@@ -568,16 +568,26 @@ where
     Ok(Layout { plot, legend })
 }
 
-/// The pixels of `pixels` (RGB rows `width` wide) of exactly one of `colours` that lie outside
-/// the plotting area and the legend strip of `layout`: a drawing's series leaking over its
-/// titles, ticks and margins. The area is widened by one pixel: a stroke two pixels wide ends
-/// half its width beyond where it is cut, and a dot of radius one at the border reaches one
-/// pixel over. Choose colours no frame or text uses (those are black and greys).
+impl Layout {
+    /// The rectangles that may hold a series' colour: the plotting area and the legend.
+    pub fn areas(&self) -> Vec<PixelRect> {
+        std::iter::once(self.plot.clone())
+            .chain(self.legend.clone())
+            .collect()
+    }
+}
+
+/// The pixels of `pixels` (RGB rows `width` wide) that `is_series` takes for a series' colour
+/// and that lie outside every rectangle of `areas` (the plotting areas, legends and colour
+/// bars of a drawing): a series leaking over titles, ticks and margins. Each area is widened
+/// by one pixel: a stroke two pixels wide ends half its width beyond where it is cut, and a
+/// dot of radius one at the border reaches one pixel over. Frames and text are black and
+/// greys, so a colour no frame or text uses is a series'.
 pub fn stray_pixels(
     pixels: &[u8],
     width: u32,
-    layout: &Layout,
-    colours: &[RGBColor],
+    areas: &[PixelRect],
+    is_series: impl Fn([u8; 3]) -> bool,
 ) -> Vec<(i32, i32)> {
     let within = |(xs, ys): &PixelRect, x: i32, y: i32| {
         x >= xs.start - 1 && x < xs.end + 1 && y >= ys.start - 1 && y < ys.end + 1
@@ -585,14 +595,20 @@ pub fn stray_pixels(
     let mut out = Vec::new();
     for (i, px) in pixels.chunks(3).enumerate() {
         let (x, y) = ((i % width as usize) as i32, (i / width as usize) as i32);
-        if within(&layout.plot, x, y) || layout.legend.as_ref().is_some_and(|l| within(l, x, y)) {
+        if areas.iter().any(|a| within(a, x, y)) {
             continue;
         }
-        if colours.iter().any(|c| px == [c.0, c.1, c.2]) {
+        if is_series([px[0], px[1], px[2]]) {
             out.push((x, y));
         }
     }
     out
+}
+
+/// A colour that is neither black, white nor a grey (a frame's, a text's antialiasing): one of
+/// a series, a colour map's cells or its bar.
+pub fn coloured([r, g, b]: [u8; 3]) -> bool {
+    r != g || g != b
 }
 
 /// The words of an SVG drawing's `<text>` elements (trimmed, the XML escapes undone): what a
@@ -769,7 +785,9 @@ mod tests {
         };
         let (pixels, (w, _), layout) = render_pixels(&chart).unwrap();
         let colours = [palette(1), palette(2), palette(3), palette(4)];
-        let out = stray_pixels(&pixels, w, &layout, &colours);
+        let out = stray_pixels(&pixels, w, &layout.areas(), |p| {
+            colours.iter().any(|c| p == [c.0, c.1, c.2])
+        });
         assert!(
             out.is_empty(),
             "{} series pixels outside the plotting area {:?}, e.g. {:?}",

@@ -108,8 +108,25 @@ pub fn indicator_label(name: &str) -> String {
         "ofli" => "OFLI".into(),
         "megno" => "MEGNO Y".into(),
         "megno_mean" => "mean MEGNO ⟨Y⟩".into(),
+        "dvd_m2" => "second moment m_2 of the DVD".into(),
+        "dvd_participation" => "participation number P of the DVD".into(),
+        "energy_m2" => "second moment m_2 of the energy".into(),
+        "energy_participation" => "participation number P of the energy".into(),
         other => other.replace('_', " "),
     }
+}
+
+/// An output of a distribution over a lattice's sites (the deviation vector distribution's and
+/// the energy distribution's moments): drawn only for at least
+/// [`crate::site_png::MIN_SITES`] sites.
+fn lattice_output(name: &str) -> bool {
+    use chaoscope_indicators::indicator::SetIndicator;
+    chaoscope_indicators::dvd::DeviationDistribution::default()
+        .names()
+        .contains(&name)
+        || chaoscope_indicators::energy::EnergyDistribution::default()
+            .names()
+            .contains(&name)
 }
 
 /// GALI and SALI say something about the orbit only for a scheme whose vectors evolve freely
@@ -401,6 +418,11 @@ fn vs_vm_chart(analysis: &Analysis, report: &Report, si: usize) -> Option<Chart>
     })
 }
 
+/// The symbol of an MPM parameter: `d_0`, `τ`.
+fn symbol(param: &str) -> &'static str {
+    if param == "d0" { "d_0" } else { "τ" }
+}
+
 /// GALI_j at the end against `log10 d0` (one curve per order; schemes grouped by tau) or
 /// against `log10 tau` (grouped by d0), with the VM value as a dashed line.
 fn sweep_charts(report: &Report) -> Vec<(String, Chart)> {
@@ -460,10 +482,12 @@ fn sweep_charts(report: &Report) -> Vec<(String, Chart)> {
                 format!("sweep_gali_vs_{param}_{other}{g:e}"),
                 Chart {
                     title: format!(
-                        "GALI_k at t = {t} against the multi-particle method's {param}\n{other} \
-                         = {g}, arithmetic mean over sets; dashed: the variational method"
+                        "GALI_k at t = {t} against the multi-particle method's {}\n{} = {g}, \
+                         arithmetic mean over sets; dashed: the variational method",
+                        symbol(param),
+                        symbol(other)
                     ),
-                    x_label: format!("log10 {}", if param == "d0" { "d_0" } else { "τ" }),
+                    x_label: format!("log10 {}", symbol(param)),
                     y_label: "log10 GALI_k".into(),
                     lines,
                     ..Default::default()
@@ -507,6 +531,10 @@ pub fn charts(analysis: &Analysis, report: &Report, axis: TimeAxis) -> Vec<(Stri
         .iter()
         .enumerate()
     {
+        let sites = run.kind.lattice_sites(run.dim).unwrap_or(0);
+        if lattice_output(name) && sites < crate::site_png::MIN_SITES {
+            continue;
+        }
         if let Some(c) = named_chart(analysis, report, shown, i, name, axis) {
             out.push((name.to_string(), c));
         }

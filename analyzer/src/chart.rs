@@ -205,6 +205,9 @@ pub fn palette(i: usize) -> RGBColor {
     COLORS[i % COLORS.len()]
 }
 
+/// A drawing in memory: RGB pixels, their size, and where the drawing put its areas.
+pub type Drawn<L> = (Vec<u8>, (u32, u32), L);
+
 /// Pixel rectangle `(x range, y range)` of a drawing, ends exclusive.
 pub type PixelRect = (std::ops::Range<i32>, std::ops::Range<i32>);
 
@@ -262,7 +265,7 @@ pub fn tick_label(v: f64, (lo, hi): (f64, f64)) -> String {
             None => mantissa,
         }
     };
-    let text = if magnitude >= 1e5 || magnitude < 1e-3 {
+    let text = if !(1e-3..1e5).contains(&magnitude) {
         // Significant digits down to one below the spacing's.
         let digits = (v.abs().log10().floor() as i32 - spacing_exponent + 1).clamp(0, 15);
         trim(format!("{:.*e}", digits as usize, v))
@@ -633,7 +636,7 @@ pub fn svg_texts(svg: &str) -> Vec<String> {
 
 /// `chart` drawn in memory as RGB pixels of [`SIZE`], with where it put the plotting area and
 /// the legend (what [`render`] writes to `<stem>.png`).
-pub fn render_pixels(chart: &Chart) -> Result<(Vec<u8>, (u32, u32), Layout), String> {
+pub fn render_pixels(chart: &Chart) -> Result<Drawn<Layout>, String> {
     let text = ensure_font().is_ok();
     let mut pixels = vec![0u8; SIZE.0 as usize * SIZE.1 as usize * 3];
     let layout = draw(

@@ -128,7 +128,7 @@ pub fn render_png(
 pub fn render_pixels(
     header: &MapHeader,
     points: &[MapPoint],
-) -> Result<(Vec<u8>, (u32, u32), crate::chart::Layout), String> {
+) -> Result<crate::chart::Drawn<crate::chart::Layout>, String> {
     use chaoscope_recorder::map_file::{check_header, check_point};
     check_header(header).map_err(|e| format!("map header: {e}"))?;
     points.iter().try_for_each(|p| check_point(header, p))?;

@@ -38,7 +38,7 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
 /// [`Layout::legend`]: crate::chart::Layout
 pub fn render_pixels(
     profiles: &SiteProfiles,
-) -> Result<(Vec<u8>, (u32, u32), [crate::chart::PixelRect; 3]), String> {
+) -> Result<crate::chart::Drawn<[crate::chart::PixelRect; 3]>, String> {
     let points = profiles.points();
     if points.len() < 2 {
         return Err("fewer than two renormalizations of the first set to draw".into());

@@ -10,42 +10,12 @@
 //! Liberation Sans in the usual places); without one the image is drawn without labels.
 
 use std::path::{Path, PathBuf};
-use std::sync::OnceLock;
 
 use chaoscope_schemas::proto::{MapHeader, MapPoint, map_point};
 use plotters::prelude::*;
 use plotters::style::colors::colormaps::ViridisRGB;
 
-pub(crate) const FONT: &str = "sans-serif";
-
-/// Registers a system font with plotters once; false when none was found.
-pub(crate) fn font_available() -> bool {
-    static FOUND: OnceLock<bool> = OnceLock::new();
-    *FOUND.get_or_init(|| {
-        let mut candidates: Vec<String> = std::env::var("CHAOSCOPE_FONT").into_iter().collect();
-        candidates.extend(
-            [
-                "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
-                "/usr/share/fonts/TTF/DejaVuSans.ttf",
-                "/usr/share/fonts/dejavu/DejaVuSans.ttf",
-                "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
-                "/System/Library/Fonts/Supplemental/Arial.ttf",
-                "C:\\Windows\\Fonts\\arial.ttf",
-            ]
-            .map(String::from),
-        );
-        for path in candidates {
-            if let Ok(bytes) = chaoscope_os::read_regular(path.as_ref()) {
-                // Fonts are registered for the life of the process.
-                let bytes: &'static [u8] = Box::leak(bytes.into_boxed_slice());
-                if plotters::style::register_font(FONT, FontStyle::Normal, bytes).is_ok() {
-                    return true;
-                }
-            }
-        }
-        false
-    })
-}
+pub(crate) use crate::chart::{FONT, font_available};
 
 /// How a point's value is coloured.
 struct Scale {
@@ -78,12 +48,12 @@ fn scale_of(h: &MapHeader) -> Scale {
         // lambda_1 of the spectrum (the other exponents are layers of the file): it can be
         // zero or negative, so on a linear scale.
         "spectrum" => Scale {
-            label: format!("lambda_1 of {} exponents (t = {})", h.k, h.t_final),
+            label: format!("λ_1 of {} exponents (t = {})", h.k, h.t_final),
             transform: lin,
             chaotic_high: true,
         },
         "mle" => Scale {
-            label: format!("log10 MLE (t = {})", h.t_final),
+            label: format!("log10 λ_1 (t = {})", h.t_final),
             transform: log,
             chaotic_high: true,
         },
@@ -91,7 +61,7 @@ fn scale_of(h: &MapHeader) -> Scale {
         // chaos, linearly in time (FLI, MEGNO), so a linear scale keeps the regular values
         // (MEGNO near 2, FLI near ln t) apart from one another.
         name => Scale {
-            label: format!("{name} (t = {})", h.t_final),
+            label: format!("{} (t = {})", crate::plot::indicator_label(name), h.t_final),
             transform: lin,
             chaotic_high: true,
         },
@@ -144,6 +114,21 @@ pub fn render_png(
     path: &Path,
     inputs: &[PathBuf],
 ) -> Result<(), String> {
+    let (pixels, size, _) =
+        render_pixels(header, points).map_err(|e| format!("{}: {e}", path.display()))?;
+    crate::chart::save_png(path, inputs, &pixels, size)
+        .map(drop)
+        .map_err(|e| e.to_string())
+}
+
+/// The map drawn in memory as RGB pixels of the returned size, with where it put the map (the
+/// plotting area) and the colour bar (in [`Layout::legend`]): checked as [`render_png`] says.
+///
+/// [`Layout::legend`]: crate::chart::Layout
+pub fn render_pixels(
+    header: &MapHeader,
+    points: &[MapPoint],
+) -> Result<crate::chart::Drawn<crate::chart::Layout>, String> {
     use chaoscope_recorder::map_file::{check_header, check_point};
     check_header(header).map_err(|e| format!("map header: {e}"))?;
     points.iter().try_for_each(|p| check_point(header, p))?;
@@ -187,13 +172,22 @@ pub fn render_png(
         pw + margin + bar + 20,
         ph + margin + if text { 40 } else { 10 },
     );
-    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let err = |e: &dyn std::fmt::Display| e.to_string();
 
     // Drawn in memory, then written as one output (`chaoscope_os::output`).
     let mut pixels = vec![0u8; w as usize * h as usize * 3];
     let root = BitMapBackend::with_buffer(&mut pixels, (w, h)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
-    let (plot_area, bar_area) = root.split_horizontally(pw + margin + 20);
+    // The title across the whole image (set smaller where a small grid leaves it narrow).
+    let body = if text {
+        crate::chart::titled(
+            &root,
+            &format!("{} over a grid of initial conditions", scale.label),
+        )?
+    } else {
+        root.clone()
+    };
+    let (plot_area, bar_area) = body.split_horizontally(pw + margin + 20);
     let (x0, x1) = (xa.min, xa.max.max(xa.min + f64::EPSILON));
     let (y0, y1) = (ya.min, ya.max.max(ya.min + f64::EPSILON));
     let dx = if nx > 1 {
@@ -214,10 +208,7 @@ pub fn render_png(
     let mut builder = ChartBuilder::on(&plot_area);
     builder.margin(10);
     if text {
-        builder
-            .caption(&scale.label, (FONT, 18))
-            .x_label_area_size(40)
-            .y_label_area_size(55);
+        builder.x_label_area_size(40).y_label_area_size(55);
     }
     let mut chart = builder.build_cartesian_2d(xr, yr).map_err(|e| err(&e))?;
     if text {
@@ -226,6 +217,8 @@ pub fn render_png(
             .disable_mesh()
             .x_desc(xa.name())
             .y_desc(ya.name())
+            .x_label_formatter(&|v| crate::chart::tick_label(*v, xb))
+            .y_label_formatter(&|v| crate::chart::tick_label(*v, yb))
             .label_style((FONT, 14))
             .draw()
             .map_err(|e| err(&e))?;
@@ -258,7 +251,7 @@ pub fn render_png(
     // The colour bar.
     let mut bar_builder = ChartBuilder::on(&bar_area);
     bar_builder
-        .margin_top(if text { 38 } else { 10 })
+        .margin_top(if text { 28 } else { 10 })
         .margin_bottom(if text { 50 } else { 10 });
     bar_builder.margin_right(if text { 60 } else { 10 });
     if text {
@@ -272,6 +265,7 @@ pub fn render_png(
             .configure_mesh()
             .disable_mesh()
             .disable_x_axis()
+            .y_label_formatter(&|v| crate::chart::tick_label(*v, (lo, hi)))
             .label_style((FONT, 13))
             .draw()
             .map_err(|e| err(&e))?;
@@ -289,24 +283,84 @@ pub fn render_png(
         let [top, bottom] = bar_ends(&scale);
         let style = (FONT, 13).into_font().color(&BLACK);
         bar_area
-            .draw(&Text::new(top, (0, 16), style.clone()))
+            .draw(&Text::new(top, (0, 8), style.clone()))
             .map_err(|e| err(&e))?;
         bar_area
-            .draw(&Text::new(bottom, (0, h as i32 - 44), style))
+            .draw(&Text::new(
+                bottom,
+                (0, bar_area.dim_in_pixel().1 as i32 - 44),
+                style,
+            ))
             .map_err(|e| err(&e))?;
     }
     root.present().map_err(|e| err(&e))?;
-    drop((bar_chart, chart, plot_area, bar_area, root));
-    crate::chart::save_png(path, inputs, &pixels, (w, h))
-        .map(drop)
-        .map_err(|e| e.to_string())
+    let layout = crate::chart::Layout {
+        plot: chart.plotting_area().get_pixel_range(),
+        legend: Some(bar_chart.plotting_area().get_pixel_range()),
+    };
+    drop((bar_chart, chart, plot_area, bar_area, body, root));
+    Ok((pixels, (w, h), layout))
 }
 
 #[cfg(test)]
 mod tests {
     use chaoscope_schemas::proto::MapHeader;
 
-    use super::{bar_ends, colour, scale_of};
+    use chaoscope_schemas::proto::{MapAxis, MapPoint, map_point};
+
+    use super::{bar_ends, colour, render_pixels, scale_of};
+
+    #[test]
+    fn the_cells_stay_in_the_map_and_the_bar_beside_it() {
+        // A 7 x 5 grid whose edge cells reach half a cell beyond the grid's extreme points, with
+        // values over many decades: every coloured pixel is a cell's or the bar's.
+        let axis = |coord: &str, n: u32| MapAxis {
+            coord: coord.into(),
+            min: -1.0,
+            max: 1.0,
+            n,
+            ..Default::default()
+        };
+        let header = MapHeader {
+            indicator: "gali".into(),
+            k: 2,
+            t_final: 1000.0,
+            sets: 1,
+            x: Some(axis("q2", 7)),
+            y: Some(axis("p2", 5)),
+            grid_points: 35,
+            shard_count: 1,
+            ..Default::default()
+        };
+        let points: Vec<MapPoint> = (0..35u32)
+            .map(|i| {
+                let (ix, iy) = (i % 7, i / 7);
+                MapPoint {
+                    index: u64::from(i),
+                    ix,
+                    iy,
+                    x: -1.0 + 2.0 * f64::from(ix) / 6.0,
+                    y: -1.0 + 2.0 * f64::from(iy) / 4.0,
+                    value: 10f64.powi(-(i as i32 % 17)),
+                    per_set: vec![10f64.powi(-(i as i32 % 17))],
+                    mean_log10: -f64::from(i % 17),
+                    status: map_point::Status::Ok as i32,
+                    ..Default::default()
+                }
+            })
+            .collect();
+        let (pixels, (w, _), layout) = match render_pixels(&header, &points) {
+            Ok(drawn) => drawn,
+            Err(e) => panic!("{e}"),
+        };
+        let out = crate::chart::stray_pixels(&pixels, w, &layout.areas(), crate::chart::coloured);
+        assert!(
+            out.is_empty(),
+            "{} coloured pixels outside the map and its bar {layout:?}, e.g. {:?}",
+            out.len(),
+            &out[..out.len().min(5)]
+        );
+    }
 
     /// Near the two ends of viridis: purple (68, 1, 84) and yellow (253, 231, 37; 0.9 of the
     /// way up it is still (189, 223, 38)).

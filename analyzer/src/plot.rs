@@ -58,6 +58,93 @@ fn lg(x: f64) -> f64 {
     x.log10()
 }
 
+/// The system in words for a title: the run's name and the model's (`hh-regular,
+/// Hénon-Heiles system`), never the config's bare key.
+pub fn system_words(run: &crate::run_info::RunInfo) -> String {
+    let model = match run.header.model.as_str() {
+        "henon-heiles" => "Hénon-Heiles system".to_string(),
+        "fput-beta" => "FPUT-β chain".to_string(),
+        "potential" => "Hamiltonian with a potential".to_string(),
+        "hamiltonian" => "Hamiltonian".to_string(),
+        "ode" => "flow".to_string(),
+        "map" => "map".to_string(),
+        other => format!("model {other}"),
+    };
+    let name = &run.header.run_name;
+    if name.is_empty() {
+        model
+    } else {
+        format!("{name}, {model}")
+    }
+}
+
+/// A scheme in words: `scheme vm (variational method, 4 sets)`.
+fn scheme_words(scheme: &crate::report::SchemeReport) -> String {
+    let method = match scheme.method.as_str() {
+        "vm" => "variational method".to_string(),
+        "mpm" => format!(
+            "multi-particle method, d0 = {:e}, tau = {}",
+            scheme.d0, scheme.tau
+        ),
+        other => other.to_string(),
+    };
+    let qr = if scheme.orthonormalize == "qr" {
+        ", QR orthonormalization"
+    } else {
+        ""
+    };
+    let sets = if scheme.sets == 1 { "set" } else { "sets" };
+    format!(
+        "scheme {} ({method}{qr}, {} {sets})",
+        scheme.name, scheme.sets
+    )
+}
+
+/// A set indicator's output in the field's notation, for an axis: `FLI`, `MEGNO Y`,
+/// `mean MEGNO <Y>`; an output this list does not know by its name with spaces.
+pub fn indicator_label(name: &str) -> String {
+    match name {
+        "fli" => "FLI".into(),
+        "ofli" => "OFLI".into(),
+        "megno" => "MEGNO Y".into(),
+        "megno_mean" => "mean MEGNO ⟨Y⟩".into(),
+        "dvd_m2" => "second moment m_2 of the DVD".into(),
+        "dvd_participation" => "participation number P of the DVD".into(),
+        "energy_m2" => "second moment m_2 of the energy".into(),
+        "energy_participation" => "participation number P of the energy".into(),
+        other => other.replace('_', " "),
+    }
+}
+
+/// An output of a distribution over a lattice's sites (the deviation vector distribution's and
+/// the energy distribution's moments): drawn only for at least
+/// [`crate::site_png::MIN_SITES`] sites.
+fn lattice_output(name: &str) -> bool {
+    use chaoscope_indicators::indicator::SetIndicator;
+    chaoscope_indicators::dvd::DeviationDistribution::default()
+        .names()
+        .contains(&name)
+        || chaoscope_indicators::energy::EnergyDistribution::default()
+            .names()
+            .contains(&name)
+}
+
+/// GALI and SALI say something about the orbit only for a scheme whose vectors evolve freely
+/// between rescalings: a QR scheme re-orthonormalizes them (its GALI is 1 by construction), and
+/// with k = 1 there is no pair of vectors.
+pub fn alignment_meaningful(orthonormalize: Orthonormalization, k: usize) -> bool {
+    orthonormalize != Orthonormalization::Qr && k >= 2
+}
+
+/// `t^-e` of a guide's label (`constant` for e = 0).
+fn power_law(exponent: usize) -> String {
+    match exponent {
+        0 => "const".into(),
+        1 => "t^-1".into(),
+        e => format!("t^-{e}"),
+    }
+}
+
 fn gali_chart(analysis: &Analysis, report: &Report, si: usize, axis: TimeAxis) -> Chart {
     let run = analysis.run();
     let scheme = &report.schemes[si];
@@ -112,7 +199,7 @@ fn gali_chart(analysis: &Analysis, report: &Report, si: usize, axis: TimeAxis) -
                 let g = |t: f64| g_a - rate * (t - t_a) / std::f64::consts::LN_10;
                 lines.push(Line {
                     label: if j == 2 {
-                        "exp(-sum(l1-li) t)".into()
+                        "exp(-Σ(λ_1-λ_i) t)".into()
                     } else {
                         String::new()
                     },
@@ -122,29 +209,31 @@ fn gali_chart(analysis: &Analysis, report: &Report, si: usize, axis: TimeAxis) -
                 });
             }
         }
-    } else {
-        // Regular orbit on an N-torus: constant for j <= N, t^(-2(j-N)) beyond.
+    } else if let Some(torus) = scheme.verdict.torus_dimension {
+        // Regular orbit on an s-torus (the verdict's s): GALI_j constant for j <= s, then
+        // ~ t^-(j-s) up to j = 2N - s, ~ t^-2(j-N) beyond (the paper's power laws).
         let t_a = 10f64.powf(0.5 * (lg(t_end) + lg(series.first().map_or(1.0, |p| p.0.max(1.0)))));
         for j in 2..=run.k {
             let Some(g_a) = anchor(j, t_a) else { continue };
-            let slope = -2.0 * j.saturating_sub(n) as f64;
-            let g = |t: f64| g_a + slope * (lg(t) - lg(t_a));
+            let exponent = crate::verdict::torus_exponent(j, torus, n);
+            let g = |t: f64| g_a - exponent as f64 * (lg(t) - lg(t_a));
             lines.push(Line {
-                label: if j == run.k {
-                    "t^-2(k-N)".into()
-                } else {
-                    String::new()
-                },
+                label: format!("GALI_{j} ~ {}", power_law(exponent)),
                 points: vec![(x(t_a), g(t_a)), (x(t_end), g(t_end))],
                 stroke: Stroke::Dashed,
                 color: j - 1,
             });
         }
     }
+    let torus = match scheme.verdict.torus_dimension {
+        Some(s) if !chaotic => format!("; dashed: the laws of a {s}-torus"),
+        _ => String::new(),
+    };
     Chart {
         title: format!(
-            "{} {}: GALI_k ({} d0={:e} tau={}, {} sets, geometric mean)",
-            run.header.model, scheme.name, scheme.method, scheme.d0, scheme.tau, scheme.sets
+            "GALI_k against time: {}\n{}, geometric mean over sets{torus}",
+            system_words(run),
+            scheme_words(scheme)
         ),
         x_label: if log_t { "log10 t" } else { "t" }.into(),
         y_label: "log10 GALI_k".into(),
@@ -173,16 +262,20 @@ fn mle_chart(analysis: &Analysis, report: &Report, schemes: &[usize]) -> Chart {
     if let Some(l) = lines.first().and_then(|l| l.points.first().copied()) {
         let end = lines[0].points.last().unwrap().0;
         lines.push(Line {
-            label: "t^-1".into(),
+            label: "λ_1 ~ t^-1".into(),
             points: vec![l, (end, l.1 - (end - l.0))],
             stroke: Stroke::Dashed,
             color: 7,
         });
     }
     Chart {
-        title: format!("{}: maximal Lyapunov exponent", analysis.run().header.model),
+        title: format!(
+            "Maximal Lyapunov exponent λ_1 against time: {}\nmean over sets; dashed: the t^-1 \
+             decay of a regular orbit",
+            system_words(analysis.run())
+        ),
         x_label: "log10 t".into(),
-        y_label: "log10 l1".into(),
+        y_label: "log10 λ_1".into(),
         lines,
         ..Default::default()
     }
@@ -193,7 +286,7 @@ fn spectrum_chart(analysis: &Analysis, report: &Report, si: usize) -> Chart {
     let k = analysis.run().k;
     let lines = (0..k)
         .map(|i| Line {
-            label: format!("l{}", i + 1),
+            label: format!("λ_{}", i + 1),
             points: series
                 .iter()
                 .filter(|(t, _)| *t > 0.0)
@@ -204,9 +297,13 @@ fn spectrum_chart(analysis: &Analysis, report: &Report, si: usize) -> Chart {
         })
         .collect();
     Chart {
-        title: format!("{}: Lyapunov spectrum (QR)", report.schemes[si].name),
+        title: format!(
+            "Lyapunov spectrum against time: {}\n{}, mean over sets",
+            system_words(analysis.run()),
+            scheme_words(&report.schemes[si])
+        ),
         x_label: "log10 t".into(),
-        y_label: "l_i".into(),
+        y_label: "λ_i".into(),
         lines,
         ..Default::default()
     }
@@ -252,9 +349,13 @@ fn named_chart(
         .filter(|l| !l.points.is_empty())
         .collect();
     (!lines.is_empty()).then(|| Chart {
-        title: format!("{}: {name} (mean over sets)", analysis.run().header.model),
+        title: format!(
+            "{} against time: {}\nmean over sets",
+            indicator_label(name),
+            system_words(analysis.run())
+        ),
         x_label: if log_t { "log10 t" } else { "t" }.into(),
-        y_label: name.into(),
+        y_label: indicator_label(name),
         lines,
         ..Default::default()
     })
@@ -268,7 +369,10 @@ fn energy_chart(analysis: &Analysis) -> Chart {
         .map(|(t, e)| (lg(t), lg(e)))
         .collect();
     Chart {
-        title: format!("{}: relative energy error", analysis.run().header.model),
+        title: format!(
+            "Relative energy error against time: {}",
+            system_words(analysis.run())
+        ),
         x_label: "log10 t".into(),
         y_label: "log10 E_r".into(),
         lines: vec![Line {
@@ -301,14 +405,22 @@ fn vs_vm_chart(analysis: &Analysis, report: &Report, si: usize) -> Option<Chart>
         .collect();
     Some(Chart {
         title: format!(
-            "{} vs {}: mean |log10 GALI_MPM - log10 GALI_VM|",
-            report.schemes[si].name, vm.scheme
+            "GALI of the multi-particle method against the variational method: {}\nscheme {} \
+             against scheme {}, mean over sets of |Δ log10 GALI_k|",
+            system_words(analysis.run()),
+            report.schemes[si].name,
+            vm.scheme
         ),
         x_label: "t".into(),
-        y_label: "log10 |delta log10 GALI|".into(),
+        y_label: "log10 |Δ log10 GALI_k|".into(),
         lines,
         ..Default::default()
     })
+}
+
+/// The symbol of an MPM parameter: `d_0`, `τ`.
+fn symbol(param: &str) -> &'static str {
+    if param == "d0" { "d_0" } else { "τ" }
 }
 
 /// GALI_j at the end against `log10 d0` (one curve per order; schemes grouped by tau) or
@@ -317,7 +429,7 @@ fn sweep_charts(report: &Report) -> Vec<(String, Chart)> {
     let mpm: Vec<_> = report
         .schemes
         .iter()
-        .filter(|s| s.method == "mpm")
+        .filter(|s| s.method == "mpm" && s.orthonormalize != "qr")
         .collect();
     let mut out = Vec::new();
     for (param, other) in [("d0", "tau"), ("tau", "d0")] {
@@ -370,9 +482,12 @@ fn sweep_charts(report: &Report) -> Vec<(String, Chart)> {
                 format!("sweep_gali_vs_{param}_{other}{g:e}"),
                 Chart {
                     title: format!(
-                        "GALI_k at t = {t} against {param} ({other} = {g}, arithmetic mean)"
+                        "GALI_k at t = {t} against the multi-particle method's {}\n{} = {g}, \
+                         arithmetic mean over sets; dashed: the variational method",
+                        symbol(param),
+                        symbol(other)
                     ),
-                    x_label: format!("log10 {param}"),
+                    x_label: format!("log10 {}", symbol(param)),
                     y_label: "log10 GALI_k".into(),
                     lines,
                     ..Default::default()
@@ -391,7 +506,7 @@ pub fn charts(analysis: &Analysis, report: &Report, axis: TimeAxis) -> Vec<(Stri
     let time_schemes: Vec<usize> = (0..run.schemes.len()).take(12).collect();
     for &si in &time_schemes {
         let name = &run.schemes[si].name;
-        if run.k >= 2 {
+        if alignment_meaningful(run.schemes[si].orthonormalize, run.k) {
             out.push((
                 format!("gali_{name}"),
                 gali_chart(analysis, report, si, axis),
@@ -404,6 +519,7 @@ pub fn charts(analysis: &Analysis, report: &Report, axis: TimeAxis) -> Vec<(Stri
             ));
         }
         if run.schemes[si].method == Method::Mpm
+            && alignment_meaningful(run.schemes[si].orthonormalize, run.k)
             && let Some(c) = vs_vm_chart(analysis, report, si)
         {
             out.push((format!("vs_vm_{name}"), c));
@@ -415,6 +531,10 @@ pub fn charts(analysis: &Analysis, report: &Report, axis: TimeAxis) -> Vec<(Stri
         .iter()
         .enumerate()
     {
+        let sites = run.kind.lattice_sites(run.dim).unwrap_or(0);
+        if lattice_output(name) && sites < crate::site_png::MIN_SITES {
+            continue;
+        }
         if let Some(c) = named_chart(analysis, report, shown, i, name, axis) {
             out.push((name.to_string(), c));
         }
@@ -447,6 +567,7 @@ pub fn plot_all(
     // asked to, `AnalysisOptions::site_profiles`).
     if let Some(profiles) = analysis.site_profiles()
         && profiles.points().len() >= 2
+        && profiles.sites() >= crate::site_png::MIN_SITES
     {
         let path = dir.join("distributions.png");
         crate::site_png::render_png(profiles, &path, inputs).map_err(|message| {

@@ -12,18 +12,36 @@ use plotters::prelude::*;
 use crate::map_png::{FONT, colour, font_available};
 use crate::site_profiles::SiteProfiles;
 
+/// Fewest sites a space-time picture of the distributions is drawn for: over two sites each
+/// distribution is one number (the other site's weight is its complement), which says nothing
+/// a curve would not; a two-degree-of-freedom system is no lattice.
+pub const MIN_SITES: usize = 3;
+
 /// Decades of weight the colour scale spans below the largest weight.
 const DECADES: f64 = 6.0;
 
 /// Draws `profiles` to the PNG `path` (through `chaoscope_os::output`, never one of `inputs`).
 /// An error naming the file, or saying that there is nothing to draw (fewer than two times).
 pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> Result<(), String> {
+    let (pixels, size, _) =
+        render_pixels(profiles).map_err(|e| format!("{}: {e}", path.display()))?;
+    crate::chart::save_png(path, inputs, &pixels, size)
+        .map(drop)
+        .map_err(|e| e.to_string())
+}
+
+/// The picture drawn in memory as RGB pixels of the returned size, with where it put the two
+/// panels' plotting areas (the energy's in [`Layout::plot`], the deviation vector's in
+/// [`Layout::legend`]) and the colour bar's.
+///
+/// [`Layout::plot`]: crate::chart::Layout
+/// [`Layout::legend`]: crate::chart::Layout
+pub fn render_pixels(
+    profiles: &SiteProfiles,
+) -> Result<crate::chart::Drawn<[crate::chart::PixelRect; 3]>, String> {
     let points = profiles.points();
     if points.len() < 2 {
-        return Err(format!(
-            "{}: fewer than two renormalizations of the first set to draw",
-            path.display()
-        ));
+        return Err("fewer than two renormalizations of the first set to draw".into());
     }
     let n = profiles.sites();
     let lg = |x: f64| {
@@ -50,7 +68,8 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
     let text = font_available();
     let (panel_w, panel_h, bar_w) = (440u32, 520u32, if text { 110 } else { 40 });
     let (w, h) = (2 * panel_w + bar_w, panel_h);
-    let err = |e: &dyn std::fmt::Display| format!("{}: {e}", path.display());
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    let mut areas = Vec::new();
     let mut pixels = vec![0u8; w as usize * h as usize * 3];
     {
         let root = BitMapBackend::with_buffer(&mut pixels, (w, h)).into_drawing_area();
@@ -59,8 +78,8 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
         let (left, right) = panels.split_horizontally(panel_w);
         let x_range = 0.5..n as f64 + 0.5;
         for (area, title, energy) in [
-            (&left, "energy h_l / sum h", true),
-            (&right, "deviation vector xi_l", false),
+            (&left, "energy distribution h_l / Σ h", true),
+            (&right, "deviation vector distribution ξ_l", false),
         ] {
             let mut builder = ChartBuilder::on(area);
             builder.margin(10);
@@ -73,6 +92,7 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
             let mut chart = builder
                 .build_cartesian_2d(x_range.clone(), t0..t_end)
                 .map_err(|e| err(&e))?;
+            areas.push(chart.plotting_area().get_pixel_range());
             if text {
                 chart
                     .configure_mesh()
@@ -82,7 +102,7 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
                     // Sites are whole numbers; six labels keep four-digit ones apart.
                     .x_labels(6)
                     .x_label_formatter(&|v| format!("{v:.0}"))
-                    .y_label_formatter(&|v| format!("{v}"))
+                    .y_label_formatter(&|v| crate::chart::tick_label(*v, (t0, t_end)))
                     .label_style((FONT, 14))
                     .draw()
                     .map_err(|e| err(&e))?;
@@ -115,7 +135,7 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
             .margin_right(if text { 55 } else { 10 });
         if text {
             bar_builder
-                .caption("log10", (FONT, 14))
+                .caption("log10 weight", (FONT, 14))
                 .y_label_area_size(0)
                 .right_y_label_area_size(45);
         }
@@ -126,10 +146,12 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
             bar.configure_mesh()
                 .disable_mesh()
                 .disable_x_axis()
+                .y_label_formatter(&|v| crate::chart::tick_label(*v, (lo, hi)))
                 .label_style((FONT, 13))
                 .draw()
                 .map_err(|e| err(&e))?;
         }
+        areas.push(bar.plotting_area().get_pixel_range());
         let steps = 120;
         bar.draw_series((0..steps).map(|i| {
             let a = lo + (hi - lo) * i as f64 / steps as f64;
@@ -139,7 +161,66 @@ pub fn render_png(profiles: &SiteProfiles, path: &Path, inputs: &[PathBuf]) -> R
         .map_err(|e| err(&e))?;
         root.present().map_err(|e| err(&e))?;
     }
-    crate::chart::save_png(path, inputs, &pixels, (w, h))
-        .map(drop)
-        .map_err(|e| e.to_string())
+    let areas: [crate::chart::PixelRect; 3] = areas
+        .try_into()
+        .map_err(|_| "two panels and a bar".to_string())?;
+    Ok((pixels, (w, h), areas))
+}
+
+#[cfg(test)]
+mod tests {
+    use chaoscope_schemas::run::{Sample, SchemeSample};
+
+    use super::*;
+
+    #[test]
+    fn the_distributions_stay_in_their_panels() {
+        // Eight sites over 40 renormalizations, the weight wandering along the chain, and
+        // energies spanning more decades than the colour scale (clamped to it, never drawn
+        // beyond the panels).
+        let n = 8;
+        let mut profiles = SiteProfiles::new(n);
+        for step in 0..40u64 {
+            let t = step as f64;
+            let weight = |l: usize| 10f64.powf(-((l as f64 - 0.2 * t).abs() * 2.0));
+            let separations: Vec<f64> = (0..2 * n)
+                .map(|i| weight(i % n).sqrt())
+                .chain(std::iter::repeat_n(0.5, 2 * n))
+                .collect();
+            let sample = Sample {
+                seq: step,
+                step,
+                t,
+                state: vec![0.1; 2 * n],
+                energy: 1.0,
+                mean_divergence: 0.0,
+                divergence_sum: 0.0,
+                schemes: vec![SchemeSample {
+                    scheme: 0,
+                    set: 0,
+                    separations,
+                    stretch: vec![1.0, 1.0],
+                    earlier_stretch: Vec::new(),
+                }],
+            };
+            profiles.offer(&sample, || Some(Ok((0..n).map(weight).collect())));
+        }
+        let (pixels, (w, _), areas) = render_pixels(&profiles).unwrap();
+        let out = crate::chart::stray_pixels(&pixels, w, &areas, crate::chart::coloured);
+        assert!(
+            out.is_empty(),
+            "{} coloured pixels outside the panels {areas:?}, e.g. {:?}",
+            out.len(),
+            &out[..out.len().min(5)]
+        );
+        // Both panels were drawn.
+        for (xs, ys) in &areas[..2] {
+            let mid = ((ys.start + ys.end) / 2 * w as i32 + (xs.start + xs.end) / 2) as usize;
+            assert!(crate::chart::coloured([
+                pixels[3 * mid],
+                pixels[3 * mid + 1],
+                pixels[3 * mid + 2]
+            ]));
+        }
+    }
 }

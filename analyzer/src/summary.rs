@@ -52,6 +52,7 @@ pub fn summarize(path: &Path) -> Result<RunSummary, SummaryError> {
         summary.frames_missing = r.frames_missing;
     }
     for (si, scheme) in run.schemes.iter().enumerate() {
+        let alignment = crate::plot::alignment_meaningful(scheme.orthonormalize, run.k);
         for set in 0..run.sets {
             let Some(v) = analysis.set_values(si, set) else {
                 continue;
@@ -60,8 +61,10 @@ pub fn summarize(path: &Path) -> Result<RunSummary, SummaryError> {
                 scheme: scheme.name.clone(),
                 set: set as u32,
                 t: v.t,
-                gali_k_log10: v.gali_log10.last().copied(),
-                sali: v.sali,
+                // GALI and SALI of a QR scheme (orthonormal vectors: 1 and sqrt 2 by
+                // construction) or of a single vector say nothing about the orbit: `n/a`.
+                gali_k_log10: v.gali_log10.last().copied().filter(|_| alignment),
+                sali: v.sali.filter(|_| alignment),
                 mle: v.exponents.first().copied().unwrap_or(0.0),
             });
         }

@@ -121,7 +121,14 @@ pub fn table(report: &Report) -> String {
         }
         line += &format!(
             " {} {}",
-            cell(s.sali.map(|v| v.log10_mean), 9, |v| format!("{v:.3}")),
+            // Nor its SALI (sqrt 2 for orthonormal vectors).
+            cell(
+                s.sali
+                    .map(|v| v.log10_mean)
+                    .filter(|_| s.orthonormalize != "qr"),
+                9,
+                |v| format!("{v:.3}")
+            ),
             cell(Some(s.mle), 10, |v| format!("{v:.6}"))
         );
         if let Some(v) = &s.vs_vm {

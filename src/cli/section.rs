@@ -235,11 +235,11 @@ fn energy_section(
     chaoscope_os::errln!("chaoscope section: {orbits} orbits, {total} crossings");
     if let Some(dir) = &args.plot {
         let title = format!(
-            "{}: section q{} = 0, p{} > 0, H = {}",
-            config.model.name(),
+            "Poincaré section q{} = 0, p{} > 0 at H = {}: {}",
             plane + 1,
             plane + 1,
-            base.e0()
+            base.e0(),
+            config.run.name.as_deref().unwrap_or(config.model.name()),
         );
         let period = base.periods().get(vary).copied().filter(|&p| p > 0.0);
         let chart = Chart {
@@ -648,7 +648,7 @@ fn surface_section(
     if let Some(dir) = &args.plot {
         // The run's name where the config gives one ("rossler"), else the model's ("ode").
         let system = config.run.name.as_deref().unwrap_or(config.model.name());
-        let title = format!("{system}: section {}", sampling.describe());
+        let title = format!("Poincaré section {}: {system}", sampling.describe());
         let chart = Chart {
             title,
             x_label: ax.label.clone(),
@@ -660,7 +660,7 @@ fn surface_section(
         draw_chart(dir, "section", chart, &args.config)?;
         if let Some(r) = &return_map {
             let title = format!(
-                "{system}: first-return map of {} on {}",
+                "First-return map of {} on the section {}: {system}",
                 r.label,
                 sampling.describe()
             );

@@ -25,7 +25,7 @@ use chaoscope_bus as bus;
 
 use crate::batch::Isa;
 use crate::integrator::Workspace;
-use crate::map::{Batching, MapOptions, MapSpec};
+use crate::map::{Batching, MapOptions, MapRoute, MapSpec};
 use crate::system::DynamicalSystem;
 use chaoscope_schemas::run::{Method, Route};
 
@@ -369,11 +369,11 @@ fn calibrate_run(spec: &RunSpec, sizes: &RunSizes) -> Calibration {
 }
 
 /// Estimate of a validated map on the instruction set the map will use: `points` grid points
-/// (the shard's share), each the reference orbit and every set's `k` vectors (the basis route:
-/// `dim` basis vectors) to the horizon (an upper bound for points that stop early: outside the
-/// energy surface, escaped, or `gali-time` below its threshold), over `threads` threads (give
-/// no more than the machine's cores). Memory first; then the time from a calibration
-/// ([`calibrate_map`]).
+/// (the shard's share), of which the share a probe of the grid finds inside the energy surface
+/// ([`probe_grid`]) is integrated, each the reference orbit and every set's `k` vectors (the
+/// basis route: `dim` basis vectors) to the horizon (an upper bound for points that stop early:
+/// escaped, or `gali-time` below its threshold), over `threads` threads (give no more than the
+/// machine's cores). Memory first; then the time from a calibration ([`calibrate_map`]).
 pub fn map_on(
     spec: &MapSpec,
     points: u64,
@@ -383,25 +383,24 @@ pub fn map_on(
 ) -> Estimate {
     let run = &spec.run;
     let (dimf, setsf) = (run.dim() as f64, run.sets() as f64);
-    let per_point = match spec.route {
-        crate::map::MapRoute::PerSet => 1.0 + setsf * run.k() as f64,
-        // One basis of dim tangent vectors or nearby orbits per point.
-        crate::map::MapRoute::Basis => 1.0 + dimf,
-    };
     let steps = run.total_steps() as f64;
     let pointsf = points as f64;
-    let orbit_steps = pointsf * per_point * steps;
     // Every point's result is kept until the end (for the summary and the PNG): its per-set
     // values, its initial condition and some fixed overhead.
     let bytes = pointsf * (8.0 * (setsf + dimf) + 256.0);
+    let probe = probe_grid(spec);
+    let integrated = pointsf * probe.inside_share;
+    let orbit_steps = integrated * route_orbits_per_point(spec, spec.route) * steps;
     let calibration = if machine.memory_bytes.is_some_and(|m| bytes > m as f64) {
         None
     } else {
-        Some(calibrate_map(spec, isa).unwrap_or(Calibration {
-            ns_per_orbit_step: MAP_NS_PER_DIM * dimf,
-            ns_per_tangent_step: 0.0,
-            seconds_spent: 0.0,
-        }))
+        Some(
+            calibrate_map(spec, isa, &probe.inside).unwrap_or(Calibration {
+                ns_per_orbit_step: MAP_NS_PER_DIM * dimf,
+                ns_per_tangent_step: 0.0,
+                seconds_spent: 0.0,
+            }),
+        )
     };
     let seconds = calibration.map_or(0.0, |c| {
         orbit_steps * c.ns_per_orbit_step * 1e-9 / threads.max(1) as f64
@@ -413,8 +412,8 @@ pub fn map_on(
         time_key: "integrator.t_final",
         work: format!(
             "{} points x {} orbits x {} steps of dimension {}",
-            count(pointsf),
-            count(per_point),
+            count(integrated),
+            count(route_orbits_per_point(spec, spec.route)),
             count(steps),
             run.dim()
         ),
@@ -424,22 +423,58 @@ pub fn map_on(
     }
 }
 
+/// Orbits and vectors a point of `route` advances each step, as its `orbit_steps` count them:
+/// the reference and every set's `k` vectors, or the reference and one basis of `dim`.
+fn route_orbits_per_point(spec: &MapSpec, route: MapRoute) -> f64 {
+    let run = &spec.run;
+    match route {
+        MapRoute::PerSet => 1.0 + (run.sets() * run.k()) as f64,
+        MapRoute::Basis => 1.0 + run.dim() as f64,
+    }
+}
+
 /// [`map_on`] on this machine ([`Machine::this_host`]) with the instruction set it detects.
 pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
     map_on(spec, points, &Machine::this_host(), threads, Isa::detect())
 }
 
-/// Times one batch of the map's own points (spread over the grid, as many as a batch of the
-/// map holds) computed through its route and kernel on this thread, with the run cut to a few
-/// steps (more until a timing lasts [`MIN_TIMING`]); the cost is the time over the orbit-steps
-/// the points report. `None` if no sampled point is integrated (all outside the energy
-/// surface).
-fn calibrate_map(spec: &MapSpec, isa: Isa) -> Option<Calibration> {
+/// Grid points a probe looks at: enough for the share inside the energy surface to a few per
+/// cent, and a few microseconds each (a point's initial state, its energy solved).
+const PROBES: u64 = 256;
+
+/// What a probe of the grid finds: the share of points inside the energy surface (the others
+/// are recorded without a step), and the probed points inside, spread over the grid.
+struct GridProbe {
+    inside_share: f64,
+    inside: Vec<u64>,
+}
+
+/// Probes up to [`PROBES`] points spread evenly over the grid (every point of a smaller grid).
+fn probe_grid(spec: &MapSpec) -> GridProbe {
+    let grid = spec.grid_points().max(1);
+    let n = grid.min(PROBES);
+    let inside: Vec<u64> = (0..n)
+        .map(|i| i * grid / n)
+        .filter(|&i| spec.start_point(i).is_ok())
+        .collect();
+    GridProbe {
+        inside_share: inside.len() as f64 / n as f64,
+        inside,
+    }
+}
+
+/// Times one batch of the map's own points inside the energy surface (`inside`, spread over the
+/// grid; as many as a batch of the map holds) computed through its route and kernel on this
+/// thread, with the run cut to a few steps (more until a timing lasts [`MIN_TIMING`]); the cost
+/// is the time over the orbit-steps the points report. `None` if no point is inside.
+fn calibrate_map(spec: &MapSpec, isa: Isa, inside: &[u64]) -> Option<Calibration> {
     let start = Instant::now();
     let batching = Batching::of(spec, MapOptions::default().mpm_points_per_batch);
-    let grid = spec.grid_points();
-    let n = (batching.points as u64).clamp(1, grid.max(1));
-    let indices: Vec<u64> = (0..n).map(|i| i * grid / n).collect();
+    if inside.is_empty() {
+        return None;
+    }
+    let n = batching.points.clamp(1, inside.len());
+    let indices: Vec<u64> = (0..n).map(|i| inside[i * inside.len() / n]).collect();
     let total = spec.run.total_steps();
     let (mut steps, mut timings, mut least) = (total.min(8), 0, f64::INFINITY);
     loop {

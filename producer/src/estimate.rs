@@ -423,6 +423,87 @@ pub fn map_on(
     }
 }
 
+/// How much cheaper the other route must be estimated before a map that names no route takes
+/// it: the two calibrations run back to back on one thread, each the least of several timings,
+/// so load moves their ratio by tens of per cent; a factor 2 keeps a map's route the same from
+/// one start to the next except where the routes cost nearly alike, and takes the basis route
+/// where it pays most (Henon-Heiles MLE, `2N = 4` against one vector: 7.6x).
+pub const ROUTE_MARGIN: f64 = 2.0;
+
+/// The route a map that names none takes, and why: the estimate of each route.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RouteChoice {
+    pub route: MapRoute,
+    /// Estimated seconds of the route taken and of the other.
+    pub seconds: f64,
+    pub other_seconds: f64,
+}
+
+impl RouteChoice {
+    /// `route basis (estimated 7.2x faster than per-set)`, or why the per-set route stays.
+    pub fn reason(&self) -> String {
+        let other = match self.route {
+            MapRoute::PerSet => MapRoute::Basis,
+            MapRoute::Basis => MapRoute::PerSet,
+        };
+        let ratio = self.other_seconds / self.seconds.max(f64::MIN_POSITIVE);
+        if ratio >= 1.0 {
+            format!(
+                "route {} (estimated {ratio:.1}x faster than {})",
+                self.route.name(),
+                other.name()
+            )
+        } else {
+            format!(
+                "route {} (estimated {:.1}x slower than {}, within the margin of {ROUTE_MARGIN}x \
+                 that a change of route needs)",
+                self.route.name(),
+                1.0 / ratio,
+                other.name()
+            )
+        }
+    }
+}
+
+/// [`map_on`], choosing the route of a map that names none: where the two routes give the same
+/// numbers ([`MapSpec::routes_agree`]), both are estimated and the basis route is taken if it
+/// is estimated at least [`ROUTE_MARGIN`] times faster (`spec.route` is set to it). The choice
+/// (`None`: the route is the configuration's, or the only one that gives its numbers) says
+/// why.
+pub fn map_choosing_route(
+    spec: &mut MapSpec,
+    points: u64,
+    machine: &Machine,
+    threads: usize,
+    isa: Isa,
+) -> (Estimate, Option<RouteChoice>) {
+    let per_set = map_on(spec, points, machine, threads, isa);
+    let calibrated = |e: &Estimate| e.calibration.is_some_and(|c| c.seconds_spent > 0.0);
+    if spec.route_named || !spec.routes_agree() || !calibrated(&per_set) {
+        return (per_set, None);
+    }
+    let basis_spec = MapSpec {
+        route: MapRoute::Basis,
+        ..spec.clone()
+    };
+    let basis = map_on(&basis_spec, points, machine, threads, isa);
+    if calibrated(&basis) && basis.seconds * ROUTE_MARGIN < per_set.seconds {
+        spec.route = MapRoute::Basis;
+        let choice = RouteChoice {
+            route: MapRoute::Basis,
+            seconds: basis.seconds,
+            other_seconds: per_set.seconds,
+        };
+        return (basis, Some(choice));
+    }
+    let choice = RouteChoice {
+        route: MapRoute::PerSet,
+        seconds: per_set.seconds,
+        other_seconds: basis.seconds,
+    };
+    (per_set, Some(choice))
+}
+
 /// Orbits and vectors a point of `route` advances each step, as its `orbit_steps` count them:
 /// the reference and every set's `k` vectors, or the reference and one basis of `dim`.
 fn route_orbits_per_point(spec: &MapSpec, route: MapRoute) -> f64 {
@@ -468,7 +549,6 @@ fn probe_grid(spec: &MapSpec) -> GridProbe {
 /// thread, with the run cut to a few steps (more until a timing lasts [`MIN_TIMING`]); the cost
 /// is the time over the orbit-steps the points report. `None` if no point is inside.
 fn calibrate_map(spec: &MapSpec, isa: Isa, inside: &[u64]) -> Option<Calibration> {
-    let start = Instant::now();
     let batching = Batching::of(spec, MapOptions::default().mpm_points_per_batch);
     if inside.is_empty() {
         return None;
@@ -476,6 +556,14 @@ fn calibrate_map(spec: &MapSpec, isa: Isa, inside: &[u64]) -> Option<Calibration
     let n = batching.points.clamp(1, inside.len());
     let indices: Vec<u64> = (0..n).map(|i| inside[i * inside.len() / n]).collect();
     let total = spec.run.total_steps();
+    // Untimed, as in `ns_per_call`: the kernels compiled at their first call, first touches of
+    // memory. A timing that held a compilation would be the least only if all did.
+    let warm = MapSpec {
+        run: spec.run.truncated(total.min(2)),
+        ..spec.clone()
+    };
+    chaoscope_expr::potential::uncounted(|| batching.compute(&warm, isa, &indices, &|| false));
+    let start = Instant::now();
     let (mut steps, mut timings, mut least) = (total.min(8), 0, f64::INFINITY);
     loop {
         let short = MapSpec {

@@ -84,7 +84,7 @@ pub struct Args {
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let (config, _, source) = super::load_config(&args.config)?;
-    let spec =
+    let mut spec =
         MapSpec::from_config(&config).map_err(|e| super::invalid_config(&source, "map", e))?;
     let machine = super::machine();
     let threads = args.threads.unwrap_or(machine.cores);
@@ -101,9 +101,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             isa
         }
     };
-    // Threads beyond the cores share them: the estimate spreads the work over the fewer.
-    let estimate = chaoscope_producer::estimate::map_on(
-        &spec,
+    // Threads beyond the cores share them: the estimate spreads the work over the fewer. A
+    // map that names no route takes the cheaper of two that give its numbers.
+    let (estimate, route_choice) = chaoscope_producer::estimate::map_choosing_route(
+        &mut spec,
         points,
         &machine,
         threads.min(machine.cores),
@@ -287,6 +288,11 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "indicator": spec.indicator.name(),
                 "method": header.method,
                 "route": spec.route.name(),
+                "route_reason": route_choice.map_or_else(
+                    || format!("route {} (named by the configuration, or the only one that gives its numbers)", spec.route.name()),
+                    |c| c.reason()
+                ),
+                "estimated_seconds": estimate.seconds,
                 "points": all.len(),
                 "points_expected": expected,
                 "computed": computed,
@@ -305,6 +311,15 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "expression_kernels": expression_kernels(&spec),
             })
         )?;
+    }
+    if !args.json {
+        chaoscope_os::errln!(
+            "chaoscope map: {computed} points in {} (estimated {}, {} CPU); {}",
+            super::seconds(seconds),
+            super::seconds(estimate.seconds),
+            super::seconds(cpu_seconds),
+            route_choice.map_or_else(|| format!("route {}", spec.route.name()), |c| c.reason())
+        );
     }
     if interrupted {
         chaoscope_os::errln!(

@@ -174,9 +174,10 @@ pub fn map(
     let whole = Shard { index: 0, count: 1 };
     // A map that names no route takes the cheaper of two that give its numbers, as `chaoscope
     // map` does.
+    let points = spec.grid_points();
     let (estimate, _) = estimate::map_choosing_route(
         &mut spec,
-        spec.grid_points(),
+        points,
         &machine,
         threads.unwrap_or(machine.cores).min(machine.cores),
         chaoscope_producer::batch::Isa::detect(),

@@ -80,7 +80,7 @@ pub fn validate(
             machine.cores,
             chaoscope_producer::batch::Isa::detect(),
         );
-        let route = choice.map_or_else(|| format!("route {}", spec.route.name()), |c| c.reason());
+        let route = super::map::route_reason(&spec, choice.as_ref());
         (format!("a map of {points} points, {route}"), e)
     } else {
         let spec = RunSpec::from_config(config).map_err(|e| invalid("run", e))?;

@@ -27,6 +27,7 @@ use chaoscope_analyzer::map_png;
 use chaoscope_bus::frame::status;
 use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::batch::Isa;
+use chaoscope_producer::estimate::RouteChoice;
 use chaoscope_producer::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
 use chaoscope_producer::publish::Termination;
 use chaoscope_producer::publish::map::{MapPublisher, default_map_name};
@@ -288,10 +289,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "indicator": spec.indicator.name(),
                 "method": header.method,
                 "route": spec.route.name(),
-                "route_reason": route_choice.map_or_else(
-                    || format!("route {} (named by the configuration, or the only one that gives its numbers)", spec.route.name()),
-                    |c| c.reason()
-                ),
+                "route_reason": route_reason(&spec, route_choice.as_ref()),
                 "estimated_seconds": estimate.seconds,
                 "points": all.len(),
                 "points_expected": expected,
@@ -318,7 +316,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             super::seconds(seconds),
             super::seconds(estimate.seconds),
             super::seconds(cpu_seconds),
-            route_choice.map_or_else(|| format!("route {}", spec.route.name()), |c| c.reason())
+            route_reason(&spec, route_choice.as_ref())
         );
     }
     if interrupted {
@@ -335,6 +333,21 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         map_png::render_png(&header, &all, png, &inputs).map_err(anyhow::Error::msg)?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Which route the map runs and why: named by the configuration, chosen by cost between two
+/// that give the same numbers, or the only one that gives them.
+pub fn route_reason(spec: &MapSpec, choice: Option<&RouteChoice>) -> String {
+    match choice {
+        Some(c) => c.reason(),
+        None if spec.route_named => {
+            format!("route {} (named by the configuration)", spec.route.name())
+        }
+        None => format!(
+            "route {} (the only route that gives this map's numbers)",
+            spec.route.name()
+        ),
+    }
 }
 
 /// For a user-written potential, which step kernels the batched kernel ran: the C build's state

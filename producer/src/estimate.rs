@@ -55,11 +55,14 @@ pub const SAMPLE_NS_PER_VALUE: f64 = 50.0;
 pub const MAX_SECONDS: f64 = 86_400.0;
 
 /// The calibration's timings: each cost is the least of `TIMINGS` timings of at least
-/// `MIN_TIMING` each (more calls per timing until one lasts that long), within `BUDGET` per
-/// cost (a step slower than the budget is timed once, after one untimed call).
+/// `MIN_TIMING` each (more calls per timing until one lasts that long), within `BUDGET` of the
+/// thread's CPU time per cost (a step slower than the budget is timed once, after one untimed
+/// call), and at most `WALL_CAP` of wall clock (a machine so loaded that the thread runs less
+/// than 1/50 of the time keeps the timings it has).
 const TIMINGS: usize = 5;
 const MIN_TIMING: Duration = Duration::from_millis(1);
 const BUDGET: Duration = Duration::from_millis(40);
+const WALL_CAP: Duration = Duration::from_secs(2);
 
 /// What the machine offers.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -362,7 +365,7 @@ impl Timing {
 fn ns_per_call(mut call: impl FnMut()) -> f64 {
     // Untimed: first touches of memory and caches, lazily prepared state.
     call();
-    let start = Instant::now();
+    let (budget, wall) = (Timing::start(), Instant::now());
     let (mut calls, mut timings, mut least) = (1u64, 0, f64::INFINITY);
     loop {
         let t = Timing::start();
@@ -370,14 +373,14 @@ fn ns_per_call(mut call: impl FnMut()) -> f64 {
             call();
         }
         let elapsed = t.elapsed();
-        let over_budget = start.elapsed() >= BUDGET;
-        if elapsed >= MIN_TIMING || over_budget {
+        let capped = wall.elapsed() >= WALL_CAP;
+        if elapsed >= MIN_TIMING || capped {
             least = least.min(elapsed.as_nanos() as f64 / calls as f64);
             timings += 1;
         } else {
             calls *= 2;
         }
-        if timings >= TIMINGS || over_budget {
+        if timings >= TIMINGS || (timings > 0 && budget.elapsed() >= BUDGET) || capped {
             return least;
         }
     }
@@ -631,7 +634,7 @@ fn calibrate_map(spec: &MapSpec, isa: Isa, inside: &[u64]) -> Option<Calibration
         ..spec.clone()
     };
     chaoscope_expr::potential::uncounted(|| batching.compute(&warm, isa, &indices, &|| false));
-    let start = Instant::now();
+    let (start, budget) = (Instant::now(), Timing::start());
     let (mut steps, mut timings, mut least) = (total.min(8), 0, f64::INFINITY);
     loop {
         let short = MapSpec {
@@ -648,14 +651,16 @@ fn calibrate_map(spec: &MapSpec, isa: Isa, inside: &[u64]) -> Option<Calibration
         if orbit_steps == 0 {
             return None;
         }
-        let over_budget = start.elapsed() >= BUDGET;
-        if elapsed >= MIN_TIMING || steps >= total || over_budget {
+        // A timing shorter than MIN_TIMING is mostly the batch's setup (its points' states,
+        // directions and lanes): it counts only where the run is no longer than that.
+        let capped = start.elapsed() >= WALL_CAP;
+        if elapsed >= MIN_TIMING || steps >= total || capped {
             least = least.min(elapsed.as_nanos() as f64 / orbit_steps as f64);
             timings += 1;
         } else {
             steps = (steps * 4).min(total);
         }
-        if timings >= TIMINGS || over_budget {
+        if timings >= TIMINGS || (timings > 0 && budget.elapsed() >= BUDGET) || capped {
             return Some(Calibration {
                 ns_per_orbit_step: least,
                 ns_per_tangent_step: 0.0,

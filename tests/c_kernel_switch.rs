@@ -72,7 +72,8 @@ fn fput_map(n: usize, grid: usize, t_final: f64, potential: &str, method: &str) 
          [deviations]\nk = 2\nsets = 1\nseed = 3\n\
          [[scheme]]\nname = \"{method}\"\nmethod = \"{method}\"\nd0 = 1e-8\ntau = 1.0\n\
          [map]\nx = {{ coord = \"q1\", min = -0.1, max = 0.1, n = {grid} }}\n\
-         y = {{ coord = \"q2\", min = -0.1, max = 0.1, n = {grid} }}\nindicator = \"gali\"\nk = 2\n",
+         y = {{ coord = \"q2\", min = -0.1, max = 0.1, n = {grid} }}\nindicator = \"gali\"\nk = 2\n\
+         route = \"per-set\"\n",
         q.join(", ")
     )
 }

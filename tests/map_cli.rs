@@ -106,6 +106,7 @@ tau = 1
 x = { param = "lam", min = 0.5, max = 2.5, n = 5 }
 y = { coord = "p2", min = -0.2, max = 0.2, n = 4 }
 indicator = "gali"
+route = "per-set"
 "#;
 
 /// Shards at 1 and 2 threads merge into exactly the unsharded map's points, for a coordinate
@@ -209,7 +210,7 @@ fn interrupted_and_killed_maps_resume() {
     assert!(second.status.success());
     let summary: serde_json::Value = serde_json::from_slice(&second.stdout).unwrap();
     assert_eq!(summary["resumed"], partial as u64);
-    // The route that ran: the config names none, and per-set is the default.
+    // The route that ran: the one the config names.
     assert_eq!(summary["route"], "per-set");
     assert_eq!(points(&out), want);
 

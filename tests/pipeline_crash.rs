@@ -348,7 +348,7 @@ fn standard_map(n: usize, t_final: u64) -> String {
          [[scheme]]\nname = \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 1\n\
          [map]\nx = {{ coord = \"x1\", min = 0.0, max = 6.283185307179586, n = {n} }}\n\
          y = {{ coord = \"x2\", min = -3.141592653589793, max = 3.141592653589793, n = {n} }}\n\
-         indicator = \"sali\"\n"
+         indicator = \"sali\"\nroute = \"per-set\"\n"
     )
 }
 

@@ -55,6 +55,72 @@ fn vm_route_gives_per_set_vm_values_where_resolved() {
     assert!(compared > 50, "only {compared} resolved values");
 }
 
+/// The VM map of `indicator` (k = 2, 3 sets, t = 200) on `route`, every point.
+fn vm_map(indicator: &str, route: &str) -> (MapSpec, Vec<PointResult>) {
+    let mut cfg = config("vm", route, 1e-8);
+    cfg.deviations = DeviationsConfig::random(2, 3, 3);
+    if let Some(map) = &mut cfg.map {
+        map.indicator = indicator.to_string();
+        map.k = None;
+    }
+    let spec = MapSpec::from_config(&cfg).unwrap();
+    let points: Vec<u64> = (0..spec.grid_points()).collect();
+    let mut out = Vec::new();
+    run_map(&spec, &points, &MapOptions::default(), |r| {
+        out.push(r);
+        true
+    })
+    .unwrap();
+    out.sort_by_key(|r| r.index);
+    (spec, out)
+}
+
+/// Where a map that names no route may be given the basis route by cost
+/// (`MapSpec::routes_agree`: VM, every indicator but `spectrum` and `gali-time`), the basis
+/// route gives the per-set route's numbers: MLE, FLI and MEGNO to 1e-8 relative (both routes
+/// stretch the same tangent vectors, the basis route forming each set's from the propagator in
+/// logs: rounding, 1e-11 measured, amplified along a chaotic orbit), log10 GALI and log10 SALI
+/// to 1e-6 decades where per-set VM resolves them (above -7, tests/propagator_vm.rs).
+#[test]
+fn the_routes_a_default_map_chooses_between_give_the_same_numbers() {
+    for indicator in ["mle", "sali", "gali", "fli", "megno", "megno_mean"] {
+        let (spec, per_set) = vm_map(indicator, "per-set");
+        assert!(spec.routes_agree(), "{indicator}");
+        let (_, basis) = vm_map(indicator, "basis");
+        let mut compared = 0;
+        for (p, b) in per_set.iter().zip(&basis) {
+            assert_eq!(p.status, b.status, "{indicator} point {}", p.index);
+            if p.status != PointStatus::Ok {
+                continue;
+            }
+            let logarithmic = matches!(indicator, "sali" | "gali");
+            for (a, b) in p.per_set.iter().zip(&b.per_set) {
+                let close = if logarithmic {
+                    *a <= -7.0 || (a - b).abs() < 1e-6
+                } else {
+                    (a - b).abs() <= 1e-8 * a.abs().max(1e-3)
+                };
+                assert!(close, "{indicator} point {}: {a} vs {b}", p.index);
+                compared += 1;
+            }
+        }
+        assert!(compared > 50, "{indicator}: only {compared} values");
+    }
+    // Where they differ, a map keeps the route it names or per-set.
+    for (method, indicator) in [("mpm", "gali"), ("vm", "gali-time"), ("vm", "spectrum")] {
+        let mut cfg = config(method, "per-set", 1e-8);
+        if let Some(map) = &mut cfg.map {
+            map.indicator = indicator.to_string();
+            map.threshold = (indicator == "gali-time").then_some(0.05);
+        }
+        if indicator == "spectrum" {
+            cfg.schemes[0].orthonormalize = "qr".into();
+        }
+        let spec = MapSpec::from_config(&cfg).unwrap();
+        assert!(!spec.routes_agree(), "{method} {indicator}");
+    }
+}
+
 #[test]
 fn mpm_route_is_as_close_to_vm_as_per_set_mpm() {
     let (vm, mpm, route) = (

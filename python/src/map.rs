@@ -168,13 +168,16 @@ pub fn map(
     force: bool,
 ) -> PyResult<Map> {
     let config = crate::config::run_config(config)?;
-    let spec = MapSpec::from_config(&config)
+    let mut spec = MapSpec::from_config(&config)
         .map_err(|e| crate::message(format!("invalid map configuration: {e}")))?;
     let machine = Machine::this_host();
     let whole = Shard { index: 0, count: 1 };
-    let estimate = estimate::map_on(
-        &spec,
-        spec.grid_points(),
+    // A map that names no route takes the cheaper of two that give its numbers, as `chaoscope
+    // map` does.
+    let points = spec.grid_points();
+    let (estimate, _) = estimate::map_choosing_route(
+        &mut spec,
+        points,
         &machine,
         threads.unwrap_or(machine.cores).min(machine.cores),
         chaoscope_producer::batch::Isa::detect(),

@@ -114,6 +114,9 @@ pub struct ReplayOutcome {
     pub interrupted: bool,
     /// Each new scheme against the original it was made from, at the end of the replay.
     pub comparison: Vec<SchemeComparison>,
+    /// Wall-clock seconds the replay took, and its estimate made before it started.
+    pub seconds: f64,
+    pub estimated_seconds: f64,
 }
 
 /// One replayed scheme against the recorded scheme it was made from (the same sets of initial
@@ -284,8 +287,10 @@ pub fn replay(
     let spec = RunSpec::from_config(&new_config)?;
     // A recording's run may be one `run` refuses (or was forced): its replay, with more
     // schemes, costs at least as much, so it is estimated like a run before anything is written.
+    let started = std::time::Instant::now();
     let machine = Machine::this_host();
-    if let Some(why) = estimate::run(&spec, &machine).refusal(&machine) {
+    let estimate = estimate::run(&spec, &machine);
+    if let Some(why) = estimate.refusal(&machine) {
         if !options.force {
             return Err(ReplayError::BeyondTheMachine(why));
         }
@@ -307,6 +312,7 @@ pub fn replay(
     let mut writer = SampleWriter::create_with(output, &new_header, &output_options)?;
     let mut outcome = ReplayOutcome {
         schemes: new_config.schemes.iter().map(|s| s.name.clone()).collect(),
+        estimated_seconds: estimate.seconds,
         ..Default::default()
     };
     // The comparison's values, by the analysis `analyze` runs: of the replay, and of the
@@ -385,6 +391,7 @@ pub fn replay(
     } else {
         writer.finish("replay")?;
     }
+    outcome.seconds = started.elapsed().as_secs_f64();
     Ok(outcome)
 }
 

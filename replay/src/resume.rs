@@ -117,6 +117,11 @@ pub struct ResumeOutcome {
     pub reason: Option<String>,
     /// Where reading the input stopped before its end (a killed writer's cut chunk), if it did.
     pub input_damage: Option<String>,
+    /// Wall-clock seconds the resume took, and the estimate of its computed part made before
+    /// it started (the run's estimate times the share of its steps after the sample resumed
+    /// from).
+    pub seconds: f64,
+    pub estimated_seconds: f64,
 }
 
 /// The recording `path` names and the file to read it from: the file itself, or the
@@ -189,6 +194,16 @@ fn every_scheme_renormalizes(spec: &RunSpec, step: u64) -> bool {
 
 /// Resumes the recording `recording` (see the module documentation).
 pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome, ResumeFailure> {
+    let start = Instant::now();
+    let mut outcome = resume_untimed(recording, options)?;
+    outcome.seconds = start.elapsed().as_secs_f64();
+    Ok(outcome)
+}
+
+fn resume_untimed(
+    recording: &Path,
+    options: &ResumeOptions,
+) -> Result<ResumeOutcome, ResumeFailure> {
     let (target, input) = locate(recording)?;
     let shown = input.display().to_string();
     let in_place = options.out.as_ref().is_none_or(|o| o == &target);
@@ -302,9 +317,9 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
     // The run to its new end costs what `run` of it would (the recorded part is copied, a
     // small share of any run long enough to be refused): estimated as `run` estimates it,
     // before a sample is read or written, so `--t-final 1e12` is refused as `run` refuses it.
+    let machine = Machine::this_host();
+    let mut estimate = chaoscope_producer::estimate::run(&spec, &machine);
     if !options.estimated {
-        let machine = Machine::this_host();
-        let mut estimate = chaoscope_producer::estimate::run(&spec, &machine);
         if options.t_final.is_some() {
             estimate.time_key = "--t-final";
         }
@@ -417,6 +432,9 @@ pub fn resume(recording: &Path, options: &ResumeOptions) -> Result<ResumeOutcome
         status: "completed".into(),
         reason: None,
         input_damage: damage,
+        seconds: 0.0,
+        estimated_seconds: estimate.seconds * total.saturating_sub(from.step) as f64
+            / total.max(1) as f64,
     };
     let stopped = || {
         options

@@ -303,10 +303,11 @@ pub struct MapConfig {
     /// Threshold under which `gali-time` stops an orbit.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threshold: Option<f64>,
-    /// How the sets are evolved: `"per-set"` (default, the reference: every set's `k` vectors
-    /// or nearby orbits) or `"basis"` (one basis of `D` tangent vectors (VM) or nearby orbits
-    /// (MPM) per point, accumulated over the orbit, every set's vectors formed from it;
-    /// `"propagator"`, its former name, is read too).
+    /// How the sets are evolved: `"per-set"` (the reference: every set's `k` vectors or nearby
+    /// orbits) or `"basis"` (one basis of `D` tangent vectors (VM) or nearby orbits (MPM) per
+    /// point, accumulated over the orbit, every set's vectors formed from it; `"propagator"`,
+    /// its former name, is read too). Absent: the cheaper of the two where both give the same
+    /// numbers (VM, not `spectrum` or `gali-time`), else `"per-set"`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub route: Option<String>,
 }

@@ -71,10 +71,17 @@ pub fn validate(
         None => anyhow::Error::new(e).context(format!("invalid {what} configuration")),
     };
     Ok(if config.map.is_some() {
-        let spec = MapSpec::from_config(config).map_err(|e| invalid("map", e))?;
+        let mut spec = MapSpec::from_config(config).map_err(|e| invalid("map", e))?;
         let points = spec.grid_points();
-        let e = estimate::map(&spec, points, machine.cores);
-        (format!("a map of {points} points"), e)
+        let (e, choice) = estimate::map_choosing_route(
+            &mut spec,
+            points,
+            machine,
+            machine.cores,
+            chaoscope_producer::batch::Isa::detect(),
+        );
+        let route = super::map::route_reason(&spec, choice.as_ref());
+        (format!("a map of {points} points, {route}"), e)
     } else {
         let spec = RunSpec::from_config(config).map_err(|e| invalid("run", e))?;
         let e = estimate::run(&spec, machine);

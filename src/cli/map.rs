@@ -27,6 +27,7 @@ use chaoscope_analyzer::map_png;
 use chaoscope_bus::frame::status;
 use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::batch::Isa;
+use chaoscope_producer::estimate::RouteChoice;
 use chaoscope_producer::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
 use chaoscope_producer::publish::Termination;
 use chaoscope_producer::publish::map::{MapPublisher, default_map_name};
@@ -84,7 +85,7 @@ pub struct Args {
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let (config, _, source) = super::load_config(&args.config)?;
-    let spec =
+    let mut spec =
         MapSpec::from_config(&config).map_err(|e| super::invalid_config(&source, "map", e))?;
     let machine = super::machine();
     let threads = args.threads.unwrap_or(machine.cores);
@@ -101,9 +102,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             isa
         }
     };
-    // Threads beyond the cores share them: the estimate spreads the work over the fewer.
-    let estimate = chaoscope_producer::estimate::map_on(
-        &spec,
+    // Threads beyond the cores share them: the estimate spreads the work over the fewer. A
+    // map that names no route takes the cheaper of two that give its numbers.
+    let (estimate, route_choice) = chaoscope_producer::estimate::map_choosing_route(
+        &mut spec,
         points,
         &machine,
         threads.min(machine.cores),
@@ -287,6 +289,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "indicator": spec.indicator.name(),
                 "method": header.method,
                 "route": spec.route.name(),
+                "route_reason": route_reason(&spec, route_choice.as_ref()),
+                "estimated_seconds": estimate.seconds,
                 "points": all.len(),
                 "points_expected": expected,
                 "computed": computed,
@@ -306,6 +310,15 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             })
         )?;
     }
+    if !args.json {
+        chaoscope_os::errln!(
+            "chaoscope map: {computed} points in {} (estimated {}, {} CPU); {}",
+            super::seconds(seconds),
+            super::seconds(estimate.seconds),
+            super::seconds(cpu_seconds),
+            route_reason(&spec, route_choice.as_ref())
+        );
+    }
     if interrupted {
         chaoscope_os::errln!(
             "chaoscope map: interrupted with {} of {expected} points in {}; run the same \
@@ -320,6 +333,21 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         map_png::render_png(&header, &all, png, &inputs).map_err(anyhow::Error::msg)?;
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Which route the map runs and why: named by the configuration, chosen by cost between two
+/// that give the same numbers, or the only one that gives them.
+pub fn route_reason(spec: &MapSpec, choice: Option<&RouteChoice>) -> String {
+    match choice {
+        Some(c) => c.reason(),
+        None if spec.route_named => {
+            format!("route {} (named by the configuration)", spec.route.name())
+        }
+        None => format!(
+            "route {} (the only route that gives this map's numbers)",
+            spec.route.name()
+        ),
+    }
 }
 
 /// For a user-written potential, which step kernels the batched kernel ran: the C build's state

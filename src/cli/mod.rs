@@ -106,6 +106,17 @@ pub fn check_estimate(
     Ok(())
 }
 
+/// A duration for a summary, beside its estimate: `0.42 s`, `12.3 s`, `1.5e4 s`.
+pub fn seconds(s: f64) -> String {
+    if s < 1.0 {
+        format!("{s:.2} s")
+    } else if s < 1e4 {
+        format!("{s:.1} s")
+    } else {
+        format!("{s:.1e} s")
+    }
+}
+
 /// Parses a duration in seconds (fractions allowed) for `--*-timeout` style options.
 pub fn parse_seconds(s: &str) -> Result<std::time::Duration, String> {
     let v: f64 = s

@@ -48,14 +48,16 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         outln!("{}", serde_json::to_string(&outcome)?)?;
     } else {
         outln!(
-            "replay: {} ({} samples{})",
+            "replay: {} ({} samples{}) in {} (estimated {})",
             args.out.display(),
             outcome.replay_samples,
             if outcome.interrupted {
                 ", interrupted"
             } else {
                 ""
-            }
+            },
+            super::seconds(outcome.seconds),
+            super::seconds(outcome.estimated_seconds)
         )?;
         outln!("schemes: {}", outcome.schemes.join(", "))?;
         outln!(

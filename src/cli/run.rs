@@ -237,6 +237,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     if force {
         produce.arg("--force");
     }
+    let started = std::time::Instant::now();
     let mut producer = Role::spawn("producer", produce)?;
     {
         let mut stdin = producer.child.stdin.take().context("producer stdin")?;
@@ -326,6 +327,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         });
     };
     let recorder_status = recorder.status.expect("reaped");
+    let seconds = started.elapsed().as_secs_f64();
     if !recorder_status.success() {
         if let Some(signal) = std::os::unix::process::ExitStatusExt::signal(&recorder_status) {
             bail!(
@@ -361,11 +363,13 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let summary = chaoscope_analyzer::summary::summarize(&out)?;
     still_ours()?;
     chaoscope_os::outln!(
-        "recording: {} (status {}, finalized by {}, {} frames missing)",
+        "recording: {} (status {}, finalized by {}, {} frames missing) in {} (estimated {})",
         out.display(),
         summary.run_status,
         summary.finalized_by,
-        summary.frames_missing
+        summary.frames_missing,
+        super::seconds(seconds),
+        super::seconds(estimate.seconds)
     )?;
     // Stopped by a signal: end now (reading a long recording takes time); `chaoscope analyze`
     // gives the table later.

@@ -384,6 +384,10 @@ pub struct MapSpec {
     pub y: Axis,
     pub indicator: Indicator,
     pub route: MapRoute,
+    /// Whether the configuration names the route (`[map] route`): a named route is kept; an
+    /// unnamed one is per-set until the estimate chooses the cheaper of two routes that give
+    /// the same numbers ([`Self::routes_agree`], `estimate::map_choosing_route`).
+    pub route_named: bool,
     /// Momentum index solved from `energy` per point, if any.
     pub solve_for: Option<usize>,
     pub energy: Option<f64>,
@@ -556,6 +560,7 @@ impl MapSpec {
             y,
             indicator,
             route,
+            route_named: map.route.is_some(),
             solve_for,
             energy: cfg.orbit.energy,
             run,
@@ -568,6 +573,22 @@ impl MapSpec {
     /// compiled expressions; every other system runs through the one-orbit engine.
     pub fn has_batched_kernel(&self) -> bool {
         self.run.system().batched(Isa::detect()).is_some()
+    }
+
+    /// Whether the basis route gives this map's numbers as the per-set route does, to the
+    /// rounding of forming each set from the basis (tests/map_routes.rs): VM, whose tangent
+    /// dynamics is linear, so every set's vectors are exactly the propagator's image of its
+    /// directions; on the batched kernel (the basis route's). Not MPM (the basis of nearby
+    /// orbits differs by terms of order `d0`), not `spectrum` (the basis route's exponents
+    /// start from the coordinate axes, each set's from its own directions), not `gali-time`
+    /// (a rounding at a threshold crossing moves a set's time by a whole window).
+    pub fn routes_agree(&self) -> bool {
+        self.run.schemes()[0].method == Method::Vm
+            && !matches!(
+                self.indicator,
+                Indicator::Spectrum { .. } | Indicator::GaliTime { .. }
+            )
+            && self.has_batched_kernel()
     }
 
     /// Whether the system's batched form advances many points' orbits and tangent bases in one

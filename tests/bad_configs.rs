@@ -1378,11 +1378,20 @@ fn repository_paths(root: &Path) -> Vec<String> {
 }
 
 #[test]
-fn every_path_architecture_md_names_exists() {
-    // ARCHITECTURE.md is the code map: a file it names that is gone (moved, renamed, merged)
-    // sends a reader nowhere. A path is resolved from the repository root, or within the
-    // section's directory (`### `producer/``: `map/basis.rs` is `producer/src/map/basis.rs`,
-    // a bare `engine.rs` some file of that name below it).
+fn architecture_md_maps_the_code_both_ways() {
+    // ARCHITECTURE.md is the code map, checked both ways.
+    // 1. Every path it names exists: a file that is gone (moved, renamed, merged) sends a reader
+    //    nowhere. A path is resolved from the repository root, or within the section's directory
+    //    (`### `producer/``: `map/` is `producer/src/map/`, a bare `engine.rs` some file of that
+    //    name below it).
+    // 2. Every source file lies under a path it names (the file itself or a directory above
+    //    it), so a file added where the map says nothing fails here until the map says where it
+    //    belongs. Source files are the code of every language in the repository: `.rs`, `.c`,
+    //    `.proto`, `.py`, `.pyi`, `.sh` and `.js`, anywhere outside build outputs and installed
+    //    packages (crates' `src/`, `tests/` and `benches/`, `build.rs`, `python/`, `fuzz/`,
+    //    `examples/`, the test helpers in other languages). A section heading's own directory
+    //    (`### `os/``) and a crate's root directory (one holding a `Cargo.toml`) cover nothing,
+    //    or every crate would be covered by its name alone: the map must say where inside it.
     let root = Path::new(env!("CARGO_MANIFEST_DIR"));
     let text = std::fs::read_to_string(root.join("ARCHITECTURE.md")).unwrap();
     let paths = repository_paths(root);
@@ -1397,7 +1406,10 @@ fn every_path_architecture_md_names_exists() {
             && (extensions.iter().any(|e| t.ends_with(e)) || (t.ends_with('/') && t.len() > 1))
     };
     let (mut section, mut checked, mut missing) = (String::new(), 0, Vec::new());
+    // The repository paths the map's names resolve to, headings left out.
+    let mut named: Vec<&str> = Vec::new();
     for (n, line) in text.lines().enumerate() {
+        let heading = line.starts_with("### ");
         if let Some(rest) = line.strip_prefix("### ") {
             // `### `producer/` (chaoscope-producer)`: paths below are the crate's.
             let name = rest.strip_prefix('`').and_then(|r| r.split('`').next());
@@ -1410,15 +1422,23 @@ fn every_path_architecture_md_names_exists() {
                 continue;
             }
             checked += 1;
-            let found = paths.iter().any(|p| {
-                let p = p.as_str();
-                p == token
-                    || p.strip_prefix(section.as_str()).is_some_and(|inner| {
-                        inner == token || inner.ends_with(&format!("/{token}"))
-                    })
-            });
-            if !found {
+            let matches: Vec<&str> = paths
+                .iter()
+                .map(String::as_str)
+                .filter(|p| {
+                    *p == token
+                        || p.strip_prefix(section.as_str()).is_some_and(|inner| {
+                            inner == token || inner.ends_with(&format!("/{token}"))
+                        })
+                })
+                .collect();
+            if matches.is_empty() {
                 missing.push(format!("line {}: `{token}` (section `{section}`)", n + 1));
+            }
+            let crate_root =
+                |p: &&str| p.ends_with('/') && paths.contains(&format!("{p}Cargo.toml"));
+            if !heading {
+                named.extend(matches.into_iter().filter(|p| !crate_root(p)));
             }
         }
     }
@@ -1431,6 +1451,37 @@ fn every_path_architecture_md_names_exists() {
         "ARCHITECTURE.md names {} paths that do not exist:\n{}",
         missing.len(),
         missing.join("\n")
+    );
+    let sources = [".rs", ".c", ".proto", ".py", ".pyi", ".sh", ".js"];
+    let uncovered: Vec<&String> = paths
+        .iter()
+        .filter(|p| !p.ends_with('/') && sources.iter().any(|e| p.ends_with(e)))
+        .filter(|p| {
+            !named
+                .iter()
+                .any(|n| *n == p.as_str() || (n.ends_with('/') && p.starts_with(n)))
+        })
+        .collect();
+    // Guards against a walk that found nothing (the check above would then pass vacuously):
+    // the workspace holds well over 200 source files.
+    let total = paths
+        .iter()
+        .filter(|p| sources.iter().any(|e| p.ends_with(e)))
+        .count();
+    assert!(
+        total > 200,
+        "only {total} source files found under {root:?}"
+    );
+    assert!(
+        uncovered.is_empty(),
+        "{} source files lie under no path ARCHITECTURE.md names (name the file or its \
+         directory in the code map):\n{}",
+        uncovered.len(),
+        uncovered
+            .iter()
+            .map(|p| p.as_str())
+            .collect::<Vec<_>>()
+            .join("\n")
     );
 }
 

@@ -16,7 +16,8 @@
 //! [`ARG_T`] of the scalar functions (`*_at` calls). A potential that reads it is always
 //! unrolled (its lattice sums are not loops) and has no step kernels: the splittings step it
 //! through the scalar functions, kick by kick at the time of each kick. One that does not
-//! read it is compiled exactly as before time existed.
+//! read it compiles to the same operations, loops and step kernels as it would without the
+//! argument.
 
 use std::collections::{BTreeMap, HashMap};
 use std::io::Write as _;

@@ -22,7 +22,8 @@
 //! (shared by all lanes of a lane call: the batched integrators step their lanes together).
 //! The `*_at` calls take it; the calls without `_at` evaluate at `t = 0`, the only value of a
 //! function that does not read the time ([`VectorFunction::reads_time`]), whose arithmetic is
-//! exactly what it was before time existed: an argument it never reads changes no operation.
+//! exactly that of the same function without the argument: one it never reads changes no
+//! operation.
 //!
 //! Parameters given as [`ParamValue::Lane`] of [`ARG_PARAMS`] (a map's parameter axes) are
 //! read by every function from the state, after its `D` coordinates: per lane in a lane call

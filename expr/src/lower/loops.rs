@@ -6,8 +6,8 @@
 //! of its own under free ends (whose terms would be left out site by site), reads array
 //! parameters only inside the lattice under fixed ends, and has at most
 //! [`MAX_BOUNDARY_TERMS`] terms reaching beyond an end. Anything else, including every error,
-//! makes the sum unrolled as before (which then reports the error exactly as it always did):
-//! the loop form never changes what is accepted, only how it is lowered.
+//! makes the sum unrolled site by site, and the unrolled lowering reports the error: the loop
+//! form never changes what is accepted, only how it is lowered.
 
 use std::sync::Arc;
 

@@ -143,6 +143,17 @@ fn gallery_figures_are_what_the_tool_draws() {
             &p("chart"),
         ],
     );
+    let lorenz = p("lorenz.mcap");
+    run(
+        &bus,
+        font,
+        &["run", "docs/src/gallery/lorenz-clv.toml", "--out", &lorenz],
+    );
+    run(
+        &bus,
+        font,
+        &["analyze", &lorenz, "--clv", "--plot", &p("clv")],
+    );
     assert!(common::close_private_bus(&bus).is_empty());
 
     // Only meaningful panels: no GALI for the QR scheme, no lattice picture nor lattice
@@ -168,7 +179,7 @@ fn gallery_figures_are_what_the_tool_draws() {
     }
 
     // Generated file -> gallery file, with the words each must show.
-    let figures: [(&str, &str, &[&str]); 11] = [
+    let figures: [(&str, &str, &[&str]); 12] = [
         (
             "hh/gali_vm.svg",
             "gali.svg",
@@ -230,6 +241,15 @@ fn gallery_figures_are_what_the_tool_draws() {
             "section/section.svg",
             "section.svg",
             &["Poincaré section q1 = 0", "q2", "p2"],
+        ),
+        (
+            "clv/clv-angle-expanding_vs_contracting.svg",
+            "clv-angle.svg",
+            &[
+                "Angle between the expanding and contracting CLV subspaces (scheme vm, set 0)",
+                "log10 angle (rad)",
+                "renormalizations per bin",
+            ],
         ),
         (
             "chart.svg",

@@ -875,15 +875,29 @@ pub fn angle_histogram_chart(report: &ClvReport, name: &str, stats: &AngleStats)
     }
     Chart {
         title: format!(
-            "CLV angle {name} (scheme {}, set {}){}",
+            "Angle between the {} CLV subspaces (scheme {}, set {}){}",
+            angle_words(name),
             report.scheme,
             report.set,
-            median.map_or(String::new(), |m| format!(", dashed: median {m:.3e}"))
+            median.map_or(String::new(), |m| format!(
+                ", dashed: median {} rad",
+                crate::chart::tick_label(m, (0.0, m))
+            ))
         ),
         x_label: "log10 angle (rad)".into(),
         y_label: format!("fraction of {} renormalizations per bin", stats.count),
         lines,
         ..Default::default()
+    }
+}
+
+/// An angle's name in words for a title: `unstable_vs_rest` is "unstable and
+/// neutral + stable".
+fn angle_words(name: &str) -> String {
+    match name {
+        "unstable_vs_rest" => "unstable and neutral + stable".into(),
+        "expanding_vs_contracting" => "expanding and contracting".into(),
+        other => other.replace("_vs_", " and ").replace('_', " "),
     }
 }
 

@@ -35,6 +35,10 @@ pub(crate) fn message(text: impl Into<String>) -> PyErr {
 #[pymodule]
 fn _chaoscope(m: &Bound<'_, PyModule>) -> PyResult<()> {
     signals::keep_python_handlers();
+    // NumPy's C API is imported on the first array a call makes. Made here, at import, it
+    // cannot be made while a KeyboardInterrupt is pending (a long call stopped by Ctrl-C
+    // returning its first array), where the import fails and rust-numpy panics.
+    numpy::PyArray1::<f64>::zeros(m.py(), 0, false);
     m.add("ChaoscopeError", m.py().get_type::<ChaoscopeError>())?;
     m.add_class::<recording::Recording>()?;
     m.add_class::<recording::Indicators>()?;

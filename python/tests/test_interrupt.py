@@ -33,7 +33,7 @@ SCRIPT = textwrap.dedent(
         "scheme": [{"name": "vm", "method": "vm", "d0": 1e-8, "tau": 1.0}],
     }
     map_config = dict(run_config)
-    map_config["integrator"] = {"method": "aba864", "h": 0.01, "t_final": 2000.0}
+    map_config["integrator"] = {"method": "aba864", "h": 0.01, "t_final": 40000.0}
     map_config["deviations"] = {"k": 2, "sets": 2, "seed": 1}
     map_config["map"] = {
         "x": {"coord": "q2", "min": -0.4, "max": 0.6, "n": 12},

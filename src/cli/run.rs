@@ -369,7 +369,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         summary.finalized_by,
         summary.frames_missing,
         super::seconds(seconds),
-        super::seconds(estimate.seconds)
+        super::seconds(estimate.seconds + chaoscope_producer::estimate::RUN_START_SECONDS)
     )?;
     // Stopped by a signal: end now (reading a long recording takes time); `chaoscope analyze`
     // gives the table later.

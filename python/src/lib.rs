@@ -38,6 +38,8 @@ fn _chaoscope(m: &Bound<'_, PyModule>) -> PyResult<()> {
     // NumPy's C API is imported on the first array a call makes. Made here, at import, it
     // cannot be made while a KeyboardInterrupt is pending (a long call stopped by Ctrl-C
     // returning its first array), where the import fails and rust-numpy panics.
+    // Importing NumPy first turns its absence into this import's ImportError, not a panic.
+    numpy::get_array_module(m.py())?;
     numpy::PyArray1::<f64>::zeros(m.py(), 0, false);
     m.add("ChaoscopeError", m.py().get_type::<ChaoscopeError>())?;
     m.add_class::<recording::Recording>()?;

@@ -120,13 +120,9 @@ pub fn indicator_label(name: &str) -> String {
 /// the energy distribution's moments): drawn only for at least
 /// [`crate::site_png::MIN_SITES`] sites.
 fn lattice_output(name: &str) -> bool {
-    use chaoscope_indicators::indicator::SetIndicator;
-    chaoscope_indicators::dvd::DeviationDistribution::default()
-        .names()
-        .contains(&name)
-        || chaoscope_indicators::energy::EnergyDistribution::default()
-            .names()
-            .contains(&name)
+    chaoscope_indicators::indicator::declared_outputs()
+        .iter()
+        .any(|d| d.name == name && d.needs.sites)
 }
 
 /// GALI and SALI say something about the orbit only for a scheme whose vectors evolve freely

@@ -2,6 +2,8 @@
 
 use nalgebra::DMatrix;
 
+use crate::indicator::{Carried, Declared, Needs, Output, SetIndicator, SetObservation};
+
 /// Smallest singular value taken into a GALI product. The unit vectors carry rounding errors of
 /// order machine epsilon, so a singular value below it is not resolved: once chaotic deviation
 /// vectors have aligned to the last bit a singular value becomes exactly zero (`log10 = -inf`).
@@ -102,6 +104,79 @@ pub fn sali(vectors: &[f64], dim: usize) -> Option<f64> {
     let plus = (u.column(0) + u.column(1)).norm();
     let minus = (u.column(0) - u.column(1)).norm();
     Some(plus.min(minus))
+}
+
+/// GALI_k of a set's `k` vectors as a registered indicator: `log10 GALI_k` of the vectors
+/// observed last, as [`volume_log10`] computes it (the tracker reports every order from
+/// [`gali_log10`], the same bits for order `k`).
+#[derive(Debug, Clone, Default)]
+pub struct Gali {
+    log10: Option<f64>,
+}
+
+impl SetIndicator for Gali {
+    fn declared(&self) -> &'static [Declared] {
+        const DECLARED: &[Declared] = &[Declared {
+            log10: true,
+            carried: Carried::OwnFields,
+            ..Declared::named("gali", Needs::FINAL_PAIR)
+        }];
+        DECLARED
+    }
+
+    fn observe(&mut self, obs: &SetObservation<'_>) {
+        let k = obs.separations.len() / obs.dim.max(1);
+        if k >= 2 {
+            self.log10 = Some(volume_log10(obs.separations, obs.dim, k, &mut Vec::new()));
+        }
+    }
+
+    fn outputs(&self) -> Vec<Output> {
+        vec![self.log10.map_or_else(
+            || Output::Unavailable("GALI needs two or more vectors".to_string()),
+            Output::Value,
+        )]
+    }
+
+    fn boxed_clone(&self) -> Box<dyn SetIndicator> {
+        Box::new(self.clone())
+    }
+}
+
+/// SALI of a set's first two vectors as a registered indicator: `log10` of [`sali`] observed
+/// last, floored at [`SIGMA_FLOOR`] like GALI's singular values (below it the two directions
+/// are not resolved in double precision, and `log10 0` is no number).
+#[derive(Debug, Clone, Default)]
+pub struct Sali {
+    log10: Option<f64>,
+}
+
+impl SetIndicator for Sali {
+    fn declared(&self) -> &'static [Declared] {
+        const DECLARED: &[Declared] = &[Declared {
+            log10: true,
+            carried: Carried::OwnFields,
+            ..Declared::named("sali", Needs::FINAL_PAIR)
+        }];
+        DECLARED
+    }
+
+    fn observe(&mut self, obs: &SetObservation<'_>) {
+        if let Some(s) = sali(obs.separations, obs.dim) {
+            self.log10 = Some(s.max(SIGMA_FLOOR).log10());
+        }
+    }
+
+    fn outputs(&self) -> Vec<Output> {
+        vec![self.log10.map_or_else(
+            || Output::Unavailable("SALI needs two vectors".to_string()),
+            Output::Value,
+        )]
+    }
+
+    fn boxed_clone(&self) -> Box<dyn SetIndicator> {
+        Box::new(self.clone())
+    }
 }
 
 #[cfg(test)]

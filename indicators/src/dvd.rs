@@ -14,7 +14,7 @@
 //! (a flow, a map) gets the outputs as unavailable, with the reason.
 
 use crate::distribution::moments;
-use crate::indicator::{Output, SetIndicator, SetObservation};
+use crate::indicator::{Declared, Needs, Output, SetIndicator, SetObservation};
 
 /// The DVD's second moment and participation number at the latest renormalization.
 #[derive(Debug, Clone, Default)]
@@ -32,8 +32,12 @@ pub fn site_weights(w: &[f64], n: usize) -> impl Iterator<Item = f64> + Clone + 
 }
 
 impl SetIndicator for DeviationDistribution {
-    fn names(&self) -> &'static [&'static str] {
-        &["dvd_m2", "dvd_participation"]
+    fn declared(&self) -> &'static [Declared] {
+        const DECLARED: &[Declared] = &[
+            Declared::named("dvd_m2", Needs::SITES),
+            Declared::named("dvd_participation", Needs::SITES),
+        ];
+        DECLARED
     }
 
     fn observe(&mut self, obs: &SetObservation<'_>) {

@@ -14,7 +14,9 @@
 //! rebuild the model (the recorder) has no site energies: unavailable, saying why.
 
 use crate::distribution::moments;
-use crate::indicator::{Output, SetIndicator, SetObservation, SiteEnergies, SiteEnergyInput};
+use crate::indicator::{
+    Declared, Needs, Output, SetIndicator, SetObservation, SiteEnergies, SiteEnergyInput,
+};
 
 /// The energy distribution's second moment and participation number at the latest
 /// renormalization: the state they are to be computed at (evaluated when asked for, so a long
@@ -61,8 +63,12 @@ pub fn energy_moments(energies: &[f64]) -> Result<(f64, f64), String> {
 }
 
 impl SetIndicator for EnergyDistribution {
-    fn names(&self) -> &'static [&'static str] {
-        &["energy_m2", "energy_participation"]
+    fn declared(&self) -> &'static [Declared] {
+        const DECLARED: &[Declared] = &[
+            Declared::named("energy_m2", Needs::SITES),
+            Declared::named("energy_participation", Needs::SITES),
+        ];
+        DECLARED
     }
 
     fn observe(&mut self, obs: &SetObservation<'_>) {

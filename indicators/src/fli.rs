@@ -15,7 +15,7 @@
 //! flow direction; a recording analyzed without its system) reports OFLI unavailable.
 
 use crate::alignment::SIGMA_FLOOR;
-use crate::indicator::{Output, SetIndicator, SetObservation};
+use crate::indicator::{Declared, Needs, Output, SetIndicator, SetObservation};
 
 #[derive(Debug, Clone, Default)]
 pub struct Fli {
@@ -30,8 +30,18 @@ pub struct Fli {
 }
 
 impl SetIndicator for Fli {
-    fn names(&self) -> &'static [&'static str] {
-        &["fli", "ofli"]
+    fn declared(&self) -> &'static [Declared] {
+        const DECLARED: &[Declared] = &[
+            Declared::named("fli", Needs::STRETCH),
+            Declared::named(
+                "ofli",
+                Needs {
+                    flow: true,
+                    ..Needs::STRETCH
+                },
+            ),
+        ];
+        DECLARED
     }
 
     fn observe(&mut self, obs: &SetObservation<'_>) {

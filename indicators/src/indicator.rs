@@ -1,12 +1,12 @@
-//! The one indicator interface: an indicator accumulates from what a run already publishes and
-//! names its outputs; the tracker, and through it the analysis, its reports, replay, monitor,
-//! Python and maps, take every indicator registered here without a change of their own.
+//! The one indicator interface and its registry: an indicator accumulates from what a run
+//! already publishes and declares its outputs with what each needs; the tracker, and through it
+//! the analysis, its reports, replay, monitor and Python, and the maps take every indicator
+//! registered here by its declarations, without a change of their own.
 //!
 //! Two shapes, by what they accumulate from:
-//! - [`SetIndicator`]: one instance per (scheme, set), fed at every renormalization of its set
-//!   with the stretching factors and the separation vectors before renormalization (and the
-//!   vector field at the reference state where the system gives it). Outputs are averaged over
-//!   the sets of a scheme as GALI is.
+//! - [`SetIndicator`]: one instance per (scheme, set), fed at renormalizations of its set with
+//!   the stretching factors and the separation vectors before renormalization (and the vector
+//!   field at the reference state where the system gives it).
 //! - [`OrbitIndicator`]: one instance per scheme, fed the reference state at each of that
 //!   scheme's renormalizations (the orbit sampled every `tau`). Its outputs are one value per
 //!   scheme.
@@ -95,14 +95,107 @@ pub enum Output {
     Unavailable(String),
 }
 
+/// What an output needs of a run, declared as data: a reader gives an indicator what its
+/// outputs need, or leaves out the outputs it cannot give (a map point has no vector field and
+/// no sites), without trying the indicator.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Needs {
+    /// Deviation vectors per set, at least.
+    pub vectors: usize,
+    /// Stretching factors that are QR's `|R_jj|` (the spectrum) rather than each vector's own
+    /// growth.
+    pub qr: bool,
+    /// The vector field at the reference state.
+    pub flow: bool,
+    /// The sites of a Hamiltonian (and, for the energy distribution, their energies).
+    pub sites: bool,
+    /// Every renormalization of the set; `false`: only its vectors at the end (an instantaneous
+    /// function of them, which a map evaluates once per set).
+    pub every_renormalization: bool,
+}
+
+impl Needs {
+    /// The first vector's stretching factor at every renormalization, nothing else.
+    pub const STRETCH: Needs = Needs {
+        vectors: 1,
+        qr: false,
+        flow: false,
+        sites: false,
+        every_renormalization: true,
+    };
+    /// The first two vectors at the end (the alignment indices).
+    pub const FINAL_PAIR: Needs = Needs {
+        vectors: 2,
+        every_renormalization: false,
+        ..Needs::STRETCH
+    };
+    /// The first vector at every renormalization, over a Hamiltonian's sites.
+    pub const SITES: Needs = Needs {
+        sites: true,
+        ..Needs::STRETCH
+    };
+}
+
+/// Where reports carry an output.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Carried {
+    /// Under its name among every scheme's named outputs (`analyze --json`'s scheme fields, a
+    /// CSV column, the `named` entries of the recording's indicators channel).
+    Named,
+    /// In fields of its own whose layout is older than the named outputs (GALI by order,
+    /// SALI, the exponents: `gali`, `sali`, `mle`, `lyapunov` of the reports, their columns and
+    /// message fields), filled by the tracker from the same functions.
+    OwnFields,
+}
+
+/// One output of an indicator: its name as reports and `[map] indicator` carry it (a public
+/// contract), what it needs, and how it is carried and averaged.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Declared {
+    pub name: &'static str,
+    pub needs: Needs,
+    pub carried: Carried,
+    /// The value is a `log10` (GALI, SALI): sets combine into the mean of `10^v` and the mean
+    /// of `v` (the geometric mean), as their values span decades.
+    pub log10: bool,
+    /// The output comes with one value per vector ([`SetIndicator::per_vector`]: the spectrum
+    /// `lambda_1..k`), which a map point carries.
+    pub per_vector: bool,
+}
+
+impl Declared {
+    /// An output carried by name, averaged linearly over the sets.
+    pub const fn named(name: &'static str, needs: Needs) -> Self {
+        Self {
+            name,
+            needs,
+            carried: Carried::Named,
+            log10: false,
+            per_vector: false,
+        }
+    }
+
+    /// Whether a phase-space map's point can give it: a map's kernels compute no vector field
+    /// at the points' reference states, and a map has no sites.
+    pub fn on_maps(&self) -> bool {
+        !self.needs.flow && !self.needs.sites
+    }
+}
+
 /// An indicator accumulated per (scheme, set) from the renormalizations of its set.
 pub trait SetIndicator: Debug + Send + Sync {
-    /// The names of its outputs, as reports carry them (a public contract).
-    fn names(&self) -> &'static [&'static str];
-    /// Accumulates one renormalization (called in increasing time, the first at t = 0).
+    /// Its outputs with what each needs, in the order of [`SetIndicator::outputs`].
+    fn declared(&self) -> &'static [Declared];
+    /// Accumulates one renormalization (called in increasing time; where an output needs every
+    /// renormalization, the first at t = 0 or, on a map, at the first window's end).
     fn observe(&mut self, obs: &SetObservation<'_>);
-    /// The current value of each output, in the order of [`SetIndicator::names`].
+    /// The current value of each output, in the order of [`SetIndicator::declared`].
     fn outputs(&self) -> Vec<Output>;
+    /// The per-vector values behind the outputs declared [`Declared::per_vector`] (the
+    /// spectrum); empty for an indicator without them.
+    fn per_vector(&self) -> Vec<f64> {
+        Vec::new()
+    }
     fn boxed_clone(&self) -> Box<dyn SetIndicator>;
 }
 
@@ -128,14 +221,27 @@ impl Clone for Box<dyn OrbitIndicator> {
     }
 }
 
-/// The set indicators every run tracks, in report order.
+/// Every registered set indicator, in report order: GALI, SALI and the exponents (carried in
+/// fields of their own), then the named ones. One line each.
 pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
     vec![
+        Box::new(crate::alignment::Gali::default()),
+        Box::new(crate::alignment::Sali::default()),
+        Box::new(crate::stretch::Exponents::default()),
         Box::new(crate::fli::Fli::default()),
         Box::new(crate::megno::Megno::default()),
         Box::new(crate::dvd::DeviationDistribution::default()),
         Box::new(crate::energy::EnergyDistribution::default()),
     ]
+}
+
+/// The registered set indicators with an output carried by name: what the tracker runs per set
+/// (it fills GALI, SALI and the exponents' own fields itself).
+pub fn named_set_indicators() -> Vec<Box<dyn SetIndicator>> {
+    set_indicators()
+        .into_iter()
+        .filter(|i| i.declared().iter().any(|d| d.carried == Carried::Named))
+        .collect()
 }
 
 /// The orbit indicators every run tracks, in report order; the 0-1 test observes `zero_one`.
@@ -147,44 +253,56 @@ pub fn orbit_indicators(
     ))]
 }
 
-/// The names of every registered set indicator's outputs, in report order (the columns of a
-/// time series of them: CSV, plots, the recording's indicators channel).
-pub fn set_output_names() -> &'static [&'static str] {
-    static NAMES: std::sync::OnceLock<Vec<&'static str>> = std::sync::OnceLock::new();
-    NAMES.get_or_init(|| {
+/// Every registered set output's declaration, in report order.
+pub fn declared_outputs() -> &'static [Declared] {
+    static DECLARED: std::sync::OnceLock<Vec<Declared>> = std::sync::OnceLock::new();
+    DECLARED.get_or_init(|| {
         set_indicators()
             .iter()
-            .flat_map(|i| i.names().iter().copied())
+            .flat_map(|i| i.declared().iter().copied())
             .collect()
     })
 }
 
-/// The outputs of the registered set indicators that a run without the flow direction can give
-/// (a phase-space map's points carry no vector field), in report order: those available after
-/// one observation with `flow: None` and no sites. The map indicators by output name.
-pub fn flowless_set_outputs() -> Vec<&'static str> {
-    let observation = SetObservation {
-        t: 0.0,
-        dt: 0.0,
-        dim: 1,
-        separations: &[1.0],
-        stretch: &[1.0],
-        flow: None,
-        sites: None,
-        site_energies: None,
-    };
-    set_indicators()
-        .into_iter()
-        .flat_map(|mut i| {
-            i.observe(&observation);
-            i.names()
-                .iter()
-                .copied()
-                .zip(i.outputs())
-                .collect::<Vec<_>>()
+/// The names of the set outputs carried by name, in report order (the columns of a time series
+/// of them: CSV, plots, the recording's indicators channel).
+pub fn set_output_names() -> &'static [&'static str] {
+    static NAMES: std::sync::OnceLock<Vec<&'static str>> = std::sync::OnceLock::new();
+    NAMES.get_or_init(|| {
+        declared_outputs()
+            .iter()
+            .filter(|d| d.carried == Carried::Named)
+            .map(|d| d.name)
+            .collect()
+    })
+}
+
+/// The map's own rule on the `gali` output: the time `GALI_k` first falls below `[map]
+/// threshold`, where the set stops.
+pub const GALI_TIME: &str = "gali-time";
+
+/// Every value `[map] indicator` takes, in order: each registered set output a map's point can
+/// give ([`Declared::on_maps`]), and [`GALI_TIME`] after `gali`. The one list the map's
+/// validation and every reader of map files check against.
+pub fn map_indicators() -> Vec<&'static str> {
+    declared_outputs()
+        .iter()
+        .filter(|d| d.on_maps())
+        .flat_map(|d| match d.name {
+            "gali" => vec![d.name, GALI_TIME],
+            _ => vec![d.name],
         })
-        .filter_map(|(name, output)| matches!(output, Output::Value(_)).then_some(name))
         .collect()
+}
+
+/// The registered indicator giving the set output `name`, with that output's declaration and
+/// position among its outputs.
+pub fn set_indicator_of(name: &str) -> Option<(Box<dyn SetIndicator>, Declared, usize)> {
+    set_indicators().into_iter().find_map(|i| {
+        let at = i.declared().iter().position(|d| d.name == name)?;
+        let declared = i.declared()[at];
+        Some((i, declared, at))
+    })
 }
 
 #[cfg(test)]
@@ -192,10 +310,22 @@ mod tests {
     use super::*;
 
     #[test]
-    fn a_map_shows_every_output_but_ofli() {
+    fn a_map_shows_every_output_but_ofli_and_the_sites() {
         // OFLI needs the flow direction, the DVD and the energy distribution a Hamiltonian's
-        // sites; FLI and MEGNO only the stretching factors.
-        assert_eq!(flowless_set_outputs(), ["fli", "megno", "megno_mean"]);
+        // sites; GALI, SALI, the exponents, FLI and MEGNO only the vectors and their stretching.
+        assert_eq!(
+            map_indicators(),
+            [
+                "gali",
+                "gali-time",
+                "sali",
+                "mle",
+                "spectrum",
+                "fli",
+                "megno",
+                "megno_mean"
+            ]
+        );
     }
 
     #[test]

@@ -11,7 +11,7 @@
 //! for `ln d = ln t` (a regular orbit: linear growth) `Y -> 2`; for a bounded `d` (an isochronous
 //! periodic orbit) `Y` oscillates about 0 and `megno_mean -> 0`.
 
-use crate::indicator::{Output, SetIndicator, SetObservation};
+use crate::indicator::{Declared, Needs, Output, SetIndicator, SetObservation};
 
 #[derive(Debug, Clone, Default)]
 pub struct Megno {
@@ -25,8 +25,12 @@ pub struct Megno {
 }
 
 impl SetIndicator for Megno {
-    fn names(&self) -> &'static [&'static str] {
-        &["megno", "megno_mean"]
+    fn declared(&self) -> &'static [Declared] {
+        const DECLARED: &[Declared] = &[
+            Declared::named("megno", Needs::STRETCH),
+            Declared::named("megno_mean", Needs::STRETCH),
+        ];
+        DECLARED
     }
 
     fn observe(&mut self, obs: &SetObservation<'_>) {

@@ -1,5 +1,7 @@
 //! Accumulated logarithmic stretching of deviation vectors: finite-time Lyapunov exponents.
 
+use crate::indicator::{Carried, Declared, Needs, Output, SetIndicator, SetObservation};
+
 /// Largest finite-time exponent reported (in magnitude): rates beyond are reported as this.
 pub const MAX_RATE: f64 = 1e300;
 
@@ -59,6 +61,69 @@ fn rate(sum: f64, t: f64) -> f64 {
         (sum / t).clamp(-MAX_RATE, MAX_RATE)
     } else {
         0.0
+    }
+}
+
+/// The finite-time exponents of a set as a registered indicator: `mle`, the first vector's
+/// `(1/t) sum ln stretch`, and `spectrum`, the same for every vector of a QR scheme (reported as
+/// `lambda_1`, with `lambda_1..k` per vector). `t` is the latest renormalization's: a reader
+/// that may miss renormalizations (a live monitor) divides by the time its factors cover, in
+/// the tracker ([`StretchSums`]).
+#[derive(Debug, Clone, Default)]
+pub struct Exponents {
+    log_sums: Vec<f64>,
+    t: f64,
+}
+
+impl Exponents {
+    fn rate(&self, sum: f64) -> f64 {
+        if self.t > 0.0 { sum / self.t } else { 0.0 }
+    }
+}
+
+impl SetIndicator for Exponents {
+    fn declared(&self) -> &'static [Declared] {
+        const DECLARED: &[Declared] = &[
+            Declared {
+                carried: Carried::OwnFields,
+                ..Declared::named("mle", Needs::STRETCH)
+            },
+            Declared {
+                carried: Carried::OwnFields,
+                per_vector: true,
+                ..Declared::named(
+                    "spectrum",
+                    Needs {
+                        qr: true,
+                        ..Needs::STRETCH
+                    },
+                )
+            },
+        ];
+        DECLARED
+    }
+
+    fn observe(&mut self, obs: &SetObservation<'_>) {
+        if self.log_sums.len() < obs.stretch.len() {
+            self.log_sums.resize(obs.stretch.len(), 0.0);
+        }
+        for (sum, s) in self.log_sums.iter_mut().zip(obs.stretch) {
+            *sum += s.ln();
+        }
+        self.t = obs.t;
+    }
+
+    fn outputs(&self) -> Vec<Output> {
+        let first = self.rate(self.log_sums.first().copied().unwrap_or(0.0));
+        vec![Output::Value(first), Output::Value(first)]
+    }
+
+    fn per_vector(&self) -> Vec<f64> {
+        self.log_sums.iter().map(|&s| self.rate(s)).collect()
+    }
+
+    fn boxed_clone(&self) -> Box<dyn SetIndicator> {
+        Box::new(self.clone())
     }
 }
 

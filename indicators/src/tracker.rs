@@ -14,8 +14,8 @@ use serde::ser::{Serialize, SerializeMap, Serializer};
 use crate::alignment::{SIGMA_FLOOR, gali_log10, sali};
 pub use crate::indicator::SiteEnergies;
 use crate::indicator::{
-    OrbitIndicator, Output, SetIndicator, SetObservation, SiteEnergyInput, orbit_indicators,
-    set_indicators,
+    OrbitIndicator, Output, SetIndicator, SetObservation, SiteEnergyInput, named_set_indicators,
+    orbit_indicators,
 };
 use crate::stats::{LogStat, Stat};
 use crate::stretch::StretchSums;
@@ -439,7 +439,7 @@ impl Tracker {
                 late_covered_steps: 0,
                 step: None,
                 separations: Vec::new(),
-                indicators: set_indicators(),
+                indicators: named_set_indicators(),
             });
         // A stretching factor covers the interval since the scheme's previous renormalization;
         // if that one was not seen, the sum has a hole.
@@ -529,7 +529,7 @@ impl Tracker {
             outputs: st
                 .indicators
                 .iter()
-                .flat_map(|i| i.names().iter().copied().zip(i.outputs()))
+                .flat_map(|i| i.declared().iter().map(|d| d.name).zip(i.outputs()))
                 .collect(),
         })
     }

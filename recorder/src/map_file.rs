@@ -107,15 +107,6 @@ pub struct MapContents {
 /// Most grid points per axis a map file may describe (what `[map] x.n` and `y.n` accept).
 pub const MAX_AXIS_POINTS: u32 = 100_000;
 
-/// Indicators a map file may hold: the map's own and every registered set indicator's output
-/// that needs no flow direction (`fli`, `megno`, `megno_mean`: what `chaoscope map` accepts).
-pub fn indicators() -> Vec<&'static str> {
-    chaoscope_schemas::config::MAP_OWN_INDICATORS
-        .into_iter()
-        .chain(chaoscope_indicators::indicator::flowless_set_outputs())
-        .collect()
-}
-
 /// A map header whose values no `chaoscope map` writes, as `field: problem`: every value the
 /// readers use to index, allocate, loop or draw (axes, sizes, shard, indicator, times) is
 /// checked here before they use it.
@@ -157,7 +148,7 @@ pub fn check_header(h: &MapHeader) -> Result<(), String> {
             h.shard_index, h.shard_count
         ));
     }
-    let indicators = indicators();
+    let indicators = chaoscope_indicators::indicator::map_indicators();
     if !indicators.contains(&h.indicator.as_str()) {
         return Err(format!(
             "indicator {:?} is none of {}",

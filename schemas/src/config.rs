@@ -335,10 +335,6 @@ impl MapAxis {
     }
 }
 
-/// The map indicators that are not a registered set indicator's output: the one list the map's
-/// validation and every reader of map files check `indicator` against.
-pub const MAP_OWN_INDICATORS: [&str; 5] = ["gali", "gali-time", "sali", "mle", "spectrum"];
-
 impl MapConfig {
     /// A map of `indicator` over the grid `x` by `y`, without `k` or `threshold`.
     pub fn new(x: MapAxis, y: MapAxis, indicator: &str) -> Self {

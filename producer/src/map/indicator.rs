@@ -1,92 +1,64 @@
 //! The indicator of a map: what each deviation set accumulates at its renormalizations, when it
 //! may stop, and how the sets' numbers make the point's value.
 
-use chaoscope_schemas::config::{MAP_OWN_INDICATORS, MapConfig};
+use chaoscope_schemas::config::MapConfig;
 
 use chaoscope_indicators::indicator::{
-    Output, SetIndicator, SetObservation, flowless_set_outputs, set_indicators,
+    Declared, GALI_TIME, Output, SetIndicator, SetObservation, map_indicators, set_indicator_of,
 };
-use chaoscope_indicators::sali;
 
 use super::point::{PointResult, PointStatus};
 use crate::engine::RunError;
 use crate::indicators::volume_log10;
 use crate::spec::SpecError;
 
+/// `[map] indicator`: an output of a registered set indicator (`chaoscope_indicators::indicator`)
+/// at `t_final`, or the map's own stopping rule on GALI.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Indicator {
-    /// `GALI_k` at `t_final`.
-    Gali { k: usize },
+    /// The output `declared` of a registered set indicator (`gali`, `sali`, `mle`, `spectrum`,
+    /// `fli`, `megno`, ...), at output `at` of it, each set's value read at `t_final`.
+    Registered { declared: Declared, at: usize },
     /// First renormalization time at which `GALI_k < threshold`; the set stops there.
     GaliTime { k: usize, threshold: f64 },
-    /// log10 of the Smaller Alignment Index of the first two vectors at `t_final`.
-    Sali,
-    /// Finite-time maximal Lyapunov exponent at `t_final` (from the first vector of each set).
-    Mle,
-    /// The first `k` finite-time Lyapunov exponents at `t_final`: each set's vectors are
-    /// renormalized by QR (validation asks the scheme for `orthonormalize = "qr"`), and
-    /// `lambda_j` is the mean of `ln |R_jj|` per unit time.
-    Spectrum { k: usize },
-    /// An output of a registered set indicator (`chaoscope_indicators::indicator`) at
-    /// `t_final`, by its name: `fli`, `megno`, `megno_mean`.
-    Set { name: &'static str },
-}
-
-/// Every value `[map] indicator` takes: [`MAP_OWN_INDICATORS`] and the registered set indicators'
-/// outputs that need nothing but the stretching factors and separations (OFLI needs the flow
-/// direction at each point's reference state, which the map's kernels do not compute).
-pub fn map_indicators() -> Vec<&'static str> {
-    MAP_OWN_INDICATORS
-        .into_iter()
-        .chain(flowless_set_outputs())
-        .collect()
 }
 
 impl Indicator {
     pub fn from_config(map: &MapConfig, k: usize) -> Result<Self, SpecError> {
-        let need_k = |name: &str| {
-            if k < 2 {
-                Err(SpecError::new(
-                    "map.k",
-                    format!("{name} needs k >= 2 deviation vectors, got {k}"),
-                ))
-            } else {
-                Ok(k)
-            }
+        let name = map.indicator.as_str();
+        let unknown = || {
+            SpecError::new(
+                "map.indicator",
+                format!("'{name}' is not {}", map_indicators().join(", ")),
+            )
         };
-        let ind = match map.indicator.as_str() {
-            "gali" => Indicator::Gali { k: need_k("gali")? },
-            "sali" => {
-                need_k("sali")?;
-                Indicator::Sali
+        let (needs, ind) = if name == GALI_TIME {
+            let threshold = map
+                .threshold
+                .ok_or_else(|| SpecError::new("map.threshold", "gali-time needs a threshold"))?;
+            if !(threshold.is_finite() && threshold > 0.0 && threshold < 1.0) {
+                return Err(SpecError::new(
+                    "map.threshold",
+                    format!("must be between 0 and 1, got {threshold}"),
+                ));
             }
-            "gali-time" => {
-                let threshold = map.threshold.ok_or_else(|| {
-                    SpecError::new("map.threshold", "gali-time needs a threshold")
-                })?;
-                if !(threshold.is_finite() && threshold > 0.0 && threshold < 1.0) {
-                    return Err(SpecError::new(
-                        "map.threshold",
-                        format!("must be between 0 and 1, got {threshold}"),
-                    ));
-                }
-                Indicator::GaliTime {
-                    k: need_k("gali-time")?,
-                    threshold,
-                }
-            }
-            "mle" => Indicator::Mle,
-            "spectrum" => Indicator::Spectrum { k },
-            other => match flowless_set_outputs().into_iter().find(|n| *n == other) {
-                Some(name) => Indicator::Set { name },
-                None => {
-                    return Err(SpecError::new(
-                        "map.indicator",
-                        format!("'{other}' is not {}", map_indicators().join(", ")),
-                    ));
-                }
-            },
+            let (_, gali, _) = set_indicator_of("gali").expect("GALI is registered");
+            (gali.needs, Indicator::GaliTime { k, threshold })
+        } else {
+            let (_, declared, at) = set_indicator_of(name)
+                .filter(|(_, d, _)| d.on_maps())
+                .ok_or_else(unknown)?;
+            (declared.needs, Indicator::Registered { declared, at })
         };
+        if k < needs.vectors {
+            return Err(SpecError::new(
+                "map.k",
+                format!(
+                    "{name} needs k >= {} deviation vectors, got {k}",
+                    needs.vectors
+                ),
+            ));
+        }
         if map.threshold.is_some() && !matches!(ind, Indicator::GaliTime { .. }) {
             return Err(SpecError::new(
                 "map.threshold",
@@ -98,32 +70,22 @@ impl Indicator {
 
     pub fn name(&self) -> &'static str {
         match self {
-            Indicator::Gali { .. } => "gali",
-            Indicator::GaliTime { .. } => "gali-time",
-            Indicator::Sali => "sali",
-            Indicator::Mle => "mle",
-            Indicator::Spectrum { .. } => "spectrum",
-            Indicator::Set { name } => name,
+            Indicator::Registered { declared, .. } => declared.name,
+            Indicator::GaliTime { .. } => GALI_TIME,
         }
     }
 
     pub fn threshold(&self) -> f64 {
         match self {
             Indicator::GaliTime { threshold, .. } => *threshold,
-            _ => 0.0,
+            Indicator::Registered { .. } => 0.0,
         }
     }
-}
 
-/// What one deviation set has accumulated.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct SetAccumulator {
-    /// `sum ln(stretch of vector 1)` (for the MLE).
-    log_sum: f64,
-    /// The set's number once known (its final value, or its stopping time).
-    value: Option<f64>,
-    /// `sum ln |R_jj|` of each vector (`spectrum`), then its exponents at the end.
-    log_sums: Vec<f64>,
+    /// The stretching factors must be QR's `|R_jj|` (`spectrum`), not each vector's own.
+    pub fn needs_qr(&self) -> bool {
+        matches!(self, Indicator::Registered { declared, .. } if declared.needs.qr)
+    }
 }
 
 /// Per-point bookkeeping shared by the batched and the one-orbit paths, so both form the result
@@ -133,64 +95,56 @@ pub struct PointAccumulator {
     indicator: Indicator,
     dim: usize,
     t_final: f64,
-    sets: Vec<SetAccumulator>,
+    /// Per set: its number once known (its final value, or its stopping time).
+    values: Vec<Option<f64>>,
     scratch: Vec<f64>,
     /// Latest stopping time of any set (for `t_end`).
     last_stop: f64,
-    /// Per set, the registered set indicators and the time of its previous renormalization
-    /// (`Indicator::Set` only).
-    set_indicators: Vec<(Vec<Box<dyn SetIndicator>>, f64)>,
+    /// Per set, the registered indicator and the time of its previous renormalization
+    /// (`Indicator::Registered` only).
+    set_indicators: Vec<(Box<dyn SetIndicator>, f64)>,
 }
 
 impl PointAccumulator {
     pub fn new(indicator: Indicator, dim: usize, sets: usize, t_final: f64) -> Self {
+        let set_indicators = match indicator {
+            Indicator::Registered { declared, .. } => {
+                let (one, _, _) = set_indicator_of(declared.name).expect("validated");
+                vec![(one, 0.0); sets]
+            }
+            Indicator::GaliTime { .. } => Vec::new(),
+        };
         Self {
             indicator,
             dim,
             t_final,
-            sets: vec![
-                SetAccumulator {
-                    log_sums: match indicator {
-                        Indicator::Spectrum { k } => vec![0.0; k],
-                        _ => Vec::new(),
-                    },
-                    ..SetAccumulator::default()
-                };
-                sets
-            ],
+            values: vec![None; sets],
             scratch: Vec::new(),
             last_stop: 0.0,
-            set_indicators: match indicator {
-                Indicator::Set { .. } => vec![(set_indicators(), 0.0); sets],
-                _ => Vec::new(),
-            },
+            set_indicators,
         }
     }
 
-    /// The indicator reads the sets at every renormalization (`gali-time`, `mle`, `spectrum`,
-    /// the set indicators), not only at the last one.
+    /// The indicator reads the sets at every renormalization, not only at the last one.
     pub fn observes_every_window(&self) -> bool {
-        matches!(
-            self.indicator,
-            Indicator::GaliTime { .. }
-                | Indicator::Mle
-                | Indicator::Spectrum { .. }
-                | Indicator::Set { .. }
-        )
+        match self.indicator {
+            Indicator::Registered { declared, .. } => declared.needs.every_renormalization,
+            Indicator::GaliTime { .. } => true,
+        }
     }
 
     /// The stretching factors must be QR's `|R_jj|` (`spectrum`), not each vector's own.
     pub fn needs_qr(&self) -> bool {
-        matches!(self.indicator, Indicator::Spectrum { .. })
+        self.indicator.needs_qr()
     }
 
     pub fn is_stopped(&self, set: usize) -> bool {
-        self.sets[set].value.is_some()
+        self.values[set].is_some()
     }
 
     /// Every set has its number.
     pub fn is_done(&self) -> bool {
-        self.sets.iter().all(|s| s.value.is_some())
+        self.values.iter().all(Option::is_some)
     }
 
     /// One renormalization of `set` at time `t`: its separation vectors before renormalization
@@ -204,105 +158,85 @@ impl PointAccumulator {
         stretch: &[f64],
         last: bool,
     ) -> bool {
-        let acc = &mut self.sets[set];
-        if acc.value.is_some() {
+        if self.values[set].is_some() {
             return true;
         }
         match self.indicator {
-            Indicator::Gali { k } => {
-                if last {
-                    acc.value = Some(volume_log10(separations, self.dim, k, &mut self.scratch));
-                }
-            }
             Indicator::GaliTime { k, threshold } => {
                 let g = volume_log10(separations, self.dim, k, &mut self.scratch);
                 if g < threshold.log10() {
-                    acc.value = Some(t);
+                    self.values[set] = Some(t);
                     self.last_stop = self.last_stop.max(t);
                 } else if last {
                     // Never crossed: censored at the horizon.
-                    acc.value = Some(self.t_final);
+                    self.values[set] = Some(self.t_final);
                 }
             }
-            Indicator::Sali => {
-                if last {
-                    // Floored at eps like GALI's singular values: below it the two directions
-                    // are not resolved in double precision (and log10 0 is no number).
-                    let sali = sali(separations, self.dim).unwrap_or(0.0);
-                    acc.value = Some(sali.max(f64::EPSILON).log10());
-                }
-            }
-            Indicator::Mle => {
-                acc.log_sum += stretch[0].ln();
-                if last {
-                    acc.value = Some(acc.log_sum / t);
-                }
-            }
-            Indicator::Spectrum { .. } => {
-                for (sum, s) in acc.log_sums.iter_mut().zip(stretch) {
-                    *sum += s.ln();
-                }
-                if last {
-                    acc.log_sums.iter_mut().for_each(|sum| *sum /= t);
-                    acc.value = Some(acc.log_sums[0]);
-                }
-            }
-            Indicator::Set { name } => {
-                let (indicators, previous) = &mut self.set_indicators[set];
-                let observation = SetObservation {
-                    t,
-                    dt: t - *previous,
-                    dim: self.dim,
-                    separations,
-                    stretch,
-                    flow: None,
-                    // The map indicators are the outputs that need no sites either.
-                    sites: None,
-                    site_energies: None,
-                };
-                *previous = t;
-                for i in indicators.iter_mut() {
-                    i.observe(&observation);
+            Indicator::Registered { declared, at } => {
+                let (indicator, previous) = &mut self.set_indicators[set];
+                // An output of the vectors at the end reads them once, not every window.
+                if last || declared.needs.every_renormalization {
+                    indicator.observe(&SetObservation {
+                        t,
+                        dt: t - *previous,
+                        dim: self.dim,
+                        separations,
+                        stretch,
+                        // A map's outputs need no flow direction and no sites (`on_maps`).
+                        flow: None,
+                        sites: None,
+                        site_energies: None,
+                    });
+                    *previous = t;
                 }
                 if last {
-                    acc.value = indicators
-                        .iter()
-                        .flat_map(|i| i.names().iter().copied().zip(i.outputs()))
-                        .find_map(|(n, o)| match o {
-                            Output::Value(v) if n == name => Some(v),
-                            _ => None,
-                        });
+                    self.values[set] = match indicator.outputs().swap_remove(at) {
+                        Output::Value(v) => Some(v),
+                        Output::Unavailable(_) => None,
+                    };
                 }
             }
         }
         if last {
             self.last_stop = self.t_final;
         }
-        acc.value.is_some()
+        self.values[set].is_some()
     }
 
     /// The point's result (status `Ok`) after `orbit_steps` orbit-steps of work; every set must
     /// be finished.
     pub fn finish(&self, base: PointResult, orbit_steps: u64) -> PointResult {
         let per_set: Vec<f64> = self
-            .sets
+            .values
             .iter()
-            .map(|s| s.value.expect("every set finished"))
+            .map(|v| v.expect("every set finished"))
             .collect();
         let m = per_set.len() as f64;
-        let (value, mean_log10) = match self.indicator {
-            Indicator::Gali { .. } | Indicator::Sali => (
+        let declared = match self.indicator {
+            Indicator::Registered { declared, .. } => Some(declared),
+            Indicator::GaliTime { .. } => None,
+        };
+        let (value, mean_log10) = if declared.is_some_and(|d| d.log10) {
+            (
                 per_set.iter().map(|g| 10f64.powf(*g)).sum::<f64>() / m,
                 per_set.iter().sum::<f64>() / m,
-            ),
-            _ => (per_set.iter().sum::<f64>() / m, 0.0),
+            )
+        } else {
+            (per_set.iter().sum::<f64>() / m, 0.0)
         };
-        // lambda_j averaged over the sets, in the sets' order (as `value` is).
-        let spectrum = match self.indicator {
-            Indicator::Spectrum { k } => (0..k)
-                .map(|j| self.sets.iter().map(|s| s.log_sums[j]).sum::<f64>() / m)
-                .collect(),
-            _ => Vec::new(),
+        // The per-vector values (lambda_j) averaged over the sets, in the sets' order (as
+        // `value` is).
+        let spectrum = if declared.is_some_and(|d| d.per_vector) {
+            let per_vector: Vec<Vec<f64>> = self
+                .set_indicators
+                .iter()
+                .map(|(i, _)| i.per_vector())
+                .collect();
+            (0..per_vector[0].len())
+                .map(|j| per_vector.iter().map(|s| s[j]).sum::<f64>() / m)
+                .collect()
+        } else {
+            Vec::new()
         };
         PointResult {
             status: PointStatus::Ok,

@@ -447,15 +447,15 @@ impl MapSpec {
         let indicator = Indicator::from_config(map, k)?;
         // The exponents beyond the first come from QR's |R_jj|; every other indicator reads
         // each vector's own growth or the directions, which QR would change.
-        match (indicator, run.schemes()[0].orthonormalize) {
-            (Indicator::Spectrum { .. }, Orthonormalization::Rescale) => {
+        match (indicator.needs_qr(), run.schemes()[0].orthonormalize) {
+            (true, Orthonormalization::Rescale) => {
                 return Err(SpecError::new(
                     "scheme[0].orthonormalize",
                     "the spectrum is measured with QR renormalization: write \
                      orthonormalize = \"qr\" in the [[scheme]]",
                 ));
             }
-            (Indicator::Spectrum { .. }, _) | (_, Orthonormalization::Rescale) => {}
+            (true, _) | (_, Orthonormalization::Rescale) => {}
             _ => {
                 return Err(SpecError::new(
                     "scheme[0].orthonormalize",
@@ -584,10 +584,8 @@ impl MapSpec {
     /// (a rounding at a threshold crossing moves a set's time by a whole window).
     pub fn routes_agree(&self) -> bool {
         self.run.schemes()[0].method == Method::Vm
-            && !matches!(
-                self.indicator,
-                Indicator::Spectrum { .. } | Indicator::GaliTime { .. }
-            )
+            && !self.indicator.needs_qr()
+            && !matches!(self.indicator, Indicator::GaliTime { .. })
             && self.has_batched_kernel()
     }
 

@@ -11,11 +11,14 @@
 //!   scheme's renormalizations (the orbit sampled every `tau`). Its outputs are one value per
 //!   scheme.
 //!
-//! Adding an indicator: its file in this crate, and its constructor in [`set_indicators`] or
-//! [`orbit_indicators`]; every reader then names and reports its outputs.
+//! Adding an indicator: its file in this crate, its `pub mod` line and its constructor in
+//! [`set_indicators`] or [`orbit_indicators`] (both in `lib.rs`, beside the modules); every
+//! reader then takes its outputs by their declarations.
 
 use std::fmt::Debug;
 use std::sync::Arc;
+
+pub use crate::{orbit_indicators, set_indicators};
 
 /// What a set indicator sees at one renormalization of its set.
 #[derive(Debug, Clone, Copy)]
@@ -221,20 +224,6 @@ impl Clone for Box<dyn OrbitIndicator> {
     }
 }
 
-/// Every registered set indicator, in report order: GALI, SALI and the exponents (carried in
-/// fields of their own), then the named ones. One line each.
-pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
-    vec![
-        Box::new(crate::alignment::Gali::default()),
-        Box::new(crate::alignment::Sali::default()),
-        Box::new(crate::stretch::Exponents::default()),
-        Box::new(crate::fli::Fli::default()),
-        Box::new(crate::megno::Megno::default()),
-        Box::new(crate::dvd::DeviationDistribution::default()),
-        Box::new(crate::energy::EnergyDistribution::default()),
-    ]
-}
-
 /// The registered set indicators with an output carried by name: what the tracker runs per set
 /// (it fills GALI, SALI and the exponents' own fields itself).
 pub fn named_set_indicators() -> Vec<Box<dyn SetIndicator>> {
@@ -242,15 +231,6 @@ pub fn named_set_indicators() -> Vec<Box<dyn SetIndicator>> {
         .into_iter()
         .filter(|i| i.declared().iter().any(|d| d.carried == Carried::Named))
         .collect()
-}
-
-/// The orbit indicators every run tracks, in report order; the 0-1 test observes `zero_one`.
-pub fn orbit_indicators(
-    zero_one: &crate::zero_one::ZeroOneObservable,
-) -> Vec<Box<dyn OrbitIndicator>> {
-    vec![Box::new(crate::zero_one::ZeroOneTest::new(
-        zero_one.clone(),
-    ))]
 }
 
 /// Every registered set output's declaration, in report order.

@@ -36,6 +36,26 @@ pub mod stretch;
 pub mod tracker;
 pub mod zero_one;
 
+/// The registry: every set indicator, in report order (GALI, SALI and the exponents, carried in
+/// fields of their own; then those carried by name). Adding one: its `pub mod` line above and
+/// its line here.
+pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
+    vec![
+        Box::new(alignment::Gali::default()),
+        Box::new(alignment::Sali::default()),
+        Box::new(stretch::Exponents::default()),
+        Box::new(fli::Fli::default()),
+        Box::new(megno::Megno::default()),
+        Box::new(dvd::DeviationDistribution::default()),
+        Box::new(energy::EnergyDistribution::default()),
+    ]
+}
+
+/// The orbit indicators every run tracks, in report order; the 0-1 test observes `zero_one`.
+pub fn orbit_indicators(zero_one: &zero_one::ZeroOneObservable) -> Vec<Box<dyn OrbitIndicator>> {
+    vec![Box::new(zero_one::ZeroOneTest::new(zero_one.clone()))]
+}
+
 pub use alignment::{SIGMA_FLOOR, gali_log10, sali, unit_columns, volume_log10};
 pub use indicator::{OrbitIndicator, Output, SetIndicator, SetObservation};
 pub use stats::{LogStat, Stat};

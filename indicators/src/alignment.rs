@@ -2,7 +2,7 @@
 
 use nalgebra::DMatrix;
 
-use crate::indicator::{Carried, Declared, Needs, Output, SetIndicator, SetObservation};
+use crate::indicator::{Declared, Needs, Output, SetIndicator, SetObservation};
 
 /// Smallest singular value taken into a GALI product. The unit vectors carry rounding errors of
 /// order machine epsilon, so a singular value below it is not resolved: once chaotic deviation
@@ -106,72 +106,40 @@ pub fn sali(vectors: &[f64], dim: usize) -> Option<f64> {
     Some(plus.min(minus))
 }
 
-/// GALI_k of a set's `k` vectors as a registered indicator: `log10 GALI_k` of the vectors
-/// observed last, as [`volume_log10`] computes it (the tracker reports every order from
-/// [`gali_log10`], the same bits for order `k`).
+/// GALI and SALI of a set as a registered indicator: `log10 GALI_k` of the `k` vectors observed
+/// last, as [`volume_log10`] computes it (the tracker reports every order from [`gali_log10`],
+/// the same bits for order `k`), and `log10` of their [`sali`], floored at [`SIGMA_FLOOR`] like
+/// GALI's singular values (below it the two directions are not resolved in double precision,
+/// and `log10 0` is no number).
 #[derive(Debug, Clone, Default)]
-pub struct Gali {
-    log10: Option<f64>,
+pub struct Alignment {
+    gali: Option<f64>,
+    sali: Option<f64>,
 }
 
-impl SetIndicator for Gali {
+impl SetIndicator for Alignment {
     fn declared(&self) -> &'static [Declared] {
-        const DECLARED: &[Declared] = &[Declared {
-            log10: true,
-            carried: Carried::OwnFields,
-            ..Declared::named("gali", Needs::FINAL_PAIR)
-        }];
+        const DECLARED: &[Declared] = &[
+            Declared::own("gali", Needs::FINAL_PAIR).in_log10(),
+            Declared::own("sali", Needs::FINAL_PAIR).in_log10(),
+        ];
         DECLARED
     }
 
     fn observe(&mut self, obs: &SetObservation<'_>) {
         let k = obs.separations.len() / obs.dim.max(1);
         if k >= 2 {
-            self.log10 = Some(volume_log10(obs.separations, obs.dim, k, &mut Vec::new()));
+            self.gali = Some(volume_log10(obs.separations, obs.dim, k, &mut Vec::new()));
+            self.sali = sali(obs.separations, obs.dim).map(|s| s.max(SIGMA_FLOOR).log10());
         }
     }
 
     fn outputs(&self) -> Vec<Output> {
-        vec![self.log10.map_or_else(
-            || Output::Unavailable("GALI needs two or more vectors".to_string()),
-            Output::Value,
-        )]
-    }
-
-    fn boxed_clone(&self) -> Box<dyn SetIndicator> {
-        Box::new(self.clone())
-    }
-}
-
-/// SALI of a set's first two vectors as a registered indicator: `log10` of [`sali`] observed
-/// last, floored at [`SIGMA_FLOOR`] like GALI's singular values (below it the two directions
-/// are not resolved in double precision, and `log10 0` is no number).
-#[derive(Debug, Clone, Default)]
-pub struct Sali {
-    log10: Option<f64>,
-}
-
-impl SetIndicator for Sali {
-    fn declared(&self) -> &'static [Declared] {
-        const DECLARED: &[Declared] = &[Declared {
-            log10: true,
-            carried: Carried::OwnFields,
-            ..Declared::named("sali", Needs::FINAL_PAIR)
-        }];
-        DECLARED
-    }
-
-    fn observe(&mut self, obs: &SetObservation<'_>) {
-        if let Some(s) = sali(obs.separations, obs.dim) {
-            self.log10 = Some(s.max(SIGMA_FLOOR).log10());
-        }
-    }
-
-    fn outputs(&self) -> Vec<Output> {
-        vec![self.log10.map_or_else(
-            || Output::Unavailable("SALI needs two vectors".to_string()),
-            Output::Value,
-        )]
+        let why = || Output::Unavailable("the alignment of vectors needs two of them".into());
+        vec![
+            self.gali.map_or_else(why, Output::Value),
+            self.sali.map_or_else(why, Output::Value),
+        ]
     }
 
     fn boxed_clone(&self) -> Box<dyn SetIndicator> {

@@ -33,13 +33,7 @@ impl SetIndicator for Fli {
     fn declared(&self) -> &'static [Declared] {
         const DECLARED: &[Declared] = &[
             Declared::named("fli", Needs::STRETCH),
-            Declared::named(
-                "ofli",
-                Needs {
-                    flow: true,
-                    ..Needs::STRETCH
-                },
-            ),
+            Declared::named("ofli", Needs::FLOW),
         ];
         DECLARED
     }

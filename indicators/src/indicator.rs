@@ -126,10 +126,20 @@ impl Needs {
         sites: false,
         every_renormalization: true,
     };
+    /// QR's stretching factors of every vector at every renormalization (the spectrum).
+    pub const QR: Needs = Needs {
+        qr: true,
+        ..Needs::STRETCH
+    };
     /// The first two vectors at the end (the alignment indices).
     pub const FINAL_PAIR: Needs = Needs {
         vectors: 2,
         every_renormalization: false,
+        ..Needs::STRETCH
+    };
+    /// The first vector at every renormalization and the vector field at the reference state.
+    pub const FLOW: Needs = Needs {
+        flow: true,
         ..Needs::STRETCH
     };
     /// The first vector at every renormalization, over a Hamiltonian's sites.
@@ -176,6 +186,25 @@ impl Declared {
             log10: false,
             per_vector: false,
         }
+    }
+
+    /// An output carried in fields of its own ([`Carried::OwnFields`]).
+    pub const fn own(name: &'static str, needs: Needs) -> Self {
+        let mut d = Self::named(name, needs);
+        d.carried = Carried::OwnFields;
+        d
+    }
+
+    /// The output as a `log10` ([`Declared::log10`]).
+    pub const fn in_log10(mut self) -> Self {
+        self.log10 = true;
+        self
+    }
+
+    /// The output with its per-vector values ([`Declared::per_vector`]).
+    pub const fn with_per_vector(mut self) -> Self {
+        self.per_vector = true;
+        self
     }
 
     /// Whether a phase-space map's point can give it: a map's kernels compute no vector field

@@ -12,8 +12,9 @@
 //!   QR scheme) and principal angles between subspaces.
 //! - [`stretch`]: accumulated logarithmic stretching, the finite-time exponents.
 //! - [`stats`]: averages over the random sets of a scheme.
-//! - [`indicator`]: the one indicator interface (set and orbit indicators, named outputs) and
-//!   the registry of the indicators every run tracks: [`fli`] (FLI, OFLI), [`megno`] (MEGNO and
+//! - [`indicator`]: the one indicator interface (set and orbit indicators, their outputs
+//!   declared with what each needs); the registry ([`set_indicators`], [`orbit_indicators`],
+//!   below the modules) holds GALI, SALI, the exponents, [`fli`] (FLI, OFLI), [`megno`] (MEGNO and
 //!   its mean), [`dvd`] (the deviation vector distribution over a lattice's sites: its second
 //!   moment and participation number), [`energy`] (the energy distribution over the sites,
 //!   the same two numbers; both from [`distribution`]), [`zero_one`] (the 0-1 test for chaos).
@@ -41,8 +42,7 @@ pub mod zero_one;
 /// its line here.
 pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
     vec![
-        Box::new(alignment::Gali::default()),
-        Box::new(alignment::Sali::default()),
+        Box::new(alignment::Alignment::default()),
         Box::new(stretch::Exponents::default()),
         Box::new(fli::Fli::default()),
         Box::new(megno::Megno::default()),

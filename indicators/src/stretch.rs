@@ -1,6 +1,6 @@
 //! Accumulated logarithmic stretching of deviation vectors: finite-time Lyapunov exponents.
 
-use crate::indicator::{Carried, Declared, Needs, Output, SetIndicator, SetObservation};
+use crate::indicator::{Declared, Needs, Output, SetIndicator, SetObservation};
 
 /// Largest finite-time exponent reported (in magnitude): rates beyond are reported as this.
 pub const MAX_RATE: f64 = 1e300;
@@ -84,21 +84,8 @@ impl Exponents {
 impl SetIndicator for Exponents {
     fn declared(&self) -> &'static [Declared] {
         const DECLARED: &[Declared] = &[
-            Declared {
-                carried: Carried::OwnFields,
-                ..Declared::named("mle", Needs::STRETCH)
-            },
-            Declared {
-                carried: Carried::OwnFields,
-                per_vector: true,
-                ..Declared::named(
-                    "spectrum",
-                    Needs {
-                        qr: true,
-                        ..Needs::STRETCH
-                    },
-                )
-            },
+            Declared::own("mle", Needs::STRETCH),
+            Declared::own("spectrum", Needs::QR).with_per_vector(),
         ];
         DECLARED
     }

@@ -20,14 +20,12 @@
 use super::indicator::{PointAccumulator, broke_off};
 use super::point::PointResult;
 use super::spec::MapSpec;
-use super::window::{
-    Window, Windows, advance_group, check_escape, lane_array, push_reference_lane,
-};
+use super::window::{advance_group, end_reference, lane_array, push_reference_lane};
 use crate::batch::{Isa, PointKernel, Soa};
-use crate::engine::RunError;
 use crate::method::{self, DeviationMethod};
 use crate::propagator::{Propagator, SetImage};
 use crate::spec::RunSpec;
+use crate::window::{self, RunError, Window, Windows};
 
 /// The sets of one point as the propagator gives them.
 struct Sets {
@@ -100,18 +98,13 @@ fn stretch_since(stretch: &mut [f64], now: &[f64], before: &mut [f64]) {
     }
 }
 
+/// A failed renormalization of a point's basis, shared by every set: reported as set 0.
 fn basis_error(
     run: &RunSpec,
     w: &Window,
     source: crate::renormalization::RenormalizationError,
 ) -> RunError {
-    RunError::Renormalization {
-        scheme: run.schemes()[0].name.clone(),
-        // The propagator's basis is shared by every set: reported as set 0.
-        set: 0,
-        t: w.t,
-        source,
-    }
+    window::renormalization_error(run, 0, 0, w.t, source)
 }
 
 /// A point being computed.
@@ -124,6 +117,8 @@ struct Live {
     /// by the kernel otherwise.
     x: Vec<f64>,
     ref_lane: Option<usize>,
+    /// Its reference state at the end of the last window.
+    start: Vec<f64>,
     /// The lane of its first basis vector; the `D` lanes are consecutive.
     first: usize,
     orbit_steps: u64,
@@ -216,6 +211,7 @@ fn start(
         sets: Sets::new(run),
         prop,
         base,
+        start: x0.clone(),
         x: x0,
         ref_lane,
         first,
@@ -257,20 +253,22 @@ fn window(
     let mut out = Vec::new();
     let before = g.points.len();
     let mut keep = Vec::with_capacity(before);
-    let (mut lane, mut d) = (vec![0.0; dim], vec![0.0; dim]);
-    let mut deviations = vec![0.0; dim * dim];
+    let mut lane = vec![0.0; dim];
+    let (mut deviations, mut scaled) = (vec![0.0; dim * dim], vec![0.0; dim * dim]);
     for mut p in g.points.drain(..) {
-        if let Some(r) = p.ref_lane {
-            g.soa.read_lane(r, &mut p.x);
-        }
-        if let Err(e) = check_escape(&p.x, w.t) {
+        if let Err(e) = end_reference(run, &g.soa, p.ref_lane, &mut p.start, &mut p.x, w) {
             out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
             continue;
         }
-        for (j, dev) in deviations.chunks_exact_mut(dim).enumerate() {
-            g.soa.read_lane(p.first + j, &mut lane);
-            method.deviation(kernel, &lane, &p.x, dev);
-        }
+        window::deviations(
+            method,
+            kernel,
+            &g.soa,
+            p.first,
+            &p.x,
+            &mut deviations,
+            &mut lane,
+        );
         if let Err(e) = p.prop.renormalize(&deviations, norm) {
             out.push(broke_off(
                 p.base,
@@ -280,13 +278,10 @@ fn window(
             ));
             continue;
         }
-        for (j, q) in p.prop.basis().chunks_exact(dim).enumerate() {
-            for (dj, qj) in d.iter_mut().zip(q) {
-                *dj = norm * qj;
-            }
-            method.start(&p.x, &d, &mut lane);
-            g.soa.write_lane(p.first + j, &lane);
+        for (dj, qj) in scaled.iter_mut().zip(p.prop.basis()) {
+            *dj = norm * qj;
         }
+        window::restart(method, &mut g.soa, p.first, &p.x, &scaled, &mut lane);
         p.sets.observe(run, &p.prop, &mut p.acc, w);
         if p.acc.is_done() {
             out.push(p.acc.finish(p.base, p.orbit_steps));
@@ -332,6 +327,8 @@ struct LiveVm {
     prop: Propagator,
     sets: Sets,
     lane: usize,
+    /// Its reference state at the end of the last window.
+    start: Vec<f64>,
     orbit_steps: u64,
 }
 
@@ -360,6 +357,7 @@ fn fused_with(
                     prop,
                     sets: Sets::new(run),
                     lane: columns.len(),
+                    start: x0[..dim].to_vec(),
                     orbit_steps: 0,
                 });
                 columns.push(column);
@@ -391,10 +389,11 @@ fn fused_with(
             p.orbit_steps += w.steps * (1 + dim as u64);
             soa.read_lane(p.lane, &mut column);
             let (x, evolved) = column.split_at_mut(dim);
-            if let Err(e) = check_escape(x, w.t) {
+            if let Err(e) = window::check_reference(run, &p.start, x, &w, None) {
                 out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
                 continue;
             }
+            p.start.copy_from_slice(x);
             if let Err(e) = p.prop.renormalize(evolved, 1.0) {
                 out.push(broke_off(
                     p.base,

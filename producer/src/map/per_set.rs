@@ -12,11 +12,11 @@ use super::indicator::{PointAccumulator, broke_off};
 use super::point::PointResult;
 use super::spec::MapSpec;
 use super::window::{
-    SetRenormalization, Window, Windows, advance_group, check_escape, lane_array,
-    push_reference_lane, retain_sets,
+    SetRenormalization, advance_group, end_reference, lane_array, push_reference_lane, retain_sets,
 };
 use crate::batch::{Isa, PointKernel, Soa};
 use crate::method::{self, DeviationMethod};
+use crate::window::{self, Window, Windows};
 
 /// A point being computed.
 struct Live {
@@ -26,6 +26,8 @@ struct Live {
     /// by the kernel otherwise.
     x: Vec<f64>,
     ref_lane: Option<usize>,
+    /// Its reference state at the end of the last window.
+    start: Vec<f64>,
     /// Active sets: (set index, lane of its first vector; the `k` lanes are consecutive).
     sets: Vec<(usize, usize)>,
     orbit_steps: u64,
@@ -128,6 +130,7 @@ fn start(
     Live {
         acc: spec.accumulator(),
         base,
+        start: x0.clone(),
         x: x0,
         ref_lane,
         sets,
@@ -172,10 +175,7 @@ fn window(
     let mut keep = Vec::with_capacity(g.points.len());
     let mut lane = vec![0.0; dim];
     for mut p in g.points.drain(..) {
-        if let Some(r) = p.ref_lane {
-            g.soa.read_lane(r, &mut p.x);
-        }
-        if let Err(e) = check_escape(&p.x, w.t) {
+        if let Err(e) = end_reference(run, &g.soa, p.ref_lane, &mut p.start, &mut p.x, w) {
             out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
             changed = true;
             continue;
@@ -185,17 +185,11 @@ fn window(
         let soa = &mut g.soa;
         let stepped = retain_sets(&mut p.sets, |set, first| {
             let separations = &mut renormalization.separations;
-            for i in 0..k {
-                soa.read_lane(first + i, &mut lane);
-                method.deviation(kernel, &lane, x, &mut separations[i * dim..(i + 1) * dim]);
-            }
+            window::deviations(method, kernel, soa, first, x, separations, &mut lane);
             let goes_on = renormalization.apply(&mut p.acc, set, w)?;
             if goes_on {
-                for i in 0..k {
-                    let d = &renormalization.separations[i * dim..(i + 1) * dim];
-                    method.start(x, d, &mut lane);
-                    soa.write_lane(first + i, &lane);
-                }
+                let separations = &renormalization.separations;
+                window::restart(method, soa, first, x, separations, &mut lane);
             }
             Ok(goes_on)
         });

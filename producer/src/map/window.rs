@@ -1,34 +1,31 @@
-//! Renormalization windows of a map point, exactly as the engine schedules them, and what the
-//! routes do at the end of a window: the escape test of the reference orbit (both) and each
-//! set's renormalization (the per-set route).
+//! What both routes of a map do with a group of points around the windows of
+//! [`crate::window`]: their lanes as one lane array, a group's steps, the end of a window for a
+//! point's reference (the escape test of runs) and for each set (the per-set route's
+//! renormalization).
 
 use super::indicator::PointAccumulator;
 use crate::batch::{PointKernel, Soa};
-use crate::engine::RunError;
 use crate::method::DeviationMethod;
-
-use crate::renormalization;
 use crate::spec::RunSpec;
+use crate::window::{self, RunError, Window};
 
-/// Beyond this norm a state counts as escaped (the engine's criterion).
-const ESCAPE_NORM: f64 = 1e100;
-
-fn norm(v: &[f64]) -> f64 {
-    v.iter().map(|v| v * v).sum::<f64>().sqrt()
-}
-
-/// The engine's escape test of the reference state `x` at time `t`.
-pub fn check_escape(x: &[f64], t: f64) -> Result<(), RunError> {
-    let norm = norm(x);
-    if norm.is_nan() || norm >= ESCAPE_NORM {
-        Err(RunError::Escaped {
-            t,
-            norm,
-            cause: None,
-        })
-    } else {
-        Ok(())
+/// A point's reference at the end of window `w`: its state `x` (read from lane `ref_lane` of
+/// `soa` when it is an orbit lane, stepped in place otherwise) passes the escape test of runs
+/// from `start`, its state at the end of the previous window, which becomes `x`.
+pub fn end_reference(
+    run: &RunSpec,
+    soa: &Soa,
+    ref_lane: Option<usize>,
+    start: &mut [f64],
+    x: &mut [f64],
+    w: &Window,
+) -> Result<(), RunError> {
+    if let Some(r) = ref_lane {
+        soa.read_lane(r, x);
     }
+    window::check_reference(run, start, x, w, None)?;
+    start.copy_from_slice(x);
+    Ok(())
 }
 
 /// The lanes of one group of points as one lane array (`lanes` is emptied, each of `rows`
@@ -76,50 +73,6 @@ pub fn advance_group(
         .map_err(RunError::from)
 }
 
-/// One window: advance `steps` steps from step number `from` (every point starts at step 0,
-/// `t = 0`), then renormalize at time `t`.
-#[derive(Debug, Clone, Copy)]
-pub struct Window {
-    pub from: u64,
-    pub steps: u64,
-    pub t: f64,
-    /// The run's final step.
-    pub last: bool,
-}
-
-/// Windows of `tau_steps` steps, the last one cut at `total_steps` (Engine::next_stop with one
-/// scheme).
-pub struct Windows<'a> {
-    run: &'a RunSpec,
-    step: u64,
-}
-
-impl<'a> Windows<'a> {
-    pub fn new(run: &'a RunSpec) -> Self {
-        Self { run, step: 0 }
-    }
-}
-
-impl Iterator for Windows<'_> {
-    type Item = Window;
-    fn next(&mut self) -> Option<Window> {
-        let total = self.run.total_steps();
-        if self.step >= total {
-            return None;
-        }
-        let tau = self.run.schemes()[0].tau_steps;
-        let target = ((self.step / tau + 1) * tau).min(total);
-        let w = Window {
-            from: self.step,
-            steps: target - self.step,
-            t: self.run.time_of(target),
-            last: target == total,
-        };
-        self.step = target;
-        Some(w)
-    }
-}
-
 /// The renormalization of one deviation set at the end of a window, with its scratch space.
 pub struct SetRenormalization<'a> {
     run: &'a RunSpec,
@@ -151,21 +104,15 @@ impl<'a> SetRenormalization<'a> {
         set: usize,
         w: &Window,
     ) -> Result<bool, RunError> {
-        let scheme = &self.run.schemes()[0];
         self.raw.copy_from_slice(&self.separations);
-        renormalization::renormalize(
+        window::renormalize(
+            self.run,
+            0,
+            set,
             &mut self.separations,
-            self.run.dim(),
-            scheme.d0,
-            scheme.orthonormalize,
             &mut self.stretch,
-        )
-        .map_err(|source| RunError::Renormalization {
-            scheme: scheme.name.clone(),
-            set: set as u32,
-            t: w.t,
-            source,
-        })?;
+            w.t,
+        )?;
         Ok(!acc.observe(set, w.t, &self.raw, &self.stretch, w.last))
     }
 }

@@ -4,10 +4,12 @@
 //! renormalization).
 
 use super::indicator::PointAccumulator;
+use super::point::PointResult;
+use super::spec::MapSpec;
 use crate::batch::{PointKernel, Soa};
 use crate::method::DeviationMethod;
 use crate::spec::RunSpec;
-use crate::window::{self, RunError, Window};
+use crate::window::{self, RunError, Window, Windows};
 
 /// A point's reference at the end of window `w`: its state `x` (read from lane `ref_lane` of
 /// `soa` when it is an orbit lane, stepped in place otherwise) passes the escape test of runs
@@ -28,13 +30,75 @@ pub fn end_reference(
     Ok(())
 }
 
-/// The lanes of one group of points as one lane array (`lanes` is emptied, each of `rows`
-/// entries: a state, parameters included, or a deviation vector): both routes batch the lanes
-/// of several points so that one kernel call steps them all.
-pub fn lane_array(lanes: &mut Vec<Vec<f64>>, rows: usize) -> Soa {
-    let mut soa = Soa::new(rows, lanes.len());
-    for (l, x) in lanes.drain(..).enumerate() {
-        soa.write_lane(l, &x);
+/// Points advanced by one kernel call, `P` a route's point: their lanes.
+pub struct Group<P> {
+    pub soa: Soa,
+    pub points: Vec<P>,
+}
+
+/// Drives the points `indices` of a route through the run's windows, as a run's driver does:
+/// each point's lanes (of `rows` entries: a state, parameters included, or a deviation vector)
+/// appended by `start`, the points in one lane array when `shared` (one kernel call steps them
+/// all) or one each, every group handed each window to `window`, which returns the points that
+/// finished or failed there (points outside the energy surface are finished from the start).
+/// Results in no particular order; once `stop()` (asked at every window) is true, the points
+/// finished so far.
+pub fn drive<P>(
+    spec: &MapSpec,
+    indices: &[u64],
+    (rows, shared): (usize, bool),
+    stop: &dyn Fn() -> bool,
+    mut start: impl FnMut(PointResult, Vec<f64>, &mut Vec<Vec<f64>>) -> P,
+    mut window: impl FnMut(&mut Group<P>, &Window) -> Vec<PointResult>,
+) -> Vec<PointResult> {
+    let mut out = Vec::with_capacity(indices.len());
+    let mut groups = Vec::new();
+    let (mut lanes, mut points) = (Vec::new(), Vec::new());
+    let group = |lanes: &mut Vec<Vec<f64>>, points| {
+        let mut soa = Soa::new(rows, lanes.len());
+        for (l, x) in lanes.drain(..).enumerate() {
+            soa.write_lane(l, &x);
+        }
+        Group { soa, points }
+    };
+    for &index in indices {
+        match spec.start_point(index) {
+            Err(outside) => out.push(*outside),
+            Ok((base, x0)) => {
+                if !shared && !points.is_empty() {
+                    groups.push(group(&mut lanes, std::mem::take(&mut points)));
+                }
+                points.push(start(base, x0, &mut lanes));
+            }
+        }
+    }
+    if !points.is_empty() {
+        groups.push(group(&mut lanes, points));
+    }
+    let mut windows = Windows::new(&spec.run);
+    while !groups.is_empty() && !stop() {
+        let Some(w) = windows.next() else { break };
+        for g in &mut groups {
+            out.extend(window(g, &w));
+        }
+        groups.retain(|g| !g.points.is_empty());
+    }
+    out
+}
+
+/// A new lane array holding only the runs of lanes `(first, len)` given (those of the points
+/// still live), in order; each `first` becomes where its run starts now.
+pub fn compact(old: &Soa, runs: Vec<(&mut usize, usize)>) -> Soa {
+    let mut soa = Soa::new(old.rows(), runs.iter().map(|(_, n)| n).sum());
+    let mut buf = vec![0.0; old.rows()];
+    let mut next = 0;
+    for (first, n) in runs {
+        for j in 0..n {
+            old.read_lane(*first + j, &mut buf);
+            soa.write_lane(next + j, &buf);
+        }
+        *first = next;
+        next += n;
     }
     soa
 }

@@ -599,13 +599,15 @@ fn tasks(
         }
         let stepping = stepping.for_lanes(spec.k());
         for set in 0..spec.sets() {
-            let scaled = vectors(si, set);
             let mut lanes = stepping.lanes(dim, spec.k());
-            let mut lane = vec![0.0; dim];
-            for (i, d) in scaled.chunks_exact(dim).enumerate() {
-                method.start(x, d, &mut lane);
-                lanes.write_lane(i, &lane);
-            }
+            window::restart(
+                method,
+                &mut lanes,
+                0,
+                x,
+                &vectors(si, set),
+                &mut vec![0.0; dim],
+            );
             tasks.push(task(set, lanes, None, stepping));
         }
     }
@@ -639,13 +641,9 @@ fn carrier(tasks: &[DeviationSet], divergence: bool) -> Option<usize> {
 fn identity_lanes(method: &dyn DeviationMethod, x: &[f64], stepping: Stepping) -> Soa {
     let dim = x.len();
     let mut lanes = stepping.lanes(dim, dim);
-    let (mut e, mut lane) = (vec![0.0; dim], vec![0.0; dim]);
-    for j in 0..dim {
-        e.fill(0.0);
-        e[j] = 1.0;
-        method.start(x, &e, &mut lane);
-        lanes.write_lane(j, &lane);
-    }
+    let mut identity = vec![0.0; dim * dim];
+    identity.iter_mut().step_by(dim + 1).for_each(|e| *e = 1.0);
+    window::restart(method, &mut lanes, 0, x, &identity, &mut vec![0.0; dim]);
     lanes
 }
 

@@ -89,8 +89,7 @@ fn start(
     for (s, dirs) in run.directions().iter().enumerate() {
         sets.push((s, lanes.len()));
         // As Engine::new: d = d0 * u, the lane from it.
-        let scaled: Vec<f64> = dirs.vectors.iter().map(|u| d0 * u).collect();
-        for d in scaled.chunks_exact(run.dim()) {
+        for d in dirs.scaled(d0).chunks_exact(run.dim()) {
             let mut lane = vec![0.0; spec.lane_len(method.lanes_are_orbits())];
             method.start(&x0, d, &mut lane);
             lanes.push(lane);

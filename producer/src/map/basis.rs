@@ -297,7 +297,8 @@ fn fused_with(
     let dim = run.dim();
     let start = |base, x0: Vec<f64>, lanes: &mut Vec<Vec<f64>>| {
         let prop = Propagator::new(dim);
-        let mut column = x0.clone();
+        let start = x0[..dim].to_vec();
+        let mut column = x0;
         column.extend_from_slice(prop.basis());
         lanes.push(column);
         LiveVm {
@@ -306,7 +307,7 @@ fn fused_with(
             prop,
             sets: Sets::new(run),
             lane: lanes.len() - 1,
-            start: x0,
+            start,
             orbit_steps: 0,
         }
     };

@@ -1,7 +1,8 @@
-//! What both routes of a map do with a group of points around the windows of
-//! [`crate::window`]: their lanes as one lane array, a group's steps, the end of a window for a
-//! point's reference (the escape test of runs) and for each set (the per-set route's
-//! renormalization).
+//! What every route of a map does with its points around the windows of [`crate::window`]:
+//! the one driver of a route's points through the windows ([`drive`], the points' lanes in lane
+//! arrays), a group's steps, the end of a window for a point's reference (the escape test of
+//! runs) and for each set (the per-set route's renormalization), and the lane arrays compacted
+//! when points leave.
 
 use super::indicator::PointAccumulator;
 use super::point::PointResult;

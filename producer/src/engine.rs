@@ -24,12 +24,14 @@ use rayon::prelude::*;
 use crate::batch::{PointKernel, Soa};
 use crate::integrator::{TangentError, Workspace};
 use crate::method::{self, DeviationMethod};
-use crate::renormalization::{self, RenormalizationError};
 use crate::system::DynamicalSystem;
+use crate::window::{self, Window};
 use chaoscope_schemas::run::{Route, Sample, SchemeSample};
 
 use crate::spec::RunSpec;
 use stepping::{BatchedAlong, Stepping};
+
+pub use crate::window::RunError;
 
 /// Below this many state values stepped in a window (steps x dimension x orbits, over every
 /// task), the tasks of the window run one after another on the calling thread: waking rayon's
@@ -38,44 +40,10 @@ use stepping::{BatchedAlong, Stepping};
 /// a recorder needs. The bits are the same either way: each task is serial on its own data.
 const PARALLEL_MIN_WORK: u64 = 1024;
 
-/// A run that could not go on.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-pub enum RunError {
-    // Begins with `REFERENCE_ESCAPED`, which the verdict reads back from the end-of-run reason.
-    #[error("{} by t = {t} (|x| = {norm:e}){}", chaoscope_schemas::run::REFERENCE_ESCAPED,
-        cause.as_ref().map(|c| format!(": {c}")).unwrap_or_default())]
-    Escaped {
-        t: f64,
-        norm: f64,
-        /// The operation that produced a non-finite value, where the system knows it.
-        cause: Option<String>,
-    },
-    // Begins with `INTEGRATOR_FAILED`, which the verdict reads back (`failed`, not `escaped`).
-    #[error("{} by t = {t}: {cause}", chaoscope_schemas::run::INTEGRATOR_FAILED)]
-    IntegratorFailed {
-        /// The time the failed step was to reach.
-        t: f64,
-        /// The integrator's own reason.
-        cause: String,
-    },
-    #[error("scheme '{scheme}', set {set}, t = {t}: {source}")]
-    Renormalization {
-        scheme: String,
-        set: u32,
-        t: f64,
-        source: RenormalizationError,
-    },
-    #[error(transparent)]
-    Tangent(#[from] TangentError),
-}
-
 /// Why a recorded run cannot be resumed from a sample ([`Engine::resume`]).
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 #[error("{0}")]
 pub struct ResumeError(pub String);
-
-/// Beyond this norm a state is treated as escaped: polynomial forces overflow soon after.
-const ESCAPE_NORM: f64 = 1e100;
 
 /// One scheme's evolution of one set of deviation vectors, or of every set of a scheme on the
 /// window-propagator route.
@@ -244,8 +212,15 @@ impl Engine {
                 )));
             }
             let mut vectors = s.separations.clone();
-            renormalized_in_place(&spec, scheme, set, &mut vectors, t)
-                .map_err(|e| ResumeError(e.to_string()))?;
+            window::renormalize(
+                &spec,
+                scheme,
+                set,
+                &mut vectors,
+                &mut vec![0.0; spec.k()],
+                t,
+            )
+            .map_err(|e| ResumeError(e.to_string()))?;
             renormalized.push(vectors);
         }
         let divergence = spec
@@ -301,22 +276,6 @@ impl Engine {
     /// The reference state now.
     pub fn state(&self) -> &[f64] {
         &self.reference
-    }
-
-    /// The step of the next renormalization of any scheme (the run's last step at the latest).
-    fn next_stop(&self) -> u64 {
-        self.spec
-            .schemes()
-            .iter()
-            .map(|s| (self.step / s.tau_steps + 1) * s.tau_steps)
-            .min()
-            .unwrap_or(self.spec.total_steps())
-            .min(self.spec.total_steps())
-    }
-
-    fn renormalizes_at(&self, scheme: usize, step: u64) -> bool {
-        step.is_multiple_of(self.spec.schemes()[scheme].tau_steps)
-            || step == self.spec.total_steps()
     }
 
     /// Advance to the next sample time (the next renormalization of any scheme, or with
@@ -378,11 +337,10 @@ impl Engine {
     /// Advances to the next renormalization of any scheme; returns the sets renormalized
     /// there, `Ok(None)` once the run is complete.
     fn next_window(&mut self) -> Result<Option<Vec<SchemeSample>>, RunError> {
-        if self.step >= self.spec.total_steps() {
+        let Some(w) = Window::after(&self.spec, self.step) else {
             return Ok(None);
-        }
-        let target = self.next_stop();
-        let n_steps = target - self.step;
+        };
+        let (target, t) = (w.end(), w.t);
         let spec = &self.spec;
         let system = spec.system().as_ref();
         // The window's start: where tangent lanes take the reference from.
@@ -400,7 +358,6 @@ impl Engine {
                 bounds: &self.plan_bounds,
                 from: self.step,
             };
-            let t = spec.time_of(target);
             let carrier = &mut self.tasks[c];
             carrier.advance(spec, &last_good, &last_good, &plan, false, t, false)?;
             self.reference.copy_from_slice(&carrier.orbit);
@@ -424,25 +381,14 @@ impl Engine {
                 }
             }
         }
-        let norm = self.reference.iter().map(|v| v * v).sum::<f64>().sqrt();
-        // A NaN norm counts as escaped too, and so does a state whose energy or divergence is
-        // not finite (a potential or vector field undefined there: no NaN may reach an output).
-        let invariant_finite = system
-            .invariant(&self.reference)
-            .is_none_or(|e| e.is_finite())
-            && self
-                .divergence
-                .is_none_or(|(d, integral)| d.is_finite() && integral.is_finite());
-        if norm.is_nan() || norm >= ESCAPE_NORM || !invariant_finite {
+        if let Err(e) =
+            window::check_reference(spec, &last_good, &self.reference, &w, self.divergence)
+        {
             self.divergence = divergence_before;
-            return Err(self.escaped(last_good, target, norm));
+            return Err(e);
         }
-        let t = spec.time_of(target);
-
         let reference = &self.reference;
-        let renorm: Vec<bool> = (0..spec.schemes().len())
-            .map(|s| self.renormalizes_at(s, target))
-            .collect();
+        let renorm: Vec<bool> = spec.schemes().iter().map(|s| w.renormalizes(s)).collect();
         let plan = Plan {
             substeps: &self.plan,
             bounds: &self.plan_bounds,
@@ -463,7 +409,8 @@ impl Engine {
             )
         };
         // Work of this window: state values stepped, over every task's orbits.
-        let work = n_steps
+        let work = w
+            .steps
             .saturating_mul((spec.k() as u64 + 1) * spec.dim() as u64)
             .saturating_mul(self.tasks.len() as u64);
         let results: Vec<Result<Vec<SchemeSample>, RunError>> = if work < self.parallel_min_work {
@@ -508,72 +455,6 @@ impl Engine {
             mean_divergence: self.mean_divergence(0),
             divergence_sum: self.divergence_sum(),
             schemes,
-        }
-    }
-
-    /// The error for an orbit found non-finite or escaped by step `target` (the end of the
-    /// window, which is what the batched map kernel, testing once per window, reports too):
-    /// steps again from the last finite state to the first step that leaves it, and names that
-    /// step's time or iteration and, where the system knows it, the operation that failed.
-    fn escaped(&self, last_good: Vec<f64>, target: u64, norm: f64) -> RunError {
-        let system = self.spec.system().as_ref();
-        let mut x = last_good;
-        let mut work = Workspace::new();
-        let mut cause = None;
-        let mut step = self.step;
-        let mut plan = Vec::new();
-        while step < target {
-            let before = x.clone();
-            let t_before = self.spec.time_of(step);
-            plan.clear();
-            system.step_reference(&mut x, t_before, &mut plan, &mut work);
-            step += 1;
-            let t_after = self.spec.time_of(step);
-            let at = format!("in the step to t = {}", self.spec.time_of(step));
-            if x.iter().any(|v| !v.is_finite()) {
-                let why = system.diagnose_non_finite(&before, t_before);
-                // From a finite state within the bound, a step the integrator could not take
-                // is its failure, not the orbit's escape.
-                if let Some(why) = &why
-                    && (why.contains(chaoscope_schemas::run::IMPLICIT_NOT_CONVERGED)
-                        || why.starts_with(chaoscope_schemas::run::ADAPTIVE_STEP_FAILED))
-                {
-                    return RunError::IntegratorFailed {
-                        t: t_after,
-                        cause: format!("{why} {at}"),
-                    };
-                }
-                cause = Some(
-                    why.map_or(format!("the state became non-finite {at}"), |c| {
-                        format!("{c} {at}")
-                    }),
-                );
-                break;
-            }
-            if system.invariant(&x).is_some_and(|e| !e.is_finite())
-                || system
-                    .divergence(&x, t_after)
-                    .is_some_and(|d| !d.is_finite())
-            {
-                cause = Some(
-                    system
-                        .diagnose_non_finite(&x, t_after)
-                        .map_or(format!("the system is not defined {at}"), |c| {
-                            format!("{c} {at}")
-                        }),
-                );
-                break;
-            }
-            let n = x.iter().map(|v| v * v).sum::<f64>().sqrt();
-            if n >= ESCAPE_NORM {
-                cause = Some(format!("|x| passed {ESCAPE_NORM:e} {at}"));
-                break;
-            }
-        }
-        RunError::Escaped {
-            t: self.spec.time_of(target),
-            norm,
-            cause,
         }
     }
 
@@ -718,13 +599,15 @@ fn tasks(
         }
         let stepping = stepping.for_lanes(spec.k());
         for set in 0..spec.sets() {
-            let scaled = vectors(si, set);
             let mut lanes = stepping.lanes(dim, spec.k());
-            let mut lane = vec![0.0; dim];
-            for (i, d) in scaled.chunks_exact(dim).enumerate() {
-                method.start(x, d, &mut lane);
-                lanes.write_lane(i, &lane);
-            }
+            window::restart(
+                method,
+                &mut lanes,
+                0,
+                x,
+                &vectors(si, set),
+                &mut vec![0.0; dim],
+            );
             tasks.push(task(set, lanes, None, stepping));
         }
     }
@@ -758,13 +641,9 @@ fn carrier(tasks: &[DeviationSet], divergence: bool) -> Option<usize> {
 fn identity_lanes(method: &dyn DeviationMethod, x: &[f64], stepping: Stepping) -> Soa {
     let dim = x.len();
     let mut lanes = stepping.lanes(dim, dim);
-    let (mut e, mut lane) = (vec![0.0; dim], vec![0.0; dim]);
-    for j in 0..dim {
-        e.fill(0.0);
-        e[j] = 1.0;
-        method.start(x, &e, &mut lane);
-        lanes.write_lane(j, &lane);
-    }
+    let mut identity = vec![0.0; dim * dim];
+    identity.iter_mut().step_by(dim + 1).for_each(|e| *e = 1.0);
+    window::restart(method, &mut lanes, 0, x, &identity, &mut vec![0.0; dim]);
     lanes
 }
 
@@ -819,15 +698,17 @@ impl DeviationSet {
             // Per set: the lanes' deviations, renormalized; the lanes restart from them.
             let mut separations = vec![0.0; spec.k() * dim];
             let mut lane = vec![0.0; dim];
-            for (i, d) in separations.chunks_exact_mut(dim).enumerate() {
-                lanes.read_lane(i, &mut lane);
-                method.deviation(kernel, &lane, reference, d);
-            }
+            window::deviations(
+                method,
+                kernel,
+                lanes,
+                0,
+                reference,
+                &mut separations,
+                &mut lane,
+            );
             let sample = renormalized(spec, self.scheme, self.set, &mut separations, t)?;
-            for (i, d) in separations.chunks_exact(dim).enumerate() {
-                method.start(reference, d, &mut lane);
-                lanes.write_lane(i, &lane);
-            }
+            window::restart(method, lanes, 0, reference, &separations, &mut lane);
             return Ok(vec![sample]);
         };
         // Window propagator: M, column by column, applied to every set's vectors.
@@ -864,7 +745,8 @@ fn renormalized(
     t: f64,
 ) -> Result<SchemeSample, RunError> {
     let separations = vectors.to_vec();
-    let stretch = renormalized_in_place(spec, scheme, set, vectors, t)?;
+    let mut stretch = vec![0.0; spec.k()];
+    window::renormalize(spec, scheme, set, vectors, &mut stretch, t)?;
     Ok(SchemeSample {
         scheme: scheme as u32,
         set: set as u32,
@@ -872,27 +754,6 @@ fn renormalized(
         stretch,
         earlier_stretch: Vec::new(),
     })
-}
-
-/// Renormalizes set `set` of scheme `scheme` in place and returns the stretching factors: the
-/// one renormalization of a run, and of a resumed run's recorded separations.
-fn renormalized_in_place(
-    spec: &RunSpec,
-    scheme: usize,
-    set: usize,
-    vectors: &mut [f64],
-    t: f64,
-) -> Result<Vec<f64>, RunError> {
-    let s = &spec.schemes()[scheme];
-    let mut stretch = vec![0.0; spec.k()];
-    renormalization::renormalize(vectors, spec.dim(), s.d0, s.orthonormalize, &mut stretch)
-        .map_err(|source| RunError::Renormalization {
-            scheme: s.name.clone(),
-            set: set as u32,
-            t,
-            source,
-        })?;
-    Ok(stretch)
 }
 
 #[cfg(test)]

@@ -20,6 +20,7 @@ pub mod section;
 pub mod spec;
 pub mod system;
 pub mod vector_field;
+pub mod window;
 
 /// GALI, SALI and the finite-time exponents live in their own crate (the recorder computes them
 /// too, and must not depend on the producer); re-exported under their old path.

@@ -3,10 +3,12 @@
 //! chaotic sea.
 
 use chaoscope_producer::batch::Isa;
+use chaoscope_producer::engine::{Engine, RunError};
 use chaoscope_producer::map::{self, MapOptions, MapSpec, PointResult, PointStatus};
 use chaoscope_schemas::config::{
     DeviationsConfig, MapAxis, MapConfig, RunConfig, SchemeConfig, paper,
 };
+use chaoscope_schemas::run::escape_time;
 
 /// A map of the paper's Henon-Heiles section (k = 2, one scheme of `method`).
 fn hh_map(method: &str, map: MapConfig, t_final: f64, sets: usize) -> MapSpec {
@@ -218,6 +220,84 @@ fn escaping_orbits_are_marked_not_fatal() {
             r.same_numbers(&map::one_orbit::point(&spec, r.index)),
             "{r:?}"
         );
+    }
+}
+
+/// The stop of `spec`'s run from point `index`'s initial condition (the engine of `chaoscope
+/// run`, its deviation sets stepped by the batched form) and of a map of that one point.
+fn run_and_map_point_stop(spec: &MapSpec, index: u64) -> (RunError, PointResult) {
+    let (_, x0) = spec.start_point(index).unwrap();
+    let mut engine = Engine::new(spec.point_run(&x0));
+    let stop = loop {
+        match engine.next_sample() {
+            Ok(Some(_)) => continue,
+            Ok(None) => panic!("point {index} should escape"),
+            Err(e) => break e,
+        }
+    };
+    let mut point = Vec::new();
+    map::run_map(spec, &[index], &MapOptions::default(), |r| {
+        point.push(r);
+        true
+    })
+    .unwrap();
+    (stop, point.pop().unwrap())
+}
+
+/// An escaping orbit stops a run and a one-point map of the same initial condition alike: the
+/// same time (the end of the window the escape was found in), the same verdict (`escaped`, its
+/// time read back from the reason) and the same message, naming the step that left, on both map
+/// routes, with either method, for a Hamiltonian flow and a discrete map.
+#[test]
+fn an_escaping_orbit_stops_a_run_and_its_map_point_alike() {
+    let mut cases = Vec::new();
+    for (method, route) in [
+        ("mpm", "per-set"),
+        ("vm", "per-set"),
+        ("vm", "basis"),
+        ("mpm", "basis"),
+    ] {
+        let map = MapConfig {
+            route: Some(route.into()),
+            ..grid("gali")
+        };
+        let mut config = hh_map_config(method, map, 100.0, 2);
+        config.orbit.energy = Some(0.3);
+        cases.push((format!("HH {method} {route}"), config));
+    }
+    let mut specs: Vec<(String, MapSpec)> = cases
+        .iter()
+        .map(|(name, c)| (name.clone(), MapSpec::from_config(c).unwrap()))
+        .collect();
+    for method in ["vm", "mpm"] {
+        specs.push((
+            format!("Henon map {method}"),
+            discrete_map(method, "gali", 4, false),
+        ));
+    }
+    for (name, spec) in &specs {
+        let escaping: Vec<u64> = batched(spec, 1, Isa::detect())
+            .iter()
+            .filter(|r| r.status == PointStatus::Escaped)
+            .map(|r| r.index)
+            .collect();
+        assert!(!escaping.is_empty(), "{name}: no point escapes");
+        for &index in escaping.iter().take(2) {
+            let (stop, point) = run_and_map_point_stop(spec, index);
+            assert!(
+                matches!(stop, RunError::Escaped { cause: Some(_), .. }),
+                "{name}: {stop}"
+            );
+            // Exact: both drivers run one window test on the same bits of the same orbit.
+            assert_eq!(point.status, PointStatus::Escaped, "{name}");
+            assert_eq!(
+                point.t_end.to_bits(),
+                stop.t().to_bits(),
+                "{name}: {point:?}"
+            );
+            assert_eq!(point.reason, stop.to_string(), "{name}");
+            assert_eq!(escape_time(&point.reason), Some(point.t_end), "{name}");
+        }
     }
 }
 

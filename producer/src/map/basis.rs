@@ -20,14 +20,12 @@
 use super::indicator::{PointAccumulator, broke_off};
 use super::point::PointResult;
 use super::spec::MapSpec;
-use super::window::{
-    Window, Windows, advance_group, check_escape, lane_array, push_reference_lane,
-};
-use crate::batch::{Isa, PointKernel, Soa};
-use crate::engine::RunError;
+use super::window::{Group, advance_group, compact, drive, end_reference, push_reference_lane};
+use crate::batch::{Isa, PointKernel};
 use crate::method::{self, DeviationMethod};
 use crate::propagator::{Propagator, SetImage};
 use crate::spec::RunSpec;
+use crate::window::{self, RunError, Window};
 
 /// The sets of one point as the propagator gives them.
 struct Sets {
@@ -100,18 +98,13 @@ fn stretch_since(stretch: &mut [f64], now: &[f64], before: &mut [f64]) {
     }
 }
 
+/// A failed renormalization of a point's basis, shared by every set: reported as set 0.
 fn basis_error(
     run: &RunSpec,
     w: &Window,
     source: crate::renormalization::RenormalizationError,
 ) -> RunError {
-    RunError::Renormalization {
-        scheme: run.schemes()[0].name.clone(),
-        // The propagator's basis is shared by every set: reported as set 0.
-        set: 0,
-        t: w.t,
-        source,
-    }
+    window::renormalization_error(run, 0, 0, w.t, source)
 }
 
 /// A point being computed.
@@ -124,15 +117,11 @@ struct Live {
     /// by the kernel otherwise.
     x: Vec<f64>,
     ref_lane: Option<usize>,
+    /// Its reference state at the end of the last window.
+    start: Vec<f64>,
     /// The lane of its first basis vector; the `D` lanes are consecutive.
     first: usize,
     orbit_steps: u64,
-}
-
-/// Points advanced by one kernel call: their lanes (for tangent lanes, one point's).
-struct Group {
-    soa: Soa,
-    points: Vec<Live>,
 }
 
 /// The system's batched form (validation keeps the basis route to systems with one).
@@ -154,40 +143,16 @@ pub fn compute(
 ) -> Vec<PointResult> {
     let mut kernel = batched(spec, isa);
     let kernel = kernel.as_mut();
-    let run = &spec.run;
-    let method = method::of(run.schemes()[0].method);
+    let method = method::of(spec.run.schemes()[0].method);
     let orbits = method.lanes_are_orbits();
-    let rows = spec.lane_len(orbits);
-    let mut out = Vec::with_capacity(indices.len());
-    let mut groups: Vec<Group> = Vec::new();
-    let mut lanes: Vec<Vec<f64>> = Vec::new();
-    let mut points = Vec::new();
-    for &index in indices {
-        match spec.start_point(index) {
-            Err(outside) => out.push(*outside),
-            Ok((base, x0)) => {
-                if !orbits && !points.is_empty() {
-                    groups.push(group(&mut lanes, std::mem::take(&mut points), rows));
-                }
-                points.push(start(spec, method, base, x0, &mut lanes));
-            }
-        }
-    }
-    if !points.is_empty() {
-        groups.push(group(&mut lanes, points, rows));
-    }
-    let mut windows = Windows::new(run);
-    while groups.iter().any(|g| !g.points.is_empty()) {
-        if stop() {
-            break;
-        }
-        let Some(w) = windows.next() else { break };
-        for g in &mut groups {
-            out.extend(window(kernel, method, spec, g, &w));
-        }
-        groups.retain(|g| !g.points.is_empty());
-    }
-    out
+    drive(
+        spec,
+        indices,
+        (spec.lane_len(orbits), orbits),
+        stop,
+        |base, x0, lanes| start(spec, method, base, x0, lanes),
+        |g, w| window(kernel, method, spec, g, w),
+    )
 }
 
 /// A point's reference and its basis lanes `x + s q_j` (orbits) or `s q_j` (tangent vectors),
@@ -216,18 +181,11 @@ fn start(
         sets: Sets::new(run),
         prop,
         base,
+        start: x0.clone(),
         x: x0,
         ref_lane,
         first,
         orbit_steps: 0,
-    }
-}
-
-/// The points whose lanes are `lanes` (taken), as one lane array.
-fn group(lanes: &mut Vec<Vec<f64>>, points: Vec<Live>, dim: usize) -> Group {
-    Group {
-        soa: lane_array(lanes, dim),
-        points,
     }
 }
 
@@ -237,7 +195,7 @@ fn window(
     kernel: &mut dyn PointKernel,
     method: &dyn DeviationMethod,
     spec: &MapSpec,
-    g: &mut Group,
+    g: &mut Group<Live>,
     w: &Window,
 ) -> Vec<PointResult> {
     let run = &spec.run;
@@ -257,20 +215,22 @@ fn window(
     let mut out = Vec::new();
     let before = g.points.len();
     let mut keep = Vec::with_capacity(before);
-    let (mut lane, mut d) = (vec![0.0; dim], vec![0.0; dim]);
-    let mut deviations = vec![0.0; dim * dim];
+    let mut lane = vec![0.0; dim];
+    let (mut deviations, mut scaled) = (vec![0.0; dim * dim], vec![0.0; dim * dim]);
     for mut p in g.points.drain(..) {
-        if let Some(r) = p.ref_lane {
-            g.soa.read_lane(r, &mut p.x);
-        }
-        if let Err(e) = check_escape(&p.x, w.t) {
+        if let Err(e) = end_reference(run, &g.soa, p.ref_lane, &mut p.start, &mut p.x, w) {
             out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
             continue;
         }
-        for (j, dev) in deviations.chunks_exact_mut(dim).enumerate() {
-            g.soa.read_lane(p.first + j, &mut lane);
-            method.deviation(kernel, &lane, &p.x, dev);
-        }
+        window::deviations(
+            method,
+            kernel,
+            &g.soa,
+            p.first,
+            &p.x,
+            &mut deviations,
+            &mut lane,
+        );
         if let Err(e) = p.prop.renormalize(&deviations, norm) {
             out.push(broke_off(
                 p.base,
@@ -280,13 +240,10 @@ fn window(
             ));
             continue;
         }
-        for (j, q) in p.prop.basis().chunks_exact(dim).enumerate() {
-            for (dj, qj) in d.iter_mut().zip(q) {
-                *dj = norm * qj;
-            }
-            method.start(&p.x, &d, &mut lane);
-            g.soa.write_lane(p.first + j, &lane);
+        for (dj, qj) in scaled.iter_mut().zip(p.prop.basis()) {
+            *dj = norm * qj;
         }
+        window::restart(method, &mut g.soa, p.first, &p.x, &scaled, &mut lane);
         p.sets.observe(run, &p.prop, &mut p.acc, w);
         if p.acc.is_done() {
             out.push(p.acc.finish(p.base, p.orbit_steps));
@@ -295,18 +252,11 @@ fn window(
         keep.push(p);
     }
     if keep.len() != before && !keep.is_empty() {
-        let per_point = usize::from(keep[0].ref_lane.is_some()) + dim;
-        let mut firsts: Vec<usize> = keep.iter().map(|p| p.ref_lane.unwrap_or(p.first)).collect();
-        g.soa = compact(&g.soa, g.soa.rows(), per_point, firsts.iter_mut());
-        for (p, at) in keep.iter_mut().zip(firsts) {
-            match &mut p.ref_lane {
-                Some(r) => {
-                    *r = at;
-                    p.first = at + 1;
-                }
-                None => p.first = at,
-            }
-        }
+        let runs = keep.iter_mut().flat_map(|p| {
+            let basis = std::iter::once((&mut p.first, dim));
+            p.ref_lane.iter_mut().map(|r| (r, 1)).chain(basis)
+        });
+        g.soa = compact(&g.soa, runs.collect());
     }
     g.points = keep;
     out
@@ -332,6 +282,8 @@ struct LiveVm {
     prop: Propagator,
     sets: Sets,
     lane: usize,
+    /// Its reference state at the end of the last window.
+    start: Vec<f64>,
     orbit_steps: u64,
 }
 
@@ -343,70 +295,57 @@ fn fused_with(
 ) -> Vec<PointResult> {
     let run = &spec.run;
     let dim = run.dim();
-    let rows = dim * (1 + dim);
-    let mut out = Vec::with_capacity(indices.len());
-    let mut live = Vec::new();
-    let mut columns: Vec<Vec<f64>> = Vec::new();
-    for &index in indices {
-        match spec.start_point(index) {
-            Err(outside) => out.push(*outside),
-            Ok((base, x0)) => {
-                let prop = Propagator::new(dim);
-                let mut column = x0.clone();
-                column.extend_from_slice(prop.basis());
-                live.push(LiveVm {
-                    base,
-                    acc: spec.accumulator(),
-                    prop,
-                    sets: Sets::new(run),
-                    lane: columns.len(),
-                    orbit_steps: 0,
-                });
-                columns.push(column);
-            }
+    let start = |base, x0: Vec<f64>, lanes: &mut Vec<Vec<f64>>| {
+        let prop = Propagator::new(dim);
+        let start = x0[..dim].to_vec();
+        let mut column = x0;
+        column.extend_from_slice(prop.basis());
+        lanes.push(column);
+        LiveVm {
+            base,
+            acc: spec.accumulator(),
+            prop,
+            sets: Sets::new(run),
+            lane: lanes.len() - 1,
+            start,
+            orbit_steps: 0,
         }
-    }
-    let mut soa = Soa::new(rows, columns.len());
-    for (l, c) in columns.iter().enumerate() {
-        soa.write_lane(l, c);
-    }
-    let mut column = vec![0.0; rows];
-    let mut windows = Windows::new(run);
-    while !live.is_empty() {
-        if stop() {
-            break;
-        }
-        let Some(w) = windows.next() else { break };
-        if let Err(e) = kernel.orbit_tangent_steps(&mut soa, w.from, w.steps) {
+    };
+    let mut column = vec![0.0; dim * (1 + dim)];
+    let window = |g: &mut Group<LiveVm>, w: &Window| {
+        let mut out = Vec::new();
+        if let Err(e) = kernel.orbit_tangent_steps(&mut g.soa, w.from, w.steps) {
             let e = e.into();
             out.extend(
-                live.drain(..)
+                g.points
+                    .drain(..)
                     .map(|p| broke_off(p.base, w.t, &e, p.orbit_steps)),
             );
-            break;
+            return out;
         }
-        let before = live.len();
+        let before = g.points.len();
         let mut keep = Vec::with_capacity(before);
-        for mut p in live.drain(..) {
+        for mut p in g.points.drain(..) {
             p.orbit_steps += w.steps * (1 + dim as u64);
-            soa.read_lane(p.lane, &mut column);
+            g.soa.read_lane(p.lane, &mut column);
             let (x, evolved) = column.split_at_mut(dim);
-            if let Err(e) = check_escape(x, w.t) {
+            if let Err(e) = window::check_reference(run, &p.start, x, w, None) {
                 out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
                 continue;
             }
+            p.start.copy_from_slice(x);
             if let Err(e) = p.prop.renormalize(evolved, 1.0) {
                 out.push(broke_off(
                     p.base,
                     w.t,
-                    &basis_error(run, &w, e),
+                    &basis_error(run, w, e),
                     p.orbit_steps,
                 ));
                 continue;
             }
             evolved.copy_from_slice(p.prop.basis());
-            soa.write_lane(p.lane, &column);
-            p.sets.observe(run, &p.prop, &mut p.acc, &w);
+            g.soa.write_lane(p.lane, &column);
+            p.sets.observe(run, &p.prop, &mut p.acc, w);
             if p.acc.is_done() {
                 out.push(p.acc.finish(p.base, p.orbit_steps));
                 continue;
@@ -414,30 +353,11 @@ fn fused_with(
             keep.push(p);
         }
         if keep.len() != before {
-            soa = compact(&soa, rows, 1, keep.iter_mut().map(|p| &mut p.lane));
+            let runs = keep.iter_mut().map(|p| (&mut p.lane, 1)).collect();
+            g.soa = compact(&g.soa, runs);
         }
-        live = keep;
-    }
-    out
-}
-
-/// A new lane array (of `rows` rows) holding only the lanes of the points still live (finished
-/// ones leave the batch): `per_point` lanes from each point's first lane, which is updated.
-fn compact<'a>(
-    old: &Soa,
-    rows: usize,
-    per_point: usize,
-    first_lanes: impl ExactSizeIterator<Item = &'a mut usize>,
-) -> Soa {
-    let mut soa = Soa::new(rows, first_lanes.len() * per_point);
-    let mut buf = vec![0.0; rows];
-    for (i, lane) in first_lanes.enumerate() {
-        let to = i * per_point;
-        for j in 0..per_point {
-            old.read_lane(*lane + j, &mut buf);
-            soa.write_lane(to + j, &buf);
-        }
-        *lane = to;
-    }
-    soa
+        g.points = keep;
+        out
+    };
+    drive(spec, indices, (dim * (1 + dim), true), stop, start, window)
 }

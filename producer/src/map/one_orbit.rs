@@ -5,7 +5,7 @@
 use super::indicator::failed;
 use super::point::{PointResult, PointStatus};
 use super::spec::MapSpec;
-use crate::engine::{Engine, RunError};
+use crate::engine::Engine;
 
 pub fn point(spec: &MapSpec, index: u64) -> PointResult {
     let (base, x0) = match spec.start_point(index) {
@@ -36,13 +36,7 @@ pub fn point(spec: &MapSpec, index: u64) -> PointResult {
             }
             Ok(None) => break,
             Err(e) => {
-                let t = match &e {
-                    RunError::Escaped { t, .. }
-                    | RunError::IntegratorFailed { t, .. }
-                    | RunError::Renormalization { t, .. } => *t,
-                    RunError::Tangent(_) => 0.0,
-                };
-                return failed(base, PointStatus::Escaped, t, e.to_string());
+                return failed(base, PointStatus::Escaped, e.t(), e.to_string());
             }
         }
     }

@@ -12,11 +12,12 @@ use super::indicator::{PointAccumulator, broke_off};
 use super::point::PointResult;
 use super::spec::MapSpec;
 use super::window::{
-    SetRenormalization, Window, Windows, advance_group, check_escape, lane_array,
-    push_reference_lane, retain_sets,
+    Group, SetRenormalization, advance_group, compact, drive, end_reference, push_reference_lane,
+    retain_sets,
 };
-use crate::batch::{Isa, PointKernel, Soa};
+use crate::batch::{Isa, PointKernel};
 use crate::method::{self, DeviationMethod};
+use crate::window::{self, Window};
 
 /// A point being computed.
 struct Live {
@@ -26,15 +27,11 @@ struct Live {
     /// by the kernel otherwise.
     x: Vec<f64>,
     ref_lane: Option<usize>,
+    /// Its reference state at the end of the last window.
+    start: Vec<f64>,
     /// Active sets: (set index, lane of its first vector; the `k` lanes are consecutive).
     sets: Vec<(usize, usize)>,
     orbit_steps: u64,
-}
-
-/// Points advanced by one kernel call: their lanes.
-struct Group {
-    soa: Soa,
-    points: Vec<Live>,
 }
 
 /// Computes the points `indices` (several at once when the method's lanes are orbits); results
@@ -63,43 +60,17 @@ fn compute_with(
     indices: &[u64],
     stop: &dyn Fn() -> bool,
 ) -> Vec<PointResult> {
-    let run = &spec.run;
-    let method = method::of(run.schemes()[0].method);
+    let method = method::of(spec.run.schemes()[0].method);
     let orbits = method.lanes_are_orbits();
-    let rows = spec.lane_len(orbits);
-    let mut out = Vec::with_capacity(indices.len());
-    let mut groups: Vec<Group> = Vec::new();
-    let mut lanes: Vec<Vec<f64>> = Vec::new();
-    let mut points = Vec::new();
-    for &index in indices {
-        match spec.start_point(index) {
-            Err(outside) => out.push(*outside),
-            Ok((base, x0)) => {
-                if !orbits && !points.is_empty() {
-                    groups.push(group(&mut lanes, std::mem::take(&mut points), rows));
-                }
-                points.push(start(spec, method, base, x0, &mut lanes));
-            }
-        }
-    }
-    if !points.is_empty() {
-        groups.push(group(&mut lanes, points, rows));
-    }
-
-    let mut renormalization = SetRenormalization::new(run);
-    let mut windows = Windows::new(run);
-    while groups.iter().any(|g| !g.points.is_empty()) {
-        if stop() {
-            break;
-        }
-        let Some(w) = windows.next() else { break };
-        for g in &mut groups {
-            let finished = window(kernel, method, spec, g, &w, &mut renormalization);
-            out.extend(finished);
-        }
-        groups.retain(|g| !g.points.is_empty());
-    }
-    out
+    let mut renormalization = SetRenormalization::new(&spec.run);
+    drive(
+        spec,
+        indices,
+        (spec.lane_len(orbits), orbits),
+        stop,
+        |base, x0, lanes| start(spec, method, base, x0, lanes),
+        |g, w| window(kernel, method, spec, g, w, &mut renormalization),
+    )
 }
 
 /// A point's reference and the lanes of its sets, appended to `lanes`: the reference as a lane
@@ -118,8 +89,7 @@ fn start(
     for (s, dirs) in run.directions().iter().enumerate() {
         sets.push((s, lanes.len()));
         // As Engine::new: d = d0 * u, the lane from it.
-        let scaled: Vec<f64> = dirs.vectors.iter().map(|u| d0 * u).collect();
-        for d in scaled.chunks_exact(run.dim()) {
+        for d in dirs.scaled(d0).chunks_exact(run.dim()) {
             let mut lane = vec![0.0; spec.lane_len(method.lanes_are_orbits())];
             method.start(&x0, d, &mut lane);
             lanes.push(lane);
@@ -128,18 +98,11 @@ fn start(
     Live {
         acc: spec.accumulator(),
         base,
+        start: x0.clone(),
         x: x0,
         ref_lane,
         sets,
         orbit_steps: 0,
-    }
-}
-
-/// The points whose lanes (of `rows` entries) are `lanes` (taken), as one lane array.
-fn group(lanes: &mut Vec<Vec<f64>>, points: Vec<Live>, rows: usize) -> Group {
-    Group {
-        soa: lane_array(lanes, rows),
-        points,
     }
 }
 
@@ -150,7 +113,7 @@ fn window(
     kernel: &mut dyn PointKernel,
     method: &dyn DeviationMethod,
     spec: &MapSpec,
-    g: &mut Group,
+    g: &mut Group<Live>,
     w: &Window,
     renormalization: &mut SetRenormalization,
 ) -> Vec<PointResult> {
@@ -172,10 +135,7 @@ fn window(
     let mut keep = Vec::with_capacity(g.points.len());
     let mut lane = vec![0.0; dim];
     for mut p in g.points.drain(..) {
-        if let Some(r) = p.ref_lane {
-            g.soa.read_lane(r, &mut p.x);
-        }
-        if let Err(e) = check_escape(&p.x, w.t) {
+        if let Err(e) = end_reference(run, &g.soa, p.ref_lane, &mut p.start, &mut p.x, w) {
             out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
             changed = true;
             continue;
@@ -185,17 +145,11 @@ fn window(
         let soa = &mut g.soa;
         let stepped = retain_sets(&mut p.sets, |set, first| {
             let separations = &mut renormalization.separations;
-            for i in 0..k {
-                soa.read_lane(first + i, &mut lane);
-                method.deviation(kernel, &lane, x, &mut separations[i * dim..(i + 1) * dim]);
-            }
+            window::deviations(method, kernel, soa, first, x, separations, &mut lane);
             let goes_on = renormalization.apply(&mut p.acc, set, w)?;
             if goes_on {
-                for i in 0..k {
-                    let d = &renormalization.separations[i * dim..(i + 1) * dim];
-                    method.start(x, d, &mut lane);
-                    soa.write_lane(first + i, &lane);
-                }
+                let separations = &renormalization.separations;
+                window::restart(method, soa, first, x, separations, &mut lane);
             }
             Ok(goes_on)
         });
@@ -214,38 +168,11 @@ fn window(
     }
     g.points = keep;
     if changed && !g.points.is_empty() {
-        g.soa = compact(&g.soa, &mut g.points, k);
+        let runs = g.points.iter_mut().flat_map(|p| {
+            let sets = p.sets.iter_mut().map(|(_, first)| (first, k));
+            p.ref_lane.iter_mut().map(|r| (r, 1)).chain(sets)
+        });
+        g.soa = compact(&g.soa, runs.collect());
     }
     out
-}
-
-/// A new lane array holding only the lanes of `live` points and their active sets.
-fn compact(old: &Soa, live: &mut [Live], k: usize) -> Soa {
-    let rows = old.rows();
-    let total: usize = live
-        .iter()
-        .map(|p| usize::from(p.ref_lane.is_some()) + p.sets.len() * k)
-        .sum();
-    let mut soa = Soa::new(rows, total);
-    let mut buf = vec![0.0; rows];
-    let mut next = 0;
-    let mut mv = |from: usize, soa: &mut Soa| {
-        old.read_lane(from, &mut buf);
-        soa.write_lane(next, &buf);
-        next += 1;
-        next - 1
-    };
-    for p in live.iter_mut() {
-        if let Some(r) = &mut p.ref_lane {
-            *r = mv(*r, &mut soa);
-        }
-        for (_, lane) in p.sets.iter_mut() {
-            let first = mv(*lane, &mut soa);
-            for i in 1..k {
-                mv(*lane + i, &mut soa);
-            }
-            *lane = first;
-        }
-    }
-    soa
 }

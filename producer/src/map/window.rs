@@ -1,43 +1,105 @@
-//! Renormalization windows of a map point, exactly as the engine schedules them, and what the
-//! routes do at the end of a window: the escape test of the reference orbit (both) and each
-//! set's renormalization (the per-set route).
+//! What every route of a map does with its points around the windows of [`crate::window`]:
+//! the one driver of a route's points through the windows ([`drive`], the points' lanes in lane
+//! arrays), a group's steps, the end of a window for a point's reference (the escape test of
+//! runs) and for each set (the per-set route's renormalization), and the lane arrays compacted
+//! when points leave.
 
 use super::indicator::PointAccumulator;
+use super::point::PointResult;
+use super::spec::MapSpec;
 use crate::batch::{PointKernel, Soa};
-use crate::engine::RunError;
 use crate::method::DeviationMethod;
-
-use crate::renormalization;
 use crate::spec::RunSpec;
+use crate::window::{self, RunError, Window, Windows};
 
-/// Beyond this norm a state counts as escaped (the engine's criterion).
-const ESCAPE_NORM: f64 = 1e100;
-
-fn norm(v: &[f64]) -> f64 {
-    v.iter().map(|v| v * v).sum::<f64>().sqrt()
-}
-
-/// The engine's escape test of the reference state `x` at time `t`.
-pub fn check_escape(x: &[f64], t: f64) -> Result<(), RunError> {
-    let norm = norm(x);
-    if norm.is_nan() || norm >= ESCAPE_NORM {
-        Err(RunError::Escaped {
-            t,
-            norm,
-            cause: None,
-        })
-    } else {
-        Ok(())
+/// A point's reference at the end of window `w`: its state `x` (read from lane `ref_lane` of
+/// `soa` when it is an orbit lane, stepped in place otherwise) passes the escape test of runs
+/// from `start`, its state at the end of the previous window, which becomes `x`.
+pub fn end_reference(
+    run: &RunSpec,
+    soa: &Soa,
+    ref_lane: Option<usize>,
+    start: &mut [f64],
+    x: &mut [f64],
+    w: &Window,
+) -> Result<(), RunError> {
+    if let Some(r) = ref_lane {
+        soa.read_lane(r, x);
     }
+    window::check_reference(run, start, x, w, None)?;
+    start.copy_from_slice(x);
+    Ok(())
 }
 
-/// The lanes of one group of points as one lane array (`lanes` is emptied, each of `rows`
-/// entries: a state, parameters included, or a deviation vector): both routes batch the lanes
-/// of several points so that one kernel call steps them all.
-pub fn lane_array(lanes: &mut Vec<Vec<f64>>, rows: usize) -> Soa {
-    let mut soa = Soa::new(rows, lanes.len());
-    for (l, x) in lanes.drain(..).enumerate() {
-        soa.write_lane(l, &x);
+/// Points advanced by one kernel call, `P` a route's point: their lanes.
+pub struct Group<P> {
+    pub soa: Soa,
+    pub points: Vec<P>,
+}
+
+/// Drives the points `indices` of a route through the run's windows, as a run's driver does:
+/// each point's lanes (of `rows` entries: a state, parameters included, or a deviation vector)
+/// appended by `start`, the points in one lane array when `shared` (one kernel call steps them
+/// all) or one each, every group handed each window to `window`, which returns the points that
+/// finished or failed there (points outside the energy surface are finished from the start).
+/// Results in no particular order; once `stop()` (asked at every window) is true, the points
+/// finished so far.
+pub fn drive<P>(
+    spec: &MapSpec,
+    indices: &[u64],
+    (rows, shared): (usize, bool),
+    stop: &dyn Fn() -> bool,
+    mut start: impl FnMut(PointResult, Vec<f64>, &mut Vec<Vec<f64>>) -> P,
+    mut window: impl FnMut(&mut Group<P>, &Window) -> Vec<PointResult>,
+) -> Vec<PointResult> {
+    let mut out = Vec::with_capacity(indices.len());
+    let mut groups = Vec::new();
+    let (mut lanes, mut points) = (Vec::new(), Vec::new());
+    let group = |lanes: &mut Vec<Vec<f64>>, points| {
+        let mut soa = Soa::new(rows, lanes.len());
+        for (l, x) in lanes.drain(..).enumerate() {
+            soa.write_lane(l, &x);
+        }
+        Group { soa, points }
+    };
+    for &index in indices {
+        match spec.start_point(index) {
+            Err(outside) => out.push(*outside),
+            Ok((base, x0)) => {
+                if !shared && !points.is_empty() {
+                    groups.push(group(&mut lanes, std::mem::take(&mut points)));
+                }
+                points.push(start(base, x0, &mut lanes));
+            }
+        }
+    }
+    if !points.is_empty() {
+        groups.push(group(&mut lanes, points));
+    }
+    let mut windows = Windows::new(&spec.run);
+    while !groups.is_empty() && !stop() {
+        let Some(w) = windows.next() else { break };
+        for g in &mut groups {
+            out.extend(window(g, &w));
+        }
+        groups.retain(|g| !g.points.is_empty());
+    }
+    out
+}
+
+/// A new lane array holding only the runs of lanes `(first, len)` given (those of the points
+/// still live), in order; each `first` becomes where its run starts now.
+pub fn compact(old: &Soa, runs: Vec<(&mut usize, usize)>) -> Soa {
+    let mut soa = Soa::new(old.rows(), runs.iter().map(|(_, n)| n).sum());
+    let mut buf = vec![0.0; old.rows()];
+    let mut next = 0;
+    for (first, n) in runs {
+        for j in 0..n {
+            old.read_lane(*first + j, &mut buf);
+            soa.write_lane(next + j, &buf);
+        }
+        *first = next;
+        next += n;
     }
     soa
 }
@@ -76,50 +138,6 @@ pub fn advance_group(
         .map_err(RunError::from)
 }
 
-/// One window: advance `steps` steps from step number `from` (every point starts at step 0,
-/// `t = 0`), then renormalize at time `t`.
-#[derive(Debug, Clone, Copy)]
-pub struct Window {
-    pub from: u64,
-    pub steps: u64,
-    pub t: f64,
-    /// The run's final step.
-    pub last: bool,
-}
-
-/// Windows of `tau_steps` steps, the last one cut at `total_steps` (Engine::next_stop with one
-/// scheme).
-pub struct Windows<'a> {
-    run: &'a RunSpec,
-    step: u64,
-}
-
-impl<'a> Windows<'a> {
-    pub fn new(run: &'a RunSpec) -> Self {
-        Self { run, step: 0 }
-    }
-}
-
-impl Iterator for Windows<'_> {
-    type Item = Window;
-    fn next(&mut self) -> Option<Window> {
-        let total = self.run.total_steps();
-        if self.step >= total {
-            return None;
-        }
-        let tau = self.run.schemes()[0].tau_steps;
-        let target = ((self.step / tau + 1) * tau).min(total);
-        let w = Window {
-            from: self.step,
-            steps: target - self.step,
-            t: self.run.time_of(target),
-            last: target == total,
-        };
-        self.step = target;
-        Some(w)
-    }
-}
-
 /// The renormalization of one deviation set at the end of a window, with its scratch space.
 pub struct SetRenormalization<'a> {
     run: &'a RunSpec,
@@ -151,21 +169,15 @@ impl<'a> SetRenormalization<'a> {
         set: usize,
         w: &Window,
     ) -> Result<bool, RunError> {
-        let scheme = &self.run.schemes()[0];
         self.raw.copy_from_slice(&self.separations);
-        renormalization::renormalize(
+        window::renormalize(
+            self.run,
+            0,
+            set,
             &mut self.separations,
-            self.run.dim(),
-            scheme.d0,
-            scheme.orthonormalize,
             &mut self.stretch,
-        )
-        .map_err(|source| RunError::Renormalization {
-            scheme: scheme.name.clone(),
-            set: set as u32,
-            t: w.t,
-            source,
-        })?;
+            w.t,
+        )?;
         Ok(!acc.observe(set, w.t, &self.raw, &self.stretch, w.last))
     }
 }

@@ -50,7 +50,12 @@ pub fn table(report: &Report) -> String {
         (Some(e), _) => {
             let norm = r
                 .norm_error_max
-                .map(|s| format!(", max norm error {}", cell(Some(s), 0, |s| format!("{s:.2e}"))))
+                .map(|s| {
+                    format!(
+                        ", max norm error {}",
+                        cell(Some(s), 0, |s| format!("{s:.2e}"))
+                    )
+                })
                 .unwrap_or_default();
             format!(
                 "max energy error {}{norm}",

@@ -18,12 +18,12 @@ mod parse_error;
 mod scheme;
 pub mod sweep;
 
+pub use ddnls::DdnlsConfig;
 pub use model::{
     CustomModelConfig, DrawnArray, FputBetaConfig, HamiltonianConfig, HenonHeilesConfig,
     KNOWN_MODELS, MapModelConfig, ModelConfig, OdeConfig, ParamValue, PotentialConfig, TableConfig,
     TableSpec,
 };
-pub use ddnls::DdnlsConfig;
 pub use scheme::SchemeConfig;
 
 use sweep::{SweepConfig, SweepError};

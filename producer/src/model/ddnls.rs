@@ -51,11 +51,7 @@ impl Ddnls {
     /// The lattice with on-site energies `eps` (one per site).
     pub fn new(lattice: DdnlsLattice, eps: Vec<f64>, beta: f64) -> Self {
         assert_eq!(eps.len(), lattice.sites(), "one eps per site");
-        Self {
-            lattice,
-            eps,
-            beta,
-        }
+        Self { lattice, eps, beta }
     }
 
     pub fn lattice(&self) -> DdnlsLattice {
@@ -155,7 +151,11 @@ impl Ddnls {
     pub fn diagnose(&self, x: &[f64]) -> Option<String> {
         let n = self.sites();
         x.iter().position(|v| !v.is_finite()).map(|i| {
-            let (c, l) = if i < n { ("q", i + 1) } else { ("p", i - n + 1) };
+            let (c, l) = if i < n {
+                ("q", i + 1)
+            } else {
+                ("p", i - n + 1)
+            };
             format!("{c}{l} is not finite (the DDNLS norm or energy escaped double precision)")
         })
     }

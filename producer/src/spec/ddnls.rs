@@ -68,7 +68,10 @@ pub fn model_from_config(model: &DdnlsConfig) -> Result<Ddnls, SpecError> {
     if !(beta.is_finite() && beta.abs() <= 1e150) {
         return Err(SpecError::new(
             "model.beta",
-            format!("must be finite and at most 1e150 in size, got {}", num(beta)),
+            format!(
+                "must be finite and at most 1e150 in size, got {}",
+                num(beta)
+            ),
         ));
     }
     let seed = model.seed.ok_or_else(|| {
@@ -90,8 +93,7 @@ pub fn model_from_config(model: &DdnlsConfig) -> Result<Ddnls, SpecError> {
 pub(super) fn run(model: &DdnlsConfig, cfg: &RunConfig) -> Result<Built, SpecError> {
     let lattice = Arc::new(model_from_config(model)?);
     let method = cfg.integrator.method.as_str();
-    let system: Arc<dyn DynamicalSystem> = if let Some(kind) = CompositionKind::from_name(method)
-    {
+    let system: Arc<dyn DynamicalSystem> = if let Some(kind) = CompositionKind::from_name(method) {
         let h = super::time_step(&cfg.integrator)?;
         for (key, given) in [
             ("integrator.rtol", cfg.integrator.rtol.is_some()),
@@ -260,7 +262,10 @@ fn excited_state(model: &Ddnls, excite: &Excitation) -> Result<Vec<f64>, SpecErr
             if !(norm.is_finite() && norm > 0.0 && norm <= 1e150) {
                 return Err(SpecError::new(
                     "orbit.excite.norm",
-                    format!("must be positive, finite and at most 1e150, got {}", num(norm)),
+                    format!(
+                        "must be positive, finite and at most 1e150, got {}",
+                        num(norm)
+                    ),
                 ));
             }
             norm / count
@@ -351,17 +356,23 @@ mod tests {
     fn excitations_hit_their_norm_or_energy() {
         for beta in [0.0, 0.72, 3.6, -1.0] {
             let m = chain(beta);
-            let x = excited_state(&m, &excite(ExcitedSites::Block([3, 7]), Some(5.0), None))
-                .unwrap();
+            let x =
+                excited_state(&m, &excite(ExcitedSites::Block([3, 7]), Some(5.0), None)).unwrap();
             assert!((m.norm(&x) - 5.0).abs() < 1e-14);
             let e = m.energy(&x);
-            let y =
-                excited_state(&m, &excite(ExcitedSites::Block([3, 7]), None, Some(e))).unwrap();
-            assert!((m.energy(&y) - e).abs() < 1e-12 * e.abs().max(1.0), "beta {beta}");
+            let y = excited_state(&m, &excite(ExcitedSites::Block([3, 7]), None, Some(e))).unwrap();
+            assert!(
+                (m.energy(&y) - e).abs() < 1e-12 * e.abs().max(1.0),
+                "beta {beta}"
+            );
             // One positive root where e and beta have one sign (the product of the roots is
             // -e / (beta L / 2)), or beta = 0: it is the norm the block had.
             if beta == 0.0 || e * beta > 0.0 {
-                assert!((m.norm(&y) - 5.0).abs() < 1e-11, "beta {beta}: {}", m.norm(&y));
+                assert!(
+                    (m.norm(&y) - 5.0).abs() < 1e-11,
+                    "beta {beta}: {}",
+                    m.norm(&y)
+                );
             }
         }
         let sq = Ddnls::new(DdnlsLattice::Square { n: 5 }, vec![0.0; 25], 1.0);

@@ -174,8 +174,16 @@ fn hostile_ddnls_configs_are_refused_by_key_or_run() {
     eprintln!("ddnls: {ran} mutated configs ran, {refused} were refused with an error");
     assert!(refused > 50 && ran > 20);
     let cases = [
-        ("lattice = \"square\"", "lattice = \"cube\"", "model.lattice"),
-        ("method = \"s9abc6\"", "method = \"abc3\"", "integrator.method"),
+        (
+            "lattice = \"square\"",
+            "lattice = \"cube\"",
+            "model.lattice",
+        ),
+        (
+            "method = \"s9abc6\"",
+            "method = \"abc3\"",
+            "integrator.method",
+        ),
         ("n = 3", "n = 0", "model.n"),
         ("n = 3", "n = 100000", "model.n"),
         ("W = 4.0", "W = -1.0", "model.W"),
@@ -184,14 +192,22 @@ fn hostile_ddnls_configs_are_refused_by_key_or_run() {
         ("seed = 2\n", "\n", "model.seed"),
         ("sites = [1, 2]", "sites = [2, 4]", "orbit.excite.sites"),
         ("norm = 2.0", "norm = 0.0", "orbit.excite.norm"),
-        ("norm = 2.0", "norm = 2.0, energy = 1.0", "orbit.excite.energy"),
+        (
+            "norm = 2.0",
+            "norm = 2.0, energy = 1.0",
+            "orbit.excite.energy",
+        ),
         ("norm = 2.0", "energy = -1e300", "orbit.excite.energy"),
         (
             "excite = { sites = [1, 2], norm = 2.0, seed = 5 }",
             "q = [0.0, 1.0]\np = [0.0, 1.0]",
             "orbit.q",
         ),
-        ("h = 0.05", "h = 0.05\nrtol = 1e-9\natol = 1e-9", "integrator.rtol"),
+        (
+            "h = 0.05",
+            "h = 0.05\nrtol = 1e-9\natol = 1e-9",
+            "integrator.rtol",
+        ),
     ];
     for (from, to, key) in cases {
         let text = DDNLS.replacen(from, to, 1);

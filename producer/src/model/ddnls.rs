@@ -273,7 +273,7 @@ impl VectorField for Ddnls {
         for l in 0..n {
             let a = self.eps[l] + self.beta * (0.5 * (q[l] * q[l] + p[l] * p[l]));
             dq[l] = a * p[l] - dq[l];
-            dp[l] = dp[l] - a * q[l];
+            dp[l] -= a * q[l];
         }
     }
 
@@ -290,7 +290,7 @@ impl VectorField for Ddnls {
             let a = self.eps[l] + self.beta * (0.5 * (q[l] * q[l] + p[l] * p[l]));
             let bqp = self.beta * q[l] * p[l];
             dq[l] = (bqp * vq[l] + (a + self.beta * p[l] * p[l]) * vp[l]) - dq[l];
-            dp[l] = dp[l] - ((a + self.beta * q[l] * q[l]) * vq[l] + bqp * vp[l]);
+            dp[l] -= (a + self.beta * q[l] * q[l]) * vq[l] + bqp * vp[l];
         }
     }
 

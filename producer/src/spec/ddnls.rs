@@ -56,7 +56,7 @@ pub fn model_from_config(model: &DdnlsConfig) -> Result<Ddnls, SpecError> {
     let w = model
         .w
         .ok_or_else(|| SpecError::new("model.W", "needs the disorder strength W (0: ordered)"))?;
-    if !(w.is_finite() && w >= 0.0 && w <= 1e150) {
+    if !(0.0..=1e150).contains(&w) {
         return Err(SpecError::new(
             "model.W",
             format!("must be finite, >= 0 and at most 1e150, got {}", num(w)),

@@ -137,6 +137,10 @@ pub struct Analysis {
     schemes: Vec<SchemeState>,
     energy_error_max: f64,
     energy_series: Series<f64>,
+    /// The initial norm `S(x0)` of a run whose model conserves it (`run::conserves_norm`), and
+    /// the largest relative error of the norm of the states seen since.
+    norm0: Option<f64>,
+    norm_error_max: f64,
     /// The reference orbit's extent `max |x|` since the first state seen (periodic coordinates
     /// wrapped into their period), log-spaced at the verdict's resolution (the verdict's
     /// `unbounded`).
@@ -157,6 +161,12 @@ pub struct Analysis {
     /// A reader knows frames were lost (besides the gaps the tracker sees).
     gaps: bool,
     captures: Vec<Capture>,
+}
+
+/// The norm `S = sum_i x_i^2 / 2` of a state `(q, p)` (`sum_l (q_l^2 + p_l^2)/2`), summed in
+/// the order of the coordinates.
+pub fn lattice_norm(x: &[f64]) -> f64 {
+    x.iter().map(|v| 0.5 * (v * v)).sum()
 }
 
 /// Relative energy error (absolute when `E0 = 0`), of finite energies (the reader refuses
@@ -249,6 +259,10 @@ impl Analysis {
             schemes,
             energy_error_max: 0.0,
             energy_series: Series::new(options.series_capacity, options.per_decade),
+            norm0: (run.kind == SystemKind::Hamiltonian
+                && chaoscope_schemas::run::conserves_norm(&run.header.model))
+            .then(|| lattice_norm(&run.header.x0)),
+            norm_error_max: 0.0,
             extent: Series::new(2, verdict::PER_DECADE),
             extent_max: 0.0,
             extent_t: None,
@@ -338,6 +352,12 @@ impl Analysis {
                 let err = energy_error(sample.energy, self.run.header.energy0);
                 self.energy_error_max = self.energy_error_max.max(err);
                 self.energy_series.offer(sample.t, || err);
+                if let Some(s0) = self.norm0 {
+                    let s = lattice_norm(&sample.state);
+                    if s.is_finite() {
+                        self.norm_error_max = self.norm_error_max.max(energy_error(s, s0));
+                    }
+                }
             } else {
                 self.mean_divergence = sample.mean_divergence;
             }
@@ -516,6 +536,7 @@ impl Analysis {
             (self.energy_error_max, self.samples, self.t, self.complete());
         let hamiltonian = run.kind == SystemKind::Hamiltonian;
         let reported_energy_error = hamiltonian.then_some(energy_error_max);
+        let reported_norm_error = self.norm0.map(|_| self.norm_error_max);
         let h = &run.header;
         let scheme_reports = run
             .schemes
@@ -588,6 +609,7 @@ impl Analysis {
                     lyapunov,
                     lyapunov_std,
                     energy_error_max: reported_energy_error,
+                    norm_error_max: reported_norm_error,
                     vs_vm: self.vs_vm_of(si),
                     indicators: {
                         let mut named = ind.named.clone();
@@ -622,6 +644,8 @@ impl Analysis {
                 samples,
                 t,
                 energy_error_max: reported_energy_error,
+                norm0: self.norm0,
+                norm_error_max: reported_norm_error,
                 mean_divergence: (!hamiltonian).then_some(self.mean_divergence),
                 complete,
                 end: None,

@@ -58,6 +58,14 @@ pub struct RunReport {
     /// (Hamiltonians only: absent for systems without an energy).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub energy_error_max: Option<f64>,
+    /// The initial norm `S = sum_l (q_l^2 + p_l^2)/2` of a model that conserves it beside the
+    /// energy (`ddnls`); absent for every other.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub norm0: Option<f64>,
+    /// Largest relative error `|S - S0| / S0` of that norm over the reference orbit's samples;
+    /// absent where `norm0` is.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub norm_error_max: Option<f64>,
     /// Phase-space contraction rate: the mean of `div f` along the reference orbit from t = 0
     /// (flows), the mean of `ln |det DF|` per iteration (maps); compare with the sum of the
     /// Lyapunov exponents of a QR scheme with k = D (`lyapunov_sum`). Absent for Hamiltonians,
@@ -159,6 +167,9 @@ pub struct SchemeReport {
     pub lyapunov_sum: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub energy_error_max: Option<f64>,
+    /// As `run.norm_error_max`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub norm_error_max: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub vs_vm: Option<VsVm>,
     /// Every registered indicator's outputs by name, as fields of the scheme: `fli`, `ofli`,

@@ -47,10 +47,21 @@ pub fn table(report: &Report) -> String {
     };
     // What applies: the energy error of a Hamiltonian, the contraction rate of anything else.
     let conserved = match (r.energy_error_max, r.mean_divergence) {
-        (Some(e), _) => format!(
-            "max energy error {}",
-            cell(Some(e), 0, |e| format!("{e:.2e}"))
-        ),
+        (Some(e), _) => {
+            let norm = r
+                .norm_error_max
+                .map(|s| {
+                    format!(
+                        ", max norm error {}",
+                        cell(Some(s), 0, |s| format!("{s:.2e}"))
+                    )
+                })
+                .unwrap_or_default();
+            format!(
+                "max energy error {}{norm}",
+                cell(Some(e), 0, |e| format!("{e:.2e}"))
+            )
+        }
         (None, Some(d)) => format!(
             "mean divergence {}",
             cell(Some(d), 0, |d| format!("{d:.6}"))

@@ -135,6 +135,11 @@ fn claimed_dim(model: &ModelConfig) -> u128 {
         ModelConfig::FputBeta(m) => dof(m.n),
         ModelConfig::Potential(m) => dof(m.n),
         ModelConfig::Hamiltonian(m) => dof(m.n),
+        // A square lattice has n^2 sites.
+        ModelConfig::Ddnls(m) => match m.lattice.as_deref() {
+            Some("square") => dof(m.n).saturating_mul(m.n.unwrap_or(1) as u128),
+            _ => dof(m.n),
+        },
         ModelConfig::Ode(m) => len(&m.rhs),
         ModelConfig::Map(m) => len(&m.next),
     }

@@ -92,8 +92,16 @@ fn base_config_is_valid() {
 
 #[test]
 fn every_numeric_value_replaced_by_hostile_numbers() {
+    let (ran, refused) = mutate_numbers(BASE);
+    eprintln!("{ran} mutated configs ran, {refused} were refused with an error");
+    assert!(refused > 50 && ran > 20);
+}
+
+/// Every number of `base` replaced in turn by each hostile number, validated and, if valid, run
+/// a few samples: `(ran, refused)`.
+fn mutate_numbers(base: &str) -> (usize, usize) {
     // Positions of every number in the document (keys' values and array entries).
-    let bytes = BASE.as_bytes();
+    let bytes = base.as_bytes();
     let mut spans = Vec::new();
     let mut i = 0;
     while i < bytes.len() {
@@ -101,7 +109,7 @@ fn every_numeric_value_replaced_by_hostile_numbers() {
             || (bytes[i] == b'-' && bytes.get(i + 1).is_some_and(u8::is_ascii_digit));
         let after_word = i > 0 && (bytes[i - 1].is_ascii_alphanumeric() || bytes[i - 1] == b'_');
         if starts && !after_word {
-            let j = i + BASE[i..]
+            let j = i + base[i..]
                 .find(|c: char| !(c.is_ascii_alphanumeric() || "-+.".contains(c)))
                 .unwrap();
             spans.push((i, j));
@@ -114,15 +122,105 @@ fn every_numeric_value_replaced_by_hostile_numbers() {
     let (mut refused, mut ran) = (0, 0);
     for (a, b) in spans {
         for v in HOSTILE_NUMBERS {
-            let text = format!("{}{}{}", &BASE[..a], v, &BASE[b..]);
+            let text = format!("{}{}{}", &base[..a], v, &base[b..]);
             match exercise(&text) {
                 Ok(()) => ran += 1,
                 Err(_) => refused += 1,
             }
         }
     }
-    eprintln!("{ran} mutated configs ran, {refused} were refused with an error");
+    (ran, refused)
+}
+
+/// A DDNLS on a 3 x 3 square lattice, a 2 x 2 block excited by its norm.
+const DDNLS: &str = r#"
+[model]
+name = "ddnls"
+lattice = "square"
+n = 3
+W = 4.0
+beta = 1.0
+seed = 2
+[orbit]
+excite = { sites = [1, 2], norm = 2.0, seed = 5 }
+[integrator]
+method = "s9abc6"
+h = 0.05
+t_final = 1.0
+[deviations]
+k = 4
+sets = 2
+seed = 3
+[[scheme]]
+name = "a"
+method = "vm"
+d0 = 1e-8
+tau = 0.5
+orthonormalize = "qr"
+[[scheme]]
+name = "b"
+method = "mpm"
+d0 = 1e-6
+tau = 1.0
+"#;
+
+/// The DDNLS's numbers (sizes, W, beta, seeds, the excitation's sites and norm) replaced by
+/// hostile ones, as the FPUT config's: each refused naming a key, or run without a panic or a
+/// non-finite sample; its wrong words and impossible excitations refused by key.
+#[test]
+fn hostile_ddnls_configs_are_refused_by_key_or_run() {
+    exercise(DDNLS).unwrap();
+    let (ran, refused) = mutate_numbers(DDNLS);
+    eprintln!("ddnls: {ran} mutated configs ran, {refused} were refused with an error");
     assert!(refused > 50 && ran > 20);
+    let cases = [
+        (
+            "lattice = \"square\"",
+            "lattice = \"cube\"",
+            "model.lattice",
+        ),
+        (
+            "method = \"s9abc6\"",
+            "method = \"abc3\"",
+            "integrator.method",
+        ),
+        ("n = 3", "n = 0", "model.n"),
+        ("n = 3", "n = 100000", "model.n"),
+        ("W = 4.0", "W = -1.0", "model.W"),
+        ("W = 4.0", "W = nan", "model.W"),
+        ("beta = 1.0", "beta = inf", "model.beta"),
+        ("seed = 2\n", "\n", "model.seed"),
+        ("sites = [1, 2]", "sites = [2, 4]", "orbit.excite.sites"),
+        ("norm = 2.0", "norm = 0.0", "orbit.excite.norm"),
+        (
+            "norm = 2.0",
+            "norm = 2.0, energy = 1.0",
+            "orbit.excite.energy",
+        ),
+        ("norm = 2.0", "energy = -1e300", "orbit.excite.energy"),
+        (
+            "excite = { sites = [1, 2], norm = 2.0, seed = 5 }",
+            "q = [0.0, 1.0]\np = [0.0, 1.0]",
+            "orbit.q",
+        ),
+        (
+            "h = 0.05",
+            "h = 0.05\nrtol = 1e-9\natol = 1e-9",
+            "integrator.rtol",
+        ),
+    ];
+    for (from, to, key) in cases {
+        let text = DDNLS.replacen(from, to, 1);
+        let cfg = RunConfig::from_toml(&text).unwrap();
+        let err = RunSpec::from_config(&cfg).unwrap_err();
+        assert_eq!(err.key, key, "{to}: {err}");
+        assert!(!err.message.contains('\n'), "{to}: {err}");
+    }
+    // A key of another kind is refused by the parser, naming it.
+    let e = RunConfig::from_toml(&DDNLS.replace("seed = 2", "seed = 2\npotential = \"q1\""))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("potential"), "{e}");
 }
 
 #[test]

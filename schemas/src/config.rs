@@ -9,6 +9,7 @@ use std::path::Path;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
+mod ddnls;
 mod load;
 pub mod locate;
 mod model;
@@ -17,6 +18,7 @@ mod parse_error;
 mod scheme;
 pub mod sweep;
 
+pub use ddnls::DdnlsConfig;
 pub use model::{
     CustomModelConfig, DrawnArray, FputBetaConfig, HamiltonianConfig, HenonHeilesConfig,
     KNOWN_MODELS, MapModelConfig, ModelConfig, OdeConfig, ParamValue, PotentialConfig, TableConfig,
@@ -130,10 +132,16 @@ pub struct OrbitConfig {
 pub struct Excitation {
     /// One site `l`, or the block `[first, last]` (sites numbered from 1, ends included).
     pub sites: ExcitedSites,
-    /// The energy the excited sites share (positive).
-    pub energy: f64,
-    /// With a seed, the momenta's signs are drawn from it (the "random phases" of a block);
-    /// without, every momentum is positive.
+    /// The energy the excited sites share (positive). Required by separable Hamiltonians; a
+    /// `ddnls` takes `norm` or `energy`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub energy: Option<f64>,
+    /// The norm `S = sum |psi_l|^2` the excited sites share (`ddnls` only).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub norm: Option<f64>,
+    /// With a seed, the momenta's signs are drawn from it (the "random phases" of a block;
+    /// a `ddnls` draws each site's phase uniform in `[0, 2 pi)`); without, every momentum is
+    /// positive (a `ddnls`: every phase 0).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seed: Option<u64>,
 }

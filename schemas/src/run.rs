@@ -49,6 +49,13 @@ impl SystemKind {
     }
 }
 
+/// The models whose states conserve the norm `S = sum_l (q_l^2 + p_l^2)/2` beside the energy
+/// (the disordered discrete nonlinear Schroedinger lattice): the report carries the norm's
+/// relative error beside the energy error for them.
+pub fn conserves_norm(model: &str) -> bool {
+    model == "ddnls"
+}
+
 /// How deviation vectors are renormalized.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Orthonormalization {

@@ -7,6 +7,7 @@
 //! An integrator may also advance deviation vectors with its own tangent map (the variational
 //! method); one that cannot says so and only the multi-particle method is offered.
 
+pub mod composition;
 pub mod gauss_legendre;
 pub mod runge_kutta;
 mod splitting;

@@ -10,6 +10,7 @@
 //!
 //! Every method is pure and allocation-free: models are called in the innermost loop.
 
+mod ddnls;
 mod expression;
 mod fput;
 mod henon_heiles;
@@ -18,6 +19,7 @@ mod henon_heiles;
 pub use chaoscope_expr::potential::{
     CStepState, CStepStatus, ExpressionModel, PotentialDefinition, PotentialError,
 };
+pub use ddnls::{Ddnls, DdnlsLattice};
 pub use fput::FputBeta;
 pub use henon_heiles::HenonHeiles;
 

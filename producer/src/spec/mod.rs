@@ -13,7 +13,8 @@
 //!   in code), their initial state from the energy; [`potential`]: a potential `V(q)` written as
 //!   an expression, and its tables (the one file access of the validation);
 //! - [`hamiltonian`]: any `H(q, p)`; [`flow`]: `dx/dt = f(x)` and the Runge-Kutta settings both
-//!   share; [`map`]: `x -> F(x)`; [`vector`]: the expression keys they share.
+//!   share; [`ddnls`]: the disordered nonlinear Schroedinger lattice and its excitations;
+//!   [`map`]: `x -> F(x)`; [`vector`]: the expression keys they share.
 
 use std::sync::{Arc, OnceLock};
 
@@ -27,6 +28,7 @@ use crate::deviation::{self, DirectionError, Directions};
 use crate::model::Model;
 use crate::system::{DynamicalSystem, Time};
 
+pub mod ddnls;
 pub mod drawn;
 mod flow;
 mod hamiltonian;
@@ -380,6 +382,14 @@ impl RunSpec {
             }
             ModelConfig::Potential(model) => potential::run(model, cfg, lanes)?,
             ModelConfig::Hamiltonian(model) => hamiltonian::run(model, cfg, lanes)?,
+            ModelConfig::Ddnls(_) if !lanes.is_empty() => {
+                return Err(SpecError::new(
+                    "map",
+                    "parameter axes are not supported for [model] name = ddnls (they are for \
+                     map, ode, hamiltonian and potential)",
+                ));
+            }
+            ModelConfig::Ddnls(model) => ddnls::run(model, cfg)?,
             ModelConfig::Ode(model) => flow::run(model, cfg, lanes)?,
             ModelConfig::Map(model) => map::run(model, cfg, lanes)?,
         };

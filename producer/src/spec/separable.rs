@@ -203,7 +203,18 @@ fn excited_momenta(
             ),
         ));
     }
-    let e = excite.energy;
+    if excite.norm.is_some() {
+        return Err(SpecError::new(
+            "orbit.excite.norm",
+            "applies to the ddnls model; a separable Hamiltonian's excitation shares an energy",
+        ));
+    }
+    let e = excite.energy.ok_or_else(|| {
+        SpecError::new(
+            "orbit.excite.energy",
+            "missing: the energy the excited sites share",
+        )
+    })?;
     if !(e.is_finite() && e > 0.0) {
         return Err(SpecError::new(
             "orbit.excite.energy",

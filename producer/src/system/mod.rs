@@ -17,6 +17,9 @@
 //!   name = "ode"`, and any Hamiltonian `H(q, p)` (`name = "hamiltonian"`, whose field is
 //!   `(dH/dp, -dH/dq)`), explicit (`rk4`, `dop853`) or implicit symplectic Gauss-Legendre
 //!   (`gl4`, `gl6`);
+//! - [`DdnlsSystem`]: the disordered discrete nonlinear Schroedinger lattice (`[model] name =
+//!   "ddnls"`), a Hamiltonian not separable into `T(p) + V(q)`, stepped by a composition of its
+//!   three parts' exact flows (`integrator::composition`) with their exact tangent maps;
 //! - [`Map`]: a discrete map `x -> F(x)` (`[model] name = "map"`, `Time::Discrete`, `tau`
 //!   counted in iterations), angles taken modulo their period.
 //!
@@ -29,10 +32,12 @@
 //! Each kind's batched form (`batched`: many orbits as lanes, for phase-space maps) is written
 //! beside it, in its own file.
 
+mod ddnls;
 mod map;
 mod rk_flow;
 mod split_hamiltonian;
 
+pub use ddnls::DdnlsSystem;
 pub use map::Map;
 pub use rk_flow::RkFlow;
 pub use split_hamiltonian::SplitHamiltonian;

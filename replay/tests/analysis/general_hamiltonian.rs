@@ -270,3 +270,73 @@ fn chaotic_orbit_mles_of_both_methods_agree_within_their_spread() {
     assert!((0.035..0.06).contains(&m1) && (0.035..0.06).contains(&m2));
     assert!((m1 - m2).abs() < 2.0 * s1.max(s2), "{m1} vs {m2}");
 }
+
+/// The DDNLS, a non-separable Hamiltonian with a second conserved quantity: its report carries
+/// the norm's largest relative error beside the energy's (the run's and each scheme's), equal
+/// to the largest `|S - S0| / S0` over the samples computed here from the model's own norm (to
+/// the rounding of two ~100-term sums, 1e-15 of S); by its three-part composition (s11abc6,
+/// order 6 at h = 0.05: ~1e-10 measured, below 1e-8) and by gl6 (symplectic Gauss-Legendre,
+/// which conserves quadratic invariants such as S to the stage iterations' rounding: below
+/// 1e-12). A model without a norm (Henon-Heiles) reports none.
+#[test]
+fn the_ddnls_norm_error_is_reported_beside_the_energy_error() {
+    use chaoscope_producer::spec::ddnls::model_from_config;
+    use chaoscope_schemas::config::ModelConfig;
+    for (method, bound) in [("s11abc6", 1e-8), ("gl6", 1e-12)] {
+        let text = format!(
+            r#"
+[model]
+name = "ddnls"
+n = 40
+W = 4.0
+beta = 0.72
+seed = 1
+[orbit]
+excite = {{ sites = [16, 24], norm = 9.0, seed = 4 }}
+[integrator]
+method = "{method}"
+h = 0.05
+t_final = 50.0
+[deviations]
+k = 2
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1.0
+"#
+        );
+        let config = RunConfig::from_toml(&text).unwrap();
+        let ModelConfig::Ddnls(model) = &config.model else {
+            unreachable!()
+        };
+        let lattice = model_from_config(model).unwrap();
+        let mut worst: f64 = 0.0;
+        let s0 = 9.0;
+        let report = analyze_config(&config, &AnalysisOptions::default(), |sample| {
+            worst = worst.max(((lattice.norm(&sample.state) - s0) / s0).abs());
+        })
+        .unwrap()
+        .report();
+        let run = &report.run;
+        assert!((run.norm0.unwrap() - s0).abs() < 1e-14, "{:?}", run.norm0);
+        let reported = run.norm_error_max.unwrap();
+        assert_eq!(report.scheme("vm").unwrap().norm_error_max, Some(reported));
+        assert!(
+            (reported - worst).abs() < 1e-14,
+            "{reported:e} vs {worst:e}"
+        );
+        assert!(reported < bound, "{method}: norm error {reported:e}");
+        assert!(worst > 0.0 || method == "gl6");
+        assert!(run.energy_error_max.unwrap() < 1e-8);
+    }
+    let (q, p) = hh_state(-0.25);
+    let hh = analyze_config(
+        &config(q, p, "gl6", 0.05, 10.0, 2, 1.0),
+        &AnalysisOptions::default(),
+        |_| {},
+    )
+    .unwrap()
+    .report();
+    assert!(hh.run.energy_error_max.is_some() && hh.run.norm_error_max.is_none());
+}

@@ -5,6 +5,7 @@
 //!
 //! Kinds: separable Hamiltonians `H = sum p_i^2 / (2 m_i) + V(q)` (`henon-heiles`, `fput-beta`,
 //! `potential` with `V` written as an expression), any Hamiltonian `H(q, p)` (`hamiltonian`),
+//! the disordered discrete nonlinear Schroedinger lattice (`ddnls`, `config/ddnls.rs`),
 //! flows `dx/dt = f(x)` (`ode`) and maps `x -> F(x)` (`map`). A model or system written in Rust
 //! (the library route) is named by a `name` of its own ([`CustomModelConfig`]).
 
@@ -31,6 +32,9 @@ pub enum ModelConfig {
     /// Any Hamiltonian `H(q, p)` written as an expression, integrated by a Runge-Kutta method.
     #[serde(rename = "hamiltonian")]
     Hamiltonian(HamiltonianConfig),
+    /// The disordered discrete nonlinear Schroedinger lattice (1-D chain or 2-D square).
+    #[serde(rename = "ddnls")]
+    Ddnls(super::ddnls::DdnlsConfig),
     /// A flow `dx/dt = f(x)` written as expressions.
     #[serde(rename = "ode")]
     Ode(OdeConfig),
@@ -309,7 +313,7 @@ impl TableConfig {
 }
 
 /// Every `name` the command-line tools know, as error messages list them.
-pub const KNOWN_MODELS: &str = "henon-heiles, fput-beta, potential, hamiltonian, ode, map";
+pub const KNOWN_MODELS: &str = "henon-heiles, fput-beta, potential, hamiltonian, ddnls, ode, map";
 
 impl ModelConfig {
     /// `name = "potential"` with `V(q) = potential` on `n` sites.
@@ -336,6 +340,7 @@ impl ModelConfig {
             Self::FputBeta(_) => "fput-beta",
             Self::Potential(_) => "potential",
             Self::Hamiltonian(_) => "hamiltonian",
+            Self::Ddnls(_) => "ddnls",
             Self::Ode(_) => "ode",
             Self::Map(_) => "map",
             Self::Custom(c) => &c.name,
@@ -379,6 +384,7 @@ impl ModelConfig {
             ("fput-beta", keys::<FputBetaConfig>()),
             ("potential", keys::<PotentialConfig>()),
             ("hamiltonian", keys::<HamiltonianConfig>()),
+            ("ddnls", keys::<super::ddnls::DdnlsConfig>()),
             ("ode", keys::<OdeConfig>()),
             ("map", keys::<MapModelConfig>()),
         ]
@@ -471,6 +477,9 @@ impl<'de> Visitor<'de> for ModelVisitor {
                 }
                 "hamiltonian" => {
                     ModelConfig::Hamiltonian(Deserialize::deserialize(rest(&mut before, &mut map))?)
+                }
+                "ddnls" => {
+                    ModelConfig::Ddnls(Deserialize::deserialize(rest(&mut before, &mut map))?)
                 }
                 "ode" => ModelConfig::Ode(Deserialize::deserialize(rest(&mut before, &mut map))?),
                 "map" => ModelConfig::Map(Deserialize::deserialize(rest(&mut before, &mut map))?),

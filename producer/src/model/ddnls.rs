@@ -1,0 +1,356 @@
+//! The disordered discrete nonlinear Schroedinger lattice (DDNLS), 1-D chain or 2-D square
+//! lattice with fixed ends (`psi = 0` outside):
+//!
+//! `H = sum_l [eps_l |psi_l|^2 + (beta/2) |psi_l|^4] - sum_bonds (psi_l psi_m* + c.c.)`, with
+//! `psi_l = (q_l + i p_l)/sqrt(2)`, i.e. with `J_l = (q_l^2 + p_l^2)/2`
+//! `H = sum_l [eps_l J_l + (beta/2) J_l^2] - sum_bonds (q_l q_m + p_l p_m)`,
+//! and the norm `S = sum_l J_l`, a second conserved quantity.
+//!
+//! It is not separable into `T(p) + V(q)`, but splits into three parts with exact flows
+//! (Skokos et al., Phys. Lett. A 378, 1809 (2014)), the [`SplitFlows`] of this model:
+//! - `A = sum_l [eps_l J_l + (beta/2) J_l^2]`: each `J_l` is conserved, so every site rotates at
+//!   its own constant rate `a_l = eps_l + beta J_l`;
+//! - `B = -sum_bonds q_l q_m`: `q` fixed, `p_l += tau sum_nb q`;
+//! - `C = -sum_bonds p_l p_m`: `p` fixed, `q_l -= tau sum_nb p`.
+//!
+//! Sites are numbered row by row in 2-D (site `(i, j)`, both from 0, is `i n + j`); the sum over
+//! the neighbours of a site is taken in one fixed order (left, right, then up, down), so every
+//! path gives the same bits.
+
+use crate::integrator::composition::SplitFlows;
+use crate::vector_field::VectorField;
+
+/// The lattice's geometry.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum DdnlsLattice {
+    /// A chain of `n` sites.
+    Chain { n: usize },
+    /// An `n x n` square lattice.
+    Square { n: usize },
+}
+
+impl DdnlsLattice {
+    /// Number of sites `N`.
+    pub fn sites(self) -> usize {
+        match self {
+            DdnlsLattice::Chain { n } => n,
+            DdnlsLattice::Square { n } => n * n,
+        }
+    }
+}
+
+/// The DDNLS with its disorder `eps_l` and nonlinearity `beta`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ddnls {
+    lattice: DdnlsLattice,
+    eps: Vec<f64>,
+    beta: f64,
+}
+
+impl Ddnls {
+    /// The lattice with on-site energies `eps` (one per site).
+    pub fn new(lattice: DdnlsLattice, eps: Vec<f64>, beta: f64) -> Self {
+        assert_eq!(eps.len(), lattice.sites(), "one eps per site");
+        Self { lattice, eps, beta }
+    }
+
+    pub fn lattice(&self) -> DdnlsLattice {
+        self.lattice
+    }
+
+    pub fn eps(&self) -> &[f64] {
+        &self.eps
+    }
+
+    pub fn beta(&self) -> f64 {
+        self.beta
+    }
+
+    /// Number of sites `N` (the state has `2N` entries).
+    pub fn sites(&self) -> usize {
+        self.eps.len()
+    }
+
+    /// `out_l = sum over the neighbours m of l of v_m` (fixed ends).
+    #[inline]
+    pub fn neighbour_sum(&self, v: &[f64], out: &mut [f64]) {
+        match self.lattice {
+            DdnlsLattice::Chain { n } => {
+                for l in 0..n {
+                    let left = if l > 0 { v[l - 1] } else { 0.0 };
+                    let right = if l + 1 < n { v[l + 1] } else { 0.0 };
+                    out[l] = left + right;
+                }
+            }
+            DdnlsLattice::Square { n } => {
+                for i in 0..n {
+                    for j in 0..n {
+                        let l = i * n + j;
+                        let left = if j > 0 { v[l - 1] } else { 0.0 };
+                        let right = if j + 1 < n { v[l + 1] } else { 0.0 };
+                        let up = if i > 0 { v[l - n] } else { 0.0 };
+                        let down = if i + 1 < n { v[l + n] } else { 0.0 };
+                        out[l] = ((left + right) + up) + down;
+                    }
+                }
+            }
+        }
+    }
+
+    /// `sum over bonds (each once) of u_l v_m`, as `(1/2) sum_l u_l (sum_nb v)_l` would give it
+    /// for `u = v`, summed bond by bond in site order (right, then down neighbour).
+    fn bond_sum(&self, u: &[f64], v: &[f64]) -> f64 {
+        let mut s = 0.0;
+        match self.lattice {
+            DdnlsLattice::Chain { n } => {
+                for l in 0..n.saturating_sub(1) {
+                    s += u[l] * v[l + 1];
+                }
+            }
+            DdnlsLattice::Square { n } => {
+                for i in 0..n {
+                    for j in 0..n {
+                        let l = i * n + j;
+                        if j + 1 < n {
+                            s += u[l] * v[l + 1];
+                        }
+                        if i + 1 < n {
+                            s += u[l] * v[l + n];
+                        }
+                    }
+                }
+            }
+        }
+        s
+    }
+
+    /// The energy `H(q, p)`.
+    pub fn energy(&self, x: &[f64]) -> f64 {
+        let n = self.sites();
+        let (q, p) = x.split_at(n);
+        let mut onsite = 0.0;
+        for l in 0..n {
+            let j = 0.5 * (q[l] * q[l] + p[l] * p[l]);
+            onsite += self.eps[l] * j + 0.5 * self.beta * j * j;
+        }
+        onsite - (self.bond_sum(q, q) + self.bond_sum(p, p))
+    }
+
+    /// The norm `S = sum_l (q_l^2 + p_l^2)/2`.
+    pub fn norm(&self, x: &[f64]) -> f64 {
+        let n = self.sites();
+        let (q, p) = x.split_at(n);
+        let mut s = 0.0;
+        for l in 0..n {
+            s += 0.5 * (q[l] * q[l] + p[l] * p[l]);
+        }
+        s
+    }
+
+    /// What made a state non-finite: the first non-finite coordinate.
+    pub fn diagnose(&self, x: &[f64]) -> Option<String> {
+        let n = self.sites();
+        x.iter().position(|v| !v.is_finite()).map(|i| {
+            let (c, l) = if i < n {
+                ("q", i + 1)
+            } else {
+                ("p", i - n + 1)
+            };
+            format!("{c}{l} is not finite (the DDNLS norm or energy escaped double precision)")
+        })
+    }
+
+    /// The A flow on `x`, and on each deviation vector of `w` (chunks of `2N`) its derivative.
+    #[inline]
+    fn rotate(&self, x: &mut [f64], w: &mut [f64], tau: f64) {
+        let n = self.sites();
+        let dim = 2 * n;
+        let (q, p) = x.split_at_mut(n);
+        for l in 0..n {
+            let (ql, pl) = (q[l], p[l]);
+            let a = self.eps[l] + self.beta * (0.5 * (ql * ql + pl * pl));
+            let (s, c) = ((a * tau).sin(), (a * tau).cos());
+            let qn = ql * c + pl * s;
+            let pn = pl * c - ql * s;
+            // The rate depends on J_l: da = beta (q dq + p dp), and d(q', p') gains
+            // tau da (p', -q') beside the rotation of (dq, dp).
+            for v in w.chunks_exact_mut(dim) {
+                let (dq, dp) = (v[l], v[n + l]);
+                let da = self.beta * (ql * dq + pl * dp);
+                let td = tau * da;
+                v[l] = (dq * c + dp * s) + td * pn;
+                v[n + l] = (dp * c - dq * s) - td * qn;
+            }
+            q[l] = qn;
+            p[l] = pn;
+        }
+    }
+
+    /// `to += tau sum_nb from` (`sign` +1: the B flow on p; -1: the C flow on q), on `v`'s
+    /// halves; `scratch` holds the neighbour sums.
+    #[inline]
+    fn hop(&self, v: &mut [f64], from_q: bool, tau: f64, scratch: &mut [f64]) {
+        let n = self.sites();
+        let (q, p) = v.split_at_mut(n);
+        if from_q {
+            self.neighbour_sum(q, scratch);
+            for (pl, s) in p.iter_mut().zip(scratch.iter()) {
+                *pl += tau * s;
+            }
+        } else {
+            self.neighbour_sum(p, scratch);
+            for (ql, s) in q.iter_mut().zip(scratch.iter()) {
+                *ql -= tau * s;
+            }
+        }
+    }
+}
+
+thread_local! {
+    /// Neighbour sums of the hopping flows, one buffer per thread (flows are called in the
+    /// innermost loop and must not allocate).
+    static HOP_SCRATCH: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+fn with_scratch<R>(n: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
+    HOP_SCRATCH.with(|s| {
+        let mut s = s.borrow_mut();
+        if s.len() < n {
+            s.resize(n, 0.0);
+        }
+        f(&mut s[..n])
+    })
+}
+
+impl SplitFlows for Ddnls {
+    fn dim(&self) -> usize {
+        2 * self.sites()
+    }
+
+    fn parts(&self) -> usize {
+        3
+    }
+
+    fn flow(&self, part: usize, x: &mut [f64], tau: f64) {
+        match part {
+            0 => self.rotate(x, &mut [], tau),
+            1 => with_scratch(self.sites(), |s| self.hop(x, true, tau, s)),
+            _ => with_scratch(self.sites(), |s| self.hop(x, false, tau, s)),
+        }
+    }
+
+    fn flow_tangent(&self, part: usize, x: &mut [f64], w: &mut [f64], tau: f64) {
+        let dim = 2 * self.sites();
+        match part {
+            0 => self.rotate(x, w, tau),
+            // The hopping flows are linear: their tangent map is the flow itself.
+            1 | 2 => with_scratch(self.sites(), |s| {
+                let from_q = part == 1;
+                self.hop(x, from_q, tau, s);
+                for v in w.chunks_exact_mut(dim) {
+                    self.hop(v, from_q, tau, s);
+                }
+            }),
+            _ => unreachable!("the DDNLS has three parts"),
+        }
+    }
+}
+
+/// The equations of motion, for the Runge-Kutta integrators (a reference for the compositions,
+/// and `integrator.method = "dop853"` or `"gl6"` on a DDNLS): with `a_l = eps_l + beta J_l`,
+/// `dq_l/dt = a_l p_l - sum_nb p`, `dp_l/dt = -a_l q_l + sum_nb q`.
+impl VectorField for Ddnls {
+    fn dim(&self) -> usize {
+        2 * self.sites()
+    }
+
+    fn value(&self, x: &[f64], _t: f64, out: &mut [f64]) {
+        let n = self.sites();
+        let (q, p) = x.split_at(n);
+        let (dq, dp) = out.split_at_mut(n);
+        self.neighbour_sum(p, dq);
+        self.neighbour_sum(q, dp);
+        for l in 0..n {
+            let a = self.eps[l] + self.beta * (0.5 * (q[l] * q[l] + p[l] * p[l]));
+            dq[l] = a * p[l] - dq[l];
+            dp[l] -= a * q[l];
+        }
+    }
+
+    /// `d(dq)/dt = beta q p dq + (a + beta p^2) dp - sum_nb dp`,
+    /// `d(dp)/dt = -(a + beta q^2) dq - beta q p dp + sum_nb dq`.
+    fn tangent(&self, x: &[f64], _t: f64, v: &[f64], out: &mut [f64]) {
+        let n = self.sites();
+        let (q, p) = x.split_at(n);
+        let (vq, vp) = v.split_at(n);
+        let (dq, dp) = out.split_at_mut(n);
+        self.neighbour_sum(vp, dq);
+        self.neighbour_sum(vq, dp);
+        for l in 0..n {
+            let a = self.eps[l] + self.beta * (0.5 * (q[l] * q[l] + p[l] * p[l]));
+            let bqp = self.beta * q[l] * p[l];
+            dq[l] = (bqp * vq[l] + (a + self.beta * p[l] * p[l]) * vp[l]) - dq[l];
+            dp[l] -= (a + self.beta * q[l] * q[l]) * vq[l] + bqp * vp[l];
+        }
+    }
+
+    fn divergence(&self, _x: &[f64], _t: f64) -> f64 {
+        0.0
+    }
+
+    fn no_tangent_reason(&self) -> Option<String> {
+        None
+    }
+
+    fn diagnose_non_finite(&self, x: &[f64], _t: f64) -> Option<String> {
+        self.diagnose(x)
+    }
+
+    fn energy(&self, x: &[f64], _t: f64) -> Option<f64> {
+        Some(Ddnls::energy(self, x))
+    }
+
+    fn is_hamiltonian(&self) -> bool {
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn chain() -> Ddnls {
+        Ddnls::new(DdnlsLattice::Chain { n: 4 }, vec![0.3, -0.2, 0.1, 0.4], 1.5)
+    }
+
+    /// The energy's gradient is the field: `dq/dt = dH/dp`, `dp/dt = -dH/dq`, checked by
+    /// central differences (error ~ d^2 |H'''| ~ 1e-10 with d = 1e-5, rounding ~ eps/d ~ 1e-11).
+    #[test]
+    fn the_field_is_the_energy_gradient() {
+        for model in [
+            chain(),
+            Ddnls::new(
+                DdnlsLattice::Square { n: 3 },
+                (0..9).map(|l| 0.1 * l as f64 - 0.4).collect(),
+                0.7,
+            ),
+        ] {
+            let dim = 2 * model.sites();
+            let n = model.sites();
+            let x: Vec<f64> = (0..dim).map(|i| 0.3 * (i as f64 * 1.3).sin()).collect();
+            let mut f = vec![0.0; dim];
+            model.value(&x, 0.0, &mut f);
+            for i in 0..dim {
+                let d = 1e-5;
+                let mut xp = x.clone();
+                xp[i] += d;
+                let mut xm = x.clone();
+                xm[i] -= d;
+                let g = (model.energy(&xp) - model.energy(&xm)) / (2.0 * d);
+                // dH/dq_l = -dp_l/dt, dH/dp_l = dq_l/dt.
+                let want = if i < n { -f[i + n] } else { f[i - n] };
+                assert!((g - want).abs() < 1e-8, "coordinate {i}: {g} vs {want}");
+            }
+        }
+    }
+}

@@ -72,6 +72,9 @@ d0 = 1e-8
 tau = 0.5
 "#;
 
+/// The DDNLS example: a 21-site block of a 200-site chain excited by its norm.
+const DDNLS: &str = include_str!("../examples/models/ddnls-block.toml");
+
 /// A small FPUT chain (model keys other than Henon-Heiles').
 const FPUT: &str = r#"
 [model]
@@ -590,6 +593,20 @@ fn semantic_errors_name_the_file_and_the_line_of_their_key() {
             "beta = 1.0",
             "beta = nan",
             "invalid run configuration: model.beta",
+        ),
+        (
+            Run,
+            DDNLS,
+            "W = 4.0",
+            "W = -4.0",
+            "invalid run configuration: model.W",
+        ),
+        (
+            Run,
+            DDNLS,
+            "lattice = \"chain\"",
+            "lattice = \"cube\"",
+            "invalid run configuration: model.lattice",
         ),
     ];
     for (i, (cmd, base, from, to, says)) in cases.into_iter().enumerate() {

@@ -106,27 +106,6 @@ impl Window {
     }
 }
 
-/// The windows of a run from step 0 to its end.
-pub struct Windows<'a> {
-    run: &'a RunSpec,
-    step: u64,
-}
-
-impl<'a> Windows<'a> {
-    pub fn new(run: &'a RunSpec) -> Self {
-        Self { run, step: 0 }
-    }
-}
-
-impl Iterator for Windows<'_> {
-    type Item = Window;
-    fn next(&mut self) -> Option<Window> {
-        let w = Window::after(self.run, self.step)?;
-        self.step = w.end();
-        Some(w)
-    }
-}
-
 fn norm_of(v: &[f64]) -> f64 {
     v.iter().map(|v| v * v).sum::<f64>().sqrt()
 }

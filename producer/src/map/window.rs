@@ -10,7 +10,7 @@ use super::spec::MapSpec;
 use crate::batch::{PointKernel, Soa};
 use crate::method::DeviationMethod;
 use crate::spec::RunSpec;
-use crate::window::{self, RunError, Window, Windows};
+use crate::window::{self, RunError, Window};
 
 /// A point's reference at the end of window `w`: its state `x` (read from lane `ref_lane` of
 /// `soa` when it is an orbit lane, stepped in place otherwise) passes the escape test of runs
@@ -76,9 +76,12 @@ pub fn drive<P>(
     if !points.is_empty() {
         groups.push(group(&mut lanes, points));
     }
-    let mut windows = Windows::new(&spec.run);
+    let mut step = 0;
     while !groups.is_empty() && !stop() {
-        let Some(w) = windows.next() else { break };
+        let Some(w) = Window::after(&spec.run, step) else {
+            break;
+        };
+        step = w.end();
         for g in &mut groups {
             out.extend(window(g, &w));
         }

@@ -24,7 +24,7 @@
 //!   Hessian-vector product and whole splitting steps over lanes (Cranelift at once, C on a
 //!   background thread).
 //!
-//! I/O, in three places only: `table` reads the CSV file a config names; `jit::c_step` runs
+//! I/O, in three places only: `table` reads the CSV file a config names; `jit::c` runs
 //! the system C compiler and reads and writes its kernel cache (`CHAOSCOPE_KERNEL_CACHE`, else
 //! the user's cache directory); `potential` says once on stderr why the C kernels could not be built.
 

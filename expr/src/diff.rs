@@ -55,7 +55,7 @@ type Term = (f64, Option<NodeId>);
 
 /// The local derivative of a one-operand operation, in a form that lets coefficients fold.
 #[derive(Debug, Clone, Copy)]
-enum Local {
+pub(crate) enum Local {
     /// `c · d`
     Mul(f64, Option<NodeId>),
     /// `c / d`
@@ -166,37 +166,9 @@ fn table_deriv(g: &mut Graph, table: u32, deriv: u8, arg: NodeId) -> Result<Node
     }))
 }
 
-/// `d v / d u` for `v = op(u)`; `None` when it is zero.
+/// `d v / d u` for `v = op(u)` (its definition in [`crate::ops`]); `None` when it is zero.
 fn unary_local(g: &mut Graph, op: Unary, u: NodeId, v: NodeId) -> Option<Local> {
-    Some(match op {
-        Unary::Neg => Local::Mul(-1.0, None),
-        // (sqrt u)' = 1 / (2 sqrt u), written 0.5 / v: exact scaling, and the node v is reused.
-        Unary::Sqrt => Local::Div(0.5, v),
-        Unary::Exp => Local::Mul(1.0, Some(v)),
-        Unary::Log => Local::Div(1.0, u),
-        Unary::Sin => Local::Mul(1.0, Some(g.unary(Unary::Cos, u))),
-        Unary::Cos => Local::Mul(-1.0, Some(g.unary(Unary::Sin, u))),
-        // 1 + tan^2 reuses the tan node (no cos, no division).
-        Unary::Tan => {
-            let one = g.constant(1.0);
-            let v2 = g.powi(v, 2);
-            Local::Mul(1.0, Some(g.add2(one, v2)))
-        }
-        Unary::Atan => {
-            let one = g.constant(1.0);
-            let u2 = g.powi(u, 2);
-            Local::Div(1.0, g.add2(one, u2))
-        }
-        Unary::Tanh => {
-            let one = g.constant(1.0);
-            let v2 = g.powi(v, 2);
-            Local::Mul(1.0, Some(g.sub(one, v2)))
-        }
-        Unary::Cosh => Local::Mul(1.0, Some(g.unary(Unary::Sinh, u))),
-        Unary::Sinh => Local::Mul(1.0, Some(g.unary(Unary::Cosh, u))),
-        Unary::Abs => Local::Mul(1.0, Some(g.unary(Unary::Sign, u))),
-        Unary::Step | Unary::Sign => return None,
-    })
+    (op.def().derivative)(g, u, v)
 }
 
 /// `d u^n / d u = n u^(n-1)`, as `Powi` (so `(u^2)' = 2 u`).

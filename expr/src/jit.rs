@@ -184,30 +184,10 @@ pub enum JitError {
 // Callbacks: the compiled code calls these for every operation that is not a single IEEE
 // instruction, so the result is by construction the one `Graph` defines.
 
-macro_rules! unary_callbacks {
-    ($($name:ident => $op:ident),* $(,)?) => {
-        $(extern "C" fn $name(x: f64) -> f64 {
-            Graph::apply_unary(Unary::$op, x)
-        })*
-        fn unary_callback(op: Unary) -> Option<usize> {
-            match op {
-                $(Unary::$op => Some($name as *const () as usize),)*
-                _ => None,
-            }
-        }
-    };
-}
-
-unary_callbacks! {
-    cb_exp => Exp,
-    cb_log => Log,
-    cb_sin => Sin,
-    cb_cos => Cos,
-    cb_tan => Tan,
-    cb_atan => Atan,
-    cb_tanh => Tanh,
-    cb_cosh => Cosh,
-    cb_sinh => Sinh,
+/// The address of the value function the compiled code calls for `op`, if it calls one.
+fn unary_callback(op: Unary) -> Option<usize> {
+    let def = op.def();
+    (def.lowering == crate::ops::Lowering::Call).then_some(def.eval as usize)
 }
 
 extern "C" fn cb_pow(a: f64, b: f64) -> f64 {

@@ -37,6 +37,7 @@ pub mod jit;
 pub mod lattice;
 mod lexer;
 pub mod lower;
+mod ops;
 pub mod parser;
 pub mod potential;
 pub mod scalar;

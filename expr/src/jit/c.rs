@@ -71,9 +71,8 @@ use std::time::{Duration, Instant};
 
 use sha2::{Digest, Sha256};
 
-use super::unary_callback;
 use super::{JitError, cb_atan2, cb_pow, cb_table};
-use crate::graph::{Tabulated, Unary};
+use crate::graph::Tabulated;
 
 use cache::{CacheDir, WorkDir, digest_hex, read_regular, remove_abandoned_builds};
 pub use compiler::CCompiler;
@@ -130,19 +129,8 @@ pub(crate) type CFusedFn = unsafe extern "C" fn(
     env: *const usize,
 );
 
-/// Unary operations called back, in the order of their `env` slots.
-pub(crate) const UNARY_CALLED: [Unary; 9] = [
-    Unary::Exp,
-    Unary::Log,
-    Unary::Sin,
-    Unary::Cos,
-    Unary::Tan,
-    Unary::Atan,
-    Unary::Tanh,
-    Unary::Cosh,
-    Unary::Sinh,
-];
-pub(crate) const ENV_POW: usize = UNARY_CALLED.len();
+/// `env[0..ENV_POW]` are the unary operations called back ([`crate::ops::called`]).
+pub(crate) const ENV_POW: usize = crate::ops::UNARY_CALLS;
 pub(crate) const ENV_ATAN2: usize = ENV_POW + 1;
 pub(crate) const ENV_TABLE: usize = ENV_ATAN2 + 1;
 /// `env[ENV_TABLES + t]` is table `t` (a `*const Arc<dyn Tabulated>`); after the tables, the
@@ -152,10 +140,7 @@ pub(crate) const ENV_TABLES: usize = ENV_TABLE + 1;
 /// The callback table the kernels read: the Rust callbacks, then the table pointers (into
 /// `tables`, which must outlive every call), then the arrays' (which must too).
 pub(crate) fn env(tables: &[Arc<dyn Tabulated>], arrays: &[Arc<[f64]>]) -> Box<[usize]> {
-    let mut env: Vec<usize> = UNARY_CALLED
-        .iter()
-        .map(|&op| unary_callback(op).expect("a called-back unary operation"))
-        .collect();
+    let mut env: Vec<usize> = crate::ops::called().map(|d| d.eval as usize).collect();
     env.push(cb_pow as *const () as usize);
     env.push(cb_atan2 as *const () as usize);
     env.push(cb_table as *const () as usize);

@@ -1,7 +1,7 @@
 //! The C text of the step kernels: the prelude, the vector helpers and each node as a C
 //! expression over scalars or vectors.
 
-use super::{ENV_ATAN2, ENV_POW, ENV_TABLE, ENV_TABLES, UNARY_CALLED};
+use super::{ENV_ATAN2, ENV_POW, ENV_TABLE, ENV_TABLES};
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
 use crate::jit::outputs_by_node;
 use crate::jit::step_spec::{StepSpec, kernel_plan};
@@ -108,9 +108,8 @@ pub(crate) fn cmp_op(cmp: Cmp) -> &'static str {
 }
 
 pub(crate) fn unary_slot(op: Unary) -> usize {
-    UNARY_CALLED
-        .iter()
-        .position(|&u| u == op)
+    crate::ops::called()
+        .position(|d| d.op == op)
         .expect("a called-back unary operation")
 }
 

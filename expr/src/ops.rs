@@ -37,6 +37,8 @@ pub enum Unary {
     /// `-1`, `0` or `1` by the sign of `x` (`sign(0) = 0`, `sign(-0) = 0`); NaN stays NaN. The
     /// derivative of `abs`.
     Sign,
+    /// `f64::asinh`: smooth and odd everywhere, `asinh(0) = 0`.
+    Asinh,
 }
 
 /// The signs `op(u)` can take, given those `u` can.
@@ -155,6 +157,10 @@ extern "C" fn sign(x: f64) -> f64 {
     } else {
         0.0
     }
+}
+
+extern "C" fn asinh(x: f64) -> f64 {
+    x.asinh()
 }
 
 /// `c`, a constant local derivative.
@@ -316,6 +322,20 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: false,
         finite: false,
+    },
+    UnaryOp {
+        op: Unary::Asinh,
+        name: Some("asinh"),
+        eval: asinh,
+        // 1 / sqrt(1 + u^2)
+        derivative: |g, u, _| {
+            let s = one_and_square(g, u, false);
+            Some(Local::Div(1.0, g.unary(Unary::Sqrt, s)))
+        },
+        lowering: Lowering::Call,
+        signs: SignsOf::Same,
+        keeps_zero: true,
+        finite: true,
     },
 ];
 

@@ -26,7 +26,8 @@
 //!
 //! I/O, in three places only: `table` reads the CSV file a config names; `jit::c` runs
 //! the system C compiler and reads and writes its kernel cache (`CHAOSCOPE_KERNEL_CACHE`, else
-//! the user's cache directory); `potential` says once on stderr why the C kernels could not be built.
+//! the user's cache directory); `potential` says once on stderr why the C kernels could not be
+//! built (`potential/kernel_switch.rs`).
 
 pub mod ast;
 pub mod diff;

@@ -6,10 +6,10 @@
 //! gradient and the Hessian) are computed once. A node only refers to nodes created before it,
 //! so the node order is a valid evaluation order.
 //!
-//! The meaning of every operation is fixed here, down to the rounding: the evaluator (`eval`)
-//! and the compiled code (`jit`) perform exactly these IEEE operations in this order and call
-//! the same Rust functions for the transcendental ones, so they agree bit for bit. No fused
-//! multiply-add anywhere.
+//! The meaning of every operation is fixed here (the one-argument functions in `ops`), down to
+//! the rounding: the evaluator (`eval`) and the compiled code (`jit`) perform exactly these
+//! IEEE operations in this order and call the same Rust functions for the transcendental ones,
+//! so they agree bit for bit. No fused multiply-add anywhere.
 
 use std::collections::HashMap;
 use std::sync::Arc;
@@ -21,27 +21,8 @@ pub const MAX_POWI: u32 = 64;
 /// Index of a node in its [`Graph`].
 pub type NodeId = u32;
 
-/// One-argument operations. Transcendental ones are the Rust `f64` methods of the same name.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Unary {
-    Neg,
-    Sqrt,
-    Exp,
-    Log,
-    Sin,
-    Cos,
-    Tan,
-    Atan,
-    Tanh,
-    Cosh,
-    Sinh,
-    Abs,
-    /// Heaviside step: `1` for `x > 0`, else `0` (so `step(0) = 0`); NaN stays NaN.
-    Step,
-    /// `-1`, `0` or `1` by the sign of `x` (`sign(0) = 0`, `sign(-0) = 0`); NaN stays NaN. The
-    /// derivative of `abs`.
-    Sign,
-}
+/// One-argument operations, each defined in [`crate::ops`].
+pub use crate::ops::Unary;
 
 /// Two-argument operations.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -394,44 +375,11 @@ impl Graph {
         id
     }
 
-    /// The one definition of each unary operation (the evaluator and the compiled code's
-    /// callbacks use this very function).
+    /// The value of a unary operation: its one definition in [`crate::ops`], which the
+    /// compiled code calls too.
     #[inline]
     pub fn apply_unary(op: Unary, x: f64) -> f64 {
-        match op {
-            Unary::Neg => -x,
-            Unary::Sqrt => x.sqrt(),
-            Unary::Exp => x.exp(),
-            Unary::Log => x.ln(),
-            Unary::Sin => x.sin(),
-            Unary::Cos => x.cos(),
-            Unary::Tan => x.tan(),
-            Unary::Atan => x.atan(),
-            Unary::Tanh => x.tanh(),
-            Unary::Cosh => x.cosh(),
-            Unary::Sinh => x.sinh(),
-            Unary::Abs => x.abs(),
-            Unary::Step => {
-                if x.is_nan() {
-                    x
-                } else if x > 0.0 {
-                    1.0
-                } else {
-                    0.0
-                }
-            }
-            Unary::Sign => {
-                if x.is_nan() {
-                    x
-                } else if x > 0.0 {
-                    1.0
-                } else if x < 0.0 {
-                    -1.0
-                } else {
-                    0.0
-                }
-            }
-        }
+        (op.def().eval)(x)
     }
 
     /// The one definition of each binary operation. `max`/`min` propagate NaN (unlike

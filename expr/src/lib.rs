@@ -24,9 +24,10 @@
 //!   Hessian-vector product and whole splitting steps over lanes (Cranelift at once, C on a
 //!   background thread).
 //!
-//! I/O, in three places only: `table` reads the CSV file a config names; `jit::c_step` runs
+//! I/O, in three places only: `table` reads the CSV file a config names; `jit::c` runs
 //! the system C compiler and reads and writes its kernel cache (`CHAOSCOPE_KERNEL_CACHE`, else
-//! the user's cache directory); `potential` says once on stderr why the C kernels could not be built.
+//! the user's cache directory); `potential` says once on stderr why the C kernels could not be
+//! built (`potential/kernel_switch.rs`).
 
 pub mod ast;
 pub mod diff;
@@ -37,6 +38,7 @@ pub mod jit;
 pub mod lattice;
 mod lexer;
 pub mod lower;
+mod ops;
 pub mod parser;
 pub mod potential;
 pub mod scalar;

@@ -154,22 +154,6 @@ pub struct Lowered {
     pub sums: Vec<SiteSum>,
 }
 
-const UNARY: &[(&str, Unary)] = &[
-    ("sqrt", Unary::Sqrt),
-    ("exp", Unary::Exp),
-    ("log", Unary::Log),
-    ("sin", Unary::Sin),
-    ("cos", Unary::Cos),
-    ("tan", Unary::Tan),
-    ("atan", Unary::Atan),
-    ("tanh", Unary::Tanh),
-    ("cosh", Unary::Cosh),
-    ("sinh", Unary::Sinh),
-    ("abs", Unary::Abs),
-    ("step", Unary::Step),
-    ("sign", Unary::Sign),
-];
-
 const BINARY: &[(&str, Binary)] = &[
     ("atan2", Binary::Atan2),
     ("min", Binary::Min),
@@ -177,11 +161,19 @@ const BINARY: &[(&str, Binary)] = &[
 ];
 
 /// Every built-in function, for "unknown function" messages.
-const KNOWN: &str = "sqrt, exp, log, sin, cos, tan, atan, tanh, cosh, sinh, abs, step, sign, \
-                     atan2, min, max, if, piecewise, sum";
+fn known() -> String {
+    let unary = crate::ops::UNARY_OPS.iter().filter_map(|d| d.name);
+    let binary = BINARY.iter().map(|(n, _)| *n);
+    let other = ["if", "piecewise", "sum"];
+    unary
+        .chain(binary)
+        .chain(other)
+        .collect::<Vec<_>>()
+        .join(", ")
+}
 
 fn is_function(name: &str) -> bool {
-    UNARY.iter().any(|(n, _)| *n == name)
+    Unary::named(name).is_some()
         || BINARY.iter().any(|(n, _)| *n == name)
         || matches!(name, "if" | "piecewise" | "sum")
 }
@@ -942,7 +934,7 @@ impl<'a> Lowerer<'a> {
                 format!("table '{name}' has the name of a built-in function; rename the table"),
             ));
         }
-        if let Some(&(_, op)) = UNARY.iter().find(|(n, _)| *n == name) {
+        if let Some(op) = Unary::named(name) {
             self.arity(name, args, 1, span)?;
             let (a, ai) = self.value(&args[0])?;
             let id = self.emit(Node::Unary(op, a), span)?;
@@ -1042,7 +1034,8 @@ impl<'a> Lowerer<'a> {
             _ => Err(self.err(
                 name_span,
                 format!(
-                    "unknown function '{name}' (known: {KNOWN}{})",
+                    "unknown function '{name}' (known: {}{})",
+                    known(),
                     self.tables_note()
                 ),
             )),

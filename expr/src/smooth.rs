@@ -197,7 +197,7 @@ impl Signs {
     }
 
     /// The signs of `|x|` or `x^2` (not `x * y`: the factors are the same value).
-    fn square(self) -> Signs {
+    pub(crate) fn square(self) -> Signs {
         let mut out = Signs(0);
         if self.has(Self::ZERO) {
             out = out.union(Self::ZERO);
@@ -208,7 +208,7 @@ impl Signs {
         out
     }
 
-    fn neg(self) -> Signs {
+    pub(crate) fn neg(self) -> Signs {
         Signs((self.0 & 2) | ((self.0 & 1) << 2) | ((self.0 & 4) >> 2))
     }
 
@@ -420,21 +420,12 @@ impl Info {
     /// A smooth (where finite) function of `self`: `exp`, `log`, `sin`, ..., and the signs it
     /// can take. A function of a pole may undo it (`sin(1/abs(q))` is bounded and crossed).
     pub fn smooth_fn(self, op: Unary) -> Self {
-        let signs = match op {
-            Unary::Exp | Unary::Cosh => Signs::POS,
-            Unary::Sinh | Unary::Tanh | Unary::Atan | Unary::Sign => self.signs,
-            Unary::Neg => self.signs.neg(),
-            Unary::Abs => self.signs.square(),
-            Unary::Step => Signs::NONNEG,
-            _ => Signs::ALL,
-        };
+        let def = op.def();
+        let signs = crate::ops::signs_of(op, self.signs);
         // Odd functions with f(0) = 0, finite wherever their argument is: they keep a value
         // vanishing (`sin(sqrt(r2))`).
-        let keeps_zero = matches!(
-            op,
-            Unary::Neg | Unary::Sin | Unary::Sinh | Unary::Tanh | Unary::Atan
-        );
-        let finite = keeps_zero || matches!(op, Unary::Exp | Unary::Cos | Unary::Cosh);
+        let keeps_zero = def.keeps_zero;
+        let finite = def.finite;
         let limit = self.undone();
         Self {
             limit,

@@ -317,7 +317,7 @@ impl Tabulated for Cubic {
     }
 }
 
-const UNARY: [Unary; 14] = [
+const UNARY: [Unary; 15] = [
     Unary::Neg,
     Unary::Sqrt,
     Unary::Exp,
@@ -332,6 +332,7 @@ const UNARY: [Unary; 14] = [
     Unary::Abs,
     Unary::Step,
     Unary::Sign,
+    Unary::Asinh,
 ];
 
 const BINARY: [Binary; 8] = [

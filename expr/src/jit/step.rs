@@ -25,21 +25,21 @@
 //!
 //! Every lane performs exactly the operations of the generic `LaneModel::orbit_steps` /
 //! `tangent_steps` loops: `q + ch * p` (unit masses) or `q + (ch * w_j) * p`, the graph's
-//! operations as [`super::emit_vector`] emits them, and `p - dh * g`; so the kernels are
+//! operations as `cranelift::emit_vector` emits them, and `p - dh * g`; so the kernels are
 //! bit-identical to `Graph::apply_*` step by step, and never emit a fused multiply-add.
 
 //!
 //! This file is the facade: what a compiled set of kernels is ([`StepKernels`]) and how it is
-//! built, by Cranelift ([`super::step_cranelift`], at once) or by the system C compiler
-//! ([`super::c_step`], cached); both compile the same [`StepSpec`] ([`super::step_spec`]).
+//! built, by Cranelift ([`super::cranelift::step`], at once) or by the system C compiler
+//! ([`super::c`], cached); both compile the same [`StepSpec`] ([`super::step_spec`]).
 
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use super::c_step::{self, C_BLOCK_LANES, CCompiler, CKernels};
-use super::step_cranelift::{self, CraneliftKernels};
+use super::c::{self as c_step, C_BLOCK_LANES, CCompiler, CKernels};
+use super::cranelift::step::{self as step_cranelift, CraneliftKernels};
 use super::step_spec::StepSpec;
 use super::{AllocationWork, JitError, Options};
 use crate::graph::{Graph, Tabulated};
@@ -64,10 +64,10 @@ pub struct StepKernels {
 }
 
 /// Who generated the machine code.
-pub(super) enum Code {
-    /// Cranelift ([`super::step_cranelift`]).
+pub(crate) enum Code {
+    /// Cranelift ([`super::cranelift::step`]).
     Cranelift(CraneliftKernels),
-    /// The system C compiler ([`super::c_step`]); `env` is the callback table the code reads
+    /// The system C compiler ([`super::c`]); `env` is the callback table the code reads
     /// (pointers to the Rust callbacks, into `_tables` and to `_arrays`).
     C {
         kernels: CKernels,
@@ -111,7 +111,7 @@ impl StepKernels {
     /// Kernels built elsewhere in `jit` (the lattice loops); `allocation` as
     /// [`StepKernels::allocation_work`] (zero for C kernels).
     #[allow(clippy::too_many_arguments)]
-    pub(super) fn new(
+    pub(crate) fn new(
         code: Code,
         n: usize,
         blocks: [usize; 2],

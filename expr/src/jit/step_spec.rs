@@ -1,5 +1,5 @@
 //! What the step kernels compute from, shared by both back ends (Cranelift in
-//! [`super::step_cranelift`], C in [`super::c_step`]), which must accept exactly the same
+//! [`super::cranelift::step`], C in [`super::c`]), which must accept exactly the same
 //! kernels.
 
 use super::{FunctionSpec, JitError, Layout, Plan};
@@ -20,7 +20,7 @@ pub struct StepSpec {
 /// The plan of step kernel `f` (gradient or Hessian-vector product), checked against the step's
 /// shape: one output per degree of freedom, and no argument read beyond entry `N`. Shared by the
 /// Cranelift and the C generators, which must accept exactly the same kernels.
-pub(super) fn kernel_plan(
+pub(crate) fn kernel_plan(
     graph: &Graph,
     n: usize,
     f: usize,

@@ -1,6 +1,6 @@
 //! One orbit and its tangent vectors stepped together, vectorized along the lattice: the C
 //! kernel `chaoscope_reference_tangent_steps` of a lattice potential, written into the same
-//! library as its step kernels ([`super::c_sites`]).
+//! library as its step kernels ([`super::lattice_steps`]).
 //!
 //! The step kernels vectorize across lanes (many orbits, many tangent vectors), which a run's
 //! reference orbit with one or two tangent vectors cannot fill: stepped one by one through the
@@ -38,14 +38,14 @@
 use std::fmt::Write as _;
 use std::sync::Arc;
 
-use super::c_step::{emit_nodes, konst};
+use super::{emit_nodes, konst};
 use crate::graph::{Graph, Node, NodeId};
 use crate::lattice::{
     ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_V, LatticePotential, SiteSum,
 };
 
 /// The C symbol of the kernel.
-pub(super) const SYMBOL: &[u8] = b"chaoscope_reference_tangent_steps\0";
+pub(crate) const SYMBOL: &[u8] = b"chaoscope_reference_tangent_steps\0";
 
 /// Most sites written out one by one at the ends.
 const MAX_END_SITES: usize = 256;
@@ -184,7 +184,7 @@ typedef double vf __attribute__((vector_size(FLANES * 8)));
 typedef int64_t vfi __attribute__((vector_size(FLANES * 8)));
 "#,
     );
-    src.push_str(&super::c_step::vector_helpers("F", "vf", "vfi", "FLANES"));
+    src.push_str(&super::vector_helpers("F", "vf", "vfi", "FLANES"));
     src.push_str(
         r#"#undef LANES
 #define LANES FLANES
@@ -210,7 +210,7 @@ typedef int64_t vfi __attribute__((vector_size(FLANES * 8)));
 
 /// The kernel's C source (after the step kernels' prelude), `None` when it does not apply.
 /// `arrays` are the array parameters as `env` holds them from slot `array_env` on.
-pub(super) fn source(
+pub(crate) fn source(
     graph: &Graph,
     lattice: &LatticePotential,
     arrays: &[(String, Arc<[f64]>)],

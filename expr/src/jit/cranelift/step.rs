@@ -1,4 +1,4 @@
-//! The Cranelift back end of the step kernels (see [`super::step`] for what they compute):
+//! The Cranelift back end of the step kernels (see [`crate::jit::step`] for what they compute):
 //! native code generated in process, at once, for any host Cranelift supports.
 
 use std::cell::{Cell, RefCell};
@@ -14,26 +14,26 @@ use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::JITModule;
 use cranelift_module::{Linkage, Module};
 
-use super::step_spec::{StepSpec, kernel_plan};
 use super::{
-    AllocationWork, JitError, Layout, OptLevel, Options, Plan, Regalloc, Sigs, VConsts,
-    emit_scalar, emit_vector, flags, is_leaf, new_module, operand_scalar, outputs_by_node,
+    AllocationWork, Sigs, VConsts, emit_scalar, emit_vector, flags, new_module, operand_scalar,
     regalloc_for,
 };
 use crate::graph::{Graph, Node, NodeId, Tabulated};
+use crate::jit::step_spec::{StepSpec, kernel_plan};
+use crate::jit::{JitError, Layout, OptLevel, Options, Plan, Regalloc, is_leaf, outputs_by_node};
 
 /// `n_steps` steps of the splitting for `lanes` orbits whose row `r` (`q_1..q_N, p_1..p_N`) of
 /// lane `l` is `x[r * stride + l]`; `drift` holds `n_kicks + 1` coefficients (already times the
 /// step), `kick` `n_kicks`; `inverse_masses` is null (unit masses) or holds `N` values.
 ///
-/// `scratch` is the kernel's working memory ([`super::StepKernels`] allocates it for each call:
+/// `scratch` is the kernel's working memory ([`crate::jit::StepKernels`] allocates it for each call:
 /// the lattice loops' force of one block of lanes, `N` rows of a block; unused by other kernels).
 ///
 /// # Safety contract
 /// `x` readable and writable at `[r * stride + l]` for `r < 2N`, `l < lanes`; `lanes` a multiple
-/// of [`super::StepKernels::block_lanes`] (other lanes are not touched); `drift`, `kick`,
+/// of [`crate::jit::StepKernels::block_lanes`] (other lanes are not touched); `drift`, `kick`,
 /// `inverse_masses` readable as stated and not overlapping `x`; `scratch` writable for the
-/// kernel's scratch length and overlapping nothing; the [`super::StepKernels`] it came from
+/// kernel's scratch length and overlapping nothing; the [`crate::jit::StepKernels`] it came from
 /// alive.
 pub type OrbitStepsFnPtr = unsafe extern "C" fn(
     x: *mut f64,
@@ -67,17 +67,17 @@ pub type TangentStepsFnPtr = unsafe extern "C" fn(
 );
 
 /// The Cranelift kernels of one [`compile`] call.
-pub(super) struct CraneliftKernels {
-    pub(super) modules: Mutex<Vec<JITModule>>,
-    pub(super) orbit: OrbitStepsFnPtr,
-    pub(super) tangent: Option<TangentStepsFnPtr>,
+pub(crate) struct CraneliftKernels {
+    pub(crate) modules: Mutex<Vec<JITModule>>,
+    pub(crate) orbit: OrbitStepsFnPtr,
+    pub(crate) tangent: Option<TangentStepsFnPtr>,
     /// What the register allocators were given.
-    pub(super) allocation: AllocationWork,
+    pub(crate) allocation: AllocationWork,
 }
 
 /// What a [`compile`] call built: the kernels, lanes per block of each (orbit, tangent), the
 /// tables the code calls into, and the time it took.
-pub(super) type Compiled = (
+pub(crate) type Compiled = (
     CraneliftKernels,
     [usize; 2],
     Box<[Arc<dyn Tabulated>]>,
@@ -89,7 +89,7 @@ pub(super) type Compiled = (
 /// `options.large_function` is compiled without Cranelift's optimizer and with two-lane blocks
 /// (half the code: an FPUT chain of 1001 sites compiles both kernels in about 0.25 s instead
 /// of 0.7 s).
-pub(super) fn compile(
+pub(crate) fn compile(
     graph: &Graph,
     spec: &StepSpec,
     options: &Options,
@@ -406,7 +406,7 @@ impl Block<'_> {
     }
 }
 
-pub(super) fn vconsts(b: &mut FunctionBuilder) -> VConsts {
+pub(crate) fn vconsts(b: &mut FunctionBuilder) -> VConsts {
     let mut sp = |c: f64| {
         let s = b.ins().f64const(c);
         b.ins().splat(F64X2, s)

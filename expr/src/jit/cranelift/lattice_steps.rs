@@ -1,5 +1,5 @@
-//! The splitting step kernels of [`super::step`] for a potential made of lattice sums: the force
-//! (or `Hess V dq`) of each block of lanes computed by the sums' loops ([`super::sites`]) into
+//! The splitting step kernels of [`crate::jit::step`] for a potential made of lattice sums: the force
+//! (or `Hess V dq`) of each block of lanes computed by the sums' loops ([`crate::jit::cranelift::lattice`]) into
 //! the call's scratch rows, in the order of [`crate::lattice::LatticeEvaluator`], so every lane
 //! gets the bits of the generic step loops around the scalar functions.
 //!
@@ -28,13 +28,14 @@ use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::JITModule;
 use cranelift_module::{Linkage, Module};
 
-use super::sites::{
+use super::lattice::{
     Body, OutputPlan, Val, WindowPlan, accumulate, arrays_of, shift_range, site_loop,
 };
-use super::step::{Code, StepKernels};
-use super::step_cranelift::{CraneliftKernels, OrbitStepsFnPtr, TangentStepsFnPtr, vconsts};
-use super::{JitError, Options, Sigs, VConsts, flags, new_module};
+use super::step::{CraneliftKernels, OrbitStepsFnPtr, TangentStepsFnPtr, vconsts};
+use super::{Sigs, VConsts, flags, new_module};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
+use crate::jit::step::{Code, StepKernels};
+use crate::jit::{JitError, Options};
 use crate::lattice::{
     ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_V, LatticePotential, SiteSum,
 };
@@ -54,8 +55,8 @@ pub fn compile_lattice_steps(
         )));
     }
     let units = options.lane_block / 2;
-    super::sites::check_size(lattice)?;
-    let (regalloc, allocation) = super::sites::lattice_regalloc(options, graph, lattice, false);
+    super::lattice::check_size(lattice)?;
+    let (regalloc, allocation) = super::lattice::lattice_regalloc(options, graph, lattice, false);
     let (mut module, _) = new_module(options.opt_level, regalloc)?;
     let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();
     let arrays = arrays_of(lattice);
@@ -676,7 +677,7 @@ impl Kernel<'_> {
 }
 
 /// A sum's interior loop in a step kernel, with its window of sites carried in registers from
-/// term to term (as [`super::sites`]'s scalar window, for a block of lanes): the row entering
+/// term to term (as [`crate::jit::cranelift::lattice`]'s scalar window, for a block of lanes): the row entering
 /// the window drifted before its first read when the plan says so, the site a term completes
 /// kicked at once when the plan says so (else stored in its scratch row), the slots a term
 /// shares with the next one read once.

@@ -25,23 +25,24 @@ use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_module::{Linkage, Module};
 
 use super::{
-    AllocationWork, Compiled, FnInfo, JitError, LanesFnPtr, Layout, Options, Regalloc, ScalarFnPtr,
-    Sigs, VConsts, emit_scalar, emit_vector, flags, is_leaf, new_module, regalloc_for, schedule,
+    AllocationWork, Compiled, FnInfo, LanesFnPtr, ScalarFnPtr, Sigs, VConsts, emit_scalar,
+    emit_vector, flags, new_module, regalloc_for,
 };
 use crate::graph::{Graph, Node, NodeId, Tabulated};
+use crate::jit::{JitError, Layout, Options, Regalloc, is_leaf, schedule};
 use crate::lattice::{
     ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_SUM, ARG_V, LatticePotential, SiteSum,
 };
 
 /// A value of generated code: one scalar shared by every lane, or one `F64X2` per unit.
 #[derive(Debug, Clone, Copy)]
-pub(super) enum Val {
+pub(crate) enum Val {
     One(Value),
     Lanes([Value; 2]),
 }
 
 /// Emits graph nodes as scalar or lane code (see the module documentation).
-pub(super) struct Body<'a> {
+pub(crate) struct Body<'a> {
     pub graph: &'a Graph,
     pub sigs: &'a Sigs,
     pub tables: &'a [Arc<dyn Tabulated>],
@@ -107,7 +108,7 @@ impl Body<'_> {
 
 /// `acc + d`, `acc - d` or `acc + c * d` ([`crate::lattice::accumulate`]), on scalars or
 /// `F64X2` values.
-pub(super) fn accumulate(
+pub(crate) fn accumulate(
     b: &mut FunctionBuilder,
     c: f64,
     acc: Value,
@@ -128,7 +129,7 @@ pub(super) fn accumulate(
     }
 }
 
-/// The scalar functions of a lattice potential, in [`super::Compiled`]'s order.
+/// The scalar functions of a lattice potential, in [`crate::jit::Compiled`]'s order.
 pub const LATTICE_POTENTIAL: usize = 0;
 pub const LATTICE_GRADIENT: usize = 1;
 pub const LATTICE_HESSIAN_VECTOR: usize = 2;
@@ -222,11 +223,11 @@ pub fn compile_lattice(
 
 /// The register allocator of a lattice potential's functions (one module): the single-pass
 /// one if any group of nodes emitted together (the potential with `potential`, the rest's
-/// derivatives, each term's) keeps its values live longer than [`super::MAX_MEAN_LIVE`]
+/// derivatives, each term's) keeps its values live longer than [`crate::jit::MAX_MEAN_LIVE`]
 /// operations on average, as [`regalloc_for`] decides for the unrolled functions; else
 /// `options.regalloc`. A term is emitted once per loop, so its live span is that of one
 /// term, whatever `N`. Also what the allocators were given (each group counted once).
-pub(super) fn lattice_regalloc(
+pub(crate) fn lattice_regalloc(
     options: &Options,
     graph: &Graph,
     lattice: &LatticePotential,
@@ -268,7 +269,7 @@ pub(super) fn lattice_regalloc(
 
 /// Refuses lattices whose byte offsets (sites times 8, scratch rows of up to four lanes) do not
 /// fit the `i32` immediates of the generated code.
-pub(super) fn check_size(lattice: &LatticePotential) -> Result<(), JitError> {
+pub(crate) fn check_size(lattice: &LatticePotential) -> Result<(), JitError> {
     let n = lattice.n as u64;
     if n * 32 > i32::MAX as u64 {
         return Err(JitError::TooLarge {
@@ -282,7 +283,7 @@ pub(super) fn check_size(lattice: &LatticePotential) -> Result<(), JitError> {
 
 /// The array parameters the sums read, each once (by name), as `(name, values)`: the compiled
 /// loops read them through pointers into these.
-pub(super) fn arrays_of(lattice: &LatticePotential) -> Vec<(String, Arc<[f64]>)> {
+pub(crate) fn arrays_of(lattice: &LatticePotential) -> Vec<(String, Arc<[f64]>)> {
     let mut arrays: Vec<(String, Arc<[f64]>)> = Vec::new();
     for p in lattice.sums.iter().flat_map(|s| &s.params) {
         if !arrays.iter().any(|(name, _)| *name == p.name) {
@@ -542,7 +543,7 @@ fn slot_leaf(
 const MAX_WINDOW: i64 = 8;
 
 /// The smallest and largest shift of a term's variable slots.
-pub(super) fn shift_range(shifts: &[i64]) -> (i64, i64) {
+pub(crate) fn shift_range(shifts: &[i64]) -> (i64, i64) {
     shifts
         .iter()
         .fold((i64::MAX, i64::MIN), |(lo, hi), &k| (lo.min(k), hi.max(k)))
@@ -788,7 +789,7 @@ impl Window<'_> {
 /// force never reads it (`post_drift`), and kicked after them (`post_kick`). A row is drifted
 /// before it is read and before it is kicked (both read its momentum), kicked once its force
 /// is complete: the bits of the separate drift, force and kick passes.
-pub(super) struct OutputPlan {
+pub(crate) struct OutputPlan {
     /// Per sum: its interior loop's window, if it keeps one.
     pub window: Vec<Option<WindowPlan>>,
     /// Sites `a..z` (0-based) to set to `-0` first.
@@ -800,7 +801,7 @@ pub(super) struct OutputPlan {
 
 /// A sum's interior loop with its window of sites in registers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) struct WindowPlan {
+pub(crate) struct WindowPlan {
     /// No part wrote the sites entering the window before: their first contribution is taken
     /// as it is.
     pub fresh: bool,
@@ -831,7 +832,7 @@ fn ranges(flags: &[bool]) -> Vec<(usize, usize)> {
 impl OutputPlan {
     /// The plan of the gradient (or with `hessian` the Hessian-vector product); with `stage`,
     /// of a step kernel's stage (drifts and kicks in the loops), else of a function.
-    pub(super) fn new(
+    pub(crate) fn new(
         graph: &Graph,
         lattice: &LatticePotential,
         hessian: bool,
@@ -1035,12 +1036,12 @@ fn fill(b: &mut FunctionBuilder, out: Value, a: usize, z: usize, x: f64) {
 }
 
 /// A loop's term: `(builder, i, acc) -> acc`.
-pub(super) type TermBody<'a> =
+pub(crate) type TermBody<'a> =
     dyn FnMut(&mut FunctionBuilder, Value, Option<Value>) -> Option<Value> + 'a;
 
 /// `for i in from..=to`: `body(i, acc)` with the accumulator `acc` (of the potential) carried
 /// from term to term; returns it after the last term.
-pub(super) fn site_loop(
+pub(crate) fn site_loop(
     b: &mut FunctionBuilder,
     from: i64,
     to: i64,

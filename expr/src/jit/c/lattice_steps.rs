@@ -1,4 +1,4 @@
-//! The lattice step kernels of [`super::site_steps`] written as C ([`super::c_step`]'s vectors,
+//! The lattice step kernels of `cranelift::lattice_steps` written as C (`c::emit`'s vectors,
 //! flags, callbacks and cache): the same passes (drift and clear, the rest's derivatives and
 //! each sum's boundary terms and loop into the scratch rows, kick) and the same operations in
 //! the same order, so the same bits as the Cranelift kernels and the generic step loops.
@@ -13,18 +13,18 @@ use std::fmt::Write as _;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
-use super::c_step::{self, C_BLOCK_LANES, CCompiler, konst};
-use super::sites::{WindowPlan, arrays_of};
-use super::step::{Code, StepKernels};
-use super::{AllocationWork, JitError};
+use super::{self as c_step, C_BLOCK_LANES, CCompiler, konst};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
+use crate::jit::cranelift::lattice::{WindowPlan, arrays_of};
+use crate::jit::step::{Code, StepKernels};
+use crate::jit::{AllocationWork, JitError};
 use crate::lattice::{
     ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_V, LatticePotential, SiteSum,
 };
 
 /// The C kernels of a lattice potential (compiled by `cc` or loaded from its cache), as
-/// [`super::compile_lattice_steps`] builds them with Cranelift; gives up once `cancel` is set
-/// (see [`super::compile_steps_c_cancellable`]).
+/// [`crate::jit::compile_lattice_steps`] builds them with Cranelift; gives up once `cancel` is set
+/// (see [`crate::jit::compile_steps_c_cancellable`]).
 pub fn compile_lattice_steps_c_cancellable(
     graph: &Graph,
     lattice: &LatticePotential,
@@ -97,7 +97,7 @@ fn source(graph: &Graph, lattice: &LatticePotential, arrays: &[(String, Arc<[f64
         let k = Kernel {
             graph,
             lattice,
-            plan: super::sites::OutputPlan::new(graph, lattice, tangent, true),
+            plan: crate::jit::cranelift::lattice::OutputPlan::new(graph, lattice, tangent, true),
             arrays,
             array_env: c_step::ENV_TABLES + n_tables,
             tangent,
@@ -105,7 +105,7 @@ fn source(graph: &Graph, lattice: &LatticePotential, arrays: &[(String, Arc<[f64
         k.write(&mut src);
     }
     let array_env = c_step::ENV_TABLES + n_tables;
-    if let Some(fused) = super::c_fused::source(graph, lattice, arrays, array_env) {
+    if let Some(fused) = super::fused::source(graph, lattice, arrays, array_env) {
         src.push_str(&fused);
     }
     src
@@ -115,7 +115,7 @@ struct Kernel<'a> {
     graph: &'a Graph,
     lattice: &'a LatticePotential,
     /// Which sums' interior loops keep their window of sites in variables.
-    plan: super::sites::OutputPlan,
+    plan: crate::jit::cranelift::lattice::OutputPlan,
     arrays: &'a [(String, Arc<[f64]>)],
     /// `env` slot of the first array parameter.
     array_env: usize,
@@ -194,7 +194,7 @@ impl Kernel<'_> {
         }
     }
 
-    /// The lines computing `roots` (in [`super::sites::Body`]'s order), and each root's
+    /// The lines computing `roots` (in [`crate::jit::cranelift::lattice::Body`]'s order), and each root's
     /// expression as a lane value.
     fn emit(
         &self,
@@ -334,7 +334,7 @@ impl Kernel<'_> {
     }
 
     /// The interior loop of a sum with the sites its terms reach (`i + kmin .. i + kmax`) kept
-    /// in variables from term to term, as [`super::sites`]'s window loop: the same additions in
+    /// in variables from term to term, as [`crate::jit::cranelift::lattice`]'s window loop: the same additions in
     /// the same order as adding to the scratch rows in memory, one store per site; the slots
     /// a term shares with the next one read once.
     fn window_loop(
@@ -349,7 +349,7 @@ impl Kernel<'_> {
         let fresh = plan.fresh;
         let n = self.lattice.n;
         let shifts = &sum.variables;
-        let (kmin, kmax) = super::sites::shift_range(shifts);
+        let (kmin, kmax) = crate::jit::cranelift::lattice::shift_range(shifts);
         let w = (kmax - kmin) as usize;
         let carry: Vec<(usize, usize)> = shifts
             .iter()

@@ -1,0 +1,382 @@
+//! Every one-argument function of the language, defined once: its name in a source, its value
+//! down to the rounding (the one Rust function the evaluator calls and the compiled code calls
+//! back, so they agree bit for bit), its derivative as nodes of the graph, what it does to the
+//! signs and poles of its argument (`smooth`), and whether the code generators write it as IEEE
+//! instructions or call its value function lane by lane.
+//!
+//! Adding a function is one variant of [`Unary`] and one entry of [`UNARY_OPS`] here: the
+//! lowering finds it by name, the evaluator and both code generators (Cranelift, C) call its
+//! value function, `diff` takes its derivative and `smooth` its signs from the entry.
+//!
+//! The operations written as instructions (`-`, `sqrt`, `abs`, `step`, `sign`) keep their
+//! instruction sequences in the code generators, and the kinks and jumps of `abs`, `step` and
+//! `sign` and the branch point of `sqrt` their own rules in `smooth`; their entries here still
+//! give their value, name and derivative.
+
+use crate::diff::Local;
+use crate::graph::{Graph, NodeId};
+use crate::smooth::Signs;
+
+/// One-argument operations, in the order of [`UNARY_OPS`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Unary {
+    Neg,
+    Sqrt,
+    Exp,
+    Log,
+    Sin,
+    Cos,
+    Tan,
+    Atan,
+    Tanh,
+    Cosh,
+    Sinh,
+    Abs,
+    /// Heaviside step: `1` for `x > 0`, else `0` (so `step(0) = 0`); NaN stays NaN.
+    Step,
+    /// `-1`, `0` or `1` by the sign of `x` (`sign(0) = 0`, `sign(-0) = 0`); NaN stays NaN. The
+    /// derivative of `abs`.
+    Sign,
+    /// `f64::asinh`: smooth and odd everywhere, `asinh(0) = 0`.
+    Asinh,
+}
+
+/// The signs `op(u)` can take, given those `u` can.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum SignsOf {
+    /// Positive whatever `u` is (`exp`, `cosh`).
+    Positive,
+    /// The signs of `u` (odd increasing functions through 0).
+    Same,
+    /// The opposite signs.
+    Opposite,
+    /// Those of `u * u`.
+    Square,
+    /// Zero or positive.
+    NonNegative,
+    /// Any sign.
+    Any,
+}
+
+/// How the code generators compute an operation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum Lowering {
+    /// IEEE instructions (and compares and bit selects) written by each code generator.
+    Inline,
+    /// A call, lane by lane, to the entry's value function.
+    Call,
+}
+
+/// The definition of one [`Unary`] operation.
+pub(crate) struct UnaryOp {
+    pub op: Unary,
+    /// The function's name in a source (`-x` has none a source can call).
+    pub name: Option<&'static str>,
+    /// The value, the one definition of its rounding (an `extern "C"` function so compiled code
+    /// calls it directly).
+    pub eval: extern "C" fn(f64) -> f64,
+    /// `d v / d u` for `v = op(u)` as nodes of the graph; `None` when it is zero.
+    pub derivative: fn(&mut Graph, NodeId, NodeId) -> Option<Local>,
+    pub lowering: Lowering,
+    pub signs: SignsOf,
+    /// An odd function with `f(0) = 0`, finite wherever its argument is: it keeps a value
+    /// vanishing (`sin(sqrt(r2))`).
+    pub keeps_zero: bool,
+    /// Finite wherever its argument is finite.
+    pub finite: bool,
+}
+
+impl Unary {
+    /// This operation's definition.
+    #[inline]
+    pub(crate) fn def(self) -> &'static UnaryOp {
+        &UNARY_OPS[self as usize]
+    }
+
+    /// The operation a source calls `name`.
+    pub(crate) fn named(name: &str) -> Option<Unary> {
+        UNARY_OPS
+            .iter()
+            .find(|d| d.name == Some(name))
+            .map(|d| d.op)
+    }
+}
+
+extern "C" fn neg(x: f64) -> f64 {
+    -x
+}
+extern "C" fn sqrt(x: f64) -> f64 {
+    x.sqrt()
+}
+extern "C" fn exp(x: f64) -> f64 {
+    x.exp()
+}
+extern "C" fn log(x: f64) -> f64 {
+    x.ln()
+}
+extern "C" fn sin(x: f64) -> f64 {
+    x.sin()
+}
+extern "C" fn cos(x: f64) -> f64 {
+    x.cos()
+}
+extern "C" fn tan(x: f64) -> f64 {
+    x.tan()
+}
+extern "C" fn atan(x: f64) -> f64 {
+    x.atan()
+}
+extern "C" fn tanh(x: f64) -> f64 {
+    x.tanh()
+}
+extern "C" fn cosh(x: f64) -> f64 {
+    x.cosh()
+}
+extern "C" fn sinh(x: f64) -> f64 {
+    x.sinh()
+}
+extern "C" fn abs(x: f64) -> f64 {
+    x.abs()
+}
+extern "C" fn step(x: f64) -> f64 {
+    if x.is_nan() {
+        x
+    } else if x > 0.0 {
+        1.0
+    } else {
+        0.0
+    }
+}
+extern "C" fn sign(x: f64) -> f64 {
+    if x.is_nan() {
+        x
+    } else if x > 0.0 {
+        1.0
+    } else if x < 0.0 {
+        -1.0
+    } else {
+        0.0
+    }
+}
+
+extern "C" fn asinh(x: f64) -> f64 {
+    x.asinh()
+}
+
+/// `c`, a constant local derivative.
+fn constant(c: f64) -> Option<Local> {
+    Some(Local::Mul(c, None))
+}
+
+/// `1 + u^2` (or `1 - u^2` for `minus`) of a node `u`: the derivatives of `tan`, `tanh`, `atan`.
+fn one_and_square(g: &mut Graph, u: NodeId, minus: bool) -> NodeId {
+    let one = g.constant(1.0);
+    let u2 = g.powi(u, 2);
+    if minus {
+        g.sub(one, u2)
+    } else {
+        g.add2(one, u2)
+    }
+}
+
+/// Indexed by `Unary as usize`.
+pub(crate) const UNARY_OPS: &[UnaryOp] = &[
+    UnaryOp {
+        op: Unary::Neg,
+        name: None,
+        eval: neg,
+        derivative: |_, _, _| constant(-1.0),
+        lowering: Lowering::Inline,
+        signs: SignsOf::Opposite,
+        keeps_zero: true,
+        finite: true,
+    },
+    UnaryOp {
+        op: Unary::Sqrt,
+        name: Some("sqrt"),
+        eval: sqrt,
+        // (sqrt u)' = 1 / (2 sqrt u), written 0.5 / v: exact scaling, and the node v is reused.
+        derivative: |_, _, v| Some(Local::Div(0.5, v)),
+        lowering: Lowering::Inline,
+        signs: SignsOf::Any,
+        keeps_zero: false,
+        finite: false,
+    },
+    UnaryOp {
+        op: Unary::Exp,
+        name: Some("exp"),
+        eval: exp,
+        derivative: |_, _, v| Some(Local::Mul(1.0, Some(v))),
+        lowering: Lowering::Call,
+        signs: SignsOf::Positive,
+        keeps_zero: false,
+        finite: true,
+    },
+    UnaryOp {
+        op: Unary::Log,
+        name: Some("log"),
+        eval: log,
+        derivative: |_, u, _| Some(Local::Div(1.0, u)),
+        lowering: Lowering::Call,
+        signs: SignsOf::Any,
+        keeps_zero: false,
+        finite: false,
+    },
+    UnaryOp {
+        op: Unary::Sin,
+        name: Some("sin"),
+        eval: sin,
+        derivative: |g, u, _| Some(Local::Mul(1.0, Some(g.unary(Unary::Cos, u)))),
+        lowering: Lowering::Call,
+        signs: SignsOf::Any,
+        keeps_zero: true,
+        finite: true,
+    },
+    UnaryOp {
+        op: Unary::Cos,
+        name: Some("cos"),
+        eval: cos,
+        derivative: |g, u, _| Some(Local::Mul(-1.0, Some(g.unary(Unary::Sin, u)))),
+        lowering: Lowering::Call,
+        signs: SignsOf::Any,
+        keeps_zero: false,
+        finite: true,
+    },
+    UnaryOp {
+        op: Unary::Tan,
+        name: Some("tan"),
+        eval: tan,
+        // 1 + tan^2 reuses the tan node (no cos, no division).
+        derivative: |g, _, v| Some(Local::Mul(1.0, Some(one_and_square(g, v, false)))),
+        lowering: Lowering::Call,
+        signs: SignsOf::Any,
+        keeps_zero: false,
+        finite: false,
+    },
+    UnaryOp {
+        op: Unary::Atan,
+        name: Some("atan"),
+        eval: atan,
+        derivative: |g, u, _| Some(Local::Div(1.0, one_and_square(g, u, false))),
+        lowering: Lowering::Call,
+        signs: SignsOf::Same,
+        keeps_zero: true,
+        finite: true,
+    },
+    UnaryOp {
+        op: Unary::Tanh,
+        name: Some("tanh"),
+        eval: tanh,
+        derivative: |g, _, v| Some(Local::Mul(1.0, Some(one_and_square(g, v, true)))),
+        lowering: Lowering::Call,
+        signs: SignsOf::Same,
+        keeps_zero: true,
+        finite: true,
+    },
+    UnaryOp {
+        op: Unary::Cosh,
+        name: Some("cosh"),
+        eval: cosh,
+        derivative: |g, u, _| Some(Local::Mul(1.0, Some(g.unary(Unary::Sinh, u)))),
+        lowering: Lowering::Call,
+        signs: SignsOf::Positive,
+        keeps_zero: false,
+        finite: true,
+    },
+    UnaryOp {
+        op: Unary::Sinh,
+        name: Some("sinh"),
+        eval: sinh,
+        derivative: |g, u, _| Some(Local::Mul(1.0, Some(g.unary(Unary::Cosh, u)))),
+        lowering: Lowering::Call,
+        signs: SignsOf::Same,
+        keeps_zero: true,
+        finite: true,
+    },
+    UnaryOp {
+        op: Unary::Abs,
+        name: Some("abs"),
+        eval: abs,
+        derivative: |g, u, _| Some(Local::Mul(1.0, Some(g.unary(Unary::Sign, u)))),
+        lowering: Lowering::Inline,
+        signs: SignsOf::Square,
+        keeps_zero: false,
+        finite: false,
+    },
+    UnaryOp {
+        op: Unary::Step,
+        name: Some("step"),
+        eval: step,
+        derivative: |_, _, _| None,
+        lowering: Lowering::Inline,
+        signs: SignsOf::NonNegative,
+        keeps_zero: false,
+        finite: false,
+    },
+    UnaryOp {
+        op: Unary::Sign,
+        name: Some("sign"),
+        eval: sign,
+        derivative: |_, _, _| None,
+        lowering: Lowering::Inline,
+        signs: SignsOf::Same,
+        keeps_zero: false,
+        finite: false,
+    },
+    UnaryOp {
+        op: Unary::Asinh,
+        name: Some("asinh"),
+        eval: asinh,
+        // 1 / sqrt(1 + u^2)
+        derivative: |g, u, _| {
+            let s = one_and_square(g, u, false);
+            Some(Local::Div(1.0, g.unary(Unary::Sqrt, s)))
+        },
+        lowering: Lowering::Call,
+        signs: SignsOf::Same,
+        keeps_zero: true,
+        finite: true,
+    },
+];
+
+/// How many operations are [`Lowering::Call`]: the C kernels' callback slots.
+pub(crate) const UNARY_CALLS: usize = {
+    let mut n = 0;
+    let mut i = 0;
+    while i < UNARY_OPS.len() {
+        if matches!(UNARY_OPS[i].lowering, Lowering::Call) {
+            n += 1;
+        }
+        i += 1;
+    }
+    n
+};
+
+/// The operations the compiled code calls, in table order (the C kernels' `env` slots).
+pub(crate) fn called() -> impl Iterator<Item = &'static UnaryOp> {
+    UNARY_OPS.iter().filter(|d| d.lowering == Lowering::Call)
+}
+
+/// The signs of `op(u)` from those of `u`.
+pub(crate) fn signs_of(op: Unary, u: Signs) -> Signs {
+    match op.def().signs {
+        SignsOf::Positive => Signs::POS,
+        SignsOf::Same => u,
+        SignsOf::Opposite => u.neg(),
+        SignsOf::Square => u.square(),
+        SignsOf::NonNegative => Signs::NONNEG,
+        SignsOf::Any => Signs::ALL,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_table_is_in_the_order_of_the_enum() {
+        for (i, d) in UNARY_OPS.iter().enumerate() {
+            assert_eq!(d.op as usize, i, "{:?}", d.op);
+        }
+    }
+}

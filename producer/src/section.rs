@@ -14,14 +14,14 @@ pub mod stroboscopic;
 pub mod surface;
 
 use crate::integrator::{Integrator, Workspace};
-use crate::model::Model;
+use crate::model::{At, Model};
 use crate::spec::RunSpec;
 
 /// Time derivative of the state `(q, p)` of `H = |p|^2/2 + V(q, t)` at time `t`.
 fn velocity(model: &dyn Model, x: &[f64], t: f64, out: &mut [f64]) {
     let n = x.len() / 2;
     out[..n].copy_from_slice(&x[n..]);
-    model.gradient_at(&x[..n], t, &mut out[n..]);
+    model.gradient(&x[..n], At::time(t), &mut out[n..]);
     for v in &mut out[n..] {
         *v = -*v;
     }
@@ -115,7 +115,7 @@ mod tests {
             assert!(p[0].abs() < 1e-8, "q1 = {}", p[0]);
             assert!(p[2] > 0.0);
             let model = spec.system().separable().unwrap().model();
-            assert!((model.energy(p) - paper::HH_ENERGY).abs() < 1e-7);
+            assert!((model.energy(p, At::T0) - paper::HH_ENERGY).abs() < 1e-7);
         }
         // A regular orbit (x2 = 0.558 is the paper's regular one): its section points lie on
         // a closed curve, here well inside the allowed region |q2| < 0.7.

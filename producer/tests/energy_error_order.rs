@@ -4,7 +4,7 @@
 use chaoscope_producer::integrator::{
     Integrator, Splitting, SplittingKind, Workspace, relative_energy_error,
 };
-use chaoscope_producer::model::{HenonHeiles, Model};
+use chaoscope_producer::model::{At, HenonHeiles, Model};
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 
 mod common;
@@ -22,7 +22,7 @@ fn max_energy_error(kind: SplittingKind, h: f64) -> f64 {
     let model = HenonHeiles;
     let integ = Splitting::new(kind);
     let mut x = spec.x0().to_vec();
-    let e0 = model.energy(&x);
+    let e0 = model.energy(&x, At::T0);
     let mut work = Workspace::new();
     let mut worst: f64 = 0.0;
     for _ in 0..spec.total_steps() {

@@ -4,7 +4,7 @@
 
 use chaoscope_producer::engine::{Engine, RunError};
 use chaoscope_producer::indicators::{StretchSums, gali_log10, sali};
-use chaoscope_producer::model::{FputBeta, Model};
+use chaoscope_producer::model::{At, FputBeta, Model};
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_schemas::config::{
     DeviationsConfig, ModelConfig, ParamValue, PotentialConfig, RunConfig, SchemeConfig,
@@ -251,8 +251,8 @@ fn fput_chain_of_1001_sites_compiles_quickly() {
     assert!(compiled.has_loops());
     let q: Vec<f64> = (0..n).map(|i| 0.3 * (i as f64 * 0.7).sin()).collect();
     let (mut g1, mut g2) = (vec![0.0; n], vec![0.0; n]);
-    model.gradient(&q, &mut g1);
-    builtin.gradient(&q, &mut g2);
+    model.gradient(&q, At::T0, &mut g1);
+    builtin.gradient(&q, At::T0, &mut g2);
     let differ: Vec<usize> = (0..n)
         .filter(|&i| g1[i].to_bits() != g2[i].to_bits())
         .collect();

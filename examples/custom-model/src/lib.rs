@@ -3,7 +3,9 @@
 //! external library, an iteration).
 //!
 //! Three steps:
-//! 1. implement [`Model`] (potential, gradient and, if it exists, the Hessian-vector product);
+//! 1. implement [`Model`] (potential, gradient and the Hessian-vector product, each taking an
+//!    [`At`]: the time and lane parameters, which this autonomous model does not read; a model
+//!    without second derivatives says why in `no_hessian_reason`);
 //! 2. validate a configuration around it with [`RunSpec::with_model`] (everything but `[model]`
 //!    is read from the config as usual; `[model] name` is the name the recording carries);
 //! 3. run it: [`record`] integrates it with the engine and writes a regular chaoscope recording
@@ -21,7 +23,7 @@ use chaoscope_analyzer::recording::analyze_file;
 use chaoscope_analyzer::report::Report;
 use chaoscope_analyzer::write::SampleWriter;
 use chaoscope_producer::engine::Engine;
-use chaoscope_producer::model::Model;
+use chaoscope_producer::model::{At, Model};
 use chaoscope_producer::publish::{self, PublishOptions, PublishOutcome, run_header};
 use chaoscope_producer::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
@@ -43,26 +45,21 @@ impl Model for Barbanis {
         2
     }
 
-    fn potential(&self, q: &[f64]) -> f64 {
+    fn potential(&self, q: &[f64], _at: At<'_>) -> f64 {
         let (x, y) = (q[0], q[1]);
         0.5 * (self.w1 * self.w1 * x * x + self.w2 * self.w2 * y * y) - self.eps * x * y * y
     }
 
-    fn gradient(&self, q: &[f64], out: &mut [f64]) {
+    fn gradient(&self, q: &[f64], _at: At<'_>, out: &mut [f64]) {
         let (x, y) = (q[0], q[1]);
         out[0] = self.w1 * self.w1 * x - self.eps * y * y;
         out[1] = self.w2 * self.w2 * y - 2.0 * self.eps * x * y;
     }
 
-    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+    fn hessian_vector(&self, q: &[f64], _at: At<'_>, v: &[f64], out: &mut [f64]) {
         let (x, y) = (q[0], q[1]);
         out[0] = self.w1 * self.w1 * v[0] - 2.0 * self.eps * y * v[1];
         out[1] = -2.0 * self.eps * y * v[0] + (self.w2 * self.w2 - 2.0 * self.eps * x) * v[1];
-        true
-    }
-
-    fn has_hessian(&self) -> bool {
-        true
     }
 }
 

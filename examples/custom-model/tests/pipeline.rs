@@ -2,7 +2,7 @@
 //! potential, the recording analyzes, and the physics is that of a bounded regular orbit.
 
 use chaoscope_example_custom_model::{Barbanis, CONFIG, record, run_spec};
-use chaoscope_producer::model::Model;
+use chaoscope_producer::model::{At, Model};
 
 #[test]
 fn derivatives_agree_with_the_potential() {
@@ -15,23 +15,24 @@ fn derivatives_agree_with_the_potential() {
     let v = [0.6, 0.8];
     let eps = 1e-6;
     let mut g = [0.0; 2];
-    m.gradient(&q, &mut g);
+    m.gradient(&q, At::T0, &mut g);
     let mut hv = [0.0; 2];
-    assert!(m.hessian_vector(&q, &v, &mut hv));
+    assert!(m.no_hessian_reason().is_none());
+    m.hessian_vector(&q, At::T0, &v, &mut hv);
     for i in 0..2 {
         let mut qp = q;
         let mut qm = q;
         qp[i] += eps;
         qm[i] -= eps;
         // Central differences: truncation ~ eps^2 |V'''| ~ 1e-13, rounding ~ 1e-16 / eps.
-        let fd = (m.potential(&qp) - m.potential(&qm)) / (2.0 * eps);
+        let fd = (m.potential(&qp, At::T0) - m.potential(&qm, At::T0)) / (2.0 * eps);
         assert!((fd - g[i]).abs() < 1e-8, "dV/dq{i}: {fd} vs {}", g[i]);
     }
     let (mut gp, mut gm) = ([0.0; 2], [0.0; 2]);
     let qp = [q[0] + eps * v[0], q[1] + eps * v[1]];
     let qm = [q[0] - eps * v[0], q[1] - eps * v[1]];
-    m.gradient(&qp, &mut gp);
-    m.gradient(&qm, &mut gm);
+    m.gradient(&qp, At::T0, &mut gp);
+    m.gradient(&qm, At::T0, &mut gm);
     for i in 0..2 {
         let fd = (gp[i] - gm[i]) / (2.0 * eps);
         assert!((fd - hv[i]).abs() < 1e-8, "Hv[{i}]: {fd} vs {}", hv[i]);

@@ -6,7 +6,7 @@
 //! operations, same order, no fused multiply-add. That is what makes the batch bit-identical.
 
 use crate::integrator::Splitting;
-use crate::model::Model;
+use crate::model::{At, Model};
 
 /// One step of a splitting with its coefficients already multiplied by `h`: the very products
 /// `a_i * h`, `b_i * h` that `Splitting::step` forms at each stage.
@@ -103,7 +103,7 @@ pub trait LaneModel: Model {
                 ql[i] = q[i][l];
                 vl[i] = v[i][l];
             }
-            self.hessian_vector(&ql, &vl, &mut ol);
+            self.hessian_vector(&ql, At::T0, &vl, &mut ol);
             for i in 0..n {
                 out[i][l] = ol[i];
             }
@@ -220,7 +220,7 @@ pub fn record_reference_stages<M: Model + ?Sized>(
             drift(x, ch);
             stages.extend_from_slice(&x[..n]);
             let (q, p) = x.split_at_mut(n);
-            model.gradient(q, force);
+            model.gradient(q, At::T0, force);
             for (pi, fi) in p.iter_mut().zip(force.iter()) {
                 *pi -= dh * fi;
             }

@@ -15,7 +15,7 @@ mod splitting;
 pub use runge_kutta::{RungeKutta, RungeKuttaKind};
 pub use splitting::{Splitting, SplittingKind};
 
-use crate::model::Model;
+use crate::model::{At, Model};
 
 /// Scratch buffers reused across steps so the inner loop never allocates. One per thread.
 #[derive(Debug, Default, Clone)]
@@ -74,7 +74,7 @@ pub trait Integrator<S: ?Sized>: Send + Sync {
 
 /// Relative energy error `|H - H0| / |H0|` (absolute when `H0 = 0`).
 pub fn relative_energy_error(model: &dyn Model, x: &[f64], e0: f64) -> f64 {
-    let e = model.energy(x);
+    let e = model.energy(x, At::T0);
     if e0 == 0.0 {
         (e - e0).abs()
     } else {

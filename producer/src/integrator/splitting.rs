@@ -21,7 +21,7 @@
 //! whatever the sampling or renormalization period.
 
 use super::{Integrator, TangentError, Workspace};
-use crate::model::Model;
+use crate::model::{At, Model};
 
 /// The splittings chaoscope ships.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -330,7 +330,7 @@ impl Splitting {
         force: &mut [f64],
     ) {
         let (q, p) = x.split_at_mut(n);
-        model.gradient_at(q, t, force);
+        model.gradient(q, At::time(t), force);
         for (pi, fi) in p.iter_mut().zip(force.iter()) {
             *pi -= dh * fi;
         }
@@ -387,7 +387,7 @@ impl<M: Model + ?Sized> Integrator<M> for Splitting {
             // kick's time.
             for v in w.chunks_exact_mut(dim) {
                 let (dq, dp) = v.split_at_mut(n);
-                model.hessian_vector_at(&x[..n], tk, dq, force);
+                model.hessian_vector(&x[..n], At::time(tk), dq, force);
                 for (pi, fi) in dp.iter_mut().zip(force.iter()) {
                     *pi -= dh * fi;
                 }

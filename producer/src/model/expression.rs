@@ -1,9 +1,12 @@
 //! `[model] name = "potential"`: the compiled model of `chaoscope_expr::potential` (parsing,
 //! symbolic derivatives, native code and step kernels live there) as a [`Model`].
+//!
+//! An [`At`] without lane parameters evaluates at the compiled model's own placeholder values
+//! (its `*_at` functions), one with them at those values (its `*_with` functions).
 
 use chaoscope_expr::potential::ExpressionModel;
 
-use super::Model;
+use super::{At, Model};
 
 impl Model for ExpressionModel {
     fn name(&self) -> &str {
@@ -15,22 +18,31 @@ impl Model for ExpressionModel {
     }
 
     #[inline]
-    fn potential(&self, q: &[f64]) -> f64 {
-        ExpressionModel::potential(self, q)
+    fn potential(&self, q: &[f64], at: At<'_>) -> f64 {
+        if at.params.is_empty() {
+            ExpressionModel::potential_at(self, q, at.t)
+        } else {
+            ExpressionModel::potential_with(self, q, at.t, at.params)
+        }
     }
 
     #[inline]
-    fn gradient(&self, q: &[f64], out: &mut [f64]) {
-        ExpressionModel::gradient(self, q, out)
+    fn gradient(&self, q: &[f64], at: At<'_>, out: &mut [f64]) {
+        if at.params.is_empty() {
+            ExpressionModel::gradient_at(self, q, at.t, out)
+        } else {
+            ExpressionModel::gradient_with(self, q, at.t, at.params, out)
+        }
     }
 
+    /// Nothing where `V` is not `C^2` (the compiled model then writes nothing).
     #[inline]
-    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
-        ExpressionModel::hessian_vector(self, q, v, out)
-    }
-
-    fn has_hessian(&self) -> bool {
-        ExpressionModel::has_hessian(self)
+    fn hessian_vector(&self, q: &[f64], at: At<'_>, v: &[f64], out: &mut [f64]) {
+        if at.params.is_empty() {
+            ExpressionModel::hessian_vector_at(self, q, at.t, v, out);
+        } else {
+            ExpressionModel::hessian_vector_with(self, q, at.t, at.params, v, out);
+        }
     }
 
     fn no_hessian_reason(&self) -> Option<String> {
@@ -41,8 +53,12 @@ impl Model for ExpressionModel {
         ExpressionModel::inverse_masses(self)
     }
 
-    fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {
-        ExpressionModel::diagnose_non_finite(self, q)
+    fn diagnose_non_finite(&self, q: &[f64], at: At<'_>) -> Option<String> {
+        if at.params.is_empty() {
+            ExpressionModel::diagnose_non_finite_at(self, q, at.t)
+        } else {
+            ExpressionModel::diagnose_non_finite_with(self, q, at.t, at.params)
+        }
     }
 
     fn site_potentials(&self, q: &[f64], out: &mut [f64]) -> Result<(), String> {
@@ -53,51 +69,8 @@ impl Model for ExpressionModel {
         ExpressionModel::reads_time(self)
     }
 
-    fn potential_at(&self, q: &[f64], t: f64) -> f64 {
-        ExpressionModel::potential_at(self, q, t)
-    }
-
-    #[inline]
-    fn gradient_at(&self, q: &[f64], t: f64, out: &mut [f64]) {
-        ExpressionModel::gradient_at(self, q, t, out)
-    }
-
-    #[inline]
-    fn hessian_vector_at(&self, q: &[f64], t: f64, v: &[f64], out: &mut [f64]) -> bool {
-        ExpressionModel::hessian_vector_at(self, q, t, v, out)
-    }
-
-    fn diagnose_non_finite_at(&self, q: &[f64], t: f64) -> Option<String> {
-        ExpressionModel::diagnose_non_finite_at(self, q, t)
-    }
-
     fn lane_params(&self) -> usize {
         ExpressionModel::lane_params(self)
-    }
-
-    fn potential_with(&self, q: &[f64], t: f64, params: &[f64]) -> f64 {
-        ExpressionModel::potential_with(self, q, t, params)
-    }
-
-    #[inline]
-    fn gradient_with(&self, q: &[f64], t: f64, params: &[f64], out: &mut [f64]) {
-        ExpressionModel::gradient_with(self, q, t, params, out)
-    }
-
-    #[inline]
-    fn hessian_vector_with(
-        &self,
-        q: &[f64],
-        t: f64,
-        params: &[f64],
-        v: &[f64],
-        out: &mut [f64],
-    ) -> bool {
-        ExpressionModel::hessian_vector_with(self, q, t, params, v, out)
-    }
-
-    fn diagnose_non_finite_with(&self, q: &[f64], t: f64, params: &[f64]) -> Option<String> {
-        ExpressionModel::diagnose_non_finite_with(self, q, t, params)
     }
 
     fn prepare_reference_tangent(&self, work: u64) {

@@ -1,7 +1,7 @@
 //! The beta-Fermi-Pasta-Ulam-Tsingou chain with fixed ends (`x_0 = x_{N+1} = 0`):
 //! `H = sum p_i^2/2 + sum_{i=0..N} [ r_i^2/2 + beta r_i^4/4 ]`, `r_i = x_{i+1} - x_i`.
 
-use super::Model;
+use super::{At, Model};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FputBeta {
@@ -81,7 +81,7 @@ impl Model for FputBeta {
         self.n
     }
 
-    fn potential(&self, q: &[f64]) -> f64 {
+    fn potential(&self, q: &[f64], _at: At<'_>) -> f64 {
         let n = self.n;
         let mut v = 0.0;
         for i in 0..=n {
@@ -93,7 +93,7 @@ impl Model for FputBeta {
     }
 
     #[inline]
-    fn gradient(&self, q: &[f64], out: &mut [f64]) {
+    fn gradient(&self, q: &[f64], _at: At<'_>, out: &mut [f64]) {
         // dV/dq_i = f(r_{i-1}) - f(r_i) with f(r) = r + beta r^3, r_i = x_{i+1} - x_i. Each bond
         // force is evaluated for both of its sites: twice the arithmetic, but no loop-carried
         // value, so the interior loop vectorizes (and every expression, hence every bit, is the
@@ -113,7 +113,7 @@ impl Model for FputBeta {
     }
 
     #[inline]
-    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
+    fn hessian_vector(&self, q: &[f64], _at: At<'_>, v: &[f64], out: &mut [f64]) {
         // Each bond contributes f'(r) = 1 + 3 beta r^2 times the bond's stretch of v; evaluated
         // per site as in `gradient`, for the same reason.
         let beta = self.beta;
@@ -121,14 +121,13 @@ impl Model for FputBeta {
         let n = self.n;
         if n == 1 {
             out[0] = g(q[0], v[0]) - g(-q[0], -v[0]);
-            return true;
+            return;
         }
         out[0] = g(q[0], v[0]) - g(q[1] - q[0], v[1] - v[0]);
         for ((o, w), u) in out[1..n - 1].iter_mut().zip(q.windows(3)).zip(v.windows(3)) {
             *o = g(w[1] - w[0], u[1] - u[0]) - g(w[2] - w[1], u[2] - u[1]);
         }
         out[n - 1] = g(q[n - 1] - q[n - 2], v[n - 1] - v[n - 2]) - g(-q[n - 1], -v[n - 1]);
-        true
     }
 
     /// The orbit and its tangent vectors stage by stage in one call: the drifts, then the
@@ -190,10 +189,6 @@ impl Model for FputBeta {
             }
         }
         Ok(())
-    }
-
-    fn has_hessian(&self) -> bool {
-        true
     }
 
     fn preset(&self, name: &str, energy: f64) -> Option<Result<Vec<f64>, String>> {
@@ -371,7 +366,7 @@ mod tests {
         for (n, e) in [(5, 7.4), (11, 1.98), (101, 1.515)] {
             let m = FputBeta::new(n, 1.0).unwrap();
             let x = m.spo1(e).unwrap();
-            assert!((m.energy(&x) - e).abs() < 1e-13 * e, "N = {n}");
+            assert!((m.energy(&x, At::T0) - e).abs() < 1e-13 * e, "N = {n}");
             assert_eq!(x[1], 0.0);
             assert_eq!(x[0], -x[2]);
         }

@@ -23,9 +23,37 @@ pub use ddnls::{Ddnls, DdnlsLattice};
 pub use fput::FputBeta;
 pub use henon_heiles::HenonHeiles;
 
+/// Where a potential is evaluated besides the positions `q`: the time `t` and the lane
+/// parameters. Built per call on the stack (a float and a slice), so every evaluation takes one
+/// of these instead of a method per combination of what it reads.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct At<'a> {
+    /// The time; read only by a model that [`Model::reads_time`].
+    pub t: f64,
+    /// The values of the model's lane parameters ([`Model::lane_params`]); empty for a model
+    /// without them (a model with them then reads values that are not numbers).
+    pub params: &'a [f64],
+}
+
+impl At<'static> {
+    /// `t = 0` without lane parameters: where an autonomous model is evaluated.
+    pub const T0: Self = Self {
+        t: 0.0,
+        params: &[],
+    };
+
+    /// The time `t` without lane parameters.
+    #[inline]
+    pub const fn time(t: f64) -> Self {
+        Self { t, params: &[] }
+    }
+}
+
 /// A separable Hamiltonian `H(q, p) = sum p_i^2 / (2 m_i) + V(q)` with `N` degrees of freedom.
 ///
-/// Phase-space vectors are ordered `x = (q1..qN, p1..pN)`.
+/// Phase-space vectors are ordered `x = (q1..qN, p1..pN)`. Each quantity of `V` is one method
+/// taking [`At`] (the time and the lane parameters): a model that reads neither ignores it, so
+/// its arithmetic is that of `V(q)`.
 pub trait Model: std::any::Any + Send + Sync {
     /// Short machine name, as written in configs (`"henon-heiles"`).
     fn name(&self) -> &str;
@@ -33,18 +61,23 @@ pub trait Model: std::any::Any + Send + Sync {
     /// Degrees of freedom `N`; the phase space has dimension `2N`.
     fn dof(&self) -> usize;
 
-    /// Potential energy `V(q)`.
-    fn potential(&self, q: &[f64]) -> f64;
+    /// Potential energy `V(q, t)` at the lane parameters of `at`.
+    fn potential(&self, q: &[f64], at: At<'_>) -> f64;
 
-    /// `out = dV/dq (q)`.
-    fn gradient(&self, q: &[f64], out: &mut [f64]);
+    /// `out = dV/dq (q, t)` at the lane parameters of `at`.
+    fn gradient(&self, q: &[f64], at: At<'_>, out: &mut [f64]);
 
-    /// `out = Hess V(q) * v`, or `false` (with `out` untouched) when the model has no second
-    /// derivatives and only the multi-particle method applies.
-    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool;
+    /// `out = Hess V(q, t) * v` at the lane parameters of `at`. Called only on a model whose
+    /// [`Model::no_hessian_reason`] is `None`; otherwise `out` is left as it is.
+    fn hessian_vector(&self, q: &[f64], at: At<'_>, v: &[f64], out: &mut [f64]);
 
-    /// Whether [`Model::hessian_vector`] is available (the variational method needs it).
-    fn has_hessian(&self) -> bool;
+    /// Why the model has no Hessian-vector product (so the variational method cannot be used),
+    /// naming the operation that lacks second derivatives; `None` when it has one (the default:
+    /// a model with a non-smooth or empirical potential says why here, and can still be studied
+    /// with the multi-particle method).
+    fn no_hessian_reason(&self) -> Option<String> {
+        None
+    }
 
     /// `1 / m_i` for each degree of freedom, or `None` for unit masses (the built-in models:
     /// their code paths then stay exactly as they were).
@@ -60,16 +93,10 @@ pub trait Model: std::any::Any + Send + Sync {
         }
     }
 
-    /// Why the variational method cannot be used, naming the operation that lacks second
-    /// derivatives (when the model knows it); `None` when it can.
-    fn no_hessian_reason(&self) -> Option<String> {
-        (!self.has_hessian()).then(|| format!("model '{}' has no Hessian", self.name()))
-    }
-
-    /// Where a non-finite value arises when the forces are evaluated at `q`, e.g. "'log' at
-    /// line 1, column 9 gave NaN"; `None` when unknown or everything is finite. Called only
-    /// after a run has failed, off the hot path.
-    fn diagnose_non_finite(&self, _q: &[f64]) -> Option<String> {
+    /// Where a non-finite value arises when the forces are evaluated at `q` and `at`, e.g.
+    /// "'log' at line 1, column 9 gave NaN"; `None` when unknown or everything is finite.
+    /// Called only after a run has failed, off the hot path.
+    fn diagnose_non_finite(&self, _q: &[f64], _at: At<'_>) -> Option<String> {
         None
     }
 
@@ -112,87 +139,26 @@ pub trait Model: std::any::Any + Send + Sync {
         Ok(())
     }
 
-    /// Total energy of a phase-space point `x = (q, p)`.
-    fn energy(&self, x: &[f64]) -> f64 {
+    /// Total energy `H(x, t)` of a phase-space point `x = (q, p)` (conserved unless the model
+    /// [`Model::reads_time`]).
+    fn energy(&self, x: &[f64], at: At<'_>) -> f64 {
         let n = self.dof();
-        self.kinetic(&x[n..]) + self.potential(&x[..n])
+        self.kinetic(&x[n..]) + self.potential(&x[..n], at)
     }
 
     /// Whether the potential depends on the time, `V(q, t)` (a non-autonomous system; only
-    /// `[model] name = "potential"` can). The `*_at` methods below take the time; a model that
-    /// does not read it keeps them as its plain methods, so its arithmetic is unchanged.
+    /// `[model] name = "potential"` can).
     fn reads_time(&self) -> bool {
         false
     }
 
-    /// `V(q, t)`.
-    fn potential_at(&self, q: &[f64], _t: f64) -> f64 {
-        self.potential(q)
-    }
-
-    /// `out = dV/dq (q, t)`.
-    #[inline]
-    fn gradient_at(&self, q: &[f64], _t: f64, out: &mut [f64]) {
-        self.gradient(q, out)
-    }
-
-    /// `out = Hess V(q, t) * v`, or `false` as [`Model::hessian_vector`].
-    #[inline]
-    fn hessian_vector_at(&self, q: &[f64], _t: f64, v: &[f64], out: &mut [f64]) -> bool {
-        self.hessian_vector(q, v, out)
-    }
-
-    /// [`Model::diagnose_non_finite`] at time `t`.
-    fn diagnose_non_finite_at(&self, q: &[f64], _t: f64) -> Option<String> {
-        self.diagnose_non_finite(q)
-    }
-
-    /// `H(x, t)`: what the energy of a time-dependent potential is at time `t` (not conserved).
-    fn energy_at(&self, x: &[f64], t: f64) -> f64 {
-        if !self.reads_time() {
-            return self.energy(x);
-        }
-        let n = self.dof();
-        self.kinetic(&x[n..]) + self.potential_at(&x[..n], t)
-    }
-
     /// `P`: parameters the potential reads per evaluation instead of folding them (a map's
-    /// parameter axes, [`crate::spec::LaneParam`]); a state of such a model is `(q, p)`
-    /// followed by their values. The `*_with` methods below take them; [`WithParams`] binds
-    /// them to give the plain model of one point. 0 for every model but a `potential` built
-    /// with lane parameters.
+    /// parameter axes, [`crate::spec::LaneParam`]), passed in [`At::params`]; a state of such
+    /// a model is `(q, p)` followed by their values, and [`WithParams`] binds them to give the
+    /// plain model of one point. 0 for every model but a `potential` built with lane
+    /// parameters.
     fn lane_params(&self) -> usize {
         0
-    }
-
-    /// `V(q, t)` at the lane parameters `params`.
-    fn potential_with(&self, q: &[f64], t: f64, _params: &[f64]) -> f64 {
-        self.potential_at(q, t)
-    }
-
-    /// `out = dV/dq (q, t)` at the lane parameters `params`.
-    #[inline]
-    fn gradient_with(&self, q: &[f64], t: f64, _params: &[f64], out: &mut [f64]) {
-        self.gradient_at(q, t, out)
-    }
-
-    /// `out = Hess V(q, t) * v` at the lane parameters `params`, or `false` as
-    /// [`Model::hessian_vector`].
-    #[inline]
-    fn hessian_vector_with(
-        &self,
-        q: &[f64],
-        t: f64,
-        _params: &[f64],
-        v: &[f64],
-        out: &mut [f64],
-    ) -> bool {
-        self.hessian_vector_at(q, t, v, out)
-    }
-
-    /// [`Model::diagnose_non_finite_at`] at the lane parameters `params`.
-    fn diagnose_non_finite_with(&self, q: &[f64], t: f64, _params: &[f64]) -> Option<String> {
-        self.diagnose_non_finite_at(q, t)
     }
 
     /// A run of `work` state-value steps (steps times `2N`) will ask
@@ -225,10 +191,10 @@ pub trait Model: std::any::Any + Send + Sync {
 pub const MAX_LANE_PARAMS: usize = 2;
 
 /// A model whose lane parameters ([`Model::lane_params`]) are bound to one point's values: the
-/// plain model of that point (its `*_at` methods call the model's `*_with` ones), which the
-/// splittings step exactly as a model with those values as constants, up to how a constant
-/// folds. The values are copied, so the state they came from can be stepped meanwhile (and the
-/// model is shared, not borrowed: a `Model` is `'static`).
+/// plain model of that point (it evaluates the model at its own parameters, whatever [`At`]
+/// carries), which the splittings step exactly as a model with those values as constants, up
+/// to how a constant folds. The values are copied, so the state they came from can be stepped
+/// meanwhile (and the model is shared, not borrowed: a `Model` is `'static`).
 #[derive(Clone)]
 pub struct WithParams {
     model: std::sync::Arc<dyn Model>,
@@ -262,8 +228,13 @@ impl WithParams {
         Self::new(model, &x[2 * model.dof()..])
     }
 
-    fn params(&self) -> &[f64] {
-        &self.params[..self.model.lane_params()]
+    /// `at`'s time with this point's parameters.
+    #[inline]
+    fn at(&self, at: At<'_>) -> At<'_> {
+        At {
+            t: at.t,
+            params: &self.params[..self.model.lane_params()],
+        }
     }
 }
 
@@ -276,57 +247,34 @@ impl Model for WithParams {
         self.model.dof()
     }
 
-    fn potential(&self, q: &[f64]) -> f64 {
-        self.model.potential_with(q, 0.0, self.params())
+    fn potential(&self, q: &[f64], at: At<'_>) -> f64 {
+        self.model.potential(q, self.at(at))
     }
 
     #[inline]
-    fn gradient(&self, q: &[f64], out: &mut [f64]) {
-        self.model.gradient_with(q, 0.0, self.params(), out)
+    fn gradient(&self, q: &[f64], at: At<'_>, out: &mut [f64]) {
+        self.model.gradient(q, self.at(at), out)
     }
 
     #[inline]
-    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
-        self.model
-            .hessian_vector_with(q, 0.0, self.params(), v, out)
-    }
-
-    fn has_hessian(&self) -> bool {
-        self.model.has_hessian()
-    }
-
-    fn inverse_masses(&self) -> Option<&[f64]> {
-        self.model.inverse_masses()
+    fn hessian_vector(&self, q: &[f64], at: At<'_>, v: &[f64], out: &mut [f64]) {
+        self.model.hessian_vector(q, self.at(at), v, out)
     }
 
     fn no_hessian_reason(&self) -> Option<String> {
         self.model.no_hessian_reason()
     }
 
-    fn diagnose_non_finite(&self, q: &[f64]) -> Option<String> {
-        self.model.diagnose_non_finite_with(q, 0.0, self.params())
+    fn inverse_masses(&self) -> Option<&[f64]> {
+        self.model.inverse_masses()
+    }
+
+    fn diagnose_non_finite(&self, q: &[f64], at: At<'_>) -> Option<String> {
+        self.model.diagnose_non_finite(q, self.at(at))
     }
 
     fn reads_time(&self) -> bool {
         self.model.reads_time()
-    }
-
-    fn potential_at(&self, q: &[f64], t: f64) -> f64 {
-        self.model.potential_with(q, t, self.params())
-    }
-
-    #[inline]
-    fn gradient_at(&self, q: &[f64], t: f64, out: &mut [f64]) {
-        self.model.gradient_with(q, t, self.params(), out)
-    }
-
-    #[inline]
-    fn hessian_vector_at(&self, q: &[f64], t: f64, v: &[f64], out: &mut [f64]) -> bool {
-        self.model.hessian_vector_with(q, t, self.params(), v, out)
-    }
-
-    fn diagnose_non_finite_at(&self, q: &[f64], t: f64) -> Option<String> {
-        self.model.diagnose_non_finite_with(q, t, self.params())
     }
 }
 
@@ -334,19 +282,19 @@ impl Model for WithParams {
 pub(crate) mod check {
     //! Finite-difference checks shared by the model tests: a model's derivatives must agree
     //! with its own potential.
-    use super::Model;
+    use super::{At, Model};
 
     pub fn gradient_matches_potential(m: &dyn Model, q: &[f64]) {
         let n = m.dof();
         let mut g = vec![0.0; n];
-        m.gradient(q, &mut g);
+        m.gradient(q, At::T0, &mut g);
         for i in 0..n {
             let eps = 1e-6;
             let mut qp = q.to_vec();
             let mut qm = q.to_vec();
             qp[i] += eps;
             qm[i] -= eps;
-            let fd = (m.potential(&qp) - m.potential(&qm)) / (2.0 * eps);
+            let fd = (m.potential(&qp, At::T0) - m.potential(&qm, At::T0)) / (2.0 * eps);
             // Central differences: error ~ eps^2 * V''' plus rounding ~ 1e-16 / eps.
             assert!(
                 (fd - g[i]).abs() < 1e-8 * (1.0 + g[i].abs()),
@@ -359,13 +307,14 @@ pub(crate) mod check {
     pub fn hessian_matches_gradient(m: &dyn Model, q: &[f64], v: &[f64]) {
         let n = m.dof();
         let mut hv = vec![0.0; n];
-        assert!(m.hessian_vector(q, v, &mut hv));
+        assert!(m.no_hessian_reason().is_none());
+        m.hessian_vector(q, At::T0, v, &mut hv);
         let eps = 1e-6;
         let qp: Vec<f64> = q.iter().zip(v).map(|(a, b)| a + eps * b).collect();
         let qm: Vec<f64> = q.iter().zip(v).map(|(a, b)| a - eps * b).collect();
         let (mut gp, mut gm) = (vec![0.0; n], vec![0.0; n]);
-        m.gradient(&qp, &mut gp);
-        m.gradient(&qm, &mut gm);
+        m.gradient(&qp, At::T0, &mut gp);
+        m.gradient(&qm, At::T0, &mut gm);
         for i in 0..n {
             let fd = (gp[i] - gm[i]) / (2.0 * eps);
             assert!(

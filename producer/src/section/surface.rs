@@ -670,7 +670,7 @@ mod tests {
             // splitting's energy error (ABA864 at the paper's h: ~1e-10 and below).
             assert!(c.x[0].abs() < 1e-15, "q1 = {}", c.x[0]);
             assert!(c.x[2] > 0.0);
-            assert!((model.energy(&c.x) - spec.e0()).abs() < 1e-9);
+            assert!((model.energy(&c.x, crate::model::At::T0) - spec.e0()).abs() < 1e-9);
         }
         // The flows' default: the first two coordinates the surface does not fix.
         let (spec, cfg) = oscillator("dop853", 0.01, 1.0);

@@ -12,7 +12,7 @@ use chaoscope_schemas::config::{
 use super::potential::{self, TableDigest};
 use super::{Built, SpecError};
 use crate::integrator::{Splitting, SplittingKind};
-use crate::model::{FputBeta, HenonHeiles, Model, WithParams};
+use crate::model::{At, FputBeta, HenonHeiles, Model, WithParams};
 use crate::system::SplitHamiltonian;
 
 /// Most particles of the built-in FPUT chain.
@@ -148,7 +148,7 @@ pub fn solve_momentum(
 ) -> Result<(), SpecError> {
     let n = model.dof();
     x[n + j] = 0.0;
-    let rest = model.energy(x);
+    let rest = model.energy(x, At::T0);
     let twice_kinetic = 2.0 * (energy - rest);
     let p = match model.inverse_masses() {
         None => twice_kinetic.sqrt(),
@@ -270,7 +270,7 @@ pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>,
             }
         }
         excited_momenta(model, excite, &mut x)?;
-        if !model.energy(&x).is_finite() {
+        if !model.energy(&x, At::T0).is_finite() {
             return Err(SpecError::new("orbit", "the initial energy is not finite"));
         }
         return Ok(x);
@@ -371,7 +371,7 @@ pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>,
         }
         (None, None) => {}
     }
-    if !model.energy(&x).is_finite() {
+    if !model.energy(&x, At::T0).is_finite() {
         return Err(SpecError::new("orbit", "the initial energy is not finite"));
     }
     Ok(x)

@@ -7,7 +7,7 @@ use chaoscope_schemas::run::SystemKind;
 use super::{DynamicalSystem, Time};
 use crate::batch::{self, AnyLaneModel, Isa, LaneModel, PointKernel, Soa, StepCoeffs};
 use crate::integrator::{Integrator, Splitting, TangentError, Workspace};
-use crate::model::{Model, WithParams};
+use crate::model::{At, Model, WithParams};
 
 /// `H = T(p) + V(q)` stepped by a splitting with fixed step `h`; its tangent map is the
 /// splitting's own (`Splitting::step_tangent`), the variational equations of the discrete map.
@@ -120,9 +120,9 @@ impl DynamicalSystem for SplitHamiltonian {
             return None;
         }
         Some(if self.model.lane_params() > 0 {
-            WithParams::of_state(&self.model, x).energy(&x[..self.dim()])
+            WithParams::of_state(&self.model, x).energy(&x[..self.dim()], At::T0)
         } else {
-            self.model.energy(x)
+            self.model.energy(x, At::T0)
         })
     }
 
@@ -144,7 +144,7 @@ impl DynamicalSystem for SplitHamiltonian {
                 }
             }
         }
-        model.gradient_at(q, t, dp);
+        model.gradient(q, At::time(t), dp);
         for d in dp.iter_mut() {
             *d = -*d;
         }
@@ -179,7 +179,9 @@ impl DynamicalSystem for SplitHamiltonian {
     /// FPUT chain and a potential whose lattice sums are loops (once its C kernels are built)
     /// have a fused pass.
     fn steps_reference_tangent(&self) -> bool {
-        self.model.lane_params() == 0 && !self.model.reads_time() && self.model.has_hessian()
+        self.model.lane_params() == 0
+            && !self.model.reads_time()
+            && self.model.no_hessian_reason().is_none()
     }
 
     fn prepare_reference_tangent(&self, work: u64) {
@@ -212,8 +214,8 @@ impl DynamicalSystem for SplitHamiltonian {
         let model = &model;
         let x = &x[..2 * n];
         // The potential itself undefined at x (the energy is what the run checks), ...
-        if x.iter().all(|v| v.is_finite()) && !model.potential_at(&x[..n], t).is_finite() {
-            return model.diagnose_non_finite_at(&x[..n], t);
+        if x.iter().all(|v| v.is_finite()) && !model.potential(&x[..n], At::time(t)).is_finite() {
+            return model.diagnose_non_finite(&x[..n], At::time(t));
         }
         // ... or the step from x: replay it stage by stage and ask the model about the first
         // position whose forces are not finite.
@@ -224,9 +226,9 @@ impl DynamicalSystem for SplitHamiltonian {
         for (i, &d) in kicks.iter().enumerate() {
             Splitting::drift(&mut x, n, drifts[i] * self.h, w);
             let tk = t + self.splitting.kick_times()[i] * self.h;
-            model.gradient_at(&x[..n], tk, &mut force);
+            model.gradient(&x[..n], At::time(tk), &mut force);
             if force.iter().any(|f| !f.is_finite()) || x.iter().any(|v| !v.is_finite()) {
-                return model.diagnose_non_finite_at(&x[..n], tk);
+                return model.diagnose_non_finite(&x[..n], At::time(tk));
             }
             let (_, p) = x.split_at_mut(n);
             for (pi, fi) in p.iter_mut().zip(&force) {

@@ -388,7 +388,10 @@ orthonormalize = "qr"
     let bond = |d: f64| d * d / 2.0 + d.powi(4) / 4.0;
     let want =
         bond(0.1) + bond(0.1) + (1.0 + 0.5 * (7.0f64 * t).cos()) * (0.01 + 0.04 + 0.09) / 2.0;
-    assert!((model.potential_at(&q, t) - want).abs() < 1e-15, "{want}");
+    assert!(
+        (model.potential(&q, chaoscope_producer::model::At::time(t)) - want).abs() < 1e-15,
+        "{want}"
+    );
     let [(_, vm), (_, mpm)] = final_exponents(&finite_time_exponents(&config));
     assert!(vm[0] > 0.0, "{vm:?}");
     assert!(

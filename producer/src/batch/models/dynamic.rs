@@ -4,7 +4,7 @@
 use std::sync::Arc;
 
 use crate::batch::lanes::LaneModel;
-use crate::model::Model;
+use crate::model::{At, Model};
 
 #[derive(Clone)]
 pub struct DynLanes(Arc<dyn Model>);
@@ -22,17 +22,17 @@ impl Model for DynLanes {
     fn dof(&self) -> usize {
         self.0.dof()
     }
-    fn potential(&self, q: &[f64]) -> f64 {
-        self.0.potential(q)
+    fn potential(&self, q: &[f64], at: At<'_>) -> f64 {
+        self.0.potential(q, at)
     }
-    fn gradient(&self, q: &[f64], out: &mut [f64]) {
-        self.0.gradient(q, out)
+    fn gradient(&self, q: &[f64], at: At<'_>, out: &mut [f64]) {
+        self.0.gradient(q, at, out)
     }
-    fn hessian_vector(&self, q: &[f64], v: &[f64], out: &mut [f64]) -> bool {
-        self.0.hessian_vector(q, v, out)
+    fn hessian_vector(&self, q: &[f64], at: At<'_>, v: &[f64], out: &mut [f64]) {
+        self.0.hessian_vector(q, at, v, out)
     }
-    fn has_hessian(&self) -> bool {
-        self.0.has_hessian()
+    fn no_hessian_reason(&self) -> Option<String> {
+        self.0.no_hessian_reason()
     }
     fn kinetic(&self, p: &[f64]) -> f64 {
         self.0.kinetic(p)
@@ -40,11 +40,8 @@ impl Model for DynLanes {
     fn inverse_masses(&self) -> Option<&[f64]> {
         self.0.inverse_masses()
     }
-    fn no_hessian_reason(&self) -> Option<String> {
-        self.0.no_hessian_reason()
-    }
-    fn energy(&self, x: &[f64]) -> f64 {
-        self.0.energy(x)
+    fn energy(&self, x: &[f64], at: At<'_>) -> f64 {
+        self.0.energy(x, at)
     }
 }
 
@@ -56,7 +53,7 @@ impl LaneModel for DynLanes {
             for i in 0..n {
                 ql[i] = q[i][l];
             }
-            self.0.gradient(&ql, &mut ol);
+            self.0.gradient(&ql, At::T0, &mut ol);
             for i in 0..n {
                 out[i][l] = ol[i];
             }
@@ -75,7 +72,7 @@ impl LaneModel for DynLanes {
             for i in 0..n {
                 vl[i] = v[i][l];
             }
-            self.0.hessian_vector(q, &vl, &mut ol);
+            self.0.hessian_vector(q, At::T0, &vl, &mut ol);
             for i in 0..n {
                 out[i][l] = ol[i];
             }

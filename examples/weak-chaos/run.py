@@ -1,10 +1,12 @@
 #!/usr/bin/env python3
-"""Weak chaos of the disordered Klein-Gordon chain (Skokos, Gkolias and Flach, PRL 111, 064101,
-2013): the finite-time maximal Lyapunov exponent averaged over disorder realizations decays as
-t^alpha with alpha near -1/4, and the energy's second moment grows as t^(1/3).
+"""Weak chaos of the disordered Klein-Gordon chain and of the disordered discrete nonlinear
+Schroedinger equation (Skokos, Gkolias and Flach, PRL 111, 064101, 2013; Senyange, Many Manda and
+Skokos, PRE 98, 052229, 2018): the finite-time maximal Lyapunov exponent averaged over disorder
+realizations decays as t^alpha with alpha near -1/4, and the wave packet's second moment (of the
+energy for the DKG, of the norm for the DDNLS) grows as t^(1/3).
 
-    examples/weak-chaos/run.py [--realizations 20] [--sites 300] [--t-final 1e6] [--jobs 2]
-                               [--chaoscope PATH] [--out DIR]
+    examples/weak-chaos/run.py [--model dkg|ddnls] [--realizations 20] [--sites N]
+                               [--t-final T] [--jobs 2] [--chaoscope PATH] [--out DIR]
 
 Each realization is `examples/models/dkg-single-site.toml` with its own disorder seed (1, 2,
 ...): W = 4, eps_l uniform in [1/2, 3/2], fixed ends, a single site in the middle excited with
@@ -14,6 +16,16 @@ kept, so an interrupted campaign goes on where it stopped), `chaoscope analyze -
 curves, and `chaoscope chart` draws the averages. Prints the fitted exponents and the total CPU
 time as JSON; exits non-zero when alpha is outside [-0.30, -0.20] or the second moment's
 exponent is more than 0.08 from 1/3. Standard library only.
+
+With --model ddnls (defaults N = 200, t_final = 1e5) each realization is
+`examples/models/ddnls-block.toml` with its own disorder seed: W = 4 (eps_l uniform in [-2, 2]),
+fixed ends, a single site in the middle excited with norm 1 (psi_100 = 1), beta = 1 (the
+weak-chaos case W = 4, L = 1, beta = 1 of Flach, Krimer and Skokos, PRL 102, 024101 (2009), and
+of the two papers above), s11abc6 with h = 0.1 (relative energy and norm errors ~1e-8), one VM
+vector renormalized and recorded every 10 time units. The analyzer's energy distribution is not
+defined for the DDNLS (its site energies are not positive shares), and the papers' distribution
+is the norm's, z_l = |psi_l|^2 / S: its second moment is computed here from the recorded
+reference states, read with the `chaoscope` Python package (numpy).
 """
 
 import argparse
@@ -30,12 +42,21 @@ from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
 EXAMPLE = HERE.parent / "models" / "dkg-single-site.toml"
+DDNLS_EXAMPLE = HERE.parent / "models" / "ddnls-block.toml"
 # The fit range starts one decade after the peak of <log10 Lambda>. A single excited site is
 # first nearly regular: the exponent grows while chaos builds up inside the initial packet and
 # peaks (near t = 5000 for this setting); the decay that follows is the crossover to the
 # spreading regime, whose local slope settles within about a decade. The range then ends at
 # t_final, at least a decade later.
 PEAK_TO_FIT = 10.0
+# The DDNLS's single site reaches its linear localization volume (about 20 sites at W = 4) by
+# t ~ 100, where m2 pauses before the nonlinear spreading takes over; its MLE peaks earlier than
+# the DKG's (its fastest frequencies are ~5 against ~1.5). The fit therefore starts no earlier
+# than t = 1000, a decade after that pause: [max(10 t_peak, 1000), t_final].
+DDNLS_FIT_NOT_BEFORE = 1000.0
+# Defaults of (sites, t_final) per model. The DDNLS's norm second moment reaches ~10^2 at
+# t = 10^5 (Flach, Krimer and Skokos 2009), far below N^2 / 12 = 3333 for N = 200.
+DEFAULTS = {"dkg": (300, 1e6), "ddnls": (200, 1e5)}
 
 
 def config(sites, t_final, seed):
@@ -57,12 +78,48 @@ def config(sites, t_final, seed):
     return text
 
 
-def realization(chaoscope, out, sites, t_final, seed):
+def ddnls_config(sites, t_final, seed):
+    text = DDNLS_EXAMPLE.read_text()
+    subs = [
+        (r"(?m)^n = \d+$", f"n = {sites}"),
+        (r"(?m)^beta = .*$", "beta = 1.0"),
+        (r"(?m)^seed = 1$", f"seed = {seed}"),
+        (r"(?m)^excite = .*$", f"excite = {{ sites = {sites // 2}, norm = 1.0 }}"),
+        (r"(?m)^h = .*$", "h = 0.1"),
+        (r"(?m)^t_final = .*$", f"t_final = {t_final!r}"),
+        (r"(?m)^k = \d+$", "k = 1"),
+        (r"(?m)^tau = .*$", "tau = 10.0"),
+        (r'(?m)^name = "ddnls-block"$', f'name = "weak-chaos-ddnls-{seed}"'),
+    ]
+    for pattern, new in subs:
+        text, count = re.subn(pattern, new, text, count=1)
+        if count != 1:
+            sys.exit(f"the example changed shape: {pattern!r} not found in {DDNLS_EXAMPLE}")
+    # One VM scheme only: the example's MPM scheme is cut.
+    return text[:text.index("[[scheme]]\nname = \"mpm\"")]
+
+
+def norm_m2(mcap, times):
+    """The norm distribution's second moment at `times`, from the recorded reference states."""
+    import chaoscope  # the Python package: numpy arrays of the recorded states
+    import numpy as np
+    orbit = chaoscope.open(str(mcap)).orbit()
+    at = {float(t): i for i, t in enumerate(orbit.t)}
+    x = orbit.states[[at[t] for t in times]]
+    n = x.shape[1] // 2
+    z = (x[:, :n] ** 2 + x[:, n:] ** 2) / 2
+    z = z / z.sum(axis=1, keepdims=True)
+    l = np.arange(1, n + 1)
+    mean = z @ l
+    return list((z * (l[None, :] - mean[:, None]) ** 2).sum(axis=1))
+
+
+def realization(chaoscope, out, model, sites, t_final, seed):
     """Record realization `seed` (unless its recording exists) and read its curves."""
     mcap = out / f"r{seed}.mcap"
     if not mcap.exists():
         cfg = out / f"r{seed}.toml"
-        cfg.write_text(config(sites, t_final, seed))
+        cfg.write_text((config if model == "dkg" else ddnls_config)(sites, t_final, seed))
         subprocess.run([chaoscope, "run", cfg, "--out", mcap], check=True,
                        stdout=subprocess.DEVNULL)
     csv_dir = out / f"r{seed}.csv"
@@ -71,6 +128,9 @@ def realization(chaoscope, out, sites, t_final, seed):
                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     with open(csv_dir / "vm.csv") as f:
         rows = [r for r in csv.DictReader(f) if float(r["t"]) > 0]
+    if model == "ddnls":
+        m2 = norm_m2(mcap, [float(r["t"]) for r in rows])
+        return [(float(r["t"]), float(r["lyapunov1"]), m) for r, m in zip(rows, m2)]
     return [(float(r["t"]), float(r["lyapunov1"]), float(r["energy_m2"])) for r in rows]
 
 
@@ -81,16 +141,20 @@ def slope(xs, ys):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--model", choices=["dkg", "ddnls"], default="dkg")
     ap.add_argument("--realizations", type=int, default=20)
-    ap.add_argument("--sites", type=int, default=300)
-    ap.add_argument("--t-final", type=float, default=1e6)
+    ap.add_argument("--sites", type=int, help="default 300 (dkg), 200 (ddnls)")
+    ap.add_argument("--t-final", type=float, help="default 1e6 (dkg), 1e5 (ddnls)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--chaoscope", default="chaoscope")
     ap.add_argument("--out", type=Path, default=Path("weak-chaos"))
     a = ap.parse_args()
+    a.sites = a.sites or DEFAULTS[a.model][0]
+    a.t_final = a.t_final or DEFAULTS[a.model][1]
     a.out.mkdir(parents=True, exist_ok=True)
     with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
-        curves = list(pool.map(lambda s: realization(a.chaoscope, a.out, a.sites, a.t_final, s),
+        curves = list(pool.map(lambda s: realization(a.chaoscope, a.out, a.model, a.sites,
+                                                     a.t_final, s),
                                range(1, a.realizations + 1)))
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     times = [t for t, _, _ in curves[0]]
@@ -101,6 +165,8 @@ def main():
     log_mle = [sum(math.log10(c[i][1]) for c in curves) / n for i in range(len(times))]
     log_m2 = [sum(math.log10(c[i][2]) for c in curves) / n for i in range(len(times))]
     fit_from = PEAK_TO_FIT * times[max(range(len(times)), key=lambda i: log_mle[i])]
+    if a.model == "ddnls":
+        fit_from = max(fit_from, DDNLS_FIT_NOT_BEFORE)
     if fit_from * 10 > times[-1]:
         sys.exit(f"the fit would start at t = {fit_from:g}, less than a decade before "
                  f"t_final: raise --t-final")
@@ -123,7 +189,11 @@ def main():
         # The least-squares line itself (through the fitted points' centre).
         mx = sum(lt) / len(lt)
         my = sum(ys[i] for i in fit) / len(fit)
-        spec = {"title": f"DKG weak chaos, W = 4, E = 0.4, N = {a.sites}, {n} realizations",
+        title = (f"DKG weak chaos, W = 4, E = 0.4, N = {a.sites}, {n} realizations"
+                 if a.model == "dkg" else
+                 f"DDNLS weak chaos, W = 4, beta = 1, norm 1 on one site, N = {a.sites}, "
+                 f"{n} realizations")
+        spec = {"title": title,
                 "x_label": "log10 t", "y_label": label,
                 "lines": [{"label": "chaoscope (mean of the logs)", "color": 2, "stroke": "solid",
                            "points": [[x, y] for x, y in zip(lg_t, ys)]},
@@ -140,6 +210,20 @@ def main():
         "mle_at_t_final": 10 ** log_mle[-1], "m2_at_t_final": 10 ** log_m2[-1],
         "cpu_seconds_of_runs_done_now": usage.ru_utime + usage.ru_stime,
     }
+    if a.model == "ddnls":
+        own_m = [slope(lt, [math.log10(c[i][2]) for i in fit]) for c in curves]
+        mean_m = sum(own_m) / n
+        report.update({
+            "model": "ddnls", "fit_to": times[-1],
+            "alpha_mle_per_realization_standard_error": sd_own / math.sqrt(n),
+            "alpha_m2_per_realization_mean": mean_m,
+            "alpha_m2_per_realization_sd":
+                math.sqrt(sum((x - mean_m) ** 2 for x in own_m) / (n - 1)) if n > 1
+                else float("nan"),
+            # The packet must stay well inside the chain: compare with a uniform spread.
+            "m2_max_at_t_final": max(c[-1][2] for c in curves),
+            "m2_of_uniform_chain": a.sites ** 2 / 12,
+        })
     print(json.dumps(report, indent=1))
     ok = -0.30 <= alpha <= -0.20 and abs(alpha_m - 1 / 3) <= 0.08
     sys.exit(0 if ok else 1)

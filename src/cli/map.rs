@@ -115,7 +115,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     super::warn_unused_params("map", &config);
     super::warn_repeated_grid_lines("map", &config);
     let header = spec.header(args.shard);
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let termination = Termination::new();
 
     // The colour map is drawn at the end: what would refuse it is said now.

@@ -99,7 +99,7 @@ impl Tally {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let termination = Termination::new();
     let name = match args.name {
         Some(n) => {

@@ -43,7 +43,7 @@ fn say_open() {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let (config, _, source) = super::load_config(&args.config)?;
     let spec =
         RunSpec::from_config(&config).map_err(|e| super::invalid_config(&source, "run", e))?;

@@ -225,7 +225,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
 
     // Ctrl+C reaches the whole process group; SIGTERM (or a SIGINT sent to us alone) is
     // forwarded to both children, which finalize cleanly.
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
 
     // The producer first: the recorder starts once the producer has opened the run's services
     // (it says `open`), so it can only ever record this producer's run, never that of a live
@@ -422,7 +422,7 @@ fn requeued_by_slurm() -> bool {
 /// `None` when nothing was on disk to continue from.
 fn resume_requeued(config: &RunConfig, out: &Path) -> anyhow::Result<Option<ExitCode>> {
     use chaoscope_replay::resume::{ResumeFailure, ResumeOptions, resume};
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let options = ResumeOptions {
         config: Some(config.clone()),
         // `run` estimated this configuration before it came here.

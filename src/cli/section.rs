@@ -104,7 +104,7 @@ pub struct Args {
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     // Nothing worth finalizing: a signal removes the unfinished outputs and ends at once.
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Exit);
     let (config, _, source) = super::load_config(&args.config)?;
     for (name, v) in [("--from", args.from), ("--to", args.to)] {
         if v.is_some_and(|v| !v.is_finite()) {

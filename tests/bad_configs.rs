@@ -477,8 +477,8 @@ fn run_case(c: &Case, dir: &Path) -> (Option<i32>, String, Vec<String>) {
 #[test]
 fn the_base_configs_are_valid() {
     // A spoiled copy of a config that was already bad would prove nothing.
-    use chaoscope_producer::map::MapSpec;
-    use chaoscope_producer::spec::RunSpec;
+    use chaoscope_dynamics::map::MapSpec;
+    use chaoscope_dynamics::spec::RunSpec;
     use chaoscope_schemas::config::RunConfig;
     for base in [RUN, EXPLICIT, FPUT, DKG] {
         RunSpec::from_config(&RunConfig::from_toml(base).unwrap()).unwrap();
@@ -1200,9 +1200,9 @@ fn resume_to_a_new_end_is_estimated_as_run_is() {
 
 #[test]
 fn the_estimate_refuses_no_example_and_no_test_run() {
-    use chaoscope_producer::estimate::{self, Machine};
-    use chaoscope_producer::map::MapSpec;
-    use chaoscope_producer::spec::RunSpec;
+    use chaoscope_dynamics::estimate::{self, Machine};
+    use chaoscope_dynamics::map::MapSpec;
+    use chaoscope_dynamics::spec::RunSpec;
     use chaoscope_schemas::config::{RunConfig, read_config_file};
     // The smallest machine the project runs on (CI: 2 cores, 24 GiB), with 8 GiB to spare.
     let machine = Machine {
@@ -1235,7 +1235,7 @@ fn the_estimate_refuses_no_example_and_no_test_run() {
         } else {
             let spec = RunSpec::from_config(cfg).unwrap();
             assert!(spec.dim() >= 2, "{name}");
-            estimate::run(&spec, &machine)
+            chaoscope_producer::estimate::run(&spec, &machine)
         };
         assert_eq!(e.refusal(&machine), None, "{name}: {e:?}");
         eprintln!(
@@ -1247,7 +1247,10 @@ fn the_estimate_refuses_no_example_and_no_test_run() {
     // Every run of the test suite is a `RunConfig` from these helpers, the paper presets or
     // the configs above; the longest are the paper's runs (`examples/paper`).
     let spec = RunSpec::from_config(&common::hh_config(1000.0, 1.0)).unwrap();
-    assert_eq!(estimate::run(&spec, &machine).refusal(&machine), None);
+    assert_eq!(
+        chaoscope_producer::estimate::run(&spec, &machine).refusal(&machine),
+        None
+    );
 }
 
 #[test]
@@ -1382,7 +1385,7 @@ fn architecture_md_maps_the_code_both_ways() {
     // ARCHITECTURE.md is the code map, checked both ways.
     // 1. Every path it names exists: a file that is gone (moved, renamed, merged) sends a reader
     //    nowhere. A path is resolved from the repository root, or within the section's directory
-    //    (`### `producer/``: `map/` is `producer/src/map/`, a bare `engine.rs` some file of that
+    //    (`### `dynamics/``: `map/` is `dynamics/src/map/`, a bare `engine.rs` some file of that
     //    name below it).
     // 2. Every source file lies under a path it names (the file itself or a directory above
     //    it), so a file added where the map says nothing fails here until the map says where it
@@ -1411,7 +1414,7 @@ fn architecture_md_maps_the_code_both_ways() {
     for (n, line) in text.lines().enumerate() {
         let heading = line.starts_with("### ");
         if let Some(rest) = line.strip_prefix("### ") {
-            // `### `producer/` (chaoscope-producer)`: paths below are the crate's.
+            // `### `dynamics/` (chaoscope-dynamics)`: paths below are the crate's.
             let name = rest.strip_prefix('`').and_then(|r| r.split('`').next());
             section = name.filter(|n| n.ends_with('/')).unwrap_or("").to_string();
         } else if line.starts_with("## ") {

@@ -11,7 +11,7 @@
 //!   cause, and the map goes on with the Cranelift kernels.
 //! - A map that ends, or is interrupted by SIGINT, while the compiler is still running leaves
 //!   no compiler process and no file behind (the build is cancelled: see `Inner::drop` in
-//!   `producer/src/model/expression.rs` for why).
+//!   `dynamics/src/model/expression.rs` for why).
 
 use std::collections::BTreeMap;
 use std::path::Path;

@@ -15,6 +15,13 @@ pub fn install(mode: Mode) {
     chaoscope_os::signals::install_after(mode, take_iceoryx2_signal);
 }
 
+/// Whether iceoryx2's handlers took SIGINT or SIGTERM since this was last asked (iceoryx2 forgets
+/// it once read): the fallback of a [`chaoscope_os::termination::Termination`] in a process
+/// that did not [`install`] the latch (a program using the library).
+pub fn iceoryx2_termination_requested() -> bool {
+    SignalHandler::termination_requested()
+}
+
 /// Installs iceoryx2's handlers (its first call) and returns, as iceoryx2 forgets it, the
 /// SIGINT or SIGTERM they took.
 fn take_iceoryx2_signal() -> Option<i32> {

@@ -31,9 +31,9 @@
 
 use std::io::Cursor;
 
-use chaoscope_producer::estimate::{self, Machine};
-use chaoscope_producer::map::MapSpec;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::estimate::{self, Machine};
+use chaoscope_dynamics::map::MapSpec;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_recorder::scan::{Entry, Messages, Scanner};
 use chaoscope_schemas::config::{ModelConfig, RunConfig};
 
@@ -163,7 +163,7 @@ pub fn config(data: &[u8]) {
     if state.saturating_mul(dim) > MAX_FUZZ_STATE {
         return;
     }
-    let checked = |e: &chaoscope_producer::spec::SpecError| {
+    let checked = |e: &chaoscope_dynamics::spec::SpecError| {
         assert!(
             !e.key.is_empty() && !e.message.is_empty() && !e.to_string().contains('\n'),
             "an error without key or message, or of several lines: {e:?}"
@@ -180,7 +180,7 @@ pub fn config(data: &[u8]) {
     } else {
         match RunSpec::from_config(&cfg) {
             Ok(spec) => {
-                let _ = estimate::run(&spec, &machine).refusal(&machine);
+                let _ = chaoscope_producer::estimate::run(&spec, &machine).refusal(&machine);
             }
             Err(e) => checked(&e),
         }
@@ -472,6 +472,7 @@ pub fn values_replay(data: &[u8]) -> Outcome {
     }
     let options = ReplayOptions {
         taus: vec![0.2],
+        transport: chaoscope_producer::estimate::BUS,
         ..Default::default()
     };
     match replay(&input, &output, &options) {
@@ -930,11 +931,11 @@ pub fn values_clv(data: &[u8]) -> Outcome {
 /// stretching factors, then how the run ended. False if it could not be written.
 fn computed_recording(choices: &mut Choices, path: &std::path::Path) -> bool {
     use chaoscope_analyzer::write::SampleWriter;
-    use chaoscope_producer::engine::Engine;
+    use chaoscope_dynamics::engine::Engine;
     use chaoscope_schemas::proto::end_of_run::Status;
     let config = RunConfig::from_toml(hostile::RUN_CONFIG).expect("the hostile runs' config");
     let spec = RunSpec::from_config(&config).expect("the hostile runs' config is valid");
-    let header = chaoscope_producer::publish::run_header("hostile", &config, &spec);
+    let header = chaoscope_dynamics::header::run_header("hostile", &config, &spec);
     let mut engine = Engine::new(spec);
     // 0 to 11 of the run's 11 samples (t = 0, 0.1, ..., 1).
     let keep = choices.below(13);
@@ -1000,7 +1001,7 @@ pub fn values_map_header(data: &[u8]) -> Outcome {
     {
         match MapSpec::from_config(&cfg) {
             Ok(spec) => {
-                let shard = chaoscope_producer::map::Shard {
+                let shard = chaoscope_dynamics::map::Shard {
                     index: header.shard_index,
                     count: header.shard_count,
                 };

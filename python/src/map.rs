@@ -3,11 +3,11 @@
 
 use std::path::{Path, PathBuf};
 
+use chaoscope_dynamics::batch::Isa;
+use chaoscope_dynamics::estimate::{self, Machine};
+use chaoscope_dynamics::map::{MapOptions, MapSpec, Shard, run_map};
+use chaoscope_os::termination::Termination;
 use chaoscope_os::{Leftover, Output, OutputOptions};
-use chaoscope_producer::batch::Isa;
-use chaoscope_producer::estimate::{self, Machine};
-use chaoscope_producer::map::{MapOptions, MapSpec, Shard, run_map};
-use chaoscope_producer::publish::Termination;
 use chaoscope_recorder::file::{Compression, FileOptions};
 use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
@@ -180,7 +180,7 @@ pub fn map(
         points,
         &machine,
         threads.unwrap_or(machine.cores).min(machine.cores),
-        chaoscope_producer::batch::Isa::detect(),
+        chaoscope_dynamics::batch::Isa::detect(),
     );
     if let Some(why) = estimate.refusal(&machine)
         && !force

@@ -25,12 +25,12 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
 use chaoscope_bus::frame::status;
+use chaoscope_dynamics::batch::Isa;
+use chaoscope_dynamics::estimate::RouteChoice;
+use chaoscope_dynamics::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
+use chaoscope_os::termination::Termination;
 use chaoscope_os::{Leftover, Output, OutputOptions};
-use chaoscope_producer::batch::Isa;
-use chaoscope_producer::estimate::RouteChoice;
-use chaoscope_producer::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
-use chaoscope_producer::publish::Termination;
-use chaoscope_producer::publish::map::{MapPublisher, default_map_name};
+use chaoscope_producer::map::{MapPublisher, default_map_name};
 use chaoscope_recorder::file::{Compression, FileOptions};
 use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
@@ -104,7 +104,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     };
     // Threads beyond the cores share them: the estimate spreads the work over the fewer. A
     // map that names no route takes the cheaper of two that give its numbers.
-    let (estimate, route_choice) = chaoscope_producer::estimate::map_choosing_route(
+    let (estimate, route_choice) = chaoscope_dynamics::estimate::map_choosing_route(
         &mut spec,
         points,
         &machine,

@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use chaoscope_bus::frame::{MapFrameKind, status};
 use chaoscope_bus::{self as bus, Liveness};
-use chaoscope_producer::publish::Termination;
+use chaoscope_os::termination::Termination;
 use chaoscope_schemas::names;
 use chaoscope_schemas::proto::{MapAxis, MapHeader, MapPoint};
 use prost::Message;

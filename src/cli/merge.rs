@@ -11,8 +11,8 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
+use chaoscope_dynamics::map::Shard;
 use chaoscope_os::{Leftover, Output, OutputOptions};
-use chaoscope_producer::map::Shard;
 use chaoscope_recorder::file::{Compression, FileOptions};
 use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};

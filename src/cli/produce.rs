@@ -4,8 +4,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use chaoscope_producer::publish::{self, PublishOptions, RunStatus};
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::spec::RunSpec;
+use chaoscope_producer::{self as publish, PublishOptions, RunStatus};
 
 #[derive(clap::Args)]
 pub struct Args {

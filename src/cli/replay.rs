@@ -42,6 +42,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         without_original: args.without_original,
         stop: None,
         force: args.force,
+        transport: chaoscope_producer::estimate::BUS,
     };
     let outcome = replay(&args.file, &args.out, &options)?;
     if args.json {

@@ -37,6 +37,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         config: None,
         stop: None,
         estimated: false,
+        transport: chaoscope_producer::estimate::BUS,
     };
     let outcome = resume(&args.recording, &options)?;
     report(&outcome, args.json)

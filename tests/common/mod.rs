@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 use chaoscope_schemas::names::topic;
 use chaoscope_schemas::proto::{

@@ -2,7 +2,7 @@
 //! route gives every set's value per-set VM gives wherever per-set VM resolves it, and the MPM
 //! route is as close to VM as per-set MPM is. Config mistakes name `map.route`.
 
-use chaoscope_producer::map::{MapOptions, MapRoute, MapSpec, PointResult, PointStatus, run_map};
+use chaoscope_dynamics::map::{MapOptions, MapRoute, MapSpec, PointResult, PointStatus, run_map};
 use chaoscope_schemas::config::{DeviationsConfig, MapConfig, RunConfig, SchemeConfig, paper};
 
 fn config(method: &str, route: &str, d0: f64) -> RunConfig {
@@ -190,9 +190,9 @@ fn batched_vm_route_is_the_per_point_vm_route_bit_for_bit() {
     // recorded reference.
     let spec = MapSpec::from_config(&config("vm", "propagator", 1e-8)).unwrap();
     let batched = map("vm", "propagator");
-    let isa = chaoscope_producer::batch::Isa::detect();
+    let isa = chaoscope_dynamics::batch::Isa::detect();
     for r in &batched {
-        let one = chaoscope_producer::map::basis::compute(&spec, isa, &[r.index], &|| false)
+        let one = chaoscope_dynamics::map::basis::compute(&spec, isa, &[r.index], &|| false)
             .pop()
             .unwrap();
         assert!(r.same_numbers(&one), "point {}: {r:?} vs {one:?}", r.index);

@@ -15,7 +15,7 @@ use iceoryx2::port::{BackpressureAction, BackpressureInfo};
 use iceoryx2::prelude::*;
 use prost::Message;
 
-use super::termination::Termination;
+use chaoscope_os::termination::Termination;
 
 /// How long a blocked send keeps waiting for a slow recorder after SIGINT/SIGTERM, so the final
 /// frames (and the end-of-run record) still reach it.

@@ -18,7 +18,7 @@ use iceoryx2::port::update_connections::UpdateConnections;
 use iceoryx2::prelude::*;
 use prost::Message;
 
-use crate::map::Shard;
+use chaoscope_dynamics::map::Shard;
 
 /// The default bus name of a map written to `out`: the file stem with characters outside
 /// `[A-Za-z0-9_-]` replaced by `_`, plus `-shard<i>of<n>` for a shard of a split map.

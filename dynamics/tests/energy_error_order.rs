@@ -1,10 +1,10 @@
 //! Must-show 1: the energy error of ABA864 falls as h^4, the leapfrog's as h^2; every other
 //! splitting shows its general order, and at a small perturbation its near-integrable one.
 
-use chaoscope_producer::integrator::{
+use chaoscope_dynamics::integrator::{
     Integrator, Splitting, SplittingKind, Workspace, relative_energy_error,
 };
-use chaoscope_producer::model::{HenonHeiles, Model};
+use chaoscope_dynamics::model::{HenonHeiles, Model};
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 
 mod common;
@@ -102,7 +102,7 @@ fn near_integrable_error(method: &str, eps: f64, h: f64) -> f64 {
     let system = spec.system();
     let mut x = spec.x0().to_vec();
     let e0 = system.invariant(&x).expect("a Hamiltonian has an energy");
-    let mut work = chaoscope_producer::integrator::Workspace::new();
+    let mut work = chaoscope_dynamics::integrator::Workspace::new();
     let mut worst: f64 = 0.0;
     for step in 0..spec.total_steps() {
         system.step(&mut x, step as f64 * h, &mut work);

@@ -1,6 +1,6 @@
 //! Must-shows 3, 4 and 6 on the Henon-Heiles chaotic orbit (x2 = -0.25, H = 0.125).
 
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 
 mod common;
@@ -219,7 +219,7 @@ fn same_seed_is_bit_identical_on_any_thread_count() {
         let spec: RunSpec = common::spec(&config);
         pool.install(|| {
             let mut out = Vec::new();
-            chaoscope_producer::engine::Engine::new(spec)
+            chaoscope_dynamics::engine::Engine::new(spec)
                 .run(|s| out.push(s))
                 .unwrap();
             out

@@ -15,7 +15,7 @@
 //! 1e-12 for every size here). `worst_errors_against_their_tolerances` prints how much of each
 //! tolerance the worst of 20000 random sets uses.
 
-use chaoscope_producer::indicators::{SIGMA_FLOOR, gali_log10, sali};
+use chaoscope_dynamics::indicators::{SIGMA_FLOOR, gali_log10, sali};
 use nalgebra::DMatrix;
 use proptest::prelude::*;
 

@@ -3,7 +3,7 @@
 //! has one, else lane by lane along the reference's plan (`AlongReference`, in `engine.rs`).
 //!
 //! The batched form is, lane by lane, the bits of the one-orbit `step` / `step_tangent`
-//! (`producer/tests/map_batch.rs`), so the choice changes no number of a run (the engine's tests
+//! (`dynamics/tests/map_batch.rs`), so the choice changes no number of a run (the engine's tests
 //! compare both paths sample by sample); what it changes is the speed: a compiled expression
 //! potential steps whole splitting steps in one fused pass over its sites (its step kernels),
 //! vectorized across lanes, instead of a gradient and a Hessian-vector product each writing a

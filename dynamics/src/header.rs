@@ -1,8 +1,10 @@
-//! The run header a producer announces: the validated run plus its configuration text.
+//! The run header a producer announces: the validated run plus its configuration text; and
+//! [`non_finite`], the check every sample passes before it goes on the bus or into a file.
 
 use chaoscope_schemas::FORMAT_VERSION;
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::proto::{RunHeader, Scheme};
+use chaoscope_schemas::run::Sample;
 
 use crate::spec::RunSpec;
 
@@ -47,4 +49,27 @@ pub fn run_header(run_name: &str, config: &RunConfig, spec: &RunSpec) -> RunHead
         kind: spec.system().kind().name().to_string(),
         time: spec.system().time().name().to_string(),
     }
+}
+
+/// The first non-finite value of a sample, described (NaN never goes on the bus or into files).
+pub fn non_finite(sample: &Sample) -> Option<String> {
+    if !sample.state.iter().all(|v| v.is_finite()) || !sample.energy.is_finite() {
+        return Some(format!("non-finite reference state at t = {}", sample.t));
+    }
+    sample
+        .schemes
+        .iter()
+        .find(|s| {
+            !s.separations
+                .iter()
+                .chain(&s.stretch)
+                .chain(&s.earlier_stretch)
+                .all(|v| v.is_finite())
+        })
+        .map(|s| {
+            format!(
+                "non-finite deviation vectors (scheme {}, set {}) at t = {}",
+                s.scheme, s.set, sample.t
+            )
+        })
 }

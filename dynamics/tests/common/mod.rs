@@ -1,9 +1,9 @@
 //! Shared helpers for the physics tests: run a config in process and keep per-scheme series.
 #![allow(dead_code)]
 
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::indicators::{StretchSums, gali_log10};
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::indicators::{StretchSums, gali_log10};
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 
 /// One renormalization of one scheme, all sets.

@@ -15,10 +15,10 @@
 //! 1e-12 decades far below that, `propagator.rs`). So per-set VM resolves GALI_k to 1e-6 decades
 //! while `log10 GALI_k > -7`, and that is where the two are compared.
 
-use chaoscope_producer::indicators::volume_log10 as log10_gali;
-use chaoscope_producer::integrator::Workspace;
-use chaoscope_producer::propagator::{Propagator, SetImage};
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::indicators::volume_log10 as log10_gali;
+use chaoscope_dynamics::integrator::Workspace;
+use chaoscope_dynamics::propagator::{Propagator, SetImage};
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::paper::{self, FPUT_N5_REGULAR_P, FPUT_N5_REGULAR_Q, fput_beta};
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig};
 

@@ -13,9 +13,9 @@
 //! chaotic and regular orbits and the FPUT N = 5 regular one. On FPUT's chaotic orbit per-set
 //! VM's own resolution is coarser than that cut-off, about 1e-3 decades just above it.)
 
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::indicators::gali_log10;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::indicators::gali_log10;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::paper::{self, FPUT_N5_REGULAR_P, FPUT_N5_REGULAR_Q, fput_beta};
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig};
 use chaoscope_schemas::run::Sample;

@@ -4,8 +4,8 @@
 //! Mutations: each numeric value of a valid config replaced in turn by hostile numbers, each
 //! string by a wrong word, plus hand-written absurd sizes.
 
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 
 const BASE: &str = r#"

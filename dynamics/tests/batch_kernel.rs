@@ -4,12 +4,12 @@
 
 use std::sync::Arc;
 
-use chaoscope_producer::batch::{
+use chaoscope_dynamics::batch::{
     self, AnyLaneModel, DynLanes, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages,
 };
-use chaoscope_producer::integrator::{Integrator, Splitting, SplittingKind, Workspace};
-use chaoscope_producer::model::{ExpressionModel, FputBeta, HenonHeiles};
-use chaoscope_producer::with_lane_model;
+use chaoscope_dynamics::integrator::{Integrator, Splitting, SplittingKind, Workspace};
+use chaoscope_dynamics::model::{ExpressionModel, FputBeta, HenonHeiles};
+use chaoscope_dynamics::with_lane_model;
 use chaoscope_schemas::config::{ModelConfig, ParamValue, PotentialConfig};
 
 /// Deterministic pseudo-random numbers in [-1, 1) (no dependency needed).
@@ -146,7 +146,7 @@ fn generic_fallback_equals_one_orbit_steps() {
 }
 
 fn expression(config: &ModelConfig) -> ExpressionModel {
-    let (model, _) = chaoscope_producer::spec::model_from_config(config).unwrap();
+    let (model, _) = chaoscope_dynamics::spec::model_from_config(config).unwrap();
     let any: &dyn std::any::Any = model.as_ref();
     any.downcast_ref::<ExpressionModel>()
         .expect("a potential compiles to an ExpressionModel")

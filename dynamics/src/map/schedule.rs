@@ -10,7 +10,7 @@ use super::spec::MapSpec;
 use super::{basis, per_set};
 use crate::batch::Isa;
 use crate::method;
-use crate::publish::Termination;
+use chaoscope_os::termination::Termination;
 
 /// Points per batch on the basis route (and the fused one), in units of
 /// [`MapOptions::mpm_points_per_batch`].

@@ -6,7 +6,7 @@
 //! A system hands out its kernel through its one extension point for the batched form,
 //! `DynamicalSystem::batched`; each kind implements it beside itself (`system/`). Every kernel
 //! is, lane by lane, the bits of the one-orbit system's `step` / `step_tangent`, so a point
-//! computed through any kernel equals the engine's (`producer/tests/map_batch.rs`).
+//! computed through any kernel equals the engine's (`dynamics/tests/map_batch.rs`).
 
 use super::Soa;
 use crate::integrator::TangentError;

@@ -2,8 +2,8 @@
 //! every indicator, every instruction set and thread count; and the map tells islands from the
 //! chaotic sea.
 
-use chaoscope_producer::batch::Isa;
-use chaoscope_producer::map::{self, MapOptions, MapSpec, PointResult, PointStatus};
+use chaoscope_dynamics::batch::Isa;
+use chaoscope_dynamics::map::{self, MapOptions, MapSpec, PointResult, PointStatus};
 use chaoscope_schemas::config::{
     DeviationsConfig, MapAxis, MapConfig, RunConfig, SchemeConfig, paper,
 };

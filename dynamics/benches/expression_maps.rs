@@ -1,13 +1,13 @@
 //! Phase-space maps of systems written as expressions (discrete maps, Runge-Kutta flows): the
 //! batched kernel (the compiled lane functions) against the one-orbit engine computing the same
-//! points, which it equals bit for bit (`producer/tests/map_batch.rs`). Prints one JSON object
+//! points, which it equals bit for bit (`dynamics/tests/map_batch.rs`). Prints one JSON object
 //! per case: CPU seconds of each path on one thread, measured in this run, and their ratio.
 //!
-//! `cargo bench -p chaoscope-producer --bench expression_maps`
+//! `cargo bench -p chaoscope-dynamics --bench expression_maps`
 
-use chaoscope_producer::batch::Isa;
-use chaoscope_producer::estimate::Machine;
-use chaoscope_producer::map::{self, MapOptions, MapSpec};
+use chaoscope_dynamics::batch::Isa;
+use chaoscope_dynamics::estimate::Machine;
+use chaoscope_dynamics::map::{self, MapOptions, MapSpec};
 use chaoscope_schemas::config::RunConfig;
 
 const STANDARD_MAP: &str = r#"

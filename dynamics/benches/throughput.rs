@@ -2,12 +2,12 @@
 //!
 //! An orbit-step is one phase-space trajectory (the reference orbit, a tangent vector or a
 //! nearby orbit) advanced by one full ABA864 step. Measured on one rayon thread, so the figure
-//! is per core. Run: `cargo bench -p chaoscope-producer --bench throughput`.
+//! is per core. Run: `cargo bench -p chaoscope-dynamics --bench throughput`.
 
 use std::time::Instant;
 
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 
 fn config(model: &str, orbit: &str, k: usize, method: &str, t_final: f64) -> String {

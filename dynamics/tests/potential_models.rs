@@ -2,10 +2,10 @@
 //! restate, the integrable Toda lattice's GALI laws, a tabulated bond against the analytic one,
 //! and the refusals (VM on a non-smooth potential, bad expressions, run-time NaN).
 
-use chaoscope_producer::engine::{Engine, RunError};
-use chaoscope_producer::indicators::{StretchSums, gali_log10, sali};
-use chaoscope_producer::model::{FputBeta, Model};
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::{Engine, RunError};
+use chaoscope_dynamics::indicators::{StretchSums, gali_log10, sali};
+use chaoscope_dynamics::model::{FputBeta, Model};
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{
     DeviationsConfig, ModelConfig, ParamValue, PotentialConfig, RunConfig, SchemeConfig,
     TableConfig, TableSpec, paper,
@@ -207,7 +207,7 @@ fn fput_lattice_sum_as_a_loop_gives_the_built_in_chain_bits_for_mpm_and_rounding
     let model = spec.system().separable().unwrap().model().clone();
     let any: &dyn std::any::Any = model.as_ref();
     let compiled = any
-        .downcast_ref::<chaoscope_producer::model::ExpressionModel>()
+        .downcast_ref::<chaoscope_dynamics::model::ExpressionModel>()
         .unwrap();
     assert!(compiled.has_loops(), "the lattice sum is a loop");
     let a = final_indicators(RunSpec::from_config(&builtin).unwrap());
@@ -237,11 +237,11 @@ fn fput_chain_of_1001_sites_compiles_quickly() {
     // Must-show 2: compile time for N = 1001 (the timing itself is reported, and measured again
     // by `chaoscope bench`; here only that it builds and agrees with the built-in forces).
     let n = 1001;
-    let (model, _) = chaoscope_producer::spec::model_from_config(&fput_expression(n)).unwrap();
+    let (model, _) = chaoscope_dynamics::spec::model_from_config(&fput_expression(n)).unwrap();
     let builtin = FputBeta::new(n, 1.0).unwrap();
     let any: &dyn std::any::Any = model.as_ref();
     let compiled = any
-        .downcast_ref::<chaoscope_producer::model::ExpressionModel>()
+        .downcast_ref::<chaoscope_dynamics::model::ExpressionModel>()
         .unwrap();
     eprintln!(
         "FPUT N = 1001: {} graph nodes, parse + differentiate + compile {:.3} s",
@@ -584,11 +584,11 @@ fn drawn_disorder_runs_as_the_written_out_array() {
     let drawn = dkg(orbit, "{ uniform = [0.5, 1.5], seed = 11 }", 20.0);
     let spec = RunSpec::from_config(&drawn).expect("valid");
     // The values the spec drew, read back through a config that writes them out.
-    let values = chaoscope_producer::spec::drawn::uniform(0.5, 1.5, 11, 40);
+    let values = chaoscope_dynamics::spec::drawn::uniform(0.5, 1.5, 11, 40);
     assert!(values.iter().all(|e| (0.5..1.5).contains(e)));
     assert_ne!(
         values,
-        chaoscope_producer::spec::drawn::uniform(0.5, 1.5, 12, 40)
+        chaoscope_dynamics::spec::drawn::uniform(0.5, 1.5, 12, 40)
     );
     let written: Vec<String> = values.iter().map(|v| format!("{v:?}")).collect();
     let explicit = dkg(orbit, &format!("[{}]", written.join(", ")), 20.0);

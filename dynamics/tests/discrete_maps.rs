@@ -8,11 +8,11 @@
 //! - Two coupled standard maps (4D, symplectic; Skokos 2001, Skokos, Bountis, Antonopoulos
 //!   2007): GALI_k power laws on a regular orbit.
 
+use chaoscope_dynamics::indicators::{StretchSums, gali_log10};
+use chaoscope_dynamics::integrator::Workspace;
+use chaoscope_dynamics::renormalization::renormalize;
+use chaoscope_dynamics::system::{DynamicalSystem, Map};
 use chaoscope_expr::{Boundary, ParamValue, VectorDefinition, VectorFunction};
-use chaoscope_producer::indicators::{StretchSums, gali_log10};
-use chaoscope_producer::integrator::Workspace;
-use chaoscope_producer::renormalization::renormalize;
-use chaoscope_producer::system::{DynamicalSystem, Map};
 use chaoscope_schemas::run::Orthonormalization;
 
 fn map(components: &[&str], params: &[(&str, f64)], modulo: Vec<f64>) -> Map {

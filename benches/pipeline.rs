@@ -20,7 +20,7 @@ use chaoscope_bus::frame::{FrameHeader, RecordBatch, status};
 use chaoscope_dynamics::engine::Engine;
 use chaoscope_dynamics::header::run_header;
 use chaoscope_dynamics::spec::RunSpec;
-use chaoscope_recorder::file::{FileOptions, RecordingFile};
+use chaoscope_files::file::{FileOptions, RecordingFile};
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::RunHeader;

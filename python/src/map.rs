@@ -6,10 +6,10 @@ use std::path::{Path, PathBuf};
 use chaoscope_dynamics::batch::Isa;
 use chaoscope_dynamics::estimate::{self, Machine};
 use chaoscope_dynamics::map::{MapOptions, MapSpec, Shard, run_map};
+use chaoscope_files::file::{Compression, FileOptions};
+use chaoscope_files::map_file::{MapFile, read_map_file};
 use chaoscope_os::termination::Termination;
 use chaoscope_os::{Leftover, Output, OutputOptions};
-use chaoscope_recorder::file::{Compression, FileOptions};
-use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;
@@ -232,7 +232,7 @@ pub fn map(
                 format!(
                     "writing {}: {}",
                     out.display(),
-                    chaoscope_recorder::file::error_chain(e)
+                    chaoscope_files::file::error_chain(e)
                 )
             };
             let file = output.file().map_err(|e| write_error(&e))?;

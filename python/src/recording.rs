@@ -493,7 +493,7 @@ impl Recording {
 }
 
 fn error_text(e: &(dyn std::error::Error + 'static)) -> String {
-    chaoscope_recorder::file::error_chain(e)
+    chaoscope_files::file::error_chain(e)
 }
 
 /// The recorded orbit, as flat rows.

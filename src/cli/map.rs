@@ -28,11 +28,11 @@ use chaoscope_bus::frame::status;
 use chaoscope_dynamics::batch::Isa;
 use chaoscope_dynamics::estimate::RouteChoice;
 use chaoscope_dynamics::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
+use chaoscope_files::file::{Compression, FileOptions};
+use chaoscope_files::map_file::{MapFile, read_map_file};
 use chaoscope_os::termination::Termination;
 use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::map::{MapPublisher, default_map_name};
-use chaoscope_recorder::file::{Compression, FileOptions};
-use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 
 /// Longest wait, once the map is done, for live watchers to read its last points.
@@ -436,7 +436,7 @@ fn previous_points(
             }
             // Its values are this map's own (this configuration's header) or the file is
             // refused: they go into the new file and the PNG as they are.
-            chaoscope_recorder::map_file::check_point(header, &p).map_err(|e| {
+            chaoscope_files::map_file::check_point(header, &p).map_err(|e| {
                 anyhow::anyhow!(
                     "{}: {e}; pass --restart to recompute it or choose another --out",
                     path.display()

@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use chaoscope_recorder::file::Compression;
+use chaoscope_files::file::Compression;
 use chaoscope_recorder::{RecordError, RecordOptions, record};
 
 #[derive(clap::Args)]

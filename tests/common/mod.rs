@@ -288,7 +288,7 @@ pub fn run_reduced_example(script: &str, out: &Path) {
 /// A map recording's points by grid index, each as its exact protobuf bytes (a damaged file
 /// fails the test).
 pub fn map_points(path: &Path) -> std::collections::BTreeMap<u64, Vec<u8>> {
-    let contents = chaoscope_recorder::map_file::read_map_file(path).unwrap();
+    let contents = chaoscope_files::map_file::read_map_file(path).unwrap();
     assert!(contents.damaged.is_none(), "{} is damaged", path.display());
     contents
         .points

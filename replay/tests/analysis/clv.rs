@@ -12,7 +12,7 @@ use chaoscope_analyzer::write::SampleWriter;
 use chaoscope_dynamics::engine::Engine;
 use chaoscope_dynamics::header::run_header;
 use chaoscope_dynamics::spec::RunSpec;
-use chaoscope_recorder::testing;
+use chaoscope_files::testing;
 use chaoscope_schemas::config::RunConfig;
 
 const HENON: &str = r#"

@@ -10,7 +10,7 @@ use std::collections::BTreeMap;
 use std::io::Cursor;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
-use chaoscope_recorder::scan::Scanner;
+use chaoscope_files::scan::Scanner;
 use mcap::records::{MessageHeader, Metadata, op};
 
 /// The system allocator, remembering the largest allocation asked of it.
@@ -122,7 +122,7 @@ fn length_prefixes(bytes: &[u8]) -> Vec<usize> {
         }
     }
     let mut kinds = BTreeMap::new();
-    for at in chaoscope_recorder::testing::record_offsets(bytes) {
+    for at in chaoscope_files::testing::record_offsets(bytes) {
         let body = at + 9;
         *kinds.entry(bytes[at]).or_insert(0) += 1;
         match bytes[at] {
@@ -166,7 +166,7 @@ fn scan(bytes: &[u8]) -> (Option<String>, usize) {
 /// unchecked).
 fn without_chunk_crcs(bytes: &[u8]) -> Vec<u8> {
     let mut bytes = bytes.to_vec();
-    for at in chaoscope_recorder::testing::chunk_offsets(&bytes) {
+    for at in chaoscope_files::testing::chunk_offsets(&bytes) {
         bytes[at + 9 + 24..at + 9 + 28].fill(0);
     }
     bytes

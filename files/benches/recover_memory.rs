@@ -14,8 +14,8 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::Instant;
 
-use chaoscope_recorder::file::FileOptions;
-use chaoscope_recorder::testing as synthetic;
+use chaoscope_files::file::FileOptions;
+use chaoscope_files::testing as synthetic;
 use mcap::records::Record;
 use serde_json::{Value, json};
 
@@ -42,7 +42,7 @@ fn vm_hwm_kb() -> u64 {
 /// The child: recover and report.
 fn child(input: &str, output: &str) {
     let start = Instant::now();
-    let report = chaoscope_recorder::recover(Path::new(input), Path::new(output), true).unwrap();
+    let report = chaoscope_files::recover(Path::new(input), Path::new(output), true).unwrap();
     let seconds = start.elapsed().as_secs_f64();
     println!(
         "{}",

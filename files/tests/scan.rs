@@ -1,9 +1,9 @@
 //! On a valid file the damage-tolerant reader reads exactly what the mcap crate reads: the
 //! same messages, in the same order, bit for bit (so analyses through it are unchanged).
 
-use chaoscope_recorder::file::Compression;
-use chaoscope_recorder::scan::{Messages, Scanner};
-use chaoscope_recorder::testing::{self, Message};
+use chaoscope_files::file::Compression;
+use chaoscope_files::scan::{Messages, Scanner};
+use chaoscope_files::testing::{self, Message};
 
 fn by_scan(bytes: &[u8]) -> Vec<Message> {
     let scanner = Scanner::open(bytes, Some(bytes.len() as u64))
@@ -88,7 +88,7 @@ fn chunk(records: &[u8]) -> Vec<u8> {
 
 #[test]
 fn empty_and_tiny_chunks_are_valid() {
-    use chaoscope_recorder::scan::Entry;
+    use chaoscope_files::scan::Entry;
     use mcap::records::{Record, op};
     // A schema of id 1, empty name, encoding and data.
     let schema = record(op::SCHEMA, &[1, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]);

@@ -4,10 +4,10 @@
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 
-use chaoscope_recorder::file::Compression;
-use chaoscope_recorder::map_file::{MapContents, read_map, read_map_file};
-use chaoscope_recorder::scan::FileError;
-use chaoscope_recorder::testing;
+use chaoscope_files::file::Compression;
+use chaoscope_files::map_file::{MapContents, read_map, read_map_file};
+use chaoscope_files::scan::FileError;
+use chaoscope_files::testing;
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 
 /// Points per chunk of [`map`].

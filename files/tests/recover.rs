@@ -4,9 +4,9 @@
 
 use std::path::{Path, PathBuf};
 
-use chaoscope_recorder::file::Compression;
-use chaoscope_recorder::recover::{RecoverError, RecoverReport, recover};
-use chaoscope_recorder::testing::{self as synthetic, Message, Noise, mcap_messages as messages};
+use chaoscope_files::file::Compression;
+use chaoscope_files::recover::{RecoverError, RecoverReport, recover};
+use chaoscope_files::testing::{self as synthetic, Message, Noise, mcap_messages as messages};
 
 /// A small recording of about 15 chunks (the recorder's layout), its messages, and its chunks.
 struct Original {
@@ -66,7 +66,7 @@ struct Files {
 
 impl Files {
     fn new() -> Self {
-        let dir = chaoscope_recorder::testing::scratch_dir();
+        let dir = chaoscope_files::testing::scratch_dir();
         let input = dir.path().join("broken.mcap");
         let output = dir.path().join("fixed.mcap");
         Self {

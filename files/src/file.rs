@@ -94,7 +94,7 @@ pub struct RecordingFile<W: Write + Seek> {
 
 /// The channels of a recording by what they carry: all that encoding a message for the file
 /// needs. Encoding is apart from writing so that a recorder can encode on one thread while
-/// another compresses and writes (`chaoscope_recorder::write_thread`); both paths encode here.
+/// another compresses and writes (the recorder's write thread); both paths encode here.
 #[derive(Debug, Clone)]
 pub struct Encoder {
     reference: u16,

@@ -1,7 +1,7 @@
 //! chaoscope-files: what lands in files, and the one way they are read back. No bus: the
 //! recorder process (`chaoscope-recorder`) and the in-process writers drive these.
 //!
-//! - [`sequence`]: gap and duplicate accounting of frame sequence numbers (pure).
+//! - `sequence`: gap and duplicate accounting of frame sequence numbers (pure).
 //! - [`file`]: the MCAP layout of a recording (schemas, channels, metadata) over any
 //!   `Write + Seek`.
 //! - [`indicators`]: the indicators channel (GALI, SALI, exponents per scheme and sample), from
@@ -19,7 +19,7 @@ pub mod map_file;
 pub mod recording;
 pub mod recover;
 pub mod scan;
-pub mod sequence;
+mod sequence;
 #[cfg(any(test, feature = "testing"))]
 pub mod testing;
 

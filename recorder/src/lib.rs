@@ -3,14 +3,14 @@
 //!
 //! - [`subscription`]: the bus side, waking on iceoryx2 events and watching the producer's
 //!   node liveness.
-//! - [`discover`]: finding a run to record.
-//! - [`write_thread`]: a recording written on a thread of its own, the indicators computed on
+//! - `discover`: finding a run to record.
+//! - `write_thread`: a recording written on a thread of its own, the indicators computed on
 //!   the caller's (the recorder's two cores).
 //! - [`record`]: the recorder process loop gluing the above.
 
-pub mod discover;
+mod discover;
 pub mod record;
 pub mod subscription;
-pub mod write_thread;
+mod write_thread;
 
 pub use record::{RecordError, RecordOptions, RecordOutcome, record};

@@ -10,8 +10,8 @@ use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use chaoscope_analyzer::write::SampleWriter;
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 use serde_json::json;
 
@@ -70,7 +70,7 @@ fn main() {
 
     let cfg = RunConfig::from_toml(&config(t_final)).unwrap();
     let spec = RunSpec::from_config(&cfg).unwrap();
-    let header = chaoscope_producer::publish::run_header("analyze-memory", &cfg, &spec);
+    let header = chaoscope_dynamics::header::run_header("analyze-memory", &cfg, &spec);
     let start = Instant::now();
     let mut writer = SampleWriter::create(&path, &header).unwrap();
     let mut engine = Engine::new(spec);

@@ -17,10 +17,10 @@ use std::time::Instant;
 
 use chaoscope_bus::convert::decode_frame;
 use chaoscope_bus::frame::{FrameHeader, RecordBatch, status};
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::publish::run_header;
-use chaoscope_producer::spec::RunSpec;
-use chaoscope_recorder::file::{FileOptions, RecordingFile};
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::header::run_header;
+use chaoscope_dynamics::spec::RunSpec;
+use chaoscope_files::file::{FileOptions, RecordingFile};
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::RunHeader;
@@ -359,8 +359,8 @@ fn main() {
         "case": format!(
             "hh-every-step vs the raw MCAP writer to a file, {PAIRS} interleaved pairs, median pair"
         ),
-        "cpu": chaoscope_producer::estimate::Machine::cpu_model(),
-        "isa": chaoscope_producer::batch::Isa::detect().name(),
+        "cpu": chaoscope_dynamics::estimate::Machine::cpu_model(),
+        "isa": chaoscope_dynamics::batch::Isa::detect().name(),
         "pipeline_messages_per_s": median_rate,
         "raw_writer_messages_per_s": raw_median(false),
         "ratio_to_raw_writer": ratio,

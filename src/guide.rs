@@ -226,7 +226,7 @@ fn fragment_paths(
 #[test]
 fn toml_examples_are_valid_configurations() {
     let schema = schema_key_paths();
-    let machine = chaoscope_producer::estimate::Machine::this_host();
+    let machine = chaoscope_dynamics::estimate::Machine::this_host();
     // A whole example resolves relative table files as a config in examples/models/ would.
     let base = root().join("examples/models/guide-example.toml");
     let (mut whole, mut fragments, mut keys, mut failures) = (0, 0, 0, Vec::new());

@@ -73,7 +73,7 @@ fn main() -> ExitCode {
     // SIGINT/SIGTERM from the first instant: until a command says it finalizes its files
     // (`Mode::Finish`), a signal removes this process's unfinished outputs and exits with
     // 128 + the signal (130, 143).
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Exit);
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
         Err(e) => {

@@ -10,6 +10,7 @@
 
 mod common;
 
+use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
@@ -480,8 +481,8 @@ fn run_case(c: &Case, dir: &Path) -> (Option<i32>, String, Vec<String>) {
 #[test]
 fn the_base_configs_are_valid() {
     // A spoiled copy of a config that was already bad would prove nothing.
-    use chaoscope_producer::map::MapSpec;
-    use chaoscope_producer::spec::RunSpec;
+    use chaoscope_dynamics::map::MapSpec;
+    use chaoscope_dynamics::spec::RunSpec;
     use chaoscope_schemas::config::RunConfig;
     for base in [RUN, EXPLICIT, FPUT, DKG] {
         RunSpec::from_config(&RunConfig::from_toml(base).unwrap()).unwrap();
@@ -1217,9 +1218,9 @@ fn resume_to_a_new_end_is_estimated_as_run_is() {
 
 #[test]
 fn the_estimate_refuses_no_example_and_no_test_run() {
-    use chaoscope_producer::estimate::{self, Machine};
-    use chaoscope_producer::map::MapSpec;
-    use chaoscope_producer::spec::RunSpec;
+    use chaoscope_dynamics::estimate::{self, Machine};
+    use chaoscope_dynamics::map::MapSpec;
+    use chaoscope_dynamics::spec::RunSpec;
     use chaoscope_schemas::config::{RunConfig, read_config_file};
     // The smallest machine the project runs on (CI: 2 cores, 24 GiB), with 8 GiB to spare.
     let machine = Machine {
@@ -1252,7 +1253,7 @@ fn the_estimate_refuses_no_example_and_no_test_run() {
         } else {
             let spec = RunSpec::from_config(cfg).unwrap();
             assert!(spec.dim() >= 2, "{name}");
-            estimate::run(&spec, &machine)
+            chaoscope_producer::estimate::run(&spec, &machine)
         };
         assert_eq!(e.refusal(&machine), None, "{name}: {e:?}");
         eprintln!(
@@ -1264,7 +1265,10 @@ fn the_estimate_refuses_no_example_and_no_test_run() {
     // Every run of the test suite is a `RunConfig` from these helpers, the paper presets or
     // the configs above; the longest are the paper's runs (`examples/paper`).
     let spec = RunSpec::from_config(&common::hh_config(1000.0, 1.0)).unwrap();
-    assert_eq!(estimate::run(&spec, &machine).refusal(&machine), None);
+    assert_eq!(
+        chaoscope_producer::estimate::run(&spec, &machine).refusal(&machine),
+        None
+    );
 }
 
 #[test]
@@ -1399,7 +1403,7 @@ fn architecture_md_maps_the_code_both_ways() {
     // ARCHITECTURE.md is the code map, checked both ways.
     // 1. Every path it names exists: a file that is gone (moved, renamed, merged) sends a reader
     //    nowhere. A path is resolved from the repository root, or within the section's directory
-    //    (`### `producer/``: `map/` is `producer/src/map/`, a bare `engine.rs` some file of that
+    //    (`### `dynamics/``: `map/` is `dynamics/src/map/`, a bare `engine.rs` some file of that
     //    name below it).
     // 2. Every source file lies under a path it names (the file itself or a directory above
     //    it), so a file added where the map says nothing fails here until the map says where it
@@ -1428,7 +1432,7 @@ fn architecture_md_maps_the_code_both_ways() {
     for (n, line) in text.lines().enumerate() {
         let heading = line.starts_with("### ");
         if let Some(rest) = line.strip_prefix("### ") {
-            // `### `producer/` (chaoscope-producer)`: paths below are the crate's.
+            // `### `dynamics/` (chaoscope-dynamics)`: paths below are the crate's.
             let name = rest.strip_prefix('`').and_then(|r| r.split('`').next());
             section = name.filter(|n| n.ends_with('/')).unwrap_or("").to_string();
         } else if line.starts_with("## ") {
@@ -1500,6 +1504,192 @@ fn architecture_md_maps_the_code_both_ways() {
             .collect::<Vec<_>>()
             .join("\n")
     );
+}
+
+/// The crates' normal (non-dev, non-build) dependency graph, by package name, as
+/// `cargo metadata` resolves it from the lock file (no build, no network).
+fn normal_dependencies(root: &Path) -> (Vec<String>, BTreeMap<String, BTreeSet<String>>) {
+    let out = Command::new(env!("CARGO"))
+        .args(["metadata", "--offline", "--format-version", "1"])
+        .current_dir(root)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "cargo metadata: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let meta: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let name_of: BTreeMap<&str, &str> = meta["packages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| (p["id"].as_str().unwrap(), p["name"].as_str().unwrap()))
+        .collect();
+    let members: Vec<String> = meta["workspace_members"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|id| name_of[id.as_str().unwrap()].to_string())
+        .collect();
+    let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for node in meta["resolve"]["nodes"].as_array().unwrap() {
+        let deps = node["deps"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|d| {
+                d["dep_kinds"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .any(|k| k["kind"].is_null())
+            })
+            .map(|d| name_of[d["pkg"].as_str().unwrap()].to_string());
+        graph
+            .entry(name_of[node["id"].as_str().unwrap()].to_string())
+            .or_default()
+            .extend(deps);
+    }
+    (members, graph)
+}
+
+/// Every package `from` reaches through normal dependencies, never entering `stop`.
+fn reached(
+    graph: &BTreeMap<String, BTreeSet<String>>,
+    from: &str,
+    stop: &[&str],
+) -> BTreeSet<String> {
+    let (mut seen, mut todo) = (BTreeSet::new(), vec![from.to_string()]);
+    while let Some(p) = todo.pop() {
+        for d in graph.get(&p).into_iter().flatten() {
+            if !stop.contains(&d.as_str()) && seen.insert(d.clone()) {
+                todo.push(d.clone());
+            }
+        }
+    }
+    seen
+}
+
+#[test]
+fn iceoryx2_is_reached_only_from_the_bus_and_the_processes_around_it() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let (members, graph) = normal_dependencies(root);
+    let is_iceoryx2 = |p: &String| p == "iceoryx2" || p.starts_with("iceoryx2-");
+    // The bus, and the processes that publish (producer; the library route's example, which
+    // publishes through it), record or subscribe (recorder, the binary's monitors, Python's).
+    let on_the_bus = [
+        "chaoscope-bus",
+        "chaoscope-producer",
+        "chaoscope-recorder",
+        "chaoscope",
+        "chaoscope-python",
+        "chaoscope-example-custom-model",
+    ];
+    // Numerics, files and analysis: the analysis is fed samples by the file reader, or by a
+    // live subscription that lives with the bus.
+    let off_the_bus = [
+        "chaoscope-os",
+        "chaoscope-schemas",
+        "chaoscope-indicators",
+        "chaoscope-expr",
+        "chaoscope-dynamics",
+        "chaoscope-files",
+        "chaoscope-analyzer",
+        "chaoscope-replay",
+    ];
+    let mut listed: Vec<&str> = on_the_bus.iter().chain(&off_the_bus).copied().collect();
+    listed.sort_unstable();
+    let mut all: Vec<&str> = members.iter().map(String::as_str).collect();
+    all.sort_unstable();
+    assert_eq!(listed, all, "every workspace crate is on or off the bus");
+    for m in on_the_bus {
+        assert!(
+            reached(&graph, m, &[]).iter().any(is_iceoryx2),
+            "{m} is on the bus and reaches no iceoryx2: the list above is stale"
+        );
+    }
+    for m in off_the_bus {
+        let reach = reached(&graph, m, &[]);
+        let bus: Vec<&String> = reach.iter().filter(|p| is_iceoryx2(p)).collect();
+        assert!(bus.is_empty(), "{m} reaches {bus:?}");
+        for p in ["chaoscope-bus", "indicatif"] {
+            assert!(!reach.contains(p), "{m} reaches {p}");
+        }
+    }
+    // prost is the file format: `schemas` (the messages), `files` and `analyzer` (which read
+    // and write them) use it directly, as the bus's processes do. The numerics do not: the
+    // dynamics and replay reach it through those crates alone, and os, indicators and expr
+    // not at all.
+    for m in ["chaoscope-dynamics", "chaoscope-replay"] {
+        let beyond_formats = reached(
+            &graph,
+            m,
+            &["chaoscope-schemas", "chaoscope-files", "chaoscope-analyzer"],
+        );
+        assert!(!beyond_formats.contains("prost"), "{m} depends on prost");
+    }
+    for m in ["chaoscope-os", "chaoscope-indicators", "chaoscope-expr"] {
+        assert!(
+            !reached(&graph, m, &[]).contains("prost"),
+            "{m} reaches prost"
+        );
+    }
+}
+
+#[test]
+fn crate_dependencies_are_the_architecture_md_layering() {
+    // The code map's table (`crate    what it depends on`), read in order: each crate depends on
+    // exactly the workspace crates its line names, every one of them on an earlier line, so
+    // dependencies point one way.
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("ARCHITECTURE.md")).unwrap();
+    let (members, graph) = normal_dependencies(root);
+    let map = text.split("## Code map").nth(1).unwrap();
+    let table = map.split("```").nth(1).unwrap();
+    let package = |n: &str| match n {
+        "chaoscope (binary)" => "chaoscope".to_string(),
+        "python" => "chaoscope-python".to_string(),
+        n => format!("chaoscope-{n}"),
+    };
+    let mut earlier: Vec<String> = Vec::new();
+    let mut layered = BTreeSet::new();
+    for line in table.lines().filter(|l| !l.trim().is_empty()) {
+        let (names, deps) = line.split_once("  ").unwrap();
+        let deps = deps.trim();
+        let crates: Vec<String> = names.split(", ").map(package).collect();
+        for c in &crates {
+            let actual: BTreeSet<String> = graph[c.as_str()]
+                .iter()
+                .filter(|d| members.contains(d))
+                .cloned()
+                .collect();
+            let named: BTreeSet<String> = match deps {
+                "no chaoscope dependency" => BTreeSet::new(),
+                // The shells: everything above, whatever they use of it.
+                "all of them" => actual.clone(),
+                deps => deps.split(", ").map(package).collect(),
+            };
+            assert_eq!(
+                actual, named,
+                "{c}: ARCHITECTURE.md's layering says otherwise"
+            );
+            for d in &actual {
+                assert!(
+                    earlier.contains(d),
+                    "{c} depends on {d}, which is not above it"
+                );
+            }
+            layered.insert(c.clone());
+        }
+        earlier.extend(crates);
+    }
+    for m in &members {
+        assert!(
+            layered.contains(m) || m == "chaoscope-example-custom-model",
+            "{m} is missing from ARCHITECTURE.md's layering"
+        );
+    }
 }
 
 /// `chaoscope run` of `config` in `dir` with its address space limited to `limit` bytes (set in

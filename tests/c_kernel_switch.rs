@@ -11,14 +11,14 @@
 //!   cause, and the map goes on with the Cranelift kernels.
 //! - A map that ends, or is interrupted by SIGINT, while the compiler is still running leaves
 //!   no compiler process and no file behind (the build is cancelled: see `Inner::drop` in
-//!   `producer/src/model/expression.rs` for why).
+//!   `dynamics/src/model/expression.rs` for why).
 
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
-use chaoscope_recorder::map_file::read_map_file;
+use chaoscope_files::map_file::read_map_file;
 use prost::Message;
 use serde_json::Value;
 

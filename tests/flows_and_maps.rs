@@ -532,7 +532,7 @@ fn standard_map_sali_map_shows_islands() {
     let png = d.join("map.png");
     run_ok(&["map", s(&cfg), "--out", s(&map), "--png", s(&png)]);
     assert!(std::fs::metadata(&png).unwrap().len() > 1000);
-    let contents = chaoscope_recorder::map_file::read_map_file(&map).unwrap();
+    let contents = chaoscope_files::map_file::read_map_file(&map).unwrap();
     assert_eq!(contents.points.len(), 24 * 24);
     assert!(contents.points.iter().all(|p| p.value.is_finite()));
     let value = |theta: f64, p: f64| {

@@ -221,7 +221,7 @@ fn a_map_hitting_a_full_disk_stops_clearly_and_resumes_to_the_same_map() {
     let fresh = output(map_cmd(dir, "fresh.mcap"));
     assert!(fresh.status.success());
     let points = |name: &str| {
-        chaoscope_recorder::map_file::read_map_file(&dir.join(name))
+        chaoscope_files::map_file::read_map_file(&dir.join(name))
             .unwrap()
             .points
             .into_iter()
@@ -242,7 +242,7 @@ fn recover_to_an_output_it_cannot_write_fails_clearly_and_leaves_nothing() {
     let input = dir.join("in.mcap");
     std::fs::write(
         &input,
-        chaoscope_recorder::testing::small_run(chaoscope_recorder::file::Compression::Zstd),
+        chaoscope_files::testing::small_run(chaoscope_files::file::Compression::Zstd),
     )
     .unwrap();
     let recover = |out: &Path| {
@@ -287,15 +287,15 @@ fn recover_to_an_output_it_cannot_write_fails_clearly_and_leaves_nothing() {
 /// not started (before: a bare "File too large (os error 27)", naming no file).
 #[test]
 fn merge_to_an_output_it_cannot_write_names_the_file() {
-    use chaoscope_recorder::map_file::MapFile;
+    use chaoscope_files::map_file::MapFile;
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path();
     let shard = dir.join("shard.mcap");
-    let (header, points) = chaoscope_recorder::testing::values::valid_map();
+    let (header, points) = chaoscope_files::testing::values::valid_map();
     let mut file = MapFile::create(
         std::io::Cursor::new(Vec::new()),
         &header,
-        &chaoscope_recorder::file::FileOptions::default(),
+        &chaoscope_files::file::FileOptions::default(),
     )
     .unwrap();
     for p in &points {

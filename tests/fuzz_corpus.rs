@@ -72,7 +72,7 @@ fn replay_values(target: &str, run: fn(&[u8]) -> targets::Outcome, seeded: usize
         "fuzz/corpus/{target}/ holds {} inputs",
         files.len()
     );
-    let mut noise = chaoscope_recorder::testing::Noise::new(41);
+    let mut noise = chaoscope_files::testing::Noise::new(41);
     let generated = (0..seeded).map(|case| {
         // About one value in 4, 16, 64 or 256 hostile.
         let rarity = [4u64, 16, 64, 256][case % 4];

@@ -8,9 +8,9 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
 
-use chaoscope_recorder::file::{Compression, FileOptions};
-use chaoscope_recorder::map_file::{MapFile, read_map_file};
-use chaoscope_recorder::testing;
+use chaoscope_files::file::{Compression, FileOptions};
+use chaoscope_files::map_file::{MapFile, read_map_file};
+use chaoscope_files::testing;
 use chaoscope_schemas::proto::{MapAxis, MapHeader, MapPoint, map_point};
 use common::{CHAOSCOPE, chaoscope};
 use prost::Message;

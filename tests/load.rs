@@ -20,7 +20,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use chaoscope_bus::BUS_DIR_ENV;
-use chaoscope_recorder::map_file::read_map_file;
+use chaoscope_files::map_file::read_map_file;
 use chaoscope_schemas::names::topic;
 use common::*;
 use prost::Message;

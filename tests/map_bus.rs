@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 mod common;
 
 use chaoscope_bus as bus;
-use chaoscope_recorder::map_file::read_map_file;
+use chaoscope_files::map_file::read_map_file;
 use chaoscope_schemas::proto::MapPoint;
 
 const CHAOSCOPE: &str = env!("CARGO_BIN_EXE_chaoscope");

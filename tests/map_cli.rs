@@ -5,7 +5,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
 
-use chaoscope_recorder::map_file::read_map_file;
+use chaoscope_files::map_file::read_map_file;
 use prost::Message;
 
 /// A small HH map (9 x 7 points, t = 20) shared by the map tests.

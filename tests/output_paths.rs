@@ -13,9 +13,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
-use chaoscope_recorder::file::{Compression, FileOptions};
-use chaoscope_recorder::map_file::MapFile;
-use chaoscope_recorder::testing::{self, Shape};
+use chaoscope_files::file::{Compression, FileOptions};
+use chaoscope_files::map_file::MapFile;
+use chaoscope_files::testing::{self, Shape};
 use chaoscope_schemas::proto::{MapHeader, Scheme};
 use common::CHAOSCOPE;
 

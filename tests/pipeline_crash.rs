@@ -760,7 +760,7 @@ fn run_case(inputs: &Inputs, case: Case, n: usize) -> Result<Outcome, String> {
                 .map_err(|e| format!("{case:?}: {out:?} unreadable: {e}"))?;
             }
             Kind::Map | Kind::PotentialMap | Kind::Merge => {
-                let m = chaoscope_recorder::map_file::read_map_file(&out)
+                let m = chaoscope_files::map_file::read_map_file(&out)
                     .map_err(|e| format!("{case:?}: {out:?}: {e}"))?;
                 if m.damaged.is_some() || m.header.is_none() {
                     return Err(format!("{case:?}: {out:?} damaged: {:?}", m.damaged));

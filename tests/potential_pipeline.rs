@@ -110,7 +110,7 @@ fn hertz_chain_records_analyzes_replays_and_maps() {
     std::fs::write(&map_cfg, map_config.to_toml()).unwrap();
     let map = d.join("map.mcap");
     run_ok(&["map", s(&map_cfg), "--out", s(&map)]);
-    let contents = chaoscope_recorder::map_file::read_map_file(&map).unwrap();
+    let contents = chaoscope_files::map_file::read_map_file(&map).unwrap();
     assert_eq!(contents.points.len(), 12);
     assert!(contents.points.iter().all(|p| p.value.is_finite()));
 }

@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use chaoscope_recorder::map_file::read_map_file;
+use chaoscope_files::map_file::read_map_file;
 
 mod common;
 use common::{map_points, run_command as run};

@@ -104,10 +104,10 @@ fn drawable(lo: f64, hi: f64, ends: [f64; 2]) -> std::ops::Range<f64> {
 }
 
 /// Renders `points` of the map described by `header` to a PNG file. The header and points are
-/// checked first ([`chaoscope_recorder::map_file::check_header`], [`check_point`]): a value
+/// checked first ([`chaoscope_files::map_file::check_header`], [`check_point`]): a value
 /// no map writes is an error naming it, never an image of absurd size or a hang.
 ///
-/// [`check_point`]: chaoscope_recorder::map_file::check_point
+/// [`check_point`]: chaoscope_files::map_file::check_point
 pub fn render_png(
     header: &MapHeader,
     points: &[MapPoint],
@@ -129,7 +129,7 @@ pub fn render_pixels(
     header: &MapHeader,
     points: &[MapPoint],
 ) -> Result<crate::chart::Drawn<crate::chart::Layout>, String> {
-    use chaoscope_recorder::map_file::{check_header, check_point};
+    use chaoscope_files::map_file::{check_header, check_point};
     check_header(header).map_err(|e| format!("map header: {e}"))?;
     points.iter().try_for_each(|p| check_point(header, p))?;
     let (xa, ya) = match (&header.x, &header.y) {

@@ -1,7 +1,7 @@
 //! Streaming reader of chaoscope MCAP recordings: messages are decoded one at a time from a
 //! buffered file, so memory does not depend on the size of the file.
 //!
-//! The file is read through the recorder's damage-tolerant scanner ([`chaoscope_recorder::scan`]):
+//! The file is read through the recorder's damage-tolerant scanner ([`chaoscope_files::scan`]):
 //! each chunk is checked whole before any of its messages is used, and a damaged or truncated
 //! file is an error naming the file and where and why it is damaged, after the messages before
 //! the damage (an analysis is of a whole recording or of none).
@@ -10,7 +10,7 @@ use std::fs::File;
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
-use chaoscope_recorder::scan::{self, FileError, Messages, Scanner};
+use chaoscope_files::scan::{self, FileError, Messages, Scanner};
 
 use chaoscope_schemas::names::topic;
 use chaoscope_schemas::proto::DataMessage;

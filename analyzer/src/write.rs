@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use chaoscope_os::{Leftover, Output, OutputError, OutputOptions};
 
-use chaoscope_recorder::file::{FileOptions, RecordingFile};
+use chaoscope_files::file::{FileOptions, RecordingFile};
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{
     EndOfRun, RecordingSummary, ReferenceState, RunHeader, SeparationSet, end_of_run,
@@ -22,7 +22,7 @@ pub enum WriteError {
     Output(#[from] OutputError),
     /// The whole cause in the message and no error source, so a chain printer does not repeat
     /// it.
-    #[error("{}: MCAP: {}", path.display(), chaoscope_recorder::file::error_chain(error))]
+    #[error("{}: MCAP: {}", path.display(), chaoscope_files::file::error_chain(error))]
     Mcap {
         path: PathBuf,
         error: mcap::McapError,

@@ -7,6 +7,7 @@
 //! - this module: how every process opens the services of a run (below), the per-user domain,
 //!   liveness, the idle wait; `stale`: what killed processes leave behind, removed.
 //! - [`monitor`]: a monitor's subscriber on a run's lossy monitor stream.
+//! - [`signals`]: the SIGINT/SIGTERM latch installed after iceoryx2's handlers.
 //!
 //! # Opening the services of a run
 //!
@@ -52,6 +53,7 @@ use crate::frame::{FrameHeader, MapFrameHeader, RunAnnouncement};
 pub mod convert;
 pub mod frame;
 pub mod monitor;
+pub mod signals;
 mod stale;
 
 /// Frames a data subscriber can hold before the producer waits.

@@ -15,7 +15,7 @@
 //! - [`config`]: `RunConfig::from_toml`, the resource estimate, then `RunSpec::from_config` or
 //!   `MapSpec::from_config`, as `chaoscope run`/`map` call them.
 //! - [`values_recording`], [`values_replay`], [`values_map`]: structure-aware, for valid files
-//!   with hostile values (`chaoscope_recorder::testing::values` writes a well-formed recording
+//!   with hostile values (`chaoscope_files::testing::values` writes a well-formed recording
 //!   or map file whose every value the input chooses): every reader and output of a recording
 //!   (analyze's report, table, CSV files and charts, the run summary), replay, and the map
 //!   readers with the map PNG. Besides panics, a NaN or infinity in any output is a finding.
@@ -31,10 +31,10 @@
 
 use std::io::Cursor;
 
-use chaoscope_producer::estimate::{self, Machine};
-use chaoscope_producer::map::MapSpec;
-use chaoscope_producer::spec::RunSpec;
-use chaoscope_recorder::scan::{Entry, Messages, Scanner};
+use chaoscope_dynamics::estimate::{self, Machine};
+use chaoscope_dynamics::map::MapSpec;
+use chaoscope_dynamics::spec::RunSpec;
+use chaoscope_files::scan::{Entry, Messages, Scanner};
 use chaoscope_schemas::config::{ModelConfig, RunConfig};
 
 /// Every MCAP reader over `data`.
@@ -56,7 +56,7 @@ pub fn mcap(data: &[u8]) {
             let _ = (m.topic.len(), m.data.len());
         }
     }
-    let _ = chaoscope_recorder::map_file::read_map(Cursor::new(data), len);
+    let _ = chaoscope_files::map_file::read_map(Cursor::new(data), len);
 
     // The readers that open a path.
     // A directory per input, removed when this returns: AFL restarts its workers (new pids)
@@ -76,8 +76,8 @@ pub fn mcap(data: &[u8]) {
     )
     .map(|(analysis, _)| analysis.report());
     let _ = chaoscope_analyzer::summary::summarize(&input);
-    let _ = chaoscope_recorder::map_file::read_map_file(&input);
-    if let Ok(report) = chaoscope_recorder::recover::recover(&input, &output, true) {
+    let _ = chaoscope_files::map_file::read_map_file(&input);
+    if let Ok(report) = chaoscope_files::recover::recover(&input, &output, true) {
         // What recover writes must read back without damage, and hold every message a reader
         // of the input sees, in order and unchanged, before anything else: recover may keep
         // more (it passes over a message of an undefined channel where a reader stops), never
@@ -92,7 +92,7 @@ pub fn mcap(data: &[u8]) {
         );
         // A recovered file is undamaged: recovering it again changes no message.
         let twice = dir.join("recovered-twice.mcap");
-        let again = chaoscope_recorder::recover::recover(&output, &twice, true)
+        let again = chaoscope_files::recover::recover(&output, &twice, true)
             .map(|r| (r.stopped_at, read_messages(&twice).0));
         assert!(
             matches!(&again, Ok((None, m)) if *m == salvaged),
@@ -168,7 +168,7 @@ pub fn config(data: &[u8]) {
     if state.saturating_mul(dim) > MAX_FUZZ_STATE {
         return;
     }
-    let checked = |e: &chaoscope_producer::spec::SpecError| {
+    let checked = |e: &chaoscope_dynamics::spec::SpecError| {
         assert!(
             !e.key.is_empty() && !e.message.is_empty() && !e.to_string().contains('\n'),
             "an error without key or message, or of several lines: {e:?}"
@@ -185,7 +185,7 @@ pub fn config(data: &[u8]) {
     } else {
         match RunSpec::from_config(&cfg) {
             Ok(spec) => {
-                let _ = estimate::run(&spec, &machine).refusal(&machine);
+                let _ = chaoscope_producer::estimate::run(&spec, &machine).refusal(&machine);
             }
             Err(e) => checked(&e),
         }
@@ -335,7 +335,7 @@ fn lattice_loops(text: &str, scope: &chaoscope_expr::Scope, spline: &chaoscope_e
 
 // ---- Valid files with hostile values (structure-aware) ------------------------------------
 
-use chaoscope_recorder::testing::values::{self as hostile, Choices};
+use chaoscope_files::testing::values::{self as hostile, Choices};
 
 /// What a `values_*` target did with its input, for the corpus replay's counts.
 #[derive(Debug, Default, Clone, Copy, PartialEq, Eq)]
@@ -477,6 +477,7 @@ pub fn values_replay(data: &[u8]) -> Outcome {
     }
     let options = ReplayOptions {
         taus: vec![0.2],
+        transport: chaoscope_producer::estimate::BUS,
         ..Default::default()
     };
     match replay(&input, &output, &options) {
@@ -512,7 +513,7 @@ pub fn values_replay(data: &[u8]) -> Outcome {
 /// every point are checked, and a map that passes is drawn as a PNG without error; one that
 /// does not is refused with one line. No panic, no hang, no image or array of absurd size.
 pub fn values_map(data: &[u8]) -> Outcome {
-    use chaoscope_recorder::map_file::read_map_file;
+    use chaoscope_files::map_file::read_map_file;
     let mut choices = Choices::new(data);
     let shards = 1 + u32::from(choices.byte() % 2);
     let Ok(scratch) = tempfile::Builder::new().prefix("chaoscope-fuzz-").tempdir() else {
@@ -540,7 +541,7 @@ pub fn values_map(data: &[u8]) -> Outcome {
         // `merge` refuses shards of different maps (another indicator, order, grid).
         if header
             .as_ref()
-            .is_some_and(|first| !chaoscope_recorder::map_file::same_map(first, &h))
+            .is_some_and(|first| !chaoscope_files::map_file::same_map(first, &h))
         {
             return Outcome::default();
         }
@@ -935,11 +936,11 @@ pub fn values_clv(data: &[u8]) -> Outcome {
 /// stretching factors, then how the run ended. False if it could not be written.
 fn computed_recording(choices: &mut Choices, path: &std::path::Path) -> bool {
     use chaoscope_analyzer::write::SampleWriter;
-    use chaoscope_producer::engine::Engine;
+    use chaoscope_dynamics::engine::Engine;
     use chaoscope_schemas::proto::end_of_run::Status;
     let config = RunConfig::from_toml(hostile::RUN_CONFIG).expect("the hostile runs' config");
     let spec = RunSpec::from_config(&config).expect("the hostile runs' config is valid");
-    let header = chaoscope_producer::publish::run_header("hostile", &config, &spec);
+    let header = chaoscope_dynamics::header::run_header("hostile", &config, &spec);
     let mut engine = Engine::new(spec);
     // 0 to 11 of the run's 11 samples (t = 0, 0.1, ..., 1).
     let keep = choices.below(13);
@@ -978,7 +979,7 @@ fn computed_recording(choices: &mut Choices, path: &std::path::Path) -> bool {
 /// points the header admits. A header that passes the check is drawn without
 /// error; one that does not is refused in one line.
 pub fn values_map_header(data: &[u8]) -> Outcome {
-    use chaoscope_recorder::map_file::{check_header, read_map_file, same_map};
+    use chaoscope_files::map_file::{check_header, read_map_file, same_map};
     let mut choices = Choices::new(data);
     let shards = 1 + u32::from(choices.byte() % 2);
     let bytes = hostile::map(&mut choices, 0, shards);
@@ -1005,7 +1006,7 @@ pub fn values_map_header(data: &[u8]) -> Outcome {
     {
         match MapSpec::from_config(&cfg) {
             Ok(spec) => {
-                let shard = chaoscope_producer::map::Shard {
+                let shard = chaoscope_dynamics::map::Shard {
                     index: header.shard_index,
                     count: header.shard_count,
                 };
@@ -1024,7 +1025,7 @@ pub fn values_map_header(data: &[u8]) -> Outcome {
     let points: Vec<_> = contents
         .points
         .into_iter()
-        .filter(|p| chaoscope_recorder::map_file::check_point(&header, p).is_ok())
+        .filter(|p| chaoscope_files::map_file::check_point(&header, p).is_ok())
         .collect();
     let png = scratch.path().join("map.png");
     chaoscope_analyzer::map_png::render_png(&header, &points, &png, &[])

@@ -10,6 +10,8 @@
 //! - [`signals`]: SIGINT/SIGTERM latched once, so no library can swallow them, with the exit
 //!   status each means (130, 143); commands that have nothing to finalize end at once instead,
 //!   removing their unfinished outputs.
+//! - [`termination`]: a stop flag shared by a command's loops: a latched signal, or a request
+//!   of the caller (Python's Ctrl-C).
 //! - [`stdout`]: standard output written with its errors seen: a closed pipe ends a command
 //!   quietly, a full disk is an error.
 //!
@@ -19,6 +21,7 @@ pub mod input;
 pub mod output;
 pub mod signals;
 pub mod stdout;
+pub mod termination;
 
 pub use input::{NotRegularFile, open_regular, read_regular};
 pub use output::{Leftover, Output, OutputError, OutputOptions};

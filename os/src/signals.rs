@@ -5,7 +5,9 @@
 //! it zeroes shared memory (`call_and_fetch`). A SIGTERM that arrived while a map opened its
 //! live stream, or one followed by a SIGCONT, was lost, and the command ran on until SIGKILL.
 //! Here the first SIGINT or SIGTERM is stored by our own handler, chained after iceoryx2's (so
-//! its waits still wake), and nothing ever resets it.
+//! its waits still wake), and nothing ever resets it. This crate knows nothing of iceoryx2: a
+//! process that can open the bus installs through `chaoscope_bus::signals::install`, which
+//! hands [`install_after`] the hook that puts iceoryx2's handlers in first.
 //!
 //! Two ways to use it ([`install`]):
 //! - [`Mode::Finish`]: the command polls [`received`] in its loops, finalizes what it has into a
@@ -47,8 +49,26 @@ const CLEANUP_SLOTS: usize = 64;
 static CLEANUP: [AtomicPtr<libc::c_char>; CLEANUP_SLOTS] =
     [const { AtomicPtr::new(std::ptr::null_mut()) }; CLEANUP_SLOTS];
 
-/// Installs the handlers (once per process; later calls only change the mode).
+/// Installs the handlers (once per process; later calls only change the mode), with no other
+/// library's handlers before them. A process that can open the bus installs through
+/// `chaoscope_bus::signals::install` instead ([`install_after`]).
 pub fn install(mode: Mode) {
+    install_with(mode, None);
+}
+
+/// The handlers of another library that replaces whatever is installed, without chaining, the
+/// first time it is asked about signals: `take` makes it install them (its first call) and
+/// returns, and forgets, a SIGINT or SIGTERM that reached its handlers alone.
+pub type ForeignHandlers = fn() -> Option<i32>;
+
+/// Installs the handlers as [`install`] does, after `foreign`'s: those are installed first and
+/// ours chained after them, so the other library's waits still wake; a signal its handlers took
+/// before ours were in place is latched here too.
+pub fn install_after(mode: Mode, foreign: ForeignHandlers) {
+    install_with(mode, Some(foreign));
+}
+
+fn install_with(mode: Mode, foreign: Option<ForeignHandlers>) {
     MODE.store(
         match mode {
             Mode::Finish => 0,
@@ -57,20 +77,18 @@ pub fn install(mode: Mode) {
         Ordering::SeqCst,
     );
     INSTALLED.call_once(|| {
-        // iceoryx2's handlers first: they replace whatever is installed, without chaining, the
-        // first time anything asks iceoryx2 about signals. Nothing is pending this early; a
-        // signal that was is kept.
-        use iceoryx2_bb_posix::signal::{NonFatalFetchableSignal, SignalHandler};
-        let take_iceoryx2_signal = || match SignalHandler::last_signal() {
-            Some(NonFatalFetchableSignal::Interrupt) => latch(libc::SIGINT),
-            Some(NonFatalFetchableSignal::Terminate) => latch(libc::SIGTERM),
-            _ => {}
+        // The foreign handlers first: they replace whatever is installed, without chaining.
+        // Nothing is pending this early; a signal that was is kept.
+        let take_foreign_signal = || {
+            if let Some(signal) = foreign.and_then(|take| take()) {
+                latch(signal);
+            }
         };
-        take_iceoryx2_signal();
+        take_foreign_signal();
         for signal in [libc::SIGINT, libc::SIGTERM] {
             // SAFETY: the action only does async-signal-safe things: atomics, unlink(2) of
             // leaked C strings and _exit(2). signal-hook's registry calls the previous handler
-            // (iceoryx2's) after it, so iceoryx2's waits still wake.
+            // (the foreign one) after it, so the foreign library's waits still wake.
             let registered = unsafe { signal_hook_registry::register(signal, move || on(signal)) };
             if let Err(e) = registered {
                 // Only if the signal number were invalid; the command then keeps the default
@@ -78,11 +96,11 @@ pub fn install(mode: Mode) {
                 crate::errln!("chaoscope: warning: cannot handle signal {signal}: {e}");
             }
         }
-        // A signal between iceoryx2's handlers and ours reached iceoryx2's alone, whose next
-        // shared-memory operation erases it: taken from there too. (A `chaoscope record`
-        // started by `run` once lost its parent-death SIGTERM so, and waited for its producer
-        // for ever; that signal comes once.)
-        take_iceoryx2_signal();
+        // A signal between the foreign handlers and ours reached the foreign ones alone
+        // (iceoryx2's next shared-memory operation erases it): taken from there too. (A
+        // `chaoscope record` started by `run` once lost its parent-death SIGTERM so, and waited
+        // for its producer for ever; that signal comes once.)
+        take_foreign_signal();
     });
 }
 
@@ -227,8 +245,6 @@ impl Drop for Cleanup {
 #[cfg(test)]
 mod tests {
     use super::*;
-    // The logger iceoryx2-bb-posix calls into lives in iceoryx2.
-    use iceoryx2 as _;
 
     #[test]
     fn exit_statuses_are_the_shells() {
@@ -243,9 +259,8 @@ mod tests {
         // SAFETY: raising a signal whose handler is installed above.
         unsafe { libc::raise(libc::SIGTERM) };
         assert_eq!(received(), Some(libc::SIGTERM));
-        // iceoryx2 reading (and resetting) its own flag does not reset ours; a later SIGINT
-        // does not replace the first signal.
-        let _ = iceoryx2_bb_posix::signal::SignalHandler::termination_requested();
+        // A later SIGINT does not replace the first signal (with iceoryx2's handlers before
+        // ours: `chaoscope_bus::signals`' test).
         unsafe { libc::raise(libc::SIGINT) };
         assert_eq!(received(), Some(libc::SIGTERM));
         assert!(requested());

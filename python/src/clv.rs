@@ -24,7 +24,7 @@ struct Computed {
 }
 
 fn compute(path: &Path, options: &ClvOptions, stop: &AtomicBool) -> Result<Computed, String> {
-    let text = |e: &(dyn std::error::Error + 'static)| chaoscope_recorder::file::error_chain(e);
+    let text = |e: &(dyn std::error::Error + 'static)| chaoscope_files::file::error_chain(e);
     let output =
         clv_of_file_until(path, options, &|| stop.load(Ordering::Relaxed)).map_err(|e| text(&e))?;
     let spill = |e: std::io::Error| format!("--clv: the temporary file of the series: {e}");

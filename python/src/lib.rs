@@ -24,7 +24,7 @@ pyo3::create_exception!(
 
 /// A Python exception carrying `error` and its sources joined by ": ", as the command prints it.
 pub(crate) fn error(e: &(dyn std::error::Error + 'static)) -> PyErr {
-    ChaoscopeError::new_err(chaoscope_recorder::file::error_chain(e))
+    ChaoscopeError::new_err(chaoscope_files::file::error_chain(e))
 }
 
 /// A Python exception with a message.

@@ -3,13 +3,13 @@
 
 use std::path::{Path, PathBuf};
 
+use chaoscope_dynamics::batch::Isa;
+use chaoscope_dynamics::estimate::{self, Machine};
+use chaoscope_dynamics::map::{MapOptions, MapSpec, Shard, run_map};
+use chaoscope_files::file::{Compression, FileOptions};
+use chaoscope_files::map_file::{MapFile, read_map_file};
+use chaoscope_os::termination::Termination;
 use chaoscope_os::{Leftover, Output, OutputOptions};
-use chaoscope_producer::batch::Isa;
-use chaoscope_producer::estimate::{self, Machine};
-use chaoscope_producer::map::{MapOptions, MapSpec, Shard, run_map};
-use chaoscope_producer::publish::Termination;
-use chaoscope_recorder::file::{Compression, FileOptions};
-use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;
@@ -180,7 +180,7 @@ pub fn map(
         points,
         &machine,
         threads.unwrap_or(machine.cores).min(machine.cores),
-        chaoscope_producer::batch::Isa::detect(),
+        chaoscope_dynamics::batch::Isa::detect(),
     );
     if let Some(why) = estimate.refusal(&machine)
         && !force
@@ -232,7 +232,7 @@ pub fn map(
                 format!(
                     "writing {}: {}",
                     out.display(),
-                    chaoscope_recorder::file::error_chain(e)
+                    chaoscope_files::file::error_chain(e)
                 )
             };
             let file = output.file().map_err(|e| write_error(&e))?;

@@ -158,14 +158,14 @@ fn read(
     let (live, header) = match LiveRun::connect(&run, timeout) {
         Ok(Some(connected)) => connected,
         Ok(None) => return fail(format!("run {run:?}: interrupted before its header came")),
-        Err(e) => return fail(chaoscope_recorder::file::error_chain(&e)),
+        Err(e) => return fail(chaoscope_files::file::error_chain(&e)),
     };
     let info = match RunInfo::from_header(header) {
         Ok(info) => info,
         Err(e) => {
             return fail(format!(
                 "run header: {}",
-                chaoscope_recorder::file::error_chain(&e)
+                chaoscope_files::file::error_chain(&e)
             ));
         }
     };
@@ -207,7 +207,7 @@ fn read(
         ControlFlow::Continue(())
     });
     if let Err(e) = received {
-        return fail(chaoscope_recorder::file::error_chain(&e));
+        return fail(chaoscope_files::file::error_chain(&e));
     }
     if !consumer_gone
         && !stop.load(Ordering::Relaxed)

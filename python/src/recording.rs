@@ -7,12 +7,13 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions, energy_error};
 use chaoscope_analyzer::recording::{RecordingReader, analyze_file};
 use chaoscope_analyzer::write::{SampleWriter, WriteError};
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::estimate::Machine;
+use chaoscope_dynamics::header::{non_finite, run_header};
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_indicators::{Named, Output};
 use chaoscope_os::{Leftover, OutputOptions};
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::estimate::{self, Machine};
-use chaoscope_producer::publish::{non_finite, resolve_run_name, run_header};
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_producer::resolve_run_name;
 use chaoscope_replay::{ReplayError, ReplayOptions};
 use chaoscope_schemas::proto::{RunHeader, end_of_run};
 use numpy::{PyArray1, PyArrayMethods};
@@ -106,7 +107,7 @@ pub fn run(
     let spec = RunSpec::from_config(&config)
         .map_err(|e| crate::message(format!("invalid run configuration: {e}")))?;
     let machine = Machine::this_host();
-    if let Some(why) = estimate::run(&spec, &machine).refusal(&machine)
+    if let Some(why) = chaoscope_producer::estimate::run(&spec, &machine).refusal(&machine)
         && !force
     {
         return Err(crate::message(why));
@@ -467,6 +468,7 @@ impl Recording {
             without_original,
             stop: Some(Arc::clone(&stop)),
             force,
+            transport: chaoscope_producer::estimate::BUS,
         };
         let outcome = interruptible(
             py,
@@ -491,7 +493,7 @@ impl Recording {
 }
 
 fn error_text(e: &(dyn std::error::Error + 'static)) -> String {
-    chaoscope_recorder::file::error_chain(e)
+    chaoscope_files::file::error_chain(e)
 }
 
 /// The recorded orbit, as flat rows.

@@ -12,10 +12,10 @@ use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::RecordingSummary;
 
 use crate::discover::{self, Discovery};
-use crate::file::FileOptions;
-use crate::recording::{FinalizedBy, Recording};
 use crate::subscription::{BusEvent, Ended, RunSubscription, SubscribeError};
 use crate::write_thread::WriteThread;
+use chaoscope_files::file::FileOptions;
+use chaoscope_files::recording::{FinalizedBy, Recording};
 
 #[derive(Debug, Clone)]
 pub struct RecordOptions {
@@ -76,7 +76,7 @@ pub enum RecordError {
     Output(#[from] OutputError),
     /// The whole cause in the message (`...: File too large`) and no error source, so that a
     /// chain printer does not repeat it.
-    #[error("{}: MCAP: {}", path.display(), crate::file::error_chain(error))]
+    #[error("{}: MCAP: {}", path.display(), chaoscope_files::file::error_chain(error))]
     Mcap {
         path: PathBuf,
         error: mcap::McapError,
@@ -87,7 +87,7 @@ pub enum RecordError {
         "{}: MCAP: {}; what was written is kept in {} (`chaoscope recover` salvages its \
          complete chunks)",
         path.display(),
-        crate::file::error_chain(error),
+        chaoscope_files::file::error_chain(error),
         kept.display()
     )]
     WriteFailed {

@@ -20,9 +20,9 @@ use std::thread::JoinHandle;
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{EndOfRun, RecordingSummary};
 
-use crate::file::{EncodedMessages, Encoder};
-use crate::indicators::IndicatorStream;
-use crate::recording::{FinalizedBy, Recording};
+use chaoscope_files::file::{EncodedMessages, Encoder};
+use chaoscope_files::indicators::IndicatorStream;
+use chaoscope_files::recording::{FinalizedBy, Recording};
 
 /// Data messages sent to the writer thread at once (the cost of a hand-over is paid per batch).
 pub const BATCH: usize = 256;
@@ -167,8 +167,8 @@ fn write_all<W: Write + Seek>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::file::FileOptions;
-    use crate::testing;
+    use chaoscope_files::file::FileOptions;
+    use chaoscope_files::testing;
     use chaoscope_schemas::proto::RunHeader;
     use std::io::Cursor;
 

@@ -8,9 +8,9 @@ use std::sync::Arc;
 
 use chaoscope_analyzer::analysis::{FlowField, ObservableFn, SiteEnergies};
 use chaoscope_analyzer::run_info::RunInfo;
-use chaoscope_producer::spec::RunSpec;
-use chaoscope_producer::spec::state_function::zero_one_observable;
-use chaoscope_producer::system::{DynamicalSystem, Time};
+use chaoscope_dynamics::spec::RunSpec;
+use chaoscope_dynamics::spec::state_function::zero_one_observable;
+use chaoscope_dynamics::system::{DynamicalSystem, Time};
 use chaoscope_schemas::config::RunConfig;
 
 /// The vector field of `system`, if it has one (a map has none: its time is discrete).
@@ -65,7 +65,7 @@ fn rebuild_system(run: &RunInfo) -> Result<Arc<dyn DynamicalSystem>, String> {
     Ok(Arc::clone(spec.system()))
 }
 
-/// The energy of each site of `system`'s states ([`chaoscope_producer::model::Model::site_energies`]
+/// The energy of each site of `system`'s states ([`chaoscope_dynamics::model::Model::site_energies`]
 /// of a separable Hamiltonian's model); for any other system, the reason why there are none.
 pub fn site_energies(system: &Arc<dyn DynamicalSystem>) -> SiteEnergies {
     let model = system.separable().map(|s| Arc::clone(s.model()));

@@ -1,9 +1,9 @@
 //! Analysis of a run computed in this process by the engine (tests, sweeps, the paper script's
 //! quick paths): no bus, no file.
 
-use chaoscope_producer::engine::{Engine, RunError};
-use chaoscope_producer::publish::run_header;
-use chaoscope_producer::spec::{RunSpec, SpecError};
+use chaoscope_dynamics::engine::{Engine, RunError};
+use chaoscope_dynamics::header::run_header;
+use chaoscope_dynamics::spec::{RunSpec, SpecError};
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::run::Sample;
 

@@ -24,10 +24,10 @@ use std::path::Path;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
-use chaoscope_producer::engine::{Engine, RunError};
-use chaoscope_producer::estimate::{self, Machine};
-use chaoscope_producer::publish::run_header;
-use chaoscope_producer::spec::{RunSpec, SpecError};
+use chaoscope_dynamics::engine::{Engine, RunError};
+use chaoscope_dynamics::estimate::{self, Machine, Transport};
+use chaoscope_dynamics::header::run_header;
+use chaoscope_dynamics::spec::{RunSpec, SpecError};
 use chaoscope_schemas::config::{RunConfig, SchemeConfig};
 use chaoscope_schemas::run::Sample;
 
@@ -59,6 +59,9 @@ pub struct ReplayOptions {
     /// more than a day or more memory than the machine has (as `run` refuses it: the recorded
     /// configuration with the replay's schemes).
     pub force: bool,
+    /// What `run` holds in flight besides the numerics, for that estimate: the bus's frames
+    /// (`chaoscope_producer::estimate::BUS`) in the command.
+    pub transport: Transport,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -82,7 +85,7 @@ pub enum ReplayError {
     Output(#[from] WriteError),
     #[error("nothing to replay: give --tau and/or --d0")]
     Nothing,
-    /// The estimate's refusal (`chaoscope_producer::estimate`), one line naming the key.
+    /// The estimate's refusal (`chaoscope_dynamics::estimate`), one line naming the key.
     #[error("{0}")]
     BeyondTheMachine(String),
 }
@@ -289,7 +292,7 @@ pub fn replay(
     // schemes, costs at least as much, so it is estimated like a run before anything is written.
     let started = std::time::Instant::now();
     let machine = Machine::this_host();
-    let estimate = estimate::run(&spec, &machine);
+    let estimate = estimate::run(&spec, &machine, &options.transport);
     if let Some(why) = estimate.refusal(&machine) {
         if !options.force {
             return Err(ReplayError::BeyondTheMachine(why));

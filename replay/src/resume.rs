@@ -24,11 +24,11 @@ use std::time::{Duration, Instant};
 
 use chaoscope_analyzer::recording::{ReadError, RecordingReader};
 use chaoscope_analyzer::write::{SampleWriter, WriteError};
+use chaoscope_dynamics::engine::{Engine, ResumeError, RunError};
+use chaoscope_dynamics::estimate::{Machine, Transport};
+use chaoscope_dynamics::header::run_header;
+use chaoscope_dynamics::spec::{RunSpec, SpecError};
 use chaoscope_os::{Leftover, Output, OutputError, OutputOptions};
-use chaoscope_producer::engine::{Engine, ResumeError, RunError};
-use chaoscope_producer::estimate::Machine;
-use chaoscope_producer::publish::run_header;
-use chaoscope_producer::spec::{RunSpec, SpecError};
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::proto::{RunHeader, end_of_run};
 use chaoscope_schemas::run::Sample;
@@ -55,6 +55,9 @@ pub struct ResumeOptions {
     /// estimated its configuration before continuing it); otherwise it is estimated here as
     /// `run` estimates it, and refused beyond a day or the machine's memory unless `force`.
     pub estimated: bool,
+    /// What `run` holds in flight besides the numerics, for that estimate: the bus's frames
+    /// (`chaoscope_producer::estimate::BUS`) in the command.
+    pub transport: Transport,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -81,7 +84,7 @@ pub enum ResumeFailure {
          extend it"
     )]
     Complete { path: String, t_final: f64 },
-    /// The estimate's refusal (`chaoscope_producer::estimate`), one line naming the key.
+    /// The estimate's refusal (`chaoscope_dynamics::estimate`), one line naming the key.
     #[error("{path}: {why}")]
     BeyondTheMachine { path: String, why: String },
     #[error("{path}: cannot resume: {source}")]
@@ -318,7 +321,7 @@ fn resume_untimed(
     // small share of any run long enough to be refused): estimated as `run` estimates it,
     // before a sample is read or written, so `--t-final 1e12` is refused as `run` refuses it.
     let machine = Machine::this_host();
-    let mut estimate = chaoscope_producer::estimate::run(&spec, &machine);
+    let mut estimate = chaoscope_dynamics::estimate::run(&spec, &machine, &options.transport);
     if !options.estimated {
         if options.t_final.is_some() {
             estimate.time_key = "--t-final";
@@ -455,7 +458,7 @@ fn resume_untimed(
         match engine.next_sample() {
             Ok(Some(sample)) => {
                 // No NaN or infinity goes into a file: the run fails there, as the producer's.
-                if let Some(problem) = chaoscope_producer::publish::non_finite(&sample) {
+                if let Some(problem) = chaoscope_dynamics::header::non_finite(&sample) {
                     break Some((end_of_run::Status::Failed, problem));
                 }
                 writer.write(&sample).map_err(werr)?;

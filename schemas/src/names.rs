@@ -125,7 +125,7 @@ pub fn map_watcher_node_name(map: &str) -> String {
 
 /// Node name of the producer of a run; recorders watch its liveness.
 pub fn producer_node_name(run: &str) -> String {
-    format!("chaoscope-producer/{run}")
+    format!("chaoscope-dynamics/{run}")
 }
 
 /// Node name of a recorder of a run.

@@ -87,7 +87,7 @@ pub fn print_table(report: &Report) -> Result<(), StdoutError> {
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     // Nothing worth finalizing: a signal removes the unfinished outputs and ends at once.
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Exit);
     let axis = match args.time_axis.as_str() {
         "auto" => TimeAxis::Auto,
         "log" => TimeAxis::Log,

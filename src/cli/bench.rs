@@ -53,11 +53,11 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::Context;
-use chaoscope_producer::batch::{self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages};
-use chaoscope_producer::estimate::Machine;
-use chaoscope_producer::integrator::{Splitting, SplittingKind};
-use chaoscope_producer::map::{MapOptions, MapSpec, PointResult, run_map};
-use chaoscope_producer::model::{FputBeta, HenonHeiles};
+use chaoscope_dynamics::batch::{self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages};
+use chaoscope_dynamics::estimate::Machine;
+use chaoscope_dynamics::integrator::{Splitting, SplittingKind};
+use chaoscope_dynamics::map::{MapOptions, MapSpec, PointResult, run_map};
+use chaoscope_dynamics::model::{FputBeta, HenonHeiles};
 use chaoscope_schemas::config::{DeviationsConfig, MapConfig, RunConfig, SchemeConfig, paper};
 use plain_loop::{PlainModel, PlainState};
 
@@ -469,11 +469,11 @@ fn routes(
     let ok = |i: usize| {
         [vm, vm_route, mpm, mpm_route]
             .iter()
-            .all(|r| r[i].status == chaoscope_producer::map::PointStatus::Ok)
+            .all(|r| r[i].status == chaoscope_dynamics::map::PointStatus::Ok)
     };
     let both: Vec<usize> = (0..vm.len()).filter(|&i| ok(i)).collect();
     // Must-show 2 on the map: the VM routes' per-set values (GALI_2 at t_final), where per-set
-    // VM resolves them (log10 GALI_2 > -7, producer/tests/propagator_vm.rs) and below.
+    // VM resolves them (log10 GALI_2 > -7, dynamics/tests/propagator_vm.rs) and below.
     let (mut resolved, mut unresolved) = (Vec::new(), Vec::new());
     for &i in &both {
         for (r, p) in vm_route[i].per_set.iter().zip(&vm[i].per_set) {
@@ -913,12 +913,12 @@ impl MapPair {
 mod expressions {
     use std::time::Instant;
 
-    use chaoscope_producer::batch::{Isa, LaneModel};
-    use chaoscope_producer::engine::Engine;
-    use chaoscope_producer::estimate::Machine;
-    use chaoscope_producer::map::MapSpec;
-    use chaoscope_producer::model::{CStepState, ExpressionModel, FputBeta, HenonHeiles};
-    use chaoscope_producer::spec::{RunSpec, model_from_config};
+    use chaoscope_dynamics::batch::{Isa, LaneModel};
+    use chaoscope_dynamics::engine::Engine;
+    use chaoscope_dynamics::estimate::Machine;
+    use chaoscope_dynamics::map::MapSpec;
+    use chaoscope_dynamics::model::{CStepState, ExpressionModel, FputBeta, HenonHeiles};
+    use chaoscope_dynamics::spec::{RunSpec, model_from_config};
     use chaoscope_schemas::config::{
         DeviationsConfig, ModelConfig, ParamValue, PotentialConfig, RunConfig, SchemeConfig, paper,
     };
@@ -1174,7 +1174,7 @@ mod ceiling {
     use std::hint::black_box;
     use std::time::Instant;
 
-    use chaoscope_producer::batch::Isa;
+    use chaoscope_dynamics::batch::Isa;
 
     /// Seconds of work per thread in one measurement.
     const SECONDS: f64 = 0.7;

@@ -19,7 +19,7 @@ pub struct Args {
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     // Nothing worth finalizing: a signal removes the unfinished outputs and ends at once.
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Exit);
     let text = if args.spec.as_os_str() == "-" {
         std::io::read_to_string(std::io::stdin())?
     } else {

@@ -8,9 +8,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use anyhow::{Context, bail};
-use chaoscope_producer::estimate;
-use chaoscope_producer::map::MapSpec;
-use chaoscope_producer::spec::{RunSpec, SpecError};
+use chaoscope_dynamics::estimate;
+use chaoscope_dynamics::map::MapSpec;
+use chaoscope_dynamics::spec::{RunSpec, SpecError};
 use chaoscope_schemas::config::{ConfigSource, RunConfig};
 
 #[derive(clap::Args)]
@@ -78,13 +78,13 @@ pub fn validate(
             points,
             machine,
             machine.cores,
-            chaoscope_producer::batch::Isa::detect(),
+            chaoscope_dynamics::batch::Isa::detect(),
         );
         let route = super::map::route_reason(&spec, choice.as_ref());
         (format!("a map of {points} points, {route}"), e)
     } else {
         let spec = RunSpec::from_config(config).map_err(|e| invalid("run", e))?;
-        let e = estimate::run(&spec, machine);
+        let e = chaoscope_producer::estimate::run(&spec, machine);
         (
             format!(
                 "a run of a {} of dimension {}",

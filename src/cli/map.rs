@@ -25,14 +25,14 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
 use chaoscope_bus::frame::status;
+use chaoscope_dynamics::batch::Isa;
+use chaoscope_dynamics::estimate::RouteChoice;
+use chaoscope_dynamics::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
+use chaoscope_files::file::{Compression, FileOptions};
+use chaoscope_files::map_file::{MapFile, read_map_file};
+use chaoscope_os::termination::Termination;
 use chaoscope_os::{Leftover, Output, OutputOptions};
-use chaoscope_producer::batch::Isa;
-use chaoscope_producer::estimate::RouteChoice;
-use chaoscope_producer::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
-use chaoscope_producer::publish::Termination;
-use chaoscope_producer::publish::map::{MapPublisher, default_map_name};
-use chaoscope_recorder::file::{Compression, FileOptions};
-use chaoscope_recorder::map_file::{MapFile, read_map_file};
+use chaoscope_producer::map::{MapPublisher, default_map_name};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 
 /// Longest wait, once the map is done, for live watchers to read its last points.
@@ -104,7 +104,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     };
     // Threads beyond the cores share them: the estimate spreads the work over the fewer. A
     // map that names no route takes the cheaper of two that give its numbers.
-    let (estimate, route_choice) = chaoscope_producer::estimate::map_choosing_route(
+    let (estimate, route_choice) = chaoscope_dynamics::estimate::map_choosing_route(
         &mut spec,
         points,
         &machine,
@@ -115,7 +115,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     super::warn_unused_params("map", &config);
     super::warn_repeated_grid_lines("map", &config);
     let header = spec.header(args.shard);
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let termination = Termination::new();
 
     // The colour map is drawn at the end: what would refuse it is said now.
@@ -436,7 +436,7 @@ fn previous_points(
             }
             // Its values are this map's own (this configuration's header) or the file is
             // refused: they go into the new file and the PNG as they are.
-            chaoscope_recorder::map_file::check_point(header, &p).map_err(|e| {
+            chaoscope_files::map_file::check_point(header, &p).map_err(|e| {
                 anyhow::anyhow!(
                     "{}: {e}; pass --restart to recompute it or choose another --out",
                     path.display()

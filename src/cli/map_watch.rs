@@ -10,7 +10,7 @@ use std::time::{Duration, Instant};
 use anyhow::{Context, bail};
 use chaoscope_bus::frame::{MapFrameKind, status};
 use chaoscope_bus::{self as bus, Liveness};
-use chaoscope_producer::publish::Termination;
+use chaoscope_os::termination::Termination;
 use chaoscope_schemas::names;
 use chaoscope_schemas::proto::{MapAxis, MapHeader, MapPoint};
 use prost::Message;
@@ -99,7 +99,7 @@ impl Tally {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let termination = Termination::new();
     let name = match args.name {
         Some(n) => {

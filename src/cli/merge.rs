@@ -11,10 +11,10 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
+use chaoscope_dynamics::map::Shard;
+use chaoscope_files::file::{Compression, FileOptions};
+use chaoscope_files::map_file::{MapFile, read_map_file};
 use chaoscope_os::{Leftover, Output, OutputOptions};
-use chaoscope_producer::map::Shard;
-use chaoscope_recorder::file::{Compression, FileOptions};
-use chaoscope_recorder::map_file::{MapFile, read_map_file};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 
 /// Missing shards named in the error of an incomplete merge.
@@ -44,7 +44,7 @@ pub struct Args {
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     // Nothing worth finalizing: a signal removes the unfinished output and ends at once.
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Exit);
     let output_options = OutputOptions {
         replace: args.force,
         inputs: args.shards.clone(),
@@ -94,7 +94,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             );
         }
         if let Some(first) = &header
-            && !chaoscope_recorder::map_file::same_map(first, &h)
+            && !chaoscope_files::map_file::same_map(first, &h)
         {
             bail!(
                 "{} belongs to a different map or shard split than {}",

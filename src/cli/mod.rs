@@ -22,8 +22,8 @@ use std::path::Path;
 use std::process::ExitCode;
 
 use anyhow::Context;
-use chaoscope_producer::estimate::{Estimate, Machine};
-use chaoscope_producer::spec::SpecError;
+use chaoscope_dynamics::estimate::{Estimate, Machine};
+use chaoscope_dynamics::spec::SpecError;
 use chaoscope_schemas::config::{ConfigSource, RunConfig};
 
 /// Writes the one JSON summary line of `produce` and `record` to stdout. Its reader (`chaoscope
@@ -71,7 +71,7 @@ pub fn invalid_config(source: &ConfigSource, what: &str, e: SpecError) -> anyhow
 /// Says on stderr which parameters of an expression model no expression reads: a warning, not
 /// an error (a user comments expressions in and out), once the config is valid.
 pub fn warn_unused_params(command: &str, config: &RunConfig) {
-    for unused in chaoscope_producer::spec::unused_params(&config.model) {
+    for unused in chaoscope_dynamics::spec::unused_params(&config.model) {
         chaoscope_os::errln!("chaoscope {command}: warning: {unused}");
     }
 }
@@ -79,7 +79,7 @@ pub fn warn_unused_params(command: &str, config: &RunConfig) {
 /// Says on stderr which axes of a valid map grid a periodic coordinate over a whole period,
 /// so that their last line repeats the first (`map::spec::repeated_grid_lines`).
 pub fn warn_repeated_grid_lines(command: &str, config: &RunConfig) {
-    for repeated in chaoscope_producer::map::spec::repeated_grid_lines(config) {
+    for repeated in chaoscope_dynamics::map::spec::repeated_grid_lines(config) {
         chaoscope_os::errln!("chaoscope {command}: warning: {repeated}");
     }
 }

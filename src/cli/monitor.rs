@@ -152,7 +152,7 @@ fn plain_line(analysis: &Analysis, progress: &Progress, live: &LiveRun) -> Strin
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     // Serving before the run appears, so a client can connect and wait for its channels.
     let foxglove = args.foxglove.map(FoxgloveServer::start).transpose()?;
     let run = match args.run {

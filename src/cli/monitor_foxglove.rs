@@ -12,8 +12,8 @@ use std::net::SocketAddr;
 use std::sync::Arc;
 
 use anyhow::Context as _;
-use chaoscope_recorder::file::log_time_of;
-use chaoscope_recorder::indicators::IndicatorStream;
+use chaoscope_files::file::log_time_of;
+use chaoscope_files::indicators::IndicatorStream;
 use chaoscope_schemas::names::topic;
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{self, RunHeader, schema_name};

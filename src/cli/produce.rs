@@ -4,8 +4,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use chaoscope_producer::publish::{self, PublishOptions, RunStatus};
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::spec::RunSpec;
+use chaoscope_producer::{self as publish, PublishOptions, RunStatus};
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -43,7 +43,7 @@ fn say_open() {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let (config, _, source) = super::load_config(&args.config)?;
     let spec =
         RunSpec::from_config(&config).map_err(|e| super::invalid_config(&source, "run", e))?;

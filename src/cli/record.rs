@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use chaoscope_recorder::file::Compression;
+use chaoscope_files::file::Compression;
 use chaoscope_recorder::{RecordError, RecordOptions, record};
 
 #[derive(clap::Args)]
@@ -49,7 +49,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     options.flush_interval = args.flush_interval;
     options.wait_timeout = args.wait_timeout;
     options.throttle = args.throttle_ms.unwrap_or_default();
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let outcome = match record(&options) {
         Ok(outcome) => outcome,
         // Stopped before any run started: nothing was written, nothing to say.

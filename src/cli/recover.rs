@@ -17,8 +17,8 @@ pub struct Args {
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     // Nothing worth finalizing: a signal removes the unfinished output and ends at once.
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
-    let report = chaoscope_recorder::recover(&args.input, &args.out, args.force)?;
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Exit);
+    let report = chaoscope_files::recover(&args.input, &args.out, args.force)?;
     chaoscope_os::errln!(
         "chaoscope recover: {} messages from {} chunks salvaged into {} ({})",
         report.messages,

@@ -35,13 +35,14 @@ pub struct Args {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let options = ReplayOptions {
         taus: args.taus,
         d0s: args.d0s,
         without_original: args.without_original,
         stop: None,
         force: args.force,
+        transport: chaoscope_producer::estimate::BUS,
     };
     let outcome = replay(&args.file, &args.out, &options)?;
     if args.json {

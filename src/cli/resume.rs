@@ -29,7 +29,7 @@ pub struct Args {
 }
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let options = ResumeOptions {
         t_final: args.t_final,
         out: args.out,
@@ -37,6 +37,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         config: None,
         stop: None,
         estimated: false,
+        transport: chaoscope_producer::estimate::BUS,
     };
     let outcome = resume(&args.recording, &options)?;
     report(&outcome, args.json)

@@ -9,7 +9,7 @@ use std::process::{Child, Command, ExitCode, Stdio};
 use std::time::Duration;
 
 use anyhow::{Context, bail};
-use chaoscope_producer::publish::resolve_run_name;
+use chaoscope_producer::resolve_run_name;
 use chaoscope_schemas::config::RunConfig;
 
 /// The paper's chaotic Henon-Heiles orbit, run when no CONFIG is given.
@@ -187,7 +187,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     // Fail on a bad config or one beyond the machine here, before any process starts (the
     // producer process validates its own copy once more: a process trusts no other).
     let spec =
-        chaoscope_producer::spec::RunSpec::from_config(&config).map_err(|e| match &source {
+        chaoscope_dynamics::spec::RunSpec::from_config(&config).map_err(|e| match &source {
             Some(source) => super::invalid_config(source, "run", e),
             None => anyhow::Error::new(e).context("invalid run configuration"),
         })?;
@@ -225,7 +225,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
 
     // Ctrl+C reaches the whole process group; SIGTERM (or a SIGINT sent to us alone) is
     // forwarded to both children, which finalize cleanly.
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
 
     // The producer first: the recorder starts once the producer has opened the run's services
     // (it says `open`), so it can only ever record this producer's run, never that of a live
@@ -369,7 +369,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         summary.finalized_by,
         summary.frames_missing,
         super::seconds(seconds),
-        super::seconds(estimate.seconds + chaoscope_producer::estimate::RUN_START_SECONDS)
+        super::seconds(estimate.seconds + chaoscope_dynamics::estimate::RUN_START_SECONDS)
     )?;
     // Stopped by a signal: end now (reading a long recording takes time); `chaoscope analyze`
     // gives the table later.
@@ -422,7 +422,7 @@ fn requeued_by_slurm() -> bool {
 /// `None` when nothing was on disk to continue from.
 fn resume_requeued(config: &RunConfig, out: &Path) -> anyhow::Result<Option<ExitCode>> {
     use chaoscope_replay::resume::{ResumeFailure, ResumeOptions, resume};
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Finish);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let options = ResumeOptions {
         config: Some(config.clone()),
         // `run` estimated this configuration before it came here.

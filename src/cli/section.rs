@@ -7,10 +7,10 @@
 //! - `chaoscope section CONFIG --surface EXPR [--direction up|down|both] [--vary ...]`: any
 //!   flow's (or Hamiltonian's) section through the surface `EXPR = 0`, of the config's orbit or
 //!   of many started along one coordinate, crossings located to rounding
-//!   (`chaoscope_producer::section::surface`).
+//!   (`chaoscope_dynamics::section::surface`).
 //! - `chaoscope section CONFIG --sample-every T [--vary ...]`: the stroboscopic section of a
 //!   periodically forced system, its state every `T` (the forcing's period, e.g. `2*pi/omega`)
-//!   (`chaoscope_producer::section::stroboscopic`).
+//!   (`chaoscope_dynamics::section::stroboscopic`).
 //!
 //! The points written and drawn are the states with their periodic coordinates (`[model]
 //! modulo`) wrapped into one period, and a plot axis that is a periodic coordinate spans it;
@@ -22,14 +22,14 @@ use std::process::ExitCode;
 
 use anyhow::{Context, bail};
 use chaoscope_analyzer::chart::{Chart, Line, Stroke, render};
-use chaoscope_os::{Leftover, Output, OutputOptions};
-use chaoscope_producer::section::crossings;
-use chaoscope_producer::section::stroboscopic::{Stroboscopic, stroboscopic_samples};
-use chaoscope_producer::section::surface::{
+use chaoscope_dynamics::section::crossings;
+use chaoscope_dynamics::section::stroboscopic::{Stroboscopic, stroboscopic_samples};
+use chaoscope_dynamics::section::surface::{
     Direction, OrbitEnd, ScalarFunction, Surface, SurfaceOrbit, coordinate_names, state_expression,
     surface_crossings,
 };
-use chaoscope_producer::spec::{RunSpec, parse_coordinate};
+use chaoscope_dynamics::spec::{RunSpec, parse_coordinate};
+use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_schemas::config::{ConfigSource, RunConfig};
 use chaoscope_schemas::run::SystemKind;
 
@@ -104,7 +104,7 @@ pub struct Args {
 
 pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     // Nothing worth finalizing: a signal removes the unfinished outputs and ends at once.
-    chaoscope_os::signals::install(chaoscope_os::signals::Mode::Exit);
+    chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Exit);
     let (config, _, source) = super::load_config(&args.config)?;
     for (name, v) in [("--from", args.from), ("--to", args.to)] {
         if v.is_some_and(|v| !v.is_finite()) {
@@ -191,7 +191,7 @@ fn energy_section(
         bail!("--vary {vary_name}: the config's orbit.q must give the {n} positions");
     }
     let machine = super::machine();
-    let estimate = chaoscope_producer::estimate::section(&base, count, args.crossings, &machine);
+    let estimate = chaoscope_dynamics::estimate::section(&base, count, args.crossings, &machine);
     super::check_estimate(&estimate, &machine, args.force, "section")?;
     let steps = base.total_steps();
     let mut lines = Vec::new();
@@ -210,7 +210,7 @@ fn energy_section(
         // Written and drawn with the angles wrapped into their period.
         let pts: Vec<Vec<f64>> = crossings(&spec, spec.x0(), plane, steps, args.crossings)
             .iter()
-            .map(|x| chaoscope_producer::indicators::periodic::wrap_state(base.periods(), x))
+            .map(|x| chaoscope_dynamics::indicators::periodic::wrap_state(base.periods(), x))
             .collect();
         if let Some(f) = csv.as_mut() {
             for p in &pts {
@@ -428,7 +428,7 @@ fn surface_section(
     let base = RunSpec::from_config(&config)
         .map_err(|e| super::invalid_config(config_source, "run", e))?;
     let one_line =
-        |e: chaoscope_producer::spec::SpecError| anyhow::anyhow!("{}: {}", e.key, e.message);
+        |e: chaoscope_dynamics::spec::SpecError| anyhow::anyhow!("{}: {}", e.key, e.message);
     let sampling = match (&args.surface, &args.sample_every) {
         (Some(source), _) => Sampling::Surface {
             surface: Box::new(Surface::new(&base, &config.model, source).map_err(one_line)?),
@@ -523,7 +523,7 @@ fn surface_section(
         _ => (None, 1),
     };
     let machine = super::machine();
-    let estimate = chaoscope_producer::estimate::section(&base, count, args.crossings, &machine);
+    let estimate = chaoscope_dynamics::estimate::section(&base, count, args.crossings, &machine);
     super::check_estimate(&estimate, &machine, args.force, "section")?;
     let steps = base.total_steps();
     let csv_output = csv_output(args)?;
@@ -585,7 +585,7 @@ fn surface_section(
         let states: Vec<Vec<f64>> = orbit
             .crossings
             .iter()
-            .map(|c| chaoscope_producer::indicators::periodic::wrap_state(&periods, &c.x))
+            .map(|c| chaoscope_dynamics::indicators::periodic::wrap_state(&periods, &c.x))
             .collect();
         if let Some(f) = csv.as_mut() {
             for (c, x) in orbit.crossings.iter().zip(&states) {
@@ -727,7 +727,7 @@ tau = 1.0
         let names = coordinate_names(&spec);
         let axis = |source: &str| Axis::new(&spec, &config.model, &names, "--axes", source);
         // A state whose angles left their period: 7 = 2 pi + 0.717, -1 = -2 pi + 5.283.
-        let x = chaoscope_producer::indicators::periodic::wrap_state(
+        let x = chaoscope_dynamics::indicators::periodic::wrap_state(
             spec.periods(),
             &[7.0, -1.0, 0.3, -0.4],
         );

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, ExitStatus, Stdio};
 use std::time::{Duration, Instant};
 
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 use chaoscope_schemas::names::topic;
 use chaoscope_schemas::proto::{
@@ -288,7 +288,7 @@ pub fn run_reduced_example(script: &str, out: &Path) {
 /// A map recording's points by grid index, each as its exact protobuf bytes (a damaged file
 /// fails the test).
 pub fn map_points(path: &Path) -> std::collections::BTreeMap<u64, Vec<u8>> {
-    let contents = chaoscope_recorder::map_file::read_map_file(path).unwrap();
+    let contents = chaoscope_files::map_file::read_map_file(path).unwrap();
     assert!(contents.damaged.is_none(), "{} is damaged", path.display());
     contents
         .points

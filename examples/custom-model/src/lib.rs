@@ -22,10 +22,11 @@ use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::recording::analyze_file;
 use chaoscope_analyzer::report::Report;
 use chaoscope_analyzer::write::SampleWriter;
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::model::{At, Model};
-use chaoscope_producer::publish::{self, PublishOptions, PublishOutcome, run_header};
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::header::run_header;
+use chaoscope_dynamics::model::{At, Model};
+use chaoscope_dynamics::spec::RunSpec;
+use chaoscope_producer::{self as publish, PublishOptions, PublishOutcome};
 use chaoscope_schemas::config::RunConfig;
 
 /// The Barbanis potential with frequencies `w1`, `w2` and coupling `eps`.

@@ -1,8 +1,8 @@
 //! The hand-written model through engine, recording and analysis: its derivatives agree with its
 //! potential, the recording analyzes, and the physics is that of a bounded regular orbit.
 
+use chaoscope_dynamics::model::{At, Model};
 use chaoscope_example_custom_model::{Barbanis, CONFIG, record, run_spec};
-use chaoscope_producer::model::{At, Model};
 
 #[test]
 fn derivatives_agree_with_the_potential() {

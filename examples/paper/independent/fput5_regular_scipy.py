@@ -14,7 +14,7 @@ checked against finite differences at start-up) and renormalized to unit length 
 (GALI is scale invariant and the variational equations are linear, so this changes nothing but
 the size of the numbers). GALI_j is the product of the singular values of the 2N x j matrix of
 the first j unit vectors, a singular value below machine epsilon counted as epsilon: chaoscope's
-definition (producer/src/indicators.rs).
+definition (dynamics/src/indicators.rs).
 
 The initial directions are one orthonormal set, handed to chaoscope verbatim through
 `[deviations] vectors` so that both codes start from the same directions: by default a numpy

@@ -9,8 +9,8 @@
 use std::io::Cursor;
 use std::path::Path;
 
-use chaoscope_recorder::file::{Compression, FileOptions};
-use chaoscope_recorder::testing::{self, Shape};
+use chaoscope_files::file::{Compression, FileOptions};
+use chaoscope_files::testing::{self, Shape};
 
 /// Zeroes the chunk, data-section and summary CRCs of an MCAP file.
 fn without_crcs(mut bytes: Vec<u8>) -> Vec<u8> {

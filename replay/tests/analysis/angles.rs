@@ -7,8 +7,8 @@
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
 use chaoscope_analyzer::report::Report;
 use chaoscope_analyzer::verdict::Class;
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_replay::inprocess::run_info;
 use chaoscope_schemas::config::{ModelConfig, RunConfig};
 

@@ -9,10 +9,10 @@ use std::path::{Path, PathBuf};
 
 use chaoscope_analyzer::clv::{ClvOptions, ClvReport, clv_of_file};
 use chaoscope_analyzer::write::SampleWriter;
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::publish::run_header;
-use chaoscope_producer::spec::RunSpec;
-use chaoscope_recorder::testing;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::header::run_header;
+use chaoscope_dynamics::spec::RunSpec;
+use chaoscope_files::testing;
 use chaoscope_schemas::config::RunConfig;
 
 const HENON: &str = r#"

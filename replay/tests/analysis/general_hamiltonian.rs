@@ -12,10 +12,10 @@
 //! orbit, the MLE of the chaotic one.
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::indicators::gali_log10;
-use chaoscope_producer::integrator::Workspace;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::indicators::gali_log10;
+use chaoscope_dynamics::integrator::Workspace;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_replay::inprocess::analyze_config;
 use chaoscope_schemas::config::RunConfig;
 
@@ -280,7 +280,7 @@ fn chaotic_orbit_mles_of_both_methods_agree_within_their_spread() {
 /// 1e-12). A model without a norm (Henon-Heiles) reports none.
 #[test]
 fn the_ddnls_norm_error_is_reported_beside_the_energy_error() {
-    use chaoscope_producer::spec::ddnls::model_from_config;
+    use chaoscope_dynamics::spec::ddnls::model_from_config;
     use chaoscope_schemas::config::ModelConfig;
     for (method, bound) in [("s11abc6", 1e-8), ("gl6", 1e-12)] {
         let text = format!(

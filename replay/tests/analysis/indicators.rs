@@ -3,7 +3,7 @@
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::report::{Report, SchemeReport};
-use chaoscope_producer::indicators::Named;
+use chaoscope_dynamics::indicators::Named;
 use chaoscope_replay::inprocess::analyze_config;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 
@@ -327,7 +327,7 @@ fn the_csv_and_the_plots_carry_every_named_indicator_over_time() {
     let report = a.report_at(500.0).unwrap();
     let dir = tempfile::tempdir().unwrap();
     chaoscope_analyzer::csv::write_csv(&a, dir.path(), &[]).unwrap();
-    let names = chaoscope_producer::indicators::indicator::set_output_names();
+    let names = chaoscope_dynamics::indicators::indicator::set_output_names();
     for name in ["vm", "mpm"] {
         let text = std::fs::read_to_string(dir.path().join(format!("{name}.csv"))).unwrap();
         assert!(

@@ -5,10 +5,10 @@
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::report::SchemeReport;
-use chaoscope_producer::indicators::Named;
-use chaoscope_producer::indicators::distribution::{mean_site, moments, normalized};
-use chaoscope_producer::indicators::dvd::site_weights;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::indicators::Named;
+use chaoscope_dynamics::indicators::distribution::{mean_site, moments, normalized};
+use chaoscope_dynamics::indicators::dvd::site_weights;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_replay::flow::site_energies;
 use chaoscope_replay::inprocess::analyze_config;
 use chaoscope_schemas::config::RunConfig;

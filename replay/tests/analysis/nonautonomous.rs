@@ -4,10 +4,10 @@
 //! (`dx3/dt = omega`, `cos(x3)`), by VM and MPM; and the splittings' order on a time-dependent
 //! potential (the extended phase space).
 
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::integrator::Workspace;
-use chaoscope_producer::section::stroboscopic::{Stroboscopic, stroboscopic_samples};
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::integrator::Workspace;
+use chaoscope_dynamics::section::stroboscopic::{Stroboscopic, stroboscopic_samples};
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 
 const DELTA: f64 = 0.3;
@@ -389,7 +389,7 @@ orthonormalize = "qr"
     let want =
         bond(0.1) + bond(0.1) + (1.0 + 0.5 * (7.0f64 * t).cos()) * (0.01 + 0.04 + 0.09) / 2.0;
     assert!(
-        (model.potential(&q, chaoscope_producer::model::At::time(t)) - want).abs() < 1e-15,
+        (model.potential(&q, chaoscope_dynamics::model::At::time(t)) - want).abs() < 1e-15,
         "{want}"
     );
     let [(_, vm), (_, mpm)] = final_exponents(&finite_time_exponents(&config));
@@ -429,10 +429,10 @@ indicator = "mle"
 "#
         )
     };
-    use chaoscope_producer::batch::Isa;
-    use chaoscope_producer::map::schedule::{MapOptions, run_map};
-    use chaoscope_producer::map::spec::MapSpec;
-    use chaoscope_producer::map::{PointStatus, one_orbit};
+    use chaoscope_dynamics::batch::Isa;
+    use chaoscope_dynamics::map::schedule::{MapOptions, run_map};
+    use chaoscope_dynamics::map::spec::MapSpec;
+    use chaoscope_dynamics::map::{PointStatus, one_orbit};
     let spec = MapSpec::from_config(&RunConfig::from_toml(&text("")).unwrap()).unwrap();
     assert!(!spec.has_batched_kernel());
     let want: Vec<_> = (0..spec.grid_points())

@@ -1,7 +1,7 @@
 //! `[model] name = "ddnls"`: the disordered discrete nonlinear Schroedinger lattice, a built-in
 //! Hamiltonian that is not separable into `T(p) + V(q)` (the producer integrates it by
 //! compositions of its three parts' exact flows). What the values may be is checked by the
-//! producer's validation (`producer/src/spec/ddnls.rs`).
+//! the validation (`dynamics/src/spec/ddnls.rs`).
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};

@@ -17,10 +17,10 @@
 use std::process::{Command, Stdio};
 
 use anyhow::Context;
-use chaoscope_producer::batch::StepCoeffs;
-use chaoscope_producer::integrator::{Splitting, SplittingKind};
-use chaoscope_producer::model::ExpressionModel;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::batch::StepCoeffs;
+use chaoscope_dynamics::integrator::{Splitting, SplittingKind};
+use chaoscope_dynamics::model::ExpressionModel;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{ModelConfig, ParamValue, RunConfig};
 
 /// The yardsticks' C program (`chains.c`: model 0 the DKG chain, 1 the FPUT chain).
@@ -109,7 +109,7 @@ fn c_input(config: &RunConfig) -> anyhow::Result<String> {
         ModelConfig::Potential(p) => match (p.params.get("W"), p.params.get("eps")) {
             (Some(ParamValue::Scalar(w)), Some(ParamValue::Drawn(d))) => (
                 *w,
-                chaoscope_producer::spec::drawn::uniform(d.uniform[0], d.uniform[1], d.seed, n),
+                chaoscope_dynamics::spec::drawn::uniform(d.uniform[0], d.uniform[1], d.seed, n),
             ),
             _ => anyhow::bail!("the DKG example no longer has a scalar W and a drawn eps"),
         },

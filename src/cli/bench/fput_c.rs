@@ -11,7 +11,7 @@
 //! with the C's (the C sums the forces in the textbook order, chaoscope in the lattice sum's:
 //! equal to rounding on this regular orbit).
 
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig};
 
 use super::dkg::{c_input_of, c_run, chaoscope_run, t_final_of, warm_kernel_cache, yardstick};

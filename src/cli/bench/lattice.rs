@@ -23,10 +23,10 @@ use std::process::{Command, Stdio};
 use std::time::Instant;
 
 use anyhow::Context;
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::indicators::StretchSums;
-use chaoscope_producer::model::ExpressionModel;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::indicators::StretchSums;
+use chaoscope_dynamics::model::ExpressionModel;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 
 const FPUT: &str = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
@@ -290,7 +290,7 @@ pub fn c_build(sizes: &[usize]) -> anyhow::Result<serde_json::Value> {
         let cpu_started = process_cpu_seconds();
         let started = Instant::now();
         let config = RunConfig::from_toml(&text)?;
-        let (model, _) = chaoscope_producer::spec::model_from_config(&config.model)?;
+        let (model, _) = chaoscope_dynamics::spec::model_from_config(&config.model)?;
         let any: &dyn std::any::Any = model.as_ref();
         let model = any
             .downcast_ref::<ExpressionModel>()

@@ -20,9 +20,9 @@
 //! (the orbit bit for bit; the vectors to rounding: the compiled Jacobian-vector product may
 //! group its products differently from the hand-written one).
 
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::integrator::{RungeKuttaKind, Workspace};
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::integrator::{RungeKuttaKind, Workspace};
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 
 use super::thread_cpu_seconds;

@@ -13,10 +13,10 @@ use std::io::Write;
 use std::process::{Command, Stdio};
 
 use anyhow::Context;
-use chaoscope_producer::batch::Isa;
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::estimate::Machine;
-use chaoscope_producer::spec::RunSpec;
+use chaoscope_dynamics::batch::Isa;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::estimate::Machine;
+use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 
 use super::thread_cpu_seconds;

@@ -12,7 +12,7 @@
 //! MPM advances independent orbits; VM records the reference orbit (scalar, as the kernel case
 //! does with `record_reference_stages`) and advances tangent vectors around it.
 
-use chaoscope_producer::batch::{Isa, StepCoeffs};
+use chaoscope_dynamics::batch::{Isa, StepCoeffs};
 
 /// A model the plain loops are written for (unit masses).
 #[derive(Debug, Clone, Copy)]
@@ -437,9 +437,9 @@ fn fput_tangents<const FMA: bool>(
 
 #[cfg(test)]
 mod tests {
-    use chaoscope_producer::batch::{self, LaneModel, Soa, record_reference_stages};
-    use chaoscope_producer::integrator::{Splitting, SplittingKind};
-    use chaoscope_producer::model::{FputBeta, HenonHeiles};
+    use chaoscope_dynamics::batch::{self, LaneModel, Soa, record_reference_stages};
+    use chaoscope_dynamics::integrator::{Splitting, SplittingKind};
+    use chaoscope_dynamics::model::{FputBeta, HenonHeiles};
 
     use super::*;
 

@@ -10,8 +10,8 @@ use std::path::Path;
 use std::process::{Command, Stdio};
 
 use anyhow::Context;
-use chaoscope_producer::batch::StepCoeffs;
-use chaoscope_producer::map::MapSpec;
+use chaoscope_dynamics::batch::StepCoeffs;
+use chaoscope_dynamics::map::MapSpec;
 
 const SOURCE: &str = include_str!("gali2_mpm.c");
 

@@ -1,0 +1,968 @@
+//! What a run or a map will cost, estimated from its configuration before anything starts.
+//!
+//! A typo (`t_final = 1e9` for `1e6`, `n = 700` for `70`) can turn a run into a month of a
+//! shared machine or a request for more memory than it has, found out only when the job is
+//! killed. The commands refuse such a run up front with an estimate (`--force` runs it anyway).
+//!
+//! Memory is a product of sizes (checked first, before anything is allocated). Time is the
+//! run's orbit-steps times a cost per orbit-step measured for the actual system by a short
+//! calibration ([`Calibration`]): a few milliseconds stepping the validated system itself (its
+//! compiled vector field, map or potential, with the deviation work of its schemes) from its
+//! initial state, or, for a map, computing a batch of its own grid points cut to a few steps
+//! through the map's route and kernel. Each cost is the least of several timings of the
+//! calibrating thread's CPU time, so other processes on a loaded machine inflate it little: the
+//! estimate is the work's time on an idle core (its CPU time), compared with limits (a day, the
+//! machine's memory) that real runs are far from or far above, printed beside the time the work
+//! took, and for a map that names no route it picks the cheaper of two equal routes.
+//!
+//! Numerics stay pure: the calibration's timings are wall-clock dependent but go only into the
+//! decision to start, never into an output, and it computes on copies (the validated spec and
+//! every output are untouched, so recordings and maps stay bit-identical). `Machine::this_host`
+//! reads the machine's cores and memory from `/proc`, the one I/O here.
+
+use std::time::{Duration, Instant};
+
+use crate::batch::Isa;
+use crate::integrator::Workspace;
+use crate::map::{Batching, MapOptions, MapRoute, MapSpec};
+use crate::system::DynamicalSystem;
+use chaoscope_schemas::run::{Method, Route};
+
+use crate::spec::RunSpec;
+
+/// Cost of one orbit-step of the batched map kernel per phase-space dimension, in nanoseconds
+/// (RESULTS-maps.md: Henon-Heiles 2.7 ns per orbit-step, FPUT N = 501 1.6 to 3.2 us): used only
+/// when the calibration finds no point of the map to time (every sampled point outside the
+/// energy surface).
+pub const MAP_NS_PER_DIM: f64 = 1.0;
+
+/// The one-orbit engine's work beyond stepping (renormalization, samples, publishing), as a
+/// factor on the calibrated stepping: measured with `chaoscope produce --recorders 0`
+/// against the estimate (RELIABILITY.md).
+pub const ENGINE_OVERHEAD: f64 = 1.25;
+
+/// The work of one sample beyond the steps, as a fixed cost and a cost per value it carries
+/// (nanoseconds of CPU): published, recorded (encoded, compressed, written) and read back by
+/// the analysis. Measured with `chaoscope run` (CPU time of all its processes) of runs whose
+/// every step or every few steps is a sample: the Henon map sampled at each of 10^7 steps
+/// (8 values, 11.7 us per sample), FPUT-beta N = 32 (194 values, 20 us).
+pub const SAMPLE_NS: f64 = 10_000.0;
+pub const SAMPLE_NS_PER_VALUE: f64 = 50.0;
+
+/// The fixed wall-clock start-up of `chaoscope run` beyond its work: the producer and recorder
+/// processes started, the bus's services opened and the recorder's subscription seen before the
+/// first step, the summary read back at the end. Measured on runs of one renormalization
+/// (t = 1: 0.31 s on an AMD EPYC Zen 4, 2 vCPUs); without it the README's first run (0.06 s of
+/// work) printed an estimate 7x below its 0.42 s.
+pub const RUN_START_SECONDS: f64 = 0.3;
+
+/// Longest run (wall clock) started without `--force`.
+pub const MAX_SECONDS: f64 = 86_400.0;
+
+/// The calibration's timings: each cost is the least of `TIMINGS` timings of at least
+/// `MIN_TIMING` each (more calls per timing until one lasts that long), within `BUDGET` of the
+/// thread's CPU time per cost (a step slower than the budget is timed once, after one untimed
+/// call), and at most `WALL_CAP` of wall clock (a machine so loaded that the thread runs less
+/// than 1/50 of the time keeps the timings it has).
+const TIMINGS: usize = 5;
+const MIN_TIMING: Duration = Duration::from_millis(1);
+const BUDGET: Duration = Duration::from_millis(40);
+const WALL_CAP: Duration = Duration::from_secs(2);
+
+/// What the machine offers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Machine {
+    /// Cores the work can spread over.
+    pub cores: usize,
+    /// Memory of the machine in bytes, if known.
+    pub memory_bytes: Option<u64>,
+}
+
+impl Machine {
+    /// This machine: the cores available to this process and `MemTotal` of /proc/meminfo.
+    pub fn this_host() -> Self {
+        let memory_bytes = std::fs::read_to_string("/proc/meminfo").ok().and_then(|m| {
+            let line = m.lines().find(|l| l.starts_with("MemTotal:"))?;
+            let kib: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+            kib.checked_mul(1024)
+        });
+        Self {
+            cores: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            memory_bytes,
+        }
+    }
+
+    /// This machine's CPU model name (`model name` of /proc/cpuinfo, `"unknown"` without it):
+    /// what every speed figure of the benches is quoted beside.
+    pub fn cpu_model() -> String {
+        std::fs::read_to_string("/proc/cpuinfo")
+            .ok()
+            .and_then(|t| {
+                t.lines()
+                    .find(|l| l.starts_with("model name"))
+                    .and_then(|l| l.split_once(':'))
+                    .map(|(_, v)| v.trim().to_string())
+            })
+            .unwrap_or_else(|| "unknown".into())
+    }
+}
+
+/// An estimate, with the keys to name when it is refused.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Estimate {
+    /// Trajectories times steps.
+    pub orbit_steps: f64,
+    /// Wall-clock seconds on the machine's cores.
+    pub seconds: f64,
+    /// Peak memory of all the processes of the run (producer, recorder, shared memory), bytes.
+    pub bytes: f64,
+    /// The key that sets the duration (named in the refusal), and how the work is counted.
+    pub time_key: &'static str,
+    pub work: String,
+    /// The key that sets the memory.
+    pub memory_key: &'static str,
+    /// Cores the work is estimated to spread over.
+    pub cores: usize,
+    /// The measured costs the time comes from (`None` when memory alone refuses the run, which
+    /// is then not stepped at all).
+    pub calibration: Option<Calibration>,
+}
+
+/// Costs measured for one system on this machine, in nanoseconds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Calibration {
+    /// One orbit-step: one trajectory (the reference, or a nearby orbit of the multi-particle
+    /// method) advanced one step; for a map, the average orbit-step of its batched points,
+    /// deviation work included.
+    pub ns_per_orbit_step: f64,
+    /// One tangent vector advanced one step beside its orbit (the variational method), beyond
+    /// that orbit's own step; 0 when no scheme uses it.
+    pub ns_per_tangent_step: f64,
+    /// Wall-clock time the calibration took.
+    pub seconds_spent: f64,
+}
+
+/// What the process around a run holds in flight besides the numerics (the bus of
+/// `chaoscope-dynamics`, whose constants these are): part of a run's memory.
+#[derive(Debug, Clone, Copy)]
+pub struct Transport {
+    /// Frames a recorder's buffer holds.
+    pub buffered_frames: usize,
+    /// Bytes the monitors' share of the frames takes.
+    pub monitor_bytes: usize,
+    /// Words of the frame that carries a (scheme, set)'s record of `k` vectors of dimension
+    /// `dim` (arguments `k`, `dim`).
+    pub frame_words: fn(usize, usize) -> usize,
+}
+
+impl Default for Transport {
+    /// Nothing in flight: the numerics' memory alone.
+    fn default() -> Self {
+        Self {
+            buffered_frames: 0,
+            monitor_bytes: 0,
+            frame_words: |_, _| 0,
+        }
+    }
+}
+
+/// Estimate of a validated run (validation draws no direction and allocates nothing in
+/// proportion to the run, so this comes before any of it): memory from the spec's sizes and
+/// what its `transport` holds in flight, then, if it fits, time from a calibration of the
+/// spec's own system.
+pub fn run(spec: &RunSpec, machine: &Machine, transport: &Transport) -> Estimate {
+    let sizes = RunSizes::of(spec);
+    let memory = sizes.memory(transport);
+    if machine.memory_bytes.is_some_and(|m| memory.0 > m as f64) {
+        return sizes.estimate(memory, None, machine);
+    }
+    let calibration = calibrate_run(spec, &sizes);
+    sizes.estimate(memory, Some(calibration), machine)
+}
+
+/// Estimate of `section`: `orbits` reference orbits of the spec's steps each, one after the
+/// other on one core (no deviation vectors), keeping up to `crossings` crossings of each (the
+/// state, and the plotted pair). Memory first, from the sizes alone; then the time from a
+/// calibration of the spec's own reference step.
+pub fn section(spec: &RunSpec, orbits: usize, crossings: usize, machine: &Machine) -> Estimate {
+    let steps = spec.total_steps() as f64;
+    let dim = spec.dim();
+    let (orbitsf, crossingsf) = (orbits as f64, crossings as f64);
+    // Each orbit's crossings (the state) while it is drawn, and every orbit's plotted pairs.
+    let bytes =
+        8.0 * (crossingsf * dim as f64 + 2.0 * orbitsf * crossingsf) + 8.0 * dim as f64 * 4.0;
+    let mut estimate = Estimate {
+        orbit_steps: orbitsf * steps,
+        seconds: 0.0,
+        bytes,
+        time_key: "integrator.t_final",
+        work: format!(
+            "{} orbits x {} steps of dimension {dim}",
+            count(orbitsf),
+            count(steps)
+        ),
+        memory_key: "--count x --crossings",
+        cores: 1,
+        calibration: None,
+    };
+    if machine.memory_bytes.is_some_and(|m| bytes > m as f64) {
+        return estimate;
+    }
+    // The reference step alone: no scheme's vectors are stepped.
+    let reference_only = RunSizes {
+        steps,
+        samples: 0.0,
+        dim,
+        k: spec.k(),
+        sets: spec.sets(),
+        mpm: 0,
+        vm: 0,
+        propagator_mpm: 0,
+        propagator_vm: 0,
+    };
+    let calibration = calibrate_run(spec, &reference_only);
+    estimate.seconds = orbitsf * steps * calibration.ns_per_orbit_step * ENGINE_OVERHEAD * 1e-9;
+    estimate.calibration = Some(calibration);
+    estimate
+}
+
+/// The sizes of a run that its cost is a function of.
+struct RunSizes {
+    steps: f64,
+    /// Samples the run emits (at every renormalization of a scheme, or every `sample_every`).
+    samples: f64,
+    dim: usize,
+    k: usize,
+    sets: usize,
+    /// Per-set schemes by method, and window-propagator schemes (one task of `dim` lanes each).
+    mpm: usize,
+    vm: usize,
+    propagator_mpm: usize,
+    propagator_vm: usize,
+}
+
+impl RunSizes {
+    fn of(spec: &RunSpec) -> Self {
+        let count = |method: Method, route: Route| {
+            spec.schemes()
+                .iter()
+                .filter(|s| s.method == method && s.route == route)
+                .count()
+        };
+        let total = spec.total_steps();
+        let every = spec
+            .sample_every_steps()
+            .or_else(|| spec.schemes().iter().map(|s| s.tau_steps).min())
+            .unwrap_or(total)
+            .max(1);
+        Self {
+            steps: total as f64,
+            samples: (total / every + 1) as f64,
+            dim: spec.dim(),
+            k: spec.k(),
+            sets: spec.sets(),
+            mpm: count(Method::Mpm, Route::PerSet),
+            vm: count(Method::Vm, Route::PerSet),
+            propagator_mpm: count(Method::Mpm, Route::WindowPropagator),
+            propagator_vm: count(Method::Vm, Route::WindowPropagator),
+        }
+    }
+
+    /// (Orbits, tangent vectors) one step advances across all tasks, and the number of tasks.
+    fn task_work(&self) -> (f64, f64, usize) {
+        let (dimf, kf, setsf) = (self.dim as f64, self.k as f64, self.sets as f64);
+        // Per step: every (scheme, set) task: k nearby orbits (MPM), or k tangent vectors and
+        // the task's own copy of the orbit (VM); a propagator scheme is one task of D lanes.
+        let orbits = setsf * (self.mpm as f64 * kf + self.vm as f64)
+            + self.propagator_mpm as f64 * dimf
+            + self.propagator_vm as f64;
+        let tangents = setsf * self.vm as f64 * kf + self.propagator_vm as f64 * dimf;
+        let tasks = (self.mpm + self.vm) * self.sets + self.propagator_mpm + self.propagator_vm;
+        (orbits, tangents, tasks)
+    }
+
+    /// Peak bytes, and the key that sets them.
+    fn memory(&self, transport: &Transport) -> (f64, &'static str) {
+        let (dimf, kf, setsf) = (self.dim as f64, self.k as f64, self.sets as f64);
+        let schemes = (self.mpm + self.vm + self.propagator_mpm + self.propagator_vm) as f64;
+        let (orbits, tangents, _) = self.task_work();
+        // Memory, in f64 values: the directions (sets x k x D), every task's vectors and orbits,
+        // one sample in the producer and one in the analysis of `run` (every (scheme, set)'s k
+        // separations and stretches), and the frames in flight in shared memory (a recorder's
+        // buffer and the monitors' bounded share).
+        let frame = kf * dimf + kf;
+        // A bus frame gathers records up to a target size (small systems) or holds one.
+        let bus_frame = (transport.frame_words)(self.k, self.dim) as f64;
+        let per_set_tasks = schemes * setsf;
+        let values = setsf * kf * dimf
+            + (orbits + tangents) * dimf
+            + 2.0 * per_set_tasks * frame
+            + (transport.buffered_frames as f64 + 2.0) * bus_frame;
+        let bytes = 8.0 * values + transport.monitor_bytes as f64;
+        // The frames in flight depend on k and D alone; the rest grows with the sets.
+        let key = if transport.buffered_frames as f64 * frame > setsf * (schemes + 1.0) * frame {
+            "deviations.k"
+        } else {
+            "deviations.sets"
+        };
+        (bytes, key)
+    }
+
+    fn estimate(
+        &self,
+        (bytes, memory_key): (f64, &'static str),
+        calibration: Option<Calibration>,
+        machine: &Machine,
+    ) -> Estimate {
+        let (orbits, tangents, tasks) = self.task_work();
+        let cores = machine.cores.clamp(1, tasks.max(1));
+        // The reference orbit is serial; the tasks spread over the cores. Each sample is
+        // published, recorded and analysed besides: the state and every (scheme, set)'s `k`
+        // separations and stretches.
+        let schemes = (self.mpm + self.vm + self.propagator_mpm + self.propagator_vm) as f64;
+        let (dimf, kf) = (self.dim as f64, self.k as f64);
+        let sample_values = dimf + schemes * self.sets as f64 * (kf * dimf + kf);
+        let sample_ns = SAMPLE_NS + SAMPLE_NS_PER_VALUE * sample_values;
+        let seconds = calibration.map_or(0.0, |c| {
+            let task_ns = orbits * c.ns_per_orbit_step + tangents * c.ns_per_tangent_step;
+            (self.steps * (c.ns_per_orbit_step + task_ns / cores as f64) * ENGINE_OVERHEAD
+                + self.samples * sample_ns)
+                * 1e-9
+        });
+        Estimate {
+            orbit_steps: self.steps * (1.0 + orbits + tangents),
+            seconds,
+            bytes,
+            time_key: "integrator.t_final",
+            work: format!(
+                "{} steps x {} orbits and tangent vectors of dimension {}",
+                count(self.steps),
+                count(1.0 + orbits + tangents),
+                self.dim
+            ),
+            memory_key,
+            cores,
+            calibration,
+        }
+    }
+}
+
+/// CPU time this thread has run, where the system gives it (Linux, every POSIX system): what a
+/// timing of work on this thread should count. On a loaded machine a wall-clock timing counts
+/// the time other processes ran too (with two cores and a load of 20, most of it), and the
+/// least of several wall-clock timings moved by a factor of several between two starts of the
+/// same map; the calibration's decision of a map's route must not.
+fn thread_cpu() -> Option<Duration> {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid timespec to write into; the clock id is a POSIX constant.
+    let ok = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0;
+    (ok && ts.tv_sec >= 0 && (0..1_000_000_000).contains(&ts.tv_nsec))
+        .then(|| Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32))
+}
+
+/// A timing of work on this thread: its CPU time, or wall-clock time where there is no such
+/// clock.
+struct Timing {
+    cpu: Option<Duration>,
+    wall: Instant,
+}
+
+impl Timing {
+    fn start() -> Self {
+        Self {
+            cpu: thread_cpu(),
+            wall: Instant::now(),
+        }
+    }
+
+    fn elapsed(&self) -> Duration {
+        match (self.cpu, thread_cpu()) {
+            (Some(start), Some(now)) => now.saturating_sub(start),
+            _ => self.wall.elapsed(),
+        }
+    }
+}
+
+/// Nanoseconds per call of `call`: the least of [`TIMINGS`] timings (of this thread's CPU time,
+/// [`Timing`]) of at least [`MIN_TIMING`] (calls per timing doubled until one lasts that long),
+/// within [`BUDGET`] of wall clock. The least, because other work on the machine (caches,
+/// frequency) only ever adds to a timing.
+fn ns_per_call(mut call: impl FnMut()) -> f64 {
+    // Untimed: first touches of memory and caches, lazily prepared state.
+    call();
+    let (budget, wall) = (Timing::start(), Instant::now());
+    let (mut calls, mut timings, mut least) = (1u64, 0, f64::INFINITY);
+    loop {
+        let t = Timing::start();
+        for _ in 0..calls {
+            call();
+        }
+        let elapsed = t.elapsed();
+        let capped = wall.elapsed() >= WALL_CAP;
+        if elapsed >= MIN_TIMING || capped {
+            least = least.min(elapsed.as_nanos() as f64 / calls as f64);
+            timings += 1;
+        } else {
+            calls *= 2;
+        }
+        if timings >= TIMINGS || (timings > 0 && budget.elapsed() >= BUDGET) || capped {
+            return least;
+        }
+    }
+}
+
+/// Steps the run's own system from its initial state: the reference (or a nearby orbit) alone,
+/// and, if a scheme uses the variational method, with tangent vectors beside it. A state that
+/// stops being finite (an escaping orbit, growing tangent vectors) starts over from `x0`.
+fn calibrate_run(spec: &RunSpec, sizes: &RunSizes) -> Calibration {
+    let start = Instant::now();
+    let system: &dyn DynamicalSystem = spec.system().as_ref();
+    let x0 = spec.x0();
+    let dim = x0.len();
+    let mut work = Workspace::new();
+    let (mut x, mut plan) = (x0.to_vec(), Vec::new());
+    let ns_per_orbit_step = ns_per_call(|| {
+        plan.clear();
+        system.step_reference(&mut x, 0.0, &mut plan, &mut work);
+        if !x.iter().all(|v| v.is_finite()) {
+            x.copy_from_slice(x0);
+        }
+    });
+    let ns_per_tangent_step = if sizes.vm + sizes.propagator_vm > 0 {
+        // A few vectors stand for any number: their cost is linear in the count.
+        let m = if sizes.propagator_vm > 0 {
+            dim
+        } else {
+            sizes.k
+        }
+        .clamp(1, 4);
+        let unit = |w: &mut [f64]| {
+            w.fill(0.0);
+            for j in 0..m {
+                w[j * dim + j % dim] = 1.0;
+            }
+        };
+        let mut w = vec![0.0; m * dim];
+        unit(&mut w);
+        x.copy_from_slice(x0);
+        let ns = ns_per_call(|| {
+            let ok = system.step_tangent(&mut x, &mut w, 0.0, &mut work).is_ok();
+            if !ok || !x.iter().chain(&w).all(|v| v.is_finite() && v.abs() < 1e100) {
+                x.copy_from_slice(x0);
+                unit(&mut w);
+            }
+        });
+        ((ns - ns_per_orbit_step) / m as f64).max(0.0)
+    } else {
+        0.0
+    };
+    Calibration {
+        ns_per_orbit_step,
+        ns_per_tangent_step,
+        seconds_spent: start.elapsed().as_secs_f64(),
+    }
+}
+
+/// Estimate of a validated map on the instruction set the map will use: `points` grid points
+/// (the shard's share), of which the share a probe of the grid finds inside the energy surface
+/// ([`probe_grid`]) is integrated, each the reference orbit and every set's `k` vectors (the
+/// basis route: `dim` basis vectors) to the horizon (an upper bound for points that stop early:
+/// escaped, or `gali-time` below its threshold), over `threads` threads (give no more than the
+/// machine's cores). Memory first; then the time from a calibration ([`calibrate_map`]).
+pub fn map_on(
+    spec: &MapSpec,
+    points: u64,
+    machine: &Machine,
+    threads: usize,
+    isa: Isa,
+) -> Estimate {
+    let run = &spec.run;
+    let (dimf, setsf) = (run.dim() as f64, run.sets() as f64);
+    let steps = run.total_steps() as f64;
+    let pointsf = points as f64;
+    // Every point's result is kept until the end (for the summary and the PNG): its per-set
+    // values, its initial condition and some fixed overhead.
+    let bytes = pointsf * (8.0 * (setsf + dimf) + 256.0);
+    let probe = probe_grid(spec);
+    let integrated = pointsf * probe.inside_share;
+    let orbit_steps = integrated * route_orbits_per_point(spec, spec.route) * steps;
+    let calibration = if machine.memory_bytes.is_some_and(|m| bytes > m as f64) {
+        None
+    } else {
+        Some(
+            calibrate_map(spec, isa, &probe.inside).unwrap_or(Calibration {
+                ns_per_orbit_step: MAP_NS_PER_DIM * dimf,
+                ns_per_tangent_step: 0.0,
+                seconds_spent: 0.0,
+            }),
+        )
+    };
+    let seconds = calibration.map_or(0.0, |c| {
+        orbit_steps * c.ns_per_orbit_step * 1e-9 / threads.max(1) as f64
+    });
+    Estimate {
+        orbit_steps,
+        seconds,
+        bytes,
+        time_key: "integrator.t_final",
+        work: format!(
+            "{} points x {} orbits x {} steps of dimension {}",
+            count(integrated),
+            count(route_orbits_per_point(spec, spec.route)),
+            count(steps),
+            run.dim()
+        ),
+        memory_key: "map.x.n",
+        cores: threads.max(1),
+        calibration,
+    }
+}
+
+/// How much cheaper the basis route must be estimated before a map that names no route takes
+/// it. The two calibrations run back to back on one thread, each the least of several timings,
+/// so load moves their ratio by tens of per cent; the route, which decides the last bits of the
+/// values (equal to rounding), must not follow it. A factor 4 is twice the ratio of any example
+/// that stays per-set (the Lorenz MLE map: basis 1.9x faster) and half that of the map the
+/// basis route pays most for (Henon-Heiles MLE, `2N = 4` against one vector: 7.6-8.2x).
+pub const ROUTE_MARGIN: f64 = 4.0;
+
+/// The route a map that names none takes, and why: the estimate of each route.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RouteChoice {
+    pub route: MapRoute,
+    /// Estimated seconds of the route taken and of the other.
+    pub seconds: f64,
+    pub other_seconds: f64,
+}
+
+impl RouteChoice {
+    /// `route basis (estimated 7.2x faster than per-set)`, or why the per-set route stays.
+    pub fn reason(&self) -> String {
+        let other = match self.route {
+            MapRoute::PerSet => MapRoute::Basis,
+            MapRoute::Basis => MapRoute::PerSet,
+        };
+        let ratio = self.other_seconds / self.seconds.max(f64::MIN_POSITIVE);
+        if ratio >= 1.0 {
+            format!(
+                "route {} (estimated {ratio:.1}x faster than {})",
+                self.route.name(),
+                other.name()
+            )
+        } else {
+            format!(
+                "route {} (estimated {:.1}x slower than {}, within the margin of {ROUTE_MARGIN}x \
+                 that a change of route needs)",
+                self.route.name(),
+                1.0 / ratio,
+                other.name()
+            )
+        }
+    }
+}
+
+/// [`map_on`], choosing the route of a map that names none: where the two routes give the same
+/// numbers ([`MapSpec::routes_agree`]), both are estimated and the basis route is taken if it
+/// is estimated at least [`ROUTE_MARGIN`] times faster (`spec.route` is set to it). The choice
+/// (`None`: the route is the configuration's, or the only one that gives its numbers) says
+/// why.
+pub fn map_choosing_route(
+    spec: &mut MapSpec,
+    points: u64,
+    machine: &Machine,
+    threads: usize,
+    isa: Isa,
+) -> (Estimate, Option<RouteChoice>) {
+    let per_set = map_on(spec, points, machine, threads, isa);
+    let calibrated = |e: &Estimate| e.calibration.is_some_and(|c| c.seconds_spent > 0.0);
+    if spec.route_named || !spec.routes_agree() || !calibrated(&per_set) {
+        return (per_set, None);
+    }
+    let basis_spec = MapSpec {
+        route: MapRoute::Basis,
+        ..spec.clone()
+    };
+    let basis = map_on(&basis_spec, points, machine, threads, isa);
+    if calibrated(&basis) && basis.seconds * ROUTE_MARGIN < per_set.seconds {
+        spec.route = MapRoute::Basis;
+        let choice = RouteChoice {
+            route: MapRoute::Basis,
+            seconds: basis.seconds,
+            other_seconds: per_set.seconds,
+        };
+        return (basis, Some(choice));
+    }
+    let choice = RouteChoice {
+        route: MapRoute::PerSet,
+        seconds: per_set.seconds,
+        other_seconds: basis.seconds,
+    };
+    (per_set, Some(choice))
+}
+
+/// Orbits and vectors a point of `route` advances each step, as its `orbit_steps` count them:
+/// the reference and every set's `k` vectors, or the reference and one basis of `dim`.
+fn route_orbits_per_point(spec: &MapSpec, route: MapRoute) -> f64 {
+    let run = &spec.run;
+    match route {
+        MapRoute::PerSet => 1.0 + (run.sets() * run.k()) as f64,
+        MapRoute::Basis => 1.0 + run.dim() as f64,
+    }
+}
+
+/// [`map_on`] on this machine ([`Machine::this_host`]) with the instruction set it detects.
+pub fn map(spec: &MapSpec, points: u64, threads: usize) -> Estimate {
+    map_on(spec, points, &Machine::this_host(), threads, Isa::detect())
+}
+
+/// Grid points a probe looks at: enough for the share inside the energy surface to a few per
+/// cent, and a few microseconds each (a point's initial state, its energy solved).
+const PROBES: u64 = 256;
+
+/// What a probe of the grid finds: the share of points inside the energy surface (the others
+/// are recorded without a step), and the probed points inside, spread over the grid.
+struct GridProbe {
+    inside_share: f64,
+    inside: Vec<u64>,
+}
+
+/// Probes up to [`PROBES`] points spread evenly over the grid (every point of a smaller grid).
+fn probe_grid(spec: &MapSpec) -> GridProbe {
+    let grid = spec.grid_points().max(1);
+    let n = grid.min(PROBES);
+    let inside: Vec<u64> = (0..n)
+        .map(|i| i * grid / n)
+        .filter(|&i| spec.start_point(i).is_ok())
+        .collect();
+    GridProbe {
+        inside_share: inside.len() as f64 / n as f64,
+        inside,
+    }
+}
+
+/// Times one batch of the map's own points inside the energy surface (`inside`, spread over the
+/// grid; as many as a batch of the map holds) computed through its route and kernel on this
+/// thread, with the run cut to a few steps (more until a timing lasts [`MIN_TIMING`]); the cost
+/// is the time over the orbit-steps the points report. `None` if no point is inside.
+fn calibrate_map(spec: &MapSpec, isa: Isa, inside: &[u64]) -> Option<Calibration> {
+    let batching = Batching::of(spec, MapOptions::default().mpm_points_per_batch);
+    if inside.is_empty() {
+        return None;
+    }
+    let n = batching.points.clamp(1, inside.len());
+    let indices: Vec<u64> = (0..n).map(|i| inside[i * inside.len() / n]).collect();
+    let total = spec.run.total_steps();
+    // Untimed, as in `ns_per_call`: the kernels compiled at their first call, first touches of
+    // memory. A timing that held a compilation would be the least only if all did.
+    let warm = MapSpec {
+        run: spec.run.truncated(total.min(2)),
+        ..spec.clone()
+    };
+    chaoscope_expr::potential::uncounted(|| batching.compute(&warm, isa, &indices, &|| false));
+    let (start, budget) = (Instant::now(), Timing::start());
+    let (mut steps, mut timings, mut least) = (total.min(8), 0, f64::INFINITY);
+    loop {
+        let short = MapSpec {
+            run: spec.run.truncated(steps),
+            ..spec.clone()
+        };
+        let t = Timing::start();
+        // Uncounted: the map's C-kernel switch and its call counts see only the map's calls.
+        let results = chaoscope_expr::potential::uncounted(|| {
+            batching.compute(&short, isa, &indices, &|| false)
+        });
+        let elapsed = t.elapsed();
+        let orbit_steps: u64 = results.iter().map(|r| r.orbit_steps).sum();
+        if orbit_steps == 0 {
+            return None;
+        }
+        // A timing shorter than MIN_TIMING is mostly the batch's setup (its points' states,
+        // directions and lanes): it counts only where the run is no longer than that.
+        let capped = start.elapsed() >= WALL_CAP;
+        if elapsed >= MIN_TIMING || steps >= total || capped {
+            least = least.min(elapsed.as_nanos() as f64 / orbit_steps as f64);
+            timings += 1;
+        } else {
+            steps = (steps * 4).min(total);
+        }
+        if timings >= TIMINGS || (timings > 0 && budget.elapsed() >= BUDGET) || capped {
+            return Some(Calibration {
+                ns_per_orbit_step: least,
+                ns_per_tangent_step: 0.0,
+                seconds_spent: start.elapsed().as_secs_f64(),
+            });
+        }
+    }
+}
+
+impl Estimate {
+    /// Why this should not start without `--force`, on one line naming the key; `None` if it
+    /// fits a day and the machine's memory.
+    pub fn refusal(&self, machine: &Machine) -> Option<String> {
+        if let Some(memory) = machine.memory_bytes
+            && self.bytes > memory as f64
+        {
+            return Some(format!(
+                "{}: this would need about {} of memory, more than this machine's {} \
+                 (estimated from the configuration: {}); pass --force to start it anyway",
+                self.memory_key,
+                bytes(self.bytes),
+                bytes(memory as f64),
+                self.work
+            ));
+        }
+        if self.seconds > MAX_SECONDS {
+            return Some(format!(
+                "{}: this would take about {} on {} core{} (estimated from the configuration: \
+                 {}, {:.1e} orbit-steps); shorten it, or pass --force to start it anyway",
+                self.time_key,
+                duration(self.seconds),
+                self.cores,
+                if self.cores == 1 { "" } else { "s" },
+                self.work,
+                self.orbit_steps
+            ));
+        }
+        None
+    }
+}
+
+/// `5000`, `2.0e10`.
+fn count(n: f64) -> String {
+    if n < 1e6 {
+        format!("{n:.0}")
+    } else {
+        format!("{n:.1e}")
+    }
+}
+
+/// `12.3 GiB`, `512 MiB`.
+fn bytes(b: f64) -> String {
+    const GIB: f64 = (1u64 << 30) as f64;
+    if b >= 1024.0 * GIB {
+        format!("{:.1} TiB", b / (1024.0 * GIB))
+    } else if b >= GIB {
+        format!("{:.1} GiB", b / GIB)
+    } else {
+        format!("{:.0} MiB", b / (1u64 << 20) as f64)
+    }
+}
+
+/// `3.2 hours`, `41 days`, `2.1e6 years`.
+fn duration(s: f64) -> String {
+    let (h, d, y) = (3600.0, 86_400.0, 365.25 * 86_400.0);
+    if s < d {
+        format!("{:.1} hours", s / h)
+    } else if s < 1e4 * y {
+        // Whole days or years, with the noun agreeing ("1 day", "1 year", "2 days").
+        let (count, unit) = if s < y {
+            ((s / d).round(), "day")
+        } else {
+            ((s / y).round(), "year")
+        };
+        let plural = if count == 1.0 { "" } else { "s" };
+        format!("{count:.0} {unit}{plural}")
+    } else {
+        format!("{:.1e} years", s / y)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
+
+    const TWO_CORES: Machine = Machine {
+        cores: 2,
+        memory_bytes: Some(24 << 30),
+    };
+
+    /// The bus's frames in flight as `chaoscope-dynamics` passes them (its `estimate::BUS`:
+    /// 64 buffered frames, 64 MiB of monitor frames, frames of at least 1024 words and a record
+    /// header of 8), so these runs are estimated as `chaoscope run` estimates them.
+    const BUS: Transport = Transport {
+        buffered_frames: 64,
+        monitor_bytes: 64 << 20,
+        frame_words: |k, dim| (k * dim + k + 8).max(1024),
+    };
+
+    #[test]
+    fn the_default_run_is_seconds_and_megabytes() {
+        let cfg = paper::henon_heiles(
+            paper::HH_CHAOTIC_Q2,
+            1000.0,
+            DeviationsConfig::random(4, 1, 1),
+            vec![
+                SchemeConfig::new("vm", "vm", 1e-8, 1.0),
+                SchemeConfig::new("mpm", "mpm", 1e-8, 1.0),
+            ],
+        );
+        let e = run(&RunSpec::from_config(&cfg).unwrap(), &TWO_CORES, &BUS);
+        // 1e5 steps x (1 + 9 / 2) orbit-steps at about 100 ns: about 0.05 s. Bounds a
+        // factor of 5 and 20 away: a calibration on a loaded machine, or a slower one, stays
+        // inside; a cost off by orders of magnitude (a unit, a count) does not.
+        assert!(e.seconds > 0.01 && e.seconds < 1.0, "{e:?}");
+        let c = e.calibration.unwrap();
+        assert!(
+            c.ns_per_tangent_step > 0.0 && c.seconds_spent < 1.0,
+            "{c:?}"
+        );
+        assert!(e.bytes < 128.0 * (1 << 20) as f64, "{e:?}");
+        assert_eq!(e.refusal(&TWO_CORES), None);
+    }
+
+    #[test]
+    fn a_long_chain_for_a_billion_time_units_is_refused() {
+        let text = r#"
+[model]
+name = "fput-beta"
+n = 501
+[orbit]
+preset = "spo1"
+energy = 50.0
+[integrator]
+method = "aba864"
+h = 0.05
+t_final = 1e9
+[deviations]
+k = 2
+[[scheme]]
+name = "m"
+method = "mpm"
+d0 = 1e-8
+tau = 1.0
+"#;
+        let cfg = RunConfig::from_toml(text).unwrap();
+        let e = run(&RunSpec::from_config(&cfg).unwrap(), &TWO_CORES, &BUS);
+        let why = e.refusal(&TWO_CORES).unwrap();
+        assert!(
+            why.starts_with("integrator.t_final: this would take about"),
+            "{why}"
+        );
+        assert!(why.contains("--force") && !why.contains('\n'), "{why}");
+    }
+
+    #[test]
+    fn flows_and_maps_are_estimated_at_their_dimension() {
+        // A flow of 3 coordinates and a map of 2: the dimension is the validated spec's, as for
+        // Hamiltonians (2N), so the cost scales with each system's own size.
+        let runs = [
+            (
+                "[model]\nname = \"ode\"\nrhs = [\"x2\", \"x3\", \"-x1\"]\n[orbit]\nx = [1.0, 0.0, 0.0]\n\
+                 [integrator]\nmethod = \"rk4\"\nh = 0.01\nt_final = 1e13\n",
+                3,
+            ),
+            (
+                "[model]\nname = \"map\"\nnext = [\"x2\", \"-x1\"]\n[orbit]\nx = [0.5, 0.0]\n\
+                 [integrator]\nh = 1\nt_final = 1e14\n",
+                2,
+            ),
+        ];
+        for (system, dim) in runs {
+            let text = format!(
+                "{system}[deviations]\nk = 2\n[[scheme]]\nname = \"v\"\nmethod = \"vm\"\n\
+                 d0 = 1e-8\ntau = 1\n"
+            );
+            let spec = RunSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap();
+            let e = run(&spec, &TWO_CORES, &BUS);
+            assert!(e.work.ends_with(&format!("of dimension {dim}")), "{e:?}");
+            // 1e15 and 1e14 steps, 4 orbits each (the reference, the task's copy and k = 2
+            // tangent vectors) on one core: at a nanosecond per orbit-step (what the calibration
+            // of these few-operation systems cannot undercut), 46 and 4.6 days. Refused.
+            assert!(e.seconds > 86_400.0, "{e:?}");
+            assert!(e.refusal(&TWO_CORES).is_some());
+        }
+    }
+
+    /// The Henon-Heiles section map of the paper (MLE, VM, k = 1, one set) on an 8 x 6 grid whose
+    /// first point (q2 = p2 = -0.45) lies outside the energy surface, on `route`.
+    fn hh_section_map(route: Option<&str>) -> MapSpec {
+        let mut cfg = paper::henon_heiles(
+            0.0,
+            100.0,
+            DeviationsConfig::random(1, 1, 1),
+            vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
+        );
+        cfg.map = Some(chaoscope_schemas::config::MapConfig {
+            route: route.map(str::to_string),
+            ..paper::hh_section_map(8, 6, "mle")
+        });
+        MapSpec::from_config(&cfg).unwrap()
+    }
+
+    #[test]
+    fn a_map_is_calibrated_on_its_points_inside_the_energy_surface() {
+        let spec = hh_section_map(Some("per-set"));
+        assert!(spec.start_point(0).is_err(), "the first point is outside");
+        let e = map_on(&spec, spec.grid_points(), &TWO_CORES, 1, Isa::detect());
+        // Timed, not the fallback of a map with no point inside (seconds_spent 0).
+        let c = e.calibration.unwrap();
+        assert!(c.seconds_spent > 0.0, "{c:?}");
+        // Only the points inside are integrated: 10^4 steps of 2 orbits each, for fewer than
+        // the 48 points and more than half of them (the section's disc covers most of the grid).
+        let all = 48.0 * 2.0 * 1e4;
+        assert!(e.orbit_steps < all && e.orbit_steps > 0.5 * all, "{e:?}");
+    }
+
+    #[test]
+    fn a_named_route_is_kept_and_an_unnamed_one_is_chosen_where_the_routes_agree() {
+        for route in ["per-set", "basis"] {
+            let mut spec = hh_section_map(Some(route));
+            let (_, choice) = map_choosing_route(&mut spec, 48, &TWO_CORES, 1, Isa::detect());
+            assert_eq!((spec.route.name(), choice), (route, None));
+        }
+        // Unnamed: both routes estimated, the one taken said with both estimates; which one
+        // depends on the timings (the values do not: map_routes.rs).
+        let mut spec = hh_section_map(None);
+        let (e, choice) = map_choosing_route(&mut spec, 48, &TWO_CORES, 1, Isa::detect());
+        let choice = choice.expect("chosen by cost");
+        assert_eq!((choice.route, choice.seconds), (spec.route, e.seconds));
+        assert!(choice.other_seconds > 0.0, "{choice:?}");
+        assert!(choice.reason().starts_with("route "), "{}", choice.reason());
+    }
+
+    #[test]
+    fn durations_read_as_english() {
+        assert_eq!(duration(1800.0), "0.5 hours");
+        assert_eq!(duration(86_400.0), "1 day");
+        assert_eq!(duration(3.0 * 86_400.0), "3 days");
+        assert_eq!(duration(365.25 * 86_400.0), "1 year");
+        assert_eq!(duration(2.4 * 365.25 * 86_400.0), "2 years");
+        assert_eq!(duration(3e4 * 365.25 * 86_400.0), "3.0e4 years");
+    }
+
+    #[test]
+    fn a_section_of_many_long_orbits_is_refused_and_a_small_one_is_not() {
+        let spec_to = |t_final| {
+            let cfg = paper::henon_heiles(
+                paper::HH_CHAOTIC_Q2,
+                t_final,
+                DeviationsConfig::random(4, 1, 1),
+                vec![SchemeConfig::new("vm", "vm", 1e-8, 1.0)],
+            );
+            RunSpec::from_config(&cfg).unwrap()
+        };
+        // 30 orbits of 10^5 steps: well under a second per orbit.
+        let small = section(&spec_to(1000.0), 30, 400, &TWO_CORES);
+        assert!(small.refusal(&TWO_CORES).is_none(), "{small:?}");
+        assert!(small.calibration.is_some());
+        // 10^7 orbits of 10^7 steps: 10^14 steps, weeks at any speed (a step is > 10 ns).
+        let many = section(&spec_to(1e5), 10_000_000, 10, &TWO_CORES);
+        let why = many.refusal(&TWO_CORES).expect("refused");
+        assert!(
+            why.starts_with("integrator.t_final: this would take about"),
+            "{why}"
+        );
+        // 2^40 crossings kept per orbit: terabytes, refused before any step is timed.
+        let huge = section(&spec_to(1000.0), 30, 1 << 40, &TWO_CORES);
+        let why = huge.refusal(&TWO_CORES).expect("refused");
+        assert!(
+            why.starts_with("--count x --crossings: this would need about"),
+            "{why}"
+        );
+        assert!(huge.calibration.is_none());
+    }
+}

@@ -932,12 +932,9 @@ impl<'a> Lowerer<'a> {
             self.arity(name, args, 1, span)?;
             let (a, ai) = self.value(&args[0])?;
             let id = self.emit(Node::Unary(op, a), span)?;
-            let info = match op {
-                Unary::Sqrt => ai.power(0.5, name_span, true),
-                Unary::Abs => ai.abs(name_span),
-                Unary::Step => Info::jump(LimitKind::Step, name_span, &[ai], Signs::NONNEG),
-                Unary::Sign => Info::jump(LimitKind::Sign, name_span, &[ai], ai.signs),
-                _ => ai.smooth_fn(op),
+            let info = match op.def().kinks {
+                Some(kinks) => kinks(ai, name_span),
+                None => ai.smooth_fn(op),
             };
             return Ok((id, self.settle(id, info)));
         }

@@ -13,14 +13,15 @@
 //! [`BINARY_OPS`] for its name, value and both code generators; its derivatives (`diff`) and
 //! its kinks or jumps (`lower`) still have their own arms there.
 //!
-//! The operations written as instructions (`-`, `sqrt`, `abs`, `step`, `sign`, `+ - * /`,
-//! `max`, `min`) keep their instruction sequences in the code generators, and the kinks and
-//! jumps of `abs`, `step` and `sign` and the branch point of `sqrt` their own rules in
-//! `smooth`; their entries here still give their value, name and derivative.
+//! The kinks and jumps of `abs`, `step` and `sign` and the branch point of `sqrt` are their
+//! entries' `kinks` rules. The operations written as instructions (`-`, `sqrt`, `abs`, `step`,
+//! `sign`, `+ - * /`, `max`, `min`) keep their instruction sequences in the code generators;
+//! their entries here still give their value and name.
 
 use crate::diff::Local;
+use crate::error::Span;
 use crate::graph::{Graph, NodeId};
-use crate::smooth::Signs;
+use crate::smooth::{Info, LimitKind, Signs};
 
 /// One-argument operations, in the order of [`UNARY_OPS`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -105,6 +106,10 @@ pub(crate) struct UnaryOp {
     pub keeps_zero: bool,
     /// Finite wherever its argument is finite.
     pub finite: bool,
+    /// What `op(u)` is from what `u` is, for a function with a kink, a jump or a branch point
+    /// (the call's span names it); `None` for one smooth wherever it is finite
+    /// ([`Info::smooth_fn`] from the fields above).
+    pub kinks: Option<fn(Info, Span) -> Info>,
 }
 
 /// The definition of one [`Binary`] operation.
@@ -240,6 +245,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Opposite,
         keeps_zero: true,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Sqrt,
@@ -251,6 +257,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Any,
         keeps_zero: false,
         finite: false,
+        kinks: Some(|u, span| u.power(0.5, span, true)),
     },
     UnaryOp {
         op: Unary::Exp,
@@ -261,6 +268,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Positive,
         keeps_zero: false,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Log,
@@ -271,6 +279,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Any,
         keeps_zero: false,
         finite: false,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Sin,
@@ -281,6 +290,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Any,
         keeps_zero: true,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Cos,
@@ -291,6 +301,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Any,
         keeps_zero: false,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Tan,
@@ -302,6 +313,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Any,
         keeps_zero: false,
         finite: false,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Atan,
@@ -312,6 +324,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: true,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Tanh,
@@ -322,6 +335,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: true,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Cosh,
@@ -332,6 +346,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Positive,
         keeps_zero: false,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Sinh,
@@ -342,6 +357,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: true,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Abs,
@@ -352,6 +368,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Square,
         keeps_zero: false,
         finite: false,
+        kinks: Some(|u, span| u.abs(span)),
     },
     UnaryOp {
         op: Unary::Step,
@@ -362,6 +379,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::NonNegative,
         keeps_zero: false,
         finite: false,
+        kinks: Some(|u, span| Info::jump(LimitKind::Step, span, &[u], Signs::NONNEG)),
     },
     UnaryOp {
         op: Unary::Sign,
@@ -372,6 +390,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: false,
         finite: false,
+        kinks: Some(|u, span| Info::jump(LimitKind::Sign, span, &[u], u.signs)),
     },
     UnaryOp {
         op: Unary::Asinh,
@@ -386,6 +405,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: true,
         finite: true,
+        kinks: None,
     },
 ];
 

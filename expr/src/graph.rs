@@ -24,21 +24,8 @@ pub type NodeId = u32;
 /// One-argument operations, each defined in [`crate::ops`].
 pub use crate::ops::Unary;
 
-/// Two-argument operations.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum Binary {
-    Add,
-    Sub,
-    Mul,
-    Div,
-    /// `f64::powf` (real exponent; for whole exponents the lowering uses [`Node::Powi`]).
-    Pow,
-    /// `f64::atan2(a, b)`: the angle of the point `(b, a)`.
-    Atan2,
-    /// The larger of the two; NaN in either gives NaN ([`Graph::apply_binary`]).
-    Max,
-    Min,
-}
+/// Two-argument operations, each defined in [`crate::ops`].
+pub use crate::ops::Binary;
 
 /// Comparisons of a [`Node::Select`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -268,14 +255,7 @@ impl Graph {
                 Unary::Neg => "unary -".into(),
                 other => format!("{other:?}").to_lowercase(),
             },
-            Node::Binary(b, _, _) => match b {
-                Binary::Add => "+".into(),
-                Binary::Sub => "-".into(),
-                Binary::Mul => "*".into(),
-                Binary::Div => "/".into(),
-                Binary::Pow => "^".into(),
-                other => format!("{other:?}").to_lowercase(),
-            },
+            Node::Binary(b, _, _) => b.def().symbol.into(),
             Node::Powi(_, n) => format!("^{n}"),
             Node::Select { .. } => "if".into(),
             Node::Table { table, .. } => {
@@ -382,36 +362,11 @@ impl Graph {
         (op.def().eval)(x)
     }
 
-    /// The one definition of each binary operation. `max`/`min` propagate NaN (unlike
-    /// `f64::max`), so a NaN is never silently dropped.
+    /// The value of a binary operation: its one definition in [`crate::ops`], which the
+    /// compiled code calls too.
     #[inline]
     pub fn apply_binary(op: Binary, a: f64, b: f64) -> f64 {
-        match op {
-            Binary::Add => a + b,
-            Binary::Sub => a - b,
-            Binary::Mul => a * b,
-            Binary::Div => a / b,
-            Binary::Pow => a.powf(b),
-            Binary::Atan2 => a.atan2(b),
-            Binary::Max => {
-                if a.is_nan() || b.is_nan() {
-                    f64::NAN
-                } else if a >= b {
-                    a
-                } else {
-                    b
-                }
-            }
-            Binary::Min => {
-                if a.is_nan() || b.is_nan() {
-                    f64::NAN
-                } else if a <= b {
-                    a
-                } else {
-                    b
-                }
-            }
-        }
+        (op.def().eval)(a, b)
     }
 
     /// `x^n` as [`Node::Powi`] defines it.

@@ -190,12 +190,10 @@ fn unary_callback(op: Unary) -> Option<usize> {
     (def.lowering == crate::ops::Lowering::Call).then_some(def.eval as usize)
 }
 
-extern "C" fn cb_pow(a: f64, b: f64) -> f64 {
-    Graph::apply_binary(Binary::Pow, a, b)
-}
-
-extern "C" fn cb_atan2(a: f64, b: f64) -> f64 {
-    Graph::apply_binary(Binary::Atan2, a, b)
+/// The address of the value function the compiled code calls for `op`, if it calls one.
+fn binary_callback(op: Binary) -> Option<usize> {
+    let def = op.def();
+    (def.lowering == crate::ops::Lowering::Call).then_some(def.eval as usize)
 }
 
 /// `table` points into `Compiled::_tables`. A panic inside `Tabulated::eval` aborts the process

@@ -154,16 +154,10 @@ pub struct Lowered {
     pub sums: Vec<SiteSum>,
 }
 
-const BINARY: &[(&str, Binary)] = &[
-    ("atan2", Binary::Atan2),
-    ("min", Binary::Min),
-    ("max", Binary::Max),
-];
-
 /// Every built-in function, for "unknown function" messages.
 fn known() -> String {
     let unary = crate::ops::UNARY_OPS.iter().filter_map(|d| d.name);
-    let binary = BINARY.iter().map(|(n, _)| *n);
+    let binary = crate::ops::BINARY_OPS.iter().filter_map(|d| d.name);
     let other = ["if", "piecewise", "sum"];
     unary
         .chain(binary)
@@ -174,7 +168,7 @@ fn known() -> String {
 
 fn is_function(name: &str) -> bool {
     Unary::named(name).is_some()
-        || BINARY.iter().any(|(n, _)| *n == name)
+        || Binary::named(name).is_some()
         || matches!(name, "if" | "piecewise" | "sum")
 }
 
@@ -938,16 +932,13 @@ impl<'a> Lowerer<'a> {
             self.arity(name, args, 1, span)?;
             let (a, ai) = self.value(&args[0])?;
             let id = self.emit(Node::Unary(op, a), span)?;
-            let info = match op {
-                Unary::Sqrt => ai.power(0.5, name_span, true),
-                Unary::Abs => ai.abs(name_span),
-                Unary::Step => Info::jump(LimitKind::Step, name_span, &[ai], Signs::NONNEG),
-                Unary::Sign => Info::jump(LimitKind::Sign, name_span, &[ai], ai.signs),
-                _ => ai.smooth_fn(op),
+            let info = match op.def().kinks {
+                Some(kinks) => kinks(ai, name_span),
+                None => ai.smooth_fn(op),
             };
             return Ok((id, self.settle(id, info)));
         }
-        if let Some(&(_, op)) = BINARY.iter().find(|(n, _)| *n == name) {
+        if let Some(op) = Binary::named(name) {
             self.arity(name, args, 2, span)?;
             let (a, ai) = self.value(&args[0])?;
             let (b, bi) = self.value(&args[1])?;

@@ -1,21 +1,27 @@
-//! Every one-argument function of the language, defined once: its name in a source, its value
-//! down to the rounding (the one Rust function the evaluator calls and the compiled code calls
-//! back, so they agree bit for bit), its derivative as nodes of the graph, what it does to the
-//! signs and poles of its argument (`smooth`), and whether the code generators write it as IEEE
-//! instructions or call its value function lane by lane.
+//! Every operation of the language, defined once. For each one-argument function: its name in
+//! a source, its value down to the rounding (the one Rust function the evaluator calls and the
+//! compiled code calls back, so they agree bit for bit), its derivative as nodes of the graph,
+//! what it does to the signs and poles of its argument (`smooth`), and whether the code
+//! generators write it as IEEE instructions or call its value function lane by lane. For each
+//! two-argument operation: its name in a source (if a source calls it by name), how messages
+//! quote it, its value and whether it is written inline or called.
 //!
-//! Adding a function is one variant of [`Unary`] and one entry of [`UNARY_OPS`] here: the
-//! lowering finds it by name, the evaluator and both code generators (Cranelift, C) call its
-//! value function, `diff` takes its derivative and `smooth` its signs from the entry.
+//! Adding a one-argument function is one variant of [`Unary`] and one entry of [`UNARY_OPS`]
+//! here: the lowering finds it by name, the evaluator and both code generators (Cranelift, C)
+//! call its value function, `diff` takes its derivative and `smooth` its signs from the entry.
+//! A called two-argument function is one variant of [`Binary`] and one entry of
+//! [`BINARY_OPS`] for its name, value and both code generators; its derivatives (`diff`) and
+//! its kinks or jumps (`lower`) still have their own arms there.
 //!
-//! The operations written as instructions (`-`, `sqrt`, `abs`, `step`, `sign`) keep their
-//! instruction sequences in the code generators, and the kinks and jumps of `abs`, `step` and
-//! `sign` and the branch point of `sqrt` their own rules in `smooth`; their entries here still
-//! give their value, name and derivative.
+//! The kinks and jumps of `abs`, `step` and `sign` and the branch point of `sqrt` are their
+//! entries' `kinks` rules. The operations written as instructions (`-`, `sqrt`, `abs`, `step`,
+//! `sign`, `+ - * /`, `max`, `min`) keep their instruction sequences in the code generators;
+//! their entries here still give their value and name.
 
 use crate::diff::Local;
+use crate::error::Span;
 use crate::graph::{Graph, NodeId};
-use crate::smooth::Signs;
+use crate::smooth::{Info, LimitKind, Signs};
 
 /// One-argument operations, in the order of [`UNARY_OPS`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -39,6 +45,22 @@ pub enum Unary {
     Sign,
     /// `f64::asinh`: smooth and odd everywhere, `asinh(0) = 0`.
     Asinh,
+}
+
+/// Two-argument operations, in the order of [`BINARY_OPS`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Binary {
+    Add,
+    Sub,
+    Mul,
+    Div,
+    /// `f64::powf` (real exponent; for whole exponents the lowering uses `Node::Powi`).
+    Pow,
+    /// `f64::atan2(a, b)`: the angle of the point `(b, a)`.
+    Atan2,
+    /// The larger of the two; NaN in either gives NaN (unlike `f64::max`).
+    Max,
+    Min,
 }
 
 /// The signs `op(u)` can take, given those `u` can.
@@ -84,6 +106,39 @@ pub(crate) struct UnaryOp {
     pub keeps_zero: bool,
     /// Finite wherever its argument is finite.
     pub finite: bool,
+    /// What `op(u)` is from what `u` is, for a function with a kink, a jump or a branch point
+    /// (the call's span names it); `None` for one smooth wherever it is finite
+    /// ([`Info::smooth_fn`] from the fields above).
+    pub kinks: Option<fn(Info, Span) -> Info>,
+}
+
+/// The definition of one [`Binary`] operation.
+pub(crate) struct BinaryOp {
+    pub op: Binary,
+    /// The function's name in a source (`atan2(a, b)`); `None` for the infix operators.
+    pub name: Option<&'static str>,
+    /// How messages quote the operation (`'/'`, `'atan2'`).
+    pub symbol: &'static str,
+    /// The value, the one definition of its rounding (an `extern "C"` function so compiled code
+    /// calls it directly).
+    pub eval: extern "C" fn(f64, f64) -> f64,
+    pub lowering: Lowering,
+}
+
+impl Binary {
+    /// This operation's definition.
+    #[inline]
+    pub(crate) fn def(self) -> &'static BinaryOp {
+        &BINARY_OPS[self as usize]
+    }
+
+    /// The operation a source calls `name`.
+    pub(crate) fn named(name: &str) -> Option<Binary> {
+        BINARY_OPS
+            .iter()
+            .find(|d| d.name == Some(name))
+            .map(|d| d.op)
+    }
 }
 
 impl Unary {
@@ -190,6 +245,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Opposite,
         keeps_zero: true,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Sqrt,
@@ -201,6 +257,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Any,
         keeps_zero: false,
         finite: false,
+        kinks: Some(|u, span| u.power(0.5, span, true)),
     },
     UnaryOp {
         op: Unary::Exp,
@@ -211,6 +268,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Positive,
         keeps_zero: false,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Log,
@@ -221,6 +279,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Any,
         keeps_zero: false,
         finite: false,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Sin,
@@ -231,6 +290,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Any,
         keeps_zero: true,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Cos,
@@ -241,6 +301,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Any,
         keeps_zero: false,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Tan,
@@ -252,6 +313,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Any,
         keeps_zero: false,
         finite: false,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Atan,
@@ -262,6 +324,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: true,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Tanh,
@@ -272,6 +335,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: true,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Cosh,
@@ -282,6 +346,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Positive,
         keeps_zero: false,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Sinh,
@@ -292,6 +357,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: true,
         finite: true,
+        kinks: None,
     },
     UnaryOp {
         op: Unary::Abs,
@@ -302,6 +368,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Square,
         keeps_zero: false,
         finite: false,
+        kinks: Some(|u, span| u.abs(span)),
     },
     UnaryOp {
         op: Unary::Step,
@@ -312,6 +379,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::NonNegative,
         keeps_zero: false,
         finite: false,
+        kinks: Some(|u, span| Info::jump(LimitKind::Step, span, &[u], Signs::NONNEG)),
     },
     UnaryOp {
         op: Unary::Sign,
@@ -322,6 +390,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: false,
         finite: false,
+        kinks: Some(|u, span| Info::jump(LimitKind::Sign, span, &[u], u.signs)),
     },
     UnaryOp {
         op: Unary::Asinh,
@@ -336,6 +405,104 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: true,
         finite: true,
+        kinks: None,
+    },
+];
+
+extern "C" fn add(a: f64, b: f64) -> f64 {
+    a + b
+}
+extern "C" fn sub(a: f64, b: f64) -> f64 {
+    a - b
+}
+extern "C" fn mul(a: f64, b: f64) -> f64 {
+    a * b
+}
+extern "C" fn div(a: f64, b: f64) -> f64 {
+    a / b
+}
+extern "C" fn pow(a: f64, b: f64) -> f64 {
+    a.powf(b)
+}
+extern "C" fn atan2(a: f64, b: f64) -> f64 {
+    a.atan2(b)
+}
+extern "C" fn max(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else if a >= b {
+        a
+    } else {
+        b
+    }
+}
+extern "C" fn min(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else if a <= b {
+        a
+    } else {
+        b
+    }
+}
+
+/// Indexed by `Binary as usize`.
+pub(crate) const BINARY_OPS: &[BinaryOp] = &[
+    BinaryOp {
+        op: Binary::Add,
+        name: None,
+        symbol: "+",
+        eval: add,
+        lowering: Lowering::Inline,
+    },
+    BinaryOp {
+        op: Binary::Sub,
+        name: None,
+        symbol: "-",
+        eval: sub,
+        lowering: Lowering::Inline,
+    },
+    BinaryOp {
+        op: Binary::Mul,
+        name: None,
+        symbol: "*",
+        eval: mul,
+        lowering: Lowering::Inline,
+    },
+    BinaryOp {
+        op: Binary::Div,
+        name: None,
+        symbol: "/",
+        eval: div,
+        lowering: Lowering::Inline,
+    },
+    BinaryOp {
+        op: Binary::Pow,
+        name: None,
+        symbol: "^",
+        eval: pow,
+        lowering: Lowering::Call,
+    },
+    BinaryOp {
+        op: Binary::Atan2,
+        name: Some("atan2"),
+        symbol: "atan2",
+        eval: atan2,
+        lowering: Lowering::Call,
+    },
+    BinaryOp {
+        op: Binary::Max,
+        name: Some("max"),
+        symbol: "max",
+        eval: max,
+        lowering: Lowering::Inline,
+    },
+    BinaryOp {
+        op: Binary::Min,
+        name: Some("min"),
+        symbol: "min",
+        eval: min,
+        lowering: Lowering::Inline,
     },
 ];
 
@@ -357,6 +524,25 @@ pub(crate) fn called() -> impl Iterator<Item = &'static UnaryOp> {
     UNARY_OPS.iter().filter(|d| d.lowering == Lowering::Call)
 }
 
+/// How many two-argument operations are [`Lowering::Call`].
+pub(crate) const BINARY_CALLS: usize = {
+    let mut n = 0;
+    let mut i = 0;
+    while i < BINARY_OPS.len() {
+        if matches!(BINARY_OPS[i].lowering, Lowering::Call) {
+            n += 1;
+        }
+        i += 1;
+    }
+    n
+};
+
+/// The two-argument operations the compiled code calls, in table order (the C kernels' `env`
+/// slots after the unary ones).
+pub(crate) fn called_binary() -> impl Iterator<Item = &'static BinaryOp> {
+    BINARY_OPS.iter().filter(|d| d.lowering == Lowering::Call)
+}
+
 /// The signs of `op(u)` from those of `u`.
 pub(crate) fn signs_of(op: Unary, u: Signs) -> Signs {
     match op.def().signs {
@@ -376,6 +562,9 @@ mod tests {
     #[test]
     fn the_table_is_in_the_order_of_the_enum() {
         for (i, d) in UNARY_OPS.iter().enumerate() {
+            assert_eq!(d.op as usize, i, "{:?}", d.op);
+        }
+        for (i, d) in BINARY_OPS.iter().enumerate() {
             assert_eq!(d.op as usize, i, "{:?}", d.op);
         }
     }

@@ -71,7 +71,7 @@ use std::time::{Duration, Instant};
 
 use sha2::{Digest, Sha256};
 
-use super::{JitError, cb_atan2, cb_pow, cb_table};
+use super::{JitError, cb_table};
 use crate::graph::Tabulated;
 
 use cache::{CacheDir, WorkDir, digest_hex, read_regular, remove_abandoned_builds};
@@ -129,10 +129,11 @@ pub(crate) type CFusedFn = unsafe extern "C" fn(
     env: *const usize,
 );
 
-/// `env[0..ENV_POW]` are the unary operations called back ([`crate::ops::called`]).
-pub(crate) const ENV_POW: usize = crate::ops::UNARY_CALLS;
-pub(crate) const ENV_ATAN2: usize = ENV_POW + 1;
-pub(crate) const ENV_TABLE: usize = ENV_ATAN2 + 1;
+/// `env[0..ENV_BINARY]` are the unary operations called back ([`crate::ops::called`]).
+pub(crate) const ENV_BINARY: usize = crate::ops::UNARY_CALLS;
+/// `env[ENV_BINARY..ENV_TABLE]` are the binary operations called back
+/// ([`crate::ops::called_binary`]).
+pub(crate) const ENV_TABLE: usize = ENV_BINARY + crate::ops::BINARY_CALLS;
 /// `env[ENV_TABLES + t]` is table `t` (a `*const Arc<dyn Tabulated>`); after the tables, the
 /// array parameters' values (a `*const f64` each) the lattice loops read.
 pub(crate) const ENV_TABLES: usize = ENV_TABLE + 1;
@@ -141,8 +142,7 @@ pub(crate) const ENV_TABLES: usize = ENV_TABLE + 1;
 /// `tables`, which must outlive every call), then the arrays' (which must too).
 pub(crate) fn env(tables: &[Arc<dyn Tabulated>], arrays: &[Arc<[f64]>]) -> Box<[usize]> {
     let mut env: Vec<usize> = crate::ops::called().map(|d| d.eval as usize).collect();
-    env.push(cb_pow as *const () as usize);
-    env.push(cb_atan2 as *const () as usize);
+    env.extend(crate::ops::called_binary().map(|d| d.eval as usize));
     env.push(cb_table as *const () as usize);
     for t in tables {
         env.push(t as *const Arc<dyn Tabulated> as usize);

@@ -63,7 +63,7 @@ pub(crate) mod step;
 
 use super::outputs_by_node;
 use super::{FunctionSpec, JitError, Layout, OptLevel, Options, Plan, Regalloc, is_leaf};
-use super::{cb_atan2, cb_pow, cb_table, unary_callback};
+use super::{binary_callback, cb_table, unary_callback};
 
 /// A compiled scalar function.
 ///
@@ -649,8 +649,6 @@ fn emit_scalar(
                 Binary::Sub => b.ins().fsub(x, y),
                 Binary::Mul => b.ins().fmul(x, y),
                 Binary::Div => b.ins().fdiv(x, y),
-                Binary::Pow => call1(b, sigs.binary, cb_pow as *const () as usize, &[x, y]),
-                Binary::Atan2 => call1(b, sigs.binary, cb_atan2 as *const () as usize, &[x, y]),
                 Binary::Max | Binary::Min => {
                     let cc = if op == Binary::Max {
                         FloatCC::GreaterThanOrEqual
@@ -662,6 +660,10 @@ fn emit_scalar(
                     let nan = b.ins().fcmp(FloatCC::Unordered, x, y);
                     let qnan = b.ins().f64const(f64::NAN);
                     b.ins().select(nan, qnan, r)
+                }
+                _ => {
+                    let addr = binary_callback(op).expect("every other binary op has a callback");
+                    call1(b, sigs.binary, addr, &[x, y])
                 }
             }
         }
@@ -793,10 +795,6 @@ fn emit_vector(
                 Binary::Sub => b.ins().fsub(x, y),
                 Binary::Mul => b.ins().fmul(x, y),
                 Binary::Div => b.ins().fdiv(x, y),
-                Binary::Pow => per_lane(b, sigs.binary, cb_pow as *const () as usize, &[], &[x, y]),
-                Binary::Atan2 => {
-                    per_lane(b, sigs.binary, cb_atan2 as *const () as usize, &[], &[x, y])
-                }
                 Binary::Max | Binary::Min => {
                     // `a >= b ? a : b` (not `maxpd`, which returns `b` for equal zeros).
                     let cc = if op == Binary::Max {
@@ -808,6 +806,10 @@ fn emit_vector(
                     let r = b.ins().bitselect(keep, x, y);
                     let nan = mask(b, FloatCC::Unordered, x, y);
                     b.ins().bitselect(nan, k.nan, r)
+                }
+                _ => {
+                    let addr = binary_callback(op).expect("every other binary op has a callback");
+                    per_lane(b, sigs.binary, addr, &[], &[x, y])
                 }
             }
         }

@@ -1,7 +1,7 @@
 //! The C text of the step kernels: the prelude, the vector helpers and each node as a C
 //! expression over scalars or vectors.
 
-use super::{ENV_ATAN2, ENV_POW, ENV_TABLE, ENV_TABLES};
+use super::{ENV_BINARY, ENV_TABLE, ENV_TABLES};
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
 use crate::jit::outputs_by_node;
 use crate::jit::step_spec::{StepSpec, kernel_plan};
@@ -111,6 +111,12 @@ pub(crate) fn unary_slot(op: Unary) -> usize {
     crate::ops::called()
         .position(|d| d.op == op)
         .expect("a called-back unary operation")
+}
+
+pub(crate) fn binary_slot(op: Binary) -> usize {
+    crate::ops::called_binary()
+        .position(|d| d.op == op)
+        .expect("a called-back binary operation")
 }
 
 /// A constant by its bits (no decimal round trip; NaN payloads and signed zeros kept).
@@ -239,10 +245,9 @@ pub(crate) fn c_expr(node: &Node, o: &mut dyn FnMut(NodeId) -> String, lanes: La
                 Binary::Sub => format!("{a} - {b}"),
                 Binary::Mul => format!("{a} * {b}"),
                 Binary::Div => format!("{a} / {b}"),
-                Binary::Pow => lanes.call2(ENV_POW, &a, &b),
-                Binary::Atan2 => lanes.call2(ENV_ATAN2, &a, &b),
                 Binary::Max => format!("{}({a}, {b})", lanes.helper("MAX")),
                 Binary::Min => format!("{}({a}, {b})", lanes.helper("MIN")),
+                _ => lanes.call2(ENV_BINARY + binary_slot(op), &a, &b),
             }
         }
         Node::Powi(a, n) => {

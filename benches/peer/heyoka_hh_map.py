@@ -56,6 +56,9 @@ def run(points, t_final, tol, vector):
     mle = np.zeros(batches * lanes)
     energy_error = 0.0
     compile_cpu = 0.0
+    # The time inside heyoka's propagate_until alone: the rest of the run is this script's
+    # Python (renormalization, energy), reported apart so the JSON shows what it costs.
+    propagate_cpu = 0.0
     for b in range(batches):
         block = padded[b * lanes:(b + 1) * lanes].T
         state[:4] = block
@@ -67,15 +70,24 @@ def run(points, t_final, tol, vector):
             ta.set_time(0.0)
             ta.state[:] = state
         e0 = energy(block)
-        logs = np.zeros(lanes)
+        # Per window only what must happen then (the norm, the rescaling, a copy of the
+        # state); the logarithms and energies are evaluated afterwards over whole arrays, so
+        # the Python around heyoka costs a few numpy calls per window.
+        norms = np.empty((windows, lanes))
+        states = np.empty((windows, 4, lanes))
         for w in range(1, windows + 1):
+            c = time.process_time()
             ta.propagate_until(float(w))
+            propagate_cpu += time.process_time() - c
             s = ta.state
-            norm = np.sqrt(s[4] * s[4] + s[5] * s[5] + s[6] * s[6] + s[7] * s[7])
-            logs += np.log(norm)
-            s[4:] /= norm
-            err = np.max(np.abs((energy(s) - e0) / e0))
-            energy_error = max(energy_error, float(err))
+            t = s[4:]
+            norm = np.sqrt(np.einsum("ij,ij->j", t, t))
+            t /= norm
+            norms[w - 1] = norm
+            states[w - 1] = s[:4]
+        logs = np.log(norms).sum(axis=0)
+        err = np.abs((energy(states.transpose(1, 0, 2)) - e0) / e0)
+        energy_error = max(energy_error, float(err.max()))
         mle[b * lanes:(b + 1) * lanes] = logs / windows
     cpu = time.process_time() - cpu0
     return {
@@ -86,6 +98,7 @@ def run(points, t_final, tol, vector):
         "batch_size": lanes,
         "compile_cpu_seconds": compile_cpu,
         "cpu_seconds": cpu,
+        "propagate_cpu_seconds": propagate_cpu,
         "max_relative_energy_error": energy_error,
         "mle": {str(p["index"]): float(m) for p, m in zip(points, mle[:n])},
     }
@@ -95,7 +108,7 @@ def main():
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--points", required=True)
     p.add_argument("--t-final", type=float, default=1000.0)
-    p.add_argument("--tol", type=float, default=1e-13)
+    p.add_argument("--tol", type=float, default=1e-11)
     p.add_argument("--vector", type=float, nargs=4, default=[0.5, 0.5, 0.5, 0.5])
     args = p.parse_args()
     with open(args.points) as f:

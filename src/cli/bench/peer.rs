@@ -8,6 +8,9 @@
 //! the reference: a multiple-precision Taylor series (mpmath) run twice at different orders and
 //! precisions, whose difference it reports. Where heyoka cannot be imported the JSON says so
 //! and carries chaoscope's side alone.
+//!
+//! The same command runs the second workload, the Henon-Heiles MLE map (`super::peer_hh_map`),
+//! reported as the `hh_map` object.
 
 use std::io::Write;
 use std::process::{Command, Stdio};

@@ -46,6 +46,7 @@ mod fput_c;
 mod lattice;
 mod lorenz_stage;
 mod peer;
+mod peer_hh_map;
 mod plain_loop;
 mod scalar_c;
 
@@ -140,8 +141,9 @@ pub struct Args {
     /// Steps of each side per round of the Lorenz stage measurement.
     #[arg(long, default_value_t = 200_000)]
     pub lorenz_stage_steps: u64,
-    /// Only the comparison with a peer program on the Lorenz spectrum workload (`heyoka`: the
-    /// Python package, run by `benches/peer/heyoka_lorenz.py`).
+    /// Only the comparison with a peer program on the Lorenz spectrum and the Henon-Heiles MLE
+    /// map workloads (`heyoka`: the Python package, run by `benches/peer/heyoka_lorenz.py` and
+    /// `benches/peer/heyoka_hh_map.py`).
     #[arg(long, value_name = "PEER")]
     pub peer: Option<String>,
     /// Final time of the peer comparison's Lorenz spectrum.
@@ -150,6 +152,9 @@ pub struct Args {
     /// chaoscope's fixed dop853 step in the peer comparison (a divisor of tau = 1).
     #[arg(long, default_value_t = 0.01)]
     pub peer_h: f64,
+    /// Points per axis of the peer comparison's Henon-Heiles MLE map (N x N).
+    #[arg(long, default_value_t = 100)]
+    pub peer_grid: usize,
     /// Python interpreter that runs the peer's side.
     #[arg(long, default_value = "python3")]
     pub peer_python: String,
@@ -633,7 +638,13 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     if let Some(peer) = &args.peer {
-        let report = peer::compare(peer, args.peer_t_final, args.peer_h, &args.peer_python)?;
+        let report = peer::compare(
+            peer,
+            args.peer_t_final,
+            args.peer_h,
+            args.peer_grid,
+            &args.peer_python,
+        )?;
         chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
         return Ok(ExitCode::SUCCESS);
     }

@@ -51,7 +51,7 @@ fn config(n: usize, t_final: f64) -> anyhow::Result<RunConfig> {
 }
 
 /// CPU seconds (user + system) of every waited-for descendant so far.
-fn children_cpu_seconds() -> f64 {
+pub(super) fn children_cpu_seconds() -> f64 {
     // SAFETY: getrusage writes the struct it is given.
     let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
     unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) };

@@ -8,6 +8,9 @@
 //! the reference: a multiple-precision Taylor series (mpmath) run twice at different orders and
 //! precisions, whose difference it reports. Where heyoka cannot be imported the JSON says so
 //! and carries chaoscope's side alone.
+//!
+//! The same command runs the second workload, the Henon-Heiles MLE map (`super::peer_hh_map`),
+//! reported as the `hh_map` object.
 
 use std::io::Write;
 use std::process::{Command, Stdio};
@@ -173,11 +176,13 @@ pub fn report(
     })
 }
 
-/// `chaoscope bench --peer NAME`.
+/// `chaoscope bench --peer NAME`: the Lorenz spectrum's report, with the Henon-Heiles MLE map
+/// on a `grid` x `grid` grid (`super::peer_hh_map`) as its `hh_map` object.
 pub fn compare(
     peer: &str,
     t_final: f64,
     h: f64,
+    grid: usize,
     python: &str,
 ) -> anyhow::Result<serde_json::Value> {
     anyhow::ensure!(
@@ -195,7 +200,9 @@ pub fn compare(
     );
     let chaoscope = chaoscope_side(t_final, h)?;
     let peer = run_script(python, t_final)?;
-    Ok(report(chaoscope, peer, t_final))
+    let mut out = report(chaoscope, peer, t_final);
+    out["hh_map"] = super::peer_hh_map::compare(grid, python)?;
+    Ok(out)
 }
 
 #[cfg(test)]

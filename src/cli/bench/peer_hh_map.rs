@@ -1,0 +1,327 @@
+//! The second workload of `chaoscope bench --peer heyoka`: the Henon-Heiles MLE map on the
+//! section x = 0 at E = 1/8 (p_x > 0 solved from the energy), t = 1000, one tangent vector
+//! renormalized every tau = 1, on an N x N grid over the paper's region of (y, p_y).
+//!
+//! chaoscope's side is the whole `chaoscope map` command (this executable, one thread, the
+//! route it chooses by default), its CPU time that of the child process. The grid's initial
+//! conditions are then read back from the map file it wrote and handed to the peer
+//! (`benches/peer/heyoka_hh_map.py`, heyoka's `taylor_adaptive_batch` on the tangent system),
+//! so both programs start from the same doubles. chaoscope's energy error is measured apart
+//! from the timed command, by the one-orbit engine on each point of the map (the map file
+//! holds indicators, not states).
+
+use std::io::Write;
+use std::process::{Command, Stdio};
+
+use anyhow::Context;
+use chaoscope_producer::engine::Engine;
+use chaoscope_producer::spec::RunSpec;
+use chaoscope_recorder::map_file::read_map_file;
+use chaoscope_schemas::config::RunConfig;
+use chaoscope_schemas::proto::MapPoint;
+
+/// The peer's side, shipped with the repository.
+const HEYOKA_SCRIPT: &str = include_str!("../../../benches/peer/heyoka_hh_map.py");
+
+/// Energy of the section.
+const ENERGY: f64 = 0.125;
+/// Length of every orbit.
+const T_FINAL: f64 = 1000.0;
+/// The tangent vector both sides start from (normalized by both).
+const VECTOR: [f64; 4] = [0.5, 0.5, 0.5, 0.5];
+/// heyoka's tolerance: at 1e-11 its largest relative energy error over the grid is about
+/// 2e-12, chaoscope's own (ABA864 at h = 0.01), within the 1e-10 the workload allows with a
+/// margin of 50; at 1e-10 it reaches 5e-11 on a 20 x 20 grid, too close to the bound for a
+/// larger one. The JSON reports the measured error beside it.
+const HEYOKA_TOL: f64 = 1e-11;
+/// The classification: chaotic when the MLE at t = 1000 is above 0.02. A regular orbit's
+/// finite-time MLE decays like ln(t)/t, about 0.007 at t = 1000 (most tori of the grid give
+/// 0.003-0.01), while the chaotic sea of Henon-Heiles at E = 1/8 gives 0.03-0.08 at that time;
+/// on the 20 x 20 grid the histogram of the MLEs has its trough between 0.01 and 0.025 (26 of
+/// 300 points), and 0.02 sits in it. Sticky orbits that linger near islands land in the
+/// trough; those are the points two correct integrators may classify differently (their
+/// chaotic trajectories part after a few hundred time units), which is why the count is
+/// reported rather than assumed.
+const CHAOTIC_MLE: f64 = 0.02;
+
+/// The map's configuration: VM with k = 1 and the MLE indicator, the grid `n` x `n` over
+/// `examples/maps/hh-mle.toml`'s region.
+fn map_config(n: usize) -> String {
+    format!(
+        r#"[model]
+name = "henon-heiles"
+[orbit]
+q = [0.0, 0.0]
+p = [0.0, 0.0]
+energy = {ENERGY:?}
+solve_for = "p1"
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = {T_FINAL:?}
+[deviations]
+k = 1
+vectors = [{VECTOR:?}]
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1.0
+[map]
+x = {{ coord = "q2", min = -0.45, max = 0.65, n = {n} }}
+y = {{ coord = "p2", min = -0.45, max = 0.45, n = {n} }}
+indicator = "mle"
+"#
+    )
+}
+
+/// The same orbit as one run (the map point's initial condition, its tangent vector and
+/// scheme), for its energy error.
+fn point_config(x0: &[f64]) -> String {
+    format!(
+        r#"[model]
+name = "henon-heiles"
+[orbit]
+q = [{:?}, {:?}]
+p = [{:?}, {:?}]
+[integrator]
+method = "aba864"
+h = 0.01
+t_final = {T_FINAL:?}
+[deviations]
+k = 1
+vectors = [{VECTOR:?}]
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1.0
+"#,
+        x0[0], x0[1], x0[2], x0[3]
+    )
+}
+
+fn hh_energy(s: &[f64]) -> f64 {
+    let (x, y, px, py) = (s[0], s[1], s[2], s[3]);
+    0.5 * (px * px + py * py) + 0.5 * (x * x + y * y) + x * x * y - y * y * y / 3.0
+}
+
+/// Largest relative energy error over every tau of every point, by the one-orbit engine.
+fn chaoscope_energy_error(points: &[MapPoint]) -> anyhow::Result<f64> {
+    let mut worst = 0.0f64;
+    for p in points {
+        let cfg = RunConfig::from_toml(&point_config(&p.x0))?;
+        let mut engine = Engine::new(RunSpec::from_config(&cfg)?);
+        let e0 = hh_energy(&p.x0);
+        while let Some(sample) = engine.next_sample()? {
+            worst = worst.max(((hh_energy(&sample.state) - e0) / e0).abs());
+        }
+    }
+    Ok(worst)
+}
+
+/// `chaoscope map` of the workload in `dir`: (CPU seconds of the child, its JSON summary, the
+/// points it computed).
+fn chaoscope_map(
+    dir: &std::path::Path,
+    n: usize,
+) -> anyhow::Result<(f64, serde_json::Value, Vec<MapPoint>)> {
+    let exe = std::env::current_exe().context("this executable")?;
+    let cfg = dir.join("hh-mle.toml");
+    let out = dir.join("hh-mle.mcap");
+    std::fs::write(&cfg, map_config(n))?;
+    let before = super::dkg::children_cpu_seconds();
+    let run = Command::new(&exe)
+        .arg("map")
+        .arg(&cfg)
+        .arg("--out")
+        .arg(&out)
+        .args(["--threads", "1", "--json", "--no-progress", "--restart"])
+        .env("RAYON_NUM_THREADS", "1")
+        .stderr(Stdio::piped())
+        .output()
+        .context("starting chaoscope map")?;
+    let cpu = super::dkg::children_cpu_seconds() - before;
+    anyhow::ensure!(
+        run.status.success(),
+        "chaoscope map of the Henon-Heiles workload failed ({}): {}",
+        run.status,
+        String::from_utf8_lossy(&run.stderr).trim()
+    );
+    let summary: serde_json::Value =
+        serde_json::from_slice(&run.stdout).context("chaoscope map --json printed no JSON")?;
+    let contents = read_map_file(&out)?;
+    let ok = chaoscope_schemas::proto::map_point::Status::Ok as i32;
+    let points = contents
+        .points
+        .into_iter()
+        .filter(|p| p.status == ok)
+        .collect();
+    Ok((cpu, summary, points))
+}
+
+/// The peer's JSON for `points`, or why there is none.
+fn run_script(
+    python: &str,
+    dir: &std::path::Path,
+    points: &[MapPoint],
+) -> anyhow::Result<serde_json::Value> {
+    let list: Vec<_> = points
+        .iter()
+        .map(|p| serde_json::json!({"index": p.index, "x0": p.x0}))
+        .collect();
+    let file = dir.join("points.json");
+    std::fs::write(&file, serde_json::to_vec(&list)?)?;
+    let spawned = Command::new(python)
+        .arg("-")
+        .arg("--points")
+        .arg(&file)
+        .args(["--t-final", &format!("{T_FINAL:?}")])
+        .args(["--tol", &format!("{HEYOKA_TOL:?}")])
+        .arg("--vector")
+        .args(VECTOR.map(|v| format!("{v:?}")))
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn();
+    let mut child = match spawned {
+        Ok(child) => child,
+        Err(e) => {
+            return Ok(serde_json::json!({
+                "heyoka_available": false,
+                "heyoka_unavailable": format!("cannot start the Python interpreter {python:?} ({e}); --peer-python names another"),
+            }));
+        }
+    };
+    child
+        .stdin
+        .take()
+        .context("the interpreter's standard input")?
+        .write_all(HEYOKA_SCRIPT.as_bytes())?;
+    let out = child.wait_with_output()?;
+    anyhow::ensure!(
+        out.status.success(),
+        "benches/peer/heyoka_hh_map.py failed ({}): {}",
+        out.status,
+        String::from_utf8_lossy(&out.stderr).trim()
+    );
+    serde_json::from_slice(&out.stdout).context("benches/peer/heyoka_hh_map.py printed no JSON")
+}
+
+/// Points classified the same by both sides (chaotic when the MLE exceeds [`CHAOTIC_MLE`]),
+/// and the largest MLE difference.
+fn agreement(points: &[MapPoint], theirs: &serde_json::Value) -> (usize, f64) {
+    let mut same = 0;
+    let mut max_diff = 0.0f64;
+    for p in points {
+        let Some(m) = theirs[p.index.to_string()].as_f64() else {
+            continue;
+        };
+        if (p.value > CHAOTIC_MLE) == (m > CHAOTIC_MLE) {
+            same += 1;
+        }
+        max_diff = max_diff.max((p.value - m).abs());
+    }
+    (same, max_diff)
+}
+
+/// The `hh_map` object of the report.
+pub fn compare(n: usize, python: &str) -> anyhow::Result<serde_json::Value> {
+    anyhow::ensure!(
+        (2..=1000).contains(&n),
+        "--peer-grid {n}: between 2 and 1000 points per axis"
+    );
+    let scratch = tempfile::Builder::new()
+        .prefix("chaoscope-bench-peer-hh")
+        .tempdir()?;
+    let (cpu, summary, points) = chaoscope_map(scratch.path(), n)?;
+    let energy_error = chaoscope_energy_error(&points)?;
+    let peer = run_script(python, scratch.path(), &points)?;
+    let available = peer["heyoka_available"].as_bool() == Some(true);
+    let mut chaoscope = serde_json::json!({
+        "command": "chaoscope map --threads 1 (RAYON_NUM_THREADS=1), default route",
+        "route": summary["route"],
+        "method": "aba864, h = 0.01, VM k = 1",
+        "cpu_seconds": cpu,
+        "max_relative_energy_error": energy_error,
+    });
+    let (heyoka, ratio, same) = if available && peer["heyoka"].is_object() {
+        let mut h = peer["heyoka"].clone();
+        let (same, max_diff) = agreement(&points, &h["mle"]);
+        if let Some(o) = h.as_object_mut() {
+            o.remove("mle");
+        }
+        h["max_mle_difference_to_chaoscope"] = serde_json::json!(max_diff);
+        let ratio = h["cpu_seconds"].as_f64().unwrap_or(f64::NAN) / cpu;
+        (h, serde_json::json!(ratio), serde_json::json!(same))
+    } else {
+        (
+            serde_json::Value::Null,
+            serde_json::Value::Null,
+            serde_json::Value::Null,
+        )
+    };
+    chaoscope["points"] = serde_json::json!(points.len());
+    Ok(serde_json::json!({
+        "workload": format!(
+            "Henon-Heiles MLE map, {n} x {n} grid on x = 0 (p_x > 0 from E = 1/8) over y in \
+             [-0.45, 0.65], p_y in [-0.45, 0.45], t = 1000, one tangent vector renormalized \
+             every tau = 1; one thread"
+        ),
+        "cpu": chaoscope_producer::estimate::Machine::cpu_model(),
+        "isa": chaoscope_producer::batch::Isa::detect().name(),
+        "grid": n,
+        "points_total": n * n,
+        "points_on_energy_surface": points.len(),
+        "peer_available": available,
+        "peer_unavailable": peer.get("heyoka_unavailable").cloned().unwrap_or(serde_json::Value::Null),
+        "chaoscope": chaoscope,
+        "heyoka": heyoka,
+        "heyoka_cpu_over_chaoscope_cpu": ratio,
+        "classification": format!("chaotic when the MLE at t = 1000 is above {CHAOTIC_MLE}"),
+        "classified_same": same,
+        "classified_total": points.len(),
+    }))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The map's configuration is a valid map of n x n points, and a point of its section run
+    /// alone keeps the energy within the workload's 1e-10: ABA864 at h = 0.01 is an 8th-order
+    /// symplectic method whose energy error at E = 1/8 is of order 1e-12 and does not drift;
+    /// a wrong initial condition (p_x not solved from E) or a wrong energy formula would be off
+    /// by order 1e-2 or more.
+    #[test]
+    fn peer_hh_map_config_and_energy_error() {
+        let cfg = RunConfig::from_toml(&map_config(5)).unwrap();
+        let spec = chaoscope_producer::map::MapSpec::from_config(&cfg).unwrap();
+        assert_eq!(spec.shard_points("0/1".parse().unwrap()).count(), 25);
+        let (y, py) = (0.1, 0.0);
+        let px = (2.0 * ENERGY - y * y - py * py + 2.0 * y * y * y / 3.0).sqrt();
+        let point = MapPoint {
+            x0: vec![0.0, y, px, py],
+            ..Default::default()
+        };
+        assert!((hh_energy(&point.x0) - ENERGY).abs() < 1e-15);
+        let e = chaoscope_energy_error(std::slice::from_ref(&point)).unwrap();
+        assert!(e > 0.0 && e < 1e-10, "{e}");
+    }
+
+    /// Classification counts a point the same when both MLEs fall on one side of the threshold,
+    /// skips points the peer did not return, and reports the largest difference.
+    #[test]
+    fn peer_hh_map_agreement_counts() {
+        let p = |index: u64, value: f64| MapPoint {
+            index,
+            value,
+            ..Default::default()
+        };
+        let ours = [p(0, 0.005), p(1, 0.045), p(2, 0.019), p(3, 0.03)];
+        let theirs = serde_json::json!({"0": 0.006, "1": 0.05, "2": 0.021});
+        let (same, diff) = agreement(&ours, &theirs);
+        assert_eq!(same, 2);
+        assert!((diff - 0.005).abs() < 1e-12, "{diff}");
+    }
+}

@@ -1,4 +1,4 @@
-//! Issue 4, must-show 4: `chaoscope analyze` streams a recording, so its memory does not grow
+//! `chaoscope analyze` streams a recording, so its memory does not grow
 //! with the file. Writes a ~1 GB recording (in process, through the recorder's MCAP layout),
 //! analyzes it in a child process, and prints peak RSS (the child's `ru_maxrss`) and MB/s as
 //! one JSON document; exits non-zero if the peak exceeds 200 MB.

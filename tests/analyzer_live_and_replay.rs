@@ -1,4 +1,4 @@
-//! Issue 4, must-shows 1 and 2 with real processes: the live monitor's final values equal the
+//! With real processes: the live monitor's final values equal the
 //! offline analysis of the recording; a replay with other tau reproduces the recorded reference
 //! orbit bit for bit and the paper's tau dependence of the MPM GALIs at t = 200; a replay with
 //! other d0 copies only the MPM schemes and compares each with its original.
@@ -369,7 +369,7 @@ fn differing_paths(a: &Value, b: &Value, path: &str, out: &mut Vec<String>) {
     }
 }
 
-/// `analyze --from T` (issue #27 must-show 4): the finite-time exponents average the stretching
+/// `analyze --from T`: the finite-time exponents average the stretching
 /// from T on, and nothing else in the report changes (GALI, SALI, FLI, MEGNO, the 0-1 test, the
 /// verdict). The exponents from T follow from the whole run's at T and at the end:
 /// `(t l(t) - T l(T)) / (t - T)`, the same sums of logarithms, to rounding.

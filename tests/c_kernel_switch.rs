@@ -1,6 +1,6 @@
 //! The batched kernel of a user-written potential starts on the Cranelift step kernels and
-//! switches to the C ones when their background build is ready (issue "bring your own
-//! Hamiltonian", must-show 2: a 1001-site chain must not wait a minute for its compiler).
+//! switches to the C ones when their background build is ready (a 1001-site chain must not wait
+//! a minute for its compiler).
 //!
 //! - The map is the same, point for point and bit for bit, whatever call the switch happens
 //!   at: all Cranelift, all C, and switches placed at several calls by the test hook

@@ -755,7 +755,7 @@ fn assert_refused_special(args: &[&str], file: &Path, what: &str, outputs: &[&Pa
 }
 
 /// Files that are not regular files wherever a command reads one: a FIFO (with no writer: a
-/// blocking open never returns, and used to hang the command deaf to SIGINT and SIGTERM) as a
+/// blocking open never returns, and must not hang the command deaf to SIGINT and SIGTERM) as a
 /// table named in a recording's embedded config (`replay`, `resume`; `analyze` goes on without
 /// what it would add) or in a
 /// config (`config`, `run`, `produce`, `map`, `section`), as the config itself, as the

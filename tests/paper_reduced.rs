@@ -1,4 +1,4 @@
-//! Issue 4, must-show 5: the paper script's reduced mode runs in CI and checks the key numbers
+//! The paper script's reduced mode runs in CI and checks the key numbers
 //! (V-shape minima, MLE band, GALI slopes, energy-error order, tau flatness); it exits non-zero
 //! when one is off. About half a minute in release on two cores.
 

@@ -1,5 +1,4 @@
-//! User-written potentials through the whole pipeline with real processes (issue "bring your
-//! own Hamiltonian", must-show 3): the Hertzian granular chain with a `[[sweep]]` over d0 is
+//! User-written potentials through the whole pipeline with real processes: the Hertzian granular chain with a `[[sweep]]` over d0 is
 //! recorded, analyzed (the V shape of the MPM-VM distance against d0), replayed with another
 //! tau on the bit-identical orbit, and mapped; a potential with `abs` is refused for VM and runs
 //! by MPM; a replay refuses a table that changed since the recording.

@@ -106,7 +106,7 @@ fn hh_expression() -> ModelConfig {
 
 #[test]
 fn henon_heiles_as_an_expression_matches_the_built_in_model() {
-    // Regular orbit to t = 1000, chaotic to t = 200 (must-show 1). A last-bit difference in the
+    // Regular orbit to t = 1000, chaotic to t = 200. A last-bit difference in the
     // forces would grow linearly on the regular orbit and like exp(l1 t) ~ e^(0.05 * 200) ~ 2e4
     // on the chaotic one: 1e-9 relative leaves room for either. What we get is stated below.
     for (q2, t_final) in [
@@ -180,7 +180,7 @@ fn fput_chain_as_a_lattice_sum_matches_the_built_in_chain() {
 
 #[test]
 fn fput_lattice_sum_as_a_loop_gives_the_built_in_chain_bits_for_mpm_and_rounding_for_vm() {
-    // Issue 26, must-show 1: N = 300 (the sum a loop over its term), the lowest normal mode at
+    // N = 300 (the sum a loop over its term), the lowest normal mode at
     // amplitude 0.5 (a regular orbit), t = 100. The loop's forces are the built-in
     // `f(r_{i-1}) - f(r_i)` with f(r) = r + r^3 (beta = 1), bit for bit, so the reference orbit
     // and the MPM scheme (nearby orbits: forces only) must be the built-in's bits. The

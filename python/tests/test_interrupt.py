@@ -1,4 +1,4 @@
-"""Signals during a long call (issue 24): Ctrl-C, or SIGTERM with a handler that raises, stops
+"""Signals during a long call: Ctrl-C, or SIGTERM with a handler that raises, stops
 `chaoscope.run`, `chaoscope.map` and `Recording.replay` within a second, with a valid file at
 its name that says it was interrupted (as `chaoscope run` leaves on SIGINT) and no in-progress
 file (`NAME.partial`) left behind. Each case runs in a fresh interpreter; the configs are small

@@ -1,4 +1,4 @@
-"""Recording.orbit(), report(from_t=...) and errors with real line breaks (issue #27 item 5)."""
+"""Recording.orbit(), report(from_t=...) and errors with real line breaks."""
 
 import numpy as np
 import pytest

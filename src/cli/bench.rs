@@ -88,7 +88,7 @@ pub struct Args {
     #[arg(long)]
     pub expressions_only: bool,
     /// Only the route comparison of the map workload (per-set VM / MPM against the propagator
-    /// route, one thread, with the must-show distributions); no kernel or thread figures.
+    /// route, one thread, with the distributions a study reads); no kernel or thread figures.
     #[arg(long)]
     pub routes_only: bool,
     /// Grid of the route comparison, NXxNY over the paper's region.
@@ -431,7 +431,7 @@ fn set_distance(a: &PointResult, b: &PointResult) -> f64 {
 
 /// The paper's GALI_2 map workload by both routes of VM and MPM on an `nx` by `ny` grid, one
 /// thread each: CPU time, points per CPU-second, the extrapolated CPU hours of 700 x 600, the
-/// speed-ups, and how the routes' numbers compare (must-shows 2 and 3 of issue #12).
+/// speed-ups, and how the routes' numbers compare.
 fn routes(
     isa: Isa,
     nx: usize,
@@ -1042,7 +1042,7 @@ mod expressions {
         }
     }
 
-    /// FPUT N = 1001 (issue 10, must-show 2): the time from the configuration to a usable
+    /// FPUT N = 1001: the time from the configuration to a usable
     /// batched kernel (parse, differentiate, Cranelift: a map starts computing then), and apart
     /// from it the C build that a map runs in the background and switches to when it is ready,
     /// compiled afresh into a temporary cache (never loaded from the user's) so the figure can

@@ -7,14 +7,14 @@
 //!
 //! Time (`V(q, t)`, a non-autonomous potential) is handled in the extended phase space: `t`
 //! is one more coordinate, conjugate to a momentum `p_t` (minus the energy), and `H(q, p, t) =
-//! T(p) + V(q, t)` becomes the autonomous `K = (T(p) + p_t) + V(q, t)`, split as before into
+//! T(p) + V(q, t)` becomes the autonomous `K = (T(p) + p_t) + V(q, t)`, split into
 //! `A = T(p) + p_t`, whose flow drifts `q` *and* advances `t` by the drift's `a_i h`, and `B =
 //! V(q, t)`, whose flow kicks `p` (and `p_t`, which nothing reads) at fixed `q` and `t`. So a
 //! kick takes the time the drifts before it accumulated, `t + (a_1 + ... + a_i) h` (the sums
 //! fixed once per splitting, [`Splitting::kick_times`]), and the method keeps its order: it is
 //! the same splitting of an autonomous Hamiltonian of one more degree of freedom, of the same
 //! `T + V` form. The tangent kick takes `Hess V` at the same time. A potential that does not
-//! read the time gets the same bits as before.
+//! read the time gets the same bits as without this extension.
 //!
 //! Steps are never merged across step boundaries (the trailing drift of one step with the
 //! leading drift of the next): outputs are full steps and the reference orbit is bit-identical

@@ -1,4 +1,4 @@
-//! The basis route of a map (`[map] route = "basis"`, formerly `"propagator"`): every set's
+//! The basis route of a map (`[map] route = "basis"`): every set's
 //! indicator from one evolved basis per point instead of `sets * k` vectors, accumulated over
 //! the whole orbit as the scaled QR propagator ([`crate::propagator`]). The basis is `D` lanes
 //! of the scheme's [`DeviationMethod`], at its basis norm:

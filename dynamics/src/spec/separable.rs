@@ -317,7 +317,7 @@ pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>,
         ));
     }
     // With a momentum solved from the energy, `p` may be left out: every other momentum is then
-    // 0 (no placeholder for the solved one). Given, it holds all N momenta as before.
+    // 0 (no placeholder for the solved one). Given, it holds all N momenta.
     let solving = orbit.solve_for.is_some() && orbit.energy.is_some();
     if orbit.p.len() != n && !(solving && orbit.p.is_empty()) {
         return Err(SpecError::new(

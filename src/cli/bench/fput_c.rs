@@ -2,7 +2,7 @@
 //! sum and the built-in `fput-beta` chain, each through the whole `chaoscope run` (producer,
 //! bus, recorder; the CPU time of its process tree), against a hand-written scalar C of the same
 //! ABA864 step and tangent map (`chains.c`, built at bench time with `-O3 -march=native
-//! -ffp-contract=off`), at the lattice sizes (issue 26, item 5).
+//! -ffp-contract=off`), at the lattice sizes.
 //!
 //! The run of `lattice.rs` (fixed ends, beta = 1, the lowest normal mode at amplitude 0.5, a
 //! regular orbit, h = 0.02) with one VM vector renormalized every `tau` = 1 and recorded every

@@ -1,6 +1,6 @@
 //! `chaoscope bench --lattice-only`: the beta-FPUT chain written as a lattice sum (`[model] name
 //! = "potential"`, the sum a loop over its term) against the built-in `fput-beta` chain, same
-//! run, at N = 10^3, 10^4, 10^5 (issue 26, must-show 1), and the C step kernels' build time at
+//! run, at N = 10^3, 10^4, 10^5, and the C step kernels' build time at
 //! N = 10^2 and 10^5.
 //!
 //! Each run is a process of its own (this executable, `bench --lattice-case`, one rayon

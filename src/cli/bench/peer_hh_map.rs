@@ -14,9 +14,9 @@ use std::io::Write;
 use std::process::{Command, Stdio};
 
 use anyhow::Context;
-use chaoscope_producer::engine::Engine;
-use chaoscope_producer::spec::RunSpec;
-use chaoscope_recorder::map_file::read_map_file;
+use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::spec::RunSpec;
+use chaoscope_files::map_file::read_map_file;
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::proto::MapPoint;
 
@@ -268,8 +268,8 @@ pub fn compare(n: usize, python: &str) -> anyhow::Result<serde_json::Value> {
              [-0.45, 0.65], p_y in [-0.45, 0.45], t = 1000, one tangent vector renormalized \
              every tau = 1; one thread"
         ),
-        "cpu": chaoscope_producer::estimate::Machine::cpu_model(),
-        "isa": chaoscope_producer::batch::Isa::detect().name(),
+        "cpu": chaoscope_dynamics::estimate::Machine::cpu_model(),
+        "isa": chaoscope_dynamics::batch::Isa::detect().name(),
         "grid": n,
         "points_total": n * n,
         "points_on_energy_surface": points.len(),
@@ -296,7 +296,7 @@ mod tests {
     #[test]
     fn peer_hh_map_config_and_energy_error() {
         let cfg = RunConfig::from_toml(&map_config(5)).unwrap();
-        let spec = chaoscope_producer::map::MapSpec::from_config(&cfg).unwrap();
+        let spec = chaoscope_dynamics::map::MapSpec::from_config(&cfg).unwrap();
         assert_eq!(spec.shard_points("0/1".parse().unwrap()).count(), 25);
         let (y, py) = (0.1, 0.0);
         let px = (2.0 * ENERGY - y * y - py * py + 2.0 * y * y * y / 3.0).sqrt();

@@ -60,14 +60,7 @@ pub(super) fn config_text(model: &str, n: usize, t_final: f64) -> anyhow::Result
 /// CPU seconds (user + system) this process has used so far: on a shared machine the wall
 /// time from the configuration to the first step counts other processes' turns too.
 fn process_cpu_seconds() -> f64 {
-    // SAFETY: a zeroed timespec is a valid value for clock_gettime to fill.
-    let mut t: libc::timespec = unsafe { std::mem::zeroed() };
-    // SAFETY: a valid clock id and a pointer to a timespec we own.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) };
-    if rc != 0 {
-        return f64::NAN;
-    }
-    t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+    super::cpu_seconds(libc::CLOCK_PROCESS_CPUTIME_ID)
 }
 
 /// The child process: `MODEL:N:T_FINAL`; prints one JSON object.

@@ -15,6 +15,7 @@ use std::process::{Command, Stdio};
 
 use anyhow::Context;
 use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::model::{At, HenonHeiles, Model};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_files::map_file::read_map_file;
 use chaoscope_schemas::config::RunConfig;
@@ -102,8 +103,7 @@ tau = 1.0
 }
 
 fn hh_energy(s: &[f64]) -> f64 {
-    let (x, y, px, py) = (s[0], s[1], s[2], s[3]);
-    0.5 * (px * px + py * py) + 0.5 * (x * x + y * y) + x * x * y - y * y * y / 3.0
+    HenonHeiles.energy(s, At::T0)
 }
 
 /// Largest relative energy error over every tau of every point, by the one-orbit engine.

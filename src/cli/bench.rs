@@ -42,6 +42,7 @@
 //! the ceiling measured right after it.
 
 mod dkg;
+mod efficiency;
 mod fput_c;
 mod lattice;
 mod lorenz_stage;
@@ -158,6 +159,20 @@ pub struct Args {
     /// Python interpreter that runs the peer's side.
     #[arg(long, default_value = "python3")]
     pub peer_python: String,
+    /// Only the integrator efficiency table of the lattices (beta-FPUT, DKG, 1-D and 2-D
+    /// DDNLS): for each integrator offered for them, CPU time to `--efficiency-t` with one VM
+    /// tangent vector against the maximal relative energy (and norm) error over step sizes, and
+    /// the rankings at target errors beside the efficiency paper's.
+    #[arg(long)]
+    pub efficiency_only: bool,
+    /// Sites of each lattice of the efficiency table (the 2-D lattice: the square of the
+    /// integer square root).
+    #[arg(long, default_value_t = 128)]
+    pub efficiency_sites: usize,
+    /// Final time of each run of the efficiency table (a multiple of 10, the VM vector's
+    /// renormalization period).
+    #[arg(long, default_value_t = 500.0)]
+    pub efficiency_t: f64,
     /// Kept for symmetry with other commands: the output is always JSON.
     #[arg(long)]
     pub json: bool,
@@ -628,6 +643,15 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
         return Ok(ExitCode::SUCCESS);
     }
+    if args.efficiency_only {
+        let report = serde_json::json!({
+            "cpu": Machine::cpu_model(),
+            "isa": Isa::detect().name(),
+            "efficiency": efficiency::table(args.efficiency_sites, args.efficiency_t)?,
+        });
+        chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
+        return Ok(ExitCode::SUCCESS);
+    }
     if args.lorenz_stage_only {
         let report = serde_json::json!({
             "cpu": Machine::cpu_model(),
@@ -773,6 +797,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             "kernel": kernel,
             "expression_models": expression_models,
             "lorenz_stage": lorenz_stage::measure(args.lorenz_stage_steps, 100.0)?,
+            "efficiency": efficiency::table(args.efficiency_sites, args.efficiency_t)?,
             "gali2_map": {
                 "settings": "HH H=0.125 x1=0 section, q2 in [-0.45,0.65], p2 in [-0.45,0.45], ABA864 h=0.01, MPM tau=1 d0=1e-8, k=2, 50 sets",
                 "t_final": args.t_final,

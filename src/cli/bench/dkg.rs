@@ -34,7 +34,7 @@ const SITE_STEPS: f64 = 2e8;
 
 /// The example at `n` sites (the excitation in the middle), to `t_final`, one VM vector, a sample
 /// every `SAMPLE_EVERY`.
-fn config(n: usize, t_final: f64) -> anyhow::Result<RunConfig> {
+pub(super) fn config(n: usize, t_final: f64) -> anyhow::Result<RunConfig> {
     let mut text = EXAMPLE
         .replace("n = 1000\n", &format!("n = {n}\n"))
         .replace("sites = 500,", &format!("sites = {},", n / 2))

@@ -565,6 +565,21 @@ mod tests {
         assert_eq!(not_reached, ["never"]);
     }
 
+    /// Hostile flags give one line naming the flag, before any run: too few sites for the
+    /// DDNLS block, a final time that is not a multiple of the renormalization period, and
+    /// the values that are no time at all.
+    #[test]
+    fn hostile_flags_are_refused_naming_them() {
+        let message = |sites: usize, t: f64| format!("{:#}", table(sites, t).unwrap_err());
+        assert!(message(10, 500.0).starts_with("--efficiency-sites:"));
+        assert!(message(1_000_000, 500.0).starts_with("--efficiency-sites:"));
+        for t in [55.0, 0.0, -10.0, f64::NAN, f64::INFINITY, 1e8] {
+            let m = message(128, t);
+            assert!(m.starts_with("--efficiency-t:"), "{t}: {m}");
+            assert!(!m.contains('\n'), "{m}");
+        }
+    }
+
     /// Every step size is a power of two below 1, so each divides `tau = 10` and the final time
     /// exactly (the run's validation asks for whole steps).
     #[test]

@@ -464,6 +464,17 @@ fn family_table(family: Family, sites: usize, t_final: f64) -> anyhow::Result<se
     Ok(out)
 }
 
+/// The machine's one-minute load average (Linux), what says how shared the CPU was while the
+/// table was measured; `None` where it cannot be read.
+fn load_average() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
 /// The whole table at `sites` sites to `t_final`.
 pub fn table(sites: usize, t_final: f64) -> anyhow::Result<serde_json::Value> {
     anyhow::ensure!(
@@ -475,6 +486,7 @@ pub fn table(sites: usize, t_final: f64) -> anyhow::Result<serde_json::Value> {
         "--efficiency-t: a multiple of {TAU} time units (the renormalization period) between \
          {TAU} and 1e7, got {t_final}"
     );
+    let load_before = load_average();
     let started = super::process_cpu_seconds();
     let wall = std::time::Instant::now();
     let mut families = serde_json::Map::new();
@@ -497,6 +509,7 @@ pub fn table(sites: usize, t_final: f64) -> anyhow::Result<serde_json::Value> {
         "families": families,
         "total_cpu_seconds": super::process_cpu_seconds() - started,
         "total_wall_seconds": wall.elapsed().as_secs_f64(),
+        "load_average_1min": { "before": load_before, "after": load_average() },
     }))
 }
 

@@ -62,7 +62,9 @@ fn leapfrog_energy_error_is_second_order() {
 #[test]
 fn other_splittings_have_their_order() {
     // The SABA family is second order for a general split (Henon-Heiles is no small
-    // perturbation of a free motion); Yoshida's triple jump and the ABA methods fourth.
+    // perturbation of a free motion); Yoshida's triple jump and the ABA methods fourth; the
+    // compositions of the leapfrog sixth and eighth, measured at longer steps, where their
+    // errors stay above the rounding floor (~1e-14 over these runs).
     for kind in [
         SplittingKind::Saba2,
         SplittingKind::Saba3,
@@ -70,11 +72,15 @@ fn other_splittings_have_their_order() {
         SplittingKind::Yoshida4,
         SplittingKind::Aba104,
         SplittingKind::Aba1064,
+        SplittingKind::S9odr6,
+        SplittingKind::S11odr6,
+        SplittingKind::S17odr8,
     ] {
-        let hs: &[f64] = if kind.order() == 2 {
-            &[0.2, 0.1, 0.05, 0.025]
-        } else {
-            &[0.1, 0.05, 0.025, 0.0125]
+        let hs: &[f64] = match kind.order() {
+            2 => &[0.2, 0.1, 0.05, 0.025],
+            4 => &[0.1, 0.05, 0.025, 0.0125],
+            6 => &[0.16, 0.08, 0.04],
+            _ => &[0.25, 0.2, 0.16, 0.125],
         };
         let (slope, errs) = order(kind, hs);
         eprintln!("{} slope {slope}, errors {errs:?}", kind.name());

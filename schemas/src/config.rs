@@ -212,7 +212,7 @@ impl ExcitedSites {
 #[serde(deny_unknown_fields)]
 pub struct IntegratorConfig {
     /// Splittings of separable Hamiltonians: `"aba864"`, `"leapfrog"`, `"saba2"`, `"saba3"`,
-    /// `"saba4"`, `"yoshida4"`, `"aba104"`, `"aba1064"`.
+    /// `"saba4"`, `"yoshida4"`, `"aba104"`, `"aba1064"`, `"s9odr6"`, `"s11odr6"`, `"s17odr8"`.
     /// Runge-Kutta methods of flows: `"rk4"`, `"dop853"`. Maps: `"iterate"` or left out.
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub method: String,

@@ -156,6 +156,15 @@ pub struct Args {
     /// Points per axis of the peer comparison's Henon-Heiles MLE map (N x N).
     #[arg(long, default_value_t = 100)]
     pub peer_grid: usize,
+    /// chaoscope's splitting in the peer comparison's Henon-Heiles map.
+    #[arg(long, default_value = peer_hh_map::DEFAULT_METHOD)]
+    pub peer_map_method: String,
+    /// chaoscope's step in the peer comparison's Henon-Heiles map (a divisor of tau = 1).
+    #[arg(long, default_value_t = peer_hh_map::DEFAULT_H)]
+    pub peer_map_h: f64,
+    /// heyoka's tolerance in the peer comparison's Henon-Heiles map.
+    #[arg(long, default_value_t = peer_hh_map::DEFAULT_TOL)]
+    pub peer_map_tol: f64,
     /// Python interpreter that runs the peer's side.
     #[arg(long, default_value = "python3")]
     pub peer_python: String,
@@ -666,7 +675,11 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             peer,
             args.peer_t_final,
             args.peer_h,
-            args.peer_grid,
+            (
+                args.peer_grid,
+                (&args.peer_map_method, args.peer_map_h),
+                args.peer_map_tol,
+            ),
             &args.peer_python,
         )?;
         chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;

@@ -201,13 +201,23 @@ pub(super) fn dispatch_tangents<M: LaneModel>(
     }
 }
 
-/// Every lane of `x` (orbit and tangent vectors, [`LaneModel::orbit_tangent_steps`]), `LANE_QUANTUM` lanes
-/// at a time.
+/// Every lane of `x` (orbit and tangent vectors, [`LaneModel::orbit_tangent_steps`]), `L` lanes
+/// at a time, the remainder by `LANE_QUANTUM`.
 #[inline(always)]
-fn orbit_tangent_chunks<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+fn orbit_tangent_chunks<M: LaneModel, const L: usize>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+    let mut o = 0;
+    if L > LANE_QUANTUM {
+        let mut buf = vec![[0.0; L]; x.rows()];
+        let mut force = vec![[0.0; L]; m.dof()];
+        while o + L <= x.lanes() {
+            x.gather(o, &mut buf);
+            m.orbit_tangent_steps(c, &mut buf, &mut force, n);
+            x.scatter(o, &buf);
+            o += L;
+        }
+    }
     let mut buf = vec![[0.0; LANE_QUANTUM]; x.rows()];
     let mut force = vec![[0.0; LANE_QUANTUM]; m.dof()];
-    let mut o = 0;
     while o < x.lanes() {
         x.gather(o, &mut buf);
         m.orbit_tangent_steps(c, &mut buf, &mut force, n);
@@ -216,16 +226,28 @@ fn orbit_tangent_chunks<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64
     }
 }
 
+/// Most rows a register-resident model's orbit-and-tangents chunk is two AVX-512 vectors wide
+/// for: an orbit with one or two tangent vectors of a two-degree-of-freedom system (8 or 12
+/// rows, 16 or 24 of the 32 registers). One vector per row leaves each stage a chain of
+/// dependent operations the core waits on; two give it independent work. A basis (20 rows)
+/// stays one vector wide: two would spill.
+#[cfg(target_arch = "x86_64")]
+const WIDE_ORBIT_TANGENT_ROWS: usize = 12;
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
 fn orbit_tangents_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
-    orbit_tangent_chunks(m, c, x, n)
+    if m.register_resident() && x.rows() <= WIDE_ORBIT_TANGENT_ROWS {
+        orbit_tangent_chunks::<M, 16>(m, c, x, n)
+    } else {
+        orbit_tangent_chunks::<M, LANE_QUANTUM>(m, c, x, n)
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn orbit_tangents_avx2<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
-    orbit_tangent_chunks(m, c, x, n)
+    orbit_tangent_chunks::<M, LANE_QUANTUM>(m, c, x, n)
 }
 
 pub(super) fn dispatch_orbit_tangents<M: LaneModel>(
@@ -246,6 +268,6 @@ pub(super) fn dispatch_orbit_tangents<M: LaneModel>(
         Isa::Avx512 => unsafe { orbit_tangents_avx512(m, c, x, n) },
         #[cfg(target_arch = "x86_64")]
         Isa::Avx2 => unsafe { orbit_tangents_avx2(m, c, x, n) },
-        _ => orbit_tangent_chunks(m, c, x, n),
+        _ => orbit_tangent_chunks::<M, LANE_QUANTUM>(m, c, x, n),
     }
 }

@@ -45,7 +45,9 @@ pub trait PointKernel {
     /// Advance every lane of `x` by `steps` steps: rows `0..D` are an orbit, each further `D`
     /// rows a tangent vector around that lane's own orbit (the variational equations of many
     /// points at once). Lane by lane the bits of [`PointKernel::reference_steps`] followed by
-    /// [`PointKernel::tangent_steps`], which is what this default does.
+    /// [`PointKernel::tangent_steps`], which is what this default does for a lane holding an
+    /// orbit and a basis of `D` vectors (the only shape a map gives a kernel that does not fuse);
+    /// a kernel that fuses takes any number of vectors.
     fn orbit_tangent_steps(
         &mut self,
         x: &mut Soa,

@@ -5,8 +5,10 @@
 //! Lanes that are orbits share one lane array across several points, each point's reference
 //! orbit one more lane of it, all advanced by one kernel call. Tangent lanes follow their own
 //! point's reference (stepped first, its steps recorded), so each point has an array of its
-//! own. Sets that stop (`gali-time`) and finished points leave: the lanes are compacted so the
-//! kernel never integrates a finished orbit.
+//! own, unless the kernel fuses orbits and tangents ([`compute_fused`]): then each point is one
+//! lane holding its orbit and every set's vectors, and many points share one lane array. Sets
+//! that stop (`gali-time`) and finished points leave: the lanes are compacted so the kernel
+//! never integrates a finished orbit.
 
 use super::indicator::{PointAccumulator, broke_off};
 use super::point::PointResult;
@@ -71,6 +73,119 @@ fn compute_with(
         |base, x0, lanes| start(spec, method, base, x0, lanes),
         |g, w| window(kernel, method, spec, g, w, &mut renormalization),
     )
+}
+
+/// A point of the fused per-set route: one lane of `D (1 + sets k)` rows, its orbit then the
+/// `k` tangent vectors of each set.
+struct LiveFused {
+    base: PointResult,
+    acc: PointAccumulator,
+    lane: usize,
+    /// Its reference state at the end of the last window.
+    start: Vec<f64>,
+    /// Active sets: (set index, row of its first vector in the lane).
+    sets: Vec<(usize, usize)>,
+    orbit_steps: u64,
+}
+
+/// The VM per-set route on a kernel that advances many points' orbits and tangent vectors in
+/// one pass ([`PointKernel::fuses_orbits_and_tangents`]): one lane per point, its orbit and its
+/// sets' vectors, so one kernel call steps a whole batch of points. Lane by lane the kernel does
+/// the bits of the reference's steps followed by the tangent steps, and every set is then
+/// renormalized as [`compute`] does, so the points are [`compute`]'s bit for bit; it only
+/// spares the point-by-point kernel calls, which cost several times the arithmetic for a small
+/// system with one or two vectors (the Henon-Heiles MLE map).
+pub fn compute_fused(
+    spec: &MapSpec,
+    isa: Isa,
+    indices: &[u64],
+    stop: &dyn Fn() -> bool,
+) -> Vec<PointResult> {
+    let mut kernel = spec
+        .run
+        .system()
+        .batched(isa)
+        .expect("a fused route is chosen only for systems with a batched form");
+    let kernel = kernel.as_mut();
+    let run = &spec.run;
+    let (dim, k) = (run.dim(), run.k());
+    let d0 = run.schemes()[0].d0;
+    let rows = dim * (1 + run.sets() * k);
+    let mut renormalization = SetRenormalization::new(run);
+    let start = |base, x0: Vec<f64>, lanes: &mut Vec<Vec<f64>>| {
+        let start = x0[..dim].to_vec();
+        let mut column = x0;
+        let mut sets = Vec::with_capacity(run.sets());
+        for (s, dirs) in run.directions().iter().enumerate() {
+            sets.push((s, column.len()));
+            // As Engine::new: the tangent vectors start at d0 * u.
+            column.extend(dirs.scaled(d0));
+        }
+        debug_assert_eq!(column.len(), rows);
+        lanes.push(column);
+        LiveFused {
+            base,
+            acc: spec.accumulator(),
+            lane: lanes.len() - 1,
+            start,
+            sets,
+            orbit_steps: 0,
+        }
+    };
+    let mut column = vec![0.0; rows];
+    let window = |g: &mut Group<LiveFused>, w: &Window| {
+        let mut out = Vec::new();
+        for p in &mut g.points {
+            p.orbit_steps += w.steps * (1 + (p.sets.len() * k) as u64);
+        }
+        if let Err(e) = kernel.orbit_tangent_steps(&mut g.soa, w.from, w.steps) {
+            let e = e.into();
+            return g
+                .points
+                .drain(..)
+                .map(|p| broke_off(p.base, w.t, &e, p.orbit_steps))
+                .collect();
+        }
+        let before = g.points.len();
+        let mut keep = Vec::with_capacity(before);
+        for mut p in g.points.drain(..) {
+            g.soa.read_lane(p.lane, &mut column);
+            if let Err(e) = window::check_reference(run, &p.start, &column[..dim], w, None) {
+                out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
+                continue;
+            }
+            p.start.copy_from_slice(&column[..dim]);
+            let stepped = retain_sets(&mut p.sets, |set, first| {
+                let vectors = &mut column[first..first + k * dim];
+                renormalization.separations.copy_from_slice(vectors);
+                let goes_on = renormalization.apply(&mut p.acc, set, w)?;
+                if goes_on {
+                    vectors.copy_from_slice(&renormalization.separations);
+                } else {
+                    // A finished set's vectors stay in the lane; zero, they stay finite.
+                    vectors.fill(0.0);
+                }
+                Ok(goes_on)
+            });
+            if let Err(e) = stepped {
+                out.push(broke_off(p.base, w.t, &e, p.orbit_steps));
+                continue;
+            }
+            if p.acc.is_done() {
+                out.push(p.acc.finish(p.base, p.orbit_steps));
+                continue;
+            }
+            g.soa.write_lane(p.lane, &column);
+            keep.push(p);
+        }
+        if keep.len() != before {
+            let runs = keep.iter_mut().map(|p| (&mut p.lane, 1)).collect();
+            g.soa = compact(&g.soa, runs);
+        }
+        g.points = keep;
+        out
+    };
+    drive(spec, indices, (rows, true), stop, start, window)
 }
 
 /// A point's reference and the lanes of its sets, appended to `lanes`: the reference as a lane

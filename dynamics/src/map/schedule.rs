@@ -106,7 +106,9 @@ impl Batching {
     /// `mpm_points_per_batch`: see [`MapOptions`].
     pub fn of(spec: &MapSpec, mpm_points_per_batch: usize) -> Self {
         let orbits = method::of(spec.run.schemes()[0].method).lanes_are_orbits();
-        let fused = spec.route == MapRoute::Basis && !orbits && spec.fuses_orbits_and_tangents();
+        // VM on a kernel that steps many points' orbits and tangent vectors in one pass: one
+        // lane per point (its orbit and basis, or its orbit and its sets' vectors).
+        let fused = !orbits && spec.fuses_orbits_and_tangents();
         let points_per_batch = mpm_points_per_batch.max(1);
         let points = if !spec.has_batched_kernel() {
             // Systems without a batched kernel: one point at a time through the one-orbit
@@ -135,7 +137,8 @@ impl Batching {
         stop: &dyn Fn() -> bool,
     ) -> Vec<PointResult> {
         match spec.route {
-            _ if self.fused => basis::compute_fused(spec, isa, indices, stop),
+            MapRoute::Basis if self.fused => basis::compute_fused(spec, isa, indices, stop),
+            MapRoute::PerSet if self.fused => per_set::compute_fused(spec, isa, indices, stop),
             MapRoute::Basis => basis::compute(spec, isa, indices, stop),
             MapRoute::PerSet => per_set::compute(spec, isa, indices, stop),
         }

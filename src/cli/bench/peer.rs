@@ -177,12 +177,12 @@ pub fn report(
 }
 
 /// `chaoscope bench --peer NAME`: the Lorenz spectrum's report, with the Henon-Heiles MLE map
-/// on a `grid` x `grid` grid (`super::peer_hh_map`) as its `hh_map` object.
+/// on a `grid` x `grid` grid by `step` (splitting, h) and at `map_tol` (`super::peer_hh_map`) as its `hh_map` object.
 pub fn compare(
     peer: &str,
     t_final: f64,
     h: f64,
-    grid: usize,
+    map: (usize, (&str, f64), f64),
     python: &str,
 ) -> anyhow::Result<serde_json::Value> {
     anyhow::ensure!(
@@ -201,7 +201,8 @@ pub fn compare(
     let chaoscope = chaoscope_side(t_final, h)?;
     let peer = run_script(python, t_final)?;
     let mut out = report(chaoscope, peer, t_final);
-    out["hh_map"] = super::peer_hh_map::compare(grid, python)?;
+    let (grid, step, map_tol) = map;
+    out["hh_map"] = super::peer_hh_map::compare(grid, step, map_tol, python)?;
     Ok(out)
 }
 

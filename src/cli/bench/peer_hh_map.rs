@@ -15,6 +15,7 @@ use std::process::{Command, Stdio};
 
 use anyhow::Context;
 use chaoscope_dynamics::engine::Engine;
+use chaoscope_dynamics::integrator::SplittingKind;
 use chaoscope_dynamics::model::{At, HenonHeiles, Model};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_files::map_file::read_map_file;
@@ -30,11 +31,14 @@ const ENERGY: f64 = 0.125;
 const T_FINAL: f64 = 1000.0;
 /// The tangent vector both sides start from (normalized by both).
 const VECTOR: [f64; 4] = [0.5, 0.5, 0.5, 0.5];
-/// heyoka's tolerance: at 1e-11 its largest relative energy error over the grid is about
-/// 2e-12, chaoscope's own (ABA864 at h = 0.01), within the 1e-10 the workload allows with a
-/// margin of 50; at 1e-10 it reaches 5e-11 on a 20 x 20 grid, too close to the bound for a
-/// larger one. The JSON reports the measured error beside it.
-const HEYOKA_TOL: f64 = 1e-11;
+/// The default of both sides' accuracy (`--peer-map-h`, `--peer-map-tol`): heyoka at tolerance
+/// 1e-11 keeps its largest relative energy error over the grid near 3e-12, chaoscope's
+/// ABA864 at h = 0.01 near 2e-12, both within the 1e-10 the workload allows with a margin of
+/// 30. heyoka at 1e-10 reaches 5e-11 on a 20 x 20 grid, too close to the bound for a larger
+/// one. The JSON reports each side's measured error beside its setting.
+pub const DEFAULT_METHOD: &str = "aba864";
+pub const DEFAULT_H: f64 = 0.01;
+pub const DEFAULT_TOL: f64 = 1e-11;
 /// The classification: chaotic when the MLE at t = 1000 is above 0.02. A regular orbit's
 /// finite-time MLE decays like ln(t)/t, about 0.007 at t = 1000 (most tori of the grid give
 /// 0.003-0.01), while the chaotic sea of Henon-Heiles at E = 1/8 gives 0.03-0.08 at that time;
@@ -47,7 +51,7 @@ const CHAOTIC_MLE: f64 = 0.02;
 
 /// The map's configuration: VM with k = 1 and the MLE indicator, the grid `n` x `n` over
 /// `examples/maps/hh-mle.toml`'s region.
-fn map_config(n: usize) -> String {
+fn map_config(n: usize, (method, h): (&str, f64)) -> String {
     format!(
         r#"[model]
 name = "henon-heiles"
@@ -57,8 +61,8 @@ p = [0.0, 0.0]
 energy = {ENERGY:?}
 solve_for = "p1"
 [integrator]
-method = "aba864"
-h = 0.01
+method = "{method}"
+h = {h:?}
 t_final = {T_FINAL:?}
 [deviations]
 k = 1
@@ -78,7 +82,7 @@ indicator = "mle"
 
 /// The same orbit as one run (the map point's initial condition, its tangent vector and
 /// scheme), for its energy error.
-fn point_config(x0: &[f64]) -> String {
+fn point_config(x0: &[f64], (method, h): (&str, f64)) -> String {
     format!(
         r#"[model]
 name = "henon-heiles"
@@ -86,8 +90,8 @@ name = "henon-heiles"
 q = [{:?}, {:?}]
 p = [{:?}, {:?}]
 [integrator]
-method = "aba864"
-h = 0.01
+method = "{method}"
+h = {h:?}
 t_final = {T_FINAL:?}
 [deviations]
 k = 1
@@ -107,10 +111,10 @@ fn hh_energy(s: &[f64]) -> f64 {
 }
 
 /// Largest relative energy error over every tau of every point, by the one-orbit engine.
-fn chaoscope_energy_error(points: &[MapPoint]) -> anyhow::Result<f64> {
+fn chaoscope_energy_error(points: &[MapPoint], step: (&str, f64)) -> anyhow::Result<f64> {
     let mut worst = 0.0f64;
     for p in points {
-        let cfg = RunConfig::from_toml(&point_config(&p.x0))?;
+        let cfg = RunConfig::from_toml(&point_config(&p.x0, step))?;
         let mut engine = Engine::new(RunSpec::from_config(&cfg)?);
         let e0 = hh_energy(&p.x0);
         while let Some(sample) = engine.next_sample()? {
@@ -125,11 +129,12 @@ fn chaoscope_energy_error(points: &[MapPoint]) -> anyhow::Result<f64> {
 fn chaoscope_map(
     dir: &std::path::Path,
     n: usize,
+    step: (&str, f64),
 ) -> anyhow::Result<(f64, serde_json::Value, Vec<MapPoint>)> {
     let exe = std::env::current_exe().context("this executable")?;
     let cfg = dir.join("hh-mle.toml");
     let out = dir.join("hh-mle.mcap");
-    std::fs::write(&cfg, map_config(n))?;
+    std::fs::write(&cfg, map_config(n, step))?;
     let before = super::dkg::children_cpu_seconds();
     let run = Command::new(&exe)
         .arg("map")
@@ -165,6 +170,7 @@ fn run_script(
     python: &str,
     dir: &std::path::Path,
     points: &[MapPoint],
+    tol: f64,
 ) -> anyhow::Result<serde_json::Value> {
     let list: Vec<_> = points
         .iter()
@@ -177,7 +183,7 @@ fn run_script(
         .arg("--points")
         .arg(&file)
         .args(["--t-final", &format!("{T_FINAL:?}")])
-        .args(["--tol", &format!("{HEYOKA_TOL:?}")])
+        .args(["--tol", &format!("{tol:?}")])
         .arg("--vector")
         .args(VECTOR.map(|v| format!("{v:?}")))
         .stdin(Stdio::piped())
@@ -226,22 +232,40 @@ fn agreement(points: &[MapPoint], theirs: &serde_json::Value) -> (usize, f64) {
 }
 
 /// The `hh_map` object of the report.
-pub fn compare(n: usize, python: &str) -> anyhow::Result<serde_json::Value> {
+pub fn compare(
+    n: usize,
+    (method, h): (&str, f64),
+    tol: f64,
+    python: &str,
+) -> anyhow::Result<serde_json::Value> {
     anyhow::ensure!(
         (2..=1000).contains(&n),
         "--peer-grid {n}: between 2 and 1000 points per axis"
     );
+    anyhow::ensure!(
+        SplittingKind::from_name(method).is_some(),
+        "--peer-map-method {method:?}: one of {}",
+        SplittingKind::catalogue()
+    );
+    anyhow::ensure!(
+        h > 0.0 && (1.0 / h).fract() == 0.0 && h <= 0.5,
+        "--peer-map-h {h}: a step of at most 0.5 that divides tau = 1 (0.01, 0.1, 0.125, 0.2, ...)"
+    );
+    anyhow::ensure!(
+        (1e-16..=1e-6).contains(&tol),
+        "--peer-map-tol {tol}: between 1e-16 and 1e-6"
+    );
     let scratch = tempfile::Builder::new()
         .prefix("chaoscope-bench-peer-hh")
         .tempdir()?;
-    let (cpu, summary, points) = chaoscope_map(scratch.path(), n)?;
-    let energy_error = chaoscope_energy_error(&points)?;
-    let peer = run_script(python, scratch.path(), &points)?;
+    let (cpu, summary, points) = chaoscope_map(scratch.path(), n, (method, h))?;
+    let energy_error = chaoscope_energy_error(&points, (method, h))?;
+    let peer = run_script(python, scratch.path(), &points, tol)?;
     let available = peer["heyoka_available"].as_bool() == Some(true);
     let mut chaoscope = serde_json::json!({
         "command": "chaoscope map --threads 1 (RAYON_NUM_THREADS=1), default route",
         "route": summary["route"],
-        "method": "aba864, h = 0.01, VM k = 1",
+        "method": format!("{method}, h = {h}, VM k = 1"),
         "cpu_seconds": cpu,
         "max_relative_energy_error": energy_error,
     });
@@ -295,7 +319,7 @@ mod tests {
     /// by order 1e-2 or more.
     #[test]
     fn peer_hh_map_config_and_energy_error() {
-        let cfg = RunConfig::from_toml(&map_config(5)).unwrap();
+        let cfg = RunConfig::from_toml(&map_config(5, (DEFAULT_METHOD, DEFAULT_H))).unwrap();
         let spec = chaoscope_dynamics::map::MapSpec::from_config(&cfg).unwrap();
         assert_eq!(spec.shard_points("0/1".parse().unwrap()).count(), 25);
         let (y, py) = (0.1, 0.0);
@@ -305,7 +329,8 @@ mod tests {
             ..Default::default()
         };
         assert!((hh_energy(&point.x0) - ENERGY).abs() < 1e-15);
-        let e = chaoscope_energy_error(std::slice::from_ref(&point)).unwrap();
+        let e = chaoscope_energy_error(std::slice::from_ref(&point), (DEFAULT_METHOD, DEFAULT_H))
+            .unwrap();
         assert!(e > 0.0 && e < 1e-10, "{e}");
     }
 

@@ -45,8 +45,6 @@ impl LaneModel for HenonHeiles {
         }
     }
 
-    // The lane index runs across rows of the state: an index loop is the layout, not a habit.
-    #[allow(clippy::needless_range_loop)]
     #[inline(always)]
     fn orbit_tangent_steps<const L: usize>(
         &self,
@@ -55,44 +53,14 @@ impl LaneModel for HenonHeiles {
         force: &mut [[f64; L]],
         n_steps: u64,
     ) {
-        // The map's VM basis route's shape (orbit + 4 tangent vectors, 20 rows) in registers; the
-        // operations of orbit_steps and hessian_vector_each_lane, in the generic order.
-        if x.len() != 20 {
-            return super::super::lanes::orbit_tangent_steps_generic(self, c, x, force, n_steps);
+        // The shapes maps use (orbit + one vector for the MLE, + two for SALI, + the basis of
+        // four for the basis route) in registers; any other through the generic loops.
+        match x.len() {
+            8 => orbit_tangents_in_registers::<L, 1, 8>(c, x, n_steps),
+            12 => orbit_tangents_in_registers::<L, 2, 12>(c, x, n_steps),
+            20 => orbit_tangents_in_registers::<L, 4, 20>(c, x, n_steps),
+            _ => super::super::lanes::orbit_tangent_steps_generic(self, c, x, force, n_steps),
         }
-        let mut r: [[f64; L]; 20] = [[0.0; L]; 20];
-        r.copy_from_slice(x);
-        let last = c.last_drift();
-        for _ in 0..n_steps {
-            for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
-                for l in 0..L {
-                    r[0][l] += ch * r[2][l];
-                    r[1][l] += ch * r[3][l];
-                    let (a, b) = (r[0][l], r[1][l]);
-                    for v in 0..4 {
-                        let o = 4 + 4 * v;
-                        r[o][l] += ch * r[o + 2][l];
-                        r[o + 1][l] += ch * r[o + 3][l];
-                        let (v0, v1) = (r[o][l], r[o + 1][l]);
-                        let h0 = (1.0 + 2.0 * b) * v0 + 2.0 * a * v1;
-                        let h1 = 2.0 * a * v0 + (1.0 - 2.0 * b) * v1;
-                        r[o + 2][l] -= dh * h0;
-                        r[o + 3][l] -= dh * h1;
-                    }
-                    let g0 = a + 2.0 * a * b;
-                    let g1 = b + a * a - b * b;
-                    r[2][l] -= dh * g0;
-                    r[3][l] -= dh * g1;
-                }
-            }
-            for l in 0..L {
-                for o in [0, 4, 8, 12, 16] {
-                    r[o][l] += last * r[o + 2][l];
-                    r[o + 1][l] += last * r[o + 3][l];
-                }
-            }
-        }
-        x.copy_from_slice(&r);
     }
 
     #[inline(always)]
@@ -159,4 +127,53 @@ impl LaneModel for HenonHeiles {
         }
         (v[0], v[1], v[2], v[3]) = (u1, u2, w1, w2);
     }
+}
+
+/// `n_steps` steps of the orbit (rows 0..4) and its `V` tangent vectors (`R = 4 + 4 V` rows)
+/// of `L` lanes with the whole state in registers: the operations of `orbit_steps` and
+/// `hessian_vector_each_lane`, in the generic loops' order, so the bits of
+/// `orbit_tangent_steps_generic`.
+// The lane index runs across rows of the state: an index loop is the layout, not a habit.
+#[allow(clippy::needless_range_loop)]
+#[inline(always)]
+fn orbit_tangents_in_registers<const L: usize, const V: usize, const R: usize>(
+    c: &StepCoeffs,
+    x: &mut [[f64; L]],
+    n_steps: u64,
+) {
+    debug_assert_eq!(R, 4 + 4 * V);
+    let mut r: [[f64; L]; R] = [[0.0; L]; R];
+    r.copy_from_slice(x);
+    let last = c.last_drift();
+    for _ in 0..n_steps {
+        for (&ch, &dh) in c.drift.iter().zip(&c.kick) {
+            for l in 0..L {
+                r[0][l] += ch * r[2][l];
+                r[1][l] += ch * r[3][l];
+                let (a, b) = (r[0][l], r[1][l]);
+                for v in 0..V {
+                    let o = 4 + 4 * v;
+                    r[o][l] += ch * r[o + 2][l];
+                    r[o + 1][l] += ch * r[o + 3][l];
+                    let (v0, v1) = (r[o][l], r[o + 1][l]);
+                    let h0 = (1.0 + 2.0 * b) * v0 + 2.0 * a * v1;
+                    let h1 = 2.0 * a * v0 + (1.0 - 2.0 * b) * v1;
+                    r[o + 2][l] -= dh * h0;
+                    r[o + 3][l] -= dh * h1;
+                }
+                let g0 = a + 2.0 * a * b;
+                let g1 = b + a * a - b * b;
+                r[2][l] -= dh * g0;
+                r[3][l] -= dh * g1;
+            }
+        }
+        for l in 0..L {
+            for v in 0..=V {
+                let o = 4 * v;
+                r[o][l] += last * r[o + 2][l];
+                r[o + 1][l] += last * r[o + 3][l];
+            }
+        }
+    }
+    x.copy_from_slice(&r);
 }

@@ -31,13 +31,14 @@ const ENERGY: f64 = 0.125;
 const T_FINAL: f64 = 1000.0;
 /// The tangent vector both sides start from (normalized by both).
 const VECTOR: [f64; 4] = [0.5, 0.5, 0.5, 0.5];
-/// The default of both sides' accuracy (`--peer-map-h`, `--peer-map-tol`): heyoka at tolerance
-/// 1e-11 keeps its largest relative energy error over the grid near 3e-12, chaoscope's
-/// ABA864 at h = 0.01 near 2e-12, both within the 1e-10 the workload allows with a margin of
-/// 30. heyoka at 1e-10 reaches 5e-11 on a 20 x 20 grid, too close to the bound for a larger
-/// one. The JSON reports each side's measured error beside its setting.
-pub const DEFAULT_METHOD: &str = "aba864";
-pub const DEFAULT_H: f64 = 0.01;
+/// The default of both sides' accuracy (`--peer-map-method`, `--peer-map-h`, `--peer-map-tol`):
+/// heyoka at tolerance 1e-11 keeps its largest relative energy error over the grid near 4e-12,
+/// chaoscope's s17odr8 at h = 0.125 near 1.4e-12 (aba864 needs h = 0.01 for 2e-12, 2.6x the
+/// time), both within the 1e-10 the workload allows with a margin of 25. heyoka at 1e-10
+/// reaches 7e-11, too close to the bound on a large grid. The JSON reports each side's
+/// measured error beside its setting.
+pub const DEFAULT_METHOD: &str = "s17odr8";
+pub const DEFAULT_H: f64 = 0.125;
 pub const DEFAULT_TOL: f64 = 1e-11;
 /// The classification: chaotic when the MLE at t = 1000 is above 0.02. A regular orbit's
 /// finite-time MLE decays like ln(t)/t, about 0.007 at t = 1000 (most tori of the grid give
@@ -214,21 +215,33 @@ fn run_script(
     serde_json::from_slice(&out.stdout).context("benches/peer/heyoka_hh_map.py printed no JSON")
 }
 
-/// Points classified the same by both sides (chaotic when the MLE exceeds [`CHAOTIC_MLE`]),
-/// and the largest MLE difference.
-fn agreement(points: &[MapPoint], theirs: &serde_json::Value) -> (usize, f64) {
-    let mut same = 0;
-    let mut max_diff = 0.0f64;
+/// How the two sides' MLEs compare point by point.
+#[derive(Debug, Default)]
+struct Agreement {
+    /// Points classified the same (chaotic when the MLE exceeds [`CHAOTIC_MLE`]).
+    same: usize,
+    /// The largest MLE difference.
+    max_diff: f64,
+    /// The points classified differently: (index, initial state, chaoscope's MLE, the peer's).
+    differ: Vec<(u64, Vec<f64>, f64, f64)>,
+}
+
+/// Compares `points` (chaoscope's) with the peer's MLEs by point index; points the peer did not
+/// return are skipped.
+fn agreement(points: &[MapPoint], theirs: &serde_json::Value) -> Agreement {
+    let mut out = Agreement::default();
     for p in points {
         let Some(m) = theirs[p.index.to_string()].as_f64() else {
             continue;
         };
         if (p.value > CHAOTIC_MLE) == (m > CHAOTIC_MLE) {
-            same += 1;
+            out.same += 1;
+        } else {
+            out.differ.push((p.index, p.x0.clone(), p.value, m));
         }
-        max_diff = max_diff.max((p.value - m).abs());
+        out.max_diff = out.max_diff.max((p.value - m).abs());
     }
-    (same, max_diff)
+    out
 }
 
 /// The `hh_map` object of the report.
@@ -271,11 +284,23 @@ pub fn compare(
     });
     let (heyoka, ratio, same) = if available && peer["heyoka"].is_object() {
         let mut h = peer["heyoka"].clone();
-        let (same, max_diff) = agreement(&points, &h["mle"]);
+        let a = agreement(&points, &h["mle"]);
         if let Some(o) = h.as_object_mut() {
             o.remove("mle");
         }
-        h["max_mle_difference_to_chaoscope"] = serde_json::json!(max_diff);
+        h["max_mle_difference_to_chaoscope"] = serde_json::json!(a.max_diff);
+        // Where the two disagree: a sticky orbit's finite-time MLE near the threshold, which
+        // two correct integrators may put on either side (their chaotic trajectories part
+        // after a few hundred time units); listed so a reader can check.
+        h["classified_differently"] = a
+            .differ
+            .iter()
+            .map(|(index, x0, ours, theirs)| {
+                serde_json::json!({"index": index, "x0": x0, "chaoscope_mle": ours,
+                                   "heyoka_mle": theirs})
+            })
+            .collect();
+        let same = a.same;
         let ratio = h["cpu_seconds"].as_f64().unwrap_or(f64::NAN) / cpu;
         (h, serde_json::json!(ratio), serde_json::json!(same))
     } else {
@@ -313,8 +338,9 @@ mod tests {
     use super::*;
 
     /// The map's configuration is a valid map of n x n points, and a point of its section run
-    /// alone keeps the energy within the workload's 1e-10: ABA864 at h = 0.01 is an 8th-order
-    /// symplectic method whose energy error at E = 1/8 is of order 1e-12 and does not drift;
+    /// alone keeps the energy within the workload's 1e-10: s17odr8 at h = 0.125 is an
+    /// eighth-order symplectic method whose energy error at E = 1/8 is of order 1e-12 and does
+    /// not drift;
     /// a wrong initial condition (p_x not solved from E) or a wrong energy formula would be off
     /// by order 1e-2 or more.
     #[test]
@@ -345,8 +371,10 @@ mod tests {
         };
         let ours = [p(0, 0.005), p(1, 0.045), p(2, 0.019), p(3, 0.03)];
         let theirs = serde_json::json!({"0": 0.006, "1": 0.05, "2": 0.021});
-        let (same, diff) = agreement(&ours, &theirs);
-        assert_eq!(same, 2);
-        assert!((diff - 0.005).abs() < 1e-12, "{diff}");
+        let a = agreement(&ours, &theirs);
+        assert_eq!(a.same, 2);
+        assert!((a.max_diff - 0.005).abs() < 1e-12, "{}", a.max_diff);
+        let differ: Vec<u64> = a.differ.iter().map(|d| d.0).collect();
+        assert_eq!(differ, [2]);
     }
 }

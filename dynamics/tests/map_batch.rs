@@ -100,6 +100,14 @@ fn vm_points_equal_the_engine() {
     check_against_engine(&hh_map("vm", grid("mle"), 20.0, 2));
     check_against_engine(&hh_map("vm", grid("fli"), 20.0, 2));
     check_against_engine(&hh_map("vm", grid("megno_mean"), 20.0, 2));
+    // One set of one vector (the MLE) and of two (SALI): the fused per-set route's lanes of 8
+    // and 12 rows, which Henon-Heiles steps in registers, two vectors wide on AVX-512.
+    let one_set = |indicator: &str, k: usize| MapConfig {
+        k: Some(k),
+        ..grid(indicator)
+    };
+    check_against_engine(&hh_map("vm", one_set("mle", 1), 20.0, 1));
+    check_against_engine(&hh_map("vm", one_set("sali", 2), 20.0, 1));
 }
 
 #[test]

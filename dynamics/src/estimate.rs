@@ -525,8 +525,9 @@ pub fn map_on(
 /// it. The two calibrations run back to back on one thread, each the least of several timings,
 /// so load moves their ratio by tens of per cent; the route, which decides the last bits of the
 /// values (equal to rounding), must not follow it. A factor 4 is twice the ratio of any example
-/// that stays per-set (the Lorenz MLE map: basis 1.9x faster) and half that of the map the
-/// basis route pays most for (Henon-Heiles MLE, `2N = 4` against one vector: 7.6-8.2x).
+/// that stays per-set (the Lorenz MLE map: basis 1.9x faster) and a fraction of that of the
+/// maps the basis route pays most for, those of many sets (Henon-Heiles GALI_2 with 50 sets of
+/// two vectors against a basis of four: 18x).
 pub const ROUTE_MARGIN: f64 = 4.0;
 
 /// The route a map that names none takes, and why: the estimate of each route.

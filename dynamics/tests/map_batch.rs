@@ -108,6 +108,8 @@ fn vm_points_equal_the_engine() {
     };
     check_against_engine(&hh_map("vm", one_set("mle", 1), 20.0, 1));
     check_against_engine(&hh_map("vm", one_set("sali", 2), 20.0, 1));
+    // GALI_3 times of two sets (6 vectors, a fused lane): sets stop at their own windows.
+    check_against_engine(&hh_map("vm", gali3_time(0.05), 30.0, 2));
 }
 
 #[test]

@@ -38,6 +38,9 @@ const VECTOR: [f64; 4] = [0.5, 0.5, 0.5, 0.5];
 /// reaches 7e-11, too close to the bound on a large grid. The JSON reports each side's
 /// measured error beside its setting.
 pub const DEFAULT_METHOD: &str = "s17odr8";
+/// What the workload asks of chaoscope: at least 1.5 times heyoka batch mode's speed per
+/// thread, at the same energy error.
+const TARGET_SPEEDUP: f64 = 1.5;
 pub const DEFAULT_H: f64 = 0.125;
 pub const DEFAULT_TOL: f64 = 1e-11;
 /// The classification: chaotic when the MLE at t = 1000 is above 0.02. A regular orbit's
@@ -327,6 +330,8 @@ pub fn compare(
         "chaoscope": chaoscope,
         "heyoka": heyoka,
         "heyoka_cpu_over_chaoscope_cpu": ratio,
+        "target_heyoka_cpu_over_chaoscope_cpu": TARGET_SPEEDUP,
+        "meets_target": ratio.as_f64().map(|r| r >= TARGET_SPEEDUP),
         "classification": format!("chaotic when the MLE at t = 1000 is above {CHAOTIC_MLE}"),
         "classified_same": same,
         "classified_total": points.len(),

@@ -120,7 +120,11 @@ pub fn render_pixels(
     let hi = if hi > 0.0 { lg(hi).min(0.0) } else { 0.0 };
     let lo = hi - DECADES;
     let text = font_available();
-    let (panel_w, panel_h, bar_w) = (420u32, if text { 470 } else { 420 }, if text { 110 } else { 40 });
+    let (panel_w, panel_h, bar_w) = (
+        420u32,
+        if text { 470 } else { 420 },
+        if text { 110 } else { 40 },
+    );
     let (w, h) = (2 * panel_w + bar_w, panel_h);
     let err = |e: &dyn std::fmt::Display| e.to_string();
     let blocked = if b > 1 {

@@ -53,12 +53,7 @@ pub fn render_pixels(
     };
     let hi = points
         .iter()
-        .flat_map(|(_, p)| {
-            p.dvd
-                .iter()
-                .chain(p.carrier().1.unwrap_or(&[]))
-                .copied()
-        })
+        .flat_map(|(_, p)| p.dvd.iter().chain(p.carrier().1.unwrap_or(&[])).copied())
         .fold(f64::NEG_INFINITY, f64::max);
     let hi = if hi > 0.0 { lg(hi).min(0.0) } else { 0.0 };
     let lo = hi - DECADES;

@@ -80,7 +80,10 @@ fn at_or_before(t: f64, asked: f64) -> bool {
 /// The default times of the pictures over the plane: four, a decade apart, ending at the run's
 /// end (`t_final / 1000 .. t_final`).
 pub fn default_plane_times(t_final: f64) -> Vec<f64> {
-    [1e-3, 1e-2, 1e-1, 1.0].iter().map(|f| f * t_final).collect()
+    [1e-3, 1e-2, 1e-1, 1.0]
+        .iter()
+        .map(|f| f * t_final)
+        .collect()
 }
 
 /// Checks the times asked for pictures over the plane (`--plane-times`) against the run: a

@@ -133,7 +133,10 @@ mod tests {
     #[test]
     fn a_chain_is_the_flat_moments_and_a_square_must_fit() {
         let w = [0.1, 0.0, 0.7, 0.2, 0.4];
-        assert_eq!(moments_on(w.iter().copied(), None), moments(w.iter().copied()));
+        assert_eq!(
+            moments_on(w.iter().copied(), None),
+            moments(w.iter().copied())
+        );
         // Five weights on a 2 x 2 square, or a side so large that its square overflows.
         assert_eq!(moments_on(w.iter().copied(), Some(2)), None);
         assert_eq!(moments_on(w.iter().copied(), Some(usize::MAX)), None);

@@ -102,8 +102,7 @@ impl SetIndicator for EnergyDistribution {
                     sites,
                     square_side,
                 } => {
-                    (*e, *t, *sites, *square_side) =
-                        (energies.clone(), obs.t, n, obs.square_side);
+                    (*e, *t, *sites, *square_side) = (energies.clone(), obs.t, n, obs.square_side);
                     s.clear();
                     s.extend_from_slice(state);
                 }
@@ -131,7 +130,9 @@ impl SetIndicator for EnergyDistribution {
                 square_side,
             } => SiteEnergyInput::At { energies, state }
                 .evaluate(*sites)
-                .and_then(|e| energy_moments(&e, *square_side).map_err(|why| format!("at t = {t}: {why}"))),
+                .and_then(|e| {
+                    energy_moments(&e, *square_side).map_err(|why| format!("at t = {t}: {why}"))
+                }),
         };
         match moments {
             Ok((m2, p)) => vec![Output::Value(m2), Output::Value(p)],

@@ -50,10 +50,12 @@ impl SetIndicator for NormDistribution {
             return;
         };
         if !obs.norm_conserved {
-            self.latest = Err("the norm distribution is defined for a lattice that conserves \
+            self.latest = Err(
+                "the norm distribution is defined for a lattice that conserves \
                                the norm sum_l (q_l^2 + p_l^2) / 2 (the DDNLS); this one does \
                                not (read the energy distribution)"
-                .to_string());
+                    .to_string(),
+            );
             return;
         }
         // A renormalization between the samples brings no state: the latest sample's stands.

@@ -54,7 +54,8 @@ impl SystemKind {
 /// made before that field existed, the recorded configuration's `[model] lattice = "square"`
 /// and `n`. A side whose square is not the header's `N = dim / 2` is an error naming both.
 pub fn square_side(header: &crate::proto::RunHeader) -> Result<Option<usize>, String> {
-    let sites = SystemKind::from_name(&header.kind).and_then(|k| k.lattice_sites(header.dim as usize));
+    let sites =
+        SystemKind::from_name(&header.kind).and_then(|k| k.lattice_sites(header.dim as usize));
     let side = if header.lattice_side > 0 {
         header.lattice_side as usize
     } else {

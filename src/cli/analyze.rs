@@ -37,7 +37,12 @@ pub struct Args {
     /// norm (or energy) distribution and the deviation vector distribution over the plane,
     /// DIR/plane-tT.png, each of the latest renormalization at or before T (default: four, a
     /// decade apart, ending at the run's end).
-    #[arg(long, value_name = "T1,T2,...", value_delimiter = ',', requires = "plot")]
+    #[arg(
+        long,
+        value_name = "T1,T2,...",
+        value_delimiter = ',',
+        requires = "plot"
+    )]
     pub plane_times: Option<Vec<f64>>,
     /// Time axis of GALI plots: auto (log t for regular orbits, t for chaotic), log, linear.
     #[arg(long, default_value = "auto")]

@@ -392,7 +392,10 @@ fn a_square_lattice_s_distributions_are_over_its_plane() {
         let got = over_sets(&report, &format!("{name}_m2"));
         assert!((got - m2).abs() <= 1e-12 * m2, "{name}_m2 {got} vs {m2}");
         let got_p = over_sets(&report, participation);
-        assert!((got_p - p).abs() <= 1e-12 * p, "{participation} {got_p} vs {p}");
+        assert!(
+            (got_p - p).abs() <= 1e-12 * p,
+            "{participation} {got_p} vs {p}"
+        );
         let (flat, _) = moments(weights.iter().copied()).unwrap();
         assert!(flat > 2.0 * m2, "{name}: flattened {flat}, plane {m2}");
     }
@@ -417,7 +420,10 @@ fn the_header_carries_the_lattice_side_and_old_recordings_keep_theirs() {
 
     let mut old = info.header.clone();
     old.lattice_side = 0;
-    assert_eq!(RunInfo::from_header(old.clone()).unwrap().square_side, Some(6));
+    assert_eq!(
+        RunInfo::from_header(old.clone()).unwrap().square_side,
+        Some(6)
+    );
     // Without a configuration to say so, an old header is a chain's.
     old.config_toml.clear();
     assert_eq!(RunInfo::from_header(old).unwrap().square_side, None);

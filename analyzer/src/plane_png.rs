@@ -123,7 +123,7 @@ pub fn render_pixels(
     let (panel_w, panel_h, bar_w) = (
         420u32,
         if text { 470 } else { 420 },
-        if text { 110 } else { 40 },
+        if text { 130 } else { 40 },
     );
     let (w, h) = (2 * panel_w + bar_w, panel_h);
     let err = |e: &dyn std::fmt::Display| e.to_string();

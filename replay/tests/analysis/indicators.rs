@@ -390,9 +390,10 @@ fn the_csv_and_the_plots_carry_every_named_indicator_over_time() {
                 .any(|p| stem.starts_with(p))),
         "a distribution chart for Henon-Heiles"
     );
-    for n in names.iter().filter(|n| {
-        !n.starts_with("energy_") && !n.starts_with("dvd_") && !n.starts_with("norm_")
-    }) {
+    for n in names
+        .iter()
+        .filter(|n| !n.starts_with("energy_") && !n.starts_with("dvd_") && !n.starts_with("norm_"))
+    {
         let (_, chart) = charts
             .iter()
             .find(|(stem, _)| stem == n)

@@ -881,3 +881,120 @@ fn fifos_devices_and_directories_as_inputs_are_refused_at_once_in_one_line() {
     );
     assert_refused_special(&["config", &c], &csv, "a directory", &[]);
 }
+
+/// A short run on a square lattice (`chaoscope run` in a private bus domain) into `dir`:
+/// `lattice = "square"` with side `n`, or the same DDNLS on a chain of `n` sites.
+fn ddnls_recording(dir: &Path, lattice: &str, n: usize) -> String {
+    let config = dir.join(format!("{lattice}.toml"));
+    let block = if lattice == "square" {
+        "[3, 4]"
+    } else {
+        "[4, 5]"
+    };
+    std::fs::write(
+        &config,
+        format!(
+            "[run]\nname = \"plane-{lattice}\"\n[model]\nname = \"ddnls\"\nlattice = \
+             \"{lattice}\"\nn = {n}\nW = 10.0\nbeta = 1.0\nseed = 3\n[orbit]\nexcite = {{ sites \
+             = {block}, norm = 4.0, seed = 2 }}\n[integrator]\nmethod = \"s11abc6\"\nh = 0.05\n\
+             t_final = 20.0\n[deviations]\nk = 1\nsets = 1\nseed = 5\n[[scheme]]\nname = \
+             \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 1.0\n"
+        ),
+    )
+    .unwrap();
+    let out = dir.join(format!("{lattice}.mcap"));
+    let bus = dir.join(format!("bus-{lattice}"));
+    std::fs::create_dir_all(&bus).unwrap();
+    let ran = Command::new(CHAOSCOPE)
+        .args([
+            "run",
+            config.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .env("CHAOSCOPE_BUS_DIR", &bus)
+        .output()
+        .unwrap();
+    assert!(
+        ran.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ran.stderr)
+    );
+    assert!(common::close_private_bus(&bus).is_empty());
+    out.to_str().unwrap().to_string()
+}
+
+/// `analyze --plot` on a run over an 8 x 8 square lattice draws the norm and the DVD over the
+/// plane as one PNG per time (the times asked, or by default four a decade apart ending at the
+/// run's end, t_final = 20: 0.02, 0.2, 2, 20), and no space-time picture of the flattened site
+/// index. Hostile `--plane-times` (after the run's end, negative, NaN, not a number, without
+/// --plot, on a chain) are refused naming the problem (exit 1, or 64 for a usage error), and
+/// nothing is drawn.
+#[test]
+fn plane_heat_maps_of_a_square_lattice_and_hostile_plane_times() {
+    let dir = tempfile::tempdir().unwrap();
+    let square = ddnls_recording(dir.path(), "square", 8);
+    let plot = dir.path().join("plot");
+    let p = plot.to_str().unwrap();
+    let ran = run_bounded(&["analyze", &square, "--plot", p, "--plane-times", "0,10,20"]);
+    assert_eq!(ran.code, Some(0), "{}", ran.stderr);
+    for t in ["0", "10", "20"] {
+        let png = std::fs::read(plot.join(format!("plane-t{t}.png"))).unwrap();
+        assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n", "plane-t{t}.png");
+    }
+    assert!(plot.join("norm_m2.png").exists());
+    assert!(!plot.join("distributions.png").exists());
+    std::fs::remove_dir_all(&plot).unwrap();
+    let ran = run_bounded(&["analyze", &square, "--plot", p]);
+    assert_eq!(ran.code, Some(0), "{}", ran.stderr);
+    for t in ["0.02", "0.2", "2", "20"] {
+        assert!(
+            plot.join(format!("plane-t{t}.png")).exists(),
+            "plane-t{t}.png"
+        );
+    }
+    std::fs::remove_dir_all(&plot).unwrap();
+
+    let chain = ddnls_recording(dir.path(), "chain", 9);
+    for (args, code, problem) in [
+        (
+            vec![&square[..], "--plot", p, "--plane-times", "30"],
+            1,
+            "--plane-times 30: after the run's end, t = 20",
+        ),
+        (
+            vec![&square[..], "--plot", p, "--plane-times", "5,-1"],
+            1,
+            "--plane-times -1: a time from 0 on",
+        ),
+        (
+            vec![&square[..], "--plot", p, "--plane-times", "NaN"],
+            1,
+            "--plane-times NaN: a time from 0 on",
+        ),
+        (
+            vec![&square[..], "--plot", p, "--plane-times", "1,x"],
+            64,
+            "invalid value 'x'",
+        ),
+        (vec![&square[..], "--plane-times", "1"], 64, "--plot <DIR>"),
+        (
+            vec![&chain[..], "--plot", p, "--plane-times", "1"],
+            1,
+            "a chain of 9 sites",
+        ),
+    ] {
+        let mut all = vec!["analyze"];
+        all.extend(args);
+        let ran = run_bounded(&all);
+        assert_eq!(ran.code, Some(code), "{all:?}: {}", ran.stderr);
+        assert!(ran.stderr.contains(problem), "{all:?}: {}", ran.stderr);
+        assert!(!ran.stderr.contains("panicked"), "{all:?}: {}", ran.stderr);
+        assert!(!plot.exists(), "{all:?} drew");
+    }
+    // A chain without the flag keeps its space-time picture.
+    let ran = run_bounded(&["analyze", &chain, "--plot", p]);
+    assert_eq!(ran.code, Some(0), "{}", ran.stderr);
+    assert!(plot.join("distributions.png").exists());
+    assert!(!plot.join("plane-t20.png").exists());
+}

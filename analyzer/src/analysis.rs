@@ -58,6 +58,10 @@ pub struct AnalysisOptions {
     /// first set's DVD weights, [`crate::site_profiles`]) for `analyze --plot`'s
     /// `distributions.png`: bounded, `2N` numbers per kept time.
     pub site_profiles: bool,
+    /// `--plane-times`: the times of the pictures over the plane of a run on a square lattice
+    /// (with `site_profiles`), checked by [`crate::site_profiles::check_plane_times`]; `None`:
+    /// [`crate::site_profiles::default_plane_times`].
+    pub plane_times: Option<Vec<f64>>,
     /// `--from T`: the finite-time exponents average the stretching from time T on (a
     /// transient before it is discarded); nothing else changes, and the verdict judges the
     /// whole run. Checked by [`exponents_from_step`].
@@ -107,6 +111,7 @@ impl Default for AnalysisOptions {
             site_energies: None,
             zero_one_observable: None,
             site_profiles: false,
+            plane_times: None,
             exponents_from: None,
         }
     }
@@ -254,7 +259,7 @@ impl Analysis {
                 .layout()
                 .sites
                 .filter(|_| options.site_profiles)
-                .map(SiteProfiles::new),
+                .map(|sites| SiteProfiles::for_run(&run, sites, options.plane_times.as_deref())),
             tracker,
             schemes,
             energy_error_max: 0.0,

@@ -13,6 +13,7 @@ pub mod clv;
 pub mod csv;
 pub mod map_png;
 pub mod npy;
+pub mod plane_png;
 pub mod plot;
 pub mod progress;
 pub mod recording;

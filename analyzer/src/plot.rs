@@ -560,8 +560,23 @@ pub fn plot_all(
         files.extend(render(&chart, &dir.join(name), inputs)?);
     }
     // A lattice's distributions over the sites against time (kept where the analysis was
-    // asked to, `AnalysisOptions::site_profiles`).
+    // asked to, `AnalysisOptions::site_profiles`): for a chain; a square lattice's flattened
+    // site index would put neighbours in a column `L` sites apart, so it gets its pictures
+    // over the plane at chosen times instead (those it cannot draw: `plane_png::planes`).
     if let Some(profiles) = analysis.site_profiles()
+        && let Some(side) = profiles.square_side()
+    {
+        for plane in crate::plane_png::planes(analysis).0 {
+            let path = crate::plane_png::plane_path(dir, plane.asked);
+            crate::plane_png::render_png(&plane, side, &path, inputs).map_err(|message| {
+                ChartError::Draw {
+                    path: path.clone(),
+                    message,
+                }
+            })?;
+            files.push(path);
+        }
+    } else if let Some(profiles) = analysis.site_profiles()
         && profiles.points().len() >= 2
         && profiles.sites() >= crate::site_png::MIN_SITES
     {

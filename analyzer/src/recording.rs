@@ -432,6 +432,18 @@ pub fn analyze_file(
             }
         })?;
     }
+    if let Some(times) = options
+        .plane_times
+        .as_deref()
+        .filter(|_| options.site_profiles)
+    {
+        crate::site_profiles::check_plane_times(times, reader.run()).map_err(|why| {
+            ReadError::Option {
+                path: path.to_path_buf(),
+                why,
+            }
+        })?;
+    }
     let mut analysis = Analysis::new(reader.run().clone(), options);
     while let Some(sample) = reader.next_sample()? {
         analysis.feed(&sample);

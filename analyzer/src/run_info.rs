@@ -32,6 +32,9 @@ pub struct RunInfo {
     /// `[analysis] zero_one_observable` of the recorded configuration: the expression of the
     /// state the 0-1 test observes (`None`: the generic observable).
     pub zero_one_observable: Option<String>,
+    /// `Some(L)` when the run's sites form an `L x L` square lattice numbered row by row
+    /// ([`chaoscope_schemas::run::square_side`]), `None` for a chain or a system without sites.
+    pub square_side: Option<usize>,
 }
 
 impl RunInfo {
@@ -133,6 +136,7 @@ impl RunInfo {
                 route: Route::PerSet,
             });
         }
+        let square_side = chaoscope_schemas::run::square_side(&header).map_err(err)?;
         let recorded = recorded_config(&header.config_toml);
         let periods = recorded
             .as_ref()
@@ -144,6 +148,7 @@ impl RunInfo {
         Ok(Self {
             periods,
             zero_one_observable,
+            square_side,
             kind,
             dim: header.dim as usize,
             k: header.k as usize,
@@ -177,6 +182,11 @@ impl RunInfo {
         .map(|layout| {
             layout
                 .with_sites(self.kind.lattice_sites(self.dim))
+                .with_square_side(self.square_side)
+                .with_norm(
+                    self.kind == SystemKind::Hamiltonian
+                        && chaoscope_schemas::run::conserves_norm(&self.header.model),
+                )
                 .with_periods(self.periods.clone())
         })
         .expect("a validated header has a valid layout")

@@ -53,12 +53,7 @@ pub fn render_pixels(
     };
     let hi = points
         .iter()
-        .flat_map(|(_, p)| {
-            p.dvd
-                .iter()
-                .chain(p.energy.as_deref().unwrap_or(&[]))
-                .copied()
-        })
+        .flat_map(|(_, p)| p.dvd.iter().chain(p.carrier().1.unwrap_or(&[])).copied())
         .fold(f64::NEG_INFINITY, f64::max);
     let hi = if hi > 0.0 { lg(hi).min(0.0) } else { 0.0 };
     let lo = hi - DECADES;
@@ -77,8 +72,11 @@ pub fn render_pixels(
         let (panels, bar_area) = root.split_horizontally(2 * panel_w);
         let (left, right) = panels.split_horizontally(panel_w);
         let x_range = 0.5..n as f64 + 0.5;
+        // The norm's distribution beside the DVD where the model conserves one (the DDNLS, whose
+        // site energies are no distribution), else the energy's.
+        let carrier_name = points[0].1.carrier().0;
         for (area, title, energy) in [
-            (&left, "energy distribution h_l / Σ h", true),
+            (&left, carrier_name, true),
             (&right, "deviation vector distribution ξ_l", false),
         ] {
             let mut builder = ChartBuilder::on(area);
@@ -110,7 +108,7 @@ pub fn render_pixels(
             for (i, (t, p)) in points.iter().enumerate() {
                 let t_next = points.get(i + 1).map_or(t_end, |q| q.0);
                 let weights: Option<&[f64]> = if energy {
-                    p.energy.as_deref().ok()
+                    p.carrier().1.ok()
                 } else {
                     Some(&p.dvd)
                 };

@@ -48,6 +48,14 @@ pub fn run_header(run_name: &str, config: &RunConfig, spec: &RunSpec) -> RunHead
         producer_version: env!("CARGO_PKG_VERSION").to_string(),
         kind: spec.system().kind().name().to_string(),
         time: spec.system().time().name().to_string(),
+        lattice_side: match &config.model {
+            chaoscope_schemas::config::ModelConfig::Ddnls(m)
+                if m.lattice.as_deref() == Some("square") =>
+            {
+                m.n.map_or(0, |n| n as u32)
+            }
+            _ => 0,
+        },
     }
 }
 

@@ -7,13 +7,14 @@
 //! two numbers of the distribution ([`crate::distribution`], shared with the energy
 //! distribution): its second moment about its mean site, `m2 = sum_l (l - lbar)^2 xi_l` with
 //! `lbar = sum_l l xi_l`, and its participation number `P = 1 / sum_l xi_l^2` (1 on one site,
-//! `N` spread evenly). The first vector is the one whose stretching the maximal Lyapunov
+//! `N` spread evenly); on a square lattice the second moment is over the plane
+//! ([`crate::distribution::moments_on`]). The first vector is the one whose stretching the maximal Lyapunov
 //! exponent measures.
 //!
 //! Sites are the degrees of freedom of a Hamiltonian (`q_l`, `p_l`); a run whose system has none
 //! (a flow, a map) gets the outputs as unavailable, with the reason.
 
-use crate::distribution::moments;
+use crate::distribution::moments_on;
 use crate::indicator::{Declared, Needs, Output, SetIndicator, SetObservation};
 
 /// The DVD's second moment and participation number at the latest renormalization.
@@ -48,7 +49,7 @@ impl SetIndicator for DeviationDistribution {
         let Some(w) = obs.separations.get(..obs.dim) else {
             return;
         };
-        if let Some(m) = moments(site_weights(w, n)) {
+        if let Some(m) = moments_on(site_weights(w, n), obs.square_side) {
             self.latest = Some(m);
         }
     }
@@ -87,6 +88,9 @@ mod tests {
             stretch: &[1.0],
             flow: None,
             sites,
+            square_side: None,
+            norm_conserved: false,
+            state: None,
             site_energies: None,
         });
         d.outputs()

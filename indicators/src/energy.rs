@@ -13,7 +13,7 @@
 //! than a distribution that is not one. Flows and maps have no sites; a reader that cannot
 //! rebuild the model (the recorder) has no site energies: unavailable, saying why.
 
-use crate::distribution::moments;
+use crate::distribution::moments_on;
 use crate::indicator::{
     Declared, Needs, Output, SetIndicator, SetObservation, SiteEnergies, SiteEnergyInput,
 };
@@ -33,6 +33,7 @@ enum Latest {
         state: Vec<f64>,
         t: f64,
         sites: usize,
+        square_side: Option<usize>,
     },
     Unavailable(String),
 }
@@ -45,9 +46,10 @@ impl Default for EnergyDistribution {
     }
 }
 
-/// The second moment and participation number of the energy distribution of `energies`, or why
-/// it is not a distribution (a negative or non-finite site energy, a total that is not positive).
-pub fn energy_moments(energies: &[f64]) -> Result<(f64, f64), String> {
+/// The second moment and participation number of the energy distribution of `energies` on the
+/// lattice `square_side` describes ([`crate::distribution::moments_on`]), or why it is not a
+/// distribution (a negative or non-finite site energy, a total that is not positive).
+pub fn energy_moments(energies: &[f64], square_side: Option<usize>) -> Result<(f64, f64), String> {
     if let Some((l, e)) = energies.iter().enumerate().find(|(_, e)| !e.is_finite()) {
         return Err(format!("the energy of site {} is {e}", l + 1));
     }
@@ -58,7 +60,7 @@ pub fn energy_moments(energies: &[f64]) -> Result<(f64, f64), String> {
             l + 1
         ));
     }
-    moments(energies.iter().copied())
+    moments_on(energies.iter().copied(), square_side)
         .ok_or_else(|| "the total energy of the sites is not positive".to_string())
 }
 
@@ -98,8 +100,9 @@ impl SetIndicator for EnergyDistribution {
                     state: s,
                     t,
                     sites,
+                    square_side,
                 } => {
-                    (*e, *t, *sites) = (energies.clone(), obs.t, n);
+                    (*e, *t, *sites, *square_side) = (energies.clone(), obs.t, n, obs.square_side);
                     s.clear();
                     s.extend_from_slice(state);
                 }
@@ -109,6 +112,7 @@ impl SetIndicator for EnergyDistribution {
                         state: state.to_vec(),
                         t: obs.t,
                         sites: n,
+                        square_side: obs.square_side,
                     };
                 }
             },
@@ -123,9 +127,12 @@ impl SetIndicator for EnergyDistribution {
                 state,
                 t,
                 sites,
+                square_side,
             } => SiteEnergyInput::At { energies, state }
                 .evaluate(*sites)
-                .and_then(|e| energy_moments(&e).map_err(|why| format!("at t = {t}: {why}"))),
+                .and_then(|e| {
+                    energy_moments(&e, *square_side).map_err(|why| format!("at t = {t}: {why}"))
+                }),
         };
         match moments {
             Ok((m2, p)) => vec![Output::Value(m2), Output::Value(p)],
@@ -173,6 +180,9 @@ mod tests {
             stretch: &[1.0],
             flow: None,
             sites,
+            square_side: None,
+            norm_conserved: false,
+            state: None,
             site_energies: input,
         });
         d.outputs()

@@ -119,6 +119,9 @@ mod tests {
             stretch,
             flow,
             sites: None,
+            square_side: None,
+            norm_conserved: false,
+            state: None,
             site_energies: None,
         }
     }

@@ -42,6 +42,15 @@ pub struct SetObservation<'a> {
     /// The number of sites `N` of a Hamiltonian (`dim = 2N`, site `l` at `q_l`, `p_l`); `None`
     /// for a system without them (a flow, a map).
     pub sites: Option<usize>,
+    /// `Some(L)`: the `N = L^2` sites form an `L x L` square lattice numbered row by row (site
+    /// `l`, from 0, at row `l / L`, column `l % L`), over whose plane the distributions' second
+    /// moments are taken; `None`: a chain (site `l` at position `l`).
+    pub square_side: Option<usize>,
+    /// The system conserves the norm `S = sum_l (q_l^2 + p_l^2) / 2` (the DDNLS), whose
+    /// distribution over the sites `z_l = (q_l^2 + p_l^2) / (2 S)` is then defined.
+    pub norm_conserved: bool,
+    /// The reference state of this renormalization, where one came with it (a sample).
+    pub state: Option<&'a [f64]>,
     /// The energy of each site at the reference state of this renormalization: `None` when
     /// the reader was given no way to compute them (the recorder, which does not rebuild the
     /// model).
@@ -350,7 +359,9 @@ mod tests {
                 "dvd_m2",
                 "dvd_participation",
                 "energy_m2",
-                "energy_participation"
+                "energy_participation",
+                "norm_m2",
+                "norm_participation"
             ]
         );
         let mut unique = names.to_vec();

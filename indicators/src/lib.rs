@@ -31,6 +31,7 @@ pub mod energy;
 pub mod fli;
 pub mod indicator;
 pub mod megno;
+pub mod norm;
 pub mod periodic;
 pub mod stats;
 pub mod stretch;
@@ -48,6 +49,7 @@ pub fn set_indicators() -> Vec<Box<dyn SetIndicator>> {
         Box::new(megno::Megno::default()),
         Box::new(dvd::DeviationDistribution::default()),
         Box::new(energy::EnergyDistribution::default()),
+        Box::new(norm::NormDistribution::default()),
     ]
 }
 

@@ -82,6 +82,9 @@ mod tests {
                 stretch: &[stretch],
                 flow: None,
                 sites: None,
+                square_side: None,
+                norm_conserved: false,
+                state: None,
                 site_energies: None,
             });
             prev = l;

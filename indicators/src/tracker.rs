@@ -36,6 +36,11 @@ pub struct Layout {
     /// The sites `N` of a Hamiltonian (`dim = 2N`), for the indicators over a lattice
     /// ([`Layout::with_sites`]); `None` for flows and maps.
     pub sites: Option<usize>,
+    /// `Some(L)` when the sites form an `L x L` square lattice numbered row by row
+    /// ([`Layout::with_square_side`], [`SetObservation::square_side`]); `None`: a chain.
+    pub square_side: Option<usize>,
+    /// The system conserves the norm `sum_l (q_l^2 + p_l^2) / 2` ([`Layout::with_norm`]).
+    pub norm_conserved: bool,
     /// The period of each coordinate of the state (`0`: none; empty: no periodic coordinate),
     /// [`Layout::with_periods`], for the readers of a run that show its state wrapped
     /// ([`crate::periodic`]). The orbit indicators observe the state as the system integrates it
@@ -64,6 +69,8 @@ impl Layout {
             h,
             tau_steps,
             sites: None,
+            square_side: None,
+            norm_conserved: false,
             periods: Vec::new(),
         })
     }
@@ -72,6 +79,22 @@ impl Layout {
     /// `p_l`), or none.
     pub fn with_sites(self, sites: Option<usize>) -> Self {
         Self { sites, ..self }
+    }
+
+    /// The layout whose `L^2` sites form an `L x L` square lattice (`Some(L)`), or a chain.
+    pub fn with_square_side(self, square_side: Option<usize>) -> Self {
+        Self {
+            square_side,
+            ..self
+        }
+    }
+
+    /// The layout of a system that conserves the norm `sum_l (q_l^2 + p_l^2) / 2` (or not).
+    pub fn with_norm(self, norm_conserved: bool) -> Self {
+        Self {
+            norm_conserved,
+            ..self
+        }
     }
 
     /// The layout with the periods of the state's coordinates (one per coordinate, `0` for
@@ -469,6 +492,9 @@ impl Tracker {
             stretch,
             flow: reference.and_then(|r| r.flow.as_deref()),
             sites: self.layout.sites,
+            square_side: self.layout.square_side,
+            norm_conserved: self.layout.norm_conserved,
+            state: reference.map(|r| r.state.as_slice()),
             site_energies: self.site_energies.as_ref().map(|energies| match reference {
                 Some(r) => SiteEnergyInput::At {
                     energies,

@@ -751,7 +751,7 @@ pub struct Indicators {
     energy_error: Py<PyAny>,
     /// The names of every registered set indicator's outputs, in report order: `fli`, `ofli`,
     /// `megno`, `megno_mean`, `dvd_m2`, `dvd_participation`, `energy_m2`,
-    /// `energy_participation` (the columns of `analyze --csv`).
+    /// `energy_participation`, `norm_m2`, `norm_participation` (the columns of `analyze --csv`).
     names: Vec<&'static str>,
     /// Each output's mean over the sets by name, shape (n,), NaN where unavailable (each is also
     /// an attribute: `ind.fli`).

@@ -137,6 +137,8 @@ def test_every_named_series_equals_analyze_csv(tmp_path, cli, system):
             "dvd_participation",
             "energy_m2",
             "energy_participation",
+            "norm_m2",
+            "norm_participation",
         ]
         head, rows = read_csv(tmp_path / "csv" / f"{scheme}.csv")
         # A few hundred renormalizations: the CSV keeps every one (2000 points a curve).
@@ -163,9 +165,13 @@ def test_every_named_series_equals_analyze_csv(tmp_path, cli, system):
         # The flow for OFLI and the sites for the DVD come with every Hamiltonian; the energy
         # distribution needs a potential split over sites, which the lattice potential has and
         # the built-in Henon-Heiles model does not say (so the run says why).
-        expected = set() if system == "fput" else {"energy_m2", "energy_participation"}
+        # The norm distribution is the DDNLS's (a model that conserves the norm): neither has one.
+        energy = set() if system == "fput" else {"energy_m2", "energy_participation"}
+        expected = energy | {"norm_m2", "norm_participation"}
         assert set(ind.unavailable) == expected, ind.unavailable
-        for name in expected:
+        for name in ("norm_m2", "norm_participation"):
+            assert "conserves the norm" in ind.unavailable[name]
+        for name in energy:
             assert "which part of its potential belongs to which site" in ind.unavailable[name]
             assert np.all(np.isnan(ind.named[name]))
         assert (ind.gali_vs_vm_mean_abs_delta_log10 is None) == (ind.method == "vm")

@@ -49,6 +49,47 @@ impl SystemKind {
     }
 }
 
+/// The side `L` of the square lattice a run's sites form (`N = L^2`, numbered row by row), or
+/// `None` for a chain or a system without sites: the header's `lattice_side`, or, in a recording
+/// made before that field existed, the recorded configuration's `[model] lattice = "square"`
+/// and `n`. A side whose square is not the header's `N = dim / 2` is an error naming both.
+pub fn square_side(header: &crate::proto::RunHeader) -> Result<Option<usize>, String> {
+    let sites =
+        SystemKind::from_name(&header.kind).and_then(|k| k.lattice_sites(header.dim as usize));
+    let side = if header.lattice_side > 0 {
+        header.lattice_side as usize
+    } else {
+        match recorded_square_side(header) {
+            Some(side) => side,
+            None => return Ok(None),
+        }
+    };
+    match sites {
+        Some(n) if side.checked_mul(side) == Some(n) => Ok(Some(side)),
+        _ => Err(format!(
+            "lattice_side {side} does not fit the run's state: a {side} x {side} lattice has \
+             {} sites, the state (dim {}, kind {:?}) {}",
+            side.saturating_mul(side),
+            header.dim,
+            header.kind,
+            sites.map_or("has none".to_string(), |n| format!("has {n}"))
+        )),
+    }
+}
+
+/// The side of a recorded configuration's square lattice (`[model] name = "ddnls"`, `lattice =
+/// "square"`, `n`), where the header carries a configuration that says so.
+fn recorded_square_side(header: &crate::proto::RunHeader) -> Option<usize> {
+    if header.model != "ddnls" || header.config_toml.is_empty() {
+        return None;
+    }
+    let config = crate::config::RunConfig::from_toml(&header.config_toml).ok()?;
+    match &config.model {
+        crate::config::ModelConfig::Ddnls(m) if m.lattice.as_deref() == Some("square") => m.n,
+        _ => None,
+    }
+}
+
 /// The models whose states conserve the norm `S = sum_l (q_l^2 + p_l^2)/2` beside the energy
 /// (the disordered discrete nonlinear Schroedinger lattice): the report carries the norm's
 /// relative error beside the energy error for them.

@@ -33,6 +33,17 @@ pub struct Args {
     /// Draw the curves (PNG and SVG) into DIR.
     #[arg(long, value_name = "DIR")]
     pub plot: Option<PathBuf>,
+    /// With --plot, for a run on a square lattice: the times T1,T2,... of the pictures of the
+    /// norm (or energy) distribution and the deviation vector distribution over the plane,
+    /// DIR/plane-tT.png, each of the latest renormalization at or before T (default: four, a
+    /// decade apart, ending at the run's end).
+    #[arg(
+        long,
+        value_name = "T1,T2,...",
+        value_delimiter = ',',
+        requires = "plot"
+    )]
+    pub plane_times: Option<Vec<f64>>,
     /// Time axis of GALI plots: auto (log t for regular orbits, t for chaotic), log, linear.
     #[arg(long, default_value = "auto")]
     pub time_axis: String,
@@ -104,6 +115,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
         zero_one_observable: Some(chaoscope_replay::flow::zero_one_observable_of_run),
         site_profiles: args.plot.is_some(),
+        plane_times: args.plane_times.clone(),
         exponents_from: args.from,
         ..Default::default()
     };
@@ -137,6 +149,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         );
     }
     if let Some(dir) = &args.plot {
+        for skipped in chaoscope_analyzer::plane_png::planes(&analysis).1 {
+            chaoscope_os::errln!("chaoscope analyze: {}: {skipped}", args.file.display());
+        }
         let files = plot_all(
             &analysis,
             &report,
@@ -160,6 +175,9 @@ fn clv(args: &Args) -> anyhow::Result<ExitCode> {
             "--clv takes neither --at nor --from (its transients are \
              --clv-forward-transient and --clv-backward-transient)"
         );
+    }
+    if args.plane_times.is_some() {
+        anyhow::bail!("--plane-times draws the distributions over a plane, which --clv does not");
     }
     let options = ClvOptions {
         scheme: args.clv_scheme.clone(),

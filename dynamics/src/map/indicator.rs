@@ -185,6 +185,9 @@ impl PointAccumulator {
                         // A map's outputs need no flow direction and no sites (`on_maps`).
                         flow: None,
                         sites: None,
+                        square_side: None,
+                        norm_conserved: false,
+                        state: None,
                         site_energies: None,
                     });
                     *previous = t;

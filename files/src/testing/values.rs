@@ -275,6 +275,7 @@ pub fn recording(choices: &mut Choices) -> Vec<u8> {
         producer_version: choices.string("0.1.0"),
         kind: choices.string("hamiltonian"),
         time: choices.string("continuous"),
+        lattice_side: choices.u32(0),
     };
     let options = FileOptions {
         compression: [Compression::Zstd, Compression::None, Compression::Lz4]
@@ -708,6 +709,7 @@ fn crafted(header_edit: fn(&mut RunHeader), message_edit: fn(&mut DataMessage)) 
         producer_version: "0.1.0".into(),
         kind: "hamiltonian".into(),
         time: "continuous".into(),
+        lattice_side: 0,
     };
     header_edit(&mut header);
     let mut noise = Noise::new(5);

@@ -379,20 +379,20 @@ fn the_csv_and_the_plots_carry_every_named_indicator_over_time() {
     let charts =
         chaoscope_analyzer::plot::charts(&a, &report, chaoscope_analyzer::plot::TimeAxis::Auto);
     // Henon-Heiles is no lattice: its energy distribution is unavailable (with the reason,
-    // `lattice_distributions.rs`), so it has no curve to draw; and a distribution over two
-    // degrees of freedom is no picture of a lattice, so its DVD moments (computed above) are
-    // not charted either.
+    // `lattice_distributions.rs`), so it has no curve to draw, nor has its norm distribution (it
+    // conserves no norm); and a distribution over two degrees of freedom is no picture of a
+    // lattice, so its DVD moments (computed above) are not charted either.
     assert!(
         !charts
             .iter()
-            .any(|(stem, _)| ["energy_m", "energy_p", "dvd_"]
+            .any(|(stem, _)| ["energy_m", "energy_p", "dvd_", "norm_"]
                 .iter()
                 .any(|p| stem.starts_with(p))),
         "a distribution chart for Henon-Heiles"
     );
     for n in names
         .iter()
-        .filter(|n| !n.starts_with("energy_") && !n.starts_with("dvd_"))
+        .filter(|n| !n.starts_with("energy_") && !n.starts_with("dvd_") && !n.starts_with("norm_"))
     {
         let (_, chart) = charts
             .iter()

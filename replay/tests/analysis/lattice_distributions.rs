@@ -321,3 +321,130 @@ fn the_dvd_of_a_chaotic_klein_gordon_chain_sits_on_the_energy_hot_spots() {
         "DVD mean near the energy's at {near} of the times"
     );
 }
+
+/// A 6 x 6 DDNLS square lattice (W = 10, beta = 1) from a 2 x 2 block of norm 1 per site
+/// (rows and columns 3..4), the distributions' second moments taken over its plane.
+fn ddnls_square(lattice_side: usize, t_final: f64) -> RunConfig {
+    let text = format!(
+        "[run]\nname = \"square\"\n[model]\nname = \"ddnls\"\nlattice = \"square\"\n\
+         n = {lattice_side}\nW = 10.0\nbeta = 1.0\nseed = 3\n\
+         [orbit]\nexcite = {{ sites = [3, 4], norm = 4.0, seed = 2 }}\n\
+         [integrator]\nmethod = \"s11abc6\"\nh = 0.05\nt_final = {t_final:?}\n\
+         [deviations]\nk = 1\nsets = 1\nseed = 5\n\
+         [[scheme]]\nname = \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 1.0\n"
+    );
+    RunConfig::from_toml(&text).unwrap_or_else(|e| panic!("{e}\n{text}"))
+}
+
+/// `(m2, P)` of the weights `w` of a `side x side` lattice over its plane, written out here
+/// from the definition: `m2 = sum_l z_l ((i_l - ibar)^2 + (j_l - jbar)^2)`, `P = 1 / sum z_l^2`.
+fn plane_moments(w: &[f64], side: usize) -> (f64, f64) {
+    let total: f64 = w.iter().sum();
+    let z: Vec<f64> = w.iter().map(|x| x / total).collect();
+    let at = |l: usize| ((l / side) as f64, (l % side) as f64);
+    let ibar: f64 = z.iter().enumerate().map(|(l, z)| at(l).0 * z).sum();
+    let jbar: f64 = z.iter().enumerate().map(|(l, z)| at(l).1 * z).sum();
+    let m2 = z
+        .iter()
+        .enumerate()
+        .map(|(l, z)| {
+            let (i, j) = at(l);
+            z * ((i - ibar).powi(2) + (j - jbar).powi(2))
+        })
+        .sum();
+    (m2, 1.0 / z.iter().map(|z| z * z).sum::<f64>())
+}
+
+/// Must-show (2-D): on a square lattice the second moments are over the plane, not over the
+/// flattened site index. At t = 0 the norm sits evenly on a 2 x 2 block: each site sqrt(1/2)
+/// from the block's centre, so `norm_m2 = 1/2` and `norm_participation = 4` (to the rounding of
+/// `cos^2 + sin^2` of the random phases). At the end, `dvd_m2`, `norm_m2` and
+/// `norm_participation` are the plane's moments of the last sample's distributions written out
+/// from the definition (1e-12 relative: the same sums in another order), and the flattened
+/// index's `m2` is far larger (a step down a column is 6 sites there: ~18 times the plane's
+/// for an even spread, more than twice for any packet spread over more than one row). The DDNLS
+/// gives no site energies (its on-site terms take either sign): `energy_m2` says why.
+#[test]
+fn a_square_lattice_s_distributions_are_over_its_plane() {
+    let side = 6;
+    let cfg = ddnls_square(side, 20.0);
+    let options = AnalysisOptions {
+        at: vec![0.0],
+        ..Default::default()
+    };
+    let start = analyze_config(&cfg, &options, |_| {}).unwrap();
+    let start = start.report_at(0.0).unwrap().schemes[0].clone();
+    assert!((over_sets(&start, "norm_m2") - 0.5).abs() < 1e-14);
+    assert!((over_sets(&start, "norm_participation") - 4.0).abs() < 1e-13);
+
+    let (samples, report) = run(&cfg);
+    let last = samples.last().unwrap();
+    let n = side * side;
+    let norm: Vec<f64> = (0..n)
+        .map(|l| last.state[l].powi(2) + last.state[n + l].powi(2))
+        .collect();
+    let dvd: Vec<f64> = site_weights(&last.schemes[0].separations[..2 * n], n).collect();
+    for (name, weights, participation) in [
+        ("dvd", &dvd, "dvd_participation"),
+        ("norm", &norm, "norm_participation"),
+    ] {
+        let (m2, p) = plane_moments(weights, side);
+        let got = over_sets(&report, &format!("{name}_m2"));
+        assert!((got - m2).abs() <= 1e-12 * m2, "{name}_m2 {got} vs {m2}");
+        let got_p = over_sets(&report, participation);
+        assert!(
+            (got_p - p).abs() <= 1e-12 * p,
+            "{participation} {got_p} vs {p}"
+        );
+        let (flat, _) = moments(weights.iter().copied()).unwrap();
+        assert!(flat > 2.0 * m2, "{name}: flattened {flat}, plane {m2}");
+    }
+    let why = unavailable(&report, "energy_m2");
+    assert!(why.contains("'ddnls' is not one"), "{why}");
+}
+
+/// The run header carries the lattice side to every reader: the producer's header says 6 for
+/// a 6 x 6 square and 0 for a chain; a recording made before the field existed (0, with the
+/// configuration that says `lattice = "square"`) is read as the same square; a side whose
+/// square is not the state's number of sites is refused, naming both.
+#[test]
+fn the_header_carries_the_lattice_side_and_old_recordings_keep_theirs() {
+    use chaoscope_analyzer::run_info::RunInfo;
+    let cfg = ddnls_square(6, 1.0);
+    let spec = RunSpec::from_config(&cfg).unwrap();
+    let info = chaoscope_replay::inprocess::run_info("square", &cfg, &spec);
+    assert_eq!(info.header.lattice_side, 6);
+    assert_eq!(info.square_side, Some(6));
+    assert_eq!(info.layout().square_side, Some(6));
+    assert!(info.layout().norm_conserved);
+
+    let mut old = info.header.clone();
+    old.lattice_side = 0;
+    assert_eq!(
+        RunInfo::from_header(old.clone()).unwrap().square_side,
+        Some(6)
+    );
+    // Without a configuration to say so, an old header is a chain's.
+    old.config_toml.clear();
+    assert_eq!(RunInfo::from_header(old).unwrap().square_side, None);
+
+    let mut hostile = info.header.clone();
+    hostile.lattice_side = 5;
+    let why = RunInfo::from_header(hostile).unwrap_err().to_string();
+    assert!(
+        why.contains("lattice_side 5") && why.contains("25 sites") && why.contains("has 36"),
+        "{why}"
+    );
+
+    let chain = RunConfig::from_toml(
+        &std::fs::read_to_string(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../examples/models/ddnls-block.toml"),
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    let spec = RunSpec::from_config(&chain).unwrap();
+    let info = chaoscope_replay::inprocess::run_info("chain", &chain, &spec);
+    assert_eq!((info.header.lattice_side, info.square_side), (0, None));
+}

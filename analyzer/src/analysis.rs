@@ -15,7 +15,7 @@ pub use chaoscope_indicators::zero_one::ObservableFn;
 pub use chaoscope_indicators::{FlowField, SiteEnergies};
 use chaoscope_indicators::{SchemeIndicators, Tracker};
 use chaoscope_schemas::run::{
-    Method, Orthonormalization, Sample, SchemeSample, SchemeSpec, SystemKind,
+    Method, Orthonormalization, Sample, SchemeSample, SchemeSpec, SystemClass,
 };
 
 pub use chaoscope_indicators::SetValues;
@@ -264,7 +264,7 @@ impl Analysis {
             schemes,
             energy_error_max: 0.0,
             energy_series: Series::new(options.series_capacity, options.per_decade),
-            norm0: (run.kind == SystemKind::Hamiltonian
+            norm0: (run.kind == SystemClass::Hamiltonian
                 && chaoscope_schemas::run::conserves_norm(&run.header.model))
             .then(|| lattice_norm(&run.header.x0)),
             norm_error_max: 0.0,
@@ -353,7 +353,7 @@ impl Analysis {
             && sample.energy.is_finite()
             && sample.mean_divergence.is_finite()
         {
-            if self.run.kind == SystemKind::Hamiltonian {
+            if self.run.kind == SystemClass::Hamiltonian {
                 let err = energy_error(sample.energy, self.run.header.energy0);
                 self.energy_error_max = self.energy_error_max.max(err);
                 self.energy_series.offer(sample.t, || err);
@@ -539,7 +539,7 @@ impl Analysis {
         }
         let (energy_error_max, samples, t, complete) =
             (self.energy_error_max, self.samples, self.t, self.complete());
-        let hamiltonian = run.kind == SystemKind::Hamiltonian;
+        let hamiltonian = run.kind == SystemClass::Hamiltonian;
         let reported_energy_error = hamiltonian.then_some(energy_error_max);
         let reported_norm_error = self.norm0.map(|_| self.norm_error_max);
         let h = &run.header;

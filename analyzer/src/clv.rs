@@ -22,7 +22,7 @@ use std::io::{Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use chaoscope_indicators::clv::{self, Backward, ClvError};
-use chaoscope_schemas::run::{Method, Orthonormalization, Sample, SystemKind};
+use chaoscope_schemas::run::{Method, Orthonormalization, Sample, SystemClass};
 use serde::Serialize;
 
 use crate::chart::{Chart, ChartError, Line, Stroke, render};
@@ -79,11 +79,11 @@ impl Default for ClvOptions {
 /// it falls among the first `k` depends on the orbit); for an autonomous Hamiltonian the flow
 /// direction and, by the symplectic pairing, its partner across the energy shells, exponents
 /// `N` and `N + 1` of `2N`, those of them among the first `k`.
-pub fn forced_zero_exponents(kind: SystemKind, k: usize, dim: usize) -> usize {
+pub fn forced_zero_exponents(kind: SystemClass, k: usize, dim: usize) -> usize {
     match kind {
-        SystemKind::Map => 0,
-        SystemKind::Flow => usize::from(k == dim),
-        SystemKind::Hamiltonian => (k + 1).saturating_sub(dim / 2).min(2),
+        SystemClass::Map => 0,
+        SystemClass::Flow => usize::from(k == dim),
+        SystemClass::Hamiltonian => (k + 1).saturating_sub(dim / 2).min(2),
     }
 }
 
@@ -470,7 +470,7 @@ pub struct ClvAnalysis {
     dim: usize,
     k: usize,
     d0: f64,
-    kind: SystemKind,
+    kind: SystemClass,
     neutral: Option<usize>,
     forward_transient: f64,
     backward_transient: f64,

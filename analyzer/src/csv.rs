@@ -96,7 +96,7 @@ pub fn write_csv(
         drop(f);
         files.push(output.commit().map_err(io)?);
     }
-    if analysis.run().kind != chaoscope_schemas::run::SystemKind::Hamiltonian {
+    if analysis.run().kind != chaoscope_schemas::run::SystemClass::Hamiltonian {
         // No energy to follow.
         return Ok(files);
     }

@@ -535,7 +535,7 @@ pub fn charts(analysis: &Analysis, report: &Report, axis: TimeAxis) -> Vec<(Stri
             out.push((name.to_string(), c));
         }
     }
-    if analysis.run().kind == chaoscope_schemas::run::SystemKind::Hamiltonian {
+    if analysis.run().kind == chaoscope_schemas::run::SystemClass::Hamiltonian {
         out.push(("energy_error".into(), energy_chart(analysis)));
     }
     out.extend(sweep_charts(report));

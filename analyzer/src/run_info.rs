@@ -4,7 +4,7 @@
 use chaoscope_indicators::Layout;
 use chaoscope_schemas::proto::RunHeader;
 use chaoscope_schemas::run::{
-    MAX_STATE_VALUES, Method, Orthonormalization, Route, SchemeSpec, SystemKind,
+    MAX_STATE_VALUES, Method, Orthonormalization, Route, SchemeSpec, SystemClass,
     deviation_state_values,
 };
 
@@ -18,7 +18,7 @@ pub struct HeaderError(pub String);
 pub struct RunInfo {
     pub header: RunHeader,
     /// What kind of system (an empty header field: a Hamiltonian, recorded before flows).
-    pub kind: SystemKind,
+    pub kind: SystemClass,
     pub dim: usize,
     pub k: usize,
     pub sets: usize,
@@ -40,7 +40,7 @@ pub struct RunInfo {
 impl RunInfo {
     pub fn from_header(header: RunHeader) -> Result<Self, HeaderError> {
         let err = |m: String| HeaderError(m);
-        let kind = SystemKind::from_name(&header.kind)
+        let kind = SystemClass::from_name(&header.kind)
             .ok_or_else(|| err(format!("unknown kind of system {:?}", header.kind)))?;
         if !matches!(header.time.as_str(), "" | "continuous" | "discrete") {
             return Err(err(format!("unknown kind of time {:?}", header.time)));
@@ -184,7 +184,7 @@ impl RunInfo {
                 .with_sites(self.kind.lattice_sites(self.dim))
                 .with_square_side(self.square_side)
                 .with_norm(
-                    self.kind == SystemKind::Hamiltonian
+                    self.kind == SystemClass::Hamiltonian
                         && chaoscope_schemas::run::conserves_norm(&self.header.model),
                 )
                 .with_periods(self.periods.clone())

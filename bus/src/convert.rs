@@ -7,7 +7,7 @@ use chaoscope_schemas::proto::{
 use prost::Message;
 
 use crate::frame::{
-    FrameHeader, FrameKind, RECORD_HEADER_WORDS, RecordKind, RunAnnouncement, status,
+    FrameContent, FrameHeader, RECORD_HEADER_WORDS, RecordContent, RunAnnouncement, status,
 };
 
 /// A run header announcement that this build cannot read.
@@ -73,7 +73,7 @@ pub fn decode_frame(
     }
     let layout = |problem: String| FrameError::Layout { frame, problem };
     match h.kind() {
-        Some(FrameKind::End) => {
+        Some(FrameContent::End) => {
             if !payload.is_empty() || h.records != 1 {
                 return Err(layout(format!(
                     "end of run with {} records and {} payload words",
@@ -91,7 +91,7 @@ pub fn decode_frame(
             }));
             Ok(())
         }
-        Some(FrameKind::Records) => {
+        Some(FrameContent::Records) => {
             let start = out.len();
             let result = decode_records(h, payload, out);
             if result.is_err() {
@@ -148,7 +148,7 @@ fn decode_records(
         };
         let (body, next) = values.split_at(len);
         rest = next;
-        out.push(if kind == RecordKind::Reference as u64 {
+        out.push(if kind == RecordContent::Reference as u64 {
             DataMessage::Reference(ReferenceState {
                 frame,
                 seq,

@@ -64,12 +64,12 @@ pub const RECORD_HEADER_WORDS: usize = 8;
 /// What a data frame contains.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u32)]
-pub enum FrameKind {
+pub enum FrameContent {
     Records = 1,
     End = 3,
 }
 
-impl FrameKind {
+impl FrameContent {
     pub fn from_u32(v: u32) -> Option<Self> {
         match v {
             1 => Some(Self::Records),
@@ -82,7 +82,7 @@ impl FrameKind {
 /// What a record of a `Records` frame is (word 0 of its header).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u64)]
-pub enum RecordKind {
+pub enum RecordContent {
     Reference = 1,
     Separations = 2,
 }
@@ -100,7 +100,7 @@ pub mod status {
 #[type_name("chaoscope.bus2.FrameHeader")]
 pub struct FrameHeader {
     pub format_version: u32,
-    /// A [`FrameKind`] as u32.
+    /// A [`FrameContent`] as u32.
     pub kind: u32,
     /// Number of the frame's first record, counting every record of the run from 0.
     pub frame_seq: u64,
@@ -134,8 +134,8 @@ impl Default for FrameHeader {
 }
 
 impl FrameHeader {
-    pub fn kind(&self) -> Option<FrameKind> {
-        FrameKind::from_u32(self.kind)
+    pub fn kind(&self) -> Option<FrameContent> {
+        FrameContent::from_u32(self.kind)
     }
 
     /// Stores `reason`, cut to [`MAX_REASON_LEN`] bytes at a char boundary.
@@ -156,7 +156,7 @@ impl FrameHeader {
     /// Header of a frame of `records` records, the first numbered `frame_seq`.
     pub fn records(frame_seq: u64, records: u64) -> Self {
         Self {
-            kind: FrameKind::Records as u32,
+            kind: FrameContent::Records as u32,
             frame_seq,
             records,
             ..Self::default()
@@ -166,7 +166,7 @@ impl FrameHeader {
     /// Header of the end-of-run frame (empty payload); `samples` = samples published.
     pub fn end(frame_seq: u64, samples: u64, step: u64, t: f64, status: u32, reason: &str) -> Self {
         let mut h = Self {
-            kind: FrameKind::End as u32,
+            kind: FrameContent::End as u32,
             frame_seq,
             records: 1,
             sample_seq: samples,
@@ -264,7 +264,7 @@ impl RecordBatch {
         state: &[f64],
     ) {
         let head = [
-            RecordKind::Reference as u64,
+            RecordContent::Reference as u64,
             sample_seq,
             step,
             t.to_bits(),
@@ -296,7 +296,7 @@ impl RecordBatch {
         let k = stretch.len();
         let earlier = earlier_stretch.len().checked_div(k).unwrap_or(0);
         let head = [
-            RecordKind::Separations as u64,
+            RecordContent::Separations as u64,
             sample_seq,
             step,
             t.to_bits(),
@@ -331,13 +331,13 @@ impl Default for RunAnnouncement {
 /// What a map frame contains.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u32)]
-pub enum MapFrameKind {
+pub enum MapFrameContent {
     Header = 1,
     Point = 2,
     End = 3,
 }
 
-impl MapFrameKind {
+impl MapFrameContent {
     pub fn from_u32(v: u32) -> Option<Self> {
         match v {
             1 => Some(Self::Header),
@@ -354,7 +354,7 @@ impl MapFrameKind {
 #[type_name("chaoscope.v1.MapFrameHeader")]
 pub struct MapFrameHeader {
     pub format_version: u32,
-    /// A [`MapFrameKind`] as u32.
+    /// A [`MapFrameContent`] as u32.
     pub kind: u32,
     /// `Point`: its number among the points published, from 0. `End`: points published.
     pub seq: u64,
@@ -377,7 +377,7 @@ impl Default for MapFrameHeader {
 }
 
 impl MapFrameHeader {
-    pub fn new(kind: MapFrameKind, seq: u64, status: u32) -> Self {
+    pub fn new(kind: MapFrameContent, seq: u64, status: u32) -> Self {
         Self {
             format_version: FORMAT_VERSION,
             kind: kind as u32,
@@ -387,8 +387,8 @@ impl MapFrameHeader {
         }
     }
 
-    pub fn kind(&self) -> Option<MapFrameKind> {
-        MapFrameKind::from_u32(self.kind)
+    pub fn kind(&self) -> Option<MapFrameContent> {
+        MapFrameContent::from_u32(self.kind)
     }
 }
 
@@ -418,7 +418,7 @@ mod tests {
         let h = b.header();
         assert_eq!(
             (h.kind(), h.frame_seq, h.records),
-            (Some(FrameKind::Records), 5, 2)
+            (Some(FrameContent::Records), 5, 2)
         );
         b.reset(7);
         assert!(b.is_empty() && b.words().is_empty());

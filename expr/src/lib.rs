@@ -58,7 +58,7 @@ pub use parser::parse;
 pub use scalar::{ScalarDefinition, ScalarError, ScalarFunction};
 pub use smooth::{Limit, Smoothness};
 pub use table::{
-    ErrorBound, Spline, SplineKind, TableData, TableError, interpolation_error_bound, parse_csv,
+    ErrorBound, Spline, SplineEnds, TableData, TableError, interpolation_error_bound, parse_csv,
     read_csv,
 };
 pub use vector::{VectorDefinition, VectorError, VectorFunction};

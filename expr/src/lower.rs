@@ -34,7 +34,7 @@ use crate::error::{ExprError, Span};
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
 use crate::lattice::SiteSum;
 use crate::parser::{on_big_stack, parse_here};
-use crate::smooth::{self, Info, LimitKind, Signs, Smoothness};
+use crate::smooth::{self, Info, Signs, Smoothness, SmoothnessLimit};
 
 mod loops;
 
@@ -890,7 +890,7 @@ impl<'a> Lowerer<'a> {
         (cmp, a, b): (Cmp, NodeId, NodeId),
         (then, ti): (NodeId, Info),
         (otherwise, oi): (NodeId, Info),
-        kind: LimitKind,
+        kind: SmoothnessLimit,
         name_span: Span,
         span: Span,
     ) -> R<(NodeId, Info)> {
@@ -944,7 +944,9 @@ impl<'a> Lowerer<'a> {
             let (b, bi) = self.value(&args[1])?;
             let id = self.emit(Node::Binary(op, a, b), span)?;
             let info = match op {
-                Binary::Atan2 => Info::jump(LimitKind::Atan2, name_span, &[ai, bi], Signs::ALL),
+                Binary::Atan2 => {
+                    Info::jump(SmoothnessLimit::Atan2, name_span, &[ai, bi], Signs::ALL)
+                }
                 _ => Info::min_max(
                     op == Binary::Max,
                     name_span,
@@ -970,7 +972,7 @@ impl<'a> Lowerer<'a> {
                 let cond = self.condition(&args[0], "if")?;
                 let then = self.value(&args[1])?;
                 let otherwise = self.value(&args[2])?;
-                return self.select(cond, then, otherwise, LimitKind::If, name_span, span);
+                return self.select(cond, then, otherwise, SmoothnessLimit::If, name_span, span);
             }
             "piecewise" => {
                 if args.len() < 3 || args.len().is_multiple_of(2) {
@@ -993,7 +995,7 @@ impl<'a> Lowerer<'a> {
                 }
                 let mut acc = self.value(&args[args.len() - 1])?;
                 for (cond, v) in pairs.into_iter().rev() {
-                    acc = self.select(cond, v, acc, LimitKind::Piecewise, name_span, span)?;
+                    acc = self.select(cond, v, acc, SmoothnessLimit::Piecewise, name_span, span)?;
                 }
                 return Ok(acc);
             }

@@ -21,7 +21,7 @@
 use crate::diff::Local;
 use crate::error::Span;
 use crate::graph::{Graph, NodeId};
-use crate::smooth::{Info, LimitKind, Signs};
+use crate::smooth::{Info, Signs, SmoothnessLimit};
 
 /// One-argument operations, in the order of [`UNARY_OPS`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -379,7 +379,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::NonNegative,
         keeps_zero: false,
         finite: false,
-        kinks: Some(|u, span| Info::jump(LimitKind::Step, span, &[u], Signs::NONNEG)),
+        kinks: Some(|u, span| Info::jump(SmoothnessLimit::Step, span, &[u], Signs::NONNEG)),
     },
     UnaryOp {
         op: Unary::Sign,
@@ -390,7 +390,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         signs: SignsOf::Same,
         keeps_zero: false,
         finite: false,
-        kinks: Some(|u, span| Info::jump(LimitKind::Sign, span, &[u], u.signs)),
+        kinks: Some(|u, span| Info::jump(SmoothnessLimit::Sign, span, &[u], u.signs)),
     },
     UnaryOp {
         op: Unary::Asinh,

@@ -109,7 +109,7 @@ impl Smoothness {
 /// What limits smoothness at an operation (kept `Copy` so lowering a large lattice sum
 /// allocates nothing for it; turned into text once, by [`finish`]).
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) enum LimitKind {
+pub(crate) enum SmoothnessLimit {
     Abs,
     Min,
     Max,
@@ -136,7 +136,7 @@ pub(crate) enum LimitKind {
 pub(crate) struct LimitAt {
     pub span: Span,
     pub order: i32,
-    pub kind: LimitKind,
+    pub kind: SmoothnessLimit,
 }
 
 /// The lower order wins; on a tie, the leftmost operation.
@@ -443,7 +443,7 @@ impl Info {
         let own = LimitAt {
             span,
             order: 0,
-            kind: LimitKind::Abs,
+            kind: SmoothnessLimit::Abs,
         };
         Self {
             limit: worse(Some(own), self.limit),
@@ -462,9 +462,9 @@ impl Info {
             span,
             order: 0,
             kind: if is_max {
-                LimitKind::Max
+                SmoothnessLimit::Max
             } else {
-                LimitKind::Min
+                SmoothnessLimit::Min
             },
         };
         let zero_kink = (a_zero && b.is_smooth()) || (b_zero && a.is_smooth());
@@ -486,7 +486,7 @@ impl Info {
 
     /// An operation whose value jumps (`step`, `sign`, `if`, `atan2`) at `span`, combining
     /// the facts of the parts that flow into its value.
-    pub fn jump(kind: LimitKind, span: Span, parts: &[Self], signs: Signs) -> Self {
+    pub fn jump(kind: SmoothnessLimit, span: Span, parts: &[Self], signs: Signs) -> Self {
         let own = LimitAt {
             span,
             order: -1,
@@ -508,7 +508,7 @@ impl Info {
     }
 
     /// `if` or `piecewise` over branch facts.
-    pub fn select(kind: LimitKind, span: Span, branches: &[Self]) -> Self {
+    pub fn select(kind: SmoothnessLimit, span: Span, branches: &[Self]) -> Self {
         let signs = branches.iter().fold(Signs(0), |s, b| s.union(b.signs));
         Self::jump(
             kind,
@@ -558,7 +558,7 @@ impl Info {
                     Some(LimitAt {
                         span,
                         order: (a - 1.0).min(f64::from(SMOOTH - 1)) as i32,
-                        kind: LimitKind::KinkPow { exp: a },
+                        kind: SmoothnessLimit::KinkPow { exp: a },
                     }),
                     None,
                 )
@@ -573,7 +573,7 @@ impl Info {
             let own = Some(LimitAt {
                 span,
                 order: (a.ceil() - 1.0).min(f64::from(SMOOTH - 1)) as i32,
-                kind: LimitKind::FracPow { exp: a, sqrt },
+                kind: SmoothnessLimit::FracPow { exp: a, sqrt },
             });
             if self.zero_kink {
                 // `max(0, d)^(5/2)`: the kink is absorbed, the power's order is what remains.
@@ -615,7 +615,7 @@ impl Info {
         let own = LimitAt {
             span,
             order: 0,
-            kind: LimitKind::VarPow,
+            kind: SmoothnessLimit::VarPow,
         };
         Self {
             limit: worse(Some(own), parts),
@@ -637,7 +637,7 @@ impl Info {
         let own = LimitAt {
             span,
             order: 2,
-            kind: LimitKind::Table(table),
+            kind: SmoothnessLimit::Table(table),
         };
         Self {
             limit: worse(Some(own), self.undone()),
@@ -659,13 +659,13 @@ pub(crate) fn finish(info: &Info, source: &str, table_name: impl Fn(u32) -> Stri
     let kink = "has a kink (continuous, first derivative jumps)";
     let jump = "jumps (the function itself is discontinuous)";
     let (operation, reason) = match l.kind {
-        LimitKind::Abs => ("abs".to_string(), kink.to_string()),
-        LimitKind::Min => ("min".to_string(), kink.to_string()),
-        LimitKind::Max => ("max".to_string(), kink.to_string()),
-        LimitKind::Step => ("step".to_string(), jump.to_string()),
-        LimitKind::Sign => ("sign".to_string(), jump.to_string()),
-        LimitKind::If | LimitKind::Piecewise => (
-            if l.kind == LimitKind::If {
+        SmoothnessLimit::Abs => ("abs".to_string(), kink.to_string()),
+        SmoothnessLimit::Min => ("min".to_string(), kink.to_string()),
+        SmoothnessLimit::Max => ("max".to_string(), kink.to_string()),
+        SmoothnessLimit::Step => ("step".to_string(), jump.to_string()),
+        SmoothnessLimit::Sign => ("sign".to_string(), jump.to_string()),
+        SmoothnessLimit::If | SmoothnessLimit::Piecewise => (
+            if l.kind == SmoothnessLimit::If {
                 "if"
             } else {
                 "piecewise"
@@ -674,12 +674,12 @@ pub(crate) fn finish(info: &Info, source: &str, table_name: impl Fn(u32) -> Stri
             "jumps where its condition switches (whether the branches agree there is not checked)"
                 .to_string(),
         ),
-        LimitKind::Atan2 => (
+        SmoothnessLimit::Atan2 => (
             "atan2".to_string(),
             "jumps by 2 pi across the negative x axis (its first argument 0, second negative)"
                 .to_string(),
         ),
-        LimitKind::FracPow { exp, sqrt } => (
+        SmoothnessLimit::FracPow { exp, sqrt } => (
             if sqrt {
                 "sqrt".to_string()
             } else {
@@ -695,7 +695,7 @@ pub(crate) fn finish(info: &Info, source: &str, table_name: impl Fn(u32) -> Stri
                 )
             },
         ),
-        LimitKind::KinkPow { exp } => (
+        SmoothnessLimit::KinkPow { exp } => (
             format!("^ {exp}"),
             format!(
                 "is a power of a kink: continuous up to derivative {}, derivative {} jumps",
@@ -703,12 +703,12 @@ pub(crate) fn finish(info: &Info, source: &str, table_name: impl Fn(u32) -> Stri
                 i64::from(l.order) + 1
             ),
         ),
-        LimitKind::VarPow => (
+        SmoothnessLimit::VarPow => (
             "^".to_string(),
             "has a variable exponent and a base that may reach 0 (assumed continuous only)"
                 .to_string(),
         ),
-        LimitKind::Table(t) => (
+        SmoothnessLimit::Table(t) => (
             table_name(t),
             "is a cubic spline table (C^2: its third derivative jumps at the knots)".to_string(),
         ),

@@ -267,7 +267,7 @@ pub fn parse_csv(text: &str, name: &str) -> Result<TableData, TableError> {
 
 /// The end conditions that close the spline's system.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub enum SplineKind {
+pub enum SplineEnds {
     /// `s'' = 0` at both ends: no information beyond the samples, but only `O(dx^2)` accurate
     /// near the ends unless the function's own `f''` vanishes there.
     Natural,
@@ -300,7 +300,7 @@ impl Spline {
     /// The spline through `(xs[i], ys[i])`. `name` is the config's name of the table (for
     /// messages). Needs at least [`MIN_SAMPLES`] finite samples with strictly increasing `xs`
     /// and finite clamped slopes.
-    pub fn new(name: &str, xs: &[f64], ys: &[f64], kind: SplineKind) -> Result<Self, TableError> {
+    pub fn new(name: &str, xs: &[f64], ys: &[f64], kind: SplineEnds) -> Result<Self, TableError> {
         let invalid = |reason: String| TableError::Invalid {
             name: name.to_string(),
             reason,
@@ -336,7 +336,7 @@ impl Spline {
                 "knot spacings must be normal positive numbers".into(),
             ));
         }
-        if let SplineKind::Clamped { left, right } = kind
+        if let SplineEnds::Clamped { left, right } = kind
             && !(left.is_finite() && right.is_finite())
         {
             return Err(invalid("clamped end slopes must be finite".into()));
@@ -365,7 +365,7 @@ impl Spline {
     }
 
     /// The spline through a table's samples.
-    pub fn from_table(name: &str, data: &TableData, kind: SplineKind) -> Result<Self, TableError> {
+    pub fn from_table(name: &str, data: &TableData, kind: SplineEnds) -> Result<Self, TableError> {
         Self::new(name, &data.xs, &data.ys, kind)
     }
 
@@ -443,7 +443,7 @@ impl Tabulated for Spline {
 /// The knots' second derivatives `M_i`, from the continuity of `s'` at interior knots plus
 /// the end conditions: a symmetric, strictly diagonally dominant tridiagonal system, solved by
 /// elimination without pivoting (stable for such systems).
-fn second_derivatives(h: &[f64], y: &[f64], kind: SplineKind) -> Vec<f64> {
+fn second_derivatives(h: &[f64], y: &[f64], kind: SplineEnds) -> Vec<f64> {
     let n = y.len();
     let slope = |i: usize| (y[i + 1] - y[i]) / h[i];
     // Row i: sub[i] M_{i-1} + diag[i] M_i + sup[i] M_{i+1} = rhs[i].
@@ -458,11 +458,11 @@ fn second_derivatives(h: &[f64], y: &[f64], kind: SplineKind) -> Vec<f64> {
         rhs[i] = 6.0 * (slope(i) - slope(i - 1));
     }
     match kind {
-        SplineKind::Natural => {
+        SplineEnds::Natural => {
             diag[0] = 1.0;
             diag[n - 1] = 1.0;
         }
-        SplineKind::Clamped { left, right } => {
+        SplineEnds::Clamped { left, right } => {
             diag[0] = 2.0 * h[0];
             sup[0] = h[0];
             rhs[0] = 6.0 * (slope(0) - left);
@@ -496,7 +496,7 @@ pub struct ErrorBound {
     pub second_derivative: f64,
 }
 
-/// Worst-case error of the clamped cubic spline ([`SplineKind::Clamped`] with the exact end
+/// Worst-case error of the clamped cubic spline ([`SplineEnds::Clamped`] with the exact end
 /// slopes `f'(x_first)`, `f'(x_last)`) interpolating `f` in C^4 on knots no farther apart
 /// than `max_spacing`, where `max_fourth_derivative >= max |f''''|` over the table:
 ///
@@ -576,7 +576,7 @@ mod tests {
             random_knots(-1.0, 2.0, 4, 9),
         ] {
             let ys: Vec<f64> = xs.iter().map(|&x| f[0](x, &coef)).collect();
-            let kind = SplineKind::Clamped {
+            let kind = SplineEnds::Clamped {
                 left: f[1](xs[0], &coef),
                 right: f[1](xs[xs.len() - 1], &coef),
             };
@@ -599,7 +599,7 @@ mod tests {
     fn natural_spline_reproduces_lines_and_is_straight_at_the_ends() {
         for xs in [uniform_knots(0.0, 5.0, 6), random_knots(-3.0, 4.0, 30, 2)] {
             let ys: Vec<f64> = xs.iter().map(|&x| 1.5 - 0.25 * x).collect();
-            let s = Spline::new("line", &xs, &ys, SplineKind::Natural).unwrap();
+            let s = Spline::new("line", &xs, &ys, SplineEnds::Natural).unwrap();
             for x in probe_points(&xs) {
                 assert!((s.eval(0, x) - (1.5 - 0.25 * x)).abs() <= 1e-15 * 8.0);
                 assert!((s.eval(1, x) + 0.25).abs() <= 1e-14);
@@ -609,7 +609,7 @@ mod tests {
             }
             // Arbitrary data: s'' = 0 at both ends.
             let ys = uniform01(xs.len(), 4);
-            let s = Spline::new("noise", &xs, &ys, SplineKind::Natural).unwrap();
+            let s = Spline::new("noise", &xs, &ys, SplineEnds::Natural).unwrap();
             let (lo, hi) = s.domain();
             assert_eq!(s.eval(2, lo), 0.0);
             assert!(s.eval(2, hi).abs() <= 1e-12, "{}", s.eval(2, hi));
@@ -624,8 +624,8 @@ mod tests {
             .map(|u| 4.0 * u - 2.0)
             .collect();
         for kind in [
-            SplineKind::Natural,
-            SplineKind::Clamped {
+            SplineEnds::Natural,
+            SplineEnds::Clamped {
                 left: 3.0,
                 right: -1.0,
             },
@@ -646,7 +646,7 @@ mod tests {
                     );
                 }
             }
-            if let SplineKind::Clamped { left, right } = kind {
+            if let SplineEnds::Clamped { left, right } = kind {
                 assert!((s.eval(1, xs[0]) - left).abs() <= 1e-12);
                 assert!((s.eval(1, xs[xs.len() - 1]) - right).abs() <= 1e-11);
             }
@@ -675,7 +675,7 @@ mod tests {
         for n in [12usize, 24, 48, 96] {
             let xs = uniform_knots(a, b, n + 1);
             let ys: Vec<f64> = xs.iter().map(|&x| f(x)).collect();
-            let kind = SplineKind::Clamped {
+            let kind = SplineEnds::Clamped {
                 left: fp(a),
                 right: fp(b),
             };
@@ -702,7 +702,7 @@ mod tests {
     #[test]
     fn nan_outside_the_table() {
         let xs = uniform_knots(0.0, 1.0, 5);
-        let s = Spline::new("t", &xs, &[0.0, 1.0, 0.0, 1.0, 0.0], SplineKind::Natural).unwrap();
+        let s = Spline::new("t", &xs, &[0.0, 1.0, 0.0, 1.0, 0.0], SplineEnds::Natural).unwrap();
         for deriv in 0..4 {
             assert!(s.eval(deriv, -1e-12).is_nan());
             assert!(s.eval(deriv, 1.0 + 1e-12).is_nan());
@@ -720,7 +720,7 @@ mod tests {
     fn uniform_lookup_agrees_with_binary_search() {
         let xs: Vec<f64> = (0..=1000).map(|i| -1.0 + 0.002 * i as f64).collect();
         let ys: Vec<f64> = xs.iter().map(|x| (3.0 * x).sin()).collect();
-        let fast = Spline::new("u", &xs, &ys, SplineKind::Natural).unwrap();
+        let fast = Spline::new("u", &xs, &ys, SplineEnds::Natural).unwrap();
         assert!(fast.inv_spacing.is_some());
         let mut slow = fast.clone();
         slow.inv_spacing = None;
@@ -735,7 +735,7 @@ mod tests {
             "n",
             &random_knots(0.0, 1.0, 9, 1),
             &[0.0; 9],
-            SplineKind::Natural,
+            SplineEnds::Natural,
         );
         assert!(nonuniform.unwrap().inv_spacing.is_none());
     }
@@ -745,11 +745,11 @@ mod tests {
         let ok = [0.0, 1.0, 2.0, 3.0];
         let msg =
             |xs: &[f64], ys: &[f64], kind| Spline::new("t", xs, ys, kind).unwrap_err().to_string();
-        assert!(msg(&ok, &ok[..3], SplineKind::Natural).contains("4 x values but 3"));
-        assert!(msg(&ok[..3], &ok[..3], SplineKind::Natural).contains("at least 4"));
-        assert!(msg(&[0.0, 1.0, 1.0, 3.0], &ok, SplineKind::Natural).contains("not greater"));
-        assert!(msg(&ok, &[0.0, f64::NAN, 0.0, 0.0], SplineKind::Natural).contains("not finite"));
-        let inf = SplineKind::Clamped {
+        assert!(msg(&ok, &ok[..3], SplineEnds::Natural).contains("4 x values but 3"));
+        assert!(msg(&ok[..3], &ok[..3], SplineEnds::Natural).contains("at least 4"));
+        assert!(msg(&[0.0, 1.0, 1.0, 3.0], &ok, SplineEnds::Natural).contains("not greater"));
+        assert!(msg(&ok, &[0.0, f64::NAN, 0.0, 0.0], SplineEnds::Natural).contains("not finite"));
+        let inf = SplineEnds::Clamped {
             left: f64::INFINITY,
             right: 0.0,
         };
@@ -900,7 +900,7 @@ mod tests {
             "{e}"
         );
         // A spline straight from the file's samples.
-        let s = Spline::from_table("good", &d, SplineKind::Natural).unwrap();
+        let s = Spline::from_table("good", &d, SplineEnds::Natural).unwrap();
         assert_eq!(s.eval(0, 3.0), 5.0);
         assert_eq!(s.knots(), &d.xs[..]);
     }

@@ -834,7 +834,7 @@ mod lattice_loops {
     use chaoscope_expr::jit::{self, LATTICE_GRADIENT, LATTICE_HESSIAN_VECTOR, LATTICE_POTENTIAL};
     use chaoscope_expr::lattice::{LatticeEvaluator, LatticePotential};
     use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope, lower_with_loops};
-    use chaoscope_expr::table::{Spline, SplineKind};
+    use chaoscope_expr::table::{Spline, SplineEnds};
 
     use super::Rng;
 
@@ -860,7 +860,7 @@ mod lattice_loops {
         let xs: Vec<f64> = (0..=200).map(|k| -50.0 + 0.5 * k as f64).collect();
         let ys: Vec<f64> = xs.iter().map(|x| x * x / (1.0 + x * x / 100.0)).collect();
         let u: Arc<dyn Tabulated> =
-            Arc::new(Spline::new("U", &xs, &ys, SplineKind::Natural).unwrap());
+            Arc::new(Spline::new("U", &xs, &ys, SplineEnds::Natural).unwrap());
         let tables = vec![("U".to_string(), g.add_table(u))];
         let mut params = BTreeMap::new();
         params.insert("beta".to_string(), ParamValue::Scalar(1.3));

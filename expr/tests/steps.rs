@@ -13,7 +13,7 @@ use chaoscope_expr::graph::Tabulated;
 use chaoscope_expr::jit::{self, CCompiler, Options, StepBackend, StepKernels, StepSpec};
 use chaoscope_expr::lattice::{LatticeEvaluator, LatticePotential};
 use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope, lower_with_loops};
-use chaoscope_expr::table::{Spline, SplineKind};
+use chaoscope_expr::table::{Spline, SplineEnds};
 use chaoscope_expr::{Evaluator, Graph, NodeId, diff, lower};
 
 /// Any fixed 8-drift / 7-kick splitting (symmetric, like ABA864), times a step of 0.01.
@@ -92,7 +92,7 @@ fn lattice_system(n: usize, boundary: Boundary, potential: &str) -> System {
     let mut graph = Graph::new();
     let xs: Vec<f64> = (0..81).map(|i| -4.0 + 0.1 * i as f64).collect();
     let ys: Vec<f64> = xs.iter().map(|x| x * x / 2.0 + x * x * x / 10.0).collect();
-    let u: Arc<dyn Tabulated> = Arc::new(Spline::new("U", &xs, &ys, SplineKind::Natural).unwrap());
+    let u: Arc<dyn Tabulated> = Arc::new(Spline::new("U", &xs, &ys, SplineEnds::Natural).unwrap());
     let tables = vec![("U".to_string(), graph.add_table(u))];
     let mut params = BTreeMap::new();
     params.insert("beta".to_string(), ParamValue::Scalar(1.0));
@@ -504,7 +504,7 @@ fn c_steps_of_every_operation_and_a_table_are_bit_identical() {
     let xs: Vec<f64> = (0..41).map(|i| -2.0 + 0.1 * i as f64).collect();
     let ys: Vec<f64> = xs.iter().map(|x| (1.0 + x * x).ln()).collect();
     let table: Arc<dyn Tabulated> =
-        Arc::new(Spline::new("U", &xs, &ys, SplineKind::Natural).unwrap());
+        Arc::new(Spline::new("U", &xs, &ys, SplineEnds::Natural).unwrap());
     let s = system_with_tables(
         3,
         "exp(q1/4)*sin(q2) + log(3 + cos(q3)) + tan(q1/3) + atan(q2) + tanh(q1*q2) \

@@ -36,14 +36,14 @@ impl IndicatorStream {
             header.schemes.iter().map(|s| s.tau_steps).collect(),
         )
         .map(|layout| {
-            let kind = chaoscope_schemas::run::SystemKind::from_name(&header.kind);
+            let kind = chaoscope_schemas::run::SystemClass::from_name(&header.kind);
             layout
                 .with_sites(kind.and_then(|k| k.lattice_sites(header.dim as usize)))
                 // A side that does not fit the state is the analyzer's error to report; the
                 // recorder then takes the sites as a chain's.
                 .with_square_side(chaoscope_schemas::run::square_side(header).unwrap_or(None))
                 .with_norm(
-                    kind == Some(chaoscope_schemas::run::SystemKind::Hamiltonian)
+                    kind == Some(chaoscope_schemas::run::SystemClass::Hamiltonian)
                         && chaoscope_schemas::run::conserves_norm(&header.model),
                 )
         });

@@ -196,7 +196,7 @@ pub fn config(data: &[u8]) {
 pub fn expr(data: &[u8]) {
     use chaoscope_expr::graph::Tabulated;
     use chaoscope_expr::jit::{self, FunctionSpec, Layout};
-    use chaoscope_expr::{Boundary, Family, Graph, ParamValue, Scope, Spline, SplineKind};
+    use chaoscope_expr::{Boundary, Family, Graph, ParamValue, Scope, Spline, SplineEnds};
     use std::collections::BTreeMap;
     use std::sync::Arc;
 
@@ -219,7 +219,7 @@ pub fn expr(data: &[u8]) {
     );
     let xs = [-2.0, -1.0, 0.0, 1.0, 2.0];
     let ys = [4.0, 1.0, 0.0, 1.0, 4.0];
-    let spline = Spline::new("U", &xs, &ys, SplineKind::Natural).expect("a valid table");
+    let spline = Spline::new("U", &xs, &ys, SplineEnds::Natural).expect("a valid table");
     for boundary in [Boundary::Fixed, Boundary::Periodic, Boundary::Free] {
         let mut g = Graph::new();
         let table = g.add_table(Arc::new(spline.clone()) as Arc<dyn Tabulated>);

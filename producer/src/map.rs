@@ -9,7 +9,7 @@
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use chaoscope_bus::frame::{MapFrameHeader, MapFrameKind};
+use chaoscope_bus::frame::{MapFrameContent, MapFrameHeader};
 use chaoscope_bus::{self as bus, BusError, MapService, OpenAloneError};
 use chaoscope_schemas::names::{self, MAX_RUN_NAME_LEN};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
@@ -104,7 +104,7 @@ impl MapPublisher {
             .map_err(|e| BusError::new("create map point publisher", e))?;
         send(
             &header_publisher,
-            MapFrameHeader::new(MapFrameKind::Header, 0, 0),
+            MapFrameHeader::new(MapFrameContent::Header, 0, 0),
             &header.encode_to_vec(),
         )
         .map_err(|e| BusError::new("send map header", e))?;
@@ -146,7 +146,7 @@ impl MapPublisher {
         }
         let _ = send(
             &self.points,
-            MapFrameHeader::new(MapFrameKind::Point, seq, 0),
+            MapFrameHeader::new(MapFrameContent::Point, seq, 0),
             &point.encode_to_vec(),
         );
     }
@@ -158,7 +158,7 @@ impl MapPublisher {
         let _ = self.points.update_connections();
         let _ = send(
             &self.points,
-            MapFrameHeader::new(MapFrameKind::End, self.seq, status),
+            MapFrameHeader::new(MapFrameContent::End, self.seq, status),
             &[],
         );
         let start = Instant::now();

@@ -7,7 +7,7 @@
 /// What kind of system a run integrates: decides what the report carries beside the
 /// indicators (the energy error of a Hamiltonian, the mean divergence of a flow or map).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum SystemKind {
+pub enum SystemClass {
     /// Conserves its energy and phase-space volume.
     Hamiltonian,
     /// `dx/dt = f(x)`, in general neither.
@@ -16,13 +16,13 @@ pub enum SystemKind {
     Map,
 }
 
-impl SystemKind {
+impl SystemClass {
     /// As recordings name it (`RunHeader.kind`).
     pub fn name(self) -> &'static str {
         match self {
-            SystemKind::Hamiltonian => "hamiltonian",
-            SystemKind::Flow => "flow",
-            SystemKind::Map => "map",
+            SystemClass::Hamiltonian => "hamiltonian",
+            SystemClass::Flow => "flow",
+            SystemClass::Map => "map",
         }
     }
 
@@ -30,9 +30,9 @@ impl SystemKind {
     /// all of which were Hamiltonian.
     pub fn from_name(name: &str) -> Option<Self> {
         match name {
-            "" | "hamiltonian" => Some(SystemKind::Hamiltonian),
-            "flow" => Some(SystemKind::Flow),
-            "map" => Some(SystemKind::Map),
+            "" | "hamiltonian" => Some(SystemClass::Hamiltonian),
+            "flow" => Some(SystemClass::Flow),
+            "map" => Some(SystemClass::Map),
             _ => None,
         }
     }
@@ -43,7 +43,7 @@ impl SystemKind {
     /// so the recording's indicators equal `analyze`'s.
     pub fn lattice_sites(self, dim: usize) -> Option<usize> {
         match self {
-            SystemKind::Hamiltonian if dim.is_multiple_of(2) => Some(dim / 2),
+            SystemClass::Hamiltonian if dim.is_multiple_of(2) => Some(dim / 2),
             _ => None,
         }
     }
@@ -55,7 +55,7 @@ impl SystemKind {
 /// and `n`. A side whose square is not the header's `N = dim / 2` is an error naming both.
 pub fn square_side(header: &crate::proto::RunHeader) -> Result<Option<usize>, String> {
     let sites =
-        SystemKind::from_name(&header.kind).and_then(|k| k.lattice_sites(header.dim as usize));
+        SystemClass::from_name(&header.kind).and_then(|k| k.lattice_sites(header.dim as usize));
     let side = if header.lattice_side > 0 {
         header.lattice_side as usize
     } else {

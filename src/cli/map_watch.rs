@@ -8,7 +8,7 @@ use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
-use chaoscope_bus::frame::{MapFrameKind, status};
+use chaoscope_bus::frame::{MapFrameContent, status};
 use chaoscope_bus::{self as bus, Liveness};
 use chaoscope_os::termination::Termination;
 use chaoscope_schemas::names;
@@ -156,7 +156,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             .map_err(|e| bus::BusError::new("receive map header", e))?
         {
             got = true;
-            if sample.user_header().kind() != Some(MapFrameKind::Header) || header.is_some() {
+            if sample.user_header().kind() != Some(MapFrameContent::Header) || header.is_some() {
                 continue;
             }
             let h = MapHeader::decode(sample.payload()).context("decoding the map header")?;
@@ -189,7 +189,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             got = true;
             let frame = *sample.user_header();
             match frame.kind() {
-                Some(MapFrameKind::Point) => {
+                Some(MapFrameContent::Point) => {
                     if !tally.point(frame.seq) {
                         continue;
                     }
@@ -224,7 +224,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                         ))?;
                     }
                 }
-                Some(MapFrameKind::End) => {
+                Some(MapFrameContent::End) => {
                     tally.end(frame.seq);
                     end_code = Some(frame.status);
                 }

@@ -31,7 +31,7 @@ use chaoscope_dynamics::section::surface::{
 use chaoscope_dynamics::spec::{RunSpec, parse_coordinate};
 use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_schemas::config::{ConfigSource, RunConfig};
-use chaoscope_schemas::run::SystemKind;
+use chaoscope_schemas::run::SystemClass;
 
 #[derive(clap::Args)]
 pub struct Args {
@@ -443,7 +443,7 @@ fn surface_section(
         (None, None) => unreachable!("main sends these to the energy section"),
     };
     let dim = base.dim();
-    let canonical = base.system().kind() == SystemKind::Hamiltonian;
+    let canonical = base.system().kind() == SystemClass::Hamiltonian;
     let names = coordinate_names(&base);
     let known = || format!("{}..{}", names[0], names[dim - 1]);
     let coordinate = |flag: &str, name: &str| {

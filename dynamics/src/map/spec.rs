@@ -2,7 +2,7 @@
 //! shares, shards.
 
 use chaoscope_schemas::config::{MapAxis, MapConfig, RunConfig};
-use chaoscope_schemas::run::{Method, Orthonormalization, SystemKind};
+use chaoscope_schemas::run::{Method, Orthonormalization, SystemClass};
 
 use super::indicator::{Indicator, PointAccumulator, failed};
 use super::point::{PointResult, PointStatus};
@@ -487,7 +487,7 @@ impl MapSpec {
             }
         }
         // Any Hamiltonian (separable or written as `H(q, p)`) names its axes q1..qN / p1..pN.
-        let canonical = run.system().kind() == SystemKind::Hamiltonian;
+        let canonical = run.system().kind() == SystemClass::Hamiltonian;
         let x = Axis::from_config("map.x", &map.x, run.dim(), canonical, &lanes)?;
         let y = Axis::from_config("map.y", &map.y, run.dim(), canonical, &lanes)?;
         if x.slot == y.slot {

@@ -23,7 +23,7 @@
 /// What a section's surface and axes compile to.
 pub use chaoscope_expr::ScalarFunction;
 use chaoscope_schemas::config::ModelConfig;
-use chaoscope_schemas::run::SystemKind;
+use chaoscope_schemas::run::SystemClass;
 
 use crate::integrator::Workspace;
 use crate::integrator::runge_kutta::{RkScratch, RungeKuttaKind, explicit_step};
@@ -85,7 +85,7 @@ pub struct Surface {
 /// their axes), `x1..xD` for any other system.
 pub fn coordinate_names(spec: &RunSpec) -> Vec<String> {
     let dim = spec.dim();
-    if spec.system().kind() == SystemKind::Hamiltonian {
+    if spec.system().kind() == SystemClass::Hamiltonian {
         let n = dim / 2;
         (1..=n)
             .map(|i| format!("q{i}"))

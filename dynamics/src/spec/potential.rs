@@ -8,7 +8,7 @@
 use std::sync::Arc;
 
 use chaoscope_expr::lower::{Boundary, ParamValue};
-use chaoscope_expr::table::{self, Spline, SplineKind};
+use chaoscope_expr::table::{self, Spline, SplineEnds};
 use chaoscope_schemas::config::{self, ModelConfig, PotentialConfig, RunConfig, TableConfig};
 
 use super::{Built, LaneParam, SpecError, separable};
@@ -105,7 +105,7 @@ fn load_table(name: &str, cfg: &TableConfig) -> Result<(Arc<Spline>, TableDigest
         ));
     }
     let kind = match (spec.spline.as_deref().unwrap_or("natural"), spec.slopes) {
-        ("natural", None) => SplineKind::Natural,
+        ("natural", None) => SplineEnds::Natural,
         ("natural", Some(_)) => {
             return Err(SpecError::new(
                 format!("{key}.slopes"),
@@ -113,7 +113,7 @@ fn load_table(name: &str, cfg: &TableConfig) -> Result<(Arc<Spline>, TableDigest
             ));
         }
         ("clamped", Some([left, right])) if left.is_finite() && right.is_finite() => {
-            SplineKind::Clamped { left, right }
+            SplineEnds::Clamped { left, right }
         }
         ("clamped", _) => {
             return Err(SpecError::new(

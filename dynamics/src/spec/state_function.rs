@@ -7,7 +7,7 @@ use chaoscope_expr::ScalarDefinition;
 use chaoscope_expr::ScalarFunction;
 use chaoscope_expr::lower::Boundary;
 use chaoscope_schemas::config::{ModelConfig, RunConfig};
-use chaoscope_schemas::run::SystemKind;
+use chaoscope_schemas::run::SystemClass;
 
 use super::{RunSpec, SpecError, param_value};
 
@@ -66,7 +66,7 @@ pub(crate) fn scalar_definition(
 ) -> Result<ScalarDefinition, SpecError> {
     let system = spec.system();
     let dim = spec.dim();
-    let canonical = system.kind() == SystemKind::Hamiltonian;
+    let canonical = system.kind() == SystemClass::Hamiltonian;
     let (families, n) = if canonical {
         let n = dim / 2;
         (vec![("q".to_string(), n), ("p".to_string(), n)], n)

@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use chaoscope_schemas::run::SystemKind;
+use chaoscope_schemas::run::SystemClass;
 
 use super::{DynamicalSystem, Time};
 use crate::integrator::composition::{Composition, SplitFlows};
@@ -52,8 +52,8 @@ impl DynamicalSystem for DdnlsSystem {
         "ddnls"
     }
 
-    fn kind(&self) -> SystemKind {
-        SystemKind::Hamiltonian
+    fn kind(&self) -> SystemClass {
+        SystemClass::Hamiltonian
     }
 
     fn dim(&self) -> usize {

@@ -16,7 +16,7 @@
 //! standard map is in both); that is the model's business, as in every code that wraps angles.
 
 use chaoscope_expr::VectorFunction;
-use chaoscope_schemas::run::SystemKind;
+use chaoscope_schemas::run::SystemClass;
 
 use super::{DynamicalSystem, Time};
 use crate::batch::{self, Isa, PointKernel, Soa};
@@ -125,8 +125,8 @@ impl DynamicalSystem for Map {
         "map"
     }
 
-    fn kind(&self) -> SystemKind {
-        SystemKind::Map
+    fn kind(&self) -> SystemClass {
+        SystemClass::Map
     }
 
     fn dim(&self) -> usize {

@@ -42,7 +42,7 @@ pub use map::Map;
 pub use rk_flow::RkFlow;
 pub use split_hamiltonian::SplitHamiltonian;
 
-use chaoscope_schemas::run::SystemKind;
+use chaoscope_schemas::run::SystemClass;
 
 use crate::batch::{Isa, PointKernel};
 use crate::integrator::{TangentError, Workspace};
@@ -81,7 +81,7 @@ pub trait DynamicalSystem: Send + Sync {
     /// The model's name as written in configs.
     fn name(&self) -> &str;
 
-    fn kind(&self) -> SystemKind;
+    fn kind(&self) -> SystemClass;
 
     /// Dimension `D` of the state (and of every deviation vector).
     fn dim(&self) -> usize;

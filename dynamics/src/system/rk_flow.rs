@@ -12,7 +12,7 @@
 
 use std::sync::Arc;
 
-use chaoscope_schemas::run::SystemKind;
+use chaoscope_schemas::run::SystemClass;
 
 use chaoscope_expr::VectorFunction;
 
@@ -60,11 +60,11 @@ impl DynamicalSystem for RkFlow {
 
     /// A Hamiltonian vector field is reported as a Hamiltonian (its energy error), whatever
     /// the method; any other field as a flow.
-    fn kind(&self) -> SystemKind {
+    fn kind(&self) -> SystemClass {
         if self.field.is_hamiltonian() {
-            SystemKind::Hamiltonian
+            SystemClass::Hamiltonian
         } else {
-            SystemKind::Flow
+            SystemClass::Flow
         }
     }
 

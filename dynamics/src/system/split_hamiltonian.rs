@@ -2,7 +2,7 @@
 
 use std::sync::Arc;
 
-use chaoscope_schemas::run::SystemKind;
+use chaoscope_schemas::run::SystemClass;
 
 use super::{DynamicalSystem, Time};
 use crate::batch::{self, AnyLaneModel, Isa, LaneModel, PointKernel, Soa, StepCoeffs};
@@ -65,8 +65,8 @@ impl DynamicalSystem for SplitHamiltonian {
         self.model.name()
     }
 
-    fn kind(&self) -> SystemKind {
-        SystemKind::Hamiltonian
+    fn kind(&self) -> SystemClass {
+        SystemClass::Hamiltonian
     }
 
     fn dim(&self) -> usize {

@@ -42,6 +42,13 @@ pub trait PointKernel {
         false
     }
 
+    /// Whether [`PointKernel::orbit_tangent_steps`] is also worth it for a few vectors per
+    /// lane (the per-set route's sets) rather than only for a basis: its fused pass costs no
+    /// more per lane than the separate steps.
+    fn fuses_few_vectors(&self) -> bool {
+        self.fuses_orbits_and_tangents()
+    }
+
     /// Advance every lane of `x` by `steps` steps: rows `0..D` are an orbit, each further `D`
     /// rows a tangent vector around that lane's own orbit (the variational equations of many
     /// points at once). Lane by lane the bits of [`PointKernel::reference_steps`] followed by

@@ -80,6 +80,15 @@ pub trait LaneModel: Model {
         Self::REGISTER_RESIDENT
     }
 
+    /// Whether [`LaneModel::orbit_tangent_steps`] costs no more per lane than the model's
+    /// separate orbit and tangent steps: true where both go through the same lane functions;
+    /// false for a model whose separate steps run compiled step kernels that the generic fused
+    /// loops (lane by lane through its scalar functions) would bypass.
+    #[inline(always)]
+    fn fuses_orbit_tangents(&self) -> bool {
+        true
+    }
+
     /// `out[i][l] = dV/dq_i` of lane `l`; `q` and `out` have `N` rows.
     fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]);
 

@@ -120,8 +120,12 @@ impl Batching {
         // are few).
         let vectors = spec.run.sets() * spec.run.k();
         let fused = !orbits
-            && spec.fuses_orbits_and_tangents()
-            && (spec.route == MapRoute::Basis || vectors <= FUSED_PER_SET_MAX_VECTORS);
+            && match spec.route {
+                MapRoute::Basis => spec.fuses_orbits_and_tangents(),
+                MapRoute::PerSet => {
+                    vectors <= FUSED_PER_SET_MAX_VECTORS && spec.fuses_few_vectors()
+                }
+            };
         let points_per_batch = mpm_points_per_batch.max(1);
         let points = if !spec.has_batched_kernel() {
             // Systems without a batched kernel: one point at a time through the one-orbit

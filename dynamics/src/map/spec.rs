@@ -598,6 +598,14 @@ impl MapSpec {
             .is_some_and(|k| k.fuses_orbits_and_tangents())
     }
 
+    /// Whether the kernel's fused pass also pays for a point's few vectors (the per-set route).
+    pub fn fuses_few_vectors(&self) -> bool {
+        self.run
+            .system()
+            .batched(Isa::detect())
+            .is_some_and(|k| k.fuses_few_vectors())
+    }
+
     /// The compiled model of a `potential` (whose C step kernels' state a map reports), if
     /// this is one.
     pub fn expression_model(&self) -> Option<&ExpressionModel> {

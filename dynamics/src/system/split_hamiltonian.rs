@@ -287,6 +287,10 @@ impl<M: LaneModel> PointKernel for SplittingKernel<'_, M> {
         true
     }
 
+    fn fuses_few_vectors(&self) -> bool {
+        self.model.fuses_orbit_tangents()
+    }
+
     fn orbit_tangent_steps(
         &mut self,
         x: &mut Soa,

@@ -17,6 +17,13 @@ impl LaneModel for ExpressionModel {
         2 * self.dof() * 32 * 8 <= 16 * 1024
     }
 
+    /// Its orbit and tangent steps are compiled step kernels; the generic fused loops would
+    /// call its scalar functions lane by lane instead.
+    #[inline]
+    fn fuses_orbit_tangents(&self) -> bool {
+        false
+    }
+
     /// Lane by lane through the scalar compiled function: only the generic step loops call
     /// this, and this model replaces both of them.
     fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]) {

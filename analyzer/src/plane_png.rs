@@ -11,6 +11,7 @@ use plotters::prelude::*;
 
 use crate::analysis::Analysis;
 use crate::map_png::{FONT, colour, font_available};
+use crate::site_png::two_panels_and_bar;
 use crate::site_profiles::SiteProfile;
 
 /// Decades of weight the colour scale spans below the largest weight.
@@ -125,108 +126,68 @@ pub fn render_pixels(
         if text { 470 } else { 420 },
         if text { 130 } else { 40 },
     );
-    let (w, h) = (2 * panel_w + bar_w, panel_h);
     let err = |e: &dyn std::fmt::Display| e.to_string();
     let blocked = if b > 1 {
         format!(", {b} x {b} blocks")
     } else {
         String::new()
     };
-    let mut areas = Vec::new();
-    let mut pixels = vec![0u8; w as usize * h as usize * 3];
-    {
-        let root = BitMapBackend::with_buffer(&mut pixels, (w, h)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| err(&e))?;
-        let (panels, bar_area) = root.split_horizontally(2 * panel_w);
-        let (left, right) = panels.split_horizontally(panel_w);
-        let range = 0.5..side as f64 + 0.5;
-        let left_title = match &carrier {
-            Ok(_) => format!("{carrier_name}, t = {}{blocked}", plane.t),
-            Err(why) => format!("{carrier_name}: {why}"),
-        };
-        let right_title = format!("deviation vector ξ_l, t = {}{blocked}", plane.t);
-        for (area, title, weights) in [
-            (&left, left_title, carrier.as_deref().ok()),
-            (&right, right_title, Some(&dvd[..])),
-        ] {
-            let mut builder = ChartBuilder::on(area);
-            builder.margin(10);
-            if text {
-                builder
-                    .caption(title, (FONT, 15))
-                    .x_label_area_size(40)
-                    .y_label_area_size(50);
-            }
-            let mut chart = builder
-                .build_cartesian_2d(range.clone(), range.clone())
-                .map_err(|e| err(&e))?;
-            areas.push(chart.plotting_area().get_pixel_range());
-            if text {
-                chart
-                    .configure_mesh()
-                    .disable_mesh()
-                    .x_desc("column j")
-                    .y_desc("row i")
-                    .x_labels(6)
-                    .y_labels(6)
-                    .x_label_formatter(&|v| format!("{v:.0}"))
-                    .y_label_formatter(&|v| format!("{v:.0}"))
-                    .label_style((FONT, 13))
-                    .draw()
-                    .map_err(|e| err(&e))?;
-            }
-            let Some(weights) = weights else {
-                continue;
+    let range = 0.5..side as f64 + 0.5;
+    two_panels_and_bar((panel_w, panel_h, bar_w), text, (lo, hi), |area, panel| {
+        let (title, weights) = if panel == 0 {
+            let title = match &carrier {
+                Ok(_) => format!("{carrier_name}, t = {}{blocked}", plane.t),
+                Err(why) => format!("{carrier_name}: {why}"),
             };
-            // Cell (ci, cj) covers sites ci b + 1 ..= (ci + 1) b of the rows (clipped).
-            let edge = |c: usize| ((c * b) as f64 + 0.5, (((c + 1) * b).min(side)) as f64 + 0.5);
-            chart
-                .draw_series(weights.iter().enumerate().map(|(c, &x)| {
-                    let ((i0, i1), (j0, j1)) = (edge(c / cells), edge(c % cells));
-                    Rectangle::new(
-                        [(j0, i0), (j1, i1)],
-                        colour(lg(x).clamp(lo, hi), lo, hi).filled(),
-                    )
-                }))
-                .map_err(|e| err(&e))?;
-        }
-        let mut bar_builder = ChartBuilder::on(&bar_area);
-        bar_builder
-            .margin_top(if text { 38 } else { 10 })
-            .margin_bottom(if text { 50 } else { 10 })
-            .margin_right(if text { 55 } else { 10 });
+            (title, carrier.as_deref().ok())
+        } else {
+            (
+                format!("deviation vector ξ_l, t = {}{blocked}", plane.t),
+                Some(&dvd[..]),
+            )
+        };
+        let mut builder = ChartBuilder::on(area);
+        builder.margin(10);
         if text {
-            bar_builder
-                .caption("log10 weight", (FONT, 14))
-                .y_label_area_size(0)
-                .right_y_label_area_size(45);
+            builder
+                .caption(title, (FONT, 15))
+                .x_label_area_size(40)
+                .y_label_area_size(50);
         }
-        let mut bar = bar_builder
-            .build_cartesian_2d(0.0..1.0, lo..hi)
+        let mut chart = builder
+            .build_cartesian_2d(range.clone(), range.clone())
             .map_err(|e| err(&e))?;
+        let pixels = chart.plotting_area().get_pixel_range();
         if text {
-            bar.configure_mesh()
+            chart
+                .configure_mesh()
                 .disable_mesh()
-                .disable_x_axis()
-                .y_label_formatter(&|v| crate::chart::tick_label(*v, (lo, hi)))
+                .x_desc("column j")
+                .y_desc("row i")
+                .x_labels(6)
+                .y_labels(6)
+                .x_label_formatter(&|v| format!("{v:.0}"))
+                .y_label_formatter(&|v| format!("{v:.0}"))
                 .label_style((FONT, 13))
                 .draw()
                 .map_err(|e| err(&e))?;
         }
-        areas.push(bar.plotting_area().get_pixel_range());
-        let steps = 120;
-        bar.draw_series((0..steps).map(|i| {
-            let a = lo + (hi - lo) * i as f64 / steps as f64;
-            let b = lo + (hi - lo) * (i + 1) as f64 / steps as f64;
-            Rectangle::new([(0.0, a), (1.0, b)], colour((a + b) / 2.0, lo, hi).filled())
-        }))
-        .map_err(|e| err(&e))?;
-        root.present().map_err(|e| err(&e))?;
-    }
-    let areas: [crate::chart::PixelRect; 3] = areas
-        .try_into()
-        .map_err(|_| "two panels and a bar".to_string())?;
-    Ok((pixels, (w, h), areas))
+        let Some(weights) = weights else {
+            return Ok(pixels);
+        };
+        // Cell (ci, cj) covers sites ci b + 1 ..= (ci + 1) b of the rows (clipped).
+        let edge = |c: usize| ((c * b) as f64 + 0.5, (((c + 1) * b).min(side)) as f64 + 0.5);
+        chart
+            .draw_series(weights.iter().enumerate().map(|(c, &x)| {
+                let ((i0, i1), (j0, j1)) = (edge(c / cells), edge(c % cells));
+                Rectangle::new(
+                    [(j0, i0), (j1, i1)],
+                    colour(lg(x).clamp(lo, hi), lo, hi).filled(),
+                )
+            }))
+            .map_err(|e| err(&e))?;
+        Ok(pixels)
+    })
 }
 
 #[cfg(test)]

@@ -62,6 +62,80 @@ pub fn render_pixels(
     let t_end = t_last + (t_last - t0) / (points.len() - 1) as f64;
     let text = font_available();
     let (panel_w, panel_h, bar_w) = (440u32, 520u32, if text { 110 } else { 40 });
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    let x_range = 0.5..n as f64 + 0.5;
+    // The norm's distribution beside the DVD where the model conserves one (the DDNLS, whose
+    // site energies are no distribution), else the energy's.
+    let carrier_name = points[0].1.carrier().0;
+    two_panels_and_bar((panel_w, panel_h, bar_w), text, (lo, hi), |area, panel| {
+        let (title, energy) = if panel == 0 {
+            (carrier_name, true)
+        } else {
+            ("deviation vector distribution ξ_l", false)
+        };
+        let mut builder = ChartBuilder::on(area);
+        builder.margin(10);
+        if text {
+            builder
+                .caption(title, (FONT, 18))
+                .x_label_area_size(40)
+                .y_label_area_size(60);
+        }
+        let mut chart = builder
+            .build_cartesian_2d(x_range.clone(), t0..t_end)
+            .map_err(|e| err(&e))?;
+        let pixels = chart.plotting_area().get_pixel_range();
+        if text {
+            chart
+                .configure_mesh()
+                .disable_mesh()
+                .x_desc("site l")
+                .y_desc("t")
+                // Sites are whole numbers; six labels keep four-digit ones apart.
+                .x_labels(6)
+                .x_label_formatter(&|v| format!("{v:.0}"))
+                .y_label_formatter(&|v| crate::chart::tick_label(*v, (t0, t_end)))
+                .label_style((FONT, 14))
+                .draw()
+                .map_err(|e| err(&e))?;
+        }
+        for (i, (t, p)) in points.iter().enumerate() {
+            let t_next = points.get(i + 1).map_or(t_end, |q| q.0);
+            let weights: Option<&[f64]> = if energy {
+                p.carrier().1.ok()
+            } else {
+                Some(&p.dvd)
+            };
+            let Some(weights) = weights else {
+                continue;
+            };
+            chart
+                .draw_series(weights.iter().enumerate().map(|(l, &x)| {
+                    let site = (l + 1) as f64;
+                    Rectangle::new(
+                        [(site - 0.5, *t), (site + 0.5, t_next)],
+                        colour(lg(x).clamp(lo, hi), lo, hi).filled(),
+                    )
+                }))
+                .map_err(|e| err(&e))?;
+        }
+        Ok(pixels)
+    })
+}
+
+/// A picture of two panels side by side, `panel_w` x `panel_h` pixels each, and a colour bar
+/// of `bar_w` over `lo..hi` at their right, on white: `panel` draws panel 0 (left) and 1 into
+/// the area it is given and returns its plotting area's pixels. The pixels, the size, and the
+/// panels' and the bar's plotting areas.
+pub(crate) fn two_panels_and_bar(
+    (panel_w, panel_h, bar_w): (u32, u32, u32),
+    text: bool,
+    (lo, hi): (f64, f64),
+    mut panel: impl FnMut(
+        &DrawingArea<BitMapBackend<'_>, plotters::coord::Shift>,
+        usize,
+    ) -> Result<crate::chart::PixelRect, String>,
+) -> Result<crate::chart::Drawn<[crate::chart::PixelRect; 3]>, String> {
     let (w, h) = (2 * panel_w + bar_w, panel_h);
     let err = |e: &dyn std::fmt::Display| e.to_string();
     let mut areas = Vec::new();
@@ -71,98 +145,58 @@ pub fn render_pixels(
         root.fill(&WHITE).map_err(|e| err(&e))?;
         let (panels, bar_area) = root.split_horizontally(2 * panel_w);
         let (left, right) = panels.split_horizontally(panel_w);
-        let x_range = 0.5..n as f64 + 0.5;
-        // The norm's distribution beside the DVD where the model conserves one (the DDNLS, whose
-        // site energies are no distribution), else the energy's.
-        let carrier_name = points[0].1.carrier().0;
-        for (area, title, energy) in [
-            (&left, carrier_name, true),
-            (&right, "deviation vector distribution ξ_l", false),
-        ] {
-            let mut builder = ChartBuilder::on(area);
-            builder.margin(10);
-            if text {
-                builder
-                    .caption(title, (FONT, 18))
-                    .x_label_area_size(40)
-                    .y_label_area_size(60);
-            }
-            let mut chart = builder
-                .build_cartesian_2d(x_range.clone(), t0..t_end)
-                .map_err(|e| err(&e))?;
-            areas.push(chart.plotting_area().get_pixel_range());
-            if text {
-                chart
-                    .configure_mesh()
-                    .disable_mesh()
-                    .x_desc("site l")
-                    .y_desc("t")
-                    // Sites are whole numbers; six labels keep four-digit ones apart.
-                    .x_labels(6)
-                    .x_label_formatter(&|v| format!("{v:.0}"))
-                    .y_label_formatter(&|v| crate::chart::tick_label(*v, (t0, t_end)))
-                    .label_style((FONT, 14))
-                    .draw()
-                    .map_err(|e| err(&e))?;
-            }
-            for (i, (t, p)) in points.iter().enumerate() {
-                let t_next = points.get(i + 1).map_or(t_end, |q| q.0);
-                let weights: Option<&[f64]> = if energy {
-                    p.carrier().1.ok()
-                } else {
-                    Some(&p.dvd)
-                };
-                let Some(weights) = weights else {
-                    continue;
-                };
-                chart
-                    .draw_series(weights.iter().enumerate().map(|(l, &x)| {
-                        let site = (l + 1) as f64;
-                        Rectangle::new(
-                            [(site - 0.5, *t), (site + 0.5, t_next)],
-                            colour(lg(x).clamp(lo, hi), lo, hi).filled(),
-                        )
-                    }))
-                    .map_err(|e| err(&e))?;
-            }
+        for (i, area) in [&left, &right].into_iter().enumerate() {
+            areas.push(panel(area, i)?);
         }
-        let mut bar_builder = ChartBuilder::on(&bar_area);
-        bar_builder
-            .margin_top(if text { 38 } else { 10 })
-            .margin_bottom(if text { 50 } else { 10 })
-            .margin_right(if text { 55 } else { 10 });
-        if text {
-            bar_builder
-                .caption("log10 weight", (FONT, 14))
-                .y_label_area_size(0)
-                .right_y_label_area_size(45);
-        }
-        let mut bar = bar_builder
-            .build_cartesian_2d(0.0..1.0, lo..hi)
-            .map_err(|e| err(&e))?;
-        if text {
-            bar.configure_mesh()
-                .disable_mesh()
-                .disable_x_axis()
-                .y_label_formatter(&|v| crate::chart::tick_label(*v, (lo, hi)))
-                .label_style((FONT, 13))
-                .draw()
-                .map_err(|e| err(&e))?;
-        }
-        areas.push(bar.plotting_area().get_pixel_range());
-        let steps = 120;
-        bar.draw_series((0..steps).map(|i| {
-            let a = lo + (hi - lo) * i as f64 / steps as f64;
-            let b = lo + (hi - lo) * (i + 1) as f64 / steps as f64;
-            Rectangle::new([(0.0, a), (1.0, b)], colour((a + b) / 2.0, lo, hi).filled())
-        }))
-        .map_err(|e| err(&e))?;
+        areas.push(colour_bar(&bar_area, text, (lo, hi))?);
         root.present().map_err(|e| err(&e))?;
     }
     let areas: [crate::chart::PixelRect; 3] = areas
         .try_into()
         .map_err(|_| "two panels and a bar".to_string())?;
     Ok((pixels, (w, h), areas))
+}
+
+/// The colour bar beside two panels of `log10` weights over `lo..hi` (its caption and ticks
+/// when `text`), drawn into `area`; its plotting area's pixels.
+pub(crate) fn colour_bar<DB: DrawingBackend>(
+    area: &DrawingArea<DB, plotters::coord::Shift>,
+    text: bool,
+    (lo, hi): (f64, f64),
+) -> Result<crate::chart::PixelRect, String> {
+    let err = |e: &dyn std::fmt::Display| e.to_string();
+    let mut bar_builder = ChartBuilder::on(area);
+    bar_builder
+        .margin_top(if text { 38 } else { 10 })
+        .margin_bottom(if text { 50 } else { 10 })
+        .margin_right(if text { 55 } else { 10 });
+    if text {
+        bar_builder
+            .caption("log10 weight", (FONT, 14))
+            .y_label_area_size(0)
+            .right_y_label_area_size(45);
+    }
+    let mut bar = bar_builder
+        .build_cartesian_2d(0.0..1.0, lo..hi)
+        .map_err(|e| err(&e))?;
+    if text {
+        bar.configure_mesh()
+            .disable_mesh()
+            .disable_x_axis()
+            .y_label_formatter(&|v| crate::chart::tick_label(*v, (lo, hi)))
+            .label_style((FONT, 13))
+            .draw()
+            .map_err(|e| err(&e))?;
+    }
+    let pixels = bar.plotting_area().get_pixel_range();
+    let steps = 120;
+    bar.draw_series((0..steps).map(|i| {
+        let a = lo + (hi - lo) * i as f64 / steps as f64;
+        let b = lo + (hi - lo) * (i + 1) as f64 / steps as f64;
+        Rectangle::new([(0.0, a), (1.0, b)], colour((a + b) / 2.0, lo, hi).filled())
+    }))
+    .map_err(|e| err(&e))?;
+    Ok(pixels)
 }
 
 #[cfg(test)]

@@ -59,16 +59,51 @@ impl Isa {
     }
 }
 
+/// One of a model's step loops, as a chunk loop runs it on each chunk of `L` lanes.
+trait ChunkSteps<M: LaneModel> {
+    fn steps<const L: usize>(&self, m: &M, buf: &mut [[f64; L]], force: &mut [[f64; L]]);
+}
+
+/// [`LaneModel::orbit_steps`].
+struct Orbits<'a>(&'a StepCoeffs, u64);
+
+impl<M: LaneModel> ChunkSteps<M> for Orbits<'_> {
+    #[inline(always)]
+    fn steps<const L: usize>(&self, m: &M, buf: &mut [[f64; L]], force: &mut [[f64; L]]) {
+        m.orbit_steps(self.0, buf, force, self.1)
+    }
+}
+
+/// [`LaneModel::tangent_steps`] along the recorded stages.
+struct Tangents<'a>(&'a StepCoeffs, &'a [f64], u64);
+
+impl<M: LaneModel> ChunkSteps<M> for Tangents<'_> {
+    #[inline(always)]
+    fn steps<const L: usize>(&self, m: &M, buf: &mut [[f64; L]], force: &mut [[f64; L]]) {
+        m.tangent_steps(self.0, self.1, buf, force, self.2)
+    }
+}
+
+/// [`LaneModel::orbit_tangent_steps`].
+struct OrbitTangents<'a>(&'a StepCoeffs, u64);
+
+impl<M: LaneModel> ChunkSteps<M> for OrbitTangents<'_> {
+    #[inline(always)]
+    fn steps<const L: usize>(&self, m: &M, buf: &mut [[f64; L]], force: &mut [[f64; L]]) {
+        m.orbit_tangent_steps(self.0, buf, force, self.1)
+    }
+}
+
 /// Every lane of `x`, chunk by chunk: `L` lanes at a time, the remainder by `LANE_QUANTUM`.
 #[inline(always)]
-fn orbit_chunks<M: LaneModel, const L: usize>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+fn chunks<M: LaneModel, S: ChunkSteps<M>, const L: usize>(m: &M, x: &mut Soa, step: &S) {
     let mut o = 0;
     if L > LANE_QUANTUM {
         let mut buf = vec![[0.0; L]; x.rows()];
         let mut force = vec![[0.0; L]; m.dof()];
         while o + L <= x.lanes() {
             x.gather(o, &mut buf);
-            m.orbit_steps(c, &mut buf, &mut force, n);
+            step.steps(m, &mut buf, &mut force);
             x.scatter(o, &buf);
             o += L;
         }
@@ -77,10 +112,15 @@ fn orbit_chunks<M: LaneModel, const L: usize>(m: &M, c: &StepCoeffs, x: &mut Soa
     let mut force = vec![[0.0; LANE_QUANTUM]; m.dof()];
     while o < x.lanes() {
         x.gather(o, &mut buf);
-        m.orbit_steps(c, &mut buf, &mut force, n);
+        step.steps(m, &mut buf, &mut force);
         x.scatter(o, &buf);
         o += LANE_QUANTUM;
     }
+}
+
+#[inline(always)]
+fn orbit_chunks<M: LaneModel, const L: usize>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+    chunks::<M, _, L>(m, x, &Orbits(c, n))
 }
 
 #[inline(always)]
@@ -91,25 +131,7 @@ fn tangent_chunks<M: LaneModel, const L: usize>(
     v: &mut Soa,
     n: u64,
 ) {
-    let mut o = 0;
-    if L > LANE_QUANTUM {
-        let mut buf = vec![[0.0; L]; v.rows()];
-        let mut force = vec![[0.0; L]; m.dof()];
-        while o + L <= v.lanes() {
-            v.gather(o, &mut buf);
-            m.tangent_steps(c, stages, &mut buf, &mut force, n);
-            v.scatter(o, &buf);
-            o += L;
-        }
-    }
-    let mut buf = vec![[0.0; LANE_QUANTUM]; v.rows()];
-    let mut force = vec![[0.0; LANE_QUANTUM]; m.dof()];
-    while o < v.lanes() {
-        v.gather(o, &mut buf);
-        m.tangent_steps(c, stages, &mut buf, &mut force, n);
-        v.scatter(o, &buf);
-        o += LANE_QUANTUM;
-    }
+    chunks::<M, _, L>(m, v, &Tangents(c, stages, n))
 }
 
 // The instantiations. `fma` is enabled with AVX2 because every AVX2 CPU has it; it changes
@@ -205,25 +227,7 @@ pub(super) fn dispatch_tangents<M: LaneModel>(
 /// at a time, the remainder by `LANE_QUANTUM`.
 #[inline(always)]
 fn orbit_tangent_chunks<M: LaneModel, const L: usize>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
-    let mut o = 0;
-    if L > LANE_QUANTUM {
-        let mut buf = vec![[0.0; L]; x.rows()];
-        let mut force = vec![[0.0; L]; m.dof()];
-        while o + L <= x.lanes() {
-            x.gather(o, &mut buf);
-            m.orbit_tangent_steps(c, &mut buf, &mut force, n);
-            x.scatter(o, &buf);
-            o += L;
-        }
-    }
-    let mut buf = vec![[0.0; LANE_QUANTUM]; x.rows()];
-    let mut force = vec![[0.0; LANE_QUANTUM]; m.dof()];
-    while o < x.lanes() {
-        x.gather(o, &mut buf);
-        m.orbit_tangent_steps(c, &mut buf, &mut force, n);
-        x.scatter(o, &buf);
-        o += LANE_QUANTUM;
-    }
+    chunks::<M, _, L>(m, x, &OrbitTangents(c, n))
 }
 
 /// Most rows a register-resident model's orbit-and-tangents chunk is two AVX-512 vectors wide

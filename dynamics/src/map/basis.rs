@@ -20,7 +20,9 @@
 use super::indicator::{PointAccumulator, broke_off};
 use super::point::PointResult;
 use super::spec::MapSpec;
-use super::window::{Group, advance_group, compact, drive, end_reference, push_reference_lane};
+use super::window::{
+    Group, advance_group, compact, drive, end_reference, keep_one_lane_each, push_reference_lane,
+};
 use crate::batch::{Isa, PointKernel};
 use crate::method::{self, DeviationMethod};
 use crate::propagator::{Propagator, SetImage};
@@ -352,11 +354,7 @@ fn fused_with(
             }
             keep.push(p);
         }
-        if keep.len() != before {
-            let runs = keep.iter_mut().map(|p| (&mut p.lane, 1)).collect();
-            g.soa = compact(&g.soa, runs);
-        }
-        g.points = keep;
+        keep_one_lane_each(g, keep, before, |p: &mut LiveVm| &mut p.lane);
         out
     };
     drive(spec, indices, (dim * (1 + dim), true), stop, start, window)

@@ -14,8 +14,8 @@ use super::indicator::{PointAccumulator, broke_off};
 use super::point::PointResult;
 use super::spec::MapSpec;
 use super::window::{
-    Group, SetRenormalization, advance_group, compact, drive, end_reference, push_reference_lane,
-    retain_sets,
+    Group, SetRenormalization, advance_group, compact, drive, end_reference, keep_one_lane_each,
+    push_reference_lane, retain_sets,
 };
 use crate::batch::{Isa, PointKernel};
 use crate::method::{self, DeviationMethod};
@@ -178,11 +178,7 @@ pub fn compute_fused(
             g.soa.write_lane(p.lane, &column);
             keep.push(p);
         }
-        if keep.len() != before {
-            let runs = keep.iter_mut().map(|p| (&mut p.lane, 1)).collect();
-            g.soa = compact(&g.soa, runs);
-        }
-        g.points = keep;
+        keep_one_lane_each(g, keep, before, |p: &mut LiveFused| &mut p.lane);
         out
     };
     drive(spec, indices, (rows, true), stop, start, window)

@@ -90,6 +90,21 @@ pub fn drive<P>(
     out
 }
 
+/// Keeps `keep` (of the `before` points the group held at the window's start) as the group's
+/// points, each one lane (`lane` of the point), the lane array compacted when some left.
+pub fn keep_one_lane_each<P>(
+    g: &mut Group<P>,
+    mut keep: Vec<P>,
+    before: usize,
+    lane: fn(&mut P) -> &mut usize,
+) {
+    if keep.len() != before {
+        let runs = keep.iter_mut().map(|p| (lane(p), 1)).collect();
+        g.soa = compact(&g.soa, runs);
+    }
+    g.points = keep;
+}
+
 /// A new lane array holding only the runs of lanes `(first, len)` given (those of the points
 /// still live), in order; each `first` becomes where its run starts now.
 pub fn compact(old: &Soa, runs: Vec<(&mut usize, usize)>) -> Soa {

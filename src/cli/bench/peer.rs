@@ -108,18 +108,35 @@ fn state_error(side: &serde_json::Value, reference: &serde_json::Value) -> serde
 
 /// The peer's JSON, or why there is none (no interpreter, or heyoka not importable).
 fn run_script(python: &str, t_final: f64) -> anyhow::Result<serde_json::Value> {
+    let args = ["--t-final".to_string(), format!("{t_final:?}")];
+    run_peer_script(
+        python,
+        "benches/peer/heyoka_lorenz.py",
+        HEYOKA_SCRIPT,
+        &args,
+    )
+}
+
+/// Runs the peer's Python `source` (shipped as `name`) with `args`, fed on standard input: its
+/// JSON, or, when the interpreter cannot start, a JSON saying so as plainly as a missing
+/// package (`heyoka_available: false`, `heyoka_unavailable`). A script that fails is an error.
+pub(super) fn run_peer_script(
+    python: &str,
+    name: &str,
+    source: &str,
+    args: &[String],
+) -> anyhow::Result<serde_json::Value> {
     let spawned = Command::new(python)
-        .args(["-", "--t-final", &format!("{t_final:?}")])
+        .arg("-")
+        .args(args)
         .stdin(Stdio::piped())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
         .spawn();
     let mut child = match spawned {
         Ok(child) => child,
-        // No interpreter, no peer: said as plainly as a missing package.
         Err(e) => {
             return Ok(serde_json::json!({
-                "reference_state_t10": null,
                 "heyoka_available": false,
                 "heyoka_unavailable": format!("cannot start the Python interpreter {python:?} ({e}); --peer-python names another"),
             }));
@@ -129,15 +146,15 @@ fn run_script(python: &str, t_final: f64) -> anyhow::Result<serde_json::Value> {
         .stdin
         .take()
         .context("the interpreter's standard input")?
-        .write_all(HEYOKA_SCRIPT.as_bytes())?;
+        .write_all(source.as_bytes())?;
     let out = child.wait_with_output()?;
     anyhow::ensure!(
         out.status.success(),
-        "benches/peer/heyoka_lorenz.py failed ({}): {}",
+        "{name} failed ({}): {}",
         out.status,
         String::from_utf8_lossy(&out.stderr).trim()
     );
-    serde_json::from_slice(&out.stdout).context("benches/peer/heyoka_lorenz.py printed no JSON")
+    serde_json::from_slice(&out.stdout).with_context(|| format!("{name} printed no JSON"))
 }
 
 /// The report: both sides, or chaoscope's alone with the reason the peer is missing.

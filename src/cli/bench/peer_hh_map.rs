@@ -10,7 +10,6 @@
 //! from the timed command, by the one-orbit engine on each point of the map (the map file
 //! holds indicators, not states).
 
-use std::io::Write;
 use std::process::{Command, Stdio};
 
 use anyhow::Context;
@@ -182,40 +181,22 @@ fn run_script(
         .collect();
     let file = dir.join("points.json");
     std::fs::write(&file, serde_json::to_vec(&list)?)?;
-    let spawned = Command::new(python)
-        .arg("-")
-        .arg("--points")
-        .arg(&file)
-        .args(["--t-final", &format!("{T_FINAL:?}")])
-        .args(["--tol", &format!("{tol:?}")])
-        .arg("--vector")
-        .args(VECTOR.map(|v| format!("{v:?}")))
-        .stdin(Stdio::piped())
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn();
-    let mut child = match spawned {
-        Ok(child) => child,
-        Err(e) => {
-            return Ok(serde_json::json!({
-                "heyoka_available": false,
-                "heyoka_unavailable": format!("cannot start the Python interpreter {python:?} ({e}); --peer-python names another"),
-            }));
-        }
-    };
-    child
-        .stdin
-        .take()
-        .context("the interpreter's standard input")?
-        .write_all(HEYOKA_SCRIPT.as_bytes())?;
-    let out = child.wait_with_output()?;
-    anyhow::ensure!(
-        out.status.success(),
-        "benches/peer/heyoka_hh_map.py failed ({}): {}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr).trim()
-    );
-    serde_json::from_slice(&out.stdout).context("benches/peer/heyoka_hh_map.py printed no JSON")
+    let mut args = vec![
+        "--points".to_string(),
+        file.display().to_string(),
+        "--t-final".to_string(),
+        format!("{T_FINAL:?}"),
+        "--tol".to_string(),
+        format!("{tol:?}"),
+        "--vector".to_string(),
+    ];
+    args.extend(VECTOR.map(|v| format!("{v:?}")));
+    super::peer::run_peer_script(
+        python,
+        "benches/peer/heyoka_hh_map.py",
+        HEYOKA_SCRIPT,
+        &args,
+    )
 }
 
 /// How the two sides' MLEs compare point by point.

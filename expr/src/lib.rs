@@ -44,6 +44,7 @@ pub mod potential;
 pub mod scalar;
 pub mod smooth;
 pub mod table;
+pub mod taylor;
 #[cfg(test)]
 mod testing;
 pub mod vector;

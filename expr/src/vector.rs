@@ -46,6 +46,7 @@ use crate::graph::{Graph, NodeId, Tabulated};
 use crate::jit::{self, Compiled, FunctionSpec, Layout, ScalarFnPtr};
 use crate::lower::{self, Boundary, Family, ParamValue, Scope};
 use crate::smooth::Smoothness;
+use crate::taylor::TaylorTape;
 
 /// Everything that defines a vector function.
 #[derive(Debug, Clone)]
@@ -781,6 +782,37 @@ impl VectorFunction {
         self.0
             .compiled
             .call_lanes(DIVERGENCE, &args[..n], out, lanes)
+    }
+
+    /// The Taylor tape of `dx/dt = F(x, t)` with `vectors` tangent vectors to `order`
+    /// ([`crate::taylor`]), or why there is none: the first operation that is not analytic on
+    /// a quantity that moves, e.g. `'abs' at line 1, column 5 of rhs[2] is not analytic
+    /// (Taylor's method needs a right-hand side with a convergent series: use dop853)`.
+    pub fn taylor_tape(&self, vectors: usize, order: usize) -> Result<TaylorTape, String> {
+        let inner = &self.0;
+        TaylorTape::build(
+            &inner.graph,
+            &inner.values,
+            &inner.tangent,
+            vectors,
+            order,
+        )
+        .map_err(|e| {
+            let key = &inner.definition.key;
+            let at = match inner.origins.get(&e.node) {
+                Some(&(c, span)) => {
+                    let at = ExprError::new(&inner.definition.components[c], span, "");
+                    format!(" at line {}, column {} of {key}[{}]", at.line, at.column, c + 1)
+                }
+                None => format!(" in {key}"),
+            };
+            format!(
+                "{}{at} is not analytic (Taylor's method needs a right-hand side whose \
+                 series converge along the orbit: no kinks, jumps, branches or tables on a \
+                 quantity that moves); use dop853",
+                e.operation
+            )
+        })
     }
 
     /// What made `F(x)` non-finite: the first operation, in component order and evaluation

@@ -213,7 +213,8 @@ impl ExcitedSites {
 pub struct IntegratorConfig {
     /// Splittings of separable Hamiltonians: `"aba864"`, `"leapfrog"`, `"saba2"`, `"saba3"`,
     /// `"saba4"`, `"yoshida4"`, `"aba104"`, `"aba1064"`, `"s9odr6"`, `"s11odr6"`, `"s17odr8"`.
-    /// Runge-Kutta methods of flows: `"rk4"`, `"dop853"`. Maps: `"iterate"` or left out.
+    /// Runge-Kutta methods of flows: `"rk4"`, `"dop853"`; Taylor's method of flows written as
+    /// expressions: `"taylor"`. Maps: `"iterate"` or left out.
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub method: String,
     /// Time step. Fixed-step methods take exactly this step; adaptive `dop853` (with `rtol` /
@@ -231,6 +232,10 @@ pub struct IntegratorConfig {
     /// Absolute tolerance of adaptive `dop853`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub atol: Option<f64>,
+    /// Tolerance of `"taylor"` (absolute below |x| = 1, relative above; its order follows
+    /// from it). Default: double precision's epsilon, 2.220446049250313e-16.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub tol: Option<f64>,
 }
 
 impl IntegratorConfig {
@@ -242,6 +247,7 @@ impl IntegratorConfig {
             t_final,
             rtol: None,
             atol: None,
+            tol: None,
         }
     }
 }

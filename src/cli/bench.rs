@@ -150,9 +150,17 @@ pub struct Args {
     /// Final time of the peer comparison's Lorenz spectrum.
     #[arg(long, default_value_t = 1e5)]
     pub peer_t_final: f64,
-    /// chaoscope's fixed dop853 step in the peer comparison (a divisor of tau = 1).
-    #[arg(long, default_value_t = 0.01)]
-    pub peer_h: f64,
+    /// chaoscope's method in the peer comparison's Lorenz spectrum: `taylor` (Taylor's
+    /// method at `--peer-tol`) or `dop853` (fixed step `--peer-h`).
+    #[arg(long, default_value = "taylor")]
+    pub peer_method: String,
+    /// chaoscope's time grid in the peer comparison (a divisor of tau = 1): dop853's fixed
+    /// step; for taylor the grid its steps land on. Default: 0.01 for dop853, 1 for taylor.
+    #[arg(long)]
+    pub peer_h: Option<f64>,
+    /// Tolerance of both sides' Taylor methods in the peer comparison's Lorenz spectrum.
+    #[arg(long, default_value_t = f64::EPSILON)]
+    pub peer_tol: f64,
     /// Points per axis of the peer comparison's Henon-Heiles MLE map (N x N).
     #[arg(long, default_value_t = 100)]
     pub peer_grid: usize,
@@ -674,7 +682,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         let report = peer::compare(
             peer,
             args.peer_t_final,
-            args.peer_h,
+            peer::FlowMethod::new(&args.peer_method, args.peer_h, args.peer_tol)?,
             (
                 args.peer_grid,
                 (&args.peer_map_method, args.peer_map_h),

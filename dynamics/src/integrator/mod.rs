@@ -11,6 +11,7 @@ pub mod composition;
 pub mod gauss_legendre;
 pub mod runge_kutta;
 mod splitting;
+pub mod taylor;
 
 pub use runge_kutta::{RungeKutta, RungeKuttaKind};
 pub use splitting::{Splitting, SplittingKind};
@@ -23,6 +24,8 @@ pub struct Workspace {
     pub(crate) force: Vec<f64>,
     /// Stages of a Runge-Kutta step and the adaptive controller's proposal.
     pub(crate) rk: runge_kutta::RkScratch,
+    /// Coefficients of Taylor's method.
+    pub(crate) taylor: taylor::TaylorScratch,
 }
 
 impl Workspace {

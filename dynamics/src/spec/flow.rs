@@ -7,7 +7,7 @@ use chaoscope_schemas::config::{OdeConfig, RunConfig};
 
 use super::{Built, LaneParam, SpecError, num, vector};
 use crate::integrator::runge_kutta::{RungeKutta, RungeKuttaKind, Tolerances};
-use crate::system::{DynamicalSystem, RkFlow};
+use crate::system::{DynamicalSystem, RkFlow, TaylorFlow};
 use crate::vector_field::VectorField;
 
 /// `[model] name = "ode"`: the compiled right-hand side with the Runge-Kutta method of
@@ -37,11 +37,23 @@ pub(super) fn runge_kutta_system(
     field: Arc<dyn VectorField>,
 ) -> Result<Arc<dyn DynamicalSystem>, SpecError> {
     let integrator = &cfg.integrator;
+    if integrator.method == "taylor" {
+        return taylor_system(cfg, field);
+    }
+    if integrator.tol.is_some() {
+        return Err(SpecError::new(
+            "integrator.tol",
+            format!(
+                "tol is the tolerance of taylor; {} takes rtol and atol",
+                integrator.method
+            ),
+        ));
+    }
     let kind = RungeKuttaKind::from_name(&integrator.method).ok_or_else(|| {
         SpecError::new(
             "integrator.method",
             format!(
-                "unknown method '{}' for a flow (known: rk4, dop853, gl4, gl6)",
+                "unknown method '{}' for a flow (known: rk4, dop853, gl4, gl6, taylor)",
                 integrator.method
             ),
         )
@@ -97,4 +109,36 @@ pub(super) fn runge_kutta_system(
         h,
         tolerances,
     }))
+}
+
+/// Taylor's method of `[integrator]` (`method = "taylor"`): on the grid of `h`, at `tol`.
+fn taylor_system(
+    cfg: &RunConfig,
+    field: Arc<dyn VectorField>,
+) -> Result<Arc<dyn DynamicalSystem>, SpecError> {
+    let integrator = &cfg.integrator;
+    if integrator.rtol.is_some() || integrator.atol.is_some() {
+        let key = if integrator.rtol.is_some() {
+            "integrator.rtol"
+        } else {
+            "integrator.atol"
+        };
+        return Err(SpecError::new(
+            key,
+            "taylor takes one tolerance, tol (absolute below |x| = 1, relative above)",
+        ));
+    }
+    let h = super::time_step(integrator)?;
+    let tol = integrator.tol.unwrap_or(f64::EPSILON);
+    // Below 1e-20 the order passes 24 for digits a double does not have; at 0.1 and above
+    // the series is cut after two terms.
+    if !(1e-20..0.1).contains(&tol) {
+        return Err(SpecError::new(
+            "integrator.tol",
+            format!("must be in [1e-20, 0.1), got {}", num(tol)),
+        ));
+    }
+    let system = TaylorFlow::new(cfg.model.name(), field, tol, h)
+        .map_err(|e| SpecError::new("integrator.method", e))?;
+    Ok(Arc::new(system))
 }

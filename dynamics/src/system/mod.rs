@@ -17,6 +17,9 @@
 //!   name = "ode"`, and any Hamiltonian `H(q, p)` (`name = "hamiltonian"`, whose field is
 //!   `(dH/dp, -dH/dq)`), explicit (`rk4`, `dop853`) or implicit symplectic Gauss-Legendre
 //!   (`gl4`, `gl6`);
+//! - [`TaylorFlow`]: the same fields written as expressions, with Taylor's method
+//!   (`integrator.method = "taylor"`): the series of the solution and of its variational
+//!   equations by automatic differentiation of the expressions, order and steps from `tol`;
 //! - [`DdnlsSystem`]: the disordered discrete nonlinear Schroedinger lattice (`[model] name =
 //!   "ddnls"`), a Hamiltonian not separable into `T(p) + V(q)`, stepped by a composition of its
 //!   three parts' exact flows (`integrator::composition`) with their exact tangent maps;
@@ -36,11 +39,13 @@ mod ddnls;
 mod map;
 mod rk_flow;
 mod split_hamiltonian;
+mod taylor_flow;
 
 pub use ddnls::DdnlsSystem;
 pub use map::Map;
 pub use rk_flow::RkFlow;
 pub use split_hamiltonian::SplitHamiltonian;
+pub use taylor_flow::TaylorFlow;
 
 use chaoscope_schemas::run::SystemClass;
 

@@ -30,10 +30,67 @@ const HEYOKA_SCRIPT: &str = include_str!("../../../benches/peer/heyoka_lorenz.py
 /// When the state error is read.
 const ERROR_TIME: f64 = 10.0;
 
+/// chaoscope's integration of the Lorenz spectrum.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FlowMethod {
+    /// Taylor's method at `tol`, landing on the grid of `h`.
+    Taylor { tol: f64, h: f64 },
+    /// dop853 with the fixed step `h`.
+    Dop853 { h: f64 },
+}
+
+impl FlowMethod {
+    /// From `--peer-method`, `--peer-h` and `--peer-tol`.
+    pub fn new(method: &str, h: Option<f64>, tol: f64) -> anyhow::Result<Self> {
+        let m = match method {
+            "taylor" => Self::Taylor {
+                tol,
+                h: h.unwrap_or(1.0),
+            },
+            "dop853" => Self::Dop853 {
+                h: h.unwrap_or(0.01),
+            },
+            other => anyhow::bail!("--peer-method {other:?}: taylor or dop853"),
+        };
+        let h = m.h();
+        anyhow::ensure!(
+            h > 0.0 && h <= 1.0 && (1.0 / h).fract() == 0.0,
+            "--peer-h {h}: a step that divides tau = 1 (1, 0.5, 0.01, 0.005, ...)"
+        );
+        anyhow::ensure!(
+            (1e-20..0.1).contains(&tol),
+            "--peer-tol {tol}: in [1e-20, 0.1)"
+        );
+        Ok(m)
+    }
+
+    fn h(self) -> f64 {
+        match self {
+            Self::Taylor { h, .. } | Self::Dop853 { h } => h,
+        }
+    }
+
+    /// The `[integrator]` lines of the method.
+    fn integrator(self) -> String {
+        match self {
+            Self::Taylor { tol, h } => format!("method = \"taylor\"\ntol = {tol:?}\nh = {h:?}"),
+            Self::Dop853 { h } => format!("method = \"dop853\"\nh = {h:?}"),
+        }
+    }
+
+    fn describe(self) -> String {
+        match self {
+            Self::Taylor { tol, h } => format!("taylor, tol = {tol:e}, grid h = {h}"),
+            Self::Dop853 { h } => format!("dop853, fixed h = {h}"),
+        }
+    }
+}
+
 /// The run of chaoscope's side: `examples/models/lorenz.toml` with its VM scheme only and the
 /// identity's rows as the three tangent vectors (heyoka's variational equations start from the
 /// identity).
-fn config(t_final: f64, h: f64) -> String {
+fn config(t_final: f64, method: FlowMethod) -> String {
+    let integrator = method.integrator();
     format!(
         r#"[run]
 name = "lorenz"
@@ -44,8 +101,7 @@ params = {{ sigma = 10.0, rho = 28.0, beta = 2.6666666666666665 }}
 [orbit]
 x = [1.0, 1.0, 1.0]
 [integrator]
-method = "dop853"
-h = {h:?}
+{integrator}
 t_final = {t_final:?}
 [deviations]
 k = 3
@@ -61,9 +117,9 @@ orthonormalize = "qr"
 }
 
 /// chaoscope's side: config to spectrum through the engine a run uses, on this thread.
-fn chaoscope_side(t_final: f64, h: f64) -> anyhow::Result<serde_json::Value> {
+fn chaoscope_side(t_final: f64, method: FlowMethod) -> anyhow::Result<serde_json::Value> {
     let start = thread_cpu_seconds();
-    let cfg = RunConfig::from_toml(&config(t_final, h))?;
+    let cfg = RunConfig::from_toml(&config(t_final, method))?;
     let spec = RunSpec::from_config(&cfg)?;
     let compile_cpu = thread_cpu_seconds() - start;
     let mut engine = Engine::new(spec);
@@ -83,7 +139,7 @@ fn chaoscope_side(t_final: f64, h: f64) -> anyhow::Result<serde_json::Value> {
     }
     let cpu = thread_cpu_seconds() - start;
     Ok(serde_json::json!({
-        "method": format!("dop853, fixed h = {h}"),
+        "method": method.describe(),
         "compile_cpu_seconds": compile_cpu,
         "run_cpu_seconds": cpu - compile_cpu,
         "cpu_seconds": cpu,
@@ -107,8 +163,13 @@ fn state_error(side: &serde_json::Value, reference: &serde_json::Value) -> serde
 }
 
 /// The peer's JSON, or why there is none (no interpreter, or heyoka not importable).
-fn run_script(python: &str, t_final: f64) -> anyhow::Result<serde_json::Value> {
-    let args = ["--t-final".to_string(), format!("{t_final:?}")];
+fn run_script(python: &str, t_final: f64, tol: f64) -> anyhow::Result<serde_json::Value> {
+    let args = [
+        "--t-final".to_string(),
+        format!("{t_final:?}"),
+        "--tol".to_string(),
+        format!("{tol:?}"),
+    ];
     run_peer_script(
         python,
         "benches/peer/heyoka_lorenz.py",
@@ -198,7 +259,7 @@ pub fn report(
 pub fn compare(
     peer: &str,
     t_final: f64,
-    h: f64,
+    method: FlowMethod,
     map: (usize, (&str, f64), f64),
     python: &str,
 ) -> anyhow::Result<serde_json::Value> {
@@ -211,12 +272,12 @@ pub fn compare(
         "--peer-t-final {t_final}: a whole number of time units, at least {ERROR_TIME} (the \
          state error is read at t = {ERROR_TIME})"
     );
-    anyhow::ensure!(
-        h > 0.0 && (1.0 / h).fract() == 0.0,
-        "--peer-h {h}: a step that divides tau = 1 (0.01, 0.005, ...)"
-    );
-    let chaoscope = chaoscope_side(t_final, h)?;
-    let peer = run_script(python, t_final)?;
+    let chaoscope = chaoscope_side(t_final, method)?;
+    let tol = match method {
+        FlowMethod::Taylor { tol, .. } => tol,
+        FlowMethod::Dop853 { .. } => f64::EPSILON,
+    };
+    let peer = run_script(python, t_final, tol)?;
     let mut out = report(chaoscope, peer, t_final);
     let (grid, step, map_tol) = map;
     out["hh_map"] = super::peer_hh_map::compare(grid, step, map_tol, python)?;
@@ -231,7 +292,7 @@ mod tests {
     /// script computed, and says the peer is missing; the ratio is absent, never made up.
     #[test]
     fn peer_report_without_heyoka_says_so() {
-        let ours = chaoscope_side(10.0, 0.01).unwrap();
+        let ours = chaoscope_side(10.0, FlowMethod::Dop853 { h: 0.01 }).unwrap();
         let peer = serde_json::json!({
             "reference_state_t10": [-4.902687541134648, -3.743872921802919, 24.690858102790564],
             "reference_self_difference": 3e-33,

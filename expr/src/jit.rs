@@ -18,7 +18,7 @@ use std::sync::Arc;
 
 use crate::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
 
-mod c;
+pub(crate) mod c;
 mod cranelift;
 mod step;
 mod step_spec;

@@ -23,8 +23,11 @@
 
 use std::collections::HashMap;
 use std::sync::Arc;
+use std::sync::atomic::AtomicBool;
 
 use crate::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
+use crate::jit::c::taylor::CTaylor;
+use crate::jit::{CCompiler, JitError};
 
 /// The state, tangent-vector, time and parameter arguments of a vector function's graph.
 const ARG_X: u8 = 0;
@@ -34,7 +37,7 @@ const ARG_PARAMS: u8 = 3;
 
 /// One operation on series, its operands and result as slots.
 #[derive(Debug, Clone, Copy)]
-enum Op {
+pub(crate) enum Op {
     Add(u32, u32, u32),
     Sub(u32, u32, u32),
     Neg(u32, u32),
@@ -84,23 +87,25 @@ enum Fixed {
 /// The Taylor tape of a vector function with `vectors` tangent vectors, to a given order.
 #[derive(Debug, Clone)]
 pub struct TaylorTape {
-    order: usize,
-    dim: usize,
-    vectors: usize,
-    slots: usize,
+    pub(crate) order: usize,
+    pub(crate) dim: usize,
+    pub(crate) vectors: usize,
+    pub(crate) slots: usize,
     /// Slot of each state coordinate, then of each vector's coordinates (vector by vector).
-    state: Vec<u32>,
-    tangent: Vec<u32>,
+    pub(crate) state: Vec<u32>,
+    pub(crate) tangent: Vec<u32>,
     time: Option<u32>,
     fixed: Vec<Fixed>,
     /// Slots of the constant nodes by node (what [`Fixed::Node`] reads its operands from).
     node_slot: Vec<u32>,
     graph_nodes: Vec<Node>,
-    tables: Vec<Arc<dyn Tabulated>>,
-    ops: Vec<Op>,
+    pub(crate) tables: Vec<Arc<dyn Tabulated>>,
+    pub(crate) ops: Vec<Op>,
     /// Slot of `F_i`, then of `(J v_j)_i` vector by vector.
-    f_out: Vec<u32>,
-    jv_out: Vec<u32>,
+    pub(crate) f_out: Vec<u32>,
+    pub(crate) jv_out: Vec<u32>,
+    /// The pass over the orders compiled to C ([`Self::compile_native`]): the same bits.
+    native: Option<Arc<CTaylor>>,
 }
 
 /// Why a graph has no Taylor tape: the node whose operation is not analytic.
@@ -429,7 +434,24 @@ impl TaylorTape {
             ops: b.ops,
             f_out,
             jv_out,
+            native: None,
         })
+    }
+
+    /// Compiles the pass over the orders with the C compiler `cc` (or loads it from the
+    /// kernel cache), so that [`Self::coefficients`] runs it instead of interpreting the tape:
+    /// the same operations in the same order, the same bits. On an error the tape stays
+    /// interpreted (the caller may say why).
+    pub fn compile_native(&mut self, cc: &CCompiler) -> Result<(), JitError> {
+        static NEVER: AtomicBool = AtomicBool::new(false);
+        let pass = crate::jit::c::taylor::compile(self, cc, &NEVER)?;
+        self.native = Some(Arc::new(pass));
+        Ok(())
+    }
+
+    /// Whether the pass over the orders runs compiled ([`Self::compile_native`]).
+    pub fn is_native(&self) -> bool {
+        self.native.is_some()
     }
 
     pub fn order(&self) -> usize {
@@ -480,6 +502,11 @@ impl TaylorTape {
                 Fixed::Node(s, id) => (s, self.fixed_value(coef, id)),
             };
             coef[s as usize * stride] = v;
+        }
+        if let Some(native) = &self.native {
+            assert!(coef.len() == self.buffer_len(), "a buffer of another tape");
+            native.run(coef);
+            return;
         }
         for k in 0..self.order {
             for op in &self.ops {
@@ -652,7 +679,7 @@ fn order_k(op: &Op, c: &[f64], stride: usize, k: usize) -> f64 {
         Op::Sqrt(d, a) => {
             let (a, w) = (s(a), s(d));
             if k == 0 {
-                return a[0].sqrt();
+                return Graph::apply_unary(Unary::Sqrt, a[0]);
             }
             // 2 w_0 w_k = a_k - sum_{j=1}^{k-1} w_j w_{k-j}.
             let mut acc = a[k];
@@ -664,7 +691,7 @@ fn order_k(op: &Op, c: &[f64], stride: usize, k: usize) -> f64 {
         Op::Exp(d, a) => {
             let (a, w) = (s(a), s(d));
             if k == 0 {
-                return a[0].exp();
+                return Graph::apply_unary(Unary::Exp, a[0]);
             }
             // w' = a' w.
             weighted(a, w, k) / kf
@@ -672,7 +699,7 @@ fn order_k(op: &Op, c: &[f64], stride: usize, k: usize) -> f64 {
         Op::Log(d, a) => {
             let (a, w) = (s(a), s(d));
             if k == 0 {
-                return a[0].ln();
+                return Graph::apply_unary(Unary::Log, a[0]);
             }
             // a w' = a': k a_0 w_k = k a_k - sum_{j=1}^{k-1} j w_j a_{k-j}.
             let mut acc = kf * a[k];
@@ -684,7 +711,7 @@ fn order_k(op: &Op, c: &[f64], stride: usize, k: usize) -> f64 {
         Op::Pow(d, a, e) => {
             let (a, w, e) = (s(a), s(d), s(e)[0]);
             if k == 0 {
-                return a[0].powf(e);
+                return Graph::apply_binary(Binary::Pow, a[0], e);
             }
             // a w' = e a' w: k a_0 w_k = sum_{j=0}^{k-1} (e (k - j) - j) a_{k-j} w_j.
             let mut acc = 0.0;
@@ -701,7 +728,7 @@ fn order_k(op: &Op, c: &[f64], stride: usize, k: usize) -> f64 {
         } => {
             let a = s(a);
             if k == 0 {
-                return if hyperbolic { a[0].sinh() } else { a[0].sin() };
+                return Graph::apply_unary(if hyperbolic { Unary::Sinh } else { Unary::Sin }, a[0]);
             }
             // sin' = a' cos, sinh' = a' cosh.
             weighted(a, s(cos), k) / kf
@@ -711,7 +738,7 @@ fn order_k(op: &Op, c: &[f64], stride: usize, k: usize) -> f64 {
         } => {
             let (a, q) = (s(a), s(sq));
             if k == 0 {
-                return if hyperbolic { a[0].tanh() } else { a[0].tan() };
+                return Graph::apply_unary(if hyperbolic { Unary::Tanh } else { Unary::Tan }, a[0]);
             }
             // w' = a' (1 +- w^2).
             let sign = if hyperbolic { -1.0 } else { 1.0 };
@@ -732,7 +759,7 @@ fn order_k(op: &Op, c: &[f64], stride: usize, k: usize) -> f64 {
         Op::Atan2 { dst, a, b, d } => {
             let (a, b, w, d) = (s(a), s(b), s(dst), s(d));
             if k == 0 {
-                return a[0].atan2(b[0]);
+                return Graph::apply_binary(Binary::Atan2, a[0], b[0]);
             }
             // d w' = b a' - a b'.
             let mut acc = 0.0;
@@ -759,7 +786,7 @@ fn cosine_k(op: &Op, c: &[f64], stride: usize, k: usize) -> f64 {
     let s = |slot: u32| &c[slot as usize * stride..slot as usize * stride + stride];
     let a = s(a);
     if k == 0 {
-        return if hyperbolic { a[0].cosh() } else { a[0].cos() };
+        return Graph::apply_unary(if hyperbolic { Unary::Cosh } else { Unary::Cos }, a[0]);
     }
     // cos' = -a' sin, cosh' = a' sinh.
     let v = weighted(a, s(sin), k) / k as f64;

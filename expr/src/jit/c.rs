@@ -62,6 +62,7 @@ pub(crate) mod emit;
 pub(crate) mod fused;
 pub(crate) mod lattice_steps;
 pub(crate) mod load;
+pub(crate) mod taylor;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -78,7 +79,7 @@ use cache::{CacheDir, WorkDir, digest_hex, read_regular, remove_abandoned_builds
 pub use compiler::CCompiler;
 use compiler::{FLAGS, first_lines, identity, run_compiler};
 pub(crate) use emit::{emit_nodes, konst, prelude, source, vector_helpers};
-use load::load;
+use load::{open_checked, step_kernels};
 
 /// Lanes per block of the C kernels: one value is two 4-lane vectors (two AVX2 registers, or
 /// four SSE2 ones), two independent dependency chains per operation. The batched kernel's chunks (8 or 32 lanes on
@@ -188,6 +189,26 @@ pub(crate) fn build(
     cancel: &AtomicBool,
     mode: Mode,
 ) -> Result<(CKernels, Duration), JitError> {
+    build_with(src, cc, cancel, mode, |library, memory, path, cached| {
+        step_kernels(library, memory, path, tangent, cached)
+    })
+}
+
+/// Compiles (or loads from the cache) the library of the source `src`, opened and checked to
+/// be that source's, and hands it to `make` (with its cache path and whether it was cached)
+/// for the symbols its caller needs.
+pub(crate) fn build_with<T>(
+    src: &str,
+    cc: &CCompiler,
+    cancel: &AtomicBool,
+    mode: Mode,
+    make: impl Fn(
+        libloading::Library,
+        Option<std::fs::File>,
+        &Path,
+        bool,
+    ) -> Result<T, JitError>,
+) -> Result<(T, Duration), JitError> {
     let start = Instant::now();
     if mode == Mode::Load && !cc.cache_dir.exists() {
         return Err(JitError::NotCached);
@@ -215,7 +236,8 @@ pub(crate) fn build(
     let digest_name = format!("steps-{hash}.sha256");
     let lib_path = cc.cache_dir.join(&lib_name);
     if let Some(bytes) = cache.verified(&lib_name, &digest_name)?
-        && let Ok(k) = load(&bytes, &lib_path, &hash, tangent, true)
+        && let Ok(k) = open_checked(&bytes, &lib_path, &hash)
+            .and_then(|(library, memory)| make(library, memory, &lib_path, true))
     {
         return Ok((k, start.elapsed()));
     }
@@ -277,6 +299,7 @@ pub(crate) fn build(
         .map_err(|e| io("cannot move the kernels' digest to", &digest_path, e))?;
     drop(work);
     // Loaded from the bytes just read, not from the cache path.
-    let k = load(&bytes, &lib_path, &hash, tangent, false)?;
+    let (library, memory) = open_checked(&bytes, &lib_path, &hash)?;
+    let k = make(library, memory, &lib_path, false)?;
     Ok((k, start.elapsed()))
 }

@@ -6,13 +6,11 @@ use super::{CFusedFn, CKernels, COrbitFn, CTangentFn};
 use crate::jit::JitError;
 /// Loads a compiled library from `bytes` (those of `path`, already checked against their
 /// digest) and checks that it is the one its name says (it carries its hash).
-pub(crate) fn load(
+pub(crate) fn open_checked(
     bytes: &[u8],
     path: &Path,
     hash: &str,
-    tangent: bool,
-    cached: bool,
-) -> Result<CKernels, JitError> {
+) -> Result<(libloading::Library, Option<std::fs::File>), JitError> {
     let fail = |e: String| {
         JitError::CCompiler(format!(
             "cannot load the compiled kernels {}: {e}",
@@ -28,6 +26,23 @@ pub(crate) fn load(
     if stamp.to_bytes() != hash.as_bytes() {
         return Err(fail("it was compiled from another source".into()));
     }
+    Ok((library, memory_file))
+}
+
+/// The step kernels of a library [`open_checked`] opened.
+pub(crate) fn step_kernels(
+    library: libloading::Library,
+    memory_file: Option<std::fs::File>,
+    path: &Path,
+    tangent: bool,
+    cached: bool,
+) -> Result<CKernels, JitError> {
+    let fail = |e: String| {
+        JitError::CCompiler(format!(
+            "cannot load the compiled kernels {}: {e}",
+            path.display()
+        ))
+    };
     // SAFETY: the generated source defines these functions with exactly these signatures.
     let orbit = *unsafe { library.get::<COrbitFn>(b"chaoscope_orbit_steps\0") }
         .map_err(|e| fail(e.to_string()))?;

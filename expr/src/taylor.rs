@@ -589,16 +589,34 @@ impl TaylorTape {
     /// `x(t0 + h)` and `w(t0 + h)` from the series in `coef`, by Horner's rule.
     pub fn sum(&self, coef: &[f64], h: f64, x: &mut [f64], w: &mut [f64]) {
         let stride = self.order + 1;
-        let horner = |s: u32| {
-            let c = &coef[s as usize * stride..s as usize * stride + stride];
-            c.iter().rev().fold(0.0, |acc, &ck| acc * h + ck)
-        };
-        for (xi, &s) in x.iter_mut().zip(&self.state) {
-            *xi = horner(s);
+        let n = self.dim.min(x.len());
+        horner(coef, stride, &self.state[..n], h, &mut x[..n]);
+        horner(coef, stride, &self.tangent, h, w);
+    }
+}
+
+/// `out_i = sum_k c_{s_i, k} h^k` by Horner's rule, four series at a time (four independent
+/// chains of multiply-adds instead of one waiting on the other).
+fn horner(coef: &[f64], stride: usize, slots: &[u32], h: f64, out: &mut [f64]) {
+    let one = |s: u32| {
+        let c = &coef[s as usize * stride..s as usize * stride + stride];
+        c.iter().rev().fold(0.0, |acc, &ck| acc * h + ck)
+    };
+    let mut four = slots.chunks_exact(4);
+    let mut outs = out.chunks_exact_mut(4);
+    for (s, o) in (&mut four).zip(&mut outs) {
+        let c: [&[f64]; 4] =
+            std::array::from_fn(|l| &coef[s[l] as usize * stride..s[l] as usize * stride + stride]);
+        let mut acc = [0.0f64; 4];
+        for k in (0..stride).rev() {
+            for l in 0..4 {
+                acc[l] = acc[l] * h + c[l][k];
+            }
         }
-        for (wi, &s) in w.iter_mut().zip(&self.tangent) {
-            *wi = horner(s);
-        }
+        o.copy_from_slice(&acc);
+    }
+    for (&s, o) in four.remainder().iter().zip(outs.into_remainder()) {
+        *o = one(s);
     }
 }
 

@@ -48,6 +48,7 @@ mod lattice;
 mod lorenz_stage;
 mod peer;
 mod peer_hh_map;
+mod peer_r3bp;
 mod plain_loop;
 mod scalar_c;
 

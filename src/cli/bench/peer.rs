@@ -64,6 +64,14 @@ impl FlowMethod {
         Ok(m)
     }
 
+    /// The Taylor tolerance both sides use (machine epsilon beside dop853).
+    pub fn tol(self) -> f64 {
+        match self {
+            Self::Taylor { tol, .. } => tol,
+            Self::Dop853 { .. } => f64::EPSILON,
+        }
+    }
+
     fn h(self) -> f64 {
         match self {
             Self::Taylor { h, .. } | Self::Dop853 { h } => h,
@@ -71,14 +79,14 @@ impl FlowMethod {
     }
 
     /// The `[integrator]` lines of the method.
-    fn integrator(self) -> String {
+    pub fn integrator(self) -> String {
         match self {
             Self::Taylor { tol, h } => format!("method = \"taylor\"\ntol = {tol:?}\nh = {h:?}"),
             Self::Dop853 { h } => format!("method = \"dop853\"\nh = {h:?}"),
         }
     }
 
-    fn describe(self) -> String {
+    pub fn describe(self) -> String {
         match self {
             Self::Taylor { tol, h } => format!("taylor, tol = {tol:e}, grid h = {h}"),
             Self::Dop853 { h } => format!("dop853, fixed h = {h}"),
@@ -118,35 +126,63 @@ orthonormalize = "qr"
 
 /// chaoscope's side: config to spectrum through the engine a run uses, on this thread.
 fn chaoscope_side(t_final: f64, method: FlowMethod) -> anyhow::Result<serde_json::Value> {
-    let start = thread_cpu_seconds();
-    let cfg = RunConfig::from_toml(&config(t_final, method))?;
+    let mut side = spectrum_run(&config(t_final, method), ERROR_TIME)?;
+    side["method"] = method.describe().into();
+    side["state_t10"] = side["state_at"].take();
+    Ok(side)
+}
+
+/// A VM spectrum run of `toml` (QR every tau) through the engine a run uses, on this thread:
+/// its CPU time (building the system, with the C compiler's CPU when it ran, and running),
+/// the spectrum, the state at `read_at` and the largest relative error of the invariant.
+pub(super) fn spectrum_run(toml: &str, read_at: f64) -> anyhow::Result<serde_json::Value> {
+    let (start, children) = (thread_cpu_seconds(), children_cpu_seconds());
+    let cfg = RunConfig::from_toml(toml)?;
     let spec = RunSpec::from_config(&cfg)?;
     let compile_cpu = thread_cpu_seconds() - start;
     let mut engine = Engine::new(spec);
-    let mut logs = [0.0f64; 3];
-    let mut state_t10 = None;
-    let mut t_end = 0.0;
+    let mut logs = Vec::new();
+    let mut state_at = None;
+    let (mut t_end, mut e0, mut worst) = (0.0, None, 0.0f64);
     while let Some(sample) = engine.next_sample()? {
-        if sample.t == ERROR_TIME {
-            state_t10 = Some(sample.state.clone());
+        if sample.t == read_at {
+            state_at = Some(sample.state.clone());
+        }
+        let e0 = *e0.get_or_insert(sample.energy);
+        if e0 != 0.0 {
+            worst = worst.max(((sample.energy - e0) / e0).abs());
         }
         t_end = sample.t;
         for s in &sample.schemes {
+            logs.resize(s.stretch.len(), 0.0);
             for (l, r) in logs.iter_mut().zip(&s.stretch) {
                 *l += r.ln();
             }
         }
     }
     let cpu = thread_cpu_seconds() - start;
+    // The C compiler of the Taylor pass (or of the step kernels) runs as a child process.
+    let compiler_cpu = children_cpu_seconds() - children;
+    let spectrum: Vec<f64> = logs.iter().map(|l| l / t_end).collect();
     Ok(serde_json::json!({
-        "method": method.describe(),
         "compile_cpu_seconds": compile_cpu,
+        "c_compiler_cpu_seconds": compiler_cpu,
         "run_cpu_seconds": cpu - compile_cpu,
-        "cpu_seconds": cpu,
-        "spectrum": logs.map(|l| l / t_end),
-        "state_t10": state_t10,
+        "cpu_seconds": cpu + compiler_cpu,
+        "spectrum": spectrum,
+        "state_at": state_at,
+        "max_relative_energy_error": (e0 != Some(0.0)).then_some(worst),
         "t_final": t_end,
     }))
+}
+
+/// CPU time of the children this process waited for, in seconds.
+fn children_cpu_seconds() -> f64 {
+    // SAFETY: getrusage fills the struct it is given.
+    let mut u: libc::rusage = unsafe { std::mem::zeroed() };
+    unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut u) };
+    let tv = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
+    tv(u.ru_utime) + tv(u.ru_stime)
 }
 
 /// Largest absolute component difference of a side's `state_t10` to the reference.
@@ -273,13 +309,10 @@ pub fn compare(
          state error is read at t = {ERROR_TIME})"
     );
     let chaoscope = chaoscope_side(t_final, method)?;
-    let tol = match method {
-        FlowMethod::Taylor { tol, .. } => tol,
-        FlowMethod::Dop853 { .. } => f64::EPSILON,
-    };
-    let peer = run_script(python, t_final, tol)?;
+    let peer = run_script(python, t_final, method.tol())?;
     let mut out = report(chaoscope, peer, t_final);
     let (grid, step, map_tol) = map;
+    out["r3bp"] = super::peer_r3bp::compare(method, python)?;
     out["hh_map"] = super::peer_hh_map::compare(grid, step, map_tol, python)?;
     Ok(out)
 }

@@ -1,0 +1,90 @@
+//! The second flow of `chaoscope bench --peer heyoka`: the planar circular restricted
+//! three-body problem of the Sun and Jupiter (`examples/models/restricted-three-body.toml`), a
+//! chaotic orbit that starts on the circle a = 0.86 about the Sun, 150 degrees from Jupiter,
+//! with its four Lyapunov exponents by the variational method (QR every tau = 1) to t = 10^4,
+//! run by chaoscope and by heyoka (`benches/peer/heyoka_r3bp.py`) at the same tolerance; each
+//! side's CPU time, spectrum and largest relative error of the Jacobi constant (-2 H).
+
+use super::peer::{FlowMethod, run_peer_script, spectrum_run};
+use chaoscope_dynamics::batch::Isa;
+use chaoscope_dynamics::estimate::Machine;
+
+const SCRIPT: &str = include_str!("../../../benches/peer/heyoka_r3bp.py");
+
+/// Jupiter's mass over the Sun's and Jupiter's.
+const MU: f64 = 9.537e-4;
+/// `(x, y, px, py)`: on the circle of radius 0.86 about the Sun at 150 degrees from Jupiter,
+/// with the circular speed about the Sun (the canonical momenta of the rotating frame are the
+/// inertial velocity's components).
+pub const STATE: [f64; 4] = [
+    -0.7457355472546172,
+    0.42999999999999994,
+    -0.5389067043992972,
+    -0.9334137925590853,
+];
+const T_FINAL: f64 = 1e4;
+
+fn config(method: FlowMethod) -> String {
+    let [x, y, px, py] = STATE;
+    format!(
+        r#"[run]
+name = "restricted-three-body"
+[model]
+name = "hamiltonian"
+n = 2
+hamiltonian = "(p1^2 + p2^2)/2 + q2*p1 - q1*p2 - (1 - mu)/sqrt((q1 + mu)^2 + q2^2) - mu/sqrt((q1 - 1 + mu)^2 + q2^2)"
+params = {{ mu = {MU:?} }}
+[orbit]
+q = [{x:?}, {y:?}]
+p = [{px:?}, {py:?}]
+[integrator]
+{}
+t_final = {T_FINAL:?}
+[deviations]
+k = 4
+vectors = [[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1.0
+orthonormalize = "qr"
+"#,
+        method.integrator()
+    )
+}
+
+/// Both sides, or chaoscope's alone with the reason the peer is missing.
+pub fn compare(method: FlowMethod, python: &str) -> anyhow::Result<serde_json::Value> {
+    let mut ours = spectrum_run(&config(method), T_FINAL)?;
+    ours["method"] = method.describe().into();
+    let _ = ours.as_object_mut().map(|o| o.remove("state_at"));
+    let mut args = vec![
+        "--t-final".to_string(),
+        format!("{T_FINAL:?}"),
+        "--tol".to_string(),
+        format!("{:?}", method.tol()),
+        "--mu".to_string(),
+        format!("{MU:?}"),
+        "--state".to_string(),
+    ];
+    args.extend(STATE.iter().map(|v| format!("{v:?}")));
+    let peer = run_peer_script(python, "benches/peer/heyoka_r3bp.py", SCRIPT, &args)?;
+    let available = peer["heyoka_available"].as_bool() == Some(true);
+    let theirs = peer.get("heyoka").cloned().unwrap_or(serde_json::Value::Null);
+    let ratio = |key: &str| {
+        let r = theirs[key].as_f64().unwrap_or(f64::NAN) / ours[key].as_f64().unwrap_or(f64::NAN);
+        if r.is_finite() { serde_json::json!(r) } else { serde_json::Value::Null }
+    };
+    Ok(serde_json::json!({
+        "cpu": Machine::cpu_model(),
+        "isa": Isa::detect().name(),
+        "workload": "planar circular restricted three-body problem, Sun-Jupiter mu = 9.537e-4, rotating frame; a chaotic orbit from the circle a = 0.86 about the Sun at 150 degrees from Jupiter; 4 tangent vectors from the identity, QR every tau = 1, spectrum to t = 1e4; one thread",
+        "peer_available": available,
+        "peer_unavailable": peer.get("heyoka_unavailable").cloned().unwrap_or(serde_json::Value::Null),
+        "chaoscope": ours,
+        "heyoka": theirs,
+        "heyoka_cpu_over_chaoscope_cpu": ratio("cpu_seconds"),
+        "heyoka_run_cpu_over_chaoscope_run_cpu": ratio("run_cpu_seconds"),
+    }))
+}

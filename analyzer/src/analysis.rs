@@ -456,13 +456,16 @@ impl Analysis {
                 .exponents_whole
                 .is_some()
                 .then(|| ind.exponents.iter().map(|e| e.mean).collect()),
-            vs_vm_abs_delta: self.vs_vm_of(si).map(|d| {
-                d.gali
-                    .0
-                    .iter()
-                    .map(|(_, x)| x.mean_abs_delta_log10)
-                    .collect()
-            }),
+            vs_vm_abs_delta: self
+                .vs_vm_of(si)
+                .filter(|d| !d.gali.0.is_empty())
+                .map(|d| {
+                    d.gali
+                        .0
+                        .iter()
+                        .map(|(_, x)| x.mean_abs_delta_log10)
+                        .collect()
+                }),
             named: chaoscope_indicators::indicator::set_output_names()
                 .iter()
                 .map(|name| ind.named.value(name))
@@ -491,7 +494,15 @@ impl Analysis {
             return None;
         }
         let n = pairs.len() as f64;
-        let gali = (0..run.k.saturating_sub(1))
+        // A QR scheme's vectors are orthonormal at every renormalization: its GALI is 1 by
+        // construction, so GALI differences with it say nothing (only the exponents compare).
+        let qr = |i: usize| run.schemes[i].orthonormalize == Orthonormalization::Qr;
+        let orders = if qr(si) || qr(vi) {
+            0
+        } else {
+            run.k.saturating_sub(1)
+        };
+        let gali = (0..orders)
             .map(|o| {
                 let d: Vec<f64> = pairs
                     .iter()

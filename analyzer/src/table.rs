@@ -142,7 +142,7 @@ pub fn table(report: &Report) -> String {
             ),
             cell(Some(s.mle), 10, |v| format!("{v:.6}"))
         );
-        if let Some(v) = &s.vs_vm {
+        if let Some(v) = s.vs_vm.as_ref().filter(|v| !v.gali.0.is_empty()) {
             let d: Vec<String> = v
                 .gali
                 .0

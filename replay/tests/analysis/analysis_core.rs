@@ -115,6 +115,35 @@ fn hh_chaotic_gali_at_200_matches_the_reference_geometric_means() {
     assert!(d.gali.get(4).unwrap().mean_abs_delta_log10 > 0.3);
 }
 
+/// An MPM scheme whose only VM partner is a QR scheme: the QR vectors are orthonormal at every
+/// renormalization, so their GALI is 1 by construction and a GALI difference with them would
+/// read as MPM missing VM by the orbit's whole GALI (5 decades on a chaotic orbit, shown so
+/// before). Only the exponents compare: the report and table carry no GALI difference, the
+/// CSV's columns stay empty, and the MLE difference is still there (same orbit, the MLEs agree).
+#[test]
+fn a_qr_partner_gives_no_gali_difference_only_the_exponents() {
+    let mut qr = SchemeConfig::new("vm", "vm", 1e-8, 1.0);
+    qr.orthonormalize = "qr".into();
+    let cfg = hh(
+        200.0,
+        1,
+        11,
+        vec![qr, SchemeConfig::new("mpm", "mpm", 1e-8, 1.0)],
+    );
+    let a = analyze_config(&cfg, &AnalysisOptions::default(), |_| {}).unwrap();
+    let r = a.report();
+    let d = r.scheme("mpm").unwrap().vs_vm.as_ref().unwrap();
+    assert!(d.gali.0.is_empty(), "{d:?}");
+    assert!(d.mle_delta.abs() < 1e-3, "{d:?}");
+    let table = chaoscope_analyzer::table::table(&r);
+    assert!(!table.contains("vs vm"), "{table}");
+    let mpm = r.schemes.iter().position(|s| s.name == "mpm").unwrap();
+    assert!(
+        a.series(mpm).iter().all(|(_, p)| p.vs_vm_abs_delta.is_none()),
+        "a GALI difference in the series"
+    );
+}
+
 #[test]
 fn series_memory_is_bounded_for_long_runs() {
     // 1e5 renormalizations; the stored curve keeps a bounded number of points.

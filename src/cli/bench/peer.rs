@@ -136,7 +136,7 @@ fn chaoscope_side(t_final: f64, method: FlowMethod) -> anyhow::Result<serde_json
 /// its CPU time (building the system, with the C compiler's CPU when it ran, and running),
 /// the spectrum, the state at `read_at` and the largest relative error of the invariant.
 pub(super) fn spectrum_run(toml: &str, read_at: f64) -> anyhow::Result<serde_json::Value> {
-    let (start, children) = (thread_cpu_seconds(), children_cpu_seconds());
+    let (start, children) = (thread_cpu_seconds(), super::dkg::children_cpu_seconds());
     let cfg = RunConfig::from_toml(toml)?;
     let spec = RunSpec::from_config(&cfg)?;
     let compile_cpu = thread_cpu_seconds() - start;
@@ -162,7 +162,7 @@ pub(super) fn spectrum_run(toml: &str, read_at: f64) -> anyhow::Result<serde_jso
     }
     let cpu = thread_cpu_seconds() - start;
     // The C compiler of the Taylor pass (or of the step kernels) runs as a child process.
-    let compiler_cpu = children_cpu_seconds() - children;
+    let compiler_cpu = super::dkg::children_cpu_seconds() - children;
     let spectrum: Vec<f64> = logs.iter().map(|l| l / t_end).collect();
     Ok(serde_json::json!({
         "compile_cpu_seconds": compile_cpu,
@@ -174,15 +174,6 @@ pub(super) fn spectrum_run(toml: &str, read_at: f64) -> anyhow::Result<serde_jso
         "max_relative_energy_error": (e0 != Some(0.0)).then_some(worst),
         "t_final": t_end,
     }))
-}
-
-/// CPU time of the children this process waited for, in seconds.
-fn children_cpu_seconds() -> f64 {
-    // SAFETY: getrusage fills the struct it is given.
-    let mut u: libc::rusage = unsafe { std::mem::zeroed() };
-    unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut u) };
-    let tv = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
-    tv(u.ru_utime) + tv(u.ru_stime)
 }
 
 /// Largest absolute component difference of a side's `state_t10` to the reference.

@@ -815,6 +815,18 @@ impl VectorFunction {
         })
     }
 
+    /// [`Self::taylor_tape`] with its pass over the orders compiled to C where a C compiler is
+    /// configured (`CHAOSCOPE_CC`, [`crate::jit::CCompiler::from_env`]; cached like the step
+    /// kernels), else interpreted: the same bits either way, so a compiler that is missing,
+    /// fails or passes its deadline costs speed, never a different orbit.
+    pub fn taylor_tape_compiled(&self, vectors: usize, order: usize) -> Result<TaylorTape, String> {
+        let mut tape = self.taylor_tape(vectors, order)?;
+        if let Some(cc) = crate::jit::CCompiler::from_env() {
+            let _ = tape.compile_native(&cc);
+        }
+        Ok(tape)
+    }
+
     /// What made `F(x)` non-finite: the first operation, in component order and evaluation
     /// order, whose value is NaN or infinite while its operands are finite, e.g. `'log' at line
     /// 1, column 3 of next[2] gave NaN (x = [0.5, -1])`. `None` when `F(x)` is finite. Off the

@@ -13,7 +13,6 @@
 use std::sync::{Arc, OnceLock};
 
 use chaoscope_expr::VectorFunction;
-use chaoscope_expr::jit::CCompiler;
 use chaoscope_expr::taylor::TaylorTape;
 use chaoscope_schemas::run::SystemClass;
 
@@ -43,7 +42,7 @@ impl TaylorFlow {
         let taylor = Taylor::new(tol);
         let dim = vf.dim();
         let tapes: Vec<_> = (0..=dim).map(|_| OnceLock::new()).collect();
-        let own = native(vf.taylor_tape(0, taylor.order));
+        let own = vf.taylor_tape_compiled(0, taylor.order).map(Arc::new);
         let own = tapes[0].get_or_init(|| own).clone();
         own?;
         Ok(Self {
@@ -71,7 +70,11 @@ impl TaylorFlow {
                 self.dim()
             ));
         };
-        cell.get_or_init(|| native(self.function().taylor_tape(vectors, self.taylor.order)))
+        cell.get_or_init(|| {
+            self.function()
+                .taylor_tape_compiled(vectors, self.taylor.order)
+                .map(Arc::new)
+        })
         .as_ref()
         .map_err(Clone::clone)
     }
@@ -99,17 +102,6 @@ impl TaylorFlow {
         self.taylor
             .advance(tape, coef, x, w, t, t + self.h, plan, taken)
     }
-}
-
-/// The tape with its pass over the orders compiled to C where a C compiler is at hand
-/// (`CHAOSCOPE_CC`), else interpreted: the same bits either way, so a compiler that is
-/// missing, fails or hangs past its deadline costs speed, never a different orbit.
-fn native(tape: Result<TaylorTape, String>) -> Result<Arc<TaylorTape>, String> {
-    let mut tape = tape?;
-    if let Some(cc) = CCompiler::from_env() {
-        let _ = tape.compile_native(&cc);
-    }
-    Ok(Arc::new(tape))
 }
 
 impl DynamicalSystem for TaylorFlow {

@@ -361,3 +361,37 @@ fn a_blow_up_stops_the_run_with_the_reason() {
     };
     assert!(err.contains("Taylor step collapsed"), "{err}");
 }
+
+/// A section of a flow stepped by Taylor's method on a coarse grid: the steps of one grid
+/// interval (h = 1, about 30 Taylor steps and more than one turn of the Lorenz attractor) are
+/// walked one by one, so no crossing between them is missed. The first 12 upward crossings of
+/// x3 = 27 are those of dop853 at h = 0.005 (a section located to rounding on an orbit known
+/// to 1e-12 at t = 10; by the 12th crossing, near t = 9, both orbits agree to 1e-9).
+#[test]
+fn sections_of_a_taylor_flow_on_a_coarse_grid_miss_no_crossing() {
+    use chaoscope_dynamics::section::surface::{Direction, Surface, surface_crossings};
+    let lorenz = [
+        "sigma*(x2 - x1)",
+        "x1*(rho - x3) - x2",
+        "x1*x2 - beta*x3",
+    ];
+    let crossings = |integrator: &str, steps: u64| {
+        let toml = config(&lorenz, &[1.0, 1.0, 1.0], integrator, 20.0, "");
+        let cfg = RunConfig::from_toml(&toml).unwrap();
+        let spec = RunSpec::from_config(&cfg).unwrap();
+        let surface = Surface::new(&spec, &cfg.model, "x3 - 27").unwrap();
+        surface_crossings(&spec, &surface, Direction::Up, spec.x0(), steps, 12).crossings
+    };
+    let taylor = crossings("method = \"taylor\"\nh = 1.0", 20);
+    let dop853 = crossings("method = \"dop853\"\nh = 0.005", 4000);
+    assert_eq!(taylor.len(), 12, "{taylor:?}");
+    assert_eq!(dop853.len(), 12);
+    for (a, b) in taylor.iter().zip(&dop853) {
+        assert!((a.t - b.t).abs() < 1e-8, "{} against {}", a.t, b.t);
+        for (u, v) in a.x.iter().zip(&b.x) {
+            assert!((u - v).abs() < 1e-7, "{:?} against {:?}", a.x, b.x);
+        }
+    }
+    // The crossings are 0.6 to 1.5 apart: several of them within one grid interval of 1.
+    assert!(taylor.windows(2).any(|w| w[1].t.floor() == w[0].t.floor()));
+}

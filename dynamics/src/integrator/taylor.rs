@@ -14,6 +14,8 @@
 
 use chaoscope_expr::taylor::TaylorTape;
 
+use super::runge_kutta::substep_times;
+
 /// The order and step rule of one tolerance.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Taylor {
@@ -73,17 +75,18 @@ impl Taylor {
         mut taken: Option<&mut Vec<f64>>,
     ) -> Result<(), TaylorStepError> {
         let dim = tape.dim();
+        // Each substep starts at t0 plus the substeps before it, as every method's substeps
+        // (`substep_times`), so a plan walked one substep at a time gives the same bits.
         if let Some(plan) = plan {
-            let mut t = t0;
-            for &h in plan {
+            for (t, h) in substep_times(t0, plan) {
                 tape.coefficients(coef, x, w, t);
                 tape.sum(coef, h, &mut x[..dim], w);
-                t += h;
             }
             return Ok(());
         }
-        let mut t = t0;
+        let mut done = 0.0;
         loop {
+            let t = t0 + done;
             tape.coefficients(coef, x, w, t);
             let choice = self.step_size(tape, coef);
             let remaining = t1 - t;
@@ -102,7 +105,7 @@ impl Taylor {
             if last {
                 return Ok(());
             }
-            t += h;
+            done += h;
         }
     }
 }

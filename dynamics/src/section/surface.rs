@@ -26,7 +26,7 @@ use chaoscope_schemas::config::ModelConfig;
 use chaoscope_schemas::run::SystemClass;
 
 use crate::integrator::Workspace;
-use crate::integrator::runge_kutta::{RkScratch, RungeKuttaKind, explicit_step};
+use crate::integrator::runge_kutta::{RkScratch, RungeKuttaKind, explicit_step, substep_times};
 use crate::spec::state_function::scalar_definition;
 pub use crate::spec::state_function::scalar_over_state;
 use crate::spec::{RunSpec, SpecError};
@@ -444,50 +444,76 @@ pub fn surface_crossings(
             end: OrbitEnd::Crossings,
         };
     }
+    // A system that chooses substeps within a step (adaptive dop853, Taylor's method, whose
+    // steps may span many turns of the orbit on a coarse grid) is walked substep by substep,
+    // each substep the very one the run takes (the same bits as the whole step), so no
+    // crossing between two of them is missed.
+    let mut plan = Vec::new();
+    let mut probe = x.clone();
+    let mut segments: Vec<(f64, f64)> = Vec::new();
     for step in 0..steps {
-        prev.copy_from_slice(&x);
-        system.step(&mut x, spec.time_of(step), &mut work);
-        let t = spec.time_of(step + 1);
-        if !x.iter().all(|v| v.is_finite()) {
-            let why = system
-                .diagnose_non_finite(&prev, spec.time_of(step))
-                .unwrap_or_else(|| "the state is not finite".to_string());
-            return SurfaceOrbit {
-                crossings,
-                end: OrbitEnd::NonFinite { t, why },
-            };
+        let t_step = spec.time_of(step);
+        plan.clear();
+        probe.copy_from_slice(&x);
+        system.step_reference(&mut probe, t_step, &mut plan, &mut work);
+        segments.clear();
+        if plan.is_empty() || !probe.iter().all(|v| v.is_finite()) {
+            segments.push((t_step, h));
+        } else {
+            segments.extend(substep_times(t_step, &plan));
         }
-        let s_next = surface.value(&x);
-        if !s_next.is_finite() {
-            return SurfaceOrbit {
-                crossings,
-                end: non_finite_surface(&x, t),
+        for (i, &(t0, span)) in segments.iter().enumerate() {
+            prev.copy_from_slice(&x);
+            if segments.len() == 1 {
+                x.copy_from_slice(&probe);
+            } else {
+                system.step_along(&mut x, t0, &plan[i..=i], &mut work);
+            }
+            let t = if i + 1 == segments.len() {
+                spec.time_of(step + 1)
+            } else {
+                segments[i + 1].0
             };
-        }
-        if direction.crosses(s, s_next) {
-            let t0 = spec.time_of(step);
-            match locate(system, surface.function(), &prev, t0, s, h, &mut scratch) {
-                Ok((tau, state)) => {
-                    crossings.push(Crossing {
-                        t: t0 + tau,
-                        x: state,
-                    });
-                    if crossings.len() >= max {
+            if !x.iter().all(|v| v.is_finite()) {
+                let why = system
+                    .diagnose_non_finite(&prev, t0)
+                    .unwrap_or_else(|| "the state is not finite".to_string());
+                return SurfaceOrbit {
+                    crossings,
+                    end: OrbitEnd::NonFinite { t, why },
+                };
+            }
+            let s_next = surface.value(&x);
+            if !s_next.is_finite() {
+                return SurfaceOrbit {
+                    crossings,
+                    end: non_finite_surface(&x, t),
+                };
+            }
+            if direction.crosses(s, s_next) {
+                match locate(system, surface.function(), &prev, t0, s, span, &mut scratch) {
+                    Ok((tau, state)) => {
+                        crossings.push(Crossing {
+                            t: t0 + tau,
+                            x: state,
+                        });
+                        if crossings.len() >= max {
+                            return SurfaceOrbit {
+                                crossings,
+                                end: OrbitEnd::Crossings,
+                            };
+                        }
+                    }
+                    Err(error) => {
                         return SurfaceOrbit {
                             crossings,
-                            end: OrbitEnd::Crossings,
+                            end: OrbitEnd::Unlocated { t: t0, error },
                         };
                     }
                 }
-                Err(error) => {
-                    return SurfaceOrbit {
-                        crossings,
-                        end: OrbitEnd::Unlocated { t: t0, error },
-                    };
-                }
             }
+            s = s_next;
         }
-        s = s_next;
     }
     SurfaceOrbit {
         crossings,

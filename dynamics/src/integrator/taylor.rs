@@ -21,6 +21,8 @@ use super::runge_kutta::substep_times;
 pub struct Taylor {
     pub tol: f64,
     pub order: usize,
+    /// `exp(-0.7 / (p - 1)) / e^2`, the step's factor on the radius estimate.
+    safety: f64,
 }
 
 /// A step this far below the remaining interval has lost the series (a singularity of the
@@ -43,7 +45,8 @@ impl Taylor {
     /// The order for `tol` (at least 2).
     pub fn new(tol: f64) -> Self {
         let order = ((-tol.ln()) / 2.0 + 1.0).ceil().max(2.0) as usize;
-        Self { tol, order }
+        let safety = (-0.7 / (order - 1) as f64).exp() / std::f64::consts::E.powi(2);
+        Self { tol, order, safety }
     }
 
     /// The step the series in `coef` allow (of `tape`, computed to [`Self::order`]).
@@ -56,7 +59,7 @@ impl Taylor {
         let scale = norm(0).max(1.0);
         let rho = |k: usize| (scale / norm(k)).powf(1.0 / k as f64);
         let rho_m = rho(p - 1).min(rho(p));
-        rho_m / std::f64::consts::E.powi(2) * (-0.7 / (p - 1) as f64).exp()
+        rho_m * self.safety
     }
 
     /// Advance `x` (and the vectors `w`, when `tape` carries them) from `t0` to `t1`, the

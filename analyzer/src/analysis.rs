@@ -456,16 +456,13 @@ impl Analysis {
                 .exponents_whole
                 .is_some()
                 .then(|| ind.exponents.iter().map(|e| e.mean).collect()),
-            vs_vm_abs_delta: self
-                .vs_vm_of(si)
-                .filter(|d| !d.gali.0.is_empty())
-                .map(|d| {
-                    d.gali
-                        .0
-                        .iter()
-                        .map(|(_, x)| x.mean_abs_delta_log10)
-                        .collect()
-                }),
+            vs_vm_abs_delta: self.vs_vm_of(si).filter(|d| !d.gali.0.is_empty()).map(|d| {
+                d.gali
+                    .0
+                    .iter()
+                    .map(|(_, x)| x.mean_abs_delta_log10)
+                    .collect()
+            }),
             named: chaoscope_indicators::indicator::set_output_names()
                 .iter()
                 .map(|name| ind.named.value(name))

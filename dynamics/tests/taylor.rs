@@ -89,7 +89,8 @@ fn quadrature(g: impl Fn(f64) -> f64, a: f64, b: f64) -> f64 {
 #[test]
 fn every_operation_s_recurrence_against_quadrature() {
     let s0 = 0.3;
-    let cases: Vec<(&str, Box<dyn Fn(f64) -> f64>)> = vec![
+    type Integrand = Box<dyn Fn(f64) -> f64>;
+    let cases: Vec<(&str, Integrand)> = vec![
         ("sin(x1*x1 + 0.3)", Box::new(|s: f64| (s * s + 0.3).sin())),
         ("cos(2*x1)", Box::new(|s: f64| (2.0 * s).cos())),
         ("exp(0.5*x1*x1)", Box::new(|s: f64| (0.5 * s * s).exp())),
@@ -102,10 +103,16 @@ fn every_operation_s_recurrence_against_quadrature() {
         ("x1 / (2 + x1*x1)", Box::new(|s: f64| s / (2.0 + s * s))),
         ("tan(0.7*x1)", Box::new(|s: f64| (0.7 * s).tan())),
         ("tanh(2*x1 - 1)", Box::new(|s: f64| (2.0 * s - 1.0).tanh())),
-        ("sinh(x1) * cosh(x1*x1)", Box::new(|s: f64| s.sinh() * (s * s).cosh())),
+        (
+            "sinh(x1) * cosh(x1*x1)",
+            Box::new(|s: f64| s.sinh() * (s * s).cosh()),
+        ),
         ("atan(3*x1)", Box::new(|s: f64| (3.0 * s).atan())),
         ("asinh(2*x1)", Box::new(|s: f64| (2.0 * s).asinh())),
-        ("atan2(x1, 2 - x1*x1)", Box::new(|s: f64| s.atan2(2.0 - s * s))),
+        (
+            "atan2(x1, 2 - x1*x1)",
+            Box::new(|s: f64| s.atan2(2.0 - s * s)),
+        ),
         ("-exp(-x1) + 1/x1", Box::new(|s: f64| -(-s).exp() + 1.0 / s)),
     ];
     for (g, exact) in cases {
@@ -139,11 +146,7 @@ fn every_operation_s_recurrence_against_quadrature() {
 #[test]
 fn lorenz_to_t_10_within_1e_11_of_the_multiple_precision_reference() {
     let reference = [-4.902687541134648, -3.743872921802919, 24.690858102790564];
-    let lorenz = [
-        "sigma*(x2 - x1)",
-        "x1*(rho - x3) - x2",
-        "x1*x2 - beta*x3",
-    ];
+    let lorenz = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"];
     let spec = spec(&config(
         &lorenz,
         &[1.0, 1.0, 1.0],
@@ -172,11 +175,7 @@ fn lorenz_to_t_10_within_1e_11_of_the_multiple_precision_reference() {
 /// A tangent tape that did not follow J would break the sum; one on the wrong orbit, the values.
 #[test]
 fn lorenz_spectrum_by_the_variational_equations() {
-    let lorenz = [
-        "sigma*(x2 - x1)",
-        "x1*(rho - x3) - x2",
-        "x1*x2 - beta*x3",
-    ];
+    let lorenz = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"];
     let schemes = r#"[deviations]
 k = 3
 vectors = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
@@ -270,11 +269,7 @@ fn the_compiled_pass_gives_the_interpreted_bits() {
 /// starts from (what makes a run resumable).
 #[test]
 fn vectors_do_not_move_the_state_and_steps_are_memoryless() {
-    let lorenz = [
-        "sigma*(x2 - x1)",
-        "x1*(rho - x3) - x2",
-        "x1*x2 - beta*x3",
-    ];
+    let lorenz = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"];
     let spec = spec(&config(
         &lorenz,
         &[1.0, 1.0, 1.0],
@@ -305,15 +300,33 @@ fn vectors_do_not_move_the_state_and_steps_are_memoryless() {
 fn taylor_refuses_what_it_cannot_do() {
     let cases = [
         (
-            config(&["abs(x1) - x2", "x1"], &[1.0, 0.0], "method = \"taylor\"\nh = 0.1", 1.0, ""),
+            config(
+                &["abs(x1) - x2", "x1"],
+                &[1.0, 0.0],
+                "method = \"taylor\"\nh = 0.1",
+                1.0,
+                "",
+            ),
             "'abs' at line 1, column 1 of rhs[1] is not analytic",
         ),
         (
-            config(&["x2", "-x1"], &[1.0, 0.0], "method = \"taylor\"\nh = 0.1\ntol = 0.5", 1.0, ""),
+            config(
+                &["x2", "-x1"],
+                &[1.0, 0.0],
+                "method = \"taylor\"\nh = 0.1\ntol = 0.5",
+                1.0,
+                "",
+            ),
             "integrator.tol",
         ),
         (
-            config(&["x2", "-x1"], &[1.0, 0.0], "method = \"taylor\"\nh = 0.1\ntol = nan", 1.0, ""),
+            config(
+                &["x2", "-x1"],
+                &[1.0, 0.0],
+                "method = \"taylor\"\nh = 0.1\ntol = nan",
+                1.0,
+                "",
+            ),
             "integrator.tol",
         ),
         (
@@ -327,7 +340,13 @@ fn taylor_refuses_what_it_cannot_do() {
             "taylor takes one tolerance, tol",
         ),
         (
-            config(&["x2", "-x1"], &[1.0, 0.0], "method = \"rk4\"\nh = 0.1\ntol = 1e-10", 1.0, ""),
+            config(
+                &["x2", "-x1"],
+                &[1.0, 0.0],
+                "method = \"rk4\"\nh = 0.1\ntol = 1e-10",
+                1.0,
+                "",
+            ),
             "tol is the tolerance of taylor",
         ),
     ];
@@ -370,11 +389,7 @@ fn a_blow_up_stops_the_run_with_the_reason() {
 #[test]
 fn sections_of_a_taylor_flow_on_a_coarse_grid_miss_no_crossing() {
     use chaoscope_dynamics::section::surface::{Direction, Surface, surface_crossings};
-    let lorenz = [
-        "sigma*(x2 - x1)",
-        "x1*(rho - x3) - x2",
-        "x1*x2 - beta*x3",
-    ];
+    let lorenz = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"];
     let crossings = |integrator: &str, steps: u64| {
         let toml = config(&lorenz, &[1.0, 1.0, 1.0], integrator, 20.0, "");
         let cfg = RunConfig::from_toml(&toml).unwrap();

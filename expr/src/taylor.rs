@@ -68,9 +68,19 @@ pub(crate) enum Op {
         hyperbolic: bool,
     },
     /// `w' = a' / d` with `w_0 = f(a_0)`: `atan` (`d = 1 + a^2`), `asinh` (`d = sqrt(1 + a^2)`).
-    Inverse { dst: u32, a: u32, d: u32, f: Unary },
+    Inverse {
+        dst: u32,
+        a: u32,
+        d: u32,
+        f: Unary,
+    },
     /// `dst = atan2(a, b)`: `w' = (b a' - a b') / d`, `d = a^2 + b^2`.
-    Atan2 { dst: u32, a: u32, b: u32, d: u32 },
+    Atan2 {
+        dst: u32,
+        a: u32,
+        b: u32,
+        d: u32,
+    },
     /// `dst = 1` (a whole power 0 of a moving quantity).
     One(u32),
     Copy(u32, u32),
@@ -160,7 +170,7 @@ impl Builder<'_> {
         if n / 2 > 1 {
             self.power(half, x, n / 2);
         }
-        if n % 2 == 0 {
+        if n.is_multiple_of(2) {
             self.ops.push(Op::Square(dst, half));
         } else {
             let sq = self.slot();
@@ -332,7 +342,9 @@ impl TaylorTape {
                 continue;
             }
             class[id] = match *graph.node(id as NodeId) {
-                Node::Input { arg: ARG_X | ARG_T, .. } => Class::Moving,
+                Node::Input {
+                    arg: ARG_X | ARG_T, ..
+                } => Class::Moving,
                 Node::Input { arg: ARG_V, .. } => Class::Tangent,
                 ref node => node
                     .operands()
@@ -583,7 +595,9 @@ impl TaylorTape {
     /// The state's coefficients of order `k`, coordinate by coordinate.
     pub fn state_coefficients(&self, coef: &[f64], k: usize) -> impl Iterator<Item = f64> {
         let stride = self.order + 1;
-        self.state.iter().map(move |&s| coef[s as usize * stride + k])
+        self.state
+            .iter()
+            .map(move |&s| coef[s as usize * stride + k])
     }
 
     /// `x(t0 + h)` and `w(t0 + h)` from the series in `coef`, by Horner's rule.
@@ -653,7 +667,7 @@ fn weighted(a: &[f64], b: &[f64], k: usize) -> f64 {
     let (a, b) = (&a[..=k], &b[..=k]);
     let mut acc = [0.0f64; 2];
     let mut j = 1;
-    while j + 1 <= k {
+    while j < k {
         acc[0] += j as f64 * a[j] * b[k - j];
         acc[1] += (j + 1) as f64 * a[j + 1] * b[k - j - 1];
         j += 2;
@@ -739,10 +753,7 @@ fn order_k(op: &Op, c: &[f64], stride: usize, k: usize) -> f64 {
             acc / (kf * a[0])
         }
         Op::SinCos {
-            a,
-            cos,
-            hyperbolic,
-            ..
+            a, cos, hyperbolic, ..
         } => {
             let a = s(a);
             if k == 0 {

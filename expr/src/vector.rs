@@ -790,29 +790,29 @@ impl VectorFunction {
     /// (Taylor's method needs a right-hand side with a convergent series: use dop853)`.
     pub fn taylor_tape(&self, vectors: usize, order: usize) -> Result<TaylorTape, String> {
         let inner = &self.0;
-        TaylorTape::build(
-            &inner.graph,
-            &inner.values,
-            &inner.tangent,
-            vectors,
-            order,
-        )
-        .map_err(|e| {
-            let key = &inner.definition.key;
-            let at = match inner.origins.get(&e.node) {
-                Some(&(c, span)) => {
-                    let at = ExprError::new(&inner.definition.components[c], span, "");
-                    format!(" at line {}, column {} of {key}[{}]", at.line, at.column, c + 1)
-                }
-                None => format!(" in {key}"),
-            };
-            format!(
-                "{}{at} is not analytic (Taylor's method needs a right-hand side whose \
+        TaylorTape::build(&inner.graph, &inner.values, &inner.tangent, vectors, order).map_err(
+            |e| {
+                let key = &inner.definition.key;
+                let at = match inner.origins.get(&e.node) {
+                    Some(&(c, span)) => {
+                        let at = ExprError::new(&inner.definition.components[c], span, "");
+                        format!(
+                            " at line {}, column {} of {key}[{}]",
+                            at.line,
+                            at.column,
+                            c + 1
+                        )
+                    }
+                    None => format!(" in {key}"),
+                };
+                format!(
+                    "{}{at} is not analytic (Taylor's method needs a right-hand side whose \
                  series converge along the orbit: no kinks, jumps, branches or tables on a \
                  quantity that moves); use dop853",
-                e.operation
-            )
-        })
+                    e.operation
+                )
+            },
+        )
     }
 
     /// [`Self::taylor_tape`] with its pass over the orders compiled to C where a C compiler is

@@ -157,7 +157,10 @@ impl DynamicalSystem for TaylorFlow {
         t: f64,
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
-        let tape = Arc::clone(self.tape(w.len() / self.dim()).map_err(TangentError::NoHessian)?);
+        let tape = Arc::clone(
+            self.tape(w.len() / self.dim())
+                .map_err(TangentError::NoHessian)?,
+        );
         if self.advance(&tape, x, w, t, None, None, work).is_err() {
             x.fill(f64::NAN);
         }
@@ -172,7 +175,10 @@ impl DynamicalSystem for TaylorFlow {
         plan: &[f64],
         work: &mut Workspace,
     ) -> Result<(), TangentError> {
-        let tape = Arc::clone(self.tape(w.len() / self.dim()).map_err(TangentError::NoHessian)?);
+        let tape = Arc::clone(
+            self.tape(w.len() / self.dim())
+                .map_err(TangentError::NoHessian)?,
+        );
         let _ = self.advance(&tape, x, w, t, Some(plan), None, work);
         Ok(())
     }

@@ -202,12 +202,7 @@ pub(crate) fn build_with<T>(
     cc: &CCompiler,
     cancel: &AtomicBool,
     mode: Mode,
-    make: impl Fn(
-        libloading::Library,
-        Option<std::fs::File>,
-        &Path,
-        bool,
-    ) -> Result<T, JitError>,
+    make: impl Fn(libloading::Library, Option<std::fs::File>, &Path, bool) -> Result<T, JitError>,
 ) -> Result<(T, Duration), JitError> {
     let start = Instant::now();
     if mode == Mode::Load && !cc.cache_dir.exists() {

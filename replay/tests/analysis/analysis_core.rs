@@ -139,7 +139,9 @@ fn a_qr_partner_gives_no_gali_difference_only_the_exponents() {
     assert!(!table.contains("vs vm"), "{table}");
     let mpm = r.schemes.iter().position(|s| s.name == "mpm").unwrap();
     assert!(
-        a.series(mpm).iter().all(|(_, p)| p.vs_vm_abs_delta.is_none()),
+        a.series(mpm)
+            .iter()
+            .all(|(_, p)| p.vs_vm_abs_delta.is_none()),
         "a GALI difference in the series"
     );
 }

@@ -100,10 +100,17 @@ pub fn compare(method: FlowMethod, python: &str) -> anyhow::Result<serde_json::V
     args.extend(STATE.iter().map(|v| format!("{v:?}")));
     let peer = run_peer_script(python, "benches/peer/heyoka_r3bp.py", SCRIPT, &args)?;
     let available = peer["heyoka_available"].as_bool() == Some(true);
-    let theirs = peer.get("heyoka").cloned().unwrap_or(serde_json::Value::Null);
+    let theirs = peer
+        .get("heyoka")
+        .cloned()
+        .unwrap_or(serde_json::Value::Null);
     let ratio = |key: &str| {
         let r = theirs[key].as_f64().unwrap_or(f64::NAN) / ours[key].as_f64().unwrap_or(f64::NAN);
-        if r.is_finite() { serde_json::json!(r) } else { serde_json::Value::Null }
+        if r.is_finite() {
+            serde_json::json!(r)
+        } else {
+            serde_json::Value::Null
+        }
     };
     Ok(serde_json::json!({
         "cpu": Machine::cpu_model(),

@@ -64,18 +64,24 @@ pub(crate) fn compile(
 ) -> Result<CTaylor, JitError> {
     let src = source(tape);
     let env = super::env(&tape.tables, &[]);
-    let (pass, _) = super::build_with(&src, cc, cancel, Mode::Build, |library, memory, _, cached| {
-        // SAFETY: the generated source defines the symbol with exactly this signature.
-        let pass = *unsafe { library.get::<CTaylorFn>(SYMBOL) }
-            .map_err(|e| JitError::CCompiler(format!("the Taylor pass: {e}")))?;
-        Ok(CTaylor {
-            _library: library,
-            _memory_file: memory,
-            pass,
-            env: env.clone(),
-            cached,
-        })
-    })?;
+    let (pass, _) = super::build_with(
+        &src,
+        cc,
+        cancel,
+        Mode::Build,
+        |library, memory, _, cached| {
+            // SAFETY: the generated source defines the symbol with exactly this signature.
+            let pass = *unsafe { library.get::<CTaylorFn>(SYMBOL) }
+                .map_err(|e| JitError::CCompiler(format!("the Taylor pass: {e}")))?;
+            Ok(CTaylor {
+                _library: library,
+                _memory_file: memory,
+                pass,
+                env: env.clone(),
+                cached,
+            })
+        },
+    )?;
     Ok(pass)
 }
 

@@ -52,6 +52,15 @@ use chaoscope_schemas::run::SystemClass;
 use crate::batch::{Isa, PointKernel};
 use crate::integrator::{TangentError, Workspace};
 
+/// How much |x| must grow, from the start of a step whose adaptive substeps collapsed to the
+/// last state they reached, for the collapse to be the solution's blow-up (an escape) rather
+/// than the integrator's failure. A collapse takes the substep 14 decades below the step: a
+/// solution blowing up like (t* - t)^-p grows by 10^(14 p) over them, a hundredfold for any
+/// p above 1/7 (x' = x^2: p = 1), while one that stays within a factor 100 of where it was
+/// (beyond |x| = 1: a state near 0 may grow by much and stay small) did not run away, and the
+/// step failed for the field's sake (not smooth enough there, or undefined just beyond).
+pub(crate) const BLOW_UP_GROWTH: f64 = 100.0;
+
 /// How a system's time advances.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Time {

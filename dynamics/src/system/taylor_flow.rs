@@ -16,7 +16,7 @@ use chaoscope_expr::VectorFunction;
 use chaoscope_expr::taylor::TaylorTape;
 use chaoscope_schemas::run::SystemClass;
 
-use super::{DynamicalSystem, Time};
+use super::{BLOW_UP_GROWTH, DynamicalSystem, Time};
 use crate::integrator::taylor::{Taylor, TaylorStepError};
 use crate::integrator::{TangentError, Workspace};
 use crate::vector_field::VectorField;
@@ -210,15 +210,22 @@ impl DynamicalSystem for TaylorFlow {
         let mut y = x.to_vec();
         let mut work = Workspace::new();
         let tape = Arc::clone(self.own_tape());
-        self.advance(&tape, &mut y, &mut [], t, None, None, &mut work)
-            .err()
-            .map(|e| {
-                let norm = |v: &[f64]| v.iter().map(|a| a * a).sum::<f64>().sqrt();
-                format!(
-                    "{e}; |x| = {:e} at the last state reached, {:e} at the step's start",
-                    norm(&y),
-                    norm(x)
-                )
-            })
+        let e = self
+            .advance(&tape, &mut y, &mut [], t, None, None, &mut work)
+            .err()?;
+        // As adaptive dop853: a collapse while the state ran away is the solution's blow-up
+        // (an escape); one where it stayed within a hundredfold is the method's failure.
+        let norm = |v: &[f64]| v.iter().map(|a| a * a).sum::<f64>().sqrt();
+        let (from, to) = (norm(x), norm(&y));
+        Some(if to >= BLOW_UP_GROWTH * from.max(1.0) {
+            format!(
+                "{e}, |x| having grown from {from:e} to {to:e} within the step (the solution blows up)"
+            )
+        } else {
+            format!(
+                "{}: {e}, at |x| = {to:e}",
+                chaoscope_schemas::run::ADAPTIVE_STEP_FAILED
+            )
+        })
     }
 }

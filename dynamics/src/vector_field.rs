@@ -3,6 +3,8 @@
 //! ([`crate::integrator::runge_kutta`]). Its own file so that both depend on it and neither on
 //! the other.
 
+use chaoscope_schemas::run::SystemClass;
+
 /// A vector field `f(x, t)` on `R^D` with its Jacobian-vector product (in `x`), what a
 /// Runge-Kutta flow needs (the compiled expressions of `[model] name = "ode"` implement it).
 /// `t` is the time; a field that does not read it (an autonomous system) ignores it.
@@ -48,6 +50,31 @@ pub trait VectorField: Send + Sync {
     /// Whether `f` is a Hamiltonian vector field (then [`VectorField::energy`] is `Some`).
     fn is_hamiltonian(&self) -> bool {
         false
+    }
+
+    /// How a run reports a system made of this field: a Hamiltonian (its energy error) or a
+    /// flow.
+    fn class(&self) -> SystemClass {
+        if self.is_hamiltonian() {
+            SystemClass::Hamiltonian
+        } else {
+            SystemClass::Flow
+        }
+    }
+
+    /// The conserved quantity a run reports: the energy of a Hamiltonian field that does not
+    /// read the time; `None` otherwise.
+    fn invariant(&self, x: &[f64]) -> Option<f64> {
+        if self.reads_time() {
+            return None;
+        }
+        self.energy(x, 0.0)
+    }
+
+    /// The rate of phase-space volume change a run reports, `div f`; `None` for a Hamiltonian
+    /// field (its flow conserves volume identically).
+    fn volume_rate(&self, x: &[f64], t: f64) -> Option<f64> {
+        (!self.is_hamiltonian()).then(|| self.divergence(x, t))
     }
 
     /// The compiled function behind `f`, whose lane functions the batched kernel of

@@ -3,7 +3,9 @@
 //! compiled code is tested against it bit for bit, and after a run produced a non-finite value
 //! it names the operation that did ([`first_non_finite`]).
 
-use crate::graph::{Graph, Node, NodeId};
+use std::sync::Arc;
+
+use crate::graph::{Graph, Node, NodeId, Tabulated};
 
 /// Evaluates `outputs` of `g` with argument arrays `args` (`Node::Input{arg, index}` reads
 /// `args[arg][index]`).
@@ -85,10 +87,26 @@ fn eval_needed(
 /// One node's value from its operands' values.
 #[inline]
 fn eval_node(g: &Graph, node: &Node, values: &[f64], args: &[&[f64]]) -> f64 {
-    let val = |id: NodeId| values[id as usize];
+    node_value(
+        node,
+        g.tables(),
+        |id| values[id as usize],
+        |arg, index| args[arg as usize][index as usize],
+    )
+}
+
+/// One node's value, its operands' values given by `val`, its inputs' by `input`: the one
+/// place a node's operation is applied to numbers.
+#[inline]
+pub(crate) fn node_value(
+    node: &Node,
+    tables: &[Arc<dyn Tabulated>],
+    val: impl Fn(NodeId) -> f64,
+    input: impl Fn(u8, u32) -> f64,
+) -> f64 {
     match *node {
         Node::Const(c) => c,
-        Node::Input { arg, index } => args[arg as usize][index as usize],
+        Node::Input { arg, index } => input(arg, index),
         Node::Unary(op, a) => Graph::apply_unary(op, val(a)),
         Node::Binary(op, a, b) => Graph::apply_binary(op, val(a), val(b)),
         Node::Powi(a, n) => Graph::apply_powi(val(a), n),
@@ -105,7 +123,7 @@ fn eval_node(g: &Graph, node: &Node, values: &[f64], args: &[&[f64]]) -> f64 {
                 val(otherwise)
             }
         }
-        Node::Table { table, deriv, arg } => g.tables()[table as usize].eval(deriv, val(arg)),
+        Node::Table { table, deriv, arg } => tables[table as usize].eval(deriv, val(arg)),
     }
 }
 

@@ -568,28 +568,12 @@ impl TaylorTape {
     /// The value of a node constant in time, from its operands' slots.
     fn fixed_value(&self, coef: &[f64], id: NodeId) -> f64 {
         let stride = self.order + 1;
-        let v = |o: NodeId| coef[self.node_slot[o as usize] as usize * stride];
-        match self.graph_nodes[id as usize] {
-            Node::Unary(u, a) => Graph::apply_unary(u, v(a)),
-            Node::Binary(op, a, b) => Graph::apply_binary(op, v(a), v(b)),
-            Node::Powi(a, n) => Graph::apply_powi(v(a), n),
-            Node::Select {
-                cmp,
-                a,
-                b,
-                then,
-                otherwise,
-            } => {
-                if cmp.holds(v(a), v(b)) {
-                    v(then)
-                } else {
-                    v(otherwise)
-                }
-            }
-            Node::Table { table, deriv, arg } => self.tables[table as usize].eval(deriv, v(arg)),
-            Node::Const(c) => c,
-            Node::Input { .. } => unreachable!("inputs are set, not evaluated"),
-        }
+        crate::eval::node_value(
+            &self.graph_nodes[id as usize],
+            &self.tables,
+            |o| coef[self.node_slot[o as usize] as usize * stride],
+            |arg, _| unreachable!("argument {arg} is set, not evaluated"),
+        )
     }
 
     /// The state's coefficients of order `k`, coordinate by coordinate.

@@ -52,11 +52,7 @@ impl DynamicalSystem for RkFlow {
     /// A Hamiltonian vector field is reported as a Hamiltonian (its energy error), whatever
     /// the method; any other field as a flow.
     fn kind(&self) -> SystemClass {
-        if self.field.is_hamiltonian() {
-            SystemClass::Hamiltonian
-        } else {
-            SystemClass::Flow
-        }
+        self.field.class()
     }
 
     fn dim(&self) -> usize {
@@ -178,15 +174,12 @@ impl DynamicalSystem for RkFlow {
 
     /// The energy of a Hamiltonian field, conserved unless `H` reads the time.
     fn invariant(&self, x: &[f64]) -> Option<f64> {
-        if self.field.reads_time() {
-            return None;
-        }
-        self.field.energy(x, 0.0)
+        self.field.invariant(x)
     }
 
     /// `None` for a Hamiltonian field: its flow conserves volume (`div f = 0` identically).
     fn divergence(&self, x: &[f64], t: f64) -> Option<f64> {
-        (!self.field.is_hamiltonian()).then(|| self.field.divergence(x, t))
+        self.field.volume_rate(x, t)
     }
 
     fn vector_field(&self, x: &[f64], t: f64, out: &mut [f64]) -> bool {

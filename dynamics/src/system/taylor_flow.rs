@@ -110,11 +110,7 @@ impl DynamicalSystem for TaylorFlow {
     }
 
     fn kind(&self) -> SystemClass {
-        if self.field.is_hamiltonian() {
-            SystemClass::Hamiltonian
-        } else {
-            SystemClass::Flow
-        }
+        self.field.class()
     }
 
     fn dim(&self) -> usize {
@@ -188,14 +184,11 @@ impl DynamicalSystem for TaylorFlow {
     }
 
     fn invariant(&self, x: &[f64]) -> Option<f64> {
-        if self.field.reads_time() {
-            return None;
-        }
-        self.field.energy(x, 0.0)
+        self.field.invariant(x)
     }
 
     fn divergence(&self, x: &[f64], t: f64) -> Option<f64> {
-        (!self.field.is_hamiltonian()).then(|| self.field.divergence(x, t))
+        self.field.volume_rate(x, t)
     }
 
     fn vector_field(&self, x: &[f64], t: f64, out: &mut [f64]) -> bool {

@@ -23,7 +23,7 @@
 
 use std::collections::HashMap;
 use std::sync::Arc;
-use std::sync::atomic::AtomicBool;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use crate::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
 use crate::jit::c::taylor::CTaylor;
@@ -34,6 +34,9 @@ const ARG_X: u8 = 0;
 const ARG_V: u8 = 1;
 const ARG_T: u8 = 2;
 const ARG_PARAMS: u8 = 3;
+
+/// The next tape's [`TaylorTape::id`].
+static NEXT_ID: AtomicU64 = AtomicU64::new(0);
 
 /// One operation on series, its operands and result as slots.
 #[derive(Debug, Clone, Copy)]
@@ -116,6 +119,8 @@ pub struct TaylorTape {
     pub(crate) jv_out: Vec<u32>,
     /// The pass over the orders compiled to C ([`Self::compile_native`]): the same bits.
     native: Option<Arc<CTaylor>>,
+    /// Unique to the tape's build (its clones share it): what a coefficient buffer is kept for.
+    id: u64,
 }
 
 /// Why a graph has no Taylor tape: the node whose operation is not analytic.
@@ -447,6 +452,7 @@ impl TaylorTape {
             f_out,
             jv_out,
             native: None,
+            id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
         })
     }
 
@@ -472,6 +478,12 @@ impl TaylorTape {
 
     pub fn vectors(&self) -> usize {
         self.vectors
+    }
+
+    /// Unique to this tape's build: a coefficient buffer written by one tape holds values
+    /// where another tape's constants must read zeros, so buffers are kept per tape.
+    pub fn id(&self) -> u64 {
+        self.id
     }
 
     /// `D`, the state's coordinates (its lane parameters follow them in a state).

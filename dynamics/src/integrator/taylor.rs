@@ -113,20 +113,19 @@ impl Taylor {
     }
 }
 
-/// Coefficient buffers of the tapes a thread steps with, by tape (its vector count and
-/// length): each keeps the zeros its tape never writes.
+/// Coefficient buffers of the tapes a thread steps with, one per tape
+/// ([`TaylorTape::id`]): each keeps the zeros its tape never writes.
 #[derive(Debug, Default, Clone)]
 pub struct TaylorScratch {
-    buffers: Vec<((usize, usize), Vec<f64>)>,
+    buffers: Vec<(u64, Vec<f64>)>,
 }
 
 impl TaylorScratch {
     pub fn buffer(&mut self, tape: &TaylorTape) -> &mut [f64] {
-        let key = (tape.vectors(), tape.buffer_len());
-        let i = match self.buffers.iter().position(|(k, _)| *k == key) {
+        let i = match self.buffers.iter().position(|(id, _)| *id == tape.id()) {
             Some(i) => i,
             None => {
-                self.buffers.push((key, vec![0.0; key.1]));
+                self.buffers.push((tape.id(), vec![0.0; tape.buffer_len()]));
                 self.buffers.len() - 1
             }
         };

@@ -90,6 +90,10 @@ pub struct Engine {
     earlier_stretch: Vec<Vec<f64>>,
     /// The task whose copy of the reference is the reference (see the module documentation).
     carrier: Option<usize>,
+    /// The VM set stepped with the reference in one pass
+    /// ([`DynamicalSystem::steps_reference_with_tangents`]), and its vectors as rows.
+    tangent_carrier: Option<usize>,
+    carried: Vec<f64>,
 }
 
 impl Engine {
@@ -115,8 +119,11 @@ impl Engine {
             spec.directions()[set].scaled(spec.schemes()[scheme].d0)
         });
         prepare(&spec, &tasks, 0);
+        let carrier = carrier(&tasks, divergence.is_some());
         Self {
-            carrier: carrier(&tasks, divergence.is_some()),
+            tangent_carrier: tangent_carrier(&spec, &tasks, carrier),
+            carried: Vec::new(),
+            carrier,
             reference: x0,
             spec,
             work: Workspace::new(),
@@ -231,8 +238,11 @@ impl Engine {
             renormalized[scheme * spec.sets() + set].clone()
         });
         prepare(&spec, &tasks, sample.step);
+        let carrier = carrier(&tasks, divergence.is_some());
         Ok(Self {
-            carrier: carrier(&tasks, divergence.is_some()),
+            tangent_carrier: tangent_carrier(&spec, &tasks, carrier),
+            carried: Vec::new(),
+            carrier,
             reference: sample.state.clone(),
             spec,
             work: Workspace::new(),
@@ -362,9 +372,27 @@ impl Engine {
             carrier.advance(spec, &last_good, &last_good, &plan, false, t, false)?;
             self.reference.copy_from_slice(&carrier.orbit);
         } else {
+            if let Some(c) = self.tangent_carrier {
+                let lanes = &self.tasks[c].lanes;
+                let dim = lanes.rows();
+                self.carried.resize(lanes.lanes() * dim, 0.0);
+                for (lane, row) in self.carried.chunks_exact_mut(dim).enumerate() {
+                    lanes.read_lane(lane, row);
+                }
+            }
             for step in self.step..target {
                 let t = spec.time_of(step);
-                system.step_reference(&mut self.reference, t, &mut self.plan, &mut self.work);
+                if self.tangent_carrier.is_some() {
+                    system.step_reference_tangent(
+                        &mut self.reference,
+                        &mut self.carried,
+                        t,
+                        &mut self.plan,
+                        &mut self.work,
+                    )?;
+                } else {
+                    system.step_reference(&mut self.reference, t, &mut self.plan, &mut self.work);
+                }
                 self.plan_bounds.push(self.plan.len());
                 if let Some((before, integral)) = &mut self.divergence {
                     // Non-finite values are caught below, once per window.
@@ -387,6 +415,13 @@ impl Engine {
             self.divergence = divergence_before;
             return Err(e);
         }
+        if let Some(c) = self.tangent_carrier {
+            let lanes = &mut self.tasks[c].lanes;
+            let dim = lanes.rows();
+            for (lane, row) in self.carried.chunks_exact(dim).enumerate() {
+                lanes.write_lane(lane, row);
+            }
+        }
         let reference = &self.reference;
         let renorm: Vec<bool> = spec.schemes().iter().map(|s| w.renormalizes(s)).collect();
         let plan = Plan {
@@ -396,8 +431,9 @@ impl Engine {
         };
         let start = &last_good;
         let carrier = self.carrier;
+        let tangent_carrier = self.tangent_carrier;
         let advance = |(i, task): (usize, &mut DeviationSet)| {
-            let stepped = carrier == Some(i);
+            let stepped = carrier == Some(i) || tangent_carrier == Some(i);
             task.advance(
                 spec,
                 start,
@@ -633,6 +669,24 @@ fn carrier(tasks: &[DeviationSet], divergence: bool) -> Option<usize> {
     }
     tasks.iter().position(|t| {
         t.stepping == Stepping::Fused && !t.method.lanes_are_orbits() && t.propagated.is_none()
+    })
+}
+
+/// The VM set a system that [`DynamicalSystem::steps_reference_with_tangents`] steps with the
+/// reference: the first set of tangent vectors stepped one orbit at a time, where no task
+/// carries the reference already.
+fn tangent_carrier(
+    spec: &RunSpec,
+    tasks: &[DeviationSet],
+    carrier: Option<usize>,
+) -> Option<usize> {
+    if carrier.is_some() || !spec.system().steps_reference_with_tangents() {
+        return None;
+    }
+    tasks.iter().position(|t| {
+        matches!(t.stepping, Stepping::OneOrbit | Stepping::Fused)
+            && !t.method.lanes_are_orbits()
+            && t.propagated.is_none()
     })
 }
 

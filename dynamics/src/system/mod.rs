@@ -184,6 +184,31 @@ pub trait DynamicalSystem: Send + Sync {
     /// failure.
     fn diagnose_non_finite(&self, x: &[f64], t: f64) -> Option<String>;
 
+    /// Whether [`DynamicalSystem::step_reference_tangent`] steps the reference and a set of
+    /// tangent vectors in one pass, cheaper than the reference's step and the vectors' step
+    /// along it apart (a system whose tangent pass computes the orbit anyway): then a run
+    /// steps its first plain VM set with the reference, not after it.
+    fn steps_reference_with_tangents(&self) -> bool {
+        false
+    }
+
+    /// [`DynamicalSystem::step_reference`] of `x` (appending its substeps to `plan`) and
+    /// [`DynamicalSystem::step_tangent_along`] of the vectors `w` along those substeps, in one
+    /// call: bit for bit the two apart, which is what this default does.
+    fn step_reference_tangent(
+        &self,
+        x: &mut [f64],
+        w: &mut [f64],
+        t: f64,
+        plan: &mut Vec<f64>,
+        work: &mut Workspace,
+    ) -> Result<(), TangentError> {
+        let mut along = x.to_vec();
+        let before = plan.len();
+        self.step_reference(x, t, plan, work);
+        self.step_tangent_along(&mut along, w, t, &plan[before..], work)
+    }
+
     /// The system's batched form, its one extension point for it: many orbits (and tangent
     /// vectors along a recorded reference) advanced together as lanes, on the instruction set
     /// `isa` where the kind has per-ISA code; what phase-space maps run on. `None` for a system

@@ -15,7 +15,11 @@
 //! (`DynamicalSystem::reference_tangent_steps`: a lattice potential) steps them with its copy of
 //! the reference in one pass; the first such set *carries* the reference: its copy, stepped
 //! first in each window, is the reference (the same bits as stepping the reference itself), so
-//! the orbit is integrated once, not once more beside that set.
+//! the orbit is integrated once, not once more beside that set. A system whose tangent pass
+//! computes the orbit anyway and chooses its substeps from the orbit alone
+//! (`DynamicalSystem::steps_reference_with_tangents`: Taylor's method) steps the first plain VM
+//! set together with the reference, in the reference's own loop (its substeps planned there for
+//! the other sets), and that set is not stepped again.
 
 mod stepping;
 

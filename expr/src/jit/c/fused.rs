@@ -264,6 +264,9 @@ enum At {
         held: bool,
     },
     Term(i64),
+    /// The terms `j + base` of the loop's vector (in the sweep: positions from its
+    /// registers).
+    Block(i64),
 }
 
 /// The sweep's register holding `base` (`q`, `dq`) at the sites `j + offset` of the loop's
@@ -292,6 +295,30 @@ enum Body {
     Masked,
     Scalar,
     Swept,
+}
+
+/// `o` for the orbit's force, `t` for a vector's Hessian-vector product.
+fn part_tag(tangent: bool) -> &'static str {
+    if tangent { "t" } else { "o" }
+}
+
+/// The register holding slot `slot` of sum `s`'s contributions at the previous vector of terms.
+fn carried_name(tangent: bool, s: usize, slot: usize) -> String {
+    format!("tp{}_{s}_{slot}", part_tag(tangent))
+}
+
+/// The value of slot `slot` of sum `s`'s contributions at the current vector of terms.
+fn current_name(tangent: bool, s: usize, slot: usize) -> String {
+    format!("tc{}_{s}_{slot}", part_tag(tangent))
+}
+
+/// `lines` as a block of the sweep's loop body.
+fn write_block(out: &mut String, lines: &[String]) {
+    let _ = writeln!(out, "      {{");
+    for l in lines {
+        let _ = writeln!(out, "        {l}");
+    }
+    let _ = writeln!(out, "      }}");
 }
 
 /// `acc + x`, `acc - x` or `acc + c x` ([`crate::lattice::accumulate`]).
@@ -588,43 +615,176 @@ impl Writer<'_> {
                 "    vd h{p}_cur = LD({p} + j);\n    vd h{x}_cur = FDRIFTV(LD({x} + j), h{p}_cur, j, c0);\n    if (two) h{x}_cur = FDRIFTV(h{x}_cur, h{p}_cur, j, c1);\n    ST({x} + j, h{x}_cur);\n    vd h{x}_prev = B(0.0);\n    for (int l = 0; l < LANES; l++) h{x}_prev[l] = j - LANES + l >= 0 ? {x}[j - LANES + l] : 0.0;"
             );
         }
-        let _ = writeln!(
-            src,
-            "    for (; j + LANES - 1 <= {jb} && j + 2 * LANES <= {n}; j += LANES) {{\n      const int64_t jn = j + LANES;"
-        );
-        // The next vector drifted: the current one's neighbours.
-        for (x, p) in states {
-            let _ = writeln!(
-                src,
-                "      const vd h{p}_next = LD({p} + jn);\n      vd h{x}_next = FDRIFTV(LD({x} + jn), h{p}_next, jn, c0);\n      if (two) h{x}_next = FDRIFTV(h{x}_next, h{p}_next, jn, c1);\n      ST({x} + jn, h{x}_next);"
-            );
-            for &offset in &offsets {
-                let held = held_name(x, offset);
-                if offset == 0 {
-                    let _ = writeln!(src, "      const vd {held} = h{x}_cur;");
-                } else {
-                    let _ = writeln!(
-                        src,
-                        "      const vd {held} = FSHIFT_{}(h{x}_prev, h{x}_cur, h{x}_next);",
-                        offset_suffix(offset)
-                    );
-                }
+        // Each term's values at the previous vector of terms, for the sites that take them from
+        // there (see `Self::block_kicks`).
+        for &t in parts {
+            for (s, slot) in self.carried_slots() {
+                let _ = writeln!(src, "    vd {};", carried_name(t, s, slot));
             }
         }
+        let condition = format!("j + LANES - 1 <= {jb} && j + 2 * LANES <= {n}");
+        // The next vector drifted (the current one's neighbours), and the positions at every
+        // offset the terms read.
+        let advance = |src: &mut String| {
+            let _ = writeln!(src, "      const int64_t jn = j + LANES;");
+            for (x, p) in states {
+                let _ = writeln!(
+                    src,
+                    "      const vd h{p}_next = LD({p} + jn);\n      vd h{x}_next = FDRIFTV(LD({x} + jn), h{p}_next, jn, c0);\n      if (two) h{x}_next = FDRIFTV(h{x}_next, h{p}_next, jn, c1);\n      ST({x} + jn, h{x}_next);"
+                );
+                for &offset in &offsets {
+                    let held = held_name(x, offset);
+                    if offset == 0 {
+                        let _ = writeln!(src, "      const vd {held} = h{x}_cur;");
+                    } else {
+                        let _ = writeln!(
+                            src,
+                            "      const vd {held} = FSHIFT_{}(h{x}_prev, h{x}_cur, h{x}_next);",
+                            offset_suffix(offset)
+                        );
+                    }
+                }
+            }
+        };
+        let rotate = |src: &mut String| {
+            for (x, p) in states {
+                let _ = writeln!(
+                    src,
+                    "      h{x}_prev = h{x}_cur; h{x}_cur = h{x}_next; h{p}_cur = h{p}_next;"
+                );
+            }
+        };
+        // The first vector: each site's terms computed at the site (no earlier vector of terms),
+        // and the terms the next vector takes from this one's.
+        let _ = writeln!(src, "    if ({condition}) {{");
+        advance(src);
         for &t in parts {
             self.site(src, t, Body::Swept);
+            let mut lines = Vec::new();
+            self.block_terms(t, &mut lines);
+            for (s, slot) in self.carried_slots() {
+                lines.push(format!(
+                    "{} = {};",
+                    carried_name(t, s, slot),
+                    current_name(t, s, slot)
+                ));
+            }
+            write_block(src, &lines);
         }
-        for (x, p) in states {
-            let _ = writeln!(
-                src,
-                "      h{x}_prev = h{x}_cur; h{x}_cur = h{x}_next; h{p}_cur = h{p}_next;"
-            );
+        rotate(src);
+        let _ = writeln!(src, "      j += LANES;\n    }}");
+        // The others: each term computed once, at a vector of terms, and handed to the sites
+        // that read it.
+        let _ = writeln!(src, "    for (; {condition}; j += LANES) {{");
+        advance(src);
+        for &t in parts {
+            self.block_kicks(src, t);
         }
+        rotate(src);
         let _ = writeln!(src, "    }}\n    js = j;\n    drifted = j + LANES;\n  }}");
         // The sites after the last vector drifted, then the regular sites not yet kicked.
         scalar_drift(src, "drifted", &n.to_string());
         self.regular_from(src, parts, "js");
         let _ = writeln!(src, "}}");
+    }
+
+    /// The first (least) shift of `sum`'s slots: its vector of terms in the sweep starts at
+    /// `j + 1 - least` (the term the site `j` reads through that slot), so every other slot
+    /// takes its site's term from this vector or the one before.
+    fn least_shift(sum: &SiteSum) -> Option<i64> {
+        sum.variables.iter().copied().min()
+    }
+
+    /// The (sum, slot)s whose sites take their term from the previous vector of terms too:
+    /// every slot but the least-shift ones.
+    fn carried_slots(&self) -> Vec<(usize, usize)> {
+        let mut out = Vec::new();
+        for (s, sum) in self.lattice.sums.iter().enumerate() {
+            let Some(least) = Self::least_shift(sum) else {
+                continue;
+            };
+            for &slot in &self.gather.order[s] {
+                if sum.variables[slot] > least {
+                    out.push((s, slot));
+                }
+            }
+        }
+        out
+    }
+
+    /// Lines computing, for every sum, each slot's contribution (the gradient's, or the
+    /// Hessian-vector product's where `tangent`) at the vector of terms `j + 1 - least`, as
+    /// [`current_name`]s: the slots of one term share their common operations.
+    fn block_terms(&self, tangent: bool, lines: &mut Vec<String>) {
+        let contributions = &self.contributions[usize::from(tangent)];
+        for (s, sum) in self.lattice.sums.iter().enumerate() {
+            let Some(least) = Self::least_shift(sum) else {
+                continue;
+            };
+            let roots: Vec<NodeId> = contributions[s].iter().map(|&(_, r)| r).collect();
+            let tag = format!("_{}{s}", part_tag(tangent));
+            let vals = emit_nodes(
+                self.graph,
+                &roots,
+                &mut |node| self.leaf(node, sum, At::Block(1 - least)),
+                &|id, lane| format!("{}{id}{tag}", if lane { "v" } else { "s" }),
+                &mut |_, text| lines.push(text),
+            );
+            for &slot in &self.gather.order[s] {
+                let (x, lane) = vals[contributions[s][slot].1 as usize]
+                    .clone()
+                    .expect("emitted");
+                let x = if lane { x } else { format!("B({x})") };
+                lines.push(format!(
+                    "const vd {} = {x};",
+                    current_name(tangent, s, slot)
+                ));
+            }
+        }
+    }
+
+    /// The sweep's kick of a vector of sites from vectors of terms: site `j + l` takes slot
+    /// `slot` (shift `shift`) of sum `s` from term `j + l + 1 - shift`, lane `l - (shift -
+    /// least)` of this vector of terms (or, for the lanes before, of the previous one):
+    /// the same value, added in the same order, as [`Self::site`] computes at the site.
+    fn block_kicks(&self, out: &mut String, tangent: bool) {
+        let lattice = self.lattice;
+        let contributions = &self.contributions[usize::from(tangent)];
+        let mut lines = Vec::new();
+        self.block_terms(tangent, &mut lines);
+        let mut acc = "B(-0.0)".to_string();
+        for (s, sum) in lattice.sums.iter().enumerate() {
+            let Some(least) = Self::least_shift(sum) else {
+                continue;
+            };
+            for &slot in &self.gather.order[s] {
+                let (factor, _) = contributions[s][slot];
+                let back = sum.variables[slot] - least;
+                let current = current_name(tangent, s, slot);
+                let x = if back == 0 {
+                    current
+                } else {
+                    format!(
+                        "FSHIFT_{}({}, {current}, {current})",
+                        offset_suffix(-back),
+                        carried_name(tangent, s, slot)
+                    )
+                };
+                let next = format!("a{s}_{slot}");
+                lines.push(format!("const vd {next} = {};", add(&acc, factor, &x, true)));
+                acc = next;
+            }
+        }
+        let p = if tangent { "dp" } else { "p" };
+        lines.push(format!("ST({p} + j, h{p}_cur - B(dh) * {acc});"));
+        for (s, slot) in self.carried_slots() {
+            lines.push(format!(
+                "{} = {};",
+                carried_name(tangent, s, slot),
+                current_name(tangent, s, slot)
+            ));
+        }
+        write_block(out, &lines);
     }
 
     /// The array parameter `name`'s local pointer.
@@ -658,6 +818,15 @@ impl Writer<'_> {
             _ => unreachable!("a leaf of a term: {node:?}"),
         };
         match at {
+            At::Block(b) => {
+                // Term i = j + b reads site i + shift - 1.
+                let offset = b + shift - 1;
+                if position {
+                    (held_name(&base, offset), true)
+                } else {
+                    (format!("LD({base} + (j + {offset}))"), true)
+                }
+            }
             // Term i = j + 1 - s reads site i + shift - 1 = j + shift - s.
             At::Site {
                 shift: s,
@@ -691,7 +860,7 @@ impl Writer<'_> {
         tag: &str,
         lines: &mut Vec<String>,
     ) -> String {
-        let vector = matches!(at, At::Site { vector: true, .. });
+        let vector = matches!(at, At::Site { vector: true, .. } | At::Block(_));
         let vals = emit_nodes(
             self.graph,
             &[root],

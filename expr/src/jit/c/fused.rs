@@ -569,7 +569,9 @@ impl Writer<'_> {
         let n = self.lattice.n;
         let (ja, jb) = self.gather.regular;
         let tangent = parts.contains(&true);
-        let offsets = self.held_offsets().expect("the sweep is written for held offsets");
+        let offsets = self
+            .held_offsets()
+            .expect("the sweep is written for held offsets");
         // Per state swept: (positions, momenta) pointers' names.
         let states: &[(&str, &str)] = if tangent {
             &[("q", "p"), ("dq", "dp")]
@@ -771,7 +773,10 @@ impl Writer<'_> {
                     )
                 };
                 let next = format!("a{s}_{slot}");
-                lines.push(format!("const vd {next} = {};", add(&acc, factor, &x, true)));
+                lines.push(format!(
+                    "const vd {next} = {};",
+                    add(&acc, factor, &x, true)
+                ));
                 acc = next;
             }
         }

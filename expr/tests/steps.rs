@@ -864,8 +864,8 @@ fn long_lattices() -> Vec<(String, System)> {
 }
 
 /// The fused kernel against the reference loops (the orbit's steps, and each vector's along
-/// the orbit's stages): bit for bit, for 1 to 3 vectors, 1 to 10 steps, with and without
-/// masses. A short chain has no fused kernel (its caller steps the one-orbit way).
+/// the orbit's stages): bit for bit, for 0 (the orbit alone) to 3 vectors, 1 to 10 steps, with
+/// and without masses. A short chain has no fused kernel (its caller steps the one-orbit way).
 #[test]
 fn c_fused_reference_tangent_steps_are_bit_identical() {
     let cache = tempfile::tempdir().unwrap();
@@ -924,7 +924,7 @@ fn fused_bit_identical(build: &dyn Fn(&System) -> StepKernels) {
         let n = s.n;
         let masses: Vec<f64> = (0..n).map(|i| 1.0 / (1.0 + 0.37 * i as f64)).collect();
         for w in [None, Some(&masses[..])] {
-            for vectors in [1usize, 2, 3] {
+            for vectors in [0usize, 1, 2, 3] {
                 for n_steps in [1u64, 3, 10] {
                     let mut x = state(n, 0, 1.0);
                     let mut v: Vec<f64> = (1..=vectors).flat_map(|l| state(n, l, 1e-3)).collect();

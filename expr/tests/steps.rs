@@ -799,8 +799,8 @@ fn a_kernel_cache_others_could_write_is_refused_with_one_line() {
 /// Lattices long enough for the fused one-orbit kernel (`StepKernels::reference_tangent_steps`,
 /// vectorized along the sites): each boundary condition, array parameters, a rest around the
 /// sums at a site of its own and at two, coefficients other than 1, shifts of two and of five
-/// (beyond the one-pass sweep's reach), a table, every operation of `lattices`' mixed chain;
-/// lengths that leave the vector loops a remainder and lengths that do not.
+/// (beyond the one-pass sweep's reach), no coupling, a table, every operation of `lattices`'
+/// mixed chain; lengths that leave the vector loops a remainder and lengths that do not.
 fn long_lattices() -> Vec<(String, System)> {
     let fput = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
     let kg = "sum(i = 1..N, k[i]/2*q[i]^2 + q[i]^4/4) + sum(i = 0..N, (q[i+1] - q[i])^2/(2*4))";
@@ -848,6 +848,16 @@ fn long_lattices() -> Vec<(String, System)> {
             38,
             Boundary::Fixed,
             "sum(i = -1..N+1, (q[i+1] - q[i-1])^2*(1 + q[i]^2))",
+        ),
+    ));
+    // Sites on their own (no coupling): every site regular, to the chain's last, whose vector
+    // ends the chain (no site past it to drift).
+    out.push((
+        "on-site-48 fixed".into(),
+        lattice_system(
+            48,
+            Boundary::Fixed,
+            "sum(i = 1..N, k[i]/2*q[i]^2 + q[i]^4/4)",
         ),
     ));
     // A term reading five sites apart: farther than the sweep's registers reach, so the kernel

@@ -297,6 +297,34 @@ enum Body {
     Swept,
 }
 
+/// The sweep's last vector of regular sites at `LANES` = `lanes`: the one the loop (from
+/// the regular run's first site `ja` to its last `jb`, in an `n`-site chain) stops at because
+/// its next vector would run past the end, if it is whole.
+struct TailIteration {
+    /// Its first site.
+    at: i64,
+    /// Sites from the chain's last vector (`n - lanes ..`) that the loop drifted already
+    /// (`lanes`: all, the chain ends with this vector's next).
+    reach: i64,
+}
+
+/// [`TailIteration`] where there is one: the loop ran (its first vector), and stopped at a whole
+/// vector of regular sites.
+fn tail_iteration(n: i64, ja: i64, jb: i64, lanes: i64) -> Option<TailIteration> {
+    let runs = |j: i64| j + lanes - 1 <= jb && j + 2 * lanes <= n;
+    if !runs(ja) {
+        return None;
+    }
+    let mut j = ja + lanes;
+    while runs(j) {
+        j += lanes;
+    }
+    (j + lanes - 1 <= jb).then_some(TailIteration {
+        at: j,
+        reach: j + 2 * lanes - n,
+    })
+}
+
 /// `o` for the orbit's force, `t` for a vector's Hessian-vector product.
 fn part_tag(tangent: bool) -> &'static str {
     if tangent { "t" } else { "o" }
@@ -594,6 +622,29 @@ impl Writer<'_> {
             );
         }
         self.array_pointers(src, "  ");
+        // The last vector of every state, as the previous stage left it: read before this
+        // stage stores anything near it (a load overlapping a store still in flight waits for
+        // it), for the last whole vector of regular sites ([`tail_iteration`]).
+        let tails: Vec<(i64, Option<TailIteration>)> = [8_i64, 4]
+            .into_iter()
+            .map(|lanes| (lanes, tail_iteration(n as i64, ja as i64, jb as i64, lanes)))
+            .collect();
+        for (i, (lanes, tail)) in tails.iter().enumerate() {
+            let _ = writeln!(
+                src,
+                "#{} FLANES == {lanes}",
+                if i == 0 { "if" } else { "elif" }
+            );
+            if tail.is_some() {
+                for (x, p) in states {
+                    let _ = writeln!(
+                        src,
+                        "  const vd t{x}_old = LD({x} + {n} - LANES), t{p}_old = LD({p} + {n} - LANES);"
+                    );
+                }
+            }
+        }
+        let _ = writeln!(src, "#endif");
         let scalar_drift = |src: &mut String, from: &str, to: &str| {
             let _ = writeln!(src, "  for (int64_t s = {from}; s < {to}; s++) {{");
             for (x, p) in states {
@@ -627,13 +678,8 @@ impl Writer<'_> {
         let condition = format!("j + LANES - 1 <= {jb} && j + 2 * LANES <= {n}");
         // The next vector drifted (the current one's neighbours), and the positions at every
         // offset the terms read.
-        let advance = |src: &mut String| {
-            let _ = writeln!(src, "      const int64_t jn = j + LANES;");
-            for (x, p) in states {
-                let _ = writeln!(
-                    src,
-                    "      const vd h{p}_next = LD({p} + jn);\n      vd h{x}_next = FDRIFTV(LD({x} + jn), h{p}_next, jn, c0);\n      if (two) h{x}_next = FDRIFTV(h{x}_next, h{p}_next, jn, c1);\n      ST({x} + jn, h{x}_next);"
-                );
+        let held = |src: &mut String| {
+            for (x, _) in states {
                 for &offset in &offsets {
                     let held = held_name(x, offset);
                     if offset == 0 {
@@ -647,6 +693,16 @@ impl Writer<'_> {
                     }
                 }
             }
+        };
+        let advance = |src: &mut String| {
+            let _ = writeln!(src, "      const int64_t jn = j + LANES;");
+            for (x, p) in states {
+                let _ = writeln!(
+                    src,
+                    "      const vd h{p}_next = LD({p} + jn);\n      vd h{x}_next = FDRIFTV(LD({x} + jn), h{p}_next, jn, c0);\n      if (two) h{x}_next = FDRIFTV(h{x}_next, h{p}_next, jn, c1);\n      ST({x} + jn, h{x}_next);"
+                );
+            }
+            held(src);
         };
         let rotate = |src: &mut String| {
             for (x, p) in states {
@@ -683,7 +739,47 @@ impl Writer<'_> {
             self.block_kicks(src, t);
         }
         rotate(src);
-        let _ = writeln!(src, "    }}\n    js = j;\n    drifted = j + LANES;\n  }}");
+        let _ = writeln!(src, "    }}\n    drifted = j + LANES;");
+        // The last whole vector of regular sites, whose next vector would run past the chain's
+        // end: that vector is the sites left (drifted from the last vector as the stage found
+        // it) and zeros past the end (positions no regular site reads).
+        for (i, (lanes, tail)) in tails.iter().enumerate() {
+            let _ = writeln!(
+                src,
+                "#{} FLANES == {lanes}",
+                if i == 0 { "if" } else { "elif" }
+            );
+            let Some(tail) = tail else {
+                continue;
+            };
+            let _ = writeln!(src, "    if (j == {}) {{", tail.at);
+            let r = tail.reach;
+            let lanes_idx = |f: &dyn Fn(i64) -> i64| -> String {
+                (0..*lanes)
+                    .map(|l| f(l).to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            for (x, p) in states {
+                if r < *lanes {
+                    // The chain's last vector: this vector's sites as drifted, then the rest.
+                    let _ = writeln!(
+                        src,
+                        "      vd t{x} = FDRIFTV(t{x}_old, t{p}_old, {n} - LANES, c0);\n      if (two) t{x} = FDRIFTV(t{x}, t{p}_old, {n} - LANES, c1);\n      ST({x} + {n} - LANES, FJOIN(h{x}_cur, t{x}, {}));\n      const vd h{x}_next = FJOIN(t{x}, B(0.0), {});",
+                        lanes_idx(&|l| if l < r { lanes - r + l } else { lanes + l }),
+                        lanes_idx(&|l| r + l)
+                    );
+                } else {
+                    let _ = writeln!(src, "      const vd h{x}_next = B(0.0);");
+                }
+            }
+            held(src);
+            for &t in parts {
+                self.block_kicks(src, t);
+            }
+            let _ = writeln!(src, "      j += LANES;\n      drifted = {n};\n    }}");
+        }
+        let _ = writeln!(src, "#endif\n    js = j;\n  }}");
         // The sites after the last vector drifted, then the regular sites not yet kicked.
         scalar_drift(src, "drifted", &n.to_string());
         self.regular_from(src, parts, "js");

@@ -798,9 +798,9 @@ fn a_kernel_cache_others_could_write_is_refused_with_one_line() {
 
 /// Lattices long enough for the fused one-orbit kernel (`StepKernels::reference_tangent_steps`,
 /// vectorized along the sites): each boundary condition, array parameters, a rest around the
-/// sums at a site of its own and at two, coefficients other than 1, shifts of two, a table,
-/// every operation of `lattices`' mixed chain; lengths that leave the vector loops a remainder
-/// and lengths that do not.
+/// sums at a site of its own and at two, coefficients other than 1, shifts of two and of five
+/// (beyond the one-pass sweep's reach), no coupling, a table, every operation of `lattices`'
+/// mixed chain; lengths that leave the vector loops a remainder and lengths that do not.
 fn long_lattices() -> Vec<(String, System)> {
     let fput = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
     let kg = "sum(i = 1..N, k[i]/2*q[i]^2 + q[i]^4/4) + sum(i = 0..N, (q[i+1] - q[i])^2/(2*4))";
@@ -850,12 +850,32 @@ fn long_lattices() -> Vec<(String, System)> {
             "sum(i = -1..N+1, (q[i+1] - q[i-1])^2*(1 + q[i]^2))",
         ),
     ));
+    // Sites on their own (no coupling): every site regular, to the chain's last, whose vector
+    // ends the chain (no site past it to drift).
+    out.push((
+        "on-site-48 fixed".into(),
+        lattice_system(
+            48,
+            Boundary::Fixed,
+            "sum(i = 1..N, k[i]/2*q[i]^2 + q[i]^4/4)",
+        ),
+    ));
+    // A term reading five sites apart: farther than the sweep's registers reach, so the kernel
+    // drifts and kicks stage by stage.
+    out.push((
+        "far-reaching-45 fixed".into(),
+        lattice_system(
+            45,
+            Boundary::Fixed,
+            "sum(i = 1..N, q[i]^4/4) + sum(i = 1..N-5, (q[i+5] - q[i])^2*(2 + q[i+1]))",
+        ),
+    ));
     out
 }
 
 /// The fused kernel against the reference loops (the orbit's steps, and each vector's along
-/// the orbit's stages): bit for bit, for 1 to 3 vectors, 1 to 10 steps, with and without
-/// masses. A short chain has no fused kernel (its caller steps the one-orbit way).
+/// the orbit's stages): bit for bit, for 0 (the orbit alone) to 3 vectors, 1 to 10 steps, with
+/// and without masses. A short chain has no fused kernel (its caller steps the one-orbit way).
 #[test]
 fn c_fused_reference_tangent_steps_are_bit_identical() {
     let cache = tempfile::tempdir().unwrap();
@@ -914,7 +934,7 @@ fn fused_bit_identical(build: &dyn Fn(&System) -> StepKernels) {
         let n = s.n;
         let masses: Vec<f64> = (0..n).map(|i| 1.0 / (1.0 + 0.37 * i as f64)).collect();
         for w in [None, Some(&masses[..])] {
-            for vectors in [1usize, 2, 3] {
+            for vectors in [0usize, 1, 2, 3] {
                 for n_steps in [1u64, 3, 10] {
                     let mut x = state(n, 0, 1.0);
                     let mut v: Vec<f64> = (1..=vectors).flat_map(|l| state(n, l, 1e-3)).collect();

@@ -221,6 +221,7 @@ pub(crate) fn source(
         graph,
         lattice,
         arrays,
+        array_env,
         gather: &gather,
         contributions: [false, true].map(|tangent| {
             lattice
@@ -230,65 +231,12 @@ pub(crate) fn source(
                 .collect()
         }),
     };
-    let n = lattice.n;
-    let two_n = 2 * n;
     let mut src = wide();
     writer.drift(&mut src);
-    let _ = writeln!(
-        src,
-        "static void fused_stage(double *restrict x, double *restrict v, size_t k, double dh, \
-         const uintptr_t *env) {{"
-    );
-    let _ = writeln!(
-        src,
-        "  const double *restrict q = x;\n  double *restrict p = x + {n};\n  (void)env;"
-    );
-    for a in 0..arrays.len() {
-        let _ = writeln!(
-            src,
-            "  const double *arr{a} = (const double *)env[{}];",
-            array_env + a
-        );
+    match writer.held_offsets() {
+        Some(offsets) => writer.swept(&mut src, &offsets),
+        None => writer.stagewise(&mut src),
     }
-    let _ = writeln!(
-        src,
-        "  if (k > 0) {{\n    const double *dq = v;\n    double *dp = v + {n};"
-    );
-    writer.regular(&mut src, &[false, true]);
-    let _ = writeln!(src, "  }} else {{");
-    writer.regular(&mut src, &[false]);
-    let _ = writeln!(
-        src,
-        "  }}\n  for (size_t m = 1; m < k; m++) {{\n    const double *dq = v + m * {two_n};\n    double *dp = v + m * {two_n} + {n};"
-    );
-    writer.regular(&mut src, &[true]);
-    let _ = writeln!(src, "  }}");
-    // The ends, one site at a time: the orbit's, then every vector's.
-    writer.ends(&mut src, false);
-    let _ = writeln!(
-        src,
-        "  for (size_t m = 0; m < k; m++) {{\n    const double *dq = v + m * {two_n};\n    double *dp = v + m * {two_n} + {n};"
-    );
-    writer.ends(&mut src, true);
-    let _ = writeln!(src, "  }}\n}}");
-    let _ = writeln!(
-        src,
-        "void chaoscope_reference_tangent_steps(double *restrict x, double *restrict v, size_t k, \
-         uint64_t n_steps, const double *drift, const double *kick, size_t n_kicks, \
-         const double *w, const uintptr_t *env) {{
-  for (uint64_t s = 0; s < n_steps; s++) {{
-    for (size_t kk = 0; kk < n_kicks; kk++) {{
-      const double ch = drift[kk];
-      fused_drift(x, ch, w);
-      for (size_t m = 0; m < k; m++) fused_drift(v + m * {two_n}, ch, w);
-      fused_stage(x, v, k, kick[kk], env);
-    }}
-    const double ch = drift[n_kicks];
-    fused_drift(x, ch, w);
-    for (size_t m = 0; m < k; m++) fused_drift(v + m * {two_n}, ch, w);
-  }}
-}}"
-    );
     Some(src)
 }
 
@@ -296,6 +244,8 @@ struct Writer<'a> {
     graph: &'a Graph,
     lattice: &'a LatticePotential,
     arrays: &'a [(String, Arc<[f64]>)],
+    /// `env` slot of the first array parameter.
+    array_env: usize,
     gather: &'a Gather,
     /// Per sum, what each slot adds to its site (`factor`, node): the gradient's `[0]`, the
     /// Hessian-vector product's `[1]`.
@@ -306,21 +256,97 @@ struct Writer<'a> {
 /// or one), or at a term known when writing (its sites resolved: a wall is `0`).
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum At {
-    /// The term that reads site `j` through the slot of this shift.
+    /// The term that reads site `j` through the slot of this shift; `held`: the positions
+    /// (`q`, `dq`) from the sweep's registers ([`held_name`]), not from memory.
     Site {
         shift: i64,
         vector: bool,
+        held: bool,
     },
     Term(i64),
+    /// The terms `j + base` of the loop's vector (in the sweep: positions from its
+    /// registers).
+    Block(i64),
 }
 
+/// The sweep's register holding `base` (`q`, `dq`) at the sites `j + offset` of the loop's
+/// vector.
+fn held_name(base: &str, offset: i64) -> String {
+    format!("h{base}_{}", offset_suffix(offset))
+}
+
+/// `m2` for -2, `p1` for 1.
+fn offset_suffix(offset: i64) -> String {
+    let sign = if offset < 0 { "m" } else { "p" };
+    format!("{sign}{}", offset.unsigned_abs())
+}
+
+/// Farthest a regular site's term reads a position from the site, in sites, for the sweep:
+/// its shifted vectors are two of the registers' neighbours joined, which the narrower
+/// vectors (4 lanes) reach up to 4 sites away.
+const MAX_HELD_OFFSET: i64 = 4;
+
 /// How the regular sites' loop body is written: a vector of sites, the last vector with the
-/// lanes already done kept, or one site.
+/// lanes already done kept, or one site; or a vector of the sweep (positions and momenta from
+/// its registers).
 #[derive(Clone, Copy, PartialEq, Eq)]
 enum Body {
     Vector,
     Masked,
     Scalar,
+    Swept,
+}
+
+/// The sweep's last vector of regular sites at `LANES` = `lanes`: the one the loop (from
+/// the regular run's first site `ja` to its last `jb`, in an `n`-site chain) stops at because
+/// its next vector would run past the end, if it is whole.
+struct TailIteration {
+    /// Its first site.
+    at: i64,
+    /// Sites from the chain's last vector (`n - lanes ..`) that the loop drifted already
+    /// (`lanes`: all, the chain ends with this vector's next).
+    reach: i64,
+}
+
+/// [`TailIteration`] where there is one: the loop ran (its first vector), and stopped at a whole
+/// vector of regular sites.
+fn tail_iteration(n: i64, ja: i64, jb: i64, lanes: i64) -> Option<TailIteration> {
+    let runs = |j: i64| j + lanes - 1 <= jb && j + 2 * lanes <= n;
+    if !runs(ja) {
+        return None;
+    }
+    let mut j = ja + lanes;
+    while runs(j) {
+        j += lanes;
+    }
+    (j + lanes - 1 <= jb).then_some(TailIteration {
+        at: j,
+        reach: j + 2 * lanes - n,
+    })
+}
+
+/// `o` for the orbit's force, `t` for a vector's Hessian-vector product.
+fn part_tag(tangent: bool) -> &'static str {
+    if tangent { "t" } else { "o" }
+}
+
+/// The register holding slot `slot` of sum `s`'s contributions at the previous vector of terms.
+fn carried_name(tangent: bool, s: usize, slot: usize) -> String {
+    format!("tp{}_{s}_{slot}", part_tag(tangent))
+}
+
+/// The value of slot `slot` of sum `s`'s contributions at the current vector of terms.
+fn current_name(tangent: bool, s: usize, slot: usize) -> String {
+    format!("tc{}_{s}_{slot}", part_tag(tangent))
+}
+
+/// `lines` as a block of the sweep's loop body.
+fn write_block(out: &mut String, lines: &[String]) {
+    let _ = writeln!(out, "      {{");
+    for l in lines {
+        let _ = writeln!(out, "        {l}");
+    }
+    let _ = writeln!(out, "      }}");
 }
 
 /// `acc + x`, `acc - x` or `acc + c x` ([`crate::lattice::accumulate`]).
@@ -355,6 +381,513 @@ impl Writer<'_> {
         );
     }
 
+    /// The offsets from a regular site `j` at which its terms read positions (`j + offset`),
+    /// where every one is at most [`MAX_HELD_OFFSET`] away (the sweep's registers reach them);
+    /// `None` otherwise (the stage-by-stage kernel, [`Self::stagewise`]).
+    fn held_offsets(&self) -> Option<Vec<i64>> {
+        let mut offsets = vec![0];
+        for sum in &self.lattice.sums {
+            for &slot_shift in &sum.variables {
+                for &shift in &sum.variables {
+                    let offset = shift - slot_shift;
+                    if offset.abs() > MAX_HELD_OFFSET {
+                        return None;
+                    }
+                    offsets.push(offset);
+                }
+            }
+        }
+        offsets.sort_unstable();
+        offsets.dedup();
+        Some(offsets)
+    }
+
+    /// Each array parameter's local pointer, from `env`.
+    fn array_pointers(&self, out: &mut String, indent: &str) {
+        for a in 0..self.arrays.len() {
+            let _ = writeln!(
+                out,
+                "{indent}const double *arr{a} = (const double *)env[{}];",
+                self.array_env + a
+            );
+        }
+    }
+
+    /// The sites outside the regular run: the orbit's, then every vector's.
+    fn all_ends(&self, out: &mut String) {
+        let n = self.lattice.n;
+        let two_n = 2 * n;
+        let _ = writeln!(
+            out,
+            "  {{\n  const double *restrict q = x;\n  double *restrict p = x + {n};"
+        );
+        self.array_pointers(out, "  ");
+        self.ends(out, false);
+        let _ = writeln!(
+            out,
+            "  for (size_t m = 0; m < k; m++) {{\n    const double *dq = v + m * {two_n};\n    double *dp = v + m * {two_n} + {n};"
+        );
+        self.ends(out, true);
+        let _ = writeln!(out, "  }}\n  }}");
+    }
+
+    /// The kernel as a drift pass over each state, then a stage's kicks (the orbit's and the
+    /// first vector's force in one loop over the regular sites, the other vectors' each in
+    /// another, the ends): for terms that read positions farther than the sweep's registers.
+    fn stagewise(&self, src: &mut String) {
+        let n = self.lattice.n;
+        let two_n = 2 * n;
+        let _ = writeln!(
+            src,
+            "static void fused_stage(double *restrict x, double *restrict v, size_t k, double dh, \
+             const uintptr_t *env) {{"
+        );
+        let _ = writeln!(
+            src,
+            "  {{\n  const double *restrict q = x;\n  double *restrict p = x + {n};\n  (void)env;"
+        );
+        self.array_pointers(src, "  ");
+        let _ = writeln!(
+            src,
+            "  if (k > 0) {{\n    const double *dq = v;\n    double *dp = v + {n};"
+        );
+        self.regular(src, &[false, true]);
+        let _ = writeln!(src, "  }} else {{");
+        self.regular(src, &[false]);
+        let _ = writeln!(
+            src,
+            "  }}\n  for (size_t m = 1; m < k; m++) {{\n    const double *dq = v + m * {two_n};\n    double *dp = v + m * {two_n} + {n};"
+        );
+        self.regular(src, &[true]);
+        let _ = writeln!(src, "  }}\n  }}");
+        self.all_ends(src);
+        let _ = writeln!(src, "}}");
+        let _ = writeln!(
+            src,
+            "void chaoscope_reference_tangent_steps(double *restrict x, double *restrict v, size_t k, \
+             uint64_t n_steps, const double *drift, const double *kick, size_t n_kicks, \
+             const double *w, const uintptr_t *env) {{
+  for (uint64_t s = 0; s < n_steps; s++) {{
+    for (size_t kk = 0; kk < n_kicks; kk++) {{
+      const double ch = drift[kk];
+      fused_drift(x, ch, w);
+      for (size_t m = 0; m < k; m++) fused_drift(v + m * {two_n}, ch, w);
+      fused_stage(x, v, k, kick[kk], env);
+    }}
+    const double ch = drift[n_kicks];
+    fused_drift(x, ch, w);
+    for (size_t m = 0; m < k; m++) fused_drift(v + m * {two_n}, ch, w);
+  }}
+}}"
+        );
+    }
+
+    /// The kernel as one sweep over the sites per stage: each vector of sites drifted (by the
+    /// stage's drift, or by the step's last drift and then the next step's first: two
+    /// additions, as two passes make them) into registers that a vector later kicks from, its
+    /// neighbours' positions two of those registers joined (`offsets`: [`Self::held_offsets`]),
+    /// for the orbit and the first vector: each state read and written once per stage, where
+    /// a drift pass and a kick pass each stream it through the cache. The sites outside the
+    /// sweep's vectors (before the regular run, at the end of the chain) are drifted one by one
+    /// before and after it, and kicked from memory after it; every value is the same
+    /// operations on the same inputs as in the stage-by-stage kernel, so the same bits.
+    fn swept(&self, src: &mut String, offsets: &[i64]) {
+        let n = self.lattice.n;
+        let two_n = 2 * n;
+        // The shifted vectors: lanes of (previous, current) or (current, next) joined.
+        let _ = writeln!(
+            src,
+            "#if defined(__clang__)\n#define FJOIN(a, b, ...) __builtin_shufflevector(a, b, __VA_ARGS__)\n#else\n#define FJOIN(a, b, ...) __builtin_shuffle(a, b, (vi){{__VA_ARGS__}})\n#endif"
+        );
+        for &offset in offsets.iter().filter(|&&o| o != 0) {
+            let name = offset_suffix(offset);
+            for (i, lanes) in [8_i64, 4].into_iter().enumerate() {
+                let (pair, first) = if offset < 0 {
+                    ("P, C", lanes + offset)
+                } else {
+                    ("C, N", offset)
+                };
+                let mask: Vec<String> = (first..first + lanes).map(|l| l.to_string()).collect();
+                let _ = writeln!(
+                    src,
+                    "#{} FLANES == {lanes}\n#define FSHIFT_{name}(P, C, N) FJOIN({pair}, {})",
+                    if i == 0 { "if" } else { "elif" },
+                    mask.join(", ")
+                );
+            }
+            let _ = writeln!(src, "#endif");
+        }
+        // The drifts as `fused_drift` writes them: `q + (ch w) p`, or `q + ch p`.
+        let _ = writeln!(
+            src,
+            "#define FDRIFTV(X, P, J, C) (has_w ? (X) + (B(C) * LD(w + (J))) * (P) : (X) + B(C) * (P))\n\
+             #define FDRIFTS(X, P, J, C) (has_w ? (X) + ((C) * w[J]) * (P) : (X) + (C) * (P))"
+        );
+        self.sweep(src, "fused_sweep_vector", &[false, true]);
+        self.sweep(src, "fused_sweep_orbit", &[false]);
+        let dispatch = |name: &str| {
+            format!(
+                "if (w) {{ if (two) {name}(x, v, c0, c1, 1, w, 1, dh, env); else {name}(x, v, c0, c1, 0, w, 1, dh, env); }}\n    \
+                 else {{ if (two) {name}(x, v, c0, c1, 1, w, 0, dh, env); else {name}(x, v, c0, c1, 0, w, 0, dh, env); }}"
+            )
+        };
+        let _ = writeln!(
+            src,
+            "static void fused_stage(double *restrict x, double *restrict v, size_t k, double c0, \
+             double c1, int two, const double *w, double dh, const uintptr_t *env) {{
+  if (k > 0) {{
+    {}
+  }} else {{
+    {}
+  }}",
+            dispatch("fused_sweep_vector"),
+            dispatch("fused_sweep_orbit")
+        );
+        let _ = writeln!(
+            src,
+            "  {{\n  const double *restrict q = x;\n  double *restrict p = x + {n};\n  (void)env;"
+        );
+        self.array_pointers(src, "  ");
+        let _ = writeln!(
+            src,
+            "  for (size_t m = 1; m < k; m++) {{\n    const double *dq = v + m * {two_n};\n    double *dp = v + m * {two_n} + {n};"
+        );
+        self.regular(src, &[true]);
+        let _ = writeln!(src, "  }}\n  }}");
+        self.all_ends(src);
+        let _ = writeln!(src, "}}");
+        // The vectors after the first are drifted by passes of their own before each stage.
+        let _ = writeln!(
+            src,
+            "void chaoscope_reference_tangent_steps(double *restrict x, double *restrict v, size_t k, \
+             uint64_t n_steps, const double *drift, const double *kick, size_t n_kicks, \
+             const double *w, const uintptr_t *env) {{
+  if (n_kicks == 0) {{
+    for (uint64_t s = 0; s < n_steps; s++) {{
+      fused_drift(x, drift[0], w);
+      for (size_t m = 0; m < k; m++) fused_drift(v + m * {two_n}, drift[0], w);
+    }}
+    return;
+  }}
+  for (uint64_t s = 0; s < n_steps; s++) {{
+    for (size_t kk = 0; kk < n_kicks; kk++) {{
+      const int two = s > 0 && kk == 0;
+      const double c0 = two ? drift[n_kicks] : drift[kk];
+      const double c1 = drift[kk];
+      for (size_t m = 1; m < k; m++) {{
+        fused_drift(v + m * {two_n}, c0, w);
+        if (two) fused_drift(v + m * {two_n}, c1, w);
+      }}
+      fused_stage(x, v, k, c0, c1, two, w, kick[kk], env);
+    }}
+  }}
+  if (n_steps > 0) {{
+    const double ch = drift[n_kicks];
+    fused_drift(x, ch, w);
+    for (size_t m = 0; m < k; m++) fused_drift(v + m * {two_n}, ch, w);
+  }}
+}}"
+        );
+    }
+
+    /// One stage's sweep of the orbit (`parts` `[false]`) or of the orbit and the first vector
+    /// (`[false, true]`): drift `c0` (then `c1` where `two`) of every site, and the kick of
+    /// the regular sites, in one pass; `two` and `has_w` are constants where it is inlined.
+    fn sweep(&self, src: &mut String, name: &str, parts: &[bool]) {
+        let n = self.lattice.n;
+        let (ja, jb) = self.gather.regular;
+        let tangent = parts.contains(&true);
+        let offsets = self
+            .held_offsets()
+            .expect("the sweep is written for held offsets");
+        // Per state swept: (positions, momenta) pointers' names.
+        let states: &[(&str, &str)] = if tangent {
+            &[("q", "p"), ("dq", "dp")]
+        } else {
+            &[("q", "p")]
+        };
+        let _ = writeln!(
+            src,
+            "static inline __attribute__((always_inline)) void {name}(double *restrict x, \
+             double *restrict v, double c0, double c1, const int two, const double *restrict w, \
+             const int has_w, double dh, const uintptr_t *env) {{
+  double *restrict q = x;
+  double *restrict p = x + {n};
+  (void)v; (void)env;"
+        );
+        if tangent {
+            let _ = writeln!(
+                src,
+                "  double *restrict dq = v;\n  double *restrict dp = v + {n};"
+            );
+        }
+        self.array_pointers(src, "  ");
+        // The last vector of every state, as the previous stage left it: read before this
+        // stage stores anything near it (a load overlapping a store still in flight waits for
+        // it), for the last whole vector of regular sites ([`tail_iteration`]).
+        let tails: Vec<(i64, Option<TailIteration>)> = [8_i64, 4]
+            .into_iter()
+            .map(|lanes| (lanes, tail_iteration(n as i64, ja as i64, jb as i64, lanes)))
+            .collect();
+        for (i, (lanes, tail)) in tails.iter().enumerate() {
+            let _ = writeln!(
+                src,
+                "#{} FLANES == {lanes}",
+                if i == 0 { "if" } else { "elif" }
+            );
+            if tail.is_some() {
+                for (x, p) in states {
+                    let _ = writeln!(
+                        src,
+                        "  const vd t{x}_old = LD({x} + {n} - LANES), t{p}_old = LD({p} + {n} - LANES);"
+                    );
+                }
+            }
+        }
+        let _ = writeln!(src, "#endif");
+        let scalar_drift = |src: &mut String, from: &str, to: &str| {
+            let _ = writeln!(src, "  for (int64_t s = {from}; s < {to}; s++) {{");
+            for (x, p) in states {
+                let _ = writeln!(
+                    src,
+                    "    double {x}s = FDRIFTS({x}[s], {p}[s], s, c0);\n    if (two) {x}s = FDRIFTS({x}s, {p}[s], s, c1);\n    {x}[s] = {x}s;"
+                );
+            }
+            let _ = writeln!(src, "  }}");
+        };
+        // The sites before the regular run.
+        scalar_drift(src, "0", &ja.to_string());
+        let _ = writeln!(
+            src,
+            "  int64_t js = {ja}, drifted = {ja};\n  if ({ja} + 2 * LANES <= {n} && {ja} + LANES - 1 <= {jb}) {{\n    int64_t j = {ja};"
+        );
+        // The first vector drifted, the one before it (drifted, or outside the chain) loaded.
+        for (x, p) in states {
+            let _ = writeln!(
+                src,
+                "    vd h{p}_cur = LD({p} + j);\n    vd h{x}_cur = FDRIFTV(LD({x} + j), h{p}_cur, j, c0);\n    if (two) h{x}_cur = FDRIFTV(h{x}_cur, h{p}_cur, j, c1);\n    ST({x} + j, h{x}_cur);\n    vd h{x}_prev = B(0.0);\n    for (int l = 0; l < LANES; l++) h{x}_prev[l] = j - LANES + l >= 0 ? {x}[j - LANES + l] : 0.0;"
+            );
+        }
+        // Each term's values at the previous vector of terms, for the sites that take them from
+        // there (see `Self::block_kicks`).
+        for &t in parts {
+            for (s, slot) in self.carried_slots() {
+                let _ = writeln!(src, "    vd {};", carried_name(t, s, slot));
+            }
+        }
+        let condition = format!("j + LANES - 1 <= {jb} && j + 2 * LANES <= {n}");
+        // The next vector drifted (the current one's neighbours), and the positions at every
+        // offset the terms read.
+        let held = |src: &mut String| {
+            for (x, _) in states {
+                for &offset in &offsets {
+                    let held = held_name(x, offset);
+                    if offset == 0 {
+                        let _ = writeln!(src, "      const vd {held} = h{x}_cur;");
+                    } else {
+                        let _ = writeln!(
+                            src,
+                            "      const vd {held} = FSHIFT_{}(h{x}_prev, h{x}_cur, h{x}_next);",
+                            offset_suffix(offset)
+                        );
+                    }
+                }
+            }
+        };
+        let advance = |src: &mut String| {
+            let _ = writeln!(src, "      const int64_t jn = j + LANES;");
+            for (x, p) in states {
+                let _ = writeln!(
+                    src,
+                    "      const vd h{p}_next = LD({p} + jn);\n      vd h{x}_next = FDRIFTV(LD({x} + jn), h{p}_next, jn, c0);\n      if (two) h{x}_next = FDRIFTV(h{x}_next, h{p}_next, jn, c1);\n      ST({x} + jn, h{x}_next);"
+                );
+            }
+            held(src);
+        };
+        let rotate = |src: &mut String| {
+            for (x, p) in states {
+                let _ = writeln!(
+                    src,
+                    "      h{x}_prev = h{x}_cur; h{x}_cur = h{x}_next; h{p}_cur = h{p}_next;"
+                );
+            }
+        };
+        // The first vector: each site's terms computed at the site (no earlier vector of terms),
+        // and the terms the next vector takes from this one's.
+        let _ = writeln!(src, "    if ({condition}) {{");
+        advance(src);
+        for &t in parts {
+            self.site(src, t, Body::Swept);
+            let mut lines = Vec::new();
+            self.block_terms(t, &mut lines);
+            for (s, slot) in self.carried_slots() {
+                lines.push(format!(
+                    "{} = {};",
+                    carried_name(t, s, slot),
+                    current_name(t, s, slot)
+                ));
+            }
+            write_block(src, &lines);
+        }
+        rotate(src);
+        let _ = writeln!(src, "      j += LANES;\n    }}");
+        // The others: each term computed once, at a vector of terms, and handed to the sites
+        // that read it.
+        let _ = writeln!(src, "    for (; {condition}; j += LANES) {{");
+        advance(src);
+        for &t in parts {
+            self.block_kicks(src, t);
+        }
+        rotate(src);
+        let _ = writeln!(src, "    }}\n    drifted = j + LANES;");
+        // The last whole vector of regular sites, whose next vector would run past the chain's
+        // end: that vector is the sites left (drifted from the last vector as the stage found
+        // it) and zeros past the end (positions no regular site reads).
+        for (i, (lanes, tail)) in tails.iter().enumerate() {
+            let _ = writeln!(
+                src,
+                "#{} FLANES == {lanes}",
+                if i == 0 { "if" } else { "elif" }
+            );
+            let Some(tail) = tail else {
+                continue;
+            };
+            let _ = writeln!(src, "    if (j == {}) {{", tail.at);
+            let r = tail.reach;
+            let lanes_idx = |f: &dyn Fn(i64) -> i64| -> String {
+                (0..*lanes)
+                    .map(|l| f(l).to_string())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            };
+            for (x, p) in states {
+                if r < *lanes {
+                    // The chain's last vector: this vector's sites as drifted, then the rest.
+                    let _ = writeln!(
+                        src,
+                        "      vd t{x} = FDRIFTV(t{x}_old, t{p}_old, {n} - LANES, c0);\n      if (two) t{x} = FDRIFTV(t{x}, t{p}_old, {n} - LANES, c1);\n      ST({x} + {n} - LANES, FJOIN(h{x}_cur, t{x}, {}));\n      const vd h{x}_next = FJOIN(t{x}, B(0.0), {});",
+                        lanes_idx(&|l| if l < r { lanes - r + l } else { lanes + l }),
+                        lanes_idx(&|l| r + l)
+                    );
+                } else {
+                    let _ = writeln!(src, "      const vd h{x}_next = B(0.0);");
+                }
+            }
+            held(src);
+            for &t in parts {
+                self.block_kicks(src, t);
+            }
+            let _ = writeln!(src, "      j += LANES;\n      drifted = {n};\n    }}");
+        }
+        let _ = writeln!(src, "#endif\n    js = j;\n  }}");
+        // The sites after the last vector drifted, then the regular sites not yet kicked.
+        scalar_drift(src, "drifted", &n.to_string());
+        self.regular_from(src, parts, "js");
+        let _ = writeln!(src, "}}");
+    }
+
+    /// The first (least) shift of `sum`'s slots: its vector of terms in the sweep starts at
+    /// `j + 1 - least` (the term the site `j` reads through that slot), so every other slot
+    /// takes its site's term from this vector or the one before.
+    fn least_shift(sum: &SiteSum) -> Option<i64> {
+        sum.variables.iter().copied().min()
+    }
+
+    /// The (sum, slot)s whose sites take their term from the previous vector of terms too:
+    /// every slot but the least-shift ones.
+    fn carried_slots(&self) -> Vec<(usize, usize)> {
+        let mut out = Vec::new();
+        for (s, sum) in self.lattice.sums.iter().enumerate() {
+            let Some(least) = Self::least_shift(sum) else {
+                continue;
+            };
+            for &slot in &self.gather.order[s] {
+                if sum.variables[slot] > least {
+                    out.push((s, slot));
+                }
+            }
+        }
+        out
+    }
+
+    /// Lines computing, for every sum, each slot's contribution (the gradient's, or the
+    /// Hessian-vector product's where `tangent`) at the vector of terms `j + 1 - least`, as
+    /// [`current_name`]s: the slots of one term share their common operations.
+    fn block_terms(&self, tangent: bool, lines: &mut Vec<String>) {
+        let contributions = &self.contributions[usize::from(tangent)];
+        for (s, sum) in self.lattice.sums.iter().enumerate() {
+            let Some(least) = Self::least_shift(sum) else {
+                continue;
+            };
+            let roots: Vec<NodeId> = contributions[s].iter().map(|&(_, r)| r).collect();
+            let tag = format!("_{}{s}", part_tag(tangent));
+            let vals = emit_nodes(
+                self.graph,
+                &roots,
+                &mut |node| self.leaf(node, sum, At::Block(1 - least)),
+                &|id, lane| format!("{}{id}{tag}", if lane { "v" } else { "s" }),
+                &mut |_, text| lines.push(text),
+            );
+            for &slot in &self.gather.order[s] {
+                let (x, lane) = vals[contributions[s][slot].1 as usize]
+                    .clone()
+                    .expect("emitted");
+                let x = if lane { x } else { format!("B({x})") };
+                lines.push(format!(
+                    "const vd {} = {x};",
+                    current_name(tangent, s, slot)
+                ));
+            }
+        }
+    }
+
+    /// The sweep's kick of a vector of sites from vectors of terms: site `j + l` takes slot
+    /// `slot` (shift `shift`) of sum `s` from term `j + l + 1 - shift`, lane `l - (shift -
+    /// least)` of this vector of terms (or, for the lanes before, of the previous one):
+    /// the same value, added in the same order, as [`Self::site`] computes at the site.
+    fn block_kicks(&self, out: &mut String, tangent: bool) {
+        let lattice = self.lattice;
+        let contributions = &self.contributions[usize::from(tangent)];
+        let mut lines = Vec::new();
+        self.block_terms(tangent, &mut lines);
+        let mut acc = "B(-0.0)".to_string();
+        for (s, sum) in lattice.sums.iter().enumerate() {
+            let Some(least) = Self::least_shift(sum) else {
+                continue;
+            };
+            for &slot in &self.gather.order[s] {
+                let (factor, _) = contributions[s][slot];
+                let back = sum.variables[slot] - least;
+                let current = current_name(tangent, s, slot);
+                let x = if back == 0 {
+                    current
+                } else {
+                    format!(
+                        "FSHIFT_{}({}, {current}, {current})",
+                        offset_suffix(-back),
+                        carried_name(tangent, s, slot)
+                    )
+                };
+                let next = format!("a{s}_{slot}");
+                lines.push(format!(
+                    "const vd {next} = {};",
+                    add(&acc, factor, &x, true)
+                ));
+                acc = next;
+            }
+        }
+        let p = if tangent { "dp" } else { "p" };
+        lines.push(format!("ST({p} + j, h{p}_cur - B(dh) * {acc});"));
+        for (s, slot) in self.carried_slots() {
+            lines.push(format!(
+                "{} = {};",
+                carried_name(tangent, s, slot),
+                current_name(tangent, s, slot)
+            ));
+        }
+        write_block(out, &lines);
+    }
+
     /// The array parameter `name`'s local pointer.
     fn array(&self, name: &str) -> usize {
         self.arrays
@@ -365,30 +898,46 @@ impl Writer<'_> {
 
     /// A term leaf's C expression, and whether it is a vector.
     fn leaf(&self, node: &Node, sum: &SiteSum, at: At) -> (String, bool) {
-        let (shift, base) = match *node {
+        // Positions (the orbit's, the vector's) change along the sweep; parameters never.
+        let (shift, base, position) = match *node {
             Node::Const(c) => return (konst(c), false),
             Node::Input {
                 arg: ARG_SITE,
                 index,
-            } => (sum.variables[index as usize], "q".to_string()),
+            } => (sum.variables[index as usize], "q".to_string(), true),
             Node::Input {
                 arg: ARG_SITE_DIRECTION,
                 index,
-            } => (sum.variables[index as usize], "dq".to_string()),
+            } => (sum.variables[index as usize], "dq".to_string(), true),
             Node::Input {
                 arg: ARG_SITE_PARAM,
                 index,
             } => {
                 let p = &sum.params[index as usize];
-                (p.shift, format!("arr{}", self.array(&p.name)))
+                (p.shift, format!("arr{}", self.array(&p.name)), false)
             }
             _ => unreachable!("a leaf of a term: {node:?}"),
         };
         match at {
+            At::Block(b) => {
+                // Term i = j + b reads site i + shift - 1.
+                let offset = b + shift - 1;
+                if position {
+                    (held_name(&base, offset), true)
+                } else {
+                    (format!("LD({base} + (j + {offset}))"), true)
+                }
+            }
             // Term i = j + 1 - s reads site i + shift - 1 = j + shift - s.
-            At::Site { shift: s, vector } => {
+            At::Site {
+                shift: s,
+                vector,
+                held,
+            } => {
                 let at = format!("j + {}", shift - s);
-                if vector {
+                if held && position {
+                    (held_name(&base, shift - s), true)
+                } else if vector {
                     (format!("LD({base} + ({at}))"), true)
                 } else {
                     (format!("{base}[{at}]"), false)
@@ -412,7 +961,7 @@ impl Writer<'_> {
         tag: &str,
         lines: &mut Vec<String>,
     ) -> String {
-        let vector = matches!(at, At::Site { vector: true, .. });
+        let vector = matches!(at, At::Site { vector: true, .. } | At::Block(_));
         let vals = emit_nodes(
             self.graph,
             &[root],
@@ -433,8 +982,15 @@ impl Writer<'_> {
     /// vector ending at the last regular site whose lanes already done keep their values (or
     /// one by one, for fewer regular sites than a vector).
     fn regular(&self, out: &mut String, parts: &[bool]) {
-        let (ja, jb) = self.gather.regular;
-        let _ = writeln!(out, "    {{ int64_t j = {ja};");
+        self.regular_from(out, parts, &self.gather.regular.0.to_string());
+    }
+
+    /// [`Self::regular`] from the site `start` (a C expression) on: the regular sites before it
+    /// are done.
+    fn regular_from(&self, out: &mut String, parts: &[bool], start: &str) {
+        let jb = self.gather.regular.1;
+        let ja = self.gather.regular.0;
+        let _ = writeln!(out, "    {{ int64_t j = {start};");
         let _ = writeln!(out, "    for (; j + LANES - 1 <= {jb}; j += LANES) {{");
         for &t in parts {
             self.site(out, t, Body::Vector);
@@ -465,6 +1021,7 @@ impl Writer<'_> {
     /// (`tangent`) the Hessian-vector product along `dq` kicked into `dp`.
     fn site(&self, out: &mut String, tangent: bool, body: Body) {
         let vector = body != Body::Scalar;
+        let held = body == Body::Swept;
         let lattice = self.lattice;
         let contributions = &self.contributions[usize::from(tangent)];
         let mut lines = Vec::new();
@@ -475,6 +1032,7 @@ impl Writer<'_> {
                 let at = At::Site {
                     shift: sum.variables[slot],
                     vector,
+                    held,
                 };
                 let x = self.term(root, sum, at, &format!("_{s}_{slot}"), &mut lines);
                 let next = format!("a{s}_{slot}");
@@ -493,6 +1051,8 @@ impl Writer<'_> {
                 "ST({p} + j, SEL(keep, LD({p} + j), LD({p} + j) - B(dh) * {acc}));"
             )),
             Body::Scalar => lines.push(format!("{p}[j] = {p}[j] - dh * {acc};")),
+            // The momenta as loaded before the kick, held since the drift.
+            Body::Swept => lines.push(format!("ST({p} + j, h{p}_cur - B(dh) * {acc});")),
         }
         let _ = writeln!(out, "      {{");
         for l in lines {

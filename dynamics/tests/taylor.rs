@@ -247,8 +247,8 @@ fn the_compiled_pass_gives_the_interpreted_bits() {
     };
     let f = lorenz_function();
     let interpreted = f.taylor_tape(3, 20).unwrap();
-    let mut compiled = interpreted.clone();
-    if let Err(e) = compiled.compile_native(&cc) {
+    let compiled = interpreted.clone();
+    if let Err(e) = compiled.compile_native(&cc, &std::sync::atomic::AtomicBool::new(false)) {
         eprintln!("the C compiler failed ({e}): the compiled pass is not compared");
         return;
     }

@@ -22,8 +22,8 @@
 //! build time, naming it. On constants they are fine.
 
 use std::collections::HashMap;
-use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, OnceLock};
 
 use crate::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
 use crate::jit::c::taylor::CTaylor;
@@ -117,10 +117,39 @@ pub struct TaylorTape {
     /// Slot of `F_i`, then of `(J v_j)_i` vector by vector.
     pub(crate) f_out: Vec<u32>,
     pub(crate) jv_out: Vec<u32>,
-    /// The pass over the orders compiled to C ([`Self::compile_native`]): the same bits.
-    native: Option<Arc<CTaylor>>,
+    /// The pass over the orders compiled to C ([`Self::compile_native`]): the same bits, so it
+    /// may take over between any two calls.
+    native: OnceLock<Arc<CTaylor>>,
     /// Unique to the tape's build (its clones share it): what a coefficient buffer is kept for.
     id: u64,
+}
+
+/// A background build of a tape's compiled pass ([`TaylorTape::compile_native_in_background`]):
+/// dropped, it cancels the build (the compiler's process group is stopped, so no compiler
+/// outlives the system that wanted it) and waits for its thread a moment.
+#[derive(Debug)]
+pub struct NativeBuild {
+    cancel: Arc<AtomicBool>,
+    handle: Option<std::thread::JoinHandle<()>>,
+}
+
+/// Longest a dropped build is waited for (a cancelled compiler stops within milliseconds).
+const CANCEL_GRACE: std::time::Duration = std::time::Duration::from_millis(500);
+
+impl Drop for NativeBuild {
+    fn drop(&mut self) {
+        self.cancel.store(true, Ordering::Relaxed);
+        let Some(handle) = self.handle.take() else {
+            return;
+        };
+        let start = std::time::Instant::now();
+        while !handle.is_finished() && start.elapsed() < CANCEL_GRACE {
+            std::thread::sleep(std::time::Duration::from_millis(1));
+        }
+        if handle.is_finished() {
+            let _ = handle.join();
+        }
+    }
 }
 
 /// Why a graph has no Taylor tape: the node whose operation is not analytic.
@@ -451,7 +480,7 @@ impl TaylorTape {
             ops: b.ops,
             f_out,
             jv_out,
-            native: None,
+            native: OnceLock::new(),
             id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
         })
     }
@@ -460,16 +489,31 @@ impl TaylorTape {
     /// kernel cache), so that [`Self::coefficients`] runs it instead of interpreting the tape:
     /// the same operations in the same order, the same bits. On an error the tape stays
     /// interpreted (the caller may say why).
-    pub fn compile_native(&mut self, cc: &CCompiler) -> Result<(), JitError> {
-        static NEVER: AtomicBool = AtomicBool::new(false);
-        let pass = crate::jit::c::taylor::compile(self, cc, &NEVER)?;
-        self.native = Some(Arc::new(pass));
+    pub fn compile_native(&self, cc: &CCompiler, cancel: &AtomicBool) -> Result<(), JitError> {
+        let pass = crate::jit::c::taylor::compile(self, cc, cancel)?;
+        let _ = self.native.set(Arc::new(pass));
         Ok(())
+    }
+
+    /// [`Self::compile_native`] on a thread of its own: the tape runs interpreted until the
+    /// build is done and compiled from the call after (the same bits, so the switch is
+    /// invisible). The build stops (its compiler's process group killed) when the returned
+    /// guard is dropped.
+    pub fn compile_native_in_background(self: &Arc<Self>, cc: CCompiler) -> NativeBuild {
+        let cancel = Arc::new(AtomicBool::new(false));
+        let (tape, stop) = (Arc::clone(self), Arc::clone(&cancel));
+        let handle = std::thread::Builder::new()
+            .name("taylor-c-build".into())
+            .spawn(move || {
+                let _ = tape.compile_native(&cc, &stop);
+            })
+            .ok();
+        NativeBuild { cancel, handle }
     }
 
     /// Whether the pass over the orders runs compiled ([`Self::compile_native`]).
     pub fn is_native(&self) -> bool {
-        self.native.is_some()
+        self.native.get().is_some()
     }
 
     pub fn order(&self) -> usize {
@@ -527,7 +571,7 @@ impl TaylorTape {
             };
             coef[s as usize * stride] = v;
         }
-        if let Some(native) = &self.native {
+        if let Some(native) = self.native.get() {
             assert!(coef.len() == self.buffer_len(), "a buffer of another tape");
             native.run(coef);
             return;

@@ -46,7 +46,7 @@ use crate::graph::{Graph, NodeId, Tabulated};
 use crate::jit::{self, Compiled, FunctionSpec, Layout, ScalarFnPtr};
 use crate::lower::{self, Boundary, Family, ParamValue, Scope};
 use crate::smooth::Smoothness;
-use crate::taylor::TaylorTape;
+use crate::taylor::{NativeBuild, TaylorTape};
 
 /// Everything that defines a vector function.
 #[derive(Debug, Clone)]
@@ -815,16 +815,21 @@ impl VectorFunction {
         )
     }
 
-    /// [`Self::taylor_tape`] with its pass over the orders compiled to C where a C compiler is
-    /// configured (`CHAOSCOPE_CC`, [`crate::jit::CCompiler::from_env`]; cached like the step
-    /// kernels), else interpreted: the same bits either way, so a compiler that is missing,
-    /// fails or passes its deadline costs speed, never a different orbit.
-    pub fn taylor_tape_compiled(&self, vectors: usize, order: usize) -> Result<TaylorTape, String> {
-        let mut tape = self.taylor_tape(vectors, order)?;
-        if let Some(cc) = crate::jit::CCompiler::from_env() {
-            let _ = tape.compile_native(&cc);
-        }
-        Ok(tape)
+    /// [`Self::taylor_tape`], its pass over the orders compiled to C in the background where a
+    /// C compiler is configured (`CHAOSCOPE_CC`, [`crate::jit::CCompiler::from_env`]; cached
+    /// like the step kernels) and run compiled from the call after the build: the same bits
+    /// either way, so the switch is invisible, and a compiler that is missing, fails or hangs
+    /// until its deadline costs speed, never a stalled run or a different orbit. Keep the
+    /// build guard as long as the tape steps: dropping it stops the build.
+    pub fn taylor_tape_compiled(
+        &self,
+        vectors: usize,
+        order: usize,
+    ) -> Result<(Arc<TaylorTape>, Option<NativeBuild>), String> {
+        let tape = Arc::new(self.taylor_tape(vectors, order)?);
+        let build =
+            crate::jit::CCompiler::from_env().map(|cc| tape.compile_native_in_background(cc));
+        Ok((tape, build))
     }
 
     /// What made `F(x)` non-finite: the first operation, in component order and evaluation

@@ -13,13 +13,16 @@
 use std::sync::{Arc, OnceLock};
 
 use chaoscope_expr::VectorFunction;
-use chaoscope_expr::taylor::TaylorTape;
+use chaoscope_expr::taylor::{NativeBuild, TaylorTape};
 use chaoscope_schemas::run::SystemClass;
 
 use super::{BLOW_UP_GROWTH, DynamicalSystem, Time};
 use crate::integrator::taylor::{Taylor, TaylorStepError};
 use crate::integrator::{TangentError, Workspace};
 use crate::vector_field::VectorField;
+
+/// A tape and the background build of its compiled pass.
+type BuiltTape = (Arc<TaylorTape>, Option<NativeBuild>);
 
 /// `dx/dt = f(x, t)` by Taylor's method on the time grid of `h`.
 pub struct TaylorFlow {
@@ -28,8 +31,10 @@ pub struct TaylorFlow {
     field: Arc<dyn VectorField>,
     taylor: Taylor,
     h: f64,
-    /// The tape of the state alone, and those with `k` vectors (built when first asked for).
-    tapes: Vec<OnceLock<Result<Arc<TaylorTape>, String>>>,
+    /// The tape of the state alone, and those with `k` vectors (built when first asked for),
+    /// each with the background build of its compiled pass (stopped when the system is
+    /// dropped).
+    tapes: Vec<OnceLock<Result<BuiltTape, String>>>,
 }
 
 impl TaylorFlow {
@@ -42,9 +47,10 @@ impl TaylorFlow {
         let taylor = Taylor::new(tol);
         let dim = vf.dim();
         let tapes: Vec<_> = (0..=dim).map(|_| OnceLock::new()).collect();
-        let own = vf.taylor_tape_compiled(0, taylor.order).map(Arc::new);
-        let own = tapes[0].get_or_init(|| own).clone();
-        own?;
+        let own = vf.taylor_tape_compiled(0, taylor.order);
+        if let Err(e) = tapes[0].get_or_init(|| own) {
+            return Err(e.clone());
+        }
         Ok(Self {
             name: name.to_string(),
             field,
@@ -73,9 +79,9 @@ impl TaylorFlow {
         cell.get_or_init(|| {
             self.function()
                 .taylor_tape_compiled(vectors, self.taylor.order)
-                .map(Arc::new)
         })
         .as_ref()
+        .map(|(tape, _)| tape)
         .map_err(Clone::clone)
     }
 
@@ -84,6 +90,7 @@ impl TaylorFlow {
         self.tapes[0]
             .get()
             .and_then(|t| t.as_ref().ok())
+            .map(|(tape, _)| tape)
             .expect("built in new")
     }
 

@@ -1696,6 +1696,83 @@ fn a_run_whose_compiler_hangs_finishes_with_the_bits_of_a_run_without_c_kernels(
     assert!(pids_in(&pids).iter().all(|&p| !alive(p)));
 }
 
+/// Taylor's method builds its compiled pass on a thread of its own: with a compiler that hangs
+/// (and no deadline short of the default 300 s) the run ends in its own time with the bits of a
+/// run without a C compiler (the interpreted pass gives them), and no compiler outlives it (the
+/// build is cancelled, its process group stopped, when the system is dropped).
+#[test]
+fn a_taylor_run_whose_compiler_hangs_ends_in_its_own_time_and_leaves_no_compiler() {
+    use prost::Message;
+    let dir = tempfile::tempdir().unwrap();
+    let config = dir.path().join("lorenz-taylor.toml");
+    std::fs::write(
+        &config,
+        r#"[run]
+name = "lorenz-taylor"
+[model]
+name = "ode"
+rhs = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"]
+params = { sigma = 10.0, rho = 28.0, beta = 2.6666666666666665 }
+[orbit]
+x = [1.0, 1.0, 1.0]
+[integrator]
+method = "taylor"
+h = 1.0
+t_final = 300.0
+[deviations]
+k = 3
+[[scheme]]
+name = "vm"
+method = "vm"
+d0 = 1e-8
+tau = 1.0
+orthonormalize = "qr"
+"#,
+    )
+    .unwrap();
+    let pids = dir.path().join("pids");
+    let cc = hanging_compiler(dir.path(), &pids);
+    let record = |name: &str, cc: &std::ffi::OsStr| {
+        let out = dir.path().join(format!("{name}.mcap"));
+        let mut c = chaoscope_captured(&[
+            "run",
+            config.to_str().unwrap(),
+            "--run",
+            &unique_run(name),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        c.env("CHAOSCOPE_KERNEL_CACHE", dir.path().join("kernels"))
+            .env("CHAOSCOPE_CC", cc)
+            .env_remove("CHAOSCOPE_CC_TIMEOUT")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
+        let mut p = Proc::spawn(c);
+        // The run takes a second; waiting on the compiler would take 300 s.
+        let status = p.wait(Duration::from_secs(60));
+        assert!(status.success(), "{name}: {status}");
+        let r = read_recording(&out);
+        let references: Vec<Vec<u8>> = r.references.iter().map(|x| x.encode_to_vec()).collect();
+        let separations: Vec<Vec<u8>> = r.separations.iter().map(|x| x.encode_to_vec()).collect();
+        (references, separations)
+    };
+    let without = record("taylor-without", "none".as_ref());
+    let hung = record("taylor-hung", cc.as_os_str());
+    assert!(!without.0.is_empty());
+    assert!(!pids_in(&pids).is_empty(), "the compiler was started");
+    assert!(
+        without == hung,
+        "a Taylor run whose compiler hung differs from one without C"
+    );
+    // Cancelled within the drop's grace (0.5 s) and the compiler driver's poll.
+    std::thread::sleep(Duration::from_secs(1));
+    assert!(
+        pids_in(&pids).iter().all(|&p| !alive(p)),
+        "a compiler outlived its run: {:?}",
+        pids_in(&pids)
+    );
+}
+
 /// Whether the main thread of `pid` is blocked in read(2) on its standard input (x86-64 and
 /// aarch64 number `read` 0 and 63; the first argument is the descriptor).
 fn reading_stdin(pid: i32) -> bool {

@@ -1632,12 +1632,54 @@ fn a_hanging_compiler_never_holds_a_command_past_its_signal() {
     }
 }
 
+/// The bits of `chaoscope run CONFIG` as run `name` (its reference states, separations and
+/// indicators, encoded), with its kernel cache in `dir`, the compiler's deadline and the C
+/// switch-over at their defaults unless `env` sets them, waited for at most `bound`.
+#[allow(clippy::type_complexity)]
+fn recorded_bits(
+    dir: &Path,
+    config: &Path,
+    name: &str,
+    env: &[(&str, &std::ffi::OsStr)],
+    bound: Duration,
+) -> (Vec<Vec<u8>>, Vec<Vec<u8>>, Vec<(String, Vec<u8>)>) {
+    use prost::Message;
+    let out = dir.join(format!("{name}.mcap"));
+    let mut c = chaoscope_captured(&[
+        "run",
+        config.to_str().unwrap(),
+        "--run",
+        &unique_run(name),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    c.env("CHAOSCOPE_KERNEL_CACHE", dir.join("kernels"))
+        .env_remove("CHAOSCOPE_C_KERNELS_AFTER_CALLS")
+        .env_remove("CHAOSCOPE_CC_TIMEOUT")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null());
+    for (k, v) in env {
+        c.env(k, v);
+    }
+    let mut p = Proc::spawn(c);
+    let status = p.wait(bound);
+    assert!(status.success(), "{name}: {status}");
+    let r = read_recording(&out);
+    let references = r.references.iter().map(|x| x.encode_to_vec()).collect();
+    let separations = r.separations.iter().map(|x| x.encode_to_vec()).collect();
+    let indicators = r
+        .indicators
+        .iter()
+        .map(|(t, x)| (t.clone(), x.encode_to_vec()))
+        .collect();
+    (references, separations, indicators)
+}
+
 /// A command whose compiler hangs finishes, within its deadline (`CHAOSCOPE_CC_TIMEOUT`) and
 /// its own time, with the file of a run without C kernels, bit for bit: a 200-site DKG run long
 /// enough to build them (the build runs beside it, the run steps the one-orbit way meanwhile).
 #[test]
 fn a_run_whose_compiler_hangs_finishes_with_the_bits_of_a_run_without_c_kernels() {
-    use prost::Message;
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("dkg-200.toml");
     // 3 * 10^5 steps of 400 state values: over the 10^8 that start a build.
@@ -1645,39 +1687,8 @@ fn a_run_whose_compiler_hangs_finishes_with_the_bits_of_a_run_without_c_kernels(
     let pids = dir.path().join("pids");
     let cc = hanging_compiler(dir.path(), &pids);
     let record = |name: &str, env: &[(&str, &std::ffi::OsStr)]| {
-        let out = dir.path().join(format!("{name}.mcap"));
-        let mut c = chaoscope_captured(&[
-            "run",
-            config.to_str().unwrap(),
-            "--run",
-            &unique_run(name),
-            "--out",
-            out.to_str().unwrap(),
-        ]);
-        c.env("CHAOSCOPE_KERNEL_CACHE", dir.path().join("kernels"))
-            .env_remove("CHAOSCOPE_C_KERNELS_AFTER_CALLS")
-            .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::null());
-        for (k, v) in env {
-            c.env(k, v);
-        }
-        let mut p = Proc::spawn(c);
         // A bound only a hang reaches (the run takes seconds).
-        let status = p.wait(Duration::from_secs(300));
-        assert!(status.success(), "{name}: {status}");
-        let r = read_recording(&out);
-        let encoded = |m: &[_]| -> Vec<Vec<u8>> {
-            m.iter()
-                .map(|x: &chaoscope_schemas::proto::ReferenceState| x.encode_to_vec())
-                .collect()
-        };
-        let separations: Vec<Vec<u8>> = r.separations.iter().map(|x| x.encode_to_vec()).collect();
-        let indicators: Vec<(String, Vec<u8>)> = r
-            .indicators
-            .iter()
-            .map(|(t, x)| (t.clone(), x.encode_to_vec()))
-            .collect();
-        (encoded(&r.references), separations, indicators)
+        recorded_bits(dir.path(), &config, name, env, Duration::from_secs(300))
     };
     let without = record("without", &[("CHAOSCOPE_CC", "none".as_ref())]);
     let hung = record(
@@ -1702,7 +1713,6 @@ fn a_run_whose_compiler_hangs_finishes_with_the_bits_of_a_run_without_c_kernels(
 /// build is cancelled, its process group stopped, when the system is dropped).
 #[test]
 fn a_taylor_run_whose_compiler_hangs_ends_in_its_own_time_and_leaves_no_compiler() {
-    use prost::Message;
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("lorenz-taylor.toml");
     std::fs::write(
@@ -1733,27 +1743,14 @@ orthonormalize = "qr"
     let pids = dir.path().join("pids");
     let cc = hanging_compiler(dir.path(), &pids);
     let record = |name: &str, cc: &std::ffi::OsStr| {
-        let out = dir.path().join(format!("{name}.mcap"));
-        let mut c = chaoscope_captured(&[
-            "run",
-            config.to_str().unwrap(),
-            "--run",
-            &unique_run(name),
-            "--out",
-            out.to_str().unwrap(),
-        ]);
-        c.env("CHAOSCOPE_KERNEL_CACHE", dir.path().join("kernels"))
-            .env("CHAOSCOPE_CC", cc)
-            .env_remove("CHAOSCOPE_CC_TIMEOUT")
-            .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::null());
-        let mut p = Proc::spawn(c);
         // The run takes a second; waiting on the compiler would take 300 s.
-        let status = p.wait(Duration::from_secs(60));
-        assert!(status.success(), "{name}: {status}");
-        let r = read_recording(&out);
-        let references: Vec<Vec<u8>> = r.references.iter().map(|x| x.encode_to_vec()).collect();
-        let separations: Vec<Vec<u8>> = r.separations.iter().map(|x| x.encode_to_vec()).collect();
+        let (references, separations, _) = recorded_bits(
+            dir.path(),
+            &config,
+            name,
+            &[("CHAOSCOPE_CC", cc)],
+            Duration::from_secs(60),
+        );
         (references, separations)
     };
     let without = record("taylor-without", "none".as_ref());

@@ -12,6 +12,9 @@ use chaoscope_expr::jit::CCompiler;
 use chaoscope_expr::{Boundary, VectorDefinition, VectorFunction};
 use chaoscope_schemas::config::RunConfig;
 
+/// Lorenz's right-hand side (its parameters are `config`'s).
+const LORENZ: [&str; 3] = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"];
+
 fn config(rhs: &[&str], x: &[f64], integrator: &str, t_final: f64, extra: &str) -> String {
     let rhs: Vec<String> = rhs.iter().map(|r| format!("{r:?}")).collect();
     format!(
@@ -146,9 +149,8 @@ fn every_operation_s_recurrence_against_quadrature() {
 #[test]
 fn lorenz_to_t_10_within_1e_11_of_the_multiple_precision_reference() {
     let reference = [-4.902687541134648, -3.743872921802919, 24.690858102790564];
-    let lorenz = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"];
     let spec = spec(&config(
-        &lorenz,
+        &LORENZ,
         &[1.0, 1.0, 1.0],
         "method = \"taylor\"\nh = 1.0",
         10.0,
@@ -175,7 +177,6 @@ fn lorenz_to_t_10_within_1e_11_of_the_multiple_precision_reference() {
 /// A tangent tape that did not follow J would break the sum; one on the wrong orbit, the values.
 #[test]
 fn lorenz_spectrum_by_the_variational_equations() {
-    let lorenz = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"];
     let schemes = r#"[deviations]
 k = 3
 vectors = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
@@ -187,7 +188,7 @@ tau = 1.0
 orthonormalize = "qr"
 "#;
     let spec = spec(&config(
-        &lorenz,
+        &LORENZ,
         &[1.0, 1.0, 1.0],
         "method = \"taylor\"\nh = 1.0",
         200.0,
@@ -269,9 +270,8 @@ fn the_compiled_pass_gives_the_interpreted_bits() {
 /// starts from (what makes a run resumable).
 #[test]
 fn vectors_do_not_move_the_state_and_steps_are_memoryless() {
-    let lorenz = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"];
     let spec = spec(&config(
-        &lorenz,
+        &LORENZ,
         &[1.0, 1.0, 1.0],
         "method = \"taylor\"\nh = 0.5",
         10.0,
@@ -389,9 +389,8 @@ fn a_blow_up_stops_the_run_with_the_reason() {
 #[test]
 fn sections_of_a_taylor_flow_on_a_coarse_grid_miss_no_crossing() {
     use chaoscope_dynamics::section::surface::{Direction, Surface, surface_crossings};
-    let lorenz = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"];
     let crossings = |integrator: &str, steps: u64| {
-        let toml = config(&lorenz, &[1.0, 1.0, 1.0], integrator, 20.0, "");
+        let toml = config(&LORENZ, &[1.0, 1.0, 1.0], integrator, 20.0, "");
         let cfg = RunConfig::from_toml(&toml).unwrap();
         let spec = RunSpec::from_config(&cfg).unwrap();
         let surface = Surface::new(&spec, &cfg.model, "x3 - 27").unwrap();
@@ -416,7 +415,6 @@ fn sections_of_a_taylor_flow_on_a_coarse_grid_miss_no_crossing() {
 /// resume` is promised (a Taylor step depends only on the state it starts from).
 #[test]
 fn a_resumed_run_continues_bit_for_bit() {
-    let lorenz = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"];
     let schemes = r#"[deviations]
 k = 2
 sets = 1
@@ -433,7 +431,7 @@ d0 = 1e-8
 tau = 0.5
 "#;
     let toml = config(
-        &lorenz,
+        &LORENZ,
         &[1.0, 1.0, 1.0],
         "method = \"taylor\"\nh = 0.25",
         20.0,
@@ -468,7 +466,6 @@ tau = 0.5
 /// 30 windows: 2.2e-6 of the summed log), so within 1e-5.
 #[test]
 fn the_set_stepped_with_the_reference_equals_one_stepped_after_it() {
-    let lorenz = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"];
     let schemes = r#"[deviations]
 k = 3
 vectors = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
@@ -492,7 +489,7 @@ tau = 1.0
 orthonormalize = "qr"
 "#;
     let toml = config(
-        &lorenz,
+        &LORENZ,
         &[1.0, 1.0, 1.0],
         "method = \"taylor\"\nh = 0.5",
         30.0,

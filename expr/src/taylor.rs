@@ -94,7 +94,7 @@ pub(crate) enum Op {
 enum Fixed {
     Value(u32, f64),
     Param(u32, u32),
-    Node(u32, NodeId),
+    Node(u32, Node),
 }
 
 /// The Taylor tape of a vector function with `vectors` tangent vectors, to a given order.
@@ -111,7 +111,6 @@ pub struct TaylorTape {
     fixed: Vec<Fixed>,
     /// Slots of the constant nodes by node (what [`Fixed::Node`] reads its operands from).
     node_slot: Vec<u32>,
-    graph_nodes: Vec<Node>,
     pub(crate) tables: Vec<Arc<dyn Tabulated>>,
     pub(crate) ops: Vec<Op>,
     /// Slot of `F_i`, then of `(J v_j)_i` vector by vector.
@@ -427,7 +426,7 @@ impl TaylorTape {
                             index,
                         } => Fixed::Param(s, index),
                         Node::Input { arg, .. } => unreachable!("argument {arg} of a vector field"),
-                        _ => Fixed::Node(s, id as NodeId),
+                        node => Fixed::Node(s, node),
                     });
                     shared[id] = s;
                 }
@@ -475,7 +474,6 @@ impl TaylorTape {
             time,
             fixed: b.fixed,
             node_slot: shared,
-            graph_nodes: graph.nodes().to_vec(),
             tables: graph.tables().to_vec(),
             ops: b.ops,
             f_out,
@@ -516,14 +514,6 @@ impl TaylorTape {
         self.native.get().is_some()
     }
 
-    pub fn order(&self) -> usize {
-        self.order
-    }
-
-    pub fn vectors(&self) -> usize {
-        self.vectors
-    }
-
     /// Unique to this tape's build: a coefficient buffer written by one tape holds values
     /// where another tape's constants must read zeros, so buffers are kept per tape.
     pub fn id(&self) -> u64 {
@@ -533,11 +523,6 @@ impl TaylorTape {
     /// `D`, the state's coordinates (its lane parameters follow them in a state).
     pub fn dim(&self) -> usize {
         self.dim
-    }
-
-    /// Operations on the tape (a measure of the cost of one order).
-    pub fn operations(&self) -> usize {
-        self.ops.len()
     }
 
     /// The length of the coefficient buffer [`Self::coefficients`] works in.
@@ -567,7 +552,7 @@ impl TaylorTape {
             let (s, v) = match *f {
                 Fixed::Value(s, v) => (s, v),
                 Fixed::Param(s, i) => (s, params[i as usize]),
-                Fixed::Node(s, id) => (s, self.fixed_value(coef, id)),
+                Fixed::Node(s, ref node) => (s, self.fixed_value(coef, node)),
             };
             coef[s as usize * stride] = v;
         }
@@ -622,10 +607,10 @@ impl TaylorTape {
     }
 
     /// The value of a node constant in time, from its operands' slots.
-    fn fixed_value(&self, coef: &[f64], id: NodeId) -> f64 {
+    fn fixed_value(&self, coef: &[f64], node: &Node) -> f64 {
         let stride = self.order + 1;
         crate::eval::node_value(
-            &self.graph_nodes[id as usize],
+            node,
             &self.tables,
             |o| coef[self.node_slot[o as usize] as usize * stride],
             |arg, _| unreachable!("argument {arg} is set, not evaluated"),

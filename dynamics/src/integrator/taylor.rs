@@ -19,7 +19,6 @@ use super::runge_kutta::substep_times;
 /// The order and step rule of one tolerance.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Taylor {
-    pub tol: f64,
     pub order: usize,
     /// `exp(-0.7 / (p - 1)) / e^2`, the step's factor on the radius estimate.
     safety: f64,
@@ -46,7 +45,7 @@ impl Taylor {
     pub fn new(tol: f64) -> Self {
         let order = ((-tol.ln()) / 2.0 + 1.0).ceil().max(2.0) as usize;
         let safety = (-0.7 / (order - 1) as f64).exp() / std::f64::consts::E.powi(2);
-        Self { tol, order, safety }
+        Self { order, safety }
     }
 
     /// The step the series in `coef` allow (of `tape`, computed to [`Self::order`]).

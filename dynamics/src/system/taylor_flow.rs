@@ -60,11 +60,6 @@ impl TaylorFlow {
         })
     }
 
-    /// The Taylor method's order (from the tolerance).
-    pub fn order(&self) -> usize {
-        self.taylor.order
-    }
-
     fn function(&self) -> &VectorFunction {
         self.field.compiled().expect("checked in new")
     }

@@ -434,6 +434,32 @@ impl Writer<'_> {
     /// The kernel as a drift pass over each state, then a stage's kicks (the orbit's and the
     /// first vector's force in one loop over the regular sites, the other vectors' each in
     /// another, the ends): for terms that read positions farther than the sweep's registers.
+    /// Opens the stage's block that reads the state from memory: the orbit's halves and the
+    /// arrays' pointers.
+    fn open_memory_block(&self, src: &mut String) {
+        let n = self.lattice.n;
+        let _ = writeln!(
+            src,
+            "  {{\n  const double *restrict q = x;\n  double *restrict p = x + {n};\n  (void)env;"
+        );
+        self.array_pointers(src, "  ");
+    }
+
+    /// Kicks the vectors after the first from memory, one after the other, then the sites near
+    /// the ends, and closes the block and the stage function (both kernels end their stage so).
+    fn later_vectors_and_ends(&self, src: &mut String) {
+        let n = self.lattice.n;
+        let two_n = 2 * n;
+        let _ = writeln!(
+            src,
+            "  for (size_t m = 1; m < k; m++) {{\n    const double *dq = v + m * {two_n};\n    double *dp = v + m * {two_n} + {n};"
+        );
+        self.regular(src, &[true]);
+        let _ = writeln!(src, "  }}\n  }}");
+        self.all_ends(src);
+        let _ = writeln!(src, "}}");
+    }
+
     fn stagewise(&self, src: &mut String) {
         let n = self.lattice.n;
         let two_n = 2 * n;
@@ -442,11 +468,7 @@ impl Writer<'_> {
             "static void fused_stage(double *restrict x, double *restrict v, size_t k, double dh, \
              const uintptr_t *env) {{"
         );
-        let _ = writeln!(
-            src,
-            "  {{\n  const double *restrict q = x;\n  double *restrict p = x + {n};\n  (void)env;"
-        );
-        self.array_pointers(src, "  ");
+        self.open_memory_block(src);
         let _ = writeln!(
             src,
             "  if (k > 0) {{\n    const double *dq = v;\n    double *dp = v + {n};"
@@ -454,14 +476,8 @@ impl Writer<'_> {
         self.regular(src, &[false, true]);
         let _ = writeln!(src, "  }} else {{");
         self.regular(src, &[false]);
-        let _ = writeln!(
-            src,
-            "  }}\n  for (size_t m = 1; m < k; m++) {{\n    const double *dq = v + m * {two_n};\n    double *dp = v + m * {two_n} + {n};"
-        );
-        self.regular(src, &[true]);
-        let _ = writeln!(src, "  }}\n  }}");
-        self.all_ends(src);
-        let _ = writeln!(src, "}}");
+        let _ = writeln!(src, "  }}");
+        self.later_vectors_and_ends(src);
         let _ = writeln!(
             src,
             "void chaoscope_reference_tangent_steps(double *restrict x, double *restrict v, size_t k, \
@@ -543,19 +559,8 @@ impl Writer<'_> {
             dispatch("fused_sweep_vector"),
             dispatch("fused_sweep_orbit")
         );
-        let _ = writeln!(
-            src,
-            "  {{\n  const double *restrict q = x;\n  double *restrict p = x + {n};\n  (void)env;"
-        );
-        self.array_pointers(src, "  ");
-        let _ = writeln!(
-            src,
-            "  for (size_t m = 1; m < k; m++) {{\n    const double *dq = v + m * {two_n};\n    double *dp = v + m * {two_n} + {n};"
-        );
-        self.regular(src, &[true]);
-        let _ = writeln!(src, "  }}\n  }}");
-        self.all_ends(src);
-        let _ = writeln!(src, "}}");
+        self.open_memory_block(src);
+        self.later_vectors_and_ends(src);
         // The vectors after the first are drifted by passes of their own before each stage.
         let _ = writeln!(
             src,

@@ -48,14 +48,10 @@ pub fn run_header(run_name: &str, config: &RunConfig, spec: &RunSpec) -> RunHead
         producer_version: env!("CARGO_PKG_VERSION").to_string(),
         kind: spec.system().kind().name().to_string(),
         time: spec.system().time().name().to_string(),
-        lattice_side: match &config.model {
-            chaoscope_schemas::config::ModelConfig::Ddnls(m)
-                if m.lattice.as_deref() == Some("square") =>
-            {
-                m.n.map_or(0, |n| n as u32)
-            }
-            _ => 0,
-        },
+        lattice_side: config
+            .model
+            .square_side()
+            .map_or(0, |n| u32::try_from(n).unwrap_or(0)),
     }
 }
 

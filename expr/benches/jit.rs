@@ -159,6 +159,7 @@ fn product(g: &mut Graph, n: usize) -> (Vec<NodeId>, Vec<NodeId>) {
         tables: &[],
         n: 3,
         boundary: chaoscope_expr::Boundary::Fixed,
+        shape: chaoscope_expr::lower::Shape::Chain,
         time: None,
     };
     let root = chaoscope_expr::lower(&source, &scope, g)

@@ -43,11 +43,13 @@ pub enum ExprKind {
     /// A bare identifier: a numbered variable (`q3`), a scalar parameter, `N`, `pi` or a sum
     /// index; which one is decided when lowering.
     Name(String),
-    /// `name[index]`: a variable of a family or an entry of an array parameter.
+    /// `name[index]`, or `name[index, column]` on a square lattice (row `index`, column
+    /// `column`): a variable of a family or an entry of an array parameter.
     Index {
         name: String,
         name_span: Span,
         index: Box<Expr>,
+        column: Option<Box<Expr>>,
     },
     /// Unary minus (`op_span` is the `-`). A unary plus leaves no node.
     Neg { op_span: Span, arg: Box<Expr> },
@@ -114,9 +116,10 @@ impl Expr {
         let none: [Option<&Expr>; 3] = [None; 3];
         let (fixed, args, chain): Parts<'_> = match &self.kind {
             ExprKind::Number(_) | ExprKind::Name(_) => (none, &[], &[]),
-            ExprKind::Index { index: x, .. } | ExprKind::Neg { arg: x, .. } => {
-                ([Some(x), None, None], &[], &[])
+            ExprKind::Index { index, column, .. } => {
+                ([Some(index), column.as_deref(), None], &[], &[])
             }
+            ExprKind::Neg { arg: x, .. } => ([Some(x), None, None], &[], &[]),
             ExprKind::Chain { first, rest } => ([Some(first), None, None], &[], rest),
             ExprKind::Pow { base, exp, .. } => ([Some(base), Some(exp), None], &[], &[]),
             ExprKind::Call { args, .. } => (none, args, &[]),

@@ -662,6 +662,7 @@ mod tests {
             tables: &[],
             n,
             boundary,
+            shape: crate::lower::Shape::Chain,
             time: None,
         };
         let mut g = Graph::new();
@@ -677,6 +678,7 @@ mod tests {
             tables: &[],
             n,
             boundary,
+            shape: crate::lower::Shape::Chain,
             time: None,
         };
         let mut unrolled = Graph::new();
@@ -928,6 +930,7 @@ mod tests {
                 tables: &[],
                 n: 4,
                 boundary,
+                shape: crate::lower::Shape::Chain,
                 time: None,
             };
             for src in [

@@ -54,7 +54,7 @@ pub use error::{ExprError, Span};
 pub use eval::{Evaluator, first_non_finite};
 pub use graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
 pub use jit::{Compiled, FunctionSpec, JitError, Layout};
-pub use lower::{Boundary, Family, Lowered, ParamValue, Scope, lower, lower_with_loops};
+pub use lower::{Boundary, Family, Lowered, ParamValue, Scope, Shape, lower, lower_with_loops};
 pub use parser::parse;
 pub use scalar::{ScalarDefinition, ScalarError, ScalarFunction};
 pub use smooth::{Limit, Smoothness};

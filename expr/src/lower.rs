@@ -89,11 +89,44 @@ impl Boundary {
     }
 }
 
+/// How the sites are laid out, which says what an indexed reference means.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Default)]
+pub enum Shape {
+    /// A chain of `N` sites, `q[i]`, with [`Scope::boundary`] at both ends.
+    #[default]
+    Chain,
+    /// An `N x N` square of `N^2` sites numbered row by row: `q[i, j]` is row `i`, column `j`
+    /// (1-based), entry `(i - 1) N + j` of the family. [`Scope::boundary`] applies along the
+    /// rows' index `i`, `columns` along `j` (a cylinder is `fixed` along one, `periodic` along
+    /// the other). A single index `q[k]` names entry `k` directly and must lie in `1..N^2`.
+    Square { columns: Boundary },
+}
+
+impl Shape {
+    /// The number of sites of a lattice whose `N` is `n`.
+    pub fn sites(self, n: usize) -> Option<usize> {
+        match self {
+            Shape::Chain => Some(n),
+            Shape::Square { .. } => n.checked_mul(n),
+        }
+    }
+
+    /// The value of `N` on a lattice of `sites` sites: `sites` on a chain, the side of a
+    /// square (`sites` is a square number there: the side is taken to the nearest whole).
+    pub fn n_of(self, sites: usize) -> usize {
+        match self {
+            Shape::Chain => sites,
+            Shape::Square { .. } => (sites as f64).sqrt().round() as usize,
+        }
+    }
+}
+
 /// A parameter's value from the config.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ParamValue {
     Scalar(f64),
-    /// One entry per site (`k[1]` is the first); must have exactly `N` entries.
+    /// One entry per site (`k[1]` is the first); must have exactly `N` entries (`N^2` on a
+    /// square lattice, row by row: `k[i, j]`).
     Array(Vec<f64>),
     /// A scalar whose value every evaluation brings: entry `index` of the function's argument
     /// `arg`, not folded as a constant (a map's parameter axis, where each lane of a lane call
@@ -128,9 +161,11 @@ pub struct Scope<'a> {
     pub params: &'a BTreeMap<String, ParamValue>,
     /// Table name and its index, already registered in the graph ([`Graph::add_table`]).
     pub tables: &'a [(String, u32)],
-    /// The value of `N` (number of sites or dimension).
+    /// The value of `N` (number of sites or dimension; a square lattice's side).
     pub n: usize,
     pub boundary: Boundary,
+    /// A chain, or a square of `N x N` sites read as `q[i, j]`.
+    pub shape: Shape,
     /// The argument array whose entry 0 is the time, where the name `t` means the time (a
     /// flow's `rhs`, a Hamiltonian, a potential: non-autonomous systems); `None` where `t` is
     /// an ordinary name (a map's `next`, a section's surface). Where it is `Some`, `t` is a
@@ -152,6 +187,19 @@ pub struct Lowered {
     /// The lattice sums lowered as loops ([`lower_with_loops`]; empty for [`lower`]): sum `s`
     /// is `Input { arg: ARG_SUM, index: s }` in `root`.
     pub sums: Vec<SiteSum>,
+    /// `root` as `sum_k c_k * terms[k] + sum_k c_k * rest[k]` (node, `c = +-1`), where the
+    /// expression adds (`+`, `-`) lattice sums at its top level: the terms of those sums that
+    /// were unrolled (every term of a nested sum `sum(i, sum(j, term))`), and the other parts.
+    /// What says which part of a potential belongs to which site when its sums are not loops.
+    /// Empty where the expression is not such a sum of parts.
+    pub parts: Parts,
+}
+
+/// See [`Lowered::parts`].
+#[derive(Debug, Clone, Default)]
+pub struct Parts {
+    pub terms: Vec<(NodeId, f64)>,
+    pub rest: Vec<(NodeId, f64)>,
 }
 
 /// Every built-in function, for "unknown function" messages.
@@ -223,6 +271,8 @@ fn lower_limited(
             })
             .collect(),
         lane_only: RefCell::new(HashMap::new()),
+        parts: Parts::default(),
+        recording: None,
     };
     let (root, info) = l.root(&ast).map_err(|e| *e)?;
     let tables = scope.tables;
@@ -240,6 +290,7 @@ fn lower_limited(
             .map(|(id, span)| (id as NodeId, span))
             .collect(),
         sums: l.site_sums,
+        parts: l.parts,
     })
 }
 
@@ -285,6 +336,10 @@ struct Lowerer<'a> {
     /// nothing else (no variable): see [`Lowerer::settle`].
     lane_args: Vec<u8>,
     lane_only: RefCell<HashMap<NodeId, bool>>,
+    /// The root's parts (see [`Lowered::parts`]), and the coefficient of the top-level sum
+    /// whose terms are being recorded.
+    parts: Parts,
+    recording: Option<f64>,
 }
 
 impl<'a> Lowerer<'a> {
@@ -295,7 +350,43 @@ impl<'a> Lowerer<'a> {
     fn root(&mut self, ast: &'a Expr) -> R<(NodeId, Info)> {
         let mut checked = BTreeSet::new();
         self.check_params(ast, &mut checked)?;
-        self.value(ast)
+        // A sum of parts: each part lowered as `value` would, its terms recorded on the way
+        // (the same nodes in the same order, so the same graph).
+        let ExprKind::Chain { first, rest } = &ast.kind else {
+            return self.part(ast, 1.0);
+        };
+        if rest
+            .iter()
+            .any(|(op, _, _)| !matches!(op, BinOp::Add | BinOp::Sub))
+        {
+            return self.value(ast);
+        }
+        self.tick(ast.span)?;
+        let (mut acc, mut info) = self.part(first, 1.0)?;
+        for (op, op_span, x) in rest {
+            let sign = if *op == BinOp::Add { 1.0 } else { -1.0 };
+            let (b, bi) = self.part(x, sign)?;
+            let (bin, combined) = match op {
+                BinOp::Add => (Binary::Add, info.add(bi)),
+                _ => (Binary::Sub, info.sub(bi)),
+            };
+            acc = self.emit(Node::Binary(bin, acc, b), *op_span)?;
+            info = self.settle(acc, combined);
+        }
+        Ok((acc, info))
+    }
+
+    /// A part of the root with its coefficient (see [`Lowered::parts`]).
+    fn part(&mut self, e: &'a Expr, sign: f64) -> R<(NodeId, Info)> {
+        if let ExprKind::Sum { .. } = e.kind {
+            self.recording = Some(sign);
+            let lowered = self.value(e);
+            self.recording = None;
+            return lowered;
+        }
+        let (id, info) = self.value(e)?;
+        self.parts.rest.push((id, sign));
+        Ok((id, info))
     }
 
     /// Add a node, recording where it came from and refusing runaway expansions.
@@ -524,14 +615,25 @@ impl<'a> Lowerer<'a> {
                 span,
                 format!("parameter '{name}' is not a finite number ({v})"),
             )),
-            ParamValue::Array(v) if v.len() != self.scope.n => Err(self.err(
-                span,
-                format!(
-                    "parameter '{name}' has {} entries but N = {}",
-                    v.len(),
-                    self.scope.n
-                ),
-            )),
+            ParamValue::Array(v) if Some(v.len()) != self.scope.shape.sites(self.scope.n) => {
+                Err(self.err(
+                    span,
+                    match self.scope.shape {
+                        Shape::Chain => format!(
+                            "parameter '{name}' has {} entries but N = {}",
+                            v.len(),
+                            self.scope.n
+                        ),
+                        Shape::Square { .. } => format!(
+                            "parameter '{name}' has {} entries but the {n} x {n} lattice has \
+                             {} sites (one entry per site, row by row)",
+                            v.len(),
+                            self.scope.n.saturating_mul(self.scope.n),
+                            n = self.scope.n
+                        ),
+                    },
+                ))
+            }
             ParamValue::Array(v) => match v.iter().position(|x| !x.is_finite()) {
                 Some(k) => Err(self.err(
                     span,
@@ -561,7 +663,14 @@ impl<'a> Lowerer<'a> {
                 name,
                 name_span,
                 index,
+                column: None,
             } => self.indexed(e, name, *name_span, index),
+            ExprKind::Index {
+                name,
+                name_span,
+                index,
+                column: Some(column),
+            } => self.indexed_square(e, name, *name_span, index, column),
             ExprKind::Neg { op_span, arg } => {
                 let (a, ai) = self.value(arg)?;
                 let id = self.emit(Node::Unary(Unary::Neg, a), *op_span)?;
@@ -742,6 +851,72 @@ impl<'a> Lowerer<'a> {
         }
     }
 
+    /// `name[i, j]`: the site in row `i` and column `j` of a square lattice, each index taken
+    /// along its own axis with that axis's boundary (a wall, a wrap, or no site at all).
+    fn indexed_square(
+        &mut self,
+        e: &'a Expr,
+        name: &str,
+        name_span: Span,
+        row: &'a Expr,
+        column: &'a Expr,
+    ) -> R<(NodeId, Info)> {
+        if self.template.is_some() {
+            // Site loops run along a chain; the sums of a square lattice are unrolled.
+            return Err(self.not_a_loop(e.span));
+        }
+        let Shape::Square { columns } = self.scope.shape else {
+            return Err(self.err(
+                e.span,
+                format!(
+                    "{name}[i, j] names a site of a square lattice, but these sites form a chain \
+                     (write {name}[i], or set lattice = \"square\")"
+                ),
+            ));
+        };
+        let side = self.scope.n;
+        let (family, values) = match self.meaning(name) {
+            Meaning::Family(f) => (Some(f), None),
+            Meaning::Param(ParamValue::Array(v)) => (None, Some(v)),
+            // Not something with sites: the single index's message says what it is.
+            _ => return self.indexed(e, name, name_span, row),
+        };
+        let len = family.map_or_else(|| values.map_or(0, Vec::len), |f| f.len);
+        if Some(len) != side.checked_mul(side) {
+            return Err(self.err(
+                name_span,
+                format!(
+                    "'{name}' has {len} entries, not one per site of the {side} x {side} lattice"
+                ),
+            ));
+        }
+        let is_param = values.is_some();
+        let along = |index: &'a Expr, boundary: Boundary| -> R<Option<usize>> {
+            let k = i128::from(self.int(index)?);
+            if (1..=side as i128).contains(&k) {
+                return Ok(Some((k - 1) as usize));
+            }
+            self.beyond_end(k, side as i128, name, is_param, index.span, boundary)
+        };
+        let r = along(row, self.scope.boundary)?;
+        let c = along(column, columns)?;
+        match (r.zip(c), family, values) {
+            (Some((r, c)), Some(f), _) => self.input(f, r * side + c, e.span),
+            (Some((r, c)), None, Some(v)) => self.constant(v[r * side + c], e.span),
+            // A wall along either axis (parameters have none: `beyond_end` refused them).
+            _ => self.constant(0.0, e.span),
+        }
+    }
+
+    /// Whether a term reaching past an end along some axis is left out (free ends).
+    fn any_free(&self) -> bool {
+        self.scope.boundary == Boundary::Free
+            || self.scope.shape
+                == (Shape::Square {
+                    columns: Boundary::Free,
+                })
+    }
+
     /// The 0-based entry for site `k` of something with `len` sites, `None` for a wall.
     fn site(&self, k: i64, len: usize, name: &str, is_param: bool, span: Span) -> R<Option<usize>> {
         let n = len as i128;
@@ -749,7 +924,32 @@ impl<'a> Lowerer<'a> {
         if (1..=n).contains(&k) {
             return Ok(Some((k - 1) as usize));
         }
-        let msg = match self.scope.boundary {
+        if let Shape::Square { .. } = self.scope.shape {
+            return Err(self.err(
+                span,
+                format!(
+                    "{name}[{k}] does not exist: on the {s} x {s} lattice a single index names \
+                     one of the {n} sites row by row, and boundary conditions apply to \
+                     {name}[i, j] only",
+                    s = self.scope.n
+                ),
+            ));
+        }
+        self.beyond_end(k, n, name, is_param, span, self.scope.boundary)
+    }
+
+    /// What index `k` outside `1..=n` means along an axis with `boundary`: the wrapped entry
+    /// (0-based), `None` for a wall, or the error of a site that is not there.
+    fn beyond_end(
+        &self,
+        k: i128,
+        n: i128,
+        name: &str,
+        is_param: bool,
+        span: Span,
+        boundary: Boundary,
+    ) -> R<Option<usize>> {
+        let msg = match boundary {
             Boundary::Periodic if n > 0 => return Ok(Some((k - 1).rem_euclid(n) as usize)),
             Boundary::Periodic => format!("{name}[{k}]: '{name}' has no entries"),
             Boundary::Fixed if !is_param => return Ok(None),
@@ -1044,6 +1244,8 @@ impl<'a> Lowerer<'a> {
         to: &'a Expr,
         body: &'a Expr,
     ) -> R<(NodeId, Info)> {
+        // Only this sum's own terms are recorded, not those of sums inside them.
+        let record = self.recording.take();
         let clash = match self.meaning(index) {
             Meaning::Unknown => None,
             Meaning::SumIndex(_) => Some("the index of an enclosing sum".to_string()),
@@ -1077,7 +1279,7 @@ impl<'a> Lowerer<'a> {
                 ),
             ));
         }
-        let free = self.scope.boundary == Boundary::Free;
+        let free = self.any_free();
         if self.template.is_some() && free {
             // Its terms would be left out site by site of the enclosing loop.
             return Err(self.not_a_loop(e.span));
@@ -1093,7 +1295,15 @@ impl<'a> Lowerer<'a> {
             // An error ends the whole lowering, so the index need not be popped on that path.
             let exists = !free || self.term_exists(body)?;
             let term = if exists {
-                Some(self.value(body)?)
+                // A nested sum records its own terms; any other body is one term.
+                let nested = matches!(body.kind, ExprKind::Sum { .. });
+                self.recording = record.filter(|_| nested);
+                let term = self.value(body)?;
+                self.recording = None;
+                if let (Some(c), false) = (record, nested) {
+                    self.parts.terms.push((term.0, c));
+                }
+                Some(term)
             } else {
                 None
             };
@@ -1126,7 +1336,12 @@ impl<'a> Lowerer<'a> {
         self.tick(e.span)?;
         match &e.kind {
             ExprKind::Sum { .. } => Ok(true),
-            ExprKind::Index { name, index, .. } => {
+            ExprKind::Index {
+                name,
+                index,
+                column: None,
+                ..
+            } => {
                 let len = match self.meaning(name) {
                     Meaning::Family(f) => f.len,
                     Meaning::Param(ParamValue::Array(v)) => v.len(),
@@ -1136,6 +1351,23 @@ impl<'a> Lowerer<'a> {
                     Ok(k) => Ok(k >= 1 && (k as u64) <= len as u64),
                     Err(_) => Ok(true),
                 }
+            }
+            ExprKind::Index {
+                index,
+                column: Some(column),
+                ..
+            } => {
+                // Along a free axis only; the other axis walls or wraps.
+                let Shape::Square { columns } = self.scope.shape else {
+                    return Ok(true);
+                };
+                let inside = |e: &Expr, boundary: Boundary| {
+                    boundary != Boundary::Free
+                        || self
+                            .int(e)
+                            .map_or(true, |k| k >= 1 && (k as u64) <= self.scope.n as u64)
+                };
+                Ok(inside(index, self.scope.boundary) && inside(column, columns))
             }
             _ => {
                 for c in e.children() {
@@ -1220,9 +1452,18 @@ mod tests {
         graph: Graph,
         n: usize,
         boundary: Boundary,
+        shape: Shape,
     }
 
     impl Setup {
+        /// An `n x n` square lattice, `boundary` along `i` and `columns` along `j`.
+        fn square(n: usize, boundary: Boundary, columns: Boundary) -> Self {
+            let mut s = Self::new(n * n, boundary);
+            s.n = n;
+            s.shape = Shape::Square { columns };
+            s
+        }
+
         fn new(n: usize, boundary: Boundary) -> Self {
             let mut graph = Graph::new();
             let u = graph.add_table(Arc::new(Cubic));
@@ -1238,6 +1479,7 @@ mod tests {
                 graph,
                 n,
                 boundary,
+                shape: Shape::Chain,
             }
         }
 
@@ -1259,6 +1501,7 @@ mod tests {
                 tables: &self.tables,
                 n: self.n,
                 boundary: self.boundary,
+                shape: self.shape,
                 time: None,
             };
             (scope, &mut self.graph)
@@ -1290,6 +1533,101 @@ mod tests {
 
     fn same(a: f64, b: f64, what: &str) {
         assert_eq!(a.to_bits(), b.to_bits(), "{what}: {a} vs {b}");
+    }
+
+    /// `q[i, j]` is entry `(i - 1) N + j`; past an edge each axis follows its own boundary:
+    /// rows wrap (periodic along `i`), columns end at walls (fixed along `j`), and with free
+    /// columns a term reaching past an edge is left out. Array parameters are read the same
+    /// way, and `N` is the side.
+    #[test]
+    fn a_square_s_sites_are_read_row_by_row_with_a_boundary_per_axis() {
+        let n = 3;
+        let q = coords(n * n);
+        let at = |i: usize, j: usize| q[(i - 1) * n + j - 1];
+        let mut s = Setup::square(n, Boundary::Periodic, Boundary::Fixed);
+        let l = s.ok("sum(i = 1..N, sum(j = 1..N, (10*i + j)*q[i, j]))");
+        let want = (1..=n)
+            .flat_map(|i| (1..=n).map(move |j| (i, j)))
+            .map(|(i, j)| (10 * i + j) as f64 * at(i, j));
+        assert!((eval(&s.graph, l.root, &q) - want.sum::<f64>()).abs() < 1e-14);
+        // The row past the last wraps to the first; the column past the last is a wall.
+        let l = s.ok("q[N+1, 2] + 100*q[2, N+1] + 1000*q[0, 1]");
+        same(
+            eval(&s.graph, l.root, &q),
+            at(1, 2) + 100.0 * 0.0 + 1000.0 * at(n, 1),
+            "wrap and wall",
+        );
+        // Free columns: the bond past the last column is left out, the others stay.
+        let mut s = Setup::square(n, Boundary::Fixed, Boundary::Free);
+        let l = s.ok("sum(i = 1..N, sum(j = 1..N, (q[i, j+1] - q[i, j])^2))");
+        let want: f64 = (1..=n)
+            .flat_map(|i| (1..n).map(move |j| (i, j)))
+            .map(|(i, j)| (at(i, j + 1) - at(i, j)).powi(2))
+            .sum();
+        assert!((eval(&s.graph, l.root, &q) - want).abs() < 1e-14);
+        // An array parameter has one entry per site, read by row and column.
+        let eps: Vec<f64> = (0..n * n).map(|k| k as f64 + 0.5).collect();
+        let mut s = Setup::square(n, Boundary::Fixed, Boundary::Fixed).array("eps", eps);
+        let l = s.ok("eps[2, 3]*q[2, 3] + q[9]");
+        same(
+            eval(&s.graph, l.root, &q),
+            5.5 * at(2, 3) + at(3, 3),
+            "eps and q9",
+        );
+    }
+
+    #[test]
+    fn square_indices_are_refused_where_they_mean_nothing() {
+        let mut chain = Setup::new(4, Boundary::Fixed);
+        let e = chain.err("q[1, 2]");
+        assert!(e.message.contains("square lattice"), "{}", e.message);
+        let mut s = Setup::square(3, Boundary::Fixed, Boundary::Fixed).array("eps", vec![1.0; 9]);
+        for (src, says) in [
+            ("q[10]", "single index"),
+            ("q[0]", "single index"),
+            ("eps[0, 1]", "no parameters beyond the walls"),
+            ("q[1, 2, 3]", "expected ']'"),
+            ("beta[1, 2]", "unknown name"),
+        ] {
+            let e = s.err(src);
+            assert!(e.message.contains(says), "{src}: {}", e.message);
+        }
+        let mut s = Setup::square(3, Boundary::Free, Boundary::Fixed);
+        let e = s.err("q[4, 1]");
+        assert!(e.message.contains("free ends"), "{}", e.message);
+        let mut s = Setup::square(2, Boundary::Fixed, Boundary::Fixed).array("eps", vec![1.0; 3]);
+        let e = s.err("eps[1, 1]");
+        assert!(
+            e.message.contains("2 x 2 lattice has 4 sites"),
+            "{}",
+            e.message
+        );
+    }
+
+    /// A root that adds lattice sums is recorded as their terms (those of nested sums one by
+    /// one) and its other parts, with their signs; the graph is the one `value` builds.
+    #[test]
+    fn a_sum_of_sums_is_recorded_term_by_term() {
+        let src = "sum(i = 1..N, sum(j = 1..N, q[i, j]^2)) - 2*q1 + sum(i = 1..N, q[i, 1]*q[i, 2])";
+        let mut s = Setup::square(3, Boundary::Fixed, Boundary::Fixed);
+        let l = s.ok(src);
+        assert_eq!(l.parts.terms.len(), 9 + 3);
+        assert_eq!(l.parts.rest.len(), 1);
+        assert_eq!(l.parts.rest[0].1, -1.0);
+        let q = coords(9);
+        let mut total = 0.0;
+        for &(id, c) in l.parts.terms.iter().chain(&l.parts.rest) {
+            total += c * eval(&s.graph, id, &q);
+        }
+        assert!((total - eval(&s.graph, l.root, &q)).abs() < 1e-14);
+        // The same nodes as lowering the expression as one value (inside a product, so not
+        // a root chain; `x * 1` folds to `x`, the `1` a node after the others): in two fresh
+        // graphs, the same root id means the same nodes up to it, built in the same order.
+        let mut fresh = Setup::square(3, Boundary::Fixed, Boundary::Fixed);
+        let wrapped = fresh.ok(&format!("({src})*1"));
+        assert!(wrapped.parts.terms.is_empty());
+        assert_eq!(wrapped.root, l.root);
+        assert_eq!(fresh.graph.node(l.root), s.graph.node(l.root));
     }
 
     #[test]
@@ -2094,6 +2432,7 @@ mod deep {
                 tables: &[],
                 n: 3,
                 boundary: Boundary::Free,
+                shape: crate::lower::Shape::Chain,
                 time: None,
             };
             let shapes = [

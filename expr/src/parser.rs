@@ -319,12 +319,23 @@ impl<'s> Parser<'s> {
                     Tok::LBracket => {
                         let open = self.next();
                         let what = format!(" of '{name}['");
-                        let (index, end) = self.bracketed(open, Tok::RBracket, &what)?;
+                        self.enter(open.span)?;
+                        let index = self.expr()?;
+                        // `q[i, j]`: a site of a square lattice by row and column.
+                        let column = if self.peek().tok == Tok::Comma {
+                            self.next();
+                            Some(Box::new(self.expr()?))
+                        } else {
+                            None
+                        };
+                        let end = self.close(Tok::RBracket, open, &what)?;
+                        self.leave();
                         Ok(Expr {
                             kind: ExprKind::Index {
                                 name,
                                 name_span: t.span,
                                 index: Box::new(index),
+                                column,
                             },
                             span: t.span.to(end.span),
                         })
@@ -443,7 +454,18 @@ mod tests {
         match &e.kind {
             ExprKind::Number(v) => format!("{v}"),
             ExprKind::Name(n) => n.clone(),
-            ExprKind::Index { name, index, .. } => format!("{name}[{}]", show(index)),
+            ExprKind::Index {
+                name,
+                index,
+                column: None,
+                ..
+            } => format!("{name}[{}]", show(index)),
+            ExprKind::Index {
+                name,
+                index,
+                column: Some(column),
+                ..
+            } => format!("{name}[{}, {}]", show(index), show(column)),
             ExprKind::Neg { arg, .. } => format!("(neg {})", show(arg)),
             ExprKind::Chain { first, rest } => {
                 let mut s = show(first);

@@ -34,14 +34,18 @@ use crate::{Span, diff, eval, jit, lower};
 /// Everything that defines a potential model, validated except for the expression itself.
 #[derive(Debug, Clone)]
 pub struct PotentialDefinition {
-    /// Degrees of freedom `N`.
+    /// Degrees of freedom (the value of `N` in the expression on a chain; on a square
+    /// lattice `N` is the side and this its square).
     pub n: usize,
     /// The expression of `V(q)`.
     pub potential: String,
     pub params: BTreeMap<String, ParamValue>,
     /// `1 / m_i`, or `None` for unit masses.
     pub inverse_masses: Option<Vec<f64>>,
+    /// Along the rows on a square lattice.
     pub boundary: Boundary,
+    /// A chain of sites, or a square read as `q[i, j]`.
+    pub shape: crate::lower::Shape,
     /// Tabulated functions by the name the expression calls them.
     pub tables: Vec<(String, Arc<dyn Tabulated>)>,
 }
@@ -89,9 +93,104 @@ enum Form {
         potential: NodeId,
         gradient: Vec<NodeId>,
         hessian_vector: Vec<NodeId>,
+        parts: Arc<SiteParts>,
     },
     /// Loops over the terms of lattice sums.
     Lattice(Arc<LatticePotential>),
+}
+
+/// An unrolled potential's parts by site (see [`crate::lower::Lowered::parts`]): each term of
+/// its top-level lattice sums and each other part, its coefficient, and the distinct sites
+/// (0-based) it reads.
+struct SiteParts {
+    terms: Vec<(NodeId, f64, Vec<u32>)>,
+    rest: Vec<(NodeId, f64, Vec<u32>)>,
+}
+
+impl SiteParts {
+    fn new(graph: &Graph, parts: &crate::lower::Parts) -> Self {
+        let with_sites = |list: &[(NodeId, f64)]| {
+            list.iter()
+                .map(|&(id, c)| (id, c, sites_read(graph, id)))
+                .collect()
+        };
+        Self {
+            terms: with_sites(&parts.terms),
+            rest: with_sites(&parts.rest),
+        }
+    }
+
+    /// The lattice literature's energy distribution, as [`LatticeEvaluator::site_potentials`]
+    /// defines it for loops: each term of a sum shared equally by the distinct sites it reads
+    /// (a wall is no site), and each other part, where it is not zero, to the one site it
+    /// reads.
+    fn site_potentials(&self, graph: &Graph, q: &[f64], out: &mut [f64]) -> Result<(), String> {
+        let outputs: Vec<NodeId> = self.terms.iter().chain(&self.rest).map(|p| p.0).collect();
+        let mut values = vec![0.0; outputs.len()];
+        let mut args: [&[f64]; ARGS] = [&[]; ARGS];
+        args[ARG_Q as usize] = q;
+        eval::Evaluator::new().eval(graph, &args, &outputs, &mut values);
+        out.fill(0.0);
+        let (terms, rest) = values.split_at(self.terms.len());
+        for (k, ((_, c, sites), v)) in self.terms.iter().zip(terms).enumerate() {
+            let value = c * v;
+            if sites.is_empty() {
+                if value != 0.0 {
+                    return Err(format!(
+                        "term {} of V's lattice sums reads no site but is {value}, which \
+                         belongs to no site",
+                        k + 1
+                    ));
+                }
+                continue;
+            }
+            let share = value / sites.len() as f64;
+            for &j in sites {
+                out[j as usize] += share;
+            }
+        }
+        for ((_, c, sites), v) in self.rest.iter().zip(rest) {
+            let value = c * v;
+            match sites[..] {
+                _ if value == 0.0 => {}
+                [j] => out[j as usize] += value,
+                [] => {
+                    return Err(format!(
+                        "V has a constant part {value} outside its lattice sums, which belongs \
+                         to no site"
+                    ));
+                }
+                _ => {
+                    let names: Vec<String> = sites.iter().map(|j| format!("q{}", j + 1)).collect();
+                    return Err(format!(
+                        "a part of V outside its lattice sums reads several sites ({}), so \
+                         which share is whose is not written down: write it as lattice sums",
+                        names.join(", ")
+                    ));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The distinct variables (`Input { arg: ARG_Q }`, sorted) node `id` depends on.
+fn sites_read(graph: &Graph, id: NodeId) -> Vec<u32> {
+    let mut seen = std::collections::HashSet::new();
+    let mut stack = vec![id];
+    let mut sites = Vec::new();
+    while let Some(top) = stack.pop() {
+        if !seen.insert(top) {
+            continue;
+        }
+        let node = graph.node(top);
+        if let crate::graph::Node::Input { arg: ARG_Q, index } = *node {
+            sites.push(index);
+        }
+        stack.extend(node.operands());
+    }
+    sites.sort_unstable();
+    sites
 }
 
 struct Inner {
@@ -187,8 +286,9 @@ impl ExpressionModel {
             families: &families,
             params: &definition.params,
             tables: &tables,
-            n,
+            n: definition.shape.n_of(n),
             boundary: definition.boundary,
+            shape: definition.shape,
             time: Some(ARG_T),
         };
         let source = &definition.potential;
@@ -202,6 +302,7 @@ impl ExpressionModel {
             smoothness,
             origins,
             sums,
+            parts,
         } = lowered;
         let had_sums = !sums.is_empty();
         let reads_time = graph
@@ -223,16 +324,17 @@ impl ExpressionModel {
             None => {
                 // No sum is a loop, or the potential is not affine in its sums: every site's
                 // derivative unrolled (lowered again without loops if some sum was one).
-                let (mut graph, origins, potential) = if had_sums {
+                let (mut graph, origins, potential, parts) = if had_sums {
                     let mut graph = Graph::new();
                     for (_, t) in &definition.tables {
                         graph.add_table(t.clone());
                     }
                     let lowered = lower::lower(source, &scope, &mut graph).map_err(|e| err(&e))?;
-                    (graph, lowered.origins, lowered.root)
+                    (graph, lowered.origins, lowered.root, lowered.parts)
                 } else {
-                    (graph, origins, root)
+                    (graph, origins, root, parts)
                 };
+                let parts = Arc::new(SiteParts::new(&graph, &parts));
                 let gradient =
                     diff::gradient(&mut graph, potential, ARG_Q, n).map_err(|e| err(&e))?;
                 let hessian_vector = if c2 {
@@ -253,6 +355,7 @@ impl ExpressionModel {
                     potential,
                     gradient,
                     hessian_vector,
+                    parts,
                 };
                 (graph, origins, form, compiled)
             }
@@ -475,10 +578,18 @@ impl ExpressionModel {
                  are not known"
                     .to_string(),
             ),
+            Form::Unrolled { .. } if self.0.lane_params > 0 => Err(
+                "V reads parameters per evaluation (a map's axes), so its terms' values are \
+                 not those of one model"
+                    .to_string(),
+            ),
+            Form::Unrolled { parts, .. } if !parts.terms.is_empty() => {
+                parts.site_potentials(&self.0.graph, q, out)
+            }
             Form::Unrolled { .. } => Err(
-                "V is not written as lattice sums compiled as loops (sum(i = a..b, term) with \
-                 the term reading q[i + k] only, V affine in its sums), so which of its terms \
-                 belongs to which site is not known"
+                "V is not written as lattice sums added at its top level (sum(i = a..b, term) \
+                 + ..., or sums of sums on a square lattice), so which of its terms belongs \
+                 to which site is not known"
                     .to_string(),
             ),
         }
@@ -670,6 +781,7 @@ mod site_energy_tests {
             params: BTreeMap::new(),
             inverse_masses: None,
             boundary,
+            shape: crate::lower::Shape::Chain,
             tables: Vec::new(),
         })
         .unwrap()

@@ -29,8 +29,11 @@ pub struct ScalarDefinition {
     pub n: usize,
     /// Parameters: a number, or an array of `n` entries.
     pub params: BTreeMap<String, ParamValue>,
-    /// What indexed references beyond `1..n` mean in lattice sums.
+    /// What indexed references beyond `1..n` mean in lattice sums (along the rows of a
+    /// square).
     pub boundary: Boundary,
+    /// A chain, or a square of `n x n` sites read as `q[i, j]`.
+    pub shape: crate::lower::Shape,
 }
 
 /// Why a scalar function could not be built.
@@ -108,6 +111,7 @@ impl ScalarFunction {
             tables: &[],
             n: definition.n,
             boundary: definition.boundary,
+            shape: definition.shape,
             time: None,
         };
         let lowered = lower::lower(&definition.source, &scope, &mut graph).map_err(|error| {
@@ -240,6 +244,7 @@ mod tests {
             n: d,
             params,
             boundary: Boundary::Fixed,
+            shape: crate::lower::Shape::Chain,
         })
     }
 
@@ -265,6 +270,7 @@ mod tests {
             n: 2,
             params: BTreeMap::new(),
             boundary: Boundary::Fixed,
+            shape: crate::lower::Shape::Chain,
         })
         .unwrap();
         assert_eq!(s.value(&[0.0, 1.0, 2.0, 3.0]), 21.0);

@@ -136,13 +136,16 @@ struct Inner {
 pub struct HamiltonianDefinition {
     /// The config key `H` comes from (`"hamiltonian"`), for messages.
     pub key: String,
-    /// Degrees of freedom `N` (the value of `N` in the expression).
+    /// Degrees of freedom (the value of `N` in the expression on a chain; on a square
+    /// lattice `N` is the side and this its square).
     pub n: usize,
     pub source: String,
-    /// Parameters: a number, or an array of `N` entries.
+    /// Parameters: a number, or an array of one entry per degree of freedom.
     pub params: BTreeMap<String, ParamValue>,
-    /// What `q[i]`, `p[i]` beyond `1..N` mean in lattice sums.
+    /// What `q[i]`, `p[i]` beyond `1..N` mean in lattice sums (along the rows on a square).
     pub boundary: Boundary,
+    /// A chain of sites, or a square read as `q[i, j]`, `p[i, j]`.
+    pub shape: crate::lower::Shape,
     pub tables: Vec<(String, Arc<dyn Tabulated>)>,
 }
 
@@ -195,6 +198,7 @@ impl VectorFunction {
             tables: &tables,
             n: d,
             boundary: definition.boundary,
+            shape: crate::lower::Shape::Chain,
             time: definition.time.then_some(ARG_T),
         };
         let mut values = Vec::with_capacity(d);
@@ -278,8 +282,9 @@ impl VectorFunction {
             families: &families,
             params: &h.params,
             tables: &tables,
-            n,
+            n: h.shape.n_of(n),
             boundary: h.boundary,
+            shape: h.shape,
             time: Some(ARG_T),
         };
         let lowered = lower::lower(&h.source, &scope, &mut graph).map_err(|error| {

@@ -738,6 +738,7 @@ fn product(g: &mut Graph, n: usize) -> (Vec<NodeId>, Vec<NodeId>) {
         tables: &[],
         n: 3,
         boundary: chaoscope_expr::Boundary::Fixed,
+        shape: chaoscope_expr::lower::Shape::Chain,
         time: None,
     };
     let root = chaoscope_expr::lower(&source, &scope, g).unwrap().root;
@@ -884,6 +885,7 @@ mod lattice_loops {
             tables: &tables,
             n,
             boundary,
+            shape: chaoscope_expr::lower::Shape::Chain,
             time: None,
         };
         let l = lower_with_loops(src, &scope, &mut g).unwrap_or_else(|e| panic!("{e}"));

@@ -72,6 +72,7 @@ fn system_with_tables(n: usize, potential: &str, tables: &[(&str, Arc<dyn Tabula
         tables: &tables,
         n,
         boundary: Boundary::Fixed,
+        shape: chaoscope_expr::lower::Shape::Chain,
         time: None,
     };
     let root = lower(potential, &scope, &mut graph).unwrap().root;
@@ -112,6 +113,7 @@ fn lattice_system(n: usize, boundary: Boundary, potential: &str) -> System {
         tables: &tables,
         n,
         boundary,
+        shape: chaoscope_expr::lower::Shape::Chain,
         time: None,
     };
     let l = lower_with_loops(potential, &scope, &mut graph).unwrap();

@@ -133,13 +133,16 @@ fn claimed_dim(model: &ModelConfig) -> u128 {
     match model {
         ModelConfig::HenonHeiles(_) | ModelConfig::Custom(_) => 4,
         ModelConfig::FputBeta(m) => dof(m.n),
+        // A square lattice has n^2 sites.
+        ModelConfig::Potential(_) | ModelConfig::Hamiltonian(_) | ModelConfig::Ddnls(_)
+            if model.square_side().is_some() =>
+        {
+            let side = model.square_side().unwrap_or(1);
+            dof(Some(side)).saturating_mul(side as u128)
+        }
         ModelConfig::Potential(m) => dof(m.n),
         ModelConfig::Hamiltonian(m) => dof(m.n),
-        // A square lattice has n^2 sites.
-        ModelConfig::Ddnls(m) => match m.lattice.as_deref() {
-            Some("square") => dof(m.n).saturating_mul(m.n.unwrap_or(1) as u128),
-            _ => dof(m.n),
-        },
+        ModelConfig::Ddnls(m) => dof(m.n),
         ModelConfig::Ode(m) => len(&m.rhs),
         ModelConfig::Map(m) => len(&m.next),
     }
@@ -230,6 +233,7 @@ pub fn expr(data: &[u8]) {
             tables: &tables,
             n,
             boundary,
+            shape: chaoscope_expr::lower::Shape::Chain,
             time: None,
         };
         lattice_loops(text, &scope, &spline);

@@ -20,9 +20,9 @@ pub mod sweep;
 
 pub use ddnls::DdnlsConfig;
 pub use model::{
-    CustomModelConfig, DrawnArray, FputBetaConfig, HamiltonianConfig, HenonHeilesConfig,
-    KNOWN_MODELS, MapModelConfig, ModelConfig, OdeConfig, ParamValue, PotentialConfig, TableConfig,
-    TableSpec,
+    BoundaryConfig, CustomModelConfig, DrawnArray, FputBetaConfig, HamiltonianConfig,
+    HenonHeilesConfig, KNOWN_MODELS, MapModelConfig, ModelConfig, OdeConfig, ParamValue,
+    PotentialConfig, TableConfig, TableSpec,
 };
 pub use scheme::SchemeConfig;
 

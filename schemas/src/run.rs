@@ -84,10 +84,7 @@ fn recorded_square_side(header: &crate::proto::RunHeader) -> Option<usize> {
         return None;
     }
     let config = crate::config::RunConfig::from_toml(&header.config_toml).ok()?;
-    match &config.model {
-        crate::config::ModelConfig::Ddnls(m) if m.lattice.as_deref() == Some("square") => m.n,
-        _ => None,
-    }
+    config.model.square_side()
 }
 
 /// The models whose states conserve the norm `S = sum_l (q_l^2 + p_l^2)/2` beside the energy

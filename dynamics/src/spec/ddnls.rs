@@ -192,34 +192,13 @@ fn initial_state(model: &Ddnls, orbit: &OrbitConfig) -> Result<Vec<f64>, SpecErr
     Ok(x)
 }
 
-/// The sites (from 0) of an excitation: `l`, or the block `[first, last]`; in 2-D the site
-/// `(l, l)` or the square `[first, last] x [first, last]` of rows and columns.
+/// The sites (from 0) of an excitation (see [`super::lattice_shape::excited_sites`]).
 fn excited_sites(model: &Ddnls, excite: &Excitation) -> Result<Vec<usize>, SpecError> {
-    let (first, last) = excite.sites.range();
-    let (side, what) = match model.lattice() {
-        DdnlsLattice::Chain { n } => (n, "sites"),
-        DdnlsLattice::Square { n } => (n, "rows and columns of the square"),
+    let (chain, side) = match model.lattice() {
+        DdnlsLattice::Chain { n } => (n, None),
+        DdnlsLattice::Square { n } => (n * n, Some(n)),
     };
-    if first == 0 || first > last || last > side {
-        return Err(SpecError::new(
-            "orbit.excite.sites",
-            format!(
-                "must be a site or a block [first, last] with 1 <= first <= last <= {side} (the \
-                 lattice has {side} {what}), got {}",
-                if first == last {
-                    first.to_string()
-                } else {
-                    format!("[{first}, {last}]")
-                }
-            ),
-        ));
-    }
-    Ok(match model.lattice() {
-        DdnlsLattice::Chain { .. } => (first - 1..last).collect(),
-        DdnlsLattice::Square { n } => (first - 1..last)
-            .flat_map(|i| (first - 1..last).map(move |j| i * n + j))
-            .collect(),
-    })
+    super::lattice_shape::excited_sites(excite.sites.range(), chain, side)
 }
 
 /// Every site at rest but the excited ones, `psi_l = sqrt(s) e^{i phi_l}` with the same norm

@@ -23,17 +23,23 @@ pub(super) fn run(
         )
     })?;
     let max = chaoscope_expr::vector::MAX_DIM / 2;
-    let n = model
+    let side = model
         .n
         .ok_or_else(|| SpecError::new("model.n", "needs the number of degrees of freedom n"))?;
+    let sites =
+        super::lattice_shape::sites(model.lattice.as_deref(), model.boundary.as_ref(), side)?;
+    let n = sites.count;
     if n == 0 || n > max {
         return Err(SpecError::new(
             "model.n",
-            format!("must be between 1 and {max}, got {n}"),
+            if n == side {
+                format!("must be between 1 and {max}, got {n}")
+            } else {
+                format!("a square of side {side} has {n} sites; at most {max} are allowed")
+            },
         ));
     }
-    let (field, lane_values) =
-        vector::hamiltonian_function(source, n, &model.params, model.boundary.as_deref(), lanes)?;
+    let (field, lane_values) = vector::hamiltonian_function(source, sites, &model.params, lanes)?;
     let system = runge_kutta_system(cfg, Arc::new(field))?;
     // The initial state is q and p, as for every Hamiltonian; inside, x = (q, p).
     let mut with_x = cfg.clone();

@@ -32,6 +32,7 @@ pub mod ddnls;
 pub mod drawn;
 mod flow;
 mod hamiltonian;
+mod lattice_shape;
 mod map;
 mod potential;
 mod separable;

@@ -7,7 +7,7 @@
 
 use std::sync::Arc;
 
-use chaoscope_expr::lower::{Boundary, ParamValue};
+use chaoscope_expr::lower::{ParamValue, Shape};
 use chaoscope_expr::table::{self, Spline, SplineEnds};
 use chaoscope_schemas::config::{self, ModelConfig, PotentialConfig, RunConfig, TableConfig};
 
@@ -157,13 +157,20 @@ fn potential_model_with_lanes(
     cfg: &PotentialConfig,
     lanes: &[LaneParam],
 ) -> Result<CompiledPotential, SpecError> {
-    let n = cfg.n.ok_or_else(|| {
+    let side = cfg.n.ok_or_else(|| {
         SpecError::new("model.n", "a potential model needs the number of sites n")
     })?;
+    let lattice = super::lattice_shape::sites(cfg.lattice.as_deref(), cfg.boundary.as_ref(), side)?;
+    let n = lattice.count;
     if n == 0 || n > MAX_SITES {
         return Err(SpecError::new(
             "model.n",
-            format!("must be between 1 and {MAX_SITES}, got {n}"),
+            match lattice.shape {
+                Shape::Chain => format!("must be between 1 and {MAX_SITES}, got {n}"),
+                Shape::Square { .. } => format!(
+                    "a square of side {side} has {n} sites; at most {MAX_SITES} are allowed"
+                ),
+            },
         ));
     }
     let potential = cfg.potential.as_ref().ok_or_else(|| {
@@ -183,17 +190,6 @@ fn potential_model_with_lanes(
         Some(m) => inverse_masses(m, n)?,
         None => None,
     };
-    let boundary = match cfg.boundary.as_deref().unwrap_or("fixed") {
-        "fixed" => Boundary::Fixed,
-        "periodic" => Boundary::Periodic,
-        "free" => Boundary::Free,
-        other => {
-            return Err(SpecError::new(
-                "model.boundary",
-                format!("'{other}' is not fixed, periodic or free"),
-            ));
-        }
-    };
     let mut tables = Vec::new();
     let mut digests = Vec::new();
     for (name, t) in &cfg.tables {
@@ -209,7 +205,8 @@ fn potential_model_with_lanes(
         potential: potential.clone(),
         params,
         inverse_masses,
-        boundary,
+        boundary: lattice.boundary,
+        shape: lattice.shape,
         tables,
     })
     .map_err(|e| SpecError::new("model.potential", e.0))?;

@@ -112,9 +112,13 @@ pub(super) fn run_with_lanes(
     }
     let h = super::time_step(&cfg.integrator)?;
     let mut x0 = if lane_values.is_empty() {
-        initial_state(model.as_ref(), &cfg.orbit)?
+        initial_state(model.as_ref(), &cfg.orbit, cfg.model.square_side())?
     } else {
-        initial_state(&WithParams::new(&model, lane_values), &cfg.orbit)?
+        initial_state(
+            &WithParams::new(&model, lane_values),
+            &cfg.orbit,
+            cfg.model.square_side(),
+        )?
     };
     x0.extend_from_slice(lane_values);
     let system = Arc::new(SplitHamiltonian::new(model, Splitting::new(kind), h));
@@ -185,24 +189,11 @@ pub fn solve_momentum(
 fn excited_momenta(
     model: &dyn Model,
     excite: &chaoscope_schemas::config::Excitation,
+    side: Option<usize>,
     x: &mut [f64],
 ) -> Result<(), SpecError> {
     let n = model.dof();
-    let (first, last) = excite.sites.range();
-    if first == 0 || first > last || last > n {
-        return Err(SpecError::new(
-            "orbit.excite.sites",
-            format!(
-                "must be a site or a block [first, last] with 1 <= first <= last <= {n} (the \
-                 model has {n} sites), got {}",
-                if first == last {
-                    first.to_string()
-                } else {
-                    format!("[{first}, {last}]")
-                }
-            ),
-        ));
-    }
+    let excited = super::lattice_shape::excited_sites(excite.sites.range(), n, side)?;
     if excite.norm.is_some() {
         return Err(SpecError::new(
             "orbit.excite.norm",
@@ -221,13 +212,13 @@ fn excited_momenta(
             format!("must be positive and finite, got {e}"),
         ));
     }
-    let sites = last - first + 1;
+    let sites = excited.len();
     let per_site = e / sites as f64;
     let signs = match excite.seed {
         Some(seed) => super::drawn::signs(seed, sites),
         None => vec![1.0; sites],
     };
-    for (l, sign) in (first - 1..last).zip(signs) {
+    for (l, sign) in excited.into_iter().zip(signs) {
         // p^2 / (2 m) = E / L; unit masses give sqrt(2 E / L) exactly.
         let twice = 2.0 * per_site;
         let p = match model.inverse_masses() {
@@ -249,8 +240,13 @@ fn excited_momenta(
     Ok(())
 }
 
-/// Initial state from the `[orbit]` section.
-pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>, SpecError> {
+/// Initial state from the `[orbit]` section; `side` is the side of the square the sites form
+/// (`None` for a chain), where an excitation names a block of rows and columns.
+pub fn initial_state(
+    model: &dyn Model,
+    orbit: &OrbitConfig,
+    side: Option<usize>,
+) -> Result<Vec<f64>, SpecError> {
     let n = model.dof();
     let mut x = vec![0.0; 2 * n];
     if let Some(excite) = &orbit.excite {
@@ -269,7 +265,7 @@ pub fn initial_state(model: &dyn Model, orbit: &OrbitConfig) -> Result<Vec<f64>,
                 ));
             }
         }
-        excited_momenta(model, excite, &mut x)?;
+        excited_momenta(model, excite, side, &mut x)?;
         if !model.energy(&x, At::T0).is_finite() {
             return Err(SpecError::new("orbit", "the initial energy is not finite"));
         }

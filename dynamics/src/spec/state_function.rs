@@ -5,8 +5,8 @@
 
 use chaoscope_expr::ScalarDefinition;
 use chaoscope_expr::ScalarFunction;
-use chaoscope_expr::lower::Boundary;
-use chaoscope_schemas::config::{ModelConfig, RunConfig};
+
+use chaoscope_schemas::config::{BoundaryConfig, ModelConfig, RunConfig};
 use chaoscope_schemas::run::SystemClass;
 
 use super::{RunSpec, SpecError, param_value};
@@ -73,13 +73,30 @@ pub(crate) fn scalar_definition(
     } else {
         (vec![("x".to_string(), dim)], dim)
     };
-    let (params, boundary) = match model {
-        ModelConfig::Ode(m) => (Some(&m.params), m.boundary.as_deref()),
-        ModelConfig::Hamiltonian(m) => (Some(&m.params), m.boundary.as_deref()),
-        ModelConfig::Potential(m) => (Some(&m.params), m.boundary.as_deref()),
-        _ => (None, None),
+    let sites = match model {
+        ModelConfig::Ode(m) => {
+            let boundary = m.boundary.clone().map(BoundaryConfig::Every);
+            super::lattice_shape::sites(None, boundary.as_ref(), n)?
+        }
+        ModelConfig::Hamiltonian(m) => super::lattice_shape::sites(
+            m.lattice.as_deref(),
+            m.boundary.as_ref(),
+            m.n.unwrap_or(n),
+        )?,
+        ModelConfig::Potential(m) => super::lattice_shape::sites(
+            m.lattice.as_deref(),
+            m.boundary.as_ref(),
+            m.n.unwrap_or(n),
+        )?,
+        _ => super::lattice_shape::sites(None, None, n)?,
     };
-    let size = format!("the system has N = {n}");
+    let params = match model {
+        ModelConfig::Ode(m) => Some(&m.params),
+        ModelConfig::Hamiltonian(m) => Some(&m.params),
+        ModelConfig::Potential(m) => Some(&m.params),
+        _ => None,
+    };
+    let size = format!("the system has {n} sites");
     let mut values = std::collections::BTreeMap::new();
     for (name, v) in params.into_iter().flatten() {
         values.insert(
@@ -87,14 +104,13 @@ pub(crate) fn scalar_definition(
             param_value(&format!("model.params.{name}"), v, n, &size)?,
         );
     }
-    let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
-        .map_err(|e| SpecError::new("model.boundary", e))?;
     Ok(ScalarDefinition {
         key: key.to_string(),
         source: source.to_string(),
         families,
-        n,
+        n: sites.shape.n_of(n),
         params: values,
-        boundary,
+        boundary: sites.boundary,
+        shape: sites.shape,
     })
 }

@@ -116,25 +116,24 @@ pub fn vector_function(
 /// `[model] hamiltonian = "<H(q, p)>"` on `n` degrees of freedom: its vector field
 /// `(dH/dp, -dH/dq)` compiled with `H` as the energy. Errors are reported under
 /// `model.hamiltonian` with line, column and caret.
-pub fn hamiltonian_function(
+pub(crate) fn hamiltonian_function(
     source: &str,
-    n: usize,
+    sites: super::lattice_shape::Sites,
     params: &BTreeMap<String, config::ParamValue>,
-    boundary: Option<&str>,
     lanes: &[LaneParam],
 ) -> Result<(VectorFunction, Vec<f64>), SpecError> {
     let key = "model.hamiltonian";
+    let n = sites.count;
     let size = format!("the system has {n} degrees of freedom");
     let (values, lane_values) =
         expression_params(params, n, &size, lanes, chaoscope_expr::vector::ARG_PARAMS)?;
-    let boundary = Boundary::from_name(boundary.unwrap_or("fixed"))
-        .map_err(|e| SpecError::new("model.boundary", e))?;
     VectorFunction::hamiltonian(HamiltonianDefinition {
         key: "hamiltonian".to_string(),
         n,
         source: source.to_string(),
         params: values,
-        boundary,
+        boundary: sites.boundary,
+        shape: sites.shape,
         tables: Vec::new(),
     })
     .map(|f| (f, lane_values))

@@ -75,9 +75,14 @@ pub struct FputBetaConfig {
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct PotentialConfig {
-    /// Number of degrees of freedom (lattice sites) `N`.
+    /// Number of degrees of freedom (lattice sites) `N`; with `lattice = "square"` the side of
+    /// the square (`n^2` sites).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub n: Option<usize>,
+    /// `"chain"` (default: `q1..qN`, `q[i]`) or `"square"`: an `n x n` lattice whose sites are
+    /// `q[i, j]` (row `i`, column `j`), numbered row by row.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lattice: Option<String>,
     /// `V(q)` over `q1..qN` (or `q[i]`), `params` and `tables`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub potential: Option<String>,
@@ -88,9 +93,11 @@ pub struct PotentialConfig {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub masses: Option<ParamValue>,
     /// What lattice sums see beyond the ends: `"fixed"` (default: `q[0] = q[N+1] = 0`),
-    /// `"periodic"` (`q[N+1] = q[1]`) or `"free"` (terms reaching past an end are left out).
+    /// `"periodic"` (`q[N+1] = q[1]`) or `"free"` (terms reaching past an end are left out);
+    /// on a square lattice one for both axes or one per axis, `["fixed", "periodic"]` (along
+    /// `i`, then along `j`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub boundary: Option<String>,
+    pub boundary: Option<BoundaryConfig>,
     /// Tabulated functions the expression may call by name, e.g. `U = "bond.csv"`.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub tables: BTreeMap<String, TableConfig>,
@@ -103,20 +110,43 @@ pub struct PotentialConfig {
     pub modulo: Option<Vec<f64>>,
 }
 
+/// `boundary`: one condition for every end, or one per axis of a square lattice.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, JsonSchema)]
+#[serde(
+    untagged,
+    expecting = "a boundary condition (\"fixed\", \"periodic\" or \"free\"), or one per axis of a \
+                 square lattice: [\"fixed\", \"periodic\"]"
+)]
+pub enum BoundaryConfig {
+    /// `"fixed"`, `"periodic"` or `"free"`.
+    Every(String),
+    /// `["fixed", "periodic"]`: along the rows' index `i`, then along the columns' `j`.
+    PerAxis(Vec<String>),
+}
+
+impl From<&str> for BoundaryConfig {
+    fn from(name: &str) -> Self {
+        Self::Every(name.to_string())
+    }
+}
+
 /// `name = "hamiltonian"`: any `H(q, p)`, separable or not.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
 #[serde(deny_unknown_fields)]
 pub struct HamiltonianConfig {
-    /// Degrees of freedom `N`.
+    /// Degrees of freedom `N`; with `lattice = "square"` the side of the square (`n^2` sites).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub n: Option<usize>,
+    /// `"chain"` (default) or `"square"` (`q[i, j]`, `p[i, j]`), as for `potential`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub lattice: Option<String>,
     /// Parameters the expression names: a number, or an array with one entry per degree of
     /// freedom.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub params: BTreeMap<String, ParamValue>,
-    /// What lattice sums see beyond the ends (as for `potential`).
+    /// What lattice sums see beyond the ends (as for `potential`, also per axis).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub boundary: Option<String>,
+    pub boundary: Option<BoundaryConfig>,
     /// `H(q, p)` over `q1..qN`, `p1..pN` (and `q[i]`, `p[i]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub hamiltonian: Option<String>,
@@ -358,6 +388,20 @@ impl ModelConfig {
             Self::Map(m) => m.modulo.as_deref(),
             _ => None,
         }
+    }
+
+    /// The side `L` of the square lattice the model's sites form (`L^2` sites numbered row by
+    /// row: `lattice = "square"` with `n = L`), `None` for a chain or a system without sites.
+    pub fn square_side(&self) -> Option<usize> {
+        let (lattice, n) = match self {
+            Self::Ddnls(m) => (&m.lattice, m.n),
+            Self::Potential(m) => (&m.lattice, m.n),
+            Self::Hamiltonian(m) => (&m.lattice, m.n),
+            _ => return None,
+        };
+        (lattice.as_deref() == Some("square"))
+            .then_some(n)
+            .flatten()
     }
 
     /// The tables the model reads (only a `potential` has any).

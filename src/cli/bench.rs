@@ -177,7 +177,7 @@ pub struct Args {
     /// Python interpreter that runs the peer's side.
     #[arg(long, default_value = "python3")]
     pub peer_python: String,
-    /// Only the integrator efficiency table of the lattices (beta-FPUT, DKG, 1-D and 2-D
+    /// Only the integrator efficiency table of the lattices (beta-FPUT, 1-D and 2-D DKG, 1-D and 2-D
     /// DDNLS): for each integrator offered for them, CPU time to `--efficiency-t` with one VM
     /// tangent vector against the maximal relative energy (and norm) error over step sizes, and
     /// the rankings at target errors beside the efficiency paper's.

@@ -379,7 +379,7 @@ fn square_lattice_configs_are_refused_naming_the_key() {
             "lattice = \"square\"\nparams = { e = [1.0, 2.0] }",
             "e[1, 1]*q1^2",
             "model.params.e",
-            "16",
+            "the 4 x 4 lattice has 16 sites",
         ),
     ] {
         let text = base(model_extra, potential);
@@ -390,7 +390,15 @@ fn square_lattice_configs_are_refused_naming_the_key() {
             "{model_extra} / {potential}: {err}"
         );
     }
-    // A side whose square exceeds the site limit.
+    // A side of 0, and one whose square exceeds the site limit.
+    let text = base("lattice = \"square\"", sq).replace("n = 4", "n = 0");
+    let err = RunSpec::from_config(&RunConfig::from_toml(&text).unwrap())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        err.contains("model.n") && err.contains("at least 1"),
+        "{err}"
+    );
     let text = base("lattice = \"square\"", sq).replace("n = 4", "n = 400");
     let err = RunSpec::from_config(&RunConfig::from_toml(&text).unwrap())
         .unwrap_err()

@@ -234,7 +234,8 @@ pub fn lower_with_loops(
     scope: &Scope,
     graph: &mut Graph,
 ) -> Result<Lowered, ExprError> {
-    let loops = matches!(scope.families, [f] if f.arg == crate::lattice::ARG_Q && f.offset == 0 && f.len == scope.n);
+    let loops = scope.shape == Shape::Chain
+        && matches!(scope.families, [f] if f.arg == crate::lattice::ARG_Q && f.offset == 0 && f.len == scope.n);
     on_big_stack(|| lower_limited(source, scope, graph, MAX_NODES, MAX_STEPS, loops))
 }
 
@@ -376,17 +377,75 @@ impl<'a> Lowerer<'a> {
         Ok((acc, info))
     }
 
-    /// A part of the root with its coefficient (see [`Lowered::parts`]).
+    /// A part of the root with its coefficient (see [`Lowered::parts`]): a sum, `-sum`, or a
+    /// sum times or over a constant (`0.5*sum(...)`, `sum(...)/(4*W)`) has its terms recorded
+    /// with that coefficient; anything else is one part of the rest. Each is lowered as
+    /// [`Lowerer::value`] lowers it (the same ticks, operands in the same order, the same
+    /// nodes).
     fn part(&mut self, e: &'a Expr, sign: f64) -> R<(NodeId, Info)> {
-        if let ExprKind::Sum { .. } = e.kind {
-            self.recording = Some(sign);
-            let lowered = self.value(e);
-            self.recording = None;
-            return lowered;
+        let is_sum = |x: &Expr| matches!(x.kind, ExprKind::Sum { .. });
+        match &e.kind {
+            ExprKind::Sum { .. } => self.sum_part(e, sign),
+            ExprKind::Neg { op_span, arg } if is_sum(arg) => {
+                self.tick(e.span)?;
+                let (a, ai) = self.sum_part(arg, -sign)?;
+                let id = self.emit(Node::Unary(Unary::Neg, a), *op_span)?;
+                Ok((id, self.settle(id, ai.neg())))
+            }
+            ExprKind::Chain { first, rest }
+                if rest.len() == 1
+                    && (is_sum(first) && matches!(rest[0].0, BinOp::Mul | BinOp::Div)
+                        || !is_sum(first) && rest[0].0 == BinOp::Mul && is_sum(&rest[0].2)) =>
+            {
+                self.tick(e.span)?;
+                let mark = self.parts.terms.len();
+                let (op, op_span, x) = &rest[0];
+                let (a, ai) = self.sum_part_or_value(first, 1.0)?;
+                let (b, bi) = self.sum_part_or_value(x, 1.0)?;
+                let (bin, combined) = match op {
+                    BinOp::Mul => (Binary::Mul, ai.mul(bi)),
+                    _ => (Binary::Div, ai.div(bi)),
+                };
+                let id = self.emit(Node::Binary(bin, a, b), *op_span)?;
+                let info = self.settle(id, combined);
+                // The factor beside the sum, where it is a constant.
+                let factor = if is_sum(first) { b } else { a };
+                match self.graph.as_const(factor) {
+                    Some(c) if c != 0.0 && c.is_finite() => {
+                        let c = if *op == BinOp::Div { 1.0 / c } else { c };
+                        for t in &mut self.parts.terms[mark..] {
+                            t.1 *= sign * c;
+                        }
+                    }
+                    _ => {
+                        self.parts.terms.truncate(mark);
+                        self.parts.rest.push((id, sign));
+                    }
+                }
+                Ok((id, info))
+            }
+            _ => {
+                let (id, info) = self.value(e)?;
+                self.parts.rest.push((id, sign));
+                Ok((id, info))
+            }
         }
-        let (id, info) = self.value(e)?;
-        self.parts.rest.push((id, sign));
-        Ok((id, info))
+    }
+
+    /// A sum lowered with its terms recorded with coefficient `sign`.
+    fn sum_part(&mut self, e: &'a Expr, sign: f64) -> R<(NodeId, Info)> {
+        self.recording = Some(sign);
+        let lowered = self.value(e);
+        self.recording = None;
+        lowered
+    }
+
+    /// [`Lowerer::sum_part`] for a sum, [`Lowerer::value`] for anything else.
+    fn sum_part_or_value(&mut self, e: &'a Expr, sign: f64) -> R<(NodeId, Info)> {
+        match e.kind {
+            ExprKind::Sum { .. } => self.sum_part(e, sign),
+            _ => self.value(e),
+        }
     }
 
     /// Add a node, recording where it came from and refusing runaway expansions.
@@ -1336,6 +1395,9 @@ impl<'a> Lowerer<'a> {
         self.tick(e.span)?;
         match &e.kind {
             ExprKind::Sum { .. } => Ok(true),
+            // On a square a single index names a site directly: no boundary, no left-out term
+            // (lowering refuses one outside the lattice).
+            ExprKind::Index { column: None, .. } if self.scope.shape != Shape::Chain => Ok(true),
             ExprKind::Index {
                 name,
                 index,
@@ -1608,10 +1670,16 @@ mod tests {
     /// one) and its other parts, with their signs; the graph is the one `value` builds.
     #[test]
     fn a_sum_of_sums_is_recorded_term_by_term() {
-        let src = "sum(i = 1..N, sum(j = 1..N, q[i, j]^2)) - 2*q1 + sum(i = 1..N, q[i, 1]*q[i, 2])";
+        let src = "sum(i = 1..N, sum(j = 1..N, q[i, j]^2)) - 2*q1 + sum(i = 1..N, q[i, 1]*q[i, 2]) \
+                   - 0.5*sum(i = 1..N, q[i, 3]) + sum(j = 1..N, q[1, j])/4";
         let mut s = Setup::square(3, Boundary::Fixed, Boundary::Fixed);
         let l = s.ok(src);
-        assert_eq!(l.parts.terms.len(), 9 + 3);
+        assert_eq!(l.parts.terms.len(), 9 + 3 + 3 + 3);
+        let coefficients: Vec<f64> = l.parts.terms.iter().map(|t| t.1).collect();
+        assert_eq!(
+            coefficients[9..],
+            [1.0, 1.0, 1.0, -0.5, -0.5, -0.5, 0.25, 0.25, 0.25]
+        );
         assert_eq!(l.parts.rest.len(), 1);
         assert_eq!(l.parts.rest[0].1, -1.0);
         let q = coords(9);
@@ -1627,7 +1695,10 @@ mod tests {
         let wrapped = fresh.ok(&format!("({src})*1"));
         assert!(wrapped.parts.terms.is_empty());
         assert_eq!(wrapped.root, l.root);
-        assert_eq!(fresh.graph.node(l.root), s.graph.node(l.root));
+        assert_eq!(
+            fresh.graph.nodes()[..=l.root as usize],
+            s.graph.nodes()[..=l.root as usize]
+        );
     }
 
     #[test]

@@ -93,7 +93,9 @@ enum Form {
         potential: NodeId,
         gradient: Vec<NodeId>,
         hessian_vector: Vec<NodeId>,
-        parts: Arc<SiteParts>,
+        /// The parts of `V` ([`crate::lower::Lowered::parts`]) and, once asked for, their
+        /// sites.
+        parts: Arc<(crate::lower::Parts, OnceLock<SiteParts>)>,
     },
     /// Loops over the terms of lattice sums.
     Lattice(Arc<LatticePotential>),
@@ -149,25 +151,27 @@ impl SiteParts {
                 out[j as usize] += share;
             }
         }
-        for ((_, c, sites), v) in self.rest.iter().zip(rest) {
-            let value = c * v;
-            match sites[..] {
-                _ if value == 0.0 => {}
-                [j] => out[j as usize] += value,
-                [] => {
-                    return Err(format!(
-                        "V has a constant part {value} outside its lattice sums, which belongs \
-                         to no site"
-                    ));
-                }
-                _ => {
-                    let names: Vec<String> = sites.iter().map(|j| format!("q{}", j + 1)).collect();
-                    return Err(format!(
-                        "a part of V outside its lattice sums reads several sites ({}), so \
-                         which share is whose is not written down: write it as lattice sums",
-                        names.join(", ")
-                    ));
-                }
+        // The rest as a whole, as for loops: where it is not zero, to the one site it reads.
+        let value: f64 = self.rest.iter().zip(rest).map(|((_, c, _), v)| c * v).sum();
+        let mut sites: Vec<u32> = self.rest.iter().flat_map(|r| r.2.iter().copied()).collect();
+        sites.sort_unstable();
+        sites.dedup();
+        match sites[..] {
+            _ if value == 0.0 => {}
+            [j] => out[j as usize] += value,
+            [] => {
+                return Err(format!(
+                    "V has a constant part {value} outside its lattice sums, which belongs to \
+                     no site"
+                ));
+            }
+            _ => {
+                let names: Vec<String> = sites.iter().map(|j| format!("q{}", j + 1)).collect();
+                return Err(format!(
+                    "the part of V outside its lattice sums reads several sites ({}), so which \
+                     share is whose is not written down: write it as lattice sums",
+                    names.join(", ")
+                ));
             }
         }
         Ok(())
@@ -334,7 +338,7 @@ impl ExpressionModel {
                 } else {
                     (graph, origins, root, parts)
                 };
-                let parts = Arc::new(SiteParts::new(&graph, &parts));
+                let parts = Arc::new((parts, OnceLock::new()));
                 let gradient =
                     diff::gradient(&mut graph, potential, ARG_Q, n).map_err(|e| err(&e))?;
                 let hessian_vector = if c2 {
@@ -558,8 +562,10 @@ impl ExpressionModel {
 
     /// The potential energy of each site at `q` into `out` (`N` values): each term of a
     /// lattice sum shared equally by the sites it reads ([`LatticeEvaluator::site_potentials`],
-    /// which defines it). An error saying why where the sites of `V`'s parts are not known: a
-    /// potential without lattice sums compiled as loops, or one that reads the time.
+    /// which defines it; for unrolled sums, the terms of the sums `V` adds, each with its
+    /// constant factor). An error saying why where the sites of `V`'s parts are not known: a
+    /// potential not written as lattice sums added together, or one that reads the time or
+    /// parameters per evaluation.
     pub fn site_potentials(&self, q: &[f64], out: &mut [f64]) -> Result<(), String> {
         let n = self.0.definition.n;
         if q.len() != n || out.len() != n {
@@ -583,9 +589,10 @@ impl ExpressionModel {
                  not those of one model"
                     .to_string(),
             ),
-            Form::Unrolled { parts, .. } if !parts.terms.is_empty() => {
-                parts.site_potentials(&self.0.graph, q, out)
-            }
+            Form::Unrolled { parts, .. } if !parts.0.terms.is_empty() => parts
+                .1
+                .get_or_init(|| SiteParts::new(&self.0.graph, &parts.0))
+                .site_potentials(&self.0.graph, q, out),
             Form::Unrolled { .. } => Err(
                 "V is not written as lattice sums added at its top level (sum(i = a..b, term) \
                  + ..., or sums of sums on a square lattice), so which of its terms belongs \
@@ -819,6 +826,44 @@ mod site_energy_tests {
         assert!(why.contains("several sites (q1, q2)"), "{why}");
         let unrolled = model(2, "q1^2 + q2^2", Boundary::Free);
         let why = sites(&unrolled, &[1.0, 2.0]).unwrap_err();
+        assert!(why.contains("not written as lattice sums"), "{why}");
+        // The same refusals where the sums are unrolled (the index read as a number, `0*i`).
+        let constant = model(2, "sum(i = 1..N, q[i]^2 + 0*i) + 1", Boundary::Free);
+        assert!(!constant.has_loops());
+        let why = sites(&constant, &[1.0, 2.0]).unwrap_err();
+        assert!(why.contains("constant part 1"), "{why}");
+        let two = model(2, "sum(i = 1..N, q[i]^2 + 0*i) + q1*q2", Boundary::Free);
+        let why = sites(&two, &[1.0, 2.0]).unwrap_err();
+        assert!(why.contains("several sites (q1, q2)"), "{why}");
+    }
+
+    /// Unrolled sums share the energy as loops do: the same potential written so that its
+    /// sums are loops, and with `0*i` in every term (the index read as a number, which
+    /// unrolls them), gives the same site energies to rounding, with sums entering as `+`,
+    /// `-`, times a constant and over one, on fixed, periodic and free ends, beside a rest on
+    /// one site. A sum times a variable is no coefficient: its terms join the rest, which then
+    /// reads several sites and is refused alike.
+    #[test]
+    fn unrolled_sums_share_the_energy_as_loops_do() {
+        let q: Vec<f64> = (0..7).map(|k| 0.4 * (k as f64 * 1.3 + 0.2).sin()).collect();
+        for boundary in [Boundary::Fixed, Boundary::Periodic, Boundary::Free] {
+            let looped = "0.5*sum(i = 0..N, (q[i+1] - q[i])^2) - sum(i = 1..N, q[i]*q[i+1]) \
+                          + sum(i = 1..N, q[i]^4)/4 + q1^2";
+            let unrolled = looped
+                .replace("^2)", "^2 + 0*i)")
+                .replace("q[i+1])", "q[i+1] + 0*i)")
+                .replace("^4)", "^4 + 0*i)");
+            let (a, b) = (model(7, looped, boundary), model(7, &unrolled, boundary));
+            assert!(a.has_loops() && !b.has_loops(), "{unrolled}");
+            let (sa, sb) = (sites(&a, &q).unwrap(), sites(&b, &q).unwrap());
+            for (x, y) in sa.iter().zip(&sb) {
+                assert!((x - y).abs() < 1e-15, "{boundary:?}: {sa:?} against {sb:?}");
+            }
+            let total: f64 = sb.iter().sum();
+            assert!((total - b.potential(&q)).abs() < 1e-15);
+        }
+        let product = model(3, "q1*sum(i = 1..N, q[i]^2 + 0*i)", Boundary::Free);
+        let why = sites(&product, &[1.0, 2.0, 3.0]).unwrap_err();
         assert!(why.contains("not written as lattice sums"), "{why}");
     }
 }

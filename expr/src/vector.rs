@@ -48,7 +48,9 @@ use crate::lower::{self, Boundary, Family, ParamValue, Scope};
 use crate::smooth::Smoothness;
 use crate::taylor::{NativeBuild, TaylorTape};
 
-/// Everything that defines a vector function.
+/// Everything that defines a vector function. (A Hamiltonian's, from
+/// [`VectorFunction::hamiltonian`], keeps its source, parameters and boundary for messages
+/// only: a square lattice's shape is not among them, so it does not rebuild that function.)
 #[derive(Debug, Clone)]
 pub struct VectorDefinition {
     /// The config key the components come from (`"rhs"`, `"next"`), for messages.

@@ -199,7 +199,7 @@ pub fn config(data: &[u8]) {
 pub fn expr(data: &[u8]) {
     use chaoscope_expr::graph::Tabulated;
     use chaoscope_expr::jit::{self, FunctionSpec, Layout};
-    use chaoscope_expr::{Boundary, Family, Graph, ParamValue, Scope, Spline, SplineEnds};
+    use chaoscope_expr::{Boundary, Family, Graph, ParamValue, Scope, Shape, Spline, SplineEnds};
     use std::collections::BTreeMap;
     use std::sync::Arc;
 
@@ -223,7 +223,20 @@ pub fn expr(data: &[u8]) {
     let xs = [-2.0, -1.0, 0.0, 1.0, 2.0];
     let ys = [4.0, 1.0, 0.0, 1.0, 4.0];
     let spline = Spline::new("U", &xs, &ys, SplineEnds::Natural).expect("a valid table");
-    for boundary in [Boundary::Fixed, Boundary::Periodic, Boundary::Free] {
+    // The four sites as a chain, and as a 2 x 2 square (`q[i, j]`) with periodic columns.
+    let shapes = [
+        (n, Shape::Chain),
+        (
+            2,
+            Shape::Square {
+                columns: Boundary::Periodic,
+            },
+        ),
+    ];
+    for (boundary, (value_of_n, shape)) in [Boundary::Fixed, Boundary::Periodic, Boundary::Free]
+        .into_iter()
+        .flat_map(|b| shapes.map(|s| (b, s)))
+    {
         let mut g = Graph::new();
         let table = g.add_table(Arc::new(spline.clone()) as Arc<dyn Tabulated>);
         let tables = [("U".to_string(), table)];
@@ -231,9 +244,9 @@ pub fn expr(data: &[u8]) {
             families: &families,
             params: &params,
             tables: &tables,
-            n,
+            n: value_of_n,
             boundary,
-            shape: chaoscope_expr::lower::Shape::Chain,
+            shape,
             time: None,
         };
         lattice_loops(text, &scope, &spline);

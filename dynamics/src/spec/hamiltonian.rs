@@ -29,7 +29,13 @@ pub(super) fn run(
     let sites =
         super::lattice_shape::sites(model.lattice.as_deref(), model.boundary.as_ref(), side)?;
     let n = sites.count;
-    if n == 0 || n > max {
+    if side == 0 {
+        return Err(SpecError::new(
+            "model.n",
+            format!("must be between 1 and {max}, got 0"),
+        ));
+    }
+    if n > max {
         return Err(SpecError::new(
             "model.n",
             if n == side {

@@ -66,8 +66,12 @@ fn sites(n: usize) -> String {
     format!("the model has n = {n} sites")
 }
 
-fn inverse_masses(m: &config::ParamValue, n: usize) -> Result<Option<Vec<f64>>, SpecError> {
-    let masses = match param_value("model.masses", m, n, &sites(n))? {
+fn inverse_masses(
+    m: &config::ParamValue,
+    n: usize,
+    size: &str,
+) -> Result<Option<Vec<f64>>, SpecError> {
+    let masses = match param_value("model.masses", m, n, size)? {
         ParamValue::Scalar(m) => vec![m; n],
         ParamValue::Array(ms) => ms,
         ParamValue::Lane { .. } => unreachable!("param_value gives no lane parameters"),
@@ -162,7 +166,14 @@ fn potential_model_with_lanes(
     })?;
     let lattice = super::lattice_shape::sites(cfg.lattice.as_deref(), cfg.boundary.as_ref(), side)?;
     let n = lattice.count;
-    if n == 0 || n > MAX_SITES {
+    let size = match lattice.shape {
+        Shape::Chain => sites(n),
+        Shape::Square { .. } => format!("the {side} x {side} lattice has {n} sites"),
+    };
+    if side == 0 {
+        return Err(SpecError::new("model.n", "must be at least 1, got 0"));
+    }
+    if n > MAX_SITES {
         return Err(SpecError::new(
             "model.n",
             match lattice.shape {
@@ -182,12 +193,12 @@ fn potential_model_with_lanes(
     let (params, lane_values) = super::vector::expression_params(
         &cfg.params,
         n,
-        &sites(n),
+        &size,
         lanes,
         chaoscope_expr::potential::ARG_PARAMS,
     )?;
     let inverse_masses = match &cfg.masses {
-        Some(m) => inverse_masses(m, n)?,
+        Some(m) => inverse_masses(m, n, &size)?,
         None => None,
     };
     let mut tables = Vec::new();

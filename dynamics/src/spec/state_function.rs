@@ -96,7 +96,7 @@ pub(crate) fn scalar_definition(
         ModelConfig::Potential(m) => Some(&m.params),
         _ => None,
     };
-    let size = format!("the system has {n} sites");
+    let size = format!("the system has N = {n}");
     let mut values = std::collections::BTreeMap::new();
     for (name, v) in params.into_iter().flatten() {
         values.insert(

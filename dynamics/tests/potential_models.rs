@@ -712,3 +712,111 @@ fn bad_excitations_and_draws_are_named() {
     .to_string();
     assert!(e.contains("a number, an array of numbers"), "{e}");
 }
+
+/// The state at the end of a run of `text`.
+fn final_state(text: &str) -> Vec<f64> {
+    let spec = RunSpec::from_config(&RunConfig::from_toml(text).unwrap()).unwrap();
+    let mut last = None;
+    Engine::new(spec).run(|s| last = Some(s.state)).unwrap();
+    last.unwrap()
+}
+
+fn hh_run(model: &str, method: &str, h: f64, t: f64) -> String {
+    format!(
+        "[model]\n{model}\n[orbit]\nq = [0.0, -0.25]\np = [0.0, 0.0]\nenergy = 0.125\n\
+         solve_for = \"p1\"\n[integrator]\nmethod = \"{method}\"\nh = {h:?}\nt_final = {t:?}\n\
+         [deviations]\nk = 2\nsets = 1\nseed = 1\n\
+         [[scheme]]\nname = \"vm\"\nmethod = \"vm\"\nd0 = 1e-8\ntau = 1.0\n"
+    )
+}
+
+/// A potential run with a Runge-Kutta method or Taylor's integrates the flow of `H = T + V`
+/// from the initial state a splitting starts from (here the energy solved for `p1`): the
+/// paper's chaotic Henon-Heiles orbit by `taylor` (tolerance eps) against the built-in model
+/// by `s17odr8` at h = 0.002 (energy error ~1e-15) agree to 1e-9 at t = 20 (the two errors,
+/// ~1e-13 each, grown by e^(0.05 t) at the orbit's MLE ~0.05 and by the orbit's shear), and
+/// with unequal masses `dop853` on the potential equals `dop853` on the Hamiltonian written
+/// out by hand, `p1^2/(2 m1) + p2^2/(2 m2) + V`, to rounding (1e-13 at t = 5).
+#[test]
+fn a_potential_runs_as_the_flow_of_its_hamiltonian() {
+    let taylor = final_state(&hh_run(
+        &format!("name = \"potential\"\nn = 2\npotential = \"{HH_POTENTIAL}\""),
+        "taylor",
+        1.0,
+        20.0,
+    ));
+    let split = final_state(&hh_run("name = \"henon-heiles\"", "s17odr8", 0.002, 20.0));
+    let diff = taylor
+        .iter()
+        .zip(&split)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(diff < 1e-9, "taylor against s17odr8: {diff:e}");
+
+    let masses = final_state(&hh_run(
+        &format!(
+            "name = \"potential\"\nn = 2\nmasses = [2.0, 0.5]\npotential = \"{HH_POTENTIAL}\""
+        ),
+        "dop853",
+        0.01,
+        5.0,
+    ));
+    let by_hand = final_state(
+        &hh_run(
+            &format!(
+                "name = \"hamiltonian\"\nn = 2\nhamiltonian = \"{HH_POTENTIAL} + p1^2/4 + p2^2\""
+            ),
+            "dop853",
+            0.01,
+            5.0,
+        )
+        // The same solved initial momentum, written by hand.
+        .replace("energy = 0.125\nsolve_for = \"p1\"\n", "")
+        .replace("p = [0.0, 0.0]", &{
+            // p1 with p1^2/(2 m1) = E - V(0, -0.25): m1 = 2.
+            let v = 0.25f64.powi(2) / 2.0 + 0.25f64.powi(3) / 3.0;
+            format!("p = [{:?}, 0.0]", (2.0 * 2.0 * (0.125 - v)).sqrt())
+        }),
+    );
+    let diff = masses
+        .iter()
+        .zip(&by_hand)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(diff < 1e-13, "masses: {diff:e}");
+}
+
+/// What a potential run as a flow cannot take is refused naming its key.
+#[test]
+fn a_potential_run_as_a_flow_refuses_what_it_cannot_do() {
+    let model = format!("name = \"potential\"\nn = 2\npotential = \"{HH_POTENTIAL}\"");
+    for (text, key, says) in [
+        (
+            hh_run(&model, "rk45", 0.01, 1.0),
+            "integrator.method",
+            "as the flow of its Hamiltonian: rk4, dop853, gl4, gl6, taylor",
+        ),
+        (
+            hh_run(
+                &format!("{model}\nparams = {{ _inverse_mass = 1.0 }}"),
+                "gl6",
+                0.01,
+                1.0,
+            ),
+            "model.params._inverse_mass",
+            "rename it",
+        ),
+        (
+            hh_run(&model, "taylor", 1.0, 1.0).replace(
+                "q = [0.0, -0.25]\np = [0.0, 0.0]\nenergy = 0.125\nsolve_for = \"p1\"",
+                "x = [0.0, -0.25, 0.1, 0.0]",
+            ),
+            "orbit.x",
+            "q and p",
+        ),
+    ] {
+        let cfg = RunConfig::from_toml(&text).unwrap();
+        let e = RunSpec::from_config(&cfg).unwrap_err();
+        assert!(e.key == key && e.to_string().contains(says), "{key}: {e}");
+    }
+}

@@ -12,6 +12,7 @@ use chaoscope_expr::table::{self, Spline, SplineEnds};
 use chaoscope_schemas::config::{self, ModelConfig, PotentialConfig, RunConfig, TableConfig};
 
 use super::{Built, LaneParam, SpecError, separable};
+use crate::integrator::SplittingKind;
 use crate::model::{ExpressionModel, Model, PotentialDefinition};
 
 /// Most degrees of freedom of a potential model (the straight-line compiled code grows with N).
@@ -224,15 +225,122 @@ fn potential_model_with_lanes(
     Ok((Arc::new(model), digests, lane_values))
 }
 
+/// The methods that integrate a potential as the flow of its Hamiltonian instead of by a
+/// splitting.
+const FLOW_METHODS: [&str; 5] = ["rk4", "dop853", "gl4", "gl6", "taylor"];
+
+/// The parameter that carries `1 / m_i` into the kinetic energy of a potential run as a flow
+/// (a name no user parameter may take).
+const INVERSE_MASS: &str = "_inverse_mass";
+
 /// `name = "potential"`: the compiled model with the splitting of `[integrator]`, reading the
-/// parameters `lanes` from every state after its `2N` coordinates.
+/// parameters `lanes` from every state after its `2N` coordinates; or, with a Runge-Kutta
+/// method or Taylor's, the flow of `H = sum p_i^2 / (2 m_i) + V(q)`.
 pub(super) fn run(
     model: &PotentialConfig,
     cfg: &RunConfig,
     lanes: &[LaneParam],
 ) -> Result<Built, SpecError> {
-    let (model, tables, lane_values) = potential_model_with_lanes(model, lanes)?;
-    separable::run_with_lanes(cfg, model, tables, &lane_values)
+    let method = cfg.integrator.method.as_str();
+    if SplittingKind::from_name(method).is_none() && !FLOW_METHODS.contains(&method) {
+        return Err(SpecError::new(
+            "integrator.method",
+            format!(
+                "unknown method '{method}' for a potential (known: the splittings {}; as the \
+                 flow of its Hamiltonian: {})",
+                SplittingKind::catalogue(),
+                FLOW_METHODS.join(", ")
+            ),
+        ));
+    }
+    let (compiled, tables, lane_values) = potential_model_with_lanes(model, lanes)?;
+    if FLOW_METHODS.contains(&method) {
+        return as_flow(model, cfg, compiled, tables, lanes);
+    }
+    separable::run_with_lanes(cfg, compiled, tables, &lane_values)
+}
+
+/// A potential integrated as the flow of its Hamiltonian `V + sum_i p_i^2 w_i / 2` (`w_i = 1 /
+/// m_i`) by `[integrator] method` (Runge-Kutta or Taylor's), from the initial state a
+/// splitting would start from (`q` and `p`, an energy solved for a momentum, a preset, an
+/// excitation). `V` is the expression as written, so its operations keep their lines and
+/// columns in messages; its tables are offered with the splittings only.
+fn as_flow(
+    cfg_model: &PotentialConfig,
+    cfg: &RunConfig,
+    compiled: Arc<dyn Model>,
+    tables: Vec<TableDigest>,
+    lanes: &[LaneParam],
+) -> Result<Built, SpecError> {
+    if let Some(name) = cfg_model.tables.keys().next() {
+        return Err(SpecError::new(
+            "integrator.method",
+            format!(
+                "{} integrates V as an expression without tables; V calls the table '{name}': \
+                 use a splitting",
+                cfg.integrator.method
+            ),
+        ));
+    }
+    if !cfg.orbit.x.is_empty() {
+        return Err(SpecError::new(
+            "orbit.x",
+            "a Hamiltonian's initial state is q and p (x is for flows and maps)",
+        ));
+    }
+    if cfg_model.params.contains_key(INVERSE_MASS) {
+        return Err(SpecError::new(
+            format!("model.params.{INVERSE_MASS}"),
+            "is the name of the inverse masses of a potential run as a flow: rename it",
+        ));
+    }
+    let side = cfg_model.n.unwrap_or(0);
+    let sites = super::lattice_shape::sites(
+        cfg_model.lattice.as_deref(),
+        cfg_model.boundary.as_ref(),
+        side,
+    )?;
+    let n = compiled.dof();
+    let mut params = cfg_model.params.clone();
+    let site = match sites.shape {
+        Shape::Chain => "[i]",
+        Shape::Square { .. } => "[i, j]",
+    };
+    let term = match compiled.inverse_masses() {
+        None => format!("p{site}^2/2"),
+        Some(w) => {
+            params.insert(
+                INVERSE_MASS.to_string(),
+                config::ParamValue::Array(w.to_vec()),
+            );
+            format!("p{site}^2*{INVERSE_MASS}{site}/2")
+        }
+    };
+    let kinetic = match sites.shape {
+        Shape::Chain => format!("sum(i = 1..N, {term})"),
+        Shape::Square { .. } => format!("sum(i = 1..N, sum(j = 1..N, {term}))"),
+    };
+    let potential = cfg_model.potential.as_deref().unwrap_or("0");
+    let source = format!("{potential}\n+ {kinetic}");
+    let (field, lane_values) = super::vector::hamiltonian_function(&source, sites, &params, lanes)
+        .map_err(|mut e| {
+            e.key = "model.potential".to_string();
+            e
+        })?;
+    let system = super::flow::runge_kutta_system(cfg, Arc::new(field))?;
+    let x0 = if lane_values.is_empty() {
+        super::initial_state(compiled.as_ref(), &cfg.orbit, cfg.model.square_side())?
+    } else {
+        let bound = crate::model::WithParams::new(&compiled, &lane_values);
+        super::initial_state(&bound, &cfg.orbit, cfg.model.square_side())?
+    };
+    debug_assert_eq!(x0.len(), 2 * n);
+    let mut with_x = cfg.clone();
+    with_x.orbit = config::OrbitConfig {
+        x: x0,
+        ..config::OrbitConfig::default()
+    };
+    super::state_x_with_lanes(&with_x, system, tables, &lane_values)
 }
 
 /// `cfg` with every table's `sha256` filled in from `digests` (what recordings carry).

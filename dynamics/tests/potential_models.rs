@@ -350,12 +350,7 @@ fn tabulated_bond_reproduces_the_analytic_chain() {
     let tabulated = with_model(analytic.clone(), ModelConfig::Potential(model));
     let a = final_indicators(RunSpec::from_config(&analytic).unwrap());
     let b = final_indicators(RunSpec::from_config(&tabulated).unwrap());
-    let state = a
-        .state
-        .iter()
-        .zip(&b.state)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max);
+    let state = common::max_difference(&a.state, &b.state);
     let gali = a
         .gali
         .iter()
@@ -746,11 +741,7 @@ fn a_potential_runs_as_the_flow_of_its_hamiltonian() {
         20.0,
     ));
     let split = final_state(&hh_run("name = \"henon-heiles\"", "s17odr8", 0.002, 20.0));
-    let diff = taylor
-        .iter()
-        .zip(&split)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0, f64::max);
+    let diff = common::max_difference(&taylor, &split);
     assert!(diff < 1e-9, "taylor against s17odr8: {diff:e}");
 
     let masses = final_state(&hh_run(
@@ -778,11 +769,7 @@ fn a_potential_runs_as_the_flow_of_its_hamiltonian() {
             format!("p = [{:?}, 0.0]", (2.0 * 2.0 * (0.125 - v)).sqrt())
         }),
     );
-    let diff = masses
-        .iter()
-        .zip(&by_hand)
-        .map(|(a, b)| (a - b).abs())
-        .fold(0.0, f64::max);
+    let diff = common::max_difference(&masses, &by_hand);
     assert!(diff < 1e-13, "masses: {diff:e}");
 }
 

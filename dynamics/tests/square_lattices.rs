@@ -233,12 +233,7 @@ t_final = 2.0
     };
     let (a, b) = (last(spec), last(other));
     assert_eq!(a.t, 2.0);
-    let diff = a
-        .state
-        .iter()
-        .zip(&b.state)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0.0, f64::max);
+    let diff = common::max_difference(&a.state, &b.state);
     assert!(diff < 1e-7, "states at t = 2 differ by {diff}");
     let (ra, rb) = (
         common::run(&builtin)

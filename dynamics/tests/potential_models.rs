@@ -801,6 +801,19 @@ fn a_potential_run_as_a_flow_refuses_what_it_cannot_do() {
             "orbit.x",
             "q and p",
         ),
+        (
+            hh_run(
+                &format!(
+                    "{model}\ntables = {{ U = \"{}/../examples/models/fput-bond.csv\" }}",
+                    env!("CARGO_MANIFEST_DIR")
+                ),
+                "taylor",
+                1.0,
+                1.0,
+            ),
+            "integrator.method",
+            "the table 'U'",
+        ),
     ] {
         let cfg = RunConfig::from_toml(&text).unwrap();
         let e = RunSpec::from_config(&cfg).unwrap_err();

@@ -276,8 +276,8 @@ fn as_flow(
         return Err(SpecError::new(
             "integrator.method",
             format!(
-                "{} integrates V as an expression without tables; V calls the table '{name}': \
-                 use a splitting",
+                "{} integrates V as an expression without tables, and the model has the table \
+                 '{name}': use a splitting, or leave the table out",
                 cfg.integrator.method
             ),
         ));

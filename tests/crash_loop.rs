@@ -428,8 +428,11 @@ fn killing_any_process_at_any_moment_loses_nothing_but_the_tail_and_leaves_no_st
             std::thread::sleep(delay.saturating_sub(spawned.elapsed()));
             front.signal(libc::SIGKILL);
             front.wait(LIMIT);
-            // Its children were told (SIGTERM on the parent's death) and finalize.
+            // Its children were told (SIGTERM on the parent's death) and finalize. A recorder
+            // leaves the bus before it has finished its file, so the file is read only once
+            // every process of this run has exited.
             bus.wait_nodes_gone(&run);
+            wait_processes_gone(&run);
             "killed run"
         } else {
             let producer = produce(&run);
@@ -574,6 +577,29 @@ fn running(pid: u32) -> bool {
             .rsplit_once(')')
             .is_some_and(|(_, rest)| rest.trim_start().starts_with(['Z', 'X']))
     })
+}
+
+/// Waits until no running process has `run` among its arguments (the orphaned children of a
+/// killed `chaoscope run`, which finish their files after leaving the bus).
+fn wait_processes_gone(run: &str) {
+    let start = Instant::now();
+    loop {
+        let alive: Vec<u32> = std::fs::read_dir("/proc")
+            .into_iter()
+            .flatten()
+            .flatten()
+            .filter_map(|e| e.file_name().to_str()?.parse::<u32>().ok())
+            .filter(|&pid| running(pid) && argv(pid).iter().any(|a| a == run))
+            .collect();
+        if alive.is_empty() {
+            return;
+        }
+        assert!(
+            start.elapsed() < LIMIT,
+            "processes {alive:?} of {run} still alive"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
 }
 
 /// The arguments of process `pid` (empty once it is gone).

@@ -400,3 +400,79 @@ fn square_lattice_configs_are_refused_naming_the_key() {
         .to_string();
     assert!(err.contains("160000 sites"), "{err}");
 }
+
+/// The energy distribution of Hamiltonians integrated as flows of expressions. A potential run
+/// by Taylor's method has, at its initial state, the site energies its splitting run has (the
+/// kinetic sum's terms each on its own site beside `V`'s terms), to rounding. The 2-D DDNLS
+/// written as a `hamiltonian` has site energies that add up to `H`, and with one site excited
+/// all of `H` is on that site (its hopping terms read zeros).
+#[test]
+fn hamiltonians_integrated_as_flows_have_site_energies() {
+    let n = 5;
+    let eps = irregular(n * n, 0.5, 0.2)
+        .iter()
+        .map(|e| 1.0 + e)
+        .collect::<Vec<_>>();
+    let split = dkg2_config(
+        n,
+        "[\"fixed\", \"periodic\"]",
+        &eps,
+        "excite = { sites = [2, 4], energy = 2.0, seed = 3 }",
+        "[integrator]\nmethod = \"aba864\"\nh = 0.05\nt_final = 1.0",
+    );
+    let mut flow = split.clone();
+    flow.integrator.method = "taylor".into();
+    flow.integrator.h = Some(0.05);
+    let (a, b) = (
+        RunSpec::from_config(&split).unwrap(),
+        RunSpec::from_config(&flow).unwrap(),
+    );
+    assert_eq!(a.x0(), b.x0());
+    let x: Vec<f64> = irregular(2 * n * n, 0.6, 0.4);
+    let (mut ea, mut eb) = (vec![0.0; n * n], vec![0.0; n * n]);
+    a.system().site_energies(&x, &mut ea).unwrap();
+    b.system().site_energies(&x, &mut eb).unwrap();
+    assert!(
+        common::max_difference(&ea, &eb) < 1e-15,
+        "{ea:?} against {eb:?}"
+    );
+
+    let ddnls = parse(&format!(
+        r#"[model]
+name = "hamiltonian"
+lattice = "square"
+n = {n}
+params = {{ beta = 3.0, eps = {{ uniform = [-2.0, 2.0], seed = 7 }} }}
+hamiltonian = """
+  sum(i = 1..N, sum(j = 1..N, eps[i, j]*(q[i, j]^2 + p[i, j]^2)/2
+                              + beta/8*(q[i, j]^2 + p[i, j]^2)^2))
+- sum(i = 1..N, sum(j = 1..N, q[i, j]*(q[i+1, j] + q[i, j+1]) + p[i, j]*(p[i+1, j] + p[i, j+1])))"""
+[orbit]
+q = [{q}]
+p = [{p}]
+[integrator]
+method = "taylor"
+h = 1.0
+t_final = 1.0
+{ONE_VM}"#,
+        q = vec!["0.3"; n * n].join(", "),
+        p = vec!["-0.2"; n * n].join(", "),
+    ));
+    let spec = RunSpec::from_config(&ddnls).unwrap();
+    let mut e = vec![0.0; n * n];
+    spec.system().site_energies(spec.x0(), &mut e).unwrap();
+    let total: f64 = e.iter().sum();
+    assert!(
+        ((total - spec.e0()) / spec.e0()).abs() < 1e-14,
+        "{total} against {}",
+        spec.e0()
+    );
+    let mut one = vec![0.0; 2 * n * n];
+    (one[7], one[n * n + 7]) = (0.5, 0.3);
+    spec.system().site_energies(&one, &mut e).unwrap();
+    let h = spec.system().invariant(&one).unwrap();
+    for (l, &el) in e.iter().enumerate() {
+        let want = if l == 7 { h } else { 0.0 };
+        assert!((el - want).abs() < 1e-15, "site {l}: {el} against {want}");
+    }
+}

@@ -42,6 +42,7 @@ mod ops;
 pub mod parser;
 pub mod potential;
 pub mod scalar;
+mod site_parts;
 pub mod smooth;
 pub mod table;
 pub mod taylor;

@@ -28,6 +28,7 @@ use crate::graph::{Graph, NodeId, Tabulated};
 use crate::jit::{Compiled, FunctionSpec, Layout, ScalarFnPtr, StepKernels};
 use crate::lattice::{LatticeEvaluator, LatticePotential};
 use crate::lower::{Boundary, Family, Lowered, ParamValue, Scope};
+use crate::site_parts::SiteParts;
 use crate::smooth::Smoothness;
 use crate::{Span, diff, eval, jit, lower};
 
@@ -99,102 +100,6 @@ enum Form {
     },
     /// Loops over the terms of lattice sums.
     Lattice(Arc<LatticePotential>),
-}
-
-/// An unrolled potential's parts by site (see [`crate::lower::Lowered::parts`]): each term of
-/// its top-level lattice sums and each other part, its coefficient, and the distinct sites
-/// (0-based) it reads.
-struct SiteParts {
-    terms: Vec<(NodeId, f64, Vec<u32>)>,
-    rest: Vec<(NodeId, f64, Vec<u32>)>,
-}
-
-impl SiteParts {
-    fn new(graph: &Graph, parts: &crate::lower::Parts) -> Self {
-        let with_sites = |list: &[(NodeId, f64)]| {
-            list.iter()
-                .map(|&(id, c)| (id, c, sites_read(graph, id)))
-                .collect()
-        };
-        Self {
-            terms: with_sites(&parts.terms),
-            rest: with_sites(&parts.rest),
-        }
-    }
-
-    /// The lattice literature's energy distribution, as [`LatticeEvaluator::site_potentials`]
-    /// defines it for loops: each term of a sum shared equally by the distinct sites it reads
-    /// (a wall is no site), and each other part, where it is not zero, to the one site it
-    /// reads.
-    fn site_potentials(&self, graph: &Graph, q: &[f64], out: &mut [f64]) -> Result<(), String> {
-        let outputs: Vec<NodeId> = self.terms.iter().chain(&self.rest).map(|p| p.0).collect();
-        let mut values = vec![0.0; outputs.len()];
-        let mut args: [&[f64]; ARGS] = [&[]; ARGS];
-        args[ARG_Q as usize] = q;
-        eval::Evaluator::new().eval(graph, &args, &outputs, &mut values);
-        out.fill(0.0);
-        let (terms, rest) = values.split_at(self.terms.len());
-        for (k, ((_, c, sites), v)) in self.terms.iter().zip(terms).enumerate() {
-            let value = c * v;
-            if sites.is_empty() {
-                if value != 0.0 {
-                    return Err(format!(
-                        "term {} of V's lattice sums reads no site but is {value}, which \
-                         belongs to no site",
-                        k + 1
-                    ));
-                }
-                continue;
-            }
-            let share = value / sites.len() as f64;
-            for &j in sites {
-                out[j as usize] += share;
-            }
-        }
-        // The rest as a whole, as for loops: where it is not zero, to the one site it reads.
-        let value: f64 = self.rest.iter().zip(rest).map(|((_, c, _), v)| c * v).sum();
-        let mut sites: Vec<u32> = self.rest.iter().flat_map(|r| r.2.iter().copied()).collect();
-        sites.sort_unstable();
-        sites.dedup();
-        match sites[..] {
-            _ if value == 0.0 => {}
-            [j] => out[j as usize] += value,
-            [] => {
-                return Err(format!(
-                    "V has a constant part {value} outside its lattice sums, which belongs to \
-                     no site"
-                ));
-            }
-            _ => {
-                let names: Vec<String> = sites.iter().map(|j| format!("q{}", j + 1)).collect();
-                return Err(format!(
-                    "the part of V outside its lattice sums reads several sites ({}), so which \
-                     share is whose is not written down: write it as lattice sums",
-                    names.join(", ")
-                ));
-            }
-        }
-        Ok(())
-    }
-}
-
-/// The distinct variables (`Input { arg: ARG_Q }`, sorted) node `id` depends on.
-fn sites_read(graph: &Graph, id: NodeId) -> Vec<u32> {
-    let mut seen = std::collections::HashSet::new();
-    let mut stack = vec![id];
-    let mut sites = Vec::new();
-    while let Some(top) = stack.pop() {
-        if !seen.insert(top) {
-            continue;
-        }
-        let node = graph.node(top);
-        if let crate::graph::Node::Input { arg: ARG_Q, index } = *node {
-            sites.push(index);
-        }
-        stack.extend(node.operands());
-    }
-    sites.sort_unstable();
-    sites
 }
 
 struct Inner {
@@ -589,10 +494,14 @@ impl ExpressionModel {
                  not those of one model"
                     .to_string(),
             ),
-            Form::Unrolled { parts, .. } if !parts.0.terms.is_empty() => parts
-                .1
-                .get_or_init(|| SiteParts::new(&self.0.graph, &parts.0))
-                .site_potentials(&self.0.graph, q, out),
+            Form::Unrolled { parts, .. } if !parts.0.terms.is_empty() => {
+                let mut args: [&[f64]; ARGS] = [&[]; ARGS];
+                args[ARG_Q as usize] = q;
+                parts
+                    .1
+                    .get_or_init(|| SiteParts::new(&self.0.graph, &parts.0, ARG_Q, n))
+                    .shares(&self.0.graph, &args, out)
+            }
             Form::Unrolled { .. } => Err(
                 "V is not written as lattice sums added at its top level (sum(i = a..b, term) \
                  + ..., or sums of sums on a square lattice), so which of its terms belongs \

@@ -37,14 +37,15 @@
 //! `<key>[i]` in messages (`next[2]` is the map's second component, the new `x2`).
 
 use std::collections::{BTreeMap, HashMap};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 use std::time::{Duration, Instant};
 
 use crate::error::{ExprError, Span};
 use crate::eval::{self, Evaluator};
 use crate::graph::{Graph, NodeId, Tabulated};
 use crate::jit::{self, Compiled, FunctionSpec, Layout, ScalarFnPtr};
-use crate::lower::{self, Boundary, Family, ParamValue, Scope};
+use crate::lower::{self, Boundary, Family, ParamValue, Parts, Scope};
+use crate::site_parts::SiteParts;
 use crate::smooth::Smoothness;
 use crate::taylor::{NativeBuild, TaylorTape};
 
@@ -119,6 +120,9 @@ struct Inner {
     tangent_refusal: Option<String>,
     /// A Hamiltonian vector field's `H` (see [`VectorFunction::hamiltonian`]).
     energy: Option<NodeId>,
+    /// `H`'s parts ([`crate::lower::Lowered::parts`]), its degrees of freedom, and, once asked
+    /// for, the sites of its parts (the energy distribution, [`VectorFunction::site_energies`]).
+    energy_parts: Option<(Parts, usize, OnceLock<SiteParts>)>,
     /// Some expression reads the time `t`.
     reads_time: bool,
     compiled: Compiled,
@@ -341,7 +345,7 @@ impl VectorFunction {
             values,
             vec![component; 2 * n],
             tangent_refusal,
-            Some(root),
+            Some((root, lowered.parts, n)),
             started,
         )
     }
@@ -355,9 +359,13 @@ impl VectorFunction {
         values: Vec<NodeId>,
         smoothness: Vec<Smoothness>,
         tangent_refusal: Option<String>,
-        energy: Option<NodeId>,
+        hamiltonian: Option<(NodeId, Parts, usize)>,
         started: Instant,
     ) -> Result<Self, VectorError> {
+        let (energy, energy_parts) = match hamiltonian {
+            Some((root, parts, n)) => (Some(root), Some((parts, n, OnceLock::new()))),
+            None => (None, None),
+        };
         let d = values.len();
         let lane_params = definition
             .params
@@ -473,6 +481,7 @@ impl VectorFunction {
             divergence_fn: compiled.raw_scalar(DIVERGENCE),
             energy_fn: energy.map(|_| compiled.raw_scalar(ENERGY)),
             energy,
+            energy_parts,
             lane_params,
             reads_time,
             tangent_refusal,
@@ -607,6 +616,39 @@ impl VectorFunction {
         // SAFETY: as in `value_at`; one output.
         unsafe { f(args.as_ptr(), out.as_mut_ptr()) }
         Some(out[0])
+    }
+
+    /// The energy of each site of a Hamiltonian lattice at the state `x` (`N` values into
+    /// `out`; site `l` is `q_l` and `p_l`), as the lattice literature defines the energy
+    /// distribution: each term of the lattice sums `H` adds, times its coefficient, shared
+    /// equally by the distinct sites it reads, and the rest of `H`, where it is not zero, to
+    /// the one site it reads. They add up to `H` to rounding. An error saying why otherwise.
+    pub fn site_energies(&self, x: &[f64], out: &mut [f64]) -> Result<(), String> {
+        let Some((parts, n, sites)) = &self.0.energy_parts else {
+            return Err("only a Hamiltonian has site energies".to_string());
+        };
+        if x.len() != 2 * n || out.len() != *n {
+            return Err(format!(
+                "a state of {} entries and {n} sites expected",
+                2 * n
+            ));
+        }
+        if self.0.reads_time || self.0.lane_params > 0 {
+            return Err(
+                "H reads the time or parameters per evaluation, so its terms' values are not \
+                 those of one system"
+                    .to_string(),
+            );
+        }
+        if parts.terms.is_empty() {
+            return Err(
+                "H is not written as lattice sums added at its top level (sum(i = a..b, term) \
+                 + ...), so which of its terms belongs to which site is not known"
+                    .to_string(),
+            );
+        }
+        let sites = sites.get_or_init(|| SiteParts::new(&self.0.graph, parts, ARG_X, *n));
+        sites.shares(&self.0.graph, &[x], out)
     }
 
     /// Whether this is the vector field of a Hamiltonian.

@@ -65,17 +65,13 @@ fn rebuild_system(run: &RunInfo) -> Result<Arc<dyn DynamicalSystem>, String> {
     Ok(Arc::clone(spec.system()))
 }
 
-/// The energy of each site of `system`'s states ([`chaoscope_dynamics::model::Model::site_energies`]
-/// of a separable Hamiltonian's model); for any other system, the reason why there are none.
+/// The energy of each site of `system`'s states
+/// ([`chaoscope_dynamics::system::DynamicalSystem::site_energies`]: a lattice Hamiltonian's,
+/// separable or written as lattice sums); for any other system, the reason why there are none.
 pub fn site_energies(system: &Arc<dyn DynamicalSystem>) -> SiteEnergies {
-    let model = system.separable().map(|s| Arc::clone(s.model()));
-    let name = system.name().to_string();
-    SiteEnergies(Arc::new(move |x: &[f64], out: &mut [f64]| match &model {
-        Some(model) => model.site_energies(x, out),
-        None => Err(format!(
-            "site energies are given for separable lattice Hamiltonians (fput-beta, a potential \
-             written as lattice sums); '{name}' is not one"
-        )),
+    let system = Arc::clone(system);
+    SiteEnergies(Arc::new(move |x: &[f64], out: &mut [f64]| {
+        system.site_energies(x, out)
     }))
 }
 

@@ -249,6 +249,17 @@ pub trait DynamicalSystem: Send + Sync {
         None
     }
 
+    /// The energy of each site of the lattice Hamiltonian's state `x` (`N` values into `out`,
+    /// the weights of the energy distribution): a separable Hamiltonian's model's
+    /// ([`crate::model::Model::site_energies`]), a Hamiltonian written as lattice sums'
+    /// ([`VectorField::site_energies`]). An error saying why for any other system.
+    fn site_energies(&self, x: &[f64], out: &mut [f64]) -> Result<(), String> {
+        match self.separable() {
+            Some(s) => s.model().site_energies(x, out),
+            None => Err(no_site_energies(self.name())),
+        }
+    }
+
     /// The separation `out = y - x` of a nearby state `y` from the reference `x`, as the
     /// multi-particle method measures it: the plain difference, except on a system with
     /// periodic coordinates (a map's angles), whose separations are taken on the torus.
@@ -258,4 +269,12 @@ pub trait DynamicalSystem: Send + Sync {
             *o = a - b;
         }
     }
+}
+
+/// Why the system `name` has no site energies.
+pub(crate) fn no_site_energies(name: &str) -> String {
+    format!(
+        "site energies are given for lattice Hamiltonians (fput-beta, a potential or a \
+         hamiltonian written as lattice sums); '{name}' is not one"
+    )
 }

@@ -217,6 +217,13 @@ impl DynamicalSystem for TaylorFlow {
         self.field.invariant(x)
     }
 
+    fn site_energies(&self, x: &[f64], out: &mut [f64]) -> Result<(), String> {
+        match self.field.compiled() {
+            Some(f) if f.is_hamiltonian() => f.site_energies(x, out),
+            _ => Err(super::no_site_energies(&self.name)),
+        }
+    }
+
     fn divergence(&self, x: &[f64], t: f64) -> Option<f64> {
         self.field.volume_rate(x, t)
     }

@@ -1715,31 +1715,14 @@ fn a_run_whose_compiler_hangs_finishes_with_the_bits_of_a_run_without_c_kernels(
 fn a_taylor_run_whose_compiler_hangs_ends_in_its_own_time_and_leaves_no_compiler() {
     let dir = tempfile::tempdir().unwrap();
     let config = dir.path().join("lorenz-taylor.toml");
-    std::fs::write(
-        &config,
-        r#"[run]
-name = "lorenz-taylor"
-[model]
-name = "ode"
-rhs = ["sigma*(x2 - x1)", "x1*(rho - x3) - x2", "x1*x2 - beta*x3"]
-params = { sigma = 10.0, rho = 28.0, beta = 2.6666666666666665 }
-[orbit]
-x = [1.0, 1.0, 1.0]
-[integrator]
-method = "taylor"
-h = 1.0
-t_final = 300.0
-[deviations]
-k = 3
-[[scheme]]
-name = "vm"
-method = "vm"
-d0 = 1e-8
-tau = 1.0
-orthonormalize = "qr"
-"#,
-    )
-    .unwrap();
+    // The Lorenz example by Taylor's method, its VM scheme only (QR every time unit).
+    let mut lorenz = RunConfig::from_toml(include_str!("../examples/models/lorenz.toml")).unwrap();
+    lorenz.run.name = Some("lorenz-taylor".into());
+    lorenz.integrator.method = "taylor".into();
+    lorenz.integrator.h = Some(1.0);
+    lorenz.integrator.t_final = 300.0;
+    lorenz.schemes.retain(|s| s.method == "vm");
+    std::fs::write(&config, lorenz.to_toml()).unwrap();
     let pids = dir.path().join("pids");
     let cc = hanging_compiler(dir.path(), &pids);
     let record = |name: &str, cc: &std::ffi::OsStr| {

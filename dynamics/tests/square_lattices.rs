@@ -80,6 +80,11 @@ fn dkg2_by_hand(q: &[f64], eps: &[f64], n: usize, w: f64, bi: &str, bj: &str) ->
     v
 }
 
+/// On-site frequencies `eps` in [1/2, 3/2], irregular from site to site.
+fn disorder(len: usize) -> Vec<f64> {
+    irregular(len, 0.5, 0.2).iter().map(|e| 1.0 + e).collect()
+}
+
 fn irregular(len: usize, scale: f64, phase: f64) -> Vec<f64> {
     (0..len)
         .map(|k| scale * ((k as f64) * 1.37 + phase).sin())
@@ -94,10 +99,7 @@ fn irregular(len: usize, scale: f64, phase: f64) -> Vec<f64> {
 #[test]
 fn a_square_s_sites_and_each_axis_boundary_are_the_hand_written_ones() {
     let n = 4;
-    let eps = irregular(n * n, 0.5, 0.2)
-        .iter()
-        .map(|e| 1.0 + e)
-        .collect::<Vec<_>>();
+    let eps = disorder(n * n);
     let q = irregular(n * n, 0.8, 1.1);
     for bi in ["fixed", "periodic", "free"] {
         for bj in ["fixed", "periodic", "free"] {
@@ -409,10 +411,7 @@ fn square_lattice_configs_are_refused_naming_the_key() {
 #[test]
 fn hamiltonians_integrated_as_flows_have_site_energies() {
     let n = 5;
-    let eps = irregular(n * n, 0.5, 0.2)
-        .iter()
-        .map(|e| 1.0 + e)
-        .collect::<Vec<_>>();
+    let eps = disorder(n * n);
     let split = dkg2_config(
         n,
         "[\"fixed\", \"periodic\"]",

@@ -28,7 +28,7 @@ use crate::graph::{Graph, NodeId, Tabulated};
 use crate::jit::{Compiled, FunctionSpec, Layout, ScalarFnPtr, StepKernels};
 use crate::lattice::{LatticeEvaluator, LatticePotential};
 use crate::lower::{Boundary, Family, Lowered, ParamValue, Scope};
-use crate::site_parts::SiteParts;
+use crate::site_parts::SiteShares;
 use crate::smooth::Smoothness;
 use crate::{Span, diff, eval, jit, lower};
 
@@ -94,9 +94,8 @@ enum Form {
         potential: NodeId,
         gradient: Vec<NodeId>,
         hessian_vector: Vec<NodeId>,
-        /// The parts of `V` ([`crate::lower::Lowered::parts`]) and, once asked for, their
-        /// sites.
-        parts: Arc<(crate::lower::Parts, OnceLock<SiteParts>)>,
+        /// The parts of `V` ([`crate::lower::Lowered::parts`]) by site.
+        parts: Arc<SiteShares>,
     },
     /// Loops over the terms of lattice sums.
     Lattice(Arc<LatticePotential>),
@@ -243,7 +242,7 @@ impl ExpressionModel {
                 } else {
                     (graph, origins, root, parts)
                 };
-                let parts = Arc::new((parts, OnceLock::new()));
+                let parts = Arc::new(SiteShares::new(parts, ARG_Q, n));
                 let gradient =
                     diff::gradient(&mut graph, potential, ARG_Q, n).map_err(|e| err(&e))?;
                 let hessian_vector = if c2 {
@@ -494,13 +493,10 @@ impl ExpressionModel {
                  not those of one model"
                     .to_string(),
             ),
-            Form::Unrolled { parts, .. } if !parts.0.terms.is_empty() => {
+            Form::Unrolled { parts, .. } if !parts.has_no_sums() => {
                 let mut args: [&[f64]; ARGS] = [&[]; ARGS];
                 args[ARG_Q as usize] = q;
-                parts
-                    .1
-                    .get_or_init(|| SiteParts::new(&self.0.graph, &parts.0, ARG_Q, n))
-                    .shares(&self.0.graph, &args, out)
+                parts.shares(&self.0.graph, &args, out)
             }
             Form::Unrolled { .. } => Err(
                 "V is not written as lattice sums added at its top level (sum(i = a..b, term) \

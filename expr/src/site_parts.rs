@@ -7,9 +7,47 @@ use crate::eval;
 use crate::graph::{Graph, Node, NodeId};
 use crate::lower::Parts;
 
+/// A function's parts as lowered, and their sites once first asked for (most runs never ask).
+pub(crate) struct SiteShares {
+    parts: Parts,
+    arg: u8,
+    sites: usize,
+    built: std::sync::OnceLock<SiteParts>,
+}
+
+impl SiteShares {
+    /// The parts of a function whose argument `arg` holds the state, entry `k` belonging to
+    /// site `k % sites`.
+    pub(crate) fn new(parts: Parts, arg: u8, sites: usize) -> Self {
+        Self {
+            parts,
+            arg,
+            sites,
+            built: std::sync::OnceLock::new(),
+        }
+    }
+
+    /// Whether the function adds no lattice sums (its parts belong to no known site).
+    pub(crate) fn has_no_sums(&self) -> bool {
+        self.parts.terms.is_empty()
+    }
+
+    /// [`SiteParts::shares`].
+    pub(crate) fn shares(
+        &self,
+        graph: &Graph,
+        args: &[&[f64]],
+        out: &mut [f64],
+    ) -> Result<(), String> {
+        self.built
+            .get_or_init(|| SiteParts::new(graph, &self.parts, self.arg, self.sites))
+            .shares(graph, args, out)
+    }
+}
+
 /// A function's parts ([`crate::lower::Lowered::parts`]): each term of its top-level lattice
 /// sums and each other part, its coefficient, and the distinct sites (0-based) it reads.
-pub(crate) struct SiteParts {
+struct SiteParts {
     terms: Vec<(NodeId, f64, Vec<u32>)>,
     rest: Vec<(NodeId, f64, Vec<u32>)>,
 }
@@ -17,7 +55,7 @@ pub(crate) struct SiteParts {
 impl SiteParts {
     /// The parts of a function whose argument `arg` holds the state, entry `k` belonging to
     /// site `k % sites` (a potential's `q`; a Hamiltonian's `q` then `p`).
-    pub(crate) fn new(graph: &Graph, parts: &Parts, arg: u8, sites: usize) -> Self {
+    fn new(graph: &Graph, parts: &Parts, arg: u8, sites: usize) -> Self {
         let with_sites = |list: &[(NodeId, f64)]| {
             list.iter()
                 .map(|&(id, c)| (id, c, sites_read(graph, id, arg, sites)))
@@ -32,12 +70,7 @@ impl SiteParts {
     /// Each term of a sum times its coefficient shared equally by the distinct sites it reads
     /// (a wall is no site); the rest, as a whole and where it is not zero, to the one site it
     /// reads. `args` are the function's argument arrays; `out` has one entry per site.
-    pub(crate) fn shares(
-        &self,
-        graph: &Graph,
-        args: &[&[f64]],
-        out: &mut [f64],
-    ) -> Result<(), String> {
+    fn shares(&self, graph: &Graph, args: &[&[f64]], out: &mut [f64]) -> Result<(), String> {
         let outputs: Vec<NodeId> = self.terms.iter().chain(&self.rest).map(|p| p.0).collect();
         let mut values = vec![0.0; outputs.len()];
         eval::Evaluator::new().eval(graph, args, &outputs, &mut values);

@@ -37,7 +37,7 @@
 //! `<key>[i]` in messages (`next[2]` is the map's second component, the new `x2`).
 
 use std::collections::{BTreeMap, HashMap};
-use std::sync::{Arc, OnceLock};
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use crate::error::{ExprError, Span};
@@ -45,7 +45,7 @@ use crate::eval::{self, Evaluator};
 use crate::graph::{Graph, NodeId, Tabulated};
 use crate::jit::{self, Compiled, FunctionSpec, Layout, ScalarFnPtr};
 use crate::lower::{self, Boundary, Family, ParamValue, Parts, Scope};
-use crate::site_parts::SiteParts;
+use crate::site_parts::SiteShares;
 use crate::smooth::Smoothness;
 use crate::taylor::{NativeBuild, TaylorTape};
 
@@ -120,9 +120,9 @@ struct Inner {
     tangent_refusal: Option<String>,
     /// A Hamiltonian vector field's `H` (see [`VectorFunction::hamiltonian`]).
     energy: Option<NodeId>,
-    /// `H`'s parts ([`crate::lower::Lowered::parts`]), its degrees of freedom, and, once asked
-    /// for, the sites of its parts (the energy distribution, [`VectorFunction::site_energies`]).
-    energy_parts: Option<(Parts, usize, OnceLock<SiteParts>)>,
+    /// `H`'s parts ([`crate::lower::Lowered::parts`]) by site, and its degrees of freedom (the
+    /// energy distribution, [`VectorFunction::site_energies`]).
+    energy_parts: Option<(SiteShares, usize)>,
     /// Some expression reads the time `t`.
     reads_time: bool,
     compiled: Compiled,
@@ -363,7 +363,7 @@ impl VectorFunction {
         started: Instant,
     ) -> Result<Self, VectorError> {
         let (energy, energy_parts) = match hamiltonian {
-            Some((root, parts, n)) => (Some(root), Some((parts, n, OnceLock::new()))),
+            Some((root, parts, n)) => (Some(root), Some((SiteShares::new(parts, ARG_X, n), n))),
             None => (None, None),
         };
         let d = values.len();
@@ -624,7 +624,7 @@ impl VectorFunction {
     /// equally by the distinct sites it reads, and the rest of `H`, where it is not zero, to
     /// the one site it reads. They add up to `H` to rounding. An error saying why otherwise.
     pub fn site_energies(&self, x: &[f64], out: &mut [f64]) -> Result<(), String> {
-        let Some((parts, n, sites)) = &self.0.energy_parts else {
+        let Some((parts, n)) = &self.0.energy_parts else {
             return Err("only a Hamiltonian has site energies".to_string());
         };
         if x.len() != 2 * n || out.len() != *n {
@@ -640,15 +640,14 @@ impl VectorFunction {
                     .to_string(),
             );
         }
-        if parts.terms.is_empty() {
+        if parts.has_no_sums() {
             return Err(
                 "H is not written as lattice sums added at its top level (sum(i = a..b, term) \
                  + ...), so which of its terms belongs to which site is not known"
                     .to_string(),
             );
         }
-        let sites = sites.get_or_init(|| SiteParts::new(&self.0.graph, parts, ARG_X, *n));
-        sites.shares(&self.0.graph, &[x], out)
+        parts.shares(&self.0.graph, &[x], out)
     }
 
     /// Whether this is the vector field of a Hamiltonian.

@@ -11,6 +11,7 @@ use chaoscope_expr::lower::{ParamValue, Shape};
 use chaoscope_expr::table::{self, Spline, SplineEnds};
 use chaoscope_schemas::config::{self, ModelConfig, PotentialConfig, RunConfig, TableConfig};
 
+use super::lattice_shape::Sites;
 use super::{Built, LaneParam, SpecError, separable};
 use crate::integrator::SplittingKind;
 use crate::model::{ExpressionModel, Model, PotentialDefinition};
@@ -148,12 +149,12 @@ fn load_table(name: &str, cfg: &TableConfig) -> Result<(Arc<Spline>, TableDigest
 pub fn potential_model(
     cfg: &PotentialConfig,
 ) -> Result<(Arc<dyn Model>, Vec<TableDigest>), SpecError> {
-    potential_model_with_lanes(cfg, &[]).map(|(model, tables, _)| (model, tables))
+    potential_model_with_lanes(cfg, &[]).map(|(model, tables, _, _)| (model, tables))
 }
 
-/// A compiled potential, the digests of its tables and the config values of its lane
-/// parameters.
-type CompiledPotential = (Arc<dyn Model>, Vec<TableDigest>, Vec<f64>);
+/// A compiled potential, the digests of its tables, the config values of its lane parameters
+/// and its sites.
+type CompiledPotential = (Arc<dyn Model>, Vec<TableDigest>, Vec<f64>, Sites);
 
 /// [`potential_model`] with the parameters `lanes` read per evaluation (a map's parameter
 /// axes, entries `0..P` of [`chaoscope_expr::potential::ARG_PARAMS`] in the order of `lanes`)
@@ -222,7 +223,7 @@ fn potential_model_with_lanes(
         tables,
     })
     .map_err(|e| SpecError::new("model.potential", e.0))?;
-    Ok((Arc::new(model), digests, lane_values))
+    Ok((Arc::new(model), digests, lane_values, lattice))
 }
 
 /// The methods that integrate a potential as the flow of its Hamiltonian instead of by a
@@ -253,9 +254,9 @@ pub(super) fn run(
             ),
         ));
     }
-    let (compiled, tables, lane_values) = potential_model_with_lanes(model, lanes)?;
+    let (compiled, tables, lane_values, sites) = potential_model_with_lanes(model, lanes)?;
     if FLOW_METHODS.contains(&method) {
-        return as_flow(model, cfg, compiled, tables, lanes);
+        return as_flow(model, cfg, compiled, sites, tables, lanes);
     }
     separable::run_with_lanes(cfg, compiled, tables, &lane_values)
 }
@@ -269,6 +270,7 @@ fn as_flow(
     cfg_model: &PotentialConfig,
     cfg: &RunConfig,
     compiled: Arc<dyn Model>,
+    sites: Sites,
     tables: Vec<TableDigest>,
     lanes: &[LaneParam],
 ) -> Result<Built, SpecError> {
@@ -294,12 +296,6 @@ fn as_flow(
             "is the name of the inverse masses of a potential run as a flow: rename it",
         ));
     }
-    let side = cfg_model.n.unwrap_or(0);
-    let sites = super::lattice_shape::sites(
-        cfg_model.lattice.as_deref(),
-        cfg_model.boundary.as_ref(),
-        side,
-    )?;
     let n = compiled.dof();
     let mut params = cfg_model.params.clone();
     let site = match sites.shape {

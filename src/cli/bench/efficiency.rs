@@ -138,6 +138,9 @@ pub fn step_sizes(h_max: f64) -> Vec<f64> {
         .collect()
 }
 
+/// The 2-D disordered Klein-Gordon lattice the table runs, written as an expression.
+const DKG_SQUARE: &str = include_str!("../../../examples/models/dkg-square.toml");
+
 /// A lattice of the table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Family {
@@ -241,14 +244,20 @@ impl Family {
             Family::Dkg2d => {
                 let side = sites.isqrt().max(3);
                 let mid = side.div_ceil(2);
+                // The example's `[model]` table, at this side.
+                let model = DKG_SQUARE
+                    .find("[model]")
+                    .zip(DKG_SQUARE.find("[orbit]"))
+                    .map(|(from, to)| &DKG_SQUARE[from..to])
+                    .filter(|m| m.contains("\nn = 21\n"))
+                    .ok_or_else(|| {
+                        anyhow::anyhow!(
+                            "the 2-D DKG example changed shape: the bench cannot set its side"
+                        )
+                    })?
+                    .replace("\nn = 21\n", &format!("\nn = {side}\n"));
                 format!(
-                    "[run]\nname = \"bench-efficiency-dkg-square\"\n\
-                     [model]\nname = \"potential\"\nlattice = \"square\"\nn = {side}\n\
-                     boundary = \"fixed\"\n\
-                     params = {{ W = 10.0, eps = {{ uniform = [0.5, 1.5], seed = 1 }} }}\n\
-                     potential = \"sum(i = 1..N, sum(j = 1..N, eps[i, j]/2*q[i, j]^2 + \
-                     q[i, j]^4/4)) + sum(i = 0..N, sum(j = 1..N, (q[i+1, j] - q[i, j])^2/(4*W))) \
-                     + sum(i = 1..N, sum(j = 0..N, (q[i, j+1] - q[i, j])^2/(4*W)))\"\n\
+                    "[run]\nname = \"bench-efficiency-dkg-square\"\n{model}\
                      [orbit]\nexcite = {{ sites = [{a}, {b}], energy = 3.6, seed = 3 }}\n{common}",
                     a = mid - 1,
                     b = mid + 1

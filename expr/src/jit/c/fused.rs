@@ -725,13 +725,7 @@ impl Writer<'_> {
             self.site(src, t, Body::Swept);
             let mut lines = Vec::new();
             self.block_terms(t, &mut lines);
-            for (s, slot) in self.carried_slots() {
-                lines.push(format!(
-                    "{} = {};",
-                    carried_name(t, s, slot),
-                    current_name(t, s, slot)
-                ));
-            }
+            self.carry(t, &mut lines);
             write_block(src, &lines);
         }
         rotate(src);
@@ -883,6 +877,13 @@ impl Writer<'_> {
         }
         let p = if tangent { "dp" } else { "p" };
         lines.push(format!("ST({p} + j, h{p}_cur - B(dh) * {acc});"));
+        self.carry(tangent, &mut lines);
+        write_block(out, &lines);
+    }
+
+    /// The statements that carry each slot's current vector of sites over to the next sweep
+    /// step (of the orbit, or of the first tangent vector with `tangent`).
+    fn carry(&self, tangent: bool, lines: &mut Vec<String>) {
         for (s, slot) in self.carried_slots() {
             lines.push(format!(
                 "{} = {};",
@@ -890,7 +891,6 @@ impl Writer<'_> {
                 current_name(tangent, s, slot)
             ));
         }
-        write_block(out, &lines);
     }
 
     /// The array parameter `name`'s local pointer.

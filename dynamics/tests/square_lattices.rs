@@ -1,13 +1,15 @@
 //! Two-dimensional lattices written as expressions (`lattice = "square"`, `q[i, j]`): the
-//! sites and the boundary of each axis against a hand-written energy, the energy distribution
+//! sites and the boundary of each axis against a hand-written energy (the sums unrolled and
+//! compiled as loops along the rows), the energy distribution
 //! over the plane, the DDNLS written as a `hamiltonian` against the built-in square lattice,
 //! block excitations, VM against MPM on a chaotic 2-D Klein-Gordon orbit, and the refusals.
 
 mod common;
 
 use chaoscope_dynamics::engine::Engine;
-use chaoscope_dynamics::model::At;
+use chaoscope_dynamics::model::{At, ExpressionModel};
 use chaoscope_dynamics::spec::{RunSpec, model_from_config};
+use chaoscope_expr::potential::SQUARE_LOOPS_FROM_SIDE;
 use chaoscope_schemas::config::RunConfig;
 
 /// The 2-D disordered Klein-Gordon potential with bonds `(q[i+1, j] - q[i, j])^2 / (4W)` and
@@ -98,7 +100,13 @@ fn irregular(len: usize, scale: f64, phase: f64) -> Vec<f64> {
 /// O(0.1) at this state.
 #[test]
 fn a_square_s_sites_and_each_axis_boundary_are_the_hand_written_ones() {
-    let n = 4;
+    // Unrolled below the side where sums become loops along the rows, loops from it.
+    for n in [4, SQUARE_LOOPS_FROM_SIDE] {
+        sites_and_boundaries_of_a_square(n);
+    }
+}
+
+fn sites_and_boundaries_of_a_square(n: usize) {
     let eps = disorder(n * n);
     let q = irregular(n * n, 0.8, 1.1);
     for bi in ["fixed", "periodic", "free"] {
@@ -112,13 +120,21 @@ fn a_square_s_sites_and_each_axis_boundary_are_the_hand_written_ones() {
             );
             let (model, _) = model_from_config(&cfg.model).unwrap();
             assert_eq!(model.dof(), n * n);
+            // From a side of 32, compiled as loops along the rows (one per row and sum).
+            let any: &dyn std::any::Any = model.as_ref();
+            let compiled = any.downcast_ref::<ExpressionModel>().unwrap();
+            let loops = n >= SQUARE_LOOPS_FROM_SIDE;
+            assert_eq!(compiled.has_loops(), loops, "{n} x {n} [{bi}, {bj}]");
             let got = model.potential(&q, At::T0);
             let want = dkg2_by_hand(&q, &eps, n, 3.0, bi, bj);
             assert!(
                 ((got - want) / want).abs() < 1e-14,
-                "[{bi}, {bj}]: {got} against {want}"
+                "{n} x {n} [{bi}, {bj}]: {got} against {want}"
             );
-            // The forces are the potential's: central differences (error ~1e-12 here).
+            // The forces are the potential's: central differences, whose truncation error is
+            // ~1e-12 here and whose rounding is that of two potentials of size |V| over 2e-6,
+            // about 1.1e-10 |V| (|V| grows with the sites): ten times that is allowed.
+            let tol = 1e-9 * (1.0 + want.abs());
             let mut g = vec![0.0; n * n];
             model.gradient(&q, At::T0, &mut g);
             for (l, &gl) in g.iter().enumerate() {
@@ -127,8 +143,8 @@ fn a_square_s_sites_and_each_axis_boundary_are_the_hand_written_ones() {
                 down[l] -= 1e-6;
                 let fd = (model.potential(&up, At::T0) - model.potential(&down, At::T0)) / 2e-6;
                 assert!(
-                    (fd - gl).abs() < 1e-8,
-                    "[{bi}, {bj}] site {l}: {fd} against {gl}"
+                    (fd - gl).abs() < tol,
+                    "{n} x {n} [{bi}, {bj}] site {l}: {fd} against {gl}"
                 );
             }
         }

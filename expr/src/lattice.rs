@@ -15,6 +15,14 @@
 //! wrapped site with periodic ones; with free ends the range holds only the terms whose slots
 //! are all inside. Compile time and code size are those of one term, whatever `N` is.
 //!
+//! On a square lattice of side `L` the loops run along rows: in `sum(i, sum(j, term))` the outer
+//! sum is unrolled, so each row's `i` is a number, and the inner sum is a loop whose slots read
+//! `q[r, j + d]` for rows `r` fixed in that row's term (a row beyond an edge already wrapped,
+//! walled or left out). A slot's shift is `(r - 1) L + d` with `2 |d| < L`, so inside the row
+//! a slot reads site `j + shift` as on a chain and [`SiteSum::site`] applies the columns'
+//! boundary at the row's ends. Code size grows with `L` (a loop per row and sum), not `L^2`;
+//! the rows inside share one term in the graph.
+//!
 //! # The order of operations (what the compiled loops and [`LatticePotential`]'s reference
 //! evaluation both do)
 //!
@@ -87,36 +95,60 @@ pub struct SiteSum {
     pub params: Vec<ParamSlot>,
     /// The term, reading its slots ([`ARG_SITE`], [`ARG_SITE_PARAM`]) and constants.
     pub term: NodeId,
+    /// The number of sites.
     pub n: usize,
+    /// The boundary along the loop: the chain's, or on a square the columns'.
     pub boundary: Boundary,
+    /// On a square lattice, its side: the sum runs along one row's columns (see [`Self::site`]).
+    pub side: Option<usize>,
 }
 
 impl SiteSum {
     /// The 0-based site a slot with `shift` reads in term `i`, `None` for a wall.
+    ///
+    /// On a square lattice of side `L` the sum runs along the columns `j = i` of rows fixed
+    /// when it was lowered (the rows' index is a number in each of the enclosing sum's terms):
+    /// a slot reading row `r` (0-based, inside the lattice: a row beyond an edge was wrapped,
+    /// walled or left out then) and column `j + d` has the shift `r L + d`, `2 |d| < L`, so that
+    /// inside the row the site is `i + shift` as on a chain, and beyond a column edge the
+    /// columns' boundary applies within the row.
     pub fn site(&self, i: i64, shift: i64) -> Option<usize> {
-        let k = i + shift;
-        let n = self.n as i64;
-        if (1..=n).contains(&k) {
-            return Some((k - 1) as usize);
+        let (len, k, row) = match self.side {
+            None => (self.n as i64, i + shift, 0),
+            Some(side) => {
+                let (row, d) = split_shift(shift, side);
+                (side as i64, i + d, row * side as i64)
+            }
+        };
+        if (1..=len).contains(&k) {
+            return Some((row + k - 1) as usize);
         }
         match self.boundary {
-            Boundary::Periodic => Some((k - 1).rem_euclid(n) as usize),
+            Boundary::Periodic => Some((row + (k - 1).rem_euclid(len)) as usize),
             // Free ends: the range holds no term reading beyond an end.
             Boundary::Fixed | Boundary::Free => None,
         }
     }
 
-    /// The terms whose slots all read sites inside `1..=N` (the loop over the interior),
-    /// `None` when there is none.
-    pub fn interior(&self) -> Option<(i64, i64)> {
-        let shifts = self
+    /// The least and greatest step along the loop of the slots (variables and parameters):
+    /// the shifts on a chain, the column offsets `d` on a square.
+    pub fn reach(&self) -> (i64, i64) {
+        let steps = self
             .variables
             .iter()
             .copied()
-            .chain(self.params.iter().map(|p| p.shift));
-        let (lo, hi) = shifts.fold((0i64, 0i64), |(lo, hi), s| (lo.min(s), hi.max(s)));
+            .chain(self.params.iter().map(|p| p.shift))
+            .map(|s| self.side.map_or(s, |side| split_shift(s, side).1));
+        steps.fold((0i64, 0i64), |(lo, hi), s| (lo.min(s), hi.max(s)))
+    }
+
+    /// The terms whose slots all read sites inside the lattice (the loop over the interior),
+    /// `None` when there is none.
+    pub fn interior(&self) -> Option<(i64, i64)> {
+        let (lo, hi) = self.reach();
+        let len = self.side.unwrap_or(self.n) as i64;
         let from = self.first.max(1 - lo);
-        let to = self.last.min(self.n as i64 - hi);
+        let to = self.last.min(len - hi);
         (from <= to).then_some((from, to))
     }
 
@@ -139,6 +171,14 @@ impl SiteSum {
             out.push(p.values[j]);
         }
     }
+}
+
+/// A square lattice's shift `r L + d` (see [`SiteSum::site`]) as its row `r` and column offset
+/// `d`, `2 |d| < L`.
+pub fn split_shift(shift: i64, side: usize) -> (i64, i64) {
+    let side = side as i64;
+    let d = (shift + (side - 1) / 2).rem_euclid(side) - (side - 1) / 2;
+    ((shift - d) / side, d)
 }
 
 /// A sum's derivatives, per variable slot.
@@ -617,7 +657,7 @@ mod tests {
     use std::collections::BTreeMap;
 
     use super::*;
-    use crate::lower::{Family, ParamValue, Scope, lower, lower_with_loops};
+    use crate::lower::{Family, ParamValue, Scope, Shape, lower, lower_with_loops};
     use crate::testing::{eval1, uniform01};
 
     /// A potential lowered both ways: unrolled (gradient by reverse accumulation, Hessian-vector
@@ -633,12 +673,12 @@ mod tests {
     }
 
     fn scope_parts(
-        n: usize,
+        sites: usize,
         params: &[(&str, ParamValue)],
     ) -> (Vec<Family>, BTreeMap<String, ParamValue>) {
         let families = vec![Family {
             name: "q".into(),
-            len: n,
+            len: sites,
             arg: ARG_Q,
             offset: 0,
         }];
@@ -655,14 +695,24 @@ mod tests {
         params: &[(&str, ParamValue)],
         src: &str,
     ) -> (Graph, crate::lower::Lowered) {
-        let (families, params) = scope_parts(n, params);
+        lowered_shaped(n, boundary, Shape::Chain, params, src)
+    }
+
+    fn lowered_shaped(
+        n: usize,
+        boundary: Boundary,
+        shape: Shape,
+        params: &[(&str, ParamValue)],
+        src: &str,
+    ) -> (Graph, crate::lower::Lowered) {
+        let (families, params) = scope_parts(shape.sites(n).unwrap(), params);
         let scope = Scope {
             families: &families,
             params: &params,
             tables: &[],
             n,
             boundary,
-            shape: crate::lower::Shape::Chain,
+            shape,
             time: None,
         };
         let mut g = Graph::new();
@@ -671,21 +721,32 @@ mod tests {
     }
 
     fn both(n: usize, boundary: Boundary, params: &[(&str, ParamValue)], src: &str) -> Both {
+        both_shaped(n, boundary, Shape::Chain, params, src)
+    }
+
+    fn both_shaped(
+        side: usize,
+        boundary: Boundary,
+        shape: Shape,
+        params: &[(&str, ParamValue)],
+        src: &str,
+    ) -> Both {
+        let n = shape.sites(side).unwrap();
         let (families, pmap) = scope_parts(n, params);
         let scope = Scope {
             families: &families,
             params: &pmap,
             tables: &[],
-            n,
+            n: side,
             boundary,
-            shape: crate::lower::Shape::Chain,
+            shape,
             time: None,
         };
         let mut unrolled = Graph::new();
         let root = lower(src, &scope, &mut unrolled).unwrap().root;
         let gradient = diff::gradient(&mut unrolled, root, ARG_Q, n).unwrap();
         let hessian_vector = diff::jacobian_vector(&mut unrolled, &gradient, ARG_Q, ARG_V).unwrap();
-        let (mut looped, l) = lowered_with_loops(n, boundary, params, src);
+        let (mut looped, l) = lowered_shaped(side, boundary, shape, params, src);
         assert!(!l.sums.is_empty(), "{src}: no sum lowered as a loop");
         let lattice = LatticePotential::new(&mut looped, l.root, l.sums, n, true)
             .unwrap()
@@ -967,6 +1028,148 @@ mod tests {
         assert!(g.len() < 100, "{} nodes", g.len());
         assert!(lattice.rest_gradient.is_empty());
         assert_eq!(lattice.terms(), n as u64 + 1);
+    }
+
+    /// The two-dimensional Klein-Gordon lattice: on-site terms and the bonds along both axes.
+    const KG_SQUARE: &str = "sum(i = 1..N, sum(j = 1..N, eps[i, j]/2*q[i, j]^2 + q[i, j]^4/4)) \
+        + sum(i = 1..N, sum(j = 1..N, ((q[i+1, j] - q[i, j])^2 + (q[i, j+1] - q[i, j])^2)/(2*W)))";
+
+    fn square_params(side: usize) -> Vec<(&'static str, ParamValue)> {
+        let eps = (0..side * side).map(|k| 0.5 + 0.01 * k as f64).collect();
+        vec![
+            ("eps", ParamValue::Array(eps)),
+            ("W", ParamValue::Scalar(4.0)),
+        ]
+    }
+
+    #[test]
+    fn square_lattice_sums_are_loops_along_rows_that_agree_with_the_unrolled_sums() {
+        use Boundary::{Fixed, Free, Periodic};
+        // Next-nearest neighbours along both axes, a parameter read at a shift in both, and a
+        // rest around the sums, beside the Klein-Gordon lattice.
+        let long = "q[1, 2]^2 - 0.5*sum(i = 1..N, sum(j = 1..N, \
+            k[i, j+1]*(q[i+2, j] - q[i, j-2])^2 + cos(q[i-1, j+1])*q[i, j]))";
+        for side in [5, 6, 9] {
+            let k = ParamValue::Array((0..side * side).map(|x| 1.0 + 0.1 * x as f64).collect());
+            for rows in [Fixed, Free, Periodic] {
+                for columns in [Fixed, Free, Periodic] {
+                    let shape = Shape::Square { columns };
+                    let mut cases = vec![(KG_SQUARE, square_params(side))];
+                    // A parameter beyond a fixed column edge is an error (tested with the
+                    // square's refusals), not a loop.
+                    if columns == Periodic {
+                        cases.push((long, vec![("k", k.clone())]));
+                    }
+                    if rows != Free && columns != Free {
+                        // Columns outside, rows inside: one loop along the columns whose term
+                        // reads a whole column (with free ends, unrolled: terms left out one
+                        // by one inside a loop's term are not a loop).
+                        let down = "sum(j = 1..N, sum(i = 1..N, q[i, j]*q[i+1, j] + q[i, j]^4))";
+                        cases.push((down, vec![]));
+                    }
+                    for (src, params) in cases {
+                        let b = both_shaped(side, rows, shape, &params, src);
+                        // One loop per row and sum, none of them unrolled.
+                        let rows_in = b.lattice.sums.len();
+                        assert!(rows_in <= 2 * side, "{rows_in} sums");
+                        assert!(
+                            b.lattice.sums.iter().all(|s| s.side == Some(side)),
+                            "{rows:?} {columns:?}"
+                        );
+                        for seed in 0..3 {
+                            let [(pu, pl), (gu, gl), (hu, hl)] = b.at(seed);
+                            for (what, x, y) in
+                                [("V", &pu, &pl), ("grad", &gu, &gl), ("Hv", &hu, &hl)]
+                            {
+                                assert!(
+                                    rel(x, y) < 1e-14,
+                                    "side {side}, {rows:?} x {columns:?}, {src} {what}: {}",
+                                    rel(x, y)
+                                );
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_square_lattice_s_code_grows_with_its_side_not_its_area() {
+        // 400 x 400 = 160,000 sites: unrolled, over a million graph nodes. As loops the terms
+        // of the inner rows are the same graph (their slots differ only in the rows they read,
+        // which the shifts carry), so the graph holds a few distinct terms.
+        let side = 400;
+        let (mut g, l) = lowered_shaped(
+            side,
+            Boundary::Fixed,
+            Shape::Square {
+                columns: Boundary::Periodic,
+            },
+            &square_params(side),
+            KG_SQUARE,
+        );
+        assert_eq!(l.sums.len(), 2 * side);
+        let sites = side * side;
+        let lattice = LatticePotential::new(&mut g, l.root, l.sums, sites, true)
+            .unwrap()
+            .unwrap();
+        assert!(g.len() < 20 * side, "{} nodes", g.len());
+        // Every site's on-site term and two bonds (the walls' bonds of the last row read one
+        // site, the wall).
+        assert_eq!(lattice.terms(), 2 * sites as u64);
+        // A bond in the middle of a row reads its site, the one below and the one after it.
+        let bonds = &lattice.sums[side + 7];
+        let (r, c) = (7, 10);
+        let i = c as i64 + 1;
+        let mut read: Vec<usize> = bonds
+            .variables
+            .iter()
+            .filter_map(|&k| bonds.site(i, k))
+            .collect();
+        read.sort_unstable();
+        assert_eq!(
+            read,
+            vec![r * side + c, r * side + c + 1, (r + 1) * side + c]
+        );
+        // The last column wraps within its row, not into the next.
+        let mut read: Vec<usize> = bonds
+            .variables
+            .iter()
+            .filter_map(|&k| bonds.site(side as i64, k))
+            .collect();
+        read.sort_unstable();
+        let last = r * side + side - 1;
+        assert_eq!(read, vec![r * side, last, last + side]);
+    }
+
+    #[test]
+    fn square_sums_that_are_not_loops_along_rows_stay_unrolled() {
+        let side = 6;
+        let shape = Shape::Square {
+            columns: Boundary::Fixed,
+        };
+        for src in [
+            // A column offset that could be a step to another row.
+            "sum(i = 1..N, sum(j = 1..N, q[i, j]*q[i, j+3]))",
+            // A single index names a site with no boundary.
+            "sum(k = 1..N*N, q[k]^2)",
+            // A fixed site in every term.
+            "sum(i = 1..N, sum(j = 1..N, q[i, j]*q[1, 1]))",
+        ] {
+            let (_, l) = lowered_shaped(side, Boundary::Fixed, shape, &[], src);
+            assert!(l.sums.is_empty(), "{src}");
+        }
+        // Free rows: a sum whose every term reads past the last row has none.
+        let (g, l) = lowered_shaped(
+            side,
+            Boundary::Free,
+            shape,
+            &[],
+            "sum(j = 1..N, q[N+1, j]^2) + sum(j = 1..N, q[N, j]^2)",
+        );
+        assert_eq!(l.sums.len(), 1);
+        assert!(g.len() < 20);
     }
 
     #[test]

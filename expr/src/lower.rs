@@ -227,15 +227,15 @@ pub fn lower(source: &str, scope: &Scope, graph: &mut Graph) -> Result<Lowered, 
 
 /// [`lower`], with the lattice sums that allow it lowered as loops (their terms once, see
 /// [`crate::lattice`]) rather than unrolled: for a potential of the variables `q` (one family,
-/// argument [`crate::lattice::ARG_Q`], offset 0, `N` entries). Accepts and refuses exactly the
+/// argument [`crate::lattice::ARG_Q`], offset 0, `N` entries, `N^2` on a square). Accepts and refuses exactly the
 /// expressions [`lower`] does, with the same errors.
 pub fn lower_with_loops(
     source: &str,
     scope: &Scope,
     graph: &mut Graph,
 ) -> Result<Lowered, ExprError> {
-    let loops = scope.shape == Shape::Chain
-        && matches!(scope.families, [f] if f.arg == crate::lattice::ARG_Q && f.offset == 0 && f.len == scope.n);
+    let loops = matches!(scope.families, [f] if f.arg == crate::lattice::ARG_Q && f.offset == 0
+        && Some(f.len) == scope.shape.sites(scope.n));
     on_big_stack(|| lower_limited(source, scope, graph, MAX_NODES, MAX_STEPS, loops))
 }
 
@@ -920,9 +920,14 @@ impl<'a> Lowerer<'a> {
         row: &'a Expr,
         column: &'a Expr,
     ) -> R<(NodeId, Info)> {
-        if self.template.is_some() {
-            // Site loops run along a chain; the sums of a square lattice are unrolled.
-            return Err(self.not_a_loop(e.span));
+        if let Some(t) = &self.template {
+            if loops::mentions(row, t.index) || loops::mentions(column, t.index) {
+                return self.square_slot(e, name, row, column);
+            }
+            if matches!(self.meaning(name), Meaning::Family(_)) {
+                // A fixed site in every term: not a loop's slot.
+                return Err(self.not_a_loop(e.span));
+            }
         }
         let Shape::Square { columns } = self.scope.shape else {
             return Err(self.err(

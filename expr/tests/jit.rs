@@ -834,7 +834,7 @@ mod lattice_loops {
     use chaoscope_expr::jit::OptLevel;
     use chaoscope_expr::jit::{self, LATTICE_GRADIENT, LATTICE_HESSIAN_VECTOR, LATTICE_POTENTIAL};
     use chaoscope_expr::lattice::{LatticeEvaluator, LatticePotential};
-    use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope, lower_with_loops};
+    use chaoscope_expr::lower::{Boundary, Family, ParamValue, Scope, Shape, lower_with_loops};
     use chaoscope_expr::table::{Spline, SplineEnds};
 
     use super::Rng;
@@ -856,6 +856,17 @@ mod lattice_loops {
     }
 
     fn lattice(n: usize, boundary: Boundary, src: &str) -> (Graph, LatticePotential) {
+        lattice_shaped(n, boundary, Shape::Chain, src)
+    }
+
+    /// [`lattice`] of any shape, `side` its `N` (a square's side).
+    fn lattice_shaped(
+        side: usize,
+        boundary: Boundary,
+        shape: Shape,
+        src: &str,
+    ) -> (Graph, LatticePotential) {
+        let n = shape.sites(side).unwrap();
         let mut g = Graph::new();
         // A table defined on [-50, 50]: U(x) = x^2 / (1 + x^2/100), sampled.
         let xs: Vec<f64> = (0..=200).map(|k| -50.0 + 0.5 * k as f64).collect();
@@ -883,9 +894,9 @@ mod lattice_loops {
             families: &families,
             params: &params,
             tables: &tables,
-            n,
+            n: side,
             boundary,
-            shape: chaoscope_expr::lower::Shape::Chain,
+            shape,
             time: None,
         };
         let l = lower_with_loops(src, &scope, &mut g).unwrap_or_else(|e| panic!("{e}"));
@@ -934,41 +945,78 @@ mod lattice_loops {
                     continue;
                 }
                 let (g, lp) = lattice(n, boundary, src);
-                for opt_level in [OptLevel::None, OptLevel::Speed] {
-                    let options = jit::Options {
-                        opt_level,
-                        ..jit::Options::default()
-                    };
-                    let c = jit::compile_lattice(&g, &lp, &options).unwrap();
-                    let mut e = LatticeEvaluator::new(&g, &lp);
-                    let mut rng = Rng(n as u64 * 7919);
-                    for sample in 0..20 {
-                        // Moderate values mostly; special ones (NaN, infinities, zeros of both
-                        // signs) in a few samples.
-                        let draw = |rng: &mut Rng| {
-                            if sample % 5 == 4 {
-                                rng.value()
-                            } else {
-                                rng.moderate()
-                            }
-                        };
-                        let q: Vec<f64> = (0..n).map(|_| draw(&mut rng)).collect();
-                        let v: Vec<f64> = (0..n).map(|_| draw(&mut rng)).collect();
-                        let what = format!("{boundary:?} N = {n} {opt_level:?}: {src}");
-                        let mut got = vec![0.0; 1];
-                        c.call(LATTICE_POTENTIAL, &[&q], &mut got);
-                        assert_same(&format!("{what}: V"), &got, &[e.potential(&q)], &q);
-                        let (mut got, mut want) = (vec![0.0; n], vec![0.0; n]);
-                        c.call(LATTICE_GRADIENT, &[&q], &mut got);
-                        e.gradient(&q, &mut want);
-                        assert_same(&format!("{what}: gradient"), &got, &want, &q);
-                        c.call(LATTICE_HESSIAN_VECTOR, &[&q, &v], &mut got);
-                        e.hessian_vector(&q, &v, &mut want);
-                        assert_same(&format!("{what}: Hv"), &got, &want, &(&q, &v));
+                compiled_is_reference(&g, &lp, &format!("{boundary:?} N = {n}: {src}"));
+            }
+        }
+    }
+
+    /// The compiled potential, gradient and Hessian-vector product against the reference
+    /// evaluation, unoptimized and optimized, at moderate and special values.
+    fn compiled_is_reference(g: &Graph, lp: &LatticePotential, name: &str) {
+        let n = lp.n;
+        for opt_level in [OptLevel::None, OptLevel::Speed] {
+            let options = jit::Options {
+                opt_level,
+                ..jit::Options::default()
+            };
+            let c = jit::compile_lattice(g, lp, &options).unwrap();
+            let mut e = LatticeEvaluator::new(g, lp);
+            let mut rng = Rng(n as u64 * 7919);
+            for sample in 0..20 {
+                // Moderate values mostly; special ones (NaN, infinities, zeros of both signs)
+                // in a few samples.
+                let draw = |rng: &mut Rng| {
+                    if sample % 5 == 4 {
+                        rng.value()
+                    } else {
+                        rng.moderate()
+                    }
+                };
+                let q: Vec<f64> = (0..n).map(|_| draw(&mut rng)).collect();
+                let v: Vec<f64> = (0..n).map(|_| draw(&mut rng)).collect();
+                let what = format!("{name} {opt_level:?}");
+                let mut got = vec![0.0; 1];
+                c.call(LATTICE_POTENTIAL, &[&q], &mut got);
+                assert_same(&format!("{what}: V"), &got, &[e.potential(&q)], &q);
+                let (mut got, mut want) = (vec![0.0; n], vec![0.0; n]);
+                c.call(LATTICE_GRADIENT, &[&q], &mut got);
+                e.gradient(&q, &mut want);
+                assert_same(&format!("{what}: gradient"), &got, &want, &q);
+                c.call(LATTICE_HESSIAN_VECTOR, &[&q, &v], &mut got);
+                e.hessian_vector(&q, &v, &mut want);
+                assert_same(&format!("{what}: Hv"), &got, &want, &(&q, &v));
+            }
+        }
+    }
+
+    /// A square lattice's sums, loops along its rows: every boundary pair, a term reaching two
+    /// rows and two columns, a table and an array parameter read at a shift along both axes.
+    #[test]
+    fn compiled_square_loops_are_the_reference_evaluation_bit_for_bit() {
+        let kg = "sum(i = 1..N, sum(j = 1..N, k[i, j]/2*q[i, j]^2 + q[i, j]^4/4)) \
+                  + sum(i = 1..N, sum(j = 1..N, ((q[i+1, j] - q[i, j])^2 + (q[i, j+1] - q[i, j])^2)/8))";
+        let far = "q[1, 2]^2 - sum(i = 1..N, sum(j = 1..N, U(q[i+2, j] - q[i, j-2]) \
+                   * (1 + q[i-1, j+1]^2) + k[i+1, j-1]*sin(q[i, j])))";
+        let mut compiled = 0;
+        for side in [2, 3, 5, 8] {
+            for rows in [Boundary::Fixed, Boundary::Free, Boundary::Periodic] {
+                for columns in [Boundary::Fixed, Boundary::Free, Boundary::Periodic] {
+                    let shape = Shape::Square { columns };
+                    let mut cases = vec![kg];
+                    if rows == Boundary::Periodic && columns == Boundary::Periodic && side >= 5 {
+                        cases.push(far);
+                    }
+                    for src in cases {
+                        let (g, lp) = lattice_shaped(side, rows, shape, src);
+                        let what = format!("{side} x {side} {rows:?} x {columns:?}: {src}");
+                        assert!(lp.sums.iter().all(|s| s.side == Some(side)), "{what}");
+                        compiled_is_reference(&g, &lp, &what);
+                        compiled += 1;
                     }
                 }
             }
         }
+        assert_eq!(compiled, 4 * 9 + 2);
     }
 
     #[test]

@@ -18,6 +18,7 @@ mod henon_heiles;
 /// `[model] name = "potential"`: compiled by `chaoscope-expr`; `expression.rs` makes it a [`Model`].
 pub use chaoscope_expr::potential::{
     CStepState, CStepStatus, ExpressionModel, PotentialDefinition, PotentialError,
+    SQUARE_LOOPS_FROM_SIDE,
 };
 pub use ddnls::{Ddnls, DdnlsLattice};
 pub use fput::FputBeta;

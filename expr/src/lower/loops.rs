@@ -2,7 +2,8 @@
 //! once with its sites `q[i + k]` and array parameters `eps[i + k]` as slot inputs.
 //!
 //! A sum is lowered this way when its body reads the variables and array parameters only as
-//! `name[i + k]` (a whole shift `k`; the index `i` nowhere else, not as a number), has no sum
+//! `name[i + k]`, or on a square as `name[r, i + k]` with the row `r` a number in the term (a
+//! whole shift `k`; the index `i` nowhere else, not as a number), has no sum
 //! of its own under free ends (whose terms would be left out site by site), reads array
 //! parameters only inside the lattice under fixed ends, and has at most
 //! [`MAX_BOUNDARY_TERMS`] terms reaching beyond an end. Anything else, including every error,
@@ -15,8 +16,10 @@ use super::{Info, Lowerer, Meaning, R};
 use crate::ast::{BinOp, Expr, ExprKind};
 use crate::error::Span;
 use crate::graph::{Node, NodeId};
-use crate::lattice::{ARG_SITE, ARG_SITE_PARAM, ARG_SUM, MAX_BOUNDARY_TERMS, ParamSlot, SiteSum};
-use crate::lower::{Boundary, ParamValue};
+use crate::lattice::{
+    ARG_SITE, ARG_SITE_PARAM, ARG_SUM, MAX_BOUNDARY_TERMS, ParamSlot, SiteSum, split_shift,
+};
+use crate::lower::{Boundary, ParamValue, Shape};
 use crate::smooth::Signs;
 
 /// The sum whose body is being lowered as a term: its index and the slots met so far.
@@ -24,6 +27,8 @@ pub(super) struct Template<'a> {
     pub index: &'a str,
     pub variables: Vec<i64>,
     pub params: Vec<ParamSlot>,
+    /// A slot reads a row beyond a free edge of a square: every term is left out.
+    pub left_out: bool,
 }
 
 impl<'a> Lowerer<'a> {
@@ -74,13 +79,67 @@ impl<'a> Lowerer<'a> {
 
     /// `name[index]` in a term where `index` mentions the loop index: a slot input.
     pub(super) fn slot(&mut self, e: &'a Expr, name: &str, index: &'a Expr) -> R<(NodeId, Info)> {
+        if self.scope.shape != Shape::Chain {
+            // On a square a single index names a site with no boundary: unrolled.
+            return Err(self.not_a_loop(e.span));
+        }
         let loop_index = self.template.as_ref().map_or("", |t| t.index);
         let (c, shift) = self.affine(index, loop_index)?;
         if c != 1 {
             return Err(self.not_a_loop(e.span));
         }
+        self.slot_at(e, name, shift)
+    }
+
+    /// `name[row, column]` on a square lattice in a term whose column mentions the loop index
+    /// (the loop runs along a row) and whose row does not (a number in this term of the
+    /// enclosing sum): a slot input with the shift `r L + d` of [`crate::lattice::SiteSum`].
+    pub(super) fn square_slot(
+        &mut self,
+        e: &'a Expr,
+        name: &str,
+        row: &'a Expr,
+        column: &'a Expr,
+    ) -> R<(NodeId, Info)> {
+        let loop_index = self.template.as_ref().map_or("", |t| t.index);
+        let Shape::Square { .. } = self.scope.shape else {
+            return Err(self.not_a_loop(e.span));
+        };
+        if mentions(row, loop_index) {
+            return Err(self.not_a_loop(e.span));
+        }
+        let (c, d) = self.affine(column, loop_index)?;
+        let side = self.scope.n as i64;
+        // The column offset must be told apart from a step to another row (`split_shift`).
+        if c != 1 || d.unsigned_abs().saturating_mul(2) >= side as u64 {
+            return Err(self.not_a_loop(e.span));
+        }
+        let is_family = matches!(self.meaning(name), Meaning::Family(_));
+        let r = self.int(row)?;
+        let r = if (1..=side).contains(&r) {
+            r - 1
+        } else {
+            match self.scope.boundary {
+                Boundary::Periodic => (r - 1).rem_euclid(side),
+                // A wall along the rows, in every term.
+                Boundary::Fixed if is_family => return self.constant(0.0, e.span),
+                // A row beyond a free edge: every term of this sum is left out.
+                Boundary::Free if is_family => {
+                    self.template.as_mut().expect("in a term").left_out = true;
+                    return self.constant(0.0, e.span);
+                }
+                // Parameters beyond an edge are an error, which the unrolled lowering reports.
+                _ => return Err(self.not_a_loop(e.span)),
+            }
+        };
+        self.slot_at(e, name, r * side + d)
+    }
+
+    /// The slot input of `name` at `shift` (a variable or array-parameter slot of the term).
+    fn slot_at(&mut self, e: &'a Expr, name: &str, shift: i64) -> R<(NodeId, Info)> {
+        let sites = self.scope.shape.sites(self.scope.n);
         match self.meaning(name) {
-            Meaning::Family(f) if f.len == self.scope.n && f.offset == 0 => {
+            Meaning::Family(f) if Some(f.len) == sites && f.offset == 0 => {
                 let t = self.template.as_mut().expect("in a term");
                 let s = match t.variables.iter().position(|&k| k == shift) {
                     Some(s) => s,
@@ -95,7 +154,7 @@ impl<'a> Lowerer<'a> {
                 };
                 Ok((self.emit(node, e.span)?, Info::variable()))
             }
-            Meaning::Param(ParamValue::Array(v)) if v.len() == self.scope.n => {
+            Meaning::Param(ParamValue::Array(v)) if Some(v.len()) == sites => {
                 // A known constant in every term: its signs are those of the entries.
                 let signs = v
                     .iter()
@@ -155,31 +214,45 @@ impl<'a> Lowerer<'a> {
             index,
             variables: Vec::new(),
             params: Vec::new(),
+            left_out: false,
         });
         // The loop index stands in the scope as a name (so it is not "unknown"); every use
         // of it outside a slot's index refuses the loop form.
+        let depth = self.sums.len();
         self.sums.push((index, 0));
         let lowered = self.value(body);
-        self.sums.pop();
+        // An error leaves the indices of the sums it came through (see `Lowerer::sum`).
+        self.sums.truncate(depth);
         let template = self.template.take().expect("set above");
         let Ok((term, info)) = lowered else {
             return Ok(None);
         };
+        if template.left_out {
+            // Every term reads a row beyond a free edge: the unrolled sum has no term.
+            return self.constant(0.0, e.span).map(Some);
+        }
         if self.graph.as_const(term).is_some() {
             // The same term at every site: the unrolled sum folds to one constant.
             return Ok(None);
         }
+        // Along the loop: a chain, or on a square the columns of one row.
+        let (side, boundary) = match self.scope.shape {
+            Shape::Chain => (None, self.scope.boundary),
+            Shape::Square { columns } => (Some(self.scope.n), columns),
+        };
         let n = self.scope.n as i64;
-        let shifts = || {
+        let step = |s: i64| side.map_or(s, |side| split_shift(s, side).1);
+        let steps = || {
             template
                 .variables
                 .iter()
                 .copied()
                 .chain(template.params.iter().map(|p| p.shift))
+                .map(step)
         };
-        let lo = shifts().min().unwrap_or(0);
-        let hi = shifts().max().unwrap_or(0);
-        let (first, last) = match self.scope.boundary {
+        let lo = steps().min().unwrap_or(0);
+        let hi = steps().max().unwrap_or(0);
+        let (first, last) = match boundary {
             Boundary::Free => (a.max(1 - lo), b.min(n - hi)),
             Boundary::Periodic if n == 0 => return Ok(None),
             Boundary::Periodic => (a, b),
@@ -187,7 +260,7 @@ impl<'a> Lowerer<'a> {
                 let inside = template
                     .params
                     .iter()
-                    .all(|p| a + p.shift >= 1 && b + p.shift <= n);
+                    .all(|p| a + step(p.shift) >= 1 && b + step(p.shift) <= n);
                 if !inside {
                     return Ok(None);
                 }
@@ -204,8 +277,9 @@ impl<'a> Lowerer<'a> {
             variables: template.variables,
             params: template.params,
             term,
-            n: self.scope.n,
-            boundary: self.scope.boundary,
+            n: self.scope.shape.sites(self.scope.n).unwrap_or(0),
+            boundary,
+            side,
         };
         let (before, after) = sum.boundary_terms();
         if (before.len() + after.len()) as i64 > MAX_BOUNDARY_TERMS {

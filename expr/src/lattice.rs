@@ -1030,6 +1030,16 @@ mod tests {
         assert_eq!(lattice.terms(), n as u64 + 1);
     }
 
+    #[test]
+    fn a_sum_that_is_not_a_loop_leaves_its_indices_to_the_next_sum() {
+        // The first sum's loop attempt fails inside its unrolled inner sum (`q[j]` is a fixed
+        // site in every term); the second sum reuses the name `i`, which must be free again.
+        let src = "sum(i = 1..N, sum(j = 1..2, q[j]^3)) + sum(i = 1..N, q[i]^2)";
+        let b = both(5, Boundary::Fixed, &[], src);
+        let [(pu, pl), (gu, gl), _] = b.at(3);
+        assert!(rel(&pu, &pl) < 1e-14 && rel(&gu, &gl) < 1e-14);
+    }
+
     /// The two-dimensional Klein-Gordon lattice: on-site terms and the bonds along both axes.
     const KG_SQUARE: &str = "sum(i = 1..N, sum(j = 1..N, eps[i, j]/2*q[i, j]^2 + q[i, j]^4/4)) \
         + sum(i = 1..N, sum(j = 1..N, ((q[i+1, j] - q[i, j])^2 + (q[i, j+1] - q[i, j])^2)/(2*W)))";

@@ -352,6 +352,12 @@ impl LatticePotential {
         n: usize,
         hessian: bool,
     ) -> Result<Option<Self>, DiffError> {
+        // `n` is the number of sites (a square's `N^2`), which the sums index.
+        assert!(
+            sums.iter().all(|s| s.n == n),
+            "lattice sums over {:?} sites in a potential of {n}",
+            sums.iter().map(|s| s.n).collect::<Vec<_>>()
+        );
         let adjoints = diff::gradient(graph, root, ARG_SUM, sums.len())?;
         let mut coefficients = Vec::with_capacity(sums.len());
         for &a in &adjoints {
@@ -1070,12 +1076,11 @@ mod tests {
                     if columns == Periodic {
                         cases.push((long, vec![("k", k.clone())]));
                     }
-                    if rows != Free && columns != Free {
-                        // Columns outside, rows inside: one loop along the columns whose term
-                        // reads a whole column (with free ends, unrolled: terms left out one
-                        // by one inside a loop's term are not a loop).
-                        let down = "sum(j = 1..N, sum(i = 1..N, q[i, j]*q[i+1, j] + q[i, j]^4))";
-                        cases.push((down, vec![]));
+                    if columns == Free {
+                        // A wall two columns on: past the free edge it leaves the term out,
+                        // as a slot there would.
+                        let wall = "sum(i = 1..N, sum(j = 1..N, q[i, j]^2 + q[i+1, j+2]^2))";
+                        cases.push((wall, vec![]));
                     }
                     for (src, params) in cases {
                         let b = both_shaped(side, rows, shape, &params, src);
@@ -1166,10 +1171,19 @@ mod tests {
             "sum(k = 1..N*N, q[k]^2)",
             // A fixed site in every term.
             "sum(i = 1..N, sum(j = 1..N, q[i, j]*q[1, 1]))",
+            // Columns outside, rows inside: a loop along the columns would have a whole column
+            // as its term, one part of the energy distribution where the unrolled sum has a
+            // part per site.
+            "sum(j = 1..N, sum(i = 1..N, q[i, j]*q[i+1, j] + q[i, j]^4))",
         ] {
             let (_, l) = lowered_shaped(side, Boundary::Fixed, shape, &[], src);
             assert!(l.sums.is_empty(), "{src}");
         }
+        // A row index at the end of the 64-bit range on periodic rows: wrapped as the
+        // unrolled lowering wraps it (128-bit), not overflowed.
+        let far = "sum(j = 1..N, q[(0 - 4294967296)*2147483648, j]^2)";
+        let (_, l) = lowered_shaped(side, Boundary::Periodic, shape, &[], far);
+        assert!(l.sums.is_empty(), "{far}");
         // Free rows: a sum whose every term reads past the last row has none.
         let (g, l) = lowered_shaped(
             side,

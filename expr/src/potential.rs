@@ -781,6 +781,43 @@ mod site_energy_tests {
             let total: f64 = sb.iter().sum();
             assert!((total - b.potential(&q)).abs() < 1e-15);
         }
+        // A square from the side where its sums are loops along the rows, each axis's
+        // boundary, against the same square unrolled (`+ 0*j` keeps a term from being a loop).
+        let side = SQUARE_LOOPS_FROM_SIDE;
+        let q: Vec<f64> = (0..side * side)
+            .map(|k| 0.4 * (k as f64 * 1.3 + 0.2).sin())
+            .collect();
+        let square = |potential: &str, rows: Boundary, columns: Boundary| {
+            ExpressionModel::new(PotentialDefinition {
+                n: side * side,
+                potential: potential.to_string(),
+                params: BTreeMap::new(),
+                inverse_masses: None,
+                boundary: rows,
+                shape: Shape::Square { columns },
+                tables: Vec::new(),
+            })
+            .unwrap()
+        };
+        let looped = "sum(i = 1..N, sum(j = 1..N, q[i, j]^4/4 + (q[i+1, j] - q[i, j])^2/2 \
+                      + (q[i, j+1] - q[i, j])^2/2))";
+        let unrolled = looped.replace("^2/2))", "^2/2 + 0*j))");
+        for rows in [Boundary::Fixed, Boundary::Periodic, Boundary::Free] {
+            for columns in [Boundary::Fixed, Boundary::Periodic, Boundary::Free] {
+                let (a, b) = (
+                    square(looped, rows, columns),
+                    square(&unrolled, rows, columns),
+                );
+                assert!(a.has_loops() && !b.has_loops(), "{rows:?} x {columns:?}");
+                let (sa, sb) = (sites(&a, &q).unwrap(), sites(&b, &q).unwrap());
+                for (x, y) in sa.iter().zip(&sb) {
+                    assert!(
+                        (x - y).abs() < 1e-15,
+                        "{rows:?} x {columns:?}: {x} against {y}"
+                    );
+                }
+            }
+        }
         let product = model(3, "q1*sum(i = 1..N, q[i]^2 + 0*i)", Boundary::Free);
         let why = sites(&product, &[1.0, 2.0, 3.0]).unwrap_err();
         assert!(why.contains("not written as lattice sums"), "{why}");

@@ -315,7 +315,9 @@ fn lattice_loops(text: &str, scope: &chaoscope_expr::Scope, spline: &chaoscope_e
     if lowered.sums.is_empty() {
         return;
     }
-    let n = scope.n;
+    let Some(n) = scope.shape.sites(scope.n) else {
+        return;
+    };
     let q = [0.3, -0.2, 0.1, 0.05];
     let v = [1.0, 0.5, -0.25, 0.125];
     let Ok(Some(lattice)) = LatticePotential::new(&mut g, lowered.root, lowered.sums, n, true)

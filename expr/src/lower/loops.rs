@@ -29,6 +29,9 @@ pub(super) struct Template<'a> {
     pub params: Vec<ParamSlot>,
     /// A slot reads a row beyond a free edge of a square: every term is left out.
     pub left_out: bool,
+    /// The column offsets of the walls the term reads (rows beyond a fixed edge of a square):
+    /// no slots, but past a free column edge they leave the term out as a slot would.
+    pub wall_steps: Vec<i64>,
 }
 
 impl<'a> Lowerer<'a> {
@@ -120,9 +123,19 @@ impl<'a> Lowerer<'a> {
             r - 1
         } else {
             match self.scope.boundary {
-                Boundary::Periodic => (r - 1).rem_euclid(side),
+                Boundary::Periodic => r
+                    .checked_sub(1)
+                    .ok_or_else(|| self.not_a_loop(e.span))?
+                    .rem_euclid(side),
                 // A wall along the rows, in every term.
-                Boundary::Fixed if is_family => return self.constant(0.0, e.span),
+                Boundary::Fixed if is_family => {
+                    self.template
+                        .as_mut()
+                        .expect("in a term")
+                        .wall_steps
+                        .push(d);
+                    return self.constant(0.0, e.span);
+                }
                 // A row beyond a free edge: every term of this sum is left out.
                 Boundary::Free if is_family => {
                     self.template.as_mut().expect("in a term").left_out = true;
@@ -210,11 +223,18 @@ impl<'a> Lowerer<'a> {
         if !self.loops || self.template.is_some() || a > b {
             return Ok(None);
         }
+        if matches!(body.kind, ExprKind::Sum { .. }) {
+            // Each term of a directly nested sum is a part of the energy distribution
+            // (`Lowered::parts`), where a loop's term would be one part shared by all its
+            // sites: this sum is unrolled, and the nested sums may be loops.
+            return Ok(None);
+        }
         self.template = Some(Template {
             index,
             variables: Vec::new(),
             params: Vec::new(),
             left_out: false,
+            wall_steps: Vec::new(),
         });
         // The loop index stands in the scope as a name (so it is not "unknown"); every use
         // of it outside a slot's index refuses the loop form.
@@ -250,8 +270,10 @@ impl<'a> Lowerer<'a> {
                 .chain(template.params.iter().map(|p| p.shift))
                 .map(step)
         };
-        let lo = steps().min().unwrap_or(0);
-        let hi = steps().max().unwrap_or(0);
+        // Past a free edge a wall's column leaves the term out too (`Lowerer::term_exists`).
+        let reach = || steps().chain(template.wall_steps.iter().copied());
+        let lo = reach().min().unwrap_or(0);
+        let hi = reach().max().unwrap_or(0);
         let (first, last) = match boundary {
             Boundary::Free => (a.max(1 - lo), b.min(n - hi)),
             Boundary::Periodic if n == 0 => return Ok(None),

@@ -704,15 +704,16 @@ mod tests {
         lowered_shaped(n, boundary, Shape::Chain, params, src)
     }
 
-    fn lowered_shaped(
+    /// `f` of the scope of a lattice of side (or length) `n`, with `params`.
+    fn in_scope<R>(
         n: usize,
         boundary: Boundary,
         shape: Shape,
         params: &[(&str, ParamValue)],
-        src: &str,
-    ) -> (Graph, crate::lower::Lowered) {
+        f: impl FnOnce(&Scope) -> R,
+    ) -> R {
         let (families, params) = scope_parts(shape.sites(n).unwrap(), params);
-        let scope = Scope {
+        f(&Scope {
             families: &families,
             params: &params,
             tables: &[],
@@ -720,10 +721,21 @@ mod tests {
             boundary,
             shape,
             time: None,
-        };
-        let mut g = Graph::new();
-        let l = lower_with_loops(src, &scope, &mut g).unwrap_or_else(|e| panic!("{e}"));
-        (g, l)
+        })
+    }
+
+    fn lowered_shaped(
+        n: usize,
+        boundary: Boundary,
+        shape: Shape,
+        params: &[(&str, ParamValue)],
+        src: &str,
+    ) -> (Graph, crate::lower::Lowered) {
+        in_scope(n, boundary, shape, params, |scope| {
+            let mut g = Graph::new();
+            let l = lower_with_loops(src, scope, &mut g).unwrap_or_else(|e| panic!("{e}"));
+            (g, l)
+        })
     }
 
     fn both(n: usize, boundary: Boundary, params: &[(&str, ParamValue)], src: &str) -> Both {
@@ -738,18 +750,10 @@ mod tests {
         src: &str,
     ) -> Both {
         let n = shape.sites(side).unwrap();
-        let (families, pmap) = scope_parts(n, params);
-        let scope = Scope {
-            families: &families,
-            params: &pmap,
-            tables: &[],
-            n: side,
-            boundary,
-            shape,
-            time: None,
-        };
         let mut unrolled = Graph::new();
-        let root = lower(src, &scope, &mut unrolled).unwrap().root;
+        let root = in_scope(side, boundary, shape, params, |scope| {
+            lower(src, scope, &mut unrolled).unwrap().root
+        });
         let gradient = diff::gradient(&mut unrolled, root, ARG_Q, n).unwrap();
         let hessian_vector = diff::jacobian_vector(&mut unrolled, &gradient, ARG_Q, ARG_V).unwrap();
         let (mut looped, l) = lowered_shaped(side, boundary, shape, params, src);
@@ -797,6 +801,17 @@ mod tests {
             e.gradient(&q, &mut gl);
             e.hessian_vector(&q, &v, &mut hl);
             [(pu, pl), (gu, gl), (hu, hl)]
+        }
+
+        /// Potential, gradient and Hessian-vector product agree at three random points, to
+        /// a few roundings of the terms (of order 1).
+        fn agree(&self, case: &str) {
+            for seed in 0..3 {
+                let [(pu, pl), (gu, gl), (hu, hl)] = self.at(seed);
+                for (what, x, y) in [("V", &pu, &pl), ("grad", &gu, &gl), ("Hv", &hu, &hl)] {
+                    assert!(rel(x, y) < 1e-14, "{case} {what}: {}", rel(x, y));
+                }
+            }
         }
     }
 
@@ -875,18 +890,7 @@ mod tests {
             ),
         ];
         for (boundary, src, params) in cases {
-            let b = both(9, boundary, &params, src);
-            for seed in 0..3 {
-                let [(pu, pl), (gu, gl), (hu, hl)] = b.at(seed);
-                // Sums of terms of order 1: a few roundings apart at most.
-                for (what, x, y) in [("V", &pu, &pl), ("grad", &gu, &gl), ("Hv", &hu, &hl)] {
-                    assert!(
-                        rel(x, y) < 1e-14,
-                        "{boundary:?} {src} {what}: {}",
-                        rel(x, y)
-                    );
-                }
-            }
+            both(9, boundary, &params, src).agree(&format!("{boundary:?} {src}"));
         }
     }
 
@@ -1091,18 +1095,7 @@ mod tests {
                             b.lattice.sums.iter().all(|s| s.side == Some(side)),
                             "{rows:?} {columns:?}"
                         );
-                        for seed in 0..3 {
-                            let [(pu, pl), (gu, gl), (hu, hl)] = b.at(seed);
-                            for (what, x, y) in
-                                [("V", &pu, &pl), ("grad", &gu, &gl), ("Hv", &hu, &hl)]
-                            {
-                                assert!(
-                                    rel(x, y) < 1e-14,
-                                    "side {side}, {rows:?} x {columns:?}, {src} {what}: {}",
-                                    rel(x, y)
-                                );
-                            }
-                        }
+                        b.agree(&format!("side {side}, {rows:?} x {columns:?}, {src}"));
                     }
                 }
             }

@@ -20,8 +20,8 @@ drawn by `analyze --plot` (plane-*.png). Prints the fitted exponents and the CPU
 as JSON. Standard library only.
 
 The 10-realization campaign of RESULTS.md took 896 CPU-seconds (90 per realization); its
-4-realization decade to t = 10^5 on an 80 x 80 square (`--side 80 --t-final 1e5`) about 1,600
-CPU-seconds per realization.
+6-realization decade to t = 10^5 on an 80 x 80 square (`--side 80 --t-final 1e5`) 9,341
+CPU-seconds (about 1,560 per realization).
 
 The paper's exact DDNLS settings are not restated here (not confirmed against the paper's text):
 this setting is argued from the regime's conditions. The nonlinear frequency shift

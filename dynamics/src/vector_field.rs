@@ -77,6 +77,16 @@ pub trait VectorField: Send + Sync {
         (!self.is_hamiltonian()).then(|| self.divergence(x, t))
     }
 
+    /// The energy of each site of the state `x` of a Hamiltonian written as lattice sums (the
+    /// weights of the energy distribution); for any other field an error saying that the
+    /// system `name` has none.
+    fn site_energies(&self, x: &[f64], out: &mut [f64], name: &str) -> Result<(), String> {
+        match self.compiled() {
+            Some(f) if f.is_hamiltonian() => f.site_energies(x, out),
+            _ => Err(crate::system::no_site_energies(name)),
+        }
+    }
+
     /// The compiled function behind `f`, whose lane functions the batched kernel of
     /// phase-space maps steps many orbits with (`crate::batch::flow_orbit_steps`); `None` for a
     /// hand-written field, whose points run through the engine.

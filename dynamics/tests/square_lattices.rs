@@ -19,6 +19,13 @@ const DKG2: &str = r#"potential = """
 + sum(i = 0..N, sum(j = 1..N, (q[i+1, j] - q[i, j])^2/(4*W)))
 + sum(i = 1..N, sum(j = 0..N, (q[i, j+1] - q[i, j])^2/(4*W)))""""#;
 
+/// The 2-D DDNLS written as a `hamiltonian` (`psi = (q + i p) / sqrt(2)`, hopping to the four
+/// neighbours), with `beta` and `eps` from the config's params.
+const DDNLS2: &str = r#"hamiltonian = """
+  sum(i = 1..N, sum(j = 1..N, eps[i, j]*(q[i, j]^2 + p[i, j]^2)/2
+                              + beta/8*(q[i, j]^2 + p[i, j]^2)^2))
+- sum(i = 1..N, sum(j = 1..N, q[i, j]*(q[i+1, j] + q[i, j+1]) + p[i, j]*(p[i+1, j] + p[i, j+1])))""""#;
+
 fn parse(text: &str) -> RunConfig {
     RunConfig::from_toml(text).unwrap_or_else(|e| panic!("{e}\n{text}"))
 }
@@ -225,10 +232,7 @@ lattice = "square"
 n = 5
 boundary = "fixed"
 params = {{ beta = 3.0, eps = {{ uniform = [-2.0, 2.0], seed = 7 }} }}
-hamiltonian = """
-  sum(i = 1..N, sum(j = 1..N, eps[i, j]*(q[i, j]^2 + p[i, j]^2)/2
-                              + beta/8*(q[i, j]^2 + p[i, j]^2)^2))
-- sum(i = 1..N, sum(j = 1..N, q[i, j]*(q[i+1, j] + q[i, j+1]) + p[i, j]*(p[i+1, j] + p[i, j+1])))"""
+{DDNLS2}
 [orbit]
 q = [{}]
 p = [{}]
@@ -458,10 +462,7 @@ name = "hamiltonian"
 lattice = "square"
 n = {n}
 params = {{ beta = 3.0, eps = {{ uniform = [-2.0, 2.0], seed = 7 }} }}
-hamiltonian = """
-  sum(i = 1..N, sum(j = 1..N, eps[i, j]*(q[i, j]^2 + p[i, j]^2)/2
-                              + beta/8*(q[i, j]^2 + p[i, j]^2)^2))
-- sum(i = 1..N, sum(j = 1..N, q[i, j]*(q[i+1, j] + q[i, j+1]) + p[i, j]*(p[i+1, j] + p[i, j+1])))"""
+{DDNLS2}
 [orbit]
 q = [{q}]
 p = [{p}]

@@ -178,10 +178,7 @@ impl DynamicalSystem for RkFlow {
     }
 
     fn site_energies(&self, x: &[f64], out: &mut [f64]) -> Result<(), String> {
-        match self.field.compiled() {
-            Some(f) if f.is_hamiltonian() => f.site_energies(x, out),
-            _ => Err(super::no_site_energies(&self.name)),
-        }
+        self.field.site_energies(x, out, &self.name)
     }
 
     /// `None` for a Hamiltonian field: its flow conserves volume (`div f = 0` identically).

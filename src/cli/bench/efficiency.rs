@@ -469,12 +469,20 @@ fn family_table(family: Family, sites: usize, t_final: f64) -> anyhow::Result<se
             "points": points.iter().map(point_json).collect::<Vec<_>>(),
         }));
     }
+    let dkg_2d = format!(
+        "2-D disordered Klein-Gordon lattice of examples/models/dkg-square.toml (W = 10, a 3 x 3 \
+         central block sharing E = 3.6), an expression whose sums are {}",
+        if sites.isqrt() >= SQUARE_LOOPS_FROM_SIDE {
+            "loops along its rows"
+        } else {
+            "unrolled (a square of this size steps faster so)"
+        }
+    );
     let mut out = serde_json::json!({
         "model": match family {
             Family::FputBeta => "beta-FPUT chain, fixed ends, beta = 1, momenta +-sqrt(0.2) (signs from seed 1), energy 0.1 per site",
             Family::Dkg => "disordered Klein-Gordon chain of examples/models/dkg-single-site.toml (W = 4, single site at E = 0.4), an expression on its C kernels",
-            Family::Dkg2d if sites.isqrt() >= SQUARE_LOOPS_FROM_SIDE => "2-D disordered Klein-Gordon lattice of examples/models/dkg-square.toml (W = 10, a 3 x 3 central block sharing E = 3.6), an expression whose sums are loops along its rows",
-            Family::Dkg2d => "2-D disordered Klein-Gordon lattice of examples/models/dkg-square.toml (W = 10, a 3 x 3 central block sharing E = 3.6), an expression whose sums are unrolled (a square of this size steps faster so)",
+            Family::Dkg2d => &dkg_2d,
             Family::Ddnls1d => "1-D DDNLS of examples/models/ddnls-block.toml (W = 4, beta = 0.72, 21 central sites of norm 1, random phases)",
             Family::Ddnls2d => "2-D DDNLS of examples/models/ddnls-square.toml (W = 10, beta = 1, a 3 x 3 central block of norm 1 per site)",
         },

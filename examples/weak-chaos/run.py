@@ -5,8 +5,9 @@ Skokos, PRE 98, 052229, 2018): the finite-time maximal Lyapunov exponent average
 realizations decays as t^alpha with alpha near -1/4, and the wave packet's second moment (of the
 energy for the DKG, of the norm for the DDNLS) grows as t^(1/3).
 
-    examples/weak-chaos/run.py [--model dkg|ddnls] [--realizations 20] [--sites N]
-                               [--t-final T] [--jobs 2] [--chaoscope PATH] [--out DIR]
+    examples/weak-chaos/run.py [--model dkg|ddnls] [--excitation site|block] [--realizations 20]
+                               [--first-seed 1] [--sites N] [--t-final T] [--jobs 2]
+                               [--chaoscope PATH] [--out DIR]
 
 Each realization is `examples/models/dkg-single-site.toml` with its own disorder seed (1, 2,
 ...): W = 4, eps_l uniform in [1/2, 3/2], fixed ends, a single site in the middle excited with
@@ -25,7 +26,10 @@ of the two papers above), s11abc6 with h = 0.1 (relative energy and norm errors 
 vector renormalized and recorded every 10 time units. The analyzer's energy distribution is not
 defined for the DDNLS (its site energies are not positive shares), and the papers' distribution
 is the norm's, z_l = |psi_l|^2 / S: its second moment is computed here from the recorded
-reference states, read with the `chaoscope` Python package (numpy).
+reference states, read with the `chaoscope` Python package (numpy). With --excitation block the
+DDNLS starts instead from 21 central sites with norm 1 each and phases drawn from the
+realization's seed, at beta = 0.04 (the weak-chaos case W = 4, L = 21 of Laptyeva et al., EPL 91,
+30001 (2010)).
 """
 
 import argparse
@@ -58,6 +62,10 @@ DDNLS_FIT_NOT_BEFORE = 1000.0
 # <log10 Lambda> were -0.10 over 10^3..10^4 and -0.17 over 10^4..10^5, a crossover still under
 # way in the first of those decades. Fixed before the 10^6 campaign was run.
 DDNLS_FIT_DECADES = 100.0
+# The block excitation of Laptyeva et al. (EPL 91, 30001, 2010): L = 21 sites with norm 1 each
+# and random phases, W = 4; beta = 0.04 is their weak-chaos case (beta = 0.72 strong chaos).
+BLOCK = 21
+BLOCK_BETA = 0.04
 # Defaults of (sites, t_final) per model. The DDNLS's norm second moment reaches ~10^2 at
 # t = 10^5 (Flach, Krimer and Skokos 2009), far below N^2 / 12 = 3333 for N = 200.
 DEFAULTS = {"dkg": (300, 1e6), "ddnls": (200, 1e5)}
@@ -82,13 +90,21 @@ def config(sites, t_final, seed):
     return text
 
 
-def ddnls_config(sites, t_final, seed, h=0.1, tau=10.0):
+def ddnls_config(sites, t_final, seed, h=0.1, tau=10.0, excitation="site"):
     text = DDNLS_EXAMPLE.read_text()
+    if excitation == "site":
+        beta, excite = 1.0, f"{{ sites = {sites // 2}, norm = 1.0 }}"
+    else:
+        # BLOCK central sites with norm 1 each and random phases drawn from the realization's
+        # seed, so that disorder and phases change together from one realization to the next.
+        first = sites // 2 - BLOCK // 2
+        beta = BLOCK_BETA
+        excite = f"{{ sites = [{first}, {first + BLOCK - 1}], norm = {float(BLOCK)!r}, seed = {seed} }}"
     subs = [
         (r"(?m)^n = \d+$", f"n = {sites}"),
-        (r"(?m)^beta = .*$", "beta = 1.0"),
+        (r"(?m)^beta = .*$", f"beta = {beta!r}"),
         (r"(?m)^seed = 1$", f"seed = {seed}"),
-        (r"(?m)^excite = .*$", f"excite = {{ sites = {sites // 2}, norm = 1.0 }}"),
+        (r"(?m)^excite = .*$", f"excite = {excite}"),
         (r"(?m)^h = .*$", f"h = {h!r}"),
         (r"(?m)^t_final = .*$", f"t_final = {t_final!r}"),
         (r"(?m)^k = \d+$", "k = 1"),
@@ -118,13 +134,13 @@ def norm_m2(mcap, times):
     return list((z * (l[None, :] - mean[:, None]) ** 2).sum(axis=1))
 
 
-def realization(chaoscope, out, model, sites, t_final, seed, h, tau):
+def realization(chaoscope, out, model, sites, t_final, seed, h, tau, excitation):
     """Record realization `seed` (unless its recording exists) and read its curves."""
     mcap = out / f"r{seed}.mcap"
     if not mcap.exists():
         cfg = out / f"r{seed}.toml"
         cfg.write_text(config(sites, t_final, seed) if model == "dkg"
-                       else ddnls_config(sites, t_final, seed, h, tau))
+                       else ddnls_config(sites, t_final, seed, h, tau, excitation))
         subprocess.run([chaoscope, "run", cfg, "--out", mcap], check=True,
                        stdout=subprocess.DEVNULL)
     csv_dir = out / f"r{seed}.csv"
@@ -154,6 +170,11 @@ def main():
                     help="ddnls: the s11abc6 step (default 0.1; 0.2 keeps both errors ~1e-6)")
     ap.add_argument("--tau", type=float, default=10.0,
                     help="ddnls: renormalization and sampling interval (default 10)")
+    ap.add_argument("--excitation", choices=["site", "block"], default="site",
+                    help="ddnls: one site with norm 1 and beta = 1 (default), or a block of 21 "
+                         "sites with norm 1 each, random phases and beta = 0.04")
+    ap.add_argument("--first-seed", type=int, default=1,
+                    help="disorder seed of the first realization (default 1; a pilot uses others)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--chaoscope", default="chaoscope")
     ap.add_argument("--out", type=Path, default=Path("weak-chaos"))
@@ -163,8 +184,9 @@ def main():
     a.out.mkdir(parents=True, exist_ok=True)
     with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
         curves = list(pool.map(lambda s: realization(a.chaoscope, a.out, a.model, a.sites,
-                                                     a.t_final, s, a.h, a.tau),
-                               range(1, a.realizations + 1)))
+                                                     a.t_final, s, a.h, a.tau,
+                                                     a.excitation),
+                               range(a.first_seed, a.first_seed + a.realizations)))
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     times = [t for t, _, _ in curves[0]]
     if any([t for t, _, _ in c] != times for c in curves):
@@ -201,7 +223,9 @@ def main():
         title = (f"DKG weak chaos, W = 4, E = 0.4, N = {a.sites}, {n} realizations"
                  if a.model == "dkg" else
                  f"DDNLS weak chaos, W = 4, beta = 1, norm 1 on one site, N = {a.sites}, "
-                 f"{n} realizations")
+                 f"{n} realizations" if a.excitation == "site" else
+                 f"DDNLS weak chaos, W = 4, beta = {BLOCK_BETA}, norm 1 on {BLOCK} sites, "
+                 f"N = {a.sites}, {n} realizations")
         spec = {"title": title,
                 "x_label": "log10 t", "y_label": label,
                 "lines": [{"label": "chaoscope (mean of the logs)", "color": 2, "stroke": "solid",
@@ -224,6 +248,7 @@ def main():
         mean_m = sum(own_m) / n
         report.update({
             "model": "ddnls", "fit_to": times[-1], "h": a.h, "tau": a.tau,
+            "excitation": a.excitation, "first_seed": a.first_seed,
             "alpha_mle_per_realization_standard_error": sd_own / math.sqrt(n),
             "alpha_m2_per_realization_mean": mean_m,
             "alpha_m2_per_realization_sd":

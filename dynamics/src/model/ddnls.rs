@@ -17,6 +17,8 @@
 //! the neighbours of a site is taken in one fixed order (left, right, then up, down), so every
 //! path gives the same bits.
 
+use super::sin_cos::sin_cos_each;
+use crate::batch::Isa;
 use crate::integrator::composition::SplitFlows;
 use crate::vector_field::VectorField;
 
@@ -160,66 +162,134 @@ impl Ddnls {
         })
     }
 
-    /// The A flow on `x`, and on each deviation vector of `w` (chunks of `2N`) its derivative.
-    #[inline]
-    fn rotate(&self, x: &mut [f64], w: &mut [f64], tau: f64) {
-        let n = self.sites();
-        let dim = 2 * n;
-        let (q, p) = x.split_at_mut(n);
-        for l in 0..n {
-            let (ql, pl) = (q[l], p[l]);
-            let a = self.eps[l] + self.beta * (0.5 * (ql * ql + pl * pl));
-            let (s, c) = ((a * tau).sin(), (a * tau).cos());
-            let qn = ql * c + pl * s;
-            let pn = pl * c - ql * s;
-            // The rate depends on J_l: da = beta (q dq + p dp), and d(q', p') gains
-            // tau da (p', -q') beside the rotation of (dq, dp).
-            for v in w.chunks_exact_mut(dim) {
-                let (dq, dp) = (v[l], v[n + l]);
-                let da = self.beta * (ql * dq + pl * dp);
-                let td = tau * da;
-                v[l] = (dq * c + dp * s) + td * pn;
-                v[n + l] = (dp * c - dq * s) - td * qn;
-            }
-            q[l] = qn;
-            p[l] = pn;
-        }
-    }
-
-    /// `to += tau sum_nb from` (`sign` +1: the B flow on p; -1: the C flow on q), on `v`'s
-    /// halves; `scratch` holds the neighbour sums.
-    #[inline]
-    fn hop(&self, v: &mut [f64], from_q: bool, tau: f64, scratch: &mut [f64]) {
+    /// `to += tau sum_nb from` on `v`'s halves: from `q` to `p` (the B flow), or `to -=` from
+    /// `p` to `q` (the C flow).
+    #[inline(always)]
+    fn hop(&self, v: &mut [f64], from_q: bool, tau: f64) {
         let n = self.sites();
         let (q, p) = v.split_at_mut(n);
         if from_q {
-            self.neighbour_sum(q, scratch);
-            for (pl, s) in p.iter_mut().zip(scratch.iter()) {
-                *pl += tau * s;
-            }
+            self.add_neighbour_sums(q, p, tau);
         } else {
-            self.neighbour_sum(p, scratch);
-            for (ql, s) in q.iter_mut().zip(scratch.iter()) {
-                *ql -= tau * s;
+            self.add_neighbour_sums(p, q, -tau);
+        }
+    }
+
+    /// `to_l += tau (sum over the neighbours m of l of from_m)`, the neighbours summed as
+    /// [`Self::neighbour_sum`] sums them (the same bits), without a buffer between the two.
+    #[inline(always)]
+    fn add_neighbour_sums(&self, from: &[f64], to: &mut [f64], tau: f64) {
+        match self.lattice {
+            DdnlsLattice::Chain { n } => {
+                if n == 0 {
+                    return;
+                }
+                let right = |l: usize| if l + 1 < n { from[l + 1] } else { 0.0 };
+                to[0] += tau * (0.0 + right(0));
+                // The interior without tests, so the loop vectorizes.
+                for l in 1..n.saturating_sub(1) {
+                    to[l] += tau * (from[l - 1] + from[l + 1]);
+                }
+                if n > 1 {
+                    to[n - 1] += tau * (from[n - 2] + 0.0);
+                }
+            }
+            DdnlsLattice::Square { n } => {
+                for i in 0..n {
+                    let row = i * n;
+                    let up = |j: usize| if i > 0 { from[row - n + j] } else { 0.0 };
+                    let down = |j: usize| if i + 1 < n { from[row + n + j] } else { 0.0 };
+                    for j in 0..n {
+                        let left = if j > 0 { from[row + j - 1] } else { 0.0 };
+                        let right = if j + 1 < n { from[row + j + 1] } else { 0.0 };
+                        to[row + j] += tau * (((left + right) + up(j)) + down(j));
+                    }
+                }
             }
         }
     }
 }
 
-thread_local! {
-    /// Neighbour sums of the hopping flows, one buffer per thread (flows are called in the
-    /// innermost loop and must not allocate).
-    static HOP_SCRATCH: std::cell::RefCell<Vec<f64>> = const { std::cell::RefCell::new(Vec::new()) };
+/// Sites the A flow takes at a time: their angles, sines and cosines stay in L1.
+const ROTATE_CHUNK: usize = 64;
+
+/// The A flow on `x`, and on each deviation vector of `w` (chunks of `2N`) its derivative: per
+/// chunk of sites, the angles `a_l tau`, their
+/// sines and cosines, the state's and every vector's rotation.
+#[inline(always)]
+fn rotate_sites(m: &Ddnls, x: &mut [f64], w: &mut [f64], tau: f64) {
+    let n = m.sites();
+    let dim = 2 * n;
+    let beta = m.beta;
+    let (q, p) = x.split_at_mut(n);
+    let mut angle = [0.0; ROTATE_CHUNK];
+    let mut sin = [0.0; ROTATE_CHUNK];
+    let mut cos = [0.0; ROTATE_CHUNK];
+    for first in (0..n).step_by(ROTATE_CHUNK) {
+        let len = ROTATE_CHUNK.min(n - first);
+        let (q, p, eps) = (
+            &mut q[first..first + len],
+            &mut p[first..first + len],
+            &m.eps[first..first + len],
+        );
+        for i in 0..len {
+            angle[i] = (eps[i] + beta * (0.5 * (q[i] * q[i] + p[i] * p[i]))) * tau;
+        }
+        sin_cos_each(&angle[..len], &mut sin[..len], &mut cos[..len]);
+        // The rate depends on J_l: da = beta (q dq + p dp), and d(q', p') gains tau da (p', -q')
+        // beside the rotation of (dq, dp). The vectors first, while (q, p) is the old point.
+        for v in w.chunks_exact_mut(dim) {
+            let (vq, vp) = v.split_at_mut(n);
+            let (vq, vp) = (&mut vq[first..first + len], &mut vp[first..first + len]);
+            for i in 0..len {
+                let (s, c) = (sin[i], cos[i]);
+                let (ql, pl) = (q[i], p[i]);
+                let qn = ql * c + pl * s;
+                let pn = pl * c - ql * s;
+                let (dq, dp) = (vq[i], vp[i]);
+                let td = tau * (beta * (ql * dq + pl * dp));
+                vq[i] = (dq * c + dp * s) + td * pn;
+                vp[i] = (dp * c - dq * s) - td * qn;
+            }
+        }
+        for i in 0..len {
+            let (s, c) = (sin[i], cos[i]);
+            let (ql, pl) = (q[i], p[i]);
+            q[i] = ql * c + pl * s;
+            p[i] = pl * c - ql * s;
+        }
+    }
 }
 
-fn with_scratch<R>(n: usize, f: impl FnOnce(&mut [f64]) -> R) -> R {
-    HOP_SCRATCH.with(|s| {
-        let mut s = s.borrow_mut();
-        if s.len() < n {
-            s.resize(n, 0.0);
+/// [`SplitFlows::flow_tangent`] for one instruction set (`w` empty for the orbit alone).
+#[inline(always)]
+fn flow_tangent_with(m: &Ddnls, part: usize, x: &mut [f64], w: &mut [f64], tau: f64) {
+    let dim = 2 * m.sites();
+    match part {
+        0 => rotate_sites(m, x, w, tau),
+        // The hopping flows are linear: their tangent map is the flow itself.
+        1 | 2 => {
+            let from_q = part == 1;
+            m.hop(x, from_q, tau);
+            for v in w.chunks_exact_mut(dim) {
+                m.hop(v, from_q, tau);
+            }
         }
-        f(&mut s[..n])
-    })
+        _ => unreachable!("the DDNLS has three parts"),
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn flow_tangent_avx512(m: &Ddnls, part: usize, x: &mut [f64], w: &mut [f64], tau: f64) {
+    flow_tangent_with(m, part, x, w, tau)
+}
+
+// `fma` beside AVX2 as everywhere else; Rust never fuses a separate multiply and add.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn flow_tangent_avx2(m: &Ddnls, part: usize, x: &mut [f64], w: &mut [f64], tau: f64) {
+    flow_tangent_with(m, part, x, w, tau)
 }
 
 impl SplitFlows for Ddnls {
@@ -232,26 +302,32 @@ impl SplitFlows for Ddnls {
     }
 
     fn flow(&self, part: usize, x: &mut [f64], tau: f64) {
-        match part {
-            0 => self.rotate(x, &mut [], tau),
-            1 => with_scratch(self.sites(), |s| self.hop(x, true, tau, s)),
-            _ => with_scratch(self.sites(), |s| self.hop(x, false, tau, s)),
-        }
+        self.flow_tangent(part, x, &mut [], tau)
     }
 
+    /// Compiled for the widest instruction set of the CPU.
     fn flow_tangent(&self, part: usize, x: &mut [f64], w: &mut [f64], tau: f64) {
-        let dim = 2 * self.sites();
-        match part {
-            0 => self.rotate(x, w, tau),
-            // The hopping flows are linear: their tangent map is the flow itself.
-            1 | 2 => with_scratch(self.sites(), |s| {
-                let from_q = part == 1;
-                self.hop(x, from_q, tau, s);
-                for v in w.chunks_exact_mut(dim) {
-                    self.hop(v, from_q, tau, s);
-                }
-            }),
-            _ => unreachable!("the DDNLS has three parts"),
+        self.flow_tangent_on(Isa::detect(), part, x, w, tau)
+    }
+}
+
+impl Ddnls {
+    /// [`SplitFlows::flow_tangent`] compiled for `isa` (which this CPU must have), with the same
+    /// bits for every instruction set: no fused multiply-adds, and [`sin_cos_each`] is made of
+    /// correctly rounded additions and multiplications.
+    pub fn flow_tangent_on(&self, isa: Isa, part: usize, x: &mut [f64], w: &mut [f64], tau: f64) {
+        assert!(
+            isa.available(),
+            "{} is not supported by this CPU",
+            isa.name()
+        );
+        match isa {
+            // SAFETY: `detect` found the instruction set on this CPU.
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx512 => unsafe { flow_tangent_avx512(self, part, x, w, tau) },
+            #[cfg(target_arch = "x86_64")]
+            Isa::Avx2 => unsafe { flow_tangent_avx2(self, part, x, w, tau) },
+            _ => flow_tangent_with(self, part, x, w, tau),
         }
     }
 }
@@ -325,6 +401,48 @@ mod tests {
 
     /// The energy's gradient is the field: `dq/dt = dH/dp`, `dp/dt = -dH/dq`, checked by
     /// central differences (error ~ d^2 |H'''| ~ 1e-10 with d = 1e-5, rounding ~ eps/d ~ 1e-11).
+    /// Every instruction set the CPU has gives the bits of the baseline one, for the three parts,
+    /// on a chain longer than a chunk of the A flow and on a square (angles beyond the fast
+    /// sine's range included: a site with a large norm).
+    #[test]
+    fn every_instruction_set_gives_the_same_bits() {
+        for model in [
+            Ddnls::new(
+                DdnlsLattice::Chain { n: 150 },
+                (0..150)
+                    .map(|l| ((l * 7) % 13) as f64 / 3.0 - 2.0)
+                    .collect(),
+                0.9,
+            ),
+            Ddnls::new(
+                DdnlsLattice::Square { n: 9 },
+                (0..81).map(|l| ((l * 5) % 11) as f64 / 2.5 - 2.0).collect(),
+                1.7,
+            ),
+        ] {
+            let dim = 2 * model.sites();
+            let mut x0: Vec<f64> = (0..dim).map(|i| (i as f64 * 0.37).sin()).collect();
+            x0[3] = 3.0e3;
+            let w0: Vec<f64> = (0..2 * dim).map(|i| (i as f64 * 0.11).cos()).collect();
+            let run = |isa: Isa| {
+                let (mut x, mut w) = (x0.clone(), w0.clone());
+                for stage in 0..30 {
+                    let tau = 0.05 + 0.01 * stage as f64;
+                    model.flow_tangent_on(isa, stage % 3, &mut x, &mut w, tau);
+                }
+                x.iter().chain(&w).map(|v| v.to_bits()).collect::<Vec<_>>()
+            };
+            let baseline = run(Isa::Portable);
+            for isa in Isa::ALL.into_iter().filter(|i| i.available()) {
+                assert!(
+                    run(isa) == baseline,
+                    "{} differs from the baseline",
+                    isa.name()
+                );
+            }
+        }
+    }
+
     #[test]
     fn the_field_is_the_energy_gradient() {
         for model in [

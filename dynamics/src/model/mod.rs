@@ -14,6 +14,7 @@ mod ddnls;
 mod expression;
 mod fput;
 mod henon_heiles;
+mod sin_cos;
 
 /// `[model] name = "potential"`: compiled by `chaoscope-expr`; `expression.rs` makes it a [`Model`].
 pub use chaoscope_expr::potential::{

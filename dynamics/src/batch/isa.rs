@@ -20,6 +20,30 @@ pub enum Isa {
     Portable,
 }
 
+/// Calls a kernel's instantiation for `isa` after checking that this CPU has it:
+/// `on_isa!(isa, avx512_call, avx2_call, baseline_call)`, the first two calls of
+/// `#[target_feature]` functions (x86-64 only; elsewhere the baseline serves every `Isa`).
+macro_rules! on_isa {
+    ($isa:expr, $avx512:expr, $avx2:expr, $portable:expr $(,)?) => {{
+        let isa: $crate::batch::Isa = $isa;
+        assert!(
+            isa.available(),
+            "{} is not supported by this CPU",
+            isa.name()
+        );
+        match isa {
+            // SAFETY: the CPU supports the instruction set (checked above).
+            #[cfg(target_arch = "x86_64")]
+            $crate::batch::Isa::Avx512 => unsafe { $avx512 },
+            // SAFETY: as above.
+            #[cfg(target_arch = "x86_64")]
+            $crate::batch::Isa::Avx2 => unsafe { $avx2 },
+            _ => $portable,
+        }
+    }};
+}
+pub(crate) use on_isa;
+
 impl Isa {
     pub const ALL: [Isa; 3] = [Isa::Avx512, Isa::Avx2, Isa::Portable];
 
@@ -185,19 +209,12 @@ fn tangents_avx2<M: LaneModel>(m: &M, c: &StepCoeffs, s: &[f64], v: &mut Soa, n:
 }
 
 pub(super) fn dispatch_orbits<M: LaneModel>(isa: Isa, m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
-    assert!(
-        isa.available(),
-        "{} is not supported by this CPU",
-        isa.name()
-    );
-    match isa {
-        // SAFETY: the CPU supports the instruction set (checked above).
-        #[cfg(target_arch = "x86_64")]
-        Isa::Avx512 => unsafe { orbits_avx512(m, c, x, n) },
-        #[cfg(target_arch = "x86_64")]
-        Isa::Avx2 => unsafe { orbits_avx2(m, c, x, n) },
-        _ => orbit_chunks::<M, LANE_QUANTUM>(m, c, x, n),
-    }
+    on_isa!(
+        isa,
+        orbits_avx512(m, c, x, n),
+        orbits_avx2(m, c, x, n),
+        orbit_chunks::<M, LANE_QUANTUM>(m, c, x, n)
+    )
 }
 
 pub(super) fn dispatch_tangents<M: LaneModel>(
@@ -208,19 +225,12 @@ pub(super) fn dispatch_tangents<M: LaneModel>(
     v: &mut Soa,
     n: u64,
 ) {
-    assert!(
-        isa.available(),
-        "{} is not supported by this CPU",
-        isa.name()
-    );
-    match isa {
-        // SAFETY: the CPU supports the instruction set (checked above).
-        #[cfg(target_arch = "x86_64")]
-        Isa::Avx512 => unsafe { tangents_avx512(m, c, stages, v, n) },
-        #[cfg(target_arch = "x86_64")]
-        Isa::Avx2 => unsafe { tangents_avx2(m, c, stages, v, n) },
-        _ => tangent_chunks::<M, LANE_QUANTUM>(m, c, stages, v, n),
-    }
+    on_isa!(
+        isa,
+        tangents_avx512(m, c, stages, v, n),
+        tangents_avx2(m, c, stages, v, n),
+        tangent_chunks::<M, LANE_QUANTUM>(m, c, stages, v, n)
+    )
 }
 
 /// Every lane of `x` (orbit and tangent vectors, [`LaneModel::orbit_tangent_steps`]), `L` lanes
@@ -261,17 +271,10 @@ pub(super) fn dispatch_orbit_tangents<M: LaneModel>(
     x: &mut Soa,
     n: u64,
 ) {
-    assert!(
-        isa.available(),
-        "{} is not supported by this CPU",
-        isa.name()
-    );
-    match isa {
-        // SAFETY: the CPU supports the instruction set (checked above).
-        #[cfg(target_arch = "x86_64")]
-        Isa::Avx512 => unsafe { orbit_tangents_avx512(m, c, x, n) },
-        #[cfg(target_arch = "x86_64")]
-        Isa::Avx2 => unsafe { orbit_tangents_avx2(m, c, x, n) },
-        _ => orbit_tangent_chunks::<M, LANE_QUANTUM>(m, c, x, n),
-    }
+    on_isa!(
+        isa,
+        orbit_tangents_avx512(m, c, x, n),
+        orbit_tangents_avx2(m, c, x, n),
+        orbit_tangent_chunks::<M, LANE_QUANTUM>(m, c, x, n)
+    )
 }

@@ -27,6 +27,7 @@ mod soa;
 
 pub use flow_lanes::{FlowScratch, flow_orbit_steps, flow_tangent_steps, record_flow_reference};
 pub use isa::Isa;
+pub(crate) use isa::on_isa;
 pub use kernel::PointKernel;
 pub use lanes::{LaneModel, StepCoeffs, record_reference_stages};
 pub use map_lanes::{

@@ -18,7 +18,7 @@
 //! path gives the same bits.
 
 use super::sin_cos::sin_cos_each;
-use crate::batch::Isa;
+use crate::batch::{Isa, on_isa};
 use crate::integrator::composition::SplitFlows;
 use crate::vector_field::VectorField;
 
@@ -355,19 +355,12 @@ impl Ddnls {
     /// bits for every instruction set: no fused multiply-adds, and [`sin_cos_each`] is made of
     /// correctly rounded additions and multiplications.
     pub fn flow_tangent_on(&self, isa: Isa, part: usize, x: &mut [f64], w: &mut [f64], tau: f64) {
-        assert!(
-            isa.available(),
-            "{} is not supported by this CPU",
-            isa.name()
-        );
-        match isa {
-            // SAFETY: `detect` found the instruction set on this CPU.
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx512 => unsafe { flow_tangent_avx512(self, part, x, w, tau) },
-            #[cfg(target_arch = "x86_64")]
-            Isa::Avx2 => unsafe { flow_tangent_avx2(self, part, x, w, tau) },
-            _ => flow_tangent_with(self, part, x, w, tau),
-        }
+        on_isa!(
+            isa,
+            flow_tangent_avx512(self, part, x, w, tau),
+            flow_tangent_avx2(self, part, x, w, tau),
+            flow_tangent_with(self, part, x, w, tau),
+        )
     }
 }
 

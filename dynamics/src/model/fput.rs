@@ -154,15 +154,12 @@ impl Model for FputBeta {
         // The same loops compiled for the widest instruction set the CPU has (as the batched
         // kernels): vectors of 8 or 4 sites where the baseline has 2. Rust never fuses a
         // multiply and an add, so every instruction set gives the same bits.
-        #[cfg(target_arch = "x86_64")]
-        match crate::batch::Isa::detect() {
-            // SAFETY: the CPU has the instruction set (detected just above).
-            crate::batch::Isa::Avx512 => return unsafe { fused_avx512(args) },
-            // SAFETY: as above.
-            crate::batch::Isa::Avx2 => return unsafe { fused_avx2(args) },
-            crate::batch::Isa::Portable => {}
-        }
-        fused(args)
+        crate::batch::on_isa!(
+            crate::batch::Isa::detect(),
+            fused_avx512(args),
+            fused_avx2(args),
+            fused(args),
+        )
     }
 
     /// Bond `i` (`r_i = x_{i+1} - x_i`, `i = 0..N`) half to each of its particles; the bonds to

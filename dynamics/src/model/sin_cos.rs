@@ -35,21 +35,24 @@ const PIO2_2: f64 = 6.077_100_506_303_965_976_60e-11;
 const PIO2_3: f64 = 2.022_266_248_711_166_455_80e-21;
 const PIO2_3T: f64 = 8.478_427_660_368_899_569_97e-32;
 
-// fdlibm's `__kernel_sin`: `sin x ~ x + x^3 (S1 + x^2 (S2 + ... + x^2 S6))` on `[-pi/4, pi/4]`.
-const S1: f64 = -1.666_666_666_666_663_243_48e-1;
-const S2: f64 = 8.333_333_333_322_489_461_24e-3;
-const S3: f64 = -1.984_126_982_985_794_931_34e-4;
-const S4: f64 = 2.755_731_370_707_006_767_89e-6;
-const S5: f64 = -2.505_076_025_340_686_341_95e-8;
-const S6: f64 = 1.589_690_995_211_550_102_21e-10;
+// The polynomials of fdlibm's `__kernel_sin` and `__kernel_cos` on `[-pi/4, pi/4]`:
+// `sin x ~ x + x^3 P_S(x^2)` and `cos x ~ 1 - x^2/2 + x^4 P_C(x^2)`, `P(z) = c_1 + z (c_2 + ...)`.
+#[rustfmt::skip]
+const SIN_POLY: [f64; 6] = [
+    -1.666_666_666_666_663_243_48e-1, 8.333_333_333_322_489_461_24e-3, -1.984_126_982_985_794_931_34e-4,
+    2.755_731_370_707_006_767_89e-6, -2.505_076_025_340_686_341_95e-8, 1.589_690_995_211_550_102_21e-10,
+];
+#[rustfmt::skip]
+const COS_POLY: [f64; 6] = [
+    4.166_666_666_666_660_190_37e-2, -1.388_888_888_887_410_957_49e-3, 2.480_158_728_947_672_941_78e-5,
+    -2.755_731_435_139_066_330_35e-7, 2.087_572_321_298_174_827_90e-9, -1.135_964_755_778_819_482_65e-11,
+];
 
-// fdlibm's `__kernel_cos`: `cos x ~ 1 - x^2/2 + x^4 (C1 + x^2 (C2 + ... + x^2 C6))`.
-const C1: f64 = 4.166_666_666_666_660_190_37e-2;
-const C2: f64 = -1.388_888_888_887_410_957_49e-3;
-const C3: f64 = 2.480_158_728_947_672_941_78e-5;
-const C4: f64 = -2.755_731_435_139_066_330_35e-7;
-const C5: f64 = 2.087_572_321_298_174_827_90e-9;
-const C6: f64 = -1.135_964_755_778_819_482_65e-11;
+/// `c_1 + z (c_2 + z (... + z c_n))`, Horner's rule from the highest power (fdlibm's order).
+#[inline(always)]
+fn horner(c: &[f64; 6], z: f64) -> f64 {
+    c.iter().rev().fold(0.0, |acc, &ci| ci + z * acc)
+}
 
 /// `(sin x, cos x)` for `|x| <= FAST_LIMIT`; any value outside (not finite either) gives a
 /// meaningless pair, which [`sin_cos_each`] replaces.
@@ -69,9 +72,8 @@ fn sin_cos_reduced(x: f64) -> (f64, f64) {
     let rounding = (head - (r0 - back)) + (second - back);
     let r = r0 + ((rounding - k * PIO2_3) - k * PIO2_3T);
     let z = r * r;
-    let sin_tail = S2 + z * (S3 + z * (S4 + z * (S5 + z * S6)));
-    let sin_r = r + (z * r) * (S1 + z * sin_tail);
-    let cos_tail = z * (C1 + z * (C2 + z * (C3 + z * (C4 + z * (C5 + z * C6)))));
+    let sin_r = r + (z * r) * horner(&SIN_POLY, z);
+    let cos_tail = z * horner(&COS_POLY, z);
     let half_z = 0.5 * z;
     let w = 1.0 - half_z;
     // fdlibm's order: the rounding of `1 - z/2` is given back before the tail is added.

@@ -188,12 +188,22 @@ def main():
     a = ap.parse_args()
     a.sites = a.sites or DEFAULTS[a.model][0]
     a.t_final = a.t_final or DEFAULTS[a.model][1]
+    # What chaoscope would refuse anyway, said before any run starts.
+    least_sites = BLOCK + 2 if a.model == "ddnls" and a.excitation == "block" else 3
+    if a.sites < least_sites:
+        ap.error(f"--sites {a.sites}: at least {least_sites} for this excitation")
+    if a.first_seed < 0 or a.realizations < 1 or a.jobs < 1:
+        ap.error("--first-seed must be at least 0, --realizations and --jobs at least 1")
     a.out.mkdir(parents=True, exist_ok=True)
-    with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
-        curves = list(pool.map(lambda s: realization(a.chaoscope, a.out, a.model, a.sites,
-                                                     a.t_final, s, a.h, a.tau,
-                                                     a.excitation),
-                               range(a.first_seed, a.first_seed + a.realizations)))
+    try:
+        with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
+            curves = list(pool.map(lambda s: realization(a.chaoscope, a.out, a.model, a.sites,
+                                                         a.t_final, s, a.h, a.tau,
+                                                         a.excitation),
+                                   range(a.first_seed, a.first_seed + a.realizations)))
+    except subprocess.CalledProcessError as e:
+        # chaoscope has said why on standard error; name the command that failed.
+        sys.exit(f"run.py: {' '.join(map(str, e.cmd))} failed with status {e.returncode}")
     usage = resource.getrusage(resource.RUSAGE_CHILDREN)
     times = [t for t, _, _ in curves[0]]
     if any([t for t, _, _ in c] != times for c in curves):

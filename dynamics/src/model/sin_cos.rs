@@ -48,10 +48,10 @@ const COS_POLY: [f64; 6] = [
     -2.755_731_435_139_066_330_35e-7, 2.087_572_321_298_174_827_90e-9, -1.135_964_755_778_819_482_65e-11,
 ];
 
-/// `c_1 + z (c_2 + z (... + z c_n))`, Horner's rule from the highest power (fdlibm's order).
+/// `c_1 + z (c_2 + z (... + z c_6))`, Horner's rule from the highest power (fdlibm's order).
 #[inline(always)]
 fn horner(c: &[f64; 6], z: f64) -> f64 {
-    c.iter().rev().fold(0.0, |acc, &ci| ci + z * acc)
+    c[..5].iter().rev().fold(c[5], |acc, &ci| ci + z * acc)
 }
 
 /// `(sin x, cos x)` for `|x| <= FAST_LIMIT`; any value outside (not finite either) gives a

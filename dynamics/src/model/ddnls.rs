@@ -304,6 +304,9 @@ fn rotate_sites(m: &Ddnls, x: &mut [f64], w: &mut [f64], tau: f64) {
 #[inline(always)]
 fn flow_tangent_with(m: &Ddnls, part: usize, x: &mut [f64], w: &mut [f64], tau: f64) {
     let dim = 2 * m.sites();
+    if dim == 0 {
+        return;
+    }
     match part {
         0 => rotate_sites(m, x, w, tau),
         // The hopping flows are linear: their tangent map is the flow itself.
@@ -352,8 +355,8 @@ impl SplitFlows for Ddnls {
 
 impl Ddnls {
     /// [`SplitFlows::flow_tangent`] compiled for `isa` (which this CPU must have), with the same
-    /// bits for every instruction set: no fused multiply-adds, and [`sin_cos_each`] is made of
-    /// correctly rounded additions and multiplications.
+    /// bits for every instruction set: no fused multiply-adds, and the fast sine and cosine are
+    /// made of correctly rounded additions and multiplications.
     pub fn flow_tangent_on(&self, isa: Isa, part: usize, x: &mut [f64], w: &mut [f64], tau: f64) {
         on_isa!(
             isa,
@@ -431,8 +434,6 @@ mod tests {
         Ddnls::new(DdnlsLattice::Chain { n: 4 }, vec![0.3, -0.2, 0.1, 0.4], 1.5)
     }
 
-    /// The energy's gradient is the field: `dq/dt = dH/dp`, `dp/dt = -dH/dq`, checked by
-    /// central differences (error ~ d^2 |H'''| ~ 1e-10 with d = 1e-5, rounding ~ eps/d ~ 1e-11).
     /// Every instruction set the CPU has gives the bits of the baseline one, for the three parts,
     /// on a chain longer than a chunk of the A flow and on a square (angles beyond the fast
     /// sine's range included: a site with a large norm).
@@ -475,6 +476,44 @@ mod tests {
         }
     }
 
+    /// The A flow on a chain of several chunks (and a last partial one) is each site's rotation
+    /// by `(eps_l + beta J_l) tau` with the C library's sine and cosine, to rounding (the fast
+    /// sine is within an ulp or two of it), and each vector moves by the rotation's derivative.
+    #[test]
+    fn the_on_site_flow_rotates_every_site_of_every_chunk() {
+        let n = 2 * ROTATE_CHUNK + 13;
+        let model = Ddnls::new(
+            DdnlsLattice::Chain { n },
+            (0..n).map(|l| ((l * 7) % 13) as f64 / 3.0 - 2.0).collect(),
+            0.9,
+        );
+        let x0: Vec<f64> = (0..2 * n).map(|i| 1.5 * (i as f64 * 0.37).sin()).collect();
+        let w0: Vec<f64> = (0..4 * n).map(|i| (i as f64 * 0.11).cos()).collect();
+        let tau = 0.7;
+        let (mut x, mut w) = (x0.clone(), w0.clone());
+        model.flow_tangent(0, &mut x, &mut w, tau);
+        for l in 0..n {
+            let (q, p) = (x0[l], x0[n + l]);
+            let a = model.eps[l] + model.beta * 0.5 * (q * q + p * p);
+            let (s, c) = (a * tau).sin_cos();
+            let (qn, pn) = (q * c + p * s, p * c - q * s);
+            assert!(
+                (x[l] - qn).abs() < 1e-14 && (x[n + l] - pn).abs() < 1e-14,
+                "site {l}"
+            );
+            for v in 0..2 {
+                let (dq, dp) = (w0[2 * n * v + l], w0[2 * n * v + n + l]);
+                let td = tau * model.beta * (q * dq + p * dp);
+                let want = (dq * c + dp * s + td * pn, dp * c - dq * s - td * qn);
+                let got = (w[2 * n * v + l], w[2 * n * v + n + l]);
+                assert!(
+                    (got.0 - want.0).abs() < 1e-13 && (got.1 - want.1).abs() < 1e-13,
+                    "vector {v}, site {l}"
+                );
+            }
+        }
+    }
+
     /// The hopping flows add the neighbour sums of `neighbour_sum` (what the equations of motion
     /// read) bit for bit, on chains and squares with every edge case of size.
     #[test]
@@ -503,6 +542,8 @@ mod tests {
         }
     }
 
+    /// The energy's gradient is the field: `dq/dt = dH/dp`, `dp/dt = -dH/dq`, checked by
+    /// central differences (error ~ d^2 |H'''| ~ 1e-10 with d = 1e-5, rounding ~ eps/d ~ 1e-11).
     #[test]
     fn the_field_is_the_energy_gradient() {
         for model in [

@@ -141,6 +141,17 @@ def norm_m2(mcap, times):
     return list((z * (l[None, :] - mean[:, None]) ** 2).sum(axis=1))
 
 
+def recording_status(mcap):
+    """The recording's run status ("completed", "interrupted", ...), read with the `chaoscope`
+    Python package; None where the package is not installed (the DKG path needs only the
+    standard library)."""
+    try:
+        import chaoscope
+    except ImportError:
+        return None
+    return chaoscope.open(str(mcap)).status
+
+
 def realization(chaoscope, out, model, sites, t_final, seed, h, tau, excitation):
     """Record realization `seed` (unless its recording exists) and read its curves."""
     mcap = out / f"r{seed}.mcap"
@@ -152,6 +163,11 @@ def realization(chaoscope, out, model, sites, t_final, seed, h, tau, excitation)
         if not cfg.exists() or cfg.read_text() != text:
             sys.exit(f"run.py: {mcap} was recorded with other settings than these "
                      f"({cfg} differs); choose another --out")
+        # An interrupted or failed run is finalized too: only a completed one is reused.
+        status = recording_status(mcap)
+        if status not in (None, "completed"):
+            sys.exit(f"run.py: {mcap} holds a run that ended {status}, not completed; delete it to run "
+                     f"that realization again")
     else:
         cfg.write_text(text)
         subprocess.run([chaoscope, "run", cfg, "--out", mcap], check=True,

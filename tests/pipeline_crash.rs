@@ -203,6 +203,60 @@ fn sigint_to_chaoscope_run_ends_both_processes_with_a_valid_file() {
     }
 }
 
+/// A `chaoscope run` started with SIGINT ignored (a script's background job; `nohup`-style
+/// wrappers) keeps ignoring it from its first instant to its end, and so do the producer and
+/// the recorder it starts: a SIGINT at once, before any handler is in place, and a Ctrl-C to the
+/// whole process group once it records, stop nothing (before, the first was ignored and the
+/// second stopped the run). SIGTERM then stops it as usual, with a complete file.
+#[test]
+fn a_run_started_with_sigint_ignored_keeps_ignoring_it_and_stops_on_sigterm() {
+    use std::os::unix::process::CommandExt;
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), &hh_config(1e5, 0.01).to_toml());
+    let out = dir.path().join("run.mcap");
+    let run = unique_run("sigign");
+    let mut c = chaoscope(&[
+        "run",
+        config.to_str().unwrap(),
+        "--run",
+        &run,
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    c.process_group(0);
+    // SAFETY: signal(2) between fork and exec, async-signal-safe.
+    unsafe {
+        c.pre_exec(|| {
+            libc::signal(libc::SIGINT, libc::SIG_IGN);
+            Ok(())
+        });
+    }
+    let mut front = Proc::spawn(c);
+    front.signal(libc::SIGINT);
+    wait_for_size(&out, 100_000);
+    // SAFETY: kill(2) on the process group our own child leads.
+    unsafe { libc::kill(-front.pid(), libc::SIGINT) };
+    let partial = chaoscope_os::output::partial_path(&out);
+    let size_at_sigint = std::fs::metadata(&partial).unwrap().len();
+    // Still recording well after the Ctrl-C: another megabyte in the in-progress file (this
+    // run records several a second). Had it stopped, the file would have been renamed into place
+    // and the wait would fail.
+    wait_for_size(&out, size_at_sigint + 1_000_000);
+    assert!(
+        front.0.try_wait().unwrap().is_none(),
+        "the run stopped on SIGINT"
+    );
+
+    front.signal(libc::SIGTERM);
+    assert_eq!(front.wait(LIMIT).code(), Some(143));
+    let rec = read_recording(&out);
+    let summary = rec.recording.as_ref().expect("finalized file");
+    assert_eq!(summary.run_status, "interrupted");
+    assert_eq!(summary.frames_missing, 0);
+    assert_eq!(summary.finalized_by, "end-of-run");
+    assert_contiguous(&rec.frames);
+}
+
 #[test]
 fn a_slow_recorder_loses_nothing_because_the_producer_waits() {
     let dir = tempfile::tempdir().unwrap();

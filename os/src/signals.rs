@@ -19,10 +19,18 @@
 //!
 //! Not installed at all inside Python: Ctrl-C stays Python's (the bindings stop the work when
 //! Python reports it).
+//!
+//! A SIGINT that was ignored when the process started stays ignored, from the first instant to
+//! the last, in this process and in the processes it starts ([`sigint_ignored_at_start`]): a
+//! shell without job control starts a script's background jobs so (`chaoscope run a.toml &`),
+//! so that the Ctrl-C meant for the script's foreground does not stop them, and `nohup`-style
+//! wrappers do the same on purpose; Python and the GNU tools keep that choice too. Such a
+//! command is stopped with SIGTERM. SIGTERM itself is always handled: it is how a parent stops
+//! its children.
 
 use std::ffi::CString;
 use std::sync::Once;
-use std::sync::atomic::{AtomicI32, AtomicPtr, AtomicU8, AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicI32, AtomicPtr, AtomicU8, AtomicUsize, Ordering};
 
 /// How a command reacts to SIGINT/SIGTERM.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -41,6 +49,9 @@ static RECEIVED: AtomicI32 = AtomicI32::new(0);
 static CRITICAL: AtomicUsize = AtomicUsize::new(0);
 static MODE: AtomicU8 = AtomicU8::new(0);
 static INSTALLED: Once = Once::new();
+/// SIGINT's disposition was SIG_IGN when [`install`] first ran (before any handler of ours or of
+/// another library replaced it).
+static SIGINT_IGNORED: AtomicBool = AtomicBool::new(false);
 
 /// In-progress files of this process, removed by the handler in [`Mode::Exit`]: fixed slots a
 /// signal handler can read without allocating or locking (a path is leaked when registered and
@@ -77,15 +88,32 @@ fn install_with(mode: Mode, foreign: Option<ForeignHandlers>) {
         Ordering::SeqCst,
     );
     INSTALLED.call_once(|| {
+        // Read before anything replaces it.
+        let sigint_ignored = disposition_is_ignore(libc::SIGINT);
+        SIGINT_IGNORED.store(sigint_ignored, Ordering::SeqCst);
         // The foreign handlers first: they replace whatever is installed, without chaining.
         // Nothing is pending this early; a signal that was is kept.
         let take_foreign_signal = || {
             if let Some(signal) = foreign.and_then(|take| take()) {
-                latch(signal);
+                // A SIGINT the foreign handler took in the instant it had replaced SIG_IGN was
+                // meant to be ignored.
+                if !(sigint_ignored && signal == libc::SIGINT) {
+                    latch(signal);
+                }
             }
         };
         take_foreign_signal();
-        for signal in [libc::SIGINT, libc::SIGTERM] {
+        if sigint_ignored {
+            // The foreign library replaced SIG_IGN: put it back.
+            // SAFETY: setting a standard signal's disposition to SIG_IGN.
+            unsafe { libc::signal(libc::SIGINT, libc::SIG_IGN) };
+        }
+        let handled: &[i32] = if sigint_ignored {
+            &[libc::SIGTERM]
+        } else {
+            &[libc::SIGINT, libc::SIGTERM]
+        };
+        for &signal in handled {
             // SAFETY: the action only does async-signal-safe things: atomics, unlink(2) of
             // leaked C strings and _exit(2). signal-hook's registry calls the previous handler
             // (the foreign one) after it, so the foreign library's waits still wake.
@@ -102,6 +130,22 @@ fn install_with(mode: Mode, foreign: Option<ForeignHandlers>) {
         // for its producer for ever; that signal comes once.)
         take_foreign_signal();
     });
+}
+
+/// Whether `signal`'s current disposition is SIG_IGN.
+fn disposition_is_ignore(signal: i32) -> bool {
+    // SAFETY: sigaction(2) with a null new action only reads the current one into `current`.
+    unsafe {
+        let mut current: libc::sigaction = std::mem::zeroed();
+        libc::sigaction(signal, std::ptr::null(), &mut current) == 0
+            && current.sa_sigaction == libc::SIG_IGN
+    }
+}
+
+/// Whether SIGINT was ignored when this process started (and so still is: see the module's
+/// docs). A process this one starts is given the same disposition.
+pub fn sigint_ignored_at_start() -> bool {
+    SIGINT_IGNORED.load(Ordering::SeqCst)
 }
 
 fn latch(signal: i32) {

@@ -85,6 +85,13 @@ fn child_command(subcommand: &str) -> anyhow::Result<Command> {
     // If this process is killed (SIGKILL cannot be forwarded), the children get SIGTERM from
     // the kernel and finalize their files as on Ctrl-C, instead of running on as orphans.
     let parent = std::process::id();
+    // A SIGINT this process ignores (it was started so) the children ignore too: a Ctrl-C meant
+    // for someone else reaches the whole process group.
+    let sigint = if chaoscope_os::signals::sigint_ignored_at_start() {
+        libc::SIG_IGN
+    } else {
+        libc::SIG_DFL
+    };
     // SAFETY: only async-signal-safe calls (signal, prctl, getppid, raise, nanosleep) between
     // fork and exec.
     unsafe {
@@ -94,7 +101,7 @@ fn child_command(subcommand: &str) -> anyhow::Result<Command> {
             // reached the child's own latch, and a recorder whose producer was gone waited
             // for it for ever. With the default action such a signal ends the child before
             // it starts anything; after exec chaoscope's handlers are its own.
-            libc::signal(libc::SIGINT, libc::SIG_DFL);
+            libc::signal(libc::SIGINT, sigint);
             libc::signal(libc::SIGTERM, libc::SIG_DFL);
             pause_at(pause, PausePoint::BeforeDeathSignal);
             if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGTERM) != 0 {
@@ -263,6 +270,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let mut recorder: Option<Role> = None;
     let mut forwarded = false;
     let mut recorder_failed = false;
+    // This process stopped the recorder because the producer had failed.
+    let mut stopped_recorder = false;
     loop {
         let producer_done = producer.poll()?;
         let recorder_done = match &mut recorder {
@@ -305,7 +314,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         {
             std::thread::sleep(Duration::from_secs(2));
             if let Some(r) = &recorder {
-                r.signal(libc::SIGINT);
+                // SIGTERM: a SIGINT may be ignored (see `child_command`).
+                r.signal(libc::SIGTERM);
+                stopped_recorder = true;
             }
             forwarded = true;
         }
@@ -336,8 +347,13 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 chaoscope_os::output::partial_path(&out).display()
             );
         }
-        // It said why on stderr, in one line; the producer was stopped.
-        return Ok(child_code(recorder_status));
+        // It said why on stderr, in one line; the producer was stopped. Or the producer
+        // failed (it said why) and the recorder was stopped here: the producer's status.
+        return Ok(child_code(if stopped_recorder {
+            producer_status
+        } else {
+            recorder_status
+        }));
     }
     // The file at `out` must be the one this run's recorder put there: another writer's
     // `--force` may have replaced it since, and its report would not be this run's.

@@ -34,6 +34,7 @@
 //! derivative there (`max(x, sqrt(x))` at `x = 0`) gives NaN where forward mode would not.
 
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
+use crate::ops::BinaryDerivatives;
 
 /// What cannot be differentiated.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -51,7 +52,7 @@ pub enum DiffError {
 const MAX_TABLE_DERIV: u8 = 3;
 
 /// `c · t`, with `t = None` meaning the number `c` alone.
-type Term = (f64, Option<NodeId>);
+pub(crate) type Term = (f64, Option<NodeId>);
 
 /// The local derivative of a one-operand operation, in a form that lets coefficients fold.
 #[derive(Debug, Clone, Copy)]
@@ -63,7 +64,7 @@ pub(crate) enum Local {
 }
 
 /// `a * b` with the operands in id order, so `x * y` and `y * x` are one node.
-fn mul_sorted(g: &mut Graph, a: NodeId, b: NodeId) -> NodeId {
+pub(crate) fn mul_sorted(g: &mut Graph, a: NodeId, b: NodeId) -> NodeId {
     if a <= b { g.mul(a, b) } else { g.mul(b, a) }
 }
 
@@ -336,26 +337,21 @@ pub fn gradient(g: &mut Graph, root: NodeId, arg: u8, n: usize) -> Result<Vec<No
                             adj[b as usize].push((lc, r));
                         }
                     }
-                    Binary::Atan2 => {
-                        // atan2(a, b): da = b / (a^2 + b^2), db = -a / (a^2 + b^2).
-                        let s = single(g, &terms);
-                        let a2 = g.powi(a, 2);
-                        let b2 = g.powi(b, 2);
-                        let den = g.add2(a2, b2);
-                        if ca.is_none() {
-                            let sb = mul_sorted(g, s, b);
-                            let r = g.div(sb, den);
-                            adj[a as usize].push((1.0, Some(r)));
-                        }
-                        if cb.is_none() {
-                            let sa = mul_sorted(g, s, a);
-                            let r = g.div(sa, den);
-                            adj[b as usize].push((-1.0, Some(r)));
-                        }
-                    }
                     Binary::Max | Binary::Min => {
                         let cmp = max_min_cmp(op);
                         push_selected(g, &mut adj, &terms, (cmp, a, b), [a, b]);
+                    }
+                    // A called function: its rule is in its table entry.
+                    _ => {
+                        let s = single(g, &terms);
+                        let varies = [ca.is_none(), cb.is_none()];
+                        let [ra, rb] = (derivatives(op).adjoint)(g, [a, b, v], s, varies);
+                        if let Some(t) = ra {
+                            adj[a as usize].push(t);
+                        }
+                        if let Some(t) = rb {
+                            adj[b as usize].push(t);
+                        }
                     }
                 }
             }
@@ -491,7 +487,7 @@ fn add_opt(g: &mut Graph, a: Option<NodeId>, b: Option<NodeId>) -> Option<NodeId
     }
 }
 
-fn sub_opt(g: &mut Graph, a: Option<NodeId>, b: Option<NodeId>) -> Option<NodeId> {
+pub(crate) fn sub_opt(g: &mut Graph, a: Option<NodeId>, b: Option<NodeId>) -> Option<NodeId> {
     match (a, b) {
         (x, None) => x,
         (None, Some(b)) => Some(g.neg(b)),
@@ -781,18 +777,18 @@ fn binary_tangent(
             let s = add_opt(g, x, y).expect("present");
             Some(mul_sorted(g, v, s))
         }
-        Binary::Atan2 => {
-            // (b a' - a b') / (a^2 + b^2)
-            let x = da.map(|da| mul_sorted(g, b, da));
-            let y = db.map(|db| mul_sorted(g, a, db));
-            let num = sub_opt(g, x, y).expect("present");
-            let a2 = g.powi(a, 2);
-            let b2 = g.powi(b, 2);
-            let den = g.add2(a2, b2);
-            Some(g.div(num, den))
-        }
         Binary::Max | Binary::Min => select_tangent(g, (max_min_cmp(op), a, b), [da, db]),
+        // A called function: its rule is in its table entry.
+        _ => Some((derivatives(op).tangent)(g, [a, b, v], [da, db])),
     }
+}
+
+/// The table's derivatives of a called two-argument function.
+fn derivatives(op: Binary) -> &'static BinaryDerivatives {
+    op.def()
+        .derivatives
+        .as_ref()
+        .expect("a called two-argument function has its derivatives in ops.rs")
 }
 
 #[cfg(test)]

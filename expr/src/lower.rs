@@ -34,7 +34,7 @@ use crate::error::{ExprError, Span};
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
 use crate::lattice::SiteSum;
 use crate::parser::{on_big_stack, parse_here};
-use crate::smooth::{self, Info, Signs, Smoothness, SmoothnessLimit};
+use crate::smooth::{self, Info, Smoothness, SmoothnessLimit};
 
 mod loops;
 
@@ -1207,19 +1207,12 @@ impl<'a> Lowerer<'a> {
             let (a, ai) = self.value(&args[0])?;
             let (b, bi) = self.value(&args[1])?;
             let id = self.emit(Node::Binary(op, a, b), span)?;
-            let info = match op {
-                Binary::Atan2 => {
-                    Info::jump(SmoothnessLimit::Atan2, name_span, &[ai, bi], Signs::ALL)
-                }
-                _ => Info::min_max(
-                    op == Binary::Max,
-                    name_span,
-                    ai,
-                    bi,
-                    self.graph.as_const(a) == Some(0.0),
-                    self.graph.as_const(b) == Some(0.0),
-                ),
-            };
+            let kinks = op
+                .def()
+                .kinks
+                .expect("a two-argument function a source calls has its kinks rule in ops.rs");
+            let zero = [a, b].map(|x| self.graph.as_const(x) == Some(0.0));
+            let info = kinks(ai, bi, name_span, zero);
             return Ok((id, self.settle(id, info)));
         }
         match name {

@@ -10,18 +10,20 @@
 //! here: the lowering finds it by name, the evaluator and both code generators (Cranelift, C)
 //! call its value function, `diff` takes its derivative and `smooth` its signs from the entry.
 //! A called two-argument function is one variant of [`Binary`] and one entry of
-//! [`BINARY_OPS`] for its name, value and both code generators; its derivatives (`diff`) and
-//! its kinks or jumps (`lower`) still have their own arms there.
+//! [`BINARY_OPS`]: its name, value, derivatives in both modes, kinks or jumps and Taylor
+//! decomposition, read by the lowering, `diff`, both code generators and `taylor`. (The Taylor
+//! decompositions of one-argument functions are still `taylor.rs`'s arms.)
 //!
 //! The kinks and jumps of `abs`, `step` and `sign` and the branch point of `sqrt` are their
 //! entries' `kinks` rules. The operations written as instructions (`-`, `sqrt`, `abs`, `step`,
 //! `sign`, `+ - * /`, `max`, `min`) keep their instruction sequences in the code generators;
 //! their entries here still give their value and name.
 
-use crate::diff::Local;
+use crate::diff::{Local, Term, mul_sorted, sub_opt};
 use crate::error::Span;
 use crate::graph::{Graph, NodeId};
 use crate::smooth::{Info, Signs, SmoothnessLimit};
+use crate::taylor::{Builder, Op as TapeOp};
 
 /// One-argument operations, in the order of [`UNARY_OPS`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -123,6 +125,40 @@ pub(crate) struct BinaryOp {
     /// calls it directly).
     pub eval: extern "C" fn(f64, f64) -> f64,
     pub lowering: Lowering,
+    /// The derivatives of a function a source calls by name; `None` for the arithmetic
+    /// operators (`+ - * / ^`, whose derivatives `diff` writes so constants fold) and for `max`
+    /// and `min` (the derivative of the operand selected).
+    pub derivatives: Option<BinaryDerivatives>,
+    /// What `op(a, b)` is from what `a` and `b` are (the call's span names it; `zero` says
+    /// which operand is the constant 0), for a function a source calls by name; `None` for the
+    /// infix operators, whose rules the lowering applies where it builds them.
+    pub kinks: Option<BinaryKinks>,
+    /// Taylor's method: the operations on series that compute a called function into slot
+    /// `dst` from the operands' slots, the last one returned (the tape's recurrences are in
+    /// `taylor.rs`); `None` where it has no series (`max`, `min`) or where `taylor.rs` writes it
+    /// (the arithmetic operators).
+    pub taylor: Option<TaylorDecomposition>,
+}
+
+/// `op(a, b)`'s smoothness from its operands', the call's span and which operand is the
+/// constant 0.
+pub(crate) type BinaryKinks = fn(Info, Info, Span, [bool; 2]) -> Info;
+
+/// Writes a function's series into slot `dst` from its operands' slots; returns the last
+/// operation.
+pub(crate) type TaylorDecomposition = fn(&mut Builder, u32, [u32; 2]) -> TapeOp;
+
+/// The adjoints `[a, b, v]`, `s` and `varies` give the operands ([`BinaryDerivatives`]).
+pub(crate) type Adjoint = fn(&mut Graph, [NodeId; 3], NodeId, [bool; 2]) -> [Option<Term>; 2];
+
+/// The derivatives of `v = op(a, b)` as nodes of the graph, given `[a, b, v]` (the value may
+/// be reused: `sqrt`'s derivative is `0.5 / v`).
+pub(crate) struct BinaryDerivatives {
+    /// Reverse mode: what the adjoints of `a` and `b` receive (only those whose `varies` is
+    /// set), given `s`, the adjoint of `v` as one node.
+    pub adjoint: Adjoint,
+    /// Forward mode: the tangent of `v` from the tangents of `a` and `b` (at least one present).
+    pub tangent: fn(&mut Graph, [NodeId; 3], [Option<NodeId>; 2]) -> NodeId,
 }
 
 impl Binary {
@@ -454,6 +490,9 @@ pub(crate) const BINARY_OPS: &[BinaryOp] = &[
         symbol: "+",
         eval: add,
         lowering: Lowering::Inline,
+        derivatives: None,
+        kinks: None,
+        taylor: None,
     },
     BinaryOp {
         op: Binary::Sub,
@@ -461,6 +500,9 @@ pub(crate) const BINARY_OPS: &[BinaryOp] = &[
         symbol: "-",
         eval: sub,
         lowering: Lowering::Inline,
+        derivatives: None,
+        kinks: None,
+        taylor: None,
     },
     BinaryOp {
         op: Binary::Mul,
@@ -468,6 +510,9 @@ pub(crate) const BINARY_OPS: &[BinaryOp] = &[
         symbol: "*",
         eval: mul,
         lowering: Lowering::Inline,
+        derivatives: None,
+        kinks: None,
+        taylor: None,
     },
     BinaryOp {
         op: Binary::Div,
@@ -475,6 +520,9 @@ pub(crate) const BINARY_OPS: &[BinaryOp] = &[
         symbol: "/",
         eval: div,
         lowering: Lowering::Inline,
+        derivatives: None,
+        kinks: None,
+        taylor: None,
     },
     BinaryOp {
         op: Binary::Pow,
@@ -482,6 +530,9 @@ pub(crate) const BINARY_OPS: &[BinaryOp] = &[
         symbol: "^",
         eval: pow,
         lowering: Lowering::Call,
+        derivatives: None,
+        kinks: None,
+        taylor: None,
     },
     BinaryOp {
         op: Binary::Atan2,
@@ -489,6 +540,42 @@ pub(crate) const BINARY_OPS: &[BinaryOp] = &[
         symbol: "atan2",
         eval: atan2,
         lowering: Lowering::Call,
+        derivatives: Some(BinaryDerivatives {
+            // da = s b / (a^2 + b^2), db = -(s a) / (a^2 + b^2)
+            adjoint: |g, [a, b, _], s, varies| {
+                let a2 = g.powi(a, 2);
+                let b2 = g.powi(b, 2);
+                let den = g.add2(a2, b2);
+                let da = varies[0].then(|| {
+                    let sb = mul_sorted(g, s, b);
+                    (1.0, Some(g.div(sb, den)))
+                });
+                let db = varies[1].then(|| {
+                    let sa = mul_sorted(g, s, a);
+                    (-1.0, Some(g.div(sa, den)))
+                });
+                [da, db]
+            },
+            // (b a' - a b') / (a^2 + b^2)
+            tangent: |g, [a, b, _], [da, db]| {
+                let x = da.map(|da| mul_sorted(g, b, da));
+                let y = db.map(|db| mul_sorted(g, a, db));
+                let num = sub_opt(g, x, y).expect("a tangent is present");
+                let a2 = g.powi(a, 2);
+                let b2 = g.powi(b, 2);
+                let den = g.add2(a2, b2);
+                g.div(num, den)
+            },
+        }),
+        kinks: Some(|a, b, span, _| Info::jump(SmoothnessLimit::Atan2, span, &[a, b], Signs::ALL)),
+        // w' = (b a' - a b') / d with d = a^2 + b^2.
+        taylor: Some(|t, dst, [a, b]| {
+            let (a2, b2, d) = (t.slot(), t.slot(), t.slot());
+            t.push(TapeOp::Square(a2, a));
+            t.push(TapeOp::Square(b2, b));
+            t.push(TapeOp::Add(d, a2, b2));
+            TapeOp::Atan2 { dst, a, b, d }
+        }),
     },
     BinaryOp {
         op: Binary::Max,
@@ -496,6 +583,9 @@ pub(crate) const BINARY_OPS: &[BinaryOp] = &[
         symbol: "max",
         eval: max,
         lowering: Lowering::Inline,
+        derivatives: None,
+        kinks: Some(|a, b, span, zero| Info::min_max(true, span, a, b, zero[0], zero[1])),
+        taylor: None,
     },
     BinaryOp {
         op: Binary::Min,
@@ -503,6 +593,9 @@ pub(crate) const BINARY_OPS: &[BinaryOp] = &[
         symbol: "min",
         eval: min,
         lowering: Lowering::Inline,
+        derivatives: None,
+        kinks: Some(|a, b, span, zero| Info::min_max(false, span, a, b, zero[0], zero[1])),
+        taylor: None,
     },
 ];
 
@@ -558,6 +651,24 @@ pub(crate) fn signs_of(op: Unary, u: Signs) -> Signs {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A two-argument function a source calls carries its smoothness rule, and, unless it
+    /// selects an operand (`max`, `min`: one-sided derivatives written by `diff`, no series),
+    /// its derivatives and its Taylor decomposition, so the lowering, `diff` and Taylor's method
+    /// never meet it without a rule. The infix operators have theirs where they are built.
+    #[test]
+    fn every_function_a_source_calls_has_its_rules() {
+        for d in BINARY_OPS {
+            if d.name.is_none() {
+                assert!(d.kinks.is_none() && d.derivatives.is_none() && d.taylor.is_none());
+                continue;
+            }
+            let selects = matches!(d.op, Binary::Max | Binary::Min);
+            assert!(d.kinks.is_some(), "{:?}", d.op);
+            assert_eq!(d.derivatives.is_some(), !selects, "{:?}", d.op);
+            assert_eq!(d.taylor.is_some(), !selects, "{:?}", d.op);
+        }
+    }
 
     #[test]
     fn the_table_is_in_the_order_of_the_enum() {

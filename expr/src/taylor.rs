@@ -168,7 +168,9 @@ enum Class {
     Tangent,
 }
 
-struct Builder<'g> {
+/// Builds a tape; what a two-argument function's entry in `ops.rs` decomposes itself with
+/// ([`Self::slot`], [`Self::push`]).
+pub(crate) struct Builder<'g> {
     graph: &'g Graph,
     slots: u32,
     ops: Vec<Op>,
@@ -178,9 +180,15 @@ struct Builder<'g> {
 }
 
 impl Builder<'_> {
-    fn slot(&mut self) -> u32 {
+    /// A new slot (a series).
+    pub(crate) fn slot(&mut self) -> u32 {
         self.slots += 1;
         self.slots - 1
+    }
+
+    /// Appends an operation to the tape.
+    pub(crate) fn push(&mut self, op: Op) {
+        self.ops.push(op);
     }
 
     fn one(&mut self) -> u32 {
@@ -246,19 +254,12 @@ impl Builder<'_> {
                         self.ops.push(Op::Mul(m, sy, l));
                         Op::Exp(dst, m)
                     }
-                    Binary::Atan2 => {
-                        let (a2, b2, d) = (self.slot(), self.slot(), self.slot());
-                        self.ops.push(Op::Square(a2, sx));
-                        self.ops.push(Op::Square(b2, sy));
-                        self.ops.push(Op::Add(d, a2, b2));
-                        Op::Atan2 {
-                            dst,
-                            a: sx,
-                            b: sy,
-                            d,
-                        }
-                    }
-                    Binary::Max | Binary::Min => return Err(refuse()),
+                    // A called function decomposes itself (its entry in `ops.rs`); one with
+                    // no series (a kink, a selection) has no decomposition.
+                    _ => match b.def().taylor {
+                        Some(decompose) => decompose(self, dst, [sx, sy]),
+                        None => return Err(refuse()),
+                    },
                 }
             }
             Node::Unary(u, x) => {

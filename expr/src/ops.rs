@@ -8,11 +8,15 @@
 //!
 //! Adding a one-argument function is one variant of [`Unary`] and one entry of [`UNARY_OPS`]
 //! here: the lowering finds it by name, the evaluator and both code generators (Cranelift, C)
-//! call its value function, `diff` takes its derivative and `smooth` its signs from the entry.
+//! call its value function, `diff` takes its derivative, `smooth` its signs and Taylor's method
+//! its decomposition from the entry.
 //! A called two-argument function is one variant of [`Binary`] and one entry of
 //! [`BINARY_OPS`]: its name, value, derivatives in both modes, kinks or jumps and Taylor
-//! decomposition, read by the lowering, `diff`, both code generators and `taylor`. (The Taylor
-//! decompositions of one-argument functions are still `taylor.rs`'s arms.)
+//! decomposition, read by the lowering, `diff`, both code generators and `taylor`.
+//!
+//! Every function's Taylor decomposition is its entry's `taylor`: the operations on series of
+//! the tape (`taylor::Op`, whose recurrences `taylor.rs` and its C printer hold) that compute
+//! it. A function whose series needs a recurrence the tape does not have adds one there.
 //!
 //! The kinks and jumps of `abs`, `step` and `sign` and the branch point of `sqrt` are their
 //! entries' `kinks` rules. The operations written as instructions (`-`, `sqrt`, `abs`, `step`,
@@ -112,6 +116,21 @@ pub(crate) struct UnaryOp {
     /// (the call's span names it); `None` for one smooth wherever it is finite
     /// ([`Info::smooth_fn`] from the fields above).
     pub kinks: Option<fn(Info, Span) -> Info>,
+    /// Taylor's method: the operations on series that compute `op(a)` (the tape's recurrences
+    /// are in `taylor.rs`); `None` for a function with a kink or a jump (no series).
+    pub taylor: Option<UnaryTaylor>,
+}
+
+/// Writes `op(a)`'s series from the slot of `a` into `dst` (or says which slot already holds
+/// it).
+pub(crate) type UnaryTaylor = fn(&mut Builder, Unary, u32, u32) -> UnarySeries;
+
+/// Where a one-argument function's series is.
+pub(crate) enum UnarySeries {
+    /// Computed into `dst` by this operation (the last of its decomposition).
+    Op(TapeOp),
+    /// In this slot, written by an operation shared with another function (`sin` and `cos`).
+    Slot(u32),
 }
 
 /// The definition of one [`Binary`] operation.
@@ -270,6 +289,42 @@ fn one_and_square(g: &mut Graph, u: NodeId, minus: bool) -> NodeId {
     }
 }
 
+/// `sin`, `cos`, `sinh`, `cosh`: a member of the pair one operation computes.
+fn sin_cos_series(t: &mut Builder, op: Unary, _dst: u32, a: u32) -> UnarySeries {
+    let hyperbolic = matches!(op, Unary::Sinh | Unary::Cosh);
+    let (sin, cos) = t.sin_cos(a, hyperbolic);
+    UnarySeries::Slot(if matches!(op, Unary::Sin | Unary::Sinh) {
+        sin
+    } else {
+        cos
+    })
+}
+
+/// `tan`, `tanh`: `w' = (1 +- w^2) a'`.
+fn tan_series(t: &mut Builder, op: Unary, dst: u32, a: u32) -> UnarySeries {
+    UnarySeries::Op(TapeOp::Tan {
+        dst,
+        a,
+        sq: t.slot(),
+        hyperbolic: op == Unary::Tanh,
+    })
+}
+
+/// `atan`, `asinh`: `w' = a' / d` with `d = 1 + a^2`, `sqrt(1 + a^2)`.
+fn inverse_series(t: &mut Builder, op: Unary, dst: u32, a: u32) -> UnarySeries {
+    let (sq, d) = (t.slot(), t.slot());
+    let one = t.one();
+    t.push(TapeOp::Square(sq, a));
+    if op == Unary::Atan {
+        t.push(TapeOp::Add(d, sq, one));
+    } else {
+        let e = t.slot();
+        t.push(TapeOp::Add(e, sq, one));
+        t.push(TapeOp::Sqrt(d, e));
+    }
+    UnarySeries::Op(TapeOp::Inverse { dst, a, d, f: op })
+}
+
 /// Indexed by `Unary as usize`.
 pub(crate) const UNARY_OPS: &[UnaryOp] = &[
     UnaryOp {
@@ -282,6 +337,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: true,
         finite: true,
         kinks: None,
+        taylor: Some(|_, _, dst, a| UnarySeries::Op(TapeOp::Neg(dst, a))),
     },
     UnaryOp {
         op: Unary::Sqrt,
@@ -294,6 +350,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: false,
         finite: false,
         kinks: Some(|u, span| u.power(0.5, span, true)),
+        taylor: Some(|_, _, dst, a| UnarySeries::Op(TapeOp::Sqrt(dst, a))),
     },
     UnaryOp {
         op: Unary::Exp,
@@ -305,6 +362,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: false,
         finite: true,
         kinks: None,
+        taylor: Some(|_, _, dst, a| UnarySeries::Op(TapeOp::Exp(dst, a))),
     },
     UnaryOp {
         op: Unary::Log,
@@ -316,6 +374,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: false,
         finite: false,
         kinks: None,
+        taylor: Some(|_, _, dst, a| UnarySeries::Op(TapeOp::Log(dst, a))),
     },
     UnaryOp {
         op: Unary::Sin,
@@ -327,6 +386,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: true,
         finite: true,
         kinks: None,
+        taylor: Some(sin_cos_series),
     },
     UnaryOp {
         op: Unary::Cos,
@@ -338,6 +398,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: false,
         finite: true,
         kinks: None,
+        taylor: Some(sin_cos_series),
     },
     UnaryOp {
         op: Unary::Tan,
@@ -350,6 +411,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: false,
         finite: false,
         kinks: None,
+        taylor: Some(tan_series),
     },
     UnaryOp {
         op: Unary::Atan,
@@ -361,6 +423,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: true,
         finite: true,
         kinks: None,
+        taylor: Some(inverse_series),
     },
     UnaryOp {
         op: Unary::Tanh,
@@ -372,6 +435,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: true,
         finite: true,
         kinks: None,
+        taylor: Some(tan_series),
     },
     UnaryOp {
         op: Unary::Cosh,
@@ -383,6 +447,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: false,
         finite: true,
         kinks: None,
+        taylor: Some(sin_cos_series),
     },
     UnaryOp {
         op: Unary::Sinh,
@@ -394,6 +459,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: true,
         finite: true,
         kinks: None,
+        taylor: Some(sin_cos_series),
     },
     UnaryOp {
         op: Unary::Abs,
@@ -405,6 +471,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: false,
         finite: false,
         kinks: Some(|u, span| u.abs(span)),
+        taylor: None,
     },
     UnaryOp {
         op: Unary::Step,
@@ -416,6 +483,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: false,
         finite: false,
         kinks: Some(|u, span| Info::jump(SmoothnessLimit::Step, span, &[u], Signs::NONNEG)),
+        taylor: None,
     },
     UnaryOp {
         op: Unary::Sign,
@@ -427,6 +495,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: false,
         finite: false,
         kinks: Some(|u, span| Info::jump(SmoothnessLimit::Sign, span, &[u], u.signs)),
+        taylor: None,
     },
     UnaryOp {
         op: Unary::Asinh,
@@ -442,6 +511,7 @@ pub(crate) const UNARY_OPS: &[UnaryOp] = &[
         keeps_zero: true,
         finite: true,
         kinks: None,
+        taylor: Some(inverse_series),
     },
 ];
 
@@ -667,6 +737,15 @@ mod tests {
             assert!(d.kinks.is_some(), "{:?}", d.op);
             assert_eq!(d.derivatives.is_some(), !selects, "{:?}", d.op);
             assert_eq!(d.taylor.is_some(), !selects, "{:?}", d.op);
+        }
+    }
+
+    /// Every function has its Taylor decomposition but those with a kink or a jump.
+    #[test]
+    fn every_function_with_a_series_has_its_decomposition() {
+        for d in UNARY_OPS {
+            let no_series = matches!(d.op, Unary::Abs | Unary::Step | Unary::Sign);
+            assert_eq!(d.taylor.is_none(), no_series, "{:?}", d.op);
         }
     }
 

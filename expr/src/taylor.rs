@@ -28,6 +28,7 @@ use std::sync::{Arc, OnceLock};
 use crate::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
 use crate::jit::c::taylor::CTaylor;
 use crate::jit::{CCompiler, JitError};
+use crate::ops::UnarySeries;
 
 /// The state, tangent-vector, time and parameter arguments of a vector function's graph.
 const ARG_X: u8 = 0;
@@ -191,7 +192,25 @@ impl Builder<'_> {
         self.ops.push(op);
     }
 
-    fn one(&mut self) -> u32 {
+    /// The slots of `(sin a, cos a)`, or with `hyperbolic` `(sinh a, cosh a)`: one operation
+    /// computes both, written the first time either is asked for.
+    pub(crate) fn sin_cos(&mut self, a: u32, hyperbolic: bool) -> (u32, u32) {
+        if let Some(&pair) = self.pairs.get(&(a, hyperbolic)) {
+            return pair;
+        }
+        let pair = (self.slot(), self.slot());
+        self.ops.push(Op::SinCos {
+            sin: pair.0,
+            cos: pair.1,
+            a,
+            hyperbolic,
+        });
+        self.pairs.insert((a, hyperbolic), pair);
+        pair
+    }
+
+    /// The slot of the series `1`.
+    pub(crate) fn one(&mut self) -> u32 {
         if let Some(s) = self.one {
             return s;
         }
@@ -263,61 +282,14 @@ impl Builder<'_> {
                 }
             }
             Node::Unary(u, x) => {
-                let sx = slot_of(x);
-                match u {
-                    Unary::Neg => Op::Neg(dst, sx),
-                    Unary::Sqrt => Op::Sqrt(dst, sx),
-                    Unary::Exp => Op::Exp(dst, sx),
-                    Unary::Log => Op::Log(dst, sx),
-                    Unary::Sin | Unary::Cos | Unary::Sinh | Unary::Cosh => {
-                        let hyperbolic = matches!(u, Unary::Sinh | Unary::Cosh);
-                        let (sin, cos) = match self.pairs.get(&(sx, hyperbolic)) {
-                            Some(&pair) => pair,
-                            None => {
-                                let pair = (self.slot(), self.slot());
-                                self.ops.push(Op::SinCos {
-                                    sin: pair.0,
-                                    cos: pair.1,
-                                    a: sx,
-                                    hyperbolic,
-                                });
-                                self.pairs.insert((sx, hyperbolic), pair);
-                                pair
-                            }
-                        };
-                        // The node is the pair's member: no op of its own.
-                        let member = if matches!(u, Unary::Sin | Unary::Sinh) {
-                            sin
-                        } else {
-                            cos
-                        };
-                        return Ok(Some(member));
-                    }
-                    Unary::Tan | Unary::Tanh => Op::Tan {
-                        dst,
-                        a: sx,
-                        sq: self.slot(),
-                        hyperbolic: u == Unary::Tanh,
+                // Each function decomposes itself (its entry in `ops.rs`); one with a kink or a
+                // jump has no series.
+                match u.def().taylor {
+                    Some(decompose) => match decompose(self, u, dst, slot_of(x)) {
+                        UnarySeries::Op(op) => op,
+                        UnarySeries::Slot(slot) => return Ok(Some(slot)),
                     },
-                    Unary::Atan | Unary::Asinh => {
-                        let (sq, d) = (self.slot(), self.slot());
-                        let one = self.one();
-                        self.ops.push(Op::Square(sq, sx));
-                        if u == Unary::Atan {
-                            self.ops.push(Op::Add(d, sq, one));
-                        } else {
-                            let e = self.slot();
-                            self.ops.push(Op::Add(e, sq, one));
-                            self.ops.push(Op::Sqrt(d, e));
-                        }
-                        Op::Inverse {
-                            dst,
-                            a: sx,
-                            d,
-                            f: u,
-                        }
-                    }
-                    Unary::Abs | Unary::Step | Unary::Sign => return Err(refuse()),
+                    None => return Err(refuse()),
                 }
             }
             Node::Powi(x, n) => {

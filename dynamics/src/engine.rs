@@ -12,12 +12,12 @@
 //! The deviation lanes of a system with a batched form (`DynamicalSystem::batched`) are stepped
 //! by it, many lanes in one fused pass, the same bits as lane by lane (`engine/stepping.rs`).
 //! A set of a few tangent vectors of a system with a fused one-orbit kernel
-//! (`DynamicalSystem::reference_tangent_steps`: a lattice potential) steps them with its copy of
+//! (`ReferenceTangent::steps`: a lattice potential) steps them with its copy of
 //! the reference in one pass; the first such set *carries* the reference: its copy, stepped
 //! first in each window, is the reference (the same bits as stepping the reference itself), so
 //! the orbit is integrated once, not once more beside that set. A system whose tangent pass
 //! computes the orbit anyway and chooses its substeps from the orbit alone
-//! (`DynamicalSystem::steps_reference_with_tangents`: Taylor's method) steps the first plain VM
+//! (`AdaptiveSteps::steps_reference_with_tangents`: Taylor's method) steps the first plain VM
 //! set together with the reference, in the reference's own loop (its substeps planned there for
 //! the other sets), and that set is not stepped again.
 
@@ -95,7 +95,7 @@ pub struct Engine {
     /// The task whose copy of the reference is the reference (see the module documentation).
     carrier: Option<usize>,
     /// The VM set stepped with the reference in one pass
-    /// ([`DynamicalSystem::steps_reference_with_tangents`]), and its vectors as rows.
+    /// ([`crate::system::AdaptiveSteps::steps_reference_with_tangents`]), and its vectors as rows.
     tangent_carrier: Option<usize>,
     carried: Vec<f64>,
 }
@@ -676,7 +676,7 @@ fn carrier(tasks: &[DeviationSet], divergence: bool) -> Option<usize> {
     })
 }
 
-/// The VM set a system that [`DynamicalSystem::steps_reference_with_tangents`] steps with the
+/// The VM set a system that [`crate::system::AdaptiveSteps::steps_reference_with_tangents`] steps with the
 /// reference: the first set of tangent vectors stepped one orbit at a time, where no task
 /// carries the reference already.
 fn tangent_carrier(

@@ -54,9 +54,9 @@ pub(crate) enum Stepping {
     /// substeps: every system, and the definition the batched form reproduces.
     OneOrbit,
     /// As [`Stepping::OneOrbit`], but a set's tangent vectors step with their copy of the
-    /// reference, which can carry the reference ([`DynamicalSystem::steps_reference_tangent`]),
+    /// reference, which can carry the reference ([`DynamicalSystem::reference_tangent`]),
     /// in one fused pass where the system has one now
-    /// ([`DynamicalSystem::reference_tangent_steps`]; the same bits): the few vectors the
+    /// ([`crate::system::ReferenceTangent::steps`]; the same bits): the few vectors the
     /// batched kernels would pad to a chunk.
     Fused,
     /// The system's batched form on the instruction set `isa`, for tasks of at least

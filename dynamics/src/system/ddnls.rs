@@ -7,7 +7,7 @@ use std::sync::Arc;
 
 use chaoscope_schemas::run::SystemClass;
 
-use super::{DynamicalSystem, Time};
+use super::{DynamicalSystem, ReferenceTangent, Time};
 use crate::integrator::composition::{Composition, SplitFlows};
 use crate::integrator::{TangentError, Workspace};
 use crate::model::Ddnls;
@@ -104,11 +104,14 @@ impl DynamicalSystem for DdnlsSystem {
     }
 
     /// The tangent step moves the orbit with exactly the operations of `step` (the flows of
-    /// `x` do not read `w`), so a set of tangent vectors may carry the reference.
-    fn steps_reference_tangent(&self) -> bool {
-        true
+    /// `x` do not read `w`), so a set of tangent vectors may carry the reference (stepped one
+    /// step at a time: no fused pass).
+    fn reference_tangent(&self) -> Option<&dyn ReferenceTangent> {
+        Some(self)
     }
 }
+
+impl ReferenceTangent for DdnlsSystem {}
 
 impl DdnlsSystem {
     /// The norm `S = sum_l (q_l^2 + p_l^2)/2`, conserved beside the energy.

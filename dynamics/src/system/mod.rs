@@ -122,41 +122,6 @@ pub trait DynamicalSystem: Send + Sync {
         work: &mut Workspace,
     ) -> Result<(), TangentError>;
 
-    /// Advance the reference orbit by one step from time `t`, appending to `plan` the substeps
-    /// it took when the state chose them (adaptive step-size control), so that the deviation
-    /// sets follow the very same substeps ([`DynamicalSystem::step_along`]) and every scheme
-    /// sees one trajectory. Fixed-step systems leave `plan` alone.
-    fn step_reference(&self, x: &mut [f64], t: f64, plan: &mut Vec<f64>, work: &mut Workspace) {
-        let _ = plan;
-        self.step(x, t, work)
-    }
-
-    /// Whether a run of this system can be resumed from a recorded sample (`chaoscope resume`):
-    /// only if a step carries nothing from the steps before it that a sample does not hold.
-    fn resumable(&self) -> Result<(), String> {
-        Ok(())
-    }
-
-    /// Advance `x` by one step from time `t` along the substeps `plan` the reference took in
-    /// it (empty for fixed-step systems).
-    fn step_along(&self, x: &mut [f64], t: f64, plan: &[f64], work: &mut Workspace) {
-        let _ = plan;
-        self.step(x, t, work)
-    }
-
-    /// [`DynamicalSystem::step_tangent`] along the substeps `plan` the reference took.
-    fn step_tangent_along(
-        &self,
-        x: &mut [f64],
-        w: &mut [f64],
-        t: f64,
-        plan: &[f64],
-        work: &mut Workspace,
-    ) -> Result<(), TangentError> {
-        let _ = plan;
-        self.step_tangent(x, w, t, work)
-    }
-
     /// Why the variational method cannot be used (a derivative the system lacks, naming the
     /// operation); `None` when it can.
     fn no_tangent_reason(&self) -> Option<String>;
@@ -184,31 +149,6 @@ pub trait DynamicalSystem: Send + Sync {
     /// failure.
     fn diagnose_non_finite(&self, x: &[f64], t: f64) -> Option<String>;
 
-    /// Whether [`DynamicalSystem::step_reference_tangent`] steps the reference and a set of
-    /// tangent vectors in one pass, cheaper than the reference's step and the vectors' step
-    /// along it apart (a system whose tangent pass computes the orbit anyway): then a run
-    /// steps its first plain VM set with the reference, not after it.
-    fn steps_reference_with_tangents(&self) -> bool {
-        false
-    }
-
-    /// [`DynamicalSystem::step_reference`] of `x` (appending its substeps to `plan`) and
-    /// [`DynamicalSystem::step_tangent_along`] of the vectors `w` along those substeps, in one
-    /// call: bit for bit the two apart, which is what this default does.
-    fn step_reference_tangent(
-        &self,
-        x: &mut [f64],
-        w: &mut [f64],
-        t: f64,
-        plan: &mut Vec<f64>,
-        work: &mut Workspace,
-    ) -> Result<(), TangentError> {
-        let mut along = x.to_vec();
-        let before = plan.len();
-        self.step_reference(x, t, plan, work);
-        self.step_tangent_along(&mut along, w, t, &plan[before..], work)
-    }
-
     /// The system's batched form, its one extension point for it: many orbits (and tangent
     /// vectors along a recorded reference) advanced together as lanes, on the instruction set
     /// `isa` where the kind has per-ISA code; what phase-space maps run on. `None` for a system
@@ -218,28 +158,18 @@ pub trait DynamicalSystem: Send + Sync {
         None
     }
 
-    /// Whether a small set of tangent vectors can step with its own copy of the reference, one
-    /// window at a time, and that copy serve as the reference (its tangent steps move the orbit
-    /// exactly as `step` does): through [`DynamicalSystem::reference_tangent_steps`] where the
-    /// system has a fused pass now, else its one-orbit tangent steps. A run then integrates the
-    /// orbit once, not once more beside such a set.
-    fn steps_reference_tangent(&self) -> bool {
-        false
+    /// Its steps' substeps, where the state chooses them (adaptive step-size control); `None`
+    /// for fixed steps, whose every step is `step`.
+    fn adaptive(&self) -> Option<&dyn AdaptiveSteps> {
+        None
     }
 
-    /// A run of `work` state-value steps (steps times the dimension) will call
-    /// [`DynamicalSystem::reference_tangent_steps`]: build what it needs, where that repays.
-    fn prepare_reference_tangent(&self, work: u64) {
-        let _ = work;
-    }
-
-    /// `steps` steps, the first of them step number `from`, of the orbit `x` and the tangent
-    /// vectors `v` around it (stored one after the other), in one fused pass: bit for bit
-    /// `step` of `x` and `step_tangent` of `v` along it. False, with nothing stepped, where the
-    /// system has no such kernel now (its caller steps them one step at a time).
-    fn reference_tangent_steps(&self, x: &mut [f64], v: &mut [f64], from: u64, steps: u64) -> bool {
-        let _ = (x, v, from, steps);
-        false
+    /// Its fused pass of the orbit with a small set of tangent vectors, where a set may step
+    /// with its own copy of the reference and that copy serve as the reference (its tangent
+    /// steps move the orbit exactly as `step` does). A run then integrates the orbit once, not
+    /// once more beside such a set. `None` for a system without.
+    fn reference_tangent(&self) -> Option<&dyn ReferenceTangent> {
+        None
     }
 
     /// The separable Hamiltonian behind this system (its model, splitting and step), for what
@@ -268,6 +198,165 @@ pub trait DynamicalSystem: Send + Sync {
         for ((o, a), b) in out.iter_mut().zip(y).zip(x) {
             *o = a - b;
         }
+    }
+}
+
+/// Steps whose substeps the state chooses: the reference records them in a plan and every
+/// deviation set follows the very same substeps, so every scheme sees one trajectory.
+pub trait AdaptiveSteps {
+    /// Advance the reference orbit by one step from time `t`, appending to `plan` the substeps
+    /// it took.
+    fn step_reference(&self, x: &mut [f64], t: f64, plan: &mut Vec<f64>, work: &mut Workspace);
+
+    /// Advance `x` by one step from time `t` along the substeps `plan` the reference took.
+    fn step_along(&self, x: &mut [f64], t: f64, plan: &[f64], work: &mut Workspace);
+
+    /// [`DynamicalSystem::step_tangent`] along the substeps `plan` the reference took.
+    fn step_tangent_along(
+        &self,
+        x: &mut [f64],
+        w: &mut [f64],
+        t: f64,
+        plan: &[f64],
+        work: &mut Workspace,
+    ) -> Result<(), TangentError>;
+
+    /// Whether a run can be resumed from a recorded sample (`chaoscope resume`): only if a step
+    /// carries nothing from the steps before it that a sample does not hold.
+    fn resumable(&self) -> Result<(), String> {
+        Ok(())
+    }
+
+    /// Whether [`AdaptiveSteps::step_reference_tangent`] steps the reference and a set of
+    /// tangent vectors in one pass, cheaper than the two apart (a system whose tangent pass
+    /// computes the orbit anyway): then a run steps its first plain VM set with the reference.
+    fn steps_reference_with_tangents(&self) -> bool {
+        false
+    }
+
+    /// [`AdaptiveSteps::step_reference`] of `x` and [`AdaptiveSteps::step_tangent_along`] of
+    /// the vectors `w` along its substeps, in one call: bit for bit the two apart, which is
+    /// what this default does.
+    fn step_reference_tangent(
+        &self,
+        x: &mut [f64],
+        w: &mut [f64],
+        t: f64,
+        plan: &mut Vec<f64>,
+        work: &mut Workspace,
+    ) -> Result<(), TangentError> {
+        let mut along = x.to_vec();
+        let before = plan.len();
+        self.step_reference(x, t, plan, work);
+        self.step_tangent_along(&mut along, w, t, &plan[before..], work)
+    }
+}
+
+/// A fused pass of the orbit and a small set of tangent vectors ([`DynamicalSystem::reference_tangent`]).
+pub trait ReferenceTangent {
+    /// A run of `work` state-value steps (steps times the dimension) will call
+    /// [`ReferenceTangent::steps`]: build what it needs, where that repays.
+    fn prepare(&self, work: u64) {
+        let _ = work;
+    }
+
+    /// `steps` steps, the first of them step number `from`, of the orbit `x` and the tangent
+    /// vectors `v` around it (stored one after the other), in one fused pass: bit for bit
+    /// `step` of `x` and `step_tangent` of `v` along it. False, with nothing stepped, where the
+    /// system has no such kernel now (its caller steps them one step at a time).
+    fn steps(&self, x: &mut [f64], v: &mut [f64], from: u64, steps: u64) -> bool {
+        let _ = (x, v, from, steps);
+        false
+    }
+}
+
+/// What every system offers through its capabilities, with the plain steps where it has none.
+impl dyn DynamicalSystem + '_ {
+    /// Advance the reference orbit by one step from time `t`, appending its substeps to `plan`
+    /// where the system chooses them ([`AdaptiveSteps`]).
+    pub fn step_reference(&self, x: &mut [f64], t: f64, plan: &mut Vec<f64>, work: &mut Workspace) {
+        match self.adaptive() {
+            Some(a) => a.step_reference(x, t, plan, work),
+            None => self.step(x, t, work),
+        }
+    }
+
+    /// Advance `x` by one step from time `t` along the reference's substeps `plan`.
+    pub fn step_along(&self, x: &mut [f64], t: f64, plan: &[f64], work: &mut Workspace) {
+        match self.adaptive() {
+            Some(a) => a.step_along(x, t, plan, work),
+            None => self.step(x, t, work),
+        }
+    }
+
+    /// [`DynamicalSystem::step_tangent`] along the reference's substeps `plan`.
+    pub fn step_tangent_along(
+        &self,
+        x: &mut [f64],
+        w: &mut [f64],
+        t: f64,
+        plan: &[f64],
+        work: &mut Workspace,
+    ) -> Result<(), TangentError> {
+        match self.adaptive() {
+            Some(a) => a.step_tangent_along(x, w, t, plan, work),
+            None => self.step_tangent(x, w, t, work),
+        }
+    }
+
+    /// Whether a run can be resumed from a recorded sample.
+    pub fn resumable(&self) -> Result<(), String> {
+        self.adaptive().map_or(Ok(()), |a| a.resumable())
+    }
+
+    /// [`AdaptiveSteps::steps_reference_with_tangents`].
+    pub fn steps_reference_with_tangents(&self) -> bool {
+        self.adaptive()
+            .is_some_and(|a| a.steps_reference_with_tangents())
+    }
+
+    /// [`AdaptiveSteps::step_reference_tangent`]; for fixed steps, `step` of `x` and
+    /// `step_tangent` of `w` from the same state.
+    pub fn step_reference_tangent(
+        &self,
+        x: &mut [f64],
+        w: &mut [f64],
+        t: f64,
+        plan: &mut Vec<f64>,
+        work: &mut Workspace,
+    ) -> Result<(), TangentError> {
+        match self.adaptive() {
+            Some(a) => a.step_reference_tangent(x, w, t, plan, work),
+            None => {
+                let mut along = x.to_vec();
+                self.step(x, t, work);
+                self.step_tangent(&mut along, w, t, work)
+            }
+        }
+    }
+
+    /// Whether the system has a [`ReferenceTangent`] pass.
+    pub fn steps_reference_tangent(&self) -> bool {
+        self.reference_tangent().is_some()
+    }
+
+    /// [`ReferenceTangent::prepare`], where the system has the pass.
+    pub fn prepare_reference_tangent(&self, work: u64) {
+        if let Some(r) = self.reference_tangent() {
+            r.prepare(work);
+        }
+    }
+
+    /// [`ReferenceTangent::steps`]; false where the system has no such pass.
+    pub fn reference_tangent_steps(
+        &self,
+        x: &mut [f64],
+        v: &mut [f64],
+        from: u64,
+        steps: u64,
+    ) -> bool {
+        self.reference_tangent()
+            .is_some_and(|r| r.steps(x, v, from, steps))
     }
 }
 

@@ -4,7 +4,7 @@
 //! (adaptive `dop853`) an engine step spans one interval of the time grid (multiples of `h`):
 //! the reference orbit chooses its substeps there and lands exactly on the grid point, and the
 //! deviation sets (VM's tangent vectors, MPM's nearby orbits) take the very same substeps
-//! ([`DynamicalSystem::step_along`]), so every scheme sees one trajectory, whatever `tau`.
+//! ([`AdaptiveSteps::step_along`]), so every scheme sees one trajectory, whatever `tau`.
 //!
 //! A field that reads the time is evaluated at each stage's time (`t + c_i h`, see
 //! `integrator::runge_kutta`), the substeps of an adaptive step at the times the reference
@@ -16,7 +16,7 @@ use chaoscope_schemas::run::SystemClass;
 
 use chaoscope_expr::VectorFunction;
 
-use super::{BLOW_UP_GROWTH, DynamicalSystem, Time};
+use super::{AdaptiveSteps, BLOW_UP_GROWTH, DynamicalSystem, Time};
 use crate::batch::{self, FlowScratch, Isa, PointKernel, Soa};
 use crate::integrator::runge_kutta::{RungeKutta, Tableau, Tolerances, substep_times};
 use crate::integrator::{TangentError, Workspace};
@@ -117,57 +117,6 @@ impl DynamicalSystem for RkFlow {
         }
     }
 
-    fn step_reference(&self, x: &mut [f64], t: f64, plan: &mut Vec<f64>, work: &mut Workspace) {
-        let Some(tol) = self.tolerances else {
-            return self.step(x, t, work);
-        };
-        let field = self.field.as_ref();
-        if self
-            .method
-            .step_adaptive(field, x, t, self.h, tol, plan, &mut work.rk)
-            .is_err()
-        {
-            // The engine stops the run at a non-finite state and asks `diagnose_non_finite`
-            // why; no state past the failure is ever published.
-            x.fill(f64::NAN);
-        }
-    }
-
-    fn resumable(&self) -> Result<(), String> {
-        match self.tolerances {
-            None => Ok(()),
-            // The controller's proposal for the next substep: the one thing a sample lacks.
-            Some(_) => Err(format!(
-                "{} with tolerances chooses each substep from the one before, which a recording \
-                 does not keep: a resumed run would take other substeps. Use a fixed step (no \
-                 rtol/atol) to make runs resumable, or rerun with a longer t_final",
-                self.method.kind.name()
-            )),
-        }
-    }
-
-    fn step_along(&self, x: &mut [f64], t: f64, plan: &[f64], work: &mut Workspace) {
-        for (ts, h) in self.substeps(t, plan) {
-            self.method
-                .advance(self.field.as_ref(), x, ts, h, &mut work.rk);
-        }
-    }
-
-    fn step_tangent_along(
-        &self,
-        x: &mut [f64],
-        w: &mut [f64],
-        t: f64,
-        plan: &[f64],
-        work: &mut Workspace,
-    ) -> Result<(), TangentError> {
-        for (ts, h) in self.substeps(t, plan) {
-            self.method
-                .advance_tangent(self.field.as_ref(), x, w, ts, h, &mut work.rk)?;
-        }
-        Ok(())
-    }
-
     fn no_tangent_reason(&self) -> Option<String> {
         self.field.no_tangent_reason()
     }
@@ -253,6 +202,63 @@ impl DynamicalSystem for RkFlow {
             }
         }
         None
+    }
+
+    fn adaptive(&self) -> Option<&dyn AdaptiveSteps> {
+        Some(self)
+    }
+}
+
+impl AdaptiveSteps for RkFlow {
+    fn step_reference(&self, x: &mut [f64], t: f64, plan: &mut Vec<f64>, work: &mut Workspace) {
+        let Some(tol) = self.tolerances else {
+            return self.step(x, t, work);
+        };
+        let field = self.field.as_ref();
+        if self
+            .method
+            .step_adaptive(field, x, t, self.h, tol, plan, &mut work.rk)
+            .is_err()
+        {
+            // The engine stops the run at a non-finite state and asks `diagnose_non_finite`
+            // why; no state past the failure is ever published.
+            x.fill(f64::NAN);
+        }
+    }
+
+    fn resumable(&self) -> Result<(), String> {
+        match self.tolerances {
+            None => Ok(()),
+            // The controller's proposal for the next substep: the one thing a sample lacks.
+            Some(_) => Err(format!(
+                "{} with tolerances chooses each substep from the one before, which a recording \
+                 does not keep: a resumed run would take other substeps. Use a fixed step (no \
+                 rtol/atol) to make runs resumable, or rerun with a longer t_final",
+                self.method.kind.name()
+            )),
+        }
+    }
+
+    fn step_along(&self, x: &mut [f64], t: f64, plan: &[f64], work: &mut Workspace) {
+        for (ts, h) in self.substeps(t, plan) {
+            self.method
+                .advance(self.field.as_ref(), x, ts, h, &mut work.rk);
+        }
+    }
+
+    fn step_tangent_along(
+        &self,
+        x: &mut [f64],
+        w: &mut [f64],
+        t: f64,
+        plan: &[f64],
+        work: &mut Workspace,
+    ) -> Result<(), TangentError> {
+        for (ts, h) in self.substeps(t, plan) {
+            self.method
+                .advance_tangent(self.field.as_ref(), x, w, ts, h, &mut work.rk)?;
+        }
+        Ok(())
     }
 }
 

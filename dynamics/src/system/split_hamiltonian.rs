@@ -4,7 +4,7 @@ use std::sync::Arc;
 
 use chaoscope_schemas::run::SystemClass;
 
-use super::{DynamicalSystem, Time};
+use super::{DynamicalSystem, ReferenceTangent, Time};
 use crate::batch::{self, AnyLaneModel, Isa, LaneModel, PointKernel, Soa, StepCoeffs};
 use crate::integrator::{Integrator, Splitting, TangentError, Workspace};
 use crate::model::{At, Model, WithParams};
@@ -174,40 +174,6 @@ impl DynamicalSystem for SplitHamiltonian {
         Some(self)
     }
 
-    /// Every model not of the time and without lane parameters: `Splitting::step_tangent`
-    /// moves the orbit with `step`'s operations (`engine/stepping.rs`'s tests); the built-in
-    /// FPUT chain and a potential whose lattice sums are loops (once its C kernels are built)
-    /// have a fused pass.
-    fn steps_reference_tangent(&self) -> bool {
-        self.model.lane_params() == 0
-            && !self.model.reads_time()
-            && self.model.no_hessian_reason().is_none()
-    }
-
-    fn prepare_reference_tangent(&self, work: u64) {
-        if self.steps_reference_tangent() {
-            self.model.prepare_reference_tangent(work);
-        }
-    }
-
-    fn reference_tangent_steps(
-        &self,
-        x: &mut [f64],
-        v: &mut [f64],
-        _from: u64,
-        steps: u64,
-    ) -> bool {
-        // The time is not read (`steps_reference_tangent`): the step number does not matter.
-        self.steps_reference_tangent()
-            && self.model.reference_tangent_steps(
-                x,
-                v,
-                steps,
-                &self.coeffs.drift,
-                &self.coeffs.kick,
-            )
-    }
-
     fn diagnose_non_finite(&self, x: &[f64], t: f64) -> Option<String> {
         let n = self.model.dof();
         let model = WithParams::of_state(&self.model, x);
@@ -236,6 +202,29 @@ impl DynamicalSystem for SplitHamiltonian {
             }
         }
         None
+    }
+
+    /// Every model not of the time and without lane parameters: `Splitting::step_tangent`
+    /// moves the orbit with `step`'s operations (`engine/stepping.rs`'s tests); the built-in
+    /// FPUT chain and a potential whose lattice sums are loops (once its C kernels are built)
+    /// have a fused pass.
+    fn reference_tangent(&self) -> Option<&dyn ReferenceTangent> {
+        let fits = self.model.lane_params() == 0
+            && !self.model.reads_time()
+            && self.model.no_hessian_reason().is_none();
+        fits.then_some(self)
+    }
+}
+
+impl ReferenceTangent for SplitHamiltonian {
+    fn prepare(&self, work: u64) {
+        self.model.prepare_reference_tangent(work);
+    }
+
+    fn steps(&self, x: &mut [f64], v: &mut [f64], _from: u64, steps: u64) -> bool {
+        // The time is not read (`reference_tangent`): the step number does not matter.
+        self.model
+            .reference_tangent_steps(x, v, steps, &self.coeffs.drift, &self.coeffs.kick)
     }
 }
 

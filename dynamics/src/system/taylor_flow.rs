@@ -16,7 +16,7 @@ use chaoscope_expr::VectorFunction;
 use chaoscope_expr::taylor::{NativeBuild, TaylorTape};
 use chaoscope_schemas::run::SystemClass;
 
-use super::{BLOW_UP_GROWTH, DynamicalSystem, Time};
+use super::{AdaptiveSteps, BLOW_UP_GROWTH, DynamicalSystem, Time};
 use crate::integrator::taylor::{Taylor, TaylorStepError};
 use crate::integrator::{TangentError, Workspace};
 use crate::vector_field::VectorField;
@@ -131,23 +131,6 @@ impl DynamicalSystem for TaylorFlow {
         self.step_reference(x, t, &mut Vec::new(), work);
     }
 
-    fn step_reference(&self, x: &mut [f64], t: f64, plan: &mut Vec<f64>, work: &mut Workspace) {
-        let tape = Arc::clone(self.own_tape());
-        if self
-            .advance(&tape, x, &mut [], t, None, Some(plan), work)
-            .is_err()
-        {
-            // The engine stops the run at a non-finite state and asks `diagnose_non_finite`.
-            x.fill(f64::NAN);
-        }
-    }
-
-    fn step_along(&self, x: &mut [f64], t: f64, plan: &[f64], work: &mut Workspace) {
-        let tape = Arc::clone(self.own_tape());
-        // Steps given: nothing can fail but the values, which the engine checks.
-        let _ = self.advance(&tape, x, &mut [], t, Some(plan), None, work);
-    }
-
     fn step_tangent(
         &self,
         x: &mut [f64],
@@ -160,50 +143,6 @@ impl DynamicalSystem for TaylorFlow {
                 .map_err(TangentError::NoHessian)?,
         );
         if self.advance(&tape, x, w, t, None, None, work).is_err() {
-            x.fill(f64::NAN);
-        }
-        Ok(())
-    }
-
-    fn step_tangent_along(
-        &self,
-        x: &mut [f64],
-        w: &mut [f64],
-        t: f64,
-        plan: &[f64],
-        work: &mut Workspace,
-    ) -> Result<(), TangentError> {
-        let tape = Arc::clone(
-            self.tape(w.len() / self.dim())
-                .map_err(TangentError::NoHessian)?,
-        );
-        let _ = self.advance(&tape, x, w, t, Some(plan), None, work);
-        Ok(())
-    }
-
-    /// The tangent tape computes the state's series anyway, and the steps are the state's:
-    /// one pass gives the reference and the vectors (a separate reference pass, latency-bound,
-    /// costs a third of the tangent pass of Lorenz with three vectors).
-    fn steps_reference_with_tangents(&self) -> bool {
-        true
-    }
-
-    fn step_reference_tangent(
-        &self,
-        x: &mut [f64],
-        w: &mut [f64],
-        t: f64,
-        plan: &mut Vec<f64>,
-        work: &mut Workspace,
-    ) -> Result<(), TangentError> {
-        let tape = Arc::clone(
-            self.tape(w.len() / self.dim())
-                .map_err(TangentError::NoHessian)?,
-        );
-        if self
-            .advance(&tape, x, w, t, None, Some(plan), work)
-            .is_err()
-        {
             x.fill(f64::NAN);
         }
         Ok(())
@@ -254,5 +193,72 @@ impl DynamicalSystem for TaylorFlow {
                 chaoscope_schemas::run::ADAPTIVE_STEP_FAILED
             )
         })
+    }
+
+    fn adaptive(&self) -> Option<&dyn AdaptiveSteps> {
+        Some(self)
+    }
+}
+
+impl AdaptiveSteps for TaylorFlow {
+    fn step_reference(&self, x: &mut [f64], t: f64, plan: &mut Vec<f64>, work: &mut Workspace) {
+        let tape = Arc::clone(self.own_tape());
+        if self
+            .advance(&tape, x, &mut [], t, None, Some(plan), work)
+            .is_err()
+        {
+            // The engine stops the run at a non-finite state and asks `diagnose_non_finite`.
+            x.fill(f64::NAN);
+        }
+    }
+
+    fn step_along(&self, x: &mut [f64], t: f64, plan: &[f64], work: &mut Workspace) {
+        let tape = Arc::clone(self.own_tape());
+        // Steps given: nothing can fail but the values, which the engine checks.
+        let _ = self.advance(&tape, x, &mut [], t, Some(plan), None, work);
+    }
+
+    fn step_tangent_along(
+        &self,
+        x: &mut [f64],
+        w: &mut [f64],
+        t: f64,
+        plan: &[f64],
+        work: &mut Workspace,
+    ) -> Result<(), TangentError> {
+        let tape = Arc::clone(
+            self.tape(w.len() / self.dim())
+                .map_err(TangentError::NoHessian)?,
+        );
+        let _ = self.advance(&tape, x, w, t, Some(plan), None, work);
+        Ok(())
+    }
+
+    /// The tangent tape computes the state's series anyway, and the steps are the state's:
+    /// one pass gives the reference and the vectors (a separate reference pass, latency-bound,
+    /// costs a third of the tangent pass of Lorenz with three vectors).
+    fn steps_reference_with_tangents(&self) -> bool {
+        true
+    }
+
+    fn step_reference_tangent(
+        &self,
+        x: &mut [f64],
+        w: &mut [f64],
+        t: f64,
+        plan: &mut Vec<f64>,
+        work: &mut Workspace,
+    ) -> Result<(), TangentError> {
+        let tape = Arc::clone(
+            self.tape(w.len() / self.dim())
+                .map_err(TangentError::NoHessian)?,
+        );
+        if self
+            .advance(&tape, x, w, t, None, Some(plan), work)
+            .is_err()
+        {
+            x.fill(f64::NAN);
+        }
+        Ok(())
     }
 }

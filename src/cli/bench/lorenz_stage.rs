@@ -4,7 +4,7 @@
 //!
 //! - `one_orbit_step_tangent`: the system a run of `examples/models/lorenz.toml` builds (the
 //!   compiled right-hand side and its Jacobian-vector product, fixed h = 0.01), stepped by
-//!   `DynamicalSystem::step_tangent_along`, what the engine calls for a set of three tangent
+//!   `AdaptiveSteps::step_tangent_along`, what the engine calls for a set of three tangent
 //!   vectors (fewer than the batched kernels' lanes): the orbit's copy and its three vectors.
 //! - `plain_loop`: the same step hand-written for D = 3 in this file: the Lorenz field, its
 //!   Jacobian applied to each vector, and the Runge-Kutta stage combinations over the
@@ -240,7 +240,7 @@ pub fn measure(steps: u64, engine_t_final: f64) -> anyhow::Result<serde_json::Va
         "rounds": ROUNDS,
         "flops_per_stage": flops,
         "one_orbit_step_tangent": {
-            "what": "DynamicalSystem::step_tangent_along of the compiled Lorenz field: the orbit's copy and 3 tangent vectors",
+            "what": "AdaptiveSteps::step_tangent_along of the compiled Lorenz field: the orbit's copy and 3 tangent vectors",
             "cpu_seconds": path_cpu,
             "ns_per_stage": path_ns,
         },

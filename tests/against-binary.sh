@@ -38,6 +38,11 @@
 # Exit status: 0 when every test ran (whatever its result), non-zero when the script itself
 # could not build, swap or run. Not part of CI: it takes as long as the tests it runs.
 set -euo pipefail
+# The tests stop commands with SIGINT, which a command started with SIGINT ignored keeps
+# ignoring: started so (a script's `... &`), run again with SIGINT's default action, as .ci/run.
+if (( 0x$(awk '/^SigIgn:/ { print $2 }' "/proc/$$/status") & 2 )); then
+    exec env --default-signal=INT bash "$0" "$@"
+fi
 # Job control: each test runs in its own process group, so a test's children see SIGINT and
 # SIGTERM with their default dispositions (a non-interactive shell would start background jobs
 # with SIGINT ignored, which the signal tests and Python's KeyboardInterrupt depend on).

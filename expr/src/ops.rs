@@ -1,10 +1,11 @@
 //! Every operation of the language, defined once. For each one-argument function: its name in
 //! a source, its value down to the rounding (the one Rust function the evaluator calls and the
 //! compiled code calls back, so they agree bit for bit), its derivative as nodes of the graph,
-//! what it does to the signs and poles of its argument (`smooth`), and whether the code
-//! generators write it as IEEE instructions or call its value function lane by lane. For each
-//! two-argument operation: its name in a source (if a source calls it by name), how messages
-//! quote it, its value and whether it is written inline or called.
+//! what it does to the signs and poles of its argument (`smooth`), whether the code generators
+//! write it as IEEE instructions or call its value function lane by lane, and its Taylor
+//! decomposition. For each two-argument operation: its name in a source (if a source calls it
+//! by name), how messages quote it, its value, whether it is written inline or called, and for
+//! a called function its derivatives, smoothness rule and Taylor decomposition.
 //!
 //! Adding a one-argument function is one variant of [`Unary`] and one entry of [`UNARY_OPS`]
 //! here: the lowering finds it by name, the evaluator and both code generators (Cranelift, C)

@@ -169,8 +169,8 @@ enum Class {
     Tangent,
 }
 
-/// Builds a tape; what a two-argument function's entry in `ops.rs` decomposes itself with
-/// ([`Self::slot`], [`Self::push`]).
+/// Builds a tape; what each function's entry in `ops.rs` decomposes itself with
+/// ([`Self::slot`], [`Self::push`], [`Self::sin_cos`], [`Self::one`]).
 pub(crate) struct Builder<'g> {
     graph: &'g Graph,
     slots: u32,

@@ -88,6 +88,12 @@ fn install_with(mode: Mode, foreign: Option<ForeignHandlers>) {
         Ordering::SeqCst,
     );
     INSTALLED.call_once(|| {
+        // SIGINT and SIGTERM wait, blocked, until every handler is in place: iceoryx2 keeps
+        // only the last signal it took, so a SIGTERM followed by a SIGINT between its handlers
+        // and ours would otherwise be lost to the SIGINT that is meant to be ignored. A pending
+        // SIGINT is discarded when its disposition is set back to SIG_IGN; anything else
+        // pending reaches our handlers when unblocked at the end.
+        let blocked = BlockedSignals::new();
         // Read before anything replaces it.
         let sigint_ignored = disposition_is_ignore(libc::SIGINT);
         SIGINT_IGNORED.store(sigint_ignored, Ordering::SeqCst);
@@ -129,7 +135,35 @@ fn install_with(mode: Mode, foreign: Option<ForeignHandlers>) {
         // `chaoscope record` started by `run` once lost its parent-death SIGTERM so, and waited
         // for its producer for ever; that signal comes once.)
         take_foreign_signal();
+        drop(blocked);
     });
+}
+
+/// SIGINT and SIGTERM blocked in this thread while it lives; the previous mask restored when
+/// dropped.
+struct BlockedSignals(libc::sigset_t);
+
+impl BlockedSignals {
+    fn new() -> Self {
+        // SAFETY: sigset_t is plain data filled by sigemptyset/sigaddset; pthread_sigmask only
+        // changes this thread's mask and writes the previous one into `old`.
+        unsafe {
+            let mut set: libc::sigset_t = std::mem::zeroed();
+            let mut old: libc::sigset_t = std::mem::zeroed();
+            libc::sigemptyset(&mut set);
+            libc::sigaddset(&mut set, libc::SIGINT);
+            libc::sigaddset(&mut set, libc::SIGTERM);
+            libc::pthread_sigmask(libc::SIG_BLOCK, &set, &mut old);
+            Self(old)
+        }
+    }
+}
+
+impl Drop for BlockedSignals {
+    fn drop(&mut self) {
+        // SAFETY: restores the mask read in `new`.
+        unsafe { libc::pthread_sigmask(libc::SIG_SETMASK, &self.0, std::ptr::null_mut()) };
+    }
 }
 
 /// Whether `signal`'s current disposition is SIG_IGN.

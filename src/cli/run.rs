@@ -230,8 +230,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         },
     )?;
 
-    // Ctrl+C reaches the whole process group; SIGTERM (or a SIGINT sent to us alone) is
-    // forwarded to both children, which finalize cleanly.
+    // Ctrl+C reaches the whole process group; SIGTERM (or a SIGINT sent to us alone, unless
+    // SIGINT was ignored when we started: then we and the children ignore it) is forwarded to
+    // both children, which finalize cleanly.
     chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
 
     // The producer first: the recorder starts once the producer has opened the run's services

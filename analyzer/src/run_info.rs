@@ -35,6 +35,9 @@ pub struct RunInfo {
     /// `Some(L)` when the run's sites form an `L x L` square lattice numbered row by row
     /// ([`chaoscope_schemas::run::square_side`]), `None` for a chain or a system without sites.
     pub square_side: Option<usize>,
+    /// Which axes of the run's lattice are periodic
+    /// ([`chaoscope_schemas::run::periodic_axes`]).
+    pub periodic: [bool; 2],
 }
 
 impl RunInfo {
@@ -149,6 +152,7 @@ impl RunInfo {
             periods,
             zero_one_observable,
             square_side,
+            periodic: chaoscope_schemas::run::periodic_axes(&header),
             kind,
             dim: header.dim as usize,
             k: header.k as usize,
@@ -183,6 +187,7 @@ impl RunInfo {
             layout
                 .with_sites(self.kind.lattice_sites(self.dim))
                 .with_square_side(self.square_side)
+                .with_periodic(self.periodic)
                 .with_norm(
                     self.kind == SystemClass::Hamiltonian
                         && chaoscope_schemas::run::conserves_norm(&self.header.model),

@@ -58,6 +58,7 @@ pub struct PlaneCapture {
 pub struct SiteProfiles {
     sites: usize,
     square_side: Option<usize>,
+    periodic: [bool; 2],
     norm_conserved: bool,
     series: Series<SiteProfile>,
     planes: Vec<PlaneCapture>,
@@ -121,6 +122,7 @@ impl SiteProfiles {
         Self {
             sites,
             square_side: None,
+            periodic: [false; 2],
             norm_conserved: false,
             series: Series::new(CAPACITY, 1),
             planes: Vec::new(),
@@ -143,6 +145,7 @@ impl SiteProfiles {
         }
         Self {
             square_side: run.square_side,
+            periodic: run.periodic,
             norm_conserved: run.layout().norm_conserved,
             planes,
             ..Self::new(sites)
@@ -192,10 +195,12 @@ impl SiteProfiles {
         let energy = match energies() {
             None => Err("no site energies (the model was not rebuilt)".to_string()),
             Some(Err(why)) => Err(why),
-            Some(Ok(e)) => chaoscope_indicators::energy::energy_moments(&e, self.square_side)
-                .and_then(|_| {
-                    normalized(e.iter().copied()).ok_or_else(|| "no positive total".to_string())
-                }),
+            Some(Ok(e)) => {
+                chaoscope_indicators::energy::energy_moments(&e, self.square_side, self.periodic)
+                    .and_then(|_| {
+                        normalized(e.iter().copied()).ok_or_else(|| "no positive total".to_string())
+                    })
+            }
         };
         let norm = self
             .norm_conserved

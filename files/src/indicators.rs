@@ -42,6 +42,7 @@ impl IndicatorStream {
                 // A side that does not fit the state is the analyzer's error to report; the
                 // recorder then takes the sites as a chain's.
                 .with_square_side(chaoscope_schemas::run::square_side(header).unwrap_or(None))
+                .with_periodic(chaoscope_schemas::run::periodic_axes(header))
                 .with_norm(
                     kind == Some(chaoscope_schemas::run::SystemClass::Hamiltonian)
                         && chaoscope_schemas::run::conserves_norm(&header.model),

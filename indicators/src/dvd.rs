@@ -49,7 +49,7 @@ impl SetIndicator for DeviationDistribution {
         let Some(w) = obs.separations.get(..obs.dim) else {
             return;
         };
-        if let Some(m) = moments_on(site_weights(w, n), obs.square_side) {
+        if let Some(m) = moments_on(site_weights(w, n), obs.square_side, obs.periodic) {
             self.latest = Some(m);
         }
     }
@@ -89,6 +89,7 @@ mod tests {
             flow: None,
             sites,
             square_side: None,
+            periodic: [false; 2],
             norm_conserved: false,
             state: None,
             site_energies: None,

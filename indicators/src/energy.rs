@@ -34,6 +34,7 @@ enum Latest {
         t: f64,
         sites: usize,
         square_side: Option<usize>,
+        periodic: [bool; 2],
     },
     Unavailable(String),
 }
@@ -47,9 +48,13 @@ impl Default for EnergyDistribution {
 }
 
 /// The second moment and participation number of the energy distribution of `energies` on the
-/// lattice `square_side` describes ([`crate::distribution::moments_on`]), or why it is not a
+/// lattice `square_side` and `periodic` describe ([`crate::distribution::moments_on`]), or why it is not a
 /// distribution (a negative or non-finite site energy, a total that is not positive).
-pub fn energy_moments(energies: &[f64], square_side: Option<usize>) -> Result<(f64, f64), String> {
+pub fn energy_moments(
+    energies: &[f64],
+    square_side: Option<usize>,
+    periodic: [bool; 2],
+) -> Result<(f64, f64), String> {
     if let Some((l, e)) = energies.iter().enumerate().find(|(_, e)| !e.is_finite()) {
         return Err(format!("the energy of site {} is {e}", l + 1));
     }
@@ -60,7 +65,7 @@ pub fn energy_moments(energies: &[f64], square_side: Option<usize>) -> Result<(f
             l + 1
         ));
     }
-    moments_on(energies.iter().copied(), square_side)
+    moments_on(energies.iter().copied(), square_side, periodic)
         .ok_or_else(|| "the total energy of the sites is not positive".to_string())
 }
 
@@ -101,8 +106,10 @@ impl SetIndicator for EnergyDistribution {
                     t,
                     sites,
                     square_side,
+                    periodic,
                 } => {
-                    (*e, *t, *sites, *square_side) = (energies.clone(), obs.t, n, obs.square_side);
+                    (*e, *t, *sites, *square_side, *periodic) =
+                        (energies.clone(), obs.t, n, obs.square_side, obs.periodic);
                     s.clear();
                     s.extend_from_slice(state);
                 }
@@ -113,6 +120,7 @@ impl SetIndicator for EnergyDistribution {
                         t: obs.t,
                         sites: n,
                         square_side: obs.square_side,
+                        periodic: obs.periodic,
                     };
                 }
             },
@@ -128,10 +136,12 @@ impl SetIndicator for EnergyDistribution {
                 t,
                 sites,
                 square_side,
+                periodic,
             } => SiteEnergyInput::At { energies, state }
                 .evaluate(*sites)
                 .and_then(|e| {
-                    energy_moments(&e, *square_side).map_err(|why| format!("at t = {t}: {why}"))
+                    energy_moments(&e, *square_side, *periodic)
+                        .map_err(|why| format!("at t = {t}: {why}"))
                 }),
         };
         match moments {
@@ -181,6 +191,7 @@ mod tests {
             flow: None,
             sites,
             square_side: None,
+            periodic: [false; 2],
             norm_conserved: false,
             state: None,
             site_energies: input,

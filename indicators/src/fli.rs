@@ -120,6 +120,7 @@ mod tests {
             flow,
             sites: None,
             square_side: None,
+            periodic: [false; 2],
             norm_conserved: false,
             state: None,
             site_energies: None,

@@ -46,6 +46,9 @@ pub struct SetObservation<'a> {
     /// `l`, from 0, at row `l / L`, column `l % L`), over whose plane the distributions' second
     /// moments are taken; `None`: a chain (site `l` at position `l`).
     pub square_side: Option<usize>,
+    /// Which lattice axes close on themselves (periodic boundaries; along `i`, then `j`; a
+    /// chain reads the first): distances along them are taken around the ring.
+    pub periodic: [bool; 2],
     /// The system conserves the norm `S = sum_l (q_l^2 + p_l^2) / 2` (the DDNLS), whose
     /// distribution over the sites `z_l = (q_l^2 + p_l^2) / (2 S)` is then defined.
     pub norm_conserved: bool,

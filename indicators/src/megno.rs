@@ -83,6 +83,7 @@ mod tests {
                 flow: None,
                 sites: None,
                 square_side: None,
+                periodic: [false; 2],
                 norm_conserved: false,
                 state: None,
                 site_energies: None,

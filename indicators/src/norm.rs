@@ -62,12 +62,13 @@ impl SetIndicator for NormDistribution {
         let Some(x) = obs.state.filter(|x| x.len() == 2 * n) else {
             return;
         };
-        self.latest = moments_on(site_norms(x, n), obs.square_side).ok_or_else(|| {
-            format!(
-                "at t = {}: the norm of the state is not positive and finite",
-                obs.t
-            )
-        });
+        self.latest =
+            moments_on(site_norms(x, n), obs.square_side, obs.periodic).ok_or_else(|| {
+                format!(
+                    "at t = {}: the norm of the state is not positive and finite",
+                    obs.t
+                )
+            });
     }
 
     fn outputs(&self) -> Vec<Output> {
@@ -102,6 +103,7 @@ mod tests {
             flow: None,
             sites,
             square_side,
+            periodic: [false; 2],
             norm_conserved,
             state: Some(x),
             site_energies: None,

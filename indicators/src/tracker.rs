@@ -39,6 +39,8 @@ pub struct Layout {
     /// `Some(L)` when the sites form an `L x L` square lattice numbered row by row
     /// ([`Layout::with_square_side`], [`SetObservation::square_side`]); `None`: a chain.
     pub square_side: Option<usize>,
+    /// Which lattice axes are periodic ([`Layout::with_periodic`], [`SetObservation::periodic`]).
+    pub periodic: [bool; 2],
     /// The system conserves the norm `sum_l (q_l^2 + p_l^2) / 2` ([`Layout::with_norm`]).
     pub norm_conserved: bool,
     /// The period of each coordinate of the state (`0`: none; empty: no periodic coordinate),
@@ -70,6 +72,7 @@ impl Layout {
             tau_steps,
             sites: None,
             square_side: None,
+            periodic: [false; 2],
             norm_conserved: false,
             periods: Vec::new(),
         })
@@ -87,6 +90,12 @@ impl Layout {
             square_side,
             ..self
         }
+    }
+
+    /// The layout whose lattice closes on itself along the axes `periodic` says (along `i`,
+    /// then `j`; a chain reads the first).
+    pub fn with_periodic(self, periodic: [bool; 2]) -> Self {
+        Self { periodic, ..self }
     }
 
     /// The layout of a system that conserves the norm `sum_l (q_l^2 + p_l^2) / 2` (or not).
@@ -493,6 +502,7 @@ impl Tracker {
             flow: reference.and_then(|r| r.flow.as_deref()),
             sites: self.layout.sites,
             square_side: self.layout.square_side,
+            periodic: self.layout.periodic,
             norm_conserved: self.layout.norm_conserved,
             state: reference.map(|r| r.state.as_slice()),
             site_energies: self.site_energies.as_ref().map(|energies| match reference {

@@ -87,6 +87,16 @@ fn recorded_square_side(header: &crate::proto::RunHeader) -> Option<usize> {
     config.model.square_side()
 }
 
+/// Which axes of a run's lattice are periodic ([`crate::config::ModelConfig::periodic_axes`]),
+/// from the recorded configuration; none where the header carries none that parses.
+pub fn periodic_axes(header: &crate::proto::RunHeader) -> [bool; 2] {
+    if header.config_toml.is_empty() {
+        return [false; 2];
+    }
+    crate::config::RunConfig::from_toml(&header.config_toml)
+        .map_or([false; 2], |config| config.model.periodic_axes())
+}
+
 /// The models whose states conserve the norm `S = sum_l (q_l^2 + p_l^2)/2` beside the energy
 /// (the disordered discrete nonlinear Schroedinger lattice): the report carries the norm's
 /// relative error beside the energy error for them.

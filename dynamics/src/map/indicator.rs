@@ -186,6 +186,7 @@ impl PointAccumulator {
                         flow: None,
                         sites: None,
                         square_side: None,
+                        periodic: [false; 2],
                         norm_conserved: false,
                         state: None,
                         site_energies: None,

@@ -404,6 +404,23 @@ impl ModelConfig {
             .flatten()
     }
 
+    /// Which axes of the model's lattice close on themselves (`boundary = "periodic"`, for
+    /// every axis or per axis: along `i`, then `j`; a chain reads the first): a ring, a cylinder
+    /// or a torus, around which the distributions' second moments are measured.
+    pub fn periodic_axes(&self) -> [bool; 2] {
+        let boundary = match self {
+            Self::Potential(m) => m.boundary.as_ref(),
+            Self::Hamiltonian(m) => m.boundary.as_ref(),
+            _ => None,
+        };
+        let periodic = |b: Option<&String>| b.is_some_and(|b| b == "periodic");
+        match boundary {
+            Some(BoundaryConfig::Every(b)) => [periodic(Some(b)); 2],
+            Some(BoundaryConfig::PerAxis(axes)) => [periodic(axes.first()), periodic(axes.get(1))],
+            None => [false; 2],
+        }
+    }
+
     /// The tables the model reads (only a `potential` has any).
     pub fn tables(&self) -> Option<&BTreeMap<String, TableConfig>> {
         match self {

@@ -978,6 +978,18 @@ fn plane_heat_maps_of_a_square_lattice_and_hostile_plane_times() {
             "invalid value 'x'",
         ),
         (vec![&square[..], "--plane-times", "1"], 64, "--plot <DIR>"),
+        // --at as --from: a NaN or negative time once reported t = 0 as if asked for.
+        (
+            vec![&square[..], "--at", "nan"],
+            1,
+            "--at NaN: a time from 0 on",
+        ),
+        (vec![&square[..], "--at=-1"], 1, "--at -1: a time from 0 on"),
+        (
+            vec![&square[..], "--at=-inf"],
+            1,
+            "--at -inf: a time from 0 on",
+        ),
         (
             vec![&chain[..], "--plot", p, "--plane-times", "1"],
             1,

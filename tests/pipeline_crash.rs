@@ -1263,6 +1263,32 @@ tau = 0.5
             "{}",
             String::from_utf8_lossy(&again.stderr)
         );
+        // The flag's value is named when it is what fails: the recording's own end, and a time
+        // off the step grid (before, "the recorded configuration is no longer valid").
+        let off_grid = format!("{}", t + 0.005);
+        for (asked, said) in [
+            (t.to_string(), "ends on the recording's last step"),
+            (off_grid.clone(), "is not a whole number of time steps"),
+        ] {
+            let out = dir.path().join(format!("{name}-flag.mcap"));
+            let again = chaoscope_captured(&[
+                "resume",
+                f,
+                "--t-final",
+                &asked,
+                "--out",
+                out.to_str().unwrap(),
+            ])
+            .output()
+            .unwrap();
+            let err = String::from_utf8_lossy(&again.stderr);
+            assert_eq!(again.status.code(), Some(1), "{err}");
+            assert!(
+                err.contains(&format!("--t-final {asked}")) && err.contains(said),
+                "{err}"
+            );
+            assert!(!out.exists());
+        }
         // Into another file: the recording stays as it was.
         let other = dir.path().join(format!("{name}-extended.mcap"));
         let twice_s = twice.to_string();

@@ -316,7 +316,14 @@ fn resume_untimed(
         });
     }
     config.integrator.t_final = t_final;
-    let spec = RunSpec::from_config(&config).map_err(spec_err)?;
+    let spec = RunSpec::from_config(&config).map_err(|source| match options.t_final {
+        // The flag's value is what fails, not the recording (1000.01 off the step grid).
+        Some(t) => ResumeFailure::Nothing {
+            path: shown.clone(),
+            why: format!("--t-final {t}: {source}"),
+        },
+        None => spec_err(source),
+    })?;
     // The run to its new end costs what `run` of it would (the recorded part is copied, a
     // small share of any run long enough to be refused): estimated as `run` estimates it,
     // before a sample is read or written, so `--t-final 1e12` is refused as `run` refuses it.
@@ -384,6 +391,17 @@ fn resume_untimed(
                 "--t-final {t_final} is before the recording's end (t = {}): in place that \
                  would cut it; write the shorter run elsewhere with --out",
                 input_last.1
+            ),
+        });
+    }
+    if ended_complete && let Some(asked) = options.t_final {
+        return Err(ResumeFailure::Nothing {
+            path: shown,
+            why: format!(
+                "--t-final {asked} ends on the recording's last step (t = {}, steps of {}): \
+                 give a time at least one step later to extend it",
+                spec.t_final(),
+                spec.h()
             ),
         });
     }

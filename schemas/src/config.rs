@@ -213,8 +213,10 @@ impl ExcitedSites {
 pub struct IntegratorConfig {
     /// Splittings of separable Hamiltonians: `"aba864"`, `"leapfrog"`, `"saba2"`, `"saba3"`,
     /// `"saba4"`, `"yoshida4"`, `"aba104"`, `"aba1064"`, `"s9odr6"`, `"s11odr6"`, `"s17odr8"`.
-    /// Runge-Kutta methods of flows: `"rk4"`, `"dop853"`; Taylor's method of flows written as
-    /// expressions: `"taylor"`. Maps: `"iterate"` or left out.
+    /// Runge-Kutta methods of flows: `"rk4"`, `"dop853"` (implicit symplectic: `"gl4"`,
+    /// `"gl6"`); Taylor's method of flows written as expressions: `"taylor"`. Three-part
+    /// compositions of the DDNLS: `"abc2"`, `"abc4"`, `"s9abc6"`, `"s11abc6"`, `"s17abc8"`.
+    /// Maps: `"iterate"` or left out.
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub method: String,
     /// Time step. Fixed-step methods take exactly this step; adaptive `dop853` (with `rtol` /

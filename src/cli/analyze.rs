@@ -108,6 +108,13 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     if args.clv {
         return clv(&args);
     }
+    // Refused before the file is read, as --from and --plane-times are: a NaN or a negative
+    // time would report t = 0 as if it were asked for.
+    if let Some(t) = args.at
+        && !(t.is_finite() && t >= 0.0)
+    {
+        anyhow::bail!("--at {t}: a time from 0 on");
+    }
     let options = AnalysisOptions {
         series_capacity: args.points,
         at: args.at.into_iter().collect(),

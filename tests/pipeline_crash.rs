@@ -155,20 +155,28 @@ fn kill_9_of_the_producer_makes_the_recorder_finalize_an_interrupted_file() {
     );
 }
 
-#[test]
-fn sigint_to_chaoscope_run_ends_both_processes_with_a_valid_file() {
-    let dir = tempfile::tempdir().unwrap();
-    let config = write_config(dir.path(), &hh_config(1e5, 0.01).to_toml());
-    let out = dir.path().join("run.mcap");
-    let run = unique_run("sigint");
-    let mut front = Proc::spawn(chaoscope(&[
+/// `chaoscope run` of Henon-Heiles to t = 10^5 (hours) into `DIR/run.mcap`, under a unique
+/// run name made from `tag`: the command, the run's name and the output.
+fn long_hh_run(dir: &Path, tag: &str) -> (std::process::Command, String, std::path::PathBuf) {
+    let config = write_config(dir, &hh_config(1e5, 0.01).to_toml());
+    let out = dir.join("run.mcap");
+    let run = unique_run(tag);
+    let command = chaoscope(&[
         "run",
         config.to_str().unwrap(),
         "--run",
         &run,
         "--out",
         out.to_str().unwrap(),
-    ]));
+    ]);
+    (command, run, out)
+}
+
+#[test]
+fn sigint_to_chaoscope_run_ends_both_processes_with_a_valid_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let (command, run, out) = long_hh_run(dir.path(), "sigint");
+    let mut front = Proc::spawn(command);
     wait_for_size(&out, 100_000);
     front.signal(libc::SIGINT); // to the front door only: it must forward it
     assert_eq!(front.wait(LIMIT).code(), Some(130));
@@ -212,17 +220,7 @@ fn sigint_to_chaoscope_run_ends_both_processes_with_a_valid_file() {
 fn a_run_started_with_sigint_ignored_keeps_ignoring_it_and_stops_on_sigterm() {
     use std::os::unix::process::CommandExt;
     let dir = tempfile::tempdir().unwrap();
-    let config = write_config(dir.path(), &hh_config(1e5, 0.01).to_toml());
-    let out = dir.path().join("run.mcap");
-    let run = unique_run("sigign");
-    let mut c = chaoscope(&[
-        "run",
-        config.to_str().unwrap(),
-        "--run",
-        &run,
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let (mut c, _, out) = long_hh_run(dir.path(), "sigign");
     c.process_group(0);
     // SAFETY: signal(2) between fork and exec, async-signal-safe.
     unsafe {

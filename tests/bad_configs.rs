@@ -353,6 +353,8 @@ fn cases() -> Vec<Case> {
         map("map energy beyond f64", "energy = 0.125", "energy = 1e308", "orbit.energy", "twice it"),
         run("energy whose momentum overflows", "energy = 0.125", "energy = 1e308", "orbit.energy", "too large"),
         dkg("excitation whose momentum overflows", "excite = { sites = 2, energy = 0.5 }", "excite = { sites = 2, energy = 1e308 }", "orbit.excite.energy", "too large"),
+        // The parameter's fault named, not the orbit's: 0/0 in the coupling 1/(2W).
+        dkg("a coupling that divides by W = 0", "W = 4.0", "W = 0.0", "orbit", "'/' at line 2, column 34 of the potential gave NaN"),
         // Arrays of fixed length with entries beyond it, or of another type.
         dkg("drawn array with extra entries", "uniform = [0.5, 1.5]", "uniform = [0.5, 1.5, \"x\", {a = 1}]", "model.params.eps", "invalid type: string \"x\""),
         dkg("drawn array with a third number", "uniform = [0.5, 1.5]", "uniform = [0.5, 1.5, 2.5]", "model.params.eps.uniform", "two numbers [a, b], not 3"),

@@ -216,6 +216,10 @@ fn hostile_ddnls_configs_are_refused_by_key_or_run() {
         assert_eq!(err.key, key, "{to}: {err}");
         assert!(!err.message.contains('\n'), "{to}: {err}");
     }
+    // An energy whose norm is past the limit says so (it was "no excitation has energy 1e308").
+    let text = DDNLS.replacen("norm = 2.0", "energy = 1e308", 1);
+    let err = RunSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap_err();
+    assert!(err.message.contains("needs a norm beyond 1e150"), "{err}");
     // A key of another kind is refused by the parser, naming it.
     let e = RunConfig::from_toml(&DDNLS.replace("seed = 2", "seed = 2\npotential = \"q1\""))
         .unwrap_err()

@@ -266,12 +266,13 @@ fn excited_state(model: &Ddnls, excite: &Excitation) -> Result<Vec<f64>, SpecErr
                 if disc < 0.0 {
                     f64::NAN
                 } else {
-                    // The root of smallest size with s > 0, written to avoid cancellation.
+                    // The root of smallest size with s > 0, written to avoid cancellation (and
+                    // `2 e` overflowing: `e / d * 2` is the same number).
                     let r = disc.sqrt();
                     let roots = if a >= 0.0 {
-                        [(-a - r) / (2.0 * b), 2.0 * e / (a + r)]
+                        [(-a - r) / (2.0 * b), e / (a + r) * 2.0]
                     } else {
-                        [2.0 * e / (a - r), (r - a) / (2.0 * b)]
+                        [e / (a - r) * 2.0, (r - a) / (2.0 * b)]
                     };
                     roots
                         .into_iter()
@@ -279,6 +280,19 @@ fn excited_state(model: &Ddnls, excite: &Excitation) -> Result<Vec<f64>, SpecErr
                         .fold(f64::NAN, |m: f64, s| if m.is_nan() { s } else { m.min(s) })
                 }
             };
+            // Beyond double precision, or beyond the norm's limit: said as such, not as an
+            // energy no excitation has.
+            let beyond = !(a * a + 4.0 * b * e).is_finite() || s * count > 1e150;
+            if beyond {
+                return Err(SpecError::new(
+                    "orbit.excite.energy",
+                    format!(
+                        "{} needs a norm beyond 1e150 (the largest orbit.excite.norm): too large \
+                         for double precision",
+                        num(e)
+                    ),
+                ));
+            }
             if !(s.is_finite() && s > 0.0) {
                 return Err(SpecError::new(
                     "orbit.excite.energy",

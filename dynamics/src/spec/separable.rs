@@ -266,9 +266,7 @@ pub fn initial_state(
             }
         }
         excited_momenta(model, excite, side, &mut x)?;
-        if !model.energy(&x, At::T0).is_finite() {
-            return Err(SpecError::new("orbit", "the initial energy is not finite"));
-        }
+        check_initial_energy(model, &x)?;
         return Ok(x);
     }
     if let Some(preset) = &orbit.preset {
@@ -367,8 +365,20 @@ pub fn initial_state(
         }
         (None, None) => {}
     }
-    if !model.energy(&x, At::T0).is_finite() {
-        return Err(SpecError::new("orbit", "the initial energy is not finite"));
-    }
+    check_initial_energy(model, &x)?;
     Ok(x)
+}
+
+/// An error unless the energy of the initial state `x` is finite, naming the operation that
+/// made it not (a parameter such as `W = 0` in `1/(2*W)` is no fault of the orbit's).
+fn check_initial_energy(model: &dyn Model, x: &[f64]) -> Result<(), SpecError> {
+    if model.energy(x, At::T0).is_finite() {
+        return Ok(());
+    }
+    let n = model.dof();
+    let why = match model.diagnose_non_finite(&x[..n], At::T0) {
+        Some(cause) => format!("the initial energy is not finite: {cause}"),
+        None => "the initial energy is not finite".to_string(),
+    };
+    Err(SpecError::new("orbit", why))
 }

@@ -595,6 +595,8 @@ impl Analysis {
                     mean_divergence: (!hamiltonian).then_some(self.mean_divergence),
                     complete,
                     dim: run.dim,
+                    energy0: run.header.energy0,
+                    norm0: self.norm0,
                 };
                 let orbit = verdict::Orbit {
                     extent: &extent,

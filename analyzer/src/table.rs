@@ -57,8 +57,13 @@ pub fn table(report: &Report) -> String {
                     )
                 })
                 .unwrap_or_default();
+            // A relative error of an energy that starts near zero is no measure: said against
+            // the norm beside it.
+            let of_norm = crate::verdict::energy_error_of_norm(e, r.energy0, r.norm0)
+                .map(|f| format!(" (E0 = {:.1e} near 0: {f:.2e} of the norm)", r.energy0))
+                .unwrap_or_default();
             format!(
-                "max energy error {}{norm}",
+                "max energy error {}{of_norm}{norm}",
                 cell(Some(e), 0, |e| format!("{e:.2e}"))
             )
         }

@@ -940,6 +940,34 @@ pub struct RunValues {
     pub complete: bool,
     /// Dimension of the state.
     pub dim: usize,
+    /// The initial energy `E0`, and the initial norm of a system that conserves one (the
+    /// DDNLS): with `E0` near zero against the norm, the energy error is judged against the
+    /// norm ([`energy_error_of_norm`]).
+    pub energy0: f64,
+    pub norm0: Option<f64>,
+}
+
+/// The largest energy error of a run whose initial energy `E0` is near zero against its
+/// conserved norm `S0` (`|E0| < eps^(1/2) S0`, a DDNLS block solved to `E = 0`), as a fraction of
+/// `S0`: `max |E - E0| / S0`, from the largest relative error `max |E - E0| / |E0|` (absolute
+/// when `E0 = 0`). `None` for any other run, whose relative error means what it says. Why: a
+/// relative error divides by `E0`, so at `E0 = -5.6e-16` an integration that keeps the norm to
+/// `1.5e-10` reported an energy error of `3.5e5` and a warning to lower `h`.
+pub fn energy_error_of_norm(
+    energy_error_max: f64,
+    energy0: f64,
+    norm0: Option<f64>,
+) -> Option<f64> {
+    let s0 = norm0.filter(|s| s.is_finite() && *s > 0.0)?;
+    if energy0.abs() >= EPS.sqrt() * s0 {
+        return None;
+    }
+    let absolute = if energy0 == 0.0 {
+        energy_error_max
+    } else {
+        energy_error_max * energy0.abs()
+    };
+    Some(absolute / s0)
 }
 
 /// Warnings for a scheme: settings outside the paper's reliable region, GALIs at the rounding
@@ -975,7 +1003,20 @@ pub fn warnings(
             ),
         });
     }
-    if energy_error_max > sqrt_eps {
+    if let Some(of_norm) = energy_error_of_norm(energy_error_max, run.energy0, run.norm0) {
+        if of_norm > sqrt_eps {
+            out.push(Warning {
+                code: ENERGY_ERROR_ABOVE_SQRT_EPS.into(),
+                message: format!(
+                    "energy error {of_norm:.1e} of the norm (E0 = {:.1e} is near zero, so the \
+                     error is measured against the norm S0 = {:.4}) above eps^(1/2) ~ 1.5e-8: \
+                     the integration error dominates GALI; use a smaller h",
+                    run.energy0,
+                    run.norm0.unwrap_or(0.0)
+                ),
+            });
+        }
+    } else if energy_error_max > sqrt_eps {
         out.push(Warning {
             code: ENERGY_ERROR_ABOVE_SQRT_EPS.into(),
             message: format!(
@@ -1300,6 +1341,43 @@ mod tests {
         let c = curve(3000, 3, |_, _| -0.4, |t| (1.0 + t).ln() / t.max(1.0));
         let v = judge(&s, &c);
         assert_eq!(v.class, Class::Undecided, "{v:?}");
+    }
+
+    /// A DDNLS block solved to `E = 0` (`E0 = -5.6e-16`, norm 3.63) whose energy moved by
+    /// `2e-10`: relative error 3.5e5, which warned "use a smaller h"; against the norm, 5.4e-11,
+    /// no warning. The same run at `E0 = 0` exactly (absolute error), and one with a real error.
+    /// Away from zero (`E0` of the order of the norm) the relative error is kept.
+    #[test]
+    fn an_energy_near_zero_is_judged_against_the_norm() {
+        let v = undecided(Undecided::TooEarly, String::new());
+        let s = Settings {
+            method: Method::Vm,
+            orthonormalize: Orthonormalization::Rescale,
+            d0: 1e-8,
+            tau: 1.0,
+            dof: 50,
+            k: 2,
+        };
+        let run = |error: f64, energy0: f64| RunValues {
+            energy_error_max: error,
+            energy0,
+            norm0: Some(3.63),
+            ..RunValues::default()
+        };
+        let warned = |r: &RunValues| {
+            warnings(&s, r, &[], &v)
+                .iter()
+                .any(|w| w.code == ENERGY_ERROR_ABOVE_SQRT_EPS)
+        };
+        let e0: f64 = -5.55e-16;
+        let of_norm = energy_error_of_norm(2e-10 / e0.abs(), e0, Some(3.63)).unwrap();
+        assert!((of_norm - 2e-10 / 3.63).abs() < 1e-22, "{of_norm}");
+        assert!(!warned(&run(2e-10 / e0.abs(), e0)));
+        assert!(!warned(&run(2e-10, 0.0)));
+        assert!(warned(&run(1e-3 / e0.abs(), e0)));
+        assert_eq!(energy_error_of_norm(1e-9, -11.2, Some(21.0)), None);
+        assert!(warned(&run(1e-6, -11.2)));
+        assert_eq!(energy_error_of_norm(1e-9, 0.0, None), None);
     }
 
     #[test]
@@ -1652,6 +1730,7 @@ mod tests {
             mean_divergence: Some(-13.667),
             complete: true,
             dim: 3,
+            ..RunValues::default()
         };
         let codes = |p: &SchemePoint| -> Vec<String> {
             warnings(&s, &run, &[(100.0, p)], &v)

@@ -165,16 +165,21 @@ pub(crate) fn colour_bar<DB: DrawingBackend>(
     (lo, hi): (f64, f64),
 ) -> Result<crate::chart::PixelRect, String> {
     let err = |e: &dyn std::fmt::Display| e.to_string();
-    let mut bar_builder = ChartBuilder::on(area);
+    // The caption over the whole strip, not over the bar and its tick labels alone: those are
+    // narrower than the words, which were cut at the left ("og10 weight").
+    let body = if text {
+        area.titled("log10 weight", (FONT, 14))
+            .map_err(|e| err(&e))?
+    } else {
+        area.clone()
+    };
+    let mut bar_builder = ChartBuilder::on(&body);
     bar_builder
-        .margin_top(if text { 38 } else { 10 })
+        .margin_top(if text { 20 } else { 10 })
         .margin_bottom(if text { 50 } else { 10 })
         .margin_right(if text { 55 } else { 10 });
     if text {
-        bar_builder
-            .caption("log10 weight", (FONT, 14))
-            .y_label_area_size(0)
-            .right_y_label_area_size(45);
+        bar_builder.y_label_area_size(0).right_y_label_area_size(45);
     }
     let mut bar = bar_builder
         .build_cartesian_2d(0.0..1.0, lo..hi)

@@ -661,6 +661,8 @@ impl Analysis {
                 energy_error_max: reported_energy_error,
                 norm0: self.norm0,
                 norm_error_max: reported_norm_error,
+                energy_error_of_norm: reported_energy_error
+                    .and_then(|e| verdict::energy_error_of_norm(e, h.energy0, self.norm0)),
                 mean_divergence: (!hamiltonian).then_some(self.mean_divergence),
                 complete,
                 end: None,

@@ -66,6 +66,12 @@ pub struct RunReport {
     /// absent where `norm0` is.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub norm_error_max: Option<f64>,
+    /// For a model that conserves a norm whose `E0` is near zero against it
+    /// (`|E0| < 1.5e-8 S0`), where a relative error only divides by a rounding: the largest
+    /// energy error as a fraction of the norm, `max |E - E0| / S0`, by which the warnings judge
+    /// it ([`crate::verdict::energy_error_of_norm`]); absent for every other run.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub energy_error_of_norm: Option<f64>,
     /// Phase-space contraction rate: the mean of `div f` along the reference orbit from t = 0
     /// (flows), the mean of `ln |det DF|` per iteration (maps); compare with the sum of the
     /// Lyapunov exponents of a QR scheme with k = D (`lyapunov_sum`). Absent for Hamiltonians,

@@ -962,6 +962,12 @@ fn plane_heat_maps_of_a_square_lattice_and_hostile_plane_times() {
             1,
             "--plane-times 30: after the run's end, t = 20",
         ),
+        // Quoted as written, not as 309 digits.
+        (
+            vec![&square[..], "--plot", p, "--plane-times", "1e308"],
+            1,
+            "--plane-times 1e308: after the run's end",
+        ),
         (
             vec![&square[..], "--plot", p, "--plane-times", "5,-1"],
             1,

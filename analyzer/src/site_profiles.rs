@@ -11,6 +11,7 @@
 use chaoscope_indicators::distribution::normalized;
 use chaoscope_indicators::dvd::site_weights;
 use chaoscope_indicators::norm::site_norms;
+use chaoscope_schemas::config::num;
 use chaoscope_schemas::run::Sample;
 
 use crate::run_info::RunInfo;
@@ -104,12 +105,13 @@ pub fn check_plane_times(times: &[f64], run: &RunInfo) -> Result<(), String> {
     }
     let t_final = run.header.t_final;
     for &t in times {
+        let (t_shown, end) = (num(t), num(t_final));
         if !(t.is_finite() && t >= 0.0) {
-            return Err(format!("--plane-times {t}: a time from 0 on"));
+            return Err(format!("--plane-times {t_shown}: a time from 0 on"));
         }
         if !at_or_before(t, t_final) {
             return Err(format!(
-                "--plane-times {t}: after the run's end, t = {t_final} ({side} x {side} lattice)"
+                "--plane-times {t_shown}: after the run's end, t = {end} ({side} x {side} lattice)"
             ));
         }
     }

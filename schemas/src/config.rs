@@ -432,6 +432,14 @@ impl RunConfig {
     }
 }
 
+/// A number as the user would write it: `1e-300` rather than three hundred zeros (and `1e308`
+/// rather than 309 digits), for the messages that quote a value.
+pub fn num(v: f64) -> String {
+    let plain = format!("{v}");
+    let sci = format!("{v:e}");
+    if plain.len() <= sci.len() { plain } else { sci }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -243,12 +243,7 @@ pub(crate) fn time_step(integrator: &IntegratorConfig) -> Result<f64, SpecError>
     finite_positive("integrator.h", h)
 }
 
-/// A number as the user would write it: `1e-300` rather than three hundred zeros.
-pub(crate) fn num(v: f64) -> String {
-    let plain = format!("{v}");
-    let sci = format!("{v:e}");
-    if plain.len() <= sci.len() { plain } else { sci }
-}
+pub(crate) use chaoscope_schemas::config::num;
 
 /// `round(t / h)` when `t` is a whole number of steps `h` (to rounding), else an error.
 pub fn whole_steps(key: &str, t: f64, h: f64) -> Result<u64, SpecError> {

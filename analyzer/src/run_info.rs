@@ -145,6 +145,9 @@ impl RunInfo {
             .as_ref()
             .and_then(|c| c.model.modulo().map(<[f64]>::to_vec))
             .unwrap_or_default();
+        let periodic = recorded
+            .as_ref()
+            .map_or([false; 2], |c| c.model.periodic_axes());
         let zero_one_observable = recorded.and_then(|c| c.analysis.zero_one_observable);
         chaoscope_indicators::periodic::check_periods(&periods, header.dim as usize)
             .map_err(|problem| err(format!("model.modulo {problem}")))?;
@@ -152,7 +155,7 @@ impl RunInfo {
             periods,
             zero_one_observable,
             square_side,
-            periodic: chaoscope_schemas::run::periodic_axes(&header),
+            periodic,
             kind,
             dim: header.dim as usize,
             k: header.k as usize,

@@ -59,7 +59,8 @@ pub fn table(report: &Report) -> String {
                 .unwrap_or_default();
             // A relative error of an energy that starts near zero is no measure: said against
             // the norm beside it.
-            let of_norm = crate::verdict::energy_error_of_norm(e, r.energy0, r.norm0)
+            let of_norm = r
+                .energy_error_of_norm
                 .map(|f| format!(" (E0 = {:.1e} near 0: {f:.2e} of the norm)", r.energy0))
                 .unwrap_or_default();
             format!(

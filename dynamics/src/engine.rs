@@ -162,7 +162,7 @@ impl Engine {
         stepping: Stepping,
     ) -> Result<Self, ResumeError> {
         let dim = spec.dim();
-        if let Err(why) = spec.system().resumable() {
+        if let Some(Err(why)) = spec.system().adaptive().map(|a| a.resumable()) {
             return Err(ResumeError(why));
         }
         if sample.state.len() != dim || sample.step > spec.total_steps() {
@@ -386,16 +386,22 @@ impl Engine {
             }
             for step in self.step..target {
                 let t = spec.time_of(step);
-                if self.tangent_carrier.is_some() {
-                    system.step_reference_tangent(
+                // A tangent carrier is chosen only for a system whose adaptive steps take the
+                // reference and its tangents in one pass (`tangent_carrier`).
+                match (self.tangent_carrier, system.adaptive()) {
+                    (Some(_), Some(adaptive)) => adaptive.step_reference_tangent(
                         &mut self.reference,
                         &mut self.carried,
                         t,
                         &mut self.plan,
                         &mut self.work,
-                    )?;
-                } else {
-                    system.step_reference(&mut self.reference, t, &mut self.plan, &mut self.work);
+                    )?,
+                    _ => system.step_reference(
+                        &mut self.reference,
+                        t,
+                        &mut self.plan,
+                        &mut self.work,
+                    ),
                 }
                 self.plan_bounds.push(self.plan.len());
                 if let Some((before, integral)) = &mut self.divergence {
@@ -578,7 +584,8 @@ impl PointKernel for AlongReference<'_> {
             && self.plan.substeps.is_empty()
             && self
                 .system
-                .reference_tangent_steps(self.orbit, self.rows, self.plan.from, steps);
+                .reference_tangent()
+                .is_some_and(|r| r.steps(self.orbit, self.rows, self.plan.from, steps));
         if !fused {
             for (step, substeps) in self.plan.steps() {
                 self.system.step_tangent_along(
@@ -660,8 +667,9 @@ fn tasks(
 fn prepare(spec: &RunSpec, tasks: &[DeviationSet], from: u64) {
     if tasks.iter().any(|t| t.stepping == Stepping::Fused) {
         let steps = spec.total_steps().saturating_sub(from);
-        spec.system()
-            .prepare_reference_tangent(steps.saturating_mul(spec.dim() as u64));
+        if let Some(pass) = spec.system().reference_tangent() {
+            pass.prepare(steps.saturating_mul(spec.dim() as u64));
+        }
     }
 }
 
@@ -684,7 +692,11 @@ fn tangent_carrier(
     tasks: &[DeviationSet],
     carrier: Option<usize>,
 ) -> Option<usize> {
-    if carrier.is_some() || !spec.system().steps_reference_with_tangents() {
+    let one_pass = spec
+        .system()
+        .adaptive()
+        .is_some_and(|a| a.steps_reference_with_tangents());
+    if carrier.is_some() || !one_pass {
         return None;
     }
     tasks.iter().position(|t| {

@@ -77,7 +77,7 @@ impl Stepping {
         let system = spec.system().as_ref();
         let isa = Isa::detect();
         let plain = spec.x0().len() == system.dim();
-        let fused = plain && system.steps_reference_tangent();
+        let fused = plain && system.reference_tangent().is_some();
         if plain && system.batched(isa).is_some() {
             Stepping::Batched {
                 isa,

@@ -303,61 +303,6 @@ impl dyn DynamicalSystem + '_ {
             None => self.step_tangent(x, w, t, work),
         }
     }
-
-    /// Whether a run can be resumed from a recorded sample.
-    pub fn resumable(&self) -> Result<(), String> {
-        self.adaptive().map_or(Ok(()), |a| a.resumable())
-    }
-
-    /// [`AdaptiveSteps::steps_reference_with_tangents`].
-    pub fn steps_reference_with_tangents(&self) -> bool {
-        self.adaptive()
-            .is_some_and(|a| a.steps_reference_with_tangents())
-    }
-
-    /// [`AdaptiveSteps::step_reference_tangent`]; for fixed steps, `step` of `x` and
-    /// `step_tangent` of `w` from the same state.
-    pub fn step_reference_tangent(
-        &self,
-        x: &mut [f64],
-        w: &mut [f64],
-        t: f64,
-        plan: &mut Vec<f64>,
-        work: &mut Workspace,
-    ) -> Result<(), TangentError> {
-        match self.adaptive() {
-            Some(a) => a.step_reference_tangent(x, w, t, plan, work),
-            None => {
-                let mut along = x.to_vec();
-                self.step(x, t, work);
-                self.step_tangent(&mut along, w, t, work)
-            }
-        }
-    }
-
-    /// Whether the system has a [`ReferenceTangent`] pass.
-    pub fn steps_reference_tangent(&self) -> bool {
-        self.reference_tangent().is_some()
-    }
-
-    /// [`ReferenceTangent::prepare`], where the system has the pass.
-    pub fn prepare_reference_tangent(&self, work: u64) {
-        if let Some(r) = self.reference_tangent() {
-            r.prepare(work);
-        }
-    }
-
-    /// [`ReferenceTangent::steps`]; false where the system has no such pass.
-    pub fn reference_tangent_steps(
-        &self,
-        x: &mut [f64],
-        v: &mut [f64],
-        from: u64,
-        steps: u64,
-    ) -> bool {
-        self.reference_tangent()
-            .is_some_and(|r| r.steps(x, v, from, steps))
-    }
 }
 
 /// Why the system `name` has no site energies.

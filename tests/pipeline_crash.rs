@@ -34,6 +34,20 @@ fn wait_for_size_or_exit(out: &Path, bytes: u64, p: &mut Proc) -> bool {
     }
 }
 
+/// The complete samples the recording at `path` holds on disk (read up to any damage; 0 if
+/// there is no such file or it holds no sample yet).
+fn samples_on_disk(path: &Path) -> usize {
+    let Ok(mut reader) = chaoscope_analyzer::recording::RecordingReader::open_salvaging(path)
+    else {
+        return 0;
+    };
+    let mut n = 0;
+    while let Ok(Some(_)) = reader.next_sample() {
+        n += 1;
+    }
+    n
+}
+
 fn wait_for_size(out: &Path, bytes: u64) {
     let path = &chaoscope_os::output::partial_path(out);
     let start = Instant::now();
@@ -1161,14 +1175,34 @@ fn a_run_killed_at_random_moments_and_resumed_gives_the_uninterrupted_analysis()
     // A resume killed in turn is resumed again, to the same analysis.
     let out = dir.path().join("twice.mcap");
     let o = out.to_str().unwrap();
+    // The run is killed once its in-progress file holds a sample on disk (the recorder closes
+    // a chunk every second: bytes alone do not say one is complete, and a run killed before
+    // then leaves nothing to resume, which the cases above accept).
     let mut p = spawn_group(&["run", cfg, "--run", &run, "--out", o]);
+    let partial = chaoscope_os::output::partial_path(&out);
     wait_for_size(&out, 100_000);
+    let start = Instant::now();
+    while samples_on_disk(&partial) == 0 {
+        assert!(
+            start.elapsed() < LIMIT,
+            "{} never held a sample",
+            partial.display()
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
     signal_group(&p, libc::SIGKILL);
     wait_group_gone(&mut p);
+    let held = samples_on_disk(&partial);
     let mut p = spawn_group(&["resume", o]);
     std::thread::sleep(Duration::from_millis(500));
     signal_group(&p, libc::SIGKILL);
     wait_group_gone(&mut p);
+    // Whatever moment the kill hit, what the killed run held is still there to resume from.
+    let left = samples_on_disk(&partial).max(samples_on_disk(&out));
+    assert!(
+        left >= held,
+        "the killed resume lost samples: {held} on disk before it, {left} after"
+    );
     // Unless the resume had finished before its kill (then the run is complete).
     let again = chaoscope_captured(&["resume", o]).output().unwrap();
     assert!(

@@ -30,9 +30,18 @@ reference states, read with the `chaoscope` Python package (numpy). With --excit
 DDNLS starts instead from 21 central sites with norm 1 each and phases drawn from the
 realization's seed, at beta = 0.04 (the weak-chaos case W = 4, L = 21 of Laptyeva et al., EPL 91,
 30001 (2010)).
+
+With --keep-curves each realization's curves (t, Lambda, m2) are also written to
+`DIR/rSEED.curve.csv`, thinned to 200 samples per decade of t (every sample below t = 100), and a
+realization whose curve file was made from the same configuration is not run again, its
+recording no longer needed: a campaign longer than one machine's day is carried from machine to
+machine in those small files (committed beside RESULTS.md). Every realization's curve is then
+the thinned one, so fresh and carried ones average alike; the fit's points (20 per decade from a
+decade boundary) are samples the thinning keeps.
 """
 
 import argparse
+import bisect
 import concurrent.futures
 import csv
 import json
@@ -152,12 +161,61 @@ def recording_status(mcap):
     return chaoscope.open(str(mcap)).status
 
 
-def realization(chaoscope, out, model, sites, t_final, seed, h, tau, excitation):
-    """Record realization `seed` (unless its recording exists) and read its curves."""
+# --keep-curves: samples kept per decade of t, and below which t every sample is kept.
+CURVE_PER_DECADE = 200
+CURVE_ALL_BELOW = 100.0
+
+
+def thinned(rows):
+    """The rows nearest to t = 10^(j / CURVE_PER_DECADE), and every row below CURVE_ALL_BELOW."""
+    keep = {i for i, r in enumerate(rows) if r[0] < CURVE_ALL_BELOW}
+    if rows:
+        lo, hi = math.log10(max(rows[0][0], CURVE_ALL_BELOW)), math.log10(rows[-1][0])
+        ts = [r[0] for r in rows]
+        for j in range(math.floor(lo * CURVE_PER_DECADE), math.ceil(hi * CURVE_PER_DECADE) + 1):
+            want = 10 ** (j / CURVE_PER_DECADE)
+            keep.add(nearest(ts, want))
+    return [rows[i] for i in sorted(keep)]
+
+
+def nearest(ts, want):
+    """The index of the time in the sorted `ts` nearest to `want`."""
+    k = bisect.bisect_left(ts, want)
+    if k == 0:
+        return 0
+    if k == len(ts):
+        return len(ts) - 1
+    return k if ts[k] - want < want - ts[k - 1] else k - 1
+
+
+def read_curve(path):
+    with open(path) as f:
+        return [(float(r["t"]), float(r["lyapunov1"]), float(r["m2"])) for r in csv.DictReader(f)]
+
+
+def write_curve(path, rows):
+    tmp = path.with_suffix(".tmp")
+    with open(tmp, "w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow(["t", "lyapunov1", "m2"])
+        w.writerows([repr(t), repr(l), repr(m)] for t, l, m in rows)
+    tmp.replace(path)
+
+
+def realization(chaoscope, out, model, sites, t_final, seed, h, tau, excitation,
+                keep_curves=False):
+    """Record realization `seed` (unless its recording, or with `keep_curves` its curve, exists)
+    and read its curves."""
     mcap = out / f"r{seed}.mcap"
     cfg = out / f"r{seed}.toml"
+    curve = out / f"r{seed}.curve.csv"
     text = (config(sites, t_final, seed) if model == "dkg"
             else ddnls_config(sites, t_final, seed, h, tau, excitation))
+    if keep_curves and curve.exists():
+        if not cfg.exists() or cfg.read_text() != text:
+            sys.exit(f"run.py: {curve} was made with other settings than these "
+                     f"({cfg} differs); choose another --out")
+        return read_curve(curve)
     if mcap.exists():
         # A recording is reused only if it was made from the configuration this run would write.
         if not cfg.exists() or cfg.read_text() != text:
@@ -180,8 +238,13 @@ def realization(chaoscope, out, model, sites, t_final, seed, h, tau, excitation)
         rows = [r for r in csv.DictReader(f) if float(r["t"]) > 0]
     if model == "ddnls":
         m2 = norm_m2(mcap, [float(r["t"]) for r in rows])
-        return [(float(r["t"]), float(r["lyapunov1"]), m) for r, m in zip(rows, m2)]
-    return [(float(r["t"]), float(r["lyapunov1"]), float(r["energy_m2"])) for r in rows]
+        rows = [(float(r["t"]), float(r["lyapunov1"]), m) for r, m in zip(rows, m2)]
+    else:
+        rows = [(float(r["t"]), float(r["lyapunov1"]), float(r["energy_m2"])) for r in rows]
+    if keep_curves:
+        rows = thinned(rows)
+        write_curve(curve, rows)
+    return rows
 
 
 def slope(xs, ys):
@@ -207,6 +270,10 @@ def main():
     ap.add_argument("--fit-decades", type=float, default=DDNLS_FIT_DECADES,
                     help="ddnls: the fit covers at most this many decades before t_final "
                          "(default 2)")
+    ap.add_argument("--keep-curves", action="store_true",
+                    help="write each realization's thinned curves to DIR/rSEED.curve.csv and "
+                         "reuse them instead of running it again (a campaign carried across "
+                         "machines)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--chaoscope", default="chaoscope")
     ap.add_argument("--out", type=Path, default=Path("weak-chaos"))
@@ -226,7 +293,7 @@ def main():
         with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
             curves = list(pool.map(lambda s: realization(a.chaoscope, a.out, a.model, a.sites,
                                                          a.t_final, s, a.h, a.tau,
-                                                         a.excitation),
+                                                         a.excitation, a.keep_curves),
                                    range(a.first_seed, a.first_seed + a.realizations)))
     except subprocess.CalledProcessError as e:
         # `chaoscope run` has said why on standard error; name the command that failed.

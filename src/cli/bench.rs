@@ -127,6 +127,11 @@ pub struct Args {
     /// Chain lengths of the DKG comparison.
     #[arg(long, value_delimiter = ',', default_values_t = [200usize, 1000, 4000])]
     pub dkg_sizes: Vec<usize>,
+    /// With `--dkg-only`: interleaved (run, C) pairs per chain length; the median of the pairs'
+    /// ratios is reported (a shared machine's speed drifts by tens of percent from one run to
+    /// the next: one pair is no figure).
+    #[arg(long, default_value_t = 3)]
+    pub dkg_pairs: usize,
     /// With `--dkg-only`: the ensemble's throughput, `REALIZATIONS:SITES` (disorder seeds 1,
     /// 2, ..., as many runs at a time as the machine has cores), site-steps per CPU and per
     /// wall second; `0` for none.
@@ -656,7 +661,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         let report = serde_json::json!({
             "cpu": Machine::cpu_model(),
             "isa": Isa::detect().name(),
-            "dkg_expression_run_vs_scalar_c": dkg::compare(&args.dkg_sizes, dkg_ensemble(&args.dkg_ensemble)?)?,
+            "dkg_expression_run_vs_scalar_c": dkg::compare(&args.dkg_sizes, args.dkg_pairs, dkg_ensemble(&args.dkg_ensemble)?)?,
         });
         chaoscope_os::outln!("{}", serde_json::to_string_pretty(&report)?)?;
         return Ok(ExitCode::SUCCESS);

@@ -188,8 +188,13 @@ pub(super) fn yardstick(
 /// throughput.
 pub fn compare(
     sizes: &[usize],
+    pairs: usize,
     ensemble: Option<(usize, usize)>,
 ) -> anyhow::Result<serde_json::Value> {
+    anyhow::ensure!(
+        (1..=100).contains(&pairs),
+        "--dkg-pairs: 1 to 100 pairs, got {pairs}"
+    );
     let (scratch, exe) = match yardstick("chaoscope-bench-dkg-")? {
         Ok(built) => built,
         Err(why) => return Ok(serde_json::json!({ "unavailable": why })),
@@ -207,14 +212,29 @@ pub fn compare(
         let (_, run_mle) = chaoscope_run(dir, &short, &format!("short-{n}"))?;
         let (_, c_mle) = c_run(&exe, &c_input(&short)?)?;
         let long = config(n, t_final)?;
-        let (run_cpu, _) = chaoscope_run(dir, &long, &format!("long-{n}"))?;
-        let (c_cpu, _) = c_run(&exe, &c_input(&long)?)?;
+        let input = c_input(&long)?;
+        // Interleaved, so a drift of the machine's speed falls on both sides of a pair alike.
+        let mut timed = Vec::with_capacity(pairs);
+        for _ in 0..pairs {
+            let (run_cpu, _) = chaoscope_run(dir, &long, &format!("long-{n}"))?;
+            let (c_cpu, _) = c_run(&exe, &input)?;
+            timed.push((run_cpu, c_cpu));
+        }
+        let mut ratios: Vec<f64> = timed.iter().map(|(run, c)| c / run).collect();
+        ratios.sort_by(f64::total_cmp);
+        let ratio = ratios[ratios.len() / 2];
+        let least =
+            |side: fn(&(f64, f64)) -> f64| timed.iter().map(side).fold(f64::INFINITY, f64::min);
+        let (run_cpu, c_cpu) = (least(|t| t.0), least(|t| t.1));
         let site_steps = n as f64 * t_final / H;
-        let ratio = (site_steps / run_cpu) / (site_steps / c_cpu);
         rows.push(serde_json::json!({
             "sites": n,
             "t_final": t_final,
             "site_steps": site_steps,
+            "pairs": timed.iter().map(|(run, c)| serde_json::json!({
+                "run_cpu_seconds": run, "c_cpu_seconds": c, "run_over_c": c / run,
+            })).collect::<Vec<_>>(),
+            "run_over_c_of_least_cpu": c_cpu / run_cpu,
             "run_cpu_seconds": run_cpu,
             "kernel_cache": build,
             "c_cpu_seconds": c_cpu,
@@ -239,7 +259,9 @@ pub fn compare(
                      thread, CPU time of its whole process tree (process start, configuration, \
                      compilation, producer, bus, recorder, summary), the chain's C kernels in \
                      the kernel cache (kernel_cache: built or loaded before, in how long); \
-                     scalar C -O3 -march=native -ffp-contract=off, CPU time of its loop",
+                     scalar C -O3 -march=native -ffp-contract=off, CPU time of its loop; \
+                     --dkg-pairs interleaved (run, C) pairs per length: run_over_c is the \
+                     median of the pairs' ratios, *_cpu_seconds each side's least",
         "compiler": super::scalar_c::compiler(),
         "sizes": rows,
         "ensemble": ensemble,

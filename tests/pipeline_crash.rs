@@ -1854,13 +1854,69 @@ fn a_taylor_run_whose_compiler_hangs_ends_in_its_own_time_and_leaves_no_compiler
         without == hung,
         "a Taylor run whose compiler hung differs from one without C"
     );
-    // Cancelled within the drop's grace (0.5 s) and the compiler driver's poll.
+    // The run waited for the build (2 s, `FINISH_GRACE`), then cancelled it within the drop's
+    // grace (0.5 s) and the compiler driver's poll.
     std::thread::sleep(Duration::from_secs(1));
     assert!(
         pids_in(&pids).iter().all(|&p| !alive(p)),
         "a compiler outlived its run: {:?}",
         pids_in(&pids)
     );
+}
+
+/// A Taylor run shorter than the build of its compiled pass waits for the build (up to
+/// `FINISH_GRACE`) instead of cancelling it, so the pass lands in the kernel cache and the next
+/// run of the system loads it: cancelled, runs shorter than their build would interpret forever.
+#[test]
+fn a_taylor_run_shorter_than_its_build_leaves_the_pass_in_the_kernel_cache() {
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("kernels");
+    std::fs::create_dir(&cache).unwrap();
+    let config = dir.path().join("lorenz-taylor.toml");
+    let mut lorenz = RunConfig::from_toml(include_str!("../examples/models/lorenz.toml")).unwrap();
+    lorenz.run.name = Some("lorenz-taylor-short".into());
+    lorenz.integrator.method = "taylor".into();
+    lorenz.integrator.h = Some(1.0);
+    // A few milliseconds of stepping, against a build of a few tenths of a second.
+    lorenz.integrator.t_final = 5.0;
+    lorenz.schemes.retain(|s| s.method == "vm");
+    std::fs::write(&config, lorenz.to_toml()).unwrap();
+    let libraries = || {
+        std::fs::read_dir(&cache)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.ends_with(".so"))
+            .collect::<Vec<_>>()
+    };
+    let run = |name: &str| {
+        let out = dir.path().join(name);
+        let status = chaoscope_captured(&[
+            "run",
+            config.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ])
+        .env("CHAOSCOPE_KERNEL_CACHE", &cache)
+        .env_remove("CHAOSCOPE_CC")
+        .stdout(std::process::Stdio::null())
+        .status()
+        .unwrap();
+        assert!(status.success());
+        analysis_json(&out)
+    };
+    let first = run("first.mcap");
+    // A compiler slowed past the grace by a loaded machine is given two more runs.
+    for again in 0..2 {
+        if !libraries().is_empty() {
+            break;
+        }
+        run(&format!("again-{again}.mcap"));
+    }
+    let built = libraries();
+    assert!(!built.is_empty(), "no run left the Taylor pass in the kernel cache");
+    // The next run loads it: nothing is built again, and the bits are the interpreted run's.
+    assert_eq!(run("loaded.mcap"), first);
+    assert_eq!(libraries(), built);
 }
 
 /// Whether the main thread of `pid` is blocked in read(2) on its standard input (x86-64 and

@@ -868,7 +868,7 @@ impl VectorFunction {
     /// like the step kernels) and run compiled from the call after the build: the same bits
     /// either way, so the switch is invisible, and a compiler that is missing, fails or hangs
     /// until its deadline costs speed, never a stalled run or a different orbit. Keep the
-    /// build guard as long as the tape steps: dropping it stops the build.
+    /// build guard as long as the tape steps: dropping it ends the build ([`NativeBuild`]).
     pub fn taylor_tape_compiled(
         &self,
         vectors: usize,

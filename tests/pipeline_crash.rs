@@ -1913,7 +1913,10 @@ fn a_taylor_run_shorter_than_its_build_leaves_the_pass_in_the_kernel_cache() {
         run(&format!("again-{again}.mcap"));
     }
     let built = libraries();
-    assert!(!built.is_empty(), "no run left the Taylor pass in the kernel cache");
+    assert!(
+        !built.is_empty(),
+        "no run left the Taylor pass in the kernel cache"
+    );
     // The next run loads it: nothing is built again, and the bits are the interpreted run's.
     assert_eq!(run("loaded.mcap"), first);
     assert_eq!(libraries(), built);

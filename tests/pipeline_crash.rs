@@ -1817,6 +1817,20 @@ fn a_run_whose_compiler_hangs_finishes_with_the_bits_of_a_run_without_c_kernels(
     assert!(pids_in(&pids).iter().all(|&p| !alive(p)));
 }
 
+/// The Lorenz example by Taylor's method to `t_final`, its VM scheme only (QR every time unit),
+/// written to `dir/NAME.toml`.
+fn lorenz_taylor(dir: &Path, name: &str, t_final: f64) -> std::path::PathBuf {
+    let mut lorenz = RunConfig::from_toml(include_str!("../examples/models/lorenz.toml")).unwrap();
+    lorenz.run.name = Some(name.into());
+    lorenz.integrator.method = "taylor".into();
+    lorenz.integrator.h = Some(1.0);
+    lorenz.integrator.t_final = t_final;
+    lorenz.schemes.retain(|s| s.method == "vm");
+    let config = dir.join(format!("{name}.toml"));
+    std::fs::write(&config, lorenz.to_toml()).unwrap();
+    config
+}
+
 /// Taylor's method builds its compiled pass on a thread of its own: with a compiler that hangs
 /// (and no deadline short of the default 300 s) the run ends in its own time with the bits of a
 /// run without a C compiler (the interpreted pass gives them), and no compiler outlives it (the
@@ -1824,15 +1838,7 @@ fn a_run_whose_compiler_hangs_finishes_with_the_bits_of_a_run_without_c_kernels(
 #[test]
 fn a_taylor_run_whose_compiler_hangs_ends_in_its_own_time_and_leaves_no_compiler() {
     let dir = tempfile::tempdir().unwrap();
-    let config = dir.path().join("lorenz-taylor.toml");
-    // The Lorenz example by Taylor's method, its VM scheme only (QR every time unit).
-    let mut lorenz = RunConfig::from_toml(include_str!("../examples/models/lorenz.toml")).unwrap();
-    lorenz.run.name = Some("lorenz-taylor".into());
-    lorenz.integrator.method = "taylor".into();
-    lorenz.integrator.h = Some(1.0);
-    lorenz.integrator.t_final = 300.0;
-    lorenz.schemes.retain(|s| s.method == "vm");
-    std::fs::write(&config, lorenz.to_toml()).unwrap();
+    let config = lorenz_taylor(dir.path(), "lorenz-taylor", 300.0);
     let pids = dir.path().join("pids");
     let cc = hanging_compiler(dir.path(), &pids);
     let record = |name: &str, cc: &std::ffi::OsStr| {
@@ -1872,15 +1878,8 @@ fn a_taylor_run_shorter_than_its_build_leaves_the_pass_in_the_kernel_cache() {
     let dir = tempfile::tempdir().unwrap();
     let cache = dir.path().join("kernels");
     std::fs::create_dir(&cache).unwrap();
-    let config = dir.path().join("lorenz-taylor.toml");
-    let mut lorenz = RunConfig::from_toml(include_str!("../examples/models/lorenz.toml")).unwrap();
-    lorenz.run.name = Some("lorenz-taylor-short".into());
-    lorenz.integrator.method = "taylor".into();
-    lorenz.integrator.h = Some(1.0);
     // A few milliseconds of stepping, against a build of a few tenths of a second.
-    lorenz.integrator.t_final = 5.0;
-    lorenz.schemes.retain(|s| s.method == "vm");
-    std::fs::write(&config, lorenz.to_toml()).unwrap();
+    let config = lorenz_taylor(dir.path(), "lorenz-taylor-short", 5.0);
     let libraries = || {
         std::fs::read_dir(&cache)
             .unwrap()

@@ -62,17 +62,6 @@ y = { coord = "x2", min = -10.0, max = 10.0, n = 8 }
 indicator = "gali"
 "#;
 
-/// CPU time of this process, in seconds (the work runs on one thread: a per-core figure).
-fn cpu_seconds() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid timespec to write into; the clock id is a POSIX constant.
-    unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut ts) };
-    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
-}
-
 fn case(name: &str, text: &str) -> serde_json::Value {
     let spec = MapSpec::from_config(&RunConfig::from_toml(text).unwrap()).unwrap();
     let points: Vec<u64> = (0..spec.grid_points()).collect();
@@ -80,20 +69,20 @@ fn case(name: &str, text: &str) -> serde_json::Value {
         threads: Some(1),
         ..MapOptions::default()
     };
-    let start = cpu_seconds();
+    let start = chaoscope_os::cpu_time::process_seconds();
     let mut batched = Vec::new();
     map::run_map(&spec, &points, &options, |r| {
         batched.push(r);
         true
     })
     .unwrap();
-    let batched_cpu = cpu_seconds() - start;
-    let start = cpu_seconds();
+    let batched_cpu = chaoscope_os::cpu_time::process_seconds() - start;
+    let start = chaoscope_os::cpu_time::process_seconds();
     let engine: Vec<_> = points
         .iter()
         .map(|&i| map::one_orbit::point(&spec, i))
         .collect();
-    let engine_cpu = cpu_seconds() - start;
+    let engine_cpu = chaoscope_os::cpu_time::process_seconds() - start;
     batched.sort_by_key(|r| r.index);
     let identical = batched.iter().zip(&engine).all(|(a, b)| a.same_numbers(b));
     serde_json::json!({

@@ -347,24 +347,10 @@ impl RunSizes {
     }
 }
 
-/// CPU time this thread has run, where the system gives it (Linux, every POSIX system): what a
-/// timing of work on this thread should count. On a loaded machine a wall-clock timing counts
-/// the time other processes ran too (with two cores and a load of 20, most of it), and the
-/// least of several wall-clock timings moved by a factor of several between two starts of the
-/// same map; the calibration's decision of a map's route must not.
-fn thread_cpu() -> Option<Duration> {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid timespec to write into; the clock id is a POSIX constant.
-    let ok = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0;
-    (ok && ts.tv_sec >= 0 && (0..1_000_000_000).contains(&ts.tv_nsec))
-        .then(|| Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32))
-}
-
 /// A timing of work on this thread: its CPU time, or wall-clock time where there is no such
-/// clock.
+/// clock. On a loaded machine the least of several wall-clock timings moved by a factor of
+/// several between two starts of the same map; the calibration's decision of a map's route
+/// must not.
 struct Timing {
     cpu: Option<Duration>,
     wall: Instant,
@@ -373,13 +359,13 @@ struct Timing {
 impl Timing {
     fn start() -> Self {
         Self {
-            cpu: thread_cpu(),
+            cpu: chaoscope_os::cpu_time::thread(),
             wall: Instant::now(),
         }
     }
 
     fn elapsed(&self) -> Duration {
-        match (self.cpu, thread_cpu()) {
+        match (self.cpu, chaoscope_os::cpu_time::thread()) {
             (Some(start), Some(now)) => now.saturating_sub(start),
             _ => self.wall.elapsed(),
         }

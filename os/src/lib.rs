@@ -1,6 +1,7 @@
 //! What a chaoscope process asks of the operating system, decided once for every command and
 //! the Python package:
 //!
+//! - [`cpu_time`]: CPU time of this thread, this process and its waited-for children.
 //! - [`input`]: the one way a file a user names is opened for reading: a regular file, never a
 //!   FIFO, device, socket or directory, and never a wait to find out.
 //! - [`output`]: the one way a file is written (a locked in-progress file beside the target,
@@ -17,6 +18,7 @@
 //!
 //! No numerics, no file format, no bus: every other crate may depend on this one.
 
+pub mod cpu_time;
 pub mod input;
 pub mod output;
 pub mod signals;

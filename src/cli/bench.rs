@@ -201,28 +201,6 @@ pub struct Args {
     pub json: bool,
 }
 
-/// CPU time of the whole process, in seconds.
-pub fn process_cpu_seconds() -> f64 {
-    cpu_seconds(libc::CLOCK_PROCESS_CPUTIME_ID)
-}
-
-fn thread_cpu_seconds() -> f64 {
-    cpu_seconds(libc::CLOCK_THREAD_CPUTIME_ID)
-}
-
-fn cpu_seconds(clock: libc::clockid_t) -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid timespec to write into; the clock ids are POSIX constants.
-    let rc = unsafe { libc::clock_gettime(clock, &mut ts) };
-    if rc != 0 {
-        return f64::NAN;
-    }
-    ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
-}
-
 /// The start of a kernel case: `lanes` small bounded states (HH: well inside the energy
 /// surface), or for VM deviation vectors of size ~1e-8, and the VM reference orbit.
 fn case_start(dim: usize, lanes: usize, vm: bool) -> (Soa, Vec<f64>) {
@@ -240,13 +218,13 @@ fn case_start(dim: usize, lanes: usize, vm: bool) -> (Soa, Vec<f64>) {
 /// Runs `window` at least once and until `seconds` of this thread's CPU time have passed:
 /// (windows run, CPU seconds).
 fn time_windows(seconds: f64, mut window: impl FnMut()) -> (u64, f64) {
-    let start = thread_cpu_seconds();
+    let start = chaoscope_os::cpu_time::thread_seconds();
     let mut windows = 0u64;
-    while thread_cpu_seconds() - start < seconds || windows == 0 {
+    while chaoscope_os::cpu_time::thread_seconds() - start < seconds || windows == 0 {
         window();
         windows += 1;
     }
-    (windows, thread_cpu_seconds() - start)
+    (windows, chaoscope_os::cpu_time::thread_seconds() - start)
 }
 
 /// Renormalization windows of tau = 1 (100 steps of h = 0.01), as in the paper's maps.
@@ -432,13 +410,13 @@ fn map_results(spec: &MapSpec, isa: Isa) -> anyhow::Result<(f64, Vec<PointResult
         isa,
         ..MapOptions::default()
     };
-    let cpu = process_cpu_seconds();
+    let cpu = chaoscope_os::cpu_time::process_seconds();
     let mut results = Vec::with_capacity(points.len());
     run_map(spec, &points, &options, |r| {
         results.push(r);
         true
     })?;
-    let cpu = process_cpu_seconds() - cpu;
+    let cpu = chaoscope_os::cpu_time::process_seconds() - cpu;
     results.sort_by_key(|r| r.index);
     Ok((cpu, results))
 }
@@ -619,7 +597,7 @@ fn map_case(spec: &MapSpec, isa: Isa, threads: usize) -> anyhow::Result<(f64, f6
         isa,
         ..MapOptions::default()
     };
-    let (wall, cpu) = (Instant::now(), process_cpu_seconds());
+    let (wall, cpu) = (Instant::now(), chaoscope_os::cpu_time::process_seconds());
     let (mut steps, mut integrated) = (0u64, 0usize);
     run_map(spec, &points, &options, |r| {
         steps += r.orbit_steps;
@@ -628,7 +606,7 @@ fn map_case(spec: &MapSpec, isa: Isa, threads: usize) -> anyhow::Result<(f64, f6
     })?;
     Ok((
         wall.elapsed().as_secs_f64(),
-        process_cpu_seconds() - cpu,
+        chaoscope_os::cpu_time::process_seconds() - cpu,
         steps,
         integrated,
     ))
@@ -986,7 +964,7 @@ mod expressions {
         DeviationsConfig, ModelConfig, ParamValue, PotentialConfig, RunConfig, SchemeConfig, paper,
     };
 
-    use super::{kernel_case, thread_cpu_seconds};
+    use super::kernel_case;
 
     const HH: &str = "(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3";
     const FPUT: &str = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";
@@ -1015,16 +993,16 @@ mod expressions {
     fn engine_rate(config: &RunConfig, seconds: f64) -> anyhow::Result<f64> {
         let spec = RunSpec::from_config(config)?;
         let k = spec.k() as f64;
-        let start = thread_cpu_seconds();
+        let start = chaoscope_os::cpu_time::thread_seconds();
         let mut steps = 0u64;
-        while thread_cpu_seconds() - start < seconds || steps == 0 {
+        while chaoscope_os::cpu_time::thread_seconds() - start < seconds || steps == 0 {
             let mut engine = Engine::one_orbit(spec.clone());
             while engine.next_sample()?.is_some() {}
             steps += spec.total_steps();
         }
         // Reference orbit + the VM copy and its k vectors + k MPM orbits.
         let orbits = 1.0 + (1.0 + k) + k;
-        Ok(orbits * steps as f64 / (thread_cpu_seconds() - start))
+        Ok(orbits * steps as f64 / (chaoscope_os::cpu_time::thread_seconds() - start))
     }
 
     fn pair(

@@ -204,7 +204,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         ..MapOptions::default()
     };
     let start = Instant::now();
-    let cpu_start = super::bench::process_cpu_seconds();
+    let cpu_start = chaoscope_os::cpu_time::process_seconds();
     let mut last_flush = Instant::now();
     let (mut computed, mut orbit_steps) = (0u64, 0u64);
     let mut new_points = Vec::new();
@@ -270,7 +270,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     }
     finished?;
     let seconds = start.elapsed().as_secs_f64();
-    let cpu_seconds = super::bench::process_cpu_seconds() - cpu_start;
+    let cpu_seconds = chaoscope_os::cpu_time::process_seconds() - cpu_start;
 
     let mut all: Vec<MapPoint> = recorded.into_values().chain(new_points).collect();
     all.sort_by_key(|p| p.index);

@@ -50,15 +50,6 @@ pub(super) fn config(n: usize, t_final: f64) -> anyhow::Result<RunConfig> {
     Ok(config)
 }
 
-/// CPU seconds (user + system) of every waited-for descendant so far.
-pub(super) fn children_cpu_seconds() -> f64 {
-    // SAFETY: getrusage writes the struct it is given.
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    unsafe { libc::getrusage(libc::RUSAGE_CHILDREN, &mut usage) };
-    let s = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
-    s(usage.ru_utime) + s(usage.ru_stime)
-}
-
 /// `chaoscope run` of `config` in `dir`: (CPU seconds of its process tree, MLE of its scheme).
 pub(super) fn chaoscope_run(
     dir: &std::path::Path,
@@ -69,7 +60,7 @@ pub(super) fn chaoscope_run(
     let cfg = dir.join(format!("{tag}.toml"));
     let out = dir.join(format!("{tag}.mcap"));
     std::fs::write(&cfg, config.to_toml())?;
-    let before = children_cpu_seconds();
+    let before = chaoscope_os::cpu_time::children_seconds();
     let status = Command::new(&exe)
         .arg("run")
         .arg(&cfg)
@@ -80,7 +71,7 @@ pub(super) fn chaoscope_run(
         .stderr(Stdio::null())
         .status()
         .context("starting chaoscope run")?;
-    let cpu = children_cpu_seconds() - before;
+    let cpu = chaoscope_os::cpu_time::children_seconds() - before;
     anyhow::ensure!(
         status.success(),
         "chaoscope run of the DKG chain failed ({status})"
@@ -306,7 +297,7 @@ fn ensemble_throughput(
     // The kernels of this chain in the cache before the clock starts (one realization's is
     // every realization's: array parameters are not in the kernel's source).
     let build = warm_kernel_cache(&config(n, 100.0)?)?;
-    let before = children_cpu_seconds();
+    let before = chaoscope_os::cpu_time::children_seconds();
     let started = std::time::Instant::now();
     let mut running: Vec<std::process::Child> = Vec::new();
     for (r, cfg) in configs.iter().enumerate() {
@@ -333,7 +324,7 @@ fn ensemble_throughput(
         wait_ok(child)?;
     }
     let wall = started.elapsed().as_secs_f64();
-    let cpu = children_cpu_seconds() - before;
+    let cpu = chaoscope_os::cpu_time::children_seconds() - before;
     for r in 0..realizations {
         std::fs::remove_file(dir.join(format!("ensemble-{r}.mcap"))).ok();
     }

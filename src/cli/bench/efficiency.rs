@@ -322,7 +322,7 @@ pub fn measure(config: &RunConfig, ddnls: Option<&Ddnls>) -> anyhow::Result<Run>
         // One clock reading at each end: a reading of a thread's CPU clock is a system call
         // (about a microsecond), as much as a short sample interval's steps. The bookkeeping
         // inside is O(N) per sample against the O(N stages / h) of its steps.
-        let start = super::thread_cpu_seconds();
+        let start = chaoscope_os::cpu_time::thread_seconds();
         while let Some(sample) = engine.next_sample()? {
             let e = ((sample.energy - e0) / e0).abs();
             run.energy_error = run.energy_error.max(e);
@@ -333,7 +333,7 @@ pub fn measure(config: &RunConfig, ddnls: Option<&Ddnls>) -> anyhow::Result<Run>
                 *worst = worst.max(((m.norm(&sample.state) - s0) / s0).abs());
             }
         }
-        run.cpu_seconds = super::thread_cpu_seconds() - start;
+        run.cpu_seconds = chaoscope_os::cpu_time::thread_seconds() - start;
         Ok(run)
     })
 }
@@ -526,7 +526,7 @@ pub fn table(sites: usize, t_final: f64) -> anyhow::Result<serde_json::Value> {
          {TAU} and 1e7, got {t_final}"
     );
     let load_before = load_average();
-    let started = super::process_cpu_seconds();
+    let started = chaoscope_os::cpu_time::process_seconds();
     let wall = std::time::Instant::now();
     let mut families = serde_json::Map::new();
     for family in Family::ALL {
@@ -546,7 +546,7 @@ pub fn table(sites: usize, t_final: f64) -> anyhow::Result<serde_json::Value> {
         "t_final": t_final,
         "targets": TARGETS,
         "families": families,
-        "total_cpu_seconds": super::process_cpu_seconds() - started,
+        "total_cpu_seconds": chaoscope_os::cpu_time::process_seconds() - started,
         "total_wall_seconds": wall.elapsed().as_secs_f64(),
         "load_average_1min": { "before": load_before, "after": load_average() },
     }))

@@ -59,10 +59,6 @@ pub(super) fn config_text(model: &str, n: usize, t_final: f64) -> anyhow::Result
 
 /// CPU seconds (user + system) this process has used so far: on a shared machine the wall
 /// time from the configuration to the first step counts other processes' turns too.
-fn process_cpu_seconds() -> f64 {
-    super::cpu_seconds(libc::CLOCK_PROCESS_CPUTIME_ID)
-}
-
 /// The child process: `MODEL:N:T_FINAL`; prints one JSON object.
 pub fn case(arg: &str) -> anyhow::Result<()> {
     let parts: Vec<&str> = arg.split(':').collect();
@@ -70,7 +66,7 @@ pub fn case(arg: &str) -> anyhow::Result<()> {
     let n: usize = parts[1].parse().context("N")?;
     let t_final: f64 = parts[2].parse().context("T_FINAL")?;
     let text = config_text(parts[0], n, t_final)?;
-    let cpu_started = process_cpu_seconds();
+    let cpu_started = chaoscope_os::cpu_time::process_seconds();
     let started = Instant::now();
     let config = RunConfig::from_toml(&text)?;
     let spec = RunSpec::from_config(&config)?;
@@ -82,7 +78,7 @@ pub fn case(arg: &str) -> anyhow::Result<()> {
     let steps = spec.total_steps();
     let mut engine = Engine::new(spec);
     let ready = started.elapsed().as_secs_f64();
-    let ready_cpu = process_cpu_seconds() - cpu_started;
+    let ready_cpu = chaoscope_os::cpu_time::process_seconds() - cpu_started;
     let report = (|| -> anyhow::Result<serde_json::Value> {
         let mut first = None;
         let mut sums: Vec<StretchSums> = Vec::new();
@@ -280,7 +276,7 @@ pub fn c_build(sizes: &[usize]) -> anyhow::Result<serde_json::Value> {
     let mut out = Vec::new();
     for &n in sizes {
         let text = config_text("expression", n, 1.0)?;
-        let cpu_started = process_cpu_seconds();
+        let cpu_started = chaoscope_os::cpu_time::process_seconds();
         let started = Instant::now();
         let config = RunConfig::from_toml(&text)?;
         let (model, _) = chaoscope_dynamics::spec::model_from_config(&config.model)?;
@@ -294,7 +290,7 @@ pub fn c_build(sizes: &[usize]) -> anyhow::Result<serde_json::Value> {
             .compile_time()
             .as_secs_f64();
         let usable = started.elapsed().as_secs_f64();
-        let usable_cpu = process_cpu_seconds() - cpu_started;
+        let usable_cpu = chaoscope_os::cpu_time::process_seconds() - cpu_started;
         let cache = std::env::temp_dir().join(format!(
             "chaoscope-bench-lattice-kernels-{}-{n}",
             std::process::id()

@@ -25,8 +25,6 @@ use chaoscope_dynamics::integrator::{RungeKuttaKind, Workspace};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 
-use super::thread_cpu_seconds;
-
 /// Lorenz's parameters, as in `examples/models/lorenz.toml`.
 const SIGMA: f64 = 10.0;
 const RHO: f64 = 28.0;
@@ -176,7 +174,7 @@ pub fn measure(steps: u64, engine_t_final: f64) -> anyhow::Result<serde_json::Va
     let mut work = Workspace::new();
     let (mut plain_x, mut plain_w) = (x0, [[0.0; 3]; 3]);
     for _ in 0..ROUNDS {
-        let start = thread_cpu_seconds();
+        let start = chaoscope_os::cpu_time::thread_seconds();
         let (x, w) = (&mut path_x, &mut path_w);
         x.copy_from_slice(&x0);
         for step in 0..steps {
@@ -185,9 +183,9 @@ pub fn measure(steps: u64, engine_t_final: f64) -> anyhow::Result<serde_json::Va
             }
             system.step_tangent_along(x, w, step as f64 * H, &[], &mut work)?;
         }
-        path_cpu += thread_cpu_seconds() - start;
+        path_cpu += chaoscope_os::cpu_time::thread_seconds() - start;
 
-        let start = thread_cpu_seconds();
+        let start = chaoscope_os::cpu_time::thread_seconds();
         plain_x = x0;
         for window in 0..steps / WINDOW {
             for (v, w0) in plain_w.iter_mut().zip(W0.chunks_exact(3)) {
@@ -203,7 +201,7 @@ pub fn measure(steps: u64, engine_t_final: f64) -> anyhow::Result<serde_json::Va
             }
             plain.steps(&mut plain_x, &mut plain_w, rest);
         }
-        plain_cpu += thread_cpu_seconds() - start;
+        plain_cpu += chaoscope_os::cpu_time::thread_seconds() - start;
     }
     let orbit_identical = path_x
         .iter()
@@ -225,10 +223,10 @@ pub fn measure(steps: u64, engine_t_final: f64) -> anyhow::Result<serde_json::Va
 
     // The whole one-orbit run, for scale.
     let spec = RunSpec::from_config(&RunConfig::from_toml(&config(engine_t_final))?)?;
-    let start = thread_cpu_seconds();
+    let start = chaoscope_os::cpu_time::thread_seconds();
     let mut engine = Engine::one_orbit(spec.clone());
     while engine.next_sample()?.is_some() {}
-    let engine_cpu = thread_cpu_seconds() - start;
+    let engine_cpu = chaoscope_os::cpu_time::thread_seconds() - start;
     let engine_stages = 12.0 * spec.total_steps() as f64;
 
     let path_ns = path_cpu * 1e9 / stages;

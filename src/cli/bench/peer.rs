@@ -22,8 +22,6 @@ use chaoscope_dynamics::estimate::Machine;
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 
-use super::thread_cpu_seconds;
-
 /// The peer's side, shipped with the repository.
 const HEYOKA_SCRIPT: &str = include_str!("../../../benches/peer/heyoka_lorenz.py");
 
@@ -136,10 +134,13 @@ fn chaoscope_side(t_final: f64, method: FlowMethod) -> anyhow::Result<serde_json
 /// its CPU time (building the system, with the C compiler's CPU when it ran, and running),
 /// the spectrum, the state at `read_at` and the largest relative error of the invariant.
 pub(super) fn spectrum_run(toml: &str, read_at: f64) -> anyhow::Result<serde_json::Value> {
-    let (start, children) = (thread_cpu_seconds(), super::dkg::children_cpu_seconds());
+    let (start, children) = (
+        chaoscope_os::cpu_time::thread_seconds(),
+        chaoscope_os::cpu_time::children_seconds(),
+    );
     let cfg = RunConfig::from_toml(toml)?;
     let spec = RunSpec::from_config(&cfg)?;
-    let compile_cpu = thread_cpu_seconds() - start;
+    let compile_cpu = chaoscope_os::cpu_time::thread_seconds() - start;
     let mut engine = Engine::new(spec);
     let mut logs = Vec::new();
     let mut state_at = None;
@@ -163,9 +164,9 @@ pub(super) fn spectrum_run(toml: &str, read_at: f64) -> anyhow::Result<serde_jso
     // Dropped first: a build of the compiled pass still under way is finished there, and its
     // compiler's time belongs to this run.
     drop(engine);
-    let cpu = thread_cpu_seconds() - start;
+    let cpu = chaoscope_os::cpu_time::thread_seconds() - start;
     // The C compiler of the Taylor pass (or of the step kernels) runs as a child process.
-    let compiler_cpu = super::dkg::children_cpu_seconds() - children;
+    let compiler_cpu = chaoscope_os::cpu_time::children_seconds() - children;
     let spectrum: Vec<f64> = logs.iter().map(|l| l / t_end).collect();
     Ok(serde_json::json!({
         "compile_cpu_seconds": compile_cpu,

@@ -138,7 +138,7 @@ fn chaoscope_map(
     let cfg = dir.join("hh-mle.toml");
     let out = dir.join("hh-mle.mcap");
     std::fs::write(&cfg, map_config(n, step))?;
-    let before = super::dkg::children_cpu_seconds();
+    let before = chaoscope_os::cpu_time::children_seconds();
     let run = Command::new(&exe)
         .arg("map")
         .arg(&cfg)
@@ -149,7 +149,7 @@ fn chaoscope_map(
         .stderr(Stdio::piped())
         .output()
         .context("starting chaoscope map")?;
-    let cpu = super::dkg::children_cpu_seconds() - before;
+    let cpu = chaoscope_os::cpu_time::children_seconds() - before;
     anyhow::ensure!(
         run.status.success(),
         "chaoscope map of the Henon-Heiles workload failed ({}): {}",

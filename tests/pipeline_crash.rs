@@ -1221,6 +1221,43 @@ fn a_run_killed_at_random_moments_and_resumed_gives_the_uninterrupted_analysis()
     assert_eq!(names, ["twice.mcap"]);
 }
 
+/// A recorder killed after it finished its file and before it renamed it leaves the complete
+/// recording at `NAME.partial`: `resume` puts it in place as it is (it said "the run is
+/// complete" and left it there, and `run` refused the leftover). And a resume stopped before it
+/// computed a sample leaves a finalized recording as it was, byte for byte (it rewrote it, with
+/// a complete run's file replaced by an "interrupted" one when extending).
+#[test]
+fn a_complete_leftover_is_put_in_place_and_a_resume_stopped_at_once_changes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let config = write_config(dir.path(), &hh_config(200.0, 1.0).to_toml());
+    let whole = dir.path().join("whole.mcap");
+    run_ok(&["run", config.to_str().unwrap(), "--out", whole.to_str().unwrap()]);
+    let want = analysis_json(&whole);
+
+    let done = dir.path().join("done.mcap");
+    let leftover = chaoscope_os::output::partial_path(&done);
+    std::fs::copy(&whole, &leftover).unwrap();
+    let out = run_ok(&["resume", done.to_str().unwrap()]);
+    assert!(out.contains("completed at t = 200 of t_final = 200"), "{out}");
+    assert!(!leftover.exists());
+    assert_eq!(analysis_json(&done), want);
+    assert_eq!(std::fs::read(&done).unwrap(), std::fs::read(&whole).unwrap());
+
+    let bytes = std::fs::read(&whole).unwrap();
+    let options = chaoscope_replay::resume::ResumeOptions {
+        t_final: Some(400.0),
+        stop: Some(std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true))),
+        ..Default::default()
+    };
+    let outcome = chaoscope_replay::resume::resume(&whole, &options).unwrap();
+    assert_eq!(
+        (outcome.status.as_str(), outcome.samples_computed, outcome.t_reached),
+        ("interrupted", 0, 200.0)
+    );
+    assert_eq!(std::fs::read(&whole).unwrap(), bytes, "the recording changed");
+    assert!(!chaoscope_os::output::partial_path(&whole).exists());
+}
+
 #[test]
 fn a_finished_run_extended_to_twice_its_t_final_is_the_longer_run() {
     let dir = tempfile::tempdir().unwrap();

@@ -84,10 +84,12 @@ pub enum RecordError {
     /// A write failed: the file written so far stays as `kept` (its complete chunks can be
     /// salvaged), never at the output's name.
     #[error(
-        "{}: MCAP: {}; what was written is kept in {} (`chaoscope recover` salvages its \
-         complete chunks)",
+        "{}: MCAP: {}; what was written is kept in {} (`chaoscope resume {}` continues the run \
+         from its complete chunks, `chaoscope recover {} --out FILE` salvages them)",
         path.display(),
         chaoscope_files::file::error_chain(error),
+        kept.display(),
+        kept.display(),
         kept.display()
     )]
     WriteFailed {
@@ -121,8 +123,9 @@ pub fn open_output(out: &std::path::Path, force: bool) -> Result<Output, RecordE
         .map_err(|e| {
             e.with_leftover_hint(|partial| {
                 format!(
-                    " (a recorder that was killed: `chaoscope recover {}` salvages its complete \
-                     chunks)",
+                    " (a recorder that was killed: `chaoscope resume {}` continues the run from \
+                     its complete chunks, `chaoscope recover {} --out FILE` salvages them)",
+                    partial.display(),
                     partial.display()
                 )
             })

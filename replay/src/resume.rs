@@ -116,6 +116,8 @@ pub struct ResumeOutcome {
     /// The run's end now: `t_final`, and how it ended ("completed", "interrupted", "failed").
     pub t_final: f64,
     pub status: String,
+    /// The time of the last sample the resumed recording holds (`t_final` when completed).
+    pub t_reached: f64,
     /// Why the run failed (an escaped orbit), if it did.
     pub reason: Option<String>,
     /// Where reading the input stopped before its end (a killed writer's cut chunk), if it did.
@@ -385,13 +387,39 @@ fn resume_untimed(
     };
     // In place, the recording is only ever replaced by a longer one.
     if in_place && total < input_last.0 {
+        // Named as the user gave it: the flag, or the configuration given again (a requeue).
+        let end = match (options.t_final, &options.config) {
+            (Some(_), _) => format!("--t-final {t_final}"),
+            (None, Some(_)) => format!("the configuration's t_final = {t_final}"),
+            (None, None) => format!("the recorded t_final = {t_final}"),
+        };
         return Err(ResumeFailure::Nothing {
             path: shown,
             why: format!(
-                "--t-final {t_final} is before the recording's end (t = {}): in place that \
-                 would cut it; write the shorter run elsewhere with --out",
+                "{end} is before the recording's end (t = {}): in place that would cut it; \
+                 write the shorter run elsewhere with --out",
                 input_last.1
             ),
+        });
+    }
+    if ended_complete && resuming_leftover && in_place && damage.is_none() {
+        // A recorder killed after it finished the file and before it renamed it: the leftover
+        // is the complete recording, put in place as it is.
+        output.commit()?;
+        return Ok(ResumeOutcome {
+            input: input.clone(),
+            output: out_path.clone(),
+            resumed_from_t: from.t,
+            resumed_from_seq: from.seq,
+            samples_copied: 0,
+            samples_computed: 0,
+            t_final,
+            status: "completed".into(),
+            t_reached: input_last.1,
+            reason: None,
+            input_damage: None,
+            seconds: 0.0,
+            estimated_seconds: 0.0,
         });
     }
     if ended_complete && let Some(asked) = options.t_final {
@@ -451,6 +479,7 @@ fn resume_untimed(
         samples_computed: 0,
         t_final,
         status: "completed".into(),
+        t_reached: from.t,
         reason: None,
         input_damage: damage,
         seconds: 0.0,
@@ -481,6 +510,7 @@ fn resume_untimed(
                 }
                 writer.write(&sample).map_err(werr)?;
                 outcome.samples_computed += 1;
+                outcome.t_reached = sample.t;
                 if !passed_input && sample.step >= input_last.0 {
                     passed_input = true;
                     if resuming_leftover {
@@ -499,11 +529,16 @@ fn resume_untimed(
             Err(e) => break Some((end_of_run::Status::Failed, e.to_string())),
         }
     };
-    if !passed_input {
-        // Stopped before the new file reached the recording's end: the recording stays.
+    // Stopped before the new file reached the recording's end, or in place of a finalized
+    // recording before computing anything (the new file would be that recording again): the
+    // recording stays as it was.
+    let nothing_new = outcome.samples_computed == 0 && in_place && !resuming_leftover;
+    let stopped_early = matches!(&ended, Some((end_of_run::Status::Interrupted, _)));
+    if !passed_input || (stopped_early && nothing_new) {
         writer.abandon();
         outcome.status = "interrupted".into();
         outcome.output = input.clone();
+        outcome.t_reached = input_last.1;
         return Ok(outcome);
     }
     match ended {

@@ -51,14 +51,15 @@ pub fn report(outcome: &ResumeOutcome, json: bool) -> anyhow::Result<ExitCode> {
         outln!("{}", serde_json::to_string(outcome)?)?;
     } else {
         outln!(
-            "resume: {} from t = {} (sample {}): {} samples copied, {} computed, {} at t_final = {} \
-             in {} (estimated {})",
+            "resume: {} from t = {} (sample {}): {} samples copied, {} computed, {} at t = {} \
+             of t_final = {} in {} (estimated {})",
             outcome.output.display(),
             outcome.resumed_from_t,
             outcome.resumed_from_seq,
             outcome.samples_copied,
             outcome.samples_computed,
             outcome.status,
+            outcome.t_reached,
             outcome.t_final,
             super::seconds(outcome.seconds),
             super::seconds(outcome.estimated_seconds)

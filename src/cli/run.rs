@@ -344,8 +344,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         if let Some(signal) = std::os::unix::process::ExitStatusExt::signal(&recorder_status) {
             bail!(
                 "the recorder was killed by signal {signal}; what it wrote is in {} \
-                 (`chaoscope recover` salvages its complete chunks)",
-                chaoscope_os::output::partial_path(&out).display()
+                 (`chaoscope resume {}` continues the run from its complete chunks)",
+                chaoscope_os::output::partial_path(&out).display(),
+                out.display()
             );
         }
         // It said why on stderr, in one line; the producer was stopped. Or the producer

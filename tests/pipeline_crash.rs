@@ -225,6 +225,44 @@ fn sigint_to_chaoscope_run_ends_both_processes_with_a_valid_file() {
     }
 }
 
+/// The producer under `chaoscope run` killed by a signal from outside (the OOM killer, a
+/// stray `kill -9`): the recorder finalizes an interrupted file, and `run` exits 1 with one
+/// line saying what happened and how to go on (before: exit 1 and nothing on stderr).
+#[test]
+fn a_killed_producer_under_run_is_said_in_one_line_naming_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut command, _, out) = long_hh_run(dir.path(), "kill-producer-run");
+    let errors = dir.path().join("stderr");
+    command.stderr(std::fs::File::create(&errors).unwrap());
+    let mut front = Proc::spawn(command);
+    wait_for_size(&out, 100_000);
+    let pid = front.pid();
+    let children = std::fs::read_to_string(format!("/proc/{pid}/task/{pid}/children")).unwrap();
+    let producer = children
+        .split_whitespace()
+        .map(|c| c.parse::<i32>().unwrap())
+        .find(|c| {
+            std::fs::read(format!("/proc/{c}/cmdline"))
+                .is_ok_and(|a| a.split(|&b| b == 0).any(|w| w == b"produce"))
+        })
+        .expect("run's producer");
+    // SAFETY: kill(2) of a child process of ours that is still running.
+    unsafe { libc::kill(producer, libc::SIGKILL) };
+    assert_eq!(front.wait(LIMIT).code(), Some(1));
+    let said = std::fs::read_to_string(&errors).unwrap();
+    let line = format!(
+        "chaoscope: error: the producer was killed by signal 9; the recording holds the run up to \
+         there (`chaoscope resume {}` continues it)",
+        out.display()
+    );
+    assert!(said.contains(&line), "{said}");
+    let summary = read_recording(&out).recording.expect("finalized file");
+    assert_eq!(
+        (summary.finalized_by.as_str(), summary.run_status.as_str()),
+        ("producer-died", "interrupted")
+    );
+}
+
 /// A `chaoscope run` started with SIGINT ignored (a script's background job; `nohup`-style
 /// wrappers) keeps ignoring it from its first instant to its end, and so do the producer and
 /// the recorder it starts: a SIGINT at once, before any handler is in place, and a Ctrl-C to the
@@ -1231,30 +1269,51 @@ fn a_complete_leftover_is_put_in_place_and_a_resume_stopped_at_once_changes_noth
     let dir = tempfile::tempdir().unwrap();
     let config = write_config(dir.path(), &hh_config(200.0, 1.0).to_toml());
     let whole = dir.path().join("whole.mcap");
-    run_ok(&["run", config.to_str().unwrap(), "--out", whole.to_str().unwrap()]);
+    run_ok(&[
+        "run",
+        config.to_str().unwrap(),
+        "--out",
+        whole.to_str().unwrap(),
+    ]);
     let want = analysis_json(&whole);
 
     let done = dir.path().join("done.mcap");
     let leftover = chaoscope_os::output::partial_path(&done);
     std::fs::copy(&whole, &leftover).unwrap();
     let out = run_ok(&["resume", done.to_str().unwrap()]);
-    assert!(out.contains("completed at t = 200 of t_final = 200"), "{out}");
+    assert!(
+        out.contains("completed at t = 200 of t_final = 200"),
+        "{out}"
+    );
     assert!(!leftover.exists());
     assert_eq!(analysis_json(&done), want);
-    assert_eq!(std::fs::read(&done).unwrap(), std::fs::read(&whole).unwrap());
+    assert_eq!(
+        std::fs::read(&done).unwrap(),
+        std::fs::read(&whole).unwrap()
+    );
 
     let bytes = std::fs::read(&whole).unwrap();
     let options = chaoscope_replay::resume::ResumeOptions {
         t_final: Some(400.0),
-        stop: Some(std::sync::Arc::new(std::sync::atomic::AtomicBool::new(true))),
+        stop: Some(std::sync::Arc::new(std::sync::atomic::AtomicBool::new(
+            true,
+        ))),
         ..Default::default()
     };
     let outcome = chaoscope_replay::resume::resume(&whole, &options).unwrap();
     assert_eq!(
-        (outcome.status.as_str(), outcome.samples_computed, outcome.t_reached),
+        (
+            outcome.status.as_str(),
+            outcome.samples_computed,
+            outcome.t_reached
+        ),
         ("interrupted", 0, 200.0)
     );
-    assert_eq!(std::fs::read(&whole).unwrap(), bytes, "the recording changed");
+    assert_eq!(
+        std::fs::read(&whole).unwrap(),
+        bytes,
+        "the recording changed"
+    );
     assert!(!chaoscope_os::output::partial_path(&whole).exists());
 }
 

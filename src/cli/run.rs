@@ -325,9 +325,30 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     }
 
     let producer_status = producer.status.expect("reaped");
+    // A producer killed by a signal (not one of ours: those it exits from with a status) said
+    // nothing itself: the line is said here.
+    let recording = recorder.is_some();
     let child_code = |status: std::process::ExitStatus| match status.code() {
         Some(code) => ExitCode::from(code as u8),
-        None => ExitCode::FAILURE,
+        None => {
+            if let Some(signal) = std::os::unix::process::ExitStatusExt::signal(&status)
+                && chaoscope_os::signals::received().is_none()
+            {
+                chaoscope_os::errln!(
+                    "chaoscope: error: the producer was killed by signal {signal}{}",
+                    if recording {
+                        format!(
+                            "; the recording holds the run up to there (`chaoscope resume {}` \
+                             continues it)",
+                            out.display()
+                        )
+                    } else {
+                        String::new()
+                    }
+                );
+            }
+            ExitCode::FAILURE
+        }
     };
     let Some(mut recorder) = recorder else {
         // The producer ended before it opened the run (it said why), or a signal came first:

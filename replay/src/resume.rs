@@ -246,6 +246,14 @@ fn resume_untimed(
         })
     })?;
     let resuming_leftover = output.leftover().is_some();
+    // The in-progress file located above was finished and put in place while its writer (a
+    // resume of the same recording) was waited for: the recording to read is the file it became,
+    // not the fresh in-progress file just created at its name.
+    let (input, shown) = if in_place && input != target && !resuming_leftover {
+        (target.clone(), target.display().to_string())
+    } else {
+        (input, shown)
+    };
     // Read from elsewhere, a killed writer's leftover is still locked for the time we read it,
     // so a live run (whose file this is) is refused, not continued beside itself.
     let _leftover_lock = if !in_place && input != target {

@@ -52,7 +52,7 @@ enum Command {
     /// Join the shard recordings of `map --shard i/n` into one map.
     Merge(cli::merge::Args),
     /// Throughput of the batched kernel and the paper's GALI_2 map workload, as JSON.
-    Bench(cli::bench::Args),
+    Bench(chaoscope_bench::Args),
     /// Validate a configuration without running it, or print the JSON Schema of configurations
     /// (--schema) for TOML editors.
     Config(cli::config::Args),
@@ -98,7 +98,7 @@ fn main() -> ExitCode {
         Command::Map(args) => cli::map::main(args),
         Command::MapWatch(args) => cli::map_watch::main(args),
         Command::Merge(args) => cli::merge::main(args),
-        Command::Bench(args) => cli::bench::main(args),
+        Command::Bench(args) => chaoscope_bench::main(args),
         Command::Section(args) => cli::section::main(args),
         Command::Chart(args) => cli::chart::main(args),
         Command::Config(args) => cli::config::main(args),

@@ -1,7 +1,6 @@
 //! One module per subcommand, plus helpers they share.
 
 pub mod analyze;
-pub mod bench;
 pub mod chart;
 pub mod config;
 pub mod map;

@@ -17,7 +17,7 @@ use super::peer::{FlowMethod, run_peer_script, spectrum_run};
 use chaoscope_dynamics::batch::Isa;
 use chaoscope_dynamics::estimate::Machine;
 
-const SCRIPT: &str = include_str!("../../../benches/peer/heyoka_r3bp.py");
+const SCRIPT: &str = include_str!("../../benches/peer/heyoka_r3bp.py");
 
 /// Jupiter's mass over the Sun's and Jupiter's.
 const MU: f64 = 9.537e-4;

@@ -25,7 +25,7 @@ use chaoscope_schemas::config::{ModelConfig, ParamValue, RunConfig};
 
 /// The yardsticks' C program (`chains.c`: model 0 the DKG chain, 1 the FPUT chain).
 const SOURCE: &str = include_str!("chains.c");
-const EXAMPLE: &str = include_str!("../../../examples/models/dkg-single-site.toml");
+const EXAMPLE: &str = include_str!("../../examples/models/dkg-single-site.toml");
 const H: f64 = 0.05;
 /// The run's recording interval, `[run] sample_every` (the weak-chaos study's setting).
 const SAMPLE_EVERY: f64 = 100.0;

@@ -23,7 +23,7 @@ use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 
 /// The peer's side, shipped with the repository.
-const HEYOKA_SCRIPT: &str = include_str!("../../../benches/peer/heyoka_lorenz.py");
+const HEYOKA_SCRIPT: &str = include_str!("../../benches/peer/heyoka_lorenz.py");
 
 /// When the state error is read.
 const ERROR_TIME: f64 = 10.0;

@@ -22,7 +22,7 @@ use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::proto::MapPoint;
 
 /// The peer's side, shipped with the repository.
-const HEYOKA_SCRIPT: &str = include_str!("../../../benches/peer/heyoka_hh_map.py");
+const HEYOKA_SCRIPT: &str = include_str!("../../benches/peer/heyoka_hh_map.py");
 
 /// Energy of the section.
 const ENERGY: f64 = 0.125;

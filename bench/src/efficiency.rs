@@ -139,7 +139,7 @@ pub fn step_sizes(h_max: f64) -> Vec<f64> {
 }
 
 /// The 2-D disordered Klein-Gordon lattice the table runs, written as an expression.
-const DKG_SQUARE: &str = include_str!("../../../examples/models/dkg-square.toml");
+const DKG_SQUARE: &str = include_str!("../../examples/models/dkg-square.toml");
 
 /// A lattice of the table.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

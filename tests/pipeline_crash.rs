@@ -1292,7 +1292,27 @@ fn a_complete_leftover_is_put_in_place_and_a_resume_stopped_at_once_changes_noth
         std::fs::read(&whole).unwrap()
     );
 
+    // A shorter leftover beside the complete file (a resume of it killed while copying) is not
+    // the run: the file is complete, said so, and left as it is.
     let bytes = std::fs::read(&whole).unwrap();
+    let stale = dir.path().join("stale.mcap");
+    std::fs::write(&stale, &bytes).unwrap();
+    std::fs::write(
+        chaoscope_os::output::partial_path(&stale),
+        &bytes[..bytes.len() / 2],
+    )
+    .unwrap();
+    let refused = chaoscope_captured(&["resume", stale.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(!refused.status.success());
+    assert!(
+        String::from_utf8_lossy(&refused.stderr).contains("the run is complete"),
+        "{}",
+        String::from_utf8_lossy(&refused.stderr)
+    );
+    assert_eq!(std::fs::read(&stale).unwrap(), bytes);
+
     let options = chaoscope_replay::resume::ResumeOptions {
         t_final: Some(400.0),
         stop: Some(std::sync::Arc::new(std::sync::atomic::AtomicBool::new(

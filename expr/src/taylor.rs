@@ -138,7 +138,8 @@ pub struct NativeBuild {
 /// than the build of its pass (the three-body problem to t = 1000: 0.1 s against a 0.4 s build)
 /// would otherwise cancel it every time, never leave it in the kernel cache, and run
 /// interpreted forever (measured: 10 such runs 0.92 CPU-s interpreted, 0.45 s compiled). Waiting
-/// once per system, each later run of it loads the pass; a compiler that hangs costs this much.
+/// once per system, each later run of it loads the pass; a compiler that hangs costs this much
+/// per pass being built (a system builds one or two).
 pub const FINISH_GRACE: std::time::Duration = std::time::Duration::from_secs(2);
 
 /// Longest a cancelled build is waited for (a cancelled compiler stops within milliseconds).

@@ -249,7 +249,11 @@ fn resume_untimed(
     // The in-progress file located above was finished and put in place while its writer (a
     // resume of the same recording) was waited for: the recording to read is the file it became,
     // not the fresh in-progress file just created at its name.
-    let (input, shown) = if in_place && input != target && !resuming_leftover {
+    let (input, shown) = if in_place
+        && input != target
+        && !resuming_leftover
+        && std::fs::symlink_metadata(&target).is_ok()
+    {
         (target.clone(), target.display().to_string())
     } else {
         (input, shown)
@@ -410,7 +414,9 @@ fn resume_untimed(
             ),
         });
     }
-    if ended_complete && resuming_leftover && in_place && damage.is_none() {
+    // The leftover must be what was read: a shorter one beside a complete file (a resume of
+    // it killed while copying) is not the run.
+    if ended_complete && resuming_leftover && in_place && input != target && damage.is_none() {
         // A recorder killed after it finished the file and before it renamed it: the leftover
         // is the complete recording, put in place as it is.
         output.commit()?;
@@ -540,7 +546,7 @@ fn resume_untimed(
     // Stopped before the new file reached the recording's end, or in place of a finalized
     // recording before computing anything (the new file would be that recording again): the
     // recording stays as it was.
-    let nothing_new = outcome.samples_computed == 0 && in_place && !resuming_leftover;
+    let nothing_new = outcome.samples_computed == 0 && in_place && input == target;
     let stopped_early = matches!(&ended, Some((end_of_run::Status::Interrupted, _)));
     if !passed_input || (stopped_early && nothing_new) {
         writer.abandon();

@@ -327,7 +327,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let producer_status = producer.status.expect("reaped");
     // A producer killed by a signal (not one of ours: those it exits from with a status) said
     // nothing itself: the line is said here.
-    let recording = recorder.is_some();
+    // A recorder stopped here because the producer died before streaming holds no sample.
+    let recording = recorder.is_some() && !stopped_recorder;
     let child_code = |status: std::process::ExitStatus| match status.code() {
         Some(code) => ExitCode::from(code as u8),
         None => {

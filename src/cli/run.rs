@@ -327,8 +327,6 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let producer_status = producer.status.expect("reaped");
     // A producer killed by a signal (not one of ours: those it exits from with a status) said
     // nothing itself: the line is said here.
-    // A recorder stopped here because the producer died before streaming holds no sample.
-    let recording = recorder.is_some() && !stopped_recorder;
     let child_code = |status: std::process::ExitStatus| match status.code() {
         Some(code) => ExitCode::from(code as u8),
         None => {
@@ -337,7 +335,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             {
                 chaoscope_os::errln!(
                     "chaoscope: error: the producer was killed by signal {signal}{}",
-                    if recording {
+                    // The recorder finalized what it got into place (a producer killed
+                    // before it streamed leaves no file).
+                    if std::fs::symlink_metadata(&out).is_ok() {
                         format!(
                             "; the recording holds the run up to there (`chaoscope resume {}` \
                              continues it)",

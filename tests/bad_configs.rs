@@ -1599,6 +1599,8 @@ fn iceoryx2_is_reached_only_from_the_bus_and_the_processes_around_it() {
         "chaoscope-files",
         "chaoscope-analyzer",
         "chaoscope-replay",
+        // Times the numerics in process, and whole runs as child processes.
+        "chaoscope-bench",
     ];
     let mut listed: Vec<&str> = on_the_bus.iter().chain(&off_the_bus).copied().collect();
     listed.sort_unstable();

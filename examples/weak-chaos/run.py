@@ -198,7 +198,9 @@ def write_curve(path, rows):
     with open(tmp, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["t", "lyapunov1", "m2"])
-        w.writerows([repr(t), repr(l), repr(m)] for t, l, m in rows)
+        # repr of a Python float: the shortest text that reads back to the same double (numpy's
+        # floats would print as `np.float64(...)`).
+        w.writerows([repr(float(v)) for v in row] for row in rows)
     tmp.replace(path)
 
 

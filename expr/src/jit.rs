@@ -20,6 +20,7 @@ use crate::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
 
 pub(crate) mod c;
 mod cranelift;
+mod lattice_plan;
 mod step;
 mod step_spec;
 

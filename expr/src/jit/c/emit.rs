@@ -3,8 +3,7 @@
 
 use super::{ENV_BINARY, ENV_TABLE, ENV_TABLES};
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Unary};
-use crate::jit::outputs_by_node;
-use crate::jit::step_spec::{StepSpec, kernel_plan};
+use crate::jit::step_spec::{StageOp, StepSpec, kernel_plan, stage_schedule};
 use crate::jit::{JitError, Layout, Plan, is_leaf};
 use std::fmt::Write as _;
 /// Helpers of every generated file. `vd` is one vector of `LANES` lanes (a block is two); compares give `vi`
@@ -303,45 +302,15 @@ impl Kernel<'_> {
         scalar_expr(node, &mut |id| self.scalar_operand(id))
     }
 
-    /// A vector operand in the block code; drifts row `j` on its first use.
-    fn operand(&self, out: &mut String, drifted: &mut [bool], id: NodeId) -> String {
+    /// A vector operand in the block code (a row is drifted before its first use).
+    fn operand(&self, id: NodeId) -> String {
         match *self.graph.node(id) {
             Node::Const(c) => format!("B({})", konst(c)),
-            Node::Input { arg, index } if arg == self.lane_arg() => {
-                self.drift(out, drifted, index as usize);
-                format!("q{index}_@")
-            }
+            Node::Input { arg, index } if arg == self.lane_arg() => format!("q{index}_@"),
             Node::Input { index, .. } => format!("B(qs[{index}])"),
             _ if self.plan.uniform[id as usize] => format!("B(u{id})"),
             _ => format!("v{id}_@"),
         }
-    }
-
-    /// `q_j += c_j p_j` in the block, once per stage (`p_j` kept for the kick).
-    fn drift(&self, out: &mut String, drifted: &mut [bool], j: usize) {
-        if drifted[j] {
-            return;
-        }
-        drifted[j] = true;
-        let n = self.n;
-        let _ = writeln!(
-            out,
-            "  vd p{j}_@ = LD(xb + {p} * stride + @O); vd q{j}_@ = LD(xb + {j} * stride + @O) + B(c[{j}]) * p{j}_@; ST(xb + {j} * stride + @O, q{j}_@);",
-            p = n + j
-        );
-    }
-
-    fn kick(&self, out: &mut String, drifted: &mut [bool], j: usize, f: &str) {
-        self.drift(out, drifted, j);
-        let _ = writeln!(
-            out,
-            "  ST(xb + {} * stride + @O, p{j}_@ - dh * {f});",
-            self.n + j
-        );
-    }
-
-    fn vector_node(&self, out: &mut String, drifted: &mut [bool], node: &Node) -> String {
-        vector_expr(node, &mut |id| self.operand(out, drifted, id))
     }
 
     /// The uniform values: scalar code, once per call (orbit) or per stage (tangent).
@@ -368,26 +337,27 @@ impl Kernel<'_> {
         }
     }
 
+    /// The stage's statements ([`stage_schedule`]) for one unit, with the placeholders.
     fn block_statements(&self, out: &mut String) {
-        let (graph, plan) = (self.graph, self.plan);
-        let outs = outputs_by_node(plan, graph.len());
-        let mut drifted = vec![false; self.n];
-        for &id in &plan.varying_order {
-            let e = self.vector_node(out, &mut drifted, graph.node(id));
-            let _ = writeln!(out, "  const vd v{id}_@ = {e};");
-            for &j in &outs[id as usize] {
-                self.kick(out, &mut drifted, j, &format!("v{id}_@"));
-            }
-        }
-        for (j, &o) in plan.outputs.iter().enumerate() {
-            if plan.uniform[o as usize] || is_leaf(graph.node(o)) {
-                self.drift(out, &mut drifted, j);
-                let f = self.operand(out, &mut drifted, o);
-                self.kick(out, &mut drifted, j, &f);
-            }
-        }
-        for j in 0..self.n {
-            self.drift(out, &mut drifted, j);
+        let n = self.n;
+        for op in stage_schedule(self.graph, self.plan, n, self.lane_arg()) {
+            let _ = match op {
+                StageOp::Drift(j) => writeln!(
+                    out,
+                    "  vd p{j}_@ = LD(xb + {p} * stride + @O); vd q{j}_@ = LD(xb + {j} * stride + @O) + B(c[{j}]) * p{j}_@; ST(xb + {j} * stride + @O, q{j}_@);",
+                    p = n + j
+                ),
+                StageOp::Value(id) => {
+                    let e = vector_expr(self.graph.node(id), &mut |o| self.operand(o));
+                    writeln!(out, "  const vd v{id}_@ = {e};")
+                }
+                StageOp::Kick { row, force } => writeln!(
+                    out,
+                    "  ST(xb + {} * stride + @O, p{row}_@ - dh * {});",
+                    n + row,
+                    self.operand(force)
+                ),
+            };
         }
     }
 

@@ -15,7 +15,7 @@ use std::sync::atomic::AtomicBool;
 
 use super::{self as c_step, C_BLOCK_LANES, CCompiler, konst};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
-use crate::jit::cranelift::lattice::{WindowPlan, arrays_of};
+use crate::jit::lattice_plan::{OutputPlan, WindowPlan, arrays_of, shift_range};
 use crate::jit::step::{Code, StepKernels};
 use crate::jit::{AllocationWork, JitError};
 use crate::lattice::{
@@ -97,7 +97,7 @@ fn source(graph: &Graph, lattice: &LatticePotential, arrays: &[(String, Arc<[f64
         let k = Kernel {
             graph,
             lattice,
-            plan: crate::jit::cranelift::lattice::OutputPlan::new(graph, lattice, tangent, true),
+            plan: OutputPlan::new(graph, lattice, tangent, true),
             arrays,
             array_env: c_step::ENV_TABLES + n_tables,
             tangent,
@@ -115,7 +115,7 @@ struct Kernel<'a> {
     graph: &'a Graph,
     lattice: &'a LatticePotential,
     /// Which sums' interior loops keep their window of sites in variables.
-    plan: crate::jit::cranelift::lattice::OutputPlan,
+    plan: OutputPlan,
     arrays: &'a [(String, Arc<[f64]>)],
     /// `env` slot of the first array parameter.
     array_env: usize,
@@ -349,7 +349,7 @@ impl Kernel<'_> {
         let fresh = plan.fresh;
         let n = self.lattice.n;
         let shifts = &sum.variables;
-        let (kmin, kmax) = crate::jit::cranelift::lattice::shift_range(shifts);
+        let (kmin, kmax) = shift_range(shifts);
         let w = (kmax - kmin) as usize;
         let carry: Vec<(usize, usize)> = shifts
             .iter()

@@ -28,12 +28,11 @@ use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::JITModule;
 use cranelift_module::{Linkage, Module};
 
-use super::lattice::{
-    Body, OutputPlan, Val, WindowPlan, accumulate, arrays_of, shift_range, site_loop,
-};
+use super::lattice::{Body, Val, accumulate, site_loop};
 use super::step::{CraneliftKernels, OrbitStepsFnPtr, TangentStepsFnPtr, vconsts};
 use super::{Sigs, VConsts, flags, new_module};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
+use crate::jit::lattice_plan::{OutputPlan, WindowPlan, arrays_of, check_size, shift_range};
 use crate::jit::step::{Code, StepKernels};
 use crate::jit::{JitError, Options};
 use crate::lattice::{
@@ -55,7 +54,7 @@ pub fn compile_lattice_steps(
         )));
     }
     let units = options.lane_block / 2;
-    super::lattice::check_size(lattice)?;
+    check_size(lattice)?;
     let (regalloc, allocation) = super::lattice::lattice_regalloc(options, graph, lattice, false);
     let (mut module, _) = new_module(options.opt_level, regalloc)?;
     let tables: Box<[Arc<dyn Tabulated>]> = graph.tables().to_vec().into_boxed_slice();

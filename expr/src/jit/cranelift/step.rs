@@ -19,8 +19,8 @@ use super::{
     regalloc_for,
 };
 use crate::graph::{Graph, Node, NodeId, Tabulated};
-use crate::jit::step_spec::{StepSpec, kernel_plan};
-use crate::jit::{JitError, Layout, OptLevel, Options, Plan, Regalloc, is_leaf, outputs_by_node};
+use crate::jit::step_spec::{StageOp, StepSpec, kernel_plan, stage_schedule};
+use crate::jit::{JitError, Layout, OptLevel, Options, Plan, Regalloc};
 
 /// `n_steps` steps of the splitting for `lanes` orbits whose row `r` (`q_1..q_N, p_1..p_N`) of
 /// lane `l` is `x[r * stride + l]`; `drift` holds `n_kicks + 1` coefficients (already times the
@@ -307,22 +307,10 @@ impl Block<'_> {
         (out, ps)
     }
 
-    /// The drifted `q_j` (drifting row `j` on first use) and the `p_j` it was drifted with.
-    fn drifted(&self, b: &mut FunctionBuilder, rows: &mut [Option<Row>], j: usize) -> Row {
-        match rows[j] {
-            Some(v) => v,
-            None => {
-                let v = self.drift_row(b, j);
-                rows[j] = Some(v);
-                v
-            }
-        }
-    }
-
     fn operand(
         &self,
         b: &mut FunctionBuilder,
-        rows: &mut [Option<Row>],
+        rows: &[Option<Row>],
         vvals: &[Option<[Value; 2]>],
         id: NodeId,
         unit: usize,
@@ -333,7 +321,9 @@ impl Block<'_> {
                 b.ins().splat(F64X2, s)
             }
             Node::Input { arg, index } if arg == self.lane_arg => {
-                self.drifted(b, rows, index as usize).0[unit]
+                rows[index as usize]
+                    .expect("the schedule drifts a row before its first use")
+                    .0[unit]
             }
             Node::Input { index, .. } => {
                 let p = self
@@ -365,43 +355,36 @@ impl Block<'_> {
         }
     }
 
-    /// Drift, force and kick of one stage. Rows are drifted on first use; a row's kick comes
-    /// after its drift (forced if the force never read that row), so every drift reads the
-    /// momentum before this stage's kick, as the separate drift and kick passes do.
+    /// Drift, force and kick of one stage, statement by statement as [`stage_schedule`] orders
+    /// them.
     fn stage(&self, b: &mut FunctionBuilder, k: &VConsts, dh: Value) {
-        let (graph, plan) = (self.graph, self.plan);
-        let outs = outputs_by_node(plan, graph.len());
+        let graph = self.graph;
         self.reset();
         let mut rows: Vec<Option<Row>> = vec![None; self.n];
         let mut vvals: Vec<Option<[Value; 2]>> = vec![None; graph.len()];
-        for &id in &plan.varying_order {
-            let node = graph.node(id);
-            let mut emitted = [None; 2];
-            for (unit, slot) in emitted.iter_mut().enumerate().take(self.units) {
-                let mut get =
-                    |b: &mut FunctionBuilder, o| self.operand(b, &mut rows, &vvals, o, unit);
-                *slot = Some(emit_vector(b, self.sigs, self.tables, k, node, &mut get));
-            }
-            let v0 = emitted[0].expect("at least one unit");
-            let val = [v0, emitted[1].unwrap_or(v0)];
-            vvals[id as usize] = Some(val);
-            for &j in &outs[id as usize] {
-                let (_, p) = self.drifted(b, &mut rows, j);
-                self.kick_row(b, j, dh, val, p);
-            }
-        }
-        for (j, &o) in plan.outputs.iter().enumerate() {
-            if plan.uniform[o as usize] || is_leaf(graph.node(o)) {
-                let (_, p) = self.drifted(b, &mut rows, j);
-                let mut val = [dh; 2];
-                for (unit, slot) in val.iter_mut().enumerate().take(self.units) {
-                    *slot = self.operand(b, &mut rows, &vvals, o, unit);
+        for op in stage_schedule(graph, self.plan, self.n, self.lane_arg) {
+            match op {
+                StageOp::Drift(j) => rows[j] = Some(self.drift_row(b, j)),
+                StageOp::Value(id) => {
+                    let node = graph.node(id);
+                    let mut emitted = [None; 2];
+                    for (unit, slot) in emitted.iter_mut().enumerate().take(self.units) {
+                        let mut get =
+                            |b: &mut FunctionBuilder, o| self.operand(b, &rows, &vvals, o, unit);
+                        *slot = Some(emit_vector(b, self.sigs, self.tables, k, node, &mut get));
+                    }
+                    let v0 = emitted[0].expect("at least one unit");
+                    vvals[id as usize] = Some([v0, emitted[1].unwrap_or(v0)]);
                 }
-                self.kick_row(b, j, dh, val, p);
+                StageOp::Kick { row, force } => {
+                    let (_, p) = rows[row].expect("the schedule drifts a row before its kick");
+                    let mut f = [dh; 2];
+                    for (unit, slot) in f.iter_mut().enumerate().take(self.units) {
+                        *slot = self.operand(b, &rows, &vvals, force, unit);
+                    }
+                    self.kick_row(b, row, dh, f, p);
+                }
             }
-        }
-        for j in 0..self.n {
-            self.drifted(b, &mut rows, j);
         }
     }
 }

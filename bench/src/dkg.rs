@@ -3,7 +3,8 @@
 //! through the whole `chaoscope run` (producer, bus, recorder: each run a process tree of its
 //! own, its CPU time that of every process in it) against a hand-written scalar C of the same
 //! ABA864 step and tangent map (`chains.c`, model 0, built at bench time with `-O3 -march=native
-//! -ffp-contract=off`), at `--dkg-sizes`.
+//! -ffp-contract=off`, or the `CHAOSCOPE_CC_MARCH` the run's kernels are built for, e.g.
+//! `x86-64-v3` for the AVX2 path of an AVX-512 machine), at `--dkg-sizes`.
 //!
 //! Both integrate one reference orbit and one VM deviation vector, renormalized every `tau` = 10
 //! of the example (the run records a sample every `sample_every` = 100, the stretching factors
@@ -146,8 +147,8 @@ pub(super) fn c_run(exe: &std::path::Path, input: &str) -> anyhow::Result<(f64, 
 }
 
 /// A private scratch directory (mode 0700, random name, prefix `prefix`: the program built
-/// there is run) with the yardsticks' program `chains.c` built in it (`cc -O3 -march=native
-/// -ffp-contract=off`); why not, where there is no C compiler or it fails (the bench then says
+/// there is run) with the yardsticks' program `chains.c` built in it (`cc -O3 -march=...
+/// -ffp-contract=off`, the instruction set of [`yardstick_march`]); why not, where there is no C compiler or it fails (the bench then says
 /// so instead of failing).
 pub(super) fn yardstick(
     prefix: &str,
@@ -157,7 +158,7 @@ pub(super) fn yardstick(
     std::fs::write(&src, SOURCE)?;
     let exe = scratch.path().join("chains");
     let built = Command::new("cc")
-        .args(["-O3", "-march=native", "-ffp-contract=off", "-o"])
+        .args(["-O3", &yardstick_march()?, "-ffp-contract=off", "-o"])
         .arg(&exe)
         .arg(&src)
         .arg("-lm")
@@ -172,6 +173,15 @@ pub(super) fn yardstick(
                 .unwrap_or("")
         )),
         Err(e) => Err(format!("no C compiler: {e}")),
+    })
+}
+
+/// The instruction set of the C yardsticks: the one the run's C kernels are built for
+/// (`CHAOSCOPE_CC_MARCH`, `native` by default), so both sides of a comparison use the same.
+pub(super) fn yardstick_march() -> anyhow::Result<String> {
+    Ok(match chaoscope_expr::jit::CCompiler::from_env() {
+        Some(cc) => cc.march_flag()?,
+        None => "-march=native".to_owned(),
     })
 }
 
@@ -250,10 +260,12 @@ pub fn compare(
                      thread, CPU time of its whole process tree (process start, configuration, \
                      compilation, producer, bus, recorder, summary), the chain's C kernels in \
                      the kernel cache (kernel_cache: built or loaded before, in how long); \
-                     scalar C -O3 -march=native -ffp-contract=off, CPU time of its loop; \
+                     scalar C -O3 -march (as the kernels: march) -ffp-contract=off, CPU time \
+                     of its loop; \
                      --dkg-pairs interleaved (run, C) pairs per length: run_over_c is the \
                      median of the pairs' ratios, *_cpu_seconds each side's least",
         "compiler": super::scalar_c::compiler(),
+        "march": yardstick_march()?,
         "sizes": rows,
         "ensemble": ensemble,
     }))

@@ -501,10 +501,7 @@ fn specs_that_are_not_n_degrees_of_freedom_are_refused() {
 /// has gcc: a missing compiler fails these tests instead of skipping them.
 fn compile_c(s: &System, cache: &std::path::Path) -> StepKernels {
     let program = CCompiler::from_env().map_or_else(|| "cc".into(), |c| c.program);
-    let cc = CCompiler {
-        program,
-        cache_dir: cache.to_path_buf(),
-    };
+    let cc = CCompiler::new(program, cache.to_path_buf());
     if let Some(l) = &s.lattice {
         let k = jit::compile_lattice_steps_c(&s.graph, l, &cc).unwrap_or_else(|e| panic!("{e}"));
         assert!(matches!(k.backend(), StepBackend::C { .. }));
@@ -534,6 +531,63 @@ fn c_steps_are_bit_identical() {
         ("coupled", system(4, "q1*q2 + 2.5*q3 + sin(q1)")),
     ] {
         check(&format!("C {name}"), &s, &compile_c(&s, cache.path()));
+    }
+}
+
+/// Kernels built for a named instruction set (`CHAOSCOPE_CC_MARCH`, here AVX2 without AVX-512:
+/// `x86-64-v3`, on any x86-64 host that has AVX2) give the bits of the generic loops too, and
+/// are a library of their own beside the host's; a value that is not a plain name is refused
+/// in one line naming the variable, before any compiler runs.
+#[test]
+fn c_steps_for_another_instruction_set_are_bit_identical_and_hostile_names_are_refused() {
+    let cache = tempfile::tempdir().unwrap();
+    let program = CCompiler::from_env().map_or_else(|| "cc".into(), |c| c.program);
+    let s = fput(101);
+    let spec = StepSpec {
+        n: s.n,
+        gradient: s.gradient.clone(),
+        hessian_vector: Some(s.hessian_vector.clone()),
+    };
+    let with = |march: &str| {
+        let mut cc = CCompiler::new(program.clone(), cache.path().to_path_buf());
+        cc.march = march.to_owned();
+        jit::compile_steps_c(&s.graph, &spec, &cc)
+    };
+    let libraries = || {
+        std::fs::read_dir(cache.path())
+            .unwrap()
+            .filter(|e| {
+                e.as_ref()
+                    .unwrap()
+                    .file_name()
+                    .to_string_lossy()
+                    .ends_with(".so")
+            })
+            .count()
+    };
+    check("C FPUT-101 native", &s, &with("native").unwrap());
+    assert_eq!(libraries(), 1);
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
+        check("C FPUT-101 x86-64-v3", &s, &with("x86-64-v3").unwrap());
+        assert_eq!(libraries(), 2, "another instruction set is another library");
+    }
+    for hostile in [
+        "native -o /tmp/x",
+        "",
+        "-O0",
+        "native;true",
+        &"v".repeat(65),
+    ] {
+        let Err(e) = with(hostile) else {
+            panic!("{hostile:?} was accepted")
+        };
+        let e = e.to_string();
+        assert!(
+            e.contains("CHAOSCOPE_CC_MARCH=") && e.contains("is not an instruction set name"),
+            "{hostile:?}: {e}"
+        );
+        assert_eq!(e.lines().count(), 1, "{e}");
     }
 }
 
@@ -606,10 +660,7 @@ fn c_compiler_failures_are_errors_naming_the_cause() {
         jit::compile_steps_c(
             &s.graph,
             &spec,
-            &CCompiler {
-                program: program.into(),
-                cache_dir: cache.path().to_path_buf(),
-            },
+            &CCompiler::new(program, cache.path().to_path_buf()),
         )
         .unwrap_err()
         .to_string()
@@ -632,10 +683,7 @@ fn c_compiler_failures_are_errors_naming_the_cause() {
     let e = jit::compile_steps_c(
         &s.graph,
         &spec,
-        &CCompiler {
-            program,
-            cache_dir: file.join("kernels"),
-        },
+        &CCompiler::new(program, file.join("kernels")),
     )
     .unwrap_err()
     .to_string();
@@ -663,10 +711,7 @@ fn c_builds_clean_up_after_dead_processes_and_cancels() {
         hessian_vector: Some(s.hessian_vector.clone()),
     };
     let program = CCompiler::from_env().map_or_else(|| "cc".into(), |c| c.program);
-    let cc = CCompiler {
-        program,
-        cache_dir: cache.path().to_path_buf(),
-    };
+    let cc = CCompiler::new(program, cache.path().to_path_buf());
     // Cancelled before it starts: no compiler run, nothing written.
     let cancel = std::sync::atomic::AtomicBool::new(true);
     let e = jit::compile_steps_c_cancellable(&s.graph, &spec, &cc, &cancel).unwrap_err();
@@ -786,10 +831,7 @@ fn a_kernel_cache_others_could_write_is_refused_with_one_line() {
         jit::compile_steps_c(
             &s.graph,
             &spec,
-            &CCompiler {
-                program: program.clone(),
-                cache_dir: dir.to_path_buf(),
-            },
+            &CCompiler::new(program.clone(), dir.to_path_buf()),
         )
         .map(|_| ())
         .map_err(|e| e.to_string())
@@ -963,10 +1005,7 @@ fn c_fused_kernel_of_four_lanes_is_bit_identical() {
     )
     .unwrap();
     std::fs::set_permissions(&wrapper, std::fs::Permissions::from_mode(0o755)).unwrap();
-    let cc = CCompiler {
-        program: wrapper,
-        cache_dir: dir.path().join("cache"),
-    };
+    let cc = CCompiler::new(wrapper, dir.path().join("cache"));
     fused_bit_identical(&|s| {
         let l = s.lattice.as_ref().expect("a lattice");
         jit::compile_lattice_steps_c(&s.graph, l, &cc).unwrap_or_else(|e| panic!("{e}"))

@@ -77,7 +77,7 @@ use crate::graph::Tabulated;
 
 use cache::{CacheDir, WorkDir, digest_hex, read_regular, remove_abandoned_builds};
 pub use compiler::CCompiler;
-use compiler::{FLAGS, first_lines, identity, run_compiler};
+use compiler::{first_lines, identity, run_compiler};
 pub(crate) use emit::{emit_nodes, konst, prelude, source, vector_helpers};
 use load::{open_checked, step_kernels};
 
@@ -208,12 +208,13 @@ pub(crate) fn build_with<T>(
     if mode == Mode::Load && !cc.cache_dir.exists() {
         return Err(JitError::NotCached);
     }
+    let flags = cc.flags()?;
     let cache = CacheDir::open(&cc.cache_dir)?;
     let identity = identity(cc, &cache, cancel, mode)?;
     let mut h = Sha256::new();
     h.update(cc.program.to_string_lossy().as_bytes());
     h.update([0]);
-    h.update(FLAGS.join(" ").as_bytes());
+    h.update(flags.join(" ").as_bytes());
     h.update([0]);
     h.update(identity.as_bytes());
     h.update([0]);
@@ -256,7 +257,7 @@ pub(crate) fn build_with<T>(
     let log = std::fs::File::create(&log_path).map_err(|e| io("cannot write", &log_path, e))?;
     let mut command = Command::new(&cc.program);
     command
-        .args(FLAGS)
+        .args(&flags)
         .arg("-o")
         .arg(&tmp_path)
         .arg(&src_path)

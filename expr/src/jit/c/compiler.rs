@@ -18,14 +18,20 @@ pub struct CCompiler {
     pub program: PathBuf,
     /// Where compiled kernels are kept by content hash.
     pub cache_dir: PathBuf,
+    /// The instruction set the kernels are built for (`-march=`): `native` (the host's), or a
+    /// named one such as `x86-64-v3` (AVX2 without AVX-512), for comparing instruction sets on
+    /// one machine or for one set of kernels on machines of different CPUs. Checked at the
+    /// build ([`CCompiler::flags`]).
+    pub march: String,
 }
 
-/// The compiler's flags (part of the cache key). `-O2`: the body is straight-line code, which
-/// `-O3` does not improve; `-march=native`: the host's vector width; `-ffp-contract=off`: no
-/// fused multiply-add; `-fno-math-errno`: `sqrt` without the `errno` branch (same result).
-pub(crate) const FLAGS: [&str; 8] = [
+/// The compiler's flags besides `-march` (all part of the cache key). `-O2`: the body is
+/// straight-line code, which `-O3` does not improve; `-ffp-contract=off`: no fused
+/// multiply-add; `-fno-math-errno`: `sqrt` without the `errno` branch (same result). The
+/// instruction set (`-march=native` by default, [`CCompiler::march`]) changes the vector width,
+/// never a result: these flags fix the IEEE operations and their order.
+const FLAGS: [&str; 7] = [
     "-O2",
-    "-march=native",
     "-ffp-contract=off",
     "-fno-math-errno",
     "-fno-strict-aliasing",
@@ -34,9 +40,46 @@ pub(crate) const FLAGS: [&str; 8] = [
     "-w",
 ];
 
+/// The longest `-march` value accepted.
+const MAX_MARCH: usize = 64;
+
 impl CCompiler {
+    /// The compiler `program` with its cache in `cache_dir`, building for this host
+    /// (`-march=native`).
+    pub fn new(program: impl Into<PathBuf>, cache_dir: impl Into<PathBuf>) -> CCompiler {
+        CCompiler {
+            program: program.into(),
+            cache_dir: cache_dir.into(),
+            march: "native".to_owned(),
+        }
+    }
+
+    /// `-march=` [`Self::march`]. An instruction set that is not a plain name (letters,
+    /// digits, `-`, `_`, `.`, `+`, at most 64, not starting with `-`) is an error of the C
+    /// build, said in its one line (the command goes on with the Cranelift kernels), so no
+    /// value can smuggle another flag in.
+    pub fn march_flag(&self) -> Result<String, JitError> {
+        let m = &self.march;
+        let plain = |c: char| c.is_ascii_alphanumeric() || "-_.+".contains(c);
+        if m.is_empty() || m.len() > MAX_MARCH || !m.chars().all(plain) || m.starts_with('-') {
+            return Err(JitError::CCompiler(format!(
+                "CHAOSCOPE_CC_MARCH='{m}' is not an instruction set name (such as native, \
+                 x86-64-v3 or x86-64-v4)"
+            )));
+        }
+        Ok(format!("-march={m}"))
+    }
+
+    /// The build's flags: [`Self::march_flag`] and the fixed ones.
+    pub(crate) fn flags(&self) -> Result<Vec<String>, JitError> {
+        let mut flags = vec![self.march_flag()?];
+        flags.extend(FLAGS.iter().map(|f| (*f).to_owned()));
+        Ok(flags)
+    }
+
     /// From the environment: `CHAOSCOPE_CC` names the compiler (`none` or empty: no C
-    /// kernels, Cranelift's are used), else `cc`; `CHAOSCOPE_KERNEL_CACHE` the cache directory,
+    /// kernels, Cranelift's are used), else `cc`; `CHAOSCOPE_CC_MARCH` the instruction set
+    /// ([`Self::march`]), else `native`; `CHAOSCOPE_KERNEL_CACHE` the cache directory,
     /// else `$XDG_CACHE_HOME/chaoscope/kernels`, `$HOME/.cache/chaoscope/kernels`, or
     /// `chaoscope-kernels-<uid>` in the temporary directory (one per user: a directory
     /// another user could create first is refused by [`CacheDir::open`], never shared). `None`
@@ -61,11 +104,17 @@ impl CCompiler {
             let uid = unsafe { libc::geteuid() };
             std::env::temp_dir().join(format!("chaoscope-kernels-{uid}"))
         };
-        Some(CCompiler { program, cache_dir })
+        let march = std::env::var_os("CHAOSCOPE_CC_MARCH")
+            .map_or_else(|| "native".to_owned(), |m| m.to_string_lossy().into_owned());
+        Some(CCompiler {
+            program,
+            cache_dir,
+            march,
+        })
     }
 
     /// What the compiler and these flags target: its predefined macros (version, ISA
-    /// features of `-march=native`), hashed into every cache key. Runs the compiler once
+    /// features of its `-march`), hashed into every cache key. Runs the compiler once
     /// ([`run_compiler`]: a deadline, a cancel), its answer written to a file of the build
     /// directory `work` (a pipe left unread would stall a compiler with much to say).
     fn target_identity(&self, work: &WorkDir, cancel: &AtomicBool) -> Result<String, JitError> {
@@ -77,7 +126,8 @@ impl CCompiler {
         };
         let mut command = Command::new(&self.program);
         command
-            .args(["-march=native", "-ffp-contract=off", "-E", "-dM", "-x", "c"])
+            .arg(format!("-march={}", self.march))
+            .args(["-ffp-contract=off", "-E", "-dM", "-x", "c"])
             .arg("/dev/null")
             .stdin(Stdio::null())
             .stdout(create(&macros_path)?)
@@ -128,7 +178,7 @@ impl CCompiler {
         let real = std::fs::canonicalize(&found).ok()?;
         let m = std::fs::metadata(&real).ok()?;
         let mut f = format!(
-            "{}\n{}\n{} {} {} {}.{} {}.{}\n{cpu}",
+            "{}\n{}\n{} {} {} {}.{} {}.{}\n{cpu}\n-march={}",
             found.display(),
             real.display(),
             m.dev(),
@@ -137,7 +187,8 @@ impl CCompiler {
             m.mtime(),
             m.mtime_nsec(),
             m.ctime(),
-            m.ctime_nsec()
+            m.ctime_nsec(),
+            self.march
         );
         for var in [
             "GCC_EXEC_PREFIX",

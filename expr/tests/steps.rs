@@ -536,8 +536,9 @@ fn c_steps_are_bit_identical() {
 
 /// Kernels built for a named instruction set (`CHAOSCOPE_CC_MARCH`, here AVX2 without AVX-512:
 /// `x86-64-v3`, on any x86-64 host that has AVX2) give the bits of the generic loops too, and
-/// are a library of their own beside the host's; a value that is not a plain name is refused
-/// in one line naming the variable, before any compiler runs.
+/// are a library of their own beside the host's; an instruction set with features this CPU
+/// lacks is refused in one line naming them, and a value that is not a plain name in one line
+/// naming the variable, before any compiler runs.
 #[test]
 fn c_steps_for_another_instruction_set_are_bit_identical_and_hostile_names_are_refused() {
     let cache = tempfile::tempdir().unwrap();
@@ -571,6 +572,23 @@ fn c_steps_for_another_instruction_set_are_bit_identical_and_hostile_names_are_r
     if std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma") {
         check("C FPUT-101 x86-64-v3", &s, &with("x86-64-v3").unwrap());
         assert_eq!(libraries(), 2, "another instruction set is another library");
+    }
+    // Knights Landing's AVX-512 ER and PF are on no other CPU (Xeon Phi only): code for them
+    // would stop at an illegal instruction here, so the build is refused, naming them.
+    let knows_knl = std::process::Command::new(&program)
+        .args(["-march=knl", "-E", "-x", "c", "/dev/null"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if cfg!(target_arch = "x86_64") && knows_knl {
+        let Err(e) = with("knl") else {
+            panic!("code for a Xeon Phi was built for this CPU")
+        };
+        let e = e.to_string();
+        assert!(
+            e.contains("CHAOSCOPE_CC_MARCH='knl' asks for") && e.contains("AVX512ER"),
+            "{e}"
+        );
+        assert_eq!(e.lines().count(), 1, "{e}");
     }
     for hostile in [
         "native -o /tmp/x",

@@ -74,7 +74,7 @@ pub trait LaneModel: Model {
 
     /// [`Self::REGISTER_RESIDENT`] decided at run time, for models whose size is known only
     /// then (a compiled expression): the kernel takes wide chunks when this holds. The default
-    /// is the constant, so the built-in models' dispatch folds as before.
+    /// is the constant, so for the built-in models the dispatch folds to a constant.
     #[inline(always)]
     fn register_resident(&self) -> bool {
         Self::REGISTER_RESIDENT

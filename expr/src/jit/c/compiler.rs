@@ -117,7 +117,37 @@ impl CCompiler {
     /// features of its `-march`), hashed into every cache key. Runs the compiler once
     /// ([`run_compiler`]: a deadline, a cancel), its answer written to a file of the build
     /// directory `work` (a pipe left unread would stall a compiler with much to say).
+    ///
+    /// A named instruction set (not `native`) is checked against the host's: code for features
+    /// this CPU lacks would die of an illegal instruction, so every feature macro its `-march`
+    /// defines (`__AVX512F__`, `__FMA__`, ...) must be defined by `-march=native` too, else the
+    /// build is refused in one line naming the missing ones. This also keeps a cache shared by
+    /// machines of different CPUs safe: the identity of a named set is the same on all of them,
+    /// and only a machine that has its features gets one.
     fn target_identity(&self, work: &WorkDir, cancel: &AtomicBool) -> Result<String, JitError> {
+        let macros = self.macros(&self.march, work, cancel)?;
+        if self.march != "native" {
+            let host = self.macros("native", work, cancel)?;
+            let missing: Vec<&str> = feature_macros(&macros)
+                .filter(|m| !feature_macros(&host).any(|h| h == *m))
+                .collect();
+            if !missing.is_empty() {
+                return Err(JitError::CCompiler(format!(
+                    "CHAOSCOPE_CC_MARCH='{}' asks for {}, which this CPU does not have (its code \
+                     would stop at an illegal instruction); name an instruction set of this \
+                     CPU, or native",
+                    self.march,
+                    missing.join(", ")
+                )));
+            }
+        }
+        let mut macros: Vec<&str> = macros.lines().collect();
+        macros.sort_unstable();
+        Ok(digest_hex(macros.join("\n").as_bytes()))
+    }
+
+    /// The compiler's predefined macros with `-march=march`.
+    fn macros(&self, march: &str, work: &WorkDir, cancel: &AtomicBool) -> Result<String, JitError> {
         let macros_path = work.0.join("macros");
         let log_path = work.0.join("target-messages");
         let create = |p: &Path| {
@@ -126,7 +156,7 @@ impl CCompiler {
         };
         let mut command = Command::new(&self.program);
         command
-            .arg(format!("-march={}", self.march))
+            .arg(format!("-march={march}"))
             .args(["-ffp-contract=off", "-E", "-dM", "-x", "c"])
             .arg("/dev/null")
             .stdin(Stdio::null())
@@ -135,7 +165,7 @@ impl CCompiler {
         let status = run_compiler(self, &mut command, cancel, "reporting its target")?;
         if !status.success() {
             return Err(JitError::CCompiler(format!(
-                "the C compiler '{}' failed to report its target ({status}): {}",
+                "the C compiler '{}' failed to report its target for -march={march} ({status}): {}",
                 self.program.display(),
                 first_lines(&read_regular(&log_path).unwrap_or_default())
             )));
@@ -147,12 +177,7 @@ impl CCompiler {
                 macros_path.display()
             ))
         })?;
-        let mut macros: Vec<&str> = std::str::from_utf8(&out)
-            .unwrap_or_default()
-            .lines()
-            .collect();
-        macros.sort_unstable();
-        Ok(digest_hex(macros.join("\n").as_bytes()))
+        Ok(String::from_utf8_lossy(&out).into_owned())
     }
 
     /// What [`Self::target_identity`] depends on, where it can be read without running the
@@ -202,6 +227,30 @@ impl CCompiler {
         }
         Some(f)
     }
+}
+
+/// The instruction set features among the predefined `macros` (`#define __AVX2__ 1`): the
+/// names of the form `__UPPER_CASE__` defined as 1, less the few that are not features. The
+/// compiler's other macros are the same whatever `-march` says.
+fn feature_macros(macros: &str) -> impl Iterator<Item = &str> {
+    macros.lines().filter_map(|line| {
+        let name = line.strip_prefix("#define __")?.strip_suffix("__ 1")?;
+        let feature = !name.is_empty()
+            && name
+                .chars()
+                .all(|c| c.is_ascii_uppercase() || c.is_ascii_digit() || c == '_')
+            && ![
+                "STDC",
+                "STDC_HOSTED",
+                "LP64",
+                "ELF",
+                "PIC",
+                "PIE",
+                "OPTIMIZE",
+            ]
+            .contains(&name);
+        feature.then_some(name)
+    })
 }
 
 /// The answers of the CPU identification instruction that `-march=native` reads (vendor,

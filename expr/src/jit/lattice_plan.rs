@@ -60,6 +60,9 @@ pub(crate) fn shift_range(shifts: &[i64]) -> (i64, i64) {
 /// before it is read and before it is kicked (both read its momentum), kicked once its force
 /// is complete: the bits of the separate drift, force and kick passes.
 pub(crate) struct OutputPlan {
+    /// The force's parts in the reference order ([`crate::lattice::LatticeEvaluator`]'s), which
+    /// every back end emits one after the other.
+    pub parts: Vec<ForcePart>,
     /// Per sum: its interior loop's window, if it keeps one.
     pub window: Vec<Option<WindowPlan>>,
     /// Sites `a..z` (0-based) to set to `-0` first.
@@ -67,6 +70,25 @@ pub(crate) struct OutputPlan {
     pub pre_drift: Vec<(usize, usize)>,
     pub post_drift: Vec<(usize, usize)>,
     pub post_kick: Vec<(usize, usize)>,
+}
+
+/// One part of a force: the derivatives of the expression around the sums, a sum's boundary
+/// term, or a sum's interior loop (its window, if it keeps one, in [`OutputPlan::window`]).
+/// Sums that contribute nothing have no part.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum ForcePart {
+    Rest,
+    /// Term `i` of sum `sum`, its sites resolved (a wall's slot is 0, a periodic one wrapped).
+    Term {
+        sum: usize,
+        i: i64,
+    },
+    /// Terms `from..=to` of sum `sum` as a loop.
+    Loop {
+        sum: usize,
+        from: i64,
+        to: i64,
+    },
 }
 
 /// A sum's interior loop with its window of sites in registers.
@@ -135,7 +157,9 @@ impl OutputPlan {
         for &(j, _) in rest {
             read(&mut touched, &mut init, j as usize);
         }
+        let mut parts = Vec::new();
         if !rest.is_empty() {
+            parts.push(ForcePart::Rest);
             let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
             let mut need = Vec::new();
             crate::eval::mark_needed(graph, &roots, &mut need);
@@ -160,14 +184,15 @@ impl OutputPlan {
             }
         };
         let mut window = Vec::new();
-        for (sum, d) in lattice.sums.iter().zip(&lattice.derivatives) {
+        for (s, (sum, d)) in lattice.sums.iter().zip(&lattice.derivatives).enumerate() {
             if used(d) == 0 {
                 window.push(None);
                 continue;
             }
             let sites = |i: i64| sum.variables.iter().filter_map(move |&k| sum.site(i, k));
             let (before, after) = sum.boundary_terms();
-            for i in before {
+            for &i in &before {
+                parts.push(ForcePart::Term { sum: s, i });
                 for j in sites(i) {
                     read(&mut touched, &mut init, j);
                     read_row(&mut drifted, &mut pre, j);
@@ -175,6 +200,7 @@ impl OutputPlan {
             }
             let mut w = None;
             if let Some((from, to)) = sum.interior() {
+                parts.push(ForcePart::Loop { sum: s, from, to });
                 let (kmin, kmax) = shift_range(&sum.variables);
                 if kmax - kmin < MAX_WINDOW {
                     let incoming = (from + kmax - 1) as usize..(to + kmax) as usize;
@@ -213,6 +239,7 @@ impl OutputPlan {
             }
             window.push(w);
             for i in after {
+                parts.push(ForcePart::Term { sum: s, i });
                 for j in sites(i) {
                     read(&mut touched, &mut init, j);
                     read_row(&mut drifted, &mut pre, j);
@@ -263,6 +290,7 @@ impl OutputPlan {
         let undrifted: Vec<bool> = drifted.iter().map(|&d| !d).collect();
         let unkicked: Vec<bool> = kicked.iter().map(|&k| !k).collect();
         OutputPlan {
+            parts,
             window,
             init: ranges(&init),
             pre_drift: ranges(&pre),

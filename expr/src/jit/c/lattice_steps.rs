@@ -15,7 +15,7 @@ use std::sync::atomic::AtomicBool;
 
 use super::{self as c_step, C_BLOCK_LANES, CCompiler, konst};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
-use crate::jit::lattice_plan::{OutputPlan, WindowPlan, arrays_of, shift_range};
+use crate::jit::lattice_plan::{ForcePart, OutputPlan, WindowPlan, arrays_of, shift_range};
 use crate::jit::step::{Code, StepKernels};
 use crate::jit::{AllocationWork, JitError};
 use crate::lattice::{
@@ -260,77 +260,86 @@ impl Kernel<'_> {
         }
     }
 
-    /// The force of one block into `g`, which holds `-0`.
+    /// The force of one block into `g`, which holds `-0`: the plan's parts in order.
     fn force(&self, out: &mut String) {
         let lattice = self.lattice;
-        let rest = if self.tangent {
-            lattice
-                .rest_hessian_vector
-                .as_deref()
-                .expect("a tangent kernel has the Hessian-vector product")
-        } else {
-            &lattice.rest_gradient
-        };
-        if !rest.is_empty() {
-            let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
-            let mut lines = Vec::new();
-            let d = self.emit(&roots, None, At::Loop, &mut lines);
-            for (&(j, _), d) in rest.iter().zip(&d) {
-                Self::add_to(&mut lines, &j.to_string(), 1.0, d);
-            }
-            let _ = writeln!(out, "        {{");
-            Self::write_lines(out, &lines, "          ");
-            let _ = writeln!(out, "        }}");
-        }
-        for (s, (sum, d)) in lattice.sums.iter().zip(&lattice.derivatives).enumerate() {
-            let contributions = d.contributions(self.graph, self.tangent);
-            let roots: Vec<NodeId> = contributions.iter().map(|&(_, id)| id).collect();
-            let roots = &roots[..];
-            if roots.is_empty() {
-                continue;
-            }
-            let term = |out: &mut String, at: At, indent: &str| {
-                let mut lines = Vec::new();
-                let ds = self.emit(roots, Some(sum), at, &mut lines);
-                for ((&shift, dv), &(factor, _)) in
-                    sum.variables.iter().zip(&ds).zip(&contributions)
-                {
-                    let row = match at {
-                        At::Term(i) => match sum.site(i, shift) {
-                            Some(j) => j.to_string(),
-                            None => continue,
-                        },
-                        At::Loop | At::Window => format!("i + {}", shift - 1),
+        let contributions: Vec<Vec<(f64, NodeId)>> = lattice
+            .derivatives
+            .iter()
+            .map(|d| d.contributions(self.graph, self.tangent))
+            .collect();
+        let roots_of =
+            |s: usize| -> Vec<NodeId> { contributions[s].iter().map(|&(_, id)| id).collect() };
+        for part in &self.plan.parts {
+            match *part {
+                ForcePart::Rest => {
+                    let rest = if self.tangent {
+                        lattice
+                            .rest_hessian_vector
+                            .as_deref()
+                            .expect("a tangent kernel has the Hessian-vector product")
+                    } else {
+                        &lattice.rest_gradient
                     };
-                    Self::add_to(&mut lines, &row, factor, dv);
-                }
-                Self::write_lines(out, &lines, indent);
-            };
-            let (before, after) = sum.boundary_terms();
-            for i in before {
-                let _ = writeln!(out, "        {{ /* term {i} */");
-                term(out, At::Term(i), "          ");
-                let _ = writeln!(out, "        }}");
-            }
-            if let Some((from, to)) = sum.interior() {
-                match self.plan.window[s] {
-                    Some(plan) => {
-                        self.window_loop(out, sum, &contributions, roots, (from, to), plan);
+                    let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
+                    let mut lines = Vec::new();
+                    let d = self.emit(&roots, None, At::Loop, &mut lines);
+                    for (&(j, _), d) in rest.iter().zip(&d) {
+                        Self::add_to(&mut lines, &j.to_string(), 1.0, d);
                     }
-                    None => {
-                        let _ =
-                            writeln!(out, "        for (int64_t i = {from}; i <= {to}; i++) {{");
-                        term(out, At::Loop, "          ");
-                        let _ = writeln!(out, "        }}");
+                    let _ = writeln!(out, "        {{");
+                    Self::write_lines(out, &lines, "          ");
+                    let _ = writeln!(out, "        }}");
+                }
+                ForcePart::Term { sum, i } => {
+                    let _ = writeln!(out, "        {{ /* term {i} */");
+                    self.term(out, sum, &contributions[sum], &roots_of(sum), At::Term(i));
+                    let _ = writeln!(out, "        }}");
+                }
+                ForcePart::Loop { sum: s, from, to } => {
+                    let (sum, roots) = (&lattice.sums[s], roots_of(s));
+                    match self.plan.window[s] {
+                        Some(plan) => {
+                            self.window_loop(out, sum, &contributions[s], &roots, (from, to), plan);
+                        }
+                        None => {
+                            let _ = writeln!(
+                                out,
+                                "        for (int64_t i = {from}; i <= {to}; i++) {{"
+                            );
+                            self.term(out, s, &contributions[s], &roots, At::Loop);
+                            let _ = writeln!(out, "        }}");
+                        }
                     }
                 }
-            }
-            for i in after {
-                let _ = writeln!(out, "        {{ /* term {i} */");
-                term(out, At::Term(i), "          ");
-                let _ = writeln!(out, "        }}");
             }
         }
+    }
+
+    /// One term of sum `s` (at a boundary site or as the loop's body): its derivatives added
+    /// to the scratch rows of the sites its slots read.
+    fn term(
+        &self,
+        out: &mut String,
+        s: usize,
+        contributions: &[(f64, NodeId)],
+        roots: &[NodeId],
+        at: At,
+    ) {
+        let sum = &self.lattice.sums[s];
+        let mut lines = Vec::new();
+        let ds = self.emit(roots, Some(sum), at, &mut lines);
+        for ((&shift, dv), &(factor, _)) in sum.variables.iter().zip(&ds).zip(contributions) {
+            let row = match at {
+                At::Term(i) => match sum.site(i, shift) {
+                    Some(j) => j.to_string(),
+                    None => continue,
+                },
+                At::Loop | At::Window => format!("i + {}", shift - 1),
+            };
+            Self::add_to(&mut lines, &row, factor, dv);
+        }
+        Self::write_lines(out, &lines, "          ");
     }
 
     /// The interior loop of a sum with the sites its terms reach (`i + kmin .. i + kmax`) kept

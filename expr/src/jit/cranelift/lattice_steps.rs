@@ -32,7 +32,9 @@ use super::lattice::{Body, Val, accumulate, site_loop};
 use super::step::{CraneliftKernels, OrbitStepsFnPtr, TangentStepsFnPtr, vconsts};
 use super::{Sigs, VConsts, flags, new_module};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
-use crate::jit::lattice_plan::{OutputPlan, WindowPlan, arrays_of, check_size, shift_range};
+use crate::jit::lattice_plan::{
+    ForcePart, OutputPlan, WindowPlan, arrays_of, check_size, shift_range,
+};
 use crate::jit::step::{Code, StepKernels};
 use crate::jit::{JitError, Options};
 use crate::lattice::{
@@ -485,101 +487,101 @@ impl Kernel<'_> {
             units: self.units,
             k: Some(k),
         };
-        let rest = if self.tangent {
-            lattice
-                .rest_hessian_vector
-                .as_deref()
-                .expect("a tangent kernel has the Hessian-vector product")
-        } else {
-            &lattice.rest_gradient
+        let contributions: Vec<Vec<(f64, NodeId)>> = lattice
+            .derivatives
+            .iter()
+            .map(|d| d.contributions(self.graph, self.tangent))
+            .collect();
+        let roots_of =
+            |s: usize| -> Vec<NodeId> { contributions[s].iter().map(|&(_, id)| id).collect() };
+        // One term of sum `s`: its derivatives added to the scratch rows of the sites its slots
+        // read.
+        let term = |b: &mut FunctionBuilder, s: usize, roots: &[NodeId], at: At| {
+            let sum = &lattice.sums[s];
+            let mut leaf =
+                |b: &mut FunctionBuilder, _: NodeId, node: &Node| self.slot(b, node, sum, at, rows);
+            let vals = body.emit(b, roots, &mut leaf);
+            // Where the scratch row of site `i + shift` is: a constant site's, or the
+            // loop's row `i - 1` and an offset.
+            let g_base = match at {
+                At::Term(_) => rows.g,
+                At::Loop(i) => {
+                    let im1 = b.ins().iadd_imm_s(i, -1);
+                    let off = b.ins().imul_imm_s(im1, self.g_row());
+                    b.ins().iadd(rows.g, off)
+                }
+            };
+            for (&shift, &(factor, r)) in sum.variables.iter().zip(&contributions[s]) {
+                let off = match at {
+                    At::Term(i) => match sum.site(i, shift) {
+                        Some(j) => j as i64 * self.g_row(),
+                        None => continue,
+                    },
+                    At::Loop(_) => shift * self.g_row(),
+                };
+                let dv = vals[r as usize].expect("emitted");
+                self.add_to(b, g_base, off, factor, dv);
+            }
         };
-        if !rest.is_empty() {
-            let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
-            let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| match *node {
-                Node::Const(c) => Val::One(b.ins().f64const(c)),
-                Node::Input { arg: ARG_Q, index } if !self.tangent => {
-                    let row = self.row(b, rows, index as i64);
-                    self.lane_row(b, row)
-                }
-                Node::Input { arg: ARG_Q, index } => {
-                    let st = rows.stage.expect("the tangent kernel's stage");
-                    Val::One(b.ins().load(F64, flags(), st, (index * 8) as i32))
-                }
-                Node::Input { arg: ARG_V, index } => {
-                    let row = self.row(b, rows, index as i64);
-                    self.lane_row(b, row)
-                }
-                _ => unreachable!("a leaf of the expression around the sums: {node:?}"),
-            };
-            let vals = body.emit(b, &roots, &mut leaf);
-            for &(j, id) in rest {
-                let d = vals[id as usize].expect("emitted");
-                self.add_to(b, rows.g, j as i64 * self.g_row(), 1.0, d);
-            }
-        }
-        for (s, (sum, d)) in lattice.sums.iter().zip(&lattice.derivatives).enumerate() {
-            let contributions = d.contributions(self.graph, self.tangent);
-            let roots: Vec<NodeId> = contributions.iter().map(|&(_, id)| id).collect();
-            let roots = &roots[..];
-            if roots.is_empty() {
-                continue;
-            }
-            let term = |b: &mut FunctionBuilder, at: At| {
-                let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| {
-                    self.slot(b, node, sum, at, rows)
-                };
-                let vals = body.emit(b, roots, &mut leaf);
-                // Where the scratch row of site `i + shift` is: a constant site's, or the
-                // loop's row `i - 1` and an offset.
-                let g_base = match at {
-                    At::Term(_) => rows.g,
-                    At::Loop(i) => {
-                        let im1 = b.ins().iadd_imm_s(i, -1);
-                        let off = b.ins().imul_imm_s(im1, self.g_row());
-                        b.ins().iadd(rows.g, off)
-                    }
-                };
-                for (&shift, &(factor, r)) in sum.variables.iter().zip(&contributions) {
-                    let off = match at {
-                        At::Term(i) => match sum.site(i, shift) {
-                            Some(j) => j as i64 * self.g_row(),
-                            None => continue,
-                        },
-                        At::Loop(_) => shift * self.g_row(),
+        for part in &self.plan.parts {
+            match *part {
+                ForcePart::Rest => {
+                    let rest = if self.tangent {
+                        lattice
+                            .rest_hessian_vector
+                            .as_deref()
+                            .expect("a tangent kernel has the Hessian-vector product")
+                    } else {
+                        &lattice.rest_gradient
                     };
-                    let dv = vals[r as usize].expect("emitted");
-                    self.add_to(b, g_base, off, factor, dv);
-                }
-            };
-            let (before, after) = sum.boundary_terms();
-            for i in before {
-                term(b, At::Term(i));
-            }
-            if let Some((from, to)) = sum.interior() {
-                match self.plan.window[s] {
-                    Some(plan) => {
-                        let window = LaneWindow {
-                            kernel: self,
-                            body: &body,
-                            sum,
-                            contributions: &contributions,
-                            roots,
-                            rows,
-                            st,
-                            plan,
-                        };
-                        window.build(b, (from, to));
-                    }
-                    None => {
-                        site_loop(b, from, to, None, &mut |b, i, _| {
-                            term(b, At::Loop(i));
-                            None
-                        });
+                    let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
+                    let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| match *node {
+                        Node::Const(c) => Val::One(b.ins().f64const(c)),
+                        Node::Input { arg: ARG_Q, index } if !self.tangent => {
+                            let row = self.row(b, rows, index as i64);
+                            self.lane_row(b, row)
+                        }
+                        Node::Input { arg: ARG_Q, index } => {
+                            let st = rows.stage.expect("the tangent kernel's stage");
+                            Val::One(b.ins().load(F64, flags(), st, (index * 8) as i32))
+                        }
+                        Node::Input { arg: ARG_V, index } => {
+                            let row = self.row(b, rows, index as i64);
+                            self.lane_row(b, row)
+                        }
+                        _ => unreachable!("a leaf of the expression around the sums: {node:?}"),
+                    };
+                    let vals = body.emit(b, &roots, &mut leaf);
+                    for &(j, id) in rest {
+                        let d = vals[id as usize].expect("emitted");
+                        self.add_to(b, rows.g, j as i64 * self.g_row(), 1.0, d);
                     }
                 }
-            }
-            for i in after {
-                term(b, At::Term(i));
+                ForcePart::Term { sum, i } => term(b, sum, &roots_of(sum), At::Term(i)),
+                ForcePart::Loop { sum: s, from, to } => {
+                    let roots = roots_of(s);
+                    match self.plan.window[s] {
+                        Some(plan) => {
+                            let window = LaneWindow {
+                                kernel: self,
+                                body: &body,
+                                sum: &lattice.sums[s],
+                                contributions: &contributions[s],
+                                roots: &roots,
+                                rows,
+                                st,
+                                plan,
+                            };
+                            window.build(b, (from, to));
+                        }
+                        None => {
+                            site_loop(b, from, to, None, &mut |b, i, _| {
+                                term(b, s, &roots, At::Loop(i));
+                                None
+                            });
+                        }
+                    }
+                }
             }
         }
     }

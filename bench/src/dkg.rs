@@ -4,7 +4,7 @@
 //! own, its CPU time that of every process in it) against a hand-written scalar C of the same
 //! ABA864 step and tangent map (`chains.c`, model 0, built at bench time with `-O3 -march=native
 //! -ffp-contract=off`, or the `CHAOSCOPE_CC_MARCH` the run's kernels are built for, e.g.
-//! `x86-64-v3` for the AVX2 path of an AVX-512 machine), at `--dkg-sizes`.
+//! `x86-64-v3` for the AVX2 path of an AVX-512 machine: [`yardstick`]), at `--dkg-sizes`.
 //!
 //! Both integrate one reference orbit and one VM deviation vector, renormalized every `tau` = 10
 //! of the example (the run records a sample every `sample_every` = 100, the stretching factors
@@ -146,42 +146,55 @@ pub(super) fn c_run(exe: &std::path::Path, input: &str) -> anyhow::Result<(f64, 
     Ok((value("cpu_seconds ")?, value("mle ")?))
 }
 
-/// A private scratch directory (mode 0700, random name, prefix `prefix`: the program built
-/// there is run) with the yardsticks' program `chains.c` built in it (`cc -O3 -march=...
-/// -ffp-contract=off`, the instruction set of [`yardstick_march`]); why not, where there is no C compiler or it fails (the bench then says
-/// so instead of failing).
-pub(super) fn yardstick(
-    prefix: &str,
-) -> anyhow::Result<Result<(tempfile::TempDir, std::path::PathBuf), String>> {
+/// The yardsticks' program, built: its private scratch directory (mode 0700, random name,
+/// prefix `prefix`: the program built there is run), its path, and the `-march` it was built
+/// for.
+pub(super) struct Yardstick {
+    pub scratch: tempfile::TempDir,
+    pub exe: std::path::PathBuf,
+    pub march: String,
+}
+
+/// The yardsticks' program `chains.c` built (`-O3 -march=... -ffp-contract=off`) by the C
+/// compiler and for the instruction set the run's C kernels are built with (`CHAOSCOPE_CC`,
+/// else `cc`; `CHAOSCOPE_CC_MARCH`, else `native`: both sides of a comparison on one
+/// instruction set, checked against this CPU as the kernels' is); why not, where there is no C
+/// compiler, it fails, or the instruction set is refused (the bench then says so instead of
+/// failing).
+pub(super) fn yardstick(prefix: &str) -> anyhow::Result<Result<Yardstick, String>> {
     let scratch = tempfile::Builder::new().prefix(prefix).tempdir()?;
+    let (program, march) = match chaoscope_expr::jit::CCompiler::from_env() {
+        Some(cc) if cc.march == "native" => (cc.program, "-march=native".to_owned()),
+        Some(cc) => match cc.checked_march_flag(scratch.path()) {
+            Ok(flag) => (cc.program, flag),
+            Err(e) => return Ok(Err(e.to_string())),
+        },
+        None => ("cc".into(), "-march=native".to_owned()),
+    };
     let src = scratch.path().join("chains.c");
     std::fs::write(&src, SOURCE)?;
     let exe = scratch.path().join("chains");
-    let built = Command::new("cc")
-        .args(["-O3", &yardstick_march()?, "-ffp-contract=off", "-o"])
+    let built = Command::new(&program)
+        .args(["-O3", &march, "-ffp-contract=off", "-o"])
         .arg(&exe)
         .arg(&src)
         .arg("-lm")
         .output();
     Ok(match built {
-        Ok(o) if o.status.success() => Ok((scratch, exe)),
+        Ok(o) if o.status.success() => Ok(Yardstick {
+            scratch,
+            exe,
+            march,
+        }),
         Ok(o) => Err(format!(
-            "cc failed: {}",
+            "{} failed: {}",
+            program.display(),
             String::from_utf8_lossy(&o.stderr)
                 .lines()
                 .next()
                 .unwrap_or("")
         )),
-        Err(e) => Err(format!("no C compiler: {e}")),
-    })
-}
-
-/// The instruction set of the C yardsticks: the one the run's C kernels are built for
-/// (`CHAOSCOPE_CC_MARCH`, `native` by default), so both sides of a comparison use the same.
-pub(super) fn yardstick_march() -> anyhow::Result<String> {
-    Ok(match chaoscope_expr::jit::CCompiler::from_env() {
-        Some(cc) => cc.march_flag()?,
-        None => "-march=native".to_owned(),
+        Err(e) => Err(format!("no C compiler ({}): {e}", program.display())),
     })
 }
 
@@ -196,7 +209,11 @@ pub fn compare(
         (1..=100).contains(&pairs),
         "--dkg-pairs: 1 to 100 pairs, got {pairs}"
     );
-    let (scratch, exe) = match yardstick("chaoscope-bench-dkg-")? {
+    let Yardstick {
+        scratch,
+        exe,
+        march,
+    } = match yardstick("chaoscope-bench-dkg-")? {
         Ok(built) => built,
         Err(why) => return Ok(serde_json::json!({ "unavailable": why })),
     };
@@ -265,7 +282,7 @@ pub fn compare(
                      --dkg-pairs interleaved (run, C) pairs per length: run_over_c is the \
                      median of the pairs' ratios, *_cpu_seconds each side's least",
         "compiler": super::scalar_c::compiler(),
-        "march": yardstick_march()?,
+        "march": march,
         "sizes": rows,
         "ensemble": ensemble,
     }))

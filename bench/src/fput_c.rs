@@ -14,7 +14,9 @@
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig};
 
-use super::dkg::{c_input_of, c_run, chaoscope_run, t_final_of, warm_kernel_cache, yardstick};
+use super::dkg::{
+    Yardstick, c_input_of, c_run, chaoscope_run, t_final_of, warm_kernel_cache, yardstick,
+};
 const H: f64 = 0.02;
 const TAU: f64 = 1.0;
 const SAMPLE_EVERY: f64 = 10.0;
@@ -42,7 +44,7 @@ fn c_input(config: &RunConfig) -> anyhow::Result<String> {
 }
 
 pub fn compare(sizes: &[usize]) -> anyhow::Result<serde_json::Value> {
-    let (scratch, exe) = match yardstick("chaoscope-bench-fput-")? {
+    let Yardstick { scratch, exe, .. } = match yardstick("chaoscope-bench-fput-")? {
         Ok(built) => built,
         Err(why) => return Ok(serde_json::json!({ "unavailable": why })),
     };

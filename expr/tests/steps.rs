@@ -590,6 +590,17 @@ fn c_steps_for_another_instruction_set_are_bit_identical_and_hostile_names_are_r
         );
         assert_eq!(e.lines().count(), 1, "{e}");
     }
+    // AMD's 3DNow! of k8, on no CPU since 2011 (a feature macro in mixed case).
+    let knows_k8 = std::process::Command::new(&program)
+        .args(["-march=k8", "-E", "-x", "c", "/dev/null"])
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if cfg!(target_arch = "x86_64") && knows_k8 {
+        let Err(e) = with("k8") else {
+            panic!("code for 3DNow! was built for this CPU")
+        };
+        assert!(e.to_string().contains("asks for 3dNOW"), "{e}");
+    }
     for hostile in [
         "native -o /tmp/x",
         "",

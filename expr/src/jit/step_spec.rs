@@ -118,7 +118,7 @@ mod tests {
 
     /// Where each statement of `ops` stands, per row: (drifts, kicks, first drift, first kick,
     /// first value reading the row).
-    fn check_schedule(graph: &Graph, plan: &Plan, n: usize, ops: &[StageOp]) {
+    fn check_schedule(graph: &Graph, plan: &Plan, n: usize, lane_arg: u8, ops: &[StageOp]) {
         let mut drift_at = vec![None; n];
         let mut kicks = vec![0; n];
         let mut valued = vec![false; graph.len()];
@@ -131,7 +131,7 @@ mod tests {
                 StageOp::Value(id) => {
                     for o in graph.node(id).operands() {
                         match *graph.node(o) {
-                            Node::Input { arg: 0, index } => assert!(
+                            Node::Input { arg, index } if arg == lane_arg => assert!(
                                 drift_at[index as usize].is_some(),
                                 "row {index} read before its drift: {ops:?}"
                             ),
@@ -146,6 +146,14 @@ mod tests {
                 }
                 StageOp::Kick { row, force } => {
                     assert!(drift_at[row].is_some(), "row {row} kicked before its drift");
+                    if let Node::Input { arg, index } = *graph.node(force)
+                        && arg == lane_arg
+                    {
+                        assert!(
+                            drift_at[index as usize].is_some(),
+                            "row {row} kicked by row {index} before its drift"
+                        );
+                    }
                     assert_eq!(
                         force, plan.outputs[row],
                         "row {row} kicked by another force"
@@ -177,12 +185,30 @@ mod tests {
         let outputs = vec![cube, two, q0q2, q0];
         let plan = kernel_plan(&g, 4, 0, &outputs, vec![Layout::Lanes]).unwrap();
         let ops = stage_schedule(&g, &plan, 4, 0);
-        check_schedule(&g, &plan, 4, &ops);
+        check_schedule(&g, &plan, 4, 0, &ops);
         // Rows are drifted at first use: 0 and 2 before the first value, 1 and 3 only for
         // their kicks.
         assert_eq!(
             &ops[..3],
             &[StageOp::Drift(0), StageOp::Drift(2), StageOp::Value(q0q2)]
         );
+    }
+
+    /// The tangent kernel's shape: the lanes are argument 1 (`dq`), argument 0 the stage's
+    /// shared position (uniform): a uniform force, a row as another row's force, products of
+    /// both.
+    #[test]
+    fn the_tangent_kernels_schedule_drifts_its_lane_rows_before_use() {
+        let mut g = Graph::new();
+        let (q0, q1) = (g.input(0, 0), g.input(0, 1));
+        let (v0, v1, v2) = (g.input(1, 0), g.input(1, 1), g.input(1, 2));
+        let q0v1 = g.mul(q0, v1);
+        let v1v2 = g.mul(v1, v2);
+        let q0q1 = g.mul(q0, q1);
+        let outputs = vec![q0v1, v0, q0q1, v1v2];
+        let plan = kernel_plan(&g, 4, 1, &outputs, vec![Layout::Scalar, Layout::Lanes]).unwrap();
+        assert!(plan.uniform[q0q1 as usize]);
+        let ops = stage_schedule(&g, &plan, 4, 1);
+        check_schedule(&g, &plan, 4, 1, &ops);
     }
 }

@@ -130,6 +130,7 @@ impl CCompiler {
             let host = self.macros("native", work, cancel)?;
             let missing: Vec<&str> = feature_macros(&macros)
                 .filter(|m| !feature_macros(&host).any(|h| h == *m))
+                .map(|m| m.trim_matches('_'))
                 .collect();
             if !missing.is_empty() {
                 return Err(JitError::CCompiler(format!(
@@ -144,6 +145,17 @@ impl CCompiler {
         let mut macros: Vec<&str> = macros.lines().collect();
         macros.sort_unstable();
         Ok(digest_hex(macros.join("\n").as_bytes()))
+    }
+
+    /// Runs [`Self::target_identity`]'s check of [`Self::march`] against this CPU in a private
+    /// directory under `scratch` (the compiler's answers are written there): for a program
+    /// beside the kernels (the bench's C yardsticks) built for the same instruction set. Ok
+    /// with the `-march` flag to use.
+    pub fn checked_march_flag(&self, scratch: &Path) -> Result<String, JitError> {
+        let flag = self.march_flag()?;
+        let work = WorkDir::new(scratch)?;
+        self.target_identity(&work, &AtomicBool::new(false))?;
+        Ok(flag)
     }
 
     /// The compiler's predefined macros with `-march=march`.
@@ -203,7 +215,7 @@ impl CCompiler {
         let real = std::fs::canonicalize(&found).ok()?;
         let m = std::fs::metadata(&real).ok()?;
         let mut f = format!(
-            "{}\n{}\n{} {} {} {}.{} {}.{}\n{cpu}\n-march={}",
+            "{}\n{}\n{} {} {} {}.{} {}.{}\n{cpu}\n-march={} (features checked)",
             found.display(),
             real.display(),
             m.dev(),
@@ -229,16 +241,22 @@ impl CCompiler {
     }
 }
 
-/// The instruction set features among the predefined `macros` (`#define __AVX2__ 1`): the
-/// names of the form `__UPPER_CASE__` defined as 1, less the few that are not features. The
-/// compiler's other macros are the same whatever `-march` says.
+/// The instruction set features among the predefined `macros`: on x86 the names of the form
+/// `__NAME__` defined as 1 with an upper-case letter in `NAME` (`__AVX2__`, `__3dNOW__`; not
+/// the CPU and tuning names such as `__haswell__`, which differ between sets without being
+/// features), on Arm `__ARM_NEON` and the `__ARM_FEATURE_*` names. The compiler's other macros
+/// are the same whatever `-march` says.
 fn feature_macros(macros: &str) -> impl Iterator<Item = &str> {
     macros.lines().filter_map(|line| {
-        let name = line.strip_prefix("#define __")?.strip_suffix("__ 1")?;
-        let feature = !name.is_empty()
-            && name
-                .chars()
-                .all(|c| c.is_ascii_uppercase() || c.is_ascii_digit() || c == '_')
+        let mut words = line.strip_prefix("#define ")?.split_whitespace();
+        let (name, value) = (words.next()?, words.next());
+        if name == "__ARM_NEON" || name.starts_with("__ARM_FEATURE_") {
+            return Some(name);
+        }
+        let inner = name.strip_prefix("__")?.strip_suffix("__")?;
+        let feature = value == Some("1")
+            && inner.chars().any(|c| c.is_ascii_uppercase())
+            && inner.chars().all(|c| c.is_ascii_alphanumeric() || c == '_')
             && ![
                 "STDC",
                 "STDC_HOSTED",
@@ -248,7 +266,7 @@ fn feature_macros(macros: &str) -> impl Iterator<Item = &str> {
                 "PIE",
                 "OPTIMIZE",
             ]
-            .contains(&name);
+            .contains(&inner);
         feature.then_some(name)
     })
 }
@@ -389,10 +407,14 @@ pub(crate) fn first_lines(bytes: &[u8]) -> String {
         .filter(|l| !l.trim().is_empty())
         .take(3)
         .collect();
-    if lines.is_empty() {
-        "no message".into()
-    } else {
-        lines.join(" | ")
+    // A compiler that lists what it would have accepted (gcc's valid `-march` names) says a
+    // thousand characters; one line of the command's output keeps the start.
+    const MAX: usize = 400;
+    let joined = lines.join(" | ");
+    match joined.char_indices().nth(MAX) {
+        _ if lines.is_empty() => "no message".into(),
+        Some((cut, _)) => format!("{} ...", &joined[..cut]),
+        None => joined,
     }
 }
 
@@ -536,4 +558,33 @@ pub(crate) fn kill_group(child: &mut std::process::Child) {
     }
     let _ = child.kill();
     let _ = child.wait();
+}
+
+#[cfg(test)]
+mod tests {
+    use super::feature_macros;
+
+    /// The features of a named instruction set are what the host must have: x86's `__NAME__`
+    /// macros (`__3dNOW__` too), Arm's `__ARM_NEON` and `__ARM_FEATURE_*` whatever their value;
+    /// never a CPU or tuning name (`__haswell__`) or a macro every target has.
+    #[test]
+    fn feature_macros_are_the_instruction_set_features_of_x86_and_arm() {
+        let macros = "#define __AVX2__ 1\n#define __3dNOW__ 1\n#define __haswell__ 1\n\
+                      #define __tune_haswell__ 1\n#define __STDC_HOSTED__ 1\n#define __LP64__ 1\n\
+                      #define __GNUC__ 12\n#define __SSE4_2__ 1\n#define __ARM_NEON 1\n\
+                      #define __ARM_FEATURE_SVE 1\n#define __ARM_FEATURE_SVE_BITS 0\n\
+                      #define __ARM_ARCH 8\n#define __k8 1\n";
+        let found: Vec<&str> = feature_macros(macros).collect();
+        assert_eq!(
+            found,
+            [
+                "__AVX2__",
+                "__3dNOW__",
+                "__SSE4_2__",
+                "__ARM_NEON",
+                "__ARM_FEATURE_SVE",
+                "__ARM_FEATURE_SVE_BITS"
+            ]
+        );
+    }
 }

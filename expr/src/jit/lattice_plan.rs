@@ -91,6 +91,38 @@ pub(crate) enum ForcePart {
     },
 }
 
+/// The derivatives of the expression around the sums: its gradient, or with `hessian` its
+/// Hessian-vector product (none without second derivatives), as (0-based site, node).
+pub(crate) fn rest_derivatives(lattice: &LatticePotential, hessian: bool) -> &[(u32, NodeId)] {
+    if hessian {
+        lattice.rest_hessian_vector.as_deref().unwrap_or(&[])
+    } else {
+        &lattice.rest_gradient
+    }
+}
+
+/// A sum's (factor, node) per slot and those nodes.
+pub(crate) type SumContributions = (Vec<(f64, NodeId)>, Vec<NodeId>);
+
+/// Per sum, what its derivatives add to the force ([`crate::lattice::SumDerivatives::contributions`]:
+/// (factor, node) per slot) and those nodes, the roots a back end emits; every sum's, as a
+/// force's parts refer to sums by index.
+pub(crate) fn sum_contributions(
+    graph: &Graph,
+    lattice: &LatticePotential,
+    hessian: bool,
+) -> Vec<SumContributions> {
+    lattice
+        .derivatives
+        .iter()
+        .map(|d| {
+            let c = d.contributions(graph, hessian);
+            let roots = c.iter().map(|&(_, id)| id).collect();
+            (c, roots)
+        })
+        .collect()
+}
+
 /// A sum's interior loop with its window of sites in registers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub(crate) struct WindowPlan {
@@ -149,11 +181,7 @@ impl OutputPlan {
                 pre[j] = true;
             }
         };
-        let rest = if hessian {
-            lattice.rest_hessian_vector.as_deref().unwrap_or(&[])
-        } else {
-            &lattice.rest_gradient
-        };
+        let rest = rest_derivatives(lattice, hessian);
         for &(j, _) in rest {
             read(&mut touched, &mut init, j as usize);
         }

@@ -15,7 +15,9 @@ use std::sync::atomic::AtomicBool;
 
 use super::{self as c_step, C_BLOCK_LANES, CCompiler, konst};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
-use crate::jit::lattice_plan::{ForcePart, OutputPlan, WindowPlan, arrays_of, shift_range};
+use crate::jit::lattice_plan::{
+    ForcePart, OutputPlan, WindowPlan, arrays_of, rest_derivatives, shift_range, sum_contributions,
+};
 use crate::jit::step::{Code, StepKernels};
 use crate::jit::{AllocationWork, JitError};
 use crate::lattice::{
@@ -263,24 +265,11 @@ impl Kernel<'_> {
     /// The force of one block into `g`, which holds `-0`: the plan's parts in order.
     fn force(&self, out: &mut String) {
         let lattice = self.lattice;
-        let contributions: Vec<Vec<(f64, NodeId)>> = lattice
-            .derivatives
-            .iter()
-            .map(|d| d.contributions(self.graph, self.tangent))
-            .collect();
-        let roots_of =
-            |s: usize| -> Vec<NodeId> { contributions[s].iter().map(|&(_, id)| id).collect() };
+        let sums = sum_contributions(self.graph, lattice, self.tangent);
         for part in &self.plan.parts {
             match *part {
                 ForcePart::Rest => {
-                    let rest = if self.tangent {
-                        lattice
-                            .rest_hessian_vector
-                            .as_deref()
-                            .expect("a tangent kernel has the Hessian-vector product")
-                    } else {
-                        &lattice.rest_gradient
-                    };
+                    let rest = rest_derivatives(lattice, self.tangent);
                     let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
                     let mut lines = Vec::new();
                     let d = self.emit(&roots, None, At::Loop, &mut lines);
@@ -293,21 +282,21 @@ impl Kernel<'_> {
                 }
                 ForcePart::Term { sum, i } => {
                     let _ = writeln!(out, "        {{ /* term {i} */");
-                    self.term(out, sum, &contributions[sum], &roots_of(sum), At::Term(i));
+                    self.term(out, sum, &sums[sum].0, &sums[sum].1, At::Term(i));
                     let _ = writeln!(out, "        }}");
                 }
                 ForcePart::Loop { sum: s, from, to } => {
-                    let (sum, roots) = (&lattice.sums[s], roots_of(s));
+                    let (sum, (contributions, roots)) = (&lattice.sums[s], &sums[s]);
                     match self.plan.window[s] {
                         Some(plan) => {
-                            self.window_loop(out, sum, &contributions[s], &roots, (from, to), plan);
+                            self.window_loop(out, sum, contributions, roots, (from, to), plan);
                         }
                         None => {
                             let _ = writeln!(
                                 out,
                                 "        for (int64_t i = {from}; i <= {to}; i++) {{"
                             );
-                            self.term(out, s, &contributions[s], &roots, At::Loop);
+                            self.term(out, s, contributions, roots, At::Loop);
                             let _ = writeln!(out, "        }}");
                         }
                     }

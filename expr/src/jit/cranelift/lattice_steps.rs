@@ -33,7 +33,8 @@ use super::step::{CraneliftKernels, OrbitStepsFnPtr, TangentStepsFnPtr, vconsts}
 use super::{Sigs, VConsts, flags, new_module};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
 use crate::jit::lattice_plan::{
-    ForcePart, OutputPlan, WindowPlan, arrays_of, check_size, shift_range,
+    ForcePart, OutputPlan, WindowPlan, arrays_of, check_size, rest_derivatives, shift_range,
+    sum_contributions,
 };
 use crate::jit::step::{Code, StepKernels};
 use crate::jit::{JitError, Options};
@@ -487,13 +488,7 @@ impl Kernel<'_> {
             units: self.units,
             k: Some(k),
         };
-        let contributions: Vec<Vec<(f64, NodeId)>> = lattice
-            .derivatives
-            .iter()
-            .map(|d| d.contributions(self.graph, self.tangent))
-            .collect();
-        let roots_of =
-            |s: usize| -> Vec<NodeId> { contributions[s].iter().map(|&(_, id)| id).collect() };
+        let sums = sum_contributions(self.graph, lattice, self.tangent);
         // One term of sum `s`: its derivatives added to the scratch rows of the sites its slots
         // read.
         let term = |b: &mut FunctionBuilder, s: usize, roots: &[NodeId], at: At| {
@@ -511,7 +506,7 @@ impl Kernel<'_> {
                     b.ins().iadd(rows.g, off)
                 }
             };
-            for (&shift, &(factor, r)) in sum.variables.iter().zip(&contributions[s]) {
+            for (&shift, &(factor, r)) in sum.variables.iter().zip(&sums[s].0) {
                 let off = match at {
                     At::Term(i) => match sum.site(i, shift) {
                         Some(j) => j as i64 * self.g_row(),
@@ -526,14 +521,7 @@ impl Kernel<'_> {
         for part in &self.plan.parts {
             match *part {
                 ForcePart::Rest => {
-                    let rest = if self.tangent {
-                        lattice
-                            .rest_hessian_vector
-                            .as_deref()
-                            .expect("a tangent kernel has the Hessian-vector product")
-                    } else {
-                        &lattice.rest_gradient
-                    };
+                    let rest = rest_derivatives(lattice, self.tangent);
                     let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
                     let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| match *node {
                         Node::Const(c) => Val::One(b.ins().f64const(c)),
@@ -557,17 +545,17 @@ impl Kernel<'_> {
                         self.add_to(b, rows.g, j as i64 * self.g_row(), 1.0, d);
                     }
                 }
-                ForcePart::Term { sum, i } => term(b, sum, &roots_of(sum), At::Term(i)),
+                ForcePart::Term { sum, i } => term(b, sum, &sums[sum].1, At::Term(i)),
                 ForcePart::Loop { sum: s, from, to } => {
-                    let roots = roots_of(s);
+                    let roots = &sums[s].1;
                     match self.plan.window[s] {
                         Some(plan) => {
                             let window = LaneWindow {
                                 kernel: self,
                                 body: &body,
                                 sum: &lattice.sums[s],
-                                contributions: &contributions[s],
-                                roots: &roots,
+                                contributions: &sums[s].0,
+                                roots,
                                 rows,
                                 st,
                                 plan,
@@ -576,7 +564,7 @@ impl Kernel<'_> {
                         }
                         None => {
                             site_loop(b, from, to, None, &mut |b, i, _| {
-                                term(b, s, &roots, At::Loop(i));
+                                term(b, s, roots, At::Loop(i));
                                 None
                             });
                         }

@@ -1,14 +1,15 @@
-//! The loop plan of a lattice potential's derivatives, shared by both back ends (Cranelift in
-//! [`super::cranelift::lattice`] and [`super::cranelift::lattice_steps`], C in
-//! [`super::c::lattice_steps`]): which sums keep a window of sites in registers, which sites
-//! start at `-0`, and in a step kernel's stage where each row is drifted and kicked. Both print
-//! the same plan, so they perform the same operations in the same order.
+//! The loop plan of a lattice potential and its derivatives, shared by both back ends
+//! (Cranelift in [`super::cranelift::lattice`] and [`super::cranelift::lattice_steps`], C in
+//! [`super::c::lattice_steps`] and [`super::c::fused`]): the force's parts in the reference
+//! order, which sums keep a window of sites in registers, which sites start at `-0`, and in a
+//! step kernel's stage where each row is drifted and kicked. Every printer walks the same
+//! parts, so they perform the same operations in the same order.
 
 use std::sync::Arc;
 
 use super::JitError;
 use crate::graph::{Graph, Node, NodeId};
-use crate::lattice::{ARG_Q, ARG_V, LatticePotential};
+use crate::lattice::{ARG_Q, ARG_V, LatticePotential, SiteSum};
 
 /// Refuses lattices whose byte offsets (sites times 8, scratch rows of up to four lanes) do not
 /// fit the `i32` immediates of the generated code.
@@ -91,6 +92,24 @@ pub(crate) enum ForcePart {
     },
 }
 
+impl ForcePart {
+    /// Sum `s`'s parts in the reference order: its boundary terms before the interior, the
+    /// interior as a loop, its terms after.
+    pub(crate) fn of_sum(sum: &SiteSum, s: usize) -> Vec<ForcePart> {
+        let (before, after) = sum.boundary_terms();
+        let term = |i| ForcePart::Term { sum: s, i };
+        let interior = sum
+            .interior()
+            .map(|(from, to)| ForcePart::Loop { sum: s, from, to });
+        before
+            .into_iter()
+            .map(term)
+            .chain(interior)
+            .chain(after.into_iter().map(term))
+            .collect()
+    }
+}
+
 /// The derivatives of the expression around the sums: its gradient, or with `hessian` its
 /// Hessian-vector product (none without second derivatives), as (0-based site, node).
 pub(crate) fn rest_derivatives(lattice: &LatticePotential, hessian: bool) -> &[(u32, NodeId)] {
@@ -116,6 +135,10 @@ pub(crate) fn sum_contributions(
         .derivatives
         .iter()
         .map(|d| {
+            if hessian && d.hessian_vector.is_none() {
+                // No second derivatives: the sum has no part.
+                return (Vec::new(), Vec::new());
+            }
             let c = d.contributions(graph, hessian);
             let roots = c.iter().map(|&(_, id)| id).collect();
             (c, roots)
@@ -211,63 +234,55 @@ impl OutputPlan {
                 d.gradient.len()
             }
         };
-        let mut window = Vec::new();
+        let mut window = vec![None; lattice.sums.len()];
         for (s, (sum, d)) in lattice.sums.iter().zip(&lattice.derivatives).enumerate() {
-            if used(d) == 0 {
-                window.push(None);
-                continue;
+            if used(d) > 0 {
+                parts.extend(ForcePart::of_sum(sum, s));
             }
+        }
+        for part in &parts {
+            let sum = match *part {
+                ForcePart::Rest => continue,
+                ForcePart::Term { sum, .. } | ForcePart::Loop { sum, .. } => &lattice.sums[sum],
+            };
             let sites = |i: i64| sum.variables.iter().filter_map(move |&k| sum.site(i, k));
-            let (before, after) = sum.boundary_terms();
-            for &i in &before {
-                parts.push(ForcePart::Term { sum: s, i });
-                for j in sites(i) {
-                    read(&mut touched, &mut init, j);
-                    read_row(&mut drifted, &mut pre, j);
-                }
-            }
-            let mut w = None;
-            if let Some((from, to)) = sum.interior() {
-                parts.push(ForcePart::Loop { sum: s, from, to });
-                let (kmin, kmax) = shift_range(&sum.variables);
-                if kmax - kmin < MAX_WINDOW {
-                    let incoming = (from + kmax - 1) as usize..(to + kmax) as usize;
-                    let fresh = !touched[incoming.clone()].iter().any(|&t| t);
-                    let drift = stage && !drifted[incoming.clone()].iter().any(|&d| d);
-                    // The window's first sites and rows are read at the loop's entry.
-                    for j in (from + kmin - 1) as usize..(from + kmax - 1) as usize {
-                        read(&mut touched, &mut init, j);
-                        read_row(&mut drifted, &mut pre, j);
-                    }
-                    for j in incoming {
-                        if fresh {
-                            touched[j] = true;
-                        } else {
-                            read(&mut touched, &mut init, j);
-                        }
-                        if drift {
-                            drifted[j] = true;
-                        } else {
-                            read_row(&mut drifted, &mut pre, j);
-                        }
-                    }
-                    w = Some(WindowPlan {
-                        fresh,
-                        drift,
-                        kick: false,
-                    });
-                } else {
-                    for i in from..=to {
-                        for j in sites(i) {
+            let (from, to) = match *part {
+                ForcePart::Loop { sum: s, from, to } => {
+                    let (kmin, kmax) = shift_range(&sum.variables);
+                    if kmax - kmin < MAX_WINDOW {
+                        let incoming = (from + kmax - 1) as usize..(to + kmax) as usize;
+                        let fresh = !touched[incoming.clone()].iter().any(|&t| t);
+                        let drift = stage && !drifted[incoming.clone()].iter().any(|&d| d);
+                        // The window's first sites and rows are read at the loop's entry.
+                        for j in (from + kmin - 1) as usize..(from + kmax - 1) as usize {
                             read(&mut touched, &mut init, j);
                             read_row(&mut drifted, &mut pre, j);
                         }
+                        for j in incoming {
+                            if fresh {
+                                touched[j] = true;
+                            } else {
+                                read(&mut touched, &mut init, j);
+                            }
+                            if drift {
+                                drifted[j] = true;
+                            } else {
+                                read_row(&mut drifted, &mut pre, j);
+                            }
+                        }
+                        window[s] = Some(WindowPlan {
+                            fresh,
+                            drift,
+                            kick: false,
+                        });
+                        continue;
                     }
+                    (from, to)
                 }
-            }
-            window.push(w);
-            for i in after {
-                parts.push(ForcePart::Term { sum: s, i });
+                ForcePart::Term { i, .. } => (i, i),
+                ForcePart::Rest => unreachable!(),
+            };
+            for i in from..=to {
                 for j in sites(i) {
                     read(&mut touched, &mut init, j);
                     read_row(&mut drifted, &mut pre, j);
@@ -278,38 +293,26 @@ impl OutputPlan {
         let mut kicked = vec![false; n];
         if stage {
             let mut later = vec![false; n];
-            for (s, (sum, d)) in lattice
-                .sums
-                .iter()
-                .zip(&lattice.derivatives)
-                .enumerate()
-                .rev()
-            {
-                if used(d) == 0 {
-                    continue;
-                }
-                let (before, after) = sum.boundary_terms();
-                let mark = |later: &mut [bool], i: i64| {
-                    for j in sum.variables.iter().filter_map(|&k| sum.site(i, k)) {
-                        later[j] = true;
+            for part in parts.iter().rev() {
+                match *part {
+                    ForcePart::Rest => {}
+                    ForcePart::Term { sum, i } => {
+                        let sum = &lattice.sums[sum];
+                        for j in sum.variables.iter().filter_map(|&k| sum.site(i, k)) {
+                            later[j] = true;
+                        }
                     }
-                };
-                for &i in &after {
-                    mark(&mut later, i);
-                }
-                if let Some((from, to)) = sum.interior() {
-                    let (kmin, kmax) = shift_range(&sum.variables);
-                    let done = (from + kmin - 1) as usize..(to + kmin) as usize;
-                    if let Some(w) = window[s].as_mut()
-                        && !later[done.clone()].iter().any(|&l| l)
-                    {
-                        w.kick = true;
-                        kicked[done].fill(true);
+                    ForcePart::Loop { sum: s, from, to } => {
+                        let (kmin, kmax) = shift_range(&lattice.sums[s].variables);
+                        let done = (from + kmin - 1) as usize..(to + kmin) as usize;
+                        if let Some(w) = window[s].as_mut()
+                            && !later[done.clone()].iter().any(|&l| l)
+                        {
+                            w.kick = true;
+                            kicked[done].fill(true);
+                        }
+                        later[(from + kmin - 1) as usize..(to + kmax) as usize].fill(true);
                     }
-                    later[(from + kmin - 1) as usize..(to + kmax) as usize].fill(true);
-                }
-                for &i in &before {
-                    mark(&mut later, i);
                 }
             }
         }

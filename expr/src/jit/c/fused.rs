@@ -40,6 +40,7 @@ use std::sync::Arc;
 
 use super::{emit_nodes, konst};
 use crate::graph::{Graph, Node, NodeId};
+use crate::jit::lattice_plan::{rest_derivatives, sum_contributions};
 use crate::lattice::{
     ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_V, LatticePotential, SiteSum,
 };
@@ -224,11 +225,8 @@ pub(crate) fn source(
         array_env,
         gather: &gather,
         contributions: [false, true].map(|tangent| {
-            lattice
-                .derivatives
-                .iter()
-                .map(|d| d.contributions(graph, tangent))
-                .collect()
+            let sums = sum_contributions(graph, lattice, tangent);
+            sums.into_iter().map(|(c, _)| c).collect()
         }),
     };
     let mut src = wide();
@@ -1070,14 +1068,8 @@ impl Writer<'_> {
     fn ends(&self, out: &mut String, tangent: bool) {
         let lattice = self.lattice;
         let contributions = &self.contributions[usize::from(tangent)];
-        let rest = if tangent {
-            lattice
-                .rest_hessian_vector
-                .as_deref()
-                .expect("the kernel is written only with the Hessian-vector product")
-        } else {
-            &lattice.rest_gradient
-        };
+        // The kernel is written only with the Hessian-vector product.
+        let rest = rest_derivatives(lattice, tangent);
         let (p, indent) = if tangent { ("dp", "    ") } else { ("p", "  ") };
         let mut lines = Vec::new();
         // The expression around the sums, computed once.

@@ -29,7 +29,10 @@ use super::{
     emit_vector, flags, new_module, regalloc_for,
 };
 use crate::graph::{Graph, Node, NodeId, Tabulated};
-use crate::jit::lattice_plan::{OutputPlan, arrays_of, check_size, shift_range};
+use crate::jit::lattice_plan::{
+    ForcePart, OutputPlan, SumContributions, arrays_of, check_size, rest_derivatives, shift_range,
+    sum_contributions,
+};
 use crate::jit::{JitError, Layout, Options, Regalloc, is_leaf, schedule};
 use crate::lattice::{
     ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_SUM, ARG_V, LatticePotential, SiteSum,
@@ -311,57 +314,60 @@ fn build(
         units: 0,
         k: None,
     };
-    let hessian = lattice.has_hessian();
     let layout = (what != What::Potential)
         .then(|| OutputPlan::new(graph, lattice, what == What::HessianVector, false));
-    if let Some(layout) = &layout {
-        // out = -0 (`-0 + x` is `x`: the first contribution is taken as it is), where a site
-        // is read before a loop writes it first.
-        for &(a, z) in &layout.init {
-            fill(&mut b, out, a, z, -0.0);
-        }
-        let rest = match what {
-            What::Gradient => Some(&lattice.rest_gradient),
-            _ => lattice.rest_hessian_vector.as_ref(),
-        };
-        if let Some(rest) = rest.filter(|r| !r.is_empty()) {
-            let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
-            let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| {
-                Val::One(global_leaf(b, node, q, v, &[]))
-            };
-            let vals = body.emit(&mut b, &roots, &mut leaf);
-            for &(j, id) in rest {
-                let Some(Val::One(x)) = vals[id as usize] else {
-                    unreachable!("scalar code")
-                };
-                let off = (j as usize * 8) as i32;
-                let acc = b.ins().load(F64, flags(), out, off);
-                let acc = b.ins().fadd(acc, x);
-                b.ins().store(flags(), acc, out, off);
+    // Per sum, what its derivatives add per slot (none for the potential) and the roots to emit.
+    let sums: Vec<SumContributions> = match what {
+        What::Potential => (lattice.sums.iter())
+            .map(|sum| (Vec::new(), vec![sum.term]))
+            .collect(),
+        _ => sum_contributions(graph, lattice, what == What::HessianVector),
+    };
+    let parts = match &layout {
+        Some(layout) => {
+            // out = -0 (`-0 + x` is `x`: the first contribution is taken as it is), where a
+            // site is read before a loop writes it first.
+            for &(a, z) in &layout.init {
+                fill(&mut b, out, a, z, -0.0);
             }
+            layout.parts.clone()
         }
-    }
-    let mut sum_values = Vec::new();
-    for (s, sum) in lattice.sums.iter().enumerate() {
-        let d = &lattice.derivatives[s];
-        let contributions = match what {
-            What::Potential => Vec::new(),
-            What::Gradient => d.contributions(graph, false),
-            What::HessianVector if hessian => d.contributions(graph, true),
-            What::HessianVector => continue,
+        None => (lattice.sums.iter().enumerate())
+            .flat_map(|(s, sum)| ForcePart::of_sum(sum, s))
+            .collect(),
+    };
+    // The potential's value of each sum so far.
+    let zero = b.ins().f64const(-0.0);
+    let mut acc: Vec<Option<Value>> =
+        vec![(what == What::Potential).then_some(zero); lattice.sums.len()];
+    for part in parts {
+        let s = match part {
+            ForcePart::Rest => {
+                let rest = rest_derivatives(lattice, what == What::HessianVector);
+                let roots: Vec<NodeId> = rest.iter().map(|&(_, id)| id).collect();
+                let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| {
+                    Val::One(global_leaf(b, node, q, v, &[]))
+                };
+                let vals = body.emit(&mut b, &roots, &mut leaf);
+                for &(j, id) in rest {
+                    let Some(Val::One(x)) = vals[id as usize] else {
+                        unreachable!("scalar code")
+                    };
+                    let off = (j as usize * 8) as i32;
+                    let acc = b.ins().load(F64, flags(), out, off);
+                    let acc = b.ins().fadd(acc, x);
+                    b.ins().store(flags(), acc, out, off);
+                }
+                continue;
+            }
+            ForcePart::Term { sum, .. } | ForcePart::Loop { sum, .. } => sum,
         };
-        let roots: Vec<NodeId> = match what {
-            What::Potential => vec![sum.term],
-            _ => contributions.iter().map(|&(_, id)| id).collect(),
-        };
-        if roots.is_empty() {
-            continue;
-        }
+        let (sum, (contributions, roots)) = (&lattice.sums[s], &sums[s]);
         let term = |b: &mut FunctionBuilder, at: At, acc: Option<Value>| -> Option<Value> {
             let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| {
                 Val::One(slot_leaf(b, node, sum, at, q, v, arrays))
             };
-            let vals = body.emit(b, &roots, &mut leaf);
+            let vals = body.emit(b, roots, &mut leaf);
             let value = |id: NodeId| match vals[id as usize] {
                 Some(Val::One(x)) => x,
                 _ => unreachable!("scalar code"),
@@ -370,7 +376,7 @@ fn build(
                 let t = value(sum.term);
                 return acc.map(|acc| b.ins().fadd(acc, t));
             }
-            for (&shift, &(factor, r)) in sum.variables.iter().zip(&contributions) {
+            for (&shift, &(factor, r)) in sum.variables.iter().zip(contributions) {
                 let off = match at {
                     At::Term(i) => sum.site(i, shift).map(|j| (out, (j * 8) as i32)),
                     At::Loop { off } => Some((b.ins().iadd(out, off), ((shift - 1) * 8) as i32)),
@@ -384,46 +390,34 @@ fn build(
             }
             None
         };
-        let zero = b.ins().f64const(-0.0);
-        let mut acc = (what == What::Potential).then_some(zero);
-        let (before, after) = sum.boundary_terms();
-        for &i in &before {
-            acc = term(&mut b, At::Term(i), acc);
-        }
-        if let Some((from, to)) = sum.interior() {
-            if let Some(fresh) = layout.as_ref().and_then(|l| l.window[s]).map(|w| w.fresh) {
-                let window = Window {
-                    body: &body,
-                    sum,
-                    contributions: &contributions,
-                    roots: &roots,
-                    q,
-                    v,
-                    out,
-                    arrays,
-                };
-                window.build(&mut b, (from, to), fresh);
-            } else {
-                acc = site_loop(&mut b, from, to, acc, &mut |b, i, acc| {
+        acc[s] = match part {
+            ForcePart::Term { i, .. } => term(&mut b, At::Term(i), acc[s]),
+            ForcePart::Loop { from, to, .. } => match layout.as_ref().and_then(|l| l.window[s]) {
+                Some(w) => {
+                    let window = Window {
+                        body: &body,
+                        sum,
+                        contributions,
+                        roots,
+                        q,
+                        v,
+                        out,
+                        arrays,
+                    };
+                    window.build(&mut b, (from, to), w.fresh);
+                    acc[s]
+                }
+                None => site_loop(&mut b, from, to, acc[s], &mut |b, i, acc| {
                     let off = b.ins().ishl_imm_u(i, 3);
                     term(b, At::Loop { off }, acc)
-                });
-            }
-        }
-        for &i in &after {
-            acc = term(&mut b, At::Term(i), acc);
-        }
-        if let Some(acc) = acc {
-            sum_values.push((s, acc));
-        }
+                }),
+            },
+            ForcePart::Rest => unreachable!(),
+        };
     }
     if what == What::Potential {
-        let mut sums: Vec<Option<Value>> = vec![None; lattice.sums.len()];
-        for (s, x) in sum_values {
-            sums[s] = Some(x);
-        }
         let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| {
-            Val::One(global_leaf(b, node, q, v, &sums))
+            Val::One(global_leaf(b, node, q, v, &acc))
         };
         let vals = body.emit(&mut b, &[lattice.root], &mut leaf);
         let Some(Val::One(x)) = vals[lattice.root as usize] else {

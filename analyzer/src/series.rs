@@ -126,6 +126,7 @@ impl<P: Clone> Series<P> {
         all
     }
 
+    #[cfg(test)]
     pub fn len_bound(&self) -> usize {
         self.log_points.len() + self.even_points.len()
     }

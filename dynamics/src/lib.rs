@@ -7,13 +7,13 @@
 //! `estimate::Machine::this_host` reads the machine's cores and memory.
 
 pub mod batch;
-pub mod deviation;
+pub(crate) mod deviation;
 pub mod engine;
 pub mod estimate;
 pub mod header;
 pub mod integrator;
 pub mod map;
-pub mod method;
+pub(crate) mod method;
 pub mod model;
 pub mod propagator;
 pub mod renormalization;
@@ -21,7 +21,7 @@ pub mod section;
 pub mod spec;
 pub mod system;
 pub mod vector_field;
-pub mod window;
+pub(crate) mod window;
 
 /// GALI, SALI and the finite-time exponents live in their own crate (the recorder computes them
 /// too, and must not depend on the producer); re-exported under their old path.

@@ -29,21 +29,21 @@
 //! the user's cache directory); `potential` says once on stderr why the C kernels could not be
 //! built (`potential/kernel_switch.rs`).
 
-pub mod ast;
+pub(crate) mod ast;
 pub mod diff;
-pub mod error;
-pub mod eval;
+pub(crate) mod error;
+pub(crate) mod eval;
 pub mod graph;
 pub mod jit;
 pub mod lattice;
 mod lexer;
 pub mod lower;
 mod ops;
-pub mod parser;
+pub(crate) mod parser;
 pub mod potential;
-pub mod scalar;
+pub(crate) mod scalar;
 mod site_parts;
-pub mod smooth;
+pub(crate) mod smooth;
 pub mod table;
 pub mod taylor;
 #[cfg(test)]

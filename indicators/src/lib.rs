@@ -23,18 +23,18 @@
 //! - [`tracker`]: the streaming state of a run (per scheme and set: stretching sums and latest
 //!   vectors) and a scheme's indicators averaged over its sets at its latest renormalization.
 
-pub mod alignment;
+pub(crate) mod alignment;
 pub mod clv;
 pub mod distribution;
 pub mod dvd;
 pub mod energy;
-pub mod fli;
+pub(crate) mod fli;
 pub mod indicator;
-pub mod megno;
+pub(crate) mod megno;
 pub mod norm;
 pub mod periodic;
 pub mod stats;
-pub mod stretch;
+pub(crate) mod stretch;
 pub mod tracker;
 pub mod zero_one;
 

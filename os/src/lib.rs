@@ -19,7 +19,7 @@
 //! No numerics, no file format, no bus: every other crate may depend on this one.
 
 pub mod cpu_time;
-pub mod input;
+pub(crate) mod input;
 pub mod output;
 pub mod signals;
 pub mod stdout;

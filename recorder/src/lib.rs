@@ -9,7 +9,7 @@
 //! - [`record`]: the recorder process loop gluing the above.
 
 mod discover;
-pub mod record;
+pub(crate) mod record;
 pub mod subscription;
 mod write_thread;
 

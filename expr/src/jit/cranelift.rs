@@ -60,6 +60,7 @@ use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
 pub(crate) mod lattice;
 pub(crate) mod lattice_steps;
 pub(crate) mod step;
+mod step_loops;
 
 use super::outputs_by_node;
 use super::{FunctionSpec, JitError, Layout, OptLevel, Options, Plan, Regalloc, is_leaf};

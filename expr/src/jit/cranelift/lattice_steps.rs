@@ -30,6 +30,7 @@ use cranelift_module::{Linkage, Module};
 
 use super::lattice::{Body, Val, accumulate, site_loop};
 use super::step::{CraneliftKernels, OrbitStepsFnPtr, TangentStepsFnPtr, vconsts};
+use super::step_loops::{LoopArgs, StepBody, step_loops};
 use super::{Sigs, VConsts, flags, new_module};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
 use crate::jit::lattice_plan::{
@@ -174,6 +175,80 @@ enum At {
     Loop(Value),
 }
 
+/// The lattice kernel's work in the loop nest: per block the plan's passes (rows drifted before
+/// the parts, the force's rows that must start at -0, the parts, whose window loops drift and
+/// kick as they go, the rows the force never read, the rows left to kick); the last drift over
+/// every row.
+struct LatticeBody<'a> {
+    kernel: &'a Kernel<'a>,
+    sigs: &'a Sigs,
+    x: Value,
+    /// The row stride in bytes, and `N` rows in bytes.
+    sb: Value,
+    half: Value,
+    w: Value,
+    scratch: Value,
+    /// The stage's drift coefficient, `dh` broadcast and reference position (tangent).
+    stage: Option<(Value, Value, Option<Value>)>,
+}
+
+impl StepBody for LatticeBody<'_> {
+    fn run(&mut self, _: &mut FunctionBuilder) {}
+
+    fn stage(&mut self, b: &mut FunctionBuilder, ch: Value, dh: Value, reference: Option<Value>) {
+        self.stage = Some((ch, b.ins().splat(F64X2, dh), reference));
+    }
+
+    fn block(&mut self, b: &mut FunctionBuilder, off: Value) {
+        let kernel = self.kernel;
+        let (ch, dhv, stage) = self.stage.expect("a stage before its blocks");
+        let k = vconsts(b);
+        let rows = Rows {
+            x: b.ins().iadd(self.x, off),
+            stride: self.sb,
+            stage,
+            g: self.scratch,
+        };
+        let (w, half) = (self.w, self.half);
+        let st = Stage { ch, w, dhv, half };
+        for &range in &kernel.plan.pre_drift {
+            kernel.drift_rows(b, &st, rows, range);
+        }
+        for &range in &kernel.plan.init {
+            kernel.clear_rows(b, rows, range);
+        }
+        kernel.force(b, self.sigs, &k, rows, &st);
+        for &range in &kernel.plan.post_drift {
+            kernel.drift_rows(b, &st, rows, range);
+        }
+        for &range in &kernel.plan.post_kick {
+            kernel.kick_rows(b, &st, rows, range);
+        }
+    }
+
+    fn last(&mut self, _: &mut FunctionBuilder, ch: Value) {
+        self.stage = Some((ch, ch, None));
+    }
+
+    fn last_block(&mut self, b: &mut FunctionBuilder, off: Value) {
+        let (ch, _, _) = self.stage.expect("the last drift's coefficient");
+        let rows = Rows {
+            x: b.ins().iadd(self.x, off),
+            stride: self.sb,
+            stage: None,
+            g: self.scratch,
+        };
+        let st = Stage {
+            ch,
+            w: self.w,
+            dhv: ch,
+            half: self.half,
+        };
+        self.kernel
+            .drift_rows(b, &st, rows, (0, self.kernel.lattice.n));
+    }
+}
+
 impl Kernel<'_> {
     /// Bytes of one scratch row (a block of lanes).
     fn g_row(&self) -> i64 {
@@ -184,22 +259,7 @@ impl Kernel<'_> {
         let n = self.lattice.n;
         let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
         let entry = b.create_block();
-        let run = b.create_block();
-        let step_head = b.create_block();
-        let stage_head = b.create_block();
-        let stage_body = b.create_block();
-        let blk = b.create_block();
-        let stage_next = b.create_block();
-        let last = b.create_block();
-        let last_blk = b.create_block();
-        let step_next = b.create_block();
-        let exit = b.create_block();
         b.append_block_params_for_function_params(entry);
-        let s = b.append_block_param(step_head, I64);
-        let i = b.append_block_param(stage_head, I64);
-        let off = b.append_block_param(blk, I64);
-        let last_off = b.append_block_param(last_blk, I64);
-
         b.switch_to_block(entry);
         let params = b.block_params(entry).to_vec();
         let (stages, rest) = if self.tangent {
@@ -213,113 +273,27 @@ impl Kernel<'_> {
         let sigs = Sigs::new(&mut b, module);
         let sb = b.ins().ishl_imm_u(stride, 3);
         let half = b.ins().imul_imm_s(sb, n as i64);
-        let block_lanes = 2 * self.units as i64;
-        let whole = b.ins().band_imm_s(lanes, !(block_lanes - 1));
-        let end = b.ins().ishl_imm_u(whole, 3);
-        let no_lanes = b.ins().icmp_imm_u(IntCC::Equal, end, 0);
-        let no_steps = b.ins().icmp_imm_u(IntCC::Equal, n_steps, 0);
-        let nothing = b.ins().bor(no_lanes, no_steps);
-        b.ins().brif(nothing, exit, &[], run, &[]);
-
-        b.switch_to_block(run);
-        let zero = b.ins().iconst(I64, 0);
-        b.ins().jump(step_head, &[BlockArg::Value(zero)]);
-
-        b.switch_to_block(step_head);
-        b.ins().jump(stage_head, &[BlockArg::Value(zero)]);
-
-        b.switch_to_block(stage_head);
-        let more = b.ins().icmp(IntCC::UnsignedLessThan, i, n_kicks);
-        b.ins().brif(more, stage_body, &[], last, &[]);
-
-        // stage_body: the stage's coefficients and reference position, then the blocks.
-        b.switch_to_block(stage_body);
-        let ioff = b.ins().ishl_imm_u(i, 3);
-        let dp = b.ins().iadd(drift, ioff);
-        let ch = b.ins().load(F64, flags(), dp, 0);
-        let kp = b.ins().iadd(kick, ioff);
-        let dh = b.ins().load(F64, flags(), kp, 0);
-        let dhv = b.ins().splat(F64X2, dh);
-        let stage = stages.map(|st| {
-            let si = b.ins().imul(s, n_kicks);
-            let si = b.ins().iadd(si, i);
-            let byte = b.ins().imul_imm_s(si, (n * 8) as i64);
-            b.ins().iadd(st, byte)
-        });
-        b.ins().jump(blk, &[BlockArg::Value(zero)]);
-
-        // blk(off): drift, force and kick of one block of lanes.
-        b.switch_to_block(blk);
-        let xb = b.ins().iadd(x, off);
-        let k = vconsts(&mut b);
-        let rows = Rows {
-            x: xb,
-            stride: sb,
-            stage,
-            g: scratch,
-        };
-        let st = Stage { ch, w, dhv, half };
-        // The plan's passes: rows drifted before the parts, the force's rows that must start
-        // at -0, the parts (whose window loops drift and kick as they go), the rows the force
-        // never read, the rows left to kick.
-        for &range in &self.plan.pre_drift {
-            self.drift_rows(&mut b, &st, rows, range);
-        }
-        for &range in &self.plan.init {
-            self.clear_rows(&mut b, rows, range);
-        }
-        self.force(&mut b, &sigs, &k, rows, &st);
-        for &range in &self.plan.post_drift {
-            self.drift_rows(&mut b, &st, rows, range);
-        }
-        for &range in &self.plan.post_kick {
-            self.kick_rows(&mut b, &st, rows, range);
-        }
-        let next = b.ins().iadd_imm_s(off, 8 * block_lanes);
-        let more = b.ins().icmp(IntCC::UnsignedLessThan, next, end);
-        b.ins()
-            .brif(more, blk, &[BlockArg::Value(next)], stage_next, &[]);
-
-        b.switch_to_block(stage_next);
-        let i1 = b.ins().iadd_imm_s(i, 1);
-        b.ins().jump(stage_head, &[BlockArg::Value(i1)]);
-
-        // last: the drift after the last kick, over every block.
-        b.switch_to_block(last);
-        let loff = b.ins().ishl_imm_u(n_kicks, 3);
-        let lp = b.ins().iadd(drift, loff);
-        let ch_last = b.ins().load(F64, flags(), lp, 0);
-        b.ins().jump(last_blk, &[BlockArg::Value(zero)]);
-
-        b.switch_to_block(last_blk);
-        let xb = b.ins().iadd(x, last_off);
-        let rows = Rows {
-            x: xb,
-            stride: sb,
-            stage: None,
-            g: scratch,
-        };
-        let st = Stage {
-            ch: ch_last,
-            w,
-            dhv: ch_last,
+        let mut body = LatticeBody {
+            kernel: self,
+            sigs: &sigs,
+            x,
+            sb,
             half,
+            w,
+            scratch,
+            stage: None,
         };
-        self.drift_rows(&mut b, &st, rows, (0, n));
-        let next = b.ins().iadd_imm_s(last_off, 8 * block_lanes);
-        let more = b.ins().icmp(IntCC::UnsignedLessThan, next, end);
-        b.ins()
-            .brif(more, last_blk, &[BlockArg::Value(next)], step_next, &[]);
-
-        b.switch_to_block(step_next);
-        let s1 = b.ins().iadd_imm_s(s, 1);
-        let more = b.ins().icmp(IntCC::UnsignedLessThan, s1, n_steps);
-        b.ins()
-            .brif(more, step_head, &[BlockArg::Value(s1)], exit, &[]);
-
-        b.switch_to_block(exit);
-        b.ins().return_(&[]);
-        b.seal_all_blocks();
+        let args = LoopArgs {
+            lanes,
+            n_steps,
+            drift,
+            kick,
+            n_kicks,
+            stages,
+            n,
+            block_lanes: 2 * self.units as i64,
+        };
+        step_loops(&mut b, &args, &mut body);
         b.finalize(module.target_config());
     }
 

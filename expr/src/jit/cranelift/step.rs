@@ -14,6 +14,7 @@ use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::JITModule;
 use cranelift_module::{Linkage, Module};
 
+use super::step_loops::{LoopArgs, StepBody, step_loops};
 use super::{
     AllocationWork, Sigs, VConsts, emit_scalar, emit_vector, flags, new_module, operand_scalar,
     regalloc_for,
@@ -468,22 +469,7 @@ fn build_kernel(
     let config = module.target_config();
     let mut b = FunctionBuilder::new(&mut ctx.func, fctx);
     let entry = b.create_block();
-    let run = b.create_block();
-    let step_head = b.create_block();
-    let stage_head = b.create_block();
-    let stage_body = b.create_block();
-    let blk = b.create_block();
-    let stage_next = b.create_block();
-    let last = b.create_block();
-    let last_blk = b.create_block();
-    let step_next = b.create_block();
-    let exit = b.create_block();
     b.append_block_params_for_function_params(entry);
-    let s = b.append_block_param(step_head, I64);
-    let i = b.append_block_param(stage_head, I64);
-    let off = b.append_block_param(blk, I64);
-    let last_off = b.append_block_param(last_blk, I64);
-
     b.switch_to_block(entry);
     let params = b.block_params(entry).to_vec();
     let (stages, rest) = if tangent {
@@ -502,17 +488,7 @@ fn build_kernel(
         b.create_sized_stack_slot(StackSlotData::new(StackSlotKind::ExplicitSlot, 8, 3));
     let stride_bytes = b.ins().ishl_imm_u(stride, 3);
     b.ins().stack_store(I64, stride_bytes, stride_slot, 0);
-    let block_lanes = 2 * units as i64;
-    let whole = b.ins().band_imm_s(lanes, !(block_lanes - 1));
-    let end = b.ins().ishl_imm_u(whole, 3);
-    let no_lanes = b.ins().icmp_imm_u(IntCC::Equal, end, 0);
-    let no_steps = b.ins().icmp_imm_u(IntCC::Equal, n_steps, 0);
-    let nothing = b.ins().bor(no_lanes, no_steps);
-    b.ins().brif(nothing, exit, &[], run, &[]);
-
-    // run: the arrays of uniform values and drift coefficients; the orbit kernel's uniform
-    // (constant) subexpressions once, the tangent kernel's per stage.
-    b.switch_to_block(run);
+    // The arrays of uniform values and drift coefficients.
     let n_uniform = plan
         .uniform_order
         .iter()
@@ -528,10 +504,79 @@ fn build_kernel(
         (n * 8) as u32,
         4,
     ));
-    let mut uniform_offset = vec![0u32; graph.len()];
-    let emit_uniforms = |b: &mut FunctionBuilder, shared: Option<Value>, offsets: &mut [u32]| {
+    let mut body = SeparableBody {
+        graph,
+        plan,
+        tables,
+        sigs: &sigs,
+        n,
+        units,
+        lane_arg,
+        tangent,
+        x,
+        w,
+        stride_slot,
+        uniforms,
+        uniform_offset: vec![0u32; graph.len()],
+        coef,
+        hoist: n + n_uniform <= HOIST,
+        shared: None,
+        dhv: None,
+        hoisted_coef: Vec::new(),
+        hoisted_uniform: Vec::new(),
+    };
+    let args = LoopArgs {
+        lanes,
+        n_steps,
+        drift,
+        kick,
+        n_kicks,
+        stages,
+        n,
+        block_lanes: 2 * units as i64,
+    };
+    step_loops(&mut b, &args, &mut body);
+    b.finalize(config);
+}
+
+/// The separable kernel's work in the loop nest: the orbit kernel's uniform (constant)
+/// subexpressions once per call, the tangent kernel's per stage; per stage the drift
+/// coefficients (and, when few, them and the uniform values splatted once for every block);
+/// per block the stage's schedule ([`Block::stage`]).
+struct SeparableBody<'a> {
+    graph: &'a Graph,
+    plan: &'a Plan,
+    tables: &'a [Arc<dyn Tabulated>],
+    sigs: &'a Sigs,
+    n: usize,
+    units: usize,
+    lane_arg: u8,
+    tangent: bool,
+    x: Value,
+    w: Value,
+    stride_slot: StackSlot,
+    uniforms: StackSlot,
+    uniform_offset: Vec<u32>,
+    coef: StackSlot,
+    hoist: bool,
+    /// The stage's reference position (tangent), `dh` broadcast, hoisted values.
+    shared: Option<Value>,
+    dhv: Option<Value>,
+    hoisted_coef: Vec<Value>,
+    hoisted_uniform: Vec<Option<Value>>,
+}
+
+impl SeparableBody<'_> {
+    fn emit_uniforms(&mut self, b: &mut FunctionBuilder) {
+        let (graph, plan) = (self.graph, self.plan);
         let ptrs: Vec<Option<Value>> = (0..plan.layouts.len())
-            .map(|a| if a as u8 == lane_arg { None } else { shared })
+            .map(|a| {
+                if a as u8 == self.lane_arg {
+                    None
+                } else {
+                    self.shared
+                }
+            })
             .collect();
         let mut svals: Vec<Option<Value>> = vec![None; graph.len()];
         let mut next = 0u32;
@@ -540,138 +585,94 @@ fn build_kernel(
             let val = {
                 let mut get =
                     |b: &mut FunctionBuilder, o| operand_scalar(b, graph, &ptrs, &svals, o);
-                emit_scalar(b, &sigs, tables, node, &mut get)
+                emit_scalar(b, self.sigs, self.tables, node, &mut get)
             };
             svals[id as usize] = Some(val);
             if plan.broadcast[id as usize] {
-                offsets[id as usize] = next;
-                b.ins().stack_store(I64, val, uniforms, next as i32);
+                self.uniform_offset[id as usize] = next;
+                b.ins().stack_store(I64, val, self.uniforms, next as i32);
                 next += 8;
             }
         }
-    };
-    if !tangent {
-        emit_uniforms(&mut b, None, &mut uniform_offset);
     }
-    let zero = b.ins().iconst(I64, 0);
-    b.ins().jump(step_head, &[BlockArg::Value(zero)]);
 
-    // step_head(s): the stage loop from its first stage.
-    b.switch_to_block(step_head);
-    b.ins().jump(stage_head, &[BlockArg::Value(zero)]);
-
-    // stage_head(i): i < n_kicks -> stage i; else the last drift.
-    b.switch_to_block(stage_head);
-    let more = b.ins().icmp(IntCC::UnsignedLessThan, i, n_kicks);
-    b.ins().brif(more, stage_body, &[], last, &[]);
-
-    // stage_body: the coefficients of stage i (and the tangent's uniform values), then the
-    // blocks.
-    b.switch_to_block(stage_body);
-    let ioff = b.ins().ishl_imm_u(i, 3);
-    let dp = b.ins().iadd(drift, ioff);
-    let ch = b.ins().load(F64, flags(), dp, 0);
-    let kp = b.ins().iadd(kick, ioff);
-    let dh = b.ins().load(F64, flags(), kp, 0);
-    let shared = stages.map(|st| {
-        // stages + (s * n_kicks + i) * N * 8
-        let si = b.ins().imul(s, n_kicks);
-        let si = b.ins().iadd(si, i);
-        let byte = b.ins().imul_imm_s(si, (n * 8) as i64);
-        b.ins().iadd(st, byte)
-    });
-    if tangent {
-        emit_uniforms(&mut b, shared, &mut uniform_offset);
+    /// The code of one block of lanes at byte offset `off`.
+    fn lanes<'b>(&'b self, b: &mut FunctionBuilder, off: Value) -> Block<'b> {
+        Block {
+            graph: self.graph,
+            plan: self.plan,
+            tables: self.tables,
+            sigs: self.sigs,
+            n: self.n,
+            units: self.units,
+            lane_arg: self.lane_arg,
+            shared: self.shared,
+            uniforms: self.uniforms,
+            uniform_offset: &self.uniform_offset,
+            coef: self.coef,
+            hoisted_coef: self.hoisted_coef.clone(),
+            hoisted_uniform: self.hoisted_uniform.clone(),
+            base: b.ins().iadd(self.x, off),
+            stride: b.ins().stack_load(I64, I64, self.stride_slot, 0),
+            addr: RefCell::new(vec![None; 2 * self.n]),
+            half: Cell::new(None),
+        }
     }
-    let dhv = b.ins().splat(F64X2, dh);
-    fill_coefficients(&mut b, coef, n, ch, w);
-    let hoist = n + n_uniform <= HOIST;
-    let hoisted_coef = if hoist {
-        hoist_coefficients(&mut b, coef, n)
-    } else {
-        Vec::new()
-    };
-    let mut hoisted_uniform = Vec::new();
-    if hoist {
-        hoisted_uniform = vec![None; graph.len()];
-        for &id in &plan.uniform_order {
-            if plan.broadcast[id as usize] {
-                let off = uniform_offset[id as usize] as i32;
-                let v = b.ins().stack_load(I64, F64, uniforms, off);
-                hoisted_uniform[id as usize] = Some(b.ins().splat(F64X2, v));
+
+    /// The drift coefficients `ch * w_j` (or `ch`), and splatted when few.
+    fn coefficients(&mut self, b: &mut FunctionBuilder, ch: Value) {
+        fill_coefficients(b, self.coef, self.n, ch, self.w);
+        self.hoisted_coef = if self.hoist {
+            hoist_coefficients(b, self.coef, self.n)
+        } else {
+            Vec::new()
+        };
+    }
+}
+
+impl StepBody for SeparableBody<'_> {
+    fn run(&mut self, b: &mut FunctionBuilder) {
+        if !self.tangent {
+            self.emit_uniforms(b);
+        }
+    }
+
+    fn stage(&mut self, b: &mut FunctionBuilder, ch: Value, dh: Value, reference: Option<Value>) {
+        self.shared = reference;
+        if self.tangent {
+            self.emit_uniforms(b);
+        }
+        self.dhv = Some(b.ins().splat(F64X2, dh));
+        self.coefficients(b, ch);
+        self.hoisted_uniform = Vec::new();
+        if self.hoist {
+            self.hoisted_uniform = vec![None; self.graph.len()];
+            for &id in &self.plan.uniform_order {
+                if self.plan.broadcast[id as usize] {
+                    let off = self.uniform_offset[id as usize] as i32;
+                    let v = b.ins().stack_load(I64, F64, self.uniforms, off);
+                    self.hoisted_uniform[id as usize] = Some(b.ins().splat(F64X2, v));
+                }
             }
         }
     }
-    b.ins().jump(blk, &[BlockArg::Value(zero)]);
 
-    // blk(off): one block of lanes (byte offset `off` of its first lane).
-    b.switch_to_block(blk);
-    let sb = b.ins().stack_load(I64, I64, stride_slot, 0);
-    let base = b.ins().iadd(x, off);
-    let k = vconsts(&mut b);
-    let mut block = Block {
-        graph,
-        plan,
-        tables,
-        sigs: &sigs,
-        n,
-        units,
-        lane_arg,
-        shared,
-        uniforms,
-        uniform_offset: &uniform_offset,
-        coef,
-        hoisted_coef,
-        hoisted_uniform,
-        base,
-        stride: sb,
-        addr: RefCell::new(vec![None; 2 * n]),
-        half: Cell::new(None),
-    };
-    block.stage(&mut b, &k, dhv);
-    let next = b.ins().iadd_imm_s(off, 8 * block_lanes);
-    let more = b.ins().icmp(IntCC::UnsignedLessThan, next, end);
-    b.ins()
-        .brif(more, blk, &[BlockArg::Value(next)], stage_next, &[]);
-
-    b.switch_to_block(stage_next);
-    let i1 = b.ins().iadd_imm_s(i, 1);
-    b.ins().jump(stage_head, &[BlockArg::Value(i1)]);
-
-    // last: the drift after the last kick, over every block.
-    b.switch_to_block(last);
-    let loff = b.ins().ishl_imm_u(n_kicks, 3);
-    let lp = b.ins().iadd(drift, loff);
-    let ch_last = b.ins().load(F64, flags(), lp, 0);
-    fill_coefficients(&mut b, coef, n, ch_last, w);
-    block.hoisted_coef = if hoist {
-        hoist_coefficients(&mut b, coef, n)
-    } else {
-        Vec::new()
-    };
-    b.ins().jump(last_blk, &[BlockArg::Value(zero)]);
-
-    b.switch_to_block(last_blk);
-    block.stride = b.ins().stack_load(I64, I64, stride_slot, 0);
-    block.base = b.ins().iadd(x, last_off);
-    block.shared = None;
-    block.reset();
-    for j in 0..n {
-        block.drift_row(&mut b, j);
+    fn block(&mut self, b: &mut FunctionBuilder, off: Value) {
+        let k = vconsts(b);
+        let dhv = self.dhv.expect("a stage before its blocks");
+        self.lanes(b, off).stage(b, &k, dhv);
     }
-    let next = b.ins().iadd_imm_s(last_off, 8 * block_lanes);
-    let more = b.ins().icmp(IntCC::UnsignedLessThan, next, end);
-    b.ins()
-        .brif(more, last_blk, &[BlockArg::Value(next)], step_next, &[]);
 
-    b.switch_to_block(step_next);
-    let s1 = b.ins().iadd_imm_s(s, 1);
-    let more = b.ins().icmp(IntCC::UnsignedLessThan, s1, n_steps);
-    b.ins()
-        .brif(more, step_head, &[BlockArg::Value(s1)], exit, &[]);
+    fn last(&mut self, b: &mut FunctionBuilder, ch: Value) {
+        self.shared = None;
+        self.hoisted_uniform = Vec::new();
+        self.coefficients(b, ch);
+    }
 
-    b.switch_to_block(exit);
-    b.ins().return_(&[]);
-    b.seal_all_blocks();
-    b.finalize(config);
+    fn last_block(&mut self, b: &mut FunctionBuilder, off: Value) {
+        let block = self.lanes(b, off);
+        for j in 0..self.n {
+            block.drift_row(b, j);
+        }
+    }
 }

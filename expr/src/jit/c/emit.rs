@@ -363,44 +363,85 @@ impl Kernel<'_> {
 
     fn write(&self, out: &mut String) {
         let n = self.n;
-        let (name, lead) = if self.tangent {
-            ("chaoscope_tangent_steps", "const double *stages, ")
-        } else {
-            ("chaoscope_orbit_steps", "")
-        };
-        let _ = writeln!(
-            out,
-            "void {name}({lead}double *restrict x, size_t stride, size_t lanes, uint64_t n_steps, \
-             const double *drift, const double *kick, size_t n_kicks, const double *w, \
-             double *scratch, const uintptr_t *env) {{"
-        );
-        let _ = writeln!(
-            out,
-            "  const size_t end = lanes - lanes % BLOCK;\n  if (end == 0 || n_steps == 0) return;\n  double c[{n}];"
-        );
-        if !self.tangent {
-            let _ = writeln!(out, "  const double *qs = 0; (void)qs;");
-            self.uniforms(out);
-        }
-        let _ = writeln!(
-            out,
-            "  for (uint64_t s = 0; s < n_steps; s++) {{\n    for (size_t i = 0; i < n_kicks; i++) {{\n      const double ch = drift[i];\n      const vd dh = B(kick[i]);\n      if (w) {{ for (size_t j = 0; j < {n}; j++) c[j] = ch * w[j]; }} else {{ for (size_t j = 0; j < {n}; j++) c[j] = ch; }}"
-        );
-        if self.tangent {
+        let coefficients = |out: &mut String| {
             let _ = writeln!(
                 out,
-                "      const double *qs = stages + (s * n_kicks + i) * {n}; (void)qs;"
+                "      if (w) {{ for (size_t j = 0; j < {n}; j++) c[j] = ch * w[j]; }} else {{ for (size_t j = 0; j < {n}; j++) c[j] = ch; }}"
             );
-            self.uniforms(out);
-        }
-        let _ = writeln!(
+        };
+        step_loops(
             out,
-            "      for (size_t o = 0; o < end; o += BLOCK) {{\n  double *xb = x + o; (void)dh;"
-        );
-        self.block(out);
-        let _ = writeln!(
-            out,
-            "      }}\n    }}\n    {{\n      const double ch = drift[n_kicks];\n      if (w) {{ for (size_t j = 0; j < {n}; j++) c[j] = ch * w[j]; }} else {{ for (size_t j = 0; j < {n}; j++) c[j] = ch; }}\n      for (size_t o = 0; o < end; o += LANES) {{\n        double *xb = x + o;\n        for (size_t j = 0; j < {n}; j++) ST(xb + j * stride, LD(xb + j * stride) + B(c[j]) * LD(xb + ({n} + j) * stride));\n      }}\n    }}\n  }}\n}}"
+            n,
+            self.tangent,
+            "scratch",
+            |out| {
+                let _ = writeln!(out, "  double c[{n}];");
+                if !self.tangent {
+                    self.uniforms(out);
+                }
+            },
+            |out| {
+                coefficients(out);
+                if self.tangent {
+                    self.uniforms(out);
+                }
+            },
+            |out| {
+                let _ = writeln!(out, "  (void)dh;");
+                self.block(out);
+            },
         );
     }
+}
+
+/// The loop nest of a step kernel, the C twin of the Cranelift kernels' (`step_loops.rs` there):
+/// the signature, the step and stage loops, the blocks of lanes, the last drift. `head` writes
+/// what the whole call shares, `stage` what a stage computes before its blocks (`ch`, `dh` and,
+/// in a tangent kernel, the reference position `qs` are defined), `block` one block's work
+/// (`xb`, its first lane, is defined); `scratch` names the kernel's working memory.
+pub(crate) fn step_loops(
+    out: &mut String,
+    n: usize,
+    tangent: bool,
+    scratch: &str,
+    head: impl FnOnce(&mut String),
+    stage: impl FnOnce(&mut String),
+    block: impl FnOnce(&mut String),
+) {
+    let (name, lead) = if tangent {
+        ("chaoscope_tangent_steps", "const double *stages, ")
+    } else {
+        ("chaoscope_orbit_steps", "")
+    };
+    let _ = writeln!(
+        out,
+        "void {name}({lead}double *restrict x, size_t stride, size_t lanes, uint64_t n_steps, \
+         const double *drift, const double *kick, size_t n_kicks, const double *w, \
+         double *restrict {scratch}, const uintptr_t *env) {{\n  \
+         const size_t end = lanes - lanes % BLOCK;\n  if (end == 0 || n_steps == 0) return;"
+    );
+    if !tangent {
+        let _ = writeln!(out, "  const double *qs = 0; (void)qs;");
+    }
+    head(out);
+    let _ = writeln!(
+        out,
+        "  for (uint64_t s = 0; s < n_steps; s++) {{\n    for (size_t k = 0; k < n_kicks; k++) {{\n      const double ch = drift[k];\n      const vd dh = B(kick[k]);"
+    );
+    if tangent {
+        let _ = writeln!(
+            out,
+            "      const double *qs = stages + (s * n_kicks + k) * {n}; (void)qs;"
+        );
+    }
+    stage(out);
+    let _ = writeln!(
+        out,
+        "      for (size_t o = 0; o < end; o += BLOCK) {{\n        double *xb = x + o;"
+    );
+    block(out);
+    let _ = writeln!(
+        out,
+        "      }}\n    }}\n    {{\n      const double ch = drift[n_kicks];\n      for (size_t o = 0; o < end; o += LANES) {{\n        double *xb = x + o;\n        for (size_t j = 0; j < {n}; j++) {{\n          const double c = w ? ch * w[j] : ch;\n          ST(xb + j * stride, LD(xb + j * stride) + B(c) * LD(xb + ({n} + j) * stride));\n        }}\n      }}\n    }}\n  }}\n}}"
+    );
 }

@@ -13,6 +13,7 @@ use std::fmt::Write as _;
 use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 
+use super::emit::step_loops;
 use super::{self as c_step, C_BLOCK_LANES, CCompiler, konst};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
 use crate::jit::lattice_plan::{
@@ -474,68 +475,39 @@ impl Kernel<'_> {
 
     fn write(&self, out: &mut String) {
         let n = self.lattice.n;
-        let (name, lead) = if self.tangent {
-            ("chaoscope_tangent_steps", "const double *stages, ")
-        } else {
-            ("chaoscope_orbit_steps", "")
+        let head = |out: &mut String| {
+            for a in 0..self.arrays.len() {
+                let _ = writeln!(
+                    out,
+                    "  const double *arr{a} = (const double *)env[{}];",
+                    self.array_env + a
+                );
+            }
         };
-        let _ = writeln!(
-            out,
-            "void {name}({lead}double *restrict x, size_t stride, size_t lanes, uint64_t n_steps, \
-             const double *drift, const double *kick, size_t n_kicks, const double *w, \
-             double *restrict g, const uintptr_t *env) {{"
-        );
-        let _ = writeln!(
-            out,
-            "  const size_t end = lanes - lanes % BLOCK;\n  if (end == 0 || n_steps == 0) return;"
-        );
-        for a in 0..self.arrays.len() {
-            let _ = writeln!(
-                out,
-                "  const double *arr{a} = (const double *)env[{}];",
-                self.array_env + a
-            );
-        }
-        let _ = writeln!(
-            out,
-            "  for (uint64_t s = 0; s < n_steps; s++) {{\n    for (size_t k = 0; k < n_kicks; k++) {{\n      const double ch = drift[k];\n      const vd dh = B(kick[k]);"
-        );
-        if self.tangent {
-            let _ = writeln!(
-                out,
-                "      const double *qs = stages + (s * n_kicks + k) * {n};"
-            );
-        }
-        let _ = writeln!(
-            out,
-            "      for (size_t o = 0; o < end; o += BLOCK) {{\n        double *xb = x + o;"
-        );
         // The plan's passes: rows drifted before the parts, the force's rows that must start
         // at -0, the parts (whose loops drift and kick as they go), the rows the force never
         // read, the rows left to kick.
-        for &(a, z) in &self.plan.pre_drift {
-            Self::drift_rows(out, n, a, z);
-        }
-        for &(a, z) in &self.plan.init {
-            let _ = writeln!(
-                out,
-                "        for (size_t j = {a}; j < {z}; j++) {{ ST(g + j * BLOCK, B(-0.0)); ST(g + j * BLOCK + LANES, B(-0.0)); }}"
-            );
-        }
-        self.force(out);
-        for &(a, z) in &self.plan.post_drift {
-            Self::drift_rows(out, n, a, z);
-        }
-        for &(a, z) in &self.plan.post_kick {
-            let _ = writeln!(
-                out,
-                "        for (size_t j = {a}; j < {z}; j++) {{\n          ST(xb + ({n} + j) * stride, LD(xb + ({n} + j) * stride) - dh * LD(g + j * BLOCK));\n          ST(xb + ({n} + j) * stride + LANES, LD(xb + ({n} + j) * stride + LANES) - dh * LD(g + j * BLOCK + LANES));\n        }}"
-            );
-        }
-        let _ = writeln!(out, "      }}\n    }}");
-        let _ = writeln!(
-            out,
-            "    {{\n      const double ch = drift[n_kicks];\n      for (size_t o = 0; o < end; o += BLOCK) {{\n        double *xb = x + o;\n        for (size_t j = 0; j < {n}; j++) {{\n          const double c = w ? ch * w[j] : ch;\n          ST(xb + j * stride, LD(xb + j * stride) + B(c) * LD(xb + ({n} + j) * stride));\n          ST(xb + j * stride + LANES, LD(xb + j * stride + LANES) + B(c) * LD(xb + ({n} + j) * stride + LANES));\n        }}\n      }}\n    }}\n  }}\n}}"
-        );
+        let block = |out: &mut String| {
+            for &(a, z) in &self.plan.pre_drift {
+                Self::drift_rows(out, n, a, z);
+            }
+            for &(a, z) in &self.plan.init {
+                let _ = writeln!(
+                    out,
+                    "        for (size_t j = {a}; j < {z}; j++) {{ ST(g + j * BLOCK, B(-0.0)); ST(g + j * BLOCK + LANES, B(-0.0)); }}"
+                );
+            }
+            self.force(out);
+            for &(a, z) in &self.plan.post_drift {
+                Self::drift_rows(out, n, a, z);
+            }
+            for &(a, z) in &self.plan.post_kick {
+                let _ = writeln!(
+                    out,
+                    "        for (size_t j = {a}; j < {z}; j++) {{\n          ST(xb + ({n} + j) * stride, LD(xb + ({n} + j) * stride) - dh * LD(g + j * BLOCK));\n          ST(xb + ({n} + j) * stride + LANES, LD(xb + ({n} + j) * stride + LANES) - dh * LD(g + j * BLOCK + LANES));\n        }}"
+                );
+            }
+        };
+        step_loops(out, n, self.tangent, "g", head, |_| {}, block);
     }
 }

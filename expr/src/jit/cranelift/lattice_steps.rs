@@ -261,15 +261,8 @@ impl Kernel<'_> {
         let entry = b.create_block();
         b.append_block_params_for_function_params(entry);
         b.switch_to_block(entry);
-        let params = b.block_params(entry).to_vec();
-        let (stages, rest) = if self.tangent {
-            (Some(params[0]), &params[1..])
-        } else {
-            (None, &params[..])
-        };
-        let (x, stride, lanes, n_steps, drift, kick, n_kicks, w, scratch) = (
-            rest[0], rest[1], rest[2], rest[3], rest[4], rest[5], rest[6], rest[7], rest[8],
-        );
+        let block_lanes = 2 * self.units as i64;
+        let (args, [x, stride, w, scratch]) = LoopArgs::read(&mut b, self.tangent, n, block_lanes);
         let sigs = Sigs::new(&mut b, module);
         let sb = b.ins().ishl_imm_u(stride, 3);
         let half = b.ins().imul_imm_s(sb, n as i64);
@@ -282,16 +275,6 @@ impl Kernel<'_> {
             w,
             scratch,
             stage: None,
-        };
-        let args = LoopArgs {
-            lanes,
-            n_steps,
-            drift,
-            kick,
-            n_kicks,
-            stages,
-            n,
-            block_lanes: 2 * self.units as i64,
         };
         step_loops(&mut b, &args, &mut body);
         b.finalize(module.target_config());

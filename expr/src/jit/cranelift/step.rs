@@ -471,15 +471,7 @@ fn build_kernel(
     let entry = b.create_block();
     b.append_block_params_for_function_params(entry);
     b.switch_to_block(entry);
-    let params = b.block_params(entry).to_vec();
-    let (stages, rest) = if tangent {
-        (Some(params[0]), &params[1..])
-    } else {
-        (None, &params[..])
-    };
-    let (x, stride, lanes, n_steps, drift, kick, n_kicks, w) = (
-        rest[0], rest[1], rest[2], rest[3], rest[4], rest[5], rest[6], rest[7],
-    );
+    let (args, [x, stride, w, _]) = LoopArgs::read(&mut b, tangent, n, 2 * units as i64);
     let sigs = Sigs::new(&mut b, module);
     // The row stride in bytes, reloaded in each block: a load is not loop-invariant code, so
     // the optimizer keeps the row offsets of a long chain inside the loop instead of hoisting
@@ -524,16 +516,6 @@ fn build_kernel(
         dhv: None,
         hoisted_coef: Vec::new(),
         hoisted_uniform: Vec::new(),
-    };
-    let args = LoopArgs {
-        lanes,
-        n_steps,
-        drift,
-        kick,
-        n_kicks,
-        stages,
-        n,
-        block_lanes: 2 * units as i64,
     };
     step_loops(&mut b, &args, &mut body);
     b.finalize(config);

@@ -38,6 +38,36 @@ pub(super) struct LoopArgs {
     pub block_lanes: i64,
 }
 
+impl LoopArgs {
+    /// Reads the kernel's parameters from the entry block (the builder in it): the loops'
+    /// arguments and the kernel's own `x`, `stride`, `w` (inverse masses) and `scratch`.
+    pub fn read(
+        b: &mut FunctionBuilder,
+        tangent: bool,
+        n: usize,
+        block_lanes: i64,
+    ) -> (Self, [Value; 4]) {
+        let entry = b.current_block().expect("the entry block");
+        let params = b.block_params(entry).to_vec();
+        let (stages, rest) = if tangent {
+            (Some(params[0]), &params[1..])
+        } else {
+            (None, &params[..])
+        };
+        let args = LoopArgs {
+            lanes: rest[2],
+            n_steps: rest[3],
+            drift: rest[4],
+            kick: rest[5],
+            n_kicks: rest[6],
+            stages,
+            n,
+            block_lanes,
+        };
+        (args, [rest[0], rest[1], rest[7], rest[8]])
+    }
+}
+
 /// What a kernel emits inside the loops; each method is called once, with the builder in the
 /// block it names.
 pub(super) trait StepBody {

@@ -218,25 +218,7 @@ type Row = ([Value; 2], [Value; 2]);
 
 /// The code of one block of lanes within a stage.
 struct Block<'a> {
-    graph: &'a Graph,
-    plan: &'a Plan,
-    tables: &'a [Arc<dyn Tabulated>],
-    sigs: &'a Sigs,
-    n: usize,
-    units: usize,
-    /// The argument the lane rows stand for (0: positions of the orbit; 1: `dq` of the tangent).
-    lane_arg: u8,
-    /// Argument 0 of the tangent kernel: the stage's shared reference position.
-    shared: Option<Value>,
-    uniforms: StackSlot,
-    uniform_offset: &'a [u32],
-    /// The stage's drift coefficients `ch * w_j` (or `ch`), one per row.
-    coef: StackSlot,
-    /// When few: the coefficients and broadcast uniform values splatted once per stage (kept
-    /// in registers across the block loop instead of a load and a shuffle at each use); empty
-    /// otherwise.
-    hoisted_coef: Vec<Value>,
-    hoisted_uniform: Vec<Option<Value>>,
+    kernel: &'a SeparableBody<'a>,
     /// Lane 0 of row 0 of this block, and the row stride in bytes.
     base: Value,
     stride: Value,
@@ -259,12 +241,12 @@ impl Block<'_> {
         }
         let a = if r == 0 {
             self.base
-        } else if r >= self.n {
-            let q = self.row(b, r - self.n);
+        } else if r >= self.kernel.n {
+            let q = self.row(b, r - self.kernel.n);
             let half = match self.half.get() {
                 Some(h) => h,
                 None => {
-                    let h = b.ins().imul_imm_s(self.stride, self.n as i64);
+                    let h = b.ins().imul_imm_s(self.stride, self.kernel.n as i64);
                     self.half.set(Some(h));
                     h
                 }
@@ -282,16 +264,18 @@ impl Block<'_> {
 
     /// `q_j += c_j p_j` for every unit, stored back; returns the new `q_j` and `p_j`.
     fn drift_row(&self, b: &mut FunctionBuilder, j: usize) -> ([Value; 2], [Value; 2]) {
-        let c = match self.hoisted_coef.get(j) {
+        let c = match self.kernel.hoisted_coef.get(j) {
             Some(&c) => c,
             None => {
-                let c = b.ins().stack_load(I64, F64, self.coef, (j * 8) as i32);
+                let c = b
+                    .ins()
+                    .stack_load(I64, F64, self.kernel.coef, (j * 8) as i32);
                 b.ins().splat(F64X2, c)
             }
         };
-        let (qa, pa) = (self.row(b, j), self.row(b, self.n + j));
+        let (qa, pa) = (self.row(b, j), self.row(b, self.kernel.n + j));
         let (mut out, mut ps) = ([c; 2], [c; 2]);
-        for unit in 0..self.units {
+        for unit in 0..self.kernel.units {
             let off = 16 * unit as i32;
             let q = b.ins().load(F64X2, flags(), qa, off);
             let p = b.ins().load(F64X2, flags(), pa, off);
@@ -301,7 +285,7 @@ impl Block<'_> {
             out[unit] = q;
             ps[unit] = p;
         }
-        if self.units == 1 {
+        if self.kernel.units == 1 {
             out[1] = out[0];
             ps[1] = ps[0];
         }
@@ -316,29 +300,32 @@ impl Block<'_> {
         id: NodeId,
         unit: usize,
     ) -> Value {
-        match *self.graph.node(id) {
+        match *self.kernel.graph.node(id) {
             Node::Const(c) => {
                 let s = b.ins().f64const(c);
                 b.ins().splat(F64X2, s)
             }
-            Node::Input { arg, index } if arg == self.lane_arg => {
+            Node::Input { arg, index } if arg == self.kernel.lane_arg => {
                 rows[index as usize]
                     .expect("the schedule drifts a row before its first use")
                     .0[unit]
             }
             Node::Input { index, .. } => {
                 let p = self
+                    .kernel
                     .shared
                     .expect("only the tangent kernel has a shared argument");
                 let s = b.ins().load(F64, flags(), p, (index as usize * 8) as i32);
                 b.ins().splat(F64X2, s)
             }
-            _ if self.plan.uniform[id as usize] && !self.hoisted_uniform.is_empty() => {
-                self.hoisted_uniform[id as usize].expect("broadcast uniform value")
+            _ if self.kernel.plan.uniform[id as usize]
+                && !self.kernel.hoisted_uniform.is_empty() =>
+            {
+                self.kernel.hoisted_uniform[id as usize].expect("broadcast uniform value")
             }
-            _ if self.plan.uniform[id as usize] => {
-                let off = self.uniform_offset[id as usize] as i32;
-                let s = b.ins().stack_load(I64, F64, self.uniforms, off);
+            _ if self.kernel.plan.uniform[id as usize] => {
+                let off = self.kernel.uniform_offset[id as usize] as i32;
+                let s = b.ins().stack_load(I64, F64, self.kernel.uniforms, off);
                 b.ins().splat(F64X2, s)
             }
             _ => vvals[id as usize].expect("operands come first")[unit],
@@ -347,8 +334,8 @@ impl Block<'_> {
 
     /// `p_j -= dh * f_j` for every unit (`p`: the momentum the drift read, not changed since).
     fn kick_row(&self, b: &mut FunctionBuilder, j: usize, dh: Value, f: [Value; 2], p: [Value; 2]) {
-        let pa = self.row(b, self.n + j);
-        for (unit, (&f, &p)) in f.iter().zip(&p).enumerate().take(self.units) {
+        let pa = self.row(b, self.kernel.n + j);
+        for (unit, (&f, &p)) in f.iter().zip(&p).enumerate().take(self.kernel.units) {
             let off = 16 * unit as i32;
             let df = b.ins().fmul(dh, f);
             let p = b.ins().fsub(p, df);
@@ -359,20 +346,27 @@ impl Block<'_> {
     /// Drift, force and kick of one stage, statement by statement as [`stage_schedule`] orders
     /// them.
     fn stage(&self, b: &mut FunctionBuilder, k: &VConsts, dh: Value) {
-        let graph = self.graph;
+        let graph = self.kernel.graph;
         self.reset();
-        let mut rows: Vec<Option<Row>> = vec![None; self.n];
+        let mut rows: Vec<Option<Row>> = vec![None; self.kernel.n];
         let mut vvals: Vec<Option<[Value; 2]>> = vec![None; graph.len()];
-        for op in stage_schedule(graph, self.plan, self.n, self.lane_arg) {
+        for op in stage_schedule(graph, self.kernel.plan, self.kernel.n, self.kernel.lane_arg) {
             match op {
                 StageOp::Drift(j) => rows[j] = Some(self.drift_row(b, j)),
                 StageOp::Value(id) => {
                     let node = graph.node(id);
                     let mut emitted = [None; 2];
-                    for (unit, slot) in emitted.iter_mut().enumerate().take(self.units) {
+                    for (unit, slot) in emitted.iter_mut().enumerate().take(self.kernel.units) {
                         let mut get =
                             |b: &mut FunctionBuilder, o| self.operand(b, &rows, &vvals, o, unit);
-                        *slot = Some(emit_vector(b, self.sigs, self.tables, k, node, &mut get));
+                        *slot = Some(emit_vector(
+                            b,
+                            self.kernel.sigs,
+                            self.kernel.tables,
+                            k,
+                            node,
+                            &mut get,
+                        ));
                     }
                     let v0 = emitted[0].expect("at least one unit");
                     vvals[id as usize] = Some([v0, emitted[1].unwrap_or(v0)]);
@@ -380,7 +374,7 @@ impl Block<'_> {
                 StageOp::Kick { row, force } => {
                     let (_, p) = rows[row].expect("the schedule drifts a row before its kick");
                     let mut f = [dh; 2];
-                    for (unit, slot) in f.iter_mut().enumerate().take(self.units) {
+                    for (unit, slot) in f.iter_mut().enumerate().take(self.kernel.units) {
                         *slot = self.operand(b, &rows, &vvals, force, unit);
                     }
                     self.kick_row(b, row, dh, f, p);
@@ -532,6 +526,7 @@ struct SeparableBody<'a> {
     sigs: &'a Sigs,
     n: usize,
     units: usize,
+    /// The argument the lane rows stand for (0: positions of the orbit; 1: `dq` of the tangent).
     lane_arg: u8,
     tangent: bool,
     x: Value,
@@ -539,11 +534,16 @@ struct SeparableBody<'a> {
     stride_slot: StackSlot,
     uniforms: StackSlot,
     uniform_offset: Vec<u32>,
+    /// The stage's drift coefficients `ch * w_j` (or `ch`), one per row.
     coef: StackSlot,
     hoist: bool,
-    /// The stage's reference position (tangent), `dh` broadcast, hoisted values.
+    /// Argument 0 of the tangent kernel: the stage's shared reference position.
     shared: Option<Value>,
+    /// The stage's `dh`, broadcast.
     dhv: Option<Value>,
+    /// When few: the coefficients and broadcast uniform values splatted once per stage (kept
+    /// in registers across the block loop instead of a load and a shuffle at each use); empty
+    /// otherwise.
     hoisted_coef: Vec<Value>,
     hoisted_uniform: Vec<Option<Value>>,
 }
@@ -581,19 +581,7 @@ impl SeparableBody<'_> {
     /// The code of one block of lanes at byte offset `off`.
     fn lanes<'b>(&'b self, b: &mut FunctionBuilder, off: Value) -> Block<'b> {
         Block {
-            graph: self.graph,
-            plan: self.plan,
-            tables: self.tables,
-            sigs: self.sigs,
-            n: self.n,
-            units: self.units,
-            lane_arg: self.lane_arg,
-            shared: self.shared,
-            uniforms: self.uniforms,
-            uniform_offset: &self.uniform_offset,
-            coef: self.coef,
-            hoisted_coef: self.hoisted_coef.clone(),
-            hoisted_uniform: self.hoisted_uniform.clone(),
+            kernel: self,
             base: b.ins().iadd(self.x, off),
             stride: b.ins().stack_load(I64, I64, self.stride_slot, 0),
             addr: RefCell::new(vec![None; 2 * self.n]),

@@ -19,7 +19,7 @@ use std::process::{Command, Stdio};
 
 use anyhow::Context;
 use chaoscope_dynamics::batch::StepCoeffs;
-use chaoscope_dynamics::integrator::{Splitting, SplittingKind};
+use chaoscope_dynamics::integrator::{Splitting, SplittingScheme};
 use chaoscope_dynamics::model::ExpressionModel;
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{ModelConfig, ParamValue, RunConfig};
@@ -117,7 +117,7 @@ fn c_input(config: &RunConfig) -> anyhow::Result<String> {
 /// initial state and its first set's first direction (see `chains.c`).
 pub(super) fn c_input_of(model: Vec<f64>, spec: &RunSpec, h: f64) -> String {
     let n = spec.dim() / 2;
-    let coeffs = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), h);
+    let coeffs = StepCoeffs::new(&Splitting::new(SplittingScheme::Aba864), h);
     let tau = spec.schemes()[0].tau_steps;
     let mut values = model;
     values.push(coeffs.kicks() as f64);

@@ -21,8 +21,8 @@
 //! square's side the integer square root) to `t_final`.
 
 use chaoscope_dynamics::engine::Engine;
-use chaoscope_dynamics::integrator::composition::{Composition, CompositionKind};
-use chaoscope_dynamics::integrator::{Splitting, SplittingKind};
+use chaoscope_dynamics::integrator::composition::{Composition, CompositionScheme};
+use chaoscope_dynamics::integrator::{Splitting, SplittingScheme};
 use chaoscope_dynamics::model::{Ddnls, SQUARE_LOOPS_FROM_SIDE};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{ModelConfig, RunConfig};
@@ -191,12 +191,12 @@ impl Family {
     /// or part flows per step).
     pub fn methods(self) -> Vec<(&'static str, u32, usize)> {
         match self {
-            Family::FputBeta | Family::Dkg | Family::Dkg2d => SplittingKind::ALL
+            Family::FputBeta | Family::Dkg | Family::Dkg2d => SplittingScheme::ALL
                 .iter()
                 .map(|&k| (k.name(), k.order(), Splitting::new(k).kicks().len()))
                 .collect(),
             Family::Ddnls1d | Family::Ddnls2d => {
-                let mut m: Vec<(&'static str, u32, usize)> = CompositionKind::ALL
+                let mut m: Vec<(&'static str, u32, usize)> = CompositionScheme::ALL
                     .iter()
                     .map(|&k| (k.name(), k.order(), Composition::new(k, 3).stages().len()))
                     .collect();

@@ -58,7 +58,7 @@ use std::time::Instant;
 use anyhow::Context;
 use chaoscope_dynamics::batch::{self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages};
 use chaoscope_dynamics::estimate::Machine;
-use chaoscope_dynamics::integrator::{Splitting, SplittingKind};
+use chaoscope_dynamics::integrator::{Splitting, SplittingScheme};
 use chaoscope_dynamics::map::{MapOptions, MapSpec, PointResult, run_map};
 use chaoscope_dynamics::model::{FputBeta, HenonHeiles};
 use chaoscope_schemas::config::{DeviationsConfig, MapConfig, RunConfig, SchemeConfig, paper};
@@ -273,7 +273,7 @@ fn kernel_case<M: LaneModel>(
     seconds: f64,
 ) -> serde_json::Value {
     let vm = method == "vm";
-    let coeffs = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), 0.01);
+    let coeffs = StepCoeffs::new(&Splitting::new(SplittingScheme::Aba864), 0.01);
     let mut state = KernelState::new(model.dof(), lanes, vm);
     let (windows, cpu) = time_windows(seconds, || state.window(isa, model, &coeffs, vm));
     // VM counts the shared reference orbit as one more orbit-step per step.
@@ -305,7 +305,7 @@ fn kernel_vs_plain<M: LaneModel>(
     seconds: f64,
 ) -> serde_json::Value {
     let (dim, vm) = (2 * model.dof(), method == "vm");
-    let coeffs = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), 0.01);
+    let coeffs = StepCoeffs::new(&Splitting::new(SplittingScheme::Aba864), 0.01);
     let start = KernelState::new(model.dof(), lanes, vm);
     let (soa0, x0) = (&start.soa, &start.x);
     let lanes = soa0.lanes();

@@ -21,7 +21,7 @@
 //! group its products differently from the hand-written one).
 
 use chaoscope_dynamics::engine::Engine;
-use chaoscope_dynamics::integrator::{RungeKuttaKind, Workspace};
+use chaoscope_dynamics::integrator::{RungeKuttaTableau, Workspace};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::RunConfig;
 
@@ -75,7 +75,7 @@ struct Plain {
 
 impl Plain {
     fn new() -> Self {
-        let t = RungeKuttaKind::Dop853
+        let t = RungeKuttaTableau::Dop853
             .tableau()
             .expect("dop853 is explicit");
         let nz = |row: &[f64]| -> Vec<(usize, f64)> {

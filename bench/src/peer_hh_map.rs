@@ -14,7 +14,7 @@ use std::process::{Command, Stdio};
 
 use anyhow::Context;
 use chaoscope_dynamics::engine::Engine;
-use chaoscope_dynamics::integrator::SplittingKind;
+use chaoscope_dynamics::integrator::SplittingScheme;
 use chaoscope_dynamics::model::{At, HenonHeiles, Model};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_files::map_file::read_map_file;
@@ -240,9 +240,9 @@ pub fn compare(
         "--peer-grid {n}: between 2 and 1000 points per axis"
     );
     anyhow::ensure!(
-        SplittingKind::from_name(method).is_some(),
+        SplittingScheme::from_name(method).is_some(),
         "--peer-map-method {method:?}: one of {}",
-        SplittingKind::catalogue()
+        SplittingScheme::catalogue()
     );
     anyhow::ensure!(
         h > 0.0 && (1.0 / h).fract() == 0.0 && h <= 0.5,

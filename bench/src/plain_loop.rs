@@ -438,7 +438,7 @@ fn fput_tangents<const FMA: bool>(
 #[cfg(test)]
 mod tests {
     use chaoscope_dynamics::batch::{self, LaneModel, Soa, record_reference_stages};
-    use chaoscope_dynamics::integrator::{Splitting, SplittingKind};
+    use chaoscope_dynamics::integrator::{Splitting, SplittingScheme};
     use chaoscope_dynamics::model::{FputBeta, HenonHeiles};
 
     use super::*;
@@ -462,7 +462,7 @@ mod tests {
         windows: usize,
     ) -> (Vec<f64>, Vec<f64>, PlainState, Option<PlainState>) {
         let dim = 2 * model.dof();
-        let c = StepCoeffs::new(&Splitting::new(SplittingKind::Aba864), 0.01);
+        let c = StepCoeffs::new(&Splitting::new(SplittingScheme::Aba864), 0.01);
         let data: Vec<f64> = (0..dim * lanes).map(|i| scale * noise(i)).collect();
         let x0: Vec<f64> = (0..dim).map(|r| scale * noise(7919 + r)).collect();
         let mut soa = Soa::new(dim, lanes);

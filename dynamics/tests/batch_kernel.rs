@@ -7,7 +7,7 @@ use std::sync::Arc;
 use chaoscope_dynamics::batch::{
     self, AnyLaneModel, DynLanes, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages,
 };
-use chaoscope_dynamics::integrator::{Integrator, Splitting, SplittingKind, Workspace};
+use chaoscope_dynamics::integrator::{Integrator, Splitting, SplittingScheme, Workspace};
 use chaoscope_dynamics::model::{ExpressionModel, FputBeta, HenonHeiles};
 use chaoscope_dynamics::with_lane_model;
 use chaoscope_schemas::config::{ModelConfig, ParamValue, PotentialConfig};
@@ -27,7 +27,7 @@ fn bits(v: &[f64]) -> Vec<u64> {
 
 fn check_orbits<M: LaneModel>(model: &M, lanes: usize, scale: f64, n_steps: u64) {
     let dim = 2 * model.dof();
-    let split = Splitting::new(SplittingKind::Aba864);
+    let split = Splitting::new(SplittingScheme::Aba864);
     let h = 0.01;
     let coeffs = StepCoeffs::new(&split, h);
     let start: Vec<Vec<f64>> = (0..lanes)
@@ -70,7 +70,7 @@ fn check_orbits<M: LaneModel>(model: &M, lanes: usize, scale: f64, n_steps: u64)
 fn check_tangents<M: LaneModel>(model: &M, lanes: usize, scale: f64, n_steps: u64) {
     let n = model.dof();
     let dim = 2 * n;
-    let split = Splitting::new(SplittingKind::Aba864);
+    let split = Splitting::new(SplittingScheme::Aba864);
     let h = 0.01;
     let coeffs = StepCoeffs::new(&split, h);
     let x0: Vec<f64> = (0..dim).map(|i| scale * noise(99, i)).collect();

@@ -6,8 +6,8 @@
 
 mod common;
 
-use chaoscope_dynamics::integrator::composition::{Composition, CompositionKind, SplitFlows};
-use chaoscope_dynamics::integrator::runge_kutta::{RkScratch, RungeKutta, RungeKuttaKind};
+use chaoscope_dynamics::integrator::composition::{Composition, CompositionScheme, SplitFlows};
+use chaoscope_dynamics::integrator::runge_kutta::{RkScratch, RungeKutta, RungeKuttaTableau};
 use chaoscope_dynamics::model::{Ddnls, DdnlsLattice};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_dynamics::vector_field::VectorField;
@@ -31,7 +31,7 @@ fn lattice(square: bool) -> (Ddnls, Vec<f64>) {
     (Ddnls::new(geometry, eps, 1.5), x)
 }
 
-fn integrate(model: &Ddnls, kind: CompositionKind, x0: &[f64], h: f64, steps: usize) -> Vec<f64> {
+fn integrate(model: &Ddnls, kind: CompositionScheme, x0: &[f64], h: f64, steps: usize) -> Vec<f64> {
     let times = Composition::new(kind, 3).times(h);
     let mut x = x0.to_vec();
     for _ in 0..steps {
@@ -53,7 +53,7 @@ fn distance(a: &[f64], b: &[f64]) -> f64 {
 fn reference(model: &Ddnls, x0: &[f64], t: f64) -> Vec<f64> {
     let steps = (t / 0.002).round() as usize;
     let h = t / steps as f64;
-    let rk = RungeKutta::new(RungeKuttaKind::Dop853);
+    let rk = RungeKutta::new(RungeKuttaTableau::Dop853);
     let mut s = RkScratch::default();
     let mut x = x0.to_vec();
     for i in 0..steps {
@@ -76,11 +76,11 @@ fn each_composition_has_its_order_in_1d_and_2d() {
         let t = 4.0;
         let want = reference(&model, &x0, t);
         for (kind, h) in [
-            (CompositionKind::Abc2, 0.01),
-            (CompositionKind::Abc4, 0.02),
-            (CompositionKind::S9Abc6, 0.08),
-            (CompositionKind::S11Abc6, 0.08),
-            (CompositionKind::S17Abc8, 0.16),
+            (CompositionScheme::Abc2, 0.01),
+            (CompositionScheme::Abc4, 0.02),
+            (CompositionScheme::S9Abc6, 0.08),
+            (CompositionScheme::S11Abc6, 0.08),
+            (CompositionScheme::S17Abc8, 0.16),
         ] {
             let errors: Vec<f64> = [h, h / 2.0]
                 .iter()
@@ -117,11 +117,11 @@ fn energy_and_norm_are_conserved_to_the_order() {
         let (model, x0) = lattice(square);
         let (e0, s0) = (model.energy(&x0), model.norm(&x0));
         for (kind, h) in [
-            (CompositionKind::Abc2, 0.02),
-            (CompositionKind::Abc4, 0.04),
-            (CompositionKind::S9Abc6, 0.1),
-            (CompositionKind::S11Abc6, 0.1),
-            (CompositionKind::S17Abc8, 0.2),
+            (CompositionScheme::Abc2, 0.02),
+            (CompositionScheme::Abc4, 0.04),
+            (CompositionScheme::S9Abc6, 0.1),
+            (CompositionScheme::S11Abc6, 0.1),
+            (CompositionScheme::S17Abc8, 0.2),
         ] {
             let worst = |h: f64| {
                 let times = Composition::new(kind, 3).times(h);
@@ -207,7 +207,7 @@ impl VectorField for Part<'_> {
 /// then follows the full equations: s17abc8 at h = 0.05 against dop853 to 1e-10 at t = 3.
 #[test]
 fn exact_flows_match_a_runge_kutta_reference() {
-    let rk = RungeKutta::new(RungeKuttaKind::Dop853);
+    let rk = RungeKutta::new(RungeKuttaTableau::Dop853);
     let mut s = RkScratch::default();
     for square in [false, true] {
         let (model, x0) = lattice(square);
@@ -228,7 +228,7 @@ fn exact_flows_match_a_runge_kutta_reference() {
                 assert!(d < 1e-12, "part {part}, tau {tau}: {d:e}");
             }
         }
-        let got = integrate(&model, CompositionKind::S17Abc8, &x0, 0.05, 60);
+        let got = integrate(&model, CompositionScheme::S17Abc8, &x0, 0.05, 60);
         let d = distance(&got, &reference(&model, &x0, 3.0));
         assert!(d < 1e-10, "s17abc8 against dop853: {d:e}");
     }
@@ -280,7 +280,7 @@ fn tangent_maps_match_finite_differences() {
                 format!("part {part}"),
             );
         }
-        for kind in CompositionKind::ALL {
+        for kind in CompositionScheme::ALL {
             let times = Composition::new(kind, 3).times(0.3);
             check(
                 &|x| Composition::step(&model, &times, x),

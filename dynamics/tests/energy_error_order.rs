@@ -2,7 +2,7 @@
 //! splitting shows its general order, and at a small perturbation its near-integrable one.
 
 use chaoscope_dynamics::integrator::{
-    Integrator, Splitting, SplittingKind, Workspace, relative_energy_error,
+    Integrator, Splitting, SplittingScheme, Workspace, relative_energy_error,
 };
 use chaoscope_dynamics::model::{At, HenonHeiles, Model};
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
@@ -10,7 +10,7 @@ use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 mod common;
 
 /// Maximum relative energy error along the HH chaotic orbit up to t = 200.
-fn max_energy_error(kind: SplittingKind, h: f64) -> f64 {
+fn max_energy_error(kind: SplittingScheme, h: f64) -> f64 {
     let mut config = paper::henon_heiles(
         paper::HH_CHAOTIC_Q2,
         200.0,
@@ -32,7 +32,7 @@ fn max_energy_error(kind: SplittingKind, h: f64) -> f64 {
     worst
 }
 
-fn order(kind: SplittingKind, hs: &[f64]) -> (f64, Vec<f64>) {
+fn order(kind: SplittingScheme, hs: &[f64]) -> (f64, Vec<f64>) {
     let errs: Vec<f64> = hs.iter().map(|&h| max_energy_error(kind, h)).collect();
     let lx: Vec<f64> = hs.iter().map(|h| h.log10()).collect();
     let ly: Vec<f64> = errs.iter().map(|e| e.log10()).collect();
@@ -41,7 +41,7 @@ fn order(kind: SplittingKind, hs: &[f64]) -> (f64, Vec<f64>) {
 
 #[test]
 fn aba864_energy_error_is_fourth_order() {
-    let (slope, errs) = order(SplittingKind::Aba864, &[0.2, 0.1, 0.05, 0.025]);
+    let (slope, errs) = order(SplittingScheme::Aba864, &[0.2, 0.1, 0.05, 0.025]);
     eprintln!("ABA864 max E_r {errs:?}, slope {slope}");
     // numerics.md: slope 3.99, E_r = 1.4e-8 at h = 0.1 from an independent implementation.
     assert!((slope - 4.0).abs() <= 0.2, "slope {slope}");
@@ -54,7 +54,7 @@ fn aba864_energy_error_is_fourth_order() {
 
 #[test]
 fn leapfrog_energy_error_is_second_order() {
-    let (slope, errs) = order(SplittingKind::Leapfrog, &[0.2, 0.1, 0.05, 0.025]);
+    let (slope, errs) = order(SplittingScheme::Leapfrog, &[0.2, 0.1, 0.05, 0.025]);
     eprintln!("leapfrog max E_r {errs:?}, slope {slope}");
     assert!((slope - 2.0).abs() <= 0.2, "slope {slope}");
 }
@@ -66,15 +66,15 @@ fn other_splittings_have_their_order() {
     // compositions of the leapfrog sixth and eighth, measured at longer steps, where their
     // errors stay above the rounding floor (~1e-14 over these runs).
     for kind in [
-        SplittingKind::Saba2,
-        SplittingKind::Saba3,
-        SplittingKind::Saba4,
-        SplittingKind::Yoshida4,
-        SplittingKind::Aba104,
-        SplittingKind::Aba1064,
-        SplittingKind::S9odr6,
-        SplittingKind::S11odr6,
-        SplittingKind::S17odr8,
+        SplittingScheme::Saba2,
+        SplittingScheme::Saba3,
+        SplittingScheme::Saba4,
+        SplittingScheme::Yoshida4,
+        SplittingScheme::Aba104,
+        SplittingScheme::Aba1064,
+        SplittingScheme::S9odr6,
+        SplittingScheme::S11odr6,
+        SplittingScheme::S17odr8,
     ] {
         let hs: &[f64] = match kind.order() {
             2 => &[0.2, 0.1, 0.05, 0.025],

@@ -160,7 +160,7 @@ pub fn flow_tangent_steps(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::integrator::{RungeKutta, RungeKuttaKind, Workspace};
+    use crate::integrator::{RungeKutta, RungeKuttaTableau, Workspace};
     use crate::system::{DynamicalSystem, RkFlow};
     use chaoscope_expr::{Boundary, ParamValue, VectorDefinition};
     use std::sync::Arc;
@@ -210,7 +210,7 @@ mod tests {
 
     fn lanes_match(f: &VectorFunction, from: u64, h: f64) {
         let time = |k: u64| crate::system::Time::Continuous { h }.at(from + k);
-        for kind in [RungeKuttaKind::Rk4, RungeKuttaKind::Dop853] {
+        for kind in [RungeKuttaTableau::Rk4, RungeKuttaTableau::Dop853] {
             let t = kind.tableau().unwrap();
             let flow = RkFlow {
                 name: "ode".into(),

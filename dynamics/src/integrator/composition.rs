@@ -37,7 +37,7 @@ pub trait SplitFlows: Send + Sync {
 
 /// The compositions chaoscope ships.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum CompositionKind {
+pub enum CompositionScheme {
     /// The symmetric base map itself, `ABC^2` for three parts: order 2.
     Abc2,
     /// Yoshida's triple jump of the base map: order 4, 3 stages.
@@ -97,23 +97,23 @@ fn palindrome(half: &[f64]) -> Vec<f64> {
     g
 }
 
-impl CompositionKind {
-    pub const ALL: [CompositionKind; 5] = [
-        CompositionKind::Abc2,
-        CompositionKind::Abc4,
-        CompositionKind::S9Abc6,
-        CompositionKind::S11Abc6,
-        CompositionKind::S17Abc8,
+impl CompositionScheme {
+    pub const ALL: [CompositionScheme; 5] = [
+        CompositionScheme::Abc2,
+        CompositionScheme::Abc4,
+        CompositionScheme::S9Abc6,
+        CompositionScheme::S11Abc6,
+        CompositionScheme::S17Abc8,
     ];
 
     /// Name as written in configs (`integrator.method`).
     pub fn name(self) -> &'static str {
         match self {
-            CompositionKind::Abc2 => "abc2",
-            CompositionKind::Abc4 => "abc4",
-            CompositionKind::S9Abc6 => "s9abc6",
-            CompositionKind::S11Abc6 => "s11abc6",
-            CompositionKind::S17Abc8 => "s17abc8",
+            CompositionScheme::Abc2 => "abc2",
+            CompositionScheme::Abc4 => "abc4",
+            CompositionScheme::S9Abc6 => "s9abc6",
+            CompositionScheme::S11Abc6 => "s11abc6",
+            CompositionScheme::S17Abc8 => "s17abc8",
         }
     }
 
@@ -124,26 +124,26 @@ impl CompositionKind {
     /// Order of the global error in `h`.
     pub fn order(self) -> u32 {
         match self {
-            CompositionKind::Abc2 => 2,
-            CompositionKind::Abc4 => 4,
-            CompositionKind::S9Abc6 | CompositionKind::S11Abc6 => 6,
-            CompositionKind::S17Abc8 => 8,
+            CompositionScheme::Abc2 => 2,
+            CompositionScheme::Abc4 => 4,
+            CompositionScheme::S9Abc6 | CompositionScheme::S11Abc6 => 6,
+            CompositionScheme::S17Abc8 => 8,
         }
     }
 
     /// The weights `g_1..g_m` of the base map's stages (summing to 1).
     pub fn weights(self) -> Vec<f64> {
         match self {
-            CompositionKind::Abc2 => vec![1.0],
-            CompositionKind::Abc4 => {
+            CompositionScheme::Abc2 => vec![1.0],
+            CompositionScheme::Abc4 => {
                 let cbrt2 = 2f64.cbrt();
                 let w1 = 1.0 / (2.0 - cbrt2);
                 let w0 = -cbrt2 / (2.0 - cbrt2);
                 vec![w1, w0, w1]
             }
-            CompositionKind::S9Abc6 => palindrome(&S9ODR6),
-            CompositionKind::S11Abc6 => palindrome(&S11ODR6),
-            CompositionKind::S17Abc8 => palindrome(&S17ODR8),
+            CompositionScheme::S9Abc6 => palindrome(&S9ODR6),
+            CompositionScheme::S11Abc6 => palindrome(&S11ODR6),
+            CompositionScheme::S17Abc8 => palindrome(&S17ODR8),
         }
     }
 
@@ -160,13 +160,13 @@ impl CompositionKind {
 /// One step of a composition: the flows `(part, c)` in order, part `part` for time `c h`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Composition {
-    kind: CompositionKind,
+    kind: CompositionScheme,
     stages: Vec<(usize, f64)>,
 }
 
 impl Composition {
     /// The composition `kind` of the symmetric base map of `parts` parts (at least 2).
-    pub fn new(kind: CompositionKind, parts: usize) -> Self {
+    pub fn new(kind: CompositionScheme, parts: usize) -> Self {
         assert!(parts >= 2, "a composition needs at least two parts");
         let mut stages: Vec<(usize, f64)> = Vec::new();
         for g in kind.weights() {
@@ -186,7 +186,7 @@ impl Composition {
         Self { kind, stages }
     }
 
-    pub fn kind(&self) -> CompositionKind {
+    pub fn kind(&self) -> CompositionScheme {
         self.kind
     }
 
@@ -239,7 +239,7 @@ mod tests {
     /// and every part's stage times sum to one step: the consistency condition of order 1.
     #[test]
     fn weights_and_stage_times_sum_to_one() {
-        for kind in CompositionKind::ALL {
+        for kind in CompositionScheme::ALL {
             let g = kind.weights();
             let sum: f64 = g.iter().sum();
             assert!((sum - 1.0).abs() < 1e-15, "{kind:?}: weights sum {sum}");
@@ -265,23 +265,25 @@ mod tests {
         }
         // ABC^2: A(1/2) B(1/2) C(1) B(1/2) A(1/2).
         assert_eq!(
-            Composition::new(CompositionKind::Abc2, 3).stages(),
+            Composition::new(CompositionScheme::Abc2, 3).stages(),
             [(0, 0.5), (1, 0.5), (2, 1.0), (1, 0.5), (0, 0.5)]
         );
         // s17: 17 base maps of 4 flows each plus the last A.
         assert_eq!(
-            Composition::new(CompositionKind::S17Abc8, 3).stages().len(),
+            Composition::new(CompositionScheme::S17Abc8, 3)
+                .stages()
+                .len(),
             17 * 4 + 1
         );
     }
 
     #[test]
     fn names_round_trip() {
-        for kind in CompositionKind::ALL {
-            assert_eq!(CompositionKind::from_name(kind.name()), Some(kind));
+        for kind in CompositionScheme::ALL {
+            assert_eq!(CompositionScheme::from_name(kind.name()), Some(kind));
         }
         assert_eq!(
-            CompositionKind::catalogue(),
+            CompositionScheme::catalogue(),
             "abc2 (order 2), abc4 (order 4), s9abc6 (order 6), s11abc6 (order 6), s17abc8 (order 8)"
         );
     }

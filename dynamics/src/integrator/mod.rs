@@ -13,8 +13,8 @@ pub mod runge_kutta;
 mod splitting;
 pub mod taylor;
 
-pub use runge_kutta::{RungeKutta, RungeKuttaKind};
-pub use splitting::{Splitting, SplittingKind};
+pub use runge_kutta::{RungeKutta, RungeKuttaTableau};
+pub use splitting::{Splitting, SplittingScheme};
 
 use crate::model::{At, Model};
 

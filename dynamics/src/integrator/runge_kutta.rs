@@ -24,7 +24,7 @@ use crate::vector_field::VectorField;
 
 /// Which tableau.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum RungeKuttaKind {
+pub enum RungeKuttaTableau {
     /// The classical 4-stage method of order 4.
     Rk4,
     /// Dormand-Prince 8(5,3): 12 stages, order 8, embedded error estimates of orders 5 and 3.
@@ -35,7 +35,7 @@ pub enum RungeKuttaKind {
     Gl6,
 }
 
-impl RungeKuttaKind {
+impl RungeKuttaTableau {
     pub fn from_name(name: &str) -> Option<Self> {
         match name {
             "rk4" => Some(Self::Rk4),
@@ -456,7 +456,7 @@ impl RkScratch {
 /// A Runge-Kutta method.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct RungeKutta {
-    pub kind: RungeKuttaKind,
+    pub kind: RungeKuttaTableau,
 }
 
 /// Most accepted or rejected substeps an adaptive method may take within one grid step: beyond
@@ -476,7 +476,7 @@ pub enum AdaptiveError {
 }
 
 impl RungeKutta {
-    pub fn new(kind: RungeKuttaKind) -> Self {
+    pub fn new(kind: RungeKuttaTableau) -> Self {
         Self { kind }
     }
 

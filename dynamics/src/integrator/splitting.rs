@@ -20,13 +20,13 @@
 //! leading drift of the next): outputs are full steps and the reference orbit is bit-identical
 //! whatever the sampling or renormalization period.
 
-use super::composition::{Composition, CompositionKind};
+use super::composition::{Composition, CompositionScheme};
 use super::{Integrator, TangentError, Workspace};
 use crate::model::{At, Model};
 
 /// The splittings chaoscope ships.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
-pub enum SplittingKind {
+pub enum SplittingScheme {
     /// Second-order Stormer-Verlet, `A(1/2) B(1) A(1/2)`.
     Leapfrog,
     /// Laskar-Robutel SABA2, order 2 (4 for small perturbations).
@@ -53,34 +53,34 @@ pub enum SplittingKind {
     S17odr8,
 }
 
-impl SplittingKind {
-    pub const ALL: [SplittingKind; 11] = [
-        SplittingKind::Leapfrog,
-        SplittingKind::Saba2,
-        SplittingKind::Saba3,
-        SplittingKind::Saba4,
-        SplittingKind::Yoshida4,
-        SplittingKind::Aba864,
-        SplittingKind::Aba104,
-        SplittingKind::Aba1064,
-        SplittingKind::S9odr6,
-        SplittingKind::S11odr6,
-        SplittingKind::S17odr8,
+impl SplittingScheme {
+    pub const ALL: [SplittingScheme; 11] = [
+        SplittingScheme::Leapfrog,
+        SplittingScheme::Saba2,
+        SplittingScheme::Saba3,
+        SplittingScheme::Saba4,
+        SplittingScheme::Yoshida4,
+        SplittingScheme::Aba864,
+        SplittingScheme::Aba104,
+        SplittingScheme::Aba1064,
+        SplittingScheme::S9odr6,
+        SplittingScheme::S11odr6,
+        SplittingScheme::S17odr8,
     ];
 
     pub fn name(self) -> &'static str {
         match self {
-            SplittingKind::Leapfrog => "leapfrog",
-            SplittingKind::Saba2 => "saba2",
-            SplittingKind::Saba3 => "saba3",
-            SplittingKind::Saba4 => "saba4",
-            SplittingKind::Yoshida4 => "yoshida4",
-            SplittingKind::Aba864 => "aba864",
-            SplittingKind::Aba104 => "aba104",
-            SplittingKind::Aba1064 => "aba1064",
-            SplittingKind::S9odr6 => "s9odr6",
-            SplittingKind::S11odr6 => "s11odr6",
-            SplittingKind::S17odr8 => "s17odr8",
+            SplittingScheme::Leapfrog => "leapfrog",
+            SplittingScheme::Saba2 => "saba2",
+            SplittingScheme::Saba3 => "saba3",
+            SplittingScheme::Saba4 => "saba4",
+            SplittingScheme::Yoshida4 => "yoshida4",
+            SplittingScheme::Aba864 => "aba864",
+            SplittingScheme::Aba104 => "aba104",
+            SplittingScheme::Aba1064 => "aba1064",
+            SplittingScheme::S9odr6 => "s9odr6",
+            SplittingScheme::S11odr6 => "s11odr6",
+            SplittingScheme::S17odr8 => "s17odr8",
         }
     }
 
@@ -88,16 +88,16 @@ impl SplittingKind {
     /// times the step count).
     pub fn order(self) -> u32 {
         match self {
-            SplittingKind::Leapfrog
-            | SplittingKind::Saba2
-            | SplittingKind::Saba3
-            | SplittingKind::Saba4 => 2,
-            SplittingKind::Yoshida4
-            | SplittingKind::Aba864
-            | SplittingKind::Aba104
-            | SplittingKind::Aba1064 => 4,
-            SplittingKind::S9odr6 | SplittingKind::S11odr6 => 6,
-            SplittingKind::S17odr8 => 8,
+            SplittingScheme::Leapfrog
+            | SplittingScheme::Saba2
+            | SplittingScheme::Saba3
+            | SplittingScheme::Saba4 => 2,
+            SplittingScheme::Yoshida4
+            | SplittingScheme::Aba864
+            | SplittingScheme::Aba104
+            | SplittingScheme::Aba1064 => 4,
+            SplittingScheme::S9odr6 | SplittingScheme::S11odr6 => 6,
+            SplittingScheme::S17odr8 => 8,
         }
     }
 
@@ -107,16 +107,16 @@ impl SplittingKind {
     /// the last entry.
     pub fn near_integrable_orders(self) -> &'static [u32] {
         match self {
-            SplittingKind::Leapfrog => &[2],
-            SplittingKind::Saba2 => &[4, 2],
-            SplittingKind::Saba3 => &[6, 2],
-            SplittingKind::Saba4 => &[8, 2],
-            SplittingKind::Yoshida4 => &[4],
-            SplittingKind::Aba864 => &[8, 6, 4],
-            SplittingKind::Aba104 => &[10, 4],
-            SplittingKind::Aba1064 => &[10, 6, 4],
-            SplittingKind::S9odr6 | SplittingKind::S11odr6 => &[6],
-            SplittingKind::S17odr8 => &[8],
+            SplittingScheme::Leapfrog => &[2],
+            SplittingScheme::Saba2 => &[4, 2],
+            SplittingScheme::Saba3 => &[6, 2],
+            SplittingScheme::Saba4 => &[8, 2],
+            SplittingScheme::Yoshida4 => &[4],
+            SplittingScheme::Aba864 => &[8, 6, 4],
+            SplittingScheme::Aba104 => &[10, 4],
+            SplittingScheme::Aba1064 => &[10, 6, 4],
+            SplittingScheme::S9odr6 | SplittingScheme::S11odr6 => &[6],
+            SplittingScheme::S17odr8 => &[8],
         }
     }
 
@@ -151,7 +151,7 @@ impl SplittingKind {
 /// A palindromic splitting `A(a_1) B(b_1) A(a_2) ... B(b_m) A(a_{m+1})`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Splitting {
-    kind: SplittingKind,
+    kind: SplittingScheme,
     order: u32,
     drifts: Vec<f64>,
     kicks: Vec<f64>,
@@ -232,7 +232,7 @@ const SABA4_B: [f64; 2] = [
 /// The drifts and kicks of a composition of the leapfrog `A(g/2) B(g) A(g/2)` with the
 /// composition's weights `g`: the three-part compositions' constants on two parts, consecutive
 /// drifts merged.
-fn leapfrog_composition(kind: CompositionKind) -> (Vec<f64>, Vec<f64>) {
+fn leapfrog_composition(kind: CompositionScheme) -> (Vec<f64>, Vec<f64>) {
     let stages = Composition::new(kind, 2);
     let part = |p: usize| {
         stages
@@ -246,25 +246,25 @@ fn leapfrog_composition(kind: CompositionKind) -> (Vec<f64>, Vec<f64>) {
 }
 
 impl Splitting {
-    pub fn new(kind: SplittingKind) -> Self {
+    pub fn new(kind: SplittingScheme) -> Self {
         let (drifts, kicks) = match kind {
-            SplittingKind::Leapfrog => (vec![0.5, 0.5], vec![1.0]),
-            SplittingKind::Saba2 => {
+            SplittingScheme::Leapfrog => (vec![0.5, 0.5], vec![1.0]),
+            SplittingScheme::Saba2 => {
                 let a1 = 0.5 - 3f64.sqrt() / 6.0;
                 let a2 = 3f64.sqrt() / 3.0;
                 (vec![a1, a2, a1], vec![0.5, 0.5])
             }
-            SplittingKind::Saba3 => {
+            SplittingScheme::Saba3 => {
                 let [a1, a2] = SABA3_A;
                 let [b1, b2] = SABA3_B;
                 (vec![a1, a2, a2, a1], vec![b1, b2, b1])
             }
-            SplittingKind::Saba4 => {
+            SplittingScheme::Saba4 => {
                 let [a1, a2, a3] = SABA4_A;
                 let [b1, b2] = SABA4_B;
                 (vec![a1, a2, a3, a2, a1], vec![b1, b2, b2, b1])
             }
-            SplittingKind::Yoshida4 => {
+            SplittingScheme::Yoshida4 => {
                 let cbrt2 = 2f64.cbrt();
                 let w1 = 1.0 / (2.0 - cbrt2);
                 let w0 = -cbrt2 / (2.0 - cbrt2);
@@ -273,7 +273,7 @@ impl Splitting {
                     vec![w1, w0, w1],
                 )
             }
-            SplittingKind::Aba864 => {
+            SplittingScheme::Aba864 => {
                 let [a1, a2, a3, a4] = ABA864_A;
                 let [b1, b2, b3, b4] = ABA864_B;
                 (
@@ -281,7 +281,7 @@ impl Splitting {
                     vec![b1, b2, b3, b4, b3, b2, b1],
                 )
             }
-            SplittingKind::Aba104 => {
+            SplittingScheme::Aba104 => {
                 let [a1, a2, a3, a4] = ABA104_A;
                 let [b1, b2, b3, b4] = ABA104_B;
                 (
@@ -289,7 +289,7 @@ impl Splitting {
                     vec![b1, b2, b3, b4, b3, b2, b1],
                 )
             }
-            SplittingKind::Aba1064 => {
+            SplittingScheme::Aba1064 => {
                 let [a1, a2, a3, a4, a5] = ABA1064_A;
                 let [b1, b2, b3, b4] = ABA1064_B;
                 (
@@ -297,9 +297,9 @@ impl Splitting {
                     vec![b1, b2, b3, b4, b4, b3, b2, b1],
                 )
             }
-            SplittingKind::S9odr6 => leapfrog_composition(CompositionKind::S9Abc6),
-            SplittingKind::S11odr6 => leapfrog_composition(CompositionKind::S11Abc6),
-            SplittingKind::S17odr8 => leapfrog_composition(CompositionKind::S17Abc8),
+            SplittingScheme::S9odr6 => leapfrog_composition(CompositionScheme::S9Abc6),
+            SplittingScheme::S11odr6 => leapfrog_composition(CompositionScheme::S11Abc6),
+            SplittingScheme::S17odr8 => leapfrog_composition(CompositionScheme::S17Abc8),
         };
         let order = kind.order();
         debug_assert_eq!(drifts.len(), kicks.len() + 1);
@@ -319,7 +319,7 @@ impl Splitting {
         }
     }
 
-    pub fn kind(&self) -> SplittingKind {
+    pub fn kind(&self) -> SplittingScheme {
         self.kind
     }
 
@@ -443,7 +443,7 @@ mod tests {
 
     #[test]
     fn coefficients_are_consistent() {
-        for kind in SplittingKind::ALL {
+        for kind in SplittingScheme::ALL {
             let s = Splitting::new(kind);
             let sa: f64 = s.drifts().iter().sum();
             let sb: f64 = s.kicks().iter().sum();
@@ -484,11 +484,11 @@ mod tests {
 
     #[test]
     fn every_splitting_is_listed_with_its_orders() {
-        let list = SplittingKind::catalogue();
+        let list = SplittingScheme::catalogue();
         assert!(list.starts_with("leapfrog (order 2), saba2 (order 2; (4,2) near integrable)"));
         assert!(list.contains("aba1064 (order 4; (10,6,4) near integrable)"));
-        for kind in SplittingKind::ALL {
-            assert_eq!(SplittingKind::from_name(kind.name()), Some(kind));
+        for kind in SplittingScheme::ALL {
+            assert_eq!(SplittingScheme::from_name(kind.name()), Some(kind));
             assert_eq!(kind.near_integrable_orders().last(), Some(&kind.order()));
         }
     }

@@ -274,8 +274,8 @@ mod tests {
     #[test]
     fn fused_steps_are_the_splittings_bit_for_bit() {
         use crate::batch::StepCoeffs;
-        use crate::integrator::{Integrator, Splitting, SplittingKind, Workspace};
-        let splitting = Splitting::new(SplittingKind::Aba864);
+        use crate::integrator::{Integrator, Splitting, SplittingScheme, Workspace};
+        let splitting = Splitting::new(SplittingScheme::Aba864);
         let h = 0.05;
         let c = StepCoeffs::new(&splitting, h);
         for n in [2usize, 3, 8, 33] {

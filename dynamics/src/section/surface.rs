@@ -26,7 +26,7 @@ use chaoscope_schemas::config::ModelConfig;
 use chaoscope_schemas::run::SystemClass;
 
 use crate::integrator::Workspace;
-use crate::integrator::runge_kutta::{RkScratch, RungeKuttaKind, explicit_step, substep_times};
+use crate::integrator::runge_kutta::{RkScratch, RungeKuttaTableau, explicit_step, substep_times};
 use crate::spec::state_function::scalar_definition;
 pub use crate::spec::state_function::scalar_over_state;
 use crate::spec::{RunSpec, SpecError};
@@ -234,7 +234,7 @@ fn flow(
     out: &mut Vec<f64>,
     rk: &mut RkScratch,
 ) -> bool {
-    let tableau = RungeKuttaKind::Dop853
+    let tableau = RungeKuttaTableau::Dop853
         .tableau()
         .expect("dop853 is an explicit method");
     out.clear();

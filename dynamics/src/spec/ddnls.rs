@@ -10,8 +10,8 @@ use chaoscope_schemas::config::{DdnlsConfig, Excitation, OrbitConfig, RunConfig}
 
 use super::flow::runge_kutta_system;
 use super::{Built, SpecError, num};
-use crate::integrator::RungeKuttaKind;
-use crate::integrator::composition::{Composition, CompositionKind};
+use crate::integrator::RungeKuttaTableau;
+use crate::integrator::composition::{Composition, CompositionScheme};
 use crate::model::{Ddnls, DdnlsLattice};
 use crate::system::{DdnlsSystem, DynamicalSystem};
 
@@ -93,7 +93,8 @@ pub fn model_from_config(model: &DdnlsConfig) -> Result<Ddnls, SpecError> {
 pub(super) fn run(model: &DdnlsConfig, cfg: &RunConfig) -> Result<Built, SpecError> {
     let lattice = Arc::new(model_from_config(model)?);
     let method = cfg.integrator.method.as_str();
-    let system: Arc<dyn DynamicalSystem> = if let Some(kind) = CompositionKind::from_name(method) {
+    let system: Arc<dyn DynamicalSystem> = if let Some(kind) = CompositionScheme::from_name(method)
+    {
         let h = super::time_step(&cfg.integrator)?;
         for (key, given) in [
             ("integrator.rtol", cfg.integrator.rtol.is_some()),
@@ -111,7 +112,7 @@ pub(super) fn run(model: &DdnlsConfig, cfg: &RunConfig) -> Result<Built, SpecErr
             Composition::new(kind, 3),
             h,
         ))
-    } else if RungeKuttaKind::from_name(method).is_some() {
+    } else if RungeKuttaTableau::from_name(method).is_some() {
         runge_kutta_system(cfg, lattice.clone())?
     } else {
         return Err(SpecError::new(
@@ -119,7 +120,7 @@ pub(super) fn run(model: &DdnlsConfig, cfg: &RunConfig) -> Result<Built, SpecErr
             format!(
                 "unknown method '{method}' for ddnls (known: {}; and the Runge-Kutta methods \
                  rk4, dop853, gl4, gl6)",
-                CompositionKind::catalogue()
+                CompositionScheme::catalogue()
             ),
         ));
     };

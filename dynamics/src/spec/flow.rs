@@ -6,7 +6,7 @@ use std::sync::Arc;
 use chaoscope_schemas::config::{OdeConfig, RunConfig};
 
 use super::{Built, LaneParam, SpecError, num, vector};
-use crate::integrator::runge_kutta::{RungeKutta, RungeKuttaKind, Tolerances};
+use crate::integrator::runge_kutta::{RungeKutta, RungeKuttaTableau, Tolerances};
 use crate::system::{DynamicalSystem, RkFlow, TaylorFlow};
 use crate::vector_field::VectorField;
 
@@ -49,7 +49,7 @@ pub(super) fn runge_kutta_system(
             ),
         ));
     }
-    let kind = RungeKuttaKind::from_name(&integrator.method).ok_or_else(|| {
+    let kind = RungeKuttaTableau::from_name(&integrator.method).ok_or_else(|| {
         SpecError::new(
             "integrator.method",
             format!(
@@ -62,7 +62,7 @@ pub(super) fn runge_kutta_system(
     let tolerances = match (integrator.rtol, integrator.atol) {
         (None, None) => None,
         (Some(rtol), Some(atol)) => {
-            if kind != RungeKuttaKind::Dop853 {
+            if kind != RungeKuttaTableau::Dop853 {
                 return Err(SpecError::new(
                     "integrator.rtol",
                     format!("error control is offered by dop853, not {}", kind.name()),

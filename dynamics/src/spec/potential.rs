@@ -13,7 +13,7 @@ use chaoscope_schemas::config::{self, ModelConfig, PotentialConfig, RunConfig, T
 
 use super::lattice_shape::Sites;
 use super::{Built, LaneParam, SpecError, separable};
-use crate::integrator::SplittingKind;
+use crate::integrator::SplittingScheme;
 use crate::model::{ExpressionModel, Model, PotentialDefinition};
 
 /// Most degrees of freedom of a potential model (the straight-line compiled code grows with N).
@@ -243,13 +243,13 @@ pub(super) fn run(
     lanes: &[LaneParam],
 ) -> Result<Built, SpecError> {
     let method = cfg.integrator.method.as_str();
-    if SplittingKind::from_name(method).is_none() && !FLOW_METHODS.contains(&method) {
+    if SplittingScheme::from_name(method).is_none() && !FLOW_METHODS.contains(&method) {
         return Err(SpecError::new(
             "integrator.method",
             format!(
                 "unknown method '{method}' for a potential (known: the splittings {}; as the \
                  flow of its Hamiltonian: {})",
-                SplittingKind::catalogue(),
+                SplittingScheme::catalogue(),
                 FLOW_METHODS.join(", ")
             ),
         ));

@@ -11,7 +11,7 @@ use chaoscope_schemas::config::{
 
 use super::potential::{self, TableDigest};
 use super::{Built, SpecError};
-use crate::integrator::{Splitting, SplittingKind};
+use crate::integrator::{Splitting, SplittingScheme};
 use crate::model::{At, FputBeta, HenonHeiles, Model, WithParams};
 use crate::system::SplitHamiltonian;
 
@@ -83,13 +83,13 @@ pub(super) fn run_with_lanes(
     tables: Vec<TableDigest>,
     lane_values: &[f64],
 ) -> Result<Built, SpecError> {
-    let kind = SplittingKind::from_name(&cfg.integrator.method).ok_or_else(|| {
+    let kind = SplittingScheme::from_name(&cfg.integrator.method).ok_or_else(|| {
         SpecError::new(
             "integrator.method",
             format!(
                 "unknown method '{}' for a separable Hamiltonian (known: {})",
                 cfg.integrator.method,
-                SplittingKind::catalogue()
+                SplittingScheme::catalogue()
             ),
         )
     })?;

@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_dynamics::integrator::runge_kutta::{RkScratch, Tolerances};
-use chaoscope_dynamics::integrator::{RungeKutta, RungeKuttaKind};
+use chaoscope_dynamics::integrator::{RungeKutta, RungeKuttaTableau};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_dynamics::system::RkFlow;
 use chaoscope_dynamics::vector_field::VectorField;
@@ -48,7 +48,7 @@ impl VectorField for Lorenz {
     }
 }
 
-fn lorenz_flow(kind: RungeKuttaKind, h: f64, tolerances: Option<Tolerances>) -> Arc<RkFlow> {
+fn lorenz_flow(kind: RungeKuttaTableau, h: f64, tolerances: Option<Tolerances>) -> Arc<RkFlow> {
     Arc::new(RkFlow {
         name: "lorenz".into(),
         field: Arc::new(Lorenz),
@@ -77,7 +77,7 @@ fn lorenz_config(h: f64, t_final: f64, schemes: Vec<SchemeConfig>) -> RunConfig 
 
 /// Max-norm distance of the state at `t` from `x0` integrated by `kind` with step `h`, to a
 /// dop853 reference at a step 16 times smaller than the smallest tested.
-fn trajectory(kind: RungeKuttaKind, h: f64, t: f64) -> Vec<f64> {
+fn trajectory(kind: RungeKuttaTableau, h: f64, t: f64) -> Vec<f64> {
     let method = RungeKutta::new(kind);
     let mut x = vec![-8.0, 8.0, 27.0];
     let mut scratch = RkScratch::default();
@@ -112,21 +112,21 @@ fn rk4_and_dop853_converge_with_their_orders() {
     // (rk4 over t = 1: the error at t = 2 of these steps happens to pass near a cancellation.)
     for (kind, t, steps, order, slack) in [
         (
-            RungeKuttaKind::Rk4,
+            RungeKuttaTableau::Rk4,
             1.0,
             &[0.0025, 0.00125, 0.000625][..],
             4.0,
             0.3,
         ),
         (
-            RungeKuttaKind::Dop853,
+            RungeKuttaTableau::Dop853,
             2.0,
             &[0.05, 0.04, 0.03125, 0.025, 0.02][..],
             8.0,
             0.5,
         ),
     ] {
-        let reference = trajectory(RungeKuttaKind::Dop853, 0.001, t);
+        let reference = trajectory(RungeKuttaTableau::Dop853, 0.001, t);
         let errors: Vec<f64> = steps
             .iter()
             .map(|&h| error(&trajectory(kind, h, t), &reference))
@@ -137,7 +137,7 @@ fn rk4_and_dop853_converge_with_their_orders() {
         for (w, h) in errors.windows(2).zip(steps.windows(2)) {
             let measured = (w[0] / w[1]).ln() / (h[0] / h[1]).ln();
             eprintln!("{kind:?}: measured order {measured:.3}");
-            let high = if kind == RungeKuttaKind::Dop853 {
+            let high = if kind == RungeKuttaTableau::Dop853 {
                 11.0
             } else {
                 order + slack
@@ -192,7 +192,11 @@ fn check_lorenz_spectrum(report: &chaoscope_analyzer::report::Report) {
 
 #[test]
 fn lorenz_spectrum_by_vm_and_mpm_with_fixed_step_dop853() {
-    let report = lorenz_spectrum(lorenz_flow(RungeKuttaKind::Dop853, 0.01, None), 0.01, 1e4);
+    let report = lorenz_spectrum(
+        lorenz_flow(RungeKuttaTableau::Dop853, 0.01, None),
+        0.01,
+        1e4,
+    );
     assert_eq!(report.run.kind, "flow");
     assert_eq!(report.run.dim, 3);
     check_lorenz_spectrum(&report);
@@ -206,7 +210,7 @@ fn lorenz_spectrum_with_adaptive_dop853() {
         atol: 1e-10,
     };
     let report = lorenz_spectrum(
-        lorenz_flow(RungeKuttaKind::Dop853, 0.5, Some(tol)),
+        lorenz_flow(RungeKuttaTableau::Dop853, 0.5, Some(tol)),
         0.5,
         1e4,
     );
@@ -229,7 +233,7 @@ fn the_compiled_rhs_is_the_hand_written_lorenz() {
         ],
     );
     let by_hand =
-        RunSpec::with_system(&config, lorenz_flow(RungeKuttaKind::Dop853, 0.01, None)).unwrap();
+        RunSpec::with_system(&config, lorenz_flow(RungeKuttaTableau::Dop853, 0.01, None)).unwrap();
     config.model = ModelConfig::Ode(OdeConfig {
         rhs: Some(vec![
             "sigma*(x2 - x1)".into(),

@@ -174,10 +174,7 @@ fn read(
         &AnalysisOptions {
             series_capacity: 2,
             per_decade: 1,
-            flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
-            site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
-            zero_one_observable: Some(chaoscope_replay::flow::zero_one_observable_of_run),
-            ..Default::default()
+            ..chaoscope_replay::flow::analysis_options()
         },
     );
     let mut assembler = SampleAssembler::new();

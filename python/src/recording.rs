@@ -305,11 +305,8 @@ impl Recording {
     ) -> PyResult<Bound<'py, PyAny>> {
         let options = AnalysisOptions {
             at: at.into_iter().collect(),
-            flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
-            site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
-            zero_one_observable: Some(chaoscope_replay::flow::zero_one_observable_of_run),
             exponents_from: from_t,
-            ..Default::default()
+            ..chaoscope_replay::flow::analysis_options()
         };
         // Read-only, so on its own thread: Ctrl-C raises at once and the analysis of a long
         // recording is left to end unseen (nothing to finalize).

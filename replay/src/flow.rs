@@ -6,7 +6,7 @@
 
 use std::sync::Arc;
 
-use chaoscope_analyzer::analysis::{FlowField, ObservableFn, SiteEnergies};
+use chaoscope_analyzer::analysis::{AnalysisOptions, FlowField, ObservableFn, SiteEnergies};
 use chaoscope_analyzer::run_info::RunInfo;
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_dynamics::spec::state_function::zero_one_observable;
@@ -114,4 +114,16 @@ pub fn zero_one_observable_of_spec(
     };
     let function: Arc<ObservableFn> = Arc::new(move |x: &[f64]| compiled.value(x));
     Some(Ok(function))
+}
+
+/// The analysis options that rebuild a recorded run's system from its config (the vector field,
+/// the site energies, the 0-1 test's observable), on which every reader of a run builds its own:
+/// `chaoscope analyze`, `run`'s summary, the live monitor and Python.
+pub fn analysis_options() -> AnalysisOptions {
+    AnalysisOptions {
+        flow_field: Some(flow_field_of_run),
+        site_energies: Some(site_energies_of_run),
+        zero_one_observable: Some(zero_one_observable_of_run),
+        ..Default::default()
+    }
 }

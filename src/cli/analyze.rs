@@ -118,13 +118,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let options = AnalysisOptions {
         series_capacity: args.points,
         at: args.at.into_iter().collect(),
-        flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
-        site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
-        zero_one_observable: Some(chaoscope_replay::flow::zero_one_observable_of_run),
         site_profiles: args.plot.is_some(),
         plane_times: args.plane_times.clone(),
         exponents_from: args.from,
-        ..Default::default()
+        ..chaoscope_replay::flow::analysis_options()
     };
     let (analysis, info) = analyze_file(&args.file, &options)?;
     // What the analysis leaves out when the run's system cannot be rebuilt here (a table now

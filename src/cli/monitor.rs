@@ -174,10 +174,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         &AnalysisOptions {
             series_capacity: 1000,
             per_decade: 20,
-            flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
-            site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
-            zero_one_observable: Some(chaoscope_replay::flow::zero_one_observable_of_run),
-            ..Default::default()
+            ..chaoscope_replay::flow::analysis_options()
         },
     );
     let mut view = if args.json_lines {

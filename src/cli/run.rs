@@ -420,10 +420,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let (analysis, info) = chaoscope_analyzer::recording::analyze_file(
         &out,
         &chaoscope_analyzer::AnalysisOptions {
-            flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
-            site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
-            zero_one_observable: Some(chaoscope_replay::flow::zero_one_observable_of_run),
-            ..Default::default()
+            ..chaoscope_replay::flow::analysis_options()
         },
     )?;
     still_ours()?;

@@ -511,7 +511,7 @@ fn the_zero_one_observable_travels_with_the_recording() {
         let recorded = vm["zero_one_k"].as_f64().unwrap_or_else(|| panic!("{vm}"));
         let cfg = chaoscope_schemas::config::RunConfig::from_toml(&text).unwrap();
         let options = chaoscope_analyzer::analysis::AnalysisOptions::default();
-        let a = chaoscope_replay::inprocess::analyze_config(&cfg, &options, |_| {}).unwrap();
+        let a = chaoscope_app::inprocess::analyze_config(&cfg, &options, |_| {}).unwrap();
         let in_process = a
             .report()
             .scheme("vm")

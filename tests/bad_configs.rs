@@ -1598,7 +1598,7 @@ fn iceoryx2_is_reached_only_from_the_bus_and_the_processes_around_it() {
         "chaoscope-dynamics",
         "chaoscope-files",
         "chaoscope-analyzer",
-        "chaoscope-replay",
+        "chaoscope-app",
         // Times the numerics in process, and whole runs as child processes.
         "chaoscope-bench",
     ];
@@ -1625,7 +1625,7 @@ fn iceoryx2_is_reached_only_from_the_bus_and_the_processes_around_it() {
     // and write them) use it directly, as the bus's processes do. The numerics do not: the
     // dynamics and replay reach it through those crates alone, and os, indicators and expr
     // not at all.
-    for m in ["chaoscope-dynamics", "chaoscope-replay"] {
+    for m in ["chaoscope-dynamics", "chaoscope-app"] {
         let beyond_formats = reached(
             &graph,
             m,

@@ -262,7 +262,7 @@ fn henon_map_records_and_reports_its_constant_jacobian() {
     }
     // The covariant Lyapunov vectors of the VM scheme (`analyze --clv`): growth rates on the
     // QR spectrum (1.6e4 iterations between the transients; boundary terms of at most
-    // |ln 1e-4| / 1.6e4, replay/tests/analysis/clv.rs), the angle series as CSV in time order.
+    // |ln 1e-4| / 1.6e4, app/tests/analysis/clv.rs), the angle series as CSV in time order.
     let clv: Value =
         serde_json::from_str(&run_ok(&["analyze", s(&rec), "--clv", "--json"])).unwrap();
     assert_all_finite(&clv, "clv");

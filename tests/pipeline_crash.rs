@@ -1313,14 +1313,14 @@ fn a_complete_leftover_is_put_in_place_and_a_resume_stopped_at_once_changes_noth
     );
     assert_eq!(std::fs::read(&stale).unwrap(), bytes);
 
-    let options = chaoscope_replay::resume::ResumeOptions {
+    let options = chaoscope_app::resume::ResumeOptions {
         t_final: Some(400.0),
         stop: Some(std::sync::Arc::new(std::sync::atomic::AtomicBool::new(
             true,
         ))),
         ..Default::default()
     };
-    let outcome = chaoscope_replay::resume::resume(&whole, &options).unwrap();
+    let outcome = chaoscope_app::resume::resume(&whole, &options).unwrap();
     assert_eq!(
         (
             outcome.status.as_str(),

@@ -40,17 +40,17 @@ pub struct AnalysisOptions {
     pub at: Vec<f64>,
     /// Where the system's vector field comes from, for the indicators that need the flow
     /// direction (OFLI): the analyzer runs no engine, so the caller that has one (the binary,
-    /// Python: `chaoscope_replay::flow::flow_field_of_run`) says how to rebuild it from the
+    /// Python: `chaoscope_app::flow::flow_field_of_run`) says how to rebuild it from the
     /// run's header. `None`: those indicators report themselves unavailable.
     pub flow_field: Option<FlowSource>,
     /// Where the energy of each site of a lattice Hamiltonian comes from, for the energy
     /// distribution (`energy_m2`, `energy_participation`): as `flow_field`, from the caller
-    /// that can rebuild the model (`chaoscope_replay::flow::site_energies_of_run`). `None`:
+    /// that can rebuild the model (`chaoscope_app::flow::site_energies_of_run`). `None`:
     /// those outputs report themselves unavailable.
     pub site_energies: Option<SiteEnergySource>,
     /// Where a run's `[analysis] zero_one_observable` (an expression of the state) is compiled,
     /// as `flow_field`, by the caller that can rebuild the system
-    /// (`chaoscope_replay::flow::zero_one_observable_of_run`). `None`, or a run whose system
+    /// (`chaoscope_app::flow::zero_one_observable_of_run`). `None`, or a run whose system
     /// cannot be rebuilt here: the 0-1 test of such a run says why it is unavailable (never a
     /// value of another observable). A run without the key needs none of it.
     pub zero_one_observable: Option<ObservableSource>,

@@ -4,7 +4,7 @@
 //! The core ([`analysis`]) is sans-io: it is fed a run header and samples. Readers around it
 //! turn an MCAP file ([`recording`]) or the messages of the bus's monitor stream
 //! ([`assemble`], fed by `chaoscope_bus::monitor`) into samples. It depends on no engine:
-//! replay and in-process runs are `chaoscope-replay`'s, Poincare sections the producer's.
+//! replay and in-process runs are `chaoscope-app`'s, Poincare sections the producer's.
 
 pub mod analysis;
 pub mod assemble;

@@ -484,7 +484,7 @@ pub fn values_recording(data: &[u8]) -> Outcome {
 /// output reads back, with finite numbers in its report) or fails with one line naming the
 /// recording, leaving no output.
 pub fn values_replay(data: &[u8]) -> Outcome {
-    use chaoscope_replay::{ReplayError, ReplayOptions, replay};
+    use chaoscope_app::{ReplayError, ReplayOptions, replay};
     let bytes = hostile::recording(&mut Choices::new(data));
     let Ok(scratch) = tempfile::Builder::new().prefix("chaoscope-fuzz-").tempdir() else {
         return Outcome::default();
@@ -806,7 +806,7 @@ const RESUME_ENDS: [Option<f64>; 8] = [
 /// output reads back whole, its report finite) or is refused in one line (naming the recording
 /// when it is the file that is refused). No panic, no hang, no NaN in the new file.
 pub fn values_resume(data: &[u8]) -> Outcome {
-    use chaoscope_replay::resume::{ResumeFailure, ResumeOptions, resume};
+    use chaoscope_app::resume::{ResumeFailure, ResumeOptions, resume};
     let mut choices = Choices::new(data);
     let t_final = RESUME_ENDS[usize::from(choices.byte()) % RESUME_ENDS.len()];
     let Ok(scratch) = tempfile::Builder::new().prefix("chaoscope-fuzz-").tempdir() else {

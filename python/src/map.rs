@@ -2,14 +2,14 @@
 //! recorded in its file format, returned as numpy grids.
 
 use std::path::{Path, PathBuf};
+use std::time::Duration;
 
+use chaoscope_app::map::{MapFileError, MapJob, map_to_file};
 use chaoscope_dynamics::batch::Isa;
 use chaoscope_dynamics::estimate::{self, Machine};
-use chaoscope_dynamics::map::{MapOptions, MapSpec, Shard, run_map};
-use chaoscope_files::file::{Compression, FileOptions};
-use chaoscope_files::map_file::{MapFile, read_map_file};
+use chaoscope_dynamics::map::{MapOptions, MapSpec, Shard};
+use chaoscope_files::map_file::read_map_file;
 use chaoscope_os::termination::Termination;
-use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;
@@ -157,7 +157,9 @@ impl Map {
 /// `chaoscope map`, records it to `out` (default `maps/<run name or "map">.mcap`), and returns
 /// the grid. `threads` defaults to one per core. The GIL is released while it runs; Ctrl-C
 /// stops it within a renormalization window, leaves a valid file with the points finished so
-/// far (`chaoscope map` resumes it), and raises `KeyboardInterrupt`.
+/// far (`chaoscope map` resumes it), and raises `KeyboardInterrupt`. What a killed map of the
+/// same configuration left in `out.partial` is resumed; anything else there is refused
+/// untouched unless `force=True`.
 #[pyfunction]
 #[pyo3(signature = (config, *, out = None, threads = None, force = false))]
 pub fn map(
@@ -197,85 +199,31 @@ pub fn map(
             out.display()
         )));
     }
-    let header = spec.header(whole);
-    // Written as every chaoscope output is (`chaoscope_os::output`): into `out.partial`, locked
-    // (a `chaoscope map` of the same file is refused meanwhile), renamed to `out` when done or
-    // interrupted; `chaoscope map` resumes an interrupted one.
-    let output = Output::create(
-        &out,
-        &OutputOptions {
-            replace: force,
-            create_dir: true,
-            leftover: if force {
-                Leftover::Discard
-            } else {
-                Leftover::Refuse
-            },
-            keep_failed: true,
-            ..Default::default()
-        },
-    )
-    .map_err(|e| crate::message(e.to_string()))?;
     let termination = Termination::new();
-    let options = MapOptions {
-        threads,
-        isa: Isa::detect(),
-        termination: Some(termination.clone()),
-        ..MapOptions::default()
-    };
-    let todo: Vec<u64> = spec.shard_points(whole).collect();
-    let computed = interruptible(
-        py,
-        || termination.request(),
-        || -> Result<Vec<MapPoint>, String> {
-            let write_error = |e: &(dyn std::error::Error + 'static)| {
-                format!(
-                    "writing {}: {}",
-                    out.display(),
-                    chaoscope_files::file::error_chain(e)
-                )
-            };
-            let file = output.file().map_err(|e| write_error(&e))?;
-            let file_options = FileOptions {
-                compression: Compression::Zstd,
-                chunk_size: 1 << 20,
-            };
-            let mut file =
-                MapFile::create(file, &header, &file_options).map_err(|e| write_error(&e))?;
-            let mut points = Vec::with_capacity(todo.len());
-            let mut failed = None;
-            run_map(&spec, &todo, &options, |r| {
-                let message = MapPoint::from(&r);
-                if let Err(e) = file.write_point(&message) {
-                    failed = Some(write_error(&e));
-                    return false;
-                }
-                points.push(message);
-                !termination.requested()
-            })
-            .map_err(|e| e.to_string())?;
-            if let Some(e) = failed {
-                return Err(e);
-            }
-            file.close_chunk()
-                .and_then(|()| file.finish().map(drop))
-                .map_err(|e| write_error(&e))?;
-            output.commit().map_err(|e| write_error(&e))?;
-            Ok(points)
+    let job = MapJob {
+        spec: &spec,
+        shard: whole,
+        out: &out,
+        // `force` replaces what is there; without it, what a killed map left is resumed.
+        restart: force,
+        create_dir: true,
+        inputs: Vec::new(),
+        flush_interval: Duration::from_secs(2),
+        options: MapOptions {
+            threads,
+            isa: Isa::detect(),
+            termination: Some(termination.clone()),
+            ..MapOptions::default()
         },
-    )?;
-    // A failed write keeps what it wrote (`chaoscope map` resumes it): the error names it.
-    let mut points = computed.map_err(|e| {
-        let partial = chaoscope_os::output::partial_path(&out);
-        let shown = partial.display().to_string();
-        if chaoscope_os::output::kept_after_failure().contains(&partial) && !e.contains(&shown) {
-            crate::message(format!("{e}; what was written is kept in {shown}"))
-        } else {
-            crate::message(e)
-        }
-    })?;
-    points.sort_by_key(|p| p.index);
-    Map::new(py, out, &header, &points)
+    };
+    let outcome = interruptible(py, || termination.request(), || map_to_file(&job, &mut ()))?
+        .map_err(|e| match e {
+            MapFileError::Refused(why) => {
+                crate::message(format!("{why}; pass force=True to replace it"))
+            }
+            e => crate::message(e.to_string()),
+        })?;
+    Map::new(py, out, &spec.header(whole), &outcome.points)
 }
 
 /// Reads a map file written by `chaoscope map`, `chaoscope merge` or `chaoscope.map`; a

@@ -174,7 +174,7 @@ fn read(
         &AnalysisOptions {
             series_capacity: 2,
             per_decade: 1,
-            ..chaoscope_replay::flow::analysis_options()
+            ..chaoscope_app::flow::analysis_options()
         },
     );
     let mut assembler = SampleAssembler::new();

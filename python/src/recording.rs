@@ -6,16 +6,15 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions, energy_error};
 use chaoscope_analyzer::recording::{RecordingReader, analyze_file};
-use chaoscope_analyzer::write::{SampleWriter, WriteError};
-use chaoscope_dynamics::engine::Engine;
+use chaoscope_app::record::Ended;
+use chaoscope_app::{ReplayError, ReplayOptions};
 use chaoscope_dynamics::estimate::Machine;
-use chaoscope_dynamics::header::{non_finite, run_header};
+use chaoscope_dynamics::header::run_header;
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_indicators::{Named, Output};
 use chaoscope_os::{Leftover, OutputOptions};
 use chaoscope_producer::resolve_run_name;
-use chaoscope_replay::{ReplayError, ReplayOptions};
-use chaoscope_schemas::proto::{RunHeader, end_of_run};
+use chaoscope_schemas::proto::RunHeader;
 use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyAny, PyDict};
@@ -130,61 +129,20 @@ pub fn run(
         },
         ..Default::default()
     };
-    let writer = SampleWriter::create_with(&out, &header, &options)
-        .map_err(|e| crate::message(error_text(&e)))?;
     let stop = AtomicBool::new(false);
-    let failure = interruptible(
+    let ended = interruptible(
         py,
         || stop.store(true, Ordering::Relaxed),
-        || record_run(writer, &out, &header, spec, &stop),
-    )?;
-    if let Some(why) = failure {
-        return Err(crate::message(why));
+        || chaoscope_app::record::record(spec, &header, &out, &options, &stop),
+    )?
+    .map_err(|e| crate::message(error_text(&e)))?;
+    if let Ended::Failed(why) = ended {
+        return Err(crate::message(format!(
+            "run {} failed: {why}",
+            header.run_name
+        )));
     }
     Recording::open_path(py, out)
-}
-
-/// Integrates and writes the run; `Some(message)` if it failed (the file then says so too, as
-/// the recorder's file of a failed run does). A write error leaves no file.
-fn record_run(
-    mut writer: SampleWriter,
-    out: &Path,
-    header: &RunHeader,
-    spec: RunSpec,
-    stop: &AtomicBool,
-) -> Option<String> {
-    let written = |e: &(dyn std::error::Error + 'static)| Some(error_text(e));
-    let mut engine = Engine::new(spec);
-    let (status, reason) = loop {
-        if stop.load(Ordering::Relaxed) {
-            break (end_of_run::Status::Interrupted, "interrupted".to_string());
-        }
-        match engine.next_sample() {
-            Ok(Some(sample)) => {
-                // NaN never goes into a file: the run fails at the first non-finite value.
-                if let Some(why) = non_finite(&sample) {
-                    break (end_of_run::Status::Failed, why);
-                }
-                if let Err(e) = writer.write(&sample) {
-                    return written(&WriteError::Mcap {
-                        path: out.to_path_buf(),
-                        error: e,
-                    });
-                }
-            }
-            Ok(None) => break (end_of_run::Status::Completed, String::new()),
-            Err(e) => break (end_of_run::Status::Failed, e.to_string()),
-        }
-    };
-    let finalized_by = match status {
-        end_of_run::Status::Interrupted => "signal",
-        _ => "end-of-run",
-    };
-    if let Err(e) = writer.finish_with(finalized_by, status, &reason) {
-        return written(&e);
-    }
-    (status == end_of_run::Status::Failed)
-        .then(|| format!("run {} failed: {reason}", header.run_name))
 }
 
 /// A float or a list of floats, as `tau=` and `d0=` take them.
@@ -306,7 +264,7 @@ impl Recording {
         let options = AnalysisOptions {
             at: at.into_iter().collect(),
             exponents_from: from_t,
-            ..chaoscope_replay::flow::analysis_options()
+            ..chaoscope_app::flow::analysis_options()
         };
         // Read-only, so on its own thread: Ctrl-C raises at once and the analysis of a long
         // recording is left to end unseen (nothing to finalize).
@@ -470,7 +428,7 @@ impl Recording {
         let outcome = interruptible(
             py,
             || stop.store(true, Ordering::Relaxed),
-            || chaoscope_replay::replay(&self.path, &out, &options),
+            || chaoscope_app::replay(&self.path, &out, &options),
         )?;
         let outcome = match outcome {
             Ok(o) => o,
@@ -584,8 +542,8 @@ fn read_series(path: &Path, si: usize, stop: &AtomicBool) -> Result<Series, Stri
     // The options of `chaoscope analyze` that change an indicator's value: the system rebuilt
     // from the recording's config for OFLI's flow direction and the site energies.
     let options = AnalysisOptions {
-        flow_field: Some(chaoscope_replay::flow::flow_field_of_run),
-        site_energies: Some(chaoscope_replay::flow::site_energies_of_run),
+        flow_field: Some(chaoscope_app::flow::flow_field_of_run),
+        site_energies: Some(chaoscope_app::flow::site_energies_of_run),
         ..Default::default()
     };
     let mut analysis = Analysis::new(run, &options);

@@ -123,3 +123,35 @@ def test_spectrum_map_has_one_layer_per_exponent(tmp_path, cli):
                "--png", tmp_path / "spectrum.png")
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "spectrum.png").stat().st_size > 1000
+
+
+def test_map_resumes_what_a_killed_map_left(tmp_path, cli):
+    """The in-progress file of a map that died (here: a stopped map's points moved to
+    `NAME.partial`, unlocked) is resumed by `map`, as by `chaoscope map`: its points are kept
+    and only the missing ones computed, bit for bit the map computed whole; a leftover of
+    another map is refused and left untouched."""
+    config = hh_map()
+    path = tmp_path / "map.toml"
+    path.write_text(to_toml(config))
+    whole = chaoscope.map(config, out=tmp_path / "whole.mcap", threads=1)
+    stopped = tmp_path / "stopped.mcap"
+    done = cli("map", path, "--out", stopped, "--threads", 1, "--no-progress",
+               "--stop-after", 20, "--flush-interval", 0)
+    assert done.returncode != 0 and "interrupted" in done.stderr, done.stderr
+    out = tmp_path / "resumed.mcap"
+    partial = tmp_path / "resumed.mcap.partial"
+    stopped.rename(partial)
+    m = chaoscope.map(config, out=out, threads=1)
+    assert not partial.exists()
+    assert m.value.tobytes() == whole.value.tobytes()
+    assert m.status.tobytes() == whole.status.tobytes()
+    assert chaoscope.open_map(out).per_set.tobytes() == whole.per_set.tobytes()
+
+    # Another map's leftover: refused, named, untouched.
+    other = tmp_path / "other.mcap"
+    (tmp_path / "other.mcap.partial").write_bytes(out.read_bytes())
+    before = (tmp_path / "other.mcap.partial").read_bytes()
+    with pytest.raises(chaoscope.ChaoscopeError, match=r"holds a different map.*force=True"):
+        chaoscope.map(hh_map(n=(3, 3)), out=other, threads=1)
+    assert (tmp_path / "other.mcap.partial").read_bytes() == before
+    assert not other.exists()

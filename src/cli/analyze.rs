@@ -121,12 +121,12 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         site_profiles: args.plot.is_some(),
         plane_times: args.plane_times.clone(),
         exponents_from: args.from,
-        ..chaoscope_replay::flow::analysis_options()
+        ..chaoscope_app::flow::analysis_options()
     };
     let (analysis, info) = analyze_file(&args.file, &options)?;
     // What the analysis leaves out when the run's system cannot be rebuilt here (a table now
     // unreadable, a configuration this version refuses): said, not fatal.
-    if let Some(why) = chaoscope_replay::flow::why_no_system_of_run(analysis.run()) {
+    if let Some(why) = chaoscope_app::flow::why_no_system_of_run(analysis.run()) {
         chaoscope_os::errln!(
             "chaoscope analyze: warning: {}: no flow field and no site energies (the system is \
              rebuilt from the run's configuration): {why}",

@@ -1,39 +1,29 @@
 //! `chaoscope map CONFIG --out FILE.mcap [--png FILE.png] [--threads N] [--json] [--shard i/n]`:
 //! a phase-space map, one chaos indicator per grid point, recorded to MCAP as points complete.
 //!
-//! The map is written into FILE.mcap.partial (locked while the map runs, so a second map of the
-//! same FILE is refused) and renamed to FILE.mcap when it ends: complete, or stopped by
-//! Ctrl-C/SIGTERM with the points done so far (`chaoscope_os::output`).
-//!
-//! Resuming: the points of FILE.mcap (a map stopped by a signal) and of FILE.mcap.partial (left
-//! by a map that was killed or hit a full disk; every complete chunk counts), when they were
-//! made from the same configuration and shard, are kept and only the missing ones are
-//! computed. The new in-progress file holds all of them before it replaces the old one, so an
-//! interruption at any moment loses nothing that was on disk. An existing FILE.mcap that
-//! cannot be read as a map of this configuration and shard is refused and left as it is,
-//! unless `--restart` says to discard it.
+//! The file is written and resumed as `chaoscope_app::map` says: an existing FILE.mcap (or
+//! the FILE.mcap.partial of a killed map) of the same configuration and shard is resumed;
+//! anything else there is refused untouched unless `--restart`.
 //!
 //! Live: every point (resumed ones first) is also published on the iceoryx2 bus under the map's
 //! name (`--name`, default: the output file's stem), for `chaoscope map-watch`. That stream is
 //! lossy and never slows the map; if it cannot be opened the map runs without it.
 
-use std::collections::BTreeMap;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
+use chaoscope_app::map::{MapFileError, MapJob, MapObserver, map_to_file};
 use chaoscope_bus::frame::status;
 use chaoscope_dynamics::batch::Isa;
 use chaoscope_dynamics::estimate::RouteChoice;
-use chaoscope_dynamics::map::{MapOptions, MapSpec, PointStatus, Shard, run_map};
-use chaoscope_files::file::{Compression, FileOptions};
-use chaoscope_files::map_file::{MapFile, read_map_file};
+use chaoscope_dynamics::map::{MapOptions, MapSpec, PointStatus, Shard};
+use chaoscope_os::OutputOptions;
 use chaoscope_os::termination::Termination;
-use chaoscope_os::{Leftover, Output, OutputOptions};
 use chaoscope_producer::map::{MapPublisher, default_map_name};
-use chaoscope_schemas::proto::{MapHeader, MapPoint};
+use chaoscope_schemas::proto::MapPoint;
 
 /// Longest wait, once the map is done, for live watchers to read its last points.
 const LIVE_LINGER: Duration = Duration::from_secs(1);
@@ -130,66 +120,21 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             },
         )?;
     }
-    let mut output = Output::create(
-        &args.out,
-        &OutputOptions {
-            // An existing FILE is this map's earlier part (checked below) or refused untouched.
-            replace: true,
-            create_dir: false,
-            inputs: [&args.config, &args.png.clone().unwrap_or_default()]
-                .into_iter()
-                .filter(|p| p.as_os_str() != "-" && !p.as_os_str().is_empty())
-                .cloned()
-                .collect(),
-            leftover: if args.restart {
-                Leftover::Discard
-            } else {
-                Leftover::Resume
-            },
-            // The points of a map stopped by a failed write are resumed.
-            keep_failed: true,
-        },
-    )?;
-    let recorded = if args.restart {
-        BTreeMap::new()
-    } else {
-        previous_points(&args.out, output.leftover(), &header)?
-    };
     let name = args
         .name
         .clone()
         .unwrap_or_else(|| default_map_name(&args.out, args.shard));
-    let mut live = match MapPublisher::open(&name, &header) {
+    let live = match MapPublisher::open(&name, &header) {
         Ok(p) => Some(p),
         Err(e) => {
             chaoscope_os::errln!("chaoscope map: no live stream ({e}); computing the map anyway");
             None
         }
     };
-
-    let options = FileOptions {
-        compression: Compression::Zstd,
-        chunk_size: 1 << 20,
-    };
-    let mut file = MapFile::create(output.start_fresh()?, &header, &options)?;
-    for p in recorded.values() {
-        file.write_point(p)?;
-        if let Some(live) = &mut live {
-            live.publish(p);
-        }
-    }
-    file.close_chunk()?;
-    // Every point on disk before is in the new file now: it replaces a killed map's.
-    output.adopt_fresh()?;
-
-    let todo: Vec<u64> = spec
-        .shard_points(args.shard)
-        .filter(|i| !recorded.contains_key(i))
-        .collect();
     let bar = if args.no_progress {
         indicatif::ProgressBar::hidden()
     } else {
-        indicatif::ProgressBar::new(todo.len() as u64)
+        indicatif::ProgressBar::new(0)
     };
     bar.set_style(
         indicatif::ProgressStyle::with_template(
@@ -197,68 +142,40 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         )
         .expect("valid template"),
     );
-    let map_options = MapOptions {
-        threads: args.threads,
-        isa,
-        termination: Some(termination.clone()),
-        ..MapOptions::default()
+    let job = MapJob {
+        spec: &spec,
+        shard: args.shard,
+        out: &args.out,
+        restart: args.restart,
+        create_dir: false,
+        inputs: [&args.config, &args.png.clone().unwrap_or_default()]
+            .into_iter()
+            .filter(|p| p.as_os_str() != "-" && !p.as_os_str().is_empty())
+            .cloned()
+            .collect(),
+        flush_interval: args.flush_interval,
+        options: MapOptions {
+            threads: args.threads,
+            isa,
+            termination: Some(termination.clone()),
+            ..MapOptions::default()
+        },
+    };
+    let mut watch = Watch {
+        live,
+        bar,
+        stop_after: args.stop_after,
+        computed: 0,
     };
     let start = Instant::now();
     let cpu_start = chaoscope_os::cpu_time::process_seconds();
-    let mut last_flush = Instant::now();
-    let (mut computed, mut orbit_steps) = (0u64, 0u64);
-    let mut new_points = Vec::new();
-    let mut write_error = None;
-    let mut interrupted = false;
-    run_map(&spec, &todo, &map_options, |r| {
-        let message = MapPoint::from(&r);
-        if let Err(e) = file.write_point(&message) {
-            write_error = Some(e);
-            return false;
-        }
-        computed += 1;
-        orbit_steps += r.orbit_steps;
-        if let Some(live) = &mut live {
-            live.publish(&message);
-        }
-        new_points.push(message);
-        bar.inc(1);
-        if last_flush.elapsed() >= args.flush_interval {
-            if let Err(e) = file.close_chunk() {
-                write_error = Some(e);
-                return false;
-            }
-            last_flush = Instant::now();
-        }
-        if termination.requested() || args.stop_after.is_some_and(|n| computed >= n) {
-            interrupted = true;
-            return false;
-        }
-        true
-    })?;
-    // A signal stops the workers within a window, dropping the points in progress.
-    interrupted |= termination.requested();
-    bar.finish_and_clear();
-    let written = match write_error {
-        Some(e) => Err(e),
-        None => file.close_chunk().and_then(|()| file.finish().map(drop)),
-    };
-    let finished = match written {
-        Ok(()) => output.commit().map(drop).map_err(anyhow::Error::from),
-        Err(e) => {
-            let kept = output.keep();
-            Err(anyhow::Error::from(e).context(format!(
-                "writing {}; the points so far are in {} (run the same command again to resume)",
-                args.out.display(),
-                kept.display()
-            )))
-        }
-    };
-    if let Some(live) = &mut live {
-        let code = match (&finished, interrupted) {
-            (Err(_), _) => status::FAILED,
-            (Ok(()), true) => status::INTERRUPTED,
-            (Ok(()), false) => status::COMPLETED,
+    let finished = map_to_file(&job, &mut watch);
+    watch.bar.finish_and_clear();
+    if let Some(live) = &mut watch.live {
+        let code = match &finished {
+            Err(_) => status::FAILED,
+            Ok(outcome) if outcome.interrupted => status::INTERRUPTED,
+            Ok(_) => status::COMPLETED,
         };
         // Watchers get a moment to read the last points, unless Ctrl-C asked to stop now.
         let linger = if termination.requested() {
@@ -268,17 +185,18 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         };
         live.end(code, linger);
     }
-    finished?;
+    let outcome = finished.map_err(|e| match e {
+        MapFileError::Refused(why) => {
+            anyhow::anyhow!("{why}. Pass --restart to overwrite it or choose another --out")
+        }
+        e => e.into(),
+    })?;
     let seconds = start.elapsed().as_secs_f64();
     let cpu_seconds = chaoscope_os::cpu_time::process_seconds() - cpu_start;
 
-    let mut all: Vec<MapPoint> = recorded.into_values().chain(new_points).collect();
-    all.sort_by_key(|p| p.index);
-    let count = |s: PointStatus| {
-        all.iter()
-            .filter(|p| p.status == MapPoint::from_status(s))
-            .count()
-    };
+    let (all, computed, interrupted) = (&outcome.points, outcome.computed, outcome.interrupted);
+    let orbit_steps = outcome.orbit_steps;
+    let count = |s: PointStatus| outcome.count(s);
     let expected = spec.shard_points(args.shard).count();
     if args.json {
         chaoscope_os::outln!(
@@ -305,7 +223,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "cpu_seconds": cpu_seconds,
                 "orbit_steps": orbit_steps,
                 "orbit_steps_per_cpu_second": orbit_steps as f64 / cpu_seconds.max(1e-9),
-                "live_stream": live.as_ref().map(|l| l.name()),
+                "live_stream": watch.live.as_ref().map(|l| l.name()),
                 "expression_kernels": expression_kernels(&spec),
             })
         )?;
@@ -330,7 +248,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     }
     if let Some(png) = &args.png {
         let inputs = vec![args.out.clone(), args.config.clone()];
-        map_png::render_png(&header, &all, png, &inputs).map_err(anyhow::Error::msg)?;
+        map_png::render_png(&header, all, png, &inputs).map_err(anyhow::Error::msg)?;
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -374,109 +292,32 @@ fn rayon_threads() -> usize {
         .unwrap_or(1)
 }
 
-/// Points already recorded for this map and shard, from the output file (a map stopped by a
-/// signal) and from the in-progress file a killed map left (`leftover`). A file that cannot be
-/// read as a map of this configuration and shard is refused, never discarded (that takes
-/// `--restart`).
-fn previous_points(
-    out: &Path,
-    leftover: Option<&Path>,
-    header: &MapHeader,
-) -> anyhow::Result<BTreeMap<u64, MapPoint>> {
-    let shard = Shard {
-        index: header.shard_index,
-        count: header.shard_count,
-    };
-    let mut points = BTreeMap::new();
-    let files = leftover
-        .map(|p| (p, true))
-        .into_iter()
-        .chain(out.exists().then_some((out, false)));
-    for (path, is_leftover) in files {
-        let contents = read_map_file(path)?;
-        if let Some(d) = &contents.damaged {
-            chaoscope_os::errln!(
-                "chaoscope map: {} is damaged or cut short ({d}); {} points before that are \
-                 readable",
-                path.display(),
-                contents.points.len()
-            );
-        }
-        let Some(h) = contents.header else {
-            if is_leftover {
-                // Killed before it wrote its first chunk: nothing in it.
-                continue;
-            }
-            bail!(
-                "{} holds no readable map header (not a `chaoscope map` recording, or its first \
-                 chunk is damaged); it was left untouched. Pass --restart to overwrite it or \
-                 choose another --out",
-                path.display()
-            );
-        };
-        if let Some(why) = table_difference(&h.config_toml, &header.config_toml) {
-            bail!(
-                "{} was computed with another table: {why}; pass --restart to recompute it \
-                 with the table as it is now, or restore the table",
-                path.display()
-            );
-        }
-        if h.config_toml != header.config_toml
-            || (h.shard_index, h.shard_count) != (header.shard_index, header.shard_count)
-        {
-            bail!(
-                "{} holds a different map (configuration or shard differ); pass --restart to \
-                 overwrite it or choose another --out",
-                path.display()
-            );
-        }
-        for p in contents.points {
-            if p.index >= header.grid_points || !shard.contains(p.index) {
-                bail!("{}: point {} is not in its shard", path.display(), p.index);
-            }
-            // Its values are this map's own (this configuration's header) or the file is
-            // refused: they go into the new file and the PNG as they are.
-            chaoscope_files::map_file::check_point(header, &p).map_err(|e| {
-                anyhow::anyhow!(
-                    "{}: {e}; pass --restart to recompute it or choose another --out",
-                    path.display()
-                )
-            })?;
-            points.insert(p.index, p);
+/// What the command shows of a map as it runs: the live stream, the progress bar, and the stop
+/// after `--stop-after` new points.
+struct Watch {
+    live: Option<MapPublisher>,
+    bar: indicatif::ProgressBar,
+    stop_after: Option<u64>,
+    computed: u64,
+}
+
+impl MapObserver for Watch {
+    fn resumed(&mut self, point: &MapPoint) {
+        if let Some(live) = &mut self.live {
+            live.publish(point);
         }
     }
-    Ok(points)
-}
 
-/// A table whose content differs between a map file's recorded configuration and this one
-/// (both carry each table's SHA-256), described for the user; `None` if every table agrees.
-fn table_difference(recorded: &str, now: &str) -> Option<String> {
-    let recorded = chaoscope_schemas::config::RunConfig::from_toml(recorded).ok()?;
-    let now = chaoscope_schemas::config::RunConfig::from_toml(now).ok()?;
-    now.model.tables()?.iter().find_map(|(name, table)| {
-        let (was, is) = (recorded.model.tables()?.get(name)?.spec(), table.spec());
-        match (&was.sha256, &is.sha256) {
-            (Some(a), Some(b)) if a != b => Some(format!(
-                "table '{name}' ({}) has SHA-256 {b}, the map was made with {a}",
-                is.file
-            )),
-            _ => None,
+    fn started(&mut self, todo: usize) {
+        self.bar.set_length(todo as u64);
+    }
+
+    fn computed(&mut self, point: &MapPoint, _orbit_steps: u64) -> bool {
+        self.computed += 1;
+        if let Some(live) = &mut self.live {
+            live.publish(point);
         }
-    })
-}
-
-/// Protobuf status of a point status.
-trait FromStatus {
-    fn from_status(s: PointStatus) -> i32;
-}
-
-impl FromStatus for MapPoint {
-    fn from_status(s: PointStatus) -> i32 {
-        use chaoscope_schemas::proto::map_point::Status;
-        (match s {
-            PointStatus::Ok => Status::Ok,
-            PointStatus::OutsideEnergySurface => Status::OutsideEnergySurface,
-            PointStatus::Escaped => Status::Escaped,
-        }) as i32
+        self.bar.inc(1);
+        self.stop_after.is_none_or(|n| self.computed < n)
     }
 }

@@ -174,7 +174,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         &AnalysisOptions {
             series_capacity: 1000,
             per_decade: 20,
-            ..chaoscope_replay::flow::analysis_options()
+            ..chaoscope_app::flow::analysis_options()
         },
     );
     let mut view = if args.json_lines {

@@ -6,8 +6,8 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use chaoscope_app::{ReplayOptions, replay};
 use chaoscope_os::outln;
-use chaoscope_replay::{ReplayOptions, replay};
 
 #[derive(clap::Args)]
 pub struct Args {

@@ -1,12 +1,12 @@
 //! `chaoscope resume RECORDING [--t-final T] [--out OUT]`: continue a killed, interrupted or
 //! finished run from its last complete sample, into the file the uninterrupted run would have
-//! written (`chaoscope_replay::resume`).
+//! written (`chaoscope_app::resume`).
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use chaoscope_app::resume::{ResumeOptions, ResumeOutcome, resume};
 use chaoscope_os::outln;
-use chaoscope_replay::resume::{ResumeOptions, ResumeOutcome, resume};
 
 #[derive(clap::Args)]
 pub struct Args {

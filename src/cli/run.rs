@@ -420,7 +420,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let (analysis, info) = chaoscope_analyzer::recording::analyze_file(
         &out,
         &chaoscope_analyzer::AnalysisOptions {
-            ..chaoscope_replay::flow::analysis_options()
+            ..chaoscope_app::flow::analysis_options()
         },
     )?;
     still_ours()?;
@@ -458,7 +458,7 @@ fn requeued_by_slurm() -> bool {
 /// `chaoscope resume` does: `Some(exit status)` when done (also when it was already complete),
 /// `None` when nothing was on disk to continue from.
 fn resume_requeued(config: &RunConfig, out: &Path) -> anyhow::Result<Option<ExitCode>> {
-    use chaoscope_replay::resume::{ResumeFailure, ResumeOptions, resume};
+    use chaoscope_app::resume::{ResumeFailure, ResumeOptions, resume};
     chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let options = ResumeOptions {
         config: Some(config.clone()),

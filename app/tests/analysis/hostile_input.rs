@@ -14,6 +14,7 @@ use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::csv::write_csv;
 use chaoscope_analyzer::recording::{ReadError, analyze_file};
 use chaoscope_analyzer::write::SampleWriter;
+use chaoscope_app::{ReplayOptions, replay};
 use chaoscope_dynamics::engine::Engine;
 use chaoscope_dynamics::header::run_header;
 use chaoscope_dynamics::spec::RunSpec;
@@ -21,7 +22,6 @@ use chaoscope_files::file::{Compression, FileOptions};
 use chaoscope_files::recording::{FinalizedBy, Recording};
 use chaoscope_files::scan::FileError;
 use chaoscope_files::testing::{self, Noise};
-use chaoscope_replay::{ReplayOptions, replay};
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::{EndOfRun, ReferenceState, RunHeader, Scheme, SeparationSet};
@@ -333,7 +333,7 @@ fn replay_of_a_damaged_recording_fails_clearly_and_leaves_no_output() {
     };
     let whole = replay(&original, &out, &options).unwrap();
     assert!(whole.identical());
-    let timeless = |o: chaoscope_replay::ReplayOutcome| chaoscope_replay::ReplayOutcome {
+    let timeless = |o: chaoscope_app::ReplayOutcome| chaoscope_app::ReplayOutcome {
         seconds: 0.0,
         estimated_seconds: 0.0,
         ..o

@@ -5,12 +5,12 @@
 use std::sync::Arc;
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
+use chaoscope_app::inprocess::analyze_spec;
 use chaoscope_dynamics::integrator::runge_kutta::{RkScratch, Tolerances};
 use chaoscope_dynamics::integrator::{RungeKutta, RungeKuttaTableau};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_dynamics::system::RkFlow;
 use chaoscope_dynamics::vector_field::VectorField;
-use chaoscope_replay::inprocess::analyze_spec;
 use chaoscope_schemas::config::{
     DeviationsConfig, IntegratorConfig, ModelConfig, OdeConfig, OrbitConfig, RunConfig, RunSection,
     SchemeConfig,

@@ -22,9 +22,9 @@ use chaoscope_analyzer::verdict::{
     GALI_AT_ROUNDING_FLOOR, MPM_DEPARTS_FROM_VM, MPM_LEAVES_POWER_LAW, TAU_ABOVE_ONE, Undecided,
     Verdict,
 };
+use chaoscope_app::inprocess::run_info;
 use chaoscope_dynamics::engine::Engine;
 use chaoscope_dynamics::spec::RunSpec;
-use chaoscope_replay::inprocess::run_info;
 use chaoscope_schemas::config::{
     DeviationsConfig, FputBetaConfig, ModelConfig, RunConfig, SchemeConfig, paper,
 };

@@ -2,10 +2,10 @@
 //! with runs computed in process.
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
+use chaoscope_app::inprocess::{analyze_config, run_info};
 use chaoscope_dynamics::engine::Engine;
 use chaoscope_dynamics::indicators::{StretchSums, gali_log10};
 use chaoscope_dynamics::spec::RunSpec;
-use chaoscope_replay::inprocess::{analyze_config, run_info};
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 use chaoscope_schemas::run::Sample;
 

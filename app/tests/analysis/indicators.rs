@@ -3,8 +3,8 @@
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::report::{Report, SchemeReport};
+use chaoscope_app::inprocess::analyze_config;
 use chaoscope_dynamics::indicators::Named;
-use chaoscope_replay::inprocess::analyze_config;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 
 fn schemes() -> Vec<SchemeConfig> {

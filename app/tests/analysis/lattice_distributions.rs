@@ -5,12 +5,12 @@
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::report::SchemeReport;
+use chaoscope_app::flow::site_energies;
+use chaoscope_app::inprocess::analyze_config;
 use chaoscope_dynamics::indicators::Named;
 use chaoscope_dynamics::indicators::distribution::{mean_site, moments, normalized};
 use chaoscope_dynamics::indicators::dvd::site_weights;
 use chaoscope_dynamics::spec::RunSpec;
-use chaoscope_replay::flow::site_energies;
-use chaoscope_replay::inprocess::analyze_config;
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::run::Sample;
 
@@ -412,7 +412,7 @@ fn the_header_carries_the_lattice_side_and_old_recordings_keep_theirs() {
     use chaoscope_analyzer::run_info::RunInfo;
     let cfg = ddnls_square(6, 1.0);
     let spec = RunSpec::from_config(&cfg).unwrap();
-    let info = chaoscope_replay::inprocess::run_info("square", &cfg, &spec);
+    let info = chaoscope_app::inprocess::run_info("square", &cfg, &spec);
     assert_eq!(info.header.lattice_side, 6);
     assert_eq!(info.square_side, Some(6));
     assert_eq!(info.layout().square_side, Some(6));
@@ -445,7 +445,7 @@ fn the_header_carries_the_lattice_side_and_old_recordings_keep_theirs() {
     )
     .unwrap();
     let spec = RunSpec::from_config(&chain).unwrap();
-    let info = chaoscope_replay::inprocess::run_info("chain", &chain, &spec);
+    let info = chaoscope_app::inprocess::run_info("chain", &chain, &spec);
     assert_eq!((info.header.lattice_side, info.square_side), (0, None));
 }
 

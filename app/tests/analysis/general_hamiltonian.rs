@@ -12,11 +12,11 @@
 //! orbit, the MLE of the chaotic one.
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
+use chaoscope_app::inprocess::analyze_config;
 use chaoscope_dynamics::engine::Engine;
 use chaoscope_dynamics::indicators::gali_log10;
 use chaoscope_dynamics::integrator::Workspace;
 use chaoscope_dynamics::spec::RunSpec;
-use chaoscope_replay::inprocess::analyze_config;
 use chaoscope_schemas::config::RunConfig;
 
 const C: f64 = 0.5;

@@ -7,7 +7,7 @@
 
 use chaoscope_analyzer::analysis::AnalysisOptions;
 use chaoscope_analyzer::vshape::v_shapes;
-use chaoscope_replay::inprocess::analyze_config;
+use chaoscope_app::inprocess::analyze_config;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 
 /// The VM scheme the MPM sweep is measured against.

@@ -1,15 +1,4 @@
-//! chaoscope-replay: the engine run for the analysis, where the producer and the analyzer meet
-//! (the analyzer itself reads recordings and samples and depends on no engine).
-//!
-//! - this module: replay, below;
-//! - [`flow`]: the system's vector field for the analysis (OFLI), from a run or a recording;
-//! - [`inprocess`]: a run computed in this process by the engine, fed to an analysis (tests,
-//!   sweeps, the Python package's quick paths);
-//! - [`resume`]: a killed, interrupted or finished run continued from its recording.
-//!
-//! # Replay
-//!
-//! Re-run a recorded configuration with the schemes' renormalization settings replaced
+//! Replay: re-run a recorded configuration with the schemes' renormalization settings replaced
 //! (other `tau`, other `d0`), on the same reference orbit and the same initial directions, and
 //! prove it by comparing every recorded reference state bit for bit with the replay.
 //!
@@ -39,9 +28,7 @@ use chaoscope_analyzer::write::{SampleWriter, WriteError};
 use chaoscope_os::{Leftover, OutputOptions};
 use chaoscope_schemas::proto::{RunHeader, end_of_run};
 
-pub mod flow;
-pub mod inprocess;
-pub mod resume;
+use crate::flow;
 
 #[derive(Debug, Clone, Default)]
 pub struct ReplayOptions {

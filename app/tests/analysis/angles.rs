@@ -7,9 +7,9 @@
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions};
 use chaoscope_analyzer::report::Report;
 use chaoscope_analyzer::verdict::Class;
+use chaoscope_app::inprocess::run_info;
 use chaoscope_dynamics::engine::Engine;
 use chaoscope_dynamics::spec::RunSpec;
-use chaoscope_replay::inprocess::run_info;
 use chaoscope_schemas::config::{ModelConfig, RunConfig};
 
 const TWO_PI: f64 = std::f64::consts::TAU;

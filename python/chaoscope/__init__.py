@@ -18,6 +18,8 @@ A thin layer over the chaoscope Rust crates (the same engine, file format and an
 - ``Recording.orbit(scheme=None)`` -> ``Orbit`` (numpy arrays: times and reference states, and
   an MPM scheme's nearby orbits)
 - ``Recording.replay(tau=..., d0=...)`` -> a new ``Recording`` on the bit-identical orbit
+- ``resume(path, t_final=None, out=None)`` -> the ``Recording`` of a killed, interrupted or
+  finished run continued (or extended to a later ``t_final``), as ``chaoscope resume`` does
 - ``map(config, out=...)`` / ``open_map(path)`` -> ``Map`` (numpy grids of a phase-space map)
 - ``monitor(run)`` -> an iterator of ``LiveSample`` from a running producer (lossy, with its
   gap count)
@@ -41,6 +43,7 @@ from ._chaoscope import (
     monitor,
     open,
     open_map,
+    resume,
     run,
 )
 
@@ -57,5 +60,6 @@ __all__ = [
     "monitor",
     "open",
     "open_map",
+    "resume",
     "run",
 ]

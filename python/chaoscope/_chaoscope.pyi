@@ -245,6 +245,15 @@ def run(
 def open(path: Union[str, "os.PathLike[str]"]) -> Recording:
     """Open a recording."""
 
+def resume(
+    path: Union[str, "os.PathLike[str]"],
+    *,
+    t_final: Optional[float] = None,
+    out: Union[str, "os.PathLike[str]", None] = None,
+    force: bool = False,
+) -> Recording:
+    """Continue a killed, interrupted or finished run from its recording (like `chaoscope resume`)."""
+
 def map(
     config: Config,
     *,

@@ -51,6 +51,7 @@ fn _chaoscope(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<monitor::LiveSample>()?;
     m.add_function(wrap_pyfunction!(recording::run, m)?)?;
     m.add_function(wrap_pyfunction!(recording::open, m)?)?;
+    m.add_function(wrap_pyfunction!(recording::resume, m)?)?;
     m.add_function(wrap_pyfunction!(map::map, m)?)?;
     m.add_function(wrap_pyfunction!(map::open_map, m)?)?;
     m.add_function(wrap_pyfunction!(monitor::monitor, m)?)?;

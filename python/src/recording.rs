@@ -7,6 +7,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions, energy_error};
 use chaoscope_analyzer::recording::{RecordingReader, analyze_file};
 use chaoscope_app::record::Ended;
+use chaoscope_app::resume::ResumeOptions;
 use chaoscope_app::{ReplayError, ReplayOptions};
 use chaoscope_dynamics::estimate::Machine;
 use chaoscope_dynamics::header::run_header;
@@ -143,6 +144,47 @@ pub fn run(
         )));
     }
     Recording::open_path(py, out)
+}
+
+/// Continues a killed, interrupted or finished run from its recording, as `chaoscope resume`
+/// does: from its last complete sample into the file the uninterrupted run would have written
+/// (in place of `path`, replaced only once complete, or into `out`); `t_final` later than the
+/// recorded one extends the run. Returns the resumed `Recording`; a run that fails on the way
+/// (an escaped orbit) raises `ChaoscopeError` with the reason, its file saying so. Ctrl-C stops
+/// it at the next sample, leaves a recording to resume again, and raises `KeyboardInterrupt`.
+#[pyfunction]
+#[pyo3(signature = (path, *, t_final = None, out = None, force = false))]
+pub fn resume(
+    py: Python<'_>,
+    path: PathBuf,
+    t_final: Option<f64>,
+    out: Option<PathBuf>,
+    force: bool,
+) -> PyResult<Recording> {
+    let stop = Arc::new(AtomicBool::new(false));
+    let options = ResumeOptions {
+        t_final,
+        out,
+        force,
+        config: None,
+        stop: Some(Arc::clone(&stop)),
+        estimated: false,
+        transport: chaoscope_producer::estimate::BUS,
+    };
+    let outcome = interruptible(
+        py,
+        || stop.store(true, Ordering::Relaxed),
+        || chaoscope_app::resume::resume(&path, &options),
+    )?
+    .map_err(|e| crate::error(&e))?;
+    if outcome.status == "failed" {
+        return Err(crate::message(format!(
+            "the run failed: {}; {} says so",
+            outcome.reason.as_deref().unwrap_or("no reason recorded"),
+            outcome.output.display()
+        )));
+    }
+    Recording::open_path(py, outcome.output)
 }
 
 /// A float or a list of floats, as `tau=` and `d0=` take them.

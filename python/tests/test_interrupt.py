@@ -1,5 +1,5 @@
 """Signals during a long call: Ctrl-C, or SIGTERM with a handler that raises, stops
-`chaoscope.run`, `chaoscope.map` and `Recording.replay` within a second, with a valid file at
+`chaoscope.run`, `chaoscope.map`, `chaoscope.resume` and `Recording.replay` within a second, with a valid file at
 its name that says it was interrupted (as `chaoscope run` leaves on SIGINT) and no in-progress
 file (`NAME.partial`) left behind. Each case runs in a fresh interpreter; the configs are small
 per renormalization window so that a loaded machine still answers within the bound."""
@@ -55,12 +55,18 @@ SCRIPT = textwrap.dedent(
         short = dict(run_config)
         short["integrator"] = {"method": "aba864", "h": 0.01, "t_final": 3000.0}
         source = chaoscope.run(short, out=str(out.with_name("source.mcap")))
+    if call == "resume":
+        short = dict(run_config)
+        short["integrator"] = {"method": "aba864", "h": 0.01, "t_final": 300.0}
+        source = chaoscope.run(short, out=str(out.with_name("source.mcap")))
     threading.Thread(target=send_once_written, daemon=True).start()
     try:
         if call == "run":
             chaoscope.run(run_config, out=str(out))
         elif call == "map":
             chaoscope.map(map_config, out=str(out))
+        elif call == "resume":
+            chaoscope.resume(source.path, t_final=1e7, out=str(out))
         else:
             source.replay(tau=[2.0, 5.0], out=str(out))
         print("not interrupted")
@@ -77,7 +83,7 @@ SCRIPT = textwrap.dedent(
 )
 
 
-@pytest.mark.parametrize("call", ["run", "map", "replay"])
+@pytest.mark.parametrize("call", ["run", "map", "replay", "resume"])
 @pytest.mark.parametrize("sig", ["SIGINT", "SIGTERM"])
 def test_a_signal_stops_a_long_call_with_a_valid_file(tmp_path, call, sig):
     out = tmp_path / f"{call}.mcap"
@@ -96,6 +102,8 @@ def test_a_signal_stops_a_long_call_with_a_valid_file(tmp_path, call, sig):
     assert lines[1] == "partial left False", done.stdout
     if call == "map":
         assert lines[2] == "map points True", done.stdout
+    elif call == "resume":
+        assert lines[2] == "interrupted resume", done.stdout
     else:
         assert lines[2] == "interrupted signal", done.stdout
     assert not list(pathlib.Path(tmp_path).glob("*.partial*"))

@@ -95,3 +95,35 @@ def test_errors_carry_the_commands_message(tmp_path, cli):
     (tmp_path / "junk.mcap").write_bytes(b"not an mcap file")
     with pytest.raises(chaoscope.ChaoscopeError, match="junk.mcap"):
         chaoscope.open(tmp_path / "junk.mcap")
+
+
+def test_resume_extends_a_run_to_the_uninterrupted_runs_bits(tmp_path, cli):
+    """A run to t = 60 resumed to t = 120 is the run to t = 120, bit for bit (the engine is
+    restarted from the recorded state and deviation vectors); the command's resume of the same
+    recording gives the same file contents; a failed resume names the file."""
+    short = hh_config(t_final=60.0)
+    full = hh_config(t_final=120.0)
+    whole = chaoscope.run(full, out=tmp_path / "whole.mcap")
+    part = tmp_path / "part.mcap"
+    chaoscope.run(short, out=part)
+    # Into another file: the recording itself stays as it was.
+    resumed = chaoscope.resume(part, t_final=120.0, out=tmp_path / "resumed.mcap")
+    assert resumed.path == tmp_path / "resumed.mcap"
+    assert (resumed.status, resumed.t_final) == ("completed", 120.0)
+    assert chaoscope.open(part).t_final == 60.0
+    for scheme in whole.schemes:
+        a, b = whole.indicators(scheme), resumed.indicators(scheme)
+        for field in ("t", "gali", "gali_log10_sets", "sali_sets", "exponents_sets", "energy_error"):
+            assert same_bits(getattr(a, field), getattr(b, field)), (scheme, field)
+    assert same_bits(whole.orbit().states, resumed.orbit().states)
+
+    # In place, as the command does it.
+    done = cli("resume", part, "--t-final", 120)
+    assert done.returncode == 0, done.stderr
+    by_command = chaoscope.open(part)
+    assert same_bits(by_command.orbit().states, resumed.orbit().states)
+
+    with pytest.raises(chaoscope.ChaoscopeError, match="no such recording"):
+        chaoscope.resume(tmp_path / "missing.mcap")
+    with pytest.raises(chaoscope.ChaoscopeError, match="already exists"):
+        chaoscope.resume(part, t_final=180.0, out=tmp_path / "whole.mcap")

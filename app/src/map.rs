@@ -30,6 +30,10 @@ pub struct MapJob<'a> {
     pub out: &'a Path,
     /// Discard an existing output instead of resuming it.
     pub restart: bool,
+    /// The finished map may replace a file at `out`: the command's own earlier part of this
+    /// map, which it resumes; without it a file that appears at `out` meanwhile (or a link
+    /// there) is refused when the map ends, its points kept in `out.partial`.
+    pub replace: bool,
     /// Create `out`'s directory when it is missing.
     pub create_dir: bool,
     /// Files the map reads (its configuration, ...), which `out` must not be.
@@ -42,6 +46,8 @@ pub struct MapJob<'a> {
 
 /// What a map to a file reports along the way. Every method has a default that does nothing.
 pub trait MapObserver {
+    /// An earlier file damaged or cut short (`why`): its first `readable` points are resumed.
+    fn damaged(&mut self, _path: &Path, _why: &str, _readable: usize) {}
     /// A point of an earlier file, carried into the new one before any point is computed.
     fn resumed(&mut self, _point: &MapPoint) {}
     /// The computation starts with `todo` points.
@@ -119,8 +125,7 @@ pub fn map_to_file(
     let mut output = Output::create(
         job.out,
         &OutputOptions {
-            // An existing FILE is this map's earlier part (checked below) or refused untouched.
-            replace: true,
+            replace: job.replace,
             create_dir: job.create_dir,
             inputs: job.inputs.clone(),
             leftover: if job.restart {
@@ -135,7 +140,7 @@ pub fn map_to_file(
     let recorded = if job.restart {
         BTreeMap::new()
     } else {
-        previous_points(job.out, output.leftover(), &header)?
+        previous_points(job.out, output.leftover(), &header, observer)?
     };
     let file_options = FileOptions {
         compression: Compression::Zstd,
@@ -242,6 +247,7 @@ fn previous_points(
     out: &Path,
     leftover: Option<&Path>,
     header: &MapHeader,
+    observer: &mut impl MapObserver,
 ) -> Result<BTreeMap<u64, MapPoint>, MapFileError> {
     let shard = Shard {
         index: header.shard_index,
@@ -258,15 +264,10 @@ fn previous_points(
     for (path, is_leftover) in files {
         let contents = read_map_file(path)?;
         if let Some(d) = &contents.damaged {
-            chaoscope_os::errln!(
-                "chaoscope map: {} is damaged or cut short ({d}); {} points before that are \
-                 readable",
-                path.display(),
-                contents.points.len()
-            );
+            observer.damaged(path, d, contents.points.len());
         }
         let Some(h) = contents.header else {
-            if is_leftover {
+            if is_leftover && contents.cut_before_any_chunk {
                 // Killed before it wrote its first chunk: nothing in it.
                 continue;
             }

@@ -56,7 +56,9 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::Context;
-use chaoscope_dynamics::batch::{self, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages};
+use chaoscope_dynamics::batch::{
+    self, Isa, LaneHamiltonian, Soa, StepCoeffs, record_reference_stages,
+};
 use chaoscope_dynamics::estimate::Machine;
 use chaoscope_dynamics::integrator::{Splitting, SplittingScheme};
 use chaoscope_dynamics::map::{MapOptions, MapSpec, PointResult, run_map};
@@ -253,7 +255,7 @@ impl KernelState {
 
     /// One window: MPM orbits, or the VM reference recorded and the tangent vectors advanced
     /// around it.
-    fn window<M: LaneModel>(&mut self, isa: Isa, model: &M, coeffs: &StepCoeffs, vm: bool) {
+    fn window<M: LaneHamiltonian>(&mut self, isa: Isa, model: &M, coeffs: &StepCoeffs, vm: bool) {
         if vm {
             let (x, stages, force) = (&mut self.x, &mut self.stages, &mut self.force);
             record_reference_stages(model, coeffs, x, WINDOW, stages, force);
@@ -265,7 +267,7 @@ impl KernelState {
 }
 
 /// Orbit-steps per thread-CPU-second of `method` for `lanes` orbits / vectors.
-fn kernel_case<M: LaneModel>(
+fn kernel_case<M: LaneHamiltonian>(
     isa: Isa,
     model: &M,
     method: &str,
@@ -296,7 +298,7 @@ const YARDSTICK_ROUNDS: usize = 3;
 /// A kernel case beside its plain-loop yardsticks ([`plain_loop`]), measured interleaved in
 /// this run: every round restarts all three from the same state, so they integrate the same
 /// trajectories (the no-FMA loop bit for bit) and a VM vector never grows past its round.
-fn kernel_vs_plain<M: LaneModel>(
+fn kernel_vs_plain<M: LaneHamiltonian>(
     isa: Isa,
     model: &M,
     plain: PlainModel,
@@ -954,7 +956,7 @@ impl MapPair {
 mod expressions {
     use std::time::Instant;
 
-    use chaoscope_dynamics::batch::{Isa, LaneModel};
+    use chaoscope_dynamics::batch::{Isa, LaneHamiltonian};
     use chaoscope_dynamics::engine::Engine;
     use chaoscope_dynamics::estimate::Machine;
     use chaoscope_dynamics::map::MapSpec;
@@ -1007,7 +1009,7 @@ mod expressions {
 
     fn pair(
         isa: Isa,
-        builtin: &impl LaneModel,
+        builtin: &impl LaneHamiltonian,
         expression: &ExpressionModel,
         lanes: usize,
         seconds: f64,

@@ -15,7 +15,7 @@ use std::process::{Command, Stdio};
 use anyhow::Context;
 use chaoscope_dynamics::engine::Engine;
 use chaoscope_dynamics::integrator::SplittingScheme;
-use chaoscope_dynamics::model::{At, HenonHeiles, Model};
+use chaoscope_dynamics::model::{At, HenonHeiles, SeparableHamiltonian};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_files::map_file::read_map_file;
 use chaoscope_schemas::config::RunConfig;

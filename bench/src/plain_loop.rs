@@ -437,7 +437,7 @@ fn fput_tangents<const FMA: bool>(
 
 #[cfg(test)]
 mod tests {
-    use chaoscope_dynamics::batch::{self, LaneModel, Soa, record_reference_stages};
+    use chaoscope_dynamics::batch::{self, LaneHamiltonian, Soa, record_reference_stages};
     use chaoscope_dynamics::integrator::{Splitting, SplittingScheme};
     use chaoscope_dynamics::model::{FputBeta, HenonHeiles};
 
@@ -452,7 +452,7 @@ mod tests {
 
     /// The kernel (on `isa`) and the plain loops from the same start, `windows` windows of 100
     /// steps. Returns (kernel lanes, kernel reference, plain no-FMA, plain FMA if any).
-    fn both<M: LaneModel>(
+    fn both<M: LaneHamiltonian>(
         isa: Isa,
         model: &M,
         plain: PlainModel,
@@ -504,7 +504,13 @@ mod tests {
     /// these bounded regular-scale states (|x| <= 0.05 for HH, 0.5 for FPUT) one rounding per
     /// operation of ~1e-17 grows at most linearly-to-mildly in a bounded orbit, far below 1e-9
     /// relative to the state's scale; a wrong coefficient or sign would move it by ~h = 1e-2.
-    fn check<M: LaneModel>(model: &M, plain: PlainModel, tangent: bool, lanes: usize, scale: f64) {
+    fn check<M: LaneHamiltonian>(
+        model: &M,
+        plain: PlainModel,
+        tangent: bool,
+        lanes: usize,
+        scale: f64,
+    ) {
         for isa in Isa::ALL.into_iter().filter(|i| i.available()) {
             let (kernel, x, st, fused) = both(isa, model, plain, tangent, lanes, scale, 3);
             assert_eq!(bits(&kernel), bits(&st.rows()), "{} {tangent}", isa.name());

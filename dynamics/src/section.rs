@@ -14,11 +14,11 @@ pub mod stroboscopic;
 pub mod surface;
 
 use crate::integrator::{Integrator, Workspace};
-use crate::model::{At, Model};
+use crate::model::{At, SeparableHamiltonian};
 use crate::spec::RunSpec;
 
 /// Time derivative of the state `(q, p)` of `H = |p|^2/2 + V(q, t)` at time `t`.
-fn velocity(model: &dyn Model, x: &[f64], t: f64, out: &mut [f64]) {
+fn velocity(model: &dyn SeparableHamiltonian, x: &[f64], t: f64, out: &mut [f64]) {
     let n = x.len() / 2;
     out[..n].copy_from_slice(&x[n..]);
     model.gradient(&x[..n], At::time(t), &mut out[n..]);

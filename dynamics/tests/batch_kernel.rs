@@ -5,7 +5,7 @@
 use std::sync::Arc;
 
 use chaoscope_dynamics::batch::{
-    self, AnyLaneModel, DynLanes, Isa, LaneModel, Soa, StepCoeffs, record_reference_stages,
+    self, AnyLaneModel, DynLanes, Isa, LaneHamiltonian, Soa, StepCoeffs, record_reference_stages,
 };
 use chaoscope_dynamics::integrator::{Integrator, Splitting, SplittingScheme, Workspace};
 use chaoscope_dynamics::model::{ExpressionModel, FputBeta, HenonHeiles};
@@ -25,7 +25,7 @@ fn bits(v: &[f64]) -> Vec<u64> {
     v.iter().map(|x| x.to_bits()).collect()
 }
 
-fn check_orbits<M: LaneModel>(model: &M, lanes: usize, scale: f64, n_steps: u64) {
+fn check_orbits<M: LaneHamiltonian>(model: &M, lanes: usize, scale: f64, n_steps: u64) {
     let dim = 2 * model.dof();
     let split = Splitting::new(SplittingScheme::Aba864);
     let h = 0.01;
@@ -67,7 +67,7 @@ fn check_orbits<M: LaneModel>(model: &M, lanes: usize, scale: f64, n_steps: u64)
     }
 }
 
-fn check_tangents<M: LaneModel>(model: &M, lanes: usize, scale: f64, n_steps: u64) {
+fn check_tangents<M: LaneHamiltonian>(model: &M, lanes: usize, scale: f64, n_steps: u64) {
     let n = model.dof();
     let dim = 2 * n;
     let split = Splitting::new(SplittingScheme::Aba864);

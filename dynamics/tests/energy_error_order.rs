@@ -4,7 +4,7 @@
 use chaoscope_dynamics::integrator::{
     Integrator, Splitting, SplittingScheme, Workspace, relative_energy_error,
 };
-use chaoscope_dynamics::model::{At, HenonHeiles, Model};
+use chaoscope_dynamics::model::{At, HenonHeiles, SeparableHamiltonian};
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 
 mod common;

@@ -4,7 +4,7 @@
 
 use chaoscope_dynamics::engine::{Engine, RunError};
 use chaoscope_dynamics::indicators::{StretchSums, gali_log10, sali};
-use chaoscope_dynamics::model::{At, FputBeta, Model};
+use chaoscope_dynamics::model::{At, FputBeta, SeparableHamiltonian};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{
     DeviationsConfig, ModelConfig, ParamValue, PotentialConfig, RunConfig, SchemeConfig,

@@ -102,6 +102,9 @@ pub struct MapContents {
     /// Where and why reading stopped in a damaged (e.g. killed) file; `None` when it was
     /// complete.
     pub damaged: Option<String>,
+    /// The file ends before its first chunk is whole: what a writer killed before its first
+    /// chunk reached the disk leaves, with no point in it to keep.
+    pub cut_before_any_chunk: bool,
 }
 
 /// Most grid points per axis a map file may describe (what `[map] x.n` and `y.n` accept).
@@ -328,7 +331,9 @@ fn read_messages(mut messages: Messages<impl Read>) -> std::io::Result<MapConten
     }
     contents.header = header.or(contents.header);
     contents.points.append(&mut points);
-    contents.damaged = messages.scan().stopped_at.clone();
+    let scan = messages.scan();
+    contents.damaged = scan.stopped_at.clone();
+    contents.cut_before_any_chunk = scan.cut && scan.chunks == 0;
     Ok(contents)
 }
 
@@ -354,6 +359,33 @@ mod tests {
             seen_first_chunk_only |= n == 6 && part.damaged.is_some();
         }
         assert!(seen_first_chunk_only);
+    }
+
+    #[test]
+    fn only_a_file_cut_before_its_first_chunk_holds_nothing() {
+        let (bytes, _, _) = crate::testing::small_map(10, 6, Compression::Zstd);
+        let first = crate::testing::chunk_offsets(&bytes)[0];
+        let len = u64::from_le_bytes(bytes[first + 1..first + 9].try_into().unwrap());
+        let first_chunk_end = first + 9 + len as usize;
+        let read = |b: &[u8]| read_map(b, Some(b.len() as u64)).unwrap().unwrap();
+        for cut in 8..bytes.len() {
+            let part = read(&bytes[..cut]);
+            // Cut before the first chunk is whole: no header, no point, nothing to keep.
+            assert_eq!(
+                part.cut_before_any_chunk,
+                cut < first_chunk_end,
+                "cut {cut}"
+            );
+            assert_eq!(part.header.is_none(), cut < first_chunk_end, "cut {cut}");
+        }
+        assert!(!read(&bytes).cut_before_any_chunk);
+        // A damaged first chunk in a whole file is damage, not a cut: its later chunks are
+        // worth keeping.
+        let mut flipped = bytes.clone();
+        flipped[first_chunk_end - 20] ^= 0x10;
+        let part = read(&flipped);
+        assert!(part.header.is_none() && part.damaged.is_some());
+        assert!(!part.cut_before_any_chunk);
     }
 
     #[test]

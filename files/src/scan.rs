@@ -50,11 +50,16 @@ const PREFIX_LEN: u64 = 1 + 8;
 pub struct Scan {
     /// Records read whole (a chunk counts as one).
     pub records: u64,
+    /// Chunks among them.
+    pub chunks: u64,
     /// Bytes they and the magic take at the start of the file.
     pub bytes: u64,
     /// Where and why reading stopped; `None` if the file was read to its end (its footer, or
     /// the end of the input after the data end record).
     pub stopped_at: Option<String>,
+    /// Reading stopped because the input ends before or inside a record: what a writer that
+    /// was killed leaves (or a damaged length), as opposed to bytes that do not decode.
+    pub cut: bool,
 }
 
 /// What [`Scanner::next`] hands out.
@@ -263,8 +268,9 @@ pub struct Scanner<R> {
     reader: LinearReader,
     layout: Layout,
     scan: Scan,
-    /// Length of the entry handed out last, counted into `scan` when the next one is asked for.
-    pending: Option<u64>,
+    /// Length of the entry handed out last and whether it is a chunk, counted into `scan` when
+    /// the next one is asked for.
+    pending: Option<(u64, bool)>,
     /// The end of the file was reached, or reading failed.
     done: bool,
 }
@@ -303,8 +309,10 @@ impl<R: Read> Scanner<R> {
             layout: Layout::default(),
             scan: Scan {
                 records: 0,
+                chunks: 0,
                 bytes: mcap::MAGIC.len() as u64,
                 stopped_at: None,
+                cut: false,
             },
             pending: None,
             done: false,
@@ -316,8 +324,9 @@ impl<R: Read> Scanner<R> {
     /// source itself is an error.
     #[allow(clippy::should_implement_trait)] // fallible, so not an Iterator
     pub fn next(&mut self) -> io::Result<Option<Entry>> {
-        if let Some(len) = self.pending.take() {
+        if let Some((len, chunk)) = self.pending.take() {
             self.scan.records += 1;
+            self.scan.chunks += u64::from(chunk);
             self.scan.bytes += len;
         }
         if self.done {
@@ -330,7 +339,7 @@ impl<R: Read> Scanner<R> {
         });
         match step {
             Ok(Some((len, Ok(entry)))) => {
-                self.pending = Some(len);
+                self.pending = Some((len, matches!(entry, Entry::Chunk(_))));
                 Ok(Some(entry))
             }
             Ok(Some((_, Err(damage)))) => {
@@ -343,6 +352,7 @@ impl<R: Read> Scanner<R> {
                 let body_at = at + PREFIX_LEN;
                 let damage = match self.len {
                     Some(file) if len <= MAX_RECORD_LEN as u64 && body_at <= file => {
+                        self.scan.cut = true;
                         Damage::PastEnd {
                             len,
                             left: file - body_at,
@@ -354,6 +364,7 @@ impl<R: Read> Scanner<R> {
                 Ok(None)
             }
             Err(Failure::Damage(damage)) => {
+                self.scan.cut = matches!(damage, Damage::Mcap(McapError::UnexpectedEof));
                 self.stop(damage);
                 Ok(None)
             }
@@ -366,6 +377,7 @@ impl<R: Read> Scanner<R> {
                 Ok(None)
             }
             Ok(None) => {
+                self.scan.cut = true;
                 self.stop(
                     "the file ends here, before its data end record (its writer did not finish \
                      it)",

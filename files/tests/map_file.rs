@@ -28,7 +28,8 @@ fn damaged_maps_keep_an_exact_prefix_of_whole_chunks() {
             MapContents {
                 header: Some(header.clone()),
                 points: points.clone(),
-                damaged: None
+                damaged: None,
+                cut_before_any_chunk: false,
             }
         );
         let (mut partial, mut complete) = (0, 0);

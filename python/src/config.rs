@@ -33,6 +33,19 @@ pub fn run_config(obj: &Bound<'_, PyAny>) -> PyResult<RunConfig> {
     }
 }
 
+/// The file `obj` names, when the configuration is given as a path (which an output must then
+/// not be).
+pub fn config_path(obj: &Bound<'_, PyAny>) -> Option<PathBuf> {
+    if obj.cast::<PyDict>().is_ok() {
+        return None;
+    }
+    if let Ok(s) = obj.cast::<PyString>() {
+        let s: String = s.extract().ok()?;
+        return (!(s.contains('=') || s.contains('\n'))).then(|| PathBuf::from(s));
+    }
+    obj.extract::<PathBuf>().ok()
+}
+
 fn key_path(prefix: &str, key: &str) -> String {
     if prefix.is_empty() {
         key.to_string()

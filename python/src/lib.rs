@@ -32,6 +32,15 @@ pub(crate) fn message(text: impl Into<String>) -> PyErr {
     ChaoscopeError::new_err(text.into())
 }
 
+/// A message of the command's crates in this package's words: the command's flags as the
+/// keyword arguments that set them.
+pub(crate) fn keyword_arguments(text: &str) -> String {
+    text.replace("--t-final ", "t_final=")
+        .replace("--t-final", "t_final")
+        .replace("--force", "force=True")
+        .replace("--out", "out")
+}
+
 #[pymodule]
 fn _chaoscope(m: &Bound<'_, PyModule>) -> PyResult<()> {
     signals::keep_python_handlers();

@@ -169,6 +169,7 @@ pub fn map(
     threads: Option<usize>,
     force: bool,
 ) -> PyResult<Map> {
+    let config_file = crate::config::config_path(config);
     let config = crate::config::run_config(config)?;
     let mut spec = MapSpec::from_config(&config)
         .map_err(|e| crate::message(format!("invalid map configuration: {e}")))?;
@@ -187,7 +188,7 @@ pub fn map(
     if let Some(why) = estimate.refusal(&machine)
         && !force
     {
-        return Err(crate::message(why));
+        return Err(crate::message(crate::keyword_arguments(&why)));
     }
     let out = out.unwrap_or_else(|| {
         let name = config.run.name.clone().unwrap_or_else(|| "map".into());
@@ -206,8 +207,9 @@ pub fn map(
         out: &out,
         // `force` replaces what is there; without it, what a killed map left is resumed.
         restart: force,
+        replace: force,
         create_dir: true,
-        inputs: Vec::new(),
+        inputs: config_file.into_iter().collect(),
         flush_interval: Duration::from_secs(2),
         options: MapOptions {
             threads,
@@ -217,11 +219,21 @@ pub fn map(
         },
     };
     let outcome = interruptible(py, || termination.request(), || map_to_file(&job, &mut ()))?
-        .map_err(|e| match e {
-            MapFileError::Refused(why) => {
-                crate::message(format!("{why}; pass force=True to replace it"))
+        .map_err(|e| {
+            let text = match e {
+                MapFileError::Refused(why) => format!("{why}; pass force=True to replace it"),
+                e => e.to_string(),
+            };
+            // What a failed map kept on disk (to be resumed) is named, however it failed.
+            let partial = chaoscope_os::output::partial_path(&out);
+            let shown = partial.display().to_string();
+            if chaoscope_os::output::kept_after_failure().contains(&partial)
+                && !text.contains(&shown)
+            {
+                crate::message(format!("{text}; what was written is kept in {shown}"))
+            } else {
+                crate::message(text)
             }
-            e => crate::message(e.to_string()),
         })?;
     Map::new(py, out, &spec.header(whole), &outcome.points)
 }

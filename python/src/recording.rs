@@ -103,6 +103,7 @@ pub fn run(
     run: Option<String>,
     force: bool,
 ) -> PyResult<Recording> {
+    let config_file = crate::config::config_path(config);
     let config = crate::config::run_config(config)?;
     let spec = RunSpec::from_config(&config)
         .map_err(|e| crate::message(format!("invalid run configuration: {e}")))?;
@@ -110,7 +111,7 @@ pub fn run(
     if let Some(why) = chaoscope_producer::estimate::run(&spec, &machine).refusal(&machine)
         && !force
     {
-        return Err(crate::message(why));
+        return Err(crate::message(crate::keyword_arguments(&why)));
     }
     let name = resolve_run_name(&config, run.as_deref()).map_err(|e| crate::error(&e))?;
     let out = out.unwrap_or_else(|| Path::new("runs").join(format!("{name}.mcap")));
@@ -128,6 +129,7 @@ pub fn run(
         } else {
             Leftover::Refuse
         },
+        inputs: config_file.into_iter().collect(),
         ..Default::default()
     };
     let stop = AtomicBool::new(false);
@@ -176,7 +178,7 @@ pub fn resume(
         || stop.store(true, Ordering::Relaxed),
         || chaoscope_app::resume::resume(&path, &options),
     )?
-    .map_err(|e| crate::error(&e))?;
+    .map_err(|e| crate::message(crate::keyword_arguments(&error_text(&e))))?;
     if outcome.status == "failed" {
         return Err(crate::message(format!(
             "the run failed: {}; {} says so",
@@ -477,7 +479,7 @@ impl Recording {
             Err(ReplayError::Nothing) => {
                 return Err(crate::message("nothing to replay: give tau and/or d0"));
             }
-            Err(e) => return Err(crate::error(&e)),
+            Err(e) => return Err(crate::message(crate::keyword_arguments(&error_text(&e)))),
         };
         if !outcome.identical() {
             return Err(crate::message(format!(

@@ -155,3 +155,44 @@ def test_map_resumes_what_a_killed_map_left(tmp_path, cli):
         chaoscope.map(hh_map(n=(3, 3)), out=other, threads=1)
     assert (tmp_path / "other.mcap.partial").read_bytes() == before
     assert not other.exists()
+
+
+def test_map_keeps_what_it_cannot_read_as_its_own(tmp_path):
+    """`out.partial` that holds anything but this map's points (a run recording, a map with a
+    damaged first chunk) is refused and left as it is; only a leftover cut before its first
+    chunk (nothing in it) is discarded. Without force, nothing at `out` is replaced (a dangling
+    link) and the configuration file is never the output."""
+    config = hh_map(n=(3, 3), t_final=20.0)
+    rec = chaoscope.run({k: v for k, v in config.items() if k != "map"}, out=tmp_path / "run.mcap")
+    out = tmp_path / "m.mcap"
+    partial = tmp_path / "m.mcap.partial"
+    partial.write_bytes(rec.path.read_bytes())
+    with pytest.raises(chaoscope.ChaoscopeError, match=r"no readable map header.*force=True"):
+        chaoscope.map(config, out=out)
+    assert partial.read_bytes() == rec.path.read_bytes() and not out.exists()
+
+    whole = chaoscope.map(config, out=tmp_path / "whole.mcap")
+    flipped = bytearray(whole.path.read_bytes())
+    flipped[60] ^= 0x10  # inside the first chunk, which holds the header
+    partial.write_bytes(bytes(flipped))
+    with pytest.raises(chaoscope.ChaoscopeError, match="no readable map header"):
+        chaoscope.map(config, out=out)
+    assert partial.read_bytes() == bytes(flipped)
+
+    partial.write_bytes(whole.path.read_bytes()[:40])  # killed before its first chunk
+    m = chaoscope.map(config, out=out)
+    assert m.value.tobytes() == whole.value.tobytes() and not partial.exists()
+
+    link = tmp_path / "link.mcap"
+    link.symlink_to(tmp_path / "nowhere.mcap")
+    with pytest.raises(chaoscope.ChaoscopeError, match="already exists"):
+        chaoscope.map(config, out=link)
+    assert link.is_symlink() and not (tmp_path / "nowhere.mcap").exists()
+
+    path = tmp_path / "map.toml"
+    path.write_text(to_toml(config))
+    with pytest.raises(chaoscope.ChaoscopeError, match="input"):
+        chaoscope.map(path, out=path, force=True)
+    with pytest.raises(chaoscope.ChaoscopeError, match="input"):
+        chaoscope.run(path, out=path, force=True)
+    assert path.read_text() == to_toml(config)

@@ -127,3 +127,16 @@ def test_resume_extends_a_run_to_the_uninterrupted_runs_bits(tmp_path, cli):
         chaoscope.resume(tmp_path / "missing.mcap")
     with pytest.raises(chaoscope.ChaoscopeError, match="already exists"):
         chaoscope.resume(part, t_final=180.0, out=tmp_path / "whole.mcap")
+
+
+def test_resume_errors_name_the_keyword_arguments(tmp_path):
+    part = tmp_path / "part.mcap"
+    chaoscope.run(hh_config(t_final=20.0), out=part)
+    for t_final, words in [(float("nan"), "t_final=NaN"), (10.0, "t_final=10")]:
+        with pytest.raises(chaoscope.ChaoscopeError) as e:
+            chaoscope.resume(part, t_final=t_final)
+        assert words in str(e.value) and "--" not in str(e.value), str(e.value)
+    chaoscope.run(hh_config(t_final=20.0), out=tmp_path / "other.mcap")
+    with pytest.raises(chaoscope.ChaoscopeError, match=r"force=True") as e:
+        chaoscope.resume(part, t_final=40.0, out=tmp_path / "other.mcap")
+    assert "--" not in str(e.value)

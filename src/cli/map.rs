@@ -9,7 +9,7 @@
 //! name (`--name`, default: the output file's stem), for `chaoscope map-watch`. That stream is
 //! lossy and never slows the map; if it cannot be opened the map runs without it.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
 
@@ -23,7 +23,7 @@ use chaoscope_dynamics::map::{MapOptions, MapSpec, PointStatus, Shard};
 use chaoscope_os::OutputOptions;
 use chaoscope_os::termination::Termination;
 use chaoscope_producer::map::{MapPublisher, default_map_name};
-use chaoscope_schemas::proto::MapPoint;
+use chaoscope_schemas::proto::{MapHeader, MapPoint};
 
 /// Longest wait, once the map is done, for live watchers to read its last points.
 const LIVE_LINGER: Duration = Duration::from_secs(1);
@@ -124,13 +124,6 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         .name
         .clone()
         .unwrap_or_else(|| default_map_name(&args.out, args.shard));
-    let live = match MapPublisher::open(&name, &header) {
-        Ok(p) => Some(p),
-        Err(e) => {
-            chaoscope_os::errln!("chaoscope map: no live stream ({e}); computing the map anyway");
-            None
-        }
-    };
     let bar = if args.no_progress {
         indicatif::ProgressBar::hidden()
     } else {
@@ -147,6 +140,9 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         shard: args.shard,
         out: &args.out,
         restart: args.restart,
+        // An existing FILE is this map's earlier part (checked before anything is computed)
+        // or refused untouched.
+        replace: true,
         create_dir: false,
         inputs: [&args.config, &args.png.clone().unwrap_or_default()]
             .into_iter()
@@ -162,7 +158,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         },
     };
     let mut watch = Watch {
-        live,
+        name,
+        header: header.clone(),
+        live: None,
+        opened: false,
         bar,
         stop_after: args.stop_after,
         computed: 0,
@@ -295,20 +294,52 @@ fn rayon_threads() -> usize {
 /// What the command shows of a map as it runs: the live stream, the progress bar, and the stop
 /// after `--stop-after` new points.
 struct Watch {
+    name: String,
+    header: MapHeader,
     live: Option<MapPublisher>,
+    /// The stream is opened once the map is known to run (its file locked, an earlier part
+    /// accepted): a refused map never shows up to watchers.
+    opened: bool,
     bar: indicatif::ProgressBar,
     stop_after: Option<u64>,
     computed: u64,
 }
 
+impl Watch {
+    fn live(&mut self) -> Option<&mut MapPublisher> {
+        if !self.opened {
+            self.opened = true;
+            self.live = match MapPublisher::open(&self.name, &self.header) {
+                Ok(p) => Some(p),
+                Err(e) => {
+                    chaoscope_os::errln!(
+                        "chaoscope map: no live stream ({e}); computing the map anyway"
+                    );
+                    None
+                }
+            };
+        }
+        self.live.as_mut()
+    }
+}
+
 impl MapObserver for Watch {
+    fn damaged(&mut self, path: &Path, why: &str, readable: usize) {
+        chaoscope_os::errln!(
+            "chaoscope map: {} is damaged or cut short ({why}); {readable} points before that \
+             are readable",
+            path.display()
+        );
+    }
+
     fn resumed(&mut self, point: &MapPoint) {
-        if let Some(live) = &mut self.live {
+        if let Some(live) = self.live() {
             live.publish(point);
         }
     }
 
     fn started(&mut self, todo: usize) {
+        self.live();
         self.bar.set_length(todo as u64);
     }
 

@@ -8,7 +8,7 @@
 //! Measured on AVX-512: HH 64 lanes 3.9e8 vs 16 lanes 2.3e8 orbit-steps/s; FPUT N = 101
 //! 16 lanes 4.2e6 vs 64 lanes 0.9e6.
 
-use super::lanes::{LaneModel, StepCoeffs};
+use super::lanes::{LaneHamiltonian, StepCoeffs};
 use super::soa::{LANE_QUANTUM, Soa};
 
 /// An instruction set the kernel is compiled for.
@@ -84,34 +84,34 @@ impl Isa {
 }
 
 /// One of a model's step loops, as a chunk loop runs it on each chunk of `L` lanes.
-trait ChunkSteps<M: LaneModel> {
+trait ChunkSteps<M: LaneHamiltonian> {
     fn steps<const L: usize>(&self, m: &M, buf: &mut [[f64; L]], force: &mut [[f64; L]]);
 }
 
-/// [`LaneModel::orbit_steps`].
+/// [`LaneHamiltonian::orbit_steps`].
 struct Orbits<'a>(&'a StepCoeffs, u64);
 
-impl<M: LaneModel> ChunkSteps<M> for Orbits<'_> {
+impl<M: LaneHamiltonian> ChunkSteps<M> for Orbits<'_> {
     #[inline(always)]
     fn steps<const L: usize>(&self, m: &M, buf: &mut [[f64; L]], force: &mut [[f64; L]]) {
         m.orbit_steps(self.0, buf, force, self.1)
     }
 }
 
-/// [`LaneModel::tangent_steps`] along the recorded stages.
+/// [`LaneHamiltonian::tangent_steps`] along the recorded stages.
 struct Tangents<'a>(&'a StepCoeffs, &'a [f64], u64);
 
-impl<M: LaneModel> ChunkSteps<M> for Tangents<'_> {
+impl<M: LaneHamiltonian> ChunkSteps<M> for Tangents<'_> {
     #[inline(always)]
     fn steps<const L: usize>(&self, m: &M, buf: &mut [[f64; L]], force: &mut [[f64; L]]) {
         m.tangent_steps(self.0, self.1, buf, force, self.2)
     }
 }
 
-/// [`LaneModel::orbit_tangent_steps`].
+/// [`LaneHamiltonian::orbit_tangent_steps`].
 struct OrbitTangents<'a>(&'a StepCoeffs, u64);
 
-impl<M: LaneModel> ChunkSteps<M> for OrbitTangents<'_> {
+impl<M: LaneHamiltonian> ChunkSteps<M> for OrbitTangents<'_> {
     #[inline(always)]
     fn steps<const L: usize>(&self, m: &M, buf: &mut [[f64; L]], force: &mut [[f64; L]]) {
         m.orbit_tangent_steps(self.0, buf, force, self.1)
@@ -120,7 +120,7 @@ impl<M: LaneModel> ChunkSteps<M> for OrbitTangents<'_> {
 
 /// Every lane of `x`, chunk by chunk: `L` lanes at a time, the remainder by `LANE_QUANTUM`.
 #[inline(always)]
-fn chunks<M: LaneModel, S: ChunkSteps<M>, const L: usize>(m: &M, x: &mut Soa, step: &S) {
+fn chunks<M: LaneHamiltonian, S: ChunkSteps<M>, const L: usize>(m: &M, x: &mut Soa, step: &S) {
     let mut o = 0;
     if L > LANE_QUANTUM {
         let mut buf = vec![[0.0; L]; x.rows()];
@@ -143,12 +143,12 @@ fn chunks<M: LaneModel, S: ChunkSteps<M>, const L: usize>(m: &M, x: &mut Soa, st
 }
 
 #[inline(always)]
-fn orbit_chunks<M: LaneModel, const L: usize>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+fn orbit_chunks<M: LaneHamiltonian, const L: usize>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
     chunks::<M, _, L>(m, x, &Orbits(c, n))
 }
 
 #[inline(always)]
-fn tangent_chunks<M: LaneModel, const L: usize>(
+fn tangent_chunks<M: LaneHamiltonian, const L: usize>(
     m: &M,
     c: &StepCoeffs,
     stages: &[f64],
@@ -162,7 +162,7 @@ fn tangent_chunks<M: LaneModel, const L: usize>(
 // nothing here, since Rust never fuses a separate multiply and add.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-fn orbits_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+fn orbits_avx512<M: LaneHamiltonian>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
     if m.register_resident() {
         orbit_chunks::<M, 64>(m, c, x, n)
     } else if m.dof() < LONG_CHAIN {
@@ -184,7 +184,7 @@ const LONG_CHAIN: usize = 32;
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn orbits_avx2<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+fn orbits_avx2<M: LaneHamiltonian>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
     if m.register_resident() {
         orbit_chunks::<M, 32>(m, c, x, n)
     } else {
@@ -194,7 +194,7 @@ fn orbits_avx2<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-fn tangents_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, s: &[f64], v: &mut Soa, n: u64) {
+fn tangents_avx512<M: LaneHamiltonian>(m: &M, c: &StepCoeffs, s: &[f64], v: &mut Soa, n: u64) {
     // Tangent chunks are wide for every model: the shared reference's per-stage work
     // (Hessian entries) is amortized over all lanes of a chunk.
     tangent_chunks::<M, 64>(m, c, s, v, n)
@@ -202,13 +202,19 @@ fn tangents_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, s: &[f64], v: &mut Soa, 
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn tangents_avx2<M: LaneModel>(m: &M, c: &StepCoeffs, s: &[f64], v: &mut Soa, n: u64) {
+fn tangents_avx2<M: LaneHamiltonian>(m: &M, c: &StepCoeffs, s: &[f64], v: &mut Soa, n: u64) {
     // Tangent chunks are wide for every model: the shared reference's per-stage work
     // (Hessian entries) is amortized over all lanes of a chunk.
     tangent_chunks::<M, 32>(m, c, s, v, n)
 }
 
-pub(super) fn dispatch_orbits<M: LaneModel>(isa: Isa, m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+pub(super) fn dispatch_orbits<M: LaneHamiltonian>(
+    isa: Isa,
+    m: &M,
+    c: &StepCoeffs,
+    x: &mut Soa,
+    n: u64,
+) {
     on_isa!(
         isa,
         orbits_avx512(m, c, x, n),
@@ -217,7 +223,7 @@ pub(super) fn dispatch_orbits<M: LaneModel>(isa: Isa, m: &M, c: &StepCoeffs, x: 
     )
 }
 
-pub(super) fn dispatch_tangents<M: LaneModel>(
+pub(super) fn dispatch_tangents<M: LaneHamiltonian>(
     isa: Isa,
     m: &M,
     c: &StepCoeffs,
@@ -233,10 +239,15 @@ pub(super) fn dispatch_tangents<M: LaneModel>(
     )
 }
 
-/// Every lane of `x` (orbit and tangent vectors, [`LaneModel::orbit_tangent_steps`]), `L` lanes
+/// Every lane of `x` (orbit and tangent vectors, [`LaneHamiltonian::orbit_tangent_steps`]), `L` lanes
 /// at a time, the remainder by `LANE_QUANTUM`.
 #[inline(always)]
-fn orbit_tangent_chunks<M: LaneModel, const L: usize>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+fn orbit_tangent_chunks<M: LaneHamiltonian, const L: usize>(
+    m: &M,
+    c: &StepCoeffs,
+    x: &mut Soa,
+    n: u64,
+) {
     chunks::<M, _, L>(m, x, &OrbitTangents(c, n))
 }
 
@@ -250,7 +261,7 @@ const WIDE_ORBIT_TANGENT_ROWS: usize = 12;
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f")]
-fn orbit_tangents_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+fn orbit_tangents_avx512<M: LaneHamiltonian>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
     if m.register_resident() && x.rows() <= WIDE_ORBIT_TANGENT_ROWS {
         orbit_tangent_chunks::<M, 16>(m, c, x, n)
     } else {
@@ -260,11 +271,11 @@ fn orbit_tangents_avx512<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u6
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-fn orbit_tangents_avx2<M: LaneModel>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
+fn orbit_tangents_avx2<M: LaneHamiltonian>(m: &M, c: &StepCoeffs, x: &mut Soa, n: u64) {
     orbit_tangent_chunks::<M, LANE_QUANTUM>(m, c, x, n)
 }
 
-pub(super) fn dispatch_orbit_tangents<M: LaneModel>(
+pub(super) fn dispatch_orbit_tangents<M: LaneHamiltonian>(
     isa: Isa,
     m: &M,
     c: &StepCoeffs,

@@ -6,7 +6,7 @@
 //! operations, same order, no fused multiply-add. That is what makes the batch bit-identical.
 
 use crate::integrator::Splitting;
-use crate::model::{At, Model};
+use crate::model::{At, SeparableHamiltonian};
 
 /// One step of a splitting with its coefficients already multiplied by `h`: the very products
 /// `a_i * h`, `b_i * h` that `Splitting::step` forms at each stage.
@@ -67,7 +67,7 @@ fn kick_rows<const L: usize>(p: &mut [[f64; L]], force: &[[f64; L]], dh: f64) {
 /// Implementations must give, lane by lane, exactly the bits of the model's scalar `gradient`
 /// and `hessian_vector`. The step loops have generic implementations; a model with few degrees
 /// of freedom overrides them to keep the whole state in registers for many steps.
-pub trait LaneModel: Model {
+pub trait LaneHamiltonian: SeparableHamiltonian {
     /// The whole state of a chunk of lanes fits the vector registers during the step loops
     /// (few degrees of freedom): the kernel then uses wide chunks.
     const REGISTER_RESIDENT: bool = false;
@@ -80,7 +80,7 @@ pub trait LaneModel: Model {
         Self::REGISTER_RESIDENT
     }
 
-    /// Whether [`LaneModel::orbit_tangent_steps`] costs no more per lane than the model's
+    /// Whether [`LaneHamiltonian::orbit_tangent_steps`] costs no more per lane than the model's
     /// separate orbit and tangent steps: true where both go through the same lane functions;
     /// false for a model whose separate steps run compiled step kernels that the generic fused
     /// loops (lane by lane through its scalar functions) would bypass.
@@ -161,9 +161,9 @@ pub trait LaneModel: Model {
     }
 }
 
-/// [`LaneModel::orbit_steps`]'s generic loops: drift, the model's lane gradient, kick.
+/// [`LaneHamiltonian::orbit_steps`]'s generic loops: drift, the model's lane gradient, kick.
 #[inline(always)]
-pub(crate) fn orbit_steps_generic<M: LaneModel + ?Sized, const L: usize>(
+pub(crate) fn orbit_steps_generic<M: LaneHamiltonian + ?Sized, const L: usize>(
     m: &M,
     c: &StepCoeffs,
     x: &mut [[f64; L]],
@@ -183,10 +183,10 @@ pub(crate) fn orbit_steps_generic<M: LaneModel + ?Sized, const L: usize>(
     }
 }
 
-/// [`LaneModel::tangent_steps`]'s generic loops: drift, the model's lane Hessian-vector product
+/// [`LaneHamiltonian::tangent_steps`]'s generic loops: drift, the model's lane Hessian-vector product
 /// at the recorded stage, kick.
 #[inline(always)]
-pub(crate) fn tangent_steps_generic<M: LaneModel + ?Sized, const L: usize>(
+pub(crate) fn tangent_steps_generic<M: LaneHamiltonian + ?Sized, const L: usize>(
     m: &M,
     c: &StepCoeffs,
     stages: &[f64],
@@ -212,7 +212,7 @@ pub(crate) fn tangent_steps_generic<M: LaneModel + ?Sized, const L: usize>(
 /// Advance one reference orbit `x` by `n_steps` steps exactly as `Splitting::step` does, writing
 /// its position before every kick to `stages` (`n_steps * kicks * N` numbers): what the tangent
 /// map of all the point's deviation vectors needs.
-pub fn record_reference_stages<M: Model + ?Sized>(
+pub fn record_reference_stages<M: SeparableHamiltonian + ?Sized>(
     model: &M,
     c: &StepCoeffs,
     x: &mut [f64],
@@ -241,10 +241,10 @@ pub fn record_reference_stages<M: Model + ?Sized>(
 /// `n_steps` steps of the splitting for `L` orbits, each with `vectors` tangent vectors around
 /// itself: `x` has `2N` rows of orbit, then `2N` rows per tangent vector; `force` has `N` rows.
 /// Lane by lane the bits of [`record_reference_stages`] followed by
-/// [`LaneModel::tangent_steps`]: the tangent map of a kick is taken at the position the orbit
+/// [`LaneHamiltonian::tangent_steps`]: the tangent map of a kick is taken at the position the orbit
 /// has before it, as the recorded stages hold it.
 #[inline(always)]
-pub(super) fn orbit_tangent_steps_generic<M: LaneModel, const L: usize>(
+pub(super) fn orbit_tangent_steps_generic<M: LaneHamiltonian, const L: usize>(
     m: &M,
     c: &StepCoeffs,
     x: &mut [[f64; L]],

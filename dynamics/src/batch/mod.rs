@@ -2,7 +2,7 @@
 //!
 //! [`PointKernel`] (`kernel.rs`) is what the map's methods need from a system's batched form;
 //! each kind of system implements it beside itself (`crate::system`), over the lane loops here:
-//! a separable Hamiltonian's splitting over a [`LaneModel`] (`lanes.rs`, the models' lane
+//! a separable Hamiltonian's splitting over a [`LaneHamiltonian`] (`lanes.rs`, the models' lane
 //! implementations in `models/`), a map's (`map_lanes.rs`) and a flow's (`flow_lanes.rs`)
 //! compiled lane functions.
 //!
@@ -29,7 +29,7 @@ pub use flow_lanes::{FlowScratch, flow_orbit_steps, flow_tangent_steps, record_f
 pub use isa::Isa;
 pub(crate) use isa::on_isa;
 pub use kernel::PointKernel;
-pub use lanes::{LaneModel, StepCoeffs, record_reference_stages};
+pub use lanes::{LaneHamiltonian, StepCoeffs, record_reference_stages};
 pub use map_lanes::{
     map_orbit_steps, map_tangent_steps, record_map_reference, wrap, wrap_coordinate,
 };
@@ -37,7 +37,7 @@ pub use models::{AnyLaneModel, DynLanes};
 pub use soa::Soa;
 
 /// Advance every lane of `x` (rows `0..2N` = q, p) by `n_steps` steps of the splitting.
-pub fn orbit_steps<M: LaneModel>(
+pub fn orbit_steps<M: LaneHamiltonian>(
     isa: Isa,
     model: &M,
     coeffs: &StepCoeffs,
@@ -50,7 +50,7 @@ pub fn orbit_steps<M: LaneModel>(
 /// Advance every lane of `v` (deviation vectors, rows = dq, dp) by `n_steps` steps of the tangent
 /// map around one shared reference orbit, whose positions before each kick are in `stages`
 /// (`n_steps * kicks * N` numbers, from [`record_reference_stages`]).
-pub fn tangent_steps<M: LaneModel>(
+pub fn tangent_steps<M: LaneHamiltonian>(
     isa: Isa,
     model: &M,
     coeffs: &StepCoeffs,
@@ -65,7 +65,7 @@ pub fn tangent_steps<M: LaneModel>(
 /// rows a tangent vector around that lane's own orbit (the variational equations of many
 /// points at once, for the map's VM basis route). Lane by lane the bits of
 /// [`record_reference_stages`] + [`tangent_steps`].
-pub fn orbit_tangent_steps<M: LaneModel>(
+pub fn orbit_tangent_steps<M: LaneHamiltonian>(
     isa: Isa,
     model: &M,
     coeffs: &StepCoeffs,

@@ -1,7 +1,7 @@
 //! Integrators, one file each.
 //!
 //! One trait, [`Integrator`], generic over the system it advances: symplectic splittings
-//! ([`Splitting`]) implement it for separable Hamiltonians ([`Model`]); the explicit Runge-Kutta
+//! ([`Splitting`]) implement it for separable Hamiltonians ([`SeparableHamiltonian`]); the explicit Runge-Kutta
 //! methods ([`RungeKutta`]: rk4, dop853 with or without error control) implement it for vector
 //! fields ([`crate::vector_field::VectorField`]).
 //! An integrator may also advance deviation vectors with its own tangent map (the variational
@@ -16,7 +16,7 @@ pub mod taylor;
 pub use runge_kutta::{RungeKutta, RungeKuttaTableau};
 pub use splitting::{Splitting, SplittingScheme};
 
-use crate::model::{At, Model};
+use crate::model::{At, SeparableHamiltonian};
 
 /// Scratch buffers reused across steps so the inner loop never allocates. One per thread.
 #[derive(Debug, Default, Clone)]
@@ -76,7 +76,7 @@ pub trait Integrator<S: ?Sized>: Send + Sync {
 }
 
 /// Relative energy error `|H - H0| / |H0|` (absolute when `H0 = 0`).
-pub fn relative_energy_error(model: &dyn Model, x: &[f64], e0: f64) -> f64 {
+pub fn relative_energy_error(model: &dyn SeparableHamiltonian, x: &[f64], e0: f64) -> f64 {
     let e = model.energy(x, At::T0);
     if e0 == 0.0 {
         (e - e0).abs()

@@ -22,7 +22,7 @@
 
 use super::composition::{Composition, CompositionScheme};
 use super::{Integrator, TangentError, Workspace};
-use crate::model::{At, Model};
+use crate::model::{At, SeparableHamiltonian};
 
 /// The splittings chaoscope ships.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -359,7 +359,7 @@ impl Splitting {
     }
 
     #[inline(always)]
-    fn kick<M: Model + ?Sized>(
+    fn kick<M: SeparableHamiltonian + ?Sized>(
         model: &M,
         x: &mut [f64],
         n: usize,
@@ -375,7 +375,7 @@ impl Splitting {
     }
 }
 
-impl<M: Model + ?Sized> Integrator<M> for Splitting {
+impl<M: SeparableHamiltonian + ?Sized> Integrator<M> for Splitting {
     fn name(&self) -> &str {
         self.kind.name()
     }

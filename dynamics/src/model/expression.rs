@@ -1,14 +1,14 @@
 //! `[model] name = "potential"`: the compiled model of `chaoscope_expr::potential` (parsing,
-//! symbolic derivatives, native code and step kernels live there) as a [`Model`].
+//! symbolic derivatives, native code and step kernels live there) as a [`SeparableHamiltonian`].
 //!
 //! An [`At`] without lane parameters evaluates at the compiled model's own placeholder values
 //! (its `*_at` functions), one with them at those values (its `*_with` functions).
 
 use chaoscope_expr::potential::ExpressionModel;
 
-use super::{At, Model};
+use super::{At, SeparableHamiltonian};
 
-impl Model for ExpressionModel {
+impl SeparableHamiltonian for ExpressionModel {
     fn name(&self) -> &str {
         "potential"
     }

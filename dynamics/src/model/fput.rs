@@ -1,7 +1,7 @@
 //! The beta-Fermi-Pasta-Ulam-Tsingou chain with fixed ends (`x_0 = x_{N+1} = 0`):
 //! `H = sum p_i^2/2 + sum_{i=0..N} [ r_i^2/2 + beta r_i^4/4 ]`, `r_i = x_{i+1} - x_i`.
 
-use super::{At, Model};
+use super::{At, SeparableHamiltonian};
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FputBeta {
@@ -72,7 +72,7 @@ impl FputBeta {
     }
 }
 
-impl Model for FputBeta {
+impl SeparableHamiltonian for FputBeta {
     fn name(&self) -> &str {
         "fput-beta"
     }
@@ -131,8 +131,8 @@ impl Model for FputBeta {
     }
 
     /// The orbit and its tangent vectors stage by stage in one call: the drifts, then the
-    /// orbit's force and every vector's `Hess V dq` as [`Model::gradient`] and
-    /// [`Model::hessian_vector`] form them (the same expressions, site by site), each kicked as
+    /// orbit's force and every vector's `Hess V dq` as [`SeparableHamiltonian::gradient`] and
+    /// [`SeparableHamiltonian::hessian_vector`] form them (the same expressions, site by site), each kicked as
     /// it is formed; the vectors read the stage's positions where they are. So the bits of the
     /// splitting's `step` and `step_tangent`, without a second copy of the orbit or a buffer
     /// per force (the engine's carrier takes the orbit from here).

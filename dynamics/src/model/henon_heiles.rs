@@ -1,12 +1,12 @@
 //! The Henon-Heiles system (N = 2):
 //! `H = (p1^2 + p2^2)/2 + (x1^2 + x2^2)/2 + x1^2 x2 - x2^3/3`. Orbits escape for `H > 1/6`.
 
-use super::{At, Model};
+use super::{At, SeparableHamiltonian};
 
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
 pub struct HenonHeiles;
 
-impl Model for HenonHeiles {
+impl SeparableHamiltonian for HenonHeiles {
     fn name(&self) -> &str {
         "henon-heiles"
     }

@@ -1,6 +1,6 @@
 //! Models: the Hamiltonians chaoscope integrates.
 //!
-//! One trait, [`Model`], for separable Hamiltonians `H = sum p_i^2/(2 m_i) + V(q)`: that is what the
+//! One trait, [`SeparableHamiltonian`], for separable Hamiltonians `H = sum p_i^2/(2 m_i) + V(q)`: that is what the
 //! symplectic splittings and their tangent maps need. A model states which derivatives it has:
 //! the Hessian-vector product is optional, and a model without it (a non-smooth or empirical
 //! potential) can still be studied with the multi-particle method, never with the variational
@@ -16,7 +16,7 @@ mod fput;
 mod henon_heiles;
 mod sin_cos;
 
-/// `[model] name = "potential"`: compiled by `chaoscope-expr`; `expression.rs` makes it a [`Model`].
+/// `[model] name = "potential"`: compiled by `chaoscope-expr`; `expression.rs` makes it a [`SeparableHamiltonian`].
 pub use chaoscope_expr::potential::{
     CStepState, CStepStatus, ExpressionModel, PotentialDefinition, PotentialError,
     SQUARE_LOOPS_FROM_SIDE,
@@ -30,9 +30,9 @@ pub use henon_heiles::HenonHeiles;
 /// of these instead of a method per combination of what it reads.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct At<'a> {
-    /// The time; read only by a model that [`Model::reads_time`].
+    /// The time; read only by a model that [`SeparableHamiltonian::reads_time`].
     pub t: f64,
-    /// The values of the model's lane parameters ([`Model::lane_params`]); empty for a model
+    /// The values of the model's lane parameters ([`SeparableHamiltonian::lane_params`]); empty for a model
     /// without them (a model with them then reads values that are not numbers).
     pub params: &'a [f64],
 }
@@ -56,7 +56,7 @@ impl At<'static> {
 /// Phase-space vectors are ordered `x = (q1..qN, p1..pN)`. Each quantity of `V` is one method
 /// taking [`At`] (the time and the lane parameters): a model that reads neither ignores it, so
 /// its arithmetic is that of `V(q)`.
-pub trait Model: std::any::Any + Send + Sync {
+pub trait SeparableHamiltonian: std::any::Any + Send + Sync {
     /// Short machine name, as written in configs (`"henon-heiles"`).
     fn name(&self) -> &str;
 
@@ -70,7 +70,7 @@ pub trait Model: std::any::Any + Send + Sync {
     fn gradient(&self, q: &[f64], at: At<'_>, out: &mut [f64]);
 
     /// `out = Hess V(q, t) * v` at the lane parameters of `at`. Called only on a model whose
-    /// [`Model::no_hessian_reason`] is `None`; otherwise `out` is left as it is.
+    /// [`SeparableHamiltonian::no_hessian_reason`] is `None`; otherwise `out` is left as it is.
     fn hessian_vector(&self, q: &[f64], at: At<'_>, v: &[f64], out: &mut [f64]);
 
     /// Why the model has no Hessian-vector product (so the variational method cannot be used),
@@ -120,7 +120,7 @@ pub trait Model: std::any::Any + Send + Sync {
     }
 
     /// The energy of each site of `x = (q, p)` into `out` (`N` values): `p_l^2 / (2 m_l)` plus
-    /// [`Model::site_potentials`]; they add up to [`Model::energy`] to rounding.
+    /// [`SeparableHamiltonian::site_potentials`]; they add up to [`SeparableHamiltonian::energy`] to rounding.
     fn site_energies(&self, x: &[f64], out: &mut [f64]) -> Result<(), String> {
         let n = self.dof();
         if x.len() != 2 * n || out.len() != n {
@@ -142,7 +142,7 @@ pub trait Model: std::any::Any + Send + Sync {
     }
 
     /// Total energy `H(x, t)` of a phase-space point `x = (q, p)` (conserved unless the model
-    /// [`Model::reads_time`]).
+    /// [`SeparableHamiltonian::reads_time`]).
     fn energy(&self, x: &[f64], at: At<'_>) -> f64 {
         let n = self.dof();
         self.kinetic(&x[n..]) + self.potential(&x[..n], at)
@@ -164,7 +164,7 @@ pub trait Model: std::any::Any + Send + Sync {
     }
 
     /// A run of `work` state-value steps (steps times `2N`) will ask
-    /// [`Model::reference_tangent_steps`] to step its small sets: build what that needs, where
+    /// [`SeparableHamiltonian::reference_tangent_steps`] to step its small sets: build what that needs, where
     /// it repays (a `potential` whose lattice sums are loops starts its C kernels' build in the
     /// background). Nothing for every other model.
     fn prepare_reference_tangent(&self, work: u64) {
@@ -192,14 +192,14 @@ pub trait Model: std::any::Any + Send + Sync {
 /// Most lane parameters of a model: a map has two axes.
 pub const MAX_LANE_PARAMS: usize = 2;
 
-/// A model whose lane parameters ([`Model::lane_params`]) are bound to one point's values: the
+/// A model whose lane parameters ([`SeparableHamiltonian::lane_params`]) are bound to one point's values: the
 /// plain model of that point (it evaluates the model at its own parameters, whatever [`At`]
 /// carries), which the splittings step exactly as a model with those values as constants, up
 /// to how a constant folds. The values are copied, so the state they came from can be stepped
-/// meanwhile (and the model is shared, not borrowed: a `Model` is `'static`).
+/// meanwhile (and the model is shared, not borrowed: a `SeparableHamiltonian` is `'static`).
 #[derive(Clone)]
 pub struct WithParams {
-    model: std::sync::Arc<dyn Model>,
+    model: std::sync::Arc<dyn SeparableHamiltonian>,
     params: [f64; MAX_LANE_PARAMS],
 }
 
@@ -209,7 +209,7 @@ impl WithParams {
     ///
     /// # Panics
     /// If `params` does not have `P` entries, or `P` exceeds [`MAX_LANE_PARAMS`].
-    pub fn new(model: &std::sync::Arc<dyn Model>, params: &[f64]) -> Self {
+    pub fn new(model: &std::sync::Arc<dyn SeparableHamiltonian>, params: &[f64]) -> Self {
         let p = model.lane_params();
         assert!(
             params.len() == p && p <= MAX_LANE_PARAMS,
@@ -226,7 +226,7 @@ impl WithParams {
 
     /// The model at the parameters a state `x = (q, p, params)` carries after its `2N`
     /// coordinates.
-    pub fn of_state(model: &std::sync::Arc<dyn Model>, x: &[f64]) -> Self {
+    pub fn of_state(model: &std::sync::Arc<dyn SeparableHamiltonian>, x: &[f64]) -> Self {
         Self::new(model, &x[2 * model.dof()..])
     }
 
@@ -240,7 +240,7 @@ impl WithParams {
     }
 }
 
-impl Model for WithParams {
+impl SeparableHamiltonian for WithParams {
     fn name(&self) -> &str {
         self.model.name()
     }
@@ -284,9 +284,9 @@ impl Model for WithParams {
 pub(crate) mod check {
     //! Finite-difference checks shared by the model tests: a model's derivatives must agree
     //! with its own potential.
-    use super::{At, Model};
+    use super::{At, SeparableHamiltonian};
 
-    pub fn gradient_matches_potential(m: &dyn Model, q: &[f64]) {
+    pub fn gradient_matches_potential(m: &dyn SeparableHamiltonian, q: &[f64]) {
         let n = m.dof();
         let mut g = vec![0.0; n];
         m.gradient(q, At::T0, &mut g);
@@ -306,7 +306,7 @@ pub(crate) mod check {
         }
     }
 
-    pub fn hessian_matches_gradient(m: &dyn Model, q: &[f64], v: &[f64]) {
+    pub fn hessian_matches_gradient(m: &dyn SeparableHamiltonian, q: &[f64], v: &[f64]) {
         let n = m.dof();
         let mut hv = vec![0.0; n];
         assert!(m.no_hessian_reason().is_none());

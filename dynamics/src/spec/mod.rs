@@ -25,7 +25,7 @@ use chaoscope_schemas::run::{
 };
 
 use crate::deviation::{self, DirectionError, Directions};
-use crate::model::Model;
+use crate::model::SeparableHamiltonian;
 use crate::system::{DynamicalSystem, Time};
 
 pub mod ddnls;
@@ -416,7 +416,10 @@ impl RunSpec {
     /// A run of a model built in code rather than named in the config (the library route for
     /// hand-written models, `examples/custom-model/`): everything but `[model]` is validated as
     /// usual; `[model] name` is the name recordings carry.
-    pub fn with_model(cfg: &RunConfig, model: Arc<dyn Model>) -> Result<Self, SpecError> {
+    pub fn with_model(
+        cfg: &RunConfig,
+        model: Arc<dyn SeparableHamiltonian>,
+    ) -> Result<Self, SpecError> {
         let cfg = &cfg
             .with_sweeps_expanded()
             .map_err(|e| SpecError::new(e.key, e.message))?;

@@ -14,7 +14,7 @@ use chaoscope_schemas::config::{self, ModelConfig, PotentialConfig, RunConfig, T
 use super::lattice_shape::Sites;
 use super::{Built, LaneParam, SpecError, separable};
 use crate::integrator::SplittingScheme;
-use crate::model::{ExpressionModel, Model, PotentialDefinition};
+use crate::model::{ExpressionModel, PotentialDefinition, SeparableHamiltonian};
 
 /// Most degrees of freedom of a potential model (the straight-line compiled code grows with N).
 pub const MAX_SITES: usize = 100_000;
@@ -148,13 +148,18 @@ fn load_table(name: &str, cfg: &TableConfig) -> Result<(Arc<Spline>, TableDigest
 /// Check the keys of a `potential` model, load its tables and compile it.
 pub fn potential_model(
     cfg: &PotentialConfig,
-) -> Result<(Arc<dyn Model>, Vec<TableDigest>), SpecError> {
+) -> Result<(Arc<dyn SeparableHamiltonian>, Vec<TableDigest>), SpecError> {
     potential_model_with_lanes(cfg, &[]).map(|(model, tables, _, _)| (model, tables))
 }
 
 /// A compiled potential, the digests of its tables, the config values of its lane parameters
 /// and its sites.
-type CompiledPotential = (Arc<dyn Model>, Vec<TableDigest>, Vec<f64>, Sites);
+type CompiledPotential = (
+    Arc<dyn SeparableHamiltonian>,
+    Vec<TableDigest>,
+    Vec<f64>,
+    Sites,
+);
 
 /// [`potential_model`] with the parameters `lanes` read per evaluation (a map's parameter
 /// axes, entries `0..P` of [`chaoscope_expr::potential::ARG_PARAMS`] in the order of `lanes`)
@@ -269,7 +274,7 @@ pub(super) fn run(
 fn as_flow(
     cfg_model: &PotentialConfig,
     cfg: &RunConfig,
-    compiled: Arc<dyn Model>,
+    compiled: Arc<dyn SeparableHamiltonian>,
     sites: Sites,
     tables: Vec<TableDigest>,
     lanes: &[LaneParam],

@@ -12,7 +12,7 @@ use chaoscope_schemas::config::{
 use super::potential::{self, TableDigest};
 use super::{Built, SpecError};
 use crate::integrator::{Splitting, SplittingScheme};
-use crate::model::{At, FputBeta, HenonHeiles, Model, WithParams};
+use crate::model::{At, FputBeta, HenonHeiles, SeparableHamiltonian, WithParams};
 use crate::system::SplitHamiltonian;
 
 /// Most particles of the built-in FPUT chain.
@@ -21,7 +21,7 @@ pub const MAX_FPUT_SITES: usize = 1_000_000;
 /// The separable model `cfg` names, with the digests of the tables it read.
 pub fn model_from_config(
     cfg: &ModelConfig,
-) -> Result<(Arc<dyn Model>, Vec<TableDigest>), SpecError> {
+) -> Result<(Arc<dyn SeparableHamiltonian>, Vec<TableDigest>), SpecError> {
     match cfg {
         ModelConfig::HenonHeiles(m) => Ok((henon_heiles(m)?, Vec::new())),
         ModelConfig::FputBeta(m) => Ok((fput_beta(m)?, Vec::new())),
@@ -38,7 +38,7 @@ pub fn model_from_config(
 }
 
 /// `name = "henon-heiles"`.
-fn henon_heiles(cfg: &HenonHeilesConfig) -> Result<Arc<dyn Model>, SpecError> {
+fn henon_heiles(cfg: &HenonHeilesConfig) -> Result<Arc<dyn SeparableHamiltonian>, SpecError> {
     if let Some(n) = cfg.n.filter(|&n| n != 2) {
         return Err(SpecError::new(
             "model.n",
@@ -49,7 +49,7 @@ fn henon_heiles(cfg: &HenonHeilesConfig) -> Result<Arc<dyn Model>, SpecError> {
 }
 
 /// `name = "fput-beta"`.
-fn fput_beta(cfg: &FputBetaConfig) -> Result<Arc<dyn Model>, SpecError> {
+fn fput_beta(cfg: &FputBetaConfig) -> Result<Arc<dyn SeparableHamiltonian>, SpecError> {
     let n = cfg
         .n
         .ok_or_else(|| SpecError::new("model.n", "fput-beta needs the number of particles n"))?;
@@ -61,7 +61,7 @@ fn fput_beta(cfg: &FputBetaConfig) -> Result<Arc<dyn Model>, SpecError> {
     }
     let beta = cfg.beta.unwrap_or(1.0);
     FputBeta::new(n, beta)
-        .map(|m| Arc::new(m) as Arc<dyn Model>)
+        .map(|m| Arc::new(m) as Arc<dyn SeparableHamiltonian>)
         .map_err(|e| SpecError::new("model.beta", e))
 }
 
@@ -69,17 +69,17 @@ fn fput_beta(cfg: &FputBetaConfig) -> Result<Arc<dyn Model>, SpecError> {
 /// of `[orbit]` (`q` and `p`, the energy solved for a momentum, or a preset).
 pub(super) fn run(
     cfg: &RunConfig,
-    model: Arc<dyn Model>,
+    model: Arc<dyn SeparableHamiltonian>,
     tables: Vec<TableDigest>,
 ) -> Result<Built, SpecError> {
     run_with_lanes(cfg, model, tables, &[])
 }
 
-/// [`run`] of a model with lane parameters (`Model::lane_params`): its initial state is `(q,
+/// [`run`] of a model with lane parameters (`SeparableHamiltonian::lane_params`): its initial state is `(q,
 /// p)` at the config's values `lane_values` of them, followed by those values.
 pub(super) fn run_with_lanes(
     cfg: &RunConfig,
-    model: Arc<dyn Model>,
+    model: Arc<dyn SeparableHamiltonian>,
     tables: Vec<TableDigest>,
     lane_values: &[f64],
 ) -> Result<Built, SpecError> {
@@ -145,7 +145,7 @@ pub fn state_coordinate(name: &str, dim: usize) -> Option<usize> {
 
 /// Solve momentum `p_j` (positive root) so that `H(q, p) = energy`.
 pub fn solve_momentum(
-    model: &dyn Model,
+    model: &dyn SeparableHamiltonian,
     x: &mut [f64],
     j: usize,
     energy: f64,
@@ -187,7 +187,7 @@ pub fn solve_momentum(
 /// `[orbit] excite`: the momenta of the excited sites in `x` (all else 0), `p_l = +-sqrt(2 m_l
 /// E / L)` for a block of `L` sites sharing the energy `E`.
 fn excited_momenta(
-    model: &dyn Model,
+    model: &dyn SeparableHamiltonian,
     excite: &chaoscope_schemas::config::Excitation,
     side: Option<usize>,
     x: &mut [f64],
@@ -243,7 +243,7 @@ fn excited_momenta(
 /// Initial state from the `[orbit]` section; `side` is the side of the square the sites form
 /// (`None` for a chain), where an excitation names a block of rows and columns.
 pub fn initial_state(
-    model: &dyn Model,
+    model: &dyn SeparableHamiltonian,
     orbit: &OrbitConfig,
     side: Option<usize>,
 ) -> Result<Vec<f64>, SpecError> {
@@ -371,7 +371,7 @@ pub fn initial_state(
 
 /// An error unless the energy of the initial state `x` is finite, naming the operation that
 /// made it not (a parameter such as `W = 0` in `1/(2*W)` is no fault of the orbit's).
-fn check_initial_energy(model: &dyn Model, x: &[f64]) -> Result<(), SpecError> {
+fn check_initial_energy(model: &dyn SeparableHamiltonian, x: &[f64]) -> Result<(), SpecError> {
     if model.energy(x, At::T0).is_finite() {
         return Ok(());
     }

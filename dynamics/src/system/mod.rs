@@ -9,7 +9,7 @@
 //! for *any* system, in the engine and, through the system's batched form, in the maps.
 //!
 //! Kinds, one file each:
-//! - [`SplitHamiltonian`]: a separable Hamiltonian [`Model`](crate::model::Model) with a
+//! - [`SplitHamiltonian`]: a separable Hamiltonian [`SeparableHamiltonian`](crate::model::SeparableHamiltonian) with a
 //!   symplectic [`Splitting`](crate::integrator::Splitting) (built-in models and `[model] name =
 //!   "potential"`);
 //! - [`RkFlow`]: a vector field `dx/dt = f(x)` with a Runge-Kutta method (its tangent map is the
@@ -181,7 +181,7 @@ pub trait DynamicalSystem: Send + Sync {
 
     /// The energy of each site of the lattice Hamiltonian's state `x` (`N` values into `out`,
     /// the weights of the energy distribution): a separable Hamiltonian's model's
-    /// ([`crate::model::Model::site_energies`]), a Hamiltonian written as lattice sums'
+    /// ([`crate::model::SeparableHamiltonian::site_energies`]), a Hamiltonian written as lattice sums'
     /// ([`VectorField::site_energies`]). An error saying why for any other system.
     fn site_energies(&self, x: &[f64], out: &mut [f64]) -> Result<(), String> {
         match self.separable() {

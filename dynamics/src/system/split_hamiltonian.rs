@@ -5,19 +5,19 @@ use std::sync::Arc;
 use chaoscope_schemas::run::SystemClass;
 
 use super::{DynamicalSystem, ReferenceTangent, Time};
-use crate::batch::{self, AnyLaneModel, Isa, LaneModel, PointKernel, Soa, StepCoeffs};
+use crate::batch::{self, AnyLaneModel, Isa, LaneHamiltonian, PointKernel, Soa, StepCoeffs};
 use crate::integrator::{Integrator, Splitting, TangentError, Workspace};
-use crate::model::{At, Model, WithParams};
+use crate::model::{At, SeparableHamiltonian, WithParams};
 
 /// `H = T(p) + V(q)` stepped by a splitting with fixed step `h`; its tangent map is the
 /// splitting's own (`Splitting::step_tangent`), the variational equations of the discrete map.
 ///
-/// A model with lane parameters (`Model::lane_params`, a map's parameter axes) has states `(q,
+/// A model with lane parameters (`SeparableHamiltonian::lane_params`, a map's parameter axes) has states `(q,
 /// p)` followed by their values, which every step reads (the model bound to them,
 /// [`WithParams`]) and never writes; its deviation vectors are `(dq, dp)`.
 #[derive(Clone)]
 pub struct SplitHamiltonian {
-    model: Arc<dyn Model>,
+    model: Arc<dyn SeparableHamiltonian>,
     splitting: Splitting,
     h: f64,
     /// The model's lane implementation and the splitting's coefficients times `h`: the batched
@@ -27,7 +27,7 @@ pub struct SplitHamiltonian {
 }
 
 impl SplitHamiltonian {
-    pub fn new(model: Arc<dyn Model>, splitting: Splitting, h: f64) -> Self {
+    pub fn new(model: Arc<dyn SeparableHamiltonian>, splitting: Splitting, h: f64) -> Self {
         Self {
             lanes: AnyLaneModel::new(model.clone()),
             coeffs: StepCoeffs::new(&splitting, h),
@@ -37,7 +37,7 @@ impl SplitHamiltonian {
         }
     }
 
-    pub fn model(&self) -> &Arc<dyn Model> {
+    pub fn model(&self) -> &Arc<dyn SeparableHamiltonian> {
         &self.model
     }
 
@@ -229,7 +229,7 @@ impl ReferenceTangent for SplitHamiltonian {
 }
 
 /// A separable Hamiltonian's splitting over the lane kernel of the instruction set `isa`.
-struct SplittingKernel<'a, M: LaneModel> {
+struct SplittingKernel<'a, M: LaneHamiltonian> {
     model: &'a M,
     coeffs: &'a StepCoeffs,
     isa: Isa,
@@ -238,7 +238,7 @@ struct SplittingKernel<'a, M: LaneModel> {
     force: Vec<f64>,
 }
 
-impl<'a, M: LaneModel> SplittingKernel<'a, M> {
+impl<'a, M: LaneHamiltonian> SplittingKernel<'a, M> {
     fn new(model: &'a M, coeffs: &'a StepCoeffs, isa: Isa) -> Self {
         Self {
             model,
@@ -250,7 +250,7 @@ impl<'a, M: LaneModel> SplittingKernel<'a, M> {
     }
 }
 
-impl<M: LaneModel> PointKernel for SplittingKernel<'_, M> {
+impl<M: LaneHamiltonian> PointKernel for SplittingKernel<'_, M> {
     fn orbit_steps(&mut self, x: &mut Soa, _from: u64, steps: u64) {
         batch::orbit_steps(self.isa, self.model, self.coeffs, x, steps);
     }

@@ -3,7 +3,7 @@
 //! external library, an iteration).
 //!
 //! Three steps:
-//! 1. implement [`Model`] (potential, gradient and the Hessian-vector product, each taking an
+//! 1. implement [`SeparableHamiltonian`] (potential, gradient and the Hessian-vector product, each taking an
 //!    [`At`]: the time and lane parameters, which this autonomous model does not read; a model
 //!    without second derivatives says why in `no_hessian_reason`);
 //! 2. validate a configuration around it with [`RunSpec::with_model`] (everything but `[model]`
@@ -24,7 +24,7 @@ use chaoscope_analyzer::report::Report;
 use chaoscope_analyzer::write::SampleWriter;
 use chaoscope_dynamics::engine::Engine;
 use chaoscope_dynamics::header::run_header;
-use chaoscope_dynamics::model::{At, Model};
+use chaoscope_dynamics::model::{At, SeparableHamiltonian};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_producer::{self as publish, PublishOptions, PublishOutcome};
 use chaoscope_schemas::config::RunConfig;
@@ -37,7 +37,7 @@ pub struct Barbanis {
     pub eps: f64,
 }
 
-impl Model for Barbanis {
+impl SeparableHamiltonian for Barbanis {
     fn name(&self) -> &str {
         "barbanis"
     }

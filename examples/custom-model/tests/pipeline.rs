@@ -1,7 +1,7 @@
 //! The hand-written model through engine, recording and analysis: its derivatives agree with its
 //! potential, the recording analyzes, and the physics is that of a bounded regular orbit.
 
-use chaoscope_dynamics::model::{At, Model};
+use chaoscope_dynamics::model::{At, SeparableHamiltonian};
 use chaoscope_example_custom_model::{Barbanis, CONFIG, record, run_spec};
 
 #[test]

@@ -23,7 +23,7 @@
 //! across the loops but a few pointers and coefficients whatever `N` is (an FPUT chain of 1001
 //! sites compiles as fast as its gradient).
 //!
-//! Every lane performs exactly the operations of the generic `LaneModel::orbit_steps` /
+//! Every lane performs exactly the operations of the generic `LaneHamiltonian::orbit_steps` /
 //! `tangent_steps` loops: `q + ch * p` (unit masses) or `q + (ch * w_j) * p`, the graph's
 //! operations as `cranelift::emit_vector` emits them, and `p - dh * g`; so the kernels are
 //! bit-identical to `Graph::apply_*` step by step, and never emit a fused multiply-add.

@@ -1,21 +1,21 @@
-//! Any [`Model`] over lanes through its scalar methods: the fallback for models without a lane
+//! Any [`SeparableHamiltonian`] over lanes through its scalar methods: the fallback for models without a lane
 //! implementation. Bit-identical by construction (it calls the very same code), not fast.
 
 use std::sync::Arc;
 
-use crate::batch::lanes::LaneModel;
-use crate::model::{At, Model};
+use crate::batch::lanes::LaneHamiltonian;
+use crate::model::{At, SeparableHamiltonian};
 
 #[derive(Clone)]
-pub struct DynLanes(Arc<dyn Model>);
+pub struct DynLanes(Arc<dyn SeparableHamiltonian>);
 
 impl DynLanes {
-    pub fn new(model: Arc<dyn Model>) -> Self {
+    pub fn new(model: Arc<dyn SeparableHamiltonian>) -> Self {
         Self(model)
     }
 }
 
-impl Model for DynLanes {
+impl SeparableHamiltonian for DynLanes {
     fn name(&self) -> &str {
         self.0.name()
     }
@@ -45,7 +45,7 @@ impl Model for DynLanes {
     }
 }
 
-impl LaneModel for DynLanes {
+impl LaneHamiltonian for DynLanes {
     fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]) {
         let n = self.dof();
         let (mut ql, mut ol) = (vec![0.0; n], vec![0.0; n]);

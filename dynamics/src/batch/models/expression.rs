@@ -3,10 +3,12 @@
 //! `L`, the layout the kernels read), drift, force and kick fused per block of lanes, the step
 //! and stage loops in native code.
 
-use crate::batch::lanes::{LaneModel, StepCoeffs, orbit_steps_generic, tangent_steps_generic};
+use crate::batch::lanes::{
+    LaneHamiltonian, StepCoeffs, orbit_steps_generic, tangent_steps_generic,
+};
 use crate::model::ExpressionModel;
 
-impl LaneModel for ExpressionModel {
+impl LaneHamiltonian for ExpressionModel {
     /// Wide chunks while a 32-lane chunk's rows fit in half of L1 (16 KiB: `N <= 32`): the
     /// kernel streams each stage over the chunk's blocks, which are independent dependency
     /// chains the CPU overlaps; a model with few rows (Henon-Heiles) needs many of them to

@@ -1,9 +1,9 @@
 //! The beta-FPUT chain over lanes (lanes are independent chains; rows are sites).
 
-use crate::batch::lanes::{LaneModel, StepCoeffs};
-use crate::model::{FputBeta, Model};
+use crate::batch::lanes::{LaneHamiltonian, StepCoeffs};
+use crate::model::{FputBeta, SeparableHamiltonian};
 
-impl LaneModel for FputBeta {
+impl LaneHamiltonian for FputBeta {
     #[inline(always)]
     fn gradient_lanes<const L: usize>(&self, q: &[[f64; L]], out: &mut [[f64; L]]) {
         // FputBeta::gradient, lane by lane: f(r) = r + beta r^3 written the same way.

@@ -1,10 +1,10 @@
 //! Henon-Heiles over lanes, with register-resident step loops: the whole state of `L` orbits
 //! (4 rows) stays in vector registers for all the steps between two renormalizations.
 
-use crate::batch::lanes::{LaneModel, StepCoeffs};
+use crate::batch::lanes::{LaneHamiltonian, StepCoeffs};
 use crate::model::HenonHeiles;
 
-impl LaneModel for HenonHeiles {
+impl LaneHamiltonian for HenonHeiles {
     const REGISTER_RESIDENT: bool = true;
 
     #[inline(always)]

@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 pub use dynamic::DynLanes;
 
-use crate::model::{ExpressionModel, FputBeta, HenonHeiles, Model};
+use crate::model::{ExpressionModel, FputBeta, HenonHeiles, SeparableHamiltonian};
 
 /// A model with its lane implementation, chosen once per run so the kernel is monomorphic
 /// (inlined into the SIMD instantiations) for the models chaoscope ships.
@@ -26,7 +26,7 @@ pub enum AnyLaneModel {
 impl AnyLaneModel {
     /// The lane implementation of `model`, found by its type: the models chaoscope ships have
     /// their own, any other model goes lane by lane through its scalar methods.
-    pub fn new(model: Arc<dyn Model>) -> Self {
+    pub fn new(model: Arc<dyn SeparableHamiltonian>) -> Self {
         let any: &dyn std::any::Any = model.as_ref();
         if let Some(m) = any.downcast_ref::<ExpressionModel>() {
             Self::Expression(m.clone())

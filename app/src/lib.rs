@@ -18,4 +18,8 @@ pub mod record;
 pub mod replay;
 pub mod resume;
 
+/// How often a recording being written in process is put on disk in whole chunks: what a kill
+/// can lose.
+const CHECKPOINT_EVERY: std::time::Duration = std::time::Duration::from_secs(5);
+
 pub use replay::{ReplayError, ReplayOptions, ReplayOutcome, replay};

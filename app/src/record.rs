@@ -1,12 +1,14 @@
 //! A run computed in this process and written to a recording, in the layout the recorder writes
 //! (Python's `chaoscope.run`; `chaoscope run` goes through the bus instead).
 //!
-//! The file is complete at its name or not there at all (`chaoscope_os::output`). No NaN or
-//! infinity goes into it: the run fails at the first non-finite value and the file says so, as
-//! the recorder's file of a failed run does.
+//! The file is complete at its name or not there at all (`chaoscope_os::output`); a killed run
+//! leaves its in-progress file with the samples up to its last checkpoint, which `resume`
+//! continues. No NaN or infinity goes into it: the run fails at the first non-finite value and
+//! the file says so, as the recorder's file of a failed run does.
 
 use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
 
 use chaoscope_analyzer::write::{SampleWriter, WriteError};
 use chaoscope_dynamics::engine::Engine;
@@ -41,6 +43,7 @@ pub fn record(
         error,
     };
     let mut engine = Engine::new(spec);
+    let mut last_checkpoint = Instant::now();
     let ended = loop {
         if stop.load(Ordering::Relaxed) {
             break Ended::Interrupted;
@@ -51,6 +54,11 @@ pub fn record(
                     break Ended::Failed(why);
                 }
                 writer.write(&sample).map_err(written)?;
+                // A killed run leaves its samples up to the last checkpoint for `resume`.
+                if last_checkpoint.elapsed() >= crate::CHECKPOINT_EVERY {
+                    writer.checkpoint()?;
+                    last_checkpoint = Instant::now();
+                }
             }
             Ok(None) => break Ended::Completed,
             Err(e) => break Ended::Failed(e.to_string()),

@@ -33,9 +33,6 @@ use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::proto::{RunHeader, end_of_run};
 use chaoscope_schemas::run::Sample;
 
-/// How often the file being written is put on disk in whole chunks: what a kill can lose.
-const CHECKPOINT_EVERY: Duration = Duration::from_secs(5);
-
 #[derive(Debug, Clone, Default)]
 pub struct ResumeOptions {
     /// The new end of the run (`--t-final`): later than the recorded one extends it. Default:
@@ -531,7 +528,7 @@ fn resume_untimed(
                         writer.adopt_fresh()?;
                     }
                 }
-                if last_checkpoint.elapsed() >= CHECKPOINT_EVERY {
+                if last_checkpoint.elapsed() >= crate::CHECKPOINT_EVERY {
                     writer.checkpoint()?;
                     last_checkpoint = Instant::now();
                 }

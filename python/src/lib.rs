@@ -41,6 +41,13 @@ pub(crate) fn keyword_arguments(text: &str) -> String {
         .replace("--out", "out")
 }
 
+/// An existing regular file at `path` (not a link, device or directory: those get the output
+/// layer's own words), which an output refuses to replace without `force=True`.
+pub(crate) fn is_regular_file(path: &std::path::Path) -> bool {
+    path.symlink_metadata()
+        .is_ok_and(|m| m.file_type().is_file())
+}
+
 #[pymodule]
 fn _chaoscope(m: &Bound<'_, PyModule>) -> PyResult<()> {
     signals::keep_python_handlers();

@@ -15,6 +15,7 @@ use numpy::{PyArray1, PyArrayMethods};
 use pyo3::prelude::*;
 
 use crate::interrupt::interruptible;
+use crate::is_regular_file;
 
 /// A phase-space map: one indicator value per grid point (numpy arrays indexed [iy, ix]).
 #[pyclass(module = "chaoscope", frozen, get_all)]
@@ -194,7 +195,7 @@ pub fn map(
         let name = config.run.name.clone().unwrap_or_else(|| "map".into());
         Path::new("maps").join(format!("{name}.mcap"))
     });
-    if out.exists() && !force {
+    if !force && is_regular_file(&out) {
         return Err(crate::message(format!(
             "{} already exists (pass force=True to replace it, or resume it with `chaoscope map`)",
             out.display()
@@ -222,7 +223,7 @@ pub fn map(
         .map_err(|e| {
             let text = match e {
                 MapFileError::Refused(why) => format!("{why}; pass force=True to replace it"),
-                e => e.to_string(),
+                e => crate::keyword_arguments(&e.to_string()),
             };
             // What a failed map kept on disk (to be resumed) is named, however it failed.
             let partial = chaoscope_os::output::partial_path(&out);

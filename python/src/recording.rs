@@ -21,6 +21,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyAny, PyDict};
 
 use crate::interrupt::interruptible;
+use crate::is_regular_file;
 
 /// `{} already exists` as the command says it, with the keyword argument instead of `--force`.
 fn exists_error(path: &Path) -> PyErr {
@@ -115,7 +116,7 @@ pub fn run(
     }
     let name = resolve_run_name(&config, run.as_deref()).map_err(|e| crate::error(&e))?;
     let out = out.unwrap_or_else(|| Path::new("runs").join(format!("{name}.mcap")));
-    if out.exists() && !force {
+    if !force && is_regular_file(&out) {
         return Err(exists_error(&out));
     }
     let header = run_header(&name, &config, &spec);
@@ -138,7 +139,7 @@ pub fn run(
         || stop.store(true, Ordering::Relaxed),
         || chaoscope_app::record::record(spec, &header, &out, &options, &stop),
     )?
-    .map_err(|e| crate::message(error_text(&e)))?;
+    .map_err(|e| crate::message(crate::keyword_arguments(&error_text(&e))))?;
     if let Ended::Failed(why) = ended {
         return Err(crate::message(format!(
             "run {} failed: {why}",
@@ -457,7 +458,7 @@ impl Recording {
                 .map_or("recording".into(), |s| s.to_string_lossy().into_owned());
             self.path.with_file_name(format!("{stem}-replay.mcap"))
         });
-        if out.exists() && !force {
+        if !force && is_regular_file(&out) {
             return Err(exists_error(&out));
         }
         let stop = Arc::new(AtomicBool::new(false));

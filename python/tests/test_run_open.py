@@ -140,3 +140,47 @@ def test_resume_errors_name_the_keyword_arguments(tmp_path):
     with pytest.raises(chaoscope.ChaoscopeError, match=r"force=True") as e:
         chaoscope.resume(part, t_final=40.0, out=tmp_path / "other.mcap")
     assert "--" not in str(e.value)
+
+
+def test_a_killed_run_leaves_what_resume_continues(tmp_path, cli):
+    """`run` puts its samples on disk every few seconds (as the recorder does), not only when
+    a chunk fills: a run killed outright (SIGKILL, nothing of it runs again) leaves
+    `NAME.partial` holding them, and `resume` continues it from the last one."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    config = hh_config(t_final=1e6)
+    config["deviations"] = {"k": 2, "sets": 1, "seed": 1}
+    config["scheme"] = [{"name": "vm", "method": "vm", "d0": 1e-8, "tau": 100.0}]
+    config["integrator"]["h"] = 0.001  # minutes of run, a few hundred bytes per 100 time units
+    out = tmp_path / "killed.mcap"
+    partial = tmp_path / "killed.mcap.partial"
+    child = subprocess.Popen(
+        [sys.executable, "-c", f"import chaoscope; chaoscope.run({config!r}, out={str(out)!r})"]
+    )
+    try:
+        started = time.monotonic()
+        while not (partial.exists() and partial.stat().st_size > 20_000):
+            # A chunk of 1 MiB fills in about half a minute here: the checkpoints come first.
+            assert time.monotonic() - started < 20, "nothing put on disk after 20 s"
+            assert child.poll() is None
+            time.sleep(0.05)
+    finally:
+        child.send_signal(signal.SIGKILL)
+        child.wait()
+    assert partial.exists() and not out.exists()
+    done = cli("recover", partial, "--out", tmp_path / "salvaged.mcap")
+    assert done.returncode == 0, done.stderr
+    reached = chaoscope.open(tmp_path / "salvaged.mcap").indicators("vm").t[-1]
+    assert reached >= 100.0
+    cont = chaoscope.resume(out, t_final=reached + 500.0, out=tmp_path / "cont.mcap")
+    assert (cont.status, cont.t_final) == ("completed", reached + 500.0)
+    assert cont.indicators("vm").t[-1] == reached + 500.0
+
+
+def test_outputs_that_are_not_files_are_named_as_such(tmp_path):
+    with pytest.raises(chaoscope.ChaoscopeError, match="not a regular file") as e:
+        chaoscope.run(hh_config(t_final=5.0), out="/dev/null")
+    assert "--" not in str(e.value)

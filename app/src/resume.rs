@@ -272,6 +272,17 @@ fn resume_untimed(
     // The recorded run, rebuilt from its header's configuration with the new end. A file cut
     // before its run header reached the disk holds nothing of the run.
     let mut reader = match RecordingReader::open_salvaging(&input) {
+        Err(ReadError::NoHeader { .. })
+            if chaoscope_files::map_file::read_map_file(&input)
+                .is_ok_and(|m| m.header.is_some()) =>
+        {
+            return Err(ResumeFailure::Nothing {
+                path: shown,
+                why: "a map file, not a run's recording: a map is resumed by computing the same \
+                      map into it again"
+                    .into(),
+            });
+        }
         Err(ReadError::Damaged { .. } | ReadError::NoHeader { .. }) => {
             return Err(ResumeFailure::NoSample { path: shown });
         }

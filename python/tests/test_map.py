@@ -196,3 +196,6 @@ def test_map_keeps_what_it_cannot_read_as_its_own(tmp_path):
     with pytest.raises(chaoscope.ChaoscopeError, match="input"):
         chaoscope.run(path, out=path, force=True)
     assert path.read_text() == to_toml(config)
+    # A map is not a run: resume says so instead of calling it a run killed early.
+    with pytest.raises(chaoscope.ChaoscopeError, match="a map file, not a run's recording"):
+        chaoscope.resume(whole.path)

@@ -6,7 +6,8 @@ realizations decays as t^alpha with alpha near -1/4, and the wave packet's secon
 energy for the DKG, of the norm for the DDNLS) grows as t^(1/3).
 
     examples/weak-chaos/run.py [--model dkg|ddnls] [--excitation site|block] [--realizations 20]
-                               [--first-seed 1] [--sites N] [--t-final T] [--jobs 2]
+                               [--first-seed 1 | --seeds 1-11,16] [--sites N] [--t-final T]
+                               [--jobs 2]
                                [--chaoscope PATH] [--out DIR]
 
 Each realization is `examples/models/dkg-single-site.toml` with its own disorder seed (1, 2,
@@ -254,6 +255,20 @@ def slope(xs, ys):
     return sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sum((x - mx) ** 2 for x in xs)
 
 
+def seed_list(text):
+    """`1-11,16` -> [1, ..., 11, 16]: distinct non-negative seeds, in the order given."""
+    seeds = []
+    try:
+        for part in text.split(","):
+            first, _, last = part.partition("-")
+            seeds += range(int(first), int(last or first) + 1)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected seeds such as 1-11,16")
+    if not seeds or min(seeds) < 0 or len(set(seeds)) != len(seeds):
+        raise argparse.ArgumentTypeError(f"{text!r}: distinct seeds of at least 0 expected")
+    return seeds
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--model", choices=["dkg", "ddnls"], default="dkg")
@@ -269,6 +284,9 @@ def main():
                          "sites with norm 1 each, random phases and beta = 0.04")
     ap.add_argument("--first-seed", type=int, default=1,
                     help="disorder seed of the first realization (default 1; a pilot uses others)")
+    ap.add_argument("--seeds", type=seed_list,
+                    help="the disorder seeds, e.g. 1-11,16 (instead of --first-seed and "
+                         "--realizations: a campaign run on several machines at once)")
     ap.add_argument("--fit-decades", type=float, default=DDNLS_FIT_DECADES,
                     help="ddnls: the fit covers at most this many decades before t_final "
                          "(default 2)")
@@ -290,13 +308,14 @@ def main():
         ap.error("--first-seed must be at least 0, --realizations and --jobs at least 1")
     if not a.fit_decades > 0:
         ap.error(f"--fit-decades {a.fit_decades}: must be positive")
+    seeds = a.seeds or list(range(a.first_seed, a.first_seed + a.realizations))
     a.out.mkdir(parents=True, exist_ok=True)
     try:
         with concurrent.futures.ThreadPoolExecutor(a.jobs) as pool:
             curves = list(pool.map(lambda s: realization(a.chaoscope, a.out, a.model, a.sites,
                                                          a.t_final, s, a.h, a.tau,
                                                          a.excitation, a.keep_curves),
-                                   range(a.first_seed, a.first_seed + a.realizations)))
+                                   seeds))
     except subprocess.CalledProcessError as e:
         # `chaoscope run` has said why on standard error; name the command that failed.
         sys.exit(f"run.py: {' '.join(map(str, e.cmd))} failed with status {e.returncode}")
@@ -361,7 +380,7 @@ def main():
         mean_m = sum(own_m) / n
         report.update({
             "model": "ddnls", "fit_to": times[-1], "h": a.h, "tau": a.tau,
-            "excitation": a.excitation, "first_seed": a.first_seed,
+            "excitation": a.excitation, "first_seed": seeds[0], "seeds": seeds,
             "fit_decades": a.fit_decades,
             "alpha_mle_per_realization_standard_error": sd_own / math.sqrt(n),
             "alpha_m2_per_realization_mean": mean_m,

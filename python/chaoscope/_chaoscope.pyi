@@ -260,8 +260,10 @@ def map(
     out: Union[str, "os.PathLike[str]", None] = None,
     threads: Optional[int] = None,
     force: bool = False,
+    resume: bool = False,
 ) -> Map:
-    """Compute and record a phase-space map (like `chaoscope map`)."""
+    """Compute and record a phase-space map (like `chaoscope map`); `resume=True` completes
+    a stopped map at `out`."""
 
 def open_map(path: Union[str, "os.PathLike[str]"]) -> Map:
     """Read a map file."""

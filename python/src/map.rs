@@ -158,17 +158,19 @@ impl Map {
 /// `chaoscope map`, records it to `out` (default `maps/<run name or "map">.mcap`), and returns
 /// the grid. `threads` defaults to one per core. The GIL is released while it runs; Ctrl-C
 /// stops it within a renormalization window, leaves a valid file with the points finished so
-/// far (`chaoscope map` resumes it), and raises `KeyboardInterrupt`. What a killed map of the
-/// same configuration left in `out.partial` is resumed; anything else there is refused
-/// untouched unless `force=True`.
+/// far, and raises `KeyboardInterrupt`. What a killed map of the same configuration left in
+/// `out.partial` is resumed; anything else there is refused untouched unless `force=True`.
+/// `resume=True` also continues a map of the same configuration at `out` (a map stopped by
+/// Ctrl-C), computing only its missing points, as `chaoscope map` does.
 #[pyfunction]
-#[pyo3(signature = (config, *, out = None, threads = None, force = false))]
+#[pyo3(signature = (config, *, out = None, threads = None, force = false, resume = false))]
 pub fn map(
     py: Python<'_>,
     config: &Bound<'_, PyAny>,
     out: Option<PathBuf>,
     threads: Option<usize>,
     force: bool,
+    resume: bool,
 ) -> PyResult<Map> {
     let config_file = crate::config::config_path(config);
     let config = crate::config::run_config(config)?;
@@ -195,9 +197,14 @@ pub fn map(
         let name = config.run.name.clone().unwrap_or_else(|| "map".into());
         Path::new("maps").join(format!("{name}.mcap"))
     });
-    if !force && is_regular_file(&out) {
+    if force && resume {
+        return Err(crate::message(
+            "force=True discards what is at out, resume=True continues it: pass one",
+        ));
+    }
+    if !force && !resume && is_regular_file(&out) {
         return Err(crate::message(format!(
-            "{} already exists (pass force=True to replace it, or resume it with `chaoscope map`)",
+            "{} already exists (pass resume=True to complete it, force=True to replace it)",
             out.display()
         )));
     }
@@ -208,7 +215,9 @@ pub fn map(
         out: &out,
         // `force` replaces what is there; without it, what a killed map left is resumed.
         restart: force,
-        replace: force,
+        // `resume`: a file at `out` is this map's earlier part (checked before anything is
+        // computed) or refused untouched, as by `chaoscope map`.
+        replace: force || resume,
         create_dir: true,
         inputs: config_file.into_iter().collect(),
         flush_interval: Duration::from_secs(2),

@@ -147,6 +147,19 @@ def test_map_resumes_what_a_killed_map_left(tmp_path, cli):
     assert m.status.tobytes() == whole.status.tobytes()
     assert chaoscope.open_map(out).per_set.tobytes() == whole.per_set.tobytes()
 
+    # A map stopped at `out` itself: refused as it is, completed with resume=True.
+    stopped = tmp_path / "stopped2.mcap"
+    done = cli("map", path, "--out", stopped, "--threads", 1, "--no-progress",
+               "--stop-after", 20, "--flush-interval", 0)
+    assert done.returncode != 0, done.stderr
+    with pytest.raises(chaoscope.ChaoscopeError, match="resume=True"):
+        chaoscope.map(config, out=stopped)
+    completed = chaoscope.map(config, out=stopped, resume=True, threads=1)
+    assert completed.value.tobytes() == whole.value.tobytes()
+    assert completed.per_set.tobytes() == whole.per_set.tobytes()
+    with pytest.raises(chaoscope.ChaoscopeError, match="pass one"):
+        chaoscope.map(config, out=stopped, resume=True, force=True)
+
     # Another map's leftover: refused, named, untouched.
     other = tmp_path / "other.mcap"
     (tmp_path / "other.mcap.partial").write_bytes(out.read_bytes())

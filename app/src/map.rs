@@ -23,6 +23,13 @@ use chaoscope_os::{Leftover, Output, OutputError, OutputOptions};
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::proto::{MapHeader, MapPoint};
 
+/// The chunk size of map files: a chunk is closed once it holds this many bytes.
+const CHUNK_SIZE: u64 = 1 << 20;
+
+/// Longest file a map killed before its first chunk was whole can have left: the file's start,
+/// and a first chunk of at most about [`CHUNK_SIZE`] (closed after the point that passes it).
+const FIRST_CHUNK_BOUND: u64 = 2 * CHUNK_SIZE;
+
 /// What to compute and where: the map of `spec`'s `shard` into `out`.
 pub struct MapJob<'a> {
     pub spec: &'a MapSpec,
@@ -144,7 +151,7 @@ pub fn map_to_file(
     };
     let file_options = FileOptions {
         compression: Compression::Zstd,
-        chunk_size: 1 << 20,
+        chunk_size: CHUNK_SIZE,
     };
     // Until the fresh file is adopted, a failed write leaves what was on disk as it was.
     let unchanged = |e: mcap::McapError| MapFileError::Write {
@@ -267,8 +274,11 @@ fn previous_points(
             observer.damaged(path, d, contents.points.len());
         }
         let Some(h) = contents.header else {
-            if is_leftover && contents.cut_before_any_chunk {
-                // Killed before it wrote its first chunk: nothing in it.
+            // Killed before it wrote its first chunk: nothing in it. The first chunk is closed
+            // at about the chunk size, so a longer file cut "before" it is a damaged length,
+            // not a kill: refused with the rest.
+            let short = std::fs::metadata(path).is_ok_and(|m| m.len() <= FIRST_CHUNK_BOUND);
+            if is_leftover && contents.cut_before_any_chunk && short {
                 continue;
             }
             return Err(refused(

@@ -58,7 +58,9 @@ pub struct Scan {
     /// the end of the input after the data end record).
     pub stopped_at: Option<String>,
     /// Reading stopped because the input ends before or inside a record: what a writer that
-    /// was killed leaves (or a damaged length), as opposed to bytes that do not decode.
+    /// was killed leaves, as opposed to bytes that do not decode. A damaged length that points
+    /// past the end reads the same, so this alone proves no kill: a caller weighs the file's
+    /// length too.
     pub cut: bool,
 }
 

@@ -263,7 +263,7 @@ def map(
     resume: bool = False,
 ) -> Map:
     """Compute and record a phase-space map (like `chaoscope map`); `resume=True` completes
-    a stopped map at `out`."""
+    a stopped map at `out` (with it, `force=True` only overrides the estimate)."""
 
 def open_map(path: Union[str, "os.PathLike[str]"]) -> Map:
     """Read a map file."""

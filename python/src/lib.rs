@@ -32,13 +32,54 @@ pub(crate) fn message(text: impl Into<String>) -> PyErr {
     ChaoscopeError::new_err(text.into())
 }
 
-/// A message of the command's crates in this package's words: the command's flags as the
-/// keyword arguments that set them.
+/// A message of the command's crates in this package's words: the command's flags, where they
+/// stand as words (never inside a path), as the keyword arguments that set them.
 pub(crate) fn keyword_arguments(text: &str) -> String {
-    text.replace("--t-final ", "t_final=")
-        .replace("--t-final", "t_final")
-        .replace("--force", "force=True")
-        .replace("--out", "out")
+    const FLAGS: [(&str, &str); 3] = [
+        ("--t-final", "t_final"),
+        ("--force", "force=True"),
+        ("--out", "out="),
+    ];
+    let mut out = String::with_capacity(text.len());
+    let mut rest = text;
+    'scan: while !rest.is_empty() {
+        let at_word_start = out
+            .chars()
+            .next_back()
+            .is_none_or(|c| c.is_whitespace() || "(`'\"".contains(c));
+        if at_word_start {
+            for (flag, keyword) in FLAGS {
+                let Some(after) = rest.strip_prefix(flag) else {
+                    continue;
+                };
+                if after
+                    .chars()
+                    .next()
+                    .is_some_and(|c| c.is_alphanumeric() || c == '-' || c == '_' || c == '/')
+                {
+                    continue;
+                }
+                out.push_str(keyword);
+                rest = after;
+                // `--t-final 1e12` -> `t_final=1e12`.
+                if flag == "--t-final"
+                    && let Some(value) = rest.strip_prefix(' ')
+                    && value
+                        .chars()
+                        .next()
+                        .is_some_and(|c| c.is_ascii_digit() || "+-.Ni".contains(c))
+                {
+                    out.push('=');
+                    rest = value;
+                }
+                continue 'scan;
+            }
+        }
+        let c = rest.chars().next().expect("not empty");
+        out.push(c);
+        rest = &rest[c.len_utf8()..];
+    }
+    out
 }
 
 /// An existing regular file at `path` (not a link, device or directory: those get the output

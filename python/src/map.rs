@@ -161,7 +161,8 @@ impl Map {
 /// far, and raises `KeyboardInterrupt`. What a killed map of the same configuration left in
 /// `out.partial` is resumed; anything else there is refused untouched unless `force=True`.
 /// `resume=True` also continues a map of the same configuration at `out` (a map stopped by
-/// Ctrl-C), computing only its missing points, as `chaoscope map` does.
+/// Ctrl-C), computing only its missing points, as `chaoscope map` does; with it, `force=True`
+/// only starts a map the estimate would refuse.
 #[pyfunction]
 #[pyo3(signature = (config, *, out = None, threads = None, force = false, resume = false))]
 pub fn map(
@@ -197,11 +198,6 @@ pub fn map(
         let name = config.run.name.clone().unwrap_or_else(|| "map".into());
         Path::new("maps").join(format!("{name}.mcap"))
     });
-    if force && resume {
-        return Err(crate::message(
-            "force=True discards what is at out, resume=True continues it: pass one",
-        ));
-    }
     if !force && !resume && is_regular_file(&out) {
         return Err(crate::message(format!(
             "{} already exists (pass resume=True to complete it, force=True to replace it)",
@@ -213,11 +209,13 @@ pub fn map(
         spec: &spec,
         shard: whole,
         out: &out,
-        // `force` replaces what is there; without it, what a killed map left is resumed.
-        restart: force,
-        // `resume`: a file at `out` is this map's earlier part (checked before anything is
-        // computed) or refused untouched, as by `chaoscope map`.
-        replace: force || resume,
+        // `force` replaces what is there (with `resume`, it only starts a map the estimate
+        // would refuse); without it, what a killed map left is resumed.
+        restart: force && !resume,
+        // `resume`: a file at `out` now is this map's earlier part (checked before anything is
+        // computed) or refused untouched, as by `chaoscope map`; a file that appears there
+        // meanwhile is not replaced.
+        replace: (force && !resume) || (resume && out.symlink_metadata().is_ok()),
         create_dir: true,
         inputs: config_file.into_iter().collect(),
         flush_interval: Duration::from_secs(2),
@@ -238,6 +236,7 @@ pub fn map(
             let partial = chaoscope_os::output::partial_path(&out);
             let shown = partial.display().to_string();
             if chaoscope_os::output::kept_after_failure().contains(&partial)
+                && partial.exists()
                 && !text.contains(&shown)
             {
                 crate::message(format!("{text}; what was written is kept in {shown}"))

@@ -6,6 +6,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 
 use chaoscope_analyzer::analysis::{Analysis, AnalysisOptions, energy_error};
 use chaoscope_analyzer::recording::{RecordingReader, analyze_file};
+use chaoscope_analyzer::write::WriteError;
 use chaoscope_app::record::Ended;
 use chaoscope_app::resume::ResumeOptions;
 use chaoscope_app::{ReplayError, ReplayOptions};
@@ -139,7 +140,19 @@ pub fn run(
         || stop.store(true, Ordering::Relaxed),
         || chaoscope_app::record::record(spec, &header, &out, &options, &stop),
     )?
-    .map_err(|e| crate::message(crate::keyword_arguments(&error_text(&e))))?;
+    .map_err(|e| {
+        // What a killed run left at `out` is what `resume` continues.
+        let e = match e {
+            WriteError::Output(o) => WriteError::Output(o.with_leftover_hint(|_| {
+                format!(
+                    " (`chaoscope.resume({:?})` continues it)",
+                    out.display().to_string()
+                )
+            })),
+            e => e,
+        };
+        crate::message(crate::keyword_arguments(&error_text(&e)))
+    })?;
     if let Ended::Failed(why) = ended {
         return Err(crate::message(format!(
             "run {} failed: {why}",

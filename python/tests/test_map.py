@@ -157,8 +157,9 @@ def test_map_resumes_what_a_killed_map_left(tmp_path, cli):
     completed = chaoscope.map(config, out=stopped, resume=True, threads=1)
     assert completed.value.tobytes() == whole.value.tobytes()
     assert completed.per_set.tobytes() == whole.per_set.tobytes()
-    with pytest.raises(chaoscope.ChaoscopeError, match="pass one"):
-        chaoscope.map(config, out=stopped, resume=True, force=True)
+    # With resume=True, force=True only overrides the estimate: the points are kept.
+    again = chaoscope.map(config, out=stopped, resume=True, force=True, threads=1)
+    assert again.value.tobytes() == whole.value.tobytes()
 
     # Another map's leftover: refused, named, untouched.
     other = tmp_path / "other.mcap"
@@ -191,6 +192,17 @@ def test_map_keeps_what_it_cannot_read_as_its_own(tmp_path):
     with pytest.raises(chaoscope.ChaoscopeError, match="no readable map header"):
         chaoscope.map(config, out=out)
     assert partial.read_bytes() == bytes(flipped)
+
+    # A damaged length that runs past the end reads like a cut; in a file longer than a first
+    # chunk can be, it is damage: refused.
+    import struct
+    long = bytearray(whole.path.read_bytes() + bytes(3 << 20))
+    second = 8 + 9 + struct.unpack_from("<Q", long, 9)[0]  # the record after the header's
+    struct.pack_into("<Q", long, second + 1, len(long))
+    partial.write_bytes(bytes(long))
+    with pytest.raises(chaoscope.ChaoscopeError, match="no readable map header"):
+        chaoscope.map(config, out=out)
+    assert partial.read_bytes() == bytes(long)
 
     partial.write_bytes(whole.path.read_bytes()[:40])  # killed before its first chunk
     m = chaoscope.map(config, out=out)

@@ -140,6 +140,11 @@ def test_resume_errors_name_the_keyword_arguments(tmp_path):
     with pytest.raises(chaoscope.ChaoscopeError, match=r"force=True") as e:
         chaoscope.resume(part, t_final=40.0, out=tmp_path / "other.mcap")
     assert "--" not in str(e.value)
+    # Flags are words: a path that holds one is named as it is.
+    odd = tmp_path / "a--out--force.mcap"
+    with pytest.raises(chaoscope.ChaoscopeError) as e:
+        chaoscope.resume(odd)
+    assert str(odd) in str(e.value), str(e.value)
 
 
 def test_a_killed_run_leaves_what_resume_continues(tmp_path, cli):
@@ -171,6 +176,8 @@ def test_a_killed_run_leaves_what_resume_continues(tmp_path, cli):
         child.send_signal(signal.SIGKILL)
         child.wait()
     assert partial.exists() and not out.exists()
+    with pytest.raises(chaoscope.ChaoscopeError, match=r"chaoscope\.resume\(.*continues it"):
+        chaoscope.run(config, out=out)
     done = cli("recover", partial, "--out", tmp_path / "salvaged.mcap")
     assert done.returncode == 0, done.stderr
     reached = chaoscope.open(tmp_path / "salvaged.mcap").indicators("vm").t[-1]

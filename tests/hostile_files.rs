@@ -283,14 +283,21 @@ fn map_refuses_and_keeps_a_file_it_cannot_read_as_its_map_unless_restarted() {
     // (b) An MCAP file that is not a map at all.
     let foreign = d.join("foreign.mcap");
     std::fs::write(&foreign, testing::small_run(Compression::Zstd)).unwrap();
-    for file in [&headless, &foreign] {
+    // (c) Not MCAP at all (a notes file given as --out by mistake).
+    let text = d.join("notes.mcap");
+    std::fs::write(&text, "my notes\n").unwrap();
+    for (file, why) in [
+        (&headless, "no readable map header"),
+        (&foreign, "no readable map header"),
+        (&text, "is not an MCAP file"),
+    ] {
         let before = std::fs::read(file).unwrap();
         let out = map(file, &[]);
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(1), "{stderr}");
         assert!(
             stderr.contains(file.to_str().unwrap())
-                && stderr.contains("no readable map header")
+                && stderr.contains(why)
                 && stderr.contains("--restart"),
             "{stderr}"
         );
@@ -303,7 +310,7 @@ fn map_refuses_and_keeps_a_file_it_cannot_read_as_its_map_unless_restarted() {
         let mut prev = file.as_os_str().to_owned();
         prev.push(".prev");
         assert!(!Path::new(&prev).exists());
-        // (c) --restart replaces it.
+        // --restart replaces it.
         let out = map(file, &["--restart"]);
         assert!(
             out.status.success(),

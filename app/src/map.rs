@@ -269,7 +269,14 @@ fn previous_points(
         .into_iter()
         .chain(out.exists().then_some((out, false)));
     for (path, is_leftover) in files {
-        let contents = read_map_file(path)?;
+        let contents = read_map_file(path).map_err(|e| match e {
+            // Refused as any other file that is not this map, so the caller's way out is named.
+            FileError::NotMcap { .. } => refused(
+                path,
+                "is not an MCAP file (no MCAP magic at the start)".into(),
+            ),
+            e => e.into(),
+        })?;
         if let Some(d) = &contents.damaged {
             observer.damaged(path, d, contents.points.len());
         }

@@ -77,7 +77,7 @@ pub enum ResumeFailure {
     )]
     NoSample { path: String },
     #[error(
-        "{path}: the run is complete at t_final = {t_final}: pass --t-final with a later time to \
+        "{path}: the run is complete at t_final = {t_final:?}: pass --t-final with a later time to \
          extend it"
     )]
     Complete { path: String, t_final: f64 },
@@ -272,15 +272,19 @@ fn resume_untimed(
     // The recorded run, rebuilt from its header's configuration with the new end. A file cut
     // before its run header reached the disk holds nothing of the run.
     let mut reader = match RecordingReader::open_salvaging(&input) {
-        Err(ReadError::NoHeader { .. })
+        Err(ReadError::NoHeader { .. } | ReadError::Damaged { .. })
             if chaoscope_files::map_file::read_map_file(&input)
-                .is_ok_and(|m| m.header.is_some()) =>
+                .is_ok_and(|m| m.header.is_some() || m.described_as_map) =>
         {
+            // A killed map's leftover describes itself as a map before its first chunk (and
+            // its header) is whole.
             return Err(ResumeFailure::Nothing {
                 path: shown,
-                why: "a map file, not a run's recording: a map is resumed by computing the same \
-                      map into it again"
-                    .into(),
+                why: format!(
+                    "a map file, not a run's recording: a map is resumed by computing the same \
+                     map into it again (`chaoscope map CONFIG --out {}`)",
+                    target.display()
+                ),
             });
         }
         Err(ReadError::Damaged { .. } | ReadError::NoHeader { .. }) => {
@@ -334,7 +338,7 @@ fn resume_untimed(
     if !(t_final.is_finite() && t_final > 0.0) {
         return Err(ResumeFailure::Nothing {
             path: shown,
-            why: format!("--t-final {t_final} is not a positive time"),
+            why: format!("--t-final {t_final:?} is not a positive time"),
         });
     }
     config.integrator.t_final = t_final;
@@ -342,7 +346,7 @@ fn resume_untimed(
         // The flag's value is what fails, not the recording (1000.01 off the step grid).
         Some(t) => ResumeFailure::Nothing {
             path: shown.clone(),
-            why: format!("--t-final {t}: {source}"),
+            why: format!("--t-final {t:?}: {source}"),
         },
         None => spec_err(source),
     })?;
@@ -409,9 +413,9 @@ fn resume_untimed(
     if in_place && total < input_last.0 {
         // Named as the user gave it: the flag, or the configuration given again (a requeue).
         let end = match (options.t_final, &options.config) {
-            (Some(_), _) => format!("--t-final {t_final}"),
-            (None, Some(_)) => format!("the configuration's t_final = {t_final}"),
-            (None, None) => format!("the recorded t_final = {t_final}"),
+            (Some(_), _) => format!("--t-final {t_final:?}"),
+            (None, Some(_)) => format!("the configuration's t_final = {t_final:?}"),
+            (None, None) => format!("the recorded t_final = {t_final:?}"),
         };
         return Err(ResumeFailure::Nothing {
             path: shown,

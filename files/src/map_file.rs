@@ -105,6 +105,9 @@ pub struct MapContents {
     /// The file ends before its first chunk is whole: what a writer killed before its first
     /// chunk reached the disk leaves, with no point in it to keep.
     pub cut_before_any_chunk: bool,
+    /// The file describes itself as a map (its `chaoscope.map` metadata record was read), even
+    /// where its header was not.
+    pub described_as_map: bool,
 }
 
 /// Most grid points per axis a map file may describe (what `[map] x.n` and `y.n` accept).
@@ -331,6 +334,10 @@ fn read_messages(mut messages: Messages<impl Read>) -> std::io::Result<MapConten
     }
     contents.header = header.or(contents.header);
     contents.points.append(&mut points);
+    contents.described_as_map = messages
+        .metadata_names()
+        .iter()
+        .any(|name| name == metadata::MAP);
     let scan = messages.scan();
     contents.damaged = scan.stopped_at.clone();
     contents.cut_before_any_chunk = scan.cut && scan.chunks == 0;
@@ -377,6 +384,11 @@ mod tests {
                 "cut {cut}"
             );
             assert_eq!(part.header.is_none(), cut < first_chunk_end, "cut {cut}");
+            // What the file is, it says before its first chunk: a killed map's leftover is
+            // known as a map (and refused as a run's recording) even with no header read.
+            if cut >= first {
+                assert!(part.described_as_map, "cut {cut}");
+            }
         }
         assert!(!read(&bytes).cut_before_any_chunk);
         // A damaged first chunk in a whole file is damage, not a cut: its later chunks are

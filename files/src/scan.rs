@@ -636,6 +636,8 @@ pub struct Messages<R> {
     chunk: std::vec::IntoIter<Record<'static>>,
     /// Entries (records and chunks) read from the scanner.
     entries: u64,
+    /// The names of the metadata records read so far, in order.
+    metadata: Vec<String>,
 }
 
 impl<R: Read> Messages<R> {
@@ -645,7 +647,14 @@ impl<R: Read> Messages<R> {
             topics: HashMap::new(),
             chunk: Vec::new().into_iter(),
             entries: 0,
+            metadata: Vec::new(),
         }
+    }
+
+    /// The names of the metadata records read so far. A writer puts its file's description
+    /// there before any chunk, so it is read even where no chunk was whole.
+    pub fn metadata_names(&self) -> &[String] {
+        &self.metadata
     }
 
     /// Which entry of the file (record or chunk, counted from 1) the message handed out last
@@ -696,6 +705,7 @@ impl<R: Read> Messages<R> {
                         data: data.into_owned(),
                     }));
                 }
+                Record::Metadata(m) => self.metadata.push(m.name),
                 _ => {}
             }
         }

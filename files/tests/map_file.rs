@@ -30,6 +30,7 @@ fn damaged_maps_keep_an_exact_prefix_of_whole_chunks() {
                 points: points.clone(),
                 damaged: None,
                 cut_before_any_chunk: false,
+                described_as_map: true,
             }
         );
         let (mut partial, mut complete) = (0, 0);

@@ -245,11 +245,30 @@ fn identity(meta: &std::fs::Metadata) -> (u64, u64) {
     (meta.dev(), meta.ino())
 }
 
+/// Refuses a `target` that names no file: `.`, `..`, `/`, and `dir/` or `dir/.`, which have a
+/// file name to `Path` (`dir`) but name a directory (the in-progress file would be `dir/.partial`).
+fn names_a_file(target: &Path) -> Result<(), OutputError> {
+    let bytes = target.as_os_str().as_bytes();
+    let why = if bytes.ends_with(b"/") || bytes.ends_with(b"/.") {
+        "it names a directory (it ends in '/'), not a file: give the file's name"
+    } else if target.file_name().is_none() {
+        "not a file name"
+    } else {
+        return Ok(());
+    };
+    Err(OutputError::io(
+        target,
+        "choosing the output",
+        io::Error::new(io::ErrorKind::InvalidInput, why),
+    ))
+}
+
 /// Checks `target` without touching anything: not one of the inputs, a regular file or a
 /// symbolic link (or nothing) at that name, and absent unless `replace`. Commands that hand
 /// the writing to another process (`run` to its recorder) check here first, so the user hears
 /// before anything starts.
 pub fn check_target(target: &Path, options: &OutputOptions) -> Result<(), OutputError> {
+    names_a_file(target)?;
     let here = match std::fs::symlink_metadata(target) {
         Ok(meta) => Some(meta),
         Err(e) if e.kind() == io::ErrorKind::NotFound => None,
@@ -317,13 +336,7 @@ impl Output {
     /// Opens the in-progress file of `target` (see the module documentation).
     pub fn create(target: &Path, options: &OutputOptions) -> Result<Self, OutputError> {
         let target = target.to_path_buf();
-        if target.file_name().is_none() {
-            return Err(OutputError::io(
-                &target,
-                "choosing the output",
-                io::Error::new(io::ErrorKind::InvalidInput, "not a file name"),
-            ));
-        }
+        names_a_file(&target)?;
         if options.create_dir
             && let Some(dir) = target.parent().filter(|d| !d.as_os_str().is_empty())
         {
@@ -980,6 +993,28 @@ mod tests {
         let mut s = String::new();
         File::open(path).unwrap().read_to_string(&mut s).unwrap();
         s
+    }
+
+    #[test]
+    fn a_directory_is_not_an_output_name() {
+        let d = tempfile::tempdir().unwrap();
+        let create_dir = OutputOptions {
+            create_dir: true,
+            ..Default::default()
+        };
+        for name in ["sub/", "sub/dir/", "sub/.", "."] {
+            let t = PathBuf::from(format!("{}/{name}", d.path().display()));
+            for options in [&opts(true), &create_dir] {
+                let e = write(&t, options, "x").unwrap_err().to_string();
+                assert!(
+                    e.contains("names a directory") || e.contains("not a file name"),
+                    "{name}: {e}"
+                );
+                assert!(check_target(&t, options).is_err(), "{name}");
+            }
+        }
+        // Nothing was created: no `sub`, no `.partial`.
+        assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 0);
     }
 
     #[test]

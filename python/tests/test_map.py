@@ -224,3 +224,14 @@ def test_map_keeps_what_it_cannot_read_as_its_own(tmp_path):
     # A map is not a run: resume says so instead of calling it a run killed early.
     with pytest.raises(chaoscope.ChaoscopeError, match="a map file, not a run's recording"):
         chaoscope.resume(whole.path)
+    # So is a killed map's leftover cut inside its first chunk, with no header read: what the
+    # file is, it says before that chunk.
+    b = whole.path.read_bytes()
+    pos = 8
+    while b[pos] != 0x06:  # the first chunk record
+        pos += 9 + struct.unpack_from("<Q", b, pos + 1)[0]
+    killed = tmp_path / "killed.mcap.partial"
+    killed.write_bytes(b[: pos + 20])
+    with pytest.raises(chaoscope.ChaoscopeError, match="a map file, not a run's recording"):
+        chaoscope.resume(tmp_path / "killed.mcap")
+    assert killed.read_bytes() == b[: pos + 20]

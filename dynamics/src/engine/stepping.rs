@@ -280,7 +280,6 @@ mod tests {
     /// path's, bit for bit, and so is a run resumed from a sample of it.
     #[test]
     fn dkg_expression_chain_fused_is_one_orbit_bit_for_bit() {
-        use chaoscope_expr::potential::ExpressionModel;
         for (n, k) in [(24usize, 1usize), (37, 2), (24, 3)] {
             let text = include_str!("../../../examples/models/dkg-single-site.toml")
                 .replace("n = 1000\n", &format!("n = {n}\n"))
@@ -290,61 +289,82 @@ mod tests {
             config.integrator.t_final = 16.0;
             config.deviations = DeviationsConfig::random(k, 2, 7);
             config.schemes = schemes(1e-7, 0.05, false);
-            let spec = RunSpec::from_config(&config).unwrap();
-            // The C kernels built first (a run switches to them when they are ready: the
-            // same bits either way), so the fused pass steps from the first window.
-            let model = spec.system().separable().unwrap().model().clone();
-            let expression = (model.as_ref() as &dyn std::any::Any)
-                .downcast_ref::<ExpressionModel>()
-                .unwrap();
-            expression.c_step_kernels().unwrap();
-            // A short run builds no C kernels for itself (it would not repay the build): they
-            // were built above, as a long run builds them.
-            let Stepping::Batched { isa, min_lanes, .. } = Stepping::of(&spec) else {
-                panic!("the DKG chain has a batched form");
-            };
-            let fused_stepping = Stepping::Batched {
-                isa,
-                min_lanes,
-                fused: true,
-            };
-            let engine = Engine::with_stepping(spec.clone(), fused_stepping);
-            assert!(engine.tasks.iter().all(|t| t.stepping == Stepping::Fused));
-            assert_eq!(
-                engine.carrier,
-                Some(0),
-                "the first VM set carries the reference"
-            );
-            let calls = expression.c_step_status().c_calls;
-            let fused = samples(engine);
-            assert!(
-                expression.c_step_status().c_calls > calls,
-                "n = {n}, k = {k}: the fused kernel never ran"
-            );
-            let one_orbit = samples(Engine::one_orbit(spec.clone()));
-            assert!(one_orbit.len() > 40);
-            same_bits(&fused, &one_orbit);
-            assert!(
-                fused
-                    .last()
-                    .unwrap()
-                    .schemes
-                    .iter()
-                    .any(|s| s.stretch.iter().any(|&f| f != 1.0))
-            );
-            // Resumed from a sample at which every scheme renormalized.
-            let from = one_orbit
-                .iter()
-                .position(|s| s.step == 300)
-                .expect("a sample at step 300");
-            let mut resumed = vec![];
-            let engine =
-                Engine::resume_with_stepping(spec.clone(), &one_orbit[from], fused_stepping)
-                    .unwrap();
-            assert_eq!(engine.carrier, Some(0));
-            engine.run(|s| resumed.push(s)).unwrap();
-            same_bits(&resumed, &one_orbit[from + 1..]);
+            fused_is_one_orbit(&config, &format!("n = {n}, k = {k}"));
         }
+    }
+
+    /// The 2-D Klein-Gordon lattice of the examples on a 32 x 32 square (its sums loops along
+    /// the rows) with one vector per set: the fused pass steps its rectangle of regular sites
+    /// row by row and the sites at its edges one by one, bit for bit the one-orbit path.
+    #[test]
+    fn dkg_expression_square_fused_is_one_orbit_bit_for_bit() {
+        let text = include_str!("../../../examples/models/dkg-square.toml")
+            .replace("n = 21\n", "n = 32\n")
+            .replace("sites = [10, 12]", "sites = [15, 17]");
+        let mut config = RunConfig::from_toml(&text).unwrap();
+        config.integrator.t_final = 16.0;
+        config.deviations = DeviationsConfig::random(1, 2, 7);
+        config.schemes = schemes(1e-7, 0.05, false);
+        fused_is_one_orbit(&config, "32 x 32");
+    }
+
+    /// `config`'s run through the fused pass (its C kernels built first) against the one-orbit
+    /// path: every sample, and a run resumed from the sample at step 300, bit for bit.
+    fn fused_is_one_orbit(config: &RunConfig, what: &str) {
+        use chaoscope_expr::potential::ExpressionModel;
+        let spec = RunSpec::from_config(config).unwrap();
+        // The C kernels built first (a run switches to them when they are ready: the
+        // same bits either way), so the fused pass steps from the first window.
+        let model = spec.system().separable().unwrap().model().clone();
+        let expression = (model.as_ref() as &dyn std::any::Any)
+            .downcast_ref::<ExpressionModel>()
+            .unwrap();
+        expression.c_step_kernels().unwrap();
+        // A short run builds no C kernels for itself (it would not repay the build): they
+        // were built above, as a long run builds them.
+        let Stepping::Batched { isa, min_lanes, .. } = Stepping::of(&spec) else {
+            panic!("{what}: the lattice has a batched form");
+        };
+        let fused_stepping = Stepping::Batched {
+            isa,
+            min_lanes,
+            fused: true,
+        };
+        let engine = Engine::with_stepping(spec.clone(), fused_stepping);
+        assert!(engine.tasks.iter().all(|t| t.stepping == Stepping::Fused));
+        assert_eq!(
+            engine.carrier,
+            Some(0),
+            "the first VM set carries the reference"
+        );
+        let calls = expression.c_step_status().c_calls;
+        let fused = samples(engine);
+        assert!(
+            expression.c_step_status().c_calls > calls,
+            "{what}: the fused kernel never ran"
+        );
+        let one_orbit = samples(Engine::one_orbit(spec.clone()));
+        assert!(one_orbit.len() > 40);
+        same_bits(&fused, &one_orbit);
+        assert!(
+            fused
+                .last()
+                .unwrap()
+                .schemes
+                .iter()
+                .any(|s| s.stretch.iter().any(|&f| f != 1.0))
+        );
+        // Resumed from a sample at which every scheme renormalized.
+        let from = one_orbit
+            .iter()
+            .position(|s| s.step == 300)
+            .expect("a sample at step 300");
+        let mut resumed = vec![];
+        let engine =
+            Engine::resume_with_stepping(spec.clone(), &one_orbit[from], fused_stepping).unwrap();
+        assert_eq!(engine.carrier, Some(0));
+        engine.run(|s| resumed.push(s)).unwrap();
+        same_bits(&resumed, &one_orbit[from + 1..]);
     }
 
     /// The carrier where the system has no fused kernel (or before it is built): its copy of

@@ -10,7 +10,7 @@ use std::sync::{Arc, Mutex, Once, OnceLock, PoisonError};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use super::{ExpressionModel, Form, MIN_FUSED_WORK};
+use super::{ExpressionModel, Form};
 use crate::graph::Graph;
 use crate::jit::{self, StepKernels, StepSpec};
 use crate::lattice::LatticePotential;
@@ -277,7 +277,8 @@ impl ExpressionModel {
 
     /// A run of `work` state-value steps (steps times `2N`) will call
     /// [`Self::reference_tangent_steps`]: the C kernels' build starts in the background if the
-    /// run is long enough to repay it ([`MIN_FUSED_WORK`]) and the potential has that kernel.
+    /// run is long enough to repay it ([`super::min_fused_work`]) and the potential has that
+    /// kernel.
     pub fn prepare_reference_tangent(&self, work: u64) {
         let has_kernel = !self.0.reads_time
             && self.0.lane_params == 0
@@ -287,7 +288,11 @@ impl ExpressionModel {
         if !has_kernel {
             return;
         }
-        if work >= MIN_FUSED_WORK {
+        let side = match &self.0.form {
+            Form::Lattice(l) => l.sums.first().and_then(|s| s.side),
+            _ => None,
+        };
+        if work >= super::min_fused_work(side) {
             self.start_c_build();
         } else {
             self.load_cached_c_kernels();

@@ -29,11 +29,16 @@
 //! with their own lists. Drifts `q + c p` (`c = ch * w_j` with masses) and kicks `p - dh g` as
 //! the splitting's own; no fused multiply-add (the library's flags).
 //!
+//! On a square lattice (its sums one per row, [`SiteSum::site`]) the regular sites are those
+//! whose contributions are the most shared ones translated by whole rows and columns:
+//! rectangles, most often one between the edges, each stepped by a loop over its rows of the chain's loop
+//! along the row; the sites at the edges are the ends.
+//!
 //! The source holds `N`, one copy of each slot's derivative and the end sites' lists (bounded
-//! by the boundary terms, not by `N`); array parameters are read through `env`, as the step
-//! kernels read them. A lattice whose ends would need more than [`MAX_END_SITES`] sites written
-//! out, or with fewer than [`MIN_SITES`] sites, gets no such kernel (the caller steps its orbit
-//! and vectors the one-orbit way: the same bits).
+//! by the boundary terms, not by `N`; on a square by its edges); array parameters are read
+//! through `env`, as the step kernels read them. A lattice whose ends would need more sites
+//! written out than [`max_end_sites`], or with fewer than [`MIN_SITES`] sites, gets no such
+//! kernel (the caller steps its orbit and vectors the one-orbit way: the same bits).
 
 use std::fmt::Write as _;
 use std::sync::Arc;
@@ -43,6 +48,7 @@ use crate::graph::{Graph, Node, NodeId};
 use crate::jit::lattice_plan::{rest_derivatives, sum_contributions};
 use crate::lattice::{
     ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_V, LatticePotential, SiteSum,
+    split_shift,
 };
 
 /// The C symbol of the kernel.
@@ -68,8 +74,33 @@ struct Gather {
     regular: (usize, usize),
     /// Per sum, its slots in the order a regular site takes them.
     order: Vec<Vec<usize>>,
+    /// A regular site's contributions in order, as (sum, slot): on a chain every sum's slots
+    /// in `order`; on a square the sums of the rectangle's first site, whose translates the
+    /// other regular sites take.
+    pattern: Vec<(usize, usize)>,
+    /// On a square, the regular sites are rectangles of it (most often one, between its
+    /// edges), not a run of the chain of its sites.
+    square: Option<Vec<Rectangle>>,
     /// The other sites: (site, its contributions); the rest's, where it has one, comes first.
     ends: Vec<(usize, Vec<Contribution>)>,
+}
+
+/// The regular sites of a square of side `side`: rows `rows.0..=rows.1` by columns
+/// `columns.0..=columns.1` (0-based), site `r side + c`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct Rectangle {
+    side: usize,
+    rows: (usize, usize),
+    columns: (usize, usize),
+}
+
+/// Most rectangles of regular sites on a square (each is a loop of its own).
+const MAX_SQUARE_BLOCKS: usize = 16;
+
+/// Most sites written out one by one at the ends of a square of side `side`: its edges (the
+/// rows and columns nearest them) are `4 side` sites.
+fn max_end_sites(side: Option<usize>) -> usize {
+    side.map_or(MAX_END_SITES, |side| MAX_END_SITES.max(8 * side))
 }
 
 impl Gather {
@@ -115,6 +146,9 @@ impl Gather {
             }
             r
         };
+        if let Some(side) = lattice.sums.first().and_then(|s| s.side) {
+            return Self::square(lattice, side, lists, &rest, order);
+        }
         let regular_at = |j: usize| -> bool {
             if rest[j] {
                 return false;
@@ -150,6 +184,11 @@ impl Gather {
             }
         }
         let regular = best?;
+        let pattern = order
+            .iter()
+            .enumerate()
+            .flat_map(|(sum, slots)| slots.iter().map(move |&slot| (sum, slot)))
+            .collect();
         let ends: Vec<(usize, Vec<Contribution>)> = (0..n)
             .filter(|&j| j < regular.0 || j > regular.1)
             .map(|j| (j, std::mem::take(&mut lists[j])))
@@ -157,6 +196,162 @@ impl Gather {
         (ends.len() <= MAX_END_SITES).then_some(Self {
             regular,
             order,
+            pattern,
+            square: None,
+            ends,
+        })
+    }
+
+    /// The plan on a square of side `side`, whose sums run along one row each (a row's index
+    /// is a number in its sums, [`SiteSum::site`]). Sums that are one another's translates
+    /// by whole rows (the same term, derivatives, boundary and range, slots at the same
+    /// offsets from their row) form a family. A site's contributions, in the evaluator's
+    /// order, translated to it (family, row and column from it, slot; every term inside its
+    /// row, none from the rest) are its pattern; the sites of the pattern most sites share
+    /// are regular. Along a row they are runs of a chain's regular sites; consecutive rows
+    /// with the same runs make a rectangle, stepped by one loop over its rows of the chain's
+    /// loop (each row's run is the previous one's shifted by `side` sites); the others are
+    /// ends.
+    fn square(
+        lattice: &LatticePotential,
+        side: usize,
+        mut lists: Vec<Vec<Contribution>>,
+        rest: &[bool],
+        order: Vec<Vec<usize>>,
+    ) -> Option<Self> {
+        let n = lattice.n;
+        let l = side as i64;
+        if lattice.sums.iter().any(|s| s.side != Some(side)) || n != side * side {
+            return None;
+        }
+        // Each sum's row (that of its least shift) and family.
+        let row_of = |s: &SiteSum| -> Option<i64> {
+            let least = s.variables.iter().copied().min()?;
+            Some(split_shift(least, side).0)
+        };
+        type Key<'a> = (
+            NodeId,
+            &'a crate::lattice::SumDerivatives,
+            crate::lower::Boundary,
+            i64,
+            i64,
+            Vec<i64>,
+            Vec<(&'a str, i64)>,
+        );
+        let mut families: Vec<Key> = Vec::new();
+        let mut family = Vec::with_capacity(lattice.sums.len());
+        let mut row = Vec::with_capacity(lattice.sums.len());
+        for (s, sum) in lattice.sums.iter().enumerate() {
+            let Some(r) = row_of(sum) else {
+                // No variable: it reads no site, so no site's list names it.
+                family.push(usize::MAX);
+                row.push(0);
+                continue;
+            };
+            let key: Key = (
+                sum.term,
+                &lattice.derivatives[s],
+                sum.boundary,
+                sum.first,
+                sum.last,
+                sum.variables.iter().map(|v| v - r * l).collect(),
+                sum.params
+                    .iter()
+                    .map(|p| (p.name.as_str(), p.shift - r * l))
+                    .collect(),
+            );
+            let f = families.iter().position(|k| *k == key).unwrap_or_else(|| {
+                families.push(key);
+                families.len() - 1
+            });
+            family.push(f);
+            row.push(r);
+        }
+        // A site's list as (family, row from the site's, term from its column, slot), `None`
+        // where a term reads beyond its row's ends (a wall or a wrap) or the rest adds to it.
+        let translated = |j: usize| -> Option<Vec<(usize, i64, i64, usize)>> {
+            if rest[j] {
+                return None;
+            }
+            let (r, c) = ((j / side) as i64, (j % side) as i64);
+            lists[j]
+                .iter()
+                .map(|&Contribution { sum, term, slot }| {
+                    let (from, to) = lattice.sums[sum].interior()?;
+                    ((from..=to).contains(&term) && family[sum] != usize::MAX).then_some((
+                        family[sum],
+                        row[sum] - r,
+                        term - c,
+                        slot,
+                    ))
+                })
+                .collect()
+        };
+        // The pattern most sites share (the first of the most shared, so the source is the
+        // same every time): the middle's, unless the rest pins it.
+        let translated: Vec<_> = (0..n).map(translated).collect();
+        let mut counts: Vec<(usize, usize)> = Vec::new(); // (first site, sites)
+        for (j, t) in translated.iter().enumerate() {
+            let Some(t) = t else { continue };
+            match counts
+                .iter()
+                .position(|&(f, _)| translated[f].as_ref() == Some(t))
+            {
+                Some(at) => counts[at].1 += 1,
+                None if counts.len() < 64 => counts.push((j, 1)),
+                None => {}
+            }
+        }
+        let &(first, _) = counts
+            .iter()
+            .max_by_key(|&&(f, count)| (count, std::cmp::Reverse(f)))?;
+        let want = translated[first].clone();
+        let regular = |j: usize| translated[j] == want;
+        // Each row's runs of regular columns; consecutive rows with the same runs are one
+        // rectangle, stepped by one loop over its rows.
+        let mut blocks: Vec<Rectangle> = Vec::new();
+        let mut previous: Vec<(usize, usize)> = Vec::new();
+        for r in 0..side {
+            let mut runs = Vec::new();
+            let mut c = 0;
+            while c < side {
+                if !regular(r * side + c) {
+                    c += 1;
+                    continue;
+                }
+                let start = c;
+                while c < side && regular(r * side + c) {
+                    c += 1;
+                }
+                runs.push((start, c - 1));
+            }
+            if !runs.is_empty() && runs == previous {
+                let from = blocks.len() - runs.len();
+                for b in &mut blocks[from..] {
+                    b.rows.1 = r;
+                }
+            } else {
+                blocks.extend(runs.iter().map(|&columns| Rectangle {
+                    side,
+                    rows: (r, r),
+                    columns,
+                }));
+            }
+            previous = runs;
+        }
+        if blocks.is_empty() || blocks.len() > MAX_SQUARE_BLOCKS {
+            return None;
+        }
+        let pattern = lists[first].iter().map(|c| (c.sum, c.slot)).collect();
+        let ends: Vec<(usize, Vec<Contribution>)> = (0..n)
+            .filter(|&j| !regular(j))
+            .map(|j| (j, std::mem::take(&mut lists[j])))
+            .collect();
+        (ends.len() <= max_end_sites(Some(side))).then_some(Self {
+            regular: (first, first),
+            order,
+            pattern,
+            square: Some(blocks),
             ends,
         })
     }
@@ -383,6 +578,11 @@ impl Writer<'_> {
     /// where every one is at most [`MAX_HELD_OFFSET`] away (the sweep's registers reach them);
     /// `None` otherwise (the stage-by-stage kernel, [`Self::stagewise`]).
     fn held_offsets(&self) -> Option<Vec<i64>> {
+        // A square's neighbours in the next row are `side` sites away, and its regular sites
+        // are not one run.
+        if self.gather.square.is_some() {
+            return None;
+        }
         let mut offsets = vec![0];
         for sum in &self.lattice.sums {
             for &slot_shift in &sum.variables {
@@ -779,7 +979,8 @@ impl Writer<'_> {
         let _ = writeln!(src, "#endif\n    js = j;\n  }}");
         // The sites after the last vector drifted, then the regular sites not yet kicked.
         scalar_drift(src, "drifted", &n.to_string());
-        self.regular_from(src, parts, "js");
+        let (ja, jb) = self.gather.regular;
+        self.regular_from(src, parts, "js", &jb.to_string(), jb + 1 - ja);
         let _ = writeln!(src, "}}");
     }
 
@@ -985,14 +1186,29 @@ impl Writer<'_> {
     /// vector ending at the last regular site whose lanes already done keep their values (or
     /// one by one, for fewer regular sites than a vector).
     fn regular(&self, out: &mut String, parts: &[bool]) {
-        self.regular_from(out, parts, &self.gather.regular.0.to_string());
+        let Some(blocks) = &self.gather.square else {
+            let (ja, jb) = self.gather.regular;
+            self.regular_from(out, parts, &ja.to_string(), &jb.to_string(), jb + 1 - ja);
+            return;
+        };
+        // Row by row: each row's regular sites are a run, the previous row's shifted by `side`.
+        for rect in blocks {
+            let (side, (ra, rb), (ca, cb)) = (rect.side, rect.rows, rect.columns);
+            let _ = writeln!(out, "    for (int64_t r = {ra}; r <= {rb}; r++) {{");
+            self.regular_from(
+                out,
+                parts,
+                &format!("r * {side} + {ca}"),
+                &format!("(r * {side} + {cb})"),
+                cb + 1 - ca,
+            );
+            let _ = writeln!(out, "    }}");
+        }
     }
 
-    /// [`Self::regular`] from the site `start` (a C expression) on: the regular sites before it
-    /// are done.
-    fn regular_from(&self, out: &mut String, parts: &[bool], start: &str) {
-        let jb = self.gather.regular.1;
-        let ja = self.gather.regular.0;
+    /// [`Self::regular`] over the run of `len` regular sites from `start` to `jb` (C
+    /// expressions), or from a later `start` (the regular sites before it done) to `jb`.
+    fn regular_from(&self, out: &mut String, parts: &[bool], start: &str, jb: &str, len: usize) {
         let _ = writeln!(out, "    {{ int64_t j = {start};");
         let _ = writeln!(out, "    for (; j + LANES - 1 <= {jb}; j += LANES) {{");
         for &t in parts {
@@ -1000,7 +1216,7 @@ impl Writer<'_> {
         }
         let _ = writeln!(out, "    }}");
         // LANES is 4 or 8, as the host has.
-        if jb + 1 - ja >= 8 {
+        if len >= 8 {
             // A vector ending at the last regular site, the lanes before `j` (done) kept.
             let _ = writeln!(
                 out,
@@ -1029,23 +1245,22 @@ impl Writer<'_> {
         let contributions = &self.contributions[usize::from(tangent)];
         let mut lines = Vec::new();
         let mut acc = if vector { "B(-0.0)" } else { "-0.0" }.to_string();
-        for (s, sum) in lattice.sums.iter().enumerate() {
-            for &slot in &self.gather.order[s] {
-                let (factor, root) = contributions[s][slot];
-                let at = At::Site {
-                    shift: sum.variables[slot],
-                    vector,
-                    held,
-                };
-                let x = self.term(root, sum, at, &format!("_{s}_{slot}"), &mut lines);
-                let next = format!("a{s}_{slot}");
-                let ty = if vector { "vd" } else { "double" };
-                lines.push(format!(
-                    "const {ty} {next} = {};",
-                    add(&acc, factor, &x, vector)
-                ));
-                acc = next;
-            }
+        for &(s, slot) in &self.gather.pattern {
+            let sum = &lattice.sums[s];
+            let (factor, root) = contributions[s][slot];
+            let at = At::Site {
+                shift: sum.variables[slot],
+                vector,
+                held,
+            };
+            let x = self.term(root, sum, at, &format!("_{s}_{slot}"), &mut lines);
+            let next = format!("a{s}_{slot}");
+            let ty = if vector { "vd" } else { "double" };
+            lines.push(format!(
+                "const {ty} {next} = {};",
+                add(&acc, factor, &x, vector)
+            ));
+            acc = next;
         }
         let p = if tangent { "dp" } else { "p" };
         match body {

@@ -159,7 +159,8 @@ impl Drop for Inner {
 /// bits are the same either way.
 pub const MIN_FUSED_WORK: u64 = 100_000_000;
 
-/// [`MIN_FUSED_WORK`] for a lattice of `sites` sites, `side` on a square: a square's C build
+/// [`MIN_FUSED_WORK`] for a lattice, `side` the side of a square (`None` on a chain): a
+/// square's C build
 /// holds a loop per row in each step kernel and grows faster than its side (an Intel Xeon, the
 /// 2-D Klein-Gordon lattice: 7 CPU-seconds at 32 x 32, 18 at 64 x 64, 71 at 128 x 128), while
 /// the pass saves about 2.7e-8 s per state value and step there (64 x 64, one vector: 11.8 s

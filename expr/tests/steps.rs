@@ -988,7 +988,9 @@ fn long_lattices() -> Vec<(String, System)> {
     for (side, rows, columns) in [
         (20, Boundary::Fixed, Boundary::Fixed),
         (12, Boundary::Fixed, Boundary::Periodic),
-        (13, Boundary::Periodic, Boundary::Free),
+        (15, Boundary::Periodic, Boundary::Free),
+        (14, Boundary::Fixed, Boundary::Free),
+        (13, Boundary::Free, Boundary::Periodic),
         (12, Boundary::Free, Boundary::Fixed),
         (12, Boundary::Periodic, Boundary::Periodic),
     ] {
@@ -997,15 +999,54 @@ fn long_lattices() -> Vec<(String, System)> {
             lattice_system_shaped(side, rows, Shape::Square { columns }, kg),
         ));
     }
+    // Sides that are not multiples of `state`'s period (17) or `k`'s (13), so no two rows
+    // start alike. A pinned middle splits its row's regular sites in two runs; a pinned column
+    // splits every row's.
     out.push((
-        "KG walls 17 x 17 fixed, pinned corner and middle".into(),
+        "KG walls 19 x 19 fixed, pinned corner and middle".into(),
         lattice_system_shaped(
-            17,
+            19,
             Boundary::Fixed,
             Shape::Square {
                 columns: Boundary::Fixed,
             },
-            &format!("{kg2} + q1^2/2 + q[9, 9]^4"),
+            &format!("{kg2} + q1^2/2 + q[10, 10]^4"),
+        ),
+    ));
+    out.push((
+        "KG walls 18 x 18 fixed, pinned column".into(),
+        lattice_system_shaped(
+            18,
+            Boundary::Fixed,
+            Shape::Square {
+                columns: Boundary::Fixed,
+            },
+            &format!("{kg2} + sum(i = 1..N, q[i, 9]^4)"),
+        ),
+    ));
+    // Parameters read a row down (wrapped on the last row) and a column on.
+    out.push((
+        "KG 14 x 14 periodic, shifted parameters".into(),
+        lattice_system_shaped(
+            14,
+            Boundary::Periodic,
+            Shape::Square {
+                columns: Boundary::Periodic,
+            },
+            &format!(
+                "{kg} + sum(i = 1..N, sum(j = 1..N, k[i+1, j]*q[i, j]^2 + k[i, j+1]*q[i, j]^4))"
+            ),
+        ),
+    ));
+    out.push((
+        "KG 14 x 14 periodic x fixed, a row-shifted parameter".into(),
+        lattice_system_shaped(
+            14,
+            Boundary::Periodic,
+            Shape::Square {
+                columns: Boundary::Fixed,
+            },
+            &format!("{kg} + sum(i = 1..N, sum(j = 1..N, k[i+1, j]*q[i, j]^2))"),
         ),
     ));
     out.push((
@@ -1042,6 +1083,30 @@ fn c_fused_reference_tangent_steps_are_bit_identical() {
         let (x0, v0) = (x.clone(), v.clone());
         assert!(!k.reference_tangent_steps(&mut x, &mut v, 3, &dr, &ki, None));
         assert_eq!((x, v), (x0, v0), "{name}: stepped without a kernel");
+    }
+}
+
+/// Which squares get the fused kernel: any side from 4 (16 sites) with regular sites, edges of
+/// more than 256 sites written out (a side of 100), up to a side of 128; a larger square steps
+/// the one-orbit way (its ends' straight code would take the compiler minutes).
+#[test]
+fn squares_get_the_fused_kernel_up_to_a_side_of_128() {
+    let kg = "sum(i = 1..N, sum(j = 1..N, k[i, j]/2*q[i, j]^2 + q[i, j]^4/4)) \
+              + sum(i = 0..N, sum(j = 1..N, (q[i+1, j] - q[i, j])^2/40)) \
+              + sum(i = 1..N, sum(j = 0..N, (q[i, j+1] - q[i, j])^2/40))";
+    let fixed = Shape::Square {
+        columns: Boundary::Fixed,
+    };
+    for (side, applies) in [
+        (32, true),
+        (100, true),
+        (128, true),
+        (129, false),
+        (160, false),
+    ] {
+        let s = lattice_system_shaped(side, Boundary::Fixed, fixed, kg);
+        let l = s.lattice.as_ref().expect("a lattice");
+        assert_eq!(jit::fused_applies(l), applies, "side {side}");
     }
 }
 

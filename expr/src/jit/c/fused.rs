@@ -37,8 +37,8 @@
 //! The source holds `N`, one copy of each slot's derivative and the end sites' lists (bounded
 //! by the boundary terms, not by `N`; on a square by its edges); array parameters are read
 //! through `env`, as the step kernels read them. A lattice whose ends would need more sites
-//! written out than [`max_end_sites`], or with fewer than [`MIN_SITES`] sites, gets no such
-//! kernel (the caller steps its orbit and vectors the one-orbit way: the same bits).
+//! written out than [`max_end_sites`], with fewer than [`MIN_SITES`] sites, or a square of a
+//! side over [`MAX_SQUARE_SIDE`], gets no such kernel (the caller steps its orbit and vectors the one-orbit way: the same bits).
 
 use std::fmt::Write as _;
 use std::sync::Arc;
@@ -103,9 +103,15 @@ fn max_end_sites(side: Option<usize>) -> usize {
     side.map_or(MAX_END_SITES, |side| MAX_END_SITES.max(8 * side))
 }
 
+/// Largest side of a square that gets the kernel. The end sites are one function's straight
+/// code, whose compile time grows faster than their number (an Intel Xeon: 1 CPU-s at a side
+/// of 64, 18 at 128, beside the step kernels' 17 and 53), and the kernel is built into the
+/// square's step-kernel library, which a build past the compiler's time limit would lose.
+pub const MAX_SQUARE_SIDE: usize = 128;
+
 impl Gather {
     /// `None` where the kernel does not apply: no Hessian-vector product, fewer than
-    /// [`MIN_SITES`] sites, no run of regular sites, or more than [`MAX_END_SITES`] ends.
+    /// [`MIN_SITES`] sites, no run of regular sites, or more ends than [`max_end_sites`].
     fn new(lattice: &LatticePotential) -> Option<Self> {
         if !lattice.has_hessian() || lattice.n < MIN_SITES {
             return None;
@@ -221,7 +227,10 @@ impl Gather {
     ) -> Option<Self> {
         let n = lattice.n;
         let l = side as i64;
-        if lattice.sums.iter().any(|s| s.side != Some(side)) || n != side * side {
+        if side > MAX_SQUARE_SIDE
+            || n != side * side
+            || lattice.sums.iter().any(|s| s.side != Some(side))
+        {
             return None;
         }
         // Each sum's row (that of its least shift) and family.
@@ -229,9 +238,10 @@ impl Gather {
             let least = s.variables.iter().copied().min()?;
             Some(split_shift(least, side).0)
         };
+        // The derivatives by their nodes and the coefficient's bits (`-0` is not `0` here).
         type Key<'a> = (
             NodeId,
-            &'a crate::lattice::SumDerivatives,
+            (u64, &'a [NodeId], Option<&'a [NodeId]>),
             crate::lower::Boundary,
             i64,
             i64,
@@ -248,9 +258,14 @@ impl Gather {
                 row.push(0);
                 continue;
             };
+            let d = &lattice.derivatives[s];
             let key: Key = (
                 sum.term,
-                &lattice.derivatives[s],
+                (
+                    d.coefficient.to_bits(),
+                    &d.gradient,
+                    d.hessian_vector.as_deref(),
+                ),
                 sum.boundary,
                 sum.first,
                 sum.last,
@@ -288,7 +303,7 @@ impl Gather {
                 .collect()
         };
         // The pattern most sites share (the first of the most shared, so the source is the
-        // same every time): the middle's, unless the rest pins it.
+        // same every time): the interior's, on any square of a side worth the kernel.
         let translated: Vec<_> = (0..n).map(translated).collect();
         let mut counts: Vec<(usize, usize)> = Vec::new(); // (first site, sites)
         for (j, t) in translated.iter().enumerate() {

@@ -979,7 +979,8 @@ fn long_lattices() -> Vec<(String, System)> {
     // with every boundary per axis, the 2-D Klein-Gordon lattice as the guide writes it (walls
     // as sums from 0), a rest at a corner and at the middle, a term reaching two rows down
     // and two columns back.
-    out.extend(squares());
+    // The first (rows of regular sites shorter than a vector: the scalar tail).
+    out.extend(squares().into_iter().take(1));
     let kg2 = "sum(i = 1..N, sum(j = 1..N, k[i, j]/2*q[i, j]^2 + q[i, j]^4/4)) \
                + sum(i = 0..N, sum(j = 1..N, (q[i+1, j] - q[i, j])^2/40)) \
                + sum(i = 1..N, sum(j = 0..N, (q[i, j+1] - q[i, j])^2/40))";
@@ -991,8 +992,6 @@ fn long_lattices() -> Vec<(String, System)> {
         (15, Boundary::Periodic, Boundary::Free),
         (14, Boundary::Fixed, Boundary::Free),
         (13, Boundary::Free, Boundary::Periodic),
-        (12, Boundary::Free, Boundary::Fixed),
-        (12, Boundary::Periodic, Boundary::Periodic),
     ] {
         out.push((
             format!("KG {side} x {side} {rows:?} x {columns:?}"),
@@ -1036,17 +1035,6 @@ fn long_lattices() -> Vec<(String, System)> {
             &format!(
                 "{kg} + sum(i = 1..N, sum(j = 1..N, k[i+1, j]*q[i, j]^2 + k[i, j+1]*q[i, j]^4))"
             ),
-        ),
-    ));
-    out.push((
-        "KG 14 x 14 periodic x fixed, a row-shifted parameter".into(),
-        lattice_system_shaped(
-            14,
-            Boundary::Periodic,
-            Shape::Square {
-                columns: Boundary::Fixed,
-            },
-            &format!("{kg} + sum(i = 1..N, sum(j = 1..N, k[i+1, j]*q[i, j]^2))"),
         ),
     ));
     out.push((

@@ -31,14 +31,15 @@
 //!
 //! On a square lattice (its sums one per row, [`SiteSum::site`]) the regular sites are those
 //! whose contributions are the most shared ones translated by whole rows and columns:
-//! rectangles, most often one between the edges, each stepped by a loop over its rows of the chain's loop
-//! along the row; the sites at the edges are the ends.
+//! rectangles, most often one between the edges, each stepped by a loop over its rows of the
+//! chain's loop along the row; the sites at the edges are the ends.
 //!
 //! The source holds `N`, one copy of each slot's derivative and the end sites' lists (bounded
 //! by the boundary terms, not by `N`; on a square by its edges); array parameters are read
 //! through `env`, as the step kernels read them. A lattice whose ends would need more sites
-//! written out than [`max_end_sites`], with fewer than [`MIN_SITES`] sites, or a square of a
-//! side over [`MAX_SQUARE_SIDE`], gets no such kernel (the caller steps its orbit and vectors the one-orbit way: the same bits).
+//! written out than [`MAX_END_SITES`] ([`max_square_end_sites`] on a square), with fewer than
+//! [`MIN_SITES`] sites, or a square of a side over [`MAX_SQUARE_SIDE`], gets no such kernel
+//! (the caller steps its orbit and vectors the one-orbit way: the same bits).
 
 use std::fmt::Write as _;
 use std::sync::Arc;
@@ -99,8 +100,8 @@ const MAX_SQUARE_BLOCKS: usize = 16;
 
 /// Most sites written out one by one at the ends of a square of side `side`: its edges (the
 /// rows and columns nearest them) are `4 side` sites.
-fn max_end_sites(side: Option<usize>) -> usize {
-    side.map_or(MAX_END_SITES, |side| MAX_END_SITES.max(8 * side))
+fn max_square_end_sites(side: usize) -> usize {
+    MAX_END_SITES.max(8 * side)
 }
 
 /// Largest side of a square that gets the kernel. The end sites are one function's straight
@@ -111,7 +112,7 @@ pub const MAX_SQUARE_SIDE: usize = 128;
 
 impl Gather {
     /// `None` where the kernel does not apply: no Hessian-vector product, fewer than
-    /// [`MIN_SITES`] sites, no run of regular sites, or more ends than [`max_end_sites`].
+    /// [`MIN_SITES`] sites, no run of regular sites, or more ends than [`MAX_END_SITES`] ([`max_square_end_sites`] on a square).
     fn new(lattice: &LatticePotential) -> Option<Self> {
         if !lattice.has_hessian() || lattice.n < MIN_SITES {
             return None;
@@ -362,7 +363,7 @@ impl Gather {
             .filter(|&j| !regular(j))
             .map(|j| (j, std::mem::take(&mut lists[j])))
             .collect();
-        (ends.len() <= max_end_sites(Some(side))).then_some(Self {
+        (ends.len() <= max_square_end_sites(side)).then_some(Self {
             regular: (first, first),
             order,
             pattern,

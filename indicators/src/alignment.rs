@@ -106,15 +106,30 @@ pub fn sali(vectors: &[f64], dim: usize) -> Option<f64> {
     Some(plus.min(minus))
 }
 
-/// GALI and SALI of a set as a registered indicator: `log10 GALI_k` of the `k` vectors observed
-/// last, as [`volume_log10`] computes it (the tracker reports every order from [`gali_log10`],
-/// the same bits for order `k`), and `log10` of their [`sali`], floored at [`SIGMA_FLOOR`] like
-/// GALI's singular values (below it the two directions are not resolved in double precision,
-/// and `log10 0` is no number).
+/// GALI and SALI of a set as a registered indicator, of the `k` vectors observed last: every
+/// order `log10 GALI_2..k` from one [`gali_log10`] (the `gali` output is `GALI_k`, the bits of
+/// [`volume_log10`]), and their [`sali`], whose output is its `log10` floored at [`SIGMA_FLOOR`]
+/// like GALI's singular values (below it the two directions are not resolved in double
+/// precision, and `log10 0` is no number). The tracker reads every order and the SALI itself
+/// ([`Alignment::gali_log10`], [`Alignment::sali`]); a map point its outputs.
 #[derive(Debug, Clone, Default)]
 pub struct Alignment {
-    gali: Option<f64>,
+    gali: Vec<f64>,
     sali: Option<f64>,
+}
+
+impl Alignment {
+    /// `log10 GALI_j`, `j = 2..=k`, of the vectors observed last (empty for `k < 2` or before
+    /// any).
+    pub fn gali_log10(&self) -> &[f64] {
+        &self.gali
+    }
+
+    /// The SALI of the first two vectors observed last, not floored (`None` for `k < 2` or
+    /// before any).
+    pub fn sali(&self) -> Option<f64> {
+        self.sali
+    }
 }
 
 impl SetIndicator for Alignment {
@@ -127,18 +142,20 @@ impl SetIndicator for Alignment {
     }
 
     fn observe(&mut self, obs: &SetObservation<'_>) {
-        let k = obs.separations.len() / obs.dim.max(1);
-        if k >= 2 {
-            self.gali = Some(volume_log10(obs.separations, obs.dim, k, &mut Vec::new()));
-            self.sali = sali(obs.separations, obs.dim).map(|s| s.max(SIGMA_FLOOR).log10());
+        // A renormalization between samples has no vectors: the last ones stand.
+        if !obs.separations.is_empty() {
+            self.gali = gali_log10(obs.separations, obs.dim);
+            self.sali = sali(obs.separations, obs.dim);
         }
     }
 
     fn outputs(&self) -> Vec<Output> {
         let why = || Output::Unavailable("the alignment of vectors needs two of them".into());
         vec![
-            self.gali.map_or_else(why, Output::Value),
-            self.sali.map_or_else(why, Output::Value),
+            self.gali.last().copied().map_or_else(why, Output::Value),
+            self.sali
+                .map(|s| s.max(SIGMA_FLOOR).log10())
+                .map_or_else(why, Output::Value),
         ]
     }
 

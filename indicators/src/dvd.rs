@@ -83,6 +83,7 @@ mod tests {
         d.observe(&SetObservation {
             t: 0.0,
             dt: 0.0,
+            covered: 0.0,
             dim: w.len(),
             separations: w,
             stretch: &[1.0],

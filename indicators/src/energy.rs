@@ -185,6 +185,7 @@ mod tests {
         d.observe(&SetObservation {
             t: 2.0,
             dt: 1.0,
+            covered: 2.0,
             dim: w.len(),
             separations: &w,
             stretch: &[1.0],

@@ -114,6 +114,7 @@ mod tests {
         SetObservation {
             t,
             dt: 1.0,
+            covered: t,
             dim: 2,
             separations: sep,
             stretch,

@@ -15,6 +15,7 @@
 //! [`set_indicators`] or [`orbit_indicators`] (both in `lib.rs`, beside the modules); every
 //! reader then takes its outputs by their declarations.
 
+use std::any::Any;
 use std::fmt::Debug;
 use std::sync::Arc;
 
@@ -27,6 +28,10 @@ pub struct SetObservation<'a> {
     pub t: f64,
     /// Time since the set's previous renormalization seen (0 at t = 0).
     pub dt: f64,
+    /// Time the stretching factors observed so far cover, these included: `t`, unless some
+    /// renormalizations were never seen (a live monitor's lost frames), whose factors are in no
+    /// sum. The exponents divide by it.
+    pub covered: f64,
     /// Phase-space dimension (entries per vector).
     pub dim: usize,
     /// The `k` separation vectors before renormalization, one after the other; empty at a
@@ -169,7 +174,8 @@ pub enum Carried {
     Named,
     /// In fields of its own whose layout is older than the named outputs (GALI by order,
     /// SALI, the exponents: `gali`, `sali`, `mle`, `lyapunov` of the reports, their columns and
-    /// message fields), filled by the tracker from the same functions.
+    /// message fields), which the tracker fills from the registered instance (every order of
+    /// GALI, every vector's exponent).
     OwnFields,
 }
 
@@ -226,8 +232,10 @@ impl Declared {
     }
 }
 
-/// An indicator accumulated per (scheme, set) from the renormalizations of its set.
-pub trait SetIndicator: Debug + Send + Sync {
+/// An indicator accumulated per (scheme, set) from the renormalizations of its set. `Any`, so
+/// that the tracker reads the built-in GALI, SALI and exponents' values of every order and
+/// vector from the registered instances themselves.
+pub trait SetIndicator: Any + Debug + Send + Sync {
     /// Its outputs with what each needs, in the order of [`SetIndicator::outputs`].
     fn declared(&self) -> &'static [Declared];
     /// Accumulates one renormalization (called in increasing time; where an output needs every
@@ -263,15 +271,6 @@ impl Clone for Box<dyn OrbitIndicator> {
     fn clone(&self) -> Self {
         self.boxed_clone()
     }
-}
-
-/// The registered set indicators with an output carried by name: what the tracker runs per set
-/// (it fills GALI, SALI and the exponents' own fields itself).
-pub fn named_set_indicators() -> Vec<Box<dyn SetIndicator>> {
-    set_indicators()
-        .into_iter()
-        .filter(|i| i.declared().iter().any(|d| d.carried == Carried::Named))
-        .collect()
 }
 
 /// Every registered set output's declaration, in report order.

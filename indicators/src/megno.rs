@@ -77,6 +77,7 @@ mod tests {
             m.observe(&SetObservation {
                 t,
                 dt: if j == 0 { 0.0 } else { tau },
+                covered: t,
                 dim: 1,
                 separations: &[1.0],
                 stretch: &[stretch],

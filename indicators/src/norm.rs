@@ -97,6 +97,7 @@ mod tests {
         d.observe(&SetObservation {
             t: 3.0,
             dt: 1.0,
+            covered: 3.0,
             dim: x.len(),
             separations: x,
             stretch: &[1.0],

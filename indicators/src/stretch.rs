@@ -66,18 +66,23 @@ fn rate(sum: f64, t: f64) -> f64 {
 
 /// The finite-time exponents of a set as a registered indicator: `mle`, the first vector's
 /// `(1/t) sum ln stretch`, and `spectrum`, the same for every vector of a QR scheme (reported as
-/// `lambda_1`, with `lambda_1..k` per vector). `t` is the latest renormalization's: a reader
-/// that may miss renormalizations (a live monitor) divides by the time its factors cover, in
-/// the tracker ([`StretchSums`]).
+/// `lambda_1`, with `lambda_1..k` per vector). `t` is the time the factors observed cover
+/// ([`SetObservation::covered`]): a reader that missed renormalizations (a live monitor's lost
+/// frames) divides by the time of those it saw. The tracker keeps a second one fed only the
+/// intervals after a transient ([`crate::tracker::Tracker::set_exponents_from`]).
 #[derive(Debug, Clone, Default)]
 pub struct Exponents {
     log_sums: Vec<f64>,
-    t: f64,
+    covered: f64,
 }
 
 impl Exponents {
-    fn rate(&self, sum: f64) -> f64 {
-        if self.t > 0.0 { sum / self.t } else { 0.0 }
+    /// Exponents of `k` vectors, all 0 until a factor covering some time is observed.
+    pub fn for_vectors(k: usize) -> Self {
+        Self {
+            log_sums: vec![0.0; k],
+            covered: 0.0,
+        }
     }
 }
 
@@ -94,19 +99,25 @@ impl SetIndicator for Exponents {
         if self.log_sums.len() < obs.stretch.len() {
             self.log_sums.resize(obs.stretch.len(), 0.0);
         }
-        for (sum, s) in self.log_sums.iter_mut().zip(obs.stretch) {
-            *sum += s.ln();
+        // The initial vectors (t = 0) cover no time: their factors are no stretching.
+        if obs.covered > self.covered {
+            for (sum, s) in self.log_sums.iter_mut().zip(obs.stretch) {
+                *sum += s.ln();
+            }
         }
-        self.t = obs.t;
+        self.covered = obs.covered;
     }
 
     fn outputs(&self) -> Vec<Output> {
-        let first = self.rate(self.log_sums.first().copied().unwrap_or(0.0));
+        let first = rate(self.log_sums.first().copied().unwrap_or(0.0), self.covered);
         vec![Output::Value(first), Output::Value(first)]
     }
 
     fn per_vector(&self) -> Vec<f64> {
-        self.log_sums.iter().map(|&s| self.rate(s)).collect()
+        self.log_sums
+            .iter()
+            .map(|&s| rate(s, self.covered))
+            .collect()
     }
 
     fn boxed_clone(&self) -> Box<dyn SetIndicator> {

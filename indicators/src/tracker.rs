@@ -1,24 +1,25 @@
 //! The streaming indicator state of a run, fed one separation set at a time.
 //!
-//! Per (scheme, set) it keeps the accumulated logarithmic stretching and the latest separation
-//! vectors; a scheme's indicators (GALI_2..k, SALI, exponents, averaged over the sets that
-//! reached its latest renormalization) are computed from those when asked for, since they are
-//! instantaneous functions of the vectors. Memory is O(schemes x sets x k x 2N), independent of
-//! the length of the run.
+//! Per (scheme, set) it feeds every registered set indicator (`crate::set_indicators`: GALI and
+//! SALI, the exponents, FLI, MEGNO, ...) each renormalization, and reads a scheme's values
+//! (averaged over the sets that reached its latest renormalization) from them when asked for.
+//! GALI, SALI and the exponents are read from their registered instances in full (every order,
+//! every vector, the SALI unfloored) into fields of their own, the others by name. Memory is
+//! O(schemes x sets x k x 2N), independent of the length of the run.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use serde::ser::{Serialize, SerializeMap, Serializer};
 
-use crate::alignment::{SIGMA_FLOOR, gali_log10, sali};
+use crate::alignment::{Alignment, SIGMA_FLOOR};
 pub use crate::indicator::SiteEnergies;
 use crate::indicator::{
-    OrbitIndicator, Output, SetIndicator, SetObservation, SiteEnergyInput, named_set_indicators,
-    orbit_indicators,
+    Carried, OrbitIndicator, Output, SetIndicator, SetObservation, SiteEnergyInput,
+    orbit_indicators, set_indicators,
 };
 use crate::stats::{LogStat, Stat};
-use crate::stretch::StretchSums;
+use crate::stretch::Exponents;
 pub use crate::zero_one::ZeroOneObservable;
 
 /// The shape of a run, as its header states it.
@@ -252,17 +253,27 @@ impl SchemeIndicators {
 
 #[derive(Debug, Clone)]
 struct SetState {
-    sums: StretchSums,
     /// Steps covered by the stretching factors received (equals the step when none was missed).
     covered_steps: u64,
-    /// The stretching after the transient (intervals beginning at or after
-    /// `Tracker::exponents_from`), and the steps it covers.
-    late_sums: StretchSums,
+    /// The steps after the transient (intervals beginning at or after
+    /// `Tracker::exponents_from`) covered, and the exponents of those intervals alone.
     late_covered_steps: u64,
-    /// Step of the latest separations.
+    late: Option<Exponents>,
+    /// Step of the latest renormalization.
     step: Option<u64>,
-    separations: Vec<f64>,
+    /// Every registered set indicator, in registration order.
     indicators: Vec<Box<dyn SetIndicator>>,
+}
+
+impl SetState {
+    /// The registered indicator of type `T` (GALI and SALI, the exponents), which the registry
+    /// holds once.
+    fn registered<T: SetIndicator>(&self) -> &T {
+        self.indicators
+            .iter()
+            .find_map(|i| (i.as_ref() as &dyn std::any::Any).downcast_ref::<T>())
+            .expect("a built-in indicator is registered")
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -461,17 +472,16 @@ impl Tracker {
     ) {
         let (k, dim) = (self.layout.k, self.layout.dim);
         let prev = self.layout.previous_renormalization(scheme, step);
+        let transient = self.exponents_from.is_some();
         let st = self.schemes[scheme]
             .sets
             .entry(set)
             .or_insert_with(|| SetState {
-                sums: StretchSums::new(k),
                 covered_steps: 0,
-                late_sums: StretchSums::new(k),
                 late_covered_steps: 0,
+                late: transient.then(|| Exponents::for_vectors(k)),
                 step: None,
-                separations: Vec::new(),
-                indicators: named_set_indicators(),
+                indicators: set_indicators(),
             });
         // A stretching factor covers the interval since the scheme's previous renormalization;
         // if that one was not seen, the sum has a hole.
@@ -479,11 +489,10 @@ impl Tracker {
         if step > 0 && expected_prev != prev {
             self.gaps = true;
         }
+        let late = step > 0 && self.exponents_from.is_some_and(|from| prev >= from);
         if step > 0 {
-            st.sums.add(stretch);
             st.covered_steps += step - prev;
-            if self.exponents_from.is_some_and(|from| prev >= from) {
-                st.late_sums.add(stretch);
+            if late {
                 st.late_covered_steps += step - prev;
             }
         }
@@ -496,6 +505,7 @@ impl Tracker {
         let observation = SetObservation {
             t,
             dt: t - st.step.map_or(0.0, |s| self.layout.time_of(s)),
+            covered: self.layout.time_of(st.covered_steps),
             dim,
             separations,
             stretch,
@@ -518,11 +528,13 @@ impl Tracker {
         for indicator in &mut st.indicators {
             indicator.observe(&observation);
         }
-        st.step = Some(step);
-        if !separations.is_empty() {
-            st.separations.clear();
-            st.separations.extend_from_slice(separations);
+        if late && let Some(exponents) = &mut st.late {
+            exponents.observe(&SetObservation {
+                covered: self.layout.time_of(st.late_covered_steps),
+                ..observation
+            });
         }
+        st.step = Some(step);
         let state = &mut self.schemes[scheme];
         // The first set of a new renormalization of the scheme samples the orbit.
         if state.step.is_none_or(|s| s < step)
@@ -547,25 +559,24 @@ impl Tracker {
 
     fn values_of(&self, st: &SetState) -> Option<SetValues> {
         let step = st.step?;
-        let whole = st.sums.spectrum(self.layout.time_of(st.covered_steps));
-        let (exponents, exponents_whole) = match self.exponents_from {
+        let alignment = st.registered::<Alignment>();
+        let whole = st.registered::<Exponents>().per_vector();
+        let (exponents, exponents_whole) = match &st.late {
             None => (whole, None),
-            Some(_) => (
-                st.late_sums
-                    .spectrum(self.layout.time_of(st.late_covered_steps)),
-                Some(whole),
-            ),
+            Some(late) => (late.per_vector(), Some(whole)),
         };
         Some(SetValues {
             t: self.layout.time_of(step),
-            gali_log10: gali_log10(&st.separations, self.layout.dim),
-            sali: sali(&st.separations, self.layout.dim),
+            gali_log10: alignment.gali_log10().to_vec(),
+            sali: alignment.sali(),
             exponents,
             exponents_whole,
             outputs: st
                 .indicators
                 .iter()
-                .flat_map(|i| i.declared().iter().map(|d| d.name).zip(i.outputs()))
+                .flat_map(|i| i.declared().iter().zip(i.outputs()))
+                .filter(|(d, _)| d.carried == Carried::Named)
+                .map(|(d, o)| (d.name, o))
                 .collect(),
         })
     }
@@ -710,6 +721,64 @@ mod tests {
         assert!(!t.apply(1, 0, 2, &[0.0; 4], &[1.0, 1.0], &[]));
         assert!(!t.apply(0, 2, 2, &[0.0; 4], &[1.0, 1.0], &[]));
         assert!(!t.apply(0, 0, 8, &[0.0; 3], &[1.0, 1.0], &[]));
+    }
+
+    #[test]
+    fn registered_alignment_and_exponents_are_the_direct_computations_bit_for_bit() {
+        use crate::alignment::{gali_log10, sali};
+        use crate::stretch::StretchSums;
+        // k = 3 vectors in 4 dimensions, renormalized every 2 steps of 0.25, the exponents
+        // from step 4 on. Step 6 is a sample after two renormalizations between samples (steps
+        // 2 and 4: their factors only), step 8 is never seen (a lost frame), step 10 is a
+        // sample again.
+        let mut t = Tracker::new(Layout::new(4, 3, 1, 0.25, vec![2]).unwrap());
+        t.set_exponents_from(4);
+        let value = |i: usize| ((i as f64 + 0.5) * 0.618_033_988_749_894_9).fract() - 0.5;
+        let seps = |at: usize| (0..12).map(|i| value(at * 12 + i)).collect::<Vec<f64>>();
+        let stretch = |at: usize| {
+            (0..3)
+                .map(|i| 1.0 + 3.0 * value(at * 3 + i).abs())
+                .collect()
+        };
+        let (s2, s4, s6, s10): (Vec<f64>, Vec<f64>, Vec<f64>, Vec<f64>) =
+            (stretch(2), stretch(4), stretch(6), stretch(10));
+        assert!(t.apply(0, 0, 0, &seps(0), &[1.0; 3], &[]));
+        assert!(t.apply(0, 0, 6, &seps(6), &s6, &[s2.clone(), s4.clone()].concat()));
+        assert!(t.apply(0, 0, 10, &seps(10), &s10, &[]));
+        assert!(!t.complete());
+        let (mut whole, mut late) = (StretchSums::new(3), StretchSums::new(3));
+        for s in [&s2, &s4, &s6, &s10] {
+            whole.add(s);
+        }
+        // The intervals that begin at step 4 or later: (4, 6] and (8, 10].
+        late.add(&s6);
+        late.add(&s10);
+        let v = t.set_values(0, 0).unwrap();
+        let bits = |x: &[f64]| x.iter().map(|v| v.to_bits()).collect::<Vec<u64>>();
+        // Covered: 8 steps of 0.25 (step 8's interval missed), 4 after the transient.
+        assert_eq!(bits(&v.exponents), bits(&late.spectrum(1.0)));
+        assert_eq!(
+            bits(v.exponents_whole.as_deref().unwrap()),
+            bits(&whole.spectrum(2.0))
+        );
+        assert_eq!(bits(&v.gali_log10), bits(&gali_log10(&seps(10), 4)));
+        assert_eq!(
+            v.sali.map(f64::to_bits),
+            sali(&seps(10), 4).map(f64::to_bits)
+        );
+        // The scheme's means of them, and the named outputs without the own fields' names.
+        let ind = t.indicators(0);
+        assert_eq!(ind.mle().to_bits(), late.mle(1.0).to_bits());
+        assert_eq!(
+            ind.sali.unwrap().log10_mean.to_bits(),
+            sali(&seps(10), 4)
+                .unwrap()
+                .max(SIGMA_FLOOR)
+                .log10()
+                .to_bits()
+        );
+        let names: Vec<&str> = ind.named.0.iter().map(|(n, _)| *n).collect();
+        assert_eq!(names, crate::indicator::set_output_names());
     }
 
     #[test]

@@ -179,6 +179,8 @@ impl PointAccumulator {
                     indicator.observe(&SetObservation {
                         t,
                         dt: t - *previous,
+                        // A map sees every renormalization of its sets.
+                        covered: t,
                         dim: self.dim,
                         separations,
                         stretch,

@@ -4,7 +4,7 @@
 //! the tangent maps against finite differences, VM against MPM on a chaotic orbit, and the same
 //! bits on any thread count.
 
-mod common;
+use crate::common;
 
 use chaoscope_dynamics::integrator::composition::{Composition, CompositionScheme, SplitFlows};
 use chaoscope_dynamics::integrator::runge_kutta::{RkScratch, RungeKutta, RungeKuttaTableau};

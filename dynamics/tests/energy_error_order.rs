@@ -7,7 +7,7 @@ use chaoscope_dynamics::integrator::{
 use chaoscope_dynamics::model::{At, HenonHeiles, SeparableHamiltonian};
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 
-mod common;
+use crate::common;
 
 /// Maximum relative energy error along the HH chaotic orbit up to t = 200.
 fn max_energy_error(kind: SplittingScheme, h: f64) -> f64 {

@@ -5,7 +5,7 @@ use chaoscope_schemas::config::paper::{
 };
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig};
 
-mod common;
+use crate::common;
 
 /// The directions of every run here: `sets` sets of `k`, seed 2.
 fn deviations(k: usize, sets: usize) -> DeviationsConfig {

@@ -3,8 +3,8 @@
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};
 
-mod common;
-use common::Point;
+use crate::common;
+use crate::common::Point;
 
 /// The paper's chaotic orbit up to `t_final` with `sets` sets of `k` directions.
 fn chaotic(

@@ -3,7 +3,7 @@
 
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 
-mod common;
+use crate::common;
 
 #[test]
 fn hh_regular_orbit_gali_power_laws() {

@@ -11,7 +11,7 @@ use chaoscope_schemas::config::{
     TableConfig, TableSpec, paper,
 };
 
-mod common;
+use crate::common;
 
 const HH_POTENTIAL: &str = "(q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3";
 const FPUT_POTENTIAL: &str = "sum(i = 0..N, (q[i+1] - q[i])^2/2 + beta/4*(q[i+1] - q[i])^4)";

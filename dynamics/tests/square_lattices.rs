@@ -4,7 +4,7 @@
 //! over the plane, the DDNLS written as a `hamiltonian` against the built-in square lattice,
 //! block excitations, VM against MPM on a chaotic 2-D Klein-Gordon orbit, and the refusals.
 
-mod common;
+use crate::common;
 
 use chaoscope_dynamics::engine::Engine;
 use chaoscope_dynamics::model::{At, ExpressionModel};

@@ -100,7 +100,7 @@ impl SetIndicator for Exponents {
             self.log_sums.resize(obs.stretch.len(), 0.0);
         }
         // The initial vectors (t = 0) cover no time: their factors are no stretching.
-        if obs.covered > self.covered {
+        if obs.covered > 0.0 {
             for (sum, s) in self.log_sums.iter_mut().zip(obs.stretch) {
                 *sum += s.ln();
             }

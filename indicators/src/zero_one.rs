@@ -315,9 +315,8 @@ fn k_of_c(phi: &[f64], mean: f64, c: f64, n_cut: usize, sums: &mut DisplacementS
 /// `S(lag) = sum_j |z_{j+lag} - z_j|^2` of a series `z = p + i q` for every lag up to `n_cut`
 /// at once, by the autocorrelation through the FFT: `S(lag) = A(lag) + B(lag) - 2 Re C(lag)`,
 /// `A` and `B` sums of `|z_j|^2` over the two ranges, `C(lag) = sum_j z_{j+lag} conj(z_j)`.
-/// `O(N log N)` for the `n_cut = N / 10` lags where the direct sums cost `O(N^2 / 10)`: `K` of
-/// a long run's 8192 samples (every live report of it computes one) took 0.56 s that way and
-/// takes 35 ms this way (an Intel Xeon, one thread).
+/// `O(N log N)` for the `n_cut = N / 10` lags where the direct sums cost `O(N^2 / 10)`, which
+/// every live report of a long run would pay (`docs/decisions/0019-zero-one-test-by-the-fft.md`).
 ///
 /// Why it keeps its digits: `z` is first shifted by its mean (`S` does not see a constant), and
 /// `k_of_c` gives it the translation variables of the observable less its mean (the mean's

@@ -278,7 +278,8 @@ fn k_of_c(phi: &[f64], mean: f64, c: f64, n_cut: usize, sums: &mut DisplacementS
     let (mut ps, mut qs) = (0.0, 0.0);
     // e^{-i(j+2)c}, from the same cosine and sine, for the cross term's sums.
     let mut back = Vec::with_capacity(n);
-    let step_back = Complex::new(c.cos(), -c.sin());
+    let unit = Complex::new(c.cos(), c.sin());
+    let step_back = unit.conj();
     for (j, (z, &v)) in sums.z.iter_mut().zip(phi).enumerate() {
         let a = (j + 1) as f64 * c;
         let (sin, cos) = a.sin_cos();
@@ -288,17 +289,16 @@ fn k_of_c(phi: &[f64], mean: f64, c: f64, n_cut: usize, sums: &mut DisplacementS
         back.push(Complex::new(cos, -sin) * step_back);
     }
     // y shifted by its mean (no displacement sees it), then Q_k = sum_{j<k} e^{-i(j+2)c} y_j.
-    let shift = sums.z[..n].iter().sum::<Complex<f64>>() / n as f64;
+    sums.center(n);
     let mut q = Vec::with_capacity(n + 1);
     q.push(Complex::new(0.0, 0.0));
     let mut acc = Complex::new(0.0, 0.0);
-    for (z, b) in sums.z[..n].iter_mut().zip(&back) {
-        *z -= shift;
+    for (z, b) in sums.z[..n].iter().zip(&back) {
         acc += *z * b;
         q.push(acc);
     }
     let s = sums.square_displacements(n, n_cut);
-    let one_step = Complex::new(1.0, 0.0) - Complex::new(c.cos(), c.sin());
+    let one_step = Complex::new(1.0, 0.0) - unit;
     let d: Vec<f64> = (1..=n_cut)
         .map(|lag| {
             let turn = Complex::new((lag as f64 * c).cos(), (lag as f64 * c).sin());
@@ -318,7 +318,7 @@ fn k_of_c(phi: &[f64], mean: f64, c: f64, n_cut: usize, sums: &mut DisplacementS
 /// `O(N log N)` for the `n_cut = N / 10` lags where the direct sums cost `O(N^2 / 10)`, which
 /// every live report of a long run would pay (`docs/decisions/0019-zero-one-test-by-the-fft.md`).
 ///
-/// Why it keeps its digits: `z` is first shifted by its mean (`S` does not see a constant), and
+/// Why it keeps its digits: `z` is centered first (`S` does not see a constant), and
 /// `k_of_c` gives it the translation variables of the observable less its mean (the mean's
 /// part is summed in closed form), so `A`, `B` and `C` are of the size of the spread of `z`,
 /// and their difference of the size of `S`, except for the smallest lags of a series that
@@ -369,13 +369,19 @@ impl DisplacementSums {
         }
     }
 
-    /// `S(1..=n_cut)` of the first `n` entries of `self.z` (the rest zero), which it overwrites.
-    fn square_displacements(&mut self, n: usize, n_cut: usize) -> Vec<f64> {
-        let m = self.z.len();
+    /// Shifts the first `n` entries of `self.z` by their mean: `S` does not see it, and the sums
+    /// of [`DisplacementSums::square_displacements`] keep their digits only without it.
+    fn center(&mut self, n: usize) {
         let shift = self.z[..n].iter().sum::<Complex<f64>>() / n as f64;
         for z in &mut self.z[..n] {
             *z -= shift;
         }
+    }
+
+    /// `S(1..=n_cut)` of the first `n` entries of `self.z`, centered ([`DisplacementSums::center`]),
+    /// which it overwrites.
+    fn square_displacements(&mut self, n: usize, n_cut: usize) -> Vec<f64> {
+        let m = self.z.len();
         for z in &mut self.z[n..] {
             *z = Complex::new(0.0, 0.0);
         }
@@ -505,6 +511,7 @@ mod tests {
         for (name, z) in [("walk", walk), ("bounded", bounded), ("drift", drift)] {
             let mut sums = DisplacementSums::new(n, n_cut);
             sums.z[..n].copy_from_slice(&z);
+            sums.center(n);
             let fft = sums.square_displacements(n, n_cut);
             let mean = z.iter().sum::<Complex<f64>>() / n as f64;
             let spread = z.iter().map(|v| (v - mean).norm_sqr()).fold(0.0, f64::max);

@@ -210,6 +210,11 @@ fn interrupted_and_killed_maps_resume() {
     assert!(second.status.success());
     let summary: serde_json::Value = serde_json::from_slice(&second.stdout).unwrap();
     assert_eq!(summary["resumed"], partial as u64);
+    // The estimate covers the points still to compute, not the grid.
+    assert_eq!(
+        summary["estimated_points"],
+        summary["points_expected"].as_u64().unwrap() - partial as u64
+    );
     // The route that ran: the one the config names.
     assert_eq!(summary["route"], "per-set");
     assert_eq!(points(&out), want);

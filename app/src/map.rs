@@ -246,6 +246,20 @@ pub fn status_code(status: PointStatus) -> i32 {
     }) as i32
 }
 
+/// How many of this map's points (`header`: its configuration and shard) an earlier map left
+/// in `out` and in its in-progress file, which [`map_to_file`] resumes rather than computes: a
+/// resumed map is estimated for the rest. Files that are not regular, or that the map would
+/// refuse, count none (the map refuses them itself before it computes anything).
+pub fn resumable_points(out: &Path, header: &MapHeader) -> u64 {
+    let regular = |p: &Path| std::fs::metadata(p).is_ok_and(|m| m.is_file());
+    let partial = chaoscope_os::output::partial_path(out);
+    let leftover = regular(&partial).then_some(partial.as_path());
+    if out.exists() && !regular(out) {
+        return 0;
+    }
+    previous_points(out, leftover, header, &mut ()).map_or(0, |points| points.len() as u64)
+}
+
 /// Points already recorded for this map and shard, from the output file (a map that was
 /// stopped) and from the in-progress file a killed map left (`leftover`). A file that cannot be
 /// read as a map of this configuration and shard is refused, never discarded (that takes a

@@ -686,6 +686,25 @@ fn calibrate_map(spec: &MapSpec, isa: Isa, inside: &[u64]) -> Option<Calibration
 }
 
 impl Estimate {
+    /// This estimate of a map's `points` narrowed to the `todo` of them a resumed map still
+    /// computes (the rest are read from its earlier file): the time and the orbit-steps scale
+    /// by `todo / points`, the work names both counts; the memory stays, since every point's
+    /// result, resumed or computed, is held to the end. The route is chosen before, on all the
+    /// points, so that it does not depend on how far the map got.
+    pub fn narrowed_to(mut self, todo: u64, points: u64) -> Self {
+        if todo >= points {
+            return self;
+        }
+        let share = todo as f64 / points as f64;
+        self.orbit_steps *= share;
+        self.seconds *= share;
+        self.work = format!(
+            "{}, of which {todo} of the {points} points are still to compute",
+            self.work
+        );
+        self
+    }
+
     /// Why this should not start without `--force`, on one line naming the key; `None` if it
     /// fits a day and the machine's memory.
     pub fn refusal(&self, machine: &Machine) -> Option<String> {
@@ -892,6 +911,33 @@ tau = 1.0
         // the 48 points and more than half of them (the section's disc covers most of the grid).
         let all = 48.0 * 2.0 * 1e4;
         assert!(e.orbit_steps < all && e.orbit_steps > 0.5 * all, "{e:?}");
+    }
+
+    #[test]
+    fn a_resumed_map_is_estimated_for_its_remaining_points_and_holds_all_of_them() {
+        let spec = hh_section_map(Some("per-set"));
+        let whole = map_on(&spec, 48, &TWO_CORES, 1, Isa::detect());
+        let rest = whole.clone().narrowed_to(12, 48);
+        // A quarter of the points: a quarter of the work and of the time, the same memory.
+        assert_eq!(rest.orbit_steps, whole.orbit_steps * 0.25);
+        assert_eq!(rest.seconds, whole.seconds * 0.25);
+        assert_eq!(rest.bytes, whole.bytes);
+        assert!(
+            rest.work
+                .ends_with("12 of the 48 points are still to compute"),
+            "{}",
+            rest.work
+        );
+        // A map with nothing resumed is the map's own estimate, nothing said.
+        assert_eq!(whole.clone().narrowed_to(48, 48).work, whole.work);
+        // Nothing left: no time, and no refusal for time (the memory is checked as ever).
+        let done = Estimate {
+            seconds: 1e9,
+            ..whole.clone()
+        }
+        .narrowed_to(0, 48);
+        assert_eq!((done.seconds, done.orbit_steps), (0.0, 0.0));
+        assert!(done.refusal(&TWO_CORES).is_none());
     }
 
     #[test]

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use chaoscope_app::map::{MapFileError, MapJob, map_to_file};
+use chaoscope_app::map::{MapFileError, MapJob, map_to_file, resumable_points};
 use chaoscope_dynamics::batch::Isa;
 use chaoscope_dynamics::estimate::{self, Machine};
 use chaoscope_dynamics::map::{MapOptions, MapSpec, Shard};
@@ -179,6 +179,16 @@ pub fn map(
         .map_err(|e| crate::message(format!("invalid map configuration: {e}")))?;
     let machine = Machine::this_host();
     let whole = Shard { index: 0, count: 1 };
+    let out = out.unwrap_or_else(|| {
+        let name = config.run.name.clone().unwrap_or_else(|| "map".into());
+        Path::new("maps").join(format!("{name}.mcap"))
+    });
+    if !force && !resume && is_regular_file(&out) {
+        return Err(crate::message(format!(
+            "{} already exists (pass resume=True to complete it, force=True to replace it)",
+            out.display()
+        )));
+    }
     // A map that names no route takes the cheaper of two that give its numbers, as `chaoscope
     // map` does.
     let points = spec.grid_points();
@@ -189,20 +199,18 @@ pub fn map(
         threads.unwrap_or(machine.cores).min(machine.cores),
         chaoscope_dynamics::batch::Isa::detect(),
     );
+    // A resumed map (or one completing what a killed map left) computes only the points its
+    // earlier files lack.
+    let resumable = if force && !resume {
+        0
+    } else {
+        resumable_points(&out, &spec.header(whole))
+    };
+    let estimate = estimate.narrowed_to(points.saturating_sub(resumable), points);
     if let Some(why) = estimate.refusal(&machine)
         && !force
     {
         return Err(crate::message(crate::keyword_arguments(&why)));
-    }
-    let out = out.unwrap_or_else(|| {
-        let name = config.run.name.clone().unwrap_or_else(|| "map".into());
-        Path::new("maps").join(format!("{name}.mcap"))
-    });
-    if !force && !resume && is_regular_file(&out) {
-        return Err(crate::message(format!(
-            "{} already exists (pass resume=True to complete it, force=True to replace it)",
-            out.display()
-        )));
     }
     let termination = Termination::new();
     let job = MapJob {

@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{Context, bail};
 use chaoscope_analyzer::map_png;
-use chaoscope_app::map::{MapFileError, MapJob, MapObserver, map_to_file};
+use chaoscope_app::map::{MapFileError, MapJob, MapObserver, map_to_file, resumable_points};
 use chaoscope_bus::frame::status;
 use chaoscope_dynamics::batch::Isa;
 use chaoscope_dynamics::estimate::RouteChoice;
@@ -101,10 +101,18 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         threads.min(machine.cores),
         isa,
     );
+    // A resumed map computes only the points its earlier file lacks.
+    let header = spec.header(args.shard);
+    let resumable = if args.restart {
+        0
+    } else {
+        resumable_points(&args.out, &header)
+    };
+    let todo = points.saturating_sub(resumable);
+    let estimate = estimate.narrowed_to(todo, points);
     super::check_estimate(&estimate, &machine, args.force, "map")?;
     super::warn_unused_params("map", &config);
     super::warn_repeated_grid_lines("map", &config);
-    let header = spec.header(args.shard);
     chaoscope_bus::signals::install(chaoscope_os::signals::Mode::Finish);
     let termination = Termination::new();
 
@@ -208,6 +216,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
                 "route": spec.route.name(),
                 "route_reason": route_reason(&spec, route_choice.as_ref()),
                 "estimated_seconds": estimate.seconds,
+                "estimated_points": todo,
                 "points": all.len(),
                 "points_expected": expected,
                 "computed": computed,

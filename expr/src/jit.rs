@@ -20,11 +20,11 @@ use crate::graph::{Binary, Graph, Node, NodeId, Tabulated, Unary};
 
 pub(crate) mod c;
 mod cranelift;
+mod fused_plan;
 mod lattice_plan;
 mod step;
 mod step_spec;
 
-pub use c::fused::applies as fused_applies;
 pub use c::lattice_steps::{
     compile_lattice_steps_c, compile_lattice_steps_c_cancellable, load_lattice_steps_c,
 };
@@ -39,6 +39,7 @@ pub use cranelift::{
     AllocationWork, Compiled, LanesFnPtr, MAX_MEAN_LIVE, ScalarFnPtr, compile, compile_with,
     live_span,
 };
+pub use fused_plan::applies as fused_applies;
 pub use step::{
     StepBackend, StepKernels, compile_steps, compile_steps_c, compile_steps_c_cancellable,
 };

@@ -659,7 +659,7 @@ impl<'a> LatticeEvaluator<'a> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use std::collections::BTreeMap;
 
     use super::*;
@@ -693,6 +693,21 @@ mod tests {
             .map(|(k, v)| (k.to_string(), v.clone()))
             .collect();
         (families, params)
+    }
+
+    /// The lattice potential (with its Hessian-vector product) of `src` on a lattice of side
+    /// (or length) `side`, for the plans' tests.
+    pub(crate) fn lattice_of(
+        side: usize,
+        boundary: Boundary,
+        shape: Shape,
+        params: &[(&str, ParamValue)],
+        src: &str,
+    ) -> LatticePotential {
+        let (mut g, l) = lowered_shaped(side, boundary, shape, params, src);
+        LatticePotential::new(&mut g, l.root, l.sums, shape.sites(side).unwrap(), true)
+            .unwrap()
+            .expect("affine in its sums")
     }
 
     fn lowered_with_loops(

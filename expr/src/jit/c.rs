@@ -115,7 +115,7 @@ pub(crate) type CTangentFn = unsafe extern "C" fn(
     env: *const usize,
 );
 
-/// The fused one-orbit kernel's C signature ([`super::c_fused`]): the orbit `x` (`2N`), `k`
+/// The fused one-orbit kernel's C signature ([`fused`]): the orbit `x` (`2N`), `k`
 /// tangent vectors `v` (`k` times `2N`), the splitting's coefficients, the inverse masses
 /// (null: unit masses) and the callback table.
 pub(crate) type CFusedFn = unsafe extern "C" fn(
@@ -173,7 +173,7 @@ pub(crate) struct CKernels {
     pub _memory_file: Option<std::fs::File>,
     pub orbit: COrbitFn,
     pub tangent: Option<CTangentFn>,
-    /// The fused one-orbit kernel, where the source has one ([`super::c_fused`]).
+    /// The fused one-orbit kernel, where the source has one ([`fused`]).
     pub fused: Option<CFusedFn>,
     /// Whether the library came from the cache (no compilation in this call).
     pub cached: bool,

@@ -111,7 +111,7 @@ pub struct Compiled {
     /// Read by the compiled code through `*const Arc<dyn Tabulated>` pointers into this boxed
     /// slice, which never moves or changes after compilation.
     _tables: Box<[Arc<dyn Tabulated>]>,
-    /// The array parameters lattice loops read by address ([`compile_lattice`]).
+    /// The array parameters lattice loops read by address ([`lattice::compile_lattice`]).
     _arrays: Vec<Arc<[f64]>>,
     compile_time: Duration,
     isa: String,

@@ -134,7 +134,7 @@ impl StepKernels {
     }
 
     /// Whether [`Self::reference_tangent_steps`] has a kernel (the C kernels of a lattice
-    /// potential that suits it, [`super::c_fused`]).
+    /// potential that suits it, [`super::c::fused`]).
     pub fn has_reference_tangent(&self) -> bool {
         matches!(&self.code, Code::C { kernels, .. } if kernels.fused.is_some())
     }

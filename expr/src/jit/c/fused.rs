@@ -18,365 +18,28 @@
 //! ```
 //!
 //! The bits are [`crate::lattice::LatticeEvaluator`]'s, so those of the scalar functions and of
-//! the step kernels. A site adds its contributions in the evaluator's order: `-0` first, then
-//! the expression around the sums, then every sum's terms in increasing `i`, slot by slot.
-//! Away from the ends that order is the same at every site (a sum's slots by decreasing shift:
-//! the term that reads a site through its largest shift comes first), so one vector loop
-//! computes, for each site, each slot's derivative of the term that reads the site through that
-//! slot (a term shared by two sites is computed at both: each value is the graph's
-//! operations on the same inputs, so the same bits, and nothing goes through memory). The few
-//! sites at the ends (a wall, a periodic wrap, the rest's sites) are written out one by one
-//! with their own lists. Drifts `q + c p` (`c = ch * w_j` with masses) and kicks `p - dh g` as
-//! the splitting's own; no fused multiply-add (the library's flags).
-//!
-//! On a square lattice (its sums one per row, [`SiteSum::site`]) the regular sites are those
-//! whose contributions are the most shared ones translated by whole rows and columns:
-//! rectangles, most often one between the edges, each stepped by a loop over its rows of the
-//! chain's loop along the row; the sites at the edges are the ends.
-//!
-//! The source holds `N`, one copy of each slot's derivative and the end sites' lists (bounded
-//! by the boundary terms, not by `N`; on a square by its edges); array parameters are read
-//! through `env`, as the step kernels read them. A lattice whose ends would need more sites
-//! written out than [`MAX_END_SITES`] ([`max_square_end_sites`] on a square), with fewer than
-//! [`MIN_SITES`] sites, or a square of a side over [`MAX_SQUARE_SIDE`], gets no such kernel
-//! (the caller steps its orbit and vectors the one-orbit way: the same bits).
+//! the step kernels: which sites one vector loop steps, in which order each site takes its
+//! contributions, and which sites at the ends are written out one by one is the kernel's plan
+//! ([`crate::jit::fused_plan`], printer-neutral); this file prints it as C. Drifts `q + c p`
+//! (`c = ch * w_j` with masses) and kicks `p - dh g` as the splitting's own; no fused
+//! multiply-add (the library's flags). The source holds `N`, one copy of each slot's derivative
+//! and the end sites' lists; array parameters are read through `env`, as the step kernels read
+//! them. A lattice without a plan gets no such kernel (the caller steps its orbit and vectors
+//! the one-orbit way: the same bits).
 
 use std::fmt::Write as _;
 use std::sync::Arc;
 
 use super::{emit_nodes, konst};
 use crate::graph::{Graph, Node, NodeId};
+use crate::jit::fused_plan::{Contribution, FusedPlan, TailIteration, tail_iteration};
 use crate::jit::lattice_plan::{rest_derivatives, sum_contributions};
 use crate::lattice::{
     ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_V, LatticePotential, SiteSum,
-    split_shift,
 };
 
 /// The C symbol of the kernel.
 pub(crate) const SYMBOL: &[u8] = b"chaoscope_reference_tangent_steps\0";
-
-/// Most sites written out one by one at the ends.
-const MAX_END_SITES: usize = 256;
-
-/// Fewest sites for the kernel: below this the vector loops hardly run.
-pub const MIN_SITES: usize = 16;
-
-/// One contribution to a site: slot `slot` of term `term` of sum `sum`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Contribution {
-    sum: usize,
-    term: i64,
-    slot: usize,
-}
-
-/// The gather's plan: the sites `regular.0..=regular.1` take their contributions in the same
-/// order (`order`: per sum, the slots by decreasing shift), every other site has its own list.
-struct Gather {
-    regular: (usize, usize),
-    /// Per sum, its slots in the order a regular site takes them.
-    order: Vec<Vec<usize>>,
-    /// A regular site's contributions in order, as (sum, slot): on a chain every sum's slots
-    /// in `order`; on a square the sums of the rectangle's first site, whose translates the
-    /// other regular sites take.
-    pattern: Vec<(usize, usize)>,
-    /// On a square, the regular sites are rectangles of it (most often one, between its
-    /// edges), not a run of the chain of its sites.
-    square: Option<Vec<Rectangle>>,
-    /// The other sites: (site, its contributions); the rest's, where it has one, comes first.
-    ends: Vec<(usize, Vec<Contribution>)>,
-}
-
-/// The regular sites of a square of side `side`: rows `rows.0..=rows.1` by columns
-/// `columns.0..=columns.1` (0-based), site `r side + c`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Rectangle {
-    side: usize,
-    rows: (usize, usize),
-    columns: (usize, usize),
-}
-
-/// Most rectangles of regular sites on a square (each is a loop of its own).
-const MAX_SQUARE_BLOCKS: usize = 16;
-
-/// Most sites written out one by one at the ends of a square of side `side`: its edges (the
-/// rows and columns nearest them) are `4 side` sites.
-fn max_square_end_sites(side: usize) -> usize {
-    MAX_END_SITES.max(8 * side)
-}
-
-/// Largest side of a square that gets the kernel. The end sites are one function's straight
-/// code, whose compile time grows faster than their number (an Intel Xeon: 1 CPU-s at a side
-/// of 64, 18 at 128, beside the step kernels' 17 and 53), and the kernel is built into the
-/// square's step-kernel library, which a build past the compiler's time limit would lose.
-pub const MAX_SQUARE_SIDE: usize = 128;
-
-impl Gather {
-    /// `None` where the kernel does not apply: no Hessian-vector product, fewer than
-    /// [`MIN_SITES`] sites, no run of regular sites, or more ends than [`MAX_END_SITES`] ([`max_square_end_sites`] on a square).
-    fn new(lattice: &LatticePotential) -> Option<Self> {
-        if !lattice.has_hessian() || lattice.n < MIN_SITES {
-            return None;
-        }
-        let n = lattice.n;
-        // Every site's contributions in the evaluator's order: sums in turn, terms in
-        // increasing `i`, slots in slot order.
-        let mut lists: Vec<Vec<Contribution>> = vec![Vec::new(); n];
-        for (sum, s) in lattice.sums.iter().enumerate() {
-            for term in s.first..=s.last {
-                for (slot, &shift) in s.variables.iter().enumerate() {
-                    if let Some(j) = s.site(term, shift) {
-                        lists[j].push(Contribution { sum, term, slot });
-                    }
-                }
-            }
-        }
-        let order: Vec<Vec<usize>> = lattice
-            .sums
-            .iter()
-            .map(|s| {
-                let mut slots: Vec<usize> = (0..s.variables.len()).collect();
-                // Increasing term index at a fixed site is decreasing shift; equal shifts (one
-                // term reading a site twice) keep slot order.
-                slots.sort_by_key(|&slot| std::cmp::Reverse(s.variables[slot]));
-                slots
-            })
-            .collect();
-        let rest: Vec<bool> = {
-            let mut r = vec![false; n];
-            for &(j, _) in &lattice.rest_gradient {
-                r[j as usize] = true;
-            }
-            if let Some(hv) = &lattice.rest_hessian_vector {
-                for &(j, _) in hv {
-                    r[j as usize] = true;
-                }
-            }
-            r
-        };
-        if let Some(side) = lattice.sums.first().and_then(|s| s.side) {
-            return Self::square(lattice, side, lists, &rest, order);
-        }
-        let regular_at = |j: usize| -> bool {
-            if rest[j] {
-                return false;
-            }
-            let mut expected = Vec::new();
-            for (sum, s) in lattice.sums.iter().enumerate() {
-                // Only terms that read inside the lattice (no wall, no wrap) run in the loop.
-                let Some((from, to)) = s.interior() else {
-                    return false;
-                };
-                for &slot in &order[sum] {
-                    let term = j as i64 + 1 - s.variables[slot];
-                    if term < from || term > to {
-                        return false;
-                    }
-                    expected.push(Contribution { sum, term, slot });
-                }
-            }
-            lists[j] == expected
-        };
-        // The longest run of regular sites.
-        let (mut best, mut run_start) = (None::<(usize, usize)>, None::<usize>);
-        for j in 0..=n {
-            if j < n && regular_at(j) {
-                run_start.get_or_insert(j);
-                continue;
-            }
-            if let Some(a) = run_start.take() {
-                let len = j - a;
-                if best.is_none_or(|(b0, b1)| b1 + 1 - b0 < len) {
-                    best = Some((a, j - 1));
-                }
-            }
-        }
-        let regular = best?;
-        let pattern = order
-            .iter()
-            .enumerate()
-            .flat_map(|(sum, slots)| slots.iter().map(move |&slot| (sum, slot)))
-            .collect();
-        let ends: Vec<(usize, Vec<Contribution>)> = (0..n)
-            .filter(|&j| j < regular.0 || j > regular.1)
-            .map(|j| (j, std::mem::take(&mut lists[j])))
-            .collect();
-        (ends.len() <= MAX_END_SITES).then_some(Self {
-            regular,
-            order,
-            pattern,
-            square: None,
-            ends,
-        })
-    }
-
-    /// The plan on a square of side `side`, whose sums run along one row each (a row's index
-    /// is a number in its sums, [`SiteSum::site`]). Sums that are one another's translates
-    /// by whole rows (the same term, derivatives, boundary and range, slots at the same
-    /// offsets from their row) form a family. A site's contributions, in the evaluator's
-    /// order, translated to it (family, row and column from it, slot; every term inside its
-    /// row, none from the rest) are its pattern; the sites of the pattern most sites share
-    /// are regular. Along a row they are runs of a chain's regular sites; consecutive rows
-    /// with the same runs make a rectangle, stepped by one loop over its rows of the chain's
-    /// loop (each row's run is the previous one's shifted by `side` sites); the others are
-    /// ends.
-    fn square(
-        lattice: &LatticePotential,
-        side: usize,
-        mut lists: Vec<Vec<Contribution>>,
-        rest: &[bool],
-        order: Vec<Vec<usize>>,
-    ) -> Option<Self> {
-        let n = lattice.n;
-        let l = side as i64;
-        if side > MAX_SQUARE_SIDE
-            || n != side * side
-            || lattice.sums.iter().any(|s| s.side != Some(side))
-        {
-            return None;
-        }
-        // Each sum's row (that of its least shift) and family.
-        let row_of = |s: &SiteSum| -> Option<i64> {
-            let least = s.variables.iter().copied().min()?;
-            Some(split_shift(least, side).0)
-        };
-        // The derivatives by their nodes and the coefficient's bits (`-0` is not `0` here).
-        type Key<'a> = (
-            NodeId,
-            (u64, &'a [NodeId], Option<&'a [NodeId]>),
-            crate::lower::Boundary,
-            i64,
-            i64,
-            Vec<i64>,
-            Vec<(&'a str, i64)>,
-        );
-        let mut families: Vec<Key> = Vec::new();
-        let mut family = Vec::with_capacity(lattice.sums.len());
-        let mut row = Vec::with_capacity(lattice.sums.len());
-        for (s, sum) in lattice.sums.iter().enumerate() {
-            let Some(r) = row_of(sum) else {
-                // No variable: it reads no site, so no site's list names it.
-                family.push(usize::MAX);
-                row.push(0);
-                continue;
-            };
-            let d = &lattice.derivatives[s];
-            let key: Key = (
-                sum.term,
-                (
-                    d.coefficient.to_bits(),
-                    &d.gradient,
-                    d.hessian_vector.as_deref(),
-                ),
-                sum.boundary,
-                sum.first,
-                sum.last,
-                sum.variables.iter().map(|v| v - r * l).collect(),
-                sum.params
-                    .iter()
-                    .map(|p| (p.name.as_str(), p.shift - r * l))
-                    .collect(),
-            );
-            let f = families.iter().position(|k| *k == key).unwrap_or_else(|| {
-                families.push(key);
-                families.len() - 1
-            });
-            family.push(f);
-            row.push(r);
-        }
-        // A site's list as (family, row from the site's, term from its column, slot), `None`
-        // where a term reads beyond its row's ends (a wall or a wrap) or the rest adds to it.
-        let translated = |j: usize| -> Option<Vec<(usize, i64, i64, usize)>> {
-            if rest[j] {
-                return None;
-            }
-            let (r, c) = ((j / side) as i64, (j % side) as i64);
-            lists[j]
-                .iter()
-                .map(|&Contribution { sum, term, slot }| {
-                    let (from, to) = lattice.sums[sum].interior()?;
-                    ((from..=to).contains(&term) && family[sum] != usize::MAX).then_some((
-                        family[sum],
-                        row[sum] - r,
-                        term - c,
-                        slot,
-                    ))
-                })
-                .collect()
-        };
-        // The pattern most sites share (the first of the most shared, so the source is the
-        // same every time): the interior's, on any square of a side worth the kernel.
-        let translated: Vec<_> = (0..n).map(translated).collect();
-        let mut counts: Vec<(usize, usize)> = Vec::new(); // (first site, sites)
-        for (j, t) in translated.iter().enumerate() {
-            let Some(t) = t else { continue };
-            match counts
-                .iter()
-                .position(|&(f, _)| translated[f].as_ref() == Some(t))
-            {
-                Some(at) => counts[at].1 += 1,
-                None if counts.len() < 64 => counts.push((j, 1)),
-                None => {}
-            }
-        }
-        let &(first, _) = counts
-            .iter()
-            .max_by_key(|&&(f, count)| (count, std::cmp::Reverse(f)))?;
-        let want = translated[first].clone();
-        let regular = |j: usize| translated[j] == want;
-        // Each row's runs of regular columns; consecutive rows with the same runs are one
-        // rectangle, stepped by one loop over its rows.
-        let mut blocks: Vec<Rectangle> = Vec::new();
-        let mut previous: Vec<(usize, usize)> = Vec::new();
-        for r in 0..side {
-            let mut runs = Vec::new();
-            let mut c = 0;
-            while c < side {
-                if !regular(r * side + c) {
-                    c += 1;
-                    continue;
-                }
-                let start = c;
-                while c < side && regular(r * side + c) {
-                    c += 1;
-                }
-                runs.push((start, c - 1));
-            }
-            if !runs.is_empty() && runs == previous {
-                let from = blocks.len() - runs.len();
-                for b in &mut blocks[from..] {
-                    b.rows.1 = r;
-                }
-            } else {
-                blocks.extend(runs.iter().map(|&columns| Rectangle {
-                    side,
-                    rows: (r, r),
-                    columns,
-                }));
-            }
-            previous = runs;
-        }
-        if blocks.is_empty() || blocks.len() > MAX_SQUARE_BLOCKS {
-            return None;
-        }
-        let pattern = lists[first].iter().map(|c| (c.sum, c.slot)).collect();
-        let ends: Vec<(usize, Vec<Contribution>)> = (0..n)
-            .filter(|&j| !regular(j))
-            .map(|j| (j, std::mem::take(&mut lists[j])))
-            .collect();
-        (ends.len() <= max_square_end_sites(side)).then_some(Self {
-            regular: (first, first),
-            order,
-            pattern,
-            square: Some(blocks),
-            ends,
-        })
-    }
-}
-
-/// Whether `lattice` gets the kernel ([`source`] writes it into its C kernels' library).
-pub fn applies(lattice: &LatticePotential) -> bool {
-    Gather::new(lattice).is_some()
-}
 
 /// The vectors of this kernel: as wide as the host's widest registers (eight lanes with
 /// AVX-512, four otherwise), where the step kernels' (the prelude's `vd`) are four lanes in two
@@ -386,7 +49,7 @@ pub fn applies(lattice: &LatticePotential) -> bool {
 fn wide() -> String {
     let mut src = String::from(
         r#"
-/* The fused one-orbit kernel (expr/src/jit/c_fused.rs): host-wide vectors. */
+/* The fused one-orbit kernel (expr/src/jit/c/fused.rs): host-wide vectors. */
 #if defined(__AVX512F__)
 #define FLANES 8
 #else
@@ -428,13 +91,13 @@ pub(crate) fn source(
     arrays: &[(String, Arc<[f64]>)],
     array_env: usize,
 ) -> Option<String> {
-    let gather = Gather::new(lattice)?;
+    let plan = FusedPlan::new(lattice)?;
     let writer = Writer {
         graph,
         lattice,
         arrays,
         array_env,
-        gather: &gather,
+        plan: &plan,
         contributions: [false, true].map(|tangent| {
             let sums = sum_contributions(graph, lattice, tangent);
             sums.into_iter().map(|(c, _)| c).collect()
@@ -442,7 +105,7 @@ pub(crate) fn source(
     };
     let mut src = wide();
     writer.drift(&mut src);
-    match writer.held_offsets() {
+    match writer.plan.held_offsets(lattice) {
         Some(offsets) => writer.swept(&mut src, &offsets),
         None => writer.stagewise(&mut src),
     }
@@ -455,7 +118,7 @@ struct Writer<'a> {
     arrays: &'a [(String, Arc<[f64]>)],
     /// `env` slot of the first array parameter.
     array_env: usize,
-    gather: &'a Gather,
+    plan: &'a FusedPlan,
     /// Per sum, what each slot adds to its site (`factor`, node): the gradient's `[0]`, the
     /// Hessian-vector product's `[1]`.
     contributions: [Vec<Vec<(f64, NodeId)>>; 2],
@@ -490,11 +153,6 @@ fn offset_suffix(offset: i64) -> String {
     format!("{sign}{}", offset.unsigned_abs())
 }
 
-/// Farthest a regular site's term reads a position from the site, in sites, for the sweep:
-/// its shifted vectors are two of the registers' neighbours joined, which the narrower
-/// vectors (4 lanes) reach up to 4 sites away.
-const MAX_HELD_OFFSET: i64 = 4;
-
 /// How the regular sites' loop body is written: a vector of sites, the last vector with the
 /// lanes already done kept, or one site; or a vector of the sweep (positions and momenta from
 /// its registers).
@@ -504,34 +162,6 @@ enum Body {
     Masked,
     Scalar,
     Swept,
-}
-
-/// The sweep's last vector of regular sites at `LANES` = `lanes`: the one the loop (from
-/// the regular run's first site `ja` to its last `jb`, in an `n`-site chain) stops at because
-/// its next vector would run past the end, if it is whole.
-struct TailIteration {
-    /// Its first site.
-    at: i64,
-    /// Sites from the chain's last vector (`n - lanes ..`) that the loop drifted already
-    /// (`lanes`: all, the chain ends with this vector's next).
-    reach: i64,
-}
-
-/// [`TailIteration`] where there is one: the loop ran (its first vector), and stopped at a whole
-/// vector of regular sites.
-fn tail_iteration(n: i64, ja: i64, jb: i64, lanes: i64) -> Option<TailIteration> {
-    let runs = |j: i64| j + lanes - 1 <= jb && j + 2 * lanes <= n;
-    if !runs(ja) {
-        return None;
-    }
-    let mut j = ja + lanes;
-    while runs(j) {
-        j += lanes;
-    }
-    (j + lanes - 1 <= jb).then_some(TailIteration {
-        at: j,
-        reach: j + 2 * lanes - n,
-    })
 }
 
 /// `o` for the orbit's force, `t` for a vector's Hessian-vector product.
@@ -588,32 +218,6 @@ impl Writer<'_> {
   }}
 }}"
         );
-    }
-
-    /// The offsets from a regular site `j` at which its terms read positions (`j + offset`),
-    /// where every one is at most [`MAX_HELD_OFFSET`] away (the sweep's registers reach them);
-    /// `None` otherwise (the stage-by-stage kernel, [`Self::stagewise`]).
-    fn held_offsets(&self) -> Option<Vec<i64>> {
-        // A square's neighbours in the next row are `side` sites away, and its regular sites
-        // are not one run.
-        if self.gather.square.is_some() {
-            return None;
-        }
-        let mut offsets = vec![0];
-        for sum in &self.lattice.sums {
-            for &slot_shift in &sum.variables {
-                for &shift in &sum.variables {
-                    let offset = shift - slot_shift;
-                    if offset.abs() > MAX_HELD_OFFSET {
-                        return None;
-                    }
-                    offsets.push(offset);
-                }
-            }
-        }
-        offsets.sort_unstable();
-        offsets.dedup();
-        Some(offsets)
     }
 
     /// Each array parameter's local pointer, from `env`.
@@ -715,7 +319,7 @@ impl Writer<'_> {
     /// The kernel as one sweep over the sites per stage: each vector of sites drifted (by the
     /// stage's drift, or by the step's last drift and then the next step's first: two
     /// additions, as two passes make them) into registers that a vector later kicks from, its
-    /// neighbours' positions two of those registers joined (`offsets`: [`Self::held_offsets`]),
+    /// neighbours' positions two of those registers joined (`offsets`: [`FusedPlan::held_offsets`]),
     /// for the orbit and the first vector: each state read and written once per stage, where
     /// a drift pass and a kick pass each stream it through the cache. The sites outside the
     /// sweep's vectors (before the regular run, at the end of the chain) are drifted one by one
@@ -814,10 +418,11 @@ impl Writer<'_> {
     /// the regular sites, in one pass; `two` and `has_w` are constants where it is inlined.
     fn sweep(&self, src: &mut String, name: &str, parts: &[bool]) {
         let n = self.lattice.n;
-        let (ja, jb) = self.gather.regular;
+        let (ja, jb) = self.plan.regular;
         let tangent = parts.contains(&true);
         let offsets = self
-            .held_offsets()
+            .plan
+            .held_offsets(self.lattice)
             .expect("the sweep is written for held offsets");
         // Per state swept: (positions, momenta) pointers' names.
         let states: &[(&str, &str)] = if tangent {
@@ -995,7 +600,7 @@ impl Writer<'_> {
         let _ = writeln!(src, "#endif\n    js = j;\n  }}");
         // The sites after the last vector drifted, then the regular sites not yet kicked.
         scalar_drift(src, "drifted", &n.to_string());
-        let (ja, jb) = self.gather.regular;
+        let (ja, jb) = self.plan.regular;
         self.regular_from(src, parts, "js", &jb.to_string(), jb + 1 - ja);
         let _ = writeln!(src, "}}");
     }
@@ -1015,7 +620,7 @@ impl Writer<'_> {
             let Some(least) = Self::least_shift(sum) else {
                 continue;
             };
-            for &slot in &self.gather.order[s] {
+            for &slot in &self.plan.order[s] {
                 if sum.variables[slot] > least {
                     out.push((s, slot));
                 }
@@ -1042,7 +647,7 @@ impl Writer<'_> {
                 &|id, lane| format!("{}{id}{tag}", if lane { "v" } else { "s" }),
                 &mut |_, text| lines.push(text),
             );
-            for &slot in &self.gather.order[s] {
+            for &slot in &self.plan.order[s] {
                 let (x, lane) = vals[contributions[s][slot].1 as usize]
                     .clone()
                     .expect("emitted");
@@ -1069,7 +674,7 @@ impl Writer<'_> {
             let Some(least) = Self::least_shift(sum) else {
                 continue;
             };
-            for &slot in &self.gather.order[s] {
+            for &slot in &self.plan.order[s] {
                 let (factor, _) = contributions[s][slot];
                 let back = sum.variables[slot] - least;
                 let current = current_name(tangent, s, slot);
@@ -1202,8 +807,8 @@ impl Writer<'_> {
     /// vector ending at the last regular site whose lanes already done keep their values (or
     /// one by one, for fewer regular sites than a vector).
     fn regular(&self, out: &mut String, parts: &[bool]) {
-        let Some(blocks) = &self.gather.square else {
-            let (ja, jb) = self.gather.regular;
+        let Some(blocks) = &self.plan.square else {
+            let (ja, jb) = self.plan.regular;
             self.regular_from(out, parts, &ja.to_string(), &jb.to_string(), jb + 1 - ja);
             return;
         };
@@ -1261,7 +866,7 @@ impl Writer<'_> {
         let contributions = &self.contributions[usize::from(tangent)];
         let mut lines = Vec::new();
         let mut acc = if vector { "B(-0.0)" } else { "-0.0" }.to_string();
-        for &(s, slot) in &self.gather.pattern {
+        for &(s, slot) in &self.plan.pattern {
             let sum = &lattice.sums[s];
             let (factor, root) = contributions[s][slot];
             let at = At::Site {
@@ -1323,7 +928,7 @@ impl Writer<'_> {
                 rest_of[j as usize] = vals[id as usize].clone().map(|v| v.0);
             }
         }
-        for (e, (j, list)) in self.gather.ends.iter().enumerate() {
+        for (e, (j, list)) in self.plan.ends.iter().enumerate() {
             let mut acc = "-0.0".to_string();
             let mut step = 0;
             let mut push = |lines: &mut Vec<String>, acc: &mut String, value: String| {

@@ -11,7 +11,8 @@
 #   COMMIT  anything `git rev-parse` names (0b8441d, main~3, a tag): its binary is built with
 #           `cargo build --release --bin chaoscope` in a temporary `git worktree` with its own
 #           target directory (CHAOSCOPE_AGAINST_TARGET=DIR keeps and reuses one), removed after.
-#   --only     comma-separated test targets (file names of tests/ without .rs); default all.
+#   --only     comma-separated test files (names of tests/*.rs without .rs: a module of the
+#              end_to_end binary, or a target of its own); default all.
 #   --timeout  seconds allowed per test function (default 900), after which it counts as failed.
 #   --log-dir  where each test's output is kept (default target/against-binary/logs/<binary>/).
 #
@@ -28,8 +29,8 @@
 # directory while this runs.
 #
 # Output: one JSON line per test function on standard output,
-#   {"test": "output_paths::no_writer_...", "binary": "...", "sha256": "...", "passed": false,
-#    "outcome": "failed", "seconds": 12.3, "log": ".../output_paths__no_writer_....log"}
+#   {"test": "end_to_end::output_paths::no_writer_...", "binary": "...", "sha256": "...", "passed": false,
+#    "outcome": "failed", "seconds": 12.3, "log": ".../end_to_end__output_paths__no_writer_....log"}
 # (outcome: "passed", "failed" or "timeout"), and progress and a table on standard error:
 #
 #   tests/against-binary.sh /path/to/old/chaoscope > old.jsonl
@@ -161,7 +162,6 @@ cargo test --release --no-run -p chaoscope --tests --message-format=json >"$arti
 mapfile -t executables < <(python3 - "$artifacts" "$only" "$repo" <<'PY'
 import json, sys
 path, only, repo = sys.argv[1:]
-wanted = {n for n in only.split(",") if n}
 seen = {}
 for line in open(path):
     try:
@@ -176,16 +176,38 @@ for line in open(path):
     # The root package's id is `path+file://<repository>#chaoscope@<version>`.
     if m["package_id"].startswith(f"path+file://{repo}#"):
         seen[t["name"]] = m["executable"]
-unknown = wanted - seen.keys()
-if unknown:
-    sys.exit(f"against-binary: no test target {', '.join(sorted(unknown))}")
 for name in sorted(seen):
-    if not wanted or name in wanted:
-        print(f"{name}\t{seen[name]}")
+    print(f"{name}\t{seen[name]}")
 PY
 )
 rm -f "$artifacts"
 ((${#executables[@]} > 0)) || { say "no test executables found"; exit 1; }
+
+# Whether a test of target $1 named $2 is one of --only's files: the target itself, or the
+# module of the end_to_end binary that the test's path starts with.
+selected() {
+    [[ -z "$only" ]] && return 0
+    local file
+    for file in ${only//,/ }; do
+        [[ "$1" == "$file" || "$2" == "$file::"* ]] && return 0
+    done
+    return 1
+}
+# Every file --only names has a test, checked before anything is swapped.
+if [[ -n "$only" ]]; then
+    for file in ${only//,/ }; do
+        found=""
+        for entry in "${executables[@]}"; do
+            name="${entry%%$'\t'*}"
+            exe="${entry#*$'\t'}"
+            if [[ "$name" == "$file" ]] || "$exe" --list --format terse | grep -q "^$file::"; then
+                found=1
+                break
+            fi
+        done
+        [[ -n "$found" ]] || { say "no test file $file"; exit 1; }
+    done
+fi
 
 cp "$arg" "$candidate"
 chmod 0755 "$candidate"
@@ -217,7 +239,7 @@ for entry in "${executables[@]}"; do
     mapfile -t all < <("$exe" --list --format terse | sed -n 's/: test$//p')
     mapfile -t ignored < <("$exe" --list --format terse --ignored | sed -n 's/: test$//p')
     for test in "${all[@]}"; do
-        if printf '%s\n' "${ignored[@]}" | grep -qxF -- "$test"; then
+        if printf '%s\n' "${ignored[@]}" | grep -qxF -- "$test" || ! selected "$name" "$test"; then
             continue
         fi
         log="$log_dir/${name}__${test//::/__}.log"

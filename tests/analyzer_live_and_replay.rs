@@ -3,14 +3,12 @@
 //! orbit bit for bit and the paper's tau dependence of the MPM GALIs at t = 200; a replay with
 //! other d0 copies only the MPM schemes and compares each with its original.
 
-mod common;
-
 use std::io::{BufRead, BufReader};
 use std::process::Stdio;
 use std::time::Duration;
 
+use crate::common::*;
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
-use common::*;
 use serde_json::Value;
 
 const LIMIT: Duration = Duration::from_secs(120);

@@ -8,14 +8,14 @@
 //! The resource estimate (a run longer than a day or larger than the machine's memory is
 //! refused before it starts; `--force` runs it anyway) is tested at the end.
 
-mod common;
+use crate::common;
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::Path;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{CHAOSCOPE, unique_run};
+use crate::common::{CHAOSCOPE, unique_run};
 
 /// A short valid run (the paper's chaotic Henon-Heiles orbit to t = 1).
 const RUN: &str = r#"

@@ -11,16 +11,14 @@
 //!
 //! `CHAOSCOPE_CRASH_SEED=<n>` replays another schedule (the seed and every kill are printed).
 
-mod common;
-
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use std::time::{Duration, Instant};
 
+use crate::common::*;
 use chaoscope_bus::{self as bus, BUS_DIR_ENV, Domain};
 use chaoscope_schemas::names;
-use common::*;
 use iceoryx2::node::NodeView;
 use iceoryx2::prelude::*;
 

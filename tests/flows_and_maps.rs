@@ -5,7 +5,7 @@
 //! orbits that escape, blow up or turn NaN stop with the time or iteration named, in the report
 //! and in the recording, and never put NaN into an output.
 
-mod common;
+use crate::common;
 
 use std::f64::consts::{PI, TAU};
 use std::path::Path;
@@ -13,7 +13,7 @@ use std::path::Path;
 use chaoscope_schemas::config::{MapAxis, MapConfig, MapModelConfig, ModelConfig, RunConfig};
 use serde_json::Value;
 
-use common::{chaoscope_captured as chaoscope, run_ok};
+use crate::common::{chaoscope_captured as chaoscope, run_ok};
 
 fn example(name: &str) -> RunConfig {
     let path = Path::new(env!("CARGO_MANIFEST_DIR"))

@@ -7,15 +7,15 @@
 //! `chaoscope run` starts `record` and `produce` as separate processes; the limit is put on the
 //! recorder alone, since it also bounds the shared-memory files of the bus.
 
-mod common;
+use crate::common;
 
 use std::os::unix::process::CommandExt;
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
+use crate::common::{CHAOSCOPE, Proc, assert_bit_identical, compute, read_recording, unique_run};
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
-use common::{CHAOSCOPE, Proc, assert_bit_identical, compute, read_recording, unique_run};
 
 /// `command` with its file size limited to `bytes` (and SIGXFSZ at its default, as a user's
 /// shell leaves it: chaoscope itself must ignore it to report the failed write).

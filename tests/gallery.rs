@@ -7,7 +7,7 @@
 //! titles and ticks come from the font file, so another font draws other bytes. Without DejaVu
 //! Sans on the machine the comparison is skipped (said on stderr); the labels are checked anyway.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 
@@ -284,6 +284,6 @@ fn gallery_figures_are_what_the_tool_draws() {
     assert!(
         drifted.is_empty(),
         "docs/src/gallery/{drifted:?} differ from what chaoscope draws now: look at them, then \
-         rewrite them with CHAOSCOPE_UPDATE_GALLERY=1 cargo test --release --test gallery"
+         rewrite them with CHAOSCOPE_UPDATE_GALLERY=1 cargo test --release --test end_to_end gallery::"
     );
 }

@@ -2,17 +2,17 @@
 //! damaged files exit with status 1 and an error naming the file and the damage, never a panic;
 //! `chaoscope map` resumes a damaged map to the same map, and refuses one that is not its own.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
 
+use crate::common::{CHAOSCOPE, chaoscope};
 use chaoscope_files::file::{Compression, FileOptions};
 use chaoscope_files::map_file::{MapFile, read_map_file};
 use chaoscope_files::testing;
 use chaoscope_schemas::proto::{MapAxis, MapHeader, MapPoint, map_point};
-use common::{CHAOSCOPE, chaoscope};
 use prost::Message;
 
 /// Damaged copies of `bytes` (a file of several chunks), each with what its error must say.

@@ -14,7 +14,7 @@
 //! other numpy, scipy or LAPACK builds, and is still five orders of magnitude below the
 //! disagreement the check is about (GALI_4 near 1e-2 or 1e-6; slopes differing by ~1).
 
-mod common;
+use crate::common;
 
 use serde_json::Value;
 

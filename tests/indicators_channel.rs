@@ -3,13 +3,11 @@
 //! bit (the recorder and the analyzer share `chaoscope-indicators`' tracker), in recorded and in
 //! replayed files.
 
-mod common;
-
 use std::path::Path;
 
+use crate::common::*;
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
 use chaoscope_schemas::proto::{Indicators, MeanOverSets};
-use common::*;
 use serde_json::Value;
 
 /// The paper's chaotic Henon-Heiles orbit, short: k = 4 (GALI_2..4), three sets, VM and MPM

@@ -6,16 +6,14 @@
 //! - `@foxglove/ws-protocol`'s client receives a live run from `chaoscope monitor --foxglove`
 //!   (`live_client.js`).
 
-mod common;
-
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::mpsc;
 use std::time::Duration;
 
+use crate::common::*;
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};
-use common::*;
 use serde_json::Value;
 
 const LIMIT: Duration = Duration::from_secs(120);

@@ -13,15 +13,13 @@
 //! Creating users needs root: CI runs as root. Run as another user, the test fails and says so
 //! (it never passes without having checked anything).
 
-mod common;
-
 use std::os::unix::fs::{MetadataExt, PermissionsExt};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
+use crate::common::*;
 use chaoscope_bus::{self as bus, BUS_DIR_ENV};
-use common::*;
 use iceoryx2::prelude::*;
 
 /// Set for the probe process: `<bus dir>|<segment prefix>|<run>`.
@@ -129,7 +127,7 @@ fn another_local_user_cannot_read_inject_or_delete_a_run() {
         euid, 0,
         "this test creates a second user account (useradd) and acts as it (setpriv), which \
          needs root; CI runs as root. Run it as root, e.g. sudo -E cargo test --release --test \
-         other_users"
+         end_to_end other_users::"
     );
     let domain = bus::domain().expect("the bus directory");
     let meta = std::fs::symlink_metadata(&domain.root).unwrap();
@@ -198,7 +196,7 @@ fn another_local_user_cannot_read_inject_or_delete_a_run() {
     let probe = |cmd: &mut Command| -> Output {
         cmd.args([
             "--exact",
-            "probe",
+            "other_users::probe",
             "--ignored",
             "--nocapture",
             "--test-threads",

@@ -5,7 +5,7 @@
 //! Each command runs in an empty working directory beside the directories the user named, and
 //! afterwards every file under the test's root and the absolute targets are accounted for.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeSet;
 use std::io::Cursor;
@@ -13,11 +13,11 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::time::{Duration, Instant};
 
+use crate::common::CHAOSCOPE;
 use chaoscope_files::file::{Compression, FileOptions};
 use chaoscope_files::map_file::MapFile;
 use chaoscope_files::testing::{self, Shape};
 use chaoscope_schemas::proto::{MapHeader, Scheme};
-use common::CHAOSCOPE;
 
 fn files_under(dir: &Path) -> BTreeSet<PathBuf> {
     fn walk(dir: &Path, out: &mut BTreeSet<PathBuf>) {

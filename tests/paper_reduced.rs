@@ -2,7 +2,7 @@
 //! (V-shape minima, MLE band, GALI slopes, energy-error order, tau flatness); it exits non-zero
 //! when one is off. About half a minute in release on two cores.
 
-mod common;
+use crate::common;
 
 #[test]
 fn paper_script_reduced_mode_checks_the_key_numbers() {

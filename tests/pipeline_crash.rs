@@ -1,14 +1,12 @@
 //! Must-show 3 and 4: crashes and signals leave valid data; a slow recorder loses nothing.
 
-mod common;
-
 use std::path::Path;
 use std::time::{Duration, Instant};
 
+use crate::common::*;
 use chaoscope_bus::{self as bus, Liveness};
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::names;
-use common::*;
 
 const LIMIT: Duration = Duration::from_secs(60);
 

@@ -2,16 +2,14 @@
 //! arrives exactly once, bit-identical to an in-process computation; standard Python tools
 //! decode the file and `pymcap-cli doctor` accepts it.
 
-mod common;
-
 use std::ops::ControlFlow;
 use std::process::{Command, Stdio};
 use std::time::Duration;
 
+use crate::common::*;
 use chaoscope_recorder::subscription::{BusEvent, Ended, RunSubscription};
 use chaoscope_schemas::proto::DataMessage;
 use chaoscope_schemas::proto::end_of_run::Status;
-use common::*;
 
 const CHECKER_RUN: &str = "CHAOSCOPE_CHECKER_RUN";
 
@@ -104,7 +102,7 @@ fn producer_recorder_checker_record_every_sample_bit_identical() {
     checker_cmd
         .args([
             "--exact",
-            "checker_process",
+            "pipeline_end_to_end::checker_process",
             "--nocapture",
             "--test-threads",
             "1",

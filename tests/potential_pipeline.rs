@@ -3,12 +3,12 @@
 //! tau on the bit-identical orbit, and mapped; a potential with `abs` is refused for VM and runs
 //! by MPM; a replay refuses a table that changed since the recording.
 
-mod common;
+use crate::common;
 
 use std::path::Path;
 
+use crate::common::{chaoscope_captured as chaoscope, run_ok};
 use chaoscope_schemas::config::{MapAxis, MapConfig, ModelConfig, RunConfig};
-use common::{chaoscope_captured as chaoscope, run_ok};
 use serde_json::Value;
 
 fn models_dir() -> std::path::PathBuf {

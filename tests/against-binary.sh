@@ -5,7 +5,7 @@
 #
 # Usage (from anywhere in the repository; as root for tests/other_users.rs, as CI runs):
 #
-#   tests/against-binary.sh [--only TARGET,...] [--timeout SECONDS] [--log-dir DIR] BINARY|COMMIT
+#   tests/against-binary.sh [--only FILE,...] [--timeout SECONDS] [--log-dir DIR] BINARY|COMMIT
 #
 #   BINARY  a path to a chaoscope executable (e.g. one kept from an older build);
 #   COMMIT  anything `git rev-parse` names (0b8441d, main~3, a tag): its binary is built with
@@ -200,7 +200,10 @@ if [[ -n "$only" ]]; then
         for entry in "${executables[@]}"; do
             name="${entry%%$'\t'*}"
             exe="${entry#*$'\t'}"
-            if [[ "$name" == "$file" ]] || "$exe" --list --format terse | grep -q "^$file::"; then
+            # The list taken whole first: `grep -q` ends at its first match, and the harness
+            # writing the rest into the closed pipe would fail the pipeline.
+            tests="$("$exe" --list --format terse)"
+            if [[ "$name" == "$file" ]] || grep -q "^$file::" <<<"$tests"; then
                 found=1
                 break
             fi
@@ -248,7 +251,9 @@ for entry in "${executables[@]}"; do
         # A temporary directory of its own, with /tmp's mode (other_users gives files to another
         # user through it), removed after the test: an old binary may write without end until
         # the timeout kills the test before it removes its own files (a replay wrote 8 GB).
-        test_tmp="$(mktemp -d "${TMPDIR:-/tmp}/chaoscope-against-test.XXXXXX")"
+        # A short name: tests make their bus directories in it, whose path must leave room for
+        # the bus's unix sockets (48 bytes at most; load.rs's is `load-bus` and six more).
+        test_tmp="$(mktemp -d "${TMPDIR:-/tmp}/cs-against.XXXXXX")"
         chmod 1777 "$test_tmp"
         # In the package directory, as cargo runs its tests. `--nocapture`: a test killed at the
         # timeout keeps what it printed so far in its log (the case it hung at), which the

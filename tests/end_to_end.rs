@@ -5,8 +5,10 @@
 //! on the harness's threads. Run one file with `cargo test --release --test end_to_end
 //! output_paths::`.
 //!
-//! Two checks stay binaries of their own, as they need what CI sets up apart (a Slurm
-//! cluster, an aarch64 build): `slurm_cluster.rs` and `aarch64_bit_identical.rs`.
+//! Three stay binaries of their own: `slurm_cluster.rs` and `aarch64_bit_identical.rs` need
+//! what CI sets up apart (a Slurm cluster, an aarch64 build), and `load.rs` loads the machine
+//! on purpose (six commands and a stream of watchers at once), which the time bounds of the
+//! tests here must not share.
 
 mod common;
 
@@ -21,7 +23,6 @@ mod gallery;
 mod hostile_files;
 mod independent_fput5;
 mod indicators_channel;
-mod load;
 mod map_bus;
 mod map_cli;
 mod node_foxglove;

@@ -10,6 +10,8 @@
 //! recordings of the same run legitimately differ in chunk boundaries and publish times only. Map
 //! points are compared by grid index: the order in which points finish depends on scheduling.
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::path::Path;
 use std::process::Command;
@@ -17,10 +19,10 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use crate::common::*;
 use chaoscope_bus::BUS_DIR_ENV;
 use chaoscope_files::map_file::read_map_file;
 use chaoscope_schemas::names::topic;
+use common::*;
 use prost::Message;
 
 const LIMIT: Duration = Duration::from_secs(120);

@@ -253,7 +253,10 @@ pub fn status_code(status: PointStatus) -> i32 {
 pub fn resumable_points(out: &Path, header: &MapHeader) -> u64 {
     let regular = |p: &Path| std::fs::metadata(p).is_ok_and(|m| m.is_file());
     let partial = chaoscope_os::output::partial_path(out);
-    let leftover = regular(&partial).then_some(partial.as_path());
+    // An empty in-progress file holds nothing (the map takes it over as its own).
+    let leftover = std::fs::metadata(&partial)
+        .is_ok_and(|m| m.is_file() && m.len() > 0)
+        .then_some(partial.as_path());
     if out.exists() && !regular(out) {
         return 0;
     }

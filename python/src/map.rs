@@ -204,7 +204,9 @@ pub fn map(
     let resumable = if force && !resume {
         0
     } else {
-        resumable_points(&out, &spec.header(whole))
+        // Reading a large earlier map takes a while: Ctrl-C ends the wait at once.
+        let (earlier, header) = (out.clone(), spec.header(whole));
+        crate::interrupt::abandonable(py, move || resumable_points(&earlier, &header))?
     };
     let estimate = estimate.narrowed_to(points.saturating_sub(resumable), points);
     if let Some(why) = estimate.refusal(&machine)

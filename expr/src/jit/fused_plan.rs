@@ -460,8 +460,9 @@ mod tests {
     }
 
     /// A nearest-neighbour chain: every site but the two at the ends takes its on-site term,
-    /// then the bond to its right (read through the larger shift), then the bond to its left,
-    /// in one loop; the ends are two sites at any length, each with its own list: the on-site
+    /// then the bond to its left (term `j - 1`, reading the site through the larger shift),
+    /// then the bond to its right (term `j`): the evaluator's increasing `i`, all in one loop;
+    /// the ends are two sites at any length, each with its own list: the on-site
     /// term and the two bonds (one of them to a wall) when fixed, the bond beyond a free end
     /// missing, and the wrap's bond besides (`sum(i = 0..N)` names it twice) when periodic.
     /// The sweep reaches one site either way.

@@ -655,6 +655,43 @@ fn a_short_run_loads_cached_kernels_without_running_the_compiler() {
     );
 }
 
+/// Without a C compiler a run's small sets of a lattice are stepped by Cranelift's print of
+/// the fused pass once the run is long enough to repay its build (2 * 10^7 state-value steps:
+/// 64 sites to t = 3200 at h = 0.02), the one-orbit way below that; the bits are the built-in
+/// chain's either way.
+#[test]
+fn a_run_without_a_c_compiler_steps_its_small_sets_in_cranelifts_fused_pass() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |model: &str, t_final: u32| -> Value {
+        let o = Command::new(env!("CARGO_BIN_EXE_chaoscope"))
+            .args(["bench", "--lattice-case", &format!("{model}:64:{t_final}")])
+            .env("RAYON_NUM_THREADS", "1")
+            .env("CHAOSCOPE_KERNEL_CACHE", dir.path())
+            .env("CHAOSCOPE_CC", "none")
+            .env_remove("CHAOSCOPE_C_KERNELS_AFTER_CALLS")
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&o.stderr);
+        assert!(o.status.success(), "{stderr}");
+        serde_json::from_slice(&o.stdout).unwrap()
+    };
+    for (t_final, fused) in [(400, false), (3200, true)] {
+        let expression = run("expression", t_final);
+        let calls = &expression["kernel_calls"];
+        assert_eq!(calls["c"], 0, "t = {t_final}: {expression}");
+        assert_eq!(
+            calls["cranelift"].as_u64().unwrap() > 0,
+            fused,
+            "t = {t_final}: {expression}"
+        );
+        assert_eq!(
+            expression["final_state_digest"],
+            run("builtin", t_final)["final_state_digest"],
+            "t = {t_final}"
+        );
+    }
+}
+
 /// An executable shell script `name` in `dir` with the body `body` (a stand-in compiler).
 fn script(dir: &Path, name: &str, body: &str) -> std::path::PathBuf {
     use std::os::unix::fs::PermissionsExt;

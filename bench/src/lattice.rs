@@ -120,6 +120,11 @@ pub fn case(arg: &str) -> anyhow::Result<()> {
             // Where the expression's C kernels stood at the end: `not-started` (a run too
             // short to build them, none in the cache), `loaded-from-cache`, `compiled`, ...
             "c_kernels": expression.as_ref().map(|m| m.c_step_status().state.name()),
+            // Kernel calls by back end: batched calls and the fused one-orbit pass's.
+            "kernel_calls": expression.as_ref().map(|m| {
+                let status = m.c_step_status();
+                serde_json::json!({"c": status.c_calls, "cranelift": status.cranelift_calls})
+            }),
         }))
     })()?;
     chaoscope_os::outln!("{}", serde_json::to_string(&report)?)?;

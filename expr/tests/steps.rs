@@ -1074,6 +1074,34 @@ fn c_fused_reference_tangent_steps_are_bit_identical() {
     }
 }
 
+/// The same plan printed by Cranelift (a host without a C compiler): the same bits, for both
+/// lane widths of its step kernels; a short chain has none.
+#[test]
+fn cranelift_fused_reference_tangent_steps_are_bit_identical() {
+    for lane_block in [2, 4] {
+        let options = Options {
+            lane_block,
+            ..Options::default()
+        };
+        fused_bit_identical(&|s| {
+            let l = s.lattice.as_ref().expect("a lattice");
+            let k =
+                jit::compile_lattice_steps(&s.graph, l, &options).unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(k.backend(), StepBackend::Cranelift);
+            k
+        });
+    }
+    for (name, s) in lattices().into_iter().filter(|(_, s)| s.n < 16) {
+        let l = s.lattice.as_ref().expect("a lattice");
+        let k = jit::compile_lattice_steps(&s.graph, l, &Options::default()).unwrap();
+        assert!(
+            !k.has_reference_tangent(),
+            "{name}: {} sites, a fused kernel",
+            s.n
+        );
+    }
+}
+
 /// Which squares get the fused kernel: any side from 4 (16 sites) with regular sites, edges of
 /// more than 256 sites written out (a side of 100), up to a side of 128; a larger square steps
 /// the one-orbit way (its ends' straight code would take the compiler minutes).

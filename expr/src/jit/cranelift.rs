@@ -57,6 +57,7 @@ use cranelift_module::{FuncId, Linkage, Module};
 
 use crate::graph::{Binary, Cmp, Graph, Node, NodeId, Tabulated, Unary};
 
+mod fused;
 pub(crate) mod lattice;
 pub(crate) mod lattice_steps;
 pub(crate) mod step;

@@ -1,6 +1,6 @@
 //! The plan of the fused one-orbit pass of a lattice potential (one orbit and its tangent
-//! vectors stepped together, vectorized along the sites; printed as C by
-//! [`super::c::fused`]): which sites one vector loop steps, in which order every site takes
+//! vectors stepped together, vectorized along the sites; printed as C by [`super::c::fused`]
+//! and by Cranelift by [`super::cranelift::fused`]): which sites one vector loop steps, in which order every site takes
 //! its contributions, and which sites are written out one by one. Nothing here is C: the plan
 //! is the same for any printer, and the printer only spells it.
 //!

@@ -38,7 +38,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
-use super::c::{self as c_step, C_BLOCK_LANES, CCompiler, CKernels};
+use super::c::{self as c_step, C_BLOCK_LANES, CCompiler, CFusedFn, CKernels};
 use super::cranelift::step::{self as step_cranelift, CraneliftKernels};
 use super::step_spec::StepSpec;
 use super::{AllocationWork, JitError, Options};
@@ -133,10 +133,19 @@ impl StepKernels {
         }
     }
 
-    /// Whether [`Self::reference_tangent_steps`] has a kernel (the C kernels of a lattice
-    /// potential that suits it, [`super::c::fused`]).
+    /// Whether [`Self::reference_tangent_steps`] has a kernel (the kernels of a lattice
+    /// potential with a plan for it, [`super::fused_plan`]: C's or Cranelift's).
     pub fn has_reference_tangent(&self) -> bool {
-        matches!(&self.code, Code::C { kernels, .. } if kernels.fused.is_some())
+        self.fused().is_some()
+    }
+
+    /// The fused one-orbit kernel and the callback table it reads (empty for Cranelift's,
+    /// which reads nothing through it).
+    fn fused(&self) -> Option<(CFusedFn, &[usize])> {
+        match &self.code {
+            Code::C { kernels, env } => kernels.fused.map(|f| (f, &env[..])),
+            Code::Cranelift(kernels) => kernels.fused.map(|f| (f, &[][..])),
+        }
     }
 
     /// `n_steps` steps of the splitting for one orbit `x` (rows `q, p`) and `k` tangent vectors
@@ -157,11 +166,7 @@ impl StepKernels {
         kick: &[f64],
         inverse_masses: Option<&[f64]>,
     ) -> bool {
-        let Code::C {
-            kernels: CKernels { fused: Some(f), .. },
-            env,
-        } = &self.code
-        else {
+        let Some((f, env)) = self.fused() else {
             return false;
         };
         let dim = 2 * self.n;

@@ -25,7 +25,8 @@
 //! multiply-add (the library's flags). The source holds `N`, one copy of each slot's derivative
 //! and the end sites' lists; array parameters are read through `env`, as the step kernels read
 //! them. A lattice without a plan gets no such kernel (the caller steps its orbit and vectors
-//! the one-orbit way: the same bits).
+//! the one-orbit way: the same bits). Cranelift prints the same plan ([`crate::jit::cranelift`]'s
+//! `fused.rs`) for hosts without a C compiler.
 
 use std::fmt::Write as _;
 use std::sync::Arc;

@@ -102,6 +102,15 @@ pub fn compile_lattice_steps(
         module.define_function(id, &mut ctx).map_err(codegen)?;
         ids.push((id, tangent));
     }
+    let fused_id = super::fused::define(
+        &mut module,
+        &mut ctx,
+        &mut fctx,
+        graph,
+        lattice,
+        &tables,
+        &arrays,
+    )?;
     module
         .finalize_definitions()
         .map_err(|e| JitError::Link(format!("{e:?}")))?;
@@ -119,12 +128,18 @@ pub fn compile_lattice_steps(
             }
         }
     }
+    // SAFETY: defined by `fused::define` with the C kernel's signature (nine pointer-sized
+    // integer parameters, no results, the host's C calling convention).
+    let fused = fused_id.map(|id| unsafe {
+        std::mem::transmute::<*const u8, crate::jit::c::CFusedFn>(module.get_finalized_function(id))
+    });
     let block = options.lane_block;
     Ok(StepKernels::new(
         Code::Cranelift(CraneliftKernels {
             modules: Mutex::new(vec![module]),
             orbit: orbit.expect("the orbit kernel is always compiled"),
             tangent,
+            fused,
             allocation,
         }),
         lattice.n,

@@ -72,6 +72,8 @@ pub(crate) struct CraneliftKernels {
     pub(crate) modules: Mutex<Vec<JITModule>>,
     pub(crate) orbit: OrbitStepsFnPtr,
     pub(crate) tangent: Option<TangentStepsFnPtr>,
+    /// The fused one-orbit kernel of a lattice potential that has one ([`super::fused`]).
+    pub(crate) fused: Option<crate::jit::c::CFusedFn>,
     /// What the register allocators were given.
     pub(crate) allocation: AllocationWork,
 }
@@ -208,6 +210,7 @@ pub(crate) fn compile(
         modules: Mutex::new(modules.into_iter().map(|(_, m)| m).collect()),
         orbit: orbit.expect("the orbit kernel is always compiled"),
         tangent,
+        fused: None,
         allocation,
     };
     Ok((kernels, blocks, tables, start.elapsed()))

@@ -557,19 +557,7 @@ fn a_short_run_loads_cached_kernels_without_running_the_compiler() {
     };
     // 16 sites to t = 20 (1000 steps, 3.2 * 10^4 state-value steps: far below a build's worth),
     // VM and MPM sets of two vectors.
-    let short_run = |model: &str| -> Value {
-        let o = Command::new(env!("CARGO_BIN_EXE_chaoscope"))
-            .args(["bench", "--lattice-case", &format!("{model}:16:20")])
-            .env("RAYON_NUM_THREADS", "1")
-            .env("CHAOSCOPE_KERNEL_CACHE", &cache)
-            .env("CHAOSCOPE_CC", &cc)
-            .env_remove("CHAOSCOPE_C_KERNELS_AFTER_CALLS")
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&o.stderr);
-        assert!(o.status.success(), "{stderr}");
-        serde_json::from_slice(&o.stdout).unwrap()
-    };
+    let short_run = |model: &str| lattice_case(&format!("{model}:16:20"), &cache, s(&cc));
     let builtin = short_run("builtin");
 
     let cold = short_run("expression");
@@ -662,18 +650,8 @@ fn a_short_run_loads_cached_kernels_without_running_the_compiler() {
 #[test]
 fn a_run_without_a_c_compiler_steps_its_small_sets_in_cranelifts_fused_pass() {
     let dir = tempfile::tempdir().unwrap();
-    let run = |model: &str, t_final: u32| -> Value {
-        let o = Command::new(env!("CARGO_BIN_EXE_chaoscope"))
-            .args(["bench", "--lattice-case", &format!("{model}:64:{t_final}")])
-            .env("RAYON_NUM_THREADS", "1")
-            .env("CHAOSCOPE_KERNEL_CACHE", dir.path())
-            .env("CHAOSCOPE_CC", "none")
-            .env_remove("CHAOSCOPE_C_KERNELS_AFTER_CALLS")
-            .output()
-            .unwrap();
-        let stderr = String::from_utf8_lossy(&o.stderr);
-        assert!(o.status.success(), "{stderr}");
-        serde_json::from_slice(&o.stdout).unwrap()
+    let run = |model: &str, t_final: u32| {
+        lattice_case(&format!("{model}:64:{t_final}"), dir.path(), "none")
     };
     for (t_final, fused) in [(400, false), (3200, true)] {
         let expression = run("expression", t_final);
@@ -690,6 +668,22 @@ fn a_run_without_a_c_compiler_steps_its_small_sets_in_cranelifts_fused_pass() {
             "t = {t_final}"
         );
     }
+}
+
+/// `chaoscope bench --lattice-case CASE` on one thread with the kernel cache `cache` and the
+/// compiler `cc`: its JSON.
+fn lattice_case(case: &str, cache: &Path, cc: &str) -> Value {
+    let o = Command::new(env!("CARGO_BIN_EXE_chaoscope"))
+        .args(["bench", "--lattice-case", case])
+        .env("RAYON_NUM_THREADS", "1")
+        .env("CHAOSCOPE_KERNEL_CACHE", cache)
+        .env("CHAOSCOPE_CC", cc)
+        .env_remove("CHAOSCOPE_C_KERNELS_AFTER_CALLS")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{stderr}");
+    serde_json::from_slice(&o.stdout).unwrap()
 }
 
 /// An executable shell script `name` in `dir` with the body `body` (a stand-in compiler).

@@ -31,16 +31,14 @@ use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_jit::JITModule;
 use cranelift_module::{FuncId, Linkage, Module};
 
-use super::lattice::{Body, Val, accumulate};
+use super::lattice::{At, Body, Val, accumulate, slot_leaf};
 use super::step::vconsts;
 use super::{Sigs, flags};
 use crate::graph::{Graph, Node, NodeId, Tabulated};
 use crate::jit::JitError;
 use crate::jit::fused_plan::{Contribution, FusedPlan};
 use crate::jit::lattice_plan::{rest_derivatives, sum_contributions};
-use crate::lattice::{
-    ARG_Q, ARG_SITE, ARG_SITE_DIRECTION, ARG_SITE_PARAM, ARG_V, LatticePotential, SiteSum,
-};
+use crate::lattice::{ARG_Q, ARG_V, LatticePotential, SiteSum};
 
 /// Defines the kernel in `module` where the lattice has a plan ([`FusedPlan::new`]); `None`
 /// where it has none (its caller steps the orbit and vectors the one-orbit way: the same bits).
@@ -304,8 +302,6 @@ impl Kernel<'_> {
         vector: bool,
     ) -> Value {
         let contributions = &self.contributions[usize::from(kicked.tangent)];
-        let q = entry(b, kicked.q, j);
-        let dq = entry(b, kicked.state, j);
         let mut acc = b.ins().f64const(-0.0);
         if vector {
             acc = b.ins().splat(F64X2, acc);
@@ -313,9 +309,12 @@ impl Kernel<'_> {
         for &(s, slot) in &self.plan.pattern {
             let sum = &self.lattice.sums[s];
             let (factor, root) = contributions[s][slot];
-            let at = sum.variables[slot];
+            // The term that reads site `j` through this slot: `i = j + 1 - shift`.
+            let i = b.ins().iadd_imm_s(j, 1 - sum.variables[slot]);
+            let off = b.ins().ishl_imm_u(i, 3);
+            let at = At::Loop { off };
             let vals = body.emit(b, &[root], &mut |b, _, node| {
-                self.site_leaf(b, node, sum, at, (q, dq, j), vector)
+                self.leaf(b, node, sum, at, kicked, vector)
             });
             let x = match vals[root as usize].expect("emitted") {
                 Val::One(x) if vector => b.ins().splat(F64X2, x),
@@ -327,48 +326,24 @@ impl Kernel<'_> {
         acc
     }
 
-    /// A leaf of the term that reads site `j` through the slot of shift `at`: its slot of shift
-    /// `shift` reads site `j + shift - at` (`q`, `dq`: the addresses of entry `j`).
-    fn site_leaf(
+    /// A leaf of a term of `sum` at `at` ([`slot_leaf`]): the loop's vectors of two terms
+    /// where `vector`, else one term.
+    fn leaf(
         &self,
         b: &mut FunctionBuilder,
         node: &Node,
         sum: &SiteSum,
-        at: i64,
-        (q, dq, j): (Value, Value, Value),
+        at: At,
+        kicked: Kicked,
         vector: bool,
     ) -> Val {
-        let (base, shift) = match *node {
-            Node::Const(c) => return Val::One(b.ins().f64const(c)),
-            Node::Input {
-                arg: ARG_SITE,
-                index,
-            } => (q, sum.variables[index as usize]),
-            Node::Input {
-                arg: ARG_SITE_DIRECTION,
-                index,
-            } => (dq, sum.variables[index as usize]),
-            Node::Input {
-                arg: ARG_SITE_PARAM,
-                index,
-            } => {
-                let p = &sum.params[index as usize];
-                let (_, a) = self
-                    .arrays
-                    .iter()
-                    .find(|(name, _)| *name == p.name)
-                    .expect("every array a sum reads");
-                let a = b.ins().iconst(I64, a.as_ptr() as i64);
-                (entry(b, a, j), p.shift)
-            }
-            _ => unreachable!("a leaf of a term: {node:?}"),
-        };
-        let off = i32::try_from(8 * (shift - at)).expect("a term's sites are near one another");
-        if vector {
-            let x = b.ins().load(F64X2, flags(), base, off);
+        let ty = if vector { F64X2 } else { F64 };
+        let states = (kicked.q, Some(kicked.state));
+        let x = slot_leaf(b, node, sum, at, states, self.arrays, ty);
+        if vector && !matches!(node, Node::Const(_)) {
             Val::Lanes([x, x])
         } else {
-            Val::One(b.ins().load(F64, flags(), base, off))
+            Val::One(x)
         }
     }
 
@@ -410,7 +385,7 @@ impl Kernel<'_> {
                 let (factor, root) = contributions[sum][slot];
                 let s = &lattice.sums[sum];
                 let vals = body.emit(b, &[root], &mut |b, _, node| {
-                    Self::term_leaf(b, node, s, term, (q, dq))
+                    self.leaf(b, node, s, At::Term(term), kicked, false)
                 });
                 let x = scalar(vals[root as usize].expect("emitted"));
                 acc = accumulate(b, factor, acc, x, false);
@@ -420,42 +395,6 @@ impl Kernel<'_> {
             let dg = b.ins().fmul(dh, acc);
             let pj = b.ins().fsub(pj, dg);
             b.ins().store(flags(), pj, p, off);
-        }
-    }
-
-    /// A leaf of term `term` of `sum`, its sites resolved (a wall is `0`).
-    fn term_leaf(
-        b: &mut FunctionBuilder,
-        node: &Node,
-        sum: &SiteSum,
-        term: i64,
-        (q, dq): (Value, Value),
-    ) -> Val {
-        let (base, shift) = match *node {
-            Node::Const(c) => return Val::One(b.ins().f64const(c)),
-            Node::Input {
-                arg: ARG_SITE,
-                index,
-            } => (q, sum.variables[index as usize]),
-            Node::Input {
-                arg: ARG_SITE_DIRECTION,
-                index,
-            } => (dq, sum.variables[index as usize]),
-            Node::Input {
-                arg: ARG_SITE_PARAM,
-                index,
-            } => {
-                let p = &sum.params[index as usize];
-                let j = sum
-                    .site(term, p.shift)
-                    .expect("parameters inside the lattice");
-                return Val::One(b.ins().f64const(p.values[j]));
-            }
-            _ => unreachable!("a leaf of a term: {node:?}"),
-        };
-        match sum.site(term, shift) {
-            Some(j) => Val::One(b.ins().load(F64, flags(), base, 8 * j as i32)),
-            None => Val::One(b.ins().f64const(0.0)),
         }
     }
 }

@@ -20,7 +20,7 @@ use std::time::Instant;
 use cranelift_codegen::Context;
 use cranelift_codegen::ir::condcodes::IntCC;
 use cranelift_codegen::ir::types::{F64, F64X2, I64};
-use cranelift_codegen::ir::{AbiParam, BlockArg, InstBuilder, UserFuncName, Value};
+use cranelift_codegen::ir::{AbiParam, BlockArg, InstBuilder, Type, UserFuncName, Value};
 use cranelift_frontend::{FunctionBuilder, FunctionBuilderContext};
 use cranelift_module::{Linkage, Module};
 
@@ -283,7 +283,7 @@ fn array_address(arrays: &[(String, Arc<[f64]>)], name: &str) -> i64 {
 /// Where one term's slots are: in a boundary term, sites known at compile time; in the loop,
 /// `i * 8` added to each array's base.
 #[derive(Clone, Copy)]
-enum At {
+pub(crate) enum At {
     Term(i64),
     Loop { off: Value },
 }
@@ -365,7 +365,7 @@ fn build(
         let (sum, (contributions, roots)) = (&lattice.sums[s], &sums[s]);
         let term = |b: &mut FunctionBuilder, at: At, acc: Option<Value>| -> Option<Value> {
             let mut leaf = |b: &mut FunctionBuilder, _: NodeId, node: &Node| {
-                Val::One(slot_leaf(b, node, sum, at, q, v, arrays))
+                Val::One(slot_leaf(b, node, sum, at, (q, v), arrays, F64))
             };
             let vals = body.emit(b, roots, &mut leaf);
             let value = |id: NodeId| match vals[id as usize] {
@@ -453,15 +453,16 @@ fn global_leaf(
     }
 }
 
-/// A leaf of a term: a constant, a slot at a site (a wall is 0), an array parameter.
-fn slot_leaf(
+/// A leaf of a term: a constant, a slot at a site (a wall is 0), an array parameter; a slot or
+/// a parameter in the loop is loaded as `ty` (`F64`, or `F64X2` for two consecutive terms).
+pub(crate) fn slot_leaf(
     b: &mut FunctionBuilder,
     node: &Node,
     sum: &SiteSum,
     at: At,
-    q: Value,
-    v: Option<Value>,
+    (q, v): (Value, Option<Value>),
     arrays: &[(String, Arc<[f64]>)],
+    ty: Type,
 ) -> Value {
     let (base, shift) = match *node {
         Node::Const(c) => return b.ins().f64const(c),
@@ -502,7 +503,7 @@ fn slot_leaf(
         },
         At::Loop { off } => {
             let row = b.ins().iadd(base, off);
-            b.ins().load(F64, flags(), row, ((shift - 1) * 8) as i32)
+            b.ins().load(ty, flags(), row, ((shift - 1) * 8) as i32)
         }
     }
 }
@@ -688,9 +689,9 @@ impl Window<'_> {
                     node,
                     sum,
                     At::Loop { off: i8 },
-                    self.q,
-                    self.v,
+                    (self.q, self.v),
                     self.arrays,
+                    F64,
                 )),
             };
             self.body.emit(b, self.roots, &mut leaf)

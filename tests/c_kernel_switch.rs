@@ -644,8 +644,8 @@ fn a_short_run_loads_cached_kernels_without_running_the_compiler() {
 }
 
 /// Without a C compiler a run's small sets of a lattice are stepped by Cranelift's print of
-/// the fused pass once the run is long enough to repay its build (2 * 10^7 state-value steps:
-/// 64 sites to t = 3200 at h = 0.02), the one-orbit way below that; the bits are the built-in
+/// the fused pass once the run is long enough to repay its build (5 * 10^7 state-value steps:
+/// 64 sites to t = 7812.5 at h = 0.02), the one-orbit way below that; the bits are the built-in
 /// chain's either way.
 #[test]
 fn a_run_without_a_c_compiler_steps_its_small_sets_in_cranelifts_fused_pass() {
@@ -653,7 +653,7 @@ fn a_run_without_a_c_compiler_steps_its_small_sets_in_cranelifts_fused_pass() {
     let run = |model: &str, t_final: u32| {
         lattice_case(&format!("{model}:64:{t_final}"), dir.path(), "none")
     };
-    for (t_final, fused) in [(400, false), (3200, true)] {
+    for (t_final, fused) in [(7800, false), (7900, true)] {
         let expression = run("expression", t_final);
         let calls = &expression["kernel_calls"];
         assert_eq!(calls["c"], 0, "t = {t_final}: {expression}");

@@ -99,6 +99,10 @@ pub struct Options {
     /// with the step kernels ([`compile_steps`]) needs only the scalar functions and halves
     /// the compile time with `false`; [`Compiled::call_lanes`] then panics.
     pub lane_functions: bool,
+    /// Compile a lattice's fused one-orbit pass beside its step kernels
+    /// ([`compile_lattice_steps`]; [`StepKernels::reference_tangent_steps`]), which only a
+    /// run's small sets call (a map's batched kernels never do).
+    pub fused_pass: bool,
 }
 
 impl Default for Options {
@@ -114,6 +118,7 @@ impl Default for Options {
             lane_block: 4,
             large_function: 2000,
             lane_functions: true,
+            fused_pass: true,
         }
     }
 }

@@ -1075,7 +1075,8 @@ fn c_fused_reference_tangent_steps_are_bit_identical() {
 }
 
 /// The same plan printed by Cranelift (a host without a C compiler): the same bits, for both
-/// lane widths of its step kernels; a short chain has none.
+/// lane widths of its step kernels; a short chain has none, nor kernels built without it (a
+/// map's).
 #[test]
 fn cranelift_fused_reference_tangent_steps_are_bit_identical() {
     for lane_block in [2, 4] {
@@ -1098,6 +1099,18 @@ fn cranelift_fused_reference_tangent_steps_are_bit_identical() {
             !k.has_reference_tangent(),
             "{name}: {} sites, a fused kernel",
             s.n
+        );
+    }
+    let without = Options {
+        fused_pass: false,
+        ..Options::default()
+    };
+    for (name, s) in long_lattices() {
+        let l = s.lattice.as_ref().expect("a lattice");
+        let k = jit::compile_lattice_steps(&s.graph, l, &without).unwrap();
+        assert!(
+            !k.has_reference_tangent(),
+            "{name}: a fused kernel not asked for"
         );
     }
 }

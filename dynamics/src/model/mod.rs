@@ -165,8 +165,9 @@ pub trait SeparableHamiltonian: std::any::Any + Send + Sync {
 
     /// A run of `work` state-value steps (steps times `2N`) will ask
     /// [`SeparableHamiltonian::reference_tangent_steps`] to step its small sets: build what that needs, where
-    /// it repays (a `potential` whose lattice sums are loops starts its C kernels' build in the
-    /// background). Nothing for every other model.
+    /// it repays (a `potential` whose lattice sums are loops asks for the Cranelift kernels'
+    /// fused pass and starts its C kernels' build in the background). Nothing for every other
+    /// model.
     fn prepare_reference_tangent(&self, work: u64) {
         let _ = work;
     }

@@ -206,8 +206,8 @@ impl DynamicalSystem for SplitHamiltonian {
 
     /// Every model not of the time and without lane parameters: `Splitting::step_tangent`
     /// moves the orbit with `step`'s operations (`engine/stepping.rs`'s tests); the built-in
-    /// FPUT chain and a potential whose lattice sums are loops (once its C kernels are built)
-    /// have a fused pass.
+    /// FPUT chain and a potential whose lattice sums are loops (its C kernels', or Cranelift's
+    /// for a run long enough) have a fused pass.
     fn reference_tangent(&self) -> Option<&dyn ReferenceTangent> {
         let fits = self.model.lane_params() == 0
             && !self.model.reads_time()

@@ -16,11 +16,11 @@ use crate::jit::{self, StepKernels, StepSpec};
 use crate::lattice::LatticePotential;
 
 /// Least work (state values times steps) of a run for which the Cranelift step kernels, with
-/// their fused pass, are compiled (for the C build's time, or where there is none): their build (on an Intel Xeon,
-/// 4 ms for a 1000-site chain, 0.2 s for a 128 x 128 square) against the 8e-9 to 1.4e-8 s the
-/// pass saves per state value and step (the DKG chain at 1000 sites, the 2-D lattice at
-/// 64 x 64, one vector) repays itself below 2 * 10^7.
-const MIN_CRANELIFT_FUSED_WORK: u64 = 20_000_000;
+/// their fused pass, are compiled (for the C build's time, or where there is none). Their
+/// build (an Intel Xeon: 4 ms for a 1000-site chain, 0.2 s for a 128 x 128 square) costs at
+/// most 4e-9 s per state value and step of such a run, half of the least the pass saves
+/// (8e-9 s: the DKG chain at 1000 sites, one vector; 1.4e-8 s on the 2-D lattice at 64 x 64).
+const MIN_CRANELIFT_FUSED_WORK: u64 = 50_000_000;
 
 /// Longest a dropped model waits for its cancelled C build's thread to end.
 pub(super) const CANCEL_GRACE: Duration = Duration::from_millis(500);
@@ -68,7 +68,8 @@ pub struct CStepStatus {
     pub reason: Option<String>,
     /// From the batched kernel's first call to the C kernels being ready.
     pub ready_after: Option<Duration>,
-    /// Batched kernel calls (one per window and batch) that ran each backend.
+    /// Kernel calls that ran each backend: batched calls (one per window and batch) and calls
+    /// of the fused one-orbit pass.
     pub cranelift_calls: u64,
     pub c_calls: u64,
 }
@@ -92,8 +93,9 @@ pub(super) struct CSteps {
     /// Joined by whoever waits for the result (under the lock, so a second waiter blocks
     /// until the first has joined and the result is set).
     worker: Mutex<Option<JoinHandle<()>>>,
-    /// A run asked for the fused one-orbit kernel where there is no C compiler
-    /// ([`ExpressionModel::prepare_reference_tangent`]): the Cranelift kernels' runs it.
+    /// A run long enough to repay the Cranelift step kernels' build asked for the fused
+    /// one-orbit kernel ([`ExpressionModel::prepare_reference_tangent`]): theirs is compiled
+    /// and runs wherever the C one is not ready (building, failed, cancelled, no compiler).
     cranelift_fused: AtomicBool,
     /// The test hook of [`ExpressionModel::step_kernels`].
     switch_after_calls: Option<u64>,
@@ -183,8 +185,16 @@ pub(super) enum StepSource {
 }
 
 impl StepSource {
-    pub(super) fn compile_cranelift(&self, graph: &Graph) -> Result<StepKernels, jit::JitError> {
-        let options = jit::Options::default();
+    /// `fused_pass`: with a lattice's fused pass ([`jit::Options::fused_pass`]).
+    pub(super) fn compile_cranelift(
+        &self,
+        graph: &Graph,
+        fused_pass: bool,
+    ) -> Result<StepKernels, jit::JitError> {
+        let options = jit::Options {
+            fused_pass,
+            ..jit::Options::default()
+        };
         match self {
             StepSource::Graph(spec) => jit::compile_steps(graph, spec, &options),
             StepSource::Lattice(l) => jit::compile_lattice_steps(graph, l, &options),
@@ -312,9 +322,10 @@ impl ExpressionModel {
     }
 
     /// A run of `work` state-value steps (steps times `2N`) will call
-    /// [`Self::reference_tangent_steps`]: the C kernels' build starts in the background if the
-    /// run is long enough to repay it ([`super::min_fused_work`]) and the potential has that
-    /// kernel.
+    /// [`Self::reference_tangent_steps`]: where the potential has that kernel, the Cranelift
+    /// one is wanted if the run is long enough to repay its build ([`MIN_CRANELIFT_FUSED_WORK`]),
+    /// and the C kernels' build starts in the background if it is long enough to repay theirs
+    /// ([`super::min_fused_work`]); else they are loaded if in the cache.
     pub fn prepare_reference_tangent(&self, work: u64) {
         let has_kernel = !self.0.reads_time
             && self.0.lane_params == 0
@@ -396,7 +407,10 @@ impl ExpressionModel {
             .steps
             .get_or_init(|| {
                 self.step_source()
-                    .compile_cranelift(&self.0.graph)
+                    .compile_cranelift(
+                        &self.0.graph,
+                        self.0.c_steps.cranelift_fused.load(Ordering::Relaxed),
+                    )
                     .map_err(|e| {
                         let e = format!("compiling the step kernels: {e}");
                         // Not `eprintln!`, which panics when stderr is closed or full (as for

@@ -26,7 +26,7 @@
 //! and the end sites' lists; array parameters are read through `env`, as the step kernels read
 //! them. A lattice without a plan gets no such kernel (the caller steps its orbit and vectors
 //! the one-orbit way: the same bits). Cranelift prints the same plan ([`crate::jit::cranelift`]'s
-//! `fused.rs`) for hosts without a C compiler.
+//! `fused.rs`) for the C build's time, for hosts without a C compiler and where it fails.
 
 use std::fmt::Write as _;
 use std::sync::Arc;

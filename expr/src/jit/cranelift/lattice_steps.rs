@@ -16,6 +16,9 @@
 //! The tangent kernel reads the reference position of the stage (shared by the lanes) where the
 //! orbit kernel reads each lane's own: the term's position-only operations are scalar code,
 //! once per term and block, broadcast into the lane code of the direction's.
+//!
+//! Beside them, where the lattice has a plan for it and `options.fused_pass` asks, the fused
+//! one-orbit pass ([`super::fused`]).
 
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -44,7 +47,8 @@ use crate::lattice::{
 };
 
 /// Compiles the orbit kernel (and the tangent kernel when the potential's Hessian-vector
-/// product was derived) of a lattice potential with `options.lane_block` lanes per block.
+/// product was derived) of a lattice potential with `options.lane_block` lanes per block, and
+/// its fused one-orbit pass where `options.fused_pass` asks and it has a plan.
 pub fn compile_lattice_steps(
     graph: &Graph,
     lattice: &LatticePotential,
@@ -102,15 +106,22 @@ pub fn compile_lattice_steps(
         module.define_function(id, &mut ctx).map_err(codegen)?;
         ids.push((id, tangent));
     }
-    let fused_id = super::fused::define(
-        &mut module,
-        &mut ctx,
-        &mut fctx,
-        graph,
-        lattice,
-        &tables,
-        &arrays,
-    )?;
+    // The pass is an optimization with the same bits as the one-orbit way: a function it
+    // cannot define leaves the caller that way, not without step kernels.
+    let fused_id = if options.fused_pass {
+        super::fused::define(
+            &mut module,
+            &mut ctx,
+            &mut fctx,
+            graph,
+            lattice,
+            &tables,
+            &arrays,
+        )
+        .unwrap_or(None)
+    } else {
+        None
+    };
     module
         .finalize_definitions()
         .map_err(|e| JitError::Link(format!("{e:?}")))?;

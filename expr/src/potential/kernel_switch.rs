@@ -253,12 +253,13 @@ impl ExpressionModel {
     /// `x` (`2N`) and the tangent vectors `v` around it (a whole number of `2N`-value vectors),
     /// in one pass per stage vectorized along the sites, where the potential's step kernels have
     /// that kernel (lattice sums as loops; `jit::StepKernels::reference_tangent_steps`): the C
-    /// ones, or Cranelift's where there is no C compiler or its build failed; the
+    /// ones once ready, else Cranelift's (while the C build runs, where it failed, or without a
+    /// compiler) for a run long enough to repay their build; the
     /// bits of the splitting's `step` and `step_tangent` through this model's scalar functions.
-    /// False, with nothing stepped, while those kernels are not ready, where nothing started
-    /// their build ([`Self::prepare_reference_tangent`], or a batched call), or where there is
-    /// none: the caller then steps the orbit and vectors through the scalar functions, to the
-    /// same bits. The test hook of [`Self::step_kernels`] places the switch here too.
+    /// False, with nothing stepped, where neither applies (a run that did not ask through
+    /// [`Self::prepare_reference_tangent`], a short run before C kernels are ready) or where
+    /// there is no such kernel: the caller then steps the orbit and vectors through the scalar
+    /// functions, to the same bits. The test hook of [`Self::step_kernels`] places the switch here too.
     pub fn reference_tangent_steps(
         &self,
         x: &mut [f64],
@@ -274,38 +275,29 @@ impl ExpressionModel {
             return false;
         }
         let c = &self.0.c_steps;
-        // The C kernels wherever a run started their build or found them in the cache
-        // (`prepare_reference_tangent`), once ready.
-        if c.started.is_completed() {
-            match self.c_kernels_for_this_call() {
-                Some(Ok(k)) if k.has_reference_tangent() => {
-                    c.c_calls.fetch_add(1, Ordering::Relaxed);
-                    return k.reference_tangent_steps(
-                        x,
-                        v,
-                        n_steps,
-                        drift,
-                        kick,
-                        self.inverse_masses(),
-                    );
+        // The C kernels once ready, wherever a run started their build or found them in the
+        // cache (`prepare_reference_tangent`); else (building, failed, cancelled, none)
+        // Cranelift's, for a run long enough to repay their build; else the one-orbit way.
+        let ready_c = if c.started.is_completed() {
+            self.c_kernels_for_this_call().and_then(|r| r.as_ref().ok())
+        } else {
+            None
+        };
+        let (k, calls) = match ready_c {
+            Some(k) => (k, &c.c_calls),
+            None if c.cranelift_fused.load(Ordering::Relaxed) => {
+                match self.cranelift_step_kernels() {
+                    Ok(k) => (k, &c.cranelift_calls),
+                    Err(_) => return false,
                 }
-                Some(Ok(_)) => return false,
-                // Still building, failed or cancelled: Cranelift's kernel below.
-                Some(Err(_)) | None => {}
             }
-        }
-        // Cranelift's for a run long enough to repay its build; a shorter one steps the
-        // one-orbit way and builds nothing.
-        if !c.cranelift_fused.load(Ordering::Relaxed) {
+            None => return false,
+        };
+        if !k.has_reference_tangent() {
             return false;
         }
-        match self.cranelift_step_kernels() {
-            Ok(k) if k.has_reference_tangent() => {
-                c.cranelift_calls.fetch_add(1, Ordering::Relaxed);
-                k.reference_tangent_steps(x, v, n_steps, drift, kick, self.inverse_masses())
-            }
-            _ => false,
-        }
+        calls.fetch_add(1, Ordering::Relaxed);
+        k.reference_tangent_steps(x, v, n_steps, drift, kick, self.inverse_masses())
     }
 
     /// The C kernels if this kernel call is to run them: the build started (by the first

@@ -162,13 +162,17 @@ impl Kernel<'_> {
             k: Some(&consts),
         };
         let zero = b.ins().iconst(I64, 0);
+        // Vector `m` (an SSA index): `2N` values each.
+        let vector_at = |b: &mut FunctionBuilder, m: Value| {
+            let off = b.ins().imul_imm_s(m, 16 * n);
+            b.ins().iadd(v, off)
+        };
         let drift_all = |b: &mut FunctionBuilder, i: Value| {
             let c = entry(b, drift, i);
             let ch = b.ins().load(F64, flags(), c, 0);
             self.drift(b, x, ch, w);
             for_loop(b, zero, k, 1, &mut |b, m| {
-                let vm = b.ins().imul_imm_s(m, 16 * n);
-                let vm = b.ins().iadd(v, vm);
+                let vm = vector_at(b, m);
                 self.drift(b, vm, ch, w);
             });
         };
@@ -184,11 +188,9 @@ impl Kernel<'_> {
                 };
                 self.kick(b, &body, orbit, dh);
                 for_loop(b, zero, k, 1, &mut |b, m| {
-                    let vm = b.ins().imul_imm_s(m, 16 * n);
-                    let vm = b.ins().iadd(v, vm);
                     let vector = Kicked {
                         q: x,
-                        state: vm,
+                        state: vector_at(b, m),
                         tangent: true,
                     };
                     self.kick(b, &body, vector, dh);

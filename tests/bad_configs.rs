@@ -1509,10 +1509,27 @@ fn architecture_md_maps_the_code_both_ways() {
 }
 
 /// The crates' normal (non-dev, non-build) dependency graph, by package name, as
-/// `cargo metadata` resolves it from the lock file (no build, no network).
+/// `cargo metadata` resolves it from the lock file for this host (no build, no network: the
+/// crates of other platforms, which a build here never downloads, are left out).
 fn normal_dependencies(root: &Path) -> (Vec<String>, BTreeMap<String, BTreeSet<String>>) {
+    let rustc = std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into());
+    let version = Command::new(rustc).arg("-vV").output().unwrap();
+    let version = String::from_utf8_lossy(&version.stdout);
+    let host = version
+        .lines()
+        .find_map(|l| l.strip_prefix("host: "))
+        .expect("rustc -vV names the host")
+        .trim()
+        .to_owned();
     let out = Command::new(env!("CARGO"))
-        .args(["metadata", "--offline", "--format-version", "1"])
+        .args([
+            "metadata",
+            "--offline",
+            "--format-version",
+            "1",
+            "--filter-platform",
+        ])
+        .arg(&host)
         .current_dir(root)
         .output()
         .unwrap();

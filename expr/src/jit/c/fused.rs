@@ -42,6 +42,17 @@ use crate::lattice::{
 /// The C symbol of the kernel.
 pub(crate) const SYMBOL: &[u8] = b"chaoscope_reference_tangent_steps\0";
 
+/// When the one sweep per stage is compiled rather than the stage-by-stage form (where a
+/// lattice has both): with vectors of 8 sites (AVX-512, 32 vector registers). With 4 (AVX2,
+/// 16 registers) the sweep's held positions, carried terms and constants do not fit in the
+/// registers: gcc spills about 11 of its 62 instructions per vector of sites, the loop is
+/// bound by their latency, and the drift passes and a kick loop that reads its neighbours
+/// from memory are faster (`docs/decisions/0020-fused-form-by-register-count.md`). Tests and
+/// benches pick a form on any host with `-DCHAOSCOPE_FUSED_SWEEP` or `-DCHAOSCOPE_FUSED_STAGES`.
+/// Either form gives the same bits.
+const SWEEP_CONDITION: &str = "defined(CHAOSCOPE_FUSED_SWEEP) || (FLANES == 8 && \
+    !defined(CHAOSCOPE_FUSED_STAGES))";
+
 /// The vectors of this kernel: as wide as the host's widest registers (eight lanes with
 /// AVX-512, four otherwise), where the step kernels' (the prelude's `vd`) are four lanes in two
 /// chains. The prelude's names are redefined to these types from here on (this kernel is the
@@ -107,7 +118,15 @@ pub(crate) fn source(
     let mut src = wide();
     writer.drift(&mut src);
     match writer.plan.held_offsets(lattice) {
-        Some(offsets) => writer.swept(&mut src, &offsets),
+        // Both forms, the compiler keeping the one for the host's registers: see
+        // [`SWEEP_CONDITION`].
+        Some(offsets) => {
+            let _ = writeln!(src, "#if {SWEEP_CONDITION}");
+            writer.swept(&mut src, &offsets);
+            let _ = writeln!(src, "#else");
+            writer.stagewise(&mut src);
+            let _ = writeln!(src, "#endif");
+        }
         None => writer.stagewise(&mut src),
     }
     Some(src)

@@ -501,9 +501,13 @@ fn specs_that_are_not_n_degrees_of_freedom_are_refused() {
 /// has gcc: a missing compiler fails these tests instead of skipping them.
 fn compile_c(s: &System, cache: &std::path::Path) -> StepKernels {
     let program = CCompiler::from_env().map_or_else(|| "cc".into(), |c| c.program);
-    let cc = CCompiler::new(program, cache.to_path_buf());
+    compile_c_by(s, &CCompiler::new(program, cache.to_path_buf()))
+}
+
+/// The C kernels of `s`, built by `cc`.
+fn compile_c_by(s: &System, cc: &CCompiler) -> StepKernels {
     if let Some(l) = &s.lattice {
-        let k = jit::compile_lattice_steps_c(&s.graph, l, &cc).unwrap_or_else(|e| panic!("{e}"));
+        let k = jit::compile_lattice_steps_c(&s.graph, l, cc).unwrap_or_else(|e| panic!("{e}"));
         assert!(matches!(k.backend(), StepBackend::C { .. }));
         return k;
     }
@@ -514,7 +518,7 @@ fn compile_c(s: &System, cache: &std::path::Path) -> StepKernels {
             gradient: s.gradient.clone(),
             hessian_vector: Some(s.hessian_vector.clone()),
         },
-        &cc,
+        cc,
     )
     .unwrap_or_else(|e| panic!("{e}"));
     assert!(matches!(k.backend(), StepBackend::C { .. }));
@@ -1148,10 +1152,7 @@ fn squares_get_the_fused_kernel_up_to_a_side_of_128() {
 fn c_fused_kernel_of_four_lanes_is_bit_identical() {
     let dir = tempfile::tempdir().unwrap();
     let cc = wrapped_cc(dir.path(), "cc-no-avx512", "-mno-avx512f");
-    fused_bit_identical(&|s| {
-        let l = s.lattice.as_ref().expect("a lattice");
-        jit::compile_lattice_steps_c(&s.graph, l, &cc).unwrap_or_else(|e| panic!("{e}"))
-    });
+    fused_bit_identical(&|s| compile_c_by(s, &cc));
 }
 
 /// A lattice's fused C kernel has two forms, the compiler keeping one by the vectors' width
@@ -1171,10 +1172,7 @@ fn c_fused_kernel_in_the_other_form_is_bit_identical() {
     };
     let dir = tempfile::tempdir().unwrap();
     let cc = wrapped_cc(dir.path(), form, &format!("-D{form}"));
-    fused_bit_identical(&|s| {
-        let l = s.lattice.as_ref().expect("a lattice");
-        jit::compile_lattice_steps_c(&s.graph, l, &cc).unwrap_or_else(|e| panic!("{e}"))
-    });
+    fused_bit_identical(&|s| compile_c_by(s, &cc));
 }
 
 /// The test's C compiler (`CHAOSCOPE_CC`, else `cc`) behind a script `name` in `dir` that adds

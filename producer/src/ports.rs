@@ -101,7 +101,7 @@ impl Ports {
         let data = data_service
             .publisher_builder()
             .initial_max_slice_len(max_payload.max(1))
-            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .allocation_strategy(AllocationStrategy::Static)
             .backpressure_strategy(BackpressureStrategy::RetryUntilDelivered)
             .set_backpressure_handler(backpressure_handler(termination.clone()))
             .create()
@@ -109,7 +109,7 @@ impl Ports {
         let monitor = monitor_service
             .publisher_builder()
             .initial_max_slice_len(max_payload.max(1))
-            .allocation_strategy(AllocationStrategy::PowerOfTwo)
+            .allocation_strategy(AllocationStrategy::Static)
             .backpressure_strategy(BackpressureStrategy::DiscardData)
             .create()
             .map_err(|e| BusError::new("create monitor publisher", e))?;

@@ -47,9 +47,13 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
     let (config, _, source) = super::load_config(&args.config)?;
     let spec =
         RunSpec::from_config(&config).map_err(|e| super::invalid_config(&source, "run", e))?;
-    let machine = super::machine();
-    let estimate = chaoscope_producer::estimate::run(&spec, &machine);
-    super::check_estimate(&estimate, &machine, args.force, "produce")?;
+    // Under `run` the text on stdin is the one `run` estimated and let start (with `--force`
+    // passed on): a second calibration would only add its CPU time to every run.
+    if !args.under_run {
+        let machine = super::machine();
+        let estimate = chaoscope_producer::estimate::run(&spec, &machine);
+        super::check_estimate(&estimate, &machine, args.force, "produce")?;
+    }
     let options = PublishOptions {
         run_name: args.run,
         recorders: args.recorders,

@@ -43,15 +43,39 @@ use crate::lattice::{
 pub(crate) const SYMBOL: &[u8] = b"chaoscope_reference_tangent_steps\0";
 
 /// When the one sweep per stage is compiled rather than the stage-by-stage form (where a
-/// lattice has both): with vectors of 8 sites (AVX-512, 32 vector registers). With 4 (AVX2,
-/// 16 registers) the sweep's held positions, carried terms and constants do not fit in the
-/// registers: gcc spills about 11 of its 62 instructions per vector of sites, the loop is
-/// bound by their latency, and the drift passes and a kick loop that reads its neighbours
-/// from memory are faster (`docs/decisions/0020-fused-form-by-register-count.md`). Tests and
-/// benches pick a form on any host with `-DCHAOSCOPE_FUSED_SWEEP` or `-DCHAOSCOPE_FUSED_STAGES`.
-/// Either form gives the same bits.
-const SWEEP_CONDITION: &str = "defined(CHAOSCOPE_FUSED_SWEEP) || (FLANES == 8 && \
-    !defined(CHAOSCOPE_FUSED_STAGES))";
+/// lattice has both): with vectors of 8 sites (AVX-512, 32 vector registers), and with 4 (AVX2,
+/// 16 registers) on Intel CPUs only. With 16 registers the sweep's held positions, carried
+/// terms and constants do not fit: gcc spills about 11 of its 62 instructions per vector of
+/// sites. An AMD Zen 3 pays for the spills' round trips (the stage-by-stage form, whose kick
+/// loop reads its neighbours from memory, is 15-25 % faster there), an Intel Xeon does not (the
+/// sweep is 0-14 % faster there): `docs/decisions/0020-fused-form-by-register-count.md`.
+/// [`HOST_INTEL`] says which CPU builds the kernel. Tests and benches pick a form on any host
+/// with `-DCHAOSCOPE_FUSED_SWEEP` or `-DCHAOSCOPE_FUSED_STAGES`. Either form gives the same bits.
+const SWEEP_CONDITION: &str = "defined(CHAOSCOPE_FUSED_SWEEP) || (!defined(CHAOSCOPE_FUSED_STAGES) \
+    && (FLANES == 8 || (defined(__AVX2__) && defined(CHAOSCOPE_HOST_INTEL))))";
+
+/// The line of the source that tells [`SWEEP_CONDITION`] the kernel is built on an Intel CPU
+/// (the source, and so the cache key, differs by vendor: a cache shared by machines of both
+/// keeps one kernel for each).
+const HOST_INTEL: &str = "#define CHAOSCOPE_HOST_INTEL 1\n";
+
+/// Whether this process runs on an Intel CPU (CPUID's vendor string).
+fn host_is_intel() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        // CPUID exists on every x86-64 CPU and only reads (safe to call since Rust 1.87).
+        let r = std::arch::x86_64::__cpuid(0);
+        let vendor: Vec<u8> = [r.ebx, r.edx, r.ecx]
+            .iter()
+            .flat_map(|w| w.to_le_bytes())
+            .collect();
+        vendor == b"GenuineIntel"
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
 
 /// The vectors of this kernel: as wide as the host's widest registers (eight lanes with
 /// AVX-512, four otherwise), where the step kernels' (the prelude's `vd`) are four lanes in two
@@ -116,6 +140,9 @@ pub(crate) fn source(
         }),
     };
     let mut src = wide();
+    if host_is_intel() {
+        src.push_str(HOST_INTEL);
+    }
     writer.drift(&mut src);
     match writer.plan.held_offsets(lattice) {
         // Both forms, the compiler keeping the one for the host's registers: see

@@ -1014,3 +1014,21 @@ impl Writer<'_> {
         let _ = writeln!(out, "{indent}}}");
     }
 }
+
+#[cfg(test)]
+mod tests {
+    /// CPUID's vendor, read from its three registers in their order (EBX, EDX, ECX), is the one
+    /// Linux reports: a misread would keep the slower 4-lane form on Intel without a sign.
+    #[cfg(all(target_arch = "x86_64", target_os = "linux"))]
+    #[test]
+    fn the_vendor_is_the_one_linux_reports() {
+        let cpuinfo = std::fs::read_to_string("/proc/cpuinfo").unwrap();
+        let vendor = cpuinfo
+            .lines()
+            .find_map(|l| l.strip_prefix("vendor_id"))
+            .and_then(|rest| rest.split(':').nth(1))
+            .map(str::trim)
+            .expect("/proc/cpuinfo names the vendor");
+        assert_eq!(super::host_is_intel(), vendor == "GenuineIntel", "{vendor}");
+    }
+}

@@ -345,7 +345,7 @@ fn curve(family: Family, sites: usize, t_final: f64, method: &str) -> anyhow::Re
     for h in step_sizes(family.h_max()) {
         let config = family.config(sites, t_final, method, h)?;
         let ddnls = match &config.model {
-            ModelConfig::Ddnls(m) => Some(chaoscope_dynamics::spec::ddnls::model_from_config(m)?),
+            ModelConfig::Ddnls(m) => Some(chaoscope_dynamics::spec::ddnls_lattice(m)?),
             _ => None,
         };
         let point = match measure(&config, ddnls.as_ref()) {
@@ -683,7 +683,7 @@ mod tests {
                     let config = family.config(sites, t_final, method, h).expect("config");
                     let ddnls = match &config.model {
                         ModelConfig::Ddnls(m) => {
-                            Some(chaoscope_dynamics::spec::ddnls::model_from_config(m).unwrap())
+                            Some(chaoscope_dynamics::spec::ddnls_lattice(m).unwrap())
                         }
                         _ => None,
                     };

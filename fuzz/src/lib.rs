@@ -131,7 +131,6 @@ fn claimed_dim(model: &ModelConfig) -> u128 {
     let dof = |n: Option<usize>| n.unwrap_or(1).saturating_mul(2) as u128;
     let len = |v: &Option<Vec<String>>| v.as_ref().map_or(1, Vec::len) as u128;
     match model {
-        ModelConfig::HenonHeiles(_) | ModelConfig::Custom(_) => 4,
         ModelConfig::FputBeta(m) => dof(m.n),
         // A square lattice has n^2 sites.
         ModelConfig::Potential(_) | ModelConfig::Hamiltonian(_) | ModelConfig::Ddnls(_)
@@ -145,6 +144,8 @@ fn claimed_dim(model: &ModelConfig) -> u128 {
         ModelConfig::Ddnls(m) => dof(m.n),
         ModelConfig::Ode(m) => len(&m.rhs),
         ModelConfig::Map(m) => len(&m.next),
+        // Henon-Heiles, a model built in code, and any kind of a size of its own.
+        _ => 4,
     }
 }
 

@@ -9,7 +9,6 @@ use std::path::Path;
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
 
-mod ddnls;
 mod load;
 pub mod locate;
 mod model;
@@ -18,12 +17,8 @@ mod parse_error;
 mod scheme;
 pub mod sweep;
 
-pub use ddnls::DdnlsConfig;
-pub use model::{
-    BoundaryConfig, CustomModelConfig, DrawnArray, FputBetaConfig, HamiltonianConfig,
-    HenonHeilesConfig, KNOWN_MODELS, MapModelConfig, ModelConfig, OdeConfig, ParamValue,
-    PotentialConfig, TableConfig, TableSpec,
-};
+// Every kind's keys (`model/KIND.rs`), re-exported by `model.rs` from its table.
+pub use model::*;
 pub use scheme::SchemeConfig;
 
 use sweep::{SweepConfig, SweepError};

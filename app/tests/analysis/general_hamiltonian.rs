@@ -280,7 +280,7 @@ fn chaotic_orbit_mles_of_both_methods_agree_within_their_spread() {
 /// 1e-12). A model without a norm (Henon-Heiles) reports none.
 #[test]
 fn the_ddnls_norm_error_is_reported_beside_the_energy_error() {
-    use chaoscope_dynamics::spec::ddnls::model_from_config;
+    use chaoscope_dynamics::spec::ddnls_lattice;
     use chaoscope_schemas::config::ModelConfig;
     for (method, bound) in [("s11abc6", 1e-8), ("gl6", 1e-12)] {
         let text = format!(
@@ -310,7 +310,7 @@ tau = 1.0
         let ModelConfig::Ddnls(model) = &config.model else {
             unreachable!()
         };
-        let lattice = model_from_config(model).unwrap();
+        let lattice = ddnls_lattice(model).unwrap();
         let mut worst: f64 = 0.0;
         let s0 = 9.0;
         let report = analyze_config(&config, &AnalysisOptions::default(), |sample| {

@@ -137,14 +137,8 @@ fn grid_line(min: f64, max: f64, n: usize, i: usize) -> f64 {
 /// parameter is a scalar of `[model] params` of a kind that takes parameter axes; the two axes
 /// are not the same parameter.
 fn lane_params(cfg: &RunConfig, map: &MapConfig) -> Result<Vec<LaneParam>, SpecError> {
-    use chaoscope_schemas::config::{ModelConfig, ParamValue};
-    let params = match &cfg.model {
-        ModelConfig::Map(m) => Some(&m.params),
-        ModelConfig::Ode(m) => Some(&m.params),
-        ModelConfig::Hamiltonian(m) => Some(&m.params),
-        ModelConfig::Potential(m) => Some(&m.params),
-        _ => None,
-    };
+    use chaoscope_schemas::config::ParamValue;
+    let params = cfg.model.params();
     let mut lanes: Vec<LaneParam> = Vec::new();
     for (key, axis) in [("map.x", &map.x), ("map.y", &map.y)] {
         Axis::grid(key, axis)?;
@@ -181,20 +175,7 @@ fn lane_params(cfg: &RunConfig, map: &MapConfig) -> Result<Vec<LaneParam>, SpecE
             ));
         }
         let Some(params) = params else {
-            let message = match &cfg.model {
-                ModelConfig::HenonHeiles(_) => {
-                    "[model] name = henon-heiles has no parameters to put on an axis".to_string()
-                }
-                ModelConfig::FputBeta(_) => "the built-in fput-beta chain takes no parameter \
-                     axis: write the chain as [model] name = \"potential\" (a lattice sum with \
-                     beta in params), which does"
-                    .to_string(),
-                _ => format!(
-                    "parameter axes are not supported for [model] name = {} (they are for \
-                     map, ode, hamiltonian and potential)",
-                    cfg.model.name()
-                ),
-            };
+            let message = crate::spec::why_no_parameter_axes(&cfg.model);
             return Err(SpecError::new(key, message));
         };
         match params.get(name) {
@@ -246,16 +227,12 @@ fn lane_params(cfg: &RunConfig, map: &MapConfig) -> Result<Vec<LaneParam>, SpecE
 /// refused: the grid is what was asked (and every point stays a function of the config and its
 /// index), only wasteful.
 pub fn repeated_grid_lines(cfg: &RunConfig) -> Vec<String> {
-    use chaoscope_schemas::config::ModelConfig;
     let (Some(map), Some(modulo)) = (&cfg.map, cfg.model.modulo()) else {
         return Vec::new();
     };
     // Hamiltonians name their axes q1..qN / p1..pN (`modulo` has 2N entries), the others
     // x1..xD.
-    let canonical = matches!(
-        cfg.model,
-        ModelConfig::Potential(_) | ModelConfig::Hamiltonian(_)
-    );
+    let canonical = cfg.model.kind().is_some_and(|k| k.canonical());
     let slot = |coord: &str| {
         if canonical {
             let n = modulo.len() / 2;

@@ -9,7 +9,7 @@ use std::sync::Arc;
 use chaoscope_schemas::config::{DdnlsConfig, Excitation, OrbitConfig, RunConfig};
 
 use super::flow::runge_kutta_system;
-use super::{Built, SpecError, num};
+use super::{Built, LaneParam, SpecError, num};
 use crate::integrator::RungeKuttaTableau;
 use crate::integrator::composition::{Composition, CompositionScheme};
 use crate::model::{Ddnls, DdnlsLattice};
@@ -90,7 +90,10 @@ pub fn model_from_config(model: &DdnlsConfig) -> Result<Ddnls, SpecError> {
 }
 
 /// `[model] name = "ddnls"` with the integrator and initial state of `cfg`.
-pub(super) fn run(model: &DdnlsConfig, cfg: &RunConfig) -> Result<Built, SpecError> {
+impl super::KindSpec for DdnlsConfig {
+    fn build(&self, cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Built, SpecError> {
+        super::refuse_parameter_axes(cfg, lanes)?;
+        let model = self;
     let lattice = Arc::new(model_from_config(model)?);
     let method = cfg.integrator.method.as_str();
     let system: Arc<dyn DynamicalSystem> = if let Some(kind) = CompositionScheme::from_name(method)
@@ -131,6 +134,7 @@ pub(super) fn run(model: &DdnlsConfig, cfg: &RunConfig) -> Result<Built, SpecErr
         ..OrbitConfig::default()
     };
     super::state_x(&with_x, system, Vec::new())
+    }
 }
 
 /// `[orbit]` of a DDNLS: `excite`, or `q` and `p`, or `x`.

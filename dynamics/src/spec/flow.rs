@@ -1,34 +1,14 @@
-//! Flows `dx/dt = f(x)` (`[model] name = "ode"`), and the Runge-Kutta integration of
-//! `[integrator]` that flows and general Hamiltonians share.
+//! The Runge-Kutta (and Taylor) integration of `[integrator]` that flows, general Hamiltonians,
+//! potentials integrated as flows and the DDNLS lattice share.
 
 use std::sync::Arc;
 
-use chaoscope_schemas::config::{OdeConfig, RunConfig};
+use chaoscope_schemas::config::RunConfig;
 
-use super::{Built, LaneParam, SpecError, num, vector};
+use super::{SpecError, num};
 use crate::integrator::runge_kutta::{RungeKutta, RungeKuttaTableau, Tolerances};
 use crate::system::{DynamicalSystem, RkFlow, TaylorFlow};
 use crate::vector_field::VectorField;
-
-/// `[model] name = "ode"`: the compiled right-hand side with the Runge-Kutta method of
-/// `[integrator]`, fixed step `h`, or adaptive `dop853` landing on the grid of `h` when `rtol`
-/// and `atol` are given.
-pub(super) fn run(
-    model: &OdeConfig,
-    cfg: &RunConfig,
-    lanes: &[LaneParam],
-) -> Result<Built, SpecError> {
-    let rhs = model.rhs.as_ref().ok_or_else(|| {
-        SpecError::new(
-            "model.rhs",
-            "ode needs the right-hand side, e.g. rhs = [\"sigma * (x2 - x1)\", ...]",
-        )
-    })?;
-    let (field, lane_values) =
-        vector::vector_function("rhs", rhs, &model.params, model.boundary.as_deref(), lanes)?;
-    let system = runge_kutta_system(cfg, Arc::new(field))?;
-    super::state_x_with_lanes(cfg, system, Vec::new(), &lane_values)
-}
 
 /// A vector field with the Runge-Kutta method of `[integrator]`: fixed step `h`, or adaptive
 /// `dop853` landing on the grid of `h` when `rtol` and `atol` are given.

@@ -11,11 +11,9 @@ use super::{Built, LaneParam, SpecError, vector};
 
 /// `[model] name = "hamiltonian"`: the vector field of `H(q, p)` (derivatives taken
 /// symbolically) with a Runge-Kutta method; `gl4` and `gl6` are symplectic.
-pub(super) fn run(
-    model: &HamiltonianConfig,
-    cfg: &RunConfig,
-    lanes: &[LaneParam],
-) -> Result<Built, SpecError> {
+impl super::KindSpec for HamiltonianConfig {
+    fn build(&self, cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Built, SpecError> {
+        let model = self;
     let source = model.hamiltonian.as_ref().ok_or_else(|| {
         SpecError::new(
             "model.hamiltonian",
@@ -51,6 +49,7 @@ pub(super) fn run(
     let mut with_x = cfg.clone();
     with_x.orbit = state_of_q_and_p(&cfg.orbit, n)?;
     super::state_x_with_lanes(&with_x, system, Vec::new(), &lane_values)
+    }
 }
 
 /// `[orbit] q` and `p` (or `x`) of a Hamiltonian given as an expression, as the state `x =

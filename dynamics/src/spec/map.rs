@@ -10,11 +10,9 @@ use crate::system::Map;
 
 /// `[model] name = "map"`: the compiled map with its periods. Time counts iterations: `h` is 1,
 /// `t_final` and every `tau` are whole numbers of iterations.
-pub(super) fn run(
-    model: &MapModelConfig,
-    cfg: &RunConfig,
-    lanes: &[LaneParam],
-) -> Result<Built, SpecError> {
+impl super::KindSpec for MapModelConfig {
+    fn build(&self, cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Built, SpecError> {
+        let model = self;
     let next = model.next.as_ref().ok_or_else(|| {
         SpecError::new(
             "model.next",
@@ -59,4 +57,5 @@ pub(super) fn run(
     let modulo = model.modulo.clone().unwrap_or_default();
     let map = Map::new(function, modulo).map_err(|e| SpecError::new("model.modulo", e))?;
     super::state_x_with_lanes(cfg, Arc::new(map), Vec::new(), &lane_values)
+    }
 }

@@ -6,15 +6,14 @@
 //! the run before the caller has seen the resource estimate (the random directions are drawn
 //! on first use).
 //!
-//! One file per kind of `[model]`, each turning its keys into a system and an initial state
-//! ([`Built`]); this file dispatches on the kind and checks what every kind shares (the time
-//! grid, the deviations, the schemes):
-//! - [`separable`]: separable Hamiltonians with a splitting (built-in models, and models built
-//!   in code), their initial state from the energy; [`potential`]: a potential `V(q)` written as
-//!   an expression, and its tables (the one file access of the validation);
-//! - [`hamiltonian`]: any `H(q, p)`; [`flow`]: `dx/dt = f(x)` and the Runge-Kutta settings both
-//!   share; [`ddnls`]: the disordered nonlinear Schroedinger lattice and its excitations;
-//!   [`map`]: `x -> F(x)`; [`vector`]: the expression keys they share.
+//! One file per kind of `[model]`, named by the kind table
+//! (`chaoscope_schemas::for_each_model_kind`), each implementing [`KindSpec`] on its keys'
+//! struct: its keys turned into a system and an initial state ([`Built`]). This file dispatches
+//! on the kind (the match is generated from the table) and checks what every kind shares (the
+//! time grid, the deviations, the schemes). Beside the kinds' files: `separable.rs`, the
+//! splitting and initial state of any separable Hamiltonian (built in, a `potential`, or built in
+//! code); `flow.rs`, the Runge-Kutta and Taylor settings of the kinds integrated as flows;
+//! `vector.rs`, the expression keys they share; `lattice_shape.rs`, chains and square lattices.
 
 use std::sync::{Arc, OnceLock};
 
@@ -28,16 +27,14 @@ use crate::deviation::{self, DirectionError, Directions};
 use crate::model::SeparableHamiltonian;
 use crate::system::{DynamicalSystem, Time};
 
-pub mod ddnls;
 pub mod drawn;
 mod flow;
-mod hamiltonian;
 mod lattice_shape;
-mod map;
-mod potential;
 mod separable;
 pub mod state_function;
 pub mod vector;
+
+pub use ddnls::model_from_config as ddnls_lattice;
 
 pub(crate) use potential::param_value;
 pub use potential::{TableDigest, pin_tables};
@@ -45,6 +42,69 @@ pub use separable::{
     initial_state, model_from_config, parse_coordinate, solve_momentum, state_coordinate,
 };
 pub use vector::unused_params;
+
+/// A separable Hamiltonian, with the digests of the tables it read.
+pub type SeparableModel = (Arc<dyn SeparableHamiltonian>, Vec<TableDigest>);
+
+/// A kind of `[model]` as the validation sees it, in the kind's file (`spec/MODULE.rs`, one
+/// module per line of the kind table, `chaoscope_schemas::for_each_model_kind`).
+trait KindSpec {
+    /// The system and initial state its keys and `cfg` describe, reading the parameters `lanes`
+    /// from every state (a map over parameter axes).
+    fn build(&self, cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Built, SpecError>;
+
+    /// Its separable Hamiltonian with the digests of the tables it read, for the kinds that
+    /// are one.
+    fn separable(&self) -> Option<Result<SeparableModel, SpecError>> {
+        None
+    }
+
+    /// Why a map may not put a parameter of the kind `name` on an axis.
+    fn why_no_parameter_axes(&self, name: &str) -> String {
+        no_parameter_axes(name)
+    }
+}
+
+/// The kind table's items here: a module per kind and the dispatch.
+macro_rules! kind_specs {
+    ($($(#[doc = $doc:literal])* $variant:ident = $name:literal in $module:ident: $config:ident;)*) => {
+        $(mod $module;)*
+
+        /// The kind `model` names (none for a model built in code).
+        fn kind_spec(model: &ModelConfig) -> Option<&dyn KindSpec> {
+            match model {
+                $(ModelConfig::$variant(m) => Some(m),)*
+                ModelConfig::Custom(_) => None,
+            }
+        }
+    };
+}
+
+chaoscope_schemas::for_each_model_kind!(kind_specs);
+
+/// The refusal of parameter axes for a kind `name` that takes none.
+fn no_parameter_axes(name: &str) -> String {
+    format!(
+        "parameter axes are not supported for [model] name = {name} (they are for map, ode, \
+         hamiltonian and potential)"
+    )
+}
+
+/// Why the parameter axes of a map cannot be over `model`'s parameters.
+pub(crate) fn why_no_parameter_axes(model: &ModelConfig) -> String {
+    match kind_spec(model) {
+        Some(kind) => kind.why_no_parameter_axes(model.name()),
+        None => no_parameter_axes(model.name()),
+    }
+}
+
+/// An error unless `lanes` is empty, for a kind that takes no parameter axes.
+fn refuse_parameter_axes(cfg: &RunConfig, lanes: &[LaneParam]) -> Result<(), SpecError> {
+    if lanes.is_empty() {
+        return Ok(());
+    }
+    Err(SpecError::new("map", why_no_parameter_axes(&cfg.model)))
+}
 
 /// The route a configuration names at `key` (absent: per-set).
 pub fn route_from_config(key: &str, value: Option<&str>) -> Result<Route, SpecError> {
@@ -360,34 +420,13 @@ impl RunSpec {
         let cfg = &cfg
             .with_sweeps_expanded()
             .map_err(|e| SpecError::new(e.key, e.message))?;
-        let built = match &cfg.model {
-            ModelConfig::HenonHeiles(_) | ModelConfig::FputBeta(_) | ModelConfig::Custom(_)
-                if !lanes.is_empty() =>
-            {
-                return Err(SpecError::new(
-                    "map",
-                    format!(
-                        "parameter axes are not supported for [model] name = {} (they are for map, ode, hamiltonian and potential)",
-                        cfg.model.name()
-                    ),
-                ));
-            }
-            ModelConfig::HenonHeiles(_) | ModelConfig::FputBeta(_) | ModelConfig::Custom(_) => {
+        let built = match kind_spec(&cfg.model) {
+            Some(kind) => kind.build(cfg, lanes)?,
+            None => {
+                refuse_parameter_axes(cfg, lanes)?;
                 let (model, tables) = model_from_config(&cfg.model)?;
                 separable::run(cfg, model, tables)?
             }
-            ModelConfig::Potential(model) => potential::run(model, cfg, lanes)?,
-            ModelConfig::Hamiltonian(model) => hamiltonian::run(model, cfg, lanes)?,
-            ModelConfig::Ddnls(_) if !lanes.is_empty() => {
-                return Err(SpecError::new(
-                    "map",
-                    "parameter axes are not supported for [model] name = ddnls (they are for \
-                     map, ode, hamiltonian and potential)",
-                ));
-            }
-            ModelConfig::Ddnls(model) => ddnls::run(model, cfg)?,
-            ModelConfig::Ode(model) => flow::run(model, cfg, lanes)?,
-            ModelConfig::Map(model) => map::run(model, cfg, lanes)?,
         };
         let spec = Self::validated(cfg, built)?;
         // A map over parameter axes has the lanes' values in its state; it runs no 0-1 test.

@@ -12,7 +12,7 @@ use chaoscope_expr::table::{self, Spline, SplineEnds};
 use chaoscope_schemas::config::{self, ModelConfig, PotentialConfig, RunConfig, TableConfig};
 
 use super::lattice_shape::Sites;
-use super::{Built, LaneParam, SpecError, separable};
+use super::{Built, LaneParam, SeparableModel, SpecError, separable};
 use crate::integrator::SplittingScheme;
 use crate::model::{ExpressionModel, PotentialDefinition, SeparableHamiltonian};
 
@@ -148,7 +148,7 @@ fn load_table(name: &str, cfg: &TableConfig) -> Result<(Arc<Spline>, TableDigest
 /// Check the keys of a `potential` model, load its tables and compile it.
 pub fn potential_model(
     cfg: &PotentialConfig,
-) -> Result<(Arc<dyn SeparableHamiltonian>, Vec<TableDigest>), SpecError> {
+) -> Result<SeparableModel, SpecError> {
     potential_model_with_lanes(cfg, &[]).map(|(model, tables, _, _)| (model, tables))
 }
 
@@ -242,11 +242,13 @@ const INVERSE_MASS: &str = "_inverse_mass";
 /// `name = "potential"`: the compiled model with the splitting of `[integrator]`, reading the
 /// parameters `lanes` from every state after its `2N` coordinates; or, with a Runge-Kutta
 /// method or Taylor's, the flow of `H = sum p_i^2 / (2 m_i) + V(q)`.
-pub(super) fn run(
-    model: &PotentialConfig,
-    cfg: &RunConfig,
-    lanes: &[LaneParam],
-) -> Result<Built, SpecError> {
+impl super::KindSpec for PotentialConfig {
+    fn separable(&self) -> Option<Result<SeparableModel, SpecError>> {
+        Some(potential_model(self))
+    }
+
+    fn build(&self, cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Built, SpecError> {
+        let model = self;
     let method = cfg.integrator.method.as_str();
     if SplittingScheme::from_name(method).is_none() && !FLOW_METHODS.contains(&method) {
         return Err(SpecError::new(
@@ -264,6 +266,7 @@ pub(super) fn run(
         return as_flow(model, cfg, compiled, sites, tables, lanes);
     }
     separable::run_with_lanes(cfg, compiled, tables, &lane_values)
+    }
 }
 
 /// A potential integrated as the flow of its Hamiltonian `V + sum_i p_i^2 w_i / 2` (`w_i = 1 /

@@ -1,68 +1,32 @@
 //! Separable Hamiltonians `H = sum p_i^2 / (2 m_i) + V(q)` with a symplectic splitting: the
-//! built-in models (`henon-heiles`, `fput-beta`), a `potential` ([`super::potential`]) and
+//! built-in models (`henon_heiles.rs`, `fput_beta.rs`), a `potential` (`potential.rs`) and
 //! models built in code; their initial state from `[orbit]` (`q` and `p`, the energy solved for
 //! one momentum, or a preset).
 
 use std::sync::Arc;
 
-use chaoscope_schemas::config::{
-    FputBetaConfig, HenonHeilesConfig, KNOWN_MODELS, ModelConfig, OrbitConfig, RunConfig,
-};
+use chaoscope_schemas::config::{KNOWN_MODELS, ModelConfig, OrbitConfig, RunConfig};
 
-use super::potential::{self, TableDigest};
-use super::{Built, SpecError};
+use super::potential::TableDigest;
+use super::{Built, SeparableModel, SpecError};
 use crate::integrator::{Splitting, SplittingScheme};
-use crate::model::{At, FputBeta, HenonHeiles, SeparableHamiltonian, WithParams};
+use crate::model::{At, SeparableHamiltonian, WithParams};
 use crate::system::SplitHamiltonian;
 
-/// Most particles of the built-in FPUT chain.
-pub const MAX_FPUT_SITES: usize = 1_000_000;
-
 /// The separable model `cfg` names, with the digests of the tables it read.
-pub fn model_from_config(
-    cfg: &ModelConfig,
-) -> Result<(Arc<dyn SeparableHamiltonian>, Vec<TableDigest>), SpecError> {
-    match cfg {
-        ModelConfig::HenonHeiles(m) => Ok((henon_heiles(m)?, Vec::new())),
-        ModelConfig::FputBeta(m) => Ok((fput_beta(m)?, Vec::new())),
-        ModelConfig::Potential(m) => potential::potential_model(m),
-        ModelConfig::Custom(c) => Err(SpecError::new(
-            "model.name",
-            format!("unknown model '{}' (known: {KNOWN_MODELS})", c.name),
-        )),
-        other => Err(SpecError::new(
-            "model.name",
-            format!("'{}' is not a separable Hamiltonian model", other.name()),
-        )),
-    }
-}
-
-/// `name = "henon-heiles"`.
-fn henon_heiles(cfg: &HenonHeilesConfig) -> Result<Arc<dyn SeparableHamiltonian>, SpecError> {
-    if let Some(n) = cfg.n.filter(|&n| n != 2) {
+pub fn model_from_config(cfg: &ModelConfig) -> Result<SeparableModel, SpecError> {
+    let Some(kind) = super::kind_spec(cfg) else {
         return Err(SpecError::new(
-            "model.n",
-            format!("henon-heiles has 2 degrees of freedom, got n = {n}"),
+            "model.name",
+            format!("unknown model '{}' (known: {KNOWN_MODELS})", cfg.name()),
         ));
-    }
-    Ok(Arc::new(HenonHeiles))
-}
-
-/// `name = "fput-beta"`.
-fn fput_beta(cfg: &FputBetaConfig) -> Result<Arc<dyn SeparableHamiltonian>, SpecError> {
-    let n = cfg
-        .n
-        .ok_or_else(|| SpecError::new("model.n", "fput-beta needs the number of particles n"))?;
-    if n == 0 || n > MAX_FPUT_SITES {
-        return Err(SpecError::new(
-            "model.n",
-            format!("must be between 1 and {MAX_FPUT_SITES}, got {n}"),
-        ));
-    }
-    let beta = cfg.beta.unwrap_or(1.0);
-    FputBeta::new(n, beta)
-        .map(|m| Arc::new(m) as Arc<dyn SeparableHamiltonian>)
-        .map_err(|e| SpecError::new("model.beta", e))
+    };
+    kind.separable().unwrap_or_else(|| {
+        Err(SpecError::new(
+            "model.name",
+            format!("'{}' is not a separable Hamiltonian model", cfg.name()),
+        ))
+    })
 }
 
 /// A separable Hamiltonian `model` with the splitting of `[integrator]`, from the initial state

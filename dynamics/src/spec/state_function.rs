@@ -6,7 +6,7 @@
 use chaoscope_expr::ScalarDefinition;
 use chaoscope_expr::ScalarFunction;
 
-use chaoscope_schemas::config::{BoundaryConfig, ModelConfig, RunConfig};
+use chaoscope_schemas::config::{ModelConfig, RunConfig};
 use chaoscope_schemas::run::SystemClass;
 
 use super::{RunSpec, SpecError, param_value};
@@ -73,29 +73,11 @@ pub(crate) fn scalar_definition(
     } else {
         (vec![("x".to_string(), dim)], dim)
     };
-    let sites = match model {
-        ModelConfig::Ode(m) => {
-            let boundary = m.boundary.clone().map(BoundaryConfig::Every);
-            super::lattice_shape::sites(None, boundary.as_ref(), n)?
-        }
-        ModelConfig::Hamiltonian(m) => super::lattice_shape::sites(
-            m.lattice.as_deref(),
-            m.boundary.as_ref(),
-            m.n.unwrap_or(n),
-        )?,
-        ModelConfig::Potential(m) => super::lattice_shape::sites(
-            m.lattice.as_deref(),
-            m.boundary.as_ref(),
-            m.n.unwrap_or(n),
-        )?,
-        _ => super::lattice_shape::sites(None, None, n)?,
-    };
-    let params = match model {
-        ModelConfig::Ode(m) => Some(&m.params),
-        ModelConfig::Hamiltonian(m) => Some(&m.params),
-        ModelConfig::Potential(m) => Some(&m.params),
-        _ => None,
-    };
+    let (lattice, boundary, side) = model
+        .kind()
+        .map_or((None, None, None), |k| k.summed_sites());
+    let sites = super::lattice_shape::sites(lattice, boundary.as_ref(), side.unwrap_or(n))?;
+    let params = model.params();
     let size = format!("the system has N = {n}");
     let mut values = std::collections::BTreeMap::new();
     for (name, v) in params.into_iter().flatten() {

@@ -1,13 +1,13 @@
 //! `[model]`: the system a run integrates, one kind per `name`, each kind's keys in its own
-//! struct. A key another kind reads is an error naming its line and column, like any unknown
-//! key; what the values mean (ranges, expressions, the initial state they need) is checked by
-//! the producer's validation of that kind.
+//! struct and file (`config/model/KIND.rs`). A key another kind reads is an error naming its
+//! line and column, like any unknown key; what the values mean (ranges, expressions, the
+//! initial state they need) is checked by the dynamics crate's validation of that kind.
 //!
 //! Kinds: separable Hamiltonians `H = sum p_i^2 / (2 m_i) + V(q)` (`henon-heiles`, `fput-beta`,
 //! `potential` with `V` written as an expression), any Hamiltonian `H(q, p)` (`hamiltonian`),
-//! the disordered discrete nonlinear Schroedinger lattice (`ddnls`, `config/ddnls.rs`),
-//! flows `dx/dt = f(x)` (`ode`) and maps `x -> F(x)` (`map`). A model or system written in Rust
-//! (the library route) is named by a `name` of its own ([`CustomModelConfig`]).
+//! the disordered discrete nonlinear Schroedinger lattice (`ddnls`), flows `dx/dt = f(x)`
+//! (`ode`) and maps `x -> F(x)` (`map`). A model or system written in Rust (the library route)
+//! is named by a `name` of its own ([`CustomModelConfig`]).
 
 use std::collections::BTreeMap;
 
@@ -16,98 +16,192 @@ use serde::de::value::MapAccessDeserializer;
 use serde::de::{self, DeserializeSeed, IntoDeserializer, MapAccess, Visitor};
 use serde::{Deserialize, Deserializer, Serialize};
 
-/// The `[model]` table: which system, and its parameters.
-#[derive(Debug, Clone, PartialEq, Serialize, JsonSchema)]
-#[serde(tag = "name")]
-pub enum ModelConfig {
-    /// The Henon-Heiles potential (2 degrees of freedom).
-    #[serde(rename = "henon-heiles")]
-    HenonHeiles(HenonHeilesConfig),
-    /// The beta-FPUT chain with fixed ends.
-    #[serde(rename = "fput-beta")]
-    FputBeta(FputBetaConfig),
-    /// A separable Hamiltonian whose potential `V(q)` is an expression.
-    #[serde(rename = "potential")]
-    Potential(PotentialConfig),
-    /// Any Hamiltonian `H(q, p)` written as an expression, integrated by a Runge-Kutta method.
-    #[serde(rename = "hamiltonian")]
-    Hamiltonian(HamiltonianConfig),
-    /// The disordered discrete nonlinear Schroedinger lattice (1-D chain or 2-D square).
-    #[serde(rename = "ddnls")]
-    Ddnls(super::ddnls::DdnlsConfig),
-    /// A flow `dx/dt = f(x)` written as expressions.
-    #[serde(rename = "ode")]
-    Ode(OdeConfig),
-    /// A map `x -> F(x)` written as expressions.
-    #[serde(rename = "map")]
-    Map(MapModelConfig),
-    /// A model or system built in code (`RunSpec::with_model`, `RunSpec::with_system`): its
-    /// name, which recordings carry, and the keys its code reads. The command-line tools know
-    /// no such name, so the configuration's JSON Schema has no room for it.
-    #[serde(untagged)]
-    #[schemars(skip)]
-    Custom(CustomModelConfig),
+/// The kinds of `[model]`, one line each: the [`ModelConfig`] variant, the `name` a config
+/// writes, the module holding the kind (`config/model/MODULE.rs` here, `spec/MODULE.rs` in the
+/// dynamics crate) and its keys' struct. Whatever dispatches on the kind is generated from this
+/// one table, which calls `$callback!` with it: here the enum, [`ModelConfig::name`],
+/// [`KNOWN_MODELS`], the reader's dispatch and [`ModelConfig::kinds_with_key`]; in the dynamics
+/// crate the validation's modules and dispatch. So a new kind is a line here, its file here and
+/// its file there.
+#[macro_export]
+macro_rules! for_each_model_kind {
+    ($callback:ident) => {
+        $callback! {
+            /// The Henon-Heiles potential (2 degrees of freedom).
+            HenonHeiles = "henon-heiles" in henon_heiles: HenonHeilesConfig;
+            /// The beta-FPUT chain with fixed ends.
+            FputBeta = "fput-beta" in fput_beta: FputBetaConfig;
+            /// A separable Hamiltonian whose potential `V(q)` is an expression.
+            Potential = "potential" in potential: PotentialConfig;
+            /// Any Hamiltonian `H(q, p)` written as an expression, integrated by a Runge-Kutta
+            /// method.
+            Hamiltonian = "hamiltonian" in hamiltonian: HamiltonianConfig;
+            /// The disordered discrete nonlinear Schroedinger lattice (1-D chain or 2-D square).
+            Ddnls = "ddnls" in ddnls: DdnlsConfig;
+            /// A flow `dx/dt = f(x)` written as expressions.
+            Ode = "ode" in ode: OdeConfig;
+            /// A map `x -> F(x)` written as expressions.
+            Map = "map" in map: MapModelConfig;
+        }
+    };
 }
 
-/// `name = "henon-heiles"`.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
-#[serde(deny_unknown_fields)]
-pub struct HenonHeilesConfig {
-    /// Degrees of freedom: 2 (may be left out).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub n: Option<usize>,
+/// What code outside a kind's files asks of its keys, answered in the kind's file; each default
+/// is the answer of a kind without the key.
+pub trait ModelKind {
+    /// `params`: the values its expressions name.
+    fn params(&self) -> Option<&BTreeMap<String, ParamValue>> {
+        None
+    }
+    /// `modulo`: the period of each coordinate of the state (0: not periodic).
+    fn modulo(&self) -> Option<&[f64]> {
+        None
+    }
+    /// Whether the state is canonical, `q1..qN, p1..pN` (a Hamiltonian), rather than `x1..xD`.
+    fn canonical(&self) -> bool {
+        false
+    }
+    /// The side of the square lattice its sites form (`lattice = "square"`).
+    fn square_side(&self) -> Option<usize> {
+        None
+    }
+    /// The `boundary` of its lattice, whose periodic axes close a ring, cylinder or torus.
+    fn lattice_boundary(&self) -> Option<&BoundaryConfig> {
+        None
+    }
+    /// What lattice sums in its expressions range over: `lattice`, `boundary` and `n`.
+    fn summed_sites(&self) -> (Option<&str>, Option<BoundaryConfig>, Option<usize>) {
+        (None, None, None)
+    }
+    /// The tabulated functions its expressions call.
+    fn tables(&self) -> Option<&BTreeMap<String, TableConfig>> {
+        None
+    }
+    /// [`ModelKind::tables`], to rewrite their paths or pin their digests.
+    fn tables_mut(&mut self) -> Option<&mut BTreeMap<String, TableConfig>> {
+        None
+    }
 }
 
-/// `name = "fput-beta"`: `H = sum p_i^2/2 + sum (q_{i+1} - q_i)^2/2 + beta (q_{i+1} - q_i)^4/4`.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
-#[serde(deny_unknown_fields)]
-pub struct FputBetaConfig {
-    /// Number of particles `N`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub n: Option<usize>,
-    /// Quartic coupling (default 1).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub beta: Option<f64>,
+/// The [`ModelKind`] answers of a kind written as expressions over a chain or a square lattice,
+/// from its keys `n`, `lattice`, `boundary`, `params` and `modulo` (`potential`, `hamiltonian`).
+macro_rules! lattice_expression_answers {
+    () => {
+        fn params(&self) -> Option<&BTreeMap<String, ParamValue>> {
+            Some(&self.params)
+        }
+        fn modulo(&self) -> Option<&[f64]> {
+            self.modulo.as_deref()
+        }
+        fn canonical(&self) -> bool {
+            true
+        }
+        fn square_side(&self) -> Option<usize> {
+            super::square_side(self.lattice.as_deref(), self.n)
+        }
+        fn lattice_boundary(&self) -> Option<&BoundaryConfig> {
+            self.boundary.as_ref()
+        }
+        fn summed_sites(&self) -> (Option<&str>, Option<BoundaryConfig>, Option<usize>) {
+            (self.lattice.as_deref(), self.boundary.clone(), self.n)
+        }
+    };
 }
 
-/// `name = "potential"`: `H = sum p_i^2 / (2 m_i) + V(q)` with `V` in chaoscope's expression
-/// language.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
-#[serde(deny_unknown_fields)]
-pub struct PotentialConfig {
-    /// Number of degrees of freedom (lattice sites) `N`; with `lattice = "square"` the side of
-    /// the square (`n^2` sites).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub n: Option<usize>,
-    /// `"chain"` (default: `q1..qN`, `q[i]`) or `"square"`: an `n x n` lattice whose sites are
-    /// `q[i, j]` (row `i`, column `j`), numbered row by row.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub lattice: Option<String>,
-    /// `V(q)` over `q1..qN` (or `q[i]`), `params` and `tables`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub potential: Option<String>,
-    /// Parameters the expression names: a number, or an array with one entry per site.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub params: BTreeMap<String, ParamValue>,
-    /// Masses `m_i`: one number for every site or one per site (default 1).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub masses: Option<ParamValue>,
-    /// What lattice sums see beyond the ends: `"fixed"` (default: `q[0] = q[N+1] = 0`),
-    /// `"periodic"` (`q[N+1] = q[1]`) or `"free"` (terms reaching past an end are left out);
-    /// on a square lattice one for both axes or one per axis, `["fixed", "periodic"]` (along
-    /// `i`, then along `j`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub boundary: Option<BoundaryConfig>,
-    /// Tabulated functions the expression may call by name, e.g. `U = "bond.csv"`.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub tables: BTreeMap<String, TableConfig>,
-    /// Per coordinate of the state `q1..qN, p1..pN` (2N entries), the period it is taken
-    /// modulo (e.g. `6.283185307179586` for an angle), or 0 for a coordinate that is not
-    /// periodic: as a map's `modulo`. The integration never wraps the state (the exponents are
-    /// those of the unwrapped flow); what is read and shown of it (the verdict's extent, the 0-1
-    /// test, sections) takes the wrapped value.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub modulo: Option<Vec<f64>>,
+/// `"a, b, c"` of the literals given.
+macro_rules! comma_separated {
+    ($first:literal $(, $rest:literal)*) => {
+        concat!($first $(, ", ", $rest)*)
+    };
+}
+
+/// The kind table's items in this crate.
+macro_rules! model_config {
+    ($($(#[doc = $doc:literal])* $variant:ident = $name:literal in $module:ident: $config:ident;)*) => {
+        $(
+            mod $module;
+            pub use $module::$config;
+        )*
+
+        /// The `[model]` table: which system, and its parameters.
+        #[derive(Debug, Clone, PartialEq, Serialize, JsonSchema)]
+        #[serde(tag = "name")]
+        pub enum ModelConfig {
+            $(
+                $(#[doc = $doc])*
+                #[serde(rename = $name)]
+                $variant($config),
+            )*
+            /// A model or system built in code (`RunSpec::with_model`, `RunSpec::with_system`):
+            /// its name, which recordings carry, and the keys its code reads. The command-line
+            /// tools know no such name, so the configuration's JSON Schema has no room for it.
+            #[serde(untagged)]
+            #[schemars(skip)]
+            Custom(CustomModelConfig),
+        }
+
+        /// Every `name` the command-line tools know, as error messages list them.
+        pub const KNOWN_MODELS: &str = comma_separated!($($name),*);
+
+        impl ModelConfig {
+            /// The `name` as written in the config.
+            pub fn name(&self) -> &str {
+                match self {
+                    $(Self::$variant(_) => $name,)*
+                    Self::Custom(c) => &c.name,
+                }
+            }
+
+            /// The kind's answers to what is asked of its keys (none for a model built in code).
+            pub fn kind(&self) -> Option<&dyn ModelKind> {
+                match self {
+                    $(Self::$variant(m) => Some(m),)*
+                    Self::Custom(_) => None,
+                }
+            }
+
+            /// [`ModelConfig::kind`], mutable.
+            pub fn kind_mut(&mut self) -> Option<&mut dyn ModelKind> {
+                match self {
+                    $(Self::$variant(m) => Some(m),)*
+                    Self::Custom(_) => None,
+                }
+            }
+
+            /// The kinds whose `[model]` table takes `key` (for the message of a key given to
+            /// another kind), in the order of [`KNOWN_MODELS`].
+            pub fn kinds_with_key(key: &str) -> Vec<&'static str> {
+                [$(($name, keys::<$config>())),*]
+                    .into_iter()
+                    .filter(|(_, k)| k.contains(&key))
+                    .map(|(name, _)| name)
+                    .collect()
+            }
+        }
+
+        /// The kind `name` names, its struct reading the rest of the table (a name no kind has
+        /// is a model built in code, which keeps every key as written).
+        fn read_kind<'de, A: MapAccess<'de>>(
+            name: String,
+            before: &mut Vec<(String, toml::Value)>,
+            map: &mut A,
+        ) -> Result<ModelConfig, A::Error> {
+            Ok(match name.as_str() {
+                $($name => ModelConfig::$variant(Deserialize::deserialize(rest(before, map))?),)*
+                _ => ModelConfig::Custom(CustomModelConfig {
+                    name,
+                    keys: Deserialize::deserialize(rest(before, map))?,
+                }),
+            })
+        }
+    };
+}
+
+for_each_model_kind!(model_config);
+
+/// The side of the square lattice `lattice = "square"` with `n` per side describes.
+fn square_side(lattice: Option<&str>, n: Option<usize>) -> Option<usize> {
+    (lattice == Some("square")).then_some(n).flatten()
 }
 
 /// `boundary`: one condition for every end, or one per axis of a square lattice.
@@ -128,79 +222,6 @@ impl From<&str> for BoundaryConfig {
     fn from(name: &str) -> Self {
         Self::Every(name.to_string())
     }
-}
-
-/// `name = "hamiltonian"`: any `H(q, p)`, separable or not.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
-#[serde(deny_unknown_fields)]
-pub struct HamiltonianConfig {
-    /// Degrees of freedom `N`; with `lattice = "square"` the side of the square (`n^2` sites).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub n: Option<usize>,
-    /// `"chain"` (default) or `"square"` (`q[i, j]`, `p[i, j]`), as for `potential`.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub lattice: Option<String>,
-    /// Parameters the expression names: a number, or an array with one entry per degree of
-    /// freedom.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub params: BTreeMap<String, ParamValue>,
-    /// What lattice sums see beyond the ends (as for `potential`, also per axis).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub boundary: Option<BoundaryConfig>,
-    /// `H(q, p)` over `q1..qN`, `p1..pN` (and `q[i]`, `p[i]`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub hamiltonian: Option<String>,
-    /// Per coordinate of the state `q1..qN, p1..pN` (2N entries), the period it is taken
-    /// modulo (e.g. `6.283185307179586` for an angle), or 0 for a coordinate that is not
-    /// periodic: as a map's `modulo`. The integration never wraps the state (the exponents are
-    /// those of the unwrapped flow); what is read and shown of it (the verdict's extent, the 0-1
-    /// test, sections) takes the wrapped value.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub modulo: Option<Vec<f64>>,
-}
-
-/// `name = "ode"`: `dx/dt = f(x)`.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
-#[serde(deny_unknown_fields)]
-pub struct OdeConfig {
-    /// Parameters the expressions name: a number, or an array with one entry per coordinate.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub params: BTreeMap<String, ParamValue>,
-    /// What lattice sums see beyond the ends (as for `potential`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub boundary: Option<String>,
-    /// The right-hand side `f_1(x), ..., f_D(x)`, one expression per coordinate over `x1..xD`
-    /// (or `x[i]`) and `params`; `D` is the number of entries.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub rhs: Option<Vec<String>>,
-    /// Per coordinate of the state `x1..xD` (D entries), the period it is taken
-    /// modulo (e.g. `6.283185307179586` for an angle), or 0 for a coordinate that is not
-    /// periodic: as a map's `modulo`. The integration never wraps the state (the exponents are
-    /// those of the unwrapped flow); what is read and shown of it (the verdict's extent, the 0-1
-    /// test, sections) takes the wrapped value.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub modulo: Option<Vec<f64>>,
-}
-
-/// `name = "map"`: `x -> F(x)`.
-#[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize, JsonSchema)]
-#[serde(deny_unknown_fields)]
-pub struct MapModelConfig {
-    /// Parameters the expressions name: a number, or an array with one entry per coordinate.
-    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
-    pub params: BTreeMap<String, ParamValue>,
-    /// What lattice sums see beyond the ends (as for `potential`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub boundary: Option<String>,
-    /// The map, one expression `F_i(x)` per coordinate over `x1..xD` (or `x[i]`) and `params`;
-    /// `D` is the number of entries.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub next: Option<Vec<String>>,
-    /// Per coordinate, the period it is taken modulo (e.g. `6.283185307179586` for an angle),
-    /// or 0 for a coordinate that is not wrapped. Separations of nearby orbits are measured on
-    /// the torus (the minimal image).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub modulo: Option<Vec<f64>>,
 }
 
 /// A model or system built in code: the name recordings carry, and whatever other keys its
@@ -342,9 +363,6 @@ impl TableConfig {
     }
 }
 
-/// Every `name` the command-line tools know, as error messages list them.
-pub const KNOWN_MODELS: &str = "henon-heiles, fput-beta, potential, hamiltonian, ddnls, ode, map";
-
 impl ModelConfig {
     /// `name = "potential"` with `V(q) = potential` on `n` sites.
     pub fn potential(n: usize, potential: &str) -> Self {
@@ -363,58 +381,25 @@ impl ModelConfig {
         })
     }
 
-    /// The `name` as written in the config.
-    pub fn name(&self) -> &str {
-        match self {
-            Self::HenonHeiles(_) => "henon-heiles",
-            Self::FputBeta(_) => "fput-beta",
-            Self::Potential(_) => "potential",
-            Self::Hamiltonian(_) => "hamiltonian",
-            Self::Ddnls(_) => "ddnls",
-            Self::Ode(_) => "ode",
-            Self::Map(_) => "map",
-            Self::Custom(c) => &c.name,
-        }
-    }
-
     /// The period of each coordinate of the state (`modulo`: `0` for a coordinate that is not
     /// periodic), where the model declares any: maps, flows and the Hamiltonians written as
     /// expressions.
     pub fn modulo(&self) -> Option<&[f64]> {
-        match self {
-            Self::Potential(m) => m.modulo.as_deref(),
-            Self::Hamiltonian(m) => m.modulo.as_deref(),
-            Self::Ode(m) => m.modulo.as_deref(),
-            Self::Map(m) => m.modulo.as_deref(),
-            _ => None,
-        }
+        self.kind()?.modulo()
     }
 
     /// The side `L` of the square lattice the model's sites form (`L^2` sites numbered row by
     /// row: `lattice = "square"` with `n = L`), `None` for a chain or a system without sites.
     pub fn square_side(&self) -> Option<usize> {
-        let (lattice, n) = match self {
-            Self::Ddnls(m) => (&m.lattice, m.n),
-            Self::Potential(m) => (&m.lattice, m.n),
-            Self::Hamiltonian(m) => (&m.lattice, m.n),
-            _ => return None,
-        };
-        (lattice.as_deref() == Some("square"))
-            .then_some(n)
-            .flatten()
+        self.kind()?.square_side()
     }
 
     /// Which axes of the model's lattice close on themselves (`boundary = "periodic"`, for
     /// every axis or per axis: along `i`, then `j`; a chain reads the first): a ring, a cylinder
     /// or a torus, around which the distributions' second moments are measured.
     pub fn periodic_axes(&self) -> [bool; 2] {
-        let boundary = match self {
-            Self::Potential(m) => m.boundary.as_ref(),
-            Self::Hamiltonian(m) => m.boundary.as_ref(),
-            _ => None,
-        };
         let periodic = |b: Option<&String>| b.is_some_and(|b| b == "periodic");
-        match boundary {
+        match self.kind().and_then(|k| k.lattice_boundary()) {
             Some(BoundaryConfig::Every(b)) => [periodic(Some(b)); 2],
             Some(BoundaryConfig::PerAxis(axes)) => [periodic(axes.first()), periodic(axes.get(1))],
             None => [false; 2],
@@ -423,36 +408,17 @@ impl ModelConfig {
 
     /// The tables the model reads (only a `potential` has any).
     pub fn tables(&self) -> Option<&BTreeMap<String, TableConfig>> {
-        match self {
-            Self::Potential(p) => Some(&p.tables),
-            _ => None,
-        }
+        self.kind()?.tables()
     }
 
     /// [`ModelConfig::tables`], to rewrite their paths or pin their digests.
     pub fn tables_mut(&mut self) -> Option<&mut BTreeMap<String, TableConfig>> {
-        match self {
-            Self::Potential(p) => Some(&mut p.tables),
-            _ => None,
-        }
+        self.kind_mut()?.tables_mut()
     }
 
-    /// The kinds whose `[model]` table takes `key` (for the message of a key given to another
-    /// kind), in the order of [`KNOWN_MODELS`].
-    pub fn kinds_with_key(key: &str) -> Vec<&'static str> {
-        [
-            ("henon-heiles", keys::<HenonHeilesConfig>()),
-            ("fput-beta", keys::<FputBetaConfig>()),
-            ("potential", keys::<PotentialConfig>()),
-            ("hamiltonian", keys::<HamiltonianConfig>()),
-            ("ddnls", keys::<super::ddnls::DdnlsConfig>()),
-            ("ode", keys::<OdeConfig>()),
-            ("map", keys::<MapModelConfig>()),
-        ]
-        .into_iter()
-        .filter(|(_, k)| k.contains(&key))
-        .map(|(name, _)| name)
-        .collect()
+    /// `params`, of the kinds written as expressions.
+    pub fn params(&self) -> Option<&BTreeMap<String, ParamValue>> {
+        self.kind()?.params()
     }
 }
 
@@ -526,29 +492,7 @@ impl<'de> Visitor<'de> for ModelVisitor {
                 continue;
             }
             let name: String = map.next_value()?;
-            return Ok(match name.as_str() {
-                "henon-heiles" => {
-                    ModelConfig::HenonHeiles(Deserialize::deserialize(rest(&mut before, &mut map))?)
-                }
-                "fput-beta" => {
-                    ModelConfig::FputBeta(Deserialize::deserialize(rest(&mut before, &mut map))?)
-                }
-                "potential" => {
-                    ModelConfig::Potential(Deserialize::deserialize(rest(&mut before, &mut map))?)
-                }
-                "hamiltonian" => {
-                    ModelConfig::Hamiltonian(Deserialize::deserialize(rest(&mut before, &mut map))?)
-                }
-                "ddnls" => {
-                    ModelConfig::Ddnls(Deserialize::deserialize(rest(&mut before, &mut map))?)
-                }
-                "ode" => ModelConfig::Ode(Deserialize::deserialize(rest(&mut before, &mut map))?),
-                "map" => ModelConfig::Map(Deserialize::deserialize(rest(&mut before, &mut map))?),
-                _ => ModelConfig::Custom(CustomModelConfig {
-                    name,
-                    keys: Deserialize::deserialize(rest(&mut before, &mut map))?,
-                }),
-            });
+            return read_kind(name, &mut before, &mut map);
         }
         Err(de::Error::missing_field("name"))
     }
@@ -640,6 +584,24 @@ mod tests {
             ModelConfig::kinds_with_key("params"),
             ["potential", "hamiltonian", "ode", "map"]
         );
+    }
+
+    #[test]
+    fn every_kind_of_the_table_is_read_by_its_name() {
+        let names: Vec<&str> = KNOWN_MODELS.split(", ").collect();
+        assert_eq!(names.len(), 7, "{KNOWN_MODELS}");
+        for name in names {
+            let m = parse(&format!("[model]\nname = \"{name}\"\n")).unwrap();
+            assert_eq!(m.name(), name);
+            assert!(
+                m.kind().is_some(),
+                "{name} was read as a model built in code"
+            );
+            // What is written is read back as the same kind.
+            let text = toml::to_string(&m).unwrap();
+            assert_eq!(parse(&format!("[model]\n{text}")).unwrap(), m, "{text}");
+        }
+        assert!(ModelConfig::custom("barbanis").kind().is_none());
     }
 
     #[test]

@@ -1,7 +1,7 @@
 //! `[model] name = "ddnls"`: the disordered discrete nonlinear Schroedinger lattice, a built-in
 //! Hamiltonian that is not separable into `T(p) + V(q)` (the producer integrates it by
 //! compositions of its three parts' exact flows). What the values may be is checked by the
-//! the validation (`dynamics/src/spec/ddnls.rs`).
+//! validation (`dynamics/src/spec/ddnls.rs`).
 
 use schemars::JsonSchema;
 use serde::{Deserialize, Serialize};
@@ -28,4 +28,13 @@ pub struct DdnlsConfig {
     /// The disorder realization: another seed, another `eps_l`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub seed: Option<u64>,
+}
+
+impl super::ModelKind for DdnlsConfig {
+    fn canonical(&self) -> bool {
+        true
+    }
+    fn square_side(&self) -> Option<usize> {
+        super::square_side(self.lattice.as_deref(), self.n)
+    }
 }

@@ -1,4 +1,4 @@
-//! Must-show 3 and 4: crashes and signals leave valid data; a slow recorder loses nothing.
+//! Crashes and signals leave valid data; a slow recorder loses nothing.
 
 use std::path::Path;
 use std::time::{Duration, Instant};

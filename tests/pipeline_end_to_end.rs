@@ -1,4 +1,4 @@
-//! Must-show 1 and 2: producer, recorder and a checker as three real processes; every sample
+//! Producer, recorder and a checker as three real processes; every sample
 //! arrives exactly once, bit-identical to an in-process computation; standard Python tools
 //! decode the file and `pymcap-cli doctor` accepts it.
 

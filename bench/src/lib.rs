@@ -495,7 +495,7 @@ fn routes(
             .all(|r| r[i].status == chaoscope_dynamics::map::PointStatus::Ok)
     };
     let both: Vec<usize> = (0..vm.len()).filter(|&i| ok(i)).collect();
-    // Must-show 2 on the map: the VM routes' per-set values (GALI_2 at t_final), where per-set
+    // On the map: the VM routes' per-set values (GALI_2 at t_final), where per-set
     // VM resolves them (log10 GALI_2 > -7, dynamics/tests/propagator_vm.rs) and below.
     let (mut resolved, mut unresolved) = (Vec::new(), Vec::new());
     for &i in &both {
@@ -511,7 +511,7 @@ fn routes(
         .iter()
         .map(|&i| set_distance(&mpm_route[i], &vm[i]))
         .collect();
-    // Must-show 3: per point, the route's distance to per-set MPM against per-set MPM's
+    // Per point, the route's distance to per-set MPM against per-set MPM's
     // distance to VM (both set by set, mean over the sets), and the same for the points' mean
     // log10 GALI_2.
     let route_mpm: Vec<f64> = both

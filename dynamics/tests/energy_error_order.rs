@@ -1,4 +1,4 @@
-//! Must-show 1: the energy error of ABA864 falls as h^4, the leapfrog's as h^2; every other
+//! The energy error of ABA864 falls as h^4, the leapfrog's as h^2; every other
 //! splitting shows its general order, and at a small perturbation its near-integrable one.
 
 use chaoscope_dynamics::integrator::{

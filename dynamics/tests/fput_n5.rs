@@ -1,4 +1,4 @@
-//! Must-show 5: the beta-FPUT chain with N = 5, both orbits of the paper (Appendix B).
+//! The beta-FPUT chain with N = 5, both orbits of the paper (Appendix B).
 
 use chaoscope_schemas::config::paper::{
     FPUT_N5_CHAOTIC_P, FPUT_N5_CHAOTIC_Q, FPUT_N5_REGULAR_P, FPUT_N5_REGULAR_Q, fput_beta,

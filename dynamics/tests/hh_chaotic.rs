@@ -1,4 +1,4 @@
-//! Must-shows 3, 4 and 6 on the Henon-Heiles chaotic orbit (x2 = -0.25, H = 0.125).
+//! The paper's figures on the Henon-Heiles chaotic orbit (x2 = -0.25, H = 0.125).
 
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_schemas::config::{DeviationsConfig, RunConfig, SchemeConfig, paper};

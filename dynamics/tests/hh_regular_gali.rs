@@ -1,4 +1,4 @@
-//! Must-show 2: on a regular orbit of a 2-dof system (a 2-torus) GALI_2 stays constant and
+//! On a regular orbit of a 2-dof system (a 2-torus) GALI_2 stays constant and
 //! GALI_3, GALI_4 fall as t^-2 and t^-4 (Skokos et al. 2007), computed with the variational method.
 
 use chaoscope_schemas::config::{DeviationsConfig, SchemeConfig, paper};

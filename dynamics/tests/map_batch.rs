@@ -688,7 +688,7 @@ const MAGNETIC_HH: &str = "name = \"hamiltonian\"\nn = 2\n\
      hamiltonian = \"((p1 + B*q2/2)^2 + (p2 - B*q1/2)^2)/2 + (q1^2 + q2^2)/2 + q1^2*q2 - q2^3/3\"\n\
      params = { {params} }";
 
-/// Must-show of parameter axes: a map over a parameter (`x = { param = "K", ... }`) computes
+/// Parameter axes: a map over a parameter (`x = { param = "K", ... }`) computes
 /// each point with its parameter as a lane value of the compiled functions, and its column at
 /// a fixed value equals, bit for bit, a coordinate map at that value (the parameter folded as
 /// a constant): the operations are the same (`K * sin(x1)` is one multiplication either way;

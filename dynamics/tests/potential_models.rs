@@ -157,7 +157,7 @@ fn potential(n: usize, source: &str) -> PotentialConfig {
 
 #[test]
 fn fput_chain_as_a_lattice_sum_matches_the_built_in_chain() {
-    // Must-show 2: N = 101, a regular low-energy orbit (the lowest normal mode), t = 200.
+    // N = 101, a regular low-energy orbit (the lowest normal mode), t = 200.
     let n = 101;
     let (q, p) = fput_orbit(n);
     let builtin = paper::fput_beta(
@@ -234,7 +234,7 @@ fn fput_lattice_sum_as_a_loop_gives_the_built_in_chain_bits_for_mpm_and_rounding
 
 #[test]
 fn fput_chain_of_1001_sites_compiles_quickly() {
-    // Must-show 2: compile time for N = 1001 (the timing itself is reported, and measured again
+    // Compile time for N = 1001 (the timing itself is reported, and measured again
     // by `chaoscope bench`; here only that it builds and agrees with the built-in forces).
     let n = 1001;
     let (model, _) = chaoscope_dynamics::spec::model_from_config(&fput_expression(n)).unwrap();
@@ -273,7 +273,7 @@ fn fput_chain_of_1001_sites_compiles_quickly() {
 
 #[test]
 fn toda_lattice_gali_follows_the_torus_laws() {
-    // Must-show 4. The periodic Toda lattice is integrable: an orbit lies on an N-torus, so
+    // The periodic Toda lattice is integrable: an orbit lies on an N-torus, so
     // GALI_k tends to a constant for k <= N and decays as t^-2(k-N) for k > N. N = 3 keeps
     // the test fast. The laws are asymptotic: the deviation vectors need many periods to
     // align with the torus (the frequencies here are O(1), periods ~ 5), so the slopes are
@@ -316,7 +316,7 @@ fn write_fput_bond(dir: &std::path::Path, dx: f64) -> std::path::PathBuf {
 
 #[test]
 fn tabulated_bond_reproduces_the_analytic_chain() {
-    // Must-show 4, second part. A clamped cubic spline s through samples of
+    // A clamped cubic spline s through samples of
     // U(r) = r^2/2 + r^4/4 at spacing dx has (Hall & Meyer 1976), with max|U''''| = 6:
     //   |U - s| <= 5/384 * 6 dx^4, |U' - s'| <= 1/24 * 6 dx^3, |U'' - s''| <= 3/8 * 6 dx^2,
     // i.e. 7.8e-14, 2.5e-10 and 2.25e-6 for dx = 1e-3. The orbit feels the force error:

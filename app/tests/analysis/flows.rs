@@ -169,7 +169,7 @@ fn lorenz_spectrum(flow: Arc<RkFlow>, h: f64, t_final: f64) -> chaoscope_analyze
 fn check_lorenz_spectrum(report: &chaoscope_analyzer::report::Report) {
     let vm = report.scheme("vm").unwrap();
     let mpm = report.scheme("mpm").unwrap();
-    // Issue 11's reference spectrum (Sprott; long averages): 0.9056, 0, -14.5723.
+    // The reference spectrum (Sprott; long averages): 0.9056, 0, -14.5723.
     let l = &vm.lyapunov;
     assert!((l[0] - 0.9056).abs() < 0.01, "{l:?}");
     assert!(l[1].abs() < 0.01, "{l:?}");

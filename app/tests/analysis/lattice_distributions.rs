@@ -254,7 +254,7 @@ fn negative_or_unattributable_site_energies_are_unavailable_with_the_reason() {
     assert!(why.contains("henon-heiles"), "{why}");
 }
 
-/// Must-show: on a chaotic orbit the deviation vector sits where the energy is (Senyange, Many
+/// On a chaotic orbit the deviation vector sits where the energy is (Senyange, Many
 /// Manda and Skokos 2018: the DVD of a disordered Klein-Gordon chain is localized inside the
 /// wave packet, on its hottest sites). The physics: a deviation grows through the nonlinear
 /// terms, which are large only where the displacements are, i.e. where the energy is; in the
@@ -355,7 +355,7 @@ fn plane_moments(w: &[f64], side: usize) -> (f64, f64) {
     (m2, 1.0 / z.iter().map(|z| z * z).sum::<f64>())
 }
 
-/// Must-show (2-D): on a square lattice the second moments are over the plane, not over the
+/// On a square lattice the second moments are over the plane, not over the
 /// flattened site index. At t = 0 the norm sits evenly on a 2 x 2 block: each site sqrt(1/2)
 /// from the block's centre, so `norm_m2 = 1/2` and `norm_participation = 4` (to the rounding of
 /// `cos^2 + sin^2` of the random phases). At the end, `dvd_m2`, `norm_m2` and

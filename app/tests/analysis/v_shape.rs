@@ -1,4 +1,4 @@
-//! Must-show 3: a d0 sweep (100 sets) reproduces the paper's V shape; for GALI_2 the MPM value
+//! A d0 sweep (100 sets) reproduces the paper's V shape; for GALI_2 the MPM value
 //! closest to VM lies at d0 = 1e-8 within one decade, for Henon-Heiles and for beta-FPUT N = 5.
 //!
 //! Why 1e-8: the MPM separation carries a truncation error ~ d0^2 (nonlinear terms of the flow,

@@ -3,9 +3,9 @@
 
 use std::sync::Arc;
 
-use chaoscope_schemas::config::{FputBetaConfig, RunConfig};
+use chaoscope_schemas::config::FputBetaConfig;
 
-use super::{Built, LaneParam, SeparableModel, SpecError};
+use super::{SeparableModel, SpecError};
 use crate::model::{FputBeta, SeparableHamiltonian};
 
 /// Most particles of the built-in FPUT chain.
@@ -29,11 +29,6 @@ fn fput_beta(cfg: &FputBetaConfig) -> Result<Arc<dyn SeparableHamiltonian>, Spec
 }
 
 impl super::KindSpec for FputBetaConfig {
-    fn build(&self, cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Built, SpecError> {
-        super::refuse_parameter_axes(cfg, lanes)?;
-        super::separable::run(cfg, fput_beta(self)?, Vec::new())
-    }
-
     fn separable(&self) -> Option<Result<SeparableModel, SpecError>> {
         Some(fput_beta(self).map(|model| (model, Vec::new())))
     }

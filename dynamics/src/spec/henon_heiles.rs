@@ -3,9 +3,9 @@
 
 use std::sync::Arc;
 
-use chaoscope_schemas::config::{HenonHeilesConfig, RunConfig};
+use chaoscope_schemas::config::HenonHeilesConfig;
 
-use super::{Built, LaneParam, SeparableModel, SpecError};
+use super::{SeparableModel, SpecError};
 use crate::model::{HenonHeiles, SeparableHamiltonian};
 
 /// `name = "henon-heiles"`.
@@ -20,11 +20,6 @@ fn henon_heiles(cfg: &HenonHeilesConfig) -> Result<Arc<dyn SeparableHamiltonian>
 }
 
 impl super::KindSpec for HenonHeilesConfig {
-    fn build(&self, cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Built, SpecError> {
-        super::refuse_parameter_axes(cfg, lanes)?;
-        super::separable::run(cfg, henon_heiles(self)?, Vec::new())
-    }
-
     fn separable(&self) -> Option<Result<SeparableModel, SpecError>> {
         Some(henon_heiles(self).map(|model| (model, Vec::new())))
     }

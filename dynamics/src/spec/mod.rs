@@ -50,8 +50,11 @@ pub type SeparableModel = (Arc<dyn SeparableHamiltonian>, Vec<TableDigest>);
 /// module per line of the kind table, `chaoscope_schemas::for_each_model_kind`).
 trait KindSpec {
     /// The system and initial state its keys and `cfg` describe, reading the parameters `lanes`
-    /// from every state (a map over parameter axes).
-    fn build(&self, cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Built, SpecError>;
+    /// from every state (a map over parameter axes). By default those of a separable
+    /// Hamiltonian without parameter axes ([`separable_without_axes`]).
+    fn build(&self, cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Built, SpecError> {
+        separable_without_axes(cfg, lanes)
+    }
 
     /// Its separable Hamiltonian with the digests of the tables it read, for the kinds that
     /// are one.
@@ -96,6 +99,15 @@ pub(crate) fn why_no_parameter_axes(model: &ModelConfig) -> String {
         Some(kind) => kind.why_no_parameter_axes(model.name()),
         None => no_parameter_axes(model.name()),
     }
+}
+
+/// The separable Hamiltonian `cfg` names ([`model_from_config`]) with the splitting of
+/// `[integrator]`: the built-in models and those built in code, none of which takes parameter
+/// axes.
+fn separable_without_axes(cfg: &RunConfig, lanes: &[LaneParam]) -> Result<Built, SpecError> {
+    refuse_parameter_axes(cfg, lanes)?;
+    let (model, tables) = model_from_config(&cfg.model)?;
+    separable::run(cfg, model, tables)
 }
 
 /// An error unless `lanes` is empty, for a kind that takes no parameter axes.
@@ -422,11 +434,7 @@ impl RunSpec {
             .map_err(|e| SpecError::new(e.key, e.message))?;
         let built = match kind_spec(&cfg.model) {
             Some(kind) => kind.build(cfg, lanes)?,
-            None => {
-                refuse_parameter_axes(cfg, lanes)?;
-                let (model, tables) = model_from_config(&cfg.model)?;
-                separable::run(cfg, model, tables)?
-            }
+            None => separable_without_axes(cfg, lanes)?,
         };
         let spec = Self::validated(cfg, built)?;
         // A map over parameter axes has the lanes' values in its state; it runs no 0-1 test.

@@ -43,6 +43,53 @@ impl Evaluator {
             *o = self.values[id as usize];
         }
     }
+
+    /// [`Evaluator::eval`] with the nodes `outputs` need already marked in `need` (by
+    /// [`Needed::of`] on this very graph): for a caller that evaluates the same outputs of a
+    /// graph it holds borrowed many times (a lattice sum's term at every site), where the mark
+    /// pass would cost as much as the evaluation.
+    pub(crate) fn eval_marked(
+        &mut self,
+        g: &Graph,
+        needed: &Needed,
+        args: &[&[f64]],
+        outputs: &[NodeId],
+        out: &mut [f64],
+    ) {
+        assert!(out.len() >= outputs.len(), "`out` shorter than `outputs`");
+        debug_assert_eq!(needed.outputs, outputs, "marked for other outputs");
+        let len = needed.need.len();
+        if self.values.len() < len {
+            self.values.resize(len, 0.0);
+        }
+        eval_needed(g, &needed.need, &mut self.values, args, |_, _, _| false);
+        for (o, &id) in out.iter_mut().zip(outputs) {
+            *o = self.values[id as usize];
+        }
+    }
+}
+
+/// The nodes some outputs of a graph depend on, marked once: valid for as long as the graph
+/// it was marked on is borrowed unchanged (see [`Evaluator::eval_marked`]).
+#[derive(Debug, Clone)]
+pub(crate) struct Needed {
+    outputs: Vec<NodeId>,
+    need: Vec<bool>,
+}
+
+impl Needed {
+    pub(crate) fn of(g: &Graph, outputs: &[NodeId]) -> Self {
+        let mut need = Vec::new();
+        mark_needed(g, outputs, &mut need);
+        Self {
+            outputs: outputs.to_vec(),
+            need,
+        }
+    }
+
+    pub(crate) fn outputs(&self) -> &[NodeId] {
+        &self.outputs
+    }
 }
 
 /// Marks the nodes `outputs` depend on (`need[v]`), for `v` up to the largest output.
@@ -206,6 +253,35 @@ mod tests {
         assert_eq!(out[0], 2.0);
         assert!(first_non_finite(&g, &[&[f64::NAN]], y) == Some(x));
         let _ = unused;
+    }
+
+    /// Marks taken once serve every later evaluation of the same outputs: the same bits as
+    /// marking anew, and still nothing evaluated that the outputs do not need (the table that
+    /// panics sits before them in the graph).
+    #[test]
+    fn marks_taken_once_evaluate_as_marking_anew() {
+        let mut g = Graph::new();
+        let t = g.add_table(Arc::new(Panics));
+        let (x, y) = (g.input(0, 0), g.input(2, 1));
+        let _unused = g.add(Node::Table {
+            table: t,
+            deriv: 0,
+            arg: x,
+        });
+        let xy = g.mul(x, y);
+        let s = g.unary(Unary::Sin, xy);
+        let q = g.powi(y, 3);
+        let outputs = [s, q];
+        let needed = Needed::of(&g, &outputs);
+        let (mut marked, mut fresh) = (Evaluator::new(), Evaluator::new());
+        for &(xv, yv) in &[(0.3, 0.5), (1e3, -2.5), (-0.7, 7.0)] {
+            let args: [&[f64]; 3] = [&[xv], &[], &[0.0, yv]];
+            let (mut a, mut b) = ([0.0; 2], [0.0; 2]);
+            marked.eval_marked(&g, &needed, &args, &outputs, &mut a);
+            fresh.eval(&g, &args, &outputs, &mut b);
+            assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits));
+            assert_eq!(a[1], yv * yv * yv);
+        }
     }
 
     #[test]

@@ -52,7 +52,7 @@ use std::sync::Arc;
 
 use crate::diff::{self, DiffError};
 use crate::error::Span;
-use crate::eval::Evaluator;
+use crate::eval::{Evaluator, Needed};
 use crate::graph::{Binary, Graph, Node, NodeId, Unary};
 use crate::lower::Boundary;
 
@@ -420,6 +420,9 @@ pub struct LatticeEvaluator<'a> {
     graph: &'a Graph,
     lattice: &'a LatticePotential,
     ev: Evaluator,
+    /// The marks of every set of outputs a term was evaluated for: the graph is borrowed for
+    /// the evaluator's life, so they stay valid, and a sum's term is evaluated at every site.
+    needed: Vec<Needed>,
     window: Vec<f64>,
     direction: Vec<f64>,
     params: Vec<f64>,
@@ -432,6 +435,7 @@ impl<'a> LatticeEvaluator<'a> {
             graph,
             lattice,
             ev: Evaluator::new(),
+            needed: Vec::new(),
             window: Vec::new(),
             direction: Vec::new(),
             params: Vec::new(),
@@ -466,7 +470,20 @@ impl<'a> LatticeEvaluator<'a> {
             &self.direction,
             &self.params,
         ];
-        self.ev.eval(self.graph, &args, outputs, &mut self.values);
+        let at = match self.needed.iter().position(|n| n.outputs() == outputs) {
+            Some(at) => at,
+            None => {
+                self.needed.push(Needed::of(self.graph, outputs));
+                self.needed.len() - 1
+            }
+        };
+        self.ev.eval_marked(
+            self.graph,
+            &self.needed[at],
+            &args,
+            outputs,
+            &mut self.values,
+        );
     }
 
     /// The argument arrays of term `i` of sum `s` at `q` (`q`, no direction, the slots, the

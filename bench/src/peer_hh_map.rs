@@ -127,6 +127,32 @@ fn chaoscope_energy_error(points: &[MapPoint], step: (&str, f64)) -> anyhow::Res
     Ok(worst)
 }
 
+/// The second integrator of the self-check on the points classified differently: the default
+/// method of a run, at the step that holds the workload's energy error.
+const SECOND_STEP: (&str, f64) = ("aba864", 0.01);
+
+/// The MLE at [`T_FINAL`] of the point `x0` by the one-orbit engine with `step`: the mean of
+/// the logarithms of its tangent vector's stretching factors over the renormalizations.
+fn one_orbit_mle(x0: &[f64], step: (&str, f64)) -> anyhow::Result<f64> {
+    let cfg = RunConfig::from_toml(&point_config(x0, step))?;
+    let mut engine = Engine::new(RunSpec::from_config(&cfg)?);
+    let (mut log_sum, mut t) = (0.0, 0.0);
+    while let Some(sample) = engine.next_sample()? {
+        if sample.seq > 0 {
+            let set = &sample.schemes[0];
+            log_sum += set
+                .earlier_stretch
+                .iter()
+                .chain(&set.stretch)
+                .map(|s| s.ln())
+                .sum::<f64>();
+        }
+        t = sample.t;
+    }
+    anyhow::ensure!(t > 0.0, "the one-orbit run of {x0:?} took no step");
+    Ok(log_sum / t)
+}
+
 /// `chaoscope map` of the workload in `dir`: (CPU seconds of the child, its JSON summary, the
 /// points it computed).
 fn chaoscope_map(
@@ -231,7 +257,7 @@ fn agreement(points: &[MapPoint], theirs: &serde_json::Value) -> Agreement {
 /// The `hh_map` object of the report.
 pub fn compare(
     n: usize,
-    (method, h): (&str, f64),
+    (method, h_step): (&str, f64),
     tol: f64,
     python: &str,
 ) -> anyhow::Result<serde_json::Value> {
@@ -245,8 +271,8 @@ pub fn compare(
         SplittingScheme::catalogue()
     );
     anyhow::ensure!(
-        h > 0.0 && (1.0 / h).fract() == 0.0 && h <= 0.5,
-        "--peer-map-h {h}: a step of at most 0.5 that divides tau = 1 (0.01, 0.1, 0.125, 0.2, ...)"
+        h_step > 0.0 && (1.0 / h_step).fract() == 0.0 && h_step <= 0.5,
+        "--peer-map-h {h_step}: a step of at most 0.5 that divides tau = 1 (0.01, 0.1, 0.125, 0.2, ...)"
     );
     anyhow::ensure!(
         (1e-16..=1e-6).contains(&tol),
@@ -255,14 +281,14 @@ pub fn compare(
     let scratch = tempfile::Builder::new()
         .prefix("chaoscope-bench-peer-hh")
         .tempdir()?;
-    let (cpu, summary, points) = chaoscope_map(scratch.path(), n, (method, h))?;
-    let energy_error = chaoscope_energy_error(&points, (method, h))?;
+    let (cpu, summary, points) = chaoscope_map(scratch.path(), n, (method, h_step))?;
+    let energy_error = chaoscope_energy_error(&points, (method, h_step))?;
     let peer = run_script(python, scratch.path(), &points, tol)?;
     let available = peer["heyoka_available"].as_bool() == Some(true);
     let mut chaoscope = serde_json::json!({
         "command": "chaoscope map --threads 1 (RAYON_NUM_THREADS=1), default route",
         "route": summary["route"],
-        "method": format!("{method}, h = {h}, VM k = 1"),
+        "method": format!("{method}, h = {h_step}, VM k = 1"),
         "cpu_seconds": cpu,
         "max_relative_energy_error": energy_error,
     });
@@ -276,14 +302,34 @@ pub fn compare(
         // Where the two disagree: a sticky orbit's finite-time MLE near the threshold, which
         // two correct integrators may put on either side (their chaotic trajectories part
         // after a few hundred time units); listed so a reader can check.
-        h["classified_differently"] = a
-            .differ
-            .iter()
-            .map(|(index, x0, ours, theirs)| {
+        // Each such point again by chaoscope alone, with the map's method through the
+        // one-orbit engine (the map's MLE to rounding) and with a second integrator: where the
+        // second puts the point on the other side of the threshold, or moves its MLE by more
+        // than its distance to the threshold, chaoscope's own class of it depends on the
+        // integrator, and no peer can be asked to match it.
+        let mut self_split = 0;
+        let mut listed = Vec::with_capacity(a.differ.len());
+        for (index, x0, ours, theirs) in &a.differ {
+            let same_method = one_orbit_mle(x0, (method, h_step))?;
+            let second = one_orbit_mle(x0, SECOND_STEP)?;
+            let splits = (second > CHAOTIC_MLE) != (*ours > CHAOTIC_MLE)
+                || (second - ours).abs() > (ours - CHAOTIC_MLE).abs();
+            self_split += usize::from(splits);
+            listed.push(
                 serde_json::json!({"index": index, "x0": x0, "chaoscope_mle": ours,
-                                   "heyoka_mle": theirs})
-            })
-            .collect();
+                "heyoka_mle": theirs, "chaoscope_one_orbit_mle": same_method,
+                "chaoscope_second_integrator_mle": second,
+                "chaoscope_second_integrator_moves_it_across_or_further_than_the_threshold":
+                    splits}),
+            );
+        }
+        h["classified_differently"] = serde_json::Value::Array(listed);
+        h["second_integrator"] = serde_json::json!(format!(
+            "chaoscope's one-orbit engine, {} at h = {}",
+            SECOND_STEP.0, SECOND_STEP.1
+        ));
+        h["classified_differently_and_integrator_dependent_in_chaoscope"] =
+            serde_json::json!(self_split);
         let same = a.same;
         let ratio = h["cpu_seconds"].as_f64().unwrap_or(f64::NAN) / cpu;
         (h, serde_json::json!(ratio), serde_json::json!(same))
@@ -344,6 +390,25 @@ mod tests {
         let e = chaoscope_energy_error(std::slice::from_ref(&point), (DEFAULT_METHOD, DEFAULT_H))
             .unwrap();
         assert!(e > 0.0 && e < 1e-10, "{e}");
+    }
+
+    /// The self-check's MLE: the README's chaotic orbit (y = -0.25, p_y = 0) stretches its
+    /// vector at about 0.04 per time unit by t = 1000 with either integrator, a point of a torus
+    /// (y = 0.1, p_y = 0) at about ln(t)/t (0.0049 by both); a sum of stretches not divided by
+    /// the time, or a stretch missed per sample, would put both far off.
+    #[test]
+    fn the_self_checks_mle_tells_the_chaotic_orbit_from_a_torus() {
+        const REGULAR_Y: f64 = 0.1;
+        let at = |y: f64| {
+            let px = (2.0 * ENERGY - y * y + 2.0 * y * y * y / 3.0).sqrt();
+            [0.0, y, px, 0.0]
+        };
+        for step in [(DEFAULT_METHOD, DEFAULT_H), SECOND_STEP] {
+            let chaotic = one_orbit_mle(&at(-0.25), step).unwrap();
+            assert!((0.03..0.06).contains(&chaotic), "{step:?}: {chaotic}");
+            let regular = one_orbit_mle(&at(REGULAR_Y), step).unwrap();
+            assert!(regular > 0.0 && regular < 0.012, "{step:?}: {regular}");
+        }
     }
 
     /// Classification counts a point the same when both MLEs fall on one side of the threshold,

@@ -12,9 +12,11 @@ use crate::graph::{Graph, Node, NodeId, Tabulated};
 ///
 /// Only the nodes the outputs depend on are evaluated (a graph holding a potential, its
 /// gradient and its Hessian-vector product evaluates just the gradient's nodes when asked for
-/// the gradient). The set is recomputed on every call, into reused buffers: marking is a
-/// single cheap pass, and a cache keyed on a graph would go stale silently when the graph
-/// grows or is replaced.
+/// the gradient). [`Evaluator::eval`] marks the set anew on every call, into reused buffers:
+/// marking is a single cheap pass, and a cache keyed on a graph would go stale silently when
+/// the graph grows or is replaced. A caller that holds the graph borrowed and evaluates the
+/// same outputs many times marks them once (`Needed::of`) and passes the marks to
+/// `Evaluator::eval_marked`: the borrow is what keeps them valid.
 #[derive(Debug, Default, Clone)]
 pub struct Evaluator {
     /// Node values, indexed by node id (only needed entries are meaningful).
@@ -58,6 +60,7 @@ impl Evaluator {
     ) {
         assert!(out.len() >= outputs.len(), "`out` shorter than `outputs`");
         debug_assert_eq!(needed.outputs, outputs, "marked for other outputs");
+        debug_assert_eq!(needed.graph_len, g.len(), "marked on another graph");
         let len = needed.need.len();
         if self.values.len() < len {
             self.values.resize(len, 0.0);
@@ -75,6 +78,8 @@ impl Evaluator {
 pub(crate) struct Needed {
     outputs: Vec<NodeId>,
     need: Vec<bool>,
+    /// The marked graph's node count, for a debug check that it is the graph evaluated.
+    graph_len: usize,
 }
 
 impl Needed {
@@ -84,6 +89,7 @@ impl Needed {
         Self {
             outputs: outputs.to_vec(),
             need,
+            graph_len: g.len(),
         }
     }
 

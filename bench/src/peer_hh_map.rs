@@ -113,16 +113,28 @@ fn hh_energy(s: &[f64]) -> f64 {
     HenonHeiles.energy(s, At::T0)
 }
 
+/// Every sample of the point `x0` run alone by the one-orbit engine with `step`.
+fn each_sample(
+    x0: &[f64],
+    step: (&str, f64),
+    mut f: impl FnMut(&chaoscope_schemas::run::Sample),
+) -> anyhow::Result<()> {
+    let cfg = RunConfig::from_toml(&point_config(x0, step))?;
+    let mut engine = Engine::new(RunSpec::from_config(&cfg)?);
+    while let Some(sample) = engine.next_sample()? {
+        f(&sample);
+    }
+    Ok(())
+}
+
 /// Largest relative energy error over every tau of every point, by the one-orbit engine.
 fn chaoscope_energy_error(points: &[MapPoint], step: (&str, f64)) -> anyhow::Result<f64> {
     let mut worst = 0.0f64;
     for p in points {
-        let cfg = RunConfig::from_toml(&point_config(&p.x0, step))?;
-        let mut engine = Engine::new(RunSpec::from_config(&cfg)?);
         let e0 = hh_energy(&p.x0);
-        while let Some(sample) = engine.next_sample()? {
+        each_sample(&p.x0, step, |sample| {
             worst = worst.max(((hh_energy(&sample.state) - e0) / e0).abs());
-        }
+        })?;
     }
     Ok(worst)
 }
@@ -134,10 +146,8 @@ const SECOND_STEP: (&str, f64) = ("aba864", 0.01);
 /// The MLE at [`T_FINAL`] of the point `x0` by the one-orbit engine with `step`: the mean of
 /// the logarithms of its tangent vector's stretching factors over the renormalizations.
 fn one_orbit_mle(x0: &[f64], step: (&str, f64)) -> anyhow::Result<f64> {
-    let cfg = RunConfig::from_toml(&point_config(x0, step))?;
-    let mut engine = Engine::new(RunSpec::from_config(&cfg)?);
     let (mut log_sum, mut t) = (0.0, 0.0);
-    while let Some(sample) = engine.next_sample()? {
+    each_sample(x0, step, |sample| {
         if sample.seq > 0 {
             let set = &sample.schemes[0];
             log_sum += set
@@ -148,7 +158,7 @@ fn one_orbit_mle(x0: &[f64], step: (&str, f64)) -> anyhow::Result<f64> {
                 .sum::<f64>();
         }
         t = sample.t;
-    }
+    })?;
     anyhow::ensure!(t > 0.0, "the one-orbit run of {x0:?} took no step");
     Ok(log_sum / t)
 }

@@ -34,16 +34,8 @@ impl Evaluator {
     ///
     /// Panics if `out` is shorter than `outputs`, or an input reads past its argument array.
     pub fn eval(&mut self, g: &Graph, args: &[&[f64]], outputs: &[NodeId], out: &mut [f64]) {
-        assert!(out.len() >= outputs.len(), "`out` shorter than `outputs`");
         mark_needed(g, outputs, &mut self.need);
-        let len = self.need.len();
-        if self.values.len() < len {
-            self.values.resize(len, 0.0);
-        }
-        eval_needed(g, &self.need, &mut self.values, args, |_, _, _| false);
-        for (o, &id) in out.iter_mut().zip(outputs) {
-            *o = self.values[id as usize];
-        }
+        eval_outputs(g, &self.need, &mut self.values, args, outputs, out);
     }
 
     /// [`Evaluator::eval`] with the nodes `outputs` need already marked in `need` (by
@@ -58,17 +50,29 @@ impl Evaluator {
         outputs: &[NodeId],
         out: &mut [f64],
     ) {
-        assert!(out.len() >= outputs.len(), "`out` shorter than `outputs`");
         debug_assert_eq!(needed.outputs, outputs, "marked for other outputs");
         debug_assert_eq!(needed.graph_len, g.len(), "marked on another graph");
-        let len = needed.need.len();
-        if self.values.len() < len {
-            self.values.resize(len, 0.0);
-        }
-        eval_needed(g, &needed.need, &mut self.values, args, |_, _, _| false);
-        for (o, &id) in out.iter_mut().zip(outputs) {
-            *o = self.values[id as usize];
-        }
+        eval_outputs(g, &needed.need, &mut self.values, args, outputs, out);
+    }
+}
+
+/// The marked nodes `need` evaluated into `values` (grown to fit), then `outputs` copied to
+/// `out`: the part [`Evaluator::eval`] and [`Evaluator::eval_marked`] share.
+fn eval_outputs(
+    g: &Graph,
+    need: &[bool],
+    values: &mut Vec<f64>,
+    args: &[&[f64]],
+    outputs: &[NodeId],
+    out: &mut [f64],
+) {
+    assert!(out.len() >= outputs.len(), "`out` shorter than `outputs`");
+    if values.len() < need.len() {
+        values.resize(need.len(), 0.0);
+    }
+    eval_needed(g, need, values, args, |_, _, _| false);
+    for (o, &id) in out.iter_mut().zip(outputs) {
+        *o = values[id as usize];
     }
 }
 

@@ -96,15 +96,47 @@ pub const MAX_MONITORS: usize = 8;
 /// Period at which waiting loops re-check liveness and signals.
 pub const POLL_INTERVAL: Duration = Duration::from_millis(50);
 
-/// Sleeps one [`POLL_INTERVAL`] on `node`; `false` once SIGINT or SIGTERM asked the process to
-/// end. Any other interrupted sleep (SIGCONT after SIGSTOP, SIGCHLD) is not a request to end:
-/// a recorder stopped and continued before its run started took it for Ctrl+C and quit, and its
-/// producer waited in vain for it (found by `tests/crash_loop.rs`, seed 35).
-/// SIGINT/SIGTERM are also read from `chaoscope_os::signals`, which iceoryx2 cannot lose.
+/// The sleeps of a wait for a peer that usually answers within milliseconds (a recorder's
+/// first look for its run's header, a producer's wait for its last reader to leave): 1 ms,
+/// doubling up to [`POLL_INTERVAL`]. A fixed [`POLL_INTERVAL`] added up to that much to each
+/// step of a run's handshake, most of a short run's wall-clock time; a wait that goes on costs
+/// no more wake-ups than the fixed one after the first few.
+#[derive(Debug, Clone)]
+pub struct Backoff {
+    next: Duration,
+}
+
+impl Default for Backoff {
+    fn default() -> Self {
+        Self {
+            next: Duration::from_millis(1),
+        }
+    }
+}
+
+impl Backoff {
+    /// The next sleep: twice the last, at most [`POLL_INTERVAL`].
+    pub fn interval(&mut self) -> Duration {
+        let interval = self.next;
+        self.next = (interval * 2).min(POLL_INTERVAL);
+        interval
+    }
+}
+
+/// Sleeps one [`POLL_INTERVAL`] on `node`: [`poll_wait_for`].
 pub fn poll_wait(node: &Node<ipc::Service>) -> bool {
+    poll_wait_for(node, POLL_INTERVAL)
+}
+
+/// Sleeps `interval` on `node`; `false` once SIGINT or SIGTERM asked the process to end. Any
+/// other interrupted sleep (SIGCONT after SIGSTOP, SIGCHLD) is not a request to end: a recorder
+/// stopped and continued before its run started took it for Ctrl+C and quit, and its producer
+/// waited in vain for it (found by `tests/crash_loop.rs`, seed 35). SIGINT/SIGTERM are also
+/// read from `chaoscope_os::signals`, which iceoryx2 cannot lose.
+pub fn poll_wait_for(node: &Node<ipc::Service>, interval: Duration) -> bool {
     !chaoscope_os::signals::requested()
         && !matches!(
-            node.wait(POLL_INTERVAL),
+            node.wait(interval),
             Err(iceoryx2::node::NodeWaitFailure::TerminationRequest)
         )
         && !chaoscope_os::signals::requested()
@@ -919,6 +951,14 @@ pub fn list_runs() -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A handshake's sleeps start at 1 ms and double to the poll interval, never past it.
+    #[test]
+    fn backoff_doubles_from_a_millisecond_to_the_poll_interval() {
+        let mut backoff = Backoff::default();
+        let ms: Vec<u128> = (0..9).map(|_| backoff.interval().as_millis()).collect();
+        assert_eq!(ms, [1, 2, 4, 8, 16, 32, 50, 50, 50]);
+    }
 
     /// A directory under the temporary one whose path is exactly `len` bytes.
     fn dir_of_len(base: &std::path::Path, len: usize) -> PathBuf {

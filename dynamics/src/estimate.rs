@@ -52,9 +52,9 @@ pub const SAMPLE_NS_PER_VALUE: f64 = 50.0;
 /// The fixed wall-clock start-up of `chaoscope run` beyond its work: the producer and recorder
 /// processes started, the bus's services opened and the recorder's subscription seen before the
 /// first step, the summary read back at the end. Measured on runs of one renormalization
-/// (t = 1: 0.31 s on an AMD EPYC Zen 4, 2 vCPUs); without it the README's first run (0.06 s of
-/// work) printed an estimate 7x below its 0.42 s.
-pub const RUN_START_SECONDS: f64 = 0.3;
+/// (t = 1: 0.05-0.06 s of wall clock on an AMD EPYC Zen 5, 2 vCPUs; each step of the handshake
+/// wakes its waiter at once or within milliseconds, `bus::Backoff`).
+pub const RUN_START_SECONDS: f64 = 0.06;
 
 /// Longest run (wall clock) started without `--force`.
 pub const MAX_SECONDS: f64 = 86_400.0;

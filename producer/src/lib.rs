@@ -201,10 +201,17 @@ pub fn publish(
 /// frames still queued for a recorder must outlive this process's publisher.
 fn linger(ports: &Ports, limit: Duration, termination: &Termination) {
     let start = Instant::now();
+    let mut backoff = bus::Backoff::default();
+    // A reader killed before it left is only seen gone once its node is cleaned up: that scan
+    // of the bus is made once a poll interval, however often the count is looked at.
+    let mut cleaned: Option<Instant> = None;
     while ports.data_subscribers() > 0 && start.elapsed() < limit && !termination.requested() {
-        bus::cleanup_dead_nodes();
+        if cleaned.is_none_or(|at| at.elapsed() >= bus::POLL_INTERVAL) {
+            bus::cleanup_dead_nodes();
+            cleaned = Some(Instant::now());
+        }
         ports.refresh_connections();
-        std::thread::sleep(bus::POLL_INTERVAL);
+        std::thread::sleep(backoff.interval());
     }
 }
 

@@ -125,6 +125,7 @@ impl RunSubscription {
     ) -> Result<Option<RunHeader>, SubscribeError> {
         let start = Instant::now();
         let mut seen_alive = false;
+        let mut backoff = bus::Backoff::default();
         loop {
             if let Some(header) =
                 bus::try_receive_run_header::<SubscribeError>(&self.header, &self.run)?
@@ -151,7 +152,7 @@ impl RunSubscription {
                     timeout,
                 });
             }
-            if !bus::poll_wait(&self.node) {
+            if !bus::poll_wait_for(&self.node, backoff.interval()) {
                 return Ok(None);
             }
         }

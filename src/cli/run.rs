@@ -38,11 +38,44 @@ struct Role {
     status: Option<std::process::ExitStatus>,
 }
 
+/// What wakes the supervision loop of `run` before its poll interval is over.
+enum Wake {
+    /// The producer said it opened the run's services: the recorder can start.
+    Opened,
+    /// A child exited (or could not be waited for): it is reaped at once.
+    Exited,
+}
+
 impl Role {
-    fn spawn(name: &'static str, mut command: Command) -> anyhow::Result<Self> {
+    /// Starts `command`; `wake` hears of its exit.
+    fn spawn(
+        name: &'static str,
+        mut command: Command,
+        wake: &std::sync::mpsc::Sender<Wake>,
+    ) -> anyhow::Result<Self> {
         let child = command
             .spawn()
             .with_context(|| format!("starting the {name} process"))?;
+        let (pid, wake) = (child.id(), wake.clone());
+        // Waits for the exit without reaping the child (WNOWAIT): the loop's `try_wait` reaps
+        // it, so its pid stays this process's child until then and names no other process. The
+        // thread ends with the child (or at once, if the loop reaped it first: ECHILD).
+        std::thread::spawn(move || {
+            // SAFETY: waitid(2) with a zeroed siginfo_t, which it only writes.
+            let mut info: libc::siginfo_t = unsafe { std::mem::zeroed() };
+            while unsafe {
+                libc::waitid(
+                    libc::P_PID,
+                    pid as libc::id_t,
+                    &mut info,
+                    libc::WEXITED | libc::WNOWAIT,
+                )
+            } != 0
+                && std::io::Error::last_os_error().kind() == std::io::ErrorKind::Interrupted
+            {
+            }
+            let _ = wake.send(Wake::Exited);
+        });
         Ok(Self {
             name,
             child,
@@ -246,27 +279,31 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         produce.arg("--force");
     }
     let started = std::time::Instant::now();
-    let mut producer = Role::spawn("producer", produce)?;
+    // The loop below sleeps until a child exits or the producer opens its services, at most a
+    // poll interval (a signal is seen at the latest then): a fixed sleep instead added up to a
+    // poll interval to the recorder's start and another to the run's end.
+    let (wake, woken) = std::sync::mpsc::channel();
+    let mut producer = Role::spawn("producer", produce, &wake)?;
     {
         let mut stdin = producer.child.stdin.take().context("producer stdin")?;
         stdin
             .write_all(text.as_bytes())
             .context("sending the configuration to the producer")?;
     }
-    let opened = {
+    {
         let stdout = producer.child.stdout.take().context("producer stdout")?;
-        let (tx, rx) = std::sync::mpsc::channel();
+        let wake = wake.clone();
         std::thread::spawn(move || {
             use std::io::BufRead;
             for line in std::io::BufReader::new(stdout).lines() {
                 let Ok(line) = line else { break };
                 if line == super::produce::OPEN_LINE {
-                    let _ = tx.send(());
+                    let _ = wake.send(Wake::Opened);
                 }
             }
         });
-        rx
-    };
+    }
+    let mut opened = false;
 
     let mut recorder: Option<Role> = None;
     let mut forwarded = false;
@@ -283,13 +320,13 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             break;
         }
         let signal = chaoscope_os::signals::received();
-        if recorder.is_none() && !producer_done && signal.is_none() && opened.try_recv().is_ok() {
+        if recorder.is_none() && !producer_done && signal.is_none() && opened {
             let mut record = child_command("record")?;
             record.args(["--run", &run, "--out"]).arg(&out);
             if force {
                 record.arg("--force");
             }
-            recorder = Some(Role::spawn("recorder", record)?);
+            recorder = Some(Role::spawn("recorder", record, &wake)?);
         }
         if let Some(signal) = signal
             && !forwarded
@@ -321,7 +358,10 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             }
             forwarded = true;
         }
-        std::thread::sleep(Duration::from_millis(50));
+        let mut first = woken.recv_timeout(chaoscope_bus::POLL_INTERVAL).ok();
+        while let Some(event) = first.take().or_else(|| woken.try_recv().ok()) {
+            opened |= matches!(event, Wake::Opened);
+        }
     }
 
     let producer_status = producer.status.expect("reaped");

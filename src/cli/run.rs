@@ -59,8 +59,9 @@ impl Role {
         let (pid, wake) = (child.id(), wake.clone());
         // Waits for the exit without reaping the child (WNOWAIT): the loop's `try_wait` reaps
         // it, so its pid stays this process's child until then and names no other process. The
-        // thread ends with the child (or at once, if the loop reaped it first: ECHILD).
-        std::thread::spawn(move || {
+        // thread ends with the child (or at once, if the loop reaped it first: ECHILD). A thread
+        // that cannot be made costs only the wake-up: the loop still polls every interval.
+        let _ = std::thread::Builder::new().spawn(move || {
             // SAFETY: waitid(2) with a zeroed siginfo_t, which it only writes.
             let mut info: libc::siginfo_t = unsafe { std::mem::zeroed() };
             while unsafe {

@@ -133,6 +133,30 @@ pub fn open_output(out: &std::path::Path, force: bool) -> Result<Output, RecordE
         .map_err(RecordError::from)
 }
 
+/// How long a recorder whose producer died goes on cleaning up after it.
+const DEAD_PRODUCER_CLEANUP: Duration = Duration::from_secs(1);
+
+/// Removes the dead producer of `run` from the bus: cleans up until its node is gone, for at
+/// most [`DEAD_PRODUCER_CLEANUP`]. One cleanup is not always enough: another process may be
+/// cleaning that node at the same moment (every process cleans up dead nodes when it starts),
+/// and then ours skips it and the node is still listed, dead, when the recorder has exited.
+/// A full test suite saw it once (`kill_9_of_the_producer_makes_the_recorder_finalize_an_
+/// interrupted_file`).
+fn remove_dead_producer(run: &str) {
+    let node = names::producer_node_name(run);
+    let start = Instant::now();
+    let mut backoff = bus::Backoff::default();
+    loop {
+        bus::cleanup_dead_nodes();
+        if bus::node_liveness(&node) == bus::Liveness::Absent
+            || start.elapsed() >= DEAD_PRODUCER_CLEANUP
+        {
+            return;
+        }
+        std::thread::sleep(backoff.interval());
+    }
+}
+
 /// Records one run to `options.out`.
 pub fn record(options: &RecordOptions) -> Result<RecordOutcome, RecordError> {
     let output = open_output(&options.out, options.force)?;
@@ -224,7 +248,7 @@ pub fn record(options: &RecordOptions) -> Result<RecordOutcome, RecordError> {
     let file_identity = output.identity()?;
     output.commit()?;
     if reason == FinalizedBy::ProducerDied {
-        bus::cleanup_dead_nodes();
+        remove_dead_producer(&run);
     }
     Ok(RecordOutcome {
         run,

@@ -8,9 +8,17 @@ The bindings must give what the command gives, so the tests run the real binary 
 import json
 import os
 import pathlib
+import signal
 import subprocess
 
 import pytest
+
+# The interrupt tests signal the processes they start with SIGINT. A pytest started with SIGINT
+# ignored (the background job of a shell without job control) passes that on, and they keep
+# ignoring it: each such test fails as a process that never stopped. A handler here makes every
+# child start with SIGINT's default action (exec resets handlers; it keeps what is ignored).
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 REPO = pathlib.Path(__file__).resolve().parents[2]
 

@@ -19,6 +19,24 @@ use prost::Message;
 
 pub const CHAOSCOPE: &str = env!("CARGO_BIN_EXE_chaoscope");
 
+/// Takes SIGINT's default action back in every test process that includes this module, before
+/// the harness starts a thread.
+/// The tests signal the commands they start with SIGINT, and a process started with SIGINT
+/// ignored (the background job of a shell without job control: `cargo test ... &` in a script)
+/// passes that on to every command it starts, which then keeps ignoring it (as it must:
+/// docs/src/commands.md). Every test that interrupts a command failed so, each as "did not stop
+/// on SIGINT", naming neither cause nor cure. Run from `.init_array`, as the C runtime runs
+/// constructors: before `main`, so before any test.
+#[used]
+#[unsafe(link_section = ".init_array")]
+static SIGINT_DEFAULT_BEFORE_THE_TESTS: extern "C" fn() = {
+    extern "C" fn sigint_default() {
+        // SAFETY: signal(2) with SIG_DFL, in the one thread the process has before `main`.
+        unsafe { libc::signal(libc::SIGINT, libc::SIG_DFL) };
+    }
+    sigint_default
+};
+
 /// A short run on the paper's chaotic Henon-Heiles orbit: k = 3, two sets, VM and MPM with QR
 /// (t_final, tau as given).
 pub fn hh_config(t_final: f64, tau: f64) -> RunConfig {

@@ -18,6 +18,7 @@ use chaoscope_dynamics::integrator::SplittingScheme;
 use chaoscope_dynamics::model::{At, HenonHeiles, SeparableHamiltonian};
 use chaoscope_dynamics::spec::RunSpec;
 use chaoscope_files::map_file::read_map_file;
+use chaoscope_indicators::StretchSums;
 use chaoscope_schemas::config::RunConfig;
 use chaoscope_schemas::proto::MapPoint;
 
@@ -143,24 +144,26 @@ fn chaoscope_energy_error(points: &[MapPoint], step: (&str, f64)) -> anyhow::Res
 /// method of a run, at the step that holds the workload's energy error.
 const SECOND_STEP: (&str, f64) = ("aba864", 0.01);
 
-/// The MLE at [`T_FINAL`] of the point `x0` by the one-orbit engine with `step`: the mean of
-/// the logarithms of its tangent vector's stretching factors over the renormalizations.
+/// The MLE at [`T_FINAL`] of the point `x0` by the one-orbit engine with `step`: its tangent
+/// vector's stretching factors over the renormalizations (those carried with each sample, then
+/// its own), summed as the analysis sums them.
 fn one_orbit_mle(x0: &[f64], step: (&str, f64)) -> anyhow::Result<f64> {
-    let (mut log_sum, mut t) = (0.0, 0.0);
+    let (mut sums, mut t) = (StretchSums::new(1), 0.0);
     each_sample(x0, step, |sample| {
         if sample.seq > 0 {
             let set = &sample.schemes[0];
-            log_sum += set
+            for stretch in set
                 .earlier_stretch
-                .iter()
-                .chain(&set.stretch)
-                .map(|s| s.ln())
-                .sum::<f64>();
+                .chunks_exact(1)
+                .chain([&set.stretch[..]])
+            {
+                sums.add(stretch);
+            }
         }
         t = sample.t;
     })?;
     anyhow::ensure!(t > 0.0, "the one-orbit run of {x0:?} took no step");
-    Ok(log_sum / t)
+    Ok(sums.mle(t))
 }
 
 /// `chaoscope map` of the workload in `dir`: (CPU seconds of the child, its JSON summary, the

@@ -359,8 +359,8 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
             }
             forwarded = true;
         }
-        let mut first = woken.recv_timeout(chaoscope_bus::POLL_INTERVAL).ok();
-        while let Some(event) = first.take().or_else(|| woken.try_recv().ok()) {
+        let first = woken.recv_timeout(chaoscope_bus::POLL_INTERVAL).into_iter();
+        for event in first.chain(woken.try_iter()) {
             opened |= matches!(event, Wake::Opened);
         }
     }

@@ -28,6 +28,7 @@ use rayon::prelude::*;
 use crate::batch::{PointKernel, Soa};
 use crate::integrator::{TangentError, Workspace};
 use crate::method::{self, DeviationMethod};
+use crate::model::KernelBuild;
 use crate::system::DynamicalSystem;
 use crate::window::{self, Window};
 use chaoscope_schemas::run::{Route, Sample, SchemeSample};
@@ -668,9 +669,24 @@ fn prepare(spec: &RunSpec, tasks: &[DeviationSet], from: u64) {
     if tasks.iter().any(|t| t.stepping == Stepping::Fused) {
         let steps = spec.total_steps().saturating_sub(from);
         if let Some(pass) = spec.system().reference_tangent() {
-            pass.prepare(steps.saturating_mul(spec.dim() as u64));
+            pass.prepare(
+                steps.saturating_mul(spec.dim() as u64),
+                KernelBuild::Background,
+            );
         }
     }
+}
+
+/// Whether a run of `spec` will step its reference in the system's fused pass, carried by its
+/// first set of tangent vectors ([`carrier`]): what the resource estimate times then.
+pub(crate) fn carries_the_reference(spec: &RunSpec) -> bool {
+    let divergence = spec.system().divergence(spec.x0(), 0.0).is_some();
+    !divergence
+        && Stepping::of(spec).for_lanes(spec.k()) == Stepping::Fused
+        && spec
+            .schemes()
+            .iter()
+            .any(|s| s.route == Route::PerSet && !method::of(s.method).lanes_are_orbits())
 }
 
 /// The task that carries the reference (see the module documentation): the first set of

@@ -25,7 +25,9 @@ use std::time::{Duration, Instant};
 use crate::batch::Isa;
 use crate::integrator::Workspace;
 use crate::map::{Batching, MapOptions, MapRoute, MapSpec};
+use crate::model::KernelBuild;
 use crate::system::DynamicalSystem;
+use chaoscope_expr::potential::uncounted;
 use chaoscope_schemas::run::{Method, Route};
 
 use crate::spec::RunSpec;
@@ -138,6 +140,13 @@ pub struct Calibration {
     /// One tangent vector advanced one step beside its orbit (the variational method), beyond
     /// that orbit's own step; 0 when no scheme uses it.
     pub ns_per_tangent_step: f64,
+    /// One lane (the orbit's copy or a tangent vector) of a set advanced one step in the
+    /// system's fused pass ([`crate::system::ReferenceTangent::steps`]), where the run's sets
+    /// of tangent vectors take it and the first carries the reference: the kernels the run
+    /// will have at its start (C ones in the kernel cache, else the Cranelift pass it runs
+    /// while their build is under way). A run whose every task takes the pass times nothing
+    /// else: its orbit-step and tangent-step costs are then this one.
+    pub ns_per_fused_lane_step: Option<f64>,
     /// Wall-clock time the calibration took.
     pub seconds_spent: f64,
 }
@@ -219,6 +228,7 @@ pub fn section(spec: &RunSpec, orbits: usize, crossings: usize, machine: &Machin
         vm: 0,
         propagator_mpm: 0,
         propagator_vm: 0,
+        carried: false,
     };
     let calibration = calibrate_run(spec, &reference_only);
     estimate.seconds = orbitsf * steps * calibration.ns_per_orbit_step * ENGINE_OVERHEAD * 1e-9;
@@ -239,6 +249,9 @@ struct RunSizes {
     vm: usize,
     propagator_mpm: usize,
     propagator_vm: usize,
+    /// The per-set VM sets step in the system's fused pass, the first carrying the reference
+    /// ([`crate::engine::carries_the_reference`]).
+    carried: bool,
 }
 
 impl RunSizes {
@@ -265,6 +278,7 @@ impl RunSizes {
             vm: count(Method::Vm, Route::PerSet),
             propagator_mpm: count(Method::Mpm, Route::WindowPropagator),
             propagator_vm: count(Method::Vm, Route::WindowPropagator),
+            carried: crate::engine::carries_the_reference(spec),
         }
     }
 
@@ -325,7 +339,21 @@ impl RunSizes {
         let sample_ns = SAMPLE_NS + SAMPLE_NS_PER_VALUE * sample_values;
         let seconds = calibration.map_or(0.0, |c| {
             let task_ns = orbits * c.ns_per_orbit_step + tangents * c.ns_per_tangent_step;
-            (self.steps * (c.ns_per_orbit_step + task_ns / cores as f64) * ENGINE_OVERHEAD
+            // The reference's own steps, then the tasks' over the cores; where the VM sets take
+            // the fused pass, the first of them carries the reference (in place of its steps,
+            // before the others) and every such set steps its orbit's copy and `k` vectors as
+            // `1 + k` lanes of the pass.
+            let (serial_ns, task_ns) = match c.ns_per_fused_lane_step {
+                Some(lane_ns) if self.carried => {
+                    let fused_sets = (self.vm * self.sets) as f64;
+                    let set_ns = (1.0 + kf) * lane_ns;
+                    let others =
+                        task_ns - fused_sets * (c.ns_per_orbit_step + kf * c.ns_per_tangent_step);
+                    (set_ns, (fused_sets - 1.0) * set_ns + others.max(0.0))
+                }
+                _ => (c.ns_per_orbit_step, task_ns),
+            };
+            (self.steps * (serial_ns + task_ns / cores as f64) * ENGINE_OVERHEAD
                 + self.samples * sample_ns)
                 * 1e-9
         });
@@ -401,10 +429,27 @@ fn ns_per_call(mut call: impl FnMut()) -> f64 {
 }
 
 /// Steps the run's own system from its initial state: the reference (or a nearby orbit) alone,
-/// and, if a scheme uses the variational method, with tangent vectors beside it. A state that
-/// stops being finite (an escaping orbit, growing tangent vectors) starts over from `x0`.
+/// and, if a scheme uses the variational method, with tangent vectors beside it; where the VM
+/// sets take the fused pass and carry the reference ([`RunSizes::carried`]), that pass, and the
+/// rest only if some task steps otherwise. A state that stops being finite (an escaping orbit,
+/// growing tangent vectors) starts over from `x0`.
 fn calibrate_run(spec: &RunSpec, sizes: &RunSizes) -> Calibration {
     let start = Instant::now();
+    let fused = if sizes.carried {
+        ns_per_fused_lane_step(spec)
+    } else {
+        None
+    };
+    if let Some(lane_ns) = fused
+        && sizes.mpm + sizes.propagator_mpm + sizes.propagator_vm == 0
+    {
+        return Calibration {
+            ns_per_orbit_step: lane_ns,
+            ns_per_tangent_step: lane_ns,
+            ns_per_fused_lane_step: fused,
+            seconds_spent: start.elapsed().as_secs_f64(),
+        };
+    }
     let system: &dyn DynamicalSystem = spec.system().as_ref();
     let x0 = spec.x0();
     let dim = x0.len();
@@ -425,20 +470,13 @@ fn calibrate_run(spec: &RunSpec, sizes: &RunSizes) -> Calibration {
             sizes.k
         }
         .clamp(1, 4);
-        let unit = |w: &mut [f64]| {
-            w.fill(0.0);
-            for j in 0..m {
-                w[j * dim + j % dim] = 1.0;
-            }
-        };
-        let mut w = vec![0.0; m * dim];
-        unit(&mut w);
+        let mut w = unit_vectors(m, dim);
         x.copy_from_slice(x0);
         let ns = ns_per_call(|| {
             let ok = system.step_tangent(&mut x, &mut w, 0.0, &mut work).is_ok();
             if !ok || !x.iter().chain(&w).all(|v| v.is_finite() && v.abs() < 1e100) {
                 x.copy_from_slice(x0);
-                unit(&mut w);
+                w = unit_vectors(m, dim);
             }
         });
         ((ns - ns_per_orbit_step) / m as f64).max(0.0)
@@ -448,8 +486,52 @@ fn calibrate_run(spec: &RunSpec, sizes: &RunSizes) -> Calibration {
     Calibration {
         ns_per_orbit_step,
         ns_per_tangent_step,
+        ns_per_fused_lane_step: fused,
         seconds_spent: start.elapsed().as_secs_f64(),
     }
+}
+
+/// `m` unit vectors of dimension `dim`, one after the other (the `j`-th along axis `j`).
+fn unit_vectors(m: usize, dim: usize) -> Vec<f64> {
+    let mut w = vec![0.0; m * dim];
+    for j in 0..m {
+        w[j * dim + j % dim] = 1.0;
+    }
+    w
+}
+
+/// Steps of the fused pass per timed call: enough to make the call's own cost (the kernel's
+/// gathers of its lanes) as small beside them as in a run's windows of many steps.
+const FUSED_STEPS_PER_CALL: u64 = 64;
+
+/// Nanoseconds per lane-step of the system's fused pass (an orbit and up to 4 tangent vectors,
+/// `1 + m` lanes, stepped together) with the kernels the run will have at its start: those in
+/// the kernel cache, else the pass compiled at once where the run is long enough for it, never
+/// a build ([`KernelBuild::CacheOnly`]); uncounted, so the calls move no kernel switch. `None`
+/// where the pass does not run now (a run too short for it).
+fn ns_per_fused_lane_step(spec: &RunSpec) -> Option<f64> {
+    let pass = spec.system().reference_tangent()?;
+    let x0 = spec.x0();
+    let dim = x0.len();
+    pass.prepare(
+        spec.total_steps().saturating_mul(dim as u64),
+        KernelBuild::CacheOnly,
+    );
+    let m = spec.k().clamp(1, 4);
+    let (mut x, mut v) = (x0.to_vec(), unit_vectors(m, dim));
+    let steps =
+        |x: &mut [f64], v: &mut [f64]| uncounted(|| pass.steps(x, v, 0, FUSED_STEPS_PER_CALL));
+    if !steps(&mut x, &mut v) {
+        return None;
+    }
+    let ns = ns_per_call(|| {
+        let ok = steps(&mut x, &mut v);
+        if !ok || !x.iter().chain(&v).all(|v| v.is_finite() && v.abs() < 1e100) {
+            x.copy_from_slice(x0);
+            v = unit_vectors(m, dim);
+        }
+    });
+    Some(ns / (FUSED_STEPS_PER_CALL * (1 + m as u64)) as f64)
 }
 
 /// Estimate of a validated map on the instruction set the map will use: `points` grid points
@@ -482,6 +564,7 @@ pub fn map_on(
             calibrate_map(spec, isa, &probe.inside).unwrap_or(Calibration {
                 ns_per_orbit_step: MAP_NS_PER_DIM * dimf,
                 ns_per_tangent_step: 0.0,
+                ns_per_fused_lane_step: None,
                 seconds_spent: 0.0,
             }),
         )
@@ -648,7 +731,7 @@ fn calibrate_map(spec: &MapSpec, isa: Isa, inside: &[u64]) -> Option<Calibration
         run: spec.run.truncated(total.min(2)),
         ..spec.clone()
     };
-    chaoscope_expr::potential::uncounted(|| batching.compute(&warm, isa, &indices, &|| false));
+    uncounted(|| batching.compute(&warm, isa, &indices, &|| false));
     let (start, budget) = (Instant::now(), Timing::start());
     let (mut steps, mut timings, mut least) = (total.min(8), 0, f64::INFINITY);
     loop {
@@ -658,9 +741,7 @@ fn calibrate_map(spec: &MapSpec, isa: Isa, inside: &[u64]) -> Option<Calibration
         };
         let t = Timing::start();
         // Uncounted: the map's C-kernel switch and its call counts see only the map's calls.
-        let results = chaoscope_expr::potential::uncounted(|| {
-            batching.compute(&short, isa, &indices, &|| false)
-        });
+        let results = uncounted(|| batching.compute(&short, isa, &indices, &|| false));
         let elapsed = t.elapsed();
         let orbit_steps: u64 = results.iter().map(|r| r.orbit_steps).sum();
         if orbit_steps == 0 {
@@ -679,6 +760,7 @@ fn calibrate_map(spec: &MapSpec, isa: Isa, inside: &[u64]) -> Option<Calibration
             return Some(Calibration {
                 ns_per_orbit_step: least,
                 ns_per_tangent_step: 0.0,
+                ns_per_fused_lane_step: None,
                 seconds_spent: start.elapsed().as_secs_f64(),
             });
         }
@@ -881,6 +963,69 @@ tau = 1.0
             assert!(e.seconds > 86_400.0, "{e:?}");
             assert!(e.refusal(&TWO_CORES).is_some());
         }
+    }
+
+    /// The DKG chain of `examples/models` at 200 sites to t = 50000 (10^6 ABA864 steps), with
+    /// `schemes` appended.
+    fn dkg_chain(k: usize, schemes: &str) -> RunSpec {
+        let text = include_str!("../../examples/models/dkg-single-site.toml")
+            .replace("n = 1000\n", "n = 200\n")
+            .replace("sites = 500,", "sites = 100,")
+            .replace("t_final = 5000.0", "t_final = 50000.0")
+            .replace("k = 2\n", &format!("k = {k}\n"));
+        RunSpec::from_config(&RunConfig::from_toml(&format!("{text}{schemes}")).unwrap()).unwrap()
+    }
+
+    /// A lattice run whose VM set takes the fused pass and carries the reference is timed on
+    /// that pass, not on separate orbit and tangent steps (about 15x slower: the estimate of
+    /// this very run said 14 s for a run of 0.8 s of CPU time): its steps cost `1 + k` lanes of
+    /// the pass, the reference nothing beside them. A second scheme of nearby orbits (MPM)
+    /// steps one orbit at a time, so the one-orbit costs are timed too, and its orbits added.
+    #[test]
+    fn a_run_carried_by_the_fused_pass_is_timed_on_it() {
+        let spec = dkg_chain(1, "");
+        assert!(crate::engine::carries_the_reference(&spec));
+        let e = run(&spec, &TWO_CORES, &BUS);
+        let c = e.calibration.unwrap();
+        let lane = c.ns_per_fused_lane_step.expect("the fused pass is timed");
+        assert_eq!((c.ns_per_orbit_step, c.ns_per_tangent_step), (lane, lane));
+        let sizes = RunSizes::of(&spec);
+        let sample_ns = SAMPLE_NS + SAMPLE_NS_PER_VALUE * (400.0 + 401.0);
+        let want = (1e6 * 2.0 * lane * ENGINE_OVERHEAD + sizes.samples * sample_ns) * 1e-9;
+        assert!(
+            (e.seconds - want).abs() < 1e-9 * want,
+            "{} s, want {want} s",
+            e.seconds
+        );
+
+        let mpm = "[[scheme]]\nname = \"mpm\"\nmethod = \"mpm\"\nd0 = 1e-8\ntau = 10.0\n";
+        let both = dkg_chain(1, mpm);
+        let e = run(&both, &TWO_CORES, &BUS);
+        let c = e.calibration.unwrap();
+        let lane = c.ns_per_fused_lane_step.expect("the fused pass is timed");
+        assert!(
+            c.ns_per_orbit_step != lane,
+            "the one-orbit step is timed: {c:?}"
+        );
+        // The carrier first, then the MPM set's one nearby orbit on the second core.
+        let sizes = RunSizes::of(&both);
+        let sample_ns = SAMPLE_NS + SAMPLE_NS_PER_VALUE * (400.0 + 2.0 * 401.0);
+        let want = (1e6 * (2.0 * lane + c.ns_per_orbit_step / 2.0) * ENGINE_OVERHEAD
+            + sizes.samples * sample_ns)
+            * 1e-9;
+        assert!(
+            (e.seconds - want).abs() < 1e-9 * want,
+            "{} s, want {want} s",
+            e.seconds
+        );
+
+        // Nearby orbits alone: nothing carries the reference.
+        let text = include_str!("../../examples/models/dkg-single-site.toml")
+            .replace("method = \"vm\"", "method = \"mpm\"");
+        let spec = RunSpec::from_config(&RunConfig::from_toml(&text).unwrap()).unwrap();
+        assert!(!crate::engine::carries_the_reference(&spec));
+        let c = run(&spec, &TWO_CORES, &BUS).calibration.unwrap();
+        assert_eq!(c.ns_per_fused_lane_step, None);
     }
 
     /// The Henon-Heiles section map of the paper (MLE, VM, k = 1, one set) on an 8 x 6 grid whose

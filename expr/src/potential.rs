@@ -68,7 +68,7 @@ use crate::lattice::{ARG_Q, ARG_V};
 mod kernel_switch;
 
 use kernel_switch::{CANCEL_GRACE, CSteps};
-pub use kernel_switch::{CStepState, CStepStatus, uncounted};
+pub use kernel_switch::{CStepState, CStepStatus, KernelBuild, uncounted};
 
 /// The time's argument array (one entry): beyond those of the lattice loops
 /// ([`crate::lattice::ARG_SUM`] and below), so a graph holding a failed loop attempt's slot

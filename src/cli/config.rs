@@ -50,6 +50,7 @@ pub fn main(args: Args) -> anyhow::Result<ExitCode> {
         "calibration": estimate.calibration.map(|c| serde_json::json!({
             "ns_per_orbit_step": c.ns_per_orbit_step,
             "ns_per_tangent_step": c.ns_per_tangent_step,
+            "ns_per_fused_lane_step": c.ns_per_fused_lane_step,
             "seconds_spent": c.seconds_spent,
         })),
         "refused_without_force": refusal,

@@ -4,7 +4,7 @@
 //! An [`At`] without lane parameters evaluates at the compiled model's own placeholder values
 //! (its `*_at` functions), one with them at those values (its `*_with` functions).
 
-use chaoscope_expr::potential::ExpressionModel;
+use chaoscope_expr::potential::{ExpressionModel, KernelBuild};
 
 use super::{At, SeparableHamiltonian};
 
@@ -73,8 +73,8 @@ impl SeparableHamiltonian for ExpressionModel {
         ExpressionModel::lane_params(self)
     }
 
-    fn prepare_reference_tangent(&self, work: u64) {
-        ExpressionModel::prepare_reference_tangent(self, work)
+    fn prepare_reference_tangent(&self, work: u64, build: KernelBuild) {
+        ExpressionModel::prepare_reference_tangent(self, work, build)
     }
 
     fn reference_tangent_steps(

@@ -18,7 +18,7 @@ mod sin_cos;
 
 /// `[model] name = "potential"`: compiled by `chaoscope-expr`; `expression.rs` makes it a [`SeparableHamiltonian`].
 pub use chaoscope_expr::potential::{
-    CStepState, CStepStatus, ExpressionModel, PotentialDefinition, PotentialError,
+    CStepState, CStepStatus, ExpressionModel, KernelBuild, PotentialDefinition, PotentialError,
     SQUARE_LOOPS_FROM_SIDE,
 };
 pub use ddnls::{Ddnls, DdnlsLattice};
@@ -166,10 +166,10 @@ pub trait SeparableHamiltonian: std::any::Any + Send + Sync {
     /// A run of `work` state-value steps (steps times `2N`) will ask
     /// [`SeparableHamiltonian::reference_tangent_steps`] to step its small sets: build what that needs, where
     /// it repays (a `potential` whose lattice sums are loops asks for the Cranelift kernels'
-    /// fused pass and starts its C kernels' build in the background). Nothing for every other
-    /// model.
-    fn prepare_reference_tangent(&self, work: u64) {
-        let _ = work;
+    /// fused pass and starts its C kernels' build in the background, as far as `build`
+    /// allows). Nothing for every other model.
+    fn prepare_reference_tangent(&self, work: u64, build: KernelBuild) {
+        let _ = (work, build);
     }
 
     /// `n_steps` steps of a splitting (its coefficients times `h`) for the state `x` (`q, p`)

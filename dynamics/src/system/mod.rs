@@ -51,6 +51,7 @@ use chaoscope_schemas::run::SystemClass;
 
 use crate::batch::{Isa, PointKernel};
 use crate::integrator::{TangentError, Workspace};
+use crate::model::KernelBuild;
 
 /// How much |x| must grow, from the start of a step whose adaptive substeps collapsed to the
 /// last state they reached, for the collapse to be the solution's blow-up (an escape) rather
@@ -255,9 +256,9 @@ pub trait AdaptiveSteps {
 /// A fused pass of the orbit and a small set of tangent vectors ([`DynamicalSystem::reference_tangent`]).
 pub trait ReferenceTangent {
     /// A run of `work` state-value steps (steps times the dimension) will call
-    /// [`ReferenceTangent::steps`]: build what it needs, where that repays.
-    fn prepare(&self, work: u64) {
-        let _ = work;
+    /// [`ReferenceTangent::steps`]: build what it needs, where that repays and `build` allows.
+    fn prepare(&self, work: u64, build: KernelBuild) {
+        let _ = (work, build);
     }
 
     /// `steps` steps, the first of them step number `from`, of the orbit `x` and the tangent

@@ -7,7 +7,7 @@ use chaoscope_schemas::run::SystemClass;
 use super::{DynamicalSystem, ReferenceTangent, Time};
 use crate::batch::{self, AnyLaneModel, Isa, LaneHamiltonian, PointKernel, Soa, StepCoeffs};
 use crate::integrator::{Integrator, Splitting, TangentError, Workspace};
-use crate::model::{At, SeparableHamiltonian, WithParams};
+use crate::model::{At, KernelBuild, SeparableHamiltonian, WithParams};
 
 /// `H = T(p) + V(q)` stepped by a splitting with fixed step `h`; its tangent map is the
 /// splitting's own (`Splitting::step_tangent`), the variational equations of the discrete map.
@@ -217,8 +217,8 @@ impl DynamicalSystem for SplitHamiltonian {
 }
 
 impl ReferenceTangent for SplitHamiltonian {
-    fn prepare(&self, work: u64) {
-        self.model.prepare_reference_tangent(work);
+    fn prepare(&self, work: u64, build: KernelBuild) {
+        self.model.prepare_reference_tangent(work, build);
     }
 
     fn steps(&self, x: &mut [f64], v: &mut [f64], _from: u64, steps: u64) -> bool {

@@ -22,6 +22,17 @@ use crate::lattice::LatticePotential;
 /// (8e-9 s: the DKG chain at 1000 sites, one vector; 1.4e-8 s on the 2-D lattice at 64 x 64).
 const MIN_CRANELIFT_FUSED_WORK: u64 = 50_000_000;
 
+/// What [`ExpressionModel::prepare_reference_tangent`] may do about the C kernels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum KernelBuild {
+    /// Start their build in the background where the run repays it (the run itself).
+    Background,
+    /// Load them where the kernel cache has them, never build: a resource estimate times the
+    /// pass its run will take without paying for a compiler (the Cranelift pass, slower, until
+    /// a first run has left the C kernels in the cache).
+    CacheOnly,
+}
+
 /// Longest a dropped model waits for its cancelled C build's thread to end.
 pub(super) const CANCEL_GRACE: Duration = Duration::from_millis(500);
 
@@ -271,15 +282,19 @@ impl ExpressionModel {
         if self.0.reads_time || self.0.lane_params > 0 || !matches!(self.0.form, Form::Lattice(_)) {
             return false;
         }
-        if UNCOUNTED.get() {
-            return false;
-        }
         let c = &self.0.c_steps;
         // The C kernels once ready, wherever a run started their build or found them in the
         // cache (`prepare_reference_tangent`); else (building, failed, cancelled, none)
         // Cranelift's, for a run long enough to repay their build; else the one-orbit way.
+        // An uncounted call takes what is ready now, the test hook aside.
+        let uncounted = UNCOUNTED.get();
         let ready_c = if c.started.is_completed() {
-            self.c_kernels_for_this_call().and_then(|r| r.as_ref().ok())
+            let result = if uncounted {
+                c.result.get()
+            } else {
+                self.c_kernels_for_this_call()
+            };
+            result.and_then(|r| r.as_ref().ok())
         } else {
             None
         };
@@ -296,7 +311,9 @@ impl ExpressionModel {
         if !k.has_reference_tangent() {
             return false;
         }
-        calls.fetch_add(1, Ordering::Relaxed);
+        if !uncounted {
+            calls.fetch_add(1, Ordering::Relaxed);
+        }
         k.reference_tangent_steps(x, v, n_steps, drift, kick, self.inverse_masses())
     }
 
@@ -317,8 +334,8 @@ impl ExpressionModel {
     /// [`Self::reference_tangent_steps`]: where the potential has that kernel, the Cranelift
     /// one is wanted if the run is long enough to repay its build ([`MIN_CRANELIFT_FUSED_WORK`]),
     /// and the C kernels' build starts in the background if it is long enough to repay theirs
-    /// ([`super::min_fused_work`]); else they are loaded if in the cache.
-    pub fn prepare_reference_tangent(&self, work: u64) {
+    /// ([`super::min_fused_work`]) and `build` allows it; else they are loaded if in the cache.
+    pub fn prepare_reference_tangent(&self, work: u64, build: KernelBuild) {
         let has_kernel = !self.0.reads_time
             && self.0.lane_params == 0
             && self.0.c2
@@ -341,10 +358,11 @@ impl ExpressionModel {
             Form::Lattice(l) => l.sums.first().and_then(|s| s.side),
             _ => None,
         };
-        if work >= super::min_fused_work(side) {
+        if build == KernelBuild::Background && work >= super::min_fused_work(side) {
             self.start_c_build();
         } else {
-            self.load_cached_c_kernels();
+            // The estimate's load leaves saying why an entry is unusable to the run's.
+            self.load_cached_c_kernels(build == KernelBuild::Background);
         }
     }
 
@@ -352,8 +370,8 @@ impl ExpressionModel {
     /// them in the cache (the kernels of one potential serve every `N`: neither the source nor
     /// the cache key holds it), loaded here at once; a miss changes nothing (no build, and a
     /// later batched call may still start one), and neither does a cache that cannot be used
-    /// (a build would say why).
-    pub(super) fn load_cached_c_kernels(&self) {
+    /// (a build would say why; an unusable entry is named on stderr if `say_why`).
+    pub(super) fn load_cached_c_kernels(&self, say_why: bool) {
         let c = &self.0.c_steps;
         let Form::Lattice(lattice) = &self.0.form else {
             return;
@@ -367,7 +385,7 @@ impl ExpressionModel {
         let started = Instant::now();
         let kernels = match jit::load_lattice_steps_c(&self.0.graph, lattice, &cc) {
             Ok(kernels) => kernels,
-            Err(e @ jit::JitError::CacheEntry(_)) => {
+            Err(e @ jit::JitError::CacheEntry(_)) if say_why => {
                 // Not `eprintln!` (see `CSteps::build`).
                 let _ = writeln!(
                     std::io::stderr(),
@@ -550,10 +568,11 @@ thread_local! {
     static UNCOUNTED: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
 }
 
-/// Runs `f` with this thread's step-kernel calls served by the Cranelift kernels, neither
-/// counted nor starting the C build. The resource estimate times a few steps of a map before
-/// the map starts: those calls must not move the C-kernel switch (its test hook counts calls)
-/// nor show in the map's call counts, and how many there are depends on the wall clock.
+/// Runs `f` with this thread's step-kernel calls neither counted nor starting the C build:
+/// batched calls are served by the Cranelift kernels, fused passes by the kernels ready now.
+/// The resource estimate times a few steps of a map or a run before it starts: those calls
+/// must not move the C-kernel switch (its test hook counts calls) nor show in the call counts,
+/// and how many there are depends on the wall clock.
 pub fn uncounted<R>(f: impl FnOnce() -> R) -> R {
     struct Reset(bool);
     impl Drop for Reset {
